@@ -1,0 +1,1 @@
+"""The ``opendnc`` command line (typer + rich)."""

@@ -1,0 +1,87 @@
+"""The exception tree of opendnc.
+
+Every error this package raises on purpose derives from :class:`DncError`::
+
+    DncError
+    ├── TransportError            cannot connect, port vanished, I/O failed
+    │   ├── TransportTimeout      no answer in time
+    │   └── PeerClosed            the other side closed the link
+    ├── ProtocolError
+    │   ├── LocalProtocolError    the caller misused an engine (a bug on our side)
+    │   └── RemoteProtocolError   the peer sent malformed or unexpected bytes
+    │       └── ChecksumError     a block check failed
+    ├── ControlRefused            a well-formed "no" from the control (LSV2 T_ER/T_BD, ...)
+    ├── SafetyLockError           a machine-changing action without the explicit opt-in
+    ├── TransferError             a file transfer failed after its retries
+    └── InputError                a local file or argument is unusable
+
+``OSError``, ``serial.SerialException`` and asyncio timeouts are translated into this tree
+at the transport boundary, so callers only ever catch ``DncError`` subclasses.
+"""
+
+from __future__ import annotations
+
+
+class DncError(Exception):
+    """Base of everything opendnc raises on purpose."""
+
+
+class TransportError(DncError):
+    """The link could not be opened, or failed while in use."""
+
+
+class TransportTimeout(TransportError):
+    """No data arrived within the allowed time."""
+
+
+class PeerClosed(TransportError):
+    """The peer closed the connection."""
+
+
+class ProtocolError(DncError):
+    """Bytes on the wire do not follow the protocol."""
+
+
+class LocalProtocolError(ProtocolError):
+    """The caller asked an engine for something the protocol does not allow now."""
+
+
+class RemoteProtocolError(ProtocolError):
+    """The peer sent malformed, truncated or unexpected data."""
+
+
+class ChecksumError(RemoteProtocolError):
+    """A block check character, checksum or CRC did not match."""
+
+
+class ControlRefused(DncError):
+    """The control answered a request with a well-formed refusal.
+
+    ``code`` is the protocol's error number and ``text`` its readable meaning.
+    """
+
+    def __init__(self, code: int, text: str = "", *, context: str = "") -> None:
+        self.code = code
+        self.text = text
+        self.context = context
+        detail = f"{text} ({code})" if text else f"error {code}"
+        super().__init__(f"{context}: {detail}" if context else detail)
+
+
+class SafetyLockError(DncError):
+    """A machine-changing action was requested while safe mode is on."""
+
+    def __init__(self, action: str) -> None:
+        self.action = action
+        super().__init__(
+            f"{action} can change machine behaviour and is locked: "
+            "turn safe mode off explicitly (safe_mode=False / --unsafe) to allow it"
+        )
+
+
+class TransferError(DncError):
+    """A file transfer did not complete (retries exhausted, cancelled, aborted)."""
+
+
+class InputError(DncError):
+    """A local file, path or argument cannot be used as given."""

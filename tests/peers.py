@@ -1,0 +1,38 @@
+"""Finding third-party test peers: skipped on a developer machine, a failure under CI=true."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import shutil
+from types import ModuleType
+
+import pytest
+
+IN_CI = os.environ.get("CI", "").lower() in {"1", "true", "yes"}
+
+
+def missing_peer(what: str) -> None:
+    """Skip (locally) or fail (in CI) because the peer ``what`` is not installed."""
+    message = f"test peer not available: {what}"
+    if IN_CI:
+        pytest.fail(message + " (CI=true: a missing peer is a failure)")
+    pytest.skip(message)
+
+
+def require_command(name: str) -> str:
+    """Return the path of command ``name`` or skip/fail."""
+    path = shutil.which(name)
+    if path is None:
+        missing_peer(f"command {name!r}")
+        raise AssertionError("unreachable")
+    return path
+
+
+def require_module(name: str) -> ModuleType:
+    """Import and return module ``name`` or skip/fail."""
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        missing_peer(f"python module {name!r}")
+        raise AssertionError("unreachable") from None
