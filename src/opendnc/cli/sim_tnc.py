@@ -1,0 +1,11 @@
+"""`opendnc sim tnc`."""
+
+from __future__ import annotations
+
+import typer
+
+
+def tnc() -> None:
+    """(being built)"""
+    typer.echo("not built yet")
+    raise typer.Exit(2)
