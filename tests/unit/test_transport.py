@@ -1,0 +1,77 @@
+"""Transports over real loopback sockets and real ptys."""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+
+import pytest
+
+from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+from opendnc.transport import SerialStream, TcpStream
+from opendnc.transport.pty import open_pty
+
+
+@pytest.fixture
+def listener() -> socket.socket:
+    srv = socket.create_server(("127.0.0.1", 0))
+    yield srv
+    srv.close()
+
+
+def test_tcp_round_trip_and_peer_close(listener: socket.socket) -> None:
+    port = listener.getsockname()[1]
+
+    def echo_once() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            conn.sendall(conn.recv(100).upper())
+
+    thread = threading.Thread(target=echo_once)
+    thread.start()
+    stream = TcpStream("127.0.0.1", port, timeout=2)
+    stream.write(b"t_ok")
+    assert stream.read(100) == b"T_OK"
+    thread.join()
+    with pytest.raises(PeerClosed):
+        stream.read(100)
+    stream.close()
+    stream.close()
+
+
+def test_tcp_timeout_is_typed(listener: socket.socket) -> None:
+    stream = TcpStream("127.0.0.1", listener.getsockname()[1], timeout=0.1)
+    with pytest.raises(TransportTimeout):
+        stream.read(10)
+    stream.close()
+
+
+def test_tcp_refused_is_transport_error(listener: socket.socket) -> None:
+    port = listener.getsockname()[1]
+    listener.close()
+    with pytest.raises(TransportError, match=f"127.0.0.1:{port}"):
+        TcpStream("127.0.0.1", port, timeout=1)
+
+
+def test_serial_stream_over_pty() -> None:
+    pair = open_pty()
+    try:
+        stream = SerialStream(pair.slave_path, 115200, timeout=0.5)
+        os.write(pair.master_fd, b"%\nO1000\n")
+        got = b""
+        while len(got) < 8:
+            got += stream.read(64)
+        assert got == b"%\nO1000\n"
+        stream.write(b"\x06")
+        assert os.read(pair.master_fd, 10) == b"\x06"
+        with pytest.raises(TransportTimeout):
+            stream.read(1)
+        stream.close()
+    finally:
+        pair.close()
+
+
+def test_serial_bad_url_is_transport_error() -> None:
+    with pytest.raises(TransportError, match="cannot open"):
+        SerialStream("/dev/does-not-exist-opendnc")
