@@ -1,0 +1,10 @@
+"""The virtual null-modem cable: two ptys joined at a real line rate, with seeded faults.
+
+See :mod:`opendnc.sim.cable.link` for how to use it from Python and
+:mod:`opendnc.sim.cable.noise` for the fault model.
+"""
+
+from opendnc.sim.cable.link import CableStats, LaneStats, VirtualCable
+from opendnc.sim.cable.noise import LineNoise, NoiseResult
+
+__all__ = ["CableStats", "LaneStats", "LineNoise", "NoiseResult", "VirtualCable"]

@@ -1,0 +1,454 @@
+"""The virtual null-modem cable: two pseudo-terminals joined at line speed, with line faults.
+
+A pty moves bytes as fast as memory allows and ignores baud and parity, so the cable does the
+timing itself. Each direction (a "lane") is a deadline schedule on ``time.monotonic()``: a byte
+read from one master enters the line when the line is free, and is written to the other master
+exactly ``bits_per_char / baud`` seconds later. Deadlines are computed from the start of a
+chunk, never by adding up sleeps, so the average rate has no drift; waking up late only delays
+a batch, it does not slow the line. Both lanes run independently (full duplex) in one
+background thread that polls both masters.
+
+Like a real port with nobody listening, a side whose slave is not open (the pty master reports
+a hang-up) loses the bytes that arrive for it; the cable notices when the slave is opened again
+and carries on.
+
+Using the cable from Python (tests, benchmarks)::
+
+    with VirtualCable(baud=115200, noise=1e-5, drop=1e-5, seed=7) as cable:
+        sender = SerialStream(cable.path_a, 115200, timeout=2)
+        receiver = SerialStream(cable.path_b, 115200, timeout=2)
+        ...
+        print(cable.stats)          # a CableStats snapshot, live
+
+Run the cable in its own process (``opendnc sim cable``) when the code under test is CPU-bound
+in the same interpreter: the pump thread needs the GIL on time to keep its deadlines.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import select
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+
+from opendnc.errors import InputError, TransportError
+from opendnc.sim.cable.noise import LineNoise
+from opendnc.transport.pty import open_pty
+
+READ_CHUNK = 4096
+LANE_CAPACITY = 4096  # bytes a lane holds before it stops reading: the UART's FIFO + tx buffer
+BATCH_SECONDS = 0.001  # bytes due within this window go out in one write (fewer wake-ups)
+HANGUP_RECHECK = 0.005  # how often a side without an open slave is looked at again
+
+
+@dataclass(frozen=True, slots=True)
+class LaneStats:
+    """Counters of one direction."""
+
+    carried: int = 0  # bytes that went over the line (including corrupted and dropped ones)
+    delivered: int = 0  # bytes handed to the far side
+    corrupted: int = 0  # delivered bytes with at least one flipped bit
+    dropped: int = 0  # bytes the line lost (the drop rate)
+    bit_flips: int = 0  # flipped bits in delivered bytes
+    unheard: int = 0  # bytes that arrived while the far side had no slave open
+
+
+@dataclass(frozen=True, slots=True)
+class CableStats:
+    """Counters of both directions; ``a_to_b`` is what side A sent to side B."""
+
+    a_to_b: LaneStats = field(default_factory=LaneStats)
+    b_to_a: LaneStats = field(default_factory=LaneStats)
+
+    @property
+    def carried(self) -> int:
+        """Bytes carried in both directions."""
+        return self.a_to_b.carried + self.b_to_a.carried
+
+    @property
+    def corrupted(self) -> int:
+        """Corrupted bytes in both directions."""
+        return self.a_to_b.corrupted + self.b_to_a.corrupted
+
+    @property
+    def dropped(self) -> int:
+        """Dropped bytes in both directions."""
+        return self.a_to_b.dropped + self.b_to_a.dropped
+
+
+class _Side:
+    """One pty of the cable: the master we pump, and whether a user has its slave open."""
+
+    def __init__(self, name: str) -> None:
+        pair = open_pty()
+        self.name = name
+        self.fd = pair.master_fd
+        self.path = pair.slave_path
+        # The slave stays raw after we close it (termios live with the pty, measured); closing
+        # it lets the master report a hang-up whenever no user holds the slave.
+        os.close(pair.slave_fd)
+        os.set_blocking(self.fd, False)
+        self.open = False  # a user holds the slave
+        self.checked_at = 0.0
+
+    def refresh(self, now: float) -> bool:
+        """Look whether the slave is open now (the hang-up condition is level-triggered).
+
+        Returns True when the master has data to read (possibly left by a user who has just
+        closed the slave).
+        """
+        probe = select.poll()
+        probe.register(self.fd, select.POLLIN)
+        events = probe.poll(0)
+        revents = events[0][1] if events else 0
+        self.open = not revents & select.POLLHUP
+        self.checked_at = now
+        return bool(revents & select.POLLIN)
+
+
+class _Lane:
+    """One direction: bytes waiting for the line, their deadlines, and bytes waiting for write."""
+
+    def __init__(self, src: _Side, dst: _Side, char_time: float, noise: LineNoise) -> None:
+        self.src, self.dst = src, dst
+        self.char_time = char_time
+        self.noise = noise
+        self.chunks: deque[tuple[float, bytes]] = deque()  # (line start time, bytes)
+        self.head_sent = 0  # bytes of chunks[0] already off the line
+        self.queued = 0  # bytes on the line, not yet due
+        self.line_free_at = 0.0
+        self.outbuf = bytearray()  # due bytes the destination pty did not take yet
+        self.stats = _Counters()
+
+    def room(self) -> int:
+        return LANE_CAPACITY - self.queued - len(self.outbuf)
+
+    def accept(self, data: bytes, now: float) -> None:
+        """Put bytes read from the source on the line."""
+        start = max(self.line_free_at, now)
+        self.chunks.append((start, data))
+        self.line_free_at = start + len(data) * self.char_time
+        self.queued += len(data)
+        self.stats.carried += len(data)
+
+    def next_wake(self) -> float | None:
+        """When the pump should come back: a batch after the next byte, or the last byte."""
+        if not self.chunks:
+            return None
+        start, _ = self.chunks[0]
+        next_due = start + (self.head_sent + 1) * self.char_time
+        return min(next_due + BATCH_SECONDS, self.line_free_at)
+
+    def take_due(self, now: float) -> None:
+        """Move bytes whose deadline has passed through the noise into ``outbuf``."""
+        due = bytearray()
+        while self.chunks:
+            start, data = self.chunks[0]
+            done = min(len(data), int((now - start) / self.char_time + 1e-9))
+            if done <= self.head_sent:
+                break
+            due += data[self.head_sent : done]
+            if done < len(data):
+                self.head_sent = done
+                break
+            self.chunks.popleft()
+            self.head_sent = 0
+        if not due:
+            return
+        self.queued -= len(due)
+        result = self.noise.apply(bytes(due))
+        self.stats.corrupted += result.corrupted
+        self.stats.dropped += result.dropped
+        self.stats.bit_flips += result.bit_flips
+        self.outbuf += result.data
+
+    def flush(self, now: float) -> None:
+        """Write ``outbuf`` to the destination, or lose it if nobody listens there."""
+        if not self.outbuf:
+            return
+        if not self.dst.open:
+            self.dst.refresh(now)  # a user may have opened the slave since the last look
+        if not self.dst.open:
+            self.stats.unheard += len(self.outbuf)
+            self.outbuf.clear()
+            return
+        try:
+            written = os.write(self.dst.fd, self.outbuf)
+        except BlockingIOError:
+            return  # the reader is slow; POLLOUT tells us when to go on
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            self.dst.open = False
+            return
+        self.stats.delivered += written
+        del self.outbuf[:written]
+
+    @property
+    def idle(self) -> bool:
+        return not self.chunks and not self.outbuf
+
+
+@dataclass(slots=True)
+class _Counters:
+    carried: int = 0
+    delivered: int = 0
+    corrupted: int = 0
+    dropped: int = 0
+    bit_flips: int = 0
+    unheard: int = 0
+
+    def snapshot(self) -> LaneStats:
+        return LaneStats(
+            self.carried,
+            self.delivered,
+            self.corrupted,
+            self.dropped,
+            self.bit_flips,
+            self.unheard,
+        )
+
+
+class VirtualCable:
+    """Two pseudo-terminals joined like a null-modem cable at ``baud``.
+
+    Open :attr:`path_a` and :attr:`path_b` like serial ports. ``noise`` is the bit-error rate
+    per data bit, ``drop`` the probability that a byte is lost; ``seed`` makes both
+    reproducible (each direction gets its own stream of faults derived from it). ``link_a`` and
+    ``link_b`` create symlinks to the two devices, removed again by :meth:`close`.
+    Use it as a context manager, or call :meth:`start` and :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        baud: int = 115200,
+        bits_per_char: int = 10,
+        noise: float = 0.0,
+        drop: float = 0.0,
+        seed: int | None = None,
+        *,
+        link_a: str | os.PathLike[str] | None = None,
+        link_b: str | os.PathLike[str] | None = None,
+    ) -> None:
+        if baud <= 0:
+            raise InputError(f"baud must be positive, got {baud}")
+        if not 1 <= bits_per_char <= 64:
+            raise InputError(f"bits per character must be 1..64, got {bits_per_char}")
+        self.baud = baud
+        self.bits_per_char = bits_per_char
+        self.char_time = bits_per_char / baud
+        self.seed = seed
+        noise_ab = LineNoise(noise, drop, None if seed is None else f"{seed}:a>b")
+        noise_ba = LineNoise(noise, drop, None if seed is None else f"{seed}:b>a")
+        self._a = _Side("a")
+        self._b = _Side("b")
+        self._lanes = (
+            _Lane(self._a, self._b, self.char_time, noise_ab),
+            _Lane(self._b, self._a, self.char_time, noise_ba),
+        )
+        self._links: list[Path] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None  # what killed the pump, if anything
+        try:
+            for target, link in ((self._a.path, link_a), (self._b.path, link_b)):
+                if link is not None:
+                    self._make_link(Path(link), target)
+        except BaseException:
+            self._close_fds()
+            raise
+
+    @property
+    def path_a(self) -> str:
+        """Device path of side A (open it like a serial port)."""
+        return self._a.path
+
+    @property
+    def path_b(self) -> str:
+        """Device path of side B."""
+        return self._b.path
+
+    @property
+    def bytes_per_second(self) -> float:
+        """The line rate of each direction: ``baud / bits_per_char``."""
+        return self.baud / self.bits_per_char
+
+    @property
+    def stats(self) -> CableStats:
+        """A consistent snapshot of the counters of both directions."""
+        with self._lock:
+            ab, ba = self._lanes
+            return CableStats(ab.stats.snapshot(), ba.stats.snapshot())
+
+    @property
+    def running(self) -> bool:
+        """True while the pump thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> VirtualCable:
+        """Start pumping in a background thread."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="opendnc-cable", daemon=True)
+            self._thread.start()
+        return self
+
+    def wait_idle(self, timeout: float = 5.0) -> bool:
+        """Wait until nothing is on the line or waiting for a reader; False on timeout."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self._lock:
+                if all(lane.idle for lane in self._lanes):
+                    return True
+            time.sleep(0.002)
+        return False
+
+    def close(self) -> None:
+        """Stop the pump, hang up both ptys and remove the symlinks. Safe to call twice."""
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self._close_fds()
+
+    def __enter__(self) -> VirtualCable:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    # -- internals -------------------------------------------------------------------------
+
+    def _make_link(self, link: Path, target: str) -> None:
+        if link.is_symlink():
+            link.unlink()  # left over from a cable that was killed hard
+        elif link.exists():
+            raise InputError(f"{link} exists and is not a symlink; not replacing it")
+        try:
+            link.symlink_to(target)
+        except OSError as exc:
+            raise InputError(f"cannot create symlink {link}: {exc}") from exc
+        self._links.append(link)
+
+    def _close_fds(self) -> None:
+        for link in self._links:
+            with contextlib.suppress(OSError):
+                link.unlink()
+        self._links.clear()
+        for fd in (self._a.fd, self._b.fd, self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._a.fd = self._b.fd = self._wake_r = self._wake_w = -1
+
+    def _run(self) -> None:
+        try:
+            self._pump()
+        except OSError as exc:
+            self.error = TransportError(f"virtual cable stopped: {exc}")
+            raise
+
+    def _pump(self) -> None:
+        poller = select.poll()
+        poller.register(self._wake_r, select.POLLIN)
+        sides = (self._a, self._b)
+        for side in sides:
+            side.refresh(time.monotonic())
+        registered: dict[int, int] = {}
+        while not self._stop.is_set():
+            now = time.monotonic()
+            wake: float | None = None
+            for side, out_lane, in_lane in (
+                (self._a, self._lanes[0], self._lanes[1]),
+                (self._b, self._lanes[1], self._lanes[0]),
+            ):
+                recheck_due = not side.open and now - side.checked_at >= HANGUP_RECHECK
+                if recheck_due and side.refresh(now):
+                    with self._lock:
+                        self._read_side(side, out_lane, now)
+                events = 0
+                if side.open:
+                    if out_lane.room() > 0:
+                        events |= select.POLLIN
+                    if in_lane.outbuf:
+                        events |= select.POLLOUT
+                else:
+                    # a hung-up master polls as ready forever: look again in a moment instead
+                    recheck = side.checked_at + HANGUP_RECHECK
+                    wake = recheck if wake is None else min(wake, recheck)
+                if side.open and events:
+                    if registered.get(side.fd) != events:
+                        poller.register(side.fd, events)
+                        registered[side.fd] = events
+                elif side.fd in registered:
+                    poller.unregister(side.fd)
+                    del registered[side.fd]
+            for lane in self._lanes:
+                lane_wake = lane.next_wake()
+                if lane_wake is not None:
+                    wake = lane_wake if wake is None else min(wake, lane_wake)
+            ready = self._wait(poller, wake)
+            now = time.monotonic()
+            with self._lock:
+                for fd, revents in ready:
+                    if fd == self._wake_r:
+                        with contextlib.suppress(BlockingIOError):
+                            os.read(self._wake_r, 64)
+                        continue
+                    side = self._a if fd == self._a.fd else self._b
+                    lane = self._lanes[0] if side is self._a else self._lanes[1]
+                    if revents & select.POLLIN:
+                        self._read_side(side, lane, now)
+                    elif revents & (select.POLLHUP | select.POLLERR):
+                        # hung up with nothing left to read (or no room to read it yet: the
+                        # recheck of a closed side picks that up later)
+                        side.open = False
+                        side.checked_at = now
+                for lane in self._lanes:
+                    lane.take_due(now)
+                    lane.flush(now)
+
+    def _wait(self, poller: select.poll, wake: float | None) -> list[tuple[int, int]]:
+        if wake is None:
+            return poller.poll(None)
+        remaining = wake - time.monotonic()
+        if remaining <= 0:
+            return poller.poll(0)
+        # poll() counts whole milliseconds: poll for the whole part, sleep the rest
+        ready = poller.poll(int(remaining * 1000))
+        if not ready:
+            rest = wake - time.monotonic()
+            if rest > 0:
+                time.sleep(rest)
+        return ready
+
+    def _read_side(self, side: _Side, lane: _Lane, now: float) -> None:
+        room = lane.room()
+        if room <= 0:
+            return
+        try:
+            data = os.read(side.fd, min(room, READ_CHUNK))
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            # EIO: the last user closed the slave (whatever it wrote before was read already)
+            side.open = False
+            side.checked_at = now
+            return
+        if data:
+            lane.accept(data, now)
