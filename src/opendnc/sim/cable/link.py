@@ -258,7 +258,7 @@ class VirtualCable:
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         self._thread: threading.Thread | None = None
-        self.error: BaseException | None = None  # what killed the pump, if anything
+        self.error: TransportError | None = None  # what killed the pump, if anything
         try:
             for target, link in ((self._a.path, link_a), (self._b.path, link_b)):
                 if link is not None:
@@ -302,12 +302,21 @@ class VirtualCable:
         return self
 
     def wait_idle(self, timeout: float = 5.0) -> bool:
-        """Wait until nothing is on the line or waiting for a reader; False on timeout."""
+        """Wait until no byte is unread, on the line or waiting for a reader; False on timeout.
+
+        "Waiting for a reader" means the far side has not read what it was sent: call this
+        while the receiving side keeps reading, or after it read everything.
+        """
         deadline = time.monotonic() + timeout
+        probe = select.poll()
+        for side in (self._a, self._b):
+            probe.register(side.fd, select.POLLIN)
         while time.monotonic() < deadline:
             with self._lock:
-                if all(lane.idle for lane in self._lanes):
-                    return True
+                lanes_idle = all(lane.idle for lane in self._lanes)
+            # bytes a user wrote that the pump has not read yet sit in the master
+            if lanes_idle and not any(ev & select.POLLIN for _, ev in probe.poll(0)):
+                return True
             time.sleep(0.002)
         return False
 
