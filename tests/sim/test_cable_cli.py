@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 import serial
 
+from opendnc.sim.cable import CableProcess
+
 COMMAND = [sys.executable, "-m", "opendnc.cli.main", "sim", "cable"]
 
 
@@ -112,3 +114,19 @@ def test_bad_options_one_line_error(args: list[str], message: str) -> None:
     assert proc.returncode == 1
     assert message in proc.stderr
     assert proc.stdout == ""
+
+
+def test_cable_process_helper() -> None:
+    with CableProcess(baud=230400, noise=0.0, seed=1) as cable:
+        a = serial.Serial(cable.path_a, timeout=0.2)
+        b = serial.Serial(cable.path_b, timeout=0.2)
+        data = os.urandom(4000)
+        start = time.monotonic()
+        a.write(data)
+        assert read_exactly(b, 4000) == data
+        assert time.monotonic() - start >= 4000 * 10 / 230400 * 0.99
+        a.close()
+        b.close()
+    assert cable.stats is not None
+    assert cable.stats.a_to_b.delivered == 4000
+    assert cable.stats.b_to_a.carried == 0

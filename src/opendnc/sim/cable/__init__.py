@@ -6,5 +6,6 @@ See :mod:`opendnc.sim.cable.link` for how to use it from Python and
 
 from opendnc.sim.cable.link import CableStats, LaneStats, VirtualCable
 from opendnc.sim.cable.noise import LineNoise, NoiseResult
+from opendnc.sim.cable.process import CableProcess
 
-__all__ = ["CableStats", "LaneStats", "LineNoise", "NoiseResult", "VirtualCable"]
+__all__ = ["CableProcess", "CableStats", "LaneStats", "LineNoise", "NoiseResult", "VirtualCable"]
