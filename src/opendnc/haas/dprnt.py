@@ -1,0 +1,254 @@
+"""DPRNT: the Haas formatted-output statement, both ends of it.
+
+Sans-IO, used by the virtual control (to print) and by the listener (to capture):
+
+* :func:`format_value` applies the ``#var[wf]`` rules of the Haas mill manual:
+  ``w`` places for the whole part and ``f`` for the fraction, ``1 <= w + f <= 8``;
+  the fraction is rounded to its last place and keeps trailing zeros; the decimal point
+  is omitted when ``f == 0`` and the whole part is then truncated, not rounded (the manual
+  prints ``1`` for 1.5436 with ``[40]``); a whole part shorter than ``w`` is padded with
+  leading spaces, a longer one grows the field (never truncated).
+* :func:`parse_statement` turns ``DPRNT[...]`` source into typed items; each ``*`` in text
+  prints as a space.
+* :class:`DprntLineFramer` cuts a captured byte stream into lines (CR, LF or CR LF) and drops
+  the device-control bytes a Haas may send around DPRNT output (NUL, DC1..DC4).
+* :func:`parse_line` finds the labelled numbers in a captured line.
+
+Where the manual is silent we chose, and document here: a minus sign is written directly
+before the first digit and counts as one of the ``w`` places; an undefined (null) variable
+prints as zero.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from decimal import ROUND_DOWN, ROUND_HALF_UP, Decimal, InvalidOperation
+
+from opendnc.errors import InputError, RemoteProtocolError
+
+MAX_PLACES = 8
+"""Largest ``w + f`` the control accepts in a ``#var[wf]`` format."""
+
+MAX_LINE = 4096
+"""Longest captured line accepted before the framer reports garbage."""
+
+# Bytes a Haas emits around printer output: NUL leader, XON/XOFF, POPEN (DC2), PCLOS (DC4).
+_CONTROL_BYTES = bytes([0x00, 0x11, 0x12, 0x13, 0x14])
+
+
+@dataclass(frozen=True, slots=True)
+class Text:
+    """Literal text of a DPRNT statement, ``*`` already turned into spaces."""
+
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Variable:
+    """A ``#number[wf]`` item: print macro variable ``number`` with ``whole``.``frac`` places."""
+
+    number: int
+    whole: int
+    frac: int
+
+
+Item = Text | Variable
+
+
+def check_format(whole: int, frac: int) -> None:
+    """Raise :class:`InputError` unless ``[whole frac]`` is a legal DPRNT format."""
+    if whole < 0 or frac < 0 or not 1 <= whole + frac <= MAX_PLACES:
+        raise InputError(
+            f"illegal DPRNT format [{whole}{frac}]: whole + fraction places must be 1..{MAX_PLACES}"
+        )
+
+
+def format_value(value: float | None, whole: int, frac: int) -> str:
+    """Format ``value`` as the control prints ``#var[whole frac]``.
+
+    >>> format_value(1.5436, 4, 4)
+    '   1.5436'
+    >>> format_value(1.5436, 0, 3)
+    '1.544'
+    >>> format_value(1.5436, 4, 0)
+    '   1'
+    """
+    check_format(whole, frac)
+    number = 0.0 if value is None else value
+    if not math.isfinite(number):
+        raise InputError(f"cannot print {number!r} with DPRNT")
+    try:
+        exact = Decimal(repr(number))
+        if frac == 0:
+            shown = exact.quantize(Decimal(1), rounding=ROUND_DOWN)
+        else:
+            shown = exact.quantize(Decimal(1).scaleb(-frac), rounding=ROUND_HALF_UP)
+    except InvalidOperation as exc:  # more digits than Decimal's context allows
+        raise InputError(f"value {number!r} too large for DPRNT") from exc
+    negative = shown < 0
+    digits = f"{abs(shown):f}"
+    if "." not in digits and frac:
+        digits += "." + "0" * frac
+    whole_digits, _, frac_digits = digits.partition(".")
+    body = ("-" if negative else "") + whole_digits
+    text = body.rjust(whole) if whole else body
+    return f"{text}.{frac_digits}" if frac else text
+
+
+_VAR = re.compile(r"#(\d{1,5})\[(\d)(\d)\]")
+
+
+def parse_statement(source: str) -> tuple[Item, ...]:
+    """Parse ``DPRNT[...]`` (the whole statement) into text and variable items.
+
+    Raises :class:`InputError` naming the fault for a malformed statement or an illegal format.
+    """
+    stripped = source.strip()
+    if not stripped.upper().startswith("DPRNT"):
+        raise InputError(f"not a DPRNT statement: {source!r}")
+    rest = stripped[5:].lstrip()
+    if not rest.startswith("[") or not rest.endswith("]"):
+        raise InputError(f"DPRNT needs its text in brackets: {source!r}")
+    return parse_body(rest[1:-1])
+
+
+def parse_body(body: str) -> tuple[Item, ...]:
+    """Parse the text between ``DPRNT[`` and the closing ``]``."""
+    items: list[Item] = []
+    pos = 0
+    text: list[str] = []
+    while pos < len(body):
+        char = body[pos]
+        if char == "#":
+            match = _VAR.match(body, pos)
+            if match is None:
+                raise InputError(f"DPRNT variable needs the form #nnnn[wf] at: {body[pos:]!r}")
+            whole, frac = int(match.group(2)), int(match.group(3))
+            check_format(whole, frac)
+            if text:
+                items.append(Text("".join(text)))
+                text = []
+            items.append(Variable(int(match.group(1)), whole, frac))
+            pos = match.end()
+            continue
+        if char in "[]":
+            raise InputError(f"unexpected {char!r} in DPRNT text: {body!r}")
+        if not char.isprintable():
+            raise InputError(f"unprintable character {char!r} in DPRNT text")
+        text.append(" " if char == "*" else char)
+        pos += 1
+    if text:
+        items.append(Text("".join(text)))
+    return tuple(items)
+
+
+def render(items: tuple[Item, ...], lookup: Callable[[int], float | None]) -> str:
+    """Render parsed items to the printed line (without its line end)."""
+    parts: list[str] = []
+    for item in items:
+        if isinstance(item, Text):
+            parts.append(item.text)
+        else:
+            parts.append(format_value(lookup(item.number), item.whole, item.frac))
+    return "".join(parts)
+
+
+# --------------------------------------------------------------------------- capture side
+
+
+class DprntLineFramer:
+    """Cut a DPRNT byte stream into text lines.
+
+    CR, LF and CR LF all end a line (Haas documents CR; NGC over TCP is seen with others);
+    a CR LF split across two ``feed`` calls still counts as one line end.
+    """
+
+    def __init__(self, max_line: int = MAX_LINE) -> None:
+        self._buf = bytearray()
+        self._lines: list[str] = []
+        self._max = max_line
+        self._after_cr = False
+
+    def feed(self, data: bytes) -> None:
+        """Add received bytes; raise :class:`RemoteProtocolError` on an over-long line."""
+        for byte in data.translate(None, _CONTROL_BYTES):
+            if byte == 0x0A and self._after_cr:
+                self._after_cr = False
+                continue
+            self._after_cr = byte == 0x0D
+            if byte in (0x0A, 0x0D):
+                self._lines.append(self._buf.decode("latin-1"))
+                self._buf.clear()
+                continue
+            if len(self._buf) >= self._max:
+                self._buf.clear()
+                raise RemoteProtocolError(f"DPRNT line longer than {self._max} bytes")
+            self._buf.append(byte)
+
+    def next_line(self) -> str | None:
+        """Return the next complete line, or ``None`` when more bytes are needed."""
+        return self._lines.pop(0) if self._lines else None
+
+    def lines(self) -> Iterator[str]:
+        """Yield every complete line received so far."""
+        while (line := self.next_line()) is not None:
+            yield line
+
+    def flush(self) -> str | None:
+        """Return the unterminated tail (on disconnect) so no received text is lost."""
+        if not self._buf:
+            return None
+        tail = self._buf.decode("latin-1")
+        self._buf.clear()
+        return tail
+
+
+@dataclass(frozen=True, slots=True)
+class Field:
+    """One number found in a line, with the label written right before it (may be empty)."""
+
+    label: str
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class ParsedLine:
+    """A captured DPRNT line: its raw text, every number in order, and labelled fields."""
+
+    text: str
+    fields: tuple[Field, ...]
+
+    @property
+    def numbers(self) -> tuple[float, ...]:
+        """Every number in the line, in order."""
+        return tuple(f.value for f in self.fields)
+
+    def get(self, label: str) -> float | None:
+        """Value of the first field labelled ``label`` (case-insensitive), else ``None``."""
+        wanted = label.upper()
+        for f in self.fields:
+            if f.label.upper() == wanted:
+                return f.value
+        return None
+
+
+# A label is the run of letters directly (or after padding spaces) before a number; the sign
+# belongs to the number, which DPRNT may separate from the label by padding spaces.
+_NUMBER = re.compile(
+    r"(?:(?P<label>[A-Za-z_]+)[ \t]*[:=]?[ \t]*)?(?P<num>[+-]?(?:\d+\.?\d*|\.\d+))"
+)
+
+
+def parse_line(text: str) -> ParsedLine:
+    """Find labelled numbers in a DPRNT line; never fails on any text."""
+    fields: list[Field] = []
+    for match in _NUMBER.finditer(text):
+        try:
+            value = float(match.group("num"))
+        except ValueError:  # pragma: no cover - the regex only matches float syntax
+            continue
+        fields.append(Field(match.group("label") or "", value))
+    return ParsedLine(text, tuple(fields))

@@ -1,0 +1,295 @@
+"""The virtual Haas control: one model object that front-ends attach to.
+
+:class:`HaasControl` owns program memory (:class:`~opendnc.sim.haas.store.ProgramStore`),
+machine state and settings (:class:`~opendnc.haas.machine.MachineState`), the active
+:class:`~opendnc.haas.runner.ProgramRunner`, the alarm list and the DPRNT routing. It does no
+I/O and has no timers: front-ends call into it and a driver calls :meth:`HaasControl.step`.
+
+Front-ends and how they attach:
+
+* MDC over TCP (:mod:`opendnc.sim.haas.mdc_server`) calls :meth:`HaasControl.handle_mdc`.
+* DPRNT outputs implement :class:`DprntOutput` and register with :meth:`attach_dprnt`
+  for a :class:`DprntDestination` (FILE, TCP, or SERIAL for a serial front-end).
+* A serial front-end loads/punches programs with :meth:`save_program`/:meth:`read_program`,
+  runs DNC with :meth:`start_stream` (append lines to the returned source, close it at the
+  final ``%``) and reports a broken link with :meth:`raise_alarm`.
+* Anyone may watch alarms (:attr:`alarm_hooks`) and runner events (:attr:`event_hooks`);
+  :attr:`wake` is called whenever there may be new work for the driver.
+
+Not thread-safe: call it from one thread (the simulator's event loop).
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from opendnc.errors import InputError
+from opendnc.haas import mdc
+from opendnc.haas.machine import Alarm, MachineState, Mode, Status
+from opendnc.haas.program import parse_header, program_lines
+from opendnc.haas.runner import (
+    AlarmRaised,
+    BlockSource,
+    CycleTimes,
+    DprntLine,
+    PortCode,
+    ProgramRunner,
+    RunnerEvent,
+    StepResult,
+    Surface,
+)
+from opendnc.sim.haas.store import ProgramStore
+
+ALARM_DNC_LINK = Alarm(1003, "DNC LINK LOST")
+"""Raised when a DNC stream breaks before its closing ``%`` (simulator's own number)."""
+
+
+class DprntDestination(enum.IntEnum):
+    """Setting 261 (NGC "DPRNT store location"). SERIAL (3) is the simulator's own value."""
+
+    NONE = 0
+    FILE = 1
+    TCP = 2
+    SERIAL = 3
+
+
+class DprntOutput(Protocol):
+    """Where printed DPRNT lines go; each output chooses its own line end."""
+
+    def write_line(self, text: str) -> None:
+        """One printed line, without a line end."""
+        ...
+
+    def write_control(self, code: bytes) -> None:
+        """A device-control byte: DC2 for POPEN, DC4 for PCLOS (only serial sends them)."""
+        ...
+
+
+@dataclass
+class HaasConfig:
+    """Identity and behaviour knobs of a virtual control."""
+
+    model: str = "VF-2"
+    control: mdc.ControlType = mdc.ControlType.NGC
+    serial_number: str = "1234567"
+    software_version: str = ""
+    power_on_seconds: float = 0.0
+    mdc_port: int = 5051
+    dprnt: DprntDestination = DprntDestination.NONE
+    dprnt_file: str = ""
+    dprnt_port: int = 0
+    strict_probe: bool = False
+    surface: Surface | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.software_version:
+            self.software_version = (
+                "100.20.000.1200" if self.control is mdc.ControlType.NGC else "M18.02"
+            )
+
+
+class HaasControl:
+    """The virtual control model (see the module docstring for how to attach to it)."""
+
+    def __init__(
+        self,
+        config: HaasConfig,
+        store: ProgramStore,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.config = config
+        self.store = store
+        self.clock = clock
+        self.machine = MachineState()
+        self.times = CycleTimes()
+        self.runner: ProgramRunner | None = None
+        self.outputs: dict[DprntDestination, list[DprntOutput]] = {}
+        self.alarm_hooks: list[Callable[[Alarm, str], None]] = []
+        self.event_hooks: list[Callable[[RunnerEvent], None]] = []
+        self.wake: Callable[[], None] = lambda: None
+        self.dprnt_dropped = 0
+        self._power_on_at = clock()
+        settings = self.machine.settings
+        settings[143] = config.mdc_port
+        settings[261] = int(config.dprnt)
+        settings[262] = config.dprnt_file
+        settings[263] = config.dprnt_port
+
+    # --------------------------------------------------------------- identity / clock
+    @property
+    def control_type(self) -> mdc.ControlType:
+        """NGC or classic: decides MDC framing and where DPRNT goes."""
+        return self.config.control
+
+    def power_on_seconds(self) -> float:
+        """Total power-on time (configured base + time since the model was created)."""
+        return self.config.power_on_seconds + self.clock() - self._power_on_at
+
+    def cutting_seconds(self) -> float:
+        """Total run time, including the cycle in progress."""
+        running = self.runner.elapsed() if self.runner and not self.runner.finished else 0.0
+        return self.times.cutting_total + running
+
+    # --------------------------------------------------------------- programs
+    def save_program(self, text: str) -> int:
+        """Store a program (as received over XModem or a share); returns its O number."""
+        return self.store.save(text).number
+
+    def read_program(self, number: int) -> str:
+        """Tape text of a stored program (for punching)."""
+        return self.store.read(number)
+
+    @property
+    def running(self) -> bool:
+        """True while a runner is active (Q500 then answers ``STATUS, BUSY``)."""
+        return self.runner is not None and not self.runner.finished
+
+    def start_program(self, number: int) -> ProgramRunner:
+        """Run stored program ``number`` in MEM mode (cycle start)."""
+        text = self.store.read(number)
+        header = parse_header(text)
+        return self._start(BlockSource(program_lines(text)), header.name, Mode.MEM)
+
+    def start_stream(self, name: str = "DNC") -> BlockSource:
+        """Begin a DNC run; append lines to the returned source while they arrive."""
+        source = BlockSource(complete=False)
+        self._start(source, name, Mode.DNC)
+        return source
+
+    def _start(self, source: BlockSource, name: str, mode: Mode) -> ProgramRunner:
+        if self.running:
+            raise InputError("a program is already running")
+        if self.machine.alarms:
+            raise InputError("clear the alarms (reset) before starting a program")
+        self.runner = ProgramRunner(
+            source,
+            self.machine,
+            clock=self.clock,
+            emit=self._on_event,
+            surface=self.config.surface,
+            times=self.times,
+            name=name,
+            mode=mode,
+            strict_probe=self.config.strict_probe,
+        )
+        self.wake()
+        return self.runner
+
+    def step(self) -> StepResult | None:
+        """Execute one block of the active program (``None`` when nothing runs)."""
+        if self.runner is None or self.runner.finished:
+            return None
+        self.machine.millis = (self.clock() - self._power_on_at) * 1000.0
+        return self.runner.step()
+
+    def raise_alarm(self, alarm: Alarm, detail: str = "") -> None:
+        """Raise ``alarm`` (e.g. :data:`ALARM_DNC_LINK`); an active run stops."""
+        if self.runner is not None and not self.runner.finished:
+            self.runner.abort(alarm, detail)  # reports through _on_event
+            return
+        self.machine.alarms.append(alarm)
+        self.machine.status = Status.ALARM
+        for hook in self.alarm_hooks:
+            hook(alarm, detail)
+
+    def reset(self) -> None:
+        """RESET: stop any run and clear alarms."""
+        if self.runner is not None and not self.runner.finished:
+            self.runner.finished = True
+        self.machine.alarms.clear()
+        self.machine.status = Status.IDLE
+
+    def _on_event(self, event: RunnerEvent) -> None:
+        if isinstance(event, DprntLine):
+            for output in self._dprnt_outputs():
+                output.write_line(event.text)
+        elif isinstance(event, PortCode):
+            for output in self.outputs.get(DprntDestination.SERIAL, []):
+                output.write_control(event.code)
+        elif isinstance(event, AlarmRaised):
+            for alarm_hook in self.alarm_hooks:
+                alarm_hook(event.alarm, event.detail)
+        for event_hook in self.event_hooks:
+            event_hook(event)
+
+    # --------------------------------------------------------------- DPRNT routing
+    def attach_dprnt(self, destination: DprntDestination, output: DprntOutput) -> None:
+        """Register ``output`` to receive DPRNT lines sent to ``destination``."""
+        self.outputs.setdefault(destination, []).append(output)
+
+    def dprnt_destination(self) -> DprntDestination:
+        """Where DPRNT goes now: the serial port on classic, Setting 261 on NGC."""
+        if self.control_type is mdc.ControlType.CLASSIC:
+            return DprntDestination.SERIAL
+        try:
+            return DprntDestination(int(self.machine.settings.get(261, 0)))
+        except ValueError:
+            return DprntDestination.NONE
+
+    def _dprnt_outputs(self) -> list[DprntOutput]:
+        outputs = self.outputs.get(self.dprnt_destination(), [])
+        if not outputs:
+            self.dprnt_dropped += 1
+        return outputs
+
+    # --------------------------------------------------------------- MDC
+    def handle_mdc(self, request: mdc.Request | mdc.UnknownRequest) -> mdc.Reply:
+        """Answer one MDC request as the control does."""
+        unknown = mdc.Refused("UNKNOWN" if self.control_type is mdc.ControlType.CLASSIC else "?")
+        if isinstance(request, mdc.UnknownRequest):
+            return unknown
+        if isinstance(request, mdc.MacroRead):
+            value = self.machine.get(request.var)
+            return mdc.MacroValue(0.0 if value is None else value)
+        if isinstance(request, mdc.MacroWrite):
+            try:
+                self.machine.set(request.var, request.value)
+            except InputError:
+                return mdc.Refused("?")
+            return mdc.WriteAccepted()
+        return self._query(request.code) or unknown
+
+    def _query(self, code: int) -> mdc.Reply | None:
+        machine = self.machine
+        classic = self.control_type is mdc.ControlType.CLASSIC
+        name = mdc.QUERIES.get(code, ("", None))[0]
+        if code == 100:
+            return mdc.TextValue(name, self.config.serial_number)
+        if code == 101:
+            return mdc.TextValue(name, self.config.software_version)
+        if code == 102:
+            return mdc.TextValue(name, self.config.model)
+        if code == 104:
+            mode = machine.mode
+            return mdc.Mode(mode.classic() if classic else mode.value, parenthesized=classic)
+        if code == 200:
+            return mdc.Count(name, machine.tool_changes)
+        if code == 201:
+            return mdc.Count(name, machine.tool)
+        if code == 300:
+            return mdc.Duration(name, int(self.power_on_seconds()))
+        if code == 301:
+            return mdc.Duration(name, int(self.cutting_seconds()))
+        if code == 303:
+            return mdc.Duration(name, round(self.times.last))
+        if code == 304:
+            return mdc.Duration(name, round(self.times.previous))
+        if code == 402:
+            return mdc.Count(name, machine.m30_counter_1)
+        if code == 403:
+            return mdc.Count(name, machine.m30_counter_2)
+        if code == 500:
+            if self.running:
+                return mdc.Busy()
+            status = (
+                "ALARM ON"
+                if machine.alarms
+                else ("FEED HOLD" if machine.status is Status.FEED_HOLD else "IDLE")
+            )
+            return mdc.ProgramStatus(machine.program, status, machine.m30_counter_1)
+        return None

@@ -1,0 +1,98 @@
+"""MDC over TCP for the virtual Haas (NGC Setting 143 = port).
+
+As Haas documents: at most two simultaneous connections (a third is closed at once), and
+every reply goes to every open connection. Requests are parsed with the shared codec in
+:mod:`opendnc.haas.mdc`; the answer comes from :meth:`HaasControl.handle_mdc`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Callable
+
+from opendnc.errors import RemoteProtocolError
+from opendnc.haas import mdc
+from opendnc.sim.haas.control import HaasControl
+
+MAX_CONNECTIONS = 2
+Trace = Callable[[str, bytes], None]
+"""``trace(direction, data)``: direction is ``"rx"`` or ``"tx"``."""
+
+
+class MdcServer:
+    """Serve :class:`HaasControl` MDC on a TCP port; port 0 picks a free one."""
+
+    def __init__(
+        self,
+        control: HaasControl,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        trace: Trace | None = None,
+        max_connections: int = MAX_CONNECTIONS,
+    ) -> None:
+        self.control = control
+        self.host, self.port = host, port
+        self.trace = trace
+        self.max_connections = max_connections
+        self.writers: list[asyncio.StreamWriter] = []
+        self.refused = 0
+        self._server: asyncio.Server | None = None
+
+    async def start(self) -> int:
+        """Start listening; returns the bound port."""
+        self._server = await asyncio.start_server(self._session, self.host, self.port)
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self.port
+
+    async def close(self) -> None:
+        """Stop listening and drop every connection."""
+        if self._server is not None:
+            self._server.close()
+        for writer in list(self.writers):
+            writer.close()
+        if self._server is not None:
+            with contextlib.suppress(OSError):
+                await self._server.wait_closed()
+
+    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if len(self.writers) >= self.max_connections:
+            self.refused += 1
+            writer.close()
+            return
+        self.writers.append(writer)
+        framer = mdc.LineFramer()
+        try:
+            while data := await reader.read(4096):
+                if self.trace:
+                    self.trace("rx", data)
+                try:
+                    framer.feed(data)
+                except RemoteProtocolError:
+                    await self._broadcast(self._reply(mdc.UnknownRequest("")))
+                    continue
+                while (line := framer.next_line()) is not None:
+                    await self._broadcast(self._reply(mdc.parse_request(line)))
+        except OSError:
+            pass  # the client vanished; just forget it
+        finally:
+            if writer in self.writers:
+                self.writers.remove(writer)
+            writer.close()
+
+    def _reply(self, request: mdc.Request | mdc.UnknownRequest) -> bytes:
+        reply = self.control.handle_mdc(request)
+        return mdc.frame_reply(reply.to_payload(), self.control.control_type)
+
+    async def _broadcast(self, data: bytes) -> None:
+        if self.trace:
+            self.trace("tx", data)
+        for writer in list(self.writers):
+            try:
+                writer.write(data)
+                await writer.drain()
+            except OSError:
+                if writer in self.writers:
+                    self.writers.remove(writer)
+                writer.close()
