@@ -1,0 +1,88 @@
+"""The shared state of one virtual control: profile, file system, PLC, machine, parameters.
+
+All sessions (TCP connections) of a simulator share one :class:`Control`, as all clients of a
+real control share its disk and machine.  Per-connection state lives in
+:mod:`opendnc.sim.tnc.session`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from opendnc.sim.tnc import oplog
+from opendnc.sim.tnc.filesystem import ControlFs, FsError, WirePath
+from opendnc.sim.tnc.machine import Machine
+from opendnc.sim.tnc.plc import MachineParameters, PlcMemory, parse_table
+from opendnc.sim.tnc.population import populate
+from opendnc.sim.tnc.profiles import Profile
+
+
+class Control:
+    """One virtual TNC shared by every connection of a simulator."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        root: Path,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        dnc_option: bool = True,
+    ) -> None:
+        self.profile = profile
+        self.root = root
+        self.dnc_option = dnc_option
+        self.fs = ControlFs(root, profile)
+        populate(self.fs, profile)
+        self.plc = PlcMemory(profile.plc)
+        self.mp = MachineParameters(self.fs.state_dir, profile)
+        self.machine = Machine(profile, self.plc, clock, tool_geometry=self.tool_geometry)
+        self.monitor_owner: int | None = None
+        self.events: list[tuple[float, str]] = [(time.time(), "Control started")]
+        self.remote_status = bytes(12)
+
+    # -- tool table -------------------------------------------------------------------------
+    def tool_rows(self) -> dict[int, dict[str, str]]:
+        """Rows of the tool table keyed by tool number (empty when missing or unreadable)."""
+        wp = self.fs.parse(self.profile.paths.tool_table, WirePath("TNC:", ()))
+        try:
+            text = self.fs.read_bytes(wp).decode("latin-1")
+        except FsError:
+            return {}
+        rows: dict[int, dict[str, str]] = {}
+        for row in parse_table(text):
+            try:
+                rows[int(row.get("T", ""))] = row
+            except ValueError:
+                continue
+        return rows
+
+    def tool_geometry(self, number: int) -> tuple[float, float]:
+        """(L, R) of a tool from the table, zeros when unknown."""
+        row = self.tool_rows().get(number, {})
+        try:
+            return float(row.get("L", 0) or 0), float(row.get("R", 0) or 0)
+        except ValueError:
+            return 0.0, 0.0
+
+    # -- logbook ----------------------------------------------------------------------------
+    def log_event(self, text: str) -> None:
+        """Append an entry to the operations log."""
+        self.events.append((time.time(), text))
+
+    def write_operations_log(self, request: oplog.LogRequest, cwd: WirePath) -> WirePath:
+        """Create the operations log file the client asked for (C_CC 27)."""
+        wp = self.fs.parse(request.name, cwd)
+        text = oplog.render(self.events, request.since, self.profile.model)
+        self.fs.write_atomic(wp, text.encode("latin-1", "replace"))
+        return wp
+
+    # -- program selection ------------------------------------------------------------------
+    def select_program(self, wp: WirePath) -> None:
+        """Select a program on the TNC drive for execution (DNC ``C_NC`` or the API)."""
+        canonical = self.fs.canonical(wp)
+        text = self.fs.read_bytes(canonical).decode("latin-1")
+        self.machine.select(str(canonical), text)
+        self.fs.set_selected([canonical])
+        self.log_event(f"Program selected: {canonical}")
