@@ -1,11 +1,65 @@
-"""`opendnc sim tnc`."""
+"""`opendnc sim tnc`: run a virtual Heidenhain control (LSV2 server)."""
 
 from __future__ import annotations
 
+import asyncio
+from pathlib import Path
+
 import typer
 
+from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.sim.tnc import PROFILES, TraceHook, serve_tnc
 
-def tnc() -> None:
-    """(being built)"""
-    typer.echo("not built yet")
-    raise typer.Exit(2)
+
+def tnc(
+    profile: str = typer.Option(
+        "tnc640", "--profile", help=f"Control family: {', '.join(PROFILES)}."
+    ),
+    root: Path | None = typer.Option(
+        None, "--root", help="Folder holding the drives (default: a fresh programming station)."
+    ),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
+    port: int = typer.Option(19000, "--port", help="TCP port (0 = any free port)."),
+    latency: float = typer.Option(0.0, "--latency", help="Delay per telegram in milliseconds."),
+    trace: bool = typer.Option(False, "--trace", help="Print every telegram (hex and decoded)."),
+    no_dnc: bool = typer.Option(False, "--no-dnc-option", help="Machine without the DNC option."),
+) -> None:
+    """Serve a virtual TNC over LSV2 until Ctrl-C.
+
+    The state (files, machine parameters) lives in --root and survives restarts.
+    """
+    if profile.lower() not in PROFILES:
+        err_console.print(f"[bold red]error:[/] unknown profile {profile!r}")
+        raise typer.Exit(1)
+
+    async def main() -> None:
+        server = await serve_tnc(
+            profile,
+            root,
+            host,
+            port,
+            latency=latency / 1000.0,
+            trace=TraceHook() if trace else None,
+            dnc_option=not no_dnc,
+        )
+        prof = server.control.profile
+        console.print(
+            f"virtual {prof.title} ({prof.model} {prof.nc_software}) listening on "
+            f"{server.host}:{server.port}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        console.print(f"root: {server.control.root}", highlight=False, soft_wrap=True)
+        try:
+            await server.serve_forever()
+        finally:
+            await server.close()
+
+    with cli_errors():
+        try:
+            asyncio.run(main())
+        except OSError as exc:
+            err_console.print(f"[bold red]error:[/] cannot listen on {host}:{port}: {exc}")
+            raise typer.Exit(1) from None
+        except KeyboardInterrupt:
+            console.print("stopped")

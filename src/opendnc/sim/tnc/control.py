@@ -79,8 +79,9 @@ class Control:
         return wp
 
     # -- program selection ------------------------------------------------------------------
-    def select_program(self, wp: WirePath) -> None:
-        """Select a program on the TNC drive for execution (DNC ``C_NC`` or the API)."""
+    def select_program(self, path: str | WirePath) -> None:
+        """Select a program for execution (DNC ``C_NC`` or the API), e.g. ``TNC:\\a.h``."""
+        wp = self.fs.parse(path, WirePath("TNC:", ())) if isinstance(path, str) else path
         canonical = self.fs.canonical(wp)
         text = self.fs.read_bytes(canonical).decode("latin-1")
         self.machine.select(str(canonical), text)

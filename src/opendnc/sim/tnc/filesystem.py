@@ -146,7 +146,9 @@ class Entry:
             attr |= 0x80
         size = min(self.size, 0xFFFFFFFF)
         mtime = max(0, min(self.mtime, 0xFFFFFFFF))
-        return struct.pack(">III", size, mtime, attr) + self.name.encode("latin-1", "replace") + b"\0"
+        return (
+            struct.pack(">III", size, mtime, attr) + self.name.encode("latin-1", "replace") + b"\0"
+        )
 
 
 class ControlFs:
@@ -357,4 +359,3 @@ class ControlFs:
         finally:
             if partial.exists():
                 partial.unlink()
-

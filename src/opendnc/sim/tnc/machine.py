@@ -142,7 +142,9 @@ def parse_program(text: str) -> list[Block]:
                 spindle = True
             elif code in (5, 30, 2):
                 spindle = False
-        blocks.append(Block(number, targets, tool, int(speed_m.group(1)) if speed_m else None, spindle))
+        blocks.append(
+            Block(number, targets, tool, int(speed_m.group(1)) if speed_m else None, spindle)
+        )
     return blocks
 
 

@@ -189,9 +189,7 @@ _SYMBOL_RE = re.compile(
 )
 
 
-def resolve_data_path(
-    path: str, plc: PlcMemory, tool_rows: dict[int, dict[str, str]]
-) -> DpValue:
+def resolve_data_path(path: str, plc: PlcMemory, tool_rows: dict[int, dict[str, str]]) -> DpValue:
     """Resolve an ``R_DP`` path; PlcError(63) when it names nothing."""
     path = path.replace("/", "\\").strip()
     if m := _MEMORY_RE.match(path):

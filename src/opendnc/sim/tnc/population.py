@@ -169,7 +169,7 @@ def lathe_demo() -> str:
         "%PGM01.nc\r\n"
         "HEADER\r\n"
         "TURRET 1\r\n"
-        "T1 ID\"ROUGH_80\"\r\n"
+        'T1 ID"ROUGH_80"\r\n'
         "MACHINING\r\n"
         "N1 T1 G96 S200 G95 F0.3 M3\r\n"
         "N2 G0 X60 Z2\r\n"
@@ -207,7 +207,7 @@ def populate(fs: ControlFs, profile: Profile) -> None:
         put(prog + "\\DEMO_SHAFT.nc", lathe_demo().replace("PGM01", "DEMO_SHAFT"))
         put(prog + "\\demo\\FLANGE.nc", lathe_demo().replace("PGM01", "FLANGE"))
     else:
-        put(paths.mdi_program, f"0 BEGIN PGM $MDI MM\r\n1 END PGM $MDI MM\r\n")
+        put(paths.mdi_program, "0 BEGIN PGM $MDI MM\r\n1 END PGM $MDI MM\r\n")
         put(prog + "\\POCKET.H", klartext_demo("POCKET"))
         put(prog + "\\1001.I", iso_demo(1001))
         put(prog + "\\demo\\FRAME.H", klartext_demo("FRAME"))
@@ -216,7 +216,7 @@ def populate(fs: ControlFs, profile: Profile) -> None:
     pocket_name = paths.pocket_table.rsplit("\\", 1)[1]
     put(paths.tool_table, tool_table(tool_name))
     put(paths.pocket_table, pocket_table(pocket_name))
-    if not profile.paths.program_dir == "TNC:\\":
+    if profile.paths.program_dir != "TNC:\\":
         ensure_dir("TNC:\\table")
     if "PLC:" in profile.drives:
         put("PLC:\\PLCMAIN.SRC", ";PLC main program\r\nL M4000\r\n= M4001\r\nEM\r\n")

@@ -84,7 +84,7 @@ class TncServer:
     async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
-        self._tasks.add(task)  # type: ignore[arg-type]
+        self._tasks.add(task)
         session = Session(self.control)
         peer = writer.get_extra_info("peername")
         lock = asyncio.Lock()
@@ -94,7 +94,7 @@ class TncServer:
             pass  # peer vanished: only this connection ends
         finally:
             session.close()
-            self._tasks.discard(task)  # type: ignore[arg-type]
+            self._tasks.discard(task)
             writer.close()
             with contextlib.suppress(ConnectionError, OSError):
                 await writer.wait_closed()
@@ -192,7 +192,13 @@ class TncHandle:
     thread-safe), ``.stop()`` shuts it down.
     """
 
-    def __init__(self, server: TncServer, loop: asyncio.AbstractEventLoop, thread: threading.Thread, temp_root: bool) -> None:
+    def __init__(
+        self,
+        server: TncServer,
+        loop: asyncio.AbstractEventLoop,
+        thread: threading.Thread,
+        temp_root: bool,
+    ) -> None:
         self.server = server
         self._loop = loop
         self._thread = thread

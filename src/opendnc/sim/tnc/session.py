@@ -8,6 +8,7 @@ deferred frames the server emits later (``M_CC`` after ``C_CC`` 27).  Handlers l
 
 from __future__ import annotations
 
+import contextlib
 import os
 import struct
 from collections.abc import Callable, Iterator
@@ -95,8 +96,34 @@ Handler = Callable[["Session", Frame], "list[Frame] | Result"]
 HANDLERS: dict[str, tuple[Priv, Handler]] = {}
 # Telegram names that exist on controls but whose layouts are not public (§5.12, §5.1).
 KNOWN_UNSUPPORTED = frozenset(
-    "R_CD R_FO R_LB R_PD R_RS R_SD R_SE R_SP R_SS R_SW R_WD R_MP C_DT C_FA C_DS C_GC C_MB "
-    "C_OP C_TP R_DS R_IN R_OH R_OI X_PC X_OK X_ER".split()
+    [
+        "R_CD",
+        "R_FO",
+        "R_LB",
+        "R_PD",
+        "R_RS",
+        "R_SD",
+        "R_SE",
+        "R_SP",
+        "R_SS",
+        "R_SW",
+        "R_WD",
+        "R_MP",
+        "C_DT",
+        "C_FA",
+        "C_DS",
+        "C_GC",
+        "C_MB",
+        "C_OP",
+        "C_TP",
+        "R_DS",
+        "R_IN",
+        "R_OH",
+        "R_OI",
+        "X_PC",
+        "X_OK",
+        "X_ER",
+    ]
 )
 
 
@@ -217,10 +244,8 @@ class Session:
         self.upload = None
         if up is None:
             return
-        try:
+        with contextlib.suppress(OSError):
             os.close(up.fd)
-        except OSError:
-            pass
         up.partial.unlink(missing_ok=True)
 
     def close(self) -> None:

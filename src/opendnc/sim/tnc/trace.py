@@ -10,7 +10,21 @@ from typing import TextIO
 from opendnc.lsv2.framing import Frame, TelegramFramer
 
 _TEXT_PAYLOAD = frozenset(
-    "A_LG A_LO C_DC C_DM C_DD C_FD C_FC C_FR R_FI C_NC R_MC S_MC S_VR".split()
+    [
+        "A_LG",
+        "A_LO",
+        "C_DC",
+        "C_DM",
+        "C_DD",
+        "C_FD",
+        "C_FC",
+        "C_FR",
+        "R_FI",
+        "C_NC",
+        "R_MC",
+        "S_MC",
+        "S_VR",
+    ]
 )
 
 
