@@ -1,7 +1,185 @@
-"""`opendnc haas` commands."""
+"""`opendnc haas` commands: MDC queries, macro variables, Net Share push.
+
+Sub-groups live in their own Typer apps (``macro``, ``share``); a new command is added with
+``@app.command("name")`` in this module or in a module that imports :data:`app`.
+"""
 
 from __future__ import annotations
 
-import typer
+import re
+from pathlib import Path
 
-app = typer.Typer(help="haas commands", no_args_is_help=True)
+import typer
+from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+from rich.table import Table
+
+from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.errors import InputError
+from opendnc.haas import share
+from opendnc.haas.mdc import reply_name
+from opendnc.haas.mdc_client import DEFAULT_PORT, MdcClient
+
+app = typer.Typer(
+    help="Haas controls: MDC queries, macro variables, Net Share.", no_args_is_help=True
+)
+macro_app = typer.Typer(help="Read or write macro variables over MDC.", no_args_is_help=True)
+share_app = typer.Typer(help="Haas Net Share (SMB or a mounted folder).", no_args_is_help=True)
+app.add_typer(macro_app, name="macro")
+app.add_typer(share_app, name="share")
+
+HostOpt = typer.Option("127.0.0.1", "--host", "-H", help="Control address.")
+PortOpt = typer.Option(DEFAULT_PORT, "--port", "-p", help="MDC TCP port (Setting 143).")
+TimeoutOpt = typer.Option(3.0, "--timeout", help="Seconds to wait for each reply.")
+JsonOpt = typer.Option(False, "--json", help="Print the parsed reply as JSON.")
+
+
+def parse_code(code: str) -> int:
+    """``Q500``, ``?Q500`` or ``500`` -> 500."""
+    match = re.fullmatch(r"\??[Qq]?(\d{1,3})", code.strip())
+    if match is None:
+        raise InputError(f"bad Q code {code!r}: use e.g. Q500")
+    return int(match.group(1))
+
+
+@app.command("q")
+def q(
+    code: str = typer.Argument(..., help="Q command, e.g. Q500 (Q600 takes a variable)."),
+    var: int | None = typer.Argument(None, help="Variable number for Q600."),
+    host: str = HostOpt,
+    port: int = PortOpt,
+    timeout: float = TimeoutOpt,
+    json_out: bool = JsonOpt,
+) -> None:
+    """Send one ?Q command and print the reply."""
+    with cli_errors():
+        number = parse_code(code)
+        if number == 600 and var is None:
+            raise InputError("Q600 needs a variable number, e.g. `opendnc haas q Q600 5223`")
+        with MdcClient(host, port, timeout=timeout) as client:
+            reply = client.query(number, var)
+        if json_out:
+            print_json(
+                {
+                    "command": f"Q{number:03d}",
+                    "type": type(reply).__name__,
+                    "name": reply_name(reply),
+                    "raw": reply.to_payload(),
+                    "fields": reply,
+                }
+            )
+        else:
+            console.print(reply.to_payload(), highlight=False)
+
+
+def _hms(seconds: int | None) -> str:
+    if seconds is None:
+        return "-"
+    return f"{seconds // 3600}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}"
+
+
+@app.command("status")
+def status(
+    host: str = HostOpt,
+    port: int = PortOpt,
+    timeout: float = TimeoutOpt,
+    json_out: bool = JsonOpt,
+) -> None:
+    """One readable summary from all documented Q commands."""
+    with cli_errors():
+        with MdcClient(host, port, timeout=timeout) as client:
+            summary = client.status()
+        if json_out:
+            print_json(summary)
+            return
+        table = Table(show_header=False, title=f"Haas {summary.model or ''} at {host}:{port}")
+        rows = [
+            ("Serial number", summary.serial),
+            ("Software", summary.software),
+            ("Mode", summary.mode),
+            ("Program", summary.program),
+            ("Status", summary.status),
+            ("Parts (M30 #1 / #2)", f"{summary.m30_counter_1} / {summary.m30_counter_2}"),
+            ("Tool in use", summary.tool),
+            ("Tool changes", summary.tool_changes),
+            ("Power-on time", _hms(summary.power_on_seconds)),
+            ("Cutting time", _hms(summary.cutting_seconds)),
+            (
+                "Last / previous cycle",
+                f"{_hms(summary.last_cycle_seconds)} / {_hms(summary.previous_cycle_seconds)}",
+            ),
+        ]
+        for label, value in rows:
+            table.add_row(label, "-" if value is None else str(value))
+        console.print(table)
+
+
+@macro_app.command("get")
+def macro_get(
+    var: int = typer.Argument(..., help="Macro variable number, e.g. 5223."),
+    host: str = HostOpt,
+    port: int = PortOpt,
+    timeout: float = TimeoutOpt,
+    json_out: bool = JsonOpt,
+) -> None:
+    """Read a macro variable (?Q600)."""
+    with cli_errors():
+        with MdcClient(host, port, timeout=timeout) as client:
+            value = client.macro_get(var)
+        if json_out:
+            print_json({"var": var, "value": value})
+        else:
+            console.print(f"#{var} = {value:g}", highlight=False)
+
+
+@macro_app.command("set")
+def macro_set(
+    var: int = typer.Argument(..., help="Macro variable number."),
+    value: float = typer.Argument(..., help="New value."),
+    host: str = HostOpt,
+    port: int = PortOpt,
+    timeout: float = TimeoutOpt,
+    unsafe: bool = typer.Option(False, "--unsafe", help="Allow writing to the machine."),
+) -> None:
+    """Write a macro variable (?E). Refused without --unsafe."""
+    with cli_errors():
+        with MdcClient(host, port, timeout=timeout, safe_mode=not unsafe) as client:
+            client.macro_set(var, value)
+        console.print(f"#{var} set to {value:g}", highlight=False)
+
+
+@share_app.command("push")
+def share_push(
+    files: list[Path] = typer.Argument(..., help="Program files to copy."),
+    to: str = typer.Option(..., "--to", help="smb://HOST[:PORT]/SHARE/PATH or a mounted folder."),
+    user: str | None = typer.Option(None, "--user", "-u", help="SMB user name."),
+    password: str | None = typer.Option(
+        None, "--password", envvar="OPENDNC_SMB_PASSWORD", help="SMB password (or env)."
+    ),
+    json_out: bool = JsonOpt,
+) -> None:
+    """Copy programs to a Haas Net Share; each file appears whole or not at all."""
+    with cli_errors():
+        target = share.parse_target(to)
+        total = sum(f.stat().st_size for f in files if f.is_file())
+        with Progress(
+            TextColumn("push"),
+            BarColumn(),
+            DownloadColumn(),
+            TransferSpeedColumn(),
+            console=console,
+            transient=json_out,
+            disable=json_out,
+        ) as bar:
+            task = bar.add_task("push", total=total)
+            results = share.push(
+                files,
+                target,
+                username=user,
+                password=password,
+                progress=lambda n: bar.advance(task, n),
+            )
+        if json_out:
+            print_json(results)
+        else:
+            for result in results:
+                console.print(f"{result.source} -> {result.destination} ({result.size} bytes)")

@@ -1,11 +1,135 @@
-"""`opendnc sim haas`."""
+"""`opendnc sim haas`: run the virtual Haas control."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
 import typer
 
+from opendnc.cli.common import cli_errors, err_console
+from opendnc.errors import InputError
+from opendnc.haas.mdc import ControlType
+from opendnc.sim.haas.app import SERIAL_FRONT_END, SimHaas, SimOptions
+from opendnc.sim.haas.control import DprntDestination, HaasConfig
+from opendnc.sim.haas.surface import parse_surface
 
-def haas() -> None:
-    """(being built)"""
-    typer.echo("not built yet")
-    raise typer.Exit(2)
+
+def parse_dprnt(spec: str | None, root: Path) -> tuple[DprntDestination, int | None, Path | None]:
+    """``serial`` | ``tcp:PORT`` | ``file[:PATH]`` -> destination, TCP port, file path."""
+    if spec is None or spec == "none":
+        return DprntDestination.NONE, None, None
+    kind, _, arg = spec.partition(":")
+    if kind == "serial" and not arg:
+        return DprntDestination.SERIAL, None, None
+    if kind == "tcp" and arg.isdigit():
+        return DprntDestination.TCP, int(arg), None
+    if kind == "file":
+        return DprntDestination.FILE, None, Path(arg) if arg else root / "dprnt.txt"
+    raise InputError(f"bad --dprnt {spec!r}: use serial, tcp:PORT or file[:PATH]")
+
+
+def _trace(direction: str, data: bytes) -> None:
+    arrow = "<-" if direction == "rx" else "->"
+    err_console.print(f"[dim]MDC {arrow} {data!r}[/]", highlight=False)
+
+
+def haas(
+    model: str = typer.Option("VF-2", "--model", help="Model name Q102 reports."),
+    control: str = typer.Option("ngc", "--control", help="ngc or classic (MDC framing)."),
+    root: Path = typer.Option(Path("haas-memory"), "--root", help="Program memory folder."),
+    serial: str | None = typer.Option(None, "--serial", help="Serial port or URL (front-end)."),
+    baud: int | None = typer.Option(None, "--baud", help="Serial baud rate (Setting 11)."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to bind TCP ports to."),
+    mdc_port: int = typer.Option(5051, "--mdc-port", help="MDC TCP port (0 = any free port)."),
+    dprnt: str | None = typer.Option(
+        None, "--dprnt", help="DPRNT destination: serial, tcp:PORT or file[:PATH]."
+    ),
+    surface: str | None = typer.Option(
+        None,
+        "--surface",
+        help="Probing surface: flat:z, plane:a,b,c, sine:amp,period[,z0], "
+        "wave:amp,period[,z0], bowl:depth,radius[,cx,cy[,z0]].",
+    ),
+    block_rate: float = typer.Option(0.0, "--block-rate", help="Blocks per second (0 = max)."),
+    run: int | None = typer.Option(None, "--run", help="Start this stored program (O number)."),
+    serial_number: str = typer.Option("1234567", "--serial-number", help="Q100 answer."),
+    strict_probe: bool = typer.Option(
+        False, "--strict-probe", help="Alarm when no surface lies within the H search distance."
+    ),
+    trace: bool = typer.Option(False, "--trace", help="Print MDC traffic on stderr."),
+) -> None:
+    """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""
+    with cli_errors():
+        try:
+            control_type = ControlType(control.lower())
+        except ValueError:
+            raise InputError(f"bad --control {control!r}: use ngc or classic") from None
+        destination, dprnt_port, dprnt_file = parse_dprnt(dprnt, root)
+        wants_serial = (
+            serial is not None or baud is not None or destination is DprntDestination.SERIAL
+        )
+        if wants_serial and importlib.util.find_spec(SERIAL_FRONT_END) is None:
+            raise InputError(
+                "serial front-end not available yet: --serial, --baud and --dprnt serial "
+                "need opendnc.sim.haas.serial_front"
+            )
+        if wants_serial and serial is None:
+            raise InputError("--baud / --dprnt serial need --serial PORT")
+        config = HaasConfig(
+            model=model,
+            control=control_type,
+            serial_number=serial_number,
+            dprnt=destination,
+            dprnt_file=str(dprnt_file or ""),
+            dprnt_port=dprnt_port or 0,
+            strict_probe=strict_probe,
+            surface=parse_surface(surface) if surface else None,
+        )
+        options = SimOptions(
+            host=host,
+            mdc_port=mdc_port,
+            dprnt_tcp_port=dprnt_port,
+            dprnt_file=dprnt_file,
+            block_rate=block_rate,
+            trace=_trace if trace else None,
+        )
+        with contextlib.suppress(KeyboardInterrupt):
+            asyncio.run(_serve(config, root, options, serial, baud or 9600, run))
+
+
+async def _serve(
+    config: HaasConfig,
+    root: Path,
+    options: SimOptions,
+    serial: str | None,
+    baud: int,
+    run: int | None,
+) -> None:
+    sim = SimHaas(config, root, options)
+    await sim.start()
+    try:
+        if serial is not None:
+            module = importlib.import_module(SERIAL_FRONT_END)
+            sim.add_front_end(await module.start_serial(sim, serial, baud, options.trace))
+            print(f"SERIAL {serial} {baud}", flush=True)
+        if sim.mdc is not None:
+            print(f"MDC {options.host}:{sim.mdc.port}", flush=True)
+        if sim.dprnt_tcp is not None:
+            print(f"DPRNT tcp {options.host}:{sim.dprnt_tcp.port}", flush=True)
+        if sim.dprnt_file is not None:
+            print(f"DPRNT file {sim.dprnt_file.path}", flush=True)
+        print(f"MEMORY {root} programs={len(sim.control.store.numbers())}", flush=True)
+        if run is not None:
+            if sim.dprnt_tcp is not None:
+                # DPRNT lines printed before a reader connects are lost, as on the control
+                await sim.dprnt_tcp.wait_reader(30.0)
+            sim.control.start_program(run)
+        await asyncio.Event().wait()  # until interrupted
+    finally:
+        await sim.close()
+        sys.stdout.flush()

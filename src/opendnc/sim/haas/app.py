@@ -14,7 +14,7 @@ import threading
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import DprntDestination, HaasConfig, HaasControl
@@ -23,6 +23,18 @@ from opendnc.sim.haas.mdc_server import MdcServer, Trace
 from opendnc.sim.haas.store import ProgramStore
 
 T = TypeVar("T")
+
+SERIAL_FRONT_END = "opendnc.sim.haas.serial_front"
+"""Module a serial front-end provides: ``async def start_serial(sim, url, baud, trace)``
+returning a :class:`FrontEnd`. The CLI looks it up; absent, ``--serial`` is refused."""
+
+
+class FrontEnd(Protocol):
+    """Anything attached to the control that must be closed with the simulator."""
+
+    async def close(self) -> None:
+        """Release ports and tasks."""
+        ...
 
 
 @dataclass
@@ -46,8 +58,13 @@ class SimHaas:
         self.mdc: MdcServer | None = None
         self.dprnt_tcp: TcpDprntOutput | None = None
         self.dprnt_file: FileDprntOutput | None = None
+        self.front_ends: list[FrontEnd] = []
         self._wake = asyncio.Event()
         self._executor: asyncio.Task[None] | None = None
+
+    def add_front_end(self, front_end: FrontEnd) -> None:
+        """Keep ``front_end`` to be closed by :meth:`close`."""
+        self.front_ends.append(front_end)
 
     async def start(self) -> None:
         """Open the configured ports and start executing programs."""
@@ -76,6 +93,8 @@ class SimHaas:
         """Stop executing and close every port."""
         if self._executor is not None:
             self._executor.cancel()
+        for front_end in self.front_ends:
+            await front_end.close()
         if self.mdc is not None:
             await self.mdc.close()
         if self.dprnt_tcp is not None:
