@@ -92,6 +92,8 @@ class TncServer:
             await self._serve(session, reader, writer, lock, str(peer))
         except (ConnectionError, asyncio.IncompleteReadError, TimeoutError):
             pass  # peer vanished: only this connection ends
+        except asyncio.CancelledError:
+            pass  # server shutting down; the connection is closed below
         finally:
             session.close()
             self._tasks.discard(task)
