@@ -108,9 +108,12 @@ def test_directory_functions(con: Any, tnc: TncHandle) -> None:
     assert tool_name in [e.name for e in con.directory_content()]
     assert names
     fi = con.file_info(paths.tool_table)
-    assert fi is not None and fi.size > 100 and not is_dir(tnc, fi)
+    assert fi is not None
+    assert fi.size > 100
+    assert not is_dir(tnc, fi)
     di = con.file_info(paths.program_dir + "\\")
-    assert di is not None and is_dir(tnc, di)
+    assert di is not None
+    assert is_dir(tnc, di)
     assert con.file_info("TNC:\\") is not None
     drives = [d.name for d in con.drive_info()]
     assert "TNC:" in drives
@@ -197,7 +200,9 @@ def test_program_run_seen_by_client(lsv2: Any, con: Any, tnc: TncHandle) -> None
     time.sleep(0.5)
     after = con.axes_location()
     if 22 in tnc.profile.ri_selectors:
-        assert before is not None and after is not None and before != after
+        assert before is not None
+        assert after is not None
+        assert before != after
     else:
         assert before is None  # the family has no axis read-out over LSV2
     assert con.program_status() == 2  # finished
@@ -267,9 +272,11 @@ def test_data_paths(con: Any, tnc: TncHandle) -> None:
 def test_tool_and_errors(con: Any, tnc: TncHandle) -> None:
     if 51 in tnc.profile.ri_selectors:
         tool = con.spindle_tool_status()
-        assert tool is not None and tool.number >= 0
+        assert tool is not None
+        assert tool.number >= 0
         errors = con.get_error_messages()
-        assert errors and "Relay" in errors[0].e_text
+        assert errors
+        assert "Relay" in errors[0].e_text
     else:
         assert con.spindle_tool_status() is None
 
@@ -294,7 +301,8 @@ def test_screen_dump_is_bitmap(con: Any, tnc: TncHandle, tmp_path: Path) -> None
     target = tmp_path / "screen.bmp"
     assert con.grab_screen_dump(target)
     data = target.read_bytes()
-    assert data[:2] == b"BM" and struct.unpack_from("<I", data, 2)[0] == len(data)
+    assert data[:2] == b"BM"
+    assert struct.unpack_from("<I", data, 2)[0] == len(data)
     width, height = struct.unpack_from("<ii", data, 18)
     assert (width, height) == (640, 480)
     assert not [p for p in (tnc.root / "TNC").iterdir() if p.name.startswith("screendump")]
@@ -319,4 +327,5 @@ def test_scope_itnc_only(lsv2: Any, con: Any, tnc: TncHandle) -> None:
     readings = list(con.real_time_readings(chosen, 1, 3000))
     assert readings
     first = readings[0].get_data()
-    assert len(first) == 3 and len(first[0].data) == 32
+    assert len(first) == 3
+    assert len(first[0].data) == 32
