@@ -1,0 +1,202 @@
+"""The virtual control model without any sockets: MDC answers, DPRNT routing, alarms."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from opendnc.errors import InputError
+from opendnc.haas import mdc
+from opendnc.haas.machine import Alarm
+from opendnc.haas.runner import StepResult
+from opendnc.sim.haas.control import (
+    ALARM_DNC_LINK,
+    DprntDestination,
+    HaasConfig,
+    HaasControl,
+)
+from opendnc.sim.haas.store import ProgramStore
+from opendnc.sim.haas.surface import parse_surface
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class Capture:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+        self.codes: list[bytes] = []
+
+    def write_line(self, text: str) -> None:
+        self.lines.append(text)
+
+    def write_control(self, code: bytes) -> None:
+        self.codes.append(code)
+
+
+def make(tmp_path: Path, **kwargs: object) -> tuple[HaasControl, Clock]:
+    clock = Clock()
+    config = HaasConfig(**kwargs)  # type: ignore[arg-type]
+    return HaasControl(config, ProgramStore(tmp_path), clock=clock), clock
+
+
+def ask(control: HaasControl, line: str) -> str:
+    return control.handle_mdc(mdc.parse_request(line)).to_payload()
+
+
+def test_every_query_answers_ngc(tmp_path: Path) -> None:
+    control, clock = make(tmp_path, power_on_seconds=3600.0)
+    clock.now = 61.0
+    assert ask(control, "?Q100") == "SERIAL NUMBER, 1234567"
+    assert ask(control, "?Q101").startswith("SOFTWARE VERSION, ")
+    assert ask(control, "?Q102") == "MODEL, VF-2"
+    assert ask(control, "?Q104") == "MODE, MDI"
+    assert ask(control, "?Q200") == "TOOL CHANGES, 0"
+    assert ask(control, "?Q201") == "USING TOOL, 0"
+    assert ask(control, "?Q300") == "P.O. TIME, 00001:01:01"
+    assert ask(control, "?Q301") == "C.S. TIME, 00000:00:00"
+    assert ask(control, "?Q303") == "LAST CYCLE, 00000:00:00"
+    assert ask(control, "?Q304") == "PREV CYCLE, 00000:00:00"
+    assert ask(control, "?Q402") == "M30 #1, 0"
+    assert ask(control, "?Q403") == "M30 #2, 0"
+    assert ask(control, "?Q500") == "PROGRAM, MDI, IDLE, PARTS, 0"
+    assert ask(control, "?Q600 100") == "MACRO, 0.0"
+    assert ask(control, "?Q999") == "?"
+    assert ask(control, "?q100") == "?"
+
+
+def test_classic_differences(tmp_path: Path) -> None:
+    control, _ = make(tmp_path, control=mdc.ControlType.CLASSIC)
+    assert ask(control, "?Q104") == "MODE, (MDI)"
+    assert ask(control, "?Q999") == "UNKNOWN"
+    assert ask(control, "?q500") == "UNKNOWN"
+
+
+def test_macro_write_and_refusal(tmp_path: Path) -> None:
+    control, _ = make(tmp_path)
+    assert ask(control, "?E10100 1.5") == "!"
+    assert ask(control, "?Q600 10100") == "MACRO, 1.5"
+    assert ask(control, "?E5021 1") == "?"  # machine position is read-only
+
+
+def test_run_counts_times_and_busy(tmp_path: Path) -> None:
+    control, clock = make(tmp_path)
+    control.save_program("%\nO00123 (PART)\nT4 M06\nDPRNT[DONE]\nM30\n%\n")
+    control.start_program(123)
+    assert ask(control, "?Q500") == "STATUS, BUSY"
+    assert ask(control, "?Q104") == "MODE, MEM"
+    clock.now = 13.0
+    while control.step() is StepResult.RAN:
+        pass
+    assert ask(control, "?Q500") == "PROGRAM, O00123, IDLE, PARTS, 1"
+    assert ask(control, "?Q303") == "LAST CYCLE, 00000:00:13"
+    assert ask(control, "?Q301") == "C.S. TIME, 00000:00:13"
+    assert ask(control, "?Q201") == "USING TOOL, 4"
+    assert ask(control, "?Q200") == "TOOL CHANGES, 1"
+    assert ask(control, "?Q402") == "M30 #1, 1"
+
+
+def test_dprnt_routing_follows_setting_261(tmp_path: Path) -> None:
+    control, _ = make(tmp_path, dprnt=DprntDestination.TCP)
+    tcp, file, serial = Capture(), Capture(), Capture()
+    control.attach_dprnt(DprntDestination.TCP, tcp)
+    control.attach_dprnt(DprntDestination.FILE, file)
+    control.attach_dprnt(DprntDestination.SERIAL, serial)
+    source = control.start_stream()
+    for line in ["POPEN", "DPRNT[ONE]"]:
+        source.append(line)
+    while control.step() is StepResult.RAN:
+        pass
+    assert tcp.lines == ["ONE"] and serial.codes == [b"\x12"]
+    control.machine.settings[261] = 1
+    source.append("DPRNT[TWO]")
+    control.step()
+    assert file.lines == ["TWO"]
+    control.machine.settings[261] = 0
+    source.append("DPRNT[LOST]")
+    control.step()
+    assert control.dprnt_dropped == 1
+
+
+def test_classic_prints_to_serial(tmp_path: Path) -> None:
+    control, _ = make(tmp_path, control=mdc.ControlType.CLASSIC)
+    serial = Capture()
+    control.attach_dprnt(DprntDestination.SERIAL, serial)
+    source = control.start_stream()
+    source.append("DPRNT[HELLO]")
+    control.step()
+    assert serial.lines == ["HELLO"]
+
+
+def test_dnc_link_alarm_and_reset(tmp_path: Path) -> None:
+    control, _ = make(tmp_path)
+    seen: list[tuple[Alarm, str]] = []
+    control.alarm_hooks.append(lambda alarm, detail: seen.append((alarm, detail)))
+    source = control.start_stream("DNC")
+    source.append("G00 X1")
+    assert control.step() is StepResult.RAN
+    assert control.step() is StepResult.WAITING
+    control.raise_alarm(ALARM_DNC_LINK, "serial link dropped")
+    assert seen == [(ALARM_DNC_LINK, "serial link dropped")]
+    assert ask(control, "?Q500") == "PROGRAM, DNC, ALARM ON, PARTS, 0"
+    with pytest.raises(InputError, match="alarm"):
+        control.start_stream()
+    control.reset()
+    assert ask(control, "?Q500") == "PROGRAM, DNC, IDLE, PARTS, 0"
+
+
+def test_probe_program_with_surface(tmp_path: Path) -> None:
+    control, _ = make(tmp_path, surface=parse_surface("plane:0.1,0,-2"))
+    control.save_program("%\nO00001\nG00 X2 Y0\nG65 P9995 W54. A20. H-1.\nM30\n%")
+    control.start_program(1)
+    while control.step() is StepResult.RAN:
+        pass
+    assert ask(control, "?Q600 5223") == "MACRO, -1.8"
+
+
+def test_store_roundtrip_and_errors(tmp_path: Path) -> None:
+    store = ProgramStore(tmp_path / "mem")
+    header = store.save("O01234 (X)\nG00 X1\nM30")
+    assert header.number == 1234
+    assert store.numbers() == [1234]
+    assert store.read(1234) == "%\nO01234 (X)\nG00 X1\nM30\n%\n"
+    assert not [p for p in (tmp_path / "mem").iterdir() if p.name.startswith(".tmp")]
+    with pytest.raises(InputError):
+        store.read(5)
+    with pytest.raises(InputError):
+        store.save("G00 X1")
+    store.delete(1234)
+    assert store.numbers() == []
+
+
+@pytest.mark.parametrize(
+    ("spec", "x", "y", "z"),
+    [
+        ("flat:-1", 5, 5, -1),
+        ("plane:0.5,0.25,-1", 2, 4, 1),
+        ("sine:2,4", 1, 1, 2),
+        ("sine:2,4,1", 0, 1, 1),
+        ("wave:1,4,-1", 1, 9, 0),
+        ("bowl:1,2", 0, 0, -1),
+        ("bowl:1,2,5,5,3", 5, 6, 2.25),
+        ("bowl:1,2", 3, 0, 0),
+    ],
+)
+def test_surfaces(spec: str, x: float, y: float, z: float) -> None:
+    surface = parse_surface(spec)
+    assert surface(x, y) == pytest.approx(z)
+    assert parse_surface(str(surface)) == surface
+
+
+@pytest.mark.parametrize(
+    "spec", ["", "plane", "plane:1,2", "cone:1", "sine:1,0", "flat:x", "bowl:1,2,3", "flat:nan"]
+)
+def test_bad_surfaces(spec: str) -> None:
+    with pytest.raises(InputError):
+        parse_surface(spec)

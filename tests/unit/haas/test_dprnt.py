@@ -1,0 +1,107 @@
+"""DPRNT formatting rules (Haas manual) and the capture-side framer/parser."""
+
+from __future__ import annotations
+
+import pytest
+
+from opendnc.errors import InputError, RemoteProtocolError
+from opendnc.haas.dprnt import (
+    DprntLineFramer,
+    Text,
+    Variable,
+    format_value,
+    parse_line,
+    parse_statement,
+    render,
+)
+
+
+@pytest.mark.parametrize(
+    ("value", "fmt", "expected"),
+    [
+        (1.5436, (4, 4), "   1.5436"),  # manual: X#1[44]
+        (1.5436, (0, 3), "1.544"),  # rounded to the last printed place
+        (1.5436, (4, 0), "   1"),  # no point, whole part not rounded up
+        (1.5, (1, 4), "1.5000"),  # trailing zeros kept
+        (12345.6, (2, 2), "12345.60"),  # a longer whole part grows the field
+        (-1.5, (4, 4), "  -1.5000"),  # our documented sign choice
+        (1.99996, (1, 4), "2.0000"),  # rounding carries into the whole part
+        (-0.00001, (1, 2), "0.00"),  # no negative zero
+        (None, (2, 1), " 0.0"),  # null prints as zero
+        (0.5, (0, 1), "0.5"),  # at least one whole place
+    ],
+)
+def test_format_value(value: float | None, fmt: tuple[int, int], expected: str) -> None:
+    assert format_value(value, *fmt) == expected
+
+
+@pytest.mark.parametrize("fmt", [(0, 0), (5, 4), (4, 5), (3, 6), (9, 0)])
+def test_illegal_formats(fmt: tuple[int, int]) -> None:
+    with pytest.raises(InputError, match="illegal DPRNT format"):
+        format_value(1.0, *fmt)
+
+
+def test_statement_text_star_is_space() -> None:
+    items = parse_statement("DPRNT[***MEASURED*INSIDE*DIAMETER***]")
+    assert items == (Text("   MEASURED INSIDE DIAMETER   "),)
+    assert render(items, lambda n: None) == "   MEASURED INSIDE DIAMETER   "
+
+
+def test_statement_variables() -> None:
+    items = parse_statement("DPRNT[X#5041[44]*Z#5223[34]]")
+    assert items == (Text("X"), Variable(5041, 4, 4), Text(" Z"), Variable(5223, 3, 4))
+    values = {5041: 0.5, 5223: -2.53104}
+    assert render(items, values.get) == "X   0.5000 Z -2.5310"
+
+
+def test_empty_statement_prints_nothing() -> None:
+    assert render(parse_statement("DPRNT[]"), lambda n: None) == ""
+
+
+@pytest.mark.parametrize(
+    "source",
+    [
+        "DPRNT X1",
+        "DPRNT[#1]",
+        "DPRNT[#1[54]]",
+        "DPRNT[#1[4]]",
+        "DPRNT[a]b]",
+        "DPRNT[X\x01]",
+        "PRNT[]",
+    ],
+)
+def test_bad_statements(source: str) -> None:
+    with pytest.raises(InputError):
+        parse_statement(source)
+
+
+def test_framer_line_ends_and_control_bytes() -> None:
+    framer = DprntLineFramer()
+    framer.feed(b"\x12A 1\r")
+    framer.feed(b"\nB 2\nC\x00 3\r\r\n")
+    framer.feed(b"\x14D 4")
+    # CR LF split across feeds is one line end; CR CR LF is an empty line then one end
+    assert list(framer.lines()) == ["A 1", "B 2", "C 3", ""]
+    assert framer.flush() == "D 4"
+    assert framer.flush() is None
+
+
+def test_framer_rejects_overlong_line() -> None:
+    framer = DprntLineFramer(max_line=8)
+    with pytest.raises(RemoteProtocolError):
+        framer.feed(b"123456789")
+    framer.feed(b"ok\n")
+    assert framer.next_line() == "ok"
+
+
+def test_parse_line_fields() -> None:
+    parsed = parse_line("X   1.5436 Y  -2.0000 Z-0.25 T1 7 .5")
+    assert parsed.numbers == (1.5436, -2.0, -0.25, 1.0, 7.0, 0.5)
+    assert parsed.get("x") == 1.5436
+    assert parsed.get("Z") == -0.25
+    assert parsed.get("Q") is None
+    assert [f.label for f in parsed.fields] == ["X", "Y", "Z", "T", "", ""]
+
+
+def test_parse_line_without_numbers() -> None:
+    assert parse_line("   MEASURED INSIDE DIAMETER").numbers == ()
