@@ -113,7 +113,8 @@ def test_dprnt_routing_follows_setting_261(tmp_path: Path) -> None:
         source.append(line)
     while control.step() is StepResult.RAN:
         pass
-    assert tcp.lines == ["ONE"] and serial.codes == [b"\x12"]
+    assert tcp.lines == ["ONE"]
+    assert serial.codes == [b"\x12"]
     control.machine.settings[261] = 1
     source.append("DPRNT[TWO]")
     control.step()

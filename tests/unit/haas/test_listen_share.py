@@ -77,7 +77,8 @@ def test_listener_survives_disconnects_and_keeps_tails(tmp_path: Path) -> None:
     jsonl_sink.close()
     assert [line.text for line in got] == ["X  1.5000 Y -2", "PART", "", "Z 3"]
     assert got[0].numbers == (1.5, -2.0)
-    assert stats.connects == 2 and stats.errors == 1
+    assert stats.connects == 2
+    assert stats.errors == 1
     assert sleeps == [0.5, 1.0]  # backoff doubled after the refused connect
     assert all(s.closed for s in opened)
     rows = list(csv.reader(csv_path.read_text().splitlines()))
@@ -117,7 +118,8 @@ def test_push_to_mounted_folder(tmp_path: Path) -> None:
     progress: list[int] = []
     results = share.push([src], share.parse_target(str(folder)), progress=progress.append)
     assert (folder / "O01234.nc").read_bytes() == src.read_bytes()
-    assert results[0].size == 15 and sum(progress) == 15
+    assert results[0].size == 15
+    assert sum(progress) == 15
     assert [p.name for p in folder.iterdir()] == ["O01234.nc"]  # no temp file left
 
 

@@ -166,17 +166,21 @@ def test_m30_counters_cycle_times_and_tools() -> None:
         ToolChanged(3, 1),
         ToolChanged(5, 2),
     ]
-    assert machine.tool == 5 and machine.tool_changes == 2
-    assert machine.m30_counter_1 == 1 and machine.get(3901) == 1.0
+    assert machine.tool == 5
+    assert machine.tool_changes == 2
+    assert machine.m30_counter_1 == 1
+    assert machine.get(3901) == 1.0
     times = runner.times
     second = ProgramRunner(
         BlockSource(program_lines(text)), machine, clock=clock, emit=events.append, times=times
     )
     clock.now += 42.0
     assert second.run() is StepResult.ENDED
-    assert times.last == 42.0 and times.previous == 0.0
+    assert times.last == 42.0
+    assert times.previous == 0.0
     assert events[-1] == CycleEnded(42.0, 2)
-    assert machine.status is Status.IDLE and machine.mode is Mode.MEM
+    assert machine.status is Status.IDLE
+    assert machine.mode is Mode.MEM
 
 
 def test_goto_if_then_and_popen() -> None:
@@ -261,11 +265,13 @@ def test_machine_variables() -> None:
     machine = MachineState()
     machine.set(5221, 1.0)  # G54 X
     machine.machine_position[0] = 3.0
-    assert machine.get(5041) == 2.0 and machine.get(5021) == 3.0
+    assert machine.get(5041) == 2.0
+    assert machine.get(5021) == 3.0
     machine.settings[261] = 2
     assert machine.get(20261) == 2.0
     machine.set(100, None)
-    assert machine.get(100) is None and machine.get(0) is None
+    assert machine.get(100) is None
+    assert machine.get(0) is None
     with pytest.raises(InputError):
         machine.set(5041, 1.0)
     with pytest.raises(InputError):
