@@ -1,0 +1,84 @@
+"""A program run on the virtual Haas, its DPRNT lines captured over real TCP and in a file."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from opendnc.haas.listen import CallbackSink, CapturedLine, DprntListener, JsonlSink
+from opendnc.haas.mdc import ControlType
+from opendnc.sim.haas import DprntDestination, SimHaasThread
+
+# plane:0.02,0,-1.25 probed at X 0, 0.5, 1.0, 1.5 with DPRNT[X#5041[44]*Y#5042[44]*Z#5223[44]]
+EXPECTED = [
+    "X   0.0000 Y   0.0000 Z  -1.2500",
+    "X   0.5000 Y   0.0000 Z  -1.2400",
+    "X   1.0000 Y   0.0000 Z  -1.2300",
+    "X   1.5000 Y   0.0000 Z  -1.2200",
+    "   DONE   ",
+]
+
+
+def wait_until(predicate: object, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():  # type: ignore[operator]
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def readers(sim: SimHaasThread) -> int:
+    assert sim.sim is not None
+    assert sim.sim.dprnt_tcp is not None
+    out = sim.sim.dprnt_tcp
+    return sim.call(lambda: len(out.readers))
+
+
+def run_program(sim: SimHaasThread) -> None:
+    assert sim.sim is not None
+    control = sim.sim.control
+    sim.call(lambda: control.start_program(321))
+    wait_until(lambda: not sim.call(lambda: control.running))
+
+
+@pytest.mark.parametrize("control_type", [ControlType.NGC], ids=["ngc"])
+def test_dprnt_over_tcp_and_file_with_reconnect(sim: SimHaasThread, tmp_path: Path) -> None:
+    assert sim.sim is not None
+    assert sim.sim.dprnt_tcp is not None
+    got: list[CapturedLine] = []
+    jsonl = JsonlSink(tmp_path / "capture.jsonl")
+    listener = DprntListener(
+        f"tcp://127.0.0.1:{sim.sim.dprnt_tcp.port}",
+        [CallbackSink(got.append), jsonl],
+        backoff_start=0.05,
+    )
+    thread = threading.Thread(target=listener.run, daemon=True)
+    thread.start()
+    try:
+        wait_until(lambda: readers(sim) == 1)
+        run_program(sim)
+        wait_until(lambda: len(got) == len(EXPECTED))
+        assert [line.text for line in got] == EXPECTED
+        assert got[1].numbers == (0.5, 0.0, -1.24)
+
+        # the control drops the reader; the listener reconnects and misses nothing after
+        dprnt_out = sim.sim.dprnt_tcp
+        sim.call(lambda: [w.close() for w in dprnt_out.readers])
+        wait_until(lambda: listener.stats.connects == 2 and readers(sim) == 1)
+        run_program(sim)
+        wait_until(lambda: len(got) == 2 * len(EXPECTED))
+        assert [line.text for line in got[len(EXPECTED) :]] == EXPECTED
+    finally:
+        listener.stop()
+        thread.join(5)
+        jsonl.close()
+    assert len((tmp_path / "capture.jsonl").read_text().splitlines()) == 2 * len(EXPECTED)
+
+    # Setting 261 = 1: the same program prints to the file named by Setting 262
+    control = sim.sim.control
+    sim.call(lambda: control.machine.settings.__setitem__(261, int(DprntDestination.FILE)))
+    run_program(sim)
+    path = Path(str(control.machine.settings[262]))
+    assert path.read_bytes() == b"".join(line.encode() + b"\r\n" for line in EXPECTED)
