@@ -18,11 +18,11 @@ from __future__ import annotations
 import os
 import shutil
 import stat
-import struct
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from opendnc.lsv2.payloads import FileEntry
 from opendnc.sim.tnc.profiles import Profile
 
 # Characters no control accepts in a file name; ':' is only legal in the drive prefix.
@@ -133,21 +133,27 @@ class Entry:
     selected: bool = False
     is_drive: bool = False
 
-    def encode(self, old_scheme: bool) -> bytes:
-        """File-entry layout of §8.7 with the family's attribute bits."""
+    def attributes(self, old_scheme: bool) -> int:
+        """Attribute bits of §8.7 in the family's scheme."""
         attr = 0x01
-        if self.is_drive:
-            attr |= 0x10 if not old_scheme else 0
+        if self.is_drive and not old_scheme:
+            attr |= 0x10
         if self.is_dir:
             attr |= 0x40 if old_scheme else 0x20
         if self.read_only:
             attr |= 0x20 if old_scheme else 0x40
         if self.selected and not old_scheme:
             attr |= 0x80
-        size = min(self.size, 0xFFFFFFFF)
-        mtime = max(0, min(self.mtime, 0xFFFFFFFF))
-        return (
-            struct.pack(">III", size, mtime, attr) + self.name.encode("latin-1", "replace") + b"\0"
+        return attr
+
+    def to_file_entry(self, old_scheme: bool) -> FileEntry:
+        """The codec's entry (name made Latin-1 safe, numbers clamped to u32)."""
+        name = self.name.encode("latin-1", "replace").decode("latin-1")
+        return FileEntry(
+            name=name,
+            size=min(self.size, 0xFFFFFFFF),
+            mtime=max(0, min(self.mtime, 0xFFFFFFFF)),
+            attributes=self.attributes(old_scheme),
         )
 
 

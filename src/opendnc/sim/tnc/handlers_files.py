@@ -6,88 +6,92 @@ import os
 from collections.abc import Iterator
 
 from opendnc.lsv2.constants import ErrorCode as E
-from opendnc.lsv2.framing import Frame
-from opendnc.lsv2.payloads import DirectoryInfo, read_cstr
-from opendnc.sim.tnc.filesystem import Entry, FsError, WirePath
-from opendnc.sim.tnc.session import (
-    DONE,
-    OK,
-    Priv,
-    Refuse,
-    Session,
-    Upload,
-    block_defect,
-    handler,
+from opendnc.lsv2.messages import (
+    BlockDefect,
+    ChangeDir,
+    CopyFile,
+    DeleteDir,
+    DeleteFile,
+    DirInfoReply,
+    DirReply,
+    FileData,
+    FileDone,
+    FileInfoReply,
+    MakeDir,
+    Message,
+    MoveFile,
+    ReadDir,
+    ReadDirInfo,
+    ReadFile,
+    ReadFileInfo,
+    Refused,
+    SendFile,
 )
+from opendnc.lsv2.payloads import DirectoryInfo, FileEntry
+from opendnc.sim.tnc.filesystem import Entry, FsError, WirePath
+from opendnc.sim.tnc.session import OK, Priv, Refuse, Session, Upload, block_defect, handler
 
 MODE_BINARY = 0x01
 MODE_MERGE = 0x02
 
 
-def _path_and_mode(payload: bytes) -> tuple[str, int]:
-    """``cstr path`` + optional ``u8 mode`` (absent = ASCII)."""
-    text, end = read_cstr(payload)
-    mode = payload[end] if end < len(payload) else 0
-    if not text:
-        raise Refuse(E.T_ER_BAD_FNAME)
-    return text, mode
+def _entry(s: Session, entry: Entry) -> DirReply:
+    return DirReply((entry.to_file_entry(s.control.profile.old_attributes),))
 
 
-def _entry_frame(s: Session, mnemonic: str, entry: Entry) -> Frame:
-    return Frame(mnemonic, entry.encode(s.control.profile.old_attributes))
-
-
-@handler("R_DI", Priv.FILE)
-def directory_info(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadDirInfo, Priv.FILE)
+def directory_info(s: Session, m: ReadDirInfo) -> list[Message]:
     """R_DI: free bytes and the current directory with trailing separator."""
-    info = DirectoryInfo(s.control.fs.free_bytes(), s.cwd.as_dir())
-    return [Frame("S_DI", info.to_bytes())]
+    return [DirInfoReply(DirectoryInfo(s.control.fs.free_bytes(), s.cwd.as_dir()))]
 
 
-@handler("R_DR", Priv.FILE)
-def directory_list(s: Session, f: Frame) -> list[Frame]:
-    """R_DR mode: 0 one entry per S_DR, 1 packed entries, 2 drives (mode = last byte)."""
-    mode = f.payload[-1] if f.payload else 0
+@handler(ReadDir, Priv.FILE)
+def directory_list(s: Session, m: ReadDir) -> list[Message]:
+    """R_DR mode: 0 one entry per S_DR, 1 packed entries, 2 drives."""
+    mode = m.mode
     fs = s.control.fs
     if mode == 2:
         drives = [
             Entry(d, 0, int(fs.drive_dir(d).stat().st_mtime), True, False, is_drive=True)
             for d in fs.drives
         ]
-        return s.start_sequence(_entry_frame(s, "S_DR", e) for e in drives)
+        return s.start_sequence(_entry(s, e) for e in drives)
     if mode not in (0, 1):
         raise Refuse(E.T_ER_WRONG_PARA)
     entries = fs.listdir(s.cwd)
     if mode == 0:
-        return s.start_sequence(_entry_frame(s, "S_DR", e) for e in entries)
+        return s.start_sequence(_entry(s, e) for e in entries)
     return s.start_sequence(_packed(s, entries))
 
 
-def _packed(s: Session, entries: list[Entry]) -> Iterator[Frame]:
+def _packed(s: Session, entries: list[Entry]) -> Iterator[Message]:
     old = s.control.profile.old_attributes
-    block = b""
+    block: list[FileEntry] = []
+    size = 8
     for e in entries:
-        raw = e.encode(old)
-        if block and 8 + len(block) + len(raw) > s.buffer_size:
-            yield Frame("S_DR", block)
-            block = b""
-        block += raw
+        fe = e.to_file_entry(old)
+        need = 13 + len(fe.name)
+        if block and size + need > s.buffer_size:
+            yield DirReply(tuple(block))
+            block, size = [], 8
+        block.append(fe)
+        size += need
     if block:
-        yield Frame("S_DR", block)
+        yield DirReply(tuple(block))
 
 
-@handler("R_FI", Priv.FILE)
-def file_info(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadFileInfo, Priv.FILE)
+def file_info(s: Session, m: ReadFileInfo) -> list[Message]:
     """R_FI path: file, directory or drive root."""
-    text = read_cstr(f.payload)[0]
-    wp = s.path(text)
-    return [_entry_frame(s, "S_FI", s.control.fs.entry(wp))]
+    wp = s.path(m.path)
+    entry = s.control.fs.entry(wp)
+    return [FileInfoReply(entry.to_file_entry(s.control.profile.old_attributes))]
 
 
-@handler("C_DC", Priv.FILE)
-def change_dir(s: Session, f: Frame) -> list[Frame]:
+@handler(ChangeDir, Priv.FILE)
+def change_dir(s: Session, m: ChangeDir) -> list[Message]:
     """C_DC dir."""
-    text = read_cstr(f.payload)[0]
+    text = m.path
     try:
         wp = s.path(text)
         if not s.control.fs.is_dir(wp):
@@ -98,18 +102,18 @@ def change_dir(s: Session, f: Frame) -> list[Frame]:
     return [OK]
 
 
-@handler("C_DM", Priv.FILE)
-def make_dir(s: Session, f: Frame) -> list[Frame]:
+@handler(MakeDir, Priv.FILE)
+def make_dir(s: Session, m: MakeDir) -> list[Message]:
     """C_DM dir (one level)."""
-    s.control.fs.mkdir(s.path(read_cstr(f.payload)[0]))
+    s.control.fs.mkdir(s.path(m.path))
     return [OK]
 
 
-@handler("C_DD", Priv.FILE)
-def delete_dir(s: Session, f: Frame) -> list[Frame]:
+@handler(DeleteDir, Priv.FILE)
+def delete_dir(s: Session, m: DeleteDir) -> list[Message]:
     """C_DD dir: empty directories only; the current one only where the family allows it."""
     fs = s.control.fs
-    wp = s.path(read_cstr(f.payload)[0])
+    wp = s.path(m.path)
     if not fs.is_dir(wp):
         raise Refuse(E.T_ER_NO_DIR)
     inside_cwd = s.cwd.drive == wp.drive and [p.lower() for p in s.cwd.parts[: len(wp.parts)]] == [
@@ -123,33 +127,31 @@ def delete_dir(s: Session, f: Frame) -> list[Frame]:
     return [OK]
 
 
-@handler("C_FD", Priv.FILE)
-def delete_file(s: Session, f: Frame) -> list[Frame]:
+@handler(DeleteFile, Priv.FILE)
+def delete_file(s: Session, m: DeleteFile) -> list[Message]:
     """C_FD file."""
-    s.control.fs.delete(s.path(read_cstr(f.payload)[0]))
+    s.control.fs.delete(s.path(m.path))
     return [OK]
 
 
-def _two_paths(s: Session, payload: bytes) -> tuple[WirePath, WirePath]:
-    src, end = read_cstr(payload)
-    dst = read_cstr(payload, end)[0] if end < len(payload) else ""
-    if not src or not dst:
+def _two_paths(s: Session, m: CopyFile | MoveFile) -> tuple[WirePath, WirePath]:
+    if not m.source or not m.target:
         raise Refuse(E.T_ER_BAD_FNAME)
-    return s.path(src), s.path(dst)
+    return s.path(m.source), s.path(m.target)
 
 
-@handler("C_FC", Priv.FILE)
-def copy_file(s: Session, f: Frame) -> list[Frame]:
+@handler(CopyFile, Priv.FILE)
+def copy_file(s: Session, m: CopyFile) -> list[Message]:
     """C_FC source target (source relative to the current directory)."""
-    src, dst = _two_paths(s, f.payload)
+    src, dst = _two_paths(s, m)
     s.control.fs.copy(src, dst)
     return [OK]
 
 
-@handler("C_FR", Priv.FILE)
-def move_file(s: Session, f: Frame) -> list[Frame]:
+@handler(MoveFile, Priv.FILE)
+def move_file(s: Session, m: MoveFile) -> list[Message]:
     """C_FR source target."""
-    src, dst = _two_paths(s, f.payload)
+    src, dst = _two_paths(s, m)
     s.control.fs.move(src, dst)
     return [OK]
 
@@ -165,32 +167,32 @@ def from_wire_ascii(data: bytes) -> bytes:
     return data.replace(b"\0", b"\r\n")
 
 
-@handler("R_FL", Priv.FILE)
-def read_file(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadFile, Priv.FILE)
+def read_file(s: Session, m: ReadFile) -> list[Message]:
     """R_FL path [mode]: S_FL blocks within the buffer, then T_FD."""
-    text, mode = _path_and_mode(f.payload)
-    wp = s.path(text)
+    mode = m.mode or 0
+    wp = s.path(m.path)
     data = s.control.fs.read_bytes(wp)
     if not mode & MODE_BINARY:
         data = to_wire_ascii(data)
     step = s.data_limit()
 
-    def blocks() -> Iterator[Frame]:
+    def blocks() -> Iterator[Message]:
         if not data:
-            yield Frame("S_FL", b"")  # pyLSV2 needs one block even for an empty file
+            yield FileData(b"")  # pyLSV2 needs one block even for an empty file
             return
         for off in range(0, len(data), step):
-            yield Frame("S_FL", data[off : off + step])
+            yield FileData(data[off : off + step])
 
     return s.start_sequence(blocks())
 
 
 # -- uploads ----------------------------------------------------------------------------------
-@handler("C_FL", Priv.FILE)
-def write_file(s: Session, f: Frame) -> list[Frame]:
+@handler(SendFile, Priv.FILE)
+def write_file(s: Session, m: SendFile) -> list[Message]:
     """C_FL path [mode]: open a hidden partial file; S_FL blocks follow."""
-    text, mode = _path_and_mode(f.payload)
-    wp = s.path(text)
+    mode = m.mode or 0
+    wp = s.path(m.path)
     fs = s.control.fs
     merge = bool(mode & MODE_MERGE)
     host = fs.check_new_file(wp, overwrite=merge)
@@ -201,13 +203,13 @@ def write_file(s: Session, f: Frame) -> list[Frame]:
     return [OK]
 
 
-@handler("S_FL", Priv.FILE)
-def file_block(s: Session, f: Frame) -> list[Frame]:
+@handler(FileData, Priv.FILE)
+def file_block(s: Session, m: FileData) -> list[Message]:
     """One upload block."""
     up = s.upload
     if up is None:
         raise Refuse(E.T_ER_UNEXPECTED_TELE)
-    data = f.payload if up.binary else from_wire_ascii(f.payload)
+    data = m.data if up.binary else from_wire_ascii(m.data)
     try:
         os.write(up.fd, data)
     except OSError:
@@ -217,8 +219,8 @@ def file_block(s: Session, f: Frame) -> list[Frame]:
     return [OK]
 
 
-@handler("T_FD", Priv.FILE)
-def file_done(s: Session, f: Frame) -> list[Frame]:
+@handler(FileDone, Priv.FILE)
+def file_done(s: Session, m: FileDone) -> list[Message]:
     """End of an upload: rename into place; answer only with secure file send (§6.2)."""
     up = s.upload
     if up is None:
@@ -230,16 +232,13 @@ def file_done(s: Session, f: Frame) -> list[Frame]:
     except (OSError, FsError) as exc:
         up.partial.unlink(missing_ok=True)
         code = exc.code if isinstance(exc, FsError) else E.T_ER_NO_NEW_FILE
-        return [Frame("T_ER", bytes([1, code]))] if s.secure_send else []
+        return [Refused(code)] if s.secure_send else []
     s.control.log_event(f"File received: {up.target}")
     return [OK] if s.secure_send else []
 
 
-@handler("T_BD", Priv.ANY)
-def transfer_aborted(s: Session, f: Frame) -> list[Frame]:
+@handler(BlockDefect, Priv.ANY)
+def transfer_aborted(s: Session, m: BlockDefect) -> list[Message]:
     """Client aborts an upload: drop the partial file, no answer."""
     s.abort_upload()
     return []
-
-
-__all__ = ["DONE"]

@@ -3,11 +3,30 @@
 from __future__ import annotations
 
 import itertools
-import struct
 from collections.abc import Iterator
 
 from opendnc.lsv2.constants import ErrorCode as E
-from opendnc.lsv2.framing import Frame
+from opendnc.lsv2.messages import (
+    DataPathReply,
+    EmulateKey,
+    LockKeyboard,
+    MachineParameterReply,
+    MemoryReply,
+    Message,
+    Opaque,
+    ReadDataPath,
+    ReadMachineParameter,
+    ReadMemory,
+    ReadRunInfo,
+    ReadScopeChannels,
+    RunInfoReply,
+    ScopeChannelReply,
+    ScopeDataReply,
+    ScopeSelect,
+    ScopeSignalReply,
+    ScopeStart,
+    WriteMachineParameter,
+)
 from opendnc.lsv2.payloads import read_cstr
 from opendnc.lsv2.runinfo import (
     AxesConfig,
@@ -70,100 +89,81 @@ def _run_info(s: Session, selector: int) -> bytes:
     raise Refuse(E.T_ER_WRONG_PARA)
 
 
-@handler("R_RI", Priv.INSPECT)
-def run_info(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadRunInfo, Priv.INSPECT)
+def run_info(s: Session, m: ReadRunInfo) -> list[Message]:
     """R_RI u16 selector (DNC login; selectors per family)."""
-    if len(f.payload) != 2:
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    (selector,) = struct.unpack(">H", f.payload)
-    if selector not in s.control.profile.ri_selectors:
+    if m.selector not in s.control.profile.ri_selectors:
         raise Refuse(E.T_ER_WRONG_PARA)
     if "DNC" not in s.logins:
         raise Refuse(E.T_ER_NO_PRIV)
-    return [Frame("S_RI", _run_info(s, selector))]
+    return [RunInfoReply(_run_info(s, m.selector))]
 
 
-@handler("R_MB", Priv.INSPECT)
-def read_memory(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadMemory, Priv.INSPECT)
+def read_memory(s: Session, m: ReadMemory) -> list[Message]:
     """R_MB u32 address + u8 count: raw bytes of the PLC image."""
-    if len(f.payload) != 5:
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    address, count = struct.unpack(">IB", f.payload)
     s.control.machine.advance()
     try:
-        return [Frame("S_MB", s.control.plc.read(address, count))]
+        return [MemoryReply(s.control.plc.read(m.address, m.count))]
     except PlcError as exc:
         raise Refuse(exc.code) from None
 
 
-@handler("R_DP", Priv.DATA)
-def read_data_path(s: Session, f: Frame) -> list[Frame]:
-    """R_DP 4 bytes + cstr path (iTNC only)."""
+@handler(ReadDataPath, Priv.DATA)
+def read_data_path(s: Session, m: ReadDataPath) -> list[Message]:
+    """R_DP path (iTNC only)."""
     if not s.control.profile.data_paths:
         raise Refuse(E.T_ER_UNKNOWN_TELE)
-    if len(f.payload) < 5:
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    path = read_cstr(f.payload, 4)[0]
     s.control.machine.advance()
     try:
-        value = resolve_data_path(path, s.control.plc, s.control.tool_rows())
+        value = resolve_data_path(m.path, s.control.plc, s.control.tool_rows())
     except PlcError as exc:
         raise Refuse(exc.code) from None
-    return [Frame("S_DP", value.encode())]
+    return [DataPathReply(int(value.kind), value.value)]
 
 
-@handler("R_MC", Priv.INSPECT)
-def read_parameter(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadMachineParameter, Priv.INSPECT)
+def read_parameter(s: Session, m: ReadMachineParameter) -> list[Message]:
     """R_MC name -> S_MC value."""
-    value = s.control.mp.read(read_cstr(f.payload)[0])
+    value = s.control.mp.read(m.name)
     if value is None:
         raise Refuse(E.T_ER_NO_MP)
-    return [Frame("S_MC", value.encode("latin-1", "replace") + b"\0")]
+    return [MachineParameterReply(value.encode("latin-1", "replace").decode("latin-1"))]
 
 
-@handler("C_MC", Priv.PLCDEBUG)
-def write_parameter(s: Session, f: Frame) -> list[Frame]:
-    """C_MC u32 flags + name + value (flag 1 = temporary)."""
-    if len(f.payload) < 6:
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    (flags,) = struct.unpack_from(">I", f.payload)
-    name, end = read_cstr(f.payload, 4)
-    value = read_cstr(f.payload, end)[0] if end < len(f.payload) else ""
-    if not s.control.mp.write(name, value, temporary=bool(flags & 1)):
+@handler(WriteMachineParameter, Priv.PLCDEBUG)
+def write_parameter(s: Session, m: WriteMachineParameter) -> list[Message]:
+    """C_MC flags name value (flag 1 = temporary until restart)."""
+    if not s.control.mp.write(m.name, m.value, temporary=bool(m.flags & 1)):
         raise Refuse(E.T_ER_NO_MP)
-    s.control.log_event(f"Machine parameter {name} = {value}")
+    s.control.log_event(f"Machine parameter {m.name} = {m.value}")
     return [OK]
 
 
-@handler("C_LK", Priv.MONITOR)
-def lock_keyboard(s: Session, f: Frame) -> list[Frame]:
-    """C_LK u8: 1 lock, 0 unlock the control's own keyboard."""
+@handler(LockKeyboard, Priv.MONITOR)
+def lock_keyboard(s: Session, m: LockKeyboard) -> list[Message]:
+    """C_LK: lock or unlock the control's own keyboard."""
     if s.control.profile.keys.value == "none":
         raise Refuse(E.T_ER_UNKNOWN_TELE)
-    if len(f.payload) != 1 or f.payload[0] not in (0, 1, 0x30, 0x31):
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    s.keyboard_locked = f.payload[0] in (1, 0x31)
-    s.control.machine.keyboard_locked = s.keyboard_locked
+    s.keyboard_locked = m.locked
+    s.control.machine.keyboard_locked = m.locked
     return [OK]
 
 
-@handler("C_EK", Priv.MONITOR)
-def emulate_key(s: Session, f: Frame) -> list[Frame]:
+@handler(EmulateKey, Priv.MONITOR)
+def emulate_key(s: Session, m: EmulateKey) -> list[Message]:
     """C_EK u16 key code."""
-    if len(f.payload) != 2:
-        raise Refuse(E.T_ER_BAD_FORMAT)
-    (code,) = struct.unpack(">H", f.payload)
     try:
-        s.control.machine.press_key(code)
+        s.control.machine.press_key(m.code)
     except MachineError as exc:
         raise Refuse(exc.code) from None
     return [OK]
 
 
 @handler("C_NC", Priv.DNC)
-def select_program(s: Session, f: Frame) -> list[Frame]:
-    """C_NC path: select an NC program for execution (DNC)."""
-    wp = s.path(read_cstr(f.payload)[0])
+def select_program(s: Session, m: Opaque) -> list[Message]:
+    """C_NC path: select an NC program for execution (DNC; layout assumed: one cstr)."""
+    wp = s.path(read_cstr(m.payload)[0])
     try:
         s.control.select_program(wp)
     except MachineError as exc:
@@ -172,42 +172,44 @@ def select_program(s: Session, f: Frame) -> list[Frame]:
 
 
 @handler("C_CN", Priv.DNC)
-def cancel_program(s: Session, f: Frame) -> list[Frame]:
+def cancel_program(s: Session, m: Opaque) -> list[Message]:
     """C_CN: cancel the running program."""
     s.control.machine.cancel()
     return [OK]
 
 
 # -- scope ------------------------------------------------------------------------------------
-@handler("R_OC", Priv.OSZI)
-def scope_channels(s: Session, f: Frame) -> list[Frame]:
+@handler(ReadScopeChannels, Priv.OSZI)
+def scope_channels(s: Session, m: ReadScopeChannels) -> list[Message]:
     """R_OC: one S_OC per T_OK, then T_FD."""
-    return s.start_sequence(Frame("S_OC", c.describe()) for c in scope.CHANNELS)
+    return s.start_sequence(ScopeChannelReply(c.describe()) for c in scope.CHANNELS)
 
 
-@handler("R_OP", Priv.OSZI)
-def scope_select(s: Session, f: Frame) -> list[Frame]:
+@handler(ScopeSelect, Priv.OSZI)
+def scope_select(s: Session, m: ScopeSelect) -> list[Message]:
     """R_OP interval + selectors -> S_OP signal details."""
+    if m.interval not in scope.INTERVALS:
+        raise Refuse(E.T_ER_OSZI_CHSEL)
     try:
-        interval, signals = scope.parse_selection(f.payload)
+        signals = scope.parse_selection(m.signals)
     except ValueError as exc:
         raise Refuse(int(exc.args[0])) from None
     s.scope_signals = list(signals)
-    s.scope_interval = interval
-    return [Frame("S_OP", scope.signal_details(signals))]
+    s.scope_interval = m.interval
+    return [ScopeSignalReply(scope.signal_details(signals))]
 
 
-@handler("R_OD", Priv.OSZI)
-def scope_data(s: Session, f: Frame) -> list[Frame]:
+@handler(ScopeStart, Priv.OSZI)
+def scope_data(s: Session, m: ScopeStart) -> list[Message]:
     """R_OD trigger block: stream S_OD blocks, one per T_OK, until another telegram."""
     signals = [x for x in s.scope_signals if isinstance(x, scope.Signal)]
-    if not signals or len(f.payload) != 16:
+    if not signals:
         raise Refuse(E.T_ER_OSZI_CHSEL)
     machine = s.control.machine
     interval = s.scope_interval
 
-    def stream() -> Iterator[Frame]:
+    def stream() -> Iterator[Message]:
         for seq in itertools.count():
-            yield Frame("S_OD", scope.sample_block(machine, signals, seq, interval))
+            yield ScopeDataReply(seq, scope.sample_blocks(machine, signals, seq, interval))
 
     return s.start_sequence(stream())

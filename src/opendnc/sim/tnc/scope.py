@@ -7,16 +7,16 @@ channels without a live source) so a recording shows what the machine is doing.
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 
+from opendnc.lsv2.payloads import ScopeChannel, ScopeSamples, ScopeSignal, ScopeSignalInfo
 from opendnc.sim.tnc.machine import Machine
 
 OSZI_CHSEL = 83
 TOO_MANY_SIGNALS = 85
 MAX_SIGNALS = 16
 SAMPLES_PER_BLOCK = 32
-INTERVALS = (600, 3000, 21000)
+INTERVALS = (600, 3000, 21000)  # the only intervals pyLSV2 and TNCscope use
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,15 +30,21 @@ class Channel:
     unit: str
     factor: float
 
-    def describe(self) -> bytes:
-        """``S_OC`` payload: 59 bytes (type 0), 90 (types 1/4) or 94 (types 2/10)."""
-        head = struct.pack(">HHHHH", self.number, 600, self.kind, 0, 600) + b"\0" * 36
-        head += self.name.encode("latin-1")[:12].ljust(13, b"\0")
-        if self.kind == 0:
-            return head
-        total = 90 if self.kind in (1, 4) else 94
-        labels = b"".join(label.encode("latin-1") + b"\0" for label in self.labels)
-        return (head + labels).ljust(total, b"\0")[:total]
+    def describe(self) -> ScopeChannel:
+        """The codec's ``S_OC`` description, padded to the captured lengths."""
+        total = 59 if self.kind == 0 else 90 if self.kind in (1, 4) else 94
+        return PaddedChannel(self.number, 600, self.kind, self.name, self.labels, total)
+
+
+@dataclass(frozen=True, slots=True)
+class PaddedChannel(ScopeChannel):
+    """Real controls send fixed-size descriptions (59, 90 or 94 bytes): pad the labels."""
+
+    total: int = 59
+
+    def to_bytes(self) -> bytes:
+        """The codec's layout, NUL-padded to ``total`` bytes."""
+        return ScopeChannel.to_bytes(self).ljust(self.total, b"\0")
 
 
 _AXES = ("X", "Y", "Z", "B", "C", "-", "-", "-")
@@ -62,46 +68,43 @@ class Signal:
     address: int = 0
 
 
-def parse_selection(payload: bytes) -> tuple[int, list[Signal]]:
-    """Decode ``R_OP``: interval and 8-byte selectors; ValueError(code) when invalid."""
-    if len(payload) < 12 or (len(payload) - 4) % 8:
+def parse_selection(selectors: tuple[ScopeSignal, ...]) -> list[Signal]:
+    """Check ``R_OP`` selectors; ValueError(code) when invalid."""
+    if not selectors:
         raise ValueError(OSZI_CHSEL)
-    interval = struct.unpack_from(">I", payload)[0]
-    if interval not in INTERVALS:
-        raise ValueError(OSZI_CHSEL)
+    if len(selectors) > MAX_SIGNALS:
+        raise ValueError(TOO_MANY_SIGNALS)
     by_number = {c.number: c for c in CHANNELS}
     signals = []
-    for off in range(4, len(payload), 8):
-        number, sub, address = struct.unpack_from(">HHI", payload, off)
-        channel = by_number.get(number)
+    for sel in selectors:
+        channel = by_number.get(sel.channel)
         if channel is None:
             raise ValueError(OSZI_CHSEL)
-        if channel.kind in (1, 4) and (sub >= len(channel.labels) or channel.labels[sub] == "-"):
-            raise ValueError(OSZI_CHSEL)
-        if channel.kind in (2, 10):
-            signals.append(Signal(channel, 0, sub, address))
+        if channel.kind in (1, 4):
+            if sel.selector >= len(channel.labels) or channel.labels[sel.selector] == "-":
+                raise ValueError(OSZI_CHSEL)
+            signals.append(Signal(channel, sel.selector))
+        elif channel.kind in (2, 10):
+            signals.append(Signal(channel, 0, sel.selector, sel.address))
         else:
-            signals.append(Signal(channel, sub if channel.kind else 0))
-    if len(signals) > MAX_SIGNALS:
-        raise ValueError(TOO_MANY_SIGNALS)
-    return interval, signals
+            signals.append(Signal(channel, 0))
+    return signals
 
 
-def signal_details(signals: list[Signal]) -> bytes:
-    """``S_OP``: per signal 10-byte unit, f64le factor, i32 offset 0."""
-    out = b""
-    for s in signals:
-        out += s.channel.unit.encode("latin-1")[:10].ljust(10, b"\0")
-        out += struct.pack("<d", s.channel.factor) + b"\0\0\0\0"
-    return out
+def signal_details(signals: list[Signal]) -> tuple[ScopeSignalInfo, ...]:
+    """``S_OP`` records: unit, scale factor, offset 0."""
+    return tuple(ScopeSignalInfo(s.channel.unit, s.channel.factor, 0) for s in signals)
 
 
-def sample_block(machine: Machine, signals: list[Signal], sequence: int, interval: int) -> bytes:
-    """``S_OD``: sequence number + per signal 32 raw samples."""
+def sample_blocks(
+    machine: Machine, signals: list[Signal], sequence: int, interval: int
+) -> tuple[ScopeSamples, ...]:
+    """One ``S_OD`` worth of samples: 32 raw values per selected signal."""
     machine.advance()
     positions = list(machine.positions.values())
-    out = struct.pack(">I", sequence)
+    running = machine.running
     t0 = sequence * SAMPLES_PER_BLOCK * interval / 1e6
+    blocks = []
     for s in signals:
         values = []
         for k in range(SAMPLES_PER_BLOCK):
@@ -110,7 +113,7 @@ def sample_block(machine: Machine, signals: list[Signal], sequence: int, interva
             if kind in (0, 1) and s.index < len(positions):
                 phys = positions[s.index] + (0.0005 * math.sin(40 * t) if kind == 0 else 0.0)
             elif kind == 2:
-                phys = 600.0 * machine.feed_override / 10000 if machine.running else 0.0
+                phys = 600.0 * machine.feed_override / 10000 if running else 0.0
             elif kind == 3:
                 phys = 0.002 * math.sin(2 * math.pi * 5 * t)
             elif kind == 4:
@@ -119,6 +122,5 @@ def sample_block(machine: Machine, signals: list[Signal], sequence: int, interva
                 phys = float(machine.plc.image[s.address % len(machine.plc.image)])
             raw = round(phys / s.channel.factor)
             values.append(max(-(2**31), min(2**31 - 1, raw)))
-        out += struct.pack(">H", SAMPLES_PER_BLOCK) + b"\xff\xff\xff\xff"
-        out += struct.pack(f">{SAMPLES_PER_BLOCK}i", *values)
-    return out
+        blocks.append(ScopeSamples(tuple(values)))
+    return tuple(blocks)

@@ -1,8 +1,9 @@
 """asyncio LSV2 server of the virtual TNC, plus a thread-hosted handle for blocking code.
 
 Each connection gets a :class:`~opendnc.sim.tnc.session.Session` and the shared
-:class:`~opendnc.sim.tnc.control.Control`; telegrams are cut with the same
-:class:`~opendnc.lsv2.framing.TelegramFramer` the client uses.  A connection that sends
+:class:`~opendnc.sim.tnc.control.Control`; bytes go through the same sans-IO engine the
+client uses (:class:`~opendnc.lsv2.connection.Lsv2Connection` in the server role: framing,
+typed decoding, buffer size and secure-send bookkeeping).  A connection that sends
 bytes which cannot be framed, or vanishes, is dropped alone (its partial upload is deleted);
 the server and every other connection carry on.
 """
@@ -19,14 +20,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from opendnc.errors import RemoteProtocolError
-from opendnc.lsv2.framing import Frame, TelegramFramer
+from opendnc.errors import LocalProtocolError, RemoteProtocolError
+from opendnc.lsv2.connection import Lsv2Connection, Role
+from opendnc.lsv2.constants import ErrorCode as E
+from opendnc.lsv2.framing import HEADER_SIZE
+from opendnc.lsv2.messages import REGISTRY, Message, Refused
 
 # Importing the handler modules registers their telegrams.
 from opendnc.sim.tnc import handlers_files, handlers_machine, handlers_session
 from opendnc.sim.tnc.control import Control
 from opendnc.sim.tnc.profiles import get_profile
-from opendnc.sim.tnc.session import Deferred, Session, error
+from opendnc.sim.tnc.session import Deferred, Session
 from opendnc.sim.tnc.trace import TraceHook
 
 _log = logging.getLogger(__name__)
@@ -85,11 +89,12 @@ class TncServer:
         task = asyncio.current_task()
         assert task is not None
         self._tasks.add(task)
-        session = Session(self.control)
-        peer = writer.get_extra_info("peername")
+        link = Lsv2Connection(Role.SERVER, max_payload=MAX_WIRE_PAYLOAD)
+        session = Session(self.control, link)
+        peer = str(writer.get_extra_info("peername"))
         lock = asyncio.Lock()
         try:
-            await self._serve(session, reader, writer, lock, str(peer))
+            await self._serve(session, link, reader, writer, lock, peer)
         except (ConnectionError, asyncio.IncompleteReadError, TimeoutError):
             pass  # peer vanished: only this connection ends
         except asyncio.CancelledError:
@@ -104,57 +109,84 @@ class TncServer:
     async def _serve(
         self,
         session: Session,
+        link: Lsv2Connection,
         reader: asyncio.StreamReader,
         writer: asyncio.StreamWriter,
         lock: asyncio.Lock,
         peer: str,
     ) -> None:
-        framer = TelegramFramer(MAX_WIRE_PAYLOAD)
         while True:
             data = await asyncio.wait_for(reader.read(65536), self.idle_timeout)
             if not data:
                 return
-            framer.feed(data)
+            link.receive_data(data)
             while True:
+                before = link.last_frame
                 try:
-                    frame = framer.next_frame()
+                    request = link.next_event()
                 except RemoteProtocolError as exc:
-                    # Lost telegram sync (bad name, absurd length): say so and hang up.
+                    frame = link.last_frame
+                    if frame is None or frame is before:
+                        # The framer lost sync (bad name, absurd length): answer, hang up.
+                        if self.trace:
+                            self.trace.note(peer, f"dropping connection: {exc}")
+                        await self._send(link, writer, lock, [Refused(E.T_ER_BAD_FORMAT)], peer)
+                        return
+                    # A whole telegram arrived but does not decode: refuse it, carry on.
                     if self.trace:
-                        self.trace.note(peer, f"dropping connection: {exc}")
-                    await self._send(writer, lock, [error(20)], peer)
-                    return
-                if frame is None:
+                        self.trace.raw(peer, "<-", frame, str(exc))
+                    known = frame.mnemonic in REGISTRY
+                    code = E.T_ER_BAD_FORMAT if known else E.T_ER_UNKNOWN_TELE
+                    await self._send(link, writer, lock, [Refused(code)], peer)
+                    continue
+                if request is None:
                     break
+                frame = link.last_frame
+                assert frame is not None
                 if self.trace:
-                    self.trace.frame(peer, "<-", frame)
-                result = session.handle(frame)
-                await self._send(writer, lock, result.frames, peer)
+                    self.trace.raw(peer, "<-", frame, repr(request))
+                result = session.handle(request, HEADER_SIZE + len(frame.payload))
+                await self._send(link, writer, lock, result.frames, peer)
                 for deferred in result.deferred:
-                    self._spawn_deferred(deferred, writer, lock, peer)
+                    self._spawn_deferred(deferred, link, writer, lock, peer)
 
     async def _send(
-        self, writer: asyncio.StreamWriter, lock: asyncio.Lock, frames: list[Frame], peer: str
+        self,
+        link: Lsv2Connection,
+        writer: asyncio.StreamWriter,
+        lock: asyncio.Lock,
+        messages: list[Message],
+        peer: str,
     ) -> None:
         async with lock:
-            for frame in frames:
+            for message in messages:
                 if self.latency:
                     await asyncio.sleep(self.latency)
+                try:
+                    wire = link.send(message)
+                except LocalProtocolError:
+                    # An answer that does not fit the client's buffer: refuse instead.
+                    wire = link.send(Refused(E.T_ER_WRONG_PARA))
                 if self.trace:
-                    self.trace.frame(peer, "->", frame)
+                    self.trace.wire(peer, "->", wire, repr(message))
                 # One write per telegram: pyLSV2 expects the header in its first recv().
-                writer.write(TelegramFramer.encode(frame))
+                writer.write(wire)
             await writer.drain()
 
     def _spawn_deferred(
-        self, deferred: Deferred, writer: asyncio.StreamWriter, lock: asyncio.Lock, peer: str
+        self,
+        deferred: Deferred,
+        link: Lsv2Connection,
+        writer: asyncio.StreamWriter,
+        lock: asyncio.Lock,
+        peer: str,
     ) -> None:
         async def later() -> None:
             await asyncio.sleep(deferred.delay)
-            frame = deferred.make()
-            if frame is not None and not writer.is_closing():
+            message = deferred.make()
+            if message is not None and not writer.is_closing():
                 with contextlib.suppress(ConnectionError, OSError):
-                    await self._send(writer, lock, [frame], peer)
+                    await self._send(link, writer, lock, [message], peer)
 
         task = asyncio.get_running_loop().create_task(later())
         self._tasks.add(task)

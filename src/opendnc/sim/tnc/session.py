@@ -1,24 +1,27 @@
-"""Per-connection LSV2 session: login state, current directory, buffer size, running sequences.
+"""Per-connection LSV2 session: login state, current directory, running sequences.
 
-:class:`Session` is sans-IO: :meth:`Session.handle` takes one received :class:`Frame` and
-returns the frames to send (possibly none, e.g. after ``T_FD`` without secure file send) plus
-deferred frames the server emits later (``M_CC`` after ``C_CC`` 27).  Handlers live in
-``handlers_*`` modules and register themselves in :data:`HANDLERS`.
+:class:`Session` is sans-IO: :meth:`Session.handle` takes one typed request decoded by the
+shared codec (:mod:`opendnc.lsv2.messages`) and returns the typed answers to send (possibly
+none, e.g. after ``T_FD`` without secure file send) plus deferred messages the server emits
+later (``M_CC`` after ``C_CC`` 27).  Buffer size and the secure-send flag are tracked by the
+shared engine (:class:`~opendnc.lsv2.connection.Lsv2Connection` in the server role), which
+the session reads.  Handlers live in ``handlers_*`` modules and register in :data:`HANDLERS`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
+from typing import Any
 
-from opendnc.errors import RemoteProtocolError
+from opendnc.errors import InputError
+from opendnc.lsv2.connection import Lsv2Connection
 from opendnc.lsv2.constants import ErrorCode as E
-from opendnc.lsv2.framing import Frame
+from opendnc.lsv2.messages import BlockDefect, FileData, FileDone, Message, Ok, Opaque, Refused
 from opendnc.sim.tnc.control import Control
 from opendnc.sim.tnc.filesystem import FsError, WirePath
 
@@ -50,18 +53,18 @@ class Refuse(Exception):
         self.code = code
 
 
-def error(code: int) -> Frame:
-    """A ``T_ER`` frame: always 2 bytes, type 1 (§2.2)."""
-    return Frame("T_ER", bytes([1, code & 0xFF]))
+def error(code: int) -> Refused:
+    """A ``T_ER``: always 2 bytes, type 1 (§2.2)."""
+    return Refused(code)
 
 
-def block_defect(code: int) -> Frame:
-    """A ``T_BD`` frame with a 100-199 code."""
-    return Frame("T_BD", bytes([1, code & 0xFF]))
+def block_defect(code: int) -> BlockDefect:
+    """A ``T_BD`` with a 100-199 code."""
+    return BlockDefect(code)
 
 
-OK = Frame("T_OK")
-DONE = Frame("T_FD")
+OK = Ok()
+DONE = FileDone()
 
 
 @dataclass(slots=True)
@@ -81,57 +84,27 @@ class Deferred:
     """A frame the server sends later on its own (``M_CC``)."""
 
     delay: float
-    make: Callable[[], Frame | None]
+    make: Callable[[], Message | None]
 
 
 @dataclass(slots=True)
 class Result:
     """What to send now and what to send later."""
 
-    frames: list[Frame] = field(default_factory=list)
+    frames: list[Message] = field(default_factory=list)
     deferred: list[Deferred] = field(default_factory=list)
 
 
-Handler = Callable[["Session", Frame], "list[Frame] | Result"]
-HANDLERS: dict[str, tuple[Priv, Handler]] = {}
-# Telegram names that exist on controls but whose layouts are not public (§5.12, §5.1).
-KNOWN_UNSUPPORTED = frozenset(
-    [
-        "R_CD",
-        "R_FO",
-        "R_LB",
-        "R_PD",
-        "R_RS",
-        "R_SD",
-        "R_SE",
-        "R_SP",
-        "R_SS",
-        "R_SW",
-        "R_WD",
-        "R_MP",
-        "C_DT",
-        "C_FA",
-        "C_DS",
-        "C_GC",
-        "C_MB",
-        "C_OP",
-        "C_TP",
-        "R_DS",
-        "R_IN",
-        "R_OH",
-        "R_OI",
-        "X_PC",
-        "X_OK",
-        "X_ER",
-    ]
-)
+Handler = Callable[["Session", Any], "list[Message] | Result"]
+HANDLERS: dict[type[Message] | str, tuple[Priv, Handler]] = {}
+"""Request class (or telegram name for layout-less ``Opaque`` telegrams) -> handler."""
 
 
-def handler(mnemonic: str, priv: Priv) -> Callable[[Handler], Handler]:
-    """Register a telegram handler."""
+def handler(request: type[Message] | str, priv: Priv) -> Callable[[Handler], Handler]:
+    """Register the handler of a request class (or of an opaque telegram name)."""
 
     def register(fn: Handler) -> Handler:
-        HANDLERS[mnemonic] = (priv, fn)
+        HANDLERS[request] = (priv, fn)
         return fn
 
     return register
@@ -143,15 +116,14 @@ _ids = iter(range(1, 2**62))
 class Session:
     """State of one client connection."""
 
-    def __init__(self, control: Control) -> None:
+    def __init__(self, control: Control, link: Lsv2Connection) -> None:
         self.id = next(_ids)
         self.control = control
+        self.link = link
         self.logins: set[str] = set()
         self.cwd = WirePath("TNC:", ())
-        self.buffer_size = 256
-        self.secure_send = False
         self.upload: Upload | None = None
-        self.sequence: Iterator[Frame] | None = None
+        self.sequence: Iterator[Message] | None = None
         self.error_index = 0
         self.keyboard_locked = False
         self.scope_signals: list[object] = []
@@ -188,45 +160,55 @@ class Session:
         self.check_drive(wp)
         return wp
 
+    @property
+    def buffer_size(self) -> int:
+        """Negotiated telegram size (kept by the shared engine)."""
+        return self.link.buffer_size
+
+    @property
+    def secure_send(self) -> bool:
+        """True once ``C_CC`` 19 was accepted in this session."""
+        return self.link.secure_send
+
     # -- dispatch ---------------------------------------------------------------------------
-    def handle(self, frame: Frame) -> Result:
-        """Answer one received telegram."""
-        size = 8 + len(frame.payload)
-        if size > self.buffer_size:
+    def handle(self, request: Message, wire_size: int) -> Result:
+        """Answer one decoded request that arrived as ``wire_size`` bytes."""
+        name = request.mnemonic
+        if wire_size > self.buffer_size:
             # Too large for the negotiated buffer (§7): refuse and abort a running upload.
-            if self.upload is not None and frame.mnemonic == "S_FL":
+            if self.upload is not None and isinstance(request, FileData):
                 self.abort_upload()
                 return Result([block_defect(E.T_BD_BAD_FORMAT)])
             return Result([error(E.T_ER_BAD_FORMAT)])
         if self.sequence is not None:
-            if frame.mnemonic == "T_OK":
+            if isinstance(request, Ok):
                 return Result([next(self.sequence, DONE)])
             self.sequence = None
-            if frame.mnemonic == "T_BD":
+            if isinstance(request, BlockDefect):
                 return Result([])  # client stops a list, download or scope stream
-        if self.upload is not None and frame.mnemonic not in ("S_FL", "T_FD", "T_BD"):
+        if self.upload is not None and not isinstance(request, FileData | FileDone | BlockDefect):
             self.abort_upload()
-        entry = HANDLERS.get(frame.mnemonic)
+        key: type[Message] | str = name if isinstance(request, Opaque) else type(request)
+        entry = HANDLERS.get(key)
         if entry is None:
-            if frame.mnemonic in KNOWN_UNSUPPORTED:
-                return Result([error(E.T_ER_WRONG_PARA)])
-            if frame.mnemonic in ("T_OK", "T_FD", "T_BD", "S_FL"):
-                return Result([error(E.T_ER_UNEXPECTED_TELE)])
-            return Result([error(E.T_ER_UNKNOWN_TELE)])
+            if isinstance(request, Opaque):
+                return Result([error(E.T_ER_WRONG_PARA)])  # exists, layout not public
+            return Result([error(E.T_ER_UNEXPECTED_TELE)])
         priv, fn = entry
         if not self.allowed(priv):
             return Result([error(E.T_ER_NO_PRIV)])
         try:
-            out = fn(self, frame)
+            out = fn(self, request)
         except Refuse as exc:
             return Result([error(exc.code)])
         except FsError as exc:
             return Result([error(exc.code)])
-        except (RemoteProtocolError, struct.error, ValueError, UnicodeDecodeError):
-            return Result([error(E.T_ER_BAD_FORMAT)])
+        except InputError:
+            # A value we cannot put on the wire (e.g. a non-Latin-1 host file name).
+            return Result([error(E.T_ER_BAD_FNAME)])
         return out if isinstance(out, Result) else Result(out)
 
-    def start_sequence(self, frames: Iterator[Frame]) -> list[Frame]:
+    def start_sequence(self, frames: Iterator[Message]) -> list[Message]:
         """Send the first frame of a block sequence; later ``T_OK``s pull the rest."""
         first = next(frames, None)
         if first is None:
