@@ -246,9 +246,8 @@ def parse_line(text: str) -> ParsedLine:
     """Find labelled numbers in a DPRNT line; never fails on any text."""
     fields: list[Field] = []
     for match in _NUMBER.finditer(text):
-        try:
-            value = float(match.group("num"))
-        except ValueError:  # pragma: no cover - the regex only matches float syntax
+        value = float(match.group("num"))  # the regex only matches float syntax
+        if not math.isfinite(value):  # hundreds of digits overflow; not a DPRNT number
             continue
         fields.append(Field(match.group("label") or "", value))
     return ParsedLine(text, tuple(fields))

@@ -185,7 +185,10 @@ class _Parser:
     def primary(self) -> Expr:
         token = self.take()
         if token[0].isdigit() or token[0] == ".":
-            return Num(float(token))
+            try:
+                return Num(float(token))
+            except ValueError:
+                raise self.error(f"bad number {token!r}") from None
         if token == "#":
             return Var(self.primary())
         if token == "[":

@@ -1,0 +1,103 @@
+"""Property tests: DPRNT formatter, statement parser, line framer and line parser."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from opendnc.errors import InputError, RemoteProtocolError
+from opendnc.haas import dprnt
+
+formats = st.tuples(st.integers(0, 8), st.integers(0, 8)).filter(lambda f: 1 <= sum(f) <= 8)
+values = st.floats(min_value=-1e12, max_value=1e12, allow_nan=False)
+
+
+@given(values, formats)
+def test_format_value_rules(value: float, fmt: tuple[int, int]) -> None:
+    whole, frac = fmt
+    text = dprnt.format_value(value, whole, frac)
+    assert len(text) >= max(whole, 1) + (frac + 1 if frac else 0)
+    if frac:
+        assert len(text.split(".")[1]) == frac  # trailing zeros kept
+        assert abs(float(text) - value) <= 0.5 * 10**-frac + 1e-9 * max(1.0, abs(value))
+    else:
+        assert "." not in text
+        assert float(text) == math.trunc(value)  # truncated, never rounded up
+    assert text.lstrip(" ") == text.strip()  # padding only on the left
+
+
+@given(st.one_of(st.floats(), st.none()), st.integers(-2, 10), st.integers(-2, 10))
+def test_format_value_only_input_errors(value: float | None, whole: int, frac: int) -> None:
+    with contextlib.suppress(InputError):
+        dprnt.format_value(value, whole, frac)
+
+
+@given(st.text(max_size=60))
+def test_statement_parser_only_input_errors(body: str) -> None:
+    try:
+        items = dprnt.parse_statement(f"DPRNT[{body}]")
+    except InputError:
+        return
+    dprnt.render(items, lambda n: 1.25)
+
+
+text_item = st.text(
+    alphabet=st.characters(whitelist_categories=("Lu", "Nd"), whitelist_characters="+-/ "),
+    min_size=1,
+    max_size=10,
+)
+var_item = st.builds(lambda n, f: dprnt.Variable(n, *f), st.integers(1, 99999), formats)
+
+
+@given(st.lists(st.one_of(text_item.map(dprnt.Text), var_item), max_size=6))
+def test_statement_roundtrip(items: list[dprnt.Item]) -> None:
+    merged: list[dprnt.Item] = []
+    for item in items:  # adjacent text items read back as one
+        if merged and isinstance(item, dprnt.Text) and isinstance(merged[-1], dprnt.Text):
+            merged[-1] = dprnt.Text(merged[-1].text + item.text)
+        else:
+            merged.append(item)
+    source = "".join(
+        i.text.replace(" ", "*") if isinstance(i, dprnt.Text) else f"#{i.number}[{i.whole}{i.frac}]"
+        for i in merged
+    )
+    assert dprnt.parse_statement(f"DPRNT[{source}]") == tuple(merged)
+
+
+@given(st.binary(max_size=300), st.lists(st.integers(1, 50), max_size=20))
+def test_framer_slicing_invariant(data: bytes, cuts: list[int]) -> None:
+    whole = dprnt.DprntLineFramer(max_line=64)
+    sliced = dprnt.DprntLineFramer(max_line=64)
+    try:
+        whole.feed(data)
+    except RemoteProtocolError:
+        return
+    pos = 0
+    for cut in [*cuts, len(data)]:
+        sliced.feed(data[pos : pos + cut])
+        pos += cut
+    sliced.feed(data[pos:])
+    assert list(sliced.lines()) == list(whole.lines())
+    assert sliced.flush() == whole.flush()
+
+
+@given(st.one_of(st.text(max_size=120), st.integers(300, 400).map(lambda n: "Z" + "9" * n)))
+def test_parse_line_never_fails(text: str) -> None:
+    parsed = dprnt.parse_line(text)
+    assert all(math.isfinite(v) for v in parsed.numbers)
+    assert parsed.text == text
+
+
+@given(
+    st.lists(st.tuples(st.sampled_from(["X", "Y", "Z", "DIA", ""]), values, formats), max_size=5)
+)
+def test_formatted_values_parse_back(fields: list[tuple[str, float, tuple[int, int]]]) -> None:
+    line = " ".join(f"{label}{dprnt.format_value(v, *fmt)}" for label, v, fmt in fields)
+    parsed = dprnt.parse_line(line)
+    assert len(parsed.fields) == len(fields)
+    for got, (label, value, (whole, frac)) in zip(parsed.fields, fields, strict=True):
+        assert got.label == label
+        assert got.value == float(dprnt.format_value(value, whole, frac))
