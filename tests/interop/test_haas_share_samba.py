@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
 import subprocess
 import time
@@ -86,6 +88,9 @@ def samba(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Samba]:
         [smbd, "--foreground", "--no-process-group", f"--configfile={conf}", "--debug-stdout"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        # smbd signals its whole process group on shutdown: give it its own session so
+        # that cannot reach pytest
+        start_new_session=True,
     )
     try:
         deadline = time.monotonic() + 20
@@ -99,7 +104,9 @@ def samba(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Samba]:
                 time.sleep(0.1)
         yield Samba(port, base / "share", user)
     finally:
-        proc.terminate()
+        # smbd leads its own process group (see above): stop it and its workers together
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(10)
 
 
