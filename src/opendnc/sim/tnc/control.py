@@ -83,6 +83,9 @@ class Control:
         """Select a program for execution (DNC ``C_NC`` or the API), e.g. ``TNC:\\a.h``."""
         wp = self.fs.parse(path, WirePath("TNC:", ())) if isinstance(path, str) else path
         canonical = self.fs.canonical(wp)
+        suffixes = {e.lower() for e in self.profile.paths.program_ext}
+        if "." + canonical.name.rsplit(".", 1)[-1].lower() not in suffixes:
+            raise FsError(35, f"{canonical} is not an NC program of this control")
         text = self.fs.read_bytes(canonical).decode("latin-1")
         self.machine.select(str(canonical), text)
         self.fs.set_selected([canonical])

@@ -163,7 +163,8 @@ def emulate_key(s: Session, m: EmulateKey) -> list[Message]:
 @handler("C_NC", Priv.DNC)
 def select_program(s: Session, m: Opaque) -> list[Message]:
     """C_NC path: select an NC program for execution (DNC; layout assumed: one cstr)."""
-    wp = s.path(read_cstr(m.payload)[0])
+    # DNC selects programs without the FILE login, so no drive-login check here.
+    wp = s.control.fs.parse(read_cstr(m.payload)[0], s.cwd)
     try:
         s.control.select_program(wp)
     except MachineError as exc:
