@@ -367,7 +367,7 @@ def test_timeout_and_lost_connection(tmp_path: Path) -> None:
     with start_tnc("tnc640", latency=0.15) as tnc:
         c = Client("127.0.0.1", tnc.port, timeout=5, max_buffer=256, secure_send=False)
         c.connect()
-        c._driver.timeout = 0.05  # type: ignore[union-attr]
+        c.timeout = 0.05
         with pytest.raises(TransportTimeout):
             c.program_state()
         with pytest.raises(TransportError, match="reconnect"):

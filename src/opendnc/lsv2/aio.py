@@ -90,6 +90,7 @@ class AsyncClient:
         """
         self.host, self.port = host, port
         self.timeout = timeout
+        """Seconds to wait for each answer (may be changed at any time)."""
         self.safe_mode = safe_mode
         self.max_buffer = max_buffer
         self.secure_send = secure_send
@@ -144,6 +145,7 @@ class AsyncClient:
         if self._driver is None:
             op.close()
             raise LocalProtocolError("not connected: call connect() or use a with block")
+        self._driver.timeout = self.timeout
         return await self._driver.run(op)
 
     @property

@@ -215,6 +215,13 @@ def make_dir(state: SessionState, path: str, *, parents: bool = True) -> Op[bool
 def remove_dir(state: SessionState, path: str, *, missing_ok: bool = False) -> Op[None]:
     """``C_DD``: delete an empty directory."""
     yield from _login_for(state, path)
+    parent, _ = split_path(path)
+    if parent:
+        # TNC 3xx/6xx refuse to delete the current directory (a listing may have entered it).
+        reply = yield ChangeDir(parent)
+        if isinstance(reply, Refused) and reply.code in (*_MISSING, 47) and missing_ok:
+            return
+        expect(reply, Ok, f"remove directory {path}")
     reply = yield DeleteDir(wire_path(path))
     if isinstance(reply, Refused) and reply.code == 55 and missing_ok:
         return
