@@ -82,3 +82,43 @@ def test_dprnt_over_tcp_and_file_with_reconnect(sim: SimHaasThread, tmp_path: Pa
     run_program(sim)
     path = Path(str(control.machine.settings[262]))
     assert path.read_bytes() == b"".join(line.encode() + b"\r\n" for line in EXPECTED)
+
+
+def test_serial_style_output_captured_over_a_pty(tmp_path: Path) -> None:
+    """StreamDprntOutput on a pty master; `dprnt listen` logic reads the slave as a port."""
+    import os
+
+    from opendnc.haas.machine import MachineState
+    from opendnc.haas.program import program_lines
+    from opendnc.haas.runner import BlockSource, DprntLine, PortCode, ProgramRunner, RunnerEvent
+    from opendnc.sim.haas.dprnt_out import StreamDprntOutput
+    from opendnc.transport.pty import open_pty
+
+    pty = open_pty()
+    out = StreamDprntOutput(lambda data: os.write(pty.master_fd, data))
+
+    def emit(event: RunnerEvent) -> None:
+        if isinstance(event, DprntLine):
+            out.write_line(event.text)
+        elif isinstance(event, PortCode):
+            out.write_control(event.code)
+
+    got: list[CapturedLine] = []
+    listener = DprntListener(pty.slave_path, [CallbackSink(got.append)], backoff_start=0.05)
+    thread = threading.Thread(target=listener.run, kwargs={"max_lines": 2}, daemon=True)
+    thread.start()
+    try:
+        # pyserial flushes input when it opens the port: print only once it listens
+        wait_until(lambda: listener.stats.connects == 1)
+        text = "%\nO00001\nPOPEN\n#1 = 2.5\nDPRNT[A#1[22]]\nDPRNT[B*#1[10]]\nPCLOS\nM30\n%"
+        runner = ProgramRunner(
+            BlockSource(program_lines(text)), MachineState(), clock=lambda: 0.0, emit=emit
+        )
+        runner.run()
+        thread.join(5)
+    finally:
+        listener.stop()
+        thread.join(5)
+        pty.close()
+    assert [line.text for line in got] == ["A 2.50", "B 2"]
+    assert got[0].numbers == (2.5,)

@@ -1,13 +1,14 @@
-"""DPRNT outputs of the virtual Haas: a TCP port (NGC Settings 261 = 2, 263) and a file.
+"""DPRNT outputs of the virtual Haas: a TCP port (NGC Settings 261 = 2, 263), a file, and
+a byte-writer adapter for a serial front-end.
 
-Both implement :class:`~opendnc.sim.haas.control.DprntOutput`. A serial front-end supplies
-its own (it writes CR after each line, and DC2/DC4 for POPEN/PCLOS).
+All implement :class:`~opendnc.sim.haas.control.DprntOutput`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Callable
 from pathlib import Path
 
 TCP_EOL = b"\r\n"
@@ -108,3 +109,25 @@ class FileDprntOutput:
 
     def write_control(self, code: bytes) -> None:
         """POPEN/PCLOS bytes are not written to the file."""
+
+
+class StreamDprntOutput:
+    """DPRNT as a serial port carries it: each line then CR, DC2/DC4 for POPEN/PCLOS.
+
+    ``write`` takes the bytes (a serial front-end passes its port's writer). Haas documents a
+    carriage return after every DPRNT block; ``eol`` may follow Setting 25 instead.
+    """
+
+    def __init__(self, write: Callable[[bytes], None], eol: bytes = b"\r") -> None:
+        self._write = write
+        self.eol = eol
+        self.sent = 0
+
+    def write_line(self, text: str) -> None:
+        """Send ``text`` and the line end."""
+        self._write(text.encode("latin-1", "replace") + self.eol)
+        self.sent += 1
+
+    def write_control(self, code: bytes) -> None:
+        """Send the POPEN (DC2) / PCLOS (DC4) byte."""
+        self._write(code)
