@@ -180,7 +180,10 @@ def test_plc_views_agree() -> None:
     tools = {3: {"T": "3", "L": "+90.0000", "DOC": "drill"}}
     assert resolve_data_path("\\TABLE\\TOOL\\T\\3\\L", plc, tools).value == 90.0
     assert resolve_data_path("\\TABLE\\TOOL\\T\\3\\DOC", plc, tools).value == "drill"
-    for bad in ("\\PLC\\memory\\W\\3", "\\PLC\\memory\\Q\\1", "\\TABLE\\TOOL\\T\\9\\L", "x"):
+    sym = "/PLC/program/symbol/global/+STG_WZM[0].WZ.L"
+    assert resolve_data_path(sym, plc, {}) == resolve_data_path(sym, plc, {})
+    assert resolve_data_path("/PLC/program/symbol/global/MG_BA_AUTO", plc, {}).kind is DpType.BOOL
+    for bad in ("\\PLC\\memory\\W\\99999999", "\\PLC\\memory\\Q\\1", "\\TABLE\\TOOL\\T\\9\\L", "x"):
         with pytest.raises(PlcError) as info:
             resolve_data_path(bad, plc, tools)
         assert info.value.code == 63
@@ -259,3 +262,15 @@ def test_screen_dump_is_a_valid_bmp(tmp_path: Path) -> None:
         colours = img.getcolors(256)
         assert colours is not None
         assert len(colours) >= 4  # text, background, header, bars: not a blank picture
+
+
+def test_machine_state_survives_a_restart(tmp_path: Path) -> None:
+    control = Control(PROFILES["itnc530"], tmp_path)
+    control.machine.part_counter = 41
+    control.machine.positions["X"] = 12.5
+    control.plc.set_bit("M", 100, True)
+    control.save_state()
+    again = Control(PROFILES["itnc530"], tmp_path)
+    assert again.machine.part_counter == 41
+    assert again.machine.positions["X"] == 12.5
+    assert again.plc.read(again.profile.plc.markers_start + 100, 1) == b"\x01"

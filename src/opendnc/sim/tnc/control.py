@@ -7,6 +7,7 @@ real control share its disk and machine.  Per-connection state lives in
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,6 +42,54 @@ class Control:
         self.monitor_owner: int | None = None
         self.events: list[tuple[float, str]] = [(time.time(), "Control started")]
         self.remote_status = bytes(12)
+        self._load_state()
+
+    # -- persistence ------------------------------------------------------------------------
+    def _load_state(self) -> None:
+        """Restore what a real control keeps over a restart (retentive PLC, counters)."""
+        state_dir = self.fs.state_dir
+        image = state_dir / "plc.bin"
+        if image.exists():
+            raw = image.read_bytes()
+            if len(raw) == len(self.plc.image):
+                self.plc.image[:] = raw
+        counters = state_dir / "machine.json"
+        try:
+            data = json.loads(counters.read_text("utf-8")) if counters.exists() else {}
+        except (OSError, ValueError):
+            data = {}
+        m = self.machine
+        if isinstance(data, dict):
+            m.part_counter = int(data.get("part_counter", 0))
+            m.tool = int(data.get("tool", 0))
+            m.run_seconds = float(data.get("run_seconds", 0.0))
+            m.spindle_seconds = float(data.get("spindle_seconds", 0.0))
+            positions = data.get("positions", {})
+            if isinstance(positions, dict):
+                for axis, value in positions.items():
+                    if axis in m.positions:
+                        m.positions[axis] = float(value)
+        m.advance()
+
+    def save_state(self) -> None:
+        """Write PLC image and machine counters to the root's state folder (atomically)."""
+        m = self.machine
+        m.advance()
+        data = {
+            "part_counter": m.part_counter,
+            "tool": m.tool,
+            "run_seconds": m.run_seconds,
+            "spindle_seconds": m.spindle_seconds,
+            "positions": m.positions,
+        }
+        for name, blob in (
+            ("plc.bin", bytes(self.plc.image)),
+            ("machine.json", json.dumps(data, indent=1).encode()),
+        ):
+            target = self.fs.state_dir / name
+            tmp = target.with_suffix(".tmp")
+            tmp.write_bytes(blob)
+            tmp.replace(target)
 
     # -- tool table -------------------------------------------------------------------------
     def tool_rows(self) -> dict[int, dict[str, str]]:

@@ -235,12 +235,30 @@ class ControlFs:
         )
 
     def listdir(self, wp: WirePath) -> list[Entry]:
-        """Entries of a directory, sorted case-insensitively (hidden names skipped)."""
+        """Entries of a directory, sorted case-insensitively."""
         host = self.host_path(wp)
         if not host.is_dir():
             raise FsError(NO_DIR, f"{wp} is not a directory")
-        names = sorted((p.name for p in host.iterdir()), key=str.lower)
-        return [self.entry(WirePath(wp.drive, (*wp.parts, n)), n) for n in names]
+        prefix = str(self.canonical(wp)).rstrip("\\").lower() + "\\"
+        entries = []
+        with os.scandir(host) as it:
+            for item in it:
+                try:
+                    st = item.stat()
+                except OSError:
+                    continue  # vanished while listing
+                is_dir = stat.S_ISDIR(st.st_mode)
+                entries.append(
+                    Entry(
+                        name=item.name,
+                        size=0 if is_dir else st.st_size,
+                        mtime=int(st.st_mtime),
+                        is_dir=is_dir,
+                        read_only=not is_dir and not (st.st_mode & stat.S_IWUSR),
+                        selected=(prefix + item.name.lower()) in self._selected,
+                    )
+                )
+        return sorted(entries, key=lambda e: e.name.lower())
 
     def is_dir(self, wp: WirePath) -> bool:
         """True if ``wp`` names an existing directory."""

@@ -79,6 +79,10 @@ M_PROGRAM_RUNNING = 0  # marker index
 M_SPINDLE_ON = 1
 M_ERROR_PENDING = 2
 
+# Where symbols of the (imaginary) full PLC program live, away from the live values above.
+SYMBOL_WORDS = 1024
+SYMBOL_MARKERS = 1000
+SYMBOL_STRINGS = 100
 SYMBOLS: dict[str, tuple[str, int]] = {
     # Global PLC symbols of the demo PLC program -> (area letter, byte address / index).
     "NN_GENFEEDOVERRIDE": ("W", W_FEED_OVERRIDE),
@@ -97,9 +101,35 @@ class PlcMemory:
     def __init__(self, layout: PlcLayout) -> None:
         self.layout = layout
         self.image = bytearray(layout.image_size)
+        self._symbols: dict[str, tuple[str, int]] = {}
         for i in range(layout.strings):
             if i < 4:
                 self.set_string(i, f"STRING {i}")
+
+    def symbol(self, name: str, full: str) -> tuple[str, int]:
+        """Operand behind a PLC symbol.
+
+        The demo PLC program's live symbols map to fixed operands; any other well-formed
+        symbol (a real PLC program declares hundreds) gets its own slot in the symbol region
+        of the word area, typed by Heidenhain's prefix convention (M… marker, B/W/D…
+        byte/word/dword, S… string), so repeated reads agree with each other and with R_MB.
+        """
+        known = SYMBOLS.get(name.upper())
+        if known is not None:
+            return known
+        key = full.upper()
+        if key not in self._symbols:
+            first = name[:1].upper()
+            n = len(self._symbols)
+            if first == "M":
+                self._symbols[key] = ("M", (SYMBOL_MARKERS + n) % self.layout.markers)
+            elif first == "S":
+                self._symbols[key] = ("S", (SYMBOL_STRINGS + n) % self.layout.strings)
+            else:
+                letter = first if first in ("B", "W", "D") else "D"
+                offset = (SYMBOL_WORDS + 4 * n) % max(4, self.layout.words - 4)
+                self._symbols[key] = (letter, offset - offset % 4)
+        return self._symbols[key]
 
     # -- raw access ------------------------------------------------------------------------
     def read(self, address: int, count: int) -> bytes:
@@ -162,7 +192,8 @@ class PlcMemory:
             return DpValue(DpType.BOOL, self.image[start + number] != 0)
         if letter in ("B", "W", "D"):
             size = {"B": 1, "W": 2, "D": 4}[letter]
-            if number < 0 or number % size or number + size > lay.words:
+            # Byte addresses; real programming stations also answer unaligned W/D reads.
+            if number < 0 or number + size > lay.words:
                 raise PlcError(NOT_FOUND, f"{letter}{number} not a valid byte address")
             raw = self.read(lay.words_start + number, size)
             if letter == "B":
@@ -184,7 +215,8 @@ class PlcMemory:
 _MEMORY_RE = re.compile(r"^\\PLC\\MEMORY\\([A-Z])\\(\d+)$", re.IGNORECASE)
 _TOOL_RE = re.compile(r"^\\TABLE\\TOOL\\T\\(\d+)\\([A-Z0-9_]+)$", re.IGNORECASE)
 _SYMBOL_RE = re.compile(
-    r"^\\PLC\\PROGRAM\\SYMBOL\\(?:GLOBAL|MODULE\\'[^']+')\\\+?([A-Z0-9_]+)(?:\[\d+\])?(?:\.[A-Z0-9_]+)?$",
+    r"^\\PLC\\PROGRAM\\SYMBOL\\(?:GLOBAL|MODULE\\'[^']+')\\\+?"
+    r"([A-Z][A-Z0-9_]*)(?:\[\d+\])?(?:\.[A-Z0-9_]+)*$",
     re.IGNORECASE,
 )
 
@@ -209,10 +241,7 @@ def resolve_data_path(path: str, plc: PlcMemory, tool_rows: dict[int, dict[str, 
         except ValueError:
             return DpValue(DpType.STRING, text)
     if m := _SYMBOL_RE.match(path):
-        sym = SYMBOLS.get(m.group(1).upper())
-        if sym is None:
-            raise PlcError(NOT_FOUND, f"unknown symbol {m.group(1)}")
-        return plc.read_operand(*sym)
+        return plc.read_operand(*plc.symbol(m.group(1), m.group(0)))
     raise PlcError(NOT_FOUND, f"unknown data path {path!r}")
 
 

@@ -79,6 +79,7 @@ class TncServer:
         if self._server is not None:
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._server.wait_closed(), 2)
+        self.control.save_state()
 
     async def serve_forever(self) -> None:
         """Run until cancelled."""
@@ -99,6 +100,9 @@ class TncServer:
             pass  # peer vanished: only this connection ends
         except asyncio.CancelledError:
             pass  # server shutting down; the connection is closed below
+        except Exception:
+            # A bug must cost one connection, never the server or the other clients.
+            _log.exception("virtual TNC: dropping connection %s after an internal error", peer)
         finally:
             session.close()
             self._tasks.discard(task)

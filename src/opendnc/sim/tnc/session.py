@@ -182,7 +182,11 @@ class Session:
             return Result([error(E.T_ER_BAD_FORMAT)])
         if self.sequence is not None:
             if isinstance(request, Ok):
-                return Result([next(self.sequence, DONE)])
+                following = next(self.sequence, None)
+                if following is None:
+                    self.sequence = None
+                    return Result([DONE])
+                return Result([following])
             self.sequence = None
             if isinstance(request, BlockDefect):
                 return Result([])  # client stops a list, download or scope stream
