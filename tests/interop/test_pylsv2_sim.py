@@ -70,6 +70,27 @@ def test_connect_versions_and_parameters(con: Any, tnc: TncHandle) -> None:
         assert con.versions.is_tnc()
 
 
+PASSWORDED = {"FILEPLC", "FILESYS", "FILELOG", "STREAMAXES"}
+
+
+def test_every_login(lsv2: Any, tnc: TncHandle) -> None:
+    for login in lsv2.const.Login:
+        c = client(lsv2, tnc)
+        try:
+            available = login.value in tnc.profile.logins
+            if login.value in PASSWORDED:
+                assert not c.login(login), login  # refused without the password
+                assert c.last_error.e_code in (30, 49)
+                assert c.login(login, PW) == available, login
+            else:
+                assert c.login(login) == available, login
+                if not available:
+                    assert c.last_error.e_code == 49
+            assert c.logout(login)
+        finally:
+            c.disconnect()
+
+
 def test_logins(lsv2: Any, con: Any, tnc: TncHandle) -> None:
     L = lsv2.const.Login
     for login in (L.INSPECT, L.FILETRANSFER, L.DIAG, L.PLCDEBUG, L.DNC, L.MONITOR):
@@ -78,6 +99,8 @@ def test_logins(lsv2: Any, con: Any, tnc: TncHandle) -> None:
     assert con.login(L.FILEPLC, PW) == ("FILEPLC" in tnc.profile.logins)
     assert con.login(L.DATA) == tnc.profile.data_paths
     assert con.logout(L.MONITOR)
+    assert con.logout(L.FILETRANSFER)
+    assert con.directory_info() is not None  # pyLSV2 logs in FILE again on demand
     # MONITOR is exclusive: a second session cannot have it while the first holds it.
     assert con.login(L.MONITOR)
     other = client(lsv2, tnc)
@@ -88,6 +111,24 @@ def test_logins(lsv2: Any, con: Any, tnc: TncHandle) -> None:
         assert other.login(L.MONITOR)
     finally:
         other.disconnect()
+    # a vanished holder releases MONITOR too
+    holder = client(lsv2, tnc)
+    assert holder.login(L.MONITOR)
+    holder._llcom._tcpsock.close()
+    deadline = time.monotonic() + 3
+    while not con.login(L.MONITOR) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert con.login(L.MONITOR)
+    con.logout(L.MONITOR)
+
+
+def test_remote_datetime(lsv2: Any, con: Any, tnc: TncHandle) -> None:
+    if tnc.profile.date_time:
+        stamp = con.get_remote_datetime()
+        assert abs(stamp.timestamp() - time.time()) < 5
+    else:
+        with pytest.raises(lsv2.err.LSV2ProtocolException):
+            con.get_remote_datetime()
 
 
 def is_dir(tnc: TncHandle, entry: Any) -> bool:
