@@ -131,7 +131,8 @@ def macro_get(
             console.print(f"#{var} = {value:g}", highlight=False)
 
 
-@macro_app.command("set")
+# ignore_unknown_options lets a negative VALUE (`set 5223 -1.5`) through as an argument
+@macro_app.command("set", context_settings={"ignore_unknown_options": True})
 def macro_set(
     var: int = typer.Argument(..., help="Macro variable number."),
     value: float = typer.Argument(..., help="New value."),
@@ -139,10 +140,15 @@ def macro_set(
     port: int = PortOpt,
     timeout: float = TimeoutOpt,
     unsafe: bool = typer.Option(False, "--unsafe", help="Allow writing to the machine."),
+    any_variable: bool = typer.Option(
+        False, "--any-variable", help="Also allow variables outside the general-purpose globals."
+    ),
 ) -> None:
     """Write a macro variable (?E). Refused without --unsafe."""
     with cli_errors():
-        with MdcClient(host, port, timeout=timeout, safe_mode=not unsafe) as client:
+        with MdcClient(
+            host, port, timeout=timeout, safe_mode=not unsafe, allow_any_variable=any_variable
+        ) as client:
             client.macro_set(var, value)
         console.print(f"#{var} set to {value:g}", highlight=False)
 

@@ -111,6 +111,10 @@ async def _serve(
     run: int | None,
 ) -> None:
     sim = SimHaas(config, root, options)
+    if options.trace is not None:
+        sim.control.event_hooks.append(
+            lambda event: err_console.print(f"[dim]RUN {event}[/]", highlight=False)
+        )
     await sim.start()
     try:
         if serial is not None:

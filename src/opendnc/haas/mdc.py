@@ -222,6 +222,7 @@ class TextValue:
     value: str
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"{self.name}, {self.value}"
 
 
@@ -234,6 +235,7 @@ class Mode:
     parenthesized: bool = False
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"MODE, ({self.mode})" if self.parenthesized else f"MODE, {self.mode}"
 
 
@@ -245,6 +247,7 @@ class Count:
     value: int
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"{self.name}, {self.value}"
 
 
@@ -256,6 +259,7 @@ class Duration:
     seconds: int
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"{self.name}, {format_duration(self.seconds)}"
 
 
@@ -269,6 +273,7 @@ class ProgramStatus:
     parts: int
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"PROGRAM, {self.program}, {self.status}, PARTS, {self.parts}"
 
 
@@ -279,6 +284,7 @@ class Busy:
     NAME: ClassVar[str] = "STATUS"
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return "STATUS, BUSY"
 
 
@@ -290,6 +296,7 @@ class MacroValue:
     value: float
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return f"MACRO, {format_number(self.value)}"
 
 
@@ -298,6 +305,7 @@ class WriteAccepted:
     """``!``: an E write was accepted."""
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return "!"
 
 
@@ -308,6 +316,7 @@ class Refused:
     text: str = "?"
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return self.text
 
 
@@ -319,6 +328,7 @@ class OtherReply:
     values: tuple[str, ...]
 
     def to_payload(self) -> str:
+        """The reply payload as the control sends it (framing not included)."""
         return ", ".join((self.name, *self.values))
 
 

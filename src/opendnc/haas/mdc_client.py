@@ -140,9 +140,27 @@ def status_op() -> Op[MachineStatus]:
     )
 
 
-def _check_write(safe_mode: bool, var: int) -> None:
+WRITABLE: tuple[range, ...] = (
+    range(100, 200),  # legacy common globals
+    range(500, 1000),  # legacy permanent globals
+    range(10000, 10150),  # NGC globals (#100-#149 on legacy)
+    range(10200, 10550),  # NGC-only and #500-#549 globals
+    range(10600, 11000),  # NGC #600-#999 equivalents and new globals
+)
+"""Variables E writes may touch by default: general-purpose globals, not probe calibration
+(#10150-#10199, #10550-#10599) nor any system variable (offsets, timers, counters)."""
+
+
+def is_writable(var: int) -> bool:
+    """True when ``var`` is on the default E-write allow-list (:data:`WRITABLE`)."""
+    return any(var in span for span in WRITABLE)
+
+
+def _check_write(safe_mode: bool, var: int, allow_any: bool) -> None:
     if safe_mode:
         raise SafetyLockError(f"writing macro variable #{var} over MDC")
+    if not allow_any and not is_writable(var):
+        raise SafetyLockError(f"writing #{var} (not a general-purpose global; allow it explicitly)")
 
 
 # --------------------------------------------------------------------------- blocking
@@ -151,7 +169,8 @@ def _check_write(safe_mode: bool, var: int) -> None:
 class MdcClient:
     """Blocking MDC client over TCP (NGC, Setting 143 = port).
 
-    ``safe_mode`` (default on) refuses :meth:`macro_set` with :class:`SafetyLockError`.
+    ``safe_mode`` (default on) refuses :meth:`macro_set` with :class:`SafetyLockError`; with
+    it off, writes are still limited to :data:`WRITABLE` unless ``allow_any_variable``.
     """
 
     def __init__(
@@ -161,9 +180,11 @@ class MdcClient:
         *,
         timeout: float = 3.0,
         safe_mode: bool = True,
+        allow_any_variable: bool = False,
         eol: bytes = b"\r\n",
     ) -> None:
         self.safe_mode = safe_mode
+        self.allow_any_variable = allow_any_variable
         self._conn = MdcConnection(eol)
         self._stream = TcpStream(host, port, timeout=timeout)
         self._timeout = timeout
@@ -232,7 +253,7 @@ class MdcClient:
 
     def macro_set(self, var: int, value: float) -> None:
         """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var)
+        _check_write(self.safe_mode, var, self.allow_any_variable)
         self.run(macro_set_op(var, value))
 
     def status(self) -> MachineStatus:
@@ -253,9 +274,11 @@ class AsyncMdcClient:
         *,
         timeout: float = 3.0,
         safe_mode: bool = True,
+        allow_any_variable: bool = False,
         eol: bytes = b"\r\n",
     ) -> None:
         self.safe_mode = safe_mode
+        self.allow_any_variable = allow_any_variable
         self._reader, self._writer = reader, writer
         self._timeout = timeout
         self._conn = MdcConnection(eol)
@@ -322,7 +345,7 @@ class AsyncMdcClient:
 
     async def macro_set(self, var: int, value: float) -> None:
         """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var)
+        _check_write(self.safe_mode, var, self.allow_any_variable)
         await self.run(macro_set_op(var, value))
 
     async def status(self) -> MachineStatus:

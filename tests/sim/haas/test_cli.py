@@ -58,6 +58,11 @@ def test_status_and_macros(sim: SimHaasThread) -> None:
     assert ok.exit_code == 0, ok.output
     got = runner.invoke(app, ["haas", "macro", "get", "10100", "--port", port, "--json"])
     assert json.loads(got.stdout) == {"var": 10100, "value": 2.5}
+    offset = ["haas", "macro", "set", "5223", "-1", "--port", port, "--unsafe"]
+    assert runner.invoke(app, offset).exit_code == 1
+    assert runner.invoke(app, [*offset, "--any-variable"]).exit_code == 0
+    got = runner.invoke(app, ["haas", "macro", "get", "5223", "--port", port])
+    assert got.stdout.strip() == "#5223 = -1"
 
 
 def test_q_connection_refused_is_one_line_error() -> None:

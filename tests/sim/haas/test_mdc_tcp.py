@@ -6,13 +6,14 @@ import asyncio
 import re
 import socket
 import time
+from pathlib import Path
 
 import pytest
 
 from opendnc.errors import ControlRefused, SafetyLockError
 from opendnc.haas import mdc
 from opendnc.haas.mdc_client import AsyncMdcClient, MdcClient
-from opendnc.sim.haas import SimHaasThread
+from opendnc.sim.haas import HaasConfig, SimHaasThread, SimOptions
 
 # Reply payload formats of the reference table (haas-protocols.md 7.4)
 FORMATS = {
@@ -103,8 +104,13 @@ def test_macro_set_then_get(sim: SimHaasThread) -> None:
         client.safe_mode = False
         client.macro_set(10100, 1.5)
         assert client.macro_get(10100) == 1.5
+        with pytest.raises(SafetyLockError, match="general-purpose"):
+            client.macro_set(5223, 1.0)  # a work offset: not on the default allow-list
+        client.allow_any_variable = True
+        client.macro_set(5223, -0.5)
+        assert client.macro_get(5223) == -0.5
         with pytest.raises(ControlRefused):
-            client.macro_set(5021, 1.0)  # machine position is read-only
+            client.macro_set(5021, 1.0)  # machine position: the control refuses (?)
 
 
 def test_two_connections_and_broadcast(sim: SimHaasThread) -> None:
@@ -147,3 +153,13 @@ def test_async_client(sim: SimHaasThread) -> None:
     assert isinstance(reply, mdc.TextValue)
     assert value == -3.25
     assert model == "VF-2"
+
+
+def test_client_resends_a_first_query_the_control_ignored(tmp_path: Path) -> None:
+    config = HaasConfig(ignore_first_query=True)
+    with SimHaasThread(config, tmp_path, SimOptions(mdc_port=0)) as thread:
+        assert thread.sim is not None
+        assert thread.sim.mdc is not None
+        with MdcClient("127.0.0.1", thread.sim.mdc.port, timeout=0.3) as client:
+            assert client.query(100) == mdc.TextValue("SERIAL NUMBER", "1234567")
+            assert client.query(102) == mdc.TextValue("MODEL", "VF-2")

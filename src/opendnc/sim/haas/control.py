@@ -83,6 +83,9 @@ class HaasConfig:
     dprnt_file: str = ""
     dprnt_port: int = 0
     strict_probe: bool = False
+    ignore_first_query: bool = False
+    """Fidelity knob: leave each connection's first MDC request unanswered (Haas notes the
+    first ?Q100 after connecting may have to be sent twice)."""
     surface: Surface | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -186,6 +189,10 @@ class HaasControl:
             return None
         self.machine.millis = (self.clock() - self._power_on_at) * 1000.0
         return self.runner.step()
+
+    def set_mode(self, mode: Mode) -> None:
+        """Change the operating mode (a front-end's key press: MDI, MEM, DNC, EDIT...)."""
+        self.machine.mode = mode
 
     def raise_alarm(self, alarm: Alarm, detail: str = "") -> None:
         """Raise ``alarm`` (e.g. :data:`ALARM_DNC_LINK`); an active run stops."""

@@ -63,6 +63,7 @@ class MdcServer:
             return
         self.writers.append(writer)
         framer = mdc.LineFramer()
+        ignore_next = self.control.config.ignore_first_query
         try:
             while data := await reader.read(4096):
                 if self.trace:
@@ -73,6 +74,9 @@ class MdcServer:
                     await self._broadcast(self._reply(mdc.UnknownRequest("")))
                     continue
                 while (line := framer.next_line()) is not None:
+                    if ignore_next:
+                        ignore_next = False
+                        continue
                     await self._broadcast(self._reply(mdc.parse_request(line)))
         except OSError:
             pass  # the client vanished; just forget it
