@@ -181,7 +181,8 @@ def test_store_roundtrip_and_errors(tmp_path: Path) -> None:
     [
         ("flat:-1", 5, 5, -1),
         ("plane:0.5,0.25,-1", 2, 4, 1),
-        ("sine:2,4", 1, 1, 2),
+        ("sine:2,4", 1, 0, 2),
+        ("sine:2,4", 1, 2, -2),
         ("sine:2,4,1", 0, 1, 1),
         ("wave:1,4,-1", 1, 9, 0),
         ("bowl:1,2", 0, 0, -1),

@@ -7,7 +7,8 @@ A surface maps machine X, Y to the machine Z a probe touches there. Specs:
 ``plane:a,b,c``
     ``z = a*x + b*y + c``.
 ``sine:amp,period[,z0]``
-    ``z = z0 + amp * sin(2*pi*x/period) * sin(2*pi*y/period)`` (an egg-crate).
+    ``z = z0 + amp * sin(2*pi*x/period) * cos(2*pi*y/period)`` (an egg-crate that already
+    varies along the X axis, where grid probing usually starts).
 ``bowl:depth,radius[,cx,cy[,z0]]``
     a paraboloid dish centred on ``cx, cy``: ``z = z0 - depth * (1 - r**2/radius**2)`` inside
     ``radius``, ``z0`` outside.
@@ -40,7 +41,7 @@ class SurfaceSpec:
             return p[0] * x + p[1] * y + p[2]
         if self.kind == "sine":
             z0 = p[2] if len(p) > 2 else 0.0
-            return z0 + p[0] * math.sin(2 * math.pi * x / p[1]) * math.sin(2 * math.pi * y / p[1])
+            return z0 + p[0] * math.sin(2 * math.pi * x / p[1]) * math.cos(2 * math.pi * y / p[1])
         if self.kind == "wave":
             z0 = p[2] if len(p) > 2 else 0.0
             return z0 + p[0] * math.sin(2 * math.pi * x / p[1])
