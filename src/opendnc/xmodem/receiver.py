@@ -1,0 +1,281 @@
+"""Sans-IO XModem receiver: start requests out, blocks in, ACK/NAK per block.
+
+The receiver asks for a start with ``C`` (CRC-16; falls back to ``NAK`` after a few tries,
+as classic receivers do) or with ``NAK`` (8-bit sum, the Haas variant), repeated while idle.
+SOH (128) and STX (1024) blocks are both accepted. A block received again because our ACK
+was lost is ACKed and dropped; any other out-of-order block cancels the session, since data
+would be lost. After an error the receiver waits for the line to go quiet, then NAKs.
+
+A lone EOT or CAN pair at a block boundary is acted on only if no further bytes follow within
+``settle`` seconds: line noise that turns a block's SOH into EOT (or a lost SOH that exposes
+block number 4) must cause a NAK, never a truncated file.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from opendnc.errors import PeerClosed, RemoteProtocolError, TransferError, TransportTimeout
+from opendnc.xmodem.events import Completed, DataReceived, Duplicate, EngineBase, Retry, Started
+from opendnc.xmodem.framing import (
+    ACK,
+    CAN,
+    CRC_REQUEST,
+    EOT,
+    NAK,
+    SOH,
+    STX,
+    SUB,
+    Mode,
+    decode_block,
+    frame_length,
+)
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiverConfig:
+    """Limits and timeouts of the receiver (seconds)."""
+
+    start_timeout: float = 60.0  # total wait for the sender to begin
+    start_interval: float = 3.0  # repeat the start request this often while idle
+    crc_tries: int = 3  # 'C' requests before falling back to NAK (0 = never fall back)
+    block_timeout: float = 10.0  # wait for the next block before NAKing
+    char_timeout: float = 1.0  # silence inside a block before NAKing it
+    purge_quiet: float = 0.2  # after a bad block, silence needed before the NAK
+    settle: float = 0.05  # silence that confirms a lone EOT or CAN pair
+    max_retries: int = 10  # consecutive errors on one block before giving up
+    strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
+    fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
+
+
+_STARTERS = (b"\x01", b"\x02", b"\x04", b"\x18")  # SOH, STX, EOT, CAN
+
+
+class ReceiverState(enum.Enum):
+    """Where the receiver is in the session."""
+
+    STARTING = "starting"
+    RECEIVING = "receiving"
+    SETTLING = "settling"  # saw EOT or CAN CAN, waiting for silence
+    PURGING = "purging"  # saw garbage, waiting for silence before NAK
+    DONE = "done"
+
+
+class XmodemReceiver(EngineBase):
+    """Receives one XModem session; file bytes come out as :class:`DataReceived` events."""
+
+    def __init__(self, mode: Mode = Mode.CRC, config: ReceiverConfig | None = None) -> None:
+        super().__init__()
+        self.mode = mode
+        self.config = config or ReceiverConfig()
+        self.state = ReceiverState.STARTING
+        self.crc = mode.uses_crc
+        self._buf = bytearray()
+        self._expected = 1
+        self._blocks = 0
+        self._size = 0  # bytes released through DataReceived
+        self._held: bytes | None = None  # newest block, kept back until we know it is not the last
+        self._errors = 0
+        self._requests = 0
+        self._waited = 0.0
+        self._purge_reason = ""
+        self._request_start()
+
+    @property
+    def received(self) -> int:
+        """Payload bytes accepted so far (padding of the last block included)."""
+        return self._size + (len(self._held) if self._held is not None else 0)
+
+    # -- inputs -------------------------------------------------------------------------
+
+    def receive_data(self, data: bytes) -> None:
+        """Handle bytes from the sender."""
+        if self.finished or not data:
+            return
+        state = self.state
+        if state is ReceiverState.PURGING:
+            self._arm(self.config.purge_quiet)
+            return
+        if state is ReceiverState.SETTLING:
+            tail = bytes(self._buf) + data
+            if tail.strip(bytes((tail[0],))):
+                # more than the control byte arrived: it was noise inside a block
+                self._buf.clear()
+                self._purge()
+            else:
+                self._buf += data
+            return
+        if state is ReceiverState.STARTING:
+            starts = [i for i in (data.find(c) for c in _STARTERS) if i >= 0]
+            if not starts:
+                return  # echo or noise while idle
+            data = data[min(starts) :]
+            self.state = ReceiverState.RECEIVING
+            self._events.append(Started(self.mode, self.crc))
+        self._buf += data
+        self._parse()
+
+    def timed_out(self) -> None:
+        """The current timer ran out without input that re-armed it."""
+        if self.finished or self.timer is None:
+            return
+        cfg = self.config
+        state = self.state
+        if state is ReceiverState.STARTING:
+            self._waited += self.timer.seconds
+            if self._waited >= cfg.start_timeout:
+                self._fail(
+                    TransportTimeout(f"no XModem sender started within {cfg.start_timeout:g} s"),
+                    cancel_peer=True,
+                )
+            else:
+                self._request_start()
+        elif state is ReceiverState.SETTLING:
+            self._on_settled()
+        elif state is ReceiverState.PURGING:
+            self._nak(self._purge_reason)
+        else:
+            reason = "incomplete block" if self._buf else f"no block in {cfg.block_timeout:g} s"
+            self._buf.clear()
+            self._nak(reason)
+
+    def peer_closed(self) -> None:
+        """The link closed before the sender's EOT."""
+        if not self.finished:
+            self._fail(
+                PeerClosed(f"link closed after {self.received} bytes, before the end of the file"),
+                cancel_peer=False,
+            )
+
+    def cancel(self) -> None:
+        """Abort locally: CAN CAN CAN goes to the sender and the session fails."""
+        if not self.finished:
+            self._fail(TransferError("transfer cancelled by the user"), cancel_peer=True)
+
+    # -- block parsing (the hot path: one pass per complete block, no per-byte loop) -----
+
+    def _parse(self) -> None:
+        buf = self._buf
+        while buf:
+            start = buf[0]
+            if start in (SOH, STX):
+                length = frame_length(start, self.crc)
+                if len(buf) < length:
+                    self._arm(self.config.char_timeout)
+                    return
+                try:
+                    block = decode_block(
+                        memoryview(buf)[:length],
+                        crc=self.crc,
+                        fold_eob=self.config.fold_eob_checksum,
+                    )
+                except RemoteProtocolError as exc:
+                    buf.clear()
+                    self._purge(str(exc))
+                    return
+                del buf[:length]
+                self._on_block(block.seq, block.data)
+                if self.finished:
+                    return
+                if buf and self.state is ReceiverState.RECEIVING:
+                    # a well-behaved sender waits for our ACK, so anything already queued
+                    # after a block is stale or noise
+                    buf.clear()
+                    return
+            elif start in (EOT, CAN):
+                self.state = ReceiverState.SETTLING
+                self._arm(self.config.settle)
+                if buf.strip(bytes((start,))):
+                    buf.clear()
+                    self._purge()
+                return
+            else:
+                buf.clear()
+                self._purge(f"unexpected byte 0x{start:02X} where a block should start")
+                return
+        self._arm(self.config.block_timeout)
+
+    def _on_block(self, seq: int, data: bytes) -> None:
+        expected = self._expected
+        if seq == expected:
+            if self._held is not None:
+                self._size += len(self._held)
+                self._events.append(DataReceived(self._held))
+            self._held = data
+            self._blocks += 1
+            self._expected = (expected + 1) & 0xFF
+            self._errors = 0
+            self._out.append(ACK)
+        elif self._blocks and seq == ((expected - 1) & 0xFF):
+            self._events.append(Duplicate(seq))
+            self._out.append(ACK)
+        else:
+            self._fail(
+                RemoteProtocolError(
+                    f"block {seq} arrived while block {expected} was expected; "
+                    "the sender is out of step, transfer cancelled"
+                ),
+                cancel_peer=True,
+            )
+
+    def _on_settled(self) -> None:
+        control = self._buf[0] if self._buf else EOT
+        count = len(self._buf)
+        self._buf.clear()
+        if control == CAN:
+            if count >= 2:
+                self._fail(
+                    TransferError(f"sender cancelled the transfer after {self.received} bytes"),
+                    cancel_peer=False,
+                )
+            else:
+                self._nak("single CAN")
+            return
+        # EOT: the file is complete
+        self._out.append(ACK)
+        if self._blocks == 0:
+            self._fail(
+                TransferError("the sender ended the session (EOT) before sending any block"),
+                cancel_peer=False,
+            )
+            return
+        if self._held is not None:
+            last = self._held.rstrip(bytes((SUB,))) if self.config.strip_padding else self._held
+            self._held = None
+            if last:
+                self._size += len(last)
+                self._events.append(DataReceived(last))
+        self.state = ReceiverState.DONE
+        self._finish(Completed(self._size, self._blocks))
+
+    # -- helpers ------------------------------------------------------------------------
+
+    def _request_start(self) -> None:
+        cfg = self.config
+        if self.crc and cfg.crc_tries and self._requests >= cfg.crc_tries:
+            self.crc = False  # the sender did not answer 'C': try the original checksum mode
+        self._requests += 1
+        self._out.append(CRC_REQUEST if self.crc else NAK)
+        self._arm(min(cfg.start_interval, max(cfg.start_timeout - self._waited, 0.001)))
+
+    def _purge(self, reason: str = "line noise") -> None:
+        self.state = ReceiverState.PURGING
+        self._purge_reason = reason
+        self._arm(self.config.purge_quiet)
+
+    def _nak(self, reason: str) -> None:
+        self._errors += 1
+        if self._errors > self.config.max_retries:
+            self._fail(
+                TransferError(
+                    f"block {self._expected} failed {self._errors} times ({reason}); "
+                    f"{self.received} bytes received, transfer abandoned"
+                ),
+                cancel_peer=True,
+            )
+            return
+        self._events.append(Retry(self._expected, self._errors, reason))
+        self.state = ReceiverState.RECEIVING
+        self._out.append(NAK if self._blocks or not self.crc else CRC_REQUEST)
+        self._arm(self.config.block_timeout)

@@ -1,0 +1,291 @@
+"""Sans-IO XModem sender: the whole file in, blocks out, one ACK per block.
+
+The receiver chooses the check: ``C`` asks for CRC-16, ``NAK`` for the 8-bit sum. A sender in
+``Mode.CHECKSUM`` waits for a NAK (it ignores ``C`` so that a CRC receiver falls back); ``CRC``
+and ``ONE_K`` follow whichever request comes first. 1K blocks need CRC, so a 1K sender started
+by NAK sends 128-byte blocks, sends the tail of the file in 128-byte blocks where that is
+shorter on the wire, and falls back to 128-byte blocks after repeated NAKs of a 1K block.
+
+Stop-and-wait is strict: the next block goes out only after the ACK of the previous one
+(lrzsz ``rx`` discards unread input after each ACK, so pipelining would lose blocks).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from opendnc.errors import PeerClosed, TransferError, TransportTimeout
+from opendnc.xmodem.events import (
+    BlockDone,
+    Completed,
+    EngineBase,
+    EotAnswer,
+    FallbackToSmall,
+    Retry,
+    Started,
+)
+from opendnc.xmodem.framing import (
+    ACK,
+    CAN,
+    CRC_REQUEST,
+    EOT,
+    LARGE,
+    NAK,
+    SMALL,
+    Mode,
+    encode_block,
+)
+
+# A remainder longer than this goes as one 1K block: seven 128-byte blocks plus their
+# ACKs are shorter on the wire than one 1029-byte block, eight are not.
+_TAIL_SMALL_LIMIT = 7 * SMALL
+
+
+@dataclass(frozen=True, slots=True)
+class SenderConfig:
+    """Limits and timeouts of the sender (seconds)."""
+
+    start_timeout: float = 60.0  # the operator may need a while to start the receive
+    ack_timeout: float = 10.0  # standard XModem wait for an ACK/NAK
+    max_retries: int = 10  # repeats of one block before giving up (standard XModem)
+    eot_timeout: float = 2.0  # lrzsz rx answers EOT only after about 1 s
+    eot_retries: int = 3  # further EOTs before finishing without an answer
+    fallback_after: int = 3  # failed sends of one 1K block before switching to 128 bytes
+    # Pause between an ACK and the next block. lrzsz rx flushes its input right after writing
+    # each ACK; on a pty (no line delay) a block sent at once can land before that flush and
+    # be lost (rx then waits 5 s and NAKs). About 1 ms avoids it; real lines need 0.
+    turnaround: float = 0.0
+
+
+class SenderState(enum.Enum):
+    """Where the sender is in the session."""
+
+    WAIT_START = "wait_start"
+    WAIT_ACK = "wait_ack"
+    PAUSE = "pause"  # turnaround before the next block
+    WAIT_EOT_ACK = "wait_eot_ack"
+    DONE = "done"
+
+
+class XmodemSender(EngineBase):
+    """Sends ``data`` as one XModem session.
+
+    Feed it the receiver's bytes; it never touches I/O or a clock (see
+    :mod:`opendnc.xmodem.events` for the driving contract).
+    """
+
+    def __init__(
+        self, data: bytes, mode: Mode = Mode.ONE_K, config: SenderConfig | None = None
+    ) -> None:
+        super().__init__()
+        self.mode = mode
+        self.config = config or SenderConfig()
+        self.state = SenderState.WAIT_START
+        self.crc = mode.uses_crc
+        self._data = memoryview(bytes(data))
+        self._total = len(self._data)
+        self._offset = 0  # payload bytes acknowledged so far
+        self._seq = 1
+        self._blocks = 0
+        self._large_allowed = mode is Mode.ONE_K
+        self._block = b""
+        self._block_len = 0  # payload bytes carried by the current block
+        self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
+        self._cans = 0  # consecutive CAN bytes seen
+        self._waited = 0.0
+        self._arm(min(self.config.start_timeout, self.config.ack_timeout))
+
+    @property
+    def total(self) -> int:
+        """Payload bytes to send."""
+        return self._total
+
+    @property
+    def sent(self) -> int:
+        """Payload bytes acknowledged by the receiver."""
+        return self._offset
+
+    # -- inputs -------------------------------------------------------------------------
+
+    def receive_data(self, data: bytes) -> None:
+        """Handle bytes from the receiver (ACK, NAK, 'C', CAN; anything else is line noise)."""
+        if self.finished:
+            return
+        if self.state is SenderState.WAIT_START:
+            self._on_start_bytes(data)
+            return
+        for byte in data:
+            if self.finished:
+                return
+            if byte == CAN:
+                self._cans += 1
+                if self._cans >= 2:
+                    self._on_cancel()
+                continue
+            self._cans = 0
+            if byte == ACK:
+                self._on_ack()
+            elif byte == NAK:
+                self._on_nak("NAK")
+            elif byte == CRC_REQUEST and self.state is SenderState.WAIT_ACK and self._seq == 1:
+                # a start request repeated before block 1 got through: send block 1 again
+                self._on_nak("repeated start request")
+
+    def timed_out(self) -> None:
+        """The current timer ran out without an answer."""
+        if self.finished or self.timer is None:
+            return
+        cfg = self.config
+        if self.state is SenderState.WAIT_START:
+            self._waited += self.timer.seconds
+            if self._waited >= cfg.start_timeout:
+                self._fail(
+                    TransportTimeout(f"no XModem receiver started within {cfg.start_timeout:g} s"),
+                    cancel_peer=False,
+                )
+            else:
+                self._arm(min(cfg.start_timeout - self._waited, cfg.ack_timeout))
+        elif self.state is SenderState.PAUSE:
+            self._send_next_block()
+        elif self.state is SenderState.WAIT_ACK:
+            self._on_nak(f"no answer in {cfg.ack_timeout:g} s")
+        elif self.state is SenderState.WAIT_EOT_ACK:
+            self._failures += 1
+            if self._failures > cfg.eot_retries:
+                self._done(EotAnswer.NONE)
+            else:
+                self._events.append(Retry(self._seq, self._failures, "EOT not acknowledged"))
+                self._send_eot()
+
+    def peer_closed(self) -> None:
+        """The link closed. After the EOT that still means success: every block was ACKed."""
+        if self.finished:
+            return
+        if self.state is SenderState.WAIT_EOT_ACK:
+            self._done(EotAnswer.CLOSED)
+        else:
+            self._fail(
+                PeerClosed(f"link closed after {self._offset} of {self._total} bytes"),
+                cancel_peer=False,
+            )
+
+    def cancel(self) -> None:
+        """Abort locally: CAN CAN CAN goes to the receiver and the session fails."""
+        if not self.finished:
+            self._fail(TransferError("transfer cancelled by the user"), cancel_peer=True)
+
+    # -- transitions --------------------------------------------------------------------
+
+    def _on_start_bytes(self, data: bytes) -> None:
+        for byte in data:
+            if byte == CAN:
+                self._cans += 1
+                if self._cans >= 2:
+                    self._fail(
+                        TransferError("receiver cancelled before the first block"),
+                        cancel_peer=False,
+                    )
+                    return
+                continue
+            self._cans = 0
+            if byte == NAK:
+                self.crc = False
+            elif byte == CRC_REQUEST and self.mode is not Mode.CHECKSUM:
+                self.crc = True
+            else:
+                continue
+            if not self.crc:
+                # 1K blocks exist only with CRC-16
+                self._large_allowed = False
+            self._events.append(Started(self.mode, self.crc))
+            # any further NAK/'C' in this chunk were queued before we answered (seed 003,
+            # Figure 24 shows a Haas sending three); they must not trigger a resend
+            self._send_next_block()
+            return
+
+    def _on_ack(self) -> None:
+        if self.state is SenderState.WAIT_EOT_ACK:
+            self._done(EotAnswer.ACK)
+            return
+        if self.state is not SenderState.WAIT_ACK:
+            return
+        self._offset += self._block_len
+        self._blocks += 1
+        self._events.append(BlockDone(self._seq, self._offset, self._total))
+        self._seq = (self._seq + 1) & 0xFF
+        self._failures = 0
+        if self.config.turnaround > 0 and self._offset < self._total:
+            self.state = SenderState.PAUSE
+            self._arm(self.config.turnaround, listen=False)
+        else:
+            self._send_next_block()
+
+    def _on_nak(self, reason: str) -> None:
+        if self.state is SenderState.WAIT_EOT_ACK:
+            # some receivers NAK the first EOT to make sure it was not line noise
+            self._failures += 1
+            if self._failures > self.config.eot_retries:
+                self._done(EotAnswer.NONE)
+            else:
+                self._send_eot()
+            return
+        if self.state is not SenderState.WAIT_ACK:
+            return
+        self._failures += 1
+        if self._failures > self.config.max_retries:
+            self._fail(
+                TransferError(
+                    f"block {self._seq} failed {self._failures} times ({reason}); "
+                    f"{self._offset} of {self._total} bytes delivered"
+                ),
+                cancel_peer=True,
+            )
+            return
+        self._events.append(Retry(self._seq, self._failures, reason))
+        if self._block_len > SMALL and self._failures >= self.config.fallback_after:
+            self._large_allowed = False
+            self._events.append(FallbackToSmall(self._seq))
+            self._build_block()
+        self._out += self._block
+        self._arm(self.config.ack_timeout)
+
+    def _on_cancel(self) -> None:
+        if self.state is SenderState.WAIT_EOT_ACK:
+            # a Haas answers the EOT of a complete transfer with CAN CAN CAN
+            self._done(EotAnswer.CAN)
+        else:
+            self._fail(
+                TransferError(
+                    f"receiver cancelled the transfer at block {self._seq} "
+                    f"({self._offset} of {self._total} bytes delivered)"
+                ),
+                cancel_peer=False,
+            )
+
+    def _build_block(self) -> None:
+        remaining = self._total - self._offset
+        large = self._large_allowed and remaining > _TAIL_SMALL_LIMIT
+        size = LARGE if large else SMALL
+        chunk = self._data[self._offset : self._offset + size]
+        self._block_len = len(chunk)
+        self._block = encode_block(self._seq, chunk, crc=self.crc, large=large)
+
+    def _send_next_block(self) -> None:
+        if self._offset >= self._total:
+            self._failures = 0
+            self._send_eot()
+            return
+        self.state = SenderState.WAIT_ACK
+        self._build_block()
+        self._out += self._block
+        self._arm(self.config.ack_timeout)
+
+    def _send_eot(self) -> None:
+        self.state = SenderState.WAIT_EOT_ACK
+        self._out.append(EOT)
+        self._arm(self.config.eot_timeout)
+
+    def _done(self, answer: EotAnswer) -> None:
+        self.state = SenderState.DONE
+        self._finish(Completed(self._offset, self._blocks, answer))
