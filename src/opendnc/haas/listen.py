@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import json
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -154,7 +153,7 @@ class DprntListener:
         *,
         opener: Callable[[str], ByteStream] = open_source,
         now: Callable[[], datetime] = _now,
-        sleep: Callable[[float], None] = time.sleep,
+        sleep: Callable[[float], object] | None = None,
         backoff_start: float = 0.5,
         backoff_max: float = 10.0,
         on_status: Callable[[str], None] = lambda message: None,
@@ -163,11 +162,12 @@ class DprntListener:
         self.sinks = sinks
         self.opener = opener
         self.now = now
-        self.sleep = sleep
-        self.backoff_start, self.backoff_max = backoff_start, backoff_max
-        self.on_status = on_status
         self.stats = ListenStats()
         self.stop_event = threading.Event()
+        # waiting on the stop event lets stop() cut a reconnect backoff short
+        self.sleep = sleep or self.stop_event.wait
+        self.backoff_start, self.backoff_max = backoff_start, backoff_max
+        self.on_status = on_status
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (from another thread or a sink)."""

@@ -406,6 +406,8 @@ def parse_block(line: str) -> Block:
     """Parse one program line (without its EOB) into a :class:`Block`."""
     source = line.rstrip("\r\n;")
     body = source.lstrip()
+    if body.strip() == "%":  # tape delimiter inside a stream: nothing to execute
+        return Block(source)
     deleted = body.startswith("/")
     if deleted:
         body = body[1:]

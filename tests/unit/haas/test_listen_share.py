@@ -142,3 +142,21 @@ def test_parse_smb_target() -> None:
     )
     assert (target.username, target.password) == ("op", "p@ss")
     assert target.unc("O1.nc") == r"\\cnc1\UserData\progs\new\O1.nc"
+
+
+def test_stop_cuts_backoff_short() -> None:
+    import threading
+    import time
+
+    def refuse(spec: str) -> ScriptedStream:
+        raise TransportError("refused")
+
+    listener = DprntListener("x", [], opener=refuse, backoff_start=30.0)  # type: ignore[arg-type]
+    thread = threading.Thread(target=listener.run, daemon=True)
+    thread.start()
+    time.sleep(0.05)
+    started = time.monotonic()
+    listener.stop()
+    thread.join(5)
+    assert not thread.is_alive()
+    assert time.monotonic() - started < 2

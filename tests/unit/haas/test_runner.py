@@ -276,3 +276,11 @@ def test_machine_variables() -> None:
         machine.set(5041, 1.0)
     with pytest.raises(InputError):
         machine.set(100, math.inf)
+
+
+def test_tape_delimiters_in_a_stream_are_empty_blocks() -> None:
+    events, machine, _ = run("")  # warm-up: empty program ends at once
+    source = BlockSource(["%", "O00100", "DPRNT[OK]", "M30", "%"])
+    runner = ProgramRunner(source, machine, clock=FakeClock(), emit=events.append)
+    assert runner.run() is StepResult.ENDED
+    assert lines(events) == ["OK"]
