@@ -389,3 +389,21 @@ def test_not_connected() -> None:
         Client("127.0.0.1", 1).list_dir()
     with pytest.raises(TransportError):
         Client("127.0.0.1", 1, timeout=2).connect()
+
+
+def test_walk_matches_disk(client: Client, tnc640: TncHandle) -> None:
+    client.make_dir("TNC:/walk/a/b")
+    client.write_file("TNC:/walk/a/b/deep.h", b"x\r\n", binary=True)
+    found = {e.path.lower() for e in client.walk("TNC:/")}
+    base = Path(tnc640.root, "TNC")
+    on_disk = set()
+    for folder, dirs, files in os.walk(base):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        for name in dirs + [f for f in files if not f.startswith(".")]:
+            rel = Path(folder, name).relative_to(base)
+            on_disk.add(("TNC:\\" + "\\".join(rel.parts)).lower())
+    assert found == on_disk
+    assert "tnc:\\walk\\a\\b\\deep.h" in found
+    client.delete_file("TNC:/walk/a/b/deep.h")
+    for d in ("TNC:/walk/a/b", "TNC:/walk/a", "TNC:/walk"):
+        client.remove_dir(d)

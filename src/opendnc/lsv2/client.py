@@ -230,6 +230,10 @@ class Client:
         """Files and directories in ``path`` (or the current directory)."""
         return self._run(ops.list_dir(self._state, path, multi=multi))
 
+    def walk(self, path: str = "TNC:\\", *, multi: bool = True) -> list[FileInfo]:
+        """Every file and directory below ``path`` (for backups and searches)."""
+        return self._run(ops.walk(self._state, path, multi=multi))
+
     def file_info(self, path: str) -> FileInfo | None:
         """Info on a file or directory; ``None`` if it does not exist."""
         return self._run(ops.file_info(self._state, path))

@@ -106,7 +106,8 @@ class Lsv2Connection:
             self._server_sent(message)
         if self.on_message is not None:
             self.on_message("send", message)
-        return HEADER.pack(len(payload), message.mnemonic.encode("ascii")) + payload
+        name = message.MNEMONIC_BYTES or message.mnemonic.encode("ascii")
+        return HEADER.pack(len(payload), name) + payload
 
     def expects_reply(self, message: Message) -> bool:
         """Whether the peer answers ``message`` when the client sends it."""

@@ -60,6 +60,7 @@ class BlockingDriver(_DriverBase):
     ) -> None:
         super().__init__(timeout, safe_mode, trace)
         self.stream = stream
+        self._read_timeout: float | None = None
 
     @classmethod
     def open(
@@ -99,7 +100,9 @@ class BlockingDriver(_DriverBase):
         self.stream.write(conn.send(message))
         if not conn.expects_reply(message):
             return None
-        self.stream.set_timeout(timeout)
+        if timeout != self._read_timeout:
+            self.stream.set_timeout(timeout)
+            self._read_timeout = timeout
         while (reply := conn.next_event()) is None:
             conn.receive_data(self.stream.read(READ_SIZE))
         return reply
@@ -111,6 +114,7 @@ class BlockingDriver(_DriverBase):
             if left <= 0:
                 raise TransportTimeout(f"no M_CC completion message within {timeout:g} s")
             self.stream.set_timeout(left)
+            self._read_timeout = left
             self.conn.receive_data(self.stream.read(READ_SIZE))
             self.conn.next_event()
         return notice

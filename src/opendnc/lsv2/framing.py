@@ -51,12 +51,21 @@ DEFAULT_MAX_PAYLOAD = 65536
 """Largest payload a framer accepts unless told otherwise; real telegrams stay ≤ 4096 bytes."""
 
 
+_NAMES: dict[bytes, str] = {}
+
+
 def _check_name(raw: bytes) -> str:
     # Telegram names are four printable ASCII characters such as b"T_OK"; anything else means
     # we lost sync with the stream, and guessing further would only produce garbage.
+    name = _NAMES.get(raw)
+    if name is not None:
+        return name  # fast path: names seen before (a transfer repeats S_FL / T_OK)
     if len(raw) != 4 or not all(0x21 <= b <= 0x7E for b in raw):
         raise RemoteProtocolError(f"bad telegram name {raw!r}")
-    return raw.decode("ascii")
+    name = raw.decode("ascii")
+    if len(_NAMES) < 1024:
+        _NAMES[bytes(raw)] = name
+    return name
 
 
 @dataclass(frozen=True, slots=True)

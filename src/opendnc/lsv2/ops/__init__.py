@@ -26,6 +26,7 @@ from opendnc.lsv2.ops.files import (
     move_file,
     remove_dir,
     upload,
+    walk,
 )
 from opendnc.lsv2.ops.machine import (
     Uptimes,
@@ -115,6 +116,7 @@ __all__ = [
     "table_paths",
     "upload",
     "uptimes",
+    "walk",
     "write_machine_parameter",
     "write_table",
 ]

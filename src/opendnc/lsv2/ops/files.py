@@ -58,6 +58,7 @@ __all__ = [
     "move_file",
     "remove_dir",
     "upload",
+    "walk",
 ]
 
 Progress = Callable[[int, int | None], None]
@@ -165,6 +166,20 @@ def list_dir(
             continue
         out.append(FileInfo.from_entry(e, folder + name, state.scheme))
     return out
+
+
+def walk(state: SessionState, path: str, *, multi: bool = True) -> Op[list[FileInfo]]:
+    """Every file and directory below ``path`` (each directory before its contents)."""
+    found: list[FileInfo] = []
+    pending = [wire_path(path)]
+    while pending:
+        folder = pending.pop(0)
+        entries = yield from list_dir(state, folder, multi=multi)
+        for entry in entries:
+            found.append(entry)
+            if entry.is_dir:
+                pending.append(entry.path)
+    return found
 
 
 def drives(state: SessionState) -> Op[list[FileInfo]]:
