@@ -82,3 +82,17 @@ def test_any_program_ends_waits_or_alarms(lines: list[str]) -> None:
     )
     result = runner.run(max_blocks=500)
     assert result in (StepResult.ENDED, StepResult.ALARM, StepResult.RAN)
+
+
+@given(st.text(max_size=80))
+def test_program_header_and_lines_only_input_errors(text: str) -> None:
+    from opendnc.haas.program import parse_header, program_lines
+
+    try:
+        header = parse_header(text)
+    except InputError:
+        header = None
+    body = program_lines(text)
+    assert all(line and line != "%" for line in body)
+    if header is not None:
+        assert 0 <= header.number <= 99999

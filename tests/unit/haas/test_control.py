@@ -202,3 +202,27 @@ def test_surfaces(spec: str, x: float, y: float, z: float) -> None:
 def test_bad_surfaces(spec: str) -> None:
     with pytest.raises(InputError):
         parse_surface(spec)
+
+
+@pytest.mark.parametrize(
+    ("spec", "expected"),
+    [
+        (None, (DprntDestination.NONE, None, None)),
+        ("serial", (DprntDestination.SERIAL, None, None)),
+        ("tcp:0", (DprntDestination.TCP, 0, None)),
+        ("file", (DprntDestination.FILE, None, Path("root/dprnt.txt"))),
+        ("file:/tmp/x.txt", (DprntDestination.FILE, None, Path("/tmp/x.txt"))),
+    ],
+)
+def test_parse_dprnt_option(spec: str | None, expected: object) -> None:
+    from opendnc.cli.sim_haas import parse_dprnt
+
+    assert parse_dprnt(spec, Path("root")) == expected
+
+
+@pytest.mark.parametrize("spec", ["tcp", "tcp:x", "serial:1", "printer"])
+def test_bad_dprnt_option(spec: str) -> None:
+    from opendnc.cli.sim_haas import parse_dprnt
+
+    with pytest.raises(InputError):
+        parse_dprnt(spec, Path("root"))
