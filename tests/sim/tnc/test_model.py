@@ -274,3 +274,20 @@ def test_machine_state_survives_a_restart(tmp_path: Path) -> None:
     assert again.machine.part_counter == 41
     assert again.machine.positions["X"] == 12.5
     assert again.plc.read(again.profile.plc.markers_start + 100, 1) == b"\x01"
+
+
+def test_program_call_shows_on_the_program_stack() -> None:
+    p = PROFILES["tnc640"]
+    clock = FakeClock()
+    m = Machine(p, PlcMemory(p.plc), clock)
+    m.select("TNC:\\nc_prog\\POCKET.H", klartext_demo("POCKET", call="demo\\FRAME.H"))
+    m.press_key(0x01C3)
+    m.start()
+    seen = set()
+    for _ in range(200):
+        clock.now += m.block_time / 2
+        m.advance()
+        seen.add(m.current_program)
+    assert "TNC:\\nc_prog\\demo\\FRAME.H" in seen
+    assert m.current_program == m.main_program
+    assert m.program_state is PgmState.FINISHED

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from opendnc.lsv2.framing import Frame, TelegramFramer
 from opendnc.sim.tnc import TncHandle, start_tnc
+from opendnc.sim.tnc.filesystem import WirePath
 
 
 @pytest.fixture(scope="module")
@@ -246,3 +247,31 @@ def test_random_payloads_never_break_the_server(
     finally:
         raw.close()
     healthy(tnc.port)
+
+
+def test_client_vanishing_mid_download(tnc: TncHandle) -> None:
+    root_dir = WirePath("TNC:", ())
+    tnc.call(lambda c: c.fs.write_atomic(c.fs.parse("TNC:\\big.bin", root_dir), b"z" * 200_000))
+    raw = logged_in(tnc.port)
+    assert raw.ask("R_FL", b"TNC:\\big.bin\0\x01").mnemonic == "S_FL"
+    assert raw.ask("T_OK").mnemonic == "S_FL"
+    raw.close()  # gone with ~780 blocks still to come
+    healthy(tnc.port)
+    assert (tnc.root / "TNC" / "big.bin").stat().st_size == 200_000
+
+
+def test_connection_limit_answers_error_80(tmp_path: Path) -> None:
+    with start_tnc("tnc640", root=tmp_path) as tnc:
+        tnc.server.max_connections = 2
+        first, second = logged_in(tnc.port), logged_in(tnc.port)
+        third = Raw(tnc.port)
+        assert third.recv().payload == b"\x01\x50"
+        assert third.closed()
+        third.close()
+        first.close()
+        deadline = time.monotonic() + 3
+        while tnc.server.connections > 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        fourth = logged_in(tnc.port)
+        fourth.close()
+        second.close()

@@ -103,6 +103,7 @@ class Block:
     tool: int | None
     speed: int | None
     spindle_on: bool | None
+    call: str | None = None  # CALL PGM target: the program stack's current program
 
 
 @dataclass(slots=True)
@@ -119,6 +120,7 @@ _AXIS_RE = re.compile(r"(?<![A-Z])([XYZABCUVW])\s*([+-]?\d+(?:\.\d*)?)", re.IGNO
 _TOOL_RE = re.compile(r"TOOL CALL\s+(\d+)|(?<![A-Z])T(\d+)(?!\w)", re.IGNORECASE)
 _SPEED_RE = re.compile(r"(?<![A-Z])S(\d+)", re.IGNORECASE)
 _M_RE = re.compile(r"(?<![A-Z])M0?(\d+)", re.IGNORECASE)
+_CALL_RE = re.compile(r"(?:CALL PGM|PGM CALL)\s+(\S+)", re.IGNORECASE)
 _SKIP_RE = re.compile(r"BLK FORM|G3[01]\b|BEGIN PGM|END PGM|^\s*%", re.IGNORECASE)
 
 
@@ -131,6 +133,10 @@ def parse_program(text: str) -> list[Block]:
             blocks.append(Block(number, {}, None, None, None))
             continue
         body = re.sub(r"^\s*N?\d+\s", " ", line)  # drop the block number
+        call = _CALL_RE.search(body)
+        if call:
+            blocks.append(Block(number, {}, None, None, None, call.group(1)))
+            continue
         targets = {m.group(1).upper(): float(m.group(2)) for m in _AXIS_RE.finditer(body)}
         tool_m = _TOOL_RE.search(body)
         tool = int(tool_m.group(1) or tool_m.group(2)) if tool_m else None
@@ -225,6 +231,7 @@ class Machine:
             for block in run.blocks:
                 self._apply_block(block)
             self.current_line = len(run.blocks) - 1 if run.blocks else 0
+            self.current_program = self.main_program
             self.program_state = PgmState.FINISHED
             self.part_counter += 1
             self.spindle_on = False
@@ -243,6 +250,15 @@ class Machine:
         if block.tool is not None:
             self.tool = block.tool
         self.current_line = block.number
+        self.current_program = self._called(block.call) if block.call else self.main_program
+
+    def _called(self, name: str) -> str:
+        """Path of a called program: absolute, or relative to the main program's folder."""
+        name = name.replace("/", "\\")
+        if ":" in name:
+            return name
+        folder = self.main_program.rsplit("\\", 1)[0]
+        return folder + "\\" + name
 
     def _apply_block(self, block: Block) -> None:
         for axis, target in block.targets.items():

@@ -117,8 +117,8 @@ def pocket_table(file_name: str) -> str:
     return render_table(file_name.upper(), POCKET_COLUMNS, rows)
 
 
-def klartext_demo(name: str) -> str:
-    """A conversational (Klartext) demo program that actually moves axes."""
+def klartext_demo(name: str, call: str | None = None) -> str:
+    """A conversational (Klartext) demo program that actually moves axes (and may call one)."""
     body = [
         f"BEGIN PGM {name} MM",
         "BLK FORM 0.1 Z X+0 Y+0 Z-20",
@@ -136,6 +136,7 @@ def klartext_demo(name: str) -> str:
         "L X+50 Y+50 FMAX",
         "L Z-15 F200",
         "L Z+50 FMAX M9",
+        *([f"CALL PGM {call}"] if call else []),
         "M30",
         f"END PGM {name} MM",
     ]
@@ -208,7 +209,7 @@ def populate(fs: ControlFs, profile: Profile) -> None:
         put(prog + "\\demo\\FLANGE.nc", lathe_demo().replace("PGM01", "FLANGE"))
     else:
         put(paths.mdi_program, "0 BEGIN PGM $MDI MM\r\n1 END PGM $MDI MM\r\n")
-        put(prog + "\\POCKET.H", klartext_demo("POCKET"))
+        put(prog + "\\POCKET.H", klartext_demo("POCKET", call="demo\\FRAME.H"))
         put(prog + "\\1001.I", iso_demo(1001))
         put(prog + "\\demo\\FRAME.H", klartext_demo("FRAME"))
         put(prog + "\\demo\\CONTOUR.H", klartext_demo("CONTOUR"))

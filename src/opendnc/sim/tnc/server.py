@@ -40,6 +40,8 @@ T = TypeVar("T")
 #: Largest telegram payload accepted at all; longer announcements drop the connection.
 MAX_WIRE_PAYLOAD = 65536
 IDLE_TIMEOUT = 600.0
+#: Connections served at once; beyond it a newcomer gets T_ER 80 and is closed.
+MAX_CONNECTIONS = 256
 
 
 class TncServer:
@@ -52,8 +54,11 @@ class TncServer:
         latency: float = 0.0,
         trace: TraceHook | None = None,
         idle_timeout: float = IDLE_TIMEOUT,
+        max_connections: int = MAX_CONNECTIONS,
     ) -> None:
         self.control = control
+        self.max_connections = max_connections
+        self.connections = 0
         self.latency = latency
         self.trace = trace
         self.idle_timeout = idle_timeout
@@ -94,7 +99,12 @@ class TncServer:
         session = Session(self.control, link)
         peer = str(writer.get_extra_info("peername"))
         lock = asyncio.Lock()
+        self.connections += 1
         try:
+            if self.connections > self.max_connections:
+                # Like a control out of LSV2 handles: error 80, then hang up.
+                await self._send(link, writer, lock, [Refused(E.T_ER_TO_MANY_OPEN_TCP)], peer)
+                return
             await self._serve(session, link, reader, writer, lock, peer)
         except (ConnectionError, asyncio.IncompleteReadError, TimeoutError):
             pass  # peer vanished: only this connection ends
@@ -104,6 +114,7 @@ class TncServer:
             # A bug must cost one connection, never the server or the other clients.
             _log.exception("virtual TNC: dropping connection %s after an internal error", peer)
         finally:
+            self.connections -= 1
             session.close()
             self._tasks.discard(task)
             writer.close()
