@@ -1,7 +1,142 @@
-"""`opendnc xmodem` commands."""
+"""`opendnc xmodem send|recv`: move programs to and from a control over XModem."""
 
 from __future__ import annotations
 
-import typer
+from pathlib import Path
 
-app = typer.Typer(help="xmodem commands", no_args_is_help=True)
+import typer
+from rich.progress import (
+    BarColumn,
+    DownloadColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TransferSpeedColumn,
+)
+
+from opendnc.cli.common import cli_errors, console, err_console, print_json
+from opendnc.xmodem.events import EotAnswer, Event, FallbackToSmall, Retry
+from opendnc.xmodem.files import receive_file, send_file
+from opendnc.xmodem.framing import Mode
+from opendnc.xmodem.haas import Eob
+from opendnc.xmodem.receiver import ReceiverConfig
+from opendnc.xmodem.sender import SenderConfig
+
+app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
+
+PORT_HELP = "Serial device or pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, rfc2217://..."
+
+
+def _progress(total: int | None) -> Progress:
+    columns = [
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        TimeElapsedColumn(),
+    ]
+    return Progress(*columns, console=err_console, transient=False)
+
+
+def _report_event(event: Event) -> None:
+    if isinstance(event, Retry):
+        err_console.print(f"[yellow]retry[/] block {event.seq} #{event.attempt}: {event.reason}")
+    elif isinstance(event, FallbackToSmall):
+        err_console.print(f"[yellow]falling back to 128-byte blocks at block {event.seq}[/]")
+
+
+@app.command("send")
+def send_cmd(
+    file: Path = typer.Argument(..., help="Program file to send", exists=True, dir_okay=False),
+    port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
+    mode: Mode = typer.Option(Mode.ONE_K, "--mode", help="Block mode (1k falls back as needed)"),
+    baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
+    parity: str = typer.Option("N", "--parity", help="N, E or O (XModem on a Haas needs N)"),
+    eob: Eob | None = typer.Option(
+        None, "--eob", help="Convert line ends to the control's setting 25 (default: as is)"
+    ),
+    timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the receiver"),
+    turnaround: float = typer.Option(
+        0.0, "--turnaround", help="Milliseconds to pause after each ACK (lrzsz rx on a pty)"
+    ),
+    json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
+) -> None:
+    """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
+    config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
+    with cli_errors():
+        size = file.stat().st_size
+        with _progress(size) as bar:
+            task = bar.add_task(f"send {file.name}", total=size)
+            report = send_file(
+                port,
+                file,
+                mode=mode,
+                baud=baud,
+                parity=parity.upper(),
+                eob=eob,
+                config=config,
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+                on_event=_report_event,
+            )
+        if json_out:
+            print_json(report)
+            return
+        name = f" {report.program.name}" if report.program else ""
+        console.print(
+            f"sent{name} {report.size} bytes in {report.blocks} blocks, {report.seconds:.1f} s"
+        )
+        if report.eot_answer is EotAnswer.CAN:
+            console.print("receiver answered EOT with CAN (Haas style); all blocks were ACKed")
+        elif report.eot_answer in (EotAnswer.NONE, EotAnswer.CLOSED):
+            console.print(
+                "[yellow]receiver did not acknowledge EOT[/]; all data blocks were acknowledged"
+            )
+
+
+@app.command("recv")
+def recv_cmd(
+    out: Path = typer.Argument(..., help="Output file, or a folder to name it by O-number"),
+    port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
+    mode: Mode = typer.Option(Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k"),
+    baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
+    parity: str = typer.Option("N", "--parity", help="N, E or O"),
+    timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the sender"),
+    eob: Eob | None = typer.Option(
+        None, "--eob", help="Convert the control's setting-25 line ends to LF"
+    ),
+    keep_padding: bool = typer.Option(False, "--keep-padding", help="Keep trailing SUB bytes"),
+    haas_eob_checksum: bool = typer.Option(
+        False,
+        "--haas-eob-checksum",
+        help="Accept checksums computed with CR LF folded to LF (reported Haas quirk)",
+    ),
+    json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
+) -> None:
+    """Receive one file into OUT (written to a temp file, renamed only on success)."""
+    config = ReceiverConfig(
+        start_timeout=timeout,
+        strip_padding=not keep_padding,
+        fold_eob_checksum=haas_eob_checksum,
+    )
+    with cli_errors(), _progress(None) as bar:
+        task = bar.add_task("receive", total=None)
+        report = receive_file(
+            port,
+            out,
+            mode=mode,
+            baud=baud,
+            parity=parity.upper(),
+            eob=eob,
+            config=config,
+            progress=lambda done, _total: bar.update(task, completed=done),
+            on_event=_report_event,
+        )
+        bar.update(task, total=report.size, completed=report.size)
+    if json_out:
+        print_json(report)
+        return
+    name = f" program {report.program.name}" if report.program else ""
+    console.print(
+        f"received{name} {report.size} bytes in {report.blocks} blocks -> {report.path} "
+        f"({report.seconds:.1f} s)"
+    )

@@ -1,0 +1,187 @@
+"""File-level XModem transfers: read a program and send it, receive into a temp file + rename.
+
+A receive never leaves a partial file at the destination: the bytes go to a hidden temporary
+file in the target folder, which is renamed over the target only after the sender's EOT was
+acknowledged, and deleted on any error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+from opendnc.errors import InputError
+from opendnc.transport.base import ByteStream
+from opendnc.transport.serial import SerialStream
+from opendnc.xmodem.driver import POLL, EventHandler, Progress, receive, send
+from opendnc.xmodem.events import EotAnswer
+from opendnc.xmodem.framing import Mode
+from opendnc.xmodem.haas import (
+    Eob,
+    ProgramHeader,
+    from_wire,
+    program_filename,
+    program_header,
+    to_wire,
+)
+from opendnc.xmodem.receiver import ReceiverConfig
+from opendnc.xmodem.sender import SenderConfig
+
+
+@dataclass(frozen=True, slots=True)
+class SendReport:
+    """What :func:`send_file` did."""
+
+    path: Path
+    size: int  # bytes sent (after EOB conversion)
+    blocks: int
+    eot_answer: EotAnswer
+    program: ProgramHeader | None
+    seconds: float
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiveReport:
+    """What :func:`receive_file` did."""
+
+    path: Path
+    size: int  # bytes written (after padding removal and EOB conversion)
+    blocks: int
+    program: ProgramHeader | None
+    seconds: float
+
+
+def open_port(url: str, baud: int = 9600, parity: str = "N") -> SerialStream:
+    """Open anything pyserial opens (device, ``socket://``, ``rfc2217://``) for XModem use."""
+    return SerialStream(url, baud, parity=parity, bytesize=8, stopbits=1, timeout=POLL)
+
+
+@dataclass(slots=True)
+class PendingFile:
+    """A file being written: ``handle`` writes to ``temp``; ``target`` may still be renamed."""
+
+    handle: BinaryIO
+    temp: Path
+    target: Path
+
+
+@contextlib.contextmanager
+def atomic_output(target: Path) -> Iterator[PendingFile]:
+    """Yield a temp file next to ``target``; on success it replaces ``target``, else vanishes."""
+    folder = target.parent
+    if not folder.is_dir():
+        raise InputError(f"folder {folder} does not exist")
+    fd, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
+    pending = PendingFile(os.fdopen(fd, "wb"), Path(temp_name), target)
+    try:
+        with pending.handle:
+            yield pending
+        os.replace(pending.temp, pending.target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            pending.temp.unlink()
+        raise
+
+
+def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream, bool]:
+    if isinstance(port, str):
+        return open_port(port, baud, parity), True
+    return port, False
+
+
+def send_file(
+    port: str | ByteStream,
+    path: Path,
+    *,
+    mode: Mode = Mode.ONE_K,
+    baud: int = 9600,
+    parity: str = "N",
+    eob: Eob | None = None,
+    config: SenderConfig | None = None,
+    progress: Progress | None = None,
+    on_event: EventHandler | None = None,
+) -> SendReport:
+    """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    if not data:
+        raise InputError(f"{path} is empty; XModem cannot send an empty file")
+    if eob is not None:
+        data = to_wire(data, eob)
+    stream, owned = _stream(port, baud, parity)
+    started = time.monotonic()
+    try:
+        done = send(stream, data, mode=mode, config=config, progress=progress, on_event=on_event)
+    finally:
+        if owned:
+            stream.close()
+    return SendReport(
+        path=path,
+        size=done.size,
+        blocks=done.blocks,
+        eot_answer=done.eot_answer,
+        program=program_header(data),
+        seconds=time.monotonic() - started,
+    )
+
+
+def receive_file(
+    port: str | ByteStream,
+    out: Path,
+    *,
+    mode: Mode = Mode.CHECKSUM,
+    baud: int = 9600,
+    parity: str = "N",
+    eob: Eob | None = None,
+    config: ReceiverConfig | None = None,
+    progress: Progress | None = None,
+    on_event: EventHandler | None = None,
+) -> ReceiveReport:
+    """Receive one file into ``out`` (temp file + rename).
+
+    If ``out`` is an existing folder, the file is named from the program's O-number
+    (``O05555.nc``) or ``program.nc``. ``eob`` converts the control's line ends to LF.
+    """
+    folder_target = out.is_dir()
+    stream, owned = _stream(port, baud, parity)
+    started = time.monotonic()
+    try:
+        with atomic_output(out / "program.nc" if folder_target else out) as pending:
+            done = receive(
+                stream,
+                pending.handle,
+                mode=mode,
+                config=config,
+                progress=progress,
+                on_event=on_event,
+            )
+            pending.handle.flush()
+            size = done.size
+            if eob is not None and eob is not Eob.LF:
+                converted = from_wire(pending.temp.read_bytes(), eob)
+                pending.handle.seek(0)
+                pending.handle.truncate()
+                pending.handle.write(converted)
+                size = len(converted)
+            with pending.temp.open("rb") as check:
+                head = check.read(4096)
+            if folder_target:
+                pending.target = out / program_filename(head)
+    finally:
+        if owned:
+            stream.close()
+    return ReceiveReport(
+        path=pending.target,
+        size=size,
+        blocks=done.blocks,
+        program=program_header(head),
+        seconds=time.monotonic() - started,
+    )
