@@ -122,3 +122,24 @@ def test_serial_style_output_captured_over_a_pty(tmp_path: Path) -> None:
         pty.close()
     assert [line.text for line in got] == ["A 2.50", "B 2"]
     assert got[0].numbers == (2.5,)
+
+
+def test_dnc_blocks_run_at_the_block_rate(tmp_path: Path) -> None:
+    """The executor consumes a DNC stream at --block-rate, so a feeder sees the backlog."""
+    from opendnc.sim.haas import HaasConfig, SimOptions
+    from opendnc.sim.haas.control import DncSession
+
+    options = SimOptions(mdc_port=None, block_rate=40.0)
+    with SimHaasThread(HaasConfig(), tmp_path, options) as thread:
+        assert thread.sim is not None
+        control = thread.sim.control
+        session: DncSession = thread.call(control.start_dnc)
+        started = time.monotonic()
+        thread.call(lambda: [session.feed_line(f"#1 = {i}") for i in range(10)])
+        assert thread.call(lambda: session.backlog) >= 8  # 40 blocks/s: nearly all queued
+        thread.call(lambda: (session.feed_line("M30"), session.finish()))
+        wait_until(lambda: thread.call(lambda: session.done))
+        elapsed = time.monotonic() - started
+    assert elapsed >= 10 / 40.0  # 11 blocks cannot finish faster than the rate allows
+    assert control.machine.get(1) == 9.0
+    assert control.machine.m30_counter_1 == 1

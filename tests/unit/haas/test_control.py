@@ -226,3 +226,50 @@ def test_bad_dprnt_option(spec: str) -> None:
 
     with pytest.raises(InputError):
         parse_dprnt(spec, Path("root"))
+
+
+def test_dnc_session_backlog_finish_and_link_loss(tmp_path: Path) -> None:
+    control, _ = make(tmp_path)
+    woken: list[int] = []
+    control.wake = lambda: woken.append(1)
+    session = control.start_dnc()
+    for line in ["#1 = 1", "#1 = #1 + 1", "DPRNT[V#1[10]]"]:
+        session.feed_line(line)
+    assert session.backlog == 3
+    assert control.step() is StepResult.RAN
+    assert session.backlog == 2
+    assert ask(control, "?Q104") == "MODE, DNC"
+    while control.step() is StepResult.RAN:
+        pass
+    assert session.backlog == 0
+    session.feed_line("M30")
+    session.finish()
+    session.link_lost()  # after the closing %: no alarm
+    while control.step() is StepResult.RAN:
+        pass
+    assert session.done
+    assert not control.machine.alarms
+    assert len(woken) >= 5
+    with pytest.raises(InputError):
+        session.feed_line("G00 X1")
+
+    broken = control.start_dnc()
+    broken.feed_line("G00 X1")
+    broken.link_lost("cable pulled")
+    assert control.machine.alarms == [ALARM_DNC_LINK]
+    assert broken.done
+    assert ask(control, "?Q500") == "PROGRAM, DNC, ALARM ON, PARTS, 1"
+
+
+def test_mdc_responder_for_any_link(tmp_path: Path) -> None:
+    from opendnc.sim.haas.mdc_server import MdcResponder
+
+    control, _ = make(tmp_path, control=mdc.ControlType.CLASSIC, ignore_first_query=True)
+    responder = MdcResponder(control)
+    assert responder.feed(b"?Q100\r\n") == []  # the first request goes unanswered
+    assert responder.feed(b"?Q10") == []
+    assert responder.feed(b"2\r\n?Q999\n") == [
+        b"\x02MODEL, VF-2\x17\r\n>",
+        b"\x02UNKNOWN\x17\r\n>",
+    ]
+    assert responder.feed(b"x" * 2000) == [b"\x02UNKNOWN\x17\r\n>"]  # garbage, no line end

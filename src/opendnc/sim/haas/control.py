@@ -7,12 +7,14 @@ I/O and has no timers: front-ends call into it and a driver calls :meth:`HaasCon
 
 Front-ends and how they attach:
 
-* MDC over TCP (:mod:`opendnc.sim.haas.mdc_server`) calls :meth:`HaasControl.handle_mdc`.
+* MDC over TCP (:mod:`opendnc.sim.haas.mdc_server`) calls :meth:`HaasControl.handle_mdc`;
+  a serial port answering MDC (classic Setting 143) runs a ``MdcResponder`` the same way.
 * DPRNT outputs implement :class:`DprntOutput` and register with :meth:`attach_dprnt`
   for a :class:`DprntDestination` (FILE, TCP, or SERIAL for a serial front-end).
-* A serial front-end loads/punches programs with :meth:`save_program`/:meth:`read_program`,
-  runs DNC with :meth:`start_stream` (append lines to the returned source, close it at the
-  final ``%``) and reports a broken link with :meth:`raise_alarm`.
+* A serial front-end loads/punches programs with :meth:`save_program`/:meth:`read_program`
+  (list them with ``store.numbers()``), and runs DNC through :meth:`start_dnc`: feed lines to
+  the :class:`DncSession`, watch its ``backlog`` for flow control, call ``finish()`` at the
+  closing ``%`` or ``link_lost()`` when the link breaks (alarm :data:`ALARM_DNC_LINK`).
 * Anyone may watch alarms (:attr:`alarm_hooks`) and runner events (:attr:`event_hooks`);
   :attr:`wake` is called whenever there may be new work for the driver.
 
@@ -159,10 +161,19 @@ class HaasControl:
         return self._start(BlockSource(program_lines(text)), header.name, Mode.MEM)
 
     def start_stream(self, name: str = "DNC") -> BlockSource:
-        """Begin a DNC run; append lines to the returned source while they arrive."""
+        """Begin a DNC run; append lines to the returned source while they arrive.
+
+        Prefer :meth:`start_dnc`, which also wakes the driver and tracks the backlog.
+        """
         source = BlockSource(complete=False)
         self._start(source, name, Mode.DNC)
         return source
+
+    def start_dnc(self, name: str = "DNC") -> DncSession:
+        """Begin a DNC (drip-feed) run and return the session a serial front-end feeds."""
+        source = self.start_stream(name)
+        assert self.runner is not None  # set by start_stream
+        return DncSession(self, self.runner, source)
 
     def _start(self, source: BlockSource, name: str, mode: Mode) -> ProgramRunner:
         if self.running:
@@ -300,3 +311,46 @@ class HaasControl:
             )
             return mdc.ProgramStatus(machine.program, status, machine.m30_counter_1)
         return None
+
+
+class DncSession:
+    """One DNC run as a serial front-end sees it.
+
+    Feed each received line with :meth:`feed_line`; call :meth:`finish` at the closing ``%``
+    and :meth:`link_lost` when the link breaks first (raises :data:`ALARM_DNC_LINK`, as the
+    control alarms on a broken drip-feed). :attr:`backlog` is the number of received blocks
+    not executed yet: stop reading (XOFF / hold RTS) while it is above your buffer size, so
+    the sender feels the control's block rate as back-pressure.
+    """
+
+    def __init__(self, control: HaasControl, runner: ProgramRunner, source: BlockSource) -> None:
+        self.control = control
+        self.runner = runner
+        self.source = source
+
+    @property
+    def backlog(self) -> int:
+        """Blocks received but not yet executed."""
+        return max(0, len(self.source) - self.runner.index)
+
+    @property
+    def done(self) -> bool:
+        """True once the run ended (program end, alarm or reset)."""
+        return self.runner.finished
+
+    def feed_line(self, line: str) -> None:
+        """Queue one received line (without its EOB) for execution."""
+        if self.source.complete:
+            raise InputError("the DNC stream already ended")
+        self.source.append(line)
+        self.control.wake()
+
+    def finish(self) -> None:
+        """The closing ``%`` arrived: the program ends after the last block."""
+        self.source.close()
+        self.control.wake()
+
+    def link_lost(self, detail: str = "link broken before the closing %") -> None:
+        """The link broke mid-stream: alarm and stop (nothing happens after :meth:`finish`)."""
+        if not self.source.complete and not self.runner.finished:
+            self.control.raise_alarm(ALARM_DNC_LINK, detail)

@@ -16,6 +16,39 @@ from opendnc.haas import mdc
 from opendnc.sim.haas.control import HaasControl
 
 MAX_CONNECTIONS = 2
+
+
+class MdcResponder:
+    """Sans-IO MDC answering for one link: request bytes in, framed reply bytes out.
+
+    The TCP server runs one per connection; a serial front-end (classic Setting 143) can run
+    one on its port the same way: ``port.write(b"".join(responder.feed(data)))``.
+    """
+
+    def __init__(self, control: HaasControl) -> None:
+        self.control = control
+        self._framer = mdc.LineFramer()
+        self._ignore_next = control.config.ignore_first_query
+
+    def feed(self, data: bytes) -> list[bytes]:
+        """Framed replies to every complete request in ``data`` (garbage gets "unknown")."""
+        replies: list[bytes] = []
+        try:
+            self._framer.feed(data)
+        except RemoteProtocolError:
+            replies.append(self._reply(mdc.UnknownRequest("")))
+        while (line := self._framer.next_line()) is not None:
+            if self._ignore_next:
+                self._ignore_next = False
+                continue
+            replies.append(self._reply(mdc.parse_request(line)))
+        return replies
+
+    def _reply(self, request: mdc.Request | mdc.UnknownRequest) -> bytes:
+        reply = self.control.handle_mdc(request)
+        return mdc.frame_reply(reply.to_payload(), self.control.control_type)
+
+
 Trace = Callable[[str, bytes], None]
 """``trace(direction, data)``: direction is ``"rx"`` or ``"tx"``."""
 
@@ -62,32 +95,19 @@ class MdcServer:
             writer.close()
             return
         self.writers.append(writer)
-        framer = mdc.LineFramer()
-        ignore_next = self.control.config.ignore_first_query
+        responder = MdcResponder(self.control)
         try:
             while data := await reader.read(4096):
                 if self.trace:
                     self.trace("rx", data)
-                try:
-                    framer.feed(data)
-                except RemoteProtocolError:
-                    await self._broadcast(self._reply(mdc.UnknownRequest("")))
-                    continue
-                while (line := framer.next_line()) is not None:
-                    if ignore_next:
-                        ignore_next = False
-                        continue
-                    await self._broadcast(self._reply(mdc.parse_request(line)))
+                for reply in responder.feed(data):
+                    await self._broadcast(reply)
         except OSError:
             pass  # the client vanished; just forget it
         finally:
             if writer in self.writers:
                 self.writers.remove(writer)
             writer.close()
-
-    def _reply(self, request: mdc.Request | mdc.UnknownRequest) -> bytes:
-        reply = self.control.handle_mdc(request)
-        return mdc.frame_reply(reply.to_payload(), self.control.control_type)
 
     async def _broadcast(self, data: bytes) -> None:
         if self.trace:
