@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import threading
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
@@ -93,6 +94,8 @@ class SimHaas:
         """Stop executing and close every port."""
         if self._executor is not None:
             self._executor.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._executor
         for front_end in self.front_ends:
             await front_end.close()
         if self.mdc is not None:
