@@ -273,3 +273,38 @@ def test_mdc_responder_for_any_link(tmp_path: Path) -> None:
         b"\x02UNKNOWN\x17\r\n>",
     ]
     assert responder.feed(b"x" * 2000) == [b"\x02UNKNOWN\x17\r\n>"]  # garbage, no line end
+
+
+def test_reference_example_session_bytes(tmp_path: Path) -> None:
+    """haas-protocols.md 7.5, byte for byte (NGC)."""
+    from opendnc.sim.haas.mdc_server import MdcResponder
+
+    control, _ = make(tmp_path)
+    control.machine.program = "O00123"
+    control.machine.m30_counter_1 = 380
+    control.machine.variables[5223] = -2.531
+    responder = MdcResponder(control)
+    assert responder.feed(b"?Q100\r\n") == [b">SERIAL NUMBER, 1234567\r\n"]
+    assert responder.feed(b"?Q500\r\n") == [b">PROGRAM, O00123, IDLE, PARTS, 380\r\n"]
+    assert responder.feed(b"?Q600 5223\r\n") == [b">MACRO, -2.531\r\n"]
+    assert responder.feed(b"?E10100 1.5\r\n") == [b">!\r\n"]
+    assert control.machine.get(10100) == 1.5
+
+
+def test_seed_surface_snippet(tmp_path: Path) -> None:
+    """The grid-probing snippet of seed 003, EOB semicolons and all."""
+    control, _ = make(tmp_path, surface=parse_surface("plane:-0.1,0,-0.5"))
+    serial = Capture()
+    control.machine.settings[261] = int(DprntDestination.SERIAL)
+    control.attach_dprnt(DprntDestination.SERIAL, serial)
+    session = control.start_dnc()
+    for _ in range(2):
+        session.feed_line("G65 P9995 W54. A20. H-1.;")
+        session.feed_line("DPRNT[#5223[44]];")
+        session.feed_line("G00 G91 X.5;")
+    session.feed_line("DPRNT[Z Offset is #5223[44]];")
+    session.finish()
+    while control.step() is StepResult.RAN:
+        pass
+    # the last print follows a move without a probe: #5223 still holds the second touch
+    assert serial.lines == ["  -0.5000", "  -0.5500", "Z Offset is   -0.5500"]
