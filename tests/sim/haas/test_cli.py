@@ -15,7 +15,6 @@ import pytest
 from typer.testing import CliRunner
 
 from opendnc.cli.main import app
-from opendnc.haas.mdc import ControlType
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.sim.haas import SimHaasThread
 
@@ -71,7 +70,6 @@ def test_q_connection_refused_is_one_line_error() -> None:
     assert "cannot connect" in result.output
 
 
-@pytest.mark.parametrize("control_type", [ControlType.NGC], ids=["ngc"])
 def test_dprnt_listen_cli(sim: SimHaasThread, tmp_path: Path) -> None:
     assert sim.sim is not None
     assert sim.sim.dprnt_tcp is not None

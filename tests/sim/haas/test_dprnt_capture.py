@@ -6,10 +6,7 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
-
 from opendnc.haas.listen import CallbackSink, CapturedLine, DprntListener, JsonlSink
-from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas import DprntDestination, SimHaasThread
 
 # plane:0.02,0,-1.25 probed at X 0, 0.5, 1.0, 1.5 with DPRNT[X#5041[44]*Y#5042[44]*Z#5223[44]]
@@ -43,7 +40,6 @@ def run_program(sim: SimHaasThread) -> None:
     wait_until(lambda: not sim.call(lambda: control.running))
 
 
-@pytest.mark.parametrize("control_type", [ControlType.NGC], ids=["ngc"])
 def test_dprnt_over_tcp_and_file_with_reconnect(sim: SimHaasThread, tmp_path: Path) -> None:
     assert sim.sim is not None
     assert sim.sim.dprnt_tcp is not None

@@ -241,13 +241,19 @@ class HaasControl:
         self.outputs.setdefault(destination, []).append(output)
 
     def dprnt_destination(self) -> DprntDestination:
-        """Where DPRNT goes now: the serial port on classic, Setting 261 on NGC."""
-        if self.control_type is mdc.ControlType.CLASSIC:
-            return DprntDestination.SERIAL
+        """Where DPRNT goes now: Setting 261 on NGC; the serial port on classic.
+
+        A classic control only prints to its serial port; the simulator still honours an
+        explicit Setting 261 there (``--dprnt tcp:PORT``) so classic runs can be captured
+        without a serial link.
+        """
         try:
-            return DprntDestination(int(self.machine.settings.get(261, 0)))
+            chosen = DprntDestination(int(self.machine.settings.get(261, 0)))
         except ValueError:
-            return DprntDestination.NONE
+            chosen = DprntDestination.NONE
+        if self.control_type is mdc.ControlType.CLASSIC and chosen is DprntDestination.NONE:
+            return DprntDestination.SERIAL
+        return chosen
 
     def _dprnt_outputs(self) -> list[DprntOutput]:
         outputs = self.outputs.get(self.dprnt_destination(), [])
