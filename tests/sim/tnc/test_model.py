@@ -291,3 +291,12 @@ def test_program_call_shows_on_the_program_stack() -> None:
     assert "TNC:\\nc_prog\\demo\\FRAME.H" in seen
     assert m.current_program == m.main_program
     assert m.program_state is PgmState.FINISHED
+
+
+def test_root_reused_by_another_family_gets_its_files(tmp_path: Path) -> None:
+    Control(PROFILES["tnc640"], tmp_path)
+    (tmp_path / "TNC" / "nc_prog" / "POCKET.H").unlink()
+    control = Control(PROFILES["itnc530"], tmp_path)
+    assert control.fs.read_bytes(control.fs.parse("TNC:\\TOOL.T", ROOT))
+    Control(PROFILES["tnc640"], tmp_path)
+    assert not (tmp_path / "TNC" / "nc_prog" / "POCKET.H").exists()  # deletions stick

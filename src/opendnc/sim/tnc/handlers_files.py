@@ -224,7 +224,7 @@ def file_done(s: Session, m: FileDone) -> list[Message]:
     """End of an upload: rename into place; answer only with secure file send (§6.2)."""
     up = s.upload
     if up is None:
-        return [] if not s.secure_send else [block_defect(E.T_BD_BAD_FORMAT)]
+        return [Refused(E.T_ER_UNEXPECTED_TELE)] if s.secure_send else []
     s.upload = None
     try:
         os.close(up.fd)

@@ -183,7 +183,9 @@ def lathe_demo() -> str:
 
 def populate(fs: ControlFs, profile: Profile) -> None:
     """Fill a fresh root like a new programming station (only once per root)."""
-    marker = fs.state_dir / MARKER
+    # One marker per family: a root first used by another family still gets this one's
+    # well-known files, but nothing a user deleted comes back on the next start.
+    marker = fs.state_dir / f"{MARKER}-{profile.key}"
     if marker.exists():
         return
     root = WirePath("TNC:", ())
@@ -200,7 +202,8 @@ def populate(fs: ControlFs, profile: Profile) -> None:
     def put(text: str, content: str) -> None:
         wp = fs.parse(text, root)
         ensure_dir(str(wp.parent))
-        fs.write_atomic(wp, content.encode("latin-1"))
+        if not fs.host_path(wp).exists():
+            fs.write_atomic(wp, content.encode("latin-1"))
 
     prog = paths.program_dir.rstrip("\\")
     if profile.lathe:
