@@ -407,3 +407,26 @@ def test_walk_matches_disk(client: Client, tnc640: TncHandle) -> None:
     client.delete_file("TNC:/walk/a/b/deep.h")
     for d in ("TNC:/walk/a/b", "TNC:/walk/a", "TNC:/walk"):
         client.remove_dir(d)
+
+
+def test_cancelled_transfers_keep_the_session_usable(
+    client: Client, tnc640: TncHandle, tmp_path: Path
+) -> None:
+    data = os.urandom(20_000)
+    client.write_file("TNC:/nc_prog/cancel.bin", data)
+
+    class Cancelled(Exception):
+        pass
+
+    def stop_after_first(done: int, total: int | None) -> None:
+        if done > 0:
+            raise Cancelled
+
+    with pytest.raises(Cancelled):
+        client.download("TNC:/nc_prog/cancel.bin", tmp_path / "c.bin", progress=stop_after_first)
+    assert list(tmp_path.iterdir()) == []  # temp file removed, target never created
+    with pytest.raises(Cancelled):
+        client.write_file("TNC:/nc_prog/cancel2.bin", data, progress=stop_after_first)
+    assert client.file_info("TNC:/nc_prog/cancel2.bin") is None  # partial upload dropped
+    assert client.read_file("TNC:/nc_prog/cancel.bin") == data  # still in step
+    client.delete_file("TNC:/nc_prog/cancel.bin")

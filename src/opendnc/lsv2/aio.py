@@ -20,11 +20,12 @@ created with ``safe_mode=False``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from datetime import UTC, datetime
 from types import TracebackType
 
-from opendnc.errors import LocalProtocolError
+from opendnc.errors import DncError, LocalProtocolError
 from opendnc.lsv2 import ops
 from opendnc.lsv2.connection import TraceHook
 from opendnc.lsv2.constants import (
@@ -125,7 +126,9 @@ class AsyncClient:
             return
         try:
             if not driver.broken:
-                await driver.run(ops.logout(driver.state))
+                # Best effort: the control may already be gone; closing must still succeed.
+                with contextlib.suppress(DncError):
+                    await driver.run(ops.logout(driver.state))
         finally:
             await driver.close()
 

@@ -9,6 +9,7 @@ from datetime import UTC, datetime
 from opendnc.errors import InputError
 from opendnc.lsv2.constants import DRIVE_LOGINS, AttributeScheme, DirMode, Login, TransferMode
 from opendnc.lsv2.messages import (
+    BlockDefect,
     ChangeDir,
     CopyFile,
     DeleteDir,
@@ -336,7 +337,11 @@ def upload(
         expect(reply, Ok, f"upload {remote}")
         if progress is not None:
             done += len(block)
-            progress(min(done, total), total)
+            try:
+                progress(min(done, total), total)
+            except Exception:
+                yield BlockDefect()  # the caller cancelled: abort the upload on the control
+                raise
     reply = yield FileDone()
     if state.secure_send:
         expect(reply, Ok, f"finish upload {remote}")
@@ -368,9 +373,15 @@ def download(
         if not isinstance(reply, FileData):
             refuse(reply, f"download {remote}")
         data = reply.data if binary else reply.data.replace(b"\0", line_end)
-        sink(data)
-        done += len(data)
-        if progress is not None:
-            progress(done, total)
+        try:
+            sink(data)
+            done += len(data)
+            if progress is not None:
+                progress(done, total)
+        except Exception:
+            # A local failure (disk full, cancelled by the caller): tell the control to stop
+            # the sequence so the session stays usable, then report the failure.
+            yield BlockDefect()
+            raise
         reply = yield Ok()
     return done
