@@ -367,8 +367,8 @@ class VirtualCable:
         try:
             self._pump()
         except OSError as exc:
+            # users of the ports see a silent line; `running` and `error` say why
             self.error = TransportError(f"virtual cable stopped: {exc}")
-            raise
 
     def _pump(self) -> None:
         poller = select.poll()
