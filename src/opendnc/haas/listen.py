@@ -227,10 +227,13 @@ class DprntListener:
                     self._emit(line)
                     if max_lines is not None and self.stats.lines >= max_lines:
                         return True
+            self._emit_tail(framer)  # stopped: keep a line whose end never came
             return True
         except (PeerClosed, TransportError):
-            # keep what already arrived even though its line end never came
-            tail = framer.flush()
-            if tail is not None:
-                self._emit(tail)
+            self._emit_tail(framer)  # link gone: keep a line whose end never came
             return max_lines is not None and self.stats.lines >= max_lines
+
+    def _emit_tail(self, framer: DprntLineFramer) -> None:
+        tail = framer.flush()
+        if tail is not None:
+            self._emit(tail)
