@@ -135,7 +135,12 @@ class TncServer:
             if not data:
                 return
             link.receive_data(data)
+            handled = 0
             while True:
+                handled += 1
+                if handled % 32 == 0:
+                    # A client pipelining many telegrams must not starve the others.
+                    await asyncio.sleep(0)
                 before = link.last_frame
                 try:
                     request = link.next_event()
