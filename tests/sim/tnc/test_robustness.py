@@ -275,3 +275,22 @@ def test_connection_limit_answers_error_80(tmp_path: Path) -> None:
         fourth = logged_in(tnc.port)
         fourth.close()
         second.close()
+
+
+def test_pipelining_flooder_does_not_starve_others(tnc: TncHandle) -> None:
+    flooder = logged_in(tnc.port)
+    burst = TelegramFramer.encode(Frame("R_VR")) * 5000
+    flooder.sock.setblocking(False)
+    try:
+        flooder.sock.send(burst)
+    except BlockingIOError:
+        pass  # the kernel buffer is full: exactly the situation we want
+    probe = logged_in(tnc.port)
+    try:
+        t0 = time.monotonic()
+        for _ in range(20):
+            assert probe.ask("R_VR").mnemonic == "S_VR"
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        probe.close()
+        flooder.close()
