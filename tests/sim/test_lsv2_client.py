@@ -52,13 +52,21 @@ def disk(tnc: TncHandle, wire: str) -> Path:
 
 def test_connect_sequence_and_trace(tnc640: TncHandle) -> None:
     seen: list[tuple[str, Message]] = []
-    with Client("127.0.0.1", tnc640.port, trace=lambda d, m: seen.append((d, m))) as c:
+    raw: list[tuple[str, bytes]] = []
+    with Client(
+        "127.0.0.1",
+        tnc640.port,
+        trace=lambda d, m: seen.append((d, m)),
+        trace_bytes=lambda d, b: raw.append((d, b)),
+    ) as c:
         assert c.versions.model == "TNC640"
         assert c.family is Family.TNC_NEW
         assert c.buffer_size == 4096  # sim advertises 4096
         assert c.secure_file_send
         assert c.parameters.max_block_length >= 4096
         assert "INSPECT" in c.logins
+    assert raw[0] == ("send", bytes.fromhex("00000008415F4C47494E535045435400"))
+    assert raw[1] == ("recv", bytes.fromhex("00000000545F4F4B"))
     names = [m.mnemonic for d, m in seen if d == "send"]
     assert names[:2] == ["A_LG", "R_VR"]
     assert names[-1] == "A_LO"

@@ -27,7 +27,7 @@ from types import TracebackType
 
 from opendnc.errors import DncError, LocalProtocolError
 from opendnc.lsv2 import ops
-from opendnc.lsv2.connection import TraceHook
+from opendnc.lsv2.connection import BytesHook, TraceHook
 from opendnc.lsv2.constants import (
     DEFAULT_PORT,
     ExecutionMode,
@@ -81,13 +81,15 @@ class AsyncClient:
         secure_send: bool = True,
         passwords: dict[str, str] | None = None,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> None:
         """Prepare a session; nothing is sent before :meth:`connect` (or ``async with``).
 
         ``max_buffer`` caps the telegram size negotiated with the control (256 = no
         negotiation, the compatibility setting); ``passwords`` maps login names (e.g.
         ``"FILEPLC"``, ``"PLCDEBUG"``) to the passwords used when an operation needs them;
-        ``trace`` is called with ``("send"|"recv", message)`` for every telegram.
+        ``trace`` is called with ``("send"|"recv", message)`` for every telegram and
+        ``trace_bytes`` with ``("send"|"recv", raw bytes)`` for every write and read.
         """
         self.host, self.port = host, port
         self.timeout = timeout
@@ -97,6 +99,7 @@ class AsyncClient:
         self.secure_send = secure_send
         self.passwords = dict(passwords or {})
         self.trace = trace
+        self.trace_bytes = trace_bytes
         self._driver: AsyncDriver | None = None
 
     # -- session ---------------------------------------------------------------------------
@@ -106,7 +109,12 @@ class AsyncClient:
         if self._driver is not None:
             return
         driver = await AsyncDriver.open(
-            self.host, self.port, timeout=self.timeout, safe_mode=self.safe_mode, trace=self.trace
+            self.host,
+            self.port,
+            timeout=self.timeout,
+            safe_mode=self.safe_mode,
+            trace=self.trace,
+            trace_bytes=self.trace_bytes,
         )
         driver.state.passwords.update(self.passwords)
         self._driver = driver

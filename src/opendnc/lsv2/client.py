@@ -28,7 +28,7 @@ from types import TracebackType
 
 from opendnc.errors import DncError, LocalProtocolError
 from opendnc.lsv2 import ops
-from opendnc.lsv2.connection import TraceHook
+from opendnc.lsv2.connection import BytesHook, TraceHook
 from opendnc.lsv2.constants import (
     DEFAULT_PORT,
     ExecutionMode,
@@ -82,13 +82,15 @@ class Client:
         secure_send: bool = True,
         passwords: dict[str, str] | None = None,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> None:
         """Prepare a session; nothing is sent before :meth:`connect` (or ``with``).
 
         ``max_buffer`` caps the telegram size negotiated with the control (256 = no
         negotiation, the compatibility setting); ``passwords`` maps login names (e.g.
         ``"FILEPLC"``, ``"PLCDEBUG"``) to the passwords used when an operation needs them;
-        ``trace`` is called with ``("send"|"recv", message)`` for every telegram.
+        ``trace`` is called with ``("send"|"recv", message)`` for every telegram and
+        ``trace_bytes`` with ``("send"|"recv", raw bytes)`` for every write and read.
         """
         self.host, self.port = host, port
         self.timeout = timeout
@@ -98,6 +100,7 @@ class Client:
         self.secure_send = secure_send
         self.passwords = dict(passwords or {})
         self.trace = trace
+        self.trace_bytes = trace_bytes
         self._driver: BlockingDriver | None = None
 
     # -- session ---------------------------------------------------------------------------
@@ -107,7 +110,12 @@ class Client:
         if self._driver is not None:
             return
         driver = BlockingDriver.open(
-            self.host, self.port, timeout=self.timeout, safe_mode=self.safe_mode, trace=self.trace
+            self.host,
+            self.port,
+            timeout=self.timeout,
+            safe_mode=self.safe_mode,
+            trace=self.trace,
+            trace_bytes=self.trace_bytes,
         )
         driver.state.passwords.update(self.passwords)
         self._driver = driver

@@ -46,10 +46,11 @@ from opendnc.lsv2.messages import (
     decode,
 )
 
-__all__ = ["Direction", "Lsv2Connection", "Role", "State", "TraceHook"]
+__all__ = ["BytesHook", "Direction", "Lsv2Connection", "Role", "State", "TraceHook"]
 
 Direction = Literal["send", "recv"]
 TraceHook = Callable[[Direction, Message], None]
+BytesHook = Callable[[Direction, bytes], None]
 
 
 class Role(enum.Enum):
@@ -75,6 +76,7 @@ class Lsv2Connection:
         *,
         max_payload: int = DEFAULT_MAX_PAYLOAD,
         on_message: TraceHook | None = None,
+        on_bytes: BytesHook | None = None,
     ) -> None:
         self.role = role
         self.state = State.IDLE
@@ -83,6 +85,8 @@ class Lsv2Connection:
         self.secure_send = False
         """True once ``C_CC`` 19 was acknowledged: ``T_FD`` then gets an answer."""
         self.on_message = on_message
+        self.on_bytes = on_bytes
+        """Called with the raw wire bytes of every send and receive (hex traces)."""
         self.last_frame: Frame | None = None
         """The most recent raw frame received (lets a server answer an unknown name)."""
         self._framer = TelegramFramer(max_payload)
@@ -107,7 +111,10 @@ class Lsv2Connection:
         if self.on_message is not None:
             self.on_message("send", message)
         name = message.MNEMONIC_BYTES or message.mnemonic.encode("ascii")
-        return HEADER.pack(len(payload), name) + payload
+        wire = HEADER.pack(len(payload), name) + payload
+        if self.on_bytes is not None:
+            self.on_bytes("send", wire)
+        return wire
 
     def expects_reply(self, message: Message) -> bool:
         """Whether the peer answers ``message`` when the client sends it."""
@@ -138,6 +145,8 @@ class Lsv2Connection:
     def receive_data(self, data: bytes) -> None:
         """Feed received bytes; ``b""`` means the peer closed the connection."""
         if data:
+            if self.on_bytes is not None:
+                self.on_bytes("recv", data)
             self._framer.feed(data)
         else:
             self._eof = True

@@ -14,7 +14,7 @@ import time
 from typing import TypeVar
 
 from opendnc.errors import PeerClosed, ProtocolError, TransportError, TransportTimeout
-from opendnc.lsv2.connection import Lsv2Connection, Role, TraceHook
+from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, TraceHook
 from opendnc.lsv2.messages import Message
 from opendnc.lsv2.ops.base import Expect, Op, SessionState, Slow, Step
 from opendnc.transport.base import ByteStream
@@ -27,9 +27,15 @@ READ_SIZE = 65536
 
 
 class _DriverBase:
-    def __init__(self, timeout: float, safe_mode: bool, trace: TraceHook | None) -> None:
+    def __init__(
+        self,
+        timeout: float,
+        safe_mode: bool,
+        trace: TraceHook | None,
+        trace_bytes: BytesHook | None = None,
+    ) -> None:
         self.timeout = timeout
-        self.conn = Lsv2Connection(Role.CLIENT, on_message=trace)
+        self.conn = Lsv2Connection(Role.CLIENT, on_message=trace, on_bytes=trace_bytes)
         self.state = SessionState(safe_mode=safe_mode)
         self.broken = False
         """Set after a transport or protocol error: the link is out of step, reconnect."""
@@ -57,8 +63,9 @@ class BlockingDriver(_DriverBase):
         timeout: float = 10.0,
         safe_mode: bool = True,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> None:
-        super().__init__(timeout, safe_mode, trace)
+        super().__init__(timeout, safe_mode, trace, trace_bytes)
         self.stream = stream
         self._read_timeout: float | None = None
 
@@ -71,10 +78,13 @@ class BlockingDriver(_DriverBase):
         timeout: float = 10.0,
         safe_mode: bool = True,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> BlockingDriver:
         """Connect by TCP (``TcpStream`` sets ``TCP_NODELAY``)."""
         stream = TcpStream(host, port, timeout=timeout)
-        return cls(stream, timeout=timeout, safe_mode=safe_mode, trace=trace)
+        return cls(
+            stream, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes
+        )
 
     def run(self, op: Op[T]) -> T:
         """Run ``op`` to completion and return its result."""
@@ -135,8 +145,9 @@ class AsyncDriver(_DriverBase):
         timeout: float = 10.0,
         safe_mode: bool = True,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> None:
-        super().__init__(timeout, safe_mode, trace)
+        super().__init__(timeout, safe_mode, trace, trace_bytes)
         self.reader, self.writer = reader, writer
         self._lock = asyncio.Lock()
 
@@ -149,6 +160,7 @@ class AsyncDriver(_DriverBase):
         timeout: float = 10.0,
         safe_mode: bool = True,
         trace: TraceHook | None = None,
+        trace_bytes: BytesHook | None = None,
     ) -> AsyncDriver:
         """Connect by TCP (asyncio sets ``TCP_NODELAY`` on TCP transports)."""
         try:
@@ -158,7 +170,14 @@ class AsyncDriver(_DriverBase):
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
-        return cls(reader, writer, timeout=timeout, safe_mode=safe_mode, trace=trace)
+        return cls(
+            reader,
+            writer,
+            timeout=timeout,
+            safe_mode=safe_mode,
+            trace=trace,
+            trace_bytes=trace_bytes,
+        )
 
     async def run(self, op: Op[T]) -> T:
         """Run ``op`` to completion; concurrent calls are serialised (half-duplex link)."""
