@@ -165,8 +165,9 @@ class XmodemReceiver(EngineBase):
                     self._arm(self.config.char_timeout)
                     return
                 try:
+                    # decode a copy: a view into buf would pin it while an error propagates
                     block = decode_block(
-                        memoryview(buf)[:length],
+                        bytes(buf[:length]),
                         crc=self.crc,
                         fold_eob=self.config.fold_eob_checksum,
                     )

@@ -93,6 +93,7 @@ class XmodemSender(EngineBase):
         self._block_len = 0  # payload bytes carried by the current block
         self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
         self._cans = 0  # consecutive CAN bytes seen
+        self._eot_naks = 0
         self._waited = 0.0
         self._arm(min(self.config.start_timeout, self.config.ack_timeout))
 
@@ -223,11 +224,16 @@ class XmodemSender(EngineBase):
 
     def _on_nak(self, reason: str) -> None:
         if self.state is SenderState.WAIT_EOT_ACK:
-            # some receivers NAK the first EOT to make sure it was not line noise
-            self._failures += 1
-            if self._failures > self.config.eot_retries:
-                self._done(EotAnswer.NONE)
+            # the receiver did not take our EOT (line noise, or a receiver that NAKs the
+            # first EOT on purpose): unlike silence, this must not end as a success
+            self._eot_naks += 1
+            if self._eot_naks > self.config.max_retries:
+                self._fail(
+                    TransferError(f"receiver refused EOT {self._eot_naks} times"),
+                    cancel_peer=True,
+                )
             else:
+                self._events.append(Retry(self._seq, self._eot_naks, "EOT NAKed"))
                 self._send_eot()
             return
         if self.state is not SenderState.WAIT_ACK:
