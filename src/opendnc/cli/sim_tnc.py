@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import signal
 from pathlib import Path
 
 import typer
@@ -50,10 +51,17 @@ def tnc(
             soft_wrap=True,
         )
         console.print(f"root: {server.control.root}", highlight=False, soft_wrap=True)
+        # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,
+        # so the state of the control is saved to --root.
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
         try:
-            await server.serve_forever()
+            await stop.wait()
         finally:
             await server.close()
+        console.print("stopped")
 
     with cli_errors():
         try:

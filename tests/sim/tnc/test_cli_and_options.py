@@ -26,7 +26,7 @@ def _ask(sock: socket.socket, name: str, payload: bytes = b"") -> Frame:
     return frame
 
 
-def test_cli_serves_until_interrupted(tmp_path: Path) -> None:
+def test_cli_serves_until_terminated(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -57,9 +57,11 @@ def test_cli_serves_until_interrupted(tmp_path: Path) -> None:
             assert reply.payload.startswith(b"iTNC530")
         assert (tmp_path / "TNC" / "TOOL.T").exists()
     finally:
-        proc.send_signal(signal.SIGINT)
-        _out, err = proc.communicate(timeout=10)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0
+    assert "stopped" in out
+    assert (tmp_path / ".state" / "machine.json").exists()  # state saved on the way out
     assert "<- Login(login='INSPECT'" in err
     assert "41 5f 4c 47" in err  # hex of A_LG
     assert "-> VersionReply" in err
