@@ -438,3 +438,13 @@ def test_cancelled_transfers_keep_the_session_usable(
     assert client.file_info("TNC:/nc_prog/cancel2.bin") is None  # partial upload dropped
     assert client.read_file("TNC:/nc_prog/cancel.bin") == data  # still in step
     client.delete_file("TNC:/nc_prog/cancel.bin")
+
+
+def test_local_errors_keep_the_link(client: Client) -> None:
+    from opendnc.errors import LocalProtocolError
+
+    with pytest.raises(LocalProtocolError, match="exceeds the buffer"):
+        client.file_info("TNC:/" + "x" * 5000 + ".h")
+    with pytest.raises(InputError, match="Latin-1"):
+        client.file_info("TNC:/€.h")
+    assert client.program_state() in set(ProgramState)

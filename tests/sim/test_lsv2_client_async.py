@@ -12,7 +12,7 @@ import pytest
 
 from opendnc.errors import ControlRefused, PeerClosed, SafetyLockError, TransportError
 from opendnc.lsv2 import AsyncClient, ExecutionMode, Family, KeyCode, ProgramState
-from opendnc.sim.tnc import TncHandle, serve_tnc
+from opendnc.sim.tnc import TncHandle, serve_tnc, start_tnc
 from tests.sim.lsv2_fixtures import itnc530, tnc640
 
 __all__ = ["itnc530", "tnc640"]
@@ -89,5 +89,20 @@ def test_server_in_same_loop_and_peer_closed(tmp_path: Path) -> None:
         with pytest.raises((PeerClosed, TransportError)):
             await c.list_dir("TNC:/")
         await c.close()
+
+    arun(scenario())
+
+
+def test_cancelled_call_marks_link_out_of_step() -> None:
+    async def scenario() -> None:
+        with start_tnc("tnc640", latency=0.2) as tnc:
+            async with AsyncClient("127.0.0.1", tnc.port, max_buffer=256, secure_send=False) as c:
+                task = asyncio.create_task(c.program_state())
+                await asyncio.sleep(0.05)
+                task.cancel()
+                with pytest.raises(asyncio.CancelledError):
+                    await task
+                with pytest.raises(TransportError, match="reconnect"):
+                    await c.program_state()
 
     arun(scenario())

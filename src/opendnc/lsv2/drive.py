@@ -13,8 +13,8 @@ import contextlib
 import time
 from typing import TypeVar
 
-from opendnc.errors import PeerClosed, ProtocolError, TransportError, TransportTimeout
-from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, TraceHook
+from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, TransportTimeout
+from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
 from opendnc.lsv2.ops.base import Expect, Op, SessionState, Slow, Step
 from opendnc.transport.base import ByteStream
@@ -44,6 +44,13 @@ class _DriverBase:
         """Refuse to run on a link that failed earlier."""
         if self.broken:
             raise TransportError("the LSV2 connection failed earlier; reconnect")
+
+    def _after(self, op: Op[T]) -> None:
+        op.close()
+        # Interrupted while an answer was due (timeout, cancellation, Ctrl-C): that answer may
+        # still arrive and would be taken for the next one, so this link is out of step.
+        if self.conn.state is State.WAITING:
+            self.broken = True
 
     def _unpack(self, step: Step) -> tuple[Message | None, float]:
         if isinstance(step, Slow):
@@ -96,11 +103,11 @@ class BlockingDriver(_DriverBase):
         except StopIteration as done:
             result: T = done.value
             return result
-        except (TransportError, ProtocolError):
+        except (TransportError, RemoteProtocolError):
             self.broken = True
             raise
         finally:
-            op.close()
+            self._after(op)
 
     def _exchange(self, step: Step) -> Message | None:
         message, timeout = self._unpack(step)
@@ -190,11 +197,11 @@ class AsyncDriver(_DriverBase):
             except StopIteration as done:
                 result: T = done.value
                 return result
-            except (TransportError, ProtocolError):
+            except (TransportError, RemoteProtocolError):
                 self.broken = True
                 raise
             finally:
-                op.close()
+                self._after(op)
 
     async def _read(self, timeout: float) -> bytes:
         try:
