@@ -152,3 +152,13 @@ def test_serial_fuzz_only_remote_protocol_errors(chunks: list[bytes]) -> None:
             if isinstance(item, Frame):
                 with contextlib.suppress(RemoteProtocolError):
                     decode(item)
+
+
+@given(st.binary(max_size=5000))
+def test_bcc_equals_bytewise_xor(body: bytes) -> None:
+    from functools import reduce
+    from operator import xor
+
+    from opendnc.lsv2.framing import bcc
+
+    assert bcc(body) == reduce(xor, body, 0x03)
