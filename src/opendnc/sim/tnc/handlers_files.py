@@ -42,7 +42,8 @@ def _entry(s: Session, entry: Entry) -> DirReply:
 @handler(ReadDirInfo, Priv.FILE)
 def directory_info(s: Session, m: ReadDirInfo) -> list[Message]:
     """R_DI: free bytes and the current directory with trailing separator."""
-    return [DirInfoReply(DirectoryInfo(s.control.fs.free_bytes(), s.cwd.as_dir()))]
+    path = s.cwd.as_dir().replace("\\", s.control.profile.dir_separator)
+    return [DirInfoReply(DirectoryInfo(s.control.fs.free_bytes(), path))]
 
 
 @handler(ReadDir, Priv.FILE)

@@ -175,6 +175,7 @@ class Profile:
     plc_password: str = "807667"
     password_key: int = 0x60389A6E
     max_buffer: int = 4096
+    dir_separator: str = "\\"  # separator in S_DI paths; the iTNC answers with "/" [W]
     system_commands: frozenset[int] = field(
         default_factory=lambda: frozenset({2, 3, 4, 5, 6, 7, 8, 11, 12, 17, 19, 27})
     )
@@ -376,6 +377,7 @@ PROFILES: dict[str, Profile] = {
         numeric_machine_parameters=True,
         drives=("TNC:", "PLC:", "SYS:"),
         plc_password="807667",
+        dir_separator="/",
         system_commands=frozenset({2, 3, 4, 5, 6, 7, 8, 12, 17, 19, 27}),
     ),
     "tnc426": Profile(
