@@ -195,9 +195,9 @@ class Session:
         key: type[Message] | str = name if isinstance(request, Opaque) else type(request)
         entry = HANDLERS.get(key)
         if entry is None:
-            if isinstance(request, Opaque):
-                return Result([error(E.T_ER_WRONG_PARA)])  # exists, layout not public
-            return Result([error(E.T_ER_UNEXPECTED_TELE)])
+            if name[:2] in ("S_", "T_", "M_"):
+                return Result([error(E.T_ER_UNEXPECTED_TELE)])  # an answer nobody asked for
+            return Result([error(E.T_ER_WRONG_PARA)])  # exists, not supported here
         priv, fn = entry
         if not self.allowed(priv):
             return Result([error(E.T_ER_NO_PRIV)])
