@@ -170,6 +170,7 @@ def receive_file(
                 pending.handle.seek(0)
                 pending.handle.truncate()
                 pending.handle.write(converted)
+                pending.handle.flush()
                 size = len(converted)
             with pending.temp.open("rb") as check:
                 head = check.read(4096)
