@@ -14,6 +14,7 @@ from typing import Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from opendnc.errors import DncError
 
@@ -51,7 +52,10 @@ def cli_errors() -> Iterator[None]:
     try:
         yield
     except DncError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        # soft_wrap keeps the message on one line; escape keeps paths like [1] literal
+        err_console.print(
+            f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+        )
         raise typer.Exit(1) from exc
     except KeyboardInterrupt:
         err_console.print("[yellow]interrupted[/]")

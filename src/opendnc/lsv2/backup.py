@@ -328,7 +328,9 @@ def sync(
     meter = _Meter(sum(j.size for j in to_send), progress)
     for job in to_send:
         try:
-            sent = client.upload(job.local, job.remote, binary=True, progress=meter.file(job.remote))
+            sent = client.upload(
+                job.local, job.remote, binary=True, progress=meter.file(job.remote)
+            )
         except _PER_FILE_ERRORS as exc:
             summary.failed.append(Failure(job.remote, str(exc)))
         else:

@@ -1,0 +1,99 @@
+"""Shared plumbing of the `opendnc lsv2` commands: global options, connecting, progress."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import typer
+from rich.progress import (
+    BarColumn,
+    DownloadColumn,
+    Progress,
+    TextColumn,
+    TimeRemainingColumn,
+    TransferSpeedColumn,
+)
+
+from opendnc.cli.common import err_console
+from opendnc.errors import ControlRefused, SafetyLockError
+from opendnc.lsv2 import Client
+
+__all__ = [
+    "JsonOpt",
+    "Settings",
+    "bar",
+    "connect",
+    "relabel",
+    "require_unsafe",
+    "settings",
+    "want_json",
+]
+
+JsonOpt = typer.Option(False, "--json", help="Print the result as JSON (same as lsv2 --json).")
+
+
+@dataclass(frozen=True, slots=True)
+class Settings:
+    """Global options of the ``lsv2`` group."""
+
+    host: str
+    port: int
+    timeout: float
+    json: bool
+    unsafe: bool
+
+
+def settings(ctx: typer.Context) -> Settings:
+    """The group's options (defaults when a command runs without the group callback)."""
+    obj = ctx.find_root().obj if ctx.obj is None else ctx.obj
+    if isinstance(obj, Settings):
+        return obj
+    return Settings("127.0.0.1", 19000, 10.0, False, False)
+
+
+def want_json(ctx: typer.Context, local: bool) -> bool:
+    """True if ``--json`` was given on the group or on the command."""
+    return local or settings(ctx).json
+
+
+@contextmanager
+def connect(ctx: typer.Context) -> Iterator[Client]:
+    """A connected client for the group's host and port (closed on exit)."""
+    opts = settings(ctx)
+    client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
+    client.connect()
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def require_unsafe(ctx: typer.Context, action: str) -> None:
+    """Refuse a machine-changing ``action`` before connecting unless ``--unsafe`` was given."""
+    if not settings(ctx).unsafe:
+        raise SafetyLockError(action)
+
+
+@contextmanager
+def relabel(context: str) -> Iterator[None]:
+    """Re-word a control's refusal as ``<context>: <text> (<code>)`` for the one-line error."""
+    try:
+        yield
+    except ControlRefused as exc:
+        raise ControlRefused(exc.code, exc.text, context=context) from exc
+
+
+def bar(quiet: bool) -> Progress:
+    """One transfer progress bar on stderr (stdout stays clean for --json)."""
+    return Progress(
+        TextColumn("{task.description}", markup=False),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=True,
+        disable=quiet,
+    )
