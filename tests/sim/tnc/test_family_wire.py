@@ -82,6 +82,7 @@ def test_tnc640_specifics(wire: Wire) -> None:
     assert wire.ask("A_LG", b"OSZI\0").payload == err(49)  # scope needs the encrypted login
     assert wire.ask("A_LG", b"DATA\0").payload == err(49)
     wire.login("FILE", "DNC")
+    assert wire.ask("C_EK", b"\x01\xc0").payload == err(23)  # keys need MONITOR
     assert wire.ask("R_RI", b"\x00\x33").payload == err(24)  # no tool info on TNC 6xx
     assert wire.ask("R_RI", b"\x00\x1b").payload == err(24)  # no error list either
     # PLC: drive needs FILEPLC with the PLC password

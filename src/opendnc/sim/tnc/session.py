@@ -33,7 +33,7 @@ class Priv(Enum):
     ANY = "any"  # any login
     INSPECT = "inspect"  # INSPECT or a login that includes it
     FILE = "file"  # FILE/FILEPLC/FILESYS/FILELOG; the drive is checked by the handler
-    MONITOR = "monitor"  # MONITOR or DIAGNOSTICS (keys), FILE or MONITOR for screen dumps
+    MONITOR = "monitor"  # MONITOR or DIAGNOSTICS (keyboard lock and key emulation)
     DIAGNOSTICS = "diagnostics"
     DNC = "dnc"
     PLCDEBUG = "plcdebug"
@@ -143,7 +143,7 @@ class Session:
             case Priv.FILE:
                 return bool(have & set(FILE_LOGINS.values()))
             case Priv.MONITOR:
-                return bool(have & {"MONITOR", "DIAGNOSTICS", "FILE"})
+                return bool(have & {"MONITOR", "DIAGNOSTICS"})
             case Priv.DIAGNOSTICS:
                 return "DIAGNOSTICS" in have
             case _:
