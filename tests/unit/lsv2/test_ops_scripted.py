@@ -166,3 +166,19 @@ def test_ascii_blocks_end_at_line_ends(limit: int) -> None:
     for block in blocks[:-1]:
         # only a line longer than the limit may be cut mid-line
         assert block.endswith(b"\0") or b"\0" not in block
+
+
+@pytest.mark.parametrize(
+    "path", ["TNC:/table/tool.t", "TNC:\\TOOL_P.TCH", "PLC:/oem.sys", "SYS:/x", "TNC:/datum.D"]
+)
+def test_tables_and_plc_files_are_locked_in_safe_mode(path: str) -> None:
+    state = SessionState(logins={"FILE"})
+    for op in (
+        ops.upload(state, path, b"x", binary=True),
+        ops.delete_file(state, path),
+        ops.copy_file(state, "TNC:/a.h", path),
+        ops.move_file(state, path, "TNC:/b.h"),
+    ):
+        with pytest.raises(SafetyLockError):
+            next(op)
+    assert next(ops.upload(SessionState(logins={"FILE"}), "TNC:/nc_prog/a.h", b"x", binary=True))

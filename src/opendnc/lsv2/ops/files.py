@@ -38,6 +38,7 @@ from opendnc.lsv2.ops.base import (
     ensure_login,
     expect,
     refuse,
+    require_unsafe,
     split_path,
     wire_path,
 )
@@ -102,6 +103,20 @@ class FileInfo:
             selected=entry.is_selected(scheme),
             attributes=entry.attributes,
         )
+
+
+TABLE_EXTENSIONS = frozenset({".t", ".tch", ".tab", ".d", ".htt"})
+"""Tool, pocket, free and datum tables: writing them changes what the machine does."""
+PROTECTED_DRIVES = ("PLC:", "SYS:")
+"""PLC program / OEM configuration and system files."""
+
+
+def guard_write(state: SessionState, path: str, action: str) -> None:
+    """Refuse writes into tables or the PLC / system drives while safe mode is on."""
+    p = wire_path(path)
+    ext = p[p.rfind(".") :].lower() if "." in p.rsplit("\\", 1)[-1] else ""
+    if p[:4].upper() in PROTECTED_DRIVES or ext in TABLE_EXTENSIONS:
+        require_unsafe(state, f"{action} {path}")
 
 
 def drive_login(path: str) -> Login:
@@ -245,7 +260,8 @@ def remove_dir(state: SessionState, path: str, *, missing_ok: bool = False) -> O
 
 
 def delete_file(state: SessionState, path: str, *, missing_ok: bool = False) -> Op[None]:
-    """``C_FD``: delete a file."""
+    """``C_FD``: delete a file (tables and PLC/SYS files only with safe mode off)."""
+    guard_write(state, path, "deleting")
     yield from _login_for(state, path)
     reply = yield DeleteFile(wire_path(path))
     if isinstance(reply, Refused) and reply.code == 32 and missing_ok:
@@ -268,6 +284,7 @@ def _source_and_target(state: SessionState, source: str, target: str) -> Op[tupl
 
 def copy_file(state: SessionState, source: str, target: str) -> Op[None]:
     """``C_FC``: copy a file on the control (a target ending in ``\\`` keeps the name)."""
+    guard_write(state, target, "copying onto")
     yield from _login_for(state, target)
     name, dest = yield from _source_and_target(state, source, target)
     yield from command(CopyFile(name, dest), f"copy {source} to {target}")
@@ -275,6 +292,8 @@ def copy_file(state: SessionState, source: str, target: str) -> Op[None]:
 
 def move_file(state: SessionState, source: str, target: str) -> Op[None]:
     """``C_FR``: move or rename a file on the control."""
+    guard_write(state, source, "moving")
+    guard_write(state, target, "moving onto")
     yield from _login_for(state, target)
     name, dest = yield from _source_and_target(state, source, target)
     yield from command(MoveFile(name, dest), f"move {source} to {target}")
@@ -318,7 +337,11 @@ def upload(
     overwrite: bool = True,
     progress: Progress | None = None,
 ) -> Op[None]:
-    """``C_FL`` + ``S_FL`` blocks + ``T_FD``: store ``data`` as ``remote`` on the control."""
+    """``C_FL`` + ``S_FL`` blocks + ``T_FD``: store ``data`` as ``remote`` on the control.
+
+    Tables and files on the PLC / SYS drives can only be written with safe mode off.
+    """
+    guard_write(state, remote, "writing")
     yield from _login_for(state, remote)
     path = wire_path(remote)
     mode = TransferMode.BINARY if binary else TransferMode.ASCII
