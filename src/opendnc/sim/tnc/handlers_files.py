@@ -51,6 +51,8 @@ def directory_list(s: Session, m: ReadDir) -> list[Message]:
     """R_DR mode: 0 one entry per S_DR, 1 packed entries, 2 drives."""
     mode = m.mode
     fs = s.control.fs
+    if mode != 2:
+        s.check_drive(s.cwd)  # e.g. FILEPLC dropped while the current directory is on PLC:
     if mode == 2:
         drives = [
             Entry(d, 0, int(fs.drive_dir(d).stat().st_mtime), True, False, is_drive=True)
