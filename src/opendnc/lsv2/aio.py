@@ -2,14 +2,21 @@
 
 Usage::
 
-    from opendnc.lsv2 import AsyncClient
+    from opendnc.lsv2 import AsyncClient, KeyCode
 
     async with AsyncClient("192.168.56.101") as tnc:
         print(tnc.versions.model, tnc.family)
         for entry in await tnc.list_dir("TNC:/nc_prog"):
             print(entry.name, entry.size)
         await tnc.download("TNC:/nc_prog/PART.H", "PART.H")
+        await tnc.upload("NEW.H", "TNC:/nc_prog/", progress=lambda done, total: None)
         print(await tnc.program_state(), await tnc.read_plc("W4", 3))
+        print((await tnc.read_table()).to_json())          # the family's tool table
+        await tnc.screen_dump("screen.png")
+
+    # machine-changing actions (keys, machine parameters, tables, PLC files) need:
+    async with AsyncClient("192.168.56.101", safe_mode=False) as tnc:
+        await tnc.send_key(KeyCode.MODE_MANUAL)
 
 Every operation logs in as needed, has a timeout, raises :class:`~opendnc.errors.ControlRefused`
 (code + readable text) when the control says no, :class:`~opendnc.errors.TransportError` /

@@ -3,14 +3,21 @@
 
 Usage::
 
-    from opendnc.lsv2 import Client
+    from opendnc.lsv2 import Client, KeyCode
 
     with Client("192.168.56.101") as tnc:
         print(tnc.versions.model, tnc.family)
         for entry in tnc.list_dir("TNC:/nc_prog"):
             print(entry.name, entry.size)
         tnc.download("TNC:/nc_prog/PART.H", "PART.H")
+        tnc.upload("NEW.H", "TNC:/nc_prog/", progress=lambda done, total: None)
         print(tnc.program_state(), tnc.read_plc("W4", 3))
+        print((tnc.read_table()).to_json())          # the family's tool table
+        tnc.screen_dump("screen.png")
+
+    # machine-changing actions (keys, machine parameters, tables, PLC files) need:
+    with Client("192.168.56.101", safe_mode=False) as tnc:
+        tnc.send_key(KeyCode.MODE_MANUAL)
 
 Every operation logs in as needed, has a timeout, raises :class:`~opendnc.errors.ControlRefused`
 (code + readable text) when the control says no, :class:`~opendnc.errors.TransportError` /
