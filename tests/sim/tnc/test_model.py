@@ -300,3 +300,38 @@ def test_root_reused_by_another_family_gets_its_files(tmp_path: Path) -> None:
     assert control.fs.read_bytes(control.fs.parse("TNC:\\TOOL.T", ROOT))
     Control(PROFILES["tnc640"], tmp_path)
     assert not (tmp_path / "TNC" / "nc_prog" / "POCKET.H").exists()  # deletions stick
+
+
+def test_single_block_mode_stops_after_each_block() -> None:
+    p = PROFILES["tnc640"]
+    clock = FakeClock()
+    m = Machine(p, PlcMemory(p.plc), clock)
+    m.select("TNC:\\nc_prog\\POCKET.H", klartext_demo("POCKET"))
+    m.press_key(0x01C2)  # single block
+    lines = []
+    for _ in range(3):
+        m.start()
+        clock.now += 10 * m.block_time
+        m.advance()
+        assert m.program_state is PgmState.STOPPED
+        lines.append(m.current_line)
+    assert lines == sorted(lines)
+    assert len(set(lines)) == 3
+
+
+def test_unknown_tool_stops_the_program_with_an_nc_error() -> None:
+    p = PROFILES["tnc640"]
+    clock = FakeClock()
+    m = Machine(p, PlcMemory(p.plc), clock, tool_known=lambda n: n != 3)
+    m.clear_errors()
+    m.select("TNC:\\nc_prog\\POCKET.H", klartext_demo("POCKET"))
+    m.press_key(0x01C3)
+    m.start()
+    clock.now += 100
+    m.advance()
+    assert m.program_state is PgmState.ERROR
+    assert m.errors[-1].text == "Tool 3 not defined"
+    assert m.current_line == 12  # the TOOL CALL 3 block
+    assert m.part_counter == 0
+    m.press_key(0x01AE)  # CE
+    assert m.program_state is PgmState.ERROR_CLEARED

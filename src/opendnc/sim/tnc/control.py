@@ -38,7 +38,13 @@ class Control:
         populate(self.fs, profile)
         self.plc = PlcMemory(profile.plc)
         self.mp = MachineParameters(self.fs.state_dir, profile)
-        self.machine = Machine(profile, self.plc, clock, tool_geometry=self.tool_geometry)
+        self.machine = Machine(
+            profile,
+            self.plc,
+            clock,
+            tool_geometry=self.tool_geometry,
+            tool_known=lambda n: n in self.tool_rows(),
+        )
         self.monitor_owner: int | None = None
         self.events: list[tuple[float, str]] = [(time.time(), "Control started")]
         self.remote_status = bytes(12)

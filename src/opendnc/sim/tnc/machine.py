@@ -161,6 +161,8 @@ class Run:
     blocks: list[Block]
     elapsed: float = 0.0  # run seconds (feed-scaled) consumed before ``resumed_at``
     resumed_at: float | None = None
+    stop_at: float | None = None  # single-block mode: where this NC start ends
+    checked: int = 0  # blocks up to here were checked (tool known ...)
 
 
 @dataclass(slots=True)
@@ -171,6 +173,7 @@ class Machine:
     plc: PlcMemory
     clock: Callable[[], float]
     tool_geometry: Callable[[int], tuple[float, float]] = lambda _n: (0.0, 0.0)
+    tool_known: Callable[[int], bool] = lambda _n: True
     block_time: float = 0.25
     exec_mode: ExecMode = ExecMode.MANUAL
     program_state: PgmState = PgmState.IDLE
@@ -221,12 +224,20 @@ class Machine:
         scale = max(self.feed_override, 0) / 10000.0
         run.elapsed += dt * scale
         run.resumed_at = now
+        if run.stop_at is not None and run.elapsed >= run.stop_at:
+            # Single block: the block is done, the control waits for the next NC start.
+            run.elapsed = run.stop_at
+            run.resumed_at = None
+            run.stop_at = None
+            self.program_state = PgmState.STOPPED
         self._apply_progress(run)
         self._publish()
 
     def _apply_progress(self, run: Run) -> None:
         position = run.elapsed / self.block_time
         index = int(position)
+        if not self._check_blocks(run, min(index, len(run.blocks) - 1)):
+            return
         if index >= len(run.blocks):
             for block in run.blocks:
                 self._apply_block(block)
@@ -260,6 +271,23 @@ class Machine:
         folder = self.main_program.rsplit("\\", 1)[0]
         return folder + "\\" + name
 
+    def _check_blocks(self, run: Run, upto: int) -> bool:
+        """Check blocks once when first reached; a TOOL CALL of an unknown tool is an error."""
+        while run.checked <= upto:
+            block = run.blocks[run.checked]
+            if block.tool is not None and not self.tool_known(block.tool):
+                self.positions.update(self._start_pos)
+                for done in run.blocks[: run.checked]:
+                    self._apply_block(done)
+                self.current_line = block.number
+                self.errors.append(NcError(3, 3, 0x0103, f"Tool {block.tool} not defined"))
+                self.program_state = PgmState.ERROR
+                self.spindle_on = False
+                self._run = None
+                return False
+            run.checked += 1
+        return True
+
     def _apply_block(self, block: Block) -> None:
         for axis, target in block.targets.items():
             if axis in self.positions:
@@ -277,7 +305,8 @@ class Machine:
         plc.set_word(W_FEED_OVERRIDE, self.feed_override // 1)
         plc.set_word(W_SPINDLE_OVERRIDE, self.spindle_override)
         plc.set_word(W_RAPID_OVERRIDE, self.rapid_override)
-        plc.set_dword(D_SPINDLE_SPEED, self.spindle_speed if self.spindle_on else 0)
+        speed = self.spindle_speed * self.spindle_override // 10000 if self.spindle_on else 0
+        plc.set_dword(D_SPINDLE_SPEED, speed)
         plc.set_dword(D_TOOL_NUMBER, self.tool)
         plc.set_dword(D_PART_COUNTER, self.part_counter)
         plc.set_dword(D_PROGRAM_STATE, int(self.program_state))
@@ -311,8 +340,13 @@ class Machine:
         if self._run is None:
             self._run = Run(parse_program(self._program_text))
             self._start_pos = dict(self.positions)
-        self._run.resumed_at = self.clock()
-        self._last = self._run.resumed_at
+        run = self._run
+        if self.exec_mode is ExecMode.SINGLE_STEP:
+            run.stop_at = (int(run.elapsed / self.block_time) + 1) * self.block_time
+        else:
+            run.stop_at = None
+        run.resumed_at = self.clock()
+        self._last = run.resumed_at
         self.program_state = PgmState.STARTED
         self._publish()
 
