@@ -238,7 +238,9 @@ def test_program_run_seen_by_client(lsv2: Any, con: Any, tnc: TncHandle) -> None
     assert stack.main.lower() == prog.lower()
     before = con.axes_location()
     tnc.call(lambda c: setattr(c.machine, "block_time", 0.01))
-    time.sleep(0.5)
+    deadline = time.monotonic() + 5
+    while con.program_status() != 2 and time.monotonic() < deadline:
+        time.sleep(0.02)
     after = con.axes_location()
     if 22 in tnc.profile.ri_selectors:
         assert before is not None
