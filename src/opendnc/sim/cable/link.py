@@ -15,13 +15,23 @@ and carries on.
 Using the cable from Python (tests, benchmarks)::
 
     with VirtualCable(baud=115200, noise=1e-5, drop=1e-5, seed=7) as cable:
-        sender = SerialStream(cable.path_a, 115200, timeout=2)
-        receiver = SerialStream(cable.path_b, 115200, timeout=2)
-        ...
+        sender = SerialStream(cable.path_a, 115200, timeout=0.05)
+        receiver = SerialStream(cable.path_b, 115200, timeout=0.05)
+        ...                         # open both ends before traffic starts
+        cable.wait_idle()           # everything sent has been read
         print(cable.stats)          # a CableStats snapshot, live
 
-Run the cable in its own process (``opendnc sim cable``) when the code under test is CPU-bound
-in the same interpreter: the pump thread needs the GIL on time to keep its deadlines.
+A payload-efficiency benchmark divides payload bytes by elapsed time and compares it with the
+line ceiling ``cable.bytes_per_second`` times the payload share of a block with its ACK
+(128/133 checksum, 128/134 CRC, 1024/1030 1K: 11,087, 11,004 and 11,453 B/s at 115200 8N1;
+measured through this cable with our engines: about 94 %, 94 % and 98 % of that).
+A byte of a busy line leaves at ``start + k * bits_per_char / baud``; a lone byte arrives one
+character time plus about 0.1-0.2 ms of pump latency after it was written. Use
+``bits_per_char=11`` for 8E1 or 8N2.
+
+When the code under test is CPU-bound in the same interpreter (PyPI ``xmodem``'s pure-Python
+CRC, for instance), the pump thread may wait for the GIL; run the cable in its own process with
+:class:`~opendnc.sim.cable.process.CableProcess` (``opendnc sim cable``) instead.
 """
 
 from __future__ import annotations
