@@ -132,10 +132,15 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=20000, help="bytes per uploaded file")
     parser.add_argument("--profile", default="tnc640")
     parser.add_argument("--processes", type=int, default=4, help="client processes")
+    parser.add_argument("--port", type=int, default=0, help="use a simulator already running")
     args = parser.parse_args()
 
     work = Path(tempfile.mkdtemp(prefix="tnc-bench-"))
-    proc, port = start_server(args.profile, work / "root")
+    proc: subprocess.Popen[str] | None = None
+    if args.port:
+        port = args.port
+    else:
+        proc, port = start_server(args.profile, work / "root")
     groups = [list(range(i, args.clients, args.processes)) for i in range(args.processes)]
     start_at = time.time() + 2.0  # every client starts at the same moment
     samples: dict[str, list[float]] = {k: [] for k in KINDS}
@@ -155,8 +160,9 @@ def main() -> None:
                 failures.extend(bad)
                 moved += count
     finally:
-        proc.terminate()
-        proc.wait(10)
+        if proc is not None:
+            proc.terminate()
+            proc.wait(10)
     elapsed = time.time() - start_at
 
     print(
