@@ -1,0 +1,40 @@
+"""`opendnc demo` as a subprocess: it must finish quickly and show real values."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+from opendnc.sim.tnc import get_profile
+
+
+def test_demo_shows_live_values() -> None:
+    started = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", "demo"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    elapsed = time.monotonic() - started
+    assert proc.returncode == 0, proc.stderr
+    assert elapsed < 20
+    out = proc.stdout
+    profile = get_profile("tnc640")
+    assert profile.model in out
+    assert profile.nc_software in out
+    assert "TNC 128/320/620/640" in out
+    assert "POCKET.H" in out
+    assert "375" in out
+    assert "bytes identical" in out
+    assert "manual" in out
+    assert "idle" in out
+    assert "Z=250.0000" in out
+    assert "10000" in out
+    assert "MILL_D10_ROUGH" in out  # tool table
+    assert "Q500" in out
+    assert "PROGRAM" in out
+    assert "demo finished" in out
