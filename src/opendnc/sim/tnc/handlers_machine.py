@@ -195,7 +195,7 @@ def scope_select(s: Session, m: ScopeSelect) -> list[Message]:
         signals = scope.parse_selection(m.signals)
     except ValueError as exc:
         raise Refuse(int(exc.args[0])) from None
-    s.scope_signals = list(signals)
+    s.scope_signals = signals
     s.scope_interval = m.interval
     return [ScopeSignalReply(scope.signal_details(signals))]
 
@@ -203,7 +203,7 @@ def scope_select(s: Session, m: ScopeSelect) -> list[Message]:
 @handler(ScopeStart, Priv.OSZI)
 def scope_data(s: Session, m: ScopeStart) -> list[Message]:
     """R_OD trigger block: stream S_OD blocks, one per T_OK, until another telegram."""
-    signals = [x for x in s.scope_signals if isinstance(x, scope.Signal)]
+    signals = list(s.scope_signals)
     if not signals:
         raise Refuse(E.T_ER_OSZI_CHSEL)
     machine = s.control.machine

@@ -24,6 +24,7 @@ from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.messages import BlockDefect, FileData, FileDone, Message, Ok, Opaque, Refused
 from opendnc.sim.tnc.control import Control
 from opendnc.sim.tnc.filesystem import FsError, WirePath
+from opendnc.sim.tnc.scope import Signal
 
 
 class Priv(Enum):
@@ -126,7 +127,7 @@ class Session:
         self.sequence: Iterator[Message] | None = None
         self.error_index = 0
         self.keyboard_locked = False
-        self.scope_signals: list[object] = []
+        self.scope_signals: list[Signal] = []
         self.scope_interval = 3000
 
     # -- privileges -------------------------------------------------------------------------
