@@ -56,6 +56,11 @@ def test_versions_and_parameters(pair: tuple[Client, Any]) -> None:
         q.max_block_length,
     )
     assert ours.buffer_size == theirs._llcom._buffer_size
+    info = ours.system_info()
+    assert info.turbo_mode == q.turbo_mode_active
+    assert info.dnc_allowed == q.dnc_mode_allowed
+    # pyLSV2 stores -1 for "not supported", we None
+    assert info.axes_sampling_rate == (None if q.axes_sampling_rate == -1 else q.axes_sampling_rate)
 
 
 def test_listing_and_file_info(pair: tuple[Client, Any], tnc: TncHandle) -> None:

@@ -448,3 +448,16 @@ def test_local_errors_keep_the_link(client: Client) -> None:
     with pytest.raises(InputError, match="Latin-1"):
         client.file_info("TNC:/€.h")
     assert client.program_state() in set(ProgramState)
+
+
+def test_system_info(client: Client, tnc640: TncHandle) -> None:
+    info = client.system_info()
+    assert info.axes_sampling_rate is None or info.axes_sampling_rate > 0
+    assert info.dnc_allowed in (True, False, None)
+    assert client.read_parameters() == client.parameters
+    again = client.read_versions()
+    assert (again.model, again.nc_software, again.plc) == (
+        client.versions.model,
+        client.versions.nc_software,
+        client.versions.plc,
+    )

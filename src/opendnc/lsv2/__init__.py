@@ -33,7 +33,7 @@ from opendnc.lsv2.constants import (
     error_text,
 )
 from opendnc.lsv2.framing import Frame, SerialFramer, TelegramFramer
-from opendnc.lsv2.ops import FileInfo, ScopeRecording, Uptimes
+from opendnc.lsv2.ops import FileInfo, ScopeRecording, SystemInfo, Uptimes
 from opendnc.lsv2.payloads import DirectoryInfo, FileEntry, SystemParameters, Versions
 from opendnc.lsv2.plc import PlcOperand, parse_operand
 from opendnc.lsv2.runinfo import (
@@ -72,6 +72,7 @@ __all__ = [
     "SelectedProgram",
     "SerialFramer",
     "State",
+    "SystemInfo",
     "SystemParameters",
     "Table",
     "TelegramFramer",

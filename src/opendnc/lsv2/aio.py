@@ -49,6 +49,7 @@ from opendnc.lsv2.ops.base import Op, T
 from opendnc.lsv2.ops.extras import ScopeRecording
 from opendnc.lsv2.ops.files import FileInfo, Progress
 from opendnc.lsv2.ops.machine import Uptimes
+from opendnc.lsv2.ops.session import SystemInfo
 from opendnc.lsv2.payloads import (
     DirectoryInfo,
     ScopeChannel,
@@ -225,7 +226,7 @@ class AsyncClient:
         """Read the system parameters again."""
         return await self._run(ops.read_parameters(self._state))
 
-    async def system_info(self) -> dict[str, int | bool | None]:
+    async def system_info(self) -> SystemInfo:
         """``R_CI``: turbo mode, DNC allowed, axes sampling rate (``None`` if unsupported)."""
         return await self._run(ops.system_info_all(self._state))
 

@@ -50,6 +50,7 @@ from opendnc.lsv2.ops.base import Op, T
 from opendnc.lsv2.ops.extras import ScopeRecording
 from opendnc.lsv2.ops.files import FileInfo, Progress
 from opendnc.lsv2.ops.machine import Uptimes
+from opendnc.lsv2.ops.session import SystemInfo
 from opendnc.lsv2.payloads import (
     DirectoryInfo,
     ScopeChannel,
@@ -226,7 +227,7 @@ class Client:
         """Read the system parameters again."""
         return self._run(ops.read_parameters(self._state))
 
-    def system_info(self) -> dict[str, int | bool | None]:
+    def system_info(self) -> SystemInfo:
         """``R_CI``: turbo mode, DNC allowed, axes sampling rate (``None`` if unsupported)."""
         return self._run(ops.system_info_all(self._state))
 

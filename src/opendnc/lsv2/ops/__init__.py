@@ -51,6 +51,7 @@ from opendnc.lsv2.ops.machine import (
     write_machine_parameter,
 )
 from opendnc.lsv2.ops.session import (
+    SystemInfo,
     connect,
     login,
     logout,
@@ -70,6 +71,7 @@ __all__ = [
     "SessionState",
     "Slow",
     "Step",
+    "SystemInfo",
     "Uptimes",
     "axes_config",
     "axes_names",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from opendnc.lsv2.constants import (
     BUFFER_COMMANDS,
@@ -37,6 +37,7 @@ from opendnc.lsv2.ops.base import (
 from opendnc.lsv2.payloads import SystemParameters, Versions
 
 __all__ = [
+    "SystemInfo",
     "connect",
     "login",
     "logout",
@@ -45,6 +46,7 @@ __all__ = [
     "read_system_info",
     "read_version",
     "read_versions",
+    "system_info_all",
 ]
 
 
@@ -135,9 +137,23 @@ def logout(state: SessionState, name: Login | str | None = None) -> Op[None]:
         state.logins.discard(str(name))
 
 
-def system_info_all(state: SessionState) -> Op[dict[str, int | bool | None]]:
-    """Turbo mode, DNC allowed and axes sampling rate (``None`` where unsupported)."""
-    out: dict[str, int | bool | None] = {}
-    for sel in SystemInfoSelector:
-        out[sel.name.lower()] = yield from read_system_info(state, sel)
-    return out
+@dataclass(frozen=True, slots=True)
+class SystemInfo:
+    """``R_CI`` answers; ``None`` where the control does not support the selector."""
+
+    turbo_mode: bool | None
+    dnc_allowed: bool | None
+    axes_sampling_rate: int | None
+    """Base sampling interval of the axes in µs."""
+
+
+def system_info_all(state: SessionState) -> Op[SystemInfo]:
+    """Turbo mode, DNC allowed and axes sampling rate."""
+    turbo = yield from read_system_info(state, SystemInfoSelector.TURBO_MODE)
+    dnc = yield from read_system_info(state, SystemInfoSelector.DNC_ALLOWED)
+    rate = yield from read_system_info(state, SystemInfoSelector.AXES_SAMPLING_RATE)
+    return SystemInfo(
+        None if turbo is None else bool(turbo),
+        None if dnc is None else bool(dnc),
+        None if rate is None else int(rate),
+    )
