@@ -154,6 +154,11 @@ def test_ascii_line_ends(client: Client, tnc640: TncHandle, tmp_path: Path) -> N
     lines = [f"{i} L X+{i} Y-{i} F1000" for i in range(600)]
     text_lf = ("\n".join(lines) + "\n").encode()
     remote = "TNC:/nc_prog/ascii_test.h"
+    seen: list[tuple[int, int | None]] = []
+    crlf = text_lf.replace(b"\n", b"\r\n")
+    client.write_file(remote, crlf, binary=False, progress=lambda d, t: seen.append((d, t)))
+    assert seen[-1] == (len(crlf), len(crlf))
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen)
     client.write_file(remote, text_lf, binary=False)
     stored = disk(tnc640, remote).read_bytes()
     assert stored == text_lf.replace(b"\n", b"\r\n")

@@ -361,7 +361,8 @@ def upload(
         if progress is not None:
             done += len(block)
             try:
-                progress(min(done, total), total)
+                # Report local-file bytes: ASCII mode shrinks CR LF to NUL on the wire.
+                progress(done * total // len(payload), total)
             except Exception:
                 yield BlockDefect()  # the caller cancelled: abort the upload on the control
                 raise
