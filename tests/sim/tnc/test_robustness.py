@@ -190,9 +190,14 @@ def test_operations_log_announced_by_m_cc(tnc: TncHandle) -> None:
         assert raw.ask("C_CC", param).mnemonic == "T_OK"
         notice = raw.recv()
         assert (notice.mnemonic, notice.payload) == ("M_CC", b"\x00\x1b\x00\x64")
-        assert raw.ask("R_FL", b"TNC:\\operation.log\0\x01").payload.startswith(
-            b"Operation Logbook Version 1.0"
-        )
+        block = raw.ask("R_FL", b"TNC:\\operation.log\0\x01")
+        log = b""
+        while block.mnemonic == "S_FL":
+            log += block.payload
+            block = raw.ask("T_OK")
+        assert block.mnemonic == "T_FD"
+        assert log.startswith(b"Operation Logbook Version 1.0")
+        assert b"LSV2 login FILE" in log
     finally:
         raw.close()
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -34,6 +35,9 @@ class Control:
         self.profile = profile
         self.root = root
         self.dnc_option = dnc_option
+        # The logbook keeps the most recent entries, as a control's ring buffer does.
+        self.events: deque[tuple[float, str]] = deque(maxlen=5000)
+        self.events.append((time.time(), "Control started"))
         self.fs = ControlFs(root, profile)
         populate(self.fs, profile)
         self.plc = PlcMemory(profile.plc)
@@ -44,9 +48,9 @@ class Control:
             clock,
             tool_geometry=self.tool_geometry,
             tool_known=lambda n: n in self.tool_rows(),
+            notify=self.log_event,
         )
         self.monitor_owner: int | None = None
-        self.events: list[tuple[float, str]] = [(time.time(), "Control started")]
         self.remote_status = bytes(12)
         self._load_state()
 

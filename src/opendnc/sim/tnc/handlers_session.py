@@ -51,6 +51,8 @@ def login(s: Session, m: Login) -> list[Message]:
         if c.monitor_owner not in (None, s.id):
             raise Refuse(E.T_ER_NO_LOGIN, "MONITOR held by another session")
         c.monitor_owner = s.id
+    if name not in s.logins:
+        c.log_event(f"LSV2 login {name} (session {s.id})")
     s.logins.add(name)
     return [OK]
 

@@ -174,6 +174,7 @@ class Machine:
     clock: Callable[[], float]
     tool_geometry: Callable[[int], tuple[float, float]] = lambda _n: (0.0, 0.0)
     tool_known: Callable[[int], bool] = lambda _n: True
+    notify: Callable[[str], None] = lambda _text: None  # operations-log entries
     block_time: float = 0.25
     exec_mode: ExecMode = ExecMode.MANUAL
     program_state: PgmState = PgmState.IDLE
@@ -245,6 +246,7 @@ class Machine:
             self.current_program = self.main_program
             self.program_state = PgmState.FINISHED
             self.part_counter += 1
+            self.notify(f"Program finished: {self.main_program} (parts {self.part_counter})")
             self.spindle_on = False
             self._run = None
             return
@@ -281,6 +283,7 @@ class Machine:
                     self._apply_block(done)
                 self.current_line = block.number
                 self.errors.append(NcError(3, 3, 0x0103, f"Tool {block.tool} not defined"))
+                self.notify(f"NC error: Tool {block.tool} not defined")
                 self.program_state = PgmState.ERROR
                 self.spindle_on = False
                 self._run = None
@@ -348,6 +351,7 @@ class Machine:
         run.resumed_at = self.clock()
         self._last = run.resumed_at
         self.program_state = PgmState.STARTED
+        self.notify(f"NC start: {self.main_program}")
         self._publish()
 
     def stop(self) -> None:
@@ -356,6 +360,7 @@ class Machine:
         if self._run is not None and self._run.resumed_at is not None:
             self._run.resumed_at = None
             self.program_state = PgmState.STOPPED
+            self.notify("NC stop")
         self._publish()
 
     def cancel(self) -> None:
@@ -364,6 +369,7 @@ class Machine:
         if self._run is not None:
             self._run = None
             self.program_state = PgmState.CANCELLED
+            self.notify("Program cancelled")
             self.spindle_on = False
         self._publish()
 
@@ -407,6 +413,7 @@ class Machine:
         if code in modes:
             self.exec_mode = ExecMode(modes[code])
             self.screen = MODE_NAMES[modes[code]]
+            self.notify(f"Operating mode: {self.screen}")
         elif code in screens:
             self.screen = screens[code]
         elif code == NC_START_KEY:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 
@@ -23,7 +24,7 @@ def parse_request(text: str) -> LogRequest:
     return LogRequest(parts[0].strip(), time.mktime(stamp))
 
 
-def render(events: list[tuple[float, str]], since: float, model: str) -> str:
+def render(events: Iterable[tuple[float, str]], since: float, model: str) -> str:
     """The logbook: header line, then one dated line per event after ``since``."""
     lines = [
         "Operation Logbook Version 1.0",
