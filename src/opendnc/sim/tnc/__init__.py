@@ -23,6 +23,22 @@ manualplus620.  Options of both entry points: ``host``, ``port`` (0 = any free p
 back from ``.port``), ``latency`` (seconds per telegram), ``trace`` (a :class:`TraceHook`),
 ``dnc_option`` (False refuses the DNC login as a machine without the option does).
 
+How the families differ (see ``profiles.py`` for every value)::
+
+    profile         S_PR  R_VR parts  max buffer  attributes  R_RI            R_DP/scope  keys
+    tnc640, tnc620  120   5           4096        new         20-26, 30-34    no          new
+    tnc320 (v18)    120   5           4088 [W]    new         20-26, 30-34    no          new
+    tnc7            120   5           4096        new         20-26, 30-34    no          refused
+    itnc530 (PGM)   124   4           4096        old         + 27, 28, 51    yes         new
+    tnc426          120   4           1024        old         23-26           no          old
+    cncpilot640     120   5           4096        new         21-26, 30-34    no          new
+    manualplus620   120   5           2048        new         21-26, 30-34    no          new
+
+Logins: INSPECT, FILE, MONITOR (exclusive), DNC (only with the DNC option), PLCDEBUG,
+DIAGNOSTICS without password; FILEPLC/FILESYS/FILELOG/STREAMAXES need the PLC code number
+(807667); DATA and OSZI only on the iTNC.  Anything a family lacks is refused with ``T_ER``
+(24 unsupported selector/command, 49 login not possible, 22 unknown telegram, 23 missing login).
+
 Driving the machine from a test (on the simulator thread via ``tnc.call``)::
 
     def run(control):
