@@ -81,6 +81,12 @@ def test_tnc640_specifics(wire: Wire) -> None:
     assert wire.ask("R_CI", b"\0\0\0\x03").payload == err(24)
     assert wire.ask("A_LG", b"OSZI\0").payload == err(49)  # scope needs the encrypted login
     assert wire.ask("A_LG", b"DATA\0").payload == err(49)
+    mp = b"\0\0\0\x01CfgDisplayLanguage.ncLanguage\0GERMAN\0"
+    assert wire.ask("C_MC", mp).payload == err(23)  # parameters need PLCDEBUG
+    wire.login("PLCDEBUG")
+    assert wire.ask("C_MC", mp).mnemonic == "T_OK"
+    assert wire.ask("R_MC", b"CfgDisplayLanguage.ncLanguage\0").payload == b"GERMAN\0"
+    assert wire.ask("C_MC", b"\0\0\0\x01no.such\0x\0").payload == err(40)
     wire.login("FILE", "DNC")
     assert wire.ask("C_EK", b"\x01\xc0").payload == err(23)  # keys need MONITOR
     assert wire.ask("R_RI", b"\x00\x33").payload == err(24)  # no tool info on TNC 6xx
