@@ -1,0 +1,179 @@
+"""Benchmark: LSV2 file transfer speed, opendnc's Client vs pyLSV2, against the virtual TNC.
+
+The simulator runs in its own process (``opendnc sim tnc --port 0``), so both clients meet
+the same server cost. Each client moves one binary file (default 20 MiB) down and up at the
+largest buffer the control offers, several times; the script prints the median MB/s per
+client and direction, the ratio ours/pyLSV2, and the protocol ceiling of this link:
+payload per telegram divided by the measured round trip of a one-telegram request.
+
+    .venv/bin/python benchmarks/lsv2_transfer.py --size-mib 20 --repeat 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from opendnc.lsv2 import Client
+
+MB = 1_000_000
+
+
+def start_server(root: Path) -> tuple[subprocess.Popen[str], int]:
+    """Run the simulator CLI in a child process and read back its port."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "opendnc.cli.main",
+            "sim",
+            "tnc",
+            "--port",
+            "0",
+            "--root",
+            str(root),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert proc.stdout is not None
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        found = re.search(r"listening on [\d.]+:(\d+)", proc.stdout.readline())
+        if found:
+            return proc, int(found.group(1))
+    proc.kill()
+    raise SystemExit("simulator did not start")
+
+
+CPU: dict[str, list[float]] = {}
+"""Client CPU seconds per (client, direction) run, filled by :func:`timed`."""
+
+
+def timed(action: Callable[[], object], key: str = "") -> float:
+    """Wall seconds of ``action``; its CPU time (this process = the client) goes to CPU."""
+    cpu = time.process_time()
+    started = time.perf_counter()
+    action()
+    wall = time.perf_counter() - started
+    if key:
+        CPU.setdefault(key, []).append(time.process_time() - cpu)
+    return wall
+
+
+def bench_ours(
+    port: int, local: Path, back: Path, remote: str, repeat: int
+) -> dict[str, list[float]]:
+    times: dict[str, list[float]] = {"down": [], "up": []}
+    with Client("127.0.0.1", port, timeout=30) as tnc:
+        assert tnc.buffer_size == 4096, tnc.buffer_size
+        for _ in range(repeat):
+            times["up"].append(timed(lambda: tnc.upload(local, remote, binary=True), "ours up"))
+            times["down"].append(
+                timed(lambda: tnc.download(remote, back, binary=True), "ours down")
+            )
+            if back.read_bytes() != local.read_bytes():
+                raise SystemExit("opendnc: downloaded bytes differ")
+    return times
+
+
+def bench_pylsv2(
+    port: int, local: Path, back: Path, remote: str, repeat: int
+) -> dict[str, list[float]]:
+    import pyLSV2  # the independent client from PyPI
+
+    logging.getLogger("LSV2 Client").setLevel(logging.ERROR)
+    times: dict[str, list[float]] = {"down": [], "up": []}
+    con = pyLSV2.LSV2("127.0.0.1", port=port, timeout=30, safe_mode=True)
+    con.connect()
+    try:
+        for _ in range(repeat):
+            times["up"].append(
+                timed(
+                    lambda: con.send_file(local, remote, override_file=True, binary_mode=True),
+                    "pylsv2 up",
+                )
+            )
+            times["down"].append(
+                timed(
+                    lambda: con.recive_file(remote, back, override_file=True, binary_mode=True),
+                    "pylsv2 down",
+                )
+            )
+            if back.read_bytes() != local.read_bytes():
+                raise SystemExit("pyLSV2: downloaded bytes differ")
+    finally:
+        con.disconnect()
+    return times
+
+
+def round_trip(port: int, count: int) -> tuple[float, int]:
+    """Median seconds of one request/answer telegram pair, and the data bytes per S_FL."""
+    with Client("127.0.0.1", port, timeout=30) as tnc:
+        tnc.execution_mode()  # logs in once; afterwards each call is one R_RI / S_RI pair
+        samples = []
+        for _ in range(count):
+            started = time.perf_counter()
+            tnc.execution_mode()
+            samples.append(time.perf_counter() - started)
+        return statistics.median(samples), tnc.buffer_size - 10
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size-mib", type=float, default=20.0)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--profile", action="store_true", help="cProfile our client once.")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory(prefix="lsv2-bench-") as tmp:
+        work = Path(tmp)
+        local = work / "payload.bin"
+        local.write_bytes(os.urandom(int(args.size_mib * 1024 * 1024)))
+        size = local.stat().st_size
+        proc, port = start_server(work / "root")
+        try:
+            rtt, chunk = round_trip(port, 2000)
+            if args.profile:
+                import cProfile
+                import pstats
+
+                with cProfile.Profile() as prof:
+                    bench_ours(port, local, work / "p.bin", "TNC:\\prof.bin", 1)
+                pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
+            ours = bench_ours(port, local, work / "ours.bin", "TNC:\\bench_ours.bin", args.repeat)
+            theirs = bench_pylsv2(
+                port, local, work / "theirs.bin", "TNC:\\bench_pylsv2.bin", args.repeat
+            )
+        finally:
+            proc.terminate()
+            proc.wait(10)
+
+    print(f"file {size / MB:.1f} MB, {args.repeat} repetitions, 4096-byte telegrams, loopback")
+    print(f"telegram round trip (R_RI, median of 2000): {rtt * 1e6:.0f} µs")
+    print(f"protocol ceiling: {chunk} B / {rtt * 1e6:.0f} µs = {chunk / rtt / MB:.1f} MB/s")
+    for direction in ("down", "up"):
+        a = size / statistics.median(ours[direction]) / MB
+        b = size / statistics.median(theirs[direction]) / MB
+        print(
+            f"{direction:4}: opendnc {a:6.1f} MB/s   pyLSV2 {b:6.1f} MB/s   "
+            f"ratio {a / b:4.2f}x   ({a / (chunk / rtt / MB) * 100:.0f}% of ceiling)"
+        )
+    telegrams = size / chunk
+    for key, values in CPU.items():
+        per = statistics.median(values) / telegrams * 1e6
+        print(f"client CPU {key:11}: {statistics.median(values):.3f} s ({per:.0f} µs per block)")
+
+
+if __name__ == "__main__":
+    main()
