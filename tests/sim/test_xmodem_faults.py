@@ -71,12 +71,37 @@ def in_thread(target: object, *args: object, **kwargs: object) -> tuple[threadin
     return thread, outcome
 
 
-def assert_honest_destination(dest: Path, data: bytes, received: Outcome) -> None:
+def checksum_blind_spots(sent: bytes, got: bytes) -> list[int]:
+    """Blocks that differ although their 8-bit sums agree, if that explains every difference.
+
+    Two bit errors that cancel in the sum (+2^k in one byte, -2^k in another) pass any 8-bit
+    checksum: a limit of checksum XModem itself (the Haas variant), not of an implementation.
+    Returns [] when some difference is NOT of that kind (then it is an engine bug).
+    """
+    if len(sent) != len(got):
+        return []
+    blind = []
+    for start in range(0, len(sent), 128):
+        mine, theirs = sent[start : start + 128], got[start : start + 128]
+        if mine != theirs:
+            if sum(mine) % 256 != sum(theirs) % 256:
+                return []
+            blind.append(start // 128 + 1)
+    return blind
+
+
+def assert_honest_destination(
+    dest: Path, data: bytes, received: Outcome, mode: Mode | None = None
+) -> None:
     """Completed means identical bytes; failure means a typed error and no file at all."""
     leftovers = sorted(p.name for p in dest.parent.iterdir() if p != dest)
     assert leftovers == [], f"temporary files left behind: {leftovers}"
     if received.ok:
-        assert dest.read_bytes() == data
+        got = dest.read_bytes()
+        if got != data and mode is Mode.CHECKSUM and (blind := checksum_blind_spots(data, got)):
+            # reproducible with the cable's seed; CRC and 1K modes have no such blind spot
+            pytest.xfail(f"checksum XModem cannot see cancelling bit errors (blocks {blind})")
+        assert got == data
     else:
         assert isinstance(received.value, DncError), received.value
         assert not dest.exists(), "a failed receive left a file at the destination"
@@ -115,7 +140,7 @@ def test_faulty_line_gives_identical_file_or_typed_error(
     with VirtualCable(baud=BAUD, noise=ber, drop=drop, seed=seed) as cable:
         sent, received = our_transfer(cable, mode, data, dest)
         stats = cable.stats
-    assert_honest_destination(dest, data, received)
+    assert_honest_destination(dest, data, received, mode)
     # at these rates XModem's retries recover: anything else is a finding, not noise
     assert received.ok, received.value
     assert sent.ok, sent.value
