@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -252,6 +253,34 @@ def test_interrupted_backup_leaves_no_partial_file(tnc: TncHandle, tmp_path: Pat
     assert (target / "big.bin").read_bytes() == big
 
 
+def test_killed_backup_leaves_no_partial_file(tmp_path: Path) -> None:
+    with start_tnc("tnc640", root=tmp_path / "tnc", latency=0.004) as slow:
+        big = os.urandom(400_000)  # ~100 blocks at 4 ms each
+        slow.root.joinpath("TNC", "kill").mkdir()
+        slow.root.joinpath("TNC", "kill", "big.bin").write_bytes(big)
+        target = tmp_path / "bk"
+        command = [sys.executable, "-m", "opendnc.cli.main", "lsv2", "--port", str(slow.port)]
+        proc = subprocess.Popen(
+            [*command, "backup", "TNC:/kill", str(target)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            deadline = time.monotonic() + 30
+            while not list(target.glob(".*part")) and time.monotonic() < deadline:
+                time.sleep(0.005)
+            proc.kill()  # SIGKILL: no cleanup code runs in the client
+            proc.wait(10)
+            assert list(target.glob(".*part")), "killed before the download started"
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert not (target / "big.bin").exists()  # never a partial file under the real name
+        cli(slow, "backup", "TNC:/kill", str(target))
+        assert (target / "big.bin").read_bytes() == big
+        assert sorted(p.name for p in target.iterdir()) == ["big.bin"]  # stale temps removed
+
+
 def test_sync_pushes_only_changes(tnc: TncHandle, tmp_path: Path) -> None:
     src = tmp_path / "src"
     (src / "sub").mkdir(parents=True)
@@ -339,6 +368,15 @@ def test_data_read_and_scope_channels_on_itnc(itnc: TncHandle) -> None:
     assert json.loads(out)["path"] == "/TABLE/TOOL/T/1/L"
     _, out, _ = cli(itnc, "scope", "channels", "--json")
     assert len(json.loads(out)) > 0
+
+
+def test_scope_record_csv(itnc: TncHandle, tmp_path: Path) -> None:
+    out = tmp_path / "scope.csv"
+    cli(itnc, "scope", "record", str(out), "-s", "0:0", "-s", "0:2", "--blocks", "2")
+    rows = out.read_text().splitlines()
+    assert rows[0] == "time_us,s actual X [mm],s actual Z [mm]"
+    assert len(rows) == 1 + 64
+    assert rows[2].startswith("21000,")
 
 
 @pytest.mark.parametrize(("suffix", "magic"), [(".bmp", b"BM"), (".png", b"\x89PNG\r\n\x1a\n")])

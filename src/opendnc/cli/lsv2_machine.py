@@ -18,7 +18,7 @@ from opendnc.cli.common import cli_errors, console, print_json, to_jsonable
 from opendnc.cli.lsv2_session import JsonOpt, connect, relabel, require_unsafe, want_json
 from opendnc.errors import ControlRefused, InputError
 from opendnc.lsv2 import Client, parse_operand
-from opendnc.lsv2.payloads import ScopeSignal
+from opendnc.lsv2.payloads import ScopeChannel, ScopeSignal
 from opendnc.lsv2.plc import PlcOperand
 
 __all__ = ["COMMANDS", "GROUPS"]
@@ -221,6 +221,14 @@ def _signal(text: str) -> ScopeSignal:
     return ScopeSignal(*numbers)
 
 
+def _signal_name(signal: ScopeSignal, channel: ScopeChannel | None) -> str:
+    if channel is None:
+        return f"ch{signal.channel}.{signal.selector}"
+    if signal.selector < len(channel.signals):
+        return f"{channel.name} {channel.signals[signal.selector]}"
+    return f"{channel.name} {signal.selector}"
+
+
 @scope_app.command("record")
 def scope_record(
     ctx: typer.Context,
@@ -235,11 +243,12 @@ def scope_record(
     with cli_errors():
         signals = [_signal(s) for s in signal]
         with connect(ctx) as tnc, relabel("scope record"):
+            channels = {ch.number: ch for ch in tnc.scope_channels()}
             rec = tnc.scope_record(signals, interval=interval, blocks=blocks)
         buf = io.StringIO()
         writer = csv.writer(buf)
         names = [
-            f"ch{s.channel}.{s.selector}[{i.unit}]"
+            f"{_signal_name(s, channels.get(s.channel))} [{i.unit}]"
             for s, i in zip(rec.signals, rec.info, strict=False)
         ]
         writer.writerow(["time_us", *names])

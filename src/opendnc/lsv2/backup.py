@@ -238,8 +238,11 @@ class _Meter:
         self.base += size
 
 
+_TEMP_SUFFIX = ".backup.part"
+
+
 def _temp_name(target: Path) -> Path:
-    return target.with_name(f".{target.name}.backup.part")
+    return target.with_name(f".{target.name}{_TEMP_SUFFIX}")
 
 
 def _fetch(client: _FileClient, job: FileJob, meter: _Meter) -> int:
@@ -285,6 +288,10 @@ def backup(
         root.mkdir(parents=True, exist_ok=True)
         for folder in folders:
             folder.mkdir(parents=True, exist_ok=True)
+        for folder in [root, *folders]:
+            # leftovers of a run that was killed outright (no chance to clean up then)
+            for stale in folder.glob(f".*{_TEMP_SUFFIX}*"):
+                stale.unlink()
     except OSError as exc:
         raise InputError(f"cannot create {exc.filename}: {exc.strerror or exc}") from exc
     meter = _Meter(sum(j.size for j in to_copy), progress)
