@@ -189,3 +189,89 @@ def share_push(
         else:
             for result in results:
                 console.print(f"{result.source} -> {result.destination} ({result.size} bytes)")
+
+
+# --------------------------------------------------------------------------- drip-feed (DNC)
+@app.command("dnc")
+def dnc_cmd(
+    file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
+    port: str = typer.Option(..., "--port", help="Serial device or pyserial URL."),
+    from_line: int = typer.Option(
+        1, "--from-line", help="Restart at this file line (modal header re-sent first)."
+    ),
+    baud: int = typer.Option(9600, "--baud", help="Baud rate (Setting 11)."),
+    parity: str = typer.Option("N", "--parity", help="N, E or O (Setting 12)."),
+    eob: str = typer.Option("lf", "--eob", help="EOB (Setting 25): lf, cr, crlf, crcr, lflf."),
+    flow: str = typer.Option("xonxoff", "--flow", help="xonxoff, rtscts or none (Setting 14)."),
+    chunk: int = typer.Option(16, "--chunk", help="Bytes per write (bounds the XOFF overrun)."),
+    xoff_timeout: float = typer.Option(
+        120.0, "--xoff-timeout", help="Fail if XOFF lasts longer (seconds, 0 = never)."
+    ),
+    no_retract: bool = typer.Option(
+        False, "--no-retract", help="Restart header without the G91 G28 Z0. retract."
+    ),
+    unsafe: bool = typer.Option(
+        False, "--unsafe", help="Required: the program runs on the machine."
+    ),
+    json_out: bool = JsonOpt,
+) -> None:
+    """Drip-feed FILE to a control in DNC mode, with XON/XOFF handled by opendnc."""
+    from rich.progress import TimeRemainingColumn
+
+    from opendnc.haas.dnc import DncConfig, DncEvent, Flow, Paused, stream_program
+    from opendnc.xmodem.haas import Eob
+
+    with cli_errors():
+        try:
+            config = DncConfig(
+                flow=Flow(flow.lower()),
+                chunk=chunk,
+                xoff_timeout=xoff_timeout,
+                eob=Eob(eob.lower()),
+                retract=not no_retract,
+            )
+        except ValueError as exc:
+            raise InputError(f"bad option: {exc}") from None
+        with Progress(
+            TextColumn("dnc {task.fields[state]}"),
+            BarColumn(),
+            DownloadColumn(),
+            TransferSpeedColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            transient=json_out,
+            disable=json_out,
+        ) as bar:
+            task = bar.add_task("dnc", total=file.stat().st_size, state="[green]run[/]")
+
+            def on_event(event: DncEvent) -> None:
+                paused = isinstance(event, Paused)
+                bar.update(task, state="[yellow]XOFF[/]" if paused else "[green]run[/]")
+
+            report = stream_program(
+                port,
+                file,
+                from_line=from_line,
+                baud=baud,
+                parity=parity,
+                config=config,
+                safe_mode=not unsafe,
+                progress=lambda done, total: bar.update(task, completed=done),
+                on_event=on_event,
+            )
+        if json_out:
+            print_json(report)
+            return
+        if report.restart is not None:
+            for warning in report.restart.warnings:
+                console.print(f"[yellow]warning:[/] {warning}", highlight=False)
+            console.print(
+                f"restart at line {report.restart.line}, header re-sent: "
+                + " | ".join(report.restart.preamble),
+                highlight=False,
+            )
+        console.print(
+            f"{report.bytes_sent} bytes, {report.lines} blocks in {report.seconds:.1f} s; "
+            f"XOFF {report.xoffs}x ({report.paused_seconds:.1f} s held)",
+            highlight=False,
+        )

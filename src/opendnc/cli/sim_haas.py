@@ -62,6 +62,19 @@ def haas(
         False, "--strict-probe", help="Alarm when no surface lies within the H search distance."
     ),
     trace: bool = typer.Option(False, "--trace", help="Print MDC traffic on stderr."),
+    serial_mode: str = typer.Option(
+        "auto",
+        "--serial-mode",
+        help="What the serial port does: receive, punch:O<n>, dnc, dnc-xmodem, auto, idle.",
+    ),
+    parity: str = typer.Option("N", "--parity", help="Serial parity N, E or O (Setting 12)."),
+    eob: str = typer.Option("lf", "--eob", help="EOB (Setting 25): lf, cr, crlf, crcr, lflf."),
+    dnc_timeout: float = typer.Option(
+        10.0, "--dnc-timeout", help="Seconds without DNC data before the link-lost alarm."
+    ),
+    haas_quirks: bool = typer.Option(
+        True, "--haas-quirks/--no-haas-quirks", help="Extra NAKs and CAN after EOT (seed 003)."
+    ),
 ) -> None:
     """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""
     with cli_errors():
@@ -98,8 +111,11 @@ def haas(
             block_rate=block_rate,
             trace=_trace if trace else None,
         )
+        serial_options = _serial_options(
+            serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks
+        )
         with contextlib.suppress(KeyboardInterrupt):
-            asyncio.run(_serve(config, root, options, serial, baud or 9600, run))
+            asyncio.run(_serve(config, root, options, serial, baud or 9600, run, serial_options))
 
 
 async def _serve(
@@ -109,6 +125,7 @@ async def _serve(
     serial: str | None,
     baud: int,
     run: int | None,
+    serial_options: object = None,
 ) -> None:
     sim = SimHaas(config, root, options)
     if options.trace is not None:
@@ -119,7 +136,9 @@ async def _serve(
     try:
         if serial is not None:
             module = importlib.import_module(SERIAL_FRONT_END)
-            sim.add_front_end(await module.start_serial(sim, serial, baud, options.trace))
+            sim.add_front_end(
+                await module.start_serial(sim, serial, baud, options.trace, serial_options)
+            )
             print(f"SERIAL {serial} {baud}", flush=True)
         if sim.mdc is not None:
             print(f"MDC {options.host}:{sim.mdc.port}", flush=True)
@@ -137,3 +156,29 @@ async def _serve(
     finally:
         await sim.close()
         sys.stdout.flush()
+
+
+def _serial_options(
+    mode: str, baud: int, parity: str, eob: str, dnc_timeout: float, quirks: bool
+) -> object:
+    """The serial front-end's options (imported lazily: the front-end is optional)."""
+    if importlib.util.find_spec(SERIAL_FRONT_END) is None:
+        return None
+    from opendnc.sim.haas.serial_front import SerialOptions, parse_mode
+    from opendnc.sim.haas.serial_xmodem import XmodemQuirks
+    from opendnc.xmodem.haas import Eob
+
+    try:
+        eob_choice = Eob(eob.lower())
+    except ValueError:
+        raise InputError(f"bad --eob {eob!r}: use lf, cr, crlf, crcr or lflf") from None
+    if parity.upper() not in ("N", "E", "O"):
+        raise InputError(f"bad --parity {parity!r}: use N, E or O")
+    return SerialOptions(
+        baud=baud,
+        parity=parity.upper(),
+        eob=eob_choice,
+        mode=parse_mode(mode),
+        quirks=XmodemQuirks() if quirks else XmodemQuirks(extra_naks=0, can_after_eot=False),
+        dnc_timeout=dnc_timeout,
+    )

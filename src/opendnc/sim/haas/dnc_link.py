@@ -38,7 +38,9 @@ class DncLimits:
 
     buffer_blocks: int = 32
     resume_blocks: int = 8
-    overrun_blocks: int = 64
+    # blocks past the XOFF level before the buffer overflows; generous, because bytes the PC
+    # wrote before it saw the XOFF sit in UART FIFOs, pty buffers and the virtual cable
+    overrun_blocks: int = 2048
     max_block: int = 4096
 
     def __post_init__(self) -> None:

@@ -45,6 +45,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypeVar
 
+import serial
+
 from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
 from opendnc.haas.machine import Alarm
 from opendnc.sim.haas.control import ALARM_DNC_LINK, DncSession, DprntDestination
@@ -174,10 +176,13 @@ class SerialFrontEnd:
     async def close(self) -> None:
         """Stop serving and close the port."""
         self._stop.set()
-        if self.port is not None:
-            self.port.close()  # wakes a blocked read: the job ends with PeerClosed
+        self._interrupt.set()
         if self._thread is not None:
+            # the thread reads with a short timeout and sees the stop flag within a poll
             await asyncio.get_running_loop().run_in_executor(None, self._thread.join, 5.0)
+        if self.port is not None:
+            with self._write_lock:
+                self.port.close()
 
     def select(self, mode: SerialMode | str, program: int | None = None) -> None:
         """Operator key press: make the port do ``mode`` once the current job has ended."""
@@ -257,14 +262,21 @@ class SerialFrontEnd:
             number = selection.program
             text = self.call(lambda: self.control.read_program(number))
             wire = punch_bytes(text, self.options.eob)
-            send_xmodem(self.port, self.write, wire, self.options, self._interrupt)
+            send_xmodem(self.port, self.write, wire, self.options, self._interrupt, self._stop)
         elif mode is SerialMode.RECEIVE:
-            data = receive_xmodem(self.port, self.write, self.options, interrupt=self._interrupt)
+            data = receive_xmodem(
+                self.port, self.write, self.options, interrupt=self._interrupt, stop=self._stop
+            )
             if isinstance(data, bytes):
                 self._store(data)
         elif mode is SerialMode.AUTO:
             got = receive_xmodem(
-                self.port, self.write, self.options, text_ok=True, interrupt=self._interrupt
+                self.port,
+                self.write,
+                self.options,
+                text_ok=True,
+                interrupt=self._interrupt,
+                stop=self._stop,
             )
             if isinstance(got, bytes):
                 self._store(got)
@@ -289,6 +301,16 @@ class SerialFrontEnd:
         last_data = time.monotonic()
         assert self.port is not None
         while not run.ended:
+            if run.receiver.xoff:
+                # silence is expected now; wake often so the DC1 follows the drain closely
+                # (a blocking read would only return after a whole poll period)
+                last_data = time.monotonic()
+                if not self._input_waiting():
+                    time.sleep(0.001)
+                    run.update_flow()
+                    if self._stop.is_set():
+                        return
+                    continue
             try:
                 data = self.port.read(4096)
             except TransportTimeout:
@@ -311,6 +333,13 @@ class SerialFrontEnd:
                 raise Interrupted("another serial mode was selected")
         run.wait_finished(self._stop)
 
+    def _input_waiting(self) -> bool:
+        port = self.port.port if self.port is not None else None
+        try:
+            return bool(getattr(port, "in_waiting", 1))
+        except (OSError, serial.SerialException):
+            return True  # let the read report the failure
+
     def _dnc_xmodem(self) -> None:
         run = _DncRun(self)
         assert self.port is not None
@@ -325,7 +354,12 @@ class SerialFrontEnd:
 
         try:
             receive_xmodem(
-                self.port, self.write, self.options, on_data=on_data, interrupt=self._interrupt
+                self.port,
+                self.write,
+                self.options,
+                on_data=on_data,
+                interrupt=self._interrupt,
+                stop=self._stop,
             )
         except Interrupted:
             raise

@@ -88,8 +88,10 @@ class QuirkStream:
         receiving: bool,
         detect_text: bool = False,
         interrupt: threading.Event | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
         self._interrupt = interrupt
+        self._stop = stop
         self._port = port
         self._write = write
         self.quirks = quirks
@@ -103,6 +105,8 @@ class QuirkStream:
     def read(self, max_bytes: int) -> bytes:
         if self._interrupt is not None and self._interrupt.is_set() and not self._started:
             raise Interrupted("another serial mode was selected")
+        if self._stop is not None and self._stop.is_set():
+            raise Interrupted("the simulator is shutting down")
         data = self._port.read(max_bytes)
         if self.receiving and not self._started:
             for byte in data:
@@ -156,6 +160,7 @@ def receive_xmodem(
     text_ok: bool = False,
     on_data: Callable[[bytes], None] | None = None,
     interrupt: threading.Event | None = None,
+    stop: threading.Event | None = None,
 ) -> bytes | TextStart:
     """Receive one program as the control does; ``on_data`` sees each block's bytes in order.
 
@@ -163,7 +168,7 @@ def receive_xmodem(
     """
     quirks = options.quirks
     stream = QuirkStream(
-        port, write, quirks, receiving=True, detect_text=text_ok, interrupt=interrupt
+        port, write, quirks, receiving=True, detect_text=text_ok, interrupt=interrupt, stop=stop
     )
     config = ReceiverConfig(
         start_timeout=quirks.start_timeout,
@@ -194,9 +199,10 @@ def send_xmodem(
     data: bytes,
     options: SerialOptions,
     interrupt: threading.Event | None = None,
+    stop: threading.Event | None = None,
 ) -> Completed:
     """Punch ``data`` (see :func:`punch_bytes`) by XModem checksum, as the control does."""
     quirks = options.quirks
-    stream = QuirkStream(port, write, quirks, receiving=False, interrupt=interrupt)
+    stream = QuirkStream(port, write, quirks, receiving=False, interrupt=interrupt, stop=stop)
     config = SenderConfig(start_timeout=quirks.start_timeout)
     return run_blocking(XmodemSender(data, Mode.CHECKSUM, config), stream)
