@@ -11,6 +11,7 @@ from __future__ import annotations
 import random
 import subprocess
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,12 +58,14 @@ class Outcome:
         return self.value is not None and not isinstance(self.value, BaseException)
 
 
-def in_thread(target: object, *args: object, **kwargs: object) -> tuple[threading.Thread, Outcome]:
+def in_thread(
+    target: Callable[..., object], *args: object, **kwargs: object
+) -> tuple[threading.Thread, Outcome]:
     outcome = Outcome()
 
     def run() -> None:
         try:
-            outcome.value = target(*args, **kwargs)  # type: ignore[operator]
+            outcome.value = target(*args, **kwargs)
         except DncError as exc:
             outcome.value = exc
 
