@@ -38,6 +38,7 @@ from dataclasses import dataclass, field, replace
 _COMMENT = re.compile(r"\([^)]*\)?")
 # a word: letter + number or a plain variable (S#100); expressions in [] are left alone
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+)|#\d+)")
+_LINE_END = re.compile(r"[\r\n]+")
 _O_LINE = re.compile(r"^\s*[O:]\d{1,5}", re.IGNORECASE)
 _MACRO_START = ("#", "IF", "WHILE", "END", "GOTO", "DPRNT", "POPEN", "PCLOS")
 
@@ -93,7 +94,8 @@ def track(state: ModalState, line: str) -> ModalState:
     if not text or text == "%":
         return state
     if state.header is None and _O_LINE.match(text):
-        return replace(state, header=line.strip())
+        # a stray line end inside the line must not split the re-sent header block
+        return replace(state, header=_LINE_END.sub(" ", line).strip())
     if text.startswith(_MACRO_START) or "=" in text:
         return state
     words = _WORD.findall(text)

@@ -71,13 +71,13 @@ class DncReceiver:
         text = data.translate(_IGNORE_TABLE, _IGNORED)
         self._partial += text
         if b"\n" not in text:
-            self._check_length()
+            self._check_length(len(self._partial))
             return []
         *complete, rest = bytes(self._partial).split(b"\n")
         self._partial[:] = rest
-        self._check_length()
         blocks: list[str] = []
         for raw in complete:
+            self._check_length(len(raw))
             line = raw.decode("latin-1").strip()
             if not line:
                 continue
@@ -91,11 +91,12 @@ class DncReceiver:
                 blocks.append(line)
                 break
             blocks.append(line)
+        if self.framing is not Framing.ENDED:
+            self._check_length(len(self._partial))
         return blocks
 
-    def _check_length(self) -> None:
-        if len(self._partial) > self.limits.max_block:
-            size = len(self._partial)
+    def _check_length(self, size: int) -> None:
+        if size > self.limits.max_block:
             self._partial.clear()
             raise RemoteProtocolError(
                 f"DNC block longer than {self.limits.max_block} bytes ({size})"
