@@ -15,7 +15,9 @@ import argparse
 import logging
 import os
 import re
+import socket
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -117,6 +119,53 @@ def bench_pylsv2(
     return times
 
 
+def _telegram(name: bytes, payload: bytes = b"") -> bytes:
+    return struct.pack(">I", len(payload)) + name + payload
+
+
+def _answer(sock: socket.socket) -> tuple[bytes, int]:
+    buf = b""
+    while len(buf) < 8:
+        buf += sock.recv(65536)
+    (length,) = struct.unpack_from(">I", buf)
+    while len(buf) < 8 + length:
+        buf += sock.recv(65536)
+    return buf[4:8], length
+
+
+def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, list[float]]:
+    """Lower bound for any Python client: a bare socket loop that only frames telegrams
+    (no parsing, no files, no checks). What it cannot beat is the server's turnaround."""
+    sock = socket.create_connection(("127.0.0.1", port))
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    for start in (b"A_LG", b"INSPECT\0"), (b"A_LG", b"FILE\0"), (b"C_CC", b"\x00\x07"):
+        sock.sendall(_telegram(*start))
+        assert _answer(sock)[0] == b"T_OK"
+    ok, chunk = _telegram(b"T_OK"), 4086
+    blocks = [_telegram(b"S_FL", data[i : i + chunk]) for i in range(0, len(data), chunk)]
+    times: dict[str, list[float]] = {"down": [], "up": []}
+    for rep in range(repeat):
+        path = f"TNC:\\raw{tag}_{rep}.bin\0".encode()
+        started = time.perf_counter()
+        sock.sendall(_telegram(b"C_FL", path + b"\x01"))
+        assert _answer(sock)[0] == b"T_OK"
+        for block in blocks:
+            sock.sendall(block)
+            _answer(sock)
+        sock.sendall(_telegram(b"T_FD"))  # no secure send: the control stays silent
+        times["up"].append(time.perf_counter() - started)
+        started = time.perf_counter()
+        sock.sendall(_telegram(b"R_FL", path + b"\x01"))
+        got = 0
+        while (answer := _answer(sock))[0] == b"S_FL":
+            got += answer[1]
+            sock.sendall(ok)
+        times["down"].append(time.perf_counter() - started)
+        assert got == len(data), got
+    sock.close()
+    return times
+
+
 def round_trip(port: int, count: int) -> tuple[float, int]:
     """Median seconds of one request/answer telegram pair, and the data bytes per S_FL."""
     with Client("127.0.0.1", port, timeout=30) as tnc:
@@ -151,10 +200,21 @@ def main() -> None:
                 with cProfile.Profile() as prof:
                     bench_ours(port, local, work / "p.bin", "TNC:\\prof.bin", 1)
                 pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
-            ours = bench_ours(port, local, work / "ours.bin", "TNC:\\bench_ours.bin", args.repeat)
-            theirs = bench_pylsv2(
-                port, local, work / "theirs.bin", "TNC:\\bench_pylsv2.bin", args.repeat
-            )
+            # Interleave the clients repetition by repetition, so that load from other
+            # processes on this machine hits all of them alike.
+            ours: dict[str, list[float]] = {"down": [], "up": []}
+            theirs: dict[str, list[float]] = {"down": [], "up": []}
+            raw: dict[str, list[float]] = {"down": [], "up": []}
+            data = local.read_bytes()
+            for rep in range(args.repeat):
+                runs = [
+                    (ours, lambda: bench_ours(port, local, work / "o.bin", "TNC:\\o.bin", 1)),
+                    (theirs, lambda: bench_pylsv2(port, local, work / "t.bin", "TNC:\\t.bin", 1)),
+                    (raw, lambda rep=rep: bench_raw(port, data, 1, tag=rep)),
+                ]
+                for into, run in runs:
+                    for direction, values in run().items():
+                        into[direction].extend(values)
         finally:
             proc.terminate()
             proc.wait(10)
@@ -168,6 +228,14 @@ def main() -> None:
         print(
             f"{direction:4}: opendnc {a:6.1f} MB/s   pyLSV2 {b:6.1f} MB/s   "
             f"ratio {a / b:4.2f}x   ({a / (chunk / rtt / MB) * 100:.0f}% of ceiling)"
+        )
+    for direction in ("down", "up"):
+        a = size / statistics.median(ours[direction]) / MB
+        r = size / statistics.median(raw[direction]) / MB
+        b = size / statistics.median(theirs[direction]) / MB
+        print(
+            f"{direction:4}: bare socket loop {r:6.1f} MB/s (= {r / b:4.2f}x pyLSV2): "
+            f"the best any client can do here; opendnc reaches {a / r * 100:.0f}% of it"
         )
     telegrams = size / chunk
     for key, values in CPU.items():
