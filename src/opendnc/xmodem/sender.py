@@ -202,7 +202,7 @@ class XmodemSender(EngineBase):
             self._events.append(Started(self.mode, self.crc))
             # any further NAK/'C' in this chunk were queued before we answered (seed 003,
             # Figure 24 shows a Haas sending three); they must not trigger a resend
-            self._send_next_block()
+            self._next_after_turnaround()
             return
 
     def _on_ack(self) -> None:
@@ -216,11 +216,7 @@ class XmodemSender(EngineBase):
         self._events.append(BlockDone(self._seq, self._offset, self._total))
         self._seq = (self._seq + 1) & 0xFF
         self._failures = 0
-        if self.config.turnaround > 0 and self._offset < self._total:
-            self.state = SenderState.PAUSE
-            self._arm(self.config.turnaround, listen=False)
-        else:
-            self._send_next_block()
+        self._next_after_turnaround()
 
     def _on_nak(self, reason: str) -> None:
         if self.state is SenderState.WAIT_EOT_ACK:
@@ -268,6 +264,13 @@ class XmodemSender(EngineBase):
                 ),
                 cancel_peer=False,
             )
+
+    def _next_after_turnaround(self) -> None:
+        if self.config.turnaround > 0 and self._offset < self._total:
+            self.state = SenderState.PAUSE
+            self._arm(self.config.turnaround, listen=False)
+        else:
+            self._send_next_block()
 
     def _build_block(self) -> None:
         remaining = self._total - self._offset

@@ -362,7 +362,9 @@ def test_sender_blocks_decode_to_the_file() -> None:
 def test_turnaround_pause_is_a_non_listening_timer() -> None:
     sender = XmodemSender(b"x" * 300, Mode.CRC, SenderConfig(turnaround=0.001))
     sender.receive_data(b"C")
-    sender.data_to_send()
+    assert sender.data_to_send() == b""  # the pause applies before block 1 as well
+    sender.timed_out()
+    assert decode_block(sender.data_to_send(), crc=True).seq == 1
     sender.receive_data(bytes([ACK]))
     assert sender.data_to_send() == b""
     assert sender.timer is not None
