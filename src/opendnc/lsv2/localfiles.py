@@ -18,6 +18,8 @@ from opendnc.lsv2.constants import BINARY_EXTENSIONS
 
 __all__ = ["AtomicFile", "image_bytes", "is_binary_name", "read_local"]
 
+_WRITE_BUFFER = 1 << 20
+
 
 def is_binary_name(name: str) -> bool:
     """True if files named like ``name`` travel in binary mode by default."""
@@ -49,7 +51,9 @@ class AtomicFile:
             )
         except OSError as exc:
             raise InputError(f"cannot write into {folder}: {exc.strerror or exc}") from exc
-        self._file = os.fdopen(fd, "wb")
+        # A large buffer turns one write syscall per received block into one per MiB: on a
+        # fast link that syscall was a fifth of the client's time per block.
+        self._file = os.fdopen(fd, "wb", buffering=_WRITE_BUFFER)
         return self
 
     def write(self, data: bytes) -> None:
