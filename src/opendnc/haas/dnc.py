@@ -62,6 +62,9 @@ class DncConfig:
     eob: Eob = Eob.LF
     drain: bool = True  # wait for each chunk to leave the port before the next check
     retract: bool = True  # restart preamble retracts Z (G91 G28 Z0.)
+    # keep the port open this long after the last byte: closing a port can discard what a
+    # USB adapter (or a pty) still holds, and the closing % must reach the control
+    linger: float = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,6 +343,7 @@ def stream_program(
             if data:
                 streamer.receive_data(data)
         link.flush()
+        time.sleep(cfg.linger)
     except serial.SerialTimeoutException as exc:
         raise TransportTimeout(f"write to {path.name} port timed out (CTS held off?)") from exc
     except serial.SerialException as exc:

@@ -49,6 +49,7 @@ def test_round_trip_byte_identical(
     assert bench.front.messages == ["RS232 DONE"]
 
     bench.front.select(SerialMode.PUNCH, 1000)
+    time.sleep(0.2)  # the operator's key press takes effect within a poll period
     back = tmp_path / "back.nc"
     got = receive_file(bench.pc_path, back, mode=Mode.CHECKSUM, baud=115200)
     raw = back.read_bytes()

@@ -49,7 +49,7 @@ import serial
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
 from opendnc.haas.machine import Alarm
-from opendnc.sim.haas.control import ALARM_DNC_LINK, DncSession, DprntDestination
+from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
 from opendnc.sim.haas.dprnt_out import StreamDprntOutput
 from opendnc.sim.haas.serial_xmodem import (
@@ -72,6 +72,7 @@ ALARM_DNC_OVERRUN = Alarm(1004, "DNC BUFFER OVERRUN")
 """The sender ignored XOFF and overflowed the DNC buffer (simulator's own number)."""
 
 POLL = 0.05
+ERROR_BACKOFF = 0.5  # seconds before a failed job is re-armed
 
 
 class SerialMode(enum.Enum):
@@ -239,12 +240,12 @@ class SerialFrontEnd:
                 self._message("RS232 DONE")
             except Interrupted:
                 continue
-            except _Abort as exc:
-                self._message(f"RS232 ABORT {exc}")
             except DncError as exc:
                 if self._stop.is_set():
                     return
                 self._message(f"RS232 ABORT {exc}")
+                # a dead port fails every job at once: re-arm slowly instead of spinning
+                self._stop.wait(ERROR_BACKOFF)
             self.jobs_done += 1
             if selection.mode is SerialMode.PUNCH and self._current is selection:
                 self._current = Selection(SerialMode.IDLE)
@@ -392,8 +393,8 @@ class _DncRun:
         return self.session is not None and self.session.runner.finished
 
     def starved(self) -> bool:
-        """The control waits for blocks (only then does silence mean a broken link)."""
-        return self.backlog() <= 0
+        """A run waits for blocks (only then does silence mean a broken link)."""
+        return self.session is not None and (self.backlog() <= 0 or self.session_done())
 
     def take(self, data: bytes) -> None:
         front = self.front
@@ -408,8 +409,9 @@ class _DncRun:
             self.session = front.call(lambda: front.control.start_dnc(name.upper() or "DNC"))
             if first[:1] in "Oo":
                 blocks = blocks[1:]
-        if self.session_done() and not self.ended:
+        if self.session_done() and not self.ended and self.front.control.machine.alarms:
             raise _Abort("the DNC run stopped at the control (alarm or reset)")
+        # after M30 the run is over; what follows up to the closing % is read and dropped
         session = self.session
         if blocks and session is not None:
             closing = blocks[-1] == "%"
@@ -443,11 +445,10 @@ class _DncRun:
                 self.front.xons += 1
 
     def link_lost(self, detail: str) -> None:
+        """Alarm (ALARM_DNC_LINK) if a run had started; a link idle between runs is no fault."""
         session = self.session
         if session is not None:
             self.front.post(lambda: session.link_lost(detail))
-        else:
-            self.front.post(lambda: self.front.control.raise_alarm(ALARM_DNC_LINK, detail))
 
     def wait_finished(self, stop: threading.Event) -> None:
         """After the closing %: keep the port quiet until the run has executed every block."""
