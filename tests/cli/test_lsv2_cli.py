@@ -397,6 +397,12 @@ def test_table_get_csv_and_json(tnc: TncHandle, tmp_path: Path) -> None:
     assert len(table["rows"]) == len(lines) - 1
 
 
+def test_table_get_to_stdout(tnc: TncHandle) -> None:
+    _, out, _ = cli(tnc, "table", "get", "TNC:\\table\\tool.t", "-")
+    rows = json.loads(out)["rows"]
+    assert rows[1]["NAME"] == "MILL_D10_ROUGH"
+
+
 def test_operations_log(tnc: TncHandle, tmp_path: Path) -> None:
     cli(tnc, "ls", "TNC:/nc_prog")  # a folder change on another session must not matter
     cli(tnc, "log", str(tmp_path / "op.log"))

@@ -95,5 +95,6 @@ def bar(quiet: bool) -> Progress:
         TimeRemainingColumn(),
         console=err_console,
         transient=True,
-        disable=quiet,
+        # not on a terminal (logs, pipes, CI): a bar would only add stray lines to stderr
+        disable=quiet or not err_console.is_terminal,
     )
