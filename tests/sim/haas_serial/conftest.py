@@ -55,13 +55,18 @@ class Bench:
 
 
 def make_bench(
-    tmp_path: Path, options: SerialOptions, *, baud: int = 115200, block_rate: float = 0.0
+    tmp_path: Path,
+    options: SerialOptions,
+    *,
+    baud: int = 115200,
+    block_rate: float = 0.0,
+    config: HaasConfig | None = None,
 ) -> Iterator[Bench]:
     root = tmp_path / "mem"
     root.mkdir(exist_ok=True)
     with VirtualCable(baud=baud) as cable:
         sim_options = SimOptions(mdc_port=0, block_rate=block_rate)
-        with SimHaasThread(HaasConfig(), root, sim_options) as thread:
+        with SimHaasThread(config or HaasConfig(), root, sim_options) as thread:
             assert thread.sim is not None
             sim = thread.sim
 
@@ -78,7 +83,7 @@ def make_bench(
 def bench_factory(tmp_path: Path) -> Iterator[Callable[..., Bench]]:
     gens: list[Iterator[Bench]] = []
 
-    def make(options: SerialOptions, **kwargs: float) -> Bench:
+    def make(options: SerialOptions, **kwargs: object) -> Bench:
         gen = make_bench(tmp_path, options, **kwargs)  # type: ignore[arg-type]
         gens.append(gen)
         return next(gen)
