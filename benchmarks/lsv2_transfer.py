@@ -167,15 +167,21 @@ def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, li
 
 
 def round_trip(port: int, count: int) -> tuple[float, int]:
-    """Median seconds of one request/answer telegram pair, and the data bytes per S_FL."""
-    with Client("127.0.0.1", port, timeout=30) as tnc:
-        tnc.execution_mode()  # logs in once; afterwards each call is one R_RI / S_RI pair
-        samples = []
-        for _ in range(count):
-            started = time.perf_counter()
-            tnc.execution_mode()
-            samples.append(time.perf_counter() - started)
-        return statistics.median(samples), tnc.buffer_size - 10
+    """Median seconds of the cheapest request/answer pair (``R_ST`` -> ``S_ST``, 8 + 20
+    bytes, no work on the control) over a bare socket, and the data bytes per ``S_FL``."""
+    sock = socket.create_connection(("127.0.0.1", port))
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    sock.sendall(_telegram(b"A_LG", b"INSPECT\0"))
+    assert _answer(sock)[0] == b"T_OK"
+    request = _telegram(b"R_ST")
+    samples = []
+    for _ in range(count):
+        started = time.perf_counter()
+        sock.sendall(request)
+        _answer(sock)
+        samples.append(time.perf_counter() - started)
+    sock.close()
+    return statistics.median(samples), 4096 - 10
 
 
 def main() -> None:
@@ -220,7 +226,7 @@ def main() -> None:
             proc.wait(10)
 
     print(f"file {size / MB:.1f} MB, {args.repeat} repetitions, 4096-byte telegrams, loopback")
-    print(f"telegram round trip (R_RI, median of 2000): {rtt * 1e6:.0f} µs")
+    print(f"telegram round trip (R_ST, bare socket, median of 2000): {rtt * 1e6:.0f} µs")
     print(f"protocol ceiling: {chunk} B / {rtt * 1e6:.0f} µs = {chunk / rtt / MB:.1f} MB/s")
     for direction in ("down", "up"):
         a = size / statistics.median(ours[direction]) / MB
