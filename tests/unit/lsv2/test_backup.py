@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import InputError
-from opendnc.lsv2.backup import plan_backup, plan_sync, remote_relative
+from opendnc.lsv2.backup import backup, plan_backup, plan_sync, remote_relative
 from opendnc.lsv2.ops.files import FileInfo
 
 T0 = datetime(2024, 5, 1, 12, 0, 0, tzinfo=UTC)
@@ -70,3 +70,42 @@ def test_plan_sync_rules(tmp_path: Path) -> None:
     ]
     assert [j.remote for j in current] == ["TNC:\\r\\same.h"]
     assert folders == ["TNC:\\r\\d"]
+
+
+class ShortReadClient:
+    """A control whose download delivers fewer bytes than its listing announced."""
+
+    def __init__(self, listed: int, delivered: bytes) -> None:
+        self.listed, self.delivered = listed, delivered
+
+    def walk(self, path: str = "TNC:\\", *, multi: bool = True) -> list[FileInfo]:
+        return [entry("TNC:\\p\\A.H", self.listed)]
+
+    def file_info(self, path: str) -> FileInfo | None:
+        return entry(path, self.listed)
+
+    def make_dir(self, path: str, *, parents: bool = True) -> bool:
+        raise AssertionError("not used by backup")
+
+    def download(self, remote: str, local: object, **_: object) -> int:
+        Path(str(local)).write_bytes(self.delivered)
+        return len(self.delivered)
+
+    def upload(self, local: object, remote: str, **_: object) -> int:
+        raise AssertionError("not used by backup")
+
+
+def test_backup_rejects_a_short_file_and_leaves_nothing(tmp_path: Path) -> None:
+    summary = backup(ShortReadClient(10, b"12345"), "TNC:/p", tmp_path)
+    assert summary.copied == []
+    assert len(summary.failed) == 1
+    assert "received 5 bytes, control lists 10" in summary.failed[0].reason
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_backup_sets_remote_mtime(tmp_path: Path) -> None:
+    summary = backup(ShortReadClient(5, b"12345"), "TNC:/p", tmp_path)
+    assert summary.copied == ["TNC:\\p\\A.H"]
+    assert summary.bytes == 5
+    assert (tmp_path / "A.H").stat().st_mtime == T0.timestamp()
+    assert backup(ShortReadClient(5, b"12345"), "TNC:/p", tmp_path).skipped == ["TNC:\\p\\A.H"]
