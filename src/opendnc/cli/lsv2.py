@@ -40,12 +40,6 @@ def main(
     ctx.obj = Settings(host, port, timeout, json_out, unsafe)
 
 
-for _name, _func in lsv2_machine.COMMANDS.items():
-    app.command(_name)(_func)
-for _name, _group in lsv2_machine.GROUPS.items():
-    app.add_typer(_group, name=_name)
-
-
 def _entry(info: FileInfo) -> dict[str, object]:
     return {
         "name": info.name,
@@ -317,3 +311,10 @@ def sync_cmd(
 
             summary = sync(tnc, local_dir, remote_dir, progress=report)
         _report(summary, as_json, "sync")
+
+
+# Machine-data commands come last so that `--help` lists them after the file commands.
+for _name, _func in lsv2_machine.COMMANDS.items():
+    app.command(_name)(_func)
+for _name, _group in lsv2_machine.GROUPS.items():
+    app.add_typer(_group, name=_name)
