@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import TransportTimeout
-from opendnc.haas.dnc import DncConfig, Flow, stream_program
+from opendnc.haas.dnc import DncConfig, DncEvent, Flow, Paused, stream_program
 from opendnc.haas.mdc import Busy, ProgramStatus
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.sim.haas import ALARM_DNC_LINK, HaasConfig, SimHaasThread, SimOptions
@@ -212,6 +212,7 @@ def test_xoff_held_too_long_is_a_clear_error(tmp_path: Path) -> None:
 
     reader = threading.Thread(target=control, daemon=True)
     reader.start()
+    events: list[DncEvent] = []
     try:
         with pytest.raises(TransportTimeout, match="held XOFF"):
             stream_program(
@@ -219,13 +220,17 @@ def test_xoff_held_too_long_is_a_clear_error(tmp_path: Path) -> None:
                 program,
                 safe_mode=False,
                 config=DncConfig(xoff_timeout=0.3, drain=False, chunk=64),
+                on_event=events.append,
             )
+        time.sleep(0.1)  # let the reader collect what is still in the pty
     finally:
         done.set()
         reader.join(2)
         pair.close()
-    # the PC stopped within a chunk or two of the XOFF
-    assert len(got) - got.index(b"\x13") < 4 * 64
+    # not one byte was written after the PC saw the XOFF
+    assert len(events) == 1
+    assert isinstance(events[0], Paused)
+    assert len(got) - 1 == events[0].sent
 
 
 def test_dnc_over_xmodem(bench_factory: Callable[..., Bench], tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ from opendnc.xmodem.events import EotAnswer, Event
 from opendnc.xmodem.files import receive_file, send_file
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob
+from opendnc.xmodem.receiver import ReceiverConfig
 
 from .conftest import PROGRAM, Bench
 
@@ -123,3 +124,18 @@ def test_parse_mode() -> None:
     for bad in ("punch", "punch:Ox", "dnc:1", "fly"):
         with pytest.raises(InputError):
             parse_mode(bad)
+
+
+def test_punch_ignoring_the_first_nak(bench_factory: Callable[..., Bench], tmp_path: Path) -> None:
+    """Capture: the control left the PC's first NAK unanswered; the receiver's repeat starts it."""
+    (tmp_path / "mem").mkdir()
+    (tmp_path / "mem" / "O01000.nc").write_text(PROGRAM)
+    quirks = XmodemQuirks(ignore_first_nak=True, start_timeout=30)
+    bench = bench_factory(SerialOptions(baud=115200, mode=parse_mode("punch:O1000"), quirks=quirks))
+    config = ReceiverConfig(start_interval=0.3, crc_tries=0)
+    back = tmp_path / "back.nc"
+    started = time.monotonic()
+    receive_file(bench.pc_path, back, mode=Mode.CHECKSUM, baud=115200, config=config)
+    assert time.monotonic() - started >= 0.3  # the transfer began on the second NAK
+    assert _normalise(back.read_bytes()) == PROGRAM.encode()
+    bench.wait(lambda: bench.front.messages == ["RS232 DONE"])
