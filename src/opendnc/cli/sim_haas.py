@@ -136,9 +136,9 @@ async def _serve(
     try:
         if serial is not None:
             module = importlib.import_module(SERIAL_FRONT_END)
-            sim.add_front_end(
-                await module.start_serial(sim, serial, baud, options.trace, serial_options)
-            )
+            front = await module.start_serial(sim, serial, baud, options.trace, serial_options)
+            front.on_message = lambda text: print(text, flush=True)  # RS232 DONE / ABORT
+            sim.add_front_end(front)
             print(f"SERIAL {serial} {baud}", flush=True)
         if sim.mdc is not None:
             print(f"MDC {options.host}:{sim.mdc.port}", flush=True)

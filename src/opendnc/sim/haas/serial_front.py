@@ -158,6 +158,8 @@ class SerialFrontEnd:
         self._write_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self.idle = threading.Event()
+        # called (on the I/O thread) with each RS232 DONE / RS232 ABORT message
+        self.on_message: Callable[[str], None] | None = None
 
     # --------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -252,6 +254,8 @@ class SerialFrontEnd:
 
     def _message(self, text: str) -> None:
         self.messages.append(text)
+        if self.on_message is not None:
+            self.on_message(text)
         if self.trace is not None:
             self.trace("rx", f"[{text}]".encode())
 
