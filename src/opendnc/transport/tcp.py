@@ -3,8 +3,27 @@
 from __future__ import annotations
 
 import socket
+import struct
+import sys
 
 from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+
+# Python's socket timeouts poll() before every recv()/send(): one extra syscall and a few
+# microseconds per telegram. Where the kernel offers per-socket timeouts (SO_RCVTIMEO /
+# SO_SNDTIMEO), the socket stays blocking and the kernel enforces the limit instead; a call
+# that runs out of time fails with EAGAIN, which we report as TransportTimeout.
+_KERNEL_TIMEOUTS = sys.platform.startswith("linux") and hasattr(socket, "SO_RCVTIMEO")
+_TIMEVAL = struct.Struct("@ll")
+
+
+def _timeval(seconds: float | None) -> bytes:
+    if seconds is None:
+        return _TIMEVAL.pack(0, 0)  # zero means "no limit" to the kernel
+    whole = int(seconds)
+    micro = max(1, round((seconds - whole) * 1e6)) if whole == 0 else round((seconds - whole) * 1e6)
+    if micro >= 1_000_000:
+        whole, micro = whole + 1, micro - 1_000_000
+    return _TIMEVAL.pack(whole, micro)
 
 
 class TcpStream:
@@ -23,13 +42,13 @@ class TcpStream:
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc.strerror or exc}") from exc
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._sock.settimeout(timeout)
+        self.set_timeout(timeout)
         self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
         try:
             data = self._sock.recv(max_bytes)
-        except TimeoutError as exc:
+        except (TimeoutError, BlockingIOError) as exc:
             raise TransportTimeout(f"no answer from {self.host}:{self.port}") from exc
         except OSError as exc:
             raise TransportError(f"receive from {self.host}:{self.port} failed: {exc}") from exc
@@ -40,13 +59,21 @@ class TcpStream:
     def write(self, data: bytes) -> None:
         try:
             self._sock.sendall(data)
-        except TimeoutError as exc:
+        except (TimeoutError, BlockingIOError) as exc:
             raise TransportTimeout(f"send to {self.host}:{self.port} timed out") from exc
         except OSError as exc:
             raise TransportError(f"send to {self.host}:{self.port} failed: {exc}") from exc
 
     def set_timeout(self, seconds: float | None) -> None:
-        self._sock.settimeout(seconds)
+        """Limit each later read and write to ``seconds`` (``None``: wait forever, ``0``:
+        never wait; both raise :class:`TransportTimeout` when nothing could be done)."""
+        if not _KERNEL_TIMEOUTS or seconds == 0:
+            self._sock.settimeout(seconds)
+            return
+        self._sock.settimeout(None)
+        value = _timeval(seconds)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, value)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, value)
 
     def close(self) -> None:
         if not self._closed:
