@@ -55,15 +55,14 @@ class _Deadline:
         return self._at - now
 
 
-def _drain(engine: Engine, on_event: EventHandler | None) -> bytes:
-    """Collect the engine's events (to the callback) and return the bytes it wants sent."""
+def _dispatch(engine: Engine, on_event: EventHandler | None) -> None:
+    """Hand the engine's pending events to the callback (or drop them)."""
     if on_event is not None:
         while (event := engine.next_event()) is not None:
             on_event(event)
     else:
         while engine.next_event() is not None:
             pass
-    return engine.data_to_send()
 
 
 def _outcome(engine: Engine) -> Completed:
@@ -91,9 +90,12 @@ def run_blocking(
     stream.set_timeout(poll)
     try:
         while True:
-            out = _drain(engine, on_event)
+            # answer first, then handle events (file writes, progress): the peer gets on
+            # with the next block while we do our bookkeeping
+            out = engine.data_to_send()
             if out:
                 stream.write(out)
+            _dispatch(engine, on_event)
             if engine.finished:
                 return _outcome(engine)
             remaining = deadline.remaining(engine)
@@ -113,7 +115,7 @@ def run_blocking(
             engine.receive_data(data)
     except KeyboardInterrupt:
         engine.cancel()
-        out = _drain(engine, on_event)
+        out = engine.data_to_send()
         if out:
             stream.write(out)
         raise
@@ -134,10 +136,11 @@ async def run_async(
     deadline = _Deadline(clock)
     try:
         while True:
-            out = _drain(engine, on_event)
+            out = engine.data_to_send()
             if out:
                 writer.write(out)
                 await writer.drain()
+            _dispatch(engine, on_event)
             if engine.finished:
                 return _outcome(engine)
             remaining = deadline.remaining(engine)
@@ -160,7 +163,7 @@ async def run_async(
                 engine.peer_closed()
     except asyncio.CancelledError:
         engine.cancel()
-        out = _drain(engine, on_event)
+        out = engine.data_to_send()
         if out:
             writer.write(out)
         raise

@@ -16,17 +16,18 @@ from __future__ import annotations
 import enum
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from opendnc.errors import DncError
 from opendnc.xmodem.framing import CANCEL_BYTES, Mode
 
 
-@dataclass(frozen=True, slots=True)
-class Timer:
+class Timer(NamedTuple):
     """Ask the driver to call ``timed_out()`` after ``seconds`` without a newer timer.
 
     ``listen`` is false for a pure pause (no input is expected meanwhile), which a driver may
-    sleep through instead of reading.
+    sleep through instead of reading. (A named tuple: one is made per block, so it must be
+    cheap to create.)
     """
 
     serial: int

@@ -106,32 +106,31 @@ def decode_block(
     sum that only matches after CR LF and lone CR are folded to LF (a Haas reportedly sums
     its end-of-block as one LF whatever setting 25 puts on the wire; opt-in only).
     """
-    view = memoryview(frame)
-    if len(view) < HEADER:
-        raise RemoteProtocolError(f"block of {len(view)} bytes is shorter than its header")
-    start, seq, inverse = view[0], view[1], view[2]
+    if len(frame) < HEADER:
+        raise RemoteProtocolError(f"block of {len(frame)} bytes is shorter than its header")
+    start, seq, inverse = frame[0], frame[1], frame[2]
     if start not in (SOH, STX):
         raise RemoteProtocolError(f"block starts with 0x{start:02X}, expected SOH or STX")
     expected = frame_length(start, crc)
-    if len(view) != expected:
-        raise RemoteProtocolError(f"block of {len(view)} bytes, expected {expected}")
+    if len(frame) != expected:
+        raise RemoteProtocolError(f"block of {len(frame)} bytes, expected {expected}")
     if seq + inverse != 0xFF:
         raise RemoteProtocolError(
             f"block number 0x{seq:02X} and complement 0x{inverse:02X} disagree"
         )
     end = expected - check_size(crc)
-    data = view[HEADER:end]
+    data = bytes(frame[HEADER:end])
     if crc:
-        got = (view[end] << 8) | view[end + 1]
+        got = (frame[end] << 8) | frame[end + 1]
         want = crc16(data)
     else:
-        got = view[end]
+        got = frame[end]
         want = checksum(data)
         if got != want and fold_eob:
-            folded = bytes(data).replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+            folded = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
             if checksum(folded) == got:
                 want = got
     if got != want:
         kind, width = ("CRC", 4) if crc else ("checksum", 2)
         raise ChecksumError(f"block {seq}: {kind} 0x{got:0{width}X}, computed 0x{want:0{width}X}")
-    return Block(seq, bytes(data))
+    return Block(seq, data)

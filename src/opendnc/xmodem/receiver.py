@@ -164,10 +164,11 @@ class XmodemReceiver(EngineBase):
                 if len(buf) < length:
                     self._arm(self.config.char_timeout)
                     return
+                # decode a copy: a view into buf would pin it while an error propagates
+                frame = bytes(buf) if len(buf) == length else bytes(buf[:length])
                 try:
-                    # decode a copy: a view into buf would pin it while an error propagates
                     block = decode_block(
-                        bytes(buf[:length]),
+                        frame,
                         crc=self.crc,
                         fold_eob=self.config.fold_eob_checksum,
                     )

@@ -1,0 +1,321 @@
+"""Benchmark: XModem throughput and line efficiency, opendnc vs lrzsz vs PyPI ``xmodem``.
+
+Every endpoint runs in its own process with its end of the link as stdin/stdout (lrzsz's
+convention; ours and PyPI's follow it), so no two endpoints share an interpreter.
+
+1. Raw pty pair (no line timing): each implementation sends to itself (ours -> ours,
+   sx -> rx, PyPI -> PyPI) in all three modes. Reported: payload MB/s and the ratios
+   ours/lrzsz and ours/PyPI.
+2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
+   115200 8N1: payload bytes/s against the ceiling of each mode (128/133, 128/134, 1024/1030
+   of 11,520 B/s) for the same three pairs.
+
+Throughput is *marginal*: each pair moves a small and a large file and the script divides the
+extra bytes by the extra time. That cancels fixed costs that have nothing to do with the
+line: process start-up, the start handshake, and ``rx``'s habit of answering EOT about a
+second late. Medians over ``--repeat`` runs.
+
+    .venv/bin/python benchmarks/xmodem.py                 # full run, a few minutes
+    .venv/bin/python benchmarks/xmodem.py --quick         # smaller files, one repeat
+
+Note on lrzsz over a raw pty: ``rx`` flushes its input right after every ACK, so a sender
+that answers at memory speed loses blocks (rx waits 5 s, then NAKs). ``sx`` hits that
+with 128-byte blocks, which makes the raw-pty lrzsz pair very slow in checksum/CRC modes;
+the figures show it as measured (with a per-run time limit). On the cable the line delay
+removes the race.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import select
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import tty
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+MODES = ("checksum", "crc", "1k")
+BLOCK_SHARE = {"checksum": 128 / 133, "crc": 128 / 134, "1k": 1024 / 1030}
+SENDER_HEAD_START = 0.4  # let the sender open its port before the receiver asks for data
+
+
+# -- endpoint mode: python benchmarks/xmodem.py --endpoint send|recv MODE FILE ---------------
+
+
+class _StdioStream:
+    """Our ByteStream over fd 0 (read) and fd 1 (write): the lrzsz way of holding a tty."""
+
+    def __init__(self) -> None:
+        self.timeout: float | None = 0.05
+
+    def read(self, max_bytes: int) -> bytes:
+        from opendnc.errors import PeerClosed, TransportTimeout
+
+        if not select.select([0], [], [], self.timeout)[0]:
+            raise TransportTimeout("no data")
+        try:
+            data = os.read(0, max_bytes)
+        except OSError as exc:
+            raise PeerClosed(str(exc)) from exc
+        if not data:
+            raise PeerClosed("closed")
+        return data
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(1, view) :]
+
+    def set_timeout(self, seconds: float | None) -> None:
+        self.timeout = seconds
+
+    def close(self) -> None:
+        pass
+
+
+def run_endpoint(action: str, mode_name: str, path: str) -> int:
+    """One opendnc transfer over stdin/stdout; exit status 0 on success."""
+    from opendnc.errors import DncError
+    from opendnc.xmodem.driver import receive, send
+    from opendnc.xmodem.framing import Mode
+
+    tty.setraw(0)
+    mode = Mode(mode_name)
+    stream = _StdioStream()
+    try:
+        if action == "send":
+            send(stream, Path(path).read_bytes(), mode=mode)
+        else:
+            with open(path, "wb") as sink:
+                receive(stream, sink, mode=mode)
+    except DncError as exc:
+        print(f"opendnc endpoint: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+# -- pairs ------------------------------------------------------------------------------
+
+
+def _ours(action: str, mode: str, path: Path) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve()), "--endpoint", action, mode, str(path)]
+
+
+def _pypi(action: str, mode: str, path: Path) -> list[str]:
+    return [sys.executable, "-m", "tests.interop.xmodem_pypi_peer", action, mode, str(path)]
+
+
+def _lrzsz(action: str, mode: str, path: Path) -> list[str]:
+    if action == "send":
+        return ["sx", "-X", "-q", *(["-k"] if mode == "1k" else []), str(path)]
+    return ["rx", "-X", "-q", *(["-c"] if mode != "checksum" else []), str(path)]
+
+
+PAIRS: dict[str, Callable[[str, str, Path], list[str]]] = {
+    "opendnc": _ours,
+    "lrzsz": _lrzsz,
+    "pypi": _pypi,
+}
+
+
+Link = Callable[[], AbstractContextManager[tuple[int, int]]]
+
+
+def random_data(size: int) -> bytes:
+    """Random bytes that do not end in SUB (it would be taken for padding)."""
+    data = bytearray(os.urandom(size))
+    if data[-1] == 0x1A:
+        data[-1] = 0x41
+    return bytes(data)
+
+
+@dataclass
+class Run:
+    seconds: float
+    ok: bool
+    note: str = ""
+
+
+@contextmanager
+def raw_pty() -> Iterator[tuple[int, int]]:
+    """(sender fd, receiver fd): a raw pty pair, master for the sender."""
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    try:
+        yield master, slave
+    finally:
+        for fd in (master, slave):
+            os.close(fd)
+
+
+@contextmanager
+def cable(baud: int) -> Iterator[tuple[int, int]]:
+    """(sender fd, receiver fd): both ends of B2's virtual cable, opened before any traffic."""
+    from opendnc.sim.cable import CableProcess
+
+    with CableProcess(baud=baud) as line:
+        fd_a = os.open(line.path_a, os.O_RDWR | os.O_NOCTTY)
+        fd_b = os.open(line.path_b, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(fd_a)
+        tty.setraw(fd_b)
+        try:
+            yield fd_a, fd_b
+        finally:
+            os.close(fd_a)
+            os.close(fd_b)
+
+
+def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run:
+    """Move ``data`` with one implementation on both ends; time from receiver start to exit."""
+    make = PAIRS[impl]
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp) / "src.bin", Path(tmp) / "dst.bin"
+        src.write_bytes(data)
+        with link() as (fd_send, fd_recv):
+            sender = subprocess.Popen(
+                make("send", mode, src),
+                stdin=fd_send,
+                stdout=fd_send,
+                stderr=subprocess.PIPE,
+                cwd=ROOT,
+            )
+            time.sleep(SENDER_HEAD_START)
+            start = time.perf_counter()
+            receiver = subprocess.Popen(
+                make("recv", mode, dst),
+                stdin=fd_recv,
+                stdout=fd_recv,
+                stderr=subprocess.PIPE,
+                cwd=ROOT,
+            )
+            note = ""
+            try:
+                receiver.wait(timeout=limit)
+                sender.wait(timeout=max(limit - (time.perf_counter() - start), 5))
+            except subprocess.TimeoutExpired:
+                note = f"over the {limit:.0f} s limit"
+            elapsed = time.perf_counter() - start
+            for proc in (sender, receiver):
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait(5)
+                if proc.stderr is not None:
+                    proc.stderr.close()
+        got = dst.read_bytes() if dst.exists() else b""
+    ok = not note and got.rstrip(b"\x1a") == data.rstrip(b"\x1a")
+    if not ok and not note:
+        note = f"copy differs ({len(got)} of {len(data)} bytes)"
+    return Run(elapsed, ok, note)
+
+
+def marginal(
+    link: Link,
+    impl: str,
+    mode: str,
+    small: int,
+    large: int,
+    repeat: int,
+    limit: float,
+) -> tuple[float | None, str]:
+    """Median payload bytes/s of (large - small) bytes over their time difference."""
+    rates: list[float] = []
+    notes: list[str] = []
+    for _ in range(repeat):
+        runs = [
+            transfer(link, impl, mode, random_data(small), limit),
+            transfer(link, impl, mode, random_data(large), limit),
+        ]
+        bad = [r.note for r in runs if not r.ok]
+        if bad:
+            notes += bad
+            continue
+        extra = runs[1].seconds - runs[0].seconds
+        if extra > 0:
+            rates.append((large - small) / extra)
+    if not rates:
+        return None, "; ".join(sorted(set(notes))) or "no valid run"
+    return statistics.median(rates), "; ".join(sorted(set(notes)))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--endpoint", nargs=3, metavar=("ACTION", "MODE", "FILE"))
+    parser.add_argument("--quick", action="store_true", help="small files, one repeat")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--pty-mib", type=float, default=2.0, help="large file on the raw pty")
+    parser.add_argument("--cable-kib", type=int, default=64, help="large file on the cable")
+    parser.add_argument("--baud", type=int, default=115200)
+    args = parser.parse_args()
+    if args.endpoint:
+        return run_endpoint(*args.endpoint)
+    if args.quick:
+        args.repeat, args.pty_mib, args.cable_kib = 1, 1.0, 32
+    missing = [c for c in ("sx", "rx") if shutil.which(c) is None]
+    impls = [i for i in PAIRS if not (i == "lrzsz" and missing)]
+    if missing:
+        print(f"lrzsz not installed ({', '.join(missing)} missing): skipped")
+
+    pty_large = int(args.pty_mib * (1 << 20)) // 1024 * 1024
+    print(
+        f"== raw pty pair: marginal payload MB/s, {pty_large >> 10} KiB vs 64 KiB, "
+        f"median of {args.repeat}"
+    )
+    pty_rates: dict[tuple[str, str], float | None] = {}
+    for mode in MODES:
+        for impl in impls:
+            large = pty_large
+            if impl == "lrzsz" and mode != "1k":
+                large = min(pty_large, 256 * 1024)  # rx's flush race: see the module notes
+            rate, note = marginal(raw_pty, impl, mode, 64 * 1024, large, args.repeat, 120)
+            pty_rates[(impl, mode)] = rate
+            shown = f"{rate / 1e6:8.2f} MB/s" if rate else "       n/a"
+            print(f"  {mode:8} {impl:8} {shown}  {note}")
+    for mode in MODES:
+        ours = pty_rates.get(("opendnc", mode))
+        parts = []
+        for other in ("lrzsz", "pypi"):
+            theirs = pty_rates.get((other, mode))
+            if ours and theirs:
+                parts.append(f"ours/{other} = {ours / theirs:5.1f}x")
+        print(f"  {mode:8} " + "   ".join(parts))
+
+    line_rate = args.baud / 10
+    large = args.cable_kib * 1024
+    print(
+        f"\n== virtual cable {args.baud} 8N1: marginal payload B/s vs ceiling, "
+        f"{args.cable_kib} KiB vs 4 KiB, median of {args.repeat}"
+    )
+    eff: dict[tuple[str, str], float | None] = {}
+    for mode in MODES:
+        ceiling = line_rate * BLOCK_SHARE[mode]
+        for impl in impls:
+            link = lambda: cable(args.baud)  # noqa: E731 - a fresh cable per transfer
+            rate, note = marginal(link, impl, mode, 4 * 1024, large, args.repeat, 60)
+            eff[(impl, mode)] = rate / ceiling if rate else None
+            shown = f"{rate:8.0f} B/s {100 * rate / ceiling:5.1f} %" if rate else "     n/a"
+            print(f"  {mode:8} {impl:8} {shown} of {ceiling:6.0f}  {note}")
+    print()
+    for mode in MODES:
+        ours = eff.get(("opendnc", mode))
+        lrz = eff.get(("lrzsz", mode))
+        verdict = []
+        if ours is not None and mode == "1k":
+            verdict.append(f"1K >= 95 %: {'yes' if ours >= 0.95 else 'NO'}")
+        if ours is not None and lrz is not None:
+            verdict.append(f"ours {100 * ours:.1f} % vs lrzsz {100 * lrz:.1f} %")
+        print(f"  {mode:8} " + "; ".join(verdict))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
