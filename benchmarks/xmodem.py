@@ -273,10 +273,11 @@ def main() -> int:
     pty_rates: dict[tuple[str, str], float | None] = {}
     for mode in MODES:
         for impl in impls:
-            large = pty_large
+            small, large, limit = 64 * 1024, pty_large, 120.0
             if impl == "lrzsz" and mode != "1k":
-                large = min(pty_large, 256 * 1024)  # rx's flush race: see the module notes
-            rate, note = marginal(raw_pty, impl, mode, 64 * 1024, large, args.repeat, 120)
+                # rx's flush race (module notes) makes these runs take minutes per MiB
+                small, large, limit = 16 * 1024, 128 * 1024, 60.0
+            rate, note = marginal(raw_pty, impl, mode, small, large, args.repeat, limit)
             pty_rates[(impl, mode)] = rate
             shown = f"{rate / 1e6:8.2f} MB/s" if rate else "       n/a"
             print(f"  {mode:8} {impl:8} {shown}  {note}")

@@ -90,14 +90,19 @@ def run_blocking(
     stream.set_timeout(poll)
     try:
         while True:
-            # answer first, then handle events (file writes, progress): the peer gets on
-            # with the next block while we do our bookkeeping
             out = engine.data_to_send()
+            if engine.finished:
+                # the final events (Completed/Failed) go out before the last bytes, so a
+                # handler can still act on the ending (the Haas simulator swaps the EOT ACK)
+                _dispatch(engine, on_event)
+                if out:
+                    stream.write(out)
+                return _outcome(engine)
+            # mid-transfer, answer first and handle events (file writes, progress) after:
+            # the peer gets on with the next block while we do our bookkeeping
             if out:
                 stream.write(out)
             _dispatch(engine, on_event)
-            if engine.finished:
-                return _outcome(engine)
             remaining = deadline.remaining(engine)
             if remaining <= 0:
                 engine.timed_out()
@@ -137,12 +142,16 @@ async def run_async(
     try:
         while True:
             out = engine.data_to_send()
+            if engine.finished:
+                _dispatch(engine, on_event)  # final events before the last bytes, as above
+                if out:
+                    writer.write(out)
+                    await writer.drain()
+                return _outcome(engine)
             if out:
                 writer.write(out)
                 await writer.drain()
             _dispatch(engine, on_event)
-            if engine.finished:
-                return _outcome(engine)
             remaining = deadline.remaining(engine)
             if remaining <= 0:
                 engine.timed_out()
