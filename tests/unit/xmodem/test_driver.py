@@ -142,3 +142,37 @@ def test_asyncio_receive_sees_peer_close_as_typed_error() -> None:
         await server.wait_closed()
 
     asyncio.run(main())
+
+
+def test_final_events_come_before_the_last_bytes() -> None:
+    """The Haas simulator relies on seeing Completed before the EOT's ACK is written."""
+    from opendnc.xmodem.driver import run_blocking
+    from opendnc.xmodem.framing import encode_block
+    from opendnc.xmodem.receiver import XmodemReceiver
+
+    log: list[object] = []
+    incoming = [encode_block(1, b"abc", crc=False), encode_block(2, b"def", crc=False), b"\x04"]
+
+    class Scripted:
+        def read(self, max_bytes: int) -> bytes:
+            if incoming:
+                return incoming.pop(0)
+            from opendnc.errors import TransportTimeout
+
+            raise TransportTimeout("quiet")
+
+        def write(self, data: bytes) -> None:
+            log.append(data)
+
+        def set_timeout(self, seconds: float | None) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    engine = XmodemReceiver(Mode.CHECKSUM)
+    run_blocking(engine, Scripted(), on_event=lambda e: log.append(type(e).__name__), poll=0.01)
+    assert log[-2:] == ["Completed", b"\x06"]
+    acks = [i for i, entry in enumerate(log) if entry == b"\x06"]
+    # block 2 releases block 1's data: mid-transfer the ACK is written before that event
+    assert acks[1] < log.index("DataReceived")
