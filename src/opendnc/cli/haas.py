@@ -210,6 +210,9 @@ def dnc_cmd(
     no_retract: bool = typer.Option(
         False, "--no-retract", help="Restart header without the G91 G28 Z0. retract."
     ),
+    wait_for_xon: bool = typer.Option(
+        False, "--wait-for-xon", help="Start only after the control's first DC1."
+    ),
     unsafe: bool = typer.Option(
         False, "--unsafe", help="Required: the program runs on the machine."
     ),
@@ -229,6 +232,7 @@ def dnc_cmd(
                 xoff_timeout=xoff_timeout,
                 eob=Eob(eob.lower()),
                 retract=not no_retract,
+                wait_for_xon=wait_for_xon,
             )
         except ValueError as exc:
             raise InputError(f"bad option: {exc}") from None

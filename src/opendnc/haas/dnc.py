@@ -10,7 +10,9 @@ look at what the control sent, and nothing more is written after a DC3 until the
   a :class:`~opendnc.xmodem.events.Timer` for the XOFF timeout (the clock stays outside).
 * :class:`ProgramFeed` -- the program from disk as wire lines, line by line (constant memory),
   optionally restarted at a line with :func:`opendnc.haas.modal.restart_preamble`.
-* :func:`stream_program` -- the blocking driver over any pyserial port or URL.
+* :class:`DncRun` -- one run's bookkeeping, shared by both drivers;
+* :func:`stream_program` -- the blocking driver over any pyserial port or URL;
+  :func:`stream_program_async` -- the asyncio driver over stream reader/writer.
 
 Drip-feeding makes the machine move, so :func:`stream_program` refuses with
 :class:`~opendnc.errors.SafetyLockError` unless ``safe_mode=False``.
@@ -18,6 +20,8 @@ Drip-feeding makes the machine move, so :func:`stream_program` refuses with
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import enum
 import os
 import time
@@ -65,6 +69,8 @@ class DncConfig:
     # keep the port open this long after the last byte: closing a port can discard what a
     # USB adapter (or a pty) still holds, and the closing % must reach the control
     linger: float = 0.25
+    # start only after the control's first DC1 (it announces readiness), as DNC packages offer
+    wait_for_xon: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,6 +104,9 @@ class DncStreamer:
         self._serial = 0
         self.timer: Timer | None = None
         self.paused = False
+        if self.config.wait_for_xon and self.config.flow is Flow.XONXOFF:
+            self.paused = True
+            self._arm()
         self.sent = 0
         self.xoffs = 0
         self.xons = 0
@@ -123,9 +132,7 @@ class DncStreamer:
                 if not self.paused:
                     self.paused = True
                     self._events.append(Paused(self.sent))
-                    if self.config.xoff_timeout > 0:
-                        self._serial += 1
-                        self.timer = Timer(self._serial, self.config.xoff_timeout)
+                    self._arm()
             elif byte == XON:
                 self.xons += 1
                 if self.paused:
@@ -134,6 +141,11 @@ class DncStreamer:
                     self._events.append(Resumed(self.sent))
             else:
                 self.other += 1
+
+    def _arm(self) -> None:
+        if self.config.xoff_timeout > 0:
+            self._serial += 1
+            self.timer = Timer(self._serial, self.config.xoff_timeout)
 
     def data_to_send(self) -> bytes:
         """The next chunk to write (at most ``chunk`` bytes), or ``b""`` while paused."""
@@ -148,6 +160,11 @@ class DncStreamer:
     def timed_out(self) -> None:
         """The XOFF timer ran out: raise the typed error."""
         if self.paused and self.timer is not None:
+            if self.sent == 0 and self.xons == 0 and self.config.wait_for_xon:
+                raise TransportTimeout(
+                    f"no XON from the control within {self.config.xoff_timeout:g} s "
+                    "(is it waiting in DNC mode?)"
+                )
             raise TransportTimeout(
                 f"the control held XOFF for more than {self.config.xoff_timeout:g} s "
                 f"after {self.sent} bytes (feed hold, alarm or a lost XON?)"
@@ -258,7 +275,101 @@ class DncReport:
 
 Progress = Callable[[int, int], None]  # (file bytes consumed, file size)
 EventHandler = Callable[[DncEvent], None]
+Clock = Callable[[], float]
 POLL = 0.05
+
+
+class DncRun:
+    """One drip-feed as both drivers run it: feed, streamer, clock-side timer, accounting.
+
+    A driver calls :meth:`fill` and :meth:`outgoing` to get bytes to write, :meth:`incoming`
+    with what the control sent, and :meth:`wait_time` while paused (it raises the XOFF timeout).
+    """
+
+    def __init__(
+        self,
+        feed: ProgramFeed,
+        config: DncConfig,
+        *,
+        clock: Clock = time.monotonic,
+        progress: Progress | None = None,
+        on_event: EventHandler | None = None,
+    ) -> None:
+        self.feed = feed
+        self.config = config
+        self.streamer = DncStreamer(config)
+        self.clock = clock
+        self.progress = progress
+        self.on_event = on_event
+        self.started = clock()
+        self._lines = iter(feed)
+        self._exhausted = False
+        self._low_water = config.chunk * 4
+        self._paused_at = self.started  # counts when waiting for the first XON
+        self._paused_total = 0.0
+        self._timer_serial = -1
+        self._deadline = float("inf")
+
+    def fill(self) -> None:
+        """Read program lines until a few chunks are queued (constant memory)."""
+        streamer = self.streamer
+        while not self._exhausted and streamer.pending < self._low_water:
+            try:
+                streamer.queue(next(self._lines))
+            except StopIteration:
+                self._exhausted = True
+
+    @property
+    def finished(self) -> bool:
+        """Every byte of the program was handed out."""
+        return self._exhausted and self.streamer.pending == 0
+
+    def incoming(self, data: bytes) -> None:
+        """Bytes from the control (flow control, or anything else it sends)."""
+        self.streamer.receive_data(data)
+        while (event := self.streamer.next_event()) is not None:
+            if isinstance(event, Paused):
+                self._paused_at = self.clock()
+            else:
+                self._paused_total += self.clock() - self._paused_at
+            if self.on_event is not None:
+                self.on_event(event)
+
+    def outgoing(self) -> bytes:
+        """The next chunk to write (empty while paused or when done)."""
+        self.fill()
+        out = self.streamer.data_to_send()
+        if out and self.progress is not None:
+            self.progress(self.feed.position, self.feed.total)
+        return out
+
+    def wait_time(self) -> float:
+        """Seconds a paused driver may wait for input; raises once XOFF lasted too long."""
+        timer = self.streamer.timer
+        if timer is None:
+            return POLL
+        now = self.clock()
+        if timer.serial != self._timer_serial:
+            self._timer_serial, self._deadline = timer.serial, now + timer.seconds
+        if now >= self._deadline:
+            self.streamer.timed_out()
+        return max(0.001, min(POLL, self._deadline - now))
+
+    def report(self) -> DncReport:
+        """What the run did."""
+        feed, streamer = self.feed, self.streamer
+        if self.progress is not None:
+            self.progress(feed.total, feed.total)
+        return DncReport(
+            path=feed.path,
+            bytes_sent=streamer.sent,
+            lines=feed.lines,
+            xoffs=streamer.xoffs,
+            xons=streamer.xons,
+            paused_seconds=self._paused_total,
+            seconds=self.clock() - self.started,
+            restart=feed.plan,
+        )
 
 
 def _open(url: str, baud: int, parity: str, flow: Flow) -> Any:
@@ -266,6 +377,12 @@ def _open(url: str, baud: int, parity: str, flow: Flow) -> Any:
     # a held CTS must end in a clear error, not a hang
     port.write_timeout = 30.0
     return port
+
+
+def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
+    if safe_mode:
+        raise SafetyLockError(f"drip-feeding {path.name} runs it on the machine")
+    return ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
 
 
 def stream_program(
@@ -279,7 +396,7 @@ def stream_program(
     safe_mode: bool = True,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
-    clock: Callable[[], float] = time.monotonic,
+    clock: Clock = time.monotonic,
 ) -> DncReport:
     """Drip-feed ``path`` to a control in DNC mode over ``port`` (a URL or an open pyserial port).
 
@@ -288,60 +405,32 @@ def stream_program(
     :class:`TransportError`/:class:`PeerClosed` when the port fails.
     """
     cfg = config or DncConfig()
-    if safe_mode:
-        raise SafetyLockError(f"drip-feeding {path.name} runs it on the machine")
-    feed = ProgramFeed(path, eob=cfg.eob, from_line=from_line, retract=cfg.retract)
+    feed = _prepare(path, from_line, cfg, safe_mode)
     owned = isinstance(port, str)
     try:
         link: Any = _open(port, baud, parity, cfg.flow) if isinstance(port, str) else port
     except BaseException:
         feed.close()
         raise
-    streamer = DncStreamer(cfg)
-    started = clock()
-    paused_at = 0.0
-    paused_total = 0.0
-    deadline = float("inf")
-    timer_serial = -1
-    lines = iter(feed)
-    exhausted = False
-    low_water = cfg.chunk * 4
+    run = DncRun(feed, cfg, clock=clock, progress=progress, on_event=on_event)
     try:
         while True:
-            while not exhausted and streamer.pending < low_water:
-                try:
-                    streamer.queue(next(lines))
-                except StopIteration:
-                    exhausted = True
+            # look at the control's bytes before every write: a DC3 stops the next chunk
             waiting = link.in_waiting
             if waiting:
-                streamer.receive_data(link.read(waiting))
-            while (event := streamer.next_event()) is not None:
-                if isinstance(event, Paused):
-                    paused_at = clock()
-                else:
-                    paused_total += clock() - paused_at
-                if on_event is not None:
-                    on_event(event)
-            out = streamer.data_to_send()
+                run.incoming(link.read(waiting))
+            out = run.outgoing()
             if out:
                 link.write(out)
                 if cfg.drain:
                     link.flush()
-                if progress is not None:
-                    progress(feed.position, feed.total)
                 continue
-            if exhausted and streamer.pending == 0:
+            if run.finished:
                 break
-            # paused: wait for the control, with the XOFF timer on our clock
-            timer = streamer.timer
-            if timer is not None and timer.serial != timer_serial:
-                timer_serial, deadline = timer.serial, clock() + timer.seconds
-            if timer is not None and clock() >= deadline:
-                streamer.timed_out()
+            run.wait_time()  # paused; the port's read timeout (POLL) paces this loop
             data = link.read(1)
             if data:
-                streamer.receive_data(data)
+                run.incoming(data)
         link.flush()
         time.sleep(cfg.linger)
     except serial.SerialTimeoutException as exc:
@@ -349,22 +438,67 @@ def stream_program(
     except serial.SerialException as exc:
         raise PeerClosed(f"serial port failed during the drip-feed: {exc}") from exc
     except OSError as exc:
-        raise TransportError(
-            f"serial port failed during the drip-feed: {os.strerror(exc.errno or 0)}"
-        ) from exc
+        reason = os.strerror(exc.errno or 0)
+        raise TransportError(f"serial port failed during the drip-feed: {reason}") from exc
     finally:
         feed.close()
         if owned:
             link.close()
-    if progress is not None:
-        progress(feed.total, feed.total)
-    return DncReport(
-        path=path,
-        bytes_sent=streamer.sent,
-        lines=feed.lines,
-        xoffs=streamer.xoffs,
-        xons=streamer.xons,
-        paused_seconds=paused_total,
-        seconds=clock() - started,
-        restart=feed.plan,
-    )
+    return run.report()
+
+
+async def stream_program_async(
+    reader: asyncio.StreamReader,
+    writer: asyncio.StreamWriter,
+    path: Path,
+    *,
+    from_line: int = 1,
+    config: DncConfig | None = None,
+    safe_mode: bool = True,
+    progress: Progress | None = None,
+    on_event: EventHandler | None = None,
+) -> DncReport:
+    """:func:`stream_program` over asyncio streams (e.g. a serial server reached over TCP).
+
+    A reader task takes the control's bytes as they come; the writer sends one chunk at a
+    time and yields in between, so a DC3 stops it before the next chunk.
+    """
+    cfg = config or DncConfig()
+    feed = _prepare(path, from_line, cfg, safe_mode)
+    run = DncRun(feed, cfg, progress=progress, on_event=on_event)
+    news = asyncio.Event()
+    closed = False
+
+    async def read_control() -> None:
+        nonlocal closed
+        while data := await reader.read(4096):
+            run.incoming(data)
+            news.set()
+        closed = True
+        news.set()
+
+    reading = asyncio.create_task(read_control())
+    try:
+        while True:
+            out = run.outgoing()
+            if out:
+                writer.write(out)
+                await writer.drain()
+                await asyncio.sleep(0)  # let the reader task see a DC3 first
+                continue
+            if run.finished:
+                break
+            if closed:
+                raise PeerClosed(f"the control closed the link after {run.streamer.sent} bytes")
+            news.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(news.wait(), run.wait_time())
+        await asyncio.sleep(cfg.linger)
+    except OSError as exc:
+        raise TransportError(f"link failed during the drip-feed: {exc}") from exc
+    finally:
+        reading.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await reading
+        feed.close()
+    return run.report()

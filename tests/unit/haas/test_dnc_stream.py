@@ -71,6 +71,16 @@ def test_no_timer_without_timeout_and_flow_none_ignores_xoff() -> None:
         DncStreamer(DncConfig(chunk=0))
 
 
+def test_wait_for_the_first_xon() -> None:
+    streamer = DncStreamer(DncConfig(wait_for_xon=True, xoff_timeout=2))
+    streamer.queue(b"%\n")
+    assert streamer.data_to_send() == b""
+    with pytest.raises(TransportTimeout, match="no XON from the control within 2 s"):
+        streamer.timed_out()
+    streamer.receive_data(b"\x11")
+    assert streamer.data_to_send() == b"%\n"
+
+
 def _feed(path: Path, **kwargs: object) -> list[bytes]:
     feed = ProgramFeed(path, **kwargs)  # type: ignore[arg-type]
     try:

@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import serial
 
-from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
+from opendnc.errors import DncError, InputError, PeerClosed
 from opendnc.haas.machine import Alarm
 from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
@@ -317,9 +317,7 @@ class SerialFrontEnd:
                         return
                     continue
             try:
-                data = self.port.read(4096)
-            except TransportTimeout:
-                data = b""
+                data = self._read_chunk()
             except PeerClosed as exc:
                 run.link_lost(f"port closed: {exc}")
                 raise _Abort("DNC link lost (port closed)") from exc
@@ -337,6 +335,21 @@ class SerialFrontEnd:
             if self._interrupt.is_set() and run.session is None:
                 raise Interrupted("another serial mode was selected")
         run.wait_finished(self._stop)
+
+    def _read_chunk(self) -> bytes:
+        """Up to 4 KiB of a drip-feed; ``b""`` after a poll period without data.
+
+        Reads the pyserial port directly: its ``in_waiting`` is exact on a device or pty, but
+        only 0/1 on ``socket://``, where a full-size read (ended by the port timeout) keeps a
+        streamed program from trickling in two bytes per call.
+        """
+        assert self.port is not None
+        port = self.port.port
+        try:
+            waiting = int(port.in_waiting)
+            return bytes(port.read(waiting if waiting > 1 else 4096))
+        except (serial.SerialException, OSError) as exc:
+            raise PeerClosed(f"{self.url}: {exc}") from exc
 
     def _input_waiting(self) -> bool:
         port = self.port.port if self.port is not None else None
