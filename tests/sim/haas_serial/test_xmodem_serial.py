@@ -139,3 +139,9 @@ def test_punch_ignoring_the_first_nak(bench_factory: Callable[..., Bench], tmp_p
     assert time.monotonic() - started >= 0.3  # the transfer began on the second NAK
     assert _normalise(back.read_bytes()) == PROGRAM.encode()
     bench.wait(lambda: bench.front.messages == ["RS232 DONE"])
+
+
+def test_xmodem_refused_with_parity(bench_factory: Callable[..., Bench]) -> None:
+    bench = bench_factory(SerialOptions(baud=115200, parity="E", mode=parse_mode("receive")))
+    bench.wait(lambda: bool(bench.front.messages))
+    assert bench.front.messages[0] == "RS232 ABORT XMODEM needs parity N (Setting 12)"

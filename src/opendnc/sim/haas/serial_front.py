@@ -262,6 +262,11 @@ class SerialFrontEnd:
     def _run_job(self, selection: Selection) -> None:
         mode = selection.mode
         assert self.port is not None
+        xmodem = mode in (SerialMode.PUNCH, SerialMode.RECEIVE, SerialMode.DNC_XMODEM)
+        if xmodem and self.options.parity.upper() != "N":
+            # Haas: XMODEM needs parity None and 8 data bits
+            self._stop.wait(ERROR_BACKOFF)
+            raise _Abort("XMODEM needs parity N (Setting 12)")
         if mode is SerialMode.PUNCH:
             assert selection.program is not None
             number = selection.program
@@ -346,7 +351,7 @@ class SerialFrontEnd:
         assert self.port is not None
         port = self.port.port
         try:
-            waiting = int(port.in_waiting)
+            waiting = int(getattr(port, "in_waiting", 0))
             return bytes(port.read(waiting if waiting > 1 else 4096))
         except (serial.SerialException, OSError) as exc:
             raise PeerClosed(f"{self.url}: {exc}") from exc
