@@ -48,6 +48,12 @@ from opendnc.lsv2.messages import (
 
 __all__ = ["BytesHook", "Direction", "Lsv2Connection", "Role", "State", "TraceHook"]
 
+# Telegrams without a payload have the same 8 wire bytes every time; T_OK alone is sent once
+# per file block, so it is worth not packing it again (they fit any buffer size).
+_FIXED_WIRE: dict[type[Message], bytes] = {
+    cls: HEADER.pack(0, cls.MNEMONIC_BYTES) for cls in (Ok, FileDone)
+}
+
 Direction = Literal["send", "recv"]
 TraceHook = Callable[[Direction, Message], None]
 BytesHook = Callable[[Direction, bytes], None]
@@ -98,20 +104,22 @@ class Lsv2Connection:
 
     def send(self, message: Message) -> bytes:
         """Return the wire bytes of ``message`` (header and payload in one string)."""
-        payload = message.to_payload()
-        size = HEADER_SIZE + len(payload)
-        if size > self.buffer_size:
-            raise LocalProtocolError(
-                f"{message.mnemonic} of {size} bytes exceeds the buffer of {self.buffer_size}"
-            )
+        wire = _FIXED_WIRE.get(type(message))
+        if wire is None:
+            payload = message.to_payload()
+            size = HEADER_SIZE + len(payload)
+            if size > self.buffer_size:
+                raise LocalProtocolError(
+                    f"{message.mnemonic} of {size} bytes exceeds the buffer of {self.buffer_size}"
+                )
+            name = message.MNEMONIC_BYTES or message.mnemonic.encode("ascii")
+            wire = HEADER.pack(len(payload), name) + payload
         if self.role is Role.CLIENT:
             self._client_sent(message)
         else:
             self._server_sent(message)
         if self.on_message is not None:
             self.on_message("send", message)
-        name = message.MNEMONIC_BYTES or message.mnemonic.encode("ascii")
-        wire = HEADER.pack(len(payload), name) + payload
         if self.on_bytes is not None:
             self.on_bytes("send", wire)
         return wire

@@ -114,8 +114,8 @@ class BlockingDriver(_DriverBase):
         if message is None:
             return self._wait_notice(timeout)
         self.stream.write(conn.send(message))
-        if not conn.expects_reply(message):
-            return None
+        if conn.state is not State.WAITING:
+            return None  # e.g. T_FD without secure send: the control stays silent
         if timeout != self._read_timeout:
             self.stream.set_timeout(timeout)
             self._read_timeout = timeout
@@ -285,8 +285,8 @@ class AsyncDriver(_DriverBase):
         if message is None:
             return await self._wait_notice(timeout)
         await self._link.write(conn.send(message))
-        if not conn.expects_reply(message):
-            return None
+        if conn.state is not State.WAITING:
+            return None  # e.g. T_FD without secure send: the control stays silent
         while (reply := conn.next_event()) is None:
             conn.receive_data(await self._link.read(timeout))
         return reply

@@ -90,16 +90,29 @@ class TelegramFramer:
 
     def __init__(self, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
         self._buf = bytearray()
+        # A read usually holds exactly one telegram. Such a chunk is kept as it came, so its
+        # payload is cut out with one copy instead of going through the bytearray (append,
+        # slice, bytes(), delete): at thousands of 4 KiB blocks a second that is measurable.
+        self._chunk = b""
         self.max_payload = max_payload
 
     def feed(self, data: bytes) -> None:
         """Append received bytes."""
+        if not self._buf and not self._chunk:
+            self._chunk = bytes(data)
+            return
+        self._spill()
         self._buf += data
+
+    def _spill(self) -> None:
+        if self._chunk:
+            self._buf += self._chunk
+            self._chunk = b""
 
     @property
     def buffered(self) -> int:
         """Number of bytes received but not yet returned as frames."""
-        return len(self._buf)
+        return len(self._buf) + len(self._chunk)
 
     def next_frame(self) -> Frame | None:
         """Return the next complete frame, or ``None`` if more bytes are needed.
@@ -107,6 +120,15 @@ class TelegramFramer:
         The frame's bytes are consumed before its name is checked, so after an error the
         framer continues with the following telegram.
         """
+        chunk = self._chunk
+        if chunk:
+            if len(chunk) >= HEADER_SIZE:
+                length, raw = HEADER.unpack_from(chunk)
+                end = HEADER_SIZE + length
+                if end == len(chunk) and length <= self.max_payload:
+                    self._chunk = b""
+                    return Frame(_check_name(raw), chunk[HEADER_SIZE:])
+            self._spill()  # a partial or several telegrams: take the general path
         buf = self._buf
         if len(buf) < HEADER_SIZE:
             return None

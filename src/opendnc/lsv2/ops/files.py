@@ -67,6 +67,7 @@ Progress = Callable[[int, int | None], None]
 """Progress callback: bytes done, total bytes (``None`` if unknown)."""
 
 _MISSING = (32, 55)  # T_ER_NO_FILE, T_ER_NO_DIR
+_NEXT = Ok()  # "send the next block": one shared immutable value per download block
 
 
 @dataclass(frozen=True, slots=True)
@@ -355,9 +356,11 @@ def upload(
     done, total = 0, len(data)
     if progress is not None:
         progress(0, total)
+    context = f"upload {remote}"
     for block in blocks(payload, state.data_limit):
         reply = yield FileData(block)
-        expect(reply, Ok, f"upload {remote}")
+        if type(reply) is not Ok:
+            refuse(reply, context)
         if progress is not None:
             done += len(block)
             try:
@@ -407,5 +410,5 @@ def download(
             # the sequence so the session stays usable, then report the failure.
             yield BlockDefect()
             raise
-        reply = yield Ok()
+        reply = yield _NEXT
     return done
