@@ -214,11 +214,10 @@ def file_block(s: Session, m: FileData) -> list[Message]:
         raise Refuse(E.T_ER_UNEXPECTED_TELE)
     data = m.data if up.binary else from_wire_ascii(m.data)
     try:
-        os.write(up.fd, data)
+        up.add(data)
     except OSError:
         s.abort_upload()
         return [block_defect(E.T_BD_NO_FREE_SPACE)]
-    up.size += len(data)
     return [OK]
 
 
@@ -230,7 +229,10 @@ def file_done(s: Session, m: FileDone) -> list[Message]:
         return [Refused(E.T_ER_UNEXPECTED_TELE)] if s.secure_send else []
     s.upload = None
     try:
-        os.close(up.fd)
+        try:
+            up.flush()
+        finally:
+            os.close(up.fd)
         s.control.fs.commit_partial(up.partial, up.target, up.overwrite)
     except (OSError, FsError) as exc:
         up.partial.unlink(missing_ok=True)

@@ -44,6 +44,7 @@ class Priv(Enum):
 
 INSPECT_LEVEL = frozenset({"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG", "DATA"})
 FILE_LOGINS = {"TNC:": "FILE", "PLC:": "FILEPLC", "SYS:": "FILESYS", "LOG:": "FILELOG"}
+_FILE_LEVEL = frozenset(FILE_LOGINS.values())
 
 
 class Refuse(Exception):
@@ -68,9 +69,17 @@ OK = Ok()
 DONE = FileDone()
 
 
+#: Upload bytes collected before one write to the partial file.
+UPLOAD_BUFFER = 1 << 20
+
+
 @dataclass(slots=True)
 class Upload:
-    """An upload in progress: data goes to a hidden partial file, renamed on ``T_FD``."""
+    """An upload in progress: data goes to a hidden partial file, renamed on ``T_FD``.
+
+    Blocks are collected in memory and written once per :data:`UPLOAD_BUFFER` bytes: a write
+    syscall per 4 KiB block sat between every ``S_FL`` and its ``T_OK``.
+    """
 
     target: WirePath
     partial: Path
@@ -78,6 +87,24 @@ class Upload:
     binary: bool
     overwrite: bool
     size: int = 0
+    pending: list[bytes] = field(default_factory=list)
+    pending_size: int = 0
+
+    def add(self, data: bytes) -> None:
+        """Take one block; raises ``OSError`` if writing the collected bytes fails."""
+        self.pending.append(data)
+        self.pending_size += len(data)
+        self.size += len(data)
+        if self.pending_size >= UPLOAD_BUFFER:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the collected bytes to the partial file."""
+        view = memoryview(b"".join(self.pending))
+        self.pending.clear()
+        self.pending_size = 0
+        while view:
+            view = view[os.write(self.fd, view) :]
 
 
 @dataclass(slots=True)
@@ -142,7 +169,7 @@ class Session:
             case Priv.INSPECT:
                 return bool(have & INSPECT_LEVEL)
             case Priv.FILE:
-                return bool(have & set(FILE_LOGINS.values()))
+                return not have.isdisjoint(_FILE_LEVEL)
             case Priv.MONITOR:
                 return bool(have & {"MONITOR", "DIAGNOSTICS"})
             case Priv.DIAGNOSTICS:
