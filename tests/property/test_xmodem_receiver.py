@@ -40,7 +40,9 @@ def near_valid_stream(draw: st.DrawFn) -> tuple[list[bytes], set[bytes]]:
                 raw = raw[: draw(st.integers(0, len(raw)))]
             pieces.append(bytes(raw))
         elif kind == "control":
-            pieces.append(bytes(draw(st.lists(st.sampled_from([EOT, CAN]), min_size=1, max_size=3))))
+            pieces.append(
+                bytes(draw(st.lists(st.sampled_from([EOT, CAN]), min_size=1, max_size=3)))
+            )
         else:
             pieces.append(draw(st.binary(min_size=1, max_size=40)))
     return pieces, payloads
@@ -98,7 +100,9 @@ def test_receiver_never_crashes(
     mode=st.sampled_from(list(Mode)),
     size=st.integers(1, 3000),
 )
-def test_sender_never_crashes(answers: list[bytes], ticks: list[bool], mode: Mode, size: int) -> None:
+def test_sender_never_crashes(
+    answers: list[bytes], ticks: list[bool], mode: Mode, size: int
+) -> None:
     sender = XmodemSender(bytes(size), mode)
     for i, answer in enumerate(answers):
         sender.receive_data(answer)

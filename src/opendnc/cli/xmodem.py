@@ -27,7 +27,7 @@ app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14
 PORT_HELP = "Serial device or pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, rfc2217://..."
 
 
-def _progress(total: int | None) -> Progress:
+def _progress() -> Progress:
     columns = [
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -65,7 +65,7 @@ def send_cmd(
     config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
     with cli_errors():
         size = file.stat().st_size
-        with _progress(size) as bar:
+        with _progress() as bar:
             task = bar.add_task(f"send {file.name}", total=size)
             report = send_file(
                 port,
@@ -118,7 +118,7 @@ def recv_cmd(
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )
-    with cli_errors(), _progress(None) as bar:
+    with cli_errors(), _progress() as bar:
         task = bar.add_task("receive", total=None)
         report = receive_file(
             port,

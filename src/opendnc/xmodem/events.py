@@ -116,6 +116,9 @@ class EngineBase:
     """Outgoing bytes, pending events, the timer and the finished/error state."""
 
     def __init__(self) -> None:
+        # Outgoing bytes: a single chunk waits in _pending and goes out without a copy (the
+        # common case: one block or one ACK per step); more chunks are joined in _out.
+        self._pending: bytes | None = None
         self._out = bytearray()
         self._events: deque[Event] = deque()
         self._timer_serial = 0
@@ -126,11 +129,24 @@ class EngineBase:
 
     def data_to_send(self) -> bytes:
         """Bytes to write to the peer now (possibly empty)."""
+        pending = self._pending
+        if pending is not None:
+            self._pending = None  # _out is always empty while a chunk is pending
+            return pending
         if not self._out:
             return b""
         out = bytes(self._out)
         self._out.clear()
         return out
+
+    def _emit(self, data: bytes) -> None:
+        if self._pending is None and not self._out:
+            self._pending = data
+            return
+        if self._pending is not None:
+            self._out += self._pending
+            self._pending = None
+        self._out += data
 
     def next_event(self) -> Event | None:
         """The next event, or ``None`` when there is none."""
@@ -148,7 +164,7 @@ class EngineBase:
 
     def _fail(self, error: DncError, *, cancel_peer: bool) -> None:
         if cancel_peer:
-            self._out += CANCEL_BYTES
+            self._emit(CANCEL_BYTES)
         self.finished = True
         self.timer = None
         self.error = error

@@ -49,6 +49,7 @@ class ReceiverConfig:
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
 
 
+_ACK, _NAK, _C = bytes((ACK,)), bytes((NAK,)), bytes((CRC_REQUEST,))
 _STARTERS = (b"\x01", b"\x02", b"\x04", b"\x18")  # SOH, STX, EOT, CAN
 
 
@@ -208,10 +209,10 @@ class XmodemReceiver(EngineBase):
             self._blocks += 1
             self._expected = (expected + 1) & 0xFF
             self._errors = 0
-            self._out.append(ACK)
+            self._emit(_ACK)
         elif self._blocks and seq == ((expected - 1) & 0xFF):
             self._events.append(Duplicate(seq))
-            self._out.append(ACK)
+            self._emit(_ACK)
         else:
             self._fail(
                 RemoteProtocolError(
@@ -235,7 +236,7 @@ class XmodemReceiver(EngineBase):
                 self._nak("single CAN")
             return
         # EOT: the file is complete
-        self._out.append(ACK)
+        self._emit(_ACK)
         if self._blocks == 0:
             self._fail(
                 TransferError("the sender ended the session (EOT) before sending any block"),
@@ -258,7 +259,7 @@ class XmodemReceiver(EngineBase):
         if self.crc and cfg.crc_tries and self._requests >= cfg.crc_tries:
             self.crc = False  # the sender did not answer 'C': try the original checksum mode
         self._requests += 1
-        self._out.append(CRC_REQUEST if self.crc else NAK)
+        self._emit(_C if self.crc else _NAK)
         self._arm(min(cfg.start_interval, max(cfg.start_timeout - self._waited, 0.001)))
 
     def _purge(self, reason: str = "line noise") -> None:
@@ -279,5 +280,5 @@ class XmodemReceiver(EngineBase):
             return
         self._events.append(Retry(self._expected, self._errors, reason))
         self.state = ReceiverState.RECEIVING
-        self._out.append(NAK if self._blocks or not self.crc else CRC_REQUEST)
+        self._emit(_NAK if self._blocks or not self.crc else _C)
         self._arm(self.config.block_timeout)

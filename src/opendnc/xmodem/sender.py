@@ -40,6 +40,7 @@ from opendnc.xmodem.framing import (
 # A remainder longer than this goes as one 1K block: seven 128-byte blocks plus their
 # ACKs are shorter on the wire than one 1029-byte block, eight are not.
 _TAIL_SMALL_LIMIT = 7 * SMALL
+_EOT = bytes((EOT,))
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,6 +116,10 @@ class XmodemSender(EngineBase):
             return
         if self.state is SenderState.WAIT_START:
             self._on_start_bytes(data)
+            return
+        if data == b"\x06" and self.state is SenderState.WAIT_ACK:  # the hot path: one ACK
+            self._cans = 0
+            self._on_ack()
             return
         for byte in data:
             if self.finished:
@@ -249,7 +254,7 @@ class XmodemSender(EngineBase):
             self._large_allowed = False
             self._events.append(FallbackToSmall(self._seq))
             self._build_block()
-        self._out += self._block
+        self._emit(self._block)
         self._arm(self.config.ack_timeout)
 
     def _on_cancel(self) -> None:
@@ -287,12 +292,12 @@ class XmodemSender(EngineBase):
             return
         self.state = SenderState.WAIT_ACK
         self._build_block()
-        self._out += self._block
+        self._emit(self._block)
         self._arm(self.config.ack_timeout)
 
     def _send_eot(self) -> None:
         self.state = SenderState.WAIT_EOT_ACK
-        self._out.append(EOT)
+        self._emit(_EOT)
         self._arm(self.config.eot_timeout)
 
     def _done(self, answer: EotAnswer) -> None:
