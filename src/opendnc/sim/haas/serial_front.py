@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import serial
 
-from opendnc.errors import DncError, InputError, PeerClosed
+from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
 from opendnc.haas.machine import Alarm
 from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
@@ -216,8 +216,14 @@ class SerialFrontEnd:
             except BaseException as exc:  # handed back to the caller's thread
                 future.set_exception(exc)
 
-        self._loop.call_soon_threadsafe(run)
-        return future.result(10.0)
+        try:
+            self._loop.call_soon_threadsafe(run)
+        except RuntimeError as exc:  # the loop is already closed
+            raise TransportTimeout("the simulator's event loop has stopped") from exc
+        try:
+            return future.result(10.0)
+        except concurrent.futures.TimeoutError as exc:
+            raise TransportTimeout("the simulator's event loop did not answer") from exc
 
     def post(self, func: Callable[[], object]) -> None:
         """Run ``func`` on the simulator's loop, in order with other posts, without waiting."""
