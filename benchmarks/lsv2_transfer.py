@@ -1,12 +1,19 @@
 """Benchmark: LSV2 file transfer speed, opendnc's Client vs pyLSV2, against the virtual TNC.
 
-The simulator runs in its own process (``opendnc sim tnc --port 0``), so both clients meet
-the same server cost. Each client moves one binary file (default 20 MiB) down and up at the
-largest buffer the control offers, several times; the script prints the median MB/s per
-client and direction, the ratio ours/pyLSV2, and the protocol ceiling of this link:
-payload per telegram divided by the measured round trip of a one-telegram request.
+The simulator runs in its own process (``opendnc sim tnc --port 0``), so all clients meet
+the same server cost. Each client moves one binary file (default 20 MiB) up and down at the
+largest buffer the control offers; the clients take turns, in a rotating order, once per
+repetition. The script prints every run's MB/s, the medians, the ratio ours/pyLSV2 (median
+of the per-repetition ratios and ratio of the medians), the ceiling of this link (payload per
+telegram divided by the round trip of a bare-socket client that only frames telegrams), the
+CPU time per block of each client and of the simulator, and the host's load average.
 
-    .venv/bin/python benchmarks/lsv2_transfer.py --size-mib 20 --repeat 3
+Transfers are stop-and-wait (one round trip per 4 KiB block), so every block costs the
+simulator's turnaround plus the client's and, without pinning, a cross-CPU wake-up whose
+cost varies run to run on a 2-CPU VM; ``--pin same`` removes that noise by putting clients
+and simulator on one CPU.
+
+    .venv/bin/python benchmarks/lsv2_transfer.py --size-mib 20 --repeat 7 [--pin same]
 """
 
 from __future__ import annotations
@@ -166,39 +173,40 @@ def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, li
     return times
 
 
-def round_trip(port: int, count: int) -> tuple[float, int]:
-    """Median seconds of the cheapest request/answer pair (``R_ST`` -> ``S_ST``, 8 + 20
-    bytes, no work on the control) over a bare socket, and the data bytes per ``S_FL``."""
-    sock = socket.create_connection(("127.0.0.1", port))
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    sock.sendall(_telegram(b"A_LG", b"INSPECT\0"))
-    assert _answer(sock)[0] == b"T_OK"
-    request = _telegram(b"R_ST")
-    samples = []
-    for _ in range(count):
-        started = time.perf_counter()
-        sock.sendall(request)
-        _answer(sock)
-        samples.append(time.perf_counter() - started)
-    sock.close()
-    return statistics.median(samples), 4096 - 10
+def server_cpu(pid: int) -> float:
+    """CPU seconds (user + system) the simulator process has used so far (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size-mib", type=float, default=20.0)
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=7)
     parser.add_argument("--profile", action="store_true", help="cProfile our client once.")
+    parser.add_argument(
+        "--pin",
+        choices=("none", "same", "split"),
+        default="none",
+        help="CPU affinity of clients and simulator: 'same' puts both on CPU 0 (round trip ="
+        " sum of their CPU costs, no cross-CPU wake-ups), 'split' puts them on CPUs 0 and 1.",
+    )
     args = parser.parse_args()
 
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="lsv2-bench-") as tmp:
         work = Path(tmp)
         local = work / "payload.bin"
         local.write_bytes(os.urandom(int(args.size_mib * 1024 * 1024)))
         size = local.stat().st_size
         proc, port = start_server(work / "root")
+        if args.pin != "none":
+            os.sched_setaffinity(0, {0})
+            os.sched_setaffinity(proc.pid, {0} if args.pin == "same" else {1})
         try:
-            rtt, chunk = round_trip(port, 2000)
             if args.profile:
                 import cProfile
                 import pstats
@@ -206,47 +214,76 @@ def main() -> None:
                 with cProfile.Profile() as prof:
                     bench_ours(port, local, work / "p.bin", "TNC:\\prof.bin", 1)
                 pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
-            # Interleave the clients repetition by repetition, so that load from other
-            # processes on this machine hits all of them alike.
-            ours: dict[str, list[float]] = {"down": [], "up": []}
-            theirs: dict[str, list[float]] = {"down": [], "up": []}
-            raw: dict[str, list[float]] = {"down": [], "up": []}
             data = local.read_bytes()
+            clients: dict[str, Callable[[int], dict[str, list[float]]]] = {
+                "opendnc": lambda rep: bench_ours(port, local, work / "o.bin", "TNC:\\o.bin", 1),
+                "pyLSV2": lambda rep: bench_pylsv2(port, local, work / "t.bin", "TNC:\\t.bin", 1),
+                "bare": lambda rep: bench_raw(port, data, 1, tag=rep),
+            }
+            wall: dict[str, dict[str, list[float]]] = {n: {"down": [], "up": []} for n in clients}
+            serv: dict[str, list[float]] = {name: [] for name in clients}
+            names = list(clients)
+            bench_ours(port, local, work / "w.bin", "TNC:\\w.bin", 1)  # warm-up, not counted
+            CPU.clear()
             for rep in range(args.repeat):
-                runs = [
-                    (ours, lambda: bench_ours(port, local, work / "o.bin", "TNC:\\o.bin", 1)),
-                    (theirs, lambda: bench_pylsv2(port, local, work / "t.bin", "TNC:\\t.bin", 1)),
-                    (raw, lambda rep=rep: bench_raw(port, data, 1, tag=rep)),
-                ]
-                for into, run in runs:
-                    for direction, values in run().items():
-                        into[direction].extend(values)
+                # Rotate the order every repetition, so that neither client always runs first
+                # and load from other processes on this machine hits all of them alike.
+                for name in names[rep % 3 :] + names[: rep % 3]:
+                    before = server_cpu(proc.pid)
+                    for direction, values in clients[name](rep).items():
+                        wall[name][direction].extend(values)
+                    serv[name].append(server_cpu(proc.pid) - before)
         finally:
             proc.terminate()
             proc.wait(10)
+    load_after = os.getloadavg()
 
-    print(f"file {size / MB:.1f} MB, {args.repeat} repetitions, 4096-byte telegrams, loopback")
-    print(f"telegram round trip (R_ST, bare socket, median of 2000): {rtt * 1e6:.0f} µs")
-    print(f"protocol ceiling: {chunk} B / {rtt * 1e6:.0f} µs = {chunk / rtt / MB:.1f} MB/s")
+    blocks = size / 4086
+    mbs = {n: {d: [size / t / MB for t in v] for d, v in w.items()} for n, w in wall.items()}
+    print(
+        f"file {size / MB:.1f} MB = {blocks:.0f} blocks of 4086 B (4096-byte telegrams), "
+        f"loopback, {args.repeat} repetitions, clients interleaved, CPU pinning: {args.pin}"
+    )
+    print(
+        f"host: {os.cpu_count()} CPUs, load average {load_before[0]:.2f} before, "
+        f"{load_after[0]:.2f} after (other processes skew single runs: read medians)"
+    )
     for direction in ("down", "up"):
-        a = size / statistics.median(ours[direction]) / MB
-        b = size / statistics.median(theirs[direction]) / MB
-        print(
-            f"{direction:4}: opendnc {a:6.1f} MB/s   pyLSV2 {b:6.1f} MB/s   "
-            f"ratio {a / b:4.2f}x   ({a / (chunk / rtt / MB) * 100:.0f}% of ceiling)"
-        )
+        print(f"{direction}:")
+        for name in names:
+            runs = " ".join(f"{v:5.1f}" for v in mbs[name][direction])
+            print(
+                f"  {name:8} median {statistics.median(mbs[name][direction]):6.1f} MB/s  [{runs}]"
+            )
+    print("ratio opendnc / pyLSV2 (median of per-repetition ratios; ratio of medians):")
+    ok = True
     for direction in ("down", "up"):
-        a = size / statistics.median(ours[direction]) / MB
-        r = size / statistics.median(raw[direction]) / MB
-        b = size / statistics.median(theirs[direction]) / MB
-        print(
-            f"{direction:4}: bare socket loop {r:6.1f} MB/s (= {r / b:4.2f}x pyLSV2): "
-            f"the best any client can do here; opendnc reaches {a / r * 100:.0f}% of it"
+        paired = [
+            a / b for a, b in zip(mbs["opendnc"][direction], mbs["pyLSV2"][direction], strict=True)
+        ]
+        of_medians = statistics.median(mbs["opendnc"][direction]) / statistics.median(
+            mbs["pyLSV2"][direction]
         )
-    telegrams = size / chunk
+        ok &= of_medians >= 1.5
+        print(
+            f"  {direction:4} {statistics.median(paired):4.2f}x; {of_medians:4.2f}x  "
+            f"(per repetition: {' '.join(f'{r:4.2f}' for r in paired)})"
+        )
+    rtt = {d: size / (statistics.median(mbs["bare"][d]) * MB) / blocks for d in ("down", "up")}
+    for direction in ("down", "up"):
+        ceiling = 4086 / rtt[direction] / MB
+        ours = statistics.median(mbs["opendnc"][direction])
+        print(
+            f"ceiling {direction:4}: 4086 B / {rtt[direction] * 1e6:.0f} µs round trip of a "
+            f"bare-socket client = {ceiling:.1f} MB/s; opendnc reaches {ours / ceiling:.0%}"
+        )
     for key, values in CPU.items():
-        per = statistics.median(values) / telegrams * 1e6
+        per = statistics.median(values) / blocks * 1e6
         print(f"client CPU {key:11}: {statistics.median(values):.3f} s ({per:.0f} µs per block)")
+    for name in names:
+        per = statistics.median(serv[name]) / (2 * blocks) * 1e6
+        print(f"simulator CPU serving {name:8}: {per:.0f} µs per block (both directions)")
+    print("goal (issue #2): >= 1.5x both ways:", "met" if ok else "NOT met")
 
 
 if __name__ == "__main__":
