@@ -42,6 +42,8 @@ from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from opendnc.errors import PeerClosed, TransportTimeout
+
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("checksum", "crc", "1k")
 BLOCK_SHARE = {"checksum": 128 / 133, "crc": 128 / 134, "1k": 1024 / 1030}
@@ -58,8 +60,6 @@ class _StdioStream:
         self.timeout: float | None = 0.05
 
     def read(self, max_bytes: int) -> bytes:
-        from opendnc.errors import PeerClosed, TransportTimeout
-
         if not select.select([0], [], [], self.timeout)[0]:
             raise TransportTimeout("no data")
         try:
@@ -218,33 +218,36 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
     return Run(elapsed, ok, note)
 
 
-def marginal(
-    link: Link,
-    impl: str,
-    mode: str,
-    small: int,
-    large: int,
-    repeat: int,
-    limit: float,
-) -> tuple[float | None, str]:
-    """Median payload bytes/s of (large - small) bytes over their time difference."""
-    rates: list[float] = []
-    notes: list[str] = []
+Plan = dict[str, tuple[int, int, float]]  # impl -> (small bytes, large bytes, time limit)
+
+
+def marginal(link: Link, mode: str, plan: Plan, repeat: int) -> dict[str, tuple[float | None, str]]:
+    """Median payload bytes/s of (large - small) bytes over their time difference, per impl.
+
+    The implementations take turns within each repeat, so a burst of load on the machine
+    hits all of them alike.
+    """
+    rates: dict[str, list[float]] = {impl: [] for impl in plan}
+    notes: dict[str, set[str]] = {impl: set() for impl in plan}
     for _ in range(repeat):
-        runs = [
-            transfer(link, impl, mode, random_data(small), limit),
-            transfer(link, impl, mode, random_data(large), limit),
-        ]
-        bad = [r.note for r in runs if not r.ok]
-        if bad:
-            notes += bad
-            continue
-        extra = runs[1].seconds - runs[0].seconds
-        if extra > 0:
-            rates.append((large - small) / extra)
-    if not rates:
-        return None, "; ".join(sorted(set(notes))) or "no valid run"
-    return statistics.median(rates), "; ".join(sorted(set(notes)))
+        for impl, (small, large, limit) in plan.items():
+            runs = [
+                transfer(link, impl, mode, random_data(small), limit),
+                transfer(link, impl, mode, random_data(large), limit),
+            ]
+            bad = [r.note for r in runs if not r.ok]
+            notes[impl].update(bad)
+            extra = runs[1].seconds - runs[0].seconds
+            if not bad and extra > 0:
+                rates[impl].append((large - small) / extra)
+    result: dict[str, tuple[float | None, str]] = {}
+    for impl in plan:
+        note = "; ".join(sorted(notes[impl]))
+        if rates[impl]:
+            result[impl] = (statistics.median(rates[impl]), note)
+        else:
+            result[impl] = (None, note or "no valid run")
+    return result
 
 
 def main() -> int:
@@ -272,15 +275,16 @@ def main() -> int:
     )
     pty_rates: dict[tuple[str, str], float | None] = {}
     for mode in MODES:
+        plan: Plan = {}
         for impl in impls:
-            small, large, limit = 64 * 1024, pty_large, 120.0
+            plan[impl] = (64 * 1024, pty_large, 120.0)
             if impl == "lrzsz" and mode != "1k":
                 # rx's flush race (module notes) makes these runs take minutes per MiB
-                small, large, limit = 16 * 1024, 128 * 1024, 60.0
-            rate, note = marginal(raw_pty, impl, mode, small, large, args.repeat, limit)
+                plan[impl] = (8 * 1024, 32 * 1024, 30.0)
+        for impl, (rate, note) in marginal(raw_pty, mode, plan, args.repeat).items():
             pty_rates[(impl, mode)] = rate
             shown = f"{rate / 1e6:8.2f} MB/s" if rate else "       n/a"
-            print(f"  {mode:8} {impl:8} {shown}  {note}")
+            print(f"  {mode:8} {impl:8} {shown}  {note}", flush=True)
     for mode in MODES:
         ours = pty_rates.get(("opendnc", mode))
         parts = []
@@ -299,12 +303,12 @@ def main() -> int:
     eff: dict[tuple[str, str], float | None] = {}
     for mode in MODES:
         ceiling = line_rate * BLOCK_SHARE[mode]
-        for impl in impls:
-            link = lambda: cable(args.baud)  # noqa: E731 - a fresh cable per transfer
-            rate, note = marginal(link, impl, mode, 4 * 1024, large, args.repeat, 60)
+        plan = {impl: (4 * 1024, large, 60.0) for impl in impls}
+        link = lambda: cable(args.baud)  # noqa: E731 - a fresh cable per transfer
+        for impl, (rate, note) in marginal(link, mode, plan, args.repeat).items():
             eff[(impl, mode)] = rate / ceiling if rate else None
             shown = f"{rate:8.0f} B/s {100 * rate / ceiling:5.1f} %" if rate else "     n/a"
-            print(f"  {mode:8} {impl:8} {shown} of {ceiling:6.0f}  {note}")
+            print(f"  {mode:8} {impl:8} {shown} of {ceiling:6.0f}  {note}", flush=True)
     print()
     for mode in MODES:
         ours = eff.get(("opendnc", mode))

@@ -178,9 +178,12 @@ async def run_async(
         raise
 
 
-def _sender_events(progress: Progress | None, on_event: EventHandler | None) -> EventHandler:
+def _sender_events(progress: Progress | None, on_event: EventHandler | None) -> EventHandler | None:
+    if progress is None:
+        return on_event  # nothing to translate: skip a call per event
+
     def handle(event: Event) -> None:
-        if progress is not None and isinstance(event, BlockDone):
+        if isinstance(event, BlockDone):
             progress(event.done, event.total)
         if on_event is not None:
             on_event(event)
