@@ -15,7 +15,7 @@ from typing import TypeVar
 from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, TransportTimeout
 from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
-from opendnc.lsv2.ops.base import Expect, Op, SessionState, Slow, Step
+from opendnc.lsv2.ops.base import Expect, Op, Overlap, SessionState, Slow, Step
 from opendnc.transport.base import ByteStream
 from opendnc.transport.tcp import TcpStream
 
@@ -52,6 +52,8 @@ class _DriverBase:
             self.broken = True
 
     def _unpack(self, step: Step) -> tuple[Message | None, float]:
+        if isinstance(step, Overlap):
+            return step.message, self.timeout
         if isinstance(step, Slow):
             return step.message, max(step.timeout, self.timeout)
         if isinstance(step, Expect):
@@ -114,6 +116,8 @@ class BlockingDriver(_DriverBase):
         if message is None:
             return self._wait_notice(timeout)
         self.stream.write(conn.send(message))
+        if isinstance(step, Overlap):
+            step.work()  # while the control works on its answer
         if conn.state is not State.WAITING:
             return None  # e.g. T_FD without secure send: the control stays silent
         if timeout != self._read_timeout:
@@ -285,6 +289,8 @@ class AsyncDriver(_DriverBase):
         if message is None:
             return await self._wait_notice(timeout)
         await self._link.write(conn.send(message))
+        if isinstance(step, Overlap):
+            step.work()  # while the control works on its answer
         if conn.state is not State.WAITING:
             return None  # e.g. T_FD without secure send: the control stays silent
         while (reply := conn.next_event()) is None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TypeVar
 
 import pytest
@@ -24,6 +24,7 @@ from opendnc.lsv2.messages import (
     ParametersReply,
     ReadDir,
     ReadDirInfo,
+    ReadFile,
     ReadParameters,
     ReadRunInfo,
     ReadVersion,
@@ -33,7 +34,7 @@ from opendnc.lsv2.messages import (
     SystemCommand,
     VersionReply,
 )
-from opendnc.lsv2.ops.base import Op, SessionState, Step
+from opendnc.lsv2.ops.base import Op, Overlap, SessionState, Step
 from opendnc.lsv2.ops.files import ascii_blocks
 from opendnc.lsv2.payloads import DirectoryInfo, FileEntry
 from opendnc.lsv2.runinfo import NcError
@@ -182,3 +183,56 @@ def test_tables_and_plc_files_are_locked_in_safe_mode(path: str) -> None:
         with pytest.raises(SafetyLockError):
             next(op)
     assert next(ops.upload(SessionState(logins={"FILE"}), "TNC:/nc_prog/a.h", b"x", binary=True))
+
+
+def _store_fails_on(bad: bytes) -> tuple[list[bytes], Callable[[bytes], None]]:
+    stored: list[bytes] = []
+
+    def sink(data: bytes) -> None:
+        if data == bad:
+            raise OSError("disk full")
+        stored.append(data)
+
+    return stored, sink
+
+
+def test_download_acks_each_block_before_storing_it() -> None:
+    stored, sink = _store_fails_on(b"never")
+    op = ops.download(SessionState(logins={"FILE"}), "TNC:/a.h", sink, binary=False)
+    assert next(op) == ReadFile("TNC:\\a.h", 0)
+    step = op.send(FileData(b"1 L\0"))
+    assert isinstance(step, Overlap)
+    assert step.message == Ok()
+    assert stored == []  # the T_OK goes out first; the driver stores while the answer travels
+    step.work()
+    assert stored == [b"1 L\r\n"]
+    with pytest.raises(StopIteration) as done:
+        op.send(FileDone())
+    assert done.value.value == 5
+
+
+def test_download_store_failure_stops_the_control_at_its_next_block() -> None:
+    stored, sink = _store_fails_on(b"b")
+    op = ops.download(SessionState(logins={"FILE"}), "TNC:/a.bin", sink, binary=True)
+    next(op)
+    step = op.send(FileData(b"a"))
+    assert isinstance(step, Overlap)
+    step.work()
+    step = op.send(FileData(b"b"))
+    assert isinstance(step, Overlap)
+    step.work()  # fails: recorded, not raised inside the driver
+    assert op.send(FileData(b"c")) == BlockDefect()
+    with pytest.raises(OSError, match="disk full"):
+        op.send(None)
+    assert stored == [b"a"]
+
+
+def test_download_store_failure_on_the_last_block_sends_nothing_more() -> None:
+    _, sink = _store_fails_on(b"z")
+    op = ops.download(SessionState(logins={"FILE"}), "TNC:/a.bin", sink, binary=True)
+    next(op)
+    step = op.send(FileData(b"z"))
+    assert isinstance(step, Overlap)
+    step.work()
+    with pytest.raises(OSError, match="disk full"):
+        op.send(FileDone())

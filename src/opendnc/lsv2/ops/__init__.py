@@ -1,7 +1,7 @@
 """LSV2 operations, each written once as a generator and run by the drivers of
 :mod:`opendnc.lsv2.drive` (blocking) or asyncio alike. See :mod:`opendnc.lsv2.ops.base`."""
 
-from opendnc.lsv2.ops.base import Expect, Op, SessionState, Slow, Step
+from opendnc.lsv2.ops.base import Expect, Op, Overlap, SessionState, Slow, Step
 from opendnc.lsv2.ops.extras import (
     ScopeRecording,
     operations_log,
@@ -67,6 +67,7 @@ __all__ = [
     "Expect",
     "FileInfo",
     "Op",
+    "Overlap",
     "ScopeRecording",
     "SessionState",
     "Slow",

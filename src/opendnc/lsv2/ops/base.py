@@ -9,13 +9,14 @@ so the blocking and asyncio drivers (:mod:`opendnc.lsv2.drive`) run the very sam
 
 A step is a :class:`~opendnc.lsv2.messages.Message` to send (the reply is sent back in;
 ``None`` if the protocol defines no reply, e.g. ``T_FD`` without secure send), a
-:class:`Slow` message with its own timeout, or :class:`Expect` to wait for an unsolicited
-``M_CC`` without sending anything.
+:class:`Slow` message with its own timeout, an :class:`Overlap` message with work to do
+while its answer travels, or :class:`Expect` to wait for an unsolicited ``M_CC`` without
+sending anything.
 """
 
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import NoReturn, TypeVar
 
@@ -28,6 +29,7 @@ from opendnc.lsv2.payloads import SystemParameters, Versions
 __all__ = [
     "Expect",
     "Op",
+    "Overlap",
     "SessionState",
     "Slow",
     "Step",
@@ -58,7 +60,20 @@ class Expect:
     timeout: float
 
 
-Step = Message | Slow | Expect
+@dataclass(frozen=True, slots=True)
+class Overlap:
+    """Send ``message``, call ``work()`` while its answer travels, then read the answer.
+
+    Transfers are stop-and-wait: a download block's ``T_OK`` should leave before the block is
+    stored, so that storing it overlaps with the control preparing the next one. ``work``
+    must not raise; it records a failure for the operation to act on after the answer.
+    """
+
+    message: Message
+    work: Callable[[], None]
+
+
+Step = Message | Slow | Expect | Overlap
 Op = Generator[Step, Message | None, T]
 
 
