@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -120,7 +120,7 @@ class Result:
     """What to send now and what to send later."""
 
     frames: list[Message] = field(default_factory=list)
-    deferred: list[Deferred] = field(default_factory=list)
+    deferred: Sequence[Deferred] = ()
 
 
 Handler = Callable[["Session", Any], "list[Message] | Result"]
@@ -201,8 +201,7 @@ class Session:
     # -- dispatch ---------------------------------------------------------------------------
     def handle(self, request: Message, wire_size: int) -> Result:
         """Answer one decoded request that arrived as ``wire_size`` bytes."""
-        name = request.mnemonic
-        if wire_size > self.buffer_size:
+        if wire_size > self.link.buffer_size:
             # Too large for the negotiated buffer (§7): refuse and abort a running upload.
             if self.upload is not None and isinstance(request, FileData):
                 self.abort_upload()
@@ -220,10 +219,12 @@ class Session:
                 return Result([])  # client stops a list, download or scope stream
         if self.upload is not None and not isinstance(request, FileData | FileDone | BlockDefect):
             self.abort_upload()
-        key: type[Message] | str = name if isinstance(request, Opaque) else type(request)
+        key: type[Message] | str = (
+            request.mnemonic if isinstance(request, Opaque) else type(request)
+        )
         entry = HANDLERS.get(key)
         if entry is None:
-            if name[:2] in ("S_", "T_", "M_"):
+            if request.mnemonic[:2] in ("S_", "T_", "M_"):
                 return Result([error(E.T_ER_UNEXPECTED_TELE)])  # an answer nobody asked for
             return Result([error(E.T_ER_WRONG_PARA)])  # exists, not supported here
         priv, fn = entry
