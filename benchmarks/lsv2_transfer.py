@@ -153,6 +153,7 @@ def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, li
     times: dict[str, list[float]] = {"down": [], "up": []}
     for rep in range(repeat):
         path = f"TNC:\\raw{tag}_{rep}.bin\0".encode()
+        cpu = time.process_time()
         started = time.perf_counter()
         sock.sendall(_telegram(b"C_FL", path + b"\x01"))
         assert _answer(sock)[0] == b"T_OK"
@@ -161,6 +162,8 @@ def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, li
             _answer(sock)
         sock.sendall(_telegram(b"T_FD"))  # no secure send: the control stays silent
         times["up"].append(time.perf_counter() - started)
+        CPU.setdefault("bare up", []).append(time.process_time() - cpu)
+        cpu = time.process_time()
         started = time.perf_counter()
         sock.sendall(_telegram(b"R_FL", path + b"\x01"))
         got = 0
@@ -168,6 +171,7 @@ def bench_raw(port: int, data: bytes, repeat: int, tag: int = 0) -> dict[str, li
             got += answer[1]
             sock.sendall(ok)
         times["down"].append(time.perf_counter() - started)
+        CPU.setdefault("bare down", []).append(time.process_time() - cpu)
         assert got == len(data), got
     sock.close()
     return times
