@@ -75,3 +75,22 @@ def test_serial_stream_over_pty() -> None:
 def test_serial_bad_url_is_transport_error() -> None:
     with pytest.raises(TransportError, match="cannot open"):
         SerialStream("/dev/does-not-exist-opendnc")
+
+
+def test_serial_settings_refused_by_device_is_transport_error() -> None:
+    # Once a Linux pty has parity E set, a second tcsetattr with it fails with EINVAL, which
+    # pyserial lets escape as termios.error (no OSError): it must become our typed error.
+    pair = open_pty()
+    try:
+        refused = None
+        for _ in range(3):
+            try:
+                SerialStream(pair.slave_path, 9600, parity="E", timeout=0.1).close()
+            except TransportError as exc:
+                refused = exc
+                break
+        if refused is None:
+            pytest.skip("this kernel's pty accepts parity E")
+        assert "refuses 9600 baud, 8E1" in str(refused)
+    finally:
+        pair.close()

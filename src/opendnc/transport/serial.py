@@ -6,6 +6,7 @@ Devices (``/dev/ttyUSB0``, ``COM3``), pty slaves, ``socket://host:port``,
 
 from __future__ import annotations
 
+import termios
 from typing import Any
 
 import serial
@@ -42,6 +43,13 @@ def open_serial(
         raise TransportError(f"unknown parity {parity!r}: use N, E or O") from exc
     except (serial.SerialException, ValueError, OSError) as exc:
         raise TransportError(f"cannot open serial port {url}: {exc}") from exc
+    except termios.error as exc:
+        # termios.error is no OSError: a device (a pty, for one) refusing the line settings
+        detail = exc.args[1] if len(exc.args) > 1 else exc
+        raise TransportError(
+            f"cannot open serial port {url}: it refuses {baudrate} baud, {bytesize}"
+            f"{parity.upper()}{stopbits:g} ({detail})"
+        ) from exc
 
 
 class SerialStream:
