@@ -127,6 +127,12 @@ def push(
     )
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _push_local(source: Path, folder: Path, progress: Progress | None) -> PushResult:
     final = folder / source.name
     try:
@@ -134,6 +140,8 @@ def _push_local(source: Path, folder: Path, progress: Progress | None) -> PushRe
     except OSError as exc:
         raise TransferError(f"cannot write into {folder}: {exc.strerror or exc}") from exc
     try:
+        # mkstemp creates 0600; the control and other users of the share must read the program
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as out, source.open("rb") as src:
             while chunk := src.read(CHUNK):
                 out.write(chunk)

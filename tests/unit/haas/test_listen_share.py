@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import stat
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -121,6 +123,20 @@ def test_push_to_mounted_folder(tmp_path: Path) -> None:
     assert results[0].size == 15
     assert sum(progress) == 15
     assert [p.name for p in folder.iterdir()] == ["O01234.nc"]  # no temp file left
+
+
+def test_push_to_mounted_folder_keeps_usual_permissions(tmp_path: Path) -> None:
+    # the pushed program must be readable like any file the user creates, not 0600
+    src = tmp_path / "O01234.nc"
+    src.write_bytes(b"%\nO01234\nM30\n%\n")
+    folder = tmp_path / "share"
+    folder.mkdir()
+    old = os.umask(0o022)
+    try:
+        share.push([src], share.parse_target(str(folder)))
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((folder / "O01234.nc").stat().st_mode) == 0o644
 
 
 def test_push_errors(tmp_path: Path) -> None:
