@@ -12,7 +12,7 @@ from pathlib import Path
 import typer
 
 from opendnc.cli.common import cli_errors, err_console
-from opendnc.errors import InputError
+from opendnc.errors import InputError, TransportError
 from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SERIAL_FRONT_END, SimHaas, SimOptions
 from opendnc.sim.haas.control import DprntDestination, HaasConfig
@@ -115,7 +115,13 @@ def haas(
             serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks
         )
         with contextlib.suppress(KeyboardInterrupt):
-            asyncio.run(_serve(config, root, options, serial, baud or 9600, run, serial_options))
+            try:
+                asyncio.run(
+                    _serve(config, root, options, serial, baud or 9600, run, serial_options)
+                )
+            except OSError as exc:
+                # a taken MDC/DPRNT port: asyncio's strerror names the address
+                raise TransportError(f"virtual Haas: {exc.strerror or exc}") from None
 
 
 async def _serve(

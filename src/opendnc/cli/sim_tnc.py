@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.errors import TransportError
 from opendnc.sim.tnc import PROFILES, TraceHook, serve_tnc
 
 
@@ -67,7 +68,7 @@ def tnc(
         try:
             asyncio.run(main())
         except OSError as exc:
-            err_console.print(f"[bold red]error:[/] cannot listen on {host}:{port}: {exc}")
-            raise typer.Exit(1) from None
+            # strerror is asyncio's whole sentence; str(exc) would add "[Errno 98]" before it
+            raise TransportError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         except KeyboardInterrupt:
             console.print("stopped")
