@@ -381,7 +381,7 @@ def _open(url: str, baud: int, parity: str, flow: Flow) -> Any:
 
 def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
     if safe_mode:
-        raise SafetyLockError(f"drip-feeding {path.name} runs it on the machine")
+        raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
     return ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
 
 

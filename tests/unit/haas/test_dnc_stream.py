@@ -144,5 +144,8 @@ def test_feed_errors(tmp_path: Path) -> None:
 def test_safe_mode_refuses_before_opening_anything(tmp_path: Path) -> None:
     path = tmp_path / "p.nc"
     path.write_text("%\nO1\n%\n")
-    with pytest.raises(SafetyLockError):
+    # the message reads as one sentence: "<action> can change machine behaviour and is locked"
+    with pytest.raises(
+        SafetyLockError, match=r"^drip-feeding p\.nc \(it runs on the machine\) can"
+    ):
         stream_program("/dev/does-not-exist", path)
