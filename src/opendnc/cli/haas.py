@@ -31,6 +31,7 @@ HostOpt = typer.Option("127.0.0.1", "--host", "-H", help="Control address.")
 PortOpt = typer.Option(DEFAULT_PORT, "--port", "-p", help="MDC TCP port (Setting 143).")
 TimeoutOpt = typer.Option(3.0, "--timeout", help="Seconds to wait for each reply.")
 JsonOpt = typer.Option(False, "--json", help="Print the parsed reply as JSON.")
+ResultJsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
 
 
 def parse_code(code: str) -> int:
@@ -161,7 +162,7 @@ def share_push(
     password: str | None = typer.Option(
         None, "--password", envvar="OPENDNC_SMB_PASSWORD", help="SMB password (or env)."
     ),
-    json_out: bool = JsonOpt,
+    json_out: bool = ResultJsonOpt,
 ) -> None:
     """Copy programs to a Haas Net Share; each file appears whole or not at all."""
     with cli_errors():
@@ -216,7 +217,7 @@ def dnc_cmd(
     unsafe: bool = typer.Option(
         False, "--unsafe", help="Required: the program runs on the machine."
     ),
-    json_out: bool = JsonOpt,
+    json_out: bool = ResultJsonOpt,
 ) -> None:
     """Drip-feed FILE to a control in DNC mode, with XON/XOFF handled by opendnc."""
     from rich.progress import TimeRemainingColumn
