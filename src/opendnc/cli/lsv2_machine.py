@@ -201,7 +201,9 @@ def scope_channels(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
     with cli_errors(), connect(ctx) as tnc, relabel("scope channels"):
         channels = tnc.scope_channels()
         if want_json(ctx, json_out):
-            print_json(channels)
+            # the wire pads the signal list with "-" and ""; a signal's index is its position,
+            # so only the padding at the end goes
+            print_json([{**to_jsonable(ch), "signals": _named(ch.signals)} for ch in channels])
             return
         table = Table("no", "name", "type", "interval µs", "signals")
         for ch in channels:
@@ -210,15 +212,53 @@ def scope_channels(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
         console.print(table)
 
 
-def _signal(text: str) -> ScopeSignal:
+def _named(signals: list[str] | tuple[str, ...]) -> list[str]:
+    names = list(signals)
+    while names and names[-1] in ("", "-"):
+        names.pop()
+    return names
+
+
+def _signal(text: str, channels: dict[int, ScopeChannel] | None = None) -> ScopeSignal:
+    """Parse CHANNEL[:SIGNAL[:ADDRESS]]; SIGNAL is an index or a name `scope channels` lists."""
     parts = text.split(":")
+    if not 1 <= len(parts) <= 3:
+        raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]")
     try:
-        numbers = [int(p, 0) for p in parts]
+        numbers = [int(parts[0], 0)]
+        if len(parts) > 1:
+            numbers.append(_selector(parts[1], (channels or {}).get(numbers[0])))
+        numbers.extend(int(p, 0) for p in parts[2:])
     except ValueError:
         raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]") from None
-    if not 1 <= len(numbers) <= 3:
-        raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]")
     return ScopeSignal(*numbers)
+
+
+def _signal_syntax(text: str) -> None:
+    # checked before connecting, so a typo fails fast; names are resolved once connected
+    parts = text.split(":")
+    if not 1 <= len(parts) <= 3 or not all(p.strip() for p in parts):
+        raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]")
+    try:
+        for number in (parts[0], *parts[2:]):
+            int(number, 0)
+    except ValueError:
+        raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]") from None
+
+
+def _selector(text: str, channel: ScopeChannel | None) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        if channel is None:
+            raise
+    names = [name.upper() for name in channel.signals]
+    if text.upper() not in names:
+        raise InputError(
+            f"channel {channel.number} ({channel.name}) has no signal {text!r}: "
+            f"use one of {' '.join(_named(channel.signals))}"
+        )
+    return names.index(text.upper())
 
 
 def _signal_name(signal: ScopeSignal, channel: ScopeChannel | None) -> str:
@@ -234,16 +274,21 @@ def scope_record(
     ctx: typer.Context,
     out: Path = typer.Argument(..., help="CSV file for the samples."),
     signal: list[str] = typer.Option(
-        ..., "--signal", "-s", help="CHANNEL[:SIGNAL[:ADDRESS]], repeatable."
+        ...,
+        "--signal",
+        "-s",
+        help="CHANNEL[:SIGNAL[:ADDRESS]], repeatable; SIGNAL by index or name (0:X).",
     ),
     interval: int = typer.Option(21000, "--interval", help="Sampling interval in µs."),
     blocks: int = typer.Option(1, "--blocks", help="Blocks of 32 samples."),
 ) -> None:
     """Record scope signals into a CSV file (iTNC 530)."""
     with cli_errors():
-        signals = [_signal(s) for s in signal]
+        for s in signal:
+            _signal_syntax(s)
         with connect(ctx) as tnc, relabel("scope record"):
             channels = {ch.number: ch for ch in tnc.scope_channels()}
+            signals = [_signal(s, channels) for s in signal]
             rec = tnc.scope_record(signals, interval=interval, blocks=blocks)
         buf = io.StringIO()
         writer = csv.writer(buf)
