@@ -18,8 +18,9 @@ from rich.markup import escape
 
 from opendnc.errors import DncError
 
-console = Console()
-err_console = Console(stderr=True)
+# no emoji codes: user text such as a scope signal "0:X:1" or a path must print as typed
+console = Console(emoji=False)
+err_console = Console(stderr=True, emoji=False)
 
 
 def to_jsonable(value: Any) -> Any:
