@@ -7,6 +7,7 @@ File and session commands live here, machine-data commands in :mod:`opendnc.cli.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import typer
@@ -91,8 +92,19 @@ def info(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
             return
         table = Table(show_header=False, title=f"{v.model} at {tnc.host}:{tnc.port}")
         for key, value in data.items():
-            table.add_row(key.replace("_", " "), "n/a" if value is None else str(value))
+            table.add_row(key.replace("_", " "), _readable(value))
         console.print(table)
+
+
+def _readable(value: object) -> str:
+    # a nested result (system info) as "name=value" pairs, not as its Python repr
+    if value is None:
+        return "n/a"
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return "  ".join(
+            f"{f.name}={_readable(getattr(value, f.name))}" for f in dataclasses.fields(value)
+        )
+    return str(value)
 
 
 @app.command("ls")
@@ -205,7 +217,21 @@ def _transfer_many(
                     moved = tnc.upload(source, target, binary=binary, progress=report)
             base += size
             progress.update(task, completed=base)
-            console.print(f"{verb} {source} -> {target} ({moved:,} bytes)", highlight=False)
+            landed = _landed(source, target, download=download)
+            console.print(f"{verb} {source} -> {landed} ({moved:,} bytes)", highlight=False)
+
+
+def _landed(source: str, target: str, *, download: bool) -> str:
+    """Where ``source`` ends up when copied to ``target`` (a file name or a folder)."""
+    if download:
+        local = Path(target)
+        if local.is_dir():
+            name = source.replace("\\", "/").rsplit("/", 1)[-1].rsplit(":", 1)[-1]
+            return str(local / name)
+        return target
+    if target.endswith(("/", "\\", ":")):
+        return target + Path(source).name
+    return target
 
 
 @app.command("mkdir")
