@@ -10,7 +10,7 @@ import typer
 
 from opendnc.cli.common import cli_errors, console, err_console
 from opendnc.errors import TransportError
-from opendnc.sim.tnc import PROFILES, TraceHook, serve_tnc
+from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
 
 
 def tnc(
@@ -66,7 +66,8 @@ def tnc(
 
     with cli_errors():
         try:
-            asyncio.run(main())
+            with asyncio.Runner(loop_factory=new_event_loop) as runner:
+                runner.run(main())
         except OSError as exc:
             # strerror is asyncio's whole sentence; str(exc) would add "[Errno 98]" before it
             raise TransportError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None

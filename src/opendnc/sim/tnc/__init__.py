@@ -49,13 +49,16 @@ Driving the machine from a test (on the simulator thread via ``tnc.call``)::
 Files: ``ROOT/TNC``, ``ROOT/PLC``, ``ROOT/SYS``, ``ROOT/LOG`` hold the drives; uploads in
 progress live in ``ROOT/.partial`` and are renamed into place only on ``T_FD``; machine
 parameters persist in ``ROOT/.state``.
+
+Event loop: with the optional ``uvloop`` package (``pip install opendnc[sim]``) ``start_tnc``
+and ``opendnc sim tnc`` run on uvloop, else on asyncio's loop (:func:`new_event_loop`).
 """
 
 from __future__ import annotations
 
 from opendnc.sim.tnc.control import Control
 from opendnc.sim.tnc.profiles import PROFILES, Profile, get_profile
-from opendnc.sim.tnc.server import TncHandle, TncServer, serve_tnc, start_tnc
+from opendnc.sim.tnc.server import TncHandle, TncServer, new_event_loop, serve_tnc, start_tnc
 from opendnc.sim.tnc.trace import TraceHook
 
 __all__ = [
@@ -66,6 +69,7 @@ __all__ = [
     "TncServer",
     "TraceHook",
     "get_profile",
+    "new_event_loop",
     "serve_tnc",
     "start_tnc",
 ]
