@@ -14,11 +14,13 @@ cost varies run to run on a 2-CPU VM; ``--pin same`` removes that noise by putti
 and simulator on one CPU.
 
     .venv/bin/python benchmarks/lsv2_transfer.py --size-mib 20 --repeat 7 [--pin same]
+        [--sim-loop asyncio]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import logging
 import os
 import re
@@ -37,8 +39,13 @@ from opendnc.lsv2 import Client
 MB = 1_000_000
 
 
-def start_server(root: Path) -> tuple[subprocess.Popen[str], int]:
+def start_server(root: Path, loop: str = "auto") -> tuple[subprocess.Popen[str], int]:
     """Run the simulator CLI in a child process and read back its port."""
+    env = dict(os.environ)
+    if loop == "asyncio":
+        env["OPENDNC_SIM_LOOP"] = "asyncio"
+    else:
+        env.pop("OPENDNC_SIM_LOOP", None)
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -54,6 +61,7 @@ def start_server(root: Path) -> tuple[subprocess.Popen[str], int]:
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        env=env,
     )
     assert proc.stdout is not None
     deadline = time.monotonic() + 20
@@ -198,7 +206,17 @@ def main() -> None:
         help="CPU affinity of clients and simulator: 'same' puts both on CPU 0 (round trip ="
         " sum of their CPU costs, no cross-CPU wake-ups), 'split' puts them on CPUs 0 and 1.",
     )
+    parser.add_argument(
+        "--sim-loop",
+        choices=("auto", "asyncio"),
+        default="auto",
+        help="Event loop of the simulator: 'auto' = uvloop when installed (opendnc[sim]),"
+        " 'asyncio' = the standard loop.",
+    )
     args = parser.parse_args()
+    sim_loop = args.sim_loop
+    if sim_loop == "auto":
+        sim_loop = "uvloop" if importlib.util.find_spec("uvloop") else "asyncio"
 
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="lsv2-bench-") as tmp:
@@ -206,7 +224,7 @@ def main() -> None:
         local = work / "payload.bin"
         local.write_bytes(os.urandom(int(args.size_mib * 1024 * 1024)))
         size = local.stat().st_size
-        proc, port = start_server(work / "root")
+        proc, port = start_server(work / "root", args.sim_loop)
         if args.pin != "none":
             os.sched_setaffinity(0, {0})
             os.sched_setaffinity(proc.pid, {0} if args.pin == "same" else {1})
@@ -246,7 +264,8 @@ def main() -> None:
     mbs = {n: {d: [size / t / MB for t in v] for d, v in w.items()} for n, w in wall.items()}
     print(
         f"file {size / MB:.1f} MB = {blocks:.0f} blocks of 4086 B (4096-byte telegrams), "
-        f"loopback, {args.repeat} repetitions, clients interleaved, CPU pinning: {args.pin}"
+        f"loopback, {args.repeat} repetitions, clients interleaved, CPU pinning: {args.pin}, "
+        f"simulator loop: {sim_loop}"
     )
     print(
         f"host: {os.cpu_count()} CPUs, load average {load_before[0]:.2f} before, "
