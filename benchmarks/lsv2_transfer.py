@@ -39,7 +39,9 @@ from opendnc.lsv2 import Client
 MB = 1_000_000
 
 
-def start_server(root: Path, loop: str = "auto") -> tuple[subprocess.Popen[str], int]:
+def start_server(
+    root: Path, loop: str = "auto", profile: str = "tnc320"
+) -> tuple[subprocess.Popen[str], int]:
     """Run the simulator CLI in a child process and read back its port."""
     env = dict(os.environ)
     if loop == "asyncio":
@@ -57,6 +59,8 @@ def start_server(root: Path, loop: str = "auto") -> tuple[subprocess.Popen[str],
             "0",
             "--root",
             str(root),
+            "--profile",
+            profile,
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -72,6 +76,9 @@ def start_server(root: Path, loop: str = "auto") -> tuple[subprocess.Popen[str],
     proc.kill()
     raise SystemExit("simulator did not start")
 
+
+BUFFERS: dict[str, int] = {}
+"""Telegram buffer each client negotiated with the simulator."""
 
 CPU: dict[str, list[float]] = {}
 """Client CPU seconds per (client, direction) run, filled by :func:`timed`."""
@@ -93,7 +100,7 @@ def bench_ours(
 ) -> dict[str, list[float]]:
     times: dict[str, list[float]] = {"down": [], "up": []}
     with Client("127.0.0.1", port, timeout=30) as tnc:
-        assert tnc.buffer_size == 4096, tnc.buffer_size
+        BUFFERS["opendnc"] = tnc.buffer_size
         for _ in range(repeat):
             times["up"].append(timed(lambda: tnc.upload(local, remote, binary=True), "ours up"))
             times["down"].append(
@@ -113,6 +120,7 @@ def bench_pylsv2(
     times: dict[str, list[float]] = {"down": [], "up": []}
     con = pyLSV2.LSV2("127.0.0.1", port=port, timeout=30, safe_mode=True)
     con.connect()
+    BUFFERS["pyLSV2"] = con._llcom._buffer_size
     try:
         for _ in range(repeat):
             times["up"].append(
@@ -198,6 +206,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size-mib", type=float, default=20.0)
     parser.add_argument("--repeat", type=int, default=7)
+    parser.add_argument(
+        "--tnc-profile",
+        default="tnc320",
+        help="Simulator profile. The default, tnc320, answers R_PR with the system parameters"
+        " captured from a real TNC 320 (max block length 4088).",
+    )
     parser.add_argument("--profile", action="store_true", help="cProfile our client once.")
     parser.add_argument(
         "--pin",
@@ -224,7 +238,7 @@ def main() -> None:
         local = work / "payload.bin"
         local.write_bytes(os.urandom(int(args.size_mib * 1024 * 1024)))
         size = local.stat().st_size
-        proc, port = start_server(work / "root", args.sim_loop)
+        proc, port = start_server(work / "root", args.sim_loop, args.tnc_profile)
         if args.pin != "none":
             os.sched_setaffinity(0, {0})
             os.sched_setaffinity(proc.pid, {0} if args.pin == "same" else {1})
@@ -266,6 +280,11 @@ def main() -> None:
         f"file {size / MB:.1f} MB = {blocks:.0f} blocks of 4086 B (4096-byte telegrams), "
         f"loopback, {args.repeat} repetitions, clients interleaved, CPU pinning: {args.pin}, "
         f"simulator loop: {sim_loop}"
+    )
+    print(
+        f"simulator profile {args.tnc_profile}; negotiated telegram buffers: "
+        + ", ".join(f"{name} {size} B" for name, size in BUFFERS.items())
+        + " (pyLSV2 reads max_block_length as the whole telegram, we read it as the payload)"
     )
     print(
         f"host: {os.cpu_count()} CPUs, load average {load_before[0]:.2f} before, "

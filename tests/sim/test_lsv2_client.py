@@ -73,11 +73,14 @@ def test_connect_sequence_and_trace(tnc640: TncHandle) -> None:
     assert ("recv", seen[1][1]) in seen
 
 
-def test_buffer_is_largest_allowed_below_max_block_length() -> None:
+def test_buffer_fits_max_block_length_of_payload() -> None:
+    # 4088 payload bytes + 8 header bytes: the 4096-byte telegram buffer is the right one
     with start_tnc("tnc320") as tnc, Client("127.0.0.1", tnc.port) as c:
         assert c.parameters.max_block_length == 4088
-        assert c.buffer_size == 3072
+        assert c.buffer_size == 4096
         assert c.versions.splc == "No version given"
+    with start_tnc("tnc426") as tnc, Client("127.0.0.1", tnc.port) as c:
+        assert c.buffer_size == 1024
     with start_tnc("tnc640") as tnc, Client("127.0.0.1", tnc.port, max_buffer=256) as c:
         assert c.buffer_size == 256
 

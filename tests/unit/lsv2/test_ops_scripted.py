@@ -68,7 +68,9 @@ def test_connect_with_buffer_fallback_and_no_secure_send() -> None:
             (ReadVersion(6), VersionReply(("Release",))),
             (ReadVersion(7), Refused(24)),
             (ReadParameters(), ParametersReply(small)),
-            (SystemCommand(6), Refused(24)),  # 3072 refused (max block length is 4088)
+            # 4088 payload bytes + 8 header bytes = 4096: asked first, then fallbacks
+            (SystemCommand(7), Refused(24)),  # 4096 refused
+            (SystemCommand(6), Refused(24)),  # 3072 refused
             (SystemCommand(5), Ok()),  # 2048 accepted
             (SystemCommand(19), Refused(22)),
         ],
@@ -236,3 +238,23 @@ def test_download_store_failure_on_the_last_block_sends_nothing_more() -> None:
     step.work()
     with pytest.raises(OSError, match="disk full"):
         op.send(FileDone())
+
+
+def test_connect_reads_max_block_length_as_payload_capacity() -> None:
+    """The TNC 320 capture advertises 4088: the 4096-byte buffer (4088 + header) is chosen."""
+    state = SessionState()
+    parts = ("TNC320", "771855 18 SP1", "Basic V18-00", "No version given", "0000000100000100")
+    play(
+        ops.connect(state),
+        [
+            (Login("INSPECT"), Ok()),
+            (ReadVersion(), VersionReply(parts)),
+            (ReadVersion(5), Refused(24)),
+            (ReadVersion(6), Refused(24)),
+            (ReadParameters(), ParametersReply(PARAMS)),
+            (SystemCommand(7), Ok()),
+            (SystemCommand(19), Ok()),
+        ],
+    )
+    assert PARAMS.max_block_length == 4088
+    assert state.buffer_size == 4096

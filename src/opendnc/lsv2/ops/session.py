@@ -14,6 +14,7 @@ from opendnc.lsv2.constants import (
     VersionSelector,
     detect_family,
 )
+from opendnc.lsv2.framing import HEADER_SIZE
 from opendnc.lsv2.messages import (
     Logout,
     ParametersReply,
@@ -115,7 +116,11 @@ def connect(state: SessionState, *, max_buffer: int = 4096, secure_send: bool = 
     state.versions = versions
     state.family = family
     state.params = yield from read_parameters(state)
-    yield from negotiate_buffer(state, min(max_buffer, state.params.max_block_length))
+    # max_block_length counts payload bytes: the one real capture (TNC 320 v18) advertises
+    # 4088 = 4096 - 8 header bytes, so a 4096-byte telegram buffer fits. A control that
+    # disagrees refuses the C_CC and negotiate_buffer falls back to the next smaller size.
+    limit = state.params.max_block_length + HEADER_SIZE
+    yield from negotiate_buffer(state, min(max_buffer, limit))
     if secure_send:
         state.secure_send = yield from try_command(
             SystemCommand(CcCommand.SECURE_FILE_SEND), "secure file send"
