@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import binascii
 import enum
+import zlib
 from dataclasses import dataclass
 
 from opendnc.errors import ChecksumError, RemoteProtocolError
@@ -30,6 +31,10 @@ CANCEL_BYTES = bytes((CAN, CAN, CAN))
 
 _SUB_SMALL = bytes((SUB,)) * SMALL
 _SUB_LARGE = bytes((SUB,)) * LARGE
+_BYTE = tuple(bytes((i,)) for i in range(256))
+# the three header bytes of every block number, prebuilt (encode_block runs once per block)
+_HEAD_SMALL = tuple(bytes((SOH, i, 0xFF - i)) for i in range(256))
+_HEAD_LARGE = tuple(bytes((STX, i, 0xFF - i)) for i in range(256))
 
 
 class Mode(enum.Enum):
@@ -47,6 +52,10 @@ class Mode(enum.Enum):
 
 def checksum(data: bytes | bytearray | memoryview) -> int:
     """The original XModem check: the sum of the data bytes modulo 256."""
+    if len(data) <= 256:
+        # Adler-32's low half is 1 + the byte sum mod 65521; up to 256 bytes the sum stays
+        # below 65521, so it is exact, and zlib computes it in C far faster than sum()
+        return (zlib.adler32(data) - 1) & 0xFF
     return sum(data) & 0xFF
 
 
@@ -77,10 +86,9 @@ def encode_block(seq: int, data: bytes | memoryview, *, crc: bool, large: bool =
     payload = bytes(data)
     if len(payload) < size:
         payload += (_SUB_LARGE if large else _SUB_SMALL)[: size - len(payload)]
-    head = bytes((STX if large else SOH, seq, 0xFF - seq))
-    if crc:
-        return head + payload + crc16(payload).to_bytes(2, "big")
-    return head + payload + bytes((checksum(payload),))
+    # one join instead of chained concatenations: this runs once per block on the hot path
+    check = binascii.crc_hqx(payload, 0).to_bytes(2, "big") if crc else _BYTE[checksum(payload)]
+    return b"".join(((_HEAD_LARGE if large else _HEAD_SMALL)[seq], payload, check))
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,23 +114,38 @@ def decode_block(
     sum that only matches after CR LF and lone CR are folded to LF (a Haas reportedly sums
     its end-of-block as one LF whatever setting 25 puts on the wire; opt-in only).
     """
-    if len(frame) < HEADER:
-        raise RemoteProtocolError(f"block of {len(frame)} bytes is shorter than its header")
+    seq, data = decode_frame(frame, crc=crc, fold_eob=fold_eob)
+    return Block(seq, data)
+
+
+def decode_frame(
+    frame: bytes | bytearray | memoryview, *, crc: bool, fold_eob: bool = False
+) -> tuple[int, bytes]:
+    """:func:`decode_block` without the :class:`Block` wrapper: ``(seq, data)``.
+
+    The receiver's per-block path; same checks and errors as :func:`decode_block`.
+    """
+    size = len(frame)
+    if size < HEADER:
+        raise RemoteProtocolError(f"block of {size} bytes is shorter than its header")
     start, seq, inverse = frame[0], frame[1], frame[2]
-    if start not in (SOH, STX):
+    if start == SOH:
+        end = HEADER + SMALL
+    elif start == STX:
+        end = HEADER + LARGE
+    else:
         raise RemoteProtocolError(f"block starts with 0x{start:02X}, expected SOH or STX")
-    expected = frame_length(start, crc)
-    if len(frame) != expected:
-        raise RemoteProtocolError(f"block of {len(frame)} bytes, expected {expected}")
+    expected = end + (2 if crc else 1)
+    if size != expected:
+        raise RemoteProtocolError(f"block of {size} bytes, expected {expected}")
     if seq + inverse != 0xFF:
         raise RemoteProtocolError(
             f"block number 0x{seq:02X} and complement 0x{inverse:02X} disagree"
         )
-    end = expected - check_size(crc)
     data = bytes(frame[HEADER:end])
     if crc:
         got = (frame[end] << 8) | frame[end + 1]
-        want = crc16(data)
+        want = binascii.crc_hqx(data, 0)
     else:
         got = frame[end]
         want = checksum(data)
@@ -133,4 +156,4 @@ def decode_block(
     if got != want:
         kind, width = ("CRC", 4) if crc else ("checksum", 2)
         raise ChecksumError(f"block {seq}: {kind} 0x{got:0{width}X}, computed 0x{want:0{width}X}")
-    return Block(seq, data)
+    return seq, data
