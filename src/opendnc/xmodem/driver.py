@@ -88,36 +88,41 @@ def run_blocking(
     """
     deadline = _Deadline(clock)
     stream.set_timeout(poll)
+    # bound once: this loop turns once per block, and lookups are a visible share of it
+    write, read, receive_data = stream.write, stream.read, engine.receive_data
+    data_to_send, remaining_for = engine.data_to_send, deadline.remaining
     try:
         while True:
-            out = engine.data_to_send()
+            out = data_to_send()
             if engine.finished:
                 # the final events (Completed/Failed) go out before the last bytes, so a
                 # handler can still act on the ending (the Haas simulator swaps the EOT ACK)
                 _dispatch(engine, on_event)
                 if out:
-                    stream.write(out)
+                    write(out)
                 return _outcome(engine)
             # mid-transfer, answer first and handle events (file writes, progress) after:
             # the peer gets on with the next block while we do our bookkeeping
             if out:
-                stream.write(out)
-            _dispatch(engine, on_event)
-            remaining = deadline.remaining(engine)
+                write(out)
+            if engine.has_events:
+                _dispatch(engine, on_event)
+            remaining = remaining_for(engine)
             if remaining <= 0:
                 engine.timed_out()
                 continue
-            if engine.timer is not None and not engine.timer.listen:
+            timer = engine.timer
+            if timer is not None and not timer.listen:
                 time.sleep(remaining)
                 continue
             try:
-                data = stream.read(READ_SIZE)
+                data = read(READ_SIZE)
             except TransportTimeout:
                 continue
             except PeerClosed:
                 engine.peer_closed()
                 continue
-            engine.receive_data(data)
+            receive_data(data)
     except KeyboardInterrupt:
         engine.cancel()
         out = engine.data_to_send()
@@ -219,8 +224,9 @@ def send(
     on_event: EventHandler | None = None,
 ) -> Completed:
     """Send ``data`` over ``stream`` as one XModem session (blocking)."""
-    engine = XmodemSender(data, mode, config)
-    return run_blocking(engine, stream, on_event=_sender_events(progress, on_event))
+    handler = _sender_events(progress, on_event)
+    engine = XmodemSender(data, mode, config, block_events=handler is not None)
+    return run_blocking(engine, stream, on_event=handler)
 
 
 def receive(
@@ -254,8 +260,9 @@ async def send_async(
     on_event: EventHandler | None = None,
 ) -> Completed:
     """Send ``data`` as one XModem session over asyncio streams."""
-    engine = XmodemSender(data, mode, config)
-    return await run_async(engine, reader, writer, on_event=_sender_events(progress, on_event))
+    handler = _sender_events(progress, on_event)
+    engine = XmodemSender(data, mode, config, block_events=handler is not None)
+    return await run_async(engine, reader, writer, on_event=handler)
 
 
 async def receive_async(

@@ -148,6 +148,11 @@ class EngineBase:
             self._pending = None
         self._out += data
 
+    @property
+    def has_events(self) -> bool:
+        """True while :meth:`next_event` has something to return."""
+        return bool(self._events)
+
     def next_event(self) -> Event | None:
         """The next event, or ``None`` when there is none."""
         return self._events.popleft() if self._events else None

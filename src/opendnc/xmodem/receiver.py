@@ -28,7 +28,7 @@ from opendnc.xmodem.framing import (
     STX,
     SUB,
     Mode,
-    decode_block,
+    decode_frame,
     frame_length,
 )
 
@@ -107,6 +107,14 @@ class XmodemReceiver(EngineBase):
             else:
                 self._buf += data
             return
+        if state is ReceiverState.RECEIVING and not self._buf:
+            # the hot path: a whole block in one read (the driver reads exactly one frame
+            # where it can), decoded straight from ``data`` without buffering a copy
+            start = data[0]
+            if start in (SOH, STX) and len(data) == frame_length(start, self.crc):
+                if self._take_frame(data) and not self.finished:
+                    self._arm(self.config.block_timeout)
+                return
         if state is ReceiverState.STARTING:
             starts = [i for i in (data.find(c) for c in _STARTERS) if i >= 0]
             if not starts:
@@ -167,18 +175,10 @@ class XmodemReceiver(EngineBase):
                     return
                 # decode a copy: a view into buf would pin it while an error propagates
                 frame = bytes(buf) if len(buf) == length else bytes(buf[:length])
-                try:
-                    block = decode_block(
-                        frame,
-                        crc=self.crc,
-                        fold_eob=self.config.fold_eob_checksum,
-                    )
-                except RemoteProtocolError as exc:
-                    buf.clear()
-                    self._purge(str(exc))
-                    return
                 del buf[:length]
-                self._on_block(block.seq, block.data)
+                if not self._take_frame(frame):
+                    buf.clear()
+                    return
                 if self.finished:
                     return
                 if buf and self.state is ReceiverState.RECEIVING:
@@ -198,6 +198,16 @@ class XmodemReceiver(EngineBase):
                 self._purge(f"unexpected byte 0x{start:02X} where a block should start")
                 return
         self._arm(self.config.block_timeout)
+
+    def _take_frame(self, frame: bytes) -> bool:
+        """Decode and act on one complete frame; False if it was bad (purging started)."""
+        try:
+            seq, data = decode_frame(frame, crc=self.crc, fold_eob=self.config.fold_eob_checksum)
+        except RemoteProtocolError as exc:
+            self._purge(str(exc))
+            return False
+        self._on_block(seq, data)
+        return True
 
     def _on_block(self, seq: int, data: bytes) -> None:
         expected = self._expected

@@ -77,9 +77,17 @@ class XmodemSender(EngineBase):
     """
 
     def __init__(
-        self, data: bytes, mode: Mode = Mode.ONE_K, config: SenderConfig | None = None
+        self,
+        data: bytes,
+        mode: Mode = Mode.ONE_K,
+        config: SenderConfig | None = None,
+        *,
+        block_events: bool = True,
     ) -> None:
+        """``block_events=False`` skips the per-block :class:`BlockDone` events (a driver with
+        no progress or event handler sets it: nobody would read them)."""
         super().__init__()
+        self._block_events = block_events
         self.mode = mode
         self.config = config or SenderConfig()
         self.state = SenderState.WAIT_START
@@ -218,7 +226,8 @@ class XmodemSender(EngineBase):
             return
         self._offset += self._block_len
         self._blocks += 1
-        self._events.append(BlockDone(self._seq, self._offset, self._total))
+        if self._block_events:
+            self._events.append(BlockDone(self._seq, self._offset, self._total))
         self._seq = (self._seq + 1) & 0xFF
         self._failures = 0
         self._next_after_turnaround()
