@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import os
+import stat
 import struct
 from collections.abc import Iterator
 from datetime import datetime
@@ -182,6 +183,23 @@ def test_failed_download_leaves_no_file(client: Client, tmp_path: Path) -> None:
         client.download("TNC:/nc_prog/missing.h", target)
     assert err.value.code == 32
     assert list(tmp_path.iterdir()) == []
+
+
+def test_download_and_upload_get_umask_permissions(
+    client: Client, tnc640: TncHandle, tmp_path: Path
+) -> None:
+    # both ends used mkstemp's 0600 once; a downloaded program must be readable by other users
+    src = tmp_path / "up.h"
+    src.write_bytes(b"0 BEGIN PGM UP MM\r\n1 END PGM UP MM\r\n")
+    old = os.umask(0o027)
+    try:
+        client.upload(src, "TNC:/nc_prog/perm.h")
+        client.download("TNC:/nc_prog/perm.h", tmp_path / "down.h")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "down.h").stat().st_mode) == 0o640
+    assert stat.S_IMODE(disk(tnc640, "TNC:/nc_prog/perm.h").stat().st_mode) == 0o640
+    client.delete_file("TNC:/nc_prog/perm.h")
 
 
 def test_upload_missing_local_file(client: Client, tmp_path: Path) -> None:

@@ -13,14 +13,13 @@ name only once it is complete, so the control never sees a half-written program.
 from __future__ import annotations
 
 import contextlib
-import os
-import tempfile
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
+from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError, TransferError, TransportError
 
 CHUNK = 64 * 1024
@@ -127,31 +126,19 @@ def push(
     )
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _push_local(source: Path, folder: Path, progress: Progress | None) -> PushResult:
     final = folder / source.name
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{source.name}.", suffix=".part", dir=folder)
+        writer = AtomicWriter(final, fsync=True)
     except OSError as exc:
         raise TransferError(f"cannot write into {folder}: {exc.strerror or exc}") from exc
     try:
-        # mkstemp creates 0600; the control and other users of the share must read the program
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as out, source.open("rb") as src:
+        with writer, source.open("rb") as src:
             while chunk := src.read(CHUNK):
-                out.write(chunk)
+                writer.write(chunk)
                 if progress:
                     progress(len(chunk))
-            out.flush()
-            os.fsync(out.fileno())
-        os.replace(tmp, final)
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
         raise TransferError(f"pushing {source.name} to {folder} failed: {exc}") from exc
     return PushResult(source, str(final), final.stat().st_size)
 

@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import io
 import os
-import tempfile
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
 
+from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
 from opendnc.lsv2.constants import BINARY_EXTENSIONS
 
@@ -36,31 +35,31 @@ def read_local(path: str | os.PathLike[str]) -> bytes:
 
 
 class AtomicFile:
-    """Write to a temp file beside ``target``; rename on success, delete on failure."""
+    """Write to a temp file beside ``target``; rename on success, delete on failure.
+
+    A thin layer over :class:`opendnc.atomicfile.AtomicWriter` that maps OS errors to
+    :class:`InputError` naming the local file.
+    """
 
     def __init__(self, target: str | os.PathLike[str]) -> None:
         self.target = Path(target)
-        self._file: BinaryIO | None = None
-        self._temp = ""
+        self._writer: AtomicWriter | None = None
 
     def __enter__(self) -> AtomicFile:
-        folder = self.target.parent
         try:
-            fd, self._temp = tempfile.mkstemp(
-                prefix=f".{self.target.name}.", suffix=".part", dir=folder
-            )
+            # A large buffer turns one write syscall per received block into one per MiB: on a
+            # fast link that syscall was a fifth of the client's time per block.
+            self._writer = AtomicWriter(self.target, buffering=_WRITE_BUFFER)
         except OSError as exc:
+            folder = self.target.parent
             raise InputError(f"cannot write into {folder}: {exc.strerror or exc}") from exc
-        # A large buffer turns one write syscall per received block into one per MiB: on a
-        # fast link that syscall was a fifth of the client's time per block.
-        self._file = os.fdopen(fd, "wb", buffering=_WRITE_BUFFER)
         return self
 
     def write(self, data: bytes) -> None:
         """Append ``data``."""
-        assert self._file is not None
+        assert self._writer is not None
         try:
-            self._file.write(data)
+            self._writer.handle.write(data)
         except OSError as exc:
             raise InputError(f"cannot write {self.target}: {exc.strerror or exc}") from exc
 
@@ -70,16 +69,14 @@ class AtomicFile:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        assert self._file is not None
-        self._file.close()
-        if exc_type is None:
-            try:
-                os.replace(self._temp, self.target)
-            except OSError as err:
-                os.unlink(self._temp)
-                raise InputError(f"cannot store {self.target}: {err.strerror or err}") from err
-        else:
-            os.unlink(self._temp)
+        assert self._writer is not None
+        if exc_type is not None:
+            self._writer.discard()
+            return
+        try:
+            self._writer.commit()
+        except OSError as err:
+            raise InputError(f"cannot store {self.target}: {err.strerror or err}") from err
 
 
 def image_bytes(bmp: bytes, target: str | os.PathLike[str]) -> bytes:

@@ -8,14 +8,12 @@ acknowledged, and deleted on any error.
 from __future__ import annotations
 
 import contextlib
-import os
-import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
 
+from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
 from opendnc.transport.base import ByteStream
 from opendnc.transport.serial import SerialStream
@@ -62,31 +60,18 @@ def open_port(url: str, baud: int = 9600, parity: str = "N") -> SerialStream:
     return SerialStream(url, baud, parity=parity, bytesize=8, stopbits=1, timeout=POLL)
 
 
-@dataclass(slots=True)
-class PendingFile:
-    """A file being written: ``handle`` writes to ``temp``; ``target`` may still be renamed."""
-
-    handle: BinaryIO
-    temp: Path
-    target: Path
+PendingFile = AtomicWriter
+"""A file being written: ``handle`` writes to ``temp``; ``target`` may still be renamed."""
 
 
 @contextlib.contextmanager
-def atomic_output(target: Path) -> Iterator[PendingFile]:
+def atomic_output(target: Path) -> Iterator[AtomicWriter]:
     """Yield a temp file next to ``target``; on success it replaces ``target``, else vanishes."""
     folder = target.parent
     if not folder.is_dir():
         raise InputError(f"folder {folder} does not exist")
-    fd, temp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
-    pending = PendingFile(os.fdopen(fd, "wb"), Path(temp_name), target)
-    try:
-        with pending.handle:
-            yield pending
-        os.replace(pending.temp, pending.target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            pending.temp.unlink()
-        raise
+    with AtomicWriter(target) as pending:
+        yield pending
 
 
 def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream, bool]:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import os
+import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -52,7 +54,12 @@ def test_round_trip_byte_identical(
     bench.front.select(SerialMode.PUNCH, 1000)
     time.sleep(0.2)  # the operator's key press takes effect within a poll period
     back = tmp_path / "back.nc"
-    got = receive_file(bench.pc_path, back, mode=Mode.CHECKSUM, baud=115200)
+    umask = os.umask(0o027)
+    try:
+        got = receive_file(bench.pc_path, back, mode=Mode.CHECKSUM, baud=115200)
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE(back.stat().st_mode) == 0o640  # not mkstemp's 0600
     raw = back.read_bytes()
     if eob is Eob.CRLF:
         assert b"\r\n" in raw

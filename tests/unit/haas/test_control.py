@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -308,3 +310,14 @@ def test_seed_surface_snippet(tmp_path: Path) -> None:
         pass
     # the last print follows a move without a probe: #5223 still holds the second touch
     assert serial.lines == ["  -0.5000", "  -0.5500", "Z Offset is   -0.5500"]
+
+
+def test_stored_program_gets_umask_permissions(tmp_path: Path) -> None:
+    store = ProgramStore(tmp_path)
+    old = os.umask(0o027)
+    try:
+        store.save("O01000\nM30")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(store.path(1000).stat().st_mode) == 0o640
+    assert [p.name for p in tmp_path.iterdir()] == ["O01000.nc"]

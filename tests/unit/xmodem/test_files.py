@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -45,3 +47,13 @@ def test_target_can_be_renamed_before_commit(tmp_path: Path) -> None:
 def test_missing_folder_is_an_input_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="does not exist"), atomic_output(tmp_path / "no" / "x"):
         pass
+
+
+def test_output_gets_umask_permissions(tmp_path: Path) -> None:
+    old = os.umask(0o027)
+    try:
+        with atomic_output(tmp_path / "out.nc") as pending:
+            pending.handle.write(b"x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "out.nc").stat().st_mode) == 0o640

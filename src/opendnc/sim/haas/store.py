@@ -6,11 +6,10 @@ ends). Writes go to a temporary file in the same folder and are renamed only whe
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from pathlib import Path
 
+from opendnc.atomicfile import atomic_write
 from opendnc.errors import InputError
 from opendnc.haas.program import ProgramHeader, parse_header
 
@@ -65,11 +64,6 @@ class ProgramStore:
             raise InputError(f"no program O{number:05d} in memory") from None
 
     def _write_atomic(self, target: Path, text: str) -> None:
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".nc", dir=self.root)
-        try:
-            with os.fdopen(fd, "w", encoding="latin-1", newline="\n") as handle:
-                handle.write(text)
-            os.replace(tmp, target)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # newline="\n" text mode wrote the str unchanged, so encoding it is byte-identical.
+        with atomic_write(target) as handle:
+            handle.write(text.encode("latin-1"))

@@ -18,10 +18,10 @@ from __future__ import annotations
 import os
 import shutil
 import stat
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from opendnc.atomicfile import create_temp
 from opendnc.lsv2.payloads import FileEntry
 from opendnc.sim.tnc.profiles import Profile
 
@@ -364,8 +364,8 @@ class ControlFs:
 
     def open_partial(self) -> tuple[Path, int]:
         """A new hidden temp file for an upload (outside every drive)."""
-        fd, name = tempfile.mkstemp(dir=self.partial_dir, prefix="up-")
-        return Path(name), fd
+        fd, path = create_temp(self.partial_dir, "up")
+        return path, fd
 
     def commit_partial(self, partial: Path, wp: WirePath, overwrite: bool) -> None:
         """Move a finished upload into place atomically."""
