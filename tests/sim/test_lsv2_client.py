@@ -256,6 +256,22 @@ def test_keys_need_unsafe_mode(client: Client, unsafe: Client, tnc640: TncHandle
     assert err.value.code == 39
 
 
+def test_explicit_machine_logins_need_unsafe_mode(
+    client: Client, unsafe: Client, tnc640: TncHandle
+) -> None:
+    for name in ("PLCDEBUG", "DNC"):
+        with pytest.raises(SafetyLockError):
+            client.login(name)
+        assert name not in client.logins
+    client.login("FILE")  # harmless logins stay available in safe mode
+    # reads that need those logins still work: they log in internally
+    assert client.execution_mode() in set(ExecutionMode)
+    assert len(client.read_plc("M0", 1)) == 1
+    assert {"DNC", "PLCDEBUG"} <= client.logins
+    unsafe.login("DNC")
+    assert "DNC" in unsafe.logins
+
+
 def test_plc_memory_every_operand(client: Client, tnc640: TncHandle) -> None:
     def setup(c: object) -> None:
         plc = c.plc  # type: ignore[attr-defined]

@@ -76,7 +76,13 @@ PathLike = str | os.PathLike[str]
 
 
 class AsyncClient:
-    """An LSV2 session with one control (see the module docstring)."""
+    """An LSV2 session with one control (see the module docstring).
+
+    Safety: anything that can change machine behaviour (machine-parameter writes, key presses
+    and keyboard lock, explicit PLCDEBUG/DNC logins, writes into PLC files or tables) raises
+    :class:`~opendnc.errors.SafetyLockError` unless the client was created with
+    ``safe_mode=False``; reads that need those logins still take them internally.
+    """
 
     def __init__(
         self,
@@ -211,7 +217,11 @@ class AsyncClient:
         return frozenset(self._state.logins)
 
     async def login(self, name: Login | str, password: str | None = None) -> None:
-        """Log in explicitly (operations log in by themselves when needed)."""
+        """Log in explicitly (operations log in by themselves when needed).
+
+        PLCDEBUG and DNC need ``safe_mode=False``; in safe mode they raise
+        :class:`~opendnc.errors.SafetyLockError`.
+        """
         await self._run(ops.login(self._state, name, password))
 
     async def logout(self, name: Login | str | None = None) -> None:

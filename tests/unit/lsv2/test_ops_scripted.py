@@ -34,7 +34,7 @@ from opendnc.lsv2.messages import (
     SystemCommand,
     VersionReply,
 )
-from opendnc.lsv2.ops.base import Op, Overlap, SessionState, Step
+from opendnc.lsv2.ops.base import Op, Overlap, SessionState, Step, ensure_login
 from opendnc.lsv2.ops.files import ascii_blocks
 from opendnc.lsv2.payloads import DirectoryInfo, FileEntry
 from opendnc.lsv2.runinfo import NcError
@@ -150,6 +150,30 @@ def test_safe_mode_blocks_before_anything_is_sent() -> None:
     ):
         with pytest.raises(SafetyLockError):
             next(op)
+
+
+@pytest.mark.parametrize("name", ["PLCDEBUG", "DNC", "plcdebug", " dnc"])
+def test_explicit_machine_logins_are_locked_in_safe_mode(name: str) -> None:
+    state = SessionState()
+    with pytest.raises(SafetyLockError, match="login"):
+        next(ops.login(state, name, "807667"))
+    assert state.logins == set()
+
+
+def test_explicit_machine_login_allowed_when_unsafe_and_other_logins_in_safe_mode() -> None:
+    unsafe = SessionState(safe_mode=False)
+    play(ops.login(unsafe, "PLCDEBUG", "807667"), [(Login("PLCDEBUG", "807667"), Ok())])
+    assert "PLCDEBUG" in unsafe.logins
+    safe = SessionState()
+    play(ops.login(safe, "FILE"), [(Login("FILE", None), Ok())])
+    assert safe.logins == {"FILE"}
+
+
+def test_reads_still_take_machine_logins_internally_in_safe_mode() -> None:
+    # R_MB needs PLCDEBUG on real controls: the implicit login must not be locked
+    state = SessionState()
+    play(ensure_login(state, "PLCDEBUG"), [(Login("PLCDEBUG", None), Ok())])
+    assert "PLCDEBUG" in state.logins
 
 
 def test_remove_dir_leaves_the_directory_first() -> None:

@@ -33,11 +33,13 @@ from opendnc.lsv2.ops.base import (
     command,
     ensure_login,
     expect,
+    require_unsafe,
     try_command,
 )
 from opendnc.lsv2.payloads import SystemParameters, Versions
 
 __all__ = [
+    "MACHINE_LOGINS",
     "SystemInfo",
     "connect",
     "login",
@@ -128,8 +130,20 @@ def connect(state: SessionState, *, max_buffer: int = 4096, secure_send: bool = 
     state.connected = True
 
 
+MACHINE_LOGINS = frozenset({Login.PLCDEBUG.value, Login.DNC.value})
+"""Logins that open machine-changing commands (PLC writes, machine control): safe mode refuses
+them when asked for explicitly. Read operations still take them internally through
+:func:`ensure_login`, because controls demand them for R_MB (PLCDEBUG) and R_RI (DNC)."""
+
+
 def login(state: SessionState, name: Login | str, password: str | None = None) -> Op[None]:
-    """Log in explicitly (no-op if already held)."""
+    """Log in explicitly (no-op if already held).
+
+    In safe mode an explicit PLCDEBUG or DNC login raises :class:`SafetyLockError` before
+    anything is sent: holding one would let any later command change the machine.
+    """
+    if str(name).strip().upper() in MACHINE_LOGINS:
+        require_unsafe(state, f"login {str(name).strip().upper()}")
     yield from ensure_login(state, name, password)
 
 
