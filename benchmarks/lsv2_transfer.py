@@ -23,59 +23,18 @@ import argparse
 import importlib.util
 import logging
 import os
-import re
 import socket
 import statistics
 import struct
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 from opendnc.lsv2 import Client
+from simproc import start_server
 
 MB = 1_000_000
-
-
-def start_server(
-    root: Path, loop: str = "auto", profile: str = "tnc320"
-) -> tuple[subprocess.Popen[str], int]:
-    """Run the simulator CLI in a child process and read back its port."""
-    env = dict(os.environ)
-    if loop == "asyncio":
-        env["OPENDNC_SIM_LOOP"] = "asyncio"
-    else:
-        env.pop("OPENDNC_SIM_LOOP", None)
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "opendnc.cli.main",
-            "sim",
-            "tnc",
-            "--port",
-            "0",
-            "--root",
-            str(root),
-            "--profile",
-            profile,
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        found = re.search(r"listening on [\d.]+:(\d+)", proc.stdout.readline())
-        if found:
-            return proc, int(found.group(1))
-    proc.kill()
-    raise SystemExit("simulator did not start")
-
 
 BUFFERS: dict[str, int] = {}
 """Telegram buffer each client negotiated with the simulator."""
@@ -238,7 +197,7 @@ def main() -> None:
         local = work / "payload.bin"
         local.write_bytes(os.urandom(int(args.size_mib * 1024 * 1024)))
         size = local.stat().st_size
-        proc, port = start_server(work / "root", args.sim_loop, args.tnc_profile)
+        proc, port = start_server(work / "root", profile=args.tnc_profile, loop=args.sim_loop)
         if args.pin != "none":
             os.sched_setaffinity(0, {0})
             os.sched_setaffinity(proc.pid, {0} if args.pin == "same" else {1})

@@ -14,46 +14,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import statistics
 import subprocess
-import sys
 import tempfile
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-
-def start_server(profile: str, root: Path) -> tuple[subprocess.Popen[str], int]:
-    """Run the simulator CLI in a child process and read back its port."""
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "opendnc.cli.main",
-            "sim",
-            "tnc",
-            "--port",
-            "0",
-            "--profile",
-            profile,
-            "--root",
-            str(root),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        found = re.search(r"listening on [\d.]+:(\d+)", line)
-        if found:
-            return proc, int(found.group(1))
-    proc.kill()
-    raise SystemExit("simulator did not start")
+from simproc import start_server
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -140,7 +109,7 @@ def main() -> None:
     if args.port:
         port = args.port
     else:
-        proc, port = start_server(args.profile, work / "root")
+        proc, port = start_server(work / "root", profile=args.profile)
     groups = [list(range(i, args.clients, args.processes)) for i in range(args.processes)]
     start_at = time.time() + 2.0  # every client starts at the same moment
     samples: dict[str, list[float]] = {k: [] for k in KINDS}

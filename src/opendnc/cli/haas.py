@@ -10,7 +10,14 @@ import re
 from pathlib import Path
 
 import typer
-from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+from rich.progress import (
+    BarColumn,
+    DownloadColumn,
+    Progress,
+    ProgressColumn,
+    TextColumn,
+    TransferSpeedColumn,
+)
 from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console, print_json
@@ -154,6 +161,20 @@ def macro_set(
         console.print(f"#{var} set to {value:g}", highlight=False)
 
 
+def _transfer_bar(label: str, json_out: bool, *extra: ProgressColumn) -> Progress:
+    """The byte progress bar of a transfer; hidden when the result goes out as JSON."""
+    return Progress(
+        TextColumn(label),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        *extra,
+        console=console,
+        transient=json_out,
+        disable=json_out,
+    )
+
+
 @share_app.command("push")
 def share_push(
     files: list[Path] = typer.Argument(..., help="Program files to copy."),
@@ -168,15 +189,7 @@ def share_push(
     with cli_errors():
         target = share.parse_target(to)
         total = sum(f.stat().st_size for f in files if f.is_file())
-        with Progress(
-            TextColumn("push"),
-            BarColumn(),
-            DownloadColumn(),
-            TransferSpeedColumn(),
-            console=console,
-            transient=json_out,
-            disable=json_out,
-        ) as bar:
+        with _transfer_bar("push", json_out) as bar:
             task = bar.add_task("push", total=total)
             results = share.push(
                 files,
@@ -237,16 +250,7 @@ def dnc_cmd(
             )
         except ValueError as exc:
             raise InputError(f"bad option: {exc}") from None
-        with Progress(
-            TextColumn("dnc {task.fields[state]}"),
-            BarColumn(),
-            DownloadColumn(),
-            TransferSpeedColumn(),
-            TimeRemainingColumn(),
-            console=console,
-            transient=json_out,
-            disable=json_out,
-        ) as bar:
+        with _transfer_bar("dnc {task.fields[state]}", json_out, TimeRemainingColumn()) as bar:
             task = bar.add_task("dnc", total=file.stat().st_size, state="[green]run[/]")
 
             def on_event(event: DncEvent) -> None:

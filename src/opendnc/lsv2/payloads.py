@@ -23,8 +23,10 @@ __all__ = [
     "SystemParameters",
     "Versions",
     "cstr",
+    "from_wire_ascii",
     "read_cstr",
     "split_cstrs",
+    "to_wire_ascii",
 ]
 
 ENCODING = "latin-1"
@@ -66,6 +68,16 @@ def split_cstrs(data: bytes) -> tuple[str, ...]:
 def join_cstrs(parts: tuple[str, ...] | list[str]) -> bytes:
     """Encode strings back to back, each NUL-terminated."""
     return b"".join(cstr(p) for p in parts)
+
+
+def to_wire_ascii(data: bytes) -> bytes:
+    """ASCII transfer mode: each line travels terminated by one NUL (CR LF or LF -> NUL)."""
+    return data.replace(b"\r\n", b"\n").replace(b"\n", b"\0")
+
+
+def from_wire_ascii(data: bytes, line_end: bytes = b"\r\n") -> bytes:
+    """Undo :func:`to_wire_ascii`: every NUL line end becomes ``line_end``."""
+    return data.replace(b"\0", line_end)
 
 
 def _need(data: bytes, size: int, what: str) -> None:

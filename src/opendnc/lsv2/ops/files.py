@@ -43,7 +43,7 @@ from opendnc.lsv2.ops.base import (
     split_path,
     wire_path,
 )
-from opendnc.lsv2.payloads import DirectoryInfo, FileEntry
+from opendnc.lsv2.payloads import DirectoryInfo, FileEntry, from_wire_ascii, to_wire_ascii
 
 __all__ = [
     "FileInfo",
@@ -301,11 +301,6 @@ def move_file(state: SessionState, source: str, target: str) -> Op[None]:
     yield from command(MoveFile(name, dest), f"move {source} to {target}")
 
 
-def to_wire_ascii(data: bytes) -> bytes:
-    """ASCII mode: each line travels terminated by one NUL (CR LF or LF -> NUL)."""
-    return data.replace(b"\r\n", b"\n").replace(b"\n", b"\0")
-
-
 def ascii_blocks(data: bytes, limit: int) -> Iterator[bytes]:
     """Cut NUL-terminated lines into blocks of at most ``limit`` bytes, ending at line ends.
 
@@ -402,7 +397,7 @@ class _Store:
         if self.error is not None:
             return
         try:
-            data = self.data if self.binary else self.data.replace(b"\0", self.line_end)
+            data = self.data if self.binary else from_wire_ascii(self.data, self.line_end)
             self.sink(data)
             self.done += len(data)
             if self.progress is not None:

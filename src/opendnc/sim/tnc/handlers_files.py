@@ -27,7 +27,7 @@ from opendnc.lsv2.messages import (
     Refused,
     SendFile,
 )
-from opendnc.lsv2.payloads import DirectoryInfo, FileEntry
+from opendnc.lsv2.payloads import DirectoryInfo, FileEntry, from_wire_ascii, to_wire_ascii
 from opendnc.sim.tnc.filesystem import Entry, FsError, WirePath
 from opendnc.sim.tnc.session import OK, Priv, Refuse, Session, Upload, block_defect, handler
 
@@ -160,16 +160,6 @@ def move_file(s: Session, m: MoveFile) -> list[Message]:
 
 
 # -- downloads --------------------------------------------------------------------------------
-def to_wire_ascii(data: bytes) -> bytes:
-    """ASCII mode: every line travels terminated by one NUL (CR LF / LF -> NUL)."""
-    return data.replace(b"\r\n", b"\0").replace(b"\n", b"\0")
-
-
-def from_wire_ascii(data: bytes) -> bytes:
-    """ASCII upload: NUL line ends become CR LF; text already in CR LF stays as it is."""
-    return data.replace(b"\0", b"\r\n")
-
-
 @handler(ReadFile, Priv.FILE)
 def read_file(s: Session, m: ReadFile) -> list[Message]:
     """R_FL path [mode]: S_FL blocks within the buffer, then T_FD."""

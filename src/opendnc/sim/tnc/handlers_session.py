@@ -23,7 +23,6 @@ from opendnc.lsv2.messages import (
     SystemInfoReply,
     VersionReply,
 )
-from opendnc.lsv2.payloads import SystemParameters
 from opendnc.sim.tnc import oplog
 from opendnc.sim.tnc.filesystem import FsError
 from opendnc.sim.tnc.screen import render_status
@@ -83,7 +82,7 @@ def versions(s: Session, m: ReadVersion) -> list[Message]:
 @handler(ReadParameters, Priv.INSPECT)
 def system_parameters(s: Session, m: ReadParameters) -> list[Message]:
     """R_PR: the family's 120/124-byte block."""
-    return [ParametersReply(SystemParameters.from_bytes(s.control.profile.system_parameters()))]
+    return [ParametersReply(s.control.profile.parameters())]
 
 
 @handler(ReadSystemInfo, Priv.ANY)

@@ -9,9 +9,10 @@ in the protocol reference (TNC 320 v18, iTNC 530, TNC 426) are used verbatim.
 
 from __future__ import annotations
 
-import struct
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from enum import Enum
+
+from opendnc.lsv2.payloads import SystemParameters
 
 
 class KeyStyle(Enum):
@@ -205,39 +206,23 @@ class Profile:
         """C_CC buffer sub-commands this family accepts."""
         return {c: s for c, s in BUFFER_COMMANDS.items() if s <= self.max_buffer}
 
+    def parameters(self) -> SystemParameters:
+        """The ``S_PR`` answer as the codec's typed value (layout of §8.1 lives in the codec)."""
+        return SystemParameters(
+            **asdict(self.plc),
+            lsv2_version=1,
+            lsv2_flags=self.lsv2_flags,
+            max_block_length=self.max_block_length,
+            lsv2_flags_ex=self.lsv2_flags_ex,
+            max_trace_lines=128,
+            scope_channels=32,
+            password_key=self.password_key,
+            extra=0 if self.sys_par_length == 124 else None,
+        )
+
     def system_parameters(self) -> bytes:
-        """The ``S_PR`` payload (120 or 124 bytes, layout of §8.1)."""
-        p = self.plc
-        head = struct.pack(
-            ">14I",
-            p.markers_start,
-            p.markers,
-            p.inputs_start,
-            p.inputs,
-            p.outputs_start,
-            p.outputs,
-            p.counters_start,
-            p.counters,
-            p.timers_start,
-            p.timers,
-            p.words_start,
-            p.words,
-            p.strings_start,
-            p.strings,
-        )
-        head += struct.pack(">B7x", p.string_length)
-        head += struct.pack(
-            ">4I16x",
-            p.input_words_start,
-            p.input_words,
-            p.output_words_start,
-            p.output_words,
-        )
-        head += struct.pack(">BBH4BI", 1, self.lsv2_flags, self.max_block_length, 0, 0, 0, 0, 0)
-        head += struct.pack(">IHHI", self.lsv2_flags_ex, 128, 32, self.password_key)
-        if self.sys_par_length == 124:
-            head += b"\0\0\0\0"
-        return head
+        """The ``S_PR`` payload (120 or 124 bytes)."""
+        return self.parameters().to_bytes()
 
 
 _NEW_RI = frozenset({20, 21, 22, 23, 24, 25, 26, 30, 31, 32, 33, 34})
