@@ -12,8 +12,8 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import IntEnum
 
+from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.sim.tnc.plc import (
     D_PART_COUNTER,
     D_PROGRAM_STATE,
@@ -29,28 +29,9 @@ from opendnc.sim.tnc.plc import (
 )
 from opendnc.sim.tnc.profiles import KeyStyle, Profile
 
-
-class ExecMode(IntEnum):
-    """``R_RI`` 23 values (§10.1)."""
-
-    MANUAL = 0
-    MDI = 1
-    PASS_REFERENCES = 2
-    SINGLE_STEP = 3
-    AUTOMATIC = 4
-
-
-class PgmState(IntEnum):
-    """``R_RI`` 26 values (§10.2)."""
-
-    STARTED = 0
-    STOPPED = 1
-    FINISHED = 2
-    CANCELLED = 3
-    INTERRUPTED = 4
-    ERROR = 5
-    ERROR_CLEARED = 6
-    IDLE = 7
+# The simulator answers with the codec's own enums, so both sides share one value table.
+ExecMode = ExecutionMode
+PgmState = ProgramState
 
 
 class MachineError(Exception):

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from enum import Enum
 
+from opendnc.lsv2.constants import BUFFER_SIZES
 from opendnc.lsv2.payloads import SystemParameters
 
 
@@ -139,8 +140,6 @@ LATHE_PATHS = PathLayout(
 )
 
 BASE_LOGINS = frozenset({"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG", "DSP"})
-#: Buffer-size sub-commands of C_CC and the telegram size they select (§7).
-BUFFER_COMMANDS: dict[int, int] = {4: 512, 3: 1024, 5: 2048, 6: 3072, 7: 4096}
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,7 +203,7 @@ class Profile:
 
     def buffer_sizes(self) -> dict[int, int]:
         """C_CC buffer sub-commands this family accepts."""
-        return {c: s for c, s in BUFFER_COMMANDS.items() if s <= self.max_buffer}
+        return {c: s for c, s in BUFFER_SIZES.items() if s <= self.max_buffer}
 
     def parameters(self) -> SystemParameters:
         """The ``S_PR`` answer as the codec's typed value (layout of §8.1 lives in the codec)."""
