@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -11,7 +10,6 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
 from typer.testing import CliRunner
 
 from opendnc.cli.main import app
@@ -129,12 +127,12 @@ def test_sim_haas_process(tmp_path: Path) -> None:
                 stream.close()
 
 
-def test_sim_haas_refuses_serial_until_front_end_exists(tmp_path: Path) -> None:
-    if os.path.exists(Path(__file__).parents[3] / "src/opendnc/sim/haas/serial_front.py"):
-        pytest.skip("the serial front-end exists; its own tests cover --serial")
-    result = runner.invoke(app, ["sim", "haas", "--root", str(tmp_path), "--serial", "/dev/null"])
+def test_sim_haas_bad_serial_port_and_surface_are_one_line_errors(tmp_path: Path) -> None:
+    missing = tmp_path / "no-such-tty"
+    result = runner.invoke(app, ["sim", "haas", "--root", str(tmp_path), "--serial", str(missing)])
     assert result.exit_code == 1
-    assert "serial front-end not available yet" in result.output
+    assert "cannot open serial port" in result.output
+    assert "Traceback" not in result.output
     bad = runner.invoke(app, ["sim", "haas", "--root", str(tmp_path), "--surface", "cone:1"])
     assert bad.exit_code == 1
     assert "bad surface" in bad.output
