@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import TypeVar
 
 from opendnc.errors import ControlRefused, RemoteProtocolError
 from opendnc.lsv2.constants import (
@@ -76,6 +77,8 @@ __all__ = [
     "write_machine_parameter",
 ]
 
+V = TypeVar("V")
+
 MP_WRITE_TIMEOUT = 30.0
 """Writing a machine parameter saves it to disk on the control: allow a long time."""
 
@@ -87,60 +90,56 @@ def run_info(state: SessionState, selector: int) -> Op[RunInfoValue]:
     return reply.value(selector)
 
 
+def _checked(value: RunInfoValue, kind: type[V], selector: int) -> V:
+    """``value`` as ``kind``; the decoder picks the type by selector, so a mismatch is a bug
+    or a control answering another selector: report it as a protocol error."""
+    if not isinstance(value, kind):
+        raise RemoteProtocolError(f"run info {selector}: expected {kind.__name__}, got {value!r}")
+    return value
+
+
+def _run_info_as(state: SessionState, selector: RunInfo, kind: type[V]) -> Op[V]:
+    return _checked((yield from run_info(state, selector)), kind, selector)
+
+
 def execution_mode(state: SessionState) -> Op[ExecutionMode]:
     """Operating mode (``R_RI`` 23)."""
-    value = yield from run_info(state, RunInfo.EXEC_STATE)
-    assert isinstance(value, ExecutionMode)
-    return value
+    return (yield from _run_info_as(state, RunInfo.EXEC_STATE, ExecutionMode))
 
 
 def program_state(state: SessionState) -> Op[ProgramState]:
     """Program state (``R_RI`` 26)."""
-    value = yield from run_info(state, RunInfo.PGM_STATE)
-    assert isinstance(value, ProgramState)
-    return value
+    return (yield from _run_info_as(state, RunInfo.PGM_STATE, ProgramState))
 
 
 def selected_program(state: SessionState) -> Op[SelectedProgram]:
     """Selected main program, current (called) program and line (``R_RI`` 24)."""
-    value = yield from run_info(state, RunInfo.SELECTED_PGM)
-    assert isinstance(value, SelectedProgram)
-    return value
+    return (yield from _run_info_as(state, RunInfo.SELECTED_PGM, SelectedProgram))
 
 
 def overrides(state: SessionState) -> Op[Overrides]:
     """Feed, spindle and rapid overrides (``R_RI`` 25)."""
-    value = yield from run_info(state, RunInfo.OVERRIDE)
-    assert isinstance(value, Overrides)
-    return value
+    return (yield from _run_info_as(state, RunInfo.OVERRIDE, Overrides))
 
 
 def axes_position(state: SessionState) -> Op[AxesPositions]:
     """Current axis positions (``R_RI`` 22)."""
-    value = yield from run_info(state, RunInfo.AXES_POSITION)
-    assert isinstance(value, AxesPositions)
-    return value
+    return (yield from _run_info_as(state, RunInfo.AXES_POSITION, AxesPositions))
 
 
 def axes_names(state: SessionState) -> Op[AxesNames]:
     """Physical axis names (``R_RI`` 21)."""
-    value = yield from run_info(state, RunInfo.AXES_NAMES)
-    assert isinstance(value, AxesNames)
-    return value
+    return (yield from _run_info_as(state, RunInfo.AXES_NAMES, AxesNames))
 
 
 def axes_config(state: SessionState) -> Op[AxesConfig]:
     """Axis configuration (``R_RI`` 20)."""
-    value = yield from run_info(state, RunInfo.AXES_CONFIG)
-    assert isinstance(value, AxesConfig)
-    return value
+    return (yield from _run_info_as(state, RunInfo.AXES_CONFIG, AxesConfig))
 
 
 def current_tool(state: SessionState) -> Op[ToolInfo]:
     """The tool in the spindle (``R_RI`` 51, iTNC 530)."""
-    value = yield from run_info(state, RunInfo.CURRENT_TOOL)
-    assert isinstance(value, ToolInfo)
-    return value
+    return (yield from _run_info_as(state, RunInfo.CURRENT_TOOL, ToolInfo))
 
 
 def nc_errors(state: SessionState) -> Op[list[NcError]]:
@@ -153,8 +152,7 @@ def nc_errors(state: SessionState) -> Op[list[NcError]]:
         if isinstance(reply, Refused) and reply.code == 57:
             return errors
         value = expect(reply, RunInfoReply, f"NC error {selector}").value(selector)
-        assert isinstance(value, NcError)
-        errors.append(value)
+        errors.append(_checked(value, NcError, selector))
         selector = RunInfo.NEXT_ERROR
         if len(errors) > 10_000:
             raise RemoteProtocolError("control keeps sending NC errors (no end marker 57)")
@@ -187,8 +185,7 @@ def uptimes(state: SessionState) -> Op[Uptimes]:
             values.append(None)
             continue
         value = expect(reply, RunInfoReply, f"run info {sel}").value(sel)
-        assert isinstance(value, int)
-        values.append(value)
+        values.append(_checked(value, int, sel))
     return Uptimes(*values)
 
 
