@@ -34,15 +34,12 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import termios
 import time
 import tty
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-
-from opendnc.errors import PeerClosed, TransportTimeout
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("checksum", "crc", "1k")
@@ -53,64 +50,16 @@ SENDER_HEAD_START = 0.4  # let the sender open its port before the receiver asks
 # -- endpoint mode: python benchmarks/xmodem.py --endpoint send|recv MODE FILE ---------------
 
 
-class _StdioStream:
-    """Our ByteStream over fd 0 (read) and fd 1 (write): the lrzsz way of holding a tty.
-
-    The read timeout is the tty's own (VMIN 0, VTIME in tenths of a second), so a read costs
-    one syscall instead of select() plus read(). A read returning nothing means a timeout
-    when it took about VTIME, a closed link when it came back at once.
-    """
-
-    def __init__(self) -> None:
-        self.timeout: float | None = 0.05
-        self._tenths = 1
-        self._apply()
-
-    def _apply(self) -> None:
-        attrs = termios.tcgetattr(0)
-        if self.timeout is None:
-            attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 1, 0
-        else:
-            self._tenths = max(1, min(255, round(self.timeout * 10)))
-            attrs[6][termios.VMIN], attrs[6][termios.VTIME] = 0, self._tenths
-        termios.tcsetattr(0, termios.TCSANOW, attrs)
-
-    def read(self, max_bytes: int) -> bytes:
-        started = time.monotonic()
-        try:
-            data = os.read(0, max_bytes)
-        except OSError as exc:
-            raise PeerClosed(str(exc)) from exc
-        if not data:
-            if self.timeout is not None and time.monotonic() - started > self._tenths * 0.05:
-                raise TransportTimeout("no data")
-            raise PeerClosed("closed")
-        return data
-
-    def write(self, data: bytes) -> None:
-        written = os.write(1, data)
-        if written < len(data):  # a full tty buffer: rare, so the loop stays off the hot path
-            view = memoryview(data)[written:]
-            while view:
-                view = view[os.write(1, view) :]
-
-    def set_timeout(self, seconds: float | None) -> None:
-        self.timeout = seconds
-        self._apply()
-
-    def close(self) -> None:
-        pass
-
-
 def run_endpoint(action: str, mode_name: str, path: str) -> int:
     """One opendnc transfer over stdin/stdout; exit status 0 on success."""
     from opendnc.errors import DncError
+    from opendnc.transport.fd import FdStream
     from opendnc.xmodem.driver import receive, send
     from opendnc.xmodem.framing import Mode
 
     tty.setraw(0)
     mode = Mode(mode_name)
-    stream = _StdioStream()
+    stream = FdStream(0, 1)
     try:
         if action == "send":
             send(stream, Path(path).read_bytes(), mode=mode)

@@ -6,7 +6,8 @@ Every stream offers ``read(max_bytes)`` (returns at least one byte, raises
 """
 
 from opendnc.transport.base import ByteStream
+from opendnc.transport.fd import FdStream
 from opendnc.transport.serial import SerialStream, open_serial
 from opendnc.transport.tcp import TcpStream
 
-__all__ = ["ByteStream", "SerialStream", "TcpStream", "open_serial"]
+__all__ = ["ByteStream", "FdStream", "SerialStream", "TcpStream", "open_serial"]

@@ -5,8 +5,10 @@ from __future__ import annotations
 import socket
 import struct
 import sys
+import time
 
 from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+from opendnc.transport.spin import DEFAULT_WINDOW, BusyPoll
 
 # Python's socket timeouts poll() before every recv()/send(): one extra syscall and a few
 # microseconds per telegram. Where the kernel offers per-socket timeouts (SO_RCVTIMEO /
@@ -30,11 +32,21 @@ class TcpStream:
     """A connected TCP socket with ``TCP_NODELAY`` set.
 
     Request/response protocols send small telegrams; without ``TCP_NODELAY`` Nagle's
-    algorithm and delayed ACKs cost tens of milliseconds per round trip.
+    algorithm and delayed ACKs cost tens of milliseconds per round trip. Reads busy-poll for
+    up to ``busy_poll`` seconds while answers keep coming that fast (see
+    :mod:`opendnc.transport.spin`; 0 turns it off).
     """
 
-    def __init__(self, host: str, port: int, timeout: float | None = 10.0) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        timeout: float | None = 10.0,
+        *,
+        busy_poll: float = DEFAULT_WINDOW,
+    ) -> None:
         self.host, self.port = host, port
+        self._spin = BusyPoll(busy_poll)
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout)
         except TimeoutError as exc:
@@ -46,6 +58,29 @@ class TcpStream:
         self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
+        spin = self._spin
+        if not spin.enabled:
+            return self._recv(max_bytes)
+        started = time.perf_counter()
+        try:
+            data = spin.spin(lambda: self._try_recv(max_bytes), started) if spin.active else None
+            return self._recv(max_bytes) if data is None else data
+        finally:
+            spin.record(time.perf_counter() - started)  # a timeout counts as a long wait
+
+    def _try_recv(self, max_bytes: int) -> bytes | None:
+        """One non-blocking receive: None while nothing is there."""
+        try:
+            data = self._sock.recv(max_bytes, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return None
+        except OSError:
+            return self._recv(max_bytes)  # let the blocking path raise the mapped error
+        if not data:
+            raise PeerClosed(f"{self.host}:{self.port} closed the connection")
+        return data
+
+    def _recv(self, max_bytes: int) -> bytes:
         try:
             data = self._sock.recv(max_bytes)
         except (TimeoutError, BlockingIOError) as exc:

@@ -1,0 +1,142 @@
+"""Adaptive busy-polling (transport.spin) and the streams using it, on real ptys and sockets."""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from opendnc.errors import PeerClosed, TransportTimeout
+from opendnc.transport import TcpStream
+from opendnc.transport import spin as spin_module
+from opendnc.transport.fd import FdStream
+from opendnc.transport.pty import PtyPair, open_pty
+from opendnc.transport.spin import BusyPoll
+
+
+def test_policy_spins_while_answers_are_fast_and_stops_when_they_are_slow(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(spin_module, "_several_cpus", lambda: True)
+    poll = BusyPoll(100e-6)
+    assert poll.active
+    for _ in range(5):
+        poll.record(20e-6)
+    assert poll.active
+    poll.record(2e-3)  # one answer from a slow control is enough to stop spinning
+    assert not poll.active
+    for _ in range(20):
+        poll.record(20e-6)
+    assert poll.active  # and fast answers bring it back
+
+
+def test_policy_is_off_with_a_zero_window_or_a_single_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert not BusyPoll(0).active
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    assert not BusyPoll(100e-6).active
+
+
+def test_spin_returns_the_first_result_or_none_after_the_window() -> None:
+    poll = BusyPoll(5e-3)
+    calls = iter([None, None, b"x"])
+    assert poll.spin(lambda: next(calls), time.perf_counter()) == b"x"
+    started = time.perf_counter()
+    assert poll.spin(lambda: None, started) is None
+    assert time.perf_counter() - started >= 5e-3
+
+
+@pytest.fixture
+def pty_pair() -> Iterator[PtyPair]:
+    pair = open_pty()
+    yield pair
+    pair.close()
+
+
+def test_fd_stream_reads_writes_and_times_out(pty_pair: PtyPair) -> None:
+    fd = pty_pair.slave_fd
+    stream = FdStream(fd, fd, timeout=0.2)
+    try:
+        os.write(pty_pair.master_fd, b"\x01\x02")
+        assert stream.read(10) == b"\x01\x02"
+        stream.write(b"\x06")
+        assert os.read(pty_pair.master_fd, 10) == b"\x06"
+        started = time.monotonic()
+        with pytest.raises(TransportTimeout):
+            stream.read(10)
+        assert 0.15 < time.monotonic() - started < 2
+    finally:
+        stream.close()
+    assert os.get_blocking(fd)  # the descriptor is handed back as it was
+
+
+def test_fd_stream_write_larger_than_the_tty_buffer(pty_pair: PtyPair) -> None:
+    # read and write share one file description, so our O_NONBLOCK is the writer's too
+    fd = pty_pair.slave_fd
+    stream = FdStream(fd, fd, timeout=5)
+    data = os.urandom(1 << 20)
+    got = bytearray()
+
+    def drain() -> None:
+        while len(got) < len(data):
+            got.extend(os.read(pty_pair.master_fd, 65536))
+
+    reader = threading.Thread(target=drain)
+    reader.start()
+    stream.write(data)
+    reader.join(10)
+    stream.close()
+    assert bytes(got) == data
+
+
+def test_fd_stream_reports_a_hang_up(pty_pair: PtyPair) -> None:
+    stream = FdStream(pty_pair.slave_fd, pty_pair.slave_fd, timeout=1)
+    os.close(pty_pair.master_fd)
+    with pytest.raises(PeerClosed):
+        stream.read(10)
+    stream.close()
+
+
+def test_fd_stream_ping_pong_engages_spinning(
+    pty_pair: PtyPair, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(spin_module, "_several_cpus", lambda: True)
+    stream = FdStream(pty_pair.slave_fd, pty_pair.slave_fd, timeout=2, busy_poll=2e-3)
+    master = pty_pair.master_fd
+
+    def echo() -> None:
+        for _ in range(50):
+            os.write(master, os.read(master, 10))
+
+    peer = threading.Thread(target=echo)
+    peer.start()
+    for i in range(50):
+        stream.write(bytes([i]))
+        assert stream.read(10) == bytes([i])
+    peer.join(5)
+    assert stream._spin.active  # answers within the window keep the policy spinning
+    stream.close()
+
+
+def test_tcp_stream_with_spinning_still_times_out_and_sees_close(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(spin_module, "_several_cpus", lambda: True)
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        stream = TcpStream("127.0.0.1", listener.getsockname()[1], timeout=0.2, busy_poll=1e-3)
+        conn, _ = listener.accept()
+        assert stream._spin.active
+        started = time.monotonic()
+        with pytest.raises(TransportTimeout):
+            stream.read(10)
+        assert time.monotonic() - started >= 0.15
+        assert not stream._spin.active  # a wait that long turns spinning off
+        conn.sendall(b"T_OK")
+        assert stream.read(10) == b"T_OK"
+        conn.close()
+        with pytest.raises(PeerClosed):
+            stream.read(10)
+        stream.close()
