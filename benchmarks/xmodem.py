@@ -5,10 +5,15 @@ convention; ours and PyPI's follow it), so no two endpoints share an interpreter
 
 1. Raw pty pair (no line timing): each implementation sends to itself (ours -> ours,
    sx -> rx, PyPI -> PyPI) in all three modes. Reported: payload MB/s and the ratios
-   ours/lrzsz and ours/PyPI.
+   ours/lrzsz and ours/PyPI; then the floor, a protocol-free two-process Python ping-pong of
+   one frame per trip on the same kind of pty, and the best ratio to PyPI that any Python
+   pair could reach with it.
 2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
    115200 8N1: payload bytes/s against the ceiling of each mode (128/133, 128/134, 1024/1030
-   of 11,520 B/s) for the same three pairs.
+   of 11,520 B/s) for the same three pairs, and the time per block lost beyond the line time
+   of block and ACK (the turnaround of both ends). A transfer ends when the receiver exits
+   with the file: ``rx`` discards its final ACK with a TCIOFLUSH when the cable has not read
+   it within about 2 ms, and ``sx`` then waits for an answer that never comes.
 
 Throughput is *marginal*: each pair moves a small and a large file and the script divides the
 extra bytes by the extra time. That cancels fixed costs that have nothing to do with the
@@ -28,6 +33,7 @@ removes the race.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import statistics
@@ -44,7 +50,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("checksum", "crc", "1k")
 BLOCK_SHARE = {"checksum": 128 / 133, "crc": 128 / 134, "1k": 1024 / 1030}
+FRAME = {"checksum": (128, 132), "crc": (128, 133), "1k": (1024, 1029)}  # (payload, frame bytes)
 SENDER_HEAD_START = 0.4  # let the sender open its port before the receiver asks for data
+SENDER_GRACE = 5.0  # seconds the sender may take to finish after the receiver has exited
 
 
 # -- endpoint mode: python benchmarks/xmodem.py --endpoint send|recv MODE FILE ---------------
@@ -170,10 +178,14 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
             note = ""
             try:
                 receiver.wait(timeout=limit)
-                sender.wait(timeout=max(limit - (time.perf_counter() - start), 5))
             except subprocess.TimeoutExpired:
                 note = f"over the {limit:.0f} s limit"
+            # The transfer ends when the receiver has the file: rx flushes its tty output
+            # (TCIOFLUSH) 2 ms after its last ACK, which on a pty can discard that ACK before
+            # the cable reads it, leaving sx waiting for an answer that never comes.
             elapsed = time.perf_counter() - start
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                sender.wait(timeout=SENDER_GRACE)
             for proc in (sender, receiver):
                 if proc.poll() is None:
                     proc.kill()
@@ -245,6 +257,35 @@ def main() -> int:
     return 0
 
 
+def pty_floor(frame: int, rounds: int = 5000) -> float:
+    """Seconds per round trip of the cheapest possible Python pair on a raw pty.
+
+    Two processes, no protocol at all: one writes ``frame`` bytes and waits for one byte back,
+    the other reads the frame and answers. Every Python XModem pair pays at least this per
+    block, so PyPI's time per block divided by it bounds the ratio any Python sender and
+    receiver can reach against PyPI.
+    """
+    with raw_pty() as (fd_a, fd_b):
+        pid = os.fork()
+        if pid == 0:  # the answering side
+            try:
+                for _ in range(rounds):
+                    got = 0
+                    while got < frame:
+                        got += len(os.read(fd_b, 4096))
+                    os.write(fd_b, b"\x06")
+            finally:
+                os._exit(0)
+        block = os.urandom(frame)
+        started = time.perf_counter()
+        for _ in range(rounds):
+            os.write(fd_a, block)
+            os.read(fd_a, 1)
+        elapsed = time.perf_counter() - started
+        os.waitpid(pid, 0)
+    return elapsed / rounds
+
+
 def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
     """Part 1: raw pty pair."""
     pty_large = int(args.pty_mib * (1 << 20)) // 1024 * 1024
@@ -272,6 +313,16 @@ def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
             if ours and theirs:
                 parts.append(f"ours/{other} = {ours / theirs:5.1f}x")
         print(f"  {mode:8} " + "   ".join(parts))
+    print("  floor: a protocol-free Python ping-pong on the same kind of pty, one frame per trip")
+    for mode in MODES:
+        payload, frame = FRAME[mode]
+        trip = statistics.median(pty_floor(frame) for _ in range(3))
+        line = f"  {mode:8} {trip * 1e6:5.1f} µs per block = {payload / trip / 1e6:6.2f} MB/s"
+        pypi = pty_rates.get(("pypi", mode))
+        if pypi:
+            # PyPI's time per block over the floor's: the most any Python pair could gain
+            line += f"; best possible Python/PyPI ratio {payload / trip / pypi:4.1f}x"
+        print(line)
 
 
 def run_cable(args: argparse.Namespace, impls: list[str]) -> None:
@@ -289,7 +340,14 @@ def run_cable(args: argparse.Namespace, impls: list[str]) -> None:
         link = lambda: cable(args.baud)  # noqa: E731 - a fresh cable per transfer
         for impl, (rate, note) in marginal(link, mode, plan, args.repeat).items():
             eff[(impl, mode)] = rate / ceiling if rate else None
-            shown = f"{rate:8.0f} B/s {100 * rate / ceiling:5.1f} %" if rate else "     n/a"
+            payload = FRAME[mode][0]
+            # time per block beyond the line time of block + ACK: both endpoints' turnaround
+            lost = (payload / rate - payload / ceiling) * 1e6 if rate else 0.0
+            shown = (
+                f"{rate:8.0f} B/s {100 * rate / ceiling:5.1f} % ({lost:4.0f} µs/block lost)"
+                if rate
+                else "     n/a"
+            )
             print(f"  {mode:8} {impl:8} {shown} of {ceiling:6.0f}  {note}", flush=True)
     print()
     for mode in MODES:

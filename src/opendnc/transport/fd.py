@@ -44,15 +44,15 @@ class FdStream:
         self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
-        data = self._try_read(max_bytes)
-        if data is not None:
-            return data
         spin = self._spin
         started = time.perf_counter()
         try:
             if spin.active:
                 data = spin.spin(lambda: self._try_read(max_bytes), started)
-            return self._wait_read(max_bytes) if data is None else data
+                if data is not None:
+                    return data
+            # poll first: a read that finds nothing raises, which costs more than the poll
+            return self._wait_read(max_bytes)
         finally:
             spin.record(time.perf_counter() - started)  # a timeout counts as a long wait
 
