@@ -304,6 +304,8 @@ def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
         for impl, (rate, note) in marginal(raw_pty, mode, plan, args.repeat).items():
             pty_rates[(impl, mode)] = rate
             shown = f"{rate / 1e6:8.2f} MB/s" if rate else "       n/a"
+            if impl == "lrzsz":
+                note = "; ".join(filter(None, [note, "rx's flush race: stalls of 5 s (notes)"]))
             print(f"  {mode:8} {impl:8} {shown}  {note}", flush=True)
     for mode in MODES:
         ours = pty_rates.get(("opendnc", mode))
