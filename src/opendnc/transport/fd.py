@@ -44,17 +44,10 @@ class FdStream:
         self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
-        spin = self._spin
-        started = time.perf_counter()
-        try:
-            if spin.active:
-                data = spin.spin(lambda: self._try_read(max_bytes), started)
-                if data is not None:
-                    return data
-            # poll first: a read that finds nothing raises, which costs more than the poll
-            return self._wait_read(max_bytes)
-        finally:
-            spin.record(time.perf_counter() - started)  # a timeout counts as a long wait
+        # when not spinning, poll first: a read that finds nothing raises, which costs more
+        return self._spin.read(
+            lambda: self._try_read(max_bytes), lambda: self._wait_read(max_bytes)
+        )
 
     def _try_read(self, max_bytes: int) -> bytes | None:
         """One non-blocking read: None while nothing is there."""

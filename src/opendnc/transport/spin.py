@@ -66,6 +66,21 @@ class BusyPoll:
                 return None
             pause()
 
+    def read(self, attempt: Callable[[], T | None], block: Callable[[], T]) -> T:
+        """One read: spin on ``attempt`` while that pays, else (or then) ``block``.
+
+        The whole wait is recorded, also when ``block`` raises (a timeout is a long wait).
+        """
+        started = time.perf_counter()
+        try:
+            if self.active:
+                result = self.spin(attempt, started)
+                if result is not None:
+                    return result
+            return block()
+        finally:
+            self.record(time.perf_counter() - started)
+
     def record(self, waited: float) -> None:
         """Report how long a read waited for its data (spinning included)."""
         self._average += (waited - self._average) * _SMOOTHING

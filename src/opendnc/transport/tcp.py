@@ -5,7 +5,6 @@ from __future__ import annotations
 import socket
 import struct
 import sys
-import time
 
 from opendnc.errors import PeerClosed, TransportError, TransportTimeout
 from opendnc.transport.spin import DEFAULT_WINDOW, BusyPoll
@@ -58,15 +57,9 @@ class TcpStream:
         self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
-        spin = self._spin
-        if not spin.enabled:
+        if not self._spin.enabled:
             return self._recv(max_bytes)
-        started = time.perf_counter()
-        try:
-            data = spin.spin(lambda: self._try_recv(max_bytes), started) if spin.active else None
-            return self._recv(max_bytes) if data is None else data
-        finally:
-            spin.record(time.perf_counter() - started)  # a timeout counts as a long wait
+        return self._spin.read(lambda: self._try_recv(max_bytes), lambda: self._recv(max_bytes))
 
     def _try_recv(self, max_bytes: int) -> bytes | None:
         """One non-blocking receive: None while nothing is there."""
