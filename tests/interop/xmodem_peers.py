@@ -26,38 +26,6 @@ from opendnc.transport.pty import PtyPair, open_pty
 from opendnc.xmodem.driver import POLL
 
 
-class FdStream:
-    """A :class:`~opendnc.transport.base.ByteStream` over a raw file descriptor (pty master)."""
-
-    def __init__(self, fd: int, timeout: float | None = 0.05) -> None:
-        self.fd = fd
-        self.timeout = timeout
-
-    def read(self, max_bytes: int) -> bytes:
-        ready, _, _ = select.select([self.fd], [], [], self.timeout)
-        if not ready:
-            raise TransportTimeout("no data on the pty master")
-        try:
-            data = os.read(self.fd, max_bytes)
-        except OSError as exc:  # EIO once every slave holder has closed it
-            raise PeerClosed(f"pty closed: {exc}") from exc
-        if not data:
-            raise PeerClosed("pty closed")
-        return data
-
-    def write(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(self.fd, view) :]
-
-    def set_timeout(self, seconds: float | None) -> None:
-        self.timeout = seconds
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
-
-
 @contextlib.contextmanager
 def pty_pair() -> Iterator[PtyPair]:
     """A raw pty pair, closed afterwards."""

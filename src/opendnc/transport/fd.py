@@ -19,6 +19,9 @@ from opendnc.transport.spin import DEFAULT_WINDOW, BusyPoll
 class FdStream:
     """A :class:`~opendnc.transport.base.ByteStream` over ``read_fd`` and ``write_fd``.
 
+    ``FdStream(fd)`` reads and writes one descriptor (a pty end); ``FdStream(0, 1)`` is the
+    ``sx``/``rx`` arrangement, the line on stdin and stdout.
+
     The read side is switched to non-blocking for the stream's life (and back on
     :meth:`close`), so a read is one ``read()`` when data is waiting and ``poll()`` plus
     ``read()`` otherwise. Reads busy-poll for up to ``busy_poll`` seconds while answers keep
@@ -28,13 +31,14 @@ class FdStream:
 
     def __init__(
         self,
-        read_fd: int = 0,
-        write_fd: int = 1,
+        read_fd: int,
+        write_fd: int | None = None,
         *,
         timeout: float | None = 1.0,
         busy_poll: float = DEFAULT_WINDOW,
     ) -> None:
-        self.read_fd, self.write_fd = read_fd, write_fd
+        self.read_fd = read_fd
+        self.write_fd = read_fd if write_fd is None else write_fd
         self.timeout = timeout
         self._was_blocking = os.get_blocking(read_fd)
         os.set_blocking(read_fd, False)

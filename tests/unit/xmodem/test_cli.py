@@ -8,10 +8,11 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from opendnc.cli.xmodem import app
+from opendnc.transport.fd import FdStream
 from opendnc.xmodem.driver import receive, send
 from opendnc.xmodem.framing import Mode, encode_block
 from opendnc.xmodem.receiver import ReceiverConfig
-from tests.interop.xmodem_peers import FdStream, pty_pair
+from tests.interop.xmodem_peers import pty_pair
 from tests.unit.xmodem.test_driver import Worker
 
 PROGRAM = b"%\nO04321(CLI TEST)\nG00 X0. Y0.\nM30\n%\n"
@@ -25,7 +26,9 @@ def test_send_converts_eob_and_names_the_program(tmp_path: Path) -> None:
         # the CLI opens its port after our first NAK and so discards it: NAK again soon
         config = ReceiverConfig(start_interval=0.2)
         peer = Worker(
-            lambda: receive(FdStream(pair.master_fd), sink, mode=Mode.CHECKSUM, config=config)
+            lambda: receive(
+                FdStream(pair.master_fd, timeout=0.05), sink, mode=Mode.CHECKSUM, config=config
+            )
         )
         peer.start()
         result = CliRunner().invoke(
@@ -41,7 +44,9 @@ def test_send_converts_eob_and_names_the_program(tmp_path: Path) -> None:
 def test_recv_into_folder_names_file_by_o_number(tmp_path: Path) -> None:
     wire = PROGRAM.replace(b"\n", b"\r\n")
     with pty_pair() as pair:
-        peer = Worker(lambda: send(FdStream(pair.master_fd), wire, mode=Mode.CHECKSUM))
+        peer = Worker(
+            lambda: send(FdStream(pair.master_fd, timeout=0.05), wire, mode=Mode.CHECKSUM)
+        )
         peer.start()
         result = CliRunner().invoke(
             app,
@@ -57,7 +62,7 @@ def test_failed_recv_leaves_no_file_and_exits_1(tmp_path: Path) -> None:
     out = tmp_path / "out.nc"
     data = bytes(range(256)) * 20
     with pty_pair() as pair:
-        master = FdStream(pair.master_fd)
+        master = FdStream(pair.master_fd, timeout=0.05)
 
         def partial_sender() -> None:
             assert master.read(10) == b"\x15"

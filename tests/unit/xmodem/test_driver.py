@@ -12,11 +12,12 @@ import pytest
 
 from opendnc.errors import DncError, PeerClosed, TransferError
 from opendnc.transport import SerialStream
+from opendnc.transport.fd import FdStream
 from opendnc.xmodem.driver import receive, receive_async, send, send_async
 from opendnc.xmodem.events import Completed
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.receiver import ReceiverConfig
-from tests.interop.xmodem_peers import FdStream, pty_pair
+from tests.interop.xmodem_peers import pty_pair
 
 
 def _data(n: int) -> bytes:
@@ -53,7 +54,7 @@ def test_blocking_send_to_receive_over_pty(mode: Mode) -> None:
         sink = io.BytesIO()
         # open our port first: opening a port discards input already waiting in it
         stream = SerialStream(pair.slave_path, 115200, timeout=0.05)
-        peer = Worker(lambda: receive(FdStream(pair.master_fd), sink, mode=mode))
+        peer = Worker(lambda: receive(FdStream(pair.master_fd, timeout=0.05), sink, mode=mode))
         peer.start()
         progress: list[tuple[int, int | None]] = []
         try:
@@ -69,7 +70,7 @@ def test_blocking_send_to_receive_over_pty(mode: Mode) -> None:
 
 def test_blocking_receive_reports_a_cancel_as_typed_error() -> None:
     with pty_pair() as pair:
-        master = FdStream(pair.master_fd)
+        master = FdStream(pair.master_fd, timeout=0.05)
 
         def cancelling_sender() -> None:
             assert master.read(10) == b"C"
