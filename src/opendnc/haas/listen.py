@@ -26,8 +26,7 @@ from opendnc.errors import (
 )
 from opendnc.haas.dprnt import DprntLineFramer, Field, parse_line
 from opendnc.transport.base import ByteStream
-from opendnc.transport.serial import SerialStream
-from opendnc.transport.tcp import TcpStream
+from opendnc.transport.serial import open_stream
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,12 +45,9 @@ class CapturedLine:
 
 def open_source(spec: str, *, baudrate: int = 9600, timeout: float = 0.5) -> ByteStream:
     """Open ``tcp://HOST:PORT`` as TCP, anything else as a pyserial URL or device."""
-    if spec.startswith("tcp://"):
-        host, sep, port = spec[6:].rpartition(":")
-        if not sep or not port.isdigit():
-            raise InputError(f"bad DPRNT source {spec!r}: use tcp://HOST:PORT")
-        return TcpStream(host.strip("[]"), int(port), timeout=timeout)
-    return SerialStream(spec, baudrate, timeout=timeout)
+    if spec.startswith("tcp://") and not spec[6:].rpartition(":")[2].isdigit():
+        raise InputError(f"bad DPRNT source {spec!r}: use tcp://HOST:PORT")
+    return open_stream(spec, baudrate, timeout=timeout)
 
 
 class LineSink(Protocol):

@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import termios
 from typing import Any
+from urllib.parse import urlsplit
 
 import serial
 
-from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+from opendnc.errors import InputError, PeerClosed, TransportError, TransportTimeout
+from opendnc.transport.base import ByteStream
+from opendnc.transport.tcp import TcpStream
 
 PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
@@ -89,3 +92,27 @@ class SerialStream:
 
     def close(self) -> None:
         self.port.close()
+
+
+def open_stream(
+    url: str, baudrate: int = 9600, *, timeout: float | None = 1.0, **settings: Any
+) -> ByteStream:
+    """Open a serial line for a protocol engine: a device, a pyserial URL, or plain TCP.
+
+    ``socket://host:port`` (a network serial server in raw TCP mode) and ``tcp://host:port``
+    become a :class:`~opendnc.transport.tcp.TcpStream`: pyserial's socket handler reports at
+    most one waiting byte, so a 1K XModem block would take hundreds of reads. A ``socket://``
+    URL with pyserial options (``?logging=debug``) still goes to pyserial. Baud rate and
+    line settings do not apply to TCP; the server's port has its own.
+    """
+    scheme, sep, rest = url.partition("://")
+    if sep and scheme in ("socket", "tcp") and "?" not in rest:
+        try:
+            parts = urlsplit(url)
+            host, port = parts.hostname, parts.port
+        except ValueError:  # a bad port number or bracket
+            host = port = None
+        if not host or port is None:
+            raise InputError(f"bad address {url!r}: use {scheme}://HOST:PORT")
+        return TcpStream(host, port, timeout=timeout)
+    return SerialStream(url, baudrate, timeout=timeout, **settings)

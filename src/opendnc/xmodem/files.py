@@ -16,7 +16,7 @@ from pathlib import Path
 from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
 from opendnc.transport.base import ByteStream
-from opendnc.transport.serial import SerialStream
+from opendnc.transport.serial import open_stream
 from opendnc.xmodem.driver import POLL, EventHandler, Progress, receive, send
 from opendnc.xmodem.events import EotAnswer
 from opendnc.xmodem.framing import Mode
@@ -55,9 +55,9 @@ class ReceiveReport:
     seconds: float
 
 
-def open_port(url: str, baud: int = 9600, parity: str = "N") -> SerialStream:
-    """Open anything pyserial opens (device, ``socket://``, ``rfc2217://``) for XModem use."""
-    return SerialStream(url, baud, parity=parity, bytesize=8, stopbits=1, timeout=POLL)
+def open_port(url: str, baud: int = 9600, parity: str = "N") -> ByteStream:
+    """Open a device, ``socket://``/``tcp://`` (plain TCP) or any pyserial URL for XModem."""
+    return open_stream(url, baud, parity=parity, bytesize=8, stopbits=1, timeout=POLL)
 
 
 PendingFile = AtomicWriter
