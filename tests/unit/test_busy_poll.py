@@ -104,7 +104,7 @@ def test_fd_stream_ping_pong_engages_spinning(
     pty_pair: PtyPair, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(spin_module, "_several_cpus", lambda: True)
-    stream = FdStream(pty_pair.slave_fd, pty_pair.slave_fd, timeout=2, busy_poll=2e-3)
+    stream = FdStream(pty_pair.slave_fd, pty_pair.slave_fd, timeout=2, busy_poll=50e-3)
     master = pty_pair.master_fd
 
     def echo() -> None:
