@@ -35,7 +35,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import select
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -186,6 +188,9 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
             elapsed = time.perf_counter() - start
             with contextlib.suppress(subprocess.TimeoutExpired):
                 sender.wait(timeout=SENDER_GRACE)
+            if impl != "lrzsz" and not note and sender.poll() != 0:
+                # only sx has the excuse above; any other sender must finish cleanly
+                note = f"sender did not finish cleanly (status {sender.poll()})"
             for proc in (sender, receiver):
                 if proc.poll() is None:
                     proc.kill()
@@ -280,6 +285,9 @@ def pty_floor(frame: int, rounds: int = 5000) -> float:
         started = time.perf_counter()
         for _ in range(rounds):
             os.write(fd_a, block)
+            if not select.select([fd_a], [], [], 5.0)[0]:
+                os.kill(pid, signal.SIGKILL)
+                raise SystemExit("pty floor: the answering process stopped")
             os.read(fd_a, 1)
         elapsed = time.perf_counter() - started
         os.waitpid(pid, 0)

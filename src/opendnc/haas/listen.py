@@ -44,9 +44,9 @@ class CapturedLine:
 
 
 def open_source(spec: str, *, baudrate: int = 9600, timeout: float = 0.5) -> ByteStream:
-    """Open ``tcp://HOST:PORT`` as TCP, anything else as a pyserial URL or device."""
-    if spec.startswith("tcp://") and not spec[6:].rpartition(":")[2].isdigit():
-        raise InputError(f"bad DPRNT source {spec!r}: use tcp://HOST:PORT")
+    """Open ``tcp://HOST:PORT`` or ``socket://HOST:PORT`` as TCP, anything else as a pyserial
+    URL or device (:func:`~opendnc.transport.serial.open_stream`); a malformed address is an
+    :class:`InputError`, not something to retry."""
     return open_stream(spec, baudrate, timeout=timeout)
 
 

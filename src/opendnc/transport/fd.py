@@ -2,18 +2,20 @@
 
 This is how ``sx``/``rx`` hold a serial line (the port as stdin and stdout, opened and set up
 by whoever started them), and how a test or benchmark hands a pty end to an endpoint process.
-Line settings are left alone: the opener sets speed and raw mode.
+Line settings and file flags are left alone: the opener sets speed and raw mode.
 """
 
 from __future__ import annotations
 
-import contextlib
+import errno
 import os
 import select
-import time
 
 from opendnc.errors import PeerClosed, TransportError, TransportTimeout
 from opendnc.transport.spin import DEFAULT_WINDOW, BusyPoll
+
+# errors that mean the other end is gone: a pty whose other side closed (EIO), a socket
+_HANG_UP = {errno.EIO, errno.ECONNRESET, errno.EPIPE}
 
 
 class FdStream:
@@ -22,11 +24,12 @@ class FdStream:
     ``FdStream(fd)`` reads and writes one descriptor (a pty end); ``FdStream(0, 1)`` is the
     ``sx``/``rx`` arrangement, the line on stdin and stdout.
 
-    The read side is switched to non-blocking for the stream's life (and back on
-    :meth:`close`), so a read is one ``read()`` when data is waiting and ``poll()`` plus
-    ``read()`` otherwise. Reads busy-poll for up to ``busy_poll`` seconds while answers keep
-    coming that fast (:mod:`opendnc.transport.spin`; 0 turns it off). The descriptors are not
-    closed by :meth:`close`; they belong to whoever opened them.
+    A read waits in ``poll()`` and only then reads, so it works on blocking and non-blocking
+    descriptors alike and never waits longer than its timeout. Reads busy-poll for up to
+    ``busy_poll`` seconds while answers keep coming that fast (:mod:`opendnc.transport.spin`;
+    0 turns it off). Writes block until the line takes the data, as on a serial port with
+    flow control. The descriptors belong to whoever opened them; :meth:`close` leaves them
+    open.
     """
 
     def __init__(
@@ -40,45 +43,42 @@ class FdStream:
         self.read_fd = read_fd
         self.write_fd = read_fd if write_fd is None else write_fd
         self.timeout = timeout
-        self._was_blocking = os.get_blocking(read_fd)
-        os.set_blocking(read_fd, False)
         self._poller = select.poll()
         self._poller.register(read_fd, select.POLLIN)
         self._spin = BusyPoll(busy_poll)
-        self._closed = False
 
     def read(self, max_bytes: int) -> bytes:
-        # when not spinning, poll first: a read that finds nothing raises, which costs more
         return self._spin.read(
-            lambda: self._try_read(max_bytes), lambda: self._wait_read(max_bytes)
+            lambda: self._read_if_ready(max_bytes, 0), lambda: self._wait_read(max_bytes)
         )
 
-    def _try_read(self, max_bytes: int) -> bytes | None:
-        """One non-blocking read: None while nothing is there."""
+    def _read_if_ready(self, max_bytes: int, wait_ms: int | None) -> bytes | None:
+        """Wait up to ``wait_ms`` for input, then read it; None if none came."""
+        if not self._poller.poll(wait_ms):
+            return None
         try:
             data = os.read(self.read_fd, max_bytes)
         except BlockingIOError:
-            return None
+            return None  # another reader of this descriptor was quicker
         except OSError as exc:
-            # EIO: the other end of a pty is gone, the way a tty reports a hang-up
-            raise PeerClosed(f"fd {self.read_fd}: {exc.strerror or exc}") from exc
+            if exc.errno in _HANG_UP:
+                raise PeerClosed(f"fd {self.read_fd}: {exc.strerror}") from exc
+            raise TransportError(f"read from fd {self.read_fd} failed: {exc}") from exc
         if not data:
             raise PeerClosed(f"fd {self.read_fd}: end of file")
         return data
 
     def _wait_read(self, max_bytes: int) -> bytes:
         timeout = self.timeout
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            left = None if deadline is None else max(deadline - time.monotonic(), 0.0)
-            ms = None if left is None else int(left * 1000) + (left * 1000 % 1 > 0)
-            if not self._poller.poll(ms):
-                if deadline is not None and time.monotonic() >= deadline:
-                    raise TransportTimeout(f"no data on fd {self.read_fd}")
-                continue
-            data = self._try_read(max_bytes)
-            if data is not None:
-                return data
+        if timeout is None:
+            while (data := self._read_if_ready(max_bytes, None)) is None:
+                pass
+            return data
+        # poll() counts whole milliseconds: round up, so the wait is never shorter
+        data = self._read_if_ready(max_bytes, max(0, -int(-timeout * 1000 // 1)))
+        if data is None:
+            raise TransportTimeout(f"no data on fd {self.read_fd} within {timeout:g} s")
+        return data
 
     def write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -86,9 +86,10 @@ class FdStream:
             try:
                 view = view[os.write(self.write_fd, view) :]
             except BlockingIOError:
-                # stdin and stdout are often one tty, so our O_NONBLOCK is the writer's too
-                self._wait_writable()
+                self._wait_writable()  # the opener made the descriptor non-blocking
             except OSError as exc:
+                if exc.errno in _HANG_UP:
+                    raise PeerClosed(f"fd {self.write_fd}: {exc.strerror}") from exc
                 raise TransportError(f"write to fd {self.write_fd} failed: {exc}") from exc
 
     def _wait_writable(self) -> None:
@@ -102,7 +103,4 @@ class FdStream:
         self.timeout = seconds
 
     def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            with contextlib.suppress(OSError):
-                os.set_blocking(self.read_fd, self._was_blocking)
+        """Nothing to release: the descriptors stay open for their owner."""

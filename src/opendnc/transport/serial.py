@@ -2,6 +2,8 @@
 
 Devices (``/dev/ttyUSB0``, ``COM3``), pty slaves, ``socket://host:port``,
 ``rfc2217://host:port``, ``spy://`` and ``loop://`` all work the same way.
+:func:`open_stream` is what commands use: it opens plain ``socket://`` and ``tcp://``
+addresses as TCP streams and everything else through pyserial.
 """
 
 from __future__ import annotations
@@ -106,6 +108,8 @@ def open_stream(
     line settings do not apply to TCP; the server's port has its own.
     """
     scheme, sep, rest = url.partition("://")
+    if scheme == "tcp" and "?" in rest:
+        raise InputError(f"bad address {url!r}: tcp:// takes no options, use tcp://HOST:PORT")
     if sep and scheme in ("socket", "tcp") and "?" not in rest:
         try:
             parts = urlsplit(url)

@@ -27,13 +27,24 @@ def _timeval(seconds: float | None) -> bytes:
     return _TIMEVAL.pack(whole, micro)
 
 
+# Busy-polling needs a receive that never waits; Python's own socket timeouts (used where the
+# kernel ones are missing) would make MSG_DONTWAIT wait the whole timeout first.
+_CAN_SPIN = _KERNEL_TIMEOUTS and hasattr(socket, "MSG_DONTWAIT")
+CONNECT_TIMEOUT = 5.0  # seconds at least for the TCP handshake, whatever the read timeout
+WRITE_TIMEOUT = 10.0  # seconds a write may wait for the peer to take data (kernel timeouts)
+
+
 class TcpStream:
     """A connected TCP socket with ``TCP_NODELAY`` set.
 
     Request/response protocols send small telegrams; without ``TCP_NODELAY`` Nagle's
-    algorithm and delayed ACKs cost tens of milliseconds per round trip. Reads busy-poll for
-    up to ``busy_poll`` seconds while answers keep coming that fast (see
-    :mod:`opendnc.transport.spin`; 0 turns it off).
+    algorithm and delayed ACKs cost tens of milliseconds per round trip.
+
+    ``timeout`` limits each read (:meth:`set_timeout` changes it). Connecting may take at
+    least :data:`CONNECT_TIMEOUT` and a write up to :data:`WRITE_TIMEOUT` (or ``timeout`` if
+    longer), so a short poll interval chosen for reads never cuts a slow handshake or a
+    peer holding back a block. Reads busy-poll for up to ``busy_poll`` seconds while answers
+    keep coming that fast (see :mod:`opendnc.transport.spin`; 0 turns it off).
     """
 
     def __init__(
@@ -45,14 +56,21 @@ class TcpStream:
         busy_poll: float = DEFAULT_WINDOW,
     ) -> None:
         self.host, self.port = host, port
-        self._spin = BusyPoll(busy_poll)
+        self._spin = BusyPoll(busy_poll if _CAN_SPIN else 0.0)
+        connect = None if timeout is None else max(timeout, CONNECT_TIMEOUT)
         try:
-            self._sock = socket.create_connection((host, port), timeout=timeout)
+            self._sock = socket.create_connection((host, port), timeout=connect)
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc.strerror or exc}") from exc
+        except (UnicodeError, ValueError, OverflowError) as exc:  # a malformed host or port
+            raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if _KERNEL_TIMEOUTS:
+            self._sock.settimeout(None)
+            write = None if timeout is None else max(timeout, WRITE_TIMEOUT)
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, _timeval(write))
         self.set_timeout(timeout)
         self._closed = False
 
@@ -67,8 +85,8 @@ class TcpStream:
             data = self._sock.recv(max_bytes, socket.MSG_DONTWAIT)
         except BlockingIOError:
             return None
-        except OSError:
-            return self._recv(max_bytes)  # let the blocking path raise the mapped error
+        except OSError as exc:
+            raise self._failed(exc) from exc
         if not data:
             raise PeerClosed(f"{self.host}:{self.port} closed the connection")
         return data
@@ -79,10 +97,15 @@ class TcpStream:
         except (TimeoutError, BlockingIOError) as exc:
             raise TransportTimeout(f"no answer from {self.host}:{self.port}") from exc
         except OSError as exc:
-            raise TransportError(f"receive from {self.host}:{self.port} failed: {exc}") from exc
+            raise self._failed(exc) from exc
         if not data:
             raise PeerClosed(f"{self.host}:{self.port} closed the connection")
         return data
+
+    def _failed(self, exc: OSError) -> TransportError:
+        if isinstance(exc, ConnectionResetError):
+            return PeerClosed(f"{self.host}:{self.port} reset the connection")
+        return TransportError(f"receive from {self.host}:{self.port} failed: {exc}")
 
     def write(self, data: bytes) -> None:
         try:
@@ -93,15 +116,14 @@ class TcpStream:
             raise TransportError(f"send to {self.host}:{self.port} failed: {exc}") from exc
 
     def set_timeout(self, seconds: float | None) -> None:
-        """Limit each later read and write to ``seconds`` (``None``: wait forever, ``0``:
-        never wait; both raise :class:`TransportTimeout` when nothing could be done)."""
+        """Limit each later read to ``seconds`` (``None``: wait forever, ``0``: never wait;
+        both raise :class:`TransportTimeout` when nothing came)."""
         if not _KERNEL_TIMEOUTS or seconds == 0:
+            # Python's timeout covers writes as well; acceptable where the kernel has none
             self._sock.settimeout(seconds)
             return
         self._sock.settimeout(None)
-        value = _timeval(seconds)
-        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, value)
-        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, value)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _timeval(seconds))
 
     def close(self) -> None:
         if not self._closed:

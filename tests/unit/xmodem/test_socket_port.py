@@ -29,6 +29,7 @@ from tests.unit.xmodem.test_driver import Worker
 def _serve_once(action: Callable[[ByteStream], object]) -> tuple[int, Worker]:
     """Listen on loopback; the first connection runs ``action`` over an FdStream of it."""
     listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(20)  # a command that never connects must not leave the thread waiting
 
     def run() -> object:
         try:
@@ -82,7 +83,9 @@ def test_open_stream_picks_tcp_for_plain_socket_urls_only() -> None:
         with_options.close()
 
 
-@pytest.mark.parametrize("url", ["socket://127.0.0.1", "tcp://:5000", "socket://[::1"])
+@pytest.mark.parametrize(
+    "url", ["socket://127.0.0.1", "tcp://:5000", "socket://[::1", "tcp://h:5000?logging=debug"]
+)
 def test_open_stream_rejects_an_address_without_host_or_port(url: str) -> None:
     with pytest.raises(InputError, match="HOST:PORT"):
         open_stream(url)
