@@ -18,7 +18,7 @@ from opendnc.errors import DncError
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.receiver import ReceiverConfig, XmodemReceiver
 from opendnc.xmodem.sender import SenderConfig, XmodemSender
-from tests.unit.xmodem.memwire import run_wired
+from tests.unit.xmodem.memwire import WireResult, run_wired
 
 FAULT_KINDS = ["flip", "cut", "lose", "twice"]
 
@@ -52,6 +52,42 @@ def test_faulty_wire_ends_identical_or_typed_error(
     plan: dict[int, tuple[str, int, int]],
     byte_time: float,
 ) -> None:
+    result = _run_faulty(data, sender_mode, receiver_mode, plan, byte_time, prepare=True)
+    if result.receiver_result is not None:
+        assert result.received == data
+        assert result.receiver_error is None
+    else:
+        assert isinstance(result.receiver_error, DncError)
+    if result.sender_error is not None:
+        assert isinstance(result.sender_error, DncError)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    data=st.binary(min_size=1, max_size=5000).map(lambda b: b.rstrip(b"\x1a") or b"x"),
+    mode=st.sampled_from(list(Mode)),
+    plan=fault_plan(),
+)
+def test_prepared_blocks_change_nothing_on_the_wire(
+    data: bytes, mode: Mode, plan: dict[int, tuple[str, int, int]]
+) -> None:
+    # the sender's prepare() builds the next block early; with the same faults (NAKs, 1K
+    # fallback, retries) the bytes on the wire must be exactly those built on demand
+    plain = _run_faulty(data, mode, mode, plan, 1 / 11_520, prepare=False)
+    early = _run_faulty(data, mode, mode, plan, 1 / 11_520, prepare=True)
+    assert early.trace == plain.trace
+    assert early.received == plain.received
+
+
+def _run_faulty(
+    data: bytes,
+    sender_mode: Mode,
+    receiver_mode: Mode,
+    plan: dict[int, tuple[str, int, int]],
+    byte_time: float,
+    *,
+    prepare: bool,
+) -> WireResult:
     counter = {"n": 0}
 
     def fault(direction: str, chunk: bytes) -> bytes:
@@ -69,16 +105,11 @@ def test_faulty_wire_ends_identical_or_typed_error(
             return b""
         return chunk + chunk
 
-    result = run_wired(
+    return run_wired(
         XmodemSender(data, sender_mode, SenderConfig(max_retries=6)),
         XmodemReceiver(receiver_mode, ReceiverConfig(max_retries=6)),
         fault=fault,
         byte_time=byte_time,
+        keep_trace=True,
+        prepare=prepare,
     )
-    if result.receiver_result is not None:
-        assert result.received == data
-        assert result.receiver_error is None
-    else:
-        assert isinstance(result.receiver_error, DncError)
-    if result.sender_error is not None:
-        assert isinstance(result.sender_error, DncError)

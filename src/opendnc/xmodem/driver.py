@@ -90,7 +90,7 @@ def run_blocking(
     stream.set_timeout(poll)
     # bound once: this loop turns once per block, and lookups are a visible share of it
     write, read, receive_data = stream.write, stream.read, engine.receive_data
-    data_to_send, remaining_for = engine.data_to_send, deadline.remaining
+    data_to_send, remaining_for, prepare = engine.data_to_send, deadline.remaining, engine.prepare
     try:
         while True:
             out = data_to_send()
@@ -107,6 +107,7 @@ def run_blocking(
                 write(out)
             if engine.has_events:
                 _dispatch(engine, on_event)
+            prepare()
             remaining = remaining_for(engine)
             if remaining <= 0:
                 engine.timed_out()
@@ -157,6 +158,7 @@ async def run_async(
                 writer.write(out)
                 await writer.drain()
             _dispatch(engine, on_event)
+            engine.prepare()
             remaining = deadline.remaining(engine)
             if remaining <= 0:
                 engine.timed_out()

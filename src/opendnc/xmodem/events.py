@@ -148,6 +148,13 @@ class EngineBase:
             self._pending = None
         self._out += data
 
+    def prepare(self) -> None:
+        """Do now, while the driver waits for the peer, work that the next input will need.
+
+        Drivers call it after writing and before blocking on a read. What it does never shows
+        on the wire or in events; engines without such work inherit this no-op.
+        """
+
     @property
     def has_events(self) -> bool:
         """True while :meth:`next_event` has something to return."""

@@ -107,12 +107,16 @@ class XmodemReceiver(EngineBase):
             else:
                 self._buf += data
             return
-        if state is ReceiverState.RECEIVING and not self._buf:
-            # the hot path: a whole block in one read (the driver reads exactly one frame
-            # where it can), decoded straight from ``data`` without buffering a copy
-            start = data[0]
-            if start in (SOH, STX) and len(data) == frame_length(start, self.crc):
-                if self._take_frame(data) and not self.finished:
+        if state is ReceiverState.RECEIVING:
+            # the hot paths: a whole block in one read, or the read that completes the block
+            # begun by earlier ones (a paced line delivers a block in pieces), decoded without
+            # the general parser; this runs right before our ACK goes out
+            buf = self._buf
+            start = buf[0] if buf else data[0]
+            if start in (SOH, STX) and len(buf) + len(data) == frame_length(start, self.crc):
+                frame = bytes(buf) + data if buf else data
+                buf.clear()
+                if self._take_frame(frame) and not self.finished:
                     self._arm(self.config.block_timeout)
                 return
         if state is ReceiverState.STARTING:

@@ -100,6 +100,9 @@ class XmodemSender(EngineBase):
         self._large_allowed = mode is Mode.ONE_K
         self._block = b""
         self._block_len = 0  # payload bytes carried by the current block
+        # the block after the current one, built by prepare() while the ACK is on its way:
+        # ((seq, offset, large allowed), frame, payload bytes)
+        self._next: tuple[tuple[int, int, bool], bytes, int] | None = None
         self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
         self._cans = 0  # consecutive CAN bytes seen
         self._eot_naks = 0
@@ -286,13 +289,33 @@ class XmodemSender(EngineBase):
         else:
             self._send_next_block()
 
+    def prepare(self) -> None:
+        """Build the next block while waiting for the ACK of the current one.
+
+        On a paced line the sender sleeps through every block; the Python work of building
+        the next one after the ACK arrives runs with cold caches and delays the line.
+        """
+        if self.state is not SenderState.WAIT_ACK or self._next is not None:
+            return
+        offset = self._offset + self._block_len
+        if offset >= self._total:
+            return
+        seq = (self._seq + 1) & 0xFF
+        frame, length = self._encode(seq, offset)
+        self._next = ((seq, offset, self._large_allowed), frame, length)
+
+    def _encode(self, seq: int, offset: int) -> tuple[bytes, int]:
+        """The frame of the block at ``offset`` and the payload bytes it carries."""
+        large = self._large_allowed and self._total - offset > _TAIL_SMALL_LIMIT
+        chunk = self._data[offset : offset + (LARGE if large else SMALL)]
+        return encode_block(seq, chunk, crc=self.crc, large=large), len(chunk)
+
     def _build_block(self) -> None:
-        remaining = self._total - self._offset
-        large = self._large_allowed and remaining > _TAIL_SMALL_LIMIT
-        size = LARGE if large else SMALL
-        chunk = self._data[self._offset : self._offset + size]
-        self._block_len = len(chunk)
-        self._block = encode_block(self._seq, chunk, crc=self.crc, large=large)
+        ready, self._next = self._next, None
+        if ready is not None and ready[0] == (self._seq, self._offset, self._large_allowed):
+            _, self._block, self._block_len = ready
+            return
+        self._block, self._block_len = self._encode(self._seq, self._offset)
 
     def _send_next_block(self) -> None:
         if self._offset >= self._total:

@@ -49,8 +49,12 @@ def run_wired(
     byte_time: float = 0.0,
     max_time: float = 100_000.0,
     keep_trace: bool = False,
+    prepare: bool = True,
 ) -> WireResult:
-    """Run both engines until both have finished (or raise :class:`Hang`)."""
+    """Run both engines until both have finished (or raise :class:`Hang`).
+
+    ``prepare`` calls each engine's :meth:`prepare` after it has sent, as the drivers do.
+    """
     now = 0.0
     seq = itertools.count()
     inflight: list[tuple[float, int, str, bytes]] = []  # (deliver_at, order, direction, data)
@@ -80,6 +84,8 @@ def run_wired(
                 done = start + len(data) * byte_time
                 line_free[direction] = done
                 heapq.heappush(inflight, (done + latency, next(seq), direction, data))
+        if prepare:
+            engine.prepare()
         timer = engine.timer
         if engine.finished or timer is None:
             deadlines.pop(name, None)
