@@ -77,25 +77,22 @@ class TcpStream:
     def read(self, max_bytes: int) -> bytes:
         if not self._spin.enabled:
             return self._recv(max_bytes)
-        return self._spin.read(lambda: self._try_recv(max_bytes), lambda: self._recv(max_bytes))
-
-    def _try_recv(self, max_bytes: int) -> bytes | None:
-        """One non-blocking receive: None while nothing is there."""
-        try:
-            data = self._sock.recv(max_bytes, socket.MSG_DONTWAIT)
-        except BlockingIOError:
-            return None
-        except OSError as exc:
-            raise self._failed(exc) from exc
-        if not data:
-            raise PeerClosed(f"{self.host}:{self.port} closed the connection")
-        return data
+        return self._spin.read(
+            lambda: self._receive(max_bytes, socket.MSG_DONTWAIT), lambda: self._recv(max_bytes)
+        )
 
     def _recv(self, max_bytes: int) -> bytes:
+        data = self._receive(max_bytes, 0)
+        if data is None:
+            raise TransportTimeout(f"no answer from {self.host}:{self.port}")
+        return data
+
+    def _receive(self, max_bytes: int, flags: int) -> bytes | None:
+        """One recv: data, or None when nothing came (non-blocking, or the timeout ran out)."""
         try:
-            data = self._sock.recv(max_bytes)
-        except (TimeoutError, BlockingIOError) as exc:
-            raise TransportTimeout(f"no answer from {self.host}:{self.port}") from exc
+            data = self._sock.recv(max_bytes, flags)
+        except (TimeoutError, BlockingIOError):
+            return None
         except OSError as exc:
             raise self._failed(exc) from exc
         if not data:
