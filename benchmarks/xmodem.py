@@ -3,11 +3,11 @@
 Every endpoint runs in its own process with its end of the link as stdin/stdout (lrzsz's
 convention; ours and PyPI's follow it), so no two endpoints share an interpreter.
 
-1. Raw pty pair (no line timing): each implementation sends to itself (ours -> ours,
-   sx -> rx, PyPI -> PyPI) in all three modes. Reported: payload MB/s and the ratios
-   ours/lrzsz and ours/PyPI; then the floor, a protocol-free two-process Python ping-pong of
-   one frame per trip on the same kind of pty, and the best ratio to PyPI that any Python
-   pair could reach with it.
+1. Raw pty pair (no line timing): ours -> ours, sx -> ours (see the note on lrzsz below) and
+   PyPI -> PyPI, in all three modes. Reported: payload MB/s and the ratios ours/sx>ours and
+   ours/PyPI; then the floor, a protocol-free two-process Python ping-pong of one frame per
+   trip on the same kind of pty, and the best ratio to PyPI that any Python pair could reach
+   with it.
 2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
    115200 8N1: payload bytes/s against the ceiling of each mode (128/133, 128/134, 1024/1030
    of 11,520 B/s) for the same three pairs, and the time per block lost beyond the line time
@@ -52,8 +52,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("checksum", "crc", "1k")
-BLOCK_SHARE = {"checksum": 128 / 133, "crc": 128 / 134, "1k": 1024 / 1030}
 FRAME = {"checksum": (128, 132), "crc": (128, 133), "1k": (1024, 1029)}  # (payload, frame bytes)
+# payload share of the line: a block and its one-byte ACK
+BLOCK_SHARE = {mode: payload / (frame + 1) for mode, (payload, frame) in FRAME.items()}
 SENDER_HEAD_START = 0.4  # let the sender open its port before the receiver asks for data
 SENDER_GRACE = 5.0  # seconds the sender may take to finish after the receiver has exited
 

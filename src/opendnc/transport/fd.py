@@ -8,6 +8,7 @@ Line settings and file flags are left alone: the opener sets speed and raw mode.
 from __future__ import annotations
 
 import errno
+import math
 import os
 import select
 
@@ -75,7 +76,7 @@ class FdStream:
                 pass
             return data
         # poll() counts whole milliseconds: round up, so the wait is never shorter
-        data = self._read_if_ready(max_bytes, max(0, -int(-timeout * 1000 // 1)))
+        data = self._read_if_ready(max_bytes, max(0, math.ceil(timeout * 1000)))
         if data is None:
             raise TransportTimeout(f"no data on fd {self.read_fd} within {timeout:g} s")
         return data

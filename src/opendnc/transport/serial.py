@@ -108,9 +108,13 @@ def open_stream(
     line settings do not apply to TCP; the server's port has its own.
     """
     scheme, sep, rest = url.partition("://")
-    if scheme == "tcp" and "?" in rest:
-        raise InputError(f"bad address {url!r}: tcp:// takes no options, use tcp://HOST:PORT")
-    if sep and scheme in ("socket", "tcp") and "?" not in rest:
+    if sep and scheme in ("socket", "tcp"):
+        if "?" in rest:
+            if scheme == "tcp":
+                raise InputError(
+                    f"bad address {url!r}: tcp:// takes no options, use tcp://HOST:PORT"
+                )
+            return SerialStream(url, baudrate, timeout=timeout, **settings)
         try:
             parts = urlsplit(url)
             host, port = parts.hostname, parts.port

@@ -37,9 +37,8 @@ def _several_cpus() -> bool:
 class BusyPoll:
     """Decides whether a read spins before it blocks, and does the spinning.
 
-    ``window`` is the longest spin in seconds; 0 turns spinning off. Use :meth:`spin` with a
-    non-blocking attempt, fall back to the blocking read when it returns ``None``, then report
-    the whole wait with :meth:`record`.
+    ``window`` is the longest spin in seconds; 0 turns spinning off. A stream calls
+    :meth:`read` with a non-blocking attempt and its blocking read.
     """
 
     __slots__ = ("_average", "enabled", "window")
