@@ -7,7 +7,8 @@ convention; ours and PyPI's follow it), so no two endpoints share an interpreter
    PyPI -> PyPI, in all three modes. Reported: payload MB/s and the ratios ours/sx>ours and
    ours/PyPI; then the floor, a protocol-free two-process Python ping-pong of one frame per
    trip on the same kind of pty, and the best ratio to PyPI that any Python pair could reach
-   with it.
+   with it; then the same ping-pong compiled from C (when a C compiler is installed): the
+   kernel's own cost per trip, which bounds the ratio of any implementation in any language.
 2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
    115200 8N1: payload bytes/s against the ceiling of each mode (128/133, 128/134, 1024/1030
    of 11,520 B/s) for the same three pairs, and the time per block lost beyond the line time
@@ -301,6 +302,86 @@ def pty_floor(frame: int, rounds: int = 5000) -> float:
     return elapsed / rounds
 
 
+# The floor of part 1 in C: the same two-process ping-pong with nothing but blocking
+# read/write, so what it measures is the pty and the scheduler, not a language.
+C_PING_PONG = r"""
+#include <pty.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+static void make_raw(int fd) {
+    struct termios t;
+    tcgetattr(fd, &t);
+    cfmakeraw(&t);
+    tcsetattr(fd, TCSANOW, &t);
+}
+
+int main(int argc, char **argv) {
+    int frame = atoi(argv[1]), rounds = atoi(argv[2]), a, b;
+    static char buf[4096], block[4096];
+    struct timespec t0, t1;
+    if (frame <= 0 || frame > 4096 || openpty(&a, &b, NULL, NULL, NULL) != 0) return 2;
+    make_raw(a);
+    make_raw(b);
+    memset(block, 0x55, sizeof block);
+    pid_t pid = fork();
+    if (pid == 0) {
+        for (int i = 0; i < rounds; i++) {
+            for (int got = 0; got < frame;) {
+                ssize_t n = read(b, buf, sizeof buf);
+                if (n <= 0) _exit(1);
+                got += (int)n;
+            }
+            if (write(b, "\x06", 1) != 1) _exit(1);
+        }
+        _exit(0);
+    }
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (int i = 0; i < rounds; i++) {
+        if (write(a, block, frame) != frame || read(a, buf, 1) != 1) return 1;
+    }
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    int status;
+    waitpid(pid, &status, 0);
+    printf("%.9f\n", ((t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9) / rounds);
+    return status == 0 ? 0 : 1;
+}
+"""
+
+
+def c_floor_program(workdir: Path) -> Path | None:
+    """Compile the C ping-pong into ``workdir``; None without a working C compiler."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        return None
+    source, program = workdir / "ping_pong.c", workdir / "ping_pong"
+    source.write_text(C_PING_PONG)
+    built = subprocess.run(
+        [compiler, "-O2", "-o", str(program), str(source), "-lutil"],
+        capture_output=True,
+        text=True,
+    )
+    if built.returncode != 0:
+        print(f"  (C floor not measured: {compiler} failed: {built.stderr.strip()[:200]})")
+        return None
+    return program
+
+
+def c_floor(program: Path, frame: int, rounds: int = 20000) -> float:
+    """Seconds per round trip of the C ping-pong on a raw pty."""
+    done = subprocess.run(
+        [str(program), str(frame), str(rounds)], capture_output=True, text=True, timeout=120
+    )
+    if done.returncode != 0:
+        raise SystemExit(f"C floor: ping-pong failed (status {done.returncode})")
+    return float(done.stdout)
+
+
 def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
     """Part 1: raw pty pair."""
     pty_large = int(args.pty_mib * (1 << 20)) // 1024 * 1024
@@ -326,14 +407,30 @@ def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
                 parts.append(f"ours/{other} = {ours / theirs:5.1f}x")
         print(f"  {mode:8} " + "   ".join(parts))
     print("  floor: a protocol-free Python ping-pong on the same kind of pty, one frame per trip")
+    print_floor(pty_floor, pty_rates, "for a Python pair")
+    with tempfile.TemporaryDirectory() as tmp:
+        program = c_floor_program(Path(tmp))
+        if program is None:
+            print("  no C compiler: the kernel floor (C ping-pong) is not measured")
+            return
+        print("  kernel floor: the same ping-pong in C (blocking read/write, no interpreter)")
+        print_floor(lambda frame: c_floor(program, frame), pty_rates, "in any language")
+
+
+def print_floor(
+    trip_of: Callable[[int], float], pty_rates: dict[tuple[str, str], float | None], who: str
+) -> None:
+    """Per mode: the floor's time per block, and PyPI's time per block over it.
+
+    That quotient is the most any pair bound by this floor could gain over PyPI.
+    """
     for mode in MODES:
         payload, frame = FRAME[mode]
-        trip = statistics.median(pty_floor(frame) for _ in range(3))
+        trip = statistics.median(trip_of(frame) for _ in range(3))
         line = f"  {mode:8} {trip * 1e6:5.1f} µs per block = {payload / trip / 1e6:6.2f} MB/s"
         pypi = pty_rates.get(("pypi", mode))
         if pypi:
-            # PyPI's time per block over the floor's: the most any Python pair could gain
-            line += f"; best possible Python/PyPI ratio {payload / trip / pypi:4.1f}x"
+            line += f"; best possible ratio to PyPI {who}: {payload / trip / pypi:4.1f}x"
         print(line)
 
 
