@@ -10,11 +10,17 @@ convention; ours and PyPI's follow it), so no two endpoints share an interpreter
    with it; then the same ping-pong compiled from C (when a C compiler is installed): the
    kernel's own cost per trip, which bounds the ratio of any implementation in any language.
 2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
-   115200 8N1: payload bytes/s against the ceiling of each mode (128/133, 128/134, 1024/1030
-   of 11,520 B/s) for the same three pairs, and the time per block lost beyond the line time
-   of block and ACK (the turnaround of both ends). A transfer ends when the receiver exits
-   with the file: ``rx`` discards its final ACK with a TCIOFLUSH when the cable has not read
-   it within about 2 ms, and ``sx`` then waits for an answer that never comes.
+   115200 8N1: payload efficiency against the ceiling of each mode (128/133, 128/134,
+   1024/1030 of 11,520 B/s) for the same three pairs, two ways:
+   - "whole": the marginal rate of a small and a large transfer (below);
+   - "steady": the mean ACK-to-ACK cycle of the large transfer's full blocks, read from the
+     cable's line monitor. It leaves out start-up and endings, whose noise (a Python start
+     varies by tens of milliseconds) moves the whole figure by a point or more at 64 KiB,
+     and it is the same yardstick for every implementation. A block cycle beyond the line
+     time of block and ACK is both ends' turnaround plus the cable's own latency.
+   A transfer ends when the receiver exits with the file: ``rx`` discards its final ACK with a
+   TCIOFLUSH when the cable has not read it within about 2 ms, and ``sx`` then waits for an
+   answer that never comes.
 
 Throughput is *marginal*: each pair moves a small and a large file and the script divides the
 extra bytes by the extra time. That cancels fixed costs that have nothing to do with the
@@ -130,6 +136,7 @@ class Run:
     seconds: float
     ok: bool
     note: str = ""
+    cycle: float | None = None  # steady seconds per block, from the cable's line monitor
 
 
 @contextmanager
@@ -145,21 +152,52 @@ def raw_pty() -> Iterator[tuple[int, int]]:
             os.close(fd)
 
 
-@contextmanager
-def cable(baud: int) -> Iterator[tuple[int, int]]:
-    """(sender fd, receiver fd): both ends of B2's virtual cable, opened before any traffic."""
-    from opendnc.sim.cable import CableProcess
+class CableLink:
+    """A fresh virtual cable per transfer (side A the sender's), with its line monitor kept.
 
-    with CableProcess(baud=baud) as line:
-        fd_a = os.open(line.path_a, os.O_RDWR | os.O_NOCTTY)
-        fd_b = os.open(line.path_b, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(fd_a)
-        tty.setraw(fd_b)
-        try:
-            yield fd_a, fd_b
-        finally:
-            os.close(fd_a)
-            os.close(fd_b)
+    The monitor timestamps every ACK that crosses the cable, so :meth:`block_cycle` gives the
+    steady time per block of the last transfer, free of process start-up and of the endings.
+    """
+
+    def __init__(self, baud: int, workdir: Path) -> None:
+        self.baud = baud
+        self.monitor = workdir / "line-monitor.txt"
+
+    @contextmanager
+    def __call__(self) -> Iterator[tuple[int, int]]:
+        from opendnc.sim.cable import CableProcess
+
+        with CableProcess(baud=self.baud, monitor=self.monitor) as line:
+            fd_a = os.open(line.path_a, os.O_RDWR | os.O_NOCTTY)
+            fd_b = os.open(line.path_b, os.O_RDWR | os.O_NOCTTY)
+            tty.setraw(fd_a)
+            tty.setraw(fd_b)
+            try:
+                yield fd_a, fd_b
+            finally:
+                os.close(fd_a)
+                os.close(fd_b)
+
+    def block_cycle(self, frame: int) -> float | None:
+        """Mean seconds from one ACK to the next over the last transfer, per full block.
+
+        Only gaps in which exactly one ``frame``-byte block crossed count: that leaves out the
+        start, the EOT, a 1K sender's short tail blocks and retries, and keeps every ordinary
+        slow turnaround.
+        """
+        from opendnc.sim.cable import read_monitor
+
+        gaps: list[float] = []
+        last_ack: float | None = None
+        carried = 0  # bytes sent to the receiver since the last ACK
+        for record in read_monitor(self.monitor):
+            if record.direction == "a>b":
+                carried += len(record.data)
+            elif record.data == b"\x06":
+                if last_ack is not None and carried == frame:
+                    gaps.append(record.seconds - last_ack)
+                last_ack, carried = record.seconds, 0
+        return statistics.mean(gaps) if len(gaps) >= 10 else None
 
 
 def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run:
@@ -209,19 +247,29 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
     ok = not note and got.rstrip(b"\x1a") == data.rstrip(b"\x1a")
     if not ok and not note:
         note = f"copy differs ({len(got)} of {len(data)} bytes)"
-    return Run(elapsed, ok, note)
+    cycle = link.block_cycle(FRAME[mode][1]) if ok and isinstance(link, CableLink) else None
+    return Run(elapsed, ok, note, cycle)
 
 
 Plan = dict[str, tuple[int, int, float]]  # impl -> (small bytes, large bytes, time limit)
 
 
-def marginal(link: Link, mode: str, plan: Plan, repeat: int) -> dict[str, tuple[float | None, str]]:
+@dataclass
+class Measured:
+    rate: float | None  # median marginal payload bytes/s
+    note: str
+    cycle: float | None = None  # median steady seconds per block (cable only)
+
+
+def marginal(link: Link, mode: str, plan: Plan, repeat: int) -> dict[str, Measured]:
     """Median payload bytes/s of (large - small) bytes over their time difference, per impl.
 
-    The implementations take turns within each repeat, so a burst of load on the machine
-    hits all of them alike.
+    On the cable also the median steady block cycle of the large transfers. The
+    implementations take turns within each repeat, so a burst of load on the machine hits all
+    of them alike.
     """
     rates: dict[str, list[float]] = {impl: [] for impl in plan}
+    cycles: dict[str, list[float]] = {impl: [] for impl in plan}
     notes: dict[str, set[str]] = {impl: set() for impl in plan}
     for _ in range(repeat):
         for impl, (small, large, limit) in plan.items():
@@ -234,13 +282,14 @@ def marginal(link: Link, mode: str, plan: Plan, repeat: int) -> dict[str, tuple[
             extra = runs[1].seconds - runs[0].seconds
             if not bad and extra > 0:
                 rates[impl].append((large - small) / extra)
-    result: dict[str, tuple[float | None, str]] = {}
+            if runs[1].cycle is not None:
+                cycles[impl].append(runs[1].cycle)
+    result: dict[str, Measured] = {}
     for impl in plan:
         note = "; ".join(sorted(notes[impl]))
-        if rates[impl]:
-            result[impl] = (statistics.median(rates[impl]), note)
-        else:
-            result[impl] = (None, note or "no valid run")
+        rate = statistics.median(rates[impl]) if rates[impl] else None
+        cycle = statistics.median(cycles[impl]) if cycles[impl] else None
+        result[impl] = Measured(rate, note or ("" if rate else "no valid run"), cycle)
     return result
 
 
@@ -394,7 +443,8 @@ def run_pty(args: argparse.Namespace, impls: list[str]) -> None:
     pty_rates: dict[tuple[str, str], float | None] = {}
     for mode in MODES:
         plan: Plan = {impl: (64 * 1024, pty_large, 120.0) for impl in impls}
-        for impl, (rate, note) in marginal(raw_pty, mode, plan, args.repeat).items():
+        for impl, measured in marginal(raw_pty, mode, plan, args.repeat).items():
+            rate, note = measured.rate, measured.note
             pty_rates[(impl, mode)] = rate
             shown = f"{rate / 1e6:8.2f} MB/s" if rate else "       n/a"
             print(f"  {mode:8} {impl:8} {shown}  {note}", flush=True)
@@ -439,34 +489,50 @@ def run_cable(args: argparse.Namespace, impls: list[str]) -> None:
     line_rate = args.baud / 10
     large = args.cable_kib * 1024
     print(
-        f"\n== virtual cable {args.baud} 8N1: marginal payload B/s vs ceiling, "
-        f"{args.cable_kib} KiB vs 4 KiB, median of {args.repeat}"
+        f"\n== virtual cable {args.baud} 8N1: payload rate vs ceiling, median of {args.repeat}\n"
+        f"   whole: marginal over {args.cable_kib} KiB vs 4 KiB transfers\n"
+        f"   steady: mean ACK-to-ACK block cycle of the {args.cable_kib} KiB transfer, "
+        f"from the cable's line monitor\n"
+        f"   µs lost: time per block beyond the line time of block + ACK (both turnarounds)"
     )
-    eff: dict[tuple[str, str], float | None] = {}
+    # (impl, mode) -> (whole, steady) efficiency
+    eff: dict[tuple[str, str], tuple[float | None, float | None]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        link = CableLink(args.baud, Path(tmp))
+        for mode in MODES:
+            payload, frame = FRAME[mode]
+            ceiling = line_rate * BLOCK_SHARE[mode]
+            ideal = (frame + 1) / line_rate  # seconds per block and its ACK
+            plan = {impl: (4 * 1024, large, 60.0) for impl in impls}
+            for impl, got in marginal(link, mode, plan, args.repeat).items():
+                whole = got.rate / ceiling if got.rate else None
+                steady = ideal / got.cycle if got.cycle else None
+                eff[(impl, mode)] = (whole, steady)
+                shown = []
+                if whole is not None:
+                    lost = (payload / (whole * ceiling) - payload / ceiling) * 1e6
+                    shown.append(f"whole {100 * whole:5.1f} % ({lost:4.0f} µs lost)")
+                if steady is not None and got.cycle is not None:
+                    lost = (got.cycle - ideal) * 1e6
+                    shown.append(f"steady {100 * steady:5.2f} % ({lost:4.0f} µs lost)")
+                text = "   ".join(shown) or "n/a"
+                print(f"  {mode:8} {impl:8} {text}  {got.note}", flush=True)
+    print(
+        "\n  ceilings (B/s): "
+        + ", ".join(f"{mode} {line_rate * BLOCK_SHARE[mode]:.0f}" for mode in MODES)
+    )
     for mode in MODES:
-        ceiling = line_rate * BLOCK_SHARE[mode]
-        plan = {impl: (4 * 1024, large, 60.0) for impl in impls}
-        link = lambda: cable(args.baud)  # noqa: E731 - a fresh cable per transfer
-        for impl, (rate, note) in marginal(link, mode, plan, args.repeat).items():
-            eff[(impl, mode)] = rate / ceiling if rate else None
-            payload = FRAME[mode][0]
-            # time per block beyond the line time of block + ACK: both endpoints' turnaround
-            lost = (payload / rate - payload / ceiling) * 1e6 if rate else 0.0
-            shown = (
-                f"{rate:8.0f} B/s {100 * rate / ceiling:5.1f} % ({lost:4.0f} µs/block lost)"
-                if rate
-                else "     n/a"
-            )
-            print(f"  {mode:8} {impl:8} {shown} of {ceiling:6.0f}  {note}", flush=True)
-    print()
-    for mode in MODES:
-        ours = eff.get(("opendnc", mode))
-        lrz = eff.get(("lrzsz", mode))
+        ours_whole, ours_steady = eff.get(("opendnc", mode), (None, None))
+        lrz_whole, lrz_steady = eff.get(("lrzsz", mode), (None, None))
         verdict = []
-        if ours is not None and mode == "1k":
-            verdict.append(f"1K >= 95 %: {'yes' if ours >= 0.95 else 'NO'}")
-        if ours is not None and lrz is not None:
-            verdict.append(f"ours {100 * ours:.1f} % vs lrzsz {100 * lrz:.1f} %")
+        if ours_whole is not None and mode == "1k":
+            verdict.append(f"1K >= 95 %: {'yes' if ours_whole >= 0.95 else 'NO'}")
+        for name, ours, lrz in (
+            ("whole", ours_whole, lrz_whole),
+            ("steady", ours_steady, lrz_steady),
+        ):
+            if ours is not None and lrz is not None:
+                verdict.append(f"{name} ours {100 * ours:.2f} % vs lrzsz {100 * lrz:.2f} %")
         print(f"  {mode:8} " + "; ".join(verdict))
 
 

@@ -45,6 +45,11 @@ def cable(
     seed: int | None = typer.Option(None, "--seed", help="Seed for reproducible faults."),
     link_a: Path | None = typer.Option(None, "--link-a", help="Symlink to create for side A."),
     link_b: Path | None = typer.Option(None, "--link-b", help="Symlink to create for side B."),
+    monitor: Path | None = typer.Option(
+        None,
+        "--monitor",
+        help="Write a timestamped hex line for every delivery in either direction to this file.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the final counters as JSON."),
 ) -> None:
     """Join two pseudo-terminals like a serial cable, at line speed, with optional faults.
@@ -62,7 +67,14 @@ def cable(
         previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             virtual = VirtualCable(
-                baud, bits_per_char, noise, drop, seed, link_a=link_a, link_b=link_b
+                baud,
+                bits_per_char,
+                noise,
+                drop,
+                seed,
+                link_a=link_a,
+                link_b=link_b,
+                monitor=monitor,
             )
             with virtual:
                 # scripts read this line to find the devices: keep it first and flush it now
@@ -72,7 +84,8 @@ def cable(
                     f"cable up: {baud} baud, {bits_per_char} bits/char "
                     f"({virtual.bytes_per_second:g} bytes/s each way), noise {noise:g}, "
                     f"drop {drop:g}, seed {seed}"
-                    + (f", links {link_a} {link_b}" if link_a or link_b else ""),
+                    + (f", links {link_a} {link_b}" if link_a or link_b else "")
+                    + (f", monitor {monitor}" if monitor else ""),
                     highlight=False,
                     soft_wrap=True,
                 )

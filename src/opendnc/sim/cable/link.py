@@ -49,6 +49,7 @@ from pathlib import Path
 from types import TracebackType
 
 from opendnc.errors import InputError, TransportError
+from opendnc.sim.cable.monitor import LineMonitor
 from opendnc.sim.cable.noise import LineNoise
 from opendnc.transport.pty import open_pty
 
@@ -128,6 +129,8 @@ class _Lane:
 
     def __init__(self, src: _Side, dst: _Side, char_time: float, noise: LineNoise) -> None:
         self.src, self.dst = src, dst
+        self.direction = f"{src.name}>{dst.name}"
+        self.monitor: LineMonitor | None = None
         self.char_time = char_time
         self.noise = noise
         self.chunks: deque[tuple[float, bytes]] = deque()  # (line start time, bytes)
@@ -177,6 +180,8 @@ class _Lane:
         self.stats.corrupted += result.corrupted
         self.stats.dropped += result.dropped
         self.stats.bit_flips += result.bit_flips
+        if self.monitor is not None and result.data:
+            self.monitor.record(self.direction, now, result.data)
         self.outbuf += result.data
 
     def flush(self, now: float) -> None:
@@ -233,6 +238,8 @@ class VirtualCable:
     per data bit, ``drop`` the probability that a byte is lost; ``seed`` makes both
     reproducible (each direction gets its own stream of faults derived from it). ``link_a`` and
     ``link_b`` create symlinks to the two devices, removed again by :meth:`close`.
+    ``monitor`` names a file that gets a timestamped line for every delivery in either
+    direction (:mod:`opendnc.sim.cable.monitor`).
     Use it as a context manager, or call :meth:`start` and :meth:`close`.
     """
 
@@ -246,6 +253,7 @@ class VirtualCable:
         *,
         link_a: str | os.PathLike[str] | None = None,
         link_b: str | os.PathLike[str] | None = None,
+        monitor: str | os.PathLike[str] | None = None,
     ) -> None:
         if baud <= 0:
             raise InputError(f"baud must be positive, got {baud}")
@@ -270,10 +278,15 @@ class VirtualCable:
         os.set_blocking(self._wake_r, False)
         self._thread: threading.Thread | None = None
         self.error: TransportError | None = None  # what killed the pump, if anything
+        self._monitor: LineMonitor | None = None
         try:
             for target, link in ((self._a.path, link_a), (self._b.path, link_b)):
                 if link is not None:
                     self._make_link(Path(link), target)
+            if monitor is not None:
+                self._monitor = LineMonitor(monitor, time.monotonic())
+                for lane in self._lanes:
+                    lane.monitor = self._monitor
         except BaseException:
             self._close_fds()
             raise
@@ -365,6 +378,8 @@ class VirtualCable:
         self._links.append(link)
 
     def _close_fds(self) -> None:
+        if self._monitor is not None:
+            self._monitor.close()
         for link in self._links:
             with contextlib.suppress(OSError):
                 link.unlink()

@@ -12,6 +12,7 @@ CRC, PyPI ``xmodem``), run the cable as ``opendnc sim cable`` in a child process
 from __future__ import annotations
 
 import json
+import os
 import selectors
 import signal
 import subprocess
@@ -35,6 +36,7 @@ class CableProcess:
         noise: float = 0.0,
         drop: float = 0.0,
         seed: int | None = None,
+        monitor: str | os.PathLike[str] | None = None,
     ) -> None:
         self.args = [
             sys.executable,
@@ -50,6 +52,8 @@ class CableProcess:
         ]
         if seed is not None:
             self.args.append(f"--seed={seed}")
+        if monitor is not None:
+            self.args.append(f"--monitor={os.fspath(monitor)}")
         self.path_a = ""
         self.path_b = ""
         self.stats: CableStats | None = None  # set by close()
