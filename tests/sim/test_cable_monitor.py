@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import io
 import os
 import time
 from pathlib import Path
@@ -11,9 +13,9 @@ import serial
 from hypothesis import given
 from hypothesis import strategies as st
 
-from opendnc.errors import InputError
+from opendnc.errors import InputError, TransportError
 from opendnc.sim.cable import CableProcess, MonitorRecord, VirtualCable, read_monitor
-from opendnc.sim.cable.monitor import parse_monitor
+from opendnc.sim.cable.monitor import format_line, parse_monitor
 from tests.sim.test_cable import read_exactly
 
 BAUD = 19200
@@ -40,7 +42,8 @@ def test_records_both_directions_with_line_timing(tmp_path: Path) -> None:
     # the block's bytes leave no sooner than their line time allows, and in order
     times = [r.seconds for r in ab]
     assert times == sorted(times)
-    assert times[-1] - times[0] >= (200 - len(ab[0].data)) * CHAR * 0.99
+    # (the first record's time may come late by a pump stall: bound from its last byte)
+    assert times[-1] - times[0] >= (200 - len(ab[0].data) - 1) * CHAR * 0.99
     # the answer was written after the whole block arrived, and takes a character time
     assert ba[0].seconds >= times[-1] + CHAR * 0.99
 
@@ -51,8 +54,9 @@ def test_records_what_the_noise_left(tmp_path: Path) -> None:
         a = serial.Serial(cable.path_a, timeout=0.2)
         b = serial.Serial(cable.path_b, timeout=0.2)
         a.write(bytes(3000))
-        time.sleep(3000 * 10 / 115200 + 0.3)
-        got = b.read(5000)
+        time.sleep(3000 * 10 / 115200)
+        assert cable.wait_idle(10)  # the line is empty: all it delivered waits in b's tty
+        got = read_exactly(b, cable.stats.a_to_b.delivered)
         a.close()
         b.close()
         stats = cable.stats
@@ -77,6 +81,51 @@ def test_cable_process_writes_the_monitor(tmp_path: Path) -> None:
 def test_unwritable_monitor_is_an_input_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="line monitor"):
         VirtualCable(monitor=tmp_path / "no" / "such" / "dir.txt")
+
+
+def test_cable_process_says_why_it_did_not_start(tmp_path: Path) -> None:
+    with pytest.raises(TransportError, match="cannot write the line monitor"):
+        CableProcess(monitor=tmp_path / "no" / "such" / "dir.txt").start()
+
+
+def test_quiet_line_is_flushed_for_live_reading(tmp_path: Path) -> None:
+    log = tmp_path / "line.txt"
+    with VirtualCable(baud=115200, monitor=log) as cable:
+        a = serial.Serial(cable.path_a, timeout=0.2)
+        b = serial.Serial(cable.path_b, timeout=0.2)
+        a.write(b"hello")
+        assert read_exactly(b, 5) == b"hello"
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and not log.read_text():
+            time.sleep(0.01)
+        # the cable is still running and the line is quiet: the record is on disk already
+        assert [r.data for r in read_monitor(log)] == [b"hello"]
+        a.close()
+        b.close()
+
+
+class FullDisk(io.StringIO):
+    def write(self, text: str) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_failing_monitor_stops_itself_not_the_cable(tmp_path: Path) -> None:
+    log = tmp_path / "line.txt"
+    with VirtualCable(baud=115200, monitor=log) as cable:
+        a = serial.Serial(cable.path_a, timeout=0.2)
+        b = serial.Serial(cable.path_b, timeout=0.2)
+        monitor = cable._monitor
+        assert monitor is not None
+        monitor._file.close()
+        monitor._file = FullDisk()  # type: ignore[assignment]  # as if the disk were full
+        a.write(b"still carried")
+        assert read_exactly(b, 13) == b"still carried"
+        assert cable.running
+        assert cable.monitor_error is not None
+        assert "stopped" in str(cable.monitor_error)
+        assert "No space left" in str(cable.monitor_error)
+        a.close()
+        b.close()
 
 
 @pytest.mark.parametrize(
@@ -114,7 +163,7 @@ records = st.lists(
 
 @given(records)
 def test_written_lines_parse_back(recs: list[MonitorRecord]) -> None:
-    text = "".join(f"{r.seconds:.6f} {r.direction} {r.data.hex(' ')}\n" for r in recs)
+    text = "".join(format_line(r.seconds, r.direction, r.data) for r in recs)
     assert parse_monitor(text) == recs
 
 

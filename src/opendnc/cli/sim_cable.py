@@ -93,6 +93,8 @@ def cable(
                     if not virtual.running:
                         raise virtual.error or TransportError("virtual cable stopped")
             _report(virtual.stats, as_json)
+            if virtual.monitor_error is not None:
+                err_console.print(f"warning: {virtual.monitor_error}", highlight=False)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

@@ -317,6 +317,11 @@ class VirtualCable:
             return CableStats(ab.stats.snapshot(), ba.stats.snapshot())
 
     @property
+    def monitor_error(self) -> InputError | None:
+        """Why the line monitor stopped writing (a full disk, say); None while it works."""
+        return None if self._monitor is None else self._monitor.error
+
+    @property
     def running(self) -> bool:
         """True while the pump thread runs."""
         return self._thread is not None and self._thread.is_alive()
@@ -382,7 +387,8 @@ class VirtualCable:
 
     def _close_fds(self) -> None:
         if self._monitor is not None:
-            self._monitor.close()
+            with self._lock:  # not while a pump that outlived close() writes a record
+                self._monitor.close()
         for link in self._links:
             with contextlib.suppress(OSError):
                 link.unlink()
@@ -458,6 +464,8 @@ class VirtualCable:
                 for lane in self._lanes:
                     lane.take_due(now)
                     lane.flush(now)
+                if self._monitor is not None and all(lane.idle for lane in self._lanes):
+                    self._monitor.flush(now)
 
     def _wait(self, poller: select.poll, wake: float | None) -> list[tuple[int, int]]:
         if wake is None:

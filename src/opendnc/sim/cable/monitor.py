@@ -2,18 +2,21 @@
 
 A serial sniffer for the virtual cable, in the spirit of the dumps in seed 003 (Figures 23
 and 24): each line says when bytes left the line, in which direction, and which bytes (after
-noise, as the receiving side sees them)::
+noise: what the far side is handed, or loses unheard when nobody has it open)::
 
     0.011873 a>b 01 01 fe 25 0a 4f 30 30 30 31 ...
     0.012071 b>a 06
 
-The time is in seconds since the cable was created. Bytes that leave the line together (one
-delivery of the pump) share one line. :func:`read_monitor` parses such a file back into
-:class:`MonitorRecord` values, for tests and for the benchmark's block timing.
+The time is in seconds since the cable was created: when the pump delivered the bytes, which
+is at or just after the last one's line deadline (by the pump's batching, up to a millisecond,
+plus its wake-up). Bytes delivered together share one line. The file is flushed whenever the
+line goes quiet and at least every 0.2 s while it is busy. :func:`read_monitor` parses such a
+file back into :class:`MonitorRecord` values, for tests and for the benchmark's block timing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +25,7 @@ from typing import TextIO
 from opendnc.errors import InputError
 
 DIRECTIONS = ("a>b", "b>a")
-FLUSH_EVERY = 0.2  # seconds between flushes: live enough for `tail -f`, cheap for the pump
+FLUSH_EVERY = 0.2  # seconds between flushes while the line is busy: cheap for the pump
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,22 +45,42 @@ class LineMonitor:
             self._file: TextIO = open(path, "w", encoding="ascii")  # noqa: SIM115 - closed by close()
         except OSError as exc:
             raise InputError(f"cannot write the line monitor to {path}: {exc}") from exc
+        self._path = path
         self._started = started
         self._flushed = started
+        self.error: InputError | None = None  # why the monitor stopped writing, if it did
 
     def record(self, direction: str, now: float, data: bytes) -> None:
         """Log ``data`` leaving the line at ``now`` (the cable's monotonic clock)."""
-        if self._file.closed:
-            return  # a pump that outlived close() must not die on the closed file
-        self._file.write(f"{now - self._started:.6f} {direction} {data.hex(' ')}\n")
-        if now - self._flushed >= FLUSH_EVERY:
-            self._file.flush()
-            self._flushed = now
+        self._write(format_line(now - self._started, direction, data), now)
+
+    def flush(self, now: float) -> None:
+        """Push buffered lines to the file (the pump calls this when the line goes quiet)."""
+        self._write("", now, force=True)
+
+    def _write(self, text: str, now: float, *, force: bool = False) -> None:
+        if self.error is not None or self._file.closed:
+            return
+        try:
+            if text:
+                self._file.write(text)
+            if force or now - self._flushed >= FLUSH_EVERY:
+                self._file.flush()
+                self._flushed = now
+        except (OSError, ValueError) as exc:
+            # a full disk must not stop the cable: the line goes on, the monitor says why not
+            self.error = InputError(f"line monitor {self._path} stopped: {exc}")
 
     def close(self) -> None:
         """Flush and close the file. Safe to call twice."""
         if not self._file.closed:
-            self._file.close()
+            with contextlib.suppress(OSError):
+                self._file.close()
+
+
+def format_line(seconds: float, direction: str, data: bytes) -> str:
+    """One monitor line, newline included."""
+    return f"{seconds:.6f} {direction} {data.hex(' ')}\n"
 
 
 def _parse_line(number: int, line: str) -> MonitorRecord:

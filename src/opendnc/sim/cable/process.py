@@ -73,7 +73,8 @@ class CableProcess:
         paths = line.split()
         if len(paths) != 2:
             self._kill()
-            raise TransportError(f"virtual cable did not start: {line.strip() or 'no output'}")
+            why = line.strip() or _last_line(proc.communicate(timeout=5)[1]) or "no output"
+            raise TransportError(f"virtual cable did not start: {why}")
         self.path_a, self.path_b = paths
         return self
 
@@ -112,6 +113,11 @@ class CableProcess:
             self.close()
         else:
             self._kill()
+
+
+def _last_line(text: str) -> str:
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[-1] if lines else ""
 
 
 def _parse_stats(text: str) -> CableStats:
