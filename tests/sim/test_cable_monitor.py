@@ -6,6 +6,8 @@ import errno
 import io
 import os
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -22,18 +24,26 @@ BAUD = 19200
 CHAR = 10 / BAUD
 
 
+@contextmanager
+def both_ends(cable: VirtualCable | CableProcess) -> Iterator[tuple[serial.Serial, serial.Serial]]:
+    """Sides A and B opened like serial ports (the rate is the cable's business)."""
+    a = serial.Serial(cable.path_a, BAUD, timeout=0.2)
+    b = serial.Serial(cable.path_b, BAUD, timeout=0.2)
+    try:
+        yield a, b
+    finally:
+        a.close()
+        b.close()
+
+
 def test_records_both_directions_with_line_timing(tmp_path: Path) -> None:
     log = tmp_path / "line.txt"
-    with VirtualCable(baud=BAUD, monitor=log) as cable:
-        a = serial.Serial(cable.path_a, BAUD, timeout=0.2)
-        b = serial.Serial(cable.path_b, BAUD, timeout=0.2)
+    with VirtualCable(baud=BAUD, monitor=log) as cable, both_ends(cable) as (a, b):
         block = os.urandom(200)
         a.write(block)
         assert read_exactly(b, 200) == block
         b.write(b"\x06")
         assert read_exactly(a, 1) == b"\x06"
-        a.close()
-        b.close()
     records = read_monitor(log)
     ab = [r for r in records if r.direction == "a>b"]
     ba = [r for r in records if r.direction == "b>a"]
@@ -51,14 +61,11 @@ def test_records_both_directions_with_line_timing(tmp_path: Path) -> None:
 def test_records_what_the_noise_left(tmp_path: Path) -> None:
     log = tmp_path / "line.txt"
     with VirtualCable(baud=115200, noise=1e-2, drop=1e-2, seed=3, monitor=log) as cable:
-        a = serial.Serial(cable.path_a, timeout=0.2)
-        b = serial.Serial(cable.path_b, timeout=0.2)
-        a.write(bytes(3000))
-        time.sleep(3000 * 10 / 115200)
-        assert cable.wait_idle(10)  # the line is empty: all it delivered waits in b's tty
-        got = read_exactly(b, cable.stats.a_to_b.delivered)
-        a.close()
-        b.close()
+        with both_ends(cable) as (a, b):
+            a.write(bytes(3000))
+            time.sleep(3000 * 10 / 115200)
+            assert cable.wait_idle(10)  # the line is empty: all it delivered waits in b's tty
+            got = read_exactly(b, cable.stats.a_to_b.delivered)
         stats = cable.stats
     recorded = b"".join(r.data for r in read_monitor(log))
     assert recorded == got  # the monitor shows what the receiver saw, faults included
@@ -68,13 +75,9 @@ def test_records_what_the_noise_left(tmp_path: Path) -> None:
 
 def test_cable_process_writes_the_monitor(tmp_path: Path) -> None:
     log = tmp_path / "line.txt"
-    with CableProcess(baud=230400, monitor=log) as cable:
-        a = serial.Serial(cable.path_a, timeout=0.2)
-        b = serial.Serial(cable.path_b, timeout=0.2)
+    with CableProcess(baud=230400, monitor=log) as cable, both_ends(cable) as (a, b):
         a.write(b"%\nO01000\n%\n")
         assert read_exactly(b, 11) == b"%\nO01000\n%\n"
-        a.close()
-        b.close()
     assert b"".join(r.data for r in read_monitor(log)) == b"%\nO01000\n%\n"
 
 
@@ -90,9 +93,7 @@ def test_cable_process_says_why_it_did_not_start(tmp_path: Path) -> None:
 
 def test_quiet_line_is_flushed_for_live_reading(tmp_path: Path) -> None:
     log = tmp_path / "line.txt"
-    with VirtualCable(baud=115200, monitor=log) as cable:
-        a = serial.Serial(cable.path_a, timeout=0.2)
-        b = serial.Serial(cable.path_b, timeout=0.2)
+    with VirtualCable(baud=115200, monitor=log) as cable, both_ends(cable) as (a, b):
         a.write(b"hello")
         assert read_exactly(b, 5) == b"hello"
         deadline = time.monotonic() + 5
@@ -100,8 +101,6 @@ def test_quiet_line_is_flushed_for_live_reading(tmp_path: Path) -> None:
             time.sleep(0.01)
         # the cable is still running and the line is quiet: the record is on disk already
         assert [r.data for r in read_monitor(log)] == [b"hello"]
-        a.close()
-        b.close()
 
 
 class FullDisk(io.StringIO):
@@ -111,9 +110,7 @@ class FullDisk(io.StringIO):
 
 def test_a_failing_monitor_stops_itself_not_the_cable(tmp_path: Path) -> None:
     log = tmp_path / "line.txt"
-    with VirtualCable(baud=115200, monitor=log) as cable:
-        a = serial.Serial(cable.path_a, timeout=0.2)
-        b = serial.Serial(cable.path_b, timeout=0.2)
+    with VirtualCable(baud=115200, monitor=log) as cable, both_ends(cable) as (a, b):
         monitor = cable._monitor
         assert monitor is not None
         monitor._file.close()
@@ -124,8 +121,6 @@ def test_a_failing_monitor_stops_itself_not_the_cable(tmp_path: Path) -> None:
         assert cable.monitor_error is not None
         assert "stopped" in str(cable.monitor_error)
         assert "No space left" in str(cable.monitor_error)
-        a.close()
-        b.close()
 
 
 @pytest.mark.parametrize(
