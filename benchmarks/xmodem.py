@@ -136,7 +136,6 @@ class Run:
     seconds: float
     ok: bool
     note: str = ""
-    cycle: float | None = None  # steady seconds per block, from the cable's line monitor
 
 
 @contextmanager
@@ -247,8 +246,7 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
     ok = not note and got.rstrip(b"\x1a") == data.rstrip(b"\x1a")
     if not ok and not note:
         note = f"copy differs ({len(got)} of {len(data)} bytes)"
-    cycle = link.block_cycle(FRAME[mode][1]) if ok and isinstance(link, CableLink) else None
-    return Run(elapsed, ok, note, cycle)
+    return Run(elapsed, ok, note)
 
 
 Plan = dict[str, tuple[int, int, float]]  # impl -> (small bytes, large bytes, time limit)
@@ -282,8 +280,12 @@ def marginal(link: Link, mode: str, plan: Plan, repeat: int) -> dict[str, Measur
             extra = runs[1].seconds - runs[0].seconds
             if not bad and extra > 0:
                 rates[impl].append((large - small) / extra)
-            if runs[1].cycle is not None:
-                cycles[impl].append(runs[1].cycle)
+            # the large transfer's monitor is still there: read its steady block cycle
+            cycle = None
+            if runs[1].ok and isinstance(link, CableLink):
+                cycle = link.block_cycle(FRAME[mode][1])
+            if cycle is not None:
+                cycles[impl].append(cycle)
     result: dict[str, Measured] = {}
     for impl in plan:
         note = "; ".join(sorted(notes[impl]))
