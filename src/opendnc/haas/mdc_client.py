@@ -31,6 +31,7 @@ from opendnc.errors import (
     TransportError,
     TransportTimeout,
 )
+from opendnc.haas import macros
 from opendnc.haas.mdc import (
     QUERIES,
     Busy,
@@ -169,10 +170,20 @@ def is_writable(var: int) -> bool:
     return any(var in span for span in WRITABLE)
 
 
-def _check_write(safe_mode: bool, var: int, allow_any: bool) -> None:
+def check_macro_write(
+    var: int, value: float, *, safe_mode: bool = True, allow_any_variable: bool = False
+) -> None:
+    """Refuse locally, before anything is sent, a write that would not be carried out.
+
+    First what the control itself refuses (:func:`opendnc.haas.macros.check_write`: no such
+    variable, read-only, out of range, a fraction in a counter, the ``#3000`` alarm) as
+    :class:`~opendnc.errors.InputError` with the reason, whatever the opt-ins; then the
+    project's locks as :class:`SafetyLockError` (``safe_mode``, the :data:`WRITABLE` list).
+    """
+    macros.check_write(var, value)
     if safe_mode:
         raise SafetyLockError(f"writing macro variable #{var} over MDC")
-    if not allow_any and not is_writable(var):
+    if not allow_any_variable and not is_writable(var):
         raise SafetyLockError(f"writing #{var} (not a general-purpose global; allow it explicitly)")
 
 
@@ -358,8 +369,14 @@ class MdcClient:
         return self.run(macro_get_op(var))
 
     def macro_set(self, var: int, value: float) -> None:
-        """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var, self.allow_any_variable)
+        """Write macro variable ``var`` (refused while ``safe_mode`` is on).
+
+        A write the control would refuse (:func:`opendnc.haas.macros.check_write`) raises
+        :class:`~opendnc.errors.InputError` with the reason before anything is sent.
+        """
+        check_macro_write(
+            var, value, safe_mode=self.safe_mode, allow_any_variable=self.allow_any_variable
+        )
         self.run(macro_set_op(var, value))
 
     def status(self) -> MachineStatus:
@@ -461,8 +478,14 @@ class AsyncMdcClient:
         return await self.run(macro_get_op(var))
 
     async def macro_set(self, var: int, value: float) -> None:
-        """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var, self.allow_any_variable)
+        """Write macro variable ``var`` (refused while ``safe_mode`` is on).
+
+        A write the control would refuse (:func:`opendnc.haas.macros.check_write`) raises
+        :class:`~opendnc.errors.InputError` with the reason before anything is sent.
+        """
+        check_macro_write(
+            var, value, safe_mode=self.safe_mode, allow_any_variable=self.allow_any_variable
+        )
         await self.run(macro_set_op(var, value))
 
     async def status(self) -> MachineStatus:
