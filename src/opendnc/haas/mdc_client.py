@@ -49,6 +49,7 @@ from opendnc.haas.mdc import (
     Request,
     TextValue,
     WriteAccepted,
+    encode_request,
 )
 from opendnc.transport.tcp import TcpStream
 
@@ -221,6 +222,11 @@ WAITING_BUDGET = 64 * 1024
 hold a request back for ever; what is left is skipped while the reply is awaited)."""
 
 
+def _shown(request: Request) -> str:
+    """``request`` as it goes on the wire, for messages (``?Q100``, ``?E100 2.5``)."""
+    return encode_request(request, b"").decode("ascii")
+
+
 class MdcClientCore:
     """The whole client-side conversation, without I/O (see the module docstring).
 
@@ -264,7 +270,7 @@ class MdcClientCore:
             if (yield Send(self.conn.send(request), self.timeout)) is None:
                 self.conn.reset()
                 raise TransportTimeout(
-                    f"the control did not take {request} within {self.timeout:g} s "
+                    f"the control did not take {_shown(request)} within {self.timeout:g} s "
                     "(it stopped reading)"
                 )
             reply = yield from self._await_reply(self._clock() + self.timeout)
@@ -272,7 +278,9 @@ class MdcClientCore:
                 return reply
             self.conn.reset()
         asked = " (asked twice)" if attempts == 2 else ""
-        raise TransportTimeout(f"no MDC reply to {request} within {self.timeout:g} s{asked}")
+        raise TransportTimeout(
+            f"no MDC reply to {_shown(request)} within {self.timeout:g} s{asked}"
+        )
 
     def _take_waiting(self) -> Io[None]:
         # Replies to other clients that are already here must not be taken for the answer to

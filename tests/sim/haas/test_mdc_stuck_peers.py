@@ -18,7 +18,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner, Result
 
+from opendnc.cli.main import app
 from opendnc.errors import TransportTimeout
 from opendnc.haas import mdc
 from opendnc.haas.mdc_client import AsyncMdcClient, MdcClient
@@ -214,3 +216,16 @@ def test_async_client_resends_a_first_query_the_control_ignored(tmp_path: Path) 
         first, second = asyncio.run(main())
         assert first == mdc.TextValue("SERIAL NUMBER", "1234567")
         assert second == mdc.TextValue("MODEL", "VF-2")
+
+
+@pytest.mark.parametrize("flood", [False, True], ids=["silent", "flooding"])
+def test_haas_q_exits_with_a_timeout_message(flood: bool) -> None:
+    control = FakeControl(flood)
+    try:
+        args = ["haas", "q", "Q100", "--port", str(control.port), "--timeout", "0.3"]
+        result = outcome_within(lambda: CliRunner().invoke(app, args), 10.0)
+        assert isinstance(result, Result), result
+        assert result.exit_code == 1, result.output
+        assert "no MDC reply to ?Q100 within 0.3 s (asked twice)" in result.output
+    finally:
+        control.close()
