@@ -22,6 +22,7 @@ prints as zero.
 
 from __future__ import annotations
 
+import collections
 import math
 import re
 from collections.abc import Callable, Iterator
@@ -201,7 +202,7 @@ class DprntLineFramer:
 
     def __init__(self, max_line: int = MAX_LINE) -> None:
         self._buf = bytearray()
-        self._events: list[FrameEvent] = []
+        self._events: collections.deque[FrameEvent] = collections.deque()
         self._max = max_line
         self._after_cr = False
         self._dropping = False
@@ -243,7 +244,7 @@ class DprntLineFramer:
 
     def next_event(self) -> FrameEvent | None:
         """Return the next event, or ``None`` when more bytes are needed."""
-        return self._events.pop(0) if self._events else None
+        return self._events.popleft() if self._events else None
 
     def events(self) -> Iterator[FrameEvent]:
         """Yield every event produced so far."""
