@@ -215,8 +215,11 @@ class Receive:
 IoStep = Send | Receive
 Io = Generator[IoStep, bytes | None, T]
 
-WAITING = 0.001
+WAITING = 0.0
 """Receive timeout that means "only what has already arrived"."""
+ASYNC_WAITING = 0.001
+"""What :data:`WAITING` becomes on asyncio, which only sees arrived bytes after a loop turn
+(``wait_for`` with no time at all gives up before the read has run)."""
 WAITING_BUDGET = 64 * 1024
 """Most bytes of other clients' replies taken in before a request (a flooding peer cannot
 hold a request back for ever; what is left is skipped while the reply is awaited)."""
@@ -469,7 +472,8 @@ class AsyncMdcClient:
                 self._writer.write(step.data)
                 await asyncio.wait_for(self._writer.drain(), step.timeout)
                 return b""
-            return await asyncio.wait_for(self._reader.read(4096), step.timeout)
+            timeout = max(step.timeout, ASYNC_WAITING)
+            return await asyncio.wait_for(self._reader.read(4096), timeout)
         except TimeoutError:
             return None
         except ConnectionResetError:
