@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from enum import Enum
 
-from opendnc.lsv2.constants import BUFFER_SIZES
+from opendnc.lsv2.constants import BUFFER_SIZES, DRIVE_LOGINS
 from opendnc.lsv2.payloads import SystemParameters
 
 
@@ -115,6 +115,9 @@ class PathLayout:
     tool_table: str
     pocket_table: str
     program_ext: tuple[str, ...]
+    #: A second program folder whose programs sit in sub-folders (the iTNC 530 programming
+    #: station ships ``TNC:\\nc_prog`` next to the programs in ``TNC:\\``); None: no such folder.
+    project_dir: str | None = None
 
 
 NEW_PATHS = PathLayout(
@@ -130,6 +133,14 @@ ITNC_PATHS = PathLayout(
     tool_table="TNC:\\TOOL.T",
     pocket_table="TNC:\\TOOL_P.TCH",
     program_ext=(".H", ".I"),
+)
+ITNC530_PATHS = PathLayout(
+    program_dir=ITNC_PATHS.program_dir,
+    mdi_program=ITNC_PATHS.mdi_program,
+    tool_table=ITNC_PATHS.tool_table,
+    pocket_table=ITNC_PATHS.pocket_table,
+    program_ext=ITNC_PATHS.program_ext,
+    project_dir="TNC:\\nc_prog",
 )
 LATHE_PATHS = PathLayout(
     program_dir="TNC:\\nc_prog\\ncps",
@@ -179,6 +190,16 @@ class Profile:
     system_commands: frozenset[int] = field(
         default_factory=lambda: frozenset({2, 3, 4, 5, 6, 7, 8, 11, 12, 17, 19, 27})
     )
+    #: Logins that open a drive besides the drive's own file login, as (drive, login) pairs.
+    #: A TNC 640 in the field serves ``LOG:`` to a client logged in as FILEPLC only.
+    shared_drive_logins: frozenset[tuple[str, str]] = frozenset()
+
+    def drive_logins(self, drive: str) -> frozenset[str]:
+        """Every login that opens ``drive`` on this family (empty for an unknown drive)."""
+        own = DRIVE_LOGINS.get(drive)
+        if own is None:
+            return frozenset()
+        return frozenset({own.value}) | {login for d, login in self.shared_drive_logins if d == drive}
 
     def version_parts(self) -> list[str]:
         """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, §5.2)."""
@@ -253,6 +274,8 @@ PROFILES: dict[str, Profile] = {
         delete_cwd_allowed=False,
         date_time=True,
         numeric_machine_parameters=False,
+        # Field report: a client logged in as FILEPLC only reads LOG:\oem\python\… (docs/tnc-profiles.md).
+        shared_drive_logins=frozenset({("LOG:", "FILEPLC")}),
     ),
     "tnc620": Profile(
         key="tnc620",
@@ -349,7 +372,7 @@ PROFILES: dict[str, Profile] = {
         lsv2_flags_ex=0x0000000F,
         plc=ITNC_LAYOUT,
         old_attributes=True,
-        paths=ITNC_PATHS,
+        paths=ITNC530_PATHS,
         ri_selectors=_ITNC_RI,
         logins=BASE_LOGINS | {"FILEPLC", "FILESYS", "DATA", "OSZI"},
         data_paths=True,

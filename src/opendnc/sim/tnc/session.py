@@ -179,7 +179,7 @@ class Session:
 
     def check_drive(self, wp: WirePath) -> None:
         """Refuse (23) a path on a drive whose file login the session lacks."""
-        if FILE_LOGINS.get(wp.drive) not in self.logins:
+        if self.logins.isdisjoint(self.control.profile.drive_logins(wp.drive)):
             raise Refuse(E.T_ER_NO_PRIV, f"no login for {wp.drive}")
 
     def path(self, text: str) -> WirePath:
