@@ -46,7 +46,7 @@ def fresh(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[TncHandle]
 def test_itnc530_has_programs_in_root_and_nc_prog_with_sub_folders(fresh: TncHandle) -> None:
     files = host_files(fresh.root)
     top = {f for f in files if "/" not in f}
-    assert ITNC530_FILES <= top
+    assert top >= ITNC530_FILES
     in_nc_prog = {f for f in files if f.startswith("nc_prog/")}
     assert in_nc_prog, "TNC:\\nc_prog is empty"
     # programs in TNC:\nc_prog sit in sub-folders, not directly in nc_prog
@@ -195,3 +195,46 @@ def test_pylsv2_reads_log_after_fileplc_login(pylsv2: Any, tmp_path: Path) -> No
             assert expected.startswith(b"TNC640")
         finally:
             c.disconnect()
+
+
+README = Path(__file__).resolve().parents[3] / "README.md"
+
+
+def _readme_lsv2_reads() -> list[str]:
+    """Remote paths the README's LSV2 examples read (ls, get, table get), as typed."""
+    text = README.read_text("utf-8")
+    section = text.split("## Heidenhain LSV2", 1)[1].split("\n## ", 1)[0]
+    block = section.split("```sh", 1)[1].split("```", 1)[0]
+    paths: list[str] = []
+    for line in block.splitlines():
+        words = line.split("#", 1)[0].split()
+        if words[:2] != ["opendnc", "lsv2"]:
+            continue
+        args = [w for w in words[2:] if not w.startswith("-") and w != "127.0.0.1"]
+        if args[:1] in (["ls"], ["get"]) or args[:2] == ["table", "get"]:
+            paths += [a for a in args if a.upper().startswith("TNC:") and not a.endswith("COPY.H")]
+    return paths
+
+
+def _readme_profiles() -> list[str]:
+    """The profiles the README says its LSV2 paths are for."""
+    text = README.read_text("utf-8")
+    sentence = text.split("The paths above are those of the milling stations", 1)[1]
+    sentence = sentence.split(".", 1)[0]
+    return [word.strip("`, ") for word in sentence.split() if word.startswith("`")]
+
+
+def test_readme_lsv2_examples_name_the_profiles_they_need(tmp_path: Path) -> None:
+    reads = _readme_lsv2_reads()
+    profiles = _readme_profiles()
+    assert len(reads) >= 3
+    assert set(profiles) == {"tnc640", "tnc620", "tnc320", "tnc7"}
+    for key in PROFILES:
+        with start_tnc(key, root=tmp_path / key) as tnc:
+            missing = [
+                p for p in reads if not (tnc.root / "TNC" / Path(*p.split("/")[1:])).exists()
+            ]
+        if key in profiles:
+            assert not missing, (key, missing)
+        else:
+            assert missing, f"{key} runs every README example: list it in the README"

@@ -199,7 +199,9 @@ class Profile:
         own = DRIVE_LOGINS.get(drive)
         if own is None:
             return frozenset()
-        return frozenset({own.value}) | {login for d, login in self.shared_drive_logins if d == drive}
+        return frozenset({own.value}) | {
+            login for d, login in self.shared_drive_logins if d == drive
+        }
 
     def version_parts(self) -> list[str]:
         """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, §5.2)."""
@@ -274,7 +276,8 @@ PROFILES: dict[str, Profile] = {
         delete_cwd_allowed=False,
         date_time=True,
         numeric_machine_parameters=False,
-        # Field report: a client logged in as FILEPLC only reads LOG:\oem\python\… (docs/tnc-profiles.md).
+        # Field report: a client logged in as FILEPLC only reads LOG:\oem\python\…
+        # (docs/tnc-profiles.md#drives-and-logins).
         shared_drive_logins=frozenset({("LOG:", "FILEPLC")}),
     ),
     "tnc620": Profile(
