@@ -218,8 +218,8 @@ def test_transfers_byte_identical(lsv2: Any, tnc: TncHandle, tmp_path: Path, com
 
 def test_program_run_seen_by_client(lsv2: Any, con: Any, tnc: TncHandle) -> None:
     K = lsv2.const.KeyCode
-    assert 0 <= con.program_status() <= 7
-    assert con.execution_state() in range(5)
+    machine = tnc.call(lambda c: (int(c.machine.program_state), int(c.machine.exec_mode)))
+    assert (con.program_status(), con.execution_state()) == machine
     ext = ".nc" if tnc.profile.lathe else ".H"
     prog = (
         tnc.profile.paths.mdi_program
