@@ -53,8 +53,8 @@ def test_pc_side_of_the_trace() -> None:
 
 
 def test_control_side_of_the_trace() -> None:
-    versions = b"TNC320\0771855 18 SP1\0Basic V18-00\0No version given\0"
-    versions += b"0000000100000100\0"
+    parts = [b"TNC320", b"771855 18 SP1", b"Basic V18-00", b"No version given", b"0000000100000100"]
+    versions = b"".join(part + b"\x00" for part in parts)
     assert decode(direction("<")) == [
         C.READY,
         C.READY,
