@@ -240,9 +240,13 @@ def test_machine_state(client: Client, tnc640: TncHandle) -> None:
     assert ov.percent == (50.0, 120.0, 1.0)
     axes = client.axes_position()
     assert set(axes.as_dict()) >= {"X", "Y", "Z"}
+    before = tnc640.call(lambda c: c.machine.uptimes())
     up = client.uptimes()
+    after = tnc640.call(lambda c: c.machine.uptimes())
     assert up.nc is not None
-    assert up.nc >= 0
+    assert before[30] <= up.nc <= after[30]  # the simulator's own clock brackets the answer
+    assert before[33] <= (up.spindle1 or 0) <= after[33]
+    assert up.spindle2 == 0  # the TNC 640 profile has one spindle
 
 
 def test_keys_need_unsafe_mode(client: Client, unsafe: Client, tnc640: TncHandle) -> None:
@@ -500,8 +504,9 @@ def test_local_errors_keep_the_link(client: Client, tnc640: TncHandle) -> None:
 
 def test_system_info(client: Client, tnc640: TncHandle) -> None:
     info = client.system_info()
-    assert info.axes_sampling_rate is None or info.axes_sampling_rate > 0
-    assert info.dnc_allowed in (True, False, None)
+    assert info.axes_sampling_rate is None  # no remote scope on a TNC 640: R_CI 3 refused
+    assert info.dnc_allowed is tnc640.call(lambda c: c.dnc_option)
+    assert info.turbo_mode is False
     assert client.read_parameters() == client.parameters
     again = client.read_versions()
     assert (again.model, again.nc_software, again.plc) == (
@@ -509,3 +514,8 @@ def test_system_info(client: Client, tnc640: TncHandle) -> None:
         client.versions.nc_software,
         client.versions.plc,
     )
+
+
+def test_system_info_itnc_reports_the_scope_sampling_period(old: Client) -> None:
+    # the iTNC 530 answers R_CI 3 with 3000 µs, as captured before a scope recording
+    assert old.system_info().axes_sampling_rate == 3000
