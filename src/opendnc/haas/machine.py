@@ -1,6 +1,6 @@
 """The state a Haas program changes: macro variables, settings, counters, position, tool.
 
-Plain data with the variable map of ``haas-protocols.md`` section 8 (no I/O, no clock):
+Plain data with the variable map of docs/haas.md#macro-variables (no I/O, no clock):
 system variables that mirror state (positions, M30 counters, settings as ``#20000 + n``) are
 computed on read; work offsets and globals are stored.
 """

@@ -17,7 +17,7 @@ from opendnc.lsv2.payloads import SystemParameters
 
 
 class KeyStyle(Enum):
-    """Which key-code table ``C_EK`` understands (reference §10.3 / §10.4)."""
+    """Which key-code table ``C_EK`` understands (docs/lsv2.md#key-codes)."""
 
     NEW = "new"
     OLD = "old"
@@ -26,7 +26,8 @@ class KeyStyle(Enum):
 
 @dataclass(frozen=True, slots=True)
 class PlcLayout:
-    """Start addresses and sizes of the PLC areas inside one flat byte image (§8.1)."""
+    """Start addresses and sizes of the PLC areas inside one flat byte image
+    (docs/lsv2.md#system-parameters)."""
 
     markers_start: int
     markers: int
@@ -99,7 +100,8 @@ def _tiled_layout(words: int, markers: int, io: int, counters: int, timers: int)
     )
 
 
-# Captured TNC 320 v18 layout (golden vector of §8.1): the tiling reproduces it exactly.
+# Captured TNC 320 v18 layout (golden vector of docs/lsv2.md#system-parameters): the tiling
+# reproduces it exactly.
 TNC_LAYOUT = _tiled_layout(words=120000, markers=40000, io=1000, counters=144, timers=1000)
 # iTNC 530 / TNC 426: smaller PLC (values plausible, not captured); word area >= 1700 bytes.
 ITNC_LAYOUT = _tiled_layout(words=20000, markers=10000, io=512, counters=96, timers=512)
@@ -108,7 +110,7 @@ OLD_LAYOUT = _tiled_layout(words=8192, markers=4096, io=256, counters=48, timers
 
 @dataclass(frozen=True, slots=True)
 class PathLayout:
-    """Well-known files of a family (reference §11)."""
+    """Well-known files of a family (docs/tnc-profiles.md#paths-and-drives)."""
 
     program_dir: str
     mdi_program: str
@@ -166,7 +168,7 @@ class Profile:
     option_bits: str
     control_id: str
     release_type: str | None  # None: R_VR selector 6 refused (iTNC)
-    sys_par_length: int  # 120 or 124 (§8.1)
+    sys_par_length: int  # 120 or 124 (docs/lsv2.md#system-parameters)
     max_block_length: int
     lsv2_flags: int
     lsv2_flags_ex: int
@@ -186,7 +188,7 @@ class Profile:
     plc_password: str = "807667"
     password_key: int = 0x60389A6E
     max_buffer: int = 4096
-    dir_separator: str = "\\"  # separator in S_DI paths; the iTNC answers with "/" [W]
+    dir_separator: str = "\\"  # separator in S_DI paths; the iTNC answers with "/" (wire)
     system_commands: frozenset[int] = field(
         default_factory=lambda: frozenset({2, 3, 4, 5, 6, 7, 8, 11, 12, 17, 19, 27})
     )
@@ -204,7 +206,7 @@ class Profile:
         }
 
     def version_parts(self) -> list[str]:
-        """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, §5.2)."""
+        """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, docs/lsv2.md#versions)."""
         parts = [self.model, self.nc_software, self.plc_software]
         if self.splc_software is not None:
             parts.append(self.splc_software)
@@ -229,7 +231,8 @@ class Profile:
         return {c: s for c, s in BUFFER_SIZES.items() if s <= self.max_buffer}
 
     def parameters(self) -> SystemParameters:
-        """The ``S_PR`` answer as the codec's typed value (layout of §8.1 lives in the codec)."""
+        """The ``S_PR`` answer as the codec's typed value (layout of docs/lsv2.md#system-parameters
+        lives in the codec)."""
         return SystemParameters(
             **asdict(self.plc),
             lsv2_version=1,
@@ -382,7 +385,8 @@ PROFILES: dict[str, Profile] = {
         scope=True,
         keys=KeyStyle.NEW,
         delete_cwd_allowed=True,
-        # 340494 = variant 4, a Windows programming station: no date/time service (§5.7).
+        # 340494 = variant 4, a Windows programming station: no date/time service
+        # (docs/lsv2.md#date-and-time).
         date_time=False,
         numeric_machine_parameters=True,
         drives=("TNC:", "PLC:", "SYS:"),
