@@ -15,7 +15,7 @@ from opendnc.haas import mdc
 from opendnc.haas.mdc_client import AsyncMdcClient, MdcClient, macro_set_op
 from opendnc.sim.haas import HaasConfig, SimHaasThread, SimOptions
 
-# Reply payload formats of the reference table (haas-protocols.md 7.4)
+# Reply payload formats of Haas's table (docs/haas.md#q-commands)
 FORMATS = {
     "?Q100": r"SERIAL NUMBER, \S+",
     "?Q101": r"SOFTWARE VERSION, \S+",

@@ -178,13 +178,16 @@ def test_stop_cuts_backoff_short() -> None:
     import threading
     import time
 
+    tried = threading.Event()
+
     def refuse(spec: str) -> ScriptedStream:
+        tried.set()
         raise TransportError("refused")
 
     listener = DprntListener("x", [], opener=refuse, backoff_start=30.0)  # type: ignore[arg-type]
     thread = threading.Thread(target=listener.run, daemon=True)
     thread.start()
-    time.sleep(0.05)
+    assert tried.wait(5), "the listener never tried to connect"
     started = time.monotonic()
     listener.stop()
     thread.join(5)
