@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import DprntDestination, HaasConfig, HaasControl
 from opendnc.sim.haas.dprnt_out import FileDprntOutput, TcpDprntOutput
 from opendnc.sim.haas.mdc_server import MdcServer, Trace
+from opendnc.sim.haas.runner import StepResult
 from opendnc.sim.haas.store import ProgramStore
 
 T = TypeVar("T")
