@@ -7,7 +7,7 @@ import inspect
 import pytest
 
 from opendnc.errors import InputError, RemoteProtocolError
-from opendnc.lsv2 import AsyncClient, Client, _unasync
+from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.constants import MemoryType
 from opendnc.lsv2.plc import PlcOperand, decode_values, parse_operand, plan_reads
 from opendnc.lsv2.tables import parse_table
@@ -106,10 +106,6 @@ def test_table_with_struct_block() -> None:
 def test_bad_tables(bad: str) -> None:
     with pytest.raises(InputError):
         parse_table(bad)
-
-
-def test_blocking_facade_is_generated_from_async() -> None:
-    assert _unasync.main(["--check"]) == 0, "run python -m opendnc.lsv2._unasync"
 
 
 def test_facades_offer_the_same_methods() -> None:
