@@ -15,7 +15,7 @@ from typing import TypeVar
 from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, TransportTimeout
 from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
-from opendnc.lsv2.ops.base import Expect, Op, Overlap, SessionState, Slow, Step
+from opendnc.lsv2.ops.base import Expect, Op, Receive, Send, SessionState, Slow, Step
 from opendnc.transport.base import ByteStream
 from opendnc.transport.tcp import TcpStream
 
@@ -52,12 +52,14 @@ class _DriverBase:
             self.broken = True
 
     def _unpack(self, step: Step) -> tuple[Message | None, float]:
-        if isinstance(step, Overlap):
+        if isinstance(step, Send):
             return step.message, self.timeout
         if isinstance(step, Slow):
             return step.message, max(step.timeout, self.timeout)
         if isinstance(step, Expect):
             return None, step.timeout
+        if isinstance(step, Receive):
+            return None, self.timeout
         return step, self.timeout
 
 
@@ -114,10 +116,16 @@ class BlockingDriver(_DriverBase):
         message, timeout = self._unpack(step)
         conn = self.conn
         if message is None:
+            if isinstance(step, Receive):
+                return self._receive(timeout)
             return self._wait_notice(timeout)
         self.stream.write(conn.send(message))
-        if isinstance(step, Overlap):
-            step.work()  # while the control works on its answer
+        if isinstance(step, Send):
+            return None  # the operation works while the answer travels, then sends Receive
+        return self._receive(timeout)
+
+    def _receive(self, timeout: float) -> Message | None:
+        conn = self.conn
         if conn.state is not State.WAITING:
             return None  # e.g. T_FD without secure send: the control stays silent
         if timeout != self._read_timeout:
@@ -287,10 +295,16 @@ class AsyncDriver(_DriverBase):
         message, timeout = self._unpack(step)
         conn = self.conn
         if message is None:
+            if isinstance(step, Receive):
+                return await self._receive(timeout)
             return await self._wait_notice(timeout)
         await self._link.write(conn.send(message))
-        if isinstance(step, Overlap):
-            step.work()  # while the control works on its answer
+        if isinstance(step, Send):
+            return None  # the operation works while the answer travels, then sends Receive
+        return await self._receive(timeout)
+
+    async def _receive(self, timeout: float) -> Message | None:
+        conn = self.conn
         if conn.state is not State.WAITING:
             return None  # e.g. T_FD without secure send: the control stays silent
         while (reply := conn.next_event()) is None:
