@@ -95,8 +95,8 @@ def run_blocking(
         while True:
             out = data_to_send()
             if engine.finished:
-                # the final events (Completed/Failed) go out before the last bytes, so a
-                # handler can still act on the ending (the Haas simulator swaps the EOT ACK)
+                # the final events (the last block, Completed/Failed) are handled before the
+                # last bytes go out: the sender hears "complete" only once the file is stored
                 _dispatch(engine, on_event)
                 if out:
                     write(out)
