@@ -25,10 +25,6 @@ from opendnc.sim.haas.store import ProgramStore
 
 T = TypeVar("T")
 
-SERIAL_FRONT_END = "opendnc.sim.haas.serial_front"
-"""Module a serial front-end provides: ``async def start_serial(sim, url, baud, trace)``
-returning a :class:`FrontEnd`. The CLI looks it up; absent, ``--serial`` is refused."""
-
 
 class FrontEnd(Protocol):
     """Anything attached to the control that must be closed with the simulator."""
