@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from opendnc.errors import ControlRefused
+from opendnc.errors import ControlRefused, InputError
 from opendnc.lsv2.constants import DataType
 from opendnc.lsv2.payloads import SystemParameters
 from opendnc.sim.tnc.control import Control
@@ -63,7 +63,7 @@ def test_profiles_are_self_consistent(key: str) -> None:
 
 
 def test_unknown_profile_names_choices() -> None:
-    with pytest.raises(KeyError, match="tnc640"):
+    with pytest.raises(InputError, match="tnc640"):
         get_profile("tnc999")
 
 

@@ -109,7 +109,10 @@ class PlcMemory:
             "C": (lay.counters_start, lay.counters, 1),
             "T": (lay.timers_start, lay.timers, 1),
         }
-        return table[letter]
+        area = table.get(letter.upper())
+        if area is None:
+            raise ControlRefused(BAD_MEMADR, f"no bit area {letter!r}")
+        return area
 
     # -- typed helpers ---------------------------------------------------------------------
     def set_bit(self, letter: str, index: int, value: bool) -> None:

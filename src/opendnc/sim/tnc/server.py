@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar, cast
 
-from opendnc.errors import LocalProtocolError, RemoteProtocolError
+from opendnc.errors import LocalProtocolError, RemoteProtocolError, TransportError
 from opendnc.lsv2.connection import Lsv2Connection, Role, UndecodableTelegram
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.framing import HEADER_SIZE
@@ -428,5 +428,5 @@ def start_tnc(
     if failure:
         raise failure[0]
     if not ready:
-        raise RuntimeError("virtual TNC did not start")
+        raise TransportError("the virtual TNC did not start within 30 s")
     return TncHandle(ready[0], loop, thread, temp_root=root is None)
