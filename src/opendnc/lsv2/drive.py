@@ -64,33 +64,34 @@ class _DriverBase:
         (and is sent anything back) or a read timeout in seconds (and is sent the bytes read;
         the driver raises :class:`TransportTimeout` / :class:`PeerClosed` itself).
         """
-        conn = self.conn
+        conn, send_op, timeout = self.conn, op.send, self.timeout
         try:
             step = next(op)
             while True:
-                if isinstance(step, Receive):
-                    timeout = self.timeout
-                elif isinstance(step, Expect):
-                    step = op.send((yield from self._notice(step.timeout)))
+                # exact types, most frequent first: this runs for every file block
+                if type(step) is Send:
+                    yield conn.send(step.message)
+                    # the operation works while the answer travels, then sends Receive
+                    step = send_op(None)
+                    continue
+                if type(step) is Receive:
+                    wait = timeout
+                elif type(step) is Slow:
+                    yield conn.send(step.message)
+                    wait = max(step.timeout, timeout)
+                elif type(step) is Expect:
+                    step = send_op((yield from self._notice(step.timeout)))
                     continue
                 else:
-                    if isinstance(step, Send | Slow):
-                        message = step.message
-                        slow = step.timeout if isinstance(step, Slow) else 0.0
-                        timeout = max(slow, self.timeout)
-                    else:
-                        message, timeout = step, self.timeout
-                    yield conn.send(message)
-                    if isinstance(step, Send):
-                        # the operation works while the answer travels, then sends Receive
-                        step = op.send(None)
-                        continue
+                    assert isinstance(step, Message)
+                    yield conn.send(step)
+                    wait = timeout
                 if conn.state is not State.WAITING:
                     reply = None  # e.g. T_FD without secure send: the control stays silent
                 else:
                     while (reply := conn.next_event()) is None:
-                        conn.receive_data((yield timeout))
-                step = op.send(reply)
+                        conn.receive_data((yield wait))
+                step = send_op(reply)
         except StopIteration as done:
             result: T = done.value
             return result
