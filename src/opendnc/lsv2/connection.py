@@ -204,7 +204,10 @@ class Lsv2Connection:
                 return None
             self.last_frame = frame
             if self.role is Role.SERVER:
-                message = _decode(frame)
+                try:  # inline, not _decode(): once per telegram
+                    message = decode(frame)
+                except RemoteProtocolError as exc:
+                    raise UndecodableTelegram(frame, exc) from exc
                 self._pending_cc = message.command if isinstance(message, SystemCommand) else None
                 self._trace(message)
                 return message
@@ -218,7 +221,10 @@ class Lsv2Connection:
                 raise RemoteProtocolError(f"unsolicited {frame.mnemonic} telegram")
             self.state = State.IDLE
             pending, self._pending_cc = self._pending_cc, None
-            message = _decode(frame)
+            try:
+                message = decode(frame)
+            except RemoteProtocolError as exc:
+                raise UndecodableTelegram(frame, exc) from exc
             if pending is not None and isinstance(message, Ok):
                 self._apply_cc(pending)
             self._trace(message)
