@@ -80,13 +80,15 @@ class _Pause(float):
     """A pump step: wait this many seconds without reading (a timer that does not listen)."""
 
 
-# The pump yields what to do next: ``bytes`` to write, a ``float`` read timeout (it is sent
-# the bytes read: ``None`` if nothing came, ``b""`` if the link closed) or a :class:`_Pause`.
-# Plain bytes and floats keep the per-block cost of a step at one yield, no allocation.
-_Pump = Generator["bytes | float", "bytes | None", Completed]
+# The pump writes through the callable it is given and yields when it must wait: a read
+# timeout in seconds (it is sent the bytes read: ``None`` if nothing came, ``b""`` if the link
+# closed) or a :class:`_Pause`. One yield per block keeps the driver's share of a block small.
+_Pump = Generator[float, "bytes | None", Completed]
 
 
-def _pump(engine: Engine, on_event: EventHandler | None, clock: Clock) -> _Pump:
+def _pump(
+    engine: Engine, on_event: EventHandler | None, clock: Clock, write: Callable[[bytes], object]
+) -> _Pump:
     """The driver logic, shared by both drivers: what to write, when to read, events, timers."""
     deadline = _Deadline(clock)
     # bound once: this loop turns once per block, and lookups are a visible share of it
@@ -98,12 +100,12 @@ def _pump(engine: Engine, on_event: EventHandler | None, clock: Clock) -> _Pump:
             # last bytes go out: the sender hears "complete" only once the file is stored
             _dispatch(engine, on_event)
             if out:
-                yield out
+                write(out)
             return _outcome(engine)
         # mid-transfer, answer first and handle events (file writes, progress) after:
         # the peer gets on with the next block while we do our bookkeeping
         if out:
-            yield out
+            write(out)
         if engine.has_events:
             _dispatch(engine, on_event)
         prepare()
@@ -142,26 +144,22 @@ def run_blocking(
     Ctrl-C cancels the session on the wire (CAN CAN CAN) before it propagates.
     """
     stream.set_timeout(poll)
-    pump = _pump(engine, on_event, clock)
-    write, read, advance = stream.write, stream.read, pump.send
+    pump = _pump(engine, on_event, clock, stream.write)
+    read, advance = stream.read, pump.send
     try:
         step = next(pump)
         while True:
-            if type(step) is bytes:
-                write(step)
-                step = advance(None)
-            elif type(step) is float:
-                try:
-                    got: bytes | None = read(READ_SIZE) or None
-                except TransportTimeout:
-                    got = None
-                except PeerClosed:
-                    got = b""
-                step = advance(got)
-            else:
-                assert isinstance(step, _Pause)
+            if type(step) is _Pause:
                 time.sleep(step)
                 step = advance(None)
+                continue
+            try:
+                got: bytes | None = read(READ_SIZE) or None
+            except TransportTimeout:
+                got = None
+            except PeerClosed:
+                got = b""
+            step = advance(got)
     except StopIteration as done:
         result: Completed = done.value
         return result
@@ -185,27 +183,24 @@ async def run_async(
 
     Cancelling the task cancels the session on the wire (CAN CAN CAN) first.
     """
-    pump = _pump(engine, on_event, clock)
+    pump = _pump(engine, on_event, clock, writer.write)
     try:
         step = next(pump)
         while True:
-            if type(step) is bytes:
-                writer.write(step)
-                await writer.drain()
-                step = pump.send(None)
-            elif type(step) is float:
-                try:
-                    got: bytes | None = await asyncio.wait_for(reader.read(READ_SIZE), step)
-                except TimeoutError:
-                    got = None
-                except (ConnectionError, OSError):
-                    got = b""
-                step = pump.send(got)
-            else:
-                assert isinstance(step, _Pause)
+            await writer.drain()  # what the pump wrote leaves before we wait
+            if type(step) is _Pause:
                 await asyncio.sleep(step)
                 step = pump.send(None)
+                continue
+            try:
+                got: bytes | None = await asyncio.wait_for(reader.read(READ_SIZE), step)
+            except TimeoutError:
+                got = None
+            except (ConnectionError, OSError):
+                got = b""
+            step = pump.send(got)
     except StopIteration as done:
+        await writer.drain()
         result: Completed = done.value
         return result
     except asyncio.CancelledError:
