@@ -6,6 +6,7 @@ import time
 
 from opendnc.errors import ControlRefused
 from opendnc.lsv2.constants import ErrorCode as E
+from opendnc.lsv2.constants import Login as L
 from opendnc.lsv2.messages import (
     CommandDone,
     DateTimeReply,
@@ -28,7 +29,7 @@ from opendnc.sim.tnc import oplog
 from opendnc.sim.tnc.screen import render_status
 from opendnc.sim.tnc.session import OK, Deferred, Priv, Result, Session, handler
 
-PASSWORD_LOGINS = frozenset({"FILEPLC", "FILESYS", "FILELOG", "STREAMAXES"})
+PASSWORD_LOGINS = frozenset({L.FILEPLC, L.FILESYS, L.FILELOG, L.STREAMAXES})
 OPLOG_DELAY = 0.2  # seconds until M_CC announces the finished log
 
 
@@ -44,9 +45,9 @@ def login(s: Session, m: Login) -> list[Message]:
         raise ControlRefused(E.T_ER_NO_LOGIN, f"{name} not available on {c.profile.key}")
     if name in PASSWORD_LOGINS and password != c.profile.plc_password:
         raise ControlRefused(E.T_ER_BAD_KEY, "wrong password")
-    if name == "DNC" and not c.dnc_option:
+    if name == L.DNC and not c.dnc_option:
         raise ControlRefused(E.T_ER_NO_LOGIN, "DNC option not set")
-    if name == "MONITOR":
+    if name == L.MONITOR:
         if c.monitor_owner not in (None, s.id):
             raise ControlRefused(E.T_ER_NO_LOGIN, "MONITOR held by another session")
         c.monitor_owner = s.id

@@ -20,7 +20,7 @@ from typing import Any
 
 from opendnc.errors import ControlRefused, InputError
 from opendnc.lsv2.connection import Lsv2Connection
-from opendnc.lsv2.constants import DRIVE_LOGINS
+from opendnc.lsv2.constants import DRIVE_LOGINS, Login
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.messages import BlockDefect, FileData, FileDone, Message, Ok, Opaque, Refused
 from opendnc.sim.tnc.control import Control
@@ -43,8 +43,19 @@ class Priv(Enum):
     OSZI = "oszi"
 
 
-INSPECT_LEVEL = frozenset({"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG", "DATA"})
-_FILE_LEVEL = frozenset(str(login) for login in DRIVE_LOGINS.values())
+INSPECT_LEVEL = frozenset(
+    {
+        Login.INSPECT,
+        Login.DIAGNOSTICS,
+        Login.FILE,
+        Login.MONITOR,
+        Login.DNC,
+        Login.PLCDEBUG,
+        Login.DATA,
+    }
+)
+_MONITOR_LEVEL = frozenset({Login.MONITOR, Login.DIAGNOSTICS})
+_FILE_LEVEL = frozenset(DRIVE_LOGINS.values())
 
 
 def error(code: int) -> Refused:
@@ -163,16 +174,16 @@ class Session:
             case Priv.FILE:
                 return not have.isdisjoint(_FILE_LEVEL)
             case Priv.MONITOR:
-                return bool(have & {"MONITOR", "DIAGNOSTICS"})
+                return not have.isdisjoint(_MONITOR_LEVEL)
             case Priv.DIAGNOSTICS:
-                return "DIAGNOSTICS" in have
+                return Login.DIAGNOSTICS in have
             case _:
                 return priv.value.upper() in have
 
     def check_drive(self, wp: WirePath) -> None:
         """Refuse (23) a path on a drive whose file login the session lacks."""
         login = DRIVE_LOGINS.get(wp.drive)
-        if login is None or str(login) not in self.logins:
+        if login is None or login not in self.logins:
             raise ControlRefused(E.T_ER_NO_PRIV, f"no login for {wp.drive}")
 
     def path(self, text: str) -> WirePath:
