@@ -1,5 +1,11 @@
+"""The exception tree, and that what the package raises on purpose belongs to it."""
+
+import re
+from pathlib import Path
+
 import pytest
 
+import opendnc
 from opendnc.errors import (
     ControlRefused,
     DncError,
@@ -57,3 +63,18 @@ def test_simulator_path_refusal_is_the_clients_refusal_type() -> None:
     with pytest.raises(ControlRefused) as info:
         parse_path("C:\\x", WirePath("TNC:", ()), ("TNC:",))
     assert info.value.code == ErrorCode.T_ER_BAD_FNAME
+
+
+def test_the_package_raises_no_builtin_error_on_purpose() -> None:
+    """``raise KeyError(...)`` and friends in the package: each must be a DncError instead."""
+    package = Path(opendnc.__file__).parent
+    builtin = re.compile(
+        r"\braise\s+(KeyError|ValueError|RuntimeError|TypeError|IndexError|OSError|Exception)\b"
+    )
+    found = [
+        f"{path.relative_to(package)}:{number}: {line.strip()}"
+        for path in sorted(package.rglob("*.py"))
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if builtin.search(line)
+    ]
+    assert found == []
