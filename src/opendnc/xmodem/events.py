@@ -36,7 +36,8 @@ class Timer(NamedTuple):
 
 
 class EotAnswer(enum.Enum):
-    """How the receiver answered our EOT."""
+    """How the receiver answered the sender's EOT (a sender's Completed: what came back; a
+    receiver's: what it sent, see ``ReceiverConfig.eot_answer``)."""
 
     ACK = "ack"  # the standard ending
     CAN = "can"  # a Haas answers a complete transfer with CAN CAN CAN (seed 003, Figure 24)
