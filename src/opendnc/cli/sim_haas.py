@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib
-import importlib.util
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from opendnc.cli.common import cli_errors, err_console
 from opendnc.errors import InputError, TransportError
 from opendnc.haas.mdc import ControlType
-from opendnc.sim.haas.app import SERIAL_FRONT_END, SimHaas, SimOptions
+from opendnc.sim.haas.app import SimHaas, SimOptions
 from opendnc.sim.haas.control import DprntDestination, HaasConfig
 from opendnc.sim.haas.surface import parse_surface
+
+if TYPE_CHECKING:
+    from opendnc.sim.haas.serial_front import SerialOptions
 
 
 def parse_dprnt(spec: str | None, root: Path) -> tuple[DprntDestination, int | None, Path | None]:
@@ -86,11 +88,6 @@ def haas(
         wants_serial = (
             serial is not None or baud is not None or destination is DprntDestination.SERIAL
         )
-        if wants_serial and importlib.util.find_spec(SERIAL_FRONT_END) is None:
-            raise InputError(
-                "serial front-end not available yet: --serial, --baud and --dprnt serial "
-                "need opendnc.sim.haas.serial_front"
-            )
         if wants_serial and serial is None:
             raise InputError("--baud / --dprnt serial need --serial PORT")
         config = HaasConfig(
@@ -131,7 +128,7 @@ async def _serve(
     serial: str | None,
     baud: int,
     run: int | None,
-    serial_options: object = None,
+    serial_options: SerialOptions | None = None,
 ) -> None:
     sim = SimHaas(config, root, options)
     if options.trace is not None:
@@ -141,8 +138,10 @@ async def _serve(
     await sim.start()
     try:
         if serial is not None:
-            module = importlib.import_module(SERIAL_FRONT_END)
-            front = await module.start_serial(sim, serial, baud, options.trace, serial_options)
+            # imported here: only --serial needs the front-end (and pyserial behind it)
+            from opendnc.sim.haas.serial_front import start_serial
+
+            front = await start_serial(sim, serial, baud, options.trace, serial_options)
             front.on_message = lambda text: print(text, flush=True)  # RS232 DONE / ABORT
             sim.add_front_end(front)
             print(f"SERIAL {serial} {baud}", flush=True)
@@ -166,10 +165,8 @@ async def _serve(
 
 def _serial_options(
     mode: str, baud: int, parity: str, eob: str, dnc_timeout: float, quirks: bool
-) -> object:
-    """The serial front-end's options (imported lazily: the front-end is optional)."""
-    if importlib.util.find_spec(SERIAL_FRONT_END) is None:
-        return None
+) -> SerialOptions:
+    """The serial front-end's options (imported here: only --serial needs them)."""
     from opendnc.sim.haas.serial_front import SerialOptions, parse_mode
     from opendnc.sim.haas.serial_xmodem import XmodemQuirks
     from opendnc.xmodem.haas import Eob

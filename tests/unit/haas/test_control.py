@@ -10,14 +10,14 @@ import pytest
 
 from opendnc.errors import InputError
 from opendnc.haas import mdc
-from opendnc.haas.machine import Alarm
-from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import (
     ALARM_DNC_LINK,
     DprntDestination,
     HaasConfig,
     HaasControl,
 )
+from opendnc.sim.haas.machine import Alarm
+from opendnc.sim.haas.runner import StepResult
 from opendnc.sim.haas.store import ProgramStore
 from opendnc.sim.haas.surface import parse_surface
 

@@ -1,8 +1,8 @@
 """The virtual Haas control: one model object that front-ends attach to.
 
 :class:`HaasControl` owns program memory (:class:`~opendnc.sim.haas.store.ProgramStore`),
-machine state and settings (:class:`~opendnc.haas.machine.MachineState`), the active
-:class:`~opendnc.haas.runner.ProgramRunner`, the alarm list and the DPRNT routing. It does no
+machine state and settings (:class:`~opendnc.sim.haas.machine.MachineState`), the active
+:class:`~opendnc.sim.haas.runner.ProgramRunner`, the alarm list and the DPRNT routing. It does no
 I/O and has no timers: front-ends call into it and a driver calls :meth:`HaasControl.step`.
 
 Front-ends and how they attach:
@@ -31,9 +31,9 @@ from typing import Protocol
 
 from opendnc.errors import InputError
 from opendnc.haas import mdc
-from opendnc.haas.machine import Alarm, MachineState, Mode, Status
-from opendnc.haas.program import parse_header, program_lines
-from opendnc.haas.runner import (
+from opendnc.sim.haas.machine import Alarm, MachineState, Mode, Status
+from opendnc.sim.haas.program import parse_header, program_lines
+from opendnc.sim.haas.runner import (
     AlarmRaised,
     BlockSource,
     CycleTimes,

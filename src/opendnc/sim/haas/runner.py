@@ -9,7 +9,7 @@ part counters and cycle times, positions (``G90``/``G91``/``G53``, ``G54``..``G5
 Sans-IO: the runner takes an injected ``clock`` and reports what happens as typed events
 through ``emit``. It reads blocks from a :class:`BlockSource`, which a DNC front-end may keep
 appending to while the program runs (the runner then reports :attr:`StepResult.WAITING`).
-Program faults become alarms (:class:`~opendnc.haas.machine.Alarm`), as on a control.
+Program faults become alarms (:class:`~opendnc.sim.haas.machine.Alarm`), as on a control.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 from opendnc.errors import InputError
 from opendnc.haas import dprnt, macros
-from opendnc.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
-from opendnc.haas.program import (
+from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
+from opendnc.sim.haas.program import (
     Assign,
     Block,
     Dprnt,
