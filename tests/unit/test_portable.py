@@ -1,0 +1,164 @@
+"""The library without termios, fcntl, pty and tty (as on Windows): it imports and it works.
+
+A child interpreter gets a meta-path finder that refuses those modules, imports every module
+of the package except the pty-based simulators, then runs a TCP LSV2 session against the
+virtual TNC (in a process of its own) and XModem transfers over ``socket://`` and ``tcp://``
+against a loopback listener here. pyserial's POSIX back end needs termios, so the child also
+shows that none of this loads pyserial.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from benchmarks.simproc import start_server
+
+from opendnc.transport.base import ByteStream
+from opendnc.transport.fd import FdStream
+from opendnc.xmodem.driver import receive, send
+from opendnc.xmodem.framing import Mode
+from tests.unit.xmodem.test_driver import Worker
+
+BLOCKED = ("termios", "fcntl", "pty", "tty")
+# POSIX-only by design: the pty bench, the virtual cable, the virtual Haas's serial front end
+POSIX_ONLY = ("opendnc.transport.pty", "opendnc.sim.cable", "opendnc.sim.haas.serial_front")
+
+CHILD = textwrap.dedent(
+    """
+    import importlib, importlib.abc, json, pkgutil, sys
+    from pathlib import Path
+
+    blocked, posix_only = set(sys.argv[1].split(",")), tuple(sys.argv[2].split(","))
+
+    class Refuse(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name.partition(".")[0] in blocked:
+                raise ImportError(f"{name} is blocked (no such module on this platform)")
+            return None
+
+    sys.meta_path.insert(0, Refuse())
+    for name in blocked:
+        sys.modules.pop(name, None)
+
+    import opendnc
+
+    imported, refused = [], {}
+    def walk(package):
+        # pkgutil.walk_packages would import the POSIX-only packages to look inside them
+        for info in pkgutil.iter_modules(package.__path__, package.__name__ + "."):
+            if any(info.name == p or info.name.startswith(p + ".") for p in posix_only):
+                continue
+            module = importlib.import_module(info.name)  # a failure fails the test
+            imported.append(info.name)
+            if info.ispkg:
+                walk(module)
+    walk(opendnc)
+
+    from opendnc.lsv2 import Client
+    from opendnc.xmodem.files import receive_file, send_file
+    from opendnc.xmodem.framing import Mode
+
+    tnc_port, send_port, recv_port, work = sys.argv[3:7]
+    work = Path(work)
+    with Client("127.0.0.1", int(tnc_port)) as tnc:
+        program = b"0 BEGIN PGM PORTABLE MM\\r\\n1 END PGM PORTABLE MM\\r\\n"
+        tnc.write_file("TNC:/PORTABLE.H", program)
+        listing = [entry.name for entry in tnc.list_dir("TNC:/")]
+        lsv2 = {
+            "model": tnc.versions.model,
+            "listed": "PORTABLE.H" in listing,
+            "read_back": tnc.read_file("TNC:/PORTABLE.H").decode("latin-1"),
+        }
+    sent = send_file(f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K)
+    got = receive_file(f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM)
+    loaded = sorted(m for m in sys.modules if m.partition(".")[0] in blocked | {"serial"})
+    for name in posix_only:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            refused[name] = str(exc)
+    print(json.dumps({
+        "imported": imported,
+        "refused": refused,
+        "loaded": loaded,
+        "lsv2": lsv2,
+        "sent": sent.size,
+        "received": got.size,
+    }))
+    """
+)
+
+
+@pytest.fixture
+def tnc(tmp_path: Path) -> Iterator[int]:
+    proc, port = start_server(tmp_path / "tnc", profile="tnc640")
+    try:
+        yield port
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)  # reaps it and closes its output pipe
+
+
+def _serve_once(action: Callable[[ByteStream], object]) -> tuple[int, Worker]:
+    """Listen on loopback; the first connection runs ``action`` over a stream of it."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(60)  # a child that never connects must not leave the thread waiting
+
+    def run() -> object:
+        try:
+            conn, _ = listener.accept()
+        finally:
+            listener.close()
+        with conn:
+            return action(FdStream(conn.fileno(), timeout=0.05))
+
+    worker = Worker(run)
+    worker.start()
+    return listener.getsockname()[1], worker
+
+
+def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> None:
+    outgoing = os.urandom(20_000)
+    (tmp_path / "out.nc").write_bytes(outgoing)
+    incoming = b"%\nO01234 (FROM THE CONTROL)\n" + b"G01 X1. Y2. F100.\n" * 300 + b"M30\n%\n"
+    got = io.BytesIO()
+    send_port, receiver = _serve_once(lambda stream: receive(stream, got, mode=Mode.ONE_K))
+    recv_port, sender = _serve_once(lambda stream: send(stream, incoming, mode=Mode.CHECKSUM))
+    root = Path(__file__).resolve().parents[2]
+    result = subprocess.run(
+        [
+            *(sys.executable, "-c", CHILD, ",".join(BLOCKED), ",".join(POSIX_ONLY)),
+            *(str(tnc), str(send_port), str(recv_port), str(tmp_path)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=root,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads(result.stdout.splitlines()[-1])
+    receiver.outcome()
+    sender.outcome()
+
+    # the blocker worked: the POSIX-only modules were refused, nothing blocked got loaded
+    assert sorted(report["refused"]) == sorted(POSIX_ONLY)
+    assert report["loaded"] == []
+    # and everything else imported: the protocols, the CLI, the TCP simulator
+    for name in ("opendnc.lsv2", "opendnc.haas.dnc", "opendnc.cli.main", "opendnc.sim.tnc"):
+        assert name in report["imported"]
+    assert report["lsv2"]["model"] == "TNC640"
+    assert report["lsv2"]["listed"]
+    assert report["lsv2"]["read_back"].startswith("0 BEGIN PGM PORTABLE MM")
+    assert got.getvalue() == outgoing
+    assert report["sent"] == len(outgoing)
+    assert (tmp_path / "in.nc").read_bytes() == incoming
+    assert report["received"] == len(incoming)
