@@ -12,21 +12,18 @@ from __future__ import annotations
 import io
 import json
 import os
-import socket
 import subprocess
 import sys
 import textwrap
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from benchmarks.simproc import start_server
 
-from opendnc.transport.base import ByteStream
-from opendnc.transport.fd import FdStream
 from opendnc.xmodem.driver import receive, send
 from opendnc.xmodem.framing import Mode
-from tests.unit.xmodem.test_driver import Worker
+from tests.unit.xmodem.test_socket_port import _serve_once
 
 BLOCKED = ("termios", "fcntl", "pty", "tty")
 # POSIX-only by design: the pty bench, the virtual cable, the virtual Haas's serial front end
@@ -106,24 +103,6 @@ def tnc(tmp_path: Path) -> Iterator[int]:
     finally:
         proc.terminate()
         proc.communicate(timeout=10)  # reaps it and closes its output pipe
-
-
-def _serve_once(action: Callable[[ByteStream], object]) -> tuple[int, Worker]:
-    """Listen on loopback; the first connection runs ``action`` over a stream of it."""
-    listener = socket.create_server(("127.0.0.1", 0))
-    listener.settimeout(60)  # a child that never connects must not leave the thread waiting
-
-    def run() -> object:
-        try:
-            conn, _ = listener.accept()
-        finally:
-            listener.close()
-        with conn:
-            return action(FdStream(conn.fileno(), timeout=0.05))
-
-    worker = Worker(run)
-    worker.start()
-    return listener.getsockname()[1], worker
 
 
 def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> None:

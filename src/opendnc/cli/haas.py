@@ -209,7 +209,12 @@ def share_push(
 @app.command("dnc")
 def dnc_cmd(
     file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
-    port: str = typer.Option(..., "--port", help="Serial device or pyserial URL."),
+    port: str = typer.Option(
+        ...,
+        "--port",
+        help="Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT or socket:// (serial server), "
+        "rfc2217://.",
+    ),
     from_line: int = typer.Option(
         1, "--from-line", help="Restart at this file line (modal header re-sent first)."
     ),

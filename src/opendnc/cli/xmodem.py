@@ -24,7 +24,7 @@ from opendnc.xmodem.sender import SenderConfig
 
 app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
 
-PORT_HELP = "Serial device or pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, rfc2217://..."
+PORT_HELP = "Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT, socket://HOST:PORT, rfc2217://..."
 
 
 def _progress() -> Progress:

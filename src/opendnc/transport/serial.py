@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from typing import TYPE_CHECKING
 
-from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+from opendnc.errors import InputError, PeerClosed, TransportError, TransportTimeout
 from opendnc.transport.line import Handshake, check_line
 
 if TYPE_CHECKING:
@@ -26,14 +26,23 @@ def _line_errors() -> tuple[type[BaseException], ...]:
     return (termios.error,) if termios is not None else ()
 
 
-def _hint(url: str, exc: BaseException) -> str:
-    """A short hint for a port that did not open, or ``""``."""
-    text = str(exc).lower()
-    if "permission denied" in text or "access is denied" in text:
-        return " (no permission: on Linux add yourself to the dialout group)"
-    if "no such file" in text or "could not find" in text or "cannot find" in text:
-        return " (no such port: is the adapter plugged in?)"
-    return ""
+def _reason(exc: BaseException) -> str:
+    """Why a port did not open, in one line: pyserial wraps the OS error in its own text."""
+    cause = exc.__context__
+    if isinstance(cause, OSError) and cause.strerror:
+        reason = cause.strerror
+    elif cause is not None and len(cause.args) == 2 and isinstance(cause.args[1], str):
+        reason = cause.args[1]  # termios.error(errno, text)
+    else:
+        return str(exc)
+    errno = getattr(cause, "errno", None) or cause.args[0]
+    if errno == 2:  # ENOENT
+        return f"{reason} (is the adapter plugged in?)"
+    if errno == 13:  # EACCES
+        return f"{reason} (on Linux: add yourself to the dialout group)"
+    if errno == 25:  # ENOTTY
+        return f"{reason} (not a serial port)"
+    return reason
 
 
 def open_serial(
@@ -70,14 +79,17 @@ def open_serial(
             timeout=timeout,
             write_timeout=write_timeout,
         )
-    except (serial.SerialException, ValueError, OSError) as exc:
-        raise TransportError(f"cannot open serial port {url}: {exc}{_hint(url, exc)}") from exc
+    except (serial.SerialException, OSError) as exc:
+        raise TransportError(f"cannot open serial port {url}: {_reason(exc)}") from exc
+    except (ValueError, LookupError) as exc:  # pyserial's URL handlers, on a bad option
+        detail = f"unknown option value {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"bad port {url!r}: {detail}") from exc
     except _line_errors() as exc:
         # a device (a pty, for one) refusing the line settings
-        detail = exc.args[1] if len(exc.args) > 1 else exc
+        why = exc.args[1] if len(exc.args) > 1 else exc
         raise TransportError(
             f"cannot open serial port {url}: it refuses {baudrate} baud, {bytesize}"
-            f"{parity.upper()}{stopbits:g} ({detail})"
+            f"{parity.upper()}{stopbits:g} ({why})"
         ) from exc
 
 
