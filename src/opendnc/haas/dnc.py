@@ -30,6 +30,7 @@ from opendnc.haas.dnc_engine import (
     DncReport,
     DncRun,
     DncStreamer,
+    Drain,
     EventHandler,
     Finish,
     Flow,
@@ -55,6 +56,7 @@ __all__ = [
     "DncReport",
     "DncRun",
     "DncStreamer",
+    "Drain",
     "EventHandler",
     "Finish",
     "Flow",
@@ -165,9 +167,9 @@ def stream_program(
                     pass
                 except PeerClosed:
                     run.link_closed()
-            else:
+            elif isinstance(step, Drain):
                 stream.drain()
-                time.sleep(step.linger)
+            else:
                 break
     finally:
         feed.close()
@@ -216,8 +218,9 @@ async def stream_program_async(
                 news.clear()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(news.wait(), step.seconds)
+            elif isinstance(step, Drain):
+                await writer.drain()
             else:
-                await asyncio.sleep(step.linger)
                 break
     except OSError as exc:
         raise TransportError(f"link failed during the drip-feed: {exc}") from exc

@@ -11,10 +11,10 @@ look at what the control sent, and nothing more is written after a DC3 until the
 * :class:`ProgramFeed` -- the program from disk as wire lines, line by line (constant memory),
   optionally restarted at a line with :func:`opendnc.haas.modal.restart_preamble`.
 * :class:`DncRun` -- one whole run: feed, streamer, clock and accounting. A driver asks it for
-  the :meth:`~DncRun.next_step` (:class:`Send`, :class:`Wait` or :class:`Finish`), does it and
-  hands back what the control sent. The drivers in :mod:`opendnc.haas.dnc` (blocking, over a
-  :class:`~opendnc.transport.base.PortStream`; asyncio, over stream reader and writer) hold
-  no decisions of their own.
+  the :meth:`~DncRun.next_step` (:class:`Send`, :class:`Drain`, :class:`Wait` or
+  :class:`Finish`), does it and hands back what the control sent. The drivers in
+  :mod:`opendnc.haas.dnc` (blocking, over a :class:`~opendnc.transport.base.PortStream`;
+  asyncio, over stream reader and writer) hold no decisions of their own.
 """
 
 from __future__ import annotations
@@ -52,8 +52,10 @@ class DncConfig:
     eob: Eob = Eob.LF
     drain: bool = True  # wait for each chunk to leave the port before the next check
     retract: bool = True  # restart preamble retracts Z (G91 G28 Z0.)
-    # keep the port open this long after the last byte: closing a port can discard what a
-    # USB adapter (or a pty) still holds, and the closing % must reach the control
+    # keep the port open until the control's flow bytes have stopped for this long after the
+    # last byte: closing a port can discard what a USB adapter (or a pty) still holds, and
+    # over TCP an XON or XOFF arriving after we closed resets the connection, which loses
+    # what the serial server still holds of the program. Bounded by xoff_timeout.
     linger: float = 0.25
     # start only after the control's first DC1 (it announces readiness), as DNC packages offer
     wait_for_xon: bool = False
@@ -281,13 +283,16 @@ class Wait:
 
 
 @dataclass(frozen=True, slots=True)
+class Drain:
+    """Everything was handed out: wait until it has left the port."""
+
+
+@dataclass(frozen=True, slots=True)
 class Finish:
-    """Everything was written: let it leave the port, keep the link ``linger`` s, close."""
-
-    linger: float
+    """The control is done with the link (quiet for ``linger`` s after the end): close it."""
 
 
-Step = Send | Wait | Finish
+Step = Send | Drain | Wait | Finish
 
 
 class DncRun:
@@ -322,6 +327,8 @@ class DncRun:
         self._timer_serial = -1
         self._deadline = float("inf")
         self._closed = False
+        self._done_at: float | None = None  # when the last byte was handed out
+        self._heard_at = self.started  # when the control last sent XON or XOFF
 
     def fill(self) -> None:
         """Read program lines until a few chunks are queued (constant memory)."""
@@ -339,7 +346,12 @@ class DncRun:
 
     def incoming(self, data: bytes) -> None:
         """Bytes from the control (flow control, or anything else it sends)."""
+        if not data:
+            return
+        flow_bytes = self.streamer.xoffs + self.streamer.xons
         self.streamer.receive_data(data)
+        if self.streamer.xoffs + self.streamer.xons != flow_bytes:
+            self._heard_at = self.clock()
         while (event := self.streamer.next_event()) is not None:
             if isinstance(event, Paused):
                 self._paused_at = self.clock()
@@ -371,8 +383,24 @@ class DncRun:
         if out:
             return Send(out, self.config.drain)
         if self.finished:
-            return Finish(self.config.linger)
+            return self._ending()
         return Wait(self.wait_time())
+
+    def _ending(self) -> Step:
+        """After the last byte: drain, then wait until the control's flow bytes stop."""
+        now = self.clock()
+        if self._done_at is None:
+            self._done_at = now
+            return Drain()
+        if self._closed:
+            return Finish()
+        quiet = max(self._done_at, self._heard_at) + self.config.linger
+        if self.config.xoff_timeout > 0:
+            # a control that keeps pausing and resuming for this long has the whole program
+            quiet = min(quiet, self._done_at + self.config.xoff_timeout)
+        if now >= quiet:
+            return Finish()
+        return Wait(min(POLL, quiet - now))
 
     def wait_time(self) -> float:
         """Seconds a paused driver may wait for input; raises once XOFF lasted too long."""

@@ -13,6 +13,7 @@ from opendnc.haas.dnc_engine import (
     DncConfig,
     DncEvent,
     DncRun,
+    Drain,
     Finish,
     Paused,
     ProgramFeed,
@@ -66,12 +67,22 @@ def test_steps_send_wait_on_xoff_resume_and_finish(make_run: Runner) -> None:
     assert events == [Paused(8), Resumed(8)]
     assert run.next_step() == Send(wire[8:16], drain=True)
     assert run.next_step() == Send(wire[16:], drain=True)
-    assert run.next_step() == Finish(0.5)
+    assert run.next_step() == Drain()
+    # the link stays open until the control has been quiet for `linger`
+    assert run.next_step() == Wait(POLL)
+    clock.now += 0.3
+    run.incoming(b"\x13\x11")  # still working through its buffer
+    clock.now += 0.48
+    step = run.next_step()
+    assert isinstance(step, Wait)
+    assert step.seconds == pytest.approx(0.02)  # quiet for 0.5 s at 0.3 + 0.5
+    clock.now += 0.02
+    assert run.next_step() == Finish()
     report = run.report()
     assert report.bytes_sent == len(wire)
-    assert (report.xoffs, report.xons) == (1, 1)
+    assert (report.xoffs, report.xons) == (2, 2)
     assert report.paused_seconds == pytest.approx(5.0)
-    assert report.seconds == pytest.approx(5.0)
+    assert report.seconds == pytest.approx(5.8)  # 5 s paused, 0.8 s at the end
 
 
 def test_wait_shrinks_to_the_deadline_then_times_out(make_run: Runner) -> None:
@@ -98,10 +109,24 @@ def test_a_hang_up_ends_the_run_unless_everything_was_sent(make_run: Runner) -> 
         run.next_step()
     assert run.streamer.sent == 16  # nothing more was handed out for a dead link
 
-    done, _ = make_run("%\nM30\n%\n", DncConfig(chunk=64, linger=0), clock)
+    done, _ = make_run("%\nM30\n%\n", DncConfig(chunk=64, linger=10), clock)
     assert isinstance(done.next_step(), Send)
+    assert done.next_step() == Drain()
     done.link_closed()  # the control hung up after the last byte: the run is complete
-    assert done.next_step() == Finish(0)
+    assert done.next_step() == Finish()
+
+
+def test_the_end_does_not_wait_longer_than_the_xoff_timeout(make_run: Runner) -> None:
+    clock = Clock()
+    run, _ = make_run("%\nM30\n%\n", DncConfig(xoff_timeout=2, linger=1), clock)
+    assert isinstance(run.next_step(), Send)
+    assert run.next_step() == Drain()
+    for _ in range(10):  # a control that keeps pausing and resuming
+        clock.now += 0.5
+        run.incoming(b"\x13\x11")
+        if run.next_step() == Finish():
+            break
+    assert clock.now - 100.0 == pytest.approx(2.0)
 
 
 def test_without_drain_the_steps_say_so(make_run: Runner) -> None:
