@@ -55,7 +55,8 @@ class DncConfig:
     # keep the port open until the control's flow bytes have stopped for this long after the
     # last byte: closing a port can discard what a USB adapter (or a pty) still holds, and
     # over TCP an XON or XOFF arriving after we closed resets the connection, which loses
-    # what the serial server still holds of the program. Bounded by xoff_timeout.
+    # what the serial server still holds of the program (docs/ports.md). Bounded by
+    # xoff_timeout.
     linger: float = 0.25
     # start only after the control's first DC1 (it announces readiness), as DNC packages offer
     wait_for_xon: bool = False

@@ -30,6 +30,9 @@ XOFF) and is ``None`` (no limit) by default; TCP streams always bound writes (se
 Errors: a malformed address is an :class:`~opendnc.errors.InputError`; a port that does not
 open is one :class:`~opendnc.errors.TransportError` with a hint where one helps (``host:port``
 without a scheme: "did you mean tcp://host:port?"). Nothing here retries.
+
+The facts behind these choices (device servers, RFC 2217, pyserial's ``socket://``) are in
+docs/ports.md.
 """
 
 from __future__ import annotations
