@@ -1,6 +1,7 @@
 """The library without termios, fcntl, pty and tty (as on Windows): it imports and it works.
 
-A child interpreter gets a meta-path finder that refuses those modules, imports every module
+A child interpreter gets a meta-path finder that refuses those modules (and loses the Linux
+socket options and ``poll()`` the TCP stream uses where they exist), imports every module
 of the package except the pty-based simulators, then runs a TCP LSV2 session against the
 virtual TNC (in a process of its own) and XModem transfers over ``socket://`` and ``tcp://``
 against a loopback listener here. pyserial's POSIX back end needs termios, so the child also
@@ -25,7 +26,8 @@ from opendnc.xmodem.driver import receive, send
 from opendnc.xmodem.framing import Mode
 from tests.unit.xmodem.test_socket_port import _serve_once
 
-BLOCKED = ("termios", "fcntl", "pty", "tty")
+# POSIX-only modules; the last three stand for the rest of what Windows lacks
+BLOCKED = ("termios", "fcntl", "pty", "tty", "resource", "grp", "pwd")
 # POSIX-only by design: the pty bench, the virtual cable, the virtual Haas's serial front end
 POSIX_ONLY = ("opendnc.transport.pty", "opendnc.sim.cable", "opendnc.sim.haas.serial_front")
 
@@ -45,6 +47,14 @@ CHILD = textwrap.dedent(
     sys.meta_path.insert(0, Refuse())
     for name in blocked:
         sys.modules.pop(name, None)
+    # and the POSIX/Linux calls the transports use when they exist: without them the TCP
+    # stream takes the path it takes on Windows (Python's socket timeouts, select(), no spin)
+    import os, select, socket
+    for module, attribute in [
+        (socket, "MSG_DONTWAIT"), (socket, "SO_RCVTIMEO"), (socket, "SO_SNDTIMEO"),
+        (select, "poll"), (os, "sched_yield"), (os, "sched_getaffinity"),
+    ]:
+        delattr(module, attribute)
 
     import opendnc
 
@@ -83,7 +93,9 @@ CHILD = textwrap.dedent(
             importlib.import_module(name)
         except ImportError as exc:
             refused[name] = str(exc)
+    from opendnc.transport import tcp
     print(json.dumps({
+        "tcp_paths": [tcp._KERNEL_TIMEOUTS, tcp._CAN_SPIN],
         "imported": imported,
         "refused": refused,
         "loaded": loaded,
@@ -131,6 +143,7 @@ def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> Non
     # the blocker worked: the POSIX-only modules were refused, nothing blocked got loaded
     assert sorted(report["refused"]) == sorted(POSIX_ONLY)
     assert report["loaded"] == []
+    assert report["tcp_paths"] == [False, False]  # no kernel timeouts, no MSG_DONTWAIT spin
     # and everything else imported: the protocols, the CLI, the TCP simulator
     for name in ("opendnc.lsv2", "opendnc.haas.dnc", "opendnc.cli.main", "opendnc.sim.tnc"):
         assert name in report["imported"]
