@@ -252,3 +252,39 @@ def test_host_port_hint_only_when_no_such_file(
     (tmp_path / "box:7").write_bytes(b"")
     with pytest.raises(TransportError, match="not a serial port"):
         open_stream("box:7")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["xmodem", "send", "--port", "{port}", "{file}"],
+        ["xmodem", "recv", "--port", "{port}", "{out}"],
+        ["haas", "dnc", "--unsafe", "--port", "{port}", "{file}"],
+        ["dprnt", "listen", "--port", "{port}"],
+    ],
+    ids=["xmodem-send", "xmodem-recv", "haas-dnc", "dprnt-listen"],
+)
+@pytest.mark.parametrize(
+    ("port", "reason"),
+    [
+        (
+            "127.0.0.1:5051",
+            "no serial port named '127.0.0.1:5051' (did you mean tcp://127.0.0.1:5051?)",
+        ),
+        (
+            "/dev/ttyUSB-opendnc-missing",
+            "cannot open serial port /dev/ttyUSB-opendnc-missing: No such file or directory"
+            " (is the adapter plugged in?)",
+        ),
+    ],
+    ids=["host-port", "missing-device"],
+)
+def test_every_command_reports_a_port_that_does_not_open_in_one_line(
+    command: list[str], port: str, reason: str, tmp_path: Path
+) -> None:
+    program = tmp_path / "O00010.nc"
+    program.write_text("%\nO00010\nM30\n%\n")
+    values = {"port": port, "file": str(program), "out": str(tmp_path / "in.nc")}
+    result = CliRunner().invoke(cli, [arg.format(**values) for arg in command])
+    assert result.exit_code == 1
+    assert result.output.splitlines() == [f"error: {reason}"]
