@@ -3,9 +3,9 @@
 A child interpreter gets a meta-path finder that refuses those modules (and loses the Linux
 socket options and ``poll()`` the TCP stream uses where they exist), imports every module
 of the package except the pty-based simulators, then runs a TCP LSV2 session against the
-virtual TNC (in a process of its own) and XModem transfers over ``socket://`` and ``tcp://``
-against a loopback listener here. pyserial's POSIX back end needs termios, so the child also
-shows that none of this loads pyserial.
+virtual TNC (in a process of its own), XModem transfers over ``socket://`` and ``tcp://`` and
+a drip-feed over ``socket://`` against loopback listeners here. pyserial's POSIX back end
+needs termios, so the child also shows that none of this loads pyserial.
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ from pathlib import Path
 import pytest
 from benchmarks.simproc import start_server
 
+from opendnc.errors import PeerClosed, TransportTimeout
+from opendnc.transport.base import ByteStream
 from opendnc.xmodem.driver import receive, send
 from opendnc.xmodem.framing import Mode
 from tests.unit.xmodem.test_socket_port import _serve_once
@@ -74,7 +76,7 @@ CHILD = textwrap.dedent(
     from opendnc.xmodem.files import receive_file, send_file
     from opendnc.xmodem.framing import Mode
 
-    tnc_port, send_port, recv_port, work = sys.argv[3:7]
+    tnc_port, send_port, recv_port, dnc_port, work = sys.argv[3:8]
     work = Path(work)
     with Client("127.0.0.1", int(tnc_port)) as tnc:
         program = b"0 BEGIN PGM PORTABLE MM\\r\\n1 END PGM PORTABLE MM\\r\\n"
@@ -87,6 +89,11 @@ CHILD = textwrap.dedent(
         }
     sent = send_file(f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K)
     got = receive_file(f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM)
+    from opendnc.haas.dnc import DncConfig, stream_program
+    dnc = stream_program(
+        f"socket://127.0.0.1:{dnc_port}", work / "dnc.nc", safe_mode=False,
+        config=DncConfig(chunk=32),
+    )
     loaded = sorted(m for m in sys.modules if m.partition(".")[0] in blocked | {"serial"})
     for name in posix_only:
         try:
@@ -102,6 +109,7 @@ CHILD = textwrap.dedent(
         "lsv2": lsv2,
         "sent": sent.size,
         "received": got.size,
+        "dnc": [dnc.bytes_sent, dnc.xoffs, dnc.xons],
     }))
     """
 )
@@ -117,6 +125,26 @@ def tnc(tmp_path: Path) -> Iterator[int]:
         proc.communicate(timeout=10)  # reaps it and closes its output pipe
 
 
+def _control_in_dnc_mode(stream: ByteStream) -> bytes:
+    """A control taking a drip-feed: one XOFF after the first bytes, the XON once the sender
+    has stopped; everything until the sender hangs up."""
+    got = bytearray()
+    state = "running"
+    while True:
+        try:
+            got += stream.read(4096)
+        except TransportTimeout:
+            if state == "paused":  # nothing came while paused: resume
+                stream.write(b"\x11")
+                state = "resumed"
+            continue
+        except PeerClosed:
+            return bytes(got)
+        if state == "running" and len(got) >= 64:
+            stream.write(b"\x13")
+            state = "paused"
+
+
 def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> None:
     outgoing = os.urandom(20_000)
     (tmp_path / "out.nc").write_bytes(outgoing)
@@ -124,11 +152,14 @@ def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> Non
     got = io.BytesIO()
     send_port, receiver = _serve_once(lambda stream: receive(stream, got, mode=Mode.ONE_K))
     recv_port, sender = _serve_once(lambda stream: send(stream, incoming, mode=Mode.CHECKSUM))
+    program = b"%\nO00020 (DRIP)\n" + b"G01 X1. Y2. F100.\n" * 100 + b"M30\n%\n"
+    (tmp_path / "dnc.nc").write_bytes(program)
+    dnc_port, control = _serve_once(_control_in_dnc_mode)
     root = Path(__file__).resolve().parents[2]
     result = subprocess.run(
         [
             *(sys.executable, "-c", CHILD, ",".join(BLOCKED), ",".join(POSIX_ONLY)),
-            *(str(tnc), str(send_port), str(recv_port), str(tmp_path)),
+            *(str(tnc), str(send_port), str(recv_port), str(dnc_port), str(tmp_path)),
         ],
         capture_output=True,
         text=True,
@@ -139,6 +170,7 @@ def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> Non
     report = json.loads(result.stdout.splitlines()[-1])
     receiver.outcome()
     sender.outcome()
+    control.outcome()
 
     # the blocker worked: the POSIX-only modules were refused, nothing blocked got loaded
     assert sorted(report["refused"]) == sorted(POSIX_ONLY)
@@ -154,3 +186,5 @@ def test_library_runs_without_termios_fcntl_pty(tnc: int, tmp_path: Path) -> Non
     assert report["sent"] == len(outgoing)
     assert (tmp_path / "in.nc").read_bytes() == incoming
     assert report["received"] == len(incoming)
+    assert control.result == program  # drip-fed over socket://, paused once, in order
+    assert report["dnc"] == [len(program), 1, 1]
