@@ -10,6 +10,7 @@ where pyserial or termios are missing. Commands open ports through
 
 from __future__ import annotations
 
+import errno
 import sys
 from typing import TYPE_CHECKING
 
@@ -35,12 +36,12 @@ def _reason(exc: BaseException) -> str:
         reason = cause.args[1]  # termios.error(errno, text)
     else:
         return str(exc)
-    errno = getattr(cause, "errno", None) or cause.args[0]
-    if errno == 2:  # ENOENT
+    code = getattr(cause, "errno", None) or cause.args[0]
+    if code == errno.ENOENT:
         return f"{reason} (is the adapter plugged in?)"
-    if errno == 13:  # EACCES
+    if code == errno.EACCES:
         return f"{reason} (on Linux: add yourself to the dialout group)"
-    if errno == 25:  # ENOTTY
+    if code == errno.ENOTTY:
         return f"{reason} (not a serial port)"
     return reason
 
