@@ -117,8 +117,8 @@ def load_height_map(path: str) -> HeightMap:
             f"height map {path} is not a full grid: {len(points)} points for "
             f"{len(xs)} X by {len(ys)} Y values"
         )
-    z = tuple(tuple(points[(x, y)] for x in xs) for y in ys)
-    return HeightMap(path, xs, ys, z)
+    heights = tuple(tuple(points[(x, y)] for x in xs) for y in ys)
+    return HeightMap(path, xs, ys, heights)
 
 
 def parse_surface(spec: str) -> SurfaceSpec | HeightMap:
