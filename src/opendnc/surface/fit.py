@@ -95,7 +95,7 @@ def tilt(axis: str, slope: float, units: Units) -> Tilt:
     if units is Units.MM:
         per_length, label = slope * 100.0, "100 mm"
     else:
-        per_length, label = slope, "in"
+        per_length, label = slope, "inch"
     return Tilt(axis, slope, per_length, label, math.atan(slope) * ARCSEC_PER_RADIAN)
 
 

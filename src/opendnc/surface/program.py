@@ -194,3 +194,23 @@ def generate(
         "%",
     ]
     return SurfaceProgram(number, grid, moves, "\n".join(lines) + "\n")
+
+
+_HEADER_GRID = re.compile(r"\(GRID (\d+) X (\d+) =")
+_HEADER_PITCH = re.compile(
+    r"\(PITCH X (\S+) Y (\S+) (IN|MM), ORIGIN X (\S+) Y (\S+)\)", re.IGNORECASE
+)
+
+
+def grid_from_program(text: str) -> Grid:
+    """The grid a program made by :func:`generate` probes (read from its header comments)."""
+    grid_match = _HEADER_GRID.search(text)
+    pitch_match = _HEADER_PITCH.search(text)
+    if grid_match is None or pitch_match is None:
+        raise InputError("not an opendnc surface program: no (GRID ...) and (PITCH ...) header")
+    try:
+        px, py, ox, oy = (float(pitch_match.group(i)) for i in (1, 2, 4, 5))
+    except ValueError:
+        raise InputError(f"bad surface program header {pitch_match.group(0)!r}") from None
+    units = Units.INCH if pitch_match.group(3).upper() == "IN" else Units.MM
+    return Grid(int(grid_match.group(1)), int(grid_match.group(2)), px, py, ox, oy, units)
