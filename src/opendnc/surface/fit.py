@@ -11,6 +11,9 @@ Definitions (docs/surface.md):
 * RMS: root mean square of the residuals;
 * outliers: points whose residual is further than ``k`` robust standard deviations from the
   residuals' median, the robust deviation being 1.4826 x the median absolute deviation (MAD).
+  The residuals for this test come from a robust plane (iteratively reweighted least squares
+  with Tukey's biweight), so one bad point cannot drag the plane and hide itself or flag its
+  neighbours; flatness without the outliers is reported as well.
 """
 
 from __future__ import annotations
@@ -72,12 +75,16 @@ class SurfaceStats:
     residual_max: float
     robust_sigma: float
     outlier_k: float
+    flatness_inliers: float
+    """Peak-to-valley after plane removal with the outliers left out (same plane)."""
     outliers: tuple[int, ...]
     """Indexes (into the input arrays) of the outlying points."""
     residuals: FloatArray
 
 
-def fit_plane(x: FloatArray, y: FloatArray, z: FloatArray) -> Plane:
+def fit_plane(
+    x: FloatArray, y: FloatArray, z: FloatArray, weights: FloatArray | None = None
+) -> Plane:
     """Least-squares plane through the points; :class:`InputError` if they do not span one."""
     if len(x) < 3:
         raise InputError(f"a plane needs at least 3 points, got {len(x)}")
@@ -86,8 +93,40 @@ def fit_plane(x: FloatArray, y: FloatArray, z: FloatArray) -> Plane:
     design = np.column_stack([x - mx, y - my, np.ones_like(x)])
     if np.linalg.matrix_rank(design) < 3:
         raise InputError("the points lie on one line: no plane (need a 2-D grid)")
-    (a, b, c), *_ = np.linalg.lstsq(design, z, rcond=None)
+    target = z
+    if weights is not None:
+        root = np.sqrt(weights)
+        design, target = design * root[:, None], z * root
+    (a, b, c), *_ = np.linalg.lstsq(design, target, rcond=None)
     return Plane(float(a), float(b), float(c - a * mx - b * my))
+
+
+BISQUARE = 4.685
+"""Tukey biweight tuning constant (95 % efficiency on normal data)."""
+
+
+def robust_residuals(
+    x: FloatArray, y: FloatArray, z: FloatArray, floor: float, rounds: int = 20
+) -> tuple[FloatArray, float]:
+    """Residuals from a biweight IRLS plane and their robust sigma (1.4826 x MAD)."""
+    residuals = z - fit_plane(x, y, z).at(x, y)
+    sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(residuals - np.median(residuals)))), floor)
+    for _ in range(rounds):
+        u = (residuals - np.median(residuals)) / (BISQUARE * sigma)
+        weights = np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
+        if np.count_nonzero(weights) < 3:
+            break
+        try:
+            plane = fit_plane(x, y, z, weights)
+        except InputError:  # the kept points lie on a line: stay with the last plane
+            break
+        new = z - plane.at(x, y)
+        new_sigma = MAD_TO_SIGMA * float(np.median(np.abs(new - np.median(new))))
+        done = np.allclose(new, residuals, rtol=0, atol=floor * 1e-3)
+        residuals, sigma = new, max(new_sigma, floor)
+        if done:
+            break
+    return residuals, sigma
 
 
 def tilt(axis: str, slope: float, units: Units) -> Tilt:
@@ -112,10 +151,12 @@ def analyse(
         raise InputError("the outlier threshold must be positive")
     plane = fit_plane(x, y, z)
     residuals = z - plane.at(x, y)
-    median = float(np.median(residuals))
-    sigma = MAD_TO_SIGMA * float(np.median(np.abs(residuals - median)))
     floor = units.resolution / 2  # a perfect surface still has rounding: no outliers from it
-    outliers = np.nonzero(np.abs(residuals - median) > outlier_k * max(sigma, floor))[0]
+    robust, sigma = robust_residuals(x, y, z, floor)
+    outliers = np.nonzero(np.abs(robust - np.median(robust)) > outlier_k * sigma)[0]
+    inliers = np.ones(len(z), dtype=bool)
+    inliers[outliers] = False
+    kept = residuals[inliers]
     return SurfaceStats(
         units=units,
         count=len(z),
@@ -128,6 +169,7 @@ def analyse(
         residual_max=float(np.max(residuals)),
         robust_sigma=sigma,
         outlier_k=outlier_k,
+        flatness_inliers=float(np.max(kept) - np.min(kept)) if kept.size else 0.0,
         outliers=tuple(int(i) for i in outliers),
         residuals=residuals,
     )

@@ -105,6 +105,7 @@ class Report:
                 for t in (s.tilt_x, s.tilt_y)
             },
             "flatness": s.flatness,
+            "flatness_without_outliers": s.flatness_inliers,
             "rms": s.rms,
             "robust_sigma": s.robust_sigma,
             "outliers": self.outliers(),
@@ -150,6 +151,7 @@ def html_page(report: Report) -> str:
         ("Points", f"{s.count}" + (f" of {d.grid.size} ({d.grid.label} grid)" if d.grid else "")),
         ("Missing points", ", ".join(map(str, d.missing)) or "none"),
         ("Flatness (peak to valley after plane removal)", _len(s.flatness, u)),
+        ("Flatness without the outliers", _len(s.flatness_inliers, u)),
         ("RMS deviation", _len(s.rms, u)),
         ("Deviation range", f"{_len(s.residual_min, u)} to {_len(s.residual_max, u)}"),
         *(
