@@ -40,7 +40,8 @@ def test_in_order_run_records_every_point() -> None:
     ]
     for n in range(1, 7):
         (event,) = matcher.feed(line(n, n / 1000))
-        assert isinstance(event, Recorded) and event.point.number == n
+        assert isinstance(event, Recorded)
+        assert event.point.number == n
     assert matcher.complete
     assert matcher.feed("SURFACE END") == [RunEnded(())]
 
@@ -51,11 +52,13 @@ def test_missing_line_is_reported_never_shifted() -> None:
     matcher.feed(line(2, 0.002))
     events = matcher.feed(line(4, 0.004))  # 3 was lost
     assert events[0] == Missing((3,), 4)
-    assert isinstance(events[1], Recorded) and events[1].point.number == 4
+    assert isinstance(events[1], Recorded)
+    assert events[1].point.number == 4
     assert matcher.values == {1: 0.001, 2: 0.002, 4: 0.004}
     matcher.feed(line(5, 0.005))
     matcher.feed(line(6, 0.006))
-    assert not matcher.complete and matcher.missing() == (3,)
+    assert not matcher.complete
+    assert matcher.missing() == (3,)
     assert matcher.feed("SURFACE END") == [RunEnded((3,))]
 
 
@@ -83,9 +86,11 @@ def test_lines_that_do_not_fit_are_not_stored() -> None:
     assert matcher.feed("DONE") == [Ignored("DONE")]
     assert matcher.feed("P2 X 0.5 Y 0.0") == [Ignored("P2 X 0.5 Y 0.0")]  # no Z
     (wrong_xy,) = matcher.feed("P2 X   0.5000 Y   0.5000 Z 0.1")
-    assert isinstance(wrong_xy, Mismatch) and "grid has it at X0.5 Y0" in wrong_xy.reason
+    assert isinstance(wrong_xy, Mismatch)
+    assert "grid has it at X0.5 Y0" in wrong_xy.reason
     (off_grid,) = matcher.feed("P7 X 0 Y 0 Z 0")
-    assert isinstance(off_grid, Mismatch) and "not on the 3x2 grid" in off_grid.reason
+    assert isinstance(off_grid, Mismatch)
+    assert "not on the 3x2 grid" in off_grid.reason
     (fraction,) = matcher.feed("P1.5 X 0 Y 0 Z 0")
     assert isinstance(fraction, Mismatch)
     assert matcher.values == {}
@@ -122,7 +127,8 @@ def test_session_writes_rows_as_printed_and_resume_reads_them(tmp_path: Path) ->
         (3, 1, 3, 1.0, 0.0, "0.0300"),
     ]
     assert points.rows[0].time == "2026-01-02T03:04:05+00:00"
-    assert session.report.captured == 2 and not done
+    assert session.report.captured == 2
+    assert not done
     with pytest.raises(InputError, match="--resume"):
         PointsWriter(path, GRID)
     with PointsWriter(path, GRID, resume=True) as writer:
@@ -153,7 +159,8 @@ def test_read_points_errors(tmp_path: Path) -> None:
     plain = tmp_path / "plain.csv"
     plain.write_text("x,y,z\n0,0,1\n1,0,2\n")
     points = read_points(plain)
-    assert points.grid is None and [r.point for r in points.rows] == [1, 2]
+    assert points.grid is None
+    assert [r.point for r in points.rows] == [1, 2]
 
 
 def test_grid_comment_round_trip(tmp_path: Path) -> None:

@@ -106,7 +106,8 @@ def test_serpentine_order() -> None:
     assert [(p.row, p.col) for p in grid.points] == [
         (1, 1), (1, 2), (1, 3), (2, 3), (2, 2), (2, 1), (3, 1), (3, 2), (3, 3),
     ]  # fmt: skip
-    assert grid.points[3].x == 12.0 and grid.points[3].y == 22.0
+    assert grid.points[3].x == 12.0
+    assert grid.points[3].y == 22.0
     assert [p.number for p in grid.points] == list(range(1, 10))
 
 
@@ -122,7 +123,8 @@ def test_program_layout_and_header() -> None:
     assert text.count("DPRNT[P#141[20]*X#5041[44]*Y#5042[44]*Z#142[44]]") == 12
     assert grid_from_program(text) == made.grid
     metric = generate(Grid(2, 2, 5, 5, units=Units.MM), moves=ProbeMoves(25, 2.5, 2.5, 750))
-    assert "G21" in metric.text and "Z#142[53]" in metric.text
+    assert "G21" in metric.text
+    assert "Z#142[53]" in metric.text
     assert grid_from_program(metric.text) == metric.grid
     with pytest.raises(InputError, match="not an opendnc surface program"):
         grid_from_program("%\nO1\nM30\n%\n")
@@ -150,8 +152,9 @@ def test_program_restores_the_work_offset_and_prints_heights() -> None:
 
 def test_surface_out_of_reach_alarms_instead_of_printing() -> None:
     made = generate(Grid(2, 2, 1.0, 1.0))
-    events, machine = run_program(made.text, lambda x, y: -1.0 if x > 0.5 else 0.0)
+    events, _machine = run_program(made.text, lambda x, y: -1.0 if x > 0.5 else 0.0)
     lines = [e.text for e in events if isinstance(e, DprntLine)]
     assert lines == ["SURFACE START ZOFFSET   0.0000", "P1 X   0.0000 Y   0.0000 Z   0.0000"]
     alarms = [e for e in events if isinstance(e, AlarmRaised)]
-    assert len(alarms) == 1 and "no surface" in alarms[0].detail
+    assert len(alarms) == 1
+    assert "no surface" in alarms[0].detail
