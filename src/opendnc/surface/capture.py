@@ -120,6 +120,8 @@ class PointMatcher:
 
     def feed(self, text: str) -> list[MatchEvent]:
         """What ``text`` (one captured line) means; may return several events."""
+        # a serial line may carry stray control bytes (an XModem NAK, noise): not part of it
+        text = "".join(char for char in text if char.isprintable())
         words = text.split()
         upper = [w.upper() for w in words]
         if upper[:2] == ["SURFACE", "START"]:
