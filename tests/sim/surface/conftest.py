@@ -100,7 +100,8 @@ def tcp_haas(tmp_path: Path) -> Iterator[Haas]:
 
 
 def dprnt_port(haas: Haas) -> int:
-    assert haas.thread.sim is not None and haas.thread.sim.dprnt_tcp is not None
+    assert haas.thread.sim is not None
+    assert haas.thread.sim.dprnt_tcp is not None
     return haas.thread.sim.dprnt_tcp.port
 
 

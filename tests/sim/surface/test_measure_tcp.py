@@ -13,7 +13,8 @@ from .conftest import GRID, GRID_ARGS, SIGMA_IN, Haas, analytic, dprnt_port, run
 
 def start_when_reader(haas: Haas, number: int) -> None:
     sim = haas.thread.sim
-    assert sim is not None and sim.dprnt_tcp is not None
+    assert sim is not None
+    assert sim.dprnt_tcp is not None
     reader = sim.dprnt_tcp
     assert haas.thread._submit(reader.wait_reader(10.0), timeout=15)
     haas.start(number)
@@ -60,7 +61,7 @@ def test_measure_over_net_share_and_dprnt_tcp(tcp_haas: Haas, tmp_path: Path) ->
             "--timeout",
             "30",
             "--json",
-        ],  # fmt: skip
+        ],
         "waiting for cycle start",
         lambda: start_when_reader(tcp_haas, 4321),
     )
@@ -121,7 +122,7 @@ def test_dropped_line_is_reported_missing_never_shifted(tcp_haas: Haas, tmp_path
             str(points),
             "--timeout",
             "30",
-        ],  # fmt: skip
+        ],
         "listening on",
         lambda: start_when_reader(tcp_haas, 1234),
     )
@@ -153,7 +154,7 @@ def test_dropped_line_is_reported_missing_never_shifted(tcp_haas: Haas, tmp_path
             "--resume",
             "--timeout",
             "30",
-        ],  # fmt: skip
+        ],
         "listening on",
         lambda: start_when_reader(tcp_haas, 1234),
     )
