@@ -40,18 +40,20 @@ def cable() -> Iterator[tuple[str, str]]:
 def serial_haas(tmp_path: Path, cable: tuple[str, str]) -> Iterator[tuple[Haas, str]]:
     """A virtual Haas in serial auto mode (XModem receive, text runs as DNC, DPRNT out)."""
     config = probing_config(DprntDestination.SERIAL)
-    for haas in make_haas(tmp_path, config, SimOptions(mdc_port=0)):
-        sim = haas.thread.sim
-        assert sim is not None
-        options = SerialOptions(baud=115200, mode=parse_mode("auto"))
+    haases = make_haas(tmp_path, config, SimOptions(mdc_port=0))
+    haas = next(haases)
+    sim = haas.thread.sim
+    assert sim is not None
+    options = SerialOptions(baud=115200, mode=parse_mode("auto"))
 
-        async def attach() -> SerialFrontEnd:
-            front = await start_serial(sim, cable[0], 115200, None, options)
-            sim.add_front_end(front)
-            return front
+    async def attach() -> SerialFrontEnd:
+        front = await start_serial(sim, cable[0], 115200, None, options)
+        sim.add_front_end(front)
+        return front
 
-        haas.thread._submit(attach())
-        yield haas, cable[1]
+    haas.thread._submit(attach())
+    yield haas, cable[1]
+    haases.close()
 
 
 def check_summary(stdout: str) -> None:
