@@ -63,6 +63,7 @@ def heatmap_png(
     unit: str,
     outliers: tuple[int, ...] = (),
     missing_xy: list[tuple[float, float]] | None = None,
+    decimals: int = 4,
 ) -> bytes:
     """A heat map of ``values`` with contour lines, outliers ringed, missing points crossed."""
     import matplotlib
@@ -77,20 +78,31 @@ def heatmap_png(
     mesh: ScalarMappable
     lines: ContourSet
     try:
+        # the full range: a real feature (a bump) may be flagged as outlying points, and the
+        # picture must still show it; eight contour levels keep the labels readable
+        low, high = float(np.min(values)), float(np.max(values))
+        if high <= low:
+            low, high = low - 1e-9, high + 1e-9
+        levels = np.linspace(low, high, 10)[1:-1]
+        contour_ok = float(np.ptp(values)) > 0
+        label = f"%.{decimals + 1}f"
         grid = layout(x, y)
-        levels = 14
         if grid is not None and len(grid.xs) > 1 and len(grid.ys) > 1:
             z = np.ma.masked_invalid(grid.take(values))
-            mesh = ax.pcolormesh(grid.xs, grid.ys, z, shading="nearest", cmap="RdYlBu_r")
-            if np.ptp(values) > 0 and z.count() >= 4:
+            mesh = ax.pcolormesh(
+                grid.xs, grid.ys, z, shading="nearest", cmap="RdYlBu_r", vmin=low, vmax=high
+            )
+            if contour_ok and z.count() >= 4:
                 lines = ax.contour(grid.xs, grid.ys, z, levels=levels, colors="k", linewidths=0.6)
-                ax.clabel(lines, fontsize=7, fmt="%.4g")
+                ax.clabel(lines, fontsize=7, fmt=label)
         else:
             tri = Triangulation(x, y)
-            mesh = ax.tripcolor(tri, values, shading="gouraud", cmap="RdYlBu_r")
-            if np.ptp(values) > 0:
+            mesh = ax.tripcolor(
+                tri, values, shading="gouraud", cmap="RdYlBu_r", vmin=low, vmax=high
+            )
+            if contour_ok:
                 lines = ax.tricontour(tri, values, levels=levels, colors="k", linewidths=0.6)
-                ax.clabel(lines, fontsize=7, fmt="%.4g")
+                ax.clabel(lines, fontsize=7, fmt=label)
         ax.scatter(x, y, s=4, c="k", alpha=0.35, linewidths=0)
         if outliers:
             idx = list(outliers)

@@ -124,6 +124,7 @@ def build(data: SurfaceData, *, outlier_k: float = 3.5) -> Report:
         unit=data.units.value,
         outliers=stats.outliers,
         missing_xy=missing_xy,
+        decimals=data.units.decimals,
     )
     return Report(data, stats, png)
 
