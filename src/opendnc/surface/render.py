@@ -103,21 +103,27 @@ def heatmap_png(
             if contour_ok:
                 lines = ax.tricontour(tri, values, levels=levels, colors="k", linewidths=0.6)
                 ax.clabel(lines, fontsize=7, fmt=label)
-        ax.scatter(x, y, s=4, c="k", alpha=0.35, linewidths=0)
+        # markers shrink with the grid so a dense grid stays readable (axes ~ 450 pt wide)
+        across = max(len(np.unique(np.round(x, 6))), len(np.unique(np.round(y, 6))), 1)
+        ring = float(np.clip((0.8 * 450 / across) ** 2, 6, 90))
+        stroke = 1.6 if across <= 30 else 0.6
+        if len(x) <= 2500:
+            ax.scatter(x, y, s=4, c="k", alpha=0.35, linewidths=0)
         if outliers:
             idx = list(outliers)
             ax.scatter(
                 x[idx],
                 y[idx],
-                s=90,
+                s=ring,
                 facecolors="none",
                 edgecolors="magenta",
-                linewidths=1.6,
+                linewidths=stroke,
+                alpha=1.0 if across <= 30 else 0.7,
                 label="outlier",
             )
         if missing_xy:
             mx, my = zip(*missing_xy, strict=True)
-            ax.scatter(mx, my, marker="x", s=60, c="k", linewidths=1.6, label="missing")
+            ax.scatter(mx, my, marker="x", s=ring * 0.7, c="k", linewidths=1.6, label="missing")
         if outliers or missing_xy:
             ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
         bar = fig.colorbar(mesh, ax=ax)

@@ -21,6 +21,9 @@ from opendnc.surface.grid import Grid, Units
 from opendnc.surface.points import PointRow, PointsFile, read_points
 from opendnc.surface.render import figure_3d, heatmap_png, stl_bytes, write_file
 
+MAX_LISTED = 50
+"""Outliers listed in the HTML table (largest deviation first)."""
+
 
 @dataclass
 class SurfaceData:
@@ -173,11 +176,17 @@ def html_page(report: Report) -> str:
     table = "\n".join(
         f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows
     )
+    listed = sorted(report.outliers(), key=lambda o: -abs(o["deviation"]))
     outlier_rows = "\n".join(
         f"<tr><td>{o['point']:.0f}</td><td>{o['x']:.4f}</td><td>{o['y']:.4f}</td>"
         f"<td>{o['z']:.4f}</td><td>{o['deviation']:+.5f}</td></tr>"
-        for o in report.outliers()
+        for o in listed[:MAX_LISTED]
     )
+    if len(listed) > MAX_LISTED:
+        outlier_rows += (
+            f"<tr><td colspan='5'>... and {len(listed) - MAX_LISTED} more "
+            "(all in the JSON summary: opendnc surface report --json)</td></tr>"
+        )
     outliers = (
         "<h2>Outliers</h2><table class='list'><tr><th>Point</th><th>X</th><th>Y</th>"
         f"<th>Z</th><th>Deviation</th></tr>{outlier_rows}</table>"
