@@ -3,6 +3,7 @@ in the program runner and visit exactly their grid; the matcher takes any text."
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -113,3 +114,34 @@ def test_matcher_takes_any_text(lines: list[str]) -> None:
     for text in lines:
         matcher.feed(text)
     assert set(matcher.values) <= set(range(1, 10))
+
+
+csv_text = st.lists(
+    st.one_of(
+        st.text(alphabet='0123456789.,-+exyzXYZ# \t"abc', max_size=40),
+        st.just("x,y,z"),
+        st.just("# grid 3x3 pitch 0.5,0.5 origin 0,0 units inch"),
+        st.just("# grid 1x1 pitch 0,0 origin 0,0 units inch"),
+        st.just("# grid 3x3 pitch nan,1 origin 0,0 units parsec"),
+    ),
+    max_size=12,
+).map("\n".join)
+
+
+@settings(deadline=None)
+@given(csv_text)
+def test_points_and_height_map_files_fail_only_with_typed_errors(text: str) -> None:
+    import tempfile
+    from pathlib import Path
+
+    from opendnc.errors import InputError
+    from opendnc.sim.haas import parse_surface
+    from opendnc.surface.points import read_points
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "f.csv"
+        path.write_text(text)
+        with contextlib.suppress(InputError):
+            read_points(path)
+        with contextlib.suppress(InputError):
+            parse_surface(f"csv:{path}")

@@ -42,8 +42,8 @@ class PointRow:
 def grid_comment(grid: Grid) -> str:
     """The ``# grid ...`` line describing ``grid``."""
     return (
-        f"# grid {grid.label} pitch {grid.pitch_x:g},{grid.pitch_y:g} "
-        f"origin {grid.origin_x:g},{grid.origin_y:g} units {grid.units.value}"
+        f"# grid {grid.label} pitch {grid.pitch_x!r},{grid.pitch_y!r} "
+        f"origin {grid.origin_x!r},{grid.origin_y!r} units {grid.units.value}"
     )
 
 
@@ -135,6 +135,7 @@ class PointsWriter:
         if exists and not resume:
             raise InputError(f"{path} exists: use --resume to continue it, or another -o file")
         self.path = path
+        self._places = grid.units.decimals
         try:
             self._file: IO[str] = path.open("a", encoding="utf-8", newline="")
         except OSError as exc:
