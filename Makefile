@@ -40,6 +40,7 @@ generate: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/lsv2_transfer.py
 	$(BIN)/python benchmarks/xmodem.py
+	$(BIN)/python benchmarks/surface_report.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -55,7 +55,7 @@ def haas(
         None,
         "--surface",
         help="Probing surface: flat:z, plane:a,b,c, sine:amp,period[,z0], "
-        "wave:amp,period[,z0], bowl:depth,radius[,cx,cy[,z0]].",
+        "wave:amp,period[,z0], bowl:depth,radius[,cx,cy[,z0]], csv:PATH (x,y,z height map).",
     ),
     block_rate: float = typer.Option(0.0, "--block-rate", help="Blocks per second (0 = max)."),
     run: int | None = typer.Option(None, "--run", help="Start this stored program (O number)."),
@@ -63,6 +63,10 @@ def haas(
     strict_probe: bool = typer.Option(
         False, "--strict-probe", help="Alarm when no surface lies within the H search distance."
     ),
+    probe_noise: float = typer.Option(
+        1.0, "--probe-noise", help="Probe repeatability, 1 sigma in micrometres (0 = exact)."
+    ),
+    probe_seed: int | None = typer.Option(None, "--probe-seed", help="Seed for probe noise."),
     trace: bool = typer.Option(False, "--trace", help="Print MDC traffic on stderr."),
     serial_mode: str = typer.Option(
         "auto",
@@ -98,6 +102,8 @@ def haas(
             dprnt_file=str(dprnt_file or ""),
             dprnt_port=dprnt_port or 0,
             strict_probe=strict_probe,
+            probe_noise_um=probe_noise,
+            probe_seed=probe_seed,
             surface=parse_surface(surface) if surface else None,
         )
         options = SimOptions(

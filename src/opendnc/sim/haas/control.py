@@ -24,6 +24,7 @@ Not thread-safe: call it from one thread (the simulator's event loop).
 from __future__ import annotations
 
 import enum
+import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -85,6 +86,10 @@ class HaasConfig:
     dprnt_file: str = ""
     dprnt_port: int = 0
     strict_probe: bool = False
+    probe_noise_um: float = 1.0
+    """Probe repeatability, one standard deviation in micrometres (0 = exact touches)."""
+    probe_seed: int | None = None
+    """Seed for the probe noise (None = different every run)."""
     ignore_first_query: bool = False
     """Fidelity knob: leave each connection's first MDC request unanswered (Haas notes the
     first ?Q100 after connecting may have to be sent twice)."""
@@ -118,6 +123,7 @@ class HaasControl:
         self.event_hooks: list[Callable[[RunnerEvent], None]] = []
         self.wake: Callable[[], None] = lambda: None
         self.dprnt_dropped = 0
+        self._probe_rng = random.Random(config.probe_seed)
         self._power_on_at = clock()
         settings = self.machine.settings
         settings[143] = config.mdc_port
@@ -190,6 +196,8 @@ class HaasControl:
             name=name,
             mode=mode,
             strict_probe=self.config.strict_probe,
+            probe_noise_um=self.config.probe_noise_um,
+            rng=self._probe_rng,
         )
         self.wake()
         return self.runner
