@@ -49,7 +49,9 @@ def _report_event(event: Event) -> None:
 def send_cmd(
     file: Path = typer.Argument(..., help="Program file to send", exists=True, dir_okay=False),
     port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
-    mode: Mode = typer.Option(Mode.ONE_K, "--mode", help="Block mode (1k falls back as needed)"),
+    mode: Mode = typer.Option(
+        Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k (falls back as needed)"
+    ),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
     parity: str = typer.Option("N", "--parity", help="N, E or O (XModem on a Haas needs N)"),
     eob: Eob | None = typer.Option(
@@ -95,7 +97,9 @@ def send_cmd(
 
 @app.command("recv")
 def recv_cmd(
-    out: Path = typer.Argument(..., help="Output file, or a folder to name it by O-number"),
+    out: str = typer.Argument(
+        ..., help="Output file, or an existing folder (out/) to name it by O-number"
+    ),
     port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
     mode: Mode = typer.Option(Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k"),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
@@ -120,6 +124,8 @@ def recv_cmd(
     )
     with cli_errors(), _progress() as bar:
         task = bar.add_task("receive", total=None)
+        # one line at once: the user (and a script) sees the receiver is up and waiting
+        err_console.print(f"waiting for a sender on {port} ({mode.value})", highlight=False)
         report = receive_file(
             port,
             out,
