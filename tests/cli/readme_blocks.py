@@ -130,7 +130,7 @@ def _shell(block: Block, state_dir: str) -> list[str]:
             out.append(command.text)
             continue
         out.append(f"__line={command.line}")
-        out.append(f"printf '%s\\n' {shlex.quote(f'+ README.md:{command.line}: {shown}')}")
+        out.append(f"__show {shlex.quote(f'README.md:{command.line}: {shown}')}")
         if "[not run]" in comment:
             continue
         expected = _EXIT.search(comment)
@@ -157,7 +157,7 @@ def _python(block: Block, state_dir: str) -> list[str]:
     path = f"{state_dir}/block-{block.line}.py"
     return [
         f"__line={block.line}",
-        f"printf '%s\\n' '+ README.md:{block.line}: python block'",
+        f"__show 'README.md:{block.line}: python block'",
         f"cat > {path} <<'__README_PYTHON__'",
         *block.lines,
         "__README_PYTHON__",
@@ -168,6 +168,11 @@ def _python(block: Block, state_dir: str) -> list[str]:
 PRELUDE = f"""\
 set -e -o pipefail
 __line=0
+__t0=${{EPOCHREALTIME/./}}
+__show() {{  # "+ 12.3s README.md:LINE: command" before each command
+  local us=$(( ${{EPOCHREALTIME/./}} - __t0 ))
+  printf '+ %d.%ds %s\\n' $((us / 1000000)) $((us % 1000000 / 100000)) "$1"
+}}
 trap 'echo "README.md:$__line: exit status $?" >&2' ERR
 __stop() {{ local p; p=$(jobs -p); if [ -n "$p" ]; then kill $p 2>/dev/null || true; fi; }}
 trap __stop EXIT

@@ -128,6 +128,7 @@ def test_readme_runs_in_order(tmp_path: Path) -> None:
     finally:
         with contextlib.suppress(ProcessLookupError):  # servers the README left running
             os.killpg(proc.pid, signal.SIGKILL)
+    (tmp_path / "transcript.txt").write_text(output, encoding="utf-8")  # for a look afterwards
     assert proc.returncode == 0, f"README run failed\n{_tail(output, private_tmp)}"
     assert output.rstrip().endswith("README-DONE"), "the run stopped before the README's end"
 
