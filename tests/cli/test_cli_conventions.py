@@ -145,7 +145,8 @@ def test_usage_errors_are_one_line_with_status_2(args: list[str]) -> None:
     assert result.stdout == ""
     lines = result.stderr.splitlines()
     assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("error: ") and "--help" in lines[0]
+    assert lines[0].startswith("error: ")
+    assert "--help" in lines[0]
 
 
 def test_a_locked_action_prints_the_exact_line_that_runs_it(tnc: int) -> None:
