@@ -187,3 +187,54 @@ def test_no_click_traceback_on_a_bad_value() -> None:
     result = CliRunner().invoke(app, ["lsv2", "--timeout", "soon", "info"])
     assert result.exit_code == 2
     assert "Traceback" not in result.output
+
+
+def _modules_after(*args: str) -> set[str]:
+    code = (
+        "import sys\nfrom opendnc.cli.main import app\n"
+        f"try:\n    app({list(args)!r})\nexcept SystemExit:\n    pass\n"
+        "print(' '.join(sorted(sys.modules)))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    return set(result.stdout.splitlines()[-1].split())
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--help"],
+        ["lsv2", "--help"],
+        ["lsv2", "table", "get", "--help"],
+        ["haas", "q", "--help"],
+        ["xmodem", "send", "--help"],
+        ["dprnt", "--help"],
+        ["sim", "tnc", "--help"],
+        ["demo", "--help"],
+    ],
+)
+def test_help_loads_no_protocol_stack(args: list[str]) -> None:
+    # the costly parts: the LSV2 client stack, the simulators, asyncio clients, rich's renderers
+    loaded = _modules_after(*args)
+    heavy = {
+        "opendnc.lsv2.client",
+        "opendnc.sim.tnc",
+        "opendnc.sim.haas",
+        "opendnc.haas.mdc_client",
+        "opendnc.xmodem.files",
+        "rich.progress",
+        "rich.table",
+        "typer.rich_utils",
+    }
+    assert "opendnc.cli.main" in loaded
+    assert not heavy & loaded, sorted(heavy & loaded)
+
+
+def test_names_kept_for_help_match_the_modules_they_stand_for() -> None:
+    from opendnc.cli import haas, sim_tnc
+    from opendnc.haas import mdc_client
+    from opendnc.sim.tnc import PROFILES
+
+    assert tuple(PROFILES) == sim_tnc.PROFILE_NAMES
+    assert haas.DEFAULT_PORT == mdc_client.DEFAULT_PORT

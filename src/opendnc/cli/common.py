@@ -55,7 +55,7 @@ def cli_errors() -> Iterator[None]:
     except SafetyLockError as exc:
         # the exact line that would run it, so nobody guesses where --unsafe goes
         err_console.print(
-            f"[bold red]error:[/] {escape(exc.action)} can change the machine and is locked; "
+            f"[bold red]error:[/] {escape(exc.action)} can change machine behaviour and is locked; "
             f"to run it: {escape(unsafe_command_line())}",
             highlight=False,
             soft_wrap=True,

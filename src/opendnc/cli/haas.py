@@ -8,23 +8,19 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    ProgressColumn,
-    TextColumn,
-    TransferSpeedColumn,
-)
-from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.errors import InputError
-from opendnc.haas import share
 from opendnc.haas.mdc import reply_name
-from opendnc.haas.mdc_client import DEFAULT_PORT, MdcClient
+
+if TYPE_CHECKING:  # clients and progress bars load with the command that uses them
+    from rich.progress import Progress, ProgressColumn
+
+# MDC port (Setting 143): opendnc.haas.mdc_client.DEFAULT_PORT, without importing the client
+DEFAULT_PORT = 5051
 
 app = typer.Typer(
     help="Haas controls: MDC queries, macro variables, Net Share.", no_args_is_help=True
@@ -59,6 +55,8 @@ def q(
     json_out: bool = JsonOpt,
 ) -> None:
     """Send one ?Q command and print the reply."""
+    from opendnc.haas.mdc_client import MdcClient
+
     with cli_errors():
         number = parse_code(code)
         if number == 600 and var is None:
@@ -93,6 +91,10 @@ def status(
     json_out: bool = JsonOpt,
 ) -> None:
     """One readable summary from all documented Q commands."""
+    from rich.table import Table
+
+    from opendnc.haas.mdc_client import MdcClient
+
     with cli_errors():
         with MdcClient(host, port, timeout=timeout) as client:
             summary = client.status()
@@ -130,6 +132,8 @@ def macro_get(
     json_out: bool = JsonOpt,
 ) -> None:
     """Read a macro variable (?Q600)."""
+    from opendnc.haas.mdc_client import MdcClient
+
     with cli_errors():
         with MdcClient(host, port, timeout=timeout) as client:
             value = client.macro_get(var)
@@ -153,6 +157,8 @@ def macro_set(
     ),
 ) -> None:
     """Write a macro variable (?E). Refused without --unsafe."""
+    from opendnc.haas.mdc_client import MdcClient
+
     with cli_errors():
         with MdcClient(
             host, port, timeout=timeout, safe_mode=not unsafe, allow_any_variable=any_variable
@@ -163,6 +169,8 @@ def macro_set(
 
 def _transfer_bar(label: str, json_out: bool, *extra: ProgressColumn) -> Progress:
     """The byte progress bar of a transfer; hidden when the result goes out as JSON."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+
     return Progress(
         TextColumn(label),
         BarColumn(),
@@ -186,6 +194,8 @@ def share_push(
     json_out: bool = ResultJsonOpt,
 ) -> None:
     """Copy programs to a Haas Net Share; each file appears whole or not at all."""
+    from opendnc.haas import share
+
     with cli_errors():
         target = share.parse_target(to)
         total = sum(f.stat().st_size for f in files if f.is_file())

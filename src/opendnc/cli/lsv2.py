@@ -9,17 +9,19 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
-from rich.table import Table
 
 from opendnc.cli import lsv2_machine
 from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.cli.lsv2_session import JsonOpt, Settings, bar, connect, relabel, want_json
 from opendnc.errors import ControlRefused, InputError
-from opendnc.lsv2 import Client, FileInfo
-from opendnc.lsv2.backup import Summary, backup, sync
+
+if TYPE_CHECKING:  # the LSV2 stack is imported by the commands that talk to a control
+    from opendnc.lsv2 import Client, FileInfo
+    from opendnc.lsv2.backup import Summary
 
 app = typer.Typer(help="Heidenhain controls over LSV2 (TCP).", no_args_is_help=True)
 
@@ -54,6 +56,8 @@ def _entry(info: FileInfo) -> dict[str, object]:
 
 
 def _show_entries(entries: list[FileInfo], title: str) -> None:
+    from rich.table import Table
+
     table = Table(title=title, title_justify="left")
     table.add_column("name")
     table.add_column("size", justify="right")
@@ -90,6 +94,8 @@ def info(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
         if want_json(ctx, json_out):
             print_json(data)
             return
+        from rich.table import Table
+
         table = Table(show_header=False, title=f"{v.model} at {tnc.host}:{tnc.port}")
         for key, value in data.items():
             table.add_row(key.replace("_", " "), _readable(value))
@@ -315,6 +321,8 @@ def backup_cmd(
             def report(done: int, total: int, name: str) -> None:
                 progress.update(task, completed=done, total=total, description=name)
 
+            from opendnc.lsv2.backup import backup
+
             summary = backup(tnc, remote_dir, local_dir, progress=report)
         _report(summary, as_json, "backup")
 
@@ -334,6 +342,8 @@ def sync_cmd(
 
             def report(done: int, total: int, name: str) -> None:
                 progress.update(task, completed=done, total=total, description=name)
+
+            from opendnc.lsv2.backup import sync
 
             summary = sync(tnc, local_dir, remote_dir, progress=report)
         _report(summary, as_json, "sync")

@@ -9,17 +9,17 @@ import sys
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console, print_json, to_jsonable
 from opendnc.cli.lsv2_session import JsonOpt, connect, relabel, require_unsafe, want_json
 from opendnc.errors import ControlRefused, InputError
-from opendnc.lsv2 import Client, parse_operand
-from opendnc.lsv2.payloads import ScopeChannel, ScopeSignal
-from opendnc.lsv2.plc import PlcOperand
+
+if TYPE_CHECKING:  # the LSV2 stack is imported by the commands that talk to a control
+    from opendnc.lsv2 import Client
+    from opendnc.lsv2.payloads import ScopeChannel, ScopeSignal
 
 __all__ = ["COMMANDS", "GROUPS"]
 
@@ -45,6 +45,8 @@ def status(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
         if want_json(ctx, json_out):
             print_json(data)
             return
+        from rich.table import Table
+
         table = Table(show_header=False, title=f"{tnc.versions.model} status")
         for key, value in data.items():
             table.add_row(key.replace("_", " "), _text(value))
@@ -88,6 +90,9 @@ def plc_read(
 ) -> None:
     """Read PLC operands."""
     with cli_errors():
+        from opendnc.lsv2 import parse_operand
+        from opendnc.lsv2.plc import PlcOperand
+
         start = parse_operand(operand)
         if count < 1:
             raise InputError("COUNT must be at least 1")
@@ -205,6 +210,8 @@ def scope_channels(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
             # so only the padding at the end goes
             print_json([{**to_jsonable(ch), "signals": _named(ch.signals)} for ch in channels])
             return
+        from rich.table import Table
+
         table = Table("no", "name", "type", "interval µs", "signals")
         for ch in channels:
             signals = " ".join(s for s in ch.signals if s != "-")
@@ -231,6 +238,8 @@ def _signal(text: str, channels: dict[int, ScopeChannel] | None = None) -> Scope
         numbers.extend(int(p, 0) for p in parts[2:])
     except ValueError:
         raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]") from None
+    from opendnc.lsv2.payloads import ScopeSignal
+
     return ScopeSignal(*numbers)
 
 

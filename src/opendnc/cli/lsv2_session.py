@@ -5,20 +5,17 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeRemainingColumn,
-    TransferSpeedColumn,
-)
 
 from opendnc.cli.common import err_console
 from opendnc.errors import ControlRefused, SafetyLockError
-from opendnc.lsv2 import Client
+
+if TYPE_CHECKING:  # imported when a command connects, not for --help
+    from rich.progress import Progress
+
+    from opendnc.lsv2 import Client
 
 __all__ = [
     "JsonOpt",
@@ -61,6 +58,8 @@ def want_json(ctx: typer.Context, local: bool) -> bool:
 @contextmanager
 def connect(ctx: typer.Context) -> Iterator[Client]:
     """A connected client for the group's host and port (closed on exit)."""
+    from opendnc.lsv2 import Client
+
     opts = settings(ctx)
     client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
     client.connect()
@@ -87,6 +86,15 @@ def relabel(context: str) -> Iterator[None]:
 
 def bar(quiet: bool) -> Progress:
     """One transfer progress bar on stderr (stdout stays clean for --json)."""
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+        TransferSpeedColumn,
+    )
+
     return Progress(
         TextColumn("{task.description}", markup=False),
         BarColumn(),

@@ -3,24 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TransferSpeedColumn,
-)
 
 from opendnc.cli.common import cli_errors, console, err_console, print_json
-from opendnc.xmodem.events import EotAnswer, Event, FallbackToSmall, Retry
-from opendnc.xmodem.files import receive_file, send_file
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob
-from opendnc.xmodem.receiver import ReceiverConfig
-from opendnc.xmodem.sender import SenderConfig
+
+if TYPE_CHECKING:  # the transfer machinery loads with the command that runs, not for --help
+    from rich.progress import Progress
+
+    from opendnc.xmodem.events import Event
 
 app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
 
@@ -28,6 +22,15 @@ PORT_HELP = "Serial device or pyserial URL: /dev/ttyUSB0, COM3, socket://host:po
 
 
 def _progress() -> Progress:
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TransferSpeedColumn,
+    )
+
     columns = [
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -39,6 +42,8 @@ def _progress() -> Progress:
 
 
 def _report_event(event: Event) -> None:
+    from opendnc.xmodem.events import FallbackToSmall, Retry
+
     if isinstance(event, Retry):
         err_console.print(f"[yellow]retry[/] block {event.seq} #{event.attempt}: {event.reason}")
     elif isinstance(event, FallbackToSmall):
@@ -64,6 +69,10 @@ def send_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
+    from opendnc.xmodem.events import EotAnswer
+    from opendnc.xmodem.files import send_file
+    from opendnc.xmodem.sender import SenderConfig
+
     config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
     with cli_errors():
         size = file.stat().st_size
@@ -117,6 +126,9 @@ def recv_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
+    from opendnc.xmodem.files import receive_file
+    from opendnc.xmodem.receiver import ReceiverConfig
+
     config = ReceiverConfig(
         start_timeout=timeout,
         strip_padding=not keep_padding,
