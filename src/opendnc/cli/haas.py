@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 import typer
 
 from opendnc.cli.common import cli_errors, console, print_json
-from opendnc.errors import InputError
-from opendnc.haas.mdc import reply_name
+from opendnc.errors import ControlRefused, InputError
+from opendnc.haas.mdc import Refused, reply_name
 
 if TYPE_CHECKING:  # clients and progress bars load with the command that uses them
     from rich.progress import Progress, ProgressColumn
@@ -35,6 +35,16 @@ PortOpt = typer.Option(DEFAULT_PORT, "--port", "-p", help="MDC TCP port (Setting
 TimeoutOpt = typer.Option(3.0, "--timeout", help="Seconds to wait for each reply.")
 JsonOpt = typer.Option(False, "--json", help="Print the parsed reply as JSON.")
 ResultJsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
+
+
+class Rejected(ControlRefused):
+    """An MDC query answered with ``?`` / ``UNKNOWN`` (no numeric code on this protocol)."""
+
+    def __init__(self, what: str, answer: str) -> None:
+        super().__init__(0, answer, context=what)
+
+    def __str__(self) -> str:
+        return f"the control rejected {self.context} (it answered {self.text!r})"
 
 
 def parse_code(code: str) -> int:
@@ -63,6 +73,10 @@ def q(
             raise InputError("Q600 needs a variable number, e.g. `opendnc haas q Q600 5223`")
         with MdcClient(host, port, timeout=timeout) as client:
             reply = client.query(number, var)
+        if isinstance(reply, Refused):
+            # "?" (NGC) or UNKNOWN (classic): a reply, but no answer; scripts must see it fail
+            what = f"Q{number:03d}" + (f" {var}" if var is not None else "")
+            raise Rejected(what, reply.text)
         if json_out:
             print_json(
                 {
