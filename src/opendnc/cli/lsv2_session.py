@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from opendnc.cli.common import err_console
-from opendnc.errors import ControlRefused, SafetyLockError
+from opendnc.errors import ControlRefused, PeerClosed, RemoteProtocolError, SafetyLockError
 
 if TYPE_CHECKING:  # imported when a command connects, not for --help
     from rich.progress import Progress
@@ -62,7 +62,14 @@ def connect(ctx: typer.Context) -> Iterator[Client]:
 
     opts = settings(ctx)
     client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
-    client.connect()
+    try:
+        client.connect()
+    except (RemoteProtocolError, PeerClosed) as exc:
+        # something answered, but not in LSV2 (a web server, a serial server in another mode)
+        client.close()
+        raise RemoteProtocolError(
+            f"{opts.host}:{opts.port} is not an LSV2 control ({exc})"
+        ) from exc
     try:
         yield client
     finally:
