@@ -19,6 +19,8 @@ from opendnc.haas.mdc import Refused, reply_name
 if TYPE_CHECKING:  # clients and progress bars load with the command that uses them
     from rich.progress import Progress, ProgressColumn
 
+    from opendnc.haas.dnc import DncConfig
+
 # MDC port (Setting 143): opendnc.haas.mdc_client.DEFAULT_PORT, without importing the client
 DEFAULT_PORT = 5051
 
@@ -230,6 +232,45 @@ def share_push(
 
 
 # --------------------------------------------------------------------------- drip-feed (DNC)
+class SentBytes:
+    """Progress of a drip-feed in bytes on the wire, not in bytes of the file.
+
+    With ``--from-line`` the lines before the restart are only scanned and a modal header is
+    sent instead, so the file size overstates the transfer. :meth:`plan` runs the same feed
+    once without a port to learn the wire total; :meth:`at` turns the file offset the engine
+    reports into bytes sent, in proportion over the part of the file that is sent.
+    """
+
+    def __init__(self, total: int, first_offset: int, file_size: int) -> None:
+        self.total = total
+        self.first_offset = first_offset
+        self.file_size = file_size
+
+    @classmethod
+    def plan(cls, path: Path, config: DncConfig, from_line: int) -> SentBytes:
+        """Scan ``path`` as the drip-feed will send it."""
+        from opendnc.haas.dnc import ProgramFeed
+
+        feed = ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
+        total, first = 0, -1
+        try:
+            for block in feed:
+                if first < 0:
+                    first = feed.position
+                total += len(block)
+        finally:
+            feed.close()
+        return cls(total, max(first, 0), feed.total)
+
+    def at(self, offset: int) -> int:
+        """Bytes on the wire once the feed has read the file up to ``offset``."""
+        span = self.file_size - self.first_offset
+        if span <= 0 or offset >= self.file_size:
+            return self.total
+        done = max(0, offset - self.first_offset)
+        return min(self.total, round(self.total * done / span))
+
+
 @app.command("dnc")
 def dnc_cmd(
     file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
@@ -274,8 +315,9 @@ def dnc_cmd(
             )
         except ValueError as exc:
             raise InputError(f"bad option: {exc}") from None
+        sent = SentBytes.plan(file, config, from_line)
         with _transfer_bar("dnc {task.fields[state]}", json_out, TimeRemainingColumn()) as bar:
-            task = bar.add_task("dnc", total=file.stat().st_size, state="[green]run[/]")
+            task = bar.add_task("dnc", total=sent.total, state="[green]run[/]")
 
             def on_event(event: DncEvent) -> None:
                 paused = isinstance(event, Paused)
@@ -289,7 +331,7 @@ def dnc_cmd(
                 parity=parity,
                 config=config,
                 safe_mode=not unsafe,
-                progress=lambda done, total: bar.update(task, completed=done),
+                progress=lambda done, _total: bar.update(task, completed=sent.at(done)),
                 on_event=on_event,
             )
         if json_out:
