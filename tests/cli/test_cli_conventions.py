@@ -238,3 +238,13 @@ def test_names_kept_for_help_match_the_modules_they_stand_for() -> None:
 
     assert tuple(PROFILES) == sim_tnc.PROFILE_NAMES
     assert haas.DEFAULT_PORT == mdc_client.DEFAULT_PORT
+
+
+def test_shell_completion_reaches_lazy_groups() -> None:
+    env = dict(os.environ, _OPENDNC_COMPLETE="complete_bash", COMP_WORDS="opendnc lsv2 l")
+    env["COMP_CWORD"] = "2"
+    code = "import sys; sys.argv[0] = 'opendnc'; from opendnc.cli.main import app; app()"
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert result.stdout.split() == ["ls", "log"]

@@ -73,22 +73,26 @@ def test_structure_every_command_is_parsed() -> None:
 
 
 def _isolation() -> list[str]:
+    """``unshare`` arguments for a private loopback and /tmp: as root, else in a user namespace."""
     unshare = peers.require_command("unshare")
     peers.require_command("ip")
-    base = [unshare, "--net", "--mount"]
+    private = ["--net", "--mount"]
+    tries = [[unshare, *private], [unshare, "--user", "--map-root-user", *private]]
     if os.geteuid() != 0:
-        base[1:1] = ["--user", "--map-root-user"]
-    probe = subprocess.run(
-        [*base, "sh", "-c", "ip link set lo up && mount -t tmpfs tmpfs /tmp"],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    if probe.returncode != 0:
-        peers.missing_peer(
-            f"unshare with a private network and /tmp ({probe.stderr.strip() or 'refused'})"
+        tries.reverse()
+    failures = []
+    for base in tries:
+        probe = subprocess.run(
+            [*base, "sh", "-c", "ip link set lo up && mount -t tmpfs tmpfs /tmp"],
+            capture_output=True,
+            text=True,
+            timeout=30,
         )
-    return base
+        if probe.returncode == 0:
+            return base
+        failures.append(probe.stderr.strip() or "refused")
+    peers.missing_peer(f"unshare with a private network and /tmp ({'; '.join(failures)})")
+    raise AssertionError("unreachable")
 
 
 def test_readme_runs_in_order(tmp_path: Path) -> None:

@@ -129,7 +129,7 @@ def lazy_typer(help: str, entries: Mapping[str, Lazy], *, root: bool = False) ->
         cls=group,
         help=help,
         no_args_is_help=True,
-        add_completion=False,
+        add_completion=root,  # `opendnc --install-completion`, as before
         rich_markup_mode=None,
         pretty_exceptions_enable=False,
     )
