@@ -36,6 +36,7 @@ test: lint typecheck unit
 bench: $(STAMP)
 	$(BIN)/python benchmarks/lsv2_transfer.py
 	$(BIN)/python benchmarks/xmodem.py
+	$(BIN)/python benchmarks/cli_startup.py --quick
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
