@@ -43,3 +43,15 @@ def test_http_server_is_reported_as_not_an_lsv2_control(http_server: int) -> Non
     assert result.exit_code == 1
     assert f"127.0.0.1:{http_server} is not an LSV2 control" in result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_a_silent_port_asks_whether_it_is_an_lsv2_control() -> None:
+    server = socket.create_server(("127.0.0.1", 0))  # accepts (backlog) but never answers
+    try:
+        port = server.getsockname()[1]
+        result = CliRunner().invoke(app, ["lsv2", "info", "--port", str(port), "--timeout", "0.5"])
+    finally:
+        server.close()
+    assert result.exit_code == 1
+    assert f"is 127.0.0.1:{port} an LSV2 control?" in result.output
+    assert len(result.output.strip().splitlines()) == 1

@@ -10,7 +10,13 @@ from typing import TYPE_CHECKING
 import typer
 
 from opendnc.cli.common import err_console
-from opendnc.errors import ControlRefused, PeerClosed, RemoteProtocolError, SafetyLockError
+from opendnc.errors import (
+    ControlRefused,
+    PeerClosed,
+    RemoteProtocolError,
+    SafetyLockError,
+    TransportTimeout,
+)
 
 if TYPE_CHECKING:  # imported when a command connects, not for --help
     from rich.progress import Progress
@@ -69,6 +75,12 @@ def connect(ctx: typer.Context) -> Iterator[Client]:
         client.close()
         raise RemoteProtocolError(
             f"{opts.host}:{opts.port} is not an LSV2 control ({exc})"
+        ) from exc
+    except TransportTimeout as exc:
+        # a port that accepts but stays silent: most often another service, not a busy TNC
+        client.close()
+        raise TransportTimeout(
+            f"{exc}; is {opts.host}:{opts.port} an LSV2 control? (LSV2 uses TCP port 19000)"
         ) from exc
     try:
         yield client
