@@ -53,5 +53,5 @@ def test_a_silent_port_asks_whether_it_is_an_lsv2_control() -> None:
     finally:
         server.close()
     assert result.exit_code == 1
-    assert f"is 127.0.0.1:{port} an LSV2 control?" in result.output
+    assert f"127.0.0.1:{port}: is it an LSV2 control?" in result.output
     assert len(result.output.strip().splitlines()) == 1

@@ -80,7 +80,7 @@ def connect(ctx: typer.Context) -> Iterator[Client]:
         # a port that accepts but stays silent: most often another service, not a busy TNC
         client.close()
         raise TransportTimeout(
-            f"{exc}; is {opts.host}:{opts.port} an LSV2 control? (LSV2 uses TCP port 19000)"
+            f"{exc}: is it an LSV2 control? (a TNC listens on TCP port 19000)"
         ) from exc
     try:
         yield client
