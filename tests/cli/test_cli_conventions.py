@@ -248,3 +248,12 @@ def test_shell_completion_reaches_lazy_groups() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60
     )
     assert result.stdout.split() == ["ls", "log"]
+
+
+def test_a_command_help_names_the_group_options_it_accepts() -> None:
+    result = CliRunner().invoke(app, ["lsv2", "info", "--help"])
+    assert result.exit_code == 0
+    note = result.output.split("Also accepted here", 1)[1]
+    for option in ("--host", "--port", "--timeout", "--unsafe"):
+        assert option in note
+    assert "--json" not in note  # info declares its own

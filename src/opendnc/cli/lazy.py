@@ -69,12 +69,22 @@ class Lazy:
         return command
 
 
-def _plain_help(command: click.Command) -> None:
+def _plain_help(command: click.Command, inherited: tuple[str, ...] = ()) -> None:
     # click's plain help everywhere: rich's renderer costs more start-up than the CLI may add
     if hasattr(command, "rich_markup_mode"):
         command.rich_markup_mode = None
-    for sub in getattr(command, "commands", {}).values():
-        _plain_help(sub)
+    own = {opt for p in command.params if _is_option(p) for opt in p.opts}
+    subs = getattr(command, "commands", {})
+    if not subs:
+        # a command's --help names the group's global options it also accepts after its name
+        extra = [opt for opt in inherited if opt not in own]
+        if extra:
+            note = "Also accepted here (options of the group): " + " ".join(extra) + "."
+            command.epilog = f"{command.epilog}\n\n{note}" if command.epilog else note
+        return
+    mine = tuple(o for o in sorted(own) if o in GLOBAL_OPTIONS and o.startswith("--"))
+    for sub in subs.values():
+        _plain_help(sub, tuple(dict.fromkeys((*inherited, *mine))))
 
 
 class LazyGroup(TyperGroup):
