@@ -5,20 +5,23 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeRemainingColumn,
-    TransferSpeedColumn,
-)
 
 from opendnc.cli.common import err_console
-from opendnc.errors import ControlRefused, SafetyLockError
-from opendnc.lsv2 import Client
+from opendnc.errors import (
+    ControlRefused,
+    PeerClosed,
+    RemoteProtocolError,
+    SafetyLockError,
+    TransportTimeout,
+)
+
+if TYPE_CHECKING:  # imported when a command connects, not for --help
+    from rich.progress import Progress
+
+    from opendnc.lsv2 import Client
 
 __all__ = [
     "JsonOpt",
@@ -61,9 +64,24 @@ def want_json(ctx: typer.Context, local: bool) -> bool:
 @contextmanager
 def connect(ctx: typer.Context) -> Iterator[Client]:
     """A connected client for the group's host and port (closed on exit)."""
+    from opendnc.lsv2 import Client
+
     opts = settings(ctx)
     client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
-    client.connect()
+    try:
+        client.connect()
+    except (RemoteProtocolError, PeerClosed) as exc:
+        # something answered, but not in LSV2 (a web server, a serial server in another mode)
+        client.close()
+        raise RemoteProtocolError(
+            f"{opts.host}:{opts.port} is not an LSV2 control ({exc})"
+        ) from exc
+    except TransportTimeout as exc:
+        # a port that accepts but stays silent: most often another service, not a busy TNC
+        client.close()
+        raise TransportTimeout(
+            f"{exc}: is it an LSV2 control? (a TNC listens on TCP port 19000)"
+        ) from exc
     try:
         yield client
     finally:
@@ -87,6 +105,15 @@ def relabel(context: str) -> Iterator[None]:
 
 def bar(quiet: bool) -> Progress:
     """One transfer progress bar on stderr (stdout stays clean for --json)."""
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+        TransferSpeedColumn,
+    )
+
     return Progress(
         TextColumn("{task.description}", markup=False),
         BarColumn(),

@@ -10,12 +10,24 @@ import typer
 
 from opendnc.cli.common import cli_errors, console, err_console
 from opendnc.errors import TransportError
-from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+
+#: The simulator's profiles, named here so `--help` does not load the simulator (a test keeps
+#: this equal to opendnc.sim.tnc.PROFILES).
+PROFILE_NAMES = (
+    "tnc640",
+    "tnc620",
+    "tnc320",
+    "tnc7",
+    "itnc530",
+    "tnc426",
+    "cncpilot640",
+    "manualplus620",
+)
 
 
 def tnc(
     profile: str = typer.Option(
-        "tnc640", "--profile", help=f"Control family: {', '.join(PROFILES)}."
+        "tnc640", "--profile", help=f"Control family: {', '.join(PROFILE_NAMES)}."
     ),
     root: Path | None = typer.Option(
         None, "--root", help="Folder holding the drives (default: a fresh programming station)."
@@ -30,6 +42,8 @@ def tnc(
 
     The state (files, machine parameters) lives in --root and survives restarts.
     """
+    from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+
     if profile.lower() not in PROFILES:
         err_console.print(f"[bold red]error:[/] unknown profile {profile!r}")
         raise typer.Exit(1)
