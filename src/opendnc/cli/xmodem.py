@@ -127,7 +127,7 @@ def recv_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
-    from opendnc.xmodem.files import open_port, receive_file
+    from opendnc.xmodem.files import check_output, open_port, receive_file
     from opendnc.xmodem.receiver import ReceiverConfig
 
     config = ReceiverConfig(
@@ -135,6 +135,8 @@ def recv_cmd(
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )
+    with cli_errors():
+        check_output(out)  # a folder that does not exist is reported before the port opens
     # the port opens before the bar: a port that does not open is one error line
     with (
         cli_errors(),

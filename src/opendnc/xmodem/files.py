@@ -85,6 +85,13 @@ def _folder_target(out: str | os.PathLike[str]) -> bool:
     return False
 
 
+def check_output(out: str | os.PathLike[str]) -> None:
+    """Raise :class:`InputError` at once if ``out`` cannot take a received file, so a bad
+    target is reported before any port is opened."""
+    if not _folder_target(out) and not Path(out).parent.is_dir():
+        raise InputError(f"folder {Path(out).parent} does not exist")
+
+
 def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream, bool]:
     if isinstance(port, str):
         return open_port(port, baud, parity), True
