@@ -32,6 +32,7 @@ import contextlib
 import os
 from datetime import UTC, datetime
 from types import TracebackType
+from typing import Any
 
 from opendnc.errors import DncError, LocalProtocolError
 from opendnc.lsv2 import ops
@@ -69,6 +70,7 @@ from opendnc.lsv2.runinfo import (
     SelectedProgram,
     ToolInfo,
 )
+from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.lsv2.tables import Table
 
 __all__ = ["Client"]
@@ -97,6 +99,7 @@ class Client:
         passwords: dict[str, str] | None = None,
         trace: TraceHook | None = None,
         trace_bytes: BytesHook | None = None,
+        serial: SerialLine | None = None,
     ) -> None:
         """Prepare a session; nothing is sent before :meth:`connect` (or ``with``).
 
@@ -115,7 +118,21 @@ class Client:
         self.passwords = dict(passwords or {})
         self.trace = trace
         self.trace_bytes = trace_bytes
+        self.serial = serial
+        """RS-232 line settings when the control is reached over serial LSV2 (else TCP)."""
         self._driver: BlockingDriver | None = None
+
+    @classmethod
+    def over_serial(cls, line: SerialLine | str, **options: Any) -> Client:
+        """A client for a control on an RS-232 line (a device, ``socket://`` or ``rfc2217://``).
+
+        ``line`` is a :class:`~opendnc.lsv2.serial_stream.SerialLine` or just the port (then
+        57600 baud 8E1); ``options`` are those of the constructor. The telegram buffer starts
+        at 256 bytes and is raised only if the control accepts it (``max_buffer`` caps it);
+        ``trace_bytes`` sees the serial line's own bytes (handshake characters included).
+        """
+        settings = SerialLine(line) if isinstance(line, str) else line
+        return cls(settings.url, 0, serial=settings, **options)
 
     # -- session ---------------------------------------------------------------------------
 
@@ -130,6 +147,7 @@ class Client:
             safe_mode=self.safe_mode,
             trace=self.trace,
             trace_bytes=self.trace_bytes,
+            serial=self.serial,
         )
         driver.state.passwords.update(self.passwords)
         self._driver = driver
