@@ -544,7 +544,7 @@ class SerialLink:
         if not stuffed_ok or len(body) < 4 or len(body) > self.max_body or bcc(body) != check:
             self._nak(now)
             return
-        if not all(0x21 <= c <= 0x7E for c in body[:4]):
+        if not all(0x20 <= c <= 0x7E for c in body[:4]):
             self._nak(now)  # telegram names are printable: this block is spoilt
             return
         frame = Frame(body[:4].decode("ascii"), body[4:])
