@@ -17,8 +17,10 @@ from rich.progress import (
 )
 
 from opendnc.cli.common import err_console
+from opendnc.cli.lsv2_serial import resolve_baud
 from opendnc.errors import ControlRefused, SafetyLockError
 from opendnc.lsv2 import Client
+from opendnc.lsv2.serial_stream import SerialLine
 
 __all__ = [
     "JsonOpt",
@@ -43,6 +45,8 @@ class Settings:
     timeout: float
     json: bool
     unsafe: bool
+    serial: SerialLine | None = None
+    """Set by ``--serial``: the control is on an RS-232 line instead of TCP."""
 
 
 def settings(ctx: typer.Context) -> Settings:
@@ -62,7 +66,12 @@ def want_json(ctx: typer.Context, local: bool) -> bool:
 def connect(ctx: typer.Context) -> Iterator[Client]:
     """A connected client for the group's host and port (closed on exit)."""
     opts = settings(ctx)
-    client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
+    if opts.serial is not None:
+        client = Client.over_serial(
+            resolve_baud(opts.serial), timeout=opts.timeout, safe_mode=not opts.unsafe
+        )
+    else:
+        client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
     client.connect()
     try:
         yield client

@@ -16,6 +16,8 @@ under them differs.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -98,6 +100,20 @@ class SerialLine:
         return f"{self.url} {baud} {self.bytesize}{self.parity.upper()}{self.stopbits:g}{flow}"
 
 
+def line_parity(url: str, parity: str) -> str:
+    """The parity to ask the OS for: ``N`` on a pseudo-terminal, else ``parity``.
+
+    A pty carries no parity bits at all, and some kernels refuse to switch parity on one
+    (``tcsetattr`` fails with EINVAL on the second open); the virtual cable accounts for the
+    parity bit in its timing instead (``--bits-per-char 11``).
+    """
+    if "://" not in url:
+        with contextlib.suppress(OSError):
+            if os.path.realpath(url).startswith("/dev/pts/"):
+                return "N"
+    return parity.upper()
+
+
 def open_line(line: SerialLine, baud: int | None = None) -> ByteStream:
     """Open the port of ``line`` (at ``baud`` if given) as a raw byte stream."""
     from opendnc.transport.serial import open_stream  # pyserial only when a port is used
@@ -107,7 +123,7 @@ def open_line(line: SerialLine, baud: int | None = None) -> ByteStream:
         line.url,
         rate,
         timeout=POLL,
-        parity=line.parity.upper(),
+        parity=line_parity(line.url, line.parity),
         bytesize=line.bytesize,
         stopbits=line.stopbits,
         rtscts=line.flow == "rtscts",

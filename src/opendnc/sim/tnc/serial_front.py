@@ -33,6 +33,7 @@ from opendnc.lsv2.serial_link import (
     TelegramReceived,
     describe_link_bytes,
 )
+from opendnc.lsv2.serial_stream import line_parity
 from opendnc.sim.tnc.server import TncHandle, TncServer, _LinkProtocol
 from opendnc.transport.pty import PtyPair, open_pty
 
@@ -124,7 +125,7 @@ class SerialFront:
             self._port = open_serial(
                 self.requested,
                 self.baud,
-                parity=self.parity,
+                parity=line_parity(self.requested, self.parity),
                 bytesize=self.bytesize,
                 stopbits=self.stopbits,
                 timeout=0,
