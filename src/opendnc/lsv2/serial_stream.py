@@ -36,6 +36,7 @@ from opendnc.lsv2.serial_link import (
     SerialLink,
     SerialLinkError,
     TelegramReceived,
+    TelegramSent,
 )
 from opendnc.transport.base import ByteStream
 
@@ -161,6 +162,9 @@ class _Pump:
         self.link = link
         self.inbox: list[Frame] = []
         self.checked = False
+        self.spoken = False
+        self.drop_before_first = True
+        self.stale = 0
         stream.set_timeout(POLL)
 
     def flush(self) -> None:
@@ -179,7 +183,15 @@ class _Pump:
             self.flush()
             while (event := link.next_event()) is not None:
                 if isinstance(event, TelegramReceived):
-                    self.inbox.append(event.frame)
+                    if self.spoken or not self.drop_before_first:
+                        self.inbox.append(event.frame)
+                    else:
+                        # The control speaks only after a request: a telegram before our
+                        # first one was acknowledged is a late answer to the previous client
+                        # on this line (its last DLE 1 got lost), not ours.
+                        self.stale += 1
+                elif isinstance(event, TelegramSent):
+                    self.spoken = True
                 elif isinstance(event, LinkChecked):
                     self.checked = True
                 elif isinstance(event, LinkFailed):

@@ -9,7 +9,7 @@ serial line see one control.
 
 A serial line has no connections. The session (logins, buffer size) lasts until the client
 logs out of everything (``A_LO`` without a name, what every client sends when it closes);
-then the next telegram starts a fresh session with a 256-byte buffer, as after power-up.
+the telegram after that starts a fresh session with a 256-byte buffer, as after power-up.
 
 POSIX only (non-blocking file descriptors on the event loop), like every pty simulator.
 """
@@ -107,7 +107,6 @@ class SerialFront:
         self._timer: asyncio.TimerHandle | None = None
         self._proto: _LinkProtocol | None = None
         self._transport: _SerialTransport | None = None
-        self._reset_after_answer = False
 
     # -- life cycle ----------------------------------------------------------------------------
 
@@ -224,10 +223,6 @@ class SerialFront:
                 self._deliver(event.frame)
             elif isinstance(event, LinkFailed) and self.server.trace:
                 self.server.trace.note(self.path, str(event.error))
-        if self._reset_after_answer and link.idle:
-            self._reset_after_answer = False
-            self._end_session()
-            self._new_session()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -239,9 +234,12 @@ class SerialFront:
             self._new_session()
         proto = self._proto
         assert proto is not None
-        if frame.mnemonic == "A_LO" and not frame.payload:
-            self._reset_after_answer = True
         proto.data_received(TelegramFramer.encode(frame))
+        if frame.mnemonic == "A_LO" and not frame.payload:
+            # Logged out of everything: the answer is already queued on the line; whatever
+            # comes next belongs to a new session (a new client on the same line).
+            self._end_session()
+            self._new_session()
 
     def _write(self, data: bytes) -> None:
         self._out += data
