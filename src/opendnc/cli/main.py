@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 
 from opendnc import __version__
-from opendnc.cli import demo, dprnt, haas, lsv2, sim, xmodem
+from opendnc.cli import demo, dprnt, haas, heidenhain, lsv2, sim, xmodem
 
 app = typer.Typer(
     name="opendnc",
@@ -18,6 +18,7 @@ app.add_typer(sim.app, name="sim")
 app.add_typer(xmodem.app, name="xmodem")
 app.add_typer(haas.app, name="haas")
 app.add_typer(dprnt.app, name="dprnt")
+app.add_typer(heidenhain.app, name="heidenhain")
 app.command("demo")(demo.demo)
 
 

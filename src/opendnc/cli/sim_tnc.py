@@ -50,6 +50,12 @@ def tnc(
     bytesize: int = typer.Option(8, "--bytesize", help="Serial data bits (--serial)."),
     stopbits: float = typer.Option(1.0, "--stopbits", help="Serial stop bits (--serial)."),
     no_tcp: bool = typer.Option(False, "--no-tcp", help="Serve only the --serial lines."),
+    serial_mode: str = typer.Option(
+        "lsv2",
+        "--serial-mode",
+        help="What the --serial lines speak: lsv2, or blockwise (FE modes: programs pushed "
+        "to TNC:\\ and sent on request).",
+    ),
 ) -> None:
     """Serve a virtual TNC over LSV2 (TCP and/or RS-232 lines) until Ctrl-C.
 
@@ -85,10 +91,15 @@ def tnc(
                     bytesize=bytesize,
                     stopbits=stopbits,
                     trace_link=_link_tracer() if trace else None,
+                    mode=serial_mode,
                 )
             )
         where = [f"{server.host}:{server.port}"] if not no_tcp else []
-        where += [f"serial {f.path} {baud} {bytesize}{parity.upper()}{stopbits:g}" for f in fronts]
+        where += [
+            f"serial {f.path} {baud} {bytesize}{parity.upper()}{stopbits:g}"
+            + (" blockwise" if f.mode == "blockwise" else "")
+            for f in fronts
+        ]
         console.print(
             f"virtual {prof.title} ({prof.model} {prof.nc_software}) listening on "
             f"{', '.join(where)}",

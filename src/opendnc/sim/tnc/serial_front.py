@@ -22,7 +22,8 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from opendnc.errors import TransportError
+from opendnc.errors import InputError, TransportError
+from opendnc.heidenhain.blockwise import BlockwiseSettings
 from opendnc.lsv2.framing import Frame, TelegramFramer
 from opendnc.lsv2.serial_link import (
     DEFAULT_TIMING,
@@ -34,6 +35,7 @@ from opendnc.lsv2.serial_link import (
     describe_link_bytes,
 )
 from opendnc.lsv2.serial_stream import line_parity
+from opendnc.sim.tnc.blockwise_front import BlockwiseService
 from opendnc.sim.tnc.server import TncHandle, TncServer, _LinkProtocol
 from opendnc.transport.pty import PtyPair, open_pty
 
@@ -87,6 +89,7 @@ class SerialFront:
         timing: LinkTiming = DEFAULT_TIMING,
         retries: int = 3,
         trace_link: Callable[[str], None] | None = None,
+        mode: str = "lsv2",
     ) -> None:
         self.server = server
         self.requested = path
@@ -97,6 +100,14 @@ class SerialFront:
         self.link = SerialLink(
             LinkRole.CONTROL, timing=timing, retries=retries, on_bytes=self._on_link_bytes
         )
+        if mode not in ("lsv2", "blockwise"):
+            raise InputError(f"unknown serial mode {mode!r}: use lsv2 or blockwise")
+        self.mode = mode
+        self.blockwise: BlockwiseService | None = None
+        if mode == "blockwise":
+            self.blockwise = BlockwiseService(
+                server.control.root / "TNC", note=trace_link, settings=BlockwiseSettings()
+            )
         self._framer = TelegramFramer()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._fd = -1
@@ -125,7 +136,8 @@ class SerialFront:
                 self.requested,
                 self.baud,
                 parity=line_parity(self.requested, self.parity),
-                bytesize=self.bytesize,
+                # a pty has no 7-bit mode either (see line_parity)
+                bytesize=8 if line_parity(self.requested, "E") == "N" else self.bytesize,
                 stopbits=self.stopbits,
                 timeout=0,
             )
@@ -198,19 +210,35 @@ class SerialFront:
             return
         loop = self._loop
         assert loop is not None
-        self.link.receive_data(data, loop.time())
+        if self.blockwise is not None:
+            if self.trace_link is not None:
+                self.trace_link(f"{self.path} <- {describe_link_bytes(data)}")
+            self.blockwise.receive_data(data, loop.time())
+        else:
+            self.link.receive_data(data, loop.time())
         self._pump()
 
     def _tick(self) -> None:
         self._timer = None
         loop = self._loop
         assert loop is not None
-        self.link.tick(loop.time())
+        if self.blockwise is not None:
+            self.blockwise.tick(loop.time())
+        else:
+            self.link.tick(loop.time())
         self._pump()
 
     def _pump(self) -> None:
         loop = self._loop
         assert loop is not None
+        if self.blockwise is not None:
+            out = self.blockwise.data_to_send()
+            if out:
+                if self.trace_link is not None:
+                    self.trace_link(f"{self.path} -> {describe_link_bytes(out)}")
+                self._write(out)
+            self._arm(self.blockwise.deadline)
+            return
         link = self.link
         while True:
             out = link.data_to_send()
@@ -223,11 +251,16 @@ class SerialFront:
                 self._deliver(event.frame)
             elif isinstance(event, LinkFailed) and self.server.trace:
                 self.server.trace.note(self.path, str(event.error))
+        self._arm(link.deadline)
+
+    def _arm(self, deadline: float | None) -> None:
+        loop = self._loop
+        assert loop is not None
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if link.deadline is not None:
-            self._timer = loop.call_at(link.deadline, self._tick)
+        if deadline is not None:
+            self._timer = loop.call_at(deadline, self._tick)
 
     def _deliver(self, frame: Frame) -> None:
         if self._proto is None:
