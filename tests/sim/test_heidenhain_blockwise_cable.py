@@ -73,3 +73,27 @@ def test_request_for_a_missing_program_is_a_clear_error(
     assert got.exit_code == 1
     assert "no file NONE.H" in got.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_noisy_line_bad_blocks_are_nakked_and_resent(tmp_path: Path) -> None:
+    """Bit errors (1e-4, with the UART's parity check) spoil some blocks: NAK, resend, exact."""
+    data = program(600)
+    (tmp_path / "N.H").write_bytes(data)
+    with (
+        CableProcess(baud=115200, bits_per_char=10, noise=1e-4, seed=5, parity_check=True) as cable,
+        start_tnc("itnc530", root=tmp_path / "tnc") as tnc,
+    ):
+        attach_serial(tnc, cable.path_a, mode="blockwise", baud=115200)
+        sent = runner.invoke(
+            app, ["heidenhain", "send", str(tmp_path / "N.H"), "--port", cable.path_b, *LINE]
+        )
+        stats = cable.close()
+    assert stats is not None
+    assert stats.b_to_a.corrupted > 0, "no fault reached the control"
+    if sent.exit_code == 0:
+        repeated = int(sent.stdout.split("(")[1].split()[0])
+        assert repeated > 0
+        assert (tnc.root / "TNC" / "N.H").read_bytes() == data
+    else:  # retries exhausted: a clear error and no file on the control
+        assert "blockwise send" in sent.stderr
+        assert not (tnc.root / "TNC" / "N.H").exists()
