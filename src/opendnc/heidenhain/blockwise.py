@@ -153,9 +153,13 @@ Event = FileSent | FileReceived | FileRequested | TransferFailed
 class _Parser:
     """Cuts the line into header blocks, line blocks and single control characters."""
 
-    def __init__(self) -> None:
+    def __init__(self, skip_lost_blocks: bool = False) -> None:
         self._buf = bytearray()
         self.garbage = 0
+        self.skip_lost_blocks = skip_lost_blocks
+        # After text outside a block (a block whose SOH/STX was spoilt), skip to its ETB and
+        # BCC: that BCC may have any value, ETX and EOT included, and must not end the file.
+        self._skipping = False
 
     def feed(self, data: bytes) -> None:
         self._buf += data
@@ -182,19 +186,37 @@ class _Parser:
                 del buf[: end + 2]
                 kind = "header" if first == SOH else "block"
                 return kind, content, block_check(content) == check
+            if self._skipping:
+                end = buf.find(bytes([ETB]))
+                starts = [i for i in (buf.find(bytes([SOH])), buf.find(bytes([STX]))) if i >= 0]
+                start = min(starts) if starts else -1
+                if start >= 0 and (end < 0 or start < end):
+                    self.garbage += start
+                    del buf[:start]
+                    self._skipping = False
+                    continue
+                if end < 0 or end + 1 >= len(buf):
+                    return None  # wait for the ETB and the BCC after it
+                self.garbage += end + 2
+                del buf[: end + 2]
+                self._skipping = False
+                continue
             del buf[:1]
             if first in (ACK, NAK, DC1, DC3, ETX, EOT):
                 return "char", bytes([first]), True
             self.garbage += 1
+            if self.skip_lost_blocks and (first >= 0x20 or first == 0):
+                # text (or a NUL from a parity error) outside a block: a block lost its start
+                self._skipping = True
         return None
 
 
 class _Engine:
-    def __init__(self, settings: BlockwiseSettings) -> None:
+    def __init__(self, settings: BlockwiseSettings, *, skip_lost_blocks: bool = False) -> None:
         self.settings = settings
         self._tx = bytearray()
         self._events: deque[Event] = deque()
-        self._parser = _Parser()
+        self._parser = _Parser(skip_lost_blocks)
         self.deadline: float | None = None
         self.done = False
 
@@ -358,7 +380,12 @@ class BlockSender(_Engine):
         if self._state is _SendState.WAIT_REQUEST:
             self._fail(TransportTimeout("no request for a file arrived"))
         elif self._state is _SendState.END:
-            self._fail(TransferError(f"blockwise send of {self.name}: no EOT after ETX"))
+            if self._tries > self.settings.retries:
+                self._fail(TransferError(f"blockwise send of {self.name}: no EOT after ETX"))
+            else:
+                self._tries += 1
+                self._tx.append(ETX)
+                self.deadline = now + self.settings.ack_timeout
         elif self._paused:
             self._fail(TransportTimeout(f"blockwise send of {self.name}: held by DC3 too long"))
         else:
@@ -371,7 +398,7 @@ class BlockReceiver(_Engine):
     def __init__(
         self, request: str | None = None, *, settings: BlockwiseSettings = DEFAULT_SETTINGS
     ) -> None:
-        super().__init__(settings)
+        super().__init__(settings, skip_lost_blocks=True)
         self.request = request
         self.name = request or ""
         self.lines: list[bytes] = []
@@ -410,7 +437,11 @@ class BlockReceiver(_Engine):
             elif self.request and kind == "char" and content[0] == NAK:
                 self._fail(TransferError(f"the control has no file {self.request}"))
             elif not self.request and kind == "header" and content[:1] == b"H":
-                if not ok or not content.endswith(b"E\x17"):
+                if (
+                    not ok
+                    or not content.endswith(b"E\x17")
+                    or any(b in _CONTROL for b in content[:-2])
+                ):
                     self.naks += 1
                     self._tx.append(NAK)
                     return
@@ -423,6 +454,10 @@ class BlockReceiver(_Engine):
             self._tx.append(ACK)  # our ACK of the header was lost: the sender repeats it
             return
         if kind == "block":
+            # Program lines are printable: a control character (a NUL is what a UART hands over
+            # for a character that failed its parity check) spoils the block like a bad BCC.
+            if ok and any(b in _CONTROL for b in content[:-1]):
+                ok = False
             if not ok:
                 self.naks += 1
                 self._tx.append(NAK)
