@@ -1,8 +1,9 @@
 """Golden test: our serial client against the virtual TNC 320 reproduces the real capture.
 
-tests/data/lsv2_serial_tnc320_capture.txt holds the TNCremo <-> TNC 320 exchange (seed 000,
-provenance in the file). Our client, logging in and reading the versions over a pty, must put
-exactly the PC's bytes on the line, and the virtual TNC exactly the control's, step by step.
+tests/data/lsv2_serial_tnc320_capture.txt holds the TNCremo <-> TNC 320 exchange (a public
+capture, provenance in the file). Our client, logging in and reading the versions over a pty,
+must put exactly the PC's bytes on the line, and the virtual TNC exactly the control's, step by
+step.
 """
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ block check character and acknowledged on its own::
 BCC = XOR of every byte after SOH / STX up to and including ETB (what the seed's examples
 allow; the reading of ISO 1745 block checks).
 
-The manual's table of the exchange (seed 002) lost its two columns in extraction, so who sends
-which end character is our reading, chosen so the table stays consistent, and kept as
+The iTNC 530 manual's table of the exchange lost its two columns in the public text, so who
+sends which end character is our reading, chosen so the table stays consistent, and kept as
 settings (:class:`BlockwiseSettings`):
 
 * after its K header the receiver sends DC1 ("ready"); the sender answers the header with ACK;
