@@ -99,9 +99,15 @@ class CableProcess:
         return self.stats
 
     def _kill(self) -> None:
-        if self._proc is not None and self._proc.poll() is None:
-            self._proc.kill()
-            self._proc.wait(5)
+        proc = self._proc
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()  # else a failed test leaves them to the GC (ResourceWarning)
 
     def __enter__(self) -> CableProcess:
         return self.start()
