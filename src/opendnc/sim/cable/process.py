@@ -99,15 +99,9 @@ class CableProcess:
         return self.stats
 
     def _kill(self) -> None:
-        proc = self._proc
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-        for pipe in (proc.stdout, proc.stderr):
-            if pipe is not None:
-                pipe.close()  # else a failed test leaves them to the GC (ResourceWarning)
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait(5)
 
     def __enter__(self) -> CableProcess:
         return self.start()
@@ -122,6 +116,10 @@ class CableProcess:
             self.close()
         else:
             self._kill()
+            proc = self._proc
+            for pipe in (proc.stdout, proc.stderr) if proc is not None else ():
+                if pipe is not None:
+                    pipe.close()  # else a failed test leaves them to the GC (ResourceWarning)
 
 
 def _last_line(text: str) -> str:
