@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from types import TracebackType
 from typing import Any
 
-from opendnc.errors import DncError, LocalProtocolError
+from opendnc.errors import DncError, LocalProtocolError, TransferError
 from opendnc.lsv2 import ops
 from opendnc.lsv2.connection import BytesHook, TraceHook
 from opendnc.lsv2.constants import (
@@ -324,6 +324,20 @@ class AsyncClient:
                 self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
             )
         )
+        if self.serial is not None and mode:
+            await self._check_serial_size(remote, len(data), upload=True)
+
+    async def _check_serial_size(self, remote: str, size: int, *, upload: bool) -> None:
+        # Serial LSV2's XOR block check cannot see a lost NUL byte (docs/lsv2-serial.md, "What
+        # the block check cannot see"): compare the sizes of binary files at both ends.
+        info = await self.file_info(remote)
+        if info is None or info.size == size:
+            return
+        if upload:
+            with contextlib.suppress(DncError):
+                await self.delete_file(remote)
+        what = f"{remote} has {info.size} bytes on the control, {size} here"
+        raise TransferError(f"{what}: the serial line let an error through; try again")
 
     async def read_file(
         self, remote: str, *, binary: bool | None = None, line_end: bytes = b"\r\n"
@@ -370,7 +384,7 @@ class AsyncClient:
             target = os.path.join(target, remote.replace("\\", "/").rsplit("/", 1)[-1])
         mode = is_binary_name(remote) if binary is None else binary
         with AtomicFile(target) as out:
-            return await self._run(
+            count = await self._run(
                 ops.download(
                     self._state,
                     remote,
@@ -380,6 +394,9 @@ class AsyncClient:
                     progress=progress,
                 )
             )
+            if self.serial is not None and mode:
+                await self._check_serial_size(remote, count, upload=False)
+            return count
 
     # -- machine state ---------------------------------------------------------------------
 

@@ -34,7 +34,7 @@ from datetime import UTC, datetime
 from types import TracebackType
 from typing import Any
 
-from opendnc.errors import DncError, LocalProtocolError
+from opendnc.errors import DncError, LocalProtocolError, TransferError
 from opendnc.lsv2 import ops
 from opendnc.lsv2.connection import BytesHook, TraceHook
 from opendnc.lsv2.constants import (
@@ -325,6 +325,20 @@ class Client:
                 self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
             )
         )
+        if self.serial is not None and mode:
+            self._check_serial_size(remote, len(data), upload=True)
+
+    def _check_serial_size(self, remote: str, size: int, *, upload: bool) -> None:
+        # Serial LSV2's XOR block check cannot see a lost NUL byte (docs/lsv2-serial.md, "What
+        # the block check cannot see"): compare the sizes of binary files at both ends.
+        info = self.file_info(remote)
+        if info is None or info.size == size:
+            return
+        if upload:
+            with contextlib.suppress(DncError):
+                self.delete_file(remote)
+        what = f"{remote} has {info.size} bytes on the control, {size} here"
+        raise TransferError(f"{what}: the serial line let an error through; try again")
 
     def read_file(
         self, remote: str, *, binary: bool | None = None, line_end: bytes = b"\r\n"
@@ -369,7 +383,7 @@ class Client:
             target = os.path.join(target, remote.replace("\\", "/").rsplit("/", 1)[-1])
         mode = is_binary_name(remote) if binary is None else binary
         with AtomicFile(target) as out:
-            return self._run(
+            count = self._run(
                 ops.download(
                     self._state,
                     remote,
@@ -379,6 +393,9 @@ class Client:
                     progress=progress,
                 )
             )
+            if self.serial is not None and mode:
+                self._check_serial_size(remote, count, upload=False)
+            return count
 
     # -- machine state ---------------------------------------------------------------------
 
