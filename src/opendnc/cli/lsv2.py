@@ -16,6 +16,15 @@ from rich.markup import escape
 
 from opendnc.cli import lsv2_machine
 from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.cli.lsv2_serial import (
+    BaudOpt,
+    BytesizeOpt,
+    FlowOpt,
+    ParityOpt,
+    SerialOpt,
+    StopbitsOpt,
+    serial_line,
+)
 from opendnc.cli.lsv2_session import JsonOpt, Settings, bar, connect, relabel, want_json
 from opendnc.errors import ControlRefused, InputError
 
@@ -23,7 +32,7 @@ if TYPE_CHECKING:  # the LSV2 stack is imported by the commands that talk to a c
     from opendnc.lsv2 import Client, FileInfo
     from opendnc.lsv2.backup import Summary
 
-app = typer.Typer(help="Heidenhain controls over LSV2 (TCP).", no_args_is_help=True)
+app = typer.Typer(help="Heidenhain controls over LSV2 (TCP or RS-232).", no_args_is_help=True)
 
 
 @app.callback()
@@ -38,9 +47,17 @@ def main(
     unsafe: bool = typer.Option(
         False, "--unsafe", help="Allow machine-changing actions (parameter, key, PLC writes)."
     ),
+    serial: str | None = SerialOpt,
+    baud: str = BaudOpt,
+    parity: str = ParityOpt,
+    bytesize: int = BytesizeOpt,
+    stopbits: float = StopbitsOpt,
+    flow: str = FlowOpt,
 ) -> None:
-    """Heidenhain controls over LSV2 (TCP)."""
-    ctx.obj = Settings(host, port, timeout, json_out, unsafe)
+    """Heidenhain controls over LSV2 (TCP, or RS-232 with --serial)."""
+    with cli_errors():
+        line = serial_line(serial, baud, parity, bytesize, stopbits, flow)
+    ctx.obj = Settings(host, port, timeout, json_out, unsafe, line)
 
 
 def as_typed(path: str, typed: str) -> str:
@@ -108,7 +125,8 @@ def info(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
             return
         from rich.table import Table
 
-        table = Table(show_header=False, title=f"{v.model} at {tnc.host}:{tnc.port}")
+        where = tnc.serial.describe() if tnc.serial else f"{tnc.host}:{tnc.port}"
+        table = Table(show_header=False, title=f"{v.model} at {where}")
         for key, value in data.items():
             table.add_row(key.replace("_", " "), _readable(value))
         console.print(table)

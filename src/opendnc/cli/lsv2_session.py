@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # imported when a command connects, not for --help
     from rich.progress import Progress
 
     from opendnc.lsv2 import Client
+    from opendnc.lsv2.serial_stream import SerialLine
 
 __all__ = [
     "JsonOpt",
@@ -46,6 +47,8 @@ class Settings:
     timeout: float
     json: bool
     unsafe: bool
+    serial: SerialLine | None = None
+    """Set by ``--serial``: the control is on an RS-232 line instead of TCP."""
 
 
 def settings(ctx: typer.Context) -> Settings:
@@ -67,15 +70,21 @@ def connect(ctx: typer.Context) -> Iterator[Client]:
     from opendnc.lsv2 import Client
 
     opts = settings(ctx)
-    client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
+    if opts.serial is not None:
+        from opendnc.cli.lsv2_serial import resolve_baud
+
+        client = Client.over_serial(
+            resolve_baud(opts.serial), timeout=opts.timeout, safe_mode=not opts.unsafe
+        )
+    else:
+        client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
     try:
         client.connect()
     except (RemoteProtocolError, PeerClosed) as exc:
         # something answered, but not in LSV2 (a web server, a serial server in another mode)
         client.close()
-        raise RemoteProtocolError(
-            f"{opts.host}:{opts.port} is not an LSV2 control ({exc})"
-        ) from exc
+        where = opts.serial.describe() if opts.serial is not None else f"{opts.host}:{opts.port}"
+        raise RemoteProtocolError(f"{where} is not an LSV2 control ({exc})") from exc
     except TransportTimeout as exc:
         # a port that accepts but stays silent: most often another service, not a busy TNC
         client.close()

@@ -39,6 +39,9 @@ COMMANDS: dict[str, Lazy] = {
     "xmodem": Lazy("opendnc.cli.xmodem:app", "XModem transfers (Haas RS-232)."),
     "haas": Lazy("opendnc.cli.haas:app", "Haas controls: MDC queries, macro variables, Net Share."),
     "dprnt": Lazy("opendnc.cli.dprnt:app", "Capture DPRNT output from a Haas."),
+    "heidenhain": Lazy(
+        "opendnc.cli.heidenhain:app", "Heidenhain blockwise (FE) file transfer over RS-232."
+    ),
     "surface": Lazy("opendnc.cli.surface:app", "Probe a surface, capture it, report it."),
     "demo": Lazy("opendnc.cli.demo:demo", "A live tour against the virtual controls."),
 }
