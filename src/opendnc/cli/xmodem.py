@@ -59,6 +59,9 @@ def send_cmd(
     turnaround: float = typer.Option(
         0.0, "--turnaround", help="Milliseconds to pause after each ACK (lrzsz rx on a pty)"
     ),
+    binary: bool = typer.Option(
+        False, "--binary", help="Send any bytes (default: refuse a file that is not NC text)"
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
@@ -77,6 +80,7 @@ def send_cmd(
                 config=config,
                 progress=lambda done, total: bar.update(task, completed=done, total=total),
                 on_event=_report_event,
+                binary=binary,
             )
         if json_out:
             print_json(report)
@@ -110,6 +114,11 @@ def recv_cmd(
         "--haas-eob-checksum",
         help="Accept checksums computed with CR LF folded to LF (reported Haas quirk)",
     ),
+    binary: bool = typer.Option(
+        False,
+        "--binary",
+        help="Keep any bytes (default: refuse a program holding bytes no NC program holds)",
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
@@ -130,6 +139,7 @@ def recv_cmd(
             config=config,
             progress=lambda done, _total: bar.update(task, completed=done),
             on_event=_report_event,
+            binary=binary,
         )
         bar.update(task, total=report.size, completed=report.size)
     if json_out:

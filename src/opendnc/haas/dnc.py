@@ -40,6 +40,7 @@ from opendnc.errors import (
     TransportTimeout,
 )
 from opendnc.haas.modal import ModalState, RestartPlan, restart_preamble, track
+from opendnc.nctext import check_program_file
 from opendnc.transport.serial import open_serial
 from opendnc.xmodem.events import Timer
 from opendnc.xmodem.haas import Eob
@@ -71,6 +72,8 @@ class DncConfig:
     linger: float = 0.25
     # start only after the control's first DC1 (it announces readiness), as DNC packages offer
     wait_for_xon: bool = False
+    # refuse a file that is not NC program text before the first byte (opendnc.nctext)
+    text_check: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -382,6 +385,8 @@ def _open(url: str, baud: int, parity: str, flow: Flow) -> Any:
 def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
     if safe_mode:
         raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
+    if config.text_check:
+        check_program_file(path, action="not drip-fed")
     return ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
 
 

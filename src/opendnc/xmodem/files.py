@@ -3,6 +3,11 @@
 A receive never leaves a partial file at the destination: the bytes go to a hidden temporary
 file in the target folder, which is renamed over the target only after the sender's EOT was
 acknowledged, and deleted on any error.
+
+Programs are NC text unless ``binary=True``: a received file holding a byte no NC program holds
+(:mod:`opendnc.nctext`) is refused and not written, since checksum-mode XModem cannot see two
+bit errors that cancel in its sum; a file to send is checked the same way before the first
+byte goes out.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from pathlib import Path
 
 from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
+from opendnc.nctext import check_program, check_program_file
 from opendnc.transport.base import ByteStream
 from opendnc.transport.serial import open_stream
 from opendnc.xmodem.driver import POLL, EventHandler, Progress, receive, send
@@ -91,14 +97,21 @@ def send_file(
     config: SenderConfig | None = None,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
+    binary: bool = False,
 ) -> SendReport:
-    """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25."""
+    """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25.
+
+    Unless ``binary``, the file must read as NC program text (:mod:`opendnc.nctext`), else
+    :class:`~opendnc.errors.ProgramTextError` is raised before anything is sent.
+    """
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
     if not data:
         raise InputError(f"{path} is empty; XModem cannot send an empty file")
+    if not binary:
+        check_program(data, what=path.name, action="not sent (--binary sends any bytes)")
     if eob is not None:
         data = to_wire(data, eob)
     stream, owned = _stream(port, baud, parity)
@@ -129,11 +142,15 @@ def receive_file(
     config: ReceiverConfig | None = None,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
+    binary: bool = False,
 ) -> ReceiveReport:
     """Receive one file into ``out`` (temp file + rename).
 
     If ``out`` is an existing folder, the file is named from the program's O-number
     (``O05555.nc``) or ``program.nc``. ``eob`` converts the control's line ends to LF.
+    Unless ``binary``, the file must read as NC program text (:mod:`opendnc.nctext`): else
+    :class:`~opendnc.errors.ProgramTextError` names the block and offset, and nothing is
+    written.
     """
     folder_target = out.is_dir()
     stream, owned = _stream(port, baud, parity)
@@ -157,6 +174,12 @@ def receive_file(
                 pending.handle.write(converted)
                 pending.handle.flush()
                 size = len(converted)
+            if not binary:
+                check_program_file(
+                    pending.temp,
+                    what="received program",
+                    action="the file was not written (--binary receives any bytes)",
+                )
             with pending.temp.open("rb") as check:
                 head = check.read(4096)
             if folder_target:
