@@ -50,7 +50,7 @@ class TextProblem:
     reason: str
 
     def describe(self) -> str:
-        """``byte 0x02 (a control character) at line 160, column 21, offset 3349 (NC block 160)``."""
+        """E.g. ``byte 0x02 (a control character) at line 160, column 21, offset 3349 ...``."""
         return (
             f"byte 0x{self.byte:02X} ({self.reason}) at line {self.line}, column {self.column}, "
             f"offset {self.offset} (NC block {self.line})"

@@ -3,6 +3,7 @@ whatever the input and however it is cut into pieces; it never raises anything u
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -71,12 +72,9 @@ def test_scanner_matches_reference_in_any_pieces(data: bytes, cuts: list[int]) -
         assert whole is not None
         assert (whole.offset, whole.line, whole.column) == expected
         assert whole.byte == data[whole.offset]
-        try:
+        with pytest.raises(ProgramTextError) as caught:
             check_program(data)
-        except ProgramTextError as exc:
-            assert exc.problem == whole
-        else:
-            raise AssertionError("check_program accepted a program with a problem")
+        assert caught.value.problem == whole
 
 
 @settings(max_examples=200, deadline=None)

@@ -78,9 +78,10 @@ def test_the_blind_spot_is_real_with_binary(source: Path, tmp_path: Path) -> Non
     assert diffs == [DAMAGED_OFFSET, 3386]
     assert (got[DAMAGED_OFFSET], got[3386]) == (0x02, ord("("))
     block = DAMAGED_OFFSET // 128
-    assert sum(sent[block * 128 : block * 128 + 128]) % 256 == sum(
-        got[block * 128 : block * 128 + 128]
-    ) % 256
+    assert (
+        sum(sent[block * 128 : block * 128 + 128]) % 256
+        == sum(got[block * 128 : block * 128 + 128]) % 256
+    )
 
 
 def test_text_check_refuses_the_damaged_program(source: Path, tmp_path: Path) -> None:
