@@ -104,7 +104,11 @@ def recv_cmd(
     mode: Mode = typer.Option(Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k"),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
     parity: str = typer.Option("N", "--parity", help="N, E or O"),
-    timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the sender"),
+    timeout: float = typer.Option(
+        60.0,
+        "--timeout",
+        help="Seconds to wait for the sender: to start, and for each block, retries included",
+    ),
     eob: Eob | None = typer.Option(
         None, "--eob", help="Convert the control's setting-25 line ends to LF"
     ),
@@ -124,6 +128,7 @@ def recv_cmd(
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
     config = ReceiverConfig(
         start_timeout=timeout,
+        idle_timeout=timeout,
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )

@@ -6,6 +6,11 @@ SOH (128) and STX (1024) blocks are both accepted. A block received again becaus
 was lost is ACKed and dropped; any other out-of-order block cancels the session, since data
 would be lost. After an error the receiver waits for the line to go quiet, then NAKs.
 
+``idle_timeout`` bounds the whole wait for the sender's next good block, retries included:
+without it a sender that vanished without a hang-up the port can report (a cable pulled, a
+virtual cable's far side gone) costs ``max_retries`` times ``block_timeout``. A hang-up the
+port does report ends the session at once (:meth:`XmodemReceiver.peer_closed`).
+
 A lone EOT or CAN pair at a block boundary is acted on only if no further bytes follow within
 ``settle`` seconds: line noise that turns a block's SOH into EOT (or a lost SOH that exposes
 block number 4) must cause a NAK, never a truncated file.
@@ -45,6 +50,8 @@ class ReceiverConfig:
     purge_quiet: float = 0.2  # after a bad block, silence needed before the NAK
     settle: float = 0.05  # silence that confirms a lone EOT or CAN pair
     max_retries: int = 10  # consecutive errors on one block before giving up
+    # the longest wait for the next good block, retries included (None: retries bound it)
+    idle_timeout: float | None = None
     strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
 
@@ -80,6 +87,11 @@ class XmodemReceiver(EngineBase):
         self._errors = 0
         self._requests = 0
         self._waited = 0.0
+        self._idle = 0.0  # timer seconds expired since the last good block
+        limit = self.config.idle_timeout
+        self._block_wait = self.config.block_timeout
+        if limit is not None:
+            self._block_wait = min(self._block_wait, limit)
         self._purge_reason = ""
         self._request_start()
 
@@ -117,7 +129,7 @@ class XmodemReceiver(EngineBase):
                 frame = bytes(buf) + data if buf else data
                 buf.clear()
                 if self._take_frame(frame) and not self.finished:
-                    self._arm(self.config.block_timeout)
+                    self._arm(self._block_wait)
                 return
         if state is ReceiverState.STARTING:
             starts = [i for i in (data.find(c) for c in _STARTERS) if i >= 0]
@@ -145,13 +157,44 @@ class XmodemReceiver(EngineBase):
             else:
                 self._request_start()
         elif state is ReceiverState.SETTLING:
-            self._on_settled()
+            self._on_settled()  # the EOT (or CAN) was confirmed: not a wait for the sender
+        elif cfg.idle_timeout is not None and self._idle_expired(self.timer.seconds):
+            return
         elif state is ReceiverState.PURGING:
             self._nak(self._purge_reason)
         else:
-            reason = "incomplete block" if self._buf else f"no block in {cfg.block_timeout:g} s"
+            waited = self.timer.seconds
+            reason = "incomplete block" if self._buf else f"no block in {waited:g} s"
             self._buf.clear()
             self._nak(reason)
+        self._cap_timer()
+
+    def _idle_expired(self, seconds: float) -> bool:
+        """Count a timer that ran out; True (and the session failed) once the budget is used."""
+        limit = self.config.idle_timeout
+        assert limit is not None
+        self._idle += seconds
+        if self._idle < limit - 1e-9:
+            return False
+        self._buf.clear()
+        self._fail(
+            TransportTimeout(
+                f"no good block from the sender for {limit:g} s (block {self._expected}, "
+                f"{self.received} bytes received); transfer abandoned"
+            ),
+            cancel_peer=True,
+        )
+        return True
+
+    def _cap_timer(self) -> None:
+        """Keep the next wait within what is left of ``idle_timeout``."""
+        limit = self.config.idle_timeout
+        timer = self.timer
+        if limit is None or timer is None or self.state is ReceiverState.STARTING:
+            return
+        left = limit - self._idle
+        if timer.seconds > left:
+            self._arm(max(left, 0.001), listen=timer.listen)
 
     def peer_closed(self) -> None:
         """The link closed before the sender's EOT."""
@@ -201,7 +244,7 @@ class XmodemReceiver(EngineBase):
                 buf.clear()
                 self._purge(f"unexpected byte 0x{start:02X} where a block should start")
                 return
-        self._arm(self.config.block_timeout)
+        self._arm(self._block_wait)
 
     def _take_frame(self, frame: bytes) -> bool:
         """Decode and act on one complete frame; False if it was bad (purging started)."""
@@ -220,11 +263,13 @@ class XmodemReceiver(EngineBase):
                 self._size += len(self._held)
                 self._events.append(DataReceived(self._held))
             self._held = data
+            self._idle = 0.0
             self._blocks += 1
             self._expected = (expected + 1) & 0xFF
             self._errors = 0
             self._emit(_ACK)
         elif self._blocks and seq == ((expected - 1) & 0xFF):
+            self._idle = 0.0  # the sender is alive: it repeats a block whose ACK it missed
             self._events.append(Duplicate(seq))
             self._emit(_ACK)
         else:
