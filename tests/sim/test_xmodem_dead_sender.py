@@ -78,6 +78,7 @@ def test_tcp_eof_ends_the_receive_at_once(tmp_path: Path) -> None:
     assert code == 1
     assert "closed" in err, err
     assert list(tmp_path.iterdir()) == []
+    assert waited < 5
 
 
 @pytest.mark.parametrize("timeout", [3.0])
