@@ -29,6 +29,7 @@ from opendnc.xmodem.framing import (
     CRC_REQUEST,
     EOT,
     NAK,
+    SMALL,
     SOH,
     STX,
     SUB,
@@ -84,6 +85,7 @@ class XmodemReceiver(EngineBase):
         self._blocks = 0
         self._size = 0  # bytes released through DataReceived
         self._held: bytes | None = None  # newest block, kept back until we know it is not the last
+        self._recut: int | None = None  # next 128-byte slice of the held 1K block to expect
         self._errors = 0
         self._requests = 0
         self._waited = 0.0
@@ -258,11 +260,14 @@ class XmodemReceiver(EngineBase):
 
     def _on_block(self, seq: int, data: bytes) -> None:
         expected = self._expected
+        if self._recut is not None and self._on_recut_slice(seq, data):
+            return
         if seq == expected:
             if self._held is not None:
                 self._size += len(self._held)
                 self._events.append(DataReceived(self._held))
             self._held = data
+            self._recut = None
             self._idle = 0.0
             self._blocks += 1
             self._expected = (expected + 1) & 0xFF
@@ -270,6 +275,13 @@ class XmodemReceiver(EngineBase):
             self._emit(_ACK)
         elif self._blocks and seq == ((expected - 1) & 0xFF):
             self._idle = 0.0  # the sender is alive: it repeats a block whose ACK it missed
+            held = self._held
+            recut = held is not None and len(held) > len(data) == SMALL and held[:SMALL] == data
+            if recut and self._recut is None:
+                # a 1K block we hold, re-cut into 128-byte blocks numbered from its own
+                # sequence number (the sender fell back without seeing our ACK): the next
+                # small blocks repeat the rest of it and must not be taken for new data
+                self._recut = 1
             self._events.append(Duplicate(seq))
             self._emit(_ACK)
         else:
@@ -280,6 +292,30 @@ class XmodemReceiver(EngineBase):
                 ),
                 cancel_peer=True,
             )
+
+    def _on_recut_slice(self, seq: int, data: bytes) -> bool:
+        """A small block that repeats a slice of the held 1K block: ACK and drop it."""
+        held, index = self._held, self._recut
+        assert held is not None
+        assert index is not None
+        if seq != self._expected or len(data) != SMALL:
+            return False
+        if held[index * SMALL : (index + 1) * SMALL] != data:
+            self._fail(
+                RemoteProtocolError(
+                    f"block {seq} should repeat part of block {(seq - index) & 0xFF} after the "
+                    "sender fell back to 128-byte blocks, but differs; transfer cancelled"
+                ),
+                cancel_peer=True,
+            )
+            return True
+        self._recut = index + 1 if (index + 1) * SMALL < len(held) else None
+        self._expected = (seq + 1) & 0xFF
+        self._errors = 0
+        self._idle = 0.0
+        self._events.append(Duplicate(seq))
+        self._emit(_ACK)
+        return True
 
     def _on_settled(self) -> None:
         control = self._buf[0] if self._buf else EOT
