@@ -273,6 +273,12 @@ def pattern_lsv2_fuzz(soak: Soak) -> None:
         thread.join()
     for raw in quiet:
         raw.close()
+    partial = soak.tnc_root / ".partial"
+    limit = time.monotonic() + 5
+    while partial.exists() and any(partial.iterdir()) and time.monotonic() < limit:
+        time.sleep(0.05)  # uploads of closed connections are dropped as the server notices
+    if partial.exists() and any(partial.iterdir()):
+        tally.fail(f"half-written uploads left: {sorted(os.listdir(partial))}")
     outside = soak.work / "outside"
     escaped = sorted(p.name for p in outside.iterdir()) if outside.exists() else []
     if escaped != ["sentinel"]:
