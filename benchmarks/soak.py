@@ -10,7 +10,7 @@ Five patterns take turns until ``--seconds`` have passed (``--smoke``: one short
 * ``cut-link``    get / put / backup through a proxy that cuts the TCP link after a random
                   number of bytes. Failure: a partial or temporary file left behind; silent:
                   a complete-looking file with wrong bytes.
-* ``xmodem-*``    a 20 kB program over the noisy virtual cable (1e-4 bit errors and drops) in
+* ``xmodem-*``    3 x a 20 kB program over the noisy virtual cable (1e-4 bit errors and drops) in
                   checksum, CRC and 1K mode, received with the NC text check. ``caught`` counts
                   damage the protocol missed and the text check refused; silent: a completed
                   receive with wrong bytes, or a file left by a failed one.
@@ -421,6 +421,12 @@ def nc_program(rng: random.Random, size: int) -> bytes:
 
 
 def pattern_xmodem(soak: Soak, mode: Mode) -> None:
+    for _ in range(1 if soak.smoke else 3):
+        xmodem_case(soak, mode)
+
+
+def xmodem_case(soak: Soak, mode: Mode) -> None:
+    """One noisy-cable transfer of a fresh program with a fresh seed."""
     tally = soak.tally(f"xmodem-{mode.value}")
     tally.cases += 1
     data = nc_program(soak.rng, 4_000 if soak.smoke else 20_000)
