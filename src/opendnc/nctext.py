@@ -123,6 +123,17 @@ class TextScanner:
             return
         self._advance(data)
 
+    @property
+    def offset(self) -> int:
+        """Bytes fed so far: the file offset where the next piece begins."""
+        return self._offset
+
+    def copy(self) -> TextScanner:
+        """An independent scanner in the same state (to try a piece before keeping it)."""
+        twin = TextScanner.__new__(TextScanner)
+        twin.__dict__.update(self.__dict__)
+        return twin
+
     def finish(self) -> TextProblem | None:
         """End of file: the first problem, or None if the text is clean."""
         return self.problem

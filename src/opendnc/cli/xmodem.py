@@ -121,7 +121,7 @@ def recv_cmd(
     binary: bool = typer.Option(
         False,
         "--binary",
-        help="Keep any bytes (default: refuse a program holding bytes no NC program holds)",
+        help="Keep any bytes (default: NAK blocks that are not NC text, refuse such a file)",
     ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:

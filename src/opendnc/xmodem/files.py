@@ -4,15 +4,17 @@ A receive never leaves a partial file at the destination: the bytes go to a hidd
 file in the target folder, which is renamed over the target only after the sender's EOT was
 acknowledged, and deleted on any error.
 
-Programs are NC text unless ``binary=True``: a received file holding a byte no NC program holds
-(:mod:`opendnc.nctext`) is refused and not written, since checksum-mode XModem cannot see two
-bit errors that cancel in its sum; a file to send is checked the same way before the first
-byte goes out.
+Programs are NC text unless ``binary=True``: checksum-mode XModem cannot see two bit errors
+that cancel in its sum, so a received block that breaks the NC text rules
+(:mod:`opendnc.nctext`) is NAKed and sent again; a file that still holds a byte no NC program
+holds (sent twice the same way, or found by the final check) is refused and not written. A
+file to send is checked the same way before the first byte goes out.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -161,7 +163,8 @@ def receive_file(
                 stream,
                 pending.handle,
                 mode=mode,
-                config=config,
+                # a block that is not NC text is NAKed and sent again: checksum mode's blind spot
+                config=dataclasses.replace(config or ReceiverConfig(), text_check=not binary),
                 progress=progress,
                 on_event=on_event,
             )

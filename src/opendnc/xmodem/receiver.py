@@ -11,6 +11,12 @@ without it a sender that vanished without a hang-up the port can report (a cable
 virtual cable's far side gone) costs ``max_retries`` times ``block_timeout``. A hang-up the
 port does report ends the session at once (:meth:`XmodemReceiver.peer_closed`).
 
+With ``text_check`` every new block must continue an NC program text (:mod:`opendnc.nctext`):
+a block that passed the checksum but breaks the text rules is NAKed like a bad block, so
+damage that an 8-bit sum cannot see (two compensating bit errors) is sent again instead of
+written. The same bad bytes arriving twice are in the sender's file: the session fails with
+:class:`~opendnc.errors.ProgramTextError`.
+
 A lone EOT or CAN pair at a block boundary is acted on only if no further bytes follow within
 ``settle`` seconds: line noise that turns a block's SOH into EOT (or a lost SOH that exposes
 block number 4) must cause a NAK, never a truncated file.
@@ -21,7 +27,14 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from opendnc.errors import PeerClosed, RemoteProtocolError, TransferError, TransportTimeout
+from opendnc.errors import (
+    PeerClosed,
+    ProgramTextError,
+    RemoteProtocolError,
+    TransferError,
+    TransportTimeout,
+)
+from opendnc.nctext import TextScanner
 from opendnc.xmodem.events import Completed, DataReceived, Duplicate, EngineBase, Retry, Started
 from opendnc.xmodem.framing import (
     ACK,
@@ -55,6 +68,7 @@ class ReceiverConfig:
     idle_timeout: float | None = None
     strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
+    text_check: bool = False  # NAK blocks that are not NC program text (opendnc.nctext)
 
 
 _ACK, _NAK, _C = bytes((ACK,)), bytes((NAK,)), bytes((CRC_REQUEST,))
@@ -95,6 +109,8 @@ class XmodemReceiver(EngineBase):
         if limit is not None:
             self._block_wait = min(self._block_wait, limit)
         self._purge_reason = ""
+        self._text = TextScanner() if self.config.text_check else None
+        self._refused: bytes | None = None  # the last block NAKed for its text
         self._request_start()
 
     @property
@@ -263,6 +279,8 @@ class XmodemReceiver(EngineBase):
         if self._recut is not None and self._on_recut_slice(seq, data):
             return
         if seq == expected:
+            if self._text is not None and not self._text_ok(seq, data):
+                return
             if self._held is not None:
                 self._size += len(self._held)
                 self._events.append(DataReceived(self._held))
@@ -292,6 +310,33 @@ class XmodemReceiver(EngineBase):
                 ),
                 cancel_peer=True,
             )
+
+    def _text_ok(self, seq: int, data: bytes) -> bool:
+        """Keep a block that continues the program text; NAK one that breaks it."""
+        assert self._text is not None
+        trial = self._text.copy()
+        trial.feed(data)
+        problem = trial.problem
+        if problem is None:
+            self._text = trial
+            self._refused = None
+            return True
+        if problem.offset < self._text.offset or data == self._refused:
+            # in a block we already took, or the same bytes twice: it is in the sender's file
+            self._fail(
+                ProgramTextError(
+                    problem,
+                    what="received program",
+                    action=(
+                        "transfer cancelled, the file was not written (--binary receives any bytes)"
+                    ),
+                ),
+                cancel_peer=True,
+            )
+            return False
+        self._refused = data
+        self._nak(f"block {seq}: not NC text, {problem.describe()}")
+        return False
 
     def _on_recut_slice(self, seq: int, data: bytes) -> bool:
         """A small block that repeats a slice of the held 1K block: ACK and drop it."""
