@@ -11,9 +11,10 @@ Five patterns take turns until ``--seconds`` have passed (``--smoke``: one short
                   number of bytes. Failure: a partial or temporary file left behind; silent:
                   a complete-looking file with wrong bytes.
 * ``xmodem-*``    3 x a 20 kB program over the noisy virtual cable (1e-4 bit errors and drops) in
-                  checksum, CRC and 1K mode, received with the NC text check. ``caught`` counts
-                  damage the protocol missed and the text check refused; silent: a completed
-                  receive with wrong bytes, or a file left by a failed one.
+                  checksum, CRC and 1K mode, received with the NC text check. ``resent``
+                  counts blocks that passed the checksum but not the text check (NAKed, sent
+                  again), ``caught`` transfers it refused; silent: a completed receive with
+                  wrong bytes, or a file left by a failed one.
 * ``mdc-abuse``   one client floods Q500 and never reads, another connects and never reads;
                   a well-behaved client must still get answers within 10 s.
 * ``dprnt``       a DPRNT source sends good lines among garbage lines, over-long lines (5 kB,
@@ -58,6 +59,7 @@ from opendnc.lsv2.framing import Frame, TelegramFramer
 from opendnc.sim.cable import VirtualCable
 from opendnc.transport import SerialStream
 from opendnc.xmodem.driver import send
+from opendnc.xmodem.events import Event, Retry
 from opendnc.xmodem.files import receive_file
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.receiver import ReceiverConfig
@@ -76,6 +78,7 @@ class Tally:
     cases: int = 0
     failures: int = 0
     caught: int = 0  # damage refused with a typed error (XModem text check)
+    repaired: int = 0  # blocks that passed the checksum but not the text check: sent again
     silent: int = 0  # wrong data that looked right
     notes: list[str] = field(default_factory=list)
 
@@ -439,9 +442,13 @@ def xmodem_case(soak: Soak, mode: Mode) -> None:
         tx = SerialStream(cable.path_a, BAUD, timeout=0.05)
         rx = SerialStream(cable.path_b, BAUD, timeout=0.05)
 
+        def count(event: Event) -> None:
+            if isinstance(event, Retry) and "not NC text" in event.reason:
+                tally.repaired += 1
+
         def receiving() -> None:
             try:
-                got[0] = receive_file(rx, dest, mode=mode, config=FAST_RX)
+                got[0] = receive_file(rx, dest, mode=mode, config=FAST_RX, on_event=count)
             except DncError as exc:
                 got[0] = exc
 
@@ -669,11 +676,13 @@ def report(result: dict[str, object]) -> None:
     patterns = result["patterns"]
     assert isinstance(patterns, dict)
     print(f"soak: {result['seconds']} s, {result['rounds']} rounds, seed {result['seed']}")
-    print(f"{'pattern':<18}{'cases':>8}{'failures':>10}{'caught':>8}{'silent':>8}")
+    print(f"{'pattern':<18}{'cases':>8}{'failures':>10}{'caught':>8}{'resent':>8}{'silent':>8}")
     for name, t in patterns.items():
-        print(f"{name:<18}{t['cases']:>8}{t['failures']:>10}{t['caught']:>8}{t['silent']:>8}")
+        counts = [t["cases"], t["failures"], t["caught"], t["repaired"], t["silent"]]
+        cells = zip(counts, (8, 10, 8, 8, 8), strict=True)
+        print(f"{name:<18}" + "".join(f"{c:>{w}}" for c, w in cells))
     total = {k: sum(t[k] for t in patterns.values()) for k in ("cases", "failures", "silent")}
-    print(f"{'total':<18}{total['cases']:>8}{total['failures']:>10}{'':>8}{total['silent']:>8}")
+    print(f"{'total':<18}{total['cases']:>8}{total['failures']:>10}{'':>16}{total['silent']:>8}")
     memory = result["memory"]
     assert isinstance(memory, dict)
     for name, value in memory.items():
