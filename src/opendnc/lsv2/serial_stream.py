@@ -21,6 +21,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import get_args
 
 from opendnc.errors import InputError, TransportError, TransportTimeout
 from opendnc.lsv2.framing import Frame, TelegramFramer
@@ -39,6 +40,7 @@ from opendnc.lsv2.serial_link import (
     TelegramSent,
 )
 from opendnc.transport.base import ByteStream
+from opendnc.transport.line import Handshake
 
 __all__ = [
     "BAUD_PROBE_ORDER",
