@@ -49,7 +49,6 @@ def test_no_failure_and_no_silent_corruption_in_our_patterns(result: dict[str, A
         assert (tally["failures"], tally["silent"]) == (0, 0), (name, tally["notes"])
 
 
-@pytest.mark.xfail(reason="DPRNT and MDC fixes (issue 15 items 1-2) are on branch rel-haas")
 def test_no_failure_in_the_haas_patterns(result: dict[str, Any]) -> None:
     patterns = result["patterns"]
     for name in HAAS:
