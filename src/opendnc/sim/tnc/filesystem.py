@@ -263,7 +263,7 @@ class ControlFs:
         return min(shutil.disk_usage(self.root).free, 0xFFFFFFFF)
 
     def open_read(self, wp: WirePath) -> BinaryIO:
-        """The file opened for reading (downloads stream from it); ControlRefused (32) if missing."""
+        """The file opened for reading (downloads stream from it); refused with 32 if missing."""
         host = self.host_path(wp)
         if not host.is_file():
             raise ControlRefused(NO_FILE, f"{wp} does not exist")
