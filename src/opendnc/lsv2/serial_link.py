@@ -24,12 +24,17 @@ Choices where the public sources are silent (each is a setting or documented her
   host status code of docs/lsv2-serial.md ("Host status codes").
 * **Collisions** — when both ends send ENQ, the client yields: it answers DLE '0', receives the
   control's telegram and then sends its own. The control ignores the client's ENQ.
-* **Implicit acknowledgement** — an ENQ received while waiting for DLE '1' means the peer has
-  ended the exchange and moved on (its DLE '1' was lost, it timed out waiting for our EOT and
-  now sends its own telegram). The engine counts our telegram as delivered. The client does the
-  same when the control's ENQ collides with a *repeat* of a telegram already framed once: in
-  LSV2 the control speaks only after a request (an unsolicited ``M_CC`` racing a spoilt
-  acknowledgement is the one case this reading gets wrong; the operation then times out).
+* **Implicit acknowledgement** — an ENQ received while waiting for DLE '1' may mean the peer
+  has ended the exchange and moved on (its DLE '1' was lost, it timed out waiting for our EOT
+  and now sends its own telegram). It may as well be the peer's NAK with one bit changed
+  (NAK 0x15 and ENQ 0x05 differ in one bit), so the ENQ alone proves nothing. The engine
+  answers DLE '0' and counts our telegram as delivered only when the peer then sends a *new*
+  telegram intact: LSV2 alternates requests and answers, so the peer speaks only after it has
+  ours. If no telegram comes (the "ENQ" was a spoilt NAK and the peer waits for EOT), the
+  receive phase times out and our telegram is sent again. The client does the same when the
+  control's ENQ collides with a *repeat* of a telegram already framed once (an unsolicited
+  ``M_CC`` racing a spoilt acknowledgement is the one case this reading gets wrong; the
+  operation then times out).
 * **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
   sent in between, is acknowledged but not delivered twice. LSV2 alternates requests and
@@ -266,6 +271,9 @@ class SerialLink:
         self._frame = bytearray()  # raw (stuffed) bytes after DLE STX
         self._scan = 0
         self._last_body: bytes | None = None
+        # We yielded to the peer's ENQ while our framed telegram waited for its DLE 1 (or for
+        # DLE 0 of a repeat): a new telegram from the peer in this receive phase acknowledges it.
+        self._ack_by_answer: HostStatus | None = None
 
     # -- public API ----------------------------------------------------------------------------
 
@@ -328,8 +336,7 @@ class SerialLink:
         else:
             # RECV_START (LSV2TIME2 after DLE 0) and RECV_END (no EOT after DLE 1 / NAK): the
             # line is considered idle again.
-            self._state = _S.IDLE
-            self._start_next(now)
+            self._receive_ended(now)
 
     def data_to_send(self) -> bytes:
         """Bytes to write to the line now (empty if none)."""
@@ -361,6 +368,7 @@ class SerialLink:
     def _start_next(self, now: float) -> None:
         if self._state is not _S.IDLE or not self._out:
             return
+        self._ack_by_answer = None
         self._out[0].tries += 1
         self._write(_ENQ)
         self._state = _S.SEND_READY
@@ -409,6 +417,25 @@ class SerialLink:
         self._state = _S.RECV_END
         self._deadline = now + self.timing.time2
 
+    def _yield_to_peer(self, now: float, status: HostStatus) -> None:
+        """Answer the peer's ENQ while our framed telegram is unconfirmed (see the docstring).
+
+        ``status`` is what this try failed with should no new telegram follow."""
+        self._ack_by_answer = status
+        self._ready(now)
+
+    def _receive_ended(self, now: float) -> None:
+        """The peer's transmission is over (EOT or LSV2TIME2): the line is idle again."""
+        self._state = _S.IDLE
+        self._deadline = None
+        status = self._ack_by_answer
+        if status is not None and self._out:
+            # We yielded to an "ENQ" that brought no telegram: ours was not confirmed.
+            self._ack_by_answer = None
+            self._retry(now, status, eot=False)
+            return
+        self._start_next(now)
+
     def _ready(self, now: float) -> None:
         self._write(READY)
         self._state = _S.RECV_START
@@ -439,25 +466,24 @@ class SerialLink:
                     # Collision: the PC yields, takes the control's telegram, then tries again.
                     self.stats.collisions += 1
                     if self._out[0].framed:
-                        # Our frame went out before and this is a retry: the control only
-                        # speaks after a request, so it has ours (its DLE 1 got spoilt).
-                        self.stats.implicit_acks += 1
-                        self._sent_ok(now, implicit=True)
-                    else:
-                        self._out[0].tries -= 1
+                        # Our frame went out before and this is a retry: if the control
+                        # now sends a telegram it has ours (its DLE 1 got spoilt). A late NAK
+                        # with one bit changed also reads ENQ: wait for the telegram.
+                        self._yield_to_peer(now, HostStatus.NO_ENQ)
+                        return
+                    self._out[0].tries -= 1
                     self._ready(now)
                 return  # the control keeps waiting: the PC yields
             if state is _S.SEND_ACK:
-                # The peer has moved on to a transmission of its own: it has our telegram.
-                self.stats.implicit_acks += 1
-                self._sent_ok(now, implicit=True)
+                # Either the peer has moved on to a transmission of its own (it has our
+                # telegram) or this is its NAK with one bit changed: its telegram decides.
+                self._yield_to_peer(now, HostStatus.NO_QUITT)
+                return
             self._ready(now)
             return
         if b == EOT:
             if state in (_S.RECV_START, _S.RECV_END):
-                self._state = _S.IDLE
-                self._deadline = None
-                self._start_next(now)
+                self._receive_ended(now)
                 return
         elif b == NAK:
             if state is _S.SEND_ACK:
@@ -548,10 +574,16 @@ class SerialLink:
             self._nak(now)  # telegram names are printable: this block is spoilt
             return
         frame = Frame(body[:4].decode("ascii"), body[4:])
+        repeat = body == self._last_body
+        if self._ack_by_answer is not None and not repeat and self._out:
+            # The peer sent a new telegram after ours: it has ours (module docstring).
+            self._ack_by_answer = None
+            self.stats.implicit_acks += 1
+            self._sent_ok(now, implicit=True)
         self._write(RECEIVED)
         self._state = _S.RECV_END
         self._deadline = now + self.timing.time2
-        if self.drop_repeats and body == self._last_body:
+        if self.drop_repeats and repeat:
             self.stats.repeats_dropped += 1
             return
         self._last_body = body
