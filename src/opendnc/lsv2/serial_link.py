@@ -235,6 +235,7 @@ class _Outgoing:
     wire: bytes
     tries: int = 0
     framed: bool = False  # the frame went out at least once: the peer may hold it
+    enq_again: bool = False  # this try's ENQ was repeated after a late NAK
     failures: list[HostStatus] = field(default_factory=list)
 
 
@@ -270,6 +271,7 @@ class SerialLink:
         self._dle = False  # a DLE ended the last chunk outside a frame
         self._frame = bytearray()  # raw (stuffed) bytes after DLE STX
         self._scan = 0
+        self._spoilt = False  # the block being read began without its DLE STX
         self._last_body: bytes | None = None
         # We yielded to the peer's ENQ while our framed telegram waited for its DLE 1 (or for
         # DLE 0 of a repeat): a new telegram from the peer in this receive phase acknowledges it.
@@ -370,6 +372,7 @@ class SerialLink:
             return
         self._ack_by_answer = None
         self._out[0].tries += 1
+        self._out[0].enq_again = False
         self._write(_ENQ)
         self._state = _S.SEND_READY
         self._deadline = now + self.timing.time1
@@ -451,6 +454,11 @@ class SerialLink:
             b = data[i]
             i += 1
             if self._dle:
+                if b == DLE:
+                    # DLE DLE has no meaning outside a block: a repeated DLE (a gateway
+                    # replaying a chunk); the pair still starts with one DLE.
+                    self.stats.garbage += 1
+                    continue
                 self._dle = False
                 self._token_dle(b, now)
             elif b == DLE:
@@ -491,11 +499,28 @@ class SerialLink:
                 self._retry(now, HostStatus.TX_ERROR, eot=True)
                 return
             if state is _S.SEND_READY:
-                # Mostly a late answer to a block of the previous try; a peer that is really
-                # not ready stays silent too, so LSV2TIME1 decides.
+                # A late answer to the block of the previous try: the peer was still reading
+                # that block when our ENQ came, so took the ENQ (and any EOT) for block bytes,
+                # and now waits for EOT or ENQ. Ask once more at once rather than lose this
+                # try to LSV2TIME1; once per try, so a peer that NAKs every ENQ still ends.
                 self.stats.naks_received += 1
+                out = self._out[0]
+                if not out.enq_again:
+                    out.enq_again = True
+                    self._write(_ENQ)
+                    self._deadline = now + self.timing.time1
                 return
+        self._garbage(now)
+
+    def _garbage(self, now: float) -> None:
+        """Count a byte that fits no handshake; after our DLE 0 it means a block began unseen."""
         self.stats.garbage += 1
+        if self._state is _S.RECV_START:
+            # Perhaps the sender's DLE STX was lost or spoilt and its block is arriving: read
+            # on as a block that will be refused (NAK at its DLE ETX BCC or at LSV2TIME0),
+            # because it may hold ENQ or EOT bytes that must not be taken for handshake
+            # characters. A DLE STX still starts a clean block (it never occurs in a body).
+            self._start_frame(now, spoilt=True)
 
     def _token_dle(self, b: int, now: float) -> None:
         state = self._state
@@ -521,12 +546,16 @@ class SerialLink:
             self._start_next(now)
             return
         if b == STX and state is _S.RECV_START:
-            self._state = _S.RECV_FRAME
-            self._frame.clear()
-            self._scan = 0
-            self._deadline = now + self.timing.time0
+            self._start_frame(now, spoilt=False)
             return
-        self.stats.garbage += 1
+        self._garbage(now)
+
+    def _start_frame(self, now: float, *, spoilt: bool) -> None:
+        self._state = _S.RECV_FRAME
+        self._frame.clear()
+        self._scan = 0
+        self._spoilt = spoilt
+        self._deadline = now + self.timing.time0
 
     def _feed_frame(self, data: bytes, start: int, now: float) -> int:
         """Take frame bytes from ``data[start:]``; return the index after those consumed."""
@@ -545,6 +574,14 @@ class SerialLink:
                     self._nak(now)
                 return len(data)
             nxt = frame[j + 1]
+            if nxt == STX:
+                # DLE STX never occurs in a stuffed body: a block starts here (the sender
+                # repeats, or noise came before it). Drop what came before.
+                del frame[: j + 2]
+                base -= j + 2
+                pos = 0
+                self._spoilt = False
+                continue
             if nxt != ETX:
                 pos = j + 2  # DLE DLE is a data byte; any other pair spoils the block (BCC)
                 continue
@@ -565,6 +602,9 @@ class SerialLink:
             return start + used
 
     def _frame_done(self, raw: bytes, check: int, now: float) -> None:
+        if self._spoilt:
+            self._nak(now)  # its DLE STX never came: not a block we can trust
+            return
         body = raw.replace(_DLE_DLE, _DLE_B)
         stuffed_ok = body.replace(_DLE_B, _DLE_DLE) == raw
         if not stuffed_ok or len(body) < 4 or len(body) > self.max_body or bcc(body) != check:
