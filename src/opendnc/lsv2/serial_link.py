@@ -39,7 +39,12 @@ Choices where the public sources are silent (each is a setting or documented her
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
   sent in between, is acknowledged but not delivered twice. LSV2 alternates requests and
   answers, so two identical telegrams in a row from the same side never happen otherwise.
-* **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored.
+* **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored,
+  except right after our DLE '0': then they are a block whose DLE STX was lost, read to its end
+  and refused with NAK, so that payload bytes are not taken for ENQ or EOT. DLE DLE outside a
+  block counts as one DLE.
+* **Late NAK** — a NAK while waiting for DLE '0' refuses the block of the previous try, which
+  swallowed our retry ENQ: the ENQ is sent again at once (once per try).
 * **Link check** — :meth:`SerialLink.check_link` sends the lone ENQ that TNCremo sends before
   its first telegram; the peer's DLE '0' is answered by the next ENQ (or by EOT if nothing is
   queued), exactly as in the seed capture.
