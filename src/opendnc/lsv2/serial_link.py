@@ -24,17 +24,27 @@ Choices where the public sources are silent (each is a setting or documented her
   host status code of docs/lsv2-serial.md ("Host status codes").
 * **Collisions** — when both ends send ENQ, the client yields: it answers DLE '0', receives the
   control's telegram and then sends its own. The control ignores the client's ENQ.
-* **Implicit acknowledgement** — an ENQ received while waiting for DLE '1' means the peer has
-  ended the exchange and moved on (its DLE '1' was lost, it timed out waiting for our EOT and
-  now sends its own telegram). The engine counts our telegram as delivered. The client does the
-  same when the control's ENQ collides with a *repeat* of a telegram already framed once: in
-  LSV2 the control speaks only after a request (an unsolicited ``M_CC`` racing a spoilt
-  acknowledgement is the one case this reading gets wrong; the operation then times out).
+* **Implicit acknowledgement** — an ENQ received while waiting for DLE '1' may mean the peer
+  has ended the exchange and moved on (its DLE '1' was lost, it timed out waiting for our EOT
+  and now sends its own telegram). It may as well be the peer's NAK with one bit changed
+  (NAK 0x15 and ENQ 0x05 differ in one bit), so the ENQ alone proves nothing. The engine
+  answers DLE '0' and counts our telegram as delivered only when the peer then sends a *new*
+  telegram intact: LSV2 alternates requests and answers, so the peer speaks only after it has
+  ours. If no telegram comes (the "ENQ" was a spoilt NAK and the peer waits for EOT), the
+  receive phase times out and our telegram is sent again. The client does the same when the
+  control's ENQ collides with a *repeat* of a telegram already framed once (an unsolicited
+  ``M_CC`` racing a spoilt acknowledgement is the one case this reading gets wrong; the
+  operation then times out).
 * **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
   sent in between, is acknowledged but not delivered twice. LSV2 alternates requests and
   answers, so two identical telegrams in a row from the same side never happen otherwise.
-* **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored.
+* **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored,
+  except right after our DLE '0': then they are a block whose DLE STX was lost, read to its end
+  and refused with NAK, so that payload bytes are not taken for ENQ or EOT. DLE DLE outside a
+  block counts as one DLE.
+* **Late NAK** — a NAK while waiting for DLE '0' refuses the block of the previous try, which
+  swallowed our retry ENQ: the ENQ is sent again at once (once per try).
 * **Link check** — :meth:`SerialLink.check_link` sends the lone ENQ that TNCremo sends before
   its first telegram; the peer's DLE '0' is answered by the next ENQ (or by EOT if nothing is
   queued), exactly as in the seed capture.
@@ -230,6 +240,7 @@ class _Outgoing:
     wire: bytes
     tries: int = 0
     framed: bool = False  # the frame went out at least once: the peer may hold it
+    enq_again: bool = False  # this try's ENQ was repeated after a late NAK
     failures: list[HostStatus] = field(default_factory=list)
 
 
@@ -265,7 +276,11 @@ class SerialLink:
         self._dle = False  # a DLE ended the last chunk outside a frame
         self._frame = bytearray()  # raw (stuffed) bytes after DLE STX
         self._scan = 0
+        self._spoilt = False  # the block being read began without its DLE STX
         self._last_body: bytes | None = None
+        # We yielded to the peer's ENQ while our framed telegram waited for its DLE 1 (or for
+        # DLE 0 of a repeat): a new telegram from the peer in this receive phase acknowledges it.
+        self._ack_by_answer: HostStatus | None = None
 
     # -- public API ----------------------------------------------------------------------------
 
@@ -328,8 +343,7 @@ class SerialLink:
         else:
             # RECV_START (LSV2TIME2 after DLE 0) and RECV_END (no EOT after DLE 1 / NAK): the
             # line is considered idle again.
-            self._state = _S.IDLE
-            self._start_next(now)
+            self._receive_ended(now)
 
     def data_to_send(self) -> bytes:
         """Bytes to write to the line now (empty if none)."""
@@ -361,7 +375,9 @@ class SerialLink:
     def _start_next(self, now: float) -> None:
         if self._state is not _S.IDLE or not self._out:
             return
+        self._ack_by_answer = None
         self._out[0].tries += 1
+        self._out[0].enq_again = False
         self._write(_ENQ)
         self._state = _S.SEND_READY
         self._deadline = now + self.timing.time1
@@ -409,6 +425,25 @@ class SerialLink:
         self._state = _S.RECV_END
         self._deadline = now + self.timing.time2
 
+    def _yield_to_peer(self, now: float, status: HostStatus) -> None:
+        """Answer the peer's ENQ while our framed telegram is unconfirmed (see the docstring).
+
+        ``status`` is what this try failed with should no new telegram follow."""
+        self._ack_by_answer = status
+        self._ready(now)
+
+    def _receive_ended(self, now: float) -> None:
+        """The peer's transmission is over (EOT or LSV2TIME2): the line is idle again."""
+        self._state = _S.IDLE
+        self._deadline = None
+        status = self._ack_by_answer
+        if status is not None and self._out:
+            # We yielded to an "ENQ" that brought no telegram: ours was not confirmed.
+            self._ack_by_answer = None
+            self._retry(now, status, eot=False)
+            return
+        self._start_next(now)
+
     def _ready(self, now: float) -> None:
         self._write(READY)
         self._state = _S.RECV_START
@@ -424,6 +459,11 @@ class SerialLink:
             b = data[i]
             i += 1
             if self._dle:
+                if b == DLE:
+                    # DLE DLE has no meaning outside a block: a repeated DLE (a gateway
+                    # replaying a chunk); the pair still starts with one DLE.
+                    self.stats.garbage += 1
+                    continue
                 self._dle = False
                 self._token_dle(b, now)
             elif b == DLE:
@@ -439,25 +479,24 @@ class SerialLink:
                     # Collision: the PC yields, takes the control's telegram, then tries again.
                     self.stats.collisions += 1
                     if self._out[0].framed:
-                        # Our frame went out before and this is a retry: the control only
-                        # speaks after a request, so it has ours (its DLE 1 got spoilt).
-                        self.stats.implicit_acks += 1
-                        self._sent_ok(now, implicit=True)
-                    else:
-                        self._out[0].tries -= 1
+                        # Our frame went out before and this is a retry: if the control
+                        # now sends a telegram it has ours (its DLE 1 got spoilt). A late NAK
+                        # with one bit changed also reads ENQ: wait for the telegram.
+                        self._yield_to_peer(now, HostStatus.NO_ENQ)
+                        return
+                    self._out[0].tries -= 1
                     self._ready(now)
                 return  # the control keeps waiting: the PC yields
             if state is _S.SEND_ACK:
-                # The peer has moved on to a transmission of its own: it has our telegram.
-                self.stats.implicit_acks += 1
-                self._sent_ok(now, implicit=True)
+                # Either the peer has moved on to a transmission of its own (it has our
+                # telegram) or this is its NAK with one bit changed: its telegram decides.
+                self._yield_to_peer(now, HostStatus.NO_QUITT)
+                return
             self._ready(now)
             return
         if b == EOT:
             if state in (_S.RECV_START, _S.RECV_END):
-                self._state = _S.IDLE
-                self._deadline = None
-                self._start_next(now)
+                self._receive_ended(now)
                 return
         elif b == NAK:
             if state is _S.SEND_ACK:
@@ -465,11 +504,28 @@ class SerialLink:
                 self._retry(now, HostStatus.TX_ERROR, eot=True)
                 return
             if state is _S.SEND_READY:
-                # Mostly a late answer to a block of the previous try; a peer that is really
-                # not ready stays silent too, so LSV2TIME1 decides.
+                # A late answer to the block of the previous try: the peer was still reading
+                # that block when our ENQ came, so took the ENQ (and any EOT) for block bytes,
+                # and now waits for EOT or ENQ. Ask once more at once rather than lose this
+                # try to LSV2TIME1; once per try, so a peer that NAKs every ENQ still ends.
                 self.stats.naks_received += 1
+                out = self._out[0]
+                if not out.enq_again:
+                    out.enq_again = True
+                    self._write(_ENQ)
+                    self._deadline = now + self.timing.time1
                 return
+        self._garbage(now)
+
+    def _garbage(self, now: float) -> None:
+        """Count a byte that fits no handshake; after our DLE 0 it means a block began unseen."""
         self.stats.garbage += 1
+        if self._state is _S.RECV_START:
+            # Perhaps the sender's DLE STX was lost or spoilt and its block is arriving: read
+            # on as a block that will be refused (NAK at its DLE ETX BCC or at LSV2TIME0),
+            # because it may hold ENQ or EOT bytes that must not be taken for handshake
+            # characters. A DLE STX still starts a clean block (it never occurs in a body).
+            self._start_frame(now, spoilt=True)
 
     def _token_dle(self, b: int, now: float) -> None:
         state = self._state
@@ -495,12 +551,16 @@ class SerialLink:
             self._start_next(now)
             return
         if b == STX and state is _S.RECV_START:
-            self._state = _S.RECV_FRAME
-            self._frame.clear()
-            self._scan = 0
-            self._deadline = now + self.timing.time0
+            self._start_frame(now, spoilt=False)
             return
-        self.stats.garbage += 1
+        self._garbage(now)
+
+    def _start_frame(self, now: float, *, spoilt: bool) -> None:
+        self._state = _S.RECV_FRAME
+        self._frame.clear()
+        self._scan = 0
+        self._spoilt = spoilt
+        self._deadline = now + self.timing.time0
 
     def _feed_frame(self, data: bytes, start: int, now: float) -> int:
         """Take frame bytes from ``data[start:]``; return the index after those consumed."""
@@ -519,6 +579,14 @@ class SerialLink:
                     self._nak(now)
                 return len(data)
             nxt = frame[j + 1]
+            if nxt == STX:
+                # DLE STX never occurs in a stuffed body: a block starts here (the sender
+                # repeats, or noise came before it). Drop what came before.
+                del frame[: j + 2]
+                base -= j + 2
+                pos = 0
+                self._spoilt = False
+                continue
             if nxt != ETX:
                 pos = j + 2  # DLE DLE is a data byte; any other pair spoils the block (BCC)
                 continue
@@ -539,6 +607,9 @@ class SerialLink:
             return start + used
 
     def _frame_done(self, raw: bytes, check: int, now: float) -> None:
+        if self._spoilt:
+            self._nak(now)  # its DLE STX never came: not a block we can trust
+            return
         body = raw.replace(_DLE_DLE, _DLE_B)
         stuffed_ok = body.replace(_DLE_B, _DLE_DLE) == raw
         if not stuffed_ok or len(body) < 4 or len(body) > self.max_body or bcc(body) != check:
@@ -548,10 +619,16 @@ class SerialLink:
             self._nak(now)  # telegram names are printable: this block is spoilt
             return
         frame = Frame(body[:4].decode("ascii"), body[4:])
+        repeat = body == self._last_body
+        if self._ack_by_answer is not None and not repeat and self._out:
+            # The peer sent a new telegram after ours: it has ours (module docstring).
+            self._ack_by_answer = None
+            self.stats.implicit_acks += 1
+            self._sent_ok(now, implicit=True)
         self._write(RECEIVED)
         self._state = _S.RECV_END
         self._deadline = now + self.timing.time2
-        if self.drop_repeats and body == self._last_body:
+        if self.drop_repeats and repeat:
             self.stats.repeats_dropped += 1
             return
         self._last_body = body

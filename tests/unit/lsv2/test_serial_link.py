@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
-from opendnc.lsv2.framing import Frame
+from opendnc.lsv2.framing import Frame, encode_serial_frame
 from opendnc.lsv2.serial_link import (
     HostStatus,
     LinkChecked,
@@ -210,3 +210,81 @@ def test_describe_link_bytes() -> None:
     assert describe_link_bytes(ENQ + READY + LOGIN + EOT) == (
         "ENQ DLE 0 DLE STX 41 5F 4C 47 49 4E 53 50 45 43 54 00 DLE ETX 40 EOT"
     )
+
+
+def _client_waiting_for_dle1() -> SerialLink:
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("A_LG", b"INSPECT\x00"), 0.0)
+    assert pc.data_to_send() == ENQ
+    pc.receive_data(READY, 0.01)
+    assert pc.data_to_send() == LOGIN
+    return pc
+
+
+def test_enq_instead_of_dle1_then_no_telegram_repeats_ours() -> None:
+    """A NAK with one bit changed reads ENQ: it must not count as an acknowledgement."""
+    pc = _client_waiting_for_dle1()
+    pc.receive_data(bytes([NAK[0] ^ 0x10]), 0.1)  # NAK, bit 4 flipped: ENQ
+    assert pc.data_to_send() == READY  # yields, in case the control moved on
+    assert pc.next_event() is None
+    pc.tick(pc.deadline or 0.0)  # LSV2TIME2: no DLE STX came
+    assert pc.data_to_send() == ENQ  # the same telegram, second try
+    assert pc.next_event() is None
+    pc.receive_data(READY, 1.2)
+    assert pc.data_to_send() == LOGIN
+    pc.receive_data(RECEIVED, 1.3)
+    assert pc.data_to_send() == EOT
+    assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 2)
+
+
+def test_enq_instead_of_dle1_then_a_new_telegram_acknowledges_ours() -> None:
+    """The control's DLE 1 was lost and it answers: its answer proves it has our request."""
+    pc = _client_waiting_for_dle1()
+    pc.receive_data(ENQ, 0.1)
+    assert pc.data_to_send() == READY
+    pc.receive_data(T_OK, 0.2)
+    assert pc.data_to_send() == RECEIVED
+    assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 1)
+    assert pc.next_event() == TelegramReceived(Frame("T_OK", b""))
+    assert pc.stats.implicit_acks == 1
+    pc.receive_data(EOT, 0.3)
+    assert pc.idle
+
+
+def test_block_without_its_dle_stx_is_refused_whole() -> None:
+    """Payload ENQ / EOT bytes of a block whose start was lost are not handshake characters."""
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY
+    body = b"R_FL" + ENQ + EOT + ENQ
+    block = encode_serial_frame(body)
+    tnc.receive_data(block[1:], 0.01)  # the DLE of DLE STX was lost
+    assert tnc.data_to_send() == NAK  # once, at the block's end; no DLE 0 for the payload ENQ
+    assert tnc.next_event() is None
+    tnc.receive_data(EOT + ENQ, 0.02)  # the sender repeats
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(block, 0.03)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("R_FL", ENQ + EOT + ENQ))
+
+
+def test_noise_then_dle_stx_still_starts_a_block_and_dle_dle_is_one_dle() -> None:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    tnc.data_to_send()
+    tnc.receive_data(b"\x10" + LOGIN, 0.01)  # DLE repeated before STX
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("A_LG", b"INSPECT\x00"))
+
+
+def test_late_nak_gets_the_enq_again_once_per_try() -> None:
+    """The peer read our retry ENQ as bytes of the block it then refused: ask again at once."""
+    pc = _client_waiting_for_dle1()
+    pc.tick(pc.deadline or 0.0)  # no DLE 1 (LSV2TIME1)
+    assert pc.data_to_send() == EOT + ENQ
+    pc.receive_data(NAK, 3.5)
+    assert pc.data_to_send() == ENQ
+    pc.receive_data(NAK, 3.6)
+    assert pc.data_to_send() == b""  # once per try; LSV2TIME1 decides after that
+    pc.receive_data(READY, 3.7)
+    assert pc.data_to_send() == LOGIN
