@@ -96,6 +96,7 @@ class MachineConfig:
     profile: SerialProfile = field(default_factory=SerialProfile)
     mdc_port: int = 5051
     share: str = ""  # Haas net share folder (local path or smb://)
+    folder: str = ""  # where programs go on the control (LSV2: default TNC:/nc_prog)
     released_only: bool = False
     poll_interval: float = 1.0
     description: str = ""
@@ -237,7 +238,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 
 
 _MACHINE_KEYS = {
-    "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share",
+    "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
     "released_only", "poll_interval", "description",
 }  # fmt: skip
 _PROFILE_KEYS = {
@@ -288,6 +289,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         profile=_profile(_table(raw, "serial_profile"), f"{prefix}.serial_profile"),
         mdc_port=mdc_port,
         share=_get(raw, prefix, "share", str, ""),
+        folder=_get(raw, prefix, "folder", str, ""),
         released_only=_get(raw, prefix, "released_only", bool, False),
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),

@@ -54,8 +54,13 @@ __all__ = [
     "sync_machines",
 ]
 
-DEFAULT_ATTEMPTS = {JobKind.SEND: 3, JobKind.RECEIVE: 1, JobKind.BACKUP: 2,
-                    JobKind.DRIPFEED: 1, JobKind.DELETE: 2}  # fmt: skip
+DEFAULT_ATTEMPTS = {
+    JobKind.SEND: 3,
+    JobKind.RECEIVE: 1,
+    JobKind.BACKUP: 2,
+    JobKind.DRIPFEED: 1,
+    JobKind.DELETE: 2,
+}
 
 
 def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
@@ -65,8 +70,11 @@ def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
     for config in machines:
         row = existing.get(config.name)
         if row is None:
-            session.add(Machine(name=config.name, kind=config.kind.value,
-                                released_only=config.released_only))  # fmt: skip
+            session.add(
+                Machine(
+                    name=config.name, kind=config.kind.value, released_only=config.released_only
+                )
+            )
         else:
             row.kind = config.kind.value
             row.released_only = config.released_only
@@ -123,10 +131,15 @@ def enqueue(
     session.add(job)
     session.flush()
     audit.record(
-        session, actor, "job.queue", machine=machine, job_id=job.id,
+        session,
+        actor,
+        "job.queue",
+        machine=machine,
+        job_id=job.id,
         program=version.program.name if version else None,
-        sha256=version.sha256 if version else None, kind=kind.value,
-    )  # fmt: skip
+        sha256=version.sha256 if version else None,
+        kind=kind.value,
+    )
     return job
 
 
@@ -183,8 +196,7 @@ def claim(session: Session, machine: str, worker: str) -> Job | None:
     job.started = now
     job.attempts += 1
     job.error = ""
-    audit.record(session, worker, "job.start", machine=machine, job_id=job.id,
-                 attempt=job.attempts)  # fmt: skip
+    audit.record(session, worker, "job.start", machine=machine, job_id=job.id, attempt=job.attempts)
     return job
 
 
@@ -209,9 +221,16 @@ def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail
     if nbytes is not None:
         job.bytes_done = nbytes
     audit.record(
-        session, job.claimed_by or "server", f"job.{job.kind.value}", machine=job.machine,
-        job_id=job.id, nbytes=nbytes, by=job.created_by, **_program_fields(job), **detail,
-    )  # fmt: skip
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        nbytes=nbytes,
+        by=job.created_by,
+        **_program_fields(job),
+        **detail,
+    )
     return job
 
 
@@ -233,10 +252,16 @@ def fail(
         job.state = JobState.CANCELLED if job.cancel_requested else JobState.FAILED
         job.finished = utcnow()
     audit.record(
-        session, job.claimed_by or "server", f"job.{job.kind.value}", machine=job.machine,
-        job_id=job.id, result="retry" if again else job.state.value, error=error,
-        attempt=job.attempts, **_program_fields(job),
-    )  # fmt: skip
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        result="retry" if again else job.state.value,
+        error=error,
+        attempt=job.attempts,
+        **_program_fields(job),
+    )
     return job
 
 
@@ -246,9 +271,16 @@ def interrupt(session: Session, job_id: int, reason: str) -> Job:
     job.state = JobState.INTERRUPTED
     job.error = reason
     job.finished = utcnow()
-    audit.record(session, job.claimed_by or "server", f"job.{job.kind.value}",
-                 machine=job.machine, job_id=job.id, result="interrupted", error=reason,
-                 **_program_fields(job))  # fmt: skip
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        result="interrupted",
+        error=reason,
+        **_program_fields(job),
+    )
     return job
 
 
@@ -333,8 +365,10 @@ def retry(session: Session, job_id: int, *, actor: str, from_line: int | None = 
     """
     old = get_job(session, job_id)
     if old.state not in (JobState.FAILED, JobState.INTERRUPTED, JobState.CANCELLED):
-        raise Conflict(f"job {job_id} is {old.state.value}; only failed, interrupted or "
-                       "cancelled jobs are retried")  # fmt: skip
+        raise Conflict(
+            f"job {job_id} is {old.state.value}; only failed, interrupted or "
+            "cancelled jobs are retried"
+        )
     params = dict(old.params)
     if from_line is not None:
         if old.kind is not JobKind.DRIPFEED:

@@ -40,8 +40,14 @@ MAX_PROGRAM_BYTES = 256 * 1024 * 1024
 # One file name, as controls and shares accept it: no folders, no dot-names, no Windows
 # device names, nothing a path join could turn into a different place.
 _PROGRAM_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+$-]{0,99}$")
-_WINDOWS_DEVICES = {"CON", "PRN", "AUX", "NUL", *(f"COM{i}" for i in range(10)),
-                    *(f"LPT{i}" for i in range(10))}  # fmt: skip
+_WINDOWS_DEVICES = {
+    "CON",
+    "PRN",
+    "AUX",
+    "NUL",
+    *(f"COM{i}" for i in range(10)),
+    *(f"LPT{i}" for i in range(10)),
+}
 
 
 def check_program_name(name: str) -> str:
@@ -144,9 +150,16 @@ def add_version(
     session.add(version)
     session.flush()
     audit.record(
-        session, author, "program.version", program=name, sha256=digest, nbytes=len(data),
-        version=number, source=source, comment=comment,
-    )  # fmt: skip
+        session,
+        author,
+        "program.version",
+        program=name,
+        sha256=digest,
+        nbytes=len(data),
+        version=number,
+        source=source,
+        comment=comment,
+    )
     return version, True
 
 
@@ -164,8 +177,9 @@ def release(session: Session, name: str, number: int, *, actor: str) -> ProgramV
         if version.state is ProgramState.RELEASED:
             version.state = ProgramState.SUPERSEDED
     target.state = ProgramState.RELEASED
-    audit.record(session, actor, "program.release", program=name, sha256=target.sha256,
-                 version=number)  # fmt: skip
+    audit.record(
+        session, actor, "program.release", program=name, sha256=target.sha256, version=number
+    )
     return target
 
 

@@ -1,0 +1,91 @@
+"""Haas NGC controls over Ethernet: machine data (MDC Q-commands) and the net share.
+
+Programs go through the control's network share (Setting 262 onwards on NGC): the server
+writes the file into the share folder and the operator loads it from the control's device
+manager. A local (mounted) folder is read back to verify; for an ``smb://`` share the copy's
+own checks are all there is.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import tempfile
+from pathlib import Path
+
+from opendnc.errors import DncError, InputError, TransportError
+from opendnc.haas import share
+from opendnc.haas.mdc_client import AsyncMdcClient
+from opendnc.server.config import MachineConfig
+from opendnc.server.machines.base import MachineStatus, Progress
+from opendnc.server.store.models import utcnow
+
+__all__ = ["HaasNgcConnector"]
+
+# Q500's status word in MTConnect's EXECUTION vocabulary.
+_EXECUTION = {"IDLE": "READY", "BUSY": "ACTIVE", "FEED HOLD": "FEED_HOLD", "ALARM ON": "STOPPED"}
+
+
+class HaasNgcConnector:
+    """MDC for status, the net share for programs."""
+
+    def __init__(self, config: MachineConfig) -> None:
+        self.config = config
+        self._mdc: AsyncMdcClient | None = None
+
+    async def connect(self) -> None:
+        """Open the MDC connection."""
+        if self._mdc is None:
+            self._mdc = await AsyncMdcClient.connect(
+                self.config.host, self.config.mdc_port, timeout=3.0
+            )
+
+    async def close(self) -> None:
+        """Close the MDC connection."""
+        mdc, self._mdc = self._mdc, None
+        if mdc is not None:
+            with contextlib.suppress(DncError):  # the link is already gone
+                await mdc.close()
+
+    async def status(self) -> MachineStatus:
+        """Q500/Q104 and friends, summarised."""
+        if self._mdc is None:
+            raise TransportError(f"{self.config.name}: not connected")
+        st = await self._mdc.status()
+        word = (st.status or "").upper()
+        return MachineStatus(
+            at=utcnow(),
+            available=True,
+            execution=_EXECUTION.get(word, "READY" if not word else "ACTIVE"),
+            mode=(st.mode or "").upper(),
+            program=st.program or "",
+            part_count=st.parts,
+            tool=st.tool,
+            errors=("ALARM",) if "ALARM" in word else (),
+        )
+
+    def _target(self) -> share.ShareTarget:
+        if not self.config.share:
+            raise InputError(f"{self.config.name}: no share configured for sending programs")
+        return share.parse_target(self.config.share)
+
+    async def send(self, name: str, data: bytes, progress: Progress) -> None:
+        """Copy the program into the share (whole or not at all)."""
+        target = self._target()
+
+        def copy() -> None:
+            with tempfile.TemporaryDirectory(prefix="opendnc-send-") as tmp:
+                source = Path(tmp) / name
+                source.write_bytes(data)
+                share.push([source], target)
+
+        await asyncio.to_thread(copy)
+        progress(len(data), len(data))
+
+    async def verify(self, name: str, data: bytes) -> bool | None:
+        """Read the file back from a local share folder (None for an SMB share)."""
+        target = self._target()
+        if target.local is None:
+            return None
+        local = target.local / name
+        return await asyncio.to_thread(lambda: local.is_file() and local.read_bytes() == data)

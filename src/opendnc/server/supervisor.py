@@ -1,0 +1,228 @@
+"""One supervised asyncio task per machine: connect, poll status, run the machine's jobs.
+
+A task that loses its control closes the link, waits with exponential backoff (0.5 s up to
+30 s) and connects again; an error in one machine's task never reaches another's. Jobs are
+claimed when the API queues one in this process (a wake-up) and by a periodic sweep, which
+also picks up jobs queued by another server sharing the database and retries whose backoff
+has expired.
+
+Database work runs in worker threads (``asyncio.to_thread``): SQLAlchemy sessions are
+blocking, and a slow database must not stall the status polls of every machine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import DncError, TransportError
+from opendnc.server import jobs, library
+from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.events import EventBus
+from opendnc.server.machines import Connector, MachineStatus, connector_for
+from opendnc.server.store.models import JobKind, utcnow
+
+__all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
+
+log = logging.getLogger(__name__)
+
+ConnectorFactory = Callable[[MachineConfig], Connector]
+
+
+@dataclass
+class MachineState:
+    """What the server knows about one machine right now."""
+
+    config: MachineConfig
+    online: bool = False
+    status: MachineStatus | None = None
+    last_error: str = ""
+    job_id: int | None = None
+    job_progress: tuple[int, int | None] = (0, None)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def as_json(self) -> dict[str, Any]:
+        """A JSON-ready summary for the API."""
+        done, total = self.job_progress
+        return {
+            "name": self.config.name,
+            "kind": self.config.kind.value,
+            "description": self.config.description,
+            "released_only": self.config.released_only,
+            "online": self.online,
+            "status": self.status.as_json() if self.status else None,
+            "last_error": self.last_error,
+            "job": None
+            if self.job_id is None
+            else {"id": self.job_id, "bytes_done": done, "bytes_total": total},
+        }
+
+
+class Supervisor:
+    """Runs every configured machine; ``start()`` and ``stop()`` from the app's lifespan."""
+
+    def __init__(
+        self,
+        config: ShopConfig,
+        sessions: sessionmaker[Session],
+        bus: EventBus,
+        *,
+        connector_factory: ConnectorFactory = connector_for,
+        sweep_interval: float = 5.0,
+        retry_backoff: float = 2.0,
+    ) -> None:
+        self.config = config
+        self.sessions = sessions
+        self.bus = bus
+        self.connector_factory = connector_factory
+        self.sweep_interval = sweep_interval
+        self.retry_backoff = retry_backoff
+        self.worker = config.server.name
+        self.machines = {m.name: MachineState(m) for m in config.machines}
+        self._tasks: list[asyncio.Task[None]] = []
+
+    async def start(self) -> None:
+        """Recover jobs left running by a previous run, then start one task per machine."""
+        self.bus.bind(asyncio.get_running_loop())
+
+        def prepare() -> list[int]:
+            with self.sessions.begin() as session:
+                jobs.sync_machines(session, self.config.machines)
+                return [job.id for job in jobs.recover(session, self.worker)]
+
+        for job_id in await asyncio.to_thread(prepare):
+            log.warning("job %d was running when the server stopped: interrupted", job_id)
+        for state in self.machines.values():
+            self._tasks.append(asyncio.create_task(self._supervise(state), name=state.config.name))
+
+    async def stop(self) -> None:
+        """Cancel every machine task and wait for them to close their links."""
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks.clear()
+
+    def wake(self, machine: str) -> None:
+        """Tell ``machine``'s task that a job may be waiting."""
+        state = self.machines.get(machine)
+        if state is not None:
+            state.wake.set()
+
+    def _publish(self, state: MachineState) -> None:
+        self.bus.publish("machine", state.config.name, **state.as_json())
+
+    async def _supervise(self, state: MachineState) -> None:
+        connector = self.connector_factory(state.config)
+        backoff = 0.5
+        while True:
+            try:
+                await connector.connect()
+                state.online, state.last_error = True, ""
+                backoff = 0.5
+                await self._serve(state, connector)
+            except asyncio.CancelledError:
+                await connector.close()
+                raise
+            except Exception as exc:
+                if not isinstance(exc, DncError):
+                    log.exception("%s: unexpected error", state.config.name)
+                state.online = False
+                state.last_error = str(exc) or type(exc).__name__
+                state.status = MachineStatus(at=utcnow(), available=False, message=state.last_error)
+                self._publish(state)
+                await connector.close()
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, 30.0)
+
+    async def _serve(self, state: MachineState, connector: Connector) -> None:
+        loop = asyncio.get_running_loop()
+        next_sweep = 0.0
+        while True:
+            now = loop.time()
+            if state.wake.is_set() or now >= next_sweep:
+                state.wake.clear()
+                next_sweep = now + self.sweep_interval
+                while await self._run_next(state, connector):
+                    pass
+            state.status = await connector.status()
+            self._publish(state)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(state.wake.wait(), state.config.poll_interval)
+
+    async def _run_next(self, state: MachineState, connector: Connector) -> bool:
+        name = state.config.name
+
+        def claim() -> tuple[int, JobKind, str, bytes] | None:
+            with self.sessions.begin() as session:
+                job = jobs.claim(session, name, self.worker)
+                if job is None:
+                    return None
+                if job.version is None:
+                    jobs.fail(session, job.id, "the job names no program", retryable=False)
+                    return None
+                data = library.content(session, job.version)
+                return job.id, job.kind, job.version.program.name, data
+
+        claimed = await asyncio.to_thread(claim)
+        if claimed is None:
+            return False
+        job_id, kind, program, data = claimed
+        state.job_id, state.job_progress = job_id, (0, len(data))
+        self.bus.publish("job", str(job_id), id=job_id, machine=name, state="running")
+        try:
+            if kind is not JobKind.SEND:
+                raise DncError(f"{kind.value} jobs are not run by this server version yet")
+            verified = await self._send(state, connector, job_id, program, data)
+        except asyncio.CancelledError:
+            # Stopping the server mid-transfer: the next start marks the job interrupted.
+            raise
+        except Exception as exc:
+            reason = str(exc) or type(exc).__name__
+            retryable = isinstance(exc, DncError)
+            job = await asyncio.to_thread(self._fail, job_id, reason, retryable)
+            self.bus.publish("job", str(job_id), id=job_id, machine=name, state=job, error=reason)
+            state.job_id = None
+            if isinstance(exc, TransportError):
+                raise  # reconnect before the next job
+            return True
+        await asyncio.to_thread(self._finish, job_id, len(data), verified)
+        self.bus.publish("job", str(job_id), id=job_id, machine=name, state="done")
+        state.job_id = None
+        return True
+
+    def _fail(self, job_id: int, reason: str, retryable: bool) -> str:
+        with self.sessions.begin() as session:
+            return jobs.fail(
+                session, job_id, reason, retryable=retryable, backoff=self.retry_backoff
+            ).state.value
+
+    def _finish(self, job_id: int, nbytes: int, verified: bool | None) -> None:
+        with self.sessions.begin() as session:
+            jobs.finish(session, job_id, nbytes=nbytes, verified=verified)
+
+    async def _send(
+        self, state: MachineState, connector: Connector, job_id: int, program: str, data: bytes
+    ) -> bool | None:
+        def progress(done: int, total: int | None) -> None:
+            state.job_progress = (done, total)
+            self.bus.publish(
+                "job",
+                str(job_id),
+                id=job_id,
+                machine=state.config.name,
+                state="running",
+                bytes_done=done,
+                bytes_total=total,
+            )
+
+        await connector.send(program, data, progress)
+        verified = await connector.verify(program, data)
+        if verified is False:
+            raise DncError(f"{program}: the control holds different bytes after the load")
+        return verified
