@@ -66,7 +66,7 @@ class EventBus:
         finally:
             self._subscribers.discard(sub)
 
-    def publish(self, kind: str, key: str, **data: Any) -> None:
+    def publish(self, kind: str, key: str, data: dict[str, Any]) -> None:
         """Deliver an event to every subscriber (callable from any thread)."""
         event = Event(kind, key, data)
         loop = self._loop

@@ -115,7 +115,7 @@ class Supervisor:
             state.wake.set()
 
     def _publish(self, state: MachineState) -> None:
-        self.bus.publish("machine", state.config.name, **state.as_json())
+        self.bus.publish("machine", state.config.name, state.as_json())
 
     async def _supervise(self, state: MachineState) -> None:
         connector = self.connector_factory(state.config)
@@ -174,7 +174,7 @@ class Supervisor:
             return False
         job_id, kind, program, data = claimed
         state.job_id, state.job_progress = job_id, (0, len(data))
-        self.bus.publish("job", str(job_id), id=job_id, machine=name, state="running")
+        self._job_event(job_id, name, "running")
         try:
             if kind is not JobKind.SEND:
                 raise DncError(f"{kind.value} jobs are not run by this server version yet")
@@ -186,15 +186,19 @@ class Supervisor:
             reason = str(exc) or type(exc).__name__
             retryable = isinstance(exc, DncError)
             job = await asyncio.to_thread(self._fail, job_id, reason, retryable)
-            self.bus.publish("job", str(job_id), id=job_id, machine=name, state=job, error=reason)
+            self._job_event(job_id, name, job, error=reason)
             state.job_id = None
             if isinstance(exc, TransportError):
                 raise  # reconnect before the next job
             return True
         await asyncio.to_thread(self._finish, job_id, len(data), verified)
-        self.bus.publish("job", str(job_id), id=job_id, machine=name, state="done")
+        self._job_event(job_id, name, "done")
         state.job_id = None
         return True
+
+    def _job_event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
+        data = {"id": job_id, "machine": machine, "state": state, **extra}
+        self.bus.publish("job", str(job_id), data)
 
     def _fail(self, job_id: int, reason: str, retryable: bool) -> str:
         with self.sessions.begin() as session:
@@ -211,14 +215,8 @@ class Supervisor:
     ) -> bool | None:
         def progress(done: int, total: int | None) -> None:
             state.job_progress = (done, total)
-            self.bus.publish(
-                "job",
-                str(job_id),
-                id=job_id,
-                machine=state.config.name,
-                state="running",
-                bytes_done=done,
-                bytes_total=total,
+            self._job_event(
+                job_id, state.config.name, "running", bytes_done=done, bytes_total=total
             )
 
         await connector.send(program, data, progress)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Awaitable, Callable
+from typing import TypeVar
 
-from opendnc.errors import DncError, TransportError
+from opendnc.errors import ControlRefused, DncError, TransportError
 from opendnc.lsv2 import AsyncClient
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.server.config import MachineConfig
@@ -12,6 +14,8 @@ from opendnc.server.machines.base import MachineStatus, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Lsv2Connector"]
+
+T = TypeVar("T")
 
 # LSV2 program states in MTConnect's EXECUTION vocabulary.
 _EXECUTION = {
@@ -42,6 +46,7 @@ class Lsv2Connector:
         self.config = config
         self.folder = config.folder.rstrip("/\\") if config.folder else "TNC:/nc_prog"
         self._client: AsyncClient | None = None
+        self._refused: set[str] = set()
 
     def _require(self) -> AsyncClient:
         if self._client is None:
@@ -69,9 +74,13 @@ class Lsv2Connector:
         mode = await client.execution_mode()
         state = await client.program_state()
         program = await client.selected_program()
-        overrides = await client.overrides()
-        errors = await client.nc_errors()
-        feed, spindle, rapid = overrides.percent
+        overrides = await self._optional("overrides", client.overrides)
+        errors = await self._optional("nc_errors", client.nc_errors)
+        tool = await self._optional("current_tool", client.current_tool)
+        percent = {}
+        if overrides is not None:
+            feed, spindle, rapid = overrides.percent
+            percent = {"feed": feed, "spindle": spindle, "rapid": rapid}
         return MachineStatus(
             at=utcnow(),
             available=True,
@@ -79,9 +88,21 @@ class Lsv2Connector:
             mode=_MODE.get(mode, ""),
             program=program.main,
             line=program.line,
-            overrides={"feed": feed, "spindle": spindle, "rapid": rapid},
-            errors=tuple(e.text for e in errors),
+            tool=tool.number if tool is not None else None,
+            overrides=percent,
+            errors=tuple(e.text for e in errors or ()),
         )
+
+    async def _optional(self, what: str, read: Callable[[], Awaitable[T]]) -> T | None:
+        # Families differ in the run-info selectors they answer (and a TNC with no NC error
+        # refuses the error list); a refusal is remembered so it is not asked every poll.
+        if what in self._refused:
+            return None
+        try:
+            return await read()
+        except ControlRefused:
+            self._refused.add(what)
+            return None
 
     def _target(self, name: str) -> str:
         return f"{self.folder}/{name}"
@@ -94,5 +115,11 @@ class Lsv2Connector:
         await client.write_file(self._target(name), data, progress=progress)
 
     async def verify(self, name: str, data: bytes) -> bool | None:
-        """Read the program back and compare."""
-        return await self._require().read_file(self._target(name)) == data
+        """Read the program back and compare.
+
+        A text file travels in LSV2's ASCII mode, in which the control keeps lines in its own
+        form; it is read back with the line end the program came with, so a program written
+        with LF compares equal to itself.
+        """
+        line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
+        return await self._require().read_file(self._target(name), line_end=line_end) == data

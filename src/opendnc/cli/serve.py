@@ -1,0 +1,111 @@
+"""``opendnc serve`` and ``opendnc keys``: the DNC server and its API keys.
+
+The server's modules are imported inside the commands, so the rest of the command line starts
+without FastAPI, SQLAlchemy and uvicorn (and works where the ``server`` extra is missing).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.errors import InputError
+
+keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
+
+ConfigOption = typer.Option(..., "--config", "-c", help="The server's TOML configuration.")
+DbOption = typer.Option(None, "--db", help="Database URL (overrides the configuration).")
+
+
+def _require_server_extra() -> None:
+    try:
+        import fastapi  # noqa: F401
+        import sqlalchemy  # noqa: F401
+    except ImportError as exc:
+        raise InputError(
+            f"the server needs the 'server' extra ({exc.name} is missing): "
+            "pip install 'opendnc[server]'"
+        ) from None
+
+
+def serve(
+    config: Path = ConfigOption,
+    db: str | None = DbOption,
+    bind: str | None = typer.Option(None, "--bind", help="HOST:PORT (default from the config)."),
+) -> None:
+    """Run the DNC server: the machines of CONFIG, the API and server-sent events."""
+    with cli_errors():
+        _require_server_extra()
+        import asyncio
+
+        import uvicorn
+
+        from opendnc.server.app import build
+        from opendnc.server.config import load_config
+
+        shop = load_config(config)
+        host, port = shop.server.bind_host, shop.server.bind_port
+        if bind is not None:
+            host, sep, port_text = bind.rpartition(":")
+            if not sep or not port_text.isdigit():
+                raise InputError(f"--bind {bind!r}: expected HOST:PORT")
+            port = int(port_text)
+        server = build(shop, database=db)
+        settings = uvicorn.Config(
+            server.app, host=host, port=port, log_level="warning", lifespan="on"
+        )
+        web = uvicorn.Server(settings)
+        database = server.engine.url.render_as_string(hide_password=True)
+        console.print(
+            f"opendnc server on http://{host}:{port}/ ({len(shop.machines)} machines, "
+            f"database {database})",
+            highlight=False,
+            soft_wrap=True,
+        )
+        try:
+            asyncio.run(web.serve())
+        except OSError as exc:
+            raise InputError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
+        finally:
+            server.engine.dispose()
+
+
+@keys_app.command("create")
+def keys_create(
+    role: str = typer.Option(..., "--role", help="viewer, operator, programmer, approver, admin"),
+    config: Path = ConfigOption,
+    user: str | None = typer.Option(None, "--user", help="Owner (created if missing)."),
+    label: str = typer.Option("", "--label", help="What the key is for."),
+    db: str | None = DbOption,
+    json_out: bool = typer.Option(False, "--json", help="Print a JSON object."),
+) -> None:
+    """Create an API key and print it (it is shown only this once)."""
+    with cli_errors():
+        _require_server_extra()
+        from opendnc.server import auth
+        from opendnc.server.config import load_config
+        from opendnc.server.store.db import make_engine, make_sessions, migrate
+        from opendnc.server.store.models import Role
+
+        shop = load_config(config)
+        try:
+            parsed = Role.parse(role)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        engine = make_engine(db or shop.server.database)
+        try:
+            migrate(engine)
+            with make_sessions(engine).begin() as session:
+                owner = user or parsed.name.lower()
+                row, key = auth.create_key(
+                    session, owner, parsed, label=label, actor="cli", create_user_role=parsed
+                )
+                key_id = row.id
+        finally:
+            engine.dispose()
+        if json_out:
+            print_json({"id": key_id, "key": key, "user": owner, "role": parsed.name.lower()})
+        else:
+            typer.echo(key)
