@@ -132,20 +132,43 @@ class Shop:
     def start_machines(self) -> None:
         for i, (port, root) in enumerate(zip(self.tnc_ports, self.tnc_roots, strict=True)):
             self.start_tnc(i, port, root)
-        self.procs.start("cable", "sim", "cable", "--baud", "115200",
-                         "--link-a", str(self.cable_haas), "--link-b", str(self.cable_pc))  # fmt: skip
+        self.procs.start(
+            "cable",
+            "sim",
+            "cable",
+            "--baud",
+            "115200",
+            "--link-a",
+            str(self.cable_haas),
+            "--link-b",
+            str(self.cable_pc),
+        )
         _wait("the cable", lambda: self.cable_haas.exists() and self.cable_pc.exists())
-        self.procs.start("haas", "sim", "haas", "--serial", str(self.cable_haas), "--baud",
-                         "115200", "--serial-mode", "receive", "--root", str(self.haas_mem),
-                         "--mdc-port", str(_free_port()))  # fmt: skip
-        self.procs.start("ngc", "sim", "haas", "--root", str(self.ngc_mem),
-                         "--mdc-port", str(self.mdc_port))  # fmt: skip
+        self.procs.start(
+            "haas",
+            "sim",
+            "haas",
+            "--serial",
+            str(self.cable_haas),
+            "--baud",
+            "115200",
+            "--serial-mode",
+            "receive",
+            "--root",
+            str(self.haas_mem),
+            "--mdc-port",
+            str(_free_port()),
+        )
+        self.procs.start(
+            "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
+        )
         for port in (*self.tnc_ports, self.mdc_port):
             _wait(f"port {port}", _listening(port))
 
     def start_tnc(self, i: int, port: int, root: Path) -> None:
-        self.procs.start(f"tnc{i}", "sim", "tnc", "--profile", "tnc640", "--port", str(port),
-                         "--root", str(root))  # fmt: skip
+        self.procs.start(
+            f"tnc{i}", "sim", "tnc", "--profile", "tnc640", "--port", str(port), "--root", str(root)
+        )
 
     def write_config(self) -> None:
         a, b = self.tnc_ports
@@ -201,8 +224,18 @@ poll_interval = 0.2
         return done.stdout.strip()
 
     def key(self, role: str) -> str:
-        return self.cli("keys", "create", "--role", role, "--user", f"{role}-1",
-                        "--config", str(self.config), "--db", self.db_url)  # fmt: skip
+        return self.cli(
+            "keys",
+            "create",
+            "--role",
+            role,
+            "--user",
+            f"{role}-1",
+            "--config",
+            str(self.config),
+            "--db",
+            self.db_url,
+        )
 
     def start_server(self) -> httpx.Client:
         self.procs.start("server", "serve", "--config", str(self.config), "--db", self.db_url)
@@ -246,24 +279,33 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
 
         _wait("all machines online", lambda: all(m[1] for m in machines()), describe=machines)
 
-        up = client.put("/api/programs/O01234.nc", content=PROGRAM, headers=_auth(admin),
-                        params={"comment": "first cut"})  # fmt: skip
+        up = client.put(
+            "/api/programs/O01234.nc",
+            content=PROGRAM,
+            headers=_auth(admin),
+            params={"comment": "first cut"},
+        )
         assert up.status_code == 201, up.text
         assert up.json()["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
 
         # A draft is refused for the released-only machine, and nothing is queued.
-        draft = client.post("/api/jobs", headers=_auth(admin),
-                            json={"program": "O01234.nc", "version": 1,
-                                  "machines": ["tnc-a", "tnc-b"]})  # fmt: skip
+        draft = client.post(
+            "/api/jobs",
+            headers=_auth(admin),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a", "tnc-b"]},
+        )
         assert draft.status_code == 409
         assert "released programs only" in draft.json()["detail"]
         assert client.get("/api/jobs", headers=_auth(admin)).json() == []
 
         rel = client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
-        assert rel.status_code == 200 and rel.json()["state"] == "released"
-        sent = client.post("/api/jobs", headers=_auth(admin),
-                           json={"program": "O01234.nc",
-                                 "machines": ["tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"]})  # fmt: skip
+        assert rel.status_code == 200
+        assert rel.json()["state"] == "released"
+        sent = client.post(
+            "/api/jobs",
+            headers=_auth(admin),
+            json={"program": "O01234.nc", "machines": ["tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"]},
+        )
         assert sent.status_code == 201, sent.text
         jobs = _wait_jobs(client, admin, [j["id"] for j in sent.json()])
         assert [j["state"] for j in jobs] == ["done"] * 4, [j["error"] for j in jobs]
@@ -294,10 +336,14 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
         assert client.put("/api/programs/O1.nc", content=PROGRAM).status_code == 401
         bad_key = _auth("odk_" + "x" * 43)
         assert client.get("/api/machines", headers=bad_key).status_code == 401
-        assert client.put("/api/programs/O1.nc", content=PROGRAM,
-                          headers=_auth(viewer)).status_code == 403  # fmt: skip
-        assert client.put("/api/programs/O1.nc", content=PROGRAM,
-                          headers=_auth(operator)).status_code == 403  # fmt: skip
+        assert (
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=_auth(viewer)).status_code
+            == 403
+        )
+        assert (
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=_auth(operator)).status_code
+            == 403
+        )
         key = client.post("/api/keys", headers=_auth(operator), json={"user": "x", "role": "admin"})
         assert key.status_code == 403
         programmer = shop.key("programmer")
@@ -316,11 +362,14 @@ def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs
     admin = shop.key("admin")
     procs.stop("tnc1", signal.SIGKILL)  # tnc-b is away when the job is queued
     with shop.start_server() as client:
-        assert client.put("/api/programs/O01234.nc", content=PROGRAM,
-                          headers=_auth(admin)).status_code == 201  # fmt: skip
+        assert (
+            client.put("/api/programs/O01234.nc", content=PROGRAM, headers=_auth(admin)).status_code
+            == 201
+        )
         client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
-        sent = client.post("/api/jobs", headers=_auth(admin),
-                           json={"program": "O01234.nc", "machines": ["tnc-b"]})  # fmt: skip
+        sent = client.post(
+            "/api/jobs", headers=_auth(admin), json={"program": "O01234.nc", "machines": ["tnc-b"]}
+        )
         job_id = sent.json()[0]["id"]
         machine = _wait(
             "the server to find tnc-b away",
@@ -348,13 +397,19 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
         client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
         ids = []
         for _ in range(3):
-            sent = client.post("/api/jobs", headers=_auth(admin),
-                               json={"program": "O01234.nc", "machines": ["vf2-serial"]})  # fmt: skip
+            sent = client.post(
+                "/api/jobs",
+                headers=_auth(admin),
+                json={"program": "O01234.nc", "machines": ["vf2-serial"]},
+            )
             ids.append(sent.json()[0]["id"])
         # Kill the server while the first XModem transfer is on the line.
-        _wait("the first job to run",
-              lambda: client.get(f"/api/jobs/{ids[0]}", headers=_auth(admin)).json()["state"]
-              == "running")  # fmt: skip
+        _wait(
+            "the first job to run",
+            lambda: (
+                client.get(f"/api/jobs/{ids[0]}", headers=_auth(admin)).json()["state"] == "running"
+            ),
+        )
     procs.stop("server", signal.SIGKILL)
     with shop.start_server() as client:
         first = client.get(f"/api/jobs/{ids[0]}", headers=_auth(admin)).json()
@@ -362,7 +417,8 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
         assert "server stopped" in first["error"]
         rest = _wait_jobs(client, admin, ids[1:])
         assert [j["state"] for j in rest] == ["done", "done"]
-        starts = client.get("/api/audit", headers=_auth(admin),
-                            params={"action": "job.start", "limit": 100}).json()  # fmt: skip
+        starts = client.get(
+            "/api/audit", headers=_auth(admin), params={"action": "job.start", "limit": 100}
+        ).json()
         per_job = {i: sum(1 for r in starts if r["job_id"] == i) for i in ids}
         assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}

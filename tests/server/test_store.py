@@ -20,8 +20,16 @@ def test_migrates_an_empty_database_to_head_and_back(db_url: str) -> None:
         migrate(engine)
         assert current_revision(engine) == head_revision()
         tables = set(inspect(engine).get_table_names())
-        assert {"users", "api_keys", "machines", "programs", "program_versions", "blobs",
-                "jobs", "audit"} <= tables  # fmt: skip
+        assert {
+            "users",
+            "api_keys",
+            "machines",
+            "programs",
+            "program_versions",
+            "blobs",
+            "jobs",
+            "audit",
+        } <= tables
         migrate(engine, "base")
         assert current_revision(engine) is None
         assert "jobs" not in set(inspect(engine).get_table_names())
