@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from opendnc.cli import sim_cable, sim_haas, sim_tnc
+from opendnc.cli import sim_cable, sim_fleet, sim_haas, sim_tnc
 
 app = typer.Typer(
     help="Virtual controls and links for testing without a machine.", no_args_is_help=True
@@ -12,3 +12,4 @@ app = typer.Typer(
 app.command("tnc")(sim_tnc.tnc)
 app.command("cable")(sim_cable.cable)
 app.command("haas")(sim_haas.haas)
+app.command("fleet")(sim_fleet.fleet)
