@@ -19,7 +19,8 @@ ConfigOption = typer.Option(..., "--config", "-c", help="The server's TOML confi
 DbOption = typer.Option(None, "--db", help="Database URL (overrides the configuration).")
 
 
-def _require_server_extra() -> None:
+def require_server_extra() -> None:
+    """Raise :class:`InputError` naming the extra when the server's libraries are missing."""
     try:
         import fastapi  # noqa: F401
         import sqlalchemy  # noqa: F401
@@ -37,7 +38,7 @@ def serve(
 ) -> None:
     """Run the DNC server: the machines of CONFIG, the API and server-sent events."""
     with cli_errors():
-        _require_server_extra()
+        require_server_extra()
         import asyncio
 
         import uvicorn
@@ -83,7 +84,7 @@ def keys_create(
 ) -> None:
     """Create an API key and print it (it is shown only this once)."""
     with cli_errors():
-        _require_server_extra()
+        require_server_extra()
         from opendnc.server import auth
         from opendnc.server.config import load_config
         from opendnc.server.store.db import make_engine, make_sessions, migrate

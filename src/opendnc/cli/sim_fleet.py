@@ -17,6 +17,9 @@ from opendnc.errors import InputError, TransportError
 def fleet(
     tnc: int = typer.Option(2, "--tnc", help="Virtual TNCs (LSV2) to start."),
     haas: int = typer.Option(2, "--haas", help="Virtual Haas NGCs (MDC + share) to start."),
+    serial_haas: int = typer.Option(
+        0, "--serial-haas", help="Virtual Haas on virtual RS-232 cables (XModem, drip-feed)."
+    ),
     base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
     root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
@@ -32,7 +35,13 @@ def fleet(
 
     async def main(folder: Path) -> None:
         started = await start_fleet(
-            folder, tnc=tnc, haas=haas, host=host, base_port=base_port, profile=profile
+            folder,
+            tnc=tnc,
+            haas=haas,
+            host=host,
+            base_port=base_port,
+            profile=profile,
+            serial_haas=serial_haas,
         )
         try:
             if config_out is not None:
@@ -57,7 +66,7 @@ def fleet(
         console.print("stopped")
 
     with cli_errors():
-        if tnc < 0 or haas < 0:
+        if tnc < 0 or haas < 0 or serial_haas < 0:
             raise InputError("--tnc and --haas count controls: 0 or more")
         try:
             if root is not None:

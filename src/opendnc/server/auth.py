@@ -29,6 +29,7 @@ __all__ = [
     "check_password",
     "create_key",
     "create_user",
+    "find_user",
     "revoke_key",
 ]
 
@@ -73,6 +74,11 @@ def create_user(
     session.flush()
     audit.record(session, actor, "user.create", user=name, role=role.name.lower())
     return user
+
+
+def find_user(session: Session, name: str) -> User | None:
+    """The user called ``name``, if there is one."""
+    return session.scalar(select(User).where(User.name == name))
 
 
 def check_password(session: Session, name: str, password: str) -> Principal:

@@ -202,7 +202,8 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     _known(table, "server", {"bind", "database", "name"})
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
-    if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+    # Port 0 takes any free port (tests, the demo); the server prints the one it got.
+    if not sep or not host or not port_text.isdigit() or not 0 <= int(port_text) < 65536:
         raise ConfigError("server.bind", f"expected HOST:PORT, got {bind!r}")
     database = _get(table, "server", "database", str, "")
     if not database:

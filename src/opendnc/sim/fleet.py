@@ -14,11 +14,15 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from opendnc.errors import InputError
 from opendnc.sim.haas.app import SimHaas, SimOptions
 from opendnc.sim.haas.control import HaasConfig
 from opendnc.sim.tnc.server import TncServer, serve_tnc
+
+if TYPE_CHECKING:
+    from opendnc.sim.cable.link import VirtualCable
 
 __all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
 
@@ -28,10 +32,12 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    kind: str  # "lsv2" or "haas_ngc", as in the server's configuration
+    kind: str  # "lsv2", "haas_ngc" or "haas_serial", as in the server's configuration
     host: str
-    port: int
+    port: int  # 0 for a serial machine
     root: Path
+    serial: str = ""  # the PC's end of a virtual cable
+    baud: int = 0
 
 
 @dataclass
@@ -41,6 +47,7 @@ class Fleet:
     machines: list[FleetMachine] = field(default_factory=list)
     _tncs: list[TncServer] = field(default_factory=list, repr=False)
     _haas: list[SimHaas] = field(default_factory=list, repr=False)
+    _cables: list[VirtualCable] = field(default_factory=list, repr=False)
 
     async def close(self) -> None:
         """Stop every control."""
@@ -48,8 +55,11 @@ class Fleet:
             await tnc.close()
         for haas in self._haas:
             await haas.close()
+        for cable in self._cables:
+            cable.close()
         self._tncs.clear()
         self._haas.clear()
+        self._cables.clear()
 
 
 async def start_fleet(
@@ -60,13 +70,17 @@ async def start_fleet(
     host: str = "127.0.0.1",
     base_port: int = 0,
     profile: str = "tnc640",
+    serial_haas: int = 0,
+    baud: int = 115200,
 ) -> Fleet:
-    """Start ``tnc`` virtual TNCs and ``haas`` virtual Haas NGCs under ``root``.
+    """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
+    on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
 
     With ``base_port`` 0 every control takes a free port; otherwise the TNCs listen on
-    ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them.
+    ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them. A serial Haas
+    answers XModem and drip-feed on its cable (``auto`` serial mode).
     """
-    if tnc < 0 or haas < 0 or tnc + haas == 0:
+    if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
     if base_port and not 0 < base_port <= 65535 - (tnc + haas):
         raise InputError(f"--base-port {base_port}: the fleet needs {tnc + haas} ports above it")
@@ -92,10 +106,32 @@ async def start_fleet(
             fleet.machines.append(
                 FleetMachine(f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder)
             )
+        for k in range(serial_haas):
+            await _start_serial_haas(fleet, root / f"haas-serial-{k + 1}", k, baud)
     except BaseException:
         await fleet.close()
         raise
     return fleet
+
+
+async def _start_serial_haas(fleet: Fleet, folder: Path, k: int, baud: int) -> None:
+    # Imported here: the serial front-end and the cable need ptys (POSIX).
+    from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.haas.serial_front import SerialOptions, parse_mode, start_serial
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cable = VirtualCable(baud).start()
+    fleet._cables.append(cable)
+    sim = SimHaas(
+        HaasConfig(model="VF-2", serial_number=f"{2000000 + k}"), folder, SimOptions(mdc_port=None)
+    )
+    await sim.start()
+    fleet._haas.append(sim)
+    options = SerialOptions(baud=baud, mode=parse_mode("auto"))
+    sim.add_front_end(await start_serial(sim, cable.path_a, baud, None, options))
+    fleet.machines.append(
+        FleetMachine(f"haas-serial-{k + 1}", "haas_serial", "", 0, folder, cable.path_b, baud)
+    )
 
 
 def server_config(
@@ -133,6 +169,8 @@ def server_config(
         ]
         if m.kind == "lsv2":
             lines.append(f"port = {m.port}")
+        elif m.kind == "haas_serial":
+            lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
         else:
             lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
     return "\n".join(lines) + "\n"
