@@ -7,6 +7,8 @@ in-process client alike.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -22,6 +24,7 @@ from opendnc.server.events import EventBus
 from opendnc.server.machines import connector_for
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.supervisor import ConnectorFactory, Supervisor
+from opendnc.server.watcher import LibraryWatcher
 
 __all__ = ["Server", "build"]
 
@@ -35,6 +38,7 @@ class Server:
     sessions: sessionmaker[Session]
     bus: EventBus
     supervisor: Supervisor
+    watcher: LibraryWatcher
     app: FastAPI
 
 
@@ -62,14 +66,27 @@ def build(
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)
 
+    watcher = LibraryWatcher(
+        config.library.path,
+        sessions,
+        poll=config.library.poll,
+        on_version=lambda name, number: bus.publish(
+            "program", name, {"name": name, "version": number, "source": "watcher"}
+        ),
+    )
+
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         await supervisor.start()
+        watching = asyncio.create_task(watcher.run(), name="library-watcher")
         try:
             yield
         finally:
+            watching.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watching
             await supervisor.stop()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
-    return Server(config, engine, sessions, bus, supervisor, app)
+    return Server(config, engine, sessions, bus, supervisor, watcher, app)

@@ -14,6 +14,7 @@ Example::
 
     [library]
     path = "programs"                      # the watched library folder
+    watch = "notify"                       # or "poll" on a network share
     inbox = "inbox"                        # programs received from the controls
     archive = "archive"
 
@@ -109,6 +110,7 @@ class LibraryConfig:
     path: Path
     inbox: Path
     archive: Path
+    poll: bool = False  # poll the library folder instead of change notifications (shares)
 
 
 @dataclass(frozen=True)
@@ -223,7 +225,10 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
 
 
 def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
-    _known(table, "library", {"path", "inbox", "archive"})
+    _known(table, "library", {"path", "inbox", "archive", "watch"})
+    watch = _get(table, "library", "watch", str, "notify")
+    if watch not in ("notify", "poll"):
+        raise ConfigError("library.watch", "expected notify or poll (poll for network shares)")
 
     def folder(key: str, default: str) -> Path:
         value: str = _get(table, "library", key, str, default)
@@ -235,6 +240,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
         path=folder("path", "programs"),
         inbox=folder("inbox", "inbox"),
         archive=folder("archive", "archive"),
+        poll=watch == "poll",
     )
 
 
