@@ -24,7 +24,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError
-from opendnc.server import audit, auth, jobs, library
+from opendnc.server import audit, auth, inbox, jobs, library
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import EventBus
 from opendnc.server.store.models import (
@@ -34,6 +34,8 @@ from opendnc.server.store.models import (
     JobState,
     Program,
     ProgramVersion,
+    Received,
+    ReceivedState,
     Role,
 )
 from opendnc.server.supervisor import Supervisor
@@ -441,6 +443,71 @@ def list_audit(
     if format != "json":
         raise InputError("format is json or csv")
     return rows
+
+
+def received_json(r: Received) -> dict[str, Any]:
+    """A reception as JSON."""
+    return {
+        "id": r.id,
+        "machine": r.machine,
+        "name": r.name,
+        "sha256": r.sha256,
+        "size": r.size,
+        "state": r.state.value,
+        "reason": r.reason,
+        "at": r.at.isoformat(),
+        "version_id": r.version_id,
+    }
+
+
+@router.get("/inbox")
+def list_inbox(
+    db: Db,
+    _who: Viewer,
+    state: Annotated[list[ReceivedState] | None, Query()] = None,
+    limit: int = 200,
+) -> list[dict[str, Any]]:
+    """Programs received from the controls (new ones unless ``state`` says otherwise)."""
+    states = state if state is not None else [ReceivedState.NEW]
+    return [received_json(r) for r in inbox.list_received(db, states, limit)]
+
+
+@router.get("/inbox/{received_id}")
+def get_received(db: Db, received_id: int, _who: Viewer) -> dict[str, Any]:
+    """One reception, with its diff against the released version of the same name."""
+    row = inbox.get(db, received_id)
+    return {**received_json(row), "diff": inbox.diff_to_released(db, received_id)}
+
+
+@router.get("/inbox/{received_id}/content")
+def received_content(db: Db, received_id: int, _who: Viewer) -> Response:
+    """The received bytes."""
+    row = inbox.get(db, received_id)
+    return Response(
+        inbox.content(db, row),
+        media_type="application/octet-stream",
+        headers={"X-Content-SHA256": row.sha256},
+    )
+
+
+class AcceptRequest(BaseModel):
+    """Accept a reception, optionally under another program name."""
+
+    name: str | None = None
+
+
+@router.post("/inbox/{received_id}/accept")
+def accept_received(
+    db: Db, received_id: int, body: AcceptRequest, who: Programmer
+) -> dict[str, Any]:
+    """Make the reception a new draft version in the library."""
+    return version_json(inbox.accept(db, received_id, actor=who.name, name=body.name))
+
+
+@router.post("/inbox/{received_id}/discard")
+def discard_received(db: Db, received_id: int, who: Programmer) -> dict[str, Any]:
+    """Drop the reception from the inbox."""
+    return received_json(inbox.discard(db, received_id, actor=who.name))
 
 
 class KeyRequest(BaseModel):

@@ -18,6 +18,10 @@ Example::
     inbox = "inbox"                        # programs received from the controls
     archive = "archive"
 
+    [requests]                             # remote request from the control
+    delay = 5.0                            # seconds to switch the control to receive
+    reports = "failures"                   # report programs sent back: failures, all, none
+
     [[machines]]
     name = "mill-1"
     kind = "lsv2"                          # lsv2 | haas_serial | haas_ngc
@@ -35,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from opendnc.errors import InputError
+from opendnc.server.requests import RequestRule, RequestSettings
 
 __all__ = [
     "ConfigError",
@@ -131,6 +136,7 @@ class ShopConfig:
     library: LibraryConfig
     machines: tuple[MachineConfig, ...]
     source: Path | None = None
+    requests: RequestSettings = field(default_factory=RequestSettings)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -158,7 +164,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("", f"not valid TOML: {exc}") from exc
-    _known(raw, "", {"server", "library", "machines"})
+    _known(raw, "", {"server", "library", "machines", "requests"})
     server = _server(_table(raw, "server"), base)
     library = _library(_table(raw, "library"), base)
     machines_raw = raw.get("machines", [])
@@ -170,7 +176,50 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         if machine.name.lower() in seen:
             raise ConfigError(f"machines[{i}].name", f"{machine.name!r} is used twice")
         seen.add(machine.name.lower())
-    return ShopConfig(server=server, library=library, machines=machines, source=source)
+    requests = _requests(_table(raw, "requests"))
+    return ShopConfig(
+        server=server, library=library, machines=machines, source=source, requests=requests
+    )
+
+
+def _requests(table: dict[str, Any]) -> RequestSettings:
+    _known(table, "requests", {"delay", "scan_lines", "report_program", "reports", "rules"})
+    default = RequestSettings()
+    delay = _get(table, "requests", "delay", float, default.delay)
+    if not 0 <= delay <= 600:
+        raise ConfigError("requests.delay", "expected 0..600 seconds")
+    scan = _get(table, "requests", "scan_lines", int, default.scan_lines)
+    if not 1 <= scan <= 100:
+        raise ConfigError("requests.scan_lines", "expected 1..100 lines")
+    number = _get(table, "requests", "report_program", int, default.report_program)
+    if not 1 <= number <= 99999:
+        raise ConfigError("requests.report_program", "expected an O-number 1..99999")
+    reports = _get(table, "requests", "reports", str, default.reports)
+    if reports not in ("failures", "all", "none"):
+        raise ConfigError("requests.reports", "expected failures, all or none")
+    rules_raw = table.get("rules")
+    rules = default.rules
+    if rules_raw is not None:
+        if not isinstance(rules_raw, list) or not rules_raw:
+            raise ConfigError("requests.rules", "expected an array of tables ([[requests.rules]])")
+        built = []
+        for i, item in enumerate(rules_raw):
+            key = f"requests.rules[{i}]"
+            if not isinstance(item, dict):
+                raise ConfigError(key, "expected a table")
+            _known(item, key, {"pattern", "template"})
+            pattern = _get(item, key, "pattern", str, "")
+            template = _get(item, key, "template", str, "")
+            if not pattern or not template:
+                raise ConfigError(key, "needs pattern and template")
+            try:
+                built.append(RequestRule.make(pattern, template, key=key))
+            except InputError as exc:
+                raise ConfigError(key, str(exc).removeprefix(f"{key}.")) from None
+        rules = tuple(built)
+    return RequestSettings(
+        delay=delay, scan_lines=scan, report_program=number, reports=reports, rules=rules
+    )
 
 
 def _table(raw: dict[str, Any], key: str) -> dict[str, Any]:

@@ -18,7 +18,7 @@ part of the program, so it ends *interrupted* and a person restarts it from a li
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import or_, select, update
@@ -60,6 +60,7 @@ DEFAULT_ATTEMPTS = {
     JobKind.BACKUP: 2,
     JobKind.DRIPFEED: 1,
     JobKind.DELETE: 2,
+    JobKind.REPORT: 3,
 }
 
 
@@ -107,8 +108,9 @@ def enqueue(
     version: ProgramVersion | None = None,
     params: dict[str, Any] | None = None,
     max_attempts: int | None = None,
+    not_before: datetime | None = None,
 ) -> Job:
-    """Queue a job at the end of ``machine``'s queue."""
+    """Queue a job at the end of ``machine``'s queue (not run before ``not_before``)."""
     row = _machine(session, machine)
     if kind in (JobKind.SEND, JobKind.DRIPFEED):
         if version is None:
@@ -127,6 +129,7 @@ def enqueue(
         params=dict(params or {}),
         max_attempts=max_attempts or DEFAULT_ATTEMPTS[kind],
         created_by=actor,
+        not_before=not_before,
     )
     session.add(job)
     session.flush()

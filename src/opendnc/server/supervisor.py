@@ -17,15 +17,17 @@ import contextlib
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, TransportError
-from opendnc.server import jobs, library
+from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.errors import NotFound
 from opendnc.server.events import EventBus
-from opendnc.server.machines import Connector, MachineStatus, connector_for
+from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.store.models import JobKind, utcnow
 
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
@@ -152,8 +154,15 @@ class Supervisor:
                     pass
             state.status = await connector.status()
             self._publish(state)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(state.wake.wait(), state.config.poll_interval)
+            if connector.listens:
+                # Waiting for a punch or a remote request is what a serial port does between
+                # jobs; a queued job waits at most one listening window.
+                reception = await connector.listen(state.config.poll_interval)
+                if reception is not None:
+                    await self._received(state, reception)
+            else:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(state.wake.wait(), state.config.poll_interval)
 
     async def _run_next(self, state: MachineState, connector: Connector) -> bool:
         name = state.config.name
@@ -163,6 +172,9 @@ class Supervisor:
                 job = jobs.claim(session, name, self.worker)
                 if job is None:
                     return None
+                if job.kind is JobKind.REPORT:
+                    report = str(job.params.get("report", ""))
+                    return job.id, job.kind, str(job.params.get("name")), report.encode("latin-1")
                 if job.version is None:
                     jobs.fail(session, job.id, "the job names no program", retryable=False)
                     return None
@@ -176,7 +188,7 @@ class Supervisor:
         state.job_id, state.job_progress = job_id, (0, len(data))
         self._job_event(job_id, name, "running")
         try:
-            if kind is not JobKind.SEND:
+            if kind not in (JobKind.SEND, JobKind.REPORT):
                 raise DncError(f"{kind.value} jobs are not run by this server version yet")
             verified = await self._send(state, connector, job_id, program, data)
         except asyncio.CancelledError:
@@ -195,6 +207,100 @@ class Supervisor:
         self._job_event(job_id, name, "done")
         state.job_id = None
         return True
+
+    async def _received(self, state: MachineState, reception: Reception) -> None:
+        """File a program the control sent: into the inbox, or answer it as a request."""
+        settings = self.config.requests
+        machine = state.config
+        folder = self.config.library.inbox
+
+        def handle() -> tuple[str, float | None]:
+            with self.sessions.begin() as session:
+                if reception.failed:
+                    row = inbox.store(
+                        session,
+                        machine.name,
+                        reception.data,
+                        folder=folder,
+                        failed=reception.failed,
+                    )
+                    return f"reception failed: {row.reason}", None
+                names = requests.find_request(reception.data, settings)
+                if names is None:
+                    row = inbox.store(session, machine.name, reception.data, folder=folder)
+                    if settings.reports == "all":
+                        self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
+                    return f"received {row.name} into the inbox", None
+                return self._answer_request(session, machine, names), settings.delay
+
+        message, delay = await asyncio.to_thread(handle)
+        state.last_error = "" if not reception.failed else message
+        self.bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        if delay is not None:
+            # Wake the machine when the answer falls due (the request delay).
+            asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
+            state.wake.set()
+
+    def _answer_request(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
+        settings = self.config.requests
+        due = utcnow() + timedelta(seconds=settings.delay)
+        problems: list[str] = []
+        sent: list[str] = []
+        for name in names:
+            try:
+                version = library.released_version(session, name)
+                if version is None and not machine.released_only:
+                    version = library.get_version(session, name)
+            except NotFound:
+                problems.append(f"{name} NOT IN LIBRARY")
+                continue
+            if version is None:
+                problems.append(f"{name} NOT RELEASED")
+                continue
+            jobs.enqueue(
+                session,
+                JobKind.SEND,
+                machine.name,
+                actor=f"request@{machine.name}",
+                version=version,
+                params={"request": True},
+                not_before=due,
+            )
+            sent.append(name)
+        audit.record(
+            session,
+            machine.name,
+            "program.request",
+            machine=machine.name,
+            requested=names,
+            sent=sent,
+            refused=problems,
+            result="ok" if not problems else "refused",
+        )
+        if problems and settings.reports != "none":
+            self._report(session, machine, "REQUEST FAILED", problems, due)
+        elif sent and settings.reports == "all":
+            self._report(session, machine, "REQUEST", [f"SENDING {n}" for n in sent], due)
+        return f"request for {', '.join(names)}: {len(sent)} queued, {len(problems)} refused"
+
+    def _report(
+        self,
+        session: Session,
+        machine: MachineConfig,
+        title: str,
+        lines: list[str],
+        due: datetime | None = None,
+    ) -> None:
+        number = self.config.requests.report_program
+        text = requests.report_program(number, title, lines).decode("ascii")
+        jobs.enqueue(
+            session,
+            JobKind.REPORT,
+            machine.name,
+            actor="server",
+            not_before=due,
+            params={"name": f"O{number:05d}.nc", "report": text},
+        )
 
     def _job_event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
         data = {"id": job_id, "machine": machine, "state": state, **extra}

@@ -23,6 +23,7 @@ from opendnc.sim.tnc.server import TncServer, serve_tnc
 
 if TYPE_CHECKING:
     from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.haas.serial_front import SerialFrontEnd
 
 __all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
 
@@ -48,6 +49,11 @@ class Fleet:
     _tncs: list[TncServer] = field(default_factory=list, repr=False)
     _haas: list[SimHaas] = field(default_factory=list, repr=False)
     _cables: list[VirtualCable] = field(default_factory=list, repr=False)
+    serial_ports: dict[str, SerialFrontEnd] = field(default_factory=dict, repr=False)
+    """The serial port of each serial Haas, by machine name: ``select("punch:O1000")`` is the
+    operator's key press."""
+    sims: dict[str, SimHaas] = field(default_factory=dict, repr=False)
+    """Every virtual Haas by machine name (its ``control`` holds program memory and state)."""
 
     async def close(self) -> None:
         """Stop every control."""
@@ -102,6 +108,7 @@ async def start_fleet(
             )
             await sim.start()
             fleet._haas.append(sim)
+            fleet.sims[f"haas-{j + 1}"] = sim
             assert sim.mdc is not None  # mdc_port was given
             fleet.machines.append(
                 FleetMachine(f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder)
@@ -128,10 +135,12 @@ async def _start_serial_haas(fleet: Fleet, folder: Path, k: int, baud: int) -> N
     await sim.start()
     fleet._haas.append(sim)
     options = SerialOptions(baud=baud, mode=parse_mode("auto"))
-    sim.add_front_end(await start_serial(sim, cable.path_a, baud, None, options))
-    fleet.machines.append(
-        FleetMachine(f"haas-serial-{k + 1}", "haas_serial", "", 0, folder, cable.path_b, baud)
-    )
+    front = await start_serial(sim, cable.path_a, baud, None, options)
+    sim.add_front_end(front)
+    name = f"haas-serial-{k + 1}"
+    fleet.sims[name] = sim
+    fleet.serial_ports[name] = front
+    fleet.machines.append(FleetMachine(name, "haas_serial", "", 0, folder, cable.path_b, baud))
 
 
 def server_config(

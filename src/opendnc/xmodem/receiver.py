@@ -47,6 +47,8 @@ class ReceiverConfig:
     max_retries: int = 10  # consecutive errors on one block before giving up
     strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
+    cancel_when_idle: bool = True  # CAN the line when no sender starts; False for a port that
+    # listens in windows (a DNC server between jobs), where a sender may answer the next one
 
 
 _ACK, _NAK, _C = bytes((ACK,)), bytes((NAK,)), bytes((CRC_REQUEST,))
@@ -140,7 +142,7 @@ class XmodemReceiver(EngineBase):
             if self._waited >= cfg.start_timeout:
                 self._fail(
                     TransportTimeout(f"no XModem sender started within {cfg.start_timeout:g} s"),
-                    cancel_peer=True,
+                    cancel_peer=cfg.cancel_when_idle,
                 )
             else:
                 self._request_start()

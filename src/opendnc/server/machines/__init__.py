@@ -7,9 +7,9 @@ A connector knows its protocol and nothing of the database; the supervisor
 from __future__ import annotations
 
 from opendnc.server.config import MachineConfig, MachineKind
-from opendnc.server.machines.base import Connector, MachineStatus, Progress
+from opendnc.server.machines.base import Connector, MachineStatus, Progress, Reception
 
-__all__ = ["Connector", "MachineStatus", "Progress", "connector_for"]
+__all__ = ["Connector", "MachineStatus", "Progress", "Reception", "connector_for"]
 
 
 def connector_for(config: MachineConfig) -> Connector:

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from typing import Any, Protocol
 
-__all__ = ["Connector", "MachineStatus", "Progress"]
+__all__ = ["Connector", "MachineStatus", "Progress", "Reception"]
 
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
@@ -42,8 +42,20 @@ class MachineStatus:
         return data
 
 
+@dataclass(frozen=True)
+class Reception:
+    """A program the control sent by itself (a punch); ``failed`` says why it broke off."""
+
+    data: bytes
+    failed: str = ""
+
+
 class Connector(Protocol):
     """What the supervisor needs from a control."""
+
+    listens: bool
+    """True if the control can send programs by itself (the supervisor then calls
+    :meth:`listen` between status polls instead of sleeping)."""
 
     async def connect(self) -> None:
         """Open the link (raise a :class:`~opendnc.errors.DncError` if the control is away)."""
@@ -59,3 +71,6 @@ class Connector(Protocol):
 
     async def verify(self, name: str, data: bytes) -> bool | None:
         """Whether the control now holds exactly ``data`` as ``name``; None if it cannot tell."""
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Wait up to ``seconds`` for the control to start sending; None if it did not."""

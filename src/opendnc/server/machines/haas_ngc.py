@@ -17,7 +17,7 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress
+from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector"]
@@ -28,6 +28,8 @@ _EXECUTION = {"IDLE": "READY", "BUSY": "ACTIVE", "FEED HOLD": "FEED_HOLD", "ALAR
 
 class HaasNgcConnector:
     """MDC for status, the net share for programs."""
+
+    listens = False
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
@@ -89,3 +91,7 @@ class HaasNgcConnector:
             return None
         local = target.local / name
         return await asyncio.to_thread(lambda: local.is_file() and local.read_bytes() == data)
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """This connector does not take programs sent by the control."""
+        return None

@@ -1,21 +1,28 @@
 """Haas controls on RS-232: programs by XModem (checksum mode, what a Haas speaks).
 
 A serial port has no status to poll: the machine counts as available while its port opens.
-The operator puts the control in receive mode; XModem's sender then waits for its NAK.
+Between jobs the port listens as an XModem receiver, so a program the operator punches (or a
+remote request) arrives without anyone at the PC; the receiver's start requests (NAK every
+few seconds) are what a Haas waits for before it sends. To load a program the operator puts
+the control in receive mode, and the control's NAK starts our sender.
 """
 
 from __future__ import annotations
 
 import asyncio
 
+from opendnc.errors import DncError, TransportError, TransportTimeout
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress
+from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 from opendnc.transport import ByteStream
 from opendnc.transport.serial import open_stream
+from opendnc.xmodem.driver import receive as xmodem_receive
 from opendnc.xmodem.driver import send as xmodem_send
+from opendnc.xmodem.events import Started
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob, to_wire
+from opendnc.xmodem.receiver import ReceiverConfig
 
 __all__ = ["HaasSerialConnector"]
 
@@ -23,10 +30,14 @@ _EOB = {"CR": Eob.CR, "LF": Eob.LF, "CRLF": Eob.CRLF}
 
 
 class HaasSerialConnector:
-    """XModem sends on one serial line; the line is opened per transfer."""
+    """XModem on one serial line, kept open while the machine is connected (bytes that arrive
+    between two listening windows wait in the port's buffer)."""
+
+    listens = True
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
+        self._stream: ByteStream | None = None
 
     def _open(self) -> ByteStream:
         profile = self.config.profile
@@ -40,11 +51,20 @@ class HaasSerialConnector:
         )
 
     async def connect(self) -> None:
-        """Check that the port opens (a TCP serial server answers, a device exists)."""
-        await asyncio.to_thread(lambda: self._open().close())
+        """Open the port (a TCP serial server answers, a device exists)."""
+        if self._stream is None:
+            self._stream = await asyncio.to_thread(self._open)
 
     async def close(self) -> None:
-        """Nothing stays open between transfers."""
+        """Close the port."""
+        stream, self._stream = self._stream, None
+        if stream is not None:
+            await asyncio.to_thread(stream.close)
+
+    def _require(self) -> ByteStream:
+        if self._stream is None:
+            raise TransportError(f"{self.config.name}: port not open")
+        return self._stream
 
     async def status(self) -> MachineStatus:
         """Available while the port opens; RS-232 tells nothing more without DPRNT."""
@@ -54,15 +74,45 @@ class HaasSerialConnector:
         """Send the program by XModem in checksum mode."""
         wire = to_wire(data, _EOB[self.config.profile.eob])
 
-        def run() -> None:
-            stream = self._open()
-            try:
-                xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
-            finally:
-                stream.close()
-
-        await asyncio.to_thread(run)
+        stream = self._require()
+        await asyncio.to_thread(
+            lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
+        )
 
     async def verify(self, name: str, data: bytes) -> bool | None:
         """None: XModem's block checks are the only verification a serial Haas offers."""
         return None
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Receive one XModem transfer if the control starts one within ``seconds``."""
+
+        def run() -> Reception | None:
+            parts: list[bytes] = []
+            started = False
+
+            def on_event(event: object) -> None:
+                nonlocal started
+                started = started or isinstance(event, Started)
+
+            config = ReceiverConfig(
+                start_timeout=seconds,
+                start_interval=min(3.0, seconds),
+                fold_eob_checksum=True,  # Haas sums blocks with its EOB folded to LF
+                cancel_when_idle=False,  # the next window listens again
+            )
+            stream = self._require()
+            try:
+                xmodem_receive(
+                    stream, parts.append, mode=Mode.CHECKSUM, config=config, on_event=on_event
+                )
+            except TransportTimeout:
+                if not started:
+                    return None  # nobody sent anything: the usual case
+                return Reception(b"".join(parts), failed="the sender went silent")
+            except DncError as exc:
+                if not started and not parts:
+                    return None
+                return Reception(b"".join(parts), failed=str(exc))
+            return Reception(b"".join(parts))
+
+        return await asyncio.to_thread(run)

@@ -10,7 +10,7 @@ from opendnc.errors import ControlRefused, DncError, TransportError
 from opendnc.lsv2 import AsyncClient
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress
+from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Lsv2Connector"]
@@ -41,6 +41,8 @@ _MODE = {
 
 class Lsv2Connector:
     """One LSV2 session per machine, reopened by the supervisor when it drops."""
+
+    listens = False
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
@@ -123,3 +125,7 @@ class Lsv2Connector:
         """
         line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         return await self._require().read_file(self._target(name), line_end=line_end) == data
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """This connector does not take programs sent by the control."""
+        return None

@@ -43,6 +43,8 @@ __all__ = [
     "Program",
     "ProgramState",
     "ProgramVersion",
+    "Received",
+    "ReceivedState",
     "Role",
     "User",
     "utcnow",
@@ -110,6 +112,7 @@ class JobKind(enum.StrEnum):
     BACKUP = "backup"  # LSV2: copy a folder of the control
     DRIPFEED = "dripfeed"  # stream a program while the control runs it
     DELETE = "delete"  # remove a file from the control
+    REPORT = "report"  # a short program telling the operator what the server did
 
 
 class JobState(enum.StrEnum):
@@ -272,6 +275,32 @@ class Job(Base):
     error: Mapped[str] = mapped_column(Text, default="")
 
     version: Mapped[ProgramVersion | None] = relationship()
+
+
+class ReceivedState(enum.StrEnum):
+    """Where a program received from a control is."""
+
+    NEW = "new"  # waiting in the inbox for a person
+    ACCEPTED = "accepted"  # became a library version
+    DISCARDED = "discarded"
+    FAILED = "failed"  # the reception broke off; kept with its reason
+
+
+class Received(Base):
+    """A program that came from a control (a punch, a file found on it), or a failed try."""
+
+    __tablename__ = "received"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64), index=True)
+    name: Mapped[str] = mapped_column(String(255))
+    sha256: Mapped[str] = mapped_column(ForeignKey("blobs.sha256"))
+    size: Mapped[int] = mapped_column(BigInteger)
+    state: Mapped[ReceivedState] = mapped_column(_enum(ReceivedState, "received_state"))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    path: Mapped[str] = mapped_column(Text, default="")  # the file written to the inbox folder
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    version_id: Mapped[int | None] = mapped_column(ForeignKey("program_versions.id"), nullable=True)
 
 
 class AuditEntry(Base):

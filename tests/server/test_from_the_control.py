@@ -1,0 +1,191 @@
+"""Programs that start at the control: a Haas punch lands in the inbox, a remote request is
+answered with the program and a report of what could not be sent.
+
+The virtual Haas runs in this process (its serial port is pressed like the operator would,
+``select("punch:O1234")``), on a virtual RS-232 cable; the server runs as its own process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+
+from opendnc.sim.fleet import Fleet, server_config, start_fleet
+from tests.server.test_end_to_end import Procs, _auth, _free_port, _listening, _wait, httpx
+
+T = TypeVar("T")
+
+
+class FleetThread:
+    """A fleet on its own event loop thread."""
+
+    def __init__(self, root: Path, **counts: int) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.fleet: Fleet = self.run(lambda: start_fleet(root, **counts))
+
+    def run(self, make: Callable[[], Any]) -> Any:
+        return asyncio.run_coroutine_threadsafe(make(), self.loop).result(30)
+
+    def call(self, fn: Callable[[], T]) -> T:
+        future: Future[T] = Future()
+
+        def go() -> None:
+            try:
+                future.set_result(fn())
+            except BaseException as exc:
+                future.set_exception(exc)
+
+        self.loop.call_soon_threadsafe(go)
+        return future.result(10)
+
+    def stop(self) -> None:
+        self.run(self.fleet.close)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+@pytest.fixture
+def haas(tmp_path: Path) -> Iterator[FleetThread]:
+    fleet = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Procs]:
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    p = Procs(logs)
+    try:
+        yield p
+    finally:
+        p.stop_all()
+
+
+def _server(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> tuple[httpx.Client, str]:
+    port = _free_port()
+    config = tmp_path / "shop.toml"
+    text = server_config(
+        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
+    )
+    config.write_text(text + "\n[requests]\ndelay = 0.5\n")
+    import subprocess
+    import sys
+
+    key = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "opendnc.cli.main",
+            "keys",
+            "create",
+            "--role",
+            "admin",
+            "--config",
+            str(config),
+            "--db",
+            db_url,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout.strip()
+    procs.start("server", "serve", "--config", str(config), "--db", db_url)
+    _wait("the server", _listening(port))
+    return httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30), key
+
+
+STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
+
+
+def test_a_haas_punch_lands_in_the_inbox_under_its_o_number(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    sim = haas.fleet.sims["haas-serial-1"]
+    haas.call(lambda: sim.control.save_program(STORED))
+    client, key = _server(tmp_path, haas, procs, db_url)
+    with client:
+        haas.fleet.serial_ports["haas-serial-1"].select("punch:O1234")  # the operator's key
+        items = _wait(
+            "the punch in the inbox",
+            lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+            describe=lambda: procs.log("server"),
+        )
+        assert [(i["name"], i["machine"], i["state"]) for i in items] == [
+            ("O01234.nc", "haas-serial-1", "new")
+        ]
+        got = client.get(f"/api/inbox/{items[0]['id']}/content", headers=_auth(key)).content
+        lines = [line for line in got.decode().splitlines() if line.strip()]
+        assert lines == [line for line in STORED.splitlines() if line.strip()]
+        detail = client.get(f"/api/inbox/{items[0]['id']}", headers=_auth(key)).json()
+        assert detail["diff"][0] == "--- (not in library)"
+        accepted = client.post(f"/api/inbox/{items[0]['id']}/accept", headers=_auth(key), json={})
+        assert accepted.status_code == 200, accepted.text
+        assert (accepted.json()["program"], accepted.json()["state"]) == ("O01234.nc", "draft")
+        assert client.get("/api/inbox", headers=_auth(key)).json() == []
+    assert (tmp_path / "lib" / "inbox" / "O01234.nc").read_bytes() == got
+
+
+def test_remote_request_sends_the_program_and_reports_the_missing_one(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    sim = haas.fleet.sims["haas-serial-1"]
+    request = "%\nO09999 (REQ O1234 REQ O5555)\nM30\n%\n"
+    haas.call(lambda: sim.control.save_program(request))
+    client, key = _server(tmp_path, haas, procs, db_url)
+    library_program = STORED.replace("\n", "\r\n").encode()
+    with client:
+        assert (
+            client.put(
+                "/api/programs/O01234.nc", content=library_program, headers=_auth(key)
+            ).status_code
+            == 201
+        )
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(key))
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        port.select("punch:O9999")  # send the request ...
+        port.select("auto")  # ... then switch to receive, within the request delay
+
+        def memory() -> dict[int, str]:
+            numbers = (1234, 9998)
+            return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
+
+        got = _wait(
+            "the answer in the control's memory",
+            lambda: len(memory()) == 2 and memory(),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert got[1234].split() == STORED.split()
+        assert "(O05555.NC NOT IN LIBRARY)" in got[9998]
+        assert got[9998].split()[1:3] == ["O09998", "(OPENDNC"]
+        audit = client.get(
+            "/api/audit", headers=_auth(key), params={"action": "program.request"}
+        ).json()
+        assert len(audit) == 1
+        assert audit[0]["detail"]["requested"] == ["O01234.nc", "O05555.nc"]
+        assert audit[0]["detail"]["sent"] == ["O01234.nc"]
+        assert audit[0]["result"] == "refused"
+        # The request itself is no inbox item.
+        assert client.get("/api/inbox", headers=_auth(key)).json() == []
+
+
+def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
+    try:
+        text: str = haas.call(lambda: sim.control.read_program(number))
+    except Exception:
+        return None
+    return text
