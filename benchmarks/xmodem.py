@@ -9,7 +9,7 @@ convention; ours and PyPI's follow it), so no two endpoints share an interpreter
    trip on the same kind of pty, and the best ratio to PyPI that any Python pair could reach
    with it; then the same ping-pong compiled from C (when a C compiler is installed): the
    kernel's own cost per trip, which bounds the ratio of any implementation in any language.
-2. Virtual cable (``opendnc sim cable``, B2's paced null modem, in a child process) at
+2. Virtual cable (``opendnc sim cable``, the paced null modem, in a child process) at
    115200 8N1: payload efficiency against the ceiling of each mode (128/133, 128/134,
    1024/1030 of 11,520 B/s) for the same three pairs, two ways:
    - "whole": the marginal rate of a small and a large transfer (below);

@@ -12,6 +12,8 @@ from types import ModuleType
 
 import pytest
 
+from tests.peers import missing_peer
+
 BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "xmodem.py"
 
 
@@ -33,7 +35,7 @@ def test_python_floor_times_a_round_trip(bench: ModuleType) -> None:
 
 def test_c_floor_compiles_and_times_a_round_trip(bench: ModuleType, tmp_path: Path) -> None:
     if bench.c_compiler() is None:
-        pytest.skip("no C compiler for Linux ptys")
+        missing_peer("a C compiler (cc or gcc) for the pty floor")
     program = bench.c_floor_program(tmp_path)
     assert program is not None
     for frame in (132, 1029):
@@ -44,7 +46,7 @@ def test_c_floor_reports_a_failure_instead_of_a_time(
     bench: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     if bench.c_compiler() is None:
-        pytest.skip("no C compiler for Linux ptys")
+        missing_peer("a C compiler (cc or gcc) for the pty floor")
     program = bench.c_floor_program(tmp_path)
     assert program is not None
     assert bench.c_floor(program, 5000, rounds=1) is None  # frame over the 4096-byte buffer

@@ -3,14 +3,24 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
+from pathlib import Path
 
-from opendnc.sim.tnc import get_profile
+from opendnc.sim.tnc import get_profile, start_tnc
 
 
-def test_demo_shows_live_values() -> None:
+def fresh_tnc640(root: Path) -> tuple[dict[str, int], dict[str, float]]:
+    """Sizes of the programs in TNC:\\nc_prog and the axis positions of a fresh TNC 640."""
+    with start_tnc("tnc640", root=root) as tnc:
+        positions = tnc.call(lambda c: dict(c.machine.positions))
+    folder = root / "TNC" / "nc_prog"
+    return {p.name: p.stat().st_size for p in folder.iterdir() if p.is_file()}, positions
+
+
+def test_demo_shows_live_values(tmp_path: Path) -> None:
     started = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-m", "opendnc.cli.main", "demo", "--tour"],
@@ -27,12 +37,16 @@ def test_demo_shows_live_values() -> None:
     assert profile.model in out
     assert profile.nc_software in out
     assert "TNC 128/320/620/640" in out
-    assert "POCKET.H" in out
-    assert "375" in out
+    # the listing shows the sizes a fresh root really has, for every program in it
+    sizes, positions = fresh_tnc640(tmp_path)
+    assert "POCKET.H" in sizes
+    for name, size in sizes.items():
+        assert re.search(rf"{re.escape(name)}\s*\S\s*{size}\b", out), (name, size)
     assert "bytes identical" in out
     assert "manual" in out
     assert "idle" in out
-    assert "Z=250.0000" in out
+    for axis, value in positions.items():
+        assert f"{axis}={value:.4f}" in out
     assert "10000" in out
     assert "MILL_D10_ROUGH" in out  # tool table
     assert "Q500" in out

@@ -148,10 +148,11 @@ def test_plc_memory_same_values(pair: tuple[Client, Any], pylsv2: ModuleType) ->
         assert mine == their, ours_type
 
 
+@pytest.mark.parametrize("tnc", ["itnc530"], indirect=True)  # the only family with them
 def test_itnc_only_reads(pair: tuple[Client, Any], tnc: TncHandle) -> None:
+    """NC errors, tool and data paths (iTNC 530 only)."""
     ours, theirs = pair
-    if not ours.family.is_itnc:
-        pytest.skip("NC errors, tool and data paths exist on the iTNC 530 only")
+    assert ours.family.is_itnc
     tnc.call(lambda c: c.machine.raise_error("INTEROP ERROR"))
     mine = ours.nc_errors()
     their = theirs.get_error_messages()

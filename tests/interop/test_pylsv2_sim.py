@@ -218,8 +218,8 @@ def test_transfers_byte_identical(lsv2: Any, tnc: TncHandle, tmp_path: Path, com
 
 def test_program_run_seen_by_client(lsv2: Any, con: Any, tnc: TncHandle) -> None:
     K = lsv2.const.KeyCode
-    assert 0 <= con.program_status() <= 7
-    assert con.execution_state() in range(5)
+    machine = tnc.call(lambda c: (int(c.machine.program_state), int(c.machine.exec_mode)))
+    assert (con.program_status(), con.execution_state()) == machine
     ext = ".nc" if tnc.profile.lathe else ".H"
     prog = (
         tnc.profile.paths.mdi_program
@@ -314,9 +314,15 @@ def test_data_paths(con: Any, tnc: TncHandle) -> None:
 
 def test_tool_and_errors(con: Any, tnc: TncHandle) -> None:
     if 51 in tnc.profile.ri_selectors:
-        tool = con.spindle_tool_status()
+        previous = tnc.call(lambda c: c.machine.tool)
+        tnc.call(lambda c: setattr(c.machine, "tool", 5))
+        try:
+            tool = con.spindle_tool_status()
+        finally:
+            tnc.call(lambda c: setattr(c.machine, "tool", previous))
         assert tool is not None
-        assert tool.number >= 0
+        assert tool.number == 5
+        assert tool.length == pytest.approx(40.0)  # BALL_D4 in the fresh tool table
         errors = con.get_error_messages()
         assert errors
         assert "Relay" in errors[0].e_text

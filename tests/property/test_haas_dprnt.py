@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from opendnc.errors import InputError, RemoteProtocolError
+from opendnc.errors import InputError
 from opendnc.haas import dprnt
 
 formats = st.tuples(st.integers(0, 8), st.integers(0, 8)).filter(lambda f: 1 <= sum(f) <= 8)
@@ -67,21 +68,67 @@ def test_statement_roundtrip(items: list[dprnt.Item]) -> None:
     assert dprnt.parse_statement(f"DPRNT[{source}]") == tuple(merged)
 
 
-@given(st.binary(max_size=300), st.lists(st.integers(1, 50), max_size=20))
-def test_framer_slicing_invariant(data: bytes, cuts: list[int]) -> None:
-    whole = dprnt.DprntLineFramer(max_line=64)
-    sliced = dprnt.DprntLineFramer(max_line=64)
-    try:
-        whole.feed(data)
-    except RemoteProtocolError:
-        return
+def _feed_in_pieces(framer: dprnt.DprntLineFramer, data: bytes, cuts: list[int]) -> None:
     pos = 0
-    for cut in [*cuts, len(data)]:
-        sliced.feed(data[pos : pos + cut])
+    for cut in cuts:
+        framer.feed(data[pos : pos + cut])
         pos += cut
-    sliced.feed(data[pos:])
-    assert list(sliced.lines()) == list(whole.lines())
-    assert sliced.flush() == whole.flush()
+    framer.feed(data[pos:])
+
+
+@given(st.binary(max_size=300), st.lists(st.integers(0, 50), max_size=20))
+def test_framer_any_bytes_any_slicing(data: bytes, cuts: list[int]) -> None:
+    """Any bytes are legal input (feed never raises), and how they were cut into reads
+    changes nothing."""
+    whole = dprnt.DprntLineFramer(max_line=16)
+    sliced = dprnt.DprntLineFramer(max_line=16)
+    whole.feed(data)
+    _feed_in_pieces(sliced, data, cuts)
+    events = list(whole.events())
+    assert list(sliced.events()) == events
+    assert sliced.end_of_stream() == whole.end_of_stream()
+    for event in events:
+        if isinstance(event, dprnt.FramedLine):
+            assert len(event.text) <= 16
+            assert "\r" not in event.text
+            assert "\n" not in event.text
+            assert event.complete
+        else:
+            assert event.length > 16
+
+
+line_text = st.binary(max_size=40).map(lambda b: b.translate(None, b"\r\n\x00\x11\x12\x13\x14"))
+
+
+@given(
+    st.lists(st.tuples(line_text, st.sampled_from([b"\r", b"\n", b"\r\n"])), max_size=12),
+    line_text,
+    st.lists(st.integers(0, 60), max_size=20),
+)
+def test_framer_against_model(
+    lines: list[tuple[bytes, bytes]], tail: bytes, cuts: list[int]
+) -> None:
+    """Lines up to the limit come out as lines, longer ones as one DroppedLine each, in order;
+    an unterminated tail comes out of end_of_stream marked as cut (or dropped)."""
+    limit = 20
+    for (_, end), (text, nxt) in itertools.pairwise(lines):
+        # a lone CR followed by an empty LF-ended line is one CR LF line end on the wire
+        assume(not (end == b"\r" and not text and nxt.startswith(b"\n")))
+    data = b"".join(text + end for text, end in lines) + tail
+    framer = dprnt.DprntLineFramer(max_line=limit)
+    _feed_in_pieces(framer, data, cuts)
+    expected = [
+        dprnt.FramedLine(t.decode("latin-1")) if len(t) <= limit else dprnt.DroppedLine(len(t))
+        for t, _ in lines
+    ]
+    assert list(framer.events()) == expected
+    last = framer.end_of_stream()
+    if not tail:
+        assert last is None
+    elif len(tail) <= limit:
+        assert last == dprnt.FramedLine(tail.decode("latin-1"), complete=False)
+    else:
+        assert last == dprnt.DroppedLine(len(tail), complete=False)
 
 
 @given(st.one_of(st.text(max_size=120), st.integers(300, 400).map(lambda n: "Z" + "9" * n)))

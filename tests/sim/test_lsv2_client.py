@@ -23,7 +23,7 @@ from opendnc.lsv2 import Client, ExecutionMode, Family, KeyCode, MemoryType, Pro
 from opendnc.lsv2.messages import Message
 from opendnc.lsv2.payloads import ScopeSignal
 from opendnc.sim.tnc import TncHandle, start_tnc
-from tests.sim.lsv2_fixtures import itnc530, tnc640
+from tests.sim.lsv2_fixtures import itnc530, pinned_state, tnc640
 
 __all__ = ["itnc530", "tnc640"]
 
@@ -90,7 +90,9 @@ def test_old_tnc426_connects_without_newer_selectors() -> None:
     with start_tnc("tnc426") as tnc, Client("127.0.0.1", tnc.port) as c:
         assert c.family is Family.TNC4XX
         assert c.versions.control_id is None
-        assert c.program_state() in set(ProgramState)
+        with pinned_state(tnc, ProgramState.CANCELLED, ExecutionMode.PASS_REFERENCES):
+            assert c.program_state() is ProgramState.CANCELLED
+            assert c.execution_mode() is ExecutionMode.PASS_REFERENCES
         names = {e.name for e in c.list_dir("TNC:/")}
         assert names
 
@@ -229,17 +231,22 @@ def test_machine_state(client: Client, tnc640: TncHandle) -> None:
     tnc640.call(lambda c: c.select_program(program.path))
     sel = client.selected_program()
     assert sel.main.lower().replace("/", "\\") == program.path.lower()
-    assert client.program_state() in set(ProgramState)
-    assert client.execution_mode() in set(ExecutionMode)
+    with pinned_state(tnc640, ProgramState.INTERRUPTED, ExecutionMode.SINGLE_STEP):
+        assert client.program_state() is ProgramState.INTERRUPTED
+        assert client.execution_mode() is ExecutionMode.SINGLE_STEP
     tnc640.call(lambda c: c.machine.set_overrides(5000, 12000, 100))
     ov = client.overrides()
     assert (ov.feed, ov.spindle, ov.rapid) == (5000, 12000, 100)
     assert ov.percent == (50.0, 120.0, 1.0)
     axes = client.axes_position()
     assert set(axes.as_dict()) >= {"X", "Y", "Z"}
+    before = tnc640.call(lambda c: c.machine.uptimes())
     up = client.uptimes()
+    after = tnc640.call(lambda c: c.machine.uptimes())
     assert up.nc is not None
-    assert up.nc >= 0
+    assert before[30] <= up.nc <= after[30]  # the simulator's own clock brackets the answer
+    assert before[33] <= (up.spindle1 or 0) <= after[33]
+    assert up.spindle2 == 0  # the TNC 640 profile has one spindle
 
 
 def test_keys_need_unsafe_mode(client: Client, unsafe: Client, tnc640: TncHandle) -> None:
@@ -265,7 +272,8 @@ def test_explicit_machine_logins_need_unsafe_mode(
         assert name not in client.logins
     client.login("FILE")  # harmless logins stay available in safe mode
     # reads that need those logins still work: they log in internally
-    assert client.execution_mode() in set(ExecutionMode)
+    with pinned_state(tnc640, ProgramState.IDLE, ExecutionMode.MDI):
+        assert client.execution_mode() is ExecutionMode.MDI
     assert len(client.read_plc("M0", 1)) == 1
     assert {"DNC", "PLCDEBUG"} <= client.logins
     unsafe.login("DNC")
@@ -405,7 +413,8 @@ def test_itnc_specifics(old: Client, itnc530: TncHandle) -> None:
     assert len(rec.values) == 1
     assert len(rec.values[0]) == 96
     # connection still in step after the stopped stream
-    assert old.program_state() in set(ProgramState)
+    with pinned_state(itnc530, ProgramState.ERROR_CLEARED, ExecutionMode.MANUAL):
+        assert old.program_state() is ProgramState.ERROR_CLEARED
 
 
 def test_scope_refused_on_new_family(client: Client) -> None:
@@ -482,20 +491,22 @@ def test_cancelled_transfers_keep_the_session_usable(
     client.delete_file("TNC:/nc_prog/cancel.bin")
 
 
-def test_local_errors_keep_the_link(client: Client) -> None:
+def test_local_errors_keep_the_link(client: Client, tnc640: TncHandle) -> None:
     from opendnc.errors import LocalProtocolError
 
     with pytest.raises(LocalProtocolError, match="exceeds the buffer"):
         client.file_info("TNC:/" + "x" * 5000 + ".h")
     with pytest.raises(InputError, match="Latin-1"):
         client.file_info("TNC:/€.h")
-    assert client.program_state() in set(ProgramState)
+    with pinned_state(tnc640, ProgramState.STOPPED, ExecutionMode.AUTOMATIC):
+        assert client.program_state() is ProgramState.STOPPED
 
 
 def test_system_info(client: Client, tnc640: TncHandle) -> None:
     info = client.system_info()
-    assert info.axes_sampling_rate is None or info.axes_sampling_rate > 0
-    assert info.dnc_allowed in (True, False, None)
+    assert info.axes_sampling_rate is None  # no remote scope on a TNC 640: R_CI 3 refused
+    assert info.dnc_allowed is tnc640.call(lambda c: c.dnc_option)
+    assert info.turbo_mode is False
     assert client.read_parameters() == client.parameters
     again = client.read_versions()
     assert (again.model, again.nc_software, again.plc) == (
@@ -503,3 +514,8 @@ def test_system_info(client: Client, tnc640: TncHandle) -> None:
         client.versions.nc_software,
         client.versions.plc,
     )
+
+
+def test_system_info_itnc_reports_the_scope_sampling_period(old: Client) -> None:
+    # the iTNC 530 answers R_CI 3 with 3000 µs, as captured before a scope recording
+    assert old.system_info().axes_sampling_rate == 3000

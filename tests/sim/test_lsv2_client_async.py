@@ -13,7 +13,7 @@ import pytest
 from opendnc.errors import ControlRefused, PeerClosed, SafetyLockError, TransportError
 from opendnc.lsv2 import AsyncClient, ExecutionMode, Family, KeyCode, ProgramState
 from opendnc.sim.tnc import TncHandle, serve_tnc, start_tnc
-from tests.sim.lsv2_fixtures import itnc530, tnc640
+from tests.sim.lsv2_fixtures import itnc530, pinned_state, tnc640
 
 __all__ = ["itnc530", "tnc640"]
 
@@ -39,7 +39,9 @@ def test_session_files_and_state(tnc640: TncHandle, tmp_path: Path) -> None:
             await c.delete_file("TNC:/aio/sub/up.bin")
             await c.remove_dir("TNC:/aio/sub")
             await c.remove_dir("TNC:/aio")
-            assert await c.program_state() in set(ProgramState)
+            with pinned_state(tnc640, ProgramState.ERROR, ExecutionMode.MDI):
+                assert await c.program_state() is ProgramState.ERROR
+                assert await c.execution_mode() is ExecutionMode.MDI
             assert await c.read_plc("S0") == ["STRING 0"]
             with pytest.raises(SafetyLockError):
                 await c.send_key(KeyCode.MODE_MANUAL)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import select
 import socket
 import struct
 import threading
@@ -167,7 +168,9 @@ def test_tcp_stream_reset_by_peer_is_peer_closed(monkeypatch: pytest.MonkeyPatch
         # SO_LINGER 0: close() sends a reset instead of a FIN
         conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         conn.close()
-        time.sleep(0.05)
+        # wait until the reset has arrived (the socket turns readable), not a fixed time
+        readable, _, _ = select.select([stream._sock], [], [], 5)
+        assert readable, "no reset arrived"
         with pytest.raises(PeerClosed, match="reset"):
             stream.read(10)
         stream.close()

@@ -89,8 +89,9 @@ def test_serial_settings_refused_by_device_is_transport_error() -> None:
             except TransportError as exc:
                 refused = exc
                 break
-        if refused is None:
-            pytest.skip("this kernel's pty accepts parity E")
-        assert "refuses 9600 baud, 8E1" in str(refused)
+        # A kernel whose pty takes parity E lets every open succeed, which is right as well;
+        # what must never happen is a raw termios.error escaping the three opens above.
+        if refused is not None:
+            assert "refuses 9600 baud, 8E1" in str(refused)
     finally:
         pair.close()

@@ -37,7 +37,11 @@ def listen(
     ),
     json_out: bool = typer.Option(False, "--json", help="Print each line as JSON on stdout."),
 ) -> None:
-    """Timestamp, parse and store every DPRNT line; reconnect with backoff on disconnect."""
+    """Timestamp, parse and store every DPRNT line; reconnect with backoff on disconnect.
+
+    A line over 4096 bytes is dropped whole and reported; a line cut by a disconnect is kept
+    and marked (CSV column ``complete`` = ``no``, JSON ``"complete": false``).
+    """
     with cli_errors():
         sinks: list[LineSink] = []
         if csv_path is not None:
@@ -60,13 +64,16 @@ def listen(
         finally:
             for sink in sinks:
                 sink.close()
-        err_console.print(f"[dim]{json.dumps({'lines': stats.lines})}[/]", highlight=False)
+        summary = {"lines": stats.lines, "cut": stats.cut, "dropped": stats.dropped}
+        err_console.print(f"[dim]{json.dumps(summary)}[/]", highlight=False)
 
 
 def _show(line: CapturedLine) -> None:
     # rich.Text keeps captured brackets from being read as markup
     text = Text(line.timestamp.strftime("%H:%M:%S.%f")[:-3] + " ", style="dim")
     text.append(line.text)
+    if not line.complete:
+        text.append("  [cut: the link ended before the line end]", style="yellow")
     if line.numbers:
         text.append("  " + " ".join(f"{n:g}" for n in line.numbers), style="cyan")
     console.print(text, highlight=False)

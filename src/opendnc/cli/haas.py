@@ -24,7 +24,7 @@ from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.errors import InputError
 from opendnc.haas import share
 from opendnc.haas.mdc import reply_name
-from opendnc.haas.mdc_client import DEFAULT_PORT, MdcClient
+from opendnc.haas.mdc_client import DEFAULT_PORT, MdcClient, check_macro_write
 
 app = typer.Typer(
     help="Haas controls: MDC queries, macro variables, Net Share.", no_args_is_help=True
@@ -154,6 +154,8 @@ def macro_set(
 ) -> None:
     """Write a macro variable (?E). Refused without --unsafe."""
     with cli_errors():
+        # what the control would refuse is refused here, with the reason, before connecting
+        check_macro_write(var, value, safe_mode=not unsafe, allow_any_variable=any_variable)
         with MdcClient(
             host, port, timeout=timeout, safe_mode=not unsafe, allow_any_variable=any_variable
         ) as client:

@@ -73,7 +73,7 @@ def haas(
         10.0, "--dnc-timeout", help="Seconds without DNC data before the link-lost alarm."
     ),
     haas_quirks: bool = typer.Option(
-        True, "--haas-quirks/--no-haas-quirks", help="Extra NAKs and CAN after EOT (seed 003)."
+        True, "--haas-quirks/--no-haas-quirks", help="Extra NAKs and CAN after EOT, as a Haas does."
     ),
 ) -> None:
     """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""

@@ -2,7 +2,7 @@
 
 The control runs blocks as they arrive and throttles the PC with flow control: it sends DC3
 (XOFF, 0x13) when its small buffer is full and DC1 (XON, 0x11) when it has room again. Several
-USB-serial drivers do not honour XOFF in the kernel (haas-protocols.md, section 3), so opendnc
+USB-serial drivers do not honour XOFF in the kernel (docs/haas.md#flow-control), so opendnc
 implements it itself: bytes go out in small writes (``chunk``), every write is preceded by a
 look at what the control sent, and nothing more is written after a DC3 until the DC1.
 

@@ -10,8 +10,9 @@ Sans-IO, used by the virtual control (to print) and by the listener (to capture)
   leading spaces, a longer one grows the field (never truncated).
 * :func:`parse_statement` turns ``DPRNT[...]`` source into typed items; each ``*`` in text
   prints as a space.
-* :class:`DprntLineFramer` cuts a captured byte stream into lines (CR, LF or CR LF) and drops
-  the device-control bytes a Haas may send around DPRNT output (NUL, DC1..DC4).
+* :class:`DprntLineFramer` cuts a captured byte stream into lines (CR, LF or CR LF), drops
+  the device-control bytes a Haas may send around DPRNT output (NUL, DC1..DC4), drops an
+  over-long line whole, and marks a line cut by the end of the link.
 * :func:`parse_line` finds the labelled numbers in a captured line.
 
 Where the manual is silent we chose, and document here: a minus sign is written directly
@@ -21,19 +22,20 @@ prints as zero.
 
 from __future__ import annotations
 
+import collections
 import math
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from decimal import ROUND_DOWN, ROUND_HALF_UP, Decimal, InvalidOperation
 
-from opendnc.errors import InputError, RemoteProtocolError
+from opendnc.errors import InputError
 
 MAX_PLACES = 8
 """Largest ``w + f`` the control accepts in a ``#var[wf]`` format."""
 
 MAX_LINE = 4096
-"""Longest captured line accepted before the framer reports garbage."""
+"""Longest captured line kept, in bytes; a longer one is dropped whole and reported."""
 
 # Bytes a Haas emits around printer output: NUL leader, XON/XOFF, POPEN (DC2), PCLOS (DC4).
 _CONTROL_BYTES = bytes([0x00, 0x11, 0x12, 0x13, 0x14])
@@ -159,51 +161,113 @@ def render(items: tuple[Item, ...], lookup: Callable[[int], float | None]) -> st
 # --------------------------------------------------------------------------- capture side
 
 
+@dataclass(frozen=True, slots=True)
+class FramedLine:
+    """A line cut from the stream. ``complete`` is False for the unfinished tail that
+    :meth:`DprntLineFramer.end_of_stream` hands back when the link ended before its line end."""
+
+    text: str
+    complete: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class DroppedLine:
+    """A line longer than the framer's limit, dropped whole (none of it is a line).
+
+    ``length`` counts the bytes received of it (device-control bytes not counted);
+    ``complete`` is False when the link ended before its line end.
+    """
+
+    length: int
+    complete: bool = True
+
+
+FrameEvent = FramedLine | DroppedLine
+
+_EOL = re.compile(rb"\r\n|\r|\n")
+
+
 class DprntLineFramer:
-    """Cut a DPRNT byte stream into text lines.
+    """Cut a DPRNT byte stream into :class:`FramedLine` and :class:`DroppedLine` events.
 
     CR, LF and CR LF all end a line (Haas documents CR; NGC over TCP is seen with others);
     a CR LF split across two ``feed`` calls still counts as one line end.
+
+    A line longer than ``max_line`` bytes is dropped whole: the framer stops keeping it when it
+    grows past the limit, discards the rest of it up to its line end, and then reports one
+    :class:`DroppedLine`. Lines before and after it are unaffected, however the bytes were cut
+    into reads, and no piece of a dropped line is ever reported as a line. :meth:`feed` never
+    raises: any byte string is legal input.
     """
 
     def __init__(self, max_line: int = MAX_LINE) -> None:
         self._buf = bytearray()
-        self._lines: list[str] = []
+        self._events: collections.deque[FrameEvent] = collections.deque()
         self._max = max_line
         self._after_cr = False
+        self._dropping = False
+        self._dropped = 0
 
     def feed(self, data: bytes) -> None:
-        """Add received bytes; raise :class:`RemoteProtocolError` on an over-long line."""
-        for byte in data.translate(None, _CONTROL_BYTES):
-            if byte == 0x0A and self._after_cr:
-                self._after_cr = False
-                continue
-            self._after_cr = byte == 0x0D
-            if byte in (0x0A, 0x0D):
-                self._lines.append(self._buf.decode("latin-1"))
-                self._buf.clear()
-                continue
-            if len(self._buf) >= self._max:
-                self._buf.clear()
-                raise RemoteProtocolError(f"DPRNT line longer than {self._max} bytes")
-            self._buf.append(byte)
+        """Add received bytes; complete lines (and dropped ones) become events."""
+        data = data.translate(None, _CONTROL_BYTES)
+        if not data:
+            return
+        if self._after_cr and data[0] == 0x0A:
+            data = data[1:]  # the LF of a CR LF that was split across two reads
+        self._after_cr = data.endswith(b"\r")
+        pos = 0
+        for match in _EOL.finditer(data):
+            self._take(data[pos : match.start()])
+            self._end_line()
+            pos = match.end()
+        self._take(data[pos:])
 
-    def next_line(self) -> str | None:
-        """Return the next complete line, or ``None`` when more bytes are needed."""
-        return self._lines.pop(0) if self._lines else None
+    def _take(self, chunk: bytes) -> None:
+        if self._dropping:
+            self._dropped += len(chunk)
+        elif len(self._buf) + len(chunk) > self._max:
+            # too long: stop keeping it, but go on counting it up to its line end
+            self._dropping = True
+            self._dropped = len(self._buf) + len(chunk)
+            self._buf.clear()
+        else:
+            self._buf += chunk
 
-    def lines(self) -> Iterator[str]:
-        """Yield every complete line received so far."""
-        while (line := self.next_line()) is not None:
-            yield line
+    def _end_line(self) -> None:
+        if self._dropping:
+            self._events.append(DroppedLine(self._dropped))
+            self._dropping, self._dropped = False, 0
+        else:
+            self._events.append(FramedLine(self._buf.decode("latin-1")))
+            self._buf.clear()
 
-    def flush(self) -> str | None:
-        """Return the unterminated tail (on disconnect) so no received text is lost."""
+    def next_event(self) -> FrameEvent | None:
+        """Return the next event, or ``None`` when more bytes are needed."""
+        return self._events.popleft() if self._events else None
+
+    def events(self) -> Iterator[FrameEvent]:
+        """Yield every event produced so far."""
+        while (event := self.next_event()) is not None:
+            yield event
+
+    def end_of_stream(self) -> FrameEvent | None:
+        """The link ended: return what was left of an unfinished line, if anything.
+
+        An unfinished line is returned as ``FramedLine(text, complete=False)`` (received
+        text is never lost, but it is marked as cut); an unfinished over-long line as
+        ``DroppedLine(length, complete=False)``. The framer is then ready for a new link.
+        """
+        self._after_cr = False
+        if self._dropping:
+            event: FrameEvent = DroppedLine(self._dropped, complete=False)
+            self._dropping, self._dropped = False, 0
+            return event
         if not self._buf:
             return None
         tail = self._buf.decode("latin-1")
         self._buf.clear()
-        return tail
+        return FramedLine(tail, complete=False)
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,9 +1,16 @@
 """DPRNT listener core: capture lines from a serial port or a TCP port, never lose one.
 
 Every received line is timestamped, parsed (:func:`opendnc.haas.dprnt.parse_line`) and
-written to each sink, which flushes per line. When the link breaks, the unterminated tail is
-kept as a line, and the listener reconnects with exponential backoff. Clock and sleep are
-injected so tests run without waiting.
+written to each sink, which flushes per line. A line longer than
+:data:`~opendnc.haas.dprnt.MAX_LINE` bytes is dropped whole, counted in
+:attr:`ListenStats.dropped` and reported through ``on_status``; the lines around it are kept.
+
+When the link breaks (or the listener is stopped) in the middle of a line, the text received
+of it is kept, but marked: :attr:`CapturedLine.complete` is False, the CSV's ``complete``
+column says ``no`` and the JSON record has ``"complete": false``. A cut line is what the
+control printed up to the break, so it is kept for the record, but a consumer that only wants
+whole lines filters on that column. The listener then reconnects with exponential backoff.
+Clock and sleep are injected so tests run without waiting.
 """
 
 from __future__ import annotations
@@ -20,22 +27,32 @@ from typing import IO, Protocol
 from opendnc.errors import (
     InputError,
     PeerClosed,
-    RemoteProtocolError,
     TransportError,
     TransportTimeout,
 )
-from opendnc.haas.dprnt import DprntLineFramer, Field, parse_line
+from opendnc.haas.dprnt import (
+    MAX_LINE,
+    DprntLineFramer,
+    DroppedLine,
+    Field,
+    FrameEvent,
+    parse_line,
+)
 from opendnc.transport.base import ByteStream
 from opendnc.transport.serial import open_stream
 
 
 @dataclass(frozen=True, slots=True)
 class CapturedLine:
-    """One DPRNT line as received: when, raw text and the numbers found in it."""
+    """One DPRNT line as received: when, raw text and the numbers found in it.
+
+    ``complete`` is False for a line cut short by the end of the link (its line end never came).
+    """
 
     timestamp: datetime
     text: str
     fields: tuple[Field, ...]
+    complete: bool = True
 
     @property
     def numbers(self) -> tuple[float, ...]:
@@ -62,22 +79,40 @@ class LineSink(Protocol):
         ...
 
 
+CSV_HEADER = ("timestamp", "line", "fields", "complete")
+"""Columns of :class:`CsvSink`; ``complete`` is ``yes``, or ``no`` for a line cut by the link."""
+
+
 class CsvSink:
-    """CSV with columns ``timestamp, line, fields`` (``X=1.5 Z=-2``), flushed per line."""
+    """CSV with columns :data:`CSV_HEADER` (fields as ``X=1.5 Z=-2``), flushed per line.
+
+    Appends to an existing file only when it has the same columns (:class:`InputError`
+    otherwise), so one file never mixes two layouts.
+    """
 
     def __init__(self, path: Path) -> None:
-        new = not Path(path).exists() or Path(path).stat().st_size == 0
-        self._file: IO[str] = Path(path).open("a", encoding="utf-8", newline="")  # noqa: SIM115
+        path = Path(path)
+        new = not path.exists() or path.stat().st_size == 0
+        if not new:
+            with path.open(encoding="utf-8", newline="") as existing:
+                header = next(csv.reader(existing), [])
+            if tuple(header) != CSV_HEADER:
+                raise InputError(
+                    f"{path} has columns {','.join(header)!r}, not {','.join(CSV_HEADER)!r}: "
+                    "capture into a new file"
+                )
+        self._file: IO[str] = path.open("a", encoding="utf-8", newline="")
         self._writer = csv.writer(self._file)
         if new:
-            self._writer.writerow(["timestamp", "line", "fields"])
+            self._writer.writerow(CSV_HEADER)
             self._file.flush()
 
     def write(self, line: CapturedLine) -> None:
         fields = " ".join(
             f"{f.label}={f.value:g}" if f.label else f"{f.value:g}" for f in line.fields
         )
-        self._writer.writerow([line.timestamp.isoformat(), line.text, fields])
+        complete = "yes" if line.complete else "no"
+        self._writer.writerow([line.timestamp.isoformat(), line.text, fields, complete])
         self._file.flush()
 
     def close(self) -> None:
@@ -85,7 +120,7 @@ class CsvSink:
 
 
 class JsonlSink:
-    """One JSON object per line: timestamp, line, numbers, fields; flushed per line."""
+    """One JSON object per line: timestamp, line, numbers, fields, complete; flushed per line."""
 
     def __init__(self, path: Path | None = None, stream: IO[str] | None = None) -> None:
         self._own = stream is None
@@ -99,6 +134,7 @@ class JsonlSink:
             "line": line.text,
             "numbers": list(line.numbers),
             "fields": [{"label": f.label, "value": f.value} for f in line.fields],
+            "complete": line.complete,
         }
         self._file.write(json.dumps(record) + "\n")
         self._file.flush()
@@ -127,9 +163,15 @@ def _now() -> datetime:
 
 @dataclass
 class ListenStats:
-    """Counters a listener keeps."""
+    """Counters a listener keeps.
+
+    ``lines`` counts every line written to the sinks, ``cut`` those of them cut short by the
+    end of a link, ``dropped`` the over-long lines dropped whole (never written).
+    """
 
     lines: int = 0
+    cut: int = 0
+    dropped: int = 0
     connects: int = 0
     disconnects: int = 0
     errors: int = 0
@@ -169,12 +211,22 @@ class DprntListener:
         """Ask :meth:`run` to return (from another thread or a sink)."""
         self.stop_event.set()
 
-    def _emit(self, text: str) -> None:
-        parsed = parse_line(text)
-        captured = CapturedLine(self.now(), text, parsed.fields)
+    def _handle(self, event: FrameEvent) -> None:
+        if isinstance(event, DroppedLine):
+            self.stats.dropped += 1
+            cut = "" if event.complete else ", cut by the end of the link"
+            self.on_status(
+                f"dropped a line of {event.length} bytes{cut} (longer than {MAX_LINE}); "
+                "lines before and after it are kept"
+            )
+            return
+        parsed = parse_line(event.text)
+        captured = CapturedLine(self.now(), event.text, parsed.fields, event.complete)
         for sink in self.sinks:
             sink.write(captured)
         self.stats.lines += 1
+        if not event.complete:
+            self.stats.cut += 1
 
     def run(self, max_lines: int | None = None, max_connects: int | None = None) -> ListenStats:
         """Listen until :meth:`stop`, ``max_lines`` lines, or ``max_connects`` links ended."""
@@ -214,22 +266,18 @@ class DprntListener:
                     data = stream.read(4096)
                 except TransportTimeout:
                     continue
-                try:
-                    framer.feed(data)
-                except RemoteProtocolError as exc:
-                    self.stats.errors += 1
-                    self.on_status(f"dropped garbage: {exc}")
-                for line in framer.lines():
-                    self._emit(line)
+                framer.feed(data)
+                for event in framer.events():
+                    self._handle(event)
                     if max_lines is not None and self.stats.lines >= max_lines:
                         return True
-            self._emit_tail(framer)  # stopped: keep a line whose end never came
+            self._end_of_stream(framer)  # stopped: keep, marked cut, a line whose end never came
             return True
         except (PeerClosed, TransportError):
-            self._emit_tail(framer)  # link gone: keep a line whose end never came
+            self._end_of_stream(framer)  # link gone: the same
             return max_lines is not None and self.stats.lines >= max_lines
 
-    def _emit_tail(self, framer: DprntLineFramer) -> None:
-        tail = framer.flush()
+    def _end_of_stream(self, framer: DprntLineFramer) -> None:
+        tail = framer.end_of_stream()
         if tail is not None:
-            self._emit(tail)
+            self._handle(tail)

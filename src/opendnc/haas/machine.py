@@ -1,17 +1,18 @@
 """The state a Haas program changes: macro variables, settings, counters, position, tool.
 
-Plain data with the variable map of ``haas-protocols.md`` section 8 (no I/O, no clock):
-system variables that mirror state (positions, M30 counters, settings as ``#20000 + n``) are
+Plain data (no I/O, no clock). Which variables exist and which writes the control accepts
+come from the one table in :mod:`opendnc.haas.macros` (``docs/haas-macros.md``): system
+variables that mirror state (positions, tool, M30 counters, settings as ``#20000 + n``) are
 computed on read; work offsets and globals are stored.
 """
 
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass, field
 
 from opendnc.errors import InputError
+from opendnc.haas import macros
 
 AXES = "XYZAB"
 
@@ -111,6 +112,8 @@ class MachineState:
             return self.skip_position[number - 5061]
         if number == 3001:
             return self.millis
+        if number == 3026:
+            return float(self.tool)
         if number == 3027:
             return self.spindle_rpm
         if number == 3901:
@@ -123,18 +126,18 @@ class MachineState:
         return self.variables.get(number)
 
     def set(self, number: int, value: float | None) -> None:
-        """Write ``#number`` (``None`` clears it); read-only system variables refuse."""
-        if value is not None and not math.isfinite(value):
-            raise InputError(f"#{number} cannot hold {value!r}")
-        if number == 0 or 5001 <= number <= 5063 or number in (3001, 3027) or number >= 20000:
-            raise InputError(f"#{number} is read-only")
+        """Write ``#number`` (``None`` clears it).
+
+        :class:`InputError` with the control's reason for what it refuses
+        (:func:`opendnc.haas.macros.check_write`): no such variable, read-only, a value
+        outside the variable's range, a fraction in a counter, the ``#3000`` alarm.
+        """
+        stored = macros.check_write(number, value)
         if number == 3901:
-            self.m30_counter_1 = int(value or 0)
+            self.m30_counter_1 = int(stored or 0)
         elif number == 3902:
-            self.m30_counter_2 = int(value or 0)
-        elif not 1 <= number < 20000:
-            raise InputError(f"no macro variable #{number}")
-        elif value is None:
+            self.m30_counter_2 = int(stored or 0)
+        elif stored is None:
             self.variables.pop(number, None)
         else:
-            self.variables[number] = value
+            self.variables[number] = stored

@@ -3,7 +3,7 @@
 Both ends use it: the client (:mod:`opendnc.haas.mdc_client`) and the virtual control
 (:mod:`opendnc.sim.haas.mdc_server`).
 
-Wire format (see ``haas-protocols.md`` section 7):
+Wire format (see docs/haas.md#mdc):
 
 * request: ``?Q100``, ``?Q600 5223``, ``?E10100 1.5``, ended by a new line (we send CR LF);
 * reply payload: ``NAME, value[, value...]``;

@@ -1,16 +1,27 @@
 """MDC clients: blocking (:class:`MdcClient`) and asyncio (:class:`AsyncMdcClient`).
 
-Every procedure is written once as a generator op (it yields requests and is sent the
-matching replies) and run by either driver over the same :class:`~opendnc.haas.mdc.MdcConnection`.
+Two layers, both written once and shared by the two clients:
+
+* every procedure is a generator op: it yields requests and is sent the matching replies;
+* :class:`MdcClientCore` runs an op over the :class:`~opendnc.haas.mdc.MdcConnection` codec
+  and decides everything about the conversation: taking in other clients' broadcast replies
+  before a request, the deadline for each reply, re-sending the first query of a connection
+  (a Haas may leave it unanswered), and the typed error when the control stops reading or
+  answering. It does no I/O: it yields :class:`Send` and :class:`Receive` steps.
+
+The two clients are thin drivers that carry out those steps with a socket or with asyncio
+streams and map OS errors onto the opendnc tree; they hold no protocol logic, so they cannot
+drift apart.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Generator
+import time
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from opendnc.errors import (
     ControlRefused,
@@ -20,6 +31,7 @@ from opendnc.errors import (
     TransportError,
     TransportTimeout,
 )
+from opendnc.haas import macros
 from opendnc.haas.mdc import (
     QUERIES,
     Busy,
@@ -37,6 +49,7 @@ from opendnc.haas.mdc import (
     Request,
     TextValue,
     WriteAccepted,
+    encode_request,
 )
 from opendnc.transport.tcp import TcpStream
 
@@ -44,6 +57,8 @@ T = TypeVar("T")
 Op = Generator[Request, Reply, T]
 
 DEFAULT_PORT = 5051
+DEFAULT_TIMEOUT = 3.0
+"""Seconds a request may wait for its reply (and for the control to take the request)."""
 
 
 # --------------------------------------------------------------------------- ops (no I/O)
@@ -156,11 +171,141 @@ def is_writable(var: int) -> bool:
     return any(var in span for span in WRITABLE)
 
 
-def _check_write(safe_mode: bool, var: int, allow_any: bool) -> None:
+def check_macro_write(
+    var: int, value: float, *, safe_mode: bool = True, allow_any_variable: bool = False
+) -> None:
+    """Refuse locally, before anything is sent, a write that would not be carried out.
+
+    First what the control itself refuses (:func:`opendnc.haas.macros.check_write`: no such
+    variable, read-only, out of range, a fraction in a counter, the ``#3000`` alarm) as
+    :class:`~opendnc.errors.InputError` with the reason, whatever the opt-ins; then the
+    project's locks as :class:`SafetyLockError` (``safe_mode``, the :data:`WRITABLE` list).
+    """
+    macros.check_write(var, value)
     if safe_mode:
         raise SafetyLockError(f"writing macro variable #{var} over MDC")
-    if not allow_any and not is_writable(var):
+    if not allow_any_variable and not is_writable(var):
         raise SafetyLockError(f"writing #{var} (not a general-purpose global; allow it explicitly)")
+
+
+# --------------------------------------------------------------------------- sans-IO core
+
+
+@dataclass(frozen=True, slots=True)
+class Send:
+    """I/O step: write ``data``, waiting at most ``timeout`` seconds for the peer to take it.
+
+    The driver answers ``b""`` once it is written, ``None`` when the time ran out.
+    """
+
+    data: bytes
+    timeout: float
+
+
+@dataclass(frozen=True, slots=True)
+class Receive:
+    """I/O step: read up to 4096 bytes, waiting at most ``timeout`` seconds.
+
+    The driver answers the bytes, ``b""`` when the peer closed, ``None`` when nothing came.
+    """
+
+    timeout: float
+
+
+IoStep = Send | Receive
+Io = Generator[IoStep, bytes | None, T]
+
+WAITING = 0.0
+"""Receive timeout that means "only what has already arrived"."""
+ASYNC_WAITING = 0.001
+"""What :data:`WAITING` becomes on asyncio, which only sees arrived bytes after a loop turn
+(``wait_for`` with no time at all gives up before the read has run)."""
+WAITING_BUDGET = 64 * 1024
+"""Most bytes of other clients' replies taken in before a request (a flooding peer cannot
+hold a request back for ever; what is left is skipped while the reply is awaited)."""
+
+
+def _shown(request: Request) -> str:
+    """``request`` as it goes on the wire, for messages (``?Q100``, ``?E100 2.5``)."""
+    return encode_request(request, b"").decode("ascii")
+
+
+class MdcClientCore:
+    """The whole client-side conversation, without I/O (see the module docstring).
+
+    ``timeout`` bounds each request: the control must take it and answer within that time,
+    however many other clients' replies arrive meanwhile. ``clock`` is injectable for tests.
+    """
+
+    def __init__(
+        self,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        eol: bytes = b"\r\n",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.conn = MdcConnection(eol)
+        self.timeout = timeout
+        self._clock = clock
+        self._first = True
+
+    def run(self, op: Op[T]) -> Io[T]:
+        """Carry out ``op``: yields I/O steps, returns the op's result."""
+        try:
+            request = next(op)
+            while True:
+                reply = yield from self.exchange(request)
+                request = op.send(reply)
+        except StopIteration as done:
+            result: T = done.value
+            return result
+
+    def exchange(self, request: Request) -> Io[Reply]:
+        """Send ``request`` and return its reply.
+
+        Haas notes that the first query after connecting may go unanswered, so the first
+        request of a connection is sent a second time when its reply does not come.
+        """
+        attempts = 2 if self._first else 1
+        self._first = False
+        for _ in range(attempts):
+            yield from self._take_waiting()
+            if (yield Send(self.conn.send(request), self.timeout)) is None:
+                self.conn.reset()
+                raise TransportTimeout(
+                    f"the control did not take {_shown(request)} within {self.timeout:g} s "
+                    "(it stopped reading)"
+                )
+            reply = yield from self._await_reply(self._clock() + self.timeout)
+            if reply is not None:
+                return reply
+            self.conn.reset()
+        asked = " (asked twice)" if attempts == 2 else ""
+        raise TransportTimeout(
+            f"no MDC reply to {_shown(request)} within {self.timeout:g} s{asked}"
+        )
+
+    def _take_waiting(self) -> Io[None]:
+        # Replies to other clients that are already here must not be taken for the answer to
+        # the next request (replies are broadcast); take them in first, within a budget.
+        taken = 0
+        while taken < WAITING_BUDGET:
+            data = yield Receive(WAITING)
+            if not data:
+                return  # nothing waiting (a closed peer shows up on the send or the reply)
+            self.conn.receive_data(data)
+            taken += len(data)
+
+    def _await_reply(self, deadline: float) -> Io[Reply | None]:
+        while (reply := self.conn.next_event()) is None:
+            remaining = deadline - self._clock()
+            if remaining <= 0:
+                return None
+            data = yield Receive(remaining)
+            if data is None:
+                return None
+            self.conn.receive_data(data)  # b"": closed, next_event raises PeerClosed
+        return reply
 
 
 # --------------------------------------------------------------------------- blocking
@@ -171,6 +316,8 @@ class MdcClient:
 
     ``safe_mode`` (default on) refuses :meth:`macro_set` with :class:`SafetyLockError`; with
     it off, writes are still limited to :data:`WRITABLE` unless ``allow_any_variable``.
+    A control that stops answering or reading gives :class:`TransportTimeout` (a reply waits at
+    most ``timeout``; the socket itself lets a write wait up to ``max(timeout, 10 s)``).
     """
 
     def __init__(
@@ -178,17 +325,15 @@ class MdcClient:
         host: str,
         port: int = DEFAULT_PORT,
         *,
-        timeout: float = 3.0,
+        timeout: float = DEFAULT_TIMEOUT,
         safe_mode: bool = True,
         allow_any_variable: bool = False,
         eol: bytes = b"\r\n",
     ) -> None:
         self.safe_mode = safe_mode
         self.allow_any_variable = allow_any_variable
-        self._conn = MdcConnection(eol)
+        self.core = MdcClientCore(timeout=timeout, eol=eol)
         self._stream = TcpStream(host, port, timeout=timeout)
-        self._timeout = timeout
-        self._first = True
 
     def __enter__(self) -> MdcClient:
         return self
@@ -202,46 +347,29 @@ class MdcClient:
 
     def run(self, op: Op[T]) -> T:
         """Run a generator op to completion over this connection."""
+        io = self.core.run(op)
         try:
-            request = next(op)
+            step = next(io)
             while True:
-                reply = self._exchange(request)
-                request = op.send(reply)
+                step = io.send(self._do(step))
         except StopIteration as done:
-            return done.value  # type: ignore[no-any-return]
+            result: T = done.value
+            return result
 
-    def _exchange(self, request: Request) -> Reply:
-        # Haas: the very first query after connecting may go unanswered; ask once more.
-        attempts = 2 if self._first else 1
-        self._first = False
-        for attempt in range(attempts):
-            self._drain()
-            self._stream.write(self._conn.send(request))
+    def _do(self, step: IoStep) -> bytes | None:
+        if isinstance(step, Send):
             try:
-                while (reply := self._conn.next_event()) is None:
-                    try:
-                        data = self._stream.read(4096)
-                    except PeerClosed:
-                        data = b""
-                    self._conn.receive_data(data)
-                return reply
+                self._stream.write(step.data)
             except TransportTimeout:
-                self._conn.reset()
-                if attempt == attempts - 1:
-                    raise
-        raise AssertionError("unreachable")  # pragma: no cover
-
-    def _drain(self) -> None:
-        # Take in whatever other clients' broadcast replies are already waiting, so they
-        # cannot be mistaken for the answer to the next request.
-        self._stream.set_timeout(0.0)
+                return None
+            return b""
+        self._stream.set_timeout(step.timeout)
         try:
-            while True:
-                self._conn.receive_data(self._stream.read(4096))
-        except TransportError:
-            pass  # nothing more waiting (a dead link shows up on the next write/read)
-        finally:
-            self._stream.set_timeout(self._timeout)
+            return self._stream.read(4096)
+        except TransportTimeout:
+            return None
+        except PeerClosed:
+            return b""
 
     def query(self, code: int, arg: int | None = None) -> Reply:
         """Send ``?Q<code>`` and return the typed reply."""
@@ -252,8 +380,14 @@ class MdcClient:
         return self.run(macro_get_op(var))
 
     def macro_set(self, var: int, value: float) -> None:
-        """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var, self.allow_any_variable)
+        """Write macro variable ``var`` (refused while ``safe_mode`` is on).
+
+        A write the control would refuse (:func:`opendnc.haas.macros.check_write`) raises
+        :class:`~opendnc.errors.InputError` with the reason before anything is sent.
+        """
+        check_macro_write(
+            var, value, safe_mode=self.safe_mode, allow_any_variable=self.allow_any_variable
+        )
         self.run(macro_set_op(var, value))
 
     def status(self) -> MachineStatus:
@@ -265,14 +399,14 @@ class MdcClient:
 
 
 class AsyncMdcClient:
-    """asyncio MDC client; same ops and engine as :class:`MdcClient`."""
+    """asyncio MDC client; same ops and the same :class:`MdcClientCore` as :class:`MdcClient`."""
 
     def __init__(
         self,
         reader: asyncio.StreamReader,
         writer: asyncio.StreamWriter,
         *,
-        timeout: float = 3.0,
+        timeout: float = DEFAULT_TIMEOUT,
         safe_mode: bool = True,
         allow_any_variable: bool = False,
         eol: bytes = b"\r\n",
@@ -280,20 +414,34 @@ class AsyncMdcClient:
         self.safe_mode = safe_mode
         self.allow_any_variable = allow_any_variable
         self._reader, self._writer = reader, writer
-        self._timeout = timeout
-        self._conn = MdcConnection(eol)
+        self.core = MdcClientCore(timeout=timeout, eol=eol)
 
     @classmethod
-    async def connect(cls, host: str, port: int = DEFAULT_PORT, **kwargs: Any) -> AsyncMdcClient:
+    async def connect(
+        cls,
+        host: str,
+        port: int = DEFAULT_PORT,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        safe_mode: bool = True,
+        allow_any_variable: bool = False,
+        eol: bytes = b"\r\n",
+    ) -> AsyncMdcClient:
         """Open a TCP connection to the control."""
-        timeout = float(kwargs.get("timeout", 3.0))
         try:
             reader, writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout)
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
-        return cls(reader, writer, **kwargs)
+        return cls(
+            reader,
+            writer,
+            timeout=timeout,
+            safe_mode=safe_mode,
+            allow_any_variable=allow_any_variable,
+            eol=eol,
+        )
 
     async def __aenter__(self) -> AsyncMdcClient:
         return self
@@ -309,29 +457,27 @@ class AsyncMdcClient:
 
     async def run(self, op: Op[T]) -> T:
         """Run a generator op to completion over this connection."""
+        io = self.core.run(op)
         try:
-            request = next(op)
+            step = next(io)
             while True:
-                reply = await self._exchange(request)
-                request = op.send(reply)
+                step = io.send(await self._do(step))
         except StopIteration as done:
-            return done.value  # type: ignore[no-any-return]
+            result: T = done.value
+            return result
 
-    async def _exchange(self, request: Request) -> Reply:
+    async def _do(self, step: IoStep) -> bytes | None:
         try:
-            with contextlib.suppress(TimeoutError):
-                # take in other clients' broadcast replies already waiting (see MdcClient)
-                while data := await asyncio.wait_for(self._reader.read(4096), 0.001):
-                    self._conn.receive_data(data)
-            self._writer.write(self._conn.send(request))
-            await self._writer.drain()
-            while (reply := self._conn.next_event()) is None:
-                data = await asyncio.wait_for(self._reader.read(4096), self._timeout)
-                self._conn.receive_data(data)
-            return reply
-        except TimeoutError as exc:
-            self._conn.reset()
-            raise TransportTimeout(f"no MDC reply to {request}") from exc
+            if isinstance(step, Send):
+                self._writer.write(step.data)
+                await asyncio.wait_for(self._writer.drain(), step.timeout)
+                return b""
+            timeout = max(step.timeout, ASYNC_WAITING)
+            return await asyncio.wait_for(self._reader.read(4096), timeout)
+        except TimeoutError:
+            return None
+        except ConnectionResetError:
+            return b""
         except OSError as exc:
             raise TransportError(f"MDC connection failed: {exc}") from exc
 
@@ -344,8 +490,14 @@ class AsyncMdcClient:
         return await self.run(macro_get_op(var))
 
     async def macro_set(self, var: int, value: float) -> None:
-        """Write macro variable ``var`` (refused while ``safe_mode`` is on)."""
-        _check_write(self.safe_mode, var, self.allow_any_variable)
+        """Write macro variable ``var`` (refused while ``safe_mode`` is on).
+
+        A write the control would refuse (:func:`opendnc.haas.macros.check_write`) raises
+        :class:`~opendnc.errors.InputError` with the reason before anything is sent.
+        """
+        check_macro_write(
+            var, value, safe_mode=self.safe_mode, allow_any_variable=self.allow_any_variable
+        )
         await self.run(macro_set_op(var, value))
 
     async def status(self) -> MachineStatus:

@@ -15,11 +15,12 @@ Program faults become alarms (:class:`~opendnc.haas.machine.Alarm`), as on a con
 from __future__ import annotations
 
 import enum
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from opendnc.errors import InputError
-from opendnc.haas import dprnt
+from opendnc.haas import dprnt, macros
 from opendnc.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
 from opendnc.haas.program import (
     Assign,
@@ -244,10 +245,10 @@ class ProgramRunner:
         if block.deleted:
             return StepResult.RAN
         if isinstance(statement, Assign):
-            self._assign(statement)
+            return self._assign(statement, block)
         elif isinstance(statement, IfThen):
             if self._value(statement.condition):
-                self._assign(statement.then)
+                return self._assign(statement.then, block)
         elif isinstance(statement, IfGoto):
             if self._value(statement.condition):
                 return self._jump_to(self._value(statement.target))
@@ -266,9 +267,17 @@ class ProgramRunner:
             return self._words(statement)
         return StepResult.RAN
 
-    def _assign(self, statement: Assign) -> None:
+    def _assign(self, statement: Assign, block: Block) -> StepResult:
         number = variable_number(statement.target, self.machine.get)
-        self.machine.set(number, evaluate(statement.value, self.machine.get))
+        value = evaluate(statement.value, self.machine.get)
+        if number == macros.ALARM_VARIABLE:
+            # #3000 = n (TEXT): alarm 1000 + n with the block's comment (docs/haas-macros.md)
+            code = macros.alarm_for(value)
+            comment = re.search(r"\(([^)]*)\)", block.source)
+            text = comment.group(1).strip() if comment else "PROGRAMMABLE ALARM"
+            return self._alarm(Alarm(code, text), f"#3000 = {code - macros.ALARM_BASE}")
+        self.machine.set(number, value)
+        return StepResult.RAN
 
     def _skip_loop(self, loop: int) -> StepResult:
         depth = 0

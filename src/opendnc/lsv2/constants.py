@@ -1,6 +1,6 @@
 """LSV2 numbers and names: error codes, logins, sub-commands, selectors, enumerations.
 
-Names follow the protocol reference (``docs/lsv2-protocol.md``); values are what travels on the
+Names follow the protocol reference (``docs/lsv2.md``); values are what travels on the
 wire. Everything here is plain data, shared by the client and the simulator.
 """
 
@@ -168,7 +168,7 @@ def error_text(code: int | None) -> str:
 
 
 class Login(enum.StrEnum):
-    """Login names as sent in ``A_LG`` (see §3.2 of the reference)."""
+    """Login names as sent in ``A_LG`` (see docs/lsv2.md#logins)."""
 
     INSPECT = "INSPECT"
     DIAGNOSTICS = "DIAGNOSTICS"

@@ -3,11 +3,11 @@
 A :class:`Frame` is a telegram name (four ASCII characters) plus its raw payload; turning it
 into a typed message is the codec's job (:mod:`opendnc.lsv2.messages`).
 
-TCP (§1.2 of the reference)::
+TCP (docs/lsv2.md#tcp-framing)::
 
     u32 payload length | 4 ASCII name | payload
 
-RS-232 (§13)::
+RS-232 (docs/lsv2.md#serial-lsv2)::
 
     DLE STX | name + payload, every DLE doubled | DLE ETX | BCC
 
@@ -170,7 +170,7 @@ _DLE_DLE = b"\x10\x10"
 
 
 class SerialControl(enum.Enum):
-    """Link-control signals of serial LSV2 (§13.1)."""
+    """Link-control signals of serial LSV2 (docs/lsv2.md#serial-control-characters)."""
 
     ENQ = "ENQ"  # request to send
     EOT = "EOT"  # end of transmission

@@ -1,4 +1,5 @@
-"""Typed data layouts carried inside LSV2 telegrams (§5, §8, §9 of the reference).
+"""Typed data layouts carried inside LSV2 telegrams (docs/lsv2.md#telegram-names,
+docs/lsv2.md#system-parameters, docs/lsv2.md#remote-scope).
 
 Each structure converts to and from bytes (``to_bytes()`` / ``from_bytes()``). Decoders raise
 :class:`~opendnc.errors.RemoteProtocolError` naming the field that did not fit; encoders raise
@@ -85,7 +86,7 @@ def _need(data: bytes, size: int, what: str) -> None:
         raise RemoteProtocolError(f"{what} needs {size} bytes, got {len(data)}")
 
 
-# --- system parameters (§8.1) ---------------------------------------------------------------
+# --- system parameters (docs/lsv2.md#system-parameters) -------------------------------------------
 
 _PR = struct.Struct(">14I B 7s 4I 16s BBH 4B I I HH I")
 assert _PR.size == 120
@@ -220,7 +221,7 @@ class SystemParameters:
         return raw
 
 
-# --- versions (§5.2) -----------------------------------------------------------------------
+# --- versions (docs/lsv2.md#versions) -------------------------------------------------------------
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,7 +253,7 @@ class Versions:
         return (self.model, self.nc_software, self.plc, self.splc, self.options)
 
 
-# --- file and directory entries (§8.6, §8.7) ------------------------------------------------
+# --- file and directory entries (docs/lsv2.md#directory-info, docs/lsv2.md#file-entries) ----------
 
 _ENTRY = struct.Struct(">III")
 
@@ -359,7 +360,7 @@ class DirectoryInfo:
         return cls(free, path, tuple(tags), values)
 
 
-# --- scope (§9) ----------------------------------------------------------------------------
+# --- scope (docs/lsv2.md#remote-scope) ------------------------------------------------------------
 
 _OC_HEAD = struct.Struct(">HHHHH36x")
 assert _OC_HEAD.size == 46

@@ -1,8 +1,9 @@
 """PLC operands: notation (``M100``, ``W4``, ``IW2``, ``S3`` ...), element sizes, addresses.
 
 Pure functions shared by the client (to build ``R_MB`` requests and decode ``S_MB`` bytes) and
-usable by a simulator. Addresses come from the control's :class:`SystemParameters` (§8.1);
-values in PLC memory are little-endian (§8.3).
+usable by a simulator. Addresses come from the control's :class:`SystemParameters`
+(docs/lsv2.md#system-parameters);
+values in PLC memory are little-endian (docs/lsv2.md#plc-memory).
 
 >>> parse_operand("W4")
 PlcOperand(memory=<MemoryType.WORD: 7>, index=2)

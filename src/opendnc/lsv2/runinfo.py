@@ -2,7 +2,7 @@
 
 ``decode_run_info(selector, data)`` and ``encode_run_info(selector, value)`` are used by the
 client (decoding) and the simulator (encoding), so both sides share one definition of each
-layout (§8.8 and §8.9 of the reference).
+layout (docs/lsv2.md#run-time-information, docs/lsv2.md#nc-errors).
 """
 
 from __future__ import annotations

@@ -39,7 +39,8 @@ class EotAnswer(enum.Enum):
     """How the receiver answered our EOT."""
 
     ACK = "ack"  # the standard ending
-    CAN = "can"  # a Haas answers a complete transfer with CAN CAN CAN (seed 003, Figure 24)
+    # a Haas answers a complete transfer with CAN CAN CAN (docs/xmodem.md#haas-captures, Figure 24)
+    CAN = "can"
     NONE = "none"  # no answer after the EOT retries (lrzsz rx can lose its last ACK)
     CLOSED = "closed"  # the link closed after the EOT
 

@@ -1,7 +1,8 @@
 """Haas program conventions on an XModem link.
 
 A Haas punches a program as ``LF % LF O05555(comment) LF ... M30 LF LF % LF`` and pads the
-last block with SUB (seed 003, Figure 23). The end-of-block bytes follow setting 25 (EOB
+last block with SUB (docs/xmodem.md#haas-captures, Figure 23). The end-of-block bytes follow setting
+25 (EOB
 pattern): LF, CR, CR LF, CR CR or LF LF. On the PC side programs are kept with LF line ends;
 :func:`to_wire` and :func:`from_wire` convert in between. ``%`` delimiters, the O-number line
 and every other byte are left exactly as they are.

@@ -216,7 +216,8 @@ class XmodemSender(EngineBase):
                 # 1K blocks exist only with CRC-16
                 self._large_allowed = False
             self._events.append(Started(self.mode, self.crc))
-            # any further NAK/'C' in this chunk were queued before we answered (seed 003,
+            # any further NAK/'C' in this chunk were queued before we answered
+            # (docs/xmodem.md#haas-captures,
             # Figure 24 shows a Haas sending three); they must not trigger a resend
             self._next_after_turnaround()
             return

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.errors import ControlRefused, SafetyLockError
+from opendnc.errors import ControlRefused, InputError, SafetyLockError
 from opendnc.haas import mdc
-from opendnc.haas.mdc_client import AsyncMdcClient, MdcClient
+from opendnc.haas.mdc_client import AsyncMdcClient, MdcClient, macro_set_op
 from opendnc.sim.haas import HaasConfig, SimHaasThread, SimOptions
 
-# Reply payload formats of the reference table (haas-protocols.md 7.4)
+# Reply payload formats of Haas's table (docs/haas.md#q-commands)
 FORMATS = {
     "?Q100": r"SERIAL NUMBER, \S+",
     "?Q101": r"SOFTWARE VERSION, \S+",
@@ -109,8 +109,10 @@ def test_macro_set_then_get(sim: SimHaasThread) -> None:
         client.allow_any_variable = True
         client.macro_set(5223, -0.5)
         assert client.macro_get(5223) == -0.5
+        with pytest.raises(InputError, match="read-only"):
+            client.macro_set(5021, 1.0)  # machine position: refused before it is sent ...
         with pytest.raises(ControlRefused):
-            client.macro_set(5021, 1.0)  # machine position: the control refuses (?)
+            client.run(macro_set_op(5021, 1.0))  # ... and by the control if sent anyway (?)
 
 
 def test_two_connections_and_broadcast(sim: SimHaasThread) -> None:

@@ -171,6 +171,7 @@ def test_port_closing_mid_stream_raises_the_link_alarm(tmp_path: Path) -> None:
         deadline = time.monotonic() + 5
         while not thread.call(lambda: sim.control.running) and time.monotonic() < deadline:
             time.sleep(0.01)
+        assert thread.call(lambda: sim.control.running), "the DNC program never started"
         os.close(pair.master_fd)
         while not front.messages and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -222,10 +223,18 @@ def test_xoff_held_too_long_is_a_clear_error(tmp_path: Path) -> None:
                 config=DncConfig(xoff_timeout=0.3, drain=False, chunk=64),
                 on_event=events.append,
             )
-        time.sleep(0.1)  # let the reader collect what is still in the pty
     finally:
         done.set()
         reader.join(2)
+        # collect what the PC wrote and the reader had not read yet (the pty keeps it)
+        while select.select([pair.master_fd], [], [], 0)[0]:
+            try:
+                chunk = os.read(pair.master_fd, 4096)
+            except OSError:  # EIO: the PC side is closed and nothing is left
+                break
+            if not chunk:
+                break
+            got.extend(chunk)
         pair.close()
     # not one byte was written after the PC saw the XOFF
     assert len(events) == 1

@@ -135,6 +135,9 @@ def test_dnc_select_and_key_start_run_a_program(tmp_path: Path) -> None:
         # the selected program cannot be deleted while selected
         assert _ask(sock, "A_LG", b"FILE\0").mnemonic == "T_OK"
         assert _ask(sock, "C_FD", b"TNC:\\nc_prog\\1001.I\0").payload == b"\x01\x24"
-        time.sleep(0.3)
-        assert _ask(sock, "R_RI", b"\x00\x1a").payload == b"\x00\x02"  # finished
+        deadline = time.monotonic() + 10
+        while (state := _ask(sock, "R_RI", b"\x00\x1a").payload) == b"\x00\x00":
+            assert time.monotonic() < deadline, "program still running"
+            time.sleep(0.01)
+        assert state == b"\x00\x02"  # finished
         assert tnc.call(lambda c: c.machine.part_counter) == 1

@@ -8,6 +8,7 @@ import pytest
 
 from opendnc.lsv2 import Client
 from opendnc.sim.tnc import new_event_loop, start_tnc
+from tests.peers import require_module
 
 
 def test_forced_standard_loop(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -20,7 +21,7 @@ def test_forced_standard_loop(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_uvloop_when_installed(monkeypatch: pytest.MonkeyPatch) -> None:
-    uvloop = pytest.importorskip("uvloop")
+    uvloop = require_module("uvloop")
     monkeypatch.delenv("OPENDNC_SIM_LOOP", raising=False)
     loop = new_event_loop()
     try:

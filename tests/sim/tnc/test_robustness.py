@@ -278,6 +278,7 @@ def test_connection_limit_answers_error_80(tmp_path: Path) -> None:
         deadline = time.monotonic() + 3
         while tnc.server.connections > 1 and time.monotonic() < deadline:
             time.sleep(0.02)
+        assert tnc.server.connections == 1, "the closed session still counts"
         fourth = logged_in(tnc.port)
         fourth.close()
         second.close()

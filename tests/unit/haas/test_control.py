@@ -278,7 +278,7 @@ def test_mdc_responder_for_any_link(tmp_path: Path) -> None:
 
 
 def test_reference_example_session_bytes(tmp_path: Path) -> None:
-    """haas-protocols.md 7.5, byte for byte (NGC)."""
+    """docs/haas.md#mdc-example, byte for byte (NGC)."""
     from opendnc.sim.haas.mdc_server import MdcResponder
 
     control, _ = make(tmp_path)
@@ -294,7 +294,8 @@ def test_reference_example_session_bytes(tmp_path: Path) -> None:
 
 
 def test_seed_surface_snippet(tmp_path: Path) -> None:
-    """The grid-probing snippet of seed 003, EOB semicolons and all."""
+    """The grid-probing snippet of the OpenDNC README (docs/haas.md#sources), EOB semicolons and
+    all."""
     control, _ = make(tmp_path, surface=parse_surface("plane:-0.1,0,-0.5"))
     serial = Capture()
     control.machine.settings[261] = int(DprntDestination.SERIAL)

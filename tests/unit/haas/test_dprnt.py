@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from opendnc.errors import InputError, RemoteProtocolError
+from opendnc.errors import InputError
 from opendnc.haas.dprnt import (
     DprntLineFramer,
+    DroppedLine,
+    FramedLine,
     Text,
     Variable,
     format_value,
@@ -81,17 +83,32 @@ def test_framer_line_ends_and_control_bytes() -> None:
     framer.feed(b"\nB 2\nC\x00 3\r\r\n")
     framer.feed(b"\x14D 4")
     # CR LF split across feeds is one line end; CR CR LF is an empty line then one end
-    assert list(framer.lines()) == ["A 1", "B 2", "C 3", ""]
-    assert framer.flush() == "D 4"
-    assert framer.flush() is None
+    assert list(framer.events()) == [FramedLine(t) for t in ("A 1", "B 2", "C 3", "")]
+    assert framer.end_of_stream() == FramedLine("D 4", complete=False)
+    assert framer.end_of_stream() is None
 
 
-def test_framer_rejects_overlong_line() -> None:
+def test_framer_drops_overlong_line_whole_and_keeps_neighbours() -> None:
     framer = DprntLineFramer(max_line=8)
-    with pytest.raises(RemoteProtocolError):
-        framer.feed(b"123456789")
-    framer.feed(b"ok\n")
-    assert framer.next_line() == "ok"
+    framer.feed(b"ok 1\n12345")
+    framer.feed(b"6789")  # the line passes the limit here ...
+    framer.feed(b"ABC\r")  # ... and its tail must not become a line
+    framer.feed(b"\nok 2\r\n12345678\n")  # exactly the limit is still a line
+    assert list(framer.events()) == [
+        FramedLine("ok 1"),
+        DroppedLine(12),
+        FramedLine("ok 2"),
+        FramedLine("12345678"),
+    ]
+
+
+def test_framer_overlong_line_cut_by_end_of_link() -> None:
+    framer = DprntLineFramer(max_line=8)
+    framer.feed(b"ok\n" + b"M" * 20)
+    assert list(framer.events()) == [FramedLine("ok")]
+    assert framer.end_of_stream() == DroppedLine(20, complete=False)
+    framer.feed(b"new\n")  # a new link starts clean
+    assert list(framer.events()) == [FramedLine("new")]
 
 
 def test_parse_line_fields() -> None:

@@ -78,21 +78,35 @@ def test_listener_survives_disconnects_and_keeps_tails(tmp_path: Path) -> None:
     csv_sink.close()
     jsonl_sink.close()
     assert [line.text for line in got] == ["X  1.5000 Y -2", "PART", "", "Z 3"]
+    # "PART" was cut by the disconnect: kept, but marked so
+    assert [line.complete for line in got] == [True, False, True, True]
+    assert stats.cut == 1
     assert got[0].numbers == (1.5, -2.0)
     assert stats.connects == 2
     assert stats.errors == 1
     assert sleeps == [0.5, 1.0]  # backoff doubled after the refused connect
     assert all(s.closed for s in opened)
     rows = list(csv.reader(csv_path.read_text().splitlines()))
-    assert rows[0] == ["timestamp", "line", "fields"]
-    assert rows[1] == ["2026-01-02T03:04:05+00:00", "X  1.5000 Y -2", "X=1.5 Y=-2"]
+    assert rows[0] == ["timestamp", "line", "fields", "complete"]
+    assert rows[1] == ["2026-01-02T03:04:05+00:00", "X  1.5000 Y -2", "X=1.5 Y=-2", "yes"]
+    assert rows[2] == ["2026-01-02T03:04:05+00:00", "PART", "", "no"]
     records = [json.loads(r) for r in jsonl_path.read_text().splitlines()]
     assert records[3] == {
         "timestamp": "2026-01-02T03:04:05+00:00",
         "line": "Z 3",
         "numbers": [3.0],
         "fields": [{"label": "Z", "value": 3.0}],
+        "complete": True,
     }
+    assert records[1]["complete"] is False
+
+
+def test_csv_sink_refuses_to_mix_layouts(tmp_path: Path) -> None:
+    old = tmp_path / "old.csv"
+    old.write_text("timestamp,line,fields\r\n2026-01-02T03:04:05+00:00,A 1,A=1\r\n")
+    with pytest.raises(InputError, match="new file"):
+        CsvSink(old)
+    assert old.read_text().count("\n") == 2  # untouched
 
 
 def test_listener_max_connects_ends_run() -> None:
@@ -164,13 +178,16 @@ def test_stop_cuts_backoff_short() -> None:
     import threading
     import time
 
+    tried = threading.Event()
+
     def refuse(spec: str) -> ScriptedStream:
+        tried.set()
         raise TransportError("refused")
 
     listener = DprntListener("x", [], opener=refuse, backoff_start=30.0)  # type: ignore[arg-type]
     thread = threading.Thread(target=listener.run, daemon=True)
     thread.start()
-    time.sleep(0.05)
+    assert tried.wait(5), "the listener never tried to connect"
     started = time.monotonic()
     listener.stop()
     thread.join(5)

@@ -60,7 +60,7 @@ def test_reply_framer_tolerates_double_prompt() -> None:
     assert framer.next_payload() is None
 
 
-# Example replies from Haas's NGC table (haas-protocols.md 7.4)
+# Example replies from Haas's NGC table (docs/haas.md#q-commands)
 @pytest.mark.parametrize(
     ("payload", "expected"),
     [

@@ -1,4 +1,5 @@
-"""Sample messages covering every registered telegram, and golden wire data from the seeds."""
+"""Sample messages covering every registered telegram, and golden wire data from captures
+(docs/captures/)."""
 
 from __future__ import annotations
 
@@ -71,7 +72,8 @@ from opendnc.lsv2.payloads import (
     SystemParameters,
 )
 
-# §8.1: the complete 120-byte S_PR payload of a TNC 320 v18 programming station [W].
+# docs/lsv2.md#system-parameters: the complete 120-byte S_PR payload of a TNC 320 v18 programming
+# station (wire).
 S_PR_GOLDEN = bytes.fromhex(
     "0001dcd000009c4000027910000003e800027cf8000003e8000280e000000090"
     "00028170000003e8000000400001d4c00002855800000190f000000000000000"
@@ -80,7 +82,7 @@ S_PR_GOLDEN = bytes.fromhex(
 )
 PARAMS = SystemParameters.from_bytes(S_PR_GOLDEN)
 
-# Seed 000 serial capture: S_VR body of a TNC 320 programming station.
+# Serial trace (docs/captures/lsv2-serial-tnc320.txt): S_VR body of a TNC 320 programming station.
 TNC320_S_VR_PAYLOAD = (
     b"TNC320\x00771855 18 SP1\x00Basic V18-00\x00No version given\x000000000100000100\x00"
 )

@@ -72,7 +72,7 @@ def test_bcc_golden_vectors(body: bytes, expected: int) -> None:
 
 
 def test_serial_capture_bytes() -> None:
-    # Seed 000: >....0x10 0x02 A_LG INSPECT 0x00 0x10 0x03 0x40
+    # docs/captures/lsv2-serial-tnc320.txt: >....0x10 0x02 A_LG INSPECT 0x00 0x10 0x03 0x40
     assert encode_serial_frame(Frame("A_LG", b"INSPECT\0")) == (
         b"\x10\x02A_LGINSPECT\x00\x10\x03\x40"
     )

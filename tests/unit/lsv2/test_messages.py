@@ -1,4 +1,4 @@
-"""Codec: golden vectors from the seeds and the reference, round trips, malformed payloads."""
+"""Codec: golden vectors from captures and docs/lsv2.md, round trips, malformed payloads."""
 
 from __future__ import annotations
 
@@ -138,7 +138,7 @@ def test_attribute_schemes() -> None:
 
 
 def test_axis_example_golden() -> None:
-    # §8.8 axis example [W]
+    # docs/lsv2.md#run-time-information axis example (wire)
     payload = (
         b"\x00\x050.0000\x000.0000\x00500.0000\x000.0000\x000.0000\x00X\x00Y\x00Z\x00B\x00C\x00"
     )
@@ -149,7 +149,7 @@ def test_axis_example_golden() -> None:
 
 
 def test_nc_error_example_golden() -> None:
-    # §8.9 example [W]: class 3, group 3, number -2130706422
+    # docs/lsv2.md#nc-errors example (wire): class 3, group 3, number -2130706422
     text = "010 Machine guard is open !"
     payload = b"\x00\x03\x00\x03" + (-2130706422).to_bytes(4, "big", signed=True)
     payload += text.encode() + b"\0"
@@ -200,7 +200,8 @@ def test_error_payloads() -> None:
 
 
 def test_operations_log_telegrams() -> None:
-    # §5.5 capture: C_CC 00 1B + "operation.log;12.09.2020;00:00:00;" + 00 = 37 bytes
+    # docs/lsv2.md#operations-log capture: C_CC 00 1B + "operation.log;12.09.2020;00:00:00;" + 00 =
+    # 37 bytes
     from opendnc.lsv2.messages import SystemCommand
 
     payload = encode(SystemCommand(27, "operation.log;12.09.2020;00:00:00;")).payload

@@ -46,7 +46,8 @@ def test_bad_operands(bad: str) -> None:
 
 
 def test_addresses_from_golden_parameters() -> None:
-    # TNC 320 v18 layout (§8.1): markers 122064, words 64, strings 165208 × 240 bytes
+    # TNC 320 v18 layout (docs/lsv2.md#system-parameters): markers 122064, words 64, strings 165208
+    # × 240 bytes
     assert plan_reads(MemoryType.MARKER, 0, 1, PARAMS) == [(122064, 1)]
     assert plan_reads(MemoryType.WORD, 2, 1, PARAMS) == [(68, 2)]
     assert plan_reads(MemoryType.DWORD, 4, 1, PARAMS) == [(80, 4)]

@@ -1,4 +1,4 @@
-"""Parser for the serial-sniffer dumps of seed 003 (tests/unit/xmodem/seed003_capture.txt)."""
+"""Parser for the Haas XModem sniffer dumps in docs/captures/haas-xmodem-opendnc.txt."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-CAPTURE = Path(__file__).with_name("seed003_capture.txt")
+CAPTURE = Path(__file__).resolve().parents[3] / "docs" / "captures" / "haas-xmodem-opendnc.txt"
 _HEAD = re.compile(r"^\[(\d\d/\d\d/\d{4} \d\d:\d\d:\d\d)\] (Written|Read) data \(COM2\)")
 _HEX = re.compile(r"^    ((?:[0-9a-f]{2} ){0,15}[0-9a-f]{2})(?: {2,}|$)")
 

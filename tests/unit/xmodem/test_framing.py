@@ -76,7 +76,8 @@ def test_decode_errors_are_typed_and_named() -> None:
 
 
 def test_haas_eob_folding_is_opt_in() -> None:
-    # the control sums CR LF as a single LF (reported in seed 003); opt-in tolerance
+    # the control sums CR LF as a single LF (reported by OpenDNC, docs/xmodem.md#haas-dialect);
+    # opt-in tolerance
     wire = b"G00X1.\r\nM30\r\n"
     data = wire + b"\x1a" * (128 - len(wire))
     folded_sum = checksum(data.replace(b"\r\n", b"\n"))

@@ -200,7 +200,7 @@ class ChangeAttributes(Message):
 class _FileRequest(Message):
     path: str
     mode: int | None = None
-    """Transfer mode byte (§6.4); ``None`` = absent (ASCII)."""
+    """Transfer mode byte (docs/lsv2.md#transfer-mode); ``None`` = absent (ASCII)."""
 
     def to_payload(self) -> bytes:
         return cstr(self.path) + (b"" if self.mode is None else _pack(">B", self.mode))

@@ -129,7 +129,7 @@ class WriteMachineParameter(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class ReadDataPath(Message):
-    """``R_DP``: read a value by data path (iTNC 530, §8.4)."""
+    """``R_DP``: read a value by data path (iTNC 530, docs/lsv2.md#data-paths)."""
 
     MNEMONIC: ClassVar[str] = "R_DP"
     path: str
@@ -202,7 +202,7 @@ class DataPathReply(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class ReadRunInfo(Message):
-    """``R_RI``: run-time information selector (§8.8)."""
+    """``R_RI``: run-time information selector (docs/lsv2.md#run-time-information)."""
 
     MNEMONIC: ClassVar[str] = "R_RI"
     selector: int
@@ -260,7 +260,7 @@ class LockKeyboard(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class EmulateKey(Message):
-    """``C_EK``: press key ``code`` (§10.3 / §10.4)."""
+    """``C_EK``: press key ``code`` (docs/lsv2.md#key-codes)."""
 
     MNEMONIC: ClassVar[str] = "C_EK"
     code: int
@@ -398,7 +398,8 @@ class ScopeDataReply(Message):
 
 @dataclass(frozen=True, slots=True)
 class Opaque(Message):
-    """A known telegram name without a public layout (§5.12, §5.13): raw payload."""
+    """A known telegram name without a public layout (docs/lsv2.md#screen-requests,
+    docs/lsv2.md#dnc-telegrams): raw payload."""
 
     name: str
     payload: bytes = b""

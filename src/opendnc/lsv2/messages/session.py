@@ -57,7 +57,7 @@ def _error_fields(payload: bytes, name: str) -> tuple[int | None, int]:
 @register
 @dataclass(frozen=True, slots=True)
 class Refused(Message):
-    """``T_ER``: the request failed with ``code`` (§2.3)."""
+    """``T_ER``: the request failed with ``code`` (docs/lsv2.md#error-codes)."""
 
     MNEMONIC: ClassVar[str] = "T_ER"
     code: int | None
@@ -146,7 +146,7 @@ class Logout(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class ReadVersion(Message):
-    """``R_VR``: all version strings (``selector=None``) or one (§5.2)."""
+    """``R_VR``: all version strings (``selector=None``) or one (docs/lsv2.md#versions)."""
 
     MNEMONIC: ClassVar[str] = "R_VR"
     selector: int | None = None
@@ -188,7 +188,7 @@ class ReadParameters(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class ParametersReply(Message):
-    """``S_PR``: the system parameters (§8.1)."""
+    """``S_PR``: the system parameters (docs/lsv2.md#system-parameters)."""
 
     MNEMONIC: ClassVar[str] = "S_PR"
     params: SystemParameters
@@ -204,7 +204,7 @@ class ParametersReply(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class ReadSystemInfo(Message):
-    """``R_CI``: system information selector (§5.3)."""
+    """``R_CI``: system information selector (docs/lsv2.md#system-information)."""
 
     MNEMONIC: ClassVar[str] = "R_CI"
     selector: int
@@ -239,7 +239,7 @@ class SystemInfoReply(Message):
 @register
 @dataclass(frozen=True, slots=True)
 class SystemCommand(Message):
-    """``C_CC``: sub-command (§5.4) with an optional string parameter."""
+    """``C_CC``: sub-command (docs/lsv2.md#system-commands) with an optional string parameter."""
 
     MNEMONIC: ClassVar[str] = "C_CC"
     command: int

@@ -78,7 +78,8 @@ def screen_dump(state: SessionState, *, stamp: datetime) -> Op[bytes]:
 def operations_log(
     state: SessionState, *, since: datetime, name: str = "operation.log"
 ) -> Op[bytes]:
-    """Have the control write its operations log since ``since`` and download it (§5.5)."""
+    """Have the control write its operations log since ``since`` and download it
+    (docs/lsv2.md#operations-log)."""
     yield from ensure_login(state, Login.FILE)
     status = yield from ask(ReadStatus(), StatusReply, "read remote status")
     yield from command(SetStatus(status.status), "set remote status")

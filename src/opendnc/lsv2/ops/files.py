@@ -272,7 +272,7 @@ def delete_file(state: SessionState, path: str, *, missing_ok: bool = False) -> 
 
 
 def _source_and_target(state: SessionState, source: str, target: str) -> Op[tuple[str, str]]:
-    # The control takes the source as a name in the current directory (§5.9).
+    # The control takes the source as a name in the current directory (docs/lsv2.md#file-commands).
     folder, name = split_path(source)
     if not name:
         raise InputError(f"{source!r} names no file")

@@ -1,6 +1,7 @@
 """The cable's line monitor: a timestamped record of every byte that crosses the cable.
 
-A serial sniffer for the virtual cable, in the spirit of the dumps in seed 003 (Figures 23
+A serial sniffer for the virtual cable, in the spirit of the dumps of
+docs/captures/haas-xmodem-opendnc.txt (Figures 23
 and 24): each line says when bytes left the line, in which direction, and which bytes (after
 noise: what the far side is handed, or loses unheard when nobody has it open)::
 

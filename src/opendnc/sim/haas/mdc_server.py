@@ -3,6 +3,12 @@
 As Haas documents: at most two simultaneous connections (a third is closed at once), and
 every reply goes to every open connection. Requests are parsed with the shared codec in
 :mod:`opendnc.haas.mdc`; the answer comes from :meth:`HaasControl.handle_mdc`.
+
+Broadcasting never waits on a connection: each reply is handed to every connection's
+transport at once. A connection that stops reading is watched instead: once its unread
+replies pass the transport's high-water mark it has ``drain_timeout`` seconds to take them,
+and holding more than ``max_buffered`` bytes drops it at once; either way it is closed and its
+slot freed (:attr:`MdcServer.dropped` counts them). The other client is never held up by it.
 """
 
 from __future__ import annotations
@@ -16,6 +22,10 @@ from opendnc.haas import mdc
 from opendnc.sim.haas.control import HaasControl
 
 MAX_CONNECTIONS = 2
+DRAIN_TIMEOUT = 5.0
+"""Seconds a connection may leave replies unread (past the high-water mark) before it is dropped."""
+MAX_BUFFERED = 1 << 20
+"""Bytes of unread replies kept for one connection; past this it is dropped at once."""
 
 
 class MdcResponder:
@@ -64,14 +74,21 @@ class MdcServer:
         *,
         trace: Trace | None = None,
         max_connections: int = MAX_CONNECTIONS,
+        drain_timeout: float = DRAIN_TIMEOUT,
+        max_buffered: int = MAX_BUFFERED,
     ) -> None:
         self.control = control
         self.host, self.port = host, port
         self.trace = trace
         self.max_connections = max_connections
+        self.drain_timeout = drain_timeout
+        self.max_buffered = max_buffered
         self.writers: list[asyncio.StreamWriter] = []
         self.refused = 0
+        self.dropped = 0
+        """Connections dropped because they stopped reading their replies."""
         self._server: asyncio.Server | None = None
+        self._watchdogs: dict[asyncio.StreamWriter, asyncio.Task[None]] = {}
 
     async def start(self) -> int:
         """Start listening; returns the bound port."""
@@ -83,8 +100,10 @@ class MdcServer:
         """Stop listening and drop every connection."""
         if self._server is not None:
             self._server.close()
+        for task in list(self._watchdogs.values()):
+            task.cancel()
         for writer in list(self.writers):
-            writer.close()
+            writer.transport.abort()  # unread replies need not be flushed
         if self._server is not None:
             with contextlib.suppress(OSError):
                 await self._server.wait_closed()
@@ -101,7 +120,7 @@ class MdcServer:
                 if self.trace:
                     self.trace("rx", data)
                 for reply in responder.feed(data):
-                    await self._broadcast(reply)
+                    self._broadcast(reply)
         except OSError:
             pass  # the client vanished; just forget it
         finally:
@@ -109,14 +128,41 @@ class MdcServer:
                 self.writers.remove(writer)
             writer.close()
 
-    async def _broadcast(self, data: bytes) -> None:
+    def _broadcast(self, data: bytes) -> None:
         if self.trace:
             self.trace("tx", data)
         for writer in list(self.writers):
-            try:
-                writer.write(data)
-                await writer.drain()
-            except OSError:
-                if writer in self.writers:
-                    self.writers.remove(writer)
-                writer.close()
+            self._send(writer, data)
+
+    def _send(self, writer: asyncio.StreamWriter, data: bytes) -> None:
+        if writer.is_closing():
+            self._forget(writer)
+            return
+        writer.write(data)
+        buffered = writer.transport.get_write_buffer_size()
+        if buffered > self.max_buffered:
+            self._drop(writer)
+        elif buffered and writer not in self._watchdogs:
+            self._watchdogs[writer] = asyncio.create_task(self._watch(writer))
+
+    async def _watch(self, writer: asyncio.StreamWriter) -> None:
+        # drain() returns at once below the high-water mark and otherwise waits until the
+        # peer has read enough: a bounded wait tells a slow reader from one that stopped.
+        try:
+            await asyncio.wait_for(writer.drain(), self.drain_timeout)
+        except TimeoutError:
+            self._drop(writer)
+        except OSError:
+            self._forget(writer)
+        finally:
+            self._watchdogs.pop(writer, None)
+
+    def _drop(self, writer: asyncio.StreamWriter) -> None:
+        if writer in self.writers:
+            self.dropped += 1
+        self._forget(writer)
+        writer.transport.abort()  # close() would wait to flush what it will never read
+
+    def _forget(self, writer: asyncio.StreamWriter) -> None:
+        if writer in self.writers:
+            self.writers.remove(writer)

@@ -21,13 +21,14 @@ program out, run DNC). Here that is :meth:`SerialFrontEnd.select` (Python) or
 Receive, DNC and auto are re-armed after each job, punch runs once. Each job ends with
 ``RS232 DONE`` or ``RS232 ABORT ...`` in :attr:`SerialFrontEnd.messages`.
 
-Haas XModem quirks (seed 003), each a knob of :class:`SerialOptions`: extra NAKs with the start
+Haas XModem quirks (docs/xmodem.md#haas-dialect), each a knob of :class:`SerialOptions`: extra NAKs
+with the start
 requests, CAN CAN CAN answering the EOT of a complete transfer, and optionally ignoring the
 PC's first NAK when punching. A DNC stream that breaks before its closing ``%`` (no data for
 ``dnc_timeout`` while the control waits for blocks, or the port closing) raises
 :data:`~opendnc.sim.haas.control.ALARM_DNC_LINK`, visible as ``ALARM ON`` in Q500.
 
-The port is served by one I/O thread (blocking pyserial, B1's blocking XModem driver); every
+The port is served by one I/O thread (blocking pyserial, the blocking XModem driver); every
 call into the control model is marshalled onto the simulator's event loop.
 """
 

@@ -1,6 +1,7 @@
-"""XModem the way the virtual Haas speaks it, on top of B1's engines and blocking driver.
+"""XModem the way the virtual Haas speaks it, on top of the engines and blocking driver.
 
-The engines (:mod:`opendnc.xmodem`) are standard; the Haas differences seen in seed 003 are
+The engines (:mod:`opendnc.xmodem`) are standard; the Haas differences seen in the OpenDNC capture
+(docs/xmodem.md#haas-dialect) are
 added at the byte boundary by :class:`QuirkStream`, each one a knob of :class:`XmodemQuirks`:
 
 * receiving, the control repeats its start request, and repeats come as several NAKs

@@ -27,7 +27,7 @@ How the families differ (see ``profiles.py`` for every value)::
 
     profile         S_PR  R_VR parts  max buffer  attributes  R_RI            R_DP/scope  keys
     tnc640, tnc620  120   5           4096        new         20-26, 30-34    no          new
-    tnc320 (v18)    120   5           4088 [W]    new         20-26, 30-34    no          new
+    tnc320 (v18)    120   5           4088 (wire) new         20-26, 30-34    no          new
     tnc7            120   5           4096        new         20-26, 30-34    no          refused
     itnc530 (PGM)   124   4           4096        old         + 27, 28, 51    yes         new
     tnc426          120   4           1024        old         23-26           no          old

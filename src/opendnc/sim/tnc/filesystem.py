@@ -40,7 +40,7 @@ class FsError(Exception):
         self.text = text
 
 
-# LSV2 error codes used here (reference §2.3).
+# LSV2 error codes used here (docs/lsv2.md#error-codes).
 BAD_FNAME = 31
 NO_FILE = 32
 OPEN_FILE = 33
@@ -134,7 +134,7 @@ class Entry:
     is_drive: bool = False
 
     def attributes(self, old_scheme: bool) -> int:
-        """Attribute bits of §8.7 in the family's scheme."""
+        """Attribute bits of docs/lsv2.md#file-entries in the family's scheme."""
         attr = 0x01
         if self.is_drive and not old_scheme:
             attr |= 0x10

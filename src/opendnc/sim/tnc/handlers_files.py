@@ -213,7 +213,8 @@ def file_block(s: Session, m: FileData) -> list[Message]:
 
 @handler(FileDone, Priv.FILE)
 def file_done(s: Session, m: FileDone) -> list[Message]:
-    """End of an upload: rename into place; answer only with secure file send (§6.2)."""
+    """End of an upload: rename into place; answer only with secure file send
+    (docs/lsv2.md#upload)."""
     up = s.upload
     if up is None:
         return [Refused(E.T_ER_UNEXPECTED_TELE)] if s.secure_send else []

@@ -153,7 +153,8 @@ def screen_dump(s: Session, target: str) -> list[Message]:
 
 
 def operations_log(s: Session, param: str) -> Result:
-    """C_CC 27: accept, then write the log and announce it with ``M_CC`` (§5.5)."""
+    """C_CC 27: accept, then write the log and announce it with ``M_CC``
+    (docs/lsv2.md#operations-log)."""
     if not s.allowed(Priv.FILE):
         raise Refuse(E.T_ER_NO_PRIV)
     try:

@@ -44,8 +44,8 @@ class MachineError(Exception):
 
 OPERATING_MODE = 56
 BAD_EMULATEKEY = 39
-NC_START_KEY = 0x00F0  # NC start as a hobby project sent it (§5.11) [U]
-NC_STOP_KEY = 0x00F1  # our own choice, next to NC start [U]
+NC_START_KEY = 0x00F0  # NC start as a hobby project sent it (docs/lsv2.md#keyboard) (guess)
+NC_STOP_KEY = 0x00F1  # our own choice, next to NC start (guess)
 
 NEW_MODE_KEYS = {0x01C0: 0, 0x01C1: 1, 0x01C2: 3, 0x01C3: 4, 0x01C5: 0}
 OLD_MODE_KEYS = {0x0048: 0, 0x0040: 0, 0x004A: 3, 0x0049: 1, 0x004B: 4}
@@ -89,7 +89,7 @@ class Block:
 
 @dataclass(slots=True)
 class NcError:
-    """An entry of the NC error list (``R_RI`` 27/28, §8.9)."""
+    """An entry of the NC error list (``R_RI`` 27/28, docs/lsv2.md#nc-errors)."""
 
     error_class: int
     group: int

@@ -2,7 +2,7 @@
 
 Every view reads the same bytes: ``R_MB`` by address, ``R_DP`` ``\\PLC\\memory\\W\\20`` and the
 machine model writing its live values (overrides, spindle speed, tool) into fixed words.
-Multi-byte values are little-endian as in the controls' memory (§8.3).
+Multi-byte values are little-endian as in the controls' memory (docs/lsv2.md#plc-memory).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from opendnc.sim.tnc.profiles import PlcLayout, Profile
 
 
 class DpType(IntEnum):
-    """Value types of ``S_DP`` (§8.5)."""
+    """Value types of ``S_DP`` (docs/lsv2.md#data-paths)."""
 
     I16 = 2
     I32 = 3

@@ -1,5 +1,7 @@
 """Default content of a fresh programming station: demo programs, MDI, tool and pocket tables.
 
+Where each family keeps what is described in docs/tnc-profiles.md#fresh-roots.
+
 Tables use the fixed-width text format of the controls: a ``BEGIN`` line, a header line whose
 column positions define the widths, one row per line and ``[END]``.
 """
@@ -211,11 +213,15 @@ def populate(fs: ControlFs, profile: Profile) -> None:
         put(prog + "\\DEMO_SHAFT.nc", lathe_demo().replace("PGM01", "DEMO_SHAFT"))
         put(prog + "\\demo\\FLANGE.nc", lathe_demo().replace("PGM01", "FLANGE"))
     else:
+        # Sub-folder programs live in the project folder where the family has one (iTNC 530:
+        # TNC:\nc_prog next to the programs in TNC:\), else in the program folder itself.
+        projects = (paths.project_dir or prog).rstrip("\\")
+        frame = "demo\\FRAME.H" if paths.project_dir is None else projects + "\\demo\\FRAME.H"
         put(paths.mdi_program, "0 BEGIN PGM $MDI MM\r\n1 END PGM $MDI MM\r\n")
-        put(prog + "\\POCKET.H", klartext_demo("POCKET", call="demo\\FRAME.H"))
+        put(prog + "\\POCKET.H", klartext_demo("POCKET", call=frame))
         put(prog + "\\1001.I", iso_demo(1001))
-        put(prog + "\\demo\\FRAME.H", klartext_demo("FRAME"))
-        put(prog + "\\demo\\CONTOUR.H", klartext_demo("CONTOUR"))
+        put(projects + "\\demo\\FRAME.H", klartext_demo("FRAME"))
+        put(projects + "\\demo\\CONTOUR.H", klartext_demo("CONTOUR"))
     tool_name = paths.tool_table.rsplit("\\", 1)[1]
     pocket_name = paths.pocket_table.rsplit("\\", 1)[1]
     put(paths.tool_table, tool_table(tool_name))
@@ -229,4 +235,6 @@ def populate(fs: ControlFs, profile: Profile) -> None:
         put("SYS:\\version.txt", f"{profile.model} {profile.nc_software}\r\n")
     if "LOG:" in profile.drives:
         put("LOG:\\errlog.txt", "Error log\r\n")
+        # OEM Python applications log below LOG:\oem\python (read by field clients as FILEPLC).
+        put("LOG:\\oem\\python\\python.log", f"{profile.model} OEM Python log\r\n")
     marker.write_text(profile.key)

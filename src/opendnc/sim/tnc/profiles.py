@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from enum import Enum
 
-from opendnc.lsv2.constants import BUFFER_SIZES
+from opendnc.lsv2.constants import BUFFER_SIZES, DRIVE_LOGINS
 from opendnc.lsv2.payloads import SystemParameters
 
 
 class KeyStyle(Enum):
-    """Which key-code table ``C_EK`` understands (reference §10.3 / §10.4)."""
+    """Which key-code table ``C_EK`` understands (docs/lsv2.md#key-codes)."""
 
     NEW = "new"
     OLD = "old"
@@ -26,7 +26,8 @@ class KeyStyle(Enum):
 
 @dataclass(frozen=True, slots=True)
 class PlcLayout:
-    """Start addresses and sizes of the PLC areas inside one flat byte image (§8.1)."""
+    """Start addresses and sizes of the PLC areas inside one flat byte image
+    (docs/lsv2.md#system-parameters)."""
 
     markers_start: int
     markers: int
@@ -99,7 +100,8 @@ def _tiled_layout(words: int, markers: int, io: int, counters: int, timers: int)
     )
 
 
-# Captured TNC 320 v18 layout (golden vector of §8.1): the tiling reproduces it exactly.
+# Captured TNC 320 v18 layout (golden vector of docs/lsv2.md#system-parameters): the tiling
+# reproduces it exactly.
 TNC_LAYOUT = _tiled_layout(words=120000, markers=40000, io=1000, counters=144, timers=1000)
 # iTNC 530 / TNC 426: smaller PLC (values plausible, not captured); word area >= 1700 bytes.
 ITNC_LAYOUT = _tiled_layout(words=20000, markers=10000, io=512, counters=96, timers=512)
@@ -108,13 +110,16 @@ OLD_LAYOUT = _tiled_layout(words=8192, markers=4096, io=256, counters=48, timers
 
 @dataclass(frozen=True, slots=True)
 class PathLayout:
-    """Well-known files of a family (reference §11)."""
+    """Well-known files of a family (docs/tnc-profiles.md#paths-and-drives)."""
 
     program_dir: str
     mdi_program: str
     tool_table: str
     pocket_table: str
     program_ext: tuple[str, ...]
+    #: A second program folder whose programs sit in sub-folders (the iTNC 530 programming
+    #: station ships ``TNC:\\nc_prog`` next to the programs in ``TNC:\\``); None: no such folder.
+    project_dir: str | None = None
 
 
 NEW_PATHS = PathLayout(
@@ -130,6 +135,14 @@ ITNC_PATHS = PathLayout(
     tool_table="TNC:\\TOOL.T",
     pocket_table="TNC:\\TOOL_P.TCH",
     program_ext=(".H", ".I"),
+)
+ITNC530_PATHS = PathLayout(
+    program_dir=ITNC_PATHS.program_dir,
+    mdi_program=ITNC_PATHS.mdi_program,
+    tool_table=ITNC_PATHS.tool_table,
+    pocket_table=ITNC_PATHS.pocket_table,
+    program_ext=ITNC_PATHS.program_ext,
+    project_dir="TNC:\\nc_prog",
 )
 LATHE_PATHS = PathLayout(
     program_dir="TNC:\\nc_prog\\ncps",
@@ -155,7 +168,7 @@ class Profile:
     option_bits: str
     control_id: str
     release_type: str | None  # None: R_VR selector 6 refused (iTNC)
-    sys_par_length: int  # 120 or 124 (§8.1)
+    sys_par_length: int  # 120 or 124 (docs/lsv2.md#system-parameters)
     max_block_length: int
     lsv2_flags: int
     lsv2_flags_ex: int
@@ -175,13 +188,25 @@ class Profile:
     plc_password: str = "807667"
     password_key: int = 0x60389A6E
     max_buffer: int = 4096
-    dir_separator: str = "\\"  # separator in S_DI paths; the iTNC answers with "/" [W]
+    dir_separator: str = "\\"  # separator in S_DI paths; the iTNC answers with "/" (wire)
     system_commands: frozenset[int] = field(
         default_factory=lambda: frozenset({2, 3, 4, 5, 6, 7, 8, 11, 12, 17, 19, 27})
     )
+    #: Logins that open a drive besides the drive's own file login, as (drive, login) pairs.
+    #: A TNC 640 in the field serves ``LOG:`` to a client logged in as FILEPLC only.
+    shared_drive_logins: frozenset[tuple[str, str]] = frozenset()
+
+    def drive_logins(self, drive: str) -> frozenset[str]:
+        """Every login that opens ``drive`` on this family (empty for an unknown drive)."""
+        own = DRIVE_LOGINS.get(drive)
+        if own is None:
+            return frozenset()
+        return frozenset({own.value}) | {
+            login for d, login in self.shared_drive_logins if d == drive
+        }
 
     def version_parts(self) -> list[str]:
-        """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, §5.2)."""
+        """Strings of the answer to an empty ``R_VR`` (4 or 5 parts, docs/lsv2.md#versions)."""
         parts = [self.model, self.nc_software, self.plc_software]
         if self.splc_software is not None:
             parts.append(self.splc_software)
@@ -206,7 +231,8 @@ class Profile:
         return {c: s for c, s in BUFFER_SIZES.items() if s <= self.max_buffer}
 
     def parameters(self) -> SystemParameters:
-        """The ``S_PR`` answer as the codec's typed value (layout of §8.1 lives in the codec)."""
+        """The ``S_PR`` answer as the codec's typed value (layout of docs/lsv2.md#system-parameters
+        lives in the codec)."""
         return SystemParameters(
             **asdict(self.plc),
             lsv2_version=1,
@@ -253,6 +279,9 @@ PROFILES: dict[str, Profile] = {
         delete_cwd_allowed=False,
         date_time=True,
         numeric_machine_parameters=False,
+        # Field report: a client logged in as FILEPLC only reads LOG:\oem\python\…
+        # (docs/tnc-profiles.md#drives-and-logins).
+        shared_drive_logins=frozenset({("LOG:", "FILEPLC")}),
     ),
     "tnc620": Profile(
         key="tnc620",
@@ -349,14 +378,15 @@ PROFILES: dict[str, Profile] = {
         lsv2_flags_ex=0x0000000F,
         plc=ITNC_LAYOUT,
         old_attributes=True,
-        paths=ITNC_PATHS,
+        paths=ITNC530_PATHS,
         ri_selectors=_ITNC_RI,
         logins=BASE_LOGINS | {"FILEPLC", "FILESYS", "DATA", "OSZI"},
         data_paths=True,
         scope=True,
         keys=KeyStyle.NEW,
         delete_cwd_allowed=True,
-        # 340494 = variant 4, a Windows programming station: no date/time service (§5.7).
+        # 340494 = variant 4, a Windows programming station: no date/time service
+        # (docs/lsv2.md#date-and-time).
         date_time=False,
         numeric_machine_parameters=True,
         drives=("TNC:", "PLC:", "SYS:"),

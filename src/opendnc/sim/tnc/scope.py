@@ -1,4 +1,5 @@
-"""Remote scope (iTNC 530): channel descriptions, signal details and sample blocks (§9).
+"""Remote scope (iTNC 530): channel descriptions, signal details and sample blocks
+(docs/lsv2.md#remote-scope).
 
 Samples are generated from the machine model (axis positions, feed override, a sine for
 channels without a live source) so a recording shows what the machine is doing.

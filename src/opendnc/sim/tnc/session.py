@@ -28,7 +28,7 @@ from opendnc.sim.tnc.scope import Signal
 
 
 class Priv(Enum):
-    """Minimum login a telegram needs (reference §3.2)."""
+    """Minimum login a telegram needs (docs/lsv2.md#logins)."""
 
     NONE = "none"  # allowed before any login (A_LG)
     ANY = "any"  # any login
@@ -56,7 +56,7 @@ class Refuse(Exception):
 
 
 def error(code: int) -> Refused:
-    """A ``T_ER``: always 2 bytes, type 1 (§2.2)."""
+    """A ``T_ER``: always 2 bytes, type 1 (docs/lsv2.md#transfer-control-and-errors)."""
     return Refused(code)
 
 
@@ -179,7 +179,7 @@ class Session:
 
     def check_drive(self, wp: WirePath) -> None:
         """Refuse (23) a path on a drive whose file login the session lacks."""
-        if FILE_LOGINS.get(wp.drive) not in self.logins:
+        if self.logins.isdisjoint(self.control.profile.drive_logins(wp.drive)):
             raise Refuse(E.T_ER_NO_PRIV, f"no login for {wp.drive}")
 
     def path(self, text: str) -> WirePath:
@@ -202,7 +202,8 @@ class Session:
     def handle(self, request: Message, wire_size: int) -> Result:
         """Answer one decoded request that arrived as ``wire_size`` bytes."""
         if wire_size > self.link.buffer_size:
-            # Too large for the negotiated buffer (§7): refuse and abort a running upload.
+            # Too large for the negotiated buffer (docs/lsv2.md#buffer-size): refuse and abort a
+            # running upload.
             if self.upload is not None and isinstance(request, FileData):
                 self.abort_upload()
                 return Result([block_defect(E.T_BD_BAD_FORMAT)])

@@ -1,4 +1,5 @@
-"""Golden vectors: the two Haas XModem captures of seed 003 (Figures 23 and 24)."""
+"""Golden vectors: the two Haas XModem captures in docs/captures/haas-xmodem-opendnc.txt (Figures 23
+and 24)."""
 
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ def test_figure_23_blocks_all_verify_and_rebuild_the_program() -> None:
         assert raw[1] + raw[2] == 0xFF
         assert checksum(raw[3:-1]) == raw[-1]  # every block's 8-bit sum matches
         decode_block(raw, crc=False)
-    # the two sums quoted in haas-protocols.md 4.5
+    # the two sums quoted in docs/xmodem.md#golden-vectors
     assert blocks[0][-1] == 0x98
     assert blocks[-1][-1] == 0xE4
     program = _program()
