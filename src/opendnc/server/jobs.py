@@ -47,6 +47,7 @@ __all__ = [
     "get_job",
     "interrupt",
     "list_jobs",
+    "machines_with_due_jobs",
     "move",
     "recover",
     "retry",
@@ -295,6 +296,17 @@ def recover(session: Session, worker: str) -> list[Job]:
     for job in jobs:
         interrupt(session, job.id, "the server stopped while this job ran")
     return list(jobs)
+
+
+def machines_with_due_jobs(session: Session) -> list[str]:
+    """Machines that have a queued job whose time has come."""
+    now = utcnow()
+    stmt = (
+        select(Job.machine)
+        .where(Job.state == JobState.QUEUED, or_(Job.not_before.is_(None), Job.not_before <= now))
+        .distinct()
+    )
+    return list(session.scalars(stmt))
 
 
 def get_job(session: Session, job_id: int) -> Job:

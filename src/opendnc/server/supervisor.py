@@ -1,10 +1,11 @@
 """One supervised asyncio task per machine: connect, poll status, run the machine's jobs.
 
 A task that loses its control closes the link, waits with exponential backoff (0.5 s up to
-30 s) and connects again; an error in one machine's task never reaches another's. Jobs are
-claimed when the API queues one in this process (a wake-up) and by a periodic sweep, which
-also picks up jobs queued by another server sharing the database and retries whose backoff
-has expired.
+30 s) and connects again; an error in one machine's task never reaches another's. A machine
+claims jobs only when woken: by the API when it queues one in this process, and by one shared
+sweep that asks the database which machines have due jobs (queued by another server sharing
+the database, or retries whose backoff has expired). One query per sweep, however many
+machines, keeps a large shop's database quiet.
 
 Database work runs in worker threads (``asyncio.to_thread``): SQLAlchemy sessions are
 blocking, and a slow database must not stall the status polls of every machine.
@@ -44,7 +45,9 @@ class MachineState:
     config: MachineConfig
     online: bool = False
     status: MachineStatus | None = None
-    last_error: str = ""
+    last_error: str = ""  # kept after a reconnect: the last thing that went wrong
+    last_error_at: datetime | None = None
+    link_errors: int = 0  # how often the link broke since the server started
     job_id: int | None = None
     job_progress: tuple[int, int | None] = (0, None)
     wake: asyncio.Event = field(default_factory=asyncio.Event)
@@ -60,6 +63,8 @@ class MachineState:
             "online": self.online,
             "status": self.status.as_json() if self.status else None,
             "last_error": self.last_error,
+            "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
+            "link_errors": self.link_errors,
             "job": None
             if self.job_id is None
             else {"id": self.job_id, "bytes_done": done, "bytes_total": total},
@@ -102,6 +107,23 @@ class Supervisor:
             log.warning("job %d was running when the server stopped: interrupted", job_id)
         for state in self.machines.values():
             self._tasks.append(asyncio.create_task(self._supervise(state), name=state.config.name))
+            state.wake.set()  # a first look at the queue
+        self._tasks.append(asyncio.create_task(self._sweep(), name="job-sweep"))
+
+    async def _sweep(self) -> None:
+        while True:
+            await asyncio.sleep(self.sweep_interval)
+            try:
+                due = await asyncio.to_thread(self._due_machines)
+            except Exception:
+                log.exception("job sweep failed")
+                continue
+            for name in due:
+                self.wake(name)
+
+    def _due_machines(self) -> list[str]:
+        with self.sessions() as session:
+            return jobs.machines_with_due_jobs(session)
 
     async def stop(self) -> None:
         """Cancel every machine task and wait for them to close their links."""
@@ -125,7 +147,7 @@ class Supervisor:
         while True:
             try:
                 await connector.connect()
-                state.online, state.last_error = True, ""
+                state.online = True
                 backoff = 0.5
                 await self._serve(state, connector)
             except asyncio.CancelledError:
@@ -136,6 +158,8 @@ class Supervisor:
                     log.exception("%s: unexpected error", state.config.name)
                 state.online = False
                 state.last_error = str(exc) or type(exc).__name__
+                state.last_error_at = utcnow()
+                state.link_errors += 1
                 state.status = MachineStatus(at=utcnow(), available=False, message=state.last_error)
                 self._publish(state)
                 await connector.close()
@@ -143,13 +167,9 @@ class Supervisor:
                 backoff = min(backoff * 2, 30.0)
 
     async def _serve(self, state: MachineState, connector: Connector) -> None:
-        loop = asyncio.get_running_loop()
-        next_sweep = 0.0
         while True:
-            now = loop.time()
-            if state.wake.is_set() or now >= next_sweep:
+            if state.wake.is_set():
                 state.wake.clear()
-                next_sweep = now + self.sweep_interval
                 while await self._run_next(state, connector):
                     pass
             state.status = await connector.status()

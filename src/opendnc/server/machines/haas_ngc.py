@@ -15,12 +15,15 @@ from pathlib import Path
 
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
+from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector"]
+
+DETAIL_EVERY = 30  # polls between reads of what changes rarely
 
 # Q500's status word in MTConnect's EXECUTION vocabulary.
 _EXECUTION = {"IDLE": "READY", "BUSY": "ACTIVE", "FEED HOLD": "FEED_HOLD", "ALARM ON": "STOPPED"}
@@ -34,6 +37,8 @@ class HaasNgcConnector:
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
         self._mdc: AsyncMdcClient | None = None
+        self._polls = 0
+        self._tool: int | None = None
 
     async def connect(self) -> None:
         """Open the MDC connection."""
@@ -50,19 +55,29 @@ class HaasNgcConnector:
                 await mdc.close()
 
     async def status(self) -> MachineStatus:
-        """Q500/Q104 and friends, summarised."""
+        """Q500 (program, state, parts) and Q104 (mode) every poll; the tool in spindle (Q201)
+        every ``DETAIL_EVERY`` polls, as it changes at tool changes only."""
         if self._mdc is None:
             raise TransportError(f"{self.config.name}: not connected")
-        st = await self._mdc.status()
-        word = (st.status or "").upper()
+        q500 = await self._mdc.query(500)
+        q104 = await self._mdc.query(104)
+        if self._polls % DETAIL_EVERY == 0:
+            q201 = await self._mdc.query(201)
+            self._tool = q201.value if isinstance(q201, Count) else None
+        self._polls += 1
+        program, word, parts = "", "", None
+        if isinstance(q500, ProgramStatus):
+            program, word, parts = q500.program, q500.status.upper(), q500.parts
+        elif isinstance(q500, Busy):
+            word = "BUSY"
         return MachineStatus(
             at=utcnow(),
             available=True,
             execution=_EXECUTION.get(word, "READY" if not word else "ACTIVE"),
-            mode=(st.mode or "").upper(),
-            program=st.program or "",
-            part_count=st.parts,
-            tool=st.tool,
+            mode=q104.mode.upper() if isinstance(q104, Mode) else "",
+            program=program,
+            part_count=parts,
+            tool=self._tool,
             errors=("ALARM",) if "ALARM" in word else (),
         )
 

@@ -16,6 +16,7 @@ from opendnc.server.store.models import utcnow
 __all__ = ["Lsv2Connector"]
 
 T = TypeVar("T")
+DETAIL_EVERY = 5  # polls between reads of overrides, tool and errors
 
 # LSV2 program states in MTConnect's EXECUTION vocabulary.
 _EXECUTION = {
@@ -49,6 +50,10 @@ class Lsv2Connector:
         self.folder = config.folder.rstrip("/\\") if config.folder else "TNC:/nc_prog"
         self._client: AsyncClient | None = None
         self._refused: set[str] = set()
+        self._polls = 0
+        self._overrides: dict[str, float] = {}
+        self._errors: tuple[str, ...] = ()
+        self._tool: int | None = None
 
     def _require(self) -> AsyncClient:
         if self._client is None:
@@ -76,13 +81,17 @@ class Lsv2Connector:
         mode = await client.execution_mode()
         state = await client.program_state()
         program = await client.selected_program()
-        overrides = await self._optional("overrides", client.overrides)
-        errors = await self._optional("nc_errors", client.nc_errors)
-        tool = await self._optional("current_tool", client.current_tool)
-        percent = {}
-        if overrides is not None:
-            feed, spindle, rapid = overrides.percent
-            percent = {"feed": feed, "spindle": spindle, "rapid": rapid}
+        if self._polls % DETAIL_EVERY == 0:
+            # Overrides, tool and the error list change seldom: read them every few polls.
+            overrides = await self._optional("overrides", client.overrides)
+            errors = await self._optional("nc_errors", client.nc_errors)
+            tool = await self._optional("current_tool", client.current_tool)
+            if overrides is not None:
+                feed, spindle, rapid = overrides.percent
+                self._overrides = {"feed": feed, "spindle": spindle, "rapid": rapid}
+            self._errors = tuple(e.text for e in errors or ())
+            self._tool = tool.number if tool is not None else None
+        self._polls += 1
         return MachineStatus(
             at=utcnow(),
             available=True,
@@ -90,9 +99,9 @@ class Lsv2Connector:
             mode=_MODE.get(mode, ""),
             program=program.main,
             line=program.line,
-            tool=tool.number if tool is not None else None,
-            overrides=percent,
-            errors=tuple(e.text for e in errors or ()),
+            tool=self._tool,
+            overrides=dict(self._overrides),
+            errors=self._errors,
         )
 
     async def _optional(self, what: str, read: Callable[[], Awaitable[T]]) -> T | None:
