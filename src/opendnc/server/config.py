@@ -115,6 +115,7 @@ class LibraryConfig:
     path: Path
     inbox: Path
     archive: Path
+    backups: Path | None = None  # LSV2 backups, one folder per machine (default: ./backups)
     poll: bool = False  # poll the library folder instead of change notifications (shares)
 
 
@@ -274,7 +275,7 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
 
 
 def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
-    _known(table, "library", {"path", "inbox", "archive", "watch"})
+    _known(table, "library", {"path", "inbox", "archive", "backups", "watch"})
     watch = _get(table, "library", "watch", str, "notify")
     if watch not in ("notify", "poll"):
         raise ConfigError("library.watch", "expected notify or poll (poll for network shares)")
@@ -289,6 +290,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
         path=folder("path", "programs"),
         inbox=folder("inbox", "inbox"),
         archive=folder("archive", "archive"),
+        backups=folder("backups", "backups"),
         poll=watch == "poll",
     )
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
+from pathlib import Path
 from typing import Any, Protocol
 
 __all__ = ["Connector", "MachineStatus", "Progress", "Reception"]
@@ -74,3 +75,12 @@ class Connector(Protocol):
 
     async def listen(self, seconds: float) -> Reception | None:
         """Wait up to ``seconds`` for the control to start sending; None if it did not."""
+
+    async def fetch(self, path: str) -> bytes:
+        """Read the file ``path`` from the control (:class:`InputError` where it cannot)."""
+
+    async def delete(self, path: str) -> None:
+        """Delete the file ``path`` on the control (:class:`InputError` where it cannot)."""
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Copy the folder ``path`` into ``target``, skipping unchanged files; counts."""

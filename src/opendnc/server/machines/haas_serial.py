@@ -10,8 +10,9 @@ the control in receive mode, and the control's NAK starts our sender.
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
-from opendnc.errors import DncError, TransportError, TransportTimeout
+from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
@@ -116,3 +117,15 @@ class HaasSerialConnector:
             return Reception(b"".join(parts))
 
         return await asyncio.to_thread(run)
+
+    async def fetch(self, path: str) -> bytes:
+        """A serial Haas sends programs itself (a punch), it cannot be asked for one."""
+        raise InputError(f"{self.config.name}: punch the program at the control instead")
+
+    async def delete(self, path: str) -> None:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: RS-232 cannot delete programs on the control")
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: backup is for LSV2 controls")
