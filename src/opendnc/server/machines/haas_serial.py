@@ -16,8 +16,7 @@ from opendnc.errors import DncError, InputError, TransportError, TransportTimeou
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
-from opendnc.transport import ByteStream
-from opendnc.transport.serial import open_stream
+from opendnc.transport import PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive
 from opendnc.xmodem.driver import send as xmodem_send
 from opendnc.xmodem.events import Started
@@ -38,9 +37,9 @@ class HaasSerialConnector:
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
-        self._stream: ByteStream | None = None
+        self._stream: PortStream | None = None
 
-    def _open(self) -> ByteStream:
+    def _open(self) -> PortStream:
         profile = self.config.profile
         return open_stream(
             self.config.serial,
@@ -49,6 +48,9 @@ class HaasSerialConnector:
             parity=profile.parity,
             bytesize=profile.bytesize,
             stopbits=profile.stopbits,
+            # XModem is binary: XON/XOFF must not be taken out of the data by the port;
+            # a drip-feed handles the control's DC1/DC3 itself.
+            flow="rtscts" if profile.flow == "rtscts" else "none",
         )
 
     async def connect(self) -> None:
@@ -62,7 +64,7 @@ class HaasSerialConnector:
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
-    def _require(self) -> ByteStream:
+    def _require(self) -> PortStream:
         if self._stream is None:
             raise TransportError(f"{self.config.name}: port not open")
         return self._stream

@@ -49,10 +49,10 @@ from typing import TYPE_CHECKING, TypeVar
 import serial
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
-from opendnc.haas.machine import Alarm
 from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
 from opendnc.sim.haas.dprnt_out import StreamDprntOutput
+from opendnc.sim.haas.machine import Alarm
 from opendnc.sim.haas.serial_xmodem import (
     Interrupted,
     XmodemQuirks,
