@@ -331,6 +331,13 @@ def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> li
                 db, body.program, body.machines, actor=who.name, number=body.version
             )
         else:
+            machines = _supervisor(request).machines
+            for name in body.machines:
+                state = machines.get(name)
+                if state is None:
+                    raise NotFound(f"no machine named {name!r}")
+                if not state.config.dripfeed:
+                    raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
             version = library.get_version(db, body.program, body.version)
             params = {"from_line": body.from_line} if body.from_line else {}
             created = [
@@ -385,9 +392,14 @@ def get_job(request: Request, db: Db, job_id: int, _who: Viewer) -> dict[str, An
 
 
 @router.post("/jobs/{job_id}/cancel")
-def cancel_job(db: Db, job_id: int, who: Operator) -> dict[str, Any]:
-    """Cancel a queued job, or ask a running one to stop."""
-    return job_json(jobs.cancel(db, job_id, actor=who.name))
+def cancel_job(request: Request, db: Db, job_id: int, who: Operator) -> dict[str, Any]:
+    """Cancel a queued job, or ask a running one to stop (a drip-feed stops within a chunk)."""
+    job = jobs.cancel(db, job_id, actor=who.name)
+    out = job_json(job)
+    db.commit()
+    if job.state is JobState.RUNNING:
+        _supervisor(request).request_cancel(job.id)
+    return out
 
 
 class MoveRequest(BaseModel):

@@ -104,6 +104,7 @@ class MachineConfig:
     share: str = ""  # Haas net share folder (local path or smb://)
     folder: str = ""  # where programs go on the control (LSV2: default TNC:/nc_prog)
     released_only: bool = False
+    dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
     poll_interval: float = 1.0
     description: str = ""
 
@@ -297,7 +298,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "poll_interval", "description",
+    "released_only", "dripfeed", "poll_interval", "description",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -323,6 +324,8 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     host = _get(raw, prefix, "host", str, "")
     serial = _get(raw, prefix, "serial", str, "")
     port = raw.get("port", 0)
+    if raw.get("dripfeed") is True and kind is not MachineKind.HAAS_SERIAL:
+        raise ConfigError(f"{prefix}.dripfeed", "drip-feed is for serial Haas machines")
     if kind is MachineKind.LSV2:
         if not host and not serial:
             raise ConfigError(f"{prefix}.host", "an LSV2 machine needs host (TCP) or serial")
@@ -349,6 +352,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         share=_get(raw, prefix, "share", str, ""),
         folder=_get(raw, prefix, "folder", str, ""),
         released_only=_get(raw, prefix, "released_only", bool, False),
+        dripfeed=_get(raw, prefix, "dripfeed", bool, False),
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),
     )

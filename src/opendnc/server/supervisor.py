@@ -44,6 +44,14 @@ log = logging.getLogger(__name__)
 ConnectorFactory = Callable[[MachineConfig], Connector]
 
 
+class DripFeedBroken(DncError):
+    """A drip-feed stopped; ``line`` is the program line it had reached."""
+
+    def __init__(self, reason: str, line: int) -> None:
+        super().__init__(reason)
+        self.line = line
+
+
 @dataclass(frozen=True)
 class Claimed:
     """A job taken from the queue, with what running it needs."""
@@ -110,6 +118,7 @@ class Supervisor:
         self.worker = config.server.name
         self.machines = {m.name: MachineState(m) for m in config.machines}
         self._tasks: list[asyncio.Task[None]] = []
+        self._cancels: set[int] = set()
 
     async def start(self) -> None:
         """Recover jobs left running by a previous run, then start one task per machine."""
@@ -236,11 +245,15 @@ class Supervisor:
             reason = str(exc) or type(exc).__name__
             # A broken link or a garbled transfer may go well next time; a refusal will not.
             retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
-            job = await asyncio.to_thread(self._fail, job_id, reason, retryable)
+            line = exc.line if isinstance(exc, DripFeedBroken) else None
+            if line is not None:
+                reason = f"{reason} (stopped at line {line}; restart from there)"
+            job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line)
             self._job_event(job_id, name, job, error=reason)
             state.job_id = None
-            if isinstance(exc, TransportError):
-                raise  # reconnect before the next job
+            cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
+            if isinstance(cause, TransportError):
+                raise exc from cause  # reconnect before the next job
             return True
         await asyncio.to_thread(self._finish, job_id, outcome)
         self._job_event(job_id, name, "done")
@@ -254,6 +267,8 @@ class Supervisor:
         if job.kind in (JobKind.SEND, JobKind.REPORT):
             verified = await self._send(state, connector, job.job_id, job.name, job.data)
             return {"nbytes": len(job.data), "verified": verified}
+        if job.kind is JobKind.DRIPFEED:
+            return await self._dripfeed(state, connector, job)
         if job.kind is JobKind.RECEIVE:
             data = await connector.fetch(job.name)
             folder = self.config.library.inbox
@@ -272,6 +287,34 @@ class Supervisor:
             counts = await connector.backup(job.name, root / state.config.name)
             return {"path": job.name, **counts}
         raise InputError(f"{job.kind.value} jobs are not run by this server version yet")
+
+    async def _dripfeed(
+        self, state: MachineState, connector: Connector, job: Claimed
+    ) -> dict[str, Any]:
+        from_line = int(job.params.get("from_line", 1))
+        reached = [from_line]
+        machine = state.config.name
+
+        def progress(line: int, lines: int) -> None:
+            # Called from the feed's thread for every chunk: only a new line is news.
+            if line != reached[0]:
+                reached[0] = line
+                state.job_progress = (line, lines)
+                self._job_event(job.job_id, machine, "running", line=line, lines=lines)
+            if job.job_id in self._cancels:
+                raise TransferError(f"cancelled at line {line}")
+
+        try:
+            counts = await connector.dripfeed(job.name, job.data, from_line, progress)
+        except Exception as exc:
+            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0]) from exc
+        finally:
+            self._cancels.discard(job.job_id)
+        return {**counts, "from_line": from_line}
+
+    def request_cancel(self, job_id: int) -> None:
+        """Stop a running drip-feed of this process at its next chunk."""
+        self._cancels.add(job_id)
 
     async def _received(self, state: MachineState, reception: Reception) -> None:
         """File a program the control sent: into the inbox, or answer it as a request."""
@@ -371,10 +414,15 @@ class Supervisor:
         data = {"id": job_id, "machine": machine, "state": state, **extra}
         self.bus.publish("job", str(job_id), data)
 
-    def _fail(self, job_id: int, reason: str, retryable: bool) -> str:
+    def _fail(self, job_id: int, reason: str, retryable: bool, line: int | None) -> str:
         with self.sessions.begin() as session:
             return jobs.fail(
-                session, job_id, reason, retryable=retryable, backoff=self.retry_backoff
+                session,
+                job_id,
+                reason,
+                retryable=retryable,
+                backoff=self.retry_backoff,
+                line=line,
             ).state.value
 
     def _finish(self, job_id: int, outcome: dict[str, Any]) -> None:

@@ -10,11 +10,14 @@ the control in receive mode, and the control's NAK starts our sender.
 from __future__ import annotations
 
 import asyncio
+import tempfile
+import time
 from pathlib import Path
 
 from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
+from opendnc.haas.dnc import DncConfig, stream_program
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 from opendnc.transport import PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive
@@ -35,9 +38,14 @@ class HaasSerialConnector:
 
     listens = True
 
-    def __init__(self, config: MachineConfig) -> None:
+    def __init__(self, config: MachineConfig, *, quiet_after_break: float = 30.0) -> None:
         self.config = config
         self._stream: PortStream | None = None
+        # After a drip-feed breaks, the control still waits in DNC mode for the rest of the
+        # program: the listener's start requests (NAK) would reach it as program input and
+        # keep it from timing out into its DNC-link alarm. The port stays silent this long.
+        self.quiet_after_break = quiet_after_break
+        self._quiet_until = 0.0
 
     def _open(self) -> PortStream:
         profile = self.config.profile
@@ -88,6 +96,9 @@ class HaasSerialConnector:
 
     async def listen(self, seconds: float) -> Reception | None:
         """Receive one XModem transfer if the control starts one within ``seconds``."""
+        if time.monotonic() < self._quiet_until:
+            await asyncio.sleep(seconds)
+            return None
 
         def run() -> Reception | None:
             parts: list[bytes] = []
@@ -131,3 +142,42 @@ class HaasSerialConnector:
     async def backup(self, path: str, target: Path) -> dict[str, int]:
         """Not possible over RS-232."""
         raise InputError(f"{self.config.name}: backup is for LSV2 controls")
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Stream the program with XON/XOFF (the control's DC3 stops us within a chunk);
+        from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`."""
+        if not self.config.dripfeed:
+            raise InputError(
+                f"{self.config.name}: drip-feed is off for this machine "
+                "(it runs the program: set dripfeed = true in its configuration)"
+            )
+        stream = self._require()
+        profile = self.config.profile
+        lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+
+        def on_progress(done: int, total: int) -> None:
+            # File bytes consumed -> the program line reached (lines before from_line count
+            # as done: they were skipped, not sent).
+            progress(data[:done].count(b"\n") + 1, lines)
+
+        def run() -> dict[str, int]:
+            with tempfile.TemporaryDirectory(prefix="opendnc-dnc-") as tmp:
+                path = Path(tmp) / name
+                path.write_bytes(data)
+                report = stream_program(
+                    stream,
+                    path,
+                    from_line=from_line,
+                    config=DncConfig(eob=_EOB[profile.eob], wait_for_xon=profile.wait_for_xon),
+                    safe_mode=False,  # the machine's dripfeed = true is the opt-in
+                    progress=on_progress,
+                )
+            return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
+
+        try:
+            return await asyncio.to_thread(run)
+        except BaseException:
+            self._quiet_until = time.monotonic() + self.quiet_after_break
+            raise
