@@ -8,6 +8,7 @@ acknowledged, and deleted on any error.
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -74,6 +75,23 @@ def atomic_output(target: Path) -> Iterator[AtomicWriter]:
         yield pending
 
 
+def _folder_target(out: str | os.PathLike[str]) -> bool:
+    """True if ``out`` names a folder; a name ending in a separator must exist as one."""
+    text = os.fspath(out)
+    if Path(text).is_dir():
+        return True
+    if text.endswith(("/", os.sep)):
+        raise InputError(f"folder {text} does not exist")
+    return False
+
+
+def check_output(out: str | os.PathLike[str]) -> None:
+    """Raise :class:`InputError` at once if ``out`` cannot take a received file, so a bad
+    target is reported before any port is opened."""
+    if not _folder_target(out) and not Path(out).parent.is_dir():
+        raise InputError(f"folder {Path(out).parent} does not exist")
+
+
 def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream, bool]:
     if isinstance(port, str):
         return open_port(port, baud, parity), True
@@ -82,7 +100,7 @@ def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream,
 
 def send_file(
     port: str | ByteStream,
-    path: Path,
+    path: str | os.PathLike[str],
     *,
     mode: Mode = Mode.ONE_K,
     baud: int = 9600,
@@ -93,6 +111,7 @@ def send_file(
     on_event: EventHandler | None = None,
 ) -> SendReport:
     """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25."""
+    path = Path(path)
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -120,7 +139,7 @@ def send_file(
 
 def receive_file(
     port: str | ByteStream,
-    out: Path,
+    out: str | os.PathLike[str],
     *,
     mode: Mode = Mode.CHECKSUM,
     baud: int = 9600,
@@ -133,9 +152,11 @@ def receive_file(
     """Receive one file into ``out`` (temp file + rename).
 
     If ``out`` is an existing folder, the file is named from the program's O-number
-    (``O05555.nc``) or ``program.nc``. ``eob`` converts the control's line ends to LF.
+    (``O05555.nc``) or ``program.nc``; an ``out`` that ends with a path separator must be an
+    existing folder. ``eob`` converts the control's line ends to LF.
     """
-    folder_target = out.is_dir()
+    folder_target = _folder_target(out)
+    out = Path(out)
     stream, owned = _stream(port, baud, parity)
     started = time.monotonic()
     try:
