@@ -7,11 +7,15 @@ without FastAPI, SQLAlchemy and uvicorn (and works where the ``server`` extra is
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.errors import InputError
+
+if TYPE_CHECKING:
+    from opendnc.server.app import Server
 
 keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
 
@@ -41,8 +45,6 @@ def serve(
         require_server_extra()
         import asyncio
 
-        import uvicorn
-
         from opendnc.server.app import build
         from opendnc.server.config import load_config
 
@@ -54,23 +56,37 @@ def serve(
                 raise InputError(f"--bind {bind!r}: expected HOST:PORT")
             port = int(port_text)
         server = build(shop, database=db)
-        settings = uvicorn.Config(
-            server.app, host=host, port=port, log_level="warning", lifespan="on"
-        )
-        web = uvicorn.Server(settings)
-        database = server.engine.url.render_as_string(hide_password=True)
-        console.print(
-            f"opendnc server on http://{host}:{port}/ ({len(shop.machines)} machines, "
-            f"database {database})",
-            highlight=False,
-            soft_wrap=True,
-        )
         try:
-            asyncio.run(web.serve())
+            asyncio.run(_serve(server, host, port))
         except OSError as exc:
             raise InputError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
         finally:
             server.engine.dispose()
+
+
+async def _serve(server: Server, host: str, port: int) -> None:
+    """Run uvicorn; say where once it listens (scripts wait for that line)."""
+    import asyncio
+
+    import uvicorn
+
+    settings = uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
+    web = uvicorn.Server(settings)
+    serving = asyncio.create_task(web.serve())
+    while not web.started:
+        if serving.done():
+            serving.result()  # raises why it could not start
+            raise InputError(f"the server on {host}:{port} stopped at once")
+        await asyncio.sleep(0.05)
+    port = web.servers[0].sockets[0].getsockname()[1]  # the real one for :0
+    database = server.engine.url.render_as_string(hide_password=True)
+    console.print(
+        f"opendnc server on http://{host}:{port}/ ({len(server.config.machines)} machines, "
+        f"database {database})",
+        highlight=False,
+        soft_wrap=True,
+    )
+    await serving
 
 
 @keys_app.command("create")
