@@ -8,12 +8,12 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TypeVar
 
-from opendnc.errors import ControlRefused, DncError, InputError, TransportError
+from opendnc.errors import ControlRefused, DncError, TransportError
 from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Lsv2Connector"]
@@ -43,10 +43,8 @@ _MODE = {
 }
 
 
-class Lsv2Connector:
+class Lsv2Connector(NetworkOnly):
     """One LSV2 session per machine, reopened by the supervisor when it drops."""
-
-    listens = False
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
@@ -160,13 +158,3 @@ class Lsv2Connector:
             }
 
         return await asyncio.to_thread(run)
-
-    async def dripfeed(
-        self, name: str, data: bytes, from_line: int, progress: DripProgress
-    ) -> dict[str, int]:
-        """Drip-feed is a serial Haas's way of running a program."""
-        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
-
-    async def listen(self, seconds: float) -> Reception | None:
-        """This connector does not take programs sent by the control."""
-        return None
