@@ -30,8 +30,13 @@ from tests.unit.xmodem.test_socket_port import _serve_once
 
 # POSIX-only modules; the last three stand for the rest of what Windows lacks
 BLOCKED = ("termios", "fcntl", "pty", "tty", "resource", "grp", "pwd")
-# POSIX-only by design: the pty bench, the virtual cable, the virtual Haas's serial front end
-POSIX_ONLY = ("opendnc.transport.pty", "opendnc.sim.cable", "opendnc.sim.haas.serial_front")
+# POSIX-only by design: the pty bench, the virtual cable, the simulators' serial front ends
+POSIX_ONLY = (
+    "opendnc.transport.pty",
+    "opendnc.sim.cable",
+    "opendnc.sim.haas.serial_front",
+    "opendnc.sim.tnc.serial_front",  # the virtual TNC on a serial line can make its own pty
+)
 
 CHILD = textwrap.dedent(
     """

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING, get_args
 
 import typer
 
 from opendnc.cli.common import err_console
 from opendnc.errors import InputError
-from opendnc.lsv2.serial_stream import FLOW_CONTROLS, SerialLine, probe_baud
+from opendnc.transport.line import Handshake
+
+if TYPE_CHECKING:  # the LSV2 stack loads with a command that connects, not for --help
+    from opendnc.lsv2.serial_stream import SerialLine
+
+FLOW_CONTROLS = get_args(Handshake)
 
 __all__ = [
     "BaudOpt",
@@ -51,6 +57,8 @@ def serial_line(
             rate = int(baud)
         except ValueError:
             raise InputError(f"bad --baud {baud!r}: a number or 'auto'") from None
+    from opendnc.lsv2.serial_stream import SerialLine
+
     return SerialLine(
         url, rate, parity=parity.upper(), bytesize=bytesize, stopbits=stopbits, flow=flow.lower()
     )
@@ -60,6 +68,8 @@ def resolve_baud(line: SerialLine) -> SerialLine:
     """Probe the rate of a ``--baud auto`` line and say which one answered (on stderr)."""
     if line.baud is not None:
         return line
+    from opendnc.lsv2.serial_stream import probe_baud
+
     rate = probe_baud(line)
     err_console.print(f"serial: the control answered at {rate} baud", highlight=False)
     return replace(line, baud=rate)

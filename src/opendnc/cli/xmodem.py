@@ -67,6 +67,9 @@ def send_cmd(
     turnaround: float = typer.Option(
         0.0, "--turnaround", help="Milliseconds to pause after each ACK (lrzsz rx on a pty)"
     ),
+    binary: bool = typer.Option(
+        False, "--binary", help="Send any bytes (default: refuse a file that is not NC text)"
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
@@ -89,6 +92,7 @@ def send_cmd(
                 config=config,
                 progress=lambda done, total: bar.update(task, completed=done, total=total),
                 on_event=_report_event,
+                binary=binary,
             )
         if json_out:
             print_json(report)
@@ -114,7 +118,11 @@ def recv_cmd(
     mode: Mode = typer.Option(Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k"),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
     parity: str = typer.Option("N", "--parity", help="N, E or O"),
-    timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the sender"),
+    timeout: float = typer.Option(
+        60.0,
+        "--timeout",
+        help="Seconds to wait for the sender: to start, and for each block, retries included",
+    ),
     eob: Eob | None = typer.Option(
         None, "--eob", help="Convert the control's setting-25 line ends to LF"
     ),
@@ -124,6 +132,11 @@ def recv_cmd(
         "--haas-eob-checksum",
         help="Accept checksums computed with CR LF folded to LF (reported Haas quirk)",
     ),
+    binary: bool = typer.Option(
+        False,
+        "--binary",
+        help="Keep any bytes (default: NAK blocks that are not NC text, refuse such a file)",
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
@@ -132,6 +145,7 @@ def recv_cmd(
 
     config = ReceiverConfig(
         start_timeout=timeout,
+        idle_timeout=timeout,
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )
@@ -154,6 +168,7 @@ def recv_cmd(
             config=config,
             progress=lambda done, _total: bar.update(task, completed=done),
             on_event=_report_event,
+            binary=binary,
         )
         bar.update(task, total=report.size, completed=report.size)
     if json_out:

@@ -21,6 +21,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import get_args
 
 from opendnc.errors import InputError, TransportError, TransportTimeout
 from opendnc.lsv2.framing import Frame, TelegramFramer
@@ -39,6 +40,7 @@ from opendnc.lsv2.serial_link import (
     TelegramSent,
 )
 from opendnc.transport.base import ByteStream
+from opendnc.transport.line import Handshake
 
 __all__ = [
     "BAUD_PROBE_ORDER",
@@ -54,7 +56,7 @@ __all__ = [
 DEFAULT_BAUD = 57600
 BAUD_PROBE_ORDER: tuple[int, ...] = (57600, 115200, 38400, 19200, 9600, 4800, 2400)
 """Rates tried by ``--baud auto``, most likely first (57600 is the controls' default)."""
-FLOW_CONTROLS = ("none", "rtscts", "xonxoff")
+FLOW_CONTROLS = get_args(Handshake)  # what the port dispatcher takes
 POLL = 0.02
 """Seconds one read of the port waits before the engine's clock is looked at again."""
 
