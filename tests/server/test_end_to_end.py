@@ -346,3 +346,68 @@ def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
         assert "RS-232 cannot delete" in refused[0]["error"]
     assert not (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").exists()
     assert (shop.tmp / "backups" / "tnc-a" / "O01234.nc").read_bytes() == PROGRAM
+
+
+def test_a_heidenhain_on_rs232_gets_its_program(tmp_path: Path, procs: Procs, db_url: str) -> None:
+    # A TNC without a network: LSV2 over a virtual RS-232 cable, 8E1 as the controls default to.
+    pc, tnc = tmp_path / "pc", tmp_path / "tnc-port"
+    root = tmp_path / "tnc-root"
+    procs.start(
+        "cable",
+        "sim",
+        "cable",
+        "--baud",
+        "115200",
+        "--bits-per-char",
+        "11",
+        "--link-a",
+        str(tnc),
+        "--link-b",
+        str(pc),
+    )
+    wait_for("the cable", lambda: tnc.exists() and pc.exists())
+    procs.start(
+        "tnc",
+        "sim",
+        "tnc",
+        "--profile",
+        "itnc530",
+        "--root",
+        str(root),
+        "--serial",
+        str(tnc),
+        "--baud",
+        "115200",
+        "--no-tcp",
+    )
+    wait_for("the virtual TNC on its serial line", lambda: "listening" in procs.log("tnc"))
+    port = free_port()
+    config = tmp_path / "shop.toml"
+    config.write_text(f"""
+[server]
+bind = "127.0.0.1:{port}"
+
+[[machines]]
+name = "tnc-serial"
+kind = "lsv2"
+serial = "{pc}"
+serial_profile = {{ baud = 115200 }}
+folder = "TNC:/nc_prog"
+poll_interval = 0.5
+""")
+    key = create_key(config, db_url)
+    with start_server(procs, config, db_url, port) as client:
+        wait_for(
+            "the machine online",
+            lambda: client.get("/api/machines/tnc-serial", headers=auth(key)).json()["online"],
+            describe=lambda: procs.log("server"),
+        )
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(key),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-serial"]},
+        )
+        (job,) = wait_jobs(client, key, [sent.json()[0]["id"]])
+        assert job["state"] == "done", job["error"]
+    assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM

@@ -8,10 +8,11 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TypeVar
 
-from opendnc.errors import ControlRefused, DncError, TransportError
+from opendnc.errors import ControlRefused, DncError, InputError, TransportError
 from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
+from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
@@ -65,9 +66,25 @@ class Lsv2Connector(NetworkOnly):
         """Open the LSV2 session."""
         if self._client is not None:
             return
-        client = AsyncClient(self.config.host, int(self.config.port), timeout=10.0)
+        client = self._client_for()
         await client.connect()
         self._client = client
+
+    def _client_for(self) -> AsyncClient:
+        # RS-232 (serial = "...") or TCP: the operations are the same, only the link differs.
+        config = self.config
+        if config.serial:
+            profile = config.profile
+            line = SerialLine(
+                config.serial,
+                baud=profile.baud,
+                parity=profile.parity,
+                bytesize=profile.bytesize,
+                stopbits=profile.stopbits,
+                flow=profile.flow,
+            )
+            return AsyncClient.over_serial(line, timeout=10.0)
+        return AsyncClient(config.host, int(config.port), timeout=10.0)
 
     async def close(self) -> None:
         """Close the session."""
@@ -147,6 +164,12 @@ class Lsv2Connector(NetworkOnly):
     async def backup(self, path: str, target: Path) -> dict[str, int]:
         """Back up a folder over a second LSV2 session (the backup walks the whole tree in
         a worker thread; the status polls keep their own session)."""
+
+        if self.config.serial:
+            # One RS-232 line carries one session: the backup cannot run beside the polls.
+            raise InputError(
+                f"{self.config.name}: backup runs over TCP (LSV2 over RS-232 has one session)"
+            )
 
         def run() -> dict[str, int]:
             with Client(self.config.host, int(self.config.port), timeout=30.0) as client:
