@@ -501,7 +501,9 @@ def pattern_mdc_abuse(soak: Soak) -> None:
     started = time.monotonic()
     answered = 0
     last: str = ""
-    while time.monotonic() - started < 10 and answered < 3:
+    # Both MDC slots are held by the abusers: the third client gets one when the simulator
+    # drops a stalled connection (after its 5 s drain bound), so allow a few such windows.
+    while time.monotonic() - started < 20 and answered < 3:
         try:
             with MdcClient("127.0.0.1", soak.mdc_port, timeout=2.0) as client:
                 while answered < 3:
@@ -511,7 +513,7 @@ def pattern_mdc_abuse(soak: Soak) -> None:
             last = f"{type(exc).__name__}: {exc}"
             time.sleep(0.2)
     if answered < 3:
-        tally.fail(f"a well-behaved MDC client got {answered}/3 answers in 10 s ({last})")
+        tally.fail(f"a well-behaved MDC client got {answered}/3 answers in 20 s ({last})")
     stop.set()
     for s in (flood, silent):
         s.close()

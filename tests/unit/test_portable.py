@@ -92,8 +92,13 @@ CHILD = textwrap.dedent(
             "listed": "PORTABLE.H" in listing,
             "read_back": tnc.read_file("TNC:/PORTABLE.H").decode("latin-1"),
         }
-    sent = send_file(f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K)
-    got = receive_file(f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM)
+    # random bytes: sent and received as a binary file, past the NC text check
+    sent = send_file(
+        f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K, binary=True
+    )
+    got = receive_file(
+        f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM, binary=True
+    )
     from opendnc.haas.dnc import DncConfig, stream_program
     dnc = stream_program(
         f"socket://127.0.0.1:{dnc_port}", work / "dnc.nc", safe_mode=False,

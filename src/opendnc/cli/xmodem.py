@@ -73,6 +73,7 @@ def send_cmd(
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
+    from opendnc.nctext import check_program_file
     from opendnc.xmodem.events import EotAnswer
     from opendnc.xmodem.files import open_port, send_file
     from opendnc.xmodem.sender import SenderConfig
@@ -80,6 +81,8 @@ def send_cmd(
     config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
     with cli_errors():
         size = file.stat().st_size
+        if not binary:  # a file that is no NC program is refused before the port opens
+            check_program_file(file, action="not sent (--binary sends any bytes)")
         # the port opens before the bar: a port that does not open is one error line
         stream = open_port(port, baud, parity.upper())
         with contextlib.closing(stream), _progress() as bar:
