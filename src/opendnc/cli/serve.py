@@ -107,10 +107,7 @@ def keys_create(
         from opendnc.server.store.models import Role
 
         shop = load_config(config)
-        try:
-            parsed = Role.parse(role)
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
+        parsed = Role.parse(role)
         engine = make_engine(db or shop.server.database)
         try:
             migrate(engine)
