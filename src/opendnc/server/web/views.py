@@ -37,8 +37,12 @@ T = TypeVar("T")
 router = APIRouter(include_in_schema=False)
 # A card changes at most this often on the overview (per machine), like the API's events.
 CARD_INTERVAL = 0.5
+KEEP_ALIVE = 15.0
 FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
 ROLES = [r.name.lower() for r in Role]
+# A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
+# is a download away.
+SHOWN_CHARS = 200_000
 
 
 class LoginNeeded(Exception):
@@ -144,7 +148,9 @@ def login(
             _sessions(request), response, username, password, request.url.scheme == "https"
         )
     except (Unauthorized, InputError) as exc:
-        page = _html("login.html", None, request, next=_safe_next(next), error=str(exc))
+        page = _html(
+            "login.html", None, request, next=_safe_next(next), error=str(exc), username=username
+        )
         page.status_code = 401
         return page
     return response
@@ -223,12 +229,13 @@ async def _card_stream(request: Request, only: str | None) -> AsyncIterator[byte
     env = render.environment().get_template("_card.html")
     labels: dict[int, str] = {}
     watched = set(supervisor.machines) if only is None else {only}
+    sent: dict[str, str] = {}  # the HTML each card has in the browser now
     with supervisor.bus.subscribe() as sub:
         # A fresh copy of every card first: whatever changed between the page and this stream.
         pending: set[str] = set(watched)
         job_changes: set[str] = set()
         loop = asyncio.get_running_loop()
-        flush_at = loop.time()
+        flush_at = quiet_since = loop.time()
         while not await request.is_disconnected():
             timeout = max(0.0, flush_at - loop.time())
             try:
@@ -238,7 +245,8 @@ async def _card_stream(request: Request, only: str | None) -> AsyncIterator[byte
                     pending.add(machine)
                     if event.kind == "job" and "bytes_done" not in event.data:
                         job_changes.add(machine)  # started or ended, not mere progress
-                continue
+                if loop.time() < flush_at:
+                    continue  # a steady stream of events must not hold the flush back
             except TimeoutError:
                 pass
             if sub.overflowed:
@@ -249,12 +257,20 @@ async def _card_stream(request: Request, only: str | None) -> AsyncIterator[byte
                 names = sorted(pending)
                 pending = set()
                 cards = await run_in_threadpool(_cards_cached, request, names, labels)
-                out = [render.sse_event(f"card-{c.name}", env.render(c=c)) for c in cards]
+                out = []
+                for c in cards:
+                    html = env.render(c=c)
+                    if sent.get(c.name) != html:  # a status poll that changed nothing
+                        sent[c.name] = html
+                        out.append(render.sse_event(f"card-{c.name}", html))
                 out += [render.sse_event(f"jobs-{name}", "") for name in sorted(job_changes)]
                 job_changes = set()
-                yield b"".join(out)
-            else:
-                yield b": keep-alive\n\n"
+                if out:
+                    quiet_since = loop.time()
+                    yield b"".join(out)
+            if loop.time() - quiet_since > KEEP_ALIVE:
+                quiet_since = loop.time()
+                yield b": keep-alive\n\n"  # lets a proxy and the server see a dead client
             flush_at = loop.time() + CARD_INTERVAL
 
 
@@ -388,12 +404,14 @@ def program_page(
     def load(session: Session) -> dict[str, Any]:
         program = library.get_program(session, name)
         shown = library.get_version(session, name, v)
+        text = render.program_text(library.content(session, shown))
         released = library.released_version(session, name)
         context: dict[str, Any] = {
             "program": api.program_json(program),
             "shown": api.version_json(shown),
             "released": released.number if released else None,
-            "lines": render.highlight_lines(render.program_text(library.content(session, shown))),
+            "lines": render.highlight_lines(text[:SHOWN_CHARS]),
+            "clipped": len(text) > SHOWN_CHARS,
             "diff": None,
         }
         if a is not None and b is not None:
