@@ -238,6 +238,12 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
     overview.get_by_role("link", name="tnc-1").click()
     history = overview.locator("#history")
     sync_api.expect(history.locator("tr", has_text="O03000.nc")).to_contain_text("done")
+    # ... and in the machine's file browser, from where it downloads byte for byte.
+    files = overview.locator("table.files")
+    sync_api.expect(files.locator("tr", has_text="O03000.nc")).to_contain_text("1.6 MB")
+    with overview.expect_download() as download:
+        overview.get_by_role("link", name="Download O03000.nc").click()
+    assert Path(download.value.path()).read_bytes() == BIG
     overview.get_by_role("link", name="History").click()
     overview.get_by_label("Machine").select_option("tnc-1")
     overview.get_by_label("Action").fill("job.send")
@@ -252,6 +258,12 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
     assert csv_text.startswith("id,at,actor,action,machine,program")
     assert "job.send" in csv_text
     assert "O03000.nc" in csv_text
+    # Delete it through the browser, after the confirmation.
+    overview.goto(clean.url + "/machines/tnc-1")
+    overview.once("dialog", lambda d: d.accept())
+    overview.get_by_role("button", name="Delete O03000.nc").click()
+    sync_api.expect(overview.locator("table.files tr", has_text="O03000.nc")).to_have_count(0)
+    assert not stored[0].exists()
     overview.context.close()
 
 

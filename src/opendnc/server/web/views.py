@@ -24,7 +24,8 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response, Streamin
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import api, audit, auth, inbox, jobs, library
+from opendnc.server import api, audit, auth, inbox, jobs, library, machine_files
+from opendnc.server.config import MachineKind
 from opendnc.server.errors import NotFound, Unauthorized
 from opendnc.server.store.models import Job, JobState, ReceivedState, Role
 from opendnc.server.supervisor import Supervisor
@@ -320,6 +321,7 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
         if live["job"] and live["job"]["id"] == row["id"]:
             row["bytes_done"], row["bytes_total"] = state.job_progress
     context["machine"] = live
+    context["has_files"] = state.config.kind is MachineKind.LSV2
     context["card"] = render.card(live, queued=len(context["queue"]))
     return context
 
@@ -372,6 +374,92 @@ def retry_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
     web_session.need(page.who, Role.OPERATOR)
     machine = _write(request, lambda s: jobs.retry(s, job_id, actor=page.who.name).machine)
     return _after_job_action(request, page, machine)
+
+
+# -- file browser (LSV2 controls) ---------------------------------------------------------
+
+
+def _machine_config(request: Request, name: str) -> Any:
+    state = _supervisor(request).machines.get(name)
+    if state is None:
+        raise NotFound(f"no machine named {name!r}")
+    return state.config
+
+
+@router.get("/machines/{name}/files")
+async def machine_files_page(
+    request: Request, name: str, page: Viewing, path: str | None = None
+) -> HTMLResponse:
+    """A folder of the control (a fragment the machine page loads)."""
+    config = _machine_config(request, name)
+    folder = machine_files.check_path(path) if path else machine_files.default_folder(config)
+    entries = await machine_files.list_folder(config, folder)
+    parent = folder.rsplit("/", 1)[0] if folder.count("/") > 1 else "TNC:/"
+    return _html(
+        "_files.html",
+        page,
+        request,
+        machine=name,
+        folder=folder,
+        parent=parent if folder != "TNC:/" else None,
+        entries=entries,
+    )
+
+
+@router.get("/machines/{name}/files/download")
+async def machine_file_download(request: Request, name: str, path: str, page: Viewing) -> Response:
+    """One file of the control, as a download."""
+    config = _machine_config(request, name)
+    data = await machine_files.read(config, path)
+    filename = machine_files.check_path(path).rsplit("/", 1)[-1]
+    return Response(
+        data,
+        media_type="application/octet-stream",
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+def _audit_file(request: Request, who: str, action: str, machine: str, path: str, n: int) -> None:
+    def record(session: Session) -> None:
+        audit.record(session, who, action, machine=machine, program=path, nbytes=n)
+
+    _write(request, record)
+
+
+@router.post("/machines/{name}/files/upload")
+async def machine_file_upload(
+    request: Request,
+    name: str,
+    page: Writing,
+    file: UploadFile,
+    folder: Annotated[str, Form()],
+) -> HTMLResponse:
+    """Put a file from the person's computer on the control (operators)."""
+    web_session.need(page.who, Role.OPERATOR)
+    config = _machine_config(request, name)
+    filename = library.check_program_name(file.filename or "")
+    target = machine_files.check_path(f"{machine_files.check_path(folder)}/{filename}")
+    data = await file.read(library.MAX_PROGRAM_BYTES + 1)
+    if len(data) > library.MAX_PROGRAM_BYTES:
+        raise InputError("the upload is larger than the server takes")
+    await machine_files.write(config, target, data)
+    await run_in_threadpool(
+        _audit_file, request, page.who.name, "file.upload", name, target, len(data)
+    )
+    return await machine_files_page(request, name, page, folder)
+
+
+@router.post("/machines/{name}/files/delete")
+async def machine_file_delete(
+    request: Request, name: str, page: Writing, path: Annotated[str, Form()]
+) -> HTMLResponse:
+    """Delete a file on the control (operators; the page asks first)."""
+    web_session.need(page.who, Role.OPERATOR)
+    config = _machine_config(request, name)
+    target = machine_files.check_path(path)
+    await machine_files.delete(config, target)
+    await run_in_threadpool(_audit_file, request, page.who.name, "file.delete", name, target, 0)
+    return await machine_files_page(request, name, page, target.rsplit("/", 1)[0])
 
 
 # -- program library ----------------------------------------------------------------------
