@@ -26,6 +26,7 @@ import http.client
 import itertools
 import json
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
@@ -185,7 +186,14 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
             auth.create_user(session, "admin", Role.ADMIN, password=PASSWORD)
             _, key = auth.create_key(session, "admin", Role.ADMIN)
         engine.dispose()
-        server = _cli("serve", "--config", str(config), "--db", db)
+        log = (folder / "server.log").open("wb")
+        command = ["serve", "--config", str(config), "--db", db]
+        server = subprocess.Popen(
+            [sys.executable, "-m", "opendnc.cli.main", *command],
+            start_new_session=True,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
         base = f"http://127.0.0.1:{port}"
         while True:
             try:
@@ -211,7 +219,13 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
 
         def send() -> None:
             reader.start()
-            _request("POST", base + "/api/jobs", key, {"program": "O04000.nc", "machines": names})
+            try:
+                _request(
+                    "POST", base + "/api/jobs", key, {"program": "O04000.nc", "machines": names}
+                )
+            except OSError as exc:
+                tail = (folder / "server.log").read_text(errors="replace")[-3000:]
+                raise SystemExit(f"queueing the sends failed: {exc}\n{tail}") from None
 
         figures = _browser(base, cookie, n, send, seconds)
         if figures is None:
