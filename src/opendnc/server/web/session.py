@@ -95,9 +95,11 @@ def principal(sessions: sessionmaker[Session], request: Request) -> tuple[auth.P
         created = row.created
         if created.tzinfo is None:  # SQLite hands the stored UTC time back without its zone
             created = created.replace(tzinfo=UTC)
-        if utcnow() - created > timedelta(hours=SESSION_HOURS):
-            auth.revoke_key(session, row.id, actor="server")
-            raise Unauthorized("the session has expired; log in again")
+        expired = utcnow() - created > timedelta(hours=SESSION_HOURS)
+        if expired:
+            auth.revoke_key(session, row.id, actor="server")  # committed with the block
+    if expired:
+        raise Unauthorized("the session has expired; log in again")
     return who, key
 
 
