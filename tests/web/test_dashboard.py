@@ -363,7 +363,15 @@ def test_screenshots(clean: Shop, viewport: tuple[int, int]) -> None:
     page.screenshot(path=ARTIFACTS / f"library-diff-{tag}.png", full_page=True)
     page.goto(clean.url + "/inbox?state=all")
     page.screenshot(path=ARTIFACTS / f"inbox-{tag}.png", full_page=True)
-    # Every control on these pages is reachable by keyboard and has a name.
+    # The send form is reachable with the keyboard alone.
+    page.goto(clean.url + "/library/O01234.nc")
+    for _ in range(80):
+        page.keyboard.press("Tab")
+        if page.evaluate("document.activeElement.id") == "send-button":
+            break
+    else:
+        raise AssertionError("Tab never reached the Send button")
+    # Every control on these pages has a name.
     for url in ("/", "/machines/tnc-1", "/library/O01234.nc?a=1&b=2", "/inbox", "/history"):
         page.goto(clean.url + url)
         unnamed = page.evaluate(
