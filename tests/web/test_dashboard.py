@@ -8,6 +8,7 @@ go to ``tests/artifacts/screenshots`` (gitignored) for a person to look at.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -339,6 +340,14 @@ def test_a_live_card_follows_the_machine_without_a_reload(clean: Shop) -> None:
     finally:
         clean.fleet.call(lambda: setattr(tnc.control.machine, "exec_mode", ExecutionMode.MANUAL))
     sync_api.expect(card.locator(".mode")).to_have_text("manual")
+    # The machine page's status timeline holds both stretches.
+    timeline = clean.page(page.context)
+    timeline.goto(clean.url + "/machines/tnc-2")
+    strip = timeline.get_by_role("img", name="Status of tnc-2")
+    sync_api.expect(strip).to_have_attribute("aria-label", re.compile("ready, automatic"))
+    label = strip.get_attribute("aria-label") or ""
+    assert label.index("ready, manual") < label.index("ready, automatic") < label.rindex("manual")
+    timeline.close()
     # The filter shows idle machines only when asked.
     page.get_by_text("Offline", exact=True).click()
     sync_api.expect(page.locator("#card-tnc-2")).to_be_hidden()

@@ -8,7 +8,10 @@ call the same service functions as the JSON API under ``/api``.
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 from fastapi import FastAPI, Request
@@ -18,6 +21,8 @@ from fastapi.staticfiles import StaticFiles
 from opendnc.errors import DncError
 from opendnc.server import api
 from opendnc.server.web import render, views
+from opendnc.server.web.timeline import Timeline
+from opendnc.server.web.timeline import running as recording
 
 __all__ = ["install"]
 
@@ -26,6 +31,17 @@ STATIC = Path(__file__).parent / "static"
 
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
+    timeline = Timeline()
+    app.state.timeline = timeline
+    inner = app.router.lifespan_context
+
+    @asynccontextmanager
+    async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
+        # The server's own lifespan starts the machines; the status timeline listens meanwhile.
+        async with inner(running_app) as state, recording(timeline, app.state.supervisor.bus):
+            yield state
+
+    app.router.lifespan_context = lifespan
     app.include_router(views.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]

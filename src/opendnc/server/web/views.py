@@ -31,6 +31,7 @@ from opendnc.server.store.models import Job, JobState, ReceivedState, Role
 from opendnc.server.supervisor import Supervisor
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
+from opendnc.server.web.timeline import Timeline
 
 __all__ = ["LoginNeeded", "Page", "router"]
 
@@ -44,6 +45,7 @@ ROLES = [r.name.lower() for r in Role]
 # A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
 # is a download away.
 SHOWN_CHARS = 200_000
+TIMELINE_HOURS = 4
 
 
 class LoginNeeded(Exception):
@@ -321,6 +323,10 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
         if live["job"] and live["job"]["id"] == row["id"]:
             row["bytes_done"], row["bytes_total"] = state.job_progress
     context["machine"] = live
+    timeline: Timeline = request.app.state.timeline
+    timeline.note(name, live)
+    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
+    context["timeline_hours"] = TIMELINE_HOURS
     context["has_files"] = state.config.kind is MachineKind.LSV2
     context["card"] = render.card(live, queued=len(context["queue"]))
     return context
