@@ -160,3 +160,31 @@ def test_the_file_browser_lists_the_control(client: tuple[Http, Any]) -> None:
     reply = http.get("/machines/tnc-1/files", params={"path": "TNC:/"})
     assert reply.status_code == 200, reply.text
     assert "nc_prog/" in reply.text
+
+
+def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any]) -> None:
+    from opendnc.server import jobs, library
+    from opendnc.server.store.models import Job, JobKind, JobState
+
+    http, server = client
+    with server.sessions.begin() as session:
+        data = b"%\nO05000\nG1 X1.\nM30\n%\n"
+        version, _ = library.add_version(session, "O05000.nc", data, author="t")
+        job = jobs.enqueue(session, JobKind.DRIPFEED, "tnc-1", actor="t", version=version)
+        # What a broken drip-feed ends as (set in the same transaction: it never runs here).
+        job.state = JobState.INTERRUPTED
+        job_id = job.id
+    token = _login(http)
+    page = http.get("/machines/tnc-1/jobs").text
+    assert 'name="from_line"' in page
+    reply = http.post(
+        f"/jobs/{job_id}/retry", data={"from_line": "3"}, headers={"X-CSRF-Token": token}
+    )
+    assert reply.status_code == 200, reply.text
+    with server.sessions() as session:
+        new = session.query(Job).filter(Job.id != job_id).one()
+        assert (new.kind, new.params["from_line"], new.params["retry_of"]) == (
+            JobKind.DRIPFEED,
+            3,
+            job_id,
+        )

@@ -375,10 +375,19 @@ def move_job(
 
 
 @router.post("/jobs/{job_id}/retry")
-def retry_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
-    """Queue a failed, interrupted or cancelled job again."""
+def retry_job(
+    request: Request,
+    job_id: int,
+    page: Writing,
+    from_line: Annotated[int | None, Form(ge=1)] = None,
+) -> HTMLResponse:
+    """Queue a failed, interrupted or cancelled job again (a drip-feed from a line)."""
     web_session.need(page.who, Role.OPERATOR)
-    machine = _write(request, lambda s: jobs.retry(s, job_id, actor=page.who.name).machine)
+
+    def retry(session: Session) -> str:
+        return jobs.retry(session, job_id, actor=page.who.name, from_line=from_line).machine
+
+    machine = _write(request, retry)
     return _after_job_action(request, page, machine)
 
 
