@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api
+from opendnc.server import api, web
 from opendnc.server.config import ShopConfig
 from opendnc.server.events import EventBus
 from opendnc.server.machines import connector_for
@@ -89,4 +89,5 @@ def build(
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
+    web.install(app)
     return Server(config, engine, sessions, bus, supervisor, watcher, app)

@@ -30,6 +30,7 @@ __all__ = [
     "create_key",
     "create_user",
     "find_user",
+    "key_hash",
     "revoke_key",
 ]
 
@@ -53,6 +54,11 @@ class Principal:
 
 def _key_hash(key: str) -> str:
     return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def key_hash(key: str) -> str:
+    """The stored form of an API key (its SHA-256 in hex)."""
+    return _key_hash(key)
 
 
 def create_user(
