@@ -108,6 +108,8 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
             ):
                 if auth.find_user(session, user) is None:
                     auth.create_user(session, user, role, password=secret, actor="demo")
+                else:  # a kept --dir: the login printed below must be the one that works
+                    auth.set_password(session, user, secret, actor="demo")
             _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
             for name, versions in EXAMPLES.items():
                 for data in versions:
