@@ -28,7 +28,7 @@ from opendnc.server import auth, library  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
-from tests.server.test_end_to_end import Procs, _free_port, _listening, _wait  # noqa: E402
+from tests.server.harness import Procs, free_port, listening, wait_for  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
@@ -131,7 +131,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
     logs.mkdir()
     procs = Procs(logs)
     try:
-        port = _free_port()
+        port = free_port()
         config = tmp / "shop.toml"
         text = server_config(
             fleet.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.3, library=tmp / "lib"
@@ -140,7 +140,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)
         procs.start("server", "serve", "--config", str(config), "--db", db_url)
-        _wait("the server", _listening(port), describe=lambda: procs.log("server"))
+        wait_for("the server", listening(port), describe=lambda: procs.log("server"))
         with sync_api.sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
             try:

@@ -27,7 +27,7 @@ from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import ApiKey, Role  # noqa: E402
 from opendnc.sim.fleet import server_config, start_fleet  # noqa: E402
-from tests.server.test_end_to_end import _free_port, _listening, _wait  # noqa: E402
+from tests.server.harness import free_port, listening, wait_for  # noqa: E402
 
 Http = Any
 
@@ -48,7 +48,7 @@ def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
         server = build(shop, database=f"sqlite:///{tmp_path / 'db.sqlite'}")
         with server.sessions.begin() as session:
             auth.create_user(session, "op", Role.OPERATOR, password=PASSWORD)
-        port = _free_port()
+        port = free_port()
         web = uvicorn.Server(
             uvicorn.Config(
                 server.app, host="127.0.0.1", port=port, log_level="warning", loop="asyncio"
@@ -56,7 +56,7 @@ def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
         )
         serving = threading.Thread(target=web.run, daemon=True)
         serving.start()
-        _wait("the server", _listening(port))
+        wait_for("the server", listening(port))
         try:
             with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
                 yield http, server
