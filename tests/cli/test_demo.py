@@ -23,7 +23,7 @@ def fresh_tnc640(root: Path) -> tuple[dict[str, int], dict[str, float]]:
 def test_demo_shows_live_values(tmp_path: Path) -> None:
     started = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "-m", "opendnc.cli.main", "demo"],
+        [sys.executable, "-m", "opendnc.cli.main", "demo", "--tour"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -52,3 +52,21 @@ def test_demo_shows_live_values(tmp_path: Path) -> None:
     assert "Q500" in out
     assert "PROGRAM" in out
     assert "demo finished" in out
+
+
+def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
+    # `make demo` runs the server demo; --check does one round trip and exits.
+    proc = subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", "demo", "--check", "--bind", "127.0.0.1:0"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "login: admin / " in out
+    assert "API key: odk_" in out
+    assert "all machines online" in out
+    for machine in ("tnc-1", "tnc-2", "haas-1", "haas-serial-1"):
+        assert f"O01000.nc -> {machine}: sent" in out

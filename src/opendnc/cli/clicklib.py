@@ -12,16 +12,16 @@ try:
     from typer._click.formatting import HelpFormatter
     from typer._click.globals import get_current_context
 except ImportError:  # pragma: no cover - typer on top of an installed click
-    from click.core import Command, Context, Parameter  # type: ignore[no-redef,import-not-found,unused-ignore]
-    from click.exceptions import ClickException, UsageError  # type: ignore[no-redef,import-not-found,unused-ignore]
-    from click.formatting import HelpFormatter  # type: ignore[no-redef,import-not-found,unused-ignore]
-    from click.globals import get_current_context  # type: ignore[no-redef,import-not-found,unused-ignore]
+    from click.core import Command, Context, Parameter  # type: ignore[no-redef,import-not-found,assignment,unused-ignore]
+    from click.exceptions import ClickException, UsageError  # type: ignore[no-redef,import-not-found,assignment,unused-ignore]
+    from click.formatting import HelpFormatter  # type: ignore[no-redef,import-not-found,assignment,unused-ignore]
+    from click.globals import get_current_context  # type: ignore[no-redef,import-not-found,assignment,unused-ignore]
 
 try:
     from typer._click.exceptions import NoArgsIsHelpError
 except ImportError:  # pragma: no cover - click < 8.2 prints the help itself
 
-    class NoArgsIsHelpError(UsageError):  # type: ignore[no-redef,import-not-found,unused-ignore]
+    class NoArgsIsHelpError(UsageError):  # type: ignore[no-redef,import-not-found,assignment,unused-ignore]
         """Never raised by this click version."""
 
 

@@ -43,7 +43,13 @@ COMMANDS: dict[str, Lazy] = {
         "opendnc.cli.heidenhain:app", "Heidenhain blockwise (FE) file transfer over RS-232."
     ),
     "surface": Lazy("opendnc.cli.surface:app", "Probe a surface, capture it, report it."),
-    "demo": Lazy("opendnc.cli.demo:demo", "A live tour against the virtual controls."),
+    "serve": Lazy("opendnc.cli.serve:serve", "Run the DNC server for the machines of a config."),
+    "keys": Lazy("opendnc.cli.serve:keys_app", "API keys of the DNC server."),
+    "users": Lazy("opendnc.cli.serve:users_app", "People who log in to the DNC server."),
+    "demo": Lazy(
+        "opendnc.cli.demo_server:demo",
+        "The DNC server with a virtual shop floor (--tour: a short command-line tour).",
+    ),
 }
 
 app = lazy_typer(

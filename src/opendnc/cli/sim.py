@@ -13,5 +13,6 @@ app = lazy_typer(
         "tnc": Lazy("opendnc.cli.sim_tnc:tnc", "Run a virtual Heidenhain TNC (LSV2 over TCP)."),
         "cable": Lazy("opendnc.cli.sim_cable:cable", "Run a virtual null-modem cable."),
         "haas": Lazy("opendnc.cli.sim_haas:haas", "Run a virtual Haas control."),
+        "fleet": Lazy("opendnc.cli.sim_fleet:fleet", "Run many virtual controls in one process."),
     },
 )

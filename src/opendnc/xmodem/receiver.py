@@ -81,6 +81,8 @@ class ReceiverConfig:
     text_start: bool = False
     """While waiting for the sender, end with :class:`PlainTextStart` when the first byte that
     is not line filler starts no block (a Haas in auto mode takes that as a drip-feed)."""
+    cancel_when_idle: bool = True  # CAN the line when no sender starts; False for a port that
+    # listens in windows (a DNC server between jobs), where a sender may answer the next one
 
     text_check: bool = False  # NAK blocks that are not NC program text (opendnc.nctext)
 
@@ -197,7 +199,7 @@ class XmodemReceiver(EngineBase):
             if self._waited >= cfg.start_timeout:
                 self._fail(
                     TransportTimeout(f"no XModem sender started within {cfg.start_timeout:g} s"),
-                    cancel_peer=True,
+                    cancel_peer=cfg.cancel_when_idle,
                 )
             else:
                 self._request_start()

@@ -1,0 +1,205 @@
+"""One DNC server polling N virtual machines: server CPU, status age, missed polls.
+
+For each fleet size, ``opendnc sim fleet`` starts N controls in one process (half virtual
+TNCs over LSV2, half virtual Haas NGCs over MDC) and writes the server's configuration; then
+``opendnc serve`` polls them every second. After every machine is online the benchmark reads
+``/api/machines`` once a second for ``--seconds`` and reports:
+
+- server CPU: user + system time of the server process over the window, in cores;
+- status age: how old each machine's last status is when read (p50, p99, max);
+- missed polls: readings where a status was older than twice the poll interval.
+
+Target (the server issue): 500 machines on this 2-core machine, p99 status age under 2 s and
+the server under one core. The fleet process runs on the same two cores and costs CPU too.
+
+    .venv/bin/python benchmarks/fleet.py                    # N = 50, 200, 500
+    .venv/bin/python benchmarks/fleet.py --sizes 20 --seconds 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
+
+
+def _cli(*args: str, **kwargs: Any) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "opendnc.cli.main", *args],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        **kwargs,
+    )
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _get(url: str, key: str) -> Any:
+    request = urllib.request.Request(url, headers={"Authorization": f"Bearer {key}"})
+    with urllib.request.urlopen(request, timeout=30) as reply:
+        return json.load(reply)
+
+
+def _percentile(values: list[float], p: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
+
+
+def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any]:
+    """Measure one fleet size; returns the figures."""
+    config = folder / f"fleet-{n}.toml"
+    port = _free_port()
+    fleet = _cli(
+        "sim",
+        "fleet",
+        "--tnc",
+        str(n // 2),
+        "--haas",
+        str(n - n // 2),
+        "--config-out",
+        str(config),
+        "--bind",
+        f"127.0.0.1:{port}",
+        "--poll",
+        str(poll),
+        "--root",
+        str(folder / f"machines-{n}"),
+    )
+    server = None
+    try:
+        deadline = time.monotonic() + 120
+        while not config.exists():
+            if fleet.poll() is not None or time.monotonic() > deadline:
+                raise SystemExit(f"fleet did not start: {fleet.stderr.read().decode()}")  # type: ignore[union-attr]
+            time.sleep(0.1)
+        db = f"sqlite:///{folder / f'fleet-{n}.db'}"
+        key = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "opendnc.cli.main",
+                "keys",
+                "create",
+                "--role",
+                "viewer",
+                "--config",
+                str(config),
+                "--db",
+                db,
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        server = _cli("serve", "--config", str(config), "--db", db)
+        url = f"http://127.0.0.1:{port}/api/machines"
+        started = time.monotonic()
+        while True:
+            try:
+                machines = _get(url, key)
+                if len(machines) == n and all(m["online"] and m["status"] for m in machines):
+                    break
+            except OSError:
+                pass
+            if server.poll() is not None or time.monotonic() > deadline:
+                raise SystemExit(f"machines did not come online for N={n}")
+            time.sleep(0.5)
+        online_after = time.monotonic() - started
+        cpu0, t0 = _cpu_seconds(server.pid), time.monotonic()
+        ages: list[float] = []
+        missed = readings = 0
+        errors: dict[str, int] = {}
+        while time.monotonic() - t0 < seconds:
+            tick = time.monotonic()
+            listed = _get(url, key)
+            now = datetime.now(UTC)  # after the answer: no status is younger than this
+            for m in listed:
+                readings += 1
+                if m["status"] is None or not m["online"]:
+                    missed += 1
+                    error = m["last_error"] or "not polled yet"
+                    errors[error] = errors.get(error, 0) + 1
+                    continue
+                age = (now - datetime.fromisoformat(m["status"]["at"])).total_seconds()
+                ages.append(age)
+                missed += age > 2 * poll
+            # A random phase: sampling in step with the polls would always see the same age.
+            time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
+        cpu = (_cpu_seconds(server.pid) - cpu0) / (time.monotonic() - t0)
+        return {
+            "n": n,
+            "online_s": online_after,
+            "cpu_cores": cpu,
+            "age_p50": _percentile(ages, 50),
+            "age_p99": _percentile(ages, 99),
+            "age_max": max(ages),
+            "missed": missed,
+            "readings": readings,
+            "errors": errors,
+        }
+    finally:
+        if server is not None:
+            _stop(server)
+        _stop(fleet)
+
+
+def main() -> None:
+    """Run the sizes and print one line each."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sizes", default="50,200,500", help="fleet sizes, comma-separated")
+    parser.add_argument("--seconds", type=float, default=20.0, help="measuring window per size")
+    parser.add_argument("--poll", type=float, default=1.0, help="status poll interval (s)")
+    args = parser.parse_args()
+    print(
+        f"{'N':>5} {'online':>8} {'server CPU':>11} {'age p50':>8} {'age p99':>8} "
+        f"{'age max':>8} {'missed':>12}"
+    )
+    with tempfile.TemporaryDirectory(prefix="opendnc-fleet-bench-") as tmp:
+        for n in (int(x) for x in args.sizes.split(",")):
+            r = run_size(n, args.seconds, args.poll, Path(tmp))
+            print(
+                f"{r['n']:>5} {r['online_s']:>7.1f}s {r['cpu_cores']:>9.2f} c "
+                f"{r['age_p50']:>7.2f}s {r['age_p99']:>7.2f}s {r['age_max']:>7.2f}s "
+                f"{int(r['missed']):>5}/{int(r['readings']):<6}",
+                flush=True,
+            )
+            for error, count in sorted(r["errors"].items(), key=lambda kv: -kv[1])[:3]:
+                print(f"      {count} readings offline: {error}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,196 @@
+"""`opendnc demo`: the DNC server with a virtual shop floor, on embedded defaults.
+
+Starts two virtual TNCs, a virtual Haas NGC (MDC and net share) and a virtual Haas on a
+virtual RS-232 cable in this process, fills a library with example programs (released ones
+and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
+the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
+``--check`` sends a released program to every machine, prints what happened and exits (what
+the test suite runs).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import secrets
+import signal
+import tempfile
+from pathlib import Path
+
+import typer
+
+from opendnc.cli.common import cli_errors, console
+from opendnc.cli.serve import require_server_extra
+from opendnc.errors import DncError, InputError
+
+# Example programs: Haas ISO programs and a Heidenhain conversational one (CRLF, as stored).
+EXAMPLES: dict[str, list[bytes]] = {
+    "O01000.nc": [
+        b"%\r\nO01000 (FACE MILL 3IN)\r\nG20\r\nT1 M06\r\nG00 G90 G54 X-1.6 Y0.\r\n"
+        b"S3000 M03\r\nG43 H01 Z0.1 M08\r\nG01 Z0. F20.\r\nX7.6 F40.\r\nG00 Z1. M09\r\n"
+        b"G28 G91 Z0.\r\nM30\r\n%\r\n"
+    ],
+    "O02000.nc": [
+        b"%\r\nO02000 (DRILL 4X)\r\nG20\r\nT2 M06\r\nG00 G90 G54 X0.5 Y0.5\r\nS2500 M03\r\n"
+        b"G43 H02 Z0.1 M08\r\nG81 Z-0.5 R0.1 F10.\r\nX1.5\r\nY1.5\r\nX0.5\r\nG80 M09\r\n"
+        b"G28 G91 Z0.\r\nM30\r\n%\r\n",
+        b"%\r\nO02000 (DRILL 4X, PECK)\r\nG20\r\nT2 M06\r\nG00 G90 G54 X0.5 Y0.5\r\nS2500 M03\r\n"
+        b"G43 H02 Z0.1 M08\r\nG83 Z-0.5 R0.1 Q0.1 F10.\r\nX1.5\r\nY1.5\r\nX0.5\r\nG80 M09\r\n"
+        b"G28 G91 Z0.\r\nM30\r\n%\r\n",
+    ],
+    "POCKET.H": [
+        b"0 BEGIN PGM POCKET MM\r\n1 BLK FORM 0.1 Z X+0 Y+0 Z-20\r\n"
+        b"2 BLK FORM 0.2 X+100 Y+100 Z+0\r\n3 TOOL CALL 1 Z S4000 F800\r\n"
+        b"4 L Z+50 R0 FMAX M3\r\n5 L X+50 Y+50 R0 FMAX\r\n6 L Z-5 F200\r\n"
+        b"7 L Z+50 R0 FMAX M30\r\n8 END PGM POCKET MM\r\n"
+    ],
+}
+RELEASED = ("O01000.nc", "POCKET.H")
+
+
+def demo(
+    tour: bool = typer.Option(
+        False, "--tour", help="The short command-line tour of one virtual TNC and Haas instead."
+    ),
+    bind: str = typer.Option("127.0.0.1:8000", "--bind", help="HOST:PORT of the server."),
+    folder: Path | None = typer.Option(
+        None, "--dir", help="Keep the database and files here (default: a scratch folder)."
+    ),
+    check: bool = typer.Option(
+        False, "--check", help="Send a program to every machine, report, and exit."
+    ),
+) -> None:
+    """Run the DNC server with a virtual shop floor (two TNCs, two Haas) and print a login."""
+    if tour:
+        from opendnc.cli.demo import demo as cli_tour
+
+        cli_tour()
+        return
+    with cli_errors():
+        require_server_extra()
+        host, sep, port_text = bind.rpartition(":")
+        if not sep or not port_text.isdigit():
+            raise InputError(f"--bind {bind!r}: expected HOST:PORT")
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+            asyncio.run(_run(folder, host, int(port_text), check))
+        else:
+            with tempfile.TemporaryDirectory(prefix="opendnc-demo-") as tmp:
+                asyncio.run(_run(Path(tmp), host, int(port_text), check))
+
+
+async def _run(folder: Path, host: str, port: int, check: bool) -> None:
+    import uvicorn
+
+    from opendnc.server import auth, library
+    from opendnc.server.app import build
+    from opendnc.server.config import parse_config
+    from opendnc.server.store.models import Role
+    from opendnc.sim.fleet import server_config, start_fleet
+
+    fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1)
+    try:
+        text = server_config(
+            fleet,
+            bind=f"{host}:{port}",
+            poll_interval=0.5,
+            library=folder / "library",
+            dripfeed=True,  # a virtual machine: nothing moves
+        )
+        (folder / "shop.toml").write_text(text)
+        shop = parse_config(text, base=folder, source=folder / "shop.toml")
+        server = build(shop, database=f"sqlite:///{folder / 'opendnc.db'}", sweep_interval=1.0)
+        password = secrets.token_urlsafe(9)
+        viewer_password = secrets.token_urlsafe(9)
+        with server.sessions.begin() as session:
+            for user, role, secret in (
+                ("admin", Role.ADMIN, password),
+                ("viewer", Role.VIEWER, viewer_password),
+            ):
+                if auth.find_user(session, user) is None:
+                    auth.create_user(session, user, role, password=secret, actor="demo")
+                else:  # a kept --dir: the login printed below must be the one that works
+                    auth.set_password(session, user, secret, actor="demo")
+            _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
+            for name, versions in EXAMPLES.items():
+                for data in versions:
+                    library.add_version(session, name, data, author="demo", source="example")
+                if name in RELEASED:
+                    library.release(session, name, 1, actor="demo")
+        web = uvicorn.Server(
+            uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
+        )
+        serving = asyncio.create_task(web.serve())
+        while not web.started:
+            if serving.done():
+                serving.result()  # raises why it could not start (port in use, ...)
+                raise InputError(f"the server on {host}:{port} stopped at once")
+            await asyncio.sleep(0.05)
+        port = web.servers[0].sockets[0].getsockname()[1]  # the real one when --bind said :0
+        url = f"http://{host}:{port}/"
+        console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
+        console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
+        console.print(
+            f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True
+        )
+        console.print(f"API key: {key}", highlight=False, soft_wrap=True)
+        console.print(
+            f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",
+            highlight=False,
+            soft_wrap=True,
+        )
+        names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
+        console.print(f"machines: {names}", highlight=False, soft_wrap=True)
+        try:
+            if check:
+                await _check(server, fleet)
+            else:
+                stop = asyncio.Event()
+                loop = asyncio.get_running_loop()
+                for sig in (signal.SIGINT, signal.SIGTERM):
+                    loop.add_signal_handler(sig, stop.set)
+                console.print("serving; Ctrl-C stops the demo", highlight=False)
+                await stop.wait()
+        finally:
+            web.should_exit = True
+            await serving
+            server.engine.dispose()
+    finally:
+        await fleet.close()
+    console.print("demo finished")
+
+
+async def _check(server: object, fleet: object) -> None:
+    """Send the released O01000 to every machine and wait for the outcome."""
+    from opendnc.server import jobs
+    from opendnc.server.app import Server
+    from opendnc.server.store.models import JobState
+    from opendnc.sim.fleet import Fleet
+
+    assert isinstance(server, Server)
+    assert isinstance(fleet, Fleet)
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + 60
+    while not all(m.online for m in server.supervisor.machines.values()):
+        if loop.time() > deadline:
+            away = [m.config.name for m in server.supervisor.machines.values() if not m.online]
+            raise DncError(f"machines not online: {', '.join(away)}")
+        await asyncio.sleep(0.1)
+    console.print("all machines online", highlight=False)
+    names = [m.name for m in fleet.machines]
+    with server.sessions.begin() as session:
+        ids = [j.id for j in jobs.send_program(session, "O01000.nc", names, actor="demo")]
+    for name in names:
+        server.supervisor.wake(name)
+    while True:
+        with server.sessions() as session:
+            states = [jobs.get_job(session, i) for i in ids]
+        if all(j.state.finished for j in states):
+            break
+        if loop.time() > deadline:
+            raise DncError("the demo's jobs did not finish in time")
+        await asyncio.sleep(0.1)
+    for job in states:
+        outcome = "sent" if job.state is JobState.DONE else f"{job.state.value}: {job.error}"
+        console.print(f"O01000.nc -> {job.machine}: {outcome}", highlight=False)
+    if any(j.state is not JobState.DONE for j in states):
+        raise DncError("not every machine received the program")

@@ -1,0 +1,78 @@
+"""`opendnc sim fleet`: many virtual controls in one process."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import tempfile
+from pathlib import Path
+
+import typer
+
+from opendnc.atomicfile import atomic_write
+from opendnc.cli.common import cli_errors, console
+from opendnc.errors import InputError, TransportError
+
+
+def fleet(
+    tnc: int = typer.Option(2, "--tnc", help="Virtual TNCs (LSV2) to start."),
+    haas: int = typer.Option(2, "--haas", help="Virtual Haas NGCs (MDC + share) to start."),
+    serial_haas: int = typer.Option(
+        0, "--serial-haas", help="Virtual Haas on virtual RS-232 cables (XModem, drip-feed)."
+    ),
+    base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
+    root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
+    profile: str = typer.Option("tnc640", "--profile", help="Profile of the virtual TNCs."),
+    config_out: Path | None = typer.Option(
+        None, "--config-out", help="Write an `opendnc serve` configuration for these controls."
+    ),
+    bind: str = typer.Option("127.0.0.1:8000", "--bind", help="Server address in --config-out."),
+    poll: float = typer.Option(1.0, "--poll", help="Status poll interval in --config-out."),
+) -> None:
+    """Run many virtual controls at once (and write the server configuration for them)."""
+    from opendnc.sim.fleet import server_config, start_fleet
+
+    async def main(folder: Path) -> None:
+        started = await start_fleet(
+            folder,
+            tnc=tnc,
+            haas=haas,
+            host=host,
+            base_port=base_port,
+            profile=profile,
+            serial_haas=serial_haas,
+        )
+        try:
+            if config_out is not None:
+                text = server_config(started, bind=bind, poll_interval=poll)
+                with atomic_write(config_out) as out:
+                    out.write(text.encode())
+            first, last = started.machines[0], started.machines[-1]
+            console.print(
+                f"fleet of {len(started.machines)} controls listening on {host} "
+                f"({first.name}:{first.port} .. {last.name}:{last.port})"
+                + (f", configuration in {config_out}" if config_out else ""),
+                highlight=False,
+                soft_wrap=True,
+            )
+            stop = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, stop.set)
+            await stop.wait()
+        finally:
+            await started.close()
+        console.print("stopped")
+
+    with cli_errors():
+        if tnc < 0 or haas < 0 or serial_haas < 0:
+            raise InputError("--tnc and --haas count controls: 0 or more")
+        try:
+            if root is not None:
+                asyncio.run(main(root))
+            else:
+                with tempfile.TemporaryDirectory(prefix="opendnc-fleet-") as tmp:
+                    asyncio.run(main(Path(tmp)))
+        except OSError as exc:
+            raise TransportError(f"fleet: {exc.strerror or exc}") from None

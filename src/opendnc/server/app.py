@@ -1,0 +1,93 @@
+"""Build the server: database, supervisor and API in one FastAPI app.
+
+``build()`` only assembles; the app's lifespan starts the machine tasks and stops them, so a
+test can build the whole server around virtual controls and run it under uvicorn or an
+in-process client alike.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+
+from fastapi import FastAPI
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc import __version__
+from opendnc.server import api, web
+from opendnc.server.config import ShopConfig
+from opendnc.server.events import EventBus
+from opendnc.server.machines import connector_for
+from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.supervisor import ConnectorFactory, Supervisor
+from opendnc.server.watcher import LibraryWatcher
+
+__all__ = ["Server", "build"]
+
+
+@dataclass
+class Server:
+    """The parts of one running server."""
+
+    config: ShopConfig
+    engine: Engine
+    sessions: sessionmaker[Session]
+    bus: EventBus
+    supervisor: Supervisor
+    watcher: LibraryWatcher
+    app: FastAPI
+
+
+def build(
+    config: ShopConfig,
+    *,
+    database: str | None = None,
+    connector_factory: ConnectorFactory = connector_for,
+    sweep_interval: float = 5.0,
+    retry_backoff: float = 2.0,
+) -> Server:
+    """Migrate the database and assemble the app (nothing runs until its lifespan starts)."""
+    engine = make_engine(database or config.server.database)
+    migrate(engine)
+    sessions = make_sessions(engine)
+    bus = EventBus()
+    supervisor = Supervisor(
+        config,
+        sessions,
+        bus,
+        connector_factory=connector_factory,
+        sweep_interval=sweep_interval,
+        retry_backoff=retry_backoff,
+    )
+    for folder in (config.library.path, config.library.inbox, config.library.archive):
+        folder.mkdir(parents=True, exist_ok=True)
+
+    watcher = LibraryWatcher(
+        config.library.path,
+        sessions,
+        poll=config.library.poll,
+        on_version=lambda name, number: bus.publish(
+            "program", name, {"name": name, "version": number, "source": "watcher"}
+        ),
+    )
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        await supervisor.start()
+        watching = asyncio.create_task(watcher.run(), name="library-watcher")
+        try:
+            yield
+        finally:
+            watching.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watching
+            await supervisor.stop()
+
+    app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
+    api.install(app, sessions, supervisor)
+    web.install(app)
+    return Server(config, engine, sessions, bus, supervisor, watcher, app)

@@ -1,0 +1,418 @@
+"""The durable job queue: the only code that moves a job between states.
+
+Jobs are rows, so a queue survives restarts. Each machine runs one job at a time, in queue
+order (``position``), which people can change. Every state change writes its audit row in the
+same transaction.
+
+Claiming: a worker first locks its machine's row, then takes the first due queued job. On
+PostgreSQL both locks are ``FOR UPDATE SKIP LOCKED``, so several servers sharing one database
+never run two jobs on one port or one job twice. SQLite has no row locks: there a claim starts
+with a write to the machine row, which takes the database's write lock for the rest of the
+transaction, so claims are serialised (across threads and processes alike).
+
+Retries: a program load is idempotent, so a failed send is queued again with exponential
+backoff until ``max_attempts``. A drip-feed is not: after a break the machine has run an unknown
+part of the program, so it ends *interrupted* and a person restarts it from a line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import func, or_, select, update
+from sqlalchemy.orm import Session
+
+from opendnc.errors import InputError
+from opendnc.server import audit, library
+from opendnc.server.config import MachineConfig
+from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.store.models import (
+    Job,
+    JobKind,
+    JobState,
+    Machine,
+    ProgramState,
+    ProgramVersion,
+    utcnow,
+)
+
+__all__ = [
+    "cancel",
+    "claim",
+    "enqueue",
+    "fail",
+    "finish",
+    "get_job",
+    "interrupt",
+    "list_jobs",
+    "machines_with_due_jobs",
+    "move",
+    "queue_lengths",
+    "recover",
+    "retry",
+    "send_program",
+    "sync_machines",
+]
+
+DEFAULT_ATTEMPTS = {
+    JobKind.SEND: 3,
+    JobKind.RECEIVE: 1,
+    JobKind.BACKUP: 2,
+    JobKind.DRIPFEED: 1,
+    JobKind.DELETE: 2,
+    JobKind.REPORT: 3,
+}
+
+
+def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
+    """Make the ``machines`` table match the configuration (rows are never deleted: jobs
+    and audit rows keep pointing at machines that left the configuration)."""
+    existing = {m.name: m for m in session.scalars(select(Machine))}
+    for config in machines:
+        row = existing.get(config.name)
+        if row is None:
+            session.add(
+                Machine(
+                    name=config.name, kind=config.kind.value, released_only=config.released_only
+                )
+            )
+        else:
+            row.kind = config.kind.value
+            row.released_only = config.released_only
+    session.flush()
+
+
+def _machine(session: Session, name: str) -> Machine:
+    row = session.scalar(select(Machine).where(Machine.name == name))
+    if row is None:
+        raise NotFound(f"no machine named {name!r}")
+    return row
+
+
+def _next_position(session: Session, machine: str) -> float:
+    last = session.scalar(
+        select(Job.position)
+        .where(Job.machine == machine, Job.state == JobState.QUEUED)
+        .order_by(Job.position.desc())
+        .limit(1)
+    )
+    return (last or 0.0) + 1.0
+
+
+def enqueue(
+    session: Session,
+    kind: JobKind,
+    machine: str,
+    *,
+    actor: str,
+    version: ProgramVersion | None = None,
+    params: dict[str, Any] | None = None,
+    max_attempts: int | None = None,
+    not_before: datetime | None = None,
+) -> Job:
+    """Queue a job at the end of ``machine``'s queue (not run before ``not_before``)."""
+    row = _machine(session, machine)
+    if kind in (JobKind.SEND, JobKind.DRIPFEED):
+        if version is None:
+            raise InputError(f"a {kind.value} job needs a program version")
+        if row.released_only and version.state is not ProgramState.RELEASED:
+            raise Conflict(
+                f"{machine} accepts released programs only; {version.program.name} "
+                f"version {version.number} is {version.state.value}"
+            )
+    job = Job(
+        kind=kind,
+        machine=machine,
+        state=JobState.QUEUED,
+        position=_next_position(session, machine),
+        version=version,
+        params=dict(params or {}),
+        max_attempts=max_attempts or DEFAULT_ATTEMPTS[kind],
+        created_by=actor,
+        not_before=not_before,
+    )
+    session.add(job)
+    session.flush()
+    audit.record(
+        session,
+        actor,
+        "job.queue",
+        machine=machine,
+        job_id=job.id,
+        program=version.program.name if version else None,
+        sha256=version.sha256 if version else None,
+        kind=kind.value,
+    )
+    return job
+
+
+def send_program(
+    session: Session, name: str, machines: Sequence[str], *, actor: str, number: int | None = None
+) -> list[Job]:
+    """Queue one send job per machine for version ``number`` of ``name``.
+
+    Without ``number`` the released version is sent; a program with none released is refused.
+    All machines are checked before any job is queued, so a refusal queues nothing.
+    """
+    if not machines:
+        raise InputError("name at least one machine")
+    if number is None:
+        version = library.released_version(session, name)
+        if version is None:
+            raise Conflict(f"program {name!r} has no released version; name one")
+    else:
+        version = library.get_version(session, name, number)
+    with session.begin_nested():
+        return [enqueue(session, JobKind.SEND, m, actor=actor, version=version) for m in machines]
+
+
+def claim(session: Session, machine: str, worker: str) -> Job | None:
+    """Take the next due job of ``machine`` for ``worker``, or None (see module docstring)."""
+    if session.get_bind().dialect.name == "sqlite":
+        session.execute(update(Machine).where(Machine.name == machine).values(kind=Machine.kind))
+    locked = session.scalar(
+        select(Machine).where(Machine.name == machine).with_for_update(skip_locked=True)
+    )
+    if locked is None:
+        return None
+    busy = session.scalar(
+        select(Job.id).where(Job.machine == machine, Job.state == JobState.RUNNING).limit(1)
+    )
+    if busy is not None:
+        return None
+    now = utcnow()
+    job = session.scalar(
+        select(Job)
+        .where(
+            Job.machine == machine,
+            Job.state == JobState.QUEUED,
+            or_(Job.not_before.is_(None), Job.not_before <= now),
+        )
+        .order_by(Job.position, Job.id)
+        .limit(1)
+        .with_for_update(skip_locked=True)
+    )
+    if job is None:
+        return None
+    job.state = JobState.RUNNING
+    job.claimed_by = worker
+    job.started = now
+    job.attempts += 1
+    job.error = ""
+    audit.record(session, worker, "job.start", machine=machine, job_id=job.id, attempt=job.attempts)
+    return job
+
+
+def _running(session: Session, job_id: int) -> Job:
+    job = get_job(session, job_id)
+    if job.state is not JobState.RUNNING:
+        raise Conflict(f"job {job_id} is {job.state.value}, not running")
+    return job
+
+
+def _program_fields(job: Job) -> dict[str, Any]:
+    if job.version is None:
+        return {}
+    return {"program": job.version.program.name, "sha256": job.version.sha256}
+
+
+def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail: Any) -> Job:
+    """Mark a running job done."""
+    job = _running(session, job_id)
+    job.state = JobState.DONE
+    job.finished = utcnow()
+    if nbytes is not None:
+        job.bytes_done = nbytes
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        nbytes=nbytes,
+        by=job.created_by,
+        **_program_fields(job),
+        **detail,
+    )
+    return job
+
+
+def fail(
+    session: Session,
+    job_id: int,
+    error: str,
+    *,
+    retryable: bool = True,
+    backoff: float = 2.0,
+    line: int | None = None,
+) -> Job:
+    """A running job failed: queue it again after a backoff while attempts remain.
+
+    ``line`` is the program line a drip-feed had reached (where a restart would pick up).
+    """
+    job = _running(session, job_id)
+    job.error = error
+    if line is not None:
+        job.line = line
+    again = retryable and job.kind is not JobKind.DRIPFEED and job.attempts < job.max_attempts
+    again = again and not job.cancel_requested
+    if again:
+        job.state = JobState.QUEUED
+        job.not_before = utcnow() + timedelta(seconds=min(backoff * 2 ** (job.attempts - 1), 300))
+    elif job.kind is JobKind.DRIPFEED:
+        job.state = JobState.INTERRUPTED
+        job.finished = utcnow()
+    else:
+        job.state = JobState.CANCELLED if job.cancel_requested else JobState.FAILED
+        job.finished = utcnow()
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        result="retry" if again else job.state.value,
+        error=error,
+        attempt=job.attempts,
+        line=line,
+        **_program_fields(job),
+    )
+    return job
+
+
+def interrupt(session: Session, job_id: int, reason: str) -> Job:
+    """Mark a running job interrupted (its outcome on the machine is unknown)."""
+    job = _running(session, job_id)
+    job.state = JobState.INTERRUPTED
+    job.error = reason
+    job.finished = utcnow()
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        result="interrupted",
+        error=reason,
+        **_program_fields(job),
+    )
+    return job
+
+
+def recover(session: Session, worker: str) -> list[Job]:
+    """At start: every job this server left running becomes interrupted, with the reason."""
+    jobs = session.scalars(
+        select(Job).where(Job.state == JobState.RUNNING, Job.claimed_by == worker)
+    ).all()
+    for job in jobs:
+        interrupt(session, job.id, "the server stopped while this job ran")
+    return list(jobs)
+
+
+def machines_with_due_jobs(session: Session) -> list[str]:
+    """Machines that have a queued job whose time has come."""
+    now = utcnow()
+    stmt = (
+        select(Job.machine)
+        .where(Job.state == JobState.QUEUED, or_(Job.not_before.is_(None), Job.not_before <= now))
+        .distinct()
+    )
+    return list(session.scalars(stmt))
+
+
+def queue_lengths(session: Session) -> dict[str, int]:
+    """Queued jobs per machine (machines with none are left out)."""
+    stmt = (
+        select(Job.machine, func.count(Job.id))
+        .where(Job.state == JobState.QUEUED)
+        .group_by(Job.machine)
+    )
+    return {machine: int(count) for machine, count in session.execute(stmt)}
+
+
+def get_job(session: Session, job_id: int) -> Job:
+    """The job ``job_id``; :class:`NotFound` otherwise."""
+    job = session.get(Job, job_id)
+    if job is None:
+        raise NotFound(f"no job {job_id}")
+    return job
+
+
+def list_jobs(
+    session: Session,
+    *,
+    machine: str | None = None,
+    states: Iterable[JobState] = (),
+    limit: int = 200,
+) -> Sequence[Job]:
+    """Jobs, queued ones in queue order first, then the rest newest first."""
+    stmt = select(Job)
+    if machine is not None:
+        stmt = stmt.where(Job.machine == machine)
+    wanted = list(states)
+    if wanted:
+        stmt = stmt.where(Job.state.in_(wanted))
+    stmt = stmt.order_by((Job.state == JobState.QUEUED).desc(), Job.position, Job.id.desc())
+    return session.scalars(stmt.limit(max(1, min(limit, 10_000)))).all()
+
+
+def cancel(session: Session, job_id: int, *, actor: str) -> Job:
+    """Cancel a queued job at once; ask a running one to stop at its next safe point."""
+    job = get_job(session, job_id)
+    if job.state is JobState.QUEUED:
+        job.state = JobState.CANCELLED
+        job.finished = utcnow()
+    elif job.state is JobState.RUNNING:
+        job.cancel_requested = True
+    else:
+        raise Conflict(f"job {job_id} is {job.state.value}; nothing to cancel")
+    audit.record(session, actor, "job.cancel", machine=job.machine, job_id=job.id)
+    return job
+
+
+def move(session: Session, job_id: int, index: int, *, actor: str) -> Job:
+    """Put a queued job at ``index`` (0 = next) in its machine's queue."""
+    job = get_job(session, job_id)
+    if job.state is not JobState.QUEUED:
+        raise Conflict(f"job {job_id} is {job.state.value}; only queued jobs move")
+    queue = [
+        j
+        for j in session.scalars(
+            select(Job)
+            .where(Job.machine == job.machine, Job.state == JobState.QUEUED)
+            .order_by(Job.position, Job.id)
+        )
+        if j.id != job.id
+    ]
+    index = max(0, min(index, len(queue)))
+    queue.insert(index, job)
+    # Renumber the whole (short) queue: simple, and positions never run out of precision.
+    for n, item in enumerate(queue, start=1):
+        item.position = float(n)
+    audit.record(session, actor, "job.move", machine=job.machine, job_id=job.id, index=index)
+    return job
+
+
+def retry(session: Session, job_id: int, *, actor: str, from_line: int | None = None) -> Job:
+    """Queue a new job doing what a finished, unsuccessful job did.
+
+    A new row keeps the history honest: the old job stays as it ended. A drip-feed restart
+    names the line to start from (its preamble restores the modal state).
+    """
+    old = get_job(session, job_id)
+    if old.state not in (JobState.FAILED, JobState.INTERRUPTED, JobState.CANCELLED):
+        raise Conflict(
+            f"job {job_id} is {old.state.value}; only failed, interrupted or "
+            "cancelled jobs are retried"
+        )
+    params = dict(old.params)
+    if from_line is not None:
+        if old.kind is not JobKind.DRIPFEED:
+            raise InputError("only a drip-feed restarts from a line")
+        if from_line < 1:
+            raise InputError("from_line counts from 1")
+        params["from_line"] = from_line
+    params["retry_of"] = old.id
+    return enqueue(session, old.kind, old.machine, actor=actor, version=old.version, params=params)

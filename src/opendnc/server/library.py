@@ -1,0 +1,206 @@
+"""The program library: versions addressed by SHA-256, approval states, diffs.
+
+Every change a person or the folder watcher makes becomes a new version; nothing is overwritten.
+Adding the bytes the newest version already has adds nothing (the watcher sees the same file
+many times). States: a new version is a draft; releasing it supersedes the version released
+before; a locked program takes no new versions and no state changes until it is unlocked.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import re
+from collections.abc import Sequence
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from opendnc.errors import InputError
+from opendnc.server import audit
+from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVersion
+
+__all__ = [
+    "MAX_PROGRAM_BYTES",
+    "add_version",
+    "check_program_name",
+    "content",
+    "diff",
+    "get_program",
+    "get_version",
+    "list_programs",
+    "release",
+    "set_locked",
+]
+
+# Larger than any program a control's memory takes; a drip-fed mould program can be tens of MB.
+MAX_PROGRAM_BYTES = 256 * 1024 * 1024
+
+# One file name, as controls and shares accept it: no folders, no dot-names, no Windows
+# device names, nothing a path join could turn into a different place.
+_PROGRAM_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+$-]{0,99}$")
+_WINDOWS_DEVICES = {
+    "CON",
+    "PRN",
+    "AUX",
+    "NUL",
+    *(f"COM{i}" for i in range(10)),
+    *(f"LPT{i}" for i in range(10)),
+}
+
+
+def check_program_name(name: str) -> str:
+    """``name`` if it is a safe program file name; :class:`InputError` saying why not."""
+    if not _PROGRAM_NAME.fullmatch(name) or ".." in name:
+        raise InputError(
+            f"program name {name[:40]!r}: use 1-100 letters, digits, '.', '_', '+', '$' or '-', "
+            "starting with a letter or digit, no folders"
+        )
+    if name.split(".")[0].upper() in _WINDOWS_DEVICES:
+        raise InputError(f"program name {name!r} is a reserved device name on Windows")
+    return name
+
+
+def list_programs(session: Session, search: str = "") -> Sequence[Program]:
+    """Programs whose name contains ``search`` (case-insensitive), by name."""
+    stmt = select(Program).order_by(Program.name)
+    if search:
+        stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
+    return session.scalars(stmt).all()
+
+
+def get_program(session: Session, name: str) -> Program:
+    """The program called ``name``; :class:`NotFound` otherwise."""
+    program = session.scalar(select(Program).where(Program.name == name))
+    if program is None:
+        raise NotFound(f"no program named {name!r}")
+    return program
+
+
+def get_version(session: Session, name: str, number: int | None = None) -> ProgramVersion:
+    """Version ``number`` of ``name``; the newest one when ``number`` is None."""
+    program = get_program(session, name)
+    if not program.versions:
+        raise NotFound(f"program {name!r} has no versions")
+    if number is None:
+        return program.versions[-1]
+    for version in program.versions:
+        if version.number == number:
+            return version
+    raise NotFound(f"program {name!r} has no version {number}")
+
+
+def released_version(session: Session, name: str) -> ProgramVersion | None:
+    """The released version of ``name``, if one is."""
+    program = get_program(session, name)
+    for version in reversed(program.versions):
+        if version.state is ProgramState.RELEASED:
+            return version
+    return None
+
+
+def content(session: Session, version: ProgramVersion) -> bytes:
+    """The bytes of ``version``."""
+    blob = session.get(Blob, version.sha256)
+    if blob is None:  # pragma: no cover - the foreign key makes this impossible
+        raise NotFound(f"content {version.sha256} is missing")
+    return blob.data
+
+
+def add_version(
+    session: Session,
+    name: str,
+    data: bytes,
+    *,
+    author: str,
+    comment: str = "",
+    source: str = "upload",
+) -> tuple[ProgramVersion, bool]:
+    """Store ``data`` as the next version of ``name``; returns (version, created).
+
+    ``created`` is False when the newest version already holds exactly these bytes.
+    """
+    check_program_name(name)
+    if len(data) > MAX_PROGRAM_BYTES:
+        raise InputError(f"{name}: {len(data)} bytes is more than the library takes")
+    digest = hashlib.sha256(data).hexdigest()
+    program = session.scalar(select(Program).where(Program.name == name))
+    if program is None:
+        program = Program(name=name)
+        session.add(program)
+        session.flush()
+    if program.locked:
+        raise Conflict(f"program {name!r} is locked")
+    if program.versions and program.versions[-1].sha256 == digest:
+        return program.versions[-1], False
+    if session.get(Blob, digest) is None:
+        session.add(Blob(sha256=digest, size=len(data), data=data))
+    number = (program.versions[-1].number + 1) if program.versions else 1
+    version = ProgramVersion(
+        program=program,
+        number=number,
+        sha256=digest,
+        size=len(data),
+        state=ProgramState.DRAFT,
+        author=author,
+        comment=comment,
+        source=source,
+    )
+    session.add(version)
+    session.flush()
+    audit.record(
+        session,
+        author,
+        "program.version",
+        program=name,
+        sha256=digest,
+        nbytes=len(data),
+        version=number,
+        source=source,
+        comment=comment,
+    )
+    return version, True
+
+
+def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:
+    """Release version ``number``; the previously released version becomes superseded."""
+    program = get_program(session, name)
+    if program.locked:
+        raise Conflict(f"program {name!r} is locked")
+    target = get_version(session, name, number)
+    if target.state is ProgramState.RELEASED:
+        return target
+    if target.state is ProgramState.SUPERSEDED:
+        raise Conflict(f"{name} version {number} is superseded; release a newer one")
+    for version in program.versions:
+        if version.state is ProgramState.RELEASED:
+            version.state = ProgramState.SUPERSEDED
+    target.state = ProgramState.RELEASED
+    audit.record(
+        session, actor, "program.release", program=name, sha256=target.sha256, version=number
+    )
+    return target
+
+
+def set_locked(session: Session, name: str, locked: bool, *, actor: str) -> Program:
+    """Lock or unlock ``name``."""
+    program = get_program(session, name)
+    if program.locked != locked:
+        program.locked = locked
+        audit.record(session, actor, "program.lock" if locked else "program.unlock", program=name)
+    return program
+
+
+def diff(session: Session, name: str, a: int, b: int, *, context: int = 3) -> list[str]:
+    """Unified diff lines from version ``a`` to version ``b`` of ``name``."""
+    old = get_version(session, name, a)
+    new = get_version(session, name, b)
+    # G-code is ASCII; latin-1 shows any stray byte instead of failing on it.
+    old_lines = content(session, old).decode("latin-1").splitlines()
+    new_lines = content(session, new).decode("latin-1").splitlines()
+    return list(
+        difflib.unified_diff(
+            old_lines, new_lines, f"{name} v{a}", f"{name} v{b}", n=context, lineterm=""
+        )
+    )

@@ -1,0 +1,118 @@
+"""The connector interface and the status model every connector fills.
+
+The status fields follow MTConnect's CNC data items (availability, execution, controller
+mode, program, line, part count, message), so an MTConnect adapter or an MQTT publisher can
+map them one to one later.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from opendnc.errors import InputError
+
+if TYPE_CHECKING:
+    from opendnc.server.config import MachineConfig
+
+__all__ = ["Connector", "DripProgress", "MachineStatus", "NetworkOnly", "Progress", "Reception"]
+
+Progress = Callable[[int, int | None], None]
+"""Called with (bytes done, bytes total or None) while a transfer runs."""
+
+DripProgress = Callable[[int, int], None]
+"""Called with (program line reached, program lines) while a drip-feed runs."""
+
+
+@dataclass(frozen=True)
+class MachineStatus:
+    """What a control said about itself at ``at``."""
+
+    at: datetime
+    available: bool
+    execution: str = "UNAVAILABLE"  # ACTIVE, READY, INTERRUPTED, STOPPED, ... (MTConnect)
+    mode: str = ""  # AUTOMATIC, MANUAL, MANUAL_DATA_INPUT, ... (MTConnect)
+    program: str = ""
+    line: int = 0
+    part_count: int | None = None
+    tool: int | None = None
+    overrides: dict[str, float] = field(default_factory=dict)  # percent
+    errors: tuple[str, ...] = ()
+    message: str = ""  # the last thing worth telling (a refusal, a DPRNT line)
+
+    def as_json(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        data = asdict(self)
+        data["at"] = self.at.isoformat()
+        data["errors"] = list(self.errors)
+        return data
+
+
+@dataclass(frozen=True)
+class Reception:
+    """A program the control sent by itself (a punch); ``failed`` says why it broke off."""
+
+    data: bytes
+    failed: str = ""
+
+
+class Connector(Protocol):
+    """What the supervisor needs from a control."""
+
+    listens: bool
+    """True if the control can send programs by itself (the supervisor then calls
+    :meth:`listen` between status polls instead of sleeping)."""
+
+    async def connect(self) -> None:
+        """Open the link (raise a :class:`~opendnc.errors.DncError` if the control is away)."""
+
+    async def close(self) -> None:
+        """Close the link; safe to call at any time."""
+
+    async def status(self) -> MachineStatus:
+        """Read the control's state now."""
+
+    async def send(self, name: str, data: bytes, progress: Progress) -> None:
+        """Load program ``name`` into the control."""
+
+    async def verify(self, name: str, data: bytes) -> bool | None:
+        """Whether the control now holds exactly ``data`` as ``name``; None if it cannot tell."""
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Wait up to ``seconds`` for the control to start sending; None if it did not."""
+
+    async def fetch(self, path: str) -> bytes:
+        """Read the file ``path`` from the control (:class:`InputError` where it cannot)."""
+
+    async def delete(self, path: str) -> None:
+        """Delete the file ``path`` on the control (:class:`InputError` where it cannot)."""
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Copy the folder ``path`` into ``target``, skipping unchanged files; counts."""
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Stream a program the control runs as it arrives (:class:`InputError` where the
+        control cannot); ``progress`` may raise to stop the feed. Returns counts."""
+
+
+class NetworkOnly:
+    """What a control reached over the network lacks: it sends no programs by itself (it is
+    asked for them) and runs nothing by drip-feed."""
+
+    listens = False
+    config: MachineConfig
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Nothing to listen for."""
+        return None
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Drip-feed is a serial Haas's way of running a program."""
+        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")

@@ -1,0 +1,184 @@
+"""Haas controls on RS-232: programs by XModem (checksum mode, what a Haas speaks).
+
+A serial port has no status to poll: the machine counts as available while its port opens.
+Between jobs the port listens as an XModem receiver, so a program the operator punches (or a
+remote request) arrives without anyone at the PC; the receiver's start requests (NAK every
+few seconds) are what a Haas waits for before it sends. To load a program the operator puts
+the control in receive mode, and the control's NAK starts our sender.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import tempfile
+import time
+from pathlib import Path
+
+from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
+from opendnc.haas.dnc import DncConfig, stream_program
+from opendnc.server.config import MachineConfig
+from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.store.models import utcnow
+from opendnc.transport import PortStream, open_stream
+from opendnc.xmodem.driver import receive as xmodem_receive
+from opendnc.xmodem.driver import send as xmodem_send
+from opendnc.xmodem.events import Started
+from opendnc.xmodem.framing import Mode
+from opendnc.xmodem.haas import Eob, to_wire
+from opendnc.xmodem.receiver import ReceiverConfig
+
+__all__ = ["HaasSerialConnector"]
+
+_EOB = {"CR": Eob.CR, "LF": Eob.LF, "CRLF": Eob.CRLF}
+
+
+class HaasSerialConnector:
+    """XModem on one serial line, kept open while the machine is connected (bytes that arrive
+    between two listening windows wait in the port's buffer)."""
+
+    listens = True
+
+    def __init__(self, config: MachineConfig, *, quiet_after_break: float = 30.0) -> None:
+        self.config = config
+        self._stream: PortStream | None = None
+        # After a drip-feed breaks, the control still waits in DNC mode for the rest of the
+        # program: the listener's start requests (NAK) would reach it as program input and
+        # keep it from timing out into its DNC-link alarm. The port stays silent this long.
+        self.quiet_after_break = quiet_after_break
+        self._quiet_until = 0.0
+
+    def _open(self) -> PortStream:
+        profile = self.config.profile
+        return open_stream(
+            self.config.serial,
+            profile.baud,
+            timeout=1.0,
+            parity=profile.parity,
+            bytesize=profile.bytesize,
+            stopbits=profile.stopbits,
+            # XModem is binary: XON/XOFF must not be taken out of the data by the port;
+            # a drip-feed handles the control's DC1/DC3 itself.
+            flow="rtscts" if profile.flow == "rtscts" else "none",
+        )
+
+    async def connect(self) -> None:
+        """Open the port (a TCP serial server answers, a device exists)."""
+        if self._stream is None:
+            self._stream = await asyncio.to_thread(self._open)
+
+    async def close(self) -> None:
+        """Close the port."""
+        stream, self._stream = self._stream, None
+        if stream is not None:
+            await asyncio.to_thread(stream.close)
+
+    def _require(self) -> PortStream:
+        if self._stream is None:
+            raise TransportError(f"{self.config.name}: port not open")
+        return self._stream
+
+    async def status(self) -> MachineStatus:
+        """Available while the port opens; RS-232 tells nothing more without DPRNT."""
+        return MachineStatus(at=utcnow(), available=True, execution="READY")
+
+    async def send(self, name: str, data: bytes, progress: Progress) -> None:
+        """Send the program by XModem in checksum mode."""
+        wire = to_wire(data, _EOB[self.config.profile.eob])
+
+        stream = self._require()
+        await asyncio.to_thread(
+            lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
+        )
+
+    async def verify(self, name: str, data: bytes) -> bool | None:
+        """None: XModem's block checks are the only verification a serial Haas offers."""
+        return None
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Receive one XModem transfer if the control starts one within ``seconds``."""
+        if time.monotonic() < self._quiet_until:
+            await asyncio.sleep(seconds)
+            return None
+
+        def run() -> Reception | None:
+            parts: list[bytes] = []
+            started = False
+
+            def on_event(event: object) -> None:
+                nonlocal started
+                started = started or isinstance(event, Started)
+
+            config = ReceiverConfig(
+                start_timeout=seconds,
+                start_interval=min(3.0, seconds),
+                fold_eob_checksum=True,  # Haas sums blocks with its EOB folded to LF
+                cancel_when_idle=False,  # the next window listens again
+                text_check=True,  # a block that is no NC text is asked for again
+            )
+            stream = self._require()
+            try:
+                xmodem_receive(
+                    stream, parts.append, mode=Mode.CHECKSUM, config=config, on_event=on_event
+                )
+            except TransportTimeout:
+                if not started:
+                    return None  # nobody sent anything: the usual case
+                return Reception(b"".join(parts), failed="the sender went silent")
+            except DncError as exc:
+                if not started and not parts:
+                    return None
+                return Reception(b"".join(parts), failed=str(exc))
+            return Reception(b"".join(parts))
+
+        return await asyncio.to_thread(run)
+
+    async def fetch(self, path: str) -> bytes:
+        """A serial Haas sends programs itself (a punch), it cannot be asked for one."""
+        raise InputError(f"{self.config.name}: punch the program at the control instead")
+
+    async def delete(self, path: str) -> None:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: RS-232 cannot delete programs on the control")
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: backup is for LSV2 controls")
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Stream the program with XON/XOFF (the control's DC3 stops us within a chunk);
+        from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`."""
+        if not self.config.dripfeed:
+            raise InputError(
+                f"{self.config.name}: drip-feed is off for this machine "
+                "(it runs the program: set dripfeed = true in its configuration)"
+            )
+        stream = self._require()
+        profile = self.config.profile
+        lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+
+        def on_progress(done: int, total: int) -> None:
+            # File bytes consumed -> the program line reached (lines before from_line count
+            # as done: they were skipped, not sent).
+            progress(data[:done].count(b"\n") + 1, lines)
+
+        def run() -> dict[str, int]:
+            with tempfile.TemporaryDirectory(prefix="opendnc-dnc-") as tmp:
+                path = Path(tmp) / name
+                path.write_bytes(data)
+                report = stream_program(
+                    stream,
+                    path,
+                    from_line=from_line,
+                    config=DncConfig(eob=_EOB[profile.eob], wait_for_xon=profile.wait_for_xon),
+                    safe_mode=False,  # the machine's dripfeed = true is the opt-in
+                    progress=on_progress,
+                )
+            return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
+
+        try:
+            return await asyncio.to_thread(run)
+        except BaseException:
+            self._quiet_until = time.monotonic() + self.quiet_after_break
+            raise

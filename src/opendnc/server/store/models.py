@@ -1,0 +1,320 @@
+"""The server's tables, as SQLAlchemy 2 declarative models.
+
+The schema itself is owned by the Alembic migrations beside this module (``migrations/``);
+these classes only map it. A test compares the two so they cannot drift.
+
+Program content lives in ``blobs`` keyed by its SHA-256: every version that has the same bytes
+shares one row, and several servers sharing one database see the same library without a shared
+file system.
+"""
+
+from __future__ import annotations
+
+import enum
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Enum,
+    Float,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+from opendnc.errors import InputError
+
+__all__ = [
+    "ApiKey",
+    "AuditEntry",
+    "Base",
+    "Blob",
+    "Job",
+    "JobKind",
+    "JobState",
+    "Machine",
+    "Program",
+    "ProgramState",
+    "ProgramVersion",
+    "Received",
+    "ReceivedState",
+    "Role",
+    "User",
+    "utcnow",
+]
+
+
+def utcnow() -> datetime:
+    """Now, timezone-aware in UTC (every stored time is UTC)."""
+    return datetime.now(UTC)
+
+
+class UtcDateTime(TypeDecorator[datetime]):
+    """A DateTime that always comes back timezone-aware in UTC (SQLite keeps no zone)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is not None:
+            value = value.astimezone(UTC)
+        return value
+
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            value = value.replace(tzinfo=UTC)
+        return value
+
+
+class Role(enum.IntEnum):
+    """What a user or key may do; each role includes the ones below it."""
+
+    VIEWER = 10  # read everything
+    OPERATOR = 20  # send released programs, receive, request, cancel own jobs
+    PROGRAMMER = 30  # upload programs and new versions, drip-feed, delete on a control
+    APPROVER = 40  # release, supersede and lock versions
+    ADMIN = 50  # users, keys, every job
+
+    @classmethod
+    def parse(cls, text: str) -> Role:
+        """The role named ``text`` (case-insensitive); :class:`InputError` otherwise."""
+        try:
+            return cls[text.strip().upper()]
+        except KeyError:
+            names = ", ".join(r.name.lower() for r in cls)
+            raise InputError(f"unknown role {text!r} (expected one of {names})") from None
+
+
+class ProgramState(enum.StrEnum):
+    """Life cycle of a program version."""
+
+    DRAFT = "draft"
+    RELEASED = "released"
+    SUPERSEDED = "superseded"
+
+
+class JobKind(enum.StrEnum):
+    """What a job does on its machine."""
+
+    SEND = "send"  # load one program version into the control
+    RECEIVE = "receive"  # take a program from the control into the inbox
+    BACKUP = "backup"  # LSV2: copy a folder of the control
+    DRIPFEED = "dripfeed"  # stream a program while the control runs it
+    DELETE = "delete"  # remove a file from the control
+    REPORT = "report"  # a short program telling the operator what the server did
+
+
+class JobState(enum.StrEnum):
+    """Where a job is; only the queue module moves a job between these."""
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+    INTERRUPTED = "interrupted"  # the server or the link stopped while it ran
+
+    @property
+    def finished(self) -> bool:
+        """True once the job will not run again by itself."""
+        return self not in (JobState.QUEUED, JobState.RUNNING)
+
+
+# Stable constraint names, so Alembic's batch mode can rebuild SQLite tables.
+NAMING = {
+    "ix": "ix_%(table_name)s_%(column_0_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+class Base(DeclarativeBase):
+    """Declarative base with the naming convention above."""
+
+    metadata = MetaData(naming_convention=NAMING)
+
+
+def _enum(cls: type[enum.Enum], name: str) -> Enum:
+    # Store the values (what the API shows), as plain strings: no database enum type to migrate.
+    return Enum(
+        cls,
+        name=name,
+        native_enum=False,
+        values_callable=lambda members: [m.value for m in members],
+        length=16,
+        validate_strings=True,
+    )
+
+
+class User(Base):
+    """A person (or service) that logs in or owns API keys."""
+
+    __tablename__ = "users"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    password_hash: Mapped[str | None] = mapped_column(String(256), nullable=True)
+    role: Mapped[int] = mapped_column(Integer)
+    disabled: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+    keys: Mapped[list[ApiKey]] = relationship(back_populates="user")
+
+
+class ApiKey(Base):
+    """A revocable key; only its SHA-256 is stored, the key itself is shown once."""
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id"))
+    prefix: Mapped[str] = mapped_column(String(16))  # shown in lists to tell keys apart
+    key_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    role: Mapped[int] = mapped_column(Integer)  # never above the user's own role
+    label: Mapped[str] = mapped_column(String(128), default="")
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    revoked: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    last_used: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+
+    user: Mapped[User] = relationship(back_populates="keys")
+
+
+class Machine(Base):
+    """A configured machine; the row exists so jobs can lock their port across servers."""
+
+    __tablename__ = "machines"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    released_only: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+class Blob(Base):
+    """Program bytes, addressed by their SHA-256."""
+
+    __tablename__ = "blobs"
+
+    sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
+    size: Mapped[int] = mapped_column(BigInteger)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class Program(Base):
+    """A program name in the library (``O01234``, ``POCKET.H``) and its versions."""
+
+    __tablename__ = "programs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(255), unique=True)
+    locked: Mapped[bool] = mapped_column(Boolean, default=False)
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+    versions: Mapped[list[ProgramVersion]] = relationship(
+        back_populates="program", order_by="ProgramVersion.number"
+    )
+
+
+class ProgramVersion(Base):
+    """One kept version of a program."""
+
+    __tablename__ = "program_versions"
+    __table_args__ = (UniqueConstraint("program_id", "number", name="uq_program_versions_number"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    program_id: Mapped[int] = mapped_column(ForeignKey("programs.id"))
+    number: Mapped[int] = mapped_column(Integer)
+    sha256: Mapped[str] = mapped_column(ForeignKey("blobs.sha256"))
+    size: Mapped[int] = mapped_column(BigInteger)
+    state: Mapped[ProgramState] = mapped_column(_enum(ProgramState, "program_state"))
+    author: Mapped[str] = mapped_column(String(64))
+    comment: Mapped[str] = mapped_column(Text, default="")
+    source: Mapped[str] = mapped_column(String(32), default="upload")  # upload, watcher, inbox
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+    program: Mapped[Program] = relationship(back_populates="versions")
+
+
+class Job(Base):
+    """A durable unit of work on one machine."""
+
+    __tablename__ = "jobs"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    kind: Mapped[JobKind] = mapped_column(_enum(JobKind, "job_kind"))
+    machine: Mapped[str] = mapped_column(ForeignKey("machines.name"), index=True)
+    state: Mapped[JobState] = mapped_column(_enum(JobState, "job_state"), index=True)
+    position: Mapped[float] = mapped_column(Float)  # order within the machine's queue
+    version_id: Mapped[int | None] = mapped_column(ForeignKey("program_versions.id"), nullable=True)
+    params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    max_attempts: Mapped[int] = mapped_column(Integer, default=3)
+    not_before: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    created_by: Mapped[str] = mapped_column(String(64))
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    started: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    finished: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    claimed_by: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    bytes_done: Mapped[int] = mapped_column(BigInteger, default=0)
+    bytes_total: Mapped[int] = mapped_column(BigInteger, default=0)
+    line: Mapped[int] = mapped_column(Integer, default=0)
+    error: Mapped[str] = mapped_column(Text, default="")
+
+    version: Mapped[ProgramVersion | None] = relationship()
+
+
+class ReceivedState(enum.StrEnum):
+    """Where a program received from a control is."""
+
+    NEW = "new"  # waiting in the inbox for a person
+    ACCEPTED = "accepted"  # became a library version
+    DISCARDED = "discarded"
+    FAILED = "failed"  # the reception broke off; kept with its reason
+
+
+class Received(Base):
+    """A program that came from a control (a punch, a file found on it), or a failed try."""
+
+    __tablename__ = "received"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64), index=True)
+    name: Mapped[str] = mapped_column(String(255))
+    sha256: Mapped[str] = mapped_column(ForeignKey("blobs.sha256"))
+    size: Mapped[int] = mapped_column(BigInteger)
+    state: Mapped[ReceivedState] = mapped_column(_enum(ReceivedState, "received_state"))
+    reason: Mapped[str] = mapped_column(Text, default="")
+    path: Mapped[str] = mapped_column(Text, default="")  # the file written to the inbox folder
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    version_id: Mapped[int | None] = mapped_column(ForeignKey("program_versions.id"), nullable=True)
+
+
+class AuditEntry(Base):
+    """One row of the append-only audit trail (database triggers refuse updates and deletes)."""
+
+    __tablename__ = "audit"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow, index=True)
+    actor: Mapped[str] = mapped_column(String(64))
+    action: Mapped[str] = mapped_column(String(64), index=True)
+    machine: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
+    program: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    job_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    result: Mapped[str] = mapped_column(String(16), default="ok")
+    bytes: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+    detail: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)

@@ -1,0 +1,445 @@
+"""One supervised asyncio task per machine: connect, poll status, run the machine's jobs.
+
+A task that loses its control closes the link, waits with exponential backoff (0.5 s up to
+30 s) and connects again; an error in one machine's task never reaches another's. A machine
+claims jobs only when woken: by the API when it queues one in this process, and by one shared
+sweep that asks the database which machines have due jobs (queued by another server sharing
+the database, or retries whose backoff has expired). One query per sweep, however many
+machines, keeps a large shop's database quiet.
+
+Database work runs in worker threads (``asyncio.to_thread``): SQLAlchemy sessions are
+blocking, and a slow database must not stall the status polls of every machine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import (
+    DncError,
+    InputError,
+    RemoteProtocolError,
+    TransferError,
+    TransportError,
+)
+from opendnc.server import audit, inbox, jobs, library, requests
+from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.errors import NotFound
+from opendnc.server.events import EventBus
+from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
+from opendnc.server.store.models import JobKind, utcnow
+
+__all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
+
+log = logging.getLogger(__name__)
+
+ConnectorFactory = Callable[[MachineConfig], Connector]
+
+
+class DripFeedBroken(DncError):
+    """A drip-feed stopped; ``line`` is the program line it had reached."""
+
+    def __init__(self, reason: str, line: int) -> None:
+        super().__init__(reason)
+        self.line = line
+
+
+@dataclass(frozen=True)
+class Claimed:
+    """A job taken from the queue, with what running it needs."""
+
+    job_id: int
+    kind: JobKind
+    name: str  # program name, or the path on the control
+    data: bytes  # what to send (empty for jobs that take from the control)
+    params: dict[str, Any]
+
+
+@dataclass
+class MachineState:
+    """What the server knows about one machine right now."""
+
+    config: MachineConfig
+    online: bool = False
+    status: MachineStatus | None = None
+    last_error: str = ""  # kept after a reconnect: the last thing that went wrong
+    last_error_at: datetime | None = None
+    link_errors: int = 0  # how often the link broke since the server started
+    job_id: int | None = None
+    job_progress: tuple[int, int | None] = (0, None)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def as_json(self) -> dict[str, Any]:
+        """A JSON-ready summary for the API."""
+        done, total = self.job_progress
+        return {
+            "name": self.config.name,
+            "kind": self.config.kind.value,
+            "description": self.config.description,
+            "released_only": self.config.released_only,
+            "online": self.online,
+            "status": self.status.as_json() if self.status else None,
+            "last_error": self.last_error,
+            "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
+            "link_errors": self.link_errors,
+            "job": None
+            if self.job_id is None
+            else {"id": self.job_id, "bytes_done": done, "bytes_total": total},
+        }
+
+
+class Supervisor:
+    """Runs every configured machine; ``start()`` and ``stop()`` from the app's lifespan."""
+
+    def __init__(
+        self,
+        config: ShopConfig,
+        sessions: sessionmaker[Session],
+        bus: EventBus,
+        *,
+        connector_factory: ConnectorFactory = connector_for,
+        sweep_interval: float = 5.0,
+        retry_backoff: float = 2.0,
+    ) -> None:
+        self.config = config
+        self.sessions = sessions
+        self.bus = bus
+        self.connector_factory = connector_factory
+        self.sweep_interval = sweep_interval
+        self.retry_backoff = retry_backoff
+        self.worker = config.server.name
+        self.machines = {m.name: MachineState(m) for m in config.machines}
+        self._tasks: list[asyncio.Task[None]] = []
+        self._cancels: set[int] = set()
+
+    async def start(self) -> None:
+        """Recover jobs left running by a previous run, then start one task per machine."""
+        self.bus.bind(asyncio.get_running_loop())
+
+        def prepare() -> list[int]:
+            with self.sessions.begin() as session:
+                jobs.sync_machines(session, self.config.machines)
+                return [job.id for job in jobs.recover(session, self.worker)]
+
+        for job_id in await asyncio.to_thread(prepare):
+            log.warning("job %d was running when the server stopped: interrupted", job_id)
+        for state in self.machines.values():
+            self._tasks.append(asyncio.create_task(self._supervise(state), name=state.config.name))
+            state.wake.set()  # a first look at the queue
+        self._tasks.append(asyncio.create_task(self._sweep(), name="job-sweep"))
+
+    async def _sweep(self) -> None:
+        while True:
+            await asyncio.sleep(self.sweep_interval)
+            try:
+                due = await asyncio.to_thread(self._due_machines)
+            except Exception:
+                log.exception("job sweep failed")
+                continue
+            for name in due:
+                self.wake(name)
+
+    def _due_machines(self) -> list[str]:
+        with self.sessions() as session:
+            return jobs.machines_with_due_jobs(session)
+
+    async def stop(self) -> None:
+        """Cancel every machine task and wait for them to close their links."""
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks.clear()
+
+    def wake(self, machine: str) -> None:
+        """Tell ``machine``'s task that a job may be waiting."""
+        state = self.machines.get(machine)
+        if state is not None:
+            state.wake.set()
+
+    def _publish(self, state: MachineState) -> None:
+        self.bus.publish("machine", state.config.name, state.as_json())
+
+    async def _supervise(self, state: MachineState) -> None:
+        connector = self.connector_factory(state.config)
+        backoff = 0.5
+        while True:
+            try:
+                await connector.connect()
+                state.online = True
+                backoff = 0.5
+                await self._serve(state, connector)
+            except asyncio.CancelledError:
+                await connector.close()
+                raise
+            except Exception as exc:
+                if not isinstance(exc, DncError):
+                    log.exception("%s: unexpected error", state.config.name)
+                state.online = False
+                state.last_error = str(exc) or type(exc).__name__
+                state.last_error_at = utcnow()
+                state.link_errors += 1
+                state.status = MachineStatus(at=utcnow(), available=False, message=state.last_error)
+                self._publish(state)
+                await connector.close()
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, 30.0)
+
+    async def _serve(self, state: MachineState, connector: Connector) -> None:
+        while True:
+            if state.wake.is_set():
+                state.wake.clear()
+                while await self._run_next(state, connector):
+                    pass
+            state.status = await connector.status()
+            self._publish(state)
+            if connector.listens:
+                # Waiting for a punch or a remote request is what a serial port does between
+                # jobs; a queued job waits at most one listening window.
+                reception = await connector.listen(state.config.poll_interval)
+                if reception is not None:
+                    await self._received(state, reception)
+            else:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(state.wake.wait(), state.config.poll_interval)
+
+    async def _run_next(self, state: MachineState, connector: Connector) -> bool:
+        name = state.config.name
+
+        def claim() -> Claimed | None:
+            with self.sessions.begin() as session:
+                job = jobs.claim(session, name, self.worker)
+                if job is None:
+                    return None
+                params = dict(job.params)
+                if job.kind is JobKind.REPORT:
+                    report = str(params.get("report", "")).encode("latin-1")
+                    return Claimed(job.id, job.kind, str(params.get("name")), report, params)
+                if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+                    if job.version is None:
+                        jobs.fail(session, job.id, "the job names no program", retryable=False)
+                        return None
+                    data = library.content(session, job.version)
+                    return Claimed(job.id, job.kind, job.version.program.name, data, params)
+                return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
+
+        claimed = await asyncio.to_thread(claim)
+        if claimed is None:
+            return False
+        job_id = claimed.job_id
+        state.job_id, state.job_progress = job_id, (0, len(claimed.data) or None)
+        self._job_event(job_id, name, "running")
+        try:
+            outcome = await self._execute(state, connector, claimed)
+        except asyncio.CancelledError:
+            # Stopping the server mid-transfer: the next start marks the job interrupted.
+            raise
+        except Exception as exc:
+            reason = str(exc) or type(exc).__name__
+            # A broken link or a garbled transfer may go well next time; a refusal will not.
+            retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
+            line = exc.line if isinstance(exc, DripFeedBroken) else None
+            if line is not None:
+                reason = f"{reason} (stopped at line {line}; restart from there)"
+            job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line)
+            self._job_event(job_id, name, job, error=reason)
+            state.job_id = None
+            cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
+            if isinstance(cause, TransportError):
+                raise exc from cause  # reconnect before the next job
+            return True
+        await asyncio.to_thread(self._finish, job_id, outcome)
+        self._job_event(job_id, name, "done")
+        state.job_id = None
+        return True
+
+    async def _execute(
+        self, state: MachineState, connector: Connector, job: Claimed
+    ) -> dict[str, Any]:
+        """Run one claimed job; returns what its audit row records."""
+        if job.kind in (JobKind.SEND, JobKind.REPORT):
+            verified = await self._send(state, connector, job.job_id, job.name, job.data)
+            return {"nbytes": len(job.data), "verified": verified}
+        if job.kind is JobKind.DRIPFEED:
+            return await self._dripfeed(state, connector, job)
+        if job.kind is JobKind.RECEIVE:
+            data = await connector.fetch(job.name)
+            folder = self.config.library.inbox
+
+            def keep() -> int:
+                with self.sessions.begin() as session:
+                    return inbox.store(session, state.config.name, data, folder=folder).id
+
+            received_id = await asyncio.to_thread(keep)
+            return {"nbytes": len(data), "path": job.name, "received_id": received_id}
+        if job.kind is JobKind.DELETE:
+            await connector.delete(job.name)
+            return {"path": job.name}
+        if job.kind is JobKind.BACKUP:
+            root = self.config.library.backups or self.config.library.archive / "backups"
+            counts = await connector.backup(job.name, root / state.config.name)
+            return {"path": job.name, **counts}
+        raise InputError(f"{job.kind.value} jobs are not run by this server version yet")
+
+    async def _dripfeed(
+        self, state: MachineState, connector: Connector, job: Claimed
+    ) -> dict[str, Any]:
+        from_line = int(job.params.get("from_line", 1))
+        reached = [from_line]
+        machine = state.config.name
+
+        def progress(line: int, lines: int) -> None:
+            # Called from the feed's thread for every chunk: only a new line is news.
+            if line != reached[0]:
+                reached[0] = line
+                state.job_progress = (line, lines)
+                self._job_event(job.job_id, machine, "running", line=line, lines=lines)
+            if job.job_id in self._cancels:
+                raise TransferError(f"cancelled at line {line}")
+
+        try:
+            counts = await connector.dripfeed(job.name, job.data, from_line, progress)
+        except Exception as exc:
+            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0]) from exc
+        finally:
+            self._cancels.discard(job.job_id)
+        return {**counts, "from_line": from_line}
+
+    def request_cancel(self, job_id: int) -> None:
+        """Stop a running drip-feed of this process at its next chunk."""
+        self._cancels.add(job_id)
+
+    async def _received(self, state: MachineState, reception: Reception) -> None:
+        """File a program the control sent: into the inbox, or answer it as a request."""
+        settings = self.config.requests
+        machine = state.config
+        folder = self.config.library.inbox
+
+        def handle() -> tuple[str, float | None]:
+            with self.sessions.begin() as session:
+                if reception.failed:
+                    row = inbox.store(
+                        session,
+                        machine.name,
+                        reception.data,
+                        folder=folder,
+                        failed=reception.failed,
+                    )
+                    return f"reception failed: {row.reason}", None
+                names = requests.find_request(reception.data, settings)
+                if names is None:
+                    row = inbox.store(session, machine.name, reception.data, folder=folder)
+                    if settings.reports == "all":
+                        self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
+                    return f"received {row.name} into the inbox", None
+                return self._answer_request(session, machine, names), settings.delay
+
+        message, delay = await asyncio.to_thread(handle)
+        state.last_error = "" if not reception.failed else message
+        self.bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        if delay is not None:
+            # Wake the machine when the answer falls due (the request delay).
+            asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
+            state.wake.set()
+
+    def _answer_request(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
+        settings = self.config.requests
+        due = utcnow() + timedelta(seconds=settings.delay)
+        problems: list[str] = []
+        sent: list[str] = []
+        for name in names:
+            try:
+                version = library.released_version(session, name)
+                if version is None and not machine.released_only:
+                    version = library.get_version(session, name)
+            except NotFound:
+                problems.append(f"{name} NOT IN LIBRARY")
+                continue
+            if version is None:
+                problems.append(f"{name} NOT RELEASED")
+                continue
+            jobs.enqueue(
+                session,
+                JobKind.SEND,
+                machine.name,
+                actor=f"request@{machine.name}",
+                version=version,
+                params={"request": True},
+                not_before=due,
+            )
+            sent.append(name)
+        audit.record(
+            session,
+            machine.name,
+            "program.request",
+            machine=machine.name,
+            requested=names,
+            sent=sent,
+            refused=problems,
+            result="ok" if not problems else "refused",
+        )
+        if problems and settings.reports != "none":
+            self._report(session, machine, "REQUEST FAILED", problems, due)
+        elif sent and settings.reports == "all":
+            self._report(session, machine, "REQUEST", [f"SENDING {n}" for n in sent], due)
+        return f"request for {', '.join(names)}: {len(sent)} queued, {len(problems)} refused"
+
+    def _report(
+        self,
+        session: Session,
+        machine: MachineConfig,
+        title: str,
+        lines: list[str],
+        due: datetime | None = None,
+    ) -> None:
+        number = self.config.requests.report_program
+        text = requests.report_program(number, title, lines).decode("ascii")
+        jobs.enqueue(
+            session,
+            JobKind.REPORT,
+            machine.name,
+            actor="server",
+            not_before=due,
+            params={"name": f"O{number:05d}.nc", "report": text},
+        )
+
+    def _job_event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
+        data = {"id": job_id, "machine": machine, "state": state, **extra}
+        self.bus.publish("job", str(job_id), data)
+
+    def _fail(self, job_id: int, reason: str, retryable: bool, line: int | None) -> str:
+        with self.sessions.begin() as session:
+            return jobs.fail(
+                session,
+                job_id,
+                reason,
+                retryable=retryable,
+                backoff=self.retry_backoff,
+                line=line,
+            ).state.value
+
+    def _finish(self, job_id: int, outcome: dict[str, Any]) -> None:
+        with self.sessions.begin() as session:
+            jobs.finish(session, job_id, **outcome)
+
+    async def _send(
+        self, state: MachineState, connector: Connector, job_id: int, program: str, data: bytes
+    ) -> bool | None:
+        def progress(done: int, total: int | None) -> None:
+            state.job_progress = (done, total)
+            self._job_event(
+                job_id, state.config.name, "running", bytes_done=done, bytes_total=total
+            )
+
+        await connector.send(program, data, progress)
+        verified = await connector.verify(program, data)
+        if verified is False:
+            raise TransferError(f"{program}: the control holds different bytes after the load")
+        return verified

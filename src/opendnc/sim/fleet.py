@@ -1,0 +1,198 @@
+"""Many virtual controls in one process: for demos, the server's tests and its benchmark.
+
+Every control runs on the one asyncio loop of the caller: a virtual TNC costs a listening
+socket and a small model, a virtual Haas NGC an MDC server and its program memory, so a few
+hundred fit in one process. :func:`server_config` writes the DNC server's configuration for
+exactly the controls that were started, so ``opendnc serve`` can be pointed at them at once.
+
+A virtual Haas NGC's net share is its own program memory folder: a program the server pushes
+to the share is in the control's memory, as on a machine whose share is mounted as a device.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from opendnc.errors import InputError
+from opendnc.sim.haas.app import SimHaas, SimOptions
+from opendnc.sim.haas.control import HaasConfig
+from opendnc.sim.tnc.server import TncServer, serve_tnc
+
+if TYPE_CHECKING:
+    from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.haas.serial_front import SerialFrontEnd
+
+__all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
+
+
+@dataclass(frozen=True)
+class FleetMachine:
+    """One started control: its name, kind, address and folder."""
+
+    name: str
+    kind: str  # "lsv2", "haas_ngc" or "haas_serial", as in the server's configuration
+    host: str
+    port: int  # 0 for a serial machine
+    root: Path
+    serial: str = ""  # the PC's end of a virtual cable
+    baud: int = 0
+
+
+@dataclass
+class Fleet:
+    """The running controls; :meth:`close` stops them all."""
+
+    machines: list[FleetMachine] = field(default_factory=list)
+    _tncs: list[TncServer] = field(default_factory=list, repr=False)
+    _haas: list[SimHaas] = field(default_factory=list, repr=False)
+    _cables: list[VirtualCable] = field(default_factory=list, repr=False)
+    serial_ports: dict[str, SerialFrontEnd] = field(default_factory=dict, repr=False)
+    """The serial port of each serial Haas, by machine name: ``select("punch:O1000")`` is the
+    operator's key press."""
+    sims: dict[str, SimHaas] = field(default_factory=dict, repr=False)
+    """Every virtual Haas by machine name (its ``control`` holds program memory and state)."""
+
+    async def close(self) -> None:
+        """Stop every control."""
+        for tnc in self._tncs:
+            await tnc.close()
+        for haas in self._haas:
+            await haas.close()
+        for cable in self._cables:
+            cable.close()
+        self._tncs.clear()
+        self._haas.clear()
+        self._cables.clear()
+
+
+async def start_fleet(
+    root: Path,
+    *,
+    tnc: int = 2,
+    haas: int = 2,
+    host: str = "127.0.0.1",
+    base_port: int = 0,
+    profile: str = "tnc640",
+    serial_haas: int = 0,
+    baud: int = 115200,
+    block_rate: float = 0.0,
+    dnc_timeout: float = 10.0,
+) -> Fleet:
+    """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
+    on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
+
+    With ``base_port`` 0 every control takes a free port; otherwise the TNCs listen on
+    ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them. A serial Haas
+    answers XModem and drip-feed on its cable (``auto`` serial mode) and runs at most
+    ``block_rate`` blocks a second (0: as fast as it can); a drip-feed that stops for
+    ``dnc_timeout`` seconds raises the control's DNC link alarm.
+    """
+    if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
+        raise InputError("start at least one control (--tnc N and/or --haas M)")
+    if base_port and not 0 < base_port <= 65535 - (tnc + haas):
+        raise InputError(f"--base-port {base_port}: the fleet needs {tnc + haas} ports above it")
+    fleet = Fleet()
+    try:
+        for i in range(tnc):
+            folder = root / f"tnc-{i + 1}"
+            server = await serve_tnc(profile, folder, host, base_port + i if base_port else 0)
+            fleet._tncs.append(server)
+            fleet.machines.append(FleetMachine(f"tnc-{i + 1}", "lsv2", host, server.port, folder))
+        for j in range(haas):
+            folder = root / f"haas-{j + 1}"
+            folder.mkdir(parents=True, exist_ok=True)
+            port = base_port + tnc + j if base_port else 0
+            sim = SimHaas(
+                HaasConfig(model="VF-2", serial_number=f"{1000000 + j}"),
+                folder,
+                SimOptions(host=host, mdc_port=port),
+            )
+            await sim.start()
+            fleet._haas.append(sim)
+            fleet.sims[f"haas-{j + 1}"] = sim
+            assert sim.mdc is not None  # mdc_port was given
+            fleet.machines.append(
+                FleetMachine(f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder)
+            )
+        for k in range(serial_haas):
+            folder = root / f"haas-serial-{k + 1}"
+            await _start_serial_haas(fleet, folder, k, baud, block_rate, dnc_timeout)
+    except BaseException:
+        await fleet.close()
+        raise
+    return fleet
+
+
+async def _start_serial_haas(
+    fleet: Fleet, folder: Path, k: int, baud: int, block_rate: float, dnc_timeout: float
+) -> None:
+    # Imported here: the serial front-end and the cable need ptys (POSIX).
+    from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.haas.serial_front import SerialOptions, parse_mode, start_serial
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cable = VirtualCable(baud).start()
+    fleet._cables.append(cable)
+    sim = SimHaas(
+        HaasConfig(model="VF-2", serial_number=f"{2000000 + k}"),
+        folder,
+        SimOptions(mdc_port=None, block_rate=block_rate),
+    )
+    await sim.start()
+    fleet._haas.append(sim)
+    options = SerialOptions(baud=baud, mode=parse_mode("auto"), dnc_timeout=dnc_timeout)
+    front = await start_serial(sim, cable.path_a, baud, None, options)
+    sim.add_front_end(front)
+    name = f"haas-serial-{k + 1}"
+    fleet.sims[name] = sim
+    fleet.serial_ports[name] = front
+    fleet.machines.append(FleetMachine(name, "haas_serial", "", 0, folder, cable.path_b, baud))
+
+
+def server_config(
+    fleet: Fleet,
+    *,
+    bind: str = "127.0.0.1:8000",
+    database: str = "",
+    poll_interval: float = 1.0,
+    library: Path | None = None,
+    dripfeed: bool = False,
+) -> str:
+    """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
+    (``dripfeed`` allows drip-feeding the serial Haas machines)."""
+
+    def q(value: object) -> str:
+        return json.dumps(str(value))  # a JSON string is a valid TOML basic string
+
+    lines = ["[server]", f"bind = {q(bind)}"]
+    if database:
+        lines.append(f"database = {q(database)}")
+    if library is not None:
+        lines += [
+            "",
+            "[library]",
+            f"path = {q(library / 'programs')}",
+            f"inbox = {q(library / 'inbox')}",
+            f"archive = {q(library / 'archive')}",
+        ]
+    for m in fleet.machines:
+        lines += [
+            "",
+            "[[machines]]",
+            f"name = {q(m.name)}",
+            f"kind = {q(m.kind)}",
+            f"host = {q(m.host)}",
+            f"poll_interval = {poll_interval}",
+        ]
+        if m.kind == "lsv2":
+            lines.append(f"port = {m.port}")
+        elif m.kind == "haas_serial":
+            lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
+            if dripfeed:
+                lines.append("dripfeed = true")
+        else:
+            lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
+    return "\n".join(lines) + "\n"

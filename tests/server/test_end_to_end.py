@@ -1,0 +1,413 @@
+"""The DNC server end to end: every process (server, virtual controls, cable) started here.
+
+One released program goes to four machines (two virtual TNCs over LSV2, a virtual Haas on a
+virtual RS-232 cable by XModem, a virtual Haas NGC through its share) and must arrive
+byte-identical everywhere, with audit rows; the same suite runs on SQLite and PostgreSQL.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import signal
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.server.harness import (
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    listening,
+    start_server,
+    wait_for,
+    wait_jobs,
+)
+
+# CRLF line ends: what the TNC stores for a text file, and what Setting 25 = CR LF gives.
+PROGRAM = b"%\r\nO01234 (BRACKET)\r\nG20\r\nG00 G90 G54 X0. Y0.\r\nG01 X1.5 F20.\r\nM30\r\n%\r\n"
+
+
+class Shop:
+    """The virtual shop: four machines and the server's configuration."""
+
+    def __init__(self, tmp: Path, procs: Procs, db_url: str) -> None:
+        self.tmp, self.procs, self.db_url = tmp, procs, db_url
+        self.tnc_ports = [free_port(), free_port()]
+        self.tnc_roots = [tmp / "tnc-a", tmp / "tnc-b"]
+        self.mdc_port = free_port()
+        self.haas_mem = tmp / "haas-mem"
+        self.ngc_mem = tmp / "ngc-mem"
+        self.ngc_share = tmp / "ngc-share"
+        self.cable_pc = tmp / "pc"
+        self.cable_haas = tmp / "haas"
+        self.http_port = free_port()
+        self.config = tmp / "shop.toml"
+        for folder in (*self.tnc_roots, self.haas_mem, self.ngc_mem, self.ngc_share):
+            folder.mkdir()
+
+    def start_machines(self) -> None:
+        for i, (port, root) in enumerate(zip(self.tnc_ports, self.tnc_roots, strict=True)):
+            self.start_tnc(i, port, root)
+        self.procs.start(
+            "cable",
+            "sim",
+            "cable",
+            "--baud",
+            "115200",
+            "--link-a",
+            str(self.cable_haas),
+            "--link-b",
+            str(self.cable_pc),
+        )
+        wait_for("the cable", lambda: self.cable_haas.exists() and self.cable_pc.exists())
+        self.procs.start(
+            "haas",
+            "sim",
+            "haas",
+            "--serial",
+            str(self.cable_haas),
+            "--baud",
+            "115200",
+            "--serial-mode",
+            "receive",
+            "--root",
+            str(self.haas_mem),
+            "--mdc-port",
+            str(free_port()),
+        )
+        self.procs.start(
+            "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
+        )
+        for port in (*self.tnc_ports, self.mdc_port):
+            wait_for(f"port {port}", listening(port))
+
+    def start_tnc(self, i: int, port: int, root: Path) -> None:
+        self.procs.start(
+            f"tnc{i}", "sim", "tnc", "--profile", "tnc640", "--port", str(port), "--root", str(root)
+        )
+
+    def write_config(self) -> None:
+        a, b = self.tnc_ports
+        self.config.write_text(
+            f"""
+[server]
+bind = "127.0.0.1:{self.http_port}"
+name = "dnc-test"
+
+[library]
+path = "programs"
+
+[[machines]]
+name = "tnc-a"
+kind = "lsv2"
+host = "127.0.0.1"
+port = {a}
+poll_interval = 0.2
+
+[[machines]]
+name = "tnc-b"
+kind = "lsv2"
+host = "127.0.0.1"
+port = {b}
+released_only = true
+poll_interval = 0.2
+
+[[machines]]
+name = "vf2-serial"
+kind = "haas_serial"
+serial = "{self.cable_pc}"
+serial_profile = {{ baud = 115200, eob = "CRLF" }}
+
+[[machines]]
+name = "vf4-ngc"
+kind = "haas_ngc"
+host = "127.0.0.1"
+mdc_port = {self.mdc_port}
+share = "{self.ngc_share}"
+poll_interval = 0.2
+"""
+        )
+
+    def key(self, role: str) -> str:
+        return create_key(self.config, self.db_url, role, user=f"{role}-1")
+
+    def start_server(self) -> httpx.Client:
+        return start_server(self.procs, self.config, self.db_url, self.http_port)
+
+
+@pytest.fixture
+def shop(tmp_path: Path, procs: Procs, db_url: str) -> Shop:
+    s = Shop(tmp_path, procs, db_url)
+    s.start_machines()
+    s.write_config()
+    return s
+
+
+def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs: Procs) -> None:
+    admin = shop.key("admin")
+    viewer = shop.key("viewer")
+    with shop.start_server() as client:
+        # Every machine comes online.
+        def machines() -> list[Any]:
+            listed = client.get("/api/machines", headers=auth(viewer)).json()
+            return [(m["name"], m["online"], m["last_error"]) for m in listed]
+
+        wait_for("all machines online", lambda: all(m[1] for m in machines()), describe=machines)
+
+        up = client.put(
+            "/api/programs/O01234.nc",
+            content=PROGRAM,
+            headers=auth(admin),
+            params={"comment": "first cut"},
+        )
+        assert up.status_code == 201, up.text
+        assert up.json()["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
+
+        # A draft is refused for the released-only machine, and nothing is queued.
+        draft = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a", "tnc-b"]},
+        )
+        assert draft.status_code == 409
+        assert "released programs only" in draft.json()["detail"]
+        assert client.get("/api/jobs", headers=auth(admin)).json() == []
+
+        rel = client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
+        assert rel.status_code == 200
+        assert rel.json()["state"] == "released"
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "O01234.nc", "machines": ["tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"]},
+        )
+        assert sent.status_code == 201, sent.text
+        jobs = wait_jobs(client, admin, [j["id"] for j in sent.json()])
+        assert [j["state"] for j in jobs] == ["done"] * 4, [j["error"] for j in jobs]
+
+        audit = client.get("/api/audit", headers=auth(viewer), params={"action": "job.send"})
+        rows = {r["machine"]: r for r in audit.json()}
+        assert set(rows) == {"tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"}
+        for row in rows.values():
+            assert row["result"] == "ok"
+            assert row["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
+            assert row["bytes"] == len(PROGRAM)
+            assert row["detail"]["by"] == "admin-1"
+
+    for root in shop.tnc_roots:
+        assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM
+    assert (shop.ngc_share / "O01234.nc").read_bytes() == PROGRAM
+    received = wait_for(
+        "the serial Haas to store the program", lambda: list(shop.haas_mem.iterdir())
+    )
+    assert [p.name for p in received] == ["O01234.nc"], procs.log("haas")
+    assert received[0].read_bytes().replace(b"\r\n", b"\n") == PROGRAM.replace(b"\r\n", b"\n")
+
+
+def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
+    viewer = shop.key("viewer")
+    operator = shop.key("operator")
+    with shop.start_server() as client:
+        assert client.get("/api/health").json() == {"status": "ok"}
+        assert client.get("/api/machines").status_code == 401
+        assert client.put("/api/programs/O1.nc", content=PROGRAM).status_code == 401
+        bad_key = auth("odk_" + "x" * 43)
+        assert client.get("/api/machines", headers=bad_key).status_code == 401
+        assert (
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=auth(viewer)).status_code
+            == 403
+        )
+        assert (
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=auth(operator)).status_code
+            == 403
+        )
+        key = client.post("/api/keys", headers=auth(operator), json={"user": "x", "role": "admin"})
+        assert key.status_code == 403
+        programmer = shop.key("programmer")
+        for name in ("..%2F..%2Fetc%2Fpasswd", "a%5Cb", "%2Ehidden", "CON", "x" * 101, "O1%0A"):
+            r = client.put(f"/api/programs/{name}", content=PROGRAM, headers=auth(programmer))
+            assert r.status_code in (400, 404), (name, r.status_code)
+        assert client.get("/api/programs", headers=auth(viewer)).json() == []
+        openapi = client.get("/openapi.json").json()
+        assert {"/api/machines", "/api/programs", "/api/jobs", "/api/audit"} <= set(
+            openapi["paths"]
+        )
+    assert not any(shop.tmp.rglob("passwd"))
+
+
+def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs) -> None:
+    admin = shop.key("admin")
+    procs.stop("tnc1", signal.SIGKILL)  # tnc-b is away when the job is queued
+    with shop.start_server() as client:
+        assert (
+            client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(admin)).status_code
+            == 201
+        )
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
+        sent = client.post(
+            "/api/jobs", headers=auth(admin), json={"program": "O01234.nc", "machines": ["tnc-b"]}
+        )
+        job_id = sent.json()[0]["id"]
+        machine = wait_for(
+            "the server to find tnc-b away",
+            lambda: (
+                (m := client.get("/api/machines/tnc-b", headers=auth(admin)).json())
+                and m["last_error"]
+                and m
+            ),
+        )
+        assert machine["online"] is False
+        assert client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()["state"] == "queued"
+        shop.start_tnc(1, shop.tnc_ports[1], shop.tnc_roots[1])
+        (job,) = wait_jobs(client, admin, [job_id])
+        assert job["state"] == "done", job["error"]
+    target = shop.tnc_roots[1] / "TNC" / "nc_prog"
+    assert (target / "O01234.nc").read_bytes() == PROGRAM
+    assert [p.name for p in target.iterdir() if "O01234" in p.name] == ["O01234.nc"]
+
+
+def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, procs: Procs) -> None:
+    admin = shop.key("admin")
+    big = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
+    with shop.start_server() as client:
+        client.put("/api/programs/O01234.nc", content=big, headers=auth(admin))
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
+        ids = []
+        for _ in range(3):
+            sent = client.post(
+                "/api/jobs",
+                headers=auth(admin),
+                json={"program": "O01234.nc", "machines": ["vf2-serial"]},
+            )
+            ids.append(sent.json()[0]["id"])
+        # Kill the server while the first XModem transfer is on the line.
+        wait_for(
+            "the first job to run",
+            lambda: (
+                client.get(f"/api/jobs/{ids[0]}", headers=auth(admin)).json()["state"] == "running"
+            ),
+        )
+    procs.stop("server", signal.SIGKILL)
+    with shop.start_server() as client:
+        first = client.get(f"/api/jobs/{ids[0]}", headers=auth(admin)).json()
+        assert first["state"] == "interrupted"
+        assert "server stopped" in first["error"]
+        rest = wait_jobs(client, admin, ids[1:])
+        assert [j["state"] for j in rest] == ["done", "done"]
+        starts = client.get(
+            "/api/audit", headers=auth(admin), params={"action": "job.start", "limit": 100}
+        ).json()
+        per_job = {i: sum(1 for r in starts if r["job_id"] == i) for i in ids}
+        assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}
+
+
+def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
+    admin = shop.key("admin")
+    operator = shop.key("operator")
+    with shop.start_server() as client:
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(admin))
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a"]},
+        )
+        wait_jobs(client, admin, [sent.json()[0]["id"]])
+        path = "TNC:/nc_prog/O01234.nc"
+
+        def job(kind: str, machine: str, key: str = admin, where: str = path) -> Any:
+            return client.post(
+                "/api/jobs",
+                headers=auth(key),
+                json={"kind": kind, "path": where, "machines": [machine]},
+            )
+
+        received = wait_jobs(client, admin, [job("receive", "tnc-a").json()[0]["id"]])
+        assert received[0]["state"] == "done", received[0]["error"]
+        (item,) = client.get("/api/inbox", headers=auth(admin)).json()
+        assert (item["name"], item["machine"]) == ("O01234.nc", "tnc-a")
+        content = client.get(f"/api/inbox/{item['id']}/content", headers=auth(admin)).content
+        assert content == PROGRAM
+
+        backup = job("backup", "tnc-a", where="TNC:/nc_prog")
+        (done,) = wait_jobs(client, admin, [backup.json()[0]["id"]])
+        assert done["state"] == "done", done["error"]
+        rows = client.get("/api/audit", headers=auth(admin), params={"action": "job.backup"})
+        assert rows.json()[0]["detail"]["copied"] >= 1
+
+        assert job("delete", "tnc-a", operator).status_code == 403
+        deleted = wait_jobs(client, admin, [job("delete", "tnc-a").json()[0]["id"]])
+        assert deleted[0]["state"] == "done", deleted[0]["error"]
+        refused = wait_jobs(client, admin, [job("delete", "vf2-serial").json()[0]["id"]])
+        assert refused[0]["state"] == "failed"
+        assert refused[0]["attempts"] == 1  # a refusal is not retried
+        assert "RS-232 cannot delete" in refused[0]["error"]
+    assert not (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").exists()
+    assert (shop.tmp / "backups" / "tnc-a" / "O01234.nc").read_bytes() == PROGRAM
+
+
+def test_a_heidenhain_on_rs232_gets_its_program(tmp_path: Path, procs: Procs, db_url: str) -> None:
+    # A TNC without a network: LSV2 over a virtual RS-232 cable, 8E1 as the controls default to.
+    pc, tnc = tmp_path / "pc", tmp_path / "tnc-port"
+    root = tmp_path / "tnc-root"
+    procs.start(
+        "cable",
+        "sim",
+        "cable",
+        "--baud",
+        "115200",
+        "--bits-per-char",
+        "11",
+        "--link-a",
+        str(tnc),
+        "--link-b",
+        str(pc),
+    )
+    wait_for("the cable", lambda: tnc.exists() and pc.exists())
+    procs.start(
+        "tnc",
+        "sim",
+        "tnc",
+        "--profile",
+        "itnc530",
+        "--root",
+        str(root),
+        "--serial",
+        str(tnc),
+        "--baud",
+        "115200",
+        "--no-tcp",
+    )
+    wait_for("the virtual TNC on its serial line", lambda: "listening" in procs.log("tnc"))
+    port = free_port()
+    config = tmp_path / "shop.toml"
+    config.write_text(f"""
+[server]
+bind = "127.0.0.1:{port}"
+
+[[machines]]
+name = "tnc-serial"
+kind = "lsv2"
+serial = "{pc}"
+serial_profile = {{ baud = 115200 }}
+folder = "TNC:/nc_prog"
+poll_interval = 0.5
+""")
+    key = create_key(config, db_url)
+    with start_server(procs, config, db_url, port) as client:
+        wait_for(
+            "the machine online",
+            lambda: client.get("/api/machines/tnc-serial", headers=auth(key)).json()["online"],
+            describe=lambda: procs.log("server"),
+        )
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(key),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-serial"]},
+        )
+        (job,) = wait_jobs(client, key, [sent.json()[0]["id"]])
+        assert job["state"] == "done", job["error"]
+    assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM

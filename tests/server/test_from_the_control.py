@@ -1,0 +1,243 @@
+"""Programs that start at the control: a Haas punch lands in the inbox, a remote request is
+answered with the program and a report of what could not be sent.
+
+The virtual Haas runs in this process (its serial port is pressed like the operator would,
+``select("punch:O1234")``), on a virtual RS-232 cable; the server runs as its own process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+
+from opendnc.sim.fleet import Fleet, server_config, start_fleet
+from tests.server.harness import (
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    start_server,
+    wait_for,
+    wait_jobs,
+)
+
+T = TypeVar("T")
+
+
+class FleetThread:
+    """A fleet on its own event loop thread."""
+
+    def __init__(self, root: Path, **counts: int) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.fleet: Fleet = self.run(lambda: start_fleet(root, **counts))
+
+    def run(self, make: Callable[[], Any]) -> Any:
+        return asyncio.run_coroutine_threadsafe(make(), self.loop).result(30)
+
+    def call(self, fn: Callable[[], T]) -> T:
+        future: Future[T] = Future()
+
+        def go() -> None:
+            try:
+                future.set_result(fn())
+            except BaseException as exc:
+                future.set_exception(exc)
+
+        self.loop.call_soon_threadsafe(go)
+        return future.result(10)
+
+    def stop(self) -> None:
+        self.run(self.fleet.close)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+@pytest.fixture
+def haas(tmp_path: Path) -> Iterator[FleetThread]:
+    fleet = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+def _server(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, *, dripfeed: bool = False
+) -> tuple[httpx.Client, str]:
+    port = free_port()
+    config = tmp_path / "shop.toml"
+    text = server_config(
+        haas.fleet,
+        bind=f"127.0.0.1:{port}",
+        poll_interval=0.5,
+        library=tmp_path / "lib",
+        dripfeed=dripfeed,
+    )
+    config.write_text(text + "\n[requests]\ndelay = 0.5\n")
+    key = create_key(config, db_url)
+    return start_server(procs, config, db_url, port), key
+
+
+STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
+
+
+def test_a_haas_punch_lands_in_the_inbox_under_its_o_number(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    sim = haas.fleet.sims["haas-serial-1"]
+    haas.call(lambda: sim.control.save_program(STORED))
+    client, key = _server(tmp_path, haas, procs, db_url)
+    with client:
+        haas.fleet.serial_ports["haas-serial-1"].select("punch:O1234")  # the operator's key
+        items = wait_for(
+            "the punch in the inbox",
+            lambda: client.get("/api/inbox", headers=auth(key)).json(),
+            describe=lambda: procs.log("server"),
+        )
+        assert [(i["name"], i["machine"], i["state"]) for i in items] == [
+            ("O01234.nc", "haas-serial-1", "new")
+        ]
+        got = client.get(f"/api/inbox/{items[0]['id']}/content", headers=auth(key)).content
+        lines = [line for line in got.decode().splitlines() if line.strip()]
+        assert lines == [line for line in STORED.splitlines() if line.strip()]
+        detail = client.get(f"/api/inbox/{items[0]['id']}", headers=auth(key)).json()
+        assert detail["diff"][0] == "--- (not in library)"
+        accepted = client.post(f"/api/inbox/{items[0]['id']}/accept", headers=auth(key), json={})
+        assert accepted.status_code == 200, accepted.text
+        assert (accepted.json()["program"], accepted.json()["state"]) == ("O01234.nc", "draft")
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
+    assert (tmp_path / "lib" / "inbox" / "O01234.nc").read_bytes() == got
+
+
+def test_remote_request_sends_the_program_and_reports_the_missing_one(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    sim = haas.fleet.sims["haas-serial-1"]
+    request = "%\nO09999 (REQ O1234 REQ O5555)\nM30\n%\n"
+    haas.call(lambda: sim.control.save_program(request))
+    client, key = _server(tmp_path, haas, procs, db_url)
+    library_program = STORED.replace("\n", "\r\n").encode()
+    with client:
+        assert (
+            client.put(
+                "/api/programs/O01234.nc", content=library_program, headers=auth(key)
+            ).status_code
+            == 201
+        )
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(key))
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        port.select("punch:O9999")  # send the request ...
+        port.select("auto")  # ... then switch to receive, within the request delay
+
+        def memory() -> dict[int, str]:
+            numbers = (1234, 9998)
+            return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
+
+        got = wait_for(
+            "the answer in the control's memory",
+            lambda: len(memory()) == 2 and memory(),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert got[1234].split() == STORED.split()
+        assert "(O05555.NC NOT IN LIBRARY)" in got[9998]
+        assert got[9998].split()[1:3] == ["O09998", "(OPENDNC"]
+        audit = client.get(
+            "/api/audit", headers=auth(key), params={"action": "program.request"}
+        ).json()
+        assert len(audit) == 1
+        assert audit[0]["detail"]["requested"] == ["O01234.nc", "O05555.nc"]
+        assert audit[0]["detail"]["sent"] == ["O01234.nc"]
+        assert audit[0]["result"] == "refused"
+        # The request itself is no inbox item.
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
+
+
+def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
+    try:
+        text: str = haas.call(lambda: sim.control.read_program(number))
+    except Exception:
+        return None
+    return text
+
+
+@pytest.fixture
+def slow_haas(tmp_path: Path) -> Iterator[FleetThread]:
+    # 1000 blocks a second: a 6,000-line program (about 130 kB, more than the cable and the
+    # ptys buffer) runs about 6 s, long enough to stop it midway.
+    fleet = FleetThread(
+        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=1000, dnc_timeout=1.0
+    )
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+def test_dripfeed_interrupted_then_restarted_from_its_line(
+    tmp_path: Path, slow_haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    client, key = _server(tmp_path, slow_haas, procs, db_url, dripfeed=True)
+    moves = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
+    program = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{moves}M30\n%\n".encode()
+    front = slow_haas.fleet.serial_ports["haas-serial-1"]
+    with client:
+        wait_for(
+            "the machine online",
+            lambda: client.get("/api/machines/haas-serial-1", headers=auth(key)).json()["online"],
+        )
+        client.put("/api/programs/O03000.nc", content=program, headers=auth(key))
+        started = client.post(
+            "/api/jobs",
+            headers=auth(key),
+            json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
+        )
+        assert started.status_code == 201, started.text
+        job_id = started.json()[0]["id"]
+        wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
+        assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
+        first = wait_for(
+            "the feed to stop",
+            lambda: (
+                (j := client.get(f"/api/jobs/{job_id}", headers=auth(key)).json())["state"]
+                != "running"
+                and j
+            ),
+        )
+        assert first["state"] == "interrupted", first
+        assert "restart from there" in first["error"]
+        stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
+        total = program.count(b"\n")
+        assert 300 < stopped_at < total
+        # The control, starved, raises its DNC link alarm; the operator presses RESET and
+        # restarts from the line the server reports.
+        wait_for(
+            "the control's DNC link alarm", lambda: front.messages, describe=lambda: front.messages
+        )
+        assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
+        control = slow_haas.fleet.sims["haas-serial-1"].control
+        slow_haas.call(control.reset)
+        lines_before, runs_before = front.dnc_lines, len(front.messages)
+
+        again = client.post(
+            f"/api/jobs/{job_id}/retry", headers=auth(key), json={"from_line": stopped_at}
+        )
+        assert again.status_code == 201, again.text
+        (done,) = wait_jobs(client, key, [again.json()["id"]])
+        assert done["state"] == "done", done["error"]
+        assert done["params"]["from_line"] == stopped_at
+        # The second run: the restart preamble, then the program from that line to M30.
+        wait_for("the control to finish the run", lambda: len(front.messages) > runs_before)
+        assert front.messages[-1] == "RS232 DONE", front.messages
+        ran = front.dnc_lines - lines_before
+        remaining = total - stopped_at + 1
+        assert remaining <= ran <= remaining + 20, (ran, remaining)

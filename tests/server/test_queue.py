@@ -1,0 +1,203 @@
+"""The library's versions and states, the job queue's rules, users and keys."""
+
+from __future__ import annotations
+
+import hashlib
+from concurrent.futures import ThreadPoolExecutor
+from datetime import timedelta
+
+import pytest
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import InputError
+from opendnc.server import audit, auth, jobs, library
+from opendnc.server.config import MachineConfig, MachineKind
+from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.store.models import ApiKey, JobKind, JobState, ProgramState, Role
+
+PROGRAM = b"%\nO01234 (BRACKET)\nG00 G90 X0. Y0.\nM30\n%\n"
+
+
+def _machines(session: Session) -> None:
+    jobs.sync_machines(
+        session,
+        [
+            MachineConfig(name="mill-1", kind=MachineKind.LSV2, host="127.0.0.1"),
+            MachineConfig(
+                name="vf2", kind=MachineKind.HAAS_NGC, host="127.0.0.1", released_only=True
+            ),
+        ],
+    )
+
+
+def test_versions_are_content_addressed_and_released_one_at_a_time(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as s:
+        v1, created = library.add_version(s, "O01234", PROGRAM, author="ann", comment="first")
+        assert created
+        assert v1.number == 1
+        assert v1.state is ProgramState.DRAFT
+        assert v1.sha256 == hashlib.sha256(PROGRAM).hexdigest()
+        same, created = library.add_version(s, "O01234", PROGRAM, author="ann")
+        assert not created
+        assert same.id == v1.id
+        _v2, _ = library.add_version(s, "O01234", PROGRAM.replace(b"X0.", b"X5."), author="bob")
+        library.release(s, "O01234", 1, actor="carl")
+        library.release(s, "O01234", 2, actor="carl")
+    with sessions() as s:
+        versions = library.get_program(s, "O01234").versions
+        # times come back in UTC on every backend (SQLite keeps no zone of its own)
+        assert all(v.created.utcoffset() == timedelta(0) for v in versions)
+        states = [v.state for v in versions]
+        assert states == [ProgramState.SUPERSEDED, ProgramState.RELEASED]
+        assert library.content(s, library.get_version(s, "O01234", 2)) == PROGRAM.replace(
+            b"X0.", b"X5."
+        )
+        diff = library.diff(s, "O01234", 1, 2)
+        assert "-G00 G90 X0. Y0." in diff
+        assert "+G00 G90 X5. Y0." in diff
+        with pytest.raises(Conflict, match="superseded"):
+            library.release(s, "O01234", 1, actor="carl")
+        actions = [r.action for r in audit.query(s, program="O01234")]
+        assert actions.count("program.version") == 2
+        assert actions.count("program.release") == 2
+
+
+@pytest.mark.parametrize(
+    "name", ["../etc/passwd", "a/b", "..", ".hidden", "", "x" * 101, "CON", "nul.nc", "O1\n"]
+)
+def test_bad_program_names_are_refused(sessions: sessionmaker[Session], name: str) -> None:
+    with sessions() as s, pytest.raises(InputError):
+        library.add_version(s, name, PROGRAM, author="ann")
+
+
+def test_locked_program_takes_no_new_version(sessions: sessionmaker[Session]) -> None:
+    with sessions.begin() as s:
+        library.add_version(s, "O01234", PROGRAM, author="ann")
+        library.set_locked(s, "O01234", True, actor="boss")
+    with sessions() as s, pytest.raises(Conflict, match="locked"):
+        library.add_version(s, "O01234", PROGRAM + b"\n", author="ann")
+
+
+def test_released_only_machine_refuses_a_draft(sessions: sessionmaker[Session]) -> None:
+    with sessions.begin() as s:
+        _machines(s)
+        library.add_version(s, "O01234", PROGRAM, author="ann")
+    with sessions() as s:
+        with pytest.raises(Conflict, match="released programs only"):
+            jobs.send_program(s, "O01234", ["mill-1", "vf2"], actor="op", number=1)
+        s.rollback()
+        assert jobs.list_jobs(s) == []  # nothing queued for mill-1 either
+        with pytest.raises(Conflict, match="no released version"):
+            jobs.send_program(s, "O01234", ["mill-1"], actor="op")
+
+
+def test_queue_order_claim_retry_and_cancel(sessions: sessionmaker[Session]) -> None:
+    with sessions.begin() as s:
+        _machines(s)
+        library.add_version(s, "O01234", PROGRAM, author="ann")
+        library.release(s, "O01234", 1, actor="carl")
+        a, b, c = (jobs.send_program(s, "O01234", ["mill-1"], actor="op")[0] for _ in range(3))
+        jobs.move(s, c.id, 0, actor="op")  # c goes first
+    with sessions.begin() as s:
+        first = jobs.claim(s, "mill-1", "srv")
+        assert first is not None
+        assert first.id == c.id
+        assert jobs.claim(s, "mill-1", "srv") is None  # one job at a time per port
+        jobs.fail(s, c.id, "link down", backoff=3600)  # queued again, not due for an hour
+    with sessions.begin() as s:
+        assert jobs.get_job(s, c.id).state is JobState.QUEUED
+        second = jobs.claim(s, "mill-1", "srv")
+        assert second is not None
+        assert second.id == a.id
+        jobs.finish(s, a.id, nbytes=len(PROGRAM))
+        jobs.cancel(s, b.id, actor="op")
+        assert jobs.claim(s, "mill-1", "srv") is None  # c is backing off, b cancelled
+        with pytest.raises(Conflict):
+            jobs.cancel(s, a.id, actor="op")
+    with sessions() as s:
+        sends = [r for r in audit.query(s, machine="mill-1") if r.action == "job.send"]
+        assert [(r.job_id, r.result, r.bytes) for r in sends] == [
+            (a.id, "ok", len(PROGRAM)),
+            (c.id, "retry", None),
+        ]
+
+
+def test_dripfeed_is_never_retried_and_restarts_from_a_line(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as s:
+        _machines(s)
+        version, _ = library.add_version(s, "O01234", PROGRAM, author="ann")
+        job = jobs.enqueue(s, JobKind.DRIPFEED, "mill-1", actor="op", version=version)
+        assert jobs.claim(s, "mill-1", "srv") is not None
+        jobs.fail(s, job.id, "XOFF for 60 s")
+    with sessions.begin() as s:
+        assert jobs.get_job(s, job.id).state is JobState.INTERRUPTED
+        again = jobs.retry(s, job.id, actor="op", from_line=120)
+        assert again.params == {"from_line": 120, "retry_of": job.id}
+        assert again.kind is JobKind.DRIPFEED
+        assert again.state is JobState.QUEUED
+
+
+def test_restart_marks_running_jobs_interrupted(sessions: sessionmaker[Session]) -> None:
+    with sessions.begin() as s:
+        _machines(s)
+        version, _ = library.add_version(s, "O01234", PROGRAM, author="ann")
+        library.release(s, "O01234", 1, actor="carl")
+        running = jobs.enqueue(s, JobKind.SEND, "mill-1", actor="op", version=version)
+        waiting = jobs.enqueue(s, JobKind.SEND, "mill-1", actor="op", version=version)
+        jobs.claim(s, "mill-1", "srv")
+    with sessions.begin() as s:
+        assert [j.id for j in jobs.recover(s, "srv")] == [running.id]
+    with sessions() as s:
+        assert jobs.get_job(s, running.id).state is JobState.INTERRUPTED
+        assert "server stopped" in jobs.get_job(s, running.id).error
+        assert jobs.get_job(s, waiting.id).state is JobState.QUEUED
+
+
+def test_concurrent_claims_never_take_one_machine_twice(
+    sessions: sessionmaker[Session], db_url: str
+) -> None:
+    # Several workers (servers sharing the database) race for the same machine's queue.
+    with sessions.begin() as s:
+        _machines(s)
+        version, _ = library.add_version(s, "O01234", PROGRAM, author="ann")
+        for _ in range(6):
+            jobs.enqueue(s, JobKind.SEND, "mill-1", actor="op", version=version)
+
+    def worker(n: int) -> int | None:
+        with sessions.begin() as s:
+            job = jobs.claim(s, "mill-1", f"srv{n}")
+            return job.id if job else None
+
+    with ThreadPoolExecutor(4) as pool:
+        claimed = [j for j in pool.map(worker, range(8)) if j is not None]
+    assert len(claimed) == 1
+
+
+def test_keys_and_passwords(sessions: sessionmaker[Session]) -> None:
+    with sessions.begin() as s:
+        auth.create_user(s, "ann", Role.PROGRAMMER, password="correct horse")
+        _, key = auth.create_key(s, "ann", Role.OPERATOR, label="tablet")
+        with pytest.raises(InputError, match="more rights"):
+            auth.create_key(s, "ann", Role.ADMIN)
+    with sessions.begin() as s:
+        who = auth.authenticate_key(s, key)
+        assert (who.name, who.role) == ("ann", Role.OPERATOR)
+        assert auth.check_password(s, "ann", "correct horse").role is Role.PROGRAMMER
+        with pytest.raises(Unauthorized):
+            auth.check_password(s, "ann", "wrong")
+        auth.revoke_key(s, who.key_id or 0, actor="admin")
+    with sessions() as s:
+        with pytest.raises(Unauthorized):
+            auth.authenticate_key(s, key)
+        stored = [k.key_hash for k in s.scalars(select(ApiKey))]
+        assert key not in stored
+        assert hashlib.sha256(key.encode()).hexdigest() in stored
+        logins = [r.result for r in audit.query(s, action="login")]
+        assert logins == ["refused", "ok"]
+        with pytest.raises(NotFound):
+            auth.create_key(s, "nobody", Role.VIEWER)

@@ -1,0 +1,88 @@
+"""Migrations, the audit trail's append-only rule and the mapping of the models."""
+
+from __future__ import annotations
+
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.runtime.migration import MigrationContext
+from sqlalchemy import Engine, inspect, text
+from sqlalchemy.exc import DBAPIError
+
+from opendnc.server import audit
+from opendnc.server.store.db import current_revision, head_revision, make_engine, migrate
+from opendnc.server.store.models import Base
+
+
+def test_migrates_an_empty_database_to_head_and_back(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        assert current_revision(engine) is None
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        tables = set(inspect(engine).get_table_names())
+        assert {
+            "users",
+            "api_keys",
+            "machines",
+            "programs",
+            "program_versions",
+            "blobs",
+            "jobs",
+            "audit",
+        } <= tables
+        migrate(engine, "base")
+        assert current_revision(engine) is None
+        assert "jobs" not in set(inspect(engine).get_table_names())
+        migrate(engine)  # and up again from the previous revision
+        assert current_revision(engine) == head_revision()
+    finally:
+        engine.dispose()
+
+
+def test_models_match_the_migrations(engine: Engine) -> None:
+    with engine.connect() as conn:
+        differences = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+    assert differences == []
+
+
+def test_audit_rows_cannot_be_changed_or_deleted(engine: Engine, sessions) -> None:  # type: ignore[no-untyped-def]
+    with sessions.begin() as session:
+        audit.record(session, "alice", "login")
+    for statement in ("UPDATE audit SET actor = 'mallory'", "DELETE FROM audit"):
+        with pytest.raises(DBAPIError, match="append-only"), engine.begin() as conn:
+            conn.execute(text(statement))
+    with sessions() as session:
+        rows = audit.query(session)
+        assert [(r.actor, r.action) for r in rows] == [("alice", "login")]
+
+
+def test_upgrade_from_the_previous_revision_keeps_the_data(db_url: str) -> None:
+    # A shop running the first schema upgrades: its library and audit trail come along.
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, "0001")
+        with engine.begin() as conn:
+            conn.execute(
+                text("INSERT INTO blobs (sha256, size, data) VALUES ('ab', 1, :d)"), {"d": b"x"}
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO programs (name, locked, created) "
+                    "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
+                )
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO audit (at, actor, action, result, detail) "
+                    "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
+                )
+            )
+        assert "received" not in set(inspect(engine).get_table_names())
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        assert "received" in set(inspect(engine).get_table_names())
+        with engine.connect() as conn:
+            assert conn.execute(text("SELECT name FROM programs")).scalars().all() == ["O1.nc"]
+            assert conn.execute(text("SELECT actor FROM audit")).scalars().all() == ["ann"]
+    finally:
+        engine.dispose()
