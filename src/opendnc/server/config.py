@@ -106,6 +106,8 @@ class MachineConfig:
     released_only: bool = False
     poll_interval: float = 1.0
     description: str = ""
+    mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
+    dprnt: str = ""  # DPRNT source to capture: tcp://HOST:PORT (NGC Setting 263)
 
 
 @dataclass(frozen=True)
@@ -295,7 +297,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "poll_interval", "description",
+    "released_only", "poll_interval", "description", "mdc", "dprnt",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -336,6 +338,12 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     poll = _get(raw, prefix, "poll_interval", float, 1.0)
     if not 0.05 <= poll <= 3600:
         raise ConfigError(f"{prefix}.poll_interval", "expected seconds between 0.05 and 3600")
+    mdc = _get(raw, prefix, "mdc", bool, False)
+    if mdc and kind is not MachineKind.HAAS_SERIAL:
+        raise ConfigError(
+            f"{prefix}.mdc", "only for haas_serial (a Haas NGC always reports by MDC over TCP)"
+        )
+    dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
     return MachineConfig(
         name=name,
         kind=kind,
@@ -349,7 +357,21 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         released_only=_get(raw, prefix, "released_only", bool, False),
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),
+        mdc=mdc,
+        dprnt=dprnt,
     )
+
+
+def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
+    """``tcp://HOST:PORT`` (where a Haas NGC prints, Setting 263); empty for none."""
+    if not value:
+        return ""
+    if kind is MachineKind.LSV2:
+        raise ConfigError(key, "DPRNT is a Haas feature")
+    match = re.fullmatch(r"tcp://([^:/\s]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})", value)
+    if match is None or not 0 < int(match.group(2)) < 65536:
+        raise ConfigError(key, f"expected tcp://HOST:PORT, got {value!r}")
+    return value
 
 
 def _port_range(port: int, key: str) -> None:

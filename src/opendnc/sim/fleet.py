@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from opendnc.errors import InputError
+from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SimHaas, SimOptions
 from opendnc.sim.haas.control import HaasConfig
 from opendnc.sim.tnc.server import TncServer, serve_tnc
@@ -84,7 +85,8 @@ async def start_fleet(
 
     With ``base_port`` 0 every control takes a free port; otherwise the TNCs listen on
     ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them. A serial Haas
-    answers XModem and drip-feed on its cable (``auto`` serial mode).
+    is a classic control: it answers XModem, drip-feed and MDC Q-commands (Setting 143 ON)
+    on its cable (``auto`` serial mode).
     """
     if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
@@ -129,9 +131,9 @@ async def _start_serial_haas(fleet: Fleet, folder: Path, k: int, baud: int) -> N
     folder.mkdir(parents=True, exist_ok=True)
     cable = VirtualCable(baud).start()
     fleet._cables.append(cable)
-    sim = SimHaas(
-        HaasConfig(model="VF-2", serial_number=f"{2000000 + k}"), folder, SimOptions(mdc_port=None)
-    )
+    # a Haas on a cable is a classic control; Setting 143 ON: it answers MDC on the port too
+    config = HaasConfig(model="VF-2", serial_number=f"{2000000 + k}", control=ControlType.CLASSIC)
+    sim = SimHaas(config, folder, SimOptions(mdc_port=None))
     await sim.start()
     fleet._haas.append(sim)
     options = SerialOptions(baud=baud, mode=parse_mode("auto"))
@@ -179,7 +181,11 @@ def server_config(
         if m.kind == "lsv2":
             lines.append(f"port = {m.port}")
         elif m.kind == "haas_serial":
-            lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
+            lines += [
+                f"serial = {q(m.serial)}",
+                f"serial_profile = {{ baud = {m.baud} }}",
+                "mdc = true",
+            ]
         else:
             lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
     return "\n".join(lines) + "\n"

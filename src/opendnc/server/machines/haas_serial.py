@@ -5,15 +5,24 @@ Between jobs the port listens as an XModem receiver, so a program the operator p
 remote request) arrives without anyone at the PC; the receiver's start requests (NAK every
 few seconds) are what a Haas waits for before it sends. To load a program the operator puts
 the control in receive mode, and the control's NAK starts our sender.
+
+With ``mdc = true`` (a classic control with Setting 143 ON) each status poll also asks Q500
+and Q104 on the same port, between two listening windows: the connector owns the port, so a
+query never meets an XModem transfer. A control busy with something else (its own receive
+mode, a punch waiting for our NAK) does not answer; that poll reports the execution state as
+unknown and the link stays up (docs/haas.md#mdc).
 """
 
 from __future__ import annotations
 
 import asyncio
+import time
 
-from opendnc.errors import DncError, TransportError, TransportTimeout
+from opendnc.errors import DncError, PeerClosed, TransportError, TransportTimeout
+from opendnc.haas.mdc_client import MdcClient
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
 from opendnc.transport import ByteStream
 from opendnc.transport.serial import open_stream
@@ -27,6 +36,10 @@ from opendnc.xmodem.receiver import ReceiverConfig
 __all__ = ["HaasSerialConnector"]
 
 _EOB = {"CR": Eob.CR, "LF": Eob.LF, "CRLF": Eob.CRLF}
+MDC_TIMEOUT = 1.0
+"""Seconds a status query waits for its reply: a classic control answers within a few
+characters' time, so a longer wait only delays the next listening window."""
+DRAIN = 0.3  # seconds to read away a late reply before the port listens for XModem again
 
 
 class HaasSerialConnector:
@@ -38,6 +51,7 @@ class HaasSerialConnector:
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
         self._stream: ByteStream | None = None
+        self._mdc: MdcClient | None = None
 
     def _open(self) -> ByteStream:
         profile = self.config.profile
@@ -54,10 +68,14 @@ class HaasSerialConnector:
         """Open the port (a TCP serial server answers, a device exists)."""
         if self._stream is None:
             self._stream = await asyncio.to_thread(self._open)
+            self._mdc = (
+                MdcClient.over(self._stream, timeout=MDC_TIMEOUT) if self.config.mdc else None
+            )
 
     async def close(self) -> None:
         """Close the port."""
         stream, self._stream = self._stream, None
+        self._mdc = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
@@ -67,8 +85,23 @@ class HaasSerialConnector:
         return self._stream
 
     async def status(self) -> MachineStatus:
-        """Available while the port opens; RS-232 tells nothing more without DPRNT."""
-        return MachineStatus(at=utcnow(), available=True, execution="READY")
+        """Available while the port opens; with ``mdc`` also program, mode and parts."""
+        client = self._mdc
+        if client is None:
+            return MachineStatus(at=utcnow(), available=True, execution="READY")
+        stream = self._require()
+
+        def poll() -> MachineStatus:
+            try:
+                return mdc_status(client.query(500), client.query(104), None)
+            except TransportTimeout as exc:
+                # busy with something else: the port is fine, the state unknown this time
+                _drain(stream)
+                return MachineStatus(at=utcnow(), available=True, message=str(exc))
+            finally:
+                stream.set_timeout(1.0)
+
+        return await asyncio.to_thread(poll)
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
         """Send the program by XModem in checksum mode."""
@@ -116,3 +149,17 @@ class HaasSerialConnector:
             return Reception(b"".join(parts))
 
         return await asyncio.to_thread(run)
+
+
+def _drain(stream: ByteStream) -> None:
+    """Read away what arrives within :data:`DRAIN` (a late reply's STX must not reach the
+    XModem receiver of the next listening window, where it would look like a block)."""
+    stream.set_timeout(0.05)
+    deadline = time.monotonic() + DRAIN
+    while time.monotonic() < deadline:
+        try:
+            stream.read(4096)
+        except TransportTimeout:
+            continue
+        except PeerClosed:
+            return

@@ -1,0 +1,70 @@
+"""Live status of a classic Haas on RS-232 (``mdc = true``): program, mode and parts by MDC
+Q-commands on the port the server also listens on for XModem between jobs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from tests.server.test_end_to_end import Procs, _auth, _wait
+from tests.server.test_from_the_control import STORED, FleetThread, _server, haas, procs
+
+__all__ = ["haas", "procs"]  # fixtures shared with the tests of programs from the control
+
+
+def _status(client: Any, key: str) -> dict[str, Any]:
+    machines = client.get("/api/machines", headers=_auth(key)).json()
+    found = [m for m in machines if m["name"] == "haas-serial-1"]
+    status: dict[str, Any] = (found[0]["status"] if found else None) or {}
+    return status
+
+
+def test_status_by_mdc_on_the_serial_port_and_a_punch_still_arrives(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    sim = haas.fleet.sims["haas-serial-1"]
+    port = haas.fleet.serial_ports["haas-serial-1"]
+
+    def set_state(program: str, parts: int) -> None:
+        def change() -> None:
+            sim.control.machine.program = program
+            sim.control.machine.m30_counter_1 = parts
+
+        haas.call(change)
+
+    set_state("O04321", 12)
+    haas.call(lambda: sim.control.save_program(STORED))
+    client, key = _server(tmp_path, haas, procs, db_url)
+    with client:
+        status = _wait(
+            "the program and parts from Q500",
+            lambda: (s := _status(client, key)).get("program") == "O04321" and s,
+            describe=lambda: (_status(client, key), procs.log("server")),
+        )
+        assert (status["part_count"], status["mode"], status["execution"]) == (12, "MDI", "READY")
+        assert status["available"] is True
+        set_state("O01234", 13)  # the operator ran the next part
+        _wait(
+            "the new state",
+            lambda: (
+                (_status(client, key).get("program"), _status(client, key).get("part_count"))
+                == ("O01234", 13)
+            ),
+            describe=lambda: _status(client, key),
+        )
+        answered = port.mdc_replies
+        assert answered >= 4  # Q500 and Q104 per poll, several polls
+        # Between the polls the port still listens: the operator's punch lands in the inbox.
+        port.select("punch:O1234")
+        items = _wait(
+            "the punch in the inbox",
+            lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert [(i["name"], i["state"]) for i in items] == [("O01234.nc", "new")]
+        got = client.get(f"/api/inbox/{items[0]['id']}/content", headers=_auth(key)).content
+        assert got.decode().split() == STORED.split()
+        # ... and the status polls go on after it.
+        _wait("more MDC replies", lambda: port.mdc_replies > answered + 2)
+        assert _status(client, key).get("program") == "O01234"
+    assert "RS232 ABORT" not in " ".join(port.messages)
