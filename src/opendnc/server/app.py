@@ -22,6 +22,7 @@ from opendnc.server import api
 from opendnc.server.config import ShopConfig
 from opendnc.server.events import EventBus
 from opendnc.server.machines import connector_for
+from opendnc.server.netshare import NetShare
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.supervisor import ConnectorFactory, Supervisor
 from opendnc.server.watcher import LibraryWatcher
@@ -40,6 +41,7 @@ class Server:
     supervisor: Supervisor
     watcher: LibraryWatcher
     app: FastAPI
+    netshare: NetShare | None = None
 
 
 def build(
@@ -75,18 +77,28 @@ def build(
         ),
     )
 
+    netshare = None
+    if config.netshare is not None:
+        machines = {m.name: m for m in config.machines}
+        netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
+    background: list[asyncio.Task[None]] = []
+
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         await supervisor.start()
         watching = asyncio.create_task(watcher.run(), name="library-watcher")
+        if netshare is not None:
+            background.append(asyncio.create_task(netshare.run(), name="netshare"))
         try:
             yield
         finally:
-            watching.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watching
+            for task in (watching, *background):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+            background.clear()
             await supervisor.stop()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
-    return Server(config, engine, sessions, bus, supervisor, watcher, app)
+    return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare)
