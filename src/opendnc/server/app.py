@@ -18,8 +18,9 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api
+from opendnc.server import api, dprnt_api
 from opendnc.server.config import ShopConfig
+from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
 from opendnc.server.machines import connector_for
 from opendnc.server.netshare import NetShare
@@ -42,6 +43,7 @@ class Server:
     watcher: LibraryWatcher
     app: FastAPI
     netshare: NetShare | None = None
+    dprnt: DprntCapture | None = None
 
 
 def build(
@@ -82,6 +84,7 @@ def build(
         machines = {m.name: m for m in config.machines}
         netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
     background: list[asyncio.Task[None]] = []
+    capture = DprntCapture(config.machines, sessions, bus)
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
@@ -89,6 +92,7 @@ def build(
         watching = asyncio.create_task(watcher.run(), name="library-watcher")
         if netshare is not None:
             background.append(asyncio.create_task(netshare.run(), name="netshare"))
+        capture.start()
         try:
             yield
         finally:
@@ -97,8 +101,10 @@ def build(
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
             background.clear()
+            await capture.stop()
             await supervisor.stop()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
-    return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare)
+    app.include_router(dprnt_api.router)
+    return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare, capture)
