@@ -195,3 +195,51 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         bad = client.get("/api/machines/vf2/dprnt", headers=_auth(key), params={"since": -1})
         assert bad.status_code == 400
     events.stop()
+
+
+def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
+    tmp_path: Path, procs: Procs, db_url: str
+) -> None:
+    from tests.server.test_from_the_control import STORED, FleetThread, _server
+
+    haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        sim = haas.fleet.sims["haas-serial-1"]
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        haas.call(lambda: sim.control.save_program(PRINTS))
+        haas.call(lambda: sim.control.save_program(STORED))
+        client, key = _server(tmp_path, haas, procs, db_url, extra='dprnt = "serial"\n')
+        with client:
+
+            def status() -> dict[str, Any]:
+                machine = client.get("/api/machines/haas-serial-1", headers=_auth(key)).json()
+                return machine["status"] or {}
+
+            def lines() -> list[dict[str, Any]]:
+                got: list[dict[str, Any]] = client.get(
+                    "/api/machines/haas-serial-1/dprnt", headers=_auth(key)
+                ).json()
+                return got
+
+            _wait("the first MDC status", lambda: status().get("mode") == "MDI")
+            haas.call(lambda: sim.control.start_program(500))  # cycle start at the control
+            stored = _wait(
+                "three DPRNT lines from the serial port",
+                lambda: len(got := lines()) == 3 and got,
+                describe=lambda: (lines(), port.messages, procs.log("server")),
+            )
+            assert [line["numbers"] for line in stored] == [[0, 1.5], [1, 3.0], [2, 6.0]]
+            for n, line in enumerate(stored):
+                assert re.fullmatch(rf"PASS\s+{n}\s+X\s+\d\.\d{{4}}", line["line"]), line
+            # the port still does its other work: status by MDC and a punch into the inbox
+            _wait("O500 in the status", lambda: status().get("program") == "O00500")
+            port.select("punch:O1234")
+            items = _wait(
+                "the punch in the inbox",
+                lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+                describe=lambda: (port.messages, procs.log("server")),
+            )
+            assert [i["name"] for i in items] == ["O01234.nc"]
+            assert len(lines()) == 3  # neither MDC replies nor the punch became DPRNT lines
+    finally:
+        haas.stop()

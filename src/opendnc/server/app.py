@@ -19,10 +19,10 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
 from opendnc.server import api, dprnt_api
-from opendnc.server.config import ShopConfig
+from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
-from opendnc.server.machines import connector_for
+from opendnc.server.machines import Connector, connector_for
 from opendnc.server.netshare import NetShare
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.supervisor import ConnectorFactory, Supervisor
@@ -59,11 +59,18 @@ def build(
     migrate(engine)
     sessions = make_sessions(engine)
     bus = EventBus()
+    capture = DprntCapture(config.machines, sessions, bus)
+
+    def connectors(machine: MachineConfig) -> Connector:
+        connector = connector_factory(machine)
+        capture.attach(machine, connector)  # a serial Haas's printed lines
+        return connector
+
     supervisor = Supervisor(
         config,
         sessions,
         bus,
-        connector_factory=connector_factory,
+        connector_factory=connectors,
         sweep_interval=sweep_interval,
         retry_backoff=retry_backoff,
     )
@@ -84,7 +91,6 @@ def build(
         machines = {m.name: m for m in config.machines}
         netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
     background: list[asyncio.Task[None]] = []
-    capture = DprntCapture(config.machines, sessions, bus)
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:

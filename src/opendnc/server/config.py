@@ -114,7 +114,7 @@ class MachineConfig:
     poll_interval: float = 1.0
     description: str = ""
     mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
-    dprnt: str = ""  # DPRNT source to capture: tcp://HOST:PORT (NGC Setting 263)
+    dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
 
 
 @dataclass(frozen=True)
@@ -450,14 +450,19 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
 
 
 def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
-    """``tcp://HOST:PORT`` (where a Haas NGC prints, Setting 263); empty for none."""
+    """``tcp://HOST:PORT`` (where a Haas NGC prints, Setting 263) or ``serial`` (a serial
+    Haas's own port); empty for none."""
     if not value:
         return ""
     if kind is MachineKind.LSV2:
         raise ConfigError(key, "DPRNT is a Haas feature")
+    if value == "serial":
+        if kind is not MachineKind.HAAS_SERIAL:
+            raise ConfigError(key, "serial is for a haas_serial machine (its own port)")
+        return value
     match = re.fullmatch(r"tcp://([^:/\s]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})", value)
     if match is None or not 0 < int(match.group(2)) < 65536:
-        raise ConfigError(key, f"expected tcp://HOST:PORT, got {value!r}")
+        raise ConfigError(key, f"expected tcp://HOST:PORT or serial, got {value!r}")
     return value
 
 

@@ -7,9 +7,10 @@ it reconnects with backoff by itself, keeps a line cut by a broken link (marked 
 and a machine that is away never holds up another. Each line becomes a ``dprnt_lines`` row and
 an event of kind ``dprnt`` on the bus; the API serves them (``/api/machines/{name}/dprnt``).
 
-The serial port of a Haas on RS-232 is not captured here: the serial connector owns that port
-for XModem and MDC, and DPRNT text arriving while it listens is read as line noise there
-(docs/haas.md#dprnt-over-serial).
+A Haas on RS-232 prints on the port its connector owns for XModem and MDC
+(``dprnt = "serial"``): :meth:`DprntCapture.attach` gives that connector the same sink, and
+the connector picks the lines off the port (:mod:`opendnc.server.machines.dprnt_tap`,
+docs/haas.md#dprnt-over-serial).
 """
 
 from __future__ import annotations
@@ -91,7 +92,7 @@ class DprntCapture:
         self.status: dict[str, str] = {}  # machine -> the listener's last word
         self.listeners: dict[str, DprntListener] = {}
         for machine in machines:
-            if machine.dprnt:
+            if machine.dprnt and machine.dprnt != "serial":
                 self.listeners[machine.name] = DprntListener(
                     machine.dprnt,
                     [DprntSink(machine.name, sessions, bus)],
@@ -100,6 +101,12 @@ class DprntCapture:
                     on_status=self._on_status(machine.name),
                 )
         self._threads: list[threading.Thread] = []
+
+    def attach(self, machine: MachineConfig, connector: object) -> None:
+        """Give a serial connector with ``dprnt = "serial"`` the sink for its printed lines."""
+        if machine.dprnt == "serial" and hasattr(connector, "on_dprnt"):
+            connector.on_dprnt = DprntSink(machine.name, self.sessions, self.bus).write
+            self.status[machine.name] = f"capturing on {machine.serial}"
 
     def _on_status(self, machine: str) -> Callable[[str], None]:
         def report(message: str) -> None:

@@ -11,17 +11,24 @@ and Q104 on the same port, between two listening windows: the connector owns the
 query never meets an XModem transfer. A control busy with something else (its own receive
 mode, a punch waiting for our NAK) does not answer; that poll reports the execution state as
 unknown and the link stays up (docs/haas.md#mdc).
+
+With ``dprnt = "serial"`` the lines the control prints on the same port are picked off while
+the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and handed to
+:attr:`HaasSerialConnector.on_dprnt`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 
 from opendnc.errors import DncError, PeerClosed, TransportError, TransportTimeout
+from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
 from opendnc.transport import ByteStream
@@ -52,6 +59,9 @@ class HaasSerialConnector:
         self.config = config
         self._stream: ByteStream | None = None
         self._mdc: MdcClient | None = None
+        self._tap: TapStream | None = None
+        self.on_dprnt: Callable[[CapturedLine], None] | None = None
+        """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
 
     def _open(self) -> ByteStream:
         profile = self.config.profile
@@ -67,7 +77,10 @@ class HaasSerialConnector:
     async def connect(self) -> None:
         """Open the port (a TCP serial server answers, a device exists)."""
         if self._stream is None:
-            self._stream = await asyncio.to_thread(self._open)
+            stream = await asyncio.to_thread(self._open)
+            if self.config.dprnt == "serial" and self.on_dprnt is not None:
+                stream = self._tap = TapStream(stream, DprntTap(self.on_dprnt))
+            self._stream = stream
             self._mdc = (
                 MdcClient.over(self._stream, timeout=MDC_TIMEOUT) if self.config.mdc else None
             )
@@ -75,7 +88,7 @@ class HaasSerialConnector:
     async def close(self) -> None:
         """Close the port."""
         stream, self._stream = self._stream, None
-        self._mdc = None
+        self._mdc = self._tap = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
@@ -92,6 +105,7 @@ class HaasSerialConnector:
         stream = self._require()
 
         def poll() -> MachineStatus:
+            self._tapping("mdc")
             try:
                 return mdc_status(client.query(500), client.query(104), None)
             except TransportTimeout as exc:
@@ -99,6 +113,7 @@ class HaasSerialConnector:
                 _drain(stream)
                 return MachineStatus(at=utcnow(), available=True, message=str(exc))
             finally:
+                self._tapping("off")
                 stream.set_timeout(1.0)
 
         return await asyncio.to_thread(poll)
@@ -111,6 +126,10 @@ class HaasSerialConnector:
         await asyncio.to_thread(
             lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
         )
+
+    def _tapping(self, mode: str) -> None:
+        if self._tap is not None:
+            self._tap.mode = mode
 
     async def verify(self, name: str, data: bytes) -> bool | None:
         """None: XModem's block checks are the only verification a serial Haas offers."""
@@ -134,6 +153,7 @@ class HaasSerialConnector:
                 cancel_when_idle=False,  # the next window listens again
             )
             stream = self._require()
+            self._tapping("listen")
             try:
                 xmodem_receive(
                     stream, parts.append, mode=Mode.CHECKSUM, config=config, on_event=on_event
@@ -146,6 +166,8 @@ class HaasSerialConnector:
                 if not started and not parts:
                     return None
                 return Reception(b"".join(parts), failed=str(exc))
+            finally:
+                self._tapping("off")
             return Reception(b"".join(parts))
 
         return await asyncio.to_thread(run)
