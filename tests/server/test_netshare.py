@@ -21,10 +21,12 @@ from opendnc.server.events import EventBus
 from opendnc.server.netshare import NetShare, ScanReport
 from opendnc.server.store.models import AuditEntry, Received
 from opendnc.sim.fleet import server_config
+from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD
+from tests.interop.test_haas_share_samba import Samba, samba
 from tests.server.test_end_to_end import Procs, _auth, _free_port, _listening, _wait, httpx
 from tests.server.test_from_the_control import FleetThread, procs
 
-__all__ = ["procs"]  # the fixture, shared with the tests of programs from the control
+__all__ = ["procs", "samba"]  # fixtures shared with other tests
 
 PROGRAM = "%\nO01000 (BRACKET)\nG20\nG00 G90 G54 X0. Y0.\nG01 X1.5 F20.\nM30\n%\n"
 EDITED = PROGRAM.replace("X1.5", "X1.25")
@@ -295,3 +297,38 @@ def test_the_server_runs_the_net_share(
             ("haas-2", "O01000.nc", "ok"),
         ]
         assert audit("netshare.archive")[0]["detail"]["removed_from"] == ["haas-1", "haas-2"]
+
+
+@pytest.mark.interop
+def test_a_machine_share_over_smb(
+    tmp_path: Path, samba: Samba, sessions: sessionmaker[Session]
+) -> None:
+    """The same cycle when the machine's share is its Local Net Share over SMB (real Samba)."""
+    folder = samba.folder / tmp_path.name  # the Samba server is shared by the module's tests
+    folder.mkdir()
+    (folder / "O00100.nc").write_text("%\nO00100 (OLD JOB)\nM30\n%\n")  # the machine's history
+    url = f"smb://{samba.user}:{SMB_PASSWORD}@127.0.0.1:{samba.port}/UserData/{tmp_path.name}"
+    text = f'[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\nshare = "{url}"\n'
+    shop = parse_config(text, base=tmp_path)
+    nas = tmp_path / "nas"
+    nas.mkdir()
+    clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())
+    config = NetShareConfig(path=nas, machines=("vf2",), archive=tmp_path / "archive")
+    machines = {m.name: m for m in shop.machines}
+    net = NetShare(config, machines, tmp_path / "inbox", sessions, clock=clock)
+    _scan_until(net, lambda _r: "vf2" in net.baselined, "the first look at the share")
+
+    (nas / "O01000.nc").write_text(PROGRAM)
+    _scan_until(net, lambda r: r.pushed == [("vf2", "O01000.nc")], "the push over SMB")
+    assert (folder / "O01000.nc").read_text() == PROGRAM
+
+    (folder / "O02000.nc").write_text(MADE_HERE)  # written at the control
+    got = _scan_until(net, lambda r: bool(r.collected), "the collection over SMB")
+    assert got.collected == [("vf2", "O02000.nc")]
+    assert (tmp_path / "inbox" / "O02000.nc").read_text() == MADE_HERE
+
+    clock.now = clock.now.replace(hour=18, minute=5)
+    assert net.scan_sync().archived == ["O01000.nc"]
+    assert sorted(p.name for p in folder.iterdir()) == ["O00100.nc", "O02000.nc"]
+    (archived,) = _audit(sessions, "netshare.archive")
+    assert archived.detail["removed_from"] == ["vf2"]

@@ -10,7 +10,7 @@ folder is archived; programs written on the machines come back to the server's i
    content a machine has not had yet is copied into that machine's share, whole or not at
    all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
    again at the next scan.
-2. **collect** (``collect = true``, local shares): a file in a machine's share that the server
+2. **collect** (``collect = true``): a file in a machine's share that the server
    did not put there, or that changed since (the operator edited it), is filed in the inbox by
    :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
    first saw it is taken as the machine's history, not as new work (one ``netshare.baseline``
@@ -18,8 +18,11 @@ folder is archived; programs written on the machines come back to the server's i
 3. **archive** (daily at ``archive_at``, server local time, or every ``archive_every``
    seconds, once no NAS file is still being written): the NAS files, pushed first, move
    into ``archive/YYYY-MM-DD/`` (never overwriting) and the copies the server pushed are
-   removed from the local shares if they still hold exactly the pushed bytes; an edited copy
-   stays (and is collected).
+   removed from the shares if they still hold exactly the pushed bytes; an edited copy stays
+   (and is collected).
+
+A machine's share is a local (mounted) folder or ``smb://[USER:PASSWORD@]HOST[:PORT]/SHARE/PATH``
+(read, listed and cleaned with smbprotocol, the library :mod:`opendnc.haas.share` pushes with).
 
 Every action is an audit row (``netshare.push``, ``netshare.collect``, ``netshare.baseline``,
 ``netshare.archive``, ``netshare.archive_run``) and an event of kind ``netshare``. What the
@@ -40,12 +43,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.errors import DncError
+from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.config import MachineConfig, NetShareConfig
@@ -75,48 +78,141 @@ class ScanReport:
     failed: list[tuple[str, str, str]] = field(default_factory=list)
 
 
-def _is_program_file(path: Path) -> bool:
+def _is_program_name(name: str) -> bool:
     # Hidden files, temporary copies (ours are ".NAME.xxxx.part") and editor backups are not
-    # programs; neither is anything that is not a plain file.
-    name = path.name
+    # programs.
     if name.startswith(".") or name.endswith((".part", ".tmp", "~")) or len(name) > 255:
         return False
-    if not name.isprintable():
-        return False
-    try:
-        return path.is_file() and not path.is_symlink() and path.stat().st_size <= MAX_FILE
-    except OSError:
-        return False
+    return name.isprintable() and "/" not in name and "\\" not in name
 
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+class _Folder(Protocol):
+    """A folder the net share reads: the NAS, or a machine's share (local or SMB)."""
+
+    label: str
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        """Program files by name: (size, modification time); :class:`DncError` when away."""
+        ...
+
+    def read(self, name: str) -> bytes:
+        """The content of ``name``."""
+        ...
+
+    def remove(self, name: str) -> None:
+        """Delete ``name``."""
+        ...
+
+
+class _LocalFolder:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.label = str(path)
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        try:
+            paths = list(self.path.iterdir())
+        except OSError as exc:
+            raise TransportError(f"cannot list {self.path}: {exc.strerror or exc}") from exc
+        found = {}
+        for path in paths:
+            if _is_program_name(path.name) and path.is_file() and not path.is_symlink():
+                try:
+                    st = path.stat()
+                except OSError:
+                    continue
+                if st.st_size <= MAX_FILE:
+                    found[path.name] = (st.st_size, st.st_mtime_ns)
+        return found
+
+    def read(self, name: str) -> bytes:
+        return (self.path / name).read_bytes()
+
+    def remove(self, name: str) -> None:
+        (self.path / name).unlink()
+
+
+_DIRECTORY, _REPARSE_POINT = 0x10, 0x400  # SMB file attribute bits
+
+
+class _SmbFolder:
+    """A machine's share over SMB (its Local Net Share), through smbprotocol's smbclient."""
+
+    def __init__(self, target: share.ShareTarget) -> None:
+        self.target = target
+        self.label = target.describe()
+
+    def _session(self) -> Any:
+        try:
+            import smbclient
+        except ImportError as exc:  # the "haas" extra is optional
+            raise InputError("SMB shares need smbprotocol: pip install 'opendnc[haas]'") from exc
+        t = self.target
+        try:
+            smbclient.register_session(
+                t.host, t.username, t.password, port=t.port, connection_timeout=10
+            )
+        except Exception as exc:  # smbprotocol raises its own tree and ValueError
+            raise TransportError(f"cannot open SMB session to {self.label}: {exc}") from exc
+        return smbclient
+
+    def _options(self) -> dict[str, Any]:
+        t = self.target
+        return {"port": t.port, "username": t.username, "password": t.password}
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        smbclient = self._session()
+        found = {}
+        try:
+            for entry in smbclient.scandir(self.target.unc(), **self._options()):
+                # the listing carries size, time and attributes: no extra call per file
+                info = entry.smb_info
+                plain = not info.file_attributes & (_DIRECTORY | _REPARSE_POINT)
+                if _is_program_name(entry.name) and plain and info.end_of_file <= MAX_FILE:
+                    written = int(info.last_write_time.timestamp() * 1e9)
+                    found[entry.name] = (int(info.end_of_file), written)
+        except Exception as exc:
+            raise TransportError(f"cannot list {self.label}: {exc}") from exc
+        return found
+
+    def read(self, name: str) -> bytes:
+        smbclient = self._session()
+        try:
+            with smbclient.open_file(self.target.unc(name), mode="rb", **self._options()) as f:
+                data: bytes = f.read()
+        except Exception as exc:
+            raise TransportError(f"cannot read {self.target.describe(name)}: {exc}") from exc
+        return data
+
+    def remove(self, name: str) -> None:
+        smbclient = self._session()
+        try:
+            smbclient.remove(self.target.unc(name), **self._options())
+        except Exception as exc:
+            raise TransportError(f"cannot remove {self.target.describe(name)}: {exc}") from exc
+
+
+def _folder_for(spec: str) -> _Folder:
+    target = share.parse_target(spec)  # InputError: a local folder that is not there
+    if target.local is not None:
+        return _LocalFolder(target.local)
+    return _SmbFolder(target)
+
+
 class _Stable:
     """Files that stopped changing: the same size and modification time in two scans."""
 
     def __init__(self) -> None:
-        self._last: dict[Path, tuple[int, int]] = {}
+        self._last: dict[str, dict[str, tuple[int, int]]] = {}
 
-    def files(self, folder: Path) -> list[Path]:
-        try:
-            entries = sorted(p for p in folder.iterdir() if _is_program_file(p))
-        except OSError:
-            return []
-        stable = []
-        now: dict[Path, tuple[int, int]] = {}
-        for path in entries:
-            try:
-                st = path.stat()
-            except OSError:
-                continue
-            now[path] = (st.st_size, st.st_mtime_ns)
-            if self._last.get(path) == now[path]:
-                stable.append(path)
-        # forget vanished files, keep the others' last sight
-        self._last = {p: v for p, v in self._last.items() if p.parent != folder} | now
-        return stable
+    def names(self, folder: _Folder, entries: dict[str, tuple[int, int]]) -> list[str]:
+        last = self._last.get(folder.label, {})
+        self._last[folder.label] = entries
+        return sorted(name for name, seen in entries.items() if last.get(name) == seen)
 
 
 class NetShare:
@@ -196,11 +292,17 @@ class NetShare:
         if not self._loaded:
             self.load()
         report = ScanReport()
-        nas = self._stable.files(self.config.path)
+        folder = _LocalFolder(self.config.path)
+        try:
+            entries = folder.entries()
+            nas_here = True
+        except DncError:
+            entries, nas_here = {}, False  # the NAS is away: nothing to push or archive now
+        nas = self._stable.names(folder, entries)
         contents = {}
-        for path in nas:
+        for name in nas:
             try:
-                contents[path.name] = path.read_bytes()
+                contents[name] = folder.read(name)
             except OSError:
                 continue
         for name, data in contents.items():
@@ -208,11 +310,13 @@ class NetShare:
                 self._push(machine, name, data, report)
         if self.config.collect:
             for machine in self.machines.values():
-                self._collect(machine, report)
+                try:
+                    self._collect(machine, report)
+                except DncError as exc:  # a share that is away; the push reports it too
+                    log.info("%s: cannot collect from the share: %s", machine.name, exc)
         # Archive only a quiet folder: a file still being written moves at the next scan.
-        quiet = len(nas) == sum(1 for p in _listing(self.config.path) if _is_program_file(p))
-        if quiet and self._archive_due():
-            self._archive(nas, report)
+        if nas_here and len(nas) == len(entries) and self._archive_due():
+            self._archive([self.config.path / name for name in nas], report)
         return report
 
     # ------------------------------------------------------------------ push
@@ -254,21 +358,19 @@ class NetShare:
 
     # ------------------------------------------------------------------ collect
     def _collect(self, machine: MachineConfig, report: ScanReport) -> None:
-        try:
-            target = share.parse_target(machine.share)
-        except DncError:
-            return  # the share is away; the push reports it
-        if target.local is None:
-            return  # SMB shares are pushed to, not read (mount them to collect)
-        files = self._stable.files(target.local)
+        folder = _folder_for(machine.share)
+        entries = folder.entries()
         found: dict[str, bytes] = {}
-        for path in files:
+        for name in self._stable.names(folder, entries):
             try:
-                found[path.name] = path.read_bytes()
-            except OSError:
+                found[name] = folder.read(name)
+            except (DncError, OSError):
                 continue
         if machine.name not in self.baselined:
-            self._baseline(machine, target.local, found)
+            # The first look at a share: what it holds already is the machine's history.
+            # Wait until every file in it has stopped changing.
+            if len(found) == len(entries):
+                self._baseline(machine, found)
             return
         for name, data in found.items():
             digest = _sha(data)
@@ -285,7 +387,7 @@ class NetShare:
                     program=name,
                     sha256=digest,
                     nbytes=len(data),
-                    source=str(target.local / name),
+                    source=f"{folder.label}/{name}",
                     received_id=row.id,
                     inbox_name=row.name,
                 )
@@ -293,11 +395,7 @@ class NetShare:
             report.collected.append((machine.name, name))
             self._publish("collect", machine.name, name)
 
-    def _baseline(self, machine: MachineConfig, folder: Path, found: dict[str, bytes]) -> None:
-        # The first look at a share: what it holds already is the machine's history. Files
-        # still being written are not in ``found`` yet; wait until the share is quiet.
-        if len(found) != sum(1 for p in _listing(folder) if _is_program_file(p)):
-            return
+    def _baseline(self, machine: MachineConfig, found: dict[str, bytes]) -> None:
         files = {name: _sha(data) for name, data in found.items()}
         with self.sessions.begin() as session:
             audit.record(session, ACTOR, "netshare.baseline", machine=machine.name, files=files)
@@ -374,26 +472,20 @@ class NetShare:
         self._publish("archive", "", "", files=moved, folder=str(day))
 
     def _remove_pushed_copies(self, name: str) -> list[str]:
-        """Remove ``name`` from the local shares that still hold exactly what was pushed."""
+        """Remove ``name`` from the shares that still hold exactly what was pushed."""
         removed = []
         for machine in self.machines.values():
             digest = self.pushed.get((machine.name, name))
             if digest is None:
                 continue
             try:
-                target = share.parse_target(machine.share)
-            except DncError:
-                continue
-            if target.local is None:
-                continue  # an SMB copy stays (removing over SMB is not done yet)
-            copy = target.local / name
-            try:
-                if _sha(copy.read_bytes()) == digest:
-                    copy.unlink()
+                folder = _folder_for(machine.share)
+                if _sha(folder.read(name)) == digest:
+                    folder.remove(name)
                     removed.append(machine.name)
                     del self.pushed[(machine.name, name)]
-            except OSError:
-                continue  # gone already, or edited and then removed: nothing to do
+            except (DncError, OSError):
+                continue  # away, gone already, or edited and then removed: nothing to do
         return removed
 
     # ------------------------------------------------------------------ events
@@ -401,13 +493,6 @@ class NetShare:
         if self.bus is not None:
             data = {"action": action, "machine": machine, "name": name, **extra}
             self.bus.publish("netshare", machine or "nas", data)
-
-
-def _listing(folder: Path) -> list[Path]:
-    try:
-        return list(folder.iterdir())
-    except OSError:
-        return []
 
 
 def _free_path(folder: Path, name: str) -> Path:
