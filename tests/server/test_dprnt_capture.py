@@ -81,6 +81,11 @@ def test_migration_0003_up_from_0002_and_back(db_url: str) -> None:
         ('kind = "haas_ngc"\nhost = "h"\ndprnt = "tcp://h:99999"', "machines[0].dprnt"),
         ('kind = "haas_ngc"\nhost = "h"\nmdc = true', "machines[0].mdc"),
         ('kind = "haas_serial"\nserial = "/dev/ttyS0"\nmdc = "yes"', "machines[0].mdc"),
+        (
+            'kind = "haas_serial"\nserial = "/dev/ttyS0"\nmdc_interval = 0',
+            "machines[0].mdc_interval",
+        ),
+        ('kind = "haas_ngc"\nhost = "h"\ndprnt = "serial"', "machines[0].dprnt"),
     ],
 )
 def test_config_errors_name_the_key(tmp_path: Path, machine: str, key: str) -> None:

@@ -114,6 +114,7 @@ class MachineConfig:
     poll_interval: float = 1.0
     description: str = ""
     mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
+    mdc_interval: float = 3.0  # haas_serial: least seconds between two MDC status reads
     dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
 
 
@@ -384,7 +385,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "poll_interval", "description", "mdc", "dprnt",
+    "released_only", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -430,6 +431,11 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         raise ConfigError(
             f"{prefix}.mdc", "only for haas_serial (a Haas NGC always reports by MDC over TCP)"
         )
+    # Classic controls have frozen under fast serial polling: 3 s apart by default
+    # (docs/haas.md#mdc-polling).
+    mdc_interval = _get(raw, prefix, "mdc_interval", float, 3.0)
+    if not 0.05 <= mdc_interval <= 3600:
+        raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
     dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
     return MachineConfig(
         name=name,
@@ -445,6 +451,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),
         mdc=mdc,
+        mdc_interval=mdc_interval,
         dprnt=dprnt,
     )
 

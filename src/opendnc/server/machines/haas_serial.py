@@ -6,11 +6,12 @@ remote request) arrives without anyone at the PC; the receiver's start requests 
 few seconds) are what a Haas waits for before it sends. To load a program the operator puts
 the control in receive mode, and the control's NAK starts our sender.
 
-With ``mdc = true`` (a classic control with Setting 143 ON) each status poll also asks Q500
-and Q104 on the same port, between two listening windows: the connector owns the port, so a
-query never meets an XModem transfer. A control busy with something else (its own receive
-mode, a punch waiting for our NAK) does not answer; that poll reports the execution state as
-unknown and the link stays up (docs/haas.md#mdc).
+With ``mdc = true`` (a classic control with Setting 143 ON) a status poll also asks Q500 and
+Q104 on the same port, at most every ``mdc_interval`` seconds (3 s by default: classic controls
+have frozen under fast serial polling, docs/haas.md#mdc-polling), between two listening
+windows: the connector owns the port, so a query never meets an XModem transfer. A control busy
+with something else (its own receive mode, a punch waiting for our NAK) does not answer; that
+poll reports the execution state as unknown and the link stays up (docs/haas.md#mdc).
 
 With ``dprnt = "serial"`` the lines the control prints on the same port are picked off while
 the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and handed to
@@ -60,6 +61,7 @@ class HaasSerialConnector:
         self._stream: ByteStream | None = None
         self._mdc: MdcClient | None = None
         self._tap: TapStream | None = None
+        self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
         self.on_dprnt: Callable[[CapturedLine], None] | None = None
         """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
 
@@ -88,7 +90,7 @@ class HaasSerialConnector:
     async def close(self) -> None:
         """Close the port."""
         stream, self._stream = self._stream, None
-        self._mdc = self._tap = None
+        self._mdc = self._tap = self._last = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
@@ -103,6 +105,9 @@ class HaasSerialConnector:
         if client is None:
             return MachineStatus(at=utcnow(), available=True, execution="READY")
         stream = self._require()
+        last = self._last
+        if last is not None and time.monotonic() - last[0] < self.config.mdc_interval:
+            return last[1]  # paced: a classic control is not asked more often than this
 
         def poll() -> MachineStatus:
             self._tapping("mdc")
@@ -116,7 +121,9 @@ class HaasSerialConnector:
                 self._tapping("off")
                 stream.set_timeout(1.0)
 
-        return await asyncio.to_thread(poll)
+        status = await asyncio.to_thread(poll)
+        self._last = (time.monotonic(), status)
+        return status
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
         """Send the program by XModem in checksum mode."""
