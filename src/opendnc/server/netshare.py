@@ -272,8 +272,8 @@ class NetShare:
 
     # ------------------------------------------------------------------ the task
     async def run(self) -> None:
-        """Scan every ``interval`` seconds until cancelled; one failed scan stops nothing."""
-        await asyncio.to_thread(self.load)
+        """Scan every ``interval`` seconds until cancelled; one failed scan (the database
+        away at start included: the first scan loads the state) stops nothing."""
         while True:
             try:
                 await self.scan()
