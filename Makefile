@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-dev
 
-.PHONY: demo test lint typecheck unit bench clean
+.PHONY: demo test lint typecheck unit bench clean generate
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -22,8 +22,8 @@ demo: $(VENV)/.installed-run
 	$(BIN)/opendnc demo
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks tools
+	$(BIN)/ruff format --check src tests benchmarks tools
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -33,9 +33,14 @@ unit: $(STAMP)
 
 test: lint typecheck unit
 
+# Regenerate derived sources (the blocking LSV2 client) after editing their originals.
+generate: $(STAMP)
+	$(BIN)/python tools/unasync.py
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/lsv2_transfer.py
 	$(BIN)/python benchmarks/xmodem.py
+	$(BIN)/python benchmarks/surface_report.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from opendnc.errors import InputError
 from opendnc.haas import macros
-from opendnc.haas.machine import MachineState
+from opendnc.sim.haas.machine import MachineState
 
 numbers = st.one_of(st.integers(-10, 60000), st.sampled_from([3000, 3901, 3902, 5081, 1063]))
 values = st.one_of(st.none(), st.floats(), st.integers(-(10**25), 10**25).map(float))

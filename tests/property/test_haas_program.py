@@ -8,9 +8,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from opendnc.errors import InputError
-from opendnc.haas.machine import MachineState
-from opendnc.haas.program import evaluate, parse_block, parse_expression
-from opendnc.haas.runner import BlockSource, ProgramRunner, RunnerEvent, StepResult
+from opendnc.sim.haas.machine import MachineState
+from opendnc.sim.haas.program import evaluate, parse_block, parse_expression
+from opendnc.sim.haas.runner import BlockSource, ProgramRunner, RunnerEvent, StepResult
 
 code_chars = st.text(alphabet="#[]+-*/=0123456789. GMXYZTPAHWNIFEQLTOD", max_size=40)
 tokens = st.sampled_from(
@@ -86,7 +86,7 @@ def test_any_program_ends_waits_or_alarms(lines: list[str]) -> None:
 
 @given(st.text(max_size=80))
 def test_program_header_and_lines_only_input_errors(text: str) -> None:
-    from opendnc.haas.program import parse_header, program_lines
+    from opendnc.sim.haas.program import parse_header, program_lines
 
     try:
         header = parse_header(text)

@@ -422,3 +422,47 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
         ).json()
         per_job = {i: sum(1 for r in starts if r["job_id"] == i) for i in ids}
         assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}
+
+
+def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
+    admin = shop.key("admin")
+    operator = shop.key("operator")
+    with shop.start_server() as client:
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=_auth(admin))
+        sent = client.post(
+            "/api/jobs",
+            headers=_auth(admin),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a"]},
+        )
+        _wait_jobs(client, admin, [sent.json()[0]["id"]])
+        path = "TNC:/nc_prog/O01234.nc"
+
+        def job(kind: str, machine: str, key: str = admin, where: str = path) -> Any:
+            return client.post(
+                "/api/jobs",
+                headers=_auth(key),
+                json={"kind": kind, "path": where, "machines": [machine]},
+            )
+
+        received = _wait_jobs(client, admin, [job("receive", "tnc-a").json()[0]["id"]])
+        assert received[0]["state"] == "done", received[0]["error"]
+        (item,) = client.get("/api/inbox", headers=_auth(admin)).json()
+        assert (item["name"], item["machine"]) == ("O01234.nc", "tnc-a")
+        content = client.get(f"/api/inbox/{item['id']}/content", headers=_auth(admin)).content
+        assert content == PROGRAM
+
+        backup = job("backup", "tnc-a", where="TNC:/nc_prog")
+        (done,) = _wait_jobs(client, admin, [backup.json()[0]["id"]])
+        assert done["state"] == "done", done["error"]
+        rows = client.get("/api/audit", headers=_auth(admin), params={"action": "job.backup"})
+        assert rows.json()[0]["detail"]["copied"] >= 1
+
+        assert job("delete", "tnc-a", operator).status_code == 403
+        deleted = _wait_jobs(client, admin, [job("delete", "tnc-a").json()[0]["id"]])
+        assert deleted[0]["state"] == "done", deleted[0]["error"]
+        refused = _wait_jobs(client, admin, [job("delete", "vf2-serial").json()[0]["id"]])
+        assert refused[0]["state"] == "failed"
+        assert refused[0]["attempts"] == 1  # a refusal is not retried
+        assert "RS-232 cannot delete" in refused[0]["error"]
+    assert not (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").exists()
+    assert (shop.tmp / "backups" / "tnc-a" / "O01234.nc").read_bytes() == PROGRAM

@@ -190,3 +190,116 @@ def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
     except Exception:
         return None
     return text
+
+
+@pytest.fixture
+def slow_haas(tmp_path: Path) -> Iterator[FleetThread]:
+    # 1000 blocks a second: a 6,000-line program (about 130 kB, more than the cable and the
+    # ptys buffer) runs about 6 s, long enough to stop it midway.
+    fleet = FleetThread(
+        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=1000, dnc_timeout=1.0
+    )
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+def test_dripfeed_interrupted_then_restarted_from_its_line(
+    tmp_path: Path, slow_haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    port = _free_port()
+    config = tmp_path / "shop.toml"
+    config.write_text(
+        server_config(
+            slow_haas.fleet,
+            bind=f"127.0.0.1:{port}",
+            poll_interval=0.5,
+            library=tmp_path / "lib",
+            dripfeed=True,
+        )
+    )
+    import subprocess
+    import sys
+
+    key = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "opendnc.cli.main",
+            "keys",
+            "create",
+            "--role",
+            "admin",
+            "--config",
+            str(config),
+            "--db",
+            db_url,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout.strip()
+    procs.start("server", "serve", "--config", str(config), "--db", db_url)
+    _wait("the server", _listening(port))
+    moves = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
+    program = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{moves}M30\n%\n".encode()
+    front = slow_haas.fleet.serial_ports["haas-serial-1"]
+    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+        _wait(
+            "the machine online",
+            lambda: client.get("/api/machines/haas-serial-1", headers=_auth(key)).json()["online"],
+        )
+        client.put("/api/programs/O03000.nc", content=program, headers=_auth(key))
+        started = client.post(
+            "/api/jobs",
+            headers=_auth(key),
+            json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
+        )
+        assert started.status_code == 201, started.text
+        job_id = started.json()[0]["id"]
+        _wait("the feed to be well under way", lambda: front.dnc_lines > 300)
+        assert client.post(f"/api/jobs/{job_id}/cancel", headers=_auth(key)).status_code == 200
+        first = _wait(
+            "the feed to stop",
+            lambda: (
+                (j := client.get(f"/api/jobs/{job_id}", headers=_auth(key)).json())["state"]
+                != "running"
+                and j
+            ),
+        )
+        assert first["state"] == "interrupted", first
+        assert "restart from there" in first["error"]
+        stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
+        total = program.count(b"\n")
+        assert 300 < stopped_at < total
+        # The control, starved, raises its DNC link alarm; the operator presses RESET and
+        # restarts from the line the server reports.
+        _wait(
+            "the control's DNC link alarm", lambda: front.messages, describe=lambda: front.messages
+        )
+        assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
+        control = slow_haas.fleet.sims["haas-serial-1"].control
+        slow_haas.call(control.reset)
+        lines_before, runs_before = front.dnc_lines, len(front.messages)
+
+        again = client.post(
+            f"/api/jobs/{job_id}/retry", headers=_auth(key), json={"from_line": stopped_at}
+        )
+        assert again.status_code == 201, again.text
+        (done,) = _wait_jobs_done(client, key, [again.json()["id"]])
+        assert done["state"] == "done", done["error"]
+        assert done["params"]["from_line"] == stopped_at
+        # The second run: the restart preamble, then the program from that line to M30.
+        _wait("the control to finish the run", lambda: len(front.messages) > runs_before)
+        assert front.messages[-1] == "RS232 DONE", front.messages
+        ran = front.dnc_lines - lines_before
+        remaining = total - stopped_at + 1
+        assert remaining <= ran <= remaining + 20, (ran, remaining)
+
+
+def _wait_jobs_done(client: httpx.Client, key: str, ids: list[int]) -> list[dict[str, Any]]:
+    from tests.server.test_end_to_end import _wait_jobs
+
+    return _wait_jobs(client, key, ids)

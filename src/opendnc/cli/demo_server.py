@@ -89,7 +89,11 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
     fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1)
     try:
         text = server_config(
-            fleet, bind=f"{host}:{port}", poll_interval=0.5, library=folder / "library"
+            fleet,
+            bind=f"{host}:{port}",
+            poll_interval=0.5,
+            library=folder / "library",
+            dripfeed=True,  # a virtual machine: nothing moves
         )
         (folder / "shop.toml").write_text(text)
         shop = parse_config(text, base=folder, source=folder / "shop.toml")

@@ -26,7 +26,10 @@ app = typer.Typer(help="Capture DPRNT output from a Haas.", no_args_is_help=True
 @app.command("listen")
 def listen(
     port: str = typer.Option(
-        ..., "--port", help="Serial port / pyserial URL, or tcp://HOST:PORT (NGC Setting 263)."
+        ...,
+        "--port",
+        help="Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT (NGC Setting 263), "
+        "socket:// or rfc2217://.",
     ),
     csv_path: Path | None = typer.Option(None, "--csv", help="Append lines to this CSV file."),
     jsonl_path: Path | None = typer.Option(None, "--jsonl", help="Append lines as JSON Lines."),
@@ -36,6 +39,11 @@ def listen(
         None, "--max-connects", help="Stop after N connections ended (default: reconnect forever)."
     ),
     json_out: bool = typer.Option(False, "--json", help="Print each line as JSON on stdout."),
+    retry: bool = typer.Option(
+        False,
+        "--retry",
+        help="Keep trying while the port does not open (default: fail at once with the reason).",
+    ),
 ) -> None:
     """Timestamp, parse and store every DPRNT line; reconnect with backoff on disconnect.
 
@@ -58,6 +66,7 @@ def listen(
             sinks,
             opener=lambda spec: open_source(spec, baudrate=baud),
             on_status=lambda message: err_console.print(f"[dim]{message}[/]", highlight=False),
+            retry_unopened=retry,
         )
         try:
             stats = listener.run(max_lines=max_lines, max_connects=max_connects)

@@ -6,6 +6,7 @@ Sub-groups live in their own Typer apps (``macro``, ``share``); a new command is
 
 from __future__ import annotations
 
+import contextlib
 import re
 from pathlib import Path
 
@@ -247,7 +248,12 @@ def share_push(
 @app.command("dnc")
 def dnc_cmd(
     file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
-    port: str = typer.Option(..., "--port", help="Serial device or pyserial URL."),
+    port: str = typer.Option(
+        ...,
+        "--port",
+        help="Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT or socket:// (serial server), "
+        "rfc2217://.",
+    ),
     from_line: int = typer.Option(
         1, "--from-line", help="Restart at this file line (modal header re-sent first)."
     ),
@@ -273,7 +279,15 @@ def dnc_cmd(
     """Drip-feed FILE to a control in DNC mode, with XON/XOFF handled by opendnc."""
     from rich.progress import TimeRemainingColumn
 
-    from opendnc.haas.dnc import DncConfig, DncEvent, Flow, Paused, stream_program
+    from opendnc.haas.dnc import (
+        DncConfig,
+        DncEvent,
+        Flow,
+        Paused,
+        open_dnc_port,
+        stream_program,
+    )
+    from opendnc.transport.base import PortStream
     from opendnc.xmodem.haas import Eob
 
     with cli_errors():
@@ -288,7 +302,15 @@ def dnc_cmd(
             )
         except ValueError as exc:
             raise InputError(f"bad option: {exc}") from None
-        with _transfer_bar("dnc {task.fields[state]}", json_out, TimeRemainingColumn()) as bar:
+        # the port opens before the bar (one error line if it does not), but only for a run
+        # that may start: a locked one is refused before any port is touched
+        link: str | PortStream = port
+        if unsafe:
+            link = open_dnc_port(port, baud, parity=parity, flow=config.flow)
+        with (
+            contextlib.closing(link) if not isinstance(link, str) else contextlib.nullcontext(),
+            _transfer_bar("dnc {task.fields[state]}", json_out, TimeRemainingColumn()) as bar,
+        ):
             task = bar.add_task("dnc", total=file.stat().st_size, state="[green]run[/]")
 
             def on_event(event: DncEvent) -> None:
@@ -296,11 +318,9 @@ def dnc_cmd(
                 bar.update(task, state="[yellow]XOFF[/]" if paused else "[green]run[/]")
 
             report = stream_program(
-                port,
+                link,
                 file,
                 from_line=from_line,
-                baud=baud,
-                parity=parity,
                 config=config,
                 safe_mode=not unsafe,
                 progress=lambda done, total: bar.update(task, completed=done),

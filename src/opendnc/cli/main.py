@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 
 from opendnc import __version__
-from opendnc.cli import demo_server, dprnt, haas, lsv2, serve, sim, xmodem
+from opendnc.cli import demo_server, dprnt, haas, lsv2, serve, sim, surface, xmodem
 
 app = typer.Typer(
     name="opendnc",
@@ -18,6 +18,7 @@ app.add_typer(sim.app, name="sim")
 app.add_typer(xmodem.app, name="xmodem")
 app.add_typer(haas.app, name="haas")
 app.add_typer(dprnt.app, name="dprnt")
+app.add_typer(surface.app, name="surface")
 app.command("demo")(demo_server.demo)
 app.command("serve")(serve.serve)
 app.add_typer(serve.keys_app, name="keys")

@@ -7,12 +7,15 @@ import sys
 import threading
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import typer
 
 from opendnc.cli.common import cli_errors, err_console, print_json
 from opendnc.errors import TransportError
-from opendnc.sim.cable import CableStats, LaneStats, VirtualCable
+
+if TYPE_CHECKING:  # the cable runs on ptys: load it only when the command runs (POSIX)
+    from opendnc.sim.cable import CableStats, LaneStats
 
 
 def _lane_line(name: str, lane: LaneStats) -> str:
@@ -66,6 +69,8 @@ def cable(
 
         previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
+            from opendnc.sim.cable import VirtualCable
+
             virtual = VirtualCable(
                 baud,
                 bits_per_char,

@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib
-import importlib.util
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from opendnc.cli.common import cli_errors, err_console
 from opendnc.errors import InputError, TransportError
 from opendnc.haas.mdc import ControlType
-from opendnc.sim.haas.app import SERIAL_FRONT_END, SimHaas, SimOptions
+from opendnc.sim.haas.app import SimHaas, SimOptions
 from opendnc.sim.haas.control import DprntDestination, HaasConfig
 from opendnc.sim.haas.surface import parse_surface
+
+if TYPE_CHECKING:
+    from opendnc.sim.haas.serial_front import SerialOptions
 
 
 def parse_dprnt(spec: str | None, root: Path) -> tuple[DprntDestination, int | None, Path | None]:
@@ -53,7 +55,7 @@ def haas(
         None,
         "--surface",
         help="Probing surface: flat:z, plane:a,b,c, sine:amp,period[,z0], "
-        "wave:amp,period[,z0], bowl:depth,radius[,cx,cy[,z0]].",
+        "wave:amp,period[,z0], bowl:depth,radius[,cx,cy[,z0]], csv:PATH (x,y,z height map).",
     ),
     block_rate: float = typer.Option(0.0, "--block-rate", help="Blocks per second (0 = max)."),
     run: int | None = typer.Option(None, "--run", help="Start this stored program (O number)."),
@@ -61,6 +63,10 @@ def haas(
     strict_probe: bool = typer.Option(
         False, "--strict-probe", help="Alarm when no surface lies within the H search distance."
     ),
+    probe_noise: float = typer.Option(
+        1.0, "--probe-noise", help="Probe repeatability, 1 sigma in micrometres (0 = exact)."
+    ),
+    probe_seed: int | None = typer.Option(None, "--probe-seed", help="Seed for probe noise."),
     trace: bool = typer.Option(False, "--trace", help="Print MDC traffic on stderr."),
     serial_mode: str = typer.Option(
         "auto",
@@ -86,11 +92,6 @@ def haas(
         wants_serial = (
             serial is not None or baud is not None or destination is DprntDestination.SERIAL
         )
-        if wants_serial and importlib.util.find_spec(SERIAL_FRONT_END) is None:
-            raise InputError(
-                "serial front-end not available yet: --serial, --baud and --dprnt serial "
-                "need opendnc.sim.haas.serial_front"
-            )
         if wants_serial and serial is None:
             raise InputError("--baud / --dprnt serial need --serial PORT")
         config = HaasConfig(
@@ -101,6 +102,8 @@ def haas(
             dprnt_file=str(dprnt_file or ""),
             dprnt_port=dprnt_port or 0,
             strict_probe=strict_probe,
+            probe_noise_um=probe_noise,
+            probe_seed=probe_seed,
             surface=parse_surface(surface) if surface else None,
         )
         options = SimOptions(
@@ -131,7 +134,7 @@ async def _serve(
     serial: str | None,
     baud: int,
     run: int | None,
-    serial_options: object = None,
+    serial_options: SerialOptions | None = None,
 ) -> None:
     sim = SimHaas(config, root, options)
     if options.trace is not None:
@@ -141,8 +144,10 @@ async def _serve(
     await sim.start()
     try:
         if serial is not None:
-            module = importlib.import_module(SERIAL_FRONT_END)
-            front = await module.start_serial(sim, serial, baud, options.trace, serial_options)
+            # imported here: only --serial needs the front-end (and pyserial behind it)
+            from opendnc.sim.haas.serial_front import start_serial
+
+            front = await start_serial(sim, serial, baud, options.trace, serial_options)
             front.on_message = lambda text: print(text, flush=True)  # RS232 DONE / ABORT
             sim.add_front_end(front)
             print(f"SERIAL {serial} {baud}", flush=True)
@@ -166,10 +171,8 @@ async def _serve(
 
 def _serial_options(
     mode: str, baud: int, parity: str, eob: str, dnc_timeout: float, quirks: bool
-) -> object:
-    """The serial front-end's options (imported lazily: the front-end is optional)."""
-    if importlib.util.find_spec(SERIAL_FRONT_END) is None:
-        return None
+) -> SerialOptions:
+    """The serial front-end's options (imported here: only --serial needs them)."""
     from opendnc.sim.haas.serial_front import SerialOptions, parse_mode
     from opendnc.sim.haas.serial_xmodem import XmodemQuirks
     from opendnc.xmodem.haas import Eob

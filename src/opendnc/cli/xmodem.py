@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import typer
@@ -16,7 +17,7 @@ from rich.progress import (
 
 from opendnc.cli.common import cli_errors, console, err_console, print_json
 from opendnc.xmodem.events import EotAnswer, Event, FallbackToSmall, Retry
-from opendnc.xmodem.files import receive_file, send_file
+from opendnc.xmodem.files import open_port, receive_file, send_file
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob
 from opendnc.xmodem.receiver import ReceiverConfig
@@ -24,7 +25,7 @@ from opendnc.xmodem.sender import SenderConfig
 
 app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
 
-PORT_HELP = "Serial device or pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, rfc2217://..."
+PORT_HELP = "Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT, socket://HOST:PORT, rfc2217://..."
 
 
 def _progress() -> Progress:
@@ -65,14 +66,14 @@ def send_cmd(
     config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
     with cli_errors():
         size = file.stat().st_size
-        with _progress() as bar:
+        # the port opens before the bar: a port that does not open is one error line
+        stream = open_port(port, baud, parity.upper())
+        with contextlib.closing(stream), _progress() as bar:
             task = bar.add_task(f"send {file.name}", total=size)
             report = send_file(
-                port,
+                stream,
                 file,
                 mode=mode,
-                baud=baud,
-                parity=parity.upper(),
                 eob=eob,
                 config=config,
                 progress=lambda done, total: bar.update(task, completed=done, total=total),
@@ -118,14 +119,17 @@ def recv_cmd(
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )
-    with cli_errors(), _progress() as bar:
+    # the port opens before the bar: a port that does not open is one error line
+    with (
+        cli_errors(),
+        contextlib.closing(open_port(port, baud, parity.upper())) as stream,
+        _progress() as bar,
+    ):
         task = bar.add_task("receive", total=None)
         report = receive_file(
-            port,
+            stream,
             out,
             mode=mode,
-            baud=baud,
-            parity=parity.upper(),
             eob=eob,
             config=config,
             progress=lambda done, _total: bar.update(task, completed=done),

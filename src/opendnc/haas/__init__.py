@@ -1,3 +1,4 @@
 """Haas controls: DPRNT (:mod:`.dprnt`, :mod:`.listen`), MDC Q/E commands (:mod:`.mdc`,
-:mod:`.mdc_client`), a program runner (:mod:`.program`, :mod:`.machine`, :mod:`.runner`) and
-Net Share push (:mod:`.share`)."""
+:mod:`.mdc_client`), drip-feed (:mod:`.dnc`, :mod:`.modal`) and Net Share push (:mod:`.share`).
+
+The G-code interpreter the virtual Haas runs lives with it, in :mod:`opendnc.sim.haas`."""

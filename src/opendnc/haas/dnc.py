@@ -1,20 +1,14 @@
 """Drip-feed (DNC) a program to a Haas over RS-232, with XON/XOFF done by us.
 
-The control runs blocks as they arrive and throttles the PC with flow control: it sends DC3
-(XOFF, 0x13) when its small buffer is full and DC1 (XON, 0x11) when it has room again. Several
-USB-serial drivers do not honour XOFF in the kernel (docs/haas.md#flow-control), so opendnc
-implements it itself: bytes go out in small writes (``chunk``), every write is preceded by a
-look at what the control sent, and nothing more is written after a DC3 until the DC1.
+The decisions live in the sans-IO engine, :mod:`opendnc.haas.dnc_engine` (its names are
+re-exported here); this module holds its two drivers, which only carry out the engine's steps:
 
-* :class:`DncStreamer` -- the sans-IO core: bytes to stream in, flow bytes in, small chunks out,
-  a :class:`~opendnc.xmodem.events.Timer` for the XOFF timeout (the clock stays outside).
-* :class:`ProgramFeed` -- the program from disk as wire lines, line by line (constant memory),
-  optionally restarted at a line with :func:`opendnc.haas.modal.restart_preamble`.
-* :class:`DncRun` -- one run's bookkeeping, shared by both drivers;
-* :func:`stream_program` -- the blocking driver over any pyserial port or URL;
-  :func:`stream_program_async` -- the asyncio driver over stream reader/writer.
+* :func:`stream_program` -- blocking, over any port :func:`opendnc.transport.open_stream`
+  opens (a device, ``socket://`` or ``tcp://`` to a serial server, ``rfc2217://``) or an
+  open :class:`~opendnc.transport.base.PortStream`;
+* :func:`stream_program_async` -- asyncio, over a stream reader and writer.
 
-Drip-feeding makes the machine move, so :func:`stream_program` refuses with
+Drip-feeding makes the machine move, so both refuse with
 :class:`~opendnc.errors.SafetyLockError` unless ``safe_mode=False``.
 """
 
@@ -22,361 +16,87 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import enum
-import os
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import serial
-
-from opendnc.errors import (
-    InputError,
-    PeerClosed,
-    SafetyLockError,
-    TransportError,
-    TransportTimeout,
+from opendnc.errors import PeerClosed, SafetyLockError, TransportError, TransportTimeout
+from opendnc.haas.dnc_engine import (
+    POLL,
+    XOFF,
+    XON,
+    Clock,
+    DncConfig,
+    DncEvent,
+    DncReport,
+    DncRun,
+    DncStreamer,
+    Drain,
+    EventHandler,
+    Finish,
+    Flow,
+    Paused,
+    ProgramFeed,
+    Progress,
+    Resumed,
+    Send,
+    Step,
+    Wait,
 )
-from opendnc.haas.modal import ModalState, RestartPlan, restart_preamble, track
-from opendnc.transport.serial import open_serial
-from opendnc.xmodem.events import Timer
-from opendnc.xmodem.haas import Eob
+from opendnc.transport.base import PortStream
+from opendnc.transport.urls import open_stream
 
-XON = 0x11  # DC1: resume
-XOFF = 0x13  # DC3: pause
+__all__ = [
+    "POLL",
+    "WRITE_TIMEOUT",
+    "XOFF",
+    "XON",
+    "Clock",
+    "DncConfig",
+    "DncEvent",
+    "DncReport",
+    "DncRun",
+    "DncStreamer",
+    "Drain",
+    "EventHandler",
+    "Finish",
+    "Flow",
+    "Paused",
+    "ProgramFeed",
+    "Progress",
+    "Resumed",
+    "Send",
+    "Step",
+    "Wait",
+    "open_dnc_port",
+    "stream_program",
+    "stream_program_async",
+]
 
-
-class Flow(enum.Enum):
-    """Setting 14 (synchronisation) as the PC sees it."""
-
-    XONXOFF = "xonxoff"  # we watch for DC3/DC1 ourselves
-    RTSCTS = "rtscts"  # the port's hardware handshake holds our writes
-    NONE = "none"
-
-
-@dataclass(frozen=True, slots=True)
-class DncConfig:
-    """How to stream. ``chunk`` bounds how far we overrun a DC3 (plus the UART's own FIFO)."""
-
-    flow: Flow = Flow.XONXOFF
-    chunk: int = 16  # bytes per write
-    xoff_timeout: float = 120.0  # give up if XOFF lasts longer (0 = wait forever)
-    eob: Eob = Eob.LF
-    drain: bool = True  # wait for each chunk to leave the port before the next check
-    retract: bool = True  # restart preamble retracts Z (G91 G28 Z0.)
-    # keep the port open this long after the last byte: closing a port can discard what a
-    # USB adapter (or a pty) still holds, and the closing % must reach the control
-    linger: float = 0.25
-    # start only after the control's first DC1 (it announces readiness), as DNC packages offer
-    wait_for_xon: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class Paused:
-    """The control sent XOFF after ``sent`` bytes."""
-
-    sent: int
+READ_SIZE = 4096  # the control sends flow bytes, a DPRNT line at most: any size will do
+WRITE_TIMEOUT = 30.0  # seconds a write may wait: a held CTS ends in a clear error, not a hang
 
 
-@dataclass(frozen=True, slots=True)
-class Resumed:
-    """The control sent XON after ``sent`` bytes."""
-
-    sent: int
-
-
-DncEvent = Paused | Resumed
-
-
-class DncStreamer:
-    """Sans-IO flow control: ``queue()`` bytes, ``receive_data()`` what the control sends,
-    write ``data_to_send()`` (empty while paused); call ``timed_out()`` when ``timer`` ran out.
-    """
-
-    def __init__(self, config: DncConfig | None = None) -> None:
-        self.config = config or DncConfig()
-        if self.config.chunk < 1:
-            raise InputError("chunk must be at least 1 byte")
-        self._out = bytearray()
-        self._events: list[DncEvent] = []
-        self._serial = 0
-        self.timer: Timer | None = None
-        self.paused = False
-        if self.config.wait_for_xon and self.config.flow is Flow.XONXOFF:
-            self.paused = True
-            self._arm()
-        self.sent = 0
-        self.xoffs = 0
-        self.xons = 0
-        self.other = 0  # bytes from the control that are not flow control (NAK, DPRNT...)
-
-    @property
-    def pending(self) -> int:
-        """Bytes queued but not handed out yet."""
-        return len(self._out)
-
-    def queue(self, data: bytes) -> None:
-        """Add bytes to stream."""
-        self._out += data
-
-    def receive_data(self, data: bytes) -> None:
-        """Bytes from the control: the last DC1/DC3 decides; anything else is counted."""
-        if self.config.flow is not Flow.XONXOFF:
-            self.other += len(data)
-            return
-        for byte in data:
-            if byte == XOFF:
-                self.xoffs += 1
-                if not self.paused:
-                    self.paused = True
-                    self._events.append(Paused(self.sent))
-                    self._arm()
-            elif byte == XON:
-                self.xons += 1
-                if self.paused:
-                    self.paused = False
-                    self.timer = None
-                    self._events.append(Resumed(self.sent))
-            else:
-                self.other += 1
-
-    def _arm(self) -> None:
-        if self.config.xoff_timeout > 0:
-            self._serial += 1
-            self.timer = Timer(self._serial, self.config.xoff_timeout)
-
-    def data_to_send(self) -> bytes:
-        """The next chunk to write (at most ``chunk`` bytes), or ``b""`` while paused."""
-        if self.paused or not self._out:
-            return b""
-        size = self.config.chunk
-        out = bytes(self._out[:size])
-        del self._out[:size]
-        self.sent += len(out)
-        return out
-
-    def timed_out(self) -> None:
-        """The XOFF timer ran out: raise the typed error."""
-        if self.paused and self.timer is not None:
-            if self.sent == 0 and self.xons == 0 and self.config.wait_for_xon:
-                raise TransportTimeout(
-                    f"no XON from the control within {self.config.xoff_timeout:g} s "
-                    "(is it waiting in DNC mode?)"
-                )
-            raise TransportTimeout(
-                f"the control held XOFF for more than {self.config.xoff_timeout:g} s "
-                f"after {self.sent} bytes (feed hold, alarm or a lost XON?)"
-            )
-
-    def next_event(self) -> DncEvent | None:
-        """The next Paused/Resumed event, or ``None``."""
-        return self._events.pop(0) if self._events else None
-
-
-class ProgramFeed:
-    """A program file as wire lines, read lazily; ``position`` is how far the file was read.
-
-    The stream always starts with a ``%`` line and ends with one (added when the file lacks
-    them). With ``from_line`` > 1 the lines before it are only scanned for their modal state,
-    and the preamble from :func:`~opendnc.haas.modal.restart_preamble` replaces them.
-    """
-
-    def __init__(
-        self,
-        path: Path,
-        *,
-        eob: Eob = Eob.LF,
-        from_line: int = 1,
-        retract: bool = True,
-    ) -> None:
-        if from_line < 1:
-            raise InputError(f"--from-line must be 1 or more, got {from_line}")
-        try:
-            self.total = path.stat().st_size
-            self._file = path.open("rb")
-        except OSError as exc:
-            raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
-        self.path = path
-        self.eob = eob
-        self.from_line = from_line
-        self.retract = retract
-        self.position = 0
-        self.lines = 0  # lines handed out (preamble included)
-        self.plan: RestartPlan | None = None
-
-    def close(self) -> None:
-        """Close the file."""
-        self._file.close()
-
-    def _read_lines(self) -> Iterator[tuple[int, str]]:
-        for number, raw in enumerate(self._file, start=1):
-            self.position += len(raw)
-            text = raw.rstrip(b"\r\n").decode("latin-1")
-            if "\r" in text:  # old Mac-style files: CR only
-                for part in text.split("\r"):
-                    yield number, part
-            else:
-                yield number, text
-
-    def __iter__(self) -> Iterator[bytes]:
-        wire = self.eob.wire
-        lines = self._read_lines()
-        opened = False
-        last = ""
-        if self.from_line > 1:
-            state = ModalState()
-            for number, text in lines:
-                if number >= self.from_line:
-                    self.plan = restart_preamble(state, self.from_line, retract=self.retract)
-                    for block in self.plan.preamble:
-                        self.lines += 1
-                        yield block.encode("latin-1") + wire
-                    opened = True
-                    if text.strip():
-                        last = text.strip()
-                        self.lines += 1
-                        yield text.encode("latin-1") + wire
-                    break
-                state = track(state, text)
-            else:
-                raise InputError(f"{self.path} has fewer than {self.from_line} lines")
-        for _number, text in lines:
-            stripped = text.strip()
-            if not stripped:
-                continue  # empty blocks only waste the control's buffer
-            if not opened:
-                opened = True
-                if stripped != "%":
-                    self.lines += 1
-                    yield b"%" + wire
-            last = stripped
-            self.lines += 1
-            yield text.encode("latin-1") + wire
-        if last != "%":
-            self.lines += 1
-            yield b"%" + wire
-
-
-@dataclass(frozen=True, slots=True)
-class DncReport:
-    """What :func:`stream_program` did."""
-
-    path: Path
-    bytes_sent: int
-    lines: int
-    xoffs: int  # DC3 received
-    xons: int  # DC1 received
-    paused_seconds: float  # total time held by XOFF
-    seconds: float
-    restart: RestartPlan | None
-
-
-Progress = Callable[[int, int], None]  # (file bytes consumed, file size)
-EventHandler = Callable[[DncEvent], None]
-Clock = Callable[[], float]
-POLL = 0.05
-
-
-class DncRun:
-    """One drip-feed as both drivers run it: feed, streamer, clock-side timer, accounting.
-
-    A driver calls :meth:`fill` and :meth:`outgoing` to get bytes to write, :meth:`incoming`
-    with what the control sent, and :meth:`wait_time` while paused (it raises the XOFF timeout).
-    """
-
-    def __init__(
-        self,
-        feed: ProgramFeed,
-        config: DncConfig,
-        *,
-        clock: Clock = time.monotonic,
-        progress: Progress | None = None,
-        on_event: EventHandler | None = None,
-    ) -> None:
-        self.feed = feed
-        self.config = config
-        self.streamer = DncStreamer(config)
-        self.clock = clock
-        self.progress = progress
-        self.on_event = on_event
-        self.started = clock()
-        self._lines = iter(feed)
-        self._exhausted = False
-        self._low_water = config.chunk * 4
-        self._paused_at = self.started  # counts when waiting for the first XON
-        self._paused_total = 0.0
-        self._timer_serial = -1
-        self._deadline = float("inf")
-
-    def fill(self) -> None:
-        """Read program lines until a few chunks are queued (constant memory)."""
-        streamer = self.streamer
-        while not self._exhausted and streamer.pending < self._low_water:
-            try:
-                streamer.queue(next(self._lines))
-            except StopIteration:
-                self._exhausted = True
-
-    @property
-    def finished(self) -> bool:
-        """Every byte of the program was handed out."""
-        return self._exhausted and self.streamer.pending == 0
-
-    def incoming(self, data: bytes) -> None:
-        """Bytes from the control (flow control, or anything else it sends)."""
-        self.streamer.receive_data(data)
-        while (event := self.streamer.next_event()) is not None:
-            if isinstance(event, Paused):
-                self._paused_at = self.clock()
-            else:
-                self._paused_total += self.clock() - self._paused_at
-            if self.on_event is not None:
-                self.on_event(event)
-
-    def outgoing(self) -> bytes:
-        """The next chunk to write (empty while paused or when done)."""
-        self.fill()
-        out = self.streamer.data_to_send()
-        if out and self.progress is not None:
-            self.progress(self.feed.position, self.feed.total)
-        return out
-
-    def wait_time(self) -> float:
-        """Seconds a paused driver may wait for input; raises once XOFF lasted too long."""
-        timer = self.streamer.timer
-        if timer is None:
-            return POLL
-        now = self.clock()
-        if timer.serial != self._timer_serial:
-            self._timer_serial, self._deadline = timer.serial, now + timer.seconds
-        if now >= self._deadline:
-            self.streamer.timed_out()
-        return max(0.001, min(POLL, self._deadline - now))
-
-    def report(self) -> DncReport:
-        """What the run did."""
-        feed, streamer = self.feed, self.streamer
-        if self.progress is not None:
-            self.progress(feed.total, feed.total)
-        return DncReport(
-            path=feed.path,
-            bytes_sent=streamer.sent,
-            lines=feed.lines,
-            xoffs=streamer.xoffs,
-            xons=streamer.xons,
-            paused_seconds=self._paused_total,
-            seconds=self.clock() - self.started,
-            restart=feed.plan,
-        )
-
-
-def _open(url: str, baud: int, parity: str, flow: Flow) -> Any:
-    port = open_serial(url, baud, parity=parity, rtscts=flow is Flow.RTSCTS, timeout=POLL)
-    # a held CTS must end in a clear error, not a hang
-    port.write_timeout = 30.0
-    return port
+def open_dnc_port(
+    url: str,
+    baud: int = 9600,
+    *,
+    parity: str = "N",
+    bytesize: int = 8,
+    stopbits: float = 1,
+    flow: Flow = Flow.XONXOFF,
+) -> PortStream:
+    """Open ``url`` for a drip-feed: XON/XOFF stays ours (never the driver's), RTS/CTS is
+    the port's, reads wait :data:`POLL` at most and writes :data:`WRITE_TIMEOUT`."""
+    return open_stream(
+        url,
+        baud,
+        parity=parity,
+        bytesize=bytesize,
+        stopbits=stopbits,
+        flow="rtscts" if flow is Flow.RTSCTS else "none",
+        timeout=POLL,
+        write_timeout=WRITE_TIMEOUT,
+    )
 
 
 def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
@@ -386,64 +106,75 @@ def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> 
 
 
 def stream_program(
-    port: str | Any,
+    port: str | PortStream,
     path: Path,
     *,
     from_line: int = 1,
     baud: int = 9600,
     parity: str = "N",
+    bytesize: int = 8,
+    stopbits: float = 1,
     config: DncConfig | None = None,
     safe_mode: bool = True,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
     clock: Clock = time.monotonic,
 ) -> DncReport:
-    """Drip-feed ``path`` to a control in DNC mode over ``port`` (a URL or an open pyserial port).
+    """Drip-feed ``path`` to a control in DNC mode over ``port``: a URL or device name
+    (opened with :func:`open_dnc_port`, closed at the end) or an open stream (left open;
+    its read timeout is changed).
 
     Raises :class:`SafetyLockError` while ``safe_mode`` is on (a DNC run moves the machine),
-    :class:`TransportTimeout` when XOFF lasts longer than ``config.xoff_timeout``, and
-    :class:`TransportError`/:class:`PeerClosed` when the port fails.
+    :class:`TransportTimeout` when XOFF lasts longer than ``config.xoff_timeout`` or a write
+    is held back longer than :data:`WRITE_TIMEOUT`, and :class:`TransportError` /
+    :class:`PeerClosed` when the port fails.
     """
     cfg = config or DncConfig()
     feed = _prepare(path, from_line, cfg, safe_mode)
     owned = isinstance(port, str)
     try:
-        link: Any = _open(port, baud, parity, cfg.flow) if isinstance(port, str) else port
+        stream = (
+            open_dnc_port(
+                port, baud, parity=parity, bytesize=bytesize, stopbits=stopbits, flow=cfg.flow
+            )
+            if isinstance(port, str)
+            else port
+        )
     except BaseException:
         feed.close()
         raise
     run = DncRun(feed, cfg, clock=clock, progress=progress, on_event=on_event)
+    timeout: float | None = None
     try:
         while True:
             # look at the control's bytes before every write: a DC3 stops the next chunk
-            waiting = link.in_waiting
-            if waiting:
-                run.incoming(link.read(waiting))
-            out = run.outgoing()
-            if out:
-                link.write(out)
-                if cfg.drain:
-                    link.flush()
-                continue
-            if run.finished:
+            try:
+                run.incoming(stream.read_nowait(READ_SIZE))
+            except PeerClosed:
+                run.link_closed()
+            step = run.next_step()
+            if isinstance(step, Send):
+                stream.write(step.data)
+                if step.drain:
+                    stream.drain()
+            elif isinstance(step, Wait):
+                if step.seconds != timeout:
+                    timeout = step.seconds
+                    stream.set_timeout(timeout)
+                try:
+                    run.incoming(stream.read(READ_SIZE))
+                except TransportTimeout:
+                    pass
+                except PeerClosed:
+                    run.link_closed()
+            elif isinstance(step, Drain):
+                stream.drain()
+            else:
                 break
-            run.wait_time()  # paused; the port's read timeout (POLL) paces this loop
-            data = link.read(1)
-            if data:
-                run.incoming(data)
-        link.flush()
-        time.sleep(cfg.linger)
-    except serial.SerialTimeoutException as exc:
-        raise TransportTimeout(f"write to {path.name} port timed out (CTS held off?)") from exc
-    except serial.SerialException as exc:
-        raise PeerClosed(f"serial port failed during the drip-feed: {exc}") from exc
-    except OSError as exc:
-        reason = os.strerror(exc.errno or 0)
-        raise TransportError(f"serial port failed during the drip-feed: {reason}") from exc
     finally:
         feed.close()
         if owned:
-            link.close()
+            stream.close()
     return run.report()
 
 
@@ -460,40 +191,37 @@ async def stream_program_async(
 ) -> DncReport:
     """:func:`stream_program` over asyncio streams (e.g. a serial server reached over TCP).
 
-    A reader task takes the control's bytes as they come; the writer sends one chunk at a
-    time and yields in between, so a DC3 stops it before the next chunk.
+    A reader task hands the control's bytes to the engine as they come; the writer sends one
+    chunk at a time and yields in between, so a DC3 stops it before the next chunk.
     """
     cfg = config or DncConfig()
     feed = _prepare(path, from_line, cfg, safe_mode)
     run = DncRun(feed, cfg, progress=progress, on_event=on_event)
     news = asyncio.Event()
-    closed = False
 
     async def read_control() -> None:
-        nonlocal closed
-        while data := await reader.read(4096):
+        while data := await reader.read(READ_SIZE):
             run.incoming(data)
             news.set()
-        closed = True
+        run.link_closed()
         news.set()
 
     reading = asyncio.create_task(read_control())
     try:
         while True:
-            out = run.outgoing()
-            if out:
-                writer.write(out)
+            step = run.next_step()
+            if isinstance(step, Send):
+                writer.write(step.data)
                 await writer.drain()
                 await asyncio.sleep(0)  # let the reader task see a DC3 first
-                continue
-            if run.finished:
+            elif isinstance(step, Wait):
+                news.clear()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(news.wait(), step.seconds)
+            elif isinstance(step, Drain):
+                await writer.drain()
+            else:
                 break
-            if closed:
-                raise PeerClosed(f"the control closed the link after {run.streamer.sent} bytes")
-            news.clear()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(news.wait(), run.wait_time())
-        await asyncio.sleep(cfg.linger)
     except OSError as exc:
         raise TransportError(f"link failed during the drip-feed: {exc}") from exc
     finally:

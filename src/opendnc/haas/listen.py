@@ -39,7 +39,7 @@ from opendnc.haas.dprnt import (
     parse_line,
 )
 from opendnc.transport.base import ByteStream
-from opendnc.transport.serial import open_stream
+from opendnc.transport.urls import open_stream
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,7 +62,7 @@ class CapturedLine:
 
 def open_source(spec: str, *, baudrate: int = 9600, timeout: float = 0.5) -> ByteStream:
     """Open ``tcp://HOST:PORT`` or ``socket://HOST:PORT`` as TCP, anything else as a pyserial
-    URL or device (:func:`~opendnc.transport.serial.open_stream`); a malformed address is an
+    URL or device (:func:`~opendnc.transport.urls.open_stream`); a malformed address is an
     :class:`InputError`, not something to retry."""
     return open_stream(spec, baudrate, timeout=timeout)
 
@@ -182,6 +182,8 @@ class DprntListener:
 
     ``opener`` opens the link (default :func:`open_source`); ``now`` and ``sleep`` are the
     injected clock. ``on_status`` receives human-readable connect/disconnect messages.
+    A link that drops is reopened with backoff; with ``retry_unopened=False`` a port that
+    does not open the first time raises its :class:`TransportError` instead.
     """
 
     def __init__(
@@ -195,6 +197,7 @@ class DprntListener:
         backoff_start: float = 0.5,
         backoff_max: float = 10.0,
         on_status: Callable[[str], None] = lambda message: None,
+        retry_unopened: bool = True,
     ) -> None:
         self.source = source
         self.sinks = sinks
@@ -206,6 +209,7 @@ class DprntListener:
         self.sleep = sleep or self.stop_event.wait
         self.backoff_start, self.backoff_max = backoff_start, backoff_max
         self.on_status = on_status
+        self.retry_unopened = retry_unopened
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (from another thread or a sink)."""
@@ -238,6 +242,8 @@ class DprntListener:
                 stream = self.opener(self.source)
             except TransportError as exc:
                 self.stats.errors += 1
+                if not self.retry_unopened and self.stats.connects == 0:
+                    raise  # never opened: a wrong port, not a dropped link
                 self.on_status(f"cannot open {self.source}: {exc}; retrying in {delay:g} s")
                 self.sleep(delay)
                 delay = min(delay * 2, self.backoff_max)

@@ -1,4 +1,4 @@
-# Generated from aio.py by opendnc.lsv2._unasync; edit aio.py, then regenerate.
+# Generated from aio.py by tools/unasync.py; edit aio.py, then regenerate.
 """Blocking LSV2 client: :class:`Client`.
 
 Usage::

@@ -46,7 +46,15 @@ from opendnc.lsv2.messages import (
     decode,
 )
 
-__all__ = ["BytesHook", "Direction", "Lsv2Connection", "Role", "State", "TraceHook"]
+__all__ = [
+    "BytesHook",
+    "Direction",
+    "Lsv2Connection",
+    "Role",
+    "State",
+    "TraceHook",
+    "UndecodableTelegram",
+]
 
 # Telegrams without a payload have the same 8 wire bytes every time; T_OK alone is sent once
 # per file block, so it is worth not packing it again (they fit any buffer size).
@@ -57,6 +65,26 @@ _FIXED_WIRE: dict[type[Message], bytes] = {
 Direction = Literal["send", "recv"]
 TraceHook = Callable[[Direction, Message], None]
 BytesHook = Callable[[Direction, bytes], None]
+
+
+class UndecodableTelegram(RemoteProtocolError):
+    """A complete telegram arrived whose payload does not decode; framing is still intact.
+
+    Unlike other :class:`RemoteProtocolError` raised by :meth:`Lsv2Connection.next_event`
+    (the framer lost sync: an absurd length, a name that is no name), the link is still
+    usable: a server refuses this one telegram and carries on.
+    """
+
+    def __init__(self, frame: Frame, problem: RemoteProtocolError) -> None:
+        super().__init__(str(problem))
+        self.frame = frame
+
+
+def _decode(frame: Frame) -> Message:
+    try:
+        return decode(frame)
+    except RemoteProtocolError as exc:
+        raise UndecodableTelegram(frame, exc) from exc
 
 
 class Role(enum.Enum):
@@ -94,7 +122,7 @@ class Lsv2Connection:
         self.on_bytes = on_bytes
         """Called with the raw wire bytes of every send and receive (hex traces)."""
         self.last_frame: Frame | None = None
-        """The most recent raw frame received (lets a server answer an unknown name)."""
+        """The most recent raw frame received (its wire size and bytes, for traces)."""
         self._framer = TelegramFramer(max_payload)
         self._eof = False
         self._pending_cc: int | None = None
@@ -163,7 +191,8 @@ class Lsv2Connection:
         """Return the next message, or ``None`` when more bytes are needed.
 
         Client role: returns only answers; unsolicited ``M_CC`` go to :meth:`next_notice`.
-        Raises :class:`RemoteProtocolError` for malformed or unexpected telegrams and
+        Raises :class:`UndecodableTelegram` for a whole telegram that does not decode, another
+        :class:`RemoteProtocolError` when framing is lost or a telegram comes unasked, and
         :class:`PeerClosed` when the peer closed while a telegram was due.
         """
         while True:
@@ -175,12 +204,15 @@ class Lsv2Connection:
                 return None
             self.last_frame = frame
             if self.role is Role.SERVER:
-                message = decode(frame)
+                try:  # inline, not _decode(): once per telegram
+                    message = decode(frame)
+                except RemoteProtocolError as exc:
+                    raise UndecodableTelegram(frame, exc) from exc
                 self._pending_cc = message.command if isinstance(message, SystemCommand) else None
                 self._trace(message)
                 return message
             if frame.mnemonic == "M_CC":
-                notice = decode(frame)
+                notice = _decode(frame)
                 assert isinstance(notice, CommandDone)
                 self._notices.append(notice)
                 self._trace(notice)
@@ -189,7 +221,10 @@ class Lsv2Connection:
                 raise RemoteProtocolError(f"unsolicited {frame.mnemonic} telegram")
             self.state = State.IDLE
             pending, self._pending_cc = self._pending_cc, None
-            message = decode(frame)
+            try:
+                message = decode(frame)
+            except RemoteProtocolError as exc:
+                raise UndecodableTelegram(frame, exc) from exc
             if pending is not None and isinstance(message, Ok):
                 self._apply_cc(pending)
             self._trace(message)

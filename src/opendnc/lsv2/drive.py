@@ -2,20 +2,23 @@
 
 :class:`BlockingDriver` runs them over a blocking :class:`~opendnc.transport.ByteStream`,
 :class:`AsyncDriver` over asyncio streams. Both own one :class:`Lsv2Connection` engine and a
-:class:`SessionState`, translate timeouts and socket errors into the opendnc error tree, and
-hold no protocol logic of their own.
+:class:`SessionState` and run the same pump (``_DriverBase._pump``), which turns an operation's
+steps into writes and timed reads; a driver only performs those, blocking or with ``await``,
+and holds no protocol logic of its own. Timeouts and socket errors come out as the opendnc
+error tree.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Generator
 from typing import TypeVar
 
 from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, TransportTimeout
 from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
-from opendnc.lsv2.ops.base import Expect, Op, Overlap, SessionState, Slow, Step
+from opendnc.lsv2.ops.base import Expect, Op, Receive, Send, SessionState, Slow
 from opendnc.transport.base import ByteStream
 from opendnc.transport.tcp import TcpStream
 
@@ -23,6 +26,9 @@ __all__ = ["AsyncDriver", "BlockingDriver"]
 
 T = TypeVar("T")
 READ_SIZE = 65536
+
+_Pump = Generator[bytes | float, bytes, T]
+"""What a driver runs: yields bytes to write or a read timeout, returns the op's result."""
 
 
 class _DriverBase:
@@ -51,14 +57,55 @@ class _DriverBase:
         if self.conn.state is State.WAITING:
             self.broken = True
 
-    def _unpack(self, step: Step) -> tuple[Message | None, float]:
-        if isinstance(step, Overlap):
-            return step.message, self.timeout
-        if isinstance(step, Slow):
-            return step.message, max(step.timeout, self.timeout)
-        if isinstance(step, Expect):
-            return None, step.timeout
-        return step, self.timeout
+    def _pump(self, op: Op[T]) -> _Pump[T]:
+        """Run ``op`` against the engine; yield what the driver must do, return the result.
+
+        The one place that turns steps into I/O for both drivers: it yields ``bytes`` to write
+        (and is sent anything back) or a read timeout in seconds (and is sent the bytes read;
+        the driver raises :class:`TransportTimeout` / :class:`PeerClosed` itself).
+        """
+        conn, send_op, timeout = self.conn, op.send, self.timeout
+        try:
+            step = next(op)
+            while True:
+                # exact types, most frequent first: this runs for every file block
+                if type(step) is Send:
+                    yield conn.send(step.message)
+                    # the operation works while the answer travels, then sends Receive
+                    step = send_op(None)
+                    continue
+                if type(step) is Receive:
+                    wait = timeout
+                elif type(step) is Slow:
+                    yield conn.send(step.message)
+                    wait = max(step.timeout, timeout)
+                elif type(step) is Expect:
+                    step = send_op((yield from self._notice(step.timeout)))
+                    continue
+                else:
+                    assert isinstance(step, Message)
+                    yield conn.send(step)
+                    wait = timeout
+                if conn.state is not State.WAITING:
+                    reply = None  # e.g. T_FD without secure send: the control stays silent
+                else:
+                    while (reply := conn.next_event()) is None:
+                        conn.receive_data((yield wait))
+                step = send_op(reply)
+        except StopIteration as done:
+            result: T = done.value
+            return result
+
+    def _notice(self, timeout: float) -> Generator[float, bytes, Message]:
+        conn = self.conn
+        deadline = time.monotonic() + timeout
+        while (notice := conn.next_notice()) is None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TransportTimeout(f"no M_CC completion message within {timeout:g} s")
+            conn.receive_data((yield left))
+            conn.next_event()
+        return notice
 
 
 class BlockingDriver(_DriverBase):
@@ -97,10 +144,19 @@ class BlockingDriver(_DriverBase):
     def run(self, op: Op[T]) -> T:
         """Run ``op`` to completion and return its result."""
         self.check_usable()
+        pump = self._pump(op)
+        stream = self.stream
         try:
-            step = next(op)
+            request = next(pump)
             while True:
-                step = op.send(self._exchange(step))
+                if isinstance(request, bytes):
+                    stream.write(request)
+                    request = pump.send(b"")
+                else:
+                    if request != self._read_timeout:
+                        stream.set_timeout(request)
+                        self._read_timeout = request
+                    request = pump.send(stream.read(READ_SIZE))
         except StopIteration as done:
             result: T = done.value
             return result
@@ -108,36 +164,8 @@ class BlockingDriver(_DriverBase):
             self.broken = True
             raise
         finally:
+            pump.close()
             self._after(op)
-
-    def _exchange(self, step: Step) -> Message | None:
-        message, timeout = self._unpack(step)
-        conn = self.conn
-        if message is None:
-            return self._wait_notice(timeout)
-        self.stream.write(conn.send(message))
-        if isinstance(step, Overlap):
-            step.work()  # while the control works on its answer
-        if conn.state is not State.WAITING:
-            return None  # e.g. T_FD without secure send: the control stays silent
-        if timeout != self._read_timeout:
-            self.stream.set_timeout(timeout)
-            self._read_timeout = timeout
-        while (reply := conn.next_event()) is None:
-            conn.receive_data(self.stream.read(READ_SIZE))
-        return reply
-
-    def _wait_notice(self, timeout: float) -> Message:
-        deadline = time.monotonic() + timeout
-        while (notice := self.conn.next_notice()) is None:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise TransportTimeout(f"no M_CC completion message within {timeout:g} s")
-            self.stream.set_timeout(left)
-            self._read_timeout = left
-            self.conn.receive_data(self.stream.read(READ_SIZE))
-            self.conn.next_event()
-        return notice
 
     def close(self) -> None:
         """Close the stream."""
@@ -270,10 +298,16 @@ class AsyncDriver(_DriverBase):
         """Run ``op`` to completion; concurrent calls are serialised (half-duplex link)."""
         async with self._lock:
             self.check_usable()
+            pump = self._pump(op)
+            link = self._link
             try:
-                step = next(op)
+                request = next(pump)
                 while True:
-                    step = op.send(await self._exchange(step))
+                    if isinstance(request, bytes):
+                        await link.write(request)
+                        request = pump.send(b"")
+                    else:
+                        request = pump.send(await link.read(request))
             except StopIteration as done:
                 result: T = done.value
                 return result
@@ -281,32 +315,8 @@ class AsyncDriver(_DriverBase):
                 self.broken = True
                 raise
             finally:
+                pump.close()
                 self._after(op)
-
-    async def _exchange(self, step: Step) -> Message | None:
-        message, timeout = self._unpack(step)
-        conn = self.conn
-        if message is None:
-            return await self._wait_notice(timeout)
-        await self._link.write(conn.send(message))
-        if isinstance(step, Overlap):
-            step.work()  # while the control works on its answer
-        if conn.state is not State.WAITING:
-            return None  # e.g. T_FD without secure send: the control stays silent
-        while (reply := conn.next_event()) is None:
-            conn.receive_data(await self._link.read(timeout))
-        return reply
-
-    async def _wait_notice(self, timeout: float) -> Message:
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + timeout
-        while (notice := self.conn.next_notice()) is None:
-            left = deadline - loop.time()
-            if left <= 0:
-                raise TransportTimeout(f"no M_CC completion message within {timeout:g} s")
-            self.conn.receive_data(await self._link.read(left))
-            self.conn.next_event()
-        return notice
 
     async def close(self) -> None:
         """Close the connection."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from functools import reduce
 from operator import xor
 
-from opendnc.errors import ChecksumError, RemoteProtocolError
+from opendnc.errors import ChecksumError, LocalProtocolError, RemoteProtocolError
 
 __all__ = [
     "DLE",
@@ -77,7 +77,9 @@ class Frame:
 
     def __post_init__(self) -> None:
         if len(self.mnemonic) != 4 or not self.mnemonic.isascii():
-            raise ValueError(f"telegram name must be 4 ASCII characters, got {self.mnemonic!r}")
+            raise LocalProtocolError(
+                f"telegram name must be 4 ASCII characters, got {self.mnemonic!r}"
+            )
 
     @property
     def body(self) -> bytes:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from opendnc.errors import InputError
 
-__all__ = ["Cell", "Column", "Table", "parse_table"]
+__all__ = ["Cell", "Column", "Table", "fixed_columns", "parse_table"]
 
 Cell = int | float | str | None
 
@@ -44,6 +44,15 @@ class Column:
     name: str
     start: int
     width: int | None
+
+
+def fixed_columns(*spec: tuple[str, int]) -> list[Column]:
+    """Columns laid out left to right from ``(name, width)`` pairs, for writing a new table."""
+    columns, start = [], 0
+    for name, width in spec:
+        columns.append(Column(name, start, width))
+        start += width
+    return columns
 
 
 @dataclass

@@ -289,34 +289,70 @@ def unlock_program(db: Db, name: str, who: Approver) -> dict[str, Any]:
 
 
 class JobRequest(BaseModel):
-    """What a client asks the queue for."""
+    """What a client asks the queue for.
+
+    ``send`` and ``dripfeed`` name a ``program`` (and optionally its ``version``);
+    ``receive``, ``delete`` and ``backup`` name a ``path`` on the control.
+    """
 
     kind: JobKind = JobKind.SEND
-    program: str
+    program: str | None = None
     version: int | None = None
+    path: str | None = Field(default=None, min_length=1, max_length=255)
     machines: list[str] = Field(min_length=1, max_length=1000)
     from_line: int | None = Field(default=None, ge=1)
 
 
+# The least role for each kind of job.
+JOB_ROLES = {
+    JobKind.SEND: Role.OPERATOR,
+    JobKind.RECEIVE: Role.OPERATOR,
+    JobKind.BACKUP: Role.OPERATOR,
+    JobKind.DRIPFEED: Role.PROGRAMMER,
+    JobKind.DELETE: Role.PROGRAMMER,
+}
+
+
 @router.post("/jobs", status_code=201)
 def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> list[dict[str, Any]]:
-    """Queue a send (or drip-feed) of one program to one or many machines."""
-    library.check_program_name(body.program)
-    if body.kind is JobKind.SEND:
-        created = jobs.send_program(
-            db, body.program, body.machines, actor=who.name, number=body.version
-        )
-    elif body.kind is JobKind.DRIPFEED:
-        if not who.can(Role.PROGRAMMER):
-            raise Forbidden("a drip-feed needs the programmer role")
-        version = library.get_version(db, body.program, body.version)
-        params = {"from_line": body.from_line} if body.from_line else {}
+    """Queue one job per machine."""
+    needed = JOB_ROLES.get(body.kind)
+    if needed is None:
+        raise InputError(f"{body.kind.value} jobs are made by the server itself")
+    if not who.can(needed):
+        raise Forbidden(f"a {body.kind.value} job needs the {needed.name.lower()} role")
+    created: list[Job]
+    if body.kind in (JobKind.SEND, JobKind.DRIPFEED):
+        if body.program is None:
+            raise InputError(f"a {body.kind.value} job names a program")
+        library.check_program_name(body.program)
+        if body.kind is JobKind.SEND:
+            created = jobs.send_program(
+                db, body.program, body.machines, actor=who.name, number=body.version
+            )
+        else:
+            machines = _supervisor(request).machines
+            for name in body.machines:
+                state = machines.get(name)
+                if state is None:
+                    raise NotFound(f"no machine named {name!r}")
+                if not state.config.dripfeed:
+                    raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
+            version = library.get_version(db, body.program, body.version)
+            params = {"from_line": body.from_line} if body.from_line else {}
+            created = [
+                jobs.enqueue(
+                    db, JobKind.DRIPFEED, m, actor=who.name, version=version, params=params
+                )
+                for m in body.machines
+            ]
+    else:
+        if body.path is None or "\x00" in body.path:
+            raise InputError(f"a {body.kind.value} job names a path on the control")
         created = [
-            jobs.enqueue(db, JobKind.DRIPFEED, m, actor=who.name, version=version, params=params)
+            jobs.enqueue(db, body.kind, m, actor=who.name, params={"path": body.path})
             for m in body.machines
         ]
-    else:
-        raise InputError(f"{body.kind.value} jobs are not offered by this API yet")
     out = [job_json(j) for j in created]
     db.commit()  # before the wake-up, so the machine's claim sees the new rows
     for job in created:
@@ -356,9 +392,14 @@ def get_job(request: Request, db: Db, job_id: int, _who: Viewer) -> dict[str, An
 
 
 @router.post("/jobs/{job_id}/cancel")
-def cancel_job(db: Db, job_id: int, who: Operator) -> dict[str, Any]:
-    """Cancel a queued job, or ask a running one to stop."""
-    return job_json(jobs.cancel(db, job_id, actor=who.name))
+def cancel_job(request: Request, db: Db, job_id: int, who: Operator) -> dict[str, Any]:
+    """Cancel a queued job, or ask a running one to stop (a drip-feed stops within a chunk)."""
+    job = jobs.cancel(db, job_id, actor=who.name)
+    out = job_json(job)
+    db.commit()
+    if job.state is JobState.RUNNING:
+        _supervisor(request).request_cancel(job.id)
+    return out
 
 
 class MoveRequest(BaseModel):

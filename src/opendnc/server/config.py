@@ -111,6 +111,7 @@ class MachineConfig:
     share: str = ""  # Haas net share folder (local path or smb://)
     folder: str = ""  # where programs go on the control (LSV2: default TNC:/nc_prog)
     released_only: bool = False
+    dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
     poll_interval: float = 1.0
     description: str = ""
     mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
@@ -125,6 +126,7 @@ class LibraryConfig:
     path: Path
     inbox: Path
     archive: Path
+    backups: Path | None = None  # LSV2 backups, one folder per machine (default: ./backups)
     poll: bool = False  # poll the library folder instead of change notifications (shares)
 
 
@@ -364,7 +366,7 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
 
 
 def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
-    _known(table, "library", {"path", "inbox", "archive", "watch"})
+    _known(table, "library", {"path", "inbox", "archive", "backups", "watch"})
     watch = _get(table, "library", "watch", str, "notify")
     if watch not in ("notify", "poll"):
         raise ConfigError("library.watch", "expected notify or poll (poll for network shares)")
@@ -379,13 +381,14 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
         path=folder("path", "programs"),
         inbox=folder("inbox", "inbox"),
         archive=folder("archive", "archive"),
+        backups=folder("backups", "backups"),
         poll=watch == "poll",
     )
 
 
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
+    "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -411,6 +414,8 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     host = _get(raw, prefix, "host", str, "")
     serial = _get(raw, prefix, "serial", str, "")
     port = raw.get("port", 0)
+    if raw.get("dripfeed") is True and kind is not MachineKind.HAAS_SERIAL:
+        raise ConfigError(f"{prefix}.dripfeed", "drip-feed is for serial Haas machines")
     if kind is MachineKind.LSV2:
         if not host and not serial:
             raise ConfigError(f"{prefix}.host", "an LSV2 machine needs host (TCP) or serial")
@@ -448,6 +453,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         share=_get(raw, prefix, "share", str, ""),
         folder=_get(raw, prefix, "folder", str, ""),
         released_only=_get(raw, prefix, "released_only", bool, False),
+        dripfeed=_get(raw, prefix, "dripfeed", bool, False),
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),
         mdc=mdc,

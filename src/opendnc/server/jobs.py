@@ -239,11 +239,22 @@ def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail
 
 
 def fail(
-    session: Session, job_id: int, error: str, *, retryable: bool = True, backoff: float = 2.0
+    session: Session,
+    job_id: int,
+    error: str,
+    *,
+    retryable: bool = True,
+    backoff: float = 2.0,
+    line: int | None = None,
 ) -> Job:
-    """A running job failed: queue it again after a backoff while attempts remain."""
+    """A running job failed: queue it again after a backoff while attempts remain.
+
+    ``line`` is the program line a drip-feed had reached (where a restart would pick up).
+    """
     job = _running(session, job_id)
     job.error = error
+    if line is not None:
+        job.line = line
     again = retryable and job.kind is not JobKind.DRIPFEED and job.attempts < job.max_attempts
     again = again and not job.cancel_requested
     if again:
@@ -264,6 +275,7 @@ def fail(
         result="retry" if again else job.state.value,
         error=error,
         attempt=job.attempts,
+        line=line,
         **_program_fields(job),
     )
     return job

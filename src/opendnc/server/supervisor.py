@@ -23,7 +23,13 @@ from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.errors import DncError, TransportError
+from opendnc.errors import (
+    DncError,
+    InputError,
+    RemoteProtocolError,
+    TransferError,
+    TransportError,
+)
 from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
@@ -36,6 +42,25 @@ __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
 log = logging.getLogger(__name__)
 
 ConnectorFactory = Callable[[MachineConfig], Connector]
+
+
+class DripFeedBroken(DncError):
+    """A drip-feed stopped; ``line`` is the program line it had reached."""
+
+    def __init__(self, reason: str, line: int) -> None:
+        super().__init__(reason)
+        self.line = line
+
+
+@dataclass(frozen=True)
+class Claimed:
+    """A job taken from the queue, with what running it needs."""
+
+    job_id: int
+    kind: JobKind
+    name: str  # program name, or the path on the control
+    data: bytes  # what to send (empty for jobs that take from the control)
+    params: dict[str, Any]
 
 
 @dataclass
@@ -93,6 +118,7 @@ class Supervisor:
         self.worker = config.server.name
         self.machines = {m.name: MachineState(m) for m in config.machines}
         self._tasks: list[asyncio.Task[None]] = []
+        self._cancels: set[int] = set()
 
     async def start(self) -> None:
         """Recover jobs left running by a previous run, then start one task per machine."""
@@ -187,46 +213,108 @@ class Supervisor:
     async def _run_next(self, state: MachineState, connector: Connector) -> bool:
         name = state.config.name
 
-        def claim() -> tuple[int, JobKind, str, bytes] | None:
+        def claim() -> Claimed | None:
             with self.sessions.begin() as session:
                 job = jobs.claim(session, name, self.worker)
                 if job is None:
                     return None
+                params = dict(job.params)
                 if job.kind is JobKind.REPORT:
-                    report = str(job.params.get("report", ""))
-                    return job.id, job.kind, str(job.params.get("name")), report.encode("latin-1")
-                if job.version is None:
-                    jobs.fail(session, job.id, "the job names no program", retryable=False)
-                    return None
-                data = library.content(session, job.version)
-                return job.id, job.kind, job.version.program.name, data
+                    report = str(params.get("report", "")).encode("latin-1")
+                    return Claimed(job.id, job.kind, str(params.get("name")), report, params)
+                if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+                    if job.version is None:
+                        jobs.fail(session, job.id, "the job names no program", retryable=False)
+                        return None
+                    data = library.content(session, job.version)
+                    return Claimed(job.id, job.kind, job.version.program.name, data, params)
+                return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
 
         claimed = await asyncio.to_thread(claim)
         if claimed is None:
             return False
-        job_id, kind, program, data = claimed
-        state.job_id, state.job_progress = job_id, (0, len(data))
+        job_id = claimed.job_id
+        state.job_id, state.job_progress = job_id, (0, len(claimed.data) or None)
         self._job_event(job_id, name, "running")
         try:
-            if kind not in (JobKind.SEND, JobKind.REPORT):
-                raise DncError(f"{kind.value} jobs are not run by this server version yet")
-            verified = await self._send(state, connector, job_id, program, data)
+            outcome = await self._execute(state, connector, claimed)
         except asyncio.CancelledError:
             # Stopping the server mid-transfer: the next start marks the job interrupted.
             raise
         except Exception as exc:
             reason = str(exc) or type(exc).__name__
-            retryable = isinstance(exc, DncError)
-            job = await asyncio.to_thread(self._fail, job_id, reason, retryable)
+            # A broken link or a garbled transfer may go well next time; a refusal will not.
+            retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
+            line = exc.line if isinstance(exc, DripFeedBroken) else None
+            if line is not None:
+                reason = f"{reason} (stopped at line {line}; restart from there)"
+            job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line)
             self._job_event(job_id, name, job, error=reason)
             state.job_id = None
-            if isinstance(exc, TransportError):
-                raise  # reconnect before the next job
+            cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
+            if isinstance(cause, TransportError):
+                raise exc from cause  # reconnect before the next job
             return True
-        await asyncio.to_thread(self._finish, job_id, len(data), verified)
+        await asyncio.to_thread(self._finish, job_id, outcome)
         self._job_event(job_id, name, "done")
         state.job_id = None
         return True
+
+    async def _execute(
+        self, state: MachineState, connector: Connector, job: Claimed
+    ) -> dict[str, Any]:
+        """Run one claimed job; returns what its audit row records."""
+        if job.kind in (JobKind.SEND, JobKind.REPORT):
+            verified = await self._send(state, connector, job.job_id, job.name, job.data)
+            return {"nbytes": len(job.data), "verified": verified}
+        if job.kind is JobKind.DRIPFEED:
+            return await self._dripfeed(state, connector, job)
+        if job.kind is JobKind.RECEIVE:
+            data = await connector.fetch(job.name)
+            folder = self.config.library.inbox
+
+            def keep() -> int:
+                with self.sessions.begin() as session:
+                    return inbox.store(session, state.config.name, data, folder=folder).id
+
+            received_id = await asyncio.to_thread(keep)
+            return {"nbytes": len(data), "path": job.name, "received_id": received_id}
+        if job.kind is JobKind.DELETE:
+            await connector.delete(job.name)
+            return {"path": job.name}
+        if job.kind is JobKind.BACKUP:
+            root = self.config.library.backups or self.config.library.archive / "backups"
+            counts = await connector.backup(job.name, root / state.config.name)
+            return {"path": job.name, **counts}
+        raise InputError(f"{job.kind.value} jobs are not run by this server version yet")
+
+    async def _dripfeed(
+        self, state: MachineState, connector: Connector, job: Claimed
+    ) -> dict[str, Any]:
+        from_line = int(job.params.get("from_line", 1))
+        reached = [from_line]
+        machine = state.config.name
+
+        def progress(line: int, lines: int) -> None:
+            # Called from the feed's thread for every chunk: only a new line is news.
+            if line != reached[0]:
+                reached[0] = line
+                state.job_progress = (line, lines)
+                self._job_event(job.job_id, machine, "running", line=line, lines=lines)
+            if job.job_id in self._cancels:
+                raise TransferError(f"cancelled at line {line}")
+
+        try:
+            counts = await connector.dripfeed(job.name, job.data, from_line, progress)
+        except Exception as exc:
+            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0]) from exc
+        finally:
+            self._cancels.discard(job.job_id)
+        return {**counts, "from_line": from_line}
+
+    def request_cancel(self, job_id: int) -> None:
+        """Stop a running drip-feed of this process at its next chunk."""
+        self._cancels.add(job_id)
 
     async def _received(self, state: MachineState, reception: Reception) -> None:
         """File a program the control sent: into the inbox, or answer it as a request."""
@@ -326,15 +414,20 @@ class Supervisor:
         data = {"id": job_id, "machine": machine, "state": state, **extra}
         self.bus.publish("job", str(job_id), data)
 
-    def _fail(self, job_id: int, reason: str, retryable: bool) -> str:
+    def _fail(self, job_id: int, reason: str, retryable: bool, line: int | None) -> str:
         with self.sessions.begin() as session:
             return jobs.fail(
-                session, job_id, reason, retryable=retryable, backoff=self.retry_backoff
+                session,
+                job_id,
+                reason,
+                retryable=retryable,
+                backoff=self.retry_backoff,
+                line=line,
             ).state.value
 
-    def _finish(self, job_id: int, nbytes: int, verified: bool | None) -> None:
+    def _finish(self, job_id: int, outcome: dict[str, Any]) -> None:
         with self.sessions.begin() as session:
-            jobs.finish(session, job_id, nbytes=nbytes, verified=verified)
+            jobs.finish(session, job_id, **outcome)
 
     async def _send(
         self, state: MachineState, connector: Connector, job_id: int, program: str, data: bytes
@@ -348,5 +441,5 @@ class Supervisor:
         await connector.send(program, data, progress)
         verified = await connector.verify(program, data)
         if verified is False:
-            raise DncError(f"{program}: the control holds different bytes after the load")
+            raise TransferError(f"{program}: the control holds different bytes after the load")
         return verified

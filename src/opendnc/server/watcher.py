@@ -8,7 +8,9 @@ A file is taken only once it has stopped changing (same size and modification ti
 ``settle`` seconds apart), so a program still being copied in does not become a version of
 half a program. Names the library refuses (sub-folders, hidden and temporary files) are skipped
 with a log line. Network shares (SMB, NFS) do not deliver change notifications reliably:
-``watch = "poll"`` in ``[library]`` makes the watcher poll instead.
+``watch = "poll"`` in ``[library]`` makes the watcher look at every file's size and
+modification time (to the nanosecond, where the file system keeps it) once a second instead,
+and take the files whose pair changed.
 """
 
 from __future__ import annotations
@@ -47,21 +49,54 @@ class LibraryWatcher:
         *,
         poll: bool = False,
         settle: float = 0.5,
+        poll_interval: float = 1.0,
         on_version: Callable[[str, int], None] | None = None,
     ) -> None:
         self.folder = folder
         self.sessions = sessions
         self.poll = poll
         self.settle = settle
+        self.poll_interval = poll_interval
+        self._seen: dict[str, tuple[int, int]] = {}
         self.on_version = on_version
         self.ready = asyncio.Event()
         """Set once the start-up rescan is done."""
 
     async def run(self) -> None:
         """Rescan the whole folder, then take changes as they come."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if self.poll:
+            await self._poll()
+        else:
+            await self._notify()
+
+    async def _poll(self) -> None:
+        for path in await asyncio.to_thread(self._changed):  # the start-up rescan
+            await self.take(path)
+        self.ready.set()
+        while True:
+            await asyncio.sleep(self.poll_interval)
+            for path in await asyncio.to_thread(self._changed):
+                await self.take(path)
+
+    def _changed(self) -> list[Path]:
+        changed = []
+        for path in sorted(self.folder.iterdir()):
+            try:
+                st = path.stat()
+            except OSError:
+                continue
+            # Remembered at once, skipped names too: a refused name is logged once, not each
+            # second; a file still growing is looked at again, and the same bytes twice make
+            # no second version.
+            if self._seen.get(path.name) != (st.st_size, st.st_mtime_ns):
+                self._seen[path.name] = (st.st_size, st.st_mtime_ns)
+                changed.append(path)
+        return changed
+
+    async def _notify(self) -> None:
         from watchfiles import Change, awatch
 
-        self.folder.mkdir(parents=True, exist_ok=True)
         # The watch starts with the first iteration; its first (possibly empty) batch says it
         # is running, and only then comes the rescan, so a file saved meanwhile is not missed.
         changes = awatch(

@@ -79,6 +79,8 @@ async def start_fleet(
     profile: str = "tnc640",
     serial_haas: int = 0,
     baud: int = 115200,
+    block_rate: float = 0.0,
+    dnc_timeout: float = 10.0,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -86,7 +88,9 @@ async def start_fleet(
     With ``base_port`` 0 every control takes a free port; otherwise the TNCs listen on
     ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them. A serial Haas
     is a classic control: it answers XModem, drip-feed and MDC Q-commands (Setting 143 ON)
-    on its cable (``auto`` serial mode).
+    on its cable (``auto`` serial mode) and runs at most ``block_rate`` blocks a second
+    (0: as fast as it can); a drip-feed that stops for ``dnc_timeout`` seconds raises the
+    control's DNC link alarm.
     """
     if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
@@ -116,14 +120,17 @@ async def start_fleet(
                 FleetMachine(f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder)
             )
         for k in range(serial_haas):
-            await _start_serial_haas(fleet, root / f"haas-serial-{k + 1}", k, baud)
+            folder = root / f"haas-serial-{k + 1}"
+            await _start_serial_haas(fleet, folder, k, baud, block_rate, dnc_timeout)
     except BaseException:
         await fleet.close()
         raise
     return fleet
 
 
-async def _start_serial_haas(fleet: Fleet, folder: Path, k: int, baud: int) -> None:
+async def _start_serial_haas(
+    fleet: Fleet, folder: Path, k: int, baud: int, block_rate: float, dnc_timeout: float
+) -> None:
     # Imported here: the serial front-end and the cable need ptys (POSIX).
     from opendnc.sim.cable.link import VirtualCable
     from opendnc.sim.haas.serial_front import SerialOptions, parse_mode, start_serial
@@ -133,10 +140,10 @@ async def _start_serial_haas(fleet: Fleet, folder: Path, k: int, baud: int) -> N
     fleet._cables.append(cable)
     # a Haas on a cable is a classic control; Setting 143 ON: it answers MDC on the port too
     config = HaasConfig(model="VF-2", serial_number=f"{2000000 + k}", control=ControlType.CLASSIC)
-    sim = SimHaas(config, folder, SimOptions(mdc_port=None))
+    sim = SimHaas(config, folder, SimOptions(mdc_port=None, block_rate=block_rate))
     await sim.start()
     fleet._haas.append(sim)
-    options = SerialOptions(baud=baud, mode=parse_mode("auto"))
+    options = SerialOptions(baud=baud, mode=parse_mode("auto"), dnc_timeout=dnc_timeout)
     front = await start_serial(sim, cable.path_a, baud, None, options)
     sim.add_front_end(front)
     name = f"haas-serial-{k + 1}"
@@ -152,8 +159,10 @@ def server_config(
     database: str = "",
     poll_interval: float = 1.0,
     library: Path | None = None,
+    dripfeed: bool = False,
 ) -> str:
-    """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``."""
+    """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
+    (``dripfeed`` allows drip-feeding the serial Haas machines)."""
 
     def q(value: object) -> str:
         return json.dumps(str(value))  # a JSON string is a valid TOML basic string
@@ -186,6 +195,8 @@ def server_config(
                 f"serial_profile = {{ baud = {m.baud} }}",
                 "mdc = true",
             ]
+            if dripfeed:
+                lines.append("dripfeed = true")
         else:
             lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
     return "\n".join(lines) + "\n"

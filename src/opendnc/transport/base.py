@@ -1,4 +1,4 @@
-"""The blocking byte-stream interface shared by all transports."""
+"""The blocking byte-stream interfaces shared by all transports."""
 
 from __future__ import annotations
 
@@ -22,4 +22,20 @@ class ByteStream(Protocol):
 
     def set_timeout(self, seconds: float | None) -> None:
         """Change the read timeout (``None`` waits forever)."""
+        ...
+
+
+class PortStream(ByteStream, Protocol):
+    """A :class:`ByteStream` that is a port of its own: what :func:`opendnc.transport.open_stream`
+    returns. Drip-feed needs the two extra calls to look for an XOFF between writes without
+    waiting, and to pace its writes by the line rather than by the driver's buffer."""
+
+    def read_nowait(self, max_bytes: int) -> bytes:
+        """Return up to ``max_bytes`` bytes that have already arrived, ``b""`` if none have;
+        never waits. Raises PeerClosed when the peer is gone."""
+        ...
+
+    def drain(self) -> None:
+        """Wait until everything written has left the port (a no-op where the link has no
+        line of its own, such as TCP: the kernel took the data when ``write`` returned)."""
         ...

@@ -23,7 +23,8 @@ class FdStream:
     """A :class:`~opendnc.transport.base.ByteStream` over ``read_fd`` and ``write_fd``.
 
     ``FdStream(fd)`` reads and writes one descriptor (a pty end); ``FdStream(0, 1)`` is the
-    ``sx``/``rx`` arrangement, the line on stdin and stdout.
+    ``sx``/``rx`` arrangement, the line on stdin and stdout. POSIX only (``poll()``): Windows
+    programs open ports with :func:`opendnc.transport.open_stream`.
 
     A read waits in ``poll()`` and only then reads, so it works on blocking and non-blocking
     descriptors alike and never waits longer than its timeout. Reads busy-poll for up to
@@ -52,6 +53,10 @@ class FdStream:
         return self._spin.read(
             lambda: self._read_if_ready(max_bytes, 0), lambda: self._wait_read(max_bytes)
         )
+
+    def read_nowait(self, max_bytes: int) -> bytes:
+        """What has already arrived (up to ``max_bytes``), ``b""`` if nothing; never waits."""
+        return self._read_if_ready(max_bytes, 0) or b""
 
     def _read_if_ready(self, max_bytes: int, wait_ms: int | None) -> bytes | None:
         """Wait up to ``wait_ms`` for input, then read it; None if none came."""
@@ -99,6 +104,17 @@ class FdStream:
         limit = None if self.timeout is None else max(1, int(self.timeout * 1000))
         if not waiter.poll(limit):
             raise TransportTimeout(f"fd {self.write_fd} takes no data")
+
+    def drain(self) -> None:
+        """Wait until a tty has sent what was written (pipes and sockets: nothing to wait for)."""
+        if not os.isatty(self.write_fd):
+            return
+        import termios  # only a tty gets here, and ttys are POSIX
+
+        try:
+            termios.tcdrain(self.write_fd)
+        except termios.error as exc:
+            raise TransportError(f"drain of fd {self.write_fd} failed: {exc}") from exc
 
     def set_timeout(self, seconds: float | None) -> None:
         self.timeout = seconds

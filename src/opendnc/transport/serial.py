@@ -1,24 +1,49 @@
-"""Blocking serial stream on pyserial, accepting any URL ``serial_for_url`` opens.
+"""Blocking serial stream on pyserial, on every platform.
 
-Devices (``/dev/ttyUSB0``, ``COM3``), pty slaves, ``socket://host:port``,
-``rfc2217://host:port``, ``spy://`` and ``loop://`` all work the same way.
-:func:`open_stream` is what commands use: it opens plain ``socket://`` and ``tcp://``
-addresses as TCP streams and everything else through pyserial.
+pyserial opens devices (``/dev/ttyUSB0``, ``COM3``, pty slaves) with its platform back end
+(termios on POSIX, the Win32 API on Windows) and its own URL handlers (``rfc2217://``,
+``loop://``, ``spy://``, ``socket://`` with options). This module imports pyserial only when
+a port is opened, so the rest of opendnc (TCP LSV2, ``socket://`` XModem) imports and runs
+where pyserial or termios are missing. Commands open ports through
+:func:`opendnc.transport.open_stream`, which sends plain TCP addresses elsewhere.
 """
 
 from __future__ import annotations
 
-import termios
-from typing import Any
-from urllib.parse import urlsplit
-
-import serial
+import errno
+import sys
+from typing import TYPE_CHECKING
 
 from opendnc.errors import InputError, PeerClosed, TransportError, TransportTimeout
-from opendnc.transport.base import ByteStream
-from opendnc.transport.tcp import TcpStream
+from opendnc.transport.line import Handshake, check_line
 
-PARITIES = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+if TYPE_CHECKING:
+    import serial
+
+
+def _line_errors() -> tuple[type[BaseException], ...]:
+    """termios.error, when pyserial's POSIX back end loaded termios: it is no OSError."""
+    termios = sys.modules.get("termios")
+    return (termios.error,) if termios is not None else ()
+
+
+def _reason(exc: BaseException) -> str:
+    """Why a port did not open, in one line: pyserial wraps the OS error in its own text."""
+    cause = exc.__context__
+    if isinstance(cause, OSError) and cause.strerror:
+        reason = cause.strerror
+    elif cause is not None and len(cause.args) == 2 and isinstance(cause.args[1], str):
+        reason = cause.args[1]  # termios.error(errno, text)
+    else:
+        return str(exc)
+    code = getattr(cause, "errno", None) or cause.args[0]
+    if code == errno.ENOENT:
+        return f"{reason} (is the adapter plugged in?)"
+    if code == errno.EACCES:
+        return f"{reason} (on Linux: add yourself to the dialout group)"
+    if code == errno.ENOTTY:
+        return f"{reason} (not a serial port)"
+    return reason
 
 
 def open_serial(
@@ -31,38 +56,81 @@ def open_serial(
     rtscts: bool = False,
     xonxoff: bool = False,
     timeout: float | None = 1.0,
+    write_timeout: float | None = None,
 ) -> serial.SerialBase:
-    """Open ``url`` with pyserial, raising :class:`TransportError` on failure."""
+    """Open ``url`` with pyserial, raising :class:`TransportError` on failure.
+
+    Most code wants :func:`opendnc.transport.open_stream` instead; this returns the raw
+    pyserial port for callers that need its modem lines.
+    """
+    check_line(parity, bytesize, stopbits, "none")
+    try:
+        import serial
+    except ImportError as exc:
+        raise TransportError(f"cannot open serial port {url}: pyserial is missing ({exc})") from exc
     try:
         return serial.serial_for_url(
             url,
             baudrate=baudrate,
-            parity=PARITIES[parity.upper()],
+            parity=parity.upper(),
             bytesize=bytesize,
             stopbits=stopbits,
             rtscts=rtscts,
             xonxoff=xonxoff,
             timeout=timeout,
+            write_timeout=write_timeout,
         )
-    except KeyError as exc:
-        raise TransportError(f"unknown parity {parity!r}: use N, E or O") from exc
-    except (serial.SerialException, ValueError, OSError) as exc:
-        raise TransportError(f"cannot open serial port {url}: {exc}") from exc
-    except termios.error as exc:
-        # termios.error is no OSError: a device (a pty, for one) refusing the line settings
-        detail = exc.args[1] if len(exc.args) > 1 else exc
+    except (serial.SerialException, OSError) as exc:
+        raise TransportError(f"cannot open serial port {url}: {_reason(exc)}") from exc
+    except (ValueError, LookupError) as exc:  # pyserial's URL handlers, on a bad option
+        detail = f"unknown option value {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"bad port {url!r}: {detail}") from exc
+    except _line_errors() as exc:
+        # a device (a pty, for one) refusing the line settings
+        why = exc.args[1] if len(exc.args) > 1 else exc
         raise TransportError(
             f"cannot open serial port {url}: it refuses {baudrate} baud, {bytesize}"
-            f"{parity.upper()}{stopbits:g} ({detail})"
+            f"{parity.upper()}{stopbits:g} ({why})"
         ) from exc
 
 
 class SerialStream:
-    """A :class:`~opendnc.transport.base.ByteStream` over a pyserial port."""
+    """A :class:`~opendnc.transport.base.PortStream` over a pyserial port.
 
-    def __init__(self, url: str, baudrate: int = 9600, **settings: Any) -> None:
+    ``flow`` is the port's own handshake (``"rtscts"``, ``"xonxoff"``; see :data:`Handshake`).
+    ``write_timeout`` bounds a write the line holds back (CTS low, XOFF): ``None`` waits
+    forever.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 9600,
+        *,
+        parity: str = "N",
+        bytesize: int = 8,
+        stopbits: float = 1,
+        flow: Handshake = "none",
+        timeout: float | None = 1.0,
+        write_timeout: float | None = None,
+    ) -> None:
+        check_line(parity, bytesize, stopbits, flow)
         self.url = url
-        self.port = open_serial(url, baudrate, **settings)
+        self.port = open_serial(
+            url,
+            baudrate,
+            parity=parity,
+            bytesize=bytesize,
+            stopbits=stopbits,
+            rtscts=flow == "rtscts",
+            xonxoff=flow == "xonxoff",
+            timeout=timeout,
+            write_timeout=write_timeout,
+        )
+        import serial  # loaded by open_serial: the exception types of this port
+
+        self._errors = serial.SerialException
+        self._write_timeout = serial.SerialTimeoutException
 
     def read(self, max_bytes: int) -> bytes:
         try:
@@ -72,19 +140,38 @@ class SerialStream:
             waiting = int(getattr(self.port, "in_waiting", 0))
             if waiting and max_bytes > 1:
                 first += self.port.read(min(waiting, max_bytes - 1))
-        except serial.SerialException as exc:
+        except self._errors as exc:
             # pyserial reports a vanished peer (pty master closed, socket dropped) this way
             raise PeerClosed(f"{self.url}: {exc}") from exc
         except OSError as exc:
             raise TransportError(f"read from {self.url} failed: {exc}") from exc
         return bytes(first)
 
+    def read_nowait(self, max_bytes: int) -> bytes:
+        try:
+            waiting = int(getattr(self.port, "in_waiting", 0))
+            if not waiting:
+                return b""
+            return bytes(self.port.read(min(waiting, max_bytes)))
+        except self._errors as exc:
+            raise PeerClosed(f"{self.url}: {exc}") from exc
+        except OSError as exc:
+            raise TransportError(f"read from {self.url} failed: {exc}") from exc
+
     def write(self, data: bytes) -> None:
         try:
             self.port.write(data)
-        except serial.SerialTimeoutException as exc:
-            raise TransportTimeout(f"write to {self.url} timed out") from exc
-        except (serial.SerialException, OSError) as exc:
+        except self._write_timeout as exc:
+            raise TransportTimeout(
+                f"write to {self.url} timed out (the line holds our data back: CTS or XOFF)"
+            ) from exc
+        except (self._errors, OSError) as exc:
+            raise TransportError(f"write to {self.url} failed: {exc}") from exc
+
+    def drain(self) -> None:
+        try:
+            self.port.flush()
+        except (self._errors, OSError) as exc:
             raise TransportError(f"write to {self.url} failed: {exc}") from exc
 
     def set_timeout(self, seconds: float | None) -> None:
@@ -96,31 +183,7 @@ class SerialStream:
         self.port.close()
 
 
-def open_stream(
-    url: str, baudrate: int = 9600, *, timeout: float | None = 1.0, **settings: Any
-) -> ByteStream:
-    """Open a serial line for a protocol engine: a device, a pyserial URL, or plain TCP.
+# callers written before the dispatcher had a module of its own import it from here
+from opendnc.transport.urls import open_stream  # noqa: E402
 
-    ``socket://host:port`` (a network serial server in raw TCP mode) and ``tcp://host:port``
-    become a :class:`~opendnc.transport.tcp.TcpStream`: pyserial's socket handler reports at
-    most one waiting byte, so a 1K XModem block would take hundreds of reads. A ``socket://``
-    URL with pyserial options (``?logging=debug``) still goes to pyserial. Baud rate and
-    line settings do not apply to TCP; the server's port has its own.
-    """
-    scheme, sep, rest = url.partition("://")
-    if sep and scheme in ("socket", "tcp"):
-        if "?" in rest:
-            if scheme == "tcp":
-                raise InputError(
-                    f"bad address {url!r}: tcp:// takes no options, use tcp://HOST:PORT"
-                )
-            return SerialStream(url, baudrate, timeout=timeout, **settings)
-        try:
-            parts = urlsplit(url)
-            host, port = parts.hostname, parts.port
-        except ValueError:  # a bad port number or bracket
-            host = port = None
-        if not host or port is None:
-            raise InputError(f"bad address {url!r}: use {scheme}://HOST:PORT")
-        return TcpStream(host, port, timeout=timeout)
-    return SerialStream(url, baudrate, timeout=timeout, **settings)
+__all__ = ["SerialStream", "open_serial", "open_stream"]

@@ -45,7 +45,8 @@ class BusyPoll:
 
     def __init__(self, window: float = DEFAULT_WINDOW) -> None:
         self.window = window
-        self.enabled = window > 0 and _several_cpus()
+        # sched_yield is POSIX; where it is missing (Windows) reads simply block
+        self.enabled = window > 0 and hasattr(os, "sched_yield") and _several_cpus()
         self._average = 0.0
 
     @property

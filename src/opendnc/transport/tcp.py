@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import select
 import socket
 import struct
 import sys
@@ -80,6 +81,19 @@ class TcpStream:
         return self._spin.read(
             lambda: self._receive(max_bytes, socket.MSG_DONTWAIT), lambda: self._recv(max_bytes)
         )
+
+    def read_nowait(self, max_bytes: int) -> bytes:
+        """What has already arrived (up to ``max_bytes``), ``b""`` if nothing; never waits."""
+        if _CAN_SPIN:
+            return self._receive(max_bytes, socket.MSG_DONTWAIT) or b""
+        # no MSG_DONTWAIT (Windows): ask select() first, then recv() cannot block
+        readable, _, _ = select.select([self._sock], [], [], 0)
+        if not readable:
+            return b""
+        return self._receive(max_bytes, 0) or b""
+
+    def drain(self) -> None:
+        """Nothing to wait for: ``write`` returns once the kernel has taken the data."""
 
     def _recv(self, max_bytes: int) -> bytes:
         data = self._receive(max_bytes, 0)

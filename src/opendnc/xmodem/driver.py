@@ -1,8 +1,10 @@
 """Drivers that run the XModem engines over real I/O: blocking and asyncio.
 
-Both drivers are thin pumps around the same sans-IO engine: write what the engine wants to
-send, hand its events to a callback, feed it what the peer sent, and tell it when its timer
-ran out or the link closed. They own the clock; the engines never read one.
+Both drivers run one pump (``_pump``, a generator with no I/O of its own) around the same
+sans-IO engine: write what the engine wants to send, hand its events to a callback, feed it
+what the peer sent, and tell it when its timer ran out or the link closed. The pump owns the
+clock (the engines never read one); a driver only performs the write, read or pause it asks
+for, blocking or with ``await``.
 
 Blocking use::
 
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import BinaryIO
 
 from opendnc.errors import LocalProtocolError, PeerClosed, TransportTimeout
@@ -74,6 +76,60 @@ def _outcome(engine: Engine) -> Completed:
     return engine.result
 
 
+class _Pause(float):
+    """A pump step: wait this many seconds without reading (a timer that does not listen)."""
+
+
+# The pump writes through the callable it is given and yields when it must wait: a read
+# timeout in seconds (it is sent the bytes read: ``None`` if nothing came, ``b""`` if the link
+# closed) or a :class:`_Pause`. One yield per block keeps the driver's share of a block small.
+_Pump = Generator[float, "bytes | None", Completed]
+
+
+def _pump(
+    engine: Engine, on_event: EventHandler | None, clock: Clock, write: Callable[[bytes], object]
+) -> _Pump:
+    """The driver logic, shared by both drivers: what to write, when to read, events, timers."""
+    deadline = _Deadline(clock)
+    # bound once: this loop turns once per block, and lookups are a visible share of it
+    data_to_send, remaining_for, prepare = engine.data_to_send, deadline.remaining, engine.prepare
+    while True:
+        out = data_to_send()
+        if engine.finished:
+            # the final events (the last block, Completed/Failed) are handled before the
+            # last bytes go out: the sender hears "complete" only once the file is stored
+            _dispatch(engine, on_event)
+            if out:
+                write(out)
+            return _outcome(engine)
+        # mid-transfer, answer first and handle events (file writes, progress) after:
+        # the peer gets on with the next block while we do our bookkeeping
+        if out:
+            write(out)
+        if engine.has_events:
+            _dispatch(engine, on_event)
+        prepare()
+        remaining = remaining_for(engine)
+        if remaining <= 0:
+            engine.timed_out()
+            continue
+        timer = engine.timer
+        if timer is not None and not timer.listen:
+            yield _Pause(remaining)
+            continue
+        data = yield remaining
+        if data:
+            engine.receive_data(data)
+        elif data is not None:
+            engine.peer_closed()
+
+
+def _cancel(engine: Engine) -> bytes:
+    """Cancel ``engine`` locally; the CAN CAN CAN it wants on the wire."""
+    engine.cancel()
+    return engine.data_to_send()
+
+
 def run_blocking(
     engine: Engine,
     stream: ByteStream,
@@ -84,52 +140,35 @@ def run_blocking(
 ) -> Completed:
     """Run ``engine`` to its end over a blocking ``stream``; raise its typed error on failure.
 
+    Reads poll every ``poll`` seconds whatever the engine's timer (see the module doc).
     Ctrl-C cancels the session on the wire (CAN CAN CAN) before it propagates.
     """
-    deadline = _Deadline(clock)
     stream.set_timeout(poll)
-    # bound once: this loop turns once per block, and lookups are a visible share of it
-    write, read, receive_data = stream.write, stream.read, engine.receive_data
-    data_to_send, remaining_for, prepare = engine.data_to_send, deadline.remaining, engine.prepare
+    pump = _pump(engine, on_event, clock, stream.write)
+    read, advance = stream.read, pump.send
     try:
+        step = next(pump)
         while True:
-            out = data_to_send()
-            if engine.finished:
-                # the final events (Completed/Failed) go out before the last bytes, so a
-                # handler can still act on the ending (the Haas simulator swaps the EOT ACK)
-                _dispatch(engine, on_event)
-                if out:
-                    write(out)
-                return _outcome(engine)
-            # mid-transfer, answer first and handle events (file writes, progress) after:
-            # the peer gets on with the next block while we do our bookkeeping
-            if out:
-                write(out)
-            if engine.has_events:
-                _dispatch(engine, on_event)
-            prepare()
-            remaining = remaining_for(engine)
-            if remaining <= 0:
-                engine.timed_out()
-                continue
-            timer = engine.timer
-            if timer is not None and not timer.listen:
-                time.sleep(remaining)
+            if type(step) is _Pause:
+                time.sleep(step)
+                step = advance(None)
                 continue
             try:
-                data = read(READ_SIZE)
+                got: bytes | None = read(READ_SIZE) or None
             except TransportTimeout:
-                continue
+                got = None
             except PeerClosed:
-                engine.peer_closed()
-                continue
-            receive_data(data)
+                got = b""
+            step = advance(got)
+    except StopIteration as done:
+        result: Completed = done.value
+        return result
     except KeyboardInterrupt:
-        engine.cancel()
-        out = engine.data_to_send()
-        if out:
+        if out := _cancel(engine):
             stream.write(out)
         raise
+    finally:
+        pump.close()
 
 
 async def run_async(
@@ -144,76 +183,76 @@ async def run_async(
 
     Cancelling the task cancels the session on the wire (CAN CAN CAN) first.
     """
-    deadline = _Deadline(clock)
+    pump = _pump(engine, on_event, clock, writer.write)
     try:
+        step = next(pump)
         while True:
-            out = engine.data_to_send()
-            if engine.finished:
-                _dispatch(engine, on_event)  # final events before the last bytes, as above
-                if out:
-                    writer.write(out)
-                    await writer.drain()
-                return _outcome(engine)
-            if out:
-                writer.write(out)
-                await writer.drain()
-            _dispatch(engine, on_event)
-            engine.prepare()
-            remaining = deadline.remaining(engine)
-            if remaining <= 0:
-                engine.timed_out()
-                continue
-            if engine.timer is not None and not engine.timer.listen:
-                await asyncio.sleep(remaining)
+            await writer.drain()  # what the pump wrote leaves before we wait
+            if type(step) is _Pause:
+                await asyncio.sleep(step)
+                step = pump.send(None)
                 continue
             try:
-                data = await asyncio.wait_for(reader.read(READ_SIZE), remaining)
+                got: bytes | None = await asyncio.wait_for(reader.read(READ_SIZE), step)
             except TimeoutError:
-                continue
+                got = None
             except (ConnectionError, OSError):
-                engine.peer_closed()
-                continue
-            if data:
-                engine.receive_data(data)
-            else:
-                engine.peer_closed()
+                got = b""
+            step = pump.send(got)
+    except StopIteration as done:
+        await writer.drain()
+        result: Completed = done.value
+        return result
     except asyncio.CancelledError:
-        engine.cancel()
-        out = engine.data_to_send()
-        if out:
+        if out := _cancel(engine):
             writer.write(out)
         raise
+    finally:
+        pump.close()
 
 
-def _sender_events(progress: Progress | None, on_event: EventHandler | None) -> EventHandler | None:
-    if progress is None:
-        return on_event  # nothing to translate: skip a call per event
+def _sender(
+    data: bytes,
+    mode: Mode,
+    config: SenderConfig | None,
+    progress: Progress | None,
+    on_event: EventHandler | None,
+) -> tuple[XmodemSender, EventHandler | None]:
+    """The engine and event handler of one send (the same for both drivers)."""
+    handler = on_event
+    if progress is not None:  # else nothing to translate: skip a call per event
 
-    def handle(event: Event) -> None:
-        if isinstance(event, BlockDone):
-            progress(event.done, event.total)
-        if on_event is not None:
-            on_event(event)
+        def handler(event: Event) -> None:
+            if isinstance(event, BlockDone):
+                progress(event.done, event.total)
+            if on_event is not None:
+                on_event(event)
 
-    return handle
+    return XmodemSender(data, mode, config, block_events=handler is not None), handler
 
 
-def _receiver_events(
-    sink: Callable[[bytes], object], progress: Progress | None, on_event: EventHandler | None
-) -> EventHandler:
+def _receiver(
+    sink: BinaryIO | Callable[[bytes], object],
+    mode: Mode,
+    config: ReceiverConfig | None,
+    progress: Progress | None,
+    on_event: EventHandler | None,
+) -> tuple[XmodemReceiver, EventHandler]:
+    """The engine and event handler of one receive (the same for both drivers)."""
+    write = sink.write if hasattr(sink, "write") else sink
     received = 0
 
-    def handle(event: Event) -> None:
+    def handler(event: Event) -> None:
         nonlocal received
         if isinstance(event, DataReceived):
-            sink(event.data)
+            write(event.data)
             received += len(event.data)
             if progress is not None:
                 progress(received, None)
         if on_event is not None:
             on_event(event)
 
-    return handle
+    return XmodemReceiver(mode, config), handler
 
 
 def send(
@@ -226,8 +265,7 @@ def send(
     on_event: EventHandler | None = None,
 ) -> Completed:
     """Send ``data`` over ``stream`` as one XModem session (blocking)."""
-    handler = _sender_events(progress, on_event)
-    engine = XmodemSender(data, mode, config, block_events=handler is not None)
+    engine, handler = _sender(data, mode, config, progress, on_event)
     return run_blocking(engine, stream, on_event=handler)
 
 
@@ -246,9 +284,8 @@ def receive(
     and ``sink`` may hold a partial file: :func:`opendnc.xmodem.files.receive_file` writes to a
     temporary file and renames it only on success.
     """
-    write = sink.write if hasattr(sink, "write") else sink
-    engine = XmodemReceiver(mode, config)
-    return run_blocking(engine, stream, on_event=_receiver_events(write, progress, on_event))
+    engine, handler = _receiver(sink, mode, config, progress, on_event)
+    return run_blocking(engine, stream, on_event=handler)
 
 
 async def send_async(
@@ -262,8 +299,7 @@ async def send_async(
     on_event: EventHandler | None = None,
 ) -> Completed:
     """Send ``data`` as one XModem session over asyncio streams."""
-    handler = _sender_events(progress, on_event)
-    engine = XmodemSender(data, mode, config, block_events=handler is not None)
+    engine, handler = _sender(data, mode, config, progress, on_event)
     return await run_async(engine, reader, writer, on_event=handler)
 
 
@@ -278,7 +314,5 @@ async def receive_async(
     on_event: EventHandler | None = None,
 ) -> Completed:
     """Receive one XModem session over asyncio streams, writing the file bytes to ``sink``."""
-    write = sink.write if hasattr(sink, "write") else sink
-    engine = XmodemReceiver(mode, config)
-    handler = _receiver_events(write, progress, on_event)
+    engine, handler = _receiver(sink, mode, config, progress, on_event)
     return await run_async(engine, reader, writer, on_event=handler)

@@ -36,7 +36,8 @@ class Timer(NamedTuple):
 
 
 class EotAnswer(enum.Enum):
-    """How the receiver answered our EOT."""
+    """How the receiver answered the sender's EOT (a sender's Completed: what came back; a
+    receiver's: what it sent, see ``ReceiverConfig.eot_answer``)."""
 
     ACK = "ack"  # the standard ending
     # a Haas answers a complete transfer with CAN CAN CAN (docs/xmodem.md#haas-captures, Figure 24)

@@ -16,7 +16,7 @@ from pathlib import Path
 from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
 from opendnc.transport.base import ByteStream
-from opendnc.transport.serial import open_stream
+from opendnc.transport.urls import open_stream
 from opendnc.xmodem.driver import POLL, EventHandler, Progress, receive, send
 from opendnc.xmodem.events import EotAnswer
 from opendnc.xmodem.framing import Mode

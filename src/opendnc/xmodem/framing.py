@@ -13,7 +13,7 @@ import enum
 import zlib
 from dataclasses import dataclass
 
-from opendnc.errors import ChecksumError, RemoteProtocolError
+from opendnc.errors import ChecksumError, LocalProtocolError, RemoteProtocolError
 
 SOH = 0x01  # start of a 128-byte block
 STX = 0x02  # start of a 1024-byte block (XModem-1K)
@@ -81,7 +81,7 @@ def encode_block(seq: int, data: bytes | memoryview, *, crc: bool, large: bool =
     """
     size = LARGE if large else SMALL
     if len(data) > size:
-        raise ValueError(f"{len(data)} bytes do not fit a {size}-byte block")
+        raise LocalProtocolError(f"{len(data)} bytes do not fit a {size}-byte block")
     seq &= 0xFF
     payload = bytes(data)
     if len(payload) < size:

@@ -17,7 +17,15 @@ import enum
 from dataclasses import dataclass
 
 from opendnc.errors import PeerClosed, RemoteProtocolError, TransferError, TransportTimeout
-from opendnc.xmodem.events import Completed, DataReceived, Duplicate, EngineBase, Retry, Started
+from opendnc.xmodem.events import (
+    Completed,
+    DataReceived,
+    Duplicate,
+    EngineBase,
+    EotAnswer,
+    Retry,
+    Started,
+)
 from opendnc.xmodem.framing import (
     ACK,
     CAN,
@@ -47,11 +55,26 @@ class ReceiverConfig:
     max_retries: int = 10  # consecutive errors on one block before giving up
     strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
+    # ACK, or CAN (CAN CAN CAN: a Haas, docs/xmodem.md#haas-dialect)
+    eot_answer: EotAnswer = EotAnswer.ACK
+    text_start: bool = False
+    """While waiting for the sender, end with :class:`PlainTextStart` when the first byte that
+    is not line filler starts no block (a Haas in auto mode takes that as a drip-feed)."""
     cancel_when_idle: bool = True  # CAN the line when no sender starts; False for a port that
     # listens in windows (a DNC server between jobs), where a sender may answer the next one
 
 
+class PlainTextStart(RemoteProtocolError):
+    """The sender began with plain text instead of an XModem block (``text_start``)."""
+
+    def __init__(self, text: bytes) -> None:
+        super().__init__("plain text instead of XModem")
+        self.text = text
+
+
 _ACK, _NAK, _C = bytes((ACK,)), bytes((NAK,)), bytes((CRC_REQUEST,))
+_CAN3 = bytes((CAN, CAN, CAN))
+_FILLER = b"\x00\r\n \x11\x13\x15"  # NUL, line ends, space, XON/XOFF, NAK (our echo)
 _STARTERS = (b"\x01", b"\x02", b"\x04", b"\x18")  # SOH, STX, EOT, CAN
 
 
@@ -123,6 +146,9 @@ class XmodemReceiver(EngineBase):
                 return
         if state is ReceiverState.STARTING:
             starts = [i for i in (data.find(c) for c in _STARTERS) if i >= 0]
+            if self.config.text_start and data[: min(starts, default=len(data))].strip(_FILLER):
+                self._fail(PlainTextStart(data), cancel_peer=False)
+                return
             if not starts:
                 return  # echo or noise while idle
             data = data[min(starts) :]
@@ -252,8 +278,8 @@ class XmodemReceiver(EngineBase):
                 self._nak("single CAN")
             return
         # EOT: the file is complete
-        self._emit(_ACK)
         if self._blocks == 0:
+            self._emit(_ACK)
             self._fail(
                 TransferError("the sender ended the session (EOT) before sending any block"),
                 cancel_peer=False,
@@ -265,8 +291,10 @@ class XmodemReceiver(EngineBase):
             if last:
                 self._size += len(last)
                 self._events.append(DataReceived(last))
+        answer = self.config.eot_answer
+        self._emit(_CAN3 if answer is EotAnswer.CAN else _ACK)
         self.state = ReceiverState.DONE
-        self._finish(Completed(self._size, self._blocks))
+        self._finish(Completed(self._size, self._blocks, answer))
 
     # -- helpers ------------------------------------------------------------------------
 

@@ -39,6 +39,7 @@ def sim(tmp_path: Path, control_type: ControlType) -> Iterator[SimHaasThread]:
     config = HaasConfig(
         control=control_type,
         surface=parse_surface("plane:0.02,0,-1.25"),
+        probe_noise_um=0.0,  # exact touches: the tests compare printed digits
         dprnt=DprntDestination.TCP,
     )
     options = SimOptions(mdc_port=0, dprnt_tcp_port=0, dprnt_file=tmp_path / "dprnt.txt")

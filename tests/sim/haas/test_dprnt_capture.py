@@ -84,10 +84,10 @@ def test_serial_style_output_captured_over_a_pty(tmp_path: Path) -> None:
     """StreamDprntOutput on a pty master; `dprnt listen` logic reads the slave as a port."""
     import os
 
-    from opendnc.haas.machine import MachineState
-    from opendnc.haas.program import program_lines
-    from opendnc.haas.runner import BlockSource, DprntLine, PortCode, ProgramRunner, RunnerEvent
     from opendnc.sim.haas.dprnt_out import StreamDprntOutput
+    from opendnc.sim.haas.machine import MachineState
+    from opendnc.sim.haas.program import program_lines
+    from opendnc.sim.haas.runner import BlockSource, DprntLine, PortCode, ProgramRunner, RunnerEvent
     from opendnc.transport.pty import open_pty
 
     pty = open_pty()

@@ -10,11 +10,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from opendnc.errors import ControlRefused, InputError
+from opendnc.lsv2.constants import DataType
 from opendnc.lsv2.payloads import SystemParameters
 from opendnc.sim.tnc.control import Control
-from opendnc.sim.tnc.filesystem import FsError, WirePath, parse_path
+from opendnc.sim.tnc.filesystem import WirePath, parse_path
 from opendnc.sim.tnc.machine import ExecMode, Machine, PgmState, parse_program
-from opendnc.sim.tnc.plc import DpType, PlcError, PlcMemory, parse_table, resolve_data_path
+from opendnc.sim.tnc.plc import PlcMemory, resolve_data_path, table_rows
 from opendnc.sim.tnc.population import klartext_demo
 from opendnc.sim.tnc.profiles import PROFILES, get_profile
 from opendnc.sim.tnc.screen import render_status
@@ -66,7 +68,7 @@ def test_profiles_are_self_consistent(key: str) -> None:
 
 
 def test_unknown_profile_names_choices() -> None:
-    with pytest.raises(KeyError, match="tnc640"):
+    with pytest.raises(InputError, match="tnc640"):
         get_profile("tnc999")
 
 
@@ -91,7 +93,7 @@ def test_parse_path_normalises(text: str, expected: str) -> None:
     ["..", "TNC:\\..", "C:\\x", "TNC:\\a:b", "x\0y", "a\\b\x01", "nul.", "TNC:\\x \\y", "X" * 300],
 )
 def test_parse_path_rejects(text: str) -> None:
-    with pytest.raises(FsError) as info:
+    with pytest.raises(ControlRefused) as info:
         parse_path(text, ROOT, DRIVES)
     assert info.value.code == 31
 
@@ -110,7 +112,7 @@ def test_hostile_paths_stay_inside_the_root(tmp_path: Path, parts: list[str]) ->
     try:
         wp = control.fs.parse(text, WirePath("TNC:", ("nc_prog",)))
         host = control.fs.host_path(wp)
-    except FsError as exc:
+    except ControlRefused as exc:
         code = exc.code
     else:
         code = 0
@@ -136,7 +138,7 @@ def test_symlink_out_of_the_root_is_refused(tmp_path: Path) -> None:
     outside = tmp_path / "outside"
     outside.mkdir()
     (tmp_path / "root" / "TNC" / "link").symlink_to(outside)
-    with pytest.raises(FsError):
+    with pytest.raises(ControlRefused):
         control.fs.host_path(control.fs.parse("TNC:\\link\\x.h", ROOT))
 
 
@@ -166,7 +168,8 @@ def test_population_and_persistence(tmp_path: Path) -> None:
 
 def test_table_parser_reads_fixed_width_columns() -> None:
     text = "BEGIN TOOL.T MM\nT     NAME      L\n1     MILL 6    +50.5\n[END]\n"
-    assert parse_table(text) == [{"T": "1", "NAME": "MILL 6", "L": "+50.5"}]
+    assert table_rows(text) == [{"T": "1", "NAME": "MILL 6", "L": "+50.5"}]
+    assert table_rows("BEGIN TOOL.T MM\nT     NAME\n1     MILL 6\n") == []  # no [END]: cut off
 
 
 # -- PLC ------------------------------------------------------------------------------------
@@ -175,7 +178,7 @@ def test_plc_views_agree() -> None:
     plc = PlcMemory(p.plc)
     plc.write(p.plc.words_start + 8, struct.pack("<i", -2))
     assert resolve_data_path("\\PLC\\memory\\D\\8", plc, {}).value == -2
-    assert resolve_data_path("\\PLC\\memory\\W\\8", plc, {}).kind is DpType.I16
+    assert resolve_data_path("\\PLC\\memory\\W\\8", plc, {}).value_type == DataType.INT16
     assert resolve_data_path("\\PLC\\memory\\W\\10", plc, {}).value == -1
     assert resolve_data_path("\\PLC\\memory\\B\\8", plc, {}).value == -2
     assert plc.read(p.plc.words_start + 8, 4) == struct.pack("<i", -2)
@@ -187,12 +190,15 @@ def test_plc_views_agree() -> None:
     assert resolve_data_path("\\TABLE\\TOOL\\T\\3\\DOC", plc, tools).value == "drill"
     sym = "/PLC/program/symbol/global/+STG_WZM[0].WZ.L"
     assert resolve_data_path(sym, plc, {}) == resolve_data_path(sym, plc, {})
-    assert resolve_data_path("/PLC/program/symbol/global/MG_BA_AUTO", plc, {}).kind is DpType.BOOL
+    assert (
+        resolve_data_path("/PLC/program/symbol/global/MG_BA_AUTO", plc, {}).value_type
+        == DataType.BOOL
+    )
     for bad in ("\\PLC\\memory\\W\\99999999", "\\PLC\\memory\\Q\\1", "\\TABLE\\TOOL\\T\\9\\L", "x"):
-        with pytest.raises(PlcError) as info:
+        with pytest.raises(ControlRefused) as info:
             resolve_data_path(bad, plc, tools)
         assert info.value.code == 63
-    with pytest.raises(PlcError):
+    with pytest.raises(ControlRefused):
         plc.read(len(plc.image) - 1, 2)
 
 

@@ -6,10 +6,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode
 from opendnc.lsv2.payloads import ScopeSignal
 from opendnc.sim.tnc import oplog, scope
 from opendnc.sim.tnc.machine import parse_program
-from opendnc.sim.tnc.plc import PlcError, PlcMemory, parse_table, resolve_data_path
+from opendnc.sim.tnc.plc import PlcMemory, resolve_data_path, table_rows
 from opendnc.sim.tnc.profiles import PROFILES
 
 _PLC = PlcMemory(PROFILES["itnc530"].plc)
@@ -26,7 +28,7 @@ _TABLE_LINES = st.lists(
 
 @given(_TABLE_LINES)
 def test_table_parser_total(lines: list[str]) -> None:
-    rows = parse_table("\n".join(lines))
+    rows = table_rows("\n".join(lines))
     assert all(isinstance(r, dict) for r in rows)
 
 
@@ -37,12 +39,15 @@ def test_program_parser_total(text: str) -> None:
 
 
 @given(st.text(max_size=60))
-def test_oplog_request_parser_raises_only_value_error(text: str) -> None:
+def test_oplog_request_parser_only_refuses(text: str) -> None:
     try:
         request = oplog.parse_request(text)
-    except ValueError:
+    except ControlRefused as exc:
+        code = exc.code
+    else:
+        assert request.name
         return
-    assert request.name
+    assert code == ErrorCode.T_ER_BAD_PARAMETER
 
 
 @given(
@@ -56,11 +61,11 @@ def test_oplog_request_parser_raises_only_value_error(text: str) -> None:
         max_size=20,
     )
 )
-def test_scope_selection_raises_only_value_error(selectors: list[ScopeSignal]) -> None:
+def test_scope_selection_only_refuses(selectors: list[ScopeSignal]) -> None:
     try:
         signals = scope.parse_selection(tuple(selectors))
-    except ValueError as exc:
-        code = exc.args[0]
+    except ControlRefused as exc:
+        code = exc.code
     else:
         assert len(signals) == len(selectors)
         return
@@ -81,14 +86,14 @@ def test_scope_selection_raises_only_value_error(selectors: list[ScopeSignal]) -
         ),
     )
 )
-def test_data_paths_resolve_or_raise_plc_error(path: str) -> None:
+def test_data_paths_resolve_or_refuse(path: str) -> None:
     rows = {1: {"T": "1", "L": "+5", "DOC": "x"}}
     try:
         value = resolve_data_path(path, _PLC, rows)
-    except PlcError as exc:
+    except ControlRefused as exc:
         code = exc.code
     else:
-        assert value.encode()[:4] == int(value.kind).to_bytes(4, "big")
+        assert value.to_payload()[:4] == int(value.value_type).to_bytes(4, "big")
         return
     assert code in (52, 63)
 
@@ -97,5 +102,5 @@ def test_data_paths_resolve_or_raise_plc_error(path: str) -> None:
 def test_plc_reads_inside_the_image_always_work(key: str) -> None:
     plc = PlcMemory(PROFILES[key].plc)
     assert len(plc.read(len(plc.image) - 255, 255)) == 255
-    with pytest.raises(PlcError):
+    with pytest.raises(ControlRefused):
         plc.read(len(plc.image), 1)

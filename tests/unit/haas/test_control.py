@@ -10,14 +10,14 @@ import pytest
 
 from opendnc.errors import InputError
 from opendnc.haas import mdc
-from opendnc.haas.machine import Alarm
-from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import (
     ALARM_DNC_LINK,
     DprntDestination,
     HaasConfig,
     HaasControl,
 )
+from opendnc.sim.haas.machine import Alarm
+from opendnc.sim.haas.runner import StepResult
 from opendnc.sim.haas.store import ProgramStore
 from opendnc.sim.haas.surface import parse_surface
 
@@ -44,6 +44,7 @@ class Capture:
 
 def make(tmp_path: Path, **kwargs: object) -> tuple[HaasControl, Clock]:
     clock = Clock()
+    kwargs.setdefault("probe_noise_um", 0.0)  # exact touches: the tests compare printed digits
     config = HaasConfig(**kwargs)  # type: ignore[arg-type]
     return HaasControl(config, ProgramStore(tmp_path), clock=clock), clock
 

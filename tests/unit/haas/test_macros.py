@@ -13,9 +13,9 @@ import pytest
 
 from opendnc.errors import InputError
 from opendnc.haas import macros, mdc
-from opendnc.haas.machine import Alarm, MachineState
-from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import HaasConfig, HaasControl
+from opendnc.sim.haas.machine import Alarm, MachineState
+from opendnc.sim.haas.runner import StepResult
 from opendnc.sim.haas.store import ProgramStore
 
 

@@ -7,8 +7,8 @@ import math
 import pytest
 
 from opendnc.errors import InputError
-from opendnc.haas.machine import MachineState, Mode, Status
-from opendnc.haas.program import (
+from opendnc.sim.haas.machine import MachineState, Mode, Status
+from opendnc.sim.haas.program import (
     Assign,
     Dprnt,
     IfGoto,
@@ -21,7 +21,7 @@ from opendnc.haas.program import (
     parse_header,
     program_lines,
 )
-from opendnc.haas.runner import (
+from opendnc.sim.haas.runner import (
     AlarmRaised,
     BlockSource,
     CycleEnded,

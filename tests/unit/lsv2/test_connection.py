@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from opendnc.errors import LocalProtocolError, PeerClosed, RemoteProtocolError
-from opendnc.lsv2.connection import Lsv2Connection, Role, State
+from opendnc.lsv2.connection import Lsv2Connection, Role, State, UndecodableTelegram
 from opendnc.lsv2.messages import (
     BlockDefect,
     CommandDone,
@@ -107,8 +107,23 @@ def test_peer_closed() -> None:
 def test_server_keeps_going_after_unknown_telegram() -> None:
     server = Lsv2Connection(Role.SERVER)
     server.receive_data(b"\x00\x00\x00\x00Q_QQ\x00\x00\x00\x00R_VR")
-    with pytest.raises(RemoteProtocolError, match="unknown telegram"):
+    with pytest.raises(UndecodableTelegram, match="unknown telegram") as info:
         server.next_event()
-    assert server.last_frame is not None
-    assert server.last_frame.mnemonic == "Q_QQ"
+    assert info.value.frame.mnemonic == "Q_QQ"
     assert server.next_event() == ReadVersion()
+
+
+def test_malformed_payload_is_an_undecodable_telegram_not_lost_framing() -> None:
+    server = Lsv2Connection(Role.SERVER)
+    server.receive_data(b"\x00\x00\x00\x01R_RI\x01")  # R_RI needs 2 bytes
+    with pytest.raises(UndecodableTelegram) as info:
+        server.next_event()
+    assert (info.value.frame.mnemonic, info.value.frame.payload) == ("R_RI", b"\x01")
+
+
+def test_lost_framing_is_not_an_undecodable_telegram() -> None:
+    server = Lsv2Connection(Role.SERVER)
+    server.receive_data(b"\x00\x00\x00\x00\xff\xfe\x00\x01")  # no telegram name
+    with pytest.raises(RemoteProtocolError) as info:
+        server.next_event()
+    assert not isinstance(info.value, UndecodableTelegram)

@@ -7,10 +7,10 @@ import inspect
 import pytest
 
 from opendnc.errors import InputError, RemoteProtocolError
-from opendnc.lsv2 import AsyncClient, Client, _unasync
+from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.constants import MemoryType
 from opendnc.lsv2.plc import PlcOperand, decode_values, parse_operand, plan_reads
-from opendnc.lsv2.tables import parse_table
+from opendnc.lsv2.tables import Table, fixed_columns, parse_table
 from tests.unit.lsv2.samples import PARAMS
 
 
@@ -109,10 +109,6 @@ def test_bad_tables(bad: str) -> None:
         parse_table(bad)
 
 
-def test_blocking_facade_is_generated_from_async() -> None:
-    assert _unasync.main(["--check"]) == 0, "run python -m opendnc.lsv2._unasync"
-
-
 def test_facades_offer_the_same_methods() -> None:
     def public(cls: type) -> set[str]:
         return {n for n in dir(cls) if not n.startswith("_")}
@@ -122,3 +118,11 @@ def test_facades_offer_the_same_methods() -> None:
         attr = getattr(AsyncClient, name)
         if inspect.iscoroutinefunction(attr):
             assert not inspect.iscoroutinefunction(getattr(Client, name)), name
+
+
+def test_fixed_columns_lay_out_a_new_table() -> None:
+    columns = fixed_columns(("T", 4), ("NAME", 8), ("L", 6))
+    assert [(c.start, c.width) for c in columns] == [(0, 4), (4, 8), (12, 6)]
+    text = Table("BEGIN TOOL.T MM", columns, [{"T": "1", "NAME": "MILL", "L": "+5"}]).to_text()
+    assert text == "BEGIN TOOL.T MM\r\nT   NAME    L\r\n1   MILL    +5\r\n[END]\r\n"
+    assert parse_table(text).rows == [{"T": "1", "NAME": "MILL", "L": "+5"}]

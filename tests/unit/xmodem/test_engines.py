@@ -28,7 +28,7 @@ from opendnc.xmodem.framing import (
     decode_block,
     encode_block,
 )
-from opendnc.xmodem.receiver import ReceiverConfig, XmodemReceiver
+from opendnc.xmodem.receiver import PlainTextStart, ReceiverConfig, XmodemReceiver
 from opendnc.xmodem.sender import SenderConfig, XmodemSender
 from tests.unit.xmodem.memwire import run_wired
 
@@ -371,3 +371,44 @@ def test_turnaround_pause_is_a_non_listening_timer() -> None:
     assert not sender.timer.listen
     sender.timed_out()
     assert decode_block(sender.data_to_send(), crc=True).seq == 2
+
+
+def test_receiver_answers_a_complete_transfer_as_configured() -> None:
+    """A Haas answers the final EOT with CAN CAN CAN (``eot_answer``), a PC with ACK."""
+    for answer, wire in ((EotAnswer.ACK, bytes([ACK])), (EotAnswer.CAN, bytes([CAN] * 3))):
+        receiver = XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(eot_answer=answer))
+        receiver.data_to_send()
+        receiver.receive_data(encode_block(1, b"G0", crc=False))
+        assert receiver.data_to_send() == bytes([ACK])
+        receiver.receive_data(bytes([EOT]))
+        receiver.timed_out()  # the line stayed quiet after the EOT
+        assert receiver.data_to_send() == wire
+        assert receiver.result == Completed(2, 1, answer)
+    sender = XmodemSender(b"G0", Mode.CHECKSUM)
+    assert (
+        run_wired(
+            sender, XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(eot_answer=EotAnswer.CAN))
+        ).sender_error
+        is None
+    )
+    assert sender.result is not None
+    assert sender.result.eot_answer is EotAnswer.CAN
+
+
+def test_receiver_text_start_ends_on_plain_text_only_when_set() -> None:
+    receiver = XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(text_start=True))
+    receiver.data_to_send()
+    receiver.receive_data(b"\r\n\x11")  # filler says nothing yet
+    assert not receiver.finished
+    receiver.receive_data(b"%\nO1000\n")
+    assert isinstance(receiver.error, PlainTextStart)
+    assert receiver.error.text == b"%\nO1000\n"
+    assert receiver.data_to_send() == b""  # the text is not cancelled on the wire
+    plain = XmodemReceiver(Mode.CHECKSUM)
+    plain.data_to_send()
+    plain.receive_data(b"%\nO1000\n")  # without the setting: noise while idle
+    assert not plain.finished
+    started = XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(text_start=True))
+    started.data_to_send()
+    started.receive_data(b"\n" + encode_block(1, b"G0", crc=False))
+    assert started.data_to_send() == bytes([ACK])

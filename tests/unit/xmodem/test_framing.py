@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from opendnc.errors import ChecksumError, RemoteProtocolError
+from opendnc.errors import ChecksumError, LocalProtocolError, RemoteProtocolError
 from opendnc.xmodem.framing import (
     SOH,
     STX,
@@ -71,7 +71,7 @@ def test_decode_errors_are_typed_and_named() -> None:
         decode_block(b"\x03" + raw[1:], crc=False)
     with pytest.raises(RemoteProtocolError, match="shorter"):
         decode_block(b"\x01", crc=False)
-    with pytest.raises(ValueError, match="do not fit"):
+    with pytest.raises(LocalProtocolError, match="do not fit"):
         encode_block(1, b"x" * 129, crc=False)
 
 

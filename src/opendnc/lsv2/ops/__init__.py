@@ -1,7 +1,7 @@
 """LSV2 operations, each written once as a generator and run by the drivers of
 :mod:`opendnc.lsv2.drive` (blocking) or asyncio alike. See :mod:`opendnc.lsv2.ops.base`."""
 
-from opendnc.lsv2.ops.base import Expect, Op, Overlap, SessionState, Slow, Step
+from opendnc.lsv2.ops.base import Expect, Op, Receive, Send, SessionState, Slow, Step
 from opendnc.lsv2.ops.extras import (
     ScopeRecording,
     operations_log,
@@ -67,8 +67,9 @@ __all__ = [
     "Expect",
     "FileInfo",
     "Op",
-    "Overlap",
+    "Receive",
     "ScopeRecording",
+    "Send",
     "SessionState",
     "Slow",
     "Step",

@@ -9,14 +9,14 @@ so the blocking and asyncio drivers (:mod:`opendnc.lsv2.drive`) run the very sam
 
 A step is a :class:`~opendnc.lsv2.messages.Message` to send (the reply is sent back in;
 ``None`` if the protocol defines no reply, e.g. ``T_FD`` without secure send), a
-:class:`Slow` message with its own timeout, an :class:`Overlap` message with work to do
-while its answer travels, or :class:`Expect` to wait for an unsolicited ``M_CC`` without
-sending anything.
+:class:`Slow` message with its own timeout, :class:`Expect` to wait for an unsolicited
+``M_CC`` without sending anything, or the two halves of one exchange, :class:`Send` and
+:class:`Receive`, between which the operation does its own work while the answer travels.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+from collections.abc import Generator
 from dataclasses import dataclass, field
 from typing import NoReturn, TypeVar
 
@@ -29,7 +29,8 @@ from opendnc.lsv2.payloads import SystemParameters, Versions
 __all__ = [
     "Expect",
     "Op",
-    "Overlap",
+    "Receive",
+    "Send",
     "SessionState",
     "Slow",
     "Step",
@@ -61,19 +62,24 @@ class Expect:
 
 
 @dataclass(frozen=True, slots=True)
-class Overlap:
-    """Send ``message``, call ``work()`` while its answer travels, then read the answer.
+class Send:
+    """Send ``message`` and come back at once (with ``None``); :class:`Receive` reads its answer.
 
     Transfers are stop-and-wait: a download block's ``T_OK`` should leave before the block is
-    stored, so that storing it overlaps with the control preparing the next one. ``work``
-    must not raise; it records a failure for the operation to act on after the answer.
+    stored, so that storing it overlaps with the control preparing the next one. The
+    operation stores between ``Send`` and ``Receive``, in its own code, and must take the
+    answer (``Receive``) before it raises, so that the link stays in step.
     """
 
     message: Message
-    work: Callable[[], None]
 
 
-Step = Message | Slow | Expect | Overlap
+@dataclass(frozen=True, slots=True)
+class Receive:
+    """Wait for the answer to the preceding :class:`Send` (``None`` if none is due)."""
+
+
+Step = Message | Slow | Expect | Send | Receive
 Op = Generator[Step, Message | None, T]
 
 

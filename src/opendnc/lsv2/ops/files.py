@@ -32,7 +32,8 @@ from opendnc.lsv2.messages import (
 )
 from opendnc.lsv2.ops.base import (
     Op,
-    Overlap,
+    Receive,
+    Send,
     SessionState,
     ask,
     command,
@@ -68,7 +69,8 @@ Progress = Callable[[int, int | None], None]
 """Progress callback: bytes done, total bytes (``None`` if unknown)."""
 
 _MISSING = (32, 55)  # T_ER_NO_FILE, T_ER_NO_DIR
-_NEXT = Ok()  # "send the next block": one shared immutable value per download block
+_SEND_NEXT = Send(Ok())  # "send the next block": one shared immutable step per block
+_RECEIVE = Receive()
 
 
 @dataclass(frozen=True, slots=True)
@@ -370,42 +372,6 @@ def upload(
         expect(reply, Ok, f"finish upload {remote}")
 
 
-class _Store:
-    """Stores one received download block; runs after its ``T_OK`` went out (:class:`Overlap`).
-
-    A failure (disk full, cancelled by the caller) is kept instead of raised, so that the
-    operation can first take the control's next answer and stay in step with it.
-    """
-
-    __slots__ = ("binary", "data", "done", "error", "line_end", "progress", "sink", "total")
-
-    def __init__(
-        self,
-        sink: Callable[[bytes], object],
-        binary: bool,
-        line_end: bytes,
-        progress: Progress | None,
-        total: int | None,
-    ) -> None:
-        self.sink, self.binary, self.line_end = sink, binary, line_end
-        self.progress, self.total = progress, total
-        self.data = b""
-        self.done = 0
-        self.error: Exception | None = None
-
-    def __call__(self) -> None:
-        if self.error is not None:
-            return
-        try:
-            data = self.data if self.binary else from_wire_ascii(self.data, self.line_end)
-            self.sink(data)
-            self.done += len(data)
-            if self.progress is not None:
-                self.progress(self.done, self.total)
-        except Exception as exc:  # reported by download() once the answer is in
-            self.error = exc
-
-
 def download(
     state: SessionState,
     remote: str,
@@ -418,8 +384,9 @@ def download(
     """``R_FL``: pass the file's blocks to ``sink``; returns the byte count delivered.
 
     In ASCII mode every NUL line end becomes ``line_end``. Each block is acknowledged before
-    it is handed to ``sink`` (see :class:`Overlap`); if ``sink`` or ``progress`` raises, the
-    control is stopped with ``T_BD`` at its next block and the error is re-raised.
+    it is handed to ``sink`` (see :class:`~opendnc.lsv2.ops.base.Send`); if ``sink`` or
+    ``progress`` raises, the control is stopped with ``T_BD`` at its next block and the error
+    is re-raised.
     """
     yield from _login_for(state, remote)
     path = wire_path(remote)
@@ -429,16 +396,22 @@ def download(
         total = info.size if info is not None else None
         progress(0, total)
     reply = yield ReadFile(path, TransferMode.BINARY if binary else TransferMode.ASCII)
-    store = _Store(sink, binary, line_end, progress, total)
-    step = Overlap(_NEXT, store)
+    done = 0
     while not isinstance(reply, FileDone):
         if not isinstance(reply, FileData):
             refuse(reply, f"download {remote}")
-        store.data = reply.data
-        reply = yield step
-        if store.error is not None:
-            # A local failure: stop the control's sequence so the session stays usable.
-            if isinstance(reply, FileData):
+        yield _SEND_NEXT  # the control prepares the next block while this one is stored
+        try:
+            data = reply.data if binary else from_wire_ascii(reply.data, line_end)
+            sink(data)
+            done += len(data)
+            if progress is not None:
+                progress(done, total)
+        except Exception:
+            # A local failure (disk full, cancelled): take the answer already under way, stop
+            # the control's sequence if it is a block, so the session stays usable; re-raise.
+            if isinstance((yield _RECEIVE), FileData):
                 yield BlockDefect()
-            raise store.error
-    return store.done
+            raise
+        reply = yield _RECEIVE
+    return done

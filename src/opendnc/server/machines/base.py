@@ -10,12 +10,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
+from pathlib import Path
 from typing import Any, Protocol
 
-__all__ = ["Connector", "MachineStatus", "Progress", "Reception"]
+__all__ = ["Connector", "DripProgress", "MachineStatus", "Progress", "Reception"]
 
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
+
+DripProgress = Callable[[int, int], None]
+"""Called with (program line reached, program lines) while a drip-feed runs."""
 
 
 @dataclass(frozen=True)
@@ -74,3 +78,18 @@ class Connector(Protocol):
 
     async def listen(self, seconds: float) -> Reception | None:
         """Wait up to ``seconds`` for the control to start sending; None if it did not."""
+
+    async def fetch(self, path: str) -> bytes:
+        """Read the file ``path`` from the control (:class:`InputError` where it cannot)."""
+
+    async def delete(self, path: str) -> None:
+        """Delete the file ``path`` on the control (:class:`InputError` where it cannot)."""
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Copy the folder ``path`` into ``target``, skipping unchanged files; counts."""
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Stream a program the control runs as it arrives (:class:`InputError` where the
+        control cannot); ``progress`` may raise to stop the feed. Returns counts."""

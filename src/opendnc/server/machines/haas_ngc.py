@@ -18,7 +18,7 @@ from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector", "mdc_status"]
@@ -111,6 +111,45 @@ class HaasNgcConnector:
             return None
         local = target.local / name
         return await asyncio.to_thread(lambda: local.is_file() and local.read_bytes() == data)
+
+    def _local(self, path: str) -> Path:
+        target = self._target()
+        if target.local is None:
+            raise InputError(f"{self.config.name}: reading and deleting need a local share folder")
+        name = path.replace("\\", "/").rsplit("/", 1)[-1]
+        if not name or name in (".", ".."):
+            raise InputError(f"{path!r} names no file")
+        return target.local / name
+
+    async def fetch(self, path: str) -> bytes:
+        """Read a program from the share folder."""
+        local = self._local(path)
+        try:
+            return await asyncio.to_thread(local.read_bytes)
+        except OSError as exc:
+            raise InputError(
+                f"{self.config.name}: cannot read {local.name}: {exc.strerror}"
+            ) from exc
+
+    async def delete(self, path: str) -> None:
+        """Delete a program from the share folder."""
+        local = self._local(path)
+        try:
+            await asyncio.to_thread(local.unlink)
+        except OSError as exc:
+            raise InputError(
+                f"{self.config.name}: cannot delete {local.name}: {exc.strerror}"
+            ) from exc
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Not offered: a Haas share is a folder a file-level backup copies already."""
+        raise InputError(f"{self.config.name}: backup is for LSV2 controls")
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Drip-feed is a serial Haas's way of running a program."""
+        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
 
     async def listen(self, seconds: float) -> Reception | None:
         """This connector does not take programs sent by the control."""

@@ -21,19 +21,21 @@ the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and han
 from __future__ import annotations
 
 import asyncio
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 
-from opendnc.errors import DncError, PeerClosed, TransportError, TransportTimeout
+from opendnc.errors import DncError, InputError, PeerClosed, TransportError, TransportTimeout
+from opendnc.haas.dnc import DncConfig, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
-from opendnc.transport import ByteStream
-from opendnc.transport.serial import open_stream
+from opendnc.transport import ByteStream, PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive
 from opendnc.xmodem.driver import send as xmodem_send
 from opendnc.xmodem.events import Started
@@ -56,16 +58,21 @@ class HaasSerialConnector:
 
     listens = True
 
-    def __init__(self, config: MachineConfig) -> None:
+    def __init__(self, config: MachineConfig, *, quiet_after_break: float = 30.0) -> None:
         self.config = config
-        self._stream: ByteStream | None = None
+        self._stream: PortStream | None = None
+        # After a drip-feed breaks, the control still waits in DNC mode for the rest of the
+        # program: the listener's start requests (NAK) would reach it as program input and
+        # keep it from timing out into its DNC-link alarm. The port stays silent this long.
+        self.quiet_after_break = quiet_after_break
+        self._quiet_until = 0.0
         self._mdc: MdcClient | None = None
-        self._tap: TapStream | None = None
+        self._tap: TapStream | None = None  # the port as listening and MDC read it
         self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
         self.on_dprnt: Callable[[CapturedLine], None] | None = None
         """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
 
-    def _open(self) -> ByteStream:
+    def _open(self) -> PortStream:
         profile = self.config.profile
         return open_stream(
             self.config.serial,
@@ -74,18 +81,19 @@ class HaasSerialConnector:
             parity=profile.parity,
             bytesize=profile.bytesize,
             stopbits=profile.stopbits,
+            # XModem is binary: XON/XOFF must not be taken out of the data by the port;
+            # a drip-feed handles the control's DC1/DC3 itself.
+            flow="rtscts" if profile.flow == "rtscts" else "none",
         )
 
     async def connect(self) -> None:
         """Open the port (a TCP serial server answers, a device exists)."""
         if self._stream is None:
-            stream = await asyncio.to_thread(self._open)
+            self._stream = await asyncio.to_thread(self._open)
             if self.config.dprnt == "serial" and self.on_dprnt is not None:
-                stream = self._tap = TapStream(stream, DprntTap(self.on_dprnt))
-            self._stream = stream
-            self._mdc = (
-                MdcClient.over(self._stream, timeout=MDC_TIMEOUT) if self.config.mdc else None
-            )
+                self._tap = TapStream(self._stream, DprntTap(self.on_dprnt))
+            if self.config.mdc:
+                self._mdc = MdcClient.over(self._reader(), timeout=MDC_TIMEOUT)
 
     async def close(self) -> None:
         """Close the port."""
@@ -94,17 +102,25 @@ class HaasSerialConnector:
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
-    def _require(self) -> ByteStream:
+    def _require(self) -> PortStream:
         if self._stream is None:
             raise TransportError(f"{self.config.name}: port not open")
         return self._stream
 
+    def _reader(self) -> ByteStream:
+        """The port as listening and MDC read it (through the DPRNT tap when there is one)."""
+        return self._tap if self._tap is not None else self._require()
+
+    def _tapping(self, mode: str) -> None:
+        if self._tap is not None:
+            self._tap.mode = mode
+
     async def status(self) -> MachineStatus:
         """Available while the port opens; with ``mdc`` also program, mode and parts."""
         client = self._mdc
-        if client is None:
+        if client is None or time.monotonic() < self._quiet_until:
             return MachineStatus(at=utcnow(), available=True, execution="READY")
-        stream = self._require()
+        stream = self._reader()
         last = self._last
         if last is not None and time.monotonic() - last[0] < self.config.mdc_interval:
             return last[1]  # paced: a classic control is not asked more often than this
@@ -134,16 +150,15 @@ class HaasSerialConnector:
             lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
         )
 
-    def _tapping(self, mode: str) -> None:
-        if self._tap is not None:
-            self._tap.mode = mode
-
     async def verify(self, name: str, data: bytes) -> bool | None:
         """None: XModem's block checks are the only verification a serial Haas offers."""
         return None
 
     async def listen(self, seconds: float) -> Reception | None:
         """Receive one XModem transfer if the control starts one within ``seconds``."""
+        if time.monotonic() < self._quiet_until:
+            await asyncio.sleep(seconds)
+            return None
 
         def run() -> Reception | None:
             parts: list[bytes] = []
@@ -159,7 +174,7 @@ class HaasSerialConnector:
                 fold_eob_checksum=True,  # Haas sums blocks with its EOB folded to LF
                 cancel_when_idle=False,  # the next window listens again
             )
-            stream = self._require()
+            stream = self._reader()
             self._tapping("listen")
             try:
                 xmodem_receive(
@@ -178,6 +193,57 @@ class HaasSerialConnector:
             return Reception(b"".join(parts))
 
         return await asyncio.to_thread(run)
+
+    async def fetch(self, path: str) -> bytes:
+        """A serial Haas sends programs itself (a punch), it cannot be asked for one."""
+        raise InputError(f"{self.config.name}: punch the program at the control instead")
+
+    async def delete(self, path: str) -> None:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: RS-232 cannot delete programs on the control")
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Not possible over RS-232."""
+        raise InputError(f"{self.config.name}: backup is for LSV2 controls")
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Stream the program with XON/XOFF (the control's DC3 stops us within a chunk);
+        from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`."""
+        if not self.config.dripfeed:
+            raise InputError(
+                f"{self.config.name}: drip-feed is off for this machine "
+                "(it runs the program: set dripfeed = true in its configuration)"
+            )
+        stream = self._require()
+        profile = self.config.profile
+        lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+
+        def on_progress(done: int, total: int) -> None:
+            # File bytes consumed -> the program line reached (lines before from_line count
+            # as done: they were skipped, not sent).
+            progress(data[:done].count(b"\n") + 1, lines)
+
+        def run() -> dict[str, int]:
+            with tempfile.TemporaryDirectory(prefix="opendnc-dnc-") as tmp:
+                path = Path(tmp) / name
+                path.write_bytes(data)
+                report = stream_program(
+                    stream,
+                    path,
+                    from_line=from_line,
+                    config=DncConfig(eob=_EOB[profile.eob], wait_for_xon=profile.wait_for_xon),
+                    safe_mode=False,  # the machine's dripfeed = true is the opt-in
+                    progress=on_progress,
+                )
+            return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
+
+        try:
+            return await asyncio.to_thread(run)
+        except BaseException:
+            self._quiet_until = time.monotonic() + self.quiet_after_break
+            raise
 
 
 def _drain(stream: ByteStream) -> None:

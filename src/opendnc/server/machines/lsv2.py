@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import TypeVar
 
-from opendnc.errors import ControlRefused, DncError, TransportError
-from opendnc.lsv2 import AsyncClient
+from opendnc.errors import ControlRefused, DncError, InputError, TransportError
+from opendnc.lsv2 import AsyncClient, Client
+from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import MachineStatus, Progress, Reception
+from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Lsv2Connector"]
@@ -134,6 +137,35 @@ class Lsv2Connector:
         """
         line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         return await self._require().read_file(self._target(name), line_end=line_end) == data
+
+    async def fetch(self, path: str) -> bytes:
+        """Read a file from the control (binary: the bytes as the control holds them)."""
+        return await self._require().read_file(path, binary=True)
+
+    async def delete(self, path: str) -> None:
+        """Delete a file on the control."""
+        await self._require().delete_file(path)
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """Back up a folder over a second LSV2 session (the backup walks the whole tree in
+        a worker thread; the status polls keep their own session)."""
+
+        def run() -> dict[str, int]:
+            with Client(self.config.host, int(self.config.port), timeout=30.0) as client:
+                summary = lsv2_backup(client, path, target)
+            return {
+                "copied": len(summary.copied),
+                "unchanged": len(summary.skipped),
+                "failed": len(summary.failed),
+            }
+
+        return await asyncio.to_thread(run)
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Drip-feed is a serial Haas's way of running a program."""
+        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
 
     async def listen(self, seconds: float) -> Reception | None:
         """This connector does not take programs sent by the control."""

@@ -8,7 +8,7 @@ from opendnc.sim.haas.control import (
     HaasConfig,
     HaasControl,
 )
-from opendnc.sim.haas.surface import SurfaceSpec, parse_surface
+from opendnc.sim.haas.surface import HeightMap, SurfaceSpec, parse_surface
 
 __all__ = [
     "ALARM_DNC_LINK",
@@ -16,6 +16,7 @@ __all__ = [
     "DprntOutput",
     "HaasConfig",
     "HaasControl",
+    "HeightMap",
     "SimHaas",
     "SimHaasThread",
     "SimOptions",

@@ -17,17 +17,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from opendnc.haas.runner import StepResult
 from opendnc.sim.haas.control import DprntDestination, HaasConfig, HaasControl
 from opendnc.sim.haas.dprnt_out import FileDprntOutput, TcpDprntOutput
 from opendnc.sim.haas.mdc_server import MdcServer, Trace
+from opendnc.sim.haas.runner import StepResult
 from opendnc.sim.haas.store import ProgramStore
 
 T = TypeVar("T")
-
-SERIAL_FRONT_END = "opendnc.sim.haas.serial_front"
-"""Module a serial front-end provides: ``async def start_serial(sim, url, baud, trace)``
-returning a :class:`FrontEnd`. The CLI looks it up; absent, ``--serial`` is refused."""
 
 
 class FrontEnd(Protocol):

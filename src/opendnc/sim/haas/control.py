@@ -1,8 +1,8 @@
 """The virtual Haas control: one model object that front-ends attach to.
 
 :class:`HaasControl` owns program memory (:class:`~opendnc.sim.haas.store.ProgramStore`),
-machine state and settings (:class:`~opendnc.haas.machine.MachineState`), the active
-:class:`~opendnc.haas.runner.ProgramRunner`, the alarm list and the DPRNT routing. It does no
+machine state and settings (:class:`~opendnc.sim.haas.machine.MachineState`), the active
+:class:`~opendnc.sim.haas.runner.ProgramRunner`, the alarm list and the DPRNT routing. It does no
 I/O and has no timers: front-ends call into it and a driver calls :meth:`HaasControl.step`.
 
 Front-ends and how they attach:
@@ -24,6 +24,7 @@ Not thread-safe: call it from one thread (the simulator's event loop).
 from __future__ import annotations
 
 import enum
+import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,9 +32,9 @@ from typing import Protocol
 
 from opendnc.errors import InputError
 from opendnc.haas import mdc
-from opendnc.haas.machine import Alarm, MachineState, Mode, Status
-from opendnc.haas.program import parse_header, program_lines
-from opendnc.haas.runner import (
+from opendnc.sim.haas.machine import Alarm, MachineState, Mode, Status
+from opendnc.sim.haas.program import parse_header, program_lines
+from opendnc.sim.haas.runner import (
     AlarmRaised,
     BlockSource,
     CycleTimes,
@@ -85,6 +86,10 @@ class HaasConfig:
     dprnt_file: str = ""
     dprnt_port: int = 0
     strict_probe: bool = False
+    probe_noise_um: float = 1.0
+    """Probe repeatability, one standard deviation in micrometres (0 = exact touches)."""
+    probe_seed: int | None = None
+    """Seed for the probe noise (None = different every run)."""
     ignore_first_query: bool = False
     """Fidelity knob: leave each connection's first MDC request unanswered (Haas notes the
     first ?Q100 after connecting may have to be sent twice)."""
@@ -118,6 +123,7 @@ class HaasControl:
         self.event_hooks: list[Callable[[RunnerEvent], None]] = []
         self.wake: Callable[[], None] = lambda: None
         self.dprnt_dropped = 0
+        self._probe_rng = random.Random(config.probe_seed)
         self._power_on_at = clock()
         settings = self.machine.settings
         settings[143] = config.mdc_port
@@ -190,6 +196,8 @@ class HaasControl:
             name=name,
             mode=mode,
             strict_probe=self.config.strict_probe,
+            probe_noise_um=self.config.probe_noise_um,
+            rng=self._probe_rng,
         )
         self.wake()
         return self.runner

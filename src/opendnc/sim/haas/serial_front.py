@@ -57,10 +57,10 @@ import serial
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
 from opendnc.haas import mdc
-from opendnc.haas.machine import Alarm
 from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
 from opendnc.sim.haas.dprnt_out import StreamDprntOutput
+from opendnc.sim.haas.machine import Alarm
 from opendnc.sim.haas.mdc_server import MdcResponder
 from opendnc.sim.haas.serial_xmodem import (
     Interrupted,

@@ -1,20 +1,22 @@
-"""XModem the way the virtual Haas speaks it, on top of the engines and blocking driver.
+"""XModem the way the virtual Haas speaks it, on the client's engines and blocking driver.
 
 The engines (:mod:`opendnc.xmodem`) are standard; the Haas differences seen in the OpenDNC capture
 (docs/xmodem.md#haas-dialect) are
-added at the byte boundary by :class:`QuirkStream`, each one a knob of :class:`XmodemQuirks`:
+each a knob of :class:`XmodemQuirks`, set on the engine where it has one:
 
+* receiving, it answers the EOT of a complete transfer with CAN CAN CAN instead of ACK
+  (the receiver's ``eot_answer`` setting);
 * receiving, the control repeats its start request, and repeats come as several NAKs
-  (capture: one NAK, then two NAKs about 2 s later);
-* receiving, it answers the EOT of a complete transfer with CAN CAN CAN instead of ACK;
+  (capture: one NAK, then two NAKs about 2 s later) -- added at the byte boundary by
+  :class:`QuirkStream`;
 * punching, it may leave the PC's first NAK unanswered (capture: the transfer started on the
-  second NAK, 10 s later) -- off by default, it only slows tests down;
+  second NAK, 10 s later) -- off by default, it only slows tests down; also in QuirkStream;
 * punching, the text starts with an LF before ``%`` and has an empty block before the closing
   ``%`` (:func:`punch_bytes`); the last block is SUB padded by the engine.
 
-In ``auto`` mode the receive also watches the first significant byte: an XModem start byte
-continues the transfer, anything else (``%`` of a plain-text drip-feed) ends it with
-:class:`TextStart` so the caller can switch to DNC.
+In ``auto`` mode the receiver's ``text_start`` setting watches the first significant byte: an
+XModem start byte continues the transfer, anything else (``%`` of a plain-text drip-feed)
+ends it, and :func:`receive_xmodem` returns :class:`TextStart` so the caller can switch to DNC.
 """
 
 from __future__ import annotations
@@ -27,17 +29,16 @@ from typing import TYPE_CHECKING
 from opendnc.errors import DncError
 from opendnc.transport.base import ByteStream
 from opendnc.xmodem.driver import run_blocking
-from opendnc.xmodem.events import Completed, DataReceived, Event
-from opendnc.xmodem.framing import ACK, CAN, EOT, NAK, SOH, STX, Mode
+from opendnc.xmodem.events import Completed, DataReceived, EotAnswer, Event
+from opendnc.xmodem.framing import CAN, EOT, NAK, SOH, STX, Mode
 from opendnc.xmodem.haas import Eob, to_wire
-from opendnc.xmodem.receiver import ReceiverConfig, XmodemReceiver
+from opendnc.xmodem.receiver import PlainTextStart, ReceiverConfig, XmodemReceiver
 from opendnc.xmodem.sender import SenderConfig, XmodemSender
 
 if TYPE_CHECKING:
     from opendnc.sim.haas.serial_front import SerialOptions
 
 _XMODEM_START = frozenset((SOH, STX, EOT, CAN))
-_LEADER = frozenset(b"\x00\r\n \x11\x13")  # bytes that say nothing about the protocol
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,12 +64,6 @@ class Interrupted(DncError):
     """The operator selected something else before the transfer started."""
 
 
-class _TextDetected(DncError):
-    def __init__(self, text: bytes) -> None:
-        super().__init__("plain text instead of XModem")
-        self.text = text
-
-
 def punch_bytes(text: str, eob: Eob) -> bytes:
     """A stored program as a Haas punches it: ``LF % LF O.. LF .. M30 LF LF % LF``."""
     body = text.replace("\r\n", "\n").strip("\n")
@@ -78,7 +73,7 @@ def punch_bytes(text: str, eob: Eob) -> bytes:
 
 
 class QuirkStream:
-    """A :class:`ByteStream` over the port that adds the Haas quirks (see the module doc)."""
+    """A :class:`ByteStream` over the port that adds the Haas start-up quirks (module doc)."""
 
     def __init__(
         self,
@@ -87,7 +82,6 @@ class QuirkStream:
         quirks: XmodemQuirks,
         *,
         receiving: bool,
-        detect_text: bool = False,
         interrupt: threading.Event | None = None,
         stop: threading.Event | None = None,
     ) -> None:
@@ -97,8 +91,6 @@ class QuirkStream:
         self._write = write
         self.quirks = quirks
         self.receiving = receiving
-        self.detect_text = detect_text
-        self.completed = False  # set when the engine reported Completed
         self._requests = 0
         self._started = False
         self._nak_dropped = False
@@ -109,13 +101,8 @@ class QuirkStream:
         if self._stop is not None and self._stop.is_set():
             raise Interrupted("the simulator is shutting down")
         data = self._port.read(max_bytes)
-        if self.receiving and not self._started:
-            for byte in data:
-                if byte in _XMODEM_START:
-                    self._started = True
-                    break
-                if self.detect_text and byte not in _LEADER and byte != NAK:
-                    raise _TextDetected(data)
+        if self.receiving and not self._started and not _XMODEM_START.isdisjoint(data):
+            self._started = True
         if not self.receiving and data and not self._started:
             self._started = True
         if not self.receiving and self.quirks.ignore_first_nak and not self._nak_dropped:
@@ -130,13 +117,6 @@ class QuirkStream:
             self._requests += 1
             if self._requests > 1:
                 data = data * (1 + self.quirks.extra_naks)
-        elif (
-            self.receiving
-            and self.completed
-            and self.quirks.can_after_eot
-            and data.endswith(bytes((ACK,)))
-        ):
-            data = data[:-1] + bytes((CAN, CAN, CAN))
         self._write(data)
 
     def set_timeout(self, seconds: float | None) -> None:
@@ -146,11 +126,9 @@ class QuirkStream:
         """The port belongs to the front-end."""
 
     def on_event(self, event: Event) -> None:
-        """Watch the receiver: a block means the transfer runs, Completed precedes the last ACK."""
+        """Watch the receiver: a block means the transfer runs."""
         if isinstance(event, DataReceived):
             self._started = True
-        elif isinstance(event, Completed):
-            self.completed = True
 
 
 def receive_xmodem(
@@ -168,13 +146,13 @@ def receive_xmodem(
     With ``text_ok`` a plain-text start returns :class:`TextStart` instead.
     """
     quirks = options.quirks
-    stream = QuirkStream(
-        port, write, quirks, receiving=True, detect_text=text_ok, interrupt=interrupt, stop=stop
-    )
+    stream = QuirkStream(port, write, quirks, receiving=True, interrupt=interrupt, stop=stop)
     config = ReceiverConfig(
         start_timeout=quirks.start_timeout,
         start_interval=quirks.nak_interval,
         crc_tries=0,  # Haas knows only the checksum variant
+        eot_answer=EotAnswer.CAN if quirks.can_after_eot else EotAnswer.ACK,
+        text_start=text_ok,
     )
     engine = XmodemReceiver(Mode.CHECKSUM, config)
     chunks: list[bytes] = []
@@ -189,7 +167,7 @@ def receive_xmodem(
 
     try:
         run_blocking(engine, stream, on_event=handle)
-    except _TextDetected as text:
+    except PlainTextStart as text:
         return TextStart(text.text)
     return b"".join(chunks)
 

@@ -13,10 +13,12 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.sim.tnc import oplog
-from opendnc.sim.tnc.filesystem import ControlFs, FsError, WirePath
+from opendnc.sim.tnc.filesystem import ControlFs, WirePath
 from opendnc.sim.tnc.machine import Machine
-from opendnc.sim.tnc.plc import MachineParameters, PlcMemory, parse_table
+from opendnc.sim.tnc.plc import MachineParameters, PlcMemory, table_rows
 from opendnc.sim.tnc.population import populate
 from opendnc.sim.tnc.profiles import Profile
 
@@ -107,10 +109,10 @@ class Control:
         wp = self.fs.parse(self.profile.paths.tool_table, WirePath("TNC:", ()))
         try:
             text = self.fs.read_bytes(wp).decode("latin-1")
-        except FsError:
+        except ControlRefused:
             return {}
         rows: dict[int, dict[str, str]] = {}
-        for row in parse_table(text):
+        for row in table_rows(text):
             try:
                 rows[int(row.get("T", ""))] = row
             except ValueError:
@@ -144,7 +146,9 @@ class Control:
         canonical = self.fs.canonical(wp)
         suffixes = {e.lower() for e in self.profile.paths.program_ext}
         if "." + canonical.name.rsplit(".", 1)[-1].lower() not in suffixes:
-            raise FsError(35, f"{canonical} is not an NC program of this control")
+            raise ControlRefused(
+                E.T_ER_BAD_FILE, f"{canonical} is not an NC program of this control"
+            )
         text = self.fs.read_bytes(canonical).decode("latin-1")
         self.machine.select(str(canonical), text)
         self.fs.set_selected([canonical])

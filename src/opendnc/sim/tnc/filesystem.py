@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from opendnc.atomicfile import create_temp
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.payloads import FileEntry
 from opendnc.sim.tnc.profiles import Profile
 
@@ -31,25 +33,16 @@ MAX_PATH = 255
 MAX_NAME = 128
 
 
-class FsError(Exception):
-    """A refused file operation carrying the LSV2 error code (T_ER payload code)."""
-
-    def __init__(self, code: int, text: str) -> None:
-        super().__init__(f"{code}: {text}")
-        self.code = code
-        self.text = text
-
-
-# LSV2 error codes used here (docs/lsv2.md#error-codes).
-BAD_FNAME = 31
-NO_FILE = 32
-OPEN_FILE = 33
-FILE_EXISTS = 34
-NO_DELETE = 36
-NO_NEW_FILE = 37
-DEL_DIR = 54
-NO_DIR = 55
-NO_RENAME = 48
+# Refusals carry the LSV2 error code the control answers with (T_ER payload).
+BAD_FNAME = E.T_ER_BAD_FNAME
+NO_FILE = E.T_ER_NO_FILE
+OPEN_FILE = E.T_ER_OPEN_FILE
+FILE_EXISTS = E.T_ER_FILE_EXISTS
+NO_DELETE = E.T_ER_NO_DELETE
+NO_NEW_FILE = E.T_ER_NO_NEW_FILE
+DEL_DIR = E.T_ER_DEL_DIR
+NO_DIR = E.T_ER_NO_DIR
+NO_RENAME = E.T_ER_NO_RENAME
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,15 +76,15 @@ class WirePath:
 
 
 def parse_path(text: str, cwd: WirePath, drives: tuple[str, ...]) -> WirePath:
-    """Normalise ``text`` (absolute or relative to ``cwd``) or raise FsError(31).
+    """Normalise ``text`` (absolute or relative to ``cwd``) or raise ControlRefused(31).
 
     Accepts ``\\`` and ``/``, collapses repeated and trailing separators and resolves ``.`` and
     ``..`` lexically without ever leaving the drive.
     """
     if len(text) > MAX_PATH:
-        raise FsError(BAD_FNAME, "path too long")
+        raise ControlRefused(BAD_FNAME, "path too long")
     if any(ch in text for ch in ("\0",)):
-        raise FsError(BAD_FNAME, "NUL in path")
+        raise ControlRefused(BAD_FNAME, "NUL in path")
     norm = text.replace("/", "\\").strip(" ")
     drive = cwd.drive
     base: tuple[str, ...] = cwd.parts
@@ -99,7 +92,7 @@ def parse_path(text: str, cwd: WirePath, drives: tuple[str, ...]) -> WirePath:
     if colon >= 0:
         prefix = norm[: colon + 1].upper()
         if prefix not in drives:
-            raise FsError(BAD_FNAME, f"unknown drive {norm[: colon + 1]!r}")
+            raise ControlRefused(BAD_FNAME, f"unknown drive {norm[: colon + 1]!r}")
         drive, norm, base = prefix, norm[colon + 1 :], ()
     elif norm.startswith("\\"):
         base = ()
@@ -109,14 +102,14 @@ def parse_path(text: str, cwd: WirePath, drives: tuple[str, ...]) -> WirePath:
             continue
         if comp == "..":
             if not parts:
-                raise FsError(BAD_FNAME, "path climbs above the drive root")
+                raise ControlRefused(BAD_FNAME, "path climbs above the drive root")
             parts.pop()
             continue
         if any(ch in _BAD_CHARS for ch in comp) or len(comp) > MAX_NAME:
-            raise FsError(BAD_FNAME, f"illegal file name {comp!r}")
+            raise ControlRefused(BAD_FNAME, f"illegal file name {comp!r}")
         if comp.rstrip(" .") != comp:
             # Windows-style trailing dots/blanks alias other names: refuse them.
-            raise FsError(BAD_FNAME, f"illegal file name {comp!r}")
+            raise ControlRefused(BAD_FNAME, f"illegal file name {comp!r}")
         parts.append(comp)
     return WirePath(drive, tuple(parts))
 
@@ -193,7 +186,7 @@ class ControlFs:
             current = current / self._match(current, comp)
         resolved = current.resolve()
         if not resolved.is_relative_to(base.resolve()):
-            raise FsError(BAD_FNAME, "path leaves the drive")
+            raise ControlRefused(BAD_FNAME, "path leaves the drive")
         return current
 
     @staticmethod
@@ -217,12 +210,12 @@ class ControlFs:
 
     # -- queries --------------------------------------------------------------------------
     def entry(self, wp: WirePath, name: str | None = None) -> Entry:
-        """Info about a file, directory or drive root; FsError(32) when missing."""
+        """Info about a file, directory or drive root; ControlRefused(32) when missing."""
         host = self.host_path(wp)
         try:
             st = host.stat()
         except OSError:
-            raise FsError(NO_FILE, f"{wp} does not exist") from None
+            raise ControlRefused(NO_FILE, f"{wp} does not exist") from None
         is_dir = stat.S_ISDIR(st.st_mode)
         label = name if name is not None else (str(self.canonical(wp)) if wp.parts else wp.drive)
         return Entry(
@@ -238,7 +231,7 @@ class ControlFs:
         """Entries of a directory, sorted case-insensitively."""
         host = self.host_path(wp)
         if not host.is_dir():
-            raise FsError(NO_DIR, f"{wp} is not a directory")
+            raise ControlRefused(NO_DIR, f"{wp} is not a directory")
         prefix = str(self.canonical(wp)).rstrip("\\").lower() + "\\"
         entries = []
         with os.scandir(host) as it:
@@ -269,14 +262,14 @@ class ControlFs:
         return min(shutil.disk_usage(self.root).free, 0xFFFFFFFF)
 
     def read_bytes(self, wp: WirePath) -> bytes:
-        """Whole file content; FsError(32) if missing or a directory."""
+        """Whole file content; ControlRefused(32) if missing or a directory."""
         host = self.host_path(wp)
         if not host.is_file():
-            raise FsError(NO_FILE, f"{wp} does not exist")
+            raise ControlRefused(NO_FILE, f"{wp} does not exist")
         try:
             return host.read_bytes()
         except OSError as exc:
-            raise FsError(OPEN_FILE, str(exc)) from None
+            raise ControlRefused(OPEN_FILE, str(exc)) from None
 
     # -- selection (active program cannot be deleted) ---------------------------------------
     def set_selected(self, paths: list[WirePath]) -> None:
@@ -285,42 +278,42 @@ class ControlFs:
 
     def _check_not_selected(self, wp: WirePath) -> None:
         if str(self.canonical(wp)).lower() in self._selected:
-            raise FsError(NO_DELETE, f"{wp} is selected for execution")
+            raise ControlRefused(NO_DELETE, f"{wp} is selected for execution")
 
     # -- mutations ------------------------------------------------------------------------
     def mkdir(self, wp: WirePath) -> None:
         """Create one directory level."""
         if wp.is_root:
-            raise FsError(FILE_EXISTS, "drive root exists")
+            raise ControlRefused(FILE_EXISTS, "drive root exists")
         host = self.host_path(wp)
         if host.exists():
-            raise FsError(FILE_EXISTS, f"{wp} exists")
+            raise ControlRefused(FILE_EXISTS, f"{wp} exists")
         if not self.host_path(wp.parent).is_dir():
-            raise FsError(NO_DIR, f"{wp.parent} does not exist")
+            raise ControlRefused(NO_DIR, f"{wp.parent} does not exist")
         try:
             host.mkdir()
         except OSError as exc:
-            raise FsError(NO_NEW_FILE, str(exc)) from None
+            raise ControlRefused(NO_NEW_FILE, str(exc)) from None
 
     def rmdir(self, wp: WirePath) -> None:
         """Delete an empty directory."""
         host = self.host_path(wp)
         if wp.is_root:
-            raise FsError(DEL_DIR, "cannot delete a drive root")
+            raise ControlRefused(DEL_DIR, "cannot delete a drive root")
         if not host.is_dir():
-            raise FsError(NO_DIR, f"{wp} does not exist")
+            raise ControlRefused(NO_DIR, f"{wp} does not exist")
         if any(host.iterdir()):
-            raise FsError(DEL_DIR, f"{wp} is not empty")
+            raise ControlRefused(DEL_DIR, f"{wp} is not empty")
         host.rmdir()
 
     def delete(self, wp: WirePath) -> None:
         """Delete a file."""
         host = self.host_path(wp)
         if not host.is_file():
-            raise FsError(NO_FILE, f"{wp} does not exist")
+            raise ControlRefused(NO_FILE, f"{wp} does not exist")
         self._check_not_selected(wp)
         if not host.stat().st_mode & stat.S_IWUSR:
-            raise FsError(NO_DELETE, f"{wp} is write-protected")
+            raise ControlRefused(NO_DELETE, f"{wp} is write-protected")
         host.unlink()
 
     def copy(self, src: WirePath, dst: WirePath) -> None:
@@ -336,30 +329,30 @@ class ControlFs:
         try:
             os.rename(s, d)
         except OSError as exc:
-            raise FsError(NO_RENAME, str(exc)) from None
+            raise ControlRefused(NO_RENAME, str(exc)) from None
 
     def _src_dst(self, src: WirePath, dst: WirePath) -> tuple[Path, Path]:
         s = self.host_path(src)
         if not s.is_file():
-            raise FsError(NO_FILE, f"{src} does not exist")
+            raise ControlRefused(NO_FILE, f"{src} does not exist")
         d = self.host_path(dst)
         if d.exists():
-            raise FsError(FILE_EXISTS, f"{dst} exists")
+            raise ControlRefused(FILE_EXISTS, f"{dst} exists")
         if not self.host_path(dst.parent).is_dir():
-            raise FsError(NO_FILE, f"{dst.parent} does not exist")
+            raise ControlRefused(NO_FILE, f"{dst.parent} does not exist")
         return s, d
 
     def check_new_file(self, wp: WirePath, overwrite: bool = False) -> Path:
         """Validate an upload target before any data arrives; return the host path."""
         if wp.is_root:
-            raise FsError(BAD_FNAME, "no file name")
+            raise ControlRefused(BAD_FNAME, "no file name")
         host = self.host_path(wp)
         if host.is_dir():
-            raise FsError(FILE_EXISTS, f"{wp} is a directory")
+            raise ControlRefused(FILE_EXISTS, f"{wp} is a directory")
         if host.exists() and not overwrite:
-            raise FsError(FILE_EXISTS, f"{wp} exists")
+            raise ControlRefused(FILE_EXISTS, f"{wp} exists")
         if not self.host_path(wp.parent).is_dir():
-            raise FsError(NO_DIR, f"{wp.parent} does not exist")
+            raise ControlRefused(NO_DIR, f"{wp.parent} does not exist")
         return host
 
     def open_partial(self) -> tuple[Path, int]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 
+from opendnc.errors import ControlRefused
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.messages import (
     BlockDefect,
@@ -28,8 +29,8 @@ from opendnc.lsv2.messages import (
     SendFile,
 )
 from opendnc.lsv2.payloads import DirectoryInfo, FileEntry, from_wire_ascii, to_wire_ascii
-from opendnc.sim.tnc.filesystem import Entry, FsError, WirePath
-from opendnc.sim.tnc.session import OK, Priv, Refuse, Session, Upload, block_defect, handler
+from opendnc.sim.tnc.filesystem import Entry, WirePath
+from opendnc.sim.tnc.session import OK, Priv, Session, Upload, block_defect, handler
 
 MODE_BINARY = 0x01
 MODE_MERGE = 0x02
@@ -60,7 +61,7 @@ def directory_list(s: Session, m: ReadDir) -> list[Message]:
         ]
         return s.start_sequence(_entry(s, e) for e in drives)
     if mode not in (0, 1):
-        raise Refuse(E.T_ER_WRONG_PARA)
+        raise ControlRefused(E.T_ER_WRONG_PARA)
     entries = fs.listdir(s.cwd)
     if mode == 0:
         return s.start_sequence(_entry(s, e) for e in entries)
@@ -98,9 +99,9 @@ def change_dir(s: Session, m: ChangeDir) -> list[Message]:
     try:
         wp = s.path(text)
         if not s.control.fs.is_dir(wp):
-            raise Refuse(E.T_ER_NO_DIR)
-    except FsError:
-        raise Refuse(E.T_ER_NO_DIR) from None
+            raise ControlRefused(E.T_ER_NO_DIR)
+    except ControlRefused:
+        raise ControlRefused(E.T_ER_NO_DIR) from None
     s.cwd = s.control.fs.canonical(wp)
     return [OK]
 
@@ -118,12 +119,12 @@ def delete_dir(s: Session, m: DeleteDir) -> list[Message]:
     fs = s.control.fs
     wp = s.path(m.path)
     if not fs.is_dir(wp):
-        raise Refuse(E.T_ER_NO_DIR)
+        raise ControlRefused(E.T_ER_NO_DIR)
     inside_cwd = s.cwd.drive == wp.drive and [p.lower() for p in s.cwd.parts[: len(wp.parts)]] == [
         p.lower() for p in wp.parts
     ]
     if inside_cwd and not s.control.profile.delete_cwd_allowed:
-        raise Refuse(E.T_ER_DEL_DIR, "directory in use")
+        raise ControlRefused(E.T_ER_DEL_DIR, "directory in use")
     fs.rmdir(wp)
     if inside_cwd:
         s.cwd = wp.parent
@@ -139,7 +140,7 @@ def delete_file(s: Session, m: DeleteFile) -> list[Message]:
 
 def _two_paths(s: Session, m: CopyFile | MoveFile) -> tuple[WirePath, WirePath]:
     if not m.source or not m.target:
-        raise Refuse(E.T_ER_BAD_FNAME)
+        raise ControlRefused(E.T_ER_BAD_FNAME)
     return s.path(m.source), s.path(m.target)
 
 
@@ -201,7 +202,7 @@ def file_block(s: Session, m: FileData) -> list[Message]:
     """One upload block."""
     up = s.upload
     if up is None:
-        raise Refuse(E.T_ER_UNEXPECTED_TELE)
+        raise ControlRefused(E.T_ER_UNEXPECTED_TELE)
     data = m.data if up.binary else from_wire_ascii(m.data)
     try:
         up.add(data)
@@ -225,9 +226,9 @@ def file_done(s: Session, m: FileDone) -> list[Message]:
         finally:
             os.close(up.fd)
         s.control.fs.commit_partial(up.partial, up.target, up.overwrite)
-    except (OSError, FsError) as exc:
+    except (OSError, ControlRefused) as exc:
         up.partial.unlink(missing_ok=True)
-        code = exc.code if isinstance(exc, FsError) else E.T_ER_NO_NEW_FILE
+        code = exc.code if isinstance(exc, ControlRefused) else E.T_ER_NO_NEW_FILE
         return [Refused(code)] if s.secure_send else []
     s.control.log_event(f"File received: {up.target}")
     return [OK] if s.secure_send else []

@@ -5,9 +5,9 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterator
 
+from opendnc.errors import ControlRefused
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.messages import (
-    DataPathReply,
     EmulateKey,
     LockKeyboard,
     MachineParameterReply,
@@ -42,9 +42,8 @@ from opendnc.lsv2.runinfo import (
     encode_run_info,
 )
 from opendnc.sim.tnc import scope
-from opendnc.sim.tnc.machine import MachineError
-from opendnc.sim.tnc.plc import PlcError, resolve_data_path
-from opendnc.sim.tnc.session import OK, Priv, Refuse, Session, handler
+from opendnc.sim.tnc.plc import resolve_data_path
+from opendnc.sim.tnc.session import OK, Priv, Session, handler
 
 _AXIS_IDS = {"X": 0, "Y": 1, "Z": 2, "A": 3, "B": 4, "C": 5, "U": 6, "V": 7, "W": 8}
 
@@ -77,7 +76,7 @@ def _run_info(s: Session, selector: int) -> bytes:
         if selector == 27:
             s.error_index = 0
         if s.error_index >= len(m.errors):
-            raise Refuse(E.T_ER_NO_NEXT_ERROR)
+            raise ControlRefused(E.T_ER_NO_NEXT_ERROR)
         e = m.errors[s.error_index]
         s.error_index += 1
         return encode_run_info(selector, NcError(e.error_class, e.group, e.number, e.text))
@@ -86,16 +85,16 @@ def _run_info(s: Session, selector: int) -> bytes:
     if selector == 51:
         number, index, axis, length, radius = m.tool_info()
         return encode_run_info(selector, ToolInfo(number, index, axis, length, radius))
-    raise Refuse(E.T_ER_WRONG_PARA)
+    raise ControlRefused(E.T_ER_WRONG_PARA)
 
 
 @handler(ReadRunInfo, Priv.INSPECT)
 def run_info(s: Session, m: ReadRunInfo) -> list[Message]:
     """R_RI u16 selector (DNC login; selectors per family)."""
     if m.selector not in s.control.profile.ri_selectors:
-        raise Refuse(E.T_ER_WRONG_PARA)
+        raise ControlRefused(E.T_ER_WRONG_PARA)
     if "DNC" not in s.logins:
-        raise Refuse(E.T_ER_NO_PRIV)
+        raise ControlRefused(E.T_ER_NO_PRIV)
     return [RunInfoReply(_run_info(s, m.selector))]
 
 
@@ -103,23 +102,16 @@ def run_info(s: Session, m: ReadRunInfo) -> list[Message]:
 def read_memory(s: Session, m: ReadMemory) -> list[Message]:
     """R_MB u32 address + u8 count: raw bytes of the PLC image."""
     s.control.machine.advance()
-    try:
-        return [MemoryReply(s.control.plc.read(m.address, m.count))]
-    except PlcError as exc:
-        raise Refuse(exc.code) from None
+    return [MemoryReply(s.control.plc.read(m.address, m.count))]
 
 
 @handler(ReadDataPath, Priv.DATA)
 def read_data_path(s: Session, m: ReadDataPath) -> list[Message]:
     """R_DP path (iTNC only)."""
     if not s.control.profile.data_paths:
-        raise Refuse(E.T_ER_UNKNOWN_TELE)
+        raise ControlRefused(E.T_ER_UNKNOWN_TELE)
     s.control.machine.advance()
-    try:
-        value = resolve_data_path(m.path, s.control.plc, s.control.tool_rows())
-    except PlcError as exc:
-        raise Refuse(exc.code) from None
-    return [DataPathReply(int(value.kind), value.value)]
+    return [resolve_data_path(m.path, s.control.plc, s.control.tool_rows())]
 
 
 @handler(ReadMachineParameter, Priv.INSPECT)
@@ -127,7 +119,7 @@ def read_parameter(s: Session, m: ReadMachineParameter) -> list[Message]:
     """R_MC name -> S_MC value."""
     value = s.control.mp.read(m.name)
     if value is None:
-        raise Refuse(E.T_ER_NO_MP)
+        raise ControlRefused(E.T_ER_NO_MP)
     return [MachineParameterReply(value.encode("latin-1", "replace").decode("latin-1"))]
 
 
@@ -135,7 +127,7 @@ def read_parameter(s: Session, m: ReadMachineParameter) -> list[Message]:
 def write_parameter(s: Session, m: WriteMachineParameter) -> list[Message]:
     """C_MC flags name value (flag 1 = temporary until restart)."""
     if not s.control.mp.write(m.name, m.value, temporary=bool(m.flags & 1)):
-        raise Refuse(E.T_ER_NO_MP)
+        raise ControlRefused(E.T_ER_NO_MP)
     s.control.log_event(f"Machine parameter {m.name} = {m.value}")
     return [OK]
 
@@ -144,7 +136,7 @@ def write_parameter(s: Session, m: WriteMachineParameter) -> list[Message]:
 def lock_keyboard(s: Session, m: LockKeyboard) -> list[Message]:
     """C_LK: lock or unlock the control's own keyboard."""
     if s.control.profile.keys.value == "none":
-        raise Refuse(E.T_ER_UNKNOWN_TELE)
+        raise ControlRefused(E.T_ER_UNKNOWN_TELE)
     s.keyboard_locked = m.locked
     s.control.machine.keyboard_locked = m.locked
     return [OK]
@@ -153,10 +145,7 @@ def lock_keyboard(s: Session, m: LockKeyboard) -> list[Message]:
 @handler(EmulateKey, Priv.MONITOR)
 def emulate_key(s: Session, m: EmulateKey) -> list[Message]:
     """C_EK u16 key code."""
-    try:
-        s.control.machine.press_key(m.code)
-    except MachineError as exc:
-        raise Refuse(exc.code) from None
+    s.control.machine.press_key(m.code)
     return [OK]
 
 
@@ -165,10 +154,7 @@ def select_program(s: Session, m: Opaque) -> list[Message]:
     """C_NC path: select an NC program for execution (DNC; layout assumed: one cstr)."""
     # DNC selects programs without the FILE login, so no drive-login check here.
     wp = s.control.fs.parse(read_cstr(m.payload)[0], s.cwd)
-    try:
-        s.control.select_program(wp)
-    except MachineError as exc:
-        raise Refuse(exc.code) from None
+    s.control.select_program(wp)
     return [OK]
 
 
@@ -190,11 +176,8 @@ def scope_channels(s: Session, m: ReadScopeChannels) -> list[Message]:
 def scope_select(s: Session, m: ScopeSelect) -> list[Message]:
     """R_OP interval + selectors -> S_OP signal details."""
     if m.interval not in scope.INTERVALS:
-        raise Refuse(E.T_ER_OSZI_CHSEL)
-    try:
-        signals = scope.parse_selection(m.signals)
-    except ValueError as exc:
-        raise Refuse(int(exc.args[0])) from None
+        raise ControlRefused(E.T_ER_OSZI_CHSEL)
+    signals = scope.parse_selection(m.signals)
     s.scope_signals = signals
     s.scope_interval = m.interval
     return [ScopeSignalReply(scope.signal_details(signals))]
@@ -205,7 +188,7 @@ def scope_data(s: Session, m: ScopeStart) -> list[Message]:
     """R_OD trigger block: stream S_OD blocks, one per T_OK, until another telegram."""
     signals = list(s.scope_signals)
     if not signals:
-        raise Refuse(E.T_ER_OSZI_CHSEL)
+        raise ControlRefused(E.T_ER_OSZI_CHSEL)
     machine = s.control.machine
     interval = s.scope_interval
 

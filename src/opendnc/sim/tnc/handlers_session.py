@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import time
 
+from opendnc.errors import ControlRefused
 from opendnc.lsv2.constants import ErrorCode as E
+from opendnc.lsv2.constants import Login as L
 from opendnc.lsv2.messages import (
     CommandDone,
     DateTimeReply,
@@ -24,11 +26,10 @@ from opendnc.lsv2.messages import (
     VersionReply,
 )
 from opendnc.sim.tnc import oplog
-from opendnc.sim.tnc.filesystem import FsError
 from opendnc.sim.tnc.screen import render_status
-from opendnc.sim.tnc.session import OK, Deferred, Priv, Refuse, Result, Session, handler
+from opendnc.sim.tnc.session import OK, Deferred, Priv, Result, Session, handler
 
-PASSWORD_LOGINS = frozenset({"FILEPLC", "FILESYS", "FILELOG", "STREAMAXES"})
+PASSWORD_LOGINS = frozenset({L.FILEPLC, L.FILESYS, L.FILELOG, L.STREAMAXES})
 OPLOG_DELAY = 0.2  # seconds until M_CC announces the finished log
 
 
@@ -36,19 +37,19 @@ OPLOG_DELAY = 0.2  # seconds until M_CC announces the finished log
 def login(s: Session, m: Login) -> list[Message]:
     """A_LG name [password]: cumulative logins with the family's rules."""
     if not m.login:
-        raise Refuse(E.T_ER_BAD_FORMAT)
+        raise ControlRefused(E.T_ER_BAD_FORMAT)
     name = m.login.upper()
     password = m.password or ""
     c = s.control
     if name not in c.profile.logins:
-        raise Refuse(E.T_ER_NO_LOGIN, f"{name} not available on {c.profile.key}")
+        raise ControlRefused(E.T_ER_NO_LOGIN, f"{name} not available on {c.profile.key}")
     if name in PASSWORD_LOGINS and password != c.profile.plc_password:
-        raise Refuse(E.T_ER_BAD_KEY, "wrong password")
-    if name == "DNC" and not c.dnc_option:
-        raise Refuse(E.T_ER_NO_LOGIN, "DNC option not set")
-    if name == "MONITOR":
+        raise ControlRefused(E.T_ER_BAD_KEY, "wrong password")
+    if name == L.DNC and not c.dnc_option:
+        raise ControlRefused(E.T_ER_NO_LOGIN, "DNC option not set")
+    if name == L.MONITOR:
         if c.monitor_owner not in (None, s.id):
-            raise Refuse(E.T_ER_NO_LOGIN, "MONITOR held by another session")
+            raise ControlRefused(E.T_ER_NO_LOGIN, "MONITOR held by another session")
         c.monitor_owner = s.id
     if name not in s.logins:
         c.log_event(f"LSV2 login {name} (session {s.id})")
@@ -75,7 +76,7 @@ def versions(s: Session, m: ReadVersion) -> list[Message]:
         return [VersionReply(tuple(p.version_parts()))]
     value = p.version_selector(m.selector)
     if value is None:
-        raise Refuse(E.T_ER_WRONG_PARA)
+        raise ControlRefused(E.T_ER_WRONG_PARA)
     return [VersionReply((value,))]
 
 
@@ -94,7 +95,7 @@ def system_info(s: Session, m: ReadSystemInfo) -> list[Message]:
         return [SystemInfoReply(1, 1 if s.control.dnc_option else 0)]
     if m.selector == 3 and s.control.profile.scope:
         return [SystemInfoReply(2, 3000)]
-    raise Refuse(E.T_ER_WRONG_PARA)
+    raise ControlRefused(E.T_ER_WRONG_PARA)
 
 
 @handler(ReadStatus, Priv.ANY)
@@ -114,7 +115,7 @@ def set_status(s: Session, m: SetStatus) -> list[Message]:
 def read_time(s: Session, m: ReadDateTime) -> list[Message]:
     """R_DT: seconds since 1970 (not on families without a clock service)."""
     if not s.control.profile.date_time:
-        raise Refuse(E.T_ER_WRONG_PARA)
+        raise ControlRefused(E.T_ER_WRONG_PARA)
     return [DateTimeReply(int(time.time()), bytes(4))]
 
 
@@ -131,7 +132,7 @@ def system_command(s: Session, m: SystemCommand) -> list[Message] | Result:
     if sub in p.buffer_sizes():
         return [OK]
     if sub not in p.system_commands:
-        raise Refuse(E.T_ER_WRONG_PARA)
+        raise ControlRefused(E.T_ER_WRONG_PARA)
     if sub == 19:
         return [OK]
     if sub == 12:
@@ -144,9 +145,9 @@ def system_command(s: Session, m: SystemCommand) -> list[Message] | Result:
 def screen_dump(s: Session, target: str) -> list[Message]:
     """C_CC 12: write a BMP of the status screen to ``target``."""
     if not ({"FILE", "MONITOR"} & s.logins):  # pyLSV2 uses FILE, the toolbox MONITOR
-        raise Refuse(E.T_ER_NO_PRIV)
+        raise ControlRefused(E.T_ER_NO_PRIV)
     if not target:
-        raise Refuse(E.T_ER_BAD_FNAME)
+        raise ControlRefused(E.T_ER_BAD_FNAME)
     wp = s.path(target)
     s.control.fs.write_atomic(wp, render_status(s.control.machine))
     return [OK]
@@ -156,11 +157,8 @@ def operations_log(s: Session, param: str) -> Result:
     """C_CC 27: accept, then write the log and announce it with ``M_CC``
     (docs/lsv2.md#operations-log)."""
     if not s.allowed(Priv.FILE):
-        raise Refuse(E.T_ER_NO_PRIV)
-    try:
-        request = oplog.parse_request(param)
-    except ValueError:
-        raise Refuse(E.T_ER_BAD_PARAMETER) from None
+        raise ControlRefused(E.T_ER_NO_PRIV)
+    request = oplog.parse_request(param)
     s.path(request.name)  # validate now so a bad name is refused up front
     cwd = s.cwd
     control = s.control
@@ -168,7 +166,7 @@ def operations_log(s: Session, param: str) -> Result:
     def finish() -> Message | None:
         try:
             control.write_operations_log(request, cwd)
-        except FsError:
+        except ControlRefused:
             return None
         return CommandDone(27, 100)
 

@@ -13,6 +13,8 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.sim.tnc.plc import (
     D_PART_COUNTER,
@@ -34,16 +36,8 @@ ExecMode = ExecutionMode
 PgmState = ProgramState
 
 
-class MachineError(Exception):
-    """A refused machine action with its LSV2 error code."""
-
-    def __init__(self, code: int, text: str) -> None:
-        super().__init__(f"{code}: {text}")
-        self.code = code
-
-
-OPERATING_MODE = 56
-BAD_EMULATEKEY = 39
+OPERATING_MODE = E.T_ER_OPERATING_MODE
+BAD_EMULATEKEY = E.T_ER_BAD_EMULATEKEY
 NC_START_KEY = 0x00F0  # NC start as a hobby project sent it (docs/lsv2.md#keyboard) (guess)
 NC_STOP_KEY = 0x00F1  # our own choice, next to NC start (guess)
 
@@ -308,7 +302,7 @@ class Machine:
     def select(self, wire_path: str, text: str) -> None:
         """Select a program for execution (refused with 56 while one runs)."""
         if self.running:
-            raise MachineError(OPERATING_MODE, "a program is running")
+            raise ControlRefused(OPERATING_MODE, "a program is running")
         self.main_program = self.current_program = wire_path
         self._program_text = text
         self.current_line = 0
@@ -318,9 +312,9 @@ class Machine:
         """NC start: run or resume the selected program in a program-run mode."""
         self.advance()
         if self.exec_mode not in (ExecMode.SINGLE_STEP, ExecMode.AUTOMATIC):
-            raise MachineError(OPERATING_MODE, "NC start needs a program-run mode")
+            raise ControlRefused(OPERATING_MODE, "NC start needs a program-run mode")
         if not self.main_program:
-            raise MachineError(OPERATING_MODE, "no program selected")
+            raise ControlRefused(OPERATING_MODE, "no program selected")
         if self._run is None:
             self._run = Run(parse_program(self._program_text))
             self._start_pos = dict(self.positions)
@@ -385,10 +379,10 @@ class Machine:
         """Emulate one key press (``C_EK``)."""
         style = self.profile.keys
         if style is KeyStyle.NONE:
-            raise MachineError(BAD_EMULATEKEY, "key emulation not supported")
+            raise ControlRefused(BAD_EMULATEKEY, "key emulation not supported")
         valid = _valid_new_key(code) if style is KeyStyle.NEW else _valid_old_key(code)
         if not valid:
-            raise MachineError(BAD_EMULATEKEY, f"unknown key 0x{code:04X}")
+            raise ControlRefused(BAD_EMULATEKEY, f"unknown key 0x{code:04X}")
         modes = NEW_MODE_KEYS if style is KeyStyle.NEW else OLD_MODE_KEYS
         screens = NEW_SCREEN_KEYS if style is KeyStyle.NEW else OLD_SCREEN_KEYS
         if code in modes:

@@ -6,6 +6,9 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode as E
+
 
 @dataclass(frozen=True, slots=True)
 class LogRequest:
@@ -16,11 +19,14 @@ class LogRequest:
 
 
 def parse_request(text: str) -> LogRequest:
-    """Decode the parameter; ValueError on anything malformed."""
+    """Decode the parameter; refused (``T_ER_BAD_PARAMETER``) when malformed."""
     parts = text.split(";")
     if len(parts) < 3 or not parts[0].strip():
-        raise ValueError("expected name;DD.MM.YYYY;hh:mm:ss;")
-    stamp = time.strptime(f"{parts[1].strip()} {parts[2].strip()}", "%d.%m.%Y %H:%M:%S")
+        raise ControlRefused(E.T_ER_BAD_PARAMETER, "expected name;DD.MM.YYYY;hh:mm:ss;")
+    try:
+        stamp = time.strptime(f"{parts[1].strip()} {parts[2].strip()}", "%d.%m.%Y %H:%M:%S")
+    except ValueError:
+        raise ControlRefused(E.T_ER_BAD_PARAMETER, f"bad date {parts[1]};{parts[2]}") from None
     return LogRequest(parts[0].strip(), time.mktime(stamp))
 
 

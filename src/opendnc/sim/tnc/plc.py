@@ -10,62 +10,17 @@ from __future__ import annotations
 import json
 import re
 import struct
-from dataclasses import dataclass
-from enum import IntEnum
 from pathlib import Path
 
+from opendnc.errors import ControlRefused, InputError
+from opendnc.lsv2.constants import DataType
+from opendnc.lsv2.constants import ErrorCode as E
+from opendnc.lsv2.messages import DataPathReply
+from opendnc.lsv2.tables import parse_table
 from opendnc.sim.tnc.profiles import PlcLayout, Profile
 
-
-class DpType(IntEnum):
-    """Value types of ``S_DP`` (docs/lsv2.md#data-paths)."""
-
-    I16 = 2
-    I32 = 3
-    F64 = 5
-    STRING = 8
-    BOOL = 11
-    I8 = 16
-    U8 = 17
-
-
-@dataclass(frozen=True, slots=True)
-class DpValue:
-    """A typed data-path value ready for ``S_DP``."""
-
-    kind: DpType
-    value: int | float | str | bool
-
-    def encode(self) -> bytes:
-        """``u32 type`` + value (numbers big-endian, doubles little-endian)."""
-        head = struct.pack(">I", self.kind)
-        match self.kind:
-            case DpType.I16:
-                return head + struct.pack(">h", int(self.value))
-            case DpType.I32:
-                return head + struct.pack(">i", int(self.value))
-            case DpType.F64:
-                return head + struct.pack("<d", float(self.value))
-            case DpType.STRING:
-                return head + str(self.value).encode("latin-1", "replace") + b"\0"
-            case DpType.BOOL:
-                return head + bytes([1 if self.value else 0])
-            case DpType.I8:
-                return head + struct.pack(">b", int(self.value))
-            case _:
-                return head + struct.pack(">B", int(self.value) & 0xFF)
-
-
-class PlcError(Exception):
-    """Bad address or unknown path; carries the LSV2 error code."""
-
-    def __init__(self, code: int, text: str) -> None:
-        super().__init__(f"{code}: {text}")
-        self.code = code
-
-
-BAD_MEMADR = 52
-NOT_FOUND = 63
+BAD_MEMADR = E.T_ER_BAD_MEMADR
+NOT_FOUND = E.T_ER_NOT_FOUND
 
 # Word-area byte offsets where the machine model publishes live values (our own choice).
 W_FEED_OVERRIDE = 0  # u16, 0.01 %
@@ -133,15 +88,15 @@ class PlcMemory:
 
     # -- raw access ------------------------------------------------------------------------
     def read(self, address: int, count: int) -> bytes:
-        """``R_MB``: ``count`` raw bytes at ``address`` or PlcError(52)."""
+        """``R_MB``: ``count`` raw bytes at ``address`` or ControlRefused(52)."""
         if count < 1 or address < 0 or address + count > len(self.image):
-            raise PlcError(BAD_MEMADR, f"address {address}+{count} outside PLC memory")
+            raise ControlRefused(BAD_MEMADR, f"address {address}+{count} outside PLC memory")
         return bytes(self.image[address : address + count])
 
     def write(self, address: int, data: bytes) -> None:
         """Write raw bytes (used by the machine model and tests)."""
         if address < 0 or address + len(data) > len(self.image):
-            raise PlcError(BAD_MEMADR, f"address {address}+{len(data)} outside PLC memory")
+            raise ControlRefused(BAD_MEMADR, f"address {address}+{len(data)} outside PLC memory")
         self.image[address : address + len(data)] = data
 
     def _area(self, letter: str) -> tuple[int, int, int]:
@@ -154,14 +109,17 @@ class PlcMemory:
             "C": (lay.counters_start, lay.counters, 1),
             "T": (lay.timers_start, lay.timers, 1),
         }
-        return table[letter]
+        area = table.get(letter.upper())
+        if area is None:
+            raise ControlRefused(BAD_MEMADR, f"no bit area {letter!r}")
+        return area
 
     # -- typed helpers ---------------------------------------------------------------------
     def set_bit(self, letter: str, index: int, value: bool) -> None:
         """Set marker/input/output/counter/timer ``index``."""
         start, count, _ = self._area(letter)
         if not 0 <= index < count:
-            raise PlcError(BAD_MEMADR, f"{letter}{index} out of range")
+            raise ControlRefused(BAD_MEMADR, f"{letter}{index} out of range")
         self.image[start + index] = 1 if value else 0
 
     def set_word(self, byte_address: int, value: int) -> None:
@@ -181,35 +139,35 @@ class PlcMemory:
         )
 
     # -- data paths ------------------------------------------------------------------------
-    def read_operand(self, letter: str, number: int) -> DpValue:
+    def read_operand(self, letter: str, number: int) -> DataPathReply:
         """Value of ``\\PLC\\memory\\<letter>\\<number>`` (B/W/D by byte address)."""
         lay = self.layout
         letter = letter.upper()
         if letter in ("M", "I", "O", "C", "T"):
             start, count, _ = self._area(letter)
             if not 0 <= number < count:
-                raise PlcError(NOT_FOUND, f"{letter}{number} out of range")
-            return DpValue(DpType.BOOL, self.image[start + number] != 0)
+                raise ControlRefused(NOT_FOUND, f"{letter}{number} out of range")
+            return DataPathReply(DataType.BOOL, self.image[start + number] != 0)
         if letter in ("B", "W", "D"):
             size = {"B": 1, "W": 2, "D": 4}[letter]
             # Byte addresses; real programming stations also answer unaligned W/D reads.
             if number < 0 or number + size > lay.words:
-                raise PlcError(NOT_FOUND, f"{letter}{number} not a valid byte address")
+                raise ControlRefused(NOT_FOUND, f"{letter}{number} not a valid byte address")
             raw = self.read(lay.words_start + number, size)
             if letter == "B":
-                return DpValue(DpType.I8, struct.unpack("<b", raw)[0])
+                return DataPathReply(DataType.INT8, struct.unpack("<b", raw)[0])
             if letter == "W":
-                return DpValue(DpType.I16, struct.unpack("<h", raw)[0])
-            return DpValue(DpType.I32, struct.unpack("<i", raw)[0])
+                return DataPathReply(DataType.INT16, struct.unpack("<h", raw)[0])
+            return DataPathReply(DataType.INT32, struct.unpack("<i", raw)[0])
         if letter == "S":
             if not 0 <= number < lay.strings:
-                raise PlcError(NOT_FOUND, f"S{number} out of range")
+                raise ControlRefused(NOT_FOUND, f"S{number} out of range")
             raw = self.read(lay.strings_start + number * lay.string_length, lay.string_length)
-            return DpValue(DpType.STRING, raw.split(b"\0", 1)[0].decode("latin-1"))
+            return DataPathReply(DataType.STRING, raw.split(b"\0", 1)[0].decode("latin-1"))
         if letter == "K":
             # K operands are constants of the PLC program; the demo program defines K n = n.
-            return DpValue(DpType.I32, number)
-        raise PlcError(NOT_FOUND, f"unknown operand {letter}")
+            return DataPathReply(DataType.INT32, number)
+        raise ControlRefused(NOT_FOUND, f"unknown operand {letter}")
 
 
 _MEMORY_RE = re.compile(r"^\\PLC\\MEMORY\\([A-Z])\\(\d+)$", re.IGNORECASE)
@@ -221,48 +179,38 @@ _SYMBOL_RE = re.compile(
 )
 
 
-def resolve_data_path(path: str, plc: PlcMemory, tool_rows: dict[int, dict[str, str]]) -> DpValue:
-    """Resolve an ``R_DP`` path; PlcError(63) when it names nothing."""
+def resolve_data_path(
+    path: str, plc: PlcMemory, tool_rows: dict[int, dict[str, str]]
+) -> DataPathReply:
+    """Resolve an ``R_DP`` path; ControlRefused(63) when it names nothing."""
     path = path.replace("/", "\\").strip()
     if m := _MEMORY_RE.match(path):
         return plc.read_operand(m.group(1), int(m.group(2)))
     if m := _TOOL_RE.match(path):
         row = tool_rows.get(int(m.group(1)))
         if row is None:
-            raise PlcError(NOT_FOUND, f"no tool {m.group(1)}")
+            raise ControlRefused(NOT_FOUND, f"no tool {m.group(1)}")
         column = m.group(2).upper()
         if column not in row:
-            raise PlcError(NOT_FOUND, f"no column {column}")
+            raise ControlRefused(NOT_FOUND, f"no column {column}")
         text = row[column]
         if column == "T":
-            return DpValue(DpType.I32, int(text or 0))
+            return DataPathReply(DataType.INT32, int(text or 0))
         try:
-            return DpValue(DpType.F64, float(text))
+            return DataPathReply(DataType.FLOAT64, float(text))
         except ValueError:
-            return DpValue(DpType.STRING, text)
+            return DataPathReply(DataType.STRING, text)
     if m := _SYMBOL_RE.match(path):
         return plc.read_operand(*plc.symbol(m.group(1), m.group(0)))
-    raise PlcError(NOT_FOUND, f"unknown data path {path!r}")
+    raise ControlRefused(NOT_FOUND, f"unknown data path {path!r}")
 
 
-def parse_table(text: str) -> list[dict[str, str]]:
-    """Rows of a fixed-width control table (column widths from the header line)."""
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    if len(lines) < 2 or not lines[0].startswith("BEGIN"):
+def table_rows(text: str) -> list[dict[str, str]]:
+    """Rows of a control table (the client's parser); none when the file is not a table."""
+    try:
+        return parse_table(text).rows
+    except InputError:
         return []
-    header = lines[1]
-    starts = [m.start() for m in re.finditer(r"\S+", header)]
-    names = header.split()
-    rows = []
-    for line in lines[2:]:
-        if line.startswith("[END]"):
-            break
-        row = {}
-        for i, name in enumerate(names):
-            end = starts[i + 1] if i + 1 < len(starts) else None
-            row[name] = line[starts[i] : end].strip()
-        rows.append(row)
-    return rows
 
 
 NUMERIC_MP = {

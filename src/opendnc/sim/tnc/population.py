@@ -8,47 +8,38 @@ column positions define the widths, one row per line and ``[END]``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+from opendnc.lsv2.tables import Column, Table, fixed_columns
 from opendnc.sim.tnc.filesystem import ControlFs, WirePath
 from opendnc.sim.tnc.profiles import Profile
 
 MARKER = ".populated"
 
 
-@dataclass(frozen=True, slots=True)
-class Column:
-    """One fixed-width table column."""
-
-    name: str
-    width: int
-
-
-TOOL_COLUMNS = (
-    Column("T", 6),
-    Column("NAME", 17),
-    Column("L", 12),
-    Column("R", 12),
-    Column("R2", 12),
-    Column("DL", 9),
-    Column("DR", 9),
-    Column("DR2", 9),
-    Column("LCUTS", 9),
-    Column("ANGLE", 8),
-    Column("TL", 3),
-    Column("RT", 5),
-    Column("TIME1", 6),
-    Column("CUR_TIME", 9),
-    Column("DOC", 17),
+TOOL_COLUMNS = fixed_columns(
+    ("T", 6),
+    ("NAME", 17),
+    ("L", 12),
+    ("R", 12),
+    ("R2", 12),
+    ("DL", 9),
+    ("DR", 9),
+    ("DR2", 9),
+    ("LCUTS", 9),
+    ("ANGLE", 8),
+    ("TL", 3),
+    ("RT", 5),
+    ("TIME1", 6),
+    ("CUR_TIME", 9),
+    ("DOC", 17),
 )
-POCKET_COLUMNS = (
-    Column("P", 8),
-    Column("T", 6),
-    Column("TNAME", 17),
-    Column("ST", 3),
-    Column("F", 3),
-    Column("L", 3),
-    Column("DOC", 17),
+POCKET_COLUMNS = fixed_columns(
+    ("P", 8),
+    ("T", 6),
+    ("TNAME", 17),
+    ("ST", 3),
+    ("F", 3),
+    ("L", 3),
+    ("DOC", 17),
 )
 
 _TOOLS = [
@@ -63,17 +54,9 @@ _TOOLS = [
 ]
 
 
-def format_row(columns: tuple[Column, ...], values: dict[str, str]) -> str:
-    """One table line: each value left-aligned in its column."""
-    return "".join(values.get(c.name, "").ljust(c.width)[: c.width] for c in columns).rstrip()
-
-
-def render_table(title: str, columns: tuple[Column, ...], rows: list[dict[str, str]]) -> str:
-    """A complete fixed-width table file."""
-    lines = [f"BEGIN {title} MM", "".join(c.name.ljust(c.width) for c in columns).rstrip()]
-    lines += [format_row(columns, r) for r in rows]
-    lines.append("[END]")
-    return "\r\n".join(lines) + "\r\n"
+def render_table(title: str, columns: list[Column], rows: list[dict[str, str]]) -> str:
+    """A complete fixed-width table file (written by the client's table model)."""
+    return Table(f"BEGIN {title} MM", columns, rows).to_text()
 
 
 def tool_table(file_name: str) -> str:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from enum import Enum
 
+from opendnc.errors import InputError
 from opendnc.lsv2.constants import BUFFER_SIZES, DRIVE_LOGINS
 from opendnc.lsv2.payloads import SystemParameters
 
@@ -486,8 +487,8 @@ PROFILES: dict[str, Profile] = {
 
 
 def get_profile(key: str) -> Profile:
-    """Look a profile up by its key (``tnc640``, ``itnc530`` …); raises KeyError with choices."""
+    """Look a profile up by its key (``tnc640``, ``itnc530`` …); InputError names the choices."""
     try:
         return PROFILES[key.lower()]
     except KeyError:
-        raise KeyError(f"unknown profile {key!r}; choose from {', '.join(PROFILES)}") from None
+        raise InputError(f"unknown profile {key!r}; choose from {', '.join(PROFILES)}") from None

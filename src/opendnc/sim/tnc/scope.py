@@ -10,11 +10,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from opendnc.errors import ControlRefused
+from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.payloads import ScopeChannel, ScopeSamples, ScopeSignal, ScopeSignalInfo
 from opendnc.sim.tnc.machine import Machine
 
-OSZI_CHSEL = 83
-TOO_MANY_SIGNALS = 85
+OSZI_CHSEL = E.T_ER_OSZI_CHSEL
+TOO_MANY_SIGNALS = E.T_ER_TOO_MANY_SIGNALS
 MAX_SIGNALS = 16
 SAMPLES_PER_BLOCK = 32
 INTERVALS = (600, 3000, 21000)  # the only intervals pyLSV2 and TNCscope use
@@ -70,20 +72,20 @@ class Signal:
 
 
 def parse_selection(selectors: tuple[ScopeSignal, ...]) -> list[Signal]:
-    """Check ``R_OP`` selectors; ValueError(code) when invalid."""
+    """Check ``R_OP`` selectors; ControlRefused with the LSV2 code when invalid."""
     if not selectors:
-        raise ValueError(OSZI_CHSEL)
+        raise ControlRefused(OSZI_CHSEL, "bad scope selection")
     if len(selectors) > MAX_SIGNALS:
-        raise ValueError(TOO_MANY_SIGNALS)
+        raise ControlRefused(TOO_MANY_SIGNALS, "bad scope selection")
     by_number = {c.number: c for c in CHANNELS}
     signals = []
     for sel in selectors:
         channel = by_number.get(sel.channel)
         if channel is None:
-            raise ValueError(OSZI_CHSEL)
+            raise ControlRefused(OSZI_CHSEL, "bad scope selection")
         if channel.kind in (1, 4):
             if sel.selector >= len(channel.labels) or channel.labels[sel.selector] == "-":
-                raise ValueError(OSZI_CHSEL)
+                raise ControlRefused(OSZI_CHSEL, "bad scope selection")
             signals.append(Signal(channel, sel.selector))
         elif channel.kind in (2, 10):
             signals.append(Signal(channel, 0, sel.selector, sel.address))

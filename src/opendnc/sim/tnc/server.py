@@ -21,8 +21,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar, cast
 
-from opendnc.errors import LocalProtocolError, RemoteProtocolError
-from opendnc.lsv2.connection import Lsv2Connection, Role
+from opendnc.errors import LocalProtocolError, RemoteProtocolError, TransportError
+from opendnc.lsv2.connection import Lsv2Connection, Role, UndecodableTelegram
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.framing import HEADER_SIZE
 from opendnc.lsv2.messages import REGISTRY, Message, Refused
@@ -229,24 +229,22 @@ class _LinkProtocol(asyncio.Protocol):
                 self._loop.call_soon(self._resume_after_yield)
                 return
             handled += 1
-            before = link.last_frame
             try:
                 request = link.next_event()
-            except RemoteProtocolError as exc:
-                frame = link.last_frame
-                if frame is None or frame is before:
-                    # The framer lost sync (bad name, absurd length): answer, hang up.
-                    if trace:
-                        trace.note(self.peer, f"dropping connection: {exc}")
-                    self._send([Refused(E.T_ER_BAD_FORMAT)])
-                    self.drop()
-                    return
+            except UndecodableTelegram as exc:
                 # A whole telegram arrived but does not decode: refuse it, carry on.
                 if trace:
-                    trace.raw(self.peer, "<-", frame, str(exc))
-                known = frame.mnemonic in REGISTRY
+                    trace.raw(self.peer, "<-", exc.frame, str(exc))
+                known = exc.frame.mnemonic in REGISTRY
                 self._send([Refused(E.T_ER_BAD_FORMAT if known else E.T_ER_UNKNOWN_TELE)])
                 continue
+            except RemoteProtocolError as exc:
+                # The framer lost sync (bad name, absurd length): answer, hang up.
+                if trace:
+                    trace.note(self.peer, f"dropping connection: {exc}")
+                self._send([Refused(E.T_ER_BAD_FORMAT)])
+                self.drop()
+                return
             if request is None:
                 return
             frame = link.last_frame
@@ -430,5 +428,5 @@ def start_tnc(
     if failure:
         raise failure[0]
     if not ready:
-        raise RuntimeError("virtual TNC did not start")
+        raise TransportError("the virtual TNC did not start within 30 s")
     return TncHandle(ready[0], loop, thread, temp_root=root is None)

@@ -18,12 +18,13 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from opendnc.errors import InputError
+from opendnc.errors import ControlRefused, InputError
 from opendnc.lsv2.connection import Lsv2Connection
+from opendnc.lsv2.constants import DRIVE_LOGINS, Login
 from opendnc.lsv2.constants import ErrorCode as E
 from opendnc.lsv2.messages import BlockDefect, FileData, FileDone, Message, Ok, Opaque, Refused
 from opendnc.sim.tnc.control import Control
-from opendnc.sim.tnc.filesystem import FsError, WirePath
+from opendnc.sim.tnc.filesystem import WirePath
 from opendnc.sim.tnc.scope import Signal
 
 
@@ -42,17 +43,19 @@ class Priv(Enum):
     OSZI = "oszi"
 
 
-INSPECT_LEVEL = frozenset({"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG", "DATA"})
-FILE_LOGINS = {"TNC:": "FILE", "PLC:": "FILEPLC", "SYS:": "FILESYS", "LOG:": "FILELOG"}
-_FILE_LEVEL = frozenset(FILE_LOGINS.values())
-
-
-class Refuse(Exception):
-    """Raised by handlers: answer ``T_ER`` with ``code``."""
-
-    def __init__(self, code: int, text: str = "") -> None:
-        super().__init__(f"{code} {text}")
-        self.code = code
+INSPECT_LEVEL = frozenset(
+    {
+        Login.INSPECT,
+        Login.DIAGNOSTICS,
+        Login.FILE,
+        Login.MONITOR,
+        Login.DNC,
+        Login.PLCDEBUG,
+        Login.DATA,
+    }
+)
+_MONITOR_LEVEL = frozenset({Login.MONITOR, Login.DIAGNOSTICS})
+_FILE_LEVEL = frozenset(DRIVE_LOGINS.values())
 
 
 def error(code: int) -> Refused:
@@ -171,16 +174,16 @@ class Session:
             case Priv.FILE:
                 return not have.isdisjoint(_FILE_LEVEL)
             case Priv.MONITOR:
-                return bool(have & {"MONITOR", "DIAGNOSTICS"})
+                return not have.isdisjoint(_MONITOR_LEVEL)
             case Priv.DIAGNOSTICS:
-                return "DIAGNOSTICS" in have
+                return Login.DIAGNOSTICS in have
             case _:
                 return priv.value.upper() in have
 
     def check_drive(self, wp: WirePath) -> None:
         """Refuse (23) a path on a drive whose file login the session lacks."""
         if self.logins.isdisjoint(self.control.profile.drive_logins(wp.drive)):
-            raise Refuse(E.T_ER_NO_PRIV, f"no login for {wp.drive}")
+            raise ControlRefused(E.T_ER_NO_PRIV, f"no login for {wp.drive}")
 
     def path(self, text: str) -> WirePath:
         """Parse a wire path against the current directory and check the drive login."""
@@ -233,9 +236,8 @@ class Session:
             return Result([error(E.T_ER_NO_PRIV)])
         try:
             out = fn(self, request)
-        except Refuse as exc:
-            return Result([error(exc.code)])
-        except FsError as exc:
+        except ControlRefused as exc:
+            # Handlers and the control model refuse with the code the control answers.
             return Result([error(exc.code)])
         except InputError:
             # A value we cannot put on the wire (e.g. a non-Latin-1 host file name).

@@ -9,20 +9,22 @@ part counters and cycle times, positions (``G90``/``G91``/``G53``, ``G54``..``G5
 Sans-IO: the runner takes an injected ``clock`` and reports what happens as typed events
 through ``emit``. It reads blocks from a :class:`BlockSource`, which a DNC front-end may keep
 appending to while the program runs (the runner then reports :attr:`StepResult.WAITING`).
-Program faults become alarms (:class:`~opendnc.haas.machine.Alarm`), as on a control.
+Program faults become alarms (:class:`~opendnc.sim.haas.machine.Alarm`), as on a control.
 """
 
 from __future__ import annotations
 
 import enum
+import math
+import random
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from opendnc.errors import InputError
 from opendnc.haas import dprnt, macros
-from opendnc.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
-from opendnc.haas.program import (
+from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
+from opendnc.sim.haas.program import (
     Assign,
     Block,
     Dprnt,
@@ -150,6 +152,8 @@ class ProgramRunner:
         name: str = "O00000",
         mode: Mode = Mode.MEM,
         strict_probe: bool = False,
+        probe_noise_um: float = 0.0,
+        rng: random.Random | None = None,
     ) -> None:
         self.source = source
         self.machine = machine
@@ -159,6 +163,11 @@ class ProgramRunner:
         self.times = times or CycleTimes()
         self.name = name
         self.strict_probe = strict_probe
+        # probe repeatability: one standard deviation in micrometres, converted to the
+        # program's units (G20 inch / G21 mm) at each touch
+        self.probe_noise_um = probe_noise_um
+        self.rng = rng or random.Random()
+        self.metric = False
         self.index = 0
         self.blocks_run = 0
         self.probe_on = False
@@ -320,7 +329,9 @@ class ProgramRunner:
             return self._macro_call(single)
         machine_coords = False
         for code in g_codes:
-            if code in (90, 91):
+            if code in (20, 21):
+                self.metric = code == 21
+            elif code in (90, 91):
                 machine.absolute = code == 90
             elif code == 53:
                 machine_coords = True
@@ -386,6 +397,11 @@ class ProgramRunner:
             return self._alarm(ALARM_PROBE, "no surface to probe (simulator needs --surface)")
         x, y, z = machine.machine_position[:3]
         surface_z = self.surface(x, y)
+        if math.isnan(surface_z):  # off a height map: nothing under the stylus
+            return self._alarm(ALARM_PROBE, f"no surface under X{x:g} Y{y:g}")
+        if self.probe_noise_um > 0:
+            sigma = self.probe_noise_um / (1000.0 if self.metric else 25400.0)
+            surface_z += self.rng.gauss(0.0, sigma)
         if self.strict_probe:
             reach = args["H"]
             low, high = sorted((z, z + reach))
