@@ -79,7 +79,7 @@ def _server(
     port = _free_port()
     config = tmp_path / "shop.toml"
     text = server_config(
-        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
+        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib", mdc=True
     )
     text = text.replace("mdc = true\n", "mdc = true\n" + extra)  # more keys for the machine
     config.write_text(text + "\n[requests]\ndelay = 0.5\n")

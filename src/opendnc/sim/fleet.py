@@ -160,9 +160,11 @@ def server_config(
     poll_interval: float = 1.0,
     library: Path | None = None,
     dripfeed: bool = False,
+    mdc: bool = False,
 ) -> str:
     """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
-    (``dripfeed`` allows drip-feeding the serial Haas machines)."""
+    (``dripfeed`` allows drip-feeding the serial Haas machines; ``mdc`` has the server read
+    their status by MDC on the cable, as they answer Q-commands there)."""
 
     def q(value: object) -> str:
         return json.dumps(str(value))  # a JSON string is a valid TOML basic string
@@ -190,11 +192,9 @@ def server_config(
         if m.kind == "lsv2":
             lines.append(f"port = {m.port}")
         elif m.kind == "haas_serial":
-            lines += [
-                f"serial = {q(m.serial)}",
-                f"serial_profile = {{ baud = {m.baud} }}",
-                "mdc = true",
-            ]
+            lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
+            if mdc:
+                lines.append("mdc = true")
             if dripfeed:
                 lines.append("dripfeed = true")
         else:
