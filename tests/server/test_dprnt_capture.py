@@ -8,8 +8,6 @@ import csv
 import io
 import json
 import re
-import subprocess
-import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -19,18 +17,22 @@ from sqlalchemy import inspect, text
 
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.store.db import current_revision, make_engine, migrate
-from tests.server.test_end_to_end import (
+from tests.server.srvx_support import (
+    FleetThread,
     Procs,
-    _auth,
-    _free_port,
-    _listening,
-    _wait,
+    auth,
+    create_key,
+    free_port,
     httpx,
+    listening,
     procs,
+    serve_fleet,
+    wait_for,
 )
 
 __all__ = ["procs"]  # the fixture
 
+STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
 PRINTS = """%
 O00500 (PRINT THREE PASSES)
 #100 = 0
@@ -107,7 +109,7 @@ class EventReader:
     def _read(self, base: str, key: str) -> None:
         with (
             httpx.Client(base_url=base, timeout=None) as client,
-            client.stream("GET", "/api/events", headers=_auth(key)) as response,
+            client.stream("GET", "/api/events", headers=auth(key)) as response,
         ):
             self.connected.set()
             kind = ""
@@ -126,7 +128,7 @@ class EventReader:
 def test_lines_printed_by_a_running_program_are_stored_and_served(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
-    mdc_port, dprnt_port, http_port = _free_port(), _free_port(), _free_port()
+    mdc_port, dprnt_port, http_port = free_port(), free_port(), free_port()
     memory = tmp_path / "ngc-mem"
     memory.mkdir()
     (memory / "O00500.nc").write_text(PRINTS)
@@ -137,19 +139,10 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         '[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
         f'mdc_port = {mdc_port}\ndprnt = "tcp://127.0.0.1:{dprnt_port}"\n'
     )
-    key = subprocess.run(
-        [
-            *(sys.executable, "-m", "opendnc.cli.main", "keys", "create", "--role", "viewer"),
-            *("--config", str(config), "--db", db_url),
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    ).stdout.strip()
+    key = create_key(config, db_url, role="viewer")
     procs.start("server", "serve", "--config", str(config), "--db", db_url)
     base = f"http://127.0.0.1:{http_port}"
-    _wait("the server", _listening(http_port))
+    wait_for("the server", listening(http_port))
     events = EventReader(base, key)
     assert events.connected.wait(10)
     # The control runs O500 once a reader is on its DPRNT port (the server's listener).
@@ -162,11 +155,11 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
 
         def lines(since: int = 0) -> list[dict[str, Any]]:
             got: list[dict[str, Any]] = client.get(
-                "/api/machines/vf2/dprnt", headers=_auth(key), params={"since": since}
+                "/api/machines/vf2/dprnt", headers=auth(key), params={"since": since}
             ).json()
             return got
 
-        stored = _wait(
+        stored = wait_for(
             "three DPRNT lines",
             lambda: len(got := lines()) == 3 and got,
             describe=lambda: (lines(), procs.log("server"), procs.log("haas")),
@@ -183,7 +176,7 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         assert lines(since=ids[-1]) == []
 
         response = client.get(
-            "/api/machines/vf2/dprnt", headers=_auth(key), params={"format": "csv"}
+            "/api/machines/vf2/dprnt", headers=auth(key), params={"format": "csv"}
         )
         assert response.headers["content-type"].startswith("text/csv")
         rows = list(csv.DictReader(io.StringIO(response.text)))
@@ -191,13 +184,13 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         assert [r["fields"] for r in rows] == ["PASS=0 X=1.5", "PASS=1 X=3", "PASS=2 X=6"]
         assert {r["complete"] for r in rows} == {"yes"}
 
-        _wait("the lines on the event stream", lambda: len(events.lines) == 3)
+        wait_for("the lines on the event stream", lambda: len(events.lines) == 3)
         assert [e["id"] for e in events.lines] == ids
 
         assert client.get("/api/machines/vf2/dprnt").status_code == 401
-        missing = client.get("/api/machines/nope/dprnt", headers=_auth(key))
+        missing = client.get("/api/machines/nope/dprnt", headers=auth(key))
         assert missing.status_code == 404
-        bad = client.get("/api/machines/vf2/dprnt", headers=_auth(key), params={"since": -1})
+        bad = client.get("/api/machines/vf2/dprnt", headers=auth(key), params={"since": -1})
         assert bad.status_code == 400
     events.stop()
 
@@ -205,30 +198,28 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
 def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
-    from tests.server.test_from_the_control import STORED, FleetThread, _server
-
     haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
     try:
         sim = haas.fleet.sims["haas-serial-1"]
         port = haas.fleet.serial_ports["haas-serial-1"]
         haas.call(lambda: sim.control.save_program(PRINTS))
         haas.call(lambda: sim.control.save_program(STORED))
-        client, key = _server(tmp_path, haas, procs, db_url, extra='dprnt = "serial"\n')
+        client, key = serve_fleet(tmp_path, haas, procs, db_url, machine_keys='dprnt = "serial"\n')
         with client:
 
             def status() -> dict[str, Any]:
-                machine = client.get("/api/machines/haas-serial-1", headers=_auth(key)).json()
+                machine = client.get("/api/machines/haas-serial-1", headers=auth(key)).json()
                 return machine["status"] or {}
 
             def lines() -> list[dict[str, Any]]:
                 got: list[dict[str, Any]] = client.get(
-                    "/api/machines/haas-serial-1/dprnt", headers=_auth(key)
+                    "/api/machines/haas-serial-1/dprnt", headers=auth(key)
                 ).json()
                 return got
 
-            _wait("the first MDC status", lambda: status().get("mode") == "MDI")
+            wait_for("the first MDC status", lambda: status().get("mode") == "MDI")
             haas.call(lambda: sim.control.start_program(500))  # cycle start at the control
-            stored = _wait(
+            stored = wait_for(
                 "three DPRNT lines from the serial port",
                 lambda: len(got := lines()) == 3 and got,
                 describe=lambda: (lines(), port.messages, procs.log("server")),
@@ -237,11 +228,11 @@ def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
             for n, line in enumerate(stored):
                 assert re.fullmatch(rf"PASS\s+{n}\s+X\s+\d\.\d{{4}}", line["line"]), line
             # the port still does its other work: status by MDC and a punch into the inbox
-            _wait("O500 in the status", lambda: status().get("program") == "O00500")
+            wait_for("O500 in the status", lambda: status().get("program") == "O00500")
             port.select("punch:O1234")
-            items = _wait(
+            items = wait_for(
                 "the punch in the inbox",
-                lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+                lambda: client.get("/api/inbox", headers=auth(key)).json(),
                 describe=lambda: (port.messages, procs.log("server")),
             )
             assert [i["name"] for i in items] == ["O01234.nc"]

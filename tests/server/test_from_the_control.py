@@ -74,14 +74,13 @@ def procs(tmp_path: Path) -> Iterator[Procs]:
 
 
 def _server(
-    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, extra: str = ""
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> tuple[httpx.Client, str]:
     port = _free_port()
     config = tmp_path / "shop.toml"
     text = server_config(
-        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib", mdc=True
+        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
     )
-    text = text.replace("mdc = true\n", "mdc = true\n" + extra)  # more keys for the machine
     config.write_text(text + "\n[requests]\ndelay = 0.5\n")
     import subprocess
     import sys

@@ -4,8 +4,6 @@ archive on the schedule (the clock is injected), and the same in a running serve
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from datetime import datetime, timedelta
@@ -23,8 +21,17 @@ from opendnc.server.store.models import AuditEntry, Received
 from opendnc.sim.fleet import server_config
 from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD
 from tests.interop.test_haas_share_samba import Samba, samba
-from tests.server.test_end_to_end import Procs, _auth, _free_port, _listening, _wait, httpx
-from tests.server.test_from_the_control import FleetThread, procs
+from tests.server.srvx_support import (
+    FleetThread,
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    listening,
+    procs,
+    wait_for,
+)
 
 __all__ = ["procs", "samba"]  # fixtures shared with other tests
 
@@ -240,7 +247,7 @@ def test_netshare_config_defaults(tmp_path: Path) -> None:
 def test_the_server_runs_the_net_share(
     tmp_path: Path, ngc: FleetThread, procs: Procs, db_url: str
 ) -> None:
-    port = _free_port()
+    port = free_port()
     nas = tmp_path / "nas"
     nas.mkdir()
     text = server_config(
@@ -249,48 +256,39 @@ def test_the_server_runs_the_net_share(
     text += f'\n[netshare]\npath = "{nas}"\narchive_every = 4\ninterval = 0.2\n'
     config = tmp_path / "shop.toml"
     config.write_text(text)
-    key = subprocess.run(
-        [
-            *(sys.executable, "-m", "opendnc.cli.main", "keys", "create", "--role", "admin"),
-            *("--config", str(config), "--db", db_url),
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    ).stdout.strip()
+    key = create_key(config, db_url)
     procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    _wait("the server", _listening(port))
+    wait_for("the server", listening(port))
     shares = [ngc.fleet.sims[m].control.store.root for m in ("haas-1", "haas-2")]
     with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
 
         def audit(action: str) -> list[dict[str, Any]]:
             params = {"action": action}
             rows: list[dict[str, Any]] = client.get(
-                "/api/audit", headers=_auth(key), params=params
+                "/api/audit", headers=auth(key), params=params
             ).json()
             return rows
 
-        _wait("the baseline", lambda: len(audit("netshare.baseline")) == 2)
+        wait_for("the baseline", lambda: len(audit("netshare.baseline")) == 2)
         (nas / "O01000.nc").write_text(PROGRAM)
-        _wait(
+        wait_for(
             "the program on both machines",
             lambda: all((s / "O01000.nc").is_file() for s in shares),
             describe=lambda: procs.log("server"),
         )
         assert [(s / "O01000.nc").read_text() for s in shares] == [PROGRAM, PROGRAM]
         ngc.call(lambda: ngc.fleet.sims["haas-1"].control.save_program(MADE_HERE))
-        items = _wait(
+        items = wait_for(
             "the machine's program in the inbox",
-            lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+            lambda: client.get("/api/inbox", headers=auth(key)).json(),
             describe=lambda: procs.log("server"),
         )
         assert [(i["name"], i["machine"]) for i in items] == [("O02000.nc", "haas-1")]
-        _wait("the archive", lambda: not (nas / "O01000.nc").exists())
+        wait_for("the archive", lambda: not (nas / "O01000.nc").exists())
         assert [p.name for p in (tmp_path / "lib" / "archive" / "netshare").glob("*/*")] == [
             "O01000.nc"
         ]
-        _wait("the copies removed", lambda: not any((s / "O01000.nc").exists() for s in shares))
+        wait_for("the copies removed", lambda: not any((s / "O01000.nc").exists() for s in shares))
         pushes = audit("netshare.push")
         assert sorted((r["machine"], r["program"], r["result"]) for r in pushes) == [
             ("haas-1", "O01000.nc", "ok"),
