@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/lsv2_transfer.py
 	$(BIN)/python benchmarks/xmodem.py
 	$(BIN)/python benchmarks/surface_report.py
+	$(BIN)/python benchmarks/cli_startup.py --quick
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

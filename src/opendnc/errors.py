@@ -13,13 +13,19 @@ Every error this package raises on purpose derives from :class:`DncError`::
     ├── ControlRefused            a well-formed "no" from the control (LSV2 T_ER/T_BD, ...)
     ├── SafetyLockError           a machine-changing action without the explicit opt-in
     ├── TransferError             a file transfer failed after its retries
-    └── InputError                a local file or argument is unusable
+    ├── InputError                a local file or argument is unusable
+    └── ProgramTextError          a text program holds bytes no NC program holds
 
 ``OSError``, ``serial.SerialException`` and asyncio timeouts are translated into this tree
 at the transport boundary, so callers only ever catch ``DncError`` subclasses.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from opendnc.nctext import TextProblem
 
 
 class DncError(Exception):
@@ -85,3 +91,17 @@ class TransferError(DncError):
 
 class InputError(DncError):
     """A local file, path or argument cannot be used as given."""
+
+
+class ProgramTextError(DncError):
+    """A program that should be NC text holds a byte no NC program holds.
+
+    Raised for a received program (damage that the transfer's own check missed) and for a
+    program about to be sent. ``problem`` says where: block (line), column, byte offset.
+    """
+
+    def __init__(self, problem: TextProblem, *, what: str = "program", action: str = "") -> None:
+        self.problem = problem
+        self.what = what
+        detail = f"{what}: {problem.describe()} is not NC program text"
+        super().__init__(f"{detail}; {action}" if action else detail)

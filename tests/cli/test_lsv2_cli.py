@@ -89,7 +89,9 @@ def test_ls_json_lists_entries(tnc: TncHandle) -> None:
     assert entries["POCKET.H"]["size"] == len(remote_bytes(tnc, "TNC:/nc_prog/POCKET.H"))
     assert entries["POCKET.H"]["is_dir"] is False
     assert entries["demo"]["is_dir"] is True
-    assert entries["POCKET.H"]["mtime"].startswith("20")  # ISO 8601
+    assert entries["POCKET.H"]["modified"].startswith("20")  # ISO 8601, named as in the table
+    assert "mtime" not in entries["POCKET.H"]
+    assert entries["POCKET.H"]["path"] == "TNC:/nc_prog/POCKET.H"  # as typed, with /
 
 
 def test_ls_backslash_paths_and_table_output(tnc: TncHandle) -> None:
@@ -100,7 +102,7 @@ def test_ls_backslash_paths_and_table_output(tnc: TncHandle) -> None:
 def test_stat(tnc: TncHandle) -> None:
     _, out, _ = cli(tnc, "stat", "TNC:/nc_prog/POCKET.H", "--json")
     entry = json.loads(out)
-    assert entry["path"] == "TNC:\\nc_prog\\POCKET.H"
+    assert entry["path"] == "TNC:/nc_prog/POCKET.H"  # as typed
     assert entry["size"] > 0
 
 
@@ -192,7 +194,7 @@ def test_backup_then_rerun_skips_everything(tnc: TncHandle, tmp_path: Path) -> N
     # a changed local copy is fetched again
     pocket.write_bytes(b"changed")
     _, out, _ = cli(tnc, "backup", "TNC:/nc_prog", str(tmp_path / "bk"), "--json")
-    assert json.loads(out)["copied"] == ["TNC:\\nc_prog\\POCKET.H"]
+    assert json.loads(out)["copied"] == ["TNC:/nc_prog/POCKET.H"]
     assert pocket.read_bytes() == remote_bytes(tnc, "TNC:/nc_prog/POCKET.H")
 
 
@@ -288,7 +290,8 @@ def test_sync_pushes_only_changes(tnc: TncHandle, tmp_path: Path) -> None:
     (src / "sub" / "TWO.H").write_bytes(b"0 BEGIN PGM TWO MM\r\n")
     _, out, _ = cli(tnc, "sync", str(src), "TNC:/synced", "--json")
     first = json.loads(out)
-    assert sorted(first["copied"]) == ["TNC:\\synced\\ONE.H", "TNC:\\synced\\sub\\TWO.H"]
+    # printed in the separator style typed on the command line
+    assert sorted(first["copied"]) == ["TNC:/synced/ONE.H", "TNC:/synced/sub/TWO.H"]
     assert remote_bytes(tnc, "TNC:/synced/sub/TWO.H") == b"0 BEGIN PGM TWO MM\r\n"
     _, out, _ = cli(tnc, "sync", str(src), "TNC:/synced", "--json")
     assert json.loads(out)["copied"] == []
@@ -296,8 +299,10 @@ def test_sync_pushes_only_changes(tnc: TncHandle, tmp_path: Path) -> None:
     (src / "THREE.H").write_bytes(b"3")
     _, out, _ = cli(tnc, "sync", str(src), "TNC:/synced", "--json")
     third = json.loads(out)
-    assert sorted(third["copied"]) == ["TNC:\\synced\\THREE.H", "TNC:\\synced\\sub\\TWO.H"]
-    assert third["skipped"] == ["TNC:\\synced\\ONE.H"]
+    assert sorted(third["copied"]) == ["TNC:/synced/THREE.H", "TNC:/synced/sub/TWO.H"]
+    assert third["skipped"] == ["TNC:/synced/ONE.H"]
+    _, out, _ = cli(tnc, "sync", str(src), "TNC:\\synced", "--json")
+    assert json.loads(out)["skipped"][0].startswith("TNC:\\synced\\")
 
 
 # -- machine data --------------------------------------------------------------------------
@@ -308,10 +313,13 @@ def test_status_json_and_table(tnc: TncHandle) -> None:
     status = json.loads(out)
     assert status["execution_mode"] == "manual"
     assert status["program_state"] == "idle"
-    assert status["overrides"] == {"feed": 10000, "spindle": 10000, "rapid": 10000}
+    # the wire's 10000 (0.01 % units) is 100 %
+    percent = {"feed_percent": 100, "spindle_percent": 100, "rapid_percent": 100}
+    assert status["overrides"] == percent
     assert status["axes"]["Z"] == "250.0000"
     assert status["tool"] is None  # TNC 640 has no tool selector: n/a, not a crash
     _, out, _ = cli(tnc, "status")
+    assert "feed 100 %" in out
     assert "n/a" in out
     assert "manual" in out
 
@@ -360,7 +368,14 @@ def test_errors_na_on_tnc640_and_list_on_itnc(tnc: TncHandle, itnc: TncHandle) -
     _, out, _ = cli(tnc, "errors", "--json")
     assert json.loads(out) == {"supported": False, "errors": []}
     _, out, _ = cli(itnc, "errors", "--json")
-    assert json.loads(out)["supported"] is True
+    listed = json.loads(out)
+    assert listed["supported"] is True
+    # the virtual iTNC reports one class-3 message (docs/lsv2-nc-error-classes.md: program halt)
+    assert listed["errors"][0]["class_number"] == 3
+    assert listed["errors"][0]["class"] == "program halt"
+    _, out, _ = cli(itnc, "errors")
+    assert out.startswith("program halt (group ")
+    assert str(listed["errors"][0]["number"]) not in out  # not as a signed integer
 
 
 def test_data_read_and_scope_channels_on_itnc(itnc: TncHandle) -> None:

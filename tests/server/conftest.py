@@ -19,6 +19,7 @@ from sqlalchemy import Engine, create_engine, text  # noqa: E402
 from sqlalchemy.orm import Session, sessionmaker  # noqa: E402
 
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
+from tests.server.harness import Procs  # noqa: E402
 
 # The project's machines run PostgreSQL on 127.0.0.1:5432 with trust authentication.
 PG_ADMIN = os.environ.get(
@@ -65,3 +66,15 @@ def engine(db_url: str) -> Iterator[Engine]:
 @pytest.fixture
 def sessions(engine: Engine) -> sessionmaker[Session]:
     return make_sessions(engine)
+
+
+@pytest.fixture
+def procs(tmp_path: Path) -> Iterator[Procs]:
+    """Child processes of the test, stopped at its end (logs under tmp_path/logs)."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    p = Procs(logs)
+    try:
+        yield p
+    finally:
+        p.stop_all()

@@ -8,107 +8,26 @@ byte-identical everywhere, with audit rows; the same suite runs on SQLite and Po
 from __future__ import annotations
 
 import hashlib
-import os
 import signal
-import socket
-import subprocess
-import sys
-import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.peers import require_module
-
-httpx = require_module("httpx")
+from tests.server.harness import (
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    listening,
+    start_server,
+    wait_for,
+    wait_jobs,
+)
 
 # CRLF line ends: what the TNC stores for a text file, and what Setting 25 = CR LF gives.
 PROGRAM = b"%\r\nO01234 (BRACKET)\r\nG20\r\nG00 G90 G54 X0. Y0.\r\nG01 X1.5 F20.\r\nM30\r\n%\r\n"
-DEADLINE = 60.0
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
-def _wait(
-    what: str,
-    check: Callable[[], Any],
-    timeout: float = DEADLINE,
-    describe: Callable[[], Any] | None = None,
-) -> Any:
-    end = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        if time.monotonic() > end:
-            detail = f": {describe()}" if describe is not None else ""
-            raise AssertionError(f"timed out waiting for {what}{detail}")
-        time.sleep(0.05)
-
-
-def _listening(port: int) -> Callable[[], bool]:
-    def check() -> bool:
-        try:
-            socket.create_connection(("127.0.0.1", port), 0.2).close()
-            return True
-        except OSError:
-            return False
-
-    return check
-
-
-class Procs:
-    """Child processes, stopped at the end of the test."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-
-    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        with (self.log_dir / f"{name}.log").open("ab") as log:  # the child keeps its own fd
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "opendnc.cli.main", *args],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
-        self.procs[name] = proc
-        return proc
-
-    def stop(self, name: str, sig: int = signal.SIGTERM) -> None:
-        proc = self.procs.pop(name)
-        if proc.poll() is None:
-            os.killpg(proc.pid, sig)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(10)
-
-    def log(self, name: str) -> str:
-        return (self.log_dir / f"{name}.log").read_text(errors="replace")
-
-    def stop_all(self) -> None:
-        for name in list(self.procs):
-            self.stop(name)
-
-
-@pytest.fixture
-def procs(tmp_path: Path) -> Iterator[Procs]:
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    p = Procs(logs)
-    try:
-        yield p
-    finally:
-        p.stop_all()
 
 
 class Shop:
@@ -116,15 +35,15 @@ class Shop:
 
     def __init__(self, tmp: Path, procs: Procs, db_url: str) -> None:
         self.tmp, self.procs, self.db_url = tmp, procs, db_url
-        self.tnc_ports = [_free_port(), _free_port()]
+        self.tnc_ports = [free_port(), free_port()]
         self.tnc_roots = [tmp / "tnc-a", tmp / "tnc-b"]
-        self.mdc_port = _free_port()
+        self.mdc_port = free_port()
         self.haas_mem = tmp / "haas-mem"
         self.ngc_mem = tmp / "ngc-mem"
         self.ngc_share = tmp / "ngc-share"
         self.cable_pc = tmp / "pc"
         self.cable_haas = tmp / "haas"
-        self.http_port = _free_port()
+        self.http_port = free_port()
         self.config = tmp / "shop.toml"
         for folder in (*self.tnc_roots, self.haas_mem, self.ngc_mem, self.ngc_share):
             folder.mkdir()
@@ -143,7 +62,7 @@ class Shop:
             "--link-b",
             str(self.cable_pc),
         )
-        _wait("the cable", lambda: self.cable_haas.exists() and self.cable_pc.exists())
+        wait_for("the cable", lambda: self.cable_haas.exists() and self.cable_pc.exists())
         self.procs.start(
             "haas",
             "sim",
@@ -157,13 +76,13 @@ class Shop:
             "--root",
             str(self.haas_mem),
             "--mdc-port",
-            str(_free_port()),
+            str(free_port()),
         )
         self.procs.start(
             "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
         )
         for port in (*self.tnc_ports, self.mdc_port):
-            _wait(f"port {port}", _listening(port))
+            wait_for(f"port {port}", listening(port))
 
     def start_tnc(self, i: int, port: int, root: Path) -> None:
         self.procs.start(
@@ -212,35 +131,11 @@ poll_interval = 0.2
 """
         )
 
-    def cli(self, *args: str) -> str:
-        done = subprocess.run(
-            [sys.executable, "-m", "opendnc.cli.main", *args],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
-        assert done.returncode == 0, done.stderr
-        return done.stdout.strip()
-
     def key(self, role: str) -> str:
-        return self.cli(
-            "keys",
-            "create",
-            "--role",
-            role,
-            "--user",
-            f"{role}-1",
-            "--config",
-            str(self.config),
-            "--db",
-            self.db_url,
-        )
+        return create_key(self.config, self.db_url, role, user=f"{role}-1")
 
     def start_server(self) -> httpx.Client:
-        self.procs.start("server", "serve", "--config", str(self.config), "--db", self.db_url)
-        _wait("the server", _listening(self.http_port))
-        return httpx.Client(base_url=f"http://127.0.0.1:{self.http_port}", timeout=30)
+        return start_server(self.procs, self.config, self.db_url, self.http_port)
 
 
 @pytest.fixture
@@ -251,38 +146,21 @@ def shop(tmp_path: Path, procs: Procs, db_url: str) -> Shop:
     return s
 
 
-def _auth(key: str) -> dict[str, str]:
-    return {"Authorization": f"Bearer {key}"}
-
-
-def _wait_jobs(client: httpx.Client, key: str, ids: list[int]) -> list[dict[str, Any]]:
-    def done() -> list[dict[str, Any]] | None:
-        jobs = [client.get(f"/api/jobs/{i}", headers=_auth(key)).json() for i in ids]
-        return jobs if all(j["state"] in ("done", "failed", "interrupted") for j in jobs) else None
-
-    def describe() -> list[tuple[Any, ...]]:
-        jobs = [client.get(f"/api/jobs/{i}", headers=_auth(key)).json() for i in ids]
-        return [(j["id"], j["machine"], j["state"], j["attempts"], j["error"]) for j in jobs]
-
-    result: list[dict[str, Any]] = _wait("the jobs", done, describe=describe)
-    return result
-
-
 def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs: Procs) -> None:
     admin = shop.key("admin")
     viewer = shop.key("viewer")
     with shop.start_server() as client:
         # Every machine comes online.
         def machines() -> list[Any]:
-            listed = client.get("/api/machines", headers=_auth(viewer)).json()
+            listed = client.get("/api/machines", headers=auth(viewer)).json()
             return [(m["name"], m["online"], m["last_error"]) for m in listed]
 
-        _wait("all machines online", lambda: all(m[1] for m in machines()), describe=machines)
+        wait_for("all machines online", lambda: all(m[1] for m in machines()), describe=machines)
 
         up = client.put(
             "/api/programs/O01234.nc",
             content=PROGRAM,
-            headers=_auth(admin),
+            headers=auth(admin),
             params={"comment": "first cut"},
         )
         assert up.status_code == 201, up.text
@@ -291,26 +169,26 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
         # A draft is refused for the released-only machine, and nothing is queued.
         draft = client.post(
             "/api/jobs",
-            headers=_auth(admin),
+            headers=auth(admin),
             json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a", "tnc-b"]},
         )
         assert draft.status_code == 409
         assert "released programs only" in draft.json()["detail"]
-        assert client.get("/api/jobs", headers=_auth(admin)).json() == []
+        assert client.get("/api/jobs", headers=auth(admin)).json() == []
 
-        rel = client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
+        rel = client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
         assert rel.status_code == 200
         assert rel.json()["state"] == "released"
         sent = client.post(
             "/api/jobs",
-            headers=_auth(admin),
+            headers=auth(admin),
             json={"program": "O01234.nc", "machines": ["tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"]},
         )
         assert sent.status_code == 201, sent.text
-        jobs = _wait_jobs(client, admin, [j["id"] for j in sent.json()])
+        jobs = wait_jobs(client, admin, [j["id"] for j in sent.json()])
         assert [j["state"] for j in jobs] == ["done"] * 4, [j["error"] for j in jobs]
 
-        audit = client.get("/api/audit", headers=_auth(viewer), params={"action": "job.send"})
+        audit = client.get("/api/audit", headers=auth(viewer), params={"action": "job.send"})
         rows = {r["machine"]: r for r in audit.json()}
         assert set(rows) == {"tnc-a", "tnc-b", "vf2-serial", "vf4-ngc"}
         for row in rows.values():
@@ -322,7 +200,9 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
     for root in shop.tnc_roots:
         assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM
     assert (shop.ngc_share / "O01234.nc").read_bytes() == PROGRAM
-    received = _wait("the serial Haas to store the program", lambda: list(shop.haas_mem.iterdir()))
+    received = wait_for(
+        "the serial Haas to store the program", lambda: list(shop.haas_mem.iterdir())
+    )
     assert [p.name for p in received] == ["O01234.nc"], procs.log("haas")
     assert received[0].read_bytes().replace(b"\r\n", b"\n") == PROGRAM.replace(b"\r\n", b"\n")
 
@@ -334,23 +214,23 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
         assert client.get("/api/health").json() == {"status": "ok"}
         assert client.get("/api/machines").status_code == 401
         assert client.put("/api/programs/O1.nc", content=PROGRAM).status_code == 401
-        bad_key = _auth("odk_" + "x" * 43)
+        bad_key = auth("odk_" + "x" * 43)
         assert client.get("/api/machines", headers=bad_key).status_code == 401
         assert (
-            client.put("/api/programs/O1.nc", content=PROGRAM, headers=_auth(viewer)).status_code
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=auth(viewer)).status_code
             == 403
         )
         assert (
-            client.put("/api/programs/O1.nc", content=PROGRAM, headers=_auth(operator)).status_code
+            client.put("/api/programs/O1.nc", content=PROGRAM, headers=auth(operator)).status_code
             == 403
         )
-        key = client.post("/api/keys", headers=_auth(operator), json={"user": "x", "role": "admin"})
+        key = client.post("/api/keys", headers=auth(operator), json={"user": "x", "role": "admin"})
         assert key.status_code == 403
         programmer = shop.key("programmer")
         for name in ("..%2F..%2Fetc%2Fpasswd", "a%5Cb", "%2Ehidden", "CON", "x" * 101, "O1%0A"):
-            r = client.put(f"/api/programs/{name}", content=PROGRAM, headers=_auth(programmer))
+            r = client.put(f"/api/programs/{name}", content=PROGRAM, headers=auth(programmer))
             assert r.status_code in (400, 404), (name, r.status_code)
-        assert client.get("/api/programs", headers=_auth(viewer)).json() == []
+        assert client.get("/api/programs", headers=auth(viewer)).json() == []
         openapi = client.get("/openapi.json").json()
         assert {"/api/machines", "/api/programs", "/api/jobs", "/api/audit"} <= set(
             openapi["paths"]
@@ -363,26 +243,26 @@ def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs
     procs.stop("tnc1", signal.SIGKILL)  # tnc-b is away when the job is queued
     with shop.start_server() as client:
         assert (
-            client.put("/api/programs/O01234.nc", content=PROGRAM, headers=_auth(admin)).status_code
+            client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(admin)).status_code
             == 201
         )
-        client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
         sent = client.post(
-            "/api/jobs", headers=_auth(admin), json={"program": "O01234.nc", "machines": ["tnc-b"]}
+            "/api/jobs", headers=auth(admin), json={"program": "O01234.nc", "machines": ["tnc-b"]}
         )
         job_id = sent.json()[0]["id"]
-        machine = _wait(
+        machine = wait_for(
             "the server to find tnc-b away",
             lambda: (
-                (m := client.get("/api/machines/tnc-b", headers=_auth(admin)).json())
+                (m := client.get("/api/machines/tnc-b", headers=auth(admin)).json())
                 and m["last_error"]
                 and m
             ),
         )
         assert machine["online"] is False
-        assert client.get(f"/api/jobs/{job_id}", headers=_auth(admin)).json()["state"] == "queued"
+        assert client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()["state"] == "queued"
         shop.start_tnc(1, shop.tnc_ports[1], shop.tnc_roots[1])
-        (job,) = _wait_jobs(client, admin, [job_id])
+        (job,) = wait_jobs(client, admin, [job_id])
         assert job["state"] == "done", job["error"]
     target = shop.tnc_roots[1] / "TNC" / "nc_prog"
     assert (target / "O01234.nc").read_bytes() == PROGRAM
@@ -393,32 +273,32 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
     admin = shop.key("admin")
     big = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
     with shop.start_server() as client:
-        client.put("/api/programs/O01234.nc", content=big, headers=_auth(admin))
-        client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(admin))
+        client.put("/api/programs/O01234.nc", content=big, headers=auth(admin))
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
         ids = []
         for _ in range(3):
             sent = client.post(
                 "/api/jobs",
-                headers=_auth(admin),
+                headers=auth(admin),
                 json={"program": "O01234.nc", "machines": ["vf2-serial"]},
             )
             ids.append(sent.json()[0]["id"])
         # Kill the server while the first XModem transfer is on the line.
-        _wait(
+        wait_for(
             "the first job to run",
             lambda: (
-                client.get(f"/api/jobs/{ids[0]}", headers=_auth(admin)).json()["state"] == "running"
+                client.get(f"/api/jobs/{ids[0]}", headers=auth(admin)).json()["state"] == "running"
             ),
         )
     procs.stop("server", signal.SIGKILL)
     with shop.start_server() as client:
-        first = client.get(f"/api/jobs/{ids[0]}", headers=_auth(admin)).json()
+        first = client.get(f"/api/jobs/{ids[0]}", headers=auth(admin)).json()
         assert first["state"] == "interrupted"
         assert "server stopped" in first["error"]
-        rest = _wait_jobs(client, admin, ids[1:])
+        rest = wait_jobs(client, admin, ids[1:])
         assert [j["state"] for j in rest] == ["done", "done"]
         starts = client.get(
-            "/api/audit", headers=_auth(admin), params={"action": "job.start", "limit": 100}
+            "/api/audit", headers=auth(admin), params={"action": "job.start", "limit": 100}
         ).json()
         per_job = {i: sum(1 for r in starts if r["job_id"] == i) for i in ids}
         assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}
@@ -428,41 +308,106 @@ def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
     admin = shop.key("admin")
     operator = shop.key("operator")
     with shop.start_server() as client:
-        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=_auth(admin))
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(admin))
         sent = client.post(
             "/api/jobs",
-            headers=_auth(admin),
+            headers=auth(admin),
             json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a"]},
         )
-        _wait_jobs(client, admin, [sent.json()[0]["id"]])
+        wait_jobs(client, admin, [sent.json()[0]["id"]])
         path = "TNC:/nc_prog/O01234.nc"
 
         def job(kind: str, machine: str, key: str = admin, where: str = path) -> Any:
             return client.post(
                 "/api/jobs",
-                headers=_auth(key),
+                headers=auth(key),
                 json={"kind": kind, "path": where, "machines": [machine]},
             )
 
-        received = _wait_jobs(client, admin, [job("receive", "tnc-a").json()[0]["id"]])
+        received = wait_jobs(client, admin, [job("receive", "tnc-a").json()[0]["id"]])
         assert received[0]["state"] == "done", received[0]["error"]
-        (item,) = client.get("/api/inbox", headers=_auth(admin)).json()
+        (item,) = client.get("/api/inbox", headers=auth(admin)).json()
         assert (item["name"], item["machine"]) == ("O01234.nc", "tnc-a")
-        content = client.get(f"/api/inbox/{item['id']}/content", headers=_auth(admin)).content
+        content = client.get(f"/api/inbox/{item['id']}/content", headers=auth(admin)).content
         assert content == PROGRAM
 
         backup = job("backup", "tnc-a", where="TNC:/nc_prog")
-        (done,) = _wait_jobs(client, admin, [backup.json()[0]["id"]])
+        (done,) = wait_jobs(client, admin, [backup.json()[0]["id"]])
         assert done["state"] == "done", done["error"]
-        rows = client.get("/api/audit", headers=_auth(admin), params={"action": "job.backup"})
+        rows = client.get("/api/audit", headers=auth(admin), params={"action": "job.backup"})
         assert rows.json()[0]["detail"]["copied"] >= 1
 
         assert job("delete", "tnc-a", operator).status_code == 403
-        deleted = _wait_jobs(client, admin, [job("delete", "tnc-a").json()[0]["id"]])
+        deleted = wait_jobs(client, admin, [job("delete", "tnc-a").json()[0]["id"]])
         assert deleted[0]["state"] == "done", deleted[0]["error"]
-        refused = _wait_jobs(client, admin, [job("delete", "vf2-serial").json()[0]["id"]])
+        refused = wait_jobs(client, admin, [job("delete", "vf2-serial").json()[0]["id"]])
         assert refused[0]["state"] == "failed"
         assert refused[0]["attempts"] == 1  # a refusal is not retried
         assert "RS-232 cannot delete" in refused[0]["error"]
     assert not (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").exists()
     assert (shop.tmp / "backups" / "tnc-a" / "O01234.nc").read_bytes() == PROGRAM
+
+
+def test_a_heidenhain_on_rs232_gets_its_program(tmp_path: Path, procs: Procs, db_url: str) -> None:
+    # A TNC without a network: LSV2 over a virtual RS-232 cable, 8E1 as the controls default to.
+    pc, tnc = tmp_path / "pc", tmp_path / "tnc-port"
+    root = tmp_path / "tnc-root"
+    procs.start(
+        "cable",
+        "sim",
+        "cable",
+        "--baud",
+        "115200",
+        "--bits-per-char",
+        "11",
+        "--link-a",
+        str(tnc),
+        "--link-b",
+        str(pc),
+    )
+    wait_for("the cable", lambda: tnc.exists() and pc.exists())
+    procs.start(
+        "tnc",
+        "sim",
+        "tnc",
+        "--profile",
+        "itnc530",
+        "--root",
+        str(root),
+        "--serial",
+        str(tnc),
+        "--baud",
+        "115200",
+        "--no-tcp",
+    )
+    wait_for("the virtual TNC on its serial line", lambda: "listening" in procs.log("tnc"))
+    port = free_port()
+    config = tmp_path / "shop.toml"
+    config.write_text(f"""
+[server]
+bind = "127.0.0.1:{port}"
+
+[[machines]]
+name = "tnc-serial"
+kind = "lsv2"
+serial = "{pc}"
+serial_profile = {{ baud = 115200 }}
+folder = "TNC:/nc_prog"
+poll_interval = 0.5
+""")
+    key = create_key(config, db_url)
+    with start_server(procs, config, db_url, port) as client:
+        wait_for(
+            "the machine online",
+            lambda: client.get("/api/machines/tnc-serial", headers=auth(key)).json()["online"],
+            describe=lambda: procs.log("server"),
+        )
+        client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(key),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-serial"]},
+        )
+        (job,) = wait_jobs(client, key, [sent.json()[0]["id"]])
+        assert job["state"] == "done", job["error"]
+    assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM

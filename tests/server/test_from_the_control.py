@@ -17,7 +17,16 @@ from typing import Any, TypeVar
 import pytest
 
 from opendnc.sim.fleet import Fleet, server_config, start_fleet
-from tests.server.test_end_to_end import Procs, _auth, _free_port, _listening, _wait, httpx
+from tests.server.harness import (
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    start_server,
+    wait_for,
+    wait_jobs,
+)
 
 T = TypeVar("T")
 
@@ -62,51 +71,21 @@ def haas(tmp_path: Path) -> Iterator[FleetThread]:
         fleet.stop()
 
 
-@pytest.fixture
-def procs(tmp_path: Path) -> Iterator[Procs]:
-    logs = tmp_path / "logs"
-    logs.mkdir()
-    p = Procs(logs)
-    try:
-        yield p
-    finally:
-        p.stop_all()
-
-
 def _server(
-    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, *, dripfeed: bool = False
 ) -> tuple[httpx.Client, str]:
-    port = _free_port()
+    port = free_port()
     config = tmp_path / "shop.toml"
     text = server_config(
-        haas.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
+        haas.fleet,
+        bind=f"127.0.0.1:{port}",
+        poll_interval=0.5,
+        library=tmp_path / "lib",
+        dripfeed=dripfeed,
     )
     config.write_text(text + "\n[requests]\ndelay = 0.5\n")
-    import subprocess
-    import sys
-
-    key = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "opendnc.cli.main",
-            "keys",
-            "create",
-            "--role",
-            "admin",
-            "--config",
-            str(config),
-            "--db",
-            db_url,
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    ).stdout.strip()
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    _wait("the server", _listening(port))
-    return httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30), key
+    key = create_key(config, db_url)
+    return start_server(procs, config, db_url, port), key
 
 
 STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
@@ -120,23 +99,23 @@ def test_a_haas_punch_lands_in_the_inbox_under_its_o_number(
     client, key = _server(tmp_path, haas, procs, db_url)
     with client:
         haas.fleet.serial_ports["haas-serial-1"].select("punch:O1234")  # the operator's key
-        items = _wait(
+        items = wait_for(
             "the punch in the inbox",
-            lambda: client.get("/api/inbox", headers=_auth(key)).json(),
+            lambda: client.get("/api/inbox", headers=auth(key)).json(),
             describe=lambda: procs.log("server"),
         )
         assert [(i["name"], i["machine"], i["state"]) for i in items] == [
             ("O01234.nc", "haas-serial-1", "new")
         ]
-        got = client.get(f"/api/inbox/{items[0]['id']}/content", headers=_auth(key)).content
+        got = client.get(f"/api/inbox/{items[0]['id']}/content", headers=auth(key)).content
         lines = [line for line in got.decode().splitlines() if line.strip()]
         assert lines == [line for line in STORED.splitlines() if line.strip()]
-        detail = client.get(f"/api/inbox/{items[0]['id']}", headers=_auth(key)).json()
+        detail = client.get(f"/api/inbox/{items[0]['id']}", headers=auth(key)).json()
         assert detail["diff"][0] == "--- (not in library)"
-        accepted = client.post(f"/api/inbox/{items[0]['id']}/accept", headers=_auth(key), json={})
+        accepted = client.post(f"/api/inbox/{items[0]['id']}/accept", headers=auth(key), json={})
         assert accepted.status_code == 200, accepted.text
         assert (accepted.json()["program"], accepted.json()["state"]) == ("O01234.nc", "draft")
-        assert client.get("/api/inbox", headers=_auth(key)).json() == []
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
     assert (tmp_path / "lib" / "inbox" / "O01234.nc").read_bytes() == got
 
 
@@ -151,11 +130,11 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
     with client:
         assert (
             client.put(
-                "/api/programs/O01234.nc", content=library_program, headers=_auth(key)
+                "/api/programs/O01234.nc", content=library_program, headers=auth(key)
             ).status_code
             == 201
         )
-        client.post("/api/programs/O01234.nc/versions/1/release", headers=_auth(key))
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(key))
         port = haas.fleet.serial_ports["haas-serial-1"]
         port.select("punch:O9999")  # send the request ...
         port.select("auto")  # ... then switch to receive, within the request delay
@@ -164,7 +143,7 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
             numbers = (1234, 9998)
             return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
 
-        got = _wait(
+        got = wait_for(
             "the answer in the control's memory",
             lambda: len(memory()) == 2 and memory(),
             describe=lambda: (port.messages, procs.log("server")),
@@ -173,14 +152,14 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
         assert "(O05555.NC NOT IN LIBRARY)" in got[9998]
         assert got[9998].split()[1:3] == ["O09998", "(OPENDNC"]
         audit = client.get(
-            "/api/audit", headers=_auth(key), params={"action": "program.request"}
+            "/api/audit", headers=auth(key), params={"action": "program.request"}
         ).json()
         assert len(audit) == 1
         assert audit[0]["detail"]["requested"] == ["O01234.nc", "O05555.nc"]
         assert audit[0]["detail"]["sent"] == ["O01234.nc"]
         assert audit[0]["result"] == "refused"
         # The request itself is no inbox item.
-        assert client.get("/api/inbox", headers=_auth(key)).json() == []
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
 
 
 def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
@@ -207,63 +186,29 @@ def slow_haas(tmp_path: Path) -> Iterator[FleetThread]:
 def test_dripfeed_interrupted_then_restarted_from_its_line(
     tmp_path: Path, slow_haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
-    port = _free_port()
-    config = tmp_path / "shop.toml"
-    config.write_text(
-        server_config(
-            slow_haas.fleet,
-            bind=f"127.0.0.1:{port}",
-            poll_interval=0.5,
-            library=tmp_path / "lib",
-            dripfeed=True,
-        )
-    )
-    import subprocess
-    import sys
-
-    key = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "opendnc.cli.main",
-            "keys",
-            "create",
-            "--role",
-            "admin",
-            "--config",
-            str(config),
-            "--db",
-            db_url,
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    ).stdout.strip()
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    _wait("the server", _listening(port))
+    client, key = _server(tmp_path, slow_haas, procs, db_url, dripfeed=True)
     moves = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
     program = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{moves}M30\n%\n".encode()
     front = slow_haas.fleet.serial_ports["haas-serial-1"]
-    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
-        _wait(
+    with client:
+        wait_for(
             "the machine online",
-            lambda: client.get("/api/machines/haas-serial-1", headers=_auth(key)).json()["online"],
+            lambda: client.get("/api/machines/haas-serial-1", headers=auth(key)).json()["online"],
         )
-        client.put("/api/programs/O03000.nc", content=program, headers=_auth(key))
+        client.put("/api/programs/O03000.nc", content=program, headers=auth(key))
         started = client.post(
             "/api/jobs",
-            headers=_auth(key),
+            headers=auth(key),
             json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
         )
         assert started.status_code == 201, started.text
         job_id = started.json()[0]["id"]
-        _wait("the feed to be well under way", lambda: front.dnc_lines > 300)
-        assert client.post(f"/api/jobs/{job_id}/cancel", headers=_auth(key)).status_code == 200
-        first = _wait(
+        wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
+        assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
+        first = wait_for(
             "the feed to stop",
             lambda: (
-                (j := client.get(f"/api/jobs/{job_id}", headers=_auth(key)).json())["state"]
+                (j := client.get(f"/api/jobs/{job_id}", headers=auth(key)).json())["state"]
                 != "running"
                 and j
             ),
@@ -275,7 +220,7 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         assert 300 < stopped_at < total
         # The control, starved, raises its DNC link alarm; the operator presses RESET and
         # restarts from the line the server reports.
-        _wait(
+        wait_for(
             "the control's DNC link alarm", lambda: front.messages, describe=lambda: front.messages
         )
         assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
@@ -284,21 +229,15 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         lines_before, runs_before = front.dnc_lines, len(front.messages)
 
         again = client.post(
-            f"/api/jobs/{job_id}/retry", headers=_auth(key), json={"from_line": stopped_at}
+            f"/api/jobs/{job_id}/retry", headers=auth(key), json={"from_line": stopped_at}
         )
         assert again.status_code == 201, again.text
-        (done,) = _wait_jobs_done(client, key, [again.json()["id"]])
+        (done,) = wait_jobs(client, key, [again.json()["id"]])
         assert done["state"] == "done", done["error"]
         assert done["params"]["from_line"] == stopped_at
         # The second run: the restart preamble, then the program from that line to M30.
-        _wait("the control to finish the run", lambda: len(front.messages) > runs_before)
+        wait_for("the control to finish the run", lambda: len(front.messages) > runs_before)
         assert front.messages[-1] == "RS232 DONE", front.messages
         ran = front.dnc_lines - lines_before
         remaining = total - stopped_at + 1
         assert remaining <= ran <= remaining + 20, (ran, remaining)
-
-
-def _wait_jobs_done(client: httpx.Client, key: str, ids: list[int]) -> list[dict[str, Any]]:
-    from tests.server.test_end_to_end import _wait_jobs
-
-    return _wait_jobs(client, key, ids)

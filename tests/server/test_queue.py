@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 from concurrent.futures import ThreadPoolExecutor
+from datetime import timedelta
 
 import pytest
 from sqlalchemy import select
@@ -46,7 +47,10 @@ def test_versions_are_content_addressed_and_released_one_at_a_time(
         library.release(s, "O01234", 1, actor="carl")
         library.release(s, "O01234", 2, actor="carl")
     with sessions() as s:
-        states = [v.state for v in library.get_program(s, "O01234").versions]
+        versions = library.get_program(s, "O01234").versions
+        # times come back in UTC on every backend (SQLite keeps no zone of its own)
+        assert all(v.created.utcoffset() == timedelta(0) for v in versions)
+        states = [v.state for v in versions]
         assert states == [ProgramState.SUPERSEDED, ProgramState.RELEASED]
         assert library.content(s, library.get_version(s, "O01234", 2)) == PROGRAM.replace(
             b"X0.", b"X5."

@@ -54,3 +54,35 @@ def test_audit_rows_cannot_be_changed_or_deleted(engine: Engine, sessions) -> No
     with sessions() as session:
         rows = audit.query(session)
         assert [(r.actor, r.action) for r in rows] == [("alice", "login")]
+
+
+def test_upgrade_from_the_previous_revision_keeps_the_data(db_url: str) -> None:
+    # A shop running the first schema upgrades: its library and audit trail come along.
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, "0001")
+        with engine.begin() as conn:
+            conn.execute(
+                text("INSERT INTO blobs (sha256, size, data) VALUES ('ab', 1, :d)"), {"d": b"x"}
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO programs (name, locked, created) "
+                    "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
+                )
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO audit (at, actor, action, result, detail) "
+                    "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
+                )
+            )
+        assert "received" not in set(inspect(engine).get_table_names())
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        assert "received" in set(inspect(engine).get_table_names())
+        with engine.connect() as conn:
+            assert conn.execute(text("SELECT name FROM programs")).scalars().all() == ["O1.nc"]
+            assert conn.execute(text("SELECT actor FROM audit")).scalars().all() == ["ann"]
+    finally:
+        engine.dispose()

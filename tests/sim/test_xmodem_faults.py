@@ -117,7 +117,9 @@ def our_transfer(
     tx = SerialStream(cable.path_a, BAUD, timeout=0.05)
     rx = SerialStream(cable.path_b, BAUD, timeout=0.05)
     try:
-        receiver, received = in_thread(receive_file, rx, dest, mode=mode, config=FAST_RX)
+        receiver, received = in_thread(
+            receive_file, rx, dest, mode=mode, config=FAST_RX, binary=True
+        )
         sender, sent = in_thread(send, tx, data, mode=mode, config=FAST_TX)
         sender.join(RUN_LIMIT)
         receiver.join(RUN_LIMIT)
@@ -176,7 +178,9 @@ def test_lrzsz_sx_through_faulty_cable_to_our_receiver(tmp_path: Path) -> None:
     with VirtualCable(baud=BAUD, noise=1e-4, drop=1e-5, seed=4) as cable:
         rx = SerialStream(cable.path_b, BAUD, timeout=0.05)
         try:
-            receiver, received = in_thread(receive_file, rx, dest, mode=Mode.CRC, config=FAST_RX)
+            receiver, received = in_thread(
+                receive_file, rx, dest, mode=Mode.CRC, config=FAST_RX, binary=True
+            )
             with open(cable.path_a, "r+b", buffering=0) as tty:
                 proc = subprocess.run(
                     [sx, "-X", "-k", "-q", str(source)],

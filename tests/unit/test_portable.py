@@ -30,8 +30,13 @@ from tests.unit.xmodem.test_socket_port import _serve_once
 
 # POSIX-only modules; the last three stand for the rest of what Windows lacks
 BLOCKED = ("termios", "fcntl", "pty", "tty", "resource", "grp", "pwd")
-# POSIX-only by design: the pty bench, the virtual cable, the virtual Haas's serial front end
-POSIX_ONLY = ("opendnc.transport.pty", "opendnc.sim.cable", "opendnc.sim.haas.serial_front")
+# POSIX-only by design: the pty bench, the virtual cable, the simulators' serial front ends
+POSIX_ONLY = (
+    "opendnc.transport.pty",
+    "opendnc.sim.cable",
+    "opendnc.sim.haas.serial_front",
+    "opendnc.sim.tnc.serial_front",  # the virtual TNC on a serial line can make its own pty
+)
 
 CHILD = textwrap.dedent(
     """
@@ -87,8 +92,13 @@ CHILD = textwrap.dedent(
             "listed": "PORTABLE.H" in listing,
             "read_back": tnc.read_file("TNC:/PORTABLE.H").decode("latin-1"),
         }
-    sent = send_file(f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K)
-    got = receive_file(f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM)
+    # random bytes: sent and received as a binary file, past the NC text check
+    sent = send_file(
+        f"socket://127.0.0.1:{send_port}", work / "out.nc", mode=Mode.ONE_K, binary=True
+    )
+    got = receive_file(
+        f"tcp://127.0.0.1:{recv_port}", work / "in.nc", mode=Mode.CHECKSUM, binary=True
+    )
     from opendnc.haas.dnc import DncConfig, stream_program
     dnc = stream_program(
         f"socket://127.0.0.1:{dnc_port}", work / "dnc.nc", safe_mode=False,

@@ -16,7 +16,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from opendnc.errors import DncError
+from opendnc.errors import DncError, SafetyLockError
 
 # no emoji codes: user text such as a scope signal "0:X:1" or a path must print as typed
 console = Console(emoji=False)
@@ -52,6 +52,15 @@ def cli_errors() -> Iterator[None]:
     """Report any :class:`DncError` as one line on stderr and exit with status 1."""
     try:
         yield
+    except SafetyLockError as exc:
+        # the exact line that would run it, so nobody guesses where --unsafe goes
+        err_console.print(
+            f"[bold red]error:[/] {escape(exc.action)} can change machine behaviour and is locked; "
+            f"to run it: {escape(unsafe_command_line())}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        raise typer.Exit(1) from exc
     except DncError as exc:
         # soft_wrap keeps the message on one line; escape keeps paths like [1] literal
         err_console.print(
@@ -61,6 +70,13 @@ def cli_errors() -> Iterator[None]:
     except KeyboardInterrupt:
         err_console.print("[yellow]interrupted[/]")
         raise typer.Exit(130) from None
+
+
+def unsafe_command_line() -> str:
+    """The command line being run, with ``--unsafe`` added (for a refusal message)."""
+    from opendnc.cli.lazy import unsafe_command_line as line
+
+    return line()
 
 
 def run_cli(func: Callable[[], None]) -> None:

@@ -10,16 +10,18 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.panel import Panel
-from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console
 from opendnc.cli.lsv2_machine import machine_status
 from opendnc.errors import DncError
-from opendnc.lsv2 import Client
-from opendnc.sim.tnc import start_tnc
+
+if TYPE_CHECKING:  # the simulators, clients and rich's tables load when the tour runs
+    from rich.table import Table
+
+    from opendnc.lsv2 import Client
 
 DEMO_PROGRAM = (
     "0 BEGIN PGM DEMO MM\r\n"
@@ -39,6 +41,8 @@ DEMO_PROGRAM = (
 
 
 def _kv(title: str, rows: Sequence[tuple[str, object]]) -> Table:
+    from rich.table import Table
+
     table = Table(show_header=False, title=title, title_justify="left", title_style="bold")
     table.add_column(style="cyan")
     table.add_column()
@@ -48,6 +52,8 @@ def _kv(title: str, rows: Sequence[tuple[str, object]]) -> Table:
 
 
 def _tour_tnc(tnc: Client, workdir: Path) -> None:
+    from rich.table import Table
+
     v = tnc.versions
     console.print(
         _kv(
@@ -149,6 +155,11 @@ def _tour_haas(workdir: Path) -> None:
 
 def demo() -> None:
     """Start virtual controls and show what opendnc does with them."""
+    from rich.panel import Panel
+
+    from opendnc.lsv2 import Client
+    from opendnc.sim.tnc import start_tnc
+
     with cli_errors(), tempfile.TemporaryDirectory(prefix="opendnc-demo-") as tmp:
         workdir = Path(tmp)
         console.print(Panel.fit("opendnc demo: virtual TNC 640 on 127.0.0.1 (LSV2)"))

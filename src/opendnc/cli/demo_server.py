@@ -3,8 +3,9 @@
 Starts two virtual TNCs, a virtual Haas NGC (MDC and net share) and a virtual Haas on a
 virtual RS-232 cable in this process, fills a library with example programs (released ones
 and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
-the address, a login and an API key, and serves until Ctrl-C. ``--check`` sends a released
-program to every machine, prints what happened and exits (what the test suite runs).
+the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
+``--check`` sends a released program to every machine, prints what happened and exits (what
+the test suite runs).
 """
 
 from __future__ import annotations
@@ -99,9 +100,16 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
         shop = parse_config(text, base=folder, source=folder / "shop.toml")
         server = build(shop, database=f"sqlite:///{folder / 'opendnc.db'}", sweep_interval=1.0)
         password = secrets.token_urlsafe(9)
+        viewer_password = secrets.token_urlsafe(9)
         with server.sessions.begin() as session:
-            if auth.find_user(session, "admin") is None:
-                auth.create_user(session, "admin", Role.ADMIN, password=password, actor="demo")
+            for user, role, secret in (
+                ("admin", Role.ADMIN, password),
+                ("viewer", Role.VIEWER, viewer_password),
+            ):
+                if auth.find_user(session, user) is None:
+                    auth.create_user(session, user, role, password=secret, actor="demo")
+                else:  # a kept --dir: the login printed below must be the one that works
+                    auth.set_password(session, user, secret, actor="demo")
             _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
             for name, versions in EXAMPLES.items():
                 for data in versions:
@@ -119,8 +127,11 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
             await asyncio.sleep(0.05)
         port = web.servers[0].sockets[0].getsockname()[1]  # the real one when --bind said :0
         url = f"http://{host}:{port}/"
-        console.print(f"opendnc demo server on {url}", highlight=False, soft_wrap=True)
+        console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
         console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
+        console.print(
+            f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True
+        )
         console.print(f"API key: {key}", highlight=False, soft_wrap=True)
         console.print(
             f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",

@@ -9,23 +9,22 @@ from __future__ import annotations
 import contextlib
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    ProgressColumn,
-    TextColumn,
-    TransferSpeedColumn,
-)
-from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console, print_json
-from opendnc.errors import InputError
-from opendnc.haas import share
-from opendnc.haas.mdc import reply_name
-from opendnc.haas.mdc_client import DEFAULT_PORT, MdcClient, check_macro_write
+from opendnc.errors import ControlRefused, InputError
+from opendnc.haas.mdc import Refused, reply_name
+
+if TYPE_CHECKING:  # clients and progress bars load with the command that uses them
+    from rich.progress import Progress, ProgressColumn
+
+    from opendnc.haas.dnc import DncConfig
+    from opendnc.haas.mdc_client import MdcClient
+
+# MDC port (Setting 143): opendnc.haas.mdc_client.DEFAULT_PORT, without importing the client
+DEFAULT_PORT = 5051
 
 app = typer.Typer(
     help="Haas controls: MDC queries, macro variables, Net Share.", no_args_is_help=True
@@ -48,6 +47,16 @@ JsonOpt = typer.Option(False, "--json", help="Print the parsed reply as JSON.")
 ResultJsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
 
 
+class Rejected(ControlRefused):
+    """An MDC query answered with ``?`` / ``UNKNOWN`` (no numeric code on this protocol)."""
+
+    def __init__(self, what: str, answer: str) -> None:
+        super().__init__(0, answer, context=what)
+
+    def __str__(self) -> str:
+        return f"the control rejected {self.context} (it answered {self.text!r})"
+
+
 def mdc_client(
     host: str,
     port: str,
@@ -58,6 +67,8 @@ def mdc_client(
     allow_any_variable: bool = False,
 ) -> MdcClient:
     """A TCP client when ``port`` is a number, else a serial one on that device or URL."""
+    from opendnc.haas.mdc_client import MdcClient  # loads with the command that uses it
+
     if port.isdigit():
         return MdcClient(
             host,
@@ -90,12 +101,17 @@ def q(
     json_out: bool = JsonOpt,
 ) -> None:
     """Send one ?Q command and print the reply."""
+
     with cli_errors():
         number = parse_code(code)
         if number == 600 and var is None:
             raise InputError("Q600 needs a variable number, e.g. `opendnc haas q Q600 5223`")
         with mdc_client(host, port, baud, timeout) as client:
             reply = client.query(number, var)
+        if isinstance(reply, Refused):
+            # "?" (NGC) or UNKNOWN (classic): a reply, but no answer; scripts must see it fail
+            what = f"Q{number:03d}" + (f" {var}" if var is not None else "")
+            raise Rejected(what, reply.text)
         if json_out:
             print_json(
                 {
@@ -125,6 +141,8 @@ def status(
     json_out: bool = JsonOpt,
 ) -> None:
     """One readable summary from all documented Q commands."""
+    from rich.table import Table
+
     with cli_errors():
         with mdc_client(host, port, baud, timeout) as client:
             summary = client.status()
@@ -166,6 +184,7 @@ def macro_get(
     json_out: bool = JsonOpt,
 ) -> None:
     """Read a macro variable (?Q600)."""
+
     with cli_errors():
         with mdc_client(host, port, baud, timeout) as client:
             value = client.macro_get(var)
@@ -190,6 +209,8 @@ def macro_set(
     ),
 ) -> None:
     """Write a macro variable (?E). Refused without --unsafe."""
+    from opendnc.haas.mdc_client import check_macro_write
+
     with cli_errors():
         # what the control would refuse is refused here, with the reason, before connecting
         check_macro_write(var, value, safe_mode=not unsafe, allow_any_variable=any_variable)
@@ -202,6 +223,8 @@ def macro_set(
 
 def _transfer_bar(label: str, json_out: bool, *extra: ProgressColumn) -> Progress:
     """The byte progress bar of a transfer; hidden when the result goes out as JSON."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+
     return Progress(
         TextColumn(label),
         BarColumn(),
@@ -225,6 +248,8 @@ def share_push(
     json_out: bool = ResultJsonOpt,
 ) -> None:
     """Copy programs to a Haas Net Share; each file appears whole or not at all."""
+    from opendnc.haas import share
+
     with cli_errors():
         target = share.parse_target(to)
         total = sum(f.stat().st_size for f in files if f.is_file())
@@ -245,6 +270,45 @@ def share_push(
 
 
 # --------------------------------------------------------------------------- drip-feed (DNC)
+class SentBytes:
+    """Progress of a drip-feed in bytes on the wire, not in bytes of the file.
+
+    With ``--from-line`` the lines before the restart are only scanned and a modal header is
+    sent instead, so the file size overstates the transfer. :meth:`plan` runs the same feed
+    once without a port to learn the wire total; :meth:`at` turns the file offset the engine
+    reports into bytes sent, in proportion over the part of the file that is sent.
+    """
+
+    def __init__(self, total: int, first_offset: int, file_size: int) -> None:
+        self.total = total
+        self.first_offset = first_offset
+        self.file_size = file_size
+
+    @classmethod
+    def plan(cls, path: Path, config: DncConfig, from_line: int) -> SentBytes:
+        """Scan ``path`` as the drip-feed will send it."""
+        from opendnc.haas.dnc import ProgramFeed
+
+        feed = ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
+        total, first = 0, -1
+        try:
+            for block in feed:
+                if first < 0:
+                    first = feed.position
+                total += len(block)
+        finally:
+            feed.close()
+        return cls(total, max(first, 0), feed.total)
+
+    def at(self, offset: int) -> int:
+        """Bytes on the wire once the feed has read the file up to ``offset``."""
+        span = self.file_size - self.first_offset
+        if span <= 0 or offset >= self.file_size:
+            return self.total
+        done = max(0, offset - self.first_offset)
+        return min(self.total, round(self.total * done / span))
+
+
 @app.command("dnc")
 def dnc_cmd(
     file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
@@ -302,6 +366,7 @@ def dnc_cmd(
             )
         except ValueError as exc:
             raise InputError(f"bad option: {exc}") from None
+        sent = SentBytes.plan(file, config, from_line)
         # the port opens before the bar (one error line if it does not), but only for a run
         # that may start: a locked one is refused before any port is touched
         link: str | PortStream = port
@@ -311,7 +376,7 @@ def dnc_cmd(
             contextlib.closing(link) if not isinstance(link, str) else contextlib.nullcontext(),
             _transfer_bar("dnc {task.fields[state]}", json_out, TimeRemainingColumn()) as bar,
         ):
-            task = bar.add_task("dnc", total=file.stat().st_size, state="[green]run[/]")
+            task = bar.add_task("dnc", total=sent.total, state="[green]run[/]")
 
             def on_event(event: DncEvent) -> None:
                 paused = isinstance(event, Paused)
@@ -323,7 +388,7 @@ def dnc_cmd(
                 from_line=from_line,
                 config=config,
                 safe_mode=not unsafe,
-                progress=lambda done, total: bar.update(task, completed=done),
+                progress=lambda done, _total: bar.update(task, completed=sent.at(done)),
                 on_event=on_event,
             )
         if json_out:

@@ -9,19 +9,30 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
-from rich.table import Table
 
 from opendnc.cli import lsv2_machine
 from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.cli.lsv2_serial import (
+    BaudOpt,
+    BytesizeOpt,
+    FlowOpt,
+    ParityOpt,
+    SerialOpt,
+    StopbitsOpt,
+    serial_line,
+)
 from opendnc.cli.lsv2_session import JsonOpt, Settings, bar, connect, relabel, want_json
 from opendnc.errors import ControlRefused, InputError
-from opendnc.lsv2 import Client, FileInfo
-from opendnc.lsv2.backup import Summary, backup, sync
 
-app = typer.Typer(help="Heidenhain controls over LSV2 (TCP).", no_args_is_help=True)
+if TYPE_CHECKING:  # the LSV2 stack is imported by the commands that talk to a control
+    from opendnc.lsv2 import Client, FileInfo
+    from opendnc.lsv2.backup import Summary
+
+app = typer.Typer(help="Heidenhain controls over LSV2 (TCP or RS-232).", no_args_is_help=True)
 
 
 @app.callback()
@@ -36,17 +47,37 @@ def main(
     unsafe: bool = typer.Option(
         False, "--unsafe", help="Allow machine-changing actions (parameter, key, PLC writes)."
     ),
+    serial: str | None = SerialOpt,
+    baud: str = BaudOpt,
+    parity: str = ParityOpt,
+    bytesize: int = BytesizeOpt,
+    stopbits: float = StopbitsOpt,
+    flow: str = FlowOpt,
 ) -> None:
-    """Heidenhain controls over LSV2 (TCP)."""
-    ctx.obj = Settings(host, port, timeout, json_out, unsafe)
+    """Heidenhain controls over LSV2 (TCP, or RS-232 with --serial)."""
+    with cli_errors():
+        line = serial_line(serial, baud, parity, bytesize, stopbits, flow)
+    ctx.obj = Settings(host, port, timeout, json_out, unsafe, line)
 
 
-def _entry(info: FileInfo) -> dict[str, object]:
+def as_typed(path: str, typed: str) -> str:
+    r"""``path`` from the control in the separator style of what the user typed (``/`` or ``\``).
+
+    The control answers with ``\``; someone who typed ``TNC:/nc_prog`` reads and pastes
+    ``TNC:/nc_prog/POCKET.H`` back.
+    """
+    if "/" in typed and "\\" not in typed:
+        return path.replace("\\", "/")
+    return path
+
+
+def _entry(info: FileInfo, typed: str = "\\") -> dict[str, object]:
+    # one name per field everywhere: `modified`, as in the table and in FileInfo
     return {
         "name": info.name,
-        "path": info.path,
+        "path": as_typed(info.path, typed),
         "size": info.size,
-        "mtime": info.modified.isoformat(),
+        "modified": info.modified.isoformat(),
         "is_dir": info.is_dir,
         "write_protected": info.write_protected,
         "selected": info.selected,
@@ -54,6 +85,8 @@ def _entry(info: FileInfo) -> dict[str, object]:
 
 
 def _show_entries(entries: list[FileInfo], title: str) -> None:
+    from rich.table import Table
+
     table = Table(title=title, title_justify="left")
     table.add_column("name")
     table.add_column("size", justify="right")
@@ -90,7 +123,10 @@ def info(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
         if want_json(ctx, json_out):
             print_json(data)
             return
-        table = Table(show_header=False, title=f"{v.model} at {tnc.host}:{tnc.port}")
+        from rich.table import Table
+
+        where = tnc.serial.describe() if tnc.serial else f"{tnc.host}:{tnc.port}"
+        table = Table(show_header=False, title=f"{v.model} at {where}")
         for key, value in data.items():
             table.add_row(key.replace("_", " "), _readable(value))
         console.print(table)
@@ -117,7 +153,7 @@ def ls(
     with cli_errors(), connect(ctx) as tnc, relabel(f"ls {path}"):
         entries = tnc.list_dir(path)
         if want_json(ctx, json_out):
-            print_json([_entry(e) for e in entries])
+            print_json([_entry(e, path) for e in entries])
         else:
             _show_entries(entries, path)
 
@@ -130,9 +166,9 @@ def stat(ctx: typer.Context, path: str, json_out: bool = JsonOpt) -> None:
         if found is None:
             raise ControlRefused(32, "file not found", context=f"stat {path}")
         if want_json(ctx, json_out):
-            print_json(_entry(found))
+            print_json(_entry(found, path))
         else:
-            for key, value in _entry(found).items():
+            for key, value in _entry(found, path).items():
                 console.print(f"{key:16} {value}", highlight=False)
 
 
@@ -276,20 +312,25 @@ def cp(ctx: typer.Context, src: str, dst: str) -> None:
         console.print(f"{src} -> {dst}", highlight=False)
 
 
-def _report(summary: Summary, as_json: bool, verb: str) -> None:
+def _report(summary: Summary, as_json: bool, verb: str, typed: str) -> None:
     if as_json:
         print_json(
             {
-                "copied": summary.copied,
-                "skipped": summary.skipped,
-                "failed": [{"path": f.path, "reason": f.reason} for f in summary.failed],
+                "copied": [as_typed(p, typed) for p in summary.copied],
+                "skipped": [as_typed(p, typed) for p in summary.skipped],
+                "failed": [
+                    {"path": as_typed(f.path, typed), "reason": f.reason} for f in summary.failed
+                ],
                 "bytes": summary.bytes,
                 "folders_created": summary.folders_created,
             }
         )
     else:
         for failure in summary.failed:
-            console.print(f"[red]failed[/] {failure.path}: {failure.reason}", highlight=False)
+            console.print(
+                f"[red]failed[/] {as_typed(failure.path, typed)}: {failure.reason}",
+                highlight=False,
+            )
         console.print(
             f"{verb}: {len(summary.copied)} copied, {len(summary.skipped)} up to date, "
             f"{len(summary.failed)} failed, {summary.bytes:,} bytes",
@@ -315,8 +356,10 @@ def backup_cmd(
             def report(done: int, total: int, name: str) -> None:
                 progress.update(task, completed=done, total=total, description=name)
 
+            from opendnc.lsv2.backup import backup
+
             summary = backup(tnc, remote_dir, local_dir, progress=report)
-        _report(summary, as_json, "backup")
+        _report(summary, as_json, "backup", remote_dir)
 
 
 @app.command("sync")
@@ -335,8 +378,10 @@ def sync_cmd(
             def report(done: int, total: int, name: str) -> None:
                 progress.update(task, completed=done, total=total, description=name)
 
+            from opendnc.lsv2.backup import sync
+
             summary = sync(tnc, local_dir, remote_dir, progress=report)
-        _report(summary, as_json, "sync")
+        _report(summary, as_json, "sync", remote_dir)
 
 
 # Machine-data commands come last so that `--help` lists them after the file commands.

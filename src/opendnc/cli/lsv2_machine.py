@@ -9,17 +9,18 @@ import sys
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.table import Table
 
 from opendnc.cli.common import cli_errors, console, print_json, to_jsonable
 from opendnc.cli.lsv2_session import JsonOpt, connect, relabel, require_unsafe, want_json
 from opendnc.errors import ControlRefused, InputError
-from opendnc.lsv2 import Client, parse_operand
-from opendnc.lsv2.payloads import ScopeChannel, ScopeSignal
-from opendnc.lsv2.plc import PlcOperand
+
+if TYPE_CHECKING:  # the LSV2 stack is imported by the commands that talk to a control
+    from opendnc.lsv2 import Client
+    from opendnc.lsv2.payloads import ScopeChannel, ScopeSignal
+    from opendnc.lsv2.runinfo import NcError, Overrides
 
 __all__ = ["COMMANDS", "GROUPS"]
 
@@ -45,6 +46,8 @@ def status(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
         if want_json(ctx, json_out):
             print_json(data)
             return
+        from rich.table import Table
+
         table = Table(show_header=False, title=f"{tnc.versions.model} status")
         for key, value in data.items():
             table.add_row(key.replace("_", " "), _text(value))
@@ -65,16 +68,26 @@ def machine_status(tnc: Client) -> dict[str, Any]:
         "selected_program": program.main or None if program is not None else None,
         "current_program": program.current or None if program is not None else None,
         "program_line": program.line if program is not None else None,
-        "overrides": to_jsonable(overrides) if overrides is not None else None,
+        "overrides": _percent(overrides) if overrides is not None else None,
         "axes": {a.name: a.text for a in axes.axes} if axes is not None else None,
         "tool": to_jsonable(tool) if tool is not None else None,
     }
 
 
+def _percent(overrides: Overrides) -> dict[str, float]:
+    # the wire counts in 0.01 % (docs/lsv2.md, R_RI 25); people read percent
+    feed, spindle, rapid = overrides.percent
+    return {"feed_percent": feed, "spindle_percent": spindle, "rapid_percent": rapid}
+
+
 def _text(value: Any) -> str:
     if value is None:
         return "n/a"
+    if isinstance(value, float):
+        return f"{value:g}"
     if isinstance(value, dict):
+        if all(str(k).endswith("_percent") for k in value):
+            return "  ".join(f"{str(k)[: -len('_percent')]} {_text(v)} %" for k, v in value.items())
         return "  ".join(f"{k}={_text(v)}" for k, v in value.items() if v is not None)
     return str(value)
 
@@ -88,6 +101,9 @@ def plc_read(
 ) -> None:
     """Read PLC operands."""
     with cli_errors():
+        from opendnc.lsv2 import parse_operand
+        from opendnc.lsv2.plc import PlcOperand
+
         start = parse_operand(operand)
         if count < 1:
             raise InputError("COUNT must be at least 1")
@@ -147,16 +163,34 @@ def errors(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
     with cli_errors(), connect(ctx) as tnc:
         found = _optional(tnc.nc_errors)
         if want_json(ctx, json_out):
-            print_json({"supported": found is not None, "errors": found or []})
+            listed = [_nc_error(e) for e in found or []]
+            print_json({"supported": found is not None, "errors": listed})
         elif found is None:
             console.print(f"n/a: {tnc.versions.model} does not report NC errors over LSV2")
         elif not found:
             console.print("no NC errors")
         else:
             for err in found:
+                described = _nc_error(err)
                 console.print(
-                    f"{err.error_class}/{err.group}/{err.number}: {err.text}", highlight=False
+                    f"{described['class']} (group {err.group}, number {described['number_hex']}): "
+                    f"{err.text}",
+                    highlight=False,
                 )
+
+
+def _nc_error(err: NcError) -> dict[str, object]:
+    """An NC error with its class as a word and its number also as unsigned hex."""
+    from opendnc.lsv2.errorclass import class_name
+
+    return {
+        "class": class_name(err.error_class),
+        "class_number": err.error_class,
+        "group": err.group,
+        "number": err.number,
+        "number_hex": f"0x{err.number & 0xFFFFFFFF:08X}",
+        "text": err.text,
+    }
 
 
 def screenshot(
@@ -205,6 +239,8 @@ def scope_channels(ctx: typer.Context, json_out: bool = JsonOpt) -> None:
             # so only the padding at the end goes
             print_json([{**to_jsonable(ch), "signals": _named(ch.signals)} for ch in channels])
             return
+        from rich.table import Table
+
         table = Table("no", "name", "type", "interval µs", "signals")
         for ch in channels:
             signals = " ".join(s for s in ch.signals if s != "-")
@@ -231,6 +267,8 @@ def _signal(text: str, channels: dict[int, ScopeChannel] | None = None) -> Scope
         numbers.extend(int(p, 0) for p in parts[2:])
     except ValueError:
         raise InputError(f"bad signal {text!r}: use CHANNEL[:SIGNAL[:ADDRESS]]") from None
+    from opendnc.lsv2.payloads import ScopeSignal
+
     return ScopeSignal(*numbers)
 
 

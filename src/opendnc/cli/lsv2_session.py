@@ -5,20 +5,24 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeRemainingColumn,
-    TransferSpeedColumn,
-)
 
 from opendnc.cli.common import err_console
-from opendnc.errors import ControlRefused, SafetyLockError
-from opendnc.lsv2 import Client
+from opendnc.errors import (
+    ControlRefused,
+    PeerClosed,
+    RemoteProtocolError,
+    SafetyLockError,
+    TransportTimeout,
+)
+
+if TYPE_CHECKING:  # imported when a command connects, not for --help
+    from rich.progress import Progress
+
+    from opendnc.lsv2 import Client
+    from opendnc.lsv2.serial_stream import SerialLine
 
 __all__ = [
     "JsonOpt",
@@ -43,6 +47,8 @@ class Settings:
     timeout: float
     json: bool
     unsafe: bool
+    serial: SerialLine | None = None
+    """Set by ``--serial``: the control is on an RS-232 line instead of TCP."""
 
 
 def settings(ctx: typer.Context) -> Settings:
@@ -61,9 +67,30 @@ def want_json(ctx: typer.Context, local: bool) -> bool:
 @contextmanager
 def connect(ctx: typer.Context) -> Iterator[Client]:
     """A connected client for the group's host and port (closed on exit)."""
+    from opendnc.lsv2 import Client
+
     opts = settings(ctx)
-    client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
-    client.connect()
+    if opts.serial is not None:
+        from opendnc.cli.lsv2_serial import resolve_baud
+
+        client = Client.over_serial(
+            resolve_baud(opts.serial), timeout=opts.timeout, safe_mode=not opts.unsafe
+        )
+    else:
+        client = Client(opts.host, opts.port, timeout=opts.timeout, safe_mode=not opts.unsafe)
+    try:
+        client.connect()
+    except (RemoteProtocolError, PeerClosed) as exc:
+        # something answered, but not in LSV2 (a web server, a serial server in another mode)
+        client.close()
+        where = opts.serial.describe() if opts.serial is not None else f"{opts.host}:{opts.port}"
+        raise RemoteProtocolError(f"{where} is not an LSV2 control ({exc})") from exc
+    except TransportTimeout as exc:
+        # a port that accepts but stays silent: most often another service, not a busy TNC
+        client.close()
+        raise TransportTimeout(
+            f"{exc}: is it an LSV2 control? (a TNC listens on TCP port 19000)"
+        ) from exc
     try:
         yield client
     finally:
@@ -87,6 +114,15 @@ def relabel(context: str) -> Iterator[None]:
 
 def bar(quiet: bool) -> Progress:
     """One transfer progress bar on stderr (stdout stays clean for --json)."""
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+        TransferSpeedColumn,
+    )
+
     return Progress(
         TextColumn("{task.description}", markup=False),
         BarColumn(),

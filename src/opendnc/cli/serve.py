@@ -6,14 +6,23 @@ without FastAPI, SQLAlchemy and uvicorn (and works where the ``server`` extra is
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.errors import InputError
 
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from opendnc.server.app import Server
+
 keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
+users_app = typer.Typer(help="People who log in to the DNC server.", no_args_is_help=True)
 
 ConfigOption = typer.Option(..., "--config", "-c", help="The server's TOML configuration.")
 DbOption = typer.Option(None, "--db", help="Database URL (overrides the configuration).")
@@ -41,8 +50,6 @@ def serve(
         require_server_extra()
         import asyncio
 
-        import uvicorn
-
         from opendnc.server.app import build
         from opendnc.server.config import load_config
 
@@ -54,23 +61,37 @@ def serve(
                 raise InputError(f"--bind {bind!r}: expected HOST:PORT")
             port = int(port_text)
         server = build(shop, database=db)
-        settings = uvicorn.Config(
-            server.app, host=host, port=port, log_level="warning", lifespan="on"
-        )
-        web = uvicorn.Server(settings)
-        database = server.engine.url.render_as_string(hide_password=True)
-        console.print(
-            f"opendnc server on http://{host}:{port}/ ({len(shop.machines)} machines, "
-            f"database {database})",
-            highlight=False,
-            soft_wrap=True,
-        )
         try:
-            asyncio.run(web.serve())
+            asyncio.run(_serve(server, host, port))
         except OSError as exc:
             raise InputError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
         finally:
             server.engine.dispose()
+
+
+async def _serve(server: Server, host: str, port: int) -> None:
+    """Run uvicorn; say where once it listens (scripts wait for that line)."""
+    import asyncio
+
+    import uvicorn
+
+    settings = uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
+    web = uvicorn.Server(settings)
+    serving = asyncio.create_task(web.serve())
+    while not web.started:
+        if serving.done():
+            serving.result()  # raises why it could not start
+            raise InputError(f"the server on {host}:{port} stopped at once")
+        await asyncio.sleep(0.05)
+    port = web.servers[0].sockets[0].getsockname()[1]  # the real one for :0
+    database = server.engine.url.render_as_string(hide_password=True)
+    console.print(
+        f"opendnc server on http://{host}:{port}/ ({len(server.config.machines)} machines, "
+        f"database {database})",
+        highlight=False,
+        soft_wrap=True,
+    )
+    await serving
 
 
 @keys_app.command("create")
@@ -91,10 +112,7 @@ def keys_create(
         from opendnc.server.store.models import Role
 
         shop = load_config(config)
-        try:
-            parsed = Role.parse(role)
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
+        parsed = Role.parse(role)
         engine = make_engine(db or shop.server.database)
         try:
             migrate(engine)
@@ -110,3 +128,73 @@ def keys_create(
             print_json({"id": key_id, "key": key, "user": owner, "role": parsed.name.lower()})
         else:
             typer.echo(key)
+
+
+def _read_password(stdin: bool) -> str:
+    import getpass
+    import sys
+
+    if stdin:
+        return sys.stdin.readline().rstrip("\r\n")
+    first = getpass.getpass("password: ")
+    if getpass.getpass("again: ") != first:
+        raise InputError("the two passwords differ")
+    return first
+
+
+@contextlib.contextmanager
+def _session(config: Path, db: str | None) -> Iterator[Session]:
+    from opendnc.server.config import load_config
+    from opendnc.server.store.db import make_engine, make_sessions, migrate
+
+    shop = load_config(config)
+    engine = make_engine(db or shop.server.database)
+    try:
+        migrate(engine)
+        with make_sessions(engine).begin() as session:
+            yield session
+    finally:
+        engine.dispose()
+
+
+@users_app.command("create")
+def users_create(
+    name: str = typer.Argument(..., help="The login name."),
+    role: str = typer.Option(..., "--role", help="viewer, operator, programmer, approver, admin"),
+    config: Path = ConfigOption,
+    db: str | None = DbOption,
+    password_stdin: bool = typer.Option(
+        False, "--password-stdin", help="Read the password from standard input (scripts)."
+    ),
+) -> None:
+    """Create a user who logs in to the dashboard (asks for the password twice)."""
+    with cli_errors():
+        require_server_extra()
+        from opendnc.server import auth
+        from opendnc.server.store.models import Role
+
+        parsed = Role.parse(role)
+        password = _read_password(password_stdin)
+        with _session(config, db) as session:
+            auth.create_user(session, name, parsed, password=password, actor="cli")
+        typer.echo(f"user {name} created ({parsed.name.lower()})")
+
+
+@users_app.command("password")
+def users_password(
+    name: str = typer.Argument(..., help="The login name."),
+    config: Path = ConfigOption,
+    db: str | None = DbOption,
+    password_stdin: bool = typer.Option(
+        False, "--password-stdin", help="Read the password from standard input (scripts)."
+    ),
+) -> None:
+    """Set a user's password."""
+    with cli_errors():
+        require_server_extra()
+        from opendnc.server import auth
+
+        password = _read_password(password_stdin)
+        with _session(config, db) as session:
+            auth.set_password(session, name, password, actor="cli")
+        typer.echo(f"password of {name} set")

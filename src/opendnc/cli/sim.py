@@ -1,15 +1,18 @@
-"""`opendnc sim` commands: virtual controls and the virtual null-modem cable."""
+"""`opendnc sim` commands: virtual controls and the virtual null-modem cable.
+
+Each simulator is imported only when it is run (see :mod:`opendnc.cli.main`).
+"""
 
 from __future__ import annotations
 
-import typer
+from opendnc.cli.lazy import Lazy, lazy_typer
 
-from opendnc.cli import sim_cable, sim_fleet, sim_haas, sim_tnc
-
-app = typer.Typer(
-    help="Virtual controls and links for testing without a machine.", no_args_is_help=True
+app = lazy_typer(
+    "Virtual controls and links for testing without a machine.",
+    {
+        "tnc": Lazy("opendnc.cli.sim_tnc:tnc", "Run a virtual Heidenhain TNC (LSV2 over TCP)."),
+        "cable": Lazy("opendnc.cli.sim_cable:cable", "Run a virtual null-modem cable."),
+        "haas": Lazy("opendnc.cli.sim_haas:haas", "Run a virtual Haas control."),
+        "fleet": Lazy("opendnc.cli.sim_fleet:fleet", "Run many virtual controls in one process."),
+    },
 )
-app.command("tnc")(sim_tnc.tnc)
-app.command("cable")(sim_cable.cable)
-app.command("haas")(sim_haas.haas)
-app.command("fleet")(sim_fleet.fleet)

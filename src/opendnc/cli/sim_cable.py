@@ -54,6 +54,12 @@ def cable(
         help="Write a timestamped hex line for every delivery in either direction to this file.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the final counters as JSON."),
+    parity_check: bool = typer.Option(
+        False,
+        "--parity-check",
+        help="Model the receiver's parity check (8E1, 7E1): a character with an odd number of "
+        "flipped bits arrives as NUL, as a Linux UART delivers it.",
+    ),
 ) -> None:
     """Join two pseudo-terminals like a serial cable, at line speed, with optional faults.
 
@@ -80,6 +86,7 @@ def cable(
                 link_a=link_a,
                 link_b=link_b,
                 monitor=monitor,
+                parity_check=parity_check,
             )
             with virtual:
                 # scripts read this line to find the devices: keep it first and flush it now

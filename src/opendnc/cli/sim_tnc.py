@@ -4,18 +4,43 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
 
 from opendnc.cli.common import cli_errors, console, err_console
 from opendnc.errors import TransportError
-from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+
+#: The simulator's profiles, named here so `--help` does not load the simulator (a test keeps
+#: this equal to opendnc.sim.tnc.PROFILES).
+PROFILE_NAMES = (
+    "tnc640",
+    "tnc620",
+    "tnc320",
+    "tnc7",
+    "itnc530",
+    "tnc426",
+    "cncpilot640",
+    "manualplus620",
+)
+
+
+def _link_tracer() -> Callable[[str], None]:
+    """``--trace`` on a serial line: one stderr line per chunk of link characters."""
+
+    def show(text: str) -> None:
+        sys.stderr.write(f"{time.strftime('%H:%M:%S')} {text}\n")
+        sys.stderr.flush()
+
+    return show
 
 
 def tnc(
     profile: str = typer.Option(
-        "tnc640", "--profile", help=f"Control family: {', '.join(PROFILES)}."
+        "tnc640", "--profile", help=f"Control family: {', '.join(PROFILE_NAMES)}."
     ),
     root: Path | None = typer.Option(
         None, "--root", help="Folder holding the drives (default: a fresh programming station)."
@@ -25,11 +50,34 @@ def tnc(
     latency: float = typer.Option(0.0, "--latency", help="Delay per telegram in milliseconds."),
     trace: bool = typer.Option(False, "--trace", help="Print every telegram (hex and decoded)."),
     no_dnc: bool = typer.Option(False, "--no-dnc-option", help="Machine without the DNC option."),
+    serial: list[str] = typer.Option(
+        [],
+        "--serial",
+        help="Also serve serial LSV2 on this device (a cable end, a pty slave); 'pty' creates "
+        "a pty and prints the path to open. Repeatable.",
+    ),
+    baud: int = typer.Option(57600, "--baud", help="Serial line rate (--serial)."),
+    parity: str = typer.Option("E", "--parity", help="Serial parity N, E or O (--serial)."),
+    bytesize: int = typer.Option(8, "--bytesize", help="Serial data bits (--serial)."),
+    stopbits: float = typer.Option(1.0, "--stopbits", help="Serial stop bits (--serial)."),
+    no_tcp: bool = typer.Option(False, "--no-tcp", help="Serve only the --serial lines."),
+    serial_mode: str = typer.Option(
+        "lsv2",
+        "--serial-mode",
+        help="What the --serial lines speak: lsv2, or blockwise (FE modes: programs pushed "
+        "to TNC:\\ and sent on request).",
+    ),
 ) -> None:
-    """Serve a virtual TNC over LSV2 until Ctrl-C.
+    """Serve a virtual TNC over LSV2 (TCP and/or RS-232 lines) until Ctrl-C.
 
     The state (files, machine parameters) lives in --root and survives restarts.
     """
+    from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+    from opendnc.sim.tnc.serial_front import serve_serial
+
+    if no_tcp and not serial:
+        err_console.print("[bold red]error:[/] --no-tcp needs at least one --serial line")
+        raise typer.Exit(1)
     if profile.lower() not in PROFILES:
         err_console.print(f"[bold red]error:[/] unknown profile {profile!r}")
         raise typer.Exit(1)
@@ -43,11 +91,32 @@ def tnc(
             latency=latency / 1000.0,
             trace=TraceHook() if trace else None,
             dnc_option=not no_dnc,
+            listen=not no_tcp,
         )
         prof = server.control.profile
+        fronts = []
+        for path in serial:
+            fronts.append(
+                await serve_serial(
+                    server,
+                    path,
+                    baud=baud,
+                    parity=parity.upper(),
+                    bytesize=bytesize,
+                    stopbits=stopbits,
+                    trace_link=_link_tracer() if trace else None,
+                    mode=serial_mode,
+                )
+            )
+        where = [f"{server.host}:{server.port}"] if not no_tcp else []
+        where += [
+            f"serial {f.path} {baud} {bytesize}{parity.upper()}{stopbits:g}"
+            + (" blockwise" if f.mode == "blockwise" else "")
+            for f in fronts
+        ]
         console.print(
             f"virtual {prof.title} ({prof.model} {prof.nc_software}) listening on "
-            f"{server.host}:{server.port}",
+            f"{', '.join(where)}",
             highlight=False,
             soft_wrap=True,
         )
@@ -61,6 +130,8 @@ def tnc(
         try:
             await stop.wait()
         finally:
+            for front in fronts:
+                await front.close()
             await server.close()
         console.print("stopped")
 

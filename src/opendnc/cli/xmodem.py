@@ -4,24 +4,18 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TransferSpeedColumn,
-)
 
 from opendnc.cli.common import cli_errors, console, err_console, print_json
-from opendnc.xmodem.events import EotAnswer, Event, FallbackToSmall, Retry
-from opendnc.xmodem.files import open_port, receive_file, send_file
 from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob
-from opendnc.xmodem.receiver import ReceiverConfig
-from opendnc.xmodem.sender import SenderConfig
+
+if TYPE_CHECKING:  # the transfer machinery loads with the command that runs, not for --help
+    from rich.progress import Progress
+
+    from opendnc.xmodem.events import Event
 
 app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
 
@@ -29,6 +23,15 @@ PORT_HELP = "Serial device (/dev/ttyUSB0, COM3), tcp://HOST:PORT, socket://HOST:
 
 
 def _progress() -> Progress:
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TransferSpeedColumn,
+    )
+
     columns = [
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -40,6 +43,8 @@ def _progress() -> Progress:
 
 
 def _report_event(event: Event) -> None:
+    from opendnc.xmodem.events import FallbackToSmall, Retry
+
     if isinstance(event, Retry):
         err_console.print(f"[yellow]retry[/] block {event.seq} #{event.attempt}: {event.reason}")
     elif isinstance(event, FallbackToSmall):
@@ -50,7 +55,9 @@ def _report_event(event: Event) -> None:
 def send_cmd(
     file: Path = typer.Argument(..., help="Program file to send", exists=True, dir_okay=False),
     port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
-    mode: Mode = typer.Option(Mode.ONE_K, "--mode", help="Block mode (1k falls back as needed)"),
+    mode: Mode = typer.Option(
+        Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k (falls back as needed)"
+    ),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
     parity: str = typer.Option("N", "--parity", help="N, E or O (XModem on a Haas needs N)"),
     eob: Eob | None = typer.Option(
@@ -60,12 +67,22 @@ def send_cmd(
     turnaround: float = typer.Option(
         0.0, "--turnaround", help="Milliseconds to pause after each ACK (lrzsz rx on a pty)"
     ),
+    binary: bool = typer.Option(
+        False, "--binary", help="Send any bytes (default: refuse a file that is not NC text)"
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
+    from opendnc.nctext import check_program_file
+    from opendnc.xmodem.events import EotAnswer
+    from opendnc.xmodem.files import open_port, send_file
+    from opendnc.xmodem.sender import SenderConfig
+
     config = SenderConfig(start_timeout=timeout, turnaround=turnaround / 1000.0)
     with cli_errors():
         size = file.stat().st_size
+        if not binary:  # a file that is no NC program is refused before the port opens
+            check_program_file(file, action="not sent (--binary sends any bytes)")
         # the port opens before the bar: a port that does not open is one error line
         stream = open_port(port, baud, parity.upper())
         with contextlib.closing(stream), _progress() as bar:
@@ -78,6 +95,7 @@ def send_cmd(
                 config=config,
                 progress=lambda done, total: bar.update(task, completed=done, total=total),
                 on_event=_report_event,
+                binary=binary,
             )
         if json_out:
             print_json(report)
@@ -96,12 +114,18 @@ def send_cmd(
 
 @app.command("recv")
 def recv_cmd(
-    out: Path = typer.Argument(..., help="Output file, or a folder to name it by O-number"),
+    out: str = typer.Argument(
+        ..., help="Output file, or an existing folder (out/) to name it by O-number"
+    ),
     port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
     mode: Mode = typer.Option(Mode.CHECKSUM, "--mode", help="checksum (Haas), crc or 1k"),
     baud: int = typer.Option(9600, "--baud", help="Baud rate (Haas setting 11)"),
     parity: str = typer.Option("N", "--parity", help="N, E or O"),
-    timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the sender"),
+    timeout: float = typer.Option(
+        60.0,
+        "--timeout",
+        help="Seconds to wait for the sender: to start, and for each block, retries included",
+    ),
     eob: Eob | None = typer.Option(
         None, "--eob", help="Convert the control's setting-25 line ends to LF"
     ),
@@ -111,14 +135,25 @@ def recv_cmd(
         "--haas-eob-checksum",
         help="Accept checksums computed with CR LF folded to LF (reported Haas quirk)",
     ),
+    binary: bool = typer.Option(
+        False,
+        "--binary",
+        help="Keep any bytes (default: NAK blocks that are not NC text, refuse such a file)",
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
     """Receive one file into OUT (written to a temp file, renamed only on success)."""
+    from opendnc.xmodem.files import check_output, open_port, receive_file
+    from opendnc.xmodem.receiver import ReceiverConfig
+
     config = ReceiverConfig(
         start_timeout=timeout,
+        idle_timeout=timeout,
         strip_padding=not keep_padding,
         fold_eob_checksum=haas_eob_checksum,
     )
+    with cli_errors():
+        check_output(out)  # a folder that does not exist is reported before the port opens
     # the port opens before the bar: a port that does not open is one error line
     with (
         cli_errors(),
@@ -126,6 +161,8 @@ def recv_cmd(
         _progress() as bar,
     ):
         task = bar.add_task("receive", total=None)
+        # one line at once: the user (and a script) sees the receiver is up and waiting
+        err_console.print(f"waiting for a sender on {port} ({mode.value})", highlight=False)
         report = receive_file(
             stream,
             out,
@@ -134,6 +171,7 @@ def recv_cmd(
             config=config,
             progress=lambda done, _total: bar.update(task, completed=done),
             on_event=_report_event,
+            binary=binary,
         )
         bar.update(task, total=report.size, completed=report.size)
     if json_out:

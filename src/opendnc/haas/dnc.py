@@ -42,6 +42,7 @@ from opendnc.haas.dnc_engine import (
     Step,
     Wait,
 )
+from opendnc.nctext import check_program_file
 from opendnc.transport.base import PortStream
 from opendnc.transport.urls import open_stream
 
@@ -102,6 +103,8 @@ def open_dnc_port(
 def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
     if safe_mode:
         raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
+    if config.text_check:
+        check_program_file(path, action="not drip-fed")
     return ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
 
 

@@ -60,6 +60,8 @@ class DncConfig:
     linger: float = 0.25
     # start only after the control's first DC1 (it announces readiness), as DNC packages offer
     wait_for_xon: bool = False
+    # refuse a file that is not NC program text before the first byte (opendnc.nctext)
+    text_check: bool = True
 
 
 @dataclass(frozen=True, slots=True)

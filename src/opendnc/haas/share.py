@@ -13,6 +13,7 @@ name only once it is complete, so the control never sees a half-written program.
 from __future__ import annotations
 
 import contextlib
+import os
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -93,7 +94,7 @@ class PushResult:
     size: int
 
 
-def _check_sources(files: Sequence[Path]) -> list[Path]:
+def _check_sources(files: Sequence[str | os.PathLike[str]]) -> list[Path]:
     sources = [Path(f) for f in files]
     if not sources:
         raise InputError("no files to push")
@@ -104,7 +105,7 @@ def _check_sources(files: Sequence[Path]) -> list[Path]:
 
 
 def push(
-    files: Sequence[Path],
+    files: Sequence[str | os.PathLike[str]],
     target: ShareTarget,
     *,
     username: str | None = None,

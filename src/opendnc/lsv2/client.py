@@ -32,8 +32,9 @@ import contextlib
 import os
 from datetime import UTC, datetime
 from types import TracebackType
+from typing import Any
 
-from opendnc.errors import DncError, LocalProtocolError
+from opendnc.errors import DncError, LocalProtocolError, TransferError
 from opendnc.lsv2 import ops
 from opendnc.lsv2.connection import BytesHook, TraceHook
 from opendnc.lsv2.constants import (
@@ -69,6 +70,7 @@ from opendnc.lsv2.runinfo import (
     SelectedProgram,
     ToolInfo,
 )
+from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.lsv2.tables import Table
 
 __all__ = ["Client"]
@@ -97,6 +99,7 @@ class Client:
         passwords: dict[str, str] | None = None,
         trace: TraceHook | None = None,
         trace_bytes: BytesHook | None = None,
+        serial: SerialLine | None = None,
     ) -> None:
         """Prepare a session; nothing is sent before :meth:`connect` (or ``with``).
 
@@ -115,7 +118,21 @@ class Client:
         self.passwords = dict(passwords or {})
         self.trace = trace
         self.trace_bytes = trace_bytes
+        self.serial = serial
+        """RS-232 line settings when the control is reached over serial LSV2 (else TCP)."""
         self._driver: BlockingDriver | None = None
+
+    @classmethod
+    def over_serial(cls, line: SerialLine | str, **options: Any) -> Client:
+        """A client for a control on an RS-232 line (a device, ``socket://`` or ``rfc2217://``).
+
+        ``line`` is a :class:`~opendnc.lsv2.serial_stream.SerialLine` or just the port (then
+        57600 baud 8E1); ``options`` are those of the constructor. The telegram buffer starts
+        at 256 bytes and is raised only if the control accepts it (``max_buffer`` caps it);
+        ``trace_bytes`` sees the serial line's own bytes (handshake characters included).
+        """
+        settings = SerialLine(line) if isinstance(line, str) else line
+        return cls(settings.url, 0, serial=settings, **options)
 
     # -- session ---------------------------------------------------------------------------
 
@@ -130,6 +147,7 @@ class Client:
             safe_mode=self.safe_mode,
             trace=self.trace,
             trace_bytes=self.trace_bytes,
+            serial=self.serial,
         )
         driver.state.passwords.update(self.passwords)
         self._driver = driver
@@ -307,6 +325,20 @@ class Client:
                 self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
             )
         )
+        if self.serial is not None and mode:
+            self._check_serial_size(remote, len(data), upload=True)
+
+    def _check_serial_size(self, remote: str, size: int, *, upload: bool) -> None:
+        # Serial LSV2's XOR block check cannot see a lost NUL byte (docs/lsv2-serial.md, "What
+        # the block check cannot see"): compare the sizes of binary files at both ends.
+        info = self.file_info(remote)
+        if info is None or info.size == size:
+            return
+        if upload:
+            with contextlib.suppress(DncError):
+                self.delete_file(remote)
+        what = f"{remote} has {info.size} bytes on the control, {size} here"
+        raise TransferError(f"{what}: the serial line let an error through; try again")
 
     def read_file(
         self, remote: str, *, binary: bool | None = None, line_end: bytes = b"\r\n"
@@ -351,7 +383,7 @@ class Client:
             target = os.path.join(target, remote.replace("\\", "/").rsplit("/", 1)[-1])
         mode = is_binary_name(remote) if binary is None else binary
         with AtomicFile(target) as out:
-            return self._run(
+            count = self._run(
                 ops.download(
                     self._state,
                     remote,
@@ -361,6 +393,9 @@ class Client:
                     progress=progress,
                 )
             )
+            if self.serial is not None and mode:
+                self._check_serial_size(remote, count, upload=False)
+            return count
 
     # -- machine state ---------------------------------------------------------------------
 

@@ -19,6 +19,7 @@ from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, Tran
 from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
 from opendnc.lsv2.ops.base import Expect, Op, Receive, Send, SessionState, Slow
+from opendnc.lsv2.serial_stream import AsyncSerialLink, SerialLine, open_lsv2_serial
 from opendnc.transport.base import ByteStream
 from opendnc.transport.tcp import TcpStream
 
@@ -134,8 +135,13 @@ class BlockingDriver(_DriverBase):
         safe_mode: bool = True,
         trace: TraceHook | None = None,
         trace_bytes: BytesHook | None = None,
+        serial: SerialLine | None = None,
     ) -> BlockingDriver:
-        """Connect by TCP (``TcpStream`` sets ``TCP_NODELAY``)."""
+        """Connect by TCP (``TcpStream`` sets ``TCP_NODELAY``), or over RS-232 with ``serial``
+        (``trace_bytes`` then sees the serial line's own bytes)."""
+        if serial is not None:
+            line = open_lsv2_serial(serial, on_link=trace_bytes)
+            return cls(line, timeout=timeout, safe_mode=safe_mode, trace=trace)
         stream = TcpStream(host, port, timeout=timeout)
         return cls(
             stream, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes
@@ -261,7 +267,7 @@ class AsyncDriver(_DriverBase):
 
     def __init__(
         self,
-        link: _LinkProtocol,
+        link: _LinkProtocol | AsyncSerialLink,
         *,
         timeout: float = 10.0,
         safe_mode: bool = True,
@@ -282,17 +288,22 @@ class AsyncDriver(_DriverBase):
         safe_mode: bool = True,
         trace: TraceHook | None = None,
         trace_bytes: BytesHook | None = None,
+        serial: SerialLine | None = None,
     ) -> AsyncDriver:
-        """Connect by TCP (asyncio sets ``TCP_NODELAY`` on TCP transports)."""
+        """Connect by TCP (asyncio sets ``TCP_NODELAY`` on TCP transports), or over RS-232
+        with ``serial`` (``trace_bytes`` then sees the serial line's own bytes)."""
+        if serial is not None:
+            link = await AsyncSerialLink.open(serial, on_link=trace_bytes)
+            return cls(link, timeout=timeout, safe_mode=safe_mode, trace=trace)
         loop = asyncio.get_running_loop()
         try:
             async with asyncio.timeout(timeout):
-                _, link = await loop.create_connection(_LinkProtocol, host, port)
+                _, tcp = await loop.create_connection(_LinkProtocol, host, port)
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
-        return cls(link, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes)
+        return cls(tcp, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes)
 
     async def run(self, op: Op[T]) -> T:
         """Run ``op`` to completion; concurrent calls are serialised (half-duplex link)."""
@@ -320,5 +331,7 @@ class AsyncDriver(_DriverBase):
 
     async def close(self) -> None:
         """Close the connection."""
-        if self._link.transport is not None:
+        if isinstance(self._link, AsyncSerialLink):
+            await self._link.close()
+        elif self._link.transport is not None:
             self._link.transport.close()

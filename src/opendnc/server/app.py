@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api, dprnt_api
+from opendnc.server import api, dprnt_api, web
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
@@ -113,4 +113,5 @@ def build(
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
     app.include_router(dprnt_api.router)
+    web.install(app)
     return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare, capture)

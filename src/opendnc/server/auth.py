@@ -30,7 +30,9 @@ __all__ = [
     "create_key",
     "create_user",
     "find_user",
+    "key_hash",
     "revoke_key",
+    "set_password",
 ]
 
 KEY_PREFIX = "odk_"
@@ -53,6 +55,11 @@ class Principal:
 
 def _key_hash(key: str) -> str:
     return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def key_hash(key: str) -> str:
+    """The stored form of an API key (its SHA-256 in hex)."""
+    return _key_hash(key)
 
 
 def create_user(
@@ -79,6 +86,18 @@ def create_user(
 def find_user(session: Session, name: str) -> User | None:
     """The user called ``name``, if there is one."""
     return session.scalar(select(User).where(User.name == name))
+
+
+def set_password(session: Session, name: str, password: str, *, actor: str) -> User:
+    """Give ``name`` a new password (audited)."""
+    user = find_user(session, name)
+    if user is None:
+        raise NotFound(f"no user named {name!r}")
+    if len(password) < 8:
+        raise InputError("a password needs at least 8 characters")
+    user.password_hash = _hasher.hash(password)
+    audit.record(session, actor, "user.password", user=name)
+    return user
 
 
 def check_password(session: Session, name: str, password: str) -> Principal:

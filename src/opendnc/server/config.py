@@ -448,7 +448,13 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         host=host,
         port=port,
         serial=serial,
-        profile=_profile(_table(raw, "serial_profile"), f"{prefix}.serial_profile"),
+        profile=_profile(
+            _table(raw, "serial_profile"),
+            f"{prefix}.serial_profile",
+            # LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the
+            # controls' own default); a Haas at 9600 8N1 with XON/XOFF.
+            LSV2_SERIAL if kind is MachineKind.LSV2 else SerialProfile(),
+        ),
         mdc_port=mdc_port,
         share=_get(raw, prefix, "share", str, ""),
         folder=_get(raw, prefix, "folder", str, ""),
@@ -484,9 +490,11 @@ def _port_range(port: int, key: str) -> None:
         raise ConfigError(key, f"expected a TCP port 1..65535, got {port}")
 
 
-def _profile(raw: dict[str, Any], prefix: str) -> SerialProfile:
+LSV2_SERIAL = SerialProfile(baud=57600, parity="E", flow="none")
+
+
+def _profile(raw: dict[str, Any], prefix: str, default: SerialProfile) -> SerialProfile:
     _known(raw, prefix, _PROFILE_KEYS)
-    default = SerialProfile()
     baud = _get(raw, prefix, "baud", int, default.baud)
     if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
         raise ConfigError(f"{prefix}.baud", f"{baud} is not a standard rate")

@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import or_, select, update
+from sqlalchemy import func, or_, select, update
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -49,6 +49,7 @@ __all__ = [
     "list_jobs",
     "machines_with_due_jobs",
     "move",
+    "queue_lengths",
     "recover",
     "retry",
     "send_program",
@@ -319,6 +320,16 @@ def machines_with_due_jobs(session: Session) -> list[str]:
         .distinct()
     )
     return list(session.scalars(stmt))
+
+
+def queue_lengths(session: Session) -> dict[str, int]:
+    """Queued jobs per machine (machines with none are left out)."""
+    stmt = (
+        select(Job.machine, func.count(Job.id))
+        .where(Job.state == JobState.QUEUED)
+        .group_by(Job.machine)
+    )
+    return {machine: int(count) for machine, count in session.execute(stmt)}
 
 
 def get_job(session: Session, job_id: int) -> Job:

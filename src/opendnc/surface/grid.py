@@ -84,12 +84,13 @@ def parse_grid(text: str) -> tuple[int, int]:
 def parse_origin(text: str) -> tuple[float, float]:
     """``X,Y`` (``1.5,-2``) -> floats."""
     parts = text.split(",")
+    problem = InputError(f"bad origin {text!r}: use X,Y, e.g. 0,0 or 1.5,-2")
+    if len(parts) != 2:
+        raise problem
     try:
-        if len(parts) != 2:
-            raise ValueError
         x, y = float(parts[0]), float(parts[1])
     except ValueError:
-        raise InputError(f"bad origin {text!r}: use X,Y, e.g. 0,0 or 1.5,-2") from None
+        raise problem from None
     if not (math.isfinite(x) and math.isfinite(y)):
         raise InputError(f"bad origin {text!r}: X and Y must be finite")
     return x, y

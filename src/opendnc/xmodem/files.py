@@ -3,11 +3,19 @@
 A receive never leaves a partial file at the destination: the bytes go to a hidden temporary
 file in the target folder, which is renamed over the target only after the sender's EOT was
 acknowledged, and deleted on any error.
+
+Programs are NC text unless ``binary=True``: checksum-mode XModem cannot see two bit errors
+that cancel in its sum, so a received block that breaks the NC text rules
+(:mod:`opendnc.nctext`) is NAKed and sent again; a file that still holds a byte no NC program
+holds (sent twice the same way, or found by the final check) is refused and not written. A
+file to send is checked the same way before the first byte goes out.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -15,6 +23,7 @@ from pathlib import Path
 
 from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import InputError
+from opendnc.nctext import check_program, check_program_file
 from opendnc.transport.base import ByteStream
 from opendnc.transport.urls import open_stream
 from opendnc.xmodem.driver import POLL, EventHandler, Progress, receive, send
@@ -74,6 +83,23 @@ def atomic_output(target: Path) -> Iterator[AtomicWriter]:
         yield pending
 
 
+def _folder_target(out: str | os.PathLike[str]) -> bool:
+    """True if ``out`` names a folder; a name ending in a separator must exist as one."""
+    text = os.fspath(out)
+    if Path(text).is_dir():
+        return True
+    if text.endswith(("/", os.sep)):
+        raise InputError(f"folder {text} does not exist")
+    return False
+
+
+def check_output(out: str | os.PathLike[str]) -> None:
+    """Raise :class:`InputError` at once if ``out`` cannot take a received file, so a bad
+    target is reported before any port is opened."""
+    if not _folder_target(out) and not Path(out).parent.is_dir():
+        raise InputError(f"folder {Path(out).parent} does not exist")
+
+
 def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream, bool]:
     if isinstance(port, str):
         return open_port(port, baud, parity), True
@@ -82,7 +108,7 @@ def _stream(port: str | ByteStream, baud: int, parity: str) -> tuple[ByteStream,
 
 def send_file(
     port: str | ByteStream,
-    path: Path,
+    path: str | os.PathLike[str],
     *,
     mode: Mode = Mode.ONE_K,
     baud: int = 9600,
@@ -91,14 +117,22 @@ def send_file(
     config: SenderConfig | None = None,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
+    binary: bool = False,
 ) -> SendReport:
-    """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25."""
+    """Send the file at ``path``; ``eob`` converts its line ends to the control's setting 25.
+
+    Unless ``binary``, the file must read as NC program text (:mod:`opendnc.nctext`), else
+    :class:`~opendnc.errors.ProgramTextError` is raised before anything is sent.
+    """
+    path = Path(path)
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
     if not data:
         raise InputError(f"{path} is empty; XModem cannot send an empty file")
+    if not binary:
+        check_program(data, what=path.name, action="not sent (--binary sends any bytes)")
     if eob is not None:
         data = to_wire(data, eob)
     stream, owned = _stream(port, baud, parity)
@@ -120,7 +154,7 @@ def send_file(
 
 def receive_file(
     port: str | ByteStream,
-    out: Path,
+    out: str | os.PathLike[str],
     *,
     mode: Mode = Mode.CHECKSUM,
     baud: int = 9600,
@@ -129,13 +163,19 @@ def receive_file(
     config: ReceiverConfig | None = None,
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
+    binary: bool = False,
 ) -> ReceiveReport:
     """Receive one file into ``out`` (temp file + rename).
 
     If ``out`` is an existing folder, the file is named from the program's O-number
-    (``O05555.nc``) or ``program.nc``. ``eob`` converts the control's line ends to LF.
+    (``O05555.nc``) or ``program.nc``; an ``out`` that ends with a path separator must be an
+    existing folder. ``eob`` converts the control's line ends to LF.
+    Unless ``binary``, the file must read as NC program text (:mod:`opendnc.nctext`): else
+    :class:`~opendnc.errors.ProgramTextError` names the block and offset, and nothing is
+    written.
     """
-    folder_target = out.is_dir()
+    folder_target = _folder_target(out)
+    out = Path(out)
     stream, owned = _stream(port, baud, parity)
     started = time.monotonic()
     try:
@@ -144,7 +184,8 @@ def receive_file(
                 stream,
                 pending.handle,
                 mode=mode,
-                config=config,
+                # a block that is not NC text is NAKed and sent again: checksum mode's blind spot
+                config=dataclasses.replace(config or ReceiverConfig(), text_check=not binary),
                 progress=progress,
                 on_event=on_event,
             )
@@ -157,6 +198,12 @@ def receive_file(
                 pending.handle.write(converted)
                 pending.handle.flush()
                 size = len(converted)
+            if not binary:
+                check_program_file(
+                    pending.temp,
+                    what="received program",
+                    action="the file was not written (--binary receives any bytes)",
+                )
             with pending.temp.open("rb") as check:
                 head = check.read(4096)
             if folder_target:

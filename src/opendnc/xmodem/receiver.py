@@ -6,6 +6,17 @@ SOH (128) and STX (1024) blocks are both accepted. A block received again becaus
 was lost is ACKed and dropped; any other out-of-order block cancels the session, since data
 would be lost. After an error the receiver waits for the line to go quiet, then NAKs.
 
+``idle_timeout`` bounds the whole wait for the sender's next good block, retries included:
+without it a sender that vanished without a hang-up the port can report (a cable pulled, a
+virtual cable's far side gone) costs ``max_retries`` times ``block_timeout``. A hang-up the
+port does report ends the session at once (:meth:`XmodemReceiver.peer_closed`).
+
+With ``text_check`` every new block must continue an NC program text (:mod:`opendnc.nctext`):
+a block that passed the checksum but breaks the text rules is NAKed like a bad block, so
+damage that an 8-bit sum cannot see (two compensating bit errors) is sent again instead of
+written. The same bad bytes arriving twice are in the sender's file: the session fails with
+:class:`~opendnc.errors.ProgramTextError`.
+
 A lone EOT or CAN pair at a block boundary is acted on only if no further bytes follow within
 ``settle`` seconds: line noise that turns a block's SOH into EOT (or a lost SOH that exposes
 block number 4) must cause a NAK, never a truncated file.
@@ -16,7 +27,14 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from opendnc.errors import PeerClosed, RemoteProtocolError, TransferError, TransportTimeout
+from opendnc.errors import (
+    PeerClosed,
+    ProgramTextError,
+    RemoteProtocolError,
+    TransferError,
+    TransportTimeout,
+)
+from opendnc.nctext import TextScanner
 from opendnc.xmodem.events import (
     Completed,
     DataReceived,
@@ -32,6 +50,7 @@ from opendnc.xmodem.framing import (
     CRC_REQUEST,
     EOT,
     NAK,
+    SMALL,
     SOH,
     STX,
     SUB,
@@ -53,6 +72,8 @@ class ReceiverConfig:
     purge_quiet: float = 0.2  # after a bad block, silence needed before the NAK
     settle: float = 0.05  # silence that confirms a lone EOT or CAN pair
     max_retries: int = 10  # consecutive errors on one block before giving up
+    # the longest wait for the next good block, retries included (None: retries bound it)
+    idle_timeout: float | None = None
     strip_padding: bool = True  # drop trailing SUB (0x1A) from the final block
     fold_eob_checksum: bool = False  # Haas: accept sums computed with EOB folded to LF
     # ACK, or CAN (CAN CAN CAN: a Haas, docs/xmodem.md#haas-dialect)
@@ -62,6 +83,8 @@ class ReceiverConfig:
     is not line filler starts no block (a Haas in auto mode takes that as a drip-feed)."""
     cancel_when_idle: bool = True  # CAN the line when no sender starts; False for a port that
     # listens in windows (a DNC server between jobs), where a sender may answer the next one
+
+    text_check: bool = False  # NAK blocks that are not NC program text (opendnc.nctext)
 
 
 class PlainTextStart(RemoteProtocolError):
@@ -102,10 +125,18 @@ class XmodemReceiver(EngineBase):
         self._blocks = 0
         self._size = 0  # bytes released through DataReceived
         self._held: bytes | None = None  # newest block, kept back until we know it is not the last
+        self._recut: int | None = None  # next 128-byte slice of the held 1K block to expect
         self._errors = 0
         self._requests = 0
         self._waited = 0.0
+        self._idle = 0.0  # timer seconds expired since the last good block
+        limit = self.config.idle_timeout
+        self._block_wait = self.config.block_timeout
+        if limit is not None:
+            self._block_wait = min(self._block_wait, limit)
         self._purge_reason = ""
+        self._text = TextScanner() if self.config.text_check else None
+        self._refused: bytes | None = None  # the last block NAKed for its text
         self._request_start()
 
     @property
@@ -142,7 +173,7 @@ class XmodemReceiver(EngineBase):
                 frame = bytes(buf) + data if buf else data
                 buf.clear()
                 if self._take_frame(frame) and not self.finished:
-                    self._arm(self.config.block_timeout)
+                    self._arm(self._block_wait)
                 return
         if state is ReceiverState.STARTING:
             starts = [i for i in (data.find(c) for c in _STARTERS) if i >= 0]
@@ -173,13 +204,44 @@ class XmodemReceiver(EngineBase):
             else:
                 self._request_start()
         elif state is ReceiverState.SETTLING:
-            self._on_settled()
+            self._on_settled()  # the EOT (or CAN) was confirmed: not a wait for the sender
+        elif cfg.idle_timeout is not None and self._idle_expired(self.timer.seconds):
+            return
         elif state is ReceiverState.PURGING:
             self._nak(self._purge_reason)
         else:
-            reason = "incomplete block" if self._buf else f"no block in {cfg.block_timeout:g} s"
+            waited = self.timer.seconds
+            reason = "incomplete block" if self._buf else f"no block in {waited:g} s"
             self._buf.clear()
             self._nak(reason)
+        self._cap_timer()
+
+    def _idle_expired(self, seconds: float) -> bool:
+        """Count a timer that ran out; True (and the session failed) once the budget is used."""
+        limit = self.config.idle_timeout
+        assert limit is not None
+        self._idle += seconds
+        if self._idle < limit - 1e-9:
+            return False
+        self._buf.clear()
+        self._fail(
+            TransportTimeout(
+                f"no good block from the sender for {limit:g} s (block {self._expected}, "
+                f"{self.received} bytes received); transfer abandoned"
+            ),
+            cancel_peer=True,
+        )
+        return True
+
+    def _cap_timer(self) -> None:
+        """Keep the next wait within what is left of ``idle_timeout``."""
+        limit = self.config.idle_timeout
+        timer = self.timer
+        if limit is None or timer is None or self.state is ReceiverState.STARTING:
+            return
+        left = limit - self._idle
+        if timer.seconds > left:
+            self._arm(max(left, 0.001), listen=timer.listen)
 
     def peer_closed(self) -> None:
         """The link closed before the sender's EOT."""
@@ -229,7 +291,7 @@ class XmodemReceiver(EngineBase):
                 buf.clear()
                 self._purge(f"unexpected byte 0x{start:02X} where a block should start")
                 return
-        self._arm(self.config.block_timeout)
+        self._arm(self._block_wait)
 
     def _take_frame(self, frame: bytes) -> bool:
         """Decode and act on one complete frame; False if it was bad (purging started)."""
@@ -243,16 +305,30 @@ class XmodemReceiver(EngineBase):
 
     def _on_block(self, seq: int, data: bytes) -> None:
         expected = self._expected
+        if self._recut is not None and self._on_recut_slice(seq, data):
+            return
         if seq == expected:
+            if self._text is not None and not self._text_ok(seq, data):
+                return
             if self._held is not None:
                 self._size += len(self._held)
                 self._events.append(DataReceived(self._held))
             self._held = data
+            self._recut = None
+            self._idle = 0.0
             self._blocks += 1
             self._expected = (expected + 1) & 0xFF
             self._errors = 0
             self._emit(_ACK)
         elif self._blocks and seq == ((expected - 1) & 0xFF):
+            self._idle = 0.0  # the sender is alive: it repeats a block whose ACK it missed
+            held = self._held
+            recut = held is not None and len(held) > len(data) == SMALL and held[:SMALL] == data
+            if recut and self._recut is None:
+                # a 1K block we hold, re-cut into 128-byte blocks numbered from its own
+                # sequence number (the sender fell back without seeing our ACK): the next
+                # small blocks repeat the rest of it and must not be taken for new data
+                self._recut = 1
             self._events.append(Duplicate(seq))
             self._emit(_ACK)
         else:
@@ -263,6 +339,57 @@ class XmodemReceiver(EngineBase):
                 ),
                 cancel_peer=True,
             )
+
+    def _text_ok(self, seq: int, data: bytes) -> bool:
+        """Keep a block that continues the program text; NAK one that breaks it."""
+        assert self._text is not None
+        trial = self._text.copy()
+        trial.feed(data)
+        problem = trial.problem
+        if problem is None:
+            self._text = trial
+            self._refused = None
+            return True
+        if problem.offset < self._text.offset or data == self._refused:
+            # in a block we already took, or the same bytes twice: it is in the sender's file
+            self._fail(
+                ProgramTextError(
+                    problem,
+                    what="received program",
+                    action=(
+                        "transfer cancelled, the file was not written (--binary receives any bytes)"
+                    ),
+                ),
+                cancel_peer=True,
+            )
+            return False
+        self._refused = data
+        self._nak(f"block {seq}: not NC text, {problem.describe()}")
+        return False
+
+    def _on_recut_slice(self, seq: int, data: bytes) -> bool:
+        """A small block that repeats a slice of the held 1K block: ACK and drop it."""
+        held, index = self._held, self._recut
+        assert held is not None
+        assert index is not None
+        if seq != self._expected or len(data) != SMALL:
+            return False
+        if held[index * SMALL : (index + 1) * SMALL] != data:
+            self._fail(
+                RemoteProtocolError(
+                    f"block {seq} should repeat part of block {(seq - index) & 0xFF} after the "
+                    "sender fell back to 128-byte blocks, but differs; transfer cancelled"
+                ),
+                cancel_peer=True,
+            )
+            return True
+        self._recut = index + 1 if (index + 1) * SMALL < len(held) else None
+        self._expected = (seq + 1) & 0xFF
+        self._errors = 0
+        self._idle = 0.0
+        self._events.append(Duplicate(seq))
+        self._emit(_ACK)
+        return True
 
     def _on_settled(self) -> None:
         control = self._buf[0] if self._buf else EOT

@@ -48,11 +48,18 @@ class SenderConfig:
     """Limits and timeouts of the sender (seconds)."""
 
     start_timeout: float = 60.0  # the operator may need a while to start the receive
-    ack_timeout: float = 10.0  # standard XModem wait for an ACK/NAK
+    # Wait for an ACK/NAK: longer than a receiver's 10 s block timeout, so that after a lost
+    # ACK the receiver's NAK alone asks for the block again. With equal timers the sender's
+    # resend and the receiver's NAK cross, the block goes twice, and the ACK of the duplicate
+    # is taken for the next block's: a block skipped (seen on the virtual cable at 1e-4 in
+    # ~10 % of 20 kB transfers, some of them truncated files that both ends called complete).
+    ack_timeout: float = 15.0
     max_retries: int = 10  # repeats of one block before giving up (standard XModem)
     eot_timeout: float = 2.0  # lrzsz rx answers EOT only after about 1 s
     eot_retries: int = 3  # further EOTs before finishing without an answer
-    fallback_after: int = 3  # failed sends of one 1K block before switching to 128 bytes
+    # failed sends of one 1K block before switching to 128 bytes; only while every failure
+    # was a NAK (see XmodemSender._on_nak)
+    fallback_after: int = 3
     # Pause between an ACK and the next block. lrzsz rx flushes its input right after writing
     # each ACK; on a pty (no line delay) a block sent at once can land before that flush and
     # be lost (rx then waits 5 s and NAKs). About 1 ms avoids it; real lines need 0.
@@ -104,6 +111,7 @@ class XmodemSender(EngineBase):
         # ((seq, offset, large allowed), frame, payload bytes)
         self._next: tuple[tuple[int, int, bool], bytes, int] | None = None
         self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
+        self._unanswered = False  # the current block met a timeout: it may have arrived
         self._cans = 0  # consecutive CAN bytes seen
         self._eot_naks = 0
         self._waited = 0.0
@@ -148,6 +156,8 @@ class XmodemSender(EngineBase):
             elif byte == CRC_REQUEST and self.state is SenderState.WAIT_ACK and self._seq == 1:
                 # a start request repeated before block 1 got through: send block 1 again
                 self._on_nak("repeated start request")
+            elif self.state is SenderState.WAIT_ACK:
+                self._unanswered = True  # a garbled answer: it may have been the ACK
 
     def timed_out(self) -> None:
         """The current timer ran out without an answer."""
@@ -166,6 +176,7 @@ class XmodemSender(EngineBase):
         elif self.state is SenderState.PAUSE:
             self._send_next_block()
         elif self.state is SenderState.WAIT_ACK:
+            self._unanswered = True
             self._on_nak(f"no answer in {cfg.ack_timeout:g} s")
         elif self.state is SenderState.WAIT_EOT_ACK:
             self._failures += 1
@@ -234,6 +245,7 @@ class XmodemSender(EngineBase):
             self._events.append(BlockDone(self._seq, self._offset, self._total))
         self._seq = (self._seq + 1) & 0xFF
         self._failures = 0
+        self._unanswered = False
         self._next_after_turnaround()
 
     def _on_nak(self, reason: str) -> None:
@@ -263,7 +275,15 @@ class XmodemSender(EngineBase):
             )
             return
         self._events.append(Retry(self._seq, self._failures, reason))
-        if self._block_len > SMALL and self._failures >= self.config.fallback_after:
+        # Falling back re-cuts the block into 128-byte blocks numbered from the same sequence
+        # number. If the receiver already holds the 1K block (its ACK was lost: a timeout),
+        # it takes the first small block for a duplicate and the next ones for new data, and
+        # the file silently grows by up to 896 bytes. Only NAKs prove it does not hold it.
+        if (
+            self._block_len > SMALL
+            and self._failures >= self.config.fallback_after
+            and not self._unanswered
+        ):
             self._large_allowed = False
             self._events.append(FallbackToSmall(self._seq))
             self._build_block()

@@ -73,7 +73,7 @@ def test_failed_recv_leaves_no_file_and_exits_1(tmp_path: Path) -> None:
 
         peer = Worker(partial_sender)
         peer.start()
-        result = CliRunner().invoke(app, ["recv", "--port", pair.slave_path, str(out)])
+        result = CliRunner().invoke(app, ["recv", "--port", pair.slave_path, str(out), "--binary"])
         peer.outcome()
     assert result.exit_code == 1
     assert "sender cancelled the transfer after" in result.output

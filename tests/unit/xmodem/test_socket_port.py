@@ -52,7 +52,8 @@ def test_cli_send_over_a_socket_url(tmp_path: Path, scheme: str) -> None:
     got = io.BytesIO()
     port, peer = _serve_once(lambda stream: receive(stream, got, mode=Mode.ONE_K))
     result = CliRunner().invoke(
-        app, ["send", "--port", f"{scheme}://127.0.0.1:{port}", str(source), "--mode", "1k"]
+        app,
+        ["send", "--port", f"{scheme}://127.0.0.1:{port}", str(source), "--mode", "1k", "--binary"],
     )
     assert result.exit_code == 0, result.output
     peer.outcome()

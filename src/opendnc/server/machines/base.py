@@ -11,9 +11,14 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-__all__ = ["Connector", "DripProgress", "MachineStatus", "Progress", "Reception"]
+from opendnc.errors import InputError
+
+if TYPE_CHECKING:
+    from opendnc.server.config import MachineConfig
+
+__all__ = ["Connector", "DripProgress", "MachineStatus", "NetworkOnly", "Progress", "Reception"]
 
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
@@ -93,3 +98,21 @@ class Connector(Protocol):
     ) -> dict[str, int]:
         """Stream a program the control runs as it arrives (:class:`InputError` where the
         control cannot); ``progress`` may raise to stop the feed. Returns counts."""
+
+
+class NetworkOnly:
+    """What a control reached over the network lacks: it sends no programs by itself (it is
+    asked for them) and runs nothing by drip-feed."""
+
+    listens = False
+    config: MachineConfig
+
+    async def listen(self, seconds: float) -> Reception | None:
+        """Nothing to listen for."""
+        return None
+
+    async def dripfeed(
+        self, name: str, data: bytes, from_line: int, progress: DripProgress
+    ) -> dict[str, int]:
+        """Drip-feed is a serial Haas's way of running a program."""
+        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")

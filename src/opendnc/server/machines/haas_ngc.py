@@ -18,7 +18,7 @@ from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector", "mdc_status"]
@@ -48,10 +48,8 @@ def mdc_status(q500: Reply, q104: Reply, tool: int | None) -> MachineStatus:
     )
 
 
-class HaasNgcConnector:
+class HaasNgcConnector(NetworkOnly):
     """MDC for status, the net share for programs."""
-
-    listens = False
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
@@ -144,13 +142,3 @@ class HaasNgcConnector:
     async def backup(self, path: str, target: Path) -> dict[str, int]:
         """Not offered: a Haas share is a folder a file-level backup copies already."""
         raise InputError(f"{self.config.name}: backup is for LSV2 controls")
-
-    async def dripfeed(
-        self, name: str, data: bytes, from_line: int, progress: DripProgress
-    ) -> dict[str, int]:
-        """Drip-feed is a serial Haas's way of running a program."""
-        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
-
-    async def listen(self, seconds: float) -> Reception | None:
-        """This connector does not take programs sent by the control."""
-        return None

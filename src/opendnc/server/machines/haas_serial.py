@@ -173,6 +173,7 @@ class HaasSerialConnector:
                 start_interval=min(3.0, seconds),
                 fold_eob_checksum=True,  # Haas sums blocks with its EOB folded to LF
                 cancel_when_idle=False,  # the next window listens again
+                text_check=True,  # a block that is no NC text is asked for again
             )
             stream = self._reader()
             self._tapping("listen")

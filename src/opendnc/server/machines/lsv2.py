@@ -12,8 +12,9 @@ from opendnc.errors import ControlRefused, DncError, InputError, TransportError
 from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
+from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.server.config import MachineConfig
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Lsv2Connector"]
@@ -43,10 +44,8 @@ _MODE = {
 }
 
 
-class Lsv2Connector:
+class Lsv2Connector(NetworkOnly):
     """One LSV2 session per machine, reopened by the supervisor when it drops."""
-
-    listens = False
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
@@ -67,9 +66,25 @@ class Lsv2Connector:
         """Open the LSV2 session."""
         if self._client is not None:
             return
-        client = AsyncClient(self.config.host, int(self.config.port), timeout=10.0)
+        client = self._client_for()
         await client.connect()
         self._client = client
+
+    def _client_for(self) -> AsyncClient:
+        # RS-232 (serial = "...") or TCP: the operations are the same, only the link differs.
+        config = self.config
+        if config.serial:
+            profile = config.profile
+            line = SerialLine(
+                config.serial,
+                baud=profile.baud,
+                parity=profile.parity,
+                bytesize=profile.bytesize,
+                stopbits=profile.stopbits,
+                flow=profile.flow,
+            )
+            return AsyncClient.over_serial(line, timeout=10.0)
+        return AsyncClient(config.host, int(config.port), timeout=10.0)
 
     async def close(self) -> None:
         """Close the session."""
@@ -150,6 +165,12 @@ class Lsv2Connector:
         """Back up a folder over a second LSV2 session (the backup walks the whole tree in
         a worker thread; the status polls keep their own session)."""
 
+        if self.config.serial:
+            # One RS-232 line carries one session: the backup cannot run beside the polls.
+            raise InputError(
+                f"{self.config.name}: backup runs over TCP (LSV2 over RS-232 has one session)"
+            )
+
         def run() -> dict[str, int]:
             with Client(self.config.host, int(self.config.port), timeout=30.0) as client:
                 summary = lsv2_backup(client, path, target)
@@ -160,13 +181,3 @@ class Lsv2Connector:
             }
 
         return await asyncio.to_thread(run)
-
-    async def dripfeed(
-        self, name: str, data: bytes, from_line: int, progress: DripProgress
-    ) -> dict[str, int]:
-        """Drip-feed is a serial Haas's way of running a program."""
-        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
-
-    async def listen(self, seconds: float) -> Reception | None:
-        """This connector does not take programs sent by the control."""
-        return None

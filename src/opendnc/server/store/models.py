@@ -28,9 +28,12 @@ from sqlalchemy import (
     MetaData,
     String,
     Text,
+    TypeDecorator,
     UniqueConstraint,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+from opendnc.errors import InputError
 
 __all__ = [
     "ApiKey",
@@ -58,25 +61,21 @@ def utcnow() -> datetime:
     return datetime.now(UTC)
 
 
-class UtcDateTime(DateTime):
-    """A DateTime that always comes back timezone-aware (SQLite forgets the zone)."""
+class UtcDateTime(TypeDecorator[datetime]):
+    """A DateTime that always comes back timezone-aware in UTC (SQLite keeps no zone)."""
 
+    impl = DateTime(timezone=True)
     cache_ok = True
 
-    def __init__(self) -> None:
-        super().__init__(timezone=True)
+    def process_bind_param(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is not None:
+            value = value.astimezone(UTC)
+        return value
 
-    def result_processor(self, dialect: Any, coltype: Any) -> Any:
-        parent = super().result_processor(dialect, coltype)
-
-        def process(value: Any) -> Any:
-            if parent is not None:
-                value = parent(value)
-            if isinstance(value, datetime) and value.tzinfo is None:
-                value = value.replace(tzinfo=UTC)
-            return value
-
-        return process
+    def process_result_value(self, value: datetime | None, dialect: Any) -> datetime | None:
+        if value is not None and value.tzinfo is None:
+            value = value.replace(tzinfo=UTC)
+        return value
 
 
 class Role(enum.IntEnum):
@@ -90,12 +89,12 @@ class Role(enum.IntEnum):
 
     @classmethod
     def parse(cls, text: str) -> Role:
-        """The role named ``text`` (case-insensitive); :class:`ValueError` otherwise."""
+        """The role named ``text`` (case-insensitive); :class:`InputError` otherwise."""
         try:
             return cls[text.strip().upper()]
         except KeyError:
             names = ", ".join(r.name.lower() for r in cls)
-            raise ValueError(f"unknown role {text!r} (expected one of {names})") from None
+            raise InputError(f"unknown role {text!r} (expected one of {names})") from None
 
 
 class ProgramState(enum.StrEnum):

@@ -242,7 +242,8 @@ class VirtualCable:
     reproducible (each direction gets its own stream of faults derived from it). ``link_a`` and
     ``link_b`` create symlinks to the two devices, removed again by :meth:`close`.
     ``monitor`` names a file that gets a timestamped line for every delivery in either
-    direction (:mod:`opendnc.sim.cable.monitor`).
+    direction (:mod:`opendnc.sim.cable.monitor`). ``parity_check`` models the receiving
+    UART's parity check (:attr:`LineNoise.parity_check`: a character failing it reads as NUL).
     Use it as a context manager, or call :meth:`start` and :meth:`close`.
     """
 
@@ -257,6 +258,7 @@ class VirtualCable:
         link_a: str | os.PathLike[str] | None = None,
         link_b: str | os.PathLike[str] | None = None,
         monitor: str | os.PathLike[str] | None = None,
+        parity_check: bool = False,
     ) -> None:
         if baud <= 0:
             raise InputError(f"baud must be positive, got {baud}")
@@ -266,8 +268,12 @@ class VirtualCable:
         self.bits_per_char = bits_per_char
         self.char_time = bits_per_char / baud
         self.seed = seed
-        noise_ab = LineNoise(noise, drop, None if seed is None else f"{seed}:a>b")
-        noise_ba = LineNoise(noise, drop, None if seed is None else f"{seed}:b>a")
+        noise_ab = LineNoise(
+            noise, drop, None if seed is None else f"{seed}:a>b", parity_check=parity_check
+        )
+        noise_ba = LineNoise(
+            noise, drop, None if seed is None else f"{seed}:b>a", parity_check=parity_check
+        )
         self._a = _Side("a")
         self._b = _Side("b")
         self._lanes = (

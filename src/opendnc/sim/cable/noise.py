@@ -76,12 +76,23 @@ class LineNoise:
     the same arguments produce the same faults at the same byte positions.
     """
 
-    def __init__(self, ber: float = 0.0, drop_rate: float = 0.0, seed: int | str | None = None):
+    def __init__(
+        self,
+        ber: float = 0.0,
+        drop_rate: float = 0.0,
+        seed: int | str | None = None,
+        *,
+        parity_check: bool = False,
+    ):
         for name, value in (("bit-error rate", ber), ("drop rate", drop_rate)):
             if not 0.0 <= value <= 1.0 or math.isnan(value):
                 raise InputError(f"{name} must be between 0 and 1, got {value}")
         self.ber = ber
         self.drop_rate = drop_rate
+        self.parity_check = parity_check
+        """Model the receiving UART's parity check: a character with an odd number of flipped
+        data bits fails it and is read as NUL, as Linux delivers it with INPCK and neither
+        IGNPAR nor PARMRK. An even number of flips passes unnoticed, as on a real line."""
         base = random.SystemRandom().getrandbits(64) if seed is None else seed
         # separate generators: flips and drops stay independent of each other's draws
         self._flips = _EventStream(ber, random.Random(f"{base}:bits"))
@@ -115,6 +126,10 @@ class LineNoise:
             drops.advance()
         for index in dropped:
             flipped.pop(index, None)
+        if self.parity_check:
+            for index, count in flipped.items():
+                if count % 2:
+                    buf[index] = 0
         for index in reversed(dropped):
             del buf[index]
         return NoiseResult(bytes(buf), len(flipped), len(dropped), sum(flipped.values()))

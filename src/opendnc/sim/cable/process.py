@@ -37,6 +37,7 @@ class CableProcess:
         drop: float = 0.0,
         seed: int | None = None,
         monitor: str | os.PathLike[str] | None = None,
+        parity_check: bool = False,
     ) -> None:
         self.args = [
             sys.executable,
@@ -54,6 +55,8 @@ class CableProcess:
             self.args.append(f"--seed={seed}")
         if monitor is not None:
             self.args.append(f"--monitor={os.fspath(monitor)}")
+        if parity_check:
+            self.args.append("--parity-check")
         self.path_a = ""
         self.path_b = ""
         self.stats: CableStats | None = None  # set by close()
@@ -113,6 +116,10 @@ class CableProcess:
             self.close()
         else:
             self._kill()
+            proc = self._proc
+            for pipe in (proc.stdout, proc.stderr) if proc is not None else ():
+                if pipe is not None:
+                    pipe.close()  # else a failed test leaves them to the GC (ResourceWarning)
 
 
 def _last_line(text: str) -> str:

@@ -20,6 +20,7 @@ import shutil
 import stat
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from opendnc.atomicfile import create_temp
 from opendnc.errors import ControlRefused
@@ -260,6 +261,16 @@ class ControlFs:
     def free_bytes(self) -> int:
         """Free space of the host volume, saturated to u32."""
         return min(shutil.disk_usage(self.root).free, 0xFFFFFFFF)
+
+    def open_read(self, wp: WirePath) -> BinaryIO:
+        """The file opened for reading (downloads stream from it); refused with 32 if missing."""
+        host = self.host_path(wp)
+        if not host.is_file():
+            raise ControlRefused(NO_FILE, f"{wp} does not exist")
+        try:
+            return host.open("rb")
+        except OSError as exc:
+            raise ControlRefused(OPEN_FILE, str(exc)) from None
 
     def read_bytes(self, wp: WirePath) -> bytes:
         """Whole file content; ControlRefused(32) if missing or a directory."""

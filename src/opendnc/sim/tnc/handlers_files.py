@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from typing import BinaryIO
 
 from opendnc.errors import ControlRefused
 from opendnc.lsv2.constants import ErrorCode as E
@@ -163,22 +164,37 @@ def move_file(s: Session, m: MoveFile) -> list[Message]:
 # -- downloads --------------------------------------------------------------------------------
 @handler(ReadFile, Priv.FILE)
 def read_file(s: Session, m: ReadFile) -> list[Message]:
-    """R_FL path [mode]: S_FL blocks within the buffer, then T_FD."""
+    """R_FL path [mode]: S_FL blocks within the buffer, then T_FD.
+
+    The file is read block by block as the client's T_OKs pull them, as uploads are written:
+    a connection that starts a large download and goes quiet holds one block, not the file.
+    """
     mode = m.mode or 0
-    wp = s.path(m.path)
-    data = s.control.fs.read_bytes(wp)
-    if not mode & MODE_BINARY:
-        data = to_wire_ascii(data)
-    step = s.data_limit()
+    handle = s.control.fs.open_read(s.path(m.path))
+    return s.start_sequence(_file_blocks(handle, s.data_limit(), bool(mode & MODE_BINARY)))
 
-    def blocks() -> Iterator[Message]:
-        if not data:
-            yield FileData(b"")  # pyLSV2 needs one block even for an empty file
-            return
-        for off in range(0, len(data), step):
-            yield FileData(data[off : off + step])
 
-    return s.start_sequence(blocks())
+def _file_blocks(handle: BinaryIO, step: int, binary: bool) -> Iterator[Message]:
+    """S_FL blocks of ``step`` bytes, read (and ASCII-converted) only as they are asked for."""
+    with handle:
+        pending = b""  # converted bytes not sent yet: less than one block between reads
+        cr_cut = False  # the last read ended in CR: it may be half of a CR LF
+        sent = False
+        while raw := handle.read(step):
+            if not binary:
+                if cr_cut:
+                    raw = b"\r" + raw
+                cr_cut = raw.endswith(b"\r")
+                raw = to_wire_ascii(raw[:-1] if cr_cut else raw)
+            pending += raw
+            while len(pending) >= step:
+                yield FileData(pending[:step])
+                sent = True
+                pending = pending[step:]
+        if cr_cut:
+            pending += b"\r"
+        if pending or not sent:
+            yield FileData(pending)  # pyLSV2 needs one block even for an empty file
 
 
 # -- uploads ----------------------------------------------------------------------------------

@@ -322,14 +322,17 @@ async def serve_tnc(
     latency: float = 0.0,
     trace: TraceHook | None = None,
     dnc_option: bool = True,
+    listen: bool = True,
 ) -> TncServer:
-    """Start a virtual TNC inside the running event loop and return the listening server."""
+    """Start a virtual TNC inside the running event loop and return the listening server
+    (``listen=False``: no TCP port, for a control reached only over a serial front-end)."""
     prof = get_profile(profile)
     root_path = Path(root) if root is not None else default_root(prof.key)
     root_path.mkdir(parents=True, exist_ok=True)
     control = Control(prof, root_path, dnc_option=dnc_option)
     server = TncServer(control, latency=latency, trace=trace)
-    await server.start(host, port)
+    if listen:
+        await server.start(host, port)
     return server
 
 

@@ -1,0 +1,580 @@
+"""Sans-IO link engine of LSV2 over RS-232, for either end of the line (docs/lsv2-serial.md).
+
+Serial LSV2 carries the same telegrams as TCP, one per *transmission*, and every transmission
+has three phases (docs/lsv2-serial.md, "Link handshake")::
+
+    sender                      receiver
+    ENQ                  ->                    request: "I want to send"
+                         <-     DLE '0'        ready
+    DLE STX body DLE ETX BCC ->                transfer (body DLE-stuffed)
+                         <-     DLE '1' / NAK  received / bad block
+    EOT                  ->                    end: the line is idle again
+
+A request and its answer are two transmissions with the roles swapped: after the client's EOT
+the control sends its own ENQ. :class:`SerialLink` implements both ends. It does no I/O and
+reads no clock: the driver passes ``now`` (seconds, any monotonic origin) to every call, writes
+:meth:`SerialLink.data_to_send`, and calls :meth:`SerialLink.tick` at
+:attr:`SerialLink.deadline`.
+
+Choices where the public sources are silent (each is a setting or documented here):
+
+* **Retries** — a NAK or a missing acknowledgement ends the transmission with EOT and the whole
+  transmission is repeated, at most ``retries`` times after the first try (default 3); then the
+  telegram is dropped and :class:`LinkFailed` reports a :class:`SerialLinkError` carrying the
+  host status code of docs/lsv2-serial.md ("Host status codes").
+* **Collisions** — when both ends send ENQ, the client yields: it answers DLE '0', receives the
+  control's telegram and then sends its own. The control ignores the client's ENQ.
+* **Implicit acknowledgement** — an ENQ received while waiting for DLE '1' means the peer has
+  ended the exchange and moved on (its DLE '1' was lost, it timed out waiting for our EOT and
+  now sends its own telegram). The engine counts our telegram as delivered. The client does the
+  same when the control's ENQ collides with a *repeat* of a telegram already framed once: in
+  LSV2 the control speaks only after a request (an unsolicited ``M_CC`` racing a spoilt
+  acknowledgement is the one case this reading gets wrong; the operation then times out).
+* **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
+  ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
+  sent in between, is acknowledged but not delivered twice. LSV2 alternates requests and
+  answers, so two identical telegrams in a row from the same side never happen otherwise.
+* **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored.
+* **Link check** — :meth:`SerialLink.check_link` sends the lone ENQ that TNCremo sends before
+  its first telegram; the peer's DLE '0' is answered by the next ENQ (or by EOT if nothing is
+  queued), exactly as in the seed capture.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+from opendnc.errors import InputError, TransportError, TransportTimeout
+from opendnc.lsv2.framing import DLE, ENQ, EOT, ETX, NAK, STX, Frame, bcc, encode_serial_frame
+
+__all__ = [
+    "DEFAULT_TIMING",
+    "HostStatus",
+    "LinkEvent",
+    "LinkFailed",
+    "LinkRole",
+    "LinkStats",
+    "LinkTiming",
+    "SerialLink",
+    "SerialLinkError",
+    "SerialLinkTimeout",
+    "TelegramReceived",
+    "TelegramSent",
+    "describe_link_bytes",
+]
+
+READY = b"\x10\x30"  # DLE '0'
+RECEIVED = b"\x10\x31"  # DLE '1'
+_ENQ = bytes([ENQ])
+_EOT = bytes([EOT])
+_NAK = bytes([NAK])
+_DLE_B = bytes([DLE])
+_DLE_DLE = _DLE_B * 2
+
+Direction = Literal["send", "recv"]
+CharHook = Callable[[Direction, bytes], None]
+
+
+class HostStatus(enum.IntEnum):
+    """Host-side status codes of the LSV2 toolbox (docs/lsv2-serial.md, "Host status codes")."""
+
+    OK = 0
+    TIMEOUT = 1
+    NO_ENQ = 2
+    TIMEOUT2 = 3
+    WRONG_CHAR = 4
+    TOO_LONG = 5
+    WRONG_BCC = 6
+    NO_EOT = 7
+    AP_ERROR = 8
+    AP_COLLISION = 9
+    NO_QUITT = 10
+    TX_ERROR = 11
+    TIMEOUT3 = 12
+    COM_CLOSED = 13
+    NO_OPEN = 14
+    WRONG_PARAMS = 15
+    NO_MESSAGE = 16
+    NO_ACK = 17
+    MSG_OK = 19
+    BUSY = 90
+    NO_CONNECT = 92
+    UNKNOWN = 99
+
+
+_STATUS_TEXT: dict[HostStatus, str] = {
+    HostStatus.TIMEOUT: "receive timeout",
+    HostStatus.NO_ENQ: "the peer did not answer ENQ with DLE 0",
+    HostStatus.TIMEOUT2: "no valid character after DLE 0",
+    HostStatus.WRONG_CHAR: "unexpected character",
+    HostStatus.TOO_LONG: "telegram too long",
+    HostStatus.WRONG_BCC: "block check character wrong",
+    HostStatus.NO_EOT: "EOT missing",
+    HostStatus.AP_COLLISION: "collision: both sides want to send",
+    HostStatus.NO_QUITT: "telegram not acknowledged (no DLE 1)",
+    HostStatus.TX_ERROR: "telegram refused with NAK on every try",
+    HostStatus.COM_CLOSED: "port closed",
+    HostStatus.NO_OPEN: "port could not be opened",
+    HostStatus.WRONG_PARAMS: "bad port parameters",
+    HostStatus.NO_ACK: "no acknowledge",
+    HostStatus.NO_CONNECT: "no connection",
+}
+
+
+class SerialLinkError(TransportError):
+    """The serial LSV2 link failed; ``status`` is the host status code (docs/lsv2-serial.md)."""
+
+    def __init__(self, status: HostStatus, detail: str = "") -> None:
+        self.status = status
+        text = _STATUS_TEXT.get(status, status.name.lower().replace("_", " "))
+        message = f"serial LSV2 link: {text} (host status {int(status)} {status.name})"
+        super().__init__(f"{message}: {detail}" if detail else message)
+
+
+class SerialLinkTimeout(SerialLinkError, TransportTimeout):
+    """The serial link failed because the peer fell silent."""
+
+
+@dataclass(frozen=True, slots=True)
+class LinkTiming:
+    """LSV2TIME0/1/2 in seconds (docs/lsv2-serial.md, "Timing"); each 0.001-3.6 s."""
+
+    time0: float = 3.0
+    """Receiving one whole block, DLE STX to BCC."""
+    time1: float = 3.0
+    """Waiting for the answer to ENQ or to the BCC."""
+    time2: float = 1.0
+    """After sending DLE 0, DLE 1 or NAK: waiting for the next valid character."""
+
+    def __post_init__(self) -> None:
+        for name in ("time0", "time1", "time2"):
+            value = getattr(self, name)
+            if not 0.001 <= value <= 3.6:
+                raise InputError(f"LSV2 {name.upper()} must be 0.001-3.6 s, got {value:g}")
+
+
+DEFAULT_TIMING = LinkTiming()
+
+
+class LinkRole(enum.Enum):
+    """Which end of the line the engine plays (decides who yields on a collision)."""
+
+    CLIENT = "client"
+    CONTROL = "control"
+
+
+@dataclass(frozen=True, slots=True)
+class TelegramReceived:
+    """A telegram arrived intact (already acknowledged with DLE 1)."""
+
+    frame: Frame
+
+
+@dataclass(frozen=True, slots=True)
+class TelegramSent:
+    """The peer acknowledged our telegram; ``tries`` transmissions were needed."""
+
+    frame: Frame
+    tries: int
+
+
+@dataclass(frozen=True, slots=True)
+class LinkChecked:
+    """The peer answered the link-check ENQ with DLE 0."""
+
+
+@dataclass(frozen=True, slots=True)
+class LinkFailed:
+    """A queued telegram (or the link check) was given up; ``frame`` is ``None`` for a check."""
+
+    frame: Frame | None
+    error: SerialLinkError
+
+
+LinkEvent = TelegramReceived | TelegramSent | LinkChecked | LinkFailed
+
+
+@dataclass(slots=True)
+class LinkStats:
+    """Counters of what happened on the line (reported by traces and tests)."""
+
+    sent: int = 0
+    received: int = 0
+    retries: int = 0
+    naks_sent: int = 0
+    naks_received: int = 0
+    timeouts: int = 0
+    collisions: int = 0
+    repeats_dropped: int = 0
+    implicit_acks: int = 0
+    garbage: int = 0
+    failures: int = 0
+
+
+class _S(enum.Enum):
+    IDLE = "idle"
+    SEND_READY = "sent ENQ, waiting for DLE 0"
+    SEND_ACK = "sent frame, waiting for DLE 1"
+    RECV_START = "sent DLE 0, waiting for DLE STX"
+    RECV_FRAME = "receiving a frame"
+    RECV_END = "sent DLE 1 or NAK, waiting for EOT"
+
+
+@dataclass(slots=True)
+class _Outgoing:
+    frame: Frame | None  # None: the link check
+    wire: bytes
+    tries: int = 0
+    framed: bool = False  # the frame went out at least once: the peer may hold it
+    failures: list[HostStatus] = field(default_factory=list)
+
+
+class SerialLink:
+    """Both ends of serial LSV2 as one sans-IO state machine (see the module docstring)."""
+
+    def __init__(
+        self,
+        role: LinkRole,
+        *,
+        timing: LinkTiming = DEFAULT_TIMING,
+        retries: int = 3,
+        max_body: int = 4096,
+        drop_repeats: bool = True,
+        on_bytes: CharHook | None = None,
+    ) -> None:
+        if retries < 0:
+            raise InputError(f"retries must be 0 or more, got {retries}")
+        self.role = role
+        self.timing = timing
+        self.retries = retries
+        self.max_body = max_body
+        """Largest telegram body (name + payload) accepted; longer blocks are refused (NAK)."""
+        self.drop_repeats = drop_repeats
+        self.on_bytes = on_bytes
+        """Called with ``("send"|"recv", bytes)`` for every chunk written or fed (traces)."""
+        self.stats = LinkStats()
+        self._state = _S.IDLE
+        self._deadline: float | None = None
+        self._out: deque[_Outgoing] = deque()
+        self._events: deque[LinkEvent] = deque()
+        self._tx = bytearray()
+        self._dle = False  # a DLE ended the last chunk outside a frame
+        self._frame = bytearray()  # raw (stuffed) bytes after DLE STX
+        self._scan = 0
+        self._last_body: bytes | None = None
+
+    # -- public API ----------------------------------------------------------------------------
+
+    @property
+    def state(self) -> str:
+        """Readable name of the current link state."""
+        return self._state.value
+
+    @property
+    def idle(self) -> bool:
+        """True when no transmission is under way in either direction and none is queued."""
+        return self._state is _S.IDLE and not self._out
+
+    @property
+    def busy_sending(self) -> bool:
+        """True while telegrams of ours wait for, or are in, a transmission."""
+        return bool(self._out)
+
+    @property
+    def deadline(self) -> float | None:
+        """Time at which :meth:`tick` must be called, or ``None`` while the line is idle."""
+        return self._deadline
+
+    def send(self, frame: Frame, now: float) -> None:
+        """Queue ``frame``; it goes out as soon as the line is free."""
+        body = frame.body
+        if len(body) > self.max_body:
+            raise InputError(f"{frame.mnemonic} of {len(body)} bytes exceeds {self.max_body}")
+        self._out.append(_Outgoing(frame, encode_serial_frame(body)))
+        self._start_next(now)
+
+    def check_link(self, now: float) -> None:
+        """Queue the lone link-check ENQ (answered DLE 0 gives :class:`LinkChecked`)."""
+        self._out.append(_Outgoing(None, b""))
+        self._start_next(now)
+
+    def receive_data(self, data: bytes, now: float) -> None:
+        """Feed bytes read from the line."""
+        if not data:
+            return
+        if self.on_bytes is not None:
+            self.on_bytes("recv", data)
+        self._feed(bytes(data), now)
+
+    def tick(self, now: float) -> None:
+        """Handle an expired :attr:`deadline` (calling it early does nothing)."""
+        if self._deadline is None or now < self._deadline:
+            return
+        self._deadline = None
+        self.stats.timeouts += 1
+        state = self._state
+        if state is _S.SEND_READY:
+            self._retry(now, HostStatus.NO_ENQ, eot=False)
+        elif state is _S.SEND_ACK:
+            self._retry(now, HostStatus.NO_QUITT, eot=True)
+        elif state is _S.RECV_FRAME:
+            # LSV2TIME0: the block did not end in time; the sender repeats after our NAK.
+            self._frame.clear()
+            self._nak(now)
+        else:
+            # RECV_START (LSV2TIME2 after DLE 0) and RECV_END (no EOT after DLE 1 / NAK): the
+            # line is considered idle again.
+            self._state = _S.IDLE
+            self._start_next(now)
+
+    def data_to_send(self) -> bytes:
+        """Bytes to write to the line now (empty if none)."""
+        if not self._tx:
+            return b""
+        data = bytes(self._tx)
+        self._tx.clear()
+        if self.on_bytes is not None:
+            self.on_bytes("send", data)
+        return data
+
+    def next_event(self) -> LinkEvent | None:
+        """Oldest event not yet returned, or ``None``."""
+        return self._events.popleft() if self._events else None
+
+    def abandon(self, now: float) -> None:
+        """Give up everything queued and end any transmission of ours with EOT."""
+        if self._state in (_S.SEND_READY, _S.SEND_ACK):
+            self._tx += _EOT
+            self._state = _S.IDLE
+            self._deadline = None
+        self._out.clear()
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _write(self, data: bytes) -> None:
+        self._tx += data
+
+    def _start_next(self, now: float) -> None:
+        if self._state is not _S.IDLE or not self._out:
+            return
+        self._out[0].tries += 1
+        self._write(_ENQ)
+        self._state = _S.SEND_READY
+        self._deadline = now + self.timing.time1
+
+    def _retry(self, now: float, status: HostStatus, *, eot: bool) -> None:
+        out = self._out[0]
+        out.failures.append(status)
+        if eot:
+            self._write(_EOT)
+        self._state = _S.IDLE
+        self._deadline = None
+        if out.tries > self.retries:
+            self._out.popleft()
+            self.stats.failures += 1
+            if not eot:
+                self._write(_EOT)  # release a peer that may still wait for our frame
+            cls = (
+                SerialLinkTimeout
+                if status in (HostStatus.NO_ENQ, HostStatus.NO_QUITT)
+                else (SerialLinkError)
+            )
+            what = out.frame.mnemonic if out.frame is not None else "link check"
+            detail = f"{what} given up after {out.tries} tries"
+            if status is HostStatus.NO_ENQ and all(s is HostStatus.NO_ENQ for s in out.failures):
+                detail += " (is the control on this port, at this baud rate and in LSV2 mode?)"
+            self._events.append(LinkFailed(out.frame, cls(status, detail)))
+        else:
+            self.stats.retries += 1
+        self._start_next(now)
+
+    def _sent_ok(self, now: float, *, implicit: bool = False) -> None:
+        out = self._out.popleft()
+        self._state = _S.IDLE
+        self._deadline = None
+        if not implicit:
+            self._write(_EOT)
+        assert out.frame is not None
+        self.stats.sent += 1
+        self._last_body = None  # we spoke: the next telegram from the peer is new
+        self._events.append(TelegramSent(out.frame, out.tries))
+
+    def _nak(self, now: float) -> None:
+        self.stats.naks_sent += 1
+        self._write(_NAK)
+        self._state = _S.RECV_END
+        self._deadline = now + self.timing.time2
+
+    def _ready(self, now: float) -> None:
+        self._write(READY)
+        self._state = _S.RECV_START
+        self._deadline = now + self.timing.time2
+
+    def _feed(self, data: bytes, now: float) -> None:
+        i = 0
+        n = len(data)
+        while i < n:
+            if self._state is _S.RECV_FRAME:
+                i = self._feed_frame(data, i, now)
+                continue
+            b = data[i]
+            i += 1
+            if self._dle:
+                self._dle = False
+                self._token_dle(b, now)
+            elif b == DLE:
+                self._dle = True
+            else:
+                self._token(b, now)
+
+    def _token(self, b: int, now: float) -> None:
+        state = self._state
+        if b == ENQ:
+            if state is _S.SEND_READY:
+                if self.role is LinkRole.CLIENT:
+                    # Collision: the PC yields, takes the control's telegram, then tries again.
+                    self.stats.collisions += 1
+                    if self._out[0].framed:
+                        # Our frame went out before and this is a retry: the control only
+                        # speaks after a request, so it has ours (its DLE 1 got spoilt).
+                        self.stats.implicit_acks += 1
+                        self._sent_ok(now, implicit=True)
+                    else:
+                        self._out[0].tries -= 1
+                    self._ready(now)
+                return  # the control keeps waiting: the PC yields
+            if state is _S.SEND_ACK:
+                # The peer has moved on to a transmission of its own: it has our telegram.
+                self.stats.implicit_acks += 1
+                self._sent_ok(now, implicit=True)
+            self._ready(now)
+            return
+        if b == EOT:
+            if state in (_S.RECV_START, _S.RECV_END):
+                self._state = _S.IDLE
+                self._deadline = None
+                self._start_next(now)
+                return
+        elif b == NAK:
+            if state is _S.SEND_ACK:
+                self.stats.naks_received += 1
+                self._retry(now, HostStatus.TX_ERROR, eot=True)
+                return
+            if state is _S.SEND_READY:
+                # Mostly a late answer to a block of the previous try; a peer that is really
+                # not ready stays silent too, so LSV2TIME1 decides.
+                self.stats.naks_received += 1
+                return
+        self.stats.garbage += 1
+
+    def _token_dle(self, b: int, now: float) -> None:
+        state = self._state
+        if b == 0x30 and state is _S.SEND_READY:
+            out = self._out[0]
+            if out.frame is None:  # the link check
+                self._out.popleft()
+                self._state = _S.IDLE
+                self._deadline = None
+                self._events.append(LinkChecked())
+                if self._out:
+                    self._start_next(now)
+                else:
+                    self._write(_EOT)
+                return
+            self._write(out.wire)
+            out.framed = True
+            self._state = _S.SEND_ACK
+            self._deadline = now + self.timing.time1
+            return
+        if b == 0x31 and state is _S.SEND_ACK:
+            self._sent_ok(now)
+            self._start_next(now)
+            return
+        if b == STX and state is _S.RECV_START:
+            self._state = _S.RECV_FRAME
+            self._frame.clear()
+            self._scan = 0
+            self._deadline = now + self.timing.time0
+            return
+        self.stats.garbage += 1
+
+    def _feed_frame(self, data: bytes, start: int, now: float) -> int:
+        """Take frame bytes from ``data[start:]``; return the index after those consumed."""
+        frame = self._frame
+        base = len(frame)
+        frame += data[start:] if start else data
+        pos = self._scan
+        limit = 2 * self.max_body + 8
+        while True:
+            j = frame.find(_DLE_B, pos)
+            if j < 0 or j + 1 >= len(frame):
+                self._scan = len(frame) if j < 0 else j
+                if len(frame) > limit:
+                    # Far longer than any telegram: lost sync; refuse and let the sender retry.
+                    frame.clear()
+                    self._nak(now)
+                return len(data)
+            nxt = frame[j + 1]
+            if nxt != ETX:
+                pos = j + 2  # DLE DLE is a data byte; any other pair spoils the block (BCC)
+                continue
+            if j + 2 >= len(frame):
+                self._scan = j
+                # The BCC is due at once; if it was lost, answer NAK before the sender's
+                # LSV2TIME1 runs out rather than take its EOT for the BCC.
+                end = now + self.timing.time2
+                if self._deadline is None or end < self._deadline:
+                    self._deadline = end
+                return len(data)  # the BCC has not arrived yet
+            check = frame[j + 2]
+            raw = bytes(frame[:j])
+            used = j + 3 - base  # bytes of this chunk that belonged to the frame
+            frame.clear()
+            self._scan = 0
+            self._frame_done(raw, check, now)
+            return start + used
+
+    def _frame_done(self, raw: bytes, check: int, now: float) -> None:
+        body = raw.replace(_DLE_DLE, _DLE_B)
+        stuffed_ok = body.replace(_DLE_B, _DLE_DLE) == raw
+        if not stuffed_ok or len(body) < 4 or len(body) > self.max_body or bcc(body) != check:
+            self._nak(now)
+            return
+        if not all(0x20 <= c <= 0x7E for c in body[:4]):
+            self._nak(now)  # telegram names are printable: this block is spoilt
+            return
+        frame = Frame(body[:4].decode("ascii"), body[4:])
+        self._write(RECEIVED)
+        self._state = _S.RECV_END
+        self._deadline = now + self.timing.time2
+        if self.drop_repeats and body == self._last_body:
+            self.stats.repeats_dropped += 1
+            return
+        self._last_body = body
+        self.stats.received += 1
+        self._events.append(TelegramReceived(frame))
+
+
+_CHAR_NAMES = {ENQ: "ENQ", EOT: "EOT", NAK: "NAK", 0x06: "ACK"}
+
+
+def describe_link_bytes(data: bytes) -> str:
+    """Readable rendering of link bytes for traces: ``ENQ``, ``DLE 0``, ``DLE STX``, hex."""
+    parts: list[str] = []
+    i = 0
+    while i < len(data):
+        b = data[i]
+        if b == DLE and i + 1 < len(data):
+            nxt = data[i + 1]
+            name = {0x30: "DLE 0", 0x31: "DLE 1", STX: "DLE STX", ETX: "DLE ETX"}.get(nxt)
+            if name is not None:
+                parts.append(name)
+                i += 2
+                continue
+        parts.append(_CHAR_NAMES.get(b, f"{b:02X}"))
+        i += 1
+    return " ".join(parts)

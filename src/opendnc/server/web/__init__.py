@@ -1,0 +1,76 @@
+"""The DNC dashboard: pages for people, served by ``opendnc serve`` itself.
+
+Server-rendered Jinja templates with htmx and its server-sent-events extension, both pinned
+and shipped in ``static/`` (see ``static/VERSIONS``): no build step, nothing fetched from the
+internet. People log in with a password and get a session cookie (:mod:`.session`); the pages
+call the same service functions as the JSON API under ``/api``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+from fastapi import FastAPI, Request
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from opendnc.errors import DncError
+from opendnc.server import api
+from opendnc.server.web import render, views
+from opendnc.server.web.timeline import Timeline
+from opendnc.server.web.timeline import running as recording
+
+__all__ = ["install"]
+
+STATIC = Path(__file__).parent / "static"
+
+
+def install(app: FastAPI) -> None:
+    """Add the pages, their static files and their error pages to ``app`` (after the API)."""
+    timeline = Timeline()
+    app.state.timeline = timeline
+    inner = app.router.lifespan_context
+
+    @asynccontextmanager
+    async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
+        # The server's own lifespan starts the machines; the status timeline listens meanwhile.
+        async with inner(running_app) as state, recording(timeline, app.state.supervisor.bus):
+            yield state
+
+    app.router.lifespan_context = lifespan
+    app.include_router(views.router)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+    app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
+    app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
+
+
+async def _login_needed(request: Request, exc: views.LoginNeeded) -> Response:
+    target = f"/login?next={quote(exc.next_url)}"
+    if request.headers.get("HX-Request") == "true":
+        return Response(status_code=401, headers={"HX-Redirect": target})
+    if request.method != "GET":
+        return HTMLResponse("log in first", status_code=401)
+    return RedirectResponse(target, status_code=303)
+
+
+async def _error(request: Request, exc: DncError) -> Response:
+    """The API answers JSON; a page answers HTML (a fragment for htmx, else a page)."""
+    response = await api._error(request, exc)
+    if request.url.path.startswith("/api/") or not isinstance(response, JSONResponse):
+        return response
+    status = response.status_code
+    if request.headers.get("HX-Request") == "true":
+        html = render.render("_alert.html", message=str(exc), status=status)
+        return HTMLResponse(
+            html,
+            status_code=status,
+            headers={"HX-Retarget": "#alert", "HX-Reswap": "innerHTML"},
+        )
+    html = render.render(
+        "error.html", message=str(exc), status=status, page=None, path=request.url.path
+    )
+    return HTMLResponse(html, status_code=status)

@@ -1,0 +1,237 @@
+"""Presentation helpers for the pages: templates, G-code highlighting, diffs, machine cards.
+
+Nothing here touches the database or a machine: the views fetch through the service modules
+and hand plain values to these functions.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+from markupsafe import Markup, escape
+from pygments import highlight
+from pygments.formatters import HtmlFormatter
+from pygments.lexers import GcodeLexer
+
+__all__ = [
+    "Card",
+    "DiffRow",
+    "card",
+    "environment",
+    "highlight_lines",
+    "pygments_css",
+    "side_by_side",
+]
+
+HERE = Path(__file__).parent
+KIND_LABEL = {
+    "lsv2": "Heidenhain · LSV2",
+    "haas_ngc": "Haas NGC · Ethernet",
+    "haas_serial": "Haas · RS-232",
+}
+# How a card is filed by the overview's filters.
+STATES = ("running", "idle", "alarm", "offline")
+
+
+@cache
+def environment() -> Environment:
+    """The Jinja environment of the templates folder (autoescaped HTML)."""
+    env = Environment(
+        loader=FileSystemLoader(HERE / "templates"),
+        autoescape=select_autoescape(["html"]),
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["size"] = human_size
+    env.filters["when"] = when
+    env.globals["KIND_LABEL"] = KIND_LABEL
+    return env
+
+
+def render(template: str, **context: Any) -> str:
+    """Render ``template`` with ``context``."""
+    return environment().get_template(template).render(**context)
+
+
+def human_size(n: int | None) -> str:
+    """``1234`` → ``1.2 kB``."""
+    if n is None:
+        return "?"
+    if n < 1000:
+        return f"{n} B"
+    for unit in ("kB", "MB", "GB"):
+        n_f = n / 1000
+        if n_f < 1000 or unit == "GB":
+            return f"{n_f:.1f} {unit}"
+        n = int(n_f)
+    return f"{n} B"  # pragma: no cover
+
+
+def when(value: datetime | str | None) -> str:
+    """A timestamp as ``YYYY-MM-DD HH:MM:SS`` UTC (what a shop's records use)."""
+    if value is None or value == "":
+        return ""
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value)
+    if value.tzinfo is not None:
+        value = value.astimezone(UTC)
+    return value.strftime("%Y-%m-%d %H:%M:%S")
+
+
+# -- G-code -------------------------------------------------------------------------------
+
+_FORMATTER = HtmlFormatter(nowrap=True)
+
+
+def highlight_lines(text: str) -> list[Markup]:
+    """``text`` highlighted as G-code, one safe HTML string per line."""
+    if not text:
+        return []
+    # The formatter closes its spans at every line end, so the output splits into lines.
+    html = highlight(text, GcodeLexer(stripnl=False, ensurenl=False), _FORMATTER)
+    lines = html.split("\n")
+    if lines and lines[-1] == "" and text.endswith("\n"):
+        lines.pop()
+    return [Markup(line) for line in lines]
+
+
+@cache
+def pygments_css() -> str:
+    """Colours of the highlighted code (scoped to ``.code``)."""
+    return str(HtmlFormatter(style="default").get_style_defs(".code"))  # type: ignore[no-untyped-call]
+
+
+def program_text(data: bytes) -> str:
+    """Program bytes as text: G-code is ASCII; latin-1 shows a stray byte instead of failing."""
+    return data.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n")
+
+
+@dataclass(frozen=True)
+class DiffRow:
+    """One row of a side-by-side diff: ``tag`` is equal, replace, delete, insert or skip."""
+
+    tag: str
+    old_no: int | None
+    old: Markup
+    new_no: int | None
+    new: Markup
+
+
+def side_by_side(old: str, new: str, *, context: int = 3) -> list[DiffRow]:
+    """Rows of a side-by-side diff of two programs, unchanged runs shortened to ``context``."""
+    a, b = old.splitlines(), new.splitlines()
+    ha, hb = highlight_lines(old), highlight_lines(new)
+    rows: list[DiffRow] = []
+    matcher = difflib.SequenceMatcher(None, a, b, autojunk=False)
+    for group in matcher.get_grouped_opcodes(context):
+        if rows:
+            rows.append(DiffRow("skip", None, Markup(""), None, Markup("")))
+        for tag, i1, i2, j1, j2 in group:
+            span = max(i2 - i1, j2 - j1)
+            for k in range(span):
+                i, j = i1 + k, j1 + k
+                has_old, has_new = i < i2, j < j2
+                row_tag = tag
+                if tag == "replace" and not has_old:
+                    row_tag = "insert"
+                elif tag == "replace" and not has_new:
+                    row_tag = "delete"
+                rows.append(
+                    DiffRow(
+                        row_tag,
+                        i + 1 if has_old else None,
+                        ha[i] if has_old and i < len(ha) else Markup(""),
+                        j + 1 if has_new else None,
+                        hb[j] if has_new and j < len(hb) else Markup(""),
+                    )
+                )
+    return rows
+
+
+# -- machine cards ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Card:
+    """What a machine's card shows."""
+
+    name: str
+    kind: str
+    description: str
+    state: str  # one of STATES
+    online: bool
+    mode: str
+    execution: str
+    program: str
+    line: int
+    job_id: int | None
+    job_label: str
+    percent: int | None
+    done: int
+    total: int | None
+    queued: int
+    last_error: str
+    last_error_at: str
+    alarm: str
+
+
+def _words(value: str) -> str:
+    # MTConnect words for people: MANUAL_DATA_INPUT -> manual data input.
+    return value.replace("_", " ").lower()
+
+
+def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Card:
+    """The card of one machine from its live JSON (``MachineState.as_json()``)."""
+    status = machine.get("status") or {}
+    job = machine.get("job")
+    online = bool(machine.get("online"))
+    errors = status.get("errors") or []
+    execution = status.get("execution", "") if online else ""
+    alarm = "; ".join(errors)
+    if not online:
+        state = "offline"
+    elif errors:
+        state = "alarm"
+    elif job is not None or execution == "ACTIVE":
+        state = "running"
+    else:
+        state = "idle"
+    done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
+    percent = int(100 * done / total) if job and total else None
+    return Card(
+        name=machine["name"],
+        kind=machine["kind"],
+        description=machine.get("description", ""),
+        state=state,
+        online=online,
+        mode=_words(status.get("mode", "")) if online else "",
+        execution=_words(execution),
+        program=status.get("program", "") if online else "",
+        line=int(status.get("line") or 0) if online else 0,
+        job_id=job["id"] if job else None,
+        job_label=job_label,
+        percent=percent,
+        done=done,
+        total=total,
+        queued=queued,
+        last_error=machine.get("last_error", ""),
+        last_error_at=when(machine.get("last_error_at")),
+        alarm=alarm,
+    )
+
+
+def sse_event(name: str, html: str) -> bytes:
+    """One server-sent event whose data is ``html`` (one ``data:`` line per line)."""
+    data = "".join(f"data: {line}\n" for line in html.splitlines() or [""])
+    return f"event: {name}\n{data}\n".encode()
+
+
+def text_escape(value: object) -> Markup:
+    """``value`` escaped for HTML."""
+    return escape(str(value))

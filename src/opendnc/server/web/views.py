@@ -1,0 +1,775 @@
+"""The dashboard's pages: server-rendered HTML over the same service functions as the API.
+
+Reads render a page (or, for htmx, a fragment); writes check the session's role and CSRF
+token, call the service function the API route calls, and answer with the fragment to swap
+in. A refused write answers with its status (400, 403, 404, 409) and a message that htmx
+puts in the page's alert area (see ``__init__``). What a role cannot do is not shown to it,
+and the server refuses it anyway.
+
+Routes are plain functions where they touch the database (FastAPI runs them in its thread
+pool, so the machines' event loop never waits for a query).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from typing import Annotated, Any, TypeVar
+from urllib.parse import quote
+
+from fastapi import APIRouter, Depends, Form, Request, UploadFile
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import InputError
+from opendnc.server import api, audit, auth, inbox, jobs, library, machine_files
+from opendnc.server.config import MachineKind
+from opendnc.server.errors import NotFound, Unauthorized
+from opendnc.server.store.models import Job, JobState, ReceivedState, Role
+from opendnc.server.supervisor import Supervisor
+from opendnc.server.web import render
+from opendnc.server.web import session as web_session
+from opendnc.server.web.timeline import Timeline
+
+__all__ = ["LoginNeeded", "Page", "router"]
+
+T = TypeVar("T")
+router = APIRouter(include_in_schema=False)
+# A card changes at most this often on the overview (per machine), like the API's events.
+CARD_INTERVAL = 0.5
+KEEP_ALIVE = 15.0
+FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
+ROLES = [r.name.lower() for r in Role]
+# A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
+# is a download away.
+SHOWN_CHARS = 200_000
+TIMELINE_HOURS = 4
+
+
+class LoginNeeded(Exception):
+    """No valid session: pages redirect to the login, htmx requests are told to."""
+
+    def __init__(self, next_url: str) -> None:
+        super().__init__(next_url)
+        self.next_url = next_url
+
+
+@dataclass(frozen=True)
+class Page:
+    """Who is looking, and what the page needs to write back safely."""
+
+    who: auth.Principal
+    key: str
+    csrf: str
+
+    def can(self, role: str) -> bool:
+        """True if the user's role includes ``role`` (what the page offers)."""
+        return self.who.can(Role.parse(role))
+
+
+def _sessions(request: Request) -> sessionmaker[Session]:
+    sessions: sessionmaker[Session] = request.app.state.sessions
+    return sessions
+
+
+def _supervisor(request: Request) -> Supervisor:
+    supervisor: Supervisor = request.app.state.supervisor
+    return supervisor
+
+
+def _page(request: Request) -> Page:
+    try:
+        who, key = web_session.principal(_sessions(request), request)
+    except Unauthorized:
+        target = request.url.path + (f"?{request.url.query}" if request.url.query else "")
+        raise LoginNeeded(target) from None
+    return Page(who, key, web_session.csrf_token(key))
+
+
+async def _write_page(request: Request) -> Page:
+    page = await run_in_threadpool(_page, request)
+    token = None
+    if web_session.CSRF_HEADER not in request.headers:
+        form = await request.form()  # cached: the route's own Form fields read it again
+        value = form.get(web_session.CSRF_FIELD)
+        token = value if isinstance(value, str) else None
+    web_session.check_csrf(request, page.key, token)
+    return page
+
+
+Viewing = Annotated[Page, Depends(_page)]
+Writing = Annotated[Page, Depends(_write_page)]
+
+
+def _read(request: Request, work: Callable[[Session], T]) -> T:
+    with _sessions(request)() as session:
+        return work(session)
+
+
+def _write(request: Request, work: Callable[[Session], T]) -> T:
+    with _sessions(request).begin() as session:
+        return work(session)
+
+
+def _html(template: str, page: Page | None, request: Request, **context: Any) -> HTMLResponse:
+    return HTMLResponse(
+        render.render(template, page=page, path=request.url.path, roles=ROLES, **context)
+    )
+
+
+def _is_htmx(request: Request) -> bool:
+    return request.headers.get("HX-Request") == "true"
+
+
+# -- login --------------------------------------------------------------------------------
+
+
+@router.get("/login")
+def login_form(request: Request, next: str = "/") -> HTMLResponse:
+    """The login page."""
+    return _html("login.html", None, request, next=_safe_next(next), error="")
+
+
+def _safe_next(target: str) -> str:
+    # Only paths on this server: never an open redirect to another site.
+    return target if target.startswith("/") and not target.startswith("//") else "/"
+
+
+@router.post("/login", response_model=None)
+def login(
+    request: Request,
+    username: Annotated[str, Form()],
+    password: Annotated[str, Form()],
+    next: Annotated[str, Form()] = "/",
+) -> Response:
+    """Check the password, start a session, go where the user was heading."""
+    response = RedirectResponse(_safe_next(next), status_code=303)
+    try:
+        web_session.log_in(
+            _sessions(request), response, username, password, request.url.scheme == "https"
+        )
+    except (Unauthorized, InputError) as exc:
+        page = _html(
+            "login.html", None, request, next=_safe_next(next), error=str(exc), username=username
+        )
+        page.status_code = 401
+        return page
+    return response
+
+
+@router.post("/logout")
+def logout(request: Request, page: Writing) -> RedirectResponse:
+    """End the session."""
+    response = RedirectResponse("/login", status_code=303)
+    web_session.log_out(_sessions(request), request, response)
+    return response
+
+
+# -- shop overview ------------------------------------------------------------------------
+
+
+def _cards(request: Request, names: list[str] | None = None) -> list[render.Card]:
+    supervisor = _supervisor(request)
+    states = supervisor.machines
+    wanted = names if names is not None else list(states)
+
+    def load(session: Session) -> tuple[dict[str, int], dict[int, str]]:
+        queued = jobs.queue_lengths(session)
+        labels = {}
+        for name in wanted:
+            job_id = states[name].job_id
+            if job_id is not None:
+                labels[job_id] = _job_label(session, job_id)
+        return queued, labels
+
+    queued, labels = _read(request, load)
+    out = []
+    for name in wanted:
+        data = states[name].as_json()
+        job_id = states[name].job_id
+        label = labels.get(job_id, "") if job_id is not None else ""
+        out.append(render.card(data, queued=queued.get(name, 0), job_label=label))
+    return out
+
+
+def _job_label(session: Session, job_id: int) -> str:
+    try:
+        job = jobs.get_job(session, job_id)
+    except NotFound:
+        return ""
+    if job.version is not None:
+        return f"{job.kind.value} {job.version.program.name} v{job.version.number}"
+    return f"{job.kind.value} {job.params.get('name', '')}".strip()
+
+
+@router.get("/")
+def overview(request: Request, page: Viewing) -> HTMLResponse:
+    """A card per machine, kept live by server-sent events."""
+    cards = _cards(request)
+    counts = {state: sum(1 for c in cards if c.state == state) for state in render.STATES}
+    return _html("overview.html", page, request, cards=cards, counts=counts)
+
+
+@router.get("/events/cards")
+async def card_events(
+    request: Request, page: Viewing, machine: str | None = None
+) -> StreamingResponse:
+    """Server-sent events with the HTML of each card that changed (``card-<machine>``), and
+    ``jobs-<machine>`` when a job of that machine starts or ends (``machine``: just one)."""
+    if machine is not None and machine not in _supervisor(request).machines:
+        raise NotFound(f"no machine named {machine!r}")
+    return StreamingResponse(
+        _card_stream(request, machine),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
+
+
+async def _card_stream(request: Request, only: str | None) -> AsyncIterator[bytes]:
+    supervisor = _supervisor(request)
+    env = render.environment().get_template("_card.html")
+    labels: dict[int, str] = {}
+    watched = set(supervisor.machines) if only is None else {only}
+    sent: dict[str, str] = {}  # the HTML each card has in the browser now
+    with supervisor.bus.subscribe() as sub:
+        # A fresh copy of every card first: whatever changed between the page and this stream.
+        pending: set[str] = set(watched)
+        job_changes: set[str] = set()
+        loop = asyncio.get_running_loop()
+        flush_at = quiet_since = loop.time()
+        while not await request.is_disconnected():
+            timeout = max(0.0, flush_at - loop.time())
+            try:
+                event = await asyncio.wait_for(sub.get(), timeout)
+                machine = event.key if event.kind == "machine" else event.data.get("machine")
+                if isinstance(machine, str) and machine in watched:
+                    pending.add(machine)
+                    if event.kind == "job" and "bytes_done" not in event.data:
+                        job_changes.add(machine)  # started or ended, not mere progress
+                if loop.time() < flush_at:
+                    continue  # a steady stream of events must not hold the flush back
+            except TimeoutError:
+                pass
+            if sub.overflowed:
+                sub.overflowed = False
+                pending = set(watched)
+                job_changes = set(watched)
+            if pending:
+                names = sorted(pending)
+                pending = set()
+                cards = await run_in_threadpool(_cards_cached, request, names, labels)
+                out = []
+                for c in cards:
+                    html = env.render(c=c)
+                    if sent.get(c.name) != html:  # a status poll that changed nothing
+                        sent[c.name] = html
+                        out.append(render.sse_event(f"card-{c.name}", html))
+                out += [render.sse_event(f"jobs-{name}", "") for name in sorted(job_changes)]
+                job_changes = set()
+                if out:
+                    quiet_since = loop.time()
+                    yield b"".join(out)
+            if loop.time() - quiet_since > KEEP_ALIVE:
+                quiet_since = loop.time()
+                yield b": keep-alive\n\n"  # lets a proxy and the server see a dead client
+            flush_at = loop.time() + CARD_INTERVAL
+
+
+def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) -> list[render.Card]:
+    # The labels of running jobs do not change: look each up once per stream.
+    states = _supervisor(request).machines
+
+    def load(session: Session) -> dict[str, int]:
+        for name in names:
+            job_id = states[name].job_id
+            if job_id is not None and job_id not in labels:
+                labels[job_id] = _job_label(session, job_id)
+        return jobs.queue_lengths(session)
+
+    queued = _read(request, load)
+    out = []
+    for name in names:
+        job_id = states[name].job_id
+        label = labels.get(job_id, "") if job_id is not None else ""
+        out.append(render.card(states[name].as_json(), queued=queued.get(name, 0), job_label=label))
+    return out
+
+
+# -- machine page -------------------------------------------------------------------------
+
+
+def _machine_context(request: Request, name: str) -> dict[str, Any]:
+    state = _supervisor(request).machines.get(name)
+    if state is None:
+        raise NotFound(f"no machine named {name!r}")
+
+    def load(session: Session) -> dict[str, Any]:
+        queue = [
+            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=[JobState.QUEUED])
+        ]
+        running = [
+            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=[JobState.RUNNING])
+        ]
+        history = [
+            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=FINISHED, limit=50)
+        ]
+        return {"queue": queue, "running": running, "history": history}
+
+    context = _read(request, load)
+    live = state.as_json()
+    for row in context["running"]:
+        if live["job"] and live["job"]["id"] == row["id"]:
+            row["bytes_done"], row["bytes_total"] = state.job_progress
+    context["machine"] = live
+    timeline: Timeline = request.app.state.timeline
+    timeline.note(name, live)
+    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
+    context["timeline_hours"] = TIMELINE_HOURS
+    context["has_files"] = state.config.kind is MachineKind.LSV2
+    context["card"] = render.card(live, queued=len(context["queue"]))
+    return context
+
+
+def _job_row(job: Job) -> dict[str, Any]:
+    row = api.job_json(job)
+    if job.version is None:
+        row["program"] = job.params.get("name", "")
+    return row
+
+
+@router.get("/machines/{name}")
+def machine_page(request: Request, name: str, page: Viewing) -> HTMLResponse:
+    """The machine's status, queue and job history."""
+    return _html("machine.html", page, request, **_machine_context(request, name))
+
+
+@router.get("/machines/{name}/jobs")
+def machine_jobs(request: Request, name: str, page: Viewing) -> HTMLResponse:
+    """The queue and history fragment (refreshed by the page while jobs run)."""
+    return _html("_jobs.html", page, request, **_machine_context(request, name))
+
+
+def _after_job_action(request: Request, page: Page, machine: str) -> HTMLResponse:
+    _supervisor(request).wake(machine)
+    return _html("_jobs.html", page, request, **_machine_context(request, machine))
+
+
+@router.post("/jobs/{job_id}/cancel")
+def cancel_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
+    """Cancel a queued job, or ask a running one to stop."""
+    web_session.need(page.who, Role.OPERATOR)
+    machine = _write(request, lambda s: jobs.cancel(s, job_id, actor=page.who.name).machine)
+    return _after_job_action(request, page, machine)
+
+
+@router.post("/jobs/{job_id}/move")
+def move_job(
+    request: Request, job_id: int, page: Writing, index: Annotated[int, Form(ge=0)]
+) -> HTMLResponse:
+    """Put a queued job at ``index`` in its queue."""
+    web_session.need(page.who, Role.OPERATOR)
+    machine = _write(request, lambda s: jobs.move(s, job_id, index, actor=page.who.name).machine)
+    return _after_job_action(request, page, machine)
+
+
+@router.post("/jobs/{job_id}/retry")
+def retry_job(
+    request: Request,
+    job_id: int,
+    page: Writing,
+    from_line: Annotated[int | None, Form(ge=1)] = None,
+) -> HTMLResponse:
+    """Queue a failed, interrupted or cancelled job again (a drip-feed from a line)."""
+    web_session.need(page.who, Role.OPERATOR)
+
+    def retry(session: Session) -> str:
+        return jobs.retry(session, job_id, actor=page.who.name, from_line=from_line).machine
+
+    machine = _write(request, retry)
+    return _after_job_action(request, page, machine)
+
+
+# -- file browser (LSV2 controls) ---------------------------------------------------------
+
+
+def _machine_config(request: Request, name: str) -> Any:
+    state = _supervisor(request).machines.get(name)
+    if state is None:
+        raise NotFound(f"no machine named {name!r}")
+    return state.config
+
+
+@router.get("/machines/{name}/files")
+async def machine_files_page(
+    request: Request, name: str, page: Viewing, path: str | None = None
+) -> HTMLResponse:
+    """A folder of the control (a fragment the machine page loads)."""
+    config = _machine_config(request, name)
+    folder = machine_files.check_path(path) if path else machine_files.default_folder(config)
+    entries = await machine_files.list_folder(config, folder)
+    parent = folder.rsplit("/", 1)[0] if folder.count("/") > 1 else "TNC:/"
+    return _html(
+        "_files.html",
+        page,
+        request,
+        machine=name,
+        folder=folder,
+        parent=parent if folder != "TNC:/" else None,
+        entries=entries,
+    )
+
+
+@router.get("/machines/{name}/files/download")
+async def machine_file_download(request: Request, name: str, path: str, page: Viewing) -> Response:
+    """One file of the control, as a download."""
+    config = _machine_config(request, name)
+    data = await machine_files.read(config, path)
+    filename = machine_files.check_path(path).rsplit("/", 1)[-1]
+    return Response(
+        data,
+        media_type="application/octet-stream",
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+def _audit_file(request: Request, who: str, action: str, machine: str, path: str, n: int) -> None:
+    def record(session: Session) -> None:
+        audit.record(session, who, action, machine=machine, program=path, nbytes=n)
+
+    _write(request, record)
+
+
+@router.post("/machines/{name}/files/upload")
+async def machine_file_upload(
+    request: Request,
+    name: str,
+    page: Writing,
+    file: UploadFile,
+    folder: Annotated[str, Form()],
+) -> HTMLResponse:
+    """Put a file from the person's computer on the control (operators)."""
+    web_session.need(page.who, Role.OPERATOR)
+    config = _machine_config(request, name)
+    filename = library.check_program_name(file.filename or "")
+    target = machine_files.check_path(f"{machine_files.check_path(folder)}/{filename}")
+    data = await file.read(library.MAX_PROGRAM_BYTES + 1)
+    if len(data) > library.MAX_PROGRAM_BYTES:
+        raise InputError("the upload is larger than the server takes")
+    await machine_files.write(config, target, data)
+    await run_in_threadpool(
+        _audit_file, request, page.who.name, "file.upload", name, target, len(data)
+    )
+    return await machine_files_page(request, name, page, folder)
+
+
+@router.post("/machines/{name}/files/delete")
+async def machine_file_delete(
+    request: Request, name: str, page: Writing, path: Annotated[str, Form()]
+) -> HTMLResponse:
+    """Delete a file on the control (operators; the page asks first)."""
+    web_session.need(page.who, Role.OPERATOR)
+    config = _machine_config(request, name)
+    target = machine_files.check_path(path)
+    await machine_files.delete(config, target)
+    await run_in_threadpool(_audit_file, request, page.who.name, "file.delete", name, target, 0)
+    return await machine_files_page(request, name, page, target.rsplit("/", 1)[0])
+
+
+# -- program library ----------------------------------------------------------------------
+
+
+@router.get("/library")
+def library_page(request: Request, page: Viewing, q: str = "") -> HTMLResponse:
+    """Programs, searchable by name."""
+
+    def load(session: Session) -> list[dict[str, Any]]:
+        return [api.program_json(p) for p in library.list_programs(session, q.strip())]
+
+    programs = _read(request, load)
+    template = "_programs.html" if _is_htmx(request) else "library.html"
+    return _html(template, page, request, programs=programs, q=q)
+
+
+@router.get("/library/{name}")
+def program_page(
+    request: Request,
+    name: str,
+    page: Viewing,
+    v: int | None = None,
+    a: int | None = None,
+    b: int | None = None,
+) -> HTMLResponse:
+    """One program: versions, the text of one of them highlighted, or a diff of two."""
+    library.check_program_name(name)
+
+    def load(session: Session) -> dict[str, Any]:
+        program = library.get_program(session, name)
+        shown = library.get_version(session, name, v)
+        text = render.program_text(library.content(session, shown))
+        released = library.released_version(session, name)
+        context: dict[str, Any] = {
+            "program": api.program_json(program),
+            "shown": api.version_json(shown),
+            "released": released.number if released else None,
+            "lines": render.highlight_lines(text[:SHOWN_CHARS]),
+            "clipped": len(text) > SHOWN_CHARS,
+            "diff": None,
+        }
+        if a is not None and b is not None:
+            old = render.program_text(
+                library.content(session, library.get_version(session, name, a))
+            )
+            new = render.program_text(
+                library.content(session, library.get_version(session, name, b))
+            )
+            context["diff"] = render.side_by_side(old, new)
+            context["a"], context["b"] = a, b
+        return context
+
+    context = _read(request, load)
+    machines = [
+        {"name": m.config.name, "released_only": m.config.released_only, "online": m.online}
+        for m in _supervisor(request).machines.values()
+    ]
+    return _html("program.html", page, request, machines=machines, **context)
+
+
+@router.get("/library/{name}/versions/{number}/download")
+def download_version(request: Request, name: str, number: int, page: Viewing) -> Response:
+    """The bytes of one version, as a file."""
+    library.check_program_name(name)
+
+    def load(session: Session) -> tuple[bytes, str]:
+        version = library.get_version(session, name, number)
+        return library.content(session, version), version.sha256
+
+    data, digest = _read(request, load)
+    return Response(
+        data,
+        media_type="application/octet-stream",
+        headers={
+            "Content-Disposition": f'attachment; filename="{name}"',
+            "X-Content-SHA256": digest,
+        },
+    )
+
+
+@router.post("/library/{name}/versions/{number}/release")
+def release_version(request: Request, name: str, number: int, page: Writing) -> Response:
+    """Release a version (approvers)."""
+    web_session.need(page.who, Role.APPROVER)
+    library.check_program_name(name)
+    _write(request, lambda s: library.release(s, name, number, actor=page.who.name))
+    return _redirect(request, f"/library/{quote(name)}?v={number}")
+
+
+@router.post("/library/{name}/lock")
+def lock_program(
+    request: Request, name: str, page: Writing, locked: Annotated[bool, Form()]
+) -> Response:
+    """Lock or unlock a program (approvers)."""
+    web_session.need(page.who, Role.APPROVER)
+    library.check_program_name(name)
+    _write(request, lambda s: library.set_locked(s, name, locked, actor=page.who.name))
+    return _redirect(request, f"/library/{quote(name)}")
+
+
+@router.post("/library/{name}/send")
+def send_program(
+    request: Request,
+    name: str,
+    page: Writing,
+    machines: Annotated[list[str] | None, Form()] = None,
+    version: Annotated[int | None, Form()] = None,
+) -> HTMLResponse:
+    """Queue the program for the picked machines (operators)."""
+    web_session.need(page.who, Role.OPERATOR)
+    library.check_program_name(name)
+    if not machines:
+        raise InputError("pick at least one machine")
+
+    def queue(session: Session) -> list[dict[str, Any]]:
+        created = jobs.send_program(session, name, machines, actor=page.who.name, number=version)
+        return [api.job_json(j) for j in created]
+
+    queued = _write(request, queue)
+    for job in queued:
+        _supervisor(request).wake(job["machine"])
+    return _html("_sent.html", page, request, queued=queued)
+
+
+@router.post("/library")
+async def upload_program(
+    request: Request,
+    page: Writing,
+    file: UploadFile,
+    name: Annotated[str, Form()] = "",
+    comment: Annotated[str, Form()] = "",
+) -> Response:
+    """Store an uploaded file as a new draft version (programmers)."""
+    web_session.need(page.who, Role.PROGRAMMER)
+    program = library.check_program_name(name.strip() or (file.filename or ""))
+    data = await file.read(library.MAX_PROGRAM_BYTES + 1)
+    if not data:
+        raise InputError("the upload is empty")
+
+    def store(session: Session) -> int:
+        version, _ = library.add_version(
+            session, program, data, author=page.who.name, comment=comment
+        )
+        return version.number
+
+    number = await run_in_threadpool(_write, request, store)
+    return _redirect(request, f"/library/{quote(program)}?v={number}")
+
+
+def _redirect(request: Request, target: str) -> Response:
+    if _is_htmx(request):
+        return Response(status_code=204, headers={"HX-Location": target})
+    return RedirectResponse(target, status_code=303)
+
+
+# -- inbox --------------------------------------------------------------------------------
+
+
+@router.get("/inbox")
+def inbox_page(request: Request, page: Viewing, state: str = "new") -> HTMLResponse:
+    """Programs received from the machines."""
+    try:
+        states = [ReceivedState(state)] if state != "all" else list(ReceivedState)
+    except ValueError:
+        raise InputError(f"state {state!r}: new, accepted, discarded, failed or all") from None
+
+    def load(session: Session) -> list[dict[str, Any]]:
+        return [api.received_json(r) for r in inbox.list_received(session, states)]
+
+    return _html("inbox.html", page, request, items=_read(request, load), state=state)
+
+
+@router.get("/inbox/{received_id}")
+def received_page(request: Request, received_id: int, page: Viewing) -> HTMLResponse:
+    """One reception beside the released version of the same program."""
+
+    def load(session: Session) -> dict[str, Any]:
+        row = inbox.get(session, received_id)
+        try:
+            base = library.released_version(session, row.name)
+        except NotFound:
+            base = None
+        old = render.program_text(library.content(session, base)) if base is not None else ""
+        new = render.program_text(inbox.content(session, row))
+        return {
+            "item": api.received_json(row),
+            "base": api.version_json(base) if base is not None else None,
+            "diff": render.side_by_side(old, new),
+            "unified": inbox.diff_to_released(session, received_id),
+        }
+
+    return _html("received.html", page, request, **_read(request, load))
+
+
+@router.post("/inbox/{received_id}/accept")
+def accept_received(
+    request: Request, received_id: int, page: Writing, name: Annotated[str, Form()] = ""
+) -> Response:
+    """Make the reception a new draft version (programmers)."""
+    web_session.need(page.who, Role.PROGRAMMER)
+
+    def accept(session: Session) -> tuple[str, int]:
+        version = inbox.accept(session, received_id, actor=page.who.name, name=name.strip() or None)
+        return version.program.name, version.number
+
+    program, number = _write(request, accept)
+    return _redirect(request, f"/library/{quote(program)}?v={number}")
+
+
+@router.post("/inbox/{received_id}/discard")
+def discard_received(request: Request, received_id: int, page: Writing) -> Response:
+    """Drop the reception from the inbox (programmers)."""
+    web_session.need(page.who, Role.PROGRAMMER)
+    _write(request, lambda s: inbox.discard(s, received_id, actor=page.who.name))
+    return _redirect(request, "/inbox")
+
+
+# -- history ------------------------------------------------------------------------------
+
+
+def _blank(value: str | None) -> str | None:
+    return value.strip() or None if value else None
+
+
+@router.get("/history")
+def history_page(
+    request: Request,
+    page: Viewing,
+    machine: str = "",
+    action: str = "",
+    actor: str = "",
+    program: str = "",
+    before: int | None = None,
+) -> HTMLResponse:
+    """The audit trail, filterable, newest first."""
+    filters = {"machine": machine, "action": action, "actor": actor, "program": program}
+
+    def load(session: Session) -> list[dict[str, Any]]:
+        rows = audit.query(
+            session,
+            machine=_blank(machine),
+            action=_blank(action),
+            actor=_blank(actor),
+            program=_blank(program),
+            limit=100,
+            before_id=before,
+        )
+        return [api.audit_json(r) for r in rows]
+
+    rows = _read(request, load)
+    query = "&".join(f"{k}={quote(v)}" for k, v in filters.items() if v.strip())
+    machines = sorted(_supervisor(request).machines)
+    return _html(
+        "history.html", page, request, rows=rows, filters=filters, query=query, machines=machines
+    )
+
+
+@router.get("/history.csv")
+def history_csv(
+    request: Request,
+    page: Viewing,
+    machine: str = "",
+    action: str = "",
+    actor: str = "",
+    program: str = "",
+) -> Response:
+    """The filtered audit trail as CSV (the API's export, for a logged-in person)."""
+
+    def export(session: Session) -> Response:
+        out = api.list_audit(
+            session,
+            page.who,
+            machine=_blank(machine),
+            action=_blank(action),
+            actor=_blank(actor),
+            program=_blank(program),
+            limit=10_000,
+            before=None,
+            format="csv",
+        )
+        assert isinstance(out, Response)
+        return out
+
+    return _read(request, export)
+
+
+# -- stylesheet of the highlighted code -----------------------------------------------------
+
+
+@router.get("/static/pygments.css")
+def pygments_css() -> Response:
+    """Colours of the highlighted G-code."""
+    return Response(
+        render.pygments_css(),
+        media_type="text/css",
+        headers={"Cache-Control": "public, max-age=3600"},
+    )

@@ -1,0 +1,145 @@
+"""README.md, followed in order, works: its shell and Python examples run against the simulators.
+
+The rules a README section follows are in the module :mod:`tests.cli.readme_blocks` docstring
+(fences that run, markers, background servers). The run happens under ``unshare`` with a
+private loopback and a private ``/tmp``, so the README's literal ports and paths never meet
+another test run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests import peers
+from tests.cli.readme_blocks import (
+    ALLOWED_FENCES,
+    RUN_FENCES,
+    Block,
+    build_script,
+    parse_readme,
+    split_commands,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+RUN_DEADLINE = 120.0  # seconds for the whole README; it takes well under 60 s
+# <file>, HOST:PORT style words or [--optional] flags cannot run as typed
+PLACEHOLDER = re.compile(r"(?<![<\d])<[A-Za-z][\w.-]*>|\[--")
+
+
+def _blocks() -> list[Block]:
+    return parse_readme(README.read_text(encoding="utf-8"))
+
+
+def test_structure_fences_and_markers() -> None:
+    blocks = _blocks()
+    assert any(b.lang == "sh" and b.skip is None for b in blocks), "no runnable sh block found"
+    for block in blocks:
+        where = f"README.md:{block.line}"
+        assert block.lang in ALLOWED_FENCES, (
+            f"{where}: fence ```{block.lang}: use sh, python, text or a bare fence"
+        )
+        if block.skip is not None:
+            assert block.skip.strip(), f"{where}: a skipped block needs a reason"
+        if block.lang == "python":
+            compile("\n".join(block.lines), where, "exec")
+
+
+def test_structure_every_command_is_parsed() -> None:
+    # a heredoc or line continuation the splitter misreads would silently run the wrong thing
+    for block in _blocks():
+        if block.lang != "sh" or block.skip is not None:
+            continue
+        commands = split_commands(block)
+        text = "\n".join(block.lines)
+        assert sum(len(c.text.split("\n")) for c in commands) == len(text.split("\n")), (
+            f"README.md:{block.line}: lines lost while splitting the block"
+        )
+        for command in commands:
+            if command.heredoc:
+                continue
+            code = command.text.split(" #", 1)[0]
+            assert not PLACEHOLDER.search(code), (
+                f"README.md:{command.line}: placeholder in a command that runs: {code.strip()}"
+            )
+
+
+def _isolation() -> list[str]:
+    """``unshare`` arguments for a private loopback and /tmp: as root, else in a user namespace."""
+    unshare = peers.require_command("unshare")
+    peers.require_command("ip")
+    private = ["--net", "--mount"]
+    tries = [[unshare, *private], [unshare, "--user", "--map-root-user", *private]]
+    if os.geteuid() != 0:
+        tries.reverse()
+    failures = []
+    for base in tries:
+        probe = subprocess.run(
+            [*base, "sh", "-c", "ip link set lo up && mount -t tmpfs tmpfs /tmp"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        if probe.returncode == 0:
+            return base
+        failures.append(probe.stderr.strip() or "refused")
+    peers.missing_peer(f"unshare with a private network and /tmp ({'; '.join(failures)})")
+    raise AssertionError("unreachable")
+
+
+def test_readme_runs_in_order(tmp_path: Path) -> None:
+    isolate = _isolation()
+    blocks = _blocks()
+    assert any(b.lang in RUN_FENCES and b.skip is None for b in blocks)
+    private_tmp = tmp_path / "tmp"  # /tmp inside the run; the README runs in /tmp/work
+    (private_tmp / "work").mkdir(parents=True)
+    script = build_script(blocks, state_dir="/tmp/.readme-test")
+    (tmp_path / "readme.sh").write_text(script, encoding="utf-8")
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OPENDNC_")}
+    env.update(
+        PATH=f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}",
+        PYTHONUNBUFFERED="1",
+        NO_COLOR="1",
+        TERM="dumb",
+        COLUMNS="120",
+    )
+    inner = 'mount --bind "$1" /tmp && ip link set lo up && cd /tmp/work && exec bash -s'
+    proc = subprocess.Popen(
+        [*isolate, "sh", "-c", inner, "sh", str(private_tmp)],
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        output, _ = proc.communicate(script, timeout=RUN_DEADLINE)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        output, _ = proc.communicate()
+        pytest.fail(f"README run exceeded {RUN_DEADLINE:.0f} s\n{_tail(output, private_tmp)}")
+    finally:
+        with contextlib.suppress(ProcessLookupError):  # servers the README left running
+            os.killpg(proc.pid, signal.SIGKILL)
+    (tmp_path / "transcript.txt").write_text(output, encoding="utf-8")  # for a look afterwards
+    assert proc.returncode == 0, f"README run failed\n{_tail(output, private_tmp)}"
+    assert output.rstrip().endswith("README-DONE"), "the run stopped before the README's end"
+
+
+def _tail(output: str, private_tmp: Path) -> str:
+    logs = []
+    for log in sorted((private_tmp / ".readme-test").glob("*.log")):
+        text = log.read_text(errors="replace")[-2000:]
+        logs.append(f"--- background job from README.md:{log.stem}\n{text}")
+    return output[-6000:] + "\n" + "\n".join(logs)

@@ -1,0 +1,139 @@
+"""What the server tests share: child processes, ports, keys, polling with deadlines."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from tests.peers import require_module
+
+httpx = require_module("httpx")
+
+DEADLINE = 60.0
+
+
+def free_port() -> int:
+    """A TCP port nothing listens on right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def wait_for(
+    what: str,
+    check: Callable[[], Any],
+    timeout: float = DEADLINE,
+    describe: Callable[[], Any] | None = None,
+) -> Any:
+    """Poll ``check`` until it returns something true; fail naming ``what`` at the deadline."""
+    end = time.monotonic() + timeout
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > end:
+            detail = f": {describe()}" if describe is not None else ""
+            raise AssertionError(f"timed out waiting for {what}{detail}")
+        time.sleep(0.05)
+
+
+def listening(port: int) -> Callable[[], bool]:
+    """A check that ``port`` on loopback accepts connections."""
+
+    def check() -> bool:
+        try:
+            socket.create_connection(("127.0.0.1", port), 0.2).close()
+            return True
+        except OSError:
+            return False
+
+    return check
+
+
+class Procs:
+    """Child processes, stopped at the end of the test."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+        with (self.log_dir / f"{name}.log").open("ab") as log:  # the child keeps its own fd
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "opendnc.cli.main", *args],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+        self.procs[name] = proc
+        return proc
+
+    def stop(self, name: str, sig: int = signal.SIGTERM) -> None:
+        proc = self.procs.pop(name)
+        if proc.poll() is None:
+            os.killpg(proc.pid, sig)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(10)
+
+    def log(self, name: str) -> str:
+        return (self.log_dir / f"{name}.log").read_text(errors="replace")
+
+    def stop_all(self) -> None:
+        for name in list(self.procs):
+            self.stop(name)
+
+
+def create_key(config: Path, db_url: str, role: str = "admin", user: str | None = None) -> str:
+    """A new API key, made the way an admin makes one: ``opendnc keys create``."""
+    args = ["keys", "create", "--role", role, "--config", str(config), "--db", db_url]
+    if user is not None:
+        args += ["--user", user]
+    done = subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def start_server(procs: Procs, config: Path, db_url: str, port: int) -> httpx.Client:
+    """``opendnc serve`` as a child process; a client once it listens."""
+    procs.start("server", "serve", "--config", str(config), "--db", db_url)
+    wait_for("the server", listening(port))
+    return httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30)
+
+
+def auth(key: str) -> dict[str, str]:
+    """The header that carries an API key."""
+    return {"Authorization": f"Bearer {key}"}
+
+
+def wait_jobs(client: httpx.Client, key: str, ids: list[int]) -> list[dict[str, Any]]:
+    """The jobs ``ids`` once none is queued or running any more."""
+
+    def fetch() -> list[dict[str, Any]]:
+        return [client.get(f"/api/jobs/{i}", headers=auth(key)).json() for i in ids]
+
+    def describe() -> list[tuple[Any, ...]]:
+        return [(j["id"], j["machine"], j["state"], j["attempts"], j["error"]) for j in fetch()]
+
+    def done() -> list[dict[str, Any]] | None:
+        jobs = fetch()
+        return jobs if all(j["state"] not in ("queued", "running") for j in jobs) else None
+
+    result: list[dict[str, Any]] = wait_for("the jobs", done, describe=describe)
+    return result

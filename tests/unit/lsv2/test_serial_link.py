@@ -1,0 +1,212 @@
+"""Unit tests of the serial LSV2 link engine (docs/lsv2-serial.md)."""
+
+from __future__ import annotations
+
+import pytest
+
+from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
+from opendnc.lsv2.framing import Frame
+from opendnc.lsv2.serial_link import (
+    HostStatus,
+    LinkChecked,
+    LinkFailed,
+    LinkRole,
+    LinkTiming,
+    SerialLink,
+    SerialLinkError,
+    TelegramReceived,
+    TelegramSent,
+    describe_link_bytes,
+)
+from tests.unit.lsv2.serial_line import exchange
+
+ENQ, EOT, NAK = b"\x05", b"\x04", b"\x15"
+READY, RECEIVED = b"\x10\x30", b"\x10\x31"
+LOGIN = b"\x10\x02A_LGINSPECT\x00\x10\x03\x40"  # seed capture, step 5
+T_OK = b"\x10\x02T_OK\x10\x03\x0c"  # seed capture, step 10
+
+
+def test_seed_exchange_from_the_client_side() -> None:
+    """Steps 1-13 of the observed TNCremo <-> TNC 320 exchange, driven by hand."""
+    # with a telegram queued, the next ENQ follows the link check without EOT (steps 3-4)
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.check_link(0.0)
+    pc.send(Frame("A_LG", b"INSPECT\x00"), 0.0)
+    assert pc.data_to_send() == ENQ  # 1
+    pc.receive_data(READY, 0.01)  # 2
+    assert pc.data_to_send() == ENQ  # 3
+    pc.receive_data(READY, 0.02)  # 4
+    assert pc.data_to_send() == LOGIN  # 5
+    pc.receive_data(RECEIVED, 0.03)  # 6
+    assert pc.data_to_send() == EOT  # 7
+    assert pc.next_event() == LinkChecked()
+    assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 1)
+    pc.receive_data(ENQ, 0.04)  # 8
+    assert pc.data_to_send() == READY  # 9
+    pc.receive_data(T_OK, 0.05)  # 10
+    assert pc.data_to_send() == RECEIVED  # 11
+    assert pc.next_event() == TelegramReceived(Frame("T_OK"))
+    pc.send(Frame("R_VR"), 0.05)  # queued until the control's EOT
+    assert pc.data_to_send() == b""
+    pc.receive_data(EOT, 0.06)  # 12
+    assert pc.data_to_send() == ENQ  # 13
+    assert pc.idle is False
+
+
+def test_link_check_alone_releases_the_peer_with_eot() -> None:
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.check_link(0.0)
+    pc.data_to_send()
+    pc.receive_data(READY, 0.01)
+    assert pc.next_event() == LinkChecked()
+    assert pc.data_to_send() == EOT
+    assert pc.idle
+
+
+def test_seed_exchange_from_the_control_side() -> None:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY  # 2
+    tnc.receive_data(ENQ, 0.01)
+    assert tnc.data_to_send() == READY  # 4
+    tnc.receive_data(LOGIN, 0.02)
+    assert tnc.data_to_send() == RECEIVED  # 6
+    assert tnc.next_event() == TelegramReceived(Frame("A_LG", b"INSPECT\x00"))
+    tnc.send(Frame("T_OK"), 0.02)
+    assert tnc.data_to_send() == b""  # not before the client's EOT
+    tnc.receive_data(EOT, 0.03)  # 7
+    assert tnc.data_to_send() == ENQ  # 8
+    tnc.receive_data(READY, 0.04)  # 9
+    assert tnc.data_to_send() == T_OK  # 10
+    tnc.receive_data(RECEIVED, 0.05)  # 11
+    assert tnc.data_to_send() == EOT  # 12
+    assert tnc.next_event() == TelegramSent(Frame("T_OK"), 1)
+    assert tnc.idle
+
+
+def test_bad_bcc_is_answered_with_nak_and_the_sender_repeats() -> None:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    tnc.data_to_send()
+    tnc.receive_data(LOGIN[:-1] + b"\x41", 0.01)
+    assert tnc.data_to_send() == NAK
+    assert tnc.next_event() is None
+    assert tnc.stats.naks_sent == 1
+
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("A_LG", b"INSPECT\x00"), 0.0)
+    pc.data_to_send()
+    pc.receive_data(READY, 0.0)
+    assert pc.data_to_send() == LOGIN
+    pc.receive_data(NAK, 0.1)
+    assert pc.data_to_send() == EOT + ENQ  # end, then the whole transmission again
+    pc.receive_data(READY, 0.2)
+    assert pc.data_to_send() == LOGIN
+    pc.receive_data(RECEIVED, 0.3)
+    assert pc.data_to_send() == EOT
+    assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 2)
+
+
+def test_retries_exhausted_gives_typed_error_with_host_status() -> None:
+    pc = SerialLink(LinkRole.CLIENT, retries=2)
+    pc.send(Frame("R_VR"), 0.0)
+    for i in range(3):
+        assert pc.data_to_send().endswith(ENQ)
+        pc.receive_data(READY, i + 0.1)
+        pc.data_to_send()
+        pc.receive_data(NAK, i + 0.2)
+    assert pc.data_to_send() == EOT
+    event = pc.next_event()
+    assert isinstance(event, LinkFailed)
+    assert event.error.status is HostStatus.TX_ERROR
+    assert isinstance(event.error, TransportError)
+    assert "R_VR given up after 3 tries" in str(event.error)
+    assert pc.idle
+
+
+def test_silent_peer_times_out_with_no_enq_after_time1() -> None:
+    pc = SerialLink(LinkRole.CLIENT, timing=LinkTiming(time1=0.5), retries=1)
+    pc.send(Frame("R_VR"), 0.0)
+    assert pc.data_to_send() == ENQ
+    assert pc.deadline == 0.5
+    pc.tick(0.4)
+    assert pc.data_to_send() == b""
+    pc.tick(0.5)
+    assert pc.data_to_send() == ENQ  # second try
+    pc.tick(1.0)
+    assert pc.data_to_send() == EOT
+    event = pc.next_event()
+    assert isinstance(event, LinkFailed)
+    assert event.error.status is HostStatus.NO_ENQ
+    assert isinstance(event.error, TransportTimeout)
+    assert isinstance(event.error, DncError)
+    assert "baud rate" in str(event.error)
+
+
+def test_collision_client_yields_and_sends_afterwards() -> None:
+    pc = SerialLink(LinkRole.CLIENT)
+    tnc = SerialLink(LinkRole.CONTROL)
+    pc.send(Frame("R_VR"), 0.0)
+    tnc.send(Frame("M_CC", b"\x00\x1b"), 0.0)
+    assert pc.data_to_send() == ENQ
+    assert tnc.data_to_send() == ENQ
+    pc.receive_data(ENQ, 0.01)
+    tnc.receive_data(ENQ, 0.01)
+    assert pc.data_to_send() == READY  # the PC yields
+    assert tnc.data_to_send() == b""  # the control keeps waiting
+    tnc.receive_data(READY, 0.02)
+    pc.receive_data(tnc.data_to_send(), 0.03)
+    tnc.receive_data(pc.data_to_send(), 0.04)
+    pc.receive_data(tnc.data_to_send(), 0.05)  # EOT
+    assert pc.next_event() == TelegramReceived(Frame("M_CC", b"\x00\x1b"))
+    assert pc.data_to_send() == ENQ  # now its own telegram
+    assert pc.stats.collisions == 1
+
+
+def test_timing_range_is_enforced() -> None:
+    LinkTiming(0.001, 3.6, 1.0)
+    with pytest.raises(InputError):
+        LinkTiming(time0=4.0)
+    with pytest.raises(InputError):
+        LinkTiming(time2=0.0)
+
+
+def test_garbage_between_frames_is_ignored() -> None:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(b"\xff\x00\x10\x99garbage", 0.0)
+    assert tnc.data_to_send() == b""
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(b"\x42\x06" + LOGIN, 0.1)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("A_LG", b"INSPECT\x00"))
+    assert tnc.stats.garbage >= 5
+
+
+def test_dle_inside_payload_is_stuffed_and_checked_unstuffed() -> None:
+    frame = Frame("S_FL", bytes(range(256)) + b"\x10\x10\x03\x10")
+    out = exchange([frame.payload])
+    assert out.failure is None
+    assert out.answers == [frame.payload]
+
+
+def test_clean_line_request_answer_sequence() -> None:
+    requests = [bytes([i]) * i for i in range(1, 40)]
+    out = exchange(requests, link_check=True)
+    assert out.failure is None
+    assert out.answers == requests
+    assert out.served == requests
+    assert out.client.stats.retries == 0
+    assert out.control.stats.garbage == 0
+
+
+def test_error_type_carries_status() -> None:
+    err = SerialLinkError(HostStatus.WRONG_BCC, "x")
+    assert err.status == 6
+    assert "block check character wrong" in str(err)
+
+
+def test_describe_link_bytes() -> None:
+    assert describe_link_bytes(ENQ + READY + LOGIN + EOT) == (
+        "ENQ DLE 0 DLE STX 41 5F 4C 47 49 4E 53 50 45 43 54 00 DLE ETX 40 EOT"
+    )

@@ -1,0 +1,190 @@
+"""Sessions, CSRF and input checks of the dashboard, over HTTP without a browser.
+
+The server is built in-process around one virtual TNC (started here) and served by uvicorn
+on a loopback port; the browser tests cover the same paths through Chromium.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import threading
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.peers import require_module
+
+require_module("jinja2")
+httpx = require_module("httpx")
+uvicorn = require_module("uvicorn")
+
+from opendnc.server import auth  # noqa: E402
+from opendnc.server.app import build  # noqa: E402
+from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.store.models import ApiKey, Role  # noqa: E402
+from opendnc.sim.fleet import server_config, start_fleet  # noqa: E402
+from tests.server.harness import free_port, listening, wait_for  # noqa: E402
+
+Http = Any
+
+PASSWORD = "operator-secret"
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    fleet = asyncio.run_coroutine_threadsafe(
+        start_fleet(tmp_path / "machines", tnc=1, haas=0), loop
+    ).result(30)
+    try:
+        text = server_config(fleet, poll_interval=0.5, library=tmp_path / "lib")
+        shop = parse_config(text, base=tmp_path)
+        server = build(shop, database=f"sqlite:///{tmp_path / 'db.sqlite'}")
+        with server.sessions.begin() as session:
+            auth.create_user(session, "op", Role.OPERATOR, password=PASSWORD)
+        port = free_port()
+        web = uvicorn.Server(
+            uvicorn.Config(
+                server.app, host="127.0.0.1", port=port, log_level="warning", loop="asyncio"
+            )
+        )
+        serving = threading.Thread(target=web.run, daemon=True)
+        serving.start()
+        wait_for("the server", listening(port))
+        try:
+            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
+                yield http, server
+        finally:
+            web.should_exit = True
+            serving.join(30)
+            server.engine.dispose()
+    finally:
+        asyncio.run_coroutine_threadsafe(fleet.close(), loop).result(30)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10)
+        loop.close()
+
+
+def _login(http: Http) -> str:
+    reply = http.post(
+        "/login", data={"username": "op", "password": PASSWORD, "next": "/"}, follow_redirects=False
+    )
+    assert reply.status_code == 303, reply.text
+    page = http.get("/").text
+    token = re.search(r'"X-CSRF-Token": "([0-9a-f]{64})"', page)
+    assert token is not None
+    return token.group(1)
+
+
+def test_pages_need_a_session_and_the_login_never_redirects_off_site(
+    client: tuple[Http, Any],
+) -> None:
+    http, _ = client
+    reply = http.get("/library?q=O1", follow_redirects=False)
+    assert reply.status_code == 303
+    assert reply.headers["location"] == "/login?next=/library%3Fq%3DO1"
+    htmx = http.get("/machines/tnc-1/jobs", headers={"HX-Request": "true"})
+    assert htmx.status_code == 401
+    assert htmx.headers["HX-Redirect"].startswith("/login?next=")
+    reply = http.post(
+        "/login",
+        data={"username": "op", "password": PASSWORD, "next": "//evil.example/x"},
+        follow_redirects=False,
+    )
+    assert reply.headers["location"] == "/"
+    cookie = reply.headers["set-cookie"].lower()
+    assert "httponly" in cookie
+    assert "samesite=strict" in cookie
+
+
+def test_writes_need_the_csrf_token_and_this_origin(client: tuple[Http, Any]) -> None:
+    http, _ = client
+    token = _login(http)
+    form = {"index": "0"}
+    no_token = http.post("/jobs/1/move", data=form)
+    assert no_token.status_code == 403
+    assert "CSRF" in no_token.text
+    wrong = http.post("/jobs/1/move", data=form, headers={"X-CSRF-Token": "0" * 64})
+    assert wrong.status_code == 403
+    foreign = http.post(
+        "/jobs/1/move",
+        data=form,
+        headers={"X-CSRF-Token": token, "Origin": "http://evil.example"},
+    )
+    assert foreign.status_code == 403
+    assert "evil.example" in foreign.text
+    ok_token = http.post("/jobs/1/move", data=form, headers={"X-CSRF-Token": token})
+    assert ok_token.status_code == 404  # past the checks: there is no job 1
+    # An API key is no session, and a session cookie is no API key.
+    assert http.get("/api/machines").status_code == 401
+
+
+def test_an_old_session_is_refused_and_logging_out_revokes_it(
+    client: tuple[Http, Any],
+) -> None:
+    http, server = client
+    _login(http)
+    assert http.get("/", follow_redirects=False).status_code == 200
+    with server.sessions.begin() as session:
+        row = session.query(ApiKey).filter(ApiKey.label == "web session").one()
+        row.created = row.created - timedelta(hours=13)
+    assert http.get("/", follow_redirects=False).status_code == 303
+    token = _login(http)
+    reply = http.post("/logout", headers={"X-CSRF-Token": token}, follow_redirects=False)
+    assert reply.status_code == 303
+    with server.sessions() as session:
+        revoked = [k.revoked is not None for k in session.query(ApiKey).all()]
+    assert revoked == [True, True]
+
+
+@pytest.mark.parametrize(
+    "path", ["TNC:/../etc", "C:/Windows", "TNC:/nc_prog/../../x", "/etc/passwd", "TNC:/a\x00b"]
+)
+def test_the_file_browser_stays_on_the_control(client: tuple[Http, Any], path: str) -> None:
+    http, _ = client
+    _login(http)
+    reply = http.get("/machines/tnc-1/files", params={"path": path})
+    assert reply.status_code == 400, reply.text
+    assert "TNC:" in reply.text
+
+
+def test_the_file_browser_lists_the_control(client: tuple[Http, Any]) -> None:
+    http, _ = client
+    _login(http)
+    reply = http.get("/machines/tnc-1/files", params={"path": "TNC:/"})
+    assert reply.status_code == 200, reply.text
+    assert "nc_prog/" in reply.text
+
+
+def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any]) -> None:
+    from opendnc.server import jobs, library
+    from opendnc.server.store.models import Job, JobKind, JobState
+
+    http, server = client
+    with server.sessions.begin() as session:
+        data = b"%\nO05000\nG1 X1.\nM30\n%\n"
+        version, _ = library.add_version(session, "O05000.nc", data, author="t")
+        job = jobs.enqueue(session, JobKind.DRIPFEED, "tnc-1", actor="t", version=version)
+        # What a broken drip-feed ends as (set in the same transaction: it never runs here).
+        job.state = JobState.INTERRUPTED
+        job_id = job.id
+    token = _login(http)
+    page = http.get("/machines/tnc-1/jobs").text
+    assert 'name="from_line"' in page
+    reply = http.post(
+        f"/jobs/{job_id}/retry", data={"from_line": "3"}, headers={"X-CSRF-Token": token}
+    )
+    assert reply.status_code == 200, reply.text
+    with server.sessions() as session:
+        new = session.query(Job).filter(Job.id != job_id).one()
+        assert (new.kind, new.params["from_line"], new.params["retry_of"]) == (
+            JobKind.DRIPFEED,
+            3,
+            job_id,
+        )
