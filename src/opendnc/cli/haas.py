@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # clients and progress bars load with the command that uses t
     from rich.progress import Progress, ProgressColumn
 
     from opendnc.haas.dnc import DncConfig
+    from opendnc.haas.mdc_client import MdcClient
 
 # MDC port (Setting 143): opendnc.haas.mdc_client.DEFAULT_PORT, without importing the client
 DEFAULT_PORT = 5051
@@ -34,7 +35,13 @@ app.add_typer(macro_app, name="macro")
 app.add_typer(share_app, name="share")
 
 HostOpt = typer.Option("127.0.0.1", "--host", "-H", help="Control address.")
-PortOpt = typer.Option(DEFAULT_PORT, "--port", "-p", help="MDC TCP port (Setting 143).")
+PortOpt = typer.Option(
+    str(DEFAULT_PORT),
+    "--port",
+    "-p",
+    help="MDC TCP port (NGC Setting 143), or a serial port / URL (classic, Setting 143 ON).",
+)
+BaudOpt = typer.Option(9600, "--baud", help="Baud rate when --port is a serial port.")
 TimeoutOpt = typer.Option(3.0, "--timeout", help="Seconds to wait for each reply.")
 JsonOpt = typer.Option(False, "--json", help="Print the parsed reply as JSON.")
 ResultJsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
@@ -50,6 +57,31 @@ class Rejected(ControlRefused):
         return f"the control rejected {self.context} (it answered {self.text!r})"
 
 
+def mdc_client(
+    host: str,
+    port: str,
+    baud: int,
+    timeout: float,
+    *,
+    safe_mode: bool = True,
+    allow_any_variable: bool = False,
+) -> MdcClient:
+    """A TCP client when ``port`` is a number, else a serial one on that device or URL."""
+    from opendnc.haas.mdc_client import MdcClient  # loads with the command that uses it
+
+    if port.isdigit():
+        return MdcClient(
+            host,
+            int(port),
+            timeout=timeout,
+            safe_mode=safe_mode,
+            allow_any_variable=allow_any_variable,
+        )
+    return MdcClient.open_serial(
+        port, baud, timeout=timeout, safe_mode=safe_mode, allow_any_variable=allow_any_variable
+    )
+
+
 def parse_code(code: str) -> int:
     """``Q500``, ``?Q500`` or ``500`` -> 500."""
     match = re.fullmatch(r"\??[Qq]?(\d{1,3})", code.strip())
@@ -63,18 +95,18 @@ def q(
     code: str = typer.Argument(..., help="Q command, e.g. Q500 (Q600 takes a variable)."),
     var: int | None = typer.Argument(None, help="Variable number for Q600."),
     host: str = HostOpt,
-    port: int = PortOpt,
+    port: str = PortOpt,
+    baud: int = BaudOpt,
     timeout: float = TimeoutOpt,
     json_out: bool = JsonOpt,
 ) -> None:
     """Send one ?Q command and print the reply."""
-    from opendnc.haas.mdc_client import MdcClient
 
     with cli_errors():
         number = parse_code(code)
         if number == 600 and var is None:
             raise InputError("Q600 needs a variable number, e.g. `opendnc haas q Q600 5223`")
-        with MdcClient(host, port, timeout=timeout) as client:
+        with mdc_client(host, port, baud, timeout) as client:
             reply = client.query(number, var)
         if isinstance(reply, Refused):
             # "?" (NGC) or UNKNOWN (classic): a reply, but no answer; scripts must see it fail
@@ -103,22 +135,24 @@ def _hms(seconds: int | None) -> str:
 @app.command("status")
 def status(
     host: str = HostOpt,
-    port: int = PortOpt,
+    port: str = PortOpt,
+    baud: int = BaudOpt,
     timeout: float = TimeoutOpt,
     json_out: bool = JsonOpt,
 ) -> None:
     """One readable summary from all documented Q commands."""
     from rich.table import Table
 
-    from opendnc.haas.mdc_client import MdcClient
-
     with cli_errors():
-        with MdcClient(host, port, timeout=timeout) as client:
+        with mdc_client(host, port, baud, timeout) as client:
             summary = client.status()
         if json_out:
             print_json(summary)
             return
-        table = Table(show_header=False, title=f"Haas {summary.model or ''} at {host}:{port}")
+        table = Table(
+            show_header=False,
+            title=f"Haas {summary.model or ''} at {host + ':' + port if port.isdigit() else port}",
+        )
         rows = [
             ("Serial number", summary.serial),
             ("Software", summary.software),
@@ -144,15 +178,15 @@ def status(
 def macro_get(
     var: int = typer.Argument(..., help="Macro variable number, e.g. 5223."),
     host: str = HostOpt,
-    port: int = PortOpt,
+    port: str = PortOpt,
+    baud: int = BaudOpt,
     timeout: float = TimeoutOpt,
     json_out: bool = JsonOpt,
 ) -> None:
     """Read a macro variable (?Q600)."""
-    from opendnc.haas.mdc_client import MdcClient
 
     with cli_errors():
-        with MdcClient(host, port, timeout=timeout) as client:
+        with mdc_client(host, port, baud, timeout) as client:
             value = client.macro_get(var)
         if json_out:
             print_json({"var": var, "value": value})
@@ -166,7 +200,8 @@ def macro_set(
     var: int = typer.Argument(..., help="Macro variable number."),
     value: float = typer.Argument(..., help="New value."),
     host: str = HostOpt,
-    port: int = PortOpt,
+    port: str = PortOpt,
+    baud: int = BaudOpt,
     timeout: float = TimeoutOpt,
     unsafe: bool = typer.Option(False, "--unsafe", help="Allow writing to the machine."),
     any_variable: bool = typer.Option(
@@ -174,13 +209,13 @@ def macro_set(
     ),
 ) -> None:
     """Write a macro variable (?E). Refused without --unsafe."""
-    from opendnc.haas.mdc_client import MdcClient, check_macro_write
+    from opendnc.haas.mdc_client import check_macro_write
 
     with cli_errors():
         # what the control would refuse is refused here, with the reason, before connecting
         check_macro_write(var, value, safe_mode=not unsafe, allow_any_variable=any_variable)
-        with MdcClient(
-            host, port, timeout=timeout, safe_mode=not unsafe, allow_any_variable=any_variable
+        with mdc_client(
+            host, port, baud, timeout, safe_mode=not unsafe, allow_any_variable=any_variable
         ) as client:
             client.macro_set(var, value)
         console.print(f"#{var} set to {value:g}", highlight=False)

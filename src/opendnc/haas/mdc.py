@@ -28,6 +28,10 @@ from typing import ClassVar
 from opendnc.errors import LocalProtocolError, PeerClosed, RemoteProtocolError
 
 STX, ETB = b"\x02", b"\x17"
+LINE_NOISE = bytes((0x00, 0x11, 0x12, 0x13, 0x14, 0x15, 0x18, 0x1A))
+"""Bytes a shared serial line carries besides MDC replies: NUL leader, XON/XOFF, DPRNT's
+DC2/DC4, and an XModem receiver's NAK, CAN and SUB. No reply contains them; a serial client
+drops them so that they cannot stick to the front of a reply (docs/haas.md#mdc)."""
 MAX_LINE = 1024
 """Longest request or reply line accepted; longer input is garbage, not a message."""
 
@@ -158,7 +162,8 @@ class ReplyFramer:
     """Cut a reply stream (either framing) into payload strings.
 
     Leading ``>`` prompts, STX/ETB and surrounding blanks are stripped; CR LF (or a lone CR
-    or LF) ends a reply. A ``>`` prompt alone is not a reply.
+    or LF) ends a reply. A ``>`` prompt alone is not a reply. :data:`LINE_NOISE` bytes are
+    dropped as they arrive.
     """
 
     def __init__(self, max_line: int = MAX_LINE) -> None:
@@ -166,7 +171,7 @@ class ReplyFramer:
 
     def feed(self, data: bytes) -> None:
         """Add received bytes."""
-        self._lines.feed(data)
+        self._lines.feed(data.translate(None, LINE_NOISE))
 
     def next_payload(self) -> str | None:
         """Next reply payload, or ``None`` when more bytes are needed."""

@@ -51,6 +51,7 @@ from opendnc.haas.mdc import (
     WriteAccepted,
     encode_request,
 )
+from opendnc.transport.base import ByteStream
 from opendnc.transport.tcp import TcpStream
 
 T = TypeVar("T")
@@ -312,12 +313,16 @@ class MdcClientCore:
 
 
 class MdcClient:
-    """Blocking MDC client over TCP (NGC, Setting 143 = port).
+    """Blocking MDC client over TCP (NGC, Setting 143 = port) or any byte stream.
 
-    ``safe_mode`` (default on) refuses :meth:`macro_set` with :class:`SafetyLockError`; with
-    it off, writes are still limited to :data:`WRITABLE` unless ``allow_any_variable``.
-    A control that stops answering or reading gives :class:`TransportTimeout` (a reply waits at
-    most ``timeout``; the socket itself lets a write wait up to ``max(timeout, 10 s)``).
+    ``MdcClient(host, port)`` connects over TCP; :meth:`over` runs the same client on a
+    stream that is already open and :meth:`open_serial` on a serial line (a classic control
+    with Setting 143 ON answers on its RS-232 port, framing replies STX ... ETB CR LF ``>``;
+    docs/haas.md#mdc). ``safe_mode`` (default on) refuses :meth:`macro_set` with
+    :class:`SafetyLockError`; with it off, writes are still limited to :data:`WRITABLE` unless
+    ``allow_any_variable``. A control that stops answering or reading gives
+    :class:`TransportTimeout` (a reply waits at most ``timeout``; the socket itself lets a
+    write wait up to ``max(timeout, 10 s)``).
     """
 
     def __init__(
@@ -329,11 +334,65 @@ class MdcClient:
         safe_mode: bool = True,
         allow_any_variable: bool = False,
         eol: bytes = b"\r\n",
+        stream: ByteStream | None = None,
     ) -> None:
         self.safe_mode = safe_mode
         self.allow_any_variable = allow_any_variable
         self.core = MdcClientCore(timeout=timeout, eol=eol)
-        self._stream = TcpStream(host, port, timeout=timeout)
+        self._stream: ByteStream = (
+            stream if stream is not None else TcpStream(host, port, timeout=timeout)
+        )
+
+    @classmethod
+    def over(
+        cls,
+        stream: ByteStream,
+        *,
+        timeout: float = DEFAULT_TIMEOUT,
+        safe_mode: bool = True,
+        allow_any_variable: bool = False,
+        eol: bytes = b"\r\n",
+    ) -> MdcClient:
+        """A client on an open ``stream`` (a serial line the caller may share with XModem).
+
+        :meth:`close` closes the stream; a caller that keeps the stream just drops the client.
+        """
+        return cls(
+            "",
+            timeout=timeout,
+            safe_mode=safe_mode,
+            allow_any_variable=allow_any_variable,
+            eol=eol,
+            stream=stream,
+        )
+
+    @classmethod
+    def open_serial(
+        cls,
+        url: str,
+        baud: int = 9600,
+        *,
+        parity: str = "N",
+        bytesize: int = 8,
+        stopbits: float = 1,
+        timeout: float = DEFAULT_TIMEOUT,
+        safe_mode: bool = True,
+        allow_any_variable: bool = False,
+        eol: bytes = b"\r\n",
+    ) -> MdcClient:
+        """A client on a serial line: a device, a pyserial URL or ``socket://HOST:PORT``."""
+        from opendnc.transport.serial import open_stream  # pyserial only when used
+
+        stream = open_stream(
+            url, baud, timeout=timeout, parity=parity, bytesize=bytesize, stopbits=stopbits
+        )
+        return cls.over(
+            stream,
+            timeout=timeout,
+            safe_mode=safe_mode,
+            allow_any_variable=allow_any_variable,
+            eol=eol,
+        )
 
     def __enter__(self) -> MdcClient:
         return self

@@ -18,10 +18,12 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api, web
-from opendnc.server.config import ShopConfig
+from opendnc.server import api, dprnt_api, web
+from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
-from opendnc.server.machines import connector_for
+from opendnc.server.machines import Connector, connector_for
+from opendnc.server.netshare import NetShare
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.supervisor import ConnectorFactory, Supervisor
 from opendnc.server.watcher import LibraryWatcher
@@ -40,6 +42,8 @@ class Server:
     supervisor: Supervisor
     watcher: LibraryWatcher
     app: FastAPI
+    netshare: NetShare | None = None
+    dprnt: DprntCapture | None = None
 
 
 def build(
@@ -55,11 +59,18 @@ def build(
     migrate(engine)
     sessions = make_sessions(engine)
     bus = EventBus()
+    capture = DprntCapture(config.machines, sessions, bus)
+
+    def connectors(machine: MachineConfig) -> Connector:
+        connector = connector_factory(machine)
+        capture.attach(machine, connector)  # a serial Haas's printed lines
+        return connector
+
     supervisor = Supervisor(
         config,
         sessions,
         bus,
-        connector_factory=connector_factory,
+        connector_factory=connectors,
         sweep_interval=sweep_interval,
         retry_backoff=retry_backoff,
     )
@@ -75,19 +86,32 @@ def build(
         ),
     )
 
+    netshare = None
+    if config.netshare is not None:
+        machines = {m.name: m for m in config.machines}
+        netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
+    background: list[asyncio.Task[None]] = []
+
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         await supervisor.start()
         watching = asyncio.create_task(watcher.run(), name="library-watcher")
+        if netshare is not None:
+            background.append(asyncio.create_task(netshare.run(), name="netshare"))
+        capture.start()
         try:
             yield
         finally:
-            watching.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watching
+            for task in (watching, *background):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+            background.clear()
+            await capture.stop()
             await supervisor.stop()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
+    app.include_router(dprnt_api.router)
     web.install(app)
-    return Server(config, engine, sessions, bus, supervisor, watcher, app)
+    return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare, capture)

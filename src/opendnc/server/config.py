@@ -27,6 +27,12 @@ Example::
     kind = "lsv2"                          # lsv2 | haas_serial | haas_ngc
     host = "10.0.0.21"
     released_only = true
+
+    [netshare]                             # hybrid net share (server/netshare.py)
+    path = "/mnt/nas/programs"             # programs dropped here go to every machine's share
+    machines = ["vf2-1", "vf2-2"]          # default: every machine with a share
+    archive_at = "18:00"                   # daily, server's local time; or archive_every = 3600
+    collect = true                         # programs made on the machines go to the inbox
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ __all__ = [
     "LibraryConfig",
     "MachineConfig",
     "MachineKind",
+    "NetShareConfig",
     "SerialProfile",
     "ServerConfig",
     "ShopConfig",
@@ -107,6 +114,9 @@ class MachineConfig:
     dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
     poll_interval: float = 1.0
     description: str = ""
+    mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
+    mdc_interval: float = 3.0  # haas_serial: least seconds between two MDC status reads
+    dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
 
 
 @dataclass(frozen=True)
@@ -118,6 +128,19 @@ class LibraryConfig:
     archive: Path
     backups: Path | None = None  # LSV2 backups, one folder per machine (default: ./backups)
     poll: bool = False  # poll the library folder instead of change notifications (shares)
+
+
+@dataclass(frozen=True)
+class NetShareConfig:
+    """The hybrid net share: a NAS folder fanned out to machines' shares (server/netshare.py)."""
+
+    path: Path  # the NAS folder (mounted)
+    machines: tuple[str, ...]  # subscribed machines (each has a share)
+    archive: Path  # where archived programs go, in one folder per day
+    archive_at: tuple[int, int] | None = (18, 0)  # daily, server's local time
+    archive_every: float | None = None  # or every so many seconds
+    collect: bool = True  # programs made on the machines go to the inbox
+    interval: float = 5.0  # seconds between scans
 
 
 @dataclass(frozen=True)
@@ -139,6 +162,7 @@ class ShopConfig:
     machines: tuple[MachineConfig, ...]
     source: Path | None = None
     requests: RequestSettings = field(default_factory=RequestSettings)
+    netshare: NetShareConfig | None = None
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -166,7 +190,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("", f"not valid TOML: {exc}") from exc
-    _known(raw, "", {"server", "library", "machines", "requests"})
+    _known(raw, "", {"server", "library", "machines", "requests", "netshare"})
     server = _server(_table(raw, "server"), base)
     library = _library(_table(raw, "library"), base)
     machines_raw = raw.get("machines", [])
@@ -179,8 +203,74 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
             raise ConfigError(f"machines[{i}].name", f"{machine.name!r} is used twice")
         seen.add(machine.name.lower())
     requests = _requests(_table(raw, "requests"))
+    netshare = None
+    if "netshare" in raw:
+        netshare = _netshare(_table(raw, "netshare"), base, library, machines)
     return ShopConfig(
-        server=server, library=library, machines=machines, source=source, requests=requests
+        server=server,
+        library=library,
+        machines=machines,
+        source=source,
+        requests=requests,
+        netshare=netshare,
+    )
+
+
+def _netshare(
+    table: dict[str, Any], base: Path, library: LibraryConfig, machines: tuple[MachineConfig, ...]
+) -> NetShareConfig:
+    keys = {"path", "machines", "archive", "archive_at", "archive_every", "collect", "interval"}
+    _known(table, "netshare", keys)
+    path_text = _get(table, "netshare", "path", str, "")
+    if not path_text:
+        raise ConfigError("netshare.path", "missing (the NAS folder, mounted on this computer)")
+    if "://" in path_text:
+        raise ConfigError("netshare.path", "expected a folder (mount the NAS share first)")
+    with_share = {m.name: m for m in machines if m.share}
+    names_raw = table.get("machines")
+    if names_raw is None:
+        names = tuple(with_share)
+    else:
+        if not isinstance(names_raw, list) or not names_raw:
+            raise ConfigError("netshare.machines", "expected a list of machine names")
+        for i, name in enumerate(names_raw):
+            key = f"netshare.machines[{i}]"
+            if not isinstance(name, str):
+                raise ConfigError(key, f"expected a machine name, got {name!r}")
+            if name not in {m.name for m in machines}:
+                raise ConfigError(key, f"no machine named {name!r}")
+            if name not in with_share:
+                raise ConfigError(key, f"{name!r} has no share to push to")
+        names = tuple(dict.fromkeys(names_raw))
+    if not names:
+        raise ConfigError("netshare.machines", "no machine has a share to subscribe")
+    archive_at: tuple[int, int] | None = (18, 0)
+    archive_every: float | None = None
+    if "archive_at" in table and "archive_every" in table:
+        raise ConfigError("netshare.archive_every", "use archive_at or archive_every, not both")
+    if "archive_at" in table:
+        text = _get(table, "netshare", "archive_at", str, "")
+        match = re.fullmatch(r"([01]?\d|2[0-3]):([0-5]\d)", text.strip())
+        if match is None:
+            raise ConfigError("netshare.archive_at", f"expected HH:MM (24 h), got {text!r}")
+        archive_at = (int(match.group(1)), int(match.group(2)))
+    if "archive_every" in table:
+        archive_every = _get(table, "netshare", "archive_every", float, 0.0)
+        if not 1 <= archive_every <= 366 * 86400:
+            raise ConfigError("netshare.archive_every", "expected seconds, 1 up to a year")
+        archive_at = None
+    interval = _get(table, "netshare", "interval", float, 5.0)
+    if not 0.05 <= interval <= 3600:
+        raise ConfigError("netshare.interval", "expected seconds between 0.05 and 3600")
+    archive_text = _get(table, "netshare", "archive", str, "")
+    return NetShareConfig(
+        path=(base / path_text).resolve(),
+        machines=names,
+        archive=(base / archive_text).resolve() if archive_text else library.archive / "netshare",
+        archive_at=archive_at,
+        archive_every=archive_every,
+        collect=_get(table, "netshare", "collect", bool, True),
+        interval=interval,
     )
 
 
@@ -298,7 +388,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "dripfeed", "poll_interval", "description",
+    "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -341,6 +431,17 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     poll = _get(raw, prefix, "poll_interval", float, 1.0)
     if not 0.05 <= poll <= 3600:
         raise ConfigError(f"{prefix}.poll_interval", "expected seconds between 0.05 and 3600")
+    mdc = _get(raw, prefix, "mdc", bool, False)
+    if mdc and kind is not MachineKind.HAAS_SERIAL:
+        raise ConfigError(
+            f"{prefix}.mdc", "only for haas_serial (a Haas NGC always reports by MDC over TCP)"
+        )
+    # Classic controls have frozen under fast serial polling: 3 s apart by default
+    # (docs/haas.md#mdc-polling).
+    mdc_interval = _get(raw, prefix, "mdc_interval", float, 3.0)
+    if not 0.05 <= mdc_interval <= 3600:
+        raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
+    dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
     return MachineConfig(
         name=name,
         kind=kind,
@@ -361,7 +462,27 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         dripfeed=_get(raw, prefix, "dripfeed", bool, False),
         poll_interval=poll,
         description=_get(raw, prefix, "description", str, ""),
+        mdc=mdc,
+        mdc_interval=mdc_interval,
+        dprnt=dprnt,
     )
+
+
+def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
+    """``tcp://HOST:PORT`` (where a Haas NGC prints, Setting 263) or ``serial`` (a serial
+    Haas's own port); empty for none."""
+    if not value:
+        return ""
+    if kind is MachineKind.LSV2:
+        raise ConfigError(key, "DPRNT is a Haas feature")
+    if value == "serial":
+        if kind is not MachineKind.HAAS_SERIAL:
+            raise ConfigError(key, "serial is for a haas_serial machine (its own port)")
+        return value
+    match = re.fullmatch(r"tcp://([^:/\s]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})", value)
+    if match is None or not 0 < int(match.group(2)) < 65536:
+        raise ConfigError(key, f"expected tcp://HOST:PORT or serial, got {value!r}")
+    return value
 
 
 def _port_range(port: int, key: str) -> None:

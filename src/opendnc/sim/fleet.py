@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from opendnc.errors import InputError
+from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SimHaas, SimOptions
 from opendnc.sim.haas.control import HaasConfig
 from opendnc.sim.tnc.server import TncServer, serve_tnc
@@ -86,9 +87,10 @@ async def start_fleet(
 
     With ``base_port`` 0 every control takes a free port; otherwise the TNCs listen on
     ``base_port``, ``base_port + 1``, ... and the Haas MDC ports follow them. A serial Haas
-    answers XModem and drip-feed on its cable (``auto`` serial mode) and runs at most
-    ``block_rate`` blocks a second (0: as fast as it can); a drip-feed that stops for
-    ``dnc_timeout`` seconds raises the control's DNC link alarm.
+    is a classic control: it answers XModem, drip-feed and MDC Q-commands (Setting 143 ON)
+    on its cable (``auto`` serial mode) and runs at most ``block_rate`` blocks a second
+    (0: as fast as it can); a drip-feed that stops for ``dnc_timeout`` seconds raises the
+    control's DNC link alarm.
     """
     if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
@@ -136,11 +138,9 @@ async def _start_serial_haas(
     folder.mkdir(parents=True, exist_ok=True)
     cable = VirtualCable(baud).start()
     fleet._cables.append(cable)
-    sim = SimHaas(
-        HaasConfig(model="VF-2", serial_number=f"{2000000 + k}"),
-        folder,
-        SimOptions(mdc_port=None, block_rate=block_rate),
-    )
+    # a Haas on a cable is a classic control; Setting 143 ON: it answers MDC on the port too
+    config = HaasConfig(model="VF-2", serial_number=f"{2000000 + k}", control=ControlType.CLASSIC)
+    sim = SimHaas(config, folder, SimOptions(mdc_port=None, block_rate=block_rate))
     await sim.start()
     fleet._haas.append(sim)
     options = SerialOptions(baud=baud, mode=parse_mode("auto"), dnc_timeout=dnc_timeout)
@@ -160,9 +160,11 @@ def server_config(
     poll_interval: float = 1.0,
     library: Path | None = None,
     dripfeed: bool = False,
+    mdc: bool = False,
 ) -> str:
     """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
-    (``dripfeed`` allows drip-feeding the serial Haas machines)."""
+    (``dripfeed`` allows drip-feeding the serial Haas machines; ``mdc`` has the server read
+    their status by MDC on the cable, as they answer Q-commands there)."""
 
     def q(value: object) -> str:
         return json.dumps(str(value))  # a JSON string is a valid TOML basic string
@@ -191,6 +193,8 @@ def server_config(
             lines.append(f"port = {m.port}")
         elif m.kind == "haas_serial":
             lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
+            if mdc:
+                lines.append("mdc = true")
             if dripfeed:
                 lines.append("dripfeed = true")
         else:

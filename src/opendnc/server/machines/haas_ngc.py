@@ -15,18 +15,37 @@ from pathlib import Path
 
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
-from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus
+from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
-__all__ = ["HaasNgcConnector"]
+__all__ = ["HaasNgcConnector", "mdc_status"]
 
 DETAIL_EVERY = 30  # polls between reads of what changes rarely
 
 # Q500's status word in MTConnect's EXECUTION vocabulary.
 _EXECUTION = {"IDLE": "READY", "BUSY": "ACTIVE", "FEED HOLD": "FEED_HOLD", "ALARM ON": "STOPPED"}
+
+
+def mdc_status(q500: Reply, q104: Reply, tool: int | None) -> MachineStatus:
+    """The status from Q500 (program, state, parts) and Q104 (mode), NGC or classic."""
+    program, word, parts = "", "", None
+    if isinstance(q500, ProgramStatus):
+        program, word, parts = q500.program, q500.status.upper(), q500.parts
+    elif isinstance(q500, Busy):
+        word = "BUSY"
+    return MachineStatus(
+        at=utcnow(),
+        available=True,
+        execution=_EXECUTION.get(word, "READY" if not word else "ACTIVE"),
+        mode=q104.mode.upper() if isinstance(q104, Mode) else "",
+        program=program,
+        part_count=parts,
+        tool=tool,
+        errors=("ALARM",) if "ALARM" in word else (),
+    )
 
 
 class HaasNgcConnector(NetworkOnly):
@@ -63,21 +82,7 @@ class HaasNgcConnector(NetworkOnly):
             q201 = await self._mdc.query(201)
             self._tool = q201.value if isinstance(q201, Count) else None
         self._polls += 1
-        program, word, parts = "", "", None
-        if isinstance(q500, ProgramStatus):
-            program, word, parts = q500.program, q500.status.upper(), q500.parts
-        elif isinstance(q500, Busy):
-            word = "BUSY"
-        return MachineStatus(
-            at=utcnow(),
-            available=True,
-            execution=_EXECUTION.get(word, "READY" if not word else "ACTIVE"),
-            mode=q104.mode.upper() if isinstance(q104, Mode) else "",
-            program=program,
-            part_count=parts,
-            tool=self._tool,
-            errors=("ALARM",) if "ALARM" in word else (),
-        )
+        return mdc_status(q500, q104, self._tool)
 
     def _target(self) -> share.ShareTarget:
         if not self.config.share:

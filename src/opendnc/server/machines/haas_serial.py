@@ -5,6 +5,17 @@ Between jobs the port listens as an XModem receiver, so a program the operator p
 remote request) arrives without anyone at the PC; the receiver's start requests (NAK every
 few seconds) are what a Haas waits for before it sends. To load a program the operator puts
 the control in receive mode, and the control's NAK starts our sender.
+
+With ``mdc = true`` (a classic control with Setting 143 ON) a status poll also asks Q500 and
+Q104 on the same port, at most every ``mdc_interval`` seconds (3 s by default: classic controls
+have frozen under fast serial polling, docs/haas.md#mdc-polling), between two listening
+windows: the connector owns the port, so a query never meets an XModem transfer. A control busy
+with something else (its own receive mode, a punch waiting for our NAK) does not answer; that
+poll reports the execution state as unknown and the link stays up (docs/haas.md#mdc).
+
+With ``dprnt = "serial"`` the lines the control prints on the same port are picked off while
+the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and handed to
+:attr:`HaasSerialConnector.on_dprnt`.
 """
 
 from __future__ import annotations
@@ -12,14 +23,19 @@ from __future__ import annotations
 import asyncio
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from opendnc.errors import DncError, InputError, TransportError, TransportTimeout
+from opendnc.errors import DncError, InputError, PeerClosed, TransportError, TransportTimeout
 from opendnc.haas.dnc import DncConfig, stream_program
+from opendnc.haas.listen import CapturedLine
+from opendnc.haas.mdc_client import MdcClient
 from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
+from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
-from opendnc.transport import PortStream, open_stream
+from opendnc.transport import ByteStream, PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive
 from opendnc.xmodem.driver import send as xmodem_send
 from opendnc.xmodem.events import Started
@@ -30,6 +46,10 @@ from opendnc.xmodem.receiver import ReceiverConfig
 __all__ = ["HaasSerialConnector"]
 
 _EOB = {"CR": Eob.CR, "LF": Eob.LF, "CRLF": Eob.CRLF}
+MDC_TIMEOUT = 1.0
+"""Seconds a status query waits for its reply: a classic control answers within a few
+characters' time, so a longer wait only delays the next listening window."""
+DRAIN = 0.3  # seconds to read away a late reply before the port listens for XModem again
 
 
 class HaasSerialConnector:
@@ -46,6 +66,11 @@ class HaasSerialConnector:
         # keep it from timing out into its DNC-link alarm. The port stays silent this long.
         self.quiet_after_break = quiet_after_break
         self._quiet_until = 0.0
+        self._mdc: MdcClient | None = None
+        self._tap: TapStream | None = None  # the port as listening and MDC read it
+        self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
+        self.on_dprnt: Callable[[CapturedLine], None] | None = None
+        """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
 
     def _open(self) -> PortStream:
         profile = self.config.profile
@@ -65,10 +90,15 @@ class HaasSerialConnector:
         """Open the port (a TCP serial server answers, a device exists)."""
         if self._stream is None:
             self._stream = await asyncio.to_thread(self._open)
+            if self.config.dprnt == "serial" and self.on_dprnt is not None:
+                self._tap = TapStream(self._stream, DprntTap(self.on_dprnt))
+            if self.config.mdc:
+                self._mdc = MdcClient.over(self._reader(), timeout=MDC_TIMEOUT)
 
     async def close(self) -> None:
         """Close the port."""
         stream, self._stream = self._stream, None
+        self._mdc = self._tap = self._last = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
 
@@ -77,9 +107,39 @@ class HaasSerialConnector:
             raise TransportError(f"{self.config.name}: port not open")
         return self._stream
 
+    def _reader(self) -> ByteStream:
+        """The port as listening and MDC read it (through the DPRNT tap when there is one)."""
+        return self._tap if self._tap is not None else self._require()
+
+    def _tapping(self, mode: str) -> None:
+        if self._tap is not None:
+            self._tap.mode = mode
+
     async def status(self) -> MachineStatus:
-        """Available while the port opens; RS-232 tells nothing more without DPRNT."""
-        return MachineStatus(at=utcnow(), available=True, execution="READY")
+        """Available while the port opens; with ``mdc`` also program, mode and parts."""
+        client = self._mdc
+        if client is None or time.monotonic() < self._quiet_until:
+            return MachineStatus(at=utcnow(), available=True, execution="READY")
+        stream = self._reader()
+        last = self._last
+        if last is not None and time.monotonic() - last[0] < self.config.mdc_interval:
+            return last[1]  # paced: a classic control is not asked more often than this
+
+        def poll() -> MachineStatus:
+            self._tapping("mdc")
+            try:
+                return mdc_status(client.query(500), client.query(104), None)
+            except TransportTimeout as exc:
+                # busy with something else: the port is fine, the state unknown this time
+                _drain(stream)
+                return MachineStatus(at=utcnow(), available=True, message=str(exc))
+            finally:
+                self._tapping("off")
+                stream.set_timeout(1.0)
+
+        status = await asyncio.to_thread(poll)
+        self._last = (time.monotonic(), status)
+        return status
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
         """Send the program by XModem in checksum mode."""
@@ -115,7 +175,8 @@ class HaasSerialConnector:
                 cancel_when_idle=False,  # the next window listens again
                 text_check=True,  # a block that is no NC text is asked for again
             )
-            stream = self._require()
+            stream = self._reader()
+            self._tapping("listen")
             try:
                 xmodem_receive(
                     stream, parts.append, mode=Mode.CHECKSUM, config=config, on_event=on_event
@@ -128,6 +189,8 @@ class HaasSerialConnector:
                 if not started and not parts:
                     return None
                 return Reception(b"".join(parts), failed=str(exc))
+            finally:
+                self._tapping("off")
             return Reception(b"".join(parts))
 
         return await asyncio.to_thread(run)
@@ -182,3 +245,17 @@ class HaasSerialConnector:
         except BaseException:
             self._quiet_until = time.monotonic() + self.quiet_after_break
             raise
+
+
+def _drain(stream: ByteStream) -> None:
+    """Read away what arrives within :data:`DRAIN` (a late reply's STX must not reach the
+    XModem receiver of the next listening window, where it would look like a block)."""
+    stream.set_timeout(0.05)
+    deadline = time.monotonic() + DRAIN
+    while time.monotonic() < deadline:
+        try:
+            stream.read(4096)
+        except TransportTimeout:
+            continue
+        except PeerClosed:
+            return

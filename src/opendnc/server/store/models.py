@@ -22,6 +22,7 @@ from sqlalchemy import (
     Enum,
     Float,
     ForeignKey,
+    Index,
     Integer,
     LargeBinary,
     MetaData,
@@ -39,6 +40,7 @@ __all__ = [
     "AuditEntry",
     "Base",
     "Blob",
+    "DprntLine",
     "Job",
     "JobKind",
     "JobState",
@@ -318,3 +320,19 @@ class AuditEntry(Base):
     result: Mapped[str] = mapped_column(String(16), default="ok")
     bytes: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
     detail: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class DprntLine(Base):
+    """One line a Haas printed with DPRNT, as the server captured it (``complete`` is False
+    for a line cut short by the end of the link)."""
+
+    __tablename__ = "dprnt_lines"
+    # read as "this machine's lines after id N": one index serves it
+    __table_args__ = (Index("ix_dprnt_lines_machine_id", "machine", "id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64))
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    text: Mapped[str] = mapped_column(Text)
+    fields: Mapped[list[Any]] = mapped_column(JSON, default=list)  # [{"label", "value"}, ...]
+    complete: Mapped[bool] = mapped_column(Boolean, default=True)

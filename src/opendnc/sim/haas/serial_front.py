@@ -18,6 +18,13 @@ program out, run DNC). Here that is :meth:`SerialFrontEnd.select` (Python) or
 ``idle``
     the port only carries DPRNT output.
 
+A classic control with Setting 143 ON answers MDC Q and E commands on this port while it is
+idle or waiting in ``auto`` mode (docs/haas.md#mdc): a ``?Q500`` line gets its reply framed
+STX payload ETB CR LF ``>``, by the same :class:`~opendnc.sim.haas.mdc_server.MdcResponder`
+the TCP server uses. In ``auto`` mode the first byte decides: an XModem block stores a
+program, ``?`` is an MDC request, other text runs as DNC. An MDC exchange is no job: it
+leaves no ``RS232 DONE`` message.
+
 Receive, DNC and auto are re-armed after each job, punch runs once. Each job ends with
 ``RS232 DONE`` or ``RS232 ABORT ...`` in :attr:`SerialFrontEnd.messages`.
 
@@ -49,10 +56,12 @@ from typing import TYPE_CHECKING, TypeVar
 import serial
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportTimeout
+from opendnc.haas import mdc
 from opendnc.sim.haas.control import DncSession, DprntDestination
 from opendnc.sim.haas.dnc_link import DncLimits, DncReceiver
 from opendnc.sim.haas.dprnt_out import StreamDprntOutput
 from opendnc.sim.haas.machine import Alarm
+from opendnc.sim.haas.mdc_server import MdcResponder
 from opendnc.sim.haas.serial_xmodem import (
     Interrupted,
     XmodemQuirks,
@@ -74,6 +83,11 @@ ALARM_DNC_OVERRUN = Alarm(1004, "DNC BUFFER OVERRUN")
 
 POLL = 0.05
 ERROR_BACKOFF = 0.5  # seconds before a failed job is re-armed
+MDC_QUIET = 0.3
+"""Seconds of silence after an MDC exchange before ``auto`` waits for XModem again (a poll's
+next query usually follows within that time, so it is not preceded by the receiver's NAK)."""
+MDC_LINE_TIMEOUT = 1.0  # seconds a started request line may take to end
+_LEADER = b"\x00\r\n \x11\x13\x15"  # what may precede a request (NUL, blanks, XON/XOFF, NAK)
 
 
 class SerialMode(enum.Enum):
@@ -150,7 +164,9 @@ class SerialFrontEnd:
         self.xoffs = 0
         self.xons = 0
         self.jobs_done = 0
+        self.mdc_replies = 0  # MDC requests answered on this port (classic Setting 143)
         self.port: SerialStream | None = None
+        self._mdc = MdcResponder(sim.control)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._jobs: queue.Queue[Selection] = queue.Queue()
         self._current = options.mode
@@ -231,6 +247,59 @@ class SerialFrontEnd:
         assert self._loop is not None
         self._loop.call_soon_threadsafe(func)
 
+    # --------------------------------------------------------------- MDC (Setting 143)
+    def mdc_enabled(self) -> bool:
+        """Classic control with Setting 143 ON: Q and E commands are answered on this port."""
+        control = self.control
+        return control.control_type is mdc.ControlType.CLASSIC and bool(
+            control.machine.settings.get(143)
+        )
+
+    def _serve_mdc(self, first: bytes) -> None:
+        """Answer MDC requests from ``first`` on, until the line has been quiet a while."""
+        assert self.port is not None
+        self.port.set_timeout(POLL)
+        pending = first
+        quiet_since = time.monotonic()
+        line_started = 0.0
+        while not self._stop.is_set():
+            data = pending.translate(None, mdc.LINE_NOISE)
+            if data:
+                self._answer_mdc(data)
+                quiet_since = time.monotonic()
+                partial = not data.endswith((b"\r", b"\n"))
+                line_started = (line_started or quiet_since) if partial else 0.0
+            now = time.monotonic()
+            if line_started and now - line_started > MDC_LINE_TIMEOUT:
+                # a request that never ends is garbage: answer it so rather than wait for ever
+                self._answer_mdc(b"\n")
+                line_started = 0.0
+            if not line_started and (now - quiet_since > MDC_QUIET or self._interrupt.is_set()):
+                return
+            try:
+                pending = self._read_chunk()
+            except PeerClosed:
+                return
+
+    def _answer_mdc(self, data: bytes) -> None:
+        # the responder reads and writes the control's state: on the simulator's loop
+        replies = self.call(lambda: self._mdc.feed(data))
+        for reply in replies:
+            self.write(reply)
+        self.mdc_replies += len(replies)
+
+    def _idle_mdc(self) -> None:
+        """Idle port with Setting 143 ON: wait one poll period for a request."""
+        assert self.port is not None
+        self.port.set_timeout(POLL)
+        try:
+            data = self._read_chunk()
+        except PeerClosed:
+            self._stop.wait(ERROR_BACKOFF)
+            return
+        if data.lstrip(_LEADER).startswith(b"?") and self.mdc_enabled():
+            self._serve_mdc(data)
+
     # --------------------------------------------------------------- the I/O thread
     def _serve(self) -> None:
         while not self._stop.is_set():
@@ -240,12 +309,16 @@ class SerialFrontEnd:
             selection = self._current
             if selection.mode is SerialMode.IDLE:
                 self.idle.set()
+                if self.mdc_enabled():
+                    self._idle_mdc()
+                    continue
                 with contextlib.suppress(queue.Empty):
                     self._current = self._jobs.get(timeout=POLL)
                 continue
             self.idle.clear()
             try:
-                self._run_job(selection)
+                if not self._run_job(selection):
+                    continue  # an MDC exchange, not a job
                 self._message("RS232 DONE")
             except Interrupted:
                 continue
@@ -266,7 +339,8 @@ class SerialFrontEnd:
         if self.trace is not None:
             self.trace("rx", f"[{text}]".encode())
 
-    def _run_job(self, selection: Selection) -> None:
+    def _run_job(self, selection: Selection) -> bool:
+        """Run one job; False when ``auto`` found an MDC request instead (answered, no job)."""
         mode = selection.mode
         assert self.port is not None
         xmodem = mode in (SerialMode.PUNCH, SerialMode.RECEIVE, SerialMode.DNC_XMODEM)
@@ -297,12 +371,16 @@ class SerialFrontEnd:
             )
             if isinstance(got, bytes):
                 self._store(got)
+            elif self.mdc_enabled() and got.text.lstrip(_LEADER).startswith(b"?"):
+                self._serve_mdc(got.text)
+                return False
             else:
                 self._dnc(first=got.text)
         elif mode is SerialMode.DNC:
             self._dnc(first=b"")
         elif mode is SerialMode.DNC_XMODEM:
             self._dnc_xmodem()
+        return True
 
     def _store(self, data: bytes) -> None:
         text = from_wire(data, self.options.eob).decode("latin-1")

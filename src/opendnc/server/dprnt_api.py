@@ -1,0 +1,74 @@
+"""``/api/machines/{name}/dprnt``: the DPRNT lines the server captured, as JSON or CSV.
+
+Kept beside :mod:`opendnc.server.api` (it uses the same key check and database session) so the
+capture can be read without touching the main route table. ``since`` is the id of the last
+line a client has seen: polling with it returns only newer lines, in order.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import Any
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+from sqlalchemy import select
+
+from opendnc.errors import InputError
+from opendnc.server.api import Db, Viewer
+from opendnc.server.dprnt_capture import line_json
+from opendnc.server.errors import NotFound
+from opendnc.server.store.models import DprntLine
+from opendnc.server.supervisor import Supervisor
+
+__all__ = ["CSV_COLUMNS", "router"]
+
+CSV_COLUMNS = ["id", "at", "machine", "line", "fields", "complete"]
+MAX_LIMIT = 10_000
+
+router = APIRouter(prefix="/api")
+
+
+@router.get("/machines/{name}/dprnt", response_model=None)
+def machine_dprnt(
+    request: Request,
+    name: str,
+    db: Db,
+    _who: Viewer,
+    since: int = 0,
+    limit: int = 1000,
+    format: str = "json",
+) -> list[dict[str, Any]] | Response:
+    """Lines after id ``since``, oldest first (at most ``limit``); ``format=csv`` for a file."""
+    supervisor: Supervisor = request.app.state.supervisor
+    if name not in supervisor.machines:
+        raise NotFound(f"no machine named {name!r}")
+    if format not in ("json", "csv"):
+        raise InputError("format is json or csv")
+    if since < 0 or not 1 <= limit <= MAX_LIMIT:
+        raise InputError(f"since must be >= 0 and limit 1..{MAX_LIMIT}")
+    rows = db.scalars(
+        select(DprntLine)
+        .where(DprntLine.machine == name, DprntLine.id > since)
+        .order_by(DprntLine.id)
+        .limit(limit)
+    ).all()
+    lines = [line_json(row) for row in rows]
+    if format == "json":
+        return lines
+    out = io.StringIO()
+    writer = csv.writer(out)
+    writer.writerow(CSV_COLUMNS)
+    for line in lines:
+        fields = " ".join(
+            f"{f['label']}={f['value']:g}" if f["label"] else f"{f['value']:g}"
+            for f in line["fields"]
+        )
+        complete = "yes" if line["complete"] else "no"
+        writer.writerow([line["id"], line["at"], name, line["line"], fields, complete])
+    return Response(
+        out.getvalue(),
+        media_type="text/csv",
+        headers={"Content-Disposition": f'attachment; filename="{name}-dprnt.csv"'},
+    )

@@ -1,0 +1,506 @@
+"""The hybrid net share: one NAS folder fanned out to the machines' own shares.
+
+A shop drops programs into one folder on its NAS; every subscribed Haas NGC gets a copy in
+its local share (Local Net Share, or a folder the control mounts), so the operator loads it
+from the control's device manager without touching the NAS; at the end of the day the NAS
+folder is archived; programs written on the machines come back to the server's inbox
+(docs/haas.md#net-share). One scan every ``interval`` seconds:
+
+1. **push**: a NAS file that stopped changing (same size and time in two scans) and whose
+   content a machine has not had yet is copied into that machine's share, whole or not at
+   all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
+   again at the next scan.
+2. **collect** (``collect = true``): a file in a machine's share that the server
+   did not put there, or that changed since (the operator edited it), is filed in the inbox by
+   :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
+   first saw it is taken as the machine's history, not as new work (one ``netshare.baseline``
+   row lists it).
+3. **archive** (daily at ``archive_at``, server local time, or every ``archive_every``
+   seconds, once no NAS file is still being written): the NAS files, pushed first, move
+   into ``archive/YYYY-MM-DD/`` (never overwriting) and the copies the server pushed are
+   removed from the shares if they still hold exactly the pushed bytes; an edited copy stays
+   (and is collected).
+
+A machine's share is a local (mounted) folder or ``smb://[USER:PASSWORD@]HOST[:PORT]/SHARE/PATH``
+(read, listed and cleaned with smbprotocol, the library :mod:`opendnc.haas.share` pushes with).
+
+Every action is an audit row (``netshare.push``, ``netshare.collect``, ``netshare.baseline``,
+``netshare.archive``, ``netshare.archive_run``) and an event of kind ``netshare``. What the
+server pushed, collected and when it last archived is rebuilt from those rows at start, so a
+restart neither pushes again nor collects twice, and an archive missed while the server was
+down runs when it comes back. The clock is injectable (tests do not wait for 18:00).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any, Protocol
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import DncError, InputError, TransportError
+from opendnc.haas import share
+from opendnc.server import audit, inbox
+from opendnc.server.config import MachineConfig, NetShareConfig
+from opendnc.server.events import EventBus
+from opendnc.server.store.models import AuditEntry
+
+__all__ = ["NetShare", "ScanReport", "local_now"]
+
+log = logging.getLogger(__name__)
+
+ACTOR = "netshare"
+MAX_FILE = 64 * 1024 * 1024  # larger files in a share are not programs to move around
+
+
+def local_now() -> datetime:
+    """Now in the server's local time zone (the shop's clock for ``archive_at``)."""
+    return datetime.now().astimezone()
+
+
+@dataclass
+class ScanReport:
+    """What one scan did (file names; ``failed`` holds ``(machine, name, reason)``)."""
+
+    pushed: list[tuple[str, str]] = field(default_factory=list)  # (machine, name)
+    collected: list[tuple[str, str]] = field(default_factory=list)
+    archived: list[str] = field(default_factory=list)
+    failed: list[tuple[str, str, str]] = field(default_factory=list)
+
+
+def _is_program_name(name: str) -> bool:
+    # Hidden files, temporary copies (ours are ".NAME.xxxx.part") and editor backups are not
+    # programs.
+    if name.startswith(".") or name.endswith((".part", ".tmp", "~")) or len(name) > 255:
+        return False
+    return name.isprintable() and "/" not in name and "\\" not in name
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+class _Folder(Protocol):
+    """A folder the net share reads: the NAS, or a machine's share (local or SMB)."""
+
+    label: str
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        """Program files by name: (size, modification time); :class:`DncError` when away."""
+        ...
+
+    def read(self, name: str) -> bytes:
+        """The content of ``name``."""
+        ...
+
+    def remove(self, name: str) -> None:
+        """Delete ``name``."""
+        ...
+
+
+class _LocalFolder:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.label = str(path)
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        try:
+            paths = list(self.path.iterdir())
+        except OSError as exc:
+            raise TransportError(f"cannot list {self.path}: {exc.strerror or exc}") from exc
+        found = {}
+        for path in paths:
+            if _is_program_name(path.name) and path.is_file() and not path.is_symlink():
+                try:
+                    st = path.stat()
+                except OSError:
+                    continue
+                if st.st_size <= MAX_FILE:
+                    found[path.name] = (st.st_size, st.st_mtime_ns)
+        return found
+
+    def read(self, name: str) -> bytes:
+        return (self.path / name).read_bytes()
+
+    def remove(self, name: str) -> None:
+        (self.path / name).unlink()
+
+
+_DIRECTORY, _REPARSE_POINT = 0x10, 0x400  # SMB file attribute bits
+
+
+class _SmbFolder:
+    """A machine's share over SMB (its Local Net Share), through smbprotocol's smbclient."""
+
+    def __init__(self, target: share.ShareTarget) -> None:
+        self.target = target
+        self.label = target.describe()
+
+    def _session(self) -> Any:
+        try:
+            import smbclient
+        except ImportError as exc:  # the "haas" extra is optional
+            raise InputError("SMB shares need smbprotocol: pip install 'opendnc[haas]'") from exc
+        t = self.target
+        try:
+            smbclient.register_session(
+                t.host, t.username, t.password, port=t.port, connection_timeout=10
+            )
+        except Exception as exc:  # smbprotocol raises its own tree and ValueError
+            raise TransportError(f"cannot open SMB session to {self.label}: {exc}") from exc
+        return smbclient
+
+    def _options(self) -> dict[str, Any]:
+        t = self.target
+        return {"port": t.port, "username": t.username, "password": t.password}
+
+    def entries(self) -> dict[str, tuple[int, int]]:
+        smbclient = self._session()
+        found = {}
+        try:
+            for entry in smbclient.scandir(self.target.unc(), **self._options()):
+                # the listing carries size, time and attributes: no extra call per file
+                info = entry.smb_info
+                plain = not info.file_attributes & (_DIRECTORY | _REPARSE_POINT)
+                if _is_program_name(entry.name) and plain and info.end_of_file <= MAX_FILE:
+                    written = int(info.last_write_time.timestamp() * 1e9)
+                    found[entry.name] = (int(info.end_of_file), written)
+        except Exception as exc:
+            raise TransportError(f"cannot list {self.label}: {exc}") from exc
+        return found
+
+    def read(self, name: str) -> bytes:
+        smbclient = self._session()
+        try:
+            with smbclient.open_file(self.target.unc(name), mode="rb", **self._options()) as f:
+                data: bytes = f.read()
+        except Exception as exc:
+            raise TransportError(f"cannot read {self.target.describe(name)}: {exc}") from exc
+        return data
+
+    def remove(self, name: str) -> None:
+        smbclient = self._session()
+        try:
+            smbclient.remove(self.target.unc(name), **self._options())
+        except Exception as exc:
+            raise TransportError(f"cannot remove {self.target.describe(name)}: {exc}") from exc
+
+
+def _folder_for(spec: str) -> _Folder:
+    target = share.parse_target(spec)  # InputError: a local folder that is not there
+    if target.local is not None:
+        return _LocalFolder(target.local)
+    return _SmbFolder(target)
+
+
+class _Stable:
+    """Files that stopped changing: the same size and modification time in two scans."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, dict[str, tuple[int, int]]] = {}
+
+    def names(self, folder: _Folder, entries: dict[str, tuple[int, int]]) -> list[str]:
+        last = self._last.get(folder.label, {})
+        self._last[folder.label] = entries
+        return sorted(name for name, seen in entries.items() if last.get(name) == seen)
+
+
+class NetShare:
+    """The net share task; :meth:`run` from the app's lifespan, :meth:`scan` for one pass."""
+
+    def __init__(
+        self,
+        config: NetShareConfig,
+        machines: dict[str, MachineConfig],
+        inbox_folder: Path,
+        sessions: sessionmaker[Session],
+        bus: EventBus | None = None,
+        *,
+        clock: Callable[[], datetime] = local_now,
+    ) -> None:
+        self.config = config
+        self.machines = {name: machines[name] for name in config.machines}
+        self.inbox_folder = inbox_folder
+        self.sessions = sessions
+        self.bus = bus
+        self.clock = clock
+        self.pushed: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 put there
+        self.collected: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 taken
+        self.baselined: set[str] = set()  # machines whose share history is recorded
+        self.last_archive: datetime | None = None
+        self._stable = _Stable()
+        self._loaded = False
+
+    # ------------------------------------------------------------------ state
+    def load(self) -> None:
+        """Rebuild what was pushed, collected and archived from the audit trail."""
+        with self.sessions() as session:
+            rows = session.scalars(
+                select(AuditEntry)
+                .where(AuditEntry.actor == ACTOR, AuditEntry.result == "ok")
+                .order_by(AuditEntry.id)
+            ).all()
+            for row in rows:
+                key = (row.machine or "", row.program or "")
+                if row.action == "netshare.push" and row.sha256:
+                    self.pushed[key] = row.sha256
+                elif row.action == "netshare.collect" and row.sha256:
+                    self.collected[key] = row.sha256
+                elif row.action == "netshare.baseline" and row.machine:
+                    self.baselined.add(row.machine)
+                    for name, digest in dict(row.detail.get("files", {})).items():
+                        self.collected[(row.machine, str(name))] = str(digest)
+                elif row.action == "netshare.archive":
+                    for machine in row.detail.get("removed_from", []):
+                        self.pushed.pop((str(machine), row.program or ""), None)
+                elif row.action == "netshare.archive_run":
+                    self.last_archive = datetime.fromisoformat(str(row.detail["at"]))
+        if self.last_archive is None:
+            # Never archived: the first archive is the next one due, not one for the past.
+            self.last_archive = self.clock()
+        self._loaded = True
+
+    # ------------------------------------------------------------------ the task
+    async def run(self) -> None:
+        """Scan every ``interval`` seconds until cancelled; one failed scan (the database
+        away at start included: the first scan loads the state) stops nothing."""
+        while True:
+            try:
+                await self.scan()
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("net share scan failed")
+            await asyncio.sleep(self.config.interval)
+
+    async def scan(self) -> ScanReport:
+        """One pass: push, collect, archive when due (file and database work in a thread)."""
+        return await asyncio.to_thread(self.scan_sync)
+
+    def scan_sync(self) -> ScanReport:
+        """:meth:`scan` on the calling thread."""
+        if not self._loaded:
+            self.load()
+        report = ScanReport()
+        folder = _LocalFolder(self.config.path)
+        try:
+            entries = folder.entries()
+            nas_here = True
+        except DncError:
+            entries, nas_here = {}, False  # the NAS is away: nothing to push or archive now
+        nas = self._stable.names(folder, entries)
+        contents = {}
+        for name in nas:
+            try:
+                contents[name] = folder.read(name)
+            except OSError:
+                continue
+        for name, data in contents.items():
+            for machine in self.machines.values():
+                self._push(machine, name, data, report)
+        if self.config.collect:
+            for machine in self.machines.values():
+                try:
+                    self._collect(machine, report)
+                except DncError as exc:  # a share that is away; the push reports it too
+                    log.info("%s: cannot collect from the share: %s", machine.name, exc)
+        # Archive only a quiet folder: a file still being written moves at the next scan.
+        if nas_here and len(nas) == len(entries) and self._archive_due():
+            self._archive([self.config.path / name for name in nas], report)
+        return report
+
+    # ------------------------------------------------------------------ push
+    def _push(self, machine: MachineConfig, name: str, data: bytes, report: ScanReport) -> None:
+        digest = _sha(data)
+        if self.pushed.get((machine.name, name)) == digest:
+            return
+        error = ""
+        destination = ""
+        try:
+            target = share.parse_target(machine.share)
+            with tempfile.TemporaryDirectory(prefix="opendnc-netshare-") as tmp:
+                source = Path(tmp) / name
+                source.write_bytes(data)
+                destination = share.push([source], target)[0].destination
+        except (DncError, OSError) as exc:
+            error = str(exc) or type(exc).__name__
+        with self.sessions.begin() as session:
+            audit.record(
+                session,
+                ACTOR,
+                "netshare.push",
+                machine=machine.name,
+                program=name,
+                sha256=digest,
+                nbytes=len(data),
+                result="failed" if error else "ok",
+                source=str(self.config.path / name),
+                destination=destination,
+                error=error or None,
+            )
+        if error:
+            report.failed.append((machine.name, name, error))
+            self._publish("push", machine.name, name, error=error)
+            return
+        self.pushed[(machine.name, name)] = digest
+        report.pushed.append((machine.name, name))
+        self._publish("push", machine.name, name)
+
+    # ------------------------------------------------------------------ collect
+    def _collect(self, machine: MachineConfig, report: ScanReport) -> None:
+        folder = _folder_for(machine.share)
+        entries = folder.entries()
+        found: dict[str, bytes] = {}
+        for name in self._stable.names(folder, entries):
+            try:
+                found[name] = folder.read(name)
+            except (DncError, OSError):
+                continue
+        if machine.name not in self.baselined:
+            # The first look at a share: what it holds already is the machine's history.
+            # Wait until every file in it has stopped changing.
+            if len(found) == len(entries):
+                self._baseline(machine, found)
+            return
+        for name, data in found.items():
+            digest = _sha(data)
+            key = (machine.name, name)
+            if self.pushed.get(key) == digest or self.collected.get(key) == digest:
+                continue
+            with self.sessions.begin() as session:
+                row = inbox.store(session, machine.name, data, folder=self.inbox_folder)
+                audit.record(
+                    session,
+                    ACTOR,
+                    "netshare.collect",
+                    machine=machine.name,
+                    program=name,
+                    sha256=digest,
+                    nbytes=len(data),
+                    source=f"{folder.label}/{name}",
+                    received_id=row.id,
+                    inbox_name=row.name,
+                )
+            self.collected[key] = digest
+            report.collected.append((machine.name, name))
+            self._publish("collect", machine.name, name)
+
+    def _baseline(self, machine: MachineConfig, found: dict[str, bytes]) -> None:
+        files = {name: _sha(data) for name, data in found.items()}
+        with self.sessions.begin() as session:
+            audit.record(session, ACTOR, "netshare.baseline", machine=machine.name, files=files)
+        for name, digest in files.items():
+            self.collected[(machine.name, name)] = digest
+        self.baselined.add(machine.name)
+
+    # ------------------------------------------------------------------ archive
+    def _archive_due(self) -> bool:
+        now = self.clock()
+        last = self.last_archive
+        if last is None:
+            return False
+        every = self.config.archive_every
+        if every is not None:
+            return (now - last).total_seconds() >= every
+        if self.config.archive_at is None:
+            return False
+        hour, minute = self.config.archive_at
+        mark = now.replace(hour=hour, minute=minute, second=0, microsecond=0)
+        if mark > now:
+            mark -= timedelta(days=1)
+        return last < mark
+
+    def _archive(self, nas: list[Path], report: ScanReport) -> None:
+        now = self.clock()
+        day = self.config.archive / f"{now:%Y-%m-%d}"
+        moved: list[str] = []
+        for path in nas:
+            name = path.name
+            try:
+                data = path.read_bytes()
+            except OSError:
+                continue
+            digest = _sha(data)
+            removed = self._remove_pushed_copies(name)
+            error = ""
+            try:
+                day.mkdir(parents=True, exist_ok=True)
+                destination = _free_path(day, name)
+                shutil.move(str(path), str(destination))
+            except OSError as exc:
+                error = exc.strerror or str(exc)
+                destination = day / name
+            with self.sessions.begin() as session:
+                audit.record(
+                    session,
+                    ACTOR,
+                    "netshare.archive",
+                    program=name,
+                    sha256=digest,
+                    nbytes=len(data),
+                    result="failed" if error else "ok",
+                    source=str(path),
+                    destination=str(destination),
+                    removed_from=removed,
+                    error=error or None,
+                )
+            if error:
+                report.failed.append(("", name, error))
+                continue
+            moved.append(name)
+            report.archived.append(name)
+        with self.sessions.begin() as session:
+            audit.record(
+                session,
+                ACTOR,
+                "netshare.archive_run",
+                at=now.isoformat(),
+                folder=str(day),
+                files=moved,
+            )
+        self.last_archive = now
+        self._publish("archive", "", "", files=moved, folder=str(day))
+
+    def _remove_pushed_copies(self, name: str) -> list[str]:
+        """Remove ``name`` from the shares that still hold exactly what was pushed."""
+        removed = []
+        for machine in self.machines.values():
+            digest = self.pushed.get((machine.name, name))
+            if digest is None:
+                continue
+            try:
+                folder = _folder_for(machine.share)
+                if _sha(folder.read(name)) == digest:
+                    folder.remove(name)
+                    removed.append(machine.name)
+                    del self.pushed[(machine.name, name)]
+            except (DncError, OSError):
+                continue  # away, gone already, or edited and then removed: nothing to do
+        return removed
+
+    # ------------------------------------------------------------------ events
+    def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
+        if self.bus is not None:
+            data = {"action": action, "machine": machine, "name": name, **extra}
+            self.bus.publish("netshare", machine or "nas", data)
+
+
+def _free_path(folder: Path, name: str) -> Path:
+    # Never overwrite in the archive: O01234.nc, then O01234.2.nc, ...
+    path = folder / name
+    stem, dot, suffix = name.rpartition(".")
+    n = 1
+    while path.exists() or os.path.lexists(path):
+        n += 1
+        path = folder / (f"{stem}.{n}.{suffix}" if dot else f"{name}.{n}")
+    return path

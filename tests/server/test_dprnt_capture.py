@@ -1,0 +1,241 @@
+"""DPRNT capture in the server: a virtual Haas NGC (``--dprnt tcp:PORT``) runs a program that
+prints; the server stores every line, publishes it on the event stream and serves it as JSON
+(after an id) and CSV. Also the migration that adds the table, up from 0002 and back."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sqlalchemy import inspect, text
+
+from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.store.db import current_revision, make_engine, migrate
+from tests.server.srvx_support import (
+    FleetThread,
+    Procs,
+    auth,
+    create_key,
+    free_port,
+    httpx,
+    listening,
+    procs,
+    serve_fleet,
+    wait_for,
+)
+
+__all__ = ["procs"]  # the fixture
+
+STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
+PRINTS = """%
+O00500 (PRINT THREE PASSES)
+#100 = 0
+#101 = 1.5
+WHILE [#100 LT 3] DO1
+DPRNT[PASS*#100[20]*X#101[24]]
+#100 = #100 + 1
+#101 = #101 * 2
+END1
+M30
+%
+"""
+
+
+def test_migration_0003_up_from_0002_and_back(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, "0002")
+        with engine.begin() as conn:
+            conn.execute(
+                text(
+                    "INSERT INTO audit (at, actor, action, result, detail) "
+                    "VALUES (CURRENT_TIMESTAMP, 'alice', 'login', 'ok', '{}')"
+                )
+            )
+        migrate(engine)
+        assert current_revision(engine) == "0003"
+        columns = {c["name"] for c in inspect(engine).get_columns("dprnt_lines")}
+        assert columns == {"id", "machine", "at", "text", "fields", "complete"}
+        indexes = [i["column_names"] for i in inspect(engine).get_indexes("dprnt_lines")]
+        assert indexes == [["machine", "id"]]
+        migrate(engine, "0002")
+        assert current_revision(engine) == "0002"
+        assert "dprnt_lines" not in inspect(engine).get_table_names()
+        with engine.connect() as conn:  # the rows of earlier tables are untouched
+            assert conn.execute(text("SELECT actor FROM audit")).scalars().all() == ["alice"]
+        migrate(engine)
+        assert "dprnt_lines" in inspect(engine).get_table_names()
+    finally:
+        engine.dispose()
+
+
+@pytest.mark.parametrize(
+    ("machine", "key"),
+    [
+        ('kind = "lsv2"\nhost = "h"\ndprnt = "tcp://h:5000"', "machines[0].dprnt"),
+        ('kind = "haas_ngc"\nhost = "h"\ndprnt = "h:5000"', "machines[0].dprnt"),
+        ('kind = "haas_ngc"\nhost = "h"\ndprnt = "tcp://h:99999"', "machines[0].dprnt"),
+        ('kind = "haas_ngc"\nhost = "h"\nmdc = true', "machines[0].mdc"),
+        ('kind = "haas_serial"\nserial = "/dev/ttyS0"\nmdc = "yes"', "machines[0].mdc"),
+        (
+            'kind = "haas_serial"\nserial = "/dev/ttyS0"\nmdc_interval = 0',
+            "machines[0].mdc_interval",
+        ),
+        ('kind = "haas_ngc"\nhost = "h"\ndprnt = "serial"', "machines[0].dprnt"),
+    ],
+)
+def test_config_errors_name_the_key(tmp_path: Path, machine: str, key: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        parse_config(f'[[machines]]\nname = "m"\n{machine}\n', base=tmp_path)
+    assert caught.value.key == key
+
+
+class EventReader:
+    """Reads the server-sent events on a thread and keeps the ``dprnt`` ones."""
+
+    def __init__(self, base: str, key: str) -> None:
+        self.lines: list[dict[str, Any]] = []
+        self.connected = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, args=(base, key), daemon=True)
+        self._thread.start()
+
+    def _read(self, base: str, key: str) -> None:
+        with (
+            httpx.Client(base_url=base, timeout=None) as client,
+            client.stream("GET", "/api/events", headers=auth(key)) as response,
+        ):
+            self.connected.set()
+            kind = ""
+            for line in response.iter_lines():
+                if self._stop.is_set():
+                    return
+                if line.startswith("event: "):
+                    kind = line[7:]
+                elif line.startswith("data: ") and kind == "dprnt":
+                    self.lines.append(json.loads(line[6:]))
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def test_lines_printed_by_a_running_program_are_stored_and_served(
+    tmp_path: Path, procs: Procs, db_url: str
+) -> None:
+    mdc_port, dprnt_port, http_port = free_port(), free_port(), free_port()
+    memory = tmp_path / "ngc-mem"
+    memory.mkdir()
+    (memory / "O00500.nc").write_text(PRINTS)
+    config = tmp_path / "shop.toml"
+    config.write_text(
+        f'[server]\nbind = "127.0.0.1:{http_port}"\n'
+        f'[library]\npath = "{tmp_path / "lib"}"\n'
+        '[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+        f'mdc_port = {mdc_port}\ndprnt = "tcp://127.0.0.1:{dprnt_port}"\n'
+    )
+    key = create_key(config, db_url, role="viewer")
+    procs.start("server", "serve", "--config", str(config), "--db", db_url)
+    base = f"http://127.0.0.1:{http_port}"
+    wait_for("the server", listening(http_port))
+    events = EventReader(base, key)
+    assert events.connected.wait(10)
+    # The control runs O500 once a reader is on its DPRNT port (the server's listener).
+    procs.start(
+        "haas",
+        *("sim", "haas", "--root", str(memory), "--mdc-port", str(mdc_port)),
+        *("--dprnt", f"tcp:{dprnt_port}", "--run", "500"),
+    )
+    with httpx.Client(base_url=base, timeout=30) as client:
+
+        def lines(since: int = 0) -> list[dict[str, Any]]:
+            got: list[dict[str, Any]] = client.get(
+                "/api/machines/vf2/dprnt", headers=auth(key), params={"since": since}
+            ).json()
+            return got
+
+        stored = wait_for(
+            "three DPRNT lines",
+            lambda: len(got := lines()) == 3 and got,
+            describe=lambda: (lines(), procs.log("server"), procs.log("haas")),
+        )
+        # DPRNT rules: [20] two digits, no decimals; [24] four decimals; * prints a space
+        for n, (line, x) in enumerate(zip(stored, (1.5, 3.0, 6.0), strict=True)):
+            assert re.fullmatch(rf"PASS\s+{n}\s+X\s+{x:.4f}", line["line"]), line
+            assert line["numbers"] == [n, x]
+            assert [f["label"] for f in line["fields"]] == ["PASS", "X"]
+            assert (line["machine"], line["complete"]) == ("vf2", True)
+        ids = [line["id"] for line in stored]
+        assert ids == sorted(ids)
+        assert lines(since=ids[0]) == stored[1:]
+        assert lines(since=ids[-1]) == []
+
+        response = client.get(
+            "/api/machines/vf2/dprnt", headers=auth(key), params={"format": "csv"}
+        )
+        assert response.headers["content-type"].startswith("text/csv")
+        rows = list(csv.DictReader(io.StringIO(response.text)))
+        assert [r["line"] for r in rows] == [line["line"] for line in stored]
+        assert [r["fields"] for r in rows] == ["PASS=0 X=1.5", "PASS=1 X=3", "PASS=2 X=6"]
+        assert {r["complete"] for r in rows} == {"yes"}
+
+        wait_for("the lines on the event stream", lambda: len(events.lines) == 3)
+        assert [e["id"] for e in events.lines] == ids
+
+        assert client.get("/api/machines/vf2/dprnt").status_code == 401
+        missing = client.get("/api/machines/nope/dprnt", headers=auth(key))
+        assert missing.status_code == 404
+        bad = client.get("/api/machines/vf2/dprnt", headers=auth(key), params={"since": -1})
+        assert bad.status_code == 400
+    events.stop()
+
+
+def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
+    tmp_path: Path, procs: Procs, db_url: str
+) -> None:
+    haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        sim = haas.fleet.sims["haas-serial-1"]
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        haas.call(lambda: sim.control.save_program(PRINTS))
+        haas.call(lambda: sim.control.save_program(STORED))
+        client, key = serve_fleet(tmp_path, haas, procs, db_url, machine_keys='dprnt = "serial"\n')
+        with client:
+
+            def status() -> dict[str, Any]:
+                machine = client.get("/api/machines/haas-serial-1", headers=auth(key)).json()
+                return machine["status"] or {}
+
+            def lines() -> list[dict[str, Any]]:
+                got: list[dict[str, Any]] = client.get(
+                    "/api/machines/haas-serial-1/dprnt", headers=auth(key)
+                ).json()
+                return got
+
+            wait_for("the first MDC status", lambda: status().get("mode") == "MDI")
+            haas.call(lambda: sim.control.start_program(500))  # cycle start at the control
+            stored = wait_for(
+                "three DPRNT lines from the serial port",
+                lambda: len(got := lines()) == 3 and got,
+                describe=lambda: (lines(), port.messages, procs.log("server")),
+            )
+            assert [line["numbers"] for line in stored] == [[0, 1.5], [1, 3.0], [2, 6.0]]
+            for n, line in enumerate(stored):
+                assert re.fullmatch(rf"PASS\s+{n}\s+X\s+\d\.\d{{4}}", line["line"]), line
+            # the port still does its other work: status by MDC and a punch into the inbox
+            wait_for("O500 in the status", lambda: status().get("program") == "O00500")
+            port.select("punch:O1234")
+            items = wait_for(
+                "the punch in the inbox",
+                lambda: client.get("/api/inbox", headers=auth(key)).json(),
+                describe=lambda: (port.messages, procs.log("server")),
+            )
+            assert [i["name"] for i in items] == ["O01234.nc"]
+            assert len(lines()) == 3  # neither MDC replies nor the punch became DPRNT lines
+    finally:
+        haas.stop()
