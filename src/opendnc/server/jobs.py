@@ -6,9 +6,9 @@ same transaction.
 
 Claiming: a worker first locks its machine's row, then takes the first due queued job. On
 PostgreSQL both locks are ``FOR UPDATE SKIP LOCKED``, so several servers sharing one database
-never run two jobs on one port or one job twice. SQLite has no row locks: there a claim starts
-with a write to the machine row, which takes the database's write lock for the rest of the
-transaction, so claims are serialised (across threads and processes alike).
+never run two jobs on one port or one job twice. SQLite has no row locks: there every
+transaction starts with ``BEGIN IMMEDIATE`` (:mod:`opendnc.server.store.db`), which takes the
+database's write lock, so claims are serialised across threads and processes alike.
 
 Retries: a program load is idempotent, so a failed send is queued again with exponential
 backoff until ``max_attempts``. A drip-feed is not: after a break the machine has run an unknown
@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, or_, select, update
+from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -170,8 +170,6 @@ def send_program(
 
 def claim(session: Session, machine: str, worker: str) -> Job | None:
     """Take the next due job of ``machine`` for ``worker``, or None (see module docstring)."""
-    if session.get_bind().dialect.name == "sqlite":
-        session.execute(update(Machine).where(Machine.name == machine).values(kind=Machine.kind))
     locked = session.scalar(
         select(Machine).where(Machine.name == machine).with_for_update(skip_locked=True)
     )

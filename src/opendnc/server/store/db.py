@@ -3,7 +3,10 @@
 SQLite (the default, no set-up) and PostgreSQL (``postgresql+psycopg://``) take the same code.
 SQLite gets write-ahead logging and a busy timeout so the web requests and the machine tasks of
 one process can share the file; its foreign keys are switched on per connection because SQLite
-leaves them off.
+leaves them off. Every SQLite transaction starts with ``BEGIN IMMEDIATE``: a transaction that
+reads and then writes cannot take the write lock later if another connection committed in
+between (SQLite answers "database is locked" at once, the busy timeout does not apply), so it
+takes the lock first and waits for it instead.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ def make_engine(url: str) -> Engine:
             Path(database).parent.mkdir(parents=True, exist_ok=True)
         engine = create_engine(parsed, connect_args={"timeout": 30})
         event.listen(engine, "connect", _sqlite_pragmas)
+        event.listen(engine, "begin", _sqlite_begin)
         return engine
     if parsed.get_backend_name() == "postgresql":
         return create_engine(parsed, pool_pre_ping=True)
@@ -48,11 +52,17 @@ def make_engine(url: str) -> Engine:
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+    # The driver's own transaction handling is off; _sqlite_begin starts every transaction.
+    dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA foreign_keys=ON")
     cursor.execute("PRAGMA journal_mode=WAL")
     cursor.execute("PRAGMA busy_timeout=30000")
     cursor.close()
+
+
+def _sqlite_begin(connection: Any) -> None:
+    connection.exec_driver_sql("BEGIN IMMEDIATE")
 
 
 def make_sessions(engine: Engine) -> sessionmaker[Session]:
