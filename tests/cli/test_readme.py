@@ -112,9 +112,17 @@ def test_readme_runs_in_order(tmp_path: Path) -> None:
         TERM="dumb",
         COLUMNS="120",
     )
-    inner = 'mount --bind "$1" /tmp && ip link set lo up && cd /tmp/work && exec bash -s'
+    # A checkout (and its .venv) under /tmp would vanish behind the private /tmp: bind those
+    # folders into it first, so `opendnc` and the sources stay where they are.
+    keep = sorted(_host_tmp_folders(ROOT, Path(sys.executable).parent.absolute()))
+    for name in keep:
+        (private_tmp / name).mkdir(exist_ok=True)
+    inner = (
+        'p=$1; shift; for d in "$@"; do mount --bind "/tmp/$d" "$p/$d" || exit 1; done; '
+        'mount --rbind "$p" /tmp && ip link set lo up && cd /tmp/work && exec bash -s'
+    )
     proc = subprocess.Popen(
-        [*isolate, "sh", "-c", inner, "sh", str(private_tmp)],
+        [*isolate, "sh", "-c", inner, "sh", str(private_tmp), *keep],
         cwd=tmp_path,
         env=env,
         stdin=subprocess.PIPE,
@@ -135,6 +143,17 @@ def test_readme_runs_in_order(tmp_path: Path) -> None:
     (tmp_path / "transcript.txt").write_text(output, encoding="utf-8")  # for a look afterwards
     assert proc.returncode == 0, f"README run failed\n{_tail(output, private_tmp)}"
     assert output.rstrip().endswith("README-DONE"), "the run stopped before the README's end"
+
+
+def _host_tmp_folders(*paths: Path) -> set[str]:
+    """The top-level folders of /tmp that hold any of ``paths``."""
+    names = set()
+    for path in paths:
+        try:
+            names.add(path.relative_to("/tmp").parts[0])
+        except (ValueError, IndexError):
+            continue
+    return names
 
 
 def _tail(output: str, private_tmp: Path) -> str:
