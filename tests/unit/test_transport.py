@@ -95,3 +95,17 @@ def test_serial_settings_refused_by_device_is_transport_error() -> None:
             assert "refuses 9600 baud, 8E1" in str(refused)
     finally:
         pair.close()
+
+
+def test_a_read_that_fails_with_eio_is_the_peer_hanging_up() -> None:
+    # A pty whose far end closed (rx exiting right after its last ACK) reads EIO.
+    import errno
+
+    from opendnc.errors import PeerClosed, TransportError
+    from opendnc.transport.serial import _read_error
+
+    hung_up = _read_error("/dev/pts/9", OSError(errno.EIO, "Input/output error"))
+    assert isinstance(hung_up, PeerClosed)
+    other = _read_error("/dev/pts/9", OSError(errno.EBADF, "Bad file descriptor"))
+    assert type(other) is TransportError
+    assert "Bad file descriptor" in str(other)

@@ -144,7 +144,7 @@ class SerialStream:
             # pyserial reports a vanished peer (pty master closed, socket dropped) this way
             raise PeerClosed(f"{self.url}: {exc}") from exc
         except OSError as exc:
-            raise TransportError(f"read from {self.url} failed: {exc}") from exc
+            raise _read_error(self.url, exc) from exc
         return bytes(first)
 
     def read_nowait(self, max_bytes: int) -> bytes:
@@ -156,7 +156,7 @@ class SerialStream:
         except self._errors as exc:
             raise PeerClosed(f"{self.url}: {exc}") from exc
         except OSError as exc:
-            raise TransportError(f"read from {self.url} failed: {exc}") from exc
+            raise _read_error(self.url, exc) from exc
 
     def write(self, data: bytes) -> None:
         try:
@@ -187,3 +187,12 @@ class SerialStream:
 from opendnc.transport.urls import open_stream  # noqa: E402
 
 __all__ = ["SerialStream", "open_serial", "open_stream"]
+
+
+def _read_error(url: str, exc: OSError) -> TransportError:
+    # EIO on a read is a hang-up: the far end of a pty (or a USB adapter) is gone. Sometimes
+    # it arrives as a bare OSError instead of pyserial's exception; it is still the peer
+    # leaving, which a sender that already sent its EOT counts as the end of the transfer.
+    if exc.errno == errno.EIO:
+        return PeerClosed(f"{url}: {exc.strerror or exc}")
+    return TransportError(f"read from {url} failed: {exc}")
