@@ -25,12 +25,9 @@ from tests.server.srvx_support import (
     free_port,
     httpx,
     listening,
-    procs,
     serve_fleet,
     wait_for,
 )
-
-__all__ = ["procs"]  # the fixture
 
 STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
 PRINTS = """%

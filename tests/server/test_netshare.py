@@ -29,11 +29,10 @@ from tests.server.srvx_support import (
     free_port,
     httpx,
     listening,
-    procs,
     wait_for,
 )
 
-__all__ = ["procs", "samba"]  # fixtures shared with other tests
+__all__ = ["samba"]  # a fixture shared with other tests
 
 PROGRAM = "%\nO01000 (BRACKET)\nG20\nG00 G90 G54 X0. Y0.\nG01 X1.5 F20.\nM30\n%\n"
 EDITED = PROGRAM.replace("X1.5", "X1.25")

@@ -9,9 +9,7 @@ from typing import Any
 
 import pytest
 
-from tests.server.srvx_support import FleetThread, Procs, auth, procs, serve_fleet, wait_for
-
-__all__ = ["procs"]  # the fixture
+from tests.server.srvx_support import FleetThread, Procs, auth, serve_fleet, wait_for
 
 STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
 
