@@ -27,6 +27,9 @@ Example::
     kind = "lsv2"                          # lsv2 | haas_serial | haas_ngc
     host = "10.0.0.21"
     released_only = true
+    receive_folder = "TNC:/nc_prog/out"    # files put here go to the inbox (auto-receive)
+    receive_pattern = "*.h"                # optional, default every file
+    after_receive = "keep"                 # or "delete" on the control once received
 
     [netshare]                             # hybrid net share (server/netshare.py)
     path = "/mnt/nas/programs"             # programs dropped here go to every machine's share
@@ -117,6 +120,10 @@ class MachineConfig:
     mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
     mdc_interval: float = 3.0  # haas_serial: least seconds between two MDC status reads
     dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
+    receive_folder: str = ""  # lsv2: a folder on the control whose files come to the inbox
+    receive_pattern: str = "*"  # lsv2: which files of receive_folder (a glob, any case)
+    receive_every: int = 5  # lsv2: status polls between two listings of receive_folder
+    after_receive: str = "keep"  # lsv2: keep or delete a received file on the control
 
 
 @dataclass(frozen=True)
@@ -389,6 +396,7 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
     "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
+    "receive_folder", "receive_pattern", "receive_every", "after_receive",
 }  # fmt: skip
 _PROFILE_KEYS = {
     "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
@@ -442,6 +450,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     if not 0.05 <= mdc_interval <= 3600:
         raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
     dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
+    receive = _receive(raw, prefix, kind)
     return MachineConfig(
         name=name,
         kind=kind,
@@ -465,7 +474,42 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         mdc=mdc,
         mdc_interval=mdc_interval,
         dprnt=dprnt,
+        receive_folder=receive[0],
+        receive_pattern=receive[1],
+        receive_every=receive[2],
+        after_receive=receive[3],
     )
+
+
+def _receive(raw: dict[str, Any], prefix: str, kind: MachineKind) -> tuple[str, str, int, str]:
+    """The auto-receive folder of an LSV2 machine: (folder, pattern, every, after)."""
+    folder = _get(raw, prefix, "receive_folder", str, "")
+    pattern = _get(raw, prefix, "receive_pattern", str, "*")
+    every = _get(raw, prefix, "receive_every", int, 5)
+    after = _get(raw, prefix, "after_receive", str, "keep")
+    if not folder:
+        for key in ("receive_pattern", "receive_every", "after_receive"):
+            if key in raw:
+                raise ConfigError(f"{prefix}.{key}", "needs receive_folder")
+        return "", pattern, every, after
+    if kind is not MachineKind.LSV2:
+        raise ConfigError(
+            f"{prefix}.receive_folder",
+            "only for lsv2 (a serial Haas punches by itself, a Haas NGC's share is collected)",
+        )
+    from opendnc.server.machine_files import check_path  # it imports this module
+
+    try:
+        folder = check_path(folder)
+    except InputError as exc:
+        raise ConfigError(f"{prefix}.receive_folder", str(exc)) from None
+    if not pattern or len(pattern) > 100 or any(c in pattern for c in "/\\:"):
+        raise ConfigError(f"{prefix}.receive_pattern", "expected a file name glob like *.h")
+    if not 1 <= every <= 10_000:
+        raise ConfigError(f"{prefix}.receive_every", "expected 1..10000 polls")
+    if after not in ("keep", "delete"):
+        raise ConfigError(f"{prefix}.after_receive", "expected keep or delete")
+    return folder, pattern, every, after
 
 
 def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
