@@ -379,8 +379,12 @@ class Supervisor:
             except ControlRefused as exc:
                 log.info("%s: %s not read: %s", state.config.name, entry.path, exc)
                 continue  # gone or locked since the listing; the next listing tells
-            again = {e.path.upper(): e for e in await connector.list_files(watch.folder)}
-            failed = size_problem(entry, data, again.get(entry.path.upper()))
+            failed = size_problem(entry, data, entry)
+            if failed is not None:
+                # A size that disagrees: a second listing tells a file still being written
+                # from a read that went wrong.
+                again = {e.path.upper(): e for e in await connector.list_files(watch.folder)}
+                failed = size_problem(entry, data, again.get(entry.path.upper()))
             if failed == "":
                 continue  # it changed while we read it
             if failed is None and watch.known(entry, data):
