@@ -62,6 +62,13 @@ class DncConfig:
     wait_for_xon: bool = False
     # refuse a file that is not NC program text before the first byte (opendnc.nctext)
     text_check: bool = True
+    # tape leader and trailer: bytes sent before the opening % and after the closing one
+    # (NULs, as a paper tape's feed holes; controls skip them before the %)
+    leader: bytes = b""
+    trailer: bytes = b""
+    # seconds of silence after each line has left the port, for controls whose small
+    # receive buffer overruns without a handshake (docs/server.md#serial-profile)
+    line_delay: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -322,7 +329,7 @@ class DncRun:
         self.progress = progress
         self.on_event = on_event
         self.started = clock()
-        self._lines = iter(feed)
+        self._lines = self._wire()
         self._exhausted = False
         self._low_water = config.chunk * 4
         self._paused_at = self.started  # counts when waiting for the first XON
@@ -332,10 +339,28 @@ class DncRun:
         self._closed = False
         self._done_at: float | None = None  # when the last byte was handed out
         self._heard_at = self.started  # when the control last sent XON or XOFF
+        self._gap_due = False  # a line just went out whole: its line delay starts next step
+        self._gap_until = self.started  # no line before this time (the line delay)
+
+    def _wire(self) -> Iterator[bytes]:
+        if self.config.leader:
+            yield self.config.leader
+        yield from self.feed
+        if self.config.trailer:
+            yield self.config.trailer
 
     def fill(self) -> None:
-        """Read program lines until a few chunks are queued (constant memory)."""
+        """Read program lines until a few chunks are queued (constant memory); with a line
+        delay, one line at a time and only once the delay after the previous one is over."""
         streamer = self.streamer
+        if self.config.line_delay > 0:
+            if streamer.pending or self._exhausted or self.clock() < self._gap_until:
+                return
+            try:
+                streamer.queue(next(self._lines))
+            except StopIteration:
+                self._exhausted = True
+            return
         while not self._exhausted and streamer.pending < self._low_water:
             try:
                 streamer.queue(next(self._lines))
@@ -367,6 +392,8 @@ class DncRun:
         """The next chunk to write (empty while paused or when done)."""
         self.fill()
         out = self.streamer.data_to_send()
+        if out and self.config.line_delay > 0 and not self.streamer.pending:
+            self._gap_due = True
         if out and self.progress is not None:
             self.progress(self.feed.position, self.feed.total)
         return out
@@ -382,12 +409,20 @@ class DncRun:
             self.fill()
             if not self.finished:
                 raise PeerClosed(f"the control closed the link after {self.streamer.sent} bytes")
+        if self._gap_due:
+            # The driver has written (and drained) the line's last chunk: the delay runs now.
+            self._gap_due = False
+            self._gap_until = self.clock() + self.config.line_delay
         out = self.outgoing()
         if out:
             return Send(out, self.config.drain)
         if self.finished:
             return self._ending()
-        return Wait(self.wait_time())
+        wait = self.wait_time()
+        gap = self._gap_until - self.clock()
+        if gap > 0 and not self.streamer.paused:
+            wait = max(0.001, min(wait, gap))
+        return Wait(wait)
 
     def _ending(self) -> Step:
         """After the last byte: drain, then wait until the control's flow bytes stop."""

@@ -27,6 +27,23 @@ Example::
     kind = "lsv2"                          # lsv2 | haas_serial | haas_ngc
     host = "10.0.0.21"
     released_only = true
+    receive_folder = "TNC:/nc_prog/out"    # files put here go to the inbox (auto-receive)
+    receive_pattern = "*.h"                # optional, default every file
+    after_receive = "keep"                 # or "delete" on the control once received
+
+    [[machines]]
+    name = "lathe-2"
+    kind = "haas_serial"
+    serial = "/dev/ttyUSB0"
+    [machines.serial_profile]              # plain text, not XModem (docs/server.md#serial-profile)
+    baud = 9600
+    protocol = "text"
+    eob = "CRLF"
+    leader = 20                            # NULs before the program, trailer after it
+    trailer = 20
+    line_delay = 0.05                      # seconds after each line (small-buffer controls)
+    wait_for_xon = true
+    idle_timeout = 5.0                     # a text punch without its closing % fails after this
 
     [netshare]                             # hybrid net share (server/netshare.py)
     path = "/mnt/nas/programs"             # programs dropped here go to every machine's share
@@ -83,18 +100,35 @@ class MachineKind(StrEnum):
 
 @dataclass(frozen=True)
 class SerialProfile:
-    """Line settings of one serial port, as set on the control."""
+    """Line settings of one serial port, as set on the control.
+
+    Which of them apply to an XModem transfer and which to plain text (a text load, a
+    drip-feed, a text punch): docs/server.md#serial-profile.
+    """
 
     baud: int = 9600
     parity: str = "N"
     bytesize: int = 8
     stopbits: float = 1
     flow: str = "xonxoff"
-    eob: str = "CRLF"
-    leader: int = 0  # NUL characters before the program (tape leader)
-    trailer: int = 0
+    eob: str = "CRLF"  # LF, CR, CRLF, CRCR, LFLF (Haas Setting 25)
+    protocol: str = "xmodem"  # haas_serial: "xmodem" or "text" for loads and punches
+    leader: int = 0  # characters before the program (tape leader), plain text only
+    trailer: int = 0  # characters after it
+    leader_char: str = "\x00"  # what leader and trailer are made of (NUL, or e.g. "%")
     line_delay: float = 0.0  # seconds after each line, for controls without handshake
-    wait_for_xon: bool = False
+    wait_for_xon: bool = False  # a plain-text send starts at the control's first DC1
+    start_trigger: str = "%"  # a text punch is captured from here ("": first character)
+    end_trigger: str = "%"  # ... up to here ("": until the line goes quiet)
+    idle_timeout: float = 5.0  # seconds of silence that end (or fail) a text punch
+
+    def leader_bytes(self) -> bytes:
+        """The tape leader as bytes."""
+        return self.leader_char.encode("latin-1") * self.leader
+
+    def trailer_bytes(self) -> bytes:
+        """The tape trailer as bytes."""
+        return self.leader_char.encode("latin-1") * self.trailer
 
 
 @dataclass(frozen=True)
@@ -117,6 +151,10 @@ class MachineConfig:
     mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
     mdc_interval: float = 3.0  # haas_serial: least seconds between two MDC status reads
     dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
+    receive_folder: str = ""  # lsv2: a folder on the control whose files come to the inbox
+    receive_pattern: str = "*"  # lsv2: which files of receive_folder (a glob, any case)
+    receive_every: int = 5  # lsv2: status polls between two listings of receive_folder
+    after_receive: str = "keep"  # lsv2: keep or delete a received file on the control
 
 
 @dataclass(frozen=True)
@@ -389,10 +427,12 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
 _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
     "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
+    "receive_folder", "receive_pattern", "receive_every", "after_receive",
 }  # fmt: skip
-_PROFILE_KEYS = {
-    "baud", "parity", "bytesize", "stopbits", "flow", "eob", "leader", "trailer", "line_delay",
-    "wait_for_xon",
+_LINE_KEYS = {"baud", "parity", "bytesize", "stopbits", "flow"}
+_PROFILE_KEYS = _LINE_KEYS | {
+    "eob", "protocol", "leader", "trailer", "leader_char", "line_delay", "wait_for_xon",
+    "start_trigger", "end_trigger", "idle_timeout",
 }  # fmt: skip
 
 
@@ -442,19 +482,29 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
     if not 0.05 <= mdc_interval <= 3600:
         raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
     dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
+    receive = _receive(raw, prefix, kind)
+    profile = _profile(
+        _table(raw, "serial_profile"),
+        f"{prefix}.serial_profile",
+        # LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the
+        # controls' own default); a Haas at 9600 8N1 with XON/XOFF.
+        LSV2_SERIAL if kind is MachineKind.LSV2 else SerialProfile(),
+        lsv2=kind is MachineKind.LSV2,
+    )
+    if dprnt == "serial" and profile.protocol == "text":
+        # Printed lines and a punched program are both plain text on the one port.
+        raise ConfigError(
+            f"{prefix}.dprnt",
+            'serial DPRNT needs protocol = "xmodem" (a text '
+            "punch and a printed line cannot be told apart)",
+        )
     return MachineConfig(
         name=name,
         kind=kind,
         host=host,
         port=port,
         serial=serial,
-        profile=_profile(
-            _table(raw, "serial_profile"),
-            f"{prefix}.serial_profile",
-            # LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the
-            # controls' own default); a Haas at 9600 8N1 with XON/XOFF.
-            LSV2_SERIAL if kind is MachineKind.LSV2 else SerialProfile(),
-        ),
+        profile=profile,
         mdc_port=mdc_port,
         share=_get(raw, prefix, "share", str, ""),
         folder=_get(raw, prefix, "folder", str, ""),
@@ -465,7 +515,42 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         mdc=mdc,
         mdc_interval=mdc_interval,
         dprnt=dprnt,
+        receive_folder=receive[0],
+        receive_pattern=receive[1],
+        receive_every=receive[2],
+        after_receive=receive[3],
     )
+
+
+def _receive(raw: dict[str, Any], prefix: str, kind: MachineKind) -> tuple[str, str, int, str]:
+    """The auto-receive folder of an LSV2 machine: (folder, pattern, every, after)."""
+    folder = _get(raw, prefix, "receive_folder", str, "")
+    pattern = _get(raw, prefix, "receive_pattern", str, "*")
+    every = _get(raw, prefix, "receive_every", int, 5)
+    after = _get(raw, prefix, "after_receive", str, "keep")
+    if not folder:
+        for key in ("receive_pattern", "receive_every", "after_receive"):
+            if key in raw:
+                raise ConfigError(f"{prefix}.{key}", "needs receive_folder")
+        return "", pattern, every, after
+    if kind is not MachineKind.LSV2:
+        raise ConfigError(
+            f"{prefix}.receive_folder",
+            "only for lsv2 (a serial Haas punches by itself, a Haas NGC's share is collected)",
+        )
+    from opendnc.server.machine_files import check_path  # it imports this module
+
+    try:
+        folder = check_path(folder)
+    except InputError as exc:
+        raise ConfigError(f"{prefix}.receive_folder", str(exc)) from None
+    if not pattern or len(pattern) > 100 or any(c in pattern for c in "/\\:"):
+        raise ConfigError(f"{prefix}.receive_pattern", "expected a file name glob like *.h")
+    if not 1 <= every <= 10_000:
+        raise ConfigError(f"{prefix}.receive_every", "expected 1..10000 polls")
+    if after not in ("keep", "delete"):
+        raise ConfigError(f"{prefix}.after_receive", "expected keep or delete")
+    return folder, pattern, every, after
 
 
 def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
@@ -493,8 +578,11 @@ def _port_range(port: int, key: str) -> None:
 LSV2_SERIAL = SerialProfile(baud=57600, parity="E", flow="none")
 
 
-def _profile(raw: dict[str, Any], prefix: str, default: SerialProfile) -> SerialProfile:
-    _known(raw, prefix, _PROFILE_KEYS)
+def _profile(
+    raw: dict[str, Any], prefix: str, default: SerialProfile, *, lsv2: bool = False
+) -> SerialProfile:
+    # LSV2 frames its own telegrams: only the line settings mean anything there.
+    _known(raw, prefix, _LINE_KEYS if lsv2 else _PROFILE_KEYS)
     baud = _get(raw, prefix, "baud", int, default.baud)
     if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
         raise ConfigError(f"{prefix}.baud", f"{baud} is not a standard rate")
@@ -511,16 +599,37 @@ def _profile(raw: dict[str, Any], prefix: str, default: SerialProfile) -> Serial
     if flow not in ("none", "xonxoff", "rtscts"):
         raise ConfigError(f"{prefix}.flow", "expected none, xonxoff or rtscts")
     eob = _get(raw, prefix, "eob", str, default.eob).upper()
-    if eob not in ("CR", "LF", "CRLF"):
-        raise ConfigError(f"{prefix}.eob", "expected CR, LF or CRLF")
-    leader = _get(raw, prefix, "leader", int, 0)
-    trailer = _get(raw, prefix, "trailer", int, 0)
+    if eob not in ("CR", "LF", "CRLF", "CRCR", "LFLF"):
+        raise ConfigError(f"{prefix}.eob", "expected CR, LF, CRLF, CRCR or LFLF")
+    protocol = _get(raw, prefix, "protocol", str, default.protocol)
+    if protocol not in ("xmodem", "text"):
+        raise ConfigError(f"{prefix}.protocol", "expected xmodem or text")
+    leader = _get(raw, prefix, "leader", int, default.leader)
+    trailer = _get(raw, prefix, "trailer", int, default.trailer)
     for key, value in (("leader", leader), ("trailer", trailer)):
         if not 0 <= value <= 4096:
             raise ConfigError(f"{prefix}.{key}", "expected 0..4096 characters")
-    line_delay = _get(raw, prefix, "line_delay", float, 0.0)
+    leader_char = _get(raw, prefix, "leader_char", str, default.leader_char)
+    if len(leader_char) != 1 or ord(leader_char) > 0x7F or leader_char in "\r\n\x11\x13":
+        raise ConfigError(
+            f"{prefix}.leader_char",
+            'expected one ASCII character ("\\u0000" or "%"), no EOB or XON/XOFF',
+        )
+    line_delay = _get(raw, prefix, "line_delay", float, default.line_delay)
     if not 0 <= line_delay <= 10:
         raise ConfigError(f"{prefix}.line_delay", "expected 0..10 seconds")
+    triggers = {}
+    for key in ("start_trigger", "end_trigger"):
+        text = _get(raw, prefix, key, str, getattr(default, key))
+        if len(text) > 16 or any(ord(c) > 0xFF for c in text):
+            raise ConfigError(f"{prefix}.{key}", "expected at most 16 Latin-1 characters")
+        triggers[key] = text
+    wait_for_xon = _get(raw, prefix, "wait_for_xon", bool, default.wait_for_xon)
+    if wait_for_xon and flow != "xonxoff":
+        raise ConfigError(f"{prefix}.wait_for_xon", 'needs flow = "xonxoff" (the XON is DC1)')
+    idle = _get(raw, prefix, "idle_timeout", float, default.idle_timeout)
+    if not 0.1 <= idle <= 600:
+        raise ConfigError(f"{prefix}.idle_timeout", "expected 0.1..600 seconds")
     return SerialProfile(
         baud=baud,
         parity=parity,
@@ -528,8 +637,13 @@ def _profile(raw: dict[str, Any], prefix: str, default: SerialProfile) -> Serial
         stopbits=stopbits,
         flow=flow,
         eob=eob,
+        protocol=protocol,
         leader=leader,
         trailer=trailer,
+        leader_char=leader_char,
         line_delay=line_delay,
-        wait_for_xon=_get(raw, prefix, "wait_for_xon", bool, False),
+        wait_for_xon=wait_for_xon,
+        start_trigger=triggers["start_trigger"],
+        end_trigger=triggers["end_trigger"],
+        idle_timeout=idle,
     )

@@ -1,6 +1,8 @@
 """Programs received from the controls: the inbox, and what a reception leads to.
 
-A reception is named by the program's O-number (``O01234.nc``), else ``<machine>-<time>.nc``.
+A reception is named by the program's O-number (``O01234.nc``), else ``<machine>-<time>.nc``;
+a file found in a folder on the control (LSV2 auto-receive) keeps its own name when that is a
+safe program name.
 It is kept as a row (its bytes in the content-addressed blobs) and written to the inbox
 folder, never over an existing file: a second ``O01234.nc`` becomes ``O01234.2.nc``. A person
 accepts it (it becomes a new draft version of the program of that name) or discards it.
@@ -13,11 +15,13 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from opendnc.atomicfile import atomic_write
+from opendnc.errors import InputError
 from opendnc.server import audit, library
 from opendnc.server.errors import Conflict, NotFound
 from opendnc.server.store.models import (
@@ -32,7 +36,12 @@ from opendnc.xmodem.haas import program_header
 __all__ = ["accept", "diff_to_released", "discard", "get", "list_received", "store"]
 
 
-def _name_for(machine: str, data: bytes) -> str:
+def _name_for(machine: str, data: bytes, given: str | None = None) -> str:
+    if given:
+        try:
+            return library.check_program_name(given)
+        except InputError:
+            pass  # an odd name on the control: named as a punch would be
     header = program_header(data)
     if header is not None:
         return f"O{header.number:05d}.nc"
@@ -58,15 +67,24 @@ def store(
     *,
     folder: Path,
     failed: str = "",
+    name: str | None = None,
+    remote: dict[str, object] | None = None,
 ) -> Received:
-    """Keep a reception (``failed`` gives the reason a reception broke off)."""
+    """Keep a reception (``failed`` gives the reason a reception broke off).
+
+    ``name`` is the file's own name where it had one (a file found on the control), and
+    ``remote`` what the control said of that file (path, size, time); the audit row keeps it,
+    which is how auto-receive knows after a restart what it already took
+    (:mod:`opendnc.server.autoreceive`).
+    """
     digest = hashlib.sha256(data).hexdigest()
     if session.get(Blob, digest) is None:
         session.add(Blob(sha256=digest, size=len(data), data=data))
-    name = _name_for(machine, data)
+    name = _name_for(machine, data, name)
     target = _free_path(folder / "failed" if failed else folder, name)
     with atomic_write(target) as out:
         out.write(data)
+    extra: dict[str, Any] = {"remote": remote} if remote is not None else {}
     row = Received(
         machine=machine,
         name=name,
@@ -89,6 +107,7 @@ def store(
         result="failed" if failed else "ok",
         received_id=row.id,
         error=failed or None,
+        **extra,
     )
     return row
 

@@ -24,6 +24,7 @@ from typing import Any
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import (
+    ControlRefused,
     DncError,
     InputError,
     RemoteProtocolError,
@@ -31,10 +32,13 @@ from opendnc.errors import (
     TransportError,
 )
 from opendnc.server import audit, inbox, jobs, library, requests
+from opendnc.server.autoreceive import FolderWatch, size_problem
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
 from opendnc.server.events import EventBus
+from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
+from opendnc.server.machines.base import FolderSource
 from opendnc.server.store.models import JobKind, utcnow
 
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
@@ -119,6 +123,7 @@ class Supervisor:
         self.machines = {m.name: MachineState(m) for m in config.machines}
         self._tasks: list[asyncio.Task[None]] = []
         self._cancels: set[int] = set()
+        self._watches = {m.name: FolderWatch(m) for m in config.machines if m.receive_folder}
 
     async def start(self) -> None:
         """Recover jobs left running by a previous run, then start one task per machine."""
@@ -193,6 +198,8 @@ class Supervisor:
                 backoff = min(backoff * 2, 30.0)
 
     async def _serve(self, state: MachineState, connector: Connector) -> None:
+        watch = self._watches.get(state.config.name)
+        polls = 0
         while True:
             if state.wake.is_set():
                 state.wake.clear()
@@ -200,6 +207,11 @@ class Supervisor:
                     pass
             state.status = await connector.status()
             self._publish(state)
+            if watch is not None and isinstance(connector, FolderSource):
+                # Between jobs on the machine's own session: a listing never meets a transfer.
+                if polls % state.config.receive_every == 0:
+                    await self._autoreceive(state, connector, watch)
+                polls += 1
             if connector.listens:
                 # Waiting for a punch or a remote request is what a serial port does between
                 # jobs; a queued job waits at most one listening window.
@@ -348,6 +360,100 @@ class Supervisor:
             # Wake the machine when the answer falls due (the request delay).
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
             state.wake.set()
+
+    async def _autoreceive(
+        self, state: MachineState, connector: FolderSource, watch: FolderWatch
+    ) -> None:
+        """One look at the machine's receive folder (:mod:`opendnc.server.autoreceive`)."""
+        if not watch.loaded:
+            await asyncio.to_thread(self._load_watch, watch)
+        try:
+            listing = await connector.list_files(watch.folder)
+        except ControlRefused as exc:
+            # No such folder (yet) on the control: the status polls go on regardless.
+            state.last_error = f"receive folder {watch.folder}: {exc}"
+            return
+        for entry in watch.due(listing):
+            try:
+                data = await connector.fetch(entry.path)
+            except ControlRefused as exc:
+                log.info("%s: %s not read: %s", state.config.name, entry.path, exc)
+                continue  # gone or locked since the listing; the next listing tells
+            failed = size_problem(entry, data, entry)
+            if failed is not None:
+                # A size that disagrees: a second listing tells a file still being written
+                # from a read that went wrong.
+                again = {e.path.upper(): e for e in await connector.list_files(watch.folder)}
+                failed = size_problem(entry, data, again.get(entry.path.upper()))
+            if failed == "":
+                continue  # it changed while we read it
+            if failed is None and watch.known(entry, data):
+                watch.mark(entry, data)  # touched, not changed
+                continue
+            await self._file_found(state, connector, watch, entry, data, failed or "")
+
+    def _load_watch(self, watch: FolderWatch) -> None:
+        with self.sessions() as session:
+            watch.load(session)
+
+    async def _file_found(
+        self,
+        state: MachineState,
+        connector: FolderSource,
+        watch: FolderWatch,
+        entry: RemoteFile,
+        data: bytes,
+        failed: str,
+    ) -> None:
+        machine = state.config
+        folder = self.config.library.inbox
+
+        def keep() -> str:
+            with self.sessions.begin() as session:
+                row = inbox.store(
+                    session,
+                    machine.name,
+                    data,
+                    folder=folder,
+                    failed=failed,
+                    name=entry.name,
+                    remote=watch.remote(entry),
+                )
+                return row.name
+
+        name = await asyncio.to_thread(keep)
+        watch.mark(entry, data)
+        if failed:
+            message = f"reception of {entry.path} failed: {failed}"
+            state.last_error = message
+        else:
+            message = f"received {entry.path} into the inbox as {name}"
+        self.bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        if failed or machine.after_receive != "delete":
+            return
+        # Only now that the reception is committed may the control's copy go.
+        error = ""
+        try:
+            await connector.delete(entry.path)
+        except ControlRefused as exc:
+            error = str(exc)
+            state.last_error = f"{entry.path} received but not deleted: {error}"
+
+        def record() -> None:
+            with self.sessions.begin() as session:
+                audit.record(
+                    session,
+                    machine.name,
+                    "program.receive.delete",
+                    machine=machine.name,
+                    program=name,
+                    sha256=watch.seen[entry.path.upper()].sha256,
+                    result="failed" if error else "ok",
+                    path=entry.path,
+                    error=error or None,
+                )
+
+        await asyncio.to_thread(record)
 
     def _answer_request(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
         settings = self.config.requests

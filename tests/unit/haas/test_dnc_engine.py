@@ -132,3 +132,37 @@ def test_the_end_does_not_wait_longer_than_the_xoff_timeout(make_run: Runner) ->
 def test_without_drain_the_steps_say_so(make_run: Runner) -> None:
     run, _ = make_run("%\nM30\n%\n", DncConfig(drain=False), Clock())
     assert run.next_step() == Send(b"%\nM30\n%\n", drain=False)
+
+
+def test_leader_and_trailer_surround_the_program(make_run: Runner) -> None:
+    clock = Clock()
+    config = DncConfig(chunk=64, leader=b"\0" * 5, trailer=b"\0" * 3)
+    run, _ = make_run("O1\nM30\n", config, clock)
+    sent = b""
+    while isinstance(step := run.next_step(), Send):
+        sent += step.data
+    assert sent == b"\0\0\0\0\0%\nO1\nM30\n%\n\0\0\0"
+
+
+def test_a_line_delay_holds_each_line_back_after_the_previous_one_left(
+    make_run: Runner,
+) -> None:
+    clock = Clock()
+    config = DncConfig(chunk=4, line_delay=0.5, drain=True)
+    run, _ = make_run("%\nG01 X1.\nM30\n%\n", config, clock)
+    assert run.next_step() == Send(b"%\n", drain=True)
+    # The driver drained the line; the delay runs from the next step on.
+    step = run.next_step()
+    assert isinstance(step, Wait)
+    assert step.seconds == pytest.approx(POLL)
+    clock.now += 0.49
+    step = run.next_step()
+    assert isinstance(step, Wait)
+    assert step.seconds == pytest.approx(0.01)
+    clock.now += 0.01
+    # A line goes out in chunks without a pause inside it.
+    assert run.next_step() == Send(b"G01 ", drain=True)
+    assert run.next_step() == Send(b"X1.\n", drain=True)
+    assert isinstance(run.next_step(), Wait)
+    clock.now += 0.5
+    assert run.next_step() == Send(b"M30\n", drain=True)

@@ -11,14 +11,23 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from opendnc.errors import InputError
 
 if TYPE_CHECKING:
     from opendnc.server.config import MachineConfig
+    from opendnc.server.machine_files import RemoteFile
 
-__all__ = ["Connector", "DripProgress", "MachineStatus", "NetworkOnly", "Progress", "Reception"]
+__all__ = [
+    "Connector",
+    "DripProgress",
+    "FolderSource",
+    "MachineStatus",
+    "NetworkOnly",
+    "Progress",
+    "Reception",
+]
 
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
@@ -98,6 +107,15 @@ class Connector(Protocol):
     ) -> dict[str, int]:
         """Stream a program the control runs as it arrives (:class:`InputError` where the
         control cannot); ``progress`` may raise to stop the feed. Returns counts."""
+
+
+@runtime_checkable
+class FolderSource(Connector, Protocol):
+    """A connector that can also list a folder on its control (LSV2): what auto-receive
+    needs beside :meth:`Connector.fetch` and :meth:`Connector.delete`."""
+
+    async def list_files(self, folder: str) -> list[RemoteFile]:
+        """The entries of ``folder`` on the control."""
 
 
 class NetworkOnly:

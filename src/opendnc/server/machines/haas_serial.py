@@ -1,4 +1,5 @@
-"""Haas controls on RS-232: programs by XModem (checksum mode, what a Haas speaks).
+"""Haas controls on RS-232: programs by XModem (checksum mode, what a Haas speaks), or as
+plain text with ``protocol = "text"`` in the serial profile.
 
 A serial port has no status to poll: the machine counts as available while its port opens.
 Between jobs the port listens as an XModem receiver, so a program the operator punches (or a
@@ -12,6 +13,12 @@ have frozen under fast serial polling, docs/haas.md#mdc-polling), between two li
 windows: the connector owns the port, so a query never meets an XModem transfer. A control busy
 with something else (its own receive mode, a punch waiting for our NAK) does not answer; that
 poll reports the execution state as unknown and the link stays up (docs/haas.md#mdc).
+
+With ``protocol = "text"`` a load is streamed like a drip-feed (tape leader and trailer, the
+profile's EOB, XON/XOFF, an optional wait for the first XON and a delay after each line), and the
+port listens for a text punch between the start and end triggers instead of asking for XModem
+(:mod:`opendnc.haas.textpunch`); which profile field applies to which transfer is in
+docs/server.md#serial-profile.
 
 With ``dprnt = "serial"`` the lines the control prints on the same port are picked off while
 the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and handed to
@@ -27,10 +34,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportError, TransportTimeout
-from opendnc.haas.dnc import DncConfig, stream_program
+from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
-from opendnc.server.config import MachineConfig
+from opendnc.haas.textpunch import TextCapture
+from opendnc.server.config import MachineConfig, SerialProfile
 from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
@@ -45,7 +53,7 @@ from opendnc.xmodem.receiver import ReceiverConfig
 
 __all__ = ["HaasSerialConnector"]
 
-_EOB = {"CR": Eob.CR, "LF": Eob.LF, "CRLF": Eob.CRLF}
+TEXT_READ = 0.05  # seconds a text-punch listener waits per read (its clock for the idle timeout)
 MDC_TIMEOUT = 1.0
 """Seconds a status query waits for its reply: a classic control answers within a few
 characters' time, so a longer wait only delays the next listening window."""
@@ -142,8 +150,16 @@ class HaasSerialConnector:
         return status
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
-        """Send the program by XModem in checksum mode."""
-        wire = to_wire(data, _EOB[self.config.profile.eob])
+        """Send the program by XModem in checksum mode, or as plain text."""
+        profile = self.config.profile
+        if profile.protocol == "text":
+            # A load into memory: the control stores the program, it runs nothing, so no
+            # drip-feed opt-in is needed (the operator selected receive on the control).
+            await asyncio.to_thread(self._stream_text, name, data, 1, progress)
+            return
+        # XModem frames and acknowledges every block: leader, trailer, line delay and the wait
+        # for XON are plain-text matters (docs/server.md#serial-profile); the EOB applies.
+        wire = to_wire(data, eob(profile))
 
         stream = self._require()
         await asyncio.to_thread(
@@ -155,10 +171,13 @@ class HaasSerialConnector:
         return None
 
     async def listen(self, seconds: float) -> Reception | None:
-        """Receive one XModem transfer if the control starts one within ``seconds``."""
+        """Receive one XModem transfer (or text punch) if the control starts one within
+        ``seconds``."""
         if time.monotonic() < self._quiet_until:
             await asyncio.sleep(seconds)
             return None
+        if self.config.profile.protocol == "text":
+            return await asyncio.to_thread(self._listen_text, seconds)
 
         def run() -> Reception | None:
             parts: list[bytes] = []
@@ -217,34 +236,91 @@ class HaasSerialConnector:
                 f"{self.config.name}: drip-feed is off for this machine "
                 "(it runs the program: set dripfeed = true in its configuration)"
             )
-        stream = self._require()
-        profile = self.config.profile
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
 
-        def on_progress(done: int, total: int) -> None:
+        def on_progress(done: int, total: int | None) -> None:
             # File bytes consumed -> the program line reached (lines before from_line count
             # as done: they were skipped, not sent).
             progress(data[:done].count(b"\n") + 1, lines)
 
-        def run() -> dict[str, int]:
-            with tempfile.TemporaryDirectory(prefix="opendnc-dnc-") as tmp:
-                path = Path(tmp) / name
-                path.write_bytes(data)
-                report = stream_program(
-                    stream,
-                    path,
-                    from_line=from_line,
-                    config=DncConfig(eob=_EOB[profile.eob], wait_for_xon=profile.wait_for_xon),
-                    safe_mode=False,  # the machine's dripfeed = true is the opt-in
-                    progress=on_progress,
-                )
-            return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
-
         try:
-            return await asyncio.to_thread(run)
+            # the machine's dripfeed = true is the opt-in to a run
+            return await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
         except BaseException:
             self._quiet_until = time.monotonic() + self.quiet_after_break
             raise
+
+    def _stream_text(
+        self, name: str, data: bytes, from_line: int, progress: Progress
+    ) -> dict[str, int]:
+        """Plain text out, as the profile says (a drip-feed or a text load)."""
+        stream = self._require()
+        with tempfile.TemporaryDirectory(prefix="opendnc-dnc-") as tmp:
+            path = Path(tmp) / name
+            path.write_bytes(data)
+            report = stream_program(
+                stream,
+                path,
+                from_line=from_line,
+                config=text_config(self.config.profile),
+                safe_mode=False,  # callers decide: a load runs nothing, a drip-feed is opted in
+                progress=progress,
+            )
+        return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
+
+    def _listen_text(self, seconds: float) -> Reception | None:
+        """Wait up to ``seconds`` for a text punch to start; once it has, read it to its end
+        trigger however long it takes, or fail after the profile's idle timeout."""
+        profile = self.config.profile
+        capture = TextCapture(
+            profile.start_trigger.encode("latin-1"),
+            profile.end_trigger.encode("latin-1"),
+            eob(profile),
+        )
+        stream = self._reader()
+        stream.set_timeout(TEXT_READ)
+        deadline = time.monotonic() + seconds
+        heard = time.monotonic()
+        try:
+            while not capture.done:
+                try:
+                    data = stream.read(4096)
+                except TransportTimeout:
+                    data = b""
+                except PeerClosed:
+                    if not capture.started:
+                        raise
+                    return Reception(capture.program(), failed="the line closed mid-punch")
+                now = time.monotonic()
+                if data:
+                    capture.feed(data)
+                    heard = now
+                if not capture.started:
+                    if now >= deadline:
+                        return None
+                elif now - heard >= profile.idle_timeout:
+                    capture.quiet(profile.idle_timeout)
+        finally:
+            stream.set_timeout(1.0)
+        return Reception(capture.program(), failed=capture.failed)
+
+
+def eob(profile: SerialProfile) -> Eob:
+    """The profile's end of block (Haas Setting 25)."""
+    return Eob[profile.eob]
+
+
+def text_config(profile: SerialProfile) -> DncConfig:
+    """How plain text goes out on this port: the profile's flow, EOB, leader and trailer,
+    line delay and wait for the first XON (docs/server.md#serial-profile)."""
+    return DncConfig(
+        flow=Flow(profile.flow),
+        eob=eob(profile),
+        wait_for_xon=profile.wait_for_xon,
+        leader=profile.leader_bytes(),
+        trailer=profile.trailer_bytes(),
+        line_delay=profile.line_delay,
+    )
 
 
 def _drain(stream: ByteStream) -> None:

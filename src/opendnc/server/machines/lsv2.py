@@ -14,6 +14,7 @@ from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.server.config import MachineConfig
+from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
@@ -156,6 +157,15 @@ class Lsv2Connector(NetworkOnly):
     async def fetch(self, path: str) -> bytes:
         """Read a file from the control (binary: the bytes as the control holds them)."""
         return await self._require().read_file(path, binary=True)
+
+    async def list_files(self, folder: str) -> list[RemoteFile]:
+        """The files and folders in ``folder`` (one directory listing on this session)."""
+        base = folder.rstrip("/\\")
+        return [
+            RemoteFile(e.name, f"{base}/{e.name}", e.size, e.modified, e.is_dir)
+            for e in await self._require().list_dir(folder)
+            if e.name not in {".", ".."} and not e.hidden and not e.is_drive
+        ]
 
     async def delete(self, path: str) -> None:
         """Delete a file on the control."""
