@@ -1,0 +1,220 @@
+"""The MQTT publisher against the real Mosquitto: retained state per machine, changes as the
+virtual control changes, job events, the health topic and its last will.
+
+The server runs as its own process around virtual controls of this process (FleetThread); a
+plain paho client listens. Every test uses its own topic prefix.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from opendnc.server.config import MqttConfig
+from opendnc.server.events import Event, EventBus
+from opendnc.server.mqtt import MqttPublisher
+from opendnc.sim.haas.machine import Mode
+from tests.peers import require_command
+from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
+from tests.server.outputs_support import (
+    Listener,
+    require_broker,
+    start_outputs_server,
+    unique_prefix,
+)
+from tests.server.test_from_the_control import FleetThread
+
+ITEM_KEYS = {
+    "availability", "execution", "controller_mode", "program", "line_number", "part_count",
+    "tool_number", "feed_override", "rapid_override", "spindle_override", "message", "system",
+}  # fmt: skip
+
+
+@pytest.fixture
+def ngc(tmp_path: Path) -> Iterator[FleetThread]:
+    fleet = FleetThread(tmp_path / "machines", tnc=0, haas=1)
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+def _items(message: object) -> dict[str, dict[str, object]]:
+    data = message.json()  # type: ignore[attr-defined]
+    items: dict[str, dict[str, object]] = data["items"]
+    return items
+
+
+def test_retained_state_changes_jobs_and_the_last_will(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    require_broker()
+    prefix = unique_prefix()
+    port = start_outputs_server(
+        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+    )
+    online = "opendnc/dnc-test/online"
+
+    # A subscriber that comes later still finds the state: it is retained.
+    with Listener(prefix) as early:
+        wait_for(
+            "the machine available",
+            lambda: (m := early.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE",
+            describe=lambda: procs.log("server"),
+        )
+    with Listener(prefix) as late:
+        status = wait_for("the retained status", lambda: late.last("haas-1/status"))
+        assert status.retain
+        items = _items(status)
+        assert set(items) == ITEM_KEYS
+        for item in items.values():
+            assert set(item) >= {"value", "timestamp", "quality"}
+            assert (item["quality"] == "unavailable") == (item["value"] is None)
+        assert items["availability"]["value"] == "AVAILABLE"
+        # The virtual Haas starts in MDI (Q104 "MDI"): MTConnect's MANUAL_DATA_INPUT.
+        assert items["controller_mode"]["value"] == "MANUAL_DATA_INPUT"
+        assert items["feed_override"]["unit"] == "PERCENT"
+        health = wait_for("the health topic", lambda: late.last(online))
+        assert (health.payload, health.retain) == (b"true", True)
+
+        # The operator turns the mode switch to MEM: the change arrives, item and status.
+        sim = ngc.fleet.sims["haas-1"]
+        ngc.call(lambda: sim.control.set_mode(Mode.MEM))
+        changed = wait_for(
+            "the mode change",
+            lambda: [m for m in late.on("haas-1/controller_mode") if not m.retain],
+        )
+        assert changed[-1].json()["value"] == "AUTOMATIC"
+        wait_for(
+            "the status with the new mode",
+            lambda: _items(late.last("haas-1/status"))["controller_mode"]["value"] == "AUTOMATIC",
+        )
+        # Report by exception: an unchanged item is not sent again every poll.
+        assert not [m for m in late.on("haas-1/program") if not m.retain]
+
+        # A job: its events go to <machine>/jobs, not retained.
+        key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+            put = client.put(
+                "/api/programs/O01000.nc", content=b"%\nO01000\nM30\n%\n", headers=auth(key)
+            )
+            assert put.status_code == 201, put.text
+            made = client.post(
+                "/api/jobs",
+                json={"program": "O01000.nc", "version": 1, "machines": ["haas-1"]},
+                headers=auth(key),
+            )
+            assert made.status_code == 201, made.text
+            job_id = made.json()[0]["id"]
+        done = wait_for(
+            "the job's end on the jobs topic",
+            lambda: [m.json() for m in late.on("haas-1/jobs") if m.json()["state"] == "done"],
+        )
+        assert done[0]["id"] == job_id
+        assert not any(m.retain for m in late.on("haas-1/jobs"))
+
+        # The server dies without a word: the broker publishes its will.
+        procs.stop("server", signal.SIGKILL)
+        wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
+
+
+def test_a_clean_stop_says_offline_itself(tmp_path: Path, ngc: FleetThread, procs: Procs) -> None:
+    require_broker()
+    prefix = unique_prefix()
+    start_outputs_server(
+        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+    )
+    with Listener(prefix) as listener:
+        topic = "opendnc/dnc-test/online"
+        wait_for("online", lambda: (m := listener.last(topic)) and m.payload == b"true")
+        procs.stop("server", signal.SIGTERM)
+        wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
+
+
+def _private_broker(procs_dir: Path, port: int) -> subprocess.Popen[bytes]:
+    mosquitto = require_command("mosquitto")
+    conf = procs_dir / f"mosquitto-{port}.conf"
+    conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    with (procs_dir / f"mosquitto-{port}.log").open("ab") as log:  # the child keeps its own fd
+        return subprocess.Popen([mosquitto, "-c", str(conf)], stdout=log, stderr=subprocess.STDOUT)
+
+
+def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    """A private Mosquitto (its own port) is stopped and started again under a running server."""
+    broker_port = free_port()
+    prefix = unique_prefix()
+    broker = _private_broker(tmp_path, broker_port)
+    try:
+        wait_for("the private broker", listening(broker_port), 20)
+        port = start_outputs_server(
+            tmp_path,
+            procs,
+            ngc.fleet,
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:{broker_port}"\nprefix = "{prefix}"\n',
+        )
+        with Listener(prefix, broker_port) as listener:
+            wait_for("the state", lambda: listener.last("haas-1/status"))
+        broker.terminate()
+        broker.wait(10)
+
+        # With the broker away, the machine still answers and the API still serves.
+        sim = ngc.fleet.sims["haas-1"]
+        ngc.call(lambda: sim.control.set_mode(Mode.MEM))
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5) as client:
+            key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+            wait_for(
+                "the new mode through the API",
+                lambda: (
+                    (client.get("/api/machines/haas-1", headers=auth(key)).json()["status"])["mode"]
+                    == "MEM"
+                ),
+            )
+
+        broker = _private_broker(tmp_path, broker_port)
+        wait_for("the private broker again", listening(broker_port), 20)
+        # A fresh broker (no persistence) knows nothing: the server sends the whole state.
+        with Listener(prefix, broker_port) as listener:
+            status = wait_for(
+                "the state after the outage",
+                lambda: listener.last("haas-1/status"),
+                90,
+                describe=lambda: procs.log("server"),
+            )
+            assert _items(status)["controller_mode"]["value"] == "AUTOMATIC"
+            assert listener.last("opendnc/dnc-test/online").payload == b"true"  # type: ignore[union-attr]
+    finally:
+        broker.terminate()
+        broker.wait(10)
+
+
+def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
+    """While the broker is away only job events queue (the state is resent whole); past the
+    limit the oldest go first and are counted."""
+    config = MqttConfig(host="127.0.0.1", prefix="p", queue=10)
+
+    async def run() -> MqttPublisher:
+        publisher = MqttPublisher(config, "dnc", ["m1"], EventBus())
+        for i in range(25):
+            publisher.take(Event("job", str(i), {"id": i, "machine": "m1", "state": "done"}))
+            publisher.take(
+                Event(
+                    "machine",
+                    "m1",
+                    {"online": True, "status": {"available": True, "program": f"O{i}"}},
+                )
+            )
+        return publisher
+
+    publisher = asyncio.run(run())
+    assert publisher.dropped == 15
+    assert [m.topic for m in publisher.queue] == ["p/m1/jobs"] * 10
+    ids = [int(m.payload.split('"id":')[1].split(",")[0]) for m in publisher.queue]
+    assert ids == list(range(15, 25))
+    assert publisher.tracker.snapshot("m1")["program"].value == "O24"
