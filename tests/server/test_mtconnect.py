@@ -246,3 +246,21 @@ def test_output_settings_as_documented(tmp_path: Path) -> None:
     assert config.mtconnect is not None
     assert (config.mqtt.host, config.mqtt.port, config.mqtt.tls) == ("broker.local", 8883, True)
     assert config.mtconnect.ports == {"m1": 7878, "m2": 7879, "m3": 7900}
+
+
+def test_a_taken_port_is_an_error_naming_the_machine(tmp_path: Path, procs: Procs) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        config = tmp_path / "shop.toml"
+        config.write_text(
+            f'[server]\nbind = "127.0.0.1:{free_port()}"\n\n'
+            '[[machines]]\nname = "mill-1"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n\n'
+            f'[mtconnect]\nbind = "127.0.0.1:{port}"\n'
+        )
+        proc = procs.start("server", "serve", "--config", str(config))
+        assert proc.wait(60) == 1
+    log = procs.log("server")
+    assert f"mtconnect: mill-1: cannot listen on 127.0.0.1:{port}" in log, log
+    assert "Traceback" not in log

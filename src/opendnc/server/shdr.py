@@ -18,9 +18,10 @@ import contextlib
 import hashlib
 import logging
 from collections.abc import Iterable
+from datetime import UTC, datetime
 from xml.etree import ElementTree as ET
 
-from opendnc.server.config import MtconnectConfig
+from opendnc.server.config import ConfigError, MtconnectConfig
 from opendnc.server.events import EventBus
 from opendnc.server.items import ITEMS, ItemTracker, Reading, Value, shdr_time
 
@@ -150,6 +151,11 @@ class ShdrAdapter:
         self._server = await asyncio.start_server(self._serve, self.host, self.port)
         self.port = self._server.sockets[0].getsockname()[1]
 
+    @property
+    def listening(self) -> bool:
+        """Whether the port is open."""
+        return self._server is not None
+
     async def close(self) -> None:
         """Stop listening and hang up on every agent."""
         if self._server is not None:
@@ -214,9 +220,19 @@ class MtconnectOutput:
         self._conditions: dict[str, dict[str, Value]] = {name: {} for name in machines}
 
     async def start(self) -> None:
-        """Open every machine's port (an OSError names the port that is taken)."""
+        """Open every machine's port (again: nothing); a port that is taken is a
+        :class:`ConfigError` naming the machine."""
         for adapter in self.adapters.values():
-            await adapter.start()
+            if adapter.listening:
+                continue
+            try:
+                await adapter.start()
+            except OSError as exc:
+                await self.close()
+                where = f"{adapter.host}:{adapter.port}"
+                raise ConfigError(
+                    "mtconnect", f"{adapter.machine}: cannot listen on {where}: {exc.strerror}"
+                ) from exc
             log.info("mtconnect: %s on %s:%d", adapter.machine, adapter.host, adapter.port)
 
     async def close(self) -> None:
@@ -252,7 +268,7 @@ def devices_xml(machines: list[str], server_name: str) -> str:
     ET.SubElement(
         root,
         "Header",
-        creationTime="1970-01-01T00:00:00Z",
+        creationTime=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         sender=server_name,
         instanceId="1",
         version="1.3",
