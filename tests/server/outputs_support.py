@@ -62,12 +62,16 @@ class Listener:
 
     prefix: str
     port: int = BROKER[1]
+    username: str | None = None
+    password: str | None = None
     messages: list[Received] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        if self.username is not None:
+            self.client.username_pw_set(self.username, self.password)
         self.client.on_message = self._on_message
         self.client.on_subscribe = lambda *_args: self._subscribed.set()
         self.client.on_connect = lambda client, *_args: client.subscribe(f"{self.prefix}/#", 1)

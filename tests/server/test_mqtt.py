@@ -8,6 +8,7 @@ plain paho client listens. Every test uses its own topic prefix.
 from __future__ import annotations
 
 import asyncio
+import getpass
 import signal
 import subprocess
 from collections.abc import Iterator
@@ -136,10 +137,16 @@ def test_a_clean_stop_says_offline_itself(tmp_path: Path, ngc: FleetThread, proc
         wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
 
 
-def _private_broker(procs_dir: Path, port: int) -> subprocess.Popen[bytes]:
+def _private_broker(procs_dir: Path, port: int, passwords: str = "") -> subprocess.Popen[bytes]:
     mosquitto = require_command("mosquitto")
     conf = procs_dir / f"mosquitto-{port}.conf"
-    conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+    # Run as root, Mosquitto would switch to its own user, who cannot read the test's folder.
+    text = f"listener {port} 127.0.0.1\npersistence false\nuser {getpass.getuser()}\n"
+    if passwords:
+        text += f"allow_anonymous false\npassword_file {passwords}\n"
+    else:
+        text += "allow_anonymous true\n"
+    conf.write_text(text)
     with (procs_dir / f"mosquitto-{port}.log").open("ab") as log:  # the child keeps its own fd
         return subprocess.Popen([mosquitto, "-c", str(conf)], stdout=log, stderr=subprocess.STDOUT)
 
@@ -218,3 +225,44 @@ def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
     ids = [int(m.payload.split('"id":')[1].split(",")[0]) for m in publisher.queue]
     assert ids == list(range(15, 25))
     assert publisher.tracker.snapshot("m1")["program"].value == "O24"
+
+
+def test_the_broker_checks_the_configured_user_and_a_refusal_blocks_nothing(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    passwd = require_command("mosquitto_passwd")
+    passwords = tmp_path / "passwords"
+    subprocess.run([passwd, "-b", "-c", str(passwords), "dnc", "s3cret"], check=True, timeout=30)
+    broker_port = free_port()
+    prefix = unique_prefix()
+    broker = _private_broker(tmp_path, broker_port, str(passwords))
+    try:
+        wait_for("the private broker", listening(broker_port), 20)
+        mqtt_table = (
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:{broker_port}"\nprefix = "{prefix}"\n'
+            'username = "dnc"\npassword = "s3cret"\n'
+        )
+        start_outputs_server(tmp_path, procs, ngc.fleet, mqtt_table)
+        with Listener(prefix, broker_port, "dnc", "s3cret") as listener:
+            status = wait_for("the state", lambda: listener.last("haas-1/status"))
+            assert _items(status)["availability"]["value"] == "AVAILABLE"
+        procs.stop("server")
+
+        # A wrong password: the broker refuses, the server serves its machines all the same.
+        wrong = tmp_path / "wrong"
+        wrong.mkdir()
+        port = start_outputs_server(wrong, procs, ngc.fleet, mqtt_table.replace("s3cret", "nope"))
+        key = create_key(wrong / "shop.toml", f"sqlite:///{wrong / 'opendnc.db'}")
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5) as client:
+            wait_for(
+                "the machine online through the API",
+                lambda: client.get("/api/machines/haas-1", headers=auth(key)).json()["online"],
+            )
+        wait_for("the refusal in the log", lambda: "mqtt:" in procs.log("server"))
+        with Listener(prefix, broker_port, "dnc", "s3cret") as listener:
+            # Only the first server's retained state (its last will said false) is there.
+            health = wait_for("the health", lambda: listener.last("opendnc/dnc-test/online"))
+            assert health.payload == b"false"
+    finally:
+        broker.terminate()
+        broker.wait(10)
