@@ -108,7 +108,7 @@ class ShdrReader:
     """
 
     CONDITIONS: ClassVar[frozenset[str]] = frozenset({"system"})
-    MESSAGES: ClassVar[frozenset[str]] = frozenset({"message"})
+    MESSAGES: ClassVar[frozenset[str]] = frozenset({"message", "dprnt"})
 
     def __init__(self, port: int) -> None:
         self.sock = socket.create_connection(("127.0.0.1", port), 10)

@@ -24,10 +24,12 @@ from tests.peers import require_command
 from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
 from tests.server.outputs_support import (
     Listener,
+    ShdrReader,
     require_broker,
     start_outputs_server,
     unique_prefix,
 )
+from tests.server.srvx_support import serve_fleet
 from tests.server.test_from_the_control import FleetThread
 
 ITEM_KEYS = {
@@ -266,3 +268,68 @@ def test_the_broker_checks_the_configured_user_and_a_refusal_blocks_nothing(
     finally:
         broker.terminate()
         broker.wait(10)
+
+
+PRINTS = """%
+O00500 (PRINT THREE PASSES)
+#100 = 0
+#101 = 1.5
+WHILE [#100 LT 3] DO1
+DPRNT[PASS*#100[20]*X#101[24]]
+#100 = #100 + 1
+#101 = #101 * 2
+END1
+M30
+%
+"""
+
+
+def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs) -> None:
+    """A serial Haas prints three DPRNT lines: each is a message on ``<machine>/dprnt`` and a
+    ``dprnt`` MESSAGE line on the machine's SHDR port."""
+    require_broker()
+    prefix, shdr_port = unique_prefix(), free_port()
+    haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        sim = haas.fleet.sims["haas-serial-1"]
+        haas.call(lambda: sim.control.save_program(PRINTS))
+        extra = (
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n\n'
+            f'[mtconnect]\nbind = "127.0.0.1:{shdr_port}"\n'
+        )
+        client, _key = serve_fleet(
+            tmp_path,
+            haas,
+            procs,
+            f"sqlite:///{tmp_path / 'opendnc.db'}",
+            machine_keys='dprnt = "serial"\n',
+            extra=extra,
+        )
+        client.close()
+        wait_for("the SHDR port", listening(shdr_port))
+        agent = ShdrReader(shdr_port)
+        try:
+            with Listener(prefix) as listener:
+                agent.until(
+                    "the first status",
+                    lambda: agent.values.get("controller_mode") == "MANUAL_DATA_INPUT",
+                )
+                assert agent.values["dprnt"] == "UNAVAILABLE"  # nothing printed yet
+                haas.call(lambda: sim.control.start_program(500))  # cycle start
+                printed = wait_for(
+                    "three lines on the dprnt topic",
+                    lambda: len(got := listener.on("haas-serial-1/dprnt")) == 3 and got,
+                    describe=lambda: procs.log("server"),
+                )
+                assert [m.json()["numbers"] for m in printed] == [[0, 1.5], [1, 3.0], [2, 6.0]]
+                assert not any(m.retain for m in printed)
+                texts = [m.json()["line"] for m in printed]
+            shdr = agent.until(
+                "three dprnt lines on the SHDR port",
+                lambda: len(got := [ln for ln in agent.lines if "|dprnt|" in ln][1:]) == 3 and got,
+            )
+            assert [ln.split("|")[3] for ln in shdr] == [" ".join(t.split()) for t in texts]
+        finally:
+            agent.close()
+    finally:
+        haas.stop()

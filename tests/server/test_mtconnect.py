@@ -120,7 +120,7 @@ def test_each_machine_is_a_device_on_its_own_port(
     assert len(ids) == len(set(ids))
     for device in devices:
         names = {d.get("name") for d in device.iter(f"{{{ns['m']}}}DataItem")}
-        assert names == KEYS | {"system"}
+        assert names == KEYS | {"system", "dprnt"}
 
 
 def test_an_agent_that_stops_reading_does_not_stop_the_others(

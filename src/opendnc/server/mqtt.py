@@ -3,7 +3,8 @@
 A subscriber of the event bus like the API's server-sent events. Per machine it keeps a
 retained JSON state (``<prefix>/<machine>/status``) and one retained topic per item
 (``<prefix>/<machine>/<item>``), both sent only when an item changes (report by exception),
-and sends job events (``<prefix>/<machine>/jobs``, not retained). The server's health is
+and sends job events and printed lines (``<prefix>/<machine>/jobs`` and ``.../dprnt``, not
+retained). The server's health is
 ``<prefix>/opendnc/<server>/online``: "true" (retained) while connected, "false" as the last
 will the broker publishes when the server dies.
 
@@ -123,11 +124,14 @@ class MqttPublisher:
                 # While away, the next connection sends the whole state anyway: queueing
                 # retained changes would only replay older values after it.
                 self._changes(event.key, changed)
-        elif event.kind == "job":
+        elif event.kind in ("job", "dprnt"):
+            # Every job event and every printed line is news of its own: not retained, kept
+            # in the queue while the broker is away.
             machine = str(event.data.get("machine", ""))
             if machine in self.tracker.machines:
                 data = {**event.data, "timestamp": shdr_time(datetime.now(UTC))}
-                self._put(Outgoing(self.topic(machine, "jobs"), _dumps(data), retain=False))
+                leaf = "jobs" if event.kind == "job" else "dprnt"
+                self._put(Outgoing(self.topic(machine, leaf), _dumps(data), retain=False))
 
     def _changes(self, machine: str, changed: dict[str, Reading]) -> None:
         readings = self.tracker.snapshot(machine)

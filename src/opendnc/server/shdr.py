@@ -23,9 +23,10 @@ from xml.etree import ElementTree as ET
 
 from opendnc.server.config import ConfigError, MtconnectConfig
 from opendnc.server.events import EventBus
-from opendnc.server.items import ITEMS, ItemTracker, Reading, Value, shdr_time
+from opendnc.server.items import ITEMS, ItemSpec, ItemTracker, Reading, Value, shdr_time
 
 __all__ = [
+    "DPRNT",
     "HEARTBEAT_MS",
     "MtconnectOutput",
     "ShdrAdapter",
@@ -46,8 +47,11 @@ WRITE_LIMIT = 1 << 20
 state again): a stalled agent must not make the server hoard memory."""
 
 UNAVAILABLE = "UNAVAILABLE"
+DPRNT = ItemSpec("dprnt", "MESSAGE", component="controller")
+"""The lines a Haas prints (DPRNT), one MESSAGE observation each; not part of the status."""
+
 _CONDITION = {spec.key for spec in ITEMS if spec.category == "CONDITION"}
-_MESSAGE = {spec.key for spec in ITEMS if spec.type == "MESSAGE"}
+_MESSAGE = {spec.key for spec in (*ITEMS, DPRNT) if spec.type == "MESSAGE"}
 
 
 def _text(value: str) -> str:
@@ -142,6 +146,7 @@ class ShdrAdapter:
         self.host = host
         self.port = port
         self.tracker = tracker
+        self.dprnt = Reading(None, datetime.now(UTC))  # the last printed line
         self._server: asyncio.Server | None = None
         self._clients: set[asyncio.StreamWriter] = set()
         self._handlers: set[asyncio.Task[None]] = set()
@@ -187,7 +192,7 @@ class ShdrAdapter:
         if task is not None:
             self._handlers.add(task)
         try:
-            snapshot = self.tracker.snapshot(self.machine)
+            snapshot = {**self.tracker.snapshot(self.machine), DPRNT.key: self.dprnt}
             writer.write("".join(f"{line}\n" for line in shdr_state(snapshot)).encode("utf-8"))
             self._clients.add(writer)
             while True:
@@ -247,6 +252,8 @@ class MtconnectOutput:
                 event = await sub.get()
                 if event.kind == "machine":
                     self.take(event.key, event.data)
+                elif event.kind == "dprnt":
+                    self.printed(event.data)
 
     def take(self, machine: str, data: dict[str, object]) -> None:
         """Report the items of a ``machine`` event that changed."""
@@ -258,6 +265,17 @@ class MtconnectOutput:
         for key in _CONDITION & changed.keys():
             before[key] = changed[key].value
         self.adapters[machine].send(lines)
+
+    def printed(self, data: dict[str, object]) -> None:
+        """Send a DPRNT line (every one: two equal measurements are two observations)."""
+        adapter = self.adapters.get(str(data.get("machine", "")))
+        if adapter is None:
+            return
+        at = datetime.now(UTC)
+        with contextlib.suppress(TypeError, ValueError):
+            at = datetime.fromisoformat(str(data.get("at")))
+        adapter.dprnt = Reading(str(data.get("line", "")) or None, at)
+        adapter.send([message_line(shdr_time(at), DPRNT.key, adapter.dprnt.value)])
 
 
 def devices_xml(machines: list[str], server_name: str) -> str:
@@ -299,7 +317,7 @@ def devices_xml(machines: list[str], server_name: str) -> str:
             ET.SubElement(controller, "Components"), "Path", id=f"{ident}_path", name="path"
         )
         parents["path"] = ET.SubElement(path, "DataItems")
-        for spec in ITEMS:
+        for spec in (*ITEMS, DPRNT):
             attrs = {
                 "category": spec.category,
                 "id": f"{ident}_{spec.key}",
