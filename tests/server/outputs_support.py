@@ -100,6 +100,20 @@ class Listener:
         return found[-1] if found else None
 
 
+def clear_retained(prefix: str, port: int = BROKER[1]) -> int:
+    """Delete every retained message under ``prefix`` (an empty retained payload deletes one),
+    so the shared broker does not keep what the tests left; how many there were."""
+    marker = f"{prefix}/end-of-retained/{uuid.uuid4().hex}"
+    with Listener(prefix, port) as listener:
+        listener.client.publish(marker, b"x", qos=1)
+        # The broker sends the retained messages on subscribing, before the marker.
+        wait_for("the marker", lambda: listener.on(marker.removeprefix(prefix + "/")), 20)
+        topics = {m.topic for m in listener.messages if m.retain}
+        for topic in topics:
+            listener.client.publish(topic, b"", qos=1, retain=True).wait_for_publish(10)
+    return len(topics)
+
+
 class ShdrReader:
     """An agent's view of one SHDR adapter, parsing every line strictly.
 

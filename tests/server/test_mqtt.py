@@ -25,6 +25,7 @@ from tests.server.harness import Procs, auth, create_key, free_port, httpx, list
 from tests.server.outputs_support import (
     Listener,
     ShdrReader,
+    clear_retained,
     require_broker,
     start_outputs_server,
     unique_prefix,
@@ -47,6 +48,17 @@ def ngc(tmp_path: Path) -> Iterator[FleetThread]:
         fleet.stop()
 
 
+@pytest.fixture
+def prefix(procs: Procs) -> Iterator[str]:
+    """A topic prefix of this test alone on the shared broker, emptied at the end (after the
+    server stopped, so that nothing comes back)."""
+    require_broker()
+    chosen = unique_prefix()
+    yield chosen
+    procs.stop_all()
+    clear_retained(chosen)
+
+
 def _items(message: object) -> dict[str, dict[str, object]]:
     data = message.json()  # type: ignore[attr-defined]
     items: dict[str, dict[str, object]] = data["items"]
@@ -54,10 +66,8 @@ def _items(message: object) -> dict[str, dict[str, object]]:
 
 
 def test_retained_state_changes_jobs_and_the_last_will(
-    tmp_path: Path, ngc: FleetThread, procs: Procs
+    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
 ) -> None:
-    require_broker()
-    prefix = unique_prefix()
     port = start_outputs_server(
         tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
     )
@@ -126,9 +136,9 @@ def test_retained_state_changes_jobs_and_the_last_will(
         wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
 
 
-def test_a_clean_stop_says_offline_itself(tmp_path: Path, ngc: FleetThread, procs: Procs) -> None:
-    require_broker()
-    prefix = unique_prefix()
+def test_a_clean_stop_says_offline_itself(
+    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+) -> None:
     start_outputs_server(
         tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
     )
@@ -284,11 +294,10 @@ M30
 """
 
 
-def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs) -> None:
+def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs, prefix: str) -> None:
     """A serial Haas prints three DPRNT lines: each is a message on ``<machine>/dprnt`` and a
     ``dprnt`` MESSAGE line on the machine's SHDR port."""
-    require_broker()
-    prefix, shdr_port = unique_prefix(), free_port()
+    shdr_port = free_port()
     haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
     try:
         sim = haas.fleet.sims["haas-serial-1"]
