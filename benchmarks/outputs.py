@@ -6,8 +6,12 @@ the same synthetic events in-process, with no broker and no agent connected (que
 building only, the part that runs on the server's event loop), and reports microseconds per
 event for polls where nothing changed (the common case) and where two items changed.
 
+With ``--broker`` it also times the whole state a (re)connection sends, to the Mosquitto at
+127.0.0.1:1883 under a prefix of its own (deleted afterwards): one retained status and 12
+retained items per machine, QoS 1, until the broker has acknowledged them all.
+
     .venv/bin/python benchmarks/outputs.py
-    .venv/bin/python benchmarks/outputs.py --machines 500 --polls 20
+    .venv/bin/python benchmarks/outputs.py --machines 500 --polls 20 --broker
 """
 
 from __future__ import annotations
@@ -68,9 +72,38 @@ async def main(machines: int, polls: int) -> None:
         )
 
 
+async def whole_state(machines: int) -> None:
+    import uuid
+
+    import aiomqtt
+
+    prefix = f"opendnc-bench/{uuid.uuid4().hex[:8]}"
+    names = [f"m{i}" for i in range(machines)]
+    config = MqttConfig(host="127.0.0.1", prefix=prefix)
+    publisher = MqttPublisher(config, "bench", names, EventBus())
+    topics = [m.topic for m in publisher._whole_state()] + [publisher.health_topic]
+    start = time.perf_counter()
+    task = asyncio.create_task(publisher.run())
+    # Every message acknowledged by the broker (QoS 1): the retained state is in place.
+    await publisher.synced.wait()
+    elapsed = time.perf_counter() - start
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    async with aiomqtt.Client("127.0.0.1", 1883) as cleaner:
+        for topic in topics:  # an empty retained message deletes the retained one
+            await cleaner.publish(topic, b"", qos=1, retain=True)
+    print(
+        f"whole state of {machines} machines ({len(topics)} retained messages, QoS 1, "
+        f"acknowledged one by one): {elapsed:.2f} s, {len(topics) / elapsed:.0f} messages/s"
+    )
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=500)
     parser.add_argument("--polls", type=int, default=20)
+    parser.add_argument("--broker", action="store_true", help="also time the whole state")
     args = parser.parse_args()
     asyncio.run(main(args.machines, args.polls))
+    if args.broker:
+        asyncio.run(whole_state(args.machines))

@@ -108,6 +108,7 @@ class MqttPublisher:
         self.dropped = 0  # messages lost to a full queue (broker away or slow)
         self.connects = 0
         self.connected = False
+        self.synced = asyncio.Event()  # set once a connection has sent the whole state
         self._ready = asyncio.Event()
 
     def topic(self, machine: str, leaf: str) -> str:
@@ -242,6 +243,7 @@ class MqttPublisher:
                 log.warning("mqtt: %s: %s; again in %.0f s", where, exc, backoff)
             finally:
                 self.connected = False
+                self.synced.clear()
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, self.max_backoff)
 
@@ -255,6 +257,7 @@ class MqttPublisher:
         await client.publish(self.health_topic, "true", qos=1, retain=True)
         for message in self._whole_state():
             await client.publish(message.topic, message.payload, qos=1, retain=True)
+        self.synced.set()
         while True:
             if not self.queue:
                 self._ready.clear()
