@@ -186,15 +186,21 @@ def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
         # With the broker away, the machine still answers and the API still serves.
         sim = ngc.fleet.sims["haas-1"]
         ngc.call(lambda: sim.control.set_mode(Mode.MEM))
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5) as client:
-            key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
-            wait_for(
-                "the new mode through the API",
-                lambda: (
-                    (client.get("/api/machines/haas-1", headers=auth(key)).json()["status"])["mode"]
-                    == "MEM"
-                ),
-            )
+        client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5)
+        key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+
+        def link() -> dict[str, object]:
+            got: dict[str, object] = client.get("/api/outputs", headers=auth(key)).json()["mqtt"]
+            return got
+
+        wait_for("the API to see the broker gone", lambda: link()["connected"] is False)
+        wait_for(
+            "the new mode through the API",
+            lambda: (
+                (client.get("/api/machines/haas-1", headers=auth(key)).json()["status"])["mode"]
+                == "MEM"
+            ),
+        )
 
         broker = _private_broker(tmp_path, broker_port)
         wait_for("the private broker again", listening(broker_port), 20)
@@ -208,6 +214,9 @@ def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
             )
             assert _items(status)["controller_mode"]["value"] == "AUTOMATIC"
             assert listener.last("opendnc/dnc-test/online").payload == b"true"  # type: ignore[union-attr]
+        state = link()
+        assert (state["connected"], state["connects"], state["dropped"]) == (True, 2, 0)
+        client.close()
     finally:
         broker.terminate()
         broker.wait(10)

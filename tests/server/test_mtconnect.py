@@ -111,6 +111,9 @@ def test_each_machine_is_a_device_on_its_own_port(
     key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}", "viewer")
     with httpx.Client(base_url=f"http://127.0.0.1:{http}", timeout=30) as client:
         got = client.get("/api/mtconnect/devices.xml", headers=auth(key))
+        outputs = client.get("/api/outputs", headers=auth(key)).json()
+    assert outputs["mqtt"] is None
+    assert {n: o["port"] for n, o in outputs["mtconnect"].items()} == ports
     assert got.status_code == 200, got.text
     ns = {"m": "urn:mtconnect.org:MTConnectDevices:1.3"}
     root = ET.fromstring(got.content)

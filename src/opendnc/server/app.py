@@ -137,6 +137,7 @@ def build(
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
+    app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
     app.include_router(dprnt_api.router)
     web.install(app)
     return Server(

@@ -111,6 +111,17 @@ class MqttPublisher:
         self.synced = asyncio.Event()  # set once a connection has sent the whole state
         self._ready = asyncio.Event()
 
+    def as_json(self) -> dict[str, Any]:
+        """The link's state for the API."""
+        return {
+            "broker": f"{self.config.host}:{self.config.port}",
+            "prefix": self.config.prefix,
+            "connected": self.connected,
+            "connects": self.connects,
+            "queued": len(self.queue),
+            "dropped": self.dropped,
+        }
+
     def topic(self, machine: str, leaf: str) -> str:
         """``<prefix>/<machine>/<leaf>``."""
         return f"{self.config.prefix}/{machine}/{leaf}"

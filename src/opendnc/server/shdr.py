@@ -19,6 +19,7 @@ import hashlib
 import logging
 from collections.abc import Iterable
 from datetime import UTC, datetime
+from typing import Any
 from xml.etree import ElementTree as ET
 
 from opendnc.server.config import ConfigError, MtconnectConfig
@@ -157,6 +158,11 @@ class ShdrAdapter:
         self.port = self._server.sockets[0].getsockname()[1]
 
     @property
+    def agents(self) -> int:
+        """How many agents are connected."""
+        return len(self._clients)
+
+    @property
     def listening(self) -> bool:
         """Whether the port is open."""
         return self._server is not None
@@ -239,6 +245,13 @@ class MtconnectOutput:
                     "mtconnect", f"{adapter.machine}: cannot listen on {where}: {exc.strerror}"
                 ) from exc
             log.info("mtconnect: %s on %s:%d", adapter.machine, adapter.host, adapter.port)
+
+    def as_json(self) -> dict[str, Any]:
+        """Each machine's port and how many agents read it, for the API."""
+        return {
+            name: {"port": a.port, "listening": a.listening, "agents": a.agents}
+            for name, a in self.adapters.items()
+        }
 
     async def close(self) -> None:
         """Close every port."""
