@@ -206,7 +206,10 @@ class MqttPublisher:
             if sub.overflowed:
                 sub.overflowed = False
                 log.warning("mqtt: fell behind the event bus; some events were dropped")
-            self.take(event)
+            try:
+                self.take(event)
+            except Exception:  # one odd event must not end the output
+                log.exception("mqtt: cannot publish %s event %s", event.kind, event.key)
 
     def _client(self) -> aiomqtt.Client:
         import aiomqtt

@@ -263,10 +263,13 @@ class MtconnectOutput:
         with self.bus.subscribe() as sub:
             while True:
                 event = await sub.get()
-                if event.kind == "machine":
-                    self.take(event.key, event.data)
-                elif event.kind == "dprnt":
-                    self.printed(event.data)
+                try:
+                    if event.kind == "machine":
+                        self.take(event.key, event.data)
+                    elif event.kind == "dprnt":
+                        self.printed(event.data)
+                except Exception:  # one odd event must not end the output
+                    log.exception("mtconnect: cannot send %s event %s", event.kind, event.key)
 
     def take(self, machine: str, data: dict[str, object]) -> None:
         """Report the items of a ``machine`` event that changed."""
