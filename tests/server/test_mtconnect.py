@@ -267,3 +267,18 @@ def test_a_taken_port_is_an_error_naming_the_machine(tmp_path: Path, procs: Proc
     log = procs.log("server")
     assert f"mtconnect: mill-1: cannot listen on 127.0.0.1:{port}" in log, log
     assert "Traceback" not in log
+
+
+def test_the_readme_configuration_is_valid_and_says_the_right_ports(tmp_path: Path) -> None:
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text("utf-8")
+    block = readme.split("```text\n[server]\n", 1)[1].split("```", 1)[0]
+    config = parse_config("[server]\n" + block, base=tmp_path)
+    assert config.mqtt is not None
+    assert config.mtconnect is not None
+    # The comment on bind names each machine's port; the configuration must agree.
+    comment = next(line for line in block.splitlines() if line.startswith('bind = "0.0.0.0:7878"'))
+    said = dict(
+        (name, int(port))
+        for name, port in (part.split(" on ") for part in comment.split("#")[1].strip().split(", "))
+    )
+    assert config.mtconnect.ports == said
