@@ -75,6 +75,9 @@ async def _serve(server: Server, host: str, port: int) -> None:
 
     import uvicorn
 
+    if server.mtconnect is not None:
+        # Its ports open before the app starts, so a taken one is a plain error naming it.
+        await server.mtconnect.start()
     settings = uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
     web = uvicorn.Server(settings)
     serving = asyncio.create_task(web.serve())

@@ -200,6 +200,26 @@ def list_machines(request: Request, _who: Viewer) -> list[dict[str, Any]]:
     return [m.as_json() for m in _supervisor(request).machines.values()]
 
 
+@router.get("/outputs")
+def outputs(request: Request, _who: Viewer) -> dict[str, Any]:
+    """The open outputs' state: the MQTT link (connected, queued, dropped) and the SHDR ports
+    (agents connected); null for one that is not configured."""
+    parts = getattr(request.app.state, "outputs", {})
+    return {name: part.as_json() if part is not None else None for name, part in parts.items()}
+
+
+@router.get("/mtconnect/devices.xml")
+def mtconnect_devices(request: Request, _who: Viewer) -> Response:
+    """An MTConnect agent's Devices file for the machines the SHDR adapter serves."""
+    config = _supervisor(request).config
+    if config.mtconnect is None:
+        raise NotFound("no [mtconnect] adapter is configured")
+    from opendnc.server.shdr import devices_xml
+
+    xml = devices_xml([m.name for m in config.machines], config.server.name)
+    return Response(xml, media_type="application/xml")
+
+
 @router.get("/machines/{name}")
 def get_machine(request: Request, name: str, _who: Viewer) -> dict[str, Any]:
     """One machine with its live state."""

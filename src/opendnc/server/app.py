@@ -19,11 +19,13 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
 from opendnc.server import api, dprnt_api, web
-from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
 from opendnc.server.machines import Connector, connector_for
+from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.netshare import NetShare
+from opendnc.server.shdr import MtconnectOutput
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.supervisor import ConnectorFactory, Supervisor
 from opendnc.server.watcher import LibraryWatcher
@@ -44,6 +46,8 @@ class Server:
     app: FastAPI
     netshare: NetShare | None = None
     dprnt: DprntCapture | None = None
+    mqtt: MqttPublisher | None = None
+    mtconnect: MtconnectOutput | None = None
 
 
 def build(
@@ -90,10 +94,29 @@ def build(
     if config.netshare is not None:
         machines = {m.name: m for m in config.machines}
         netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
+    names = [m.name for m in config.machines]
+    publisher = None
+    if config.mqtt is not None:
+        try:
+            import aiomqtt  # noqa: F401  (a configured output that cannot run fails at start)
+        except ImportError:
+            raise ConfigError(
+                "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
+            ) from None
+        publisher = MqttPublisher(config.mqtt, config.server.name, names, bus)
+    mtconnect = None
+    if config.mtconnect is not None:
+        mtconnect = MtconnectOutput(config.mtconnect, names, bus)
     background: list[asyncio.Task[None]] = []
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        # The outputs subscribe before the machines' first status, so they miss nothing.
+        if publisher is not None:
+            background.append(asyncio.create_task(publisher.run(), name="mqtt"))
+        if mtconnect is not None:
+            await mtconnect.start()
+            background.append(asyncio.create_task(mtconnect.run(), name="mtconnect"))
         await supervisor.start()
         watching = asyncio.create_task(watcher.run(), name="library-watcher")
         if netshare is not None:
@@ -109,9 +132,24 @@ def build(
             background.clear()
             await capture.stop()
             await supervisor.stop()
+            if mtconnect is not None:
+                await mtconnect.close()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
+    app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
     app.include_router(dprnt_api.router)
     web.install(app)
-    return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare, capture)
+    return Server(
+        config,
+        engine,
+        sessions,
+        bus,
+        supervisor,
+        watcher,
+        app,
+        netshare,
+        capture,
+        publisher,
+        mtconnect,
+    )

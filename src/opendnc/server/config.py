@@ -50,6 +50,16 @@ Example::
     machines = ["vf2-1", "vf2-2"]          # default: every machine with a share
     archive_at = "18:00"                   # daily, server's local time; or archive_every = 3600
     collect = true                         # programs made on the machines go to the inbox
+
+    [mqtt]                                 # MQTT publisher (server/mqtt.py)
+    url = "mqtt://127.0.0.1:1883"          # mqtts:// for TLS
+    prefix = "acme/plant1/milling"         # ISA-95-like: enterprise/site/area
+    username = "dnc"                       # optional, with password
+    password = "secret"
+
+    [mtconnect]                            # MTConnect SHDR adapter (server/shdr.py)
+    bind = "127.0.0.1:7878"                # the first machine's port; the next ones count up
+    ports = { "mill-1" = 7900 }            # optional: a machine's own port
 """
 
 from __future__ import annotations
@@ -69,6 +79,8 @@ __all__ = [
     "LibraryConfig",
     "MachineConfig",
     "MachineKind",
+    "MqttConfig",
+    "MtconnectConfig",
     "NetShareConfig",
     "SerialProfile",
     "ServerConfig",
@@ -182,6 +194,28 @@ class NetShareConfig:
 
 
 @dataclass(frozen=True)
+class MqttConfig:
+    """Where the MQTT publisher sends the machines' state (server/mqtt.py)."""
+
+    host: str
+    port: int = 1883
+    tls: bool = False  # mqtts://
+    ca_file: Path | None = None  # a private CA for the broker's certificate (TLS)
+    prefix: str = "opendnc"
+    username: str = ""
+    password: str = ""
+    queue: int = 10000  # messages kept while the broker is away; the oldest go first
+
+
+@dataclass(frozen=True)
+class MtconnectConfig:
+    """The MTConnect SHDR adapter: one TCP port per machine (server/shdr.py)."""
+
+    host: str
+    ports: dict[str, int]  # machine name -> port (0: any free port)
+
+
+@dataclass(frozen=True)
 class ServerConfig:
     """The service itself: where it listens, which database, its own name."""
 
@@ -201,6 +235,8 @@ class ShopConfig:
     source: Path | None = None
     requests: RequestSettings = field(default_factory=RequestSettings)
     netshare: NetShareConfig | None = None
+    mqtt: MqttConfig | None = None
+    mtconnect: MtconnectConfig | None = None
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -228,7 +264,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("", f"not valid TOML: {exc}") from exc
-    _known(raw, "", {"server", "library", "machines", "requests", "netshare"})
+    _known(raw, "", {"server", "library", "machines", "requests", "netshare", "mqtt", "mtconnect"})
     server = _server(_table(raw, "server"), base)
     library = _library(_table(raw, "library"), base)
     machines_raw = raw.get("machines", [])
@@ -244,6 +280,8 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     netshare = None
     if "netshare" in raw:
         netshare = _netshare(_table(raw, "netshare"), base, library, machines)
+    mqtt = _mqtt(_table(raw, "mqtt"), base) if "mqtt" in raw else None
+    mtconnect = _mtconnect(_table(raw, "mtconnect"), machines) if "mtconnect" in raw else None
     return ShopConfig(
         server=server,
         library=library,
@@ -251,7 +289,81 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         source=source,
         requests=requests,
         netshare=netshare,
+        mqtt=mqtt,
+        mtconnect=mtconnect,
     )
+
+
+def _mqtt(table: dict[str, Any], base: Path) -> MqttConfig:
+    keys = {"url", "prefix", "username", "password", "ca_file", "queue"}
+    _known(table, "mqtt", keys)
+    url = _get(table, "mqtt", "url", str, "")
+    match = re.fullmatch(r"(mqtts?)://([^:/\s]+|\[[0-9A-Fa-f:]+\])(?::(\d{1,5}))?/?", url)
+    if match is None:
+        raise ConfigError("mqtt.url", f"expected mqtt://HOST[:PORT] or mqtts://..., got {url!r}")
+    tls = match.group(1) == "mqtts"
+    port = int(match.group(3)) if match.group(3) else (8883 if tls else 1883)
+    _port_range(port, "mqtt.url")
+    prefix = _get(table, "mqtt", "prefix", str, "opendnc")
+    levels = prefix.split("/")
+    # Wildcards and '$' topics belong to subscribers and the broker; an empty level is a typo.
+    if not prefix or any(not level or set(level) & {"+", "#", "\0"} for level in levels):
+        raise ConfigError("mqtt.prefix", "expected topic levels like enterprise/site/area")
+    if prefix.startswith("$"):
+        raise ConfigError("mqtt.prefix", "topics starting with '$' are the broker's")
+    username = _get(table, "mqtt", "username", str, "")
+    password = _get(table, "mqtt", "password", str, "")
+    if password and not username:
+        raise ConfigError("mqtt.password", "a password needs a username")
+    ca_text = _get(table, "mqtt", "ca_file", str, "")
+    if ca_text and not tls:
+        raise ConfigError("mqtt.ca_file", "a CA file is for TLS (mqtts://)")
+    queue = _get(table, "mqtt", "queue", int, 10000)
+    if not 10 <= queue <= 1_000_000:
+        raise ConfigError("mqtt.queue", "expected 10..1000000 messages")
+    return MqttConfig(
+        host=match.group(2).strip("[]"),
+        port=port,
+        tls=tls,
+        ca_file=(base / ca_text).resolve() if ca_text else None,
+        prefix=prefix,
+        username=username,
+        password=password,
+        queue=queue,
+    )
+
+
+def _mtconnect(table: dict[str, Any], machines: tuple[MachineConfig, ...]) -> MtconnectConfig:
+    _known(table, "mtconnect", {"bind", "ports"})
+    bind = _get(table, "mtconnect", "bind", str, "127.0.0.1:7878")
+    host, sep, port_text = bind.rpartition(":")
+    if not sep or not host or not port_text.isdigit() or not 0 <= int(port_text) < 65536:
+        raise ConfigError("mtconnect.bind", f"expected HOST:PORT, got {bind!r}")
+    first = int(port_text)
+    explicit = table.get("ports", {})
+    if not isinstance(explicit, dict):
+        raise ConfigError("mtconnect.ports", "expected a table of machine = port")
+    names = [m.name for m in machines]
+    for name, port in explicit.items():
+        key = f"mtconnect.ports.{name}"
+        if name not in names:
+            raise ConfigError(key, f"no machine named {name!r}")
+        if isinstance(port, bool) or not isinstance(port, int):
+            raise ConfigError(key, f"expected a port number, got {port!r}")
+        _port_range(port, key)
+    if first and first + len(machines) > 65536:
+        raise ConfigError("mtconnect.bind", f"{len(machines)} machines need ports above {first}")
+    ports: dict[str, int] = {}
+    # Machines without their own port count up from the bind port in configuration order.
+    for i, name in enumerate(names):
+        ports[name] = explicit.get(name, first + i if first else 0)
+    seen: dict[int, str] = {}
+    for name, port in ports.items():
+        if port and port in seen:
+            key = f"mtconnect.ports.{name}" if name in explicit else "mtconnect.bind"
+            raise ConfigError(key, f"{name} and {seen[port]} would both listen on port {port}")
+        seen[port] = name
+    return MtconnectConfig(host=host.strip("[]"), ports=ports)
 
 
 def _netshare(

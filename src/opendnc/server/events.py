@@ -1,6 +1,7 @@
 """An in-process event bus: status changes, job progress, programs received.
 
-The API's server-sent events (and later MQTT or MTConnect) are subscribers like any other.
+The API's server-sent events, the MQTT publisher and the MTConnect adapter are subscribers
+like any other (docs/server.md#open-outputs).
 A subscriber that falls behind loses its oldest events rather than slowing the machines down;
 it is told so by an ``overflow`` event and can ask for a fresh snapshot.
 """

@@ -1,8 +1,8 @@
 """The connector interface and the status model every connector fills.
 
 The status fields follow MTConnect's CNC data items (availability, execution, controller
-mode, program, line, part count, message), so an MTConnect adapter or an MQTT publisher can
-map them one to one later.
+mode, program, line, part count, message), so the MTConnect adapter and the MQTT publisher
+map them one to one (server/items.py, docs/server.md#open-outputs).
 """
 
 from __future__ import annotations

@@ -1,0 +1,284 @@
+"""The MQTT publisher: the machines' state for the rest of the factory (docs/server.md#mqtt).
+
+A subscriber of the event bus like the API's server-sent events. Per machine it keeps a
+retained JSON state (``<prefix>/<machine>/status``) and one retained topic per item
+(``<prefix>/<machine>/<item>``), both sent only when an item changes (report by exception),
+and sends job events and printed lines (``<prefix>/<machine>/jobs`` and ``.../dprnt``, not
+retained). The server's health is
+``<prefix>/opendnc/<server>/online``: "true" (retained) while connected, "false" as the last
+will the broker publishes when the server dies.
+
+The broker never holds anything up: messages wait in a bounded queue that drops its oldest one
+when full (``dropped`` counts them), the link is made again with backoff (1 s up to 60 s), and
+every (re)connection sends the whole state first, so retained topics are right again at once.
+aiomqtt is imported here only: the server's core runs without it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import ssl
+import uuid
+from collections import deque
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
+
+from opendnc.errors import InputError
+from opendnc.server.config import MqttConfig
+from opendnc.server.events import Event, EventBus
+from opendnc.server.items import ITEMS, ItemTracker, Reading, shdr_time
+
+if TYPE_CHECKING:
+    import aiomqtt
+
+    from opendnc.server.events import Subscription
+
+__all__ = ["MqttPublisher", "Outgoing", "item_payload", "status_payload"]
+
+log = logging.getLogger(__name__)
+
+_UNITS = {spec.key: spec.units for spec in ITEMS if spec.units}
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """One message to publish."""
+
+    topic: str
+    payload: str
+    retain: bool
+
+
+def item_payload(key: str, reading: Reading) -> dict[str, Any]:
+    """An item as MQTT carries it: value, timestamp, quality (and unit where it has one).
+
+    The keys are the same whatever the value, so a consumer reads every item alike; an
+    unknown value is ``null`` with quality ``unavailable``.
+    """
+    value: Any = list(reading.value) if isinstance(reading.value, tuple) else reading.value
+    data: dict[str, Any] = {
+        "value": value,
+        "timestamp": shdr_time(reading.timestamp),
+        "quality": "good" if reading.value is not None else "unavailable",
+    }
+    if key in _UNITS:
+        data["unit"] = _UNITS[key]
+    return data
+
+
+def status_payload(machine: str, readings: dict[str, Reading]) -> dict[str, Any]:
+    """A machine's whole state: every item, and when the newest of them changed."""
+    newest = max(r.timestamp for r in readings.values())
+    return {
+        "machine": machine,
+        "timestamp": shdr_time(newest),
+        "items": {key: item_payload(key, readings[key]) for key in readings},
+    }
+
+
+def _dumps(data: Any) -> str:
+    return json.dumps(data, separators=(",", ":"), ensure_ascii=False)
+
+
+class MqttPublisher:
+    """Publishes the fleet's state to one broker; :meth:`run` until cancelled."""
+
+    def __init__(
+        self,
+        config: MqttConfig,
+        server_name: str,
+        machines: list[str],
+        bus: EventBus,
+        *,
+        min_backoff: float = 1.0,
+        max_backoff: float = 60.0,
+    ) -> None:
+        self.config = config
+        self.bus = bus
+        self.tracker = ItemTracker(machines)
+        self.health_topic = f"{config.prefix}/opendnc/{server_name}/online"
+        self.identifier = f"opendnc-{server_name}-{uuid.uuid4().hex[:8]}"
+        self.min_backoff = min_backoff
+        self.max_backoff = max_backoff
+        self.queue: deque[Outgoing] = deque()
+        self.dropped = 0  # messages lost to a full queue (broker away or slow)
+        self.connects = 0
+        self.connected = False
+        self.synced = asyncio.Event()  # set once a connection has sent the whole state
+        self._ready = asyncio.Event()
+
+    def as_json(self) -> dict[str, Any]:
+        """The link's state for the API."""
+        return {
+            "broker": f"{self.config.host}:{self.config.port}",
+            "prefix": self.config.prefix,
+            "connected": self.connected,
+            "connects": self.connects,
+            "queued": len(self.queue),
+            "dropped": self.dropped,
+        }
+
+    def topic(self, machine: str, leaf: str) -> str:
+        """``<prefix>/<machine>/<leaf>``."""
+        return f"{self.config.prefix}/{machine}/{leaf}"
+
+    # -- from the bus to the queue ---------------------------------------------------------
+
+    def take(self, event: Event) -> None:
+        """Turn one bus event into messages (the state is kept even while disconnected)."""
+        if event.kind == "machine":
+            changed = self.tracker.update(event.key, event.data)
+            if changed and self.connected:
+                # While away, the next connection sends the whole state anyway: queueing
+                # retained changes would only replay older values after it.
+                self._changes(event.key, changed)
+        elif event.kind in ("job", "dprnt"):
+            # Every job event and every printed line is news of its own: not retained, kept
+            # in the queue while the broker is away.
+            machine = str(event.data.get("machine", ""))
+            if machine in self.tracker.machines:
+                data = {**event.data, "timestamp": shdr_time(datetime.now(UTC))}
+                leaf = "jobs" if event.kind == "job" else "dprnt"
+                self._put(Outgoing(self.topic(machine, leaf), _dumps(data), retain=False))
+
+    def _changes(self, machine: str, changed: dict[str, Reading]) -> None:
+        readings = self.tracker.snapshot(machine)
+        self._put(
+            Outgoing(
+                self.topic(machine, "status"),
+                _dumps(status_payload(machine, readings)),
+                retain=True,
+            )
+        )
+        for key, reading in changed.items():
+            self._put(Outgoing(self.topic(machine, key), _dumps(item_payload(key, reading)), True))
+
+    def _put(self, message: Outgoing) -> None:
+        if len(self.queue) >= self.config.queue:
+            self.queue.popleft()
+            self.dropped += 1
+        self.queue.append(message)
+        self._ready.set()
+
+    def _whole_state(self) -> list[Outgoing]:
+        out = []
+        for machine in self.tracker.machines:
+            readings = self.tracker.snapshot(machine)
+            out.append(
+                Outgoing(
+                    self.topic(machine, "status"),
+                    _dumps(status_payload(machine, readings)),
+                    retain=True,
+                )
+            )
+            out.extend(
+                Outgoing(self.topic(machine, key), _dumps(item_payload(key, r)), retain=True)
+                for key, r in readings.items()
+            )
+        return out
+
+    # -- from the queue to the broker ------------------------------------------------------
+
+    async def run(self) -> None:
+        """Follow the bus and keep a link to the broker, until cancelled."""
+        try:
+            import aiomqtt  # noqa: F401
+        except ImportError:
+            raise InputError(
+                "[mqtt] needs aiomqtt (the 'server' extra): pip install 'opendnc[server]'"
+            ) from None
+        with self.bus.subscribe(maxsize=self.config.queue) as sub:
+            follow = asyncio.create_task(self._follow(sub), name="mqtt-follow")
+            try:
+                await self._connect_loop()
+            finally:
+                follow.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await follow
+
+    async def _follow(self, sub: Subscription) -> None:
+        while True:
+            event = await sub.get()
+            if sub.overflowed:
+                sub.overflowed = False
+                log.warning("mqtt: fell behind the event bus; some events were dropped")
+            try:
+                self.take(event)
+            except Exception:  # one odd event must not end the output
+                log.exception("mqtt: cannot publish %s event %s", event.kind, event.key)
+
+    def _client(self) -> aiomqtt.Client:
+        import aiomqtt
+
+        tls_context = None
+        if self.config.tls:
+            cafile = str(self.config.ca_file) if self.config.ca_file else None
+            tls_context = ssl.create_default_context(cafile=cafile)
+        return aiomqtt.Client(
+            self.config.host,
+            self.config.port,
+            username=self.config.username or None,
+            password=self.config.password or None,
+            identifier=self.identifier,
+            will=aiomqtt.Will(self.health_topic, "false", qos=1, retain=True),
+            tls_context=tls_context,
+            timeout=10,
+            keepalive=30,
+        )
+
+    async def _connect_loop(self) -> None:
+        import aiomqtt
+
+        backoff = self.min_backoff
+        where = f"{self.config.host}:{self.config.port}"
+        while True:
+            try:
+                async with self._client() as client:
+                    self.connected = True
+                    self.connects += 1
+                    backoff = self.min_backoff
+                    log.info("mqtt: connected to %s", where)
+                    try:
+                        await self._session(client)
+                    except asyncio.CancelledError:
+                        # A clean stop says so itself: the broker sends the will only when
+                        # the link dies.
+                        with contextlib.suppress(Exception, asyncio.CancelledError):
+                            await asyncio.wait_for(
+                                client.publish(self.health_topic, "false", qos=1, retain=True),
+                                2,
+                            )
+                        raise
+            except (aiomqtt.MqttError, OSError) as exc:
+                log.warning("mqtt: %s: %s; again in %.0f s", where, exc, backoff)
+            finally:
+                self.connected = False
+                self.synced.clear()
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2, self.max_backoff)
+
+    async def _session(self, client: aiomqtt.Client) -> None:
+        # The whole state supersedes every retained change still queued; job events stay.
+        jobs = [m for m in self.queue if not m.retain]
+        self.queue.clear()
+        self.queue.extend(jobs)
+        if self.dropped:
+            log.warning("mqtt: %d messages were dropped while the broker was away", self.dropped)
+        await client.publish(self.health_topic, "true", qos=1, retain=True)
+        for message in self._whole_state():
+            await client.publish(message.topic, message.payload, qos=1, retain=True)
+        self.synced.set()
+        while True:
+            if not self.queue:
+                self._ready.clear()
+                await self._ready.wait()
+                continue
+            message = self.queue[0]
+            await client.publish(message.topic, message.payload, qos=1, retain=message.retain)
+            # Taken off only once the broker has it: a message lost with the link goes again.
+            if self.queue and self.queue[0] is message:
+                self.queue.popleft()

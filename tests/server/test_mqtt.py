@@ -1,0 +1,353 @@
+"""The MQTT publisher against the real Mosquitto: retained state per machine, changes as the
+virtual control changes, job events, the health topic and its last will.
+
+The server runs as its own process around virtual controls of this process (FleetThread); a
+plain paho client listens. Every test uses its own topic prefix.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import getpass
+import signal
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from opendnc.server.config import MqttConfig
+from opendnc.server.events import Event, EventBus
+from opendnc.server.mqtt import MqttPublisher
+from opendnc.sim.haas.machine import Mode
+from tests.peers import require_command
+from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
+from tests.server.outputs_support import (
+    Listener,
+    ShdrReader,
+    clear_retained,
+    require_broker,
+    start_outputs_server,
+    unique_prefix,
+)
+from tests.server.srvx_support import serve_fleet
+from tests.server.test_from_the_control import FleetThread
+
+ITEM_KEYS = {
+    "availability", "execution", "controller_mode", "program", "line_number", "part_count",
+    "tool_number", "feed_override", "rapid_override", "spindle_override", "message", "system",
+}  # fmt: skip
+
+
+@pytest.fixture
+def ngc(tmp_path: Path) -> Iterator[FleetThread]:
+    fleet = FleetThread(tmp_path / "machines", tnc=0, haas=1)
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+@pytest.fixture
+def prefix(procs: Procs) -> Iterator[str]:
+    """A topic prefix of this test alone on the shared broker, emptied at the end (after the
+    server stopped, so that nothing comes back)."""
+    require_broker()
+    chosen = unique_prefix()
+    yield chosen
+    procs.stop_all()
+    clear_retained(chosen)
+
+
+def _items(message: object) -> dict[str, dict[str, object]]:
+    data = message.json()  # type: ignore[attr-defined]
+    items: dict[str, dict[str, object]] = data["items"]
+    return items
+
+
+def test_retained_state_changes_jobs_and_the_last_will(
+    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+) -> None:
+    port = start_outputs_server(
+        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+    )
+    online = "opendnc/dnc-test/online"
+
+    # A subscriber that comes later still finds the state: it is retained.
+    with Listener(prefix) as early:
+        wait_for(
+            "the machine available",
+            lambda: (m := early.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE",
+            describe=lambda: procs.log("server"),
+        )
+    with Listener(prefix) as late:
+        status = wait_for("the retained status", lambda: late.last("haas-1/status"))
+        assert status.retain
+        items = _items(status)
+        assert set(items) == ITEM_KEYS
+        for item in items.values():
+            assert set(item) >= {"value", "timestamp", "quality"}
+            assert (item["quality"] == "unavailable") == (item["value"] is None)
+        assert items["availability"]["value"] == "AVAILABLE"
+        # The virtual Haas starts in MDI (Q104 "MDI"): MTConnect's MANUAL_DATA_INPUT.
+        assert items["controller_mode"]["value"] == "MANUAL_DATA_INPUT"
+        assert items["feed_override"]["unit"] == "PERCENT"
+        health = wait_for("the health topic", lambda: late.last(online))
+        assert (health.payload, health.retain) == (b"true", True)
+
+        # The operator turns the mode switch to MEM: the change arrives, item and status.
+        sim = ngc.fleet.sims["haas-1"]
+        ngc.call(lambda: sim.control.set_mode(Mode.MEM))
+        changed = wait_for(
+            "the mode change",
+            lambda: [m for m in late.on("haas-1/controller_mode") if not m.retain],
+        )
+        assert changed[-1].json()["value"] == "AUTOMATIC"
+        wait_for(
+            "the status with the new mode",
+            lambda: _items(late.last("haas-1/status"))["controller_mode"]["value"] == "AUTOMATIC",
+        )
+        # Report by exception: an unchanged item is not sent again every poll.
+        assert not [m for m in late.on("haas-1/program") if not m.retain]
+
+        # A job: its events go to <machine>/jobs, not retained.
+        key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+            put = client.put(
+                "/api/programs/O01000.nc", content=b"%\nO01000\nM30\n%\n", headers=auth(key)
+            )
+            assert put.status_code == 201, put.text
+            made = client.post(
+                "/api/jobs",
+                json={"program": "O01000.nc", "version": 1, "machines": ["haas-1"]},
+                headers=auth(key),
+            )
+            assert made.status_code == 201, made.text
+            job_id = made.json()[0]["id"]
+        done = wait_for(
+            "the job's end on the jobs topic",
+            lambda: [m.json() for m in late.on("haas-1/jobs") if m.json()["state"] == "done"],
+        )
+        assert done[0]["id"] == job_id
+        assert not any(m.retain for m in late.on("haas-1/jobs"))
+
+        # The server dies without a word: the broker publishes its will.
+        procs.stop("server", signal.SIGKILL)
+        wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
+
+
+def test_a_clean_stop_says_offline_itself(
+    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+) -> None:
+    start_outputs_server(
+        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+    )
+    with Listener(prefix) as listener:
+        topic = "opendnc/dnc-test/online"
+        wait_for("online", lambda: (m := listener.last(topic)) and m.payload == b"true")
+        procs.stop("server", signal.SIGTERM)
+        wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
+
+
+def _private_broker(procs_dir: Path, port: int, passwords: str = "") -> subprocess.Popen[bytes]:
+    mosquitto = require_command("mosquitto")
+    conf = procs_dir / f"mosquitto-{port}.conf"
+    # Run as root, Mosquitto would switch to its own user, who cannot read the test's folder.
+    text = f"listener {port} 127.0.0.1\npersistence false\nuser {getpass.getuser()}\n"
+    if passwords:
+        text += f"allow_anonymous false\npassword_file {passwords}\n"
+    else:
+        text += "allow_anonymous true\n"
+    conf.write_text(text)
+    with (procs_dir / f"mosquitto-{port}.log").open("ab") as log:  # the child keeps its own fd
+        return subprocess.Popen([mosquitto, "-c", str(conf)], stdout=log, stderr=subprocess.STDOUT)
+
+
+def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    """A private Mosquitto (its own port) is stopped and started again under a running server."""
+    broker_port = free_port()
+    prefix = unique_prefix()
+    broker = _private_broker(tmp_path, broker_port)
+    try:
+        wait_for("the private broker", listening(broker_port), 20)
+        port = start_outputs_server(
+            tmp_path,
+            procs,
+            ngc.fleet,
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:{broker_port}"\nprefix = "{prefix}"\n',
+        )
+        with Listener(prefix, broker_port) as listener:
+            wait_for("the state", lambda: listener.last("haas-1/status"))
+        broker.terminate()
+        broker.wait(10)
+
+        # With the broker away, the machine still answers and the API still serves.
+        sim = ngc.fleet.sims["haas-1"]
+        ngc.call(lambda: sim.control.set_mode(Mode.MEM))
+        client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5)
+        key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+
+        def link() -> dict[str, object]:
+            got: dict[str, object] = client.get("/api/outputs", headers=auth(key)).json()["mqtt"]
+            return got
+
+        wait_for("the API to see the broker gone", lambda: link()["connected"] is False)
+        wait_for(
+            "the new mode through the API",
+            lambda: (
+                (client.get("/api/machines/haas-1", headers=auth(key)).json()["status"])["mode"]
+                == "MEM"
+            ),
+        )
+
+        broker = _private_broker(tmp_path, broker_port)
+        wait_for("the private broker again", listening(broker_port), 20)
+        # A fresh broker (no persistence) knows nothing: the server sends the whole state.
+        with Listener(prefix, broker_port) as listener:
+            status = wait_for(
+                "the state after the outage",
+                lambda: listener.last("haas-1/status"),
+                90,
+                describe=lambda: procs.log("server"),
+            )
+            assert _items(status)["controller_mode"]["value"] == "AUTOMATIC"
+            assert listener.last("opendnc/dnc-test/online").payload == b"true"  # type: ignore[union-attr]
+        state = link()
+        assert (state["connected"], state["connects"], state["dropped"]) == (True, 2, 0)
+        client.close()
+    finally:
+        broker.terminate()
+        broker.wait(10)
+
+
+def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
+    """While the broker is away only job events queue (the state is resent whole); past the
+    limit the oldest go first and are counted."""
+    config = MqttConfig(host="127.0.0.1", prefix="p", queue=10)
+
+    async def run() -> MqttPublisher:
+        publisher = MqttPublisher(config, "dnc", ["m1"], EventBus())
+        for i in range(25):
+            publisher.take(Event("job", str(i), {"id": i, "machine": "m1", "state": "done"}))
+            publisher.take(
+                Event(
+                    "machine",
+                    "m1",
+                    {"online": True, "status": {"available": True, "program": f"O{i}"}},
+                )
+            )
+        return publisher
+
+    publisher = asyncio.run(run())
+    assert publisher.dropped == 15
+    assert [m.topic for m in publisher.queue] == ["p/m1/jobs"] * 10
+    ids = [int(m.payload.split('"id":')[1].split(",")[0]) for m in publisher.queue]
+    assert ids == list(range(15, 25))
+    assert publisher.tracker.snapshot("m1")["program"].value == "O24"
+
+
+def test_the_broker_checks_the_configured_user_and_a_refusal_blocks_nothing(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    passwd = require_command("mosquitto_passwd")
+    passwords = tmp_path / "passwords"
+    subprocess.run([passwd, "-b", "-c", str(passwords), "dnc", "s3cret"], check=True, timeout=30)
+    broker_port = free_port()
+    prefix = unique_prefix()
+    broker = _private_broker(tmp_path, broker_port, str(passwords))
+    try:
+        wait_for("the private broker", listening(broker_port), 20)
+        mqtt_table = (
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:{broker_port}"\nprefix = "{prefix}"\n'
+            'username = "dnc"\npassword = "s3cret"\n'
+        )
+        start_outputs_server(tmp_path, procs, ngc.fleet, mqtt_table)
+        with Listener(prefix, broker_port, "dnc", "s3cret") as listener:
+            status = wait_for("the state", lambda: listener.last("haas-1/status"))
+            assert _items(status)["availability"]["value"] == "AVAILABLE"
+        procs.stop("server")
+
+        # A wrong password: the broker refuses, the server serves its machines all the same.
+        wrong = tmp_path / "wrong"
+        wrong.mkdir()
+        port = start_outputs_server(wrong, procs, ngc.fleet, mqtt_table.replace("s3cret", "nope"))
+        key = create_key(wrong / "shop.toml", f"sqlite:///{wrong / 'opendnc.db'}")
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5) as client:
+            wait_for(
+                "the machine online through the API",
+                lambda: client.get("/api/machines/haas-1", headers=auth(key)).json()["online"],
+            )
+        wait_for("the refusal in the log", lambda: "mqtt:" in procs.log("server"))
+        with Listener(prefix, broker_port, "dnc", "s3cret") as listener:
+            # Only the first server's retained state (its last will said false) is there.
+            health = wait_for("the health", lambda: listener.last("opendnc/dnc-test/online"))
+            assert health.payload == b"false"
+    finally:
+        broker.terminate()
+        broker.wait(10)
+
+
+PRINTS = """%
+O00500 (PRINT THREE PASSES)
+#100 = 0
+#101 = 1.5
+WHILE [#100 LT 3] DO1
+DPRNT[PASS*#100[20]*X#101[24]]
+#100 = #100 + 1
+#101 = #101 * 2
+END1
+M30
+%
+"""
+
+
+def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs, prefix: str) -> None:
+    """A serial Haas prints three DPRNT lines: each is a message on ``<machine>/dprnt`` and a
+    ``dprnt`` MESSAGE line on the machine's SHDR port."""
+    shdr_port = free_port()
+    haas = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1)
+    try:
+        sim = haas.fleet.sims["haas-serial-1"]
+        haas.call(lambda: sim.control.save_program(PRINTS))
+        extra = (
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n\n'
+            f'[mtconnect]\nbind = "127.0.0.1:{shdr_port}"\n'
+        )
+        client, _key = serve_fleet(
+            tmp_path,
+            haas,
+            procs,
+            f"sqlite:///{tmp_path / 'opendnc.db'}",
+            machine_keys='dprnt = "serial"\n',
+            extra=extra,
+        )
+        client.close()
+        wait_for("the SHDR port", listening(shdr_port))
+        agent = ShdrReader(shdr_port)
+        try:
+            with Listener(prefix) as listener:
+                agent.until(
+                    "the first status",
+                    lambda: agent.values.get("controller_mode") == "MANUAL_DATA_INPUT",
+                )
+                assert agent.values["dprnt"] == "UNAVAILABLE"  # nothing printed yet
+                haas.call(lambda: sim.control.start_program(500))  # cycle start
+                printed = wait_for(
+                    "three lines on the dprnt topic",
+                    lambda: len(got := listener.on("haas-serial-1/dprnt")) == 3 and got,
+                    describe=lambda: procs.log("server"),
+                )
+                assert [m.json()["numbers"] for m in printed] == [[0, 1.5], [1, 3.0], [2, 6.0]]
+                assert not any(m.retain for m in printed)
+                texts = [m.json()["line"] for m in printed]
+            shdr = agent.until(
+                "three dprnt lines on the SHDR port",
+                lambda: len(got := [ln for ln in agent.lines if "|dprnt|" in ln][1:]) == 3 and got,
+            )
+            assert [ln.split("|")[3] for ln in shdr] == [" ".join(t.split()) for t in texts]
+        finally:
+            agent.close()
+    finally:
+        haas.stop()
