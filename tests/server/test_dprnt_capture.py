@@ -24,7 +24,7 @@ from tests.server.srvx_support import (
     create_key,
     free_port,
     httpx,
-    listening,
+    serve,
     serve_fleet,
     wait_for,
 )
@@ -125,21 +125,18 @@ class EventReader:
 def test_lines_printed_by_a_running_program_are_stored_and_served(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
-    mdc_port, dprnt_port, http_port = free_port(), free_port(), free_port()
+    mdc_port, dprnt_port = free_port(), free_port()
     memory = tmp_path / "ngc-mem"
     memory.mkdir()
     (memory / "O00500.nc").write_text(PRINTS)
     config = tmp_path / "shop.toml"
     config.write_text(
-        f'[server]\nbind = "127.0.0.1:{http_port}"\n'
         f'[library]\npath = "{tmp_path / "lib"}"\n'
         '[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
         f'mdc_port = {mdc_port}\ndprnt = "tcp://127.0.0.1:{dprnt_port}"\n'
     )
     key = create_key(config, db_url, role="viewer")
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    base = f"http://127.0.0.1:{http_port}"
-    wait_for("the server", listening(http_port))
+    base = serve(procs, config, db_url)
     events = EventReader(base, key)
     assert events.connected.wait(10)
     # The control runs O500 once a reader is on its DPRNT port (the server's listener).

@@ -26,9 +26,8 @@ from tests.server.srvx_support import (
     Procs,
     auth,
     create_key,
-    free_port,
     httpx,
-    listening,
+    serve,
     wait_for,
 )
 
@@ -246,20 +245,16 @@ def test_netshare_config_defaults(tmp_path: Path) -> None:
 def test_the_server_runs_the_net_share(
     tmp_path: Path, ngc: FleetThread, procs: Procs, db_url: str
 ) -> None:
-    port = free_port()
     nas = tmp_path / "nas"
     nas.mkdir()
-    text = server_config(
-        ngc.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
-    )
+    text = server_config(ngc.fleet, poll_interval=0.5, library=tmp_path / "lib")
     text += f'\n[netshare]\npath = "{nas}"\narchive_every = 4\ninterval = 0.2\n'
     config = tmp_path / "shop.toml"
     config.write_text(text)
     key = create_key(config, db_url)
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    wait_for("the server", listening(port))
+    base = serve(procs, config, db_url)
     shares = [ngc.fleet.sims[m].control.store.root for m in ("haas-1", "haas-2")]
-    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+    with httpx.Client(base_url=base, timeout=30) as client:
 
         def audit(action: str) -> list[dict[str, Any]]:
             params = {"action": action}

@@ -1,0 +1,42 @@
+"""``opendnc serve`` starting up: a test harness that finds its own server."""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.server.harness import Procs, auth, create_key, start_server
+
+PROGRAM = b"%\r\nO01234 (BRACKET)\r\nG00 X0. Y0.\r\nM30\r\n%\r\n"
+
+
+@pytest.fixture
+def silent_port() -> Iterator[int]:
+    """A port on which something accepts connections and never answers (as a virtual Haas's
+    MDC port does to an HTTP request: it waits for a Q-command)."""
+    with socket.create_server(("127.0.0.1", 0)) as srv:
+        yield srv.getsockname()[1]
+
+
+def _config(tmp_path: Path, bind: str) -> Path:
+    config = tmp_path / "shop.toml"
+    config.write_text(f'[server]\nbind = "{bind}"\n[library]\npath = "{tmp_path / "lib"}"\n')
+    return config
+
+
+def test_the_harness_reaches_its_own_server_when_the_configured_port_is_taken(
+    tmp_path: Path, procs: Procs, silent_port: int
+) -> None:
+    # What made test_receive_backup_and_delete_jobs_on_a_tnc hang on its first request: the
+    # port picked for the server was taken before the server bound it, the server died, and
+    # the harness's "something listens" check handed the test to the silent stranger.
+    config = _config(tmp_path, f"127.0.0.1:{silent_port}")
+    db_url = f"sqlite:///{tmp_path / 'opendnc.db'}"
+    key = create_key(config, db_url, "programmer")
+    with start_server(procs, config, db_url) as client:
+        assert client.base_url.port != silent_port
+        reply = client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
+        assert reply.status_code == 201, reply.text
