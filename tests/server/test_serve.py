@@ -1,4 +1,5 @@
-"""``opendnc serve`` starting up: a test harness that finds its own server."""
+"""``opendnc serve`` starting up: a test harness that finds its own server, and the API waking a
+machine's task from a worker thread."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.server.harness import Procs, auth, create_key, start_server
+from opendnc.sim.fleet import server_config
+from tests.server.harness import Procs, auth, create_key, start_server, wait_jobs
+from tests.server.test_from_the_control import FleetThread
 
 PROGRAM = b"%\r\nO01234 (BRACKET)\r\nG00 X0. Y0.\r\nM30\r\n%\r\n"
 
@@ -40,3 +43,31 @@ def test_the_harness_reaches_its_own_server_when_the_configured_port_is_taken(
         assert client.base_url.port != silent_port
         reply = client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
         assert reply.status_code == 201, reply.text
+
+
+def test_a_job_queued_through_the_api_wakes_its_machine_from_the_right_thread(
+    tmp_path: Path, procs: Procs, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The API's plain routes run in worker threads; asyncio's debug mode refuses an
+    # asyncio.Event set from one (without it, the set does not wake the loop's selector).
+    monkeypatch.setenv("PYTHONASYNCIODEBUG", "1")
+    fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
+    try:
+        (machine,) = fleet.fleet.machines
+        config = tmp_path / "shop.toml"
+        config.write_text(server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib"))
+        db_url = f"sqlite:///{tmp_path / 'opendnc.db'}"
+        key = create_key(config, db_url)
+        with start_server(procs, config, db_url) as client:
+            client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
+            queued = client.post(
+                "/api/jobs",
+                headers=auth(key),
+                json={"program": "O01234.nc", "version": 1, "machines": [machine.name]},
+            )
+            assert queued.status_code == 201, queued.text
+            (job,) = wait_jobs(client, key, [queued.json()[0]["id"]])
+            assert job["state"] == "done", job["error"]
+        assert "Non-thread-safe" not in procs.log("server")
+    finally:
+        fleet.stop()

@@ -33,7 +33,7 @@ from opendnc.errors import (
 from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, on_loop
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.store.models import JobKind, utcnow
 
@@ -119,10 +119,12 @@ class Supervisor:
         self.machines = {m.name: MachineState(m) for m in config.machines}
         self._tasks: list[asyncio.Task[None]] = []
         self._cancels: set[int] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> None:
         """Recover jobs left running by a previous run, then start one task per machine."""
-        self.bus.bind(asyncio.get_running_loop())
+        self._loop = asyncio.get_running_loop()
+        self.bus.bind(self._loop)
 
         def prepare() -> list[int]:
             with self.sessions.begin() as session:
@@ -159,9 +161,17 @@ class Supervisor:
         self._tasks.clear()
 
     def wake(self, machine: str) -> None:
-        """Tell ``machine``'s task that a job may be waiting."""
+        """Tell ``machine``'s task that a job may be waiting (callable from any thread)."""
         state = self.machines.get(machine)
-        if state is not None:
+        if state is None:
+            return
+        loop = self._loop
+        # The API's plain routes run in worker threads. An asyncio.Event set from there
+        # schedules its waiter without waking the loop's selector (and asyncio's debug mode
+        # refuses it outright), so the set goes through the loop.
+        if loop is not None and not on_loop(loop):
+            loop.call_soon_threadsafe(state.wake.set)
+        else:
             state.wake.set()
 
     def _publish(self, state: MachineState) -> None:
