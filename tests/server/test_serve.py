@@ -1,9 +1,11 @@
-"""``opendnc serve`` starting up: a test harness that finds its own server, and the API waking a
-machine's task from a worker thread."""
+"""``opendnc serve`` starting up: a port in use, a test harness that finds its own server, and
+the API waking a machine's task from a worker thread."""
 
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,6 +30,58 @@ def _config(tmp_path: Path, bind: str) -> Path:
     config = tmp_path / "shop.toml"
     config.write_text(f'[server]\nbind = "{bind}"\n[library]\npath = "{tmp_path / "lib"}"\n')
     return config
+
+
+def _serve(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", "serve", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"COLUMNS": "80", "PATH": "/usr/bin:/bin"},  # a narrow terminal must not wrap
+        check=False,
+    )
+
+
+@pytest.mark.parametrize("where", ["config", "--bind"])
+def test_a_port_in_use_is_one_line_and_nothing_starts(
+    tmp_path: Path, silent_port: int, where: str
+) -> None:
+    address = f"127.0.0.1:{silent_port}"
+    config = _config(tmp_path, address if where == "config" else "127.0.0.1:1")
+    database = tmp_path / "opendnc.db"
+    args = ["--config", str(config), "--db", f"sqlite:///{database}"]
+    if where == "--bind":
+        args += ["--bind", address]
+    done = _serve(*args)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"error: cannot listen on {address}: address already in use")
+    assert "--bind" in line
+    assert done.stdout == ""
+    assert not database.exists()  # stopped before the database (and any machine) was touched
+
+
+def test_the_demo_on_a_port_in_use_is_one_line(tmp_path: Path, silent_port: int) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", "demo", "--bind", f"127.0.0.1:{silent_port}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"COLUMNS": "80", "PATH": "/usr/bin:/bin"},
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"error: cannot listen on 127.0.0.1:{silent_port}: address already")
+    assert done.stdout == ""  # no virtual machine was started, no login printed
+
+
+def test_a_malformed_bind_is_one_line(tmp_path: Path) -> None:
+    done = _serve("--config", str(_config(tmp_path, "127.0.0.1:8000")), "--bind", "8000")
+    assert done.returncode == 1
+    assert done.stderr.strip() == "error: --bind '8000': expected HOST:PORT"
 
 
 def test_the_harness_reaches_its_own_server_when_the_configured_port_is_taken(
