@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -110,11 +111,45 @@ def create_key(config: Path, db_url: str, role: str = "admin", user: str | None 
     return done.stdout.strip()
 
 
-def start_server(procs: Procs, config: Path, db_url: str, port: int) -> httpx.Client:
-    """``opendnc serve`` as a child process; a client once it listens."""
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    wait_for("the server", listening(port))
-    return httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30)
+SERVER_LINE = re.compile(rb"opendnc server on (http://\S+?)/ ")
+
+
+def serve(procs: Procs, config: Path, db_url: str, *args: str, name: str = "server") -> str:
+    """``opendnc serve`` as a child process; its base URL once it says it listens.
+
+    The server binds a port the system picks (``--bind 127.0.0.1:0``) and the URL is read from
+    the line it prints once it listens. A port chosen beforehand can be taken meanwhile (by
+    another test's process or an outgoing connection); the server then could not start, and a
+    check that "something listens on the port" would hand the test to that stranger, whose
+    silence looked like a server that never answers. A server that exits fails at once, with
+    its log.
+    """
+    log = procs.log_dir / f"{name}.log"
+    start = log.stat().st_size if log.exists() else 0  # a restart appends to the same log
+    proc = procs.start(
+        name, "serve", "--config", str(config), "--db", db_url, "--bind", "127.0.0.1:0", *args
+    )
+
+    def announced() -> str | None:
+        with log.open("rb") as f:
+            f.seek(start)
+            text = f.read()
+        found = SERVER_LINE.search(text)
+        if found is not None:
+            return found.group(1).decode()
+        if proc.poll() is not None:
+            raise AssertionError(
+                f"the server exited with {proc.returncode}: {text.decode(errors='replace')}"
+            )
+        return None
+
+    url: str = wait_for("the server", announced, describe=lambda: procs.log(name))
+    return url
+
+
+def start_server(procs: Procs, config: Path, db_url: str, *args: str) -> httpx.Client:
+    """``opendnc serve`` as a child process (see :func:`serve`); a client once it listens."""
+    return httpx.Client(base_url=serve(procs, config, db_url, *args), timeout=30)
 
 
 def auth(key: str) -> dict[str, str]:

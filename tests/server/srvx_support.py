@@ -14,6 +14,7 @@ from tests.server.harness import (
     free_port,
     httpx,
     listening,
+    serve,
     start_server,
     wait_for,
 )
@@ -27,6 +28,7 @@ __all__ = [
     "free_port",
     "httpx",
     "listening",
+    "serve",
     "serve_fleet",
     "wait_for",
 ]
@@ -43,12 +45,9 @@ def serve_fleet(
 ) -> tuple[Any, str]:
     """Start ``opendnc serve`` for the fleet's machines (serial Haas with ``mdc = true`` and
     ``machine_keys``; ``extra`` TOML appended); return an HTTP client and an admin key."""
-    port = free_port()
     config = tmp_path / "shop.toml"
-    text = server_config(
-        fleet.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib", mdc=True
-    )
+    text = server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib", mdc=True)
     text = text.replace("mdc = true\n", "mdc = true\n" + machine_keys)
     config.write_text(text + "\n[requests]\ndelay = 0.5\n" + extra)
     key = create_key(config, db_url)
-    return start_server(procs, config, db_url, port), key
+    return start_server(procs, config, db_url), key

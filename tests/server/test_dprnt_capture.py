@@ -24,7 +24,7 @@ from tests.server.srvx_support import (
     create_key,
     free_port,
     httpx,
-    listening,
+    serve,
     serve_fleet,
     wait_for,
 )
@@ -94,10 +94,11 @@ def test_config_errors_name_the_key(tmp_path: Path, machine: str, key: str) -> N
 
 
 class EventReader:
-    """Reads the server-sent events on a thread and keeps the ``dprnt`` ones."""
+    """Reads the server-sent events on a thread and keeps the ``dprnt`` and ``machine`` ones."""
 
     def __init__(self, base: str, key: str) -> None:
         self.lines: list[dict[str, Any]] = []
+        self.machines: list[dict[str, Any]] = []
         self.connected = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, args=(base, key), daemon=True)
@@ -117,6 +118,8 @@ class EventReader:
                     kind = line[7:]
                 elif line.startswith("data: ") and kind == "dprnt":
                     self.lines.append(json.loads(line[6:]))
+                elif line.startswith("data: ") and kind == "machine":
+                    self.machines.append(json.loads(line[6:]))
 
     def stop(self) -> None:
         self._stop.set()
@@ -125,21 +128,18 @@ class EventReader:
 def test_lines_printed_by_a_running_program_are_stored_and_served(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
-    mdc_port, dprnt_port, http_port = free_port(), free_port(), free_port()
+    mdc_port, dprnt_port = free_port(), free_port()
     memory = tmp_path / "ngc-mem"
     memory.mkdir()
     (memory / "O00500.nc").write_text(PRINTS)
     config = tmp_path / "shop.toml"
     config.write_text(
-        f'[server]\nbind = "127.0.0.1:{http_port}"\n'
         f'[library]\npath = "{tmp_path / "lib"}"\n'
         '[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
         f'mdc_port = {mdc_port}\ndprnt = "tcp://127.0.0.1:{dprnt_port}"\n'
     )
     key = create_key(config, db_url, role="viewer")
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    base = f"http://127.0.0.1:{http_port}"
-    wait_for("the server", listening(http_port))
+    base = serve(procs, config, db_url)
     events = EventReader(base, key)
     assert events.connected.wait(10)
     # The control runs O500 once a reader is on its DPRNT port (the server's listener).
@@ -184,12 +184,44 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         wait_for("the lines on the event stream", lambda: len(events.lines) == 3)
         assert [e["id"] for e in events.lines] == ids
 
+        # The newest line is in the machine's status (MTConnect's MESSAGE), in the API and on
+        # the event stream, with the time it was captured.
+        last = (stored[-1]["line"], stored[-1]["at"])
+
+        def status() -> dict[str, Any]:
+            got: dict[str, Any] = (
+                client.get("/api/machines/vf2", headers=auth(key)).json()["status"] or {}
+            )
+            return got
+
+        wait_for(
+            "the last line in the status",
+            lambda: (status().get("dprnt"), status().get("dprnt_at")) == last,
+            describe=status,
+        )
+        wait_for(
+            "the last line in a status event",
+            lambda: any(
+                ((m["status"] or {}).get("dprnt"), (m["status"] or {}).get("dprnt_at")) == last
+                for m in events.machines
+            ),
+        )
+
         assert client.get("/api/machines/vf2/dprnt").status_code == 401
         missing = client.get("/api/machines/nope/dprnt", headers=auth(key))
         assert missing.status_code == 404
         bad = client.get("/api/machines/vf2/dprnt", headers=auth(key), params={"since": -1})
         assert bad.status_code == 400
     events.stop()
+
+    # A restarted server shows the last line it had stored until the program prints again.
+    procs.stop("server")
+    with httpx.Client(base_url=serve(procs, config, db_url), timeout=30) as client:
+        wait_for(
+            "the stored line in the status after a restart",
+            lambda: (status().get("dprnt"), status().get("dprnt_at")) == last,
+            describe=status,
+        )
 
 
 def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
@@ -224,6 +256,14 @@ def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
             assert [line["numbers"] for line in stored] == [[0, 1.5], [1, 3.0], [2, 6.0]]
             for n, line in enumerate(stored):
                 assert re.fullmatch(rf"PASS\s+{n}\s+X\s+\d\.\d{{4}}", line["line"]), line
+            wait_for(
+                "the last line in the status",
+                lambda: (
+                    (status().get("dprnt"), status().get("dprnt_at"))
+                    == (stored[-1]["line"], stored[-1]["at"])
+                ),
+                describe=status,
+            )
             # the port still does its other work: status by MDC and a punch into the inbox
             wait_for("O500 in the status", lambda: status().get("program") == "O00500")
             port.select("punch:O1234")

@@ -43,7 +43,6 @@ class Shop:
         self.ngc_share = tmp / "ngc-share"
         self.cable_pc = tmp / "pc"
         self.cable_haas = tmp / "haas"
-        self.http_port = free_port()
         self.config = tmp / "shop.toml"
         for folder in (*self.tnc_roots, self.haas_mem, self.ngc_mem, self.ngc_share):
             folder.mkdir()
@@ -76,7 +75,7 @@ class Shop:
             "--root",
             str(self.haas_mem),
             "--mdc-port",
-            str(free_port()),
+            "0",  # not used here; the system's pick cannot collide with another test port
         )
         self.procs.start(
             "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
@@ -94,7 +93,6 @@ class Shop:
         self.config.write_text(
             f"""
 [server]
-bind = "127.0.0.1:{self.http_port}"
 name = "dnc-test"
 
 [library]
@@ -135,7 +133,7 @@ poll_interval = 0.2
         return create_key(self.config, self.db_url, role, user=f"{role}-1")
 
     def start_server(self) -> httpx.Client:
-        return start_server(self.procs, self.config, self.db_url, self.http_port)
+        return start_server(self.procs, self.config, self.db_url)
 
 
 @pytest.fixture
@@ -381,12 +379,8 @@ def test_a_heidenhain_on_rs232_gets_its_program(tmp_path: Path, procs: Procs, db
         "--no-tcp",
     )
     wait_for("the virtual TNC on its serial line", lambda: "listening" in procs.log("tnc"))
-    port = free_port()
     config = tmp_path / "shop.toml"
     config.write_text(f"""
-[server]
-bind = "127.0.0.1:{port}"
-
 [[machines]]
 name = "tnc-serial"
 kind = "lsv2"
@@ -396,7 +390,7 @@ folder = "TNC:/nc_prog"
 poll_interval = 0.5
 """)
     key = create_key(config, db_url)
-    with start_server(procs, config, db_url, port) as client:
+    with start_server(procs, config, db_url) as client:
         wait_for(
             "the machine online",
             lambda: client.get("/api/machines/tnc-serial", headers=auth(key)).json()["online"],

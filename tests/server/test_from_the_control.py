@@ -21,7 +21,6 @@ from tests.server.harness import (
     Procs,
     auth,
     create_key,
-    free_port,
     httpx,
     start_server,
     wait_for,
@@ -74,18 +73,16 @@ def haas(tmp_path: Path) -> Iterator[FleetThread]:
 def _server(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, *, dripfeed: bool = False
 ) -> tuple[httpx.Client, str]:
-    port = free_port()
     config = tmp_path / "shop.toml"
     text = server_config(
         haas.fleet,
-        bind=f"127.0.0.1:{port}",
         poll_interval=0.5,
         library=tmp_path / "lib",
         dripfeed=dripfeed,
     )
     config.write_text(text + "\n[requests]\ndelay = 0.5\n")
     key = create_key(config, db_url)
-    return start_server(procs, config, db_url, port), key
+    return start_server(procs, config, db_url), key
 
 
 STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"

@@ -4,6 +4,8 @@ archive on the schedule (the clock is injected), and the same in a running serve
 
 from __future__ import annotations
 
+import json
+import logging
 import time
 from collections.abc import Callable, Iterator
 from datetime import datetime, timedelta
@@ -14,6 +16,7 @@ import pytest
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
+from opendnc.haas.share import ShareTarget
 from opendnc.server.config import ConfigError, NetShareConfig, parse_config
 from opendnc.server.events import EventBus
 from opendnc.server.netshare import NetShare, ScanReport
@@ -26,9 +29,8 @@ from tests.server.srvx_support import (
     Procs,
     auth,
     create_key,
-    free_port,
     httpx,
-    listening,
+    serve,
     wait_for,
 )
 
@@ -210,7 +212,12 @@ def test_a_share_that_is_away_is_audited_and_retried(
     ("table", "key"),
     [
         ('archive_at = "18:00"', "netshare.path"),
-        ('path = "smb://nas/programs"', "netshare.path"),
+        ('path = "ftp://nas/programs"', "netshare.path"),
+        ('path = "smb://nas"', "netshare.path"),
+        ('path = "nas"\nusername = "dnc"', "netshare.username"),
+        ('path = "smb://dnc@nas/cnc"\nusername = "dnc"', "netshare.username"),
+        ('path = "smb://dnc:pw@nas/cnc"\npassword = "pw"', "netshare.password"),
+        ('path = "smb://nas/cnc"\npassword = 1234', "netshare.password"),
         ('path = "nas"\nmachines = ["haas-9"]', "netshare.machines[0]"),
         ('path = "nas"\nmachines = ["haas-1", "mill"]', "netshare.machines[1]"),
         ('path = "nas"\narchive_at = "25:00"', "netshare.archive_at"),
@@ -230,6 +237,38 @@ def test_netshare_config_errors_name_the_key(tmp_path: Path, table: str, key: st
     assert caught.value.key == key
 
 
+def test_a_nas_over_smb_in_the_config_keeps_its_password_out_of_sight(tmp_path: Path) -> None:
+    machines = '[[machines]]\nname = "haas-1"\nkind = "haas_ngc"\nhost = "h"\nshare = "s1"\n'
+    text = (
+        f"{machines}[netshare]\n"
+        'path = "smb://nas.local:4450/cnc/programs/new"\nusername = "dnc"\npassword = "s3cret-pw"\n'
+    )
+    config = parse_config(text, base=tmp_path).netshare
+    assert config is not None
+    assert config.path == ShareTarget(
+        host="nas.local",
+        port=4450,
+        share="cnc",
+        folder="programs/new",
+        username="dnc",
+        password="s3cret-pw",
+    )
+    assert "s3cret-pw" not in repr(config)
+    in_url = parse_config(
+        f'{machines}[netshare]\npath = "smb://dnc:s3cret%2Dpw@nas.local/cnc"\n', base=tmp_path
+    ).netshare
+    assert in_url is not None
+    assert isinstance(in_url.path, ShareTarget)
+    assert (in_url.path.username, in_url.path.password) == ("dnc", "s3cret-pw")
+    with pytest.raises(ConfigError) as caught:  # a malformed URL is not repeated
+        parse_config(f'{machines}[netshare]\npath = "smb://dnc:s3cret-pw@nas"\n', base=tmp_path)
+    assert caught.value.key == "netshare.path"
+    assert "s3cret-pw" not in str(caught.value)
+    with pytest.raises(ConfigError) as caught:
+        parse_config(f'{machines}[netshare]\npath = "smb://nas/c"\npassword = 12345', base=tmp_path)
+    assert "12345" not in str(caught.value)
+
+
 def test_netshare_config_defaults(tmp_path: Path) -> None:
     text = (
         '[[machines]]\nname = "haas-1"\nkind = "haas_ngc"\nhost = "h"\nshare = "s1"\n'
@@ -246,20 +285,16 @@ def test_netshare_config_defaults(tmp_path: Path) -> None:
 def test_the_server_runs_the_net_share(
     tmp_path: Path, ngc: FleetThread, procs: Procs, db_url: str
 ) -> None:
-    port = free_port()
     nas = tmp_path / "nas"
     nas.mkdir()
-    text = server_config(
-        ngc.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.5, library=tmp_path / "lib"
-    )
+    text = server_config(ngc.fleet, poll_interval=0.5, library=tmp_path / "lib")
     text += f'\n[netshare]\npath = "{nas}"\narchive_every = 4\ninterval = 0.2\n'
     config = tmp_path / "shop.toml"
     config.write_text(text)
     key = create_key(config, db_url)
-    procs.start("server", "serve", "--config", str(config), "--db", db_url)
-    wait_for("the server", listening(port))
+    base = serve(procs, config, db_url)
     shares = [ngc.fleet.sims[m].control.store.root for m in ("haas-1", "haas-2")]
-    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+    with httpx.Client(base_url=base, timeout=30) as client:
 
         def audit(action: str) -> list[dict[str, Any]]:
             params = {"action": action}
@@ -329,3 +364,59 @@ def test_a_machine_share_over_smb(
     assert sorted(p.name for p in folder.iterdir()) == ["O00100.nc", "O02000.nc"]
     (archived,) = _audit(sessions, "netshare.archive")
     assert archived.detail["removed_from"] == ["vf2"]
+
+
+@pytest.mark.interop
+def test_a_nas_over_smb(
+    tmp_path: Path, samba: Samba, sessions: sessionmaker[Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The NAS itself on a real Samba server, its login from the configuration's keys: polled,
+    pushed from, archived (into the server's local archive) and emptied over SMB; the
+    password is in no audit row and no log line."""
+    caplog.set_level(logging.DEBUG)
+    nas = samba.folder / f"nas-{tmp_path.name}"  # the Samba server is shared by the module
+    nas.mkdir()
+    machine_share = tmp_path / "vf2-share"
+    machine_share.mkdir()
+    url = f"smb://127.0.0.1:{samba.port}/UserData/{nas.name}"
+
+    def make(password: str) -> NetShare:
+        text = (
+            f'[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+            f'share = "{machine_share}"\n'
+            f'[netshare]\npath = "{url}"\nusername = "{samba.user}"\npassword = "{password}"\n'
+            f'archive = "{tmp_path / "archive"}"\n'
+        )
+        shop = parse_config(text, base=tmp_path)
+        assert shop.netshare is not None
+        machines = {m.name: m for m in shop.machines}
+        return NetShare(shop.netshare, machines, tmp_path / "inbox", sessions, clock=clock)
+
+    clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())
+    wrong = make("not-the-password")
+    assert wrong.scan_sync().pushed == []  # a NAS that refuses the login is away, no crash
+    away = [r.getMessage() for r in caplog.records if "NAS is away" in r.getMessage()]
+    (message,) = away
+    assert url in message
+
+    net = make(SMB_PASSWORD)
+    _scan_until(net, lambda _r: "vf2" in net.baselined, "the first look at the share")
+    (nas / "O01000.nc").write_text(PROGRAM)  # someone drops a program on the NAS
+    _scan_until(net, lambda r: r.pushed == [("vf2", "O01000.nc")], "the push from the SMB NAS")
+    assert (machine_share / "O01000.nc").read_text() == PROGRAM
+    (push,) = _audit(sessions, "netshare.push")
+    assert push.detail["source"] == f"{url}/O01000.nc"
+
+    clock.now = clock.now.replace(hour=18, minute=5)
+    assert net.scan_sync().archived == ["O01000.nc"]
+    assert list(nas.iterdir()) == []  # emptied over SMB
+    assert (tmp_path / "archive" / "2026-11-23" / "O01000.nc").read_text() == PROGRAM
+    assert not (machine_share / "O01000.nc").exists()  # the unedited copy left the share
+    (archived,) = _audit(sessions, "netshare.archive")
+    assert (archived.result, archived.detail["removed_from"]) == ("ok", ["vf2"])
+
+    with sessions() as session:
+        rows = session.scalars(select(AuditEntry)).all()
+        trail = json.dumps([(r.action, r.detail) for r in rows])
+    assert SMB_PASSWORD not in trail
+    assert all(SMB_PASSWORD not in r.getMessage() for r in caplog.records)

@@ -94,7 +94,7 @@ def shop(tmp_path: Path, procs: Procs, db_url: str) -> Iterator[Shop]:
     key = create_key(config, db_url)
     control = open_stream(str(control_end), BAUD, timeout=0.02)
     try:
-        with start_server(procs, config, db_url, port) as client:
+        with start_server(procs, config, db_url) as client:
             wait_for(
                 "the machine online",
                 lambda: client.get(f"/api/machines/{MACHINE}", headers=auth(key)).json()["online"],

@@ -113,7 +113,7 @@ def test_files_on_the_tnc_reach_the_inbox_once(
     port = free_port()
     config = _config(tmp_path, tncs, port)
     key = create_key(config, db_url)
-    client = start_server(procs, config, db_url, port)
+    client = start_server(procs, config, db_url)
     with client:
         first = wait_for(
             "PART1.H in the inbox",
@@ -150,7 +150,7 @@ def test_files_on_the_tnc_reach_the_inbox_once(
         ]
 
     procs.stop("server")
-    client = start_server(procs, config, db_url, port)
+    client = start_server(procs, config, db_url)
     with client:
         # A changed file comes again, beside the first one; the kept PART1.H does not. Files
         # of one listing are taken in name order, so once the new PART2.H is in, a second

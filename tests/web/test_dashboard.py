@@ -28,7 +28,7 @@ from opendnc.server import auth, library  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
-from tests.server.harness import Procs, free_port, listening, wait_for  # noqa: E402
+from tests.server.harness import Procs, serve  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
@@ -131,20 +131,16 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
     logs.mkdir()
     procs = Procs(logs)
     try:
-        port = free_port()
         config = tmp / "shop.toml"
-        text = server_config(
-            fleet.fleet, bind=f"127.0.0.1:{port}", poll_interval=0.3, library=tmp / "lib"
-        )
+        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp / "lib")
         config.write_text(text)
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)
-        procs.start("server", "serve", "--config", str(config), "--db", db_url)
-        wait_for("the server", listening(port), describe=lambda: procs.log("server"))
+        base = serve(procs, config, db_url)
         with sync_api.sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
             try:
-                yield Shop(f"http://127.0.0.1:{port}", fleet, procs, browser)
+                yield Shop(base, fleet, procs, browser)
             finally:
                 browser.close()
     finally:

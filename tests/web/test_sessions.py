@@ -22,12 +22,13 @@ require_module("jinja2")
 httpx = require_module("httpx")
 uvicorn = require_module("uvicorn")
 
+from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import ApiKey, Role  # noqa: E402
 from opendnc.sim.fleet import server_config, start_fleet  # noqa: E402
-from tests.server.harness import free_port, listening, wait_for  # noqa: E402
+from tests.server.harness import wait_for  # noqa: E402
 
 Http = Any
 
@@ -48,21 +49,20 @@ def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
         server = build(shop, database=f"sqlite:///{tmp_path / 'db.sqlite'}")
         with server.sessions.begin() as session:
             auth.create_user(session, "op", Role.OPERATOR, password=PASSWORD)
-        port = free_port()
-        web = uvicorn.Server(
-            uvicorn.Config(
-                server.app, host="127.0.0.1", port=port, log_level="warning", loop="asyncio"
-            )
-        )
-        serving = threading.Thread(target=web.run, daemon=True)
+        # a port the system picks, bound here: one chosen beforehand could be taken meanwhile
+        listener = listen_socket("127.0.0.1", 0)
+        port = listener.getsockname()[1]
+        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
+        serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
         serving.start()
-        wait_for("the server", listening(port))
+        wait_for("the server", lambda: web.started)
         try:
             with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
                 yield http, server
         finally:
             web.should_exit = True
             serving.join(30)
+            listener.close()
             server.engine.dispose()
     finally:
         asyncio.run_coroutine_threadsafe(fleet.close(), loop).result(30)

@@ -11,15 +11,17 @@ the test suite runs).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import secrets
 import signal
+import socket
 import tempfile
 from pathlib import Path
 
 import typer
 
 from opendnc.cli.common import cli_errors, console
-from opendnc.cli.serve import require_server_extra
+from opendnc.cli.serve import listen_socket, parse_bind, require_server_extra
 from opendnc.errors import DncError, InputError
 
 # Example programs: Haas ISO programs and a Heidenhain conversational one (CRLF, as stored).
@@ -67,18 +69,18 @@ def demo(
         return
     with cli_errors():
         require_server_extra()
-        host, sep, port_text = bind.rpartition(":")
-        if not sep or not port_text.isdigit():
-            raise InputError(f"--bind {bind!r}: expected HOST:PORT")
-        if folder is not None:
-            folder.mkdir(parents=True, exist_ok=True)
-            asyncio.run(_run(folder, host, int(port_text), check))
-        else:
-            with tempfile.TemporaryDirectory(prefix="opendnc-demo-") as tmp:
-                asyncio.run(_run(Path(tmp), host, int(port_text), check))
+        host, port = parse_bind(bind)
+        # bound before the virtual machines start: a port in use is one line, nothing started
+        with listen_socket(host, port) as listener:
+            if folder is not None:
+                folder.mkdir(parents=True, exist_ok=True)
+                asyncio.run(_run(folder, host, listener, check))
+            else:
+                with tempfile.TemporaryDirectory(prefix="opendnc-demo-") as tmp:
+                    asyncio.run(_run(Path(tmp), host, listener, check))
 
 
-async def _run(folder: Path, host: str, port: int, check: bool) -> None:
+async def _run(folder: Path, host: str, listener: socket.socket, check: bool) -> None:
     import uvicorn
 
     from opendnc.server import auth, library
@@ -87,6 +89,7 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
     from opendnc.server.store.models import Role
     from opendnc.sim.fleet import server_config, start_fleet
 
+    port = listener.getsockname()[1]  # the real one when --bind said :0
     fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1)
     try:
         text = server_config(
@@ -116,16 +119,14 @@ async def _run(folder: Path, host: str, port: int, check: bool) -> None:
                     library.add_version(session, name, data, author="demo", source="example")
                 if name in RELEASED:
                     library.release(session, name, 1, actor="demo")
-        web = uvicorn.Server(
-            uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
-        )
-        serving = asyncio.create_task(web.serve())
+        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", lifespan="on"))
+        serving = asyncio.create_task(web.serve(sockets=[listener]))
         while not web.started:
             if serving.done():
-                serving.result()  # raises why it could not start (port in use, ...)
-                raise InputError(f"the server on {host}:{port} stopped at once")
+                with contextlib.suppress(SystemExit):  # uvicorn's end of a failed start-up
+                    serving.result()
+                raise InputError(f"the server on {host}:{port} stopped at once (see above)")
             await asyncio.sleep(0.05)
-        port = web.servers[0].sockets[0].getsockname()[1]  # the real one when --bind said :0
         url = f"http://{host}:{port}/"
         console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
         console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)

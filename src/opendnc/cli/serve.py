@@ -6,7 +6,11 @@ without FastAPI, SQLAlchemy and uvicorn (and works where the ``server`` extra is
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import errno
+import os
+import socket
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -48,48 +52,95 @@ def serve(
     """Run the DNC server: the machines of CONFIG, the API and server-sent events."""
     with cli_errors():
         require_server_extra()
-        import asyncio
-
         from opendnc.server.app import build
         from opendnc.server.config import load_config
 
         shop = load_config(config)
         host, port = shop.server.bind_host, shop.server.bind_port
         if bind is not None:
-            host, sep, port_text = bind.rpartition(":")
-            if not sep or not port_text.isdigit():
-                raise InputError(f"--bind {bind!r}: expected HOST:PORT")
-            port = int(port_text)
-        server = build(shop, database=db)
+            host, port = parse_bind(bind)
+        # The address first: a port in use must stop the server before it migrates the
+        # database or connects a single machine, with one line that says what to do.
+        listener = listen_socket(host, port)
         try:
-            asyncio.run(_serve(server, host, port))
-        except OSError as exc:
-            raise InputError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
+            server = build(shop, database=db)
+            try:
+                asyncio.run(_serve(server, listener, host))
+            finally:
+                server.engine.dispose()
         finally:
-            server.engine.dispose()
+            listener.close()
 
 
-async def _serve(server: Server, host: str, port: int) -> None:
-    """Run uvicorn; say where once it listens (scripts wait for that line)."""
-    import asyncio
+def parse_bind(bind: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[v6]:PORT`` too) as a host and a port; :class:`InputError` if not."""
+    host, sep, port_text = bind.rpartition(":")
+    if not sep or not host or not port_text.isdigit() or int(port_text) > 65535:
+        raise InputError(f"--bind {bind!r}: expected HOST:PORT")
+    return host.strip("[]"), int(port_text)
 
+
+def listen_socket(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host``:``port`` (port 0: one the system picks).
+
+    The server binds before it starts anything, so the error for a port in use is ours (one
+    line naming the address and the way out), not the web server's after the machines were
+    already connected. Reusing an address is allowed as asyncio does it on POSIX, so a
+    restart does not wait for the old connections' TIME_WAIT; Windows' SO_REUSEADDR would
+    let two servers share a port, so it stays off there.
+    """
+    where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    try:
+        family, kind, proto, _name, address = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+    except (OSError, UnicodeError) as exc:
+        raise InputError(f"cannot listen on {where}: {_reason(exc)}") from None
+    sock = socket.socket(family, kind, proto)
+    try:
+        if os.name == "posix":
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(2048)
+    except OSError as exc:
+        sock.close()
+        hint = ""
+        if exc.errno == errno.EADDRINUSE:
+            hint = "; another program has this port: choose another with --bind HOST:PORT"
+        elif exc.errno in (errno.EACCES, errno.EPERM):
+            hint = "; ports below 1024 need privileges: choose another with --bind HOST:PORT"
+        raise InputError(f"cannot listen on {where}: {_reason(exc)}{hint}") from None
+    return sock
+
+
+def _reason(exc: BaseException) -> str:
+    # strerror without "[Errno 98]"; lower case, as it ends our sentence
+    text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return text[0].lower() + text[1:]
+
+
+async def _serve(server: Server, listener: socket.socket, host: str) -> None:
+    """Run uvicorn on ``listener``; say where once it listens (scripts wait for that line)."""
     import uvicorn
 
     if server.mtconnect is not None:
         # Its ports open before the app starts, so a taken one is a plain error naming it.
         await server.mtconnect.start()
-    settings = uvicorn.Config(server.app, host=host, port=port, log_level="warning", lifespan="on")
+    port = listener.getsockname()[1]  # the real one for :0
+    settings = uvicorn.Config(server.app, log_level="warning", lifespan="on")
     web = uvicorn.Server(settings)
-    serving = asyncio.create_task(web.serve())
+    serving = asyncio.create_task(web.serve(sockets=[listener]))
     while not web.started:
         if serving.done():
-            serving.result()  # raises why it could not start
-            raise InputError(f"the server on {host}:{port} stopped at once")
+            # uvicorn ends its start-up with SystemExit (a failed lifespan has logged why)
+            with contextlib.suppress(SystemExit):
+                serving.result()
+            raise InputError(f"the server on {host}:{port} stopped at once (see above)")
         await asyncio.sleep(0.05)
-    port = web.servers[0].sockets[0].getsockname()[1]  # the real one for :0
     database = server.engine.url.render_as_string(hide_password=True)
+    where = f"[{host}]" if ":" in host else host
     console.print(
-        f"opendnc server on http://{host}:{port}/ ({len(server.config.machines)} machines, "
+        f"opendnc server on http://{where}:{port}/ ({len(server.config.machines)} machines, "
         f"database {database})",
         highlight=False,
         soft_wrap=True,

@@ -16,7 +16,7 @@ import contextlib
 import os
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
@@ -37,7 +37,7 @@ class ShareTarget:
     share: str = ""
     folder: str = ""  # inside the share, "/"-separated
     username: str | None = None
-    password: str | None = None
+    password: str | None = field(default=None, repr=False)  # never in a log or an error
     local: Path | None = None
 
     @property

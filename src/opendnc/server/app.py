@@ -78,6 +78,7 @@ def build(
         sweep_interval=sweep_interval,
         retry_backoff=retry_backoff,
     )
+    capture.on_line = supervisor.note_dprnt  # the newest line shows in the machine's status
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)
 

@@ -47,6 +47,9 @@ Example::
 
     [netshare]                             # hybrid net share (server/netshare.py)
     path = "/mnt/nas/programs"             # programs dropped here go to every machine's share
+                                           # (or "smb://nas.local/cnc/programs", polled, with
+    # username = "dnc"                     #  its login here or in the URL: user:pw@host)
+    # password = "..."
     machines = ["vf2-1", "vf2-2"]          # default: every machine with a share
     archive_at = "18:00"                   # daily, server's local time; or archive_every = 3600
     collect = true                         # programs made on the machines go to the inbox
@@ -66,12 +69,13 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from opendnc.errors import InputError
+from opendnc.haas.share import ShareTarget, parse_target
 from opendnc.server.requests import RequestRule, RequestSettings
 
 __all__ = [
@@ -184,7 +188,7 @@ class LibraryConfig:
 class NetShareConfig:
     """The hybrid net share: a NAS folder fanned out to machines' shares (server/netshare.py)."""
 
-    path: Path  # the NAS folder (mounted)
+    path: Path | ShareTarget  # the NAS folder: mounted, or reached over SMB (with its login)
     machines: tuple[str, ...]  # subscribed machines (each has a share)
     archive: Path  # where archived programs go, in one folder per day
     archive_at: tuple[int, int] | None = (18, 0)  # daily, server's local time
@@ -366,16 +370,48 @@ def _mtconnect(table: dict[str, Any], machines: tuple[MachineConfig, ...]) -> Mt
     return MtconnectConfig(host=host.strip("[]"), ports=ports)
 
 
+def _nas(table: dict[str, Any], path_text: str, base: Path) -> Path | ShareTarget:
+    """The NAS of ``[netshare]``: a folder, or ``smb://`` with its login from the URL or from
+    ``username`` / ``password`` (no message here repeats the URL or the password)."""
+    for key in ("username", "password"):
+        if key in table and not isinstance(table[key], str):
+            raise ConfigError(f"netshare.{key}", "expected a string")
+    username, password = table.get("username"), table.get("password")
+    if not path_text.lower().startswith("smb://"):
+        if "://" in path_text:
+            raise ConfigError("netshare.path", "expected a folder or smb://HOST/SHARE/PATH")
+        if username is not None or password is not None:
+            key = "username" if username is not None else "password"
+            raise ConfigError(f"netshare.{key}", "only for a NAS reached by smb://")
+        return (base / path_text).resolve()
+    try:
+        target = parse_target(path_text)
+    except InputError:
+        raise ConfigError(
+            "netshare.path", "expected smb://[USER[:PASSWORD]@]HOST[:PORT]/SHARE[/PATH]"
+        ) from None
+    if username is not None:
+        if target.username is not None:
+            raise ConfigError("netshare.username", "the user is in the URL already: use one")
+        target = replace(target, username=username)
+    if password is not None:
+        if target.password is not None:
+            raise ConfigError("netshare.password", "the password is in the URL already: use one")
+        target = replace(target, password=password)
+    return target
+
+
 def _netshare(
     table: dict[str, Any], base: Path, library: LibraryConfig, machines: tuple[MachineConfig, ...]
 ) -> NetShareConfig:
     keys = {"path", "machines", "archive", "archive_at", "archive_every", "collect", "interval"}
-    _known(table, "netshare", keys)
+    _known(table, "netshare", keys | {"username", "password"})
     path_text = _get(table, "netshare", "path", str, "")
     if not path_text:
-        raise ConfigError("netshare.path", "missing (the NAS folder, mounted on this computer)")
-    if "://" in path_text:
-        raise ConfigError("netshare.path", "expected a folder (mount the NAS share first)")
+        raise ConfigError(
+            "netshare.path", "missing (the NAS folder, mounted here, or smb://HOST/SHARE/PATH)"
+        )
+    nas: Path | ShareTarget = _nas(table, path_text, base)
     with_share = {m.name: m for m in machines if m.share}
     names_raw = table.get("machines")
     if names_raw is None:
@@ -414,7 +450,7 @@ def _netshare(
         raise ConfigError("netshare.interval", "expected seconds between 0.05 and 3600")
     archive_text = _get(table, "netshare", "archive", str, "")
     return NetShareConfig(
-        path=(base / path_text).resolve(),
+        path=nas,
         machines=names,
         archive=(base / archive_text).resolve() if archive_text else library.archive / "netshare",
         archive_at=archive_at,

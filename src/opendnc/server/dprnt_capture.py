@@ -6,6 +6,8 @@ prints with Setting 261 = TCP port and Setting 263 = the port) gets one
 it reconnects with backoff by itself, keeps a line cut by a broken link (marked incomplete),
 and a machine that is away never holds up another. Each line becomes a ``dprnt_lines`` row and
 an event of kind ``dprnt`` on the bus; the API serves them (``/api/machines/{name}/dprnt``).
+The newest line also goes to ``on_line`` (the supervisor), which puts it into the machine's
+status (docs/server.md#dprnt-capture).
 
 A Haas on RS-232 prints on the port its connector owns for XModem and MDC
 (``dprnt = "serial"``): :meth:`DprntCapture.attach` gives that connector the same sink, and
@@ -19,6 +21,7 @@ import asyncio
 import logging
 import threading
 from collections.abc import Callable, Sequence
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
@@ -29,9 +32,12 @@ from opendnc.server.events import EventBus
 from opendnc.server.store.models import DprntLine
 from opendnc.transport.base import ByteStream
 
-__all__ = ["DprntCapture", "DprntSink", "line_json"]
+__all__ = ["DprntCapture", "DprntSink", "LineHook", "line_json"]
 
 log = logging.getLogger(__name__)
+
+LineHook = Callable[[str, str, datetime], None]
+"""Called with (machine, line text, time captured) after each line is stored."""
 
 
 def line_json(row: DprntLine) -> dict[str, Any]:
@@ -50,10 +56,17 @@ def line_json(row: DprntLine) -> dict[str, Any]:
 class DprntSink:
     """A listener sink that stores each line in the database and publishes it."""
 
-    def __init__(self, machine: str, sessions: sessionmaker[Session], bus: EventBus) -> None:
+    def __init__(
+        self,
+        machine: str,
+        sessions: sessionmaker[Session],
+        bus: EventBus,
+        on_line: LineHook | None = None,
+    ) -> None:
         self.machine = machine
         self.sessions = sessions
         self.bus = bus
+        self.on_line = on_line
 
     def write(self, line: CapturedLine) -> None:
         """Store ``line`` (committed before the next line is read), then publish it."""
@@ -68,8 +81,11 @@ class DprntSink:
             session.add(row)
             session.flush()
             data = line_json(row)
+            text, at = row.text, row.at
         # keyed by the line's id: the event stream keeps every line, not just the newest
         self.bus.publish("dprnt", str(data["id"]), data)
+        if self.on_line is not None:
+            self.on_line(self.machine, text, at)
 
     def close(self) -> None:
         """Nothing to release."""
@@ -86,16 +102,18 @@ class DprntCapture:
         *,
         opener: Callable[[str], ByteStream] = open_source,
         backoff_max: float = 10.0,
+        on_line: LineHook | None = None,
     ) -> None:
         self.sessions = sessions
         self.bus = bus
+        self.on_line = on_line
         self.status: dict[str, str] = {}  # machine -> the listener's last word
         self.listeners: dict[str, DprntListener] = {}
         for machine in machines:
             if machine.dprnt and machine.dprnt != "serial":
                 self.listeners[machine.name] = DprntListener(
                     machine.dprnt,
-                    [DprntSink(machine.name, sessions, bus)],
+                    [DprntSink(machine.name, sessions, bus, self._line)],
                     opener=opener,
                     backoff_max=backoff_max,
                     on_status=self._on_status(machine.name),
@@ -105,8 +123,14 @@ class DprntCapture:
     def attach(self, machine: MachineConfig, connector: object) -> None:
         """Give a serial connector with ``dprnt = "serial"`` the sink for its printed lines."""
         if machine.dprnt == "serial" and hasattr(connector, "on_dprnt"):
-            connector.on_dprnt = DprntSink(machine.name, self.sessions, self.bus).write
+            sink = DprntSink(machine.name, self.sessions, self.bus, self._line)
+            connector.on_dprnt = sink.write
             self.status[machine.name] = f"capturing on {machine.serial}"
+
+    def _line(self, machine: str, text: str, at: datetime) -> None:
+        # looked up at each line: the hook is set once the supervisor exists
+        if self.on_line is not None:
+            self.on_line(machine, text, at)
 
     def _on_status(self, machine: str) -> Callable[[str], None]:
         def report(message: str) -> None:

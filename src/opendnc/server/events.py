@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Event", "EventBus", "Subscription"]
+__all__ = ["Event", "EventBus", "Subscription", "on_loop"]
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ class EventBus:
         """Deliver an event to every subscriber (callable from any thread)."""
         event = Event(kind, key, data)
         loop = self._loop
-        if loop is not None and not _on_loop(loop):
+        if loop is not None and not on_loop(loop):
             loop.call_soon_threadsafe(self._deliver, event)
         else:
             self._deliver(event)
@@ -81,7 +81,8 @@ class EventBus:
             sub.put(event)
 
 
-def _on_loop(loop: asyncio.AbstractEventLoop) -> bool:
+def on_loop(loop: asyncio.AbstractEventLoop) -> bool:
+    """True when called on ``loop``'s own thread (while it runs)."""
     try:
         return asyncio.get_running_loop() is loop
     except RuntimeError:

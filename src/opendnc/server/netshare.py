@@ -23,6 +23,10 @@ folder is archived; programs written on the machines come back to the server's i
 
 A machine's share is a local (mounted) folder or ``smb://[USER:PASSWORD@]HOST[:PORT]/SHARE/PATH``
 (read, listed and cleaned with smbprotocol, the library :mod:`opendnc.haas.share` pushes with).
+The NAS is either too: over SMB it is listed, read and emptied (at the archive) the same way;
+its archive goes to the server's local archive folder. Every folder is polled, one listing per
+scan: SMB has no change notifications the server could rely on. A label, an audit row or a log
+line names an SMB folder without its login.
 
 Every action is an audit row (``netshare.push``, ``netshare.collect``, ``netshare.baseline``,
 ``netshare.archive``, ``netshare.archive_run``) and an event of kind ``netshare``. What the
@@ -48,6 +52,7 @@ from typing import Any, Protocol
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
+from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
@@ -95,6 +100,10 @@ class _Folder(Protocol):
 
     label: str
 
+    def where(self, name: str) -> str:
+        """Where ``name`` is, for people (no login in it)."""
+        ...
+
     def entries(self) -> dict[str, tuple[int, int]]:
         """Program files by name: (size, modification time); :class:`DncError` when away."""
         ...
@@ -112,6 +121,9 @@ class _LocalFolder:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.label = str(path)
+
+    def where(self, name: str) -> str:
+        return str(self.path / name)
 
     def entries(self) -> dict[str, tuple[int, int]]:
         try:
@@ -140,11 +152,22 @@ _DIRECTORY, _REPARSE_POINT = 0x10, 0x400  # SMB file attribute bits
 
 
 class _SmbFolder:
-    """A machine's share over SMB (its Local Net Share), through smbprotocol's smbclient."""
+    """A folder over SMB (a machine's Local Net Share, or the NAS), through smbprotocol's
+    smbclient.
 
-    def __init__(self, target: share.ShareTarget) -> None:
+    With ``own_connections`` the folder keeps its connections to itself instead of in
+    smbclient's process-wide pool, which hands an existing session to anyone naming the same
+    user on the same server without checking the password: the NAS's login is then really
+    checked, and its connection stays open from scan to scan.
+    """
+
+    def __init__(self, target: share.ShareTarget, *, own_connections: bool = False) -> None:
         self.target = target
         self.label = target.describe()
+        self._connections: dict[str, Any] | None = {} if own_connections else None
+
+    def where(self, name: str) -> str:
+        return self.target.describe(name)
 
     def _session(self) -> Any:
         try:
@@ -154,7 +177,12 @@ class _SmbFolder:
         t = self.target
         try:
             smbclient.register_session(
-                t.host, t.username, t.password, port=t.port, connection_timeout=10
+                t.host,
+                t.username,
+                t.password,
+                port=t.port,
+                connection_timeout=10,
+                connection_cache=self._connections,
             )
         except Exception as exc:  # smbprotocol raises its own tree and ValueError
             raise TransportError(f"cannot open SMB session to {self.label}: {exc}") from exc
@@ -162,7 +190,10 @@ class _SmbFolder:
 
     def _options(self) -> dict[str, Any]:
         t = self.target
-        return {"port": t.port, "username": t.username, "password": t.password}
+        options: dict[str, Any] = {"port": t.port, "username": t.username, "password": t.password}
+        if self._connections is not None:
+            options["connection_cache"] = self._connections
+        return options
 
     def entries(self) -> dict[str, tuple[int, int]]:
         smbclient = self._session()
@@ -197,10 +228,17 @@ class _SmbFolder:
 
 
 def _folder_for(spec: str) -> _Folder:
-    target = share.parse_target(spec)  # InputError: a local folder that is not there
+    return _folder_at(share.parse_target(spec))  # InputError: a local folder that is not there
+
+
+def _folder_at(
+    target: Path | share.ShareTarget, *, own_connections: bool = False
+) -> _LocalFolder | _SmbFolder:
+    if isinstance(target, Path):
+        return _LocalFolder(target)
     if target.local is not None:
         return _LocalFolder(target.local)
-    return _SmbFolder(target)
+    return _SmbFolder(target, own_connections=own_connections)
 
 
 class _Stable:
@@ -240,6 +278,8 @@ class NetShare:
         self.last_archive: datetime | None = None
         self._stable = _Stable()
         self._loaded = False
+        self.nas = _folder_at(config.path, own_connections=True)
+        self._nas_away = ""  # why the NAS could not be listed (logged once per reason)
 
     # ------------------------------------------------------------------ state
     def load(self) -> None:
@@ -292,18 +332,22 @@ class NetShare:
         if not self._loaded:
             self.load()
         report = ScanReport()
-        folder = _LocalFolder(self.config.path)
+        folder = self.nas
         try:
             entries = folder.entries()
             nas_here = True
-        except DncError:
+            self._nas_away = ""
+        except DncError as exc:
             entries, nas_here = {}, False  # the NAS is away: nothing to push or archive now
+            if str(exc) != self._nas_away:
+                self._nas_away = str(exc)
+                log.warning("net share: the NAS is away: %s", exc)
         nas = self._stable.names(folder, entries)
         contents = {}
         for name in nas:
             try:
                 contents[name] = folder.read(name)
-            except OSError:
+            except (DncError, OSError):
                 continue
         for name, data in contents.items():
             for machine in self.machines.values():
@@ -316,7 +360,7 @@ class NetShare:
                     log.info("%s: cannot collect from the share: %s", machine.name, exc)
         # Archive only a quiet folder: a file still being written moves at the next scan.
         if nas_here and len(nas) == len(entries) and self._archive_due():
-            self._archive([self.config.path / name for name in nas], report)
+            self._archive(nas, report)
         return report
 
     # ------------------------------------------------------------------ push
@@ -344,7 +388,7 @@ class NetShare:
                 sha256=digest,
                 nbytes=len(data),
                 result="failed" if error else "ok",
-                source=str(self.config.path / name),
+                source=self.nas.where(name),
                 destination=destination,
                 error=error or None,
             )
@@ -420,15 +464,14 @@ class NetShare:
             mark -= timedelta(days=1)
         return last < mark
 
-    def _archive(self, nas: list[Path], report: ScanReport) -> None:
+    def _archive(self, nas: list[str], report: ScanReport) -> None:
         now = self.clock()
         day = self.config.archive / f"{now:%Y-%m-%d}"
         moved: list[str] = []
-        for path in nas:
-            name = path.name
+        for name in nas:
             try:
-                data = path.read_bytes()
-            except OSError:
+                data = self.nas.read(name)
+            except (DncError, OSError):
                 continue
             digest = _sha(data)
             removed = self._remove_pushed_copies(name)
@@ -436,9 +479,12 @@ class NetShare:
             try:
                 day.mkdir(parents=True, exist_ok=True)
                 destination = _free_path(day, name)
-                shutil.move(str(path), str(destination))
+                self._move_out(name, data, destination)
             except OSError as exc:
                 error = exc.strerror or str(exc)
+                destination = day / name
+            except DncError as exc:
+                error = str(exc)
                 destination = day / name
             with self.sessions.begin() as session:
                 audit.record(
@@ -449,7 +495,7 @@ class NetShare:
                     sha256=digest,
                     nbytes=len(data),
                     result="failed" if error else "ok",
-                    source=str(path),
+                    source=self.nas.where(name),
                     destination=str(destination),
                     removed_from=removed,
                     error=error or None,
@@ -470,6 +516,20 @@ class NetShare:
             )
         self.last_archive = now
         self._publish("archive", "", "", files=moved, folder=str(day))
+
+    def _move_out(self, name: str, data: bytes, destination: Path) -> None:
+        """Move a NAS file into the archive: a rename on a mounted NAS; over SMB the bytes
+        just read are written (whole or not at all), then the NAS copy is removed."""
+        if isinstance(self.nas, _LocalFolder):
+            shutil.move(str(self.nas.path / name), str(destination))
+            return
+        with AtomicWriter(destination, fsync=True) as out:
+            out.write(data)
+        try:
+            self.nas.remove(name)
+        except DncError:
+            destination.unlink()  # still on the NAS: archived at the next run, not twice
+            raise
 
     def _remove_pushed_copies(self, name: str) -> list[str]:
         """Remove ``name`` from the shares that still hold exactly what was pushed."""

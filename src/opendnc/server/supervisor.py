@@ -17,10 +17,11 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
 from typing import Any
 
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import (
@@ -35,11 +36,11 @@ from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.autoreceive import FolderWatch, size_problem
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, on_loop
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.machines.base import FolderSource
-from opendnc.server.store.models import JobKind, utcnow
+from opendnc.server.store.models import DprntLine, JobKind, utcnow
 
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
 
@@ -79,7 +80,14 @@ class MachineState:
     link_errors: int = 0  # how often the link broke since the server started
     job_id: int | None = None
     job_progress: tuple[int, int | None] = (0, None)
+    dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def set_status(self, status: MachineStatus) -> None:
+        """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
+        if self.dprnt is not None:
+            status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
+        self.status = status
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
@@ -124,18 +132,25 @@ class Supervisor:
         self._tasks: list[asyncio.Task[None]] = []
         self._cancels: set[int] = set()
         self._watches = {m.name: FolderWatch(m) for m in config.machines if m.receive_folder}
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> None:
         """Recover jobs left running by a previous run, then start one task per machine."""
-        self.bus.bind(asyncio.get_running_loop())
+        self._loop = asyncio.get_running_loop()
+        self.bus.bind(self._loop)
 
-        def prepare() -> list[int]:
+        def prepare() -> tuple[list[int], dict[str, tuple[str, datetime]]]:
             with self.sessions.begin() as session:
                 jobs.sync_machines(session, self.config.machines)
-                return [job.id for job in jobs.recover(session, self.worker)]
+                recovered = [job.id for job in jobs.recover(session, self.worker)]
+                return recovered, _last_dprnt_lines(session)
 
-        for job_id in await asyncio.to_thread(prepare):
+        recovered, printed = await asyncio.to_thread(prepare)
+        for job_id in recovered:
             log.warning("job %d was running when the server stopped: interrupted", job_id)
+        for name, line in printed.items():
+            if name in self.machines:  # the status keeps showing it after a restart
+                self.machines[name].dprnt = line
         for state in self.machines.values():
             self._tasks.append(asyncio.create_task(self._supervise(state), name=state.config.name))
             state.wake.set()  # a first look at the queue
@@ -164,10 +179,33 @@ class Supervisor:
         self._tasks.clear()
 
     def wake(self, machine: str) -> None:
-        """Tell ``machine``'s task that a job may be waiting."""
+        """Tell ``machine``'s task that a job may be waiting (callable from any thread)."""
         state = self.machines.get(machine)
-        if state is not None:
+        if state is None:
+            return
+        loop = self._loop
+        # The API's plain routes run in worker threads. An asyncio.Event set from there
+        # schedules its waiter without waking the loop's selector (and asyncio's debug mode
+        # refuses it outright), so the set goes through the loop.
+        if loop is not None and not on_loop(loop):
+            loop.call_soon_threadsafe(state.wake.set)
+        else:
             state.wake.set()
+
+    def note_dprnt(self, machine: str, text: str, at: datetime) -> None:
+        """Put a line ``machine`` printed with DPRNT into its status (from any thread: the
+        capture runs in listener threads and in the serial connector's worker)."""
+        loop = self._loop
+        if loop is not None and not on_loop(loop):
+            loop.call_soon_threadsafe(self.note_dprnt, machine, text, at)
+            return
+        state = self.machines.get(machine)
+        if state is None:
+            return
+        state.dprnt = (text, at)
+        if state.status is not None:
+            state.set_status(state.status)
+        self._publish(state)
 
     def _publish(self, state: MachineState) -> None:
         self.bus.publish("machine", state.config.name, state.as_json())
@@ -191,7 +229,9 @@ class Supervisor:
                 state.last_error = str(exc) or type(exc).__name__
                 state.last_error_at = utcnow()
                 state.link_errors += 1
-                state.status = MachineStatus(at=utcnow(), available=False, message=state.last_error)
+                state.set_status(
+                    MachineStatus(at=utcnow(), available=False, message=state.last_error)
+                )
                 self._publish(state)
                 await connector.close()
                 await asyncio.sleep(backoff)
@@ -205,7 +245,7 @@ class Supervisor:
                 state.wake.clear()
                 while await self._run_next(state, connector):
                     pass
-            state.status = await connector.status()
+            state.set_status(await connector.status())
             self._publish(state)
             if watch is not None and isinstance(connector, FolderSource):
                 # Between jobs on the machine's own session: a listing never meets a transfer.
@@ -549,3 +589,10 @@ class Supervisor:
         if verified is False:
             raise TransferError(f"{program}: the control holds different bytes after the load")
         return verified
+
+
+def _last_dprnt_lines(session: Session) -> dict[str, tuple[str, datetime]]:
+    """Each machine's newest stored DPRNT line (one query; the (machine, id) index serves it)."""
+    newest = select(func.max(DprntLine.id)).group_by(DprntLine.machine)
+    rows = session.scalars(select(DprntLine).where(DprntLine.id.in_(newest)))
+    return {row.machine: (row.text, row.at) for row in rows}

@@ -2,7 +2,10 @@
 
 The status fields follow MTConnect's CNC data items (availability, execution, controller
 mode, program, line, part count, message), so the MTConnect adapter and the MQTT publisher
-map them one to one (server/items.py, docs/server.md#open-outputs).
+map them one to one (server/items.py, docs/server.md#open-outputs). The last line a Haas
+printed with DPRNT is what MTConnect calls a MESSAGE from the program; it has fields of its
+own (``dprnt``, ``dprnt_at``) because ``message`` also carries the server's own word about
+the link, which must not overwrite it.
 """
 
 from __future__ import annotations
@@ -50,12 +53,15 @@ class MachineStatus:
     tool: int | None = None
     overrides: dict[str, float] = field(default_factory=dict)  # percent
     errors: tuple[str, ...] = ()
-    message: str = ""  # the last thing worth telling (a refusal, a DPRNT line)
+    message: str = ""  # the last thing worth telling (a refusal, a lost link)
+    dprnt: str = ""  # the last line the program printed with DPRNT (MTConnect MESSAGE)
+    dprnt_at: datetime | None = None  # when the server captured it
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready dict."""
         data = asdict(self)
         data["at"] = self.at.isoformat()
+        data["dprnt_at"] = self.dprnt_at.isoformat() if self.dprnt_at else None
         data["errors"] = list(self.errors)
         return data
 
