@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 from opendnc.sim.fleet import server_config
 from tests.peers import missing_peer, require_module
-from tests.server.harness import Procs, listening, wait_for
+from tests.server.harness import Procs, wait_for
 
 mqtt = require_module("paho.mqtt.client")
 
@@ -206,16 +206,12 @@ def start_outputs_server(
     tmp_path: Path, procs: Procs, fleet: Any, extra: str, *, name: str = "dnc-test"
 ) -> int:
     """``opendnc serve`` for ``fleet`` with the ``extra`` TOML appended; its HTTP port."""
-    from tests.server.harness import free_port
+    from tests.server.harness import serve
 
-    port = free_port()
-    text = server_config(
-        fleet, bind=f"127.0.0.1:{port}", poll_interval=0.2, library=tmp_path / "lib"
-    )
+    # The configured bind is replaced by a port the system picks (harness.serve says why).
+    text = server_config(fleet, bind="127.0.0.1:0", poll_interval=0.2, library=tmp_path / "lib")
     text = text.replace("[server]\n", f'[server]\nname = "{name}"\n', 1)
     config = tmp_path / "shop.toml"
     config.write_text(text + "\n" + extra)
-    db = f"sqlite:///{tmp_path / 'opendnc.db'}"
-    procs.start("server", "serve", "--config", str(config), "--db", db)
-    wait_for("the server", listening(port), describe=lambda: procs.log("server"))
-    return port
+    url = serve(procs, config, f"sqlite:///{tmp_path / 'opendnc.db'}")
+    return int(url.rstrip("/").rsplit(":", 1)[1])

@@ -265,8 +265,14 @@ def test_the_broker_checks_the_configured_user_and_a_refusal_blocks_nothing(
         )
         start_outputs_server(tmp_path, procs, ngc.fleet, mqtt_table)
         with Listener(prefix, broker_port, "dnc", "s3cret") as listener:
-            status = wait_for("the state", lambda: listener.last("haas-1/status"))
-            assert _items(status)["availability"]["value"] == "AVAILABLE"
+            # The first state may be from before the machine answered: wait for it online.
+            wait_for(
+                "the machine available",
+                lambda: (
+                    (s := listener.last("haas-1/status")) is not None
+                    and _items(s)["availability"]["value"] == "AVAILABLE"
+                ),
+            )
         procs.stop("server")
 
         # A wrong password: the broker refuses, the server serves its machines all the same.
