@@ -11,17 +11,16 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.peers import missing_peer, require_module
+from tests.peers import require_module
 
 require_module("jinja2")
 require_module("pygments")
-sync_api = require_module("playwright.sync_api")
+require_module("playwright.sync_api")
 
 from opendnc.lsv2.constants import ExecutionMode  # noqa: E402
 from opendnc.server import auth, library  # noqa: E402
@@ -30,20 +29,14 @@ from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import Procs, free_port, listening, wait_for  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts" / "screenshots"
-PASSWORDS = {"admin": "admin-secret-1", "viewer": "viewer-secret-1"}
-TIMEOUT_MS = 30_000
-sync_api.expect.set_options(timeout=TIMEOUT_MS)  # the machine is shared: be patient
+from tests.web.browser import (  # noqa: E402
+    ARTIFACTS,
+    PASSWORDS,
+    TIMEOUT_MS,
+    Shop,
+    chromium,
+    sync_api,
+)
 
 # A released program large enough that its transfer spans several card updates.
 BIG_LINES = 60_000
@@ -58,52 +51,6 @@ RELEASED_1234 = (
     b"%\r\nO01234 (BRACKET)\r\nG20\r\nG00 G90 G54 X0. Y0.\r\nG01 X1.5 F20.\r\nM30\r\n%\r\n"
 )
 PUNCHED_1234 = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
-
-
-@dataclass
-class Shop:
-    """The running shop and browser."""
-
-    url: str
-    fleet: FleetThread
-    procs: Procs
-    browser: Any
-    problems: list[str] = field(default_factory=list)
-
-    def context(self, viewport: tuple[int, int] = (1280, 800)) -> Any:
-        """A fresh browser context that records console errors and foreign requests."""
-        ctx = self.browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
-        ctx.set_default_timeout(TIMEOUT_MS)
-
-        def route(r: Any) -> None:
-            if r.request.url.startswith(self.url):
-                r.continue_()
-            else:
-                self.problems.append(f"request left the machine: {r.request.url}")
-                r.abort()
-
-        ctx.route("**/*", route)
-        return ctx
-
-    def page(self, ctx: Any) -> Any:
-        page = ctx.new_page()
-        page.on(
-            "console",
-            lambda m: (
-                self.problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None
-            ),
-        )
-        page.on("pageerror", lambda e: self.problems.append(f"page error: {e}"))
-        return page
-
-    def login(self, user: str, viewport: tuple[int, int] = (1280, 800)) -> Any:
-        page = self.page(self.context(viewport))
-        page.goto(self.url + "/")
-        page.get_by_label("User name").fill(user)
-        page.get_by_label("Password").fill(PASSWORDS[user])
-        page.get_by_role("button", name="Log in").click()
-        page.wait_for_url(self.url + "/")
-        return page
 
 
 def _prepare(db_url: str) -> None:
@@ -123,8 +70,6 @@ def _prepare(db_url: str) -> None:
 
 @pytest.fixture(scope="module")
 def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
-    if not Path(CHROMIUM).exists():
-        missing_peer(f"Chromium at {CHROMIUM} (apt-get install chromium)")
     tmp = tmp_path_factory.mktemp("dashboard")
     fleet = FleetThread(tmp / "machines", tnc=2, haas=1, serial_haas=1)
     logs = tmp / "logs"
@@ -141,12 +86,8 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
         _prepare(db_url)
         procs.start("server", "serve", "--config", str(config), "--db", db_url)
         wait_for("the server", listening(port), describe=lambda: procs.log("server"))
-        with sync_api.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-            try:
-                yield Shop(f"http://127.0.0.1:{port}", fleet, procs, browser)
-            finally:
-                browser.close()
+        with chromium() as browser:
+            yield Shop(f"http://127.0.0.1:{port}", fleet, procs, browser)
     finally:
         procs.stop_all()
         fleet.stop()

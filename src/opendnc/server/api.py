@@ -165,6 +165,7 @@ def job_json(j: Job, live: tuple[int, int | None] | None = None) -> dict[str, An
         "bytes_total": total,
         "error": j.error,
         "cancel_requested": j.cancel_requested,
+        "line": j.line,
     }
 
 
@@ -424,7 +425,9 @@ class RetryRequest(BaseModel):
 def retry_job(
     request: Request, db: Db, job_id: int, body: RetryRequest, who: Operator
 ) -> dict[str, Any]:
-    """Queue a failed, interrupted or cancelled job again."""
+    """Queue a failed, interrupted or cancelled job again (a drip-feed: programmers)."""
+    if jobs.get_job(db, job_id).kind is JobKind.DRIPFEED and not who.can(Role.PROGRAMMER):
+        raise Forbidden("restarting a drip-feed needs the programmer role (it runs the machine)")
     job = jobs.retry(db, job_id, actor=who.name, from_line=body.from_line)
     out = job_json(job)
     db.commit()

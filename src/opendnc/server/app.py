@@ -113,5 +113,6 @@ def build(
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
     app.include_router(dprnt_api.router)
+    app.state.dprnt = capture  # the machine page shows each listener's last word
     web.install(app)
     return Server(config, engine, sessions, bus, supervisor, watcher, app, netshare, capture)
