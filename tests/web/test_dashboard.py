@@ -9,7 +9,6 @@ go to ``tests/artifacts/screenshots`` (gitignored) for a person to look at.
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -210,17 +209,18 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
 
 
 def test_a_haas_punch_shows_in_the_inbox_with_its_diff(clean: Shop) -> None:
+    page = clean.login("admin")
+    page.get_by_role("link", name="Inbox").click()
+    sync_api.expect(page.get_by_text("Nothing new in the inbox.")).to_be_visible()
+    page.evaluate("window.marker = 'not reloaded'")
     sim = clean.fleet.fleet.sims["haas-serial-1"]
     clean.fleet.call(lambda: sim.control.save_program(PUNCHED_1234))
     clean.fleet.fleet.serial_ports["haas-serial-1"].select("punch:O1234")  # operator's key
-    page = clean.login("admin")
-    page.get_by_role("link", name="Inbox").click()
+    # The open inbox shows the reception by itself (the list is live).
     link = page.get_by_role("link", name="O01234.nc")
-    deadline = time.monotonic() + 60
-    while not link.count():  # the inbox list is not live: look again like a person would
-        assert time.monotonic() < deadline, "the punch never reached the inbox"
-        page.wait_for_timeout(500)
-        page.reload()
+    sync_api.expect(link).to_be_visible(timeout=60_000)
+    assert page.evaluate("window.marker") == "not reloaded"
+    sync_api.expect(page.locator("table.inbox tbody tr")).to_contain_text("haas-serial-1")
     link.click()
     diff = page.locator("table.diff")
     sync_api.expect(diff).to_contain_text("v1 (released)")
@@ -238,6 +238,25 @@ def test_a_haas_punch_shows_in_the_inbox_with_its_diff(clean: Shop) -> None:
     page.wait_for_url("**/library/O01234.nc?v=3")
     sync_api.expect(page.locator("tr.current")).to_contain_text("draft")
     page.context.close()
+
+
+def test_the_library_list_shows_an_upload_from_elsewhere_without_a_reload(clean: Shop) -> None:
+    watcher = clean.login("viewer")
+    watcher.goto(clean.url + "/library")
+    sync_api.expect(watcher.get_by_role("link", name="O01234.nc")).to_be_visible()
+    watcher.evaluate("window.marker = 'not reloaded'")
+    uploader = clean.login("admin")
+    uploader.goto(clean.url + "/library")
+    uploader.get_by_label("File", exact=True).set_input_files(
+        {"name": "O07777.nc", "mimeType": "text/plain", "buffer": b"%\nO07777 (LIVE)\nM30\n%\n"}
+    )
+    uploader.get_by_role("button", name="Upload as a draft").click()
+    uploader.wait_for_url("**/library/O07777.nc?v=1")
+    row = watcher.locator("table.programs tr", has_text="O07777.nc")
+    sync_api.expect(row).to_contain_text("draft")
+    assert watcher.evaluate("window.marker") == "not reloaded"
+    uploader.context.close()
+    watcher.context.close()
 
 
 def test_a_viewer_is_offered_no_send_and_a_forged_send_is_refused(clean: Shop) -> None:

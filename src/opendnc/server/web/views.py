@@ -375,6 +375,55 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
     return out
 
 
+# Which bus events change which list page (the watcher's and the routes' ``program``, a
+# reception's ``received`` or ``netshare``, an accept's or discard's ``inbox``).
+LIST_EVENTS = {
+    "inbox": {"received", "netshare", "inbox"},
+    "library": {"program"},
+}
+
+
+@router.get("/events/lists")
+async def list_events(request: Request, page: Viewing, topic: str) -> StreamingResponse:
+    """Server-sent events named ``topic`` (``inbox`` or ``library``), no data, at most every
+    :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
+    if topic not in LIST_EVENTS:
+        raise InputError(f"topic {topic!r}: inbox or library")
+    return StreamingResponse(
+        _list_stream(request, topic),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
+
+
+async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
+    kinds = LIST_EVENTS[topic]
+    with _supervisor(request).bus.subscribe() as sub:
+        # Once at the start: whatever changed between the page and this stream.
+        dirty = True
+        loop = asyncio.get_running_loop()
+        flush_at = quiet_since = loop.time()
+        while not await request.is_disconnected():
+            try:
+                event = await asyncio.wait_for(sub.get(), max(0.0, flush_at - loop.time()))
+                dirty = dirty or event.kind in kinds
+                if loop.time() < flush_at:
+                    continue
+            except TimeoutError:
+                pass
+            if sub.overflowed:
+                sub.overflowed = False
+                dirty = True
+            if dirty:
+                dirty = False
+                quiet_since = loop.time()
+                yield render.sse_event(topic, "")
+            elif loop.time() - quiet_since > KEEP_ALIVE:
+                quiet_since = loop.time()
+                yield b": keep-alive\n\n"
+            flush_at = loop.time() + CARD_INTERVAL
+
+
 # -- machine page -------------------------------------------------------------------------
 
 
@@ -709,6 +758,7 @@ def release_version(request: Request, name: str, number: int, page: Writing) -> 
     web_session.need(page.who, Role.APPROVER)
     library.check_program_name(name)
     _write(request, lambda s: library.release(s, name, number, actor=page.who.name))
+    api.changed(request, "program", name)
     return _redirect(request, f"/library/{quote(name)}?v={number}")
 
 
@@ -720,6 +770,7 @@ def lock_program(
     web_session.need(page.who, Role.APPROVER)
     library.check_program_name(name)
     _write(request, lambda s: library.set_locked(s, name, locked, actor=page.who.name))
+    api.changed(request, "program", name)
     return _redirect(request, f"/library/{quote(name)}")
 
 
@@ -769,6 +820,7 @@ async def upload_program(
         return version.number
 
     number = await run_in_threadpool(_write, request, store)
+    api.changed(request, "program", program)
     return _redirect(request, f"/library/{quote(program)}?v={number}")
 
 
@@ -792,7 +844,8 @@ def inbox_page(request: Request, page: Viewing, state: str = "new") -> HTMLRespo
     def load(session: Session) -> list[dict[str, Any]]:
         return [api.received_json(r) for r in inbox.list_received(session, states)]
 
-    return _html("inbox.html", page, request, items=_read(request, load), state=state)
+    template = "_inbox.html" if _is_htmx(request) else "inbox.html"
+    return _html(template, page, request, items=_read(request, load), state=state)
 
 
 @router.get("/inbox/{received_id}")
@@ -829,6 +882,8 @@ def accept_received(
         return version.program.name, version.number
 
     program, number = _write(request, accept)
+    api.changed(request, "inbox", str(received_id))
+    api.changed(request, "program", program)
     return _redirect(request, f"/library/{quote(program)}?v={number}")
 
 
@@ -837,6 +892,7 @@ def discard_received(request: Request, received_id: int, page: Writing) -> Respo
     """Drop the reception from the inbox (programmers)."""
     web_session.need(page.who, Role.PROGRAMMER)
     _write(request, lambda s: inbox.discard(s, received_id, actor=page.who.name))
+    api.changed(request, "inbox", str(received_id))
     return _redirect(request, "/inbox")
 
 
