@@ -454,6 +454,7 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
     timeline.note(name, live)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
     context["timeline_hours"] = TIMELINE_HOURS
+    context["timeline_days"] = timeline.retention.total_seconds() / 86400
     context["console_lines"] = CONSOLE_LINES
     context["dripfeed"] = state.config.dripfeed
     context["released"] = _read(request, _released_names) if state.config.dripfeed else []
