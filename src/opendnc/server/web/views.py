@@ -229,8 +229,9 @@ def overview(request: Request, page: Viewing) -> HTMLResponse:
 async def card_events(
     request: Request, page: Viewing, machine: str | None = None, dprnt: str | None = None
 ) -> StreamingResponse:
-    """Server-sent events with the HTML of each card that changed (``card-<machine>``), and
-    ``jobs-<machine>`` when a job of that machine starts or ends (``machine``: just one).
+    """Server-sent events: ``cards`` with the HTML of every card that changed since the last
+    one (each an out-of-band swap of ``#card-<machine>``), and ``jobs-<machine>`` when a job
+    of that machine starts or ends (``machine``: just one).
 
     With ``machine`` and ``dprnt`` (the first and last id of the DPRNT lines its page shows,
     or ``0-0``), also ``dprnt-<machine>`` with the console's new lines."""
@@ -305,11 +306,16 @@ async def _card_stream(
                 names = sorted(pending)
                 pending = set()
                 cards = await run_in_threadpool(_cards_cached, request, names, labels)
+                changed = []
                 for c in cards:
                     html = env.render(c=c)
                     if sent.get(c.name) != html:  # a status poll that changed nothing
                         sent[c.name] = html
-                        out.append(render.sse_event(f"card-{c.name}", html))
+                        changed.append(render.card_oob(c.name, html))
+                if changed:
+                    # One message for every card that changed: the browser parses and swaps
+                    # them in one go instead of running a swap per card.
+                    out.append(render.sse_event("cards", "".join(changed)))
                 out += [render.sse_event(f"jobs-{name}", "") for name in sorted(job_changes)]
                 job_changes = set()
             if console is not None and new_lines:
