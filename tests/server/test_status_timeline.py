@@ -181,3 +181,20 @@ def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_
     states = asyncio.run(scenario())
     assert "ready" in states
     assert states[-1] == "none"  # from the first server's stop until now
+
+
+def test_a_database_that_is_away_keeps_the_samples_for_the_next_flush(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    tl = Timeline(sessions)
+    tl.note("m", _machine("READY"), T0)
+    with engine.begin() as conn:  # the table is gone for a moment (a database being restored)
+        conn.execute(text("ALTER TABLE status_samples RENAME TO status_samples_away"))
+    try:
+        assert tl.flush() == 0
+        tl.note("m", _machine("ACTIVE"), T0 + timedelta(minutes=1))
+    finally:
+        with engine.begin() as conn:
+            conn.execute(text("ALTER TABLE status_samples_away RENAME TO status_samples"))
+    assert tl.flush() == 2
+    assert [r[2] for r in _rows(sessions)] == ["ready", "active"]  # in their order

@@ -147,7 +147,8 @@ class Timeline:
         except SQLAlchemyError as exc:
             log.warning("status timeline: %d samples not written yet: %s", len(batch), exc)
             with self._lock:
-                self.pending.extendleft(reversed(batch))
+                # back in front of what came meanwhile; beyond the limit the oldest go
+                self.pending = deque([*batch, *self.pending], maxlen=MAX_PENDING)
             return 0
         return len(batch)
 
