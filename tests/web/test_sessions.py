@@ -207,3 +207,19 @@ def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any])
             3,
             job_id,
         )
+
+
+def test_the_event_streams_need_a_session_and_a_known_topic(client: tuple[Http, Any]) -> None:
+    http, _ = client
+    for url in ("/events/lists?topic=inbox", "/machines/tnc-1/dprnt.csv"):
+        assert http.get(url, follow_redirects=False).status_code == 303, url
+    _login(http)
+    assert http.get("/events/lists?topic=jobs").status_code == 400
+    assert http.get("/machines/nope/dprnt.csv").status_code == 404
+    # A machine without a DPRNT source has an empty file, with its header.
+    csv_text = http.get("/machines/tnc-1/dprnt.csv").text
+    assert csv_text.splitlines() == ["id,at,machine,line,fields,complete"]
+    with http.stream("GET", "/events/lists", params={"topic": "library"}) as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        first = next(stream.iter_lines())
+        assert first == "event: library"  # once at the start: the page checks its list
