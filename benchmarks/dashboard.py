@@ -105,7 +105,8 @@ def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[st
         chunk = reply.read1(65536)
         if not chunk:
             break
-        count = chunk.count(b"event: card-")
+        # a card of its own (event card-NAME) or one in a batch (out-of-band swap)
+        count = chunk.count(b"event: card-") + chunk.count(b'hx-swap-oob="innerHTML"')
         if count:  # keep-alives say nothing about updates
             arrivals.append(time.monotonic())
         events += count
@@ -127,20 +128,42 @@ def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[s
         page = ctx.new_page()
         page.add_init_script(
             """
-            window.bench = {long: [], swaps: []};
+            window.bench = {long: [], swaps: [], messages: 0};
             new PerformanceObserver(l => l.getEntries().forEach(
                 e => window.bench.long.push(e.duration))).observe({type: 'longtask'});
-            document.addEventListener(
-                'htmx:sseMessage', () => window.bench.swaps.push(performance.now()));
+            // cards swapped in: out of band from a batched message, or a message of their own;
+            // and how long swapping one message took: from the first listener of the message
+            // (capture on window) to the last one after the swap (bubble on window: of
+            // sseBeforeMessage when the page's script swapped, of sseMessage when htmx did)
+            window.bench.busy = [];
+            let t0 = 0, cards = 0;
+            window.addEventListener('htmx:sseBeforeMessage', e => {
+                window.bench.messages++;
+                const d = e.detail || {};
+                cards = d.type && d.type.startsWith('card-') ? 1
+                    : ((d.data || '').match(/hx-swap-oob="innerHTML"/g) || []).length;
+                t0 = performance.now();
+                for (let i = 0; i < cards; i++) window.bench.swaps.push(t0);
+            }, true);
+            const done = () => {
+                if (cards) window.bench.busy.push([cards, performance.now() - t0]);
+            };
+            window.addEventListener('htmx:sseBeforeMessage', e => {
+                if (e.defaultPrevented) done();
+            });
+            window.addEventListener('htmx:sseMessage', done);
             """
         )
         t0 = time.perf_counter()
         page.goto(url + "/")
         page.wait_for_function(f"document.querySelectorAll('.card').length === {n}")
         first = time.perf_counter() - t0
-        page.wait_for_function("window.bench.swaps.length > 0", timeout=30_000)  # connected
+        page.wait_for_function("window.bench.messages > 0", timeout=30_000)  # connected
         ready = time.perf_counter() - t0
-        page.evaluate("window.bench.long = []; window.bench.swaps = []")
+        page.evaluate(
+            "window.bench.long = []; window.bench.swaps = []; window.bench.messages = 0;"
+            "window.bench.busy = []"
+        )
         send()
         page.wait_for_timeout(seconds * 1000)
         bench = page.evaluate("window.bench")
@@ -152,6 +175,8 @@ def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[s
         "first_render": first,
         "live_ready": ready,
         "swaps": len(swaps),
+        "messages": bench["messages"],
+        "busy": max(bench["busy"], key=lambda b: b[1], default=[0, 0.0]),
         "swap_gap_max": max(gaps, default=0.0),
         "long_tasks": len(bench["long"]),
         "long_max_ms": max(bench["long"], default=0.0),
@@ -239,11 +264,14 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
             )
             print(
                 f"  sending to all {n} machines for {seconds:.0f} s: {figures['swaps']} card "
-                f"updates swapped in, longest gap {figures['swap_gap_max'] * 1000:.0f} ms, "
+                f"updates swapped in from {figures['messages']} messages, "
+                f"longest gap {figures['swap_gap_max'] * 1000:.0f} ms, "
                 f"{figures['long_tasks']} long tasks (longest {figures['long_max_ms']:.0f} ms), "
                 f"{figures['still_running']} cards still sending at the end",
                 flush=True,
             )
+            cards, busy = figures["busy"]
+            print(f"  slowest message to swap: {busy:.0f} ms for {cards} cards", flush=True)
         reader.join()
         print(
             f"  event stream: {stream.get('events', 0)} card events in "

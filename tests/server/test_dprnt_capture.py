@@ -55,7 +55,7 @@ def test_migration_0003_up_from_0002_and_back(db_url: str) -> None:
                     "VALUES (CURRENT_TIMESTAMP, 'alice', 'login', 'ok', '{}')"
                 )
             )
-        migrate(engine)
+        migrate(engine, "0003")
         assert current_revision(engine) == "0003"
         columns = {c["name"] for c in inspect(engine).get_columns("dprnt_lines")}
         assert columns == {"id", "machine", "at", "text", "fields", "complete"}

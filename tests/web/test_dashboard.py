@@ -9,19 +9,17 @@ go to ``tests/artifacts/screenshots`` (gitignored) for a person to look at.
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.peers import missing_peer, require_module
+from tests.peers import require_module
 
 require_module("jinja2")
 require_module("pygments")
-sync_api = require_module("playwright.sync_api")
+require_module("playwright.sync_api")
 
 from opendnc.lsv2.constants import ExecutionMode  # noqa: E402
 from opendnc.server import auth, library  # noqa: E402
@@ -30,20 +28,14 @@ from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import Procs, serve  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts" / "screenshots"
-PASSWORDS = {"admin": "admin-secret-1", "viewer": "viewer-secret-1"}
-TIMEOUT_MS = 30_000
-sync_api.expect.set_options(timeout=TIMEOUT_MS)  # the machine is shared: be patient
+from tests.web.browser import (  # noqa: E402
+    ARTIFACTS,
+    PASSWORDS,
+    TIMEOUT_MS,
+    Shop,
+    chromium,
+    sync_api,
+)
 
 # A released program large enough that its transfer spans several card updates.
 BIG_LINES = 60_000
@@ -58,52 +50,6 @@ RELEASED_1234 = (
     b"%\r\nO01234 (BRACKET)\r\nG20\r\nG00 G90 G54 X0. Y0.\r\nG01 X1.5 F20.\r\nM30\r\n%\r\n"
 )
 PUNCHED_1234 = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
-
-
-@dataclass
-class Shop:
-    """The running shop and browser."""
-
-    url: str
-    fleet: FleetThread
-    procs: Procs
-    browser: Any
-    problems: list[str] = field(default_factory=list)
-
-    def context(self, viewport: tuple[int, int] = (1280, 800)) -> Any:
-        """A fresh browser context that records console errors and foreign requests."""
-        ctx = self.browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
-        ctx.set_default_timeout(TIMEOUT_MS)
-
-        def route(r: Any) -> None:
-            if r.request.url.startswith(self.url):
-                r.continue_()
-            else:
-                self.problems.append(f"request left the machine: {r.request.url}")
-                r.abort()
-
-        ctx.route("**/*", route)
-        return ctx
-
-    def page(self, ctx: Any) -> Any:
-        page = ctx.new_page()
-        page.on(
-            "console",
-            lambda m: (
-                self.problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None
-            ),
-        )
-        page.on("pageerror", lambda e: self.problems.append(f"page error: {e}"))
-        return page
-
-    def login(self, user: str, viewport: tuple[int, int] = (1280, 800)) -> Any:
-        page = self.page(self.context(viewport))
-        page.goto(self.url + "/")
-        page.get_by_label("User name").fill(user)
-        page.get_by_label("Password").fill(PASSWORDS[user])
-        page.get_by_role("button", name="Log in").click()
-        page.wait_for_url(self.url + "/")
-        return page
 
 
 def _prepare(db_url: str) -> None:
@@ -123,8 +69,6 @@ def _prepare(db_url: str) -> None:
 
 @pytest.fixture(scope="module")
 def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
-    if not Path(CHROMIUM).exists():
-        missing_peer(f"Chromium at {CHROMIUM} (apt-get install chromium)")
     tmp = tmp_path_factory.mktemp("dashboard")
     fleet = FleetThread(tmp / "machines", tnc=2, haas=1, serial_haas=1)
     logs = tmp / "logs"
@@ -137,12 +81,8 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)
         base = serve(procs, config, db_url)
-        with sync_api.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-            try:
-                yield Shop(base, fleet, procs, browser)
-            finally:
-                browser.close()
+        with chromium() as browser:
+            yield Shop(base, fleet, procs, browser)
     finally:
         procs.stop_all()
         fleet.stop()
@@ -265,17 +205,18 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
 
 
 def test_a_haas_punch_shows_in_the_inbox_with_its_diff(clean: Shop) -> None:
+    page = clean.login("admin")
+    page.get_by_role("link", name="Inbox").click()
+    sync_api.expect(page.get_by_text("Nothing new in the inbox.")).to_be_visible()
+    page.evaluate("window.marker = 'not reloaded'")
     sim = clean.fleet.fleet.sims["haas-serial-1"]
     clean.fleet.call(lambda: sim.control.save_program(PUNCHED_1234))
     clean.fleet.fleet.serial_ports["haas-serial-1"].select("punch:O1234")  # operator's key
-    page = clean.login("admin")
-    page.get_by_role("link", name="Inbox").click()
+    # The open inbox shows the reception by itself (the list is live).
     link = page.get_by_role("link", name="O01234.nc")
-    deadline = time.monotonic() + 60
-    while not link.count():  # the inbox list is not live: look again like a person would
-        assert time.monotonic() < deadline, "the punch never reached the inbox"
-        page.wait_for_timeout(500)
-        page.reload()
+    sync_api.expect(link).to_be_visible(timeout=60_000)
+    assert page.evaluate("window.marker") == "not reloaded"
+    sync_api.expect(page.locator("table.inbox tbody tr")).to_contain_text("haas-serial-1")
     link.click()
     diff = page.locator("table.diff")
     sync_api.expect(diff).to_contain_text("v1 (released)")
@@ -293,6 +234,25 @@ def test_a_haas_punch_shows_in_the_inbox_with_its_diff(clean: Shop) -> None:
     page.wait_for_url("**/library/O01234.nc?v=3")
     sync_api.expect(page.locator("tr.current")).to_contain_text("draft")
     page.context.close()
+
+
+def test_the_library_list_shows_an_upload_from_elsewhere_without_a_reload(clean: Shop) -> None:
+    watcher = clean.login("viewer")
+    watcher.goto(clean.url + "/library")
+    sync_api.expect(watcher.get_by_role("link", name="O01234.nc")).to_be_visible()
+    watcher.evaluate("window.marker = 'not reloaded'")
+    uploader = clean.login("admin")
+    uploader.goto(clean.url + "/library")
+    uploader.get_by_label("File", exact=True).set_input_files(
+        {"name": "O07777.nc", "mimeType": "text/plain", "buffer": b"%\nO07777 (LIVE)\nM30\n%\n"}
+    )
+    uploader.get_by_role("button", name="Upload as a draft").click()
+    uploader.wait_for_url("**/library/O07777.nc?v=1")
+    row = watcher.locator("table.programs tr", has_text="O07777.nc")
+    sync_api.expect(row).to_contain_text("draft")
+    assert watcher.evaluate("window.marker") == "not reloaded"
+    uploader.context.close()
+    watcher.context.close()
 
 
 def test_a_viewer_is_offered_no_send_and_a_forged_send_is_refused(clean: Shop) -> None:

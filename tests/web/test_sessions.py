@@ -71,9 +71,9 @@ def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
         loop.close()
 
 
-def _login(http: Http) -> str:
+def _login(http: Http, user: str = "op") -> str:
     reply = http.post(
-        "/login", data={"username": "op", "password": PASSWORD, "next": "/"}, follow_redirects=False
+        "/login", data={"username": user, "password": PASSWORD, "next": "/"}, follow_redirects=False
     )
     assert reply.status_code == 303, reply.text
     page = http.get("/").text
@@ -174,7 +174,26 @@ def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any])
         # What a broken drip-feed ends as (set in the same transaction: it never runs here).
         job.state = JobState.INTERRUPTED
         job_id = job.id
+        # A drip-feed runs the machine: programmers restart it, operators do not.
+        auth.create_user(session, "prog", Role.PROGRAMMER, password=PASSWORD)
+        _, op_key = auth.create_key(session, "op", Role.OPERATOR)
+    # The API refuses an operator's key the same way.
+    api = http.post(
+        f"/api/jobs/{job_id}/retry",
+        json={"from_line": 3},
+        headers={"Authorization": f"Bearer {op_key}"},
+    )
+    assert api.status_code == 403, api.text
+    assert "programmer" in api.text
     token = _login(http)
+    page = http.get("/machines/tnc-1/jobs").text
+    assert 'name="from_line"' not in page
+    assert f"Retry job {job_id}" not in page
+    refused = http.post(
+        f"/jobs/{job_id}/retry", data={"from_line": "3"}, headers={"X-CSRF-Token": token}
+    )
+    assert refused.status_code == 403, refused.text
+    token = _login(http, "prog")
     page = http.get("/machines/tnc-1/jobs").text
     assert 'name="from_line"' in page
     reply = http.post(
@@ -188,3 +207,19 @@ def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any])
             3,
             job_id,
         )
+
+
+def test_the_event_streams_need_a_session_and_a_known_topic(client: tuple[Http, Any]) -> None:
+    http, _ = client
+    for url in ("/events/lists?topic=inbox", "/machines/tnc-1/dprnt.csv"):
+        assert http.get(url, follow_redirects=False).status_code == 303, url
+    _login(http)
+    assert http.get("/events/lists?topic=jobs").status_code == 400
+    assert http.get("/machines/nope/dprnt.csv").status_code == 404
+    # A machine without a DPRNT source has an empty file, with its header.
+    csv_text = http.get("/machines/tnc-1/dprnt.csv").text
+    assert csv_text.splitlines() == ["id,at,machine,line,fields,complete"]
+    with http.stream("GET", "/events/lists", params={"topic": "library"}) as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        first = next(stream.iter_lines())
+        assert first == "event: library"  # once at the start: the page checks its list

@@ -109,6 +109,12 @@ Approver = Annotated[auth.Principal, require(Role.APPROVER)]
 Admin = Annotated[auth.Principal, require(Role.ADMIN)]
 
 
+def changed(request: Request, kind: str, key: str) -> None:
+    """Tell the event stream that the library (``program``) or the inbox (``inbox``) changed
+    (after the commit: a page that reloads its list on the event must see the change)."""
+    _supervisor(request).bus.publish(kind, key, {"name": key, "source": "request"})
+
+
 def _supervisor(request: Request) -> Supervisor:
     supervisor: Supervisor = request.app.state.supervisor
     return supervisor
@@ -165,6 +171,7 @@ def job_json(j: Job, live: tuple[int, int | None] | None = None) -> dict[str, An
         "bytes_total": total,
         "error": j.error,
         "cancel_requested": j.cancel_requested,
+        "line": j.line,
     }
 
 
@@ -268,7 +275,9 @@ async def upload_program(
             )
             return {**version_json(version), "created_new": created}
 
-    return await run_in_threadpool(store)
+    out = await run_in_threadpool(store)
+    changed(request, "program", name)
+    return out
 
 
 @router.get("/programs/{name}/versions/{number}/content")
@@ -289,23 +298,34 @@ def program_diff(db: Db, name: str, a: int, b: int, _who: Viewer) -> dict[str, A
 
 
 @router.post("/programs/{name}/versions/{number}/release")
-def release_version(db: Db, name: str, number: int, who: Approver) -> dict[str, Any]:
+def release_version(
+    request: Request, db: Db, name: str, number: int, who: Approver
+) -> dict[str, Any]:
     """Release a version (the previously released one becomes superseded)."""
-    return version_json(
+    out = version_json(
         library.release(db, library.check_program_name(name), number, actor=who.name)
     )
+    db.commit()
+    changed(request, "program", name)
+    return out
 
 
 @router.post("/programs/{name}/lock")
-def lock_program(db: Db, name: str, who: Approver) -> dict[str, Any]:
+def lock_program(request: Request, db: Db, name: str, who: Approver) -> dict[str, Any]:
     """Lock a program against new versions and state changes."""
-    return program_json(library.set_locked(db, name, True, actor=who.name))
+    out = program_json(library.set_locked(db, name, True, actor=who.name))
+    db.commit()
+    changed(request, "program", name)
+    return out
 
 
 @router.post("/programs/{name}/unlock")
-def unlock_program(db: Db, name: str, who: Approver) -> dict[str, Any]:
+def unlock_program(request: Request, db: Db, name: str, who: Approver) -> dict[str, Any]:
     """Unlock a program."""
-    return program_json(library.set_locked(db, name, False, actor=who.name))
+    out = program_json(library.set_locked(db, name, False, actor=who.name))
+    db.commit()
+    changed(request, "program", name)
+    return out
 
 
 class JobRequest(BaseModel):
@@ -444,7 +464,9 @@ class RetryRequest(BaseModel):
 def retry_job(
     request: Request, db: Db, job_id: int, body: RetryRequest, who: Operator
 ) -> dict[str, Any]:
-    """Queue a failed, interrupted or cancelled job again."""
+    """Queue a failed, interrupted or cancelled job again (a drip-feed: programmers)."""
+    if jobs.get_job(db, job_id).kind is JobKind.DRIPFEED and not who.can(Role.PROGRAMMER):
+        raise Forbidden("restarting a drip-feed needs the programmer role (it runs the machine)")
     job = jobs.retry(db, job_id, actor=who.name, from_line=body.from_line)
     out = job_json(job)
     db.commit()
@@ -559,16 +581,23 @@ class AcceptRequest(BaseModel):
 
 @router.post("/inbox/{received_id}/accept")
 def accept_received(
-    db: Db, received_id: int, body: AcceptRequest, who: Programmer
+    request: Request, db: Db, received_id: int, body: AcceptRequest, who: Programmer
 ) -> dict[str, Any]:
     """Make the reception a new draft version in the library."""
-    return version_json(inbox.accept(db, received_id, actor=who.name, name=body.name))
+    out = version_json(inbox.accept(db, received_id, actor=who.name, name=body.name))
+    db.commit()
+    changed(request, "inbox", str(received_id))
+    changed(request, "program", out["program"])
+    return out
 
 
 @router.post("/inbox/{received_id}/discard")
-def discard_received(db: Db, received_id: int, who: Programmer) -> dict[str, Any]:
+def discard_received(request: Request, db: Db, received_id: int, who: Programmer) -> dict[str, Any]:
     """Drop the reception from the inbox."""
-    return received_json(inbox.discard(db, received_id, actor=who.name))
+    out = received_json(inbox.discard(db, received_id, actor=who.name))
+    db.commit()
+    changed(request, "inbox", str(received_id))
+    return out
 
 
 class KeyRequest(BaseModel):

@@ -140,6 +140,7 @@ def build(
     api.install(app, sessions, supervisor)
     app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
     app.include_router(dprnt_api.router)
+    app.state.dprnt = capture  # the machine page shows each listener's last word
     web.install(app)
     return Server(
         config,

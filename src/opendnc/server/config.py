@@ -227,6 +227,7 @@ class ServerConfig:
     bind_port: int = 8000
     database: str = ""
     name: str = "opendnc"
+    timeline_days: float = 7.0  # status samples older than this are pruned
 
 
 @dataclass(frozen=True)
@@ -528,7 +529,7 @@ def _get(table: dict[str, Any], prefix: str, key: str, kind: type, default: Any)
 
 
 def _server(table: dict[str, Any], base: Path) -> ServerConfig:
-    _known(table, "server", {"bind", "database", "name"})
+    _known(table, "server", {"bind", "database", "name", "timeline_retention_days"})
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
     # Port 0 takes any free port (tests, the demo); the server prints the one it got.
@@ -546,8 +547,15 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     name = _get(table, "server", "name", str, "opendnc")
     if not _NAME.fullmatch(name):
         raise ConfigError("server.name", "use letters, digits, '-', '_' or '.' (at most 64)")
+    days = _get(table, "server", "timeline_retention_days", float, 7.0)
+    if not 0 < days <= 3660:
+        raise ConfigError("server.timeline_retention_days", "expected days, more than 0")
     return ServerConfig(
-        bind_host=host.strip("[]"), bind_port=int(port_text), database=database, name=name
+        bind_host=host.strip("[]"),
+        bind_port=int(port_text),
+        database=database,
+        name=name,
+        timeline_days=float(days),
     )
 
 

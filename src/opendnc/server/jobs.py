@@ -41,6 +41,7 @@ from opendnc.server.store.models import (
 __all__ = [
     "cancel",
     "claim",
+    "dripfeed_program",
     "enqueue",
     "fail",
     "finish",
@@ -166,6 +167,33 @@ def send_program(
         version = library.get_version(session, name, number)
     with session.begin_nested():
         return [enqueue(session, JobKind.SEND, m, actor=actor, version=version) for m in machines]
+
+
+def dripfeed_program(
+    session: Session,
+    name: str,
+    machine: str,
+    *,
+    actor: str,
+    number: int | None = None,
+    from_line: int | None = None,
+) -> Job:
+    """Queue a drip-feed of version ``number`` of ``name`` (the released one without it; a
+    program with none released is refused) on ``machine``, from line ``from_line``.
+
+    The caller checks that the machine allows drip-feed (``dripfeed = true``): that opt-in is
+    configuration, not a row.
+    """
+    if number is None:
+        version = library.released_version(session, name)
+        if version is None:
+            raise Conflict(f"program {name!r} has no released version; name one")
+    else:
+        version = library.get_version(session, name, number)
+    if from_line is not None and from_line < 1:
+        raise InputError("from_line counts from 1")
+    params = {"from_line": from_line} if from_line else {}
+    return enqueue(session, JobKind.DRIPFEED, machine, actor=actor, version=version, params=params)
 
 
 def claim(session: Session, machine: str, worker: str) -> Job | None:

@@ -51,6 +51,7 @@ __all__ = [
     "Received",
     "ReceivedState",
     "Role",
+    "StatusSample",
     "User",
     "utcnow",
 ]
@@ -336,3 +337,24 @@ class DprntLine(Base):
     text: Mapped[str] = mapped_column(Text)
     fields: Mapped[list[Any]] = mapped_column(JSON, default=list)  # [{"label", "value"}, ...]
     complete: Mapped[bool] = mapped_column(Boolean, default=True)
+
+
+class StatusSample(Base):
+    """A machine's state from ``at`` until its next sample (changes only), for the status
+    timeline: ``state`` is the strip's colour (offline, active, ready, stopped, alarm, or
+    ``none`` from a server stop until the next start), ``mode`` and ``execution`` the control's
+    words. Pruned after ``[server] timeline_retention_days``."""
+
+    __tablename__ = "status_samples"
+    # read as "this machine's samples since a time", pruned as "everything before a time"
+    __table_args__ = (
+        Index("ix_status_samples_machine_at", "machine", "at"),
+        Index("ix_status_samples_at", "at"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64))
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    state: Mapped[str] = mapped_column(String(16))
+    mode: Mapped[str] = mapped_column(String(64), default="")
+    execution: Mapped[str] = mapped_column(String(32), default="")

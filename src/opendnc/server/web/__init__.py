@@ -31,14 +31,16 @@ STATIC = Path(__file__).parent / "static"
 
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
-    timeline = Timeline()
+    supervisor = app.state.supervisor
+    timeline = Timeline(app.state.sessions, retention_days=supervisor.config.server.timeline_days)
     app.state.timeline = timeline
     inner = app.router.lifespan_context
 
     @asynccontextmanager
     async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
-        # The server's own lifespan starts the machines; the status timeline listens meanwhile.
-        async with inner(running_app) as state, recording(timeline, app.state.supervisor.bus):
+        # The server's own lifespan starts the machines; the status timeline listens meanwhile
+        # (and stops first, so its "no record" samples mark the server's stop).
+        async with inner(running_app) as state, recording(timeline, supervisor.bus):
             yield state
 
     app.router.lifespan_context = lifespan

@@ -23,6 +23,7 @@ __all__ = [
     "Card",
     "DiffRow",
     "card",
+    "card_oob",
     "environment",
     "highlight_lines",
     "pygments_css",
@@ -224,6 +225,11 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         last_error_at=when(machine.get("last_error_at")),
         alarm=alarm,
     )
+
+
+def card_oob(name: str, html: str) -> str:
+    """``html`` as the new inside of ``#card-<name>`` (an htmx out-of-band swap)."""
+    return f'<div id="card-{escape(name)}" hx-swap-oob="innerHTML">{html}</div>'
 
 
 def sse_event(name: str, html: str) -> bytes:

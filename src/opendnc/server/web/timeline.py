@@ -1,26 +1,64 @@
 """Each machine's recent states (connection, mode, execution), for the status timeline.
 
-A recorder listens to the server's event bus for as long as the app runs and keeps, per
-machine, the moments its state changed over the last :data:`KEEP_HOURS` (in memory: the
-timeline starts again when the server does). The machine page draws it as an SVG strip.
+A recorder listens to the server's event bus for as long as the app runs and notes, per
+machine, the moments its state changed (changes only: a status poll that finds the same state
+writes nothing). With the server's database each change becomes a ``status_samples`` row,
+written in batches off the event loop and pruned after ``[server] timeline_retention_days``,
+so the timeline survives a restart (docs/dashboard.md#status-timeline). When the server stops
+it writes a ``none`` sample for every machine: the time it was down shows as no record, not as
+the last state stretched over the gap. Without a database the changes stay in memory (the
+bookkeeping's own tests). The machine page draws the last hours as an SVG strip.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
+import threading
+import time
 from collections import deque
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from opendnc.server.events import EventBus
-from opendnc.server.store.models import utcnow
+from sqlalchemy import delete, select
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session, sessionmaker
 
-__all__ = ["Segment", "Timeline"]
+from opendnc.server.events import EventBus, Subscription
+from opendnc.server.store.models import StatusSample, utcnow
 
-KEEP_HOURS = 8
-MAX_CHANGES = 5000  # per machine: a control that flips state every second still fits hours
+__all__ = ["Sample", "Segment", "Timeline", "running"]
+
+log = logging.getLogger(__name__)
+
+MAX_CHANGES = 5000  # per machine in memory: a control that flips state every second fits hours
+FLUSH_SECONDS = 1.0  # changes reach the database within about this
+PRUNE_SECONDS = 3600.0
+MAX_PENDING = 10_000  # held while the database is away; the oldest go first beyond this
+NONE = "none"  # no record: the server was not running
+
+
+@dataclass(frozen=True)
+class Sample:
+    """A machine's state from ``at`` on."""
+
+    at: datetime
+    state: str  # offline, active, ready, stopped, alarm, none
+    mode: str = ""
+    execution: str = ""
+
+    @property
+    def label(self) -> str:
+        """What a person reads for it: ``active, automatic``."""
+        if self.state == NONE:
+            return "no record (server stopped)"
+        if self.state == "offline":
+            return "offline"
+        execution = self.execution.replace("_", " ").lower() or "ready"
+        mode = self.mode.replace("_", " ").lower()
+        return f"{execution}{', ' + mode if mode else ''}"
 
 
 @dataclass(frozen=True)
@@ -29,16 +67,17 @@ class Segment:
 
     x: float
     width: float
-    state: str  # offline, active, ready, stopped, alarm
+    state: str  # offline, active, ready, stopped, alarm, none
     label: str
 
 
-def _state(machine: dict[str, Any]) -> tuple[str, str]:
+def _state(machine: dict[str, Any]) -> tuple[str, str, str]:
+    """(state, mode, execution) of a machine's live JSON."""
     status = machine.get("status") or {}
     if not machine.get("online"):
-        return "offline", "offline"
-    execution = str(status.get("execution") or "")
-    mode = str(status.get("mode") or "").replace("_", " ").lower()
+        return "offline", "", ""
+    execution = str(status.get("execution") or "")[:32]
+    mode = str(status.get("mode") or "")[:64]
     if status.get("errors"):
         kind = "alarm"
     elif execution == "ACTIVE":
@@ -47,31 +86,133 @@ def _state(machine: dict[str, Any]) -> tuple[str, str]:
         kind = "stopped"
     else:
         kind = "ready"
-    label = f"{execution.replace('_', ' ').lower() or 'ready'}{', ' + mode if mode else ''}"
-    return kind, label
+    return kind, mode, execution
 
 
 class Timeline:
-    """State changes per machine, fed from the event bus."""
+    """State changes per machine, fed from the event bus (and the machine page's reads).
 
-    def __init__(self) -> None:
-        self.changes: dict[str, deque[tuple[datetime, str, str]]] = {}
+    Thread-safe: the recorder notes on the event loop, a page view in the thread pool.
+    """
 
-    def note(self, name: str, machine: dict[str, Any], at: datetime | None = None) -> None:
-        """Record the machine's state if it differs from the last one recorded."""
-        kind, label = _state(machine)
-        history = self.changes.setdefault(name, deque(maxlen=MAX_CHANGES))
-        if history and history[-1][1:] == (kind, label):
-            return
-        history.append((at or utcnow(), kind, label))
+    def __init__(
+        self, sessions: sessionmaker[Session] | None = None, *, retention_days: float = 7.0
+    ) -> None:
+        self.sessions = sessions
+        self.retention = timedelta(days=retention_days)
+        self.changes: dict[str, deque[Sample]] = {}  # without a database
+        self.pending: deque[tuple[str, Sample]] = deque(maxlen=MAX_PENDING)
+        self._last: dict[str, tuple[str, str, str]] = {}
+        self._lock = threading.Lock()
+
+    def note(self, name: str, machine: dict[str, Any], at: datetime | None = None) -> bool:
+        """Record the machine's state if it differs from the last one noted (True if so)."""
+        return self._add(name, _state(machine), at)
+
+    def _add(self, name: str, key: tuple[str, str, str], at: datetime | None) -> bool:
+        with self._lock:
+            if self._last.get(name) == key:
+                return False
+            self._last[name] = key
+            sample = Sample(at or utcnow(), *key)
+            if self.sessions is None:
+                self.changes.setdefault(name, deque(maxlen=MAX_CHANGES)).append(sample)
+            else:
+                self.pending.append((name, sample))
+            return True
+
+    def stopped(self, at: datetime | None = None) -> None:
+        """The server stops: from now on, no record for any machine noted so far."""
+        for name in list(self._last):
+            self._add(name, (NONE, "", ""), at)
+
+    def flush(self) -> int:
+        """Write the pending changes (one transaction); how many were written. A database
+        that is away keeps them pending for the next try."""
+        if self.sessions is None:
+            return 0
+        with self._lock:
+            batch = list(self.pending)
+            self.pending.clear()
+        if not batch:
+            return 0
+        try:
+            with self.sessions.begin() as session:
+                session.add_all(
+                    StatusSample(
+                        machine=name, at=s.at, state=s.state, mode=s.mode, execution=s.execution
+                    )
+                    for name, s in batch
+                )
+        except SQLAlchemyError as exc:
+            log.warning("status timeline: %d samples not written yet: %s", len(batch), exc)
+            with self._lock:
+                # back in front of what came meanwhile; beyond the limit the oldest go
+                self.pending = deque([*batch, *self.pending], maxlen=MAX_PENDING)
+            return 0
+        return len(batch)
+
+    def prune(self, now: datetime | None = None) -> int:
+        """Delete the samples older than the retention; how many went."""
+        if self.sessions is None:
+            return 0
+        cutoff = (now or utcnow()) - self.retention
+        with self.sessions.begin() as session:
+            result = session.execute(delete(StatusSample).where(StatusSample.at < cutoff))
+            return int(getattr(result, "rowcount", 0) or 0)
+
+    def history(self, name: str, since: datetime) -> list[Sample]:
+        """``name``'s samples after ``since``, and the one in force at ``since``, in order."""
+        if self.sessions is None:
+            with self._lock:
+                return list(self.changes.get(name, ()))
+        with self.sessions() as session:
+            before = session.scalars(
+                select(StatusSample)
+                .where(StatusSample.machine == name, StatusSample.at <= since)
+                .order_by(StatusSample.at.desc(), StatusSample.id.desc())
+                .limit(1)
+            ).all()
+            after = session.scalars(
+                select(StatusSample)
+                .where(StatusSample.machine == name, StatusSample.at > since)
+                .order_by(StatusSample.at, StatusSample.id)
+            ).all()
+            out = [Sample(r.at, r.state, r.mode, r.execution) for r in (*before, *after)]
+        with self._lock:
+            out += [s for n, s in self.pending if n == name]
+        return out
 
     async def record(self, bus: EventBus) -> None:
-        """Listen until cancelled."""
+        """Listen until cancelled; write changes within :data:`FLUSH_SECONDS`, prune hourly."""
         with bus.subscribe(maxsize=10_000) as sub:
-            while True:
-                event = await sub.get()
+            await self._listen(sub)
+
+    async def _listen(self, sub: Subscription) -> None:
+        flushed = pruned = time.monotonic()
+        while True:
+            try:
+                event = await asyncio.wait_for(sub.get(), FLUSH_SECONDS)
                 if event.kind == "machine":
                     self.note(event.key, event.data)
+            except TimeoutError:
+                pass
+            now = time.monotonic()
+            if self.sessions is not None and self.pending and now - flushed >= FLUSH_SECONDS:
+                flushed = now
+                await asyncio.to_thread(self.flush)
+            if self.sessions is not None and now - pruned >= PRUNE_SECONDS:
+                pruned = now
+                await asyncio.to_thread(self._prune_logged)
+
+    def _prune_logged(self) -> None:
+        try:
+            gone = self.prune()
+        except SQLAlchemyError as exc:
+            log.warning("status timeline: pruning failed: %s", exc)
+            return
+        if gone:
+            log.info("status timeline: pruned %d samples older than %s", gone, self.retention)
 
     def segments(
         self, name: str, *, hours: float = 4.0, width: float = 1000.0, now: datetime | None = None
@@ -80,26 +221,33 @@ class Timeline:
         now = now or utcnow()
         start = now - timedelta(hours=hours)
         span = (now - start).total_seconds()
-        history = list(self.changes.get(name, ()))
+        history = [s for s in self.history(name, start) if s.at < now]
         out: list[Segment] = []
-        for i, (at, kind, label) in enumerate(history):
-            until = history[i + 1][0] if i + 1 < len(history) else now
+        for i, sample in enumerate(history):
+            until = history[i + 1].at if i + 1 < len(history) else now
             if until <= start:
                 continue
-            begin = max(at, start)
+            begin = max(sample.at, start)
             x = (begin - start).total_seconds() / span * width
             w = (until - begin).total_seconds() / span * width
-            out.append(Segment(round(x, 2), round(max(w, 0.5), 2), kind, label))
+            out.append(Segment(round(x, 2), round(max(w, 0.5), 2), sample.state, sample.label))
         return out
 
 
 @contextlib.asynccontextmanager
 async def running(timeline: Timeline, bus: EventBus) -> Any:
-    """Run the recorder for the duration of the ``async with`` block."""
-    task = asyncio.create_task(timeline.record(bus), name="status-timeline")
-    try:
-        yield
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+    """Run the recorder for the duration of the ``async with`` block; at its end, mark every
+    machine as not recorded from then on and write what is pending."""
+    if timeline.sessions is not None:
+        await asyncio.to_thread(timeline._prune_logged)
+    # Subscribed before the block runs: no event published in it is missed.
+    with bus.subscribe(maxsize=10_000) as sub:
+        task = asyncio.create_task(timeline._listen(sub), name="status-timeline")
+        try:
+            yield
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            timeline.stopped()
+            await asyncio.to_thread(timeline.flush)

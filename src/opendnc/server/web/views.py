@@ -13,6 +13,7 @@ pool, so the machines' event loop never waits for a query).
 from __future__ import annotations
 
 import asyncio
+from collections import deque
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
@@ -21,13 +22,23 @@ from urllib.parse import quote
 from fastapi import APIRouter, Depends, Form, Request, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import api, audit, auth, inbox, jobs, library, machine_files
+from opendnc.server import api, audit, auth, dprnt_api, inbox, jobs, library, machine_files
 from opendnc.server.config import MachineKind
-from opendnc.server.errors import NotFound, Unauthorized
-from opendnc.server.store.models import Job, JobState, ReceivedState, Role
+from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.store.models import (
+    Job,
+    JobKind,
+    JobState,
+    Program,
+    ProgramState,
+    ProgramVersion,
+    ReceivedState,
+    Role,
+)
 from opendnc.server.supervisor import Supervisor
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
@@ -46,6 +57,8 @@ ROLES = [r.name.lower() for r in Role]
 # is a download away.
 SHOWN_CHARS = 200_000
 TIMELINE_HOURS = 4
+# The DPRNT console keeps this many of a machine's newest lines (the CSV has more).
+CONSOLE_LINES = 200
 
 
 class LoginNeeded(Exception):
@@ -214,29 +227,57 @@ def overview(request: Request, page: Viewing) -> HTMLResponse:
 
 @router.get("/events/cards")
 async def card_events(
-    request: Request, page: Viewing, machine: str | None = None
+    request: Request, page: Viewing, machine: str | None = None, dprnt: str | None = None
 ) -> StreamingResponse:
-    """Server-sent events with the HTML of each card that changed (``card-<machine>``), and
-    ``jobs-<machine>`` when a job of that machine starts or ends (``machine``: just one)."""
-    if machine is not None and machine not in _supervisor(request).machines:
+    """Server-sent events: ``cards`` with the HTML of every card that changed since the last
+    one (each an out-of-band swap of ``#card-<machine>``), and ``jobs-<machine>`` when a job
+    of that machine starts or ends (``machine``: just one).
+
+    With ``machine`` and ``dprnt`` (the first and last id of the DPRNT lines its page shows,
+    or ``0-0``), also ``dprnt-<machine>`` with the console's new lines."""
+    states = _supervisor(request).machines
+    if machine is not None and machine not in states:
         raise NotFound(f"no machine named {machine!r}")
+    shown = None
+    if machine is not None and dprnt is not None and states[machine].config.dprnt:
+        shown = _shown_ids(request, machine, dprnt)
     return StreamingResponse(
-        _card_stream(request, machine),
+        _card_stream(request, machine, shown),
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
 
 
-async def _card_stream(request: Request, only: str | None) -> AsyncIterator[bytes]:
+def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
+    # The ids the page shows: its span of the newest lines (none if it showed none).
+    first, _, last = span.partition("-")
+    if not (first.isdigit() and last.isdigit()):
+        raise InputError("dprnt is FIRST-LAST (line ids)")
+    lo, hi = int(first), int(last)
+    if hi == 0:
+        return []
+
+    def load(session: Session) -> list[int]:
+        lines = dprnt_api.recent_lines(session, machine, CONSOLE_LINES)
+        return [x["id"] for x in lines if lo <= x["id"] <= hi] or [hi]
+
+    return _read(request, load)
+
+
+async def _card_stream(
+    request: Request, only: str | None, dprnt_shown: list[int] | None = None
+) -> AsyncIterator[bytes]:
     supervisor = _supervisor(request)
     env = render.environment().get_template("_card.html")
     labels: dict[int, str] = {}
     watched = set(supervisor.machines) if only is None else {only}
     sent: dict[str, str] = {}  # the HTML each card has in the browser now
+    console = _Console(only, dprnt_shown) if only is not None and dprnt_shown is not None else None
     with supervisor.bus.subscribe() as sub:
         # A fresh copy of every card first: whatever changed between the page and this stream.
         pending: set[str] = set(watched)
         job_changes: set[str] = set()
+        new_lines = console is not None  # and the console's lines printed since the page
         loop = asyncio.get_running_loop()
         flush_at = quiet_since = loop.time()
         while not await request.is_disconnected():
@@ -245,7 +286,10 @@ async def _card_stream(request: Request, only: str | None) -> AsyncIterator[byte
                 event = await asyncio.wait_for(sub.get(), timeout)
                 machine = event.key if event.kind == "machine" else event.data.get("machine")
                 if isinstance(machine, str) and machine in watched:
-                    pending.add(machine)
+                    if event.kind in ("dprnt", "dprnt_status"):
+                        new_lines = console is not None
+                    else:
+                        pending.add(machine)
                     if event.kind == "job" and "bytes_done" not in event.data:
                         job_changes.add(machine)  # started or ended, not mere progress
                 if loop.time() < flush_at:
@@ -256,25 +300,65 @@ async def _card_stream(request: Request, only: str | None) -> AsyncIterator[byte
                 sub.overflowed = False
                 pending = set(watched)
                 job_changes = set(watched)
+                new_lines = console is not None
+            out = []
             if pending:
                 names = sorted(pending)
                 pending = set()
                 cards = await run_in_threadpool(_cards_cached, request, names, labels)
-                out = []
+                changed = []
                 for c in cards:
                     html = env.render(c=c)
                     if sent.get(c.name) != html:  # a status poll that changed nothing
                         sent[c.name] = html
-                        out.append(render.sse_event(f"card-{c.name}", html))
+                        changed.append(render.card_oob(c.name, html))
+                if changed:
+                    # One message for every card that changed: the browser parses and swaps
+                    # them in one go instead of running a swap per card.
+                    out.append(render.sse_event("cards", "".join(changed)))
                 out += [render.sse_event(f"jobs-{name}", "") for name in sorted(job_changes)]
                 job_changes = set()
-                if out:
-                    quiet_since = loop.time()
-                    yield b"".join(out)
+            if console is not None and new_lines:
+                new_lines = False
+                html = await run_in_threadpool(_read, request, console.update)
+                if html:
+                    out.append(render.sse_event(f"dprnt-{console.machine}", html))
+            if out:
+                quiet_since = loop.time()
+                yield b"".join(out)
             if loop.time() - quiet_since > KEEP_ALIVE:
                 quiet_since = loop.time()
                 yield b": keep-alive\n\n"  # lets a proxy and the server see a dead client
             flush_at = loop.time() + CARD_INTERVAL
+
+
+class _Console:
+    """What one machine page's DPRNT console shows, and the HTML that brings it up to date.
+
+    The page names the lines it was drawn with (``dprnt=FIRST-LAST`` ids); each update adds
+    the lines printed since (swapped in at the end of the list) and removes, by id, those that
+    fell out of the newest :data:`CONSOLE_LINES` (out-of-band deletes), so the page never
+    holds more than that and never shows a line twice, whenever the stream (re)connects.
+    """
+
+    def __init__(self, machine: str, shown: list[int]) -> None:
+        self.machine = machine
+        self.shown: deque[int] = deque(sorted(shown))
+
+    def update(self, session: Session) -> str:
+        last = self.shown[-1] if self.shown else 0
+        # the newest lines: any printed before them would fall out of the console anyway
+        recent = dprnt_api.recent_lines(session, self.machine, CONSOLE_LINES)
+        lines = [x for x in recent if x["id"] > last]
+        if not lines:
+            return ""
+        gone = []
+        for line in lines:
+            self.shown.append(line["id"])
+        while len(self.shown) > CONSOLE_LINES:
+            gone.append(self.shown.popleft())
+        first = self.shown[0]
+        return render.render("_dprnt.html", lines=[x for x in lines if x["id"] >= first], gone=gone)
 
 
 def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) -> list[render.Card]:
@@ -295,6 +379,55 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
         label = labels.get(job_id, "") if job_id is not None else ""
         out.append(render.card(states[name].as_json(), queued=queued.get(name, 0), job_label=label))
     return out
+
+
+# Which bus events change which list page (the watcher's and the routes' ``program``, a
+# reception's ``received`` or ``netshare``, an accept's or discard's ``inbox``).
+LIST_EVENTS = {
+    "inbox": {"received", "netshare", "inbox"},
+    "library": {"program"},
+}
+
+
+@router.get("/events/lists")
+async def list_events(request: Request, page: Viewing, topic: str) -> StreamingResponse:
+    """Server-sent events named ``topic`` (``inbox`` or ``library``), no data, at most every
+    :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
+    if topic not in LIST_EVENTS:
+        raise InputError(f"topic {topic!r}: inbox or library")
+    return StreamingResponse(
+        _list_stream(request, topic),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
+
+
+async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
+    kinds = LIST_EVENTS[topic]
+    with _supervisor(request).bus.subscribe() as sub:
+        # Once at the start: whatever changed between the page and this stream.
+        dirty = True
+        loop = asyncio.get_running_loop()
+        flush_at = quiet_since = loop.time()
+        while not await request.is_disconnected():
+            try:
+                event = await asyncio.wait_for(sub.get(), max(0.0, flush_at - loop.time()))
+                dirty = dirty or event.kind in kinds
+                if loop.time() < flush_at:
+                    continue
+            except TimeoutError:
+                pass
+            if sub.overflowed:
+                sub.overflowed = False
+                dirty = True
+            if dirty:
+                dirty = False
+                quiet_since = loop.time()
+                yield render.sse_event(topic, "")
+            elif loop.time() - quiet_since > KEEP_ALIVE:
+                quiet_since = loop.time()
+                yield b": keep-alive\n\n"
+            flush_at = loop.time() + CARD_INTERVAL
 
 
 # -- machine page -------------------------------------------------------------------------
@@ -327,9 +460,35 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
     timeline.note(name, live)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
     context["timeline_hours"] = TIMELINE_HOURS
+    context["timeline_days"] = timeline.retention.total_seconds() / 86400
+    context["console_lines"] = CONSOLE_LINES
+    context["dripfeed"] = state.config.dripfeed
+    context["released"] = _read(request, _released_names) if state.config.dripfeed else []
     context["has_files"] = state.config.kind is MachineKind.LSV2
+    context["dprnt"] = None
+    if state.config.dprnt:
+        lines = _read(request, lambda s: dprnt_api.recent_lines(s, name, CONSOLE_LINES))
+        capture = getattr(request.app.state, "dprnt", None)
+        context["dprnt"] = {
+            "lines": lines,
+            "span": f"{lines[0]['id']}-{lines[-1]['id']}" if lines else "0-0",
+            "status": capture.status.get(name, "") if capture is not None else "",
+        }
     context["card"] = render.card(live, queued=len(context["queue"]))
     return context
+
+
+def _released_names(session: Session) -> list[str]:
+    # what a drip-feed machine is offered: programs with a released version
+    stmt = (
+        select(Program.name)
+        .join(ProgramVersion)
+        .where(ProgramVersion.state == ProgramState.RELEASED)
+        .distinct()
+        .order_by(Program.name)
+        .limit(2000)
+    )
+    return list(session.scalars(stmt))
 
 
 def _job_row(job: Job) -> dict[str, Any]:
@@ -343,6 +502,15 @@ def _job_row(job: Job) -> dict[str, Any]:
 def machine_page(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The machine's status, queue and job history."""
     return _html("machine.html", page, request, **_machine_context(request, name))
+
+
+@router.get("/machines/{name}/dprnt.csv")
+def machine_dprnt_csv(request: Request, name: str, page: Viewing) -> Response:
+    """The machine's newest DPRNT lines (up to the API's limit) as CSV, oldest first."""
+    if name not in _supervisor(request).machines:
+        raise NotFound(f"no machine named {name!r}")
+    lines = _read(request, lambda s: dprnt_api.recent_lines(s, name, dprnt_api.MAX_LIMIT))
+    return dprnt_api.csv_response(name, lines)
 
 
 @router.get("/machines/{name}/jobs")
@@ -360,7 +528,14 @@ def _after_job_action(request: Request, page: Page, machine: str) -> HTMLRespons
 def cancel_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
     """Cancel a queued job, or ask a running one to stop."""
     web_session.need(page.who, Role.OPERATOR)
-    machine = _write(request, lambda s: jobs.cancel(s, job_id, actor=page.who.name).machine)
+
+    def cancel(session: Session) -> tuple[str, bool]:
+        job = jobs.cancel(session, job_id, actor=page.who.name)
+        return job.machine, job.state is JobState.RUNNING
+
+    machine, running = _write(request, cancel)
+    if running:  # as the API does: the worker stops at its next safe point
+        _supervisor(request).request_cancel(job_id)
     return _after_job_action(request, page, machine)
 
 
@@ -381,14 +556,42 @@ def retry_job(
     page: Writing,
     from_line: Annotated[int | None, Form(ge=1)] = None,
 ) -> HTMLResponse:
-    """Queue a failed, interrupted or cancelled job again (a drip-feed from a line)."""
+    """Queue a failed, interrupted or cancelled job again (a drip-feed from a line, which
+    programmers restart: it runs the machine)."""
     web_session.need(page.who, Role.OPERATOR)
 
     def retry(session: Session) -> str:
+        if jobs.get_job(session, job_id).kind is JobKind.DRIPFEED:
+            web_session.need(page.who, Role.PROGRAMMER)
         return jobs.retry(session, job_id, actor=page.who.name, from_line=from_line).machine
 
     machine = _write(request, retry)
     return _after_job_action(request, page, machine)
+
+
+@router.post("/machines/{name}/dripfeed")
+def start_dripfeed(
+    request: Request,
+    name: str,
+    page: Writing,
+    program: Annotated[str, Form()],
+    from_line: Annotated[int | None, Form(ge=1)] = None,
+) -> HTMLResponse:
+    """Drip-feed the released version of ``program`` to the machine (programmers; the page
+    asks first, since the machine runs it as it arrives)."""
+    web_session.need(page.who, Role.PROGRAMMER)
+    config = _machine_config(request, name)
+    if not config.dripfeed:
+        raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
+    program_name = library.check_program_name(program.strip())
+
+    def queue(session: Session) -> str:
+        job = jobs.dripfeed_program(
+            session, program_name, name, actor=page.who.name, from_line=from_line
+        )
+        return job.machine
+
+    return _after_job_action(request, page, _write(request, queue))
 
 
 # -- file browser (LSV2 controls) ---------------------------------------------------------
@@ -562,6 +765,7 @@ def release_version(request: Request, name: str, number: int, page: Writing) -> 
     web_session.need(page.who, Role.APPROVER)
     library.check_program_name(name)
     _write(request, lambda s: library.release(s, name, number, actor=page.who.name))
+    api.changed(request, "program", name)
     return _redirect(request, f"/library/{quote(name)}?v={number}")
 
 
@@ -573,6 +777,7 @@ def lock_program(
     web_session.need(page.who, Role.APPROVER)
     library.check_program_name(name)
     _write(request, lambda s: library.set_locked(s, name, locked, actor=page.who.name))
+    api.changed(request, "program", name)
     return _redirect(request, f"/library/{quote(name)}")
 
 
@@ -622,6 +827,7 @@ async def upload_program(
         return version.number
 
     number = await run_in_threadpool(_write, request, store)
+    api.changed(request, "program", program)
     return _redirect(request, f"/library/{quote(program)}?v={number}")
 
 
@@ -645,7 +851,8 @@ def inbox_page(request: Request, page: Viewing, state: str = "new") -> HTMLRespo
     def load(session: Session) -> list[dict[str, Any]]:
         return [api.received_json(r) for r in inbox.list_received(session, states)]
 
-    return _html("inbox.html", page, request, items=_read(request, load), state=state)
+    template = "_inbox.html" if _is_htmx(request) else "inbox.html"
+    return _html(template, page, request, items=_read(request, load), state=state)
 
 
 @router.get("/inbox/{received_id}")
@@ -682,6 +889,8 @@ def accept_received(
         return version.program.name, version.number
 
     program, number = _write(request, accept)
+    api.changed(request, "inbox", str(received_id))
+    api.changed(request, "program", program)
     return _redirect(request, f"/library/{quote(program)}?v={number}")
 
 
@@ -690,6 +899,7 @@ def discard_received(request: Request, received_id: int, page: Writing) -> Respo
     """Drop the reception from the inbox (programmers)."""
     web_session.need(page.who, Role.PROGRAMMER)
     _write(request, lambda s: inbox.discard(s, received_id, actor=page.who.name))
+    api.changed(request, "inbox", str(received_id))
     return _redirect(request, "/inbox")
 
 

@@ -1,0 +1,56 @@
+"""The machine page's DPRNT console updates: only new lines, and out-of-band deletes of the
+lines that fell out of the newest ones the console keeps (so a page never grows without end
+and never shows a line twice)."""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime, timedelta
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from tests.peers import require_module
+
+require_module("jinja2")
+
+from opendnc.server.store.models import DprntLine  # noqa: E402
+from opendnc.server.web.views import CONSOLE_LINES, _Console  # noqa: E402
+
+T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
+
+
+def _print(sessions: sessionmaker[Session], machine: str, texts: list[str]) -> list[int]:
+    with sessions.begin() as session:
+        rows = [
+            DprntLine(machine=machine, at=T0 + timedelta(seconds=i), text=t, fields=[])
+            for i, t in enumerate(texts)
+        ]
+        session.add_all(rows)
+        session.flush()
+        return [r.id for r in rows]
+
+
+def _parts(html: str) -> tuple[list[int], list[int]]:
+    added = [int(i) for i in re.findall(r'<li id="dprnt-(\d+)"><time', html)]
+    gone = [int(i) for i in re.findall(r'<li id="dprnt-(\d+)" hx-swap-oob="delete">', html)]
+    return added, gone
+
+
+def test_new_lines_are_added_and_old_ones_deleted(sessions: sessionmaker[Session]) -> None:
+    shown = _print(sessions, "vf2", ["A 1", "A 2", "A 3"])
+    _print(sessions, "other", ["B 1"])  # another machine's line is not this console's
+    console = _Console("vf2", shown)
+    with sessions() as session:
+        assert console.update(session) == ""  # nothing new
+    more = _print(sessions, "vf2", [f"C {i}" for i in range(CONSOLE_LINES)])
+    with sessions() as session:
+        added, gone = _parts(console.update(session))
+    assert added == more  # all of them: each is among the newest
+    assert gone == shown  # the page's three fell out
+    last = _print(sessions, "vf2", ['<b>&"x"</b>'])
+    with sessions() as session:
+        html = console.update(session)
+    added, gone = _parts(html)
+    assert (added, gone) == (last, more[:1])
+    assert "&lt;b&gt;&amp;&#34;x&#34;&lt;/b&gt;" in html  # a printed line is text, not markup
+    assert len(console.shown) == CONSOLE_LINES

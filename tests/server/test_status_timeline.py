@@ -1,0 +1,200 @@
+"""The status timeline in the database: changes only, written off the event loop, read back
+by a new timeline (as after a server restart), pruned after the retention; and migration 0004
+up from 0003 and back. On SQLite and PostgreSQL."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sqlalchemy import Engine, func, inspect, select, text
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.events import EventBus
+from opendnc.server.store.db import current_revision, make_engine, migrate
+from opendnc.server.store.models import StatusSample
+from opendnc.server.web.timeline import Timeline, running
+
+T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
+
+
+def _machine(execution: str, mode: str = "AUTOMATIC", online: bool = True) -> dict[str, Any]:
+    return {"online": online, "status": {"execution": execution, "mode": mode, "errors": []}}
+
+
+def _rows(sessions: sessionmaker[Session]) -> list[tuple[str, datetime, str, str, str]]:
+    with sessions() as session:
+        rows = session.scalars(select(StatusSample).order_by(StatusSample.id)).all()
+        return [(r.machine, r.at, r.state, r.mode, r.execution) for r in rows]
+
+
+def test_migration_0004_up_from_0003_and_back(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, "0003")
+        with engine.begin() as conn:
+            conn.execute(
+                text(
+                    "INSERT INTO dprnt_lines (machine, at, text, fields, complete) "
+                    "VALUES ('vf2', CURRENT_TIMESTAMP, 'X 1.5', '[]', TRUE)"
+                )
+            )
+        migrate(engine, "0004")
+        assert current_revision(engine) == "0004"
+        columns = {c["name"] for c in inspect(engine).get_columns("status_samples")}
+        assert columns == {"id", "machine", "at", "state", "mode", "execution"}
+        indexes = sorted(i["column_names"] for i in inspect(engine).get_indexes("status_samples"))
+        assert indexes == [["at"], ["machine", "at"]]
+        migrate(engine, "0003")
+        assert current_revision(engine) == "0003"
+        assert "status_samples" not in inspect(engine).get_table_names()
+        with engine.connect() as conn:  # the rows of earlier tables are untouched
+            assert conn.execute(text("SELECT text FROM dprnt_lines")).scalars().all() == ["X 1.5"]
+        migrate(engine)
+        assert "status_samples" in inspect(engine).get_table_names()
+    finally:
+        engine.dispose()
+
+
+def test_changes_only_are_stored_and_a_new_timeline_reads_them_back(
+    sessions: sessionmaker[Session],
+) -> None:
+    tl = Timeline(sessions)
+    assert tl.note("m", _machine("READY"), T0)
+    assert not tl.note("m", _machine("READY"), T0 + timedelta(minutes=5))  # no change
+    assert tl.note("m", _machine("ACTIVE"), T0 + timedelta(hours=1))
+    assert tl.note("other", _machine("", online=False), T0 + timedelta(hours=1))
+    assert tl.flush() == 3
+    assert tl.flush() == 0
+    tl.stopped(T0 + timedelta(hours=2))  # the server stops ...
+    assert tl.flush() == 2
+    assert _rows(sessions) == [
+        ("m", T0, "ready", "AUTOMATIC", "READY"),
+        ("m", T0 + timedelta(hours=1), "active", "AUTOMATIC", "ACTIVE"),
+        ("other", T0 + timedelta(hours=1), "offline", "", ""),
+        ("m", T0 + timedelta(hours=2), "none", "", ""),
+        ("other", T0 + timedelta(hours=2), "none", "", ""),
+    ]
+
+    # ... and starts again: a new timeline on the same database.
+    again = Timeline(sessions)
+    assert again.note("m", _machine("READY", "MANUAL"), T0 + timedelta(hours=3))
+    # Not yet written: the page sees it anyway.
+    segments = again.segments("m", hours=4, width=400, now=T0 + timedelta(hours=4))
+    assert [(s.x, s.width, s.state) for s in segments] == [
+        (0.0, 100.0, "ready"),
+        (100.0, 100.0, "active"),
+        (200.0, 100.0, "none"),
+        (300.0, 100.0, "ready"),
+    ]
+    assert [s.label for s in segments] == [
+        "ready, automatic",
+        "active, automatic",
+        "no record (server stopped)",
+        "ready, manual",
+    ]
+    again.flush()
+    # A window that starts inside a stretch begins with the sample in force then.
+    late = again.segments("m", hours=1, width=100, now=T0 + timedelta(hours=1, minutes=30))
+    assert [(s.x, s.width, s.state) for s in late] == [(0.0, 50.0, "ready"), (50.0, 50.0, "active")]
+
+
+def test_samples_older_than_the_retention_are_pruned(sessions: sessionmaker[Session]) -> None:
+    now = T0 + timedelta(days=30)
+    tl = Timeline(sessions)  # the default: 7 days
+    tl.note("m", _machine("READY"), now - timedelta(days=8))
+    tl.note("m", _machine("ACTIVE"), now - timedelta(days=6, hours=23))
+    tl.note("m", _machine("READY"), now - timedelta(hours=1))
+    tl.flush()
+    assert tl.prune(now) == 1
+    assert [r[2] for r in _rows(sessions)] == ["active", "ready"]
+    assert Timeline(sessions, retention_days=0.5).prune(now) == 1
+    assert [r[2] for r in _rows(sessions)] == ["ready"]
+
+
+def test_the_recorder_writes_bus_changes_and_marks_the_stop(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    async def scenario() -> None:
+        bus = EventBus()
+        bus.bind(asyncio.get_running_loop())
+        tl = Timeline(sessions)
+        async with running(tl, bus):
+            bus.publish("machine", "m", _machine("READY"))
+            bus.publish("machine", "m", _machine("READY"))  # a poll that changed nothing
+            bus.publish("job", "1", {"machine": "m"})  # not a state
+            bus.publish("machine", "m", _machine("ACTIVE"))
+            deadline = time.monotonic() + 20
+            while len(await asyncio.to_thread(_rows, sessions)) < 2:
+                assert time.monotonic() < deadline, "the changes were never written"
+                await asyncio.sleep(0.05)
+        # Stopped: a "none" sample closes the record.
+        assert [r[2] for r in _rows(sessions)] == ["ready", "active", "none"]
+
+    asyncio.run(scenario())
+    with engine.connect() as conn:
+        assert conn.scalar(select(func.count()).select_from(StatusSample)) == 3
+
+
+def test_the_retention_is_configured_in_days(tmp_path: Path) -> None:
+    config = parse_config("[server]\ntimeline_retention_days = 2.5\n", base=tmp_path)
+    assert config.server.timeline_days == 2.5
+    assert parse_config("", base=tmp_path).server.timeline_days == 7.0
+    for bad in ("0", "-1", '"7"', "true"):
+        with pytest.raises(ConfigError) as caught:
+            parse_config(f"[server]\ntimeline_retention_days = {bad}\n", base=tmp_path)
+        assert caught.value.key == "server.timeline_retention_days"
+
+
+def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_url: str) -> None:
+    from opendnc.server.app import build
+    from opendnc.sim.fleet import server_config, start_fleet
+
+    async def scenario() -> list[str]:
+        fleet = await start_fleet(tmp_path / "machines", tnc=1, haas=0)
+        try:
+            text = server_config(fleet, poll_interval=0.3, library=tmp_path / "lib")
+            config = parse_config(text, base=tmp_path)
+            first = build(config, database=db_url)
+            async with first.app.router.lifespan_context(first.app):
+                deadline = time.monotonic() + 30
+                while "ready" not in [r[2] for r in await asyncio.to_thread(_rows, first.sessions)]:
+                    assert time.monotonic() < deadline, "the TNC's state was never written"
+                    await asyncio.sleep(0.1)
+            first.engine.dispose()
+            # A new server process would build anew: only the database carries the timeline.
+            second = build(config, database=db_url)
+            try:
+                timeline: Timeline = second.app.state.timeline
+                segments = await asyncio.to_thread(timeline.segments, "tnc-1", hours=1)
+            finally:
+                second.engine.dispose()
+            return [s.state for s in segments]
+        finally:
+            await fleet.close()
+
+    states = asyncio.run(scenario())
+    assert "ready" in states
+    assert states[-1] == "none"  # from the first server's stop until now
+
+
+def test_a_database_that_is_away_keeps_the_samples_for_the_next_flush(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    tl = Timeline(sessions)
+    tl.note("m", _machine("READY"), T0)
+    with engine.begin() as conn:  # the table is gone for a moment (a database being restored)
+        conn.execute(text("ALTER TABLE status_samples RENAME TO status_samples_away"))
+    try:
+        assert tl.flush() == 0
+        tl.note("m", _machine("ACTIVE"), T0 + timedelta(minutes=1))
+    finally:
+        with engine.begin() as conn:
+            conn.execute(text("ALTER TABLE status_samples_away RENAME TO status_samples"))
+    assert tl.flush() == 2
+    assert [r[2] for r in _rows(sessions)] == ["ready", "active"]  # in their order
