@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -223,6 +223,8 @@ class LinkStats:
     implicit_acks: int = 0
     garbage: int = 0
     failures: int = 0
+    line_errors: int = 0
+    """Characters the port marked as failing their parity or framing check."""
 
 
 class _S(enum.Enum):
@@ -317,13 +319,30 @@ class SerialLink:
         self._out.append(_Outgoing(None, b""))
         self._start_next(now)
 
-    def receive_data(self, data: bytes, now: float) -> None:
-        """Feed bytes read from the line."""
+    def receive_data(self, data: bytes, now: float, errors: Sequence[int] = ()) -> None:
+        """Feed bytes read from the line.
+
+        ``errors`` are indices into ``data`` of characters the port marked as failing their
+        parity or framing check (:class:`~opendnc.transport.marks.LineData`): such a character
+        spoils the block it belongs to (NAK), whatever its value, and outside a block it is
+        noise. Without marks two bad characters can cancel in the XOR block check
+        (docs/lsv2-serial.md, "Parity errors").
+        """
         if not data:
             return
         if self.on_bytes is not None:
             self.on_bytes("recv", data)
-        self._feed(bytes(data), now)
+        if not errors:
+            self._feed(bytes(data), now)
+            return
+        start = 0
+        for index in sorted(set(errors)):
+            if index > start:
+                self._feed(bytes(data[start:index]), now)
+            self._line_error(now)
+            start = index + 1
+        if start < len(data):
+            self._feed(bytes(data[start:]), now)
 
     def tick(self, now: float) -> None:
         """Handle an expired :attr:`deadline` (calling it early does nothing)."""
@@ -470,6 +489,18 @@ class SerialLink:
                 self._dle = True
             else:
                 self._token(b, now)
+
+    def _line_error(self, now: float) -> None:
+        """A character failed its parity or framing check: its value means nothing."""
+        self.stats.line_errors += 1
+        if self._state is _S.RECV_FRAME:
+            # Whatever it was (a body byte, the DLE of DLE ETX, the BCC), this block is not the
+            # one sent. Read on to its end as usual and refuse it there.
+            self._spoilt = True
+            self._feed(b"\x00", now)  # stands in for the character: it keeps a BCC position
+            return
+        self._dle = False
+        self._garbage(now)  # a handshake character nobody can read; after DLE 0: a block
 
     def _token(self, b: int, now: float) -> None:
         state = self._state

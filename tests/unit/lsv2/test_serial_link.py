@@ -288,3 +288,78 @@ def test_late_nak_gets_the_enq_again_once_per_try() -> None:
     assert pc.data_to_send() == b""  # once per try; LSV2TIME1 decides after that
     pc.receive_data(READY, 3.7)
     assert pc.data_to_send() == LOGIN
+
+
+# -- characters the port marked as failing their parity check (docs/lsv2-serial.md) ----------
+
+# A program line whose two '5' both fail the parity check: delivered as NUL (INPCK without
+# PARMRK), they cancel in the XOR block check.
+LINE = b"R_FL5 L X+5 R0\r\n"
+SPOILT = LINE.replace(b"5", b"\x00")
+
+
+def _control_after_enq() -> SerialLink:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY
+    return tnc
+
+
+def test_two_nuls_from_parity_errors_pass_the_bcc_unmarked() -> None:
+    """The hole the marks close: the altered block is accepted as good."""
+    sent = encode_serial_frame(Frame("S_FL", LINE))
+    seen = sent.replace(b"5", b"\x00")
+    assert seen[-1] == sent[-1]  # same BCC
+    tnc = _control_after_enq()
+    tnc.receive_data(seen, 0.01)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("S_FL", SPOILT))
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 1000])
+def test_marked_characters_spoil_their_block(chunk: int) -> None:
+    sent = encode_serial_frame(Frame("S_FL", LINE))
+    seen = sent.replace(b"5", b"\x00")
+    bad = [i for i, c in enumerate(sent) if c == ord("5")]
+    tnc = _control_after_enq()
+    for start in range(0, len(seen), chunk):
+        part = seen[start : start + chunk]
+        tnc.receive_data(part, 0.01, [i - start for i in bad if start <= i < start + chunk])
+    assert tnc.data_to_send() == NAK
+    assert tnc.next_event() is None
+    assert tnc.stats.line_errors == 2
+    # the sender repeats: a clean block is taken
+    tnc.receive_data(EOT + ENQ, 0.02)
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(sent, 0.03)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("S_FL", LINE))
+
+
+def test_marked_bcc_or_dle_of_dle_etx_spoils_the_block() -> None:
+    sent = encode_serial_frame(Frame("T_OK"))
+    tnc = _control_after_enq()
+    tnc.receive_data(sent, 0.01, [len(sent) - 1])  # the BCC, even with its right value
+    assert tnc.data_to_send() == NAK
+    tnc = _control_after_enq()
+    tnc.receive_data(sent, 0.01, [len(sent) - 3])  # the DLE of DLE ETX: no end seen
+    assert tnc.data_to_send() == b""
+    tnc.tick(0.01 + 3.0)  # LSV2TIME0
+    assert tnc.data_to_send() == NAK
+    assert tnc.next_event() is None
+
+
+def test_marked_handshake_character_is_noise() -> None:
+    """A marked DLE 1 is no acknowledgement, a marked ENQ no request."""
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("R_VR"), 0.0)
+    pc.data_to_send()
+    pc.receive_data(READY, 0.01)
+    pc.data_to_send()
+    pc.receive_data(RECEIVED, 0.02, [1])
+    assert pc.next_event() is None
+    pc.tick(0.02 + 3.0)  # no acknowledgement: EOT and the transmission again
+    assert pc.data_to_send() == EOT + ENQ
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0, [0])
+    assert tnc.data_to_send() == b""
