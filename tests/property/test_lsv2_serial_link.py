@@ -239,3 +239,70 @@ def test_random_bytes_never_raise(data: bytes, cuts: list[int]) -> None:
         link.data_to_send()
         while link.next_event() is not None:
             pass
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    requests=payloads,
+    lost=st.lists(st.booleans(), min_size=1, max_size=12),
+    doubled=st.lists(st.booleans(), min_size=1, max_size=12),
+)
+def test_doubled_enq_and_lost_ready_deliver_every_telegram_once(
+    requests: list[bytes], lost: list[bool], doubled: list[bool]
+) -> None:
+    """An ENQ repeated because its DLE 0 was lost, or doubled on the line: the receiver
+    answers every ENQ again and each telegram is taken exactly once, in order
+    (docs/lsv2-serial.md, "A doubled ENQ")."""
+    tagged = [i.to_bytes(2, "big") + r for i, r in enumerate(requests)]
+
+    def doubling(pattern: list[bool]) -> Fault:
+        # doubles handshake ENQs by the pattern, never a 0x05 inside a block
+        state = {"count": 0, "frame": False, "dle": False, "bcc": False}
+
+        def fault(b: int) -> list[int]:
+            if state["bcc"]:
+                state["bcc"] = state["frame"] = False
+                return [b]
+            if state["dle"]:
+                state["dle"] = False
+                if b == 0x02:
+                    state["frame"] = True
+                elif b == 0x03 and state["frame"]:
+                    state["bcc"] = True
+                return [b]
+            if b == 0x10:
+                state["dle"] = True
+                return [b]
+            if b != 0x05 or state["frame"]:
+                return [b]
+            state["count"] += 1
+            return [b, b] if pattern[state["count"] % len(pattern)] else [b]
+
+        return fault
+
+    def losing_ready(pattern: list[bool]) -> Fault:
+        # drops the '0' of DLE 0 by the pattern (the DLE alone is noise to the sender)
+        state = {"dle": False, "count": 0}
+
+        def fault(b: int) -> list[int]:
+            after_dle, state["dle"] = state["dle"], b == 0x10 and not state["dle"]
+            if after_dle and b == 0x30:
+                state["count"] += 1
+                if pattern[state["count"] % len(pattern)] and state["count"] % 3:
+                    return []
+            return [b]
+
+        return fault
+
+    out = exchange(
+        tagged,
+        up=doubling(doubled),
+        down=losing_ready(lost),
+        timing=TIMING,
+        retries=5,
+        answer_timeout=60.0,
+    )
+    assert out.failure is None, out.failure
+    assert out.served == tagged
+    assert out.answers == tagged
+    assert out.control.stats.failures == out.client.stats.failures == 0
