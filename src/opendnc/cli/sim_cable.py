@@ -57,8 +57,9 @@ def cable(
     parity_check: bool = typer.Option(
         False,
         "--parity-check",
-        help="Model the receiver's parity check (8E1, 7E1): a character with an odd number of "
-        "flipped bits arrives as NUL, as a Linux UART delivers it.",
+        help="Model the parity bit (8E1, 7E1): a character with an odd number of flipped bits "
+        "fails the check and arrives as the receiving port's settings ask: unchanged (no "
+        "INPCK), as NUL (INPCK), dropped (IGNPAR) or marked FF 00 c (PARMRK).",
     ),
 ) -> None:
     """Join two pseudo-terminals like a serial cable, at line speed, with optional faults.

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import reduce
 from operator import xor
@@ -160,9 +160,23 @@ class _Parser:
         # After text outside a block (a block whose SOH/STX was spoilt), skip to its ETB and
         # BCC: that BCC may have any value, ETX and EOT included, and must not end the file.
         self._skipping = False
+        # Offsets into _buf of characters the port marked as failing their parity check.
+        self._bad: list[int] = []
 
-    def feed(self, data: bytes) -> None:
+    def feed(self, data: bytes, errors: Sequence[int] = ()) -> None:
+        base = len(self._buf)
         self._buf += data
+        if errors:
+            self._bad.extend(base + i for i in errors)
+
+    def _drop(self, count: int) -> bool:
+        """Delete the first ``count`` bytes; True if a marked character was among them."""
+        del self._buf[:count]
+        if not self._bad:
+            return False
+        hit = any(i < count for i in self._bad)
+        self._bad = [i - count for i in self._bad if i >= count]
+        return hit
 
     def next(self) -> tuple[str, bytes, bool] | None:
         """``("header"|"block", content, bcc_ok)``, ``("char", b"\\x06", True)`` or None."""
@@ -176,32 +190,36 @@ class _Parser:
                     restart = max(buf.find(bytes([SOH]), 1), buf.find(bytes([STX]), 1))
                     if restart > 0:
                         self.garbage += restart
-                        del buf[:restart]
+                        self._drop(restart)
                         continue
                     return None
                 if end + 1 >= len(buf):
                     return None  # BCC still to come
                 content = bytes(buf[1 : end + 1])
                 check = buf[end + 1]
-                del buf[: end + 2]
+                marked = self._drop(end + 2)  # a marked character spoils the block
                 kind = "header" if first == SOH else "block"
-                return kind, content, block_check(content) == check
+                return kind, content, block_check(content) == check and not marked
             if self._skipping:
                 end = buf.find(bytes([ETB]))
                 starts = [i for i in (buf.find(bytes([SOH])), buf.find(bytes([STX]))) if i >= 0]
                 start = min(starts) if starts else -1
                 if start >= 0 and (end < 0 or start < end):
                     self.garbage += start
-                    del buf[:start]
+                    self._drop(start)
                     self._skipping = False
                     continue
                 if end < 0 or end + 1 >= len(buf):
                     return None  # wait for the ETB and the BCC after it
                 self.garbage += end + 2
-                del buf[: end + 2]
+                self._drop(end + 2)
                 self._skipping = False
                 continue
-            del buf[:1]
+            if self._drop(1):
+                # A character nobody can read. If it was a block's SOH/STX, the text after it
+                # starts the skipping below; if it was an ETX, the sender repeats it.
+                self.garbage += 1
+                continue
             if first in (ACK, NAK, DC1, DC3, ETX, EOT):
                 return "char", bytes([first]), True
             self.garbage += 1
@@ -230,9 +248,11 @@ class _Engine:
         """Oldest event not yet returned."""
         return self._events.popleft() if self._events else None
 
-    def receive_data(self, data: bytes, now: float) -> None:
-        """Feed bytes read from the line."""
-        self._parser.feed(data)
+    def receive_data(self, data: bytes, now: float, errors: Sequence[int] = ()) -> None:
+        """Feed bytes read from the line; ``errors`` are indices into ``data`` of characters
+        that failed their parity check (:class:`~opendnc.transport.marks.LineData`): the block
+        holding one is answered NAK whatever its BCC says."""
+        self._parser.feed(data, errors)
         while not self.done and (item := self._parser.next()) is not None:
             self._on(item, now)
 

@@ -19,6 +19,7 @@ from opendnc.heidenhain.blockwise import (
     split_lines,
 )
 from opendnc.transport.base import ByteStream
+from opendnc.transport.marks import LineData, line_reader
 
 __all__ = ["BlockLine", "open_block_line", "receive_file", "send_file"]
 
@@ -35,6 +36,9 @@ class BlockLine:
     bytesize: int = 7
     stopbits: float = 1
     flow: str = "none"
+    mark_errors: bool = True
+    """Have the port mark characters failing their parity check, so their block is refused
+    (POSIX devices; docs/lsv2-serial.md, "Parity errors")."""
 
 
 def open_block_line(line: BlockLine) -> ByteStream:
@@ -53,11 +57,13 @@ def open_block_line(line: BlockLine) -> ByteStream:
         stopbits=line.stopbits,
         # DC1/DC3 are the protocol's own flow control: never the port's
         flow="rtscts" if line.flow == "rtscts" else "none",
+        mark_errors=line.mark_errors,
     )
 
 
 def _pump(stream: ByteStream, engine: BlockSender | BlockReceiver, serve: bytes | None) -> object:
     stream.set_timeout(POLL)
+    read = line_reader(stream)
     while True:
         out = engine.data_to_send()
         if out:
@@ -73,11 +79,11 @@ def _pump(stream: ByteStream, engine: BlockSender | BlockReceiver, serve: bytes 
                 stream.write(out)
             return event
         try:
-            data = stream.read(4096)
+            got = read(4096)
         except TransportTimeout:
-            data = b""
+            got = LineData(b"")
         now = time.monotonic()
-        engine.receive_data(data, now)
+        engine.receive_data(got.data, now, got.errors)
         engine.tick(now)
 
 

@@ -37,8 +37,14 @@ Choices where the public sources are silent (each is a setting or documented her
   operation then times out).
 * **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
-  sent in between, is acknowledged but not delivered twice. LSV2 alternates requests and
-  answers, so two identical telegrams in a row from the same side never happen otherwise.
+  of ours framed in between, is acknowledged but not delivered twice. Answers can be alike
+  (``T_OK`` after every file block), so once ours went out an equal telegram is new; and a
+  receiver that yielded and then refused the peer's block (or saw none) waits LSV2TIME1 for
+  the peer to repeat it before repeating its own (docs/lsv2-serial.md, "Equal telegrams in a
+  row").
+* **Parity marks** — characters the port marked as failing their parity check
+  (:meth:`SerialLink.receive_data` ``errors``) spoil their block (docs/lsv2-serial.md,
+  "Parity errors").
 * **Garbage** — bytes that are not part of the handshake or a frame are counted and ignored,
   except right after our DLE '0': then they are a block whose DLE STX was lost, read to its end
   and refused with NAK, so that payload bytes are not taken for ENQ or EOT. DLE DLE outside a
@@ -54,7 +60,7 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -223,6 +229,8 @@ class LinkStats:
     implicit_acks: int = 0
     garbage: int = 0
     failures: int = 0
+    line_errors: int = 0
+    """Characters the port marked as failing their parity or framing check."""
 
 
 class _S(enum.Enum):
@@ -232,6 +240,7 @@ class _S(enum.Enum):
     RECV_START = "sent DLE 0, waiting for DLE STX"
     RECV_FRAME = "receiving a frame"
     RECV_END = "sent DLE 1 or NAK, waiting for EOT"
+    AWAIT_REPEAT = "refused the peer's block, waiting for it again before repeating ours"
 
 
 @dataclass(slots=True)
@@ -241,6 +250,7 @@ class _Outgoing:
     tries: int = 0
     framed: bool = False  # the frame went out at least once: the peer may hold it
     enq_again: bool = False  # this try's ENQ was repeated after a late NAK
+    prior_body: bytes | None = None  # the peer's last telegram when ours was first framed
     failures: list[HostStatus] = field(default_factory=list)
 
 
@@ -281,6 +291,9 @@ class SerialLink:
         # We yielded to the peer's ENQ while our framed telegram waited for its DLE 1 (or for
         # DLE 0 of a repeat): a new telegram from the peer in this receive phase acknowledges it.
         self._ack_by_answer: HostStatus | None = None
+        # This receive phase refused a block (NAK): the peer was sending a telegram.
+        self._phase_failed = False
+        self._await_status: HostStatus | None = None  # what AWAIT_REPEAT retries with
 
     # -- public API ----------------------------------------------------------------------------
 
@@ -317,13 +330,30 @@ class SerialLink:
         self._out.append(_Outgoing(None, b""))
         self._start_next(now)
 
-    def receive_data(self, data: bytes, now: float) -> None:
-        """Feed bytes read from the line."""
+    def receive_data(self, data: bytes, now: float, errors: Sequence[int] = ()) -> None:
+        """Feed bytes read from the line.
+
+        ``errors`` are indices into ``data`` of characters the port marked as failing their
+        parity or framing check (:class:`~opendnc.transport.marks.LineData`): such a character
+        spoils the block it belongs to (NAK), whatever its value, and outside a block it is
+        noise. Without marks two bad characters can cancel in the XOR block check
+        (docs/lsv2-serial.md, "Parity errors").
+        """
         if not data:
             return
         if self.on_bytes is not None:
             self.on_bytes("recv", data)
-        self._feed(bytes(data), now)
+        if not errors:
+            self._feed(bytes(data), now)
+            return
+        start = 0
+        for index in sorted(set(errors)):
+            if index > start:
+                self._feed(bytes(data[start:index]), now)
+            self._line_error(now)
+            start = index + 1
+        if start < len(data):
+            self._feed(bytes(data[start:]), now)
 
     def tick(self, now: float) -> None:
         """Handle an expired :attr:`deadline` (calling it early does nothing)."""
@@ -332,7 +362,13 @@ class SerialLink:
         self._deadline = None
         self.stats.timeouts += 1
         state = self._state
-        if state is _S.SEND_READY:
+        if state is _S.AWAIT_REPEAT:
+            # The peer did not come back with its block: repeat ours after all.
+            status = self._await_status or HostStatus.NO_QUITT
+            self._await_status = None
+            self._state = _S.IDLE
+            self._retry(now, status, eot=False)
+        elif state is _S.SEND_READY:
             self._retry(now, HostStatus.NO_ENQ, eot=False)
         elif state is _S.SEND_ACK:
             self._retry(now, HostStatus.NO_QUITT, eot=True)
@@ -343,6 +379,8 @@ class SerialLink:
         else:
             # RECV_START (LSV2TIME2 after DLE 0) and RECV_END (no EOT after DLE 1 / NAK): the
             # line is considered idle again.
+            if state is _S.RECV_START:
+                self._phase_failed = True  # its block may have been lost whole
             self._receive_ended(now)
 
     def data_to_send(self) -> bytes:
@@ -363,6 +401,9 @@ class SerialLink:
         """Give up everything queued and end any transmission of ours with EOT."""
         if self._state in (_S.SEND_READY, _S.SEND_ACK):
             self._tx += _EOT
+            self._state = _S.IDLE
+            self._deadline = None
+        elif self._state is _S.AWAIT_REPEAT:
             self._state = _S.IDLE
             self._deadline = None
         self._out.clear()
@@ -392,6 +433,9 @@ class SerialLink:
         if out.tries > self.retries:
             self._out.popleft()
             self.stats.failures += 1
+            if out.framed and self._last_body is None:
+                # The peer may never have had it: its next telegram may repeat its last one.
+                self._last_body = out.prior_body
             if not eot:
                 self._write(_EOT)  # release a peer that may still wait for our frame
             cls = (
@@ -420,6 +464,7 @@ class SerialLink:
         self._events.append(TelegramSent(out.frame, out.tries))
 
     def _nak(self, now: float) -> None:
+        self._phase_failed = True
         self.stats.naks_sent += 1
         self._write(_NAK)
         self._state = _S.RECV_END
@@ -440,11 +485,22 @@ class SerialLink:
         if status is not None and self._out:
             # We yielded to an "ENQ" that brought no telegram: ours was not confirmed.
             self._ack_by_answer = None
+            if self._phase_failed:
+                # The peer did send a block (we refused it): it holds our telegram, or this
+                # is its repeat of an older one. Give it LSV2TIME1 to send its block
+                # again rather than repeat ours at once: a repeat of ours reaching it while it
+                # waits for DLE 1 looks like a new answer whenever answers are alike (T_OK
+                # after T_OK; docs/lsv2-serial.md, "Equal telegrams in a row").
+                self._await_status = status
+                self._state = _S.AWAIT_REPEAT
+                self._deadline = now + self.timing.time1
+                return
             self._retry(now, status, eot=False)
             return
         self._start_next(now)
 
     def _ready(self, now: float) -> None:
+        self._phase_failed = False
         self._write(READY)
         self._state = _S.RECV_START
         self._deadline = now + self.timing.time2
@@ -471,9 +527,27 @@ class SerialLink:
             else:
                 self._token(b, now)
 
+    def _line_error(self, now: float) -> None:
+        """A character failed its parity or framing check: its value means nothing."""
+        self.stats.line_errors += 1
+        if self._state is _S.RECV_FRAME:
+            # Whatever it was (a body byte, the DLE of DLE ETX, the BCC), this block is not the
+            # one sent. Read on to its end as usual and refuse it there.
+            self._spoilt = True
+            self._feed(b"\x00", now)  # stands in for the character: it keeps a BCC position
+            return
+        self._dle = False
+        self._garbage(now)  # a handshake character nobody can read; after DLE 0: a block
+
     def _token(self, b: int, now: float) -> None:
         state = self._state
         if b == ENQ:
+            if state is _S.AWAIT_REPEAT:
+                # The peer repeats its block: a new telegram in it still confirms ours.
+                self._ack_by_answer = self._await_status
+                self._await_status = None
+                self._ready(now)
+                return
             if state is _S.SEND_READY:
                 if self.role is LinkRole.CLIENT:
                     # Collision: the PC yields, takes the control's telegram, then tries again.
@@ -542,7 +616,13 @@ class SerialLink:
                     self._write(_EOT)
                 return
             self._write(out.wire)
+            if not out.framed:
+                out.prior_body = self._last_body
             out.framed = True
+            # The peer may take this telegram and answer it with one equal to its last (T_OK
+            # after T_OK): that answer is new, though nothing confirmed ours yet (our DLE 1
+            # may be what got lost; docs/lsv2-serial.md, "Equal telegrams in a row").
+            self._last_body = None
             self._state = _S.SEND_ACK
             self._deadline = now + self.timing.time1
             return

@@ -41,6 +41,7 @@ from opendnc.lsv2.serial_link import (
 )
 from opendnc.transport.base import ByteStream
 from opendnc.transport.line import Handshake
+from opendnc.transport.marks import LineData, line_reader
 
 __all__ = [
     "BAUD_PROBE_ORDER",
@@ -59,6 +60,7 @@ BAUD_PROBE_ORDER: tuple[int, ...] = (57600, 115200, 38400, 19200, 9600, 4800, 24
 FLOW_CONTROLS = get_args(Handshake)  # what the port dispatcher takes
 POLL = 0.02
 """Seconds one read of the port waits before the engine's clock is looked at again."""
+_NOTHING = LineData(b"")
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,6 +79,9 @@ class SerialLine:
     retries: int = 3
     link_check: bool = True
     """Send the lone ENQ before the first telegram, as TNCremo does."""
+    mark_errors: bool = True
+    """Have the port mark characters that fail their parity or framing check, so that such a
+    character spoils its block (POSIX devices; docs/lsv2-serial.md, "Parity errors")."""
 
     def __post_init__(self) -> None:
         if self.flow not in FLOW_CONTROLS:
@@ -130,6 +135,7 @@ def open_line(line: SerialLine, baud: int | None = None) -> ByteStream:
         bytesize=line.bytesize,
         stopbits=line.stopbits,
         flow="rtscts" if line.flow == "rtscts" else "xonxoff" if line.flow == "xonxoff" else "none",
+        mark_errors=line.mark_errors,
     )
 
 
@@ -167,6 +173,7 @@ class _Pump:
         self.drop_before_first = True
         self.stale = 0
         stream.set_timeout(POLL)
+        self._read = line_reader(stream)
 
     def flush(self) -> None:
         out = self.link.data_to_send()
@@ -203,11 +210,11 @@ class _Pump:
             if link.deadline is None and idle_deadline is not None and now >= idle_deadline:
                 raise TransportTimeout("no answer from the control over the serial line")
             try:
-                data = self.stream.read(4096)
+                got = self._read(4096)
             except TransportTimeout:
-                data = b""
+                got = _NOTHING
             now = time.monotonic()
-            link.receive_data(data, now)
+            link.receive_data(got.data, now, got.errors)
             link.tick(now)
 
 

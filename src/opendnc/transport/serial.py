@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from opendnc.errors import InputError, PeerClosed, TransportError, TransportTimeout
 from opendnc.transport.line import Handshake, check_line
+from opendnc.transport.marks import LineData, MarkDecoder, enable_marks
 
 if TYPE_CHECKING:
     import serial
@@ -99,7 +100,9 @@ class SerialStream:
 
     ``flow`` is the port's own handshake (``"rtscts"``, ``"xonxoff"``; see :data:`Handshake`).
     ``write_timeout`` bounds a write the line holds back (CTS low, XOFF): ``None`` waits
-    forever.
+    forever. ``mark_errors`` asks the port to mark characters that failed their parity or
+    framing check (:mod:`opendnc.transport.marks`; POSIX devices only): :meth:`read_marked`
+    then reports where they are, and :meth:`read` hands them over as NUL.
     """
 
     def __init__(
@@ -113,6 +116,7 @@ class SerialStream:
         flow: Handshake = "none",
         timeout: float | None = 1.0,
         write_timeout: float | None = None,
+        mark_errors: bool = False,
     ) -> None:
         check_line(parity, bytesize, stopbits, flow)
         self.url = url
@@ -131,8 +135,38 @@ class SerialStream:
 
         self._errors = serial.SerialException
         self._write_timeout = serial.SerialTimeoutException
+        self._marks: MarkDecoder | None = None
+        if mark_errors and enable_marks(self.port):
+            self._marks = MarkDecoder()
+
+    @property
+    def marks_errors(self) -> bool:
+        """True when the port marks characters that failed their parity or framing check."""
+        return self._marks is not None
+
+    def read_marked(self, max_bytes: int) -> LineData:
+        """Like :meth:`read`, with the positions of characters that arrived with an error.
+
+        On a marking port a call may return no bytes at all (only the start of a mark came);
+        on any other port ``errors`` is always empty."""
+        raw = self._read_raw(max_bytes)
+        return LineData(raw) if self._marks is None else self._marks.decode(raw)
 
     def read(self, max_bytes: int) -> bytes:
+        if self._marks is None:
+            return self._read_raw(max_bytes)
+        while True:
+            got = self._marks.decode(self._read_raw(max_bytes))
+            if got.data:
+                break
+        if not got.errors:
+            return got.data
+        data = bytearray(got.data)
+        for i in got.errors:
+            data[i] = 0  # what a port without marking hands over (INPCK alone)
+        return bytes(data)
+
+    def _read_raw(self, max_bytes: int) -> bytes:
         try:
             first = self.port.read(1)
             if not first:
@@ -152,7 +186,8 @@ class SerialStream:
             waiting = int(getattr(self.port, "in_waiting", 0))
             if not waiting:
                 return b""
-            return bytes(self.port.read(min(waiting, max_bytes)))
+            raw = bytes(self.port.read(min(waiting, max_bytes)))
+            return raw if self._marks is None else self._marks.decode(raw).data
         except self._errors as exc:
             raise PeerClosed(f"{self.url}: {exc}") from exc
         except OSError as exc:

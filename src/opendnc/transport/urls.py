@@ -79,8 +79,12 @@ def open_stream(
     flow: Handshake = "none",
     timeout: float | None = 1.0,
     write_timeout: float | None = None,
+    mark_errors: bool = False,
 ) -> PortStream:
-    """Open ``url`` (a device or one of :data:`SCHEMES`) as a stream; see the module doc."""
+    """Open ``url`` (a device or one of :data:`SCHEMES`) as a stream; see the module doc.
+
+    ``mark_errors`` makes a POSIX serial device mark characters that failed their parity or
+    framing check (:mod:`opendnc.transport.marks`); elsewhere it changes nothing."""
     check_line(parity, bytesize, stopbits, flow)
     scheme, sep, rest = url.partition("://")
     if sep:
@@ -110,4 +114,5 @@ def open_stream(
         flow=flow,
         timeout=timeout,
         write_timeout=write_timeout,
+        mark_errors=mark_errors,
     )

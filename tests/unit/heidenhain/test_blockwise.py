@@ -145,3 +145,25 @@ def test_sender_event_and_control_characters_in_lines_refused() -> None:
     assert sender.data_to_send() == bytes([ETX])
     sender.receive_data(bytes([EOT]), 0.0)
     assert sender.next_event() == FileSent("A.H", 0, 0)
+
+
+@pytest.mark.parametrize("where", [1, 4, -2, -1])  # first text byte, middle, ETB, BCC
+def test_marked_character_spoils_its_block_whatever_its_value(where: int) -> None:
+    """A character the port marked as failing parity (here with its right value, as two
+    errors that cancel would leave it) is refused like a bad block check."""
+    receiver = BlockReceiver()
+    receiver.start(0.0)
+    receiver.receive_data(encode_header(b"H", "A.H"), 0.0)
+    assert receiver.data_to_send() == bytes([ACK])
+    good = encode_block(b"1 L X+1")
+    receiver.receive_data(good, 0.1, [where % len(good)])
+    assert receiver.data_to_send() == bytes([NAK])
+    receiver.receive_data(good[:3], 0.2)  # a clean repeat, split with a mark after it
+    receiver.receive_data(good[3:] + bytes([ETX]), 0.2, [len(good) - 3])
+    assert receiver.data_to_send() == bytes([ACK])  # the marked ETX is noise, not the end
+    assert receiver.next_event() is None
+    receiver.receive_data(bytes([ETX]), 0.3)
+    assert receiver.data_to_send() == bytes([EOT])
+    event = receiver.next_event()
+    assert isinstance(event, FileReceived)
+    assert event.lines == [b"1 L X+1"]

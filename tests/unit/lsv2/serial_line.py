@@ -23,6 +23,8 @@ from opendnc.lsv2.serial_link import (
 
 CHAR_TIME = 11 / 57600  # one 8E1 character at 57600 baud
 Fault = Callable[[int], list[int]]  # one character in, what arrives out
+MARKED = 0x100
+"""Added to a character a fault delivers: the port marked it as failing its parity check."""
 
 
 def clean(b: int) -> list[int]:
@@ -136,7 +138,8 @@ def exchange(
             break
         while queue and queue[0][0] <= now:
             _, _, lane_name, b = heapq.heappop(queue)
-            (control if lane_name == "up" else client).receive_data(bytes([b]), now)
+            errors = (0,) if b & MARKED else ()
+            (control if lane_name == "up" else client).receive_data(bytes([b & 0xFF]), now, errors)
         client.tick(now)
         control.tick(now)
     return Outcome(

@@ -228,11 +228,16 @@ def test_enq_instead_of_dle1_then_no_telegram_repeats_ours() -> None:
     assert pc.data_to_send() == READY  # yields, in case the control moved on
     assert pc.next_event() is None
     pc.tick(pc.deadline or 0.0)  # LSV2TIME2: no DLE STX came
+    # A whole block may have been lost: give the control LSV2TIME1 to send it again before
+    # repeating ours (docs/lsv2-serial.md, "Equal telegrams in a row").
+    assert pc.data_to_send() == b""
+    assert pc.deadline == pytest.approx(0.1 + 1.0 + 3.0)
+    pc.tick(pc.deadline or 0.0)
     assert pc.data_to_send() == ENQ  # the same telegram, second try
     assert pc.next_event() is None
-    pc.receive_data(READY, 1.2)
+    pc.receive_data(READY, 4.2)
     assert pc.data_to_send() == LOGIN
-    pc.receive_data(RECEIVED, 1.3)
+    pc.receive_data(RECEIVED, 4.3)
     assert pc.data_to_send() == EOT
     assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 2)
 
@@ -288,3 +293,168 @@ def test_late_nak_gets_the_enq_again_once_per_try() -> None:
     assert pc.data_to_send() == b""  # once per try; LSV2TIME1 decides after that
     pc.receive_data(READY, 3.7)
     assert pc.data_to_send() == LOGIN
+
+
+# -- characters the port marked as failing their parity check (docs/lsv2-serial.md) ----------
+
+# A program line whose two '5' both fail the parity check: delivered as NUL (INPCK without
+# PARMRK), they cancel in the XOR block check.
+LINE = b"R_FL5 L X+5 R0\r\n"
+SPOILT = LINE.replace(b"5", b"\x00")
+
+
+def _control_after_enq() -> SerialLink:
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY
+    return tnc
+
+
+def test_two_nuls_from_parity_errors_pass_the_bcc_unmarked() -> None:
+    """The hole the marks close: the altered block is accepted as good."""
+    sent = encode_serial_frame(Frame("S_FL", LINE))
+    seen = sent.replace(b"5", b"\x00")
+    assert seen[-1] == sent[-1]  # same BCC
+    tnc = _control_after_enq()
+    tnc.receive_data(seen, 0.01)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("S_FL", SPOILT))
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 1000])
+def test_marked_characters_spoil_their_block(chunk: int) -> None:
+    sent = encode_serial_frame(Frame("S_FL", LINE))
+    seen = sent.replace(b"5", b"\x00")
+    bad = [i for i, c in enumerate(sent) if c == ord("5")]
+    tnc = _control_after_enq()
+    for start in range(0, len(seen), chunk):
+        part = seen[start : start + chunk]
+        tnc.receive_data(part, 0.01, [i - start for i in bad if start <= i < start + chunk])
+    assert tnc.data_to_send() == NAK
+    assert tnc.next_event() is None
+    assert tnc.stats.line_errors == 2
+    # the sender repeats: a clean block is taken
+    tnc.receive_data(EOT + ENQ, 0.02)
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(sent, 0.03)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramReceived(Frame("S_FL", LINE))
+
+
+def test_marked_bcc_or_dle_of_dle_etx_spoils_the_block() -> None:
+    sent = encode_serial_frame(Frame("T_OK"))
+    tnc = _control_after_enq()
+    tnc.receive_data(sent, 0.01, [len(sent) - 1])  # the BCC, even with its right value
+    assert tnc.data_to_send() == NAK
+    tnc = _control_after_enq()
+    tnc.receive_data(sent, 0.01, [len(sent) - 3])  # the DLE of DLE ETX: no end seen
+    assert tnc.data_to_send() == b""
+    tnc.tick(0.01 + 3.0)  # LSV2TIME0
+    assert tnc.data_to_send() == NAK
+    assert tnc.next_event() is None
+
+
+def test_marked_handshake_character_is_noise() -> None:
+    """A marked DLE 1 is no acknowledgement, a marked ENQ no request."""
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("R_VR"), 0.0)
+    pc.data_to_send()
+    pc.receive_data(READY, 0.01)
+    pc.data_to_send()
+    pc.receive_data(RECEIVED, 0.02, [1])
+    assert pc.next_event() is None
+    pc.tick(0.02 + 3.0)  # no acknowledgement: EOT and the transmission again
+    assert pc.data_to_send() == EOT + ENQ
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0, [0])
+    assert tnc.data_to_send() == b""
+
+
+# -- equal telegrams in a row (docs/lsv2-serial.md) ------------------------------------------
+
+S_FL1 = encode_serial_frame(Frame("S_FL", b"1 L X+1\x00"))
+S_FL2 = encode_serial_frame(Frame("S_FL", b"2 L X+2\x00"))
+
+
+def test_lost_dle1_then_an_answer_equal_to_the_last_one_confirms_the_block() -> None:
+    """Download: the client's DLE 1 for block 2 is lost and it answers T_OK, like it answered
+    block 1. That T_OK is new (the control framed block 2 since): block 2 is confirmed, not
+    sent again and taken twice."""
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    tnc.data_to_send()
+    tnc.receive_data(T_OK, 0.01)  # the answer to block 1
+    assert tnc.data_to_send() == RECEIVED
+    tnc.receive_data(EOT, 0.02)
+    assert tnc.next_event() == TelegramReceived(Frame("T_OK"))
+    tnc.send(Frame("S_FL", b"2 L X+2\x00"), 0.03)
+    assert tnc.data_to_send() == ENQ
+    tnc.receive_data(READY, 0.04)
+    assert tnc.data_to_send() == S_FL2
+    # the client's DLE 1 never arrives; after its LSV2TIME2 it sends its answer: ENQ, T_OK
+    tnc.receive_data(ENQ, 1.1)
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(T_OK, 1.2)
+    assert tnc.data_to_send() == RECEIVED
+    assert tnc.next_event() == TelegramSent(Frame("S_FL", b"2 L X+2\x00"), 1)
+    assert tnc.next_event() == TelegramReceived(Frame("T_OK"))  # passed on: a new answer
+    assert tnc.stats.implicit_acks == 1
+    tnc.receive_data(EOT, 1.3)
+    assert tnc.idle
+
+
+def test_block_refused_after_yielding_waits_for_the_peer_before_repeating_ours() -> None:
+    """We yielded with our T_OK unconfirmed and refused the control's block: the control
+    repeats its block after LSV2TIME1; our T_OK is repeated only if it does not."""
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("T_OK"), 0.0)
+    pc.data_to_send()
+    pc.receive_data(READY, 0.01)
+    assert pc.data_to_send() == T_OK
+    pc.receive_data(ENQ, 0.02)  # DLE 1 lost, the control moved on (or a spoilt NAK)
+    assert pc.data_to_send() == READY
+    pc.receive_data(S_FL1[:-1] + b"\x00", 0.03)  # its block, spoilt
+    assert pc.data_to_send() == NAK
+    pc.receive_data(EOT, 0.5)
+    assert pc.data_to_send() == b""  # no ENQ of ours: the control's block comes first
+    pc.receive_data(ENQ, 0.6)
+    assert pc.data_to_send() == READY
+    pc.receive_data(S_FL1, 0.7)
+    assert pc.data_to_send() == RECEIVED
+    assert pc.next_event() == TelegramSent(Frame("T_OK"), 1)  # confirmed by the new block
+    assert pc.next_event() == TelegramReceived(Frame("S_FL", b"1 L X+1\x00"))
+
+
+# -- a doubled ENQ (docs/lsv2-serial.md, "A doubled ENQ") -------------------------------------
+
+
+def test_doubled_enq_is_answered_again_without_desynchronising() -> None:
+    """The client's DLE 0 answer got lost, so it repeats ENQ: the control answers again and
+    takes the block once."""
+    tnc = SerialLink(LinkRole.CONTROL)
+    tnc.receive_data(ENQ, 0.0)
+    assert tnc.data_to_send() == READY  # lost on the way
+    tnc.tick(1.0)  # LSV2TIME2: no block came, the line is idle again
+    assert tnc.data_to_send() == b""
+    tnc.receive_data(ENQ, 3.0)  # the client's LSV2TIME1 ran out: ENQ again
+    assert tnc.data_to_send() == READY
+    tnc.receive_data(LOGIN, 3.1)
+    assert tnc.data_to_send() == RECEIVED
+    tnc.receive_data(EOT, 3.2)
+    assert tnc.next_event() == TelegramReceived(Frame("A_LG", b"INSPECT\x00"))
+    assert tnc.next_event() is None
+
+
+def test_doubled_enq_whose_first_answer_arrives_late_frames_once() -> None:
+    """Both DLE 0 reach the client (the first one late): the block goes out once, the second
+    DLE 0 is noise while the client waits for DLE 1."""
+    pc = SerialLink(LinkRole.CLIENT)
+    pc.send(Frame("A_LG", b"INSPECT\x00"), 0.0)
+    pc.data_to_send()
+    pc.tick(3.0)
+    assert pc.data_to_send() == ENQ  # second try, no EOT: the block was never sent
+    pc.receive_data(READY + READY, 3.01)
+    assert pc.data_to_send() == LOGIN  # once
+    pc.receive_data(RECEIVED, 3.1)
+    assert pc.data_to_send() == EOT
+    assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 2)

@@ -44,6 +44,8 @@ import contextlib
 import errno
 import os
 import select
+import sys
+import termios
 import threading
 import time
 from collections import deque
@@ -53,13 +55,15 @@ from types import TracebackType
 
 from opendnc.errors import InputError, TransportError
 from opendnc.sim.cable.monitor import LineMonitor
-from opendnc.sim.cable.noise import LineNoise
+from opendnc.sim.cable.noise import LineNoise, UartInput, uart_input
 from opendnc.transport.pty import open_pty
 
 READ_CHUNK = 4096
 LANE_CAPACITY = 4096  # bytes a lane holds before it stops reading: the UART's FIFO + tx buffer
 BATCH_SECONDS = 0.001  # bytes due within this window go out in one write (fewer wake-ups)
 HANGUP_RECHECK = 0.005  # how often a side without an open slave is looked at again
+# termios lacks the constant; the value is the kernels' own (Linux, and the BSDs / macOS)
+_EXTPROC: int = getattr(termios, "EXTPROC", 0o200000 if sys.platform.startswith("linux") else 0x800)
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +76,7 @@ class LaneStats:
     dropped: int = 0  # bytes the line lost (the drop rate)
     bit_flips: int = 0  # flipped bits in delivered bytes
     unheard: int = 0  # bytes that arrived while the far side had no slave open
+    parity_failed: int = 0  # delivered characters that failed the parity check (parity_check)
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,6 +101,11 @@ class CableStats:
         """Dropped bytes in both directions."""
         return self.a_to_b.dropped + self.b_to_a.dropped
 
+    @property
+    def parity_failed(self) -> int:
+        """Characters that failed the parity check, both directions."""
+        return self.a_to_b.parity_failed + self.b_to_a.parity_failed
+
 
 class _Side:
     """One pty of the cable: the master we pump, and whether a user has its slave open."""
@@ -111,6 +121,7 @@ class _Side:
         os.set_blocking(self.fd, False)
         self.open = False  # a user holds the slave
         self.checked_at = 0.0
+        self.extproc = False  # we set EXTPROC on the slave (see uart_input)
 
     def refresh(self, now: float) -> bool:
         """Look whether the slave is open now (the hang-up condition is level-triggered).
@@ -125,6 +136,37 @@ class _Side:
         self.open = not revents & select.POLLHUP
         self.checked_at = now
         return bool(revents & select.POLLIN)
+
+    def uart_input(self) -> UartInput:
+        """How the user of this side asked for characters failing parity (its termios).
+
+        A pty master reads and writes the slave's settings. For marking the cable must write
+        ``FF 00 c`` itself, but the slave's line discipline would double that FF (PARMRK
+        escapes every FF it is given): EXTPROC makes it pass input unprocessed, so the cable
+        sets it while the user asks for marks, and does the FF doubling itself.
+        """
+        try:
+            attrs = termios.tcgetattr(self.fd)
+        except termios.error:
+            return UartInput.RAW
+        iflag, lflag = attrs[0], attrs[3]
+        if not iflag & termios.INPCK:
+            mode = UartInput.RAW
+        elif iflag & termios.IGNPAR:
+            mode = UartInput.DROP
+        elif iflag & termios.PARMRK and _EXTPROC and not iflag & termios.IXON:
+            mode = UartInput.MARK
+        else:
+            # INPCK alone; or PARMRK with IXON, which EXTPROC would switch off: the line
+            # discipline doubles FF, and a bad character can only arrive as NUL.
+            mode = UartInput.NUL
+        want = mode is UartInput.MARK
+        if want != bool(lflag & _EXTPROC) and (want or self.extproc):
+            attrs[3] = lflag | _EXTPROC if want else lflag & ~_EXTPROC
+            with contextlib.suppress(termios.error):
+                termios.tcsetattr(self.fd, termios.TCSANOW, attrs)
+                self.extproc = want
+        return mode
 
 
 class _Lane:
@@ -185,7 +227,12 @@ class _Lane:
         self.stats.bit_flips += result.bit_flips
         if self.monitor is not None and result.data:
             self.monitor.record(self.direction, now, result.data)
-        self.outbuf += result.data
+        if self.noise.parity_check:
+            self.stats.parity_failed += len(result.parity_errors)
+            mode = self.dst.uart_input()
+            self.outbuf += uart_input(result.data, result.parity_errors, mode)
+        else:
+            self.outbuf += result.data
 
     def flush(self, now: float) -> None:
         """Write ``outbuf`` to the destination, or lose it if nobody listens there."""
@@ -222,6 +269,7 @@ class _Counters:
     dropped: int = 0
     bit_flips: int = 0
     unheard: int = 0
+    parity_failed: int = 0
 
     def snapshot(self) -> LaneStats:
         return LaneStats(
@@ -231,6 +279,7 @@ class _Counters:
             self.dropped,
             self.bit_flips,
             self.unheard,
+            self.parity_failed,
         )
 
 
@@ -242,8 +291,9 @@ class VirtualCable:
     reproducible (each direction gets its own stream of faults derived from it). ``link_a`` and
     ``link_b`` create symlinks to the two devices, removed again by :meth:`close`.
     ``monitor`` names a file that gets a timestamped line for every delivery in either
-    direction (:mod:`opendnc.sim.cable.monitor`). ``parity_check`` models the receiving
-    UART's parity check (:attr:`LineNoise.parity_check`: a character failing it reads as NUL).
+    direction (:mod:`opendnc.sim.cable.monitor`). ``parity_check`` models the parity bit: a
+    character failing the check reaches the far side as that side's port settings ask for
+    (:func:`~opendnc.sim.cable.noise.uart_input`: as read, NUL, dropped, or marked ``FF 00 c``).
     Use it as a context manager, or call :meth:`start` and :meth:`close`.
     """
 

@@ -15,12 +15,20 @@ Model:
 
 Rare events are placed by drawing the gap to the next one from a geometric distribution, so the
 cost is per fault, not per bit.
+
+With ``parity_check`` the line also carries a parity bit: a character with an odd number of
+flipped data bits fails the receiving UART's check (:attr:`NoiseResult.parity_errors`), and
+:func:`uart_input` hands it over the way the receiver's port settings ask for
+(docs/lsv2-serial.md, "Parity errors"): unchanged, as NUL, dropped, or marked ``FF 00 c``.
 """
 
 from __future__ import annotations
 
+import bisect
+import enum
 import math
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from opendnc.errors import InputError
@@ -36,6 +44,44 @@ class NoiseResult:
     corrupted: int  # delivered bytes with at least one flipped bit
     dropped: int  # bytes lost on the way
     bit_flips: int  # flipped bits in delivered bytes
+    parity_errors: tuple[int, ...] = ()  # indices into data failing the parity check
+
+
+class UartInput(enum.Enum):
+    """What a POSIX port hands over for a character that failed its parity check (termios)."""
+
+    RAW = "raw"  # INPCK off: the character as read, nobody looked at the parity bit
+    NUL = "nul"  # INPCK: a NUL instead
+    DROP = "drop"  # INPCK and IGNPAR: nothing
+    MARK = "mark"  # INPCK and PARMRK: FF 00 c, and every good FF doubled
+
+
+def uart_input(data: bytes, parity_errors: Sequence[int], mode: UartInput) -> bytes:
+    """The bytes a reader gets for ``data`` whose characters at ``parity_errors`` failed."""
+    if mode is UartInput.MARK:
+        bad = set(parity_errors)
+        if not bad:
+            return data.replace(b"\xff", b"\xff\xff")
+        out = bytearray()
+        for i, c in enumerate(data):
+            if i in bad:
+                out += b"\xff\x00"
+                out.append(c)
+            elif c == 0xFF:
+                out += b"\xff\xff"
+            else:
+                out.append(c)
+        return bytes(out)
+    if not parity_errors or mode is UartInput.RAW:
+        return data
+    buf = bytearray(data)
+    if mode is UartInput.NUL:
+        for i in parity_errors:
+            buf[i] = 0
+        return bytes(buf)
+    for i in sorted(parity_errors, reverse=True):
+        del buf[i]
+    return bytes(buf)
 
 
 class _EventStream:
@@ -90,9 +136,10 @@ class LineNoise:
         self.ber = ber
         self.drop_rate = drop_rate
         self.parity_check = parity_check
-        """Model the receiving UART's parity check: a character with an odd number of flipped
-        data bits fails it and is read as NUL, as Linux delivers it with INPCK and neither
-        IGNPAR nor PARMRK. An even number of flips passes unnoticed, as on a real line."""
+        """Model the parity bit: a character with an odd number of flipped data bits fails the
+        receiving UART's check and is listed in :attr:`NoiseResult.parity_errors` (what the
+        reader then gets is :func:`uart_input`'s business). An even number of flips passes
+        unnoticed, as on a real line."""
         base = random.SystemRandom().getrandbits(64) if seed is None else seed
         # separate generators: flips and drops stay independent of each other's draws
         self._flips = _EventStream(ber, random.Random(f"{base}:bits"))
@@ -126,10 +173,19 @@ class LineNoise:
             drops.advance()
         for index in dropped:
             flipped.pop(index, None)
+        bad: list[int] = []
         if self.parity_check:
-            for index, count in flipped.items():
+            gone = sorted(dropped)
+            for index, count in sorted(flipped.items()):
                 if count % 2:
-                    buf[index] = 0
+                    # its position once the dropped characters before it are gone
+                    bad.append(index - _count_below(gone, index))
         for index in reversed(dropped):
             del buf[index]
-        return NoiseResult(bytes(buf), len(flipped), len(dropped), sum(flipped.values()))
+        return NoiseResult(
+            bytes(buf), len(flipped), len(dropped), sum(flipped.values()), tuple(bad)
+        )
+
+
+def _count_below(sorted_values: list[int], limit: int) -> int:
+    return bisect.bisect_left(sorted_values, limit)

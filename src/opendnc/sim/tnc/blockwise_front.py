@@ -8,7 +8,7 @@ not at all (written beside the target, renamed when the ETX arrived).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from opendnc.atomicfile import atomic_write
@@ -61,9 +61,16 @@ class BlockwiseService:
         self._tx.clear()
         return data
 
-    def receive_data(self, data: bytes, now: float) -> None:
-        """Feed bytes read from the line."""
+    def receive_data(self, data: bytes, now: float, errors: Sequence[int] = ()) -> None:
+        """Feed bytes read from the line (``errors``: characters that failed parity)."""
         if self._engine is None:
+            if errors:
+                # Before a transfer starts only the header matters, and a header with a NUL
+                # in it is refused; the engine gets exact positions once it runs.
+                spoilt = bytearray(data)
+                for i in errors:
+                    spoilt[i] = 0
+                data, errors = bytes(spoilt), ()
             self._pending += data
             start = self._pending.find(bytes([SOH]))
             if start < 0 or len(self._pending) < start + 2:
@@ -80,7 +87,7 @@ class BlockwiseService:
             else:
                 return
             self._engine.start(now)
-        self._engine.receive_data(data, now)
+        self._engine.receive_data(data, now, errors)
         self._events(now)
 
     def tick(self, now: float) -> None:

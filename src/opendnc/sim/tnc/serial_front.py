@@ -37,6 +37,7 @@ from opendnc.lsv2.serial_link import (
 from opendnc.lsv2.serial_stream import line_parity
 from opendnc.sim.tnc.blockwise_front import BlockwiseService
 from opendnc.sim.tnc.server import TncHandle, TncServer, _LinkProtocol
+from opendnc.transport.marks import MarkDecoder, enable_marks
 from opendnc.transport.pty import PtyPair, open_pty
 
 __all__ = ["SerialFront"]
@@ -90,6 +91,7 @@ class SerialFront:
         retries: int = 3,
         trace_link: Callable[[str], None] | None = None,
         mode: str = "lsv2",
+        mark_errors: bool = True,
     ) -> None:
         self.server = server
         self.requested = path
@@ -108,6 +110,10 @@ class SerialFront:
             self.blockwise = BlockwiseService(
                 server.control.root / "TNC", note=trace_link, settings=BlockwiseSettings()
             )
+        self.mark_errors = mark_errors
+        """Have the device mark characters failing their parity check (docs/lsv2-serial.md,
+        "Parity errors"), as a control's UART reports them; no effect on an own pty."""
+        self._marks: MarkDecoder | None = None
         self._framer = TelegramFramer()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._fd = -1
@@ -142,6 +148,8 @@ class SerialFront:
                 timeout=0,
             )
             self._fd = self._port.fileno()
+            if self.mark_errors and enable_marks(self._port):
+                self._marks = MarkDecoder()
         os.set_blocking(self._fd, False)
         loop.add_reader(self._fd, self._readable)
         self._new_session()
@@ -208,14 +216,20 @@ class SerialFront:
             data = b""
         if not data:
             return
+        errors: tuple[int, ...] = ()
+        if self._marks is not None:
+            got = self._marks.decode(data)
+            data, errors = got.data, got.errors
+            if errors and self.trace_link is not None:
+                self.trace_link(f"{self.path} <- {len(errors)} character(s) failed parity")
         loop = self._loop
         assert loop is not None
         if self.blockwise is not None:
             if self.trace_link is not None:
                 self.trace_link(f"{self.path} <- {describe_link_bytes(data)}")
-            self.blockwise.receive_data(data, loop.time())
+            self.blockwise.receive_data(data, loop.time(), errors)
         else:
-            self.link.receive_data(data, loop.time())
+            self.link.receive_data(data, loop.time(), errors)
         self._pump()
 
     def _tick(self) -> None:
