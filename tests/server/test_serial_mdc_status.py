@@ -52,7 +52,9 @@ def test_status_by_mdc_on_the_serial_port_and_a_punch_still_arrives(
             lambda: (s := _status(client, key)).get("program") == "O04321" and s,
             describe=lambda: (_status(client, key), procs.log("server")),
         )
-        assert (status["part_count"], status["mode"], status["execution"]) == (12, "MDI", "READY")
+        assert (status["part_count"], status["execution"]) == (12, "READY")
+        # Q104's MDI (the control's word, kept) in MTConnect's CONTROLLER_MODE words
+        assert (status["mode"], status["native_mode"]) == ("MANUAL_DATA_INPUT", "MDI")
         assert status["available"] is True
         set_state("O01234", 13)  # the operator ran the next part
         wait_for(

@@ -134,12 +134,16 @@ def _machine_page(shop: Shop, user: str, viewport: tuple[int, int] = (1280, 800)
     page = shop.login(user, viewport)
     page.goto(f"{shop.url}/machines/{MACHINE}")
     # MDC on the cable answers (a mode, not "—"): the port is open and the connector listens
-    sync_api.expect(page.locator(f"#card-{MACHINE} .mode")).to_have_text(re.compile("^[a-z]+$"))
+    sync_api.expect(page.locator(f"#card-{MACHINE} .mode")).to_have_text(re.compile("^[a-z ]+$"))
     return page
 
 
 def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
     page = _machine_page(clean, "admin")
+    # The virtual Haas starts in MDI: MTConnect's words, and the control's own beside them.
+    card = page.locator(f"#card-{MACHINE}")
+    sync_api.expect(card.locator(".mode")).to_have_text("manual data input")
+    sync_api.expect(card.locator(".native-mode")).to_have_text("MDI")
     console = page.get_by_role("log", name=re.compile("DPRNT console"))
     empty = console.get_by_text("Nothing printed yet")
     sync_api.expect(empty).to_be_visible()

@@ -168,6 +168,7 @@ class Card:
     state: str  # one of STATES
     online: bool
     mode: str
+    native_mode: str  # the control's own word beside the MTConnect one (a Haas's MEM)
     execution: str
     program: str
     line: int
@@ -212,6 +213,7 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         state=state,
         online=online,
         mode=_words(status.get("mode", "")) if online else "",
+        native_mode=str(status.get("native_mode") or "") if online else "",
         execution=_words(execution),
         program=status.get("program", "") if online else "",
         line=int(status.get("line") or 0) if online else 0,
