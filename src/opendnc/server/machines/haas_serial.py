@@ -126,8 +126,17 @@ class HaasSerialConnector:
     async def status(self) -> MachineStatus:
         """Available while the port opens; with ``mdc`` also program, mode and parts."""
         client = self._mdc
-        if client is None or time.monotonic() < self._quiet_until:
+        if client is None:
             return MachineStatus(at=utcnow(), available=True, execution="READY")
+        if time.monotonic() < self._quiet_until:
+            # Not asked (a query would reach a control still waiting in DNC mode as program
+            # input): its state is not known, and the status says so rather than READY.
+            return MachineStatus(
+                at=utcnow(),
+                available=True,
+                message="not asked for its state after a broken drip-feed "
+                f"(quiet for {self.quiet_after_break:g} s)",
+            )
         stream = self._reader()
         last = self._last
         if last is not None and time.monotonic() - last[0] < self.config.mdc_interval:
@@ -245,10 +254,16 @@ class HaasSerialConnector:
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
-            return await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
+            counts = await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
         except BaseException:
             self._quiet_until = time.monotonic() + self.quiet_after_break
             raise
+        finally:
+            self._last = None  # the reading from before the feed is stale: ask afresh
+        # The control has the whole program (its closing %): it waits for nothing more, so a
+        # completed restart ends the quiet of the break before it (docs/server.md#drip-feed).
+        self._quiet_until = 0.0
+        return counts
 
     def _stream_text(
         self, name: str, data: bytes, from_line: int, progress: Progress
