@@ -227,6 +227,13 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     assert 300 < stopped_at < total
     line = page.get_by_label(f"Restart job {job_id} from line")
     sync_api.expect(line).to_have_value(str(stopped_at))
+    # The row tells what the feed did: the program's bytes up to the line it reached.
+    fed = httpx.get(f"{clean.url}/api/jobs/{job_id}", headers=key_header(clean.key)).json()
+    before = len(b"".join(LONG.splitlines(keepends=True)[: stopped_at - 1]))
+    through = len(b"".join(LONG.splitlines(keepends=True)[:stopped_at]))
+    assert before <= fed["bytes_done"] <= through, (fed["bytes_done"], before, through)
+    size = f"{fed['bytes_done'] / 1000:.1f} kB"
+    sync_api.expect(row.locator("td").nth(5)).to_have_text(size)
     # The control, starved, raises its DNC link alarm; the setter resets it, then restarts.
     wait_for("the DNC link alarm", lambda: front.messages, describe=lambda: front.messages)
     assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
@@ -234,6 +241,7 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     lines_before, runs_before = front.dnc_lines, len(front.messages)
     page.get_by_role("button", name=f"Restart job {job_id} from the line").click()
     assert "reset the control" in said[-1]
+    assert f"It stopped at line {stopped_at} after {size}." in said[-1]
 
     done = page.locator("#history tr.done", has_text="O03000.nc")
     sync_api.expect(done).to_have_count(1, timeout=60_000)

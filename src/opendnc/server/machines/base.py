@@ -38,8 +38,9 @@ __all__ = [
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
 
-DripProgress = Callable[[int, int], None]
-"""Called with (program line reached, program lines) while a drip-feed runs."""
+DripProgress = Callable[[int, int, int], None]
+"""Called with (program line reached, program lines, program bytes fed from the start line)
+while a drip-feed runs: what the job records if the feed breaks."""
 
 
 @dataclass(frozen=True)

@@ -246,11 +246,12 @@ class HaasSerialConnector:
                 "(it runs the program: set dripfeed = true in its configuration)"
             )
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+        skipped = _line_offset(data, from_line)
 
         def on_progress(done: int, total: int | None) -> None:
             # File bytes consumed -> the program line reached (lines before from_line count
-            # as done: they were skipped, not sent).
-            progress(data[:done].count(b"\n") + 1, lines)
+            # as done: they were skipped, not sent) and the bytes this feed took to get there.
+            progress(data[:done].count(b"\n") + 1, lines, max(0, done - skipped))
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
@@ -336,6 +337,16 @@ def text_config(profile: SerialProfile) -> DncConfig:
         trailer=profile.trailer_bytes(),
         line_delay=profile.line_delay,
     )
+
+
+def _line_offset(data: bytes, line: int) -> int:
+    """Where program line ``line`` (from 1, lines ending in LF) starts in ``data``."""
+    offset = 0
+    for _ in range(line - 1):
+        offset = data.find(b"\n", offset) + 1
+        if offset == 0:
+            return len(data)
+    return offset
 
 
 def _drain(stream: ByteStream) -> None:
