@@ -5,7 +5,8 @@ line where it was stopped.
 The shop is one virtual Haas on a virtual RS-232 cable (Setting 143 on: it answers MDC on the
 cable, prints DPRNT on it and takes a drip-feed), running 1000 blocks a second so a feed can
 be stopped midway, and a server process with ``mdc = true``, ``dprnt = "serial"`` and
-``dripfeed = true`` for it.
+``dripfeed = true`` for it. A Haas NGC whose DPRNT goes over TCP is configured too; its
+virtual control starts only in the test that watches the capture find it.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import (  # noqa: E402
     Procs,
     create_key,
+    free_port,
     httpx,
     serve,
     wait_for,
@@ -49,6 +51,7 @@ from tests.web.browser import (  # noqa: E402
 )
 
 MACHINE = "haas-serial-1"
+NGC = "vf2-dprnt"  # DPRNT over TCP, its control started by a test
 # Text with a comma and quotes: the CSV must quote it (RFC 4180), not split it.
 PRINTS = """%
 O00500 (PRINT THREE PASSES)
@@ -85,6 +88,7 @@ class Haas(Shop):
     """The shop with the virtual Haas and a viewer's API key."""
 
     key: str = ""
+    ngc_ports: tuple[int, int] = (0, 0)  # the NGC's MDC and DPRNT ports
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +112,12 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
             dripfeed=True,
             mdc=True,
         )
-        config.write_text(text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n'))
+        ngc_ports = (free_port(), free_port())
+        text = text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n')
+        config.write_text(
+            text + f'\n[[machines]]\nname = "{NGC}"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+            f'mdc_port = {ngc_ports[0]}\ndprnt = "tcp://127.0.0.1:{ngc_ports[1]}"\n'
+        )
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)
         key = create_key(config, db_url, role="viewer")
@@ -116,6 +125,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
         with chromium() as browser:
             haas = Haas(base, fleet, procs, browser)
             haas.key = key
+            haas.ngc_ports = ngc_ports
             yield haas
     finally:
         procs.stop_all()
@@ -160,6 +170,12 @@ def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
         assert re.fullmatch(rf'BORE,"A" PASS\s+{n}\s+X\s+{x:.4f}', text), text
     assert page.evaluate("window.marker") == "not reloaded"
     sync_api.expect(empty).to_be_hidden()
+    # The card tells the last line, whole in its title with the time it came (UTC).
+    last = card.locator(".dprnt")
+    sync_api.expect(last).to_have_text(texts[-1])
+    title = last.get_attribute("title") or ""
+    assert title.startswith(f"{texts[-1]} (printed ")
+    assert title.endswith(" UTC)")
     # The newest line is in view (the console keeps its scroll at the end).
     sync_api.expect(items.last).to_be_in_viewport()
 
@@ -190,6 +206,48 @@ def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
     )
     assert reply.status_code == 200, reply.text
     assert [r["line"] for r in csv.DictReader(io.StringIO(reply.text, newline=""))] == texts
+    page.context.close()
+
+
+def test_the_capture_status_and_the_last_line_follow_the_control_live(
+    clean: Haas, tmp_path: Path
+) -> None:
+    mdc_port, dprnt_port = clean.ngc_ports
+    page = clean.login("operator")
+    page.goto(f"{clean.url}/machines/{NGC}")
+    said = page.locator("#dprnt-status")
+    # No control yet: the capture says it cannot reach the DPRNT port, and retries.
+    sync_api.expect(said).to_contain_text(f"cannot open tcp://127.0.0.1:{dprnt_port}")
+    page.evaluate("window.marker = 'not reloaded'")
+    memory = tmp_path / "ngc-mem"
+    memory.mkdir()
+    (memory / "O00500.nc").write_text(PRINTS)
+    # The control runs O500 once a reader is on its DPRNT port (the server's listener).
+    clean.procs.start(
+        "ngc",
+        *("sim", "haas", "--root", str(memory), "--mdc-port", str(mdc_port)),
+        *("--dprnt", f"tcp:{dprnt_port}", "--run", "500"),
+    )
+    sync_api.expect(said).to_have_text(f" · listening on tcp://127.0.0.1:{dprnt_port}")
+    console = page.get_by_role("log", name=re.compile("DPRNT console"))
+    sync_api.expect(console.locator("li")).to_have_count(3)
+    texts = [t.strip() for t in console.locator("li .text").all_inner_texts()]
+    card = page.locator(f"#card-{NGC}")
+    sync_api.expect(card.locator(".dprnt")).to_have_text(texts[-1])
+    assert page.evaluate("window.marker") == "not reloaded"
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "machine-dprnt-status-1280.png", full_page=True)
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.screenshot(path=ARTIFACTS / "machine-dprnt-status-768.png", full_page=True)
+    # The overview's card: the line on one line, whole in its title.
+    page.goto(f"{clean.url}/")
+    overview = page.locator(f"#card-{NGC} .dprnt")
+    sync_api.expect(overview).to_have_text(texts[-1])
+    assert (overview.get_attribute("title") or "").startswith(texts[-1])
+    page.screenshot(path=ARTIFACTS / "overview-dprnt-768.png", full_page=True)
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.screenshot(path=ARTIFACTS / "overview-dprnt-1280.png", full_page=True)
+    assert unnamed_controls(page) == []
     page.context.close()
 
 
