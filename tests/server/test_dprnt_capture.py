@@ -246,7 +246,7 @@ def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
                 ).json()
                 return got
 
-            wait_for("the first MDC status", lambda: status().get("mode") == "MDI")
+            wait_for("the first MDC status", lambda: status().get("native_mode") == "MDI")
             haas.call(lambda: sim.control.start_program(500))  # cycle start at the control
             stored = wait_for(
                 "three DPRNT lines from the serial port",

@@ -14,6 +14,7 @@ from tests.peers import require_module
 require_module("jinja2")
 
 from opendnc.server.store.models import DprntLine  # noqa: E402
+from opendnc.server.web import render  # noqa: E402
 from opendnc.server.web.views import CONSOLE_LINES, _Console  # noqa: E402
 
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
@@ -54,3 +55,24 @@ def test_new_lines_are_added_and_old_ones_deleted(sessions: sessionmaker[Session
     assert (added, gone) == (last, more[:1])
     assert "&lt;b&gt;&amp;&#34;x&#34;&lt;/b&gt;" in html  # a printed line is text, not markup
     assert len(console.shown) == CONSOLE_LINES
+
+
+def test_a_card_shows_the_last_line_cut_and_whole_in_its_title() -> None:
+    long = "PASS " + "1234567890" * 30  # longer than a card shows
+    machine = {
+        "name": "vf2",
+        "kind": "haas_ngc",
+        "online": False,  # a printed line is shown whether or not the machine answers now
+        "status": {"dprnt": long, "dprnt_at": "2026-01-05T08:00:00+00:00"},
+    }
+    card = render.card(machine)
+    template = render.environment().get_template("_card.html")
+    html = template.render(c=card)
+    shown = re.search(r'<dd class="dprnt" title="([^"]*)">([^<]*)</dd>', html)
+    assert shown is not None, html
+    assert shown[1] == f"{long} (printed 2026-01-05 08:00:00 UTC)"
+    assert shown[2] == long[: render.CARD_DPRNT_CHARS - 1] + "…"
+    # A machine's own page has the room: the whole line.
+    whole = re.search(r'<dd class="dprnt"[^>]*>([^<]*)</dd>', template.render(c=card, whole=True))
+    assert whole is not None
+    assert whole[1] == long

@@ -215,6 +215,18 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
         total = program.count(b"\n")
         assert 300 < stopped_at < total
+        # The job keeps what it fed: the program's bytes up to the line it reached.
+        before = len(b"".join(program.splitlines(keepends=True)[: stopped_at - 1]))
+        through = len(b"".join(program.splitlines(keepends=True)[:stopped_at]))
+        assert before <= first["bytes_done"] <= through, (first["bytes_done"], before, through)
+        (row,) = [
+            r
+            for r in client.get(
+                "/api/audit", params={"machine": "haas-serial-1"}, headers=auth(key)
+            ).json()
+            if r["job_id"] == job_id and r["result"] == "interrupted"
+        ]
+        assert row["bytes"] == first["bytes_done"]
         # The control, starved, raises its DNC link alarm; the operator presses RESET and
         # restarts from the line the server reports.
         wait_for(

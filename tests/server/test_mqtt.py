@@ -194,13 +194,13 @@ def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
             return got
 
         wait_for("the API to see the broker gone", lambda: link()["connected"] is False)
-        wait_for(
-            "the new mode through the API",
-            lambda: (
-                (client.get("/api/machines/haas-1", headers=auth(key)).json()["status"])["mode"]
-                == "MEM"
-            ),
-        )
+
+        def mode() -> tuple[object, object]:
+            status = client.get("/api/machines/haas-1", headers=auth(key)).json()["status"]
+            return status["mode"], status["native_mode"]
+
+        # MEM in the control's words, AUTOMATIC in MTConnect's
+        wait_for("the new mode through the API", lambda: mode() == ("AUTOMATIC", "MEM"))
 
         broker = _private_broker(tmp_path, broker_port)
         wait_for("the private broker again", listening(broker_port), 20)

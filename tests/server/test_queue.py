@@ -133,9 +133,14 @@ def test_dripfeed_is_never_retried_and_restarts_from_a_line(
         version, _ = library.add_version(s, "O01234", PROGRAM, author="ann")
         job = jobs.enqueue(s, JobKind.DRIPFEED, "mill-1", actor="op", version=version)
         assert jobs.claim(s, "mill-1", "srv") is not None
-        jobs.fail(s, job.id, "XOFF for 60 s")
+        jobs.fail(s, job.id, "XOFF for 60 s", line=3, nbytes=27)
     with sessions.begin() as s:
-        assert jobs.get_job(s, job.id).state is JobState.INTERRUPTED
+        broken = jobs.get_job(s, job.id)
+        assert broken.state is JobState.INTERRUPTED
+        # what the feed had done, for the history and the restart
+        assert (broken.line, broken.bytes_done) == (3, 27)
+        (row,) = [r for r in audit.query(s, machine="mill-1") if r.action == "job.dripfeed"]
+        assert (row.result, row.bytes) == ("interrupted", 27)
         again = jobs.retry(s, job.id, actor="op", from_line=120)
         assert again.params == {"from_line": 120, "retry_of": job.id}
         assert again.kind is JobKind.DRIPFEED

@@ -5,7 +5,8 @@ line where it was stopped.
 The shop is one virtual Haas on a virtual RS-232 cable (Setting 143 on: it answers MDC on the
 cable, prints DPRNT on it and takes a drip-feed), running 1000 blocks a second so a feed can
 be stopped midway, and a server process with ``mdc = true``, ``dprnt = "serial"`` and
-``dripfeed = true`` for it.
+``dripfeed = true`` for it. A Haas NGC whose DPRNT goes over TCP is configured too; its
+virtual control starts only in the test that watches the capture find it.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import (  # noqa: E402
     Procs,
     create_key,
+    free_port,
     httpx,
     serve,
     wait_for,
@@ -49,6 +51,7 @@ from tests.web.browser import (  # noqa: E402
 )
 
 MACHINE = "haas-serial-1"
+NGC = "vf2-dprnt"  # DPRNT over TCP, its control started by a test
 # Text with a comma and quotes: the CSV must quote it (RFC 4180), not split it.
 PRINTS = """%
 O00500 (PRINT THREE PASSES)
@@ -85,6 +88,7 @@ class Haas(Shop):
     """The shop with the virtual Haas and a viewer's API key."""
 
     key: str = ""
+    ngc_ports: tuple[int, int] = (0, 0)  # the NGC's MDC and DPRNT ports
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +112,12 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
             dripfeed=True,
             mdc=True,
         )
-        config.write_text(text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n'))
+        ngc_ports = (free_port(), free_port())
+        text = text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n')
+        config.write_text(
+            text + f'\n[[machines]]\nname = "{NGC}"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+            f'mdc_port = {ngc_ports[0]}\ndprnt = "tcp://127.0.0.1:{ngc_ports[1]}"\n'
+        )
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)
         key = create_key(config, db_url, role="viewer")
@@ -116,6 +125,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
         with chromium() as browser:
             haas = Haas(base, fleet, procs, browser)
             haas.key = key
+            haas.ngc_ports = ngc_ports
             yield haas
     finally:
         procs.stop_all()
@@ -134,12 +144,16 @@ def _machine_page(shop: Shop, user: str, viewport: tuple[int, int] = (1280, 800)
     page = shop.login(user, viewport)
     page.goto(f"{shop.url}/machines/{MACHINE}")
     # MDC on the cable answers (a mode, not "—"): the port is open and the connector listens
-    sync_api.expect(page.locator(f"#card-{MACHINE} .mode")).to_have_text(re.compile("^[a-z]+$"))
+    sync_api.expect(page.locator(f"#card-{MACHINE} .mode")).to_have_text(re.compile("^[a-z ]+$"))
     return page
 
 
 def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
     page = _machine_page(clean, "admin")
+    # The virtual Haas starts in MDI: MTConnect's words, and the control's own beside them.
+    card = page.locator(f"#card-{MACHINE}")
+    sync_api.expect(card.locator(".mode")).to_have_text("manual data input")
+    sync_api.expect(card.locator(".native-mode")).to_have_text("MDI")
     console = page.get_by_role("log", name=re.compile("DPRNT console"))
     empty = console.get_by_text("Nothing printed yet")
     sync_api.expect(empty).to_be_visible()
@@ -156,6 +170,12 @@ def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
         assert re.fullmatch(rf'BORE,"A" PASS\s+{n}\s+X\s+{x:.4f}', text), text
     assert page.evaluate("window.marker") == "not reloaded"
     sync_api.expect(empty).to_be_hidden()
+    # The card tells the last line, whole in its title with the time it came (UTC).
+    last = card.locator(".dprnt")
+    sync_api.expect(last).to_have_text(texts[-1])
+    title = last.get_attribute("title") or ""
+    assert title.startswith(f"{texts[-1]} (printed ")
+    assert title.endswith(" UTC)")
     # The newest line is in view (the console keeps its scroll at the end).
     sync_api.expect(items.last).to_be_in_viewport()
 
@@ -186,6 +206,48 @@ def test_the_dprnt_console_fills_live_and_downloads_as_csv(clean: Haas) -> None:
     )
     assert reply.status_code == 200, reply.text
     assert [r["line"] for r in csv.DictReader(io.StringIO(reply.text, newline=""))] == texts
+    page.context.close()
+
+
+def test_the_capture_status_and_the_last_line_follow_the_control_live(
+    clean: Haas, tmp_path: Path
+) -> None:
+    mdc_port, dprnt_port = clean.ngc_ports
+    page = clean.login("operator")
+    page.goto(f"{clean.url}/machines/{NGC}")
+    said = page.locator("#dprnt-status")
+    # No control yet: the capture says it cannot reach the DPRNT port, and retries.
+    sync_api.expect(said).to_contain_text(f"cannot open tcp://127.0.0.1:{dprnt_port}")
+    page.evaluate("window.marker = 'not reloaded'")
+    memory = tmp_path / "ngc-mem"
+    memory.mkdir()
+    (memory / "O00500.nc").write_text(PRINTS)
+    # The control runs O500 once a reader is on its DPRNT port (the server's listener).
+    clean.procs.start(
+        "ngc",
+        *("sim", "haas", "--root", str(memory), "--mdc-port", str(mdc_port)),
+        *("--dprnt", f"tcp:{dprnt_port}", "--run", "500"),
+    )
+    sync_api.expect(said).to_have_text(f" · listening on tcp://127.0.0.1:{dprnt_port}")
+    console = page.get_by_role("log", name=re.compile("DPRNT console"))
+    sync_api.expect(console.locator("li")).to_have_count(3)
+    texts = [t.strip() for t in console.locator("li .text").all_inner_texts()]
+    card = page.locator(f"#card-{NGC}")
+    sync_api.expect(card.locator(".dprnt")).to_have_text(texts[-1])
+    assert page.evaluate("window.marker") == "not reloaded"
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "machine-dprnt-status-1280.png", full_page=True)
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.screenshot(path=ARTIFACTS / "machine-dprnt-status-768.png", full_page=True)
+    # The overview's card: the line on one line, whole in its title.
+    page.goto(f"{clean.url}/")
+    overview = page.locator(f"#card-{NGC} .dprnt")
+    sync_api.expect(overview).to_have_text(texts[-1])
+    assert (overview.get_attribute("title") or "").startswith(texts[-1])
+    page.screenshot(path=ARTIFACTS / "overview-dprnt-768.png", full_page=True)
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.screenshot(path=ARTIFACTS / "overview-dprnt-1280.png", full_page=True)
+    assert unnamed_controls(page) == []
     page.context.close()
 
 
@@ -223,6 +285,13 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     assert 300 < stopped_at < total
     line = page.get_by_label(f"Restart job {job_id} from line")
     sync_api.expect(line).to_have_value(str(stopped_at))
+    # The row tells what the feed did: the program's bytes up to the line it reached.
+    fed = httpx.get(f"{clean.url}/api/jobs/{job_id}", headers=key_header(clean.key)).json()
+    before = len(b"".join(LONG.splitlines(keepends=True)[: stopped_at - 1]))
+    through = len(b"".join(LONG.splitlines(keepends=True)[:stopped_at]))
+    assert before <= fed["bytes_done"] <= through, (fed["bytes_done"], before, through)
+    size = f"{fed['bytes_done'] / 1000:.1f} kB"
+    sync_api.expect(row.locator("td").nth(5)).to_have_text(size)
     # The control, starved, raises its DNC link alarm; the setter resets it, then restarts.
     wait_for("the DNC link alarm", lambda: front.messages, describe=lambda: front.messages)
     assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
@@ -230,6 +299,7 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     lines_before, runs_before = front.dnc_lines, len(front.messages)
     page.get_by_role("button", name=f"Restart job {job_id} from the line").click()
     assert "reset the control" in said[-1]
+    assert f"It stopped at line {stopped_at} after {size}." in said[-1]
 
     done = page.locator("#history tr.done", has_text="O03000.nc")
     sync_api.expect(done).to_have_count(1, timeout=60_000)
@@ -238,6 +308,12 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     ran = front.dnc_lines - lines_before
     remaining = total - stopped_at + 1
     assert remaining <= ran <= remaining + 20, (ran, remaining)  # the preamble, then the rest
+    # The control has the whole program: the card shows its state again well before the port's
+    # 30 s of quiet after the break would have ended (docs/server.md#drip-feed).
+    card = page.locator(f"#card-{MACHINE}")
+    sync_api.expect(card.locator(".program")).to_contain_text("O03000", timeout=15_000)
+    sync_api.expect(card.locator(".mode")).to_have_text("automatic")
+    sync_api.expect(card.locator(".native-mode")).to_have_text("DNC")
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=ARTIFACTS / "machine-dripfeed-1280.png", full_page=True)
     assert unnamed_controls(page) == []

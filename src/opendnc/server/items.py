@@ -59,28 +59,14 @@ _EXECUTION = {
     "READY", "ACTIVE", "INTERRUPTED", "FEED_HOLD", "STOPPED", "OPTIONAL_STOP",
     "PROGRAM_STOPPED", "PROGRAM_COMPLETED", "WAIT",
 }  # fmt: skip
+# The connectors already speak MTConnect's CONTROLLER_MODE (machines/base.py): anything else
+# is a mode not known, UNAVAILABLE.
 _MODES = {"AUTOMATIC", "MANUAL", "MANUAL_DATA_INPUT", "SEMI_AUTOMATIC", "EDIT"}
-# A Haas reports its mode in its own words (Q104, docs/haas.md#q-commands); the outputs
-# speak MTConnect's CONTROLLER_MODE.
-_HAAS_MODES = {
-    "MEM": "AUTOMATIC",
-    "DNC": "AUTOMATIC",
-    "MDI": "MANUAL_DATA_INPUT",
-    "JOG": "MANUAL",
-    "HANDLE JOG": "MANUAL",
-    "ZERO": "MANUAL",
-    "ZERO RET": "MANUAL",
-    "EDIT": "EDIT",
-    "LIST PROG": "EDIT",
-}
 
 
 def controller_mode(mode: str) -> str | None:
     """MTConnect's CONTROLLER_MODE for a status's ``mode``; None when it is not one."""
-    word = mode.strip().strip("()").strip().upper()
-    if word in _MODES:
-        return word
-    return _HAAS_MODES.get(word)
+    return mode if mode in _MODES else None
 
 
 def _number(value: Any, *, positive: bool = False) -> int | float | None:

@@ -273,15 +273,19 @@ def fail(
     retryable: bool = True,
     backoff: float = 2.0,
     line: int | None = None,
+    nbytes: int | None = None,
 ) -> Job:
     """A running job failed: queue it again after a backoff while attempts remain.
 
-    ``line`` is the program line a drip-feed had reached (where a restart would pick up).
+    ``line`` is the program line a drip-feed had reached (where a restart would pick up),
+    ``nbytes`` the bytes it had fed by then: what its history row shows.
     """
     job = _running(session, job_id)
     job.error = error
     if line is not None:
         job.line = line
+    if nbytes is not None:
+        job.bytes_done = nbytes
     again = retryable and job.kind is not JobKind.DRIPFEED and job.attempts < job.max_attempts
     again = again and not job.cancel_requested
     if again:
@@ -303,6 +307,7 @@ def fail(
         error=error,
         attempt=job.attempts,
         line=line,
+        nbytes=nbytes,
         **_program_fields(job),
     )
     return job

@@ -50,11 +50,13 @@ ConnectorFactory = Callable[[MachineConfig], Connector]
 
 
 class DripFeedBroken(DncError):
-    """A drip-feed stopped; ``line`` is the program line it had reached."""
+    """A drip-feed stopped; ``line`` is the program line it had reached, ``nbytes`` the
+    program bytes it had fed to get there."""
 
-    def __init__(self, reason: str, line: int) -> None:
+    def __init__(self, reason: str, line: int, nbytes: int = 0) -> None:
         super().__init__(reason)
         self.line = line
+        self.nbytes = nbytes
 
 
 @dataclass(frozen=True)
@@ -298,9 +300,10 @@ class Supervisor:
             # A broken link or a garbled transfer may go well next time; a refusal will not.
             retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
             line = exc.line if isinstance(exc, DripFeedBroken) else None
+            nbytes = exc.nbytes if isinstance(exc, DripFeedBroken) else None
             if line is not None:
                 reason = f"{reason} (stopped at line {line}; restart from there)"
-            job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line)
+            job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line, nbytes)
             self._job_event(job_id, name, job, error=reason)
             state.job_id = None
             cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
@@ -345,10 +348,12 @@ class Supervisor:
     ) -> dict[str, Any]:
         from_line = int(job.params.get("from_line", 1))
         reached = [from_line]
+        fed = [0]
         machine = state.config.name
 
-        def progress(line: int, lines: int) -> None:
+        def progress(line: int, lines: int, nbytes: int) -> None:
             # Called from the feed's thread for every chunk: only a new line is news.
+            fed[0] = nbytes
             if line != reached[0]:
                 reached[0] = line
                 state.job_progress = (line, lines)
@@ -359,7 +364,7 @@ class Supervisor:
         try:
             counts = await connector.dripfeed(job.name, job.data, from_line, progress)
         except Exception as exc:
-            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0]) from exc
+            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0], fed[0]) from exc
         finally:
             self._cancels.discard(job.job_id)
         return {**counts, "from_line": from_line}
@@ -560,7 +565,9 @@ class Supervisor:
         data = {"id": job_id, "machine": machine, "state": state, **extra}
         self.bus.publish("job", str(job_id), data)
 
-    def _fail(self, job_id: int, reason: str, retryable: bool, line: int | None) -> str:
+    def _fail(
+        self, job_id: int, reason: str, retryable: bool, line: int | None, nbytes: int | None
+    ) -> str:
         with self.sessions.begin() as session:
             return jobs.fail(
                 session,
@@ -569,6 +576,7 @@ class Supervisor:
                 retryable=retryable,
                 backoff=self.retry_backoff,
                 line=line,
+                nbytes=nbytes,
             ).state.value
 
     def _finish(self, job_id: int, outcome: dict[str, Any]) -> None:

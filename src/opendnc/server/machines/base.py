@@ -2,7 +2,10 @@
 
 The status fields follow MTConnect's CNC data items (availability, execution, controller
 mode, program, line, part count, message), so the MTConnect adapter and the MQTT publisher
-map them one to one (server/items.py, docs/server.md#open-outputs). The last line a Haas
+map them one to one (server/items.py, docs/server.md#open-outputs). Each connector puts its
+control's words into that vocabulary itself; where operators know the control's own word for
+the mode (a Haas's ``MEM``), it is kept beside it in ``native_mode``
+(docs/server.md#machine-status). The last line a Haas
 printed with DPRNT is what MTConnect calls a MESSAGE from the program; it has fields of its
 own (``dprnt``, ``dprnt_at``) because ``message`` also carries the server's own word about
 the link, which must not overwrite it.
@@ -35,8 +38,9 @@ __all__ = [
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
 
-DripProgress = Callable[[int, int], None]
-"""Called with (program line reached, program lines) while a drip-feed runs."""
+DripProgress = Callable[[int, int, int], None]
+"""Called with (program line reached, program lines, program bytes fed from the start line)
+while a drip-feed runs: what the job records if the feed breaks."""
 
 
 @dataclass(frozen=True)
@@ -46,7 +50,8 @@ class MachineStatus:
     at: datetime
     available: bool
     execution: str = "UNAVAILABLE"  # ACTIVE, READY, INTERRUPTED, STOPPED, ... (MTConnect)
-    mode: str = ""  # AUTOMATIC, MANUAL, MANUAL_DATA_INPUT, ... (MTConnect)
+    mode: str = ""  # AUTOMATIC, MANUAL, MANUAL_DATA_INPUT, SEMI_AUTOMATIC, EDIT (MTConnect)
+    native_mode: str = ""  # the control's own word for its mode (a Haas's MEM, MDI, ...)
     program: str = ""
     line: int = 0
     part_count: int | None = None

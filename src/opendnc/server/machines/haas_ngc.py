@@ -21,17 +21,37 @@ from opendnc.server.config import MachineConfig
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
-__all__ = ["HaasNgcConnector", "mdc_status"]
+__all__ = ["HaasNgcConnector", "controller_mode", "mdc_status"]
 
 DETAIL_EVERY = 30  # polls between reads of what changes rarely
 
 # Q500's status word in MTConnect's EXECUTION vocabulary.
 _EXECUTION = {"IDLE": "READY", "BUSY": "ACTIVE", "FEED HOLD": "FEED_HOLD", "ALARM ON": "STOPPED"}
+# Q104's mode words (docs/haas.md#q-commands; classic controls say ZERO RET for ZERO) in
+# MTConnect's CONTROLLER_MODE vocabulary (docs/server.md#machine-status).
+_MODES = {
+    "MEM": "AUTOMATIC",
+    "DNC": "AUTOMATIC",
+    "MDI": "MANUAL_DATA_INPUT",
+    "JOG": "MANUAL",
+    "HANDLE JOG": "MANUAL",
+    "ZERO": "MANUAL",
+    "ZERO RET": "MANUAL",
+    "EDIT": "EDIT",
+    "LIST PROG": "EDIT",
+}
+
+
+def controller_mode(word: str) -> str:
+    """MTConnect's CONTROLLER_MODE for a Haas mode word (Q104); ``""`` for a word not known."""
+    return _MODES.get(" ".join(word.upper().split()), "")
 
 
 def mdc_status(q500: Reply, q104: Reply, tool: int | None) -> MachineStatus:
-    """The status from Q500 (program, state, parts) and Q104 (mode), NGC or classic."""
+    """The status from Q500 (program, state, parts) and Q104 (mode), NGC or classic: the mode
+    in MTConnect's words, the control's own word in ``native_mode``."""
     program, word, parts = "", "", None
+    native = " ".join(q104.mode.upper().split()) if isinstance(q104, Mode) else ""
     if isinstance(q500, ProgramStatus):
         program, word, parts = q500.program, q500.status.upper(), q500.parts
     elif isinstance(q500, Busy):
@@ -40,7 +60,8 @@ def mdc_status(q500: Reply, q104: Reply, tool: int | None) -> MachineStatus:
         at=utcnow(),
         available=True,
         execution=_EXECUTION.get(word, "READY" if not word else "ACTIVE"),
-        mode=q104.mode.upper() if isinstance(q104, Mode) else "",
+        mode=controller_mode(native),
+        native_mode=native,
         program=program,
         part_count=parts,
         tool=tool,

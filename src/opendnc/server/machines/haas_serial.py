@@ -126,8 +126,17 @@ class HaasSerialConnector:
     async def status(self) -> MachineStatus:
         """Available while the port opens; with ``mdc`` also program, mode and parts."""
         client = self._mdc
-        if client is None or time.monotonic() < self._quiet_until:
+        if client is None:
             return MachineStatus(at=utcnow(), available=True, execution="READY")
+        if time.monotonic() < self._quiet_until:
+            # Not asked (a query would reach a control still waiting in DNC mode as program
+            # input): its state is not known, and the status says so rather than READY.
+            return MachineStatus(
+                at=utcnow(),
+                available=True,
+                message="not asked for its state after a broken drip-feed "
+                f"(quiet for {self.quiet_after_break:g} s)",
+            )
         stream = self._reader()
         last = self._last
         if last is not None and time.monotonic() - last[0] < self.config.mdc_interval:
@@ -237,18 +246,25 @@ class HaasSerialConnector:
                 "(it runs the program: set dripfeed = true in its configuration)"
             )
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+        skipped = _line_offset(data, from_line)
 
         def on_progress(done: int, total: int | None) -> None:
             # File bytes consumed -> the program line reached (lines before from_line count
-            # as done: they were skipped, not sent).
-            progress(data[:done].count(b"\n") + 1, lines)
+            # as done: they were skipped, not sent) and the bytes this feed took to get there.
+            progress(data[:done].count(b"\n") + 1, lines, max(0, done - skipped))
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
-            return await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
+            counts = await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
         except BaseException:
             self._quiet_until = time.monotonic() + self.quiet_after_break
             raise
+        finally:
+            self._last = None  # the reading from before the feed is stale: ask afresh
+        # The control has the whole program (its closing %): it waits for nothing more, so a
+        # completed restart ends the quiet of the break before it (docs/server.md#drip-feed).
+        self._quiet_until = 0.0
+        return counts
 
     def _stream_text(
         self, name: str, data: bytes, from_line: int, progress: Progress
@@ -321,6 +337,16 @@ def text_config(profile: SerialProfile) -> DncConfig:
         trailer=profile.trailer_bytes(),
         line_delay=profile.line_delay,
     )
+
+
+def _line_offset(data: bytes, line: int) -> int:
+    """Where program line ``line`` (from 1, lines ending in LF) starts in ``data``."""
+    offset = 0
+    for _ in range(line - 1):
+        offset = data.find(b"\n", offset) + 1
+        if offset == 0:
+            return len(data)
+    return offset
 
 
 def _drain(stream: ByteStream) -> None:

@@ -38,6 +38,7 @@ KIND_LABEL = {
 }
 # How a card is filed by the overview's filters.
 STATES = ("running", "idle", "alarm", "offline")
+CARD_DPRNT_CHARS = 120  # of the last DPRNT line on a card (the whole line is in its title)
 
 
 @cache
@@ -168,6 +169,7 @@ class Card:
     state: str  # one of STATES
     online: bool
     mode: str
+    native_mode: str  # the control's own word beside the MTConnect one (a Haas's MEM)
     execution: str
     program: str
     line: int
@@ -180,6 +182,15 @@ class Card:
     last_error: str
     last_error_at: str
     alarm: str
+    dprnt: str = ""  # the last line the program printed, whole
+    dprnt_at: str = ""  # when the server captured it (UTC)
+
+    @property
+    def dprnt_shown(self) -> str:
+        """The last DPRNT line as the card shows it (a long one cut, its end marked)."""
+        if len(self.dprnt) <= CARD_DPRNT_CHARS:
+            return self.dprnt
+        return self.dprnt[: CARD_DPRNT_CHARS - 1] + "…"
 
 
 def _words(value: str) -> str:
@@ -212,6 +223,7 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         state=state,
         online=online,
         mode=_words(status.get("mode", "")) if online else "",
+        native_mode=str(status.get("native_mode") or "") if online else "",
         execution=_words(execution),
         program=status.get("program", "") if online else "",
         line=int(status.get("line") or 0) if online else 0,
@@ -224,6 +236,10 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         last_error=machine.get("last_error", ""),
         last_error_at=when(machine.get("last_error_at")),
         alarm=alarm,
+        # A printed line is a fact of the past with its time: shown whether or not the
+        # machine answers now.
+        dprnt=str(status.get("dprnt") or ""),
+        dprnt_at=when(status.get("dprnt_at")),
     )
 
 

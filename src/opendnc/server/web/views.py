@@ -234,7 +234,8 @@ async def card_events(
     of that machine starts or ends (``machine``: just one).
 
     With ``machine`` and ``dprnt`` (the first and last id of the DPRNT lines its page shows,
-    or ``0-0``), also ``dprnt-<machine>`` with the console's new lines."""
+    or ``0-0``), also ``dprnt-<machine>`` with the console's new lines and
+    ``dprnt-status-<machine>`` with what the capture says about its link when that changes."""
     states = _supervisor(request).machines
     if machine is not None and machine not in states:
         raise NotFound(f"no machine named {machine!r}")
@@ -273,6 +274,9 @@ async def _card_stream(
     watched = set(supervisor.machines) if only is None else {only}
     sent: dict[str, str] = {}  # the HTML each card has in the browser now
     console = _Console(only, dprnt_shown) if only is not None and dprnt_shown is not None else None
+    capture = getattr(request.app.state, "dprnt", None)
+    # The capture's word as the stream starts (it may have changed since the page was drawn).
+    capture_said = capture.status.get(only, "") if console and capture is not None else None
     with supervisor.bus.subscribe() as sub:
         # A fresh copy of every card first: whatever changed between the page and this stream.
         pending: set[str] = set(watched)
@@ -286,8 +290,10 @@ async def _card_stream(
                 event = await asyncio.wait_for(sub.get(), timeout)
                 machine = event.key if event.kind == "machine" else event.data.get("machine")
                 if isinstance(machine, str) and machine in watched:
-                    if event.kind in ("dprnt", "dprnt_status"):
+                    if event.kind == "dprnt":
                         new_lines = console is not None
+                    elif event.kind == "dprnt_status":
+                        capture_said = str(event.data.get("message", "")) if console else None
                     else:
                         pending.add(machine)
                     if event.kind == "job" and "bytes_done" not in event.data:
@@ -308,7 +314,7 @@ async def _card_stream(
                 cards = await run_in_threadpool(_cards_cached, request, names, labels)
                 changed = []
                 for c in cards:
-                    html = env.render(c=c)
+                    html = env.render(c=c, whole=only is not None)  # a machine page's card
                     if sent.get(c.name) != html:  # a status poll that changed nothing
                         sent[c.name] = html
                         changed.append(render.card_oob(c.name, html))
@@ -323,6 +329,10 @@ async def _card_stream(
                 html = await run_in_threadpool(_read, request, console.update)
                 if html:
                     out.append(render.sse_event(f"dprnt-{console.machine}", html))
+            if console is not None and capture_said is not None:
+                said = f" · {render.text_escape(capture_said)}" if capture_said else ""
+                capture_said = None
+                out.append(render.sse_event(f"dprnt-status-{console.machine}", said))
             if out:
                 quiet_since = loop.time()
                 yield b"".join(out)
