@@ -351,13 +351,23 @@ class Supervisor:
         fed = [0]
         machine = state.config.name
 
-        def progress(line: int, lines: int, nbytes: int) -> None:
+        def progress(line: int, lines: int, nbytes: int, total: int) -> None:
             # Called from the feed's thread for every chunk: only a new line is news.
             fed[0] = nbytes
             if line != reached[0]:
                 reached[0] = line
-                state.job_progress = (line, lines)
-                self._job_event(job.job_id, machine, "running", line=line, lines=lines)
+                # Progress is in bytes like every job's (the card's share and sizes); the line
+                # travels beside it for the restart prompt.
+                state.job_progress = (nbytes, total or None)
+                self._job_event(
+                    job.job_id,
+                    machine,
+                    "running",
+                    bytes_done=nbytes,
+                    bytes_total=total or None,
+                    line=line,
+                    lines=lines,
+                )
             if job.job_id in self._cancels:
                 raise TransferError(f"cancelled at line {line}")
 

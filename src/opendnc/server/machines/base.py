@@ -38,9 +38,10 @@ __all__ = [
 Progress = Callable[[int, int | None], None]
 """Called with (bytes done, bytes total or None) while a transfer runs."""
 
-DripProgress = Callable[[int, int, int], None]
-"""Called with (program line reached, program lines, program bytes fed from the start line)
-while a drip-feed runs: what the job records if the feed breaks."""
+DripProgress = Callable[[int, int, int, int], None]
+"""Called with (program line reached, program lines, program bytes fed from the start line,
+program bytes from the start line to the end) while a drip-feed runs: the job's progress, and
+what it records if the feed breaks."""
 
 
 @dataclass(frozen=True)

@@ -248,10 +248,20 @@ class HaasSerialConnector:
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
         skipped = _line_offset(data, from_line)
 
+        feed_total = len(data) - skipped
+        # Where the last report was, so every report counts only the new bytes' line ends (a
+        # count from the start each time is quadratic in the program, and drip-fed programs
+        # are the big ones).
+        seen = [0, 0]  # bytes consumed, line ends among them
+
         def on_progress(done: int, total: int | None) -> None:
             # File bytes consumed -> the program line reached (lines before from_line count
             # as done: they were skipped, not sent) and the bytes this feed took to get there.
-            progress(data[:done].count(b"\n") + 1, lines, max(0, done - skipped))
+            if done < seen[0]:
+                seen[:] = [0, 0]
+            seen[1] += data.count(b"\n", seen[0], done)
+            seen[0] = done
+            progress(seen[1] + 1, lines, max(0, done - skipped), feed_total)
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
