@@ -63,6 +63,14 @@ class Shop:
             str(self.cable_pc),
         )
         wait_for("the cable", lambda: self.cable_haas.exists() and self.cable_pc.exists())
+        self.start_serial_haas()
+        self.procs.start(
+            "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
+        )
+        for port in (*self.tnc_ports, self.mdc_port):
+            wait_for(f"port {port}", listening(port))
+
+    def start_serial_haas(self) -> None:
         self.procs.start(
             "haas",
             "sim",
@@ -78,11 +86,6 @@ class Shop:
             "--mdc-port",
             str(free_port()),
         )
-        self.procs.start(
-            "ngc", "sim", "haas", "--root", str(self.ngc_mem), "--mdc-port", str(self.mdc_port)
-        )
-        for port in (*self.tnc_ports, self.mdc_port):
-            wait_for(f"port {port}", listening(port))
 
     def start_tnc(self, i: int, port: int, root: Path) -> None:
         self.procs.start(
@@ -267,6 +270,53 @@ def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs
     target = shop.tnc_roots[1] / "TNC" / "nc_prog"
     assert (target / "O01234.nc").read_bytes() == PROGRAM
     assert [p.name for p in target.iterdir() if "O01234" in p.name] == ["O01234.nc"]
+
+
+def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
+    shop: Shop, procs: Procs
+) -> None:
+    # The serial Haas dies while the XModem load is on the line (a 3,000-line program takes
+    # several seconds at 115200 baud), then comes back on the same cable.
+    admin = shop.key("admin")
+    big = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
+    with shop.start_server() as client:
+        client.put("/api/programs/O01234.nc", content=big, headers=auth(admin))
+        client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "O01234.nc", "machines": ["vf2-serial"]},
+        )
+        job_id = sent.json()[0]["id"]
+
+        def job() -> dict[str, Any]:
+            got: dict[str, Any] = client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()
+            return got
+
+        wait_for(
+            "the load to be under way",
+            lambda: job()["state"] == "running" and 0 < job()["bytes_done"] < len(big) // 2,
+            describe=job,
+        )
+        procs.stop("haas", signal.SIGKILL)
+        assert list(shop.haas_mem.iterdir()) == []  # the dead control kept nothing
+        # The operator restarts the control and selects receive again. The server cannot see a
+        # dead RS-232 peer: its sender meets the fresh receiver mid-file, gives that attempt
+        # up and sends the whole program again.
+        shop.start_serial_haas()
+        (done,) = wait_jobs(client, admin, [job_id])
+        assert done["state"] == "done", done["error"]
+        assert done["attempts"] == 2
+        rows = client.get(
+            "/api/audit", headers=auth(admin), params={"action": "job.send", "limit": 100}
+        ).json()
+        assert sorted(r["result"] for r in rows if r["job_id"] == job_id) == ["ok", "retry"]
+    received = wait_for("the Haas to store the program", lambda: list(shop.haas_mem.iterdir()))
+    assert [p.name for p in received] == ["O01234.nc"], procs.log("haas")
+    assert received[0].read_bytes().replace(b"\r\n", b"\n") == big.replace(b"\r\n", b"\n")
+    # Nothing half-written on the server's side either: the library holds the one program.
+    library = shop.tmp / "programs"
+    assert [p.name for p in library.rglob("*") if p.is_file()] in ([], ["O01234.nc"])
 
 
 def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, procs: Procs) -> None:
