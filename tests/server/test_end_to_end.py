@@ -230,15 +230,23 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
         key = client.post("/api/keys", headers=auth(operator), json={"user": "x", "role": "admin"})
         assert key.status_code == 403
         programmer = shop.key("programmer")
+        codes = []
         for name in ("..%2F..%2Fetc%2Fpasswd", "a%5Cb", "%2Ehidden", "CON", "x" * 101, "O1%0A"):
             r = client.put(f"/api/programs/{name}", content=PROGRAM, headers=auth(programmer))
-            assert r.status_code in (400, 404), (name, r.status_code)
+            codes.append((name, r.status_code))
+        assert all(code == 400 for _, code in codes), codes
         assert client.get("/api/programs", headers=auth(viewer)).json() == []
+        versions = client.get(
+            "/api/audit", headers=auth(viewer), params={"action": "program.version"}
+        )
+        assert versions.json() == []
         openapi = client.get("/openapi.json").json()
         assert {"/api/machines", "/api/programs", "/api/jobs", "/api/audit"} <= set(
             openapi["paths"]
         )
     assert not any(shop.tmp.rglob("passwd"))
+    library = shop.tmp / "programs"
+    assert not library.exists() or not any(p.is_file() for p in library.rglob("*"))
 
 
 def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs) -> None:
