@@ -362,6 +362,61 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
         assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}
 
 
+def test_diff_between_versions_and_a_reordered_cancelled_queue(shop: Shop, procs: Procs) -> None:
+    admin = shop.key("admin")
+    second = PROGRAM.replace(b"G01 X1.5 F20.", b"G01 X2.5 F15.")
+    procs.stop("tnc0", signal.SIGKILL)  # tnc-a's queue waits while the operator rearranges it
+    with shop.start_server() as client:
+        for content in (PROGRAM, second, PROGRAM.replace(b"BRACKET", b"BRACKET OP3")):
+            put = client.put("/api/programs/O01234.nc", content=content, headers=auth(admin))
+            assert put.status_code == 201, put.text
+        diff = client.get(
+            "/api/programs/O01234.nc/diff", headers=auth(admin), params={"a": 1, "b": 2}
+        ).json()["lines"]
+        changed = [line.rstrip("\r\n") for line in diff if line[:1] in "+-"]
+        assert "-G01 X1.5 F20." in changed
+        assert "+G01 X2.5 F15." in changed
+        assert not any("BRACKET" in line for line in changed)
+        diff13 = client.get(
+            "/api/programs/O01234.nc/diff", headers=auth(admin), params={"a": 3, "b": 1}
+        ).json()["lines"]
+        changed13 = [line.rstrip("\r\n") for line in diff13 if line[:1] in "+-"]
+        assert "-O01234 (BRACKET OP3)" in changed13
+        assert "+O01234 (BRACKET)" in changed13
+        assert not any("X1.5" in line for line in changed13)
+
+        ids = []
+        for number in (1, 2, 3):
+            sent = client.post(
+                "/api/jobs",
+                headers=auth(admin),
+                json={"program": "O01234.nc", "version": number, "machines": ["tnc-a"]},
+            )
+            ids.append(sent.json()[0]["id"])
+        first, middle, last = ids
+        moved = client.post(f"/api/jobs/{last}/move", headers=auth(admin), json={"index": 0})
+        assert moved.status_code == 200, moved.text
+        assert client.post(f"/api/jobs/{middle}/cancel", headers=auth(admin)).status_code == 200
+        queued = client.get(
+            "/api/jobs", headers=auth(admin), params={"machine": "tnc-a", "state": "queued"}
+        ).json()
+        assert [j["id"] for j in queued] == [last, first]
+        shop.start_tnc(0, shop.tnc_ports[0], shop.tnc_roots[0])
+        done = wait_jobs(client, admin, [last, first])
+        assert [j["state"] for j in done] == ["done", "done"], [j["error"] for j in done]
+        starts = client.get(
+            "/api/audit",
+            headers=auth(admin),
+            params={"action": "job.start", "machine": "tnc-a", "limit": 100},
+        ).json()
+        # Newest first: the moved job ran first, the cancelled one never.
+        assert [r["job_id"] for r in reversed(starts)] == [last, first]
+        cancelled = client.get(f"/api/jobs/{middle}", headers=auth(admin)).json()
+        assert (cancelled["state"], cancelled["started"]) == ("cancelled", None)
+    # The job that ran last (version 1) is what the control holds.
+    assert (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM
+
+
 def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
     admin = shop.key("admin")
     operator = shop.key("operator")
