@@ -135,3 +135,27 @@ def test_the_rule_tester_shows_the_rule_that_takes_a_request(tmp_path: Path) -> 
     plain = tester("%\\nO1234 (BRACKET)\\nM30\\n%")
     assert plain.returncode == 1
     assert json.loads(plain.stdout) is None
+
+
+@pytest.mark.parametrize(
+    ("toml", "first_words"),
+    [
+        ("[[machines]]\nname = 'm'\nkind = 'lsv2'\nhost = 'h'\nport = 'x'\n", "machines[0].port: "),
+        ("[server]\nbind = \n", "not valid TOML: "),
+    ],
+)
+def test_serve_with_a_bad_configuration_says_one_line(
+    tmp_path: Path, toml: str, first_words: str
+) -> None:
+    config = tmp_path / "shop.toml"
+    config.write_text(toml)
+    proc = subprocess.run(
+        [*CLI, "serve", "--config", str(config), "--db", f"sqlite:///{tmp_path / 'x.db'}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.startswith(f"error: {first_words}"), proc.stderr
+    assert proc.stderr.count("\n") == 1, proc.stderr
+    assert not (tmp_path / "x.db").exists()  # nothing started, nothing written
