@@ -239,9 +239,10 @@ class HaasSerialConnector:
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
 
         def on_progress(done: int, total: int | None) -> None:
-            # File bytes consumed -> the program line reached (lines before from_line count
-            # as done: they were skipped, not sent).
-            progress(data[:done].count(b"\n") + 1, lines)
+            # File bytes written whole -> the first line the control has not got whole, where
+            # a restart begins (lines before from_line count as done: they were skipped, not
+            # sent; the leader of a restart reports nothing of the file yet).
+            progress(max(from_line, data[:done].count(b"\n") + 1), lines)
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
