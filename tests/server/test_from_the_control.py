@@ -227,6 +227,11 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         control = slow_haas.fleet.sims["haas-serial-1"].control
         slow_haas.call(control.reset)
         lines_before, runs_before = front.dnc_lines, len(front.messages)
+        # The reported line is the first one the control did not get: the first run began
+        # at the program's first block and handed lines_before blocks to the control.
+        lines = program.decode().splitlines()
+        first_block = next(i for i, line in enumerate(lines) if line == front.dnc_heads[0][0])
+        assert first_block + lines_before + 1 == stopped_at, (lines_before, stopped_at)
 
         again = client.post(
             f"/api/jobs/{job_id}/retry", headers=auth(key), json={"from_line": stopped_at}
@@ -241,3 +246,13 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         ran = front.dnc_lines - lines_before
         remaining = total - stopped_at + 1
         assert remaining <= ran <= remaining + 20, (ran, remaining)
+        # The second run began with the preamble that restores the program's modal state
+        # (units, tool, work offset, spindle), then went on at the reported line itself.
+        head = front.dnc_heads[-1]
+        # ``remaining`` counts the closing %, which is no block.
+        fed_from_the_program = remaining - 1
+        preamble = head[: ran - fed_from_the_program]
+        assert f"(OPENDNC RESTART AT LINE {stopped_at})" in preamble, head
+        for block in ("G20", "T1 M06", "G54", "S1200 M03"):
+            assert block in preamble, (block, head)
+        assert head[len(preamble) : len(preamble) + 3] == lines[stopped_at - 1 : stopped_at + 2]
