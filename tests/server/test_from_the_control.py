@@ -11,6 +11,7 @@ import asyncio
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
+from datetime import datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -29,6 +30,7 @@ from tests.server.harness import (
 )
 
 T = TypeVar("T")
+DELAY = 0.5  # the request delay of these tests' server
 
 
 class FleetThread:
@@ -72,7 +74,13 @@ def haas(tmp_path: Path) -> Iterator[FleetThread]:
 
 
 def _server(
-    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, *, dripfeed: bool = False
+    tmp_path: Path,
+    haas: FleetThread,
+    procs: Procs,
+    db_url: str,
+    *,
+    dripfeed: bool = False,
+    extra: str = "",
 ) -> tuple[httpx.Client, str]:
     port = free_port()
     config = tmp_path / "shop.toml"
@@ -83,7 +91,7 @@ def _server(
         library=tmp_path / "lib",
         dripfeed=dripfeed,
     )
-    config.write_text(text + "\n[requests]\ndelay = 0.5\n")
+    config.write_text(text + f"\n[requests]\ndelay = {DELAY}\n" + extra)
     key = create_key(config, db_url)
     return start_server(procs, config, db_url, port), key
 
@@ -158,8 +166,42 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
         assert audit[0]["detail"]["requested"] == ["O01234.nc", "O05555.nc"]
         assert audit[0]["detail"]["sent"] == ["O01234.nc"]
         assert audit[0]["result"] == "refused"
+        # The program went out no sooner than the request delay after the request.
+        starts = client.get(
+            "/api/audit", headers=auth(key), params={"action": "job.start", "limit": 100}
+        ).json()
+        asked = datetime.fromisoformat(audit[0]["at"])
+        first_start = min(datetime.fromisoformat(r["at"]) for r in starts)
+        assert (first_start - asked).total_seconds() >= DELAY
         # The request itself is no inbox item.
         assert client.get("/api/inbox", headers=auth(key)).json() == []
+
+
+def test_a_rule_that_builds_a_path_is_answered_with_a_failure_report(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    # A shop's own rule takes whatever the operator typed; a folder in it is no program name.
+    sim = haas.fleet.sims["haas-serial-1"]
+    haas.call(lambda: sim.control.save_program("%\nO09999 (SEND ../../etc/passwd)\nM30\n%\n"))
+    rule = "[[requests.rules]]\npattern = '\\(SEND\\s+(?P<part>\\S+)\\)'\ntemplate = '{part}'\n"
+    client, key = _server(tmp_path, haas, procs, db_url, extra=rule)
+    with client:
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        port.select("punch:O9999")
+        port.select("auto")
+        report = wait_for(
+            "the failure report in the control's memory",
+            lambda: _read(haas, sim, 9998),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert "NOT A PROGRAM NAME" in report
+        (row,) = client.get(
+            "/api/audit", headers=auth(key), params={"action": "program.request"}
+        ).json()
+        assert (row["detail"]["requested"], row["detail"]["sent"]) == (["../../etc/passwd"], [])
+        assert client.get("/api/programs", headers=auth(key)).json() == []
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
+    assert not any(tmp_path.rglob("passwd"))
 
 
 def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
