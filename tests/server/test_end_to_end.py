@@ -87,9 +87,18 @@ class Shop:
             str(free_port()),
         )
 
-    def start_tnc(self, i: int, port: int, root: Path) -> None:
+    def start_tnc(self, i: int, port: int, root: Path, *extra: str) -> None:
         self.procs.start(
-            f"tnc{i}", "sim", "tnc", "--profile", "tnc640", "--port", str(port), "--root", str(root)
+            f"tnc{i}",
+            "sim",
+            "tnc",
+            "--profile",
+            "tnc640",
+            "--port",
+            str(port),
+            "--root",
+            str(root),
+            *extra,
         )
 
     def write_config(self) -> None:
@@ -325,6 +334,56 @@ def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
     # Nothing half-written on the server's side either: the library holds the one program.
     library = shop.tmp / "programs"
     assert [p.name for p in library.rglob("*") if p.is_file()] in ([], ["O01234.nc"])
+
+
+def test_tnc_killed_mid_load_keeps_no_partial_program_and_gets_it_again(
+    shop: Shop, procs: Procs
+) -> None:
+    # LSV2 over TCP: the server sees the connection drop at once and retries once the
+    # control is back. The control answers every telegram 10 ms late (a loaded control on a
+    # slow network), so a 400 kB program is on the wire for a few seconds.
+    procs.stop("tnc0")
+    shop.start_tnc(0, shop.tnc_ports[0], shop.tnc_roots[0], "--latency", "10")
+    wait_for("the slow TNC", listening(shop.tnc_ports[0]))
+    admin = shop.key("admin")
+    moves = b"".join(b"L X+%d.5 Y+1 R0 F200\r\n" % i for i in range(18_000))
+    big = b"0 BEGIN PGM BIG MM\r\n" + moves + b"99999 END PGM BIG MM\r\n"
+    with shop.start_server() as client:
+        put = client.put("/api/programs/BIG.H", content=big, headers=auth(admin))
+        assert put.status_code == 201, put.text
+        sent = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "BIG.H", "version": 1, "machines": ["tnc-a"]},
+        )
+        job_id = sent.json()[0]["id"]
+
+        def job() -> dict[str, Any]:
+            got: dict[str, Any] = client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()
+            return got
+
+        wait_for(
+            "the load to be under way",
+            lambda: job()["state"] == "running" and 0 < job()["bytes_done"] < len(big) // 2,
+            describe=job,
+            timeout=120,
+        )
+        procs.stop("tnc0", signal.SIGKILL)
+        target = shop.tnc_roots[0] / "TNC" / "nc_prog"
+        assert not (target / "BIG.H").exists()  # never on the control's drive half-written
+        wait_for(
+            "the job to be queued again",
+            lambda: (j := job())["attempts"] == 1 and j["state"] == "queued" and j,
+            describe=job,
+        )
+        shop.start_tnc(0, shop.tnc_ports[0], shop.tnc_roots[0])
+        (done,) = wait_jobs(client, admin, [job_id])
+        assert done["state"] == "done", done["error"]
+        assert done["attempts"] == 2
+    assert (target / "BIG.H").read_bytes() == big
+    assert [p.name for p in target.iterdir() if "BIG" in p.name.upper()] == ["BIG.H"]
+    # The upload the dead control was holding is gone: the control drops it when it starts.
+    assert list((shop.tnc_roots[0] / ".partial").iterdir()) == []
 
 
 def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, procs: Procs) -> None:
