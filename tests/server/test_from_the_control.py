@@ -11,6 +11,7 @@ import asyncio
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future
+from datetime import datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -28,6 +29,7 @@ from tests.server.harness import (
 )
 
 T = TypeVar("T")
+DELAY = 0.5  # the request delay of these tests' server
 
 
 class FleetThread:
@@ -71,7 +73,13 @@ def haas(tmp_path: Path) -> Iterator[FleetThread]:
 
 
 def _server(
-    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str, *, dripfeed: bool = False
+    tmp_path: Path,
+    haas: FleetThread,
+    procs: Procs,
+    db_url: str,
+    *,
+    dripfeed: bool = False,
+    extra: str = "",
 ) -> tuple[httpx.Client, str]:
     config = tmp_path / "shop.toml"
     text = server_config(
@@ -80,7 +88,7 @@ def _server(
         library=tmp_path / "lib",
         dripfeed=dripfeed,
     )
-    config.write_text(text + "\n[requests]\ndelay = 0.5\n")
+    config.write_text(text + f"\n[requests]\ndelay = {DELAY}\n" + extra)
     key = create_key(config, db_url)
     return start_server(procs, config, db_url), key
 
@@ -155,8 +163,42 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
         assert audit[0]["detail"]["requested"] == ["O01234.nc", "O05555.nc"]
         assert audit[0]["detail"]["sent"] == ["O01234.nc"]
         assert audit[0]["result"] == "refused"
+        # The program went out no sooner than the request delay after the request.
+        starts = client.get(
+            "/api/audit", headers=auth(key), params={"action": "job.start", "limit": 100}
+        ).json()
+        asked = datetime.fromisoformat(audit[0]["at"])
+        first_start = min(datetime.fromisoformat(r["at"]) for r in starts)
+        assert (first_start - asked).total_seconds() >= DELAY
         # The request itself is no inbox item.
         assert client.get("/api/inbox", headers=auth(key)).json() == []
+
+
+def test_a_rule_that_builds_a_path_is_answered_with_a_failure_report(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    # A shop's own rule takes whatever the operator typed; a folder in it is no program name.
+    sim = haas.fleet.sims["haas-serial-1"]
+    haas.call(lambda: sim.control.save_program("%\nO09999 (SEND ../../etc/passwd)\nM30\n%\n"))
+    rule = "[[requests.rules]]\npattern = '\\(SEND\\s+(?P<part>\\S+)\\)'\ntemplate = '{part}'\n"
+    client, key = _server(tmp_path, haas, procs, db_url, extra=rule)
+    with client:
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        port.select("punch:O9999")
+        port.select("auto")
+        report = wait_for(
+            "the failure report in the control's memory",
+            lambda: _read(haas, sim, 9998),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert "NOT A PROGRAM NAME" in report
+        (row,) = client.get(
+            "/api/audit", headers=auth(key), params={"action": "program.request"}
+        ).json()
+        assert (row["detail"]["requested"], row["detail"]["sent"]) == (["../../etc/passwd"], [])
+        assert client.get("/api/programs", headers=auth(key)).json() == []
+        assert client.get("/api/inbox", headers=auth(key)).json() == []
+    assert not any(tmp_path.rglob("passwd"))
 
 
 def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
@@ -236,6 +278,11 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         control = slow_haas.fleet.sims["haas-serial-1"].control
         slow_haas.call(control.reset)
         lines_before, runs_before = front.dnc_lines, len(front.messages)
+        # The reported line is the first one the control did not get: the first run began
+        # at the program's first block and handed lines_before blocks to the control.
+        lines = program.decode().splitlines()
+        first_block = next(i for i, line in enumerate(lines) if line == front.dnc_heads[0][0])
+        assert first_block + lines_before + 1 == stopped_at, (lines_before, stopped_at)
 
         again = client.post(
             f"/api/jobs/{job_id}/retry", headers=auth(key), json={"from_line": stopped_at}
@@ -250,3 +297,13 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         ran = front.dnc_lines - lines_before
         remaining = total - stopped_at + 1
         assert remaining <= ran <= remaining + 20, (ran, remaining)
+        # The second run began with the preamble that restores the program's modal state
+        # (units, tool, work offset, spindle), then went on at the reported line itself.
+        head = front.dnc_heads[-1]
+        # ``remaining`` counts the closing %, which is no block.
+        fed_from_the_program = remaining - 1
+        preamble = head[: ran - fed_from_the_program]
+        assert f"(OPENDNC RESTART AT LINE {stopped_at})" in preamble, head
+        for block in ("G20", "T1 M06", "G54", "S1200 M03"):
+            assert block in preamble, (block, head)
+        assert head[len(preamble) : len(preamble) + 3] == lines[stopped_at - 1 : stopped_at + 2]

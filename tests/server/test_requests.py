@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,6 +14,7 @@ from opendnc.server.requests import RequestRule, RequestSettings, find_request, 
 from opendnc.xmodem.haas import program_header
 
 DEFAULT = RequestSettings()
+CLI = [sys.executable, "-m", "opendnc.cli.main"]
 
 
 @pytest.mark.parametrize(
@@ -57,6 +61,11 @@ def test_report_program_is_a_valid_haas_program() -> None:
         ("[requests]\ncolour = 'red'\n", "requests.colour"),
         ("[[requests.rules]]\npattern = '(unclosed'\ntemplate = 'x'\n", "requests.rules[0]"),
         ("[[requests.rules]]\npattern = 'A(?P<a>.)'\ntemplate = '{b}.nc'\n", "requests.rules[0]"),
+        # A template names a program in the library: no folders, no field tricks.
+        *(
+            (f"[[requests.rules]]\npattern = 'S(?P<a>.)'\ntemplate = '{t}'\n", "requests.rules[0]")
+            for t in ("../{a}.nc", "{a}/x.nc", "C:\\\\{a}", "{}.nc", "{a.real}", "{a!r}{", "{a:d}")
+        ),
         ("[[machines]]\nname = 'm'\nkind = 'lsv2'\nhost = 'h'\nport = 'x'\n", "machines[0].port"),
         ("[[machines]]\nname = 'm'\nkind = 'fanuc'\n", "machines[0].kind"),
         ("[[machines]]\nname = '../m'\nkind = 'lsv2'\n", "machines[0].name"),
@@ -92,3 +101,61 @@ def test_relative_paths_are_taken_from_the_file(tmp_path: Path) -> None:
     )
     assert config.server.database == f"sqlite:///{tmp_path / 'db' / 'shop.db'}"
     assert config.library.path == tmp_path / "progs"
+
+
+def test_the_rule_tester_shows_the_rule_that_takes_a_request(tmp_path: Path) -> None:
+    # CIMCO's test box, on the command line: type a request, see the rule and the names.
+    config = tmp_path / "shop.toml"
+    config.write_text(
+        "[[requests.rules]]\npattern = '\\(SEND\\s+(?P<part>\\S+)\\)'\ntemplate = '{part}.H'\n"
+        "[[requests.rules]]\npattern = '\\(REQ\\s+O?(?P<number>\\d+)\\)'\n"
+        "template = 'O{number}.nc'\n"
+    )
+
+    def tester(program: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [*CLI, "requests", "test", "--json", "--config", str(config), program],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    second = tester("%\\nO9999 (REQ 12)\\n%")
+    assert second.returncode == 0, second.stderr
+    assert json.loads(second.stdout) == {
+        "rule": 1,
+        "pattern": "\\(REQ\\s+O?(?P<number>\\d+)\\)",
+        "names": ["O00012.nc"],
+        "refused": [],
+    }
+    first = json.loads(tester("%\\nO9999 (SEND BRACKET) (REQ 12)\\n%").stdout)
+    assert (first["rule"], first["names"]) == (0, ["BRACKET.H"])
+    sneaky = json.loads(tester("%\\nO9999 (SEND ../../etc/passwd)\\n%").stdout)
+    assert sneaky["refused"] == ["../../etc/passwd.H"]
+    plain = tester("%\\nO1234 (BRACKET)\\nM30\\n%")
+    assert plain.returncode == 1
+    assert json.loads(plain.stdout) is None
+
+
+@pytest.mark.parametrize(
+    ("toml", "first_words"),
+    [
+        ("[[machines]]\nname = 'm'\nkind = 'lsv2'\nhost = 'h'\nport = 'x'\n", "machines[0].port: "),
+        ("[server]\nbind = \n", "not valid TOML: "),
+    ],
+)
+def test_serve_with_a_bad_configuration_says_one_line(
+    tmp_path: Path, toml: str, first_words: str
+) -> None:
+    config = tmp_path / "shop.toml"
+    config.write_text(toml)
+    proc = subprocess.run(
+        [*CLI, "serve", "--config", str(config), "--db", f"sqlite:///{tmp_path / 'x.db'}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.startswith(f"error: {first_words}"), proc.stderr
+    assert proc.stderr.count("\n") == 1, proc.stderr
+    assert not (tmp_path / "x.db").exists()  # nothing started, nothing written

@@ -2,14 +2,24 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, inspect, text
 from sqlalchemy.exc import DBAPIError
 
-from opendnc.server import audit
-from opendnc.server.store.db import current_revision, head_revision, make_engine, migrate
+from opendnc.server import audit, inbox, library
+from opendnc.server.store.db import (
+    MIGRATIONS,
+    current_revision,
+    head_revision,
+    make_engine,
+    make_sessions,
+    migrate,
+)
 from opendnc.server.store.models import Base
 
 
@@ -84,5 +94,58 @@ def test_upgrade_from_the_previous_revision_keeps_the_data(db_url: str) -> None:
         with engine.connect() as conn:
             assert conn.execute(text("SELECT name FROM programs")).scalars().all() == ["O1.nc"]
             assert conn.execute(text("SELECT actor FROM audit")).scalars().all() == ["ann"]
+    finally:
+        engine.dispose()
+
+
+def test_upgrade_from_the_revision_before_head(db_url: str) -> None:
+    # A shop running the schema just before this one: its library, audit trail and inbox come
+    # along, the upgraded schema is the models' schema, and the server's code works on it.
+    previous = ScriptDirectory(str(MIGRATIONS)).get_revision(head_revision()).down_revision
+    assert isinstance(previous, str)
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, previous)
+        assert current_revision(engine) == previous
+        data = b"%\nO1\nM30\n%\n"
+        digest = hashlib.sha256(data).hexdigest()
+        with engine.begin() as conn:
+            conn.execute(
+                text("INSERT INTO blobs (sha256, size, data) VALUES (:h, :n, :d)"),
+                {"h": digest, "n": len(data), "d": data},
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO programs (name, locked, created) "
+                    "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
+                )
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO audit (at, actor, action, result, detail) "
+                    "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
+                )
+            )
+            conn.execute(
+                text(
+                    "INSERT INTO received (machine, name, sha256, size, state, reason, path, at) "
+                    "VALUES ('vf2', 'O1.nc', :h, :n, 'new', '', 'inbox/O1.nc', CURRENT_TIMESTAMP)"
+                ),
+                {"h": digest, "n": len(data)},
+            )
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        with engine.connect() as conn:
+            assert compare_metadata(MigrationContext.configure(conn), Base.metadata) == []
+        sessions = make_sessions(engine)
+        with sessions.begin() as session:
+            version, created = library.add_version(session, "O1.nc", data, author="bob")
+            assert (created, version.number) == (True, 1)
+        with sessions() as session:
+            (item,) = inbox.list_received(session)
+            assert (item.machine, inbox.content(session, item)) == ("vf2", data)
+            actors = [r.actor for r in audit.query(session)]
+            assert "ann" in actors
+            assert "bob" in actors
     finally:
         engine.dispose()

@@ -46,6 +46,9 @@ COMMANDS: dict[str, Lazy] = {
     "serve": Lazy("opendnc.cli.serve:serve", "Run the DNC server for the machines of a config."),
     "keys": Lazy("opendnc.cli.serve:keys_app", "API keys of the DNC server."),
     "users": Lazy("opendnc.cli.serve:users_app", "People who log in to the DNC server."),
+    "requests": Lazy(
+        "opendnc.cli.serve:requests_app", "Remote-request rules: test which rule takes a request."
+    ),
     "demo": Lazy(
         "opendnc.cli.demo_server:demo",
         "The DNC server with a virtual shop floor (--tour: a short command-line tour).",

@@ -27,6 +27,9 @@ if TYPE_CHECKING:
 
 keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
 users_app = typer.Typer(help="People who log in to the DNC server.", no_args_is_help=True)
+requests_app = typer.Typer(
+    help="Remote-request rules of a server configuration.", no_args_is_help=True
+)
 
 ConfigOption = typer.Option(..., "--config", "-c", help="The server's TOML configuration.")
 DbOption = typer.Option(None, "--db", help="Database URL (overrides the configuration).")
@@ -252,3 +255,55 @@ def users_password(
         with _session(config, db) as session:
             auth.set_password(session, name, password, actor="cli")
         typer.echo(f"password of {name} set")
+
+
+@requests_app.command("test")
+def requests_test(
+    program: str = typer.Argument(
+        ...,
+        help="The request as the control sends it, e.g. '%\\nO9999 (REQ O1234)\\n%' "
+        "(\\n is a new line); '-' reads it from stdin.",
+    ),
+    config: Path = ConfigOption,
+    json_out: bool = typer.Option(False, "--json", help="Print a JSON object."),
+) -> None:
+    """Show which of the configured rules takes a request and the programs it asks for,
+    and which of those names the server would refuse. Exit status 1 when no rule matches."""
+    import sys
+
+    with cli_errors():
+        from opendnc.server import library
+        from opendnc.server.config import load_config
+        from opendnc.server.requests import match_request
+
+        shop = load_config(config)
+        text = sys.stdin.read() if program == "-" else program.replace("\\n", "\n")
+        found = match_request(text.encode("latin-1", "replace"), shop.requests)
+        refused: list[str] = []
+        if found is not None:
+            for name in found.names:
+                try:
+                    library.check_program_name(name)
+                except InputError:
+                    refused.append(name)
+        if json_out:
+            print_json(
+                None
+                if found is None
+                else {
+                    "rule": found.index,
+                    "pattern": found.pattern,
+                    "names": found.names,
+                    "refused": refused,
+                }
+            )
+        elif found is None:
+            typer.echo("no rule matches: an ordinary program (it goes to the inbox)")
+        else:
+            typer.echo(f"rule {found.index}: {found.pattern}")
+            for name in found.names:
+                typer.echo(
+                    f"  {name}" + ("  (refused: not a program name)" if name in refused else "")
+                )
+        if found is None:
+            raise typer.Exit(1)

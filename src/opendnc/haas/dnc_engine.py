@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import enum
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -201,6 +202,10 @@ class ProgramFeed:
         self.from_line = from_line
         self.retract = retract
         self.position = 0
+        # File offset up to which every line is out once the line last yielded is out: what
+        # a run stopped there has done (a restart from the next line skips and repeats
+        # nothing). The preamble of a restart has done none of its own line.
+        self.done_at = 0
         self.lines = 0  # lines handed out (preamble included)
         self.plan: RestartPlan | None = None
 
@@ -208,15 +213,19 @@ class ProgramFeed:
         """Close the file."""
         self._file.close()
 
-    def _read_lines(self) -> Iterator[tuple[int, str]]:
+    def _read_lines(self) -> Iterator[tuple[int, str, int]]:
+        """(line number, text, offset done once this text is out)."""
         for number, raw in enumerate(self._file, start=1):
+            start = self.position
             self.position += len(raw)
             text = raw.rstrip(b"\r\n").decode("latin-1")
             if "\r" in text:  # old Mac-style files: CR only
-                for part in text.split("\r"):
-                    yield number, part
+                *parts, last = text.split("\r")
+                for part in parts:
+                    yield number, part, start
+                yield number, last, self.position
             else:
-                yield number, text
+                yield number, text, self.position
 
     def __iter__(self) -> Iterator[bytes]:
         wire = self.eob.wire
@@ -225,24 +234,29 @@ class ProgramFeed:
         last = ""
         if self.from_line > 1:
             state = ModalState()
-            for number, text in lines:
+            before = 0
+            for number, text, done in lines:
                 if number >= self.from_line:
                     self.plan = restart_preamble(state, self.from_line, retract=self.retract)
+                    self.done_at = before
                     for block in self.plan.preamble:
                         self.lines += 1
                         yield block.encode("latin-1") + wire
                     opened = True
+                    self.done_at = done
                     if text.strip():
                         last = text.strip()
                         self.lines += 1
                         yield text.encode("latin-1") + wire
                     break
+                before = done
                 state = track(state, text)
             else:
                 raise InputError(f"{self.path} has fewer than {self.from_line} lines")
-        for _number, text in lines:
+        for _number, text, done in lines:
             stripped = text.strip()
             if not stripped:
+                self.done_at = done
                 continue  # empty blocks only waste the control's buffer
             if not opened:
                 opened = True
@@ -250,8 +264,10 @@ class ProgramFeed:
                     self.lines += 1
                     yield b"%" + wire
             last = stripped
+            self.done_at = done
             self.lines += 1
             yield text.encode("latin-1") + wire
+        self.done_at = self.position
         if last != "%":
             self.lines += 1
             yield b"%" + wire
@@ -341,6 +357,11 @@ class DncRun:
         self._heard_at = self.started  # when the control last sent XON or XOFF
         self._gap_due = False  # a line just went out whole: its line delay starts next step
         self._gap_until = self.started  # no line before this time (the line delay)
+        self._queued = 0  # bytes queued to the streamer so far
+        # (queued bytes at the end of a line, the feed's done_at for it), oldest first: what
+        # progress reports once the streamer has handed those bytes out
+        self._marks: deque[tuple[int, int]] = deque()
+        self._reported = -1
 
     def _wire(self) -> Iterator[bytes]:
         if self.config.leader:
@@ -356,16 +377,31 @@ class DncRun:
         if self.config.line_delay > 0:
             if streamer.pending or self._exhausted or self.clock() < self._gap_until:
                 return
-            try:
-                streamer.queue(next(self._lines))
-            except StopIteration:
-                self._exhausted = True
+            self._queue_line()
             return
         while not self._exhausted and streamer.pending < self._low_water:
-            try:
-                streamer.queue(next(self._lines))
-            except StopIteration:
-                self._exhausted = True
+            self._queue_line()
+
+    def _queue_line(self) -> None:
+        try:
+            line = next(self._lines)
+        except StopIteration:
+            self._exhausted = True
+            return
+        self.streamer.queue(line)
+        self._queued += len(line)
+        self._marks.append((self._queued, self.feed.done_at))
+
+    def _report_progress(self) -> None:
+        """Progress for the lines the driver has written whole (it calls :meth:`next_step`
+        after doing each step): reported after the write, never for bytes still queued, so a
+        run stopped from the callback names the first line the control did not get whole."""
+        done = None
+        while self._marks and self._marks[0][0] <= self.streamer.sent:
+            done = self._marks.popleft()[1]
+        if done is not None and done != self._reported and self.progress is not None:
+            self._reported = done
+            self.progress(done, self.feed.total)
 
     @property
     def finished(self) -> bool:
@@ -394,8 +430,6 @@ class DncRun:
         out = self.streamer.data_to_send()
         if out and self.config.line_delay > 0 and not self.streamer.pending:
             self._gap_due = True
-        if out and self.progress is not None:
-            self.progress(self.feed.position, self.feed.total)
         return out
 
     def link_closed(self) -> None:
@@ -405,6 +439,7 @@ class DncRun:
     def next_step(self) -> Step:
         """What the driver does next. Raises :class:`TransportTimeout` once XOFF lasted too
         long and :class:`PeerClosed` once the control closed the link before the end."""
+        self._report_progress()
         if self._closed:
             self.fill()
             if not self.finished:

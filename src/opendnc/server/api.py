@@ -280,6 +280,15 @@ async def upload_program(
     return out
 
 
+@router.put("/programs/{name:path}", status_code=201, include_in_schema=False)
+def upload_program_with_a_folder(name: str, _who: Programmer) -> None:
+    """A name holding a (decoded) slash matches no other route: refuse it with 400 like every
+    other bad name, not 404. ``{name}`` above stays the upload route: ``:path`` would let a
+    name end in a newline that the route pattern's ``$`` does not see."""
+    library.check_program_name(name)
+    raise InputError(f"program name {name[:40]!r}: no folders")
+
+
 @router.get("/programs/{name}/versions/{number}/content")
 def program_content(db: Db, name: str, number: int, _who: Viewer) -> Response:
     """The bytes of one version."""

@@ -14,11 +14,19 @@ could not be sent, which the operator sees in the control's program list.
 from __future__ import annotations
 
 import re
+import string
 from dataclasses import dataclass, field
 
 from opendnc.errors import InputError
 
-__all__ = ["RequestRule", "RequestSettings", "find_request", "report_program"]
+__all__ = [
+    "RequestMatch",
+    "RequestRule",
+    "RequestSettings",
+    "find_request",
+    "match_request",
+    "report_program",
+]
 
 
 @dataclass(frozen=True)
@@ -35,10 +43,24 @@ class RequestRule:
             compiled = re.compile(pattern, re.IGNORECASE)
         except re.error as exc:
             raise InputError(f"{key}.pattern: not a regular expression: {exc}") from None
-        fields = set(re.findall(r"{(\w+)", template))
+        try:
+            parts = list(string.Formatter().parse(template))
+        except ValueError as exc:
+            raise InputError(f"{key}.template: {exc}") from None
+        literal = "".join(text for text, _, _, _ in parts)
+        if "/" in literal or "\\" in literal or ".." in literal or not literal.isprintable():
+            # The template only names a program in the library; it never reaches a folder.
+            raise InputError(f"{key}.template: no folders, '..' or control characters")
+        fields = {name for _, name, _, _ in parts if name is not None}
+        if not all(name.isidentifier() for name in fields):
+            raise InputError(f"{key}.template: fields are group names such as {{number}}")
         unknown = fields - set(compiled.groupindex) - {"number"}
         if unknown:
             raise InputError(f"{key}.template names groups the pattern lacks: {sorted(unknown)}")
+        try:
+            template.format(**dict.fromkeys(fields, "1"))
+        except ValueError as exc:
+            raise InputError(f"{key}.template: {exc}") from None
         return cls(compiled, template)
 
     def names(self, text: str) -> list[str]:
@@ -71,20 +93,37 @@ class RequestSettings:
     rules: tuple[RequestRule, ...] = field(default_factory=lambda: DEFAULT_RULES)
 
 
-def find_request(data: bytes, settings: RequestSettings) -> list[str] | None:
-    """The program names ``data`` asks for, or None when it is not a request."""
+@dataclass(frozen=True)
+class RequestMatch:
+    """Which rule took a request (``index`` in the configured order) and the names it built."""
+
+    index: int
+    pattern: str
+    names: list[str]
+
+
+def match_request(data: bytes, settings: RequestSettings) -> RequestMatch | None:
+    """The first rule that matches ``data`` and the program names it asks for; None when
+    ``data`` is not a request. What ``opendnc requests test`` shows."""
     lines = data.decode("latin-1").splitlines()
     head = "\n".join(line for line in lines if line.strip() not in ("", "%"))
     head = "\n".join(head.splitlines()[: settings.scan_lines])
-    for rule in settings.rules:
+    for index, rule in enumerate(settings.rules):
         names = rule.names(head)
         if not names:
             continue
         if rule is DEFAULT_RULES[0]:
             # The default REQ rule matched the whole comment; take every REQ inside it.
             names = [f"O{int(n):05d}.nc" for n in _EACH_REQ.findall(head)]
-        return list(dict.fromkeys(names))  # each program once, in the order asked
+        # each program once, in the order asked
+        return RequestMatch(index, rule.pattern.pattern, list(dict.fromkeys(names)))
     return None
+
+
+def find_request(data: bytes, settings: RequestSettings) -> list[str] | None:
+    """The program names ``data`` asks for, or None when it is not a request."""
+    found = match_request(data, settings)
+    return None if found is None else found.names
 
 
 def _comment(text: str) -> str:

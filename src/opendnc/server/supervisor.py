@@ -517,6 +517,13 @@ class Supervisor:
         sent: list[str] = []
         for name in names:
             try:
+                # A rule builds the name from what the operator typed: only a program name
+                # is looked up (docs/server.md#receiving-and-remote-request).
+                library.check_program_name(name)
+            except InputError:
+                problems.append(f"{name} NOT A PROGRAM NAME")
+                continue
+            try:
                 version = library.released_version(session, name)
                 if version is None and not machine.released_only:
                     version = library.get_version(session, name)

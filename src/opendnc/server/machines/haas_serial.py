@@ -255,13 +255,15 @@ class HaasSerialConnector:
         seen = [0, 0]  # bytes consumed, line ends among them
 
         def on_progress(done: int, total: int | None) -> None:
-            # File bytes consumed -> the program line reached (lines before from_line count
-            # as done: they were skipped, not sent) and the bytes this feed took to get there.
+            # File bytes written whole -> the first line the control has not got whole, where
+            # a restart begins (lines before from_line count as done: they were skipped, not
+            # sent; the leader of a restart reports nothing of the file yet), and the bytes
+            # this feed took to get there.
             if done < seen[0]:
                 seen[:] = [0, 0]
             seen[1] += data.count(b"\n", seen[0], done)
             seen[0] = done
-            progress(seen[1] + 1, lines, max(0, done - skipped), feed_total)
+            progress(max(from_line, seen[1] + 1), lines, max(0, done - skipped), feed_total)
 
         try:
             # the machine's dripfeed = true is the opt-in to a run

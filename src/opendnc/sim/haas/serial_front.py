@@ -161,6 +161,9 @@ class SerialFrontEnd:
         self.messages: list[str] = []
         self.programs: list[int] = []  # O numbers received into memory, in order
         self.dnc_lines = 0  # blocks handed to the control by DNC runs
+        # The first DNC_HEAD blocks of every DNC run, so a test can see how a run began
+        # (a restart's preamble); bounded, as a run may be megabytes long.
+        self.dnc_heads: list[list[str]] = []
         self.xoffs = 0
         self.xons = 0
         self.jobs_done = 0
@@ -480,6 +483,9 @@ class SerialFrontEnd:
         run.wait_finished(self._stop)
 
 
+DNC_HEAD = 50  # blocks of each DNC run kept in SerialFrontEnd.dnc_heads
+
+
 class _DncRun:
     """One DNC run seen from the I/O thread: blocks go to the control, flow bytes to the PC."""
 
@@ -533,6 +539,10 @@ class _DncRun:
                     session.finish()
 
             front.post(feed)
+            if self.fed == 0:
+                front.dnc_heads.append([])
+            head = front.dnc_heads[-1]
+            head += body[: max(0, DNC_HEAD - len(head))]
             self.fed += len(body)
             front.dnc_lines += len(body)
             if closing:
