@@ -33,6 +33,7 @@ import threading
 import time
 import urllib.parse
 import urllib.request
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +100,7 @@ def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[st
     conn.request("GET", "/events/cards", headers={"Cookie": cookie})
     reply = conn.getresponse()
     arrivals: list[float] = []
+    sending: list[bool] = []  # whether the chunk showed a card with a running transfer
     events = 0
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -109,10 +111,37 @@ def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[st
         count = chunk.count(b"event: card-") + chunk.count(b'hx-swap-oob="innerHTML"')
         if count:  # keep-alives say nothing about updates
             arrivals.append(time.monotonic())
+            sending.append(b"<progress" in chunk)
         events += count
     conn.close()
     gaps = [b - a for a, b in itertools.pairwise(arrivals)]
-    out.update(chunks=len(arrivals), events=events, gap_max=max(gaps, default=0.0))
+    # While transfers run, every flush (CARD_INTERVAL) has progress to show: a longer gap
+    # after a chunk that showed one is a stall of the stream, not a quiet shop.
+    busy = [gap for gap, shown in zip(gaps, sending, strict=False) if shown]
+    out.update(
+        chunks=len(arrivals),
+        events=events,
+        gap_max=max(gaps, default=0.0),
+        sending_chunks=sum(sending),
+        sending_gap_max=max(busy, default=0.0),
+        sending_gaps=sorted(busy),
+    )
+
+
+def _stalls(base: str, since: float) -> list[dict[str, Any]]:
+    """The server's event-loop stalls from ``since`` (a time.time()) on, longest first."""
+    with urllib.request.urlopen(base + "/api/health/loop", timeout=30) as reply:
+        report = json.load(reply)
+    recent = report["recent_stalls"]
+    start = datetime.fromtimestamp(since, UTC)
+    return sorted(
+        (s for s in recent if datetime.fromisoformat(s["at"]) >= start),
+        key=lambda s: -s["seconds"],
+    )
+
+
+def _load() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[str, Any] | None:
@@ -252,6 +281,8 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
                 tail = (folder / "server.log").read_text(errors="replace")[-3000:]
                 raise SystemExit(f"queueing the sends failed: {exc}\n{tail}") from None
 
+        print(f"  load average before the window: {_load()}", flush=True)
+        window_start = time.time()
         figures = _browser(base, cookie, n, send, seconds)
         if figures is None:
             send()
@@ -279,12 +310,35 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
             f"{stream.get('gap_max', 0) * 1000:.0f} ms",
             flush=True,
         )
+        if stream.get("sending_chunks"):
+            gaps = stream["sending_gaps"]
+            print(
+                f"  while transfers showed: {stream['sending_chunks']} chunks, gap after one "
+                f"median {statistics.median(gaps or [0]) * 1000:.0f} ms, longest "
+                f"{stream['sending_gap_max'] * 1000:.0f} ms",
+                flush=True,
+            )
+        stalls = _stalls(base, window_start)
+        longest = stalls[0] if stalls else None
+        if longest is None:
+            print("  server event loop: no stall of 50 ms or more in the window", flush=True)
+        else:
+            wait = "?" if longest["wait"] is None else f"{longest['wait'] * 1000:.0f} ms"
+            total = sum(s["seconds"] for s in stalls)
+            print(
+                f"  server event loop: {len(stalls)} stalls of 50 ms or more, "
+                f"{total:.2f} s in all; longest {longest['seconds'] * 1000:.0f} ms "
+                f"(its thread ran {longest['run'] * 1000:.0f} ms, waited for a CPU {wait})",
+                flush=True,
+            )
+        print(f"  load average after the window: {_load()}", flush=True)
         done = [j for j in _get(base + "/api/jobs?limit=1000", key) if j["state"] == "done"]
         print(f"  jobs done by then: {len(done)} of {n}", flush=True)
     finally:
         if server is not None:
             _stop(server)
         _stop(fleet)
+
 
 
 def main() -> None:

@@ -27,6 +27,7 @@ from opendnc.errors import DncError, InputError
 from opendnc.server import audit, auth, inbox, jobs, library
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import EventBus
+from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.store.models import (
     AuditEntry,
     Job,
@@ -199,6 +200,14 @@ def audit_json(a: AuditEntry) -> dict[str, Any]:
 def health() -> dict[str, str]:
     """Liveness probe; needs no key."""
     return {"status": "ok"}
+
+
+@router.get("/health/loop")
+async def loop_health(request: Request) -> dict[str, Any]:
+    """The event loop's stalls (:mod:`opendnc.server.loopwatch`); needs no key. Async: it
+    reads the watch on the loop, the only thread that writes it."""
+    watch: LoopWatch = request.app.state.loopwatch
+    return watch.as_json()
 
 
 @router.get("/machines")
