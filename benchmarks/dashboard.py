@@ -340,7 +340,6 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
         _stop(fleet)
 
 
-
 def main() -> None:
     """Run one fleet size."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
