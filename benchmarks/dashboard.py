@@ -115,9 +115,11 @@ def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[st
         events += count
     conn.close()
     gaps = [b - a for a, b in itertools.pairwise(arrivals)]
-    # While transfers run, every flush (CARD_INTERVAL) has progress to show: a longer gap
-    # after a chunk that showed one is a stall of the stream, not a quiet shop.
-    busy = [gap for gap, shown in zip(gaps, sending, strict=False) if shown]
+    # From the send until the chunk after the last one that showed a transfer, every flush
+    # (CARD_INTERVAL) has news (queue lengths, jobs starting, progress): a longer gap there
+    # is a stall of the stream, not a quiet shop.
+    last = max((i for i, shown in enumerate(sending) if shown), default=-1)
+    busy = gaps[: last + 1]
     out.update(
         chunks=len(arrivals),
         events=events,
@@ -313,7 +315,7 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
         if stream.get("sending_chunks"):
             gaps = stream["sending_gaps"]
             print(
-                f"  while transfers showed: {stream['sending_chunks']} chunks, gap after one "
+                f"  until the last transfer ended: {len(gaps) + 1} chunks, gap between two "
                 f"median {statistics.median(gaps or [0]) * 1000:.0f} ms, longest "
                 f"{stream['sending_gap_max'] * 1000:.0f} ms",
                 flush=True,

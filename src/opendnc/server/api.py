@@ -662,9 +662,13 @@ async def _event_stream(
         while not await request.is_disconnected():
             timeout = max(0.0, flush_at - loop.time())
             try:
-                event = await asyncio.wait_for(sub.get(), timeout)
-                # Keep only the newest event per machine or job until the next flush.
-                pending[(event.kind, event.key)] = event.data
+                # The first event, then everything queued meanwhile, in one go: a wait per
+                # event costs the loop more than the event (thousands of progress reports a
+                # second while hundreds of transfers run).
+                events = [await asyncio.wait_for(sub.get(), timeout), *sub.drain()]
+                for event in events:
+                    # Keep only the newest event per machine or job until the next flush.
+                    pending[(event.kind, event.key)] = event.data
             except TimeoutError:
                 pass
             if loop.time() >= flush_at:

@@ -424,7 +424,8 @@ async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
         while not await request.is_disconnected():
             try:
                 event = await asyncio.wait_for(sub.get(), max(0.0, flush_at - loop.time()))
-                dirty = dirty or event.kind in kinds
+                # the backlog in one go (it holds every machine's progress too)
+                dirty = dirty or any(e.kind in kinds for e in [event, *sub.drain()])
                 if loop.time() < flush_at:
                     continue
             except TimeoutError:
