@@ -11,7 +11,8 @@ writes the configuration; ``opendnc serve`` runs them. Once every machine is onl
   progress; over the window the benchmark counts card updates swapped into the page, the
   longest gap between two swaps while jobs ran, and the browser's long tasks (main thread
   blocked over 50 ms, what a person feels as a stall). The raw event stream is read at the
-  same time for its flush rhythm (gaps between chunks).
+  same time for its flush rhythm (gaps between messages, the longest until the last
+  transfer ended), and the server's event-loop stalls in the window (/api/health/loop).
 
 Target (the dashboard issue): 200 machines, first render under 1 s, updates without stalls.
 
@@ -37,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fleet import _cli, _free_port, _get, _stop
+from fleet import _cli, _free_port, _get, _stop, stalls
 
 PASSWORD = "bench-password-1"
 PROGRAM = (
@@ -94,11 +95,12 @@ def _server_render(host: str, port: int, cookie: str, times: int = 7) -> tuple[f
 
 
 def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[str, Any]) -> None:
-    """Read the raw event stream: when chunks arrive and how many card events they hold."""
+    """Read the raw event stream: when messages arrive and how many card events they hold."""
     conn = http.client.HTTPConnection(host, port, timeout=seconds + 30)
     conn.request("GET", "/events/cards", headers={"Cookie": cookie})
     reply = conn.getresponse()
     arrivals: list[float] = []
+    sending: list[bool] = []  # whether the chunk showed a card with a running transfer
     events = 0
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -107,12 +109,33 @@ def _read_stream(host: str, port: int, cookie: str, seconds: float, out: dict[st
             break
         # a card of its own (event card-NAME) or one in a batch (out-of-band swap)
         count = chunk.count(b"event: card-") + chunk.count(b'hx-swap-oob="innerHTML"')
-        if count:  # keep-alives say nothing about updates
+        # keep-alives say nothing about updates, and a big message comes in several reads:
+        # a message starts with its event line
+        if b"event: card" in chunk:
             arrivals.append(time.monotonic())
+            sending.append(b"<progress" in chunk)
+        elif sending and b"<progress" in chunk:
+            sending[-1] = True
         events += count
     conn.close()
     gaps = [b - a for a, b in itertools.pairwise(arrivals)]
-    out.update(chunks=len(arrivals), events=events, gap_max=max(gaps, default=0.0))
+    # From the send until the chunk after the last one that showed a transfer, every flush
+    # (CARD_INTERVAL) has news (queue lengths, jobs starting, progress): a longer gap there
+    # is a stall of the stream, not a quiet shop.
+    last = max((i for i, shown in enumerate(sending) if shown), default=-1)
+    busy = gaps[: last + 1]
+    out.update(
+        chunks=len(arrivals),
+        events=events,
+        gap_max=max(gaps, default=0.0),
+        sending_chunks=sum(sending),
+        sending_gap_max=max(busy, default=0.0),
+        sending_gaps=sorted(busy),
+    )
+
+
+def _load() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[str, Any] | None:
@@ -252,6 +275,8 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
                 tail = (folder / "server.log").read_text(errors="replace")[-3000:]
                 raise SystemExit(f"queueing the sends failed: {exc}\n{tail}") from None
 
+        print(f"  load average before the window: {_load()}", flush=True)
+        window_start = time.time()
         figures = _browser(base, cookie, n, send, seconds)
         if figures is None:
             send()
@@ -275,10 +300,32 @@ def run(n: int, seconds: float, poll: float, folder: Path) -> None:
         reader.join()
         print(
             f"  event stream: {stream.get('events', 0)} card events in "
-            f"{stream.get('chunks', 0)} chunks, longest gap between them "
+            f"{stream.get('chunks', 0)} messages, longest gap between them "
             f"{stream.get('gap_max', 0) * 1000:.0f} ms",
             flush=True,
         )
+        if stream.get("sending_chunks"):
+            gaps = stream["sending_gaps"]
+            print(
+                f"  until the last transfer ended: {len(gaps) + 1} messages, gap between two "
+                f"median {statistics.median(gaps or [0]) * 1000:.0f} ms, longest "
+                f"{stream['sending_gap_max'] * 1000:.0f} ms",
+                flush=True,
+            )
+        seen = stalls(base, window_start)
+        longest = seen[0] if seen else None
+        if longest is None:
+            print("  server event loop: no stall of 50 ms or more in the window", flush=True)
+        else:
+            wait = "?" if longest["wait"] is None else f"{longest['wait'] * 1000:.0f} ms"
+            total = sum(s["seconds"] for s in seen)
+            print(
+                f"  server event loop: {len(seen)} stalls of 50 ms or more, "
+                f"{total:.2f} s in all; longest {longest['seconds'] * 1000:.0f} ms "
+                f"(its thread ran {longest['run'] * 1000:.0f} ms, waited for a CPU {wait})",
+                flush=True,
+            )
+        print(f"  load average after the window: {_load()}", flush=True)
         done = [j for j in _get(base + "/api/jobs?limit=1000", key) if j["state"] == "done"]
         print(f"  jobs done by then: {len(done)} of {n}", flush=True)
     finally:

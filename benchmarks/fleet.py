@@ -7,7 +7,9 @@ TNCs over LSV2, half virtual Haas NGCs over MDC) and writes the server's configu
 
 - server CPU: user + system time of the server process over the window, in cores;
 - status age: how old each machine's last status is when read (p50, p99, max);
-- missed polls: readings where a status was older than twice the poll interval.
+- missed polls: readings where a status was older than twice the poll interval;
+- the longest stall of the server's event loop in the window, and how much of it the loop's
+  thread waited for a CPU (docs/server.md#event-loop-stalls).
 
 Target (the server issue): 500 machines on this 2-core machine, p99 status age under 2 s and
 the server under one core. The fleet process runs on the same two cores and costs CPU too.
@@ -72,6 +74,17 @@ def _get(url: str, key: str) -> Any:
     request = urllib.request.Request(url, headers={"Authorization": f"Bearer {key}"})
     with urllib.request.urlopen(request, timeout=30) as reply:
         return json.load(reply)
+
+
+def stalls(base: str, since: float) -> list[dict[str, Any]]:
+    """The server's event-loop stalls (``/api/health/loop``) from ``since`` (a time.time())
+    on, longest first: each with ``seconds`` late, ``run`` (its thread ran) and ``wait``
+    (waited for a CPU), docs/server.md#event-loop-stalls."""
+    with urllib.request.urlopen(base + "/api/health/loop", timeout=30) as reply:
+        report = json.load(reply)
+    start = datetime.fromtimestamp(since, UTC)
+    recent = [s for s in report["recent_stalls"] if datetime.fromisoformat(s["at"]) >= start]
+    return sorted(recent, key=lambda s: -s["seconds"])
 
 
 def _percentile(values: list[float], p: float) -> float:
@@ -139,7 +152,7 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
                 raise SystemExit(f"machines did not come online for N={n}")
             time.sleep(0.5)
         online_after = time.monotonic() - started
-        cpu0, t0 = _cpu_seconds(server.pid), time.monotonic()
+        cpu0, t0, wall0 = _cpu_seconds(server.pid), time.monotonic(), time.time()
         ages: list[float] = []
         missed = readings = 0
         errors: dict[str, int] = {}
@@ -160,6 +173,7 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
             # A random phase: sampling in step with the polls would always see the same age.
             time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
         cpu = (_cpu_seconds(server.pid) - cpu0) / (time.monotonic() - t0)
+        longest = (stalls(f"http://127.0.0.1:{port}", wall0) or [None])[0]
         return {
             "n": n,
             "online_s": online_after,
@@ -170,11 +184,19 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
             "missed": missed,
             "readings": readings,
             "errors": errors,
+            "stall": longest,
         }
     finally:
         if server is not None:
             _stop(server)
         _stop(fleet)
+
+
+def _stall(stall: dict[str, Any] | None) -> str:
+    if stall is None:
+        return "none of 50 ms"
+    wait = "?" if stall["wait"] is None else f"{stall['wait'] * 1000:.0f}"
+    return f"{stall['seconds'] * 1000:.0f} ms ({wait} ms)"
 
 
 def main() -> None:
@@ -186,7 +208,7 @@ def main() -> None:
     args = parser.parse_args()
     print(
         f"{'N':>5} {'online':>8} {'server CPU':>11} {'age p50':>8} {'age p99':>8} "
-        f"{'age max':>8} {'missed':>12}"
+        f"{'age max':>8} {'missed':>12}  longest loop stall (CPU wait)"
     )
     with tempfile.TemporaryDirectory(prefix="opendnc-fleet-bench-") as tmp:
         for n in (int(x) for x in args.sizes.split(",")):
@@ -194,7 +216,7 @@ def main() -> None:
             print(
                 f"{r['n']:>5} {r['online_s']:>7.1f}s {r['cpu_cores']:>9.2f} c "
                 f"{r['age_p50']:>7.2f}s {r['age_p99']:>7.2f}s {r['age_max']:>7.2f}s "
-                f"{int(r['missed']):>5}/{int(r['readings']):<6}",
+                f"{int(r['missed']):>5}/{int(r['readings']):<6} {_stall(r['stall'])}",
                 flush=True,
             )
             for error, count in sorted(r["errors"].items(), key=lambda kv: -kv[1])[:3]:

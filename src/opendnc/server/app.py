@@ -22,6 +22,7 @@ from opendnc.server import api, dprnt_api, web
 from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
+from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machines import Connector, connector_for
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.netshare import NetShare
@@ -109,9 +110,11 @@ def build(
     if config.mtconnect is not None:
         mtconnect = MtconnectOutput(config.mtconnect, names, bus)
     background: list[asyncio.Task[None]] = []
+    loopwatch = LoopWatch()
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        background.append(asyncio.create_task(loopwatch.run(), name="loop-watch"))
         # The outputs subscribe before the machines' first status, so they miss nothing.
         if publisher is not None:
             background.append(asyncio.create_task(publisher.run(), name="mqtt"))
@@ -139,6 +142,7 @@ def build(
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     api.install(app, sessions, supervisor)
     app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
+    app.state.loopwatch = loopwatch
     app.include_router(dprnt_api.router)
     app.state.dprnt = capture  # the machine page shows each listener's last word
     web.install(app)

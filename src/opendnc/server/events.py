@@ -45,6 +45,13 @@ class Subscription:
         """The next event."""
         return await self.queue.get()
 
+    def drain(self) -> list[Event]:
+        """Every event queued now, without waiting (oldest first)."""
+        out = []
+        while not self.queue.empty():
+            out.append(self.queue.get_nowait())
+        return out
+
 
 class EventBus:
     """Fan-out of events to every subscriber, on the event loop's thread."""

@@ -40,6 +40,7 @@ from opendnc.server.events import EventBus, on_loop
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.machines.base import FolderSource
+from opendnc.server.store.db import read_only
 from opendnc.server.store.models import DprntLine, JobKind, utcnow
 
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
@@ -125,6 +126,7 @@ class Supervisor:
     ) -> None:
         self.config = config
         self.sessions = sessions
+        self._reads = read_only(sessions)  # the sweep's query need not wait for the write lock
         self.bus = bus
         self.connector_factory = connector_factory
         self.sweep_interval = sweep_interval
@@ -170,7 +172,7 @@ class Supervisor:
                 self.wake(name)
 
     def _due_machines(self) -> list[str]:
-        with self.sessions() as session:
+        with self._reads() as session:
             return jobs.machines_with_due_jobs(session)
 
     async def stop(self) -> None:

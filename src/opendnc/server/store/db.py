@@ -6,7 +6,11 @@ one process can share the file; its foreign keys are switched on per connection 
 leaves them off. Every SQLite transaction starts with ``BEGIN IMMEDIATE``: a transaction that
 reads and then writes cannot take the write lock later if another connection committed in
 between (SQLite answers "database is locked" at once, the busy timeout does not apply), so it
-takes the lock first and waits for it instead.
+takes the lock first and waits for it instead. Sessions made with ``read_only`` (reads that
+never commit: the dashboard's pages and live cards, the job sweep) start with a plain
+``BEGIN`` instead: under write-ahead logging they read the last committed state without
+waiting for the write lock, so a burst of job claims does not hold the live views back
+(docs/server.md#event-loop-stalls).
 """
 
 from __future__ import annotations
@@ -25,9 +29,18 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 
-__all__ = ["current_revision", "head_revision", "make_engine", "make_sessions", "migrate"]
+__all__ = [
+    "READ_ONLY",
+    "current_revision",
+    "head_revision",
+    "make_engine",
+    "make_sessions",
+    "migrate",
+    "read_only",
+]
 
 MIGRATIONS = Path(__file__).with_name("migrations")
+READ_ONLY = "opendnc_read_only"  # execution option of the sessions that only read
 
 
 def make_engine(url: str) -> Engine:
@@ -62,12 +75,29 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
 
 
 def _sqlite_begin(connection: Any) -> None:
-    connection.exec_driver_sql("BEGIN IMMEDIATE")
+    if connection.get_execution_options().get(READ_ONLY):
+        connection.exec_driver_sql("BEGIN")  # a snapshot; never takes the write lock
+    else:
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
 
 
-def make_sessions(engine: Engine) -> sessionmaker[Session]:
-    """A session factory whose objects stay readable after commit."""
-    return sessionmaker(engine, expire_on_commit=False)
+def make_sessions(engine: Engine, *, reads_only: bool = False) -> sessionmaker[Session]:
+    """A session factory whose objects stay readable after commit.
+
+    ``reads_only``: for sessions that read and never commit; on SQLite they do not wait for
+    the write lock (see the module docstring). A write in one is not what they are for: it
+    may fail at once with "database is locked" where a writing session would have waited.
+    """
+    options = {READ_ONLY: True} if reads_only else {}
+    return sessionmaker(engine, expire_on_commit=False, execution_options=options)
+
+
+def read_only(sessions: sessionmaker[Session]) -> sessionmaker[Session]:
+    """A factory like ``sessions`` (same engine) whose sessions only read."""
+    engine = sessions.kw["bind"]
+    if not isinstance(engine, Engine):
+        raise InputError("the session factory is not bound to an engine")
+    return make_sessions(engine, reads_only=True)
 
 
 def _alembic_config(connection: Any) -> Config:

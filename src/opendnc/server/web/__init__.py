@@ -20,6 +20,7 @@ from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
 from opendnc.server import api
+from opendnc.server.store.db import read_only
 from opendnc.server.web import render, views
 from opendnc.server.web.timeline import Timeline
 from opendnc.server.web.timeline import running as recording
@@ -32,6 +33,7 @@ STATIC = Path(__file__).parent / "static"
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
     supervisor = app.state.supervisor
+    app.state.read_sessions = read_only(app.state.sessions)
     timeline = Timeline(app.state.sessions, retention_days=supervisor.config.server.timeline_days)
     app.state.timeline = timeline
     inner = app.router.lifespan_context

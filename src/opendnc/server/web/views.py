@@ -23,7 +23,7 @@ from fastapi import APIRouter, Depends, Form, Request, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
 from sqlalchemy import select
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import api, audit, auth, dprnt_api, inbox, jobs, library, machine_files
@@ -117,7 +117,10 @@ Writing = Annotated[Page, Depends(_write_page)]
 
 
 def _read(request: Request, work: Callable[[Session], T]) -> T:
-    with _sessions(request)() as session:
+    # Pages and live cards only read: on SQLite they need not queue behind the write lock
+    # (docs/server.md#event-loop-stalls).
+    reads: sessionmaker[Session] = request.app.state.read_sessions
+    with reads() as session:
         return work(session)
 
 
@@ -190,12 +193,8 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
 
     def load(session: Session) -> tuple[dict[str, int], dict[int, str]]:
         queued = jobs.queue_lengths(session)
-        labels = {}
-        for name in wanted:
-            job_id = states[name].job_id
-            if job_id is not None:
-                labels[job_id] = _job_label(session, job_id)
-        return queued, labels
+        running = [states[name].job_id for name in wanted]
+        return queued, _job_labels(session, [i for i in running if i is not None])
 
     queued, labels = _read(request, load)
     out = []
@@ -207,14 +206,24 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
     return out
 
 
-def _job_label(session: Session, job_id: int) -> str:
-    try:
-        job = jobs.get_job(session, job_id)
-    except NotFound:
-        return ""
+def _label(job: Job) -> str:
     if job.version is not None:
         return f"{job.kind.value} {job.version.program.name} v{job.version.number}"
     return f"{job.kind.value} {job.params.get('name', '')}".strip()
+
+
+def _job_labels(session: Session, ids: list[int]) -> dict[int, str]:
+    # One query for the labels of many jobs (two hundred start at once when a program goes
+    # to every machine), not three per job; a job gone from the table gets none.
+    if not ids:
+        return {}
+    stmt = (
+        select(Job)
+        .where(Job.id.in_(ids))
+        .options(joinedload(Job.version).joinedload(ProgramVersion.program))
+    )
+    found = {job.id: _label(job) for job in session.scalars(stmt).unique()}
+    return {i: found.get(i, "") for i in ids}
 
 
 @router.get("/")
@@ -287,17 +296,22 @@ async def _card_stream(
         while not await request.is_disconnected():
             timeout = max(0.0, flush_at - loop.time())
             try:
-                event = await asyncio.wait_for(sub.get(), timeout)
-                machine = event.key if event.kind == "machine" else event.data.get("machine")
-                if isinstance(machine, str) and machine in watched:
-                    if event.kind == "dprnt":
-                        new_lines = console is not None
-                    elif event.kind == "dprnt_status":
-                        capture_said = str(event.data.get("message", "")) if console else None
-                    else:
-                        pending.add(machine)
-                    if event.kind == "job" and "bytes_done" not in event.data:
-                        job_changes.add(machine)  # started or ended, not mere progress
+                events = [await asyncio.wait_for(sub.get(), timeout)]
+                # Everything queued meanwhile in one go: hundreds of transfers report
+                # progress thousands of times a second, and a wait per event would let the
+                # queue overflow (and every card be drawn again) while the loop spins.
+                events += sub.drain()
+                for event in events:
+                    machine = event.key if event.kind == "machine" else event.data.get("machine")
+                    if isinstance(machine, str) and machine in watched:
+                        if event.kind == "dprnt":
+                            new_lines = console is not None
+                        elif event.kind == "dprnt_status":
+                            capture_said = str(event.data.get("message", "")) if console else None
+                        else:
+                            pending.add(machine)
+                        if event.kind == "job" and "bytes_done" not in event.data:
+                            job_changes.add(machine)  # started or ended, not mere progress
                 if loop.time() < flush_at:
                     continue  # a steady stream of events must not hold the flush back
             except TimeoutError:
@@ -376,10 +390,8 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
     states = _supervisor(request).machines
 
     def load(session: Session) -> dict[str, int]:
-        for name in names:
-            job_id = states[name].job_id
-            if job_id is not None and job_id not in labels:
-                labels[job_id] = _job_label(session, job_id)
+        new = [states[n].job_id for n in names if states[n].job_id not in labels]
+        labels.update(_job_labels(session, [i for i in new if i is not None]))
         return jobs.queue_lengths(session)
 
     queued = _read(request, load)
@@ -422,7 +434,8 @@ async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
         while not await request.is_disconnected():
             try:
                 event = await asyncio.wait_for(sub.get(), max(0.0, flush_at - loop.time()))
-                dirty = dirty or event.kind in kinds
+                # the backlog in one go (it holds every machine's progress too)
+                dirty = dirty or any(e.kind in kinds for e in [event, *sub.drain()])
                 if loop.time() < flush_at:
                     continue
             except TimeoutError:
