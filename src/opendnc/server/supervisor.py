@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta
@@ -44,6 +45,8 @@ from opendnc.server.store.db import read_only
 from opendnc.server.store.models import DprntLine, JobKind, utcnow
 
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
+
+PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
 
 log = logging.getLogger(__name__)
 
@@ -605,8 +608,16 @@ class Supervisor:
     async def _send(
         self, state: MachineState, connector: Connector, job_id: int, program: str, data: bytes
     ) -> bool | None:
+        last = [0.0]
+
         def progress(done: int, total: int | None) -> None:
             state.job_progress = (done, total)
+            # A transfer reports every chunk, hundreds a second on a fast link; watchers need
+            # a few, and the last one (the API and the cards read job_progress for the rest).
+            now = time.monotonic()
+            if now - last[0] < PROGRESS_EVERY and (total is None or done < total):
+                return
+            last[0] = now
             self._job_event(
                 job_id, state.config.name, "running", bytes_done=done, bytes_total=total
             )
