@@ -22,6 +22,7 @@ at the transport boundary, so callers only ever catch ``DncError`` subclasses.
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -105,3 +106,21 @@ class ProgramTextError(DncError):
         self.what = what
         detail = f"{what}: {problem.describe()} is not NC program text"
         super().__init__(f"{detail}; {action}" if action else detail)
+
+
+def os_reason(exc: OSError) -> str:
+    """The operating system's words for ``exc``, without Python's decoration.
+
+    asyncio words a refused connection "Connect call failed ('127.0.0.1', 5051)" and a socket
+    call "[Errno 111] Connection refused"; a person reading a card or a log wants "connection
+    refused". Errors without a number (a bad host name, say) keep their own text.
+    """
+    if exc.errno is not None:
+        try:
+            text = os.strerror(exc.errno)
+        except ValueError:
+            text = ""
+        if text and not text.startswith("Unknown error"):
+            return text[0].lower() + text[1:]
+    text = exc.strerror or str(exc) or type(exc).__name__
+    return text[0].lower() + text[1:]

@@ -30,6 +30,7 @@ from opendnc.errors import (
     SafetyLockError,
     TransportError,
     TransportTimeout,
+    os_reason,
 )
 from opendnc.haas import macros
 from opendnc.haas.mdc import (
@@ -492,7 +493,7 @@ class AsyncMdcClient:
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
-            raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
+            raise TransportError(f"cannot connect to {host}:{port}: {os_reason(exc)}") from exc
         return cls(
             reader,
             writer,

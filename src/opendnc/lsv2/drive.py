@@ -15,7 +15,13 @@ import time
 from collections.abc import Generator
 from typing import TypeVar
 
-from opendnc.errors import PeerClosed, RemoteProtocolError, TransportError, TransportTimeout
+from opendnc.errors import (
+    PeerClosed,
+    RemoteProtocolError,
+    TransportError,
+    TransportTimeout,
+    os_reason,
+)
 from opendnc.lsv2.connection import BytesHook, Lsv2Connection, Role, State, TraceHook
 from opendnc.lsv2.messages import Message
 from opendnc.lsv2.ops.base import Expect, Op, Receive, Send, SessionState, Slow
@@ -302,7 +308,7 @@ class AsyncDriver(_DriverBase):
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
-            raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
+            raise TransportError(f"cannot connect to {host}:{port}: {os_reason(exc)}") from exc
         return cls(tcp, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes)
 
     async def run(self, op: Op[T]) -> T:

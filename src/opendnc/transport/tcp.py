@@ -7,7 +7,7 @@ import socket
 import struct
 import sys
 
-from opendnc.errors import PeerClosed, TransportError, TransportTimeout
+from opendnc.errors import PeerClosed, TransportError, TransportTimeout, os_reason
 from opendnc.transport.spin import DEFAULT_WINDOW, BusyPoll
 
 # Python's socket timeouts poll() before every recv()/send(): one extra syscall and a few
@@ -64,7 +64,7 @@ class TcpStream:
         except TimeoutError as exc:
             raise TransportTimeout(f"connecting to {host}:{port} timed out") from exc
         except OSError as exc:
-            raise TransportError(f"cannot connect to {host}:{port}: {exc.strerror or exc}") from exc
+            raise TransportError(f"cannot connect to {host}:{port}: {os_reason(exc)}") from exc
         except (UnicodeError, ValueError, OverflowError) as exc:  # a malformed host or port
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
