@@ -95,7 +95,6 @@ def _percentile(values: list[float], p: float) -> float:
 def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any]:
     """Measure one fleet size; returns the figures."""
     config = folder / f"fleet-{n}.toml"
-    port = _free_port()
     fleet = _cli(
         "sim",
         "fleet",
@@ -105,8 +104,6 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
         str(n - n // 2),
         "--config-out",
         str(config),
-        "--bind",
-        f"127.0.0.1:{port}",
         "--poll",
         str(poll),
         "--root",
@@ -138,7 +135,10 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
             text=True,
             check=True,
         ).stdout.strip()
-        server = _cli("serve", "--config", str(config), "--db", db)
+        # The server's port is picked once the fleet holds all of its ports (picked before,
+        # a virtual TNC could take it, and the benchmark would read LSV2 as HTTP).
+        port = _free_port()
+        server = _cli("serve", "--config", str(config), "--db", db, "--bind", f"127.0.0.1:{port}")
         url = f"http://127.0.0.1:{port}/api/machines"
         started = time.monotonic()
         while True:
