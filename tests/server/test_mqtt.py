@@ -357,3 +357,83 @@ def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs, prefix: 
             agent.close()
     finally:
         haas.stop()
+
+
+def _certificates(folder: Path) -> tuple[Path, Path, Path, Path]:
+    """A private CA, a broker certificate for 127.0.0.1 signed by it, and a second CA that
+    signed nothing here: (ca, broker cert, broker key, stranger ca)."""
+    openssl = require_command("openssl")
+
+    def run(*args: str) -> None:
+        subprocess.run([openssl, *args], check=True, capture_output=True, timeout=60)
+
+    ca_key, ca, other_key, other = (folder / n for n in ("ca.key", "ca.pem", "o.key", "o.pem"))
+    key, csr, cert = folder / "broker.key", folder / "broker.csr", folder / "broker.pem"
+    for k, c, name in ((ca_key, ca, "test CA"), (other_key, other, "stranger CA")):
+        run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", f"/CN={name}",
+            "-keyout", str(k), "-out", str(c))  # fmt: skip
+    run("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1",
+        "-keyout", str(key), "-out", str(csr))  # fmt: skip
+    ext = folder / "san.ext"
+    ext.write_text("subjectAltName = IP:127.0.0.1\n")
+    run("x509", "-req", "-in", str(csr), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial",
+        "-days", "2", "-extfile", str(ext), "-out", str(cert))  # fmt: skip
+    return ca, cert, key, other
+
+
+def test_tls_to_a_broker_with_a_private_ca_and_a_stranger_ca_refused(
+    tmp_path: Path, ngc: FleetThread, procs: Procs
+) -> None:
+    """``mqtts://`` with ``ca_file``: the state arrives over TLS; a CA that did not sign the
+    broker's certificate is refused (the server serves its machines all the same)."""
+    ca, cert, key, stranger = _certificates(tmp_path)
+    plain_port, tls_port = free_port(), free_port()
+    prefix = unique_prefix()
+    mosquitto = require_command("mosquitto")
+    conf = tmp_path / "tls.conf"
+    # A plain listener for the test's own subscriber, a TLS one for the server.
+    conf.write_text(
+        f"per_listener_settings false\npersistence false\nuser {getpass.getuser()}\n"
+        f"allow_anonymous true\nlistener {plain_port} 127.0.0.1\n"
+        f"listener {tls_port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
+    )
+    with (tmp_path / "tls.log").open("ab") as log:
+        broker = subprocess.Popen([mosquitto, "-c", str(conf)], stdout=log, stderr=log)
+    try:
+        wait_for("the TLS broker", listening(tls_port), 20)
+        wait_for("its plain listener", listening(plain_port), 20)
+        good = tmp_path / "good"
+        good.mkdir()
+        table = f'[mqtt]\nurl = "mqtts://127.0.0.1:{tls_port}"\nprefix = "{prefix}"\n'
+        start_outputs_server(good, procs, ngc.fleet, table + f'ca_file = "{ca}"\n')
+        with Listener(prefix, plain_port) as listener:
+            wait_for(
+                "the state over TLS",
+                lambda: (
+                    (s := listener.last("haas-1/status")) is not None
+                    and _items(s)["availability"]["value"] == "AVAILABLE"
+                ),
+                describe=lambda: procs.log("server"),
+            )
+            online = wait_for("the health", lambda: listener.last("opendnc/dnc-test/online"))
+            assert online.payload == b"true"
+        procs.stop("server")
+
+        bad = tmp_path / "bad"
+        bad.mkdir()
+        port = start_outputs_server(bad, procs, ngc.fleet, table + f'ca_file = "{stranger}"\n')
+        key_text = create_key(bad / "shop.toml", f"sqlite:///{bad / 'opendnc.db'}")
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=5) as client:
+            wait_for(
+                "the machine online through the API",
+                lambda: client.get("/api/machines/haas-1", headers=auth(key_text)).json()["online"],
+            )
+            outputs = client.get("/api/outputs", headers=auth(key_text)).json()
+            assert outputs["mqtt"]["connected"] is False, outputs
+        wait_for(
+            "the certificate refusal in the log",
+            lambda: "certificate verify failed" in procs.log("server").lower(),
+        )
+    finally:
+        broker.terminate()
+        broker.wait(10)
