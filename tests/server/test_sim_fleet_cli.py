@@ -60,7 +60,7 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         else:
             assert Path(m.serial).exists(), m
     key = create_key(config, db_url)
-    with start_server(procs, config, db_url, port) as client:
+    with start_server(procs, config, db_url) as client:
 
         def machines() -> list[tuple[str, bool, str]]:
             listed = client.get("/api/machines", headers=auth(key)).json()
