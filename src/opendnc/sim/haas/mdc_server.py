@@ -9,12 +9,18 @@ transport at once. A connection that stops reading is watched instead: once its 
 replies pass the transport's high-water mark it has ``drain_timeout`` seconds to take them,
 and holding more than ``max_buffered`` bytes drops it at once; either way it is closed and its
 slot freed (:attr:`MdcServer.dropped` counts them). The other client is never held up by it.
+
+Each connection's kernel send buffer is kept small (:data:`SEND_BUFFER`): left to itself,
+Linux grows a loopback socket's buffer to megabytes, which hides a reader that stopped for as
+long as it takes to fill them (tens of seconds under load), where a control's network stack
+would have pushed back after a few kilobytes.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 from collections.abc import Callable
 
 from opendnc.errors import RemoteProtocolError
@@ -24,6 +30,8 @@ from opendnc.sim.haas.control import HaasControl
 MAX_CONNECTIONS = 2
 DRAIN_TIMEOUT = 5.0
 """Seconds a connection may leave replies unread (past the high-water mark) before it is dropped."""
+SEND_BUFFER = 64 * 1024
+"""Kernel send buffer per connection (SO_SNDBUF), so the watch above sees a stopped reader."""
 MAX_BUFFERED = 1 << 20
 """Bytes of unread replies kept for one connection; past this it is dropped at once."""
 
@@ -113,6 +121,10 @@ class MdcServer:
             self.refused += 1
             writer.close()
             return
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
         self.writers.append(writer)
         responder = MdcResponder(self.control)
         try:
