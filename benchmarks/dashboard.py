@@ -39,6 +39,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fleet import _cli, _free_port, _get, _stop, stalls
+from headless_chromium import CHROMIUM, CHROMIUM_ARGS
 
 PASSWORD = "bench-password-1"
 PROGRAM = (
@@ -48,14 +49,6 @@ PROGRAM = (
     )
     + b"M30\r\n%\r\n"
 )
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 
 
 def _request(method: str, url: str, key: str, body: Any = None, raw: bytes | None = None) -> Any:
@@ -145,7 +138,7 @@ def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[s
         return None
     name, value = cookie.split("=", 1)
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         ctx = browser.new_context(viewport={"width": 1280, "height": 800})
         ctx.add_cookies([{"name": name, "value": value, "url": url}])
         page = ctx.new_page()

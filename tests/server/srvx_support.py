@@ -18,20 +18,43 @@ from tests.server.harness import (
     start_server,
     wait_for,
 )
-from tests.server.test_from_the_control import FleetThread
+from tests.server.test_from_the_control import (
+    STORED,
+    FleetThread,
+    interrupt_dripfeed,
+    slow_serial_haas,
+)
 
 __all__ = [
+    "PRINTS",
+    "STORED",
     "FleetThread",
     "Procs",
     "auth",
     "create_key",
     "free_port",
     "httpx",
+    "interrupt_dripfeed",
     "listening",
     "serve",
     "serve_fleet",
+    "slow_serial_haas",
     "wait_for",
 ]
+
+# A Haas program that prints three DPRNT lines, PASS 0..2 with X doubling from 1.5.
+PRINTS = """%
+O00500 (PRINT THREE PASSES)
+#100 = 0
+#101 = 1.5
+WHILE [#100 LT 3] DO1
+DPRNT[PASS*#100[20]*X#101[24]]
+#100 = #100 + 1
+#101 = #101 * 2
+END1
+M30
+%
+"""
 
 
 def serve_fleet(

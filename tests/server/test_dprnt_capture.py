@@ -18,6 +18,8 @@ from sqlalchemy import inspect, text
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.store.db import current_revision, make_engine, migrate
 from tests.server.srvx_support import (
+    PRINTS,
+    STORED,
     FleetThread,
     Procs,
     auth,
@@ -28,20 +30,6 @@ from tests.server.srvx_support import (
     serve_fleet,
     wait_for,
 )
-
-STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
-PRINTS = """%
-O00500 (PRINT THREE PASSES)
-#100 = 0
-#101 = 1.5
-WHILE [#100 LT 3] DO1
-DPRNT[PASS*#100[20]*X#101[24]]
-#100 = #100 + 1
-#101 = #101 * 2
-END1
-M30
-%
-"""
 
 
 def test_migration_0003_up_from_0002_and_back(db_url: str) -> None:

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import hashlib
 import signal
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from tests.server.harness import (
+    DEADLINE,
     Procs,
     auth,
     create_key,
@@ -28,6 +30,8 @@ from tests.server.harness import (
 
 # CRLF line ends: what the TNC stores for a text file, and what Setting 25 = CR LF gives.
 PROGRAM = b"%\r\nO01234 (BRACKET)\r\nG20\r\nG00 G90 G54 X0. Y0.\r\nG01 X1.5 F20.\r\nM30\r\n%\r\n"
+# PROGRAM with 3,000 more moves before its M30: several seconds by XModem at 115200 baud.
+BIG = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
 
 
 class Shop:
@@ -287,31 +291,38 @@ def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs
     assert [p.name for p in target.iterdir() if "O01234" in p.name] == ["O01234.nc"]
 
 
+def _send_until_under_way(
+    client: httpx.Client, admin: str, body: dict[str, Any], size: int, timeout: float = DEADLINE
+) -> tuple[int, Callable[[], dict[str, Any]]]:
+    """Queue the send job ``body`` names (one machine) and wait until it has moved some but
+    not half of the program's ``size`` bytes. Returns its id and a reader of its row."""
+    sent = client.post("/api/jobs", headers=auth(admin), json=body)
+    job_id: int = sent.json()[0]["id"]
+
+    def job() -> dict[str, Any]:
+        got: dict[str, Any] = client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()
+        return got
+
+    wait_for(
+        "the load to be under way",
+        lambda: job()["state"] == "running" and 0 < job()["bytes_done"] < size // 2,
+        timeout,
+        describe=job,
+    )
+    return job_id, job
+
+
 def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
     shop: Shop, procs: Procs
 ) -> None:
     # The serial Haas dies while the XModem load is on the line (a 3,000-line program takes
     # several seconds at 115200 baud), then comes back on the same cable.
     admin = shop.key("admin")
-    big = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
     with shop.start_server() as client:
-        client.put("/api/programs/O01234.nc", content=big, headers=auth(admin))
+        client.put("/api/programs/O01234.nc", content=BIG, headers=auth(admin))
         client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
-        sent = client.post(
-            "/api/jobs",
-            headers=auth(admin),
-            json={"program": "O01234.nc", "machines": ["vf2-serial"]},
-        )
-        job_id = sent.json()[0]["id"]
-
-        def job() -> dict[str, Any]:
-            got: dict[str, Any] = client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()
-            return got
-
-        wait_for(
-            "the load to be under way",
-            lambda: job()["state"] == "running" and 0 < job()["bytes_done"] < len(big) // 2,
-            describe=job,
+        job_id, _job = _send_until_under_way(
+            client, admin, {"program": "O01234.nc", "machines": ["vf2-serial"]}, len(BIG)
         )
         procs.stop("haas", signal.SIGKILL)
         assert list(shop.haas_mem.iterdir()) == []  # the dead control kept nothing
@@ -328,7 +339,7 @@ def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
         assert sorted(r["result"] for r in rows if r["job_id"] == job_id) == ["ok", "retry"]
     received = wait_for("the Haas to store the program", lambda: list(shop.haas_mem.iterdir()))
     assert [p.name for p in received] == ["O01234.nc"], procs.log("haas")
-    assert received[0].read_bytes().replace(b"\r\n", b"\n") == big.replace(b"\r\n", b"\n")
+    assert received[0].read_bytes().replace(b"\r\n", b"\n") == BIG.replace(b"\r\n", b"\n")
     # Nothing half-written on the server's side either: the library holds the one program.
     library = shop.tmp / "programs"
     assert [p.name for p in library.rglob("*") if p.is_file()] in ([], ["O01234.nc"])
@@ -349,21 +360,11 @@ def test_tnc_killed_mid_load_keeps_no_partial_program_and_gets_it_again(
     with shop.start_server() as client:
         put = client.put("/api/programs/BIG.H", content=big, headers=auth(admin))
         assert put.status_code == 201, put.text
-        sent = client.post(
-            "/api/jobs",
-            headers=auth(admin),
-            json={"program": "BIG.H", "version": 1, "machines": ["tnc-a"]},
-        )
-        job_id = sent.json()[0]["id"]
-
-        def job() -> dict[str, Any]:
-            got: dict[str, Any] = client.get(f"/api/jobs/{job_id}", headers=auth(admin)).json()
-            return got
-
-        wait_for(
-            "the load to be under way",
-            lambda: job()["state"] == "running" and 0 < job()["bytes_done"] < len(big) // 2,
-            describe=job,
+        job_id, job = _send_until_under_way(
+            client,
+            admin,
+            {"program": "BIG.H", "version": 1, "machines": ["tnc-a"]},
+            len(big),
             timeout=120,
         )
         procs.stop("tnc0", signal.SIGKILL)
@@ -386,9 +387,8 @@ def test_tnc_killed_mid_load_keeps_no_partial_program_and_gets_it_again(
 
 def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, procs: Procs) -> None:
     admin = shop.key("admin")
-    big = PROGRAM[:-5] + b"".join(b"G01 X%d.5 Y1. F20.\r\n" % i for i in range(3000)) + PROGRAM[-5:]
     with shop.start_server() as client:
-        client.put("/api/programs/O01234.nc", content=big, headers=auth(admin))
+        client.put("/api/programs/O01234.nc", content=BIG, headers=auth(admin))
         client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
         ids = []
         for _ in range(3):
@@ -419,6 +419,14 @@ def test_server_killed_mid_queue_loses_no_job_and_runs_none_twice(shop: Shop, pr
         assert per_job == {ids[0]: 1, ids[1]: 1, ids[2]: 1}
 
 
+def _changed_lines(client: httpx.Client, admin: str, a: int, b: int) -> list[str]:
+    """The + and - lines of the API's diff of O01234.nc from version ``a`` to ``b``."""
+    diff = client.get(
+        "/api/programs/O01234.nc/diff", headers=auth(admin), params={"a": a, "b": b}
+    ).json()["lines"]
+    return [line.rstrip("\r\n") for line in diff if line[:1] in "+-"]
+
+
 def test_diff_between_versions_and_a_reordered_cancelled_queue(shop: Shop, procs: Procs) -> None:
     admin = shop.key("admin")
     second = PROGRAM.replace(b"G01 X1.5 F20.", b"G01 X2.5 F15.")
@@ -427,17 +435,11 @@ def test_diff_between_versions_and_a_reordered_cancelled_queue(shop: Shop, procs
         for content in (PROGRAM, second, PROGRAM.replace(b"BRACKET", b"BRACKET OP3")):
             put = client.put("/api/programs/O01234.nc", content=content, headers=auth(admin))
             assert put.status_code == 201, put.text
-        diff = client.get(
-            "/api/programs/O01234.nc/diff", headers=auth(admin), params={"a": 1, "b": 2}
-        ).json()["lines"]
-        changed = [line.rstrip("\r\n") for line in diff if line[:1] in "+-"]
+        changed = _changed_lines(client, admin, 1, 2)
         assert "-G01 X1.5 F20." in changed
         assert "+G01 X2.5 F15." in changed
         assert not any("BRACKET" in line for line in changed)
-        diff13 = client.get(
-            "/api/programs/O01234.nc/diff", headers=auth(admin), params={"a": 3, "b": 1}
-        ).json()["lines"]
-        changed13 = [line.rstrip("\r\n") for line in diff13 if line[:1] in "+-"]
+        changed13 = _changed_lines(client, admin, 3, 1)
         assert "-O01234 (BRACKET OP3)" in changed13
         assert "+O01234 (BRACKET)" in changed13
         assert not any("X1.5" in line for line in changed13)

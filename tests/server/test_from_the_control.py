@@ -209,13 +209,49 @@ def _read(haas: FleetThread, sim: Any, number: int) -> str | None:
     return text
 
 
+MOVES = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
+LONG = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{MOVES}M30\n%\n".encode()
+
+
+def slow_serial_haas(root: Path) -> FleetThread:
+    """One serial Haas that drip-feeds slowly enough to stop ``LONG`` midway."""
+    # 1000 blocks a second: LONG's 6,000 lines (about 130 kB, more than the cable and the
+    # ptys buffer) run about 6 s; a feed that stops for a second raises the control's DNC
+    # link alarm.
+    return FleetThread(root, tnc=0, haas=0, serial_haas=1, block_rate=1000, dnc_timeout=1.0)
+
+
+def interrupt_dripfeed(
+    client: httpx.Client, key: str, front: Any
+) -> tuple[int, dict[str, Any], int]:
+    """Store ``LONG`` as O03000.nc, drip-feed it to haas-serial-1 and cancel the feed well
+    under way (``front`` is the control's serial port). Returns the job's id, its row once
+    stopped (interrupted) and the line the error says to restart from."""
+    client.put("/api/programs/O03000.nc", content=LONG, headers=auth(key))
+    started = client.post(
+        "/api/jobs",
+        headers=auth(key),
+        json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
+    )
+    assert started.status_code == 201, started.text
+    job_id: int = started.json()[0]["id"]
+    wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
+    assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
+    first: dict[str, Any] = wait_for(
+        "the feed to stop",
+        lambda: (
+            (j := client.get(f"/api/jobs/{job_id}", headers=auth(key)).json())["state"] != "running"
+            and j
+        ),
+    )
+    assert first["state"] == "interrupted", first
+    stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
+    return job_id, first, stopped_at
+
+
 @pytest.fixture
 def slow_haas(tmp_path: Path) -> Iterator[FleetThread]:
-    # 1000 blocks a second: a 6,000-line program (about 130 kB, more than the cable and the
-    # ptys buffer) runs about 6 s, long enough to stop it midway.
-    fleet = FleetThread(
-        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=1000, dnc_timeout=1.0
-    )
+    fleet = slow_serial_haas(tmp_path / "machines")
     try:
         yield fleet
     finally:
@@ -226,35 +262,15 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
     tmp_path: Path, slow_haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
     client, key = _server(tmp_path, slow_haas, procs, db_url, dripfeed=True)
-    moves = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
-    program = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{moves}M30\n%\n".encode()
+    program = LONG
     front = slow_haas.fleet.serial_ports["haas-serial-1"]
     with client:
         wait_for(
             "the machine online",
             lambda: client.get("/api/machines/haas-serial-1", headers=auth(key)).json()["online"],
         )
-        client.put("/api/programs/O03000.nc", content=program, headers=auth(key))
-        started = client.post(
-            "/api/jobs",
-            headers=auth(key),
-            json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
-        )
-        assert started.status_code == 201, started.text
-        job_id = started.json()[0]["id"]
-        wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
-        assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
-        first = wait_for(
-            "the feed to stop",
-            lambda: (
-                (j := client.get(f"/api/jobs/{job_id}", headers=auth(key)).json())["state"]
-                != "running"
-                and j
-            ),
-        )
-        assert first["state"] == "interrupted", first
+        job_id, first, stopped_at = interrupt_dripfeed(client, key, front)
         assert "restart from there" in first["error"]
-        stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
         total = program.count(b"\n")
         assert 300 < stopped_at < total
         # The job keeps what it fed: the program's bytes up to the line it reached.

@@ -30,7 +30,7 @@ from tests.server.outputs_support import (
     start_outputs_server,
     unique_prefix,
 )
-from tests.server.srvx_support import serve_fleet
+from tests.server.srvx_support import PRINTS, serve_fleet
 from tests.server.test_from_the_control import FleetThread
 
 ITEM_KEYS = {
@@ -293,20 +293,6 @@ def test_the_broker_checks_the_configured_user_and_a_refusal_blocks_nothing(
     finally:
         broker.terminate()
         broker.wait(10)
-
-
-PRINTS = """%
-O00500 (PRINT THREE PASSES)
-#100 = 0
-#101 = 1.5
-WHILE [#100 LT 3] DO1
-DPRNT[PASS*#100[20]*X#101[24]]
-#100 = #100 + 1
-#101 = #101 * 2
-END1
-M30
-%
-"""
 
 
 def test_printed_lines_reach_both_outputs(tmp_path: Path, procs: Procs, prefix: str) -> None:

@@ -11,9 +11,16 @@ from typing import Any
 import pytest
 
 from tests.server.harness import wait_jobs
-from tests.server.srvx_support import FleetThread, Procs, auth, serve_fleet, wait_for
-
-STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
+from tests.server.srvx_support import (
+    STORED,
+    FleetThread,
+    Procs,
+    auth,
+    interrupt_dripfeed,
+    serve_fleet,
+    slow_serial_haas,
+    wait_for,
+)
 
 
 @pytest.fixture
@@ -85,46 +92,21 @@ def test_status_by_mdc_on_the_serial_port_and_a_punch_still_arrives(
     assert "RS232 ABORT" not in " ".join(port.messages)
 
 
-MOVES = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
-LONG = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{MOVES}M30\n%\n".encode()
 QUIET = 30.0  # seconds the server's port stays silent after a broken feed (docs/server.md)
 
 
 def test_after_a_broken_feed_and_its_restart_the_status_asks_the_control_again(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
-    # 1000 blocks a second: the program runs about 6 s, long enough to stop it midway; a
-    # feed that stops for a second raises the control's DNC link alarm.
-    fleet = FleetThread(
-        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=1000, dnc_timeout=1.0
-    )
+    fleet = slow_serial_haas(tmp_path / "machines")
     try:
         front = fleet.fleet.serial_ports["haas-serial-1"]
         control = fleet.fleet.sims["haas-serial-1"].control
         client, key = serve_fleet(tmp_path, fleet, procs, db_url, machine_keys="dripfeed = true\n")
         with client:
             wait_for("the first MDC status", lambda: _status(client, key).get("native_mode"))
-            client.put("/api/programs/O03000.nc", content=LONG, headers=auth(key))
-            started = client.post(
-                "/api/jobs",
-                headers=auth(key),
-                json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
-            )
-            assert started.status_code == 201, started.text
-            job_id = started.json()[0]["id"]
-            wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
-            assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
-            first = wait_for(
-                "the feed to stop",
-                lambda: (
-                    (j := client.get(f"/api/jobs/{job_id}", headers=auth(key)).json())["state"]
-                    != "running"
-                    and j
-                ),
-            )
+            job_id, _first, stopped_at = interrupt_dripfeed(client, key, front)
             broke = time.monotonic()
-            assert first["state"] == "interrupted", first
-            stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
             # The port is silent now, so the control's state is not known: not READY.
             quiet = wait_for(
                 "the status of the quiet port",

@@ -8,7 +8,7 @@ import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, inspect, text
+from sqlalchemy import Connection, Engine, inspect, text
 from sqlalchemy.exc import DBAPIError
 
 from opendnc.server import audit, inbox, library
@@ -66,6 +66,22 @@ def test_audit_rows_cannot_be_changed_or_deleted(engine: Engine, sessions) -> No
         assert [(r.actor, r.action) for r in rows] == [("alice", "login")]
 
 
+def _program_and_audit_rows(conn: Connection) -> None:
+    """The program O1.nc and an audit row of ann's, written as the older schemas have them."""
+    conn.execute(
+        text(
+            "INSERT INTO programs (name, locked, created) "
+            "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
+        )
+    )
+    conn.execute(
+        text(
+            "INSERT INTO audit (at, actor, action, result, detail) "
+            "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
+        )
+    )
+
+
 def test_upgrade_from_the_previous_revision_keeps_the_data(db_url: str) -> None:
     # A shop running the first schema upgrades: its library and audit trail come along.
     engine = make_engine(db_url)
@@ -75,18 +91,7 @@ def test_upgrade_from_the_previous_revision_keeps_the_data(db_url: str) -> None:
             conn.execute(
                 text("INSERT INTO blobs (sha256, size, data) VALUES ('ab', 1, :d)"), {"d": b"x"}
             )
-            conn.execute(
-                text(
-                    "INSERT INTO programs (name, locked, created) "
-                    "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
-                )
-            )
-            conn.execute(
-                text(
-                    "INSERT INTO audit (at, actor, action, result, detail) "
-                    "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
-                )
-            )
+            _program_and_audit_rows(conn)
         assert "received" not in set(inspect(engine).get_table_names())
         migrate(engine)
         assert current_revision(engine) == head_revision()
@@ -114,18 +119,7 @@ def test_upgrade_from_the_revision_before_head(db_url: str) -> None:
                 text("INSERT INTO blobs (sha256, size, data) VALUES (:h, :n, :d)"),
                 {"h": digest, "n": len(data), "d": data},
             )
-            conn.execute(
-                text(
-                    "INSERT INTO programs (name, locked, created) "
-                    "VALUES ('O1.nc', false, CURRENT_TIMESTAMP)"
-                )
-            )
-            conn.execute(
-                text(
-                    "INSERT INTO audit (at, actor, action, result, detail) "
-                    "VALUES (CURRENT_TIMESTAMP, 'ann', 'login', 'ok', '{}')"
-                )
-            )
+            _program_and_audit_rows(conn)
             conn.execute(
                 text(
                     "INSERT INTO received (machine, name, sha256, size, state, reason, path, at) "

@@ -48,6 +48,15 @@ def test_uart_input_forms() -> None:
     assert decoded.errors == (1, 2)
 
 
+def _sender(path: str) -> int:
+    """The sending end, raw: what is written goes out as it is."""
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    attrs = termios.tcgetattr(fd)
+    attrs[0] = attrs[1] = attrs[3] = 0
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    return fd
+
+
 def _slave(path: str, marks: bool) -> int:
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
     attrs = termios.tcgetattr(fd)
@@ -71,14 +80,11 @@ def test_cable_marks_parity_errors_for_a_port_that_asks_for_marks() -> None:
     """Through real ptys: a PARMRK reader gets FF 00 c and FF FF, decoded back exactly."""
     data = bytes(range(256)) * 8
     with VirtualCable(baud=460800, noise=3e-3, seed=4, parity_check=True) as cable:
-        sender = os.open(cable.path_a, os.O_RDWR | os.O_NOCTTY)
+        sender = _sender(cable.path_a)
         receiver = _slave(cable.path_b, marks=True)
         try:
             # what the line will do to these bytes, from the same seed
             expected = LineNoise(3e-3, 0.0, "4:a>b", parity_check=True).apply(data)
-            attrs = termios.tcgetattr(sender)
-            attrs[0] = attrs[1] = attrs[3] = 0
-            termios.tcsetattr(sender, termios.TCSANOW, attrs)
             want = uart_input(expected.data, expected.parity_errors, UartInput.MARK)
             os.write(sender, data)
             wire = _read_all(receiver, len(want))
@@ -96,13 +102,10 @@ def test_cable_marks_parity_errors_for_a_port_that_asks_for_marks() -> None:
 def test_cable_hands_nul_to_a_port_with_inpck_alone() -> None:
     data = b"0 BEGIN PGM F MM\r\n" * 200
     with VirtualCable(baud=460800, noise=3e-3, seed=9, parity_check=True) as cable:
-        sender = os.open(cable.path_a, os.O_RDWR | os.O_NOCTTY)
+        sender = _sender(cable.path_a)
         receiver = _slave(cable.path_b, marks=False)
         try:
             expected = LineNoise(3e-3, 0.0, "9:a>b", parity_check=True).apply(data)
-            attrs = termios.tcgetattr(sender)
-            attrs[0] = attrs[1] = attrs[3] = 0
-            termios.tcsetattr(sender, termios.TCSANOW, attrs)
             os.write(sender, data)
             wire = _read_all(receiver, len(data))
         finally:

@@ -16,14 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from opendnc.cli.main import app
 from opendnc.sim.cable import CableProcess
 from opendnc.sim.tnc import TncHandle, start_tnc
 from opendnc.sim.tnc.serial_front import attach_serial
+from tests.sim.lsv2_cli import lsv2_ok, lsv2_over_tcp
 
-runner = CliRunner()
 SIZES = {"tnc320": 8192, "itnc530": 4096, "tnc426": 4096}
 
 
@@ -48,15 +46,11 @@ def bench(
 
 
 def over_serial(bench: Bench, *args: str) -> str:
-    result = runner.invoke(app, ["lsv2", "--serial", bench.pc_end, "--timeout", "20", *args])
-    assert result.exit_code == 0, (result.stdout, result.stderr, result.exception)
-    return result.stdout
+    return lsv2_ok("--serial", bench.pc_end, "--timeout", "20", *args)
 
 
 def over_tcp(bench: Bench, *args: str) -> str:
-    result = runner.invoke(app, ["lsv2", "--port", str(bench.tnc.port), *args])
-    assert result.exit_code == 0, (result.stdout, result.stderr, result.exception)
-    return result.stdout
+    return lsv2_over_tcp(bench.tnc, *args)
 
 
 def test_info_json_matches_the_profile_and_tcp(bench: Bench) -> None:

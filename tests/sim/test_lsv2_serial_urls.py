@@ -26,15 +26,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from opendnc.cli.main import app
 from opendnc.sim.cable import CableProcess
 from opendnc.sim.tnc import TncHandle, start_tnc
 from opendnc.sim.tnc.serial_front import attach_serial
 from tests.peers import require_command
+from tests.sim.lsv2_cli import lsv2_ok, lsv2_over_tcp
 
-runner = CliRunner()
 BAUD = 115200
 # pyserial's RFC 2217 client names its reader thread with the deprecated setName() and setDaemon()
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning:serial.rfc2217")
@@ -115,18 +113,11 @@ def bench(
 
 
 def over_serial(bench: Bench, *args: str) -> str:
-    result = runner.invoke(
-        app,
-        ["lsv2", "--serial", bench.url, "--baud", str(BAUD), "--timeout", "20", *args],
-    )
-    assert result.exit_code == 0, (result.stdout, result.stderr, result.exception)
-    return result.stdout
+    return lsv2_ok("--serial", bench.url, "--baud", str(BAUD), "--timeout", "20", *args)
 
 
 def over_tcp(bench: Bench, *args: str) -> str:
-    result = runner.invoke(app, ["lsv2", "--port", str(bench.tnc.port), *args])
-    assert result.exit_code == 0, (result.stdout, result.stderr, result.exception)
-    return result.stdout
+    return lsv2_over_tcp(bench.tnc, *args)
 
 
 def test_info_and_ls_through_the_serial_server_match_tcp(bench: Bench) -> None:

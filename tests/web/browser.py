@@ -13,6 +13,8 @@ from tests.peers import missing_peer, require_module
 
 sync_api = require_module("playwright.sync_api")
 
+from benchmarks.headless_chromium import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
+
 from tests.server.harness import Procs  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
@@ -26,15 +28,6 @@ __all__ = [
     "unnamed_controls",
 ]
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts" / "screenshots"
 PASSWORDS = {
     "admin": "admin-secret-1",

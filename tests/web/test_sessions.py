@@ -6,9 +6,7 @@ on a loopback port; the browser tests cover the same paths through Chromium.
 
 from __future__ import annotations
 
-import asyncio
 import re
-import threading
 from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
@@ -18,17 +16,11 @@ import pytest
 
 from tests.peers import require_module
 
-require_module("jinja2")
 httpx = require_module("httpx")
-uvicorn = require_module("uvicorn")
 
-from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.server import auth  # noqa: E402
-from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import ApiKey, Role  # noqa: E402
-from opendnc.sim.fleet import server_config, start_fleet  # noqa: E402
-from tests.server.harness import wait_for  # noqa: E402
+from tests.web.inprocess import serve_one_tnc  # noqa: E402
 
 Http = Any
 
@@ -37,38 +29,11 @@ PASSWORD = "operator-secret"
 
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
-    loop = asyncio.new_event_loop()
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
-    fleet = asyncio.run_coroutine_threadsafe(
-        start_fleet(tmp_path / "machines", tnc=1, haas=0), loop
-    ).result(30)
-    try:
-        text = server_config(fleet, poll_interval=0.5, library=tmp_path / "lib")
-        shop = parse_config(text, base=tmp_path)
-        server = build(shop, database=f"sqlite:///{tmp_path / 'db.sqlite'}")
-        with server.sessions.begin() as session:
-            auth.create_user(session, "op", Role.OPERATOR, password=PASSWORD)
-        # a port the system picks, bound here: one chosen beforehand could be taken meanwhile
-        listener = listen_socket("127.0.0.1", 0)
-        port = listener.getsockname()[1]
-        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-        serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-        serving.start()
-        wait_for("the server", lambda: web.started)
-        try:
-            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
-                yield http, server
-        finally:
-            web.should_exit = True
-            serving.join(30)
-            listener.close()
-            server.engine.dispose()
-    finally:
-        asyncio.run_coroutine_threadsafe(fleet.close(), loop).result(30)
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(10)
-        loop.close()
+    with (
+        serve_one_tnc(tmp_path, "op", Role.OPERATOR, PASSWORD) as served,
+        httpx.Client(base_url=served.url, timeout=30) as http,
+    ):
+        yield http, served.server
 
 
 def _login(http: Http, user: str = "op") -> str:

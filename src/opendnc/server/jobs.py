@@ -149,6 +149,16 @@ def enqueue(
     return job
 
 
+def _version_to_send(session: Session, name: str, number: int | None) -> ProgramVersion:
+    """Version ``number`` of ``name``, or the released one without it (none released: refused)."""
+    if number is None:
+        version = library.released_version(session, name)
+        if version is None:
+            raise Conflict(f"program {name!r} has no released version; name one")
+        return version
+    return library.get_version(session, name, number)
+
+
 def send_program(
     session: Session, name: str, machines: Sequence[str], *, actor: str, number: int | None = None
 ) -> list[Job]:
@@ -159,12 +169,7 @@ def send_program(
     """
     if not machines:
         raise InputError("name at least one machine")
-    if number is None:
-        version = library.released_version(session, name)
-        if version is None:
-            raise Conflict(f"program {name!r} has no released version; name one")
-    else:
-        version = library.get_version(session, name, number)
+    version = _version_to_send(session, name, number)
     with session.begin_nested():
         return [enqueue(session, JobKind.SEND, m, actor=actor, version=version) for m in machines]
 
@@ -184,12 +189,7 @@ def dripfeed_program(
     The caller checks that the machine allows drip-feed (``dripfeed = true``): that opt-in is
     configuration, not a row.
     """
-    if number is None:
-        version = library.released_version(session, name)
-        if version is None:
-            raise Conflict(f"program {name!r} has no released version; name one")
-    else:
-        version = library.get_version(session, name, number)
+    version = _version_to_send(session, name, number)
     if from_line is not None and from_line < 1:
         raise InputError("from_line counts from 1")
     params = {"from_line": from_line} if from_line else {}

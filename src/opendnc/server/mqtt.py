@@ -146,16 +146,9 @@ class MqttPublisher:
                 self._put(Outgoing(self.topic(machine, leaf), _dumps(data), retain=False))
 
     def _changes(self, machine: str, changed: dict[str, Reading]) -> None:
-        readings = self.tracker.snapshot(machine)
-        self._put(
-            Outgoing(
-                self.topic(machine, "status"),
-                _dumps(status_payload(machine, readings)),
-                retain=True,
-            )
-        )
+        self._put(self._status_message(machine, self.tracker.snapshot(machine)))
         for key, reading in changed.items():
-            self._put(Outgoing(self.topic(machine, key), _dumps(item_payload(key, reading)), True))
+            self._put(self._item_message(machine, key, reading))
 
     def _put(self, message: Outgoing) -> None:
         if len(self.queue) >= self.config.queue:
@@ -168,18 +161,18 @@ class MqttPublisher:
         out = []
         for machine in self.tracker.machines:
             readings = self.tracker.snapshot(machine)
-            out.append(
-                Outgoing(
-                    self.topic(machine, "status"),
-                    _dumps(status_payload(machine, readings)),
-                    retain=True,
-                )
-            )
-            out.extend(
-                Outgoing(self.topic(machine, key), _dumps(item_payload(key, r)), retain=True)
-                for key, r in readings.items()
-            )
+            out.append(self._status_message(machine, readings))
+            out.extend(self._item_message(machine, key, r) for key, r in readings.items())
         return out
+
+    # A machine's state is retained, so a subscriber that comes later reads it at once.
+
+    def _status_message(self, machine: str, readings: dict[str, Reading]) -> Outgoing:
+        payload = _dumps(status_payload(machine, readings))
+        return Outgoing(self.topic(machine, "status"), payload, retain=True)
+
+    def _item_message(self, machine: str, key: str, reading: Reading) -> Outgoing:
+        return Outgoing(self.topic(machine, key), _dumps(item_payload(key, reading)), retain=True)
 
     # -- from the queue to the broker ------------------------------------------------------
 
