@@ -239,7 +239,7 @@ def test_dprnt_listen_cli_fails_once_on_a_refused_port() -> None:
     result = CliRunner().invoke(cli, ["dprnt", "listen", "--port", f"tcp://127.0.0.1:{port}"])
     assert result.exit_code == 1
     assert result.output.strip().splitlines() == [
-        f"error: cannot connect to 127.0.0.1:{port}: Connection refused"
+        f"error: cannot connect to 127.0.0.1:{port}: connection refused"
     ]
     assert time.monotonic() - started < 5  # no backoff loop ran
 
