@@ -1,0 +1,66 @@
+"""The one place that decides what state a machine is in, from what its control reported.
+
+Every consumer (the cards, the status timeline, utilization, MQTT, MTConnect) asks
+:func:`classify` instead of reading ``execution`` itself, so a card, a timeline strip and a
+utilization figure can never disagree about the same moment (docs/server.md#machine-status).
+
+Two rules shops rely on, and which a naive reading gets wrong:
+
+* a transfer is not the machine running: a program load into memory leaves the control
+  ready, so only the control's own execution word says ``running``;
+* a control that reports nothing is ``unknown``, not idle: a serial Haas without MDC can be
+  reached, but nobody knows whether it cuts.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from opendnc.server.machines.base import MachineStatus
+
+__all__ = ["State", "classify", "classify_words"]
+
+
+class State(StrEnum):
+    """A machine's state as people on the floor read it (andon colours in the dashboard)."""
+
+    RUNNING = "running"  # the control executes a program (MTConnect EXECUTION ACTIVE)
+    READY = "ready"  # reachable and idle: nothing runs, nothing holds
+    STOPPED = "stopped"  # a program was stopped, interrupted or holds its feed
+    ALARM = "alarm"  # the control reports an error or alarm
+    OFFLINE = "offline"  # the server cannot reach the control
+    UNKNOWN = "unknown"  # reachable, but the control does not say what it does
+    NO_RECORD = "no_record"  # the server was not running: only in stored history
+
+
+# MTConnect EXECUTION words, grouped by what they mean on the floor.
+_RUNNING = frozenset({"ACTIVE"})
+_STOPPED = frozenset({"STOPPED", "INTERRUPTED", "FEED_HOLD", "OPTIONAL_STOP", "PROGRAM_STOPPED"})
+_READY = frozenset({"READY", "PROGRAM_COMPLETED", "WAIT"})
+
+
+def classify_words(*, online: bool, execution: str, errors: bool) -> State:
+    """The state of a control from its execution word and whether it reports errors."""
+    if not online:
+        return State.OFFLINE
+    if errors:
+        return State.ALARM
+    word = execution.upper()
+    if word in _RUNNING:
+        return State.RUNNING
+    if word in _STOPPED:
+        return State.STOPPED
+    if word in _READY:
+        return State.READY
+    return State.UNKNOWN  # UNAVAILABLE, empty, or a word we do not know
+
+
+def classify(status: MachineStatus | None, *, online: bool) -> State:
+    """The state of a machine: ``online`` is whether its link is up, ``status`` its last reading."""
+    if status is None:
+        return State.OFFLINE if not online else State.UNKNOWN
+    return classify_words(
+        online=online and status.available,
+        execution=status.execution,
+        errors=bool(status.errors),
+    )
