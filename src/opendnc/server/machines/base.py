@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 from opendnc.errors import InputError
 
 if TYPE_CHECKING:
-    from opendnc.server.config import MachineConfig
+    from opendnc.server.kinds.base import MachineBase
     from opendnc.server.machine_files import RemoteFile
 
 __all__ = [
@@ -135,7 +135,7 @@ class NetworkOnly:
     asked for them) and runs nothing by drip-feed."""
 
     listens = False
-    config: MachineConfig
+    config: MachineBase
 
     async def listen(self, seconds: float) -> Reception | None:
         """Nothing to listen for."""

@@ -38,7 +38,8 @@ from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
-from opendnc.server.config import MachineConfig, SerialProfile
+from opendnc.server.kinds.base import SerialProfile
+from opendnc.server.kinds.haas_serial import HaasSerialMachine
 from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
@@ -66,7 +67,13 @@ class HaasSerialConnector:
 
     listens = True
 
-    def __init__(self, config: MachineConfig, *, quiet_after_break: float = 30.0) -> None:
+    def __init__(
+        self,
+        config: HaasSerialMachine,
+        *,
+        quiet_after_break: float = 30.0,
+        on_dprnt: Callable[[CapturedLine], None] | None = None,
+    ) -> None:
         self.config = config
         self._stream: PortStream | None = None
         # After a drip-feed breaks, the control still waits in DNC mode for the rest of the
@@ -77,8 +84,8 @@ class HaasSerialConnector:
         self._mdc: MdcClient | None = None
         self._tap: TapStream | None = None  # the port as listening and MDC read it
         self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
-        self.on_dprnt: Callable[[CapturedLine], None] | None = None
-        """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
+        self.on_dprnt = on_dprnt
+        """Where DPRNT lines printed on the port go (``dprnt = "serial"``)."""
 
     def _open(self) -> PortStream:
         profile = self.config.profile
