@@ -5,13 +5,8 @@ by anyone reaches the running job (the row is the only truth)."""
 
 from __future__ import annotations
 
-import asyncio
-import threading
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from datetime import timedelta
-from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -19,157 +14,12 @@ from tests.peers import require_module
 
 require_module("fastapi")
 
-from sqlalchemy import func, select  # noqa: E402
-
-from opendnc.server import jobs, library  # noqa: E402
-from opendnc.server.app import Server, build  # noqa: E402
-from opendnc.server.config import MachineConfig, parse_config  # noqa: E402
-from opendnc.server.kinds import connector_for  # noqa: E402
-from opendnc.server.machines.base import Connector, Progress  # noqa: E402
-from opendnc.server.store.models import AuditEntry, Job, JobState, utcnow  # noqa: E402
-from opendnc.sim.fleet import server_config  # noqa: E402
-from tests.server.db_outage import Outage  # noqa: E402
+from opendnc.server import jobs  # noqa: E402
+from opendnc.server.store.models import JobState, utcnow  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
-from tests.server.test_from_the_control import FleetThread  # noqa: E402
+from tests.server.inproc_server import PROGRAM, Shop  # noqa: E402
 
-PROGRAM = b"%\r\nO01234 (OUTAGE)\r\n" + b"".join(b"G01 X%d. F100.\r\n" % i for i in range(400))
-PROGRAM += b"M30\r\n%\r\n"
 STEPS = ("transfer", "verify", "finish")
-
-
-@dataclass
-class Gates:
-    """Where a job's transfer stops until the test lets it go on."""
-
-    held: set[str] = field(default_factory=set)
-    reached: dict[str, threading.Event] = field(default_factory=dict)
-    go: dict[str, threading.Event] = field(default_factory=dict)
-
-    def hold(self, step: str) -> None:
-        self.held.add(step)
-        self.reached[step] = threading.Event()
-        self.go[step] = threading.Event()
-
-    async def at(self, step: str) -> None:
-        if step in self.held:
-            self.held.discard(step)
-            self.reached[step].set()
-            await asyncio.to_thread(self.go[step].wait, 60)
-
-
-class Gated:
-    """A real connector (the virtual TNC's LSV2) that pauses at the gates."""
-
-    def __init__(self, inner: Connector, gates: Gates) -> None:
-        self.inner = inner
-        self.gates = gates
-        self.listens = inner.listens
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-    async def send(self, name: str, data: bytes, progress: Progress) -> None:
-        await self.gates.at("transfer")
-        await self.inner.send(name, data, progress)
-
-    async def verify(self, name: str, data: bytes) -> bool | None:
-        await self.gates.at("verify")
-        verified = await self.inner.verify(name, data)
-        await self.gates.at("finish")  # the executor returns next; then the runner writes
-        return verified
-
-
-class Running:
-    """The server's components on an event loop of their own thread."""
-
-    def __init__(self, server: Server) -> None:
-        self.server = server
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        self.call(server.core.start())
-
-    def call(self, work: Any, timeout: float = 60) -> Any:
-        return asyncio.run_coroutine_threadsafe(work, self.loop).result(timeout)
-
-    def stop(self) -> None:
-        self.call(self.server.core.stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(10)
-        self.loop.close()
-
-
-@dataclass
-class Shop:
-    server: Server
-    running: Running
-    gates: Gates
-    outage: Outage
-    root: Path
-    machine: str
-
-    def queue(self, **extra: Any) -> int:
-        with self.server.sessions.begin() as session:
-            job = jobs.send_program(session, "O01234.nc", [self.machine], actor="test")[0]
-            for key, value in extra.items():
-                setattr(job, key, value)
-            return job.id
-
-    def job(self, job_id: int) -> Job:
-        with self.server.sessions() as session:
-            return jobs.get_job(session, job_id)
-
-    def ended(self, job_id: int) -> Job:
-        def finished() -> Job | None:
-            job = self.job(job_id)
-            return job if job.state.finished else None
-
-        job: Job = wait_for(f"job {job_id} to end", finished, timeout=90)
-        return job
-
-    def audit(self, job_id: int, action: str) -> int:
-        with self.server.sessions() as session:
-            count = session.scalar(
-                select(func.count(AuditEntry.id)).where(
-                    AuditEntry.job_id == job_id, AuditEntry.action == action
-                )
-            )
-            return int(count or 0)
-
-
-@pytest.fixture
-def shop(db_url: str, tmp_path: Path) -> Iterator[Shop]:
-    fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
-    outage = Outage(db_url)
-    gates = Gates()
-    running = None
-    try:
-        text = server_config(fleet.fleet, poll_interval=0.2, library=tmp_path / "lib")
-
-        def gated(machine: MachineConfig) -> Connector:
-            return Gated(connector_for(machine), gates)
-
-        server = build(
-            parse_config(text, base=tmp_path),
-            database=db_url,
-            connector_factory=gated,
-            sweep_interval=0.3,
-            retry_backoff=0.2,
-        )
-        outage.quicken(server.engine)
-        with server.sessions.begin() as session:
-            library.add_version(session, "O01234.nc", PROGRAM, author="test")
-            library.release(session, "O01234.nc", 1, actor="test")
-        running = Running(server)
-        machine = fleet.fleet.machines[0]
-        wait_for("the TNC online", lambda: server.machines.machines[machine.name].online)
-        yield Shop(server, running, gates, outage, machine.root, machine.name)
-    finally:
-        outage.close()
-        if running is not None:
-            running.stop()
-            running.server.engine.dispose()
-        fleet.stop()
 
 
 def _loaded(shop: Shop) -> bytes:

@@ -145,7 +145,7 @@ class StopPlan:
 
     def __init__(self, deadline: float) -> None:
         self.deadline = deadline
-        self.connections = min(2.0, deadline * 0.2)
+        self.connections = min(1.0, deadline * 0.1)
         self.components = max(0.5, deadline - self.connections - 1.0)
         self.signal = 0
         self._lock = threading.Lock()

@@ -62,6 +62,7 @@ class Server:
     dprnt: DprntCapture | None = None
     mqtt: MqttPublisher | None = None
     mtconnect: MtconnectOutput | None = None
+    timeline: Timeline | None = None
 
 
 def build(
@@ -104,6 +105,10 @@ def build(
     autoreceive = core.add(AutoReceive(machines, sessions))
     outputs = core.add(Outputs(_mqtt(config, bus), _mtconnect(config, bus)))
 
+    timeline = Timeline(sessions, retention_days=config.server.timeline_days)
+    names = [m.name for m in config.machines]
+    core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
+
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
         return connector_for(machine, capture.hooks_for(machine))
@@ -126,8 +131,6 @@ def build(
     if config.netshare is not None:
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
         netshare = core.add(NetShare(config.netshare, shares, config.library.inbox, sessions, bus))
-    timeline = Timeline(sessions, retention_days=config.server.timeline_days)
-    core.add(TimelineRecorder(timeline, bus))
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
@@ -157,6 +160,7 @@ def build(
         capture,
         outputs.mqtt,
         outputs.mtconnect,
+        timeline,
     )
 
 

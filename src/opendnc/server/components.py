@@ -255,6 +255,12 @@ class Core:
             except Exception:
                 log.exception("%s failed to stop", component.name)
             seconds[component.name] = time.monotonic() - began
+        took = deadline - (end - time.monotonic())
+        if took > deadline / 2:
+            slow = sorted(seconds.items(), key=lambda kv: -kv[1])[:3]
+            log.warning(
+                "stopping took %.1f s (%s)", took, ", ".join(f"{n} {s:.1f} s" for n, s in slow)
+            )
         return StopReport(seconds, tuple(timed_out))
 
 

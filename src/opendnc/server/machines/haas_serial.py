@@ -52,13 +52,63 @@ from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob, to_wire
 from opendnc.xmodem.receiver import ReceiverConfig
 
-__all__ = ["HaasSerialConnector"]
+__all__ = ["ControlSilent", "HaasSerialConnector", "SilenceGuard"]
 
 TEXT_READ = 0.05  # seconds a text-punch listener waits per read (its clock for the idle timeout)
 MDC_TIMEOUT = 1.0
 """Seconds a status query waits for its reply: a classic control answers within a few
 characters' time, so a longer wait only delays the next listening window."""
 DRAIN = 0.3  # seconds to read away a late reply before the port listens for XModem again
+XMODEM_SILENCE_FLOOR = 11.0
+"""Least silence that ends an XModem load: an XModem receiver asks for a lost block again
+after 10 s, and that wait is no sign of a dead control."""
+
+
+class ControlSilent(TransportError):
+    """The control stopped answering in the middle of a transfer."""
+
+
+class SilenceGuard:
+    """A :class:`ByteStream` that raises :class:`ControlSilent` once the control, having
+    answered at least once, has been silent for ``limit`` seconds (reads keep their timeout;
+    the check runs in the reading thread, so nothing closes the port under a read)."""
+
+    def __init__(self, inner: ByteStream, limit: float, machine: str) -> None:
+        self.inner = inner
+        self.limit = limit
+        self.machine = machine
+        self.heard: float | None = None  # when the control last said anything
+
+    def read(self, max_bytes: int) -> bytes:
+        """Read; raise :class:`ControlSilent` after ``limit`` seconds without a byte."""
+        try:
+            data = self.inner.read(max_bytes)
+        except TransportTimeout:
+            self._check()
+            raise
+        if data:
+            self.heard = time.monotonic()
+        else:
+            self._check()
+        return data
+
+    def _check(self) -> None:
+        if self.heard is not None and time.monotonic() - self.heard >= self.limit:
+            raise ControlSilent(
+                f"{self.machine}: the control went silent for {self.limit:g} s mid-transfer"
+            )
+
+    def write(self, data: bytes) -> None:
+        """Write to the port."""
+        self.inner.write(data)
+
+    def set_timeout(self, seconds: float | None) -> None:
+        """Change the port's read timeout."""
+        self.inner.set_timeout(seconds)
+
+    def close(self) -> None:
+        """Close the port."""
+        self.inner.close()
 
 
 class HaasSerialConnector:
@@ -116,6 +166,13 @@ class HaasSerialConnector:
         self._mdc = self._tap = self._last = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
+
+    @property
+    def silence_limit(self) -> float:
+        """Seconds of silence from the control that end a load under way: the profile's
+        ``idle_timeout``, but never less than :data:`XMODEM_SILENCE_FLOOR` (the receiver's own
+        NAK after a lost block must still get through)."""
+        return max(self.config.profile.idle_timeout, XMODEM_SILENCE_FLOOR)
 
     def _require(self) -> PortStream:
         if self._stream is None:
@@ -177,7 +234,9 @@ class HaasSerialConnector:
         # for XON are plain-text matters (docs/server.md#serial-profile); the EOB applies.
         wire = to_wire(data, eob(profile))
 
-        stream = self._require()
+        # A control that dies mid-load would otherwise be waited for block after block
+        # (10 retries of 15 s); silent this long once the load is under way, the job ends.
+        stream = SilenceGuard(self._require(), self.silence_limit, self.config.name)
         await asyncio.to_thread(
             lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
         )
