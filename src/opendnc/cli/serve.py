@@ -78,13 +78,18 @@ def serve(
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
         plan = StopPlan(stop_timeout)
+        from opendnc.server.single_server import SingleServerLock
+
+        guard = SingleServerLock(db or shop.server.database)
         try:
+            guard.acquire()  # a second server on one SQLite file: one line, before migrating
             server = build(shop, database=db, stop_deadline=plan.components)
             try:
                 asyncio.run(_serve(server, listener, host, plan))
             finally:
                 server.engine.dispose()
         finally:
+            guard.release()
             listener.close()
         plan.exit_now_if_stuck()
 
