@@ -257,6 +257,9 @@ class JobRunner:
         finally:
             watch.cancel()
             self.running.pop(claimed.job_id, None)
+        if run.cancel_requested:
+            # The work was done before the cancel could stop it: said so in its audit row.
+            outcome["cancel"] = "requested too late: the work was already done"
         await self._settle(run, "done", lambda s: self._finish(s, run, outcome))
         return True
 
@@ -329,7 +332,11 @@ class JobRunner:
         what = f"recording the end of job {job_id}"
 
         async def write_it() -> None:
-            ended = await self._durably(what, write)
+            try:
+                ended = await self._durably(what, write)
+            except Exception:
+                log.exception("%s failed", what)
+                ended = "unknown"
             self._event(job_id, state.config.name, label or ended, **extra)
             if state.job_id == job_id:
                 state.job_id = None
@@ -341,7 +348,11 @@ class JobRunner:
             ended = await asyncio.to_thread(self._transaction, write)
         except Exception as exc:
             if not database_down(exc):
-                raise
+                # Not the database's absence (the row gone, a bug): nothing to wait for, and
+                # the machine's link is not to blame.
+                log.exception("%s failed", what)
+                state.job_id = None
+                return
             self._trouble(what, exc)
             task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
             self._settling.add(task)
