@@ -17,7 +17,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -31,7 +31,6 @@ __all__ = [
     "Core",
     "RunsTask",
     "StopReport",
-    "TaskComponent",
     "core_of",
     "provide",
 ]
@@ -58,52 +57,6 @@ class Component(Protocol):
 
     async def stop(self) -> None:
         """Stop and release what it holds (the core bounds the time this may take)."""
-
-
-class TaskComponent:
-    """A component that runs one coroutine as a task from start to stop.
-
-    ``before`` runs at start (ports that must open before the app answers), ``after`` at stop
-    once the task is gone (closing them).
-    """
-
-    def __init__(
-        self,
-        name: str,
-        run: Callable[[], Awaitable[None]],
-        *,
-        needs: tuple[str, ...] = (),
-        before: Callable[[], Awaitable[None]] | None = None,
-        after: Callable[[], Awaitable[None]] | None = None,
-    ) -> None:
-        self.name = name
-        self.needs = needs
-        self._run = run
-        self._before = before
-        self._after = after
-        self._task: asyncio.Task[None] | None = None
-
-    async def start(self) -> None:
-        """Run ``before``, then start the task."""
-        if self._before is not None:
-            await self._before()
-        self._task = asyncio.create_task(self._guarded(), name=self.name)
-
-    async def _guarded(self) -> None:
-        try:
-            await self._run()
-        except asyncio.CancelledError:
-            raise
-        except Exception:  # one part's bug must not take the server down, nor pass silently
-            log.exception("%s stopped by an error", self.name)
-
-    async def stop(self) -> None:
-        """Cancel the task and wait for it, then run ``after``."""
-        task, self._task = self._task, None
-        if task is not None:
-            await cancel_and_wait(task)
-        if self._after is not None:
-            await self._after()
 
 
 async def cancel_and_wait(*tasks: asyncio.Task[Any]) -> None:

@@ -40,7 +40,13 @@ from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
 from opendnc.server.kinds.base import SerialProfile
 from opendnc.server.kinds.haas_serial import HaasSerialMachine
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.machines.base import (
+    DripProgress,
+    MachineStatus,
+    Progress,
+    Reception,
+    StreamWrapper,
+)
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
@@ -68,13 +74,13 @@ class ControlSilent(TransportError):
     """The control stopped answering in the middle of a transfer."""
 
 
-class SilenceGuard:
+class SilenceGuard(StreamWrapper):
     """A :class:`ByteStream` that raises :class:`ControlSilent` once the control, having
     answered at least once, has been silent for ``limit`` seconds (reads keep their timeout;
     the check runs in the reading thread, so nothing closes the port under a read)."""
 
     def __init__(self, inner: ByteStream, limit: float, machine: str) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.limit = limit
         self.machine = machine
         self.heard: float | None = None  # when the control last said anything
@@ -97,18 +103,6 @@ class SilenceGuard:
             raise ControlSilent(
                 f"{self.machine}: the control went silent for {self.limit:g} s mid-transfer"
             )
-
-    def write(self, data: bytes) -> None:
-        """Write to the port."""
-        self.inner.write(data)
-
-    def set_timeout(self, seconds: float | None) -> None:
-        """Change the port's read timeout."""
-        self.inner.set_timeout(seconds)
-
-    def close(self) -> None:
-        """Close the port."""
-        self.inner.close()
 
 
 class HaasSerialConnector:
