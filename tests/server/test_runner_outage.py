@@ -43,7 +43,8 @@ def test_a_database_outage_during_a_job_ends_it_exactly_once(shop: Shop, step: s
     try:
         shop.gates.go[step].set()
         # The runner met the outage when it wrote the job's end (and kept the job meanwhile).
-        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+        outages = shop.server.runner.outages
+        wait_for("the job's end to meet the outage", lambda: outages["recording"] > 0)
         assert shop.server.machines.machines[shop.machine].job_id == job_id
     finally:
         shop.outage.restore()
@@ -66,7 +67,8 @@ def test_a_database_outage_at_the_claim_delays_the_job_and_runs_it_once(shop: Sh
     try:
         wait_for("the job to fall due", lambda: utcnow() > due + timedelta(seconds=0.2))
         shop.server.machines.wake(shop.machine)  # as the API would: the claim meets the outage
-        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+        outages = shop.server.runner.outages
+        wait_for("the claim to meet the outage", lambda: outages["claiming"] > 0)
     finally:
         shop.outage.restore()
     job = shop.ended(job_id)

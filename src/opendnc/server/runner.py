@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
@@ -88,6 +89,7 @@ class JobRunner:
         self.retry_backoff = retry_backoff
         self.cancel_poll = cancel_poll
         self.database_error = ""  # the last database failure, until the next success
+        self.outages: Counter[str] = Counter()  # failed database work, by what it was doing
         self.running: dict[int, JobRun] = {}  # the jobs this process runs now, by id
         self._claiming: set[str] = set()  # machines whose claim is under way
         self._settling: set[asyncio.Task[None]] = set()
@@ -143,6 +145,7 @@ class JobRunner:
             return work(session)
 
     def _trouble(self, what: str, exc: BaseException) -> None:
+        self.outages[what.split(" ", 1)[0]] += 1
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if not self.database_error:
             log.warning("database unavailable while %s: %s (retrying)", what, first)
