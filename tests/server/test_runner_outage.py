@@ -95,3 +95,25 @@ def test_a_cancel_in_the_jobs_row_stops_the_running_transfer(shop: Shop) -> None
     assert "cancelled" in job.error
     assert not (shop.root / "TNC" / "nc_prog" / "O01234.nc").exists()
     _a_later_job_runs(shop)
+
+
+def test_a_machine_released_mid_job_gets_its_job_handed_back(shop: Shop) -> None:
+    # What a server does when another takes the machine over (several servers, one database):
+    # the job it was running is not left "running" for nobody.
+    shop.gates.hold("transfer")
+    job_id = shop.queue()
+    shop.server.machines.wake(shop.machine)
+    assert shop.gates.reached["transfer"].wait(30)
+    shop.running.call(shop.server.fleet.release(shop.machine))
+    shop.gates.go["transfer"].set()  # the released task's worker thread may finish now
+    assert shop.machine not in shop.server.fleet.served
+
+    def handed_back() -> bool:
+        job = shop.job(job_id)
+        return job.state is JobState.QUEUED and "lost track" in job.error
+
+    wait_for("the sweep to hand the job back", handed_back)
+    shop.running.loop.call_soon_threadsafe(shop.server.fleet.serve, shop.machine)
+    job = shop.ended(job_id)
+    assert (job.state, job.attempts) == (JobState.DONE, 2)
+    assert _loaded(shop) == PROGRAM
