@@ -22,9 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from opendnc.errors import InputError
-from opendnc.haas import dprnt, macros
-from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
-from opendnc.sim.haas.program import (
+from opendnc.gcode.program import (
     Assign,
     Block,
     Dprnt,
@@ -40,6 +38,8 @@ from opendnc.sim.haas.program import (
     parse_block,
     variable_number,
 )
+from opendnc.haas import dprnt, macros
+from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
 
 Clock = Callable[[], float]
 Surface = Callable[[float, float], float]
