@@ -20,9 +20,11 @@ from opendnc.nccheck.result import Control, Units
 
 __all__ = [
     "HAAS_PROTECTED",
+    "Envelope",
     "LimitsError",
     "MachineLimits",
     "limits_for",
+    "parse_envelope",
     "parse_travel",
     "parse_work_offsets",
 ]
@@ -143,6 +145,48 @@ def offset_key(code: str) -> str:
     return code
 
 
+@dataclass(frozen=True)
+class Envelope:
+    """The optional machine keys ``travel`` and ``work_offsets`` of a configured machine."""
+
+    travel: tuple[tuple[str, float, float], ...] = ()
+    """(axis, min, max) in machine coordinates."""
+    units: Units | None = None
+    work_offsets: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
+    """(offset name, ((axis, value), ...))."""
+
+    def travel_map(self) -> dict[str, tuple[float, float]]:
+        """Axis -> (min, max)."""
+        return {axis: (low, high) for axis, low, high in self.travel}
+
+    def offsets_map(self) -> dict[str, dict[str, float]]:
+        """Offset name -> axis -> value."""
+        return {name: dict(axes) for name, axes in self.work_offsets}
+
+
+def parse_envelope(raw: Mapping[str, Any], prefix: str) -> Envelope | None:
+    """The ``travel`` / ``work_offsets`` keys of machine table ``raw`` (None when absent).
+
+    :class:`LimitsError` names the bad key (``machines[0].travel.x``).
+    """
+    if "travel" not in raw and "work_offsets" not in raw:
+        return None
+    travel: dict[str, tuple[float, float]] = {}
+    units = None
+    if "travel" in raw:
+        travel, units = parse_travel(raw["travel"], f"{prefix}.travel")
+    offsets = (
+        parse_work_offsets(raw["work_offsets"], f"{prefix}.work_offsets")
+        if "work_offsets" in raw
+        else {}
+    )
+    return Envelope(
+        travel=tuple((axis, low, high) for axis, (low, high) in travel.items()),
+        units=units,
+        work_offsets=tuple((name, tuple(axes.items())) for name, axes in offsets.items()),
+    )
+
+
 class _MachineLike(Protocol):
     @property
     def name(self) -> str: ...
@@ -155,17 +199,20 @@ def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> 
     """The limits of a configured machine (``server.config.MachineConfig`` or alike).
 
     ``kind`` gives the family (``lsv2`` -> heidenhain, ``haas_*`` -> haas); the optional
-    ``travel``, ``travel_units`` and ``work_offsets`` attributes the envelope; ``tools`` is
+    ``envelope`` attribute (:class:`Envelope`) the travel and work offsets; ``tools`` is
     the tool list the control reported (LSV2 tool table, Haas tool offsets), if any.
     """
     kind = str(getattr(machine.kind, "value", machine.kind))
     family = "heidenhain" if kind == "lsv2" else "haas" if kind.startswith("haas") else None
+    envelope = getattr(machine, "envelope", None)
+    if not isinstance(envelope, Envelope):
+        envelope = Envelope()
     return MachineLimits(
         name=machine.name,
         family=family,
-        travel=dict(getattr(machine, "travel", None) or {}),
-        travel_units=getattr(machine, "travel_units", None),
-        work_offsets=dict(getattr(machine, "work_offsets", None) or {}),
+        travel=envelope.travel_map(),
+        travel_units=envelope.units,
+        work_offsets=envelope.offsets_map(),
         tools=frozenset(tools) if tools is not None else None,
         protected=(HAAS_PROTECTED,) if family == "haas" else (),
     )

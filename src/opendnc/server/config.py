@@ -76,6 +76,7 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
+from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
 from opendnc.server.requests import RequestRule, RequestSettings
 
 __all__ = [
@@ -171,6 +172,7 @@ class MachineConfig:
     receive_pattern: str = "*"  # lsv2: which files of receive_folder (a glob, any case)
     receive_every: int = 5  # lsv2: status polls between two listings of receive_folder
     after_receive: str = "keep"  # lsv2: keep or delete a received file on the control
+    envelope: Envelope | None = None  # travel and work offsets for checks (docs/check.md)
 
 
 @dataclass(frozen=True)
@@ -584,6 +586,7 @@ _MACHINE_KEYS = {
     "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
     "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
     "receive_folder", "receive_pattern", "receive_every", "after_receive",
+    "travel", "work_offsets",
 }  # fmt: skip
 _LINE_KEYS = {"baud", "parity", "bytesize", "stopbits", "flow"}
 _PROFILE_KEYS = _LINE_KEYS | {
@@ -639,6 +642,10 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
     dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
     receive = _receive(raw, prefix, kind)
+    try:
+        envelope = parse_envelope(raw, prefix)  # program checks: opendnc.nccheck.limits
+    except LimitsError as exc:
+        raise ConfigError(exc.key, exc.problem) from None
     profile = _profile(
         _table(raw, "serial_profile"),
         f"{prefix}.serial_profile",
@@ -675,6 +682,7 @@ def _machine(raw: Any, prefix: str) -> MachineConfig:
         receive_pattern=receive[1],
         receive_every=receive[2],
         after_receive=receive[3],
+        envelope=envelope,
     )
 
 
