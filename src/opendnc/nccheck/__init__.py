@@ -24,6 +24,7 @@ from opendnc.nccheck.limits import MachineLimits, limits_for, parse_travel, pars
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
+    EndState,
     Move,
     MoveKind,
     Plane,
@@ -38,6 +39,7 @@ __all__ = [
     "Budget",
     "CheckResult",
     "Control",
+    "EndState",
     "Library",
     "MachineLimits",
     "Move",

@@ -19,9 +19,9 @@ Library = Callable[[str], str | None]
 class Budget:
     """How far a dry run may go before it calls the program endless."""
 
-    blocks: int = 2_000_000
+    blocks: int = 1_000_000
     """Executed blocks (each pass of a loop counts)."""
-    seconds: float = 10.0
+    seconds: float = 5.0
     """Wall-clock time of the dry run itself."""
     moves: int = 1_000_000
     """Moves kept for the preview (counting and checks go on past it)."""

@@ -40,7 +40,15 @@ from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits, offset_key
 from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath
-from opendnc.nccheck.result import CheckResult, Control, Plane, Problem, Severity, Units
+from opendnc.nccheck.result import (
+    CheckResult,
+    Control,
+    EndState,
+    Plane,
+    Problem,
+    Severity,
+    Units,
+)
 
 __all__ = ["run_gcode"]
 
@@ -146,6 +154,7 @@ class _Run:
         self.jumps: dict[int, int] = {}
         self.no_feed_reported = False
         self.locals: dict[int, float] = {}
+        self.main_locals = self.locals
         self.warned: set[str] = set()
         self.ended = False
         if machine is not None:
@@ -185,15 +194,15 @@ class _Run:
             if not stripped or stripped == "%":
                 continue
             if self.iso:
-                if _ISO_END.match(stripped):
-                    current.append((index, "M30"))  # END of an ISO program
-                    continue
                 if not current and (match := _ISO_LINE.match(stripped)):
                     title = (match.group(1), None)
                     if re.search(r"\bG70\b", stripped):
                         self.header_units = Units.INCH
                     elif re.search(r"\bG71\b", stripped):
                         self.header_units = Units.MM
+                    continue
+                if _ISO_END.match(stripped):
+                    current.append((index, "M30"))  # END of an ISO program
                     continue
             else:
                 match = _O_LINE.match(stripped)
@@ -927,6 +936,15 @@ class _Run:
             moves=tuple(self.path.moves),
             units=self.units,
             blocks=self.blocks_run,
+            end=EndState(
+                position={a: v for a, v in zip(_AXES, self.w, strict=True) if v is not None},
+                machine_position={
+                    a: v for a, v in zip(_AXES, self.m, strict=True) if v is not None
+                },
+                tool=str(self.tool) if self.tool is not None else None,
+                variables={**self.globals, **self.main_locals},
+                ended=self.ended,
+            ),
         )
 
 

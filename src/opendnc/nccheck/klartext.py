@@ -26,6 +26,7 @@ from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
+    EndState,
     Plane,
     Problem,
     Severity,
@@ -229,6 +230,7 @@ class _Run:
         self.no_feed = False
         self.blocks_run = 0
         self.end_line: _Line | None = None
+        self.ended = False
         self.begin: tuple[str, str] | None = None
         self.main = self._parse(text, name)
 
@@ -388,6 +390,7 @@ class _Run:
         elif text.startswith("END PGM"):
             if frame.kind == "main":
                 self._check_end(item)
+                self.ended = True
                 raise _Stop
             self.frames.pop()
         elif text.startswith("BLK FORM"):
@@ -820,6 +823,7 @@ class _Run:
                         if later.text.startswith("END PGM"):
                             self._check_end(later)
                             break
+                    self.ended = True
                     raise _Stop
             elif code == 99 and self.cycle is not None:
                 self._drill(item)
@@ -1033,6 +1037,12 @@ class _Run:
             stock=self.stock,
             units=self.units,
             blocks=self.blocks_run,
+            end=EndState(
+                position={a: v for a, v in zip("XYZ", self.pos, strict=True) if v is not None},
+                tool=self.tool,
+                variables={int(k[1:]): v for k, v in self.q.items() if k[1:].isdigit()},
+                ended=self.ended,
+            ),
         )
 
 

@@ -15,6 +15,7 @@ from typing import Any
 __all__ = [
     "CheckResult",
     "Control",
+    "EndState",
     "Move",
     "MoveKind",
     "Plane",
@@ -140,6 +141,21 @@ class Stock:
 
 
 @dataclass(frozen=True)
+class EndState:
+    """Where the dry run left the control: position, tool and variables."""
+
+    position: dict[str, float] = field(default_factory=dict)
+    """Work coordinates of the axes whose position is known."""
+    machine_position: dict[str, float] = field(default_factory=dict)
+    """Machine coordinates of the axes whose position and work offset are known."""
+    tool: str | None = None
+    variables: dict[int, float] = field(default_factory=dict)
+    """Macro variables (G-code: ``#n``) or Q parameters (Klartext: ``Q1`` as 1) set."""
+    ended: bool = False
+    """True when the program reached its end (M30, M02, M99 or END PGM)."""
+
+
+@dataclass(frozen=True)
 class CheckResult:
     """Everything one dry run found out about a program."""
 
@@ -158,6 +174,7 @@ class CheckResult:
     units: Units | None = None
     blocks: int = 0
     """Blocks the dry run executed (a loop counts each pass)."""
+    end: EndState = field(default_factory=EndState)
 
     @property
     def errors(self) -> tuple[Problem, ...]:
@@ -220,6 +237,11 @@ class CheckResult:
             "feed_distance": _round(self.feed_distance),
             "cycle_time_s": round(self.cycle_time_s, 1),
             "blocks": self.blocks,
+            "end": {
+                "position": {k: _round(v) for k, v in self.end.position.items()},
+                "tool": self.end.tool,
+                "ended": self.end.ended,
+            },
             "stock": None
             if self.stock is None
             else {
