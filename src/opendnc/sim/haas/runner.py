@@ -4,7 +4,8 @@ It executes macro assignments and arithmetic, ``IF``/``GOTO``/``WHILE``, ``DPRNT
 ``G65 P9995`` single-surface Z probing against a synthetic surface (updating the work
 offset Z, e.g. ``#5223`` for ``W54.``, as WIPS does), ``T`` + ``M06`` tool changes, ``M30``
 part counters and cycle times, positions (``G90``/``G91``/``G53``, ``G54``..``G59``,
-``G154 P``, ``G28`` to machine zero). Motion is instantaneous; the block rate is the driver's business.
+``G154 P``, ``G28`` to machine zero). Motion is instantaneous; the block rate is the
+driver's business.
 
 Sans-IO: the runner takes an injected ``clock`` and reports what happens as typed events
 through ``emit``. It reads blocks from a :class:`BlockSource`, which a DNC front-end may keep
