@@ -402,9 +402,50 @@ _N_WORD = re.compile(r"^\s*N\s*(\d+)", re.IGNORECASE)
 _DPRNT = re.compile(r"^\s*DPRNT\s*\[", re.IGNORECASE)
 
 
+# A block of plain address words with literal numbers (most of any real program): parsed by
+# one regular expression instead of the tokenizer; anything else takes the full parser.
+_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+")
+_PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
+# A whole line of plain words (``N120 G01 X1.5 Y-2. F300.``): the common case, parsed by one
+# match; literal numbers repeat a lot (G01, Z-1., F300.), so their Num values are shared.
+_PLAIN_LINE = re.compile(r"\s*(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+)")
+_NUMBERS: dict[str, Num] = {}
+
+
+def _number(text: str) -> Num:
+    found = _NUMBERS.get(text)
+    if found is None:
+        if len(_NUMBERS) > 4096:
+            _NUMBERS.clear()
+        found = _NUMBERS[text] = Num(float(text))
+    return found
+
+
+PlainWords = tuple[tuple[str, float], ...]
+
+
+def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:
+    """N number and words of a line of plain literal words, or None for any other line.
+
+    The fast path of a dry run: ``N120 G01 X1.5 Y-2. F300.`` needs no expression
+    evaluation; :func:`parse_block` gives the same words as :class:`Num` expressions.
+    """
+    plain = _PLAIN_LINE.fullmatch(line.rstrip("\r\n;"))
+    if plain is None:
+        return None
+    number, body = plain.groups()
+    words = tuple([(letter, float(value)) for letter, value in _PLAIN_WORD.findall(body)])
+    return (int(number) if number else None), words
+
+
 def parse_block(line: str) -> Block:
     """Parse one program line (without its EOB) into a :class:`Block`."""
     source = line.rstrip("\r\n;")
+    plain = _PLAIN_LINE.fullmatch(source)
+    if plain is not None:
+        number, body = plain.groups()
+        words = tuple([(letter, _number(value)) for letter, value in _PLAIN_WORD.findall(body)])
+        return Block(source, int(number) if number else None, False, Words(words))
     body = source.lstrip()
     if body.strip() == "%":  # tape delimiter inside a stream: nothing to execute
         return Block(source)
@@ -421,12 +462,6 @@ def parse_block(line: str) -> Block:
     code = _COMMENT.sub(" ", body).upper().strip().rstrip(";").strip()
     statement = _parse_statement(code, source) if code else Words(())
     return Block(source, number, deleted, statement)
-
-
-# A block of plain address words with literal numbers (most of any real program): parsed by
-# one regular expression instead of the tokenizer; anything else takes the full parser.
-_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+")
-_PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
 
 
 def _parse_statement(code: str, source: str) -> Statement:

@@ -22,7 +22,7 @@ class Budget:
     blocks: int = 1_000_000
     """Executed blocks (each pass of a loop counts)."""
     seconds: float = 5.0
-    """Wall-clock time of the dry run itself."""
+    """CPU time of the dry run itself (its thread's, so a busy machine does not shorten it)."""
     moves: int = 1_000_000
     """Moves kept for the preview (counting and checks go on past it)."""
 

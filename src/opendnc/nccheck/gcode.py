@@ -28,11 +28,13 @@ from opendnc.gcode.program import (
     IfGoto,
     IfThen,
     Num,
+    PlainWords,
     PortControl,
     While,
     Words,
     evaluate,
     parse_block,
+    parse_plain,
     variable_number,
 )
 from opendnc.haas import macros
@@ -77,7 +79,7 @@ class _Program:
     name: str
     number: int | None
     lines: list[int]  # file line of each block
-    blocks: list[Block]
+    blocks: list[Block | PlainWords]  # plain literal words need no expression evaluation
     numbers: dict[int, int] = field(default_factory=dict)  # N -> block index
     loop_end: dict[int, int] = field(default_factory=dict)  # WHILE index -> END index
     loop_start: dict[int, int] = field(default_factory=dict)  # END index -> WHILE index
@@ -226,7 +228,22 @@ class _Run:
     ) -> _Program:
         program = _Program(name, number, [n for n, _ in lines], [], external=external)
         stacks: dict[int, list[int]] = {}
+        g_codes, m_codes = self.g_codes, self.m_codes
         for index, (line, text) in enumerate(lines):
+            plain = parse_plain(text)
+            if plain is not None:
+                number, words = plain
+                program.blocks.append(words)
+                if number is not None:
+                    program.numbers.setdefault(number, index)
+                for letter, value in words:
+                    if (letter == "G" and value not in g_codes) or (
+                        letter == "M" and value not in m_codes
+                    ):
+                        message = self._code_problem(letter, value)
+                        if message:
+                            self._static(program, line, message)
+                continue
             try:
                 block = parse_block(text)
             except InputError as exc:
@@ -253,8 +270,10 @@ class _Run:
         for loop, stack in stacks.items():
             for start in stack:
                 self._static(program, program.lines[start], f"WHILE ... DO{loop} without END{loop}")
-        for index, block in enumerate(program.blocks):
-            statement = block.statement
+        for index, item in enumerate(program.blocks):
+            if not isinstance(item, Block):
+                continue
+            statement = item.statement
             target = statement.target if isinstance(statement, Goto | IfGoto) else None
             if isinstance(target, Num) and round(target.value) not in program.numbers:
                 self._static(
@@ -371,7 +390,8 @@ class _Run:
 
     # ------------------------------------------------------------------ the run
     def run(self) -> None:
-        deadline = time.perf_counter() + self.budget.seconds
+        # CPU time of this thread: a busy machine must not turn a long program into a "loop"
+        deadline = time.thread_time() + self.budget.seconds
         limit = self.budget.blocks
         self.frames.append(_Frame(self.main, 0, self.locals, "main", 0))
         try:
@@ -386,13 +406,17 @@ class _Run:
                 block = program.blocks[index]
                 self.blocks_run += 1
                 if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run >= limit or time.perf_counter() > deadline
+                    self.blocks_run >= limit or time.thread_time() > deadline
                 ):
                     self._endless(program.lines[index])
-                if block.deleted:
-                    continue
                 line = program.lines[index]
                 try:
+                    if type(block) is tuple:
+                        self._plain(block, frame, line)
+                        continue
+                    assert isinstance(block, Block)
+                    if block.deleted:
+                        continue
                     self._execute(block, frame, index, line)
                 except InputError as exc:
                     self.error(line, str(exc).split(" in block ")[0])
@@ -410,17 +434,22 @@ class _Run:
         self._return(frame, last)
 
     def _endless(self, line: int) -> None:
-        if self.jumps:
-            where, count = max(self.jumps.items(), key=lambda item: item[1])
-            message = (
-                f"endless loop: the jump back at line {where} ran {count:,} times; the dry "
-                f"run stopped after {self.blocks_run:,} blocks"
-            )
-        else:
-            where = line
-            message = f"the dry run stopped after {self.blocks_run:,} blocks (endless calls?)"
         self.frames[1:] = []  # report at the main program's line
-        self.error(where, message)
+        if not self.jumps:
+            # no jump back: a long program (or deep calls), not a loop; the rest is not checked
+            self.report(
+                line,
+                Severity.WARNING,
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget ran "
+                "out); the rest of the program is not checked",
+            )
+            raise _Stop
+        where, count = max(self.jumps.items(), key=lambda item: item[1])
+        self.error(
+            where,
+            f"endless loop: the jump back at line {where} ran {count:,} times; the dry "
+            f"run stopped after {self.blocks_run:,} blocks",
+        )
         raise _Stop
 
     def _jump(self, line: int) -> None:
@@ -468,6 +497,19 @@ class _Run:
         frame.pc = found
 
     # ------------------------------------------------------------------ words
+    def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
+        g: list[float] = []
+        m: list[float] = []
+        v: dict[str, float] = {}
+        for letter, value in words:
+            if letter == "G":
+                g.append(value)
+            elif letter == "M":
+                m.append(value)
+            else:
+                v[letter] = value
+        self._apply(g, m, v, frame, line)
+
     def _words(self, statement: Words, frame: _Frame, line: int) -> None:
         g: list[float] = []
         m: list[float] = []
@@ -484,6 +526,11 @@ class _Run:
                     raise InputError(problem)
             else:
                 v[letter] = value
+        self._apply(g, m, v, frame, line)
+
+    def _apply(
+        self, g: list[float], m: list[float], v: dict[str, float], frame: _Frame, line: int
+    ) -> None:
         self.prev_end = self.w[:]
         special = 0.0
         if g:

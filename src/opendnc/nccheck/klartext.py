@@ -314,7 +314,8 @@ class _Run:
 
     # ------------------------------------------------------------------ run
     def run(self) -> None:
-        deadline = time.perf_counter() + self.budget.seconds
+        # CPU time of this thread: a busy machine must not turn a long program into a "loop"
+        deadline = time.thread_time() + self.budget.seconds
         self.frames.append(_Frame(self.main, 0, "main", 0))
         if not self.main.lines or not self.main.lines[0].text.startswith("BEGIN PGM"):
             first = self.main.lines[0] if self.main.lines else _Line(1, None, "", "")
@@ -329,7 +330,7 @@ class _Run:
                 frame.pc += 1
                 self.blocks_run += 1
                 if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run >= self.budget.blocks or time.perf_counter() > deadline
+                    self.blocks_run >= self.budget.blocks or time.thread_time() > deadline
                 ):
                     self._endless(item)
                 try:
@@ -359,11 +360,17 @@ class _Run:
         self.frames.pop()
 
     def _endless(self, item: _Line) -> None:
-        if self.jumps:
-            where, count = max(self.jumps.items(), key=lambda kv: kv[1])
-        else:
-            where, count = item.line, 0
         self.frames[1:] = []
+        if not self.jumps:
+            # no jump back: a long program, not a loop; what follows is not checked
+            self.report(
+                item,
+                Severity.WARNING,
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget "
+                "ran out); the rest of the program is not checked",
+            )
+            raise _Stop
+        where, count = max(self.jumps.items(), key=lambda kv: kv[1])
         target = next((i for i in self.main.lines if i.line == where), item)
         self.error(
             target,
@@ -537,9 +544,11 @@ class _Run:
             self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
         return False, self.feed
 
-    def _target(self, text: str) -> list[float | None]:
+    def _target(
+        self, text: str, axes: list[tuple[bool, str, float]] | None = None
+    ) -> list[float | None]:
         target = self.pos[:]
-        for inc, axis, value in self._axes(text):
+        for inc, axis, value in self._axes(text) if axes is None else axes:
             index = "XYZ".find(axis)
             if index < 0:
                 continue
@@ -573,22 +582,24 @@ class _Run:
         self.pos = target
 
     def _linear(self, item: _Line, text: str) -> None:
+        axes = self._axes(text)
         words = self._words(text)
-        machine_coords = "M91" in text.split() or words.get("M") == 91
-        target = self._target(text)
-        if machine_coords:
-            for inc, axis, value in self._axes(text):
+        has_m = "M" in text
+        target = self._target(text, axes)
+        if has_m and re.search(r"\bM91\b", text):  # machine coordinates for this block
+            for inc, axis, value in axes:
                 index = "XYZ".find(axis)
                 if index >= 0 and not inc:
                     preset = self.preset[index]
                     target[index] = None if preset is None else value - preset
-        moves = any(a in "XYZ" for _, a, _ in self._axes(text))
+        moves = any(axis in "XYZ" for _, axis, _ in axes)
         if moves:
             rapid, feed = self._feed(item, words, text) if "FMAX" not in text else (True, None)
             self._go(item, target, rapid=rapid, feed=feed)
         elif "F" in words:
             self.feed = words["F"]
-        self._m_functions(item, text)
+        if has_m:
+            self._m_functions(item, text)
         if moves and self.m89 and self.cycle is not None and "M99" not in text:
             self._drill(item)
 
