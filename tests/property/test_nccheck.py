@@ -65,6 +65,7 @@ def assert_well_formed(result: CheckResult, text: str) -> None:
         assert 1 <= problem.line <= lines
         assert problem.message
         assert problem.message == problem.message.strip()
+        assert not problem.message.startswith("internal error")
     json.loads(result.to_json())
 
 

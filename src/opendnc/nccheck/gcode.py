@@ -41,7 +41,7 @@ from opendnc.haas import macros
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits, offset_key
-from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath
+from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
@@ -131,6 +131,7 @@ class _Run:
         self.globals: dict[int, float] = {}
         self.programs: dict[int, _Program] = {}
         self.frames: list[_Frame] = []
+        self.warned: set[str] = set()
         self.header_units: Units | None = None
         self.main = self._split(text)
         # modal state
@@ -157,7 +158,6 @@ class _Run:
         self.no_feed_reported = False
         self.locals: dict[int, float] = {}
         self.main_locals = self.locals
-        self.warned: set[str] = set()
         self.ended = False
         if machine is not None:
             for key, axes in machine.work_offsets.items():
@@ -247,7 +247,12 @@ class _Run:
             try:
                 block = parse_block(text)
             except InputError as exc:
-                self._static(program, line, str(exc).split(" in block ")[0])
+                if self.iso:
+                    # ISO cycles and Q-parameter lines are beyond the macro-B parser
+                    self.warn_once(line, "iso-line", "ISO cycle and Q-parameter lines are not "
+                                   "simulated by the dry run")  # fmt: skip
+                else:
+                    self._static(program, line, str(exc).split(" in block ")[0])
                 block = Block(text)
             program.blocks.append(block)
             if block.number is not None:
@@ -542,6 +547,7 @@ class _Run:
             self.feed = v["F"]
         if "S" in v:
             self.speed = v["S"]
+            self.path.spindle_speed(self.speed)
         if "T" in v and not self.iso:
             self.next_tool = round(v["T"])
         self._motion(special, v, line)
@@ -601,6 +607,8 @@ class _Run:
         if self.units is not None and units is not self.units:
             self.warn_once(line, "units", "the program changes units (G20/G21) part way")
         self.units = units
+        if not (self.machine and self.machine.rapid_rate):
+            self.path.rapid_rate = rapid_rate(units)
 
     # ------------------------------------------------------------------ motion
     def _target(self, v: dict[str, float]) -> tuple[list[float | None], list[float | None]]:

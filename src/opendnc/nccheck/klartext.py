@@ -22,7 +22,7 @@ from typing import ClassVar
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits
-from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath
+from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
@@ -441,6 +441,8 @@ class _Run:
             return
         self.begin = (parts[2], parts[3])
         self.units = Units.MM if parts[3] == "MM" else Units.INCH
+        if not (self.machine and self.machine.rapid_rate):
+            self.path.rapid_rate = rapid_rate(self.units)
 
     def _check_end(self, item: _Line) -> None:
         self.end_line = item

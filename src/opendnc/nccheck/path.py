@@ -12,14 +12,29 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from opendnc.nccheck.result import Move, MoveKind, Plane, Point, Problem, Severity, ToolUse
+from opendnc.nccheck.result import (
+    Move,
+    MoveKind,
+    Plane,
+    Point,
+    Problem,
+    Severity,
+    ToolUse,
+    Units,
+)
 
 # Assumptions of the time estimate (docs/check.md#cycle-time): no acceleration, a fixed
 # rapid rate unless the machine gives one, a fixed tool change time.
 RAPID_MM_PER_MIN = 25_400.0
+RAPID_INCH_PER_MIN = 1_000.0
 TOOL_CHANGE_S = 4.0
 AXIS_NAMES = ("X", "Y", "Z")
 _PLANE_AXES = {Plane.XY: (0, 1, 2), Plane.ZX: (2, 0, 1), Plane.YZ: (1, 2, 0)}
+
+
+def rapid_rate(units: Units) -> float:
+    """The assumed rapid traverse in ``units`` per minute (docs/check.md#cycle-time)."""
+    return RAPID_INCH_PER_MIN if units is Units.INCH else RAPID_MM_PER_MIN
 
 
 @dataclass
@@ -82,6 +97,11 @@ class Toolpath:
             known.calls += 1
         self._current = known
         self.seconds += TOOL_CHANGE_S
+
+    def spindle_speed(self, speed: float) -> None:
+        """The first S after a tool change is that tool's speed (Haas programs set it after M06)."""
+        if self._current is not None and self._current.speed is None and speed:
+            self._current.speed = speed
 
     def tools(self) -> tuple[ToolUse, ...]:
         """Every tool loaded, in order of first use."""
