@@ -218,7 +218,7 @@ class _Run:
             current.append((index, stripped.rstrip("*").rstrip() if self.iso else stripped))
         programs.append((title[0], title[1], current))
         built = [self._program(n, num, lines) for n, num, lines in programs]
-        for program in built[1:]:
+        for program in built:
             if program.number is not None:
                 self.programs.setdefault(program.number, program)
         return built[0]

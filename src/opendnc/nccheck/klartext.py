@@ -997,7 +997,9 @@ class _Run:
                 target = self.pos[:]
                 target[a], target[b] = point[a], point[b]
                 self._go(item, target, rapid=True, feed=None)
-                self._drill(item, surface=point[3 - a - b])
+                c = 3 - a - b
+                height = point[c]  # the pattern's own surface, added to Q203 (TNC)
+                self._drill(item, surface=None if height is None else height - self.shift[c])
         elif rest.startswith("POS"):
             self._go(item, self._target(rest[3:]), rapid=True, feed=None)
             self._drill(item)
