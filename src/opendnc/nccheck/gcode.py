@@ -159,6 +159,8 @@ class _Run:
         self.locals: dict[int, float] = {}
         self.main_locals = self.locals
         self.ended = False
+        self.configured: dict[int, float] = {}  # offsets from the machine's configuration
+        self.converted = False
         if machine is not None:
             for key, axes in machine.work_offsets.items():
                 base = _offset_base(key)
@@ -166,6 +168,9 @@ class _Run:
                     for index, letter in enumerate("XYZABC"):
                         if letter in axes:
                             self.globals[base + index] = axes[letter]
+                            self.configured[base + index] = axes[letter]
+        if self.units is not None:
+            self._convert_machine_units(self.units)
         self._offsets()
 
     # ------------------------------------------------------------------ reporting
@@ -609,6 +614,22 @@ class _Run:
         self.units = units
         if not (self.machine and self.machine.rapid_rate):
             self.path.rapid_rate = rapid_rate(units)
+        self._convert_machine_units(units)
+        self._offsets()
+
+    def _convert_machine_units(self, units: Units) -> None:
+        """Travel and configured offsets in the machine's units -> the program's (once)."""
+        machine = self.machine
+        if self.converted or machine is None or machine.travel_units is None:
+            return
+        self.converted = True
+        if machine.travel_units is units:
+            return
+        factor = 25.4 if units is Units.MM else 1 / 25.4
+        self.path.scale_travel(factor)
+        for number, value in self.configured.items():
+            if self.globals.get(number) == value:  # not set by the program since
+                self.globals[number] = value * factor
 
     # ------------------------------------------------------------------ motion
     def _target(self, v: dict[str, float]) -> tuple[list[float | None], list[float | None]]:

@@ -443,6 +443,16 @@ class _Run:
         self.units = Units.MM if parts[3] == "MM" else Units.INCH
         if not (self.machine and self.machine.rapid_rate):
             self.path.rapid_rate = rapid_rate(self.units)
+        machine = self.machine
+        if machine is not None and machine.travel_units not in (None, self.units):
+            # travel and preset in the machine's units -> the program's
+            factor = 25.4 if self.units is Units.MM else 1 / 25.4
+            self.path.scale_travel(factor)
+            self.preset = (
+                None if self.preset[0] is None else self.preset[0] * factor,
+                None if self.preset[1] is None else self.preset[1] * factor,
+                None if self.preset[2] is None else self.preset[2] * factor,
+            )
 
     def _check_end(self, item: _Line) -> None:
         self.end_line = item

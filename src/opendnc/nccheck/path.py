@@ -232,6 +232,10 @@ class Toolpath:
         self._add(Move(kind, start, end, line, self.tool, center=center, plane=plane, feed=feed))
         return length
 
+    def scale_travel(self, factor: float) -> None:
+        """Express the travel in other units (the program's, when the machine's differ)."""
+        self.travel = [(low * factor, high * factor) for low, high in self.travel]
+
     def dwell(self, seconds: float) -> None:
         """Time spent without moving (G04, dwell of a cycle)."""
         if seconds > 0 and math.isfinite(seconds):

@@ -190,3 +190,31 @@ def test_klartext_pattern_datum_shift_and_m89() -> None:
     assert bottoms == [(110.0, 10.0, -10.0), (120.0, 10.0, -11.0), (105.0, 5.0, -10.0)]
     # reaming leaves at the feed (Q208 = 0: Q206): 2 x 12 mm a hole
     assert result.feed_distance == pytest.approx(3 * 24.0)
+
+
+def test_travel_in_inch_checks_a_metric_program() -> None:
+    from opendnc.nccheck import MachineLimits, Units
+
+    vf2 = MachineLimits(
+        name="vf2",
+        family="haas",
+        travel={"X": (-30.0, 0.0)},
+        travel_units=Units.INCH,
+        work_offsets={"G54": {"X": -20.0}},  # -508 mm
+    )
+    # X-254 mm + offset -508 mm = -762 mm = -30 inch: on the limit; X-255 is 1 mm beyond
+    inside = haas("G21 G90 G54\nG00 X-254.", machine=vf2)
+    assert inside.problems == ()
+    beyond = haas("G21 G90 G54\nG00 X-255.", machine=vf2)
+    assert [p.line for p in beyond.problems] == [4]
+    assert "X goes to -763 in machine coordinates" in beyond.problems[0].message
+    assert haas("G20 G90 G54\nG00 X-10.", machine=vf2).problems == ()
+    klartext_tnc = MachineLimits(
+        family="heidenhain",
+        travel={"X": (-1.0, 1.0)},
+        travel_units=Units.INCH,
+        work_offsets={"G54": {"X": 0.0}},
+    )
+    text = "0 BEGIN PGM T MM\n1 L X+26 R0 FMAX\n2 END PGM T MM\n"
+    result = check_text(text, machine=klartext_tnc)
+    assert [p.line for p in result.problems] == [2]
