@@ -382,8 +382,12 @@ class _Run:
     def _execute(self, item: _Line, frame: _Frame) -> None:
         text = item.text
         head = text.split(" ", 1)[0] if text else ""
-        if head == "L":
-            self._linear(item, text[1:])
+        if head in ("L", "LN"):
+            self._linear(item, text[len(head) :])
+        elif head in ("APPR", "DEP"):
+            # approach / departure contours: drawn as a straight move to their end point
+            self.warn_once(item, head, f"{head} is drawn as a straight move by the dry run")
+            self._linear(item, text[len(head) :].lstrip().partition(" ")[2])
         elif head in ("C", "CR", "CT", "CP"):
             self._circle(item, head, text[len(head) :])
         elif head == "LP":
@@ -415,6 +419,8 @@ class _Run:
             self._call_program(item, text[8:].strip())
         elif text.startswith("FN"):
             self._fn(item, frame)
+        elif re.match(r"^QS\d+\s*=", text) or text.startswith("CALL SELECTED"):
+            self.warn_once(item, text[:4], f"{text.split('=')[0].strip()[:20]} is not simulated")
         elif re.match(r"^(Q|QL|QR)\d+\s*=", text):
             target, formula = text.split("=", 1)
             self.q[target.strip()] = self.formula(formula)
@@ -545,7 +551,7 @@ class _Run:
         """(rapid, feed) of a path block: FMAX is for its block only, F stays in force."""
         if "FMAX" in text:
             return True, None
-        if "FAUTO" in text:
+        if "FAUTO" in text or "F AUTO" in text:
             return False, self.tool_feed
         if "F" in words:
             self.feed = words["F"]

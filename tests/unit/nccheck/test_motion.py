@@ -218,3 +218,23 @@ def test_travel_in_inch_checks_a_metric_program() -> None:
     text = "0 BEGIN PGM T MM\n1 L X+26 R0 FMAX\n2 END PGM T MM\n"
     result = check_text(text, machine=klartext_tnc)
     assert [p.line for p in result.problems] == [2]
+
+
+def test_klartext_approach_departure_and_normal_vectors() -> None:
+    result = klartext(
+        "TOOL CALL 1 Z S1000 F200",
+        "L X-20 Y-20 Z+5 R0 FMAX M3",
+        "L Z-2 F AUTO",
+        "APPR LCT X+0 Y+0 R5 RL F100",
+        "L X+50",
+        "DEP LCT X-20 Y-20 R5 F AUTO",
+        "LN X+1 Y+2 Z+3 NX+0 NY+0 NZ+1",
+    )
+    assert [(p.line, p.severity) for p in result.problems] == [
+        (5, Severity.WARNING),
+        (7, Severity.WARNING),
+    ]
+    assert result.end.position == {"X": 1.0, "Y": 2.0, "Z": 3.0}
+    assert result.feed_distance == pytest.approx(
+        7 + math.hypot(20, 20) + 50 + math.hypot(70, 20) + math.hypot(21, 22, 5)
+    )
