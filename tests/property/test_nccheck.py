@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from opendnc.nccheck import Budget, CheckResult, Control, MachineLimits, check_text
@@ -105,3 +106,26 @@ def test_klartext_soup_gives_a_result(lines: list[str], machine: object) -> None
     assert isinstance(machine, MachineLimits | None)
     text = numbered(["BEGIN PGM A MM", *lines])
     assert_well_formed(checked(text, Control.HEIDENHAIN, machine), text)
+
+
+formula_tokens = st.sampled_from(
+    [
+        "Q1", "QL2", "QR3", "-", "+", "*", "/", "^", "(", ")", "0", "2", "-8", "0.5", "400",
+        "SIN", "SQRT", "LN", "LOG", "ASIN", "EXP", "DIV", "LEN", "PI", "ABS", "FRAC", "1E308",
+    ]
+)  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(formula_tokens, min_size=1, max_size=12))
+@example(["Q1", "^", "0.5"])  # a negative base to a fraction once gave a complex number
+@example(["0", "^", "-", "2"])
+def test_q_formulas_give_a_value_or_a_problem(tokens: list[str]) -> None:
+    formula = " ".join(tokens)
+    text = f"0 BEGIN PGM A MM\n1 Q1 = -8\n2 Q9 = {formula}\n3 END PGM A MM\n"
+    result = checked(text, Control.HEIDENHAIN, None)
+    assert_well_formed(result, text)
+    if 9 in result.end.variables:
+        assert math.isfinite(result.end.variables[9])
+    else:
+        assert [p.line for p in result.errors] == [3]

@@ -156,7 +156,7 @@ class _Expr:
         base = self.unary()
         if self.peek() == "^":
             self.take()
-            return float(base ** self.power())
+            return math.pow(base, self.power())  # ValueError / OverflowError, never complex
         return base
 
     def unary(self) -> float:
