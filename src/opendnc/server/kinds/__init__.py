@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any, cast
 
+from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
 from opendnc.server.configkeys import NAME, ConfigError, get_key, known_keys
 from opendnc.server.kinds import haas_ngc, haas_serial, lsv2
 from opendnc.server.kinds.base import (
@@ -82,6 +83,13 @@ def _empty(value: object) -> bool:
     return value in ("", 0, False) and not isinstance(value, float | dict)
 
 
+def _envelope(raw: dict[str, Any], prefix: str) -> Envelope | None:
+    try:
+        return parse_envelope(raw, prefix)  # program checks: opendnc.nccheck.limits
+    except LimitsError as exc:
+        raise ConfigError(exc.key, exc.problem) from None
+
+
 def parse_machine(raw: object, prefix: str) -> MachineConfig:
     """One ``[[machines]]`` table; :class:`ConfigError` names the first bad key."""
     if not isinstance(raw, dict):
@@ -122,6 +130,7 @@ def parse_machine(raw: object, prefix: str) -> MachineConfig:
         "released_only": get_key(raw, prefix, "released_only", bool, False),
         "poll_interval": poll,
         "description": get_key(raw, prefix, "description", str, ""),
+        "envelope": _envelope(raw, prefix),
     }
     machine: MachineConfig = spec.parse(own, prefix, common)
     return machine

@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
+from opendnc.nccheck.limits import Envelope
 from opendnc.server.configkeys import ConfigError, get_key, known_keys
 
 if TYPE_CHECKING:
@@ -60,9 +61,12 @@ class MachineBase:
     released_only: bool = False
     poll_interval: float = 1.0
     description: str = ""
+    envelope: Envelope | None = None  # travel and work offsets for program checks (docs/check.md)
 
 
-COMMON_KEYS = {"name", "kind", "released_only", "poll_interval", "description"}
+COMMON_KEYS = {
+    "name", "kind", "released_only", "poll_interval", "description", "travel", "work_offsets",
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -215,5 +219,5 @@ class KindSpec(Generic[M]):
 
 def schema_keys(schema: type[MachineBase]) -> frozenset[str]:
     """The configuration keys of a schema's own fields (``profile`` is ``serial_profile``)."""
-    names = {f.name for f in fields(schema)} - COMMON_KEYS
+    names = {f.name for f in fields(schema)} - {f.name for f in fields(MachineBase)}
     return frozenset("serial_profile" if n == "profile" else n for n in names)
