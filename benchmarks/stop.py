@@ -33,7 +33,8 @@ def main() -> int:
     selected = "tests/server/test_stop.py"
     if args.backend != "both":
         selected += f"::test_signals_stop_a_busy_server_within_the_deadline[{args.backend}]"
-    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", selected]
+    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", "--timeout=0"]
+    command.append(selected)
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, check=False)
     lines = [line for line in done.stdout.splitlines() if line.startswith("stop rounds")]
     print("\n".join(lines) if lines else done.stdout[-4000:])
