@@ -36,7 +36,8 @@ def main() -> int:
     command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", "--timeout=0"]
     command.append(selected)
     done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, check=False)
-    lines = [line for line in done.stdout.splitlines() if line.startswith("stop rounds")]
+    wanted = ("stop rounds", "round ")
+    lines = [line for line in done.stdout.splitlines() if line.startswith(wanted)]
     print("\n".join(lines) if lines else done.stdout[-4000:])
     if done.returncode != 0:
         print(done.stdout[-4000:], done.stderr[-2000:], sep="\n", file=sys.stderr)

@@ -89,6 +89,7 @@ def test_signals_stop_a_busy_server_within_the_deadline(
         os.kill(proc.pid, sig)
         proc.wait(STOP_TIMEOUT + 30)
         took.append(time.monotonic() - began)
+        print(f"\nround {round_ + 1}: {sig.name} stopped in {took[-1]:.2f} s", flush=True)
         stop_stream.set()
         procs.procs.pop("server")
         log = procs.log("server")
