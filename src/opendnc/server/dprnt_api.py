@@ -13,7 +13,7 @@ import io
 from collections.abc import Sequence
 from typing import Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 from fastapi.responses import Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -77,7 +77,7 @@ def csv_response(machine: str, lines: Sequence[dict[str, Any]]) -> Response:
 
 @router.get("/machines/{name}/dprnt", response_model=None)
 def machine_dprnt(
-    request: Request,
+    machines: deps.MachinesDep,
     name: str,
     db: Db,
     _who: Viewer,
@@ -86,7 +86,7 @@ def machine_dprnt(
     format: str = "json",
 ) -> list[dict[str, Any]] | Response:
     """Lines after id ``since``, oldest first (at most ``limit``); ``format=csv`` for a file."""
-    if name not in deps.machines(request).machines:
+    if name not in machines.machines:
         raise NotFound(f"no machine named {name!r}")
     if format not in ("json", "csv"):
         raise InputError("format is json or csv")
