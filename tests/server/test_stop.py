@@ -2,7 +2,7 @@
 is doing: 200 virtual machines polled, an event stream open, on SQLite and PostgreSQL, signalled
 again and again.
 
-The rounds are a parameter: ``OPENDNC_STOP_ROUNDS`` (default 4, half SIGTERM, half SIGINT) and
+The rounds are a parameter: ``OPENDNC_STOP_ROUNDS`` (default 2: one SIGTERM, one SIGINT) and
 ``OPENDNC_STOP_MACHINES`` (default 200); ``benchmarks/stop.py`` runs 50 rounds and prints the
 figures each round's line below gives.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 from opendnc.cli.serve import STOP_TIMEOUT
 from tests.server.harness import Procs, auth, create_key, httpx, serve, wait_for
 
-ROUNDS = int(os.environ.get("OPENDNC_STOP_ROUNDS", "4"))
+ROUNDS = int(os.environ.get("OPENDNC_STOP_ROUNDS", "2"))
 MACHINES = int(os.environ.get("OPENDNC_STOP_MACHINES", "200"))
 SLACK = 1.0  # seconds beyond the deadline for the process to be reaped
 

@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import errno
 import os
+import signal
 import socket
 import threading
 import time
@@ -78,6 +79,7 @@ def serve(
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
         plan = StopPlan(stop_timeout)
+        plan.listen()
         from opendnc.server.single_server import SingleServerLock
 
         guard = SingleServerLock(db or shop.server.database)
@@ -86,6 +88,11 @@ def serve(
             server = build(shop, database=db, stop_deadline=plan.components)
             try:
                 asyncio.run(_serve(server, listener, host, plan))
+            except KeyboardInterrupt:
+                # uvicorn raises the SIGINT it handled again once it has stopped: the stop
+                # is done, and ends below like a SIGTERM's.
+                if not plan.signal:
+                    raise
             finally:
                 server.engine.dispose()
         finally:
@@ -154,6 +161,31 @@ class StopPlan:
         self.components = max(0.5, deadline - self.connections - 1.0)
         self.signal = 0
         self._lock = threading.Lock()
+
+    def listen(self) -> None:
+        """Arm the watchdog when a signal arrives, not when the main thread gets round to
+        its handler (on a busy machine that can be seconds later): the signal's byte on
+        Python's wakeup descriptor, written the moment the signal is caught, wakes a thread
+        of ours. From the main thread only; the web server's handler arms it as well."""
+        reader, writer = os.pipe()
+        os.set_blocking(writer, False)
+        try:
+            signal.set_wakeup_fd(writer, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread (tests calling serve() from a thread)
+            os.close(reader)
+            os.close(writer)
+            return
+        threading.Thread(target=self._hear, args=(reader,), name="stop-ear", daemon=True).start()
+
+    def _hear(self, reader: int) -> None:
+        while not self.signal:
+            try:
+                data = os.read(reader, 64)
+            except OSError:
+                return
+            for number in data:
+                if number in (signal.SIGTERM, signal.SIGINT):
+                    self.signalled(number)
 
     def signalled(self, sig: int) -> None:
         """The first SIGTERM or SIGINT: arm the watchdog."""
