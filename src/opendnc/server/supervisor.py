@@ -38,7 +38,7 @@ from opendnc.server.autoreceive import FolderWatch, size_problem
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
 from opendnc.server.events import EventBus, on_loop
-from opendnc.server.machine_files import RemoteFile
+from opendnc.server.machine_files import EXECUTORS, Errands, RemoteFile, file_name
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.machines.base import FolderSource
 from opendnc.server.store.db import read_only
@@ -47,6 +47,7 @@ from opendnc.server.store.models import DprntLine, JobKind, utcnow
 __all__ = ["ConnectorFactory", "MachineState", "Supervisor"]
 
 PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
+CANCEL_EVERY = 0.25  # seconds between two looks at a running drip-feed's cancel_requested
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,7 @@ class MachineState:
     job_progress: tuple[int, int | None] = (0, None)
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
+    errands: Errands = field(default_factory=Errands)  # file browser work for the connector
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
@@ -137,7 +139,6 @@ class Supervisor:
         self.worker = config.server.name
         self.machines = {m.name: MachineState(m) for m in config.machines}
         self._tasks: list[asyncio.Task[None]] = []
-        self._cancels: set[int] = set()
         self._watches = {m.name: FolderWatch(m) for m in config.machines if m.receive_folder}
         self._loop: asyncio.AbstractEventLoop | None = None
 
@@ -236,6 +237,7 @@ class Supervisor:
                 state.last_error = str(exc) or type(exc).__name__
                 state.last_error_at = utcnow()
                 state.link_errors += 1
+                state.errands.fail_all(f"{state.config.name} is offline: {state.last_error}")
                 state.set_status(
                     MachineStatus(at=utcnow(), available=False, message=state.last_error)
                 )
@@ -252,6 +254,7 @@ class Supervisor:
                 state.wake.clear()
                 while await self._run_next(state, connector):
                     pass
+            await state.errands.run(connector)
             state.set_status(await connector.status())
             self._publish(state)
             if watch is not None and isinstance(connector, FolderSource):
@@ -281,7 +284,7 @@ class Supervisor:
                 if job.kind is JobKind.REPORT:
                     report = str(params.get("report", "")).encode("latin-1")
                     return Claimed(job.id, job.kind, str(params.get("name")), report, params)
-                if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+                if job.kind in jobs.PROGRAM_JOBS:
                     if job.version is None:
                         jobs.fail(session, job.id, "the job names no program", retryable=False)
                         return None
@@ -301,6 +304,8 @@ class Supervisor:
             # Stopping the server mid-transfer: the next start marks the job interrupted.
             raise
         except Exception as exc:
+            if not isinstance(exc, DncError):
+                log.exception("%s: job %d failed unexpectedly", name, job_id)
             reason = str(exc) or type(exc).__name__
             # A broken link or a garbled transfer may go well next time; a refusal will not.
             retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
@@ -329,13 +334,23 @@ class Supervisor:
             return {"nbytes": len(job.data), "verified": verified}
         if job.kind is JobKind.DRIPFEED:
             return await self._dripfeed(state, connector, job)
+        executor = EXECUTORS.get(job.kind.value)
+        if executor is not None:
+
+            def moved(done: int, total: int | None) -> None:
+                state.job_progress = (done, total)
+
+            return await executor(connector, job.data, job.params, moved)
         if job.kind is JobKind.RECEIVE:
             data = await connector.fetch(job.name)
             folder = self.config.library.inbox
 
             def keep() -> int:
+                # under the control's own file name (1001.I), matched to the library's
                 with self.sessions.begin() as session:
-                    return inbox.store(session, state.config.name, data, folder=folder).id
+                    name = file_name(job.name)
+                    row = inbox.store(session, state.config.name, data, folder=folder, name=name)
+                    return row.id
 
             received_id = await asyncio.to_thread(keep)
             return {"nbytes": len(data), "path": job.name, "received_id": received_id}
@@ -355,6 +370,7 @@ class Supervisor:
         reached = [from_line]
         fed = [0]
         machine = state.config.name
+        asked_at = [time.monotonic()]
 
         def progress(line: int, lines: int, nbytes: int, total: int) -> None:
             # Called from the feed's thread for every chunk: only a new line is news.
@@ -373,20 +389,23 @@ class Supervisor:
                     line=line,
                     lines=lines,
                 )
-            if job.job_id in self._cancels:
-                raise TransferError(f"cancelled at line {line}")
+            # A safe point: is a cancel asked for (the database is the only place one lives,
+            # whichever server took it)? Asked at most every CANCEL_EVERY seconds.
+            now = time.monotonic()
+            if now - asked_at[0] >= CANCEL_EVERY:
+                asked_at[0] = now
+                if self._cancel_requested(job.job_id):
+                    raise TransferError(f"cancelled at line {line}")
 
         try:
             counts = await connector.dripfeed(job.name, job.data, from_line, progress)
         except Exception as exc:
             raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0], fed[0]) from exc
-        finally:
-            self._cancels.discard(job.job_id)
         return {**counts, "from_line": from_line}
 
-    def request_cancel(self, job_id: int) -> None:
-        """Stop a running drip-feed of this process at its next chunk."""
-        self._cancels.add(job_id)
+    def _cancel_requested(self, job_id: int) -> bool:
+        with self._reads() as session:
+            return jobs.cancel_requested(session, job_id)
 
     async def _received(self, state: MachineState, reception: Reception) -> None:
         """File a program the control sent: into the inbox, or answer it as a request."""
