@@ -34,6 +34,7 @@ from opendnc.server.actions.models import (
     AuditOut,
     Count,
     DiffOut,
+    FolderOut,
     Id,
     IdQuery,
     JobOut,
@@ -257,6 +258,29 @@ def list_machines(svc: Svc, who: Caller) -> list[MachineOut]:
 def get_machine(svc: Svc, name: str, who: Caller) -> MachineOut:
     """One machine with its live state."""
     return actions.machines.get_machine(svc, who, name)
+
+
+ControlPath = Annotated[str, Query(min_length=1, max_length=255)]
+
+
+@router.get("/machines/{name}/files")
+async def list_machine_files(
+    svc: Svc, name: str, who: Caller, path: Annotated[str | None, Query(max_length=255)] = None
+) -> FolderOut:
+    """A folder of the control (its program folder without ``path``), read on the machine's
+    own link between jobs; 409 for a machine without a file browser, 503 while offline."""
+    return await actions.files.list_folder(svc, who, name, path)
+
+
+@router.get(
+    "/machines/{name}/files/content",
+    response_class=OctetStream,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Caller) -> Response:
+    """The bytes of one file of the control, read on the machine's own link."""
+    content = await actions.files.read_file(svc, who, name, path)
+    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
 
 
 # -- library --------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ from opendnc.server import actions, auth, dprnt_api, jobs
 from opendnc.server.actions.models import MAX_ID, JobOut
 from opendnc.server.actions.queue import JobRequest
 from opendnc.server.capabilities import capabilities_of
-from opendnc.server.errors import NotFound, TooLarge, Unauthorized
+from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
 from opendnc.server.library import MAX_PROGRAM_BYTES
 from opendnc.server.store.models import (
     Job,
@@ -629,7 +629,12 @@ async def machine_file_download(request: Request, name: str, path: str, page: Vi
 async def _after_file_job(request: Request, page: Page, job: JobOut, folder: str) -> HTMLResponse:
     # The folder as it is once the job ran: the listing waits behind the machine's queue.
     note = f"job {job.id}: {job.kind.value} {job.params.get('path', '')} queued"
-    return await machine_files_page(request, job.machine, page, folder, note)
+    try:
+        return await machine_files_page(request, job.machine, page, folder, note)
+    except (Conflict, Unavailable) as exc:
+        # the job is queued whatever the listing says (a control without a browser, offline)
+        note = f"{note}; {exc}"
+        return _html("_files.html", page, request, note=note, machine=job.machine, entries=[])
 
 
 @router.post("/machines/{name}/files/upload")
