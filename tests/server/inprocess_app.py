@@ -10,6 +10,7 @@ against the virtual controls elsewhere (tests/server/test_end_to_end.py and othe
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -23,10 +24,8 @@ httpx = require_module("httpx")
 require_module("jinja2")
 uvicorn = require_module("uvicorn")
 
-import threading  # noqa: E402
-
-from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.cli.serve import listen_socket  # noqa: E402
+from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config import MachineConfig, parse_config  # noqa: E402
