@@ -9,6 +9,7 @@ against the virtual controls elsewhere (tests/server/test_end_to_end.py and othe
 
 from __future__ import annotations
 
+import asyncio
 import json
 import threading
 from collections.abc import Iterator
@@ -47,6 +48,7 @@ class MemoryControl:
     files: dict[str, bytes] = field(default_factory=dict)
     listens: bool = False
     online: bool = True  # False: connect() fails like an unreachable control
+    line_time: float = 0.0  # seconds a drip-feed takes per line
 
     async def connect(self) -> None:
         if not self.online:
@@ -86,9 +88,14 @@ class MemoryControl:
     async def dripfeed(
         self, name: str, data: bytes, from_line: int, progress: DripProgress
     ) -> dict[str, int]:
-        lines = data.count(b"\n")
-        progress(lines, lines, len(data), len(data))
-        return {"lines": lines}
+        # a line every line_time seconds; ``progress`` may raise to stop the feed
+        lines = data.splitlines(keepends=True)
+        fed = 0
+        for n, line in enumerate(lines[from_line - 1 :], start=from_line):
+            await asyncio.sleep(self.line_time)
+            fed += len(line)
+            progress(n + 1, len(lines), fed, len(data))
+        return {"lines": len(lines)}
 
     async def list_files(self, folder: str) -> list[RemoteFile]:
         base = folder.rstrip("/")
@@ -151,13 +158,17 @@ class App:
 
 
 @contextmanager
-def running(tmp_path: Path, machines: list[dict[str, object]]) -> Iterator[App]:
+def running(
+    tmp_path: Path, machines: list[dict[str, object]], offline: tuple[str, ...] = ()
+) -> Iterator[App]:
     """The server for ``machines`` on memory controls, started, with a key and a web
-    session for a user of every role."""
+    session for a user of every role; the ``offline`` ones never answer."""
     controls: dict[str, MemoryControl] = {}
 
     def connector(config: MachineConfig) -> MemoryControl:
-        control = controls.setdefault(config.name, MemoryControl(config))
+        control = controls.setdefault(
+            config.name, MemoryControl(config, online=config.name not in offline)
+        )
         control.config = config
         return control
 
@@ -185,7 +196,11 @@ def running(tmp_path: Path, machines: list[dict[str, object]]) -> Iterator[App]:
         wait_for("the server", lambda: web.started, timeout=30)
         wait_for(
             "the machines online",
-            lambda: all(m.online for m in server.supervisor.machines.values()),
+            lambda: all(
+                m.online
+                for m in server.supervisor.machines.values()
+                if m.config.name not in offline
+            ),
             timeout=30,
         )
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
