@@ -113,7 +113,8 @@ def test_reads_do_not_write_and_last_used_is_written_once_a_minute(app: App) -> 
     assert writes == ["UPDATE", "UPDATE"], seen
     with app.server.sessions() as s:
         row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
-        assert row is not None and row.last_used is not None
+        assert row is not None
+        assert row.last_used is not None
         first = row.last_used
         # a minute later the next request writes again
         row.last_used = first - timedelta(seconds=61)
@@ -121,7 +122,9 @@ def test_reads_do_not_write_and_last_used_is_written_once_a_minute(app: App) -> 
     app.client.get("/api/jobs", headers=app.api(Role.VIEWER))
     with app.server.sessions() as s:
         row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
-        assert row is not None and row.last_used is not None and row.last_used > first
+        assert row is not None
+        assert row.last_used is not None
+        assert row.last_used > first
 
 
 def _login(app: App, user: str, password: str) -> Any:
@@ -149,7 +152,8 @@ def test_logins_are_audited_as_logins_and_failures_slow_down(app: App, fresh_gua
             select(AuditEntry).where(AuditEntry.actor == "ann").order_by(AuditEntry.id)
         ).all()
     assert [(r.action, r.result) for r in rows] == [("login", "ok")] + [("login", "refused")] * 6
-    assert rows[0].detail["key_id"] is not None and rows[0].detail["via"] == "web"
+    assert rows[0].detail["key_id"] is not None
+    assert rows[0].detail["via"] == "web"
 
 
 def test_unknown_api_keys_are_audited_and_slowed_per_address(app: App, fresh_guard: None) -> None:
@@ -299,8 +303,10 @@ def test_a_received_file_keeps_its_name_and_meets_its_library_program(app: App) 
             received_id = row.detail["received_id"]
         item = app.client.get(f"/api/inbox/{received_id}", headers=app.api(ADMIN)).json()
         names.append(item["name"])
-        assert item["base"]["program"] == "1001.I" and item["base"]["number"] == 1
-        assert "-1 L X+1 R0 FMAX" in item["diff"] and "+1 L X+2 R0 FMAX" in item["diff"]
+        assert item["base"]["program"] == "1001.I"
+        assert item["base"]["number"] == 1
+        assert "-1 L X+1 R0 FMAX" in item["diff"]
+        assert "+1 L X+2 R0 FMAX" in item["diff"]
         assert item["sha256"] == hashlib.sha256(changed).hexdigest()
     assert names == ["1001.I", "1001.I"]
     inbox = app.server.config.library.inbox
@@ -311,7 +317,8 @@ def test_an_offline_control_answers_503_in_one_line(app: App) -> None:
     reply = app.client.get("/api/machines/tnc-off/files", headers=app.api(ADMIN))
     assert reply.status_code == 503
     detail = reply.json()["detail"]
-    assert detail.startswith("tnc-off is offline") and "\n" not in detail
+    assert detail.startswith("tnc-off is offline")
+    assert "\n" not in detail
     page = app.client.get("/machines/tnc-off/files", headers=app.page(ADMIN))
     assert page.status_code == 503
 
@@ -333,7 +340,8 @@ def test_the_file_browser_puts_and_deletes_through_jobs(app: App) -> None:
         (job,) = s.scalars(
             select(Job).where(Job.kind == JobKind.DELETE, Job.machine == "tnc")
         ).all()
-        assert job.state is JobState.DONE and job.created_by == "programmer"
+        assert job.state is JobState.DONE
+        assert job.created_by == "programmer"
     # an upload is a library draft first, then a put_file job of that version
     reply = app.client.post(
         "/machines/tnc/files/upload",
