@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import actions, audit, auth, jobs, library
-from opendnc.server.actions.queue import JobRequest
+from opendnc.server.actions.models import JobRequest
 from opendnc.server.auth import Principal
 from opendnc.server.config import MachineConfig, MachineKind
 from opendnc.server.errors import Conflict, NotFound, Unauthorized

@@ -163,7 +163,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
 async def _check(server: object, fleet: object) -> None:
     """Send the released O01000 to every machine and wait for the outcome."""
     from opendnc.server import actions, jobs
-    from opendnc.server.actions.queue import JobRequest
+    from opendnc.server.actions.models import JobRequest
     from opendnc.server.app import Server
     from opendnc.server.auth import Principal
     from opendnc.server.store.models import JobKind, JobState, Role

@@ -38,6 +38,7 @@ from opendnc.server.actions.models import (
     Id,
     IdQuery,
     JobOut,
+    JobRequest,
     KeyOut,
     LineNumber,
     MachineOut,
@@ -48,7 +49,6 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
-from opendnc.server.actions.queue import JobRequest
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
 from opendnc.server.events import EventBus
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 from opendnc.server import jobs, library
 from opendnc.server.actions import queue
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, FolderOut, JobOut, RemoteFileOut
+from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest, RemoteFileOut
 from opendnc.server.actions.policy import check_machine, may_queue
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
@@ -123,12 +123,12 @@ def put_file(
 def delete_file(svc: Services, who: Caller, machine: str, path: str) -> JobOut:
     """Queue a ``delete`` job of the file ``path`` on the control (programmers)."""
     may_queue(who, JobKind.DELETE)
-    order = queue.JobRequest(kind=JobKind.DELETE, path=check_path(path), machines=[machine])
+    order = JobRequest(kind=JobKind.DELETE, path=check_path(path), machines=[machine])
     return queue.create_jobs(svc, who, order)[0]
 
 
 def receive_file(svc: Services, who: Caller, machine: str, path: str) -> JobOut:
     """Queue a ``receive`` job: the file comes to the inbox under its own name."""
     may_queue(who, JobKind.RECEIVE)
-    order = queue.JobRequest(kind=JobKind.RECEIVE, path=check_path(path), machines=[machine])
+    order = JobRequest(kind=JobKind.RECEIVE, path=check_path(path), machines=[machine])
     return queue.create_jobs(svc, who, order)[0]

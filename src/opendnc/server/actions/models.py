@@ -33,6 +33,7 @@ __all__ = [
     "Id",
     "IdQuery",
     "JobOut",
+    "JobRequest",
     "KeyOut",
     "LineNumber",
     "MachineOut",
@@ -336,3 +337,19 @@ class Content:
     name: str
     sha256: str
     data: bytes
+
+
+class JobRequest(BaseModel):
+    """What a client asks the queue for.
+
+    ``send``, ``dripfeed`` and ``put_file`` name a ``program`` (and optionally its
+    ``version``: without it the released one); ``receive``, ``delete``, ``backup`` and
+    ``put_file`` name a ``path`` on the control.
+    """
+
+    kind: JobKind = JobKind.SEND
+    program: str | None = Field(default=None, min_length=1, max_length=100)
+    version: int | None = Field(default=None, ge=1, le=MAX_ID)
+    path: str | None = Field(default=None, min_length=1, max_length=255)
+    machines: list[str] = Field(min_length=1, max_length=1000)
+    from_line: LineNumber | None = None

@@ -6,19 +6,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
 from opendnc.server import jobs, library
 from opendnc.server.actions import policy
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import MAX_ID, JobOut, LineNumber
+from opendnc.server.actions.models import JobOut, JobRequest
 from opendnc.server.machine_files import check_path
 from opendnc.server.store.models import JobKind, JobState, Role
 
 __all__ = [
-    "JobRequest",
     "cancel_job",
     "create_jobs",
     "get_job",
@@ -26,22 +24,6 @@ __all__ = [
     "move_job",
     "retry_job",
 ]
-
-
-class JobRequest(BaseModel):
-    """What a client asks the queue for.
-
-    ``send``, ``dripfeed`` and ``put_file`` name a ``program`` (and optionally its
-    ``version``: without it the released one); ``receive``, ``delete``, ``backup`` and
-    ``put_file`` name a ``path`` on the control.
-    """
-
-    kind: JobKind = JobKind.SEND
-    program: str | None = Field(default=None, min_length=1, max_length=100)
-    version: int | None = Field(default=None, ge=1, le=MAX_ID)
-    path: str | None = Field(default=None, min_length=1, max_length=255)
-    machines: list[str] = Field(min_length=1, max_length=1000)
-    from_line: LineNumber | None = None
 
 
 def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:

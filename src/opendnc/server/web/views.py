@@ -27,8 +27,7 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import actions, auth, dprnt_api, jobs
-from opendnc.server.actions.models import MAX_ID, JobOut
-from opendnc.server.actions.queue import JobRequest
+from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
 from opendnc.server.library import MAX_PROGRAM_BYTES
