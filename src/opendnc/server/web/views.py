@@ -222,7 +222,8 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
 def _label(job: Job) -> str:
     if job.version is not None:
         return f"{job.kind.value} {job.version.program.name} v{job.version.number}"
-    return f"{job.kind.value} {job.params.get('name', '')}".strip()
+    # a report names its program; a receive, delete or put its path on the control
+    return f"{job.kind.value} {job.params.get('name') or job.params.get('path') or ''}".strip()
 
 
 def _job_labels(session: Session, ids: list[int]) -> dict[int, str]:
