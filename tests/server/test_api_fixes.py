@@ -237,6 +237,25 @@ def test_numbers_out_of_range_are_refused_with_422(app: App, url: str) -> None:
     assert reply.status_code == 422, reply.text
 
 
+def test_bodies_that_are_not_json_or_not_text_are_refused_with_422(app: App) -> None:
+    odd = app.client.post(
+        "/api/keys",
+        content=b"\xff\xfe\x00garbage",
+        headers={**app.api(ADMIN), "Content-Type": "application/octet-stream"},
+    )
+    assert odd.status_code == 422, odd.text
+    huge = app.client.post(
+        "/api/jobs",
+        content=b'{"program": "O1.nc", "version": 1e400, "machines": ["tnc"]}',
+        headers={**app.api(ADMIN), "Content-Type": "application/json"},
+    )
+    assert huge.status_code == 422, huge.text
+    long_search = app.client.get(
+        "/api/programs", params={"q": "x" * 60_000}, headers=app.api(ADMIN)
+    )
+    assert long_search.status_code == 422
+
+
 def test_a_retry_needs_no_body_and_a_folder_in_a_name_is_a_clear_4xx(app: App) -> None:
     job = _job(app, program="O1.nc", path=None)
     with app.server.sessions.begin() as s:
