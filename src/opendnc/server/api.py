@@ -185,7 +185,8 @@ def _principal(
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     guard: auth.LoginGuard = request.app.state.login_guard
-    address = f"address:{request.client.host if request.client else '?'}"
+    host = request.client.host if request.client else "?"
+    address = f"address:{host}"
     guard.check(address)
     svc = _svc(request)
     try:
@@ -199,7 +200,7 @@ def _principal(
                 "login",
                 result="refused",
                 via="api",
-                address=address,
+                address=host,
                 error=str(exc),
             )
         raise
