@@ -12,8 +12,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.server.actions import Services
 from opendnc.server.config import LibraryConfig, MachineConfig, ServerConfig, ShopConfig
 from opendnc.server.events import EventBus
+from opendnc.server.machine_state import MachineState
 from opendnc.server.store.db import read_only
-from opendnc.server.supervisor import MachineState
 
 
 @dataclass

@@ -61,7 +61,7 @@ class MemoryControl:
         return MachineStatus(at=datetime.now(UTC), available=True, execution="READY")
 
     def _folder(self) -> str:
-        return (self.config.folder or "TNC:/nc_prog").rstrip("/")
+        return (getattr(self.config, "folder", "") or "TNC:/nc_prog").rstrip("/")
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
         self.files[f"{self._folder()}/{name}"] = data
@@ -198,7 +198,7 @@ def running(
             "the machines online",
             lambda: all(
                 m.online
-                for m in server.supervisor.machines.values()
+                for m in server.machines.machines.values()
                 if m.config.name not in offline
             ),
             timeout=30,

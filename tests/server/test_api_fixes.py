@@ -13,6 +13,7 @@ import pytest
 from sqlalchemy import event, select
 
 from opendnc.server import auth, jobs, library
+from opendnc.server.actions import Services
 from opendnc.server.store.models import ApiKey, AuditEntry, Job, JobKind, JobState, Role, utcnow
 from opendnc.server.web import session as web_session
 from tests.server.harness import wait_for
@@ -44,9 +45,10 @@ def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
 @pytest.fixture
 def fresh_guard(app: App) -> Iterator[None]:
     # the login guard counts per address: every test here comes from 127.0.0.1
-    app.server.app.state.login_guard = auth.LoginGuard()
+    guard = app.server.core.get(Services).guard
+    guard.reset()
     yield
-    app.server.app.state.login_guard = auth.LoginGuard()
+    guard.reset()
 
 
 def _statements(app: App) -> Any:
@@ -297,7 +299,6 @@ def test_a_cancel_reaches_a_running_drip_feed_through_the_database(app: App) -> 
     assert ended["state"] == "interrupted"
     assert "cancelled at line" in ended["error"]
     assert 2 < ended["line"] < 400
-    assert not hasattr(app.server.supervisor, "_cancels")
 
 
 def test_a_received_file_keeps_its_name_and_meets_its_library_program(app: App) -> None:
@@ -390,6 +391,6 @@ def test_jobs_stay_queued_for_a_later_time(app: App) -> None:
             s, JobKind.SEND, "tnc", actor="t", version=version, not_before=utcnow() + timedelta(1)
         )
         job_id = job.id
-    app.server.supervisor.wake("tnc")
+    app.server.machines.wake("tnc")
     reply = app.client.post(f"/api/jobs/{job_id}/cancel", headers=app.api(Role.OPERATOR))
     assert reply.json()["state"] == "cancelled"

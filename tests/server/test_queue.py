@@ -14,7 +14,7 @@ from opendnc.errors import InputError
 from opendnc.server import actions, audit, auth, jobs, library
 from opendnc.server.actions.models import JobRequest
 from opendnc.server.auth import Principal
-from opendnc.server.config import MachineConfig, MachineKind
+from opendnc.server.config import HaasNgcMachine, Lsv2Machine
 from opendnc.server.errors import Conflict, NotFound, Unauthorized
 from opendnc.server.store.models import ApiKey, JobKind, JobState, ProgramState, Role
 from tests.server.actions_support import services
@@ -23,8 +23,8 @@ PROGRAM = b"%\nO01234 (BRACKET)\nG00 G90 X0. Y0.\nM30\n%\n"
 
 
 MACHINES = [
-    MachineConfig(name="mill-1", kind=MachineKind.LSV2, host="127.0.0.1"),
-    MachineConfig(name="vf2", kind=MachineKind.HAAS_NGC, host="127.0.0.1", released_only=True),
+    Lsv2Machine(name="mill-1", host="127.0.0.1"),
+    HaasNgcMachine(name="vf2", host="127.0.0.1", released_only=True),
 ]
 
 

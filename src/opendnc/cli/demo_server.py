@@ -173,9 +173,9 @@ async def _check(server: object, fleet: object) -> None:
     assert isinstance(fleet, Fleet)
     loop = asyncio.get_running_loop()
     deadline = loop.time() + 60
-    while not all(m.online for m in server.supervisor.machines.values()):
+    while not all(m.online for m in server.machines.machines.values()):
         if loop.time() > deadline:
-            away = [m.config.name for m in server.supervisor.machines.values() if not m.online]
+            away = [m.config.name for m in server.machines.machines.values() if not m.online]
             raise DncError(f"machines not online: {', '.join(away)}")
         await asyncio.sleep(0.1)
     console.print("all machines online", highlight=False)
@@ -184,7 +184,7 @@ async def _check(server: object, fleet: object) -> None:
     order = JobRequest(kind=JobKind.SEND, program="O01000.nc", machines=names)
     demo = Principal("demo", Role.ADMIN)
     created = await asyncio.to_thread(
-        actions.queue.create_jobs, server.app.state.actions, demo, order
+        actions.queue.create_jobs, server.core.get(actions.Services), demo, order
     )
     ids = [j.id for j in created]
     while True:

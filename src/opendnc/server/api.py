@@ -24,11 +24,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response, StreamingResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field, JsonValue
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from opendnc.errors import DncError
-from opendnc.server import actions, audit, auth
+from opendnc.server import actions, audit, auth, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
@@ -49,14 +49,13 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
+from opendnc.server.components import core_of
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
 from opendnc.server.events import EventBus
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
-from opendnc.server.loopwatch import LoopWatch
+from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
-from opendnc.server.store.db import read_only
 from opendnc.server.store.models import JobState, ReceivedState, Role
-from opendnc.server.supervisor import Supervisor
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -100,13 +99,9 @@ class Xml(Response):
     media_type = "application/xml"
 
 
-def install(app: FastAPI, sessions: sessionmaker[Session], supervisor: Supervisor) -> None:
-    """Add the API routes, the actions' services and the error mapping to ``app``."""
-    app.state.sessions = sessions
-    app.state.read_sessions = read_only(sessions)
-    app.state.supervisor = supervisor
-    app.state.actions = actions.Services(sessions, app.state.read_sessions, supervisor)
-    app.state.login_guard = auth.LoginGuard()
+def install(app: FastAPI) -> None:
+    """Add the API routes and the error mapping to ``app`` (built by :mod:`opendnc.server.app`,
+    whose core holds the actions' :class:`~opendnc.server.actions.Services`)."""
     app.add_exception_handler(DncError, error_response)  # type: ignore[arg-type]
     app.add_exception_handler(RequestValidationError, _invalid)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
@@ -169,8 +164,7 @@ router = APIRouter(prefix="/api", responses=ERRORS)
 
 def _db(request: Request) -> Iterator[Session]:
     # For the routes beside this module (dprnt_api) that read with their own queries.
-    reads: sessionmaker[Session] = request.app.state.read_sessions
-    with reads() as session:
+    with deps.database(request).reads() as session:
         yield session
 
 
@@ -184,11 +178,11 @@ def _principal(
 ) -> auth.Principal:
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
-    guard: auth.LoginGuard = request.app.state.login_guard
+    svc = _svc(request)
+    guard = svc.guard
     host = request.client.host if request.client else "?"
     address = f"address:{host}"
     guard.check(address)
-    svc = _svc(request)
     try:
         return auth.authenticate(svc.reads, svc.sessions, credentials.credentials.strip()).who
     except Unauthorized as exc:
@@ -211,8 +205,7 @@ Viewer = Caller  # every key is at least a viewer; each action checks the role i
 
 
 def _svc(request: Request) -> actions.Services:
-    svc: actions.Services = request.app.state.actions
-    return svc
+    return core_of(request.app).get(actions.Services)
 
 
 Svc = Annotated[actions.Services, Depends(_svc)]
@@ -238,8 +231,7 @@ def health() -> HealthOut:
 async def loop_health(request: Request) -> dict[str, JsonValue]:
     """The event loop's stalls (:mod:`opendnc.server.loopwatch`); needs no key. Async: it
     reads the watch on the loop, the only thread that writes it."""
-    watch: LoopWatch = request.app.state.loopwatch
-    out: dict[str, JsonValue] = watch.as_json()
+    out: dict[str, JsonValue] = deps.loopwatch(request).as_json()
     return out
 
 
@@ -248,7 +240,7 @@ def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | N
     """The open outputs' state: the MQTT link (connected, queued, dropped) and the SHDR ports
     (agents connected); null for one that is not configured."""
     actions.require(who, Role.VIEWER)
-    parts = getattr(request.app.state, "outputs", {})
+    parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
 
 
@@ -587,7 +579,7 @@ def revoke_key(svc: Svc, key_id: Id, who: Caller) -> RevokedOut:
 async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
-    supervisor: Supervisor = request.app.state.supervisor
+    supervisor = deps.machines(request)
     bus: EventBus = supervisor.bus
     return StreamingResponse(
         _event_stream(request, supervisor, bus),
@@ -601,7 +593,7 @@ def _sse(kind: str, data: dict[str, Any]) -> bytes:
 
 
 async def _event_stream(
-    request: Request, supervisor: Supervisor, bus: EventBus
+    request: Request, supervisor: Machines, bus: EventBus
 ) -> AsyncIterator[bytes]:
     with bus.subscribe() as sub:
         for state in supervisor.machines.values():

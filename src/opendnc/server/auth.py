@@ -310,6 +310,11 @@ class LoginGuard:
             while len(self._failures) > self.size:
                 self._failures.popitem(last=False)
 
+    def reset(self) -> None:
+        """Forget every failure."""
+        with self._lock:
+            self._failures.clear()
+
     def succeeded(self, *who: str) -> None:
         """Forget the failures of each of ``who``."""
         with self._lock:

@@ -20,13 +20,13 @@ from pydantic import BaseModel
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from opendnc.server import deps
 from opendnc.server.actions import require
 from opendnc.server.actions.models import MAX_ID
 from opendnc.server.api import ERRORS, Db, Viewer
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.errors import NotFound
 from opendnc.server.store.models import DprntLine, Role
-from opendnc.server.supervisor import Supervisor
 
 __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router"]
 
@@ -113,8 +113,7 @@ def machine_dprnt(
 ) -> list[dict[str, Any]] | Response:
     """Lines after id ``since``, oldest first (at most ``limit``); ``format=csv`` for a file."""
     require(who, Role.VIEWER)
-    supervisor: Supervisor = request.app.state.supervisor
-    if name not in supervisor.machines:
+    if name not in deps.machines(request).machines:
         raise NotFound(f"no machine named {name!r}")
     lines = lines_after(db, name, since, limit)
     if format == "json":

@@ -40,7 +40,6 @@ from opendnc.server.store.models import (
 
 __all__ = [
     "cancel",
-    "cancel_requested",
     "claim",
     "enqueue",
     "fail",
@@ -364,13 +363,6 @@ def list_jobs(
     in_queue = case((Job.state == JobState.QUEUED, Job.position), else_=0.0)
     stmt = stmt.order_by(queued_first, in_queue, Job.id.desc()).options(_with_program())
     return session.scalars(stmt.limit(max(1, min(limit, 10_000)))).all()
-
-
-def cancel_requested(session: Session, job_id: int) -> bool:
-    """Whether someone asked the running job ``job_id`` to stop (read by the runner at its
-    safe points: the database is the only place a cancel lives, whichever server took it)."""
-    flag = session.scalar(select(Job.cancel_requested).where(Job.id == job_id))
-    return bool(flag)
 
 
 def cancel(session: Session, job_id: int, *, actor: str) -> Job:

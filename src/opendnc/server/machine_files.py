@@ -5,7 +5,7 @@ runs it on its connector between jobs (:class:`Errands`), so the browser uses th
 server already holds (LSV2 over TCP or RS-232 alike) and never meets a transfer half-way.
 Changing a file (put, delete) is a job like every other (``put_file``, ``delete``), queued by
 the actions layer (:mod:`opendnc.server.actions.files`) with the roles and the machine's
-policy, and run by the machine's task through :data:`EXECUTORS`. Paths stay on the control's
+policy, and run by its executor (:mod:`opendnc.server.executors`). Paths stay on the control's
 ``TNC:`` drive and never climb with ``..``.
 """
 
@@ -13,23 +13,23 @@ from __future__ import annotations
 
 import asyncio
 import re
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import datetime
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 from opendnc.errors import InputError
-from opendnc.server.config import MachineConfig
+from opendnc.server.config import Lsv2Machine, MachineConfig
 from opendnc.server.errors import Unavailable
 
 if TYPE_CHECKING:
     from opendnc.server.machines.base import Connector, Progress
 
 __all__ = [
-    "EXECUTORS",
     "Errands",
     "FileBrowser",
     "RemoteFile",
+    "browser_of",
     "check_path",
     "default_folder",
     "file_name",
@@ -80,7 +80,8 @@ def file_name(path: str) -> str:
 
 def default_folder(machine: MachineConfig) -> str:
     """Where the server puts programs on ``machine`` (the browser opens there)."""
-    return check_path(machine.folder or "TNC:/nc_prog")
+    folder = machine.folder if isinstance(machine, Lsv2Machine) else ""
+    return check_path(folder or "TNC:/nc_prog")
 
 
 def browser_of(connector: Connector) -> FileBrowser:
@@ -144,24 +145,3 @@ class Errands:
         for _work, future in pending:
             if not future.done():
                 future.set_exception(Unavailable(reason))
-
-
-class Executor(Protocol):
-    """Runs one claimed job of a kind on the machine's connector; returns its audit detail."""
-
-    def __call__(
-        self, connector: Connector, data: bytes, params: Mapping[str, Any], progress: Progress
-    ) -> Awaitable[dict[str, Any]]: ...
-
-
-async def put_file(
-    connector: Connector, data: bytes, params: Mapping[str, Any], progress: Progress
-) -> dict[str, Any]:
-    """A ``put_file`` job: the job's library version to ``params["path"]`` on the control."""
-    path = check_path(str(params.get("path", "")))
-    await browser_of(connector).put_file(path, data, progress)
-    return {"nbytes": len(data), "path": path}
-
-
-# Job kinds the file browser adds, by kind value: the runner looks a claimed job's kind up here.
-EXECUTORS: dict[str, Executor] = {"put_file": put_file}

@@ -4,17 +4,17 @@ transaction helpers that commit before anyone is told (a wake-up, an event)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.auth import Principal
+from opendnc.server.auth import LoginGuard, Principal
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import Forbidden, NotFound
 from opendnc.server.events import EventBus
+from opendnc.server.machine_state import MachineState
 from opendnc.server.store.models import Role
-from opendnc.server.supervisor import MachineState
 
 __all__ = ["Caller", "Runner", "Services", "require"]
 
@@ -47,14 +47,25 @@ def require(who: Caller, role: Role) -> None:
 
 @dataclass(frozen=True)
 class Services:
-    """The database and the machines, as the actions use them.
+    """The database and the machines, as the actions use them (a component of the server's
+    core, which the API and the pages get it from).
 
     ``sessions`` write (each action is one transaction, committed before it wakes a machine
-    or tells the event stream); ``reads`` never take SQLite's write lock."""
+    or tells the event stream); ``reads`` never take SQLite's write lock; ``guard`` slows
+    down repeated failed logins (per process)."""
 
     sessions: sessionmaker[Session]
     reads: sessionmaker[Session]
     runner: Runner
+    guard: LoginGuard = field(default_factory=LoginGuard)
+    name: ClassVar[str] = "actions"
+    needs: ClassVar[tuple[str, ...]] = ("database", "machines")
+
+    async def start(self) -> None:
+        """Nothing to start: every action runs in its caller's request."""
+
+    async def stop(self) -> None:
+        """Nothing to stop."""
 
     def write(self, work: Callable[[Session], T]) -> T:
         """Run ``work`` in one write transaction (committed when it returns)."""

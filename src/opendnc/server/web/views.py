@@ -26,11 +26,13 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import actions, auth, dprnt_api, jobs
+from opendnc.server import actions, auth, deps, dprnt_api, jobs
 from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
+from opendnc.server.components import core_of
 from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
 from opendnc.server.library import MAX_PROGRAM_BYTES
+from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -41,7 +43,6 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.supervisor import Supervisor
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -85,18 +86,15 @@ class Page:
 
 
 def _sessions(request: Request) -> sessionmaker[Session]:
-    sessions: sessionmaker[Session] = request.app.state.sessions
-    return sessions
+    return deps.database(request).sessions
 
 
-def _supervisor(request: Request) -> Supervisor:
-    supervisor: Supervisor = request.app.state.supervisor
-    return supervisor
+def _supervisor(request: Request) -> Machines:
+    return deps.machines(request)
 
 
 def _svc(request: Request) -> actions.Services:
-    svc: actions.Services = request.app.state.actions
-    return svc
+    return core_of(request.app).get(actions.Services)
 
 
 def _page(request: Request) -> Page:
@@ -131,7 +129,7 @@ Short = Annotated[str, Query(max_length=64)]
 def _read(request: Request, work: Callable[[Session], T]) -> T:
     # Pages and live cards only read: on SQLite they need not queue behind the write lock
     # (docs/server.md#event-loop-stalls).
-    reads: sessionmaker[Session] = request.app.state.read_sessions
+    reads = deps.database(request).reads
     with reads() as session:
         return work(session)
 
@@ -172,7 +170,7 @@ def login(
     try:
         web_session.log_in(
             _sessions(request),
-            request.app.state.login_guard,
+            _svc(request).guard,
             response,
             username,
             password,
@@ -263,7 +261,7 @@ async def card_events(
     if machine is not None and machine not in states:
         raise NotFound(f"no machine named {machine!r}")
     shown = None
-    if machine is not None and dprnt is not None and states[machine].config.dprnt:
+    if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
     return StreamingResponse(
         _card_stream(request, machine, shown),
@@ -297,9 +295,9 @@ async def _card_stream(
     watched = set(supervisor.machines) if only is None else {only}
     sent: dict[str, str] = {}  # the HTML each card has in the browser now
     console = _Console(only, dprnt_shown) if only is not None and dprnt_shown is not None else None
-    capture = getattr(request.app.state, "dprnt", None)
+    capture = deps.dprnt(request)
     # The capture's word as the stream starts (it may have changed since the page was drawn).
-    capture_said = capture.status.get(only, "") if console and capture is not None else None
+    capture_said = capture.status.get(only, "") if console and only is not None else None
     with supervisor.bus.subscribe() as sub:
         # A fresh copy of every card first: whatever changed between the page and this stream.
         pending: set[str] = set(watched)
@@ -486,7 +484,7 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     live = state.as_json()
     caps = capabilities_of(state.config)
     context["machine"] = live
-    timeline: Timeline = request.app.state.timeline
+    timeline: Timeline = deps.timeline(request)
     timeline.note(name, live)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
     context["timeline_hours"] = TIMELINE_HOURS
@@ -496,9 +494,9 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     context["released"] = _read(request, _released_names) if caps.dripfeed else []
     context["has_files"] = caps.file_browser
     context["dprnt"] = None
-    if state.config.dprnt:
+    if caps.dprnt:
         lines = _read(request, lambda s: dprnt_api.recent_lines(s, name, CONSOLE_LINES))
-        capture = getattr(request.app.state, "dprnt", None)
+        capture = deps.dprnt(request)
         context["dprnt"] = {
             "lines": lines,
             "span": f"{lines[0]['id']}-{lines[-1]['id']}" if lines else "0-0",
