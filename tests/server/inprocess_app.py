@@ -197,9 +197,7 @@ def running(
         wait_for(
             "the machines online",
             lambda: all(
-                m.online
-                for m in server.machines.machines.values()
-                if m.config.name not in offline
+                m.online for m in server.machines.machines.values() if m.config.name not in offline
             ),
             timeout=30,
         )
