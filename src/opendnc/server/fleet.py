@@ -90,6 +90,11 @@ class Fleet:
         state = self.machines.get(name)
         if state is not None:
             state.online = False
+            # A job cut off here is no longer run by this process: the runner's sweep hands
+            # it back (a load to the queue, a drip-feed interrupted) unless its end is
+            # already on its way to the database.
+            state.job_id = None
+            state.job_progress = (0, None)
             self.machines.publish(state)
 
     async def _supervise(self, state: MachineState) -> None:
