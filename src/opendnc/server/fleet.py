@@ -116,6 +116,7 @@ class Fleet:
                 state.last_error = str(exc) or type(exc).__name__
                 state.last_error_at = utcnow()
                 state.link_errors += 1
+                state.errands.fail_all(f"{state.config.name} is offline: {state.last_error}")
                 state.set_status(
                     MachineStatus(at=utcnow(), available=False, message=state.last_error)
                 )
@@ -129,6 +130,7 @@ class Fleet:
             if state.wake.is_set():
                 state.wake.clear()
                 await self.runner.run_due(state, connector)
+            await state.errands.run(connector)  # the file browser's reads, between jobs
             state.set_status(await connector.status())
             self.machines.publish(state)
             await self.autoreceive.look(state, connector)

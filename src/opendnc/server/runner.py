@@ -277,7 +277,7 @@ class JobRunner:
             if job.kind is JobKind.REPORT:
                 report = str(params.get("report", "")).encode("latin-1")
                 return Claimed(job.id, job.kind, str(params.get("name")), report, params)
-            if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+            if job.kind in jobs.PROGRAM_JOBS:  # send, drip-feed, put_file
                 if job.version is None:
                     jobs.fail(session, job.id, "the job names no program", retryable=False)
                     return None
