@@ -598,9 +598,15 @@ class _Run:
                     raise InputError(f"G154 P{number}: work offsets are P1 to P99")
                 self.work_offset = 109.0 + number if number <= 20 else 1000.0 + number
                 self._offsets()
-            elif (code in (4, 10, 28, 53, 65, 92, 52) and not self.iso) or (
-                code in (4,) and self.iso
-            ):
+            elif code in (43, 44) and not self.iso and "H" in v and self.tool is not None:
+                if round(v["H"]) != self.tool:
+                    self.report(
+                        line,
+                        Severity.WARNING,
+                        f"G{code:g} H{round(v['H'])} with tool T{self.tool} in the spindle "
+                        "(length offset of another tool)",
+                    )
+            elif code == 4 or (code in (10, 28, 53, 65, 92, 52) and not self.iso):
                 special = code
             elif code in codes.NOT_DRAWN_G and not self.iso:
                 self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")

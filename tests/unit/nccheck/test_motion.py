@@ -238,3 +238,9 @@ def test_klartext_approach_departure_and_normal_vectors() -> None:
     assert result.feed_distance == pytest.approx(
         7 + math.hypot(20, 20) + 50 + math.hypot(70, 20) + math.hypot(21, 22, 5)
     )
+
+
+def test_a_length_offset_of_another_tool_is_a_warning() -> None:
+    result = haas("G21 G90 G54\nT2 M06\nG43 H2 Z50.\nT3 M06\nG43 H2 Z50.")
+    assert [(p.line, p.severity) for p in result.problems] == [(7, Severity.WARNING)]
+    assert result.problems[0].message.startswith("G43 H2 with tool T3 in the spindle")
