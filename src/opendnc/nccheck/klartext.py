@@ -262,13 +262,17 @@ class _Run:
                 continue
             upper = code.upper()
             match = _NUMBERED.match(upper)
-            tilde = upper.endswith("~")
+            # "~" continues a block on the next line; it may stand after a ";" comment
+            tilde = raw.rstrip().endswith("~")
             upper = upper.rstrip("~").strip()
-            if match is None or (continuing and lines):
-                if lines and (continuing or not match):
-                    lines[-1].params.append(upper)
-                    continuing = tilde
-                    continue
+            takes_params = bool(lines) and (
+                continuing or lines[-1].text.startswith(("CYCL DEF", "PATTERN DEF"))
+            )
+            if lines and (continuing or (match is None and takes_params)):
+                lines[-1].params.append(upper)
+                continuing = tilde
+                continue
+            if match is None:  # a block without a number: run it all the same
                 lines.append(_Line(number, None, upper, raw))
                 continuing = tilde
                 continue
@@ -277,6 +281,10 @@ class _Run:
             lines.append(_Line(number, block, body, raw))
             continuing = tilde
         program = _Program(name, lines, external=external)
+        for item in lines:  # also the blocks the run may never reach
+            message = _static_problem(item.text)
+            if message:
+                self._static(program, item, message)
         for index, item in enumerate(lines):
             if item.text.startswith("LBL"):
                 label = _label(item.text[3:])
@@ -1075,6 +1083,32 @@ class _Run:
                 ended=self.ended,
             ),
         )
+
+
+_KNOWN_HEADS = frozenset(
+    {
+        "L", "LN", "LP", "C", "CR", "CT", "CP", "CC", "RND", "CHF", "APPR", "DEP", "BEGIN",
+        "END", "BLK", "TOOL", "LBL", "CALL", "FN", "CYCL", "PATTERN", "STOP", "PLANE",
+        "FUNCTION", "TCH", "SEL", "DECLARE",
+    }
+)  # fmt: skip
+_M_WORD = re.compile(r"\bM(\d+)\b")
+
+
+def _static_problem(text: str) -> str | None:
+    """An unknown block keyword or M function, found without running the block."""
+    head = text.split(" ", 1)[0] if text else ""
+    if not (
+        head in _KNOWN_HEADS
+        or text.startswith("*")
+        or re.match(r"^(Q|QL|QR|QS)\d+\s*=", text)
+        or re.match(r"^M\d+\b", text)
+    ):
+        return f"unknown block {head!r}"
+    for match in _M_WORD.finditer(_STRING.sub("", text)):
+        if float(match.group(1)) not in codes.HEIDENHAIN_M:
+            return f"M{int(match.group(1))} is not an M function of the TNC"
+    return None
 
 
 def _label(text: str) -> str:

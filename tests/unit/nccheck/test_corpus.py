@@ -79,6 +79,7 @@ DEFECTS = [
     ("kt_arc_end_off_circle.h", 9, 8, ERROR, "start radius 20.0000, end radius 25.0000"),
     ("kt_no_end_pgm.h", 8, 7, ERROR, "no END PGM"),
     ("kt_unknown_m.h", 4, 3, ERROR, "M77 is not an M function"),
+    ("kt_unknown_block_in_unused_label.h", 6, 5, ERROR, "unknown block 'LX+10'"),
 ]
 
 
