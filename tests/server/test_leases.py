@@ -3,6 +3,7 @@ without two owners, pinned machines, and the rendezvous assignment's properties.
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -26,7 +27,7 @@ def settle(servers: list[Leases], rounds: int = 3) -> None:
     for _ in range(rounds):
         for server in servers:
             server.renew()
-            held = Counter(m for s in servers for m in s.held)
+            held = Counter(m for s in servers for m in s.serving())
             assert all(n == 1 for n in held.values()), held
 
 
@@ -167,3 +168,29 @@ def test_a_second_server_on_one_sqlite_file_is_one_line(tmp_path: Path, procs: P
     # killed, it leaves no lock behind: the next server starts
     procs.stop("server", signal.SIGKILL)
     serve(procs, config, db, name="again")
+
+
+def test_cluster_status_shows_servers_and_their_machines(
+    tmp_path: Path, sessions: sessionmaker[Session], db_url: str
+) -> None:
+    # a long lease: two CLI starts on a loaded machine take seconds
+    a = Leases(sessions, "dnc-1", MACHINES, ttl=120, url="http://127.0.0.1:8001/")
+    b = Leases(sessions, "dnc-2", MACHINES, ttl=120)
+    settle([a, b])
+    config = tmp_path / "shop.toml"
+    config.write_text(f'[library]\npath = "{tmp_path / "lib"}"\n')
+    args = [sys.executable, "-m", "opendnc.cli.main", "cluster", "status"]
+    args += ["--config", str(config), "--db", db_url]
+    shown = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=60)
+    assert shown.returncode == 0, shown.stderr
+    view = json.loads(shown.stdout)
+    assert [(s["name"], s["machines"], s["alive"]) for s in view["servers"]] == [
+        ("dnc-1", 10, True),
+        ("dnc-2", 10, True),
+    ]
+    assert sorted(row["machine"] for row in view["leases"] if row["live"]) == sorted(MACHINES)
+    table = subprocess.run(args, capture_output=True, text=True, timeout=60)
+    assert table.returncode == 0, table.stderr
+    (row,) = [line for line in table.stdout.splitlines() if line.strip().startswith("dnc-1")]
+    assert "http://127.0.0.1:8001/" in row
+    assert row.split()[-1] == "10", table.stdout

@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import os
 import socket
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -87,6 +88,7 @@ class Holding:
     gained: frozenset[str]
     lost: frozenset[str]  # expired and taken by another server, or released by a hand-over
     epochs: Mapping[str, int]  # the epoch of each held lease (fencing)
+    valid_until: float  # time.monotonic() after which the leases may be someone else's
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,7 @@ class Leases:
         self.ttl = timedelta(seconds=ttl)
         self.url = url
         self.held: frozenset[str] = frozenset()
+        self.valid_until = 0.0
         self._started: datetime | None = None
 
     def _now(self, session: Session) -> datetime:
@@ -163,6 +166,7 @@ class Leases:
             "host": socket.gethostname()[:255],
             "pid": os.getpid(),
             "url": self.url[:255],
+            "lease_seconds": self.ttl.total_seconds(),
             "started": self._started,
             "heartbeat": now,
         }
@@ -188,6 +192,9 @@ class Leases:
         ``can_hand_over(machine)`` says whether a machine is at a safe point (no job running):
         a machine assigned to another live server is released only then.
         """
+        # The leases run from before the transaction began: however long it takes, this
+        # server stops trusting them no later than the database lets another take them.
+        began = time.monotonic()
         with self.sessions.begin() as session:
             now = self._now(session)
             self._heartbeat(session, now)
@@ -244,9 +251,15 @@ class Leases:
             gained=held - self.held,
             lost=self.held - held,
             epochs={m: e for m, e in epochs.items() if m in held},
+            valid_until=began + self.ttl.total_seconds(),
         )
         self.held = held
+        self.valid_until = holding.valid_until
         return holding
+
+    def serving(self) -> frozenset[str]:
+        """The machines this server may act on now: held, and not past the lease."""
+        return self.held if time.monotonic() < self.valid_until else frozenset()
 
     def _take(self, session: Session, machine: str, now: datetime) -> bool:
         # One statement: of two servers taking the same free row, the second finds it live.
@@ -282,10 +295,10 @@ class Leases:
 
     def view(self) -> ClusterView:
         """Servers, heartbeats and leases as the database sees them now."""
-        return cluster_view(self.sessions, ttl=self.ttl.total_seconds())
+        return cluster_view(self.sessions)
 
 
-def cluster_view(sessions: sessionmaker[Session], *, ttl: float = DEFAULT_TTL) -> ClusterView:
+def cluster_view(sessions: sessionmaker[Session]) -> ClusterView:
     """Servers, heartbeats and leases of the database behind ``sessions``."""
     with sessions() as session:
         if session.get_bind().dialect.name == "postgresql":
@@ -308,7 +321,7 @@ def cluster_view(sessions: sessionmaker[Session], *, ttl: float = DEFAULT_TTL) -
                 url=s.url,
                 started=s.started,
                 heartbeat_age=(now - s.heartbeat).total_seconds(),
-                alive=(now - s.heartbeat).total_seconds() < ttl,
+                alive=(now - s.heartbeat).total_seconds() < s.lease_seconds,
                 machines=counts.get(s.name, 0),
             )
             for s in servers

@@ -375,6 +375,7 @@ class ClusterServer(Base):
     host: Mapped[str] = mapped_column(String(255), default="")
     pid: Mapped[int] = mapped_column(Integer, default=0)
     url: Mapped[str] = mapped_column(String(255), default="")
+    lease_seconds: Mapped[float] = mapped_column(Float, default=10.0)  # alive within this
     started: Mapped[datetime] = mapped_column(UtcDateTime())
     heartbeat: Mapped[datetime] = mapped_column(UtcDateTime())
 
