@@ -1024,7 +1024,12 @@ class _Run:
                     a: v for a, v in zip(_AXES, self.m, strict=True) if v is not None
                 },
                 tool=str(self.tool) if self.tool is not None else None,
-                variables={**self.globals, **self.main_locals},
+                variables={
+                    **self.globals,
+                    **self.main_locals,
+                    3901: float(self.counters[0]),  # parts counted by this run (from 0)
+                    3902: float(self.counters[1]),
+                },
                 ended=self.ended,
             ),
         )

@@ -4,14 +4,17 @@ where the machine ends, which tool is in the spindle and what the macro variable
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from opendnc.gcode.program import program_lines
 from opendnc.nccheck import Budget, CheckResult, MachineLimits, check_text
+from opendnc.sim.haas.control import HaasConfig, HaasControl
 from opendnc.sim.haas.machine import MachineState
 from opendnc.sim.haas.runner import BlockSource, ProgramRunner, RunnerEvent, StepResult
+from opendnc.sim.haas.store import ProgramStore
 
 PROGRAM = """%
 O01234 (ROUND TRIP)
@@ -69,13 +72,21 @@ def agree(machine: MachineState, result: CheckResult, variables: list[int]) -> N
         assert math.isclose(end.variables[number], machine.get(number) or 0.0), number
 
 
-def test_the_virtual_haas_and_the_dry_run_agree() -> None:
-    machine, step = run_virtual(PROGRAM)
-    assert step is StepResult.ENDED
+def test_the_virtual_haas_and_the_dry_run_agree(tmp_path: Path) -> None:
+    # the whole virtual control: the program stored in its memory and started (MEM mode)
+    control = HaasControl(HaasConfig(), ProgramStore(tmp_path), clock=lambda: 0.0)
+    number = control.save_program(PROGRAM)
+    control.start_program(number)
+    for _ in range(10_000):
+        if control.step() is not StepResult.RAN:
+            break
+    assert not control.machine.alarms
+    assert control.machine.m30_counter_1 == 1
+    machine = control.machine
     result = check_text(PROGRAM, name="O01234")
     assert result.problems == ()
     assert result.end.ended
-    agree(machine, result, [100, 101, 103, 104, 105, 106])
+    agree(machine, result, [100, 101, 103, 104, 105, 106, 3901])
     assert 102 not in result.end.variables
     assert machine.get(102) is None
     # the values the program computed, worked out by hand
