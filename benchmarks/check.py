@@ -39,7 +39,7 @@ def gcode_program(blocks: int) -> str:
                 "G90",
                 f"T{tool} M06",
                 f"G00 G54 X0. Y0. S{2000 + tool * 100} M03",
-                "G43 H01 Z5.",
+                f"G43 H{tool:02d} Z5.",
                 "G01 Z-1. F300.",
             ]
         angle = i * 0.01

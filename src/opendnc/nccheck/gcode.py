@@ -251,6 +251,9 @@ class _Run:
                 continue
             try:
                 block = parse_block(text)
+            except RecursionError:
+                self._static(program, line, "an expression nested too deeply")
+                block = Block(text)
             except InputError as exc:
                 if self.iso:
                     # ISO cycles and Q-parameter lines are beyond the macro-B parser
@@ -430,6 +433,9 @@ class _Run:
                     self._execute(block, frame, index, line)
                 except InputError as exc:
                     self.error(line, str(exc).split(" in block ")[0])
+                    raise _Stop from None
+                except RecursionError:
+                    self.error(line, "an expression nested too deeply")
                     raise _Stop from None
         except _Stop:
             pass

@@ -37,7 +37,7 @@ from opendnc.nccheck.result import (
 __all__ = ["run_klartext"]
 
 _NUMBERED = re.compile(r"^\s*(\d+)\s*(.*)$")
-_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*|\.\d+)"
+_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
 _AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
 _POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
 _WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
@@ -82,7 +82,7 @@ class _Frame:
 class _Expr:
     """A tiny Q-parameter formula evaluator (``Q1 = Q2 * 3 + SIN Q3``, ``FN 4: ... DIV ...``)."""
 
-    _TOKEN = re.compile(r"\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*(?:E[+-]?\d+)?|\.\d+|[A-Z]+|\S)")
+    _TOKEN = re.compile(r"\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?(?:E[+-]?\d+)?|\.\d+|[A-Z]+|\S)")
     _FUNCTIONS: ClassVar[dict[str, Callable[[float], float]]] = {
         "SIN": lambda x: math.sin(math.radians(x)),
         "COS": lambda x: math.cos(math.radians(x)),
@@ -345,6 +345,9 @@ class _Run:
                     self._execute(item, frame)
                 except ZeroDivisionError:
                     self.error(item, "division by zero")
+                    raise _Stop from None
+                except RecursionError:
+                    self.error(item, "a formula nested too deeply")
                     raise _Stop from None
                 except (ValueError, OverflowError) as exc:
                     self.error(item, str(exc) or "a value is out of range")
@@ -939,19 +942,22 @@ class _Run:
                 formula = "COS " + formula
             self.q[target.strip()] = self.formula(formula)
         elif 9 <= number <= 12:
-            jump = re.match(r"^IF\s+(.*?)\s+(EQU|NE|GT|LT)\s+(.*?)\s+GOTO\s+LBL\s*(.*)$", body)
-            if jump is None:
+            # split with partition and one search: linear on any line (no backtracking)
+            condition, goto, target = body.partition("GOTO LBL")
+            compare = re.search(r"\s(EQU|NE|GT|LT)\s", condition)
+            if not condition.startswith("IF") or not goto or compare is None:
                 self.error(item, f"FN {number} needs IF ... GOTO LBL ...")
                 return
-            left, right = self.formula(jump.group(1)), self.formula(jump.group(3))
+            left = self.formula(condition[2 : compare.start()])
+            right = self.formula(condition[compare.end() :])
             taken = {
                 "EQU": left == right,
                 "NE": left != right,
                 "GT": left > right,
                 "LT": left < right,
-            }[jump.group(2)]
+            }[compare.group(1)]
             if taken:
-                label = _label(jump.group(4))
+                label = _label(target)
                 index = frame.program.labels.get(label)
                 if index is None:
                     self.error(item, f"label {label} is not defined")
