@@ -111,14 +111,18 @@ def main() -> None:
             path.write_text(make(args.blocks), "ascii")
             lines = path.read_text("ascii").count("\n")
             read, wall, cpu, blocks, problems = best(path, control, args.runs)
-            verdict = ""
-            if control is Control.HAAS:
-                verdict = " (target < 2 s: " + ("met)" if wall < TARGET_S else "MISSED)")
             print(
                 f"{control.value:10s} {lines:,} lines, {blocks:,} blocks run, {problems} "
                 f"problems: read {read * 1000:.1f} ms; read + check {wall:.3f} s wall "
-                f"= {wall / read:,.0f}x reading{verdict}, {cpu:.3f} s CPU"
+                f"= {wall / read:,.0f}x reading, {cpu:.3f} s CPU"
             )
+            if control is Control.HAAS:
+                # wall time counts the other processes sharing the cores; CPU time is the run's
+                print(
+                    f"{'':10s} target < {TARGET_S:g} s: wall "
+                    f"{'met' if wall < TARGET_S else 'MISSED'}, CPU "
+                    f"{'met' if cpu < TARGET_S else 'MISSED'}"
+                )
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average (1 min) {load:.1f} on {os.cpu_count()} cores")
 
