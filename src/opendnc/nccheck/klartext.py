@@ -211,6 +211,7 @@ class _Run:
         self.units: Units | None = None
         self.stock_min: list[float] | None = None
         self.stock: Stock | None = None
+        self.stock_axis = "Z"
         self.pos: list[float | None] = [None, None, None]
         self.center: tuple[float, float] | None = None
         self.last_dir: tuple[float, float] | None = None
@@ -485,11 +486,19 @@ class _Run:
             self.error(item, f"END PGM units {got_units or '(none)'} differ from BEGIN PGM {units}")
 
     def _blk_form(self, item: _Line) -> None:
-        values = {a: v for inc, a, v in self._axes(item.text) if not inc}
-        incremental = {a: v for inc, a, v in self._axes(item.text) if inc}
-        if "0.1" in item.text:
+        form = re.match(r"^BLK FORM\s+0\.([12])(?!\d)\s*(.*)$", item.text)
+        if form is None:
+            return  # BLK FORM CYLINDER, ROTATION...: no box to draw
+        kind, rest = form.groups()
+        axis = re.match(r"^([XYZ])(?:\s+|$)", rest)  # 0.1 names the tool axis first
+        if kind == "1" and axis:
+            self.stock_axis = axis.group(1)
+            rest = rest[axis.end() :]
+        values = {a: v for inc, a, v in self._axes(rest) if not inc}
+        incremental = {a: v for inc, a, v in self._axes(rest) if inc}
+        if kind == "1":
             self.stock_min = [values.get(a, 0.0) for a in "XYZ"]
-        elif "0.2" in item.text:
+        else:
             if self.stock_min is None:
                 self.error(item, "BLK FORM 0.2 without BLK FORM 0.1")
                 return
@@ -501,7 +510,9 @@ class _Run:
             if any(h <= lo for h, lo in zip(high, low, strict=True)):
                 self.error(item, "BLK FORM: the MAX point must be above the MIN point")
                 return
-            self.stock = Stock((low[0], low[1], low[2]), (high[0], high[1], high[2]))
+            self.stock = Stock(
+                (low[0], low[1], low[2]), (high[0], high[1], high[2]), self.stock_axis
+            )
 
     def _axes(self, text: str) -> list[tuple[bool, str, float]]:
         return [

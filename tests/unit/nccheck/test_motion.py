@@ -244,3 +244,12 @@ def test_a_length_offset_of_another_tool_is_a_warning() -> None:
     result = haas("G21 G90 G54\nT2 M06\nG43 H2 Z50.\nT3 M06\nG43 H2 Z50.")
     assert [(p.line, p.severity) for p in result.problems] == [(7, Severity.WARNING)]
     assert result.problems[0].message.startswith("G43 H2 with tool T3 in the spindle")
+
+
+def test_blank_form_with_decimals_that_look_like_its_numbers() -> None:
+    result = klartext("BLK FORM 0.1 Y X-10.1 Y+0.1 Z-20.2", "BLK FORM 0.2 X+10.1 Y+50.2 Z+0.1")
+    assert result.problems == ()
+    assert result.stock is not None
+    assert result.stock.minimum == (-10.1, 0.1, -20.2)
+    assert result.stock.maximum == (10.1, 50.2, 0.1)
+    assert result.stock.axis == "Y"
