@@ -1110,6 +1110,7 @@ _KNOWN_HEADS = frozenset(
     }
 )  # fmt: skip
 _M_WORD = re.compile(r"\bM(\d+)\b")
+_M_HEADS = frozenset({"L", "LN", "LP", "C", "CR", "CT", "CP", "APPR", "DEP", "RND", "CHF", "STOP"})
 
 
 def _static_problem(text: str) -> str | None:
@@ -1122,6 +1123,8 @@ def _static_problem(text: str) -> str | None:
         or re.match(r"^M\d+\b", text)
     ):
         return f"unknown block {head!r}"
+    if not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
+        return None  # names (BEGIN PGM M100, CALL PGM M5.H, LBL) are not M functions
     for match in _M_WORD.finditer(_STRING.sub("", text)):
         if float(match.group(1)) not in codes.HEIDENHAIN_M:
             return f"M{int(match.group(1))} is not an M function of the TNC"

@@ -253,3 +253,13 @@ def test_blank_form_with_decimals_that_look_like_its_numbers() -> None:
     assert result.stock.minimum == (-10.1, 0.1, -20.2)
     assert result.stock.maximum == (10.1, 50.2, 0.1)
     assert result.stock.axis == "Y"
+
+
+def test_program_names_are_not_m_functions() -> None:
+    text = "0 BEGIN PGM M100 MM\n1 CALL PGM TNC:\\M5000.H\n2 L Z+5 R0 FMAX M77\n3 END PGM M100 MM\n"
+    result = check_text(
+        text, library={"TNC:\\M5000.H": "0 BEGIN PGM M5000 MM\n1 END PGM M5000 MM"}.get
+    )
+    assert [(p.line, p.message) for p in result.problems] == [
+        (3, "M77 is not an M function of the TNC")
+    ]
