@@ -155,6 +155,7 @@ class _Run:
         self.off: list[float | None] = [0.0, 0.0, 0.0]
         self.blocks_run = 0
         self.jumps: dict[int, int] = {}
+        self.jump_detail: dict[int, str] = {}
         self.no_feed_reported = False
         self.locals: dict[int, float] = {}
         self.main_locals = self.locals
@@ -463,12 +464,18 @@ class _Run:
         where, count = max(self.jumps.items(), key=lambda item: item[1])
         self.error(
             where,
-            f"endless loop: the jump back at line {where} ran {count:,} times; the dry "
+            f"endless loop: the jump back at line {where}{self.jump_detail.get(where, '')} "
+            f"ran {count:,} times; the dry "
             f"run stopped after {self.blocks_run:,} blocks",
         )
         raise _Stop
 
     def _jump(self, line: int) -> None:
+        frame = self.frames[-1] if self.frames else None
+        if frame is not None and frame.program.external:
+            # a loop inside a library program: named by its call in this file
+            self.jump_detail[frame.call_line] = f" (in {frame.program.name} line {line})"
+            line = frame.call_line
         self.jumps[line] = self.jumps.get(line, 0) + 1
 
     def _execute(self, block: Block, frame: _Frame, index: int, line: int) -> None:

@@ -263,3 +263,15 @@ def test_program_names_are_not_m_functions() -> None:
     assert [(p.line, p.message) for p in result.problems] == [
         (3, "M77 is not an M function of the TNC")
     ]
+
+
+def test_an_endless_loop_in_a_library_program_is_named_by_its_call() -> None:
+    from opendnc.nccheck import Budget
+
+    sub = "%\nO2000\nN1 #100 = #100 + 1\nGOTO 1\nM99\n%\n"
+    main = "%\nO1000\nG21\nM98 P2000\nM30\n%\n"
+    result = check_text(main, library={"O02000": sub}.get, budget=Budget(blocks=50_000))
+    assert [(p.line, p.severity) for p in result.problems] == [(4, Severity.ERROR)]
+    assert result.problems[0].message.startswith(
+        "endless loop: the jump back at line 4 (in O02000 line 4)"
+    )
