@@ -28,7 +28,7 @@ class Budget:
 
 
 _KLARTEXT = re.compile(r"^\s*\d*\s*BEGIN\s+PGM\b", re.IGNORECASE | re.MULTILINE)
-_ISO_HEAD = re.compile(r"^\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]\b", re.MULTILINE)
+_ISO_HEAD = re.compile(r"^[ \t]*%[ \t]*\w[\w.-]*[ \t]+G7[01]\b", re.MULTILINE)
 
 
 def guess_control(text: str, name: str = "") -> Control:

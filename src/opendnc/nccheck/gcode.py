@@ -55,8 +55,8 @@ from opendnc.nccheck.result import (
 __all__ = ["run_gcode"]
 
 _O_LINE = re.compile(r"^\s*[O:](\d{1,5})\b")
-_ISO_LINE = re.compile(r"^\s*%\s*([A-Za-z_][\w.-]*)")
-_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]", re.IGNORECASE)
+_ISO_LINE = re.compile(r"^\s*%\s*(\w[\w.-]*)")
+_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*\w[\w.-]*\s+G7[01]", re.IGNORECASE)
 _N_ONLY = re.compile(r"^\s*/?\s*N\s*(\d+)", re.IGNORECASE)
 _COMMENT_TEXT = re.compile(r"\(([^)]*)\)")
 

@@ -275,3 +275,17 @@ def test_an_endless_loop_in_a_library_program_is_named_by_its_call() -> None:
     assert result.problems[0].message.startswith(
         "endless loop: the jump back at line 4 (in O02000 line 4)"
     )
+
+
+def test_iso_programs_with_a_number_as_their_name() -> None:
+    from opendnc.nccheck import Units
+
+    text = "%1000 G70 *\nN10 T1 G17 S1000 *\nN20 G00 X+0 Y+0 Z+1 M03 *\nN30 G01 X+2 F10 *\n"
+    text += "N99999999 %1000 G70 *\n"
+    assert guess_control(text) is Control.ISO
+    result = check_text(text)
+    assert result.problems == ()
+    assert result.units is Units.INCH
+    assert result.end.ended
+    # a Haas bolt-hole G70 on the line after the O number is still G-code for a Haas
+    assert guess_control("%\nO01000\nG70 I1. J0. L4\nM30\n%\n") is Control.HAAS
