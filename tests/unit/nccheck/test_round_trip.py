@@ -115,14 +115,23 @@ _block = st.one_of(
     st.builds(lambda t: f"T{t} M06", st.integers(1, 20)),
     st.builds(lambda n, v: f"#{n} = #{n} + {v}", st.integers(100, 105), st.integers(-9, 9)),
     st.builds(lambda n: f"#{n} = #5041 + #5043", st.integers(100, 105)),
+    st.builds(
+        lambda count, dx: (
+            f"#110 = 0\nWHILE [#110 LT {count}] DO1\nG91 G01 X{dx:.3f} F10.\n"
+            "#110 = #110 + 1\nEND1\nG90"
+        ),
+        st.integers(0, 4),
+        st.floats(-2, 2, allow_nan=False),
+    ),
+    st.builds(lambda n: f"IF [#100 GT {n}] GOTO 900", st.integers(-20, 20)),
 )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(st.lists(_block, max_size=25))
 def test_generated_programs_agree(blocks: list[str]) -> None:
     start = ["G28 G91 Z0.", "G28 X0. Y0.", "G90 T1 M06", "S1000 M03"]
-    text = "%\nO01000\n" + "\n".join([*start, *blocks, "M30"]) + "\n%\n"
+    text = "%\nO01000\n" + "\n".join([*start, *blocks, "N900 G90", "M30"]) + "\n%\n"
     machine, step = run_virtual(text)
     assert step is StepResult.ENDED
     # the virtual Haas starts with every work offset at 0: the dry run is told so, as the
@@ -131,4 +140,4 @@ def test_generated_programs_agree(blocks: list[str]) -> None:
     machine_limits = MachineLimits(work_offsets={"G54": zero, "G55": zero})
     result = check_text(text, machine=machine_limits, budget=Budget(seconds=5.0))
     assert result.errors == ()
-    agree(machine, result, [n for n in range(100, 106) if machine.get(n) is not None])
+    agree(machine, result, [n for n in (*range(100, 106), 110) if machine.get(n) is not None])
