@@ -130,6 +130,7 @@ class _Run:
         self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
         self.globals: dict[int, float] = {}
         self.programs: dict[int, _Program] = {}
+        self.missing: set[int] = set()  # called programs the library does not have
         self.frames: list[_Frame] = []
         self.warned: set[str] = set()
         self.header_units: Units | None = None
@@ -964,25 +965,29 @@ class _Run:
             return program
         name = f"O{number:05d}"
         text = None
-        if self.library is not None:
+        if self.library is not None and number not in self.missing:
             try:
                 text = self.library(name)
             except Exception:  # a library callback must not break the dry run
                 text = None
         if text is None:
+            self.missing.add(number)  # asked once: a loop of calls does not ask again
             self.report(line, Severity.WARNING, f"calls {name}, which is not in the library")
             return None
-        loaded = _Run(text, self.control, name, None, None, self.budget)
-        program = self._program(name, number, [], external=True)
-        body = loaded.main
-        program.lines, program.blocks = body.lines, body.blocks
-        program.numbers, program.loop_end, program.loop_start = (
-            body.numbers,
-            body.loop_end,
-            body.loop_start,
-        )
-        for problem in loaded.problems.values():
+        body = _Run(text, self.control, name, None, None, self.budget)
+        for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
+        main = body.main
+        program = _Program(
+            name,
+            number,
+            main.lines,
+            main.blocks,
+            main.numbers,
+            main.loop_end,
+            main.loop_start,
+            external=True,
+        )
         self.programs[number] = program
         return program
 

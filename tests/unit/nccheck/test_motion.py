@@ -289,3 +289,18 @@ def test_iso_programs_with_a_number_as_their_name() -> None:
     assert result.end.ended
     # a Haas bolt-hole G70 on the line after the O number is still G-code for a Haas
     assert guess_control("%\nO01000\nG70 I1. J0. L4\nM30\n%\n") is Control.HAAS
+
+
+def test_the_library_is_asked_once_and_may_fail() -> None:
+    asked: list[str] = []
+
+    def library(name: str) -> str | None:
+        asked.append(name)
+        raise OSError("library offline")
+
+    text = "%\nO1000\n#1 = 0\nWHILE [#1 LT 5] DO1\nG65 P9832\n#1 = #1 + 1\nEND1\nM30\n%\n"
+    result = check_text(text, library=library)
+    assert asked == ["O09832"]
+    assert [(p.line, p.severity, p.message) for p in result.problems] == [
+        (5, Severity.WARNING, "calls O09832, which is not in the library")
+    ]
