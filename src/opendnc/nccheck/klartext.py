@@ -207,6 +207,7 @@ class _Run:
             axes = machine.work_offsets["G54"]
             self.preset = (axes.get("X"), axes.get("Y"), axes.get("Z"))
         self.frames: list[_Frame] = []
+        self.called: dict[str, _Program | None] = {}  # CALL PGM name -> program (asked once)
         self.q: dict[str, float] = {}
         self.units: Units | None = None
         self.stock_min: list[float] | None = None
@@ -912,20 +913,24 @@ class _Run:
         self.frames.append(_Frame(frame.program, index + 1, "lbl", call_line, label))
 
     def _call_program(self, item: _Line, target: str) -> None:
-        name = target.strip().strip('"').split()[0] if target.strip() else ""
-        text = None
-        if self.library is not None and name:
-            try:
-                text = self.library(name)
-            except Exception:  # a library callback must not break the dry run
-                text = None
-        if text is None:
+        # the name as written (file names keep their case), quoted or not
+        written = re.search(r'CALL\s+PGM\s+"?([^"\s;]+)', item.raw, re.IGNORECASE)
+        name = written.group(1) if written else target.strip()
+        if name not in self.called:
+            text = None
+            if self.library is not None and name:
+                try:
+                    text = self.library(name)
+                except Exception:  # a library callback must not break the dry run
+                    text = None
+            self.called[name] = None if text is None else self._parse(text, name, external=True)
+        program = self.called[name]
+        if program is None:
             self.report(item, Severity.WARNING, f"CALL PGM {name}: not in the library")
             return
         if len(self.frames) > _CALL_NEST:
             self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
             raise _Stop
-        program = self._parse(text, name, external=True)
         # the called program's own first line is its BEGIN PGM: skip it
         start = 1 if program.lines and program.lines[0].text.startswith("BEGIN PGM") else 0
         call_line = self.frames[-1].call_line if self.frames[-1].kind != "main" else item.line

@@ -304,3 +304,21 @@ def test_the_library_is_asked_once_and_may_fail() -> None:
     assert [(p.line, p.severity, p.message) for p in result.problems] == [
         (5, Severity.WARNING, "calls O09832, which is not in the library")
     ]
+
+
+def test_call_pgm_asks_the_library_by_the_name_as_written() -> None:
+    sub = "0 BEGIN PGM sub MM\n1 Q5 = Q5 + 1\n2 END PGM sub MM\n"
+    asked: list[str] = []
+
+    def library(name: str) -> str | None:
+        asked.append(name)
+        return sub if name == "TNC:\\parts\\sub.h" else None
+
+    result = check_text(
+        "0 BEGIN PGM T MM\n1 LBL 1\n2 CALL PGM TNC:\\parts\\sub.h\n3 CALL LBL 1 REP 2\n"
+        "4 END PGM T MM\n",
+        library=library,
+    )
+    assert result.problems == ()
+    assert asked == ["TNC:\\parts\\sub.h"]
+    assert result.end.variables[5] == 3.0
