@@ -68,6 +68,7 @@ DEFECTS = [
     ("feed_without_f.nc", 7, None, ERROR, "no feed rate"),
     ("cycle_without_depth.nc", 7, None, ERROR, "without a depth (Z)"),
     ("while_without_end.nc", 4, None, ERROR, "WHILE ... DO1 without END1"),
+    ("iso_unknown_g.i", 4, None, ERROR, "G65 is not a G code of the Heidenhain ISO control"),
     ("lower_case_word.nc", 6, None, ERROR, "byte 0x79 (a lower-case letter outside a comment)"),
     ("kt_cr_radius_too_small.h", 8, 7, ERROR, "too small for a chord of 60"),
     ("kt_missing_label.h", 8, 7, ERROR, "label 7 is not defined"),
