@@ -127,16 +127,17 @@ class _Expr:
 
     def sum(self) -> float:
         left = self.product()
-        while self.peek() in ("+", "-", "LEN"):
+        while self.peek() in ("+", "-", "LEN", "ANG"):
             op = self.take()
             right = self.product()
-            left = (
-                left + right
-                if op == "+"
-                else left - right
-                if op == "-"
-                else math.hypot(left, right)
-            )
+            if op == "+":
+                left += right
+            elif op == "-":
+                left -= right
+            elif op == "LEN":  # FN 8: length of the vector (left, right)
+                left = math.hypot(left, right)
+            else:  # FN 13: angle of the vector (left, right) from +X, in degrees
+                left = math.degrees(math.atan2(right, left))
         return left
 
     def product(self) -> float:
@@ -949,13 +950,8 @@ class _Run:
             if "=" not in body:
                 self.error(item, f"FN {number} needs Q... = ...")
                 return
+            # the line names its function itself: FN 6: Q20 = SIN-Q5, FN 13: Q1 = +25 ANG -Q2
             target, formula = body.split("=", 1)
-            if number == 5:
-                formula = "SQRT " + formula
-            elif number == 6:
-                formula = "SIN " + formula
-            elif number == 7:
-                formula = "COS " + formula
             self.q[target.strip()] = self.formula(formula)
         elif 9 <= number <= 12:
             # split with partition and one search: linear on any line (no backtracking)

@@ -322,3 +322,23 @@ def test_call_pgm_asks_the_library_by_the_name_as_written() -> None:
     assert result.problems == ()
     assert asked == ["TNC:\\parts\\sub.h"]
     assert result.end.variables[5] == 3.0
+
+
+def test_fn_functions_as_the_tnc_writes_them() -> None:
+    result = klartext(
+        "FN 0: Q1 = +30",
+        "FN 1: Q2 = +Q1 + +10",
+        "FN 2: Q3 = +Q2 - +4",
+        "FN 3: Q4 = +Q3 * +2",
+        "FN 4: Q5 = +Q4 DIV +8",
+        "FN 5: Q6 = SQRT +81",
+        "FN 6: Q7 = SIN+Q1",
+        "FN 7: Q8 = COS-60",
+        "FN 8: Q9 = +3 LEN +4",
+        "FN 13: Q10 = +1 ANG +1",
+        "Q11 = 2 ^ 3 + ABS -1",
+    )
+    assert result.problems == ()
+    values = result.end.variables
+    expected = {1: 30, 2: 40, 3: 36, 4: 72, 5: 9, 6: 9, 7: 0.5, 8: 0.5, 9: 5, 10: 45, 11: 9}
+    assert values == pytest.approx({k: float(v) for k, v in expected.items()})
