@@ -231,6 +231,7 @@ class _Run:
         self.jumps: dict[int, int] = {}
         self.warned: set[str] = set()
         self.no_feed = False
+        self.corner: tuple[str, float, _Line] | None = None  # RND/CHF for the next corner
         self.blocks_run = 0
         self.end_line: _Line | None = None
         self.ended = False
@@ -610,6 +611,11 @@ class _Run:
     def _go(
         self, item: _Line, target: list[float | None], *, rapid: bool, feed: float | None
     ) -> None:
+        if self.corner is not None:
+            if rapid:
+                self.corner = None  # a rounding needs two contour lines
+            else:
+                self._round_corner(item, target, feed)
         start = self.pos
         self.path.line(
             tuple(start), tuple(target), item.line, rapid=rapid, feed=feed,
@@ -670,6 +676,7 @@ class _Run:
         self.center = (ca, cb)
 
     def _circle(self, item: _Line, kind: str, text: str) -> None:
+        self.corner = None  # RND/CHF are drawn between straight lines only
         words = self._words(text)
         _rapid, feed = self._feed(item, words, text)
         a, b, plane = self._plane()
@@ -856,8 +863,65 @@ class _Run:
             value = float(match.group(1)) if match else None
         if value is None or value <= 0:
             self.error(item, f"{kind} needs a positive {'radius R' if kind == 'RND' else 'length'}")
+            value = None
         if "F" in words:
             self.feed = words["F"]
+        self.corner = None if value is None else (kind, value, item)
+
+    def _round_corner(self, item: _Line, target: list[float | None], feed: float | None) -> None:
+        """RND/CHF pending at the current position, between the last line and one to
+        ``target``: trim both lines and put the arc or chamfer between them (line-line
+        corners in the working plane; other corners stay sharp)."""
+        corner, self.corner = self.corner, None
+        if corner is None:
+            return
+        kind, size, where = corner
+        a, b, plane = self._plane()
+        c = 3 - a - b
+        last = self.path.moves[-1] if self.path.moves else None
+        here, there = self.pos, target
+        if (
+            last is None
+            or None in here
+            or None in there
+            or here[c] != there[c]
+            or last.start[c] != last.end[c]
+            or math.dist(last.end, tuple(float(v or 0.0) for v in here)) > 1e-9
+        ):
+            return
+        p1 = (float(here[a] or 0.0), float(here[b] or 0.0))
+        p0 = (last.start[a], last.start[b])
+        p2 = (float(there[a] or 0.0), float(there[b] or 0.0))
+        back, ahead = math.dist(p1, p0), math.dist(p1, p2)
+        if back < 1e-9 or ahead < 1e-9:
+            return
+        u = ((p0[0] - p1[0]) / back, (p0[1] - p1[1]) / back)
+        v = ((p2[0] - p1[0]) / ahead, (p2[1] - p1[1]) / ahead)
+        cos = max(-1.0, min(1.0, u[0] * v[0] + u[1] * v[1]))
+        theta = math.acos(cos)  # the inner angle of the corner
+        if theta < 1e-6 or math.pi - theta < 1e-6:
+            return  # no corner (straight on, or back on itself)
+        cut = size / math.tan(theta / 2) if kind == "RND" else size
+        if cut >= back - 1e-9 or cut >= ahead - 1e-9:
+            self.error(where, f"{kind} {size:g} does not fit its corner")
+            return
+        trimmed = self.path.trim_last_feed(cut)
+        if trimmed is None:
+            return
+        start = [0.0, 0.0, 0.0]
+        start[a], start[b], start[c] = p1[0] + v[0] * cut, p1[1] + v[1] * cut, trimmed.end[c]
+        self.pos = list(trimmed.end)
+        if kind == "CHF":
+            self._go(where, list(start), rapid=False, feed=feed)
+            return
+        bisector = (u[0] + v[0], u[1] + v[1])
+        norm = math.hypot(*bisector)
+        reach = size / math.sin(theta / 2)
+        centre = (p1[0] + bisector[0] / norm * reach, p1[1] + bisector[1] / norm * reach)
+        # turning left (counter-clockwise) when the next line bends to the left of the last
+        incoming = (-u[0], -u[1])
+        clockwise = incoming[0] * v[1] - incoming[1] * v[0] < 0
+        self._arc(where, list(start), centre, plane, clockwise=clockwise, feed=feed)
 
     # ------------------------------------------------------------------ M functions
     def _m_functions(self, item: _Line, text: str) -> None:

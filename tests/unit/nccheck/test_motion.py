@@ -342,3 +342,39 @@ def test_fn_functions_as_the_tnc_writes_them() -> None:
     values = result.end.variables
     expected = {1: 30, 2: 40, 3: 36, 4: 72, 5: 9, 6: 9, 7: 0.5, 8: 0.5, 9: 5, 10: 45, 11: 9}
     assert values == pytest.approx({k: float(v) for k, v in expected.items()})
+
+
+def test_rounded_and_chamfered_corners() -> None:
+    result = klartext(
+        "TOOL CALL 1 Z S1000",
+        "L X+0 Y+0 Z-1 R0 FMAX M3",
+        "L X+10 F100",
+        "RND R2",
+        "L Y+10",  # left turn: a quarter circle of R2 around (8, 2)
+        "CHF 3",
+        "L X+0",  # a 3 mm chamfer from (10, 7) to (7, 10)
+    )
+    assert result.problems == ()
+    kinds = [m.kind for m in result.moves]
+    assert kinds[-5:] == [MoveKind.FEED, MoveKind.ARC_CCW, MoveKind.FEED, MoveKind.FEED,
+                          MoveKind.FEED]  # fmt: skip
+    arc = result.moves[-4]
+    assert arc.start == pytest.approx((8.0, 0.0, -1.0))
+    assert arc.end == pytest.approx((10.0, 2.0, -1.0))
+    assert arc.center == pytest.approx((8.0, 2.0, -1.0))
+    chamfer = result.moves[-2]
+    assert chamfer.start == pytest.approx((10.0, 7.0, -1.0))
+    assert chamfer.end == pytest.approx((7.0, 10.0, -1.0))
+    assert result.feed_distance == pytest.approx(8 + math.pi + 5 + math.hypot(3, 3) + 7)
+
+
+def test_a_rounding_too_big_for_its_corner_is_an_error() -> None:
+    result = klartext(
+        "TOOL CALL 1 Z S1000",
+        "L X+0 Y+0 Z-1 R0 FMAX M3",
+        "L X+3 F100",
+        "RND R5",
+        "L Y+10",
+    )
+    assert [(p.line, p.severity) for p in result.problems] == [(5, Severity.ERROR)]
+    assert result.problems[0].message == "RND 5 does not fit its corner"
