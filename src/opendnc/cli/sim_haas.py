@@ -81,6 +81,11 @@ def haas(
     haas_quirks: bool = typer.Option(
         True, "--haas-quirks/--no-haas-quirks", help="Extra NAKs and CAN after EOT, as a Haas does."
     ),
+    punch_back: bool = typer.Option(
+        False,
+        "--punch-back",
+        help="Punch every program received by XModem back out (an operator checking a load).",
+    ),
 ) -> None:
     """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""
     with cli_errors():
@@ -115,7 +120,7 @@ def haas(
             trace=_trace if trace else None,
         )
         serial_options = _serial_options(
-            serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks
+            serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks, punch_back
         )
         with contextlib.suppress(KeyboardInterrupt):
             try:
@@ -170,7 +175,13 @@ async def _serve(
 
 
 def _serial_options(
-    mode: str, baud: int, parity: str, eob: str, dnc_timeout: float, quirks: bool
+    mode: str,
+    baud: int,
+    parity: str,
+    eob: str,
+    dnc_timeout: float,
+    quirks: bool,
+    punch_back: bool = False,
 ) -> SerialOptions:
     """The serial front-end's options (imported here: only --serial needs them)."""
     from opendnc.sim.haas.serial_front import SerialOptions, parse_mode
@@ -190,4 +201,5 @@ def _serial_options(
         mode=parse_mode(mode),
         quirks=XmodemQuirks() if quirks else XmodemQuirks(extra_naks=0, can_after_eot=False),
         dnc_timeout=dnc_timeout,
+        punch_back=punch_back,
     )

@@ -326,7 +326,10 @@ class Supervisor:
         """Run one claimed job; returns what its audit row records."""
         if job.kind in (JobKind.SEND, JobKind.REPORT):
             verified = await self._send(state, connector, job.job_id, job.name, job.data)
-            return {"nbytes": len(job.data), "verified": verified}
+            # "verified", or why not (a serial Haas: checksum mode only; docs/xmodem.md)
+            why = getattr(connector, "unverified", None) or "not verified"
+            note = "verified" if verified else why
+            return {"nbytes": len(job.data), "verified": verified, "verification": note}
         if job.kind is JobKind.DRIPFEED:
             return await self._dripfeed(state, connector, job)
         if job.kind is JobKind.RECEIVE:
