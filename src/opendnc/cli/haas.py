@@ -486,7 +486,7 @@ def verify_cmd(
         if json_out:
             print_json(result)
         else:
-            console.print(verified_line(result, file), highlight=False)
+            console.print(verified_line(result, file), highlight=False, soft_wrap=True)
 
 
 @app.command("check-line")
@@ -524,7 +524,7 @@ def check_line_cmd(
                         f"{result.actual}"
                     ),
                 }[result.state]
-                console.print(f"{file}: {state}", highlight=False)
+                console.print(f"{file}: {state}", highlight=False, soft_wrap=True)
         if json_out:
             print_json(results)
         if any(r["state"] == CheckState.MISMATCH for r in results):

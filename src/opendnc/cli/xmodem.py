@@ -130,7 +130,7 @@ def send_cmd(
         if json_out:
             print_json({"sent": report, "verify": verified})
         else:
-            console.print(verified_line(verified, file), highlight=False)
+            console.print(verified_line(verified, file), highlight=False, soft_wrap=True)
 
 
 def _print_sent(report: SendReport) -> None:
