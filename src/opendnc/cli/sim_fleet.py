@@ -34,6 +34,11 @@ def fleet(
     from opendnc.sim.fleet import server_config, start_fleet
 
     async def main(folder: Path) -> None:
+        # before the ready line: a signal sent as soon as it appears must stop, not kill
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
         started = await start_fleet(
             folder,
             tnc=tnc,
@@ -56,10 +61,6 @@ def fleet(
                 highlight=False,
                 soft_wrap=True,
             )
-            stop = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(sig, stop.set)
             await stop.wait()
         finally:
             await started.close()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import sys
+import signal
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -141,6 +141,12 @@ async def _serve(
     run: int | None,
     serial_options: SerialOptions | None = None,
 ) -> None:
+    # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly;
+    # installed before the ready lines, so a signal sent as soon as they appear stops the run
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
     sim = SimHaas(config, root, options)
     if options.trace is not None:
         sim.control.event_hooks.append(
@@ -168,10 +174,10 @@ async def _serve(
                 # DPRNT lines printed before a reader connects are lost, as on the control
                 await sim.dprnt_tcp.wait_reader(30.0)
             sim.control.start_program(run)
-        await asyncio.Event().wait()  # until interrupted
+        await stop.wait()
     finally:
         await sim.close()
-        sys.stdout.flush()
+        print("stopped", flush=True)
 
 
 def _serial_options(

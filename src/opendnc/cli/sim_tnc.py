@@ -83,6 +83,13 @@ def tnc(
         raise typer.Exit(1)
 
     async def main() -> None:
+        # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,
+        # so the state of the control is saved to --root; installed before the ready line, so
+        # a signal sent as soon as it appears is not the default (a kill)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
         server = await serve_tnc(
             profile,
             root,
@@ -121,12 +128,6 @@ def tnc(
             soft_wrap=True,
         )
         console.print(f"root: {server.control.root}", highlight=False, soft_wrap=True)
-        # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,
-        # so the state of the control is saved to --root.
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
         try:
             await stop.wait()
         finally:
