@@ -72,15 +72,14 @@ def tnc(
 
     The state (files, machine parameters) lives in --root and survives restarts.
     """
-    from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+    from opendnc.sim.tnc import TraceHook, get_profile, new_event_loop, serve_tnc
     from opendnc.sim.tnc.serial_front import serve_serial
 
     if no_tcp and not serial:
         err_console.print("[bold red]error:[/] --no-tcp needs at least one --serial line")
         raise typer.Exit(1)
-    if profile.lower() not in PROFILES:
-        err_console.print(f"[bold red]error:[/] unknown profile {profile!r}")
-        raise typer.Exit(1)
+    with cli_errors():
+        get_profile(profile)  # an unknown one is refused with the list of profiles
 
     async def main() -> None:
         # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,

@@ -100,10 +100,12 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 class ConfigError(InputError):
     """The configuration file is malformed; the message names the key."""
 
-    def __init__(self, key: str, problem: str) -> None:
+    def __init__(self, key: str, problem: str, *, source: Path | None = None) -> None:
         self.key = key
         self.problem = problem
-        super().__init__(f"{key}: {problem}" if key else problem)
+        self.source = source  # the file, once known: the message then starts with its name
+        text = f"{key}: {problem}" if key else problem
+        super().__init__(f"{source}: {text}" if source is not None else text)
 
 
 class MachineKind(StrEnum):
@@ -260,7 +262,12 @@ def load_config(path: str | Path) -> ShopConfig:
         raise ConfigError("", f"cannot read {path}: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise ConfigError("", f"{path} is not UTF-8 text") from exc
-    return parse_config(text, base=path.parent.resolve(), source=path)
+    try:
+        return parse_config(text, base=path.parent.resolve(), source=path)
+    except ConfigError as exc:
+        if exc.source is not None:
+            raise
+        raise ConfigError(exc.key, exc.problem, source=path) from None
 
 
 def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopConfig:
