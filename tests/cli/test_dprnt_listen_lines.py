@@ -10,6 +10,8 @@ import csv
 import json
 import socket
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -20,7 +22,11 @@ runner = CliRunner()
 
 
 def capture(
-    data: bytes, csv_path: Path, *extra: str, output: list[str] | None = None
+    data: bytes,
+    csv_path: Path,
+    *extra: str,
+    output: list[str] | None = None,
+    before_send: Callable[[], None] | None = None,
 ) -> tuple[list[list[str]], dict[str, int]]:
     """Serve ``data`` to one client over real TCP, capture it with the CLI into ``csv_path``;
     return the CSV rows and the summary the command prints last."""
@@ -31,6 +37,8 @@ def capture(
     def serve() -> None:
         try:
             conn, _ = server.accept()
+            if before_send is not None:
+                before_send()
             with conn:
                 conn.sendall(data)
                 conn.shutdown(socket.SHUT_WR)
@@ -101,12 +109,21 @@ def test_values_are_shown_with_their_labels(tmp_path: Path) -> None:
     """What `DPRNT[X*#100[22]*Z*#5223[44]]` prints, shown as the README says: X=0 Z=-0.5."""
     shown: list[str] = []
     ready = tmp_path / "ready"
+    seen: list[bool] = []
+
+    def flag_is_up() -> None:  # the listener has the port open: its ready flag must exist
+        deadline = time.monotonic() + 5
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        seen.append(ready.exists())
+
     rows, _ = capture(
         b"X  0.00 Z -0.5000\r\nP 7\r\n",
         tmp_path / "o.csv",
         "--ready-file",
         str(ready),
         output=shown,
+        before_send=flag_is_up,
     )
     lines = [line for line in shown[0].splitlines() if line[:2].isdigit()]  # timestamped
     assert [line.split(" ", 1)[1] for line in lines] == [
@@ -114,4 +131,5 @@ def test_values_are_shown_with_their_labels(tmp_path: Path) -> None:
         "P 7  P=7",
     ]
     assert [row[1] for row in rows[1:]] == ["X  0.00 Z -0.5000", "P 7"]
-    assert ready.exists()  # created once the port was open
+    assert seen == [True]  # created once the port was open
+    assert not ready.exists()  # and removed when the listener ended

@@ -113,10 +113,17 @@ SIMULATORS = {"tnc": _tnc, "haas": _haas, "fleet": _fleet, "cable": _cable}
 @pytest.mark.parametrize("name", list(SIMULATORS))
 def test_simulator_stops_cleanly(name: str, sig: int, tmp_path: Path) -> None:
     args, ready, clients = SIMULATORS[name](tmp_path)
+    flag = tmp_path / "sim.ready"
+    if name != "cable":  # the cable's device links are its readiness
+        args = [*args, "--ready-file", str(flag)]
     proc = _start(args, tmp_path)
     try:
         out = _read_until(proc, ready)
         sockets = clients(out)
+        deadline = time.monotonic() + 10
+        while name != "cable" and not flag.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert name == "cable" or flag.exists(), "--ready-file never appeared"
     except BaseException:
         proc.kill()
         proc.communicate()
@@ -126,6 +133,7 @@ def test_simulator_stops_cleanly(name: str, sig: int, tmp_path: Path) -> None:
     finally:
         for sock in sockets:
             sock.close()
+    assert not flag.exists()  # a stopped simulator is not ready
     assert "Traceback" not in err, err
     assert "Error" not in err, err
     assert code == 0, err

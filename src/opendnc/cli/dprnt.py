@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 from rich.text import Text
 
-from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.cli.common import cli_errors, console, err_console, ready_file
 from opendnc.haas.listen import (
     CallbackSink,
     CapturedLine,
@@ -45,11 +45,11 @@ def listen(
         "--retry",
         help="Keep trying while the port does not open (default: fail at once with the reason).",
     ),
-    ready_file: Path | None = typer.Option(
+    ready: Path | None = typer.Option(
         None,
         "--ready-file",
-        help="Create this file once the port is open (a script waits for it with "
-        "`opendnc wait FILE` before it starts the program that prints).",
+        help="Create this file once the port is open, remove it at the end (a script waits "
+        "for it with `opendnc wait FILE` before it starts the program that prints).",
     ),
 ) -> None:
     """Timestamp, parse and store every DPRNT line; reconnect with backoff on disconnect.
@@ -57,7 +57,7 @@ def listen(
     A line over 4096 bytes is dropped whole and reported; a line cut by a disconnect is kept
     and marked (CSV column ``complete`` = ``no``, JSON ``"complete": false``).
     """
-    with cli_errors():
+    with cli_errors(), ready_file(ready) as mark_ready:
         sinks: list[LineSink] = []
         if csv_path is not None:
             sinks.append(CsvSink(csv_path))
@@ -70,8 +70,7 @@ def listen(
 
         def opener(spec: str) -> ByteStream:
             stream = open_source(spec, baudrate=baud)
-            if ready_file is not None and not ready_file.exists():
-                ready_file.touch()  # lines printed from now on are read
+            mark_ready()  # lines printed from now on are read
             return stream
 
         listener = DprntListener(

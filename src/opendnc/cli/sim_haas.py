@@ -5,12 +5,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import signal
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
 
-from opendnc.cli.common import cli_errors, err_console
+from opendnc.cli.common import READY_FILE_HELP, cli_errors, err_console, ready_file
 from opendnc.errors import InputError, TransportError
 from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SimHaas, SimOptions
@@ -86,6 +87,7 @@ def haas(
         "--punch-back",
         help="Punch every program received by XModem back out (an operator checking a load).",
     ),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
     """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""
     with cli_errors():
@@ -122,10 +124,19 @@ def haas(
         serial_options = _serial_options(
             serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks, punch_back
         )
-        with contextlib.suppress(KeyboardInterrupt):
+        with contextlib.suppress(KeyboardInterrupt), ready_file(ready) as mark_ready:
             try:
                 asyncio.run(
-                    _serve(config, root, options, serial, baud or 9600, run, serial_options)
+                    _serve(
+                        config,
+                        root,
+                        options,
+                        serial,
+                        baud or 9600,
+                        run,
+                        serial_options,
+                        mark_ready,
+                    )
                 )
             except OSError as exc:
                 # a taken MDC/DPRNT port: asyncio's strerror names the address
@@ -140,6 +151,7 @@ async def _serve(
     baud: int,
     run: int | None,
     serial_options: SerialOptions | None = None,
+    mark_ready: Callable[[], None] = lambda: None,
 ) -> None:
     # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly;
     # installed before the ready lines, so a signal sent as soon as they appear stops the run
@@ -169,6 +181,7 @@ async def _serve(
         if sim.dprnt_file is not None:
             print(f"DPRNT file {sim.dprnt_file.path}", flush=True)
         print(f"MEMORY {root} programs={len(sim.control.store.numbers())}", flush=True)
+        mark_ready()
         if run is not None:
             if sim.dprnt_tcp is not None:
                 # DPRNT lines printed before a reader connects are lost, as on the control

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.cli.common import READY_FILE_HELP, cli_errors, console, err_console, ready_file
 from opendnc.errors import TransportError
 
 #: The simulator's profiles, named here so `--help` does not load the simulator (a test keeps
@@ -67,6 +67,7 @@ def tnc(
         help="What the --serial lines speak: lsv2, or blockwise (FE modes: programs pushed "
         "to TNC:\\ and sent on request).",
     ),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
     """Serve a virtual TNC over LSV2 (TCP and/or RS-232 lines) until Ctrl-C.
 
@@ -127,6 +128,7 @@ def tnc(
             soft_wrap=True,
         )
         console.print(f"root: {server.control.root}", highlight=False, soft_wrap=True)
+        mark_ready()
         try:
             await stop.wait()
         finally:
@@ -135,7 +137,7 @@ def tnc(
             await server.close()
         console.print("stopped")
 
-    with cli_errors():
+    with cli_errors(), ready_file(ready) as mark_ready:
         try:
             with asyncio.Runner(loop_factory=new_event_loop) as runner:
                 runner.run(main())
