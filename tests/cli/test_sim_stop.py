@@ -106,7 +106,22 @@ def _cable(tmp: Path) -> tuple[list[str], str, Callable[[str], list[socket.socke
     return ["sim", "cable"], r"^/dev/", lambda _out: []
 
 
-SIMULATORS = {"tnc": _tnc, "haas": _haas, "fleet": _fleet, "cable": _cable}
+def _haas_waiting(tmp: Path) -> tuple[list[str], str, Callable[[str], list[socket.socket]]]:
+    """`--run` waits for a DPRNT reader that never comes: a stop must not wait for it."""
+    memory = tmp / "mem"
+    memory.mkdir()
+    (memory / "O00100.nc").write_text("%\nO00100\nDPRNT[HELLO]\nM30\n%\n")
+    args = ["sim", "haas", "--root", str(memory), "--mdc-port", "0", "--dprnt", "tcp:0"]
+    return [*args, "--run", "100"], r"^MEMORY", lambda _out: []
+
+
+SIMULATORS = {
+    "tnc": _tnc,
+    "haas": _haas,
+    "haas-run": _haas_waiting,
+    "fleet": _fleet,
+    "cable": _cable,
+}
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -128,11 +143,13 @@ def test_simulator_stops_cleanly(name: str, sig: int, tmp_path: Path) -> None:
         proc.kill()
         proc.communicate()
         raise
+    started = time.monotonic()
     try:
         code, rest, err = _stop(proc, sig)
     finally:
         for sock in sockets:
             sock.close()
+    assert time.monotonic() - started < 10  # not held by a wait for a reader (30 s)
     assert not flag.exists()  # a stopped simulator is not ready
     assert "Traceback" not in err, err
     assert "Error" not in err, err

@@ -184,9 +184,15 @@ async def _serve(
         mark_ready()
         if run is not None:
             if sim.dprnt_tcp is not None:
-                # DPRNT lines printed before a reader connects are lost, as on the control
-                await sim.dprnt_tcp.wait_reader(30.0)
-            sim.control.start_program(run)
+                # DPRNT lines printed before a reader connects are lost, as on the control;
+                # a stop while waiting for one ends the run at once
+                reader = asyncio.ensure_future(sim.dprnt_tcp.wait_reader(30.0))
+                stopped = asyncio.ensure_future(stop.wait())
+                await asyncio.wait({reader, stopped}, return_when=asyncio.FIRST_COMPLETED)
+                for task in (reader, stopped):
+                    task.cancel()
+            if not stop.is_set():
+                sim.control.start_program(run)
         await stop.wait()
     finally:
         await sim.close()
