@@ -48,7 +48,7 @@ from opendnc.lsv2.drive import AsyncDriver
 from opendnc.lsv2.localfiles import AtomicFile, image_bytes, is_binary_name, read_local
 from opendnc.lsv2.ops.base import Op, T
 from opendnc.lsv2.ops.extras import ScopeRecording
-from opendnc.lsv2.ops.files import FileInfo, Progress
+from opendnc.lsv2.ops.files import FileInfo, Progress, text_size
 from opendnc.lsv2.ops.machine import Uptimes
 from opendnc.lsv2.ops.session import SystemInfo
 from opendnc.lsv2.payloads import (
@@ -57,6 +57,7 @@ from opendnc.lsv2.payloads import (
     ScopeSignal,
     SystemParameters,
     Versions,
+    to_wire_ascii,
 )
 from opendnc.lsv2.plc import PlcOperand, PlcValue
 from opendnc.lsv2.runinfo import (
@@ -120,6 +121,10 @@ class AsyncClient:
         self.serial = serial
         """RS-232 line settings when the control is reached over serial LSV2 (else TCP)."""
         self._driver: AsyncDriver | None = None
+        self.serial_checks = 0
+        """Text uploads verified end to end over serial (docs/lsv2-serial.md)."""
+        self.serial_readbacks = 0
+        """Of those, how many needed a read-back (the reported size was not the expected)."""
 
     @classmethod
     def over_serial(cls, line: SerialLine | str, **options: Any) -> AsyncClient:
@@ -324,20 +329,48 @@ class AsyncClient:
                 self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
             )
         )
-        if self.serial is not None and mode:
-            await self._check_serial_size(remote, len(data), upload=True)
+        if self.serial is not None:
+            if mode:
+                await self._check_serial_size(remote, len(data), upload=True)
+            else:
+                await self._check_serial_text(remote, data)
+
+    async def _serial_fault(self, remote: str, what: str, *, upload: bool) -> TransferError:
+        if upload:
+            # no damaged program left on the control
+            with contextlib.suppress(DncError):
+                await self.delete_file(remote)
+        return TransferError(f"{what}: the serial line let an error through; try again")
 
     async def _check_serial_size(self, remote: str, size: int, *, upload: bool) -> None:
         # Serial LSV2's XOR block check cannot see a lost NUL byte (docs/lsv2-serial.md, "What
         # the block check cannot see"): compare the sizes of binary files at both ends.
         info = await self.file_info(remote)
-        if info is None or info.size == size:
+        if info is not None and info.size == size:
             return
-        if upload:
-            with contextlib.suppress(DncError):
-                await self.delete_file(remote)
-        what = f"{remote} has {info.size} bytes on the control, {size} here"
-        raise TransferError(f"{what}: the serial line let an error through; try again")
+        got = "no such file" if info is None else f"{info.size} bytes"
+        what = f"{remote}: {got} on the control, {size} bytes here"
+        raise await self._serial_fault(remote, what, upload=upload)
+
+    async def _check_serial_text(self, remote: str, data: bytes) -> None:
+        # Text has no size to compare as is: the control writes its own line end for every
+        # NUL that ended a line on the wire. The size it reports is that of CR LF line ends
+        # (docs/lsv2-serial.md, "Every text upload verified"); any other size is settled by
+        # reading the file back, NUL line ends and all, and comparing it with what was sent.
+        self.serial_checks += 1
+        info = await self.file_info(remote)
+        if info is not None and info.size == text_size(data):
+            return
+        if info is not None:
+            self.serial_readbacks += 1
+            sent = to_wire_ascii(data)
+            back = await self.read_file(remote, binary=False, line_end=b"\0")
+            if back == sent:
+                return  # a control that stores other line ends: the text itself is exact
+            what = f"{remote} reads back {len(back)} bytes on the control, {len(sent)} sent"
+        else:
+            what = f"{remote}: no such file on the control after the upload"
+        raise await self._serial_fault(remote, what, upload=True)
 
     async def read_file(
         self, remote: str, *, binary: bool | None = None, line_end: bytes = b"\r\n"

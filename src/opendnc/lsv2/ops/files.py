@@ -61,6 +61,7 @@ __all__ = [
     "make_dir",
     "move_file",
     "remove_dir",
+    "text_size",
     "upload",
     "walk",
 ]
@@ -318,6 +319,17 @@ def ascii_blocks(data: bytes, limit: int) -> Iterator[bytes]:
                 end = cut + 1
         yield data[start:end]
         start = end
+
+
+def text_size(data: bytes, line_end: bytes = b"\r\n") -> int:
+    """Size of text ``data`` on a control that stores each line end as ``line_end``.
+
+    A text upload sends every CR LF or LF as one NUL (:func:`to_wire_ascii`) and the control
+    writes its own line end for each NUL: what ``R_FI`` then reports for a file that arrived
+    whole (docs/lsv2-serial.md, "Every text upload verified").
+    """
+    wire = to_wire_ascii(data)
+    return len(wire) + wire.count(b"\0") * (len(line_end) - 1)
 
 
 def binary_blocks(data: bytes, limit: int) -> Iterator[bytes]:
