@@ -71,6 +71,7 @@ from opendnc.lsv2.runinfo import (
     SelectedProgram,
     ToolInfo,
 )
+from opendnc.lsv2.serial_link import SerialLinkError
 from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.lsv2.tables import Table
 
@@ -126,6 +127,10 @@ class Client:
         """Text uploads verified end to end over serial (docs/lsv2-serial.md)."""
         self.serial_readbacks = 0
         """Of those, how many needed a read-back (the reported size was not the expected)."""
+        self.serial_attempts = 3
+        """Tries of one file transfer over serial when the link gives a telegram up."""
+        self.serial_restarts = 0
+        """Transfers started again over a fresh serial link."""
 
     @classmethod
     def over_serial(cls, line: SerialLine | str, **options: Any) -> Client:
@@ -157,9 +162,10 @@ class Client:
         driver.state.passwords.update(self.passwords)
         self._driver = driver
         try:
-            driver.run(
-                ops.connect(driver.state, max_buffer=self.max_buffer, secure_send=self.secure_send)
-            )
+            limit = self.max_buffer
+            if self.serial is not None and self.serial.telegram_size is not None:
+                limit = min(limit, self.serial.telegram_size)
+            driver.run(ops.connect(driver.state, max_buffer=limit, secure_send=self.secure_send))
         except BaseException:
             self._driver = None
             driver.close()
@@ -229,6 +235,12 @@ class Client:
     def buffer_size(self) -> int:
         """Negotiated telegram size in bytes."""
         return self._state.buffer_size
+
+    @property
+    def telegram_changes(self) -> list[tuple[int, int]]:
+        """Upload telegram sizes changed over serial, as ``(old, new)`` (docs/lsv2-serial.md)."""
+        sizer = self._state.sizer
+        return list(sizer.changes) if sizer is not None else []
 
     @property
     def secure_file_send(self) -> bool:
@@ -325,16 +337,40 @@ class Client:
     ) -> None:
         """Store ``data`` as ``remote``; ``binary=None`` picks the mode by file type."""
         mode = is_binary_name(remote) if binary is None else binary
-        self._run(
-            ops.upload(
-                self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
-            )
-        )
+        for attempt in range(1, self._attempts() + 1):
+            try:
+                self._run(
+                    ops.upload(
+                        self._state,
+                        remote,
+                        data,
+                        binary=mode,
+                        overwrite=overwrite,
+                        progress=progress,
+                    )
+                )
+                break
+            except SerialLinkError:
+                if attempt >= self._attempts():
+                    raise
+                self._reconnect()  # the control drops the partial file; start again
         if self.serial is not None:
             if mode:
                 self._check_serial_size(remote, len(data), upload=True)
             else:
                 self._check_serial_text(remote, data)
+
+    def _attempts(self) -> int:
+        # Over serial a transfer whose telegram the link gave up is started once more over a
+        # fresh link (docs/lsv2-serial.md, "Telegram size"); over TCP a failure is final.
+        return 1 if self.serial is None else self.serial_attempts
+
+    def _reconnect(self) -> None:
+        driver, self._driver = self._driver, None
+        if driver is not None:
+            driver.close()
+        self.serial_restarts += 1
+        self.connect()
 
     def _serial_fault(self, remote: str, what: str, *, upload: bool) -> TransferError:
         if upload:
@@ -415,20 +451,27 @@ class Client:
         if os.path.isdir(target):
             target = os.path.join(target, remote.replace("\\", "/").rsplit("/", 1)[-1])
         mode = is_binary_name(remote) if binary is None else binary
-        with AtomicFile(target) as out:
-            count = self._run(
-                ops.download(
-                    self._state,
-                    remote,
-                    out.write,
-                    binary=mode,
-                    line_end=line_end,
-                    progress=progress,
-                )
-            )
-            if self.serial is not None and mode:
-                self._check_serial_size(remote, count, upload=False)
-            return count
+        for attempt in range(1, self._attempts() + 1):
+            try:
+                with AtomicFile(target) as out:
+                    count = self._run(
+                        ops.download(
+                            self._state,
+                            remote,
+                            out.write,
+                            binary=mode,
+                            line_end=line_end,
+                            progress=progress,
+                        )
+                    )
+                    if self.serial is not None and mode:
+                        self._check_serial_size(remote, count, upload=False)
+                    return count
+            except SerialLinkError:
+                if attempt >= self._attempts():
+                    raise
+                self._reconnect()  # no partial file was kept; fetch it again
+        raise AssertionError("unreachable")
 
     # -- machine state ---------------------------------------------------------------------
 

@@ -270,12 +270,16 @@ class SerialLink:
         max_body: int = 4096,
         drop_repeats: bool = True,
         on_bytes: CharHook | None = None,
+        nak_retries: int | None = None,
     ) -> None:
         if retries < 0:
             raise InputError(f"retries must be 0 or more, got {retries}")
         self.role = role
         self.timing = timing
         self.retries = retries
+        self.nak_retries = retries if nak_retries is None else max(retries, nak_retries)
+        """Repeats allowed while the peer refuses with NAK: it is there and reading, so a
+        noisy line gets more tries than a silent peer (default: ``retries``)."""
         self.max_body = max_body
         """Largest telegram body (name + payload) accepted; longer blocks are refused (NAK)."""
         self.drop_repeats = drop_repeats
@@ -439,7 +443,8 @@ class SerialLink:
             self._write(_EOT)
         self._state = _S.IDLE
         self._deadline = None
-        if out.tries > self.retries:
+        limit = self.nak_retries if status is HostStatus.TX_ERROR else self.retries
+        if out.tries > limit:
             self._out.popleft()
             self.stats.failures += 1
             if out.framed and self._last_body is None:

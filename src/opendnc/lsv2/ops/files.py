@@ -332,6 +332,16 @@ def text_size(data: bytes, line_end: bytes = b"\r\n") -> int:
     return len(wire) + wire.count(b"\0") * (len(line_end) - 1)
 
 
+def _block_end(data: bytes, start: int, limit: int, *, text: bool) -> int:
+    """End of the block that starts at ``start`` (see :func:`ascii_blocks`)."""
+    end = min(start + limit, len(data))
+    if text and end < len(data):
+        cut = data.rfind(b"\0", start, end)
+        if cut >= start:
+            end = cut + 1
+    return end
+
+
 def binary_blocks(data: bytes, limit: int) -> Iterator[bytes]:
     """Cut ``data`` into blocks of ``limit`` bytes."""
     view = memoryview(data)
@@ -362,12 +372,16 @@ def upload(
         reply = yield SendFile(path, mode)
     expect(reply, Ok, f"upload {remote}")
     payload = data if binary else to_wire_ascii(data)
-    blocks = binary_blocks if binary else ascii_blocks
     done, total = 0, len(data)
     if progress is not None:
         progress(0, total)
     context = f"upload {remote}"
-    for block in blocks(payload, state.data_limit):
+    start = 0
+    while start < len(payload):
+        # the limit is asked per block: over serial it follows the line (TelegramSizer)
+        end = _block_end(payload, start, state.upload_limit, text=not binary)
+        block = payload[start:end]
+        start = end
         reply = yield FileData(block)
         if type(reply) is not Ok:
             refuse(reply, context)
