@@ -38,7 +38,10 @@ Choices where the public sources are silent (each is a setting or documented her
 * **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
   of ours framed in between, is acknowledged but not delivered twice. Answers can be alike
-  (``T_OK`` after every file block), so once ours went out an equal telegram is new; and a
+  (``T_OK`` after every file block): once ours went out, an equal telegram confirms ours only
+  if the peer answered our DLE '1' for its previous one with EOT at once; if every frame of
+  ours was refused with NAK it is the peer's repeat; otherwise ours fails with a typed error
+  rather than a guess that could lose or double a file block. And a
   receiver that yielded and then refused the peer's block (or saw none) waits LSV2TIME1 for
   the peer to repeat it before repeating its own (docs/lsv2-serial.md, "Equal telegrams in a
   row").
