@@ -12,12 +12,14 @@ import getpass
 import signal
 import subprocess
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import Event, EventBus
+from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
 from tests.peers import require_command
@@ -230,14 +232,9 @@ def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
     async def run() -> MqttPublisher:
         publisher = MqttPublisher(config, "dnc", ["m1"], EventBus())
         for i in range(25):
-            publisher.take(Event("job", str(i), {"id": i, "machine": "m1", "state": "done"}))
-            publisher.take(
-                Event(
-                    "machine",
-                    "m1",
-                    {"online": True, "status": {"available": True, "program": f"O{i}"}},
-                )
-            )
+            publisher.take(JobFinished(i, "m1", "send", "O1", 1, outcome="done"))
+            status = MachineStatus(at=datetime.now(UTC), available=True, program=f"O{i}")
+            publisher.take(MachineStatusChanged("m1", True, status))
         return publisher
 
     publisher = asyncio.run(run())

@@ -9,12 +9,11 @@ unknown name 404, state does not allow it 409.
 
 from __future__ import annotations
 
-import asyncio
 import csv
 import hashlib
 import io
 import json
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
@@ -26,7 +25,14 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.errors import DncError, InputError
 from opendnc.server import audit, auth, inbox, jobs, library
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
-from opendnc.server.events import EventBus
+from opendnc.server.events import (
+    Event,
+    InboxChanged,
+    JobFinished,
+    Overflow,
+    ProgramChanged,
+    publish_job_queued,
+)
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.store.models import (
     AuditEntry,
@@ -39,6 +45,7 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
+from opendnc.server.streams import throttled_stream
 from opendnc.server.supervisor import Supervisor
 
 __all__ = ["install"]
@@ -113,7 +120,24 @@ Admin = Annotated[auth.Principal, require(Role.ADMIN)]
 def changed(request: Request, kind: str, key: str) -> None:
     """Tell the event stream that the library (``program``) or the inbox (``inbox``) changed
     (after the commit: a page that reloads its list on the event must see the change)."""
-    _supervisor(request).bus.publish(kind, key, {"name": key, "source": "request"})
+    event = ProgramChanged(key) if kind == "program" else InboxChanged(key)
+    _supervisor(request).bus.publish(event)
+
+
+def announce_queued(request: Request, queued: list[dict[str, Any]]) -> None:
+    """Publish a ``queued`` job event for each job (as :func:`job_json` shows it) just
+    committed to the queue."""
+    bus = _supervisor(request).bus
+    for job in queued:
+        publish_job_queued(
+            bus,
+            job_id=job["id"],
+            machine=job["machine"],
+            job_kind=job["kind"],
+            program=job["program"],
+            version=job["version"],
+            by=job["created_by"],
+        )
 
 
 def _supervisor(request: Request) -> Supervisor:
@@ -413,6 +437,7 @@ def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> li
         ]
     out = [job_json(j) for j in created]
     db.commit()  # before the wake-up, so the machine's claim sees the new rows
+    announce_queued(request, out)
     for job in created:
         _supervisor(request).wake(job.machine)
     return out
@@ -488,6 +513,7 @@ def retry_job(
     job = jobs.retry(db, job_id, actor=who.name, from_line=body.from_line)
     out = job_json(job)
     db.commit()
+    announce_queued(request, [out])
     _supervisor(request).wake(job.machine)
     return out
 
@@ -647,46 +673,42 @@ def revoke_key(db: Db, key_id: int, who: Admin) -> dict[str, Any]:
 async def events(request: Request, _who: Viewer) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     supervisor = _supervisor(request)
-    bus: EventBus = supervisor.bus
+    stream = throttled_stream(
+        supervisor.bus,
+        _ApiEvents(supervisor),
+        interval=EVENT_INTERVAL,
+        disconnected=request.is_disconnected,
+    )
     return StreamingResponse(
-        _event_stream(request, supervisor, bus),
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache"},
+        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
     )
 
 
-def _sse(kind: str, data: dict[str, Any]) -> bytes:
-    return f"event: {kind}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+def _sse(event: Event) -> bytes:
+    data = json.dumps(event.as_json(), separators=(",", ":"))
+    return f"event: {event.kind}\ndata: {data}\n\n".encode()
 
 
-async def _event_stream(
-    request: Request, supervisor: Supervisor, bus: EventBus
-) -> AsyncIterator[bytes]:
-    with bus.subscribe() as sub:
-        for state in supervisor.machines.values():
-            yield _sse("machine", state.as_json())
-        pending: dict[tuple[str, str], dict[str, Any]] = {}
-        loop = asyncio.get_running_loop()
-        flush_at = loop.time() + EVENT_INTERVAL
-        while not await request.is_disconnected():
-            timeout = max(0.0, flush_at - loop.time())
-            try:
-                # The first event, then everything queued meanwhile, in one go: a wait per
-                # event costs the loop more than the event (thousands of progress reports a
-                # second while hundreds of transfers run).
-                events = [await asyncio.wait_for(sub.get(), timeout), *sub.drain()]
-                for event in events:
-                    # Keep only the newest event per machine or job until the next flush.
-                    pending[(event.kind, event.key)] = event.data
-            except TimeoutError:
-                pass
-            if loop.time() >= flush_at:
-                if sub.overflowed:
-                    sub.overflowed = False
-                    yield _sse("overflow", {})
-                for (kind, _key), data in pending.items():
-                    yield _sse(kind, data)
-                if not pending:
-                    yield b": keep-alive\n\n"
-                pending.clear()
-                flush_at = loop.time() + EVENT_INTERVAL
+class _ApiEvents:
+    """The API's stream: every machine first, then the newest event per machine and per
+    job's progress (each start and end of a job, each line and reception kept)."""
+
+    def __init__(self, supervisor: Supervisor) -> None:
+        self.supervisor = supervisor
+        self.pending: dict[tuple[str, str], Event] = {}
+
+    async def snapshot(self, overflow: bool) -> bytes:
+        self.pending.clear()
+        head = _sse(Overflow()) if overflow else b""
+        return head + b"".join(_sse(state.event()) for state in self.supervisor.machines.values())
+
+    def take(self, event: Event) -> None:
+        if isinstance(event, JobFinished):
+            # the job's last word makes its progress still pending stale
+            self.pending.pop((event.kind, str(event.job_id)), None)
+        self.pending[(event.kind, event.key)] = event
+
+    async def flush(self) -> bytes:
+        out = b"".join(_sse(event) for event in self.pending.values())
+        self.pending.clear()
+        return out

@@ -21,7 +21,7 @@ from opendnc import __version__
 from opendnc.server import api, dprnt_api, web
 from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machines import Connector, connector_for
 from opendnc.server.mqtt import MqttPublisher
@@ -87,9 +87,7 @@ def build(
         config.library.path,
         sessions,
         poll=config.library.poll,
-        on_version=lambda name, number: bus.publish(
-            "program", name, {"name": name, "version": number, "source": "watcher"}
-        ),
+        on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
     )
 
     netshare = None

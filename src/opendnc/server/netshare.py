@@ -57,7 +57,7 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.config import MachineConfig, NetShareConfig
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, NetshareChanged
 from opendnc.server.store.models import AuditEntry
 
 __all__ = ["NetShare", "ScanReport", "local_now"]
@@ -551,8 +551,7 @@ class NetShare:
     # ------------------------------------------------------------------ events
     def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
         if self.bus is not None:
-            data = {"action": action, "machine": machine, "name": name, **extra}
-            self.bus.publish("netshare", machine or "nas", data)
+            self.bus.publish(NetshareChanged(action, machine, name, extra))
 
 
 def _free_path(folder: Path, name: str) -> Path:

@@ -37,10 +37,21 @@ from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.autoreceive import FolderWatch, size_problem
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.errors import NotFound
-from opendnc.server.events import EventBus, on_loop
+from opendnc.server.events import (
+    EventBus,
+    JobFinished,
+    JobProgress,
+    JobStarted,
+    MachineStatusChanged,
+    ProgramReceived,
+    on_loop,
+    publish_job_queued,
+    stored_progress,
+)
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines import Connector, MachineStatus, Reception, connector_for
 from opendnc.server.machines.base import FolderSource
+from opendnc.server.state import classify
 from opendnc.server.store.db import read_only
 from opendnc.server.store.models import DprntLine, JobKind, utcnow
 
@@ -72,6 +83,7 @@ class Claimed:
     name: str  # program name, or the path on the control
     data: bytes  # what to send (empty for jobs that take from the control)
     params: dict[str, Any]
+    version: int | None = None  # the program version it sends
 
 
 @dataclass
@@ -95,6 +107,11 @@ class MachineState:
             status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
         self.status = status
 
+    def event(self) -> MachineStatusChanged:
+        """The machine as it is now, as an event (published on every status read)."""
+        name, json = self.config.name, self.as_json()
+        return MachineStatusChanged(name, self.online, self.status, self.last_error, json)
+
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
         done, total = self.job_progress
@@ -104,6 +121,8 @@ class MachineState:
             "description": self.config.description,
             "released_only": self.config.released_only,
             "online": self.online,
+            # the one classifier's word: running, ready, stopped, alarm, offline, unknown
+            "state": classify(self.status, online=self.online).value,
             "status": self.status.as_json() if self.status else None,
             "last_error": self.last_error,
             "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
@@ -215,7 +234,7 @@ class Supervisor:
         self._publish(state)
 
     def _publish(self, state: MachineState) -> None:
-        self.bus.publish("machine", state.config.name, state.as_json())
+        self.bus.publish(state.event())
 
     async def _supervise(self, state: MachineState) -> None:
         connector = self.connector_factory(state.config)
@@ -286,7 +305,8 @@ class Supervisor:
                         jobs.fail(session, job.id, "the job names no program", retryable=False)
                         return None
                     data = library.content(session, job.version)
-                    return Claimed(job.id, job.kind, job.version.program.name, data, params)
+                    program = job.version.program.name
+                    return Claimed(job.id, job.kind, program, data, params, job.version.number)
                 return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
 
         claimed = await asyncio.to_thread(claim)
@@ -294,7 +314,9 @@ class Supervisor:
             return False
         job_id = claimed.job_id
         state.job_id, state.job_progress = job_id, (0, len(claimed.data) or None)
-        self._job_event(job_id, name, "running")
+        self.bus.publish(
+            JobStarted(*self._job(claimed, name), bytes_total=len(claimed.data) or None)
+        )
         try:
             outcome = await self._execute(state, connector, claimed)
         except asyncio.CancelledError:
@@ -309,14 +331,14 @@ class Supervisor:
             if line is not None:
                 reason = f"{reason} (stopped at line {line}; restart from there)"
             job = await asyncio.to_thread(self._fail, job_id, reason, retryable, line, nbytes)
-            self._job_event(job_id, name, job, error=reason)
+            self.bus.publish(JobFinished(*self._job(claimed, name), outcome=job, error=reason))
             state.job_id = None
             cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
             if isinstance(cause, TransportError):
                 raise exc from cause  # reconnect before the next job
             return True
         await asyncio.to_thread(self._finish, job_id, outcome)
-        self._job_event(job_id, name, "done")
+        self.bus.publish(JobFinished(*self._job(claimed, name), outcome="done"))
         state.job_id = None
         return True
 
@@ -325,7 +347,7 @@ class Supervisor:
     ) -> dict[str, Any]:
         """Run one claimed job; returns what its audit row records."""
         if job.kind in (JobKind.SEND, JobKind.REPORT):
-            verified = await self._send(state, connector, job.job_id, job.name, job.data)
+            verified = await self._send(state, connector, job)
             return {"nbytes": len(job.data), "verified": verified}
         if job.kind is JobKind.DRIPFEED:
             return await self._dripfeed(state, connector, job)
@@ -364,14 +386,14 @@ class Supervisor:
                 # Progress is in bytes like every job's (the card's share and sizes); the line
                 # travels beside it for the restart prompt.
                 state.job_progress = (nbytes, total or None)
-                self._job_event(
-                    job.job_id,
-                    machine,
-                    "running",
-                    bytes_done=nbytes,
-                    bytes_total=total or None,
-                    line=line,
-                    lines=lines,
+                self.bus.publish(
+                    JobProgress(
+                        *self._job(job, machine),
+                        bytes_done=nbytes,
+                        bytes_total=total or None,
+                        line=line,
+                        lines=lines,
+                    )
                 )
             if job.job_id in self._cancels:
                 raise TransferError(f"cancelled at line {line}")
@@ -393,6 +415,7 @@ class Supervisor:
         settings = self.config.requests
         machine = state.config
         folder = self.config.library.inbox
+        queued: list[dict[str, Any]] = []  # the requested programs' jobs, announced once committed
 
         def handle() -> tuple[str, float | None]:
             with self.sessions.begin() as session:
@@ -411,11 +434,13 @@ class Supervisor:
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
                     return f"received {row.name} into the inbox", None
-                return self._answer_request(session, machine, names), settings.delay
+                return self._answer_request(session, machine, names, queued), settings.delay
 
         message, delay = await asyncio.to_thread(handle)
         state.last_error = "" if not reception.failed else message
-        self.bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        self.bus.publish(ProgramReceived(machine.name, message))
+        for job in queued:
+            publish_job_queued(self.bus, **job)
         if delay is not None:
             # Wake the machine when the answer falls due (the request delay).
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
@@ -488,7 +513,7 @@ class Supervisor:
             state.last_error = message
         else:
             message = f"received {entry.path} into the inbox as {name}"
-        self.bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        self.bus.publish(ProgramReceived(machine.name, message))
         if failed or machine.after_receive != "delete":
             return
         # Only now that the reception is committed may the control's copy go.
@@ -515,7 +540,13 @@ class Supervisor:
 
         await asyncio.to_thread(record)
 
-    def _answer_request(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
+    def _answer_request(
+        self,
+        session: Session,
+        machine: MachineConfig,
+        names: list[str],
+        queued: list[dict[str, Any]],
+    ) -> str:
         settings = self.config.requests
         due = utcnow() + timedelta(seconds=settings.delay)
         problems: list[str] = []
@@ -538,7 +569,7 @@ class Supervisor:
             if version is None:
                 problems.append(f"{name} NOT RELEASED")
                 continue
-            jobs.enqueue(
+            job = jobs.enqueue(
                 session,
                 JobKind.SEND,
                 machine.name,
@@ -546,6 +577,16 @@ class Supervisor:
                 version=version,
                 params={"request": True},
                 not_before=due,
+            )
+            queued.append(
+                {
+                    "job_id": job.id,
+                    "machine": machine.name,
+                    "job_kind": JobKind.SEND.value,
+                    "program": version.program.name,
+                    "version": version.number,
+                    "by": job.created_by,
+                }
             )
             sent.append(name)
         audit.record(
@@ -583,9 +624,11 @@ class Supervisor:
             params={"name": f"O{number:05d}.nc", "report": text},
         )
 
-    def _job_event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
-        data = {"id": job_id, "machine": machine, "state": state, **extra}
-        self.bus.publish("job", str(job_id), data)
+    @staticmethod
+    def _job(job: Claimed, machine: str) -> tuple[int, str, str, str | None, int | None]:
+        """The fields every event of ``job`` carries (id, machine, kind, program, version)."""
+        program = job.name if job.version is not None else None
+        return job.job_id, machine, job.kind.value, program, job.version
 
     def _fail(
         self, job_id: int, reason: str, retryable: bool, line: int | None, nbytes: int | None
@@ -605,12 +648,14 @@ class Supervisor:
         with self.sessions.begin() as session:
             jobs.finish(session, job_id, **outcome)
 
-    async def _send(
-        self, state: MachineState, connector: Connector, job_id: int, program: str, data: bytes
-    ) -> bool | None:
+    async def _send(self, state: MachineState, connector: Connector, job: Claimed) -> bool | None:
+        program, data = job.name, job.data
         last = [0.0]
 
-        def progress(done: int, total: int | None) -> None:
+        def progress(wire_done: int, wire_total: int | None) -> None:
+            # In bytes of the program as stored, whatever the connector counts (an XModem
+            # load counts its wire form): one definition of progress everywhere.
+            done, total = stored_progress(wire_done, wire_total, len(data))
             state.job_progress = (done, total)
             # A transfer reports every chunk, hundreds a second on a fast link; watchers need
             # a few, and the last one (the API and the cards read job_progress for the rest).
@@ -618,8 +663,8 @@ class Supervisor:
             if now - last[0] < PROGRESS_EVERY and (total is None or done < total):
                 return
             last[0] = now
-            self._job_event(
-                job_id, state.config.name, "running", bytes_done=done, bytes_total=total
+            self.bus.publish(
+                JobProgress(*self._job(job, state.config.name), bytes_done=done, bytes_total=total)
             )
 
         await connector.send(program, data, progress)
