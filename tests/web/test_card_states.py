@@ -1,0 +1,163 @@
+"""The cards say what the one classifier says, and progress has one definition.
+
+Two virtual Haas controls on virtual RS-232 cables at 9600 baud, served in this process: one
+answers MDC (its status is READY), one is a classic control without MDC (it tells nothing).
+An XModem load into the first is a transfer, not the machine running: its card stays
+"ready" while the job bar moves, and the card, the machine page's queue table and the API
+show the same progress in bytes of the program as stored, though XModem counts its wire form
+(CR LF line ends: more bytes than the library holds). The second machine is "unknown", not a
+green "ready".
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.peers import require_module
+
+httpx = require_module("httpx")
+uvicorn = require_module("uvicorn")
+
+from opendnc.cli.serve import listen_socket  # noqa: E402
+from opendnc.server import auth  # noqa: E402
+from opendnc.server.app import Server, build  # noqa: E402
+from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.store.models import Role  # noqa: E402
+from opendnc.server.web.render import human_size  # noqa: E402
+from opendnc.sim.fleet import server_config  # noqa: E402
+from tests.server.harness import wait_for  # noqa: E402
+from tests.server.test_from_the_control import FleetThread  # noqa: E402
+
+PASSWORD = "operator-secret"
+# About 12 kB of NC text, 40 bytes a line: 300 line ends become CR LF on the wire (2.5 % more).
+PROGRAM = (
+    b"%\nO04444 (CARD STATES)\n"
+    + b"".join(b"G01 X%08.3f Y%08.3f F1200.\n" % (i * 0.5, i * 0.25) for i in range(300))
+    + b"M30\n%\n"
+)
+
+
+class Shop:
+    def __init__(self, url: str, server: Server, key: str) -> None:
+        self.url = url
+        self.server = server
+        self.key = key
+
+
+@pytest.fixture
+def shop(tmp_path: Path) -> Iterator[Shop]:
+    fleet = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=2, baud=9600)
+    try:
+        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp_path / "lib", mdc=True)
+        # the second control is a classic one without MDC: the server cannot ask it anything
+        first, _, rest = text.partition("mdc = true\n")
+        text = first + "mdc = true\n" + rest.replace("mdc = true\n", "")
+        server = build(parse_config(text, base=tmp_path), database=f"sqlite:///{tmp_path / 'db'}")
+        with server.sessions.begin() as session:
+            auth.create_user(session, "olga", Role.PROGRAMMER, password=PASSWORD)
+            _row, key = auth.create_key(session, "olga", Role.PROGRAMMER, actor="test")
+        listener = listen_socket("127.0.0.1", 0)
+        port = listener.getsockname()[1]
+        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
+        serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
+        serving.start()
+        wait_for("the server", lambda: web.started)
+        try:
+            yield Shop(f"http://127.0.0.1:{port}", server, key)
+        finally:
+            web.should_exit = True
+            serving.join(30)
+            listener.close()
+            server.engine.dispose()
+    finally:
+        fleet.stop()
+
+
+def _card(html: str, name: str) -> str:
+    found = re.search(rf'<li class="card" id="card-{re.escape(name)}">(.*?)</li>', html, re.S)
+    assert found, html
+    return found.group(1)
+
+
+def _pct(text: str) -> int:
+    found = re.search(r"(\d+)%", text)
+    assert found, text
+    return int(found.group(1))
+
+
+def test_a_load_is_no_run_a_silent_control_is_unknown_and_progress_agrees(shop: Shop) -> None:
+    machines = shop.server.supervisor.machines
+    loaded, silent = sorted(machines)
+    wait_for(
+        "both controls read",
+        lambda: all(m.status is not None and m.online for m in machines.values()),
+        timeout=60,
+    )
+    headers = {"Authorization": f"Bearer {shop.key}"}
+    with (
+        httpx.Client(base_url=shop.url, timeout=30, headers=headers) as api,
+        httpx.Client(base_url=shop.url, timeout=30) as page,
+    ):
+        _load_and_compare(shop, api, page, loaded, silent)
+
+
+def _load_and_compare(shop: Shop, api: Any, page: Any, loaded: str, silent: str) -> None:
+    machines = shop.server.supervisor.machines
+    login = page.post(
+        "/login",
+        data={"username": "olga", "password": PASSWORD, "next": "/"},
+        follow_redirects=False,
+    )
+    assert login.status_code == 303, login.text
+
+    overview = page.get("/").text
+    silent_card = _card(overview, silent)
+    assert 'data-state="unknown"' in silent_card
+    assert "ready" not in silent_card
+    assert "running" not in silent_card
+    assert 'data-state="ready"' in _card(overview, loaded)
+
+    put = api.put("/api/programs/O04444.nc", content=PROGRAM)
+    assert put.status_code == 201, put.text
+    made = api.post("/api/jobs", json={"program": "O04444.nc", "version": 1, "machines": [loaded]})
+    assert made.status_code == 201, made.text
+    job_id = made.json()[0]["id"]
+    wait_for("the load under way", lambda: machines[loaded].job_progress[0] > 0, timeout=60)
+
+    checked = 0
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        before = api.get(f"/api/jobs/{job_id}").json()
+        card = _card(page.get("/").text, loaded)
+        table = page.get(f"/machines/{loaded}/jobs").text
+        after = api.get(f"/api/jobs/{job_id}").json()
+        if after["state"] != "running" or "<progress" not in card:
+            break
+        # The bytes of the program as stored, in every view.
+        assert before["bytes_total"] == after["bytes_total"] == len(PROGRAM)
+        assert f"of {human_size(len(PROGRAM))}" in card
+        # A transfer is not the machine running: the control holds the load in memory.
+        assert 'data-state="ready"' in card, card
+        low = 100 * before["bytes_done"] // len(PROGRAM)
+        high = 100 * after["bytes_done"] // len(PROGRAM)
+        assert low <= _pct(card.split('class="pct"')[1]) <= high
+        row = re.search(r'id="queue-progress-[^"]*">([^<]*)<', table)
+        assert row, table
+        assert low <= _pct(row.group(1)) <= high
+        checked += 1
+        time.sleep(0.3)
+    assert checked >= 2, "the load ended before its progress could be compared twice"
+    done = wait_for(
+        "the load done",
+        lambda: (j := api.get(f"/api/jobs/{job_id}").json())["state"] == "done" and j,
+        timeout=120,
+    )
+    assert done["bytes_done"] == len(PROGRAM)
+    assert 'data-state="ready"' in _card(page.get("/").text, loaded)
