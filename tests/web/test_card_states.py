@@ -11,6 +11,7 @@ green "ready".
 
 from __future__ import annotations
 
+import json
 import re
 import threading
 import time
@@ -126,6 +127,10 @@ def _load_and_compare(shop: Shop, api: Any, page: Any, loaded: str, silent: str)
 
     put = api.put("/api/programs/O04444.nc", content=PROGRAM)
     assert put.status_code == 201, put.text
+    events: list[tuple[str, dict[str, Any]]] = []
+    reader = threading.Thread(target=_read_events, args=(shop, events), daemon=True)
+    reader.start()
+    wait_for("the API's snapshot", lambda: len(events) >= 2)
     made = api.post("/api/jobs", json={"program": "O04444.nc", "version": 1, "machines": [loaded]})
     assert made.status_code == 201, made.text
     job_id = made.json()[0]["id"]
@@ -161,3 +166,41 @@ def _load_and_compare(shop: Shop, api: Any, page: Any, loaded: str, silent: str)
     )
     assert done["bytes_done"] == len(PROGRAM)
     assert 'data-state="ready"' in _card(page.get("/").text, loaded)
+
+    # The API's stream: every machine first (with the classifier's state), then the job's
+    # events, each naming the program and its version.
+    first = {data["name"]: data["state"] for kind, data in events[:2] if kind == "machine"}
+    assert first == {loaded: "ready", silent: "unknown"}
+
+    def job_events() -> list[dict[str, Any]]:
+        return [d for k, d in list(events) if k == "job" and d["id"] == job_id]
+
+    wait_for("the job's end in the stream", lambda: job_events()[-1:][0]["event"] == "finished")
+    seen = job_events()
+    assert [e["event"] for e in seen][:2] == ["queued", "started"]
+    assert seen[-1]["state"] == "done"
+    progress = [e for e in seen if e["event"] == "progress"]
+    assert progress, seen
+    assert {e["bytes_total"] for e in progress} == {len(PROGRAM)}
+    for event in seen:
+        assert (event["program"], event["version"], event["machine"]) == ("O04444.nc", 1, loaded)
+
+
+def _read_events(shop: Shop, into: list[tuple[str, dict[str, Any]]]) -> None:
+    headers = {"Authorization": f"Bearer {shop.key}"}
+    try:
+        with (
+            httpx.Client(base_url=shop.url, timeout=None, headers=headers) as client,
+            client.stream("GET", "/api/events") as stream,
+        ):
+            kind = ""
+            for line in stream.iter_lines():
+                if line.startswith("event: "):
+                    kind = line[7:]
+                elif line.startswith("data: "):
+                    data = json.loads(line[6:])
+                    into.append((kind, data))
+                    if kind == "job" and data["event"] == "finished":
+                        return  # an open stream would keep the server from stopping
+    except httpx.TransportError:
+        pass  # the server stopped under a failed test: its assertion says why
