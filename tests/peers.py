@@ -43,7 +43,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def require_reference(relative: str) -> Path:
-    """Return a file of the reference data in ``shared/reference/`` or skip/fail.
+    """Return the file ``shared/reference/RELATIVE`` beside the repository or skip/fail.
 
     CI has ``shared/`` beside the clone; a developer's work tree may sit deeper (a worktree
     folder), so the folders above the repository are searched upwards. The reference data stays
