@@ -80,6 +80,8 @@ async def whole_state(machines: int) -> None:
     names = [f"m{i}" for i in range(machines)]
     config = MqttConfig(host="127.0.0.1", prefix=prefix)
     publisher = MqttPublisher(config, "bench", names, EventBus())
+    for name in names:  # every machine read once: only a known machine's state is published
+        publisher.take(_event(name, 0, change=False))
     topics = [m.topic for m in publisher._whole_state()] + [publisher.health_topic]
     start = time.perf_counter()
     task = asyncio.create_task(publisher.run())
