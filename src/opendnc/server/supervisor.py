@@ -404,7 +404,11 @@ class Supervisor:
             raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0], fed[0]) from exc
         finally:
             self._cancels.discard(job.job_id)
-        return {**counts, "from_line": from_line}
+        # Progress and the job's bytes are bytes of the stored program (from the start line),
+        # as for every job; what went over the wire (EOB, leader, restart preamble) is kept
+        # beside them in the audit row.
+        wire = counts.get("nbytes")
+        return {**counts, "nbytes": fed[0] or wire, "wire_bytes": wire, "from_line": from_line}
 
     def request_cancel(self, job_id: int) -> None:
         """Stop a running drip-feed of this process at its next chunk."""
