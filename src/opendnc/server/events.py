@@ -383,7 +383,8 @@ class Subscription:
     :meth:`get` takes a deadline itself instead of being wrapped in ``asyncio.wait_for``:
     on Python 3.11 ``wait_for`` can swallow a cancel that arrives as the inner get completes,
     and a loop around it then never ends (docs/server.md#events-and-states). Here the waiting
-    task awaits a plain future that nothing else cancels, so a cancel always ends it.
+    task awaits a plain future, set by a new event or by the deadline's timer: there is no
+    inner task whose result could win over the cancel, so a cancel always ends the wait.
     """
 
     def __init__(self, maxsize: int) -> None:
