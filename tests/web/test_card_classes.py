@@ -14,8 +14,8 @@ require_module("jinja2")
 
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.items import items_of  # noqa: E402
+from opendnc.server.machine_state import MachineState  # noqa: E402
 from opendnc.server.machines.base import MachineStatus  # noqa: E402
-from opendnc.server.supervisor import MachineState  # noqa: E402
 from opendnc.server.web import render  # noqa: E402
 from opendnc.server.web.timeline import Timeline  # noqa: E402
 

@@ -23,7 +23,8 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError
-from opendnc.server import audit, auth, inbox, jobs, library
+from opendnc.server import audit, auth, deps, inbox, jobs, library
+from opendnc.server.capabilities import capabilities_of
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import (
     Event,
@@ -34,6 +35,7 @@ from opendnc.server.events import (
     publish_job_queued,
 )
 from opendnc.server.loopwatch import LoopWatch
+from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
     AuditEntry,
     Job,
@@ -46,7 +48,6 @@ from opendnc.server.store.models import (
     Role,
 )
 from opendnc.server.streams import throttled_stream
-from opendnc.server.supervisor import Supervisor
 
 __all__ = ["install"]
 
@@ -55,10 +56,8 @@ STATUS = {NotFound: 404, Conflict: 409, Unauthorized: 401, Forbidden: 403, Input
 EVENT_INTERVAL = 0.5
 
 
-def install(app: FastAPI, sessions: sessionmaker[Session], supervisor: Supervisor) -> None:
-    """Add the API routes and error mapping to ``app``."""
-    app.state.sessions = sessions
-    app.state.supervisor = supervisor
+def install(app: FastAPI) -> None:
+    """Add the API routes and error mapping to ``app`` (built by :mod:`opendnc.server.app`)."""
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
     app.include_router(router)
 
@@ -77,7 +76,7 @@ router = APIRouter(prefix="/api")
 def _db(request: Request) -> Iterator[Session]:
     # Committed when the route returns normally, rolled back when it raises; a route that
     # must act after the commit (waking a machine) commits itself first.
-    sessions: sessionmaker[Session] = request.app.state.sessions
+    sessions = deps.database(request).sessions
     with sessions() as session:
         yield session
         session.commit()
@@ -92,7 +91,7 @@ def _principal(
     if not authorization or not authorization.lower().startswith("bearer "):
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     key = authorization[7:].strip()
-    sessions: sessionmaker[Session] = request.app.state.sessions
+    sessions = deps.database(request).sessions
     with sessions.begin() as session:
         return auth.authenticate_key(session, key)
 
@@ -140,9 +139,8 @@ def announce_queued(request: Request, queued: list[dict[str, Any]]) -> None:
         )
 
 
-def _supervisor(request: Request) -> Supervisor:
-    supervisor: Supervisor = request.app.state.supervisor
-    return supervisor
+def _supervisor(request: Request) -> Machines:
+    return deps.machines(request)
 
 
 # -- serialisation ------------------------------------------------------------------------
@@ -230,7 +228,7 @@ def health() -> dict[str, str]:
 async def loop_health(request: Request) -> dict[str, Any]:
     """The event loop's stalls (:mod:`opendnc.server.loopwatch`); needs no key. Async: it
     reads the watch on the loop, the only thread that writes it."""
-    watch: LoopWatch = request.app.state.loopwatch
+    watch: LoopWatch = deps.loopwatch(request)
     return watch.as_json()
 
 
@@ -244,7 +242,7 @@ def list_machines(request: Request, _who: Viewer) -> list[dict[str, Any]]:
 def outputs(request: Request, _who: Viewer) -> dict[str, Any]:
     """The open outputs' state: the MQTT link (connected, queued, dropped) and the SHDR ports
     (agents connected); null for one that is not configured."""
-    parts = getattr(request.app.state, "outputs", {})
+    parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
 
 
@@ -301,7 +299,7 @@ async def upload_program(
         raise InputError("the upload does not match its X-Content-SHA256 header")
 
     def store() -> dict[str, Any]:
-        sessions: sessionmaker[Session] = request.app.state.sessions
+        sessions: sessionmaker[Session] = deps.database(request).sessions
         with sessions.begin() as session:
             version, created = library.add_version(
                 session, name, data, author=who.name, comment=comment
@@ -418,7 +416,7 @@ def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> li
                 state = machines.get(name)
                 if state is None:
                     raise NotFound(f"no machine named {name!r}")
-                if not state.config.dripfeed:
+                if not capabilities_of(state.config).dripfeed:
                     raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
             version = library.get_version(db, body.program, body.version)
             params = {"from_line": body.from_line} if body.from_line else {}
@@ -480,8 +478,7 @@ def cancel_job(request: Request, db: Db, job_id: int, who: Operator) -> dict[str
     job = jobs.cancel(db, job_id, actor=who.name)
     out = job_json(job)
     db.commit()
-    if job.state is JobState.RUNNING:
-        _supervisor(request).request_cancel(job.id)
+    # A running job reads its row's cancel flag at its next safe point (any process's cancel).
     return out
 
 
@@ -693,7 +690,7 @@ class _ApiEvents:
     """The API's stream: every machine first, then the newest event per machine and per
     job's progress (each start and end of a job, each line and reception kept)."""
 
-    def __init__(self, supervisor: Supervisor) -> None:
+    def __init__(self, supervisor: Machines) -> None:
         self.supervisor = supervisor
         self.pending: dict[tuple[str, str], Event] = {}
 
