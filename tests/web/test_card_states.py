@@ -94,7 +94,7 @@ def _pct(text: str) -> int:
 
 
 def test_a_load_is_no_run_a_silent_control_is_unknown_and_progress_agrees(shop: Shop) -> None:
-    machines = shop.server.supervisor.machines
+    machines = shop.server.machines.machines
     loaded, silent = sorted(machines)
     wait_for(
         "both controls read",
@@ -110,7 +110,7 @@ def test_a_load_is_no_run_a_silent_control_is_unknown_and_progress_agrees(shop: 
 
 
 def _load_and_compare(shop: Shop, api: Any, page: Any, loaded: str, silent: str) -> None:
-    machines = shop.server.supervisor.machines
+    machines = shop.server.machines.machines
     login = page.post(
         "/login",
         data={"username": "olga", "password": PASSWORD, "next": "/"},
