@@ -93,6 +93,15 @@ class EventReader:
         self._thread.start()
 
     def _read(self, base: str, key: str) -> None:
+        try:
+            self._follow(base, key)
+        except httpx.TransportError:
+            # The server stopped under the stream: between two messages (a quiet stream sends
+            # a keep-alive only every 15 s) a stopped reader may not have noticed yet.
+            if not self._stop.is_set():
+                raise
+
+    def _follow(self, base: str, key: str) -> None:
         with (
             httpx.Client(base_url=base, timeout=None) as client,
             client.stream("GET", "/api/events", headers=auth(key)) as response,
