@@ -27,7 +27,7 @@ def _status(execution: str, mode: str = "AUTOMATIC") -> MachineStatus:
     return MachineStatus(at=T0, available=True, execution=execution, mode=mode)
 
 
-def _note(
+def note(
     tl: Timeline,
     name: str,
     at: datetime,
@@ -35,6 +35,7 @@ def _note(
     mode: str = "AUTOMATIC",
     online: bool = True,
 ) -> bool:
+    """Note a reachable control's execution and mode at ``at`` (what a status poll reads)."""
     return tl.note(name, _status(execution, mode), online=online, at=at)
 
 
@@ -80,10 +81,10 @@ def test_changes_only_are_stored_and_a_new_timeline_reads_them_back(
     sessions: sessionmaker[Session],
 ) -> None:
     tl = Timeline(sessions)
-    assert _note(tl, "m", T0, "READY")
-    assert not _note(tl, "m", T0 + timedelta(minutes=5), "READY")  # no change
-    assert _note(tl, "m", T0 + timedelta(hours=1), "ACTIVE")
-    assert _note(tl, "other", T0 + timedelta(hours=1), "", online=False)
+    assert note(tl, "m", T0, "READY")
+    assert not note(tl, "m", T0 + timedelta(minutes=5), "READY")  # no change
+    assert note(tl, "m", T0 + timedelta(hours=1), "ACTIVE")
+    assert note(tl, "other", T0 + timedelta(hours=1), "", online=False)
     assert tl.flush() == 3
     assert tl.flush() == 0
     tl.stopped(T0 + timedelta(hours=2))  # the server stops ...
@@ -98,7 +99,7 @@ def test_changes_only_are_stored_and_a_new_timeline_reads_them_back(
 
     # ... and starts again: a new timeline on the same database.
     again = Timeline(sessions)
-    assert _note(again, "m", T0 + timedelta(hours=3), "READY", "MANUAL")
+    assert note(again, "m", T0 + timedelta(hours=3), "READY", "MANUAL")
     # Not yet written: the page sees it anyway.
     segments = again.segments("m", hours=4, width=400, now=T0 + timedelta(hours=4))
     assert [(s.x, s.width, s.state) for s in segments] == [
@@ -125,9 +126,9 @@ def test_changes_only_are_stored_and_a_new_timeline_reads_them_back(
 def test_samples_older_than_the_retention_are_pruned(sessions: sessionmaker[Session]) -> None:
     now = T0 + timedelta(days=30)
     tl = Timeline(sessions)  # the default: 7 days
-    _note(tl, "m", now - timedelta(days=8), "READY")
-    _note(tl, "m", now - timedelta(days=6, hours=23), "ACTIVE")
-    _note(tl, "m", now - timedelta(hours=1), "READY")
+    note(tl, "m", now - timedelta(days=8), "READY")
+    note(tl, "m", now - timedelta(days=6, hours=23), "ACTIVE")
+    note(tl, "m", now - timedelta(hours=1), "READY")
     tl.flush()
     assert tl.prune(now) == 1
     assert [r[2] for r in _rows(sessions)] == ["running", "ready"]
@@ -206,12 +207,12 @@ def test_a_database_that_is_away_keeps_the_samples_for_the_next_flush(
     sessions: sessionmaker[Session], engine: Engine
 ) -> None:
     tl = Timeline(sessions)
-    _note(tl, "m", T0, "READY")
+    note(tl, "m", T0, "READY")
     with engine.begin() as conn:  # the table is gone for a moment (a database being restored)
         conn.execute(text("ALTER TABLE status_samples RENAME TO status_samples_away"))
     try:
         assert tl.flush() == 0
-        _note(tl, "m", T0 + timedelta(minutes=1), "ACTIVE")
+        note(tl, "m", T0 + timedelta(minutes=1), "ACTIVE")
     finally:
         with engine.begin() as conn:
             conn.execute(text("ALTER TABLE status_samples_away RENAME TO status_samples"))

@@ -24,9 +24,7 @@ import pytest
 from tests.peers import require_module
 
 httpx = require_module("httpx")
-uvicorn = require_module("uvicorn")
 
-from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
@@ -35,6 +33,7 @@ from opendnc.server.web.render import human_size  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
+from tests.web.inprocess import serving  # noqa: E402
 
 PASSWORD = "operator-secret"
 # About 12 kB of NC text, 40 bytes a line: 300 line ends become CR LF on the wire (2.5 % more).
@@ -64,19 +63,8 @@ def shop(tmp_path: Path) -> Iterator[Shop]:
         with server.sessions.begin() as session:
             auth.create_user(session, "olga", Role.PROGRAMMER, password=PASSWORD)
             _row, key = auth.create_key(session, "olga", Role.PROGRAMMER, actor="test")
-        listener = listen_socket("127.0.0.1", 0)
-        port = listener.getsockname()[1]
-        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-        serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-        serving.start()
-        wait_for("the server", lambda: web.started)
-        try:
-            yield Shop(f"http://127.0.0.1:{port}", server, key)
-        finally:
-            web.should_exit = True
-            serving.join(30)
-            listener.close()
-            server.engine.dispose()
+        with serving(server) as url:
+            yield Shop(url, server, key)
     finally:
         fleet.stop()
 

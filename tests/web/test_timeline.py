@@ -12,20 +12,9 @@ require_module("jinja2")
 
 from opendnc.server.machines.base import MachineStatus  # noqa: E402
 from opendnc.server.web.timeline import Timeline  # noqa: E402
+from tests.server.test_status_timeline import note as _note  # noqa: E402
 
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
-
-
-def _note(
-    tl: Timeline,
-    name: str,
-    at: datetime,
-    execution: str,
-    mode: str = "AUTOMATIC",
-    online: bool = True,
-) -> bool:
-    status = MachineStatus(at=at, available=True, execution=execution, mode=mode)
-    return tl.note(name, status, online=online, at=at)
 
 
 def test_only_changes_are_kept_and_segments_fill_the_window() -> None:

@@ -281,11 +281,9 @@ class InboxChanged(Event):
 
 
 @dataclass(frozen=True)
-class ProgramReceived(Event):
-    """A machine sent a program by itself (a punch, a remote request, its receive folder);
-    SSE ``received``."""
+class _MachineMessage(Event):
+    """A machine's one-line news: ``machine`` and ``message``, newest per machine."""
 
-    kind: ClassVar[str] = "received"
     machine: str
     message: str
 
@@ -295,6 +293,14 @@ class ProgramReceived(Event):
 
     def as_json(self) -> dict[str, Any]:
         return {"machine": self.machine, "message": self.message}
+
+
+@dataclass(frozen=True)
+class ProgramReceived(_MachineMessage):
+    """A machine sent a program by itself (a punch, a remote request, its receive folder);
+    SSE ``received``."""
+
+    kind: ClassVar[str] = "received"
 
 
 @dataclass(frozen=True)
@@ -344,19 +350,10 @@ class DprntLinePrinted(Event):
 
 
 @dataclass(frozen=True)
-class DprntStatus(Event):
+class DprntStatus(_MachineMessage):
     """What a DPRNT listener says about its link; SSE ``dprnt_status``."""
 
     kind: ClassVar[str] = "dprnt_status"
-    machine: str
-    message: str
-
-    @property
-    def key(self) -> str:
-        return self.machine
-
-    def as_json(self) -> dict[str, Any]:
-        return {"machine": self.machine, "message": self.message}
 
 
 @dataclass(frozen=True)
