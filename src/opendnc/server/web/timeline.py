@@ -48,6 +48,10 @@ class Sample:
     state: str  # offline, active, ready, stopped, alarm, none
     mode: str = ""
     execution: str = ""
+    # for utilization (server/utilization.py): a change of these is a sample of its own
+    program: str = ""
+    part_count: int | None = None
+    alarm: str = ""
 
     @property
     def label(self) -> str:
@@ -71,11 +75,14 @@ class Segment:
     label: str
 
 
-def _state(machine: dict[str, Any]) -> tuple[str, str, str]:
-    """(state, mode, execution) of a machine's live JSON."""
+Key = tuple[str, str, str, str, int | None, str]
+
+
+def _state(machine: dict[str, Any]) -> Key:
+    """(state, mode, execution, program, part count, alarm) of a machine's live JSON."""
     status = machine.get("status") or {}
     if not machine.get("online"):
-        return "offline", "", ""
+        return "offline", "", "", "", None, ""
     execution = str(status.get("execution") or "")[:32]
     mode = str(status.get("mode") or "")[:64]
     if status.get("errors"):
@@ -86,7 +93,11 @@ def _state(machine: dict[str, Any]) -> tuple[str, str, str]:
         kind = "stopped"
     else:
         kind = "ready"
-    return kind, mode, execution
+    program = str(status.get("program") or "")[:64]
+    parts = status.get("part_count")
+    count = parts if isinstance(parts, int) and not isinstance(parts, bool) else None
+    alarm = "; ".join(str(e) for e in status.get("errors") or ())[:200]
+    return kind, mode, execution, program, count, alarm
 
 
 class Timeline:
@@ -102,14 +113,14 @@ class Timeline:
         self.retention = timedelta(days=retention_days)
         self.changes: dict[str, deque[Sample]] = {}  # without a database
         self.pending: deque[tuple[str, Sample]] = deque(maxlen=MAX_PENDING)
-        self._last: dict[str, tuple[str, str, str]] = {}
+        self._last: dict[str, Key] = {}
         self._lock = threading.Lock()
 
     def note(self, name: str, machine: dict[str, Any], at: datetime | None = None) -> bool:
         """Record the machine's state if it differs from the last one noted (True if so)."""
         return self._add(name, _state(machine), at)
 
-    def _add(self, name: str, key: tuple[str, str, str], at: datetime | None) -> bool:
+    def _add(self, name: str, key: Key, at: datetime | None) -> bool:
         with self._lock:
             if self._last.get(name) == key:
                 return False
@@ -124,7 +135,7 @@ class Timeline:
     def stopped(self, at: datetime | None = None) -> None:
         """The server stops: from now on, no record for any machine noted so far."""
         for name in list(self._last):
-            self._add(name, (NONE, "", ""), at)
+            self._add(name, (NONE, "", "", "", None, ""), at)
 
     def flush(self) -> int:
         """Write the pending changes (one transaction); how many were written. A database
@@ -140,7 +151,14 @@ class Timeline:
             with self.sessions.begin() as session:
                 session.add_all(
                     StatusSample(
-                        machine=name, at=s.at, state=s.state, mode=s.mode, execution=s.execution
+                        machine=name,
+                        at=s.at,
+                        state=s.state,
+                        mode=s.mode,
+                        execution=s.execution,
+                        program=s.program,
+                        part_count=s.part_count,
+                        alarm=s.alarm,
                     )
                     for name, s in batch
                 )
@@ -178,7 +196,10 @@ class Timeline:
                 .where(StatusSample.machine == name, StatusSample.at > since)
                 .order_by(StatusSample.at, StatusSample.id)
             ).all()
-            out = [Sample(r.at, r.state, r.mode, r.execution) for r in (*before, *after)]
+            out = [
+                Sample(r.at, r.state, r.mode, r.execution, r.program, r.part_count, r.alarm)
+                for r in (*before, *after)
+            ]
         with self._lock:
             out += [s for n, s in self.pending if n == name]
         return out

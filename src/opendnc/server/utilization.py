@@ -1,0 +1,904 @@
+"""Utilization from the stored status timeline: time per state, parts, runs, stops and alarms.
+
+Everything here is read from ``status_samples`` (one row per change of a machine's state,
+program, part counter or alarm; server/web/timeline.py), through the one classifier
+(:mod:`opendnc.server.state`), per shift, day or week of the shop's calendar
+(:mod:`opendnc.server.shifts`). Definitions (docs/dashboard.md#utilization):
+
+* **time in each state**: a sample's state lasts until the machine's next sample; before a
+  machine's first sample, and from a server stop to the next start, it is ``no_record``;
+* **utilization** = running time within shift time / shift time (the scheduled time: what a
+  shop plans to run). A shop without ``[[shifts]]`` schedules every hour;
+* **utilization over recorded time** = running time / (time - no record): the same figure
+  where a period is partly unrecorded or runs outside its shifts;
+* **parts**: the increases of the control's part counter (a Haas's M30 counter from MDC Q500;
+  a counter that goes down was reset, and its new value counts); ``None`` where the control
+  reports no counter;
+* **runs**: program runs that ended in the period: the part counter going up, or (without a
+  counter, a TNC) the control going from running back to ready. An alarm, a lost link or a
+  server stop ends a run without counting it. A run's **cycle time** is its running time
+  (feed holds and stops within the run do not count);
+* **stops**: stretches of 5 minutes or more in which the machine did not run (ready,
+  stopped, alarm, offline or unknown, consecutive ones joined), named by their worst state
+  (alarm, stopped, offline, unknown, ready); **alarms**: stretches in alarm with the control's
+  text.
+
+A year of 200 machines is too many samples to read for every question (about 20 million at a
+change every 5 minutes), so finished hours are summed once into ``utilization_hours`` and
+``utilization_stretches`` (migration 0007) and a question sums those in SQL, mapping each
+hour to its period and to shift or not; only the hours that are not finished yet, and those
+a period or shift boundary cuts, are read from the samples. Hours are UTC: a boundary on the
+full hour in a zone with a whole-hour offset (Europe/Berlin) never cuts one. A sample that
+arrives late for an hour already summed (the recorder's queue while the database was away)
+has its machine summed again from its first sample.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import threading
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from enum import StrEnum
+from typing import Any
+
+from sqlalchemy import delete, func, insert, select, text
+from sqlalchemy.orm import Session
+
+from opendnc.errors import InputError
+from opendnc.server.shifts import Calendar, Period
+from opendnc.server.state import State, classify_words
+from opendnc.server.store.models import (
+    StatusSample,
+    UtilizationHour,
+    UtilizationMark,
+    UtilizationStretch,
+)
+
+__all__ = [
+    "STATES",
+    "Bin",
+    "Carry",
+    "Figures",
+    "Group",
+    "MachineReport",
+    "Point",
+    "Report",
+    "Stretch",
+    "make_bins",
+    "point_of",
+    "report",
+    "roll",
+    "stored_state",
+    "sweep",
+]
+
+STATES: tuple[State, ...] = tuple(State)
+STOP_MIN = 300.0  # seconds: shorter pauses are part of the work (a tool change, a part swap)
+TOP_STOPS = 10
+RECENT_ALARMS = 20
+HOUR = timedelta(hours=1)
+ROLL_MARGIN = timedelta(minutes=2)  # the recorder writes within seconds; leave it room
+_NOT_RUNNING = {State.READY, State.STOPPED, State.ALARM, State.OFFLINE, State.UNKNOWN}
+# a stop is named by the worst state in it
+_STOP_RANK = {State.READY: 0, State.UNKNOWN: 1, State.OFFLINE: 2, State.STOPPED: 3, State.ALARM: 4}
+_ABORT = {State.ALARM, State.OFFLINE, State.NO_RECORD, State.UNKNOWN}
+_roll_lock = threading.Lock()
+
+
+class Group(StrEnum):
+    """What a report's periods are."""
+
+    SHIFT = "shift"
+    DAY = "day"
+    WEEK = "week"
+
+
+def stored_state(state: str, execution: str = "") -> State:
+    """A stored sample's state in the classifier's words. Samples written before the one
+    classifier said ``active`` for running, ``none`` for no record, and filed a control that
+    reported no execution word as ``ready``: its execution word decides (``unknown``)."""
+    if state in ("none", "no_record"):
+        return State.NO_RECORD
+    if state in ("active", "running"):
+        return State.RUNNING
+    if state == "ready":
+        return classify_words(online=True, execution=execution, errors=False)
+    try:
+        return State(state)
+    except ValueError:
+        return State.UNKNOWN
+
+
+@dataclass(frozen=True)
+class Point:
+    """A machine's state from ``at`` on (one stored sample)."""
+
+    at: datetime
+    state: State
+    program: str = ""
+    part_count: int | None = None
+    alarm: str = ""
+
+
+def point_of(row: Any) -> Point:
+    """A :class:`Point` from a ``status_samples`` row (ORM object or named row)."""
+    return Point(
+        row.at if row.at.tzinfo else row.at.replace(tzinfo=UTC),
+        stored_state(row.state, row.execution),
+        row.program or "",
+        row.part_count,
+        row.alarm or "",
+    )
+
+
+@dataclass
+class Figures:
+    """Sums over some time: seconds per state (all of it, and within shifts), parts, runs."""
+
+    seconds: dict[State, float] = field(default_factory=lambda: dict.fromkeys(STATES, 0.0))
+    scheduled: dict[State, float] = field(default_factory=lambda: dict.fromkeys(STATES, 0.0))
+    parts: int | None = None
+    runs: int = 0
+    cycles: int = 0  # runs whose whole running time was seen
+    cycle_seconds: float = 0.0
+
+    def add(self, other: Figures) -> None:
+        """Add ``other`` into these figures."""
+        for s in STATES:
+            self.seconds[s] += other.seconds[s]
+            self.scheduled[s] += other.scheduled[s]
+        if other.parts is not None:
+            self.parts = (self.parts or 0) + other.parts
+        self.runs += other.runs
+        self.cycles += other.cycles
+        self.cycle_seconds += other.cycle_seconds
+
+    @property
+    def total(self) -> float:
+        """All the time summed."""
+        return sum(self.seconds.values())
+
+    @property
+    def scheduled_total(self) -> float:
+        """The shift time summed."""
+        return sum(self.scheduled.values())
+
+    @property
+    def recorded(self) -> float:
+        """The time with a record."""
+        return self.total - self.seconds[State.NO_RECORD]
+
+    @property
+    def utilization(self) -> float | None:
+        """Running time within shifts / shift time, in percent; None without shift time."""
+        planned = self.scheduled_total
+        return 100.0 * self.scheduled[State.RUNNING] / planned if planned > 0 else None
+
+    @property
+    def utilization_recorded(self) -> float | None:
+        """Running time / recorded time, in percent; None without a record."""
+        recorded = self.recorded
+        return 100.0 * self.seconds[State.RUNNING] / recorded if recorded > 0 else None
+
+    @property
+    def cycle_mean(self) -> float | None:
+        """The mean cycle time in seconds; None without a whole run."""
+        return self.cycle_seconds / self.cycles if self.cycles else None
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """A stop or an alarm of one machine; ``ongoing`` if it had not ended at the span's end."""
+
+    kind: str  # stop, alarm
+    start: datetime
+    end: datetime
+    state: State
+    text: str = ""
+    ongoing: bool = False
+
+    @property
+    def seconds(self) -> float:
+        """Its length."""
+        return (self.end - self.start).total_seconds()
+
+
+@dataclass
+class Carry:
+    """What carries over from one stretch of time into the next: the part counter's last
+    value, the run in progress, the stop and the alarm in progress."""
+
+    counter: int | None = None
+    run: float = 0.0  # running seconds of the run in progress
+    run_known: bool = True  # False: the run began before what was read (cycle unknown)
+    ran: bool = False
+    stop_start: datetime | None = None
+    stop_state: State = State.READY
+    stop_text: str = ""
+    alarm_start: datetime | None = None
+    alarm_text: str = ""
+
+    @classmethod
+    def fresh(cls, point: Point | None) -> Carry:
+        """The carry at a point read without its past: what it says, the rest unknown."""
+        carry = cls()
+        if point is None:
+            return carry
+        carry.counter = point.part_count
+        if point.state in (State.RUNNING, State.STOPPED):
+            carry.run_known = False
+            carry.ran = point.state is State.RUNNING
+        if point.state in _NOT_RUNNING:
+            carry.stop_start, carry.stop_state = point.at, point.state
+            carry.stop_text = point.alarm if point.state is State.ALARM else ""
+        if point.state is State.ALARM:
+            carry.alarm_start, carry.alarm_text = point.at, point.alarm
+        return carry
+
+    def as_json(self) -> dict[str, Any]:
+        """For ``utilization_marks.carry``."""
+        return {
+            "counter": self.counter,
+            "run": self.run,
+            "run_known": self.run_known,
+            "ran": self.ran,
+            "stop_start": self.stop_start.isoformat() if self.stop_start else None,
+            "stop_state": self.stop_state.value,
+            "stop_text": self.stop_text,
+            "alarm_start": self.alarm_start.isoformat() if self.alarm_start else None,
+            "alarm_text": self.alarm_text,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Carry:
+        """From ``utilization_marks.carry``."""
+
+        def when(value: Any) -> datetime | None:
+            return datetime.fromisoformat(value) if value else None
+
+        return cls(
+            counter=data.get("counter"),
+            run=float(data.get("run") or 0.0),
+            run_known=bool(data.get("run_known", True)),
+            ran=bool(data.get("ran", False)),
+            stop_start=when(data.get("stop_start")),
+            stop_state=State(data.get("stop_state") or "ready"),
+            stop_text=str(data.get("stop_text") or ""),
+            alarm_start=when(data.get("alarm_start")),
+            alarm_text=str(data.get("alarm_text") or ""),
+        )
+
+
+@dataclass(frozen=True)
+class Bin:
+    """A piece of time summed on its own: which period it belongs to and whether it is shift
+    time."""
+
+    start: datetime
+    end: datetime
+    period: int | None = None
+    in_shift: bool = False
+
+
+def make_bins(
+    periods: Sequence[Period],
+    scheduled: Sequence[tuple[datetime, datetime]],
+    start: datetime,
+    end: datetime,
+) -> list[Bin]:
+    """``[start, end)`` cut at every period and shift boundary (the bins cover all of it)."""
+    cuts = {start, end}
+    for p in periods:
+        cuts.update(t for t in (p.start, p.end) if start < t < end)
+    for a, b in scheduled:
+        cuts.update(t for t in (a, b) if start < t < end)
+    edges = sorted(cuts)
+    starts = [p.start for p in periods]
+    bins = []
+    for a, b in itertools.pairwise(edges):
+        i = bisect.bisect_right(starts, a) - 1
+        while i >= 0 and periods[i].end <= a:
+            i -= 1  # periods are in start order; an earlier one may still reach over a
+        period = i if i >= 0 and periods[i].start <= a < periods[i].end else None
+        in_shift = any(x <= a < y for x, y in scheduled)
+        bins.append(Bin(a, b, period, in_shift))
+    return bins
+
+
+def sweep(
+    points: Sequence[Point],
+    start: datetime,
+    end: datetime,
+    bins: Sequence[Bin],
+    carry: Carry,
+    stretches: list[Stretch] | None = None,
+) -> list[Figures]:
+    """Sum ``points`` (one machine's, in time order, from the one in force at ``start``)
+    over ``[start, end)`` into one :class:`Figures` per bin. ``carry`` comes in as at
+    ``start`` and goes out as at ``end``; finished stops and alarms go to ``stretches``."""
+    figures = [Figures() for _ in bins]
+    ends = [b.end for b in bins]
+    i = 0
+    while i + 1 < len(points) and points[i + 1].at <= start:
+        i += 1
+    if not points or points[0].at > start:
+        current = State.NO_RECORD  # before the machine's first sample
+        nxt = 0
+    else:
+        current = points[i].state
+        nxt = i + 1
+        if points[i].at == start and (i == 0 or points[i - 1].at < start):
+            nxt = i  # a sample exactly at the start changes the state there
+            current = points[i - 1].state if i > 0 else State.NO_RECORD
+    counting = carry.counter is not None or any(p.part_count is not None for p in points)
+    t = start
+    while t < end:
+        if nxt < len(points) and points[nxt].at <= t:
+            current = _transition(points[nxt], carry, figures, bins, ends, stretches)
+            nxt += 1
+            continue
+        until = min(points[nxt].at, end) if nxt < len(points) else end
+        if until > t:
+            _spend(t, until, current, figures, bins, ends, counting)
+            if current is State.RUNNING:
+                carry.run += (until - t).total_seconds()
+                carry.ran = True
+        t = until
+    return figures
+
+
+def _bin_at(at: datetime, ends: list[datetime]) -> int:
+    return bisect.bisect_right(ends, at)
+
+
+def _spend(
+    a: datetime,
+    b: datetime,
+    state: State,
+    figures: list[Figures],
+    bins: Sequence[Bin],
+    ends: list[datetime],
+    counting: bool,
+) -> None:
+    j = _bin_at(a, ends)
+    while j < len(bins) and bins[j].start < b:
+        lo, hi = max(a, bins[j].start), min(b, bins[j].end)
+        if hi > lo:
+            seconds = (hi - lo).total_seconds()
+            fig = figures[j]
+            fig.seconds[state] += seconds
+            if bins[j].in_shift:
+                fig.scheduled[state] += seconds
+            if counting and fig.parts is None:
+                fig.parts = 0
+        j += 1
+
+
+def _transition(
+    p: Point,
+    carry: Carry,
+    figures: list[Figures],
+    bins: Sequence[Bin],
+    ends: list[datetime],
+    stretches: list[Stretch] | None,
+) -> State:
+    j = _bin_at(p.at, ends)
+    fig = figures[j] if j < len(figures) else None
+    completed = False
+    if p.part_count is not None:
+        if carry.counter is not None and p.part_count != carry.counter:
+            # a counter that went down was reset: its new value is what was made since
+            gained = p.part_count - carry.counter if p.part_count > carry.counter else p.part_count
+            if gained > 0:
+                completed = True
+                if fig is not None:
+                    fig.parts = (fig.parts or 0) + gained
+        carry.counter = p.part_count
+    ready_ends_run = carry.counter is None and p.state is State.READY and carry.ran
+    if ((completed and (carry.ran or carry.run > 0)) or ready_ends_run) and fig is not None:
+        fig.runs += 1
+        if carry.run_known:
+            fig.cycles += 1
+            fig.cycle_seconds += carry.run
+    if completed or ready_ends_run or p.state in _ABORT or p.state is State.READY:
+        carry.run, carry.run_known, carry.ran = 0.0, True, False
+    # alarms: one stretch per alarm text
+    if carry.alarm_start is not None and (
+        p.state is not State.ALARM or p.alarm != carry.alarm_text
+    ):
+        if stretches is not None:
+            stretches.append(
+                Stretch("alarm", carry.alarm_start, p.at, State.ALARM, carry.alarm_text)
+            )
+        carry.alarm_start, carry.alarm_text = None, ""
+    if p.state is State.ALARM and carry.alarm_start is None:
+        carry.alarm_start, carry.alarm_text = p.at, p.alarm
+    # stops: consecutive states that are not running, joined
+    if p.state in _NOT_RUNNING:
+        if carry.stop_start is None:
+            carry.stop_start, carry.stop_state, carry.stop_text = p.at, p.state, ""
+        elif _STOP_RANK[p.state] > _STOP_RANK[carry.stop_state]:
+            carry.stop_state = p.state
+        if p.state is State.ALARM and not carry.stop_text:
+            carry.stop_text = p.alarm
+    elif carry.stop_start is not None:
+        if stretches is not None and (p.at - carry.stop_start).total_seconds() >= STOP_MIN:
+            stretches.append(
+                Stretch("stop", carry.stop_start, p.at, carry.stop_state, carry.stop_text)
+            )
+        carry.stop_start, carry.stop_text = None, ""
+    return p.state
+
+
+def open_stretches(carry: Carry, end: datetime) -> list[Stretch]:
+    """The stop and the alarm still in progress at ``end``."""
+    out = []
+    if carry.stop_start is not None and (end - carry.stop_start).total_seconds() >= STOP_MIN:
+        out.append(
+            Stretch("stop", carry.stop_start, end, carry.stop_state, carry.stop_text, ongoing=True)
+        )
+    if carry.alarm_start is not None:
+        out.append(
+            Stretch("alarm", carry.alarm_start, end, State.ALARM, carry.alarm_text, ongoing=True)
+        )
+    return out
+
+
+# -- summing finished hours ------------------------------------------------------------------
+
+
+def floor_hour(at: datetime) -> datetime:
+    """The start of ``at``'s UTC hour."""
+    at = at.astimezone(UTC)
+    return at.replace(minute=0, second=0, microsecond=0)
+
+
+def ceil_hour(at: datetime) -> datetime:
+    """The first full UTC hour at or after ``at``."""
+    floor = floor_hour(at)
+    return floor if floor == at else floor + HOUR
+
+
+_SAMPLE_COLUMNS = (
+    StatusSample.id,
+    StatusSample.at,
+    StatusSample.state,
+    StatusSample.execution,
+    StatusSample.program,
+    StatusSample.part_count,
+    StatusSample.alarm,
+)
+
+
+def read_points(session: Session, machine: str, start: datetime, end: datetime) -> list[Point]:
+    """``machine``'s samples in ``[start, end)`` and the one in force at ``start``."""
+    before = session.execute(
+        select(*_SAMPLE_COLUMNS)
+        .where(StatusSample.machine == machine, StatusSample.at < start)
+        .order_by(StatusSample.at.desc(), StatusSample.id.desc())
+        .limit(1)
+    ).all()
+    after = session.execute(
+        select(*_SAMPLE_COLUMNS)
+        .where(StatusSample.machine == machine, StatusSample.at >= start, StatusSample.at < end)
+        .order_by(StatusSample.at, StatusSample.id)
+    ).all()
+    return [point_of(r) for r in (*before, *after)]
+
+
+def roll(session: Session, machines: Iterable[str], now: datetime) -> int:
+    """Sum the finished hours of ``machines`` not summed yet (up to the hour before ``now``
+    less a margin); how many machine-hours were written. Call in a write transaction."""
+    target = floor_hour(now - ROLL_MARGIN)
+    written = 0
+    with _roll_lock:
+        marks = {m.machine: m for m in session.scalars(select(UtilizationMark))}
+        seen = max((m.last_id for m in marks.values()), default=0)
+        late = session.execute(
+            select(StatusSample.machine, func.min(StatusSample.at))
+            .where(StatusSample.id > seen)
+            .group_by(StatusSample.machine)
+        ).all()
+        last_id = session.scalar(select(func.max(StatusSample.id))) or 0
+        for machine, first in late:
+            mark = marks.get(machine)
+            first = first if first.tzinfo else first.replace(tzinfo=UTC)
+            if mark is not None and first < mark.until:
+                # a sample for an hour already summed: sum this machine again
+                _forget(session, machine)
+                del marks[machine]
+        for machine in machines:
+            written += _roll_machine(session, machine, marks.get(machine), target, last_id)
+    return written
+
+
+def _forget(session: Session, machine: str) -> None:
+    session.execute(delete(UtilizationHour).where(UtilizationHour.machine == machine))
+    session.execute(delete(UtilizationStretch).where(UtilizationStretch.machine == machine))
+    session.execute(delete(UtilizationMark).where(UtilizationMark.machine == machine))
+
+
+def _roll_machine(
+    session: Session, machine: str, mark: UtilizationMark | None, target: datetime, last_id: int
+) -> int:
+    if mark is None:
+        first = session.scalar(
+            select(func.min(StatusSample.at)).where(StatusSample.machine == machine)
+        )
+        if first is None:
+            return 0
+        start = floor_hour(first if first.tzinfo else first.replace(tzinfo=UTC))
+        carry = Carry()
+    else:
+        start, carry = mark.until, Carry.from_json(mark.carry)
+    if start >= target:
+        return 0
+    points = read_points(session, machine, start, target)
+    hours = int((target - start) / HOUR)
+    bins = [Bin(start + k * HOUR, start + (k + 1) * HOUR) for k in range(hours)]
+    stretches: list[Stretch] = []
+    figures = sweep(points, start, target, bins, carry, stretches)
+    rows = [
+        {
+            "machine": machine,
+            "hour": b.start,
+            **{s.value: f.seconds[s] for s in STATES},
+            "parts": f.parts,
+            "runs": f.runs,
+            "cycles": f.cycles,
+            "cycle_seconds": f.cycle_seconds,
+        }
+        for b, f in zip(bins, figures, strict=True)
+        if f.seconds[State.NO_RECORD] < 3600.0 or f.runs or f.parts
+    ]
+    for chunk in range(0, len(rows), 5000):
+        session.execute(insert(UtilizationHour), rows[chunk : chunk + 5000])
+    if stretches:
+        session.execute(
+            insert(UtilizationStretch),
+            [
+                {
+                    "machine": machine,
+                    "kind": s.kind,
+                    "start": s.start,
+                    "end": s.end,
+                    "seconds": s.seconds,
+                    "state": s.state.value,
+                    "text": s.text[:200],
+                }
+                for s in stretches
+            ],
+        )
+    if mark is None:
+        session.add(
+            UtilizationMark(machine=machine, until=target, last_id=last_id, carry=carry.as_json())
+        )
+    else:
+        mark.until, mark.last_id, mark.carry = target, last_id, carry.as_json()
+    return len(rows)
+
+
+# -- reports ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AlarmSummary:
+    """One alarm text of one machine over the span."""
+
+    text: str
+    count: int
+    seconds: float
+    longest: float
+
+
+@dataclass
+class MachineReport:
+    """One machine over the span: totals, per period, its longest stops and its alarms."""
+
+    machine: str
+    totals: Figures
+    periods: list[Figures]
+    stops: list[Stretch]
+    alarms: list[AlarmSummary]
+    recent_alarms: list[Stretch]
+
+
+@dataclass
+class Report:
+    """Utilization of some machines over ``[start, end)``, per ``group`` period."""
+
+    start: datetime
+    end: datetime
+    group: Group
+    calendar: Calendar
+    periods: list[Period]
+    machines: list[MachineReport]
+
+
+def periods_of(calendar: Calendar, group: Group, start: datetime, end: datetime) -> list[Period]:
+    """The ``group`` periods of ``[start, end)``, cut to it."""
+    make = {
+        Group.SHIFT: calendar.shift_periods,
+        Group.DAY: calendar.day_periods,
+        Group.WEEK: calendar.week_periods,
+    }[group]
+    return [Period(p.key, max(p.start, start), min(p.end, end), p.shift) for p in make(start, end)]
+
+
+MAX_SPAN = timedelta(days=400)
+
+
+def report(
+    session: Session,
+    calendar: Calendar,
+    machines: Sequence[str],
+    start: datetime,
+    end: datetime,
+    group: Group = Group.DAY,
+    *,
+    now: datetime | None = None,
+    use_hours: bool = True,
+) -> Report:
+    """Utilization of ``machines`` over ``[start, end)``; finished hours are summed first
+    (so call it in a write transaction). ``use_hours=False`` reads every sample (the
+    reference the summed hours are tested against)."""
+    if start.tzinfo is None or end.tzinfo is None:
+        raise InputError("utilization: times need a UTC offset")
+    start, end = start.astimezone(UTC), end.astimezone(UTC)
+    if end <= start:
+        raise InputError("utilization: the span ends before it starts")
+    if end - start > MAX_SPAN:
+        raise InputError(f"utilization: at most {MAX_SPAN.days} days at once")
+    now = now or datetime.now(UTC)
+    periods = periods_of(calendar, group, start, end)
+    scheduled = calendar.scheduled(start, end)
+    bins = make_bins(periods, scheduled, start, end)
+    slots = [(b.period, b.in_shift) for b in bins]
+    slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
+    acc: dict[str, dict[int, Figures]] = {m: {} for m in machines}
+    stretches: dict[str, list[Stretch]] = {m: [] for m in machines}
+    tail_from = start
+    if use_hours and machines:
+        roll(session, machines, now)
+        marks = {
+            m.machine: m
+            for m in session.scalars(
+                select(UtilizationMark).where(UtilizationMark.machine.in_(machines))
+            )
+        }
+        until = min((m.until for m in marks.values()), default=start)
+        raw, hour_slots = _plan(bins, slot_ids, start, end, until)
+        _sum_hours(session, machines, hour_slots, acc)
+        _stored_stretches(session, machines, start, end, stretches)
+        tail_from = max(start, min(until, end))
+    else:
+        marks = {}
+        raw = [(start, end)]
+    for machine in machines:
+        for a, b in raw:
+            points = read_points(session, machine, a, b)
+            is_tail = a >= tail_from
+            mark = marks.get(machine)
+            if is_tail and mark is not None and mark.until == a:
+                carry = Carry.from_json(mark.carry)
+            else:
+                carry = Carry.fresh(_in_force(points, a))
+            local_bins = [
+                Bin(max(x.start, a), min(x.end, b), x.period, x.in_shift)
+                for x in bins
+                if x.start < b and x.end > a
+            ]
+            found: list[Stretch] = []
+            figs = sweep(points, a, b, local_bins, carry, found)
+            for x, f in zip(local_bins, figs, strict=True):
+                acc[machine].setdefault(slot_ids[(x.period, x.in_shift)], Figures()).add(f)
+            if is_tail:
+                stretches[machine] += found
+                if b == end:
+                    stretches[machine] += open_stretches(carry, end)
+    reports = []
+    for machine in machines:
+        totals = Figures()
+        per_period = [Figures() for _ in periods]
+        for (period, _shift), slot in slot_ids.items():
+            summed = acc[machine].get(slot)
+            if summed is None:
+                continue
+            totals.add(summed)
+            if period is not None:
+                per_period[period].add(summed)
+        reports.append(_machine_report(machine, totals, per_period, stretches[machine], start, end))
+    return Report(start, end, group, calendar, periods, reports)
+
+
+def _in_force(points: Sequence[Point], at: datetime) -> Point | None:
+    found = None
+    for p in points:
+        if p.at <= at:
+            found = p
+        else:
+            break
+    return found
+
+
+def _plan(
+    bins: Sequence[Bin],
+    slot_ids: dict[tuple[int | None, bool], int],
+    start: datetime,
+    end: datetime,
+    until: datetime,
+) -> tuple[list[tuple[datetime, datetime]], list[tuple[datetime, int]]]:
+    """Which hours come summed (each with its slot), and which spans from the samples."""
+    hour_slots: list[tuple[datetime, int]] = []
+    raw: list[tuple[datetime, datetime]] = []
+    ends = [b.end for b in bins]
+
+    def read(a: datetime, b: datetime) -> None:
+        if b <= a:
+            return
+        if raw and raw[-1][1] == a:
+            raw[-1] = (raw[-1][0], b)
+        else:
+            raw.append((a, b))
+
+    first, last = ceil_hour(start), min(floor_hour(end), until)
+    if last <= first:
+        read(start, end)
+        return raw, hour_slots
+    read(start, first)
+    hour = first
+    while hour < last:
+        j = _bin_at(hour, ends)
+        if j < len(bins) and bins[j].end >= hour + HOUR:
+            hour_slots.append((hour, slot_ids[(bins[j].period, bins[j].in_shift)]))
+        else:
+            read(hour, hour + HOUR)  # a boundary inside the hour
+        hour += HOUR
+    read(last, end)
+    return raw, hour_slots
+
+
+def _sum_hours(
+    session: Session,
+    machines: Sequence[str],
+    hour_slots: Sequence[tuple[datetime, int]],
+    acc: dict[str, dict[int, Figures]],
+) -> None:
+    """Sum the hours in SQL, per machine and slot (a temporary table maps hour to slot)."""
+    if not hour_slots:
+        return
+    dialect = session.get_bind().dialect.name
+    if dialect == "postgresql":
+        session.execute(
+            text(
+                "CREATE TEMPORARY TABLE IF NOT EXISTS utilization_slots "
+                "(hour TIMESTAMPTZ PRIMARY KEY, slot INTEGER NOT NULL) ON COMMIT DELETE ROWS"
+            )
+        )
+    else:
+        session.execute(
+            text(
+                "CREATE TEMPORARY TABLE IF NOT EXISTS utilization_slots "
+                "(hour DATETIME PRIMARY KEY, slot INTEGER NOT NULL)"
+            )
+        )
+    session.execute(text("DELETE FROM utilization_slots"))
+    hour_type = UtilizationHour.__table__.c.hour.type
+    bind = hour_type.bind_processor(session.get_bind().dialect)  # the column's own format
+    session.execute(
+        text("INSERT INTO utilization_slots (hour, slot) VALUES (:hour, :slot)"),
+        [{"hour": bind(h) if bind else h, "slot": s} for h, s in hour_slots],
+    )
+    columns = ", ".join(f"SUM(h.{s.value})" for s in STATES)
+    names = ", ".join(f":m{i}" for i in range(len(machines)))
+    rows = session.execute(
+        text(
+            f"SELECT h.machine, u.slot, {columns}, SUM(h.parts), COUNT(h.parts), SUM(h.runs), "
+            "SUM(h.cycles), SUM(h.cycle_seconds) "
+            "FROM utilization_hours h JOIN utilization_slots u ON u.hour = h.hour "
+            f"WHERE h.machine IN ({names}) AND h.hour >= :first AND h.hour <= :last "
+            "GROUP BY h.machine, u.slot"
+        ),
+        {
+            **{f"m{i}": m for i, m in enumerate(machines)},
+            "first": bind(hour_slots[0][0]) if bind else hour_slots[0][0],
+            "last": bind(hour_slots[-1][0]) if bind else hour_slots[-1][0],
+        },
+    ).all()
+    session.execute(text("DELETE FROM utilization_slots"))
+    for row in rows:
+        machine, slot = row[0], int(row[1])
+        values = row[2:]
+        f = Figures()
+        for k, s in enumerate(STATES):
+            f.seconds[s] = float(values[k] or 0.0)
+        parts_sum, parts_rows, runs, cycles, cycle_seconds = values[len(STATES) :]
+        f.parts = int(parts_sum or 0) if parts_rows else None
+        f.runs, f.cycles, f.cycle_seconds = (
+            int(runs or 0),
+            int(cycles or 0),
+            float(cycle_seconds or 0),
+        )
+        acc[machine].setdefault(slot, Figures()).add(f)
+    # Hours without a row are hours without any record (not stored, to save space).
+    slot_seconds: dict[int, float] = {}
+    for _hour, slot in hour_slots:
+        slot_seconds[slot] = slot_seconds.get(slot, 0.0) + 3600.0
+    by_machine: dict[str, dict[int, float]] = {m: {} for m in machines}
+    for row in rows:
+        by_machine[row[0]][int(row[1])] = sum(float(v or 0.0) for v in row[2 : 2 + len(STATES)])
+    for machine in machines:
+        for slot, seconds in slot_seconds.items():
+            missing = seconds - by_machine[machine].get(slot, 0.0)
+            if missing > 0.5:
+                acc[machine].setdefault(slot, Figures()).seconds[State.NO_RECORD] += missing
+
+
+def _stored_stretches(
+    session: Session,
+    machines: Sequence[str],
+    start: datetime,
+    end: datetime,
+    out: dict[str, list[Stretch]],
+) -> None:
+    """The summed stops (the longest) and alarms (all, by text later) overlapping the span."""
+    for machine in machines:
+        for kind, order, limit in (
+            ("stop", UtilizationStretch.seconds.desc(), TOP_STOPS),
+            ("alarm", UtilizationStretch.end.desc(), 5000),
+        ):
+            rows = session.execute(
+                select(
+                    UtilizationStretch.start,
+                    UtilizationStretch.end,
+                    UtilizationStretch.state,
+                    UtilizationStretch.text,
+                )
+                .where(
+                    UtilizationStretch.machine == machine,
+                    UtilizationStretch.kind == kind,
+                    UtilizationStretch.end > start,
+                    UtilizationStretch.start < end,
+                )
+                .order_by(order)
+                .limit(limit)
+            ).all()
+            out[machine] += [
+                Stretch(kind, _utc(r.start), _utc(r.end), State(r.state), r.text) for r in rows
+            ]
+
+
+def _utc(at: datetime) -> datetime:
+    return at if at.tzinfo else at.replace(tzinfo=UTC)
+
+
+def _machine_report(
+    machine: str,
+    totals: Figures,
+    periods: list[Figures],
+    found: list[Stretch],
+    start: datetime,
+    end: datetime,
+) -> MachineReport:
+    stops = sorted(
+        (s for s in found if s.kind == "stop" and s.end > start and s.start < end),
+        key=lambda s: (-s.seconds, s.start),
+    )[:TOP_STOPS]
+    alarms = [s for s in found if s.kind == "alarm" and s.end > start and s.start < end]
+    by_text: dict[str, list[Stretch]] = {}
+    for a in alarms:
+        by_text.setdefault(a.text, []).append(a)
+    summary = sorted(
+        (
+            AlarmSummary(
+                text, len(items), sum(a.seconds for a in items), max(a.seconds for a in items)
+            )
+            for text, items in by_text.items()
+        ),
+        key=lambda a: (-a.seconds, a.text),
+    )
+    recent = sorted(alarms, key=lambda a: a.start, reverse=True)[:RECENT_ALARMS]
+    return MachineReport(machine, totals, periods, stops, summary, recent)
