@@ -44,7 +44,7 @@ from datetime import UTC, datetime, timedelta
 from enum import StrEnum
 from typing import Any
 
-from sqlalchemy import delete, func, insert, select, text
+from sqlalchemy import Column, Integer, MetaData, Table, delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -52,6 +52,7 @@ from opendnc.server.shifts import Calendar, Period
 from opendnc.server.state import State, classify_words
 from opendnc.server.store.models import (
     StatusSample,
+    UtcDateTime,
     UtilizationHour,
     UtilizationMark,
     UtilizationStretch,
@@ -86,6 +87,14 @@ _NOT_RUNNING = {State.READY, State.STOPPED, State.ALARM, State.OFFLINE, State.UN
 _STOP_RANK = {State.READY: 0, State.UNKNOWN: 1, State.OFFLINE: 2, State.STOPPED: 3, State.ALARM: 4}
 _ABORT = {State.ALARM, State.OFFLINE, State.NO_RECORD, State.UNKNOWN}
 _roll_lock = threading.Lock()
+# which slot (period, shift or not) each summed hour of a question goes to
+_SLOTS = Table(
+    "utilization_slots",
+    MetaData(),
+    Column("hour", UtcDateTime(), primary_key=True),
+    Column("slot", Integer, nullable=False),
+    prefixes=["TEMPORARY"],
+)
 
 
 class Group(StrEnum):
@@ -671,7 +680,8 @@ def report(
         }
         until = min((m.until for m in marks.values()), default=start)
         raw, hour_slots = _plan(bins, slot_ids, start, end, until)
-        _sum_hours(session, machines, hour_slots, acc)
+        in_shift = {i: shift for (_p, shift), i in slot_ids.items()}
+        _sum_hours(session, machines, hour_slots, acc, in_shift)
         _stored_stretches(session, machines, start, end, stretches)
         tail_from = max(start, min(until, end))
     else:
@@ -766,49 +776,36 @@ def _sum_hours(
     machines: Sequence[str],
     hour_slots: Sequence[tuple[datetime, int]],
     acc: dict[str, dict[int, Figures]],
+    in_shift: dict[int, bool],
 ) -> None:
     """Sum the hours in SQL, per machine and slot (a temporary table maps hour to slot)."""
     if not hour_slots:
         return
-    dialect = session.get_bind().dialect.name
-    if dialect == "postgresql":
-        session.execute(
-            text(
-                "CREATE TEMPORARY TABLE IF NOT EXISTS utilization_slots "
-                "(hour TIMESTAMPTZ PRIMARY KEY, slot INTEGER NOT NULL) ON COMMIT DELETE ROWS"
-            )
-        )
-    else:
-        session.execute(
-            text(
-                "CREATE TEMPORARY TABLE IF NOT EXISTS utilization_slots "
-                "(hour DATETIME PRIMARY KEY, slot INTEGER NOT NULL)"
-            )
-        )
-    session.execute(text("DELETE FROM utilization_slots"))
-    hour_type = UtilizationHour.__table__.c.hour.type
-    bind = hour_type.bind_processor(session.get_bind().dialect)  # the column's own format
-    session.execute(
-        text("INSERT INTO utilization_slots (hour, slot) VALUES (:hour, :slot)"),
-        [{"hour": bind(h) if bind else h, "slot": s} for h, s in hour_slots],
-    )
-    columns = ", ".join(f"SUM(h.{s.value})" for s in STATES)
-    names = ", ".join(f":m{i}" for i in range(len(machines)))
+    connection = session.connection()
+    _SLOTS.create(connection, checkfirst=True)  # temporary: this connection's own
+    session.execute(delete(_SLOTS))
+    session.execute(insert(_SLOTS), [{"hour": h, "slot": s} for h, s in hour_slots])
+    h = UtilizationHour.__table__.c
     rows = session.execute(
-        text(
-            f"SELECT h.machine, u.slot, {columns}, SUM(h.parts), COUNT(h.parts), SUM(h.runs), "
-            "SUM(h.cycles), SUM(h.cycle_seconds) "
-            "FROM utilization_hours h JOIN utilization_slots u ON u.hour = h.hour "
-            f"WHERE h.machine IN ({names}) AND h.hour >= :first AND h.hour <= :last "
-            "GROUP BY h.machine, u.slot"
-        ),
-        {
-            **{f"m{i}": m for i, m in enumerate(machines)},
-            "first": bind(hour_slots[0][0]) if bind else hour_slots[0][0],
-            "last": bind(hour_slots[-1][0]) if bind else hour_slots[-1][0],
-        },
+        select(
+            h.machine,
+            _SLOTS.c.slot,
+            *(func.sum(h[s.value]) for s in STATES),
+            func.sum(h.parts),
+            func.count(h.parts),
+            func.sum(h.runs),
+            func.sum(h.cycles),
+            func.sum(h.cycle_seconds),
+        )
+        .join(_SLOTS, _SLOTS.c.hour == h.hour)
+        .where(
+            h.machine.in_(machines),
+            h.hour >= hour_slots[0][0],
+            h.hour <= hour_slots[-1][0],
+        )
+        .group_by(h.machine, _SLOTS.c.slot)
     ).all()
-    session.execute(text("DELETE FROM utilization_slots"))
+    session.execute(delete(_SLOTS))
     for row in rows:
         machine, slot = row[0], int(row[1])
         values = row[2:]
@@ -817,6 +814,8 @@ def _sum_hours(
             f.seconds[s] = float(values[k] or 0.0)
         parts_sum, parts_rows, runs, cycles, cycle_seconds = values[len(STATES) :]
         f.parts = int(parts_sum or 0) if parts_rows else None
+        if in_shift[slot]:
+            f.scheduled = dict(f.seconds)
         f.runs, f.cycles, f.cycle_seconds = (
             int(runs or 0),
             int(cycles or 0),
@@ -834,7 +833,10 @@ def _sum_hours(
         for slot, seconds in slot_seconds.items():
             missing = seconds - by_machine[machine].get(slot, 0.0)
             if missing > 0.5:
-                acc[machine].setdefault(slot, Figures()).seconds[State.NO_RECORD] += missing
+                f = acc[machine].setdefault(slot, Figures())
+                f.seconds[State.NO_RECORD] += missing
+                if in_shift[slot]:
+                    f.scheduled[State.NO_RECORD] += missing
 
 
 def _stored_stretches(
