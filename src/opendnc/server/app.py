@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api, dprnt_api, web
+from opendnc.server import api, dprnt_api, utilization_api, web
 from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
@@ -144,6 +144,7 @@ def build(
     app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
     app.state.loopwatch = loopwatch
     app.include_router(dprnt_api.router)
+    utilization_api.install(app)
     app.state.dprnt = capture  # the machine page shows each listener's last word
     web.install(app)
     return Server(

@@ -68,6 +68,8 @@ __all__ = [
     "Point",
     "Report",
     "Stretch",
+    "buckets",
+    "equal_periods",
     "make_bins",
     "point_of",
     "report",
@@ -306,13 +308,15 @@ def make_bins(
         cuts.update(t for t in (a, b) if start < t < end)
     edges = sorted(cuts)
     starts = [p.start for p in periods]
+    shift_starts = [x for x, _y in scheduled]  # merged intervals, in order
     bins = []
     for a, b in itertools.pairwise(edges):
         i = bisect.bisect_right(starts, a) - 1
         while i >= 0 and periods[i].end <= a:
             i -= 1  # periods are in start order; an earlier one may still reach over a
         period = i if i >= 0 and periods[i].start <= a < periods[i].end else None
-        in_shift = any(x <= a < y for x, y in scheduled)
+        k = bisect.bisect_right(shift_starts, a) - 1
+        in_shift = k >= 0 and scheduled[k][0] <= a < scheduled[k][1]
         bins.append(Bin(a, b, period, in_shift))
     return bins
 
@@ -664,12 +668,63 @@ def report(
     now = now or datetime.now(UTC)
     periods = periods_of(calendar, group, start, end)
     scheduled = calendar.scheduled(start, end)
+    per_period, totals, stretches = _collect(
+        session, machines, start, end, periods, scheduled, now, use_hours
+    )
+    reports = [
+        _machine_report(m, totals[m], per_period[m], stretches[m], start, end) for m in machines
+    ]
+    return Report(start, end, group, calendar, periods, reports)
+
+
+def equal_periods(start: datetime, end: datetime, step: timedelta) -> list[Period]:
+    """``[start, end)`` in equal buckets of ``step`` (the last one cut), for :func:`buckets`."""
+    out = []
+    at = start
+    while at < end:
+        until = min(at + step, end)
+        out.append(Period(at.isoformat(), at, until))
+        at = until
+    return out
+
+
+def buckets(
+    session: Session,
+    machines: Sequence[str],
+    periods: Sequence[Period],
+    *,
+    now: datetime | None = None,
+) -> dict[str, list[Figures]]:
+    """The figures of each machine in each of ``periods`` (consecutive, as from
+    :func:`equal_periods`): what a Gantt chart draws. Buckets of whole hours come from
+    the summed hours."""
+    if not periods:
+        return {m: [] for m in machines}
+    start, end = periods[0].start, periods[-1].end
+    per_period, _totals, _stretches = _collect(
+        session, machines, start, end, list(periods), [], now or datetime.now(UTC), True
+    )
+    return per_period
+
+
+def _collect(
+    session: Session,
+    machines: Sequence[str],
+    start: datetime,
+    end: datetime,
+    periods: list[Period],
+    scheduled: list[tuple[datetime, datetime]],
+    now: datetime,
+    use_hours: bool,
+) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
     bins = make_bins(periods, scheduled, start, end)
     slots = [(b.period, b.in_shift) for b in bins]
     slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
     acc: dict[str, dict[int, Figures]] = {m: {} for m in machines}
     stretches: dict[str, list[Stretch]] = {m: [] for m in machines}
     tail_from = start
+    marks: dict[str, UtilizationMark] = {}
+    raw = [(start, end)]
     if use_hours and machines:
         roll(session, machines, now)
         marks = {
@@ -684,11 +739,19 @@ def report(
         _sum_hours(session, machines, hour_slots, acc, in_shift)
         _stored_stretches(session, machines, start, end, stretches)
         tail_from = max(start, min(until, end))
-    else:
-        marks = {}
-        raw = [(start, end)]
+    pieces = [
+        (
+            a,
+            b,
+            [
+                Bin(max(x.start, a), min(x.end, b), x.period, x.in_shift)
+                for x in _within(bins, a, b)
+            ],
+        )
+        for a, b in raw
+    ]
     for machine in machines:
-        for a, b in raw:
+        for a, b, local_bins in pieces:
             points = read_points(session, machine, a, b)
             is_tail = a >= tail_from
             mark = marks.get(machine)
@@ -696,11 +759,6 @@ def report(
                 carry = Carry.from_json(mark.carry)
             else:
                 carry = Carry.fresh(_in_force(points, a))
-            local_bins = [
-                Bin(max(x.start, a), min(x.end, b), x.period, x.in_shift)
-                for x in bins
-                if x.start < b and x.end > a
-            ]
             found: list[Stretch] = []
             figs = sweep(points, a, b, local_bins, carry, found)
             for x, f in zip(local_bins, figs, strict=True):
@@ -709,19 +767,29 @@ def report(
                 stretches[machine] += found
                 if b == end:
                     stretches[machine] += open_stretches(carry, end)
-    reports = []
+    per_period: dict[str, list[Figures]] = {}
+    totals: dict[str, Figures] = {}
     for machine in machines:
-        totals = Figures()
-        per_period = [Figures() for _ in periods]
+        totals[machine] = Figures()
+        per_period[machine] = [Figures() for _ in periods]
         for (period, _shift), slot in slot_ids.items():
             summed = acc[machine].get(slot)
             if summed is None:
                 continue
-            totals.add(summed)
+            totals[machine].add(summed)
             if period is not None:
-                per_period[period].add(summed)
-        reports.append(_machine_report(machine, totals, per_period, stretches[machine], start, end))
-    return Report(start, end, group, calendar, periods, reports)
+                per_period[machine][period].add(summed)
+    return per_period, totals, stretches
+
+
+def _within(bins: Sequence[Bin], a: datetime, b: datetime) -> Sequence[Bin]:
+    """The bins that overlap ``[a, b)`` (bins are consecutive)."""
+    ends = [x.end for x in bins]
+    first = bisect.bisect_right(ends, a)
+    last = first
+    while last < len(bins) and bins[last].start < b:
+        last += 1
+    return bins[first:last]
 
 
 def _in_force(points: Sequence[Point], at: datetime) -> Point | None:
