@@ -21,7 +21,7 @@ from fastapi.staticfiles import StaticFiles
 from opendnc.errors import DncError
 from opendnc.server import api
 from opendnc.server.store.db import read_only
-from opendnc.server.web import render, views
+from opendnc.server.web import render, utilization_views, views
 from opendnc.server.web.timeline import Timeline
 from opendnc.server.web.timeline import running as recording
 
@@ -47,6 +47,7 @@ def install(app: FastAPI) -> None:
 
     app.router.lifespan_context = lifespan
     app.include_router(views.router)
+    app.include_router(utilization_views.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
