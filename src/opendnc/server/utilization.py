@@ -75,6 +75,7 @@ __all__ = [
     "report",
     "roll",
     "stored_state",
+    "summarize",
     "sweep",
 ]
 
@@ -399,7 +400,8 @@ def _transition(
     stretches: list[Stretch] | None,
 ) -> State:
     j = _bin_at(p.at, ends)
-    fig = figures[j] if j < len(figures) else None
+    # a change outside the bins (read only for what it carries) counts nowhere
+    fig = figures[j] if j < len(figures) and bins[j].start <= p.at else None
     completed = False
     if p.part_count is not None:
         if carry.counter is not None and p.part_count != carry.counter:
@@ -751,22 +753,39 @@ def _collect(
         for a, b in raw
     ]
     for machine in machines:
+        frontier: tuple[Carry, datetime] | None = None  # what is open where the span ends
         for a, b, local_bins in pieces:
-            points = read_points(session, machine, a, b)
             is_tail = a >= tail_from
             mark = marks.get(machine)
-            if is_tail and mark is not None and mark.until == a:
+            sweep_from = a
+            if not use_hours:
+                # the reference: every sample from the machine's first, so what carries
+                # into the span (a run, a stop, the counter) is known exactly
+                first = session.scalar(
+                    select(func.min(StatusSample.at)).where(StatusSample.machine == machine)
+                )
+                sweep_from = min(a, _utc(first)) if first is not None else a
+                carry = Carry()
+                points = read_points(session, machine, sweep_from, b)
+            elif is_tail and mark is not None and mark.until == a:
+                points = read_points(session, machine, a, b)
                 carry = Carry.from_json(mark.carry)
             else:
+                points = read_points(session, machine, a, b)
                 carry = Carry.fresh(_in_force(points, a))
             found: list[Stretch] = []
-            figs = sweep(points, a, b, local_bins, carry, found)
+            figs = sweep(points, sweep_from, b, local_bins, carry, found)
             for x, f in zip(local_bins, figs, strict=True):
                 acc[machine].setdefault(slot_ids[(x.period, x.in_shift)], Figures()).add(f)
             if is_tail:
                 stretches[machine] += found
                 if b == end:
-                    stretches[machine] += open_stretches(carry, end)
+                    frontier = (carry, end)
+        mark = marks.get(machine)
+        if frontier is None and mark is not None and mark.until >= end:
+            frontier = (Carry.from_json(mark.carry), mark.until)
+        if frontier is not None:
+            _finish(session, machine, *frontier, now, stretches[machine])
     per_period: dict[str, list[Figures]] = {}
     totals: dict[str, Figures] = {}
     for machine in machines:
@@ -780,6 +799,48 @@ def _collect(
             if period is not None:
                 per_period[machine][period].add(summed)
     return per_period, totals, stretches
+
+
+FINISH_BATCH = 1000
+
+
+def _finish(
+    session: Session,
+    machine: str,
+    carry: Carry,
+    at: datetime,
+    now: datetime,
+    out: list[Stretch],
+) -> None:
+    """Follow the stop and the alarm open at ``at`` through the later samples to their end,
+    so a stop that began in the span counts whole; one still open is ``ongoing`` until
+    ``now``."""
+    while carry.stop_start is not None or carry.alarm_start is not None:
+        rows = session.execute(
+            select(*_SAMPLE_COLUMNS)
+            .where(StatusSample.machine == machine, StatusSample.at >= at)
+            .order_by(StatusSample.at, StatusSample.id)
+            .limit(FINISH_BATCH)
+        ).all()
+        points = [point_of(r) for r in rows]
+        if not points:
+            out += open_stretches(carry, max(now, at))
+            return
+        _follow(points, carry, out)
+        if len(points) < FINISH_BATCH:
+            if carry.stop_start is not None or carry.alarm_start is not None:
+                out += open_stretches(carry, max(now, points[-1].at))
+            return
+        at = points[-1].at + timedelta(microseconds=1)
+
+
+def _follow(points: Sequence[Point], carry: Carry, out: list[Stretch]) -> None:
+    """Feed ``points`` to ``carry`` until its stop and alarm are closed (what they finish
+    goes to ``out``; nothing is counted)."""
+    for p in points:
+        if carry.stop_start is None and carry.alarm_start is None:
+            return
+        _transition(p, carry, [], [], [], out)
 
 
 def _within(bins: Sequence[Bin], a: datetime, b: datetime) -> Sequence[Bin]:
@@ -917,8 +978,8 @@ def _stored_stretches(
     """The summed stops (the longest) and alarms (all, by text later) overlapping the span."""
     for machine in machines:
         for kind, order, limit in (
-            ("stop", UtilizationStretch.seconds.desc(), TOP_STOPS),
-            ("alarm", UtilizationStretch.end.desc(), 5000),
+            ("stop", (UtilizationStretch.seconds.desc(), UtilizationStretch.start), TOP_STOPS),
+            ("alarm", (UtilizationStretch.end.desc(), UtilizationStretch.start), 5000),
         ):
             rows = session.execute(
                 select(
@@ -933,7 +994,7 @@ def _stored_stretches(
                     UtilizationStretch.end > start,
                     UtilizationStretch.start < end,
                 )
-                .order_by(order)
+                .order_by(*order)
                 .limit(limit)
             ).all()
             out[machine] += [
@@ -972,3 +1033,39 @@ def _machine_report(
     )
     recent = sorted(alarms, key=lambda a: a.start, reverse=True)[:RECENT_ALARMS]
     return MachineReport(machine, totals, periods, stops, summary, recent)
+
+
+def summarize(
+    machine: str,
+    points: Sequence[Point],
+    calendar: Calendar,
+    group: Group,
+    start: datetime,
+    end: datetime,
+    *,
+    now: datetime | None = None,
+) -> tuple[list[Period], MachineReport]:
+    """One machine's report from its points alone (no database): the in-force point at
+    ``start`` and the ones after, in time order (later ones finish the stop or alarm open
+    at ``end``; one still open lasts until ``now``, by default ``end``). What :func:`report`
+    computes from the samples."""
+    start, end = start.astimezone(UTC), end.astimezone(UTC)
+    periods = periods_of(calendar, group, start, end)
+    bins = make_bins(periods, calendar.scheduled(start, end), start, end)
+    inside = [p for p in points if p.at < end]
+    # from the first point on, so what carries into the span is known (a point before the
+    # start with nothing before it is read as where the machine's record begins)
+    sweep_from = min(start, inside[0].at) if inside else start
+    carry = Carry()
+    found: list[Stretch] = []
+    figures = sweep(inside, sweep_from, end, bins, carry, found)
+    _follow([p for p in points if p.at >= end], carry, found)
+    if carry.stop_start is not None or carry.alarm_start is not None:
+        found += open_stretches(carry, max(now or end, points[-1].at if points else end))
+    totals = Figures()
+    per_period = [Figures() for _ in periods]
+    for b, f in zip(bins, figures, strict=True):
+        totals.add(f)
+        if b.period is not None:
+            per_period[b.period].add(f)
+    return periods, _machine_report(machine, totals, per_period, found, start, end)
