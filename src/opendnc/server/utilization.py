@@ -36,15 +36,29 @@ has its machine summed again from its first sample.
 from __future__ import annotations
 
 import bisect
+import functools
 import itertools
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from enum import StrEnum
-from typing import Any
+from typing import Any, NamedTuple
 
-from sqlalchemy import Column, Integer, MetaData, Table, delete, func, insert, select
+from sqlalchemy import (
+    Column,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    TypeDecorator,
+    delete,
+    func,
+    insert,
+    select,
+    type_coerce,
+    union_all,
+)
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -90,6 +104,8 @@ _NOT_RUNNING = {State.READY, State.STOPPED, State.ALARM, State.OFFLINE, State.UN
 _STOP_RANK = {State.READY: 0, State.UNKNOWN: 1, State.OFFLINE: 2, State.STOPPED: 3, State.ALARM: 4}
 _ABORT = {State.ALARM, State.OFFLINE, State.NO_RECORD, State.UNKNOWN}
 _roll_lock = threading.Lock()
+_HOURS: Table = UtilizationHour.__table__  # type: ignore[assignment]
+_STRETCHES: Table = UtilizationStretch.__table__  # type: ignore[assignment]
 # which slot (period, shift or not) each summed hour of a question goes to
 _SLOTS = Table(
     "utilization_slots",
@@ -124,9 +140,9 @@ def stored_state(state: str, execution: str = "") -> State:
         return State.UNKNOWN
 
 
-@dataclass(frozen=True)
-class Point:
-    """A machine's state from ``at`` on (one stored sample)."""
+class Point(NamedTuple):
+    """A machine's state from ``at`` on (one stored sample). A named tuple: a year of
+    samples makes millions of them."""
 
     at: datetime
     state: State
@@ -135,15 +151,27 @@ class Point:
     alarm: str = ""
 
 
+@functools.lru_cache(maxsize=4096)
+def _state_of(state: str, execution: str) -> State:
+    return stored_state(state, execution)
+
+
 def point_of(row: Any) -> Point:
     """A :class:`Point` from a ``status_samples`` row (ORM object or named row)."""
+    at = row.at
     return Point(
-        row.at if row.at.tzinfo else row.at.replace(tzinfo=UTC),
-        stored_state(row.state, row.execution),
+        at if at.tzinfo else at.replace(tzinfo=UTC),
+        _state_of(row.state, row.execution),
         row.program or "",
         row.part_count,
         row.alarm or "",
     )
+
+
+def _point_of_sample(row: Any) -> Point:
+    # a row of _SAMPLE_COLUMNS by position (named access costs more per row)
+    _machine, _id, at, state, execution, program, part_count, alarm = row
+    return Point(at, _state_of(state, execution), program or "", part_count, alarm or "")
 
 
 @dataclass
@@ -477,31 +505,72 @@ def ceil_hour(at: datetime) -> datetime:
     return floor if floor == at else floor + HOUR
 
 
+class _FastUtc(TypeDecorator[datetime]):
+    """A stored time read without SQLAlchemy's per-row SQLite date parsing (a year of
+    samples is millions of rows): ISO text through the C parser, or the driver's datetime."""
+
+    impl = String
+    cache_ok = True
+
+    def process_result_value(self, value: Any, dialect: Any) -> datetime | None:
+        if value is None:
+            return None
+        at: datetime = datetime.fromisoformat(value) if isinstance(value, str) else value
+        return at if at.tzinfo else at.replace(tzinfo=UTC)
+
+
+_AT = type_coerce(StatusSample.at, _FastUtc()).label("at")
 _SAMPLE_COLUMNS = (
+    StatusSample.machine,
     StatusSample.id,
-    StatusSample.at,
+    _AT,
     StatusSample.state,
     StatusSample.execution,
     StatusSample.program,
     StatusSample.part_count,
     StatusSample.alarm,
 )
+UNION_CHUNK = 200  # per-machine subqueries in one statement (SQLite allows 500)
+
+
+def _chunks(items: Sequence[str], size: int = UNION_CHUNK) -> Iterator[Sequence[str]]:
+    for i in range(0, len(items), size):
+        yield items[i : i + size]
 
 
 def read_points(session: Session, machine: str, start: datetime, end: datetime) -> list[Point]:
     """``machine``'s samples in ``[start, end)`` and the one in force at ``start``."""
-    before = session.execute(
-        select(*_SAMPLE_COLUMNS)
-        .where(StatusSample.machine == machine, StatusSample.at < start)
-        .order_by(StatusSample.at.desc(), StatusSample.id.desc())
-        .limit(1)
-    ).all()
-    after = session.execute(
-        select(*_SAMPLE_COLUMNS)
-        .where(StatusSample.machine == machine, StatusSample.at >= start, StatusSample.at < end)
-        .order_by(StatusSample.at, StatusSample.id)
-    ).all()
-    return [point_of(r) for r in (*before, *after)]
+    return read_many(session, [machine], start, end)[machine]
+
+
+def read_many(
+    session: Session, machines: Sequence[str], start: datetime, end: datetime
+) -> dict[str, list[Point]]:
+    """Each machine's samples in ``[start, end)`` and the one in force at ``start``, in two
+    statements for all of them (one index seek per machine for the one in force)."""
+    out: dict[str, list[Point]] = {m: [] for m in machines}
+    for chunk in _chunks(machines):
+        before = union_all(
+            *(
+                select(*_SAMPLE_COLUMNS)
+                .where(StatusSample.machine == m, StatusSample.at < start)
+                .order_by(StatusSample.at.desc(), StatusSample.id.desc())
+                .limit(1)
+                .subquery()
+                .select()
+                for m in chunk
+            )
+        )
+        for row in session.execute(before):
+            out[row[0]].append(_point_of_sample(row))
+        rows = session.execute(
+            select(*_SAMPLE_COLUMNS)
+            .where(StatusSample.machine.in_(chunk), StatusSample.at >= start, StatusSample.at < end)
+            .order_by(StatusSample.machine, StatusSample.at, StatusSample.id)
+        )
+        for row in rows:
+            out[row[0]].append(_point_of_sample(row))
+    return out
 
 
 def roll(session: Session, machines: Iterable[str], now: datetime) -> int:
@@ -570,10 +639,10 @@ def _roll_machine(
         if f.seconds[State.NO_RECORD] < 3600.0 or f.runs or f.parts
     ]
     for chunk in range(0, len(rows), 5000):
-        session.execute(insert(UtilizationHour), rows[chunk : chunk + 5000])
+        session.connection().execute(insert(_HOURS), rows[chunk : chunk + 5000])
     if stretches:
-        session.execute(
-            insert(UtilizationStretch),
+        session.connection().execute(
+            insert(_STRETCHES),
             [
                 {
                     "machine": machine,
@@ -752,10 +821,12 @@ def _collect(
         )
         for a, b in raw
     ]
-    for machine in machines:
-        frontier: tuple[Carry, datetime] | None = None  # what is open where the span ends
-        for a, b, local_bins in pieces:
-            is_tail = a >= tail_from
+    frontiers: dict[str, tuple[Carry, datetime]] = {}  # what is open where the span ends
+    for a, b, local_bins in pieces:
+        is_tail = a >= tail_from
+        if use_hours:
+            read = read_many(session, machines, a, b)
+        for machine in machines:
             mark = marks.get(machine)
             sweep_from = a
             if not use_hours:
@@ -768,10 +839,10 @@ def _collect(
                 carry = Carry()
                 points = read_points(session, machine, sweep_from, b)
             elif is_tail and mark is not None and mark.until == a:
-                points = read_points(session, machine, a, b)
+                points = read[machine]
                 carry = Carry.from_json(mark.carry)
             else:
-                points = read_points(session, machine, a, b)
+                points = read[machine]
                 carry = Carry.fresh(_in_force(points, a))
             found: list[Stretch] = []
             figs = sweep(points, sweep_from, b, local_bins, carry, found)
@@ -780,12 +851,11 @@ def _collect(
             if is_tail:
                 stretches[machine] += found
                 if b == end:
-                    frontier = (carry, end)
-        mark = marks.get(machine)
-        if frontier is None and mark is not None and mark.until >= end:
-            frontier = (Carry.from_json(mark.carry), mark.until)
-        if frontier is not None:
-            _finish(session, machine, *frontier, now, stretches[machine])
+                    frontiers[machine] = (carry, end)
+    for machine, mark in marks.items():
+        if machine not in frontiers and mark.until >= end:
+            frontiers[machine] = (Carry.from_json(mark.carry), mark.until)
+    _finish_many(session, frontiers, now, stretches)
     per_period: dict[str, list[Figures]] = {}
     totals: dict[str, Figures] = {}
     for machine in machines:
@@ -822,7 +892,7 @@ def _finish(
             .order_by(StatusSample.at, StatusSample.id)
             .limit(FINISH_BATCH)
         ).all()
-        points = [point_of(r) for r in rows]
+        points = [_point_of_sample(r) for r in rows]
         if not points:
             out += open_stretches(carry, max(now, at))
             return
@@ -832,6 +902,58 @@ def _finish(
                 out += open_stretches(carry, max(now, points[-1].at))
             return
         at = points[-1].at + timedelta(microseconds=1)
+
+
+FINISH_FIRST = 50  # samples per machine in the first, shared read
+
+
+def _finish_many(
+    session: Session,
+    frontiers: dict[str, tuple[Carry, datetime]],
+    now: datetime,
+    out: dict[str, list[Stretch]],
+) -> None:
+    """:func:`_finish` for many machines: the first samples of all of them in one statement,
+    the rare stop that outlasts those one machine at a time."""
+    open_ = {
+        m: (c, at)
+        for m, (c, at) in frontiers.items()
+        if c.stop_start is not None or c.alarm_start is not None
+    }
+    names = sorted(open_)
+    later: dict[str, list[Point]] = {m: [] for m in names}
+    for chunk in _chunks(names):
+        statement = union_all(
+            *(
+                select(*_SAMPLE_COLUMNS)
+                .where(StatusSample.machine == m, StatusSample.at >= open_[m][1])
+                .order_by(StatusSample.at, StatusSample.id)
+                .limit(FINISH_FIRST)
+                .subquery()
+                .select()
+                for m in chunk
+            )
+        )
+        for row in session.execute(statement):
+            later[row[0]].append(_point_of_sample(row))
+    for machine in names:
+        carry, at = open_[machine]
+        points = sorted(later[machine], key=lambda p: p.at)
+        _follow(points, carry, out[machine])
+        if carry.stop_start is None and carry.alarm_start is None:
+            continue
+        if len(points) < FINISH_FIRST:
+            last = points[-1].at if points else at
+            out[machine] += open_stretches(carry, max(now, last))
+        else:
+            _finish(
+                session,
+                machine,
+                carry,
+                points[-1].at + timedelta(microseconds=1),
+                now,
+                out[machine],
+            )
 
 
 def _follow(points: Sequence[Point], carry: Carry, out: list[Stretch]) -> None:
@@ -913,7 +1035,7 @@ def _sum_hours(
     connection = session.connection()
     _SLOTS.create(connection, checkfirst=True)  # temporary: this connection's own
     session.execute(delete(_SLOTS))
-    session.execute(insert(_SLOTS), [{"hour": h, "slot": s} for h, s in hour_slots])
+    connection.execute(insert(_SLOTS), [{"hour": h, "slot": s} for h, s in hour_slots])
     h = UtilizationHour.__table__.c
     rows = session.execute(
         select(
@@ -975,31 +1097,29 @@ def _stored_stretches(
     end: datetime,
     out: dict[str, list[Stretch]],
 ) -> None:
-    """The summed stops (the longest) and alarms (all, by text later) overlapping the span."""
-    for machine in machines:
-        for kind, order, limit in (
-            ("stop", (UtilizationStretch.seconds.desc(), UtilizationStretch.start), TOP_STOPS),
-            ("alarm", (UtilizationStretch.end.desc(), UtilizationStretch.start), 5000),
-        ):
-            rows = session.execute(
-                select(
-                    UtilizationStretch.start,
-                    UtilizationStretch.end,
-                    UtilizationStretch.state,
-                    UtilizationStretch.text,
+    """The summed stops (each machine's longest) and alarms (all, by text later) overlapping
+    the span: one statement each for all machines."""
+    t = UtilizationStretch
+    columns = (t.machine, t.kind, t.start, t.end, t.state, t.text)
+    overlap = (t.end > start, t.start < end)
+    for chunk in _chunks(machines):
+        stops = union_all(
+            *(
+                select(*columns)
+                .where(t.machine == m, t.kind == "stop", *overlap)
+                .order_by(t.seconds.desc(), t.start)
+                .limit(TOP_STOPS)
+                .subquery()
+                .select()
+                for m in chunk
+            )
+        )
+        alarms = select(*columns).where(t.machine.in_(chunk), t.kind == "alarm", *overlap)
+        for statement in (stops, alarms):
+            for r in session.execute(statement):
+                out[r.machine].append(
+                    Stretch(r.kind, _utc(r.start), _utc(r.end), State(r.state), r.text)
                 )
-                .where(
-                    UtilizationStretch.machine == machine,
-                    UtilizationStretch.kind == kind,
-                    UtilizationStretch.end > start,
-                    UtilizationStretch.start < end,
-                )
-                .order_by(*order)
-                .limit(limit)
-            ).all()
-            out[machine] += [
-                Stretch(kind, _utc(r.start), _utc(r.end), State(r.state), r.text) for r in rows
-            ]
 
 
 def _utc(at: datetime) -> datetime:
