@@ -59,6 +59,7 @@ from sqlalchemy import (
     type_coerce,
     union_all,
 )
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -797,7 +798,12 @@ def _collect(
     marks: dict[str, UtilizationMark] = {}
     raw = [(start, end)]
     if use_hours and machines:
-        roll(session, machines, now)
+        try:
+            with session.begin_nested():
+                roll(session, machines, now)
+        except IntegrityError:
+            pass  # another server on this database summed the same hours just now
+
         marks = {
             m.machine: m
             for m in session.scalars(

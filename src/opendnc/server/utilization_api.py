@@ -10,14 +10,20 @@ dashboard exports. Every time in the answer is on the shop's clock with its offs
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import csv
 import io
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 
 from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
@@ -32,6 +38,7 @@ from opendnc.server.utilization import (
     Report,
     Stretch,
     report,
+    roll,
 )
 
 __all__ = [
@@ -45,6 +52,8 @@ __all__ = [
 ]
 
 DEFAULT_DAYS = 7
+ROLL_EVERY = 600.0  # seconds between two rounds of summing finished hours
+log = logging.getLogger(__name__)
 CSV_COLUMNS = [
     "machine",
     "period",
@@ -71,8 +80,47 @@ router = APIRouter(prefix="/api")
 
 
 def install(app: FastAPI) -> None:
-    """Add ``/api/utilization`` to ``app``."""
+    """Add ``/api/utilization`` to ``app``, and sum the finished hours in the background
+    while it runs (so no question waits for more than the last few minutes' samples, and
+    the hours are summed long before the samples are pruned)."""
     app.include_router(router)
+    inner = app.router.lifespan_context
+
+    @asynccontextmanager
+    async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
+        async with inner(running_app) as state:
+            task = asyncio.create_task(
+                _keep_summing(running_app.state.sessions, _config_of(running_app)),
+                name="utilization-hours",
+            )
+            try:
+                yield state
+            finally:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+
+    app.router.lifespan_context = lifespan
+
+
+def _config_of(app: FastAPI) -> ShopConfig:
+    config: ShopConfig = app.state.supervisor.config
+    return config
+
+
+async def _keep_summing(sessions: sessionmaker[Session], config: ShopConfig) -> None:
+    names = [m.name for m in config.machines]
+    while True:
+        await asyncio.sleep(ROLL_EVERY)
+        try:
+            await asyncio.to_thread(_sum_now, sessions, names)
+        except SQLAlchemyError as exc:  # the database is away: the next round catches up
+            log.warning("utilization: summing the finished hours failed: %s", exc)
+
+
+def _sum_now(sessions: sessionmaker[Session], names: list[str]) -> None:
+    with sessions.begin() as session:
+        roll(session, names, datetime.now(UTC))
 
 
 def _config(request: Request) -> ShopConfig:
