@@ -83,6 +83,7 @@ class Bar:
     title: str
     x: float  # percent of the chart's width
     width: float
+    short: str  # the utilization under a narrow bar (whole percent)
 
 
 def step_for(start: datetime, end: datetime) -> timedelta:
@@ -104,11 +105,12 @@ def _duration(seconds: float) -> str:
     return f"{minutes // 60}:{minutes % 60:02d}"
 
 
-def _percent(value: float | None) -> str:
+def _percent(value: float | None, decimals: int = 1) -> str:
     if value is None:
         return "–"
     # half up, as people round (56.25 reads 56.3), not to the nearest even binary float
-    return f"{Decimal(repr(value)).quantize(Decimal('0.1'), ROUND_HALF_UP)} %"
+    step = Decimal(1).scaleb(-decimals)
+    return f"{Decimal(repr(value)).quantize(step, ROUND_HALF_UP)} %"
 
 
 def _dominant(f: Figures) -> State:
@@ -198,7 +200,8 @@ def bars(r: Report, figures: list[Figures]) -> list[Bar]:
         )
         title = f"{p.key}: utilization {_percent(f.utilization)}; {parts}"
         x, width = round(i * slot + slot * 0.12, 3), round(slot * 0.76, 3)
-        out.append(Bar(p.key, label, stack, _percent(f.utilization), title, x, width))
+        short = _percent(f.utilization, 0 if len(r.periods) > 5 else 1)
+        out.append(Bar(p.key, label, stack, _percent(f.utilization), title, x, width, short))
     return out
 
 
