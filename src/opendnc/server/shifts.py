@@ -198,7 +198,9 @@ def _shift(item: Any, prefix: str) -> Shift:
     if not isinstance(name, str) or not re.fullmatch(r"[\w .-]{1,32}", name):
         raise CalendarError(f"{prefix}.name: expected a short name like 'early', got {name!r}")
     days = _days(item.get("days", ["mon-fri"]), f"{prefix}.days")
-    start, _ = _clock(item.get("start"), f"{prefix}.start")
+    start, late = _clock(item.get("start"), f"{prefix}.start")
+    if late:
+        raise CalendarError(f"{prefix}.start: a shift starts at 00:00 to 23:59, not 24:00")
     end, midnight = _clock(item.get("end"), f"{prefix}.end")
     if start == end and not midnight:
         raise CalendarError(f"{prefix}.end: the same as the start (a shift of no length)")

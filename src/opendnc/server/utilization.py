@@ -774,7 +774,15 @@ def buckets(
         return {m: [] for m in machines}
     start, end = periods[0].start, periods[-1].end
     per_period, _totals, _stretches = _collect(
-        session, machines, start, end, list(periods), [], now or datetime.now(UTC), True
+        session,
+        machines,
+        start,
+        end,
+        list(periods),
+        [],
+        now or datetime.now(UTC),
+        True,
+        stretches=False,
     )
     return per_period
 
@@ -788,12 +796,15 @@ def _collect(
     scheduled: list[tuple[datetime, datetime]],
     now: datetime,
     use_hours: bool,
+    *,
+    stretches: bool = True,
 ) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
+    want_stretches = stretches
     bins = make_bins(periods, scheduled, start, end)
     slots = [(b.period, b.in_shift) for b in bins]
     slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
     acc: dict[str, dict[int, Figures]] = {m: {} for m in machines}
-    stretches: dict[str, list[Stretch]] = {m: [] for m in machines}
+    found_by: dict[str, list[Stretch]] = {m: [] for m in machines}
     tail_from = start
     marks: dict[str, UtilizationMark] = {}
     raw = [(start, end)]
@@ -814,7 +825,8 @@ def _collect(
         raw, hour_slots = _plan(bins, slot_ids, start, end, until)
         in_shift = {i: shift for (_p, shift), i in slot_ids.items()}
         _sum_hours(session, machines, hour_slots, acc, in_shift)
-        _stored_stretches(session, machines, start, end, stretches)
+        if want_stretches:
+            _stored_stretches(session, machines, start, end, found_by)
         tail_from = max(start, min(until, end))
     pieces = [
         (
@@ -855,13 +867,14 @@ def _collect(
             for x, f in zip(local_bins, figs, strict=True):
                 acc[machine].setdefault(slot_ids[(x.period, x.in_shift)], Figures()).add(f)
             if is_tail:
-                stretches[machine] += found
+                found_by[machine] += found
                 if b == end:
                     frontiers[machine] = (carry, end)
     for machine, mark in marks.items():
         if machine not in frontiers and mark.until >= end:
             frontiers[machine] = (Carry.from_json(mark.carry), mark.until)
-    _finish_many(session, frontiers, now, stretches)
+    if want_stretches:
+        _finish_many(session, frontiers, now, found_by)
     per_period: dict[str, list[Figures]] = {}
     totals: dict[str, Figures] = {}
     for machine in machines:
@@ -874,7 +887,7 @@ def _collect(
             totals[machine].add(summed)
             if period is not None:
                 per_period[machine][period].add(summed)
-    return per_period, totals, stretches
+    return per_period, totals, found_by
 
 
 FINISH_BATCH = 1000
