@@ -5,14 +5,20 @@ migration 0007 goes up from 0004 and back."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import random
+import time
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from zoneinfo import ZoneInfo
 
 import pytest
 from sqlalchemy import Engine, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
+from opendnc.server import utilization_api
+from opendnc.server.config import parse_config
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State
 from opendnc.server.store.db import current_revision, make_engine, migrate
@@ -250,3 +256,42 @@ def test_migration_0007_up_from_0004_and_back(db_url: str) -> None:
             ]
     finally:
         engine.dispose()
+
+
+def test_the_server_sums_finished_hours_in_the_background(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    config = parse_config(
+        '[[machines]]\nname = "m"\nkind = "lsv2"\nhost = "127.0.0.1"\n', base=tmp_path
+    )
+    t0 = datetime.now(UTC) - timedelta(hours=5)
+    with sessions.begin() as session:
+        session.add(StatusSample(machine="m", at=t0, state="running", execution="ACTIVE"))
+    monkeypatch.setattr(utilization_api, "ROLL_EVERY", 0.05)
+
+    async def summed() -> datetime:
+        task = asyncio.create_task(utilization_api._keep_summing(sessions, config))
+        try:
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                with sessions() as session:
+                    mark = session.get(UtilizationMark, "m")
+                if mark is not None:
+                    return mark.until
+                await asyncio.sleep(0.05)
+            raise AssertionError("no hour was summed within 30 s")
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    until = asyncio.run(summed())
+    assert until >= datetime.now(UTC) - timedelta(hours=1, minutes=5)
+    with sessions() as session:
+        hours = session.scalars(
+            select(UtilizationHour)
+            .where(UtilizationHour.machine == "m")
+            .order_by(UtilizationHour.hour)
+        ).all()
+    assert len(hours) >= 4
+    assert all(h.running == 3600.0 for h in hours[1:])  # whole hours of running
