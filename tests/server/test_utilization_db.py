@@ -1,12 +1,11 @@
 """Utilization in the database, on SQLite and PostgreSQL: the summed hours answer what reading
 every sample answers (random timelines across the spring clock change), a sample that arrives
-late for a summed hour is summed again, the recorder stores what utilization needs, and
-migration 0007 goes up from 0004 and back."""
+late for a summed hour is summed again, the recorder stores what utilization needs, the server
+sums in the background, and migration 0007 goes up from 0004 (through those between) and back."""
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import random
 import time
 from datetime import UTC, datetime, timedelta
@@ -270,7 +269,8 @@ def test_the_server_sums_finished_hours_in_the_background(
     monkeypatch.setattr(utilization_api, "ROLL_EVERY", 0.05)
 
     async def summed() -> datetime:
-        task = asyncio.create_task(utilization_api._keep_summing(sessions, config))
+        summer = utilization_api.HourSummer(sessions, [m.name for m in config.machines])
+        await summer.start()
         try:
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline:
@@ -281,9 +281,7 @@ def test_the_server_sums_finished_hours_in_the_background(
                 await asyncio.sleep(0.05)
             raise AssertionError("no hour was summed within 30 s")
         finally:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await summer.stop()
 
     until = asyncio.run(summed())
     assert until >= datetime.now(UTC) - timedelta(hours=1, minutes=5)

@@ -30,7 +30,7 @@ hour to its period and to shift or not; only the hours that are not finished yet
 a period or shift boundary cuts, are read from the samples. Hours are UTC: a boundary on the
 full hour in a zone with a whole-hour offset (Europe/Berlin) never cuts one. A sample that
 arrives late for an hour already summed (the recorder's queue while the database was away)
-has its machine summed again from its first sample.
+has its machine summed again from a day before it.
 """
 
 from __future__ import annotations
@@ -100,6 +100,7 @@ TOP_STOPS = 10
 RECENT_ALARMS = 20
 HOUR = timedelta(hours=1)
 ROLL_MARGIN = timedelta(minutes=2)  # the recorder writes within seconds; leave it room
+REWIND = timedelta(days=1)  # how far before a late sample its machine is summed again
 _NOT_RUNNING = {State.READY, State.STOPPED, State.ALARM, State.OFFLINE, State.UNKNOWN}
 # a stop is named by the worst state in it
 _STOP_RANK = {State.READY: 0, State.UNKNOWN: 1, State.OFFLINE: 2, State.STOPPED: 3, State.ALARM: 4}
@@ -592,18 +593,34 @@ def roll(session: Session, machines: Iterable[str], now: datetime) -> int:
             mark = marks.get(machine)
             first = first if first.tzinfo else first.replace(tzinfo=UTC)
             if mark is not None and first < mark.until:
-                # a sample for an hour already summed: sum this machine again
-                _forget(session, machine)
-                del marks[machine]
+                # a sample for an hour already summed: sum this machine again from a day
+                # before it (what carries into that point is read from the samples there)
+                _rewind(session, mark, floor_hour(first) - REWIND)
         for machine in machines:
             written += _roll_machine(session, machine, marks.get(machine), target, last_id)
     return written
 
 
-def _forget(session: Session, machine: str) -> None:
-    session.execute(delete(UtilizationHour).where(UtilizationHour.machine == machine))
-    session.execute(delete(UtilizationStretch).where(UtilizationStretch.machine == machine))
-    session.execute(delete(UtilizationMark).where(UtilizationMark.machine == machine))
+def _rewind(session: Session, mark: UtilizationMark, at: datetime) -> None:
+    """Forget ``mark``'s machine's sums from ``at`` on (not before its first sample still
+    kept: hours whose samples were pruned stay as they were summed)."""
+    machine = mark.machine
+    first = session.scalar(select(func.min(_AT)).where(StatusSample.machine == machine))
+    if first is not None:
+        at = max(at, floor_hour(first))
+    session.execute(
+        delete(UtilizationHour).where(
+            UtilizationHour.machine == machine, UtilizationHour.hour >= at
+        )
+    )
+    session.execute(
+        delete(UtilizationStretch).where(
+            UtilizationStretch.machine == machine, UtilizationStretch.end > at
+        )
+    )
+    before = read_many(session, [machine], at, at)[machine]
+    mark.until = at
+    mark.carry = Carry.fresh(before[-1] if before else None).as_json()
 
 
 def _roll_machine(

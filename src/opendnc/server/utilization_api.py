@@ -11,12 +11,9 @@ dashboard exports. Every time in the answer is on the shop's clock with its offs
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import csv
 import io
 import logging
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Any
 
@@ -27,7 +24,9 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server import deps
 from opendnc.server.api import Viewer
+from opendnc.server.components import RunsTask
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import NotFound
 from opendnc.server.shifts import DAYS, Calendar
@@ -80,52 +79,43 @@ router = APIRouter(prefix="/api")
 
 
 def install(app: FastAPI) -> None:
-    """Add ``/api/utilization`` to ``app``, and sum the finished hours in the background
-    while it runs (so no question waits for more than the last few minutes' samples, and
-    the hours are summed long before the samples are pruned)."""
+    """Add ``/api/utilization`` to ``app``."""
     app.include_router(router)
-    inner = app.router.lifespan_context
 
-    @asynccontextmanager
-    async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
-        async with inner(running_app) as state:
-            task = asyncio.create_task(
-                _keep_summing(running_app.state.sessions, _config_of(running_app)),
-                name="utilization-hours",
-            )
+
+class HourSummer(RunsTask):
+    """A component: sums the finished hours every :data:`ROLL_EVERY` seconds while the
+    server runs, so no question waits for more than the last minutes' samples, and the hours
+    are summed long before their samples are pruned."""
+
+    name = "utilization"
+    needs = ("database",)
+
+    def __init__(self, sessions: sessionmaker[Session], machines: list[str]) -> None:
+        self.sessions = sessions
+        self.machines = machines
+
+    async def run(self) -> None:
+        """Sum, then wait, until cancelled; a database that is away is tried next round."""
+        while True:
+            await asyncio.sleep(ROLL_EVERY)
             try:
-                yield state
-            finally:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+                await asyncio.to_thread(self.sum_now)
+            except SQLAlchemyError as exc:
+                log.warning("utilization: summing the finished hours failed: %s", exc)
 
-    app.router.lifespan_context = lifespan
-
-
-def _config_of(app: FastAPI) -> ShopConfig:
-    config: ShopConfig = app.state.supervisor.config
-    return config
-
-
-async def _keep_summing(sessions: sessionmaker[Session], config: ShopConfig) -> None:
-    names = [m.name for m in config.machines]
-    while True:
-        await asyncio.sleep(ROLL_EVERY)
-        try:
-            await asyncio.to_thread(_sum_now, sessions, names)
-        except SQLAlchemyError as exc:  # the database is away: the next round catches up
-            log.warning("utilization: summing the finished hours failed: %s", exc)
-
-
-def _sum_now(sessions: sessionmaker[Session], names: list[str]) -> None:
-    with sessions.begin() as session:
-        roll(session, names, datetime.now(UTC))
+    def sum_now(self, now: datetime | None = None) -> int:
+        """Sum what finished up to ``now``; how many machine-hours were written."""
+        with self.sessions.begin() as session:
+            return roll(session, self.machines, now or datetime.now(UTC))
 
 
 def _config(request: Request) -> ShopConfig:
-    config: ShopConfig = request.app.state.supervisor.config
-    return config
+    return deps.machines(request).config
+
+
+def _sessions(request: Request) -> sessionmaker[Session]:
+    return deps.database(request).sessions
 
 
 def parse_when(text: str, calendar: Calendar, key: str) -> datetime:
@@ -361,7 +351,7 @@ async def utilization(
         raise InputError(f"format: expected json or csv, got {format!r}")
     r = await run_in_threadpool(
         run_report,
-        request.app.state.sessions,
+        _sessions(request),
         _config(request),
         start=start,
         end=end,

@@ -20,6 +20,7 @@ from fastapi.responses import HTMLResponse, Response
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server import deps
 from opendnc.server.config import ShopConfig
 from opendnc.server.shifts import Calendar, Period
 from opendnc.server.state import State
@@ -220,8 +221,11 @@ def _span(calendar: Calendar, first: str, last: str, now: datetime) -> tuple[dat
 
 
 def _config(request: Request) -> ShopConfig:
-    config: ShopConfig = request.app.state.supervisor.config
-    return config
+    return deps.machines(request).config
+
+
+def _sessions(request: Request) -> sessionmaker[Session]:
+    return deps.database(request).sessions
 
 
 def _compute(
@@ -271,7 +275,7 @@ async def utilization_page(
     first, last = _span(cal, start, end, now)
     names = pick_machines(config, machines)
     r, slices, figures = await run_in_threadpool(
-        _compute, request.app.state.sessions, config, first, last, grouping, names, now
+        _compute, _sessions(request), config, first, last, grouping, names, now
     )
     span_end = r.end
     shown = slices[-1].end if slices else r.start
@@ -330,7 +334,7 @@ async def utilization_csv(
     grouping = _group(group)
 
     def work() -> Report:
-        with request.app.state.sessions.begin() as session:
+        with _sessions(request).begin() as session:
             return report(
                 session,
                 cal,

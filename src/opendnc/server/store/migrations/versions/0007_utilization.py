@@ -1,7 +1,7 @@
 """Utilization: what the status samples need for it, and its summed hours.
 
 Revision ID: 0007
-Revises: 0004
+Revises: 0009 (written on 0004; chained after 0009 when main was merged)
 Create Date: 2026-11-27
 
 Written by hand to match the models. ``status_samples`` gains the program, the control's
@@ -17,7 +17,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0007"
-down_revision = "0004"
+down_revision = "0009"
 branch_labels = None
 depends_on = None
 
