@@ -20,9 +20,9 @@ from opendnc.server import utilization_api
 from opendnc.server.config import parse_config
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State
-from opendnc.server.store.db import current_revision, make_engine, migrate
+from opendnc.server.store.db import current_revision, make_engine, migrate, read_only
 from opendnc.server.store.models import StatusSample, UtilizationHour, UtilizationMark
-from opendnc.server.utilization import Figures, Group, MachineReport, report
+from opendnc.server.utilization import Figures, Group, MachineReport, report, sum_safely
 from opendnc.server.web.timeline import Timeline
 
 BERLIN = ZoneInfo("Europe/Berlin")
@@ -293,3 +293,23 @@ def test_the_server_sums_finished_hours_in_the_background(
         ).all()
     assert len(hours) >= 4
     assert all(h.running == 3600.0 for h in hours[1:])  # whole hours of running
+
+
+def test_a_question_reads_while_another_transaction_writes(
+    sessions: sessionmaker[Session],
+) -> None:
+    """The question only reads (its hour-to-slot table is temporary): a writer holding the
+    database's write lock does not make it wait, and it does not make the writer wait."""
+    _random_timeline(sessions, 4)
+    with sessions.begin() as session:
+        sum_safely(session, MACHINES, NOW)
+    started = time.monotonic()
+    with sessions.begin() as writer:  # on SQLite: BEGIN IMMEDIATE, the write lock
+        writer.add(StatusSample(machine="tnc-1", at=NOW, state="ready", execution="READY"))
+        writer.flush()
+        with read_only(sessions)() as reader:
+            r = report(reader, CAL, MACHINES, START, END, Group.WEEK, now=NOW, sum_first=False)
+    assert time.monotonic() - started < 10  # the busy timeout would be the tell
+    assert r.machines[0].totals.total > 0
+    with sessions() as session:
+        assert session.scalar(select(func.count()).select_from(StatusSample)) > 0

@@ -38,6 +38,7 @@ from __future__ import annotations
 import bisect
 import functools
 import itertools
+import logging
 import threading
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -90,10 +91,12 @@ __all__ = [
     "report",
     "roll",
     "stored_state",
+    "sum_safely",
     "summarize",
     "sweep",
 ]
 
+log = logging.getLogger(__name__)
 STATES: tuple[State, ...] = tuple(State)
 STOP_MIN = 300.0  # seconds: shorter pauses are part of the work (a tool change, a part swap)
 TOP_STOPS = 10
@@ -743,10 +746,12 @@ def report(
     *,
     now: datetime | None = None,
     use_hours: bool = True,
+    sum_first: bool = True,
 ) -> Report:
-    """Utilization of ``machines`` over ``[start, end)``; finished hours are summed first
-    (so call it in a write transaction). ``use_hours=False`` reads every sample (the
-    reference the summed hours are tested against)."""
+    """Utilization of ``machines`` over ``[start, end)``. Finished hours not summed yet are
+    summed first (a write transaction), unless ``sum_first=False`` (the caller summed them in
+    a short write transaction of its own and reads here). ``use_hours=False`` reads every
+    sample (the reference the summed hours are tested against)."""
     if start.tzinfo is None or end.tzinfo is None:
         raise InputError("utilization: times need a UTC offset")
     start, end = start.astimezone(UTC), end.astimezone(UTC)
@@ -758,7 +763,7 @@ def report(
     periods = periods_of(calendar, group, start, end)
     scheduled = calendar.scheduled(start, end)
     per_period, totals, stretches = _collect(
-        session, machines, start, end, periods, scheduled, now, use_hours
+        session, machines, start, end, periods, scheduled, now, use_hours, sum_first=sum_first
     )
     reports = [
         _machine_report(m, totals[m], per_period[m], stretches[m], start, end) for m in machines
@@ -783,6 +788,7 @@ def buckets(
     periods: Sequence[Period],
     *,
     now: datetime | None = None,
+    sum_first: bool = True,
 ) -> dict[str, list[Figures]]:
     """The figures of each machine in each of ``periods`` (consecutive, as from
     :func:`equal_periods`): what a Gantt chart draws. Buckets of whole hours come from
@@ -800,6 +806,7 @@ def buckets(
         now or datetime.now(UTC),
         True,
         stretches=False,
+        sum_first=sum_first,
     )
     return per_period
 
@@ -815,6 +822,7 @@ def _collect(
     use_hours: bool,
     *,
     stretches: bool = True,
+    sum_first: bool = True,
 ) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
     want_stretches = stretches
     bins = make_bins(periods, scheduled, start, end)
@@ -826,12 +834,8 @@ def _collect(
     marks: dict[str, UtilizationMark] = {}
     raw = [(start, end)]
     if use_hours and machines:
-        try:
-            with session.begin_nested():
-                roll(session, machines, now)
-        except IntegrityError:
-            pass  # another server on this database summed the same hours just now
-
+        if sum_first:
+            sum_safely(session, machines, now)
         marks = {
             m.machine: m
             for m in session.scalars(
@@ -999,6 +1003,16 @@ def _follow(points: Sequence[Point], carry: Carry, out: list[Stretch]) -> None:
         if carry.stop_start is None and carry.alarm_start is None:
             return
         _transition(p, carry, [], [], [], out)
+
+
+def sum_safely(session: Session, machines: Sequence[str], now: datetime) -> None:
+    """:func:`roll` in a savepoint: if another server sharing the database summed the same
+    hours just now, its sums stand and this one's are dropped."""
+    try:
+        with session.begin_nested():
+            roll(session, machines, now)
+    except IntegrityError:
+        log.info("utilization: another server summed these hours first")
 
 
 def _within(bins: Sequence[Bin], a: datetime, b: datetime) -> Sequence[Bin]:

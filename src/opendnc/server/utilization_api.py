@@ -30,6 +30,7 @@ from opendnc.server.components import RunsTask
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import NotFound
 from opendnc.server.shifts import DAYS, Calendar
+from opendnc.server.store.db import read_only
 from opendnc.server.utilization import (
     STATES,
     Figures,
@@ -38,6 +39,7 @@ from opendnc.server.utilization import (
     Stretch,
     report,
     roll,
+    sum_safely,
 )
 
 __all__ = [
@@ -190,8 +192,12 @@ def run_report(
     calendar = config.calendar
     since, until = parse_span(calendar, start, end, now)
     names = pick_machines(config, machines)
-    with sessions.begin() as session:
-        return report(session, calendar, names, since, until, grouping, now=now)
+    now = now or datetime.now(UTC)
+    with sessions.begin() as session:  # short: what finished since the last summing
+        sum_safely(session, names, now)
+    # the question itself only reads (on SQLite it does not hold the write lock meanwhile)
+    with read_only(sessions)() as session:
+        return report(session, calendar, names, since, until, grouping, now=now, sum_first=False)
 
 
 def _local(at: datetime, calendar: Calendar) -> str:

@@ -24,6 +24,7 @@ from opendnc.server import deps
 from opendnc.server.config import ShopConfig
 from opendnc.server.shifts import Calendar, Period
 from opendnc.server.state import State
+from opendnc.server.store.db import read_only
 from opendnc.server.utilization import (
     STATES,
     Figures,
@@ -32,6 +33,7 @@ from opendnc.server.utilization import (
     buckets,
     equal_periods,
     report,
+    sum_safely,
 )
 from opendnc.server.utilization_api import csv_response, pick_machines
 from opendnc.server.web import render
@@ -240,11 +242,13 @@ def _compute(
     cal = config.calendar
     start = cal.instant(first, time(0))
     end = cal.instant(last + timedelta(days=1), time(0))
-    with sessions.begin() as session:
-        r = report(session, cal, machines, start, end, group, now=now)
+    with sessions.begin() as session:  # short: what finished since the last summing
+        sum_safely(session, machines, now)
+    with read_only(sessions)() as session:
+        r = report(session, cal, machines, start, end, group, now=now, sum_first=False)
         shown_end = min(end, max(start + timedelta(minutes=5), now))
         slices = equal_periods(start, shown_end, step_for(start, end))
-        figures = buckets(session, machines, slices, now=now)
+        figures = buckets(session, machines, slices, now=now, sum_first=False)
     return r, slices, figures
 
 
@@ -334,7 +338,10 @@ async def utilization_csv(
     grouping = _group(group)
 
     def work() -> Report:
-        with _sessions(request).begin() as session:
+        sessions = _sessions(request)
+        with sessions.begin() as session:
+            sum_safely(session, names, now)
+        with read_only(sessions)() as session:
             return report(
                 session,
                 cal,
@@ -343,6 +350,7 @@ async def utilization_csv(
                 cal.instant(last + timedelta(days=1), time(0)),
                 grouping,
                 now=now,
+                sum_first=False,
             )
 
     _ = page
