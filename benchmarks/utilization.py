@@ -164,10 +164,12 @@ def _time(sessions: sessionmaker[Session], work: Any, repeat: int) -> list[float
     return out
 
 
-def _clone(url: str, names: list[str], copies: list[str]) -> None:
-    """Give every name of ``copies`` the samples, summed hours, stretches and marks of one of
-    ``names`` (round robin), in SQL: the database then holds as many machines as asked
-    without generating (and summing) each timeline in Python."""
+def _clone(url: str, names: list[str], copies: list[str], since: datetime | None) -> None:
+    """Give every name of ``copies`` the summed hours, stretches and marks of one of ``names``
+    (round robin), and its samples from ``since`` on (all with None), in SQL: the database
+    then holds as many machines as asked without generating and summing each timeline in
+    Python. A question reads samples only for the hour not summed yet (and the one in force
+    before it), so the copies' older samples would only make the table bigger."""
     engine = create_engine(url)
     tables = {
         "status_samples": "at, state, mode, execution, program, part_count, alarm",
@@ -181,12 +183,16 @@ def _clone(url: str, names: list[str], copies: list[str]) -> None:
             for i, copy in enumerate(copies):
                 source = names[i % len(names)]
                 for table, columns in tables.items():
+                    recent = ""
+                    if table == "status_samples" and since is not None:
+                        recent = " AND at >= :since"
                     conn.execute(
                         text(
                             f"INSERT INTO {table} (machine, {columns}) "
-                            f"SELECT :copy, {columns} FROM {table} WHERE machine = :source"
+                            f"SELECT :copy, {columns} FROM {table} "
+                            f"WHERE machine = :source{recent}"
                         ),
-                        {"copy": copy, "source": source},
+                        {"copy": copy, "source": source, "since": since},
                     )
             # the copies' samples are not late arrivals: the marks have read them
             conn.execute(
@@ -198,7 +204,7 @@ def _clone(url: str, names: list[str], copies: list[str]) -> None:
 
 
 def run(
-    url: str, machines: int, distinct: int, days: int, repeat: int, seed: int
+    url: str, machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
 ) -> dict[str, Any]:
     """Fill a fresh database at ``url`` and time the questions; the numbers."""
     engine = make_engine(url)
@@ -224,7 +230,9 @@ def run(
         "samples_per_second": round(samples / took),
     }
     t0 = time.perf_counter()
-    _clone(url, own, names[len(own) :])
+    since = None if copy_days < 0 else now - timedelta(days=copy_days)
+    _clone(url, own, names[len(own) :], since)
+    out["copies_keep_samples_of_days"] = None if copy_days < 0 else copy_days
     out["clone_s"] = round(time.perf_counter() - t0, 1)
     with engine.connect() as conn:
         out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
@@ -264,22 +272,26 @@ def run(
     return out
 
 
-def _sqlite(machines: int, distinct: int, days: int, repeat: int, seed: int) -> dict[str, Any]:
+def _sqlite(
+    machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="opendnc-util-bench-") as tmp:
         url = f"sqlite:///{Path(tmp) / 'bench.db'}"
-        result = run(url, machines, distinct, days, repeat, seed)
+        result = run(url, machines, distinct, days, repeat, seed, copy_days)
         result["backend"] = "sqlite"
         return result
 
 
-def _postgresql(machines: int, distinct: int, days: int, repeat: int, seed: int) -> dict[str, Any]:
+def _postgresql(
+    machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
+) -> dict[str, Any]:
     admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
     name = f"opendnc_util_bench_{uuid.uuid4().hex[:8]}"
     with admin.connect() as conn:
         conn.execute(text(f'CREATE DATABASE "{name}"'))
     try:
         url = PG_ADMIN.rsplit("/", 1)[0] + f"/{name}"
-        result = run(url, machines, distinct, days, repeat, seed)
+        result = run(url, machines, distinct, days, repeat, seed, copy_days)
         result["backend"] = "postgresql"
         return result
     finally:
@@ -299,6 +311,12 @@ def main(argv: list[str] | None = None) -> None:
         help="timelines generated and summed in Python; the other machines copy them in SQL",
     )
     parser.add_argument("--backend", choices=["sqlite", "postgresql", "both"], default="both")
+    parser.add_argument(
+        "--copy-days",
+        type=int,
+        default=2,
+        help="days of samples the copied machines keep (-1: all of them)",
+    )
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--seed", type=int, default=23)
     parser.add_argument("--json", action="store_true", help="one JSON line per backend")
@@ -306,7 +324,7 @@ def main(argv: list[str] | None = None) -> None:
     backends = ["sqlite", "postgresql"] if args.backend == "both" else [args.backend]
     for backend in backends:
         go = _sqlite if backend == "sqlite" else _postgresql
-        result = go(args.machines, args.distinct, args.days, args.repeat, args.seed)
+        result = go(args.machines, args.distinct, args.days, args.repeat, args.seed, args.copy_days)
         if args.json:
             print(json.dumps(result), flush=True)
             continue
