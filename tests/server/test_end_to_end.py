@@ -210,6 +210,15 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
             assert row["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
             assert row["bytes"] == len(PROGRAM)
             assert row["detail"]["by"] == "admin-1"
+        # what each load's outcome says about its check (issue 20, item 6)
+        notes = {name: row["detail"]["verification"] for name, row in rows.items()}
+        assert notes == {
+            "tnc-a": "verified",
+            "tnc-b": "verified",
+            "vf4-ngc": "verified",
+            "vf2-serial": "not verified (checksum mode only)",
+        }
+        assert rows["vf2-serial"]["detail"]["verified"] is None
 
     for root in shop.tnc_roots:
         assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM
@@ -245,7 +254,9 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
         for name in ("..%2F..%2Fetc%2Fpasswd", "a%5Cb", "%2Ehidden", "CON", "x" * 101, "O1%0A"):
             r = client.put(f"/api/programs/{name}", content=PROGRAM, headers=auth(programmer))
             codes.append((name, r.status_code))
-        assert all(code == 400 for _, code in codes), codes
+        # a folder in the name matches no route: 404, saying names hold no folders
+        assert codes[0] == ("..%2F..%2Fetc%2Fpasswd", 404), codes
+        assert all(code == 400 for _, code in codes[1:]), codes
         assert client.get("/api/programs", headers=auth(viewer)).json() == []
         versions = client.get(
             "/api/audit", headers=auth(viewer), params={"action": "program.version"}

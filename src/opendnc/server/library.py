@@ -13,8 +13,8 @@ import hashlib
 import re
 from collections.abc import Sequence
 
-from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy import Select, func, select
+from sqlalchemy.orm import Session, selectinload
 
 from opendnc.errors import InputError
 from opendnc.server import audit
@@ -50,6 +50,11 @@ _WINDOWS_DEVICES = {
 }
 
 
+# A program's versions, each with its program set (relationships never load lazily; within
+# a transaction SQLAlchemy does not take a version's program from the identity map).
+_VERSIONS = selectinload(Program.versions).joinedload(ProgramVersion.program)
+
+
 def check_program_name(name: str) -> str:
     """``name`` if it is a safe program file name; :class:`InputError` saying why not."""
     if not _PROGRAM_NAME.fullmatch(name) or ".." in name:
@@ -64,7 +69,7 @@ def check_program_name(name: str) -> str:
 
 def list_programs(session: Session, search: str = "") -> Sequence[Program]:
     """Programs whose name contains ``search`` (case-insensitive), by name."""
-    stmt = select(Program).order_by(Program.name)
+    stmt = select(Program).order_by(Program.name).options(_VERSIONS)
     if search:
         stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
     return session.scalars(stmt).all()
@@ -72,10 +77,15 @@ def list_programs(session: Session, search: str = "") -> Sequence[Program]:
 
 def get_program(session: Session, name: str) -> Program:
     """The program called ``name``; :class:`NotFound` otherwise."""
-    program = session.scalar(select(Program).where(Program.name == name))
+    program = session.scalar(_with_versions(name))
     if program is None:
         raise NotFound(f"no program named {name!r}")
     return program
+
+
+def _with_versions(name: str) -> Select[Program]:
+    # the program and its versions in two queries (relationships never load lazily)
+    return select(Program).where(Program.name == name).options(_VERSIONS)
 
 
 def get_version(session: Session, name: str, number: int | None = None) -> ProgramVersion:
@@ -125,9 +135,9 @@ def add_version(
     if len(data) > MAX_PROGRAM_BYTES:
         raise InputError(f"{name}: {len(data)} bytes is more than the library takes")
     digest = hashlib.sha256(data).hexdigest()
-    program = session.scalar(select(Program).where(Program.name == name))
+    program = session.scalar(_with_versions(name))
     if program is None:
-        program = Program(name=name)
+        program = Program(name=name, versions=[])
         session.add(program)
         session.flush()
     if program.locked:

@@ -85,6 +85,7 @@ class Lsv2Connector(NetworkOnly):
                 bytesize=profile.bytesize,
                 stopbits=profile.stopbits,
                 flow=profile.flow,
+                telegram_size=256,  # as the CLI: uploads adapt below it (docs/lsv2-serial.md)
             )
             return AsyncClient.over_serial(line, timeout=10.0)
         return AsyncClient(config.host, config.port, timeout=10.0)
@@ -168,6 +169,10 @@ class Lsv2Connector(NetworkOnly):
             for e in await self._require().list_dir(folder)
             if e.name not in {".", ".."} and not e.hidden and not e.is_drive
         ]
+
+    async def put_file(self, path: str, data: bytes, progress: Progress) -> None:
+        """Write a file anywhere on the control's drive (a ``put_file`` job of the browser)."""
+        await self._require().write_file(path, data, progress=progress)
 
     async def delete(self, path: str) -> None:
         """Delete a file on the control."""
