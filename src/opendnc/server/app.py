@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, api, dprnt_api, web
+from opendnc.server import actions, api, dprnt_api, utilization_api, web
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
@@ -110,6 +110,7 @@ def build(
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
     core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
+    core.add(utilization_api.HourSummer(sessions, names))
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
@@ -144,6 +145,7 @@ def build(
     app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)
+    utilization_api.install(app)
     web.install(app)
     return Server(
         config,

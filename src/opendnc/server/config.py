@@ -88,6 +88,7 @@ from opendnc.server.kinds import (
     parse_machine,
 )
 from opendnc.server.requests import RequestRule, RequestSettings
+from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
 
 # The parser's helpers under the names this module has always used.
 _get = get_key
@@ -184,6 +185,7 @@ class ShopConfig:
     netshare: NetShareConfig | None = None
     mqtt: MqttConfig | None = None
     mtconnect: MtconnectConfig | None = None
+    calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -216,7 +218,11 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("", f"not valid TOML: {exc}") from exc
-    _known(raw, "", {"server", "library", "machines", "requests", "netshare", "mqtt", "mtconnect"})
+    _known(
+        raw,
+        "",
+        {"server", "library", "machines", "requests", "netshare", "mqtt", "mtconnect", "shifts"},
+    )
     server = _server(_table(raw, "server"), base)
     library = _library(_table(raw, "library"), base)
     machines_raw = raw.get("machines", [])
@@ -234,6 +240,11 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         netshare = _netshare(_table(raw, "netshare"), base, library, machines)
     mqtt = _mqtt(_table(raw, "mqtt"), base) if "mqtt" in raw else None
     mtconnect = _mtconnect(_table(raw, "mtconnect"), machines) if "mtconnect" in raw else None
+    try:
+        calendar = parse_calendar(raw)  # [server] timezone and [[shifts]] (server/shifts.py)
+    except CalendarError as exc:
+        key, _, problem = str(exc).partition(": ")  # the calendar's messages start with the key
+        raise ConfigError(key, problem) from None
     return ShopConfig(
         server=server,
         library=library,
@@ -243,6 +254,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         netshare=netshare,
         mqtt=mqtt,
         mtconnect=mtconnect,
+        calendar=calendar,
     )
 
 
@@ -449,7 +461,7 @@ def _requests(table: dict[str, Any]) -> RequestSettings:
 
 
 def _server(table: dict[str, Any], base: Path) -> ServerConfig:
-    _known(table, "server", {"bind", "database", "name", "timeline_retention_days"})
+    _known(table, "server", {"bind", "database", "name", "timeline_retention_days", "timezone"})
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
     # Port 0 takes any free port (tests, the demo); the server prints the one it got.

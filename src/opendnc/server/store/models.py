@@ -55,6 +55,9 @@ __all__ = [
     "Role",
     "StatusSample",
     "User",
+    "UtilizationHour",
+    "UtilizationMark",
+    "UtilizationStretch",
     "utcnow",
 ]
 
@@ -368,6 +371,64 @@ class StatusSample(Base):
     state: Mapped[str] = mapped_column(String(16))
     mode: Mapped[str] = mapped_column(String(64), default="")
     execution: Mapped[str] = mapped_column(String(32), default="")
+    # for utilization (migration 0007): what ran, the control's part counter, the alarm's text
+    program: Mapped[str] = mapped_column(String(64), default="")
+    part_count: Mapped[int | None] = mapped_column(Integer, nullable=True, default=None)
+    alarm: Mapped[str] = mapped_column(String(200), default="")
+
+
+class UtilizationHour(Base):
+    """One machine's hour (UTC) of the status timeline, summed (server/utilization.py): the
+    seconds in each state, parts counted, program runs that ended in it and their running
+    seconds. Written once the hour is over; kept when the samples are pruned."""
+
+    __tablename__ = "utilization_hours"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    hour: Mapped[datetime] = mapped_column(UtcDateTime(), primary_key=True)
+    running: Mapped[float] = mapped_column(Float, default=0.0)
+    ready: Mapped[float] = mapped_column(Float, default=0.0)
+    stopped: Mapped[float] = mapped_column(Float, default=0.0)
+    alarm: Mapped[float] = mapped_column(Float, default=0.0)
+    offline: Mapped[float] = mapped_column(Float, default=0.0)
+    unknown: Mapped[float] = mapped_column(Float, default=0.0)
+    no_record: Mapped[float] = mapped_column(Float, default=0.0)
+    parts: Mapped[int | None] = mapped_column(Integer, nullable=True, default=None)
+    runs: Mapped[int] = mapped_column(Integer, default=0)
+    cycles: Mapped[int] = mapped_column(Integer, default=0)  # runs whose running time is known
+    cycle_seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class UtilizationStretch(Base):
+    """A finished stop (``kind`` stop: 5 minutes or more not running) or alarm (``kind``
+    alarm, any length, with its text) of one machine, kept with the hours."""
+
+    __tablename__ = "utilization_stretches"
+    __table_args__ = (
+        Index("ix_utilization_stretches_machine_end", "machine", "kind", "end"),
+        Index("ix_utilization_stretches_machine_seconds", "machine", "kind", "seconds"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64))
+    kind: Mapped[str] = mapped_column(String(8))  # stop, alarm
+    start: Mapped[datetime] = mapped_column(UtcDateTime())
+    end: Mapped[datetime] = mapped_column(UtcDateTime())
+    seconds: Mapped[float] = mapped_column(Float)
+    state: Mapped[str] = mapped_column(String(16))  # a stop's worst state
+    text: Mapped[str] = mapped_column(String(200), default="")
+
+
+class UtilizationMark(Base):
+    """How far one machine's hours are summed (``until``), the highest sample id read, and
+    what carries over into the next hour (a run, a stop or an alarm in progress)."""
+
+    __tablename__ = "utilization_marks"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    until: Mapped[datetime] = mapped_column(UtcDateTime())
+    last_id: Mapped[int] = mapped_column(Integer, default=0)
+    carry: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
 
 
 class ClusterServer(Base):

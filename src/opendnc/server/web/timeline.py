@@ -54,6 +54,10 @@ class Sample:
     state: State
     mode: str = ""
     execution: str = ""
+    # for utilization (server/utilization.py): a change of these is a sample of its own
+    program: str = ""
+    part_count: int | None = None
+    alarm: str = ""
 
     @property
     def label(self) -> str:
@@ -83,14 +87,23 @@ class Segment:
     label: str
 
 
-Key = tuple[State, str, str]  # (state, mode, execution): a change of any is a sample
+# (state, mode, execution, program, part count, alarm text): a change of any is a sample
+Key = tuple[State, str, str, str, int | None, str]
 
 
 def _key(status: MachineStatus | None, online: bool) -> Key:
     state = classify(status, online=online)
     if state is State.OFFLINE or status is None:
-        return state, "", ""
-    return state, status.mode[:64], status.execution[:32]
+        return state, "", "", "", None, ""
+    alarm = "; ".join(str(e) for e in status.errors)[:200]
+    return (
+        state,
+        status.mode[:64],
+        status.execution[:32],
+        status.program[:64],
+        status.part_count,
+        alarm,
+    )
 
 
 class Timeline:
@@ -135,7 +148,7 @@ class Timeline:
     def stopped(self, at: datetime | None = None) -> None:
         """The server stops: from now on, no record for any machine noted so far."""
         for name in list(self._last):
-            self._add(name, (State.NO_RECORD, "", ""), at)
+            self._add(name, (State.NO_RECORD, "", "", "", None, ""), at)
 
     def beat(self, server: str, at: datetime | None = None) -> None:
         """Note that ``server`` is recording now (one row of its own, ``@server``, moved
@@ -196,6 +209,9 @@ class Timeline:
                         state=s.state.value,
                         mode=s.mode,
                         execution=s.execution,
+                        program=s.program,
+                        part_count=s.part_count,
+                        alarm=s.alarm,
                     )
                     for name, s in batch
                 )
@@ -234,7 +250,16 @@ class Timeline:
                 .order_by(StatusSample.at, StatusSample.id)
             ).all()
             out = [
-                Sample(r.at, from_stored(r.state), r.mode, r.execution) for r in (*before, *after)
+                Sample(
+                    r.at,
+                    from_stored(r.state),
+                    r.mode,
+                    r.execution,
+                    r.program,
+                    r.part_count,
+                    r.alarm,
+                )
+                for r in (*before, *after)
             ]
         with self._lock:
             out += [s for n, s in self.pending if n == name]

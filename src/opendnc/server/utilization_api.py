@@ -1,0 +1,369 @@
+"""``GET /api/utilization``: utilization per machine and shift, day or week, as JSON or CSV.
+
+Parameters (docs/dashboard.md#utilization): ``from`` and ``to`` as ISO 8601 instants with
+an offset, or as dates (the shop's midnight in ``[server] timezone``); by default the last 7
+days up to the end of today. ``machines`` names machines (comma-separated or repeated; all
+by default), ``group`` is ``shift``, ``day`` or ``week``, ``format=csv`` gives the table the
+dashboard exports. Every time in the answer is on the shop's clock with its offset
+(``2026-03-29T03:00:00+02:00``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import io
+import logging
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Annotated, Any
+
+from fastapi import APIRouter, FastAPI, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, Response
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import InputError
+from opendnc.server import deps
+from opendnc.server.api import Viewer
+from opendnc.server.components import RunsTask
+from opendnc.server.config import ShopConfig
+from opendnc.server.errors import NotFound
+from opendnc.server.shifts import DAYS, Calendar
+from opendnc.server.store.db import read_only
+from opendnc.server.utilization import (
+    STATES,
+    Figures,
+    Group,
+    Report,
+    Stretch,
+    report,
+    roll,
+    sum_safely,
+)
+
+__all__ = [
+    "CSV_COLUMNS",
+    "csv_text",
+    "install",
+    "parse_span",
+    "report_json",
+    "router",
+    "run_report",
+]
+
+DEFAULT_DAYS = 7
+ROLL_EVERY = 600.0  # seconds between two rounds of summing finished hours
+log = logging.getLogger(__name__)
+CSV_COLUMNS = [
+    "machine",
+    "period",
+    "shift",
+    "start",
+    "end",
+    *(f"{s.value}_h" for s in STATES),
+    "shift_h",
+    "utilization_pct",
+    "utilization_recorded_pct",
+    "parts",
+    "runs",
+    "cycle_mean_s",
+]
+DEFINITIONS = {
+    "utilization": "running time within shifts / shift time (percent)",
+    "utilization_recorded": "running time / recorded time, i.e. time less no record (percent)",
+    "parts": "increases of the control's part counter; null where it reports none",
+    "runs": "program runs that ended: the part counter rising, or running back to ready",
+    "stops": "5 minutes or more not running, named by the worst state in them",
+}
+
+router = APIRouter(prefix="/api")
+
+
+def install(app: FastAPI) -> None:
+    """Add ``/api/utilization`` to ``app``."""
+    app.include_router(router)
+
+
+class HourSummer(RunsTask):
+    """A component: sums the finished hours every :data:`ROLL_EVERY` seconds while the
+    server runs, so no question waits for more than the last minutes' samples, and the hours
+    are summed long before their samples are pruned."""
+
+    name = "utilization"
+    needs = ("database",)
+
+    def __init__(self, sessions: sessionmaker[Session], machines: list[str]) -> None:
+        self.sessions = sessions
+        self.machines = machines
+
+    async def run(self) -> None:
+        """Sum, then wait, until cancelled; a database that is away is tried next round."""
+        while True:
+            await asyncio.sleep(ROLL_EVERY)
+            try:
+                await asyncio.to_thread(self.sum_now)
+            except SQLAlchemyError as exc:
+                log.warning("utilization: summing the finished hours failed: %s", exc)
+
+    def sum_now(self, now: datetime | None = None) -> int:
+        """Sum what finished up to ``now``; how many machine-hours were written."""
+        with self.sessions.begin() as session:
+            return roll(session, self.machines, now or datetime.now(UTC))
+
+
+def _config(request: Request) -> ShopConfig:
+    return deps.machines(request).config
+
+
+def _sessions(request: Request) -> sessionmaker[Session]:
+    return deps.database(request).sessions
+
+
+def parse_when(text: str, calendar: Calendar, key: str) -> datetime:
+    """An ISO 8601 instant with an offset, or a date (the shop's midnight starting it)."""
+    text = text.strip()
+    try:
+        if len(text) == 10:
+            return calendar.instant(date.fromisoformat(text), time(0))
+        value = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise InputError(
+            f"{key}: expected an ISO 8601 time with offset or a date, got {text!r}"
+        ) from None
+    if value.tzinfo is None:
+        raise InputError(f"{key}: {text!r} has no UTC offset (add +01:00 or Z, or give a date)")
+    return value.astimezone(UTC)
+
+
+def parse_span(
+    calendar: Calendar, start: str | None, end: str | None, now: datetime | None = None
+) -> tuple[datetime, datetime]:
+    """``from`` and ``to``; by default the last 7 days up to the end of today (shop clock)."""
+    now = now or datetime.now(UTC)
+    if end:
+        until = parse_when(end, calendar, "to")
+    else:
+        until = calendar.instant(calendar.local(now).date() + timedelta(days=1), time(0))
+    if start:
+        since = parse_when(start, calendar, "from")
+    else:
+        local_end = calendar.local(until).date()
+        since = calendar.instant(local_end - timedelta(days=DEFAULT_DAYS), time(0))
+    if until <= since:
+        raise InputError("to: must be after from")
+    return since, until
+
+
+def pick_machines(config: ShopConfig, names: list[str] | None) -> list[str]:
+    """The machines asked for (all configured ones by default); :class:`NotFound` for one
+    that is not configured."""
+    known = [m.name for m in config.machines]
+    if not names:
+        return known
+    out: list[str] = []
+    for item in names:
+        for name in item.split(","):
+            name = name.strip()
+            if not name:
+                continue
+            if name not in known:
+                raise NotFound(f"no machine named {name!r}")
+            if name not in out:
+                out.append(name)
+    return out
+
+
+def run_report(
+    sessions: sessionmaker[Session],
+    config: ShopConfig,
+    *,
+    start: str | None,
+    end: str | None,
+    machines: list[str] | None,
+    group: str,
+    now: datetime | None = None,
+) -> Report:
+    """Parse the parameters and compute the report (summing finished hours first)."""
+    try:
+        grouping = Group(group)
+    except ValueError:
+        raise InputError(f"group: expected shift, day or week, got {group!r}") from None
+    calendar = config.calendar
+    since, until = parse_span(calendar, start, end, now)
+    names = pick_machines(config, machines)
+    now = now or datetime.now(UTC)
+    with sessions.begin() as session:  # short: what finished since the last summing
+        sum_safely(session, names, now)
+    # the question itself only reads (on SQLite it does not hold the write lock meanwhile)
+    with read_only(sessions)() as session:
+        return report(session, calendar, names, since, until, grouping, now=now, sum_first=False)
+
+
+def _local(at: datetime, calendar: Calendar) -> str:
+    return at.astimezone(calendar.zone).isoformat()
+
+
+def _pct(value: float | None) -> float | None:
+    return None if value is None else round(value, 2)
+
+
+def figures_json(f: Figures) -> dict[str, Any]:
+    """One machine's figures over some time as JSON (seconds, rounded to 0.1)."""
+    return {
+        "seconds": {s.value: round(f.seconds[s], 1) for s in STATES},
+        "shift_seconds": {s.value: round(f.scheduled[s], 1) for s in STATES},
+        "utilization": _pct(f.utilization),
+        "utilization_recorded": _pct(f.utilization_recorded),
+        "parts": f.parts,
+        "runs": f.runs,
+        "cycle_mean_seconds": None if f.cycle_mean is None else round(f.cycle_mean, 1),
+    }
+
+
+def _stretch_json(s: Stretch, calendar: Calendar) -> dict[str, Any]:
+    return {
+        "start": _local(s.start, calendar),
+        "end": _local(s.end, calendar),
+        "seconds": round(s.seconds, 1),
+        "state": s.state.value,
+        "text": s.text,
+        "ongoing": s.ongoing,
+    }
+
+
+def shifts_json(calendar: Calendar) -> list[dict[str, Any]]:
+    """The configured shifts as JSON."""
+    return [
+        {
+            "name": s.name,
+            "days": [DAYS[d] for d in sorted(s.days)],
+            "start": s.start.strftime("%H:%M"),
+            "end": "24:00" if s.ends_at_midnight else s.end.strftime("%H:%M"),
+        }
+        for s in calendar.shifts
+    ]
+
+
+def report_json(r: Report) -> dict[str, Any]:
+    """The whole report as JSON, times on the shop's clock with their offset."""
+    cal = r.calendar
+    return {
+        "from": _local(r.start, cal),
+        "to": _local(r.end, cal),
+        "timezone": cal.zone_name,
+        "group": r.group.value,
+        "states": [s.value for s in STATES],
+        "definitions": DEFINITIONS,
+        "shifts": shifts_json(cal),
+        "periods": [
+            {
+                "key": p.key,
+                "start": _local(p.start, cal),
+                "end": _local(p.end, cal),
+                "shift": p.shift or None,
+            }
+            for p in r.periods
+        ],
+        "machines": [
+            {
+                "machine": m.machine,
+                "totals": figures_json(m.totals),
+                "periods": [
+                    {"key": p.key, **figures_json(f)}
+                    for p, f in zip(r.periods, m.periods, strict=True)
+                ],
+                "stops": [_stretch_json(s, cal) for s in m.stops],
+                "alarms": [
+                    {
+                        "text": a.text,
+                        "count": a.count,
+                        "seconds": round(a.seconds, 1),
+                        "longest_seconds": round(a.longest, 1),
+                    }
+                    for a in m.alarms
+                ],
+                "recent_alarms": [_stretch_json(s, cal) for s in m.recent_alarms],
+            }
+            for m in r.machines
+        ],
+    }
+
+
+def _hours(seconds: float) -> str:
+    return f"{seconds / 3600:.3f}"
+
+
+def _opt(value: float | int | None, digits: int = 1) -> str:
+    if value is None:
+        return ""
+    return str(value) if isinstance(value, int) else f"{value:.{digits}f}"
+
+
+def csv_text(r: Report) -> str:
+    """The report as CSV: one row per machine and period, then the machine's total (period
+    ``total``); hours with three decimals, times on the shop's clock with offset."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\r\n")
+    writer.writerow(CSV_COLUMNS)
+    cal = r.calendar
+    for m in r.machines:
+        rows = [
+            (p.key, p.shift, p.start, p.end, f) for p, f in zip(r.periods, m.periods, strict=True)
+        ]
+        rows.append(("total", "", r.start, r.end, m.totals))
+        for key, shift, start, end, f in rows:
+            writer.writerow(
+                [
+                    m.machine,
+                    key,
+                    shift,
+                    _local(start, cal),
+                    _local(end, cal),
+                    *(_hours(f.seconds[s]) for s in STATES),
+                    _hours(f.scheduled_total),
+                    _opt(f.utilization, 2),
+                    _opt(f.utilization_recorded, 2),
+                    _opt(f.parts),
+                    f.runs,
+                    _opt(f.cycle_mean),
+                ]
+            )
+    return out.getvalue()
+
+
+def csv_response(r: Report) -> Response:
+    """The CSV as a download named after the span."""
+    name = f"utilization-{r.calendar.local(r.start):%Y%m%d}-{r.calendar.local(r.end):%Y%m%d}.csv"
+    return Response(
+        csv_text(r),
+        media_type="text/csv; charset=utf-8",
+        headers={"Content-Disposition": f'attachment; filename="{name}"'},
+    )
+
+
+@router.get("/utilization")
+async def utilization(
+    request: Request,
+    _who: Viewer,
+    start: Annotated[str | None, Query(alias="from")] = None,
+    end: Annotated[str | None, Query(alias="to")] = None,
+    machines: Annotated[list[str] | None, Query()] = None,
+    group: str = "day",
+    format: str = "json",
+) -> Response:
+    """Utilization per machine and period (JSON, or ``format=csv``)."""
+    if format not in ("json", "csv"):
+        raise InputError(f"format: expected json or csv, got {format!r}")
+    r = await run_in_threadpool(
+        run_report,
+        _sessions(request),
+        _config(request),
+        start=start,
+        end=end,
+        machines=machines,
+        group=group,
+    )
+    if format == "csv":
+        return csv_response(r)
+    return JSONResponse(report_json(r))
