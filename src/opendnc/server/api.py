@@ -14,7 +14,7 @@ import csv
 import hashlib
 import io
 import json
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
@@ -24,7 +24,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError
-from opendnc.server import audit, auth, inbox, jobs, library
+from opendnc.server import audit, auth, dbsession, inbox, jobs, library
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import EventBus
 from opendnc.server.loopwatch import LoopWatch
@@ -51,6 +51,7 @@ EVENT_INTERVAL = 0.5
 def install(app: FastAPI, sessions: sessionmaker[Session], supervisor: Supervisor) -> None:
     """Add the API routes and error mapping to ``app``."""
     app.state.sessions = sessions
+    dbsession.install(app, sessions)
     app.state.supervisor = supervisor
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
     app.include_router(router)
@@ -64,19 +65,12 @@ async def _error(_request: Request, exc: DncError) -> JSONResponse:
     return JSONResponse({"detail": str(exc)}, status_code=500)
 
 
-router = APIRouter(prefix="/api")
+router = APIRouter(prefix="/api", route_class=dbsession.SessionRoute)
 
 
-def _db(request: Request) -> Iterator[Session]:
-    # Committed when the route returns normally, rolled back when it raises; a route that
-    # must act after the commit (waking a machine) commits itself first.
-    sessions: sessionmaker[Session] = request.app.state.sessions
-    with sessions() as session:
-        yield session
-        session.commit()
-
-
-Db = Annotated[Session, Depends(_db)]
+# Committed when the route returns normally, rolled back when it raises; a route that must
+# act after the commit (waking a machine) commits itself first. GET routes read only.
+Db = dbsession.Db
 
 
 def _principal(
@@ -85,9 +79,7 @@ def _principal(
     if not authorization or not authorization.lower().startswith("bearer "):
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     key = authorization[7:].strip()
-    sessions: sessionmaker[Session] = request.app.state.sessions
-    with sessions.begin() as session:
-        return auth.authenticate_key(session, key)
+    return dbsession.read_then_write(request, lambda session: auth.authenticate_key(session, key))
 
 
 def require(role: Role) -> Any:

@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
 from opendnc.server.api import Db, Viewer
+from opendnc.server.dbsession import SessionRoute
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.errors import NotFound
 from opendnc.server.store.models import DprntLine
@@ -30,7 +31,7 @@ __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router
 CSV_COLUMNS = ["id", "at", "machine", "line", "fields", "complete"]
 MAX_LIMIT = 10_000
 
-router = APIRouter(prefix="/api")
+router = APIRouter(prefix="/api", route_class=SessionRoute)
 
 
 def lines_after(session: Session, machine: str, since: int, limit: int) -> list[dict[str, Any]]:

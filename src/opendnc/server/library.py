@@ -14,6 +14,7 @@ import re
 from collections.abc import Sequence
 
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
@@ -125,11 +126,7 @@ def add_version(
     if len(data) > MAX_PROGRAM_BYTES:
         raise InputError(f"{name}: {len(data)} bytes is more than the library takes")
     digest = hashlib.sha256(data).hexdigest()
-    program = session.scalar(select(Program).where(Program.name == name))
-    if program is None:
-        program = Program(name=name)
-        session.add(program)
-        session.flush()
+    program = _program_for_update(session, name)
     if program.locked:
         raise Conflict(f"program {name!r} is locked")
     if program.versions and program.versions[-1].sha256 == digest:
@@ -161,6 +158,24 @@ def add_version(
         comment=comment,
     )
     return version, True
+
+
+def _program_for_update(session: Session, name: str) -> Program:
+    # Two uploads of one name at the same moment must not both number their version N+1. On
+    # PostgreSQL the program's row is locked until the commit (SQLite has no row locks and
+    # needs none: a writing transaction there holds the database's write lock throughout).
+    stmt = select(Program).where(Program.name == name).with_for_update()
+    program = session.scalar(stmt)
+    if program is not None:
+        return program
+    try:
+        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
+            session.add(Program(name=name))
+    except IntegrityError:
+        pass
+    program = session.scalar(stmt)
+    assert program is not None  # created here or by the upload that won the race
+    return program
 
 
 def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:
