@@ -130,7 +130,13 @@ async def _serve(server: Server, listener: socket.socket, host: str) -> None:
         # Its ports open before the app starts, so a taken one is a plain error naming it.
         await server.mtconnect.start()
     port = listener.getsockname()[1]  # the real one for :0
-    settings = uvicorn.Config(server.app, log_level="warning", lifespan="on")
+    from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
+
+    raise_file_limit()  # connections are limited by the server (limits.py), not by running out
+    # The guarded protocol times out incomplete headers and refuses connections past the limit.
+    settings = uvicorn.Config(
+        server.app, log_level="warning", lifespan="on", http=uvicorn_protocol(Limits())
+    )
     web = uvicorn.Server(settings)
     serving = asyncio.create_task(web.serve(sockets=[listener]))
     while not web.started:

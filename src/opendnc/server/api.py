@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError
 from opendnc.server import audit, auth, dbsession, inbox, jobs, library
+from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import EventBus
 from opendnc.server.loopwatch import LoopWatch
@@ -65,7 +66,7 @@ async def _error(_request: Request, exc: DncError) -> JSONResponse:
     return JSONResponse({"detail": str(exc)}, status_code=500)
 
 
-router = APIRouter(prefix="/api", route_class=dbsession.SessionRoute)
+router = APIRouter(prefix="/api", route_class=ApiRoute)
 
 
 # Committed when the route returns normally, rolled back when it raises; a route that must
@@ -238,7 +239,9 @@ def get_machine(request: Request, name: str, _who: Viewer) -> dict[str, Any]:
 
 
 @router.get("/programs")
-def list_programs(db: Db, _who: Viewer, q: str = "") -> list[dict[str, Any]]:
+def list_programs(
+    db: Db, _who: Viewer, q: Annotated[str, Query(max_length=library.MAX_SEARCH)] = ""
+) -> list[dict[str, Any]]:
     """Programs in the library, optionally filtered by part of the name."""
     return [program_json(p) for p in library.list_programs(db, q)]
 

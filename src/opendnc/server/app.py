@@ -18,10 +18,11 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api, dprnt_api, web
+from opendnc.server import api, dprnt_api, edge, web
 from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
+from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machines import Connector, connector_for
 from opendnc.server.mqtt import MqttPublisher
@@ -140,6 +141,8 @@ def build(
                 await mtconnect.close()
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
+    edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
+    app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
     api.install(app, sessions, supervisor)
     app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
     app.state.loopwatch = loopwatch

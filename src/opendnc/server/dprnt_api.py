@@ -20,8 +20,8 @@ from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
 from opendnc.server.api import Db, Viewer
-from opendnc.server.dbsession import SessionRoute
 from opendnc.server.dprnt_capture import line_json
+from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
 from opendnc.server.store.models import DprntLine
 from opendnc.server.supervisor import Supervisor
@@ -31,7 +31,7 @@ __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router
 CSV_COLUMNS = ["id", "at", "machine", "line", "fields", "complete"]
 MAX_LIMIT = 10_000
 
-router = APIRouter(prefix="/api", route_class=SessionRoute)
+router = APIRouter(prefix="/api", route_class=ApiRoute)
 
 
 def lines_after(session: Session, machine: str, since: int, limit: int) -> list[dict[str, Any]]:

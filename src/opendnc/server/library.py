@@ -24,6 +24,7 @@ from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVers
 
 __all__ = [
     "MAX_PROGRAM_BYTES",
+    "MAX_SEARCH",
     "add_version",
     "check_program_name",
     "content",
@@ -37,6 +38,7 @@ __all__ = [
 
 # Larger than any program a control's memory takes; a drip-fed mould program can be tens of MB.
 MAX_PROGRAM_BYTES = 256 * 1024 * 1024
+MAX_SEARCH = 100  # the longest program name
 
 # One file name, as controls and shares accept it: no folders, no dot-names, no Windows
 # device names, nothing a path join could turn into a different place.
@@ -64,7 +66,13 @@ def check_program_name(name: str) -> str:
 
 
 def list_programs(session: Session, search: str = "") -> Sequence[Program]:
-    """Programs whose name contains ``search`` (case-insensitive), by name."""
+    """Programs whose name contains ``search`` (case-insensitive), by name.
+
+    ``search`` longer than a name can be (:data:`MAX_SEARCH`) is an :class:`InputError`: it
+    could match nothing, and SQLite refuses a LIKE pattern of 50,000 characters and more.
+    ``%`` and ``_`` in it match themselves."""
+    if len(search) > MAX_SEARCH:
+        raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
     stmt = select(Program).order_by(Program.name)
     if search:
         stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
