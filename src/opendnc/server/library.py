@@ -33,6 +33,7 @@ __all__ = [
     "get_version",
     "list_programs",
     "release",
+    "same_name_but_case",
     "set_locked",
 ]
 
@@ -62,7 +63,24 @@ def check_program_name(name: str) -> str:
         )
     if name.split(".")[0].upper() in _WINDOWS_DEVICES:
         raise InputError(f"program name {name!r} is a reserved device name on Windows")
+    if name.endswith("."):
+        # Windows and SMB shares drop a trailing dot: 'O1.nc.' would be the file 'O1.nc'.
+        raise InputError(
+            f"program name {name!r} ends in '.', which Windows drops: call it {name.rstrip('.')!r}"
+        )
     return name
+
+
+def same_name_but_case(session: Session, name: str) -> str | None:
+    """The existing program whose name differs from ``name`` only in case, if there is one.
+
+    Windows, SMB shares and macOS fold case: 'o1.nc' and 'O1.NC' there are one file, so the
+    library holds at most one of them (docs/server.md#program-names).
+    """
+    stmt = select(Program.name).where(
+        func.lower(Program.name) == name.lower(), Program.name != name
+    )
+    return session.scalars(stmt).first()
 
 
 def list_programs(session: Session, search: str = "") -> Sequence[Program]:
@@ -176,6 +194,12 @@ def _program_for_update(session: Session, name: str) -> Program:
     program = session.scalar(stmt)
     if program is not None:
         return program
+    other = same_name_but_case(session, name)
+    if other is not None:
+        raise Conflict(
+            f"program {name!r} differs from {other!r} only in case, and file systems that "
+            f"fold case (Windows, network shares) would make them one file: use {other!r}"
+        )
     try:
         with session.begin_nested():  # a savepoint: losing the race to create it is not an error
             session.add(Program(name=name))
