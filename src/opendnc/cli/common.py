@@ -18,8 +18,9 @@ from rich.markup import escape
 
 from opendnc.errors import DncError, SafetyLockError
 
-# no emoji codes: user text such as a scope signal "0:X:1" or a path must print as typed
-console = Console(emoji=False)
+# no emoji codes: user text such as a scope signal "0:X:1" or a path must print as typed;
+# soft_wrap: a line with a long path stays one line when piped (rich wraps at 80 columns there)
+console = Console(emoji=False, soft_wrap=True)
 err_console = Console(stderr=True, emoji=False)
 
 

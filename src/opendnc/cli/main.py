@@ -49,6 +49,9 @@ COMMANDS: dict[str, Lazy] = {
     "requests": Lazy(
         "opendnc.cli.serve:requests_app", "Remote-request rules: test which rule takes a request."
     ),
+    "cluster": Lazy(
+        "opendnc.cli.cluster:app", "Several servers on one database: servers and their machines."
+    ),
     "demo": Lazy(
         "opendnc.cli.demo_server:demo",
         "The DNC server with a virtual shop floor (--tour: a short command-line tour).",

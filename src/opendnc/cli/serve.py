@@ -65,13 +65,18 @@ def serve(
         # The address first: a port in use must stop the server before it migrates the
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
+        from opendnc.server.single_server import SingleServerLock
+
+        guard = SingleServerLock(db or shop.server.database)
         try:
+            guard.acquire()  # a second server on one SQLite file: one line, before migrating
             server = build(shop, database=db)
             try:
                 asyncio.run(_serve(server, listener, host))
             finally:
                 server.engine.dispose()
         finally:
+            guard.release()
             listener.close()
 
 

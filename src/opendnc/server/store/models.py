@@ -40,11 +40,13 @@ __all__ = [
     "AuditEntry",
     "Base",
     "Blob",
+    "ClusterServer",
     "DprntLine",
     "Job",
     "JobKind",
     "JobState",
     "Machine",
+    "MachineLease",
     "Program",
     "ProgramState",
     "ProgramVersion",
@@ -358,3 +360,37 @@ class StatusSample(Base):
     state: Mapped[str] = mapped_column(String(16))
     mode: Mapped[str] = mapped_column(String(64), default="")
     execution: Mapped[str] = mapped_column(String(32), default="")
+
+
+class ClusterServer(Base):
+    """A server of a cluster sharing one PostgreSQL database, and when it last said it lives.
+
+    ``heartbeat`` is the database's clock, never the server's: servers whose clocks disagree
+    still agree on who is alive (docs/server.md#several-servers).
+    """
+
+    __tablename__ = "cluster_servers"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    host: Mapped[str] = mapped_column(String(255), default="")
+    pid: Mapped[int] = mapped_column(Integer, default=0)
+    url: Mapped[str] = mapped_column(String(255), default="")
+    lease_seconds: Mapped[float] = mapped_column(Float, default=10.0)  # alive within this
+    started: Mapped[datetime] = mapped_column(UtcDateTime())
+    heartbeat: Mapped[datetime] = mapped_column(UtcDateTime())
+
+
+class MachineLease(Base):
+    """Which server serves a machine until ``expires`` (the database's clock).
+
+    ``epoch`` grows by one at every change of owner: a server that lost its lease while it
+    was paused cannot act on the machine's rows with a stale epoch.
+    """
+
+    __tablename__ = "machine_leases"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    owner: Mapped[str] = mapped_column(String(64), default="")
+    epoch: Mapped[int] = mapped_column(BigInteger, default=0)
+    acquired: Mapped[datetime] = mapped_column(UtcDateTime())
+    expires: Mapped[datetime] = mapped_column(UtcDateTime())

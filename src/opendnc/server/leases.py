@@ -1,0 +1,339 @@
+"""Machine leases: several servers on one PostgreSQL database, each machine served by one.
+
+A server that shares its database with others serves a machine (status, listening, jobs,
+auto-receive, DPRNT) only while it holds that machine's lease: a row with an owner and an
+expiry on the database's clock, renewed every few seconds (docs/server.md#several-servers).
+A server that dies stops renewing; once its leases expire the others take its machines.
+
+Who should serve what is computed, not negotiated: every server reads the same live servers
+and the same machines and computes the same :func:`assign` — rendezvous hashing with a cap,
+so machines spread evenly and few move when a server comes or goes. A server never takes a
+lease that is still live: the owner hands a machine over (at a safe point, when nothing runs
+there) once another live server is assigned it, and the new owner takes the free row. So a
+server that starts takes its share without two servers fighting over the same machines.
+
+All times are the database's: ``now()`` read at the start of each renewal's transaction, so
+servers whose clocks disagree still agree on who is alive and whose lease ran out. SQLite
+serves one server only (:mod:`opendnc.server.single_server`); this module then runs on the
+process's clock with the same code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import socket
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+
+from sqlalchemy import delete, select, text, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.server.store.models import ClusterServer, MachineLease, utcnow
+
+__all__ = ["ClusterView", "Holding", "LeaseRow", "Leases", "ServerRow", "assign"]
+
+DEFAULT_TTL = (
+    10.0  # seconds a lease lasts unrenewed: the failover time is about this plus a renewal
+)
+
+
+def _score(machine: str, server: str) -> bytes:
+    # Rendezvous hashing: each (machine, server) pair gets a stable pseudo-random rank.
+    return hashlib.sha256(f"{machine}\0{server}".encode()).digest()
+
+
+def _ranked(machine: str, servers: frozenset[str]) -> list[str]:
+    return sorted(servers, key=lambda server: _score(machine, server), reverse=True)
+
+
+def assign(machines: Mapping[str, frozenset[str]], live: frozenset[str]) -> dict[str, str]:
+    """Which live server should serve each machine.
+
+    ``machines`` maps each machine to the servers it is pinned to (empty: any server). A
+    machine whose pinned servers are all down is left out. Machines spread within one of
+    each other: the most constrained are placed first, each on its best-ranked server that
+    is below the even share, else on its least loaded candidate.
+    """
+    if not live:
+        return {}
+    # An even share: every server gets `base` machines and `extra` of them one more.
+    base, extra = divmod(len(machines), len(live))
+    load = dict.fromkeys(live, 0)
+    candidates = {m: _ranked(m, pins & live if pins else live) for m, pins in machines.items()}
+    out: dict[str, str] = {}
+    order = sorted(candidates, key=lambda m: (len(candidates[m]), _score(m, "")))
+    for machine in order:
+        ranked = candidates[machine]
+        if not ranked:
+            continue
+        below = [s for s in ranked if load[s] < base or (load[s] == base and extra > 0)]
+        chosen = below[0] if below else min(ranked, key=lambda s: load[s])
+        if load[chosen] == base:
+            extra -= 1
+        load[chosen] += 1
+        out[machine] = chosen
+    return out
+
+
+@dataclass(frozen=True)
+class Holding:
+    """What one renewal changed: the machines to start and stop serving, and all held now."""
+
+    held: frozenset[str]
+    gained: frozenset[str]
+    lost: frozenset[str]  # expired and taken by another server, or released by a hand-over
+    epochs: Mapping[str, int]  # the epoch of each held lease (fencing)
+    valid_until: float  # time.monotonic() after which the leases may be someone else's
+
+
+@dataclass(frozen=True)
+class ServerRow:
+    """One server of the cluster, as ``opendnc cluster status`` shows it."""
+
+    name: str
+    host: str
+    pid: int
+    url: str
+    started: datetime
+    heartbeat_age: float  # seconds since its last heartbeat, on the database's clock
+    alive: bool
+    machines: int
+
+
+@dataclass(frozen=True)
+class LeaseRow:
+    """One machine's lease."""
+
+    machine: str
+    owner: str
+    epoch: int
+    expires_in: float  # seconds; negative when expired
+    live: bool
+
+
+@dataclass(frozen=True)
+class ClusterView:
+    """The cluster as the database sees it now."""
+
+    now: datetime
+    servers: tuple[ServerRow, ...]
+    leases: tuple[LeaseRow, ...]
+
+
+class Leases:
+    """One server's side of the machine leases (blocking: call it from a worker thread)."""
+
+    def __init__(
+        self,
+        sessions: sessionmaker[Session],
+        server: str,
+        machines: Mapping[str, frozenset[str]],
+        *,
+        ttl: float = DEFAULT_TTL,
+        url: str = "",
+    ) -> None:
+        self.sessions = sessions
+        self.server = server
+        # only the machines this server may serve; the others never concern it
+        self.machines = {m: pins for m, pins in machines.items() if not pins or server in pins}
+        self.all_machines = dict(machines)
+        self.ttl = timedelta(seconds=ttl)
+        self.url = url
+        self.held: frozenset[str] = frozenset()
+        self.valid_until = 0.0
+        self._started: datetime | None = None
+
+    def _now(self, session: Session) -> datetime:
+        if session.get_bind().dialect.name == "postgresql":
+            value = session.execute(text("SELECT now()")).scalar_one()
+            assert isinstance(value, datetime)
+            return value
+        return utcnow()
+
+    def _insert(self, session: Session) -> Callable[..., object]:
+        return pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
+
+    def _heartbeat(self, session: Session, now: datetime) -> None:
+        if self._started is None:
+            self._started = now
+        values = {
+            "name": self.server,
+            "host": socket.gethostname()[:255],
+            "pid": os.getpid(),
+            "url": self.url[:255],
+            "lease_seconds": self.ttl.total_seconds(),
+            "started": self._started,
+            "heartbeat": now,
+        }
+        insert = self._insert(session)
+        statement = insert(ClusterServer).values(**values)  # type: ignore[attr-defined]
+        session.execute(
+            statement.on_conflict_do_update(
+                index_elements=[ClusterServer.name],
+                set_={k: statement.excluded[k] for k in values if k != "name"},
+            )
+        )
+
+    def live_servers(self, session: Session, now: datetime) -> frozenset[str]:
+        """The servers whose heartbeat is younger than a lease."""
+        rows = session.scalars(
+            select(ClusterServer.name).where(ClusterServer.heartbeat > now - self.ttl)
+        )
+        return frozenset(rows) | {self.server}
+
+    def renew(self, *, can_hand_over: Callable[[str], bool] = lambda _m: True) -> Holding:
+        """Heartbeat, renew what this server holds, hand over and take what is due.
+
+        ``can_hand_over(machine)`` says whether a machine is at a safe point (no job running):
+        a machine assigned to another live server is released only then.
+        """
+        # The leases run from before the transaction began: however long it takes, this
+        # server stops trusting them no later than the database lets another take them.
+        began = time.monotonic()
+        with self.sessions.begin() as session:
+            now = self._now(session)
+            self._heartbeat(session, now)
+            live = self.live_servers(session, now)
+            wanted = assign(self.all_machines, live)
+            leases = {row.machine: row for row in session.scalars(select(MachineLease))}
+            mine = {
+                m for m, row in leases.items() if row.owner == self.server and m in self.machines
+            }
+            hand_over = {
+                m for m in mine if wanted.get(m, self.server) != self.server and can_hand_over(m)
+            }
+            if hand_over:
+                session.execute(
+                    update(MachineLease)
+                    .where(MachineLease.machine.in_(hand_over), MachineLease.owner == self.server)
+                    .values(owner="", expires=now)
+                )
+            keep = mine - hand_over
+            renewed: set[str] = set()
+            if keep:
+                renewed = set(
+                    session.scalars(
+                        update(MachineLease)
+                        .where(MachineLease.machine.in_(keep), MachineLease.owner == self.server)
+                        .values(expires=now + self.ttl)
+                        .returning(MachineLease.machine)
+                    )
+                )
+            grace = self.ttl / 2  # a free machine waits this long for the server assigned it
+            for machine in self.machines:
+                if machine in renewed or machine in hand_over:
+                    continue
+                row = leases.get(machine)
+                free_since = None if row is None else row.expires
+                if row is not None and row.owner and row.expires > now:
+                    continue  # live elsewhere: never taken
+                due = wanted.get(machine) == self.server
+                if not due and free_since is not None and free_since > now - grace:
+                    continue
+                if self._take(session, machine, now):
+                    renewed.add(machine)
+            epochs = {
+                machine: epoch
+                for machine, epoch in session.execute(
+                    select(MachineLease.machine, MachineLease.epoch).where(
+                        MachineLease.owner == self.server
+                    )
+                )
+            }
+        held = frozenset(renewed)
+        holding = Holding(
+            held=held,
+            gained=held - self.held,
+            lost=self.held - held,
+            epochs={m: e for m, e in epochs.items() if m in held},
+            valid_until=began + self.ttl.total_seconds(),
+        )
+        self.held = held
+        self.valid_until = holding.valid_until
+        return holding
+
+    def serving(self) -> frozenset[str]:
+        """The machines this server may act on now: held, and not past the lease."""
+        return self.held if time.monotonic() < self.valid_until else frozenset()
+
+    def _take(self, session: Session, machine: str, now: datetime) -> bool:
+        # One statement: of two servers taking the same free row, the second finds it live.
+        insert = self._insert(session)
+        statement = insert(MachineLease).values(  # type: ignore[attr-defined]
+            machine=machine, owner=self.server, epoch=1, acquired=now, expires=now + self.ttl
+        )
+        taken = session.execute(
+            statement.on_conflict_do_update(
+                index_elements=[MachineLease.machine],
+                set_={
+                    "owner": self.server,
+                    "epoch": MachineLease.epoch + 1,
+                    "acquired": now,
+                    "expires": now + self.ttl,
+                },
+                where=(MachineLease.expires <= now) | (MachineLease.owner == ""),
+            ).returning(MachineLease.machine)
+        ).first()
+        return taken is not None
+
+    def release_all(self) -> None:
+        """A clean stop: free every lease at once and leave the cluster."""
+        with self.sessions.begin() as session:
+            now = self._now(session)
+            session.execute(
+                update(MachineLease)
+                .where(MachineLease.owner == self.server)
+                .values(owner="", expires=now)
+            )
+            session.execute(delete(ClusterServer).where(ClusterServer.name == self.server))
+        self.held = frozenset()
+
+    def view(self) -> ClusterView:
+        """Servers, heartbeats and leases as the database sees them now."""
+        return cluster_view(self.sessions)
+
+
+def cluster_view(sessions: sessionmaker[Session]) -> ClusterView:
+    """Servers, heartbeats and leases of the database behind ``sessions``."""
+    with sessions() as session:
+        if session.get_bind().dialect.name == "postgresql":
+            now = session.execute(text("SELECT now()")).scalar_one()
+        else:
+            now = utcnow()
+        leases = list(session.scalars(select(MachineLease).order_by(MachineLease.machine)))
+        servers = list(session.scalars(select(ClusterServer).order_by(ClusterServer.name)))
+    counts: dict[str, int] = {}
+    for row in leases:
+        if row.owner and row.expires > now:
+            counts[row.owner] = counts.get(row.owner, 0) + 1
+    return ClusterView(
+        now=now,
+        servers=tuple(
+            ServerRow(
+                name=s.name,
+                host=s.host,
+                pid=s.pid,
+                url=s.url,
+                started=s.started,
+                heartbeat_age=(now - s.heartbeat).total_seconds(),
+                alive=(now - s.heartbeat).total_seconds() < s.lease_seconds,
+                machines=counts.get(s.name, 0),
+            )
+            for s in servers
+        ),
+        leases=tuple(
+            LeaseRow(
+                machine=row.machine,
+                owner=row.owner,
+                epoch=row.epoch,
+                expires_in=(row.expires - now).total_seconds(),
+                live=bool(row.owner) and row.expires > now,
+            )
+            for row in leases
+        ),
+    )

@@ -1,0 +1,102 @@
+"""Wake-ups between servers sharing one PostgreSQL database: LISTEN/NOTIFY.
+
+A server that queues a job, cancels or reorders one, or changes the library tells the others
+through the database itself (``pg_notify`` inside the same transaction), so the server that
+serves the machine acts at once instead of at its next sweep (docs/server.md#several-servers).
+PostgreSQL delivers a notification only when its transaction commits, and never one whose
+transaction rolled back, so a woken server always finds the row it was woken for.
+
+Notifications are hints, not the truth: a listener that was disconnected may have missed
+some, so it reports every reconnect and the server then re-reads what it serves. On SQLite
+(one server) :func:`notify` does nothing and nothing listens.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from sqlalchemy import text
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session
+
+__all__ = ["CHANNEL", "Listener", "Notice", "notify"]
+
+CHANNEL = "opendnc"
+_log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Notice:
+    """One wake-up: what changed (``job``, ``cancel``, ``library``, ...) and its key."""
+
+    topic: str
+    key: str
+
+    def encode(self) -> str:
+        """The notification's payload."""
+        return f"{self.topic}:{self.key}"
+
+    @classmethod
+    def decode(cls, payload: str) -> Notice:
+        """A payload back into a notice (one without a topic is a bare key)."""
+        topic, _, key = payload.partition(":")
+        return cls(topic, key) if key else cls("", topic)
+
+
+def notify(session: Session, topic: str, key: str) -> None:
+    """Wake the other servers when ``session``'s transaction commits (nothing on SQLite)."""
+    if session.get_bind().dialect.name != "postgresql":
+        return
+    session.execute(
+        text("SELECT pg_notify(:channel, :payload)"),
+        {"channel": CHANNEL, "payload": Notice(topic, key).encode()},
+    )
+
+
+class Listener:
+    """Listens on the channel and hands each notice to ``on_notice``; reconnects with backoff.
+
+    ``on_reconnect`` is called after every (re)connection: notices sent while the listener
+    was away are lost, so the server re-reads the state it serves.
+    """
+
+    def __init__(
+        self,
+        database_url: str,
+        on_notice: Callable[[Notice], None],
+        *,
+        on_reconnect: Callable[[], None] = lambda: None,
+    ) -> None:
+        url = make_url(database_url)
+        # psycopg takes a libpq URL: the SQLAlchemy driver suffix goes
+        self.conninfo = url.set(drivername="postgresql").render_as_string(hide_password=False)
+        self.on_notice = on_notice
+        self.on_reconnect = on_reconnect
+        self.connected = asyncio.Event()
+        self.connections = 0
+
+    async def run(self) -> None:
+        """Listen until cancelled."""
+        import psycopg
+
+        delay = 0.5
+        while True:
+            try:
+                async with await psycopg.AsyncConnection.connect(
+                    self.conninfo, autocommit=True
+                ) as conn:
+                    await conn.execute(f"LISTEN {CHANNEL}")
+                    self.connections += 1
+                    self.connected.set()
+                    delay = 0.5
+                    self.on_reconnect()
+                    async for message in conn.notifies():
+                        self.on_notice(Notice.decode(message.payload))
+            except psycopg.Error as exc:
+                self.connected.clear()
+                _log.warning("database notifications lost (%s); again in %.1f s", exc, delay)
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, 10.0)
