@@ -67,6 +67,8 @@ from opendnc.xmodem.sender import SenderConfig
 
 sys.path.insert(0, str(Path(__file__).parent))
 from simproc import start_server
+from soak_server import report as report_server
+from soak_server import soak_server
 
 # -- bookkeeping --------------------------------------------------------------------------
 
@@ -617,8 +619,20 @@ def haas_simulator(root: Path) -> Iterator[tuple[subprocess.Popen[str], int]]:
             proc.communicate()
 
 
-def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
+def run(
+    seconds: float, smoke: bool, seed: int, server: bool = True, server_db: str | None = None
+) -> dict[str, object]:
     started = time.monotonic()
+    # The server part runs beside the device patterns for the whole soak, in its own thread.
+    server_part: dict[str, object] = {}
+    server_thread = threading.Thread(
+        target=lambda: server_part.update(
+            soak_server(8.0 if smoke else seconds, smoke, seed, server_db)
+        ),
+        name="soak-server",
+    )
+    if server:
+        server_thread.start()
     work = Path(tempfile.mkdtemp(prefix="opendnc-soak-"))
     soak = Soak(work, random.Random(seed), smoke, started + seconds)
     (work / "outside").mkdir()
@@ -664,6 +678,8 @@ def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
             tnc.kill()
             tnc.communicate()
         shutil.rmtree(work, ignore_errors=True)
+    if server:
+        server_thread.join()
     memory["soak_process_peak"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return {
         "seconds": round(time.monotonic() - started, 1),
@@ -671,6 +687,7 @@ def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
         "seed": seed,
         "patterns": {name: asdict(t) for name, t in sorted(soak.tallies.items())},
         "memory": memory,
+        "server": server_part or None,
     }
 
 
@@ -693,6 +710,9 @@ def report(result: dict[str, object]) -> None:
     for name, t in patterns.items():
         for note in t["notes"]:
             print(f"  {name}: {note}")
+    server = result.get("server")
+    if isinstance(server, dict):
+        report_server(server)
 
 
 def main() -> None:
@@ -701,15 +721,23 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help="one short round of each pattern")
     parser.add_argument("--seed", type=int, default=1, help="seed of every random choice")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument(
+        "--no-server", action="store_true", help="leave out the server part (opendnc serve)"
+    )
+    parser.add_argument(
+        "--server-db", default=None, help="database URL for the server part (default SQLite)"
+    )
     args = parser.parse_args()
-    result = run(args.seconds, args.smoke, args.seed)
+    result = run(args.seconds, args.smoke, args.seed, not args.no_server, args.server_db)
     if args.json:
         print(json.dumps(result))
     else:
         report(result)
     patterns = result["patterns"]
     assert isinstance(patterns, dict)
-    sys.exit(1 if any(t["silent"] for t in patterns.values()) else 0)
+    server = result.get("server")
+    server_bad = isinstance(server, dict) and bool(server["five_xx"] or server["hung"])
+    sys.exit(1 if any(t["silent"] for t in patterns.values()) or server_bad else 0)
 
 
 if __name__ == "__main__":

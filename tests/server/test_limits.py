@@ -286,6 +286,9 @@ def test_connections_past_the_limit_get_a_one_line_503(tmp_path: Path, procs: Pr
 
 
 BAD_INPUTS = [
+    ("GET", "/api/jobs/99999999999999999999", {}),
+    ("GET", "/api/jobs/2147483648", {}),
+    ("GET", "/api/audit?before=9223372036854775808", {}),
     (
         "POST",
         "/api/keys",
@@ -327,8 +330,12 @@ BAD_INPUTS = [
 ]
 
 
-def test_bad_input_is_a_4xx_with_a_printable_reason(server: tuple[str, str, int]) -> None:
-    url, key, _pid = server
+def test_bad_input_is_a_4xx_with_a_printable_reason(
+    tmp_path: Path, procs: Procs, db_url: str
+) -> None:
+    config = shop(tmp_path)
+    key = create_key(config, db_url)
+    url = serve(procs, config, db_url)
     httpx.put(f"{url}/api/programs/O1.nc", content=b"G0\n", headers=auth(key)).raise_for_status()
     for method, path, extra in BAD_INPUTS:
         options = dict(extra)

@@ -20,8 +20,17 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
+from sqlalchemy.exc import DataError
 
 from opendnc.server.dbsession import SessionRoute
+
+try:
+    from psycopg.errors import NumericValueOutOfRange as NumericOutOfRange
+except ImportError:  # pragma: no cover - SQLite only: there it is an OverflowError
+
+    class NumericOutOfRange(Exception):  # type: ignore[no-redef]
+        """Stands in for psycopg's error where psycopg is not installed."""
+
 
 __all__ = ["ECHO_LIMIT", "ApiRoute", "StrictJsonRequest", "install", "printable", "strict_json"]
 
@@ -53,6 +62,19 @@ def printable(value: Any, depth: int = 0) -> Any:
 async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
     errors = [printable(dict(error)) for error in exc.errors()]
     return JSONResponse({"detail": errors}, status_code=422)
+
+
+async def _out_of_range(_request: Request, exc: Exception) -> JSONResponse:
+    # A number the database cannot store (an id of 2**63 on SQLite, 2**31 in a PostgreSQL
+    # integer column) that reached a query: the client's input, so 422, not 500. Routes
+    # bound their numbers themselves; this is the net under them.
+    return JSONResponse({"detail": "a number in the request is out of range"}, status_code=422)
+
+
+async def _data_error(request: Request, exc: DataError) -> JSONResponse:
+    if isinstance(exc.orig, NumericOutOfRange):
+        return await _out_of_range(request, exc)
+    return await _unexpected(request, exc)
 
 
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -113,4 +135,6 @@ class ApiRoute(SessionRoute):
 def install(app: FastAPI) -> None:
     """Add the validation and catch-all error answers to ``app``."""
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
+    app.add_exception_handler(OverflowError, _out_of_range)
+    app.add_exception_handler(DataError, _data_error)  # type: ignore[arg-type]
     app.add_exception_handler(Exception, _unexpected)
