@@ -15,6 +15,7 @@ waiting for the write lock, so a burst of job claims does not hold the live view
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,13 @@ __all__ = [
 MIGRATIONS = Path(__file__).with_name("migrations")
 READ_ONLY = "opendnc_read_only"  # execution option of the sessions that only read
 
+# Connections kept open, and the most the pool opens at once: one for each worker thread that
+# can hold a session at the same moment (the web requests' 40, AnyIO's default, and the machine
+# tasks' asyncio executor, min(32, CPUs + 4)), so a thread never waits for a connection while
+# the threads that hold the connections wait for something else (docs/server.md#database-sessions).
+POOL_SIZE = 5
+MAX_OVERFLOW = 40 + min(32, (os.cpu_count() or 1) + 4) + 2 - POOL_SIZE
+
 
 def make_engine(url: str) -> Engine:
     """An engine for ``url``; :class:`InputError` for a URL SQLAlchemy cannot use."""
@@ -60,12 +68,16 @@ def make_engine(url: str) -> Engine:
                 raise DatabaseUnreachable(
                     f"cannot make the database's folder {Path(database).parent}: {os_reason(exc)}"
                 ) from None
-        engine = create_engine(parsed, connect_args={"timeout": 30})
+        engine = create_engine(
+            parsed, connect_args={"timeout": 30}, pool_size=POOL_SIZE, max_overflow=MAX_OVERFLOW
+        )
         event.listen(engine, "connect", _sqlite_pragmas)
         event.listen(engine, "begin", _sqlite_begin)
         return engine
     if parsed.get_backend_name() == "postgresql":
-        return create_engine(parsed, pool_pre_ping=True)
+        return create_engine(
+            parsed, pool_pre_ping=True, pool_size=POOL_SIZE, max_overflow=MAX_OVERFLOW
+        )
     raise InputError(
         f"unsupported database {parsed.get_backend_name()!r}: use sqlite or postgresql"
     )
