@@ -132,9 +132,19 @@ def test_slow_headers_and_slow_bodies_are_closed_in_time_and_others_are_served(
         return waits
 
     async def main() -> tuple[list[tuple[float, bytes]], list[tuple[float, bytes]], list[float]]:
+        # An event stream has no body to time out: it outlives the slow sockets.
+        stream, stream_writer = await asyncio.open_connection("127.0.0.1", port)
+        stream_writer.write(
+            f"GET /api/events HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}\r\n\r\n".encode()
+        )
         headers = asyncio.gather(*(slow_header() for _ in range(200)))
         bodies = asyncio.gather(*(slow_body() for _ in range(50)))
-        return await headers, await bodies, await meanwhile()
+        out = await headers, await bodies, await meanwhile()
+        assert (await stream.readline()).startswith(b"HTTP/1.1 200")
+        await stream.read(1 << 20)  # what came meanwhile
+        assert await asyncio.wait_for(stream.read(100), 5), "the event stream was closed"
+        stream_writer.close()
+        return out
 
     headers, bodies, waits = asyncio.run(main())
     for took, answer in headers:

@@ -134,7 +134,9 @@ class LimitsMiddleware:
             return
         begun = time.monotonic()
         received = 0
-        done = False
+        # A request without a body (no length, not chunked) has nothing to time: its receive
+        # only waits for the client to leave (an event stream's disconnect check).
+        done = not (length or _chunked(scope))
 
         async def limited_receive() -> Message:
             nonlocal received, done
@@ -169,6 +171,13 @@ class LimitsMiddleware:
             if received > limits.max_body:
                 # A large body was read (and has been dropped by now): its memory goes back.
                 asyncio.get_running_loop().call_soon(trim_memory)
+
+
+def _chunked(scope: Scope) -> bool:
+    return any(
+        name == b"transfer-encoding" and b"chunked" in value.lower()
+        for name, value in scope["headers"]
+    )
 
 
 def _content_length(scope: Scope) -> int | None:
