@@ -7,6 +7,7 @@ import os
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -78,3 +79,51 @@ def procs(tmp_path: Path) -> Iterator[Procs]:
         yield p
     finally:
         p.stop_all()
+
+
+@pytest.fixture
+def shop(db_url: str, tmp_path: Path) -> Iterator[Any]:
+    """One virtual TNC served by the server's components in this process, its connector
+    gated (tests/server/inproc_server.py), and the way to cut the database (db_outage.py)."""
+    from opendnc.server import library
+    from opendnc.server.app import build
+    from opendnc.server.config import MachineConfig, parse_config
+    from opendnc.server.kinds import connector_for
+    from opendnc.server.machines.base import Connector
+    from opendnc.sim.fleet import server_config
+    from tests.server.db_outage import Outage
+    from tests.server.harness import wait_for
+    from tests.server.inproc_server import PROGRAM, Gated, Gates, Running, Shop
+    from tests.server.test_from_the_control import FleetThread
+
+    fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
+    outage = Outage(db_url)
+    gates = Gates()
+    running = None
+    try:
+        text = server_config(fleet.fleet, poll_interval=0.2, library=tmp_path / "lib")
+
+        def gated(machine: MachineConfig) -> Connector:
+            return Gated(connector_for(machine), gates)
+
+        server = build(
+            parse_config(text, base=tmp_path),
+            database=db_url,
+            connector_factory=gated,
+            sweep_interval=0.3,
+            retry_backoff=0.2,
+        )
+        outage.quicken(server.engine)
+        with server.sessions.begin() as session:
+            library.add_version(session, "O01234.nc", PROGRAM, author="test")
+            library.release(session, "O01234.nc", 1, actor="test")
+        running = Running(server)
+        machine = fleet.fleet.machines[0]
+        wait_for("the TNC online", lambda: server.machines.machines[machine.name].online)
+        yield Shop(server, running, gates, outage, machine.root, machine.name)
+    finally:
+        outage.close()
+        if running is not None:
+            running.stop()
+            running.server.engine.dispose()
+        fleet.stop()

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import audit, auth, jobs, library
-from opendnc.server.config import MachineConfig, MachineKind
+from opendnc.server.config import HaasNgcMachine, Lsv2Machine
 from opendnc.server.errors import Conflict, NotFound, Unauthorized
 from opendnc.server.store.models import ApiKey, JobKind, JobState, ProgramState, Role
 
@@ -23,10 +23,8 @@ def _machines(session: Session) -> None:
     jobs.sync_machines(
         session,
         [
-            MachineConfig(name="mill-1", kind=MachineKind.LSV2, host="127.0.0.1"),
-            MachineConfig(
-                name="vf2", kind=MachineKind.HAAS_NGC, host="127.0.0.1", released_only=True
-            ),
+            Lsv2Machine(name="mill-1", host="127.0.0.1"),
+            HaasNgcMachine(name="vf2", host="127.0.0.1", released_only=True),
         ],
     )
 

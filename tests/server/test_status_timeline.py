@@ -170,7 +170,8 @@ def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_
             # A new server process would build anew: only the database carries the timeline.
             second = build(config, database=db_url)
             try:
-                timeline: Timeline = second.app.state.timeline
+                timeline = second.timeline
+                assert timeline is not None
                 segments = await asyncio.to_thread(timeline.segments, "tnc-1", hours=1)
             finally:
                 second.engine.dispose()

@@ -20,7 +20,7 @@ import pytest
 
 from opendnc.lsv2 import Client
 from opendnc.server.autoreceive import FolderWatch, size_problem
-from opendnc.server.config import ConfigError, MachineConfig, MachineKind, parse_config
+from opendnc.server.config import ConfigError, Lsv2Machine, parse_config
 from opendnc.server.machine_files import RemoteFile
 from tests.server.harness import (
     Procs,
@@ -225,7 +225,7 @@ def _file(name: str, size: int, second: int) -> RemoteFile:
 
 
 def test_a_file_is_due_once_it_stopped_changing_and_until_received() -> None:
-    machine = MachineConfig("m", MachineKind.LSV2, host="h", receive_folder=OUT)
+    machine = Lsv2Machine(name="m", host="h", receive_folder=OUT)
     watch = FolderWatch(replace(machine, receive_pattern="*.h"))
     a, note = _file("A.H", 10, 1), _file("NOTE.TXT", 5, 1)
     assert watch.due([a, note]) == []  # first sight: it may still be written

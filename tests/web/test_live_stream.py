@@ -36,8 +36,8 @@ def test_cards_arrive_while_another_connection_holds_the_write_lock(
     shop: Served,
 ) -> None:
     server = shop.server
-    name = next(iter(server.supervisor.machines))
-    wait_for("the machine online", lambda: server.supervisor.machines[name].online)
+    name = next(iter(server.machines.machines))
+    wait_for("the machine online", lambda: server.machines.machines[name].online)
     messages: list[str] = []
     with httpx.Client(base_url=shop.url, timeout=30) as http:
         reply = http.post(

@@ -171,9 +171,9 @@ async def _check(server: object, fleet: object) -> None:
     assert isinstance(fleet, Fleet)
     loop = asyncio.get_running_loop()
     deadline = loop.time() + 60
-    while not all(m.online for m in server.supervisor.machines.values()):
+    while not all(m.online for m in server.machines.machines.values()):
         if loop.time() > deadline:
-            away = [m.config.name for m in server.supervisor.machines.values() if not m.online]
+            away = [m.config.name for m in server.machines.machines.values() if not m.online]
             raise DncError(f"machines not online: {', '.join(away)}")
         await asyncio.sleep(0.1)
     console.print("all machines online", highlight=False)
@@ -181,7 +181,7 @@ async def _check(server: object, fleet: object) -> None:
     with server.sessions.begin() as session:
         ids = [j.id for j in jobs.send_program(session, "O01000.nc", names, actor="demo")]
     for name in names:
-        server.supervisor.wake(name)
+        server.machines.wake(name)
     while True:
         with server.sessions() as session:
             states = [jobs.get_job(session, i) for i in ids]

@@ -43,6 +43,7 @@ COMMANDS: dict[str, Lazy] = {
         "opendnc.cli.heidenhain:app", "Heidenhain blockwise (FE) file transfer over RS-232."
     ),
     "surface": Lazy("opendnc.cli.surface:app", "Probe a surface, capture it, report it."),
+    "check": Lazy("opendnc.cli.check:check", "Dry-run an NC program: problems, tools, time."),
     "serve": Lazy("opendnc.cli.serve:serve", "Run the DNC server for the machines of a config."),
     "keys": Lazy("opendnc.cli.serve:keys_app", "API keys of the DNC server."),
     "users": Lazy("opendnc.cli.serve:users_app", "People who log in to the DNC server."),

@@ -11,6 +11,8 @@ import contextlib
 import errno
 import os
 import socket
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -21,6 +23,8 @@ from opendnc.cli.common import cli_errors, console, print_json
 from opendnc.errors import InputError
 
 if TYPE_CHECKING:
+    from types import FrameType
+
     from sqlalchemy.orm import Session
 
     from opendnc.server.app import Server
@@ -33,6 +37,7 @@ requests_app = typer.Typer(
 
 ConfigOption = typer.Option(..., "--config", "-c", help="The server's TOML configuration.")
 DbOption = typer.Option(None, "--db", help="Database URL (overrides the configuration).")
+STOP_TIMEOUT = 10.0  # seconds from SIGTERM or SIGINT to the end of the process
 
 
 def require_server_extra() -> None:
@@ -51,6 +56,13 @@ def serve(
     config: Path = ConfigOption,
     db: str | None = DbOption,
     bind: str | None = typer.Option(None, "--bind", help="HOST:PORT (default from the config)."),
+    stop_timeout: float = typer.Option(
+        STOP_TIMEOUT,
+        "--stop-timeout",
+        min=1.0,
+        max=600.0,
+        help="Seconds SIGTERM or SIGINT may take to stop the server.",
+    ),
 ) -> None:
     """Run the DNC server: the machines of CONFIG, the API and server-sent events."""
     with cli_errors():
@@ -65,19 +77,21 @@ def serve(
         # The address first: a port in use must stop the server before it migrates the
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
+        plan = StopPlan(stop_timeout)
         from opendnc.server.single_server import SingleServerLock
 
         guard = SingleServerLock(db or shop.server.database)
         try:
             guard.acquire()  # a second server on one SQLite file: one line, before migrating
-            server = build(shop, database=db)
+            server = build(shop, database=db, stop_deadline=plan.components)
             try:
-                asyncio.run(_serve(server, listener, host))
+                asyncio.run(_serve(server, listener, host, plan))
             finally:
                 server.engine.dispose()
         finally:
             guard.release()
             listener.close()
+        plan.exit_now_if_stuck()
 
 
 def parse_bind(bind: str) -> tuple[str, int]:
@@ -127,9 +141,66 @@ def _reason(exc: BaseException) -> str:
     return text[0].lower() + text[1:]
 
 
-async def _serve(server: Server, listener: socket.socket, host: str) -> None:
+class StopPlan:
+    """How the seconds of a stop are shared (docs/server.md#stopping): open HTTP
+    connections (event streams) get a short grace, the components the rest but a margin, and
+    a watchdog armed by the first signal ends the process at the deadline whatever still runs
+    (a worker thread blocked in a driver call cannot be cancelled, and would keep the
+    interpreter from exiting)."""
+
+    def __init__(self, deadline: float) -> None:
+        self.deadline = deadline
+        self.connections = min(1.0, deadline * 0.1)
+        self.components = max(0.5, deadline - self.connections - 1.0)
+        self.signal = 0
+        self._lock = threading.Lock()
+
+    def signalled(self, sig: int) -> None:
+        """The first SIGTERM or SIGINT: arm the watchdog."""
+        with self._lock:
+            if self.signal:
+                return
+            self.signal = sig
+        threading.Thread(target=self._watchdog, name="stop-watchdog", daemon=True).start()
+
+    def _watchdog(self) -> None:
+        time.sleep(self.deadline)
+        _last_words(f"error: the server did not stop within {self.deadline:g} s; ending it")
+        os._exit(128 + self.signal)
+
+    def exit_now_if_stuck(self) -> None:
+        """After a signalled stop, end the process at once if worker threads are still busy
+        (blocked in a driver or a port read: the interpreter would wait for them)."""
+        if not self.signal:
+            return
+        busy = [
+            t for t in threading.enumerate() if t is not threading.current_thread() and not t.daemon
+        ]
+        if busy:
+            _last_words("")
+            os._exit(128 + self.signal)
+
+
+def _last_words(line: str) -> None:
+    import logging
+    import sys
+
+    if line:
+        sys.stderr.write(line + "\n")
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+
+
+async def _serve(server: Server, listener: socket.socket, host: str, plan: StopPlan) -> None:
     """Run uvicorn on ``listener``; say where once it listens (scripts wait for that line)."""
     import uvicorn
+
+    class Web(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            plan.signalled(sig)
+            super().handle_exit(sig, frame)
 
     if server.mtconnect is not None:
         # Its ports open before the app starts, so a taken one is a plain error naming it.
@@ -138,11 +209,17 @@ async def _serve(server: Server, listener: socket.socket, host: str) -> None:
     from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
 
     raise_file_limit()  # connections are limited by the server (limits.py), not by running out
-    # The guarded protocol times out incomplete headers and refuses connections past the limit.
     settings = uvicorn.Config(
-        server.app, log_level="warning", lifespan="on", http=uvicorn_protocol(Limits())
+        server.app,
+        log_level="warning",
+        lifespan="on",
+        # Event streams never end by themselves: at a stop they get this long, then go.
+        timeout_graceful_shutdown=max(1, round(plan.connections)),
+        # The guarded protocol times out incomplete headers and refuses connections past the
+        # limit (docs/server.md#limits).
+        http=uvicorn_protocol(Limits()),
     )
-    web = uvicorn.Server(settings)
+    web = Web(settings)
     serving = asyncio.create_task(web.serve(sockets=[listener]))
     while not web.started:
         if serving.done():

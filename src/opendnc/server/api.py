@@ -24,11 +24,13 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError
-from opendnc.server import audit, auth, dbsession, inbox, jobs, library
+from opendnc.server import audit, auth, dbsession, deps, inbox, jobs, library
+from opendnc.server.capabilities import capabilities_of
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
 from opendnc.server.events import EventBus
 from opendnc.server.loopwatch import LoopWatch
+from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
     AuditEntry,
     Job,
@@ -40,7 +42,6 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.supervisor import Supervisor
 
 __all__ = ["install"]
 
@@ -49,11 +50,8 @@ STATUS = {NotFound: 404, Conflict: 409, Unauthorized: 401, Forbidden: 403, Input
 EVENT_INTERVAL = 0.5
 
 
-def install(app: FastAPI, sessions: sessionmaker[Session], supervisor: Supervisor) -> None:
-    """Add the API routes and error mapping to ``app``."""
-    app.state.sessions = sessions
-    dbsession.install(app, sessions)
-    app.state.supervisor = supervisor
+def install(app: FastAPI) -> None:
+    """Add the API routes and error mapping to ``app`` (built by :mod:`opendnc.server.app`)."""
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
     app.include_router(router)
 
@@ -109,9 +107,8 @@ def changed(request: Request, kind: str, key: str) -> None:
     _supervisor(request).bus.publish(kind, key, {"name": key, "source": "request"})
 
 
-def _supervisor(request: Request) -> Supervisor:
-    supervisor: Supervisor = request.app.state.supervisor
-    return supervisor
+def _supervisor(request: Request) -> Machines:
+    return deps.machines(request)
 
 
 # -- serialisation ------------------------------------------------------------------------
@@ -199,7 +196,7 @@ def health() -> dict[str, str]:
 async def loop_health(request: Request) -> dict[str, Any]:
     """The event loop's stalls (:mod:`opendnc.server.loopwatch`); needs no key. Async: it
     reads the watch on the loop, the only thread that writes it."""
-    watch: LoopWatch = request.app.state.loopwatch
+    watch: LoopWatch = deps.loopwatch(request)
     return watch.as_json()
 
 
@@ -213,7 +210,7 @@ def list_machines(request: Request, _who: Viewer) -> list[dict[str, Any]]:
 def outputs(request: Request, _who: Viewer) -> dict[str, Any]:
     """The open outputs' state: the MQTT link (connected, queued, dropped) and the SHDR ports
     (agents connected); null for one that is not configured."""
-    parts = getattr(request.app.state, "outputs", {})
+    parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
 
 
@@ -272,7 +269,7 @@ async def upload_program(
         raise InputError("the upload does not match its X-Content-SHA256 header")
 
     def store() -> dict[str, Any]:
-        sessions: sessionmaker[Session] = request.app.state.sessions
+        sessions: sessionmaker[Session] = deps.database(request).sessions
         with sessions.begin() as session:
             version, created = library.add_version(
                 session, name, data, author=who.name, comment=comment
@@ -389,7 +386,7 @@ def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> li
                 state = machines.get(name)
                 if state is None:
                     raise NotFound(f"no machine named {name!r}")
-                if not state.config.dripfeed:
+                if not capabilities_of(state.config).dripfeed:
                     raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
             version = library.get_version(db, body.program, body.version)
             params = {"from_line": body.from_line} if body.from_line else {}
@@ -450,8 +447,7 @@ def cancel_job(request: Request, db: Db, job_id: int, who: Operator) -> dict[str
     job = jobs.cancel(db, job_id, actor=who.name)
     out = job_json(job)
     db.commit()
-    if job.state is JobState.RUNNING:
-        _supervisor(request).request_cancel(job.id)
+    # A running job reads its row's cancel flag at its next safe point (any process's cancel).
     return out
 
 
@@ -655,7 +651,7 @@ def _sse(kind: str, data: dict[str, Any]) -> bytes:
 
 
 async def _event_stream(
-    request: Request, supervisor: Supervisor, bus: EventBus
+    request: Request, supervisor: Machines, bus: EventBus
 ) -> AsyncIterator[bytes]:
     with bus.subscribe() as sub:
         for state in supervisor.machines.values():

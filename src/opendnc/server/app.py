@@ -1,14 +1,14 @@
-"""Build the server: database, supervisor and API in one FastAPI app.
+"""Build the server: the database, its components and the API in one FastAPI app.
 
-``build()`` only assembles; the app's lifespan starts the machine tasks and stops them, so a
+``build()`` only assembles: it registers every part of the server as a component of one
+:class:`~opendnc.server.components.Core` (docs/server.md#shape-components-and-kinds); the app's
+one lifespan starts them in dependency order and stops them in reverse within a deadline, so a
 test can build the whole server around virtual controls and run it under uvicorn or an
 in-process client alike.
 """
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -19,146 +19,167 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
 from opendnc.server import api, dprnt_api, edge, web
-from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
+from opendnc.server.autoreceive import AutoReceive
+from opendnc.server.components import STOP_DEADLINE, Core
+from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
+from opendnc.server.deps import Database
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus
+from opendnc.server.executors import default_executors
+from opendnc.server.fleet import ConnectorFactory, Fleet
+from opendnc.server.kinds import connector_for
 from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
-from opendnc.server.machines import Connector, connector_for
+from opendnc.server.machine_state import Machines
+from opendnc.server.machines import Connector
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.netshare import NetShare
+from opendnc.server.parts import Outputs, TimelineRecorder
+from opendnc.server.remote_request import RemoteRequests
+from opendnc.server.runner import JobRunner
 from opendnc.server.shdr import MtconnectOutput
 from opendnc.server.store.db import make_engine, make_sessions, migrate
-from opendnc.server.supervisor import ConnectorFactory, Supervisor
 from opendnc.server.watcher import LibraryWatcher
+from opendnc.server.web.timeline import Timeline
 
-__all__ = ["Server", "build"]
+__all__ = ["ConnectorFactory", "Server", "build"]
 
 
 @dataclass
 class Server:
-    """The parts of one running server."""
+    """The parts of one built server (``core`` holds every component)."""
 
     config: ShopConfig
     engine: Engine
     sessions: sessionmaker[Session]
     bus: EventBus
-    supervisor: Supervisor
+    core: Core
+    machines: Machines
+    runner: JobRunner
+    fleet: Fleet
     watcher: LibraryWatcher
     app: FastAPI
     netshare: NetShare | None = None
     dprnt: DprntCapture | None = None
     mqtt: MqttPublisher | None = None
     mtconnect: MtconnectOutput | None = None
+    timeline: Timeline | None = None
 
 
 def build(
     config: ShopConfig,
     *,
     database: str | None = None,
-    connector_factory: ConnectorFactory = connector_for,
+    connector_factory: ConnectorFactory | None = None,
     sweep_interval: float = 5.0,
     retry_backoff: float = 2.0,
+    stop_deadline: float = STOP_DEADLINE,
 ) -> Server:
-    """Migrate the database and assemble the app (nothing runs until its lifespan starts)."""
+    """Migrate the database and assemble the app (nothing runs until its lifespan starts).
+
+    ``connector_factory`` replaces the kinds' own connectors (tests with a fake control).
+    """
     engine = make_engine(database or config.server.database)
     migrate(engine)
     sessions = make_sessions(engine)
     bus = EventBus()
-    capture = DprntCapture(config.machines, sessions, bus)
-
-    def connectors(machine: MachineConfig) -> Connector:
-        connector = connector_factory(machine)
-        capture.attach(machine, connector)  # a serial Haas's printed lines
-        return connector
-
-    supervisor = Supervisor(
-        config,
-        sessions,
-        bus,
-        connector_factory=connectors,
-        sweep_interval=sweep_interval,
-        retry_backoff=retry_backoff,
-    )
-    capture.on_line = supervisor.note_dprnt  # the newest line shows in the machine's status
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)
 
-    watcher = LibraryWatcher(
-        config.library.path,
-        sessions,
-        poll=config.library.poll,
-        on_version=lambda name, number: bus.publish(
-            "program", name, {"name": name, "version": number, "source": "watcher"}
-        ),
+    core = Core()
+    core.add(Database(engine, sessions))
+    machines = core.add(Machines(config, bus))
+    capture = core.add(DprntCapture(machines, sessions))
+    backups = config.library.backups or config.library.archive / "backups"
+    executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
+    runner = core.add(
+        JobRunner(
+            machines,
+            sessions,
+            executors,
+            worker=config.server.name,
+            sweep_interval=sweep_interval,
+            retry_backoff=retry_backoff,
+        )
     )
+    requests = core.add(RemoteRequests(machines, sessions, config.requests, config.library.inbox))
+    autoreceive = core.add(AutoReceive(machines, sessions))
+    outputs = core.add(Outputs(_mqtt(config, bus), _mtconnect(config, bus)))
 
+    timeline = Timeline(sessions, retention_days=config.server.timeline_days)
+    names = [m.name for m in config.machines]
+    core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
+
+    def connectors(machine: MachineConfig) -> Connector:
+        # a serial Haas's printed lines go to the capture's sink for it
+        return connector_for(machine, capture.hooks_for(machine))
+
+    fleet = core.add(
+        Fleet(machines, runner, requests, autoreceive, connector_factory or connectors)
+    )
+    core.add(LoopWatch())
+    watcher = core.add(
+        LibraryWatcher(
+            config.library.path,
+            sessions,
+            poll=config.library.poll,
+            on_version=lambda name, number: bus.publish(
+                "program", name, {"name": name, "version": number, "source": "watcher"}
+            ),
+        )
+    )
     netshare = None
     if config.netshare is not None:
-        machines = {m.name: m for m in config.machines}
-        netshare = NetShare(config.netshare, machines, config.library.inbox, sessions, bus)
-    names = [m.name for m in config.machines]
-    publisher = None
-    if config.mqtt is not None:
-        try:
-            import aiomqtt  # noqa: F401  (a configured output that cannot run fails at start)
-        except ImportError:
-            raise ConfigError(
-                "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
-            ) from None
-        publisher = MqttPublisher(config.mqtt, config.server.name, names, bus)
-    mtconnect = None
-    if config.mtconnect is not None:
-        mtconnect = MtconnectOutput(config.mtconnect, names, bus)
-    background: list[asyncio.Task[None]] = []
-    loopwatch = LoopWatch()
+        shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
+        netshare = core.add(NetShare(config.netshare, shares, config.library.inbox, sessions, bus))
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
-        background.append(asyncio.create_task(loopwatch.run(), name="loop-watch"))
-        # The outputs subscribe before the machines' first status, so they miss nothing.
-        if publisher is not None:
-            background.append(asyncio.create_task(publisher.run(), name="mqtt"))
-        if mtconnect is not None:
-            await mtconnect.start()
-            background.append(asyncio.create_task(mtconnect.run(), name="mtconnect"))
-        await supervisor.start()
-        watching = asyncio.create_task(watcher.run(), name="library-watcher")
-        if netshare is not None:
-            background.append(asyncio.create_task(netshare.run(), name="netshare"))
-        capture.start()
+        await core.start()
         try:
             yield
         finally:
-            for task in (watching, *background):
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
-            background.clear()
-            await capture.stop()
-            await supervisor.stop()
-            if mtconnect is not None:
-                await mtconnect.close()
+            await core.stop(stop_deadline)
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
     app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
-    api.install(app, sessions, supervisor)
-    app.state.outputs = {"mqtt": publisher, "mtconnect": mtconnect}
-    app.state.loopwatch = loopwatch
+    app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
+    api.install(app)
     app.include_router(dprnt_api.router)
-    app.state.dprnt = capture  # the machine page shows each listener's last word
     web.install(app)
     return Server(
         config,
         engine,
         sessions,
         bus,
-        supervisor,
+        core,
+        machines,
+        runner,
+        fleet,
         watcher,
         app,
         netshare,
         capture,
-        publisher,
-        mtconnect,
+        outputs.mqtt,
+        outputs.mtconnect,
+        timeline,
     )
+
+
+def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:
+    if config.mqtt is None:
+        return None
+    try:
+        import aiomqtt  # noqa: F401  (a configured output that cannot run fails at start)
+    except ImportError:
+        raise ConfigError(
+            "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
+        ) from None
+    return MqttPublisher(config.mqtt, config.server.name, [m.name for m in config.machines], bus)
+
+
+def _mtconnect(config: ShopConfig, bus: EventBus) -> MtconnectOutput | None:
+    if config.mtconnect is None:
+        return None
+    return MtconnectOutput(config.mtconnect, [m.name for m in config.machines], bus)

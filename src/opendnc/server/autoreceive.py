@@ -18,19 +18,31 @@ is deleted on the control after its reception is committed, never before.
 
 from __future__ import annotations
 
+import asyncio
 import fnmatch
 import hashlib
+import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.config import MachineConfig
+from opendnc.errors import ControlRefused
+from opendnc.server import audit, inbox
+from opendnc.server.config import Lsv2Machine, ShopConfig
 from opendnc.server.machine_files import RemoteFile
+from opendnc.server.machines.base import Connector, FolderSource
 from opendnc.server.store.models import AuditEntry
 
-__all__ = ["FolderWatch", "Seen", "size_problem"]
+if TYPE_CHECKING:
+    from opendnc.server.machine_state import Machines, MachineState
+
+__all__ = ["AutoReceive", "FolderWatch", "Seen", "size_problem"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -49,7 +61,7 @@ def _key(entry: RemoteFile) -> tuple[int, str]:
 class FolderWatch:
     """Which files of one machine's receive folder are due to be read (no I/O of its own)."""
 
-    def __init__(self, machine: MachineConfig) -> None:
+    def __init__(self, machine: Lsv2Machine) -> None:
         self.machine = machine.name
         self.folder = machine.receive_folder
         self.pattern = machine.receive_pattern.lower()
@@ -121,3 +133,133 @@ def size_problem(entry: RemoteFile, data: bytes, again: RemoteFile | None) -> st
     if again is None or _key(again) != _key(entry):
         return ""
     return f"read {len(data)} bytes of {entry.path}, the control lists {entry.size}"
+
+
+class AutoReceive:
+    """Looks at the receive folder of every LSV2 machine that has one, from that machine's
+    task between two status polls (one listing never meets a transfer); a component."""
+
+    name = "auto-receive"
+    needs = ("machines",)
+
+    def __init__(self, machines: Machines, sessions: sessionmaker[Session]) -> None:
+        self.machines = machines
+        self.sessions = sessions
+        config: ShopConfig = machines.config
+        self.inbox_folder = config.library.inbox
+        self.watches = {
+            m.name: FolderWatch(m)
+            for m in config.machines
+            if isinstance(m, Lsv2Machine) and m.receive_folder
+        }
+        self._polls: dict[str, int] = {}
+
+    async def start(self) -> None:
+        """Nothing to start: the machines' tasks call :meth:`look`."""
+
+    async def stop(self) -> None:
+        """Nothing to stop."""
+
+    async def look(self, state: MachineState, connector: Connector) -> None:
+        """Every ``receive_every`` calls, one look at the machine's receive folder."""
+        watch = self.watches.get(state.config.name)
+        if watch is None or not isinstance(connector, FolderSource):
+            return
+        assert isinstance(state.config, Lsv2Machine)  # only LSV2 machines have a watch
+        polls = self._polls.get(watch.machine, 0)
+        self._polls[watch.machine] = polls + 1
+        if polls % state.config.receive_every == 0:
+            await self._look(state, connector, watch)
+
+    async def _look(self, state: MachineState, connector: FolderSource, watch: FolderWatch) -> None:
+        if not watch.loaded:
+            await asyncio.to_thread(self._load_watch, watch)
+        try:
+            listing = await connector.list_files(watch.folder)
+        except ControlRefused as exc:
+            # No such folder (yet) on the control: the status polls go on regardless.
+            state.last_error = f"receive folder {watch.folder}: {exc}"
+            return
+        for entry in watch.due(listing):
+            try:
+                data = await connector.fetch(entry.path)
+            except ControlRefused as exc:
+                log.info("%s: %s not read: %s", state.config.name, entry.path, exc)
+                continue  # gone or locked since the listing; the next listing tells
+            failed = size_problem(entry, data, entry)
+            if failed is not None:
+                # A size that disagrees: a second listing tells a file still being written
+                # from a read that went wrong.
+                again = {e.path.upper(): e for e in await connector.list_files(watch.folder)}
+                failed = size_problem(entry, data, again.get(entry.path.upper()))
+            if failed == "":
+                continue  # it changed while we read it
+            if failed is None and watch.known(entry, data):
+                watch.mark(entry, data)  # touched, not changed
+                continue
+            await self._file_found(state, connector, watch, entry, data, failed or "")
+
+    def _load_watch(self, watch: FolderWatch) -> None:
+        with self.sessions() as session:
+            watch.load(session)
+
+    async def _file_found(
+        self,
+        state: MachineState,
+        connector: FolderSource,
+        watch: FolderWatch,
+        entry: RemoteFile,
+        data: bytes,
+        failed: str,
+    ) -> None:
+        machine = state.config
+        assert isinstance(machine, Lsv2Machine)
+        folder: Path = self.inbox_folder
+
+        def keep() -> str:
+            with self.sessions.begin() as session:
+                row = inbox.store(
+                    session,
+                    machine.name,
+                    data,
+                    folder=folder,
+                    failed=failed,
+                    name=entry.name,
+                    remote=watch.remote(entry),
+                )
+                return row.name
+
+        name = await asyncio.to_thread(keep)
+        watch.mark(entry, data)
+        if failed:
+            message = f"reception of {entry.path} failed: {failed}"
+            state.last_error = message
+        else:
+            message = f"received {entry.path} into the inbox as {name}"
+        bus = self.machines.bus
+        bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        if failed or machine.after_receive != "delete":
+            return
+        # Only now that the reception is committed may the control's copy go.
+        error = ""
+        try:
+            await connector.delete(entry.path)
+        except ControlRefused as exc:
+            error = str(exc)
+            state.last_error = f"{entry.path} received but not deleted: {error}"
+
+        def record() -> None:
+            with self.sessions.begin() as session:
+                audit.record(
+                    session,
+                    machine.name,
+                    "program.receive.delete",
+                    machine=machine.name,
+                    program=name,
+                    sha256=watch.seen[entry.path.upper()].sha256,
+                    result="failed" if error else "ok",
+                    path=entry.path,
+                    error=error or None,
+                )
+
+        await asyncio.to_thread(record)

@@ -70,17 +70,38 @@ from __future__ import annotations
 import re
 import tomllib
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
+from opendnc.server.configkeys import NAME as _NAME
+from opendnc.server.configkeys import ConfigError, get_key, known_keys, port_range, table_at
+from opendnc.server.kinds import (
+    LSV2_SERIAL,
+    HaasNgcMachine,
+    HaasSerialMachine,
+    Lsv2Machine,
+    MachineConfig,
+    MachineKind,
+    SerialProfile,
+    parse_machine,
+)
 from opendnc.server.requests import RequestRule, RequestSettings
 
+# The parser's helpers under the names this module has always used.
+_get = get_key
+_known = known_keys
+_table = table_at
+_port_range = port_range
+
 __all__ = [
+    "LSV2_SERIAL",
     "ConfigError",
+    "HaasNgcMachine",
+    "HaasSerialMachine",
     "LibraryConfig",
+    "Lsv2Machine",
     "MachineConfig",
     "MachineKind",
     "MqttConfig",
@@ -92,85 +113,6 @@ __all__ = [
     "load_config",
     "parse_config",
 ]
-
-# Machine names appear in URLs, file names and MQTT topics: keep them to a safe alphabet.
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
-
-
-class ConfigError(InputError):
-    """The configuration file is malformed; the message names the key."""
-
-    def __init__(self, key: str, problem: str) -> None:
-        self.key = key
-        self.problem = problem
-        super().__init__(f"{key}: {problem}" if key else problem)
-
-
-class MachineKind(StrEnum):
-    """How the server reaches a control."""
-
-    LSV2 = "lsv2"  # Heidenhain over LSV2 (TCP, or serial with `serial = "..."`)
-    HAAS_SERIAL = "haas_serial"  # Haas RS-232: XModem, drip-feed, DPRNT
-    HAAS_NGC = "haas_ngc"  # Haas NGC over Ethernet: MDC Q-commands and the net share
-
-
-@dataclass(frozen=True)
-class SerialProfile:
-    """Line settings of one serial port, as set on the control.
-
-    Which of them apply to an XModem transfer and which to plain text (a text load, a
-    drip-feed, a text punch): docs/server.md#serial-profile.
-    """
-
-    baud: int = 9600
-    parity: str = "N"
-    bytesize: int = 8
-    stopbits: float = 1
-    flow: str = "xonxoff"
-    eob: str = "CRLF"  # LF, CR, CRLF, CRCR, LFLF (Haas Setting 25)
-    protocol: str = "xmodem"  # haas_serial: "xmodem" or "text" for loads and punches
-    leader: int = 0  # characters before the program (tape leader), plain text only
-    trailer: int = 0  # characters after it
-    leader_char: str = "\x00"  # what leader and trailer are made of (NUL, or e.g. "%")
-    line_delay: float = 0.0  # seconds after each line, for controls without handshake
-    wait_for_xon: bool = False  # a plain-text send starts at the control's first DC1
-    start_trigger: str = "%"  # a text punch is captured from here ("": first character)
-    end_trigger: str = "%"  # ... up to here ("": until the line goes quiet)
-    idle_timeout: float = 5.0  # seconds of silence that end (or fail) a text punch
-
-    def leader_bytes(self) -> bytes:
-        """The tape leader as bytes."""
-        return self.leader_char.encode("latin-1") * self.leader
-
-    def trailer_bytes(self) -> bytes:
-        """The tape trailer as bytes."""
-        return self.leader_char.encode("latin-1") * self.trailer
-
-
-@dataclass(frozen=True)
-class MachineConfig:
-    """One machine of the shop and how to reach it."""
-
-    name: str
-    kind: MachineKind
-    host: str = ""
-    port: int | str = 0
-    serial: str = ""  # device or URL for serial links
-    profile: SerialProfile = field(default_factory=SerialProfile)
-    mdc_port: int = 5051
-    share: str = ""  # Haas net share folder (local path or smb://)
-    folder: str = ""  # where programs go on the control (LSV2: default TNC:/nc_prog)
-    released_only: bool = False
-    dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
-    poll_interval: float = 1.0
-    description: str = ""
-    mdc: bool = False  # haas_serial: status by MDC Q-commands on the port (Setting 143 ON)
-    mdc_interval: float = 3.0  # haas_serial: least seconds between two MDC status reads
-    dprnt: str = ""  # DPRNT to capture: tcp://HOST:PORT (NGC Setting 263), "serial" (RS-232)
-    receive_folder: str = ""  # lsv2: a folder on the control whose files come to the inbox
-    receive_pattern: str = "*"  # lsv2: which files of receive_folder (a glob, any case)
-    receive_every: int = 5  # lsv2: status polls between two listings of receive_folder
-    after_receive: str = "keep"  # lsv2: keep or delete a received file on the control
 
 
 @dataclass(frozen=True)
@@ -275,7 +217,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     machines_raw = raw.get("machines", [])
     if not isinstance(machines_raw, list):
         raise ConfigError("machines", "expected an array of tables ([[machines]])")
-    machines = tuple(_machine(item, f"machines[{i}]") for i, item in enumerate(machines_raw))
+    machines = tuple(parse_machine(item, f"machines[{i}]") for i, item in enumerate(machines_raw))
     seen: set[str] = set()
     for i, machine in enumerate(machines):
         if machine.name.lower() in seen:
@@ -413,7 +355,7 @@ def _netshare(
             "netshare.path", "missing (the NAS folder, mounted here, or smb://HOST/SHARE/PATH)"
         )
     nas: Path | ShareTarget = _nas(table, path_text, base)
-    with_share = {m.name: m for m in machines if m.share}
+    with_share = {m.name: m for m in machines if isinstance(m, HaasNgcMachine) and m.share}
     names_raw = table.get("machines")
     if names_raw is None:
         names = tuple(with_share)
@@ -501,33 +443,6 @@ def _requests(table: dict[str, Any]) -> RequestSettings:
     )
 
 
-def _table(raw: dict[str, Any], key: str) -> dict[str, Any]:
-    value = raw.get(key, {})
-    if not isinstance(value, dict):
-        raise ConfigError(key, "expected a table")
-    return value
-
-
-def _known(table: dict[str, Any], prefix: str, keys: set[str]) -> None:
-    # A misspelt key silently ignored is the worst kind of configuration error.
-    for key in table:
-        if key not in keys:
-            name = f"{prefix}.{key}" if prefix else key
-            raise ConfigError(name, f"unknown key (expected one of {', '.join(sorted(keys))})")
-
-
-def _get(table: dict[str, Any], prefix: str, key: str, kind: type, default: Any) -> Any:
-    value = table.get(key, default)
-    # bool is an int in Python; a TOML `port = true` must not pass as port 1.
-    if kind in (int, float) and isinstance(value, bool):
-        raise ConfigError(f"{prefix}.{key}", f"expected a number, got {value!r}")
-    if kind is float and isinstance(value, int):
-        value = float(value)
-    if not isinstance(value, kind):
-        raise ConfigError(f"{prefix}.{key}", f"expected {kind.__name__}, got {value!r}")
-    return value
-
-
 def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     _known(table, "server", {"bind", "database", "name", "timeline_retention_days"})
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
@@ -577,229 +492,4 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
         archive=folder("archive", "archive"),
         backups=folder("backups", "backups"),
         poll=watch == "poll",
-    )
-
-
-_MACHINE_KEYS = {
-    "name", "kind", "host", "port", "serial", "serial_profile", "mdc_port", "share", "folder",
-    "released_only", "dripfeed", "poll_interval", "description", "mdc", "mdc_interval", "dprnt",
-    "receive_folder", "receive_pattern", "receive_every", "after_receive",
-}  # fmt: skip
-_LINE_KEYS = {"baud", "parity", "bytesize", "stopbits", "flow"}
-_PROFILE_KEYS = _LINE_KEYS | {
-    "eob", "protocol", "leader", "trailer", "leader_char", "line_delay", "wait_for_xon",
-    "start_trigger", "end_trigger", "idle_timeout",
-}  # fmt: skip
-
-
-def _machine(raw: Any, prefix: str) -> MachineConfig:
-    if not isinstance(raw, dict):
-        raise ConfigError(prefix, "expected a table")
-    _known(raw, prefix, _MACHINE_KEYS)
-    if "name" not in raw:
-        raise ConfigError(f"{prefix}.name", "missing")
-    name = _get(raw, prefix, "name", str, "")
-    if not _NAME.fullmatch(name):
-        raise ConfigError(f"{prefix}.name", "use letters, digits, '-', '_' or '.' (at most 64)")
-    kind_text = _get(raw, prefix, "kind", str, "")
-    try:
-        kind = MachineKind(kind_text)
-    except ValueError:
-        choices = ", ".join(k.value for k in MachineKind)
-        raise ConfigError(f"{prefix}.kind", f"expected one of {choices}") from None
-    host = _get(raw, prefix, "host", str, "")
-    serial = _get(raw, prefix, "serial", str, "")
-    port = raw.get("port", 0)
-    if raw.get("dripfeed") is True and kind is not MachineKind.HAAS_SERIAL:
-        raise ConfigError(f"{prefix}.dripfeed", "drip-feed is for serial Haas machines")
-    if kind is MachineKind.LSV2:
-        if not host and not serial:
-            raise ConfigError(f"{prefix}.host", "an LSV2 machine needs host (TCP) or serial")
-        port = _get(raw, prefix, "port", int, 19000)
-        _port_range(port, f"{prefix}.port")
-    elif kind is MachineKind.HAAS_SERIAL:
-        if not serial:
-            raise ConfigError(f"{prefix}.serial", "a serial Haas needs a device or URL")
-    elif not host:
-        raise ConfigError(f"{prefix}.host", "a Haas NGC needs the control's address")
-    mdc_port = _get(raw, prefix, "mdc_port", int, 5051)
-    _port_range(mdc_port, f"{prefix}.mdc_port")
-    poll = _get(raw, prefix, "poll_interval", float, 1.0)
-    if not 0.05 <= poll <= 3600:
-        raise ConfigError(f"{prefix}.poll_interval", "expected seconds between 0.05 and 3600")
-    mdc = _get(raw, prefix, "mdc", bool, False)
-    if mdc and kind is not MachineKind.HAAS_SERIAL:
-        raise ConfigError(
-            f"{prefix}.mdc", "only for haas_serial (a Haas NGC always reports by MDC over TCP)"
-        )
-    # Classic controls have frozen under fast serial polling: 3 s apart by default
-    # (docs/haas.md#mdc-polling).
-    mdc_interval = _get(raw, prefix, "mdc_interval", float, 3.0)
-    if not 0.05 <= mdc_interval <= 3600:
-        raise ConfigError(f"{prefix}.mdc_interval", "expected seconds between 0.05 and 3600")
-    dprnt = _dprnt_source(_get(raw, prefix, "dprnt", str, ""), kind, f"{prefix}.dprnt")
-    receive = _receive(raw, prefix, kind)
-    profile = _profile(
-        _table(raw, "serial_profile"),
-        f"{prefix}.serial_profile",
-        # LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the
-        # controls' own default); a Haas at 9600 8N1 with XON/XOFF.
-        LSV2_SERIAL if kind is MachineKind.LSV2 else SerialProfile(),
-        lsv2=kind is MachineKind.LSV2,
-    )
-    if dprnt == "serial" and profile.protocol == "text":
-        # Printed lines and a punched program are both plain text on the one port.
-        raise ConfigError(
-            f"{prefix}.dprnt",
-            'serial DPRNT needs protocol = "xmodem" (a text '
-            "punch and a printed line cannot be told apart)",
-        )
-    return MachineConfig(
-        name=name,
-        kind=kind,
-        host=host,
-        port=port,
-        serial=serial,
-        profile=profile,
-        mdc_port=mdc_port,
-        share=_get(raw, prefix, "share", str, ""),
-        folder=_get(raw, prefix, "folder", str, ""),
-        released_only=_get(raw, prefix, "released_only", bool, False),
-        dripfeed=_get(raw, prefix, "dripfeed", bool, False),
-        poll_interval=poll,
-        description=_get(raw, prefix, "description", str, ""),
-        mdc=mdc,
-        mdc_interval=mdc_interval,
-        dprnt=dprnt,
-        receive_folder=receive[0],
-        receive_pattern=receive[1],
-        receive_every=receive[2],
-        after_receive=receive[3],
-    )
-
-
-def _receive(raw: dict[str, Any], prefix: str, kind: MachineKind) -> tuple[str, str, int, str]:
-    """The auto-receive folder of an LSV2 machine: (folder, pattern, every, after)."""
-    folder = _get(raw, prefix, "receive_folder", str, "")
-    pattern = _get(raw, prefix, "receive_pattern", str, "*")
-    every = _get(raw, prefix, "receive_every", int, 5)
-    after = _get(raw, prefix, "after_receive", str, "keep")
-    if not folder:
-        for key in ("receive_pattern", "receive_every", "after_receive"):
-            if key in raw:
-                raise ConfigError(f"{prefix}.{key}", "needs receive_folder")
-        return "", pattern, every, after
-    if kind is not MachineKind.LSV2:
-        raise ConfigError(
-            f"{prefix}.receive_folder",
-            "only for lsv2 (a serial Haas punches by itself, a Haas NGC's share is collected)",
-        )
-    from opendnc.server.machine_files import check_path  # it imports this module
-
-    try:
-        folder = check_path(folder)
-    except InputError as exc:
-        raise ConfigError(f"{prefix}.receive_folder", str(exc)) from None
-    if not pattern or len(pattern) > 100 or any(c in pattern for c in "/\\:"):
-        raise ConfigError(f"{prefix}.receive_pattern", "expected a file name glob like *.h")
-    if not 1 <= every <= 10_000:
-        raise ConfigError(f"{prefix}.receive_every", "expected 1..10000 polls")
-    if after not in ("keep", "delete"):
-        raise ConfigError(f"{prefix}.after_receive", "expected keep or delete")
-    return folder, pattern, every, after
-
-
-def _dprnt_source(value: str, kind: MachineKind, key: str) -> str:
-    """``tcp://HOST:PORT`` (where a Haas NGC prints, Setting 263) or ``serial`` (a serial
-    Haas's own port); empty for none."""
-    if not value:
-        return ""
-    if kind is MachineKind.LSV2:
-        raise ConfigError(key, "DPRNT is a Haas feature")
-    if value == "serial":
-        if kind is not MachineKind.HAAS_SERIAL:
-            raise ConfigError(key, "serial is for a haas_serial machine (its own port)")
-        return value
-    match = re.fullmatch(r"tcp://([^:/\s]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})", value)
-    if match is None or not 0 < int(match.group(2)) < 65536:
-        raise ConfigError(key, f"expected tcp://HOST:PORT or serial, got {value!r}")
-    return value
-
-
-def _port_range(port: int, key: str) -> None:
-    if not 0 < port < 65536:
-        raise ConfigError(key, f"expected a TCP port 1..65535, got {port}")
-
-
-LSV2_SERIAL = SerialProfile(baud=57600, parity="E", flow="none")
-
-
-def _profile(
-    raw: dict[str, Any], prefix: str, default: SerialProfile, *, lsv2: bool = False
-) -> SerialProfile:
-    # LSV2 frames its own telegrams: only the line settings mean anything there.
-    _known(raw, prefix, _LINE_KEYS if lsv2 else _PROFILE_KEYS)
-    baud = _get(raw, prefix, "baud", int, default.baud)
-    if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
-        raise ConfigError(f"{prefix}.baud", f"{baud} is not a standard rate")
-    parity = _get(raw, prefix, "parity", str, default.parity).upper()
-    if parity not in ("N", "E", "O"):
-        raise ConfigError(f"{prefix}.parity", "expected N, E or O")
-    bytesize = _get(raw, prefix, "bytesize", int, default.bytesize)
-    if bytesize not in (7, 8):
-        raise ConfigError(f"{prefix}.bytesize", "expected 7 or 8")
-    stopbits = _get(raw, prefix, "stopbits", float, float(default.stopbits))
-    if stopbits not in (1.0, 1.5, 2.0):
-        raise ConfigError(f"{prefix}.stopbits", "expected 1, 1.5 or 2")
-    flow = _get(raw, prefix, "flow", str, default.flow)
-    if flow not in ("none", "xonxoff", "rtscts"):
-        raise ConfigError(f"{prefix}.flow", "expected none, xonxoff or rtscts")
-    eob = _get(raw, prefix, "eob", str, default.eob).upper()
-    if eob not in ("CR", "LF", "CRLF", "CRCR", "LFLF"):
-        raise ConfigError(f"{prefix}.eob", "expected CR, LF, CRLF, CRCR or LFLF")
-    protocol = _get(raw, prefix, "protocol", str, default.protocol)
-    if protocol not in ("xmodem", "text"):
-        raise ConfigError(f"{prefix}.protocol", "expected xmodem or text")
-    leader = _get(raw, prefix, "leader", int, default.leader)
-    trailer = _get(raw, prefix, "trailer", int, default.trailer)
-    for key, value in (("leader", leader), ("trailer", trailer)):
-        if not 0 <= value <= 4096:
-            raise ConfigError(f"{prefix}.{key}", "expected 0..4096 characters")
-    leader_char = _get(raw, prefix, "leader_char", str, default.leader_char)
-    if len(leader_char) != 1 or ord(leader_char) > 0x7F or leader_char in "\r\n\x11\x13":
-        raise ConfigError(
-            f"{prefix}.leader_char",
-            'expected one ASCII character ("\\u0000" or "%"), no EOB or XON/XOFF',
-        )
-    line_delay = _get(raw, prefix, "line_delay", float, default.line_delay)
-    if not 0 <= line_delay <= 10:
-        raise ConfigError(f"{prefix}.line_delay", "expected 0..10 seconds")
-    triggers = {}
-    for key in ("start_trigger", "end_trigger"):
-        text = _get(raw, prefix, key, str, getattr(default, key))
-        if len(text) > 16 or any(ord(c) > 0xFF for c in text):
-            raise ConfigError(f"{prefix}.{key}", "expected at most 16 Latin-1 characters")
-        triggers[key] = text
-    wait_for_xon = _get(raw, prefix, "wait_for_xon", bool, default.wait_for_xon)
-    if wait_for_xon and flow != "xonxoff":
-        raise ConfigError(f"{prefix}.wait_for_xon", 'needs flow = "xonxoff" (the XON is DC1)')
-    idle = _get(raw, prefix, "idle_timeout", float, default.idle_timeout)
-    if not 0.1 <= idle <= 600:
-        raise ConfigError(f"{prefix}.idle_timeout", "expected 0.1..600 seconds")
-    return SerialProfile(
-        baud=baud,
-        parity=parity,
-        bytesize=bytesize,
-        stopbits=stopbits,
-        flow=flow,
-        eob=eob,
-        protocol=protocol,
-        leader=leader,
-        trailer=trailer,
-        leader_char=leader_char,
-        line_delay=line_delay,
-        wait_for_xon=wait_for_xon,
-        start_trigger=triggers["start_trigger"],
-        end_trigger=triggers["end_trigger"],
-        idle_timeout=idle,
     )

@@ -30,19 +30,17 @@ from contextlib import contextmanager
 from typing import Annotated, Any, TypeVar
 
 import anyio
-from fastapi import Depends, FastAPI, Request
+from fastapi import Depends, Request
 from fastapi.routing import APIRoute
 from sqlalchemy import event
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 
-from opendnc.server.store.db import read_only
+from opendnc.server import deps
 
 __all__ = [
     "READ_METHODS",
     "Db",
-    "RequestDatabase",
     "SessionRoute",
-    "install",
     "read_session",
     "read_then_write",
     "request_session",
@@ -59,42 +57,24 @@ class ReadOnlyViolation(RuntimeError):
     """A read session was asked to write (a bug in the route, not the client's fault)."""
 
 
-class RequestDatabase:
-    """The session factories the requests of one app use."""
+def _read(request: Request) -> Session:
+    """A new read session (a flush in it raises :class:`ReadOnlyViolation`)."""
+    session = deps.database(request).reads()
+    session.info[_KIND] = "read"
+    event.listen(session, "before_flush", _refuse_flush)
+    return session
 
-    def __init__(self, sessions: sessionmaker[Session]) -> None:
-        self.writes = sessions
-        self.reads = read_only(sessions)
 
-    def read(self) -> Session:
-        """A new read session (a flush in it raises :class:`ReadOnlyViolation`)."""
-        session = self.reads()
-        session.info[_KIND] = "read"
-        event.listen(session, "before_flush", _refuse_flush)
-        return session
-
-    def write(self) -> Session:
-        """A new write session."""
-        session = self.writes()
-        session.info[_KIND] = "write"
-        return session
+def _write(request: Request) -> Session:
+    """A new write session."""
+    session = deps.database(request).sessions()
+    session.info[_KIND] = "write"
+    return session
 
 
 def _refuse_flush(session: Session, _context: Any, _instances: Any) -> None:
     if session.new or session.dirty or session.deleted:
         raise ReadOnlyViolation("a read request tried to write to the database")
-
-
-def install(app: FastAPI, sessions: sessionmaker[Session]) -> RequestDatabase:
-    """Give ``app``'s requests their sessions (``app.state.database``)."""
-    database = RequestDatabase(sessions)
-    app.state.database = database
-    return database
-
-
-def _database(request: Request) -> RequestDatabase:
-    database: RequestDatabase = request.app.state.database
-    return database
 
 
 def finish(session: Session) -> None:
@@ -113,8 +93,7 @@ async def request_session(request: Request) -> AsyncIterator[Session]:
     Made on the event loop (no I/O: the connection is taken at the first query) and closed in a
     thread of its own before the response is sent: a route that raised rolls back.
     """
-    database = _database(request)
-    session = database.read() if request.method in READ_METHODS else database.write()
+    session = _read(request) if request.method in READ_METHODS else _write(request)
     try:
         yield session
     except BaseException:
@@ -168,7 +147,7 @@ class SessionRoute(APIRoute):
 @contextmanager
 def read_session(request: Request) -> Iterator[Session]:
     """A read session for work in the current (worker) thread, ended when the block ends."""
-    with _database(request).read() as session:
+    with _read(request) as session:
         yield session
         finish(session)
 
@@ -176,7 +155,7 @@ def read_session(request: Request) -> Iterator[Session]:
 @contextmanager
 def write_session(request: Request) -> Iterator[Session]:
     """A write transaction for the block: committed at its end, rolled back if it raises."""
-    with _database(request).write() as session, session.begin():
+    with _write(request) as session, session.begin():
         yield session
 
 
@@ -187,7 +166,7 @@ def read_then_write(request: Request, work: Callable[[Session], T]) -> T:
     no lock at all, the rare write is one short transaction. ``work`` must be safe to run
     twice (it may only change the database through the session it is given).
     """
-    with _database(request).reads() as session:
+    with deps.database(request).reads() as session:
         result = work(session)
         if not (session.new or session.dirty or session.deleted):
             session.commit()  # ends the snapshot; writes nothing

@@ -19,12 +19,12 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
+from opendnc.server import deps
 from opendnc.server.api import Db, Viewer
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
 from opendnc.server.store.models import DprntLine
-from opendnc.server.supervisor import Supervisor
 
 __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router"]
 
@@ -87,8 +87,7 @@ def machine_dprnt(
     format: str = "json",
 ) -> list[dict[str, Any]] | Response:
     """Lines after id ``since``, oldest first (at most ``limit``); ``format=csv`` for a file."""
-    supervisor: Supervisor = request.app.state.supervisor
-    if name not in supervisor.machines:
+    if name not in deps.machines(request).machines:
         raise NotFound(f"no machine named {name!r}")
     if format not in ("json", "csv"):
         raise InputError("format is json or csv")

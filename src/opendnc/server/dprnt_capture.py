@@ -6,11 +6,11 @@ prints with Setting 261 = TCP port and Setting 263 = the port) gets one
 it reconnects with backoff by itself, keeps a line cut by a broken link (marked incomplete),
 and a machine that is away never holds up another. Each line becomes a ``dprnt_lines`` row and
 an event of kind ``dprnt`` on the bus; the API serves them (``/api/machines/{name}/dprnt``).
-The newest line also goes to ``on_line`` (the supervisor), which puts it into the machine's
-status (docs/server.md#dprnt-capture).
+The newest line also goes into the machine's status (:meth:`Machines.note_dprnt
+<opendnc.server.machine_state.Machines.note_dprnt>`, docs/server.md#dprnt-capture).
 
 A Haas on RS-232 prints on the port its connector owns for XModem and MDC
-(``dprnt = "serial"``): :meth:`DprntCapture.attach` gives that connector the same sink, and
+(``dprnt = "serial"``): :meth:`DprntCapture.hooks_for` gives that connector the same sink, and
 the connector picks the lines off the port (:mod:`opendnc.server.machines.dprnt_tap`,
 docs/haas.md#dprnt-over-serial).
 """
@@ -20,19 +20,24 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.listen import CapturedLine, DprntListener, open_source
-from opendnc.server.config import MachineConfig
+from opendnc.server.config import HaasNgcMachine, HaasSerialMachine, MachineConfig
 from opendnc.server.events import EventBus
+from opendnc.server.kinds.base import ConnectorHooks
 from opendnc.server.store.models import DprntLine
+
+if TYPE_CHECKING:
+    from opendnc.server.machine_state import Machines
 from opendnc.transport.base import ByteStream
 
-__all__ = ["DprntCapture", "DprntSink", "LineHook", "line_json"]
+__all__ = ["DprntCapture", "DprntSink", "LineHook", "last_lines", "line_json"]
 
 log = logging.getLogger(__name__)
 
@@ -92,45 +97,49 @@ class DprntSink:
 
 
 class DprntCapture:
-    """One listener thread per machine with a DPRNT source; :meth:`start` / :meth:`stop`."""
+    """One listener thread per machine with a TCP DPRNT source, and the sink a serial
+    connector taps its own port into; a component (``start`` / ``stop``)."""
+
+    name = "dprnt"
+    needs = ("machines",)
 
     def __init__(
         self,
-        machines: Sequence[MachineConfig],
+        machines: Machines,
         sessions: sessionmaker[Session],
-        bus: EventBus,
         *,
         opener: Callable[[str], ByteStream] = open_source,
         backoff_max: float = 10.0,
-        on_line: LineHook | None = None,
     ) -> None:
+        self.machines = machines
         self.sessions = sessions
-        self.bus = bus
-        self.on_line = on_line
+        self.bus = machines.bus
         self.status: dict[str, str] = {}  # machine -> the listener's last word
         self.listeners: dict[str, DprntListener] = {}
-        for machine in machines:
-            if machine.dprnt and machine.dprnt != "serial":
+        self._serial: dict[str, DprntSink] = {}
+        for machine in machines.config.machines:
+            source = _source(machine)
+            if source == "serial":
+                # A serial Haas prints on the port its connector owns: the connector gets
+                # this sink when it is made (hooks_for) and taps the port itself.
+                self._serial[machine.name] = DprntSink(
+                    machine.name, sessions, self.bus, machines.note_dprnt
+                )
+                self.status[machine.name] = f"capturing on {_serial_port(machine)}"
+            elif source:
                 self.listeners[machine.name] = DprntListener(
-                    machine.dprnt,
-                    [DprntSink(machine.name, sessions, bus, self._line)],
+                    source,
+                    [DprntSink(machine.name, sessions, self.bus, machines.note_dprnt)],
                     opener=opener,
                     backoff_max=backoff_max,
                     on_status=self._on_status(machine.name),
                 )
         self._threads: list[threading.Thread] = []
 
-    def attach(self, machine: MachineConfig, connector: object) -> None:
-        """Give a serial connector with ``dprnt = "serial"`` the sink for its printed lines."""
-        if machine.dprnt == "serial" and hasattr(connector, "on_dprnt"):
-            sink = DprntSink(machine.name, self.sessions, self.bus, self._line)
-            connector.on_dprnt = sink.write
-            self.status[machine.name] = f"capturing on {machine.serial}"
-
-    def _line(self, machine: str, text: str, at: datetime) -> None:
-        # looked up at each line: the hook is set once the supervisor exists
-        if self.on_line is not None:
-            self.on_line(machine, text, at)
+    def hooks_for(self, machine: MachineConfig) -> ConnectorHooks:
+        """What ``machine``'s connector is made with: where the lines it taps go."""
+        sink = self._serial.get(machine.name)
+        return ConnectorHooks(on_dprnt=sink.write if sink is not None else None)
 
     def _on_status(self, machine: str) -> Callable[[str], None]:
         def report(message: str) -> None:
@@ -140,8 +149,16 @@ class DprntCapture:
 
         return report
 
-    def start(self) -> None:
-        """Start every listener."""
+    async def start(self) -> None:
+        """Show each machine's newest stored line again, then start every listener."""
+
+        def newest() -> dict[str, tuple[str, datetime]]:
+            with self.sessions() as session:
+                return last_lines(session)
+
+        for name, (text, at) in (await asyncio.to_thread(newest)).items():
+            if name in self.machines.machines:  # the status keeps showing it after a restart
+                self.machines.machines[name].dprnt = (text, at)
         for name, listener in self.listeners.items():
             thread = threading.Thread(
                 target=self._run, args=(name, listener), name=f"dprnt-{name}", daemon=True
@@ -157,9 +174,27 @@ class DprntCapture:
             self.status[name] = "capture stopped by an error (see the server log)"
 
     async def stop(self) -> None:
-        """Stop every listener and wait for its thread (a read ends within its timeout)."""
+        """Stop every listener and wait for its thread (a read ends within its timeout; the
+        threads are daemons, so one that hangs cannot keep the process alive)."""
         for listener in self.listeners.values():
             listener.stop()
         threads, self._threads = self._threads, []
-        for thread in threads:
-            await asyncio.to_thread(thread.join, 5.0)
+        await asyncio.gather(*(asyncio.to_thread(t.join, 5.0) for t in threads))
+
+
+def _source(machine: MachineConfig) -> str:
+    """Where ``machine`` prints (``tcp://...``, ``serial`` or ``""``)."""
+    if isinstance(machine, HaasNgcMachine | HaasSerialMachine):
+        return machine.dprnt
+    return ""
+
+
+def _serial_port(machine: MachineConfig) -> str:
+    return machine.serial if isinstance(machine, HaasSerialMachine) else ""
+
+
+def last_lines(session: Session) -> dict[str, tuple[str, datetime]]:
+    """Each machine's newest stored DPRNT line (one query; the (machine, id) index serves it)."""
+    newest = select(func.max(DprntLine.id)).group_by(DprntLine.machine)
+    rows = session.scalars(select(DprntLine).where(DprntLine.id.in_(newest)))
+    return {row.machine: (row.text, row.at) for row in rows}

@@ -29,6 +29,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from opendnc.server.components import RunsTask
+
 __all__ = ["INTERVAL", "WARN", "LoopWatch", "Stall"]
 
 log = logging.getLogger(__name__)
@@ -68,8 +70,10 @@ def _runqueue_wait() -> float | None:
         return None
 
 
-class LoopWatch:
+class LoopWatch(RunsTask):
     """Measures the loop's stalls while :meth:`run` runs on it."""
+
+    name = "loop-watch"
 
     def __init__(self, interval: float = INTERVAL, warn: float = WARN) -> None:
         self.interval = interval

@@ -14,7 +14,7 @@ from datetime import datetime
 
 from opendnc.errors import InputError
 from opendnc.lsv2 import AsyncClient
-from opendnc.server.config import MachineConfig, MachineKind
+from opendnc.server.config import Lsv2Machine, MachineConfig
 
 __all__ = ["RemoteFile", "check_path", "delete", "list_folder", "read", "write"]
 
@@ -34,9 +34,9 @@ class RemoteFile:
 
 
 def _lsv2(machine: MachineConfig) -> AsyncClient:
-    if machine.kind is not MachineKind.LSV2:
+    if not isinstance(machine, Lsv2Machine):
         raise InputError(f"{machine.name} has no file browser (only LSV2 controls have one)")
-    return AsyncClient(machine.host, int(machine.port), timeout=TIMEOUT)
+    return AsyncClient(machine.host, machine.port, timeout=TIMEOUT)
 
 
 def check_path(path: str) -> str:
@@ -49,7 +49,8 @@ def check_path(path: str) -> str:
 
 def default_folder(machine: MachineConfig) -> str:
     """Where the server puts programs on ``machine`` (the browser opens there)."""
-    return check_path(machine.folder or "TNC:/nc_prog")
+    folder = machine.folder if isinstance(machine, Lsv2Machine) else ""
+    return check_path(folder or "TNC:/nc_prog")
 
 
 async def list_folder(machine: MachineConfig, folder: str) -> list[RemoteFile]:

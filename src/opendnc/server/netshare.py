@@ -56,7 +56,8 @@ from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
-from opendnc.server.config import MachineConfig, NetShareConfig
+from opendnc.server.components import RunsTask
+from opendnc.server.config import HaasNgcMachine, NetShareConfig
 from opendnc.server.events import EventBus
 from opendnc.server.store.models import AuditEntry
 
@@ -253,13 +254,15 @@ class _Stable:
         return sorted(name for name, seen in entries.items() if last.get(name) == seen)
 
 
-class NetShare:
-    """The net share task; :meth:`run` from the app's lifespan, :meth:`scan` for one pass."""
+class NetShare(RunsTask):
+    """The net share task (a component running :meth:`run`); :meth:`scan` for one pass."""
+
+    name = "netshare"
 
     def __init__(
         self,
         config: NetShareConfig,
-        machines: dict[str, MachineConfig],
+        machines: dict[str, HaasNgcMachine],
         inbox_folder: Path,
         sessions: sessionmaker[Session],
         bus: EventBus | None = None,
@@ -364,7 +367,7 @@ class NetShare:
         return report
 
     # ------------------------------------------------------------------ push
-    def _push(self, machine: MachineConfig, name: str, data: bytes, report: ScanReport) -> None:
+    def _push(self, machine: HaasNgcMachine, name: str, data: bytes, report: ScanReport) -> None:
         digest = _sha(data)
         if self.pushed.get((machine.name, name)) == digest:
             return
@@ -401,7 +404,7 @@ class NetShare:
         self._publish("push", machine.name, name)
 
     # ------------------------------------------------------------------ collect
-    def _collect(self, machine: MachineConfig, report: ScanReport) -> None:
+    def _collect(self, machine: HaasNgcMachine, report: ScanReport) -> None:
         folder = _folder_for(machine.share)
         entries = folder.entries()
         found: dict[str, bytes] = {}
@@ -439,7 +442,7 @@ class NetShare:
             report.collected.append((machine.name, name))
             self._publish("collect", machine.name, name)
 
-    def _baseline(self, machine: MachineConfig, found: dict[str, bytes]) -> None:
+    def _baseline(self, machine: HaasNgcMachine, found: dict[str, bytes]) -> None:
         files = {name: _sha(data) for name, data in found.items()}
         with self.sessions.begin() as session:
             audit.record(session, ACTOR, "netshare.baseline", machine=machine.name, files=files)

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import library
+from opendnc.server.components import RunsTask
 
 __all__ = ["LibraryWatcher"]
 
@@ -39,8 +40,10 @@ def _is_candidate(path: Path) -> bool:
     return not name.startswith((".", "~$")) and not name.lower().endswith(_SCRATCH_SUFFIXES)
 
 
-class LibraryWatcher:
-    """Feeds the library from a folder; :meth:`run` until cancelled."""
+class LibraryWatcher(RunsTask):
+    """Feeds the library from a folder; :meth:`run` until cancelled (a component)."""
+
+    name = "library-watcher"
 
     def __init__(
         self,

@@ -20,9 +20,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from opendnc.errors import InputError
+from opendnc.transport.base import ByteStream
 
 if TYPE_CHECKING:
-    from opendnc.server.config import MachineConfig
+    from opendnc.server.kinds.base import MachineBase
     from opendnc.server.machine_files import RemoteFile
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "NetworkOnly",
     "Progress",
     "Reception",
+    "StreamWrapper",
 ]
 
 Progress = Callable[[int, int | None], None]
@@ -135,7 +137,7 @@ class NetworkOnly:
     asked for them) and runs nothing by drip-feed."""
 
     listens = False
-    config: MachineConfig
+    config: MachineBase
 
     async def listen(self, seconds: float) -> Reception | None:
         """Nothing to listen for."""
@@ -146,3 +148,27 @@ class NetworkOnly:
     ) -> dict[str, int]:
         """Drip-feed is a serial Haas's way of running a program."""
         raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
+
+
+class StreamWrapper:
+    """A :class:`~opendnc.transport.base.ByteStream` that passes everything to ``inner``;
+    subclasses change how it is read."""
+
+    def __init__(self, inner: ByteStream) -> None:
+        self.inner = inner
+
+    def read(self, max_bytes: int) -> bytes:
+        """Read from the port."""
+        return self.inner.read(max_bytes)
+
+    def write(self, data: bytes) -> None:
+        """Write to the port."""
+        self.inner.write(data)
+
+    def set_timeout(self, seconds: float | None) -> None:
+        """Change the port's read timeout."""
+        self.inner.set_timeout(seconds)
+
+    def close(self) -> None:
+        """Close the port."""
+        self.inner.close()

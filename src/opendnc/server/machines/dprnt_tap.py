@@ -21,6 +21,7 @@ from datetime import UTC, datetime
 from opendnc.haas.dprnt import DprntLineFramer, FramedLine, parse_line
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc import LINE_NOISE
+from opendnc.server.machines.base import StreamWrapper
 from opendnc.transport.base import ByteStream
 
 __all__ = ["DprntTap", "TapStream"]
@@ -65,14 +66,14 @@ class DprntTap:
         self.on_line(CapturedLine(self.now(), text, parse_line(text).fields))
 
 
-class TapStream:
+class TapStream(StreamWrapper):
     """A :class:`ByteStream` that shows what it reads to a :class:`DprntTap` when told to.
 
     ``mode`` is ``"off"``, ``"listen"`` (until an XModem start byte) or ``"mdc"``.
     """
 
     def __init__(self, inner: ByteStream, tap: DprntTap) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.tap = tap
         self.mode = "off"
 
@@ -89,15 +90,3 @@ class TapStream:
             else:
                 self.tap.feed(data)
         return data
-
-    def write(self, data: bytes) -> None:
-        """Write to the port."""
-        self.inner.write(data)
-
-    def set_timeout(self, seconds: float | None) -> None:
-        """Change the port's read timeout."""
-        self.inner.set_timeout(seconds)
-
-    def close(self) -> None:
-        """Close the port."""
-        self.inner.close()

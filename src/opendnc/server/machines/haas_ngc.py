@@ -17,7 +17,7 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
-from opendnc.server.config import MachineConfig
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
@@ -72,7 +72,9 @@ def mdc_status(q500: Reply, q104: Reply, tool: int | None) -> MachineStatus:
 class HaasNgcConnector(NetworkOnly):
     """MDC for status, the net share for programs."""
 
-    def __init__(self, config: MachineConfig) -> None:
+    config: HaasNgcMachine
+
+    def __init__(self, config: HaasNgcMachine) -> None:
         self.config = config
         self._mdc: AsyncMdcClient | None = None
         self._polls = 0

@@ -38,8 +38,15 @@ from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
-from opendnc.server.config import MachineConfig, SerialProfile
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
+from opendnc.server.kinds.base import SerialProfile
+from opendnc.server.kinds.haas_serial import HaasSerialMachine
+from opendnc.server.machines.base import (
+    DripProgress,
+    MachineStatus,
+    Progress,
+    Reception,
+    StreamWrapper,
+)
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
@@ -51,13 +58,51 @@ from opendnc.xmodem.framing import Mode
 from opendnc.xmodem.haas import Eob, to_wire
 from opendnc.xmodem.receiver import ReceiverConfig
 
-__all__ = ["HaasSerialConnector"]
+__all__ = ["ControlSilent", "HaasSerialConnector", "SilenceGuard"]
 
 TEXT_READ = 0.05  # seconds a text-punch listener waits per read (its clock for the idle timeout)
 MDC_TIMEOUT = 1.0
 """Seconds a status query waits for its reply: a classic control answers within a few
 characters' time, so a longer wait only delays the next listening window."""
 DRAIN = 0.3  # seconds to read away a late reply before the port listens for XModem again
+XMODEM_SILENCE_FLOOR = 11.0
+"""Least silence that ends an XModem load: an XModem receiver asks for a lost block again
+after 10 s, and that wait is no sign of a dead control."""
+
+
+class ControlSilent(TransportError):
+    """The control stopped answering in the middle of a transfer."""
+
+
+class SilenceGuard(StreamWrapper):
+    """A :class:`ByteStream` that raises :class:`ControlSilent` once the control, having
+    answered at least once, has been silent for ``limit`` seconds (reads keep their timeout;
+    the check runs in the reading thread, so nothing closes the port under a read)."""
+
+    def __init__(self, inner: ByteStream, limit: float, machine: str) -> None:
+        super().__init__(inner)
+        self.limit = limit
+        self.machine = machine
+        self.heard: float | None = None  # when the control last said anything
+
+    def read(self, max_bytes: int) -> bytes:
+        """Read; raise :class:`ControlSilent` after ``limit`` seconds without a byte."""
+        try:
+            data = self.inner.read(max_bytes)
+        except TransportTimeout:
+            self._check()
+            raise
+        if data:
+            self.heard = time.monotonic()
+        else:
+            self._check()
+        return data
+
+    def _check(self) -> None:
+        if self.heard is not None and time.monotonic() - self.heard >= self.limit:
+            raise ControlSilent(
+                f"{self.machine}: the control went silent for {self.limit:g} s mid-transfer"
+            )
 
 
 class HaasSerialConnector:
@@ -66,7 +111,13 @@ class HaasSerialConnector:
 
     listens = True
 
-    def __init__(self, config: MachineConfig, *, quiet_after_break: float = 30.0) -> None:
+    def __init__(
+        self,
+        config: HaasSerialMachine,
+        *,
+        quiet_after_break: float = 30.0,
+        on_dprnt: Callable[[CapturedLine], None] | None = None,
+    ) -> None:
         self.config = config
         self._stream: PortStream | None = None
         # After a drip-feed breaks, the control still waits in DNC mode for the rest of the
@@ -77,8 +128,8 @@ class HaasSerialConnector:
         self._mdc: MdcClient | None = None
         self._tap: TapStream | None = None  # the port as listening and MDC read it
         self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
-        self.on_dprnt: Callable[[CapturedLine], None] | None = None
-        """Where DPRNT lines printed on the port go (``dprnt = "serial"``); set by the server."""
+        self.on_dprnt = on_dprnt
+        """Where DPRNT lines printed on the port go (``dprnt = "serial"``)."""
 
     def _open(self) -> PortStream:
         profile = self.config.profile
@@ -109,6 +160,13 @@ class HaasSerialConnector:
         self._mdc = self._tap = self._last = None
         if stream is not None:
             await asyncio.to_thread(stream.close)
+
+    @property
+    def silence_limit(self) -> float:
+        """Seconds of silence from the control that end a load under way: the profile's
+        ``idle_timeout``, but never less than :data:`XMODEM_SILENCE_FLOOR` (the receiver's own
+        NAK after a lost block must still get through)."""
+        return max(self.config.profile.idle_timeout, XMODEM_SILENCE_FLOOR)
 
     def _require(self) -> PortStream:
         if self._stream is None:
@@ -170,7 +228,9 @@ class HaasSerialConnector:
         # for XON are plain-text matters (docs/server.md#serial-profile); the EOB applies.
         wire = to_wire(data, eob(profile))
 
-        stream = self._require()
+        # A control that dies mid-load would otherwise be waited for block after block
+        # (10 retries of 15 s); silent this long once the load is under way, the job ends.
+        stream = SilenceGuard(self._require(), self.silence_limit, self.config.name)
         await asyncio.to_thread(
             lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
         )

@@ -13,7 +13,7 @@ from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.lsv2.serial_stream import SerialLine
-from opendnc.server.config import MachineConfig
+from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
@@ -46,9 +46,11 @@ _MODE = {
 
 
 class Lsv2Connector(NetworkOnly):
-    """One LSV2 session per machine, reopened by the supervisor when it drops."""
+    """One LSV2 session per machine, reopened by the machine's task when it drops."""
 
-    def __init__(self, config: MachineConfig) -> None:
+    config: Lsv2Machine
+
+    def __init__(self, config: Lsv2Machine) -> None:
         self.config = config
         self.folder = config.folder.rstrip("/\\") if config.folder else "TNC:/nc_prog"
         self._client: AsyncClient | None = None
@@ -85,7 +87,7 @@ class Lsv2Connector(NetworkOnly):
                 flow=profile.flow,
             )
             return AsyncClient.over_serial(line, timeout=10.0)
-        return AsyncClient(config.host, int(config.port), timeout=10.0)
+        return AsyncClient(config.host, config.port, timeout=10.0)
 
     async def close(self) -> None:
         """Close the session."""
@@ -182,7 +184,7 @@ class Lsv2Connector(NetworkOnly):
             )
 
         def run() -> dict[str, int]:
-            with Client(self.config.host, int(self.config.port), timeout=30.0) as client:
+            with Client(self.config.host, self.config.port, timeout=30.0) as client:
                 summary = lsv2_backup(client, path, target)
             return {
                 "copied": len(summary.copied),

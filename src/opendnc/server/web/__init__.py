@@ -8,10 +8,7 @@ call the same service functions as the JSON API under ``/api``.
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
 from urllib.parse import quote
 
 from fastapi import FastAPI, Request
@@ -20,10 +17,7 @@ from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
 from opendnc.server import api
-from opendnc.server.store.db import read_only
 from opendnc.server.web import render, views
-from opendnc.server.web.timeline import Timeline
-from opendnc.server.web.timeline import running as recording
 
 __all__ = ["install"]
 
@@ -32,20 +26,6 @@ STATIC = Path(__file__).parent / "static"
 
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
-    supervisor = app.state.supervisor
-    app.state.read_sessions = read_only(app.state.sessions)
-    timeline = Timeline(app.state.sessions, retention_days=supervisor.config.server.timeline_days)
-    app.state.timeline = timeline
-    inner = app.router.lifespan_context
-
-    @asynccontextmanager
-    async def lifespan(running_app: FastAPI) -> AsyncIterator[Any]:
-        # The server's own lifespan starts the machines; the status timeline listens meanwhile
-        # (and stops first, so its "no record" samples mark the server's stop).
-        async with inner(running_app) as state, recording(timeline, supervisor.bus):
-            yield state
-
-    app.router.lifespan_context = lifespan
     app.include_router(views.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]

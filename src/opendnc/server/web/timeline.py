@@ -38,6 +38,7 @@ FLUSH_SECONDS = 1.0  # changes reach the database within about this
 PRUNE_SECONDS = 3600.0
 MAX_PENDING = 10_000  # held while the database is away; the oldest go first beyond this
 NONE = "none"  # no record: the server was not running
+HEARTBEAT = 30.0  # seconds between two notes that the server is recording (crash gaps)
 
 
 @dataclass(frozen=True)
@@ -125,6 +126,45 @@ class Timeline:
         """The server stops: from now on, no record for any machine noted so far."""
         for name in list(self._last):
             self._add(name, (NONE, "", ""), at)
+
+    def beat(self, server: str, at: datetime | None = None) -> None:
+        """Note that ``server`` is recording now (one row of its own, ``@server``, moved
+        forward every :data:`HEARTBEAT` seconds): after a crash, where its record ends."""
+        if self.sessions is None:
+            return
+        key = f"@{server}"
+        with self.sessions.begin() as session:
+            row = session.scalars(select(StatusSample).where(StatusSample.machine == key)).first()
+            if row is None:
+                session.add(StatusSample(machine=key, at=at or utcnow(), state="alive"))
+            else:
+                row.at = at or utcnow()
+
+    def close_gap(self, server: str, machines: list[str]) -> int:
+        """At start: a server that ended without its stop (killed, power lost) left each
+        machine's last state open; mark no record from its last heartbeat on, so the time it
+        was down shows as a gap. How many machines got the mark."""
+        if self.sessions is None:
+            return 0
+        with self.sessions.begin() as session:
+            alive = session.scalar(
+                select(StatusSample.at).where(StatusSample.machine == f"@{server}")
+            )
+            if alive is None:
+                return 0
+            marked = 0
+            for name in machines:
+                last = session.scalars(
+                    select(StatusSample)
+                    .where(StatusSample.machine == name)
+                    .order_by(StatusSample.at.desc(), StatusSample.id.desc())
+                    .limit(1)
+                ).first()
+                if last is None or last.state == NONE:
+                    continue
+                session.add(StatusSample(machine=name, at=max(alive, last.at), state=NONE))
+                marked += 1
+            return marked
 
     def flush(self) -> int:
         """Write the pending changes (one transaction); how many were written. A database

@@ -26,9 +26,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import api, audit, auth, dprnt_api, inbox, jobs, library, machine_files
-from opendnc.server.config import MachineKind
+from opendnc.server import api, audit, auth, deps, dprnt_api, inbox, jobs, library, machine_files
+from opendnc.server.capabilities import capabilities_of
 from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -39,7 +40,6 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.supervisor import Supervisor
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -83,13 +83,11 @@ class Page:
 
 
 def _sessions(request: Request) -> sessionmaker[Session]:
-    sessions: sessionmaker[Session] = request.app.state.sessions
-    return sessions
+    return deps.database(request).sessions
 
 
-def _supervisor(request: Request) -> Supervisor:
-    supervisor: Supervisor = request.app.state.supervisor
-    return supervisor
+def _supervisor(request: Request) -> Machines:
+    return deps.machines(request)
 
 
 def _page(request: Request) -> Page:
@@ -119,7 +117,7 @@ Writing = Annotated[Page, Depends(_write_page)]
 def _read(request: Request, work: Callable[[Session], T]) -> T:
     # Pages and live cards only read: on SQLite they need not queue behind the write lock
     # (docs/server.md#event-loop-stalls).
-    reads: sessionmaker[Session] = request.app.state.read_sessions
+    reads = deps.database(request).reads
     with reads() as session:
         return work(session)
 
@@ -249,7 +247,7 @@ async def card_events(
     if machine is not None and machine not in states:
         raise NotFound(f"no machine named {machine!r}")
     shown = None
-    if machine is not None and dprnt is not None and states[machine].config.dprnt:
+    if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
     return StreamingResponse(
         _card_stream(request, machine, shown),
@@ -283,9 +281,9 @@ async def _card_stream(
     watched = set(supervisor.machines) if only is None else {only}
     sent: dict[str, str] = {}  # the HTML each card has in the browser now
     console = _Console(only, dprnt_shown) if only is not None and dprnt_shown is not None else None
-    capture = getattr(request.app.state, "dprnt", None)
+    capture = deps.dprnt(request)
     # The capture's word as the stream starts (it may have changed since the page was drawn).
-    capture_said = capture.status.get(only, "") if console and capture is not None else None
+    capture_said = capture.status.get(only, "") if console and only is not None else None
     with supervisor.bus.subscribe() as sub:
         # A fresh copy of every card first: whatever changed between the page and this stream.
         pending: set[str] = set(watched)
@@ -479,19 +477,20 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
         if live["job"] and live["job"]["id"] == row["id"]:
             row["bytes_done"], row["bytes_total"] = state.job_progress
     context["machine"] = live
-    timeline: Timeline = request.app.state.timeline
+    timeline: Timeline = deps.timeline(request)
     timeline.note(name, live)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
     context["timeline_hours"] = TIMELINE_HOURS
     context["timeline_days"] = timeline.retention.total_seconds() / 86400
     context["console_lines"] = CONSOLE_LINES
-    context["dripfeed"] = state.config.dripfeed
-    context["released"] = _read(request, _released_names) if state.config.dripfeed else []
-    context["has_files"] = state.config.kind is MachineKind.LSV2
+    can = capabilities_of(state.config)
+    context["dripfeed"] = can.dripfeed
+    context["released"] = _read(request, _released_names) if can.dripfeed else []
+    context["has_files"] = can.file_browser
     context["dprnt"] = None
-    if state.config.dprnt:
+    if can.dprnt:
         lines = _read(request, lambda s: dprnt_api.recent_lines(s, name, CONSOLE_LINES))
-        capture = getattr(request.app.state, "dprnt", None)
+        capture = deps.dprnt(request)
         context["dprnt"] = {
             "lines": lines,
             "span": f"{lines[0]['id']}-{lines[-1]['id']}" if lines else "0-0",
@@ -556,9 +555,8 @@ def cancel_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
         job = jobs.cancel(session, job_id, actor=page.who.name)
         return job.machine, job.state is JobState.RUNNING
 
-    machine, running = _write(request, cancel)
-    if running:  # as the API does: the worker stops at its next safe point
-        _supervisor(request).request_cancel(job_id)
+    machine, _running = _write(request, cancel)
+    # as the API does: the runner reads the row's cancel flag at its next safe point
     return _after_job_action(request, page, machine)
 
 
@@ -604,7 +602,7 @@ def start_dripfeed(
     asks first, since the machine runs it as it arrives)."""
     web_session.need(page.who, Role.PROGRAMMER)
     config = _machine_config(request, name)
-    if not config.dripfeed:
+    if not capabilities_of(config).dripfeed:
         raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
     program_name = library.check_program_name(program.strip())
 

@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from opendnc.errors import InputError
+from opendnc.gcode.program import parse_header, program_lines
 from opendnc.haas import mdc
 from opendnc.sim.haas.machine import Alarm, MachineState, Mode, Status
-from opendnc.sim.haas.program import parse_header, program_lines
 from opendnc.sim.haas.runner import (
     AlarmRaised,
     BlockSource,

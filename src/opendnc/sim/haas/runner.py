@@ -4,7 +4,8 @@ It executes macro assignments and arithmetic, ``IF``/``GOTO``/``WHILE``, ``DPRNT
 ``G65 P9995`` single-surface Z probing against a synthetic surface (updating the work
 offset Z, e.g. ``#5223`` for ``W54.``, as WIPS does), ``T`` + ``M06`` tool changes, ``M30``
 part counters and cycle times, positions (``G90``/``G91``/``G53``, ``G54``..``G59``,
-``G154 P``). Motion is instantaneous; the block rate is the driver's business.
+``G154 P``, ``G28`` to machine zero). Motion is instantaneous; the block rate is the
+driver's business.
 
 Sans-IO: the runner takes an injected ``clock`` and reports what happens as typed events
 through ``emit``. It reads blocks from a :class:`BlockSource`, which a DNC front-end may keep
@@ -22,9 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from opendnc.errors import InputError
-from opendnc.haas import dprnt, macros
-from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
-from opendnc.sim.haas.program import (
+from opendnc.gcode.program import (
     Assign,
     Block,
     Dprnt,
@@ -40,6 +39,8 @@ from opendnc.sim.haas.program import (
     parse_block,
     variable_number,
 )
+from opendnc.haas import dprnt, macros
+from opendnc.sim.haas.machine import AXES, Alarm, MachineState, Mode, Status, work_offset_base
 
 Clock = Callable[[], float]
 Surface = Callable[[float, float], float]
@@ -328,6 +329,7 @@ class ProgramRunner:
         if 65 in g_codes:
             return self._macro_call(single)
         machine_coords = False
+        home = False
         for code in g_codes:
             if code in (20, 21):
                 self.metric = code == 21
@@ -335,11 +337,18 @@ class ProgramRunner:
                 machine.absolute = code == 90
             elif code == 53:
                 machine_coords = True
+            elif code == 28:
+                home = True
             elif code == 154:
                 machine.work_offset = 109 + round(single.get("P", 1))
             elif 54 <= code <= 59 and code == int(code):
                 machine.work_offset = code
         self._move(single, machine_coords)
+        if home:
+            # G28: through the given point (above), then the named axes (all if none) home
+            named = [axis for axis, letter in enumerate(AXES[:3]) if letter in single]
+            for axis in named or [0, 1, 2]:
+                machine.machine_position[axis] = 0.0
         if "S" in single:
             machine.spindle_rpm = single["S"]
         if "T" in single:

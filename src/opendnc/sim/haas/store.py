@@ -11,7 +11,7 @@ from pathlib import Path
 
 from opendnc.atomicfile import atomic_write
 from opendnc.errors import InputError
-from opendnc.sim.haas.program import ProgramHeader, parse_header
+from opendnc.gcode.program import ProgramHeader, parse_header
 
 _NAME = re.compile(r"^O(\d{1,5})\.nc$", re.IGNORECASE)
 

@@ -1,0 +1,127 @@
+"""Dry-run speed: a 100,000-block program checked in process, against just reading the file.
+
+The program is generated (a profile-milling job of straight moves and arcs, a few macro
+lines, tool changes and drilling cycles) and written to a temporary file; each run reads it
+and checks it with :func:`opendnc.nccheck.check_text`. Figures are the best of N runs (the
+least disturbed by other load on a shared machine), as wall time and as the CPU time of the
+process (what the run itself costs when other processes share the cores). Target (issue 22):
+under 2 s for the G-code program; the Klartext program of the same length is reported
+alongside.
+
+    .venv/bin/python benchmarks/check.py            # 100,000 blocks, best of 3
+    .venv/bin/python benchmarks/check.py --blocks 20000 --runs 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from opendnc.nccheck import Control, check_text
+
+TARGET_S = 2.0
+
+
+def gcode_program(blocks: int) -> str:
+    """A Haas program of about ``blocks`` blocks."""
+    out = ["%", "O01000 (BENCHMARK)", "G21 G17 G40 G49 G80 G90", "#100 = 0"]
+    tool = 0
+    i = 0
+    while len(out) < blocks - 4:
+        if i % 20_000 == 0:
+            tool += 1
+            out += [
+                "G28 G91 Z0.",
+                "G90",
+                f"T{tool} M06",
+                f"G00 G54 X0. Y0. S{2000 + tool * 100} M03",
+                "G43 H01 Z5.",
+                "G01 Z-1. F300.",
+            ]
+        angle = i * 0.01
+        x, y = 50 + 40 * math.cos(angle), 50 + 40 * math.sin(angle)
+        if i % 50 == 49:
+            out.append(f"G02 X{x:.3f} Y{y:.3f} R45.")
+        elif i % 1000 == 999:
+            out += ["#100 = #100 + 1", "G81 G99 Z-5. R1. F150.", f"X{x:.3f} Y{y:.3f}", "G80"]
+            out.append("G01 Z-1. F300.")
+        else:
+            out.append(f"G01 X{x:.3f} Y{y:.3f}")
+        i += 1
+    out += ["G00 Z5.", "M05", "G28 G91 Z0.", "M30", "%"]
+    return "\n".join(out) + "\n"
+
+
+def klartext_program(blocks: int) -> str:
+    """A Klartext program of about ``blocks`` blocks."""
+    out = [
+        "BEGIN PGM BENCH MM",
+        "BLK FORM 0.1 Z X+0 Y+0 Z-20",
+        "BLK FORM 0.2 X+100 Y+100 Z+0",
+        "TOOL CALL 1 Z S3000 F300",
+        "L Z+5 R0 FMAX M3",
+        "L X+90 Y+50 R0 FMAX",
+        "L Z-1 F300",
+        "CC X+50 Y+50",
+    ]
+    i = 0
+    while len(out) < blocks - 2:
+        angle = i * 0.01
+        x, y = 50 + 40 * math.cos(angle), 50 + 40 * math.sin(angle)
+        out.append(f"C X{x:+.3f} Y{y:+.3f} DR+" if i % 50 == 49 else f"L X{x:+.3f} Y{y:+.3f}")
+        if i % 50 == 49:
+            out.append(f"L X{50 + 40 * math.cos(angle):+.3f} Y{50 + 40 * math.sin(angle):+.3f}")
+        i += 1
+    out += ["L Z+100 R0 FMAX M30", "END PGM BENCH MM"]
+    return "\n".join(f"{n} {line}" for n, line in enumerate(out)) + "\n"
+
+
+def best(path: Path, control: Control, runs: int) -> tuple[float, float, float, int, int]:
+    """(best read time, best read + check wall time, its CPU time, blocks run, problems)."""
+    read_best = wall_best = cpu_best = math.inf
+    blocks = problems = 0
+    for _ in range(runs):
+        started = time.perf_counter()
+        text = path.read_text("ascii")
+        read_best = min(read_best, time.perf_counter() - started)
+        started, cpu = time.perf_counter(), time.process_time()
+        text = path.read_text("ascii")
+        result = check_text(text, control=control, name=path.name)
+        wall_best = min(wall_best, time.perf_counter() - started)
+        cpu_best = min(cpu_best, time.process_time() - cpu)
+        blocks, problems = result.blocks, len(result.problems)
+    return read_best, wall_best, cpu_best, blocks, problems
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--blocks", type=int, default=100_000)
+    parser.add_argument("--runs", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        for control, make, suffix in (
+            (Control.HAAS, gcode_program, ".nc"),
+            (Control.HEIDENHAIN, klartext_program, ".h"),
+        ):
+            path = Path(folder) / f"bench{suffix}"
+            path.write_text(make(args.blocks), "ascii")
+            lines = path.read_text("ascii").count("\n")
+            read, wall, cpu, blocks, problems = best(path, control, args.runs)
+            verdict = ""
+            if control is Control.HAAS:
+                verdict = " (target < 2 s: " + ("met)" if wall < TARGET_S else "MISSED)")
+            print(
+                f"{control.value:10s} {lines:,} lines, {blocks:,} blocks run, {problems} "
+                f"problems: read {read * 1000:.1f} ms; read + check {wall:.3f} s wall "
+                f"= {wall / read:,.0f}x reading{verdict}, {cpu:.3f} s CPU"
+            )
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"load average (1 min) {load:.1f} on {os.cpu_count()} cores")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,589 @@
+"""Haas program text: block parsing and macro expressions (no execution, no I/O).
+
+A block is parsed into one :data:`Statement`:
+
+* ``#100 = #1 * [2 + SIN[30]]`` -> :class:`Assign`
+* ``IF [#1 GT 5] GOTO 20`` -> :class:`IfGoto`; ``IF [c] THEN #1 = 2`` -> :class:`IfThen`
+* ``GOTO 20`` -> :class:`Goto`; ``WHILE [c] DO1`` / ``END1`` -> :class:`While` / :class:`EndLoop`
+* ``DPRNT[...]`` -> :class:`Dprnt`; ``POPEN`` / ``PCLOS`` -> :class:`PortControl`
+* anything else -> :class:`Words` (``G65 P9995 A20. H-1.``, ``T1 M06``, ``X#1``...)
+
+Expressions follow the Fanuc macro-B family Haas uses: ``[ ]`` for grouping, ``#n`` and
+``#[expr]`` variables, ``+ - * / MOD``, ``EQ NE GT GE LT LE``, ``AND OR XOR`` and the common
+functions (angles in degrees). Malformed input raises :class:`~opendnc.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from opendnc.errors import InputError
+from opendnc.haas import dprnt
+
+Lookup = Callable[[int], float | None]
+
+# --------------------------------------------------------------------------- expressions
+
+
+@dataclass(frozen=True, slots=True)
+class Num:
+    """A numeric literal."""
+
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class Var:
+    """``#n`` or ``#[expr]``."""
+
+    index: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class Unary:
+    """``-x`` or ``+x``."""
+
+    op: str
+    operand: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class Binary:
+    """``a op b`` for arithmetic, comparison and logic operators."""
+
+    op: str
+    left: Expr
+    right: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class Func:
+    """``NAME[arg]`` (``ATAN[a]/[b]`` has two arguments)."""
+
+    name: str
+    args: tuple[Expr, ...]
+
+
+Expr = Num | Var | Unary | Binary | Func
+
+FUNCTIONS = frozenset(
+    {
+        "SIN",
+        "COS",
+        "TAN",
+        "ATAN",
+        "ASIN",
+        "ACOS",
+        "SQRT",
+        "ABS",
+        "ROUND",
+        "FIX",
+        "FUP",
+        "LN",
+        "EXP",
+        "BIN",
+        "BCD",
+    }
+)
+COMPARISONS = frozenset({"EQ", "NE", "GT", "GE", "LT", "LE"})
+LOGIC = frozenset({"AND", "OR", "XOR"})
+KEYWORDS = FUNCTIONS | COMPARISONS | LOGIC | {"MOD", "IF", "THEN", "GOTO", "WHILE", "DO", "END"}
+
+_TOKEN = re.compile(r"\s*(?:(\d+\.?\d*|\.\d+)|([A-Z]+)|(.))")
+
+
+def tokenize(text: str) -> list[str]:
+    """Split upper-case block text into numbers, words and single characters."""
+    tokens: list[str] = []
+    for match in _TOKEN.finditer(text):
+        number, word, char = match.groups()
+        if number is not None:
+            tokens.append(number)
+        elif word is not None:
+            tokens.extend(_split_word(word))
+        elif char is not None and not char.isspace():
+            tokens.append(char)
+    return tokens
+
+
+def _split_word(word: str) -> list[str]:
+    """A run of letters is a keyword, or single-letter addresses (``G91X`` has none)."""
+    if word in KEYWORDS:
+        return [word]
+    for keyword in sorted(KEYWORDS, key=len, reverse=True):
+        if word.endswith(keyword) and len(word) > len(keyword):
+            return [*_split_word(word[: -len(keyword)]), keyword]
+    return list(word)
+
+
+class _Parser:
+    def __init__(self, tokens: list[str], source: str) -> None:
+        self.tokens = tokens
+        self.pos = 0
+        self.source = source
+
+    def error(self, what: str) -> InputError:
+        return InputError(f"{what} in block {self.source!r}")
+
+    def peek(self, offset: int = 0) -> str | None:
+        index = self.pos + offset
+        return self.tokens[index] if index < len(self.tokens) else None
+
+    def take(self) -> str:
+        token = self.peek()
+        if token is None:
+            raise self.error("unexpected end")
+        self.pos += 1
+        return token
+
+    def expect(self, token: str) -> None:
+        got = self.take()
+        if got != token:
+            raise self.error(f"expected {token!r}, found {got!r}")
+
+    def at_end(self) -> bool:
+        return self.pos >= len(self.tokens)
+
+    # logic < comparison < additive < multiplicative < unary < primary
+    def expression(self) -> Expr:
+        left = self.comparison()
+        while self.peek() in LOGIC:
+            op = self.take()
+            left = Binary(op, left, self.comparison())
+        return left
+
+    def comparison(self) -> Expr:
+        left = self.additive()
+        if self.peek() in COMPARISONS:
+            op = self.take()
+            left = Binary(op, left, self.additive())
+        return left
+
+    def additive(self) -> Expr:
+        left = self.multiplicative()
+        while self.peek() in ("+", "-"):
+            op = self.take()
+            left = Binary(op, left, self.multiplicative())
+        return left
+
+    def multiplicative(self) -> Expr:
+        left = self.unary()
+        while self.peek() in ("*", "/", "MOD"):
+            op = self.take()
+            left = Binary(op, left, self.unary())
+        return left
+
+    def unary(self) -> Expr:
+        if self.peek() in ("+", "-"):
+            op = self.take()
+            return Unary(op, self.unary())
+        return self.primary()
+
+    def primary(self) -> Expr:
+        token = self.take()
+        if token[0].isdigit() or token[0] == ".":
+            try:
+                return Num(float(token))
+            except ValueError:
+                raise self.error(f"bad number {token!r}") from None
+        if token == "#":
+            return Var(self.primary())
+        if token == "[":
+            inner = self.expression()
+            self.expect("]")
+            return inner
+        if token in FUNCTIONS:
+            self.expect("[")
+            arg = self.expression()
+            self.expect("]")
+            if token == "ATAN" and self.peek() == "/" and self.peek(1) == "[":
+                self.take()
+                self.take()
+                second = self.expression()
+                self.expect("]")
+                return Func(token, (arg, second))
+            return Func(token, (arg,))
+        raise self.error(f"unexpected {token!r} in expression")
+
+
+def parse_expression(text: str) -> Expr:
+    """Parse a whole expression such as ``#1 + [2 * SIN[30]]``."""
+    parser = _Parser(tokenize(text.upper()), text)
+    expr = parser.expression()
+    if not parser.at_end():
+        raise parser.error(f"unexpected {parser.peek()!r}")
+    return expr
+
+
+def evaluate(expr: Expr, lookup: Lookup) -> float | None:
+    """Value of ``expr``; ``None`` is the null (undefined) value, 0 in arithmetic."""
+    if isinstance(expr, Num):
+        return expr.value
+    if isinstance(expr, Var):
+        return lookup(variable_number(expr.index, lookup))
+    if isinstance(expr, Unary):
+        value = _num(evaluate(expr.operand, lookup))
+        return -value if expr.op == "-" else value
+    if isinstance(expr, Func):
+        return _function(expr, lookup)
+    left, right = evaluate(expr.left, lookup), evaluate(expr.right, lookup)
+    op = expr.op
+    if op in ("EQ", "NE"):
+        same = (
+            left == right
+            if left is None or right is None
+            else math.isclose(left, right, rel_tol=0, abs_tol=1e-9)
+        )
+        return float(same if op == "EQ" else not same)
+    a, b = _num(left), _num(right)
+    if op == "+":
+        result = a + b
+    elif op == "-":
+        result = a - b
+    elif op == "*":
+        result = a * b
+    elif op in ("/", "MOD"):
+        if b == 0:
+            raise InputError("division by zero in macro expression")
+        result = a / b if op == "/" else math.fmod(a, b)
+    elif op in COMPARISONS:
+        result = float({"GT": a > b, "GE": a >= b, "LT": a < b, "LE": a <= b}[op])
+    else:
+        ia, ib = int(a), int(b)
+        result = float({"AND": ia & ib, "OR": ia | ib, "XOR": ia ^ ib}[op])
+    if not math.isfinite(result):
+        raise InputError(f"macro expression overflowed ({op})")
+    return result
+
+
+def _num(value: float | None) -> float:
+    return 0.0 if value is None else value
+
+
+def variable_number(index: Expr, lookup: Lookup) -> int:
+    """The variable number ``#[index]`` refers to (rounded to an integer)."""
+    value = _num(evaluate(index, lookup))
+    if not 0 <= value < 100000:
+        raise InputError(f"no macro variable #{value:g}")
+    return round(value)
+
+
+def _function(expr: Func, lookup: Lookup) -> float:
+    args = [_num(evaluate(a, lookup)) for a in expr.args]
+    x = args[0]
+    name = expr.name
+    try:
+        if name == "SIN":
+            return math.sin(math.radians(x))
+        if name == "COS":
+            return math.cos(math.radians(x))
+        if name == "TAN":
+            return math.tan(math.radians(x))
+        if name == "ATAN":
+            angle = math.degrees(math.atan2(x, args[1]) if len(args) == 2 else math.atan(x))
+            return angle % 360.0 if len(args) == 2 else angle
+        if name == "ASIN":
+            return math.degrees(math.asin(x))
+        if name == "ACOS":
+            return math.degrees(math.acos(x))
+        if name == "SQRT":
+            return math.sqrt(x)
+        if name == "ABS":
+            return abs(x)
+        if name == "ROUND":
+            return float(math.floor(abs(x) + 0.5) * (1 if x >= 0 else -1))
+        if name == "FIX":
+            return float(math.floor(x))
+        if name == "FUP":
+            return float(math.ceil(x))
+        if name == "LN":
+            return math.log(x)
+        if name == "EXP":
+            return math.exp(x)
+        if name == "BIN":
+            return float(int(f"{int(x):x}", 10)) if x >= 0 else 0.0
+        return float(int(str(int(abs(x))), 16))  # BCD
+    except (ValueError, OverflowError) as exc:
+        raise InputError(f"{name}[{x:g}] is out of range") from exc
+
+
+# --------------------------------------------------------------------------- statements
+
+
+@dataclass(frozen=True, slots=True)
+class Assign:
+    """``#target = value``."""
+
+    target: Expr
+    value: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class Goto:
+    """``GOTO n``: continue at the block numbered ``Nn``."""
+
+    target: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class IfGoto:
+    """``IF [condition] GOTO n``."""
+
+    condition: Expr
+    target: Expr
+
+
+@dataclass(frozen=True, slots=True)
+class IfThen:
+    """``IF [condition] THEN #a = b``."""
+
+    condition: Expr
+    then: Assign
+
+
+@dataclass(frozen=True, slots=True)
+class While:
+    """``WHILE [condition] DOm``."""
+
+    condition: Expr
+    loop: int
+
+
+@dataclass(frozen=True, slots=True)
+class EndLoop:
+    """``ENDm``: jump back to the matching ``WHILE``."""
+
+    loop: int
+
+
+@dataclass(frozen=True, slots=True)
+class Dprnt:
+    """``DPRNT[...]`` with its parsed items."""
+
+    items: tuple[dprnt.Item, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class PortControl:
+    """``POPEN`` (opens the printer port, DC2) or ``PCLOS`` (closes it, DC4)."""
+
+    open: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Words:
+    """Ordinary address words: ``(letter, expression)`` in block order."""
+
+    words: tuple[tuple[str, Expr], ...]
+
+    def values(self, letter: str) -> list[Expr]:
+        """Every expression given for ``letter`` (G and M may repeat)."""
+        return [expr for addr, expr in self.words if addr == letter]
+
+
+Statement = Assign | Goto | IfGoto | IfThen | While | EndLoop | Dprnt | PortControl | Words
+
+
+@dataclass(frozen=True, slots=True)
+class Block:
+    """One parsed block: its N number (if any), block-delete flag and statement."""
+
+    source: str
+    number: int | None = None
+    deleted: bool = False
+    statement: Statement = field(default_factory=lambda: Words(()))
+
+
+_COMMENT = re.compile(r"\([^)]*\)?")
+_N_WORD = re.compile(r"^\s*N\s*(\d+)", re.IGNORECASE)
+_DPRNT = re.compile(r"^\s*DPRNT\s*\[", re.IGNORECASE)
+
+
+# A block of plain address words with literal numbers (most of any real program): parsed by
+# one regular expression instead of the tokenizer; anything else takes the full parser.
+_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+")
+_PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
+# A whole line of plain words (``N120 G01 X1.5 Y-2. F300.``): the common case, parsed by one
+# match; literal numbers repeat a lot (G01, Z-1., F300.), so their Num values are shared.
+_PLAIN_LINE = re.compile(r"\s*(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+)")
+_NUMBERS: dict[str, Num] = {}
+
+
+def _number(text: str) -> Num:
+    found = _NUMBERS.get(text)
+    if found is None:
+        if len(_NUMBERS) > 4096:
+            _NUMBERS.clear()
+        found = _NUMBERS[text] = Num(float(text))
+    return found
+
+
+PlainWords = tuple[tuple[str, float], ...]
+
+
+def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:
+    """N number and words of a line of plain literal words, or None for any other line.
+
+    The fast path of a dry run: ``N120 G01 X1.5 Y-2. F300.`` needs no expression
+    evaluation; :func:`parse_block` gives the same words as :class:`Num` expressions.
+    """
+    plain = _PLAIN_LINE.fullmatch(line.rstrip("\r\n;"))
+    if plain is None:
+        return None
+    number, body = plain.groups()
+    words = tuple([(letter, float(value)) for letter, value in _PLAIN_WORD.findall(body)])
+    return (int(number) if number else None), words
+
+
+def parse_block(line: str) -> Block:
+    """Parse one program line (without its EOB) into a :class:`Block`."""
+    source = line.rstrip("\r\n;")
+    plain = _PLAIN_LINE.fullmatch(source)
+    if plain is not None:
+        number, body = plain.groups()
+        words = tuple([(letter, _number(value)) for letter, value in _PLAIN_WORD.findall(body)])
+        return Block(source, int(number) if number else None, False, Words(words))
+    body = source.lstrip()
+    if body.strip() == "%":  # tape delimiter inside a stream: nothing to execute
+        return Block(source)
+    deleted = body.startswith("/")
+    if deleted:
+        body = body[1:]
+    number = None
+    if match := _N_WORD.match(body):
+        number = int(match.group(1))
+        body = body[match.end() :]
+    if _DPRNT.match(body):
+        # DPRNT text is kept as written: its own case and parentheses-free text rules
+        return Block(source, number, deleted, Dprnt(dprnt.parse_statement(body)))
+    code = _COMMENT.sub(" ", body).upper().strip().rstrip(";").strip()
+    statement = _parse_statement(code, source) if code else Words(())
+    return Block(source, number, deleted, statement)
+
+
+def _parse_statement(code: str, source: str) -> Statement:
+    if _PLAIN_BLOCK.fullmatch(code):
+        return Words(
+            tuple((letter, Num(float(value))) for letter, value in _PLAIN_WORD.findall(code))
+        )
+    if code in ("POPEN", "PCLOS"):
+        return PortControl(code == "POPEN")
+    parser = _Parser(tokenize(code), source)
+    first = parser.peek()
+    if first == "#":
+        assign = _assignment(parser)
+        _finish(parser)
+        return assign
+    if first == "IF":
+        parser.take()
+        condition = _bracketed(parser)
+        keyword = parser.take()
+        if keyword == "GOTO":
+            statement: Statement = IfGoto(condition, parser.unary())
+        elif keyword == "THEN":
+            statement = IfThen(condition, _assignment(parser))
+        else:
+            raise parser.error(f"IF needs GOTO or THEN, found {keyword!r}")
+        _finish(parser)
+        return statement
+    if first == "GOTO":
+        parser.take()
+        statement = Goto(parser.unary())
+        _finish(parser)
+        return statement
+    if first == "WHILE":
+        parser.take()
+        condition = _bracketed(parser)
+        parser.expect("DO")
+        statement = While(condition, _loop_number(parser))
+        _finish(parser)
+        return statement
+    if first == "END":
+        parser.take()
+        statement = EndLoop(_loop_number(parser))
+        _finish(parser)
+        return statement
+    words: list[tuple[str, Expr]] = []
+    while not parser.at_end():
+        letter = parser.take()
+        if len(letter) != 1 or not letter.isalpha():
+            raise parser.error(f"expected an address letter, found {letter!r}")
+        following = parser.peek()
+        if following is None or (len(following) == 1 and following.isalpha()):
+            raise InputError(f"address {letter} has no value in block {source!r}")
+        words.append((letter, parser.unary()))
+    return Words(tuple(words))
+
+
+def _assignment(parser: _Parser) -> Assign:
+    parser.expect("#")
+    target = parser.primary()
+    parser.expect("=")
+    return Assign(target, parser.expression())
+
+
+def _bracketed(parser: _Parser) -> Expr:
+    parser.expect("[")
+    inner = parser.expression()
+    parser.expect("]")
+    return inner
+
+
+def _loop_number(parser: _Parser) -> int:
+    token = parser.take()
+    if not token.isdigit() or not 1 <= int(token) <= 3:
+        raise parser.error(f"loop number must be 1, 2 or 3, found {token!r}")
+    return int(token)
+
+
+def _finish(parser: _Parser) -> None:
+    if not parser.at_end():
+        raise parser.error(f"unexpected {parser.peek()!r}")
+
+
+# --------------------------------------------------------------------------- program text
+
+_O_NUMBER = re.compile(r"^\s*[O:](\d{1,5})\s*(?:\((.*)\))?", re.IGNORECASE)
+
+
+@dataclass(frozen=True, slots=True)
+class ProgramHeader:
+    """The ``O`` number and optional title comment of a program."""
+
+    number: int
+    title: str = ""
+
+    @property
+    def name(self) -> str:
+        """``O00123`` style name (five digits, as NGC shows it)."""
+        return f"O{self.number:05d}"
+
+
+def program_lines(text: str) -> list[str]:
+    """Body lines of a tape-format program: ``%`` lines and the ``O`` line removed."""
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    body: list[str] = []
+    for line in lines:
+        stripped = line.strip().strip("\x1a")
+        if stripped == "%" or not stripped:
+            continue
+        if not body and _O_NUMBER.match(stripped):
+            continue
+        body.append(stripped)
+    return body
+
+
+def parse_header(text: str) -> ProgramHeader:
+    """Find the ``O`` number of a program; :class:`InputError` if there is none."""
+    for line in text.replace("\r", "\n").split("\n"):
+        stripped = line.strip()
+        if not stripped or stripped == "%":
+            continue
+        match = _O_NUMBER.match(stripped)
+        if match is None:
+            break
+        return ProgramHeader(int(match.group(1)), (match.group(2) or "").strip())
+    raise InputError("program has no O number on its first line")

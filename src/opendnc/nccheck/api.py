@@ -1,0 +1,95 @@
+"""The entry point: guess the control, run the right dry run, add the machine's checks."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from opendnc.nccheck.limits import MachineLimits
+from opendnc.nccheck.result import CheckResult, Control, Problem, Severity
+
+__all__ = ["Budget", "Library", "check_text", "guess_control"]
+
+Library = Callable[[str], str | None]
+"""Looks a called program up by name (``"O09010"``, ``"PART2.H"``): its text, or None."""
+
+
+@dataclass(frozen=True, slots=True)
+class Budget:
+    """How far a dry run may go before it calls the program endless."""
+
+    blocks: int = 1_000_000
+    """Executed blocks (each pass of a loop counts)."""
+    seconds: float = 5.0
+    """CPU time of the dry run itself (its thread's, so a busy machine does not shorten it)."""
+    moves: int = 1_000_000
+    """Moves kept for the preview (counting and checks go on past it)."""
+
+
+_KLARTEXT = re.compile(r"^\s*\d*\s*BEGIN\s+PGM\b", re.IGNORECASE | re.MULTILINE)
+_ISO_HEAD = re.compile(r"^\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]\b", re.MULTILINE)
+
+
+def guess_control(text: str, name: str = "") -> Control:
+    """The control a program is written for, from its text (and file name).
+
+    ``BEGIN PGM`` is Heidenhain conversational; a ``.I``/``.i`` file name, or a
+    ``%NAME G71`` start line, Heidenhain ISO; anything else (``%``, ``O`` numbers,
+    G-words) G-code for a Haas / Fanuc macro-B control.
+    """
+    head = text[:4096]
+    if _KLARTEXT.search(head):
+        return Control.HEIDENHAIN
+    lowered = name.lower()
+    if lowered.endswith(".h"):
+        return Control.HEIDENHAIN
+    if lowered.endswith(".i") or _ISO_HEAD.search(head):
+        return Control.ISO
+    return Control.HAAS
+
+
+def check_text(
+    text: str,
+    *,
+    control: Control | None = None,
+    name: str = "",
+    machine: MachineLimits | None = None,
+    library: Library | None = None,
+    budget: Budget | None = None,
+) -> CheckResult:
+    """Dry-run ``text`` and report what a control would stop on, and what it would do.
+
+    ``control`` defaults to :func:`guess_control`; ``machine`` adds the machine's checks
+    (family, travel with its work offsets, tools, protected program numbers); ``library``
+    resolves called programs (a call it cannot resolve is a warning). Never raises on any
+    text; always ends within ``budget``.
+    """
+    chosen = control or guess_control(text, name)
+    budget = budget or Budget()
+    try:
+        if chosen is Control.HEIDENHAIN:
+            from opendnc.nccheck.klartext import run_klartext
+
+            result = run_klartext(text, name=name, machine=machine, library=library, budget=budget)
+        else:
+            from opendnc.nccheck.gcode import run_gcode
+
+            result = run_gcode(
+                text, control=chosen, name=name, machine=machine, library=library, budget=budget
+            )
+    except (RecursionError, MemoryError, ArithmeticError, LookupError, ValueError) as exc:
+        # last resort, so a release or send is never blocked by a crash: the program is then
+        # reported as not checked (the property tests assert this never happens)
+        problem = Problem(1, Severity.ERROR, f"internal error: the dry run failed ({exc!r})")
+        result = CheckResult(control=chosen, name=name, problems=(problem,))
+    if machine is not None and not machine.accepts(chosen):
+        family = machine.family or "unknown"
+        mismatch = Problem(
+            1,
+            Severity.ERROR,
+            f"a {chosen.value} program cannot run on {machine.name or 'this machine'} "
+            f"({family} control)",
+        )
+        result = replace(result, problems=(mismatch, *result.problems))
+    return result

@@ -1,0 +1,1066 @@
+"""The G-code dry run: Haas / Fanuc macro B (and Heidenhain ISO programs).
+
+Every line goes through the parser of :mod:`opendnc.gcode.program` first (syntax, words
+without a value, unknown G/M codes, GOTO targets, WHILE/END pairs: also on lines the run
+never reaches); then the program runs from its first block with the macro engine of the
+same module: variables and the read-only table of :mod:`opendnc.haas.macros`, IF/GOTO/WHILE,
+sub-programs (M97, M98, M99, G65), and motion (modal groups, G0-G3, planes, units,
+absolute/incremental, work offsets, G28/G53, tools, canned cycles as holes). A fault the
+control would stop on (division by zero, a write to a read-only variable, a GOTO to no
+block) ends the run there, as an alarm would. docs/check.md#g-code has the rules.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass, field
+
+from opendnc.errors import InputError
+from opendnc.gcode.program import (
+    Assign,
+    Block,
+    Dprnt,
+    EndLoop,
+    Expr,
+    Goto,
+    IfGoto,
+    IfThen,
+    Num,
+    PlainWords,
+    PortControl,
+    While,
+    Words,
+    evaluate,
+    parse_block,
+    parse_plain,
+    variable_number,
+)
+from opendnc.haas import macros
+from opendnc.nccheck import codes
+from opendnc.nccheck.api import Budget, Library
+from opendnc.nccheck.limits import MachineLimits, offset_key
+from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
+from opendnc.nccheck.result import (
+    CheckResult,
+    Control,
+    EndState,
+    Plane,
+    Problem,
+    Severity,
+    Units,
+)
+
+__all__ = ["run_gcode"]
+
+_O_LINE = re.compile(r"^\s*[O:](\d{1,5})\b")
+_ISO_LINE = re.compile(r"^\s*%\s*([A-Za-z_][\w.-]*)")
+_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]", re.IGNORECASE)
+_N_ONLY = re.compile(r"^\s*/?\s*N\s*(\d+)", re.IGNORECASE)
+_COMMENT_TEXT = re.compile(r"\(([^)]*)\)")
+
+# Fanuc macro-B argument specification I: address -> local variable
+_ARGUMENTS = {
+    "A": 1, "B": 2, "C": 3, "I": 4, "J": 5, "K": 6, "D": 7, "E": 8, "F": 9, "H": 11,
+    "M": 13, "Q": 17, "R": 18, "S": 19, "T": 20, "U": 21, "V": 22, "W": 23, "X": 24,
+    "Y": 25, "Z": 26,
+}  # fmt: skip
+_MAX_NESTING = 20
+_AXES = "XYZ"
+
+
+class _Stop(Exception):
+    """The run ends here (program end, alarm, budget)."""
+
+
+@dataclass
+class _Program:
+    name: str
+    number: int | None
+    lines: list[int]  # file line of each block
+    blocks: list[Block | PlainWords]  # plain literal words need no expression evaluation
+    numbers: dict[int, int] = field(default_factory=dict)  # N -> block index
+    loop_end: dict[int, int] = field(default_factory=dict)  # WHILE index -> END index
+    loop_start: dict[int, int] = field(default_factory=dict)  # END index -> WHILE index
+    external: bool = False
+
+
+@dataclass
+class _Frame:
+    program: _Program
+    pc: int
+    locals: dict[int, float]
+    kind: str  # main, m97, m98, g65
+    call_line: int  # file line of the outermost call (the main program's line)
+    repeat: int = 1
+    start: int = 0
+
+
+@dataclass
+class _Cycle:
+    code: float
+    z: float | None = None  # bottom, absolute work Z
+    r: float | None = None  # R plane, absolute work Z
+    initial: float | None = None
+    dwell: float = 0.0
+
+
+class _Run:
+    def __init__(
+        self,
+        text: str,
+        control: Control,
+        name: str,
+        machine: MachineLimits | None,
+        library: Library | None,
+        budget: Budget,
+    ) -> None:
+        self.control = control
+        self.iso = control is Control.ISO
+        self.name = name
+        self.machine = machine
+        self.library = library
+        self.budget = budget
+        self.problems: dict[tuple[int, str], Problem] = {}
+        self.g_codes = codes.ISO_G if self.iso else codes.HAAS_G
+        self.m_codes = codes.HEIDENHAIN_M if self.iso else codes.HAAS_M
+        travel = dict(machine.travel) if machine and machine.travel else None
+        rapid = (machine.rapid_rate if machine else None) or RAPID_MM_PER_MIN
+        self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
+        self.globals: dict[int, float] = {}
+        self.programs: dict[int, _Program] = {}
+        self.frames: list[_Frame] = []
+        self.warned: set[str] = set()
+        self.header_units: Units | None = None
+        self.main = self._split(text)
+        # modal state
+        self.units: Units | None = self.header_units
+        self.motion = 0.0
+        self.plane = Plane.XY
+        self.absolute = True
+        self.feed_mode = 94
+        self.feed: float | None = None
+        self.speed = 0.0
+        self.spindle_on = False
+        self.work_offset = 54.0
+        self.cycle: _Cycle | None = None
+        self.cycle_return_r = False  # G99
+        self.next_tool: int | None = None
+        self.tool: int | None = None
+        self.counters = [0, 0]
+        self.w: list[float | None] = [None, None, None]  # work position
+        self.m: list[float | None] = [None, None, None]  # machine position
+        self.prev_end: list[float | None] = [None, None, None]
+        self.off: list[float | None] = [0.0, 0.0, 0.0]
+        self.blocks_run = 0
+        self.jumps: dict[int, int] = {}
+        self.no_feed_reported = False
+        self.locals: dict[int, float] = {}
+        self.main_locals = self.locals
+        self.ended = False
+        self.configured: dict[int, float] = {}  # offsets from the machine's configuration
+        self.converted = False
+        if machine is not None:
+            for key, axes in machine.work_offsets.items():
+                base = _offset_base(key)
+                if base is not None:
+                    for index, letter in enumerate("XYZABC"):
+                        if letter in axes:
+                            self.globals[base + index] = axes[letter]
+                            self.configured[base + index] = axes[letter]
+        if self.units is not None:
+            self._convert_machine_units(self.units)
+        self._offsets()
+
+    # ------------------------------------------------------------------ reporting
+    def report(self, line: int, severity: Severity, message: str) -> None:
+        frame = self.frames[-1] if self.frames else None
+        if frame is not None and frame.program.external:
+            message = f"in {frame.program.name} line {line}: {message}"
+            line = frame.call_line
+        self.problems.setdefault((line, message), Problem(line, severity, message))
+
+    def error(self, line: int, message: str) -> None:
+        self.report(line, Severity.ERROR, message)
+
+    def warn_once(self, line: int, key: str, message: str) -> None:
+        if key not in self.warned:
+            self.warned.add(key)
+            self.report(line, Severity.WARNING, message)
+
+    # ------------------------------------------------------------------ program text
+    def _split(self, text: str) -> _Program:
+        """The file's programs: the first is the main one, others are callable by O number."""
+        raw = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+        programs: list[tuple[str, int | None, list[tuple[int, str]]]] = []
+        current: list[tuple[int, str]] = []
+        title: tuple[str, int | None] = (self.name or "program", None)
+        for index, line in enumerate(raw, start=1):
+            stripped = line.strip().strip("\x1a")
+            if not stripped or stripped == "%":
+                continue
+            if self.iso:
+                if not current and (match := _ISO_LINE.match(stripped)):
+                    title = (match.group(1), None)
+                    if re.search(r"\bG70\b", stripped):
+                        self.header_units = Units.INCH
+                    elif re.search(r"\bG71\b", stripped):
+                        self.header_units = Units.MM
+                    continue
+                if _ISO_END.match(stripped):
+                    current.append((index, "M30"))  # END of an ISO program
+                    continue
+            else:
+                match = _O_LINE.match(stripped)
+                if match is not None:
+                    if current or programs or title[1] is not None:
+                        programs.append((title[0], title[1], current))
+                        current = []
+                    number = int(match.group(1))
+                    title = (f"O{number:05d}", number)
+                    continue
+            current.append((index, stripped.rstrip("*").rstrip() if self.iso else stripped))
+        programs.append((title[0], title[1], current))
+        built = [self._program(n, num, lines) for n, num, lines in programs]
+        for program in built:
+            if program.number is not None:
+                self.programs.setdefault(program.number, program)
+        return built[0]
+
+    def _program(
+        self, name: str, number: int | None, lines: list[tuple[int, str]], external: bool = False
+    ) -> _Program:
+        program = _Program(name, number, [n for n, _ in lines], [], external=external)
+        stacks: dict[int, list[int]] = {}
+        g_codes, m_codes = self.g_codes, self.m_codes
+        for index, (line, text) in enumerate(lines):
+            plain = parse_plain(text)
+            if plain is not None:
+                number, words = plain
+                program.blocks.append(words)
+                if number is not None:
+                    program.numbers.setdefault(number, index)
+                for letter, value in words:
+                    if (letter == "G" and value not in g_codes) or (
+                        letter == "M" and value not in m_codes
+                    ):
+                        message = self._code_problem(letter, value)
+                        if message:
+                            self._static(program, line, message)
+                continue
+            try:
+                block = parse_block(text)
+            except InputError as exc:
+                if self.iso:
+                    # ISO cycles and Q-parameter lines are beyond the macro-B parser
+                    self.warn_once(line, "iso-line", "ISO cycle and Q-parameter lines are not "
+                                   "simulated by the dry run")  # fmt: skip
+                else:
+                    self._static(program, line, str(exc).split(" in block ")[0])
+                block = Block(text)
+            program.blocks.append(block)
+            if block.number is not None:
+                program.numbers.setdefault(block.number, index)
+            statement = block.statement
+            if isinstance(statement, Words):
+                self._check_codes(program, line, statement)
+            elif isinstance(statement, While):
+                stacks.setdefault(statement.loop, []).append(index)
+            elif isinstance(statement, EndLoop):
+                stack = stacks.get(statement.loop)
+                if stack:
+                    start = stack.pop()
+                    program.loop_end[start] = index
+                    program.loop_start[index] = start
+                else:
+                    self._static(
+                        program, line, f"END{statement.loop} without WHILE ... DO{statement.loop}"
+                    )
+        for loop, stack in stacks.items():
+            for start in stack:
+                self._static(program, program.lines[start], f"WHILE ... DO{loop} without END{loop}")
+        for index, item in enumerate(program.blocks):
+            if not isinstance(item, Block):
+                continue
+            statement = item.statement
+            target = statement.target if isinstance(statement, Goto | IfGoto) else None
+            if isinstance(target, Num) and round(target.value) not in program.numbers:
+                self._static(
+                    program,
+                    program.lines[index],
+                    f"GOTO {target.value:g}: no block N{round(target.value)} in {program.name}",
+                )
+        return program
+
+    def _static(self, program: _Program, line: int, message: str) -> None:
+        if program.external:
+            message = f"in {program.name} line {line}: {message}"
+            line = self.frames[-1].call_line if self.frames else line
+        self.problems.setdefault((line, message), Problem(line, Severity.ERROR, message))
+
+    def _check_codes(self, program: _Program, line: int, words: Words) -> None:
+        for letter, expr in words.words:
+            if letter in "GM" and isinstance(expr, Num):
+                message = self._code_problem(letter, expr.value)
+                if message:
+                    self._static(program, line, message)
+
+    def _code_problem(self, letter: str, value: float) -> str | None:
+        table = self.g_codes if letter == "G" else self.m_codes
+        if value in table or (letter == "M" and value >= 100 and not self.iso):
+            return None
+        control = "Heidenhain ISO" if self.iso else "Haas"
+        return f"{letter}{value:g} is not a {letter} code of the {control} control"
+
+    # ------------------------------------------------------------------ variables
+    def get(self, number: int) -> float | None:
+        if 1 <= number <= 33:
+            return self.locals.get(number)
+        if number < 1000:
+            return None if number == 0 else self.globals.get(number)
+        if 5000 < number < 5100:
+            return self._position_variable(number)
+        if 4000 < number < 4200:
+            return self._modal_variable(number)
+        if number == 3001:
+            return self.path.seconds * 1000.0
+        if number == 3026:
+            return float(self.tool) if self.tool is not None else 0.0
+        if number == 3027:
+            return self.speed
+        if number in (3901, 3902):
+            return float(self.counters[number - 3901])
+        return self.globals.get(number)
+
+    def _position_variable(self, number: int) -> float | None:
+        for base, values in ((5001, self.prev_end), (5021, self.m), (5041, self.w)):
+            if base <= number < base + 3:
+                return values[number - base]
+        return self.globals.get(number)
+
+    def _modal_variable(self, number: int) -> float | None:
+        motion = self.cycle.code if self.cycle else self.motion
+        table: dict[int, float | None] = {
+            4001: motion,
+            4002: {Plane.XY: 17.0, Plane.ZX: 18.0, Plane.YZ: 19.0}[self.plane],
+            4003: 90.0 if self.absolute else 91.0,
+            4005: float(self.feed_mode),
+            4006: 20.0 if self.units is Units.INCH else 21.0,
+            4010: 99.0 if self.cycle_return_r else 98.0,
+            4014: self.work_offset,
+            4109: self.feed,
+            4119: self.speed,
+            4120: float(self.tool) if self.tool is not None else None,
+        }
+        return table.get(number)
+
+    def set(self, number: int, value: float | None, line: int, source: str) -> None:
+        if 1 <= number <= 33:
+            if value is None:
+                self.locals.pop(number, None)
+            else:
+                self.locals[number] = value
+            return
+        if number == macros.ALARM_VARIABLE:
+            code = macros.alarm_for(value)  # InputError for a bad alarm number
+            comment = _COMMENT_TEXT.search(source)
+            text = comment.group(1).strip() if comment else "PROGRAMMABLE ALARM"
+            self.report(line, Severity.WARNING, f"the program raises alarm {code} ({text})")
+            raise _Stop
+        stored = macros.check_write(number, value)
+        if number in (3901, 3902):
+            self.counters[number - 3901] = int(stored or 0)
+        elif stored is None:
+            self.globals.pop(number, None)
+        else:
+            self.globals[number] = stored
+        if 5200 <= number <= 5400 or 7000 <= number <= 7400 or 14000 <= number <= 16000:
+            self._offsets()
+
+    def value(self, expr: Expr) -> float:
+        if type(expr) is Num:
+            return expr.value
+        result = evaluate(expr, self.get)
+        return 0.0 if result is None else result
+
+    def _offsets(self) -> None:
+        """The work offset in force per axis (None where the program or config never set it)."""
+        base = _work_base(self.work_offset)
+        for axis in range(3):
+            local = self.globals.get(5201 + axis, 0.0)
+            offset = self.globals.get(base + axis) if base is not None else None
+            self.off[axis] = None if offset is None else offset + local
+        known = [self.m[i] for i in range(3)]
+        for axis in range(3):
+            offset = self.off[axis]
+            machine = known[axis]
+            if machine is not None and offset is not None:
+                self.w[axis] = machine - offset
+
+    # ------------------------------------------------------------------ the run
+    def run(self) -> None:
+        # CPU time of this thread: a busy machine must not turn a long program into a "loop"
+        deadline = time.thread_time() + self.budget.seconds
+        limit = self.budget.blocks
+        self.frames.append(_Frame(self.main, 0, self.locals, "main", 0))
+        try:
+            while True:
+                frame = self.frames[-1]
+                program = frame.program
+                if frame.pc >= len(program.blocks):
+                    self._fall_off(frame)
+                    continue
+                index = frame.pc
+                frame.pc += 1
+                block = program.blocks[index]
+                self.blocks_run += 1
+                if self.blocks_run & 1023 == 0 and (
+                    self.blocks_run >= limit or time.thread_time() > deadline
+                ):
+                    self._endless(program.lines[index])
+                line = program.lines[index]
+                try:
+                    if type(block) is tuple:
+                        self._plain(block, frame, line)
+                        continue
+                    assert isinstance(block, Block)
+                    if block.deleted:
+                        continue
+                    self._execute(block, frame, index, line)
+                except InputError as exc:
+                    self.error(line, str(exc).split(" in block ")[0])
+                    raise _Stop from None
+        except _Stop:
+            pass
+
+    def _fall_off(self, frame: _Frame) -> None:
+        program = frame.program
+        last = program.lines[-1] if program.lines else 1
+        if frame.kind == "main":
+            self.error(last, "no program end (M30, M02 or M99)")
+            raise _Stop
+        self.warn_once(last, f"end-{program.name}", f"{program.name} ends without M99")
+        self._return(frame, last)
+
+    def _endless(self, line: int) -> None:
+        self.frames[1:] = []  # report at the main program's line
+        if not self.jumps:
+            # no jump back: a long program (or deep calls), not a loop; the rest is not checked
+            self.report(
+                line,
+                Severity.WARNING,
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget ran "
+                "out); the rest of the program is not checked",
+            )
+            raise _Stop
+        where, count = max(self.jumps.items(), key=lambda item: item[1])
+        self.error(
+            where,
+            f"endless loop: the jump back at line {where} ran {count:,} times; the dry "
+            f"run stopped after {self.blocks_run:,} blocks",
+        )
+        raise _Stop
+
+    def _jump(self, line: int) -> None:
+        self.jumps[line] = self.jumps.get(line, 0) + 1
+
+    def _execute(self, block: Block, frame: _Frame, index: int, line: int) -> None:
+        statement = block.statement
+        if type(statement) is Words:
+            self._words(statement, frame, line)
+        elif isinstance(statement, Assign):
+            number = variable_number(statement.target, self.get)
+            self.set(number, evaluate(statement.value, self.get), line, block.source)
+        elif isinstance(statement, IfThen):
+            if self.value(statement.condition):
+                then = statement.then
+                number = variable_number(then.target, self.get)
+                self.set(number, evaluate(then.value, self.get), line, block.source)
+        elif isinstance(statement, IfGoto):
+            if self.value(statement.condition):
+                self._goto(frame, self.value(statement.target), index, line)
+        elif isinstance(statement, Goto):
+            self._goto(frame, self.value(statement.target), index, line)
+        elif isinstance(statement, While):
+            if not self.value(statement.condition):
+                end = frame.program.loop_end.get(index)
+                if end is None:
+                    raise InputError(f"WHILE ... DO{statement.loop} without END{statement.loop}")
+                frame.pc = end + 1
+        elif isinstance(statement, EndLoop):
+            start = frame.program.loop_start.get(index)
+            if start is None:
+                raise InputError(f"END{statement.loop} without WHILE ... DO{statement.loop}")
+            self._jump(line)
+            frame.pc = start
+        elif isinstance(statement, Dprnt | PortControl):
+            pass  # output only: nothing moves
+
+    def _goto(self, frame: _Frame, target: float, index: int, line: int) -> None:
+        number = round(target)
+        found = frame.program.numbers.get(number)
+        if found is None:
+            raise InputError(f"GOTO {number}: no block N{number} in {frame.program.name}")
+        if found <= index:
+            self._jump(line)
+        frame.pc = found
+
+    # ------------------------------------------------------------------ words
+    def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
+        g: list[float] = []
+        m: list[float] = []
+        v: dict[str, float] = {}
+        for letter, value in words:
+            if letter == "G":
+                g.append(value)
+            elif letter == "M":
+                m.append(value)
+            else:
+                v[letter] = value
+        self._apply(g, m, v, frame, line)
+
+    def _words(self, statement: Words, frame: _Frame, line: int) -> None:
+        g: list[float] = []
+        m: list[float] = []
+        v: dict[str, float] = {}
+        for letter, expr in statement.words:
+            value = expr.value if type(expr) is Num else self.value(expr)
+            if letter == "G":
+                g.append(value)
+                if type(expr) is not Num and (problem := self._code_problem("G", value)):
+                    raise InputError(problem)
+            elif letter == "M":
+                m.append(value)
+                if type(expr) is not Num and (problem := self._code_problem("M", value)):
+                    raise InputError(problem)
+            else:
+                v[letter] = value
+        self._apply(g, m, v, frame, line)
+
+    def _apply(
+        self, g: list[float], m: list[float], v: dict[str, float], frame: _Frame, line: int
+    ) -> None:
+        self.prev_end = self.w[:]
+        special = 0.0
+        if g:
+            special = self._g_codes(g, v, line)
+            if special == 65:
+                self._call(frame, "g65", v, line)
+                return
+        if "F" in v:
+            self.feed = v["F"]
+        if "S" in v:
+            self.speed = v["S"]
+            self.path.spindle_speed(self.speed)
+        if "T" in v and not self.iso:
+            self.next_tool = round(v["T"])
+        self._motion(special, v, line)
+        if "T" in v and self.iso:
+            self._tool_change(round(v["T"]), line)
+        for code in m:
+            self._m_code(code, frame, v, line)
+
+    def _g_codes(self, g: list[float], v: dict[str, float], line: int) -> float:
+        """Apply modal codes; return a non-modal code that decides this block's motion."""
+        special = 0.0
+        motion_codes = 0
+        for code in g:
+            if code in codes.MOTION:
+                self.motion = code
+                self.cycle = None
+                motion_codes += 1
+            elif code in codes.CYCLES:
+                self.cycle = _Cycle(code, initial=self.w[2])
+                if self.iso:
+                    self.warn_once(line, "iso-cycle", "ISO canned cycles are not drawn")
+                    self.cycle = None
+            elif code == 80:
+                self.cycle = None
+            elif code in (17, 18, 19):
+                self.plane = (Plane.XY, Plane.ZX, Plane.YZ)[int(code) - 17]
+            elif code in (20, 21) and not self.iso:
+                self._units(Units.INCH if code == 20 else Units.MM, line)
+            elif code in (70, 71) and self.iso:
+                self._units(Units.INCH if code == 70 else Units.MM, line)
+            elif code in (90, 91):
+                self.absolute = code == 90
+            elif code in (93, 94, 95):
+                self.feed_mode = int(code)
+            elif code in (98, 99) and not self.iso:
+                self.cycle_return_r = code == 99
+            elif (54 <= code <= 59 or 110 <= code <= 129) and code == int(code) and not self.iso:
+                self.work_offset = code
+                self._offsets()
+            elif code == 154 and not self.iso:
+                number = round(v.get("P", 1))
+                if not 1 <= number <= 99:
+                    raise InputError(f"G154 P{number}: work offsets are P1 to P99")
+                self.work_offset = 109.0 + number if number <= 20 else 1000.0 + number
+                self._offsets()
+            elif (code in (4, 10, 28, 53, 65, 92, 52) and not self.iso) or (
+                code in (4,) and self.iso
+            ):
+                special = code
+            elif code in codes.NOT_DRAWN_G and not self.iso:
+                self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
+        if motion_codes > 1:
+            self.error(line, "two motion codes (G00-G03) in one block")
+        return special
+
+    def _units(self, units: Units, line: int) -> None:
+        if self.units is not None and units is not self.units:
+            self.warn_once(line, "units", "the program changes units (G20/G21) part way")
+        self.units = units
+        if not (self.machine and self.machine.rapid_rate):
+            self.path.rapid_rate = rapid_rate(units)
+        self._convert_machine_units(units)
+        self._offsets()
+
+    def _convert_machine_units(self, units: Units) -> None:
+        """Travel and configured offsets in the machine's units -> the program's (once)."""
+        machine = self.machine
+        if self.converted or machine is None or machine.travel_units is None:
+            return
+        self.converted = True
+        if machine.travel_units is units:
+            return
+        factor = 25.4 if units is Units.MM else 1 / 25.4
+        self.path.scale_travel(factor)
+        for number, value in self.configured.items():
+            if self.globals.get(number) == value:  # not set by the program since
+                self.globals[number] = value * factor
+
+    # ------------------------------------------------------------------ motion
+    def _target(self, v: dict[str, float]) -> tuple[list[float | None], list[float | None]]:
+        w, m = self.w[:], self.m[:]
+        for axis, letter in enumerate(_AXES):
+            if letter in v:
+                value = v[letter]
+                if self.absolute:
+                    w[axis] = value
+                    off = self.off[axis]
+                    m[axis] = None if off is None else value + off
+                else:
+                    current = w[axis]
+                    w[axis] = None if current is None else current + value
+                    machine = m[axis]
+                    m[axis] = None if machine is None else machine + value
+        return w, m
+
+    def _motion(self, special: float, v: dict[str, float], line: int) -> None:
+        has_axes = "X" in v or "Y" in v or "Z" in v
+        if special:
+            if special == 4:
+                self.path.dwell(v.get("P", v.get("X", 0.0)) if not self.iso else v.get("F", 0.0))
+            elif special == 28:
+                self._home(v, line)
+            elif special == 53:
+                self._machine_move(v, line)
+            elif special == 10:
+                self._g10(v, line)
+            elif special == 52:
+                for axis, letter in enumerate(_AXES):
+                    if letter in v:
+                        self.globals[5201 + axis] = v[letter]
+                self._offsets()
+            elif special == 92:
+                w, _m = self._target(v)
+                for axis, letter in enumerate(_AXES):
+                    if letter in v:
+                        self.w[axis] = w[axis]
+                        self.m[axis] = None
+                self.warn_once(
+                    line, "G92", "G92 shifts the coordinates: machine travel not checked"
+                )
+            return
+        if self.cycle is not None:
+            if has_axes or "R" in v or "L" in v:
+                self._holes(v, line)
+            return
+        motion = self.motion
+        if motion == 0 or motion == 1:
+            if has_axes:
+                self._linear(v, line, rapid=motion == 0)
+        elif has_axes or any(k in v for k in "IJKR"):
+            self._arc(v, line, clockwise=motion == 2)
+
+    def _move_to(
+        self, w: list[float | None], m: list[float | None], line: int, rapid: bool
+    ) -> None:
+        seconds = None
+        if not rapid:
+            seconds = self._feed_seconds(line)
+        self.path.line(
+            (self.w[0], self.w[1], self.w[2]),
+            (w[0], w[1], w[2]),
+            line,
+            rapid=rapid,
+            feed=None if rapid else self._feed_rate(),
+            machine_end=m,
+        )
+        if seconds is not None and self.feed_mode == 93:
+            self.path.dwell(seconds)
+        self.w, self.m = w, m
+
+    def _feed_rate(self) -> float | None:
+        if self.feed_mode == 95 and self.feed is not None:
+            return self.feed * self.speed if self.speed else None
+        return self.feed if self.feed_mode == 94 else None
+
+    def _feed_seconds(self, line: int) -> float | None:
+        if not self.feed and not self.no_feed_reported:
+            self.no_feed_reported = True
+            self.error(line, "a feed move with no feed rate (F) in force")
+        if not self.spindle_on:
+            self.warn_once(line, "spindle", "a feed move with the spindle stopped")
+        if self.feed_mode == 93 and self.feed:
+            return 60.0 / self.feed  # inverse time: the move takes 1/F minutes
+        return None
+
+    def _linear(self, v: dict[str, float], line: int, *, rapid: bool) -> None:
+        w, m = self._target(v)
+        self._move_to(w, m, line, rapid)
+
+    def _arc(self, v: dict[str, float], line: int, *, clockwise: bool) -> None:
+        w, m = self._target(v)
+        self._feed_seconds(line)
+        a, b, c = {Plane.XY: (0, 1, 2), Plane.ZX: (2, 0, 1), Plane.YZ: (1, 2, 0)}[self.plane]
+        start = self.w
+        sa, sb, ea, eb = start[a], start[b], w[a], w[b]
+        if sa is None or sb is None or ea is None or eb is None or start[c] is None:
+            self.warn_once(line, "arc-unknown", "an arc from an unknown position is not drawn")
+            self.w, self.m = w, m
+            return
+        tol = 0.0005 if self.units is Units.INCH else 0.01
+        letters = ("I", "J", "K")
+        if "R" in v:
+            radius = v["R"]
+            chord = math.hypot(ea - sa, eb - sb)
+            if chord < 1e-9:
+                self.report(
+                    line,
+                    Severity.WARNING,
+                    "an arc given by R with the same start and end point does not move",
+                )
+                return
+            if abs(radius) < chord / 2 - tol:
+                self.error(
+                    line,
+                    f"arc radius R{radius:g} is too small for a chord of {chord:.4g} "
+                    f"(at least {chord / 2:.4g})",
+                )
+                raise _Stop
+            half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
+            ua, ub = (ea - sa) / chord, (eb - sb) / chord
+            side = 1.0 if (not clockwise) ^ (radius < 0) else -1.0
+            ca = (sa + ea) / 2 - side * half * ub
+            cb = (sb + eb) / 2 + side * half * ua
+        else:
+            ka, kb = letters[a], letters[b]
+            if ka not in v and kb not in v:
+                self.error(
+                    line, f"G0{2 if clockwise else 3} without its centre ({ka}/{kb}) or radius (R)"
+                )
+                raise _Stop
+            if self.iso:  # Heidenhain ISO: I, J, K are the absolute circle centre
+                ca, cb = v.get(ka, sa), v.get(kb, sb)
+            else:
+                ca, cb = sa + v.get(ka, 0.0), sb + v.get(kb, 0.0)
+            r0 = math.hypot(sa - ca, sb - cb)
+            r1 = math.hypot(ea - ca, eb - cb)
+            if abs(r0 - r1) > tol:
+                self.error(
+                    line,
+                    f"arc end is not on its circle: start radius {r0:.4f}, end radius "
+                    f"{r1:.4f} (differ by {abs(r0 - r1):.4f})",
+                )
+                raise _Stop
+        center = [0.0, 0.0, 0.0]
+        center[a], center[b] = ca, cb
+        startp = (float(start[0] or 0.0), float(start[1] or 0.0), float(start[2] or 0.0))
+        endp = (
+            float(w[0] if w[0] is not None else startp[0]),
+            float(w[1] if w[1] is not None else startp[1]),
+            float(w[2] if w[2] is not None else startp[2]),
+        )
+        center[c] = startp[c]
+        shift = tuple(
+            None if mm is None or ww is None else mm - ww for mm, ww in zip(m, w, strict=True)
+        )
+        self.path.arc(
+            startp, endp, (center[0], center[1], center[2]), self.plane, line,
+            clockwise=clockwise, feed=self._feed_rate(), machine_shift=shift,
+        )  # fmt: skip
+        self.w, self.m = w, m
+
+    def _home(self, v: dict[str, float], line: int) -> None:
+        """G28: through the given point, then the named axes to machine zero (all if none)."""
+        named = [axis for axis, letter in enumerate(_AXES) if letter in v]
+        if named:
+            w, m = self._target(v)
+            self._move_to(w, m, line, rapid=True)
+        else:
+            named = [0, 1, 2]
+        w, m = self.w[:], self.m[:]
+        for axis in named:
+            m[axis] = 0.0
+            off = self.off[axis]
+            w[axis] = None if off is None else -off
+        self._move_to(w, m, line, rapid=True)
+
+    def _machine_move(self, v: dict[str, float], line: int) -> None:
+        """G53: the named axes to machine coordinates, at rapid (non-modal)."""
+        w, m = self.w[:], self.m[:]
+        for axis, letter in enumerate(_AXES):
+            if letter in v:
+                m[axis] = v[letter]
+                off = self.off[axis]
+                w[axis] = None if off is None else v[letter] - off
+        self._move_to(w, m, line, rapid=True)
+
+    def _g10(self, v: dict[str, float], line: int) -> None:
+        kind = round(v.get("L", 0))
+        number = round(v.get("P", 0))
+        if kind == 2 and 0 <= number <= 6:
+            code = 52.0 if number == 0 else 53.0 + number
+        elif kind == 20 and 1 <= number <= 99:
+            code = 109.0 + number if number <= 20 else 1000.0 + number
+        else:
+            return  # tool offsets (L1, L10, L11...) do not change the path
+        base = _work_base(code)
+        if base is None:
+            return
+        for axis, letter in enumerate(_AXES):
+            if letter in v:
+                old = self.globals.get(base + axis, 0.0)
+                self.globals[base + axis] = v[letter] if self.absolute else old + v[letter]
+        self._offsets()
+
+    def _holes(self, v: dict[str, float], line: int) -> None:
+        cycle = self.cycle
+        assert cycle is not None
+        initial = cycle.initial if cycle.initial is not None else self.w[2]
+        if "R" in v:
+            cycle.r = v["R"] if self.absolute or initial is None else initial + v["R"]
+        if "Z" in v:
+            base = cycle.r if cycle.r is not None else initial
+            cycle.z = v["Z"] if self.absolute or base is None else base + v["Z"]
+        if "P" in v:
+            cycle.dwell = v["P"]
+        if cycle.z is None:
+            self.error(line, f"canned cycle G{cycle.code:g} without a depth (Z)")
+            raise _Stop
+        repeats = round(v.get("L", v.get("K", 1)))
+        xy: dict[str, float] = {k: v[k] for k in ("X", "Y") if k in v}
+        r_plane = cycle.r if cycle.r is not None else initial
+        for _ in range(max(0, min(repeats, 10_000))):
+            w, m = self._target(xy)
+            self._move_to(w, m, line, rapid=True)
+            if r_plane is not None:
+                self._to_z(r_plane, line, rapid=True)
+            self._to_z(cycle.z, line, rapid=False)
+            self.path.dwell(cycle.dwell)
+            back = r_plane if self.cycle_return_r or initial is None else initial
+            if back is not None:
+                self._to_z(back, line, rapid=cycle.code not in codes.FEED_RETRACT)
+
+    def _to_z(self, z: float, line: int, *, rapid: bool) -> None:
+        w, m = self.w[:], self.m[:]
+        w[2] = z
+        off = self.off[2]
+        m[2] = None if off is None else z + off
+        self._move_to(w, m, line, rapid)
+
+    # ------------------------------------------------------------------ M codes, tools, calls
+    def _m_code(self, value: float, frame: _Frame, v: dict[str, float], line: int) -> None:
+        code = round(value)
+        if code == 6 and not self.iso:
+            if self.next_tool is None:
+                self.report(line, Severity.WARNING, "M06 with no tool selected (T)")
+                return
+            self._tool_change(self.next_tool, line)
+        elif code in (3, 4, 13, 14):
+            self.spindle_on = True
+        elif code == 5:
+            self.spindle_on = False
+        elif code in (30, 2):
+            if code == 30:
+                self.counters = [self.counters[0] + 1, self.counters[1] + 1]
+            self.ended = True
+            raise _Stop
+        elif code == 99 and not self.iso:
+            if frame.kind == "main":
+                self.ended = True  # M99 in a main program: the control starts it again
+                raise _Stop
+            self._return(frame, line, v.get("P"))
+        elif code == 97 and not self.iso:
+            self._call(frame, "m97", v, line)
+        elif code == 98 and not self.iso:
+            self._call(frame, "m98", v, line)
+
+    def _tool_change(self, tool: int, line: int) -> None:
+        self.tool = tool
+        known = self.machine.tools if self.machine is not None else None
+        if known is not None and str(tool) not in known and tool != 0:
+            self.error(line, f"tool T{tool} is not in the tool table of {self.machine_name()}")
+        if tool != 0:
+            self.path.change_tool(str(tool), line, speed=self.speed or None, feed=self.feed)
+
+    def machine_name(self) -> str:
+        return (self.machine.name if self.machine else "") or "the machine"
+
+    def _call(self, frame: _Frame, kind: str, v: dict[str, float], line: int) -> None:
+        if "P" not in v:
+            self.error(line, f"{kind.upper()} without a program or block number (P)")
+            raise _Stop
+        number = round(v["P"])
+        repeats = round(v.get("L", 1))
+        if repeats < 1:
+            return
+        if len(self.frames) > _MAX_NESTING:
+            self.error(line, f"sub-program calls nest deeper than {_MAX_NESTING} levels")
+            raise _Stop
+        call_line = frame.call_line if frame.kind != "main" else line
+        if kind == "m97":
+            index = frame.program.numbers.get(number)
+            if index is None:
+                raise InputError(f"M97 P{number}: no block N{number} in {frame.program.name}")
+            program = frame.program
+        else:
+            found = self._find(number, line)
+            if found is None:
+                return
+            program, index = found, 0
+        if kind == "g65":
+            new_locals = {_ARGUMENTS[k]: value for k, value in v.items() if k in _ARGUMENTS}
+        else:
+            new_locals = self.locals
+        self.frames.append(_Frame(program, index, new_locals, kind, call_line, repeats, index))
+        self.locals = new_locals
+
+    def _find(self, number: int, line: int) -> _Program | None:
+        program = self.programs.get(number)
+        if program is not None:
+            return program
+        name = f"O{number:05d}"
+        text = None
+        if self.library is not None:
+            try:
+                text = self.library(name)
+            except Exception:  # a library callback must not break the dry run
+                text = None
+        if text is None:
+            self.report(line, Severity.WARNING, f"calls {name}, which is not in the library")
+            return None
+        loaded = _Run(text, self.control, name, None, None, self.budget)
+        program = self._program(name, number, [], external=True)
+        body = loaded.main
+        program.lines, program.blocks = body.lines, body.blocks
+        program.numbers, program.loop_end, program.loop_start = (
+            body.numbers,
+            body.loop_end,
+            body.loop_start,
+        )
+        for problem in loaded.problems.values():
+            self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
+        self.programs[number] = program
+        return program
+
+    def _return(self, frame: _Frame, line: int, to_block: float | None = None) -> None:
+        if frame.repeat > 1:
+            frame.repeat -= 1
+            frame.pc = frame.start
+            self._jump(line)
+            return
+        self.frames.pop()
+        caller = self.frames[-1]
+        self.locals = caller.locals
+        if to_block is not None:
+            found = caller.program.numbers.get(round(to_block))
+            if found is None:
+                raise InputError(f"M99 P{round(to_block)}: no block N{round(to_block)}")
+            caller.pc = found
+
+    # ------------------------------------------------------------------ result
+    def result(self) -> CheckResult:
+        problems = list(self.problems.values())
+        if self.machine is not None:
+            problems += self.path.travel_problems(self.machine.name)
+            number = self.main.number
+            for low, high in self.machine.protected:
+                if number is not None and low <= number <= high:
+                    problems.append(
+                        Problem(
+                            _first_line(self.main),
+                            Severity.ERROR,
+                            f"O{number:05d} is a protected program number on "
+                            f"{self.machine_name()} (O{low:05d}-O{high:05d} hold the "
+                            "control's own macros)",
+                        )
+                    )
+        problems.sort(key=lambda p: p.line)
+        return CheckResult(
+            control=self.control,
+            name=self.name,
+            problems=tuple(problems),
+            tools=self.path.tools(),
+            extents=self.path.extents(),
+            rapid_distance=self.path.rapid,
+            feed_distance=self.path.feed,
+            cycle_time_s=self.path.seconds,
+            moves=tuple(self.path.moves),
+            units=self.units,
+            blocks=self.blocks_run,
+            end=EndState(
+                position={a: v for a, v in zip(_AXES, self.w, strict=True) if v is not None},
+                machine_position={
+                    a: v for a, v in zip(_AXES, self.m, strict=True) if v is not None
+                },
+                tool=str(self.tool) if self.tool is not None else None,
+                variables={**self.globals, **self.main_locals},
+                ended=self.ended,
+            ),
+        )
+
+
+def _first_line(program: _Program) -> int:
+    return max(1, program.lines[0] - 1) if program.lines else 1
+
+
+def _work_base(code: float) -> int | None:
+    """First variable of work offset ``code`` (G54..G59, G110..G129, G154 P21..P99)."""
+    if 54 <= code <= 59:
+        return 5221 + 20 * (int(code) - 54)
+    if code == 53:
+        return None
+    if 110 <= code <= 129:
+        return 7001 + 20 * (int(code) - 110)
+    if 1021 <= code <= 1099:
+        return 14001 + 20 * (int(code) - 1001)
+    return None
+
+
+def _offset_base(key: str) -> int | None:
+    name = offset_key(key)
+    if name.startswith("G154 P"):
+        return _work_base(1000.0 + int(name[6:]))
+    try:
+        return _work_base(float(name[1:]))
+    except ValueError:
+        return None
+
+
+def run_gcode(
+    text: str,
+    *,
+    control: Control,
+    name: str,
+    machine: MachineLimits | None,
+    library: Library | None,
+    budget: Budget,
+) -> CheckResult:
+    """Dry-run a G-code program (see the module docstring)."""
+    run = _Run(text, control, name, machine, library, budget)
+    run.run()
+    return run.result()

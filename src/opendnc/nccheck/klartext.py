@@ -1,0 +1,1101 @@
+"""The Heidenhain conversational (Klartext) dry run.
+
+Each line ``N KEYWORD ...`` is parsed into a :class:`_Line`; lines without a block number
+after a ``CYCL DEF`` (or ending in ``~``) are its parameters. The run then executes the
+blocks: ``BEGIN``/``END PGM``, ``BLK FORM``, ``TOOL DEF``/``TOOL CALL``, straight and circular
+paths (``L``, ``CC``, ``C``, ``CR``, ``CT``, ``RND``, ``CHF``, polar ``LP``/``CP``), labels
+(``LBL``, ``CALL LBL ... REP``, ``CALL PGM``), Q parameters (``FN 0`` to ``FN 12``, formula
+lines), drilling cycles 200, 201, 203 and 205 at ``CYCL CALL``, ``CYCL CALL PAT``,
+``CYCL CALL POS``, ``M99`` and ``M89``, datum shift (cycle 7), ``STOP`` and M functions.
+The facts are in docs/check.md#klartext.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from opendnc.nccheck import codes
+from opendnc.nccheck.api import Budget, Library
+from opendnc.nccheck.limits import MachineLimits
+from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
+from opendnc.nccheck.result import (
+    CheckResult,
+    Control,
+    EndState,
+    Plane,
+    Problem,
+    Severity,
+    Stock,
+    Units,
+)
+
+__all__ = ["run_klartext"]
+
+_NUMBERED = re.compile(r"^\s*(\d+)\s*(.*)$")
+_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*|\.\d+)"
+_AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
+_POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
+_WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
+_Q_PARAM = re.compile(r"^(Q|QL|QR)(\d+)$")
+_CYCLE_PARAM = re.compile(r"\b(Q\d+)\s*=\s*" + _VALUE)
+_STRING = re.compile(r'"([^"]*)"')
+_TOL_MM = 0.01
+_DRILLING = (200, 201, 203, 205)
+_CALL_NEST = 20
+
+
+class _Stop(Exception):
+    """The run ends here."""
+
+
+@dataclass
+class _Line:
+    line: int
+    block: int | None
+    text: str  # upper case, comment removed
+    raw: str
+    params: list[str] = field(default_factory=list)  # continuation lines (cycle parameters)
+
+
+@dataclass
+class _Program:
+    name: str
+    lines: list[_Line]
+    labels: dict[str, int] = field(default_factory=dict)
+    external: bool = False
+
+
+@dataclass
+class _Frame:
+    program: _Program
+    pc: int
+    kind: str  # main, lbl, pgm
+    call_line: int
+    label: str = ""
+
+
+class _Expr:
+    """A tiny Q-parameter formula evaluator (``Q1 = Q2 * 3 + SIN Q3``, ``FN 4: ... DIV ...``)."""
+
+    _TOKEN = re.compile(r"\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*(?:E[+-]?\d+)?|\.\d+|[A-Z]+|\S)")
+    _FUNCTIONS: ClassVar[dict[str, Callable[[float], float]]] = {
+        "SIN": lambda x: math.sin(math.radians(x)),
+        "COS": lambda x: math.cos(math.radians(x)),
+        "TAN": lambda x: math.tan(math.radians(x)),
+        "ASIN": lambda x: math.degrees(math.asin(x)),
+        "ACOS": lambda x: math.degrees(math.acos(x)),
+        "ATAN": lambda x: math.degrees(math.atan(x)),
+        "SQRT": math.sqrt,
+        "SQ": lambda x: x * x,
+        "ABS": abs,
+        "INT": lambda x: float(math.trunc(x)),
+        "FRAC": lambda x: x - math.trunc(x),
+        "SGN": lambda x: float((x > 0) - (x < 0)),
+        "NEG": lambda x: -x,
+        "LN": math.log,
+        "LOG": math.log10,
+        "EXP": math.exp,
+    }
+
+    def __init__(self, text: str, lookup: Callable[[str], float]) -> None:
+        self.tokens = [t for t in self._TOKEN.findall(text) if t]
+        self.pos = 0
+        self.lookup = lookup
+
+    def peek(self) -> str | None:
+        return self.tokens[self.pos] if self.pos < len(self.tokens) else None
+
+    def take(self) -> str:
+        token = self.peek()
+        if token is None:
+            raise ValueError("the formula ends early")
+        self.pos += 1
+        return token
+
+    def value(self) -> float:
+        result = self.sum()
+        if self.peek() is not None:
+            raise ValueError(f"unexpected {self.peek()!r} in the formula")
+        if not math.isfinite(result):
+            raise ValueError("the formula overflowed")
+        return result
+
+    def sum(self) -> float:
+        left = self.product()
+        while self.peek() in ("+", "-", "LEN"):
+            op = self.take()
+            right = self.product()
+            left = (
+                left + right
+                if op == "+"
+                else left - right
+                if op == "-"
+                else math.hypot(left, right)
+            )
+        return left
+
+    def product(self) -> float:
+        left = self.power()
+        while self.peek() in ("*", "/", "DIV"):
+            op = self.take()
+            right = self.power()
+            if op == "*":
+                left *= right
+            elif right == 0:
+                raise ZeroDivisionError
+            else:
+                left /= right
+        return left
+
+    def power(self) -> float:
+        base = self.unary()
+        if self.peek() == "^":
+            self.take()
+            return math.pow(base, self.power())  # ValueError / OverflowError, never complex
+        return base
+
+    def unary(self) -> float:
+        token = self.peek()
+        if token in ("+", "-"):
+            self.take()
+            operand = self.unary()
+            return -operand if token == "-" else operand
+        return self.primary()
+
+    def primary(self) -> float:
+        token = self.take()
+        if token == "(":
+            inner = self.sum()
+            if self.take() != ")":
+                raise ValueError("a formula bracket is not closed")
+            return inner
+        if token == "PI":
+            return math.pi
+        if token in self._FUNCTIONS:
+            return float(self._FUNCTIONS[token](self.unary()))
+        if _Q_PARAM.match(token):
+            return self.lookup(token)
+        if token[0].isdigit() or token[0] == ".":
+            return float(token)
+        raise ValueError(f"unexpected {token!r} in the formula")
+
+
+class _Run:
+    def __init__(
+        self,
+        text: str,
+        name: str,
+        machine: MachineLimits | None,
+        library: Library | None,
+        budget: Budget,
+    ) -> None:
+        self.name = name
+        self.machine = machine
+        self.library = library
+        self.budget = budget
+        self.problems: dict[tuple[int, str], Problem] = {}
+        travel = dict(machine.travel) if machine and machine.travel else None
+        rapid = (machine.rapid_rate if machine else None) or RAPID_MM_PER_MIN
+        self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
+        self.preset: tuple[float | None, float | None, float | None] = (None, None, None)
+        if machine is not None and "G54" in machine.work_offsets:
+            axes = machine.work_offsets["G54"]
+            self.preset = (axes.get("X"), axes.get("Y"), axes.get("Z"))
+        self.frames: list[_Frame] = []
+        self.q: dict[str, float] = {}
+        self.units: Units | None = None
+        self.stock_min: list[float] | None = None
+        self.stock: Stock | None = None
+        self.pos: list[float | None] = [None, None, None]
+        self.center: tuple[float, float] | None = None
+        self.last_dir: tuple[float, float] | None = None
+        self.shift = [0.0, 0.0, 0.0]
+        self.axis = 2  # tool axis: Z
+        self.feed: float | None = None
+        self.tool_feed: float | None = None
+        self.speed = 0.0
+        self.spindle_on = False
+        self.tool: str | None = None
+        self.cycle: tuple[int, dict[str, float], int] | None = None  # number, params, line
+        self.m89 = False
+        self.pattern: list[tuple[float | None, float | None, float | None]] = []
+        self.repeats: dict[tuple[int, int], int] = {}
+        self.jumps: dict[int, int] = {}
+        self.warned: set[str] = set()
+        self.no_feed = False
+        self.blocks_run = 0
+        self.end_line: _Line | None = None
+        self.ended = False
+        self.begin: tuple[str, str] | None = None
+        self.main = self._parse(text, name)
+
+    # ------------------------------------------------------------------ reporting
+    def report(self, where: _Line, severity: Severity, message: str) -> None:
+        line, block = where.line, where.block
+        frame = self.frames[-1] if self.frames else None
+        if frame is not None and frame.program.external:
+            message = f"in {frame.program.name} line {line}: {message}"
+            line, block = frame.call_line, None
+        self.problems.setdefault((line, message), Problem(line, severity, message, block))
+
+    def error(self, where: _Line, message: str) -> None:
+        self.report(where, Severity.ERROR, message)
+
+    def warn_once(self, where: _Line, key: str, message: str) -> None:
+        if key not in self.warned:
+            self.warned.add(key)
+            self.report(where, Severity.WARNING, message)
+
+    # ------------------------------------------------------------------ parsing
+    def _parse(self, text: str, name: str, external: bool = False) -> _Program:
+        lines: list[_Line] = []
+        raw_lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+        continuing = False
+        for number, raw in enumerate(raw_lines, start=1):
+            code = raw.split(";", 1)[0].strip()
+            if not code:
+                continue
+            upper = code.upper()
+            match = _NUMBERED.match(upper)
+            tilde = upper.endswith("~")
+            upper = upper.rstrip("~").strip()
+            if match is None or (continuing and lines):
+                if lines and (continuing or not match):
+                    lines[-1].params.append(upper)
+                    continuing = tilde
+                    continue
+                lines.append(_Line(number, None, upper, raw))
+                continuing = tilde
+                continue
+            block = int(match.group(1))
+            body = match.group(2).rstrip("~").strip()
+            lines.append(_Line(number, block, body, raw))
+            continuing = tilde
+        program = _Program(name, lines, external=external)
+        for index, item in enumerate(lines):
+            if item.text.startswith("LBL"):
+                label = _label(item.text[3:])
+                if label in program.labels and label != "0":
+                    self._static(program, item, f"label {label} is defined twice")
+                program.labels.setdefault(label, index)
+        for item in lines:
+            text_ = item.text
+            target = None
+            if text_.startswith("CALL LBL"):
+                target = _label(text_[8:].split(" REP")[0])
+            elif "GOTO LBL" in text_:
+                target = _label(text_.split("GOTO LBL", 1)[1])
+            if target is not None and target not in program.labels:
+                self._static(program, item, f"label {target} is not defined")
+        return program
+
+    def _static(self, program: _Program, where: _Line, message: str) -> None:
+        if program.external:
+            return  # reported through the call
+        self.problems.setdefault(
+            (where.line, message), Problem(where.line, Severity.ERROR, message, where.block)
+        )
+
+    # ------------------------------------------------------------------ values
+    def q_value(self, name: str) -> float:
+        return self.q.get(name, 0.0)
+
+    def number(self, sign: str, token: str) -> float:
+        value = self.q_value(token) if token.startswith("Q") else float(token)
+        return -value if sign == "-" else value
+
+    def formula(self, text: str) -> float:
+        return _Expr(text, self.q_value).value()
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> None:
+        # CPU time of this thread: a busy machine must not turn a long program into a "loop"
+        deadline = time.thread_time() + self.budget.seconds
+        self.frames.append(_Frame(self.main, 0, "main", 0))
+        if not self.main.lines or not self.main.lines[0].text.startswith("BEGIN PGM"):
+            first = self.main.lines[0] if self.main.lines else _Line(1, None, "", "")
+            self.error(first, "the program does not start with BEGIN PGM")
+        try:
+            while True:
+                frame = self.frames[-1]
+                if frame.pc >= len(frame.program.lines):
+                    self._fall_off(frame)
+                    continue
+                item = frame.program.lines[frame.pc]
+                frame.pc += 1
+                self.blocks_run += 1
+                if self.blocks_run & 1023 == 0 and (
+                    self.blocks_run >= self.budget.blocks or time.thread_time() > deadline
+                ):
+                    self._endless(item)
+                try:
+                    self._execute(item, frame)
+                except ZeroDivisionError:
+                    self.error(item, "division by zero")
+                    raise _Stop from None
+                except (ValueError, OverflowError) as exc:
+                    self.error(item, str(exc) or "a value is out of range")
+                    raise _Stop from None
+        except _Stop:
+            pass
+        if self.end_line is None and self.main.lines and self.begin is not None:
+            # the run stopped (M30, an error): END PGM is still needed in the file
+            for item in self.main.lines:
+                if item.text.startswith("END PGM"):
+                    self._check_end(item)
+                    break
+            else:
+                self.error(self.main.lines[-1], "the program has no END PGM")
+
+    def _fall_off(self, frame: _Frame) -> None:
+        last = frame.program.lines[-1] if frame.program.lines else _Line(1, None, "", "")
+        if frame.kind == "main":
+            self.error(last, "the program has no END PGM")
+            raise _Stop
+        self.frames.pop()
+
+    def _endless(self, item: _Line) -> None:
+        self.frames[1:] = []
+        if not self.jumps:
+            # no jump back: a long program, not a loop; what follows is not checked
+            self.report(
+                item,
+                Severity.WARNING,
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget "
+                "ran out); the rest of the program is not checked",
+            )
+            raise _Stop
+        where, count = max(self.jumps.items(), key=lambda kv: kv[1])
+        target = next((i for i in self.main.lines if i.line == where), item)
+        self.error(
+            target,
+            f"endless loop: the jump back at line {where} ran {count:,} times; the dry run "
+            f"stopped after {self.blocks_run:,} blocks",
+        )
+        raise _Stop
+
+    def _execute(self, item: _Line, frame: _Frame) -> None:
+        text = item.text
+        head = text.split(" ", 1)[0] if text else ""
+        if head in ("L", "LN"):
+            self._linear(item, text[len(head) :])
+        elif head in ("APPR", "DEP"):
+            # approach / departure contours: drawn as a straight move to their end point
+            self.warn_once(item, head, f"{head} is drawn as a straight move by the dry run")
+            self._linear(item, text[len(head) :].lstrip().partition(" ")[2])
+        elif head in ("C", "CR", "CT", "CP"):
+            self._circle(item, head, text[len(head) :])
+        elif head == "LP":
+            self._polar_line(item, text[2:])
+        elif head == "CC":
+            self._centre(item, text[2:])
+        elif head in ("RND", "CHF"):
+            self._corner(item, head, text[len(head) :])
+        elif text.startswith("BEGIN PGM"):
+            self._begin(item)
+        elif text.startswith("END PGM"):
+            if frame.kind == "main":
+                self._check_end(item)
+                self.ended = True
+                raise _Stop
+            self.frames.pop()
+        elif text.startswith("BLK FORM"):
+            self._blk_form(item)
+        elif text.startswith("TOOL CALL"):
+            self._tool_call(item)
+        elif text.startswith("TOOL DEF"):
+            pass
+        elif text.startswith("LBL"):
+            if _label(text[3:]) == "0" and frame.kind == "lbl":
+                self.frames.pop()
+        elif text.startswith("CALL LBL"):
+            self._call_label(item, frame, text[8:])
+        elif text.startswith("CALL PGM"):
+            self._call_program(item, text[8:].strip())
+        elif text.startswith("FN"):
+            self._fn(item, frame)
+        elif re.match(r"^QS\d+\s*=", text) or text.startswith("CALL SELECTED"):
+            self.warn_once(item, text[:4], f"{text.split('=')[0].strip()[:20]} is not simulated")
+        elif re.match(r"^(Q|QL|QR)\d+\s*=", text):
+            target, formula = text.split("=", 1)
+            self.q[target.strip()] = self.formula(formula)
+        elif text.startswith("CYCL DEF"):
+            self._cycle_def(item)
+        elif text.startswith("CYCL CALL"):
+            self._cycle_call(item, text[9:].strip())
+        elif text.startswith("PATTERN DEF"):
+            self._pattern(item)
+        elif text.startswith("STOP") or text.startswith("M"):
+            self._m_functions(item, text)
+        elif text.startswith("*"):
+            pass  # a structure block (section title)
+        elif text.startswith(("PLANE", "FUNCTION", "TCH PROBE", "SEL ", "DECLARE")):
+            self.warn_once(item, head, f"{head} blocks are not simulated by the dry run")
+        else:
+            self.error(item, f"unknown block {text.split(' ')[0]!r}")
+
+    # ------------------------------------------------------------------ program frame
+    def _begin(self, item: _Line) -> None:
+        parts = item.text.split()
+        if len(parts) < 4 or parts[3] not in ("MM", "INCH"):
+            self.error(item, "BEGIN PGM needs a name and MM or INCH")
+            return
+        self.begin = (parts[2], parts[3])
+        self.units = Units.MM if parts[3] == "MM" else Units.INCH
+        if not (self.machine and self.machine.rapid_rate):
+            self.path.rapid_rate = rapid_rate(self.units)
+        machine = self.machine
+        if machine is not None and machine.travel_units not in (None, self.units):
+            # travel and preset in the machine's units -> the program's
+            factor = 25.4 if self.units is Units.MM else 1 / 25.4
+            self.path.scale_travel(factor)
+            self.preset = (
+                None if self.preset[0] is None else self.preset[0] * factor,
+                None if self.preset[1] is None else self.preset[1] * factor,
+                None if self.preset[2] is None else self.preset[2] * factor,
+            )
+
+    def _check_end(self, item: _Line) -> None:
+        self.end_line = item
+        parts = item.text.split()
+        if self.begin is None:
+            return
+        name, units = self.begin
+        got_name = parts[2] if len(parts) > 2 else ""
+        got_units = parts[3] if len(parts) > 3 else ""
+        if got_name != name:
+            self.error(item, f"END PGM {got_name or '(no name)'} does not match BEGIN PGM {name}")
+        if got_units != units:
+            self.error(item, f"END PGM units {got_units or '(none)'} differ from BEGIN PGM {units}")
+
+    def _blk_form(self, item: _Line) -> None:
+        values = {a: v for inc, a, v in self._axes(item.text) if not inc}
+        incremental = {a: v for inc, a, v in self._axes(item.text) if inc}
+        if "0.1" in item.text:
+            self.stock_min = [values.get(a, 0.0) for a in "XYZ"]
+        elif "0.2" in item.text:
+            if self.stock_min is None:
+                self.error(item, "BLK FORM 0.2 without BLK FORM 0.1")
+                return
+            high = [
+                values.get(a, self.stock_min[i] + incremental.get(a, 0.0))
+                for i, a in enumerate("XYZ")
+            ]
+            low = self.stock_min
+            if any(h <= lo for h, lo in zip(high, low, strict=True)):
+                self.error(item, "BLK FORM: the MAX point must be above the MIN point")
+                return
+            self.stock = Stock((low[0], low[1], low[2]), (high[0], high[1], high[2]))
+
+    def _axes(self, text: str) -> list[tuple[bool, str, float]]:
+        return [
+            (inc == "I", axis, self.number(sign, token))
+            for inc, axis, sign, token in _AXIS_WORD.findall(text)
+        ]
+
+    def _words(self, text: str) -> dict[str, float]:
+        return {key: self.number(sign, token) for key, sign, token in _WORD.findall(text)}
+
+    # ------------------------------------------------------------------ tools
+    def _tool_call(self, item: _Line) -> None:
+        rest = item.text[9:].strip()
+        named = _STRING.search(item.raw)
+        tool: str | None
+        if named:
+            tool = named.group(1)
+            rest = _STRING.sub("", rest)
+        else:
+            match = re.match(r"^(Q\d+|\d+)", rest)
+            tool = None
+            if match:
+                token = match.group(1)
+                tool = str(round(self.q_value(token))) if token.startswith("Q") else token
+                rest = rest[match.end() :]
+        axis_match = re.match(r"^\s*([XYZ])\b", rest)
+        if axis_match:
+            self.axis = "XYZ".index(axis_match.group(1))
+        words = self._words(rest)
+        if "S" in words:
+            self.speed = words["S"]
+        if "F" in words:
+            self.tool_feed = words["F"]
+            if self.feed is None:
+                self.feed = words["F"]
+        if tool is None:
+            return  # a TOOL CALL without a tool changes speed or axis only
+        known = self.machine.tools if self.machine is not None else None
+        if known is not None and tool not in known:
+            name = (self.machine.name if self.machine else "") or "the machine"
+            self.error(item, f"tool {tool} is not in the tool table of {name}")
+        self.tool = tool
+        self.path.change_tool(
+            tool,
+            item.line,
+            axis="XYZ"[self.axis],
+            speed=words.get("S"),
+            feed=words.get("F"),
+            delta_length=words.get("DL"),
+            delta_radius=words.get("DR"),
+        )
+
+    # ------------------------------------------------------------------ paths
+    def _plane(self) -> tuple[int, int, Plane]:
+        return {2: (0, 1, Plane.XY), 1: (2, 0, Plane.ZX), 0: (1, 2, Plane.YZ)}[self.axis]
+
+    def _feed(self, item: _Line, words: dict[str, float], text: str) -> tuple[bool, float | None]:
+        """(rapid, feed) of a path block: FMAX is for its block only, F stays in force."""
+        if "FMAX" in text:
+            return True, None
+        if "FAUTO" in text or "F AUTO" in text:
+            return False, self.tool_feed
+        if "F" in words:
+            self.feed = words["F"]
+        if not self.feed and not self.no_feed:
+            self.no_feed = True
+            self.error(item, "a path with no feed rate (F) in force")
+        if not self.spindle_on:
+            self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
+        return False, self.feed
+
+    def _target(
+        self, text: str, axes: list[tuple[bool, str, float]] | None = None
+    ) -> list[float | None]:
+        target = self.pos[:]
+        for inc, axis, value in self._axes(text) if axes is None else axes:
+            index = "XYZ".find(axis)
+            if index < 0:
+                continue
+            if inc:
+                current = target[index]
+                target[index] = None if current is None else current + value
+            else:
+                target[index] = value + self.shift[index]
+        return target
+
+    def _machine(self, point: list[float | None]) -> list[float | None]:
+        return [
+            None if v is None or p is None else v + p
+            for v, p in zip(point, self.preset, strict=True)
+        ]
+
+    def _go(
+        self, item: _Line, target: list[float | None], *, rapid: bool, feed: float | None
+    ) -> None:
+        start = self.pos
+        self.path.line(
+            tuple(start), tuple(target), item.line, rapid=rapid, feed=feed,
+            machine_end=self._machine(target),
+        )  # fmt: skip
+        a, b, _ = self._plane()
+        sa, sb, ea, eb = start[a], start[b], target[a], target[b]
+        if sa is not None and sb is not None and ea is not None and eb is not None:
+            length = math.hypot(ea - sa, eb - sb)
+            if length > 1e-9:
+                self.last_dir = ((ea - sa) / length, (eb - sb) / length)
+        self.pos = target
+
+    def _linear(self, item: _Line, text: str) -> None:
+        axes = self._axes(text)
+        words = self._words(text)
+        has_m = "M" in text
+        target = self._target(text, axes)
+        if has_m and re.search(r"\bM91\b", text):  # machine coordinates for this block
+            for inc, axis, value in axes:
+                index = "XYZ".find(axis)
+                if index >= 0 and not inc:
+                    preset = self.preset[index]
+                    target[index] = None if preset is None else value - preset
+        moves = any(axis in "XYZ" for _, axis, _ in axes)
+        if moves:
+            rapid, feed = self._feed(item, words, text) if "FMAX" not in text else (True, None)
+            self._go(item, target, rapid=rapid, feed=feed)
+        elif "F" in words:
+            self.feed = words["F"]
+        if has_m:
+            self._m_functions(item, text)
+        if moves and self.m89 and self.cycle is not None and "M99" not in text:
+            self._drill(item)
+
+    def _centre(self, item: _Line, text: str) -> None:
+        """CC: the circle centre (pole); without coordinates, the last position."""
+        a, b, _ = self._plane()
+        axes = [(inc, "XYZ".find(axis), value) for inc, axis, value in self._axes(text)]
+        if self.center is not None and axes:
+            ca: float | None
+            cb: float | None
+            ca, cb = self.center
+        else:
+            ca, cb = self.pos[a], self.pos[b]
+        for inc, index, value in axes:
+            if index not in (a, b):
+                continue
+            base = self.pos[index]
+            new = (None if base is None else base + value) if inc else value + self.shift[index]
+            if index == a:
+                ca = new
+            else:
+                cb = new
+        if ca is None or cb is None:
+            self.error(item, "CC without a known centre")
+            return
+        self.center = (ca, cb)
+
+    def _circle(self, item: _Line, kind: str, text: str) -> None:
+        words = self._words(text)
+        _rapid, feed = self._feed(item, words, text)
+        a, b, plane = self._plane()
+        c = 3 - a - b
+        start = self.pos
+        if start[a] is None or start[b] is None or start[c] is None:
+            self.warn_once(item, "arc-unknown", "an arc from an unknown position is not drawn")
+            self.pos = self._target(text)
+            return
+        sa, sb = float(start[a] or 0.0), float(start[b] or 0.0)
+        ccw = "DR+" in text.replace(" ", "")
+        cw = "DR-" in text.replace(" ", "")
+        if kind == "CP":
+            self._polar_arc(item, text, feed, cw=cw, ccw=ccw)
+            return
+        target = self._target(text)
+        end_a, end_b = target[a], target[b]
+        ea = end_a if end_a is not None else sa
+        eb = end_b if end_b is not None else sb
+        tol = _TOL_MM if self.units is not Units.INCH else 0.0005
+        if kind == "C":
+            if self.center is None:
+                self.error(item, "C without a circle centre (CC)")
+                raise _Stop
+            if not (cw or ccw):
+                self.error(item, "C needs a direction of rotation DR+ or DR-")
+                raise _Stop
+            ca, cb = self.center
+            r0, r1 = math.hypot(sa - ca, sb - cb), math.hypot(ea - ca, eb - cb)
+            if abs(r0 - r1) > tol:
+                self.error(
+                    item,
+                    f"the arc's end is not on its circle: start radius {r0:.4f}, end radius "
+                    f"{r1:.4f} (differ by {abs(r0 - r1):.4f})",
+                )
+                raise _Stop
+            clockwise = cw
+        elif kind == "CR":
+            radius = words.get("R")
+            if radius is None or not (cw or ccw):
+                self.error(item, "CR needs a radius R and a direction DR+ or DR-")
+                raise _Stop
+            chord = math.hypot(ea - sa, eb - sb)
+            if chord < 1e-9:
+                self.error(item, "CR with the same start and end point")
+                raise _Stop
+            if abs(radius) < chord / 2 - tol:
+                self.error(
+                    item,
+                    f"radius R{radius:g} is too small for a chord of {chord:.4g} "
+                    f"(at least {chord / 2:.4g})",
+                )
+                raise _Stop
+            half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
+            ua, ub = (ea - sa) / chord, (eb - sb) / chord
+            side = 1.0 if ccw ^ (radius < 0) else -1.0
+            ca, cb = (sa + ea) / 2 - side * half * ub, (sb + eb) / 2 + side * half * ua
+            clockwise = cw
+        else:  # CT: tangential to the element before
+            if self.last_dir is None:
+                self.error(item, "CT needs a contour element before it to be tangent to")
+                raise _Stop
+            da, db = ea - sa, eb - sb
+            na, nb = -self.last_dir[1], self.last_dir[0]
+            dot = da * na + db * nb
+            if abs(dot) < 1e-9:
+                self._go(item, target, rapid=False, feed=feed)
+                return
+            s = (da * da + db * db) / (2 * dot)
+            ca, cb = sa + na * s, sb + nb * s
+            clockwise = s < 0
+        self._arc(item, target, (ca, cb), plane, clockwise=clockwise, feed=feed)
+
+    def _arc(
+        self,
+        item: _Line,
+        target: list[float | None],
+        centre: tuple[float, float],
+        plane: Plane,
+        *,
+        clockwise: bool,
+        feed: float | None,
+    ) -> None:
+        a, b, _ = self._plane()
+        start = tuple(float(v or 0.0) for v in self.pos)
+        end = tuple(float(t if t is not None else s) for t, s in zip(target, start, strict=True))
+        point = [0.0, 0.0, 0.0]
+        point[a], point[b] = centre
+        point[3 - a - b] = start[3 - a - b]
+        machine = tuple(self._machine([0.0, 0.0, 0.0]))
+        self.path.arc(
+            (start[0], start[1], start[2]), (end[0], end[1], end[2]),
+            (point[0], point[1], point[2]), plane, item.line,
+            clockwise=clockwise, feed=feed, machine_shift=machine,
+        )  # fmt: skip
+        # the direction at the end: perpendicular to the radius
+        ra, rb = end[a] - centre[0], end[b] - centre[1]
+        length = math.hypot(ra, rb) or 1.0
+        self.last_dir = (rb / length, -ra / length) if clockwise else (-rb / length, ra / length)
+        self.pos = list(end)
+
+    def _polar(self, text: str) -> tuple[float, float] | None:
+        a, b, _ = self._plane()
+        if self.center is None or self.pos[a] is None or self.pos[b] is None:
+            return None
+        ca, cb = self.center
+        pa, pb = float(self.pos[a] or 0.0), float(self.pos[b] or 0.0)
+        radius = math.hypot(pa - ca, pb - cb)
+        angle = math.degrees(math.atan2(pb - cb, pa - ca))
+        for inc, key, sign, token in _POLAR.findall(text):
+            value = self.number(sign, token)
+            if key == "PR":
+                radius = radius + value if inc else value
+            else:
+                angle = angle + value if inc else value
+        return radius, angle
+
+    def _polar_line(self, item: _Line, text: str) -> None:
+        words = self._words(text)
+        polar = self._polar(text)
+        if polar is None:
+            self.error(item, "LP needs a pole (CC) and a known position")
+            raise _Stop
+        radius, angle = polar
+        a, b, _ = self._plane()
+        assert self.center is not None
+        target = self.pos[:]
+        target[a] = self.center[0] + radius * math.cos(math.radians(angle))
+        target[b] = self.center[1] + radius * math.sin(math.radians(angle))
+        for inc, axis, value in self._axes(text):
+            index = "XYZ".find(axis)
+            if index == 3 - a - b:
+                current = target[index]
+                target[index] = (None if current is None else current + value) if inc else value
+        rapid, feed = self._feed(item, words, text)
+        self._go(item, target, rapid=rapid, feed=feed)
+        self._m_functions(item, text)
+
+    def _polar_arc(
+        self, item: _Line, text: str, feed: float | None, *, cw: bool, ccw: bool
+    ) -> None:
+        if self.center is None:
+            self.error(item, "CP needs a pole (CC)")
+            raise _Stop
+        if not (cw or ccw):
+            self.error(item, "CP needs a direction of rotation DR+ or DR-")
+            raise _Stop
+        a, b, plane = self._plane()
+        c = 3 - a - b
+        ca, cb = self.center
+        pa, pb = float(self.pos[a] or 0.0), float(self.pos[b] or 0.0)
+        radius = math.hypot(pa - ca, pb - cb)
+        start_angle = math.degrees(math.atan2(pb - cb, pa - ca))
+        sweep = 0.0
+        for inc, key, sign, token in _POLAR.findall(text):
+            value = self.number(sign, token)
+            if key == "PA":
+                sweep = value if inc else ((value - start_angle) % 360.0 or 360.0)
+                if not inc and cw:
+                    sweep = -((start_angle - value) % 360.0 or 360.0)
+        if sweep == 0:
+            self.error(item, "CP without an angle PA or IPA")
+            raise _Stop
+        rise = 0.0
+        for inc, axis, value in self._axes(text):
+            if "XYZ".find(axis) == c:
+                rise = value if inc else value - float(self.pos[c] or 0.0)
+        turns = max(1, math.ceil(abs(sweep) / 359.0))
+        step = sweep / turns
+        angle = start_angle
+        for _ in range(turns):
+            angle += step
+            target = self.pos[:]
+            target[a] = ca + radius * math.cos(math.radians(angle))
+            target[b] = cb + radius * math.sin(math.radians(angle))
+            target[c] = float(self.pos[c] or 0.0) + rise / turns
+            self._arc(item, target, (ca, cb), plane, clockwise=step < 0, feed=feed)
+
+    def _corner(self, item: _Line, kind: str, text: str) -> None:
+        words = self._words(text)
+        value = words.get("R") if kind == "RND" else None
+        if kind == "CHF":
+            match = re.match(r"^\s*([+-]?\d*\.?\d+)", text)
+            value = float(match.group(1)) if match else None
+        if value is None or value <= 0:
+            self.error(item, f"{kind} needs a positive {'radius R' if kind == 'RND' else 'length'}")
+        if "F" in words:
+            self.feed = words["F"]
+
+    # ------------------------------------------------------------------ M functions
+    def _m_functions(self, item: _Line, text: str) -> None:
+        for match in re.finditer(r"\bM(\d+)\b", text):
+            code = int(match.group(1))
+            if float(code) not in codes.HEIDENHAIN_M:
+                self.error(item, f"M{code} is not an M function of the TNC")
+                continue
+            if code in (3, 4, 13, 14):
+                self.spindle_on = True
+            elif code in (5, 0):
+                self.spindle_on = code != 5 and self.spindle_on
+            elif code in (2, 30):
+                if self.frames and self.frames[-1].kind == "main":
+                    for later in self.main.lines:
+                        if later.text.startswith("END PGM"):
+                            self._check_end(later)
+                            break
+                    self.ended = True
+                    raise _Stop
+            elif code == 99 and self.cycle is not None:
+                self._drill(item)
+            elif code == 99:
+                self.error(item, "M99 calls a cycle, but no cycle is defined")
+            elif code == 89:
+                self.m89 = True
+
+    # ------------------------------------------------------------------ labels and calls
+    def _call_label(self, item: _Line, frame: _Frame, rest: str) -> None:
+        parts = rest.split(" REP")
+        label = _label(parts[0])
+        index = frame.program.labels.get(label)
+        if index is None:
+            self.error(item, f"label {label} is not defined")
+            raise _Stop
+        call_index = frame.pc - 1
+        if len(parts) > 1 and index < call_index:
+            key = (id(frame), call_index)
+            remaining = self.repeats.get(key)
+            if remaining is None:
+                match = re.match(r"^\s*(\d+)", parts[1])
+                remaining = int(match.group(1)) if match else 1
+            if remaining > 0:
+                self.repeats[key] = remaining - 1
+                self._jump(item)
+                frame.pc = index + 1
+            else:
+                self.repeats.pop(key, None)
+            return
+        if len(self.frames) > _CALL_NEST:
+            self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
+            raise _Stop
+        call_line = frame.call_line if frame.kind != "main" else item.line
+        self.frames.append(_Frame(frame.program, index + 1, "lbl", call_line, label))
+
+    def _call_program(self, item: _Line, target: str) -> None:
+        name = target.strip().strip('"').split()[0] if target.strip() else ""
+        text = None
+        if self.library is not None and name:
+            try:
+                text = self.library(name)
+            except Exception:  # a library callback must not break the dry run
+                text = None
+        if text is None:
+            self.report(item, Severity.WARNING, f"CALL PGM {name}: not in the library")
+            return
+        if len(self.frames) > _CALL_NEST:
+            self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
+            raise _Stop
+        program = self._parse(text, name, external=True)
+        # the called program's own first line is its BEGIN PGM: skip it
+        start = 1 if program.lines and program.lines[0].text.startswith("BEGIN PGM") else 0
+        call_line = self.frames[-1].call_line if self.frames[-1].kind != "main" else item.line
+        self.frames.append(_Frame(program, start, "pgm", call_line))
+
+    def _jump(self, item: _Line) -> None:
+        self.jumps[item.line] = self.jumps.get(item.line, 0) + 1
+
+    def _fn(self, item: _Line, frame: _Frame) -> None:
+        match = re.match(r"^FN\s*(\d+)\s*:?\s*(.*)$", item.text)
+        if match is None:
+            self.error(item, "FN without a function number")
+            return
+        number, body = int(match.group(1)), match.group(2)
+        if number <= 8 or number == 13:
+            if "=" not in body:
+                self.error(item, f"FN {number} needs Q... = ...")
+                return
+            target, formula = body.split("=", 1)
+            if number == 5:
+                formula = "SQRT " + formula
+            elif number == 6:
+                formula = "SIN " + formula
+            elif number == 7:
+                formula = "COS " + formula
+            self.q[target.strip()] = self.formula(formula)
+        elif 9 <= number <= 12:
+            jump = re.match(r"^IF\s+(.*?)\s+(EQU|NE|GT|LT)\s+(.*?)\s+GOTO\s+LBL\s*(.*)$", body)
+            if jump is None:
+                self.error(item, f"FN {number} needs IF ... GOTO LBL ...")
+                return
+            left, right = self.formula(jump.group(1)), self.formula(jump.group(3))
+            taken = {
+                "EQU": left == right,
+                "NE": left != right,
+                "GT": left > right,
+                "LT": left < right,
+            }[jump.group(2)]
+            if taken:
+                label = _label(jump.group(4))
+                index = frame.program.labels.get(label)
+                if index is None:
+                    self.error(item, f"label {label} is not defined")
+                    raise _Stop
+                if index < frame.pc:
+                    self._jump(item)
+                frame.pc = index + 1
+        elif number == 14:
+            self.report(item, Severity.WARNING, f"the program stops with an error ({body.strip()})")
+            raise _Stop
+        else:
+            self.warn_once(item, f"FN{number}", f"FN {number} is not simulated by the dry run")
+
+    # ------------------------------------------------------------------ cycles
+    def _cycle_def(self, item: _Line) -> None:
+        match = re.match(r"^CYCL DEF\s+(\d+)(?:\.(\d+))?", item.text)
+        if match is None:
+            self.error(item, "CYCL DEF without a cycle number")
+            return
+        number = int(match.group(1))
+        params: dict[str, float] = {}
+        for text in [item.text, *item.params]:
+            for name, sign, token in _CYCLE_PARAM.findall(text):
+                params[name] = self.number(sign, token)
+        if number in _DRILLING:
+            needed = ["Q200", "Q201", "Q206", "Q203", "Q204"]
+            missing = [q for q in needed if q not in params]
+            if missing:
+                self.error(item, f"cycle {number} without {', '.join(missing)}")
+                return
+            if params["Q201"] > 0:
+                self.report(item, Severity.WARNING, f"cycle {number}: depth Q201 is positive")
+            elif params["Q201"] == 0:
+                self.report(item, Severity.WARNING, f"cycle {number}: depth Q201 is 0 (no hole)")
+            self.cycle = (number, params, item.line)
+        elif number == 7:
+            sub = int(match.group(2) or 0)
+            if sub >= 1:
+                for inc, axis, value in self._axes(item.text.split(None, 3)[-1]):
+                    index = "XYZ".find(axis)
+                    if index >= 0:
+                        self.shift[index] = self.shift[index] + value if inc else value
+        else:
+            self.warn_once(item, f"cycle{number}", f"cycle {number} is not drawn by the dry run")
+            self.cycle = None
+
+    def _pattern(self, item: _Line) -> None:
+        text = " ".join([item.text, *item.params])
+        self.pattern = []
+        for body in re.findall(r"POS\d+\s*\(([^)]*)\)", text):
+            point: list[float | None] = [None, None, None]
+            for inc, axis, value in self._axes(body):
+                index = "XYZ".find(axis)
+                if index >= 0 and not inc:
+                    point[index] = value + self.shift[index]
+            self.pattern.append((point[0], point[1], point[2]))
+        if not self.pattern:
+            self.warn_once(item, "pattern", "only PATTERN DEF POS points are simulated")
+
+    def _cycle_call(self, item: _Line, rest: str) -> None:
+        if self.cycle is None:
+            self.error(item, "CYCL CALL without a drilling cycle defined (CYCL DEF)")
+            return
+        if rest.startswith("PAT"):
+            a, b, _ = self._plane()
+            for point in self.pattern:
+                target = self.pos[:]
+                target[a], target[b] = point[a], point[b]
+                self._go(item, target, rapid=True, feed=None)
+                c = 3 - a - b
+                height = point[c]  # the pattern's own surface, added to Q203 (TNC)
+                self._drill(item, surface=None if height is None else height - self.shift[c])
+        elif rest.startswith("POS"):
+            self._go(item, self._target(rest[3:]), rapid=True, feed=None)
+            self._drill(item)
+        else:
+            self._drill(item)
+        self._m_functions(item, rest)
+
+    def _drill(self, item: _Line, surface: float | None = None) -> None:
+        assert self.cycle is not None
+        number, q, _ = self.cycle
+        axis = self.axis
+        top = (surface if surface is not None else 0.0) + q["Q203"] + self.shift[axis]
+        clearance = top + q["Q200"]
+        second = top + max(q["Q204"], q["Q200"])
+        feed = q["Q206"]
+        if not self.spindle_on:
+            self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
+        for height, rapid in (
+            (clearance, True),
+            (top + q["Q201"], False),
+        ):
+            target = self.pos[:]
+            target[axis] = height
+            self._go(item, target, rapid=rapid, feed=None if rapid else feed)
+        self.path.dwell(q.get("Q211", 0.0) + q.get("Q210", 0.0))
+        back_feed = q.get("Q208", 0.0) or feed if number == 201 else None
+        target = self.pos[:]
+        target[axis] = clearance
+        self._go(item, target, rapid=back_feed is None, feed=back_feed)
+        target = self.pos[:]
+        target[axis] = second
+        self._go(item, target, rapid=True, feed=None)
+
+    # ------------------------------------------------------------------ result
+    def result(self) -> CheckResult:
+        problems = list(self.problems.values())
+        if self.machine is not None:
+            problems += self.path.travel_problems(self.machine.name)
+        problems.sort(key=lambda p: p.line)
+        return CheckResult(
+            control=Control.HEIDENHAIN,
+            name=self.name,
+            problems=tuple(problems),
+            tools=self.path.tools(),
+            extents=self.path.extents(),
+            rapid_distance=self.path.rapid,
+            feed_distance=self.path.feed,
+            cycle_time_s=self.path.seconds,
+            moves=tuple(self.path.moves),
+            stock=self.stock,
+            units=self.units,
+            blocks=self.blocks_run,
+            end=EndState(
+                position={a: v for a, v in zip("XYZ", self.pos, strict=True) if v is not None},
+                tool=self.tool,
+                variables={int(k[1:]): v for k, v in self.q.items() if k[1:].isdigit()},
+                ended=self.ended,
+            ),
+        )
+
+
+def _label(text: str) -> str:
+    """A label as written: a number (``1``) or a name (``"CONTOUR"``, kept without quotes)."""
+    text = text.strip()
+    match = _STRING.match(text)
+    if match:
+        return match.group(1)
+    token = text.split()[0] if text.split() else ""
+    return token.lstrip("+") if token else ""
+
+
+def run_klartext(
+    text: str,
+    *,
+    name: str,
+    machine: MachineLimits | None,
+    library: Library | None,
+    budget: Budget,
+) -> CheckResult:
+    """Dry-run a Klartext program (see the module docstring)."""
+    run = _Run(text, name, machine, library, budget)
+    run.run()
+    return run.result()

@@ -1,0 +1,111 @@
+"""Typed FastAPI dependencies: how a route gets the server's parts.
+
+The app carries one :class:`~opendnc.server.components.Core`; each function here hands a route
+one registered component (or a part of one), typed, so a route says
+``machines: MachinesDep`` instead of reading an untyped ``app.state`` attribute. The plain
+functions take the request, for helpers that are not routes.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.server.components import core_of
+from opendnc.server.dprnt_capture import DprntCapture
+from opendnc.server.loopwatch import LoopWatch
+from opendnc.server.machine_state import Machines
+from opendnc.server.runner import JobRunner
+from opendnc.server.store.db import read_only
+
+if TYPE_CHECKING:
+    from opendnc.server.parts import Outputs
+    from opendnc.server.web.timeline import Timeline
+
+__all__ = [
+    "Database",
+    "DatabaseDep",
+    "DprntDep",
+    "LoopWatchDep",
+    "MachinesDep",
+    "OutputsDep",
+    "RunnerDep",
+    "TimelineDep",
+    "database",
+    "dprnt",
+    "loopwatch",
+    "machines",
+    "outputs",
+    "runner",
+    "timeline",
+]
+
+
+class Database:
+    """The server's database as routes use it: a session factory for writes and one whose
+    transactions never take SQLite's write lock, for reads; a component."""
+
+    name = "database"
+    needs: tuple[str, ...] = ()
+
+    def __init__(self, engine: Engine, sessions: sessionmaker[Session]) -> None:
+        self.engine = engine
+        self.sessions = sessions
+        self.reads = read_only(sessions)
+
+    async def start(self) -> None:
+        """Nothing to start (the database was migrated when the server was built)."""
+
+    async def stop(self) -> None:
+        """Nothing to stop (the engine is disposed by whoever built the server)."""
+
+
+def database(request: Request) -> Database:
+    """The server's :class:`Database`."""
+    return core_of(request.app).get(Database)
+
+
+def machines(request: Request) -> Machines:
+    """Every machine's live state and the way to wake its task."""
+    return core_of(request.app).get(Machines)
+
+
+def runner(request: Request) -> JobRunner:
+    """The job runner."""
+    return core_of(request.app).get(JobRunner)
+
+
+def timeline(request: Request) -> Timeline:
+    """The status timeline."""
+    from opendnc.server.parts import TimelineRecorder  # the web package imports this module
+
+    return core_of(request.app).get(TimelineRecorder).timeline
+
+
+def outputs(request: Request) -> Outputs:
+    """The open outputs (MQTT, MTConnect)."""
+    from opendnc.server.parts import Outputs
+
+    return core_of(request.app).get(Outputs)
+
+
+def loopwatch(request: Request) -> LoopWatch:
+    """The event loop's stall watch."""
+    return core_of(request.app).get(LoopWatch)
+
+
+def dprnt(request: Request) -> DprntCapture:
+    """DPRNT capture (each listener's last word)."""
+    return core_of(request.app).get(DprntCapture)
+
+
+DatabaseDep = Annotated[Database, Depends(database)]
+MachinesDep = Annotated[Machines, Depends(machines)]
+RunnerDep = Annotated[JobRunner, Depends(runner)]
+TimelineDep = Annotated["Timeline", Depends(timeline)]
+OutputsDep = Annotated["Outputs", Depends(outputs)]
+LoopWatchDep = Annotated[LoopWatch, Depends(loopwatch)]
+DprntDep = Annotated[DprntCapture, Depends(dprnt)]

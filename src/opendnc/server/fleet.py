@@ -1,0 +1,157 @@
+"""One supervised task per machine: connect, poll the status, listen, and run due jobs.
+
+A task that loses its control closes the link, waits with exponential backoff (0.5 s up to
+30 s) and connects again; an error in one machine's task never reaches another's. Between two
+status polls the task lets the runner (:mod:`opendnc.server.runner`) claim and run the
+machine's due jobs on the same connector, auto-receive (:mod:`opendnc.server.autoreceive`)
+look at an out-tray folder, and, on a control that sends by itself, listens for a punch that
+remote requests (:mod:`opendnc.server.remote_request`) files or answers.
+
+Which machines this process serves is decided at run time: :meth:`Fleet.serve` starts a
+machine's task and :meth:`Fleet.release` stops it (closing its link), so a later "which
+machines do I hold" decision (several servers on one database) only calls these two.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+
+from opendnc.errors import DncError
+from opendnc.server.autoreceive import AutoReceive
+from opendnc.server.components import cancel_and_wait
+from opendnc.server.config import MachineConfig
+from opendnc.server.machine_state import Machines, MachineState
+from opendnc.server.machines.base import Connector, MachineStatus
+from opendnc.server.remote_request import RemoteRequests
+from opendnc.server.runner import JobRunner
+from opendnc.server.store.models import utcnow
+
+__all__ = ["CLOSE_TIMEOUT", "ConnectorFactory", "Fleet"]
+
+log = logging.getLogger(__name__)
+
+ConnectorFactory = Callable[[MachineConfig], Connector]
+CLOSE_TIMEOUT = 2.0  # seconds a link may take to close when its task stops
+
+
+class Fleet:
+    """The machines' tasks; a component."""
+
+    name = "fleet"
+    needs = ("machines", "runner", "remote-requests", "auto-receive", "dprnt", "outputs")
+
+    def __init__(
+        self,
+        machines: Machines,
+        runner: JobRunner,
+        requests: RemoteRequests,
+        autoreceive: AutoReceive,
+        connector_factory: ConnectorFactory,
+    ) -> None:
+        self.machines = machines
+        self.runner = runner
+        self.requests = requests
+        self.autoreceive = autoreceive
+        self.connector_factory = connector_factory
+        self._tasks: dict[str, asyncio.Task[None]] = {}
+
+    async def start(self) -> None:
+        """Serve every configured machine."""
+        for name in self.machines.machines:
+            self.serve(name)
+
+    async def stop(self) -> None:
+        """Stop every machine's task (each closes its link)."""
+        tasks = list(self._tasks.values())
+        self._tasks.clear()
+        await cancel_and_wait(*tasks)
+
+    @property
+    def served(self) -> frozenset[str]:
+        """The machines this process serves now."""
+        return frozenset(self._tasks)
+
+    def serve(self, name: str) -> None:
+        """Start serving machine ``name`` (nothing if it is served already)."""
+        if name in self._tasks:
+            return
+        state = self.machines.machines[name]
+        self._tasks[name] = asyncio.create_task(self._supervise(state), name=f"machine-{name}")
+        state.wake.set()  # a first look at its queue
+
+    async def release(self, name: str) -> None:
+        """Stop serving machine ``name``: its task ends and its link closes."""
+        task = self._tasks.pop(name, None)
+        if task is not None:
+            await cancel_and_wait(task)
+        state = self.machines.get(name)
+        if state is not None:
+            state.online = False
+            self.machines.publish(state)
+
+    async def _supervise(self, state: MachineState) -> None:
+        connector = self.connector_factory(state.config)
+        backoff = 0.5
+        while True:
+            try:
+                await connector.connect()
+                state.online = True
+                backoff = 0.5
+                await self._serve(state, connector)
+            except asyncio.CancelledError:
+                await _close(connector)
+                raise
+            except Exception as exc:
+                if not isinstance(exc, DncError):
+                    log.exception("%s: unexpected error", state.config.name)
+                state.online = False
+                state.last_error = str(exc) or type(exc).__name__
+                state.last_error_at = utcnow()
+                state.link_errors += 1
+                state.set_status(
+                    MachineStatus(at=utcnow(), available=False, message=state.last_error)
+                )
+                self.machines.publish(state)
+                await _close(connector)
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, 30.0)
+
+    async def _serve(self, state: MachineState, connector: Connector) -> None:
+        while True:
+            if state.wake.is_set():
+                state.wake.clear()
+                await self.runner.run_due(state, connector)
+            state.set_status(await connector.status())
+            self.machines.publish(state)
+            await self.autoreceive.look(state, connector)
+            if connector.listens:
+                # Waiting for a punch or a remote request is what a serial port does between
+                # jobs; a queued job waits at most one listening window.
+                reception = await connector.listen(state.config.poll_interval)
+                if reception is not None:
+                    await self.requests.received(state, reception)
+            else:
+                await _wait(state.wake, state.config.poll_interval)
+
+
+async def _wait(event: asyncio.Event, seconds: float) -> None:
+    """Wait until ``event`` is set or ``seconds`` pass (a cancel always gets through:
+    ``asyncio.timeout`` does not swallow one the way ``wait_for`` can)."""
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(seconds):
+            await event.wait()
+
+
+async def _close(connector: Connector) -> None:
+    """Close a link, giving up after :data:`CLOSE_TIMEOUT` (a control that stopped answering
+    must not hold up a stop)."""
+    try:
+        async with asyncio.timeout(CLOSE_TIMEOUT):
+            await connector.close()
+    except TimeoutError:
+        log.warning("a link did not close within %.0f s; left to the system", CLOSE_TIMEOUT)
+    except DncError:
+        pass

@@ -1,0 +1,223 @@
+"""What every machine kind shares: the common configuration fields, the serial line profile,
+the capabilities record, and :class:`KindSpec`, the one object a kind module exports.
+
+A kind module (:mod:`.lsv2`, :mod:`.haas_ngc`, :mod:`.haas_serial`) owns its configuration
+schema (a frozen dataclass with only that kind's fields), the parser of its keys, the factory
+of its connector and its capabilities; :mod:`opendnc.server.kinds` maps each
+:class:`MachineKind` to its spec (docs/server.md#shape-components-and-kinds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from enum import StrEnum
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
+
+from opendnc.nccheck.limits import Envelope
+from opendnc.server.configkeys import ConfigError, get_key, known_keys
+
+if TYPE_CHECKING:
+    from opendnc.haas.listen import CapturedLine
+    from opendnc.server.machines.base import Connector
+
+__all__ = [
+    "COMMON_KEYS",
+    "LSV2_SERIAL",
+    "Capabilities",
+    "ConnectorHooks",
+    "KindSpec",
+    "MachineBase",
+    "MachineKind",
+    "SerialProfile",
+    "parse_profile",
+]
+
+
+class MachineKind(StrEnum):
+    """How the server reaches a control."""
+
+    LSV2 = "lsv2"  # Heidenhain over LSV2 (TCP, or serial with `serial = "..."`)
+    HAAS_SERIAL = "haas_serial"  # Haas RS-232: XModem, drip-feed, DPRNT
+    HAAS_NGC = "haas_ngc"  # Haas NGC over Ethernet: MDC Q-commands and the net share
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What the server can do with one machine."""
+
+    file_browser: bool = False  # list, upload and delete files on the control (as jobs)
+    dripfeed: bool = False  # run a program while it arrives (also needs the config's opt-in)
+    dprnt: bool = False  # capture lines the program prints
+    receive: bool = False  # the control sends programs by itself (punch or out-tray folder)
+    status_fields: frozenset[str] = frozenset()  # which MachineStatus fields the control reports
+
+
+@dataclass(frozen=True, kw_only=True)
+class MachineBase:
+    """The fields every machine has, whatever its kind."""
+
+    name: str
+    released_only: bool = False
+    poll_interval: float = 1.0
+    description: str = ""
+    envelope: Envelope | None = None  # travel and work offsets for program checks (docs/check.md)
+
+
+COMMON_KEYS = {
+    "name", "kind", "released_only", "poll_interval", "description", "travel", "work_offsets",
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SerialProfile:
+    """Line settings of one serial port, as set on the control.
+
+    Which of them apply to an XModem transfer and which to plain text (a text load, a
+    drip-feed, a text punch): docs/server.md#serial-profile.
+    """
+
+    baud: int = 9600
+    parity: str = "N"
+    bytesize: int = 8
+    stopbits: float = 1
+    flow: str = "xonxoff"
+    eob: str = "CRLF"  # LF, CR, CRLF, CRCR, LFLF (Haas Setting 25)
+    protocol: str = "xmodem"  # haas_serial: "xmodem" or "text" for loads and punches
+    leader: int = 0  # characters before the program (tape leader), plain text only
+    trailer: int = 0  # characters after it
+    leader_char: str = "\x00"  # what leader and trailer are made of (NUL, or e.g. "%")
+    line_delay: float = 0.0  # seconds after each line, for controls without handshake
+    wait_for_xon: bool = False  # a plain-text send starts at the control's first DC1
+    start_trigger: str = "%"  # a text punch is captured from here ("": first character)
+    end_trigger: str = "%"  # ... up to here ("": until the line goes quiet)
+    idle_timeout: float = 5.0  # seconds of silence that end (or fail) a text punch
+
+    def leader_bytes(self) -> bytes:
+        """The tape leader as bytes."""
+        return self.leader_char.encode("latin-1") * self.leader
+
+    def trailer_bytes(self) -> bytes:
+        """The tape trailer as bytes."""
+        return self.leader_char.encode("latin-1") * self.trailer
+
+
+# LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the controls' own
+# default); a Haas at 9600 8N1 with XON/XOFF.
+LSV2_SERIAL = SerialProfile(baud=57600, parity="E", flow="none")
+
+_LINE_KEYS = {"baud", "parity", "bytesize", "stopbits", "flow"}
+_PROFILE_KEYS = _LINE_KEYS | {
+    "eob", "protocol", "leader", "trailer", "leader_char", "line_delay", "wait_for_xon",
+    "start_trigger", "end_trigger", "idle_timeout",
+}  # fmt: skip
+
+
+def parse_profile(
+    raw: dict[str, Any], prefix: str, default: SerialProfile, *, line_only: bool = False
+) -> SerialProfile:
+    """The ``serial_profile`` table; ``line_only`` for links that frame their own telegrams
+    (LSV2), where only the line settings mean anything."""
+    known_keys(raw, prefix, _LINE_KEYS if line_only else _PROFILE_KEYS)
+    baud = get_key(raw, prefix, "baud", int, default.baud)
+    if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
+        raise ConfigError(f"{prefix}.baud", f"{baud} is not a standard rate")
+    parity = get_key(raw, prefix, "parity", str, default.parity).upper()
+    if parity not in ("N", "E", "O"):
+        raise ConfigError(f"{prefix}.parity", "expected N, E or O")
+    bytesize = get_key(raw, prefix, "bytesize", int, default.bytesize)
+    if bytesize not in (7, 8):
+        raise ConfigError(f"{prefix}.bytesize", "expected 7 or 8")
+    stopbits = get_key(raw, prefix, "stopbits", float, float(default.stopbits))
+    if stopbits not in (1.0, 1.5, 2.0):
+        raise ConfigError(f"{prefix}.stopbits", "expected 1, 1.5 or 2")
+    flow = get_key(raw, prefix, "flow", str, default.flow)
+    if flow not in ("none", "xonxoff", "rtscts"):
+        raise ConfigError(f"{prefix}.flow", "expected none, xonxoff or rtscts")
+    eob = get_key(raw, prefix, "eob", str, default.eob).upper()
+    if eob not in ("CR", "LF", "CRLF", "CRCR", "LFLF"):
+        raise ConfigError(f"{prefix}.eob", "expected CR, LF, CRLF, CRCR or LFLF")
+    protocol = get_key(raw, prefix, "protocol", str, default.protocol)
+    if protocol not in ("xmodem", "text"):
+        raise ConfigError(f"{prefix}.protocol", "expected xmodem or text")
+    leader = get_key(raw, prefix, "leader", int, default.leader)
+    trailer = get_key(raw, prefix, "trailer", int, default.trailer)
+    for key, value in (("leader", leader), ("trailer", trailer)):
+        if not 0 <= value <= 4096:
+            raise ConfigError(f"{prefix}.{key}", "expected 0..4096 characters")
+    leader_char = get_key(raw, prefix, "leader_char", str, default.leader_char)
+    if len(leader_char) != 1 or ord(leader_char) > 0x7F or leader_char in "\r\n\x11\x13":
+        raise ConfigError(
+            f"{prefix}.leader_char",
+            'expected one ASCII character ("\\u0000" or "%"), no EOB or XON/XOFF',
+        )
+    line_delay = get_key(raw, prefix, "line_delay", float, default.line_delay)
+    if not 0 <= line_delay <= 10:
+        raise ConfigError(f"{prefix}.line_delay", "expected 0..10 seconds")
+    triggers = {}
+    for key in ("start_trigger", "end_trigger"):
+        text = get_key(raw, prefix, key, str, getattr(default, key))
+        if len(text) > 16 or any(ord(c) > 0xFF for c in text):
+            raise ConfigError(f"{prefix}.{key}", "expected at most 16 Latin-1 characters")
+        triggers[key] = text
+    wait_for_xon = get_key(raw, prefix, "wait_for_xon", bool, default.wait_for_xon)
+    if wait_for_xon and flow != "xonxoff":
+        raise ConfigError(f"{prefix}.wait_for_xon", 'needs flow = "xonxoff" (the XON is DC1)')
+    idle = get_key(raw, prefix, "idle_timeout", float, default.idle_timeout)
+    if not 0.1 <= idle <= 600:
+        raise ConfigError(f"{prefix}.idle_timeout", "expected 0.1..600 seconds")
+    return SerialProfile(
+        baud=baud,
+        parity=parity,
+        bytesize=bytesize,
+        stopbits=stopbits,
+        flow=flow,
+        eob=eob,
+        protocol=protocol,
+        leader=leader,
+        trailer=trailer,
+        leader_char=leader_char,
+        line_delay=line_delay,
+        wait_for_xon=wait_for_xon,
+        start_trigger=triggers["start_trigger"],
+        end_trigger=triggers["end_trigger"],
+        idle_timeout=idle,
+    )
+
+
+@dataclass(frozen=True)
+class ConnectorHooks:
+    """What the server hands a connector when it makes one: where lines the control prints
+    on the connector's own link go (a serial Haas with ``dprnt = "serial"``)."""
+
+    on_dprnt: Callable[[CapturedLine], None] | None = None
+
+
+M = TypeVar("M", bound=MachineBase)
+
+
+@dataclass(frozen=True)
+class KindSpec(Generic[M]):
+    """One machine kind: its schema, the keys only it has, and what it does with a config.
+
+    ``parse(raw, prefix, common)`` reads the kind's keys from one ``[[machines]]`` table
+    (``common`` holds the fields of :class:`MachineBase`, already checked); ``connector``
+    makes the link to the control; ``capabilities`` says what the machine can do as configured.
+    ``misplaced`` names the kind's keys that another kind refuses, with the reason (the
+    other keys of another kind are passed over with a warning: earlier versions took every key
+    for every kind, and files written then keep working).
+    """
+
+    kind: MachineKind
+    schema: type[M]
+    keys: frozenset[str]
+    parse: Callable[[dict[str, Any], str, dict[str, Any]], M]
+    connector: Callable[[M, ConnectorHooks], Connector]
+    capabilities: Callable[[M], Capabilities]
+    misplaced: dict[str, str]
+
+
+def schema_keys(schema: type[MachineBase]) -> frozenset[str]:
+    """The configuration keys of a schema's own fields (``profile`` is ``serial_profile``)."""
+    names = {f.name for f in fields(schema)} - {f.name for f in fields(MachineBase)}
+    return frozenset("serial_profile" if n == "profile" else n for n in names)

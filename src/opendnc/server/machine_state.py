@@ -1,0 +1,122 @@
+"""What the server knows about each machine right now, and the way to wake its task.
+
+:class:`Machines` is the registry the routes read (``Annotated[Machines, Depends(...)]``): each
+machine's :class:`MachineState`, the event bus its changes go out on, the shop's configuration,
+and :meth:`Machines.wake`, which tells a machine's task that a job may be waiting. It runs no
+task itself; :mod:`opendnc.server.fleet` does.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from typing import Any
+
+from opendnc.server.config import MachineConfig, ShopConfig
+from opendnc.server.events import EventBus, on_loop
+from opendnc.server.machines.base import MachineStatus
+
+__all__ = ["MachineState", "Machines"]
+
+
+@dataclass
+class MachineState:
+    """What the server knows about one machine right now."""
+
+    config: MachineConfig
+    online: bool = False
+    status: MachineStatus | None = None
+    last_error: str = ""  # kept after a reconnect: the last thing that went wrong
+    last_error_at: datetime | None = None
+    link_errors: int = 0  # how often the link broke since the server started
+    job_id: int | None = None
+    job_progress: tuple[int, int | None] = (0, None)
+    dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def set_status(self, status: MachineStatus) -> None:
+        """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
+        if self.dprnt is not None:
+            status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
+        self.status = status
+
+    def as_json(self) -> dict[str, Any]:
+        """A JSON-ready summary for the API."""
+        done, total = self.job_progress
+        return {
+            "name": self.config.name,
+            "kind": self.config.kind.value,
+            "description": self.config.description,
+            "released_only": self.config.released_only,
+            "online": self.online,
+            "status": self.status.as_json() if self.status else None,
+            "last_error": self.last_error,
+            "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
+            "link_errors": self.link_errors,
+            "job": None
+            if self.job_id is None
+            else {"id": self.job_id, "bytes_done": done, "bytes_total": total},
+        }
+
+
+class Machines:
+    """Every configured machine's live state (a component: it binds to the running loop)."""
+
+    name = "machines"
+    needs: tuple[str, ...] = ()
+
+    def __init__(self, config: ShopConfig, bus: EventBus) -> None:
+        self.config = config
+        self.bus = bus
+        self.machines = {m.name: MachineState(m) for m in config.machines}
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    async def start(self) -> None:
+        """Bind the registry and the bus to the running loop (threads publish through it)."""
+        self._loop = asyncio.get_running_loop()
+        self.bus.bind(self._loop)
+
+    async def stop(self) -> None:
+        """Nothing to release."""
+
+    def get(self, name: str) -> MachineState | None:
+        """The state of ``name``, or None."""
+        return self.machines.get(name)
+
+    def call_on_loop(self, function: Any, *args: Any) -> bool:
+        """Run ``function(*args)`` on the server's loop when called from another thread;
+        False when already on it (the caller runs it itself)."""
+        loop = self._loop
+        if loop is not None and not on_loop(loop):
+            loop.call_soon_threadsafe(function, *args)
+            return True
+        return False
+
+    def wake(self, machine: str) -> None:
+        """Tell ``machine``'s task that a job may be waiting (callable from any thread)."""
+        state = self.machines.get(machine)
+        if state is None:
+            return
+        # The API's plain routes run in worker threads. An asyncio.Event set from there
+        # schedules its waiter without waking the loop's selector (and asyncio's debug mode
+        # refuses it outright), so the set goes through the loop.
+        if not self.call_on_loop(state.wake.set):
+            state.wake.set()
+
+    def publish(self, state: MachineState) -> None:
+        """Send ``state`` to the event bus (the cards, the outputs, the timeline)."""
+        self.bus.publish("machine", state.config.name, state.as_json())
+
+    def note_dprnt(self, machine: str, text: str, at: datetime) -> None:
+        """Put a line ``machine`` printed with DPRNT into its status (from any thread: the
+        capture runs in listener threads and in the serial connector's worker)."""
+        if self.call_on_loop(self.note_dprnt, machine, text, at):
+            return
+        state = self.machines.get(machine)
+        if state is None:
+            return
+        state.dprnt = (text, at)
+        if state.status is not None:
+            state.set_status(state.status)
+        self.publish(state)

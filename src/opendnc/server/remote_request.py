@@ -1,0 +1,154 @@
+"""Programs a control sends by itself (a punch): into the inbox, or answered as a remote
+request (docs/server.md#receiving-and-remote-request).
+
+The rules that tell a request from a program are :mod:`opendnc.server.requests`; this component
+applies them to each reception a machine's task hands it, queues the requested programs after
+the request delay (the released version; the newest where the machine takes drafts) and the
+report programs the settings ask for, and wakes the machine when the answer falls due.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import datetime, timedelta
+from pathlib import Path
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import InputError
+from opendnc.server import audit, inbox, jobs, library, requests
+from opendnc.server.config import MachineConfig
+from opendnc.server.errors import NotFound
+from opendnc.server.machine_state import Machines, MachineState
+from opendnc.server.machines.base import Reception
+from opendnc.server.requests import RequestSettings
+from opendnc.server.store.models import JobKind, utcnow
+
+__all__ = ["RemoteRequests"]
+
+
+class RemoteRequests:
+    """Files receptions and answers requests; a component with nothing to start."""
+
+    name = "remote-requests"
+    needs = ("machines",)
+
+    def __init__(
+        self,
+        machines: Machines,
+        sessions: sessionmaker[Session],
+        settings: RequestSettings,
+        inbox_folder: Path,
+    ) -> None:
+        self.machines = machines
+        self.sessions = sessions
+        self.settings = settings
+        self.inbox_folder = inbox_folder
+
+    async def start(self) -> None:
+        """Nothing to start."""
+
+    async def stop(self) -> None:
+        """Nothing to stop."""
+
+    async def received(self, state: MachineState, reception: Reception) -> None:
+        """File a program the control sent: into the inbox, or answer it as a request."""
+        settings = self.settings
+        machine = state.config
+        folder = self.inbox_folder
+
+        def handle() -> tuple[str, float | None]:
+            with self.sessions.begin() as session:
+                if reception.failed:
+                    row = inbox.store(
+                        session,
+                        machine.name,
+                        reception.data,
+                        folder=folder,
+                        failed=reception.failed,
+                    )
+                    return f"reception failed: {row.reason}", None
+                names = requests.find_request(reception.data, settings)
+                if names is None:
+                    row = inbox.store(session, machine.name, reception.data, folder=folder)
+                    if settings.reports == "all":
+                        self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
+                    return f"received {row.name} into the inbox", None
+                return self._answer(session, machine, names), settings.delay
+
+        message, delay = await asyncio.to_thread(handle)
+        state.last_error = "" if not reception.failed else message
+        bus = self.machines.bus
+        bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        if delay is not None:
+            # Wake the machine when the answer falls due (the request delay).
+            asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
+            state.wake.set()
+
+    def _answer(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
+        settings = self.settings
+        due = utcnow() + timedelta(seconds=settings.delay)
+        problems: list[str] = []
+        sent: list[str] = []
+        for name in names:
+            try:
+                # A rule builds the name from what the operator typed: only a program name
+                # is looked up (docs/server.md#receiving-and-remote-request).
+                library.check_program_name(name)
+            except InputError:
+                problems.append(f"{name} NOT A PROGRAM NAME")
+                continue
+            try:
+                version = library.released_version(session, name)
+                if version is None and not machine.released_only:
+                    version = library.get_version(session, name)
+            except NotFound:
+                problems.append(f"{name} NOT IN LIBRARY")
+                continue
+            if version is None:
+                problems.append(f"{name} NOT RELEASED")
+                continue
+            jobs.enqueue(
+                session,
+                JobKind.SEND,
+                machine.name,
+                actor=f"request@{machine.name}",
+                version=version,
+                params={"request": True},
+                not_before=due,
+            )
+            sent.append(name)
+        audit.record(
+            session,
+            machine.name,
+            "program.request",
+            machine=machine.name,
+            requested=names,
+            sent=sent,
+            refused=problems,
+            result="ok" if not problems else "refused",
+        )
+        if problems and settings.reports != "none":
+            self._report(session, machine, "REQUEST FAILED", problems, due)
+        elif sent and settings.reports == "all":
+            self._report(session, machine, "REQUEST", [f"SENDING {n}" for n in sent], due)
+        return f"request for {', '.join(names)}: {len(sent)} queued, {len(problems)} refused"
+
+    def _report(
+        self,
+        session: Session,
+        machine: MachineConfig,
+        title: str,
+        lines: list[str],
+        due: datetime | None = None,
+    ) -> None:
+        number = self.settings.report_program
+        text = requests.report_program(number, title, lines).decode("ascii")
+        jobs.enqueue(
+            session,
+            JobKind.REPORT,
+            machine.name,
+            actor="server",
+            not_before=due,
+            params={"name": f"O{number:05d}.nc", "report": text},
+        )

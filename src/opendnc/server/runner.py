@@ -1,0 +1,399 @@
+"""The job runner: claims a machine's due jobs, runs each through its kind's executor, and
+records how it ended, whatever the database does meanwhile.
+
+A machine's task (:mod:`opendnc.server.fleet`) calls :meth:`JobRunner.run_due` when it is
+woken, on its own connector, between two status polls. Woken means: the API queued a job in
+this process, or the runner's sweep (one query for the whole shop every ``sweep_interval``)
+found due jobs (queued by another server, retries whose backoff expired).
+
+Every state change the runner makes is retried until the database answers (docs/server.md#jobs):
+a finished transfer whose ``done`` cannot be written keeps its machine (no new claim) and is
+written when the database is back; a write that went through although its answer was lost is
+recognised by re-reading the job. A claim whose answer was lost is found by the sweep, which
+hands any job this server holds as running but does not run back to the queue (a load) or ends
+it interrupted (a drip-feed). Cancels are read from the job's row (``cancel_requested``) while
+it runs, so a cancel served by any process reaches it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
+
+from sqlalchemy import select
+from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import RemoteProtocolError, TransferError, TransportError
+from opendnc.server import jobs, library
+from opendnc.server.errors import NotFound
+from opendnc.server.executors import (
+    Claimed,
+    DripFeedBroken,
+    Executor,
+    JobCancelled,
+    JobRun,
+    unknown_kind,
+)
+from opendnc.server.machine_state import Machines, MachineState
+from opendnc.server.machines.base import Connector
+from opendnc.server.store.db import read_only
+from opendnc.server.store.models import Job, JobKind, JobState
+
+__all__ = ["JobRunner", "database_down"]
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+CANCEL_POLL = 0.5  # seconds between two reads of a running job's cancel flag
+RETRY_FIRST = 0.2  # seconds before the first retry of a write the database refused
+RETRY_MAX = 5.0
+
+
+def database_down(exc: BaseException) -> bool:
+    """True for errors that say the database cannot be reached or is locked right now (as
+    opposed to a bug or a refused change)."""
+    if isinstance(exc, OperationalError | InterfaceError | PoolTimeout):
+        return True
+    return isinstance(exc, DBAPIError) and bool(exc.connection_invalidated)
+
+
+class JobRunner:
+    """Claims and runs jobs; a component (``start`` recovers, ``stop`` ends the sweep)."""
+
+    name = "runner"
+
+    def __init__(
+        self,
+        machines: Machines,
+        sessions: sessionmaker[Session],
+        executors: Iterable[Executor],
+        *,
+        worker: str,
+        sweep_interval: float = 5.0,
+        retry_backoff: float = 2.0,
+        cancel_poll: float = CANCEL_POLL,
+    ) -> None:
+        self.machines = machines
+        self.sessions = sessions
+        self._reads = read_only(sessions)  # the sweep's queries need not wait for the lock
+        self.executors: dict[JobKind, Executor] = {e.kind: e for e in executors}
+        self.needs = ("machines", *(e.name for e in self.executors.values()))
+        self.worker = worker
+        self.sweep_interval = sweep_interval
+        self.retry_backoff = retry_backoff
+        self.cancel_poll = cancel_poll
+        self.database_error = ""  # the last database failure, until the next success
+        self.running: dict[int, JobRun] = {}  # the jobs this process runs now, by id
+        self._claiming: set[str] = set()  # machines whose claim is under way
+        self._settling: set[asyncio.Task[None]] = set()
+        self._sweep: asyncio.Task[None] | None = None
+
+    # -- lifecycle ----------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Make the machines table match the configuration, mark the jobs this server left
+        running as interrupted, then sweep for due jobs."""
+        config = self.machines.config
+
+        def prepare() -> list[int]:
+            with self.sessions.begin() as session:
+                jobs.sync_machines(session, config.machines)
+                return [job.id for job in jobs.recover(session, self.worker)]
+
+        for job_id in await asyncio.to_thread(prepare):
+            log.warning("job %d was running when the server stopped: interrupted", job_id)
+        for state in self.machines.machines.values():
+            state.wake.set()  # a first look at the queue
+        self._sweep = asyncio.create_task(self._sweeping(), name="job-sweep")
+
+    async def stop(self) -> None:
+        """End the sweep; a settle still waiting for the database is given up (the next start
+        marks its job interrupted)."""
+        from opendnc.server.components import cancel_and_wait
+
+        tasks = [t for t in (self._sweep, *self._settling) if t is not None]
+        self._sweep = None
+        await cancel_and_wait(*tasks)
+
+    # -- the database, patiently --------------------------------------------------------
+
+    async def _durably(self, what: str, work: Callable[[Session], T]) -> T:
+        """Run ``work`` in a transaction, retrying while the database is away."""
+        delay = RETRY_FIRST
+        while True:
+            try:
+                result = await asyncio.to_thread(self._transaction, work)
+            except Exception as exc:
+                if not database_down(exc):
+                    raise
+                self._trouble(what, exc)
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, RETRY_MAX)
+                continue
+            self.database_error = ""
+            return result
+
+    def _transaction(self, work: Callable[[Session], T]) -> T:
+        with self.sessions.begin() as session:
+            return work(session)
+
+    def _trouble(self, what: str, exc: BaseException) -> None:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if not self.database_error:
+            log.warning("database unavailable while %s: %s (retrying)", what, first)
+        self.database_error = f"{what}: {first}"
+
+    # -- the sweep ------------------------------------------------------------------------
+
+    async def _sweeping(self) -> None:
+        while True:
+            await asyncio.sleep(self.sweep_interval)
+            try:
+                due, held = await asyncio.to_thread(self._look)
+            except Exception as exc:
+                if not database_down(exc):
+                    log.exception("job sweep failed")
+                else:
+                    self._trouble("looking for due jobs", exc)
+                continue
+            for name in due:
+                self.machines.wake(name)
+            await self._reconcile(held)
+
+    def _look(self) -> tuple[list[str], list[tuple[int, str]]]:
+        with self._reads() as session:
+            due = jobs.machines_with_due_jobs(session)
+            held = session.execute(
+                select(Job.id, Job.machine).where(
+                    Job.state == JobState.RUNNING, Job.claimed_by == self.worker
+                )
+            ).all()
+            return due, [(int(i), str(m)) for i, m in held]
+
+    async def _reconcile(self, held: list[tuple[int, str]]) -> None:
+        """Hand back the jobs the database says this server runs but no machine task holds
+        (a claim whose answer was lost; a machine no longer served here)."""
+        for job_id, machine in held:
+            state = self.machines.get(machine)
+            if machine in self._claiming or (state is not None and state.job_id == job_id):
+                continue  # being claimed or run right now (the query may predate it)
+
+            def hand_back(session: Session, job_id: int = job_id) -> str:
+                job = jobs.get_job(session, job_id)
+                if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
+                    return job.state.value
+                reason = "this server lost track of the job (database outage); not run"
+                return jobs.fail(session, job_id, reason, retryable=True).state.value
+
+            ended = await self._durably(f"handing back job {job_id}", hand_back)
+            log.warning("job %d was held by no machine task: now %s", job_id, ended)
+            self._event(job_id, machine, ended)
+            self.machines.wake(machine)
+
+    # -- running --------------------------------------------------------------------------
+
+    async def run_due(self, state: MachineState, connector: Connector) -> None:
+        """Claim and run ``state``'s due jobs one after the other, until none is due.
+
+        A link error of the machine propagates (its task reconnects); a database that is away
+        ends the round (the machine is woken again once it answers).
+        """
+        while state.job_id is None and await self._run_next(state, connector):
+            pass
+
+    async def _run_next(self, state: MachineState, connector: Connector) -> bool:
+        name = state.config.name
+        self._claiming.add(name)
+        try:
+            claimed = await asyncio.to_thread(self._claim, name)
+        except Exception as exc:
+            self._claiming.discard(name)
+            if not database_down(exc):
+                raise
+            self._trouble(f"claiming a job of {name}", exc)
+            # The claim may have gone through without its answer: the sweep hands such a
+            # job back; this machine looks again once the database answers.
+            asyncio.get_running_loop().call_later(RETRY_MAX, self.machines.wake, name)
+            return False
+        except BaseException:
+            self._claiming.discard(name)
+            raise
+        if claimed is None:
+            self._claiming.discard(name)
+            return False
+        # In the same step of the loop as the discard: the sweep never sees neither.
+        state.job_id, state.job_progress = claimed.job_id, (0, len(claimed.data) or None)
+        self._claiming.discard(name)
+        self._event(claimed.job_id, name, "running")
+        run = JobRun(
+            claimed,
+            state,
+            connector,
+            event=lambda s, **extra: self._event(claimed.job_id, name, s, **extra),
+            check_cancel=lambda: self._cancel_requested(claimed.job_id),
+        )
+        watch = asyncio.create_task(self._watch_cancel(run), name=f"cancel-watch-{claimed.job_id}")
+        self.running[claimed.job_id] = run
+        try:
+            outcome = await self._execute(run)
+        except asyncio.CancelledError:
+            # Stopping the server mid-transfer: the next start marks the job interrupted.
+            raise
+        except Exception as exc:
+            await self._failed(run, exc)
+            if run.link_unknown:
+                # A transfer stopped half-way: the control's side of the link is not known.
+                await connector.close()
+                await connector.connect()
+            cause = exc.__cause__ if isinstance(exc, DripFeedBroken) else exc
+            if isinstance(cause, TransportError):
+                raise exc from cause  # reconnect before the next job
+            return True
+        finally:
+            watch.cancel()
+            self.running.pop(claimed.job_id, None)
+        if run.cancel_requested:
+            # The work was done before the cancel could stop it: said so in its audit row.
+            outcome["cancel"] = "requested too late: the work was already done"
+        await self._settle(run, "done", lambda s: self._finish(s, run, outcome))
+        return True
+
+    def _claim(self, machine: str) -> Claimed | None:
+        with self.sessions.begin() as session:
+            job = jobs.claim(session, machine, self.worker)
+            if job is None:
+                return None
+            params = dict(job.params)
+            if job.kind is JobKind.REPORT:
+                report = str(params.get("report", "")).encode("latin-1")
+                return Claimed(job.id, job.kind, str(params.get("name")), report, params)
+            if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+                if job.version is None:
+                    jobs.fail(session, job.id, "the job names no program", retryable=False)
+                    return None
+                data = library.content(session, job.version)
+                return Claimed(job.id, job.kind, job.version.program.name, data, params)
+            return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
+
+    async def _execute(self, run: JobRun) -> dict[str, Any]:
+        executor = self.executors.get(run.job.kind)
+        if executor is None:
+            raise unknown_kind(run.job.kind)
+        return await executor.run(run)
+
+    async def _failed(self, run: JobRun, exc: Exception) -> None:
+        reason = str(exc) or type(exc).__name__
+        # A broken link or a garbled transfer may go well next time; a refusal will not.
+        retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
+        retryable = retryable and not isinstance(exc, JobCancelled)
+        line = exc.line if isinstance(exc, DripFeedBroken) else None
+        nbytes = exc.nbytes if isinstance(exc, DripFeedBroken) else None
+        if line is not None:
+            reason = f"{reason} (stopped at line {line}; restart from there)"
+
+        def fail(session: Session) -> str:
+            job = jobs.get_job(session, run.job.job_id)
+            if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
+                return job.state.value  # an earlier try went through; its answer was lost
+            return jobs.fail(
+                session,
+                run.job.job_id,
+                reason,
+                retryable=retryable,
+                backoff=self.retry_backoff,
+                line=line,
+                nbytes=nbytes,
+            ).state.value
+
+        await self._settle(run, None, fail, error=reason)
+
+    def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> str:
+        job = jobs.get_job(session, run.job.job_id)
+        if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
+            return job.state.value  # an earlier try went through; its answer was lost
+        return jobs.finish(session, run.job.job_id, **outcome).state.value
+
+    async def _settle(
+        self,
+        run: JobRun,
+        label: str | None,
+        write: Callable[[Session], str],
+        **extra: Any,
+    ) -> None:
+        """Record how ``run`` ended. While the database is away the machine keeps the job
+        (``state.job_id``: no new claim) and its task keeps polling; the write goes on in the
+        background until it goes through."""
+        state, job_id = run.state, run.job.job_id
+        what = f"recording the end of job {job_id}"
+
+        async def write_it() -> None:
+            try:
+                ended = await self._durably(what, write)
+            except Exception:
+                log.exception("%s failed", what)
+                ended = "unknown"
+            self._event(job_id, state.config.name, label or ended, **extra)
+            if state.job_id == job_id:
+                state.job_id = None
+                state.job_progress = (0, None)
+            self.machines.wake(state.config.name)
+
+        try:
+            # The usual case answers at once; the machine's task waits for it.
+            ended = await asyncio.to_thread(self._transaction, write)
+        except Exception as exc:
+            if not database_down(exc):
+                # Not the database's absence (the row gone, a bug): nothing to wait for, and
+                # the machine's link is not to blame.
+                log.exception("%s failed", what)
+                state.job_id = None
+                return
+            self._trouble(what, exc)
+            task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
+            self._settling.add(task)
+            task.add_done_callback(self._settling.discard)
+            return
+        self.database_error = ""
+        self._event(job_id, state.config.name, label or ended, **extra)
+        state.job_id = None
+
+    # -- cancels ----------------------------------------------------------------------------
+
+    def cancel_seen(self, job_id: int) -> bool:
+        """True while job ``job_id`` runs here and its cancel has been read from its row."""
+        run = self.running.get(job_id)
+        return run is not None and run.cancel_requested
+
+    def _cancel_flag(self, job_id: int) -> bool:
+        with self._reads() as session:
+            flag = session.scalar(select(Job.cancel_requested).where(Job.id == job_id))
+            if flag is None:
+                raise NotFound(f"no job {job_id}")
+            return bool(flag)
+
+    async def _cancel_requested(self, job_id: int) -> bool:
+        """The job's cancel flag now (False while the database is away: the job goes on)."""
+        try:
+            return await asyncio.to_thread(self._cancel_flag, job_id)
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            return False
+
+    async def _watch_cancel(self, run: JobRun) -> None:
+        """Mirror the job's cancel flag into ``run`` while it runs."""
+        while not run.cancel_requested:
+            await asyncio.sleep(self.cancel_poll)
+            with contextlib.suppress(NotFound):
+                run.cancel_requested = await self._cancel_requested(run.job.job_id)
+
+    # -- events ---------------------------------------------------------------------------
+
+    def _event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
+        data = {"id": job_id, "machine": machine, "state": state, **extra}
+        self.machines.bus.publish("job", str(job_id), data)

@@ -1,0 +1,149 @@
+"""`opendnc check`: problem lines, the summary, exit status, JSON and machine checks."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from opendnc.errors import InputError
+from opendnc.server.config import parse_config
+
+CLI = [sys.executable, "-m", "opendnc.cli.main", "check"]
+DATA = Path(__file__).resolve().parents[1] / "data" / "nccheck"
+
+
+def check(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*CLI, *map(str, args)], capture_output=True, text=True, timeout=120, check=False
+    )
+
+
+def test_a_clean_program_exits_0_with_one_summary_line() -> None:
+    done = check(DATA / "clean_haas.nc")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith(f"{DATA / 'clean_haas.nc'}: 0 errors, 0 warnings; haas, 2 tools")
+
+
+def test_an_error_prints_file_line_and_exits_1() -> None:
+    path = DATA / "arc_radius_too_small.nc"
+    done = check(path)
+    assert done.returncode == 1
+    first, summary = done.stdout.splitlines()
+    assert first.startswith(f"{path}:8: error: arc radius R10 is too small")
+    assert "1 error, 0 warnings" in summary
+
+
+def test_a_warning_alone_exits_0() -> None:
+    done = check(DATA / "call_not_in_library.nc")
+    assert done.returncode == 0
+    assert ":5: warning: calls O04321, which is not in the library" in done.stdout
+
+
+def test_klartext_problems_name_the_block() -> None:
+    done = check(DATA / "kt_missing_label.h")
+    assert done.returncode == 1
+    assert done.stdout.splitlines()[0].endswith(":8: error: label 7 is not defined (block 7)")
+
+
+def test_json_has_problems_tools_extents_and_moves() -> None:
+    done = check(DATA / "clean_klartext.h", "--json")
+    assert done.returncode == 0
+    result = json.loads(done.stdout)
+    assert result["control"] == "heidenhain"
+    assert [t["tool"] for t in result["tools"]] == ["1", "DRILL_D8"]
+    assert result["stock"] == {"min": [0.0, 0.0, -20.0], "max": [100.0, 80.0, 0.0], "axis": "Z"}
+    assert result["extents"]["Z"] == [-15.0, 100.0]
+    arcs = [m for m in result["moves"] if m["kind"].startswith("arc")]
+    assert arcs[0]["center"] == [100.0, 40.0, -5.0]
+    assert arcs[0]["plane"] == "xy"
+
+
+def test_the_control_can_be_forced() -> None:
+    done = check(DATA / "clean_haas.nc", "--control", "heidenhain")
+    assert done.returncode == 1
+    assert "does not start with BEGIN PGM" in done.stdout
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--control", "fanuc"],
+        ["--machine", "vf2"],
+        ["--config", "shop.toml"],
+    ],
+)
+def test_usage_errors_exit_2(args: list[str]) -> None:
+    done = check(DATA / "clean_haas.nc", *args)
+    assert done.returncode == 2
+    assert done.stderr.startswith("error: ")
+    assert done.stdout == ""
+
+
+def test_a_missing_file_is_a_usage_error() -> None:
+    done = check(DATA / "no_such_program.nc")
+    assert done.returncode == 2
+    assert "cannot read" in done.stderr
+
+
+SHOP = """
+[[machines]]
+name = "vf2"
+kind = "haas_ngc"
+host = "127.0.0.1"
+travel = { x = [-30.0, 0.0], y = [-16.0, 0.0], z = [-20.0, 0.0], units = "inch" }
+work_offsets = { G54 = { x = -25.0, y = -8.0, z = -12.0 } }
+
+[[machines]]
+name = "tnc"
+kind = "lsv2"
+host = "127.0.0.1"
+"""
+
+
+def test_machine_checks_from_the_configuration(tmp_path: Path) -> None:
+    config = tmp_path / "shop.toml"
+    config.write_text(SHOP, "utf-8")
+    done = check(DATA / "travel_overrun.nc", "--machine", "vf2", "--config", config)
+    assert done.returncode == 1
+    assert ":8: error: X goes to -35 in machine coordinates" in done.stdout
+    done = check(DATA / "clean_haas.nc", "--machine", "tnc", "--config", config)
+    assert done.returncode == 1
+    assert ":1: error: a haas program cannot run on tnc (heidenhain control)" in done.stdout
+    done = check(DATA / "clean_klartext.h", "--machine", "tnc", "--config", config)
+    assert done.returncode == 0
+    done = check(DATA / "clean_haas.nc", "--machine", "nope", "--config", config)
+    assert done.returncode == 2
+    assert "no machine named 'nope'" in done.stderr
+
+
+def test_travel_keys_in_the_configuration(tmp_path: Path) -> None:
+    shop = parse_config(SHOP, base=tmp_path)
+    envelope = shop.machine("vf2").envelope
+    assert envelope is not None
+    assert envelope.travel_map() == {"X": (-30.0, 0.0), "Y": (-16.0, 0.0), "Z": (-20.0, 0.0)}
+    assert envelope.offsets_map() == {"G54": {"X": -25.0, "Y": -8.0, "Z": -12.0}}
+    assert shop.machine("tnc").envelope is None
+
+
+@pytest.mark.parametrize(
+    ("line", "key"),
+    [
+        ("travel = { x = [0.0, -30.0] }", "machines[0].travel.x"),
+        ("travel = { q = [0.0, 1.0] }", "machines[0].travel.q"),
+        ('travel = { x = "wide" }', "machines[0].travel.x"),
+        ('travel = { x = [-1.0, 0.0], units = "feet" }', "machines[0].travel.units"),
+        ("work_offsets = { G99 = { x = 1.0 } }", "machines[0].work_offsets.G99"),
+        ('work_offsets = { G54 = { x = "a" } }', "machines[0].work_offsets.G54.x"),
+    ],
+)
+def test_bad_travel_keys_name_the_key(tmp_path: Path, line: str, key: str) -> None:
+    text = f'[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n{line}\n'
+    with pytest.raises(InputError) as caught:
+        parse_config(text, base=tmp_path)
+    assert str(caught.value).startswith(f"{key}: ")

@@ -1,0 +1,131 @@
+"""Property tests: the checker only ever returns problems (never raises, never hangs)."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+from opendnc.nccheck import Budget, CheckResult, Control, MachineLimits, check_text
+
+BUDGET = Budget(blocks=20_000, seconds=1.0)
+LIMITS = MachineLimits(
+    name="m",
+    family="haas",
+    travel={"X": (-30.0, 0.0), "Z": (-20.0, 0.0)},
+    work_offsets={"G54": {"X": -10.0, "Z": -5.0}},
+    tools=frozenset({"1", "2"}),
+    protected=((8000, 9999),),
+)
+
+gcode_lines = st.sampled_from(
+    [
+        "%", "O1000", "O09010", "G00 X1. Y2. Z3.", "G01 X-1. F10.", "G02 X1. Y1. I1. J0.",
+        "G03 X0 Y0 R-0.5", "G03 X5 R1.", "G02 X1", "G91", "G90", "G20", "G21", "G17",
+        "G18", "G19", "G54", "G154 P3", "G154 P0", "G28 G91 Z0.", "G53 Z-1.", "T1 M06",
+        "T#1 M06", "M03 S1000", "M05", "M30", "M99", "M97 P10", "M98 P1000 L2",
+        "G65 P1000 A1. B2.", "N10 #1 = #1 + 1", "GOTO 10", "IF [#1 LT 5] GOTO 10",
+        "WHILE [#1 LT 3] DO1", "END1", "#3000 = 1 (STOP)", "#3020 = 1", "#[#1] = 5",
+        "#1 = 1/0", "#1 = SQRT[-1]", "G81 Z-1. R0.1 F5.", "X1. Y1.", "G80", "G98", "G99",
+        "G04 P1.", "G10 L2 P1 X1.", "G52 X1.", "G92 X0", "G12", "G65", "M97", "X", "G",
+        "DPRNT[X#5041[44]]", "POPEN", "(COMMENT", "/G00 X1.", "G1X1.Y2.Z3.F4.",
+        "#1 = #1 + [", "G95 F0.1", "G93 F2.", "G73 Z-2. R1. Q0.5 L3",
+    ]
+)  # fmt: skip
+klartext_lines = st.sampled_from(
+    [
+        "0 BEGIN PGM A MM", "END PGM A MM", "END PGM B INCH", "BLK FORM 0.1 Z X+0 Y+0 Z-20",
+        "BLK FORM 0.2 X+100 Y+100 Z+0", "BLK FORM 0.2 X-1", "TOOL CALL 1 Z S3000 F200",
+        'TOOL CALL "MILL" Z', "TOOL CALL Q1 Z", "L X+10 Y+10 R0 FMAX M3", "L Z-5 F100",
+        "L IX+1 RL", "L X+Q1 F AUTO", "CC X+0 Y+0", "CC", "C X+10 Y+0 DR+", "C X+1 DR-",
+        "CR X+5 Y+5 R+2 DR-", "CR X+5 R-50 DR+", "CT X+20 Y+3", "RND R2", "RND R-1",
+        "CHF 1", "LP PR+10 PA+45 R0", "CP IPA+720 IZ-2 DR+ F50", "CP PA+90 DR-", "LBL 1",
+        "LBL 0", 'LBL "X"', "CALL LBL 1 REP 3", "CALL LBL 9", 'CALL LBL "X"',
+        "CALL PGM SUB.H", "FN 0: Q1 = +5", "FN 4: Q2 = +1 DIV +Q3",
+        "FN 9: IF +Q1 EQU +5 GOTO LBL 1",
+        "Q5 = SIN(Q1) ^ 2 + SQRT 4", "Q6 = (1 + ", "FN 14: ERROR = 1",
+        "CYCL DEF 200 DRILLING", "Q200=2", "Q201=-5", "Q206=100", "Q203=+0", "Q204=20",
+        "CYCL CALL", "CYCL CALL PAT", "PATTERN DEF POS1 (X+1 Y+2 Z+0)", "CYCL DEF 7.0 DATUM",
+        "CYCL DEF 7.1 X+5", "L X+0 R0 FMAX M99", "M89", "STOP", "STOP M5", "M30", "FN 18: SYSREAD",
+        "PLANE SPATIAL", "~", "; comment", "* - part",
+    ]
+)  # fmt: skip
+
+
+def numbered(lines: list[str]) -> str:
+    return "\n".join(f"{i} {line}" if i % 5 else line for i, line in enumerate(lines))
+
+
+def assert_well_formed(result: CheckResult, text: str) -> None:
+    assert isinstance(result, CheckResult)
+    lines = text.count("\n") + text.count("\r") + 2
+    for problem in result.problems:
+        assert 1 <= problem.line <= lines
+        assert problem.message
+        assert problem.message == problem.message.strip()
+        assert not problem.message.startswith("internal error")
+    json.loads(result.to_json())
+
+
+def checked(text: str, control: Control | None, machine: MachineLimits | None) -> CheckResult:
+    started = time.thread_time()
+    result = check_text(text, control=control, machine=machine, budget=BUDGET)
+    # the budget is 1 s of this thread's CPU time (wall time on a shared machine says little);
+    # parsing and building the result come on top of it
+    assert time.thread_time() - started < 3.0
+    return result
+
+
+controls = st.sampled_from([None, Control.HAAS, Control.HEIDENHAIN, Control.ISO])
+machines = st.sampled_from([None, LIMITS])
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.text(max_size=300), controls, machines)
+def test_any_text_gives_a_result(text: str, control: Control | None, machine: object) -> None:
+    assert isinstance(machine, MachineLimits | None)
+    assert_well_formed(checked(text, control, machine), text)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(gcode_lines, max_size=40), controls, machines)
+def test_gcode_soup_gives_a_result(
+    lines: list[str], control: Control | None, machine: object
+) -> None:
+    assert isinstance(machine, MachineLimits | None)
+    text = "\n".join(lines)
+    assert_well_formed(checked(text, control, machine), text)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(klartext_lines, max_size=40), machines)
+def test_klartext_soup_gives_a_result(lines: list[str], machine: object) -> None:
+    assert isinstance(machine, MachineLimits | None)
+    text = numbered(["BEGIN PGM A MM", *lines])
+    assert_well_formed(checked(text, Control.HEIDENHAIN, machine), text)
+
+
+formula_tokens = st.sampled_from(
+    [
+        "Q1", "QL2", "QR3", "-", "+", "*", "/", "^", "(", ")", "0", "2", "-8", "0.5", "400",
+        "SIN", "SQRT", "LN", "LOG", "ASIN", "EXP", "DIV", "LEN", "PI", "ABS", "FRAC", "1E308",
+    ]
+)  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(formula_tokens, min_size=1, max_size=12))
+@example(["Q1", "^", "0.5"])  # a negative base to a fraction once gave a complex number
+@example(["0", "^", "-", "2"])
+def test_q_formulas_give_a_value_or_a_problem(tokens: list[str]) -> None:
+    formula = " ".join(tokens)
+    text = f"0 BEGIN PGM A MM\n1 Q1 = -8\n2 Q9 = {formula}\n3 END PGM A MM\n"
+    result = checked(text, Control.HEIDENHAIN, None)
+    assert_well_formed(result, text)
+    if 9 in result.end.variables:
+        assert math.isfinite(result.end.variables[9])
+    else:
+        assert [p.line for p in result.errors] == [3]

@@ -1,0 +1,139 @@
+"""The server's core: components start after what they need, stop in reverse, and a stop that
+hangs is cut off at its share of the deadline while the others still stop."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+
+from tests.peers import require_module
+
+require_module("fastapi")
+
+from opendnc.server.components import (  # noqa: E402
+    ComponentError,
+    Core,
+    RunsTask,
+    cancel_and_wait,
+)
+
+
+class Part:
+    def __init__(self, name: str, log: list[str], *needs: str, hang: bool = False) -> None:
+        self.name = name
+        self.needs = needs
+        self.log = log
+        self.hang = hang
+
+    async def start(self) -> None:
+        self.log.append(f"start {self.name}")
+
+    async def stop(self) -> None:
+        self.log.append(f"stop {self.name}")
+        if self.hang:
+            await asyncio.Event().wait()  # never set: only the deadline ends this
+
+
+def test_components_start_after_their_needs_and_stop_in_reverse() -> None:
+    log: list[str] = []
+    core = Core()
+    # registered out of order on purpose
+    core.add(Part("fleet", log, "runner", "machines"))
+    core.add(Part("runner", log, "machines"))
+    core.add(Part("machines", log))
+    core.add(Part("timeline", log, "fleet"))
+
+    async def run() -> None:
+        await core.start()
+        await core.stop()
+
+    asyncio.run(run())
+    assert log == [
+        "start machines",
+        "start runner",
+        "start fleet",
+        "start timeline",
+        "stop timeline",
+        "stop fleet",
+        "stop runner",
+        "stop machines",
+    ]
+
+
+def test_a_hanging_stop_is_cut_off_and_the_rest_still_stop_within_the_deadline() -> None:
+    log: list[str] = []
+    core = Core()
+    core.add(Part("machines", log))
+    core.add(Part("stuck", log, "machines", hang=True))
+    core.add(Part("outputs", log, "stuck"))
+
+    async def run() -> tuple[float, tuple[str, ...]]:
+        await core.start()
+        began = time.monotonic()
+        report = await core.stop(deadline=1.5)
+        return time.monotonic() - began, report.timed_out
+
+    took, timed_out = asyncio.run(run())
+    assert timed_out == ("stuck",)
+    assert log[-3:] == ["stop outputs", "stop stuck", "stop machines"]
+    assert took < 1.5 + 0.5
+
+
+def test_a_start_that_fails_stops_what_had_started() -> None:
+    log: list[str] = []
+
+    class Broken(Part):
+        async def start(self) -> None:
+            raise RuntimeError("no")
+
+    core = Core()
+    core.add(Part("machines", log))
+    core.add(Broken("broken", log, "machines"))
+    with pytest.raises(RuntimeError):
+        asyncio.run(core.start())
+    assert log == ["start machines", "stop machines"]
+
+
+def test_needs_that_are_missing_or_circular_are_named() -> None:
+    core = Core()
+    core.add(Part("a", [], "b"))
+    with pytest.raises(ComponentError, match="a needs b"):
+        core.order()
+    core.add(Part("b", [], "a"))
+    with pytest.raises(ComponentError, match="need each other"):
+        core.order()
+    with pytest.raises(ComponentError, match="two components named"):
+        core.add(Part("a", []))
+
+
+def test_typed_lookup_finds_the_one_component_of_a_class() -> None:
+    core = Core()
+    part = core.add(Part("machines", []))
+    assert core.get(Part) is part
+    assert core.find(RunsTask) is None
+    with pytest.raises(ComponentError):
+        core.get(RunsTask)
+
+
+def test_a_task_that_swallows_a_cancel_is_cancelled_again() -> None:
+    swallowed = []
+
+    async def stubborn() -> None:
+        try:
+            await asyncio.sleep(60)
+        except asyncio.CancelledError:
+            swallowed.append(True)  # what wait_for can do on 3.11: carry on regardless
+        await asyncio.sleep(60)
+
+    async def run() -> float:
+        task = asyncio.create_task(stubborn())
+        await asyncio.sleep(0.05)
+        began = time.monotonic()
+        await cancel_and_wait(task)
+        assert task.cancelled()
+        return time.monotonic() - began
+
+    assert asyncio.run(run()) < 2.0
+    assert swallowed == [True]

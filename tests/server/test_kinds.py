@@ -1,0 +1,134 @@
+"""Machine kinds: each kind's schema has only its fields, its connector and capabilities come
+from its module, errors name the key, and older configuration files keep working."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from opendnc.server.capabilities import capabilities_of
+from opendnc.server.config import (
+    ConfigError,
+    HaasNgcMachine,
+    HaasSerialMachine,
+    Lsv2Machine,
+    MachineKind,
+    parse_config,
+)
+from opendnc.server.kinds import KINDS, connector_for, spec_of
+
+SHOP = """
+[[machines]]
+name = "tnc"
+kind = "lsv2"
+host = "127.0.0.1"
+receive_folder = "TNC:/out"
+
+[[machines]]
+name = "ngc"
+kind = "haas_ngc"
+host = "127.0.0.1"
+dprnt = "tcp://127.0.0.1:5052"
+
+[[machines]]
+name = "serial"
+kind = "haas_serial"
+host = ""
+serial = "socket://127.0.0.1:7000"
+dripfeed = true
+mdc = true
+"""
+
+
+def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path) -> None:
+    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    assert isinstance(tnc, Lsv2Machine)
+    assert tnc.port == 19000
+    assert isinstance(ngc, HaasNgcMachine)
+    assert ngc.mdc_port == 5051
+    assert isinstance(serial, HaasSerialMachine)
+    assert serial.dripfeed
+    fields = {type(m): {f.name for f in dataclasses.fields(m)} for m in (tnc, ngc, serial)}
+    assert "dripfeed" not in fields[Lsv2Machine] | fields[HaasNgcMachine]
+    assert "port" not in fields[HaasSerialMachine] | fields[HaasNgcMachine]
+    assert "receive_folder" not in fields[HaasSerialMachine] | fields[HaasNgcMachine]
+    assert [spec_of(m).kind for m in (tnc, ngc, serial)] == list(KINDS)
+
+
+def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
+    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    assert capabilities_of(tnc).file_browser
+    assert capabilities_of(tnc).receive
+    assert not capabilities_of(tnc).dripfeed
+    assert not capabilities_of(tnc).dprnt
+    assert capabilities_of(ngc).dprnt
+    assert not capabilities_of(ngc).file_browser
+    assert capabilities_of(serial).dripfeed
+    assert capabilities_of(serial).receive
+    assert "part_count" in capabilities_of(serial).status_fields  # mdc = true
+    without_mdc = dataclasses.replace(serial, mdc=False)
+    assert capabilities_of(without_mdc).status_fields == frozenset()
+
+
+def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
+    from opendnc.server.machines.haas_ngc import HaasNgcConnector
+    from opendnc.server.machines.haas_serial import HaasSerialConnector
+    from opendnc.server.machines.lsv2 import Lsv2Connector
+
+    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    assert isinstance(connector_for(tnc), Lsv2Connector)
+    assert isinstance(connector_for(ngc), HaasNgcConnector)
+    assert isinstance(connector_for(serial), HaasSerialConnector)
+
+
+@pytest.mark.parametrize(
+    ("entry", "key", "words"),
+    [
+        ('kind = "lsv2"\nhost = "h"\nport = "x"', "port", "expected int"),
+        ('kind = "lsv2"\nhost = "h"\ndripfeed = true', "dripfeed", "serial Haas"),
+        ('kind = "lsv2"\nhost = "h"\ndprnt = "serial"', "dprnt", "Haas feature"),
+        ('kind = "haas_ngc"\nhost = "h"\nmdc = true', "mdc", "only for haas_serial"),
+        ('kind = "haas_ngc"\nhost = "h"\ndprnt = "serial"', "dprnt", "haas_serial"),
+        ('kind = "haas_serial"\nserial = "/x"\nreceive_folder = "TNC:/"', "receive_folder", "lsv2"),
+        ('kind = "haas_serial"\nserial = "/dev/x"\nmdc_interval = 0', "mdc_interval", "seconds"),
+        ('kind = "haas_serial"\nserial = "/dev/x"\nportt = 1', "portt", "unknown key"),
+        ('kind = "fanuc"\nhost = "h"', "kind", "expected one of"),
+    ],
+)  # fmt: skip
+def test_errors_name_the_key(entry: str, key: str, words: str, tmp_path: Path) -> None:
+    first = '[[machines]]\nname = "a"\nkind = "lsv2"\nhost = "h"\n'
+    text = f'{first}\n[[machines]]\nname = "m"\n{entry}\n'
+    with pytest.raises(ConfigError) as caught:
+        parse_config(text, base=tmp_path)
+    assert caught.value.key == f"machines[1].{key}"
+    assert words in str(caught.value)
+
+
+def test_files_written_for_the_flat_schema_keep_working(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Every key used to be taken for every kind; those that meant nothing still do nothing.
+    text = """
+[[machines]]
+name = "vf"
+kind = "haas_serial"
+serial = "/dev/ttyUSB0"
+host = "10.0.0.5"
+port = 19000
+share = ""
+dripfeed = false
+
+[[machines]]
+name = "tnc"
+kind = "lsv2"
+host = "10.0.0.6"
+dripfeed = false
+mdc_port = 5051
+"""
+    vf, tnc = parse_config(text, base=tmp_path).machines
+    assert vf.kind is MachineKind.HAAS_SERIAL
+    assert tnc.kind is MachineKind.LSV2
+    assert "machines[0].host: only for haas_ngc and lsv2; ignored" in caplog.text
+    assert "machines[1].mdc_port" in caplog.text

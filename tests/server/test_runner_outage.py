@@ -1,0 +1,95 @@
+"""The runner keeps its jobs through database outages: the database is cut at each step of a
+job (claim, transfer, verify, finish) on PostgreSQL and on SQLite, and every job still ends
+exactly once, on a server that goes on serving the machine. A cancel written to the job's row
+by anyone reaches the running job (the row is the only truth)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from datetime import timedelta
+
+import pytest
+
+from tests.peers import require_module
+
+require_module("fastapi")
+
+from opendnc.server import jobs  # noqa: E402
+from opendnc.server.store.models import JobState, utcnow  # noqa: E402
+from tests.server.harness import wait_for  # noqa: E402
+from tests.server.inproc_server import PROGRAM, Shop  # noqa: E402
+
+STEPS = ("transfer", "verify", "finish")
+
+
+def _loaded(shop: Shop) -> bytes:
+    return (shop.root / "TNC" / "nc_prog" / "O01234.nc").read_bytes()
+
+
+def _a_later_job_runs(shop: Shop) -> None:
+    """The machine is not stranded: the next job runs to the end."""
+    later = shop.queue()
+    shop.server.machines.wake(shop.machine)
+    assert shop.ended(later).state is JobState.DONE
+
+
+@pytest.mark.parametrize("step", STEPS)
+def test_a_database_outage_during_a_job_ends_it_exactly_once(shop: Shop, step: str) -> None:
+    shop.gates.hold(step)
+    job_id = shop.queue()
+    shop.server.machines.wake(shop.machine)
+    assert shop.gates.reached[step].wait(30), f"the job never reached {step}"
+    shop.outage.cut()
+    try:
+        shop.gates.go[step].set()
+        # The runner met the outage when it wrote the job's end (and kept the job meanwhile).
+        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+        assert shop.server.machines.machines[shop.machine].job_id == job_id
+    finally:
+        shop.outage.restore()
+    job = shop.ended(job_id)
+    assert (job.state, job.attempts) == (JobState.DONE, 1)
+    assert shop.audit(job_id, "job.start") == 1
+    assert shop.audit(job_id, "job.send") == 1  # one end, recorded once
+    assert _loaded(shop) == PROGRAM
+    wait_for(
+        "the machine to let go of the job",
+        lambda: shop.server.machines.machines[shop.machine].job_id is None,
+    )
+    _a_later_job_runs(shop)
+
+
+def test_a_database_outage_at_the_claim_delays_the_job_and_runs_it_once(shop: Shop) -> None:
+    due = utcnow() + timedelta(seconds=0.5)
+    job_id = shop.queue(not_before=due)
+    shop.outage.cut()
+    try:
+        wait_for("the job to fall due", lambda: utcnow() > due + timedelta(seconds=0.2))
+        shop.server.machines.wake(shop.machine)  # as the API would: the claim meets the outage
+        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+    finally:
+        shop.outage.restore()
+    job = shop.ended(job_id)
+    assert job.state is JobState.DONE
+    assert shop.audit(job_id, "job.start") == job.attempts
+    assert shop.audit(job_id, "job.send") == 1
+    assert _loaded(shop) == PROGRAM
+    _a_later_job_runs(shop)
+
+
+def test_a_cancel_in_the_jobs_row_stops_the_running_transfer(shop: Shop) -> None:
+    shop.gates.hold("transfer")
+    job_id = shop.queue()
+    shop.server.machines.wake(shop.machine)
+    assert shop.gates.reached["transfer"].wait(30)
+    # Written straight into the row, as another server's API would: no call into this process.
+    with shop.server.sessions.begin() as session:
+        jobs.cancel(session, job_id, actor="elsewhere")
+    seen: Callable[[], bool] = lambda: shop.server.runner.cancel_seen(job_id)  # noqa: E731
+    wait_for("the runner to read the cancel", seen)
+    shop.gates.go["transfer"].set()
+    job = shop.ended(job_id)
+    assert job.state is JobState.CANCELLED
+    assert "cancelled" in job.error
+    assert not (shop.root / "TNC" / "nc_prog" / "O01234.nc").exists()
+    _a_later_job_runs(shop)
