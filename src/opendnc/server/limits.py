@@ -75,8 +75,11 @@ def default_max_connections() -> int:
 
 
 def _program_upload(method: str, path: str) -> bool:
-    return (method == "PUT" and path.startswith("/api/programs/")) or (
-        method == "POST" and path == "/library"
+    # The API's upload, the dashboard's library upload and its upload to a control's folder.
+    return (
+        (method == "PUT" and path.startswith("/api/programs/"))
+        or (method == "POST" and path == "/library")
+        or (method == "POST" and path.startswith("/machines/") and path.endswith("/files/upload"))
     )
 
 
