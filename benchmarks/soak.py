@@ -68,7 +68,6 @@ from opendnc.xmodem.sender import SenderConfig
 sys.path.insert(0, str(Path(__file__).parent))
 from simproc import start_server
 from soak_server import report as report_server
-from soak_server import soak_server
 
 # -- bookkeeping --------------------------------------------------------------------------
 
@@ -623,16 +622,15 @@ def run(
     seconds: float, smoke: bool, seed: int, server: bool = True, server_db: str | None = None
 ) -> dict[str, object]:
     started = time.monotonic()
-    # The server part runs beside the device patterns for the whole soak, in its own thread.
-    server_part: dict[str, object] = {}
-    server_thread = threading.Thread(
-        target=lambda: server_part.update(
-            soak_server(8.0 if smoke else seconds, smoke, seed, server_db)
-        ),
-        name="soak-server",
-    )
+    # The server part runs beside the device patterns for the whole soak, in a process of its
+    # own: its clients must not wait for this process's interpreter lock.
+    server_proc = None
     if server:
-        server_thread.start()
+        command = [sys.executable, str(Path(__file__).with_name("soak_server.py")), "--json"]
+        command += ["--seconds", str(8.0 if smoke else seconds), "--seed", str(seed)]
+        command += ["--smoke"] if smoke else []
+        command += ["--db", server_db] if server_db else []
+        server_proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     work = Path(tempfile.mkdtemp(prefix="opendnc-soak-"))
     soak = Soak(work, random.Random(seed), smoke, started + seconds)
     (work / "outside").mkdir()
@@ -678,8 +676,13 @@ def run(
             tnc.kill()
             tnc.communicate()
         shutil.rmtree(work, ignore_errors=True)
-    if server:
-        server_thread.join()
+    server_part: dict[str, object] = {}
+    if server_proc is not None:
+        out, _ = server_proc.communicate(timeout=seconds + 300)
+        lines = out.strip().splitlines()
+        server_part = (
+            json.loads(lines[-1]) if lines else {"error": "the server part printed nothing"}
+        )
     memory["soak_process_peak"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return {
         "seconds": round(time.monotonic() - started, 1),
@@ -711,7 +714,9 @@ def report(result: dict[str, object]) -> None:
         for note in t["notes"]:
             print(f"  {name}: {note}")
     server = result.get("server")
-    if isinstance(server, dict):
+    if isinstance(server, dict) and "error" in server:
+        print(f"server: {server['error']}")
+    elif isinstance(server, dict):
         report_server(server)
 
 
@@ -736,7 +741,9 @@ def main() -> None:
     patterns = result["patterns"]
     assert isinstance(patterns, dict)
     server = result.get("server")
-    server_bad = isinstance(server, dict) and bool(server["five_xx"] or server["hung"])
+    server_bad = isinstance(server, dict) and bool(
+        server.get("error") or server.get("five_xx") or server.get("hung")
+    )
     sys.exit(1 if any(t["silent"] for t in patterns.values()) or server_bad else 0)
 
 

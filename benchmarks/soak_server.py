@@ -290,3 +290,26 @@ def report(part: dict[str, Any]) -> None:
     )
     for example in part["five_xx_examples"]:
         print(f"  5xx: {example}")
+
+
+def main() -> None:
+    """Run the server part alone (soak.py runs it this way, in a process of its own)."""
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--smoke", action="store_true")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--db", default=None, help="database URL (default: a SQLite file)")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    part = soak_server(args.seconds, args.smoke, args.seed, args.db)
+    if args.json:
+        print(json.dumps(part))
+    else:
+        report(part)
+
+
+if __name__ == "__main__":
+    main()
