@@ -15,7 +15,7 @@ from sqlalchemy import func, select
 from opendnc.server import jobs
 from opendnc.server.app import Server
 from opendnc.server.machines.base import Connector, Progress
-from opendnc.server.store.models import AuditEntry, Job
+from opendnc.server.store.models import AuditEntry, Job, JobKind
 from tests.server.db_outage import Outage
 from tests.server.harness import wait_for
 
@@ -97,7 +97,8 @@ class Shop:
 
     def queue(self, **extra: Any) -> int:
         with self.server.sessions.begin() as session:
-            job = jobs.send_program(session, "O01234.nc", [self.machine], actor="test")[0]
+            version = jobs.version_to_send(session, "O01234.nc", None)  # the released one
+            job = jobs.enqueue(session, JobKind.SEND, self.machine, actor="test", version=version)
             for key, value in extra.items():
                 setattr(job, key, value)
             return job.id

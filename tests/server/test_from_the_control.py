@@ -228,6 +228,9 @@ def interrupt_dripfeed(
     under way (``front`` is the control's serial port). Returns the job's id, its row once
     stopped (interrupted) and the line the error says to restart from."""
     client.put("/api/programs/O03000.nc", content=LONG, headers=auth(key))
+    # a drip-feed without a version sends the released one, from the API as from the page
+    released = client.post("/api/programs/O03000.nc/versions/1/release", headers=auth(key))
+    assert released.status_code == 200, released.text
     started = client.post(
         "/api/jobs",
         headers=auth(key),

@@ -21,7 +21,7 @@ from opendnc.server import jobs, library  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.machines.haas_serial import XMODEM_SILENCE_FLOOR  # noqa: E402
-from opendnc.server.store.models import AuditEntry, JobState  # noqa: E402
+from opendnc.server.store.models import AuditEntry, JobKind, JobState  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
 from tests.server.inproc_server import (  # noqa: E402
@@ -126,7 +126,8 @@ def test_a_serial_haas_that_goes_silent_mid_load_ends_the_attempt_in_its_timeout
     state = server.machines.machines[name]
     wait_for("the serial Haas online", lambda: state.online)
     with server.sessions.begin() as session:
-        job_id = jobs.send_program(session, "O01235.nc", [name], actor="test")[0].id
+        version = jobs.version_to_send(session, "O01235.nc", None)  # the released one
+        job_id = jobs.enqueue(session, JobKind.SEND, name, actor="test", version=version).id
     server.machines.wake(name)
     wait_for("the load under way", lambda: state.job_id == job_id and state.job_progress[0] > 0)
     front = fleet.fleet.serial_ports[name]

@@ -43,7 +43,8 @@ def test_a_database_outage_during_a_job_ends_it_exactly_once(shop: Shop, step: s
     try:
         shop.gates.go[step].set()
         # The runner met the outage when it wrote the job's end (and kept the job meanwhile).
-        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+        outages = shop.server.runner.outages
+        wait_for("the job's end to meet the outage", lambda: outages["recording"] > 0)
         assert shop.server.machines.machines[shop.machine].job_id == job_id
     finally:
         shop.outage.restore()
@@ -66,7 +67,8 @@ def test_a_database_outage_at_the_claim_delays_the_job_and_runs_it_once(shop: Sh
     try:
         wait_for("the job to fall due", lambda: utcnow() > due + timedelta(seconds=0.2))
         shop.server.machines.wake(shop.machine)  # as the API would: the claim meets the outage
-        wait_for("the runner to meet the outage", lambda: shop.server.runner.database_error)
+        outages = shop.server.runner.outages
+        wait_for("the claim to meet the outage", lambda: outages["claiming"] > 0)
     finally:
         shop.outage.restore()
     job = shop.ended(job_id)
@@ -93,3 +95,25 @@ def test_a_cancel_in_the_jobs_row_stops_the_running_transfer(shop: Shop) -> None
     assert "cancelled" in job.error
     assert not (shop.root / "TNC" / "nc_prog" / "O01234.nc").exists()
     _a_later_job_runs(shop)
+
+
+def test_a_machine_released_mid_job_gets_its_job_handed_back(shop: Shop) -> None:
+    # What a server does when another takes the machine over (several servers, one database):
+    # the job it was running is not left "running" for nobody.
+    shop.gates.hold("transfer")
+    job_id = shop.queue()
+    shop.server.machines.wake(shop.machine)
+    assert shop.gates.reached["transfer"].wait(30)
+    shop.running.call(shop.server.fleet.release(shop.machine))
+    shop.gates.go["transfer"].set()  # the released task's worker thread may finish now
+    assert shop.machine not in shop.server.fleet.served
+
+    def handed_back() -> bool:
+        job = shop.job(job_id)
+        return job.state is JobState.QUEUED and "lost track" in job.error
+
+    wait_for("the sweep to hand the job back", handed_back)
+    shop.running.loop.call_soon_threadsafe(shop.server.fleet.serve, shop.machine)
+    job = shop.ended(job_id)
+    assert (job.state, job.attempts) == (JobState.DONE, 2)
+    assert _loaded(shop) == PROGRAM

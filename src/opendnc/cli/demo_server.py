@@ -162,9 +162,11 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
 
 async def _check(server: object, fleet: object) -> None:
     """Send the released O01000 to every machine and wait for the outcome."""
-    from opendnc.server import jobs
+    from opendnc.server import actions, jobs
+    from opendnc.server.actions.models import JobRequest
     from opendnc.server.app import Server
-    from opendnc.server.store.models import JobState
+    from opendnc.server.auth import Principal
+    from opendnc.server.store.models import JobKind, JobState, Role
     from opendnc.sim.fleet import Fleet
 
     assert isinstance(server, Server)
@@ -178,10 +180,13 @@ async def _check(server: object, fleet: object) -> None:
         await asyncio.sleep(0.1)
     console.print("all machines online", highlight=False)
     names = [m.name for m in fleet.machines]
-    with server.sessions.begin() as session:
-        ids = [j.id for j in jobs.send_program(session, "O01000.nc", names, actor="demo")]
-    for name in names:
-        server.machines.wake(name)
+    # through the actions layer, as a person's send would go (it wakes the machines)
+    order = JobRequest(kind=JobKind.SEND, program="O01000.nc", machines=names)
+    demo = Principal("demo", Role.ADMIN)
+    created = await asyncio.to_thread(
+        actions.queue.create_jobs, server.core.get(actions.Services), demo, order
+    )
+    ids = [j.id for j in created]
     while True:
         with server.sessions() as session:
             states = [jobs.get_job(session, i) for i in ids]

@@ -1,643 +1,580 @@
-"""The JSON API under ``/api/``: thin routes over the service modules.
+"""The JSON API under ``/api/``: a thin adapter over the actions layer.
 
-Every route needs an API key (``Authorization: Bearer KEY``) except ``/api/health``; every
-write names the least role it needs. Routes that touch the database are plain functions, which
+Each route parses its request, calls one action (:mod:`opendnc.server.actions`) with the
+caller and renders the typed result; the roles and the machines' policies are the actions'.
+Every route needs an API key (``Authorization: Bearer KEY``) except ``/api/health``; a web
+session's cookie is not a key. Routes that touch the database are plain functions, which
 FastAPI runs in its thread pool, so a slow query never blocks the event loop that polls the
-machines. Service errors map to one status each: bad input 400, no key 401, role too low 403,
-unknown name 404, state does not allow it 409.
+machines. Errors map to one status each (:func:`opendnc.server.errors.http_status`): bad
+input 400, no key 401, role too low 403, unknown name 404, state does not allow it 409, too
+large 413, bad parameter 422, too many failed logins 429, machine unreachable 503.
 """
 
 from __future__ import annotations
 
 import asyncio
-import csv
-import hashlib
-import io
 import json
+import logging
 from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response, StreamingResponse
-from pydantic import BaseModel, Field
-from sqlalchemy.orm import Session, sessionmaker
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import BaseModel, Field, JsonValue
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from opendnc.errors import DncError, InputError
-from opendnc.server import audit, auth, dbsession, deps, inbox, jobs, library
-from opendnc.server.capabilities import capabilities_of
-from opendnc.server.edge import ApiRoute
-from opendnc.server.errors import Conflict, Forbidden, NotFound, Unauthorized
-from opendnc.server.events import EventBus
-from opendnc.server.loopwatch import LoopWatch
-from opendnc.server.machine_state import Machines
-from opendnc.server.store.models import (
-    AuditEntry,
-    Job,
-    JobKind,
-    JobState,
-    Program,
-    ProgramVersion,
-    Received,
-    ReceivedState,
-    Role,
+from opendnc.errors import DncError
+from opendnc.server import actions, audit, auth, dbsession, deps
+from opendnc.server.actions.models import (
+    MAX_ID,
+    AuditOut,
+    Count,
+    DiffOut,
+    FolderOut,
+    Id,
+    IdQuery,
+    JobOut,
+    JobRequest,
+    KeyOut,
+    LineNumber,
+    MachineOut,
+    ProgramOut,
+    ReceivedDetail,
+    ReceivedOut,
+    RevokedOut,
+    UploadOut,
+    VersionOut,
 )
+from opendnc.server.components import core_of
+from opendnc.server.edge import ApiRoute
+from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
+from opendnc.server.events import EventBus
+from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
+from opendnc.server.machine_state import Machines
+from opendnc.server.shdr import devices_xml
+from opendnc.server.store.models import JobState, ReceivedState, Role
 
-__all__ = ["install"]
+__all__ = ["Db", "Viewer", "install"]
 
-STATUS = {NotFound: 404, Conflict: 409, Unauthorized: 401, Forbidden: 403, InputError: 400}
+log = logging.getLogger(__name__)
+
 # Server-sent events: at most one update per machine or job per this many seconds.
 EVENT_INTERVAL = 0.5
 
 
+class ErrorOut(BaseModel):
+    """Why a request was refused, in one line."""
+
+    detail: str
+
+
+_REASONS = {
+    400: "bad input (the reason says which)",
+    401: "no valid API key",
+    403: "the key's role does not allow this",
+    404: "no such program, version, job, reception, key or machine",
+    409: "the current state (or the machine's policy) does not allow this",
+    413: "the body is larger than the server takes",
+    429: "too many failed logins from this address; wait Retry-After seconds",
+    503: "the machine cannot be reached now",
+}
+ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorOut, "description": reason} for status, reason in _REASONS.items()
+}
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+
+
+class OctetStream(Response):
+    """Bytes, as they are stored."""
+
+    media_type = "application/octet-stream"
+
+
+class Xml(Response):
+    """An XML document."""
+
+    media_type = "application/xml"
+
+
 def install(app: FastAPI) -> None:
-    """Add the API routes and error mapping to ``app`` (built by :mod:`opendnc.server.app`)."""
-    app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
+    """Add the API routes and the error mapping to ``app`` (built by :mod:`opendnc.server.app`,
+    whose core holds the actions' :class:`~opendnc.server.actions.Services`)."""
+    app.add_exception_handler(DncError, error_response)  # type: ignore[arg-type]
+    app.add_exception_handler(RequestValidationError, _invalid)  # type: ignore[arg-type]
+    app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
     app.include_router(router)
+    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
 
 
-async def _error(_request: Request, exc: DncError) -> JSONResponse:
-    for cls, status in STATUS.items():
-        if isinstance(exc, cls):
-            headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
-            return JSONResponse({"detail": str(exc)}, status_code=status, headers=headers)
-    return JSONResponse({"detail": str(exc)}, status_code=500)
+def _openapi(app: FastAPI) -> dict[str, Any]:
+    """FastAPI's document, with the bytes, XML, CSV and event-stream answers labelled only
+    as what they are: FastAPI adds an empty ``application/json`` beside them, because the
+    route's errors are JSON."""
+    if app.openapi_schema is None:
+        from fastapi.openapi.utils import get_openapi
+
+        doc = get_openapi(
+            title=app.title, version=app.version, routes=app.routes, description=app.description
+        )
+        for operations in doc.get("paths", {}).values():
+            for op in operations.values():
+                content = op.get("responses", {}).get("200", {}).get("content", {})
+                if len(content) > 1 and not content.get("application/json", {}).get("schema"):
+                    content.pop("application/json", None)
+        app.openapi_schema = doc
+    return app.openapi_schema
 
 
-router = APIRouter(prefix="/api", route_class=ApiRoute)
+async def error_response(_request: Request, exc: DncError) -> JSONResponse:
+    """The JSON answer to ``exc`` (its status, one line, and the headers it calls for)."""
+    status = http_status(exc)
+    headers: dict[str, str] | None = None
+    if status == 401:
+        headers = {"WWW-Authenticate": "Bearer"}
+    elif isinstance(exc, TooManyRequests):
+        headers = {"Retry-After": str(exc.retry_after)}
+    elif status == 500:
+        log.error("unexpected error", exc_info=exc)
+    return JSONResponse({"detail": str(exc) or type(exc).__name__}, status, headers=headers)
 
 
-# Committed when the route returns normally, rolled back when it raises; a route that must
-# act after the commit (waking a machine) commits itself first. GET routes read only.
+async def _invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    # FastAPI's own answer echoes the input, which fails to encode when it is bytes that are
+    # not UTF-8; the location, message and type say enough.
+    errors = [
+        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", "")), "type": str(e.get("type"))}
+        for e in exc.errors()
+    ]
+    return JSONResponse({"detail": errors}, status_code=422)
+
+
+async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
+    detail = exc.detail
+    if exc.status_code in (404, 405) and request.url.path.startswith("/api/programs/"):
+        # what no route matches there: most often a name with a folder in it
+        detail = "no such route; a program name holds no folders ('/')"
+    return JSONResponse({"detail": detail}, exc.status_code, headers=exc.headers)
+
+
+# ApiRoute: request sessions end in the route's thread; JSON bodies hold finite numbers only.
+router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
+
+# For the routes beside this module (dprnt_api) that read with their own queries.
 Db = dbsession.Db
+_bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 
 
 def _principal(
-    request: Request, authorization: Annotated[str | None, Header()] = None
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> auth.Principal:
-    if not authorization or not authorization.lower().startswith("bearer "):
+    if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
-    key = authorization[7:].strip()
-    return dbsession.read_then_write(request, lambda session: auth.authenticate_key(session, key))
-
-
-def require(role: Role) -> Any:
-    """A dependency that admits principals with at least ``role``."""
-
-    def check(who: Annotated[auth.Principal, Depends(_principal)]) -> auth.Principal:
-        if not who.can(role):
-            raise Forbidden(
-                f"{who.name} is {who.role.name.lower()}; this needs {role.name.lower()}"
+    svc = _svc(request)
+    guard = svc.guard
+    host = request.client.host if request.client else "?"
+    address = f"address:{host}"
+    guard.check(address)
+    try:
+        return auth.authenticate(svc.reads, svc.sessions, credentials.credentials.strip()).who
+    except Unauthorized as exc:
+        guard.failed(address)
+        with svc.sessions.begin() as session:
+            audit.record(
+                session,
+                "api",
+                "login",
+                result="refused",
+                via="api",
+                address=host,
+                error=str(exc),
             )
-        return who
-
-    return Depends(check)
+        raise
 
 
-Viewer = Annotated[auth.Principal, require(Role.VIEWER)]
-Operator = Annotated[auth.Principal, require(Role.OPERATOR)]
-Programmer = Annotated[auth.Principal, require(Role.PROGRAMMER)]
-Approver = Annotated[auth.Principal, require(Role.APPROVER)]
-Admin = Annotated[auth.Principal, require(Role.ADMIN)]
+Caller = Annotated[auth.Principal, Depends(_principal)]
+Viewer = Caller  # every key is at least a viewer; each action checks the role it needs
 
 
-def changed(request: Request, kind: str, key: str) -> None:
-    """Tell the event stream that the library (``program``) or the inbox (``inbox``) changed
-    (after the commit: a page that reloads its list on the event must see the change)."""
-    _supervisor(request).bus.publish(kind, key, {"name": key, "source": "request"})
+def _svc(request: Request) -> actions.Services:
+    return core_of(request.app).get(actions.Services)
 
 
-def _supervisor(request: Request) -> Machines:
-    return deps.machines(request)
+Svc = Annotated[actions.Services, Depends(_svc)]
+Name = Annotated[str, Field(max_length=255)]
 
 
-# -- serialisation ------------------------------------------------------------------------
+# -- health and outputs ---------------------------------------------------------------------
 
 
-def version_json(v: ProgramVersion) -> dict[str, Any]:
-    """A program version as JSON."""
-    return {
-        "program": v.program.name,
-        "number": v.number,
-        "sha256": v.sha256,
-        "size": v.size,
-        "state": v.state.value,
-        "author": v.author,
-        "comment": v.comment,
-        "source": v.source,
-        "created": v.created.isoformat(),
-    }
+class HealthOut(BaseModel):
+    """The server answers."""
 
-
-def program_json(p: Program) -> dict[str, Any]:
-    """A program with its versions as JSON."""
-    return {
-        "name": p.name,
-        "locked": p.locked,
-        "created": p.created.isoformat(),
-        "versions": [version_json(v) for v in p.versions],
-    }
-
-
-def job_json(j: Job, live: tuple[int, int | None] | None = None) -> dict[str, Any]:
-    """A job as JSON (with live progress while it runs here)."""
-    done, total = live if live is not None else (j.bytes_done, j.bytes_total or None)
-    return {
-        "id": j.id,
-        "kind": j.kind.value,
-        "machine": j.machine,
-        "state": j.state.value,
-        "position": j.position,
-        "program": j.version.program.name if j.version else None,
-        "version": j.version.number if j.version else None,
-        "sha256": j.version.sha256 if j.version else None,
-        "params": j.params,
-        "attempts": j.attempts,
-        "max_attempts": j.max_attempts,
-        "created_by": j.created_by,
-        "created": j.created.isoformat(),
-        "started": j.started.isoformat() if j.started else None,
-        "finished": j.finished.isoformat() if j.finished else None,
-        "bytes_done": done,
-        "bytes_total": total,
-        "error": j.error,
-        "cancel_requested": j.cancel_requested,
-        "line": j.line,
-    }
-
-
-def audit_json(a: AuditEntry) -> dict[str, Any]:
-    """An audit row as JSON."""
-    return {
-        "id": a.id,
-        "at": a.at.isoformat(),
-        "actor": a.actor,
-        "action": a.action,
-        "machine": a.machine,
-        "program": a.program,
-        "sha256": a.sha256,
-        "job_id": a.job_id,
-        "result": a.result,
-        "bytes": a.bytes,
-        "detail": a.detail,
-    }
-
-
-# -- routes -------------------------------------------------------------------------------
+    status: Literal["ok"]
 
 
 @router.get("/health")
-def health() -> dict[str, str]:
+def health() -> HealthOut:
     """Liveness probe; needs no key."""
-    return {"status": "ok"}
+    return HealthOut(status="ok")
 
 
 @router.get("/health/loop")
-async def loop_health(request: Request) -> dict[str, Any]:
+async def loop_health(request: Request) -> dict[str, JsonValue]:
     """The event loop's stalls (:mod:`opendnc.server.loopwatch`); needs no key. Async: it
     reads the watch on the loop, the only thread that writes it."""
-    watch: LoopWatch = deps.loopwatch(request)
-    return watch.as_json()
-
-
-@router.get("/machines")
-def list_machines(request: Request, _who: Viewer) -> list[dict[str, Any]]:
-    """Every configured machine with its live state."""
-    return [m.as_json() for m in _supervisor(request).machines.values()]
+    out: dict[str, JsonValue] = deps.loopwatch(request).as_json()
+    return out
 
 
 @router.get("/outputs")
-def outputs(request: Request, _who: Viewer) -> dict[str, Any]:
+def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | None]:
     """The open outputs' state: the MQTT link (connected, queued, dropped) and the SHDR ports
     (agents connected); null for one that is not configured."""
+    actions.require(who, Role.VIEWER)
     parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
 
 
-@router.get("/mtconnect/devices.xml")
-def mtconnect_devices(request: Request, _who: Viewer) -> Response:
+@router.get(
+    "/mtconnect/devices.xml",
+    response_model=None,
+    responses={200: {"content": {"application/xml": {"schema": {"type": "string"}}}}},
+)
+def mtconnect_devices(svc: Svc, who: Caller) -> Response:
     """An MTConnect agent's Devices file for the machines the SHDR adapter serves."""
-    config = _supervisor(request).config
+    actions.require(who, Role.VIEWER)
+    config = svc.runner.config
     if config.mtconnect is None:
         raise NotFound("no [mtconnect] adapter is configured")
-    from opendnc.server.shdr import devices_xml
+    return Xml(devices_xml([m.name for m in config.machines], config.server.name))
 
-    xml = devices_xml([m.name for m in config.machines], config.server.name)
-    return Response(xml, media_type="application/xml")
+
+# -- machines -------------------------------------------------------------------------------
+
+
+@router.get("/machines")
+def list_machines(svc: Svc, who: Caller) -> list[MachineOut]:
+    """Every configured machine with its live state."""
+    return actions.machines.list_machines(svc, who)
 
 
 @router.get("/machines/{name}")
-def get_machine(request: Request, name: str, _who: Viewer) -> dict[str, Any]:
+def get_machine(svc: Svc, name: str, who: Caller) -> MachineOut:
     """One machine with its live state."""
-    state = _supervisor(request).machines.get(name)
-    if state is None:
-        raise NotFound(f"no machine named {name!r}")
-    return state.as_json()
+    return actions.machines.get_machine(svc, who, name)
+
+
+ControlPath = Annotated[str, Query(min_length=1, max_length=255)]
+
+
+@router.get("/machines/{name}/files")
+async def list_machine_files(
+    svc: Svc, name: str, who: Caller, path: Annotated[str | None, Query(max_length=255)] = None
+) -> FolderOut:
+    """A folder of the control (its program folder without ``path``), read on the machine's
+    own link between jobs; 409 for a machine without a file browser, 503 while offline."""
+    return await actions.files.list_folder(svc, who, name, path)
+
+
+@router.get(
+    "/machines/{name}/files/content",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Caller) -> Response:
+    """The bytes of one file of the control, read on the machine's own link."""
+    content = await actions.files.read_file(svc, who, name, path)
+    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+
+
+# -- library --------------------------------------------------------------------------------
 
 
 @router.get("/programs")
 def list_programs(
-    db: Db, _who: Viewer, q: Annotated[str, Query(max_length=library.MAX_SEARCH)] = ""
-) -> list[dict[str, Any]]:
+    svc: Svc, who: Caller, q: Annotated[str, Query(max_length=255)] = ""
+) -> list[ProgramOut]:
     """Programs in the library, optionally filtered by part of the name."""
-    return [program_json(p) for p in library.list_programs(db, q)]
+    return actions.library.list_programs(svc, who, q)
 
 
 @router.get("/programs/{name}")
-def get_program(db: Db, name: str, _who: Viewer) -> dict[str, Any]:
+def get_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
     """One program and its versions."""
-    return program_json(library.get_program(db, library.check_program_name(name)))
+    return actions.library.get_program(svc, who, name)
 
 
-@router.put("/programs/{name}", status_code=201)
-async def upload_program(
-    request: Request,
-    name: str,
-    who: Programmer,
-    comment: str = "",
-    x_content_sha256: Annotated[str | None, Header()] = None,
-) -> dict[str, Any]:
-    """Store the request body as a new version of ``name`` (a draft)."""
-    library.check_program_name(name)
-    length = request.headers.get("content-length")
-    if length is not None and (not length.isdigit() or int(length) > library.MAX_PROGRAM_BYTES):
-        raise InputError("the upload is larger than the library takes")
-    data = await request.body()
-    if not data:
-        raise InputError("the upload is empty")
-    if x_content_sha256 and hashlib.sha256(data).hexdigest() != x_content_sha256.lower():
-        raise InputError("the upload does not match its X-Content-SHA256 header")
-
-    def store() -> dict[str, Any]:
-        sessions: sessionmaker[Session] = deps.database(request).sessions
-        with sessions.begin() as session:
-            version, created = library.add_version(
-                session, name, data, author=who.name, comment=comment
-            )
-            return {**version_json(version), "created_new": created}
-
-    out = await run_in_threadpool(store)
-    changed(request, "program", name)
-    return out
-
-
-@router.put("/programs/{name:path}", status_code=201, include_in_schema=False)
-def upload_program_with_a_folder(name: str, _who: Programmer) -> None:
-    """A name holding a (decoded) slash matches no other route: refuse it with 400 like every
-    other bad name, not 404. ``{name}`` above stays the upload route: ``:path`` would let a
-    name end in a newline that the route pattern's ``$`` does not see."""
-    library.check_program_name(name)
-    raise InputError(f"program name {name[:40]!r}: no folders")
-
-
-@router.get("/programs/{name}/versions/{number}/content")
-def program_content(db: Db, name: str, number: int, _who: Viewer) -> Response:
-    """The bytes of one version."""
-    version = library.get_version(db, library.check_program_name(name), number)
-    return Response(
-        library.content(db, version),
-        media_type="application/octet-stream",
-        headers={"X-Content-SHA256": version.sha256},
-    )
-
-
-@router.get("/programs/{name}/diff")
-def program_diff(db: Db, name: str, a: int, b: int, _who: Viewer) -> dict[str, Any]:
-    """Unified diff between two versions."""
-    return {"program": name, "a": a, "b": b, "lines": library.diff(db, name, a, b)}
-
-
-@router.post("/programs/{name}/versions/{number}/release")
-def release_version(
-    request: Request, db: Db, name: str, number: int, who: Approver
-) -> dict[str, Any]:
-    """Release a version (the previously released one becomes superseded)."""
-    out = version_json(
-        library.release(db, library.check_program_name(name), number, actor=who.name)
-    )
-    db.commit()
-    changed(request, "program", name)
-    return out
-
-
-@router.post("/programs/{name}/lock")
-def lock_program(request: Request, db: Db, name: str, who: Approver) -> dict[str, Any]:
-    """Lock a program against new versions and state changes."""
-    out = program_json(library.set_locked(db, name, True, actor=who.name))
-    db.commit()
-    changed(request, "program", name)
-    return out
-
-
-@router.post("/programs/{name}/unlock")
-def unlock_program(request: Request, db: Db, name: str, who: Approver) -> dict[str, Any]:
-    """Unlock a program."""
-    out = program_json(library.set_locked(db, name, False, actor=who.name))
-    db.commit()
-    changed(request, "program", name)
-    return out
-
-
-class JobRequest(BaseModel):
-    """What a client asks the queue for.
-
-    ``send`` and ``dripfeed`` name a ``program`` (and optionally its ``version``);
-    ``receive``, ``delete`` and ``backup`` name a ``path`` on the control.
-    """
-
-    kind: JobKind = JobKind.SEND
-    program: str | None = None
-    version: int | None = None
-    path: str | None = Field(default=None, min_length=1, max_length=255)
-    machines: list[str] = Field(min_length=1, max_length=1000)
-    from_line: int | None = Field(default=None, ge=1)
-
-
-# The least role for each kind of job.
-JOB_ROLES = {
-    JobKind.SEND: Role.OPERATOR,
-    JobKind.RECEIVE: Role.OPERATOR,
-    JobKind.BACKUP: Role.OPERATOR,
-    JobKind.DRIPFEED: Role.PROGRAMMER,
-    JobKind.DELETE: Role.PROGRAMMER,
+_UPLOAD_BODY = {
+    "requestBody": {
+        "required": True,
+        "description": "the program's bytes, as they go to the control",
+        "content": {"application/octet-stream": _BINARY},
+    }
 }
 
 
+@router.put("/programs/{name}", status_code=201, openapi_extra=_UPLOAD_BODY)
+async def upload_program(
+    request: Request,
+    svc: Svc,
+    name: str,
+    who: Caller,
+    comment: Annotated[str, Query(max_length=1000)] = "",
+    x_content_sha256: Annotated[str | None, Header(max_length=64)] = None,
+) -> UploadOut:
+    """Store the request body as a new version of ``name`` (a draft)."""
+    actions.library.may_upload(who)  # before a byte of the body is read
+    check_program_name(name)
+    data = await _body(request, MAX_PROGRAM_BYTES)
+    return await run_in_threadpool(
+        actions.library.upload_program,
+        svc,
+        who,
+        name,
+        data,
+        comment=comment,
+        sha256=x_content_sha256,
+    )
+
+
+async def _body(request: Request, limit: int) -> bytes:
+    length = request.headers.get("content-length")
+    if length is not None and (not length.isdigit() or int(length) > limit):
+        raise TooLarge("the upload is larger than the library takes")
+    chunks: list[bytes] = []
+    size = 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:  # a chunked body has no length to refuse up front
+            raise TooLarge("the upload is larger than the library takes")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+@router.get(
+    "/programs/{name}/versions/{number}/content",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
+    """The bytes of one version."""
+    content = actions.library.program_content(svc, who, name, number)
+    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+
+
+VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
+
+
+@router.get("/programs/{name}/diff")
+def program_diff(svc: Svc, name: str, a: VersionNumber, b: VersionNumber, who: Caller) -> DiffOut:
+    """Unified diff between two versions."""
+    return actions.library.program_diff(svc, who, name, a, b)
+
+
+@router.post("/programs/{name}/versions/{number}/release")
+def release_version(svc: Svc, name: str, number: Id, who: Caller) -> VersionOut:
+    """Release a version (the previously released one becomes superseded)."""
+    return actions.library.release_version(svc, who, name, number)
+
+
+@router.post("/programs/{name}/lock")
+def lock_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
+    """Lock a program against new versions and state changes."""
+    return actions.library.set_locked(svc, who, name, True)
+
+
+@router.post("/programs/{name}/unlock")
+def unlock_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
+    """Unlock a program."""
+    return actions.library.set_locked(svc, who, name, False)
+
+
+# -- jobs -----------------------------------------------------------------------------------
+
+
 @router.post("/jobs", status_code=201)
-def create_jobs(request: Request, db: Db, body: JobRequest, who: Operator) -> list[dict[str, Any]]:
-    """Queue one job per machine."""
-    needed = JOB_ROLES.get(body.kind)
-    if needed is None:
-        raise InputError(f"{body.kind.value} jobs are made by the server itself")
-    if not who.can(needed):
-        raise Forbidden(f"a {body.kind.value} job needs the {needed.name.lower()} role")
-    created: list[Job]
-    if body.kind in (JobKind.SEND, JobKind.DRIPFEED):
-        if body.program is None:
-            raise InputError(f"a {body.kind.value} job names a program")
-        library.check_program_name(body.program)
-        if body.kind is JobKind.SEND:
-            created = jobs.send_program(
-                db, body.program, body.machines, actor=who.name, number=body.version
-            )
-        else:
-            machines = _supervisor(request).machines
-            for name in body.machines:
-                state = machines.get(name)
-                if state is None:
-                    raise NotFound(f"no machine named {name!r}")
-                if not capabilities_of(state.config).dripfeed:
-                    raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
-            version = library.get_version(db, body.program, body.version)
-            params = {"from_line": body.from_line} if body.from_line else {}
-            created = [
-                jobs.enqueue(
-                    db, JobKind.DRIPFEED, m, actor=who.name, version=version, params=params
-                )
-                for m in body.machines
-            ]
-    else:
-        if body.path is None or "\x00" in body.path:
-            raise InputError(f"a {body.kind.value} job names a path on the control")
-        created = [
-            jobs.enqueue(db, body.kind, m, actor=who.name, params={"path": body.path})
-            for m in body.machines
-        ]
-    out = [job_json(j) for j in created]
-    db.commit()  # before the wake-up, so the machine's claim sees the new rows
-    for job in created:
-        _supervisor(request).wake(job.machine)
-    return out
+def create_jobs(svc: Svc, body: JobRequest, who: Caller) -> list[JobOut]:
+    """Queue one job per machine (all or none)."""
+    return actions.queue.create_jobs(svc, who, body)
 
 
 @router.get("/jobs")
 def list_jobs(
-    request: Request,
-    db: Db,
-    _who: Viewer,
-    machine: str | None = None,
+    svc: Svc,
+    who: Caller,
+    machine: Annotated[str | None, Query(max_length=64)] = None,
     state: Annotated[list[JobState] | None, Query()] = None,
-    limit: int = 200,
-) -> list[dict[str, Any]]:
-    """Jobs, the queued ones first in queue order."""
-    live = _live_progress(request)
-    return [
-        job_json(j, live.get(j.id))
-        for j in jobs.list_jobs(db, machine=machine, states=state or (), limit=limit)
-    ]
-
-
-def _live_progress(request: Request) -> dict[int, tuple[int, int | None]]:
-    return {
-        m.job_id: m.job_progress
-        for m in _supervisor(request).machines.values()
-        if m.job_id is not None
-    }
+    limit: Count = 200,
+) -> list[JobOut]:
+    """Jobs: the queued ones first in queue order, then the rest newest first."""
+    return actions.queue.list_jobs(svc, who, machine=machine, states=state or (), limit=limit)
 
 
 @router.get("/jobs/{job_id}")
-def get_job(request: Request, db: Db, job_id: int, _who: Viewer) -> dict[str, Any]:
+def get_job(svc: Svc, job_id: Id, who: Caller) -> JobOut:
     """One job."""
-    return job_json(jobs.get_job(db, job_id), _live_progress(request).get(job_id))
+    return actions.queue.get_job(svc, who, job_id)
 
 
 @router.post("/jobs/{job_id}/cancel")
-def cancel_job(request: Request, db: Db, job_id: int, who: Operator) -> dict[str, Any]:
+def cancel_job(svc: Svc, job_id: Id, who: Caller) -> JobOut:
     """Cancel a queued job, or ask a running one to stop (a drip-feed stops within a chunk)."""
-    job = jobs.cancel(db, job_id, actor=who.name)
-    out = job_json(job)
-    db.commit()
-    # A running job reads its row's cancel flag at its next safe point (any process's cancel).
-    return out
+    return actions.queue.cancel_job(svc, who, job_id)
 
 
 class MoveRequest(BaseModel):
     """New place of a job in its machine's queue (0 = next)."""
 
-    index: int = Field(ge=0)
+    index: int = Field(ge=0, le=MAX_ID)
 
 
 @router.post("/jobs/{job_id}/move")
-def move_job(db: Db, job_id: int, body: MoveRequest, who: Operator) -> dict[str, Any]:
+def move_job(svc: Svc, job_id: Id, body: MoveRequest, who: Caller) -> JobOut:
     """Reorder the queue."""
-    return job_json(jobs.move(db, job_id, body.index, actor=who.name))
+    return actions.queue.move_job(svc, who, job_id, body.index)
 
 
 class RetryRequest(BaseModel):
     """A retry; a drip-feed may restart from a line."""
 
-    from_line: int | None = Field(default=None, ge=1)
+    from_line: LineNumber | None = None
 
 
 @router.post("/jobs/{job_id}/retry", status_code=201)
-def retry_job(
-    request: Request, db: Db, job_id: int, body: RetryRequest, who: Operator
-) -> dict[str, Any]:
-    """Queue a failed, interrupted or cancelled job again (a drip-feed: programmers)."""
-    if jobs.get_job(db, job_id).kind is JobKind.DRIPFEED and not who.can(Role.PROGRAMMER):
-        raise Forbidden("restarting a drip-feed needs the programmer role (it runs the machine)")
-    job = jobs.retry(db, job_id, actor=who.name, from_line=body.from_line)
-    out = job_json(job)
-    db.commit()
-    _supervisor(request).wake(job.machine)
-    return out
+def retry_job(svc: Svc, job_id: Id, who: Caller, body: RetryRequest | None = None) -> JobOut:
+    """Queue a failed, interrupted or cancelled job again (a drip-feed: programmers); the
+    body is optional."""
+    from_line = body.from_line if body is not None else None
+    return actions.queue.retry_job(svc, who, job_id, from_line)
 
 
-@router.get("/audit", response_model=None)
+# -- audit ----------------------------------------------------------------------------------
+
+
+@router.get(
+    "/audit",
+    response_model=list[AuditOut],
+    responses={200: {"content": {"text/csv": {"schema": {"type": "string"}}}}},
+)
 def list_audit(
-    db: Db,
-    _who: Viewer,
-    machine: str | None = None,
-    action: str | None = None,
-    actor: str | None = None,
-    program: str | None = None,
-    limit: int = 200,
-    before: int | None = None,
-    format: str = "json",
-) -> list[dict[str, Any]] | Response:
+    svc: Svc,
+    who: Caller,
+    machine: Annotated[str | None, Query(max_length=64)] = None,
+    action: Annotated[str | None, Query(max_length=64)] = None,
+    actor: Annotated[str | None, Query(max_length=64)] = None,
+    program: Annotated[str | None, Query(max_length=255)] = None,
+    limit: Count = 200,
+    before: IdQuery | None = None,
+    format: Literal["json", "csv"] = "json",
+) -> list[AuditOut] | Response:
     """The audit trail, newest first; ``format=csv`` for a spreadsheet."""
-    rows = [
-        audit_json(a)
-        for a in audit.query(
-            db,
-            machine=machine,
-            action=action,
-            actor=actor,
-            program=program,
-            limit=limit,
-            before_id=before,
-        )
-    ]
+    rows = actions.admin.list_audit(
+        svc,
+        who,
+        machine=machine,
+        action=action,
+        actor=actor,
+        program=program,
+        limit=limit,
+        before=before,
+    )
     if format == "csv":
-        out = io.StringIO()
-        fields = [
-            "id",
-            "at",
-            "actor",
-            "action",
-            "machine",
-            "program",
-            "sha256",
-            "job_id",
-            "result",
-            "bytes",
-            "detail",
-        ]
-        writer = csv.DictWriter(out, fields)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({**row, "detail": json.dumps(row["detail"], sort_keys=True)})
-        return Response(
-            out.getvalue(),
-            media_type="text/csv",
-            headers={"Content-Disposition": 'attachment; filename="audit.csv"'},
-        )
-    if format != "json":
-        raise InputError("format is json or csv")
+        return actions.admin.audit_csv_response(rows)
     return rows
 
 
-def received_json(r: Received) -> dict[str, Any]:
-    """A reception as JSON."""
-    return {
-        "id": r.id,
-        "machine": r.machine,
-        "name": r.name,
-        "sha256": r.sha256,
-        "size": r.size,
-        "state": r.state.value,
-        "reason": r.reason,
-        "at": r.at.isoformat(),
-        "version_id": r.version_id,
-    }
+# -- inbox ----------------------------------------------------------------------------------
 
 
 @router.get("/inbox")
 def list_inbox(
-    db: Db,
-    _who: Viewer,
+    svc: Svc,
+    who: Caller,
     state: Annotated[list[ReceivedState] | None, Query()] = None,
-    limit: int = 200,
-) -> list[dict[str, Any]]:
+    limit: Count = 200,
+) -> list[ReceivedOut]:
     """Programs received from the controls (new ones unless ``state`` says otherwise)."""
     states = state if state is not None else [ReceivedState.NEW]
-    return [received_json(r) for r in inbox.list_received(db, states, limit)]
+    return actions.inbox.list_received(svc, who, states, limit)
 
 
 @router.get("/inbox/{received_id}")
-def get_received(db: Db, received_id: int, _who: Viewer) -> dict[str, Any]:
-    """One reception, with its diff against the released version of the same name."""
-    row = inbox.get(db, received_id)
-    return {**received_json(row), "diff": inbox.diff_to_released(db, received_id)}
+def get_received(svc: Svc, received_id: Id, who: Caller) -> ReceivedDetail:
+    """One reception, with its diff against the library program of the same name."""
+    return actions.inbox.get_received(svc, who, received_id)
 
 
-@router.get("/inbox/{received_id}/content")
-def received_content(db: Db, received_id: int, _who: Viewer) -> Response:
+@router.get(
+    "/inbox/{received_id}/content",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+def received_content(svc: Svc, received_id: Id, who: Caller) -> Response:
     """The received bytes."""
-    row = inbox.get(db, received_id)
-    return Response(
-        inbox.content(db, row),
-        media_type="application/octet-stream",
-        headers={"X-Content-SHA256": row.sha256},
-    )
+    content = actions.inbox.received_content(svc, who, received_id)
+    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
 
 
 class AcceptRequest(BaseModel):
     """Accept a reception, optionally under another program name."""
 
-    name: str | None = None
+    name: str | None = Field(default=None, max_length=100)
 
 
 @router.post("/inbox/{received_id}/accept")
 def accept_received(
-    request: Request, db: Db, received_id: int, body: AcceptRequest, who: Programmer
-) -> dict[str, Any]:
+    svc: Svc, received_id: Id, who: Caller, body: AcceptRequest | None = None
+) -> VersionOut:
     """Make the reception a new draft version in the library."""
-    out = version_json(inbox.accept(db, received_id, actor=who.name, name=body.name))
-    db.commit()
-    changed(request, "inbox", str(received_id))
-    changed(request, "program", out["program"])
-    return out
+    name = body.name if body is not None else None
+    return actions.inbox.accept_received(svc, who, received_id, name)
 
 
 @router.post("/inbox/{received_id}/discard")
-def discard_received(request: Request, db: Db, received_id: int, who: Programmer) -> dict[str, Any]:
+def discard_received(svc: Svc, received_id: Id, who: Caller) -> ReceivedOut:
     """Drop the reception from the inbox."""
-    out = received_json(inbox.discard(db, received_id, actor=who.name))
-    db.commit()
-    changed(request, "inbox", str(received_id))
-    return out
+    return actions.inbox.discard_received(svc, who, received_id)
+
+
+# -- keys -----------------------------------------------------------------------------------
 
 
 class KeyRequest(BaseModel):
     """A new API key."""
 
-    user: str
-    role: str
-    label: str = ""
+    user: str = Field(min_length=1, max_length=64)
+    role: str = Field(min_length=1, max_length=16)
+    label: str = Field(default="", max_length=128)
 
 
 @router.post("/keys", status_code=201)
-def create_key(db: Db, body: KeyRequest, who: Admin) -> dict[str, Any]:
+def create_key(svc: Svc, body: KeyRequest, who: Caller) -> KeyOut:
     """Create a key (shown once) for a user; a missing user is created with that role."""
-    role = Role.parse(body.role)
-    row, key = auth.create_key(
-        db, body.user, role, label=body.label, actor=who.name, create_user_role=role
-    )
-    return {"id": row.id, "key": key, "user": body.user, "role": role.name.lower()}
+    return actions.admin.create_key(svc, who, body.user, body.role, body.label)
 
 
 @router.delete("/keys/{key_id}")
-def revoke_key(db: Db, key_id: int, who: Admin) -> dict[str, Any]:
+def revoke_key(svc: Svc, key_id: Id, who: Caller) -> RevokedOut:
     """Revoke a key."""
-    auth.revoke_key(db, key_id, actor=who.name)
-    return {"id": key_id, "revoked": True}
+    return actions.admin.revoke_key(svc, who, key_id)
 
 
-@router.get("/events")
-async def events(request: Request, _who: Viewer) -> StreamingResponse:
+# -- events ---------------------------------------------------------------------------------
+
+
+@router.get(
+    "/events",
+    response_model=None,
+    responses={200: {"content": {"text/event-stream": {"schema": {"type": "string"}}}}},
+)
+async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
-    supervisor = _supervisor(request)
+    actions.require(who, Role.VIEWER)
+    supervisor = deps.machines(request)
     bus: EventBus = supervisor.bus
     return StreamingResponse(
         _event_stream(request, supervisor, bus),

@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import api, dprnt_api, edge, web
+from opendnc.server import actions, api, dprnt_api, edge, web
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
@@ -87,8 +87,10 @@ def build(
         folder.mkdir(parents=True, exist_ok=True)
 
     core = Core()
-    core.add(Database(engine, sessions))
+    database_part = core.add(Database(engine, sessions))
     machines = core.add(Machines(config, bus))
+    # every command of the API and the pages goes through the actions (docs/server.md)
+    core.add(actions.Services(sessions, database_part.reads, machines))
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]

@@ -4,28 +4,47 @@ Passwords are hashed with argon2id (argon2-cffi's defaults follow RFC 9106's rec
 API keys are 256-bit random tokens shown once; the database keeps only their SHA-256, which is
 enough for a key of that strength (a slow hash protects guessable passwords, not random keys)
 and lets a request be checked with one indexed look-up.
+
+A key is checked in a read-only transaction: a GET or an event stream never writes. Its
+``last_used`` is written at most once a minute (:data:`LAST_USED_EVERY`), in a short write of
+its own. A web session is a key labelled :data:`SESSION_LABEL`; it is valid only as the
+dashboard's cookie, never as ``Authorization: Bearer``, so it cannot escape the session's
+expiry. Failed logins and unknown keys are counted per user and per address
+(:class:`LoginGuard`): past a few, each further try waits longer (HTTP 429 with
+``Retry-After``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 import secrets
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
-from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy import or_, select, update
+from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import audit
-from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.errors import Conflict, NotFound, TooManyRequests, Unauthorized
 from opendnc.server.store.models import ApiKey, Role, User, utcnow
 
 __all__ = [
+    "LAST_USED_EVERY",
+    "SESSION_LABEL",
+    "KeyCheck",
+    "LoginGuard",
     "Principal",
     "authenticate_key",
+    "check_key",
     "check_password",
     "create_key",
     "create_user",
@@ -33,9 +52,12 @@ __all__ = [
     "key_hash",
     "revoke_key",
     "set_password",
+    "touch",
 ]
 
 KEY_PREFIX = "odk_"
+SESSION_LABEL = "web session"  # the label of the keys behind the dashboard's cookies
+LAST_USED_EVERY = timedelta(minutes=1)
 _USER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$")
 _hasher = PasswordHasher()
 
@@ -101,7 +123,10 @@ def set_password(session: Session, name: str, password: str, *, actor: str) -> U
 
 
 def check_password(session: Session, name: str, password: str) -> Principal:
-    """The user ``name`` if ``password`` is theirs; :class:`Unauthorized` otherwise (audited)."""
+    """The user ``name`` if ``password`` is theirs; :class:`Unauthorized` otherwise.
+
+    The caller audits the attempt (:func:`opendnc.server.web.session.log_in` records a
+    ``login`` row either way, the refusal in a transaction of its own)."""
     user = session.scalar(select(User).where(User.name == name))
     ok = False
     if user is not None and user.password_hash and not user.disabled:
@@ -109,7 +134,6 @@ def check_password(session: Session, name: str, password: str) -> Principal:
             ok = _hasher.verify(user.password_hash, password)
         except (VerificationError, InvalidHashError):
             ok = False
-    audit.record(session, name, "login", result="ok" if ok else "refused")
     if not ok or user is None:
         raise Unauthorized("wrong user name or password")
     if _hasher.check_needs_rehash(user.password_hash or ""):
@@ -125,11 +149,16 @@ def create_key(
     label: str = "",
     actor: str = "system",
     create_user_role: Role | None = None,
+    action: str = "key.create",
+    via: str | None = None,
+    address: str | None = None,
 ) -> tuple[ApiKey, str]:
     """A new key for ``user_name``; returns the row and the key (shown once, never stored).
 
     With ``create_user_role`` a missing user is created first with that role (a service user
-    without a password, the usual owner of a machine-to-machine key).
+    without a password, the usual owner of a machine-to-machine key). ``action`` names the
+    audit row (a web session's key is recorded as the ``login`` it is, ``via`` and
+    ``address`` saying where it came from).
     """
     user = session.scalar(select(User).where(User.name == user_name))
     if user is None:
@@ -152,20 +181,145 @@ def create_key(
     session.add(row)
     session.flush()
     audit.record(
-        session, actor, "key.create", key_id=row.id, user=user_name, role=role.name.lower()
+        session,
+        actor,
+        action,
+        key_id=row.id,
+        user=user_name,
+        role=role.name.lower(),
+        via=via,
+        address=address,
     )
     return row, key
 
 
-def authenticate_key(session: Session, key: str) -> Principal:
-    """The principal a bearer key stands for; :class:`Unauthorized` if unknown or revoked."""
+@dataclass(frozen=True)
+class KeyCheck:
+    """A key that is valid: who it stands for, and what its row says of its use."""
+
+    who: Principal
+    label: str
+    created: datetime
+    last_used: datetime | None
+
+
+def check_key(session: Session, key: str, *, web: bool = False) -> KeyCheck:
+    """Who ``key`` stands for (reads only); :class:`Unauthorized` if unknown or revoked.
+
+    ``web`` says where the key came from: a web session's key is valid only as the cookie
+    (``web=True``), every other key only as ``Authorization: Bearer``."""
     if not key.startswith(KEY_PREFIX) or len(key) > 128:
         raise Unauthorized("not an opendnc API key")
-    row = session.scalar(select(ApiKey).where(ApiKey.key_hash == _key_hash(key)))
+    row = session.scalar(
+        select(ApiKey).where(ApiKey.key_hash == _key_hash(key)).options(joinedload(ApiKey.user))
+    )
     if row is None or row.revoked is not None or row.user.disabled:
         raise Unauthorized("unknown or revoked API key")
-    row.last_used = utcnow()
-    return Principal(row.user.name, Role(min(row.role, row.user.role)), key_id=row.id)
+    if web and row.label != SESSION_LABEL:
+        raise Unauthorized("not a web session")  # an API key pasted into a cookie
+    if not web and row.label == SESSION_LABEL:
+        raise Unauthorized("a web session is not an API key; send a key made for the API")
+    who = Principal(row.user.name, Role(min(row.role, row.user.role)), key_id=row.id)
+    return KeyCheck(who, row.label, row.created, row.last_used)
+
+
+def touch(session: Session, check: KeyCheck) -> bool:
+    """Write the key's ``last_used`` if the stored one is older than :data:`LAST_USED_EVERY`
+    (True if it wrote). The condition is in the UPDATE, so many requests at once write once."""
+    now = utcnow()
+    if check.last_used is not None and now - check.last_used < LAST_USED_EVERY:
+        return False
+    stale = now - LAST_USED_EVERY
+    session.execute(
+        update(ApiKey)
+        .where(ApiKey.id == check.who.key_id)
+        .where(or_(ApiKey.last_used.is_(None), ApiKey.last_used < stale))
+        .values(last_used=now)
+    )
+    return True
+
+
+def authenticate_key(session: Session, key: str) -> Principal:
+    """The principal a bearer key stands for (:func:`check_key` and :func:`touch` in one
+    transaction, for scripts and tests that hold one session)."""
+    check = check_key(session, key)
+    touch(session, check)
+    return check.who
+
+
+def authenticate(
+    reads: sessionmaker[Session], writes: sessionmaker[Session], key: str, *, web: bool = False
+) -> KeyCheck:
+    """:func:`check_key` in a read-only transaction, then :func:`touch` in a write of its
+    own only when ``last_used`` is due (at most once a minute per key)."""
+    with reads() as session:
+        check = check_key(session, key, web=web)
+    if check.last_used is None or utcnow() - check.last_used >= LAST_USED_EVERY:
+        with writes.begin() as session:
+            touch(session, check)
+    return check
+
+
+class LoginGuard:
+    """Slows down guessing: failed logins counted per user and per address.
+
+    The first :attr:`free` failures of a user or an address cost nothing; each one after
+    makes the next try wait twice as long (2 s, 4 s, ... at most :attr:`longest`), refused
+    meanwhile with :class:`TooManyRequests`. A success clears the user's and the address's
+    count. In memory, per process, and bounded (the oldest entries go first): it slows an
+    attacker, the audit trail keeps the record.
+    """
+
+    def __init__(
+        self,
+        *,
+        free: int = 5,
+        longest: float = 900.0,
+        size: int = 10_000,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.free = free
+        self.longest = longest
+        self.size = size
+        self.clock = clock
+        self._failures: OrderedDict[str, tuple[int, float]] = OrderedDict()
+        self._lock = threading.Lock()  # routes run in worker threads
+
+    def check(self, *who: str) -> None:
+        """Refuse with :class:`TooManyRequests` while any of ``who`` must wait."""
+        now = self.clock()
+        with self._lock:
+            waits = [self._failures.get(k, (0, 0.0))[1] - now for k in who]
+        wait = max(waits, default=0.0)
+        if wait > 0:
+            seconds = math.ceil(wait)
+            raise TooManyRequests(
+                f"too many failed logins; try again in {seconds} s", retry_after=seconds
+            )
+
+    def failed(self, *who: str) -> None:
+        """Count a failure for each of ``who``."""
+        now = self.clock()
+        with self._lock:
+            for key in who:
+                count, _ = self._failures.pop(key, (0, 0.0))
+                count += 1
+                extra = count - self.free
+                until = now + min(2.0**extra, self.longest) if extra > 0 else 0.0
+                self._failures[key] = (count, until)
+            while len(self._failures) > self.size:
+                self._failures.popitem(last=False)
+
+    def reset(self) -> None:
+        """Forget every failure."""
+        with self._lock:
+            self._failures.clear()
+
+    def succeeded(self, *who: str) -> None:
+        """Forget the failures of each of ``who``."""
+        with self._lock:
+            for key in who:
+                self._failures.pop(key, None)
 
 
 def revoke_key(session: Session, key_id: int, *, actor: str) -> None:

@@ -11,27 +11,30 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from typing import Any
+from datetime import datetime
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response
+from pydantic import BaseModel
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from opendnc.errors import InputError
 from opendnc.server import deps
-from opendnc.server.api import Db, Viewer
+from opendnc.server.actions import require
+from opendnc.server.actions.models import MAX_ID
+from opendnc.server.api import ERRORS, Db, Viewer
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
-from opendnc.server.store.models import DprntLine
+from opendnc.server.store.models import DprntLine, Role
 
 __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router"]
 
 CSV_COLUMNS = ["id", "at", "machine", "line", "fields", "complete"]
 MAX_LIMIT = 10_000
 
-router = APIRouter(prefix="/api", route_class=ApiRoute)
+router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
 
 
 def lines_after(session: Session, machine: str, since: int, limit: int) -> list[dict[str, Any]]:
@@ -76,23 +79,43 @@ def csv_response(machine: str, lines: Sequence[dict[str, Any]]) -> Response:
     )
 
 
-@router.get("/machines/{name}/dprnt", response_model=None)
+class FieldOut(BaseModel):
+    """One number of a DPRNT line, with the label printed before it (empty if none)."""
+
+    label: str
+    value: float
+
+
+class DprntLineOut(BaseModel):
+    """One line a machine printed, as the server captured it."""
+
+    id: int
+    machine: str
+    at: datetime
+    line: str
+    numbers: list[float]
+    fields: list[FieldOut]
+    complete: bool
+
+
+@router.get(
+    "/machines/{name}/dprnt",
+    response_model=list[DprntLineOut],
+    responses={200: {"content": {"text/csv": {"schema": {"type": "string"}}}}},
+)
 def machine_dprnt(
     request: Request,
     name: str,
     db: Db,
-    _who: Viewer,
-    since: int = 0,
-    limit: int = 1000,
-    format: str = "json",
+    who: Viewer,
+    since: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
+    limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 1000,
+    format: Literal["json", "csv"] = "json",
 ) -> list[dict[str, Any]] | Response:
     """Lines after id ``since``, oldest first (at most ``limit``); ``format=csv`` for a file."""
+    require(who, Role.VIEWER)
     if name not in deps.machines(request).machines:
         raise NotFound(f"no machine named {name!r}")
-    if format not in ("json", "csv"):
-        raise InputError("format is json or csv")
-    if since < 0 or not 1 <= limit <= MAX_LIMIT:
-        raise InputError(f"since must be >= 0 and limit 1..{MAX_LIMIT}")
     lines = lines_after(db, name, since, limit)
     if format == "json":
         return lines

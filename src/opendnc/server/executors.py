@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
 from opendnc.server import inbox
+from opendnc.server.machine_files import browser_of, check_path
 from opendnc.server.machine_state import MachineState
 from opendnc.server.machines.base import Connector
 from opendnc.server.store.models import JobKind
@@ -34,6 +35,7 @@ __all__ = [
     "Executor",
     "JobCancelled",
     "JobRun",
+    "PutFileExecutor",
     "ReceiveExecutor",
     "ReportExecutor",
     "SendExecutor",
@@ -243,6 +245,25 @@ class DeleteExecutor(_Base):
         return {"path": run.job.name}
 
 
+class PutFileExecutor(_Base):
+    """A library version written to a path on the control (the file browser's upload: the
+    actions layer stored it as a draft and applied the machine's policy)."""
+
+    kind = JobKind.PUT_FILE
+    name = "executor.put_file"
+
+    async def run(self, run: JobRun) -> dict[str, Any]:
+        """Write the file (a cancel before that point is honoured)."""
+        path = check_path(str(run.job.params.get("path", "")))
+        await run.safe_point("before the write")
+
+        def progress(done: int, total: int | None) -> None:
+            run.state.job_progress = (done, total)
+
+        await browser_of(run.connector).put_file(path, run.job.data, progress)
+        return {"nbytes": len(run.job.data), "path": path}
+
+
 class BackupExecutor(_Base):
     """A folder of the control copied into the backups."""
 
@@ -270,6 +291,7 @@ def default_executors(
         JobKind.RECEIVE,
         JobKind.DELETE,
         JobKind.BACKUP,
+        JobKind.PUT_FILE,
     }:
         log.warning("some job kinds have no executor; such jobs fail when claimed")
     return [
@@ -278,6 +300,7 @@ def default_executors(
         DripFeedExecutor(),
         ReceiveExecutor(sessions, inbox_folder),
         DeleteExecutor(),
+        PutFileExecutor(),
         BackupExecutor(backups),
     ]
 

@@ -90,6 +90,11 @@ class Fleet:
         state = self.machines.get(name)
         if state is not None:
             state.online = False
+            # A job cut off here is no longer run by this process: the runner's sweep hands
+            # it back (a load to the queue, a drip-feed interrupted) unless its end is
+            # already on its way to the database.
+            state.job_id = None
+            state.job_progress = (0, None)
             self.machines.publish(state)
 
     async def _supervise(self, state: MachineState) -> None:
@@ -111,6 +116,7 @@ class Fleet:
                 state.last_error = str(exc) or type(exc).__name__
                 state.last_error_at = utcnow()
                 state.link_errors += 1
+                state.errands.fail_all(f"{state.config.name} is offline: {state.last_error}")
                 state.set_status(
                     MachineStatus(at=utcnow(), available=False, message=state.last_error)
                 )
@@ -124,6 +130,7 @@ class Fleet:
             if state.wake.is_set():
                 state.wake.clear()
                 await self.runner.run_due(state, connector)
+            await state.errands.run(connector)  # the file browser's reads, between jobs
             state.set_status(await connector.status())
             self.machines.publish(state)
             await self.autoreceive.look(state, connector)

@@ -1,8 +1,9 @@
 """Programs received from the controls: the inbox, and what a reception leads to.
 
 A reception is named by the program's O-number (``O01234.nc``), else ``<machine>-<time>.nc``;
-a file found in a folder on the control (LSV2 auto-receive) keeps its own name when that is a
-safe program name.
+a file read from the control (a receive job, LSV2 auto-receive) keeps its own name when that
+is a safe program name (``TNC:/nc_prog/1001.I`` arrives as ``1001.I``) and is compared with
+the library's program of that name.
 It is kept as a row (its bytes in the content-addressed blobs) and written to the inbox
 folder, never over an existing file: a second ``O01234.nc`` becomes ``O01234.2.nc``. A person
 accepts it (it becomes a new draft version of the program of that name) or discards it.
@@ -33,7 +34,15 @@ from opendnc.server.store.models import (
 )
 from opendnc.xmodem.haas import program_header
 
-__all__ = ["accept", "diff_to_released", "discard", "get", "list_received", "store"]
+__all__ = [
+    "accept",
+    "base_version",
+    "diff_to_library",
+    "discard",
+    "get",
+    "list_received",
+    "store",
+]
 
 
 def _name_for(machine: str, data: bytes, given: str | None = None) -> str:
@@ -185,17 +194,27 @@ def discard(session: Session, received_id: int, *, actor: str) -> Received:
     return row
 
 
-def diff_to_released(session: Session, received_id: int) -> list[str]:
-    """Unified diff from the released version of the same name to the reception."""
+def base_version(session: Session, name: str) -> ProgramVersion | None:
+    """The library version a reception named ``name`` is compared with: the released one,
+    else the newest; None when the library has no program of that name."""
+    try:
+        return library.released_version(session, name) or library.get_version(session, name)
+    except NotFound:
+        return None
+
+
+def diff_to_library(session: Session, received_id: int) -> list[str]:
+    """Unified diff from the library version of the same name (:func:`base_version`) to the
+    reception."""
     import difflib
 
     row = get(session, received_id)
-    try:
-        base = library.released_version(session, row.name)
-    except NotFound:
-        base = None
+    base = base_version(session, row.name)
     old = library.content(session, base).decode("latin-1") if base is not None else ""
-    label = f"{row.name} v{base.number} (released)" if base is not None else "(not in library)"
+    if base is None:
+        label = "(not in library)"
+    else:
+        label = f"{row.name} v{base.number} ({base.state.value})"
     return list(
         difflib.unified_diff(
             old.splitlines(),

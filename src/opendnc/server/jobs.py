@@ -21,8 +21,9 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, or_, select
-from sqlalchemy.orm import Session
+from sqlalchemy import case, func, or_, select
+from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm.interfaces import LoaderOption
 
 from opendnc.errors import InputError
 from opendnc.server import audit, library
@@ -33,7 +34,6 @@ from opendnc.server.store.models import (
     JobKind,
     JobState,
     Machine,
-    ProgramState,
     ProgramVersion,
     utcnow,
 )
@@ -41,7 +41,6 @@ from opendnc.server.store.models import (
 __all__ = [
     "cancel",
     "claim",
-    "dripfeed_program",
     "enqueue",
     "fail",
     "finish",
@@ -53,9 +52,14 @@ __all__ = [
     "queue_lengths",
     "recover",
     "retry",
-    "send_program",
     "sync_machines",
+    "version_to_send",
 ]
+
+# Jobs that carry a program version to the control. Which versions a machine takes (its
+# ``released_only`` policy, the drip-feed opt-in) is decided by the actions layer
+# (opendnc.server.actions.policy), the one place every caller's request passes through.
+PROGRAM_JOBS = (JobKind.SEND, JobKind.DRIPFEED, JobKind.PUT_FILE)
 
 DEFAULT_ATTEMPTS = {
     JobKind.SEND: 3,
@@ -64,6 +68,7 @@ DEFAULT_ATTEMPTS = {
     JobKind.DRIPFEED: 1,
     JobKind.DELETE: 2,
     JobKind.REPORT: 3,
+    JobKind.PUT_FILE: 2,
 }
 
 
@@ -114,15 +119,9 @@ def enqueue(
     not_before: datetime | None = None,
 ) -> Job:
     """Queue a job at the end of ``machine``'s queue (not run before ``not_before``)."""
-    row = _machine(session, machine)
-    if kind in (JobKind.SEND, JobKind.DRIPFEED):
-        if version is None:
-            raise InputError(f"a {kind.value} job needs a program version")
-        if row.released_only and version.state is not ProgramState.RELEASED:
-            raise Conflict(
-                f"{machine} accepts released programs only; {version.program.name} "
-                f"version {version.number} is {version.state.value}"
-            )
+    _machine(session, machine)
+    if kind in PROGRAM_JOBS and version is None:
+        raise InputError(f"a {kind.value} job needs a program version")
     job = Job(
         kind=kind,
         machine=machine,
@@ -149,51 +148,16 @@ def enqueue(
     return job
 
 
-def _version_to_send(session: Session, name: str, number: int | None) -> ProgramVersion:
-    """Version ``number`` of ``name``, or the released one without it (none released: refused)."""
+def version_to_send(session: Session, name: str, number: int | None) -> ProgramVersion:
+    """Version ``number`` of ``name``, or the released one without it (none released: refused).
+
+    What a send, a drip-feed or a file put without a version means, wherever it is asked."""
     if number is None:
         version = library.released_version(session, name)
         if version is None:
             raise Conflict(f"program {name!r} has no released version; name one")
         return version
     return library.get_version(session, name, number)
-
-
-def send_program(
-    session: Session, name: str, machines: Sequence[str], *, actor: str, number: int | None = None
-) -> list[Job]:
-    """Queue one send job per machine for version ``number`` of ``name``.
-
-    Without ``number`` the released version is sent; a program with none released is refused.
-    All machines are checked before any job is queued, so a refusal queues nothing.
-    """
-    if not machines:
-        raise InputError("name at least one machine")
-    version = _version_to_send(session, name, number)
-    with session.begin_nested():
-        return [enqueue(session, JobKind.SEND, m, actor=actor, version=version) for m in machines]
-
-
-def dripfeed_program(
-    session: Session,
-    name: str,
-    machine: str,
-    *,
-    actor: str,
-    number: int | None = None,
-    from_line: int | None = None,
-) -> Job:
-    """Queue a drip-feed of version ``number`` of ``name`` (the released one without it; a
-    program with none released is refused) on ``machine``, from line ``from_line``.
-
-    The caller checks that the machine allows drip-feed (``dripfeed = true``): that opt-in is
-    configuration, not a row.
-    """
-    version = _version_to_send(session, name, number)
-    if from_line is not None and from_line < 1:
-        raise InputError("from_line counts from 1")
-    params = {"from_line": from_line} if from_line else {}
-    return enqueue(session, JobKind.DRIPFEED, machine, actor=actor, version=version, params=params)
 
 
 def claim(session: Session, machine: str, worker: str) -> Job | None:
@@ -219,6 +183,7 @@ def claim(session: Session, machine: str, worker: str) -> Job | None:
         .order_by(Job.position, Job.id)
         .limit(1)
         .with_for_update(skip_locked=True)
+        .options(_with_program())
     )
     if job is None:
         return None
@@ -335,7 +300,9 @@ def interrupt(session: Session, job_id: int, reason: str) -> Job:
 def recover(session: Session, worker: str) -> list[Job]:
     """At start: every job this server left running becomes interrupted, with the reason."""
     jobs = session.scalars(
-        select(Job).where(Job.state == JobState.RUNNING, Job.claimed_by == worker)
+        select(Job)
+        .where(Job.state == JobState.RUNNING, Job.claimed_by == worker)
+        .options(_with_program())
     ).all()
     for job in jobs:
         interrupt(session, job.id, "the server stopped while this job ran")
@@ -363,9 +330,14 @@ def queue_lengths(session: Session) -> dict[str, int]:
     return {machine: int(count) for machine, count in session.execute(stmt)}
 
 
+def _with_program() -> LoaderOption:
+    # a job's version and its program come with the job (relationships never load lazily)
+    return selectinload(Job.version).selectinload(ProgramVersion.program)
+
+
 def get_job(session: Session, job_id: int) -> Job:
     """The job ``job_id``; :class:`NotFound` otherwise."""
-    job = session.get(Job, job_id)
+    job = session.get(Job, job_id, options=[_with_program()])
     if job is None:
         raise NotFound(f"no job {job_id}")
     return job
@@ -385,7 +357,11 @@ def list_jobs(
     wanted = list(states)
     if wanted:
         stmt = stmt.where(Job.state.in_(wanted))
-    stmt = stmt.order_by((Job.state == JobState.QUEUED).desc(), Job.position, Job.id.desc())
+    # The queue in its order first; the rest (history) newest first by id: a position only
+    # means something while a job waits.
+    queued_first = (Job.state == JobState.QUEUED).desc()
+    in_queue = case((Job.state == JobState.QUEUED, Job.position), else_=0.0)
+    stmt = stmt.order_by(queued_first, in_queue, Job.id.desc()).options(_with_program())
     return session.scalars(stmt.limit(max(1, min(limit, 10_000)))).all()
 
 

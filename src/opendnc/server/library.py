@@ -13,9 +13,9 @@ import hashlib
 import re
 from collections.abc import Sequence
 
-from sqlalchemy import func, select
+from sqlalchemy import Select, func, select
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, selectinload
 
 from opendnc.errors import InputError
 from opendnc.server import audit
@@ -39,7 +39,7 @@ __all__ = [
 
 # Larger than any program a control's memory takes; a drip-fed mould program can be tens of MB.
 MAX_PROGRAM_BYTES = 256 * 1024 * 1024
-MAX_SEARCH = 100  # the longest program name
+MAX_SEARCH = 255  # the API's bound on a search (a name is at most 100 characters)
 
 # One file name, as controls and shares accept it: no folders, no dot-names, no Windows
 # device names, nothing a path join could turn into a different place.
@@ -52,6 +52,11 @@ _WINDOWS_DEVICES = {
     *(f"COM{i}" for i in range(10)),
     *(f"LPT{i}" for i in range(10)),
 }
+
+
+# A program's versions, each with its program set (relationships never load lazily; within
+# a transaction SQLAlchemy does not take a version's program from the identity map).
+_VERSIONS = selectinload(Program.versions).joinedload(ProgramVersion.program)
 
 
 def check_program_name(name: str) -> str:
@@ -91,7 +96,7 @@ def list_programs(session: Session, search: str = "") -> Sequence[Program]:
     ``%`` and ``_`` in it match themselves."""
     if len(search) > MAX_SEARCH:
         raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
-    stmt = select(Program).order_by(Program.name)
+    stmt = select(Program).order_by(Program.name).options(_VERSIONS)
     if search:
         stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
     return session.scalars(stmt).all()
@@ -99,10 +104,15 @@ def list_programs(session: Session, search: str = "") -> Sequence[Program]:
 
 def get_program(session: Session, name: str) -> Program:
     """The program called ``name``; :class:`NotFound` otherwise."""
-    program = session.scalar(select(Program).where(Program.name == name))
+    program = session.scalar(_with_versions(name))
     if program is None:
         raise NotFound(f"no program named {name!r}")
     return program
+
+
+def _with_versions(name: str) -> Select[Program]:
+    # the program and its versions in two queries (relationships never load lazily)
+    return select(Program).where(Program.name == name).options(_VERSIONS)
 
 
 def get_version(session: Session, name: str, number: int | None = None) -> ProgramVersion:
@@ -190,7 +200,7 @@ def _program_for_update(session: Session, name: str) -> Program:
     # Two uploads of one name at the same moment must not both number their version N+1. On
     # PostgreSQL the program's row is locked until the commit (SQLite has no row locks and
     # needs none: a writing transaction there holds the database's write lock throughout).
-    stmt = select(Program).where(Program.name == name).with_for_update()
+    stmt = _with_versions(name).with_for_update()
     program = session.scalar(stmt)
     if program is not None:
         return program
@@ -202,7 +212,7 @@ def _program_for_update(session: Session, name: str) -> Program:
         )
     try:
         with session.begin_nested():  # a savepoint: losing the race to create it is not an error
-            session.add(Program(name=name))
+            session.add(Program(name=name, versions=[]))
     except IntegrityError:
         pass
     program = session.scalar(stmt)

@@ -1,25 +1,42 @@
-"""The files on a Heidenhain control, through the server: list, read, write, delete.
+"""The files on a control, through the machine's own connector: list, read, put, delete.
 
-Each call opens its own short LSV2 session next to the supervisor's status session (a TNC
-serves several LSV2 connections), so a person browsing never holds up a machine's queue.
-Paths stay on the control's ``TNC:`` drive and never climb with ``..``. Writes and deletes are
-recorded in the audit trail by the caller's transaction.
+Nothing here opens a link of its own. A listing or a read is an *errand*: the machine's task
+runs it on its connector between jobs (:class:`Errands`), so the browser uses the session the
+server already holds (LSV2 over TCP or RS-232 alike) and never meets a transfer half-way.
+Changing a file (put, delete) is a job like every other (``put_file``, ``delete``), queued by
+the actions layer (:mod:`opendnc.server.actions.files`) with the roles and the machine's
+policy, and run by its executor (:mod:`opendnc.server.executors`). Paths stay on the control's
+``TNC:`` drive and never climb with ``..``.
 """
 
 from __future__ import annotations
 
+import asyncio
 import re
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import datetime
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 from opendnc.errors import InputError
-from opendnc.lsv2 import AsyncClient
 from opendnc.server.config import Lsv2Machine, MachineConfig
+from opendnc.server.errors import Unavailable
 
-__all__ = ["RemoteFile", "check_path", "delete", "list_folder", "read", "write"]
+if TYPE_CHECKING:
+    from opendnc.server.machines.base import Connector, Progress
 
+__all__ = [
+    "Errands",
+    "FileBrowser",
+    "RemoteFile",
+    "browser_of",
+    "check_path",
+    "default_folder",
+    "file_name",
+]
+
+T = TypeVar("T")
 _PATH = re.compile(r"^TNC:([\\/][A-Za-z0-9_.+$ -]{1,100})*[\\/]?$", re.IGNORECASE)
-TIMEOUT = 10.0
 
 
 @dataclass(frozen=True)
@@ -33,10 +50,19 @@ class RemoteFile:
     is_dir: bool
 
 
-def _lsv2(machine: MachineConfig) -> AsyncClient:
-    if not isinstance(machine, Lsv2Machine):
-        raise InputError(f"{machine.name} has no file browser (only LSV2 controls have one)")
-    return AsyncClient(machine.host, machine.port, timeout=TIMEOUT)
+@runtime_checkable
+class FileBrowser(Protocol):
+    """A connector whose control has a file system the server may browse and change."""
+
+    async def list_files(self, folder: str) -> list[RemoteFile]:
+        """The entries of ``folder`` on the control."""
+
+    async def fetch(self, path: str) -> bytes:
+        """The bytes of the file at ``path``."""
+
+    async def put_file(self, path: str, data: bytes, progress: Progress) -> None:
+        """Write ``data`` to ``path`` (the control keeps the old file until the new one is
+        whole)."""
 
 
 def check_path(path: str) -> str:
@@ -47,58 +73,75 @@ def check_path(path: str) -> str:
     return path.rstrip("/") if path.upper() != "TNC:/" else "TNC:/"
 
 
+def file_name(path: str) -> str:
+    """The last part of a path on a control (``TNC:/nc_prog/1001.I`` -> ``1001.I``)."""
+    return path.replace("\\", "/").rstrip("/").rsplit("/", 1)[-1]
+
+
 def default_folder(machine: MachineConfig) -> str:
     """Where the server puts programs on ``machine`` (the browser opens there)."""
     folder = machine.folder if isinstance(machine, Lsv2Machine) else ""
     return check_path(folder or "TNC:/nc_prog")
 
 
-async def list_folder(machine: MachineConfig, folder: str) -> list[RemoteFile]:
-    """The entries of ``folder``, folders first, then by name."""
-    folder = check_path(folder)
-    client = _lsv2(machine)
-    await client.connect()
-    try:
-        entries = await client.list_dir(folder)
-    finally:
-        await client.close()
-    base = folder.rstrip("/")
-    files = [
-        RemoteFile(e.name, f"{base}/{e.name}", e.size, e.modified, e.is_dir)
-        for e in entries
-        if e.name not in {".", ".."} and not e.hidden and not e.is_drive
-    ]
-    return sorted(files, key=lambda f: (not f.is_dir, f.name.lower()))
+def browser_of(connector: Connector) -> FileBrowser:
+    """``connector`` as a :class:`FileBrowser`; :class:`InputError` if its control has none."""
+    if not isinstance(connector, FileBrowser):
+        raise InputError("this control has no file system the server can browse")
+    return connector
 
 
-async def read(machine: MachineConfig, path: str) -> bytes:
-    """The bytes of the file at ``path``."""
-    path = check_path(path)
-    client = _lsv2(machine)
-    await client.connect()
-    try:
-        return await client.read_file(path)
-    finally:
-        await client.close()
+Work = Callable[["Connector"], Awaitable[Any]]
 
 
-async def write(machine: MachineConfig, path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` (the control keeps the old file until the new one is whole)."""
-    path = check_path(path)
-    client = _lsv2(machine)
-    await client.connect()
-    try:
-        await client.write_file(path, data)
-    finally:
-        await client.close()
+class Errands:
+    """Short work for one machine's connector (a listing, a read), run by the machine's task
+    between jobs and status polls: the only way a request reaches a control outside a job.
 
+    Posted from the event loop (an async route); :meth:`run` is awaited by the machine's task,
+    :meth:`fail_all` when its link is lost."""
 
-async def delete(machine: MachineConfig, path: str) -> None:
-    """Delete the file at ``path``."""
-    path = check_path(path)
-    client = _lsv2(machine)
-    await client.connect()
-    try:
-        await client.delete_file(path)
-    finally:
-        await client.close()
+    def __init__(self) -> None:
+        self._pending: list[tuple[Work, asyncio.Future[Any]]] = []
+
+    def __len__(self) -> int:
+        return len(self._pending)
+
+    async def call(
+        self, work: Callable[[Connector], Awaitable[T]], wake: Callable[[], None], timeout: float
+    ) -> T:
+        """Run ``work`` on the connector at the task's next chance; its result. ``wake``
+        tells the machine's task; after ``timeout`` s :class:`Unavailable`."""
+        future: asyncio.Future[T] = asyncio.get_running_loop().create_future()
+        self._pending.append((work, future))
+        wake()
+        try:
+            return await asyncio.wait_for(asyncio.shield(future), timeout)
+        except TimeoutError:
+            future.cancel()  # the task skips it if it has not started it yet
+            raise Unavailable(f"the control did not answer within {timeout:.0f} s") from None
+
+    async def run(self, connector: Connector) -> None:
+        """Run every pending errand in turn (the machine's task calls this)."""
+        while self._pending:
+            work, future = self._pending.pop(0)
+            if future.done():
+                continue
+            try:
+                result = await work(connector)
+            except asyncio.CancelledError:
+                future.cancel()
+                raise
+            except Exception as exc:  # the caller gets it; the machine's task goes on
+                if not future.done():
+                    future.set_exception(exc)
+            else:
+                if not future.done():
+                    future.set_result(result)
+
+    def fail_all(self, reason: str) -> None:
+        """Answer every pending errand with :class:`Unavailable` (the link is gone)."""
+        pending, self._pending = self._pending, []
+        for _work, future in pending:
+            if not future.done():
+                future.set_exception(Unavailable(reason))

@@ -15,6 +15,7 @@ from typing import Any
 
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.events import EventBus, on_loop
+from opendnc.server.machine_files import Errands
 from opendnc.server.machines.base import MachineStatus
 
 __all__ = ["MachineState", "Machines"]
@@ -34,6 +35,7 @@ class MachineState:
     job_progress: tuple[int, int | None] = (0, None)
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
+    errands: Errands = field(default_factory=Errands)  # file browser reads on the connector
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""

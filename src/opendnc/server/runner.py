@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import Counter
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
@@ -88,9 +89,11 @@ class JobRunner:
         self.retry_backoff = retry_backoff
         self.cancel_poll = cancel_poll
         self.database_error = ""  # the last database failure, until the next success
+        self.outages: Counter[str] = Counter()  # failed database work, by what it was doing
         self.running: dict[int, JobRun] = {}  # the jobs this process runs now, by id
         self._claiming: set[str] = set()  # machines whose claim is under way
         self._settling: set[asyncio.Task[None]] = set()
+        self._unsettled: set[int] = set()  # jobs whose end waits for the database
         self._sweep: asyncio.Task[None] | None = None
 
     # -- lifecycle ----------------------------------------------------------------------
@@ -143,6 +146,7 @@ class JobRunner:
             return work(session)
 
     def _trouble(self, what: str, exc: BaseException) -> None:
+        self.outages[what.split(" ", 1)[0]] += 1
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if not self.database_error:
             log.warning("database unavailable while %s: %s (retrying)", what, first)
@@ -182,6 +186,8 @@ class JobRunner:
             state = self.machines.get(machine)
             if machine in self._claiming or (state is not None and state.job_id == job_id):
                 continue  # being claimed or run right now (the query may predate it)
+            if job_id in self._unsettled:
+                continue  # its end is written as soon as the database answers
 
             def hand_back(session: Session, job_id: int = job_id) -> str:
                 job = jobs.get_job(session, job_id)
@@ -272,7 +278,7 @@ class JobRunner:
             if job.kind is JobKind.REPORT:
                 report = str(params.get("report", "")).encode("latin-1")
                 return Claimed(job.id, job.kind, str(params.get("name")), report, params)
-            if job.kind in (JobKind.SEND, JobKind.DRIPFEED):
+            if job.kind in jobs.PROGRAM_JOBS:  # send, drip-feed, put_file
                 if job.version is None:
                     jobs.fail(session, job.id, "the job names no program", retryable=False)
                     return None
@@ -337,6 +343,8 @@ class JobRunner:
             except Exception:
                 log.exception("%s failed", what)
                 ended = "unknown"
+            finally:
+                self._unsettled.discard(job_id)
             self._event(job_id, state.config.name, label or ended, **extra)
             if state.job_id == job_id:
                 state.job_id = None
@@ -354,6 +362,7 @@ class JobRunner:
                 state.job_id = None
                 return
             self._trouble(what, exc)
+            self._unsettled.add(job_id)
             task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
             self._settling.add(task)
             task.add_done_callback(self._settling.discard)

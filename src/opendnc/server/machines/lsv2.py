@@ -169,6 +169,10 @@ class Lsv2Connector(NetworkOnly):
             if e.name not in {".", ".."} and not e.hidden and not e.is_drive
         ]
 
+    async def put_file(self, path: str, data: bytes, progress: Progress) -> None:
+        """Write a file anywhere on the control's drive (a ``put_file`` job of the browser)."""
+        await self._require().write_file(path, data, progress=progress)
+
     async def delete(self, path: str) -> None:
         """Delete a file on the control."""
         await self._require().delete_file(path)

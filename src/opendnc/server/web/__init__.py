@@ -3,7 +3,7 @@
 Server-rendered Jinja templates with htmx and its server-sent-events extension, both pinned
 and shipped in ``static/`` (see ``static/VERSIONS``): no build step, nothing fetched from the
 internet. People log in with a password and get a session cookie (:mod:`.session`); the pages
-call the same service functions as the JSON API under ``/api``.
+call the same actions (:mod:`opendnc.server.actions`) as the JSON API under ``/api``.
 """
 
 from __future__ import annotations
@@ -43,18 +43,19 @@ async def _login_needed(request: Request, exc: views.LoginNeeded) -> Response:
 
 async def _error(request: Request, exc: DncError) -> Response:
     """The API answers JSON; a page answers HTML (a fragment for htmx, else a page)."""
-    response = await api._error(request, exc)
+    response = await api.error_response(request, exc)
     if request.url.path.startswith("/api/") or not isinstance(response, JSONResponse):
         return response
     status = response.status_code
+    retry = {"Retry-After": response.headers["Retry-After"]} if status == 429 else {}
     if request.headers.get("HX-Request") == "true":
         html = render.render("_alert.html", message=str(exc), status=status)
         return HTMLResponse(
             html,
             status_code=status,
-            headers={"HX-Retarget": "#alert", "HX-Reswap": "innerHTML"},
+            headers={"HX-Retarget": "#alert", "HX-Reswap": "innerHTML", **retry},
         )
     html = render.render(
         "error.html", message=str(exc), status=status, page=None, path=request.url.path
     )
-    return HTMLResponse(html, status_code=status)
+    return HTMLResponse(html, status_code=status, headers=retry)

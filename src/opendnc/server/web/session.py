@@ -1,10 +1,13 @@
 """Sessions for people in a browser: a short-lived API key in an HttpOnly cookie.
 
-Logging in creates an ordinary API key for the user, labelled as a web session, and puts it
-in a cookie the page's scripts cannot read (``HttpOnly``) and the browser never sends from
-another site (``SameSite=Strict``). Logging out revokes it; a session older than
-:data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as keys means one look-up,
-one revocation path and one audit trail for people and programs alike, with no new table.
+Logging in creates a key for the user, labelled as a web session, and puts it in a cookie
+the page's scripts cannot read (``HttpOnly``) and the browser never sends from another site
+(``SameSite=Strict``). Such a key is valid only as this cookie, never as an API key
+(:func:`opendnc.server.auth.check_key`), so it cannot outlive the session. Logging out revokes
+it; a session older than :data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as
+keys means one look-up, one revocation path and one audit trail, with no new table. A login
+is audited as ``login`` (refused ones too, in a transaction of their own) and slowed after
+repeated failures per user and per address (:class:`opendnc.server.auth.LoginGuard`).
 
 Writes from a page also carry a CSRF token: a hash of the session key that only a page served
 to that session knows. ``SameSite=Strict`` already keeps other sites' forms from carrying the
@@ -15,15 +18,16 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-from datetime import UTC, timedelta
+from datetime import timedelta
 
 from fastapi import Request, Response
 from sqlalchemy import select
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session, joinedload, sessionmaker
 
-from opendnc.server import auth
+from opendnc.server import audit, auth
+from opendnc.server.auth import SESSION_LABEL
 from opendnc.server.errors import Forbidden, Unauthorized
-from opendnc.server.store.models import ApiKey, Role, utcnow
+from opendnc.server.store.models import ApiKey, utcnow
 
 __all__ = [
     "COOKIE",
@@ -40,7 +44,6 @@ COOKIE = "opendnc_session"
 CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf"
 SESSION_HOURS = 12
-SESSION_LABEL = "web session"
 
 
 def csrf_token(key: str) -> str:
@@ -49,14 +52,39 @@ def csrf_token(key: str) -> str:
 
 
 def log_in(
-    sessions: sessionmaker[Session], response: Response, name: str, password: str, secure: bool
+    sessions: sessionmaker[Session],
+    guard: auth.LoginGuard,
+    response: Response,
+    name: str,
+    password: str,
+    *,
+    secure: bool,
+    address: str,
 ) -> auth.Principal:
-    """Check the password and set the session cookie on ``response``."""
+    """Check the password and set the session cookie on ``response`` (audited as ``login``;
+    :class:`~opendnc.server.errors.TooManyRequests` after repeated failures)."""
+    who_keys = (f"user:{name.lower()}", f"address:{address}")
+    guard.check(*who_keys)
+    try:
+        with sessions.begin() as session:
+            who = auth.check_password(session, name, password)
+    except Unauthorized:
+        guard.failed(*who_keys)
+        with sessions.begin() as session:  # the refusal is recorded although nothing else is
+            audit.record(session, name[:64], "login", result="refused", via="web", address=address)
+        raise
+    guard.succeeded(*who_keys)
     with sessions.begin() as session:
-        who = auth.check_password(session, name, password)
-    # The login is committed (and audited) even when the key cannot be made.
-    with sessions.begin() as session:
-        _, key = auth.create_key(session, who.name, who.role, label=SESSION_LABEL, actor=who.name)
+        _, key = auth.create_key(
+            session,
+            who.name,
+            who.role,
+            label=SESSION_LABEL,
+            actor=who.name,
+            action="login",
+            via="web",
+            address=address,
+        )
     response.set_cookie(
         COOKIE,
         key,
@@ -76,31 +104,32 @@ def log_out(sessions: sessionmaker[Session], request: Request, response: Respons
     if not key:
         return
     with sessions.begin() as session:
-        row = session.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
+        row = session.scalar(
+            select(ApiKey)
+            .where(ApiKey.key_hash == auth.key_hash(key))
+            .options(joinedload(ApiKey.user))
+        )
         if row is not None and row.label == SESSION_LABEL:
             auth.revoke_key(session, row.id, actor=row.user.name)
 
 
-def principal(sessions: sessionmaker[Session], request: Request) -> tuple[auth.Principal, str]:
-    """Who the session cookie stands for, and its key; :class:`Unauthorized` if none."""
+def principal(
+    reads: sessionmaker[Session], sessions: sessionmaker[Session], request: Request
+) -> tuple[auth.Principal, str]:
+    """Who the session cookie stands for, and its key; :class:`Unauthorized` if none.
+
+    Reads only, except for ``last_used`` once a minute and the revocation of an expired
+    session."""
     key = request.cookies.get(COOKIE)
     if not key:
         raise Unauthorized("log in first")
-    with sessions.begin() as session:
-        who = auth.authenticate_key(session, key)
-        row = session.get(ApiKey, who.key_id)
-        if row is None or row.label != SESSION_LABEL:
-            # An API key pasted into a cookie is not a session: people log in.
-            raise Unauthorized("not a web session")
-        created = row.created
-        if created.tzinfo is None:  # SQLite hands the stored UTC time back without its zone
-            created = created.replace(tzinfo=UTC)
-        expired = utcnow() - created > timedelta(hours=SESSION_HOURS)
-        if expired:
-            auth.revoke_key(session, row.id, actor="server")  # committed with the block
-    if expired:
+    check = auth.authenticate(reads, sessions, key, web=True)
+    if utcnow() - check.created > timedelta(hours=SESSION_HOURS):
+        with sessions.begin() as session:
+            assert check.who.key_id is not None
+            auth.revoke_key(session, check.who.key_id, actor="server")
         raise Unauthorized("the session has expired; log in again")
-    return who, key
+    return check.who, key
 
 
 def check_csrf(request: Request, key: str, form_token: str | None = None) -> None:
@@ -111,9 +140,3 @@ def check_csrf(request: Request, key: str, form_token: str | None = None) -> Non
     origin = request.headers.get("origin")
     if origin and origin.rstrip("/") != str(request.base_url).rstrip("/"):
         raise Forbidden(f"a write from {origin} is refused")
-
-
-def need(who: auth.Principal, role: Role) -> None:
-    """Refuse ``who`` unless it has at least ``role`` (the same rule as the API)."""
-    if not who.can(role):
-        raise Forbidden(f"{who.name} is {who.role.name.lower()}; this needs {role.name.lower()}")

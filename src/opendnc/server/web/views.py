@@ -1,10 +1,10 @@
-"""The dashboard's pages: server-rendered HTML over the same service functions as the API.
+"""The dashboard's pages: server-rendered HTML, a thin adapter over the actions layer.
 
-Reads render a page (or, for htmx, a fragment); writes check the session's role and CSRF
-token, call the service function the API route calls, and answer with the fragment to swap
-in. A refused write answers with its status (400, 403, 404, 409) and a message that htmx
-puts in the page's alert area (see ``__init__``). What a role cannot do is not shown to it,
-and the server refuses it anyway.
+Reads render a page (or, for htmx, a fragment); writes check the session's CSRF token, call
+the action the API route calls (:mod:`opendnc.server.actions`, which checks the role and the
+machine's policy), and answer with the fragment to swap in. A refused write answers with its
+status (400, 403, 404, 409, 503) and a message that htmx puts in the page's alert area (see
+``__init__``). What a role cannot do is not shown to it, and the action refuses it anyway.
 
 Routes are plain functions where they touch the database (FastAPI runs them in its thread
 pool, so the machines' event loop never waits for a query).
@@ -19,16 +19,19 @@ from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 from urllib.parse import quote
 
-from fastapi import APIRouter, Depends, Form, Request, UploadFile
+from fastapi import APIRouter, Depends, Form, Path, Query, Request, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response, StreamingResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import api, audit, auth, deps, dprnt_api, inbox, jobs, library, machine_files
+from opendnc.server import actions, auth, deps, dprnt_api, jobs
+from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
-from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.components import core_of
+from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
+from opendnc.server.library import MAX_PROGRAM_BYTES
 from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
     Job,
@@ -90,9 +93,13 @@ def _supervisor(request: Request) -> Machines:
     return deps.machines(request)
 
 
+def _svc(request: Request) -> actions.Services:
+    return core_of(request.app).get(actions.Services)
+
+
 def _page(request: Request) -> Page:
     try:
-        who, key = web_session.principal(_sessions(request), request)
+        who, key = web_session.principal(_svc(request).reads, _sessions(request), request)
     except Unauthorized:
         target = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginNeeded(target) from None
@@ -112,6 +119,11 @@ async def _write_page(request: Request) -> Page:
 
 Viewing = Annotated[Page, Depends(_page)]
 Writing = Annotated[Page, Depends(_write_page)]
+JobId = Annotated[int, Path(ge=1, le=MAX_ID)]
+ReceivedId = Annotated[int, Path(ge=1, le=MAX_ID)]
+VersionPath = Annotated[int, Path(ge=1, le=MAX_ID)]
+VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
+Short = Annotated[str, Query(max_length=64)]
 
 
 def _read(request: Request, work: Callable[[Session], T]) -> T:
@@ -119,11 +131,6 @@ def _read(request: Request, work: Callable[[Session], T]) -> T:
     # (docs/server.md#event-loop-stalls).
     reads = deps.database(request).reads
     with reads() as session:
-        return work(session)
-
-
-def _write(request: Request, work: Callable[[Session], T]) -> T:
-    with _sessions(request).begin() as session:
         return work(session)
 
 
@@ -162,7 +169,13 @@ def login(
     response = RedirectResponse(_safe_next(next), status_code=303)
     try:
         web_session.log_in(
-            _sessions(request), response, username, password, request.url.scheme == "https"
+            _sessions(request),
+            _svc(request).guard,
+            response,
+            username,
+            password,
+            secure=request.url.scheme == "https",
+            address=request.client.host if request.client else "?",
         )
     except (Unauthorized, InputError) as exc:
         page = _html(
@@ -207,7 +220,8 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
 def _label(job: Job) -> str:
     if job.version is not None:
         return f"{job.kind.value} {job.version.program.name} v{job.version.number}"
-    return f"{job.kind.value} {job.params.get('name', '')}".strip()
+    # a report names its program; a receive, delete or put its path on the control
+    return f"{job.kind.value} {job.params.get('name') or job.params.get('path') or ''}".strip()
 
 
 def _job_labels(session: Session, ids: list[int]) -> dict[int, str]:
@@ -454,28 +468,21 @@ async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
 # -- machine page -------------------------------------------------------------------------
 
 
-def _machine_context(request: Request, name: str) -> dict[str, Any]:
-    state = _supervisor(request).machines.get(name)
-    if state is None:
-        raise NotFound(f"no machine named {name!r}")
+def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
+    svc = _svc(request)
+    state = svc.machine(name)
 
-    def load(session: Session) -> dict[str, Any]:
-        queue = [
-            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=[JobState.QUEUED])
-        ]
-        running = [
-            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=[JobState.RUNNING])
-        ]
-        history = [
-            _job_row(j) for j in jobs.list_jobs(session, machine=name, states=FINISHED, limit=50)
-        ]
-        return {"queue": queue, "running": running, "history": history}
+    def rows(states: list[JobState], limit: int = 200) -> list[dict[str, Any]]:
+        found = actions.queue.list_jobs(svc, page.who, machine=name, states=states, limit=limit)
+        return [_job_row(j) for j in found]
 
-    context = _read(request, load)
+    context: dict[str, Any] = {
+        "queue": rows([JobState.QUEUED]),
+        "running": rows([JobState.RUNNING]),
+        "history": rows(FINISHED, 50),
+    }
     live = state.as_json()
-    for row in context["running"]:
-        if live["job"] and live["job"]["id"] == row["id"]:
-            row["bytes_done"], row["bytes_total"] = state.job_progress
+    caps = capabilities_of(state.config)
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
     timeline.note(name, live)
@@ -483,12 +490,11 @@ def _machine_context(request: Request, name: str) -> dict[str, Any]:
     context["timeline_hours"] = TIMELINE_HOURS
     context["timeline_days"] = timeline.retention.total_seconds() / 86400
     context["console_lines"] = CONSOLE_LINES
-    can = capabilities_of(state.config)
-    context["dripfeed"] = can.dripfeed
-    context["released"] = _read(request, _released_names) if can.dripfeed else []
-    context["has_files"] = can.file_browser
+    context["dripfeed"] = caps.dripfeed
+    context["released"] = _read(request, _released_names) if caps.dripfeed else []
+    context["has_files"] = caps.file_browser
     context["dprnt"] = None
-    if can.dprnt:
+    if caps.dprnt:
         lines = _read(request, lambda s: dprnt_api.recent_lines(s, name, CONSOLE_LINES))
         capture = deps.dprnt(request)
         context["dprnt"] = {
@@ -513,17 +519,17 @@ def _released_names(session: Session) -> list[str]:
     return list(session.scalars(stmt))
 
 
-def _job_row(job: Job) -> dict[str, Any]:
-    row = api.job_json(job)
-    if job.version is None:
-        row["program"] = job.params.get("name", "")
+def _job_row(job: JobOut) -> dict[str, Any]:
+    row = job.model_dump(mode="json")
+    if job.program is None:  # a report names its program, a receive or delete its path
+        row["program"] = str(job.params.get("name") or job.params.get("path") or "")
     return row
 
 
 @router.get("/machines/{name}")
 def machine_page(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The machine's status, queue and job history."""
-    return _html("machine.html", page, request, **_machine_context(request, name))
+    return _html("machine.html", page, request, **_machine_context(request, page, name))
 
 
 @router.get("/machines/{name}/dprnt.csv")
@@ -538,56 +544,40 @@ def machine_dprnt_csv(request: Request, name: str, page: Viewing) -> Response:
 @router.get("/machines/{name}/jobs")
 def machine_jobs(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The queue and history fragment (refreshed by the page while jobs run)."""
-    return _html("_jobs.html", page, request, **_machine_context(request, name))
+    return _html("_jobs.html", page, request, **_machine_context(request, page, name))
 
 
 def _after_job_action(request: Request, page: Page, machine: str) -> HTMLResponse:
-    _supervisor(request).wake(machine)
-    return _html("_jobs.html", page, request, **_machine_context(request, machine))
+    return _html("_jobs.html", page, request, **_machine_context(request, page, machine))
 
 
 @router.post("/jobs/{job_id}/cancel")
-def cancel_job(request: Request, job_id: int, page: Writing) -> HTMLResponse:
-    """Cancel a queued job, or ask a running one to stop."""
-    web_session.need(page.who, Role.OPERATOR)
-
-    def cancel(session: Session) -> tuple[str, bool]:
-        job = jobs.cancel(session, job_id, actor=page.who.name)
-        return job.machine, job.state is JobState.RUNNING
-
-    machine, _running = _write(request, cancel)
-    # as the API does: the runner reads the row's cancel flag at its next safe point
-    return _after_job_action(request, page, machine)
+def cancel_job(request: Request, job_id: JobId, page: Writing) -> HTMLResponse:
+    """Cancel a queued job, or ask a running one to stop (at its next safe point)."""
+    job = actions.queue.cancel_job(_svc(request), page.who, job_id)
+    return _after_job_action(request, page, job.machine)
 
 
 @router.post("/jobs/{job_id}/move")
 def move_job(
-    request: Request, job_id: int, page: Writing, index: Annotated[int, Form(ge=0)]
+    request: Request, job_id: JobId, page: Writing, index: Annotated[int, Form(ge=0, le=MAX_ID)]
 ) -> HTMLResponse:
     """Put a queued job at ``index`` in its queue."""
-    web_session.need(page.who, Role.OPERATOR)
-    machine = _write(request, lambda s: jobs.move(s, job_id, index, actor=page.who.name).machine)
-    return _after_job_action(request, page, machine)
+    job = actions.queue.move_job(_svc(request), page.who, job_id, index)
+    return _after_job_action(request, page, job.machine)
 
 
 @router.post("/jobs/{job_id}/retry")
 def retry_job(
     request: Request,
-    job_id: int,
+    job_id: JobId,
     page: Writing,
-    from_line: Annotated[int | None, Form(ge=1)] = None,
+    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """Queue a failed, interrupted or cancelled job again (a drip-feed from a line, which
     programmers restart: it runs the machine)."""
-    web_session.need(page.who, Role.OPERATOR)
-
-    def retry(session: Session) -> str:
-        if jobs.get_job(session, job_id).kind is JobKind.DRIPFEED:
-            web_session.need(page.who, Role.PROGRAMMER)
-        return jobs.retry(session, job_id, actor=page.who.name, from_line=from_line).machine
-
-    machine = _write(request, retry)
-    return _after_job_action(request, page, machine)
+    job = actions.queue.retry_job(_svc(request), page.who, job_id, from_line)
+    return _after_job_action(request, page, job.machine)
 
 
 @router.post("/machines/{name}/dripfeed")
@@ -595,74 +585,54 @@ def start_dripfeed(
     request: Request,
     name: str,
     page: Writing,
-    program: Annotated[str, Form()],
-    from_line: Annotated[int | None, Form(ge=1)] = None,
+    program: Annotated[str, Form(max_length=100)],
+    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """Drip-feed the released version of ``program`` to the machine (programmers; the page
     asks first, since the machine runs it as it arrives)."""
-    web_session.need(page.who, Role.PROGRAMMER)
-    config = _machine_config(request, name)
-    if not capabilities_of(config).dripfeed:
-        raise Conflict(f"{name} does not allow drip-feed (dripfeed = true enables it)")
-    program_name = library.check_program_name(program.strip())
-
-    def queue(session: Session) -> str:
-        job = jobs.dripfeed_program(
-            session, program_name, name, actor=page.who.name, from_line=from_line
-        )
-        return job.machine
-
-    return _after_job_action(request, page, _write(request, queue))
+    order = JobRequest(
+        kind=JobKind.DRIPFEED, program=program.strip(), machines=[name], from_line=from_line
+    )
+    job = actions.queue.create_jobs(_svc(request), page.who, order)[0]
+    return _after_job_action(request, page, job.machine)
 
 
-# -- file browser (LSV2 controls) ---------------------------------------------------------
-
-
-def _machine_config(request: Request, name: str) -> Any:
-    state = _supervisor(request).machines.get(name)
-    if state is None:
-        raise NotFound(f"no machine named {name!r}")
-    return state.config
+# -- file browser (controls with one) -------------------------------------------------------
 
 
 @router.get("/machines/{name}/files")
 async def machine_files_page(
-    request: Request, name: str, page: Viewing, path: str | None = None
+    request: Request, name: str, page: Viewing, path: str | None = None, note: str = ""
 ) -> HTMLResponse:
-    """A folder of the control (a fragment the machine page loads)."""
-    config = _machine_config(request, name)
-    folder = machine_files.check_path(path) if path else machine_files.default_folder(config)
-    entries = await machine_files.list_folder(config, folder)
-    parent = folder.rsplit("/", 1)[0] if folder.count("/") > 1 else "TNC:/"
-    return _html(
-        "_files.html",
-        page,
-        request,
-        machine=name,
-        folder=folder,
-        parent=parent if folder != "TNC:/" else None,
-        entries=entries,
-    )
+    """A folder of the control (a fragment the machine page loads), read on the machine's
+    own link."""
+    folder = await actions.files.list_folder(_svc(request), page.who, name, path)
+    return _html("_files.html", page, request, note=note, **folder.model_dump(mode="json"))
 
 
 @router.get("/machines/{name}/files/download")
 async def machine_file_download(request: Request, name: str, path: str, page: Viewing) -> Response:
     """One file of the control, as a download."""
-    config = _machine_config(request, name)
-    data = await machine_files.read(config, path)
-    filename = machine_files.check_path(path).rsplit("/", 1)[-1]
+    content = await actions.files.read_file(_svc(request), page.who, name, path)
     return Response(
-        data,
+        content.data,
         media_type="application/octet-stream",
-        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+        headers={
+            "Content-Disposition": f'attachment; filename="{content.name}"',
+            "X-Content-SHA256": content.sha256,
+        },
     )
 
 
-def _audit_file(request: Request, who: str, action: str, machine: str, path: str, n: int) -> None:
-    def record(session: Session) -> None:
-        audit.record(session, who, action, machine=machine, program=path, nbytes=n)
-
-    _write(request, record)
+async def _after_file_job(request: Request, page: Page, job: JobOut, folder: str) -> HTMLResponse:
+    # The folder as it is once the job ran: the listing waits behind the machine's queue.
+    note = f"job {job.id}: {job.kind.value} {job.params.get('path', '')} queued"
+    try:
+        return await machine_files_page(request, job.machine, page, folder, note)
+    except (Conflict, Unavailable) as exc:
+        # the job is queued whatever the listing says (a control without a browser, offline)
+        note = f"{note}; {exc}"
+        return _html("_files.html", page, request, note=note, machine=job.machine, entries=[])
 
 
 @router.post("/machines/{name}/files/upload")
@@ -671,47 +641,53 @@ async def machine_file_upload(
     name: str,
     page: Writing,
     file: UploadFile,
-    folder: Annotated[str, Form()],
+    folder: Annotated[str, Form(max_length=255)],
 ) -> HTMLResponse:
-    """Put a file from the person's computer on the control (operators)."""
-    web_session.need(page.who, Role.OPERATOR)
-    config = _machine_config(request, name)
-    filename = library.check_program_name(file.filename or "")
-    target = machine_files.check_path(f"{machine_files.check_path(folder)}/{filename}")
-    data = await file.read(library.MAX_PROGRAM_BYTES + 1)
-    if len(data) > library.MAX_PROGRAM_BYTES:
-        raise InputError("the upload is larger than the server takes")
-    await machine_files.write(config, target, data)
-    await run_in_threadpool(
-        _audit_file, request, page.who.name, "file.upload", name, target, len(data)
+    """Put a file from the person's computer on the control: a library draft first, then a
+    ``put_file`` job under the machine's policy (programmers)."""
+    actions.policy.may_queue(page.who, JobKind.PUT_FILE)  # before the file is read
+    data = await _read_upload(file)
+    job = await run_in_threadpool(
+        actions.files.put_file, _svc(request), page.who, name, folder, file.filename or "", data
     )
-    return await machine_files_page(request, name, page, folder)
+    return await _after_file_job(request, page, job, folder)
 
 
 @router.post("/machines/{name}/files/delete")
 async def machine_file_delete(
-    request: Request, name: str, page: Writing, path: Annotated[str, Form()]
+    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
 ) -> HTMLResponse:
-    """Delete a file on the control (operators; the page asks first)."""
-    web_session.need(page.who, Role.OPERATOR)
-    config = _machine_config(request, name)
-    target = machine_files.check_path(path)
-    await machine_files.delete(config, target)
-    await run_in_threadpool(_audit_file, request, page.who.name, "file.delete", name, target, 0)
-    return await machine_files_page(request, name, page, target.rsplit("/", 1)[0])
+    """Delete a file on the control: a ``delete`` job (programmers; the page asks first)."""
+    job = await run_in_threadpool(actions.files.delete_file, _svc(request), page.who, name, path)
+    return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
+
+
+@router.post("/machines/{name}/files/receive")
+async def machine_file_receive(
+    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+) -> HTMLResponse:
+    """Bring a file of the control to the inbox under its own name: a ``receive`` job."""
+    job = await run_in_threadpool(actions.files.receive_file, _svc(request), page.who, name, path)
+    return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
+
+
+async def _read_upload(file: UploadFile) -> bytes:
+    data = await file.read(MAX_PROGRAM_BYTES + 1)
+    if len(data) > MAX_PROGRAM_BYTES:
+        raise TooLarge("the upload is larger than the server takes")
+    return data
 
 
 # -- program library ----------------------------------------------------------------------
 
 
 @router.get("/library")
-def library_page(request: Request, page: Viewing, q: str = "") -> HTMLResponse:
+def library_page(
+    request: Request, page: Viewing, q: Annotated[str, Query(max_length=255)] = ""
+) -> HTMLResponse:
     """Programs, searchable by name."""
-
-    def load(session: Session) -> list[dict[str, Any]]:
-        return [api.program_json(p) for p in library.list_programs(session, q.strip())]
-
-    programs = _read(request, load)
+    found = actions.library.list_programs(_svc(request), page.who, q)
+    programs = [p.model_dump(mode="json") for p in found]
     template = "_programs.html" if _is_htmx(request) else "library.html"
     return _html(template, page, request, programs=programs, q=q)
 
@@ -721,38 +697,31 @@ def program_page(
     request: Request,
     name: str,
     page: Viewing,
-    v: int | None = None,
-    a: int | None = None,
-    b: int | None = None,
+    v: VersionNumber | None = None,
+    a: VersionNumber | None = None,
+    b: VersionNumber | None = None,
 ) -> HTMLResponse:
     """One program: versions, the text of one of them highlighted, or a diff of two."""
-    library.check_program_name(name)
-
-    def load(session: Session) -> dict[str, Any]:
-        program = library.get_program(session, name)
-        shown = library.get_version(session, name, v)
-        text = render.program_text(library.content(session, shown))
-        released = library.released_version(session, name)
-        context: dict[str, Any] = {
-            "program": api.program_json(program),
-            "shown": api.version_json(shown),
-            "released": released.number if released else None,
-            "lines": render.highlight_lines(text[:SHOWN_CHARS]),
-            "clipped": len(text) > SHOWN_CHARS,
-            "diff": None,
-        }
-        if a is not None and b is not None:
-            old = render.program_text(
-                library.content(session, library.get_version(session, name, a))
-            )
-            new = render.program_text(
-                library.content(session, library.get_version(session, name, b))
-            )
-            context["diff"] = render.side_by_side(old, new)
-            context["a"], context["b"] = a, b
-        return context
-
-    context = _read(request, load)
+    svc = _svc(request)
+    program = actions.library.get_program(svc, page.who, name)
+    shown = actions.library.program_content(svc, page.who, name, v)
+    number = v if v is not None else program.versions[-1].number
+    version = next(x for x in program.versions if x.number == number)
+    text = render.program_text(shown.data)
+    released = [x.number for x in program.versions if x.state is ProgramState.RELEASED]
+    context: dict[str, Any] = {
+        "program": program.model_dump(mode="json"),
+        "shown": version.model_dump(mode="json"),
+        "released": released[-1] if released else None,
+        "lines": render.highlight_lines(text[:SHOWN_CHARS]),
+        "clipped": len(text) > SHOWN_CHARS,
+        "diff": None,
+    }
+    if a is not None and b is not None:
+        old = actions.library.program_content(svc, page.who, name, a).data
+        new = actions.library.program_content(svc, page.who, name, b).data
+        context["diff"] = render.side_by_side(render.program_text(old), render.program_text(new))
+        context["a"], context["b"] = a, b
     machines = [
         {"name": m.config.name, "released_only": m.config.released_only, "online": m.online}
         for m in _supervisor(request).machines.values()
@@ -761,32 +730,23 @@ def program_page(
 
 
 @router.get("/library/{name}/versions/{number}/download")
-def download_version(request: Request, name: str, number: int, page: Viewing) -> Response:
+def download_version(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
     """The bytes of one version, as a file."""
-    library.check_program_name(name)
-
-    def load(session: Session) -> tuple[bytes, str]:
-        version = library.get_version(session, name, number)
-        return library.content(session, version), version.sha256
-
-    data, digest = _read(request, load)
+    content = actions.library.program_content(_svc(request), page.who, name, number)
     return Response(
-        data,
+        content.data,
         media_type="application/octet-stream",
         headers={
             "Content-Disposition": f'attachment; filename="{name}"',
-            "X-Content-SHA256": digest,
+            "X-Content-SHA256": content.sha256,
         },
     )
 
 
 @router.post("/library/{name}/versions/{number}/release")
-def release_version(request: Request, name: str, number: int, page: Writing) -> Response:
+def release_version(request: Request, name: str, number: VersionPath, page: Writing) -> Response:
     """Release a version (approvers)."""
-    web_session.need(page.who, Role.APPROVER)
-    library.check_program_name(name)
-    _write(request, lambda s: library.release(s, name, number, actor=page.who.name))
-    api.changed(request, "program", name)
+    actions.library.release_version(_svc(request), page.who, name, number)
     return _redirect(request, f"/library/{quote(name)}?v={number}")
 
 
@@ -795,10 +755,7 @@ def lock_program(
     request: Request, name: str, page: Writing, locked: Annotated[bool, Form()]
 ) -> Response:
     """Lock or unlock a program (approvers)."""
-    web_session.need(page.who, Role.APPROVER)
-    library.check_program_name(name)
-    _write(request, lambda s: library.set_locked(s, name, locked, actor=page.who.name))
-    api.changed(request, "program", name)
+    actions.library.set_locked(_svc(request), page.who, name, locked)
     return _redirect(request, f"/library/{quote(name)}")
 
 
@@ -808,21 +765,15 @@ def send_program(
     name: str,
     page: Writing,
     machines: Annotated[list[str] | None, Form()] = None,
-    version: Annotated[int | None, Form()] = None,
+    version: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """Queue the program for the picked machines (operators)."""
-    web_session.need(page.who, Role.OPERATOR)
-    library.check_program_name(name)
     if not machines:
+        actions.policy.may_queue(page.who, JobKind.SEND)  # the role first, as the API does
         raise InputError("pick at least one machine")
-
-    def queue(session: Session) -> list[dict[str, Any]]:
-        created = jobs.send_program(session, name, machines, actor=page.who.name, number=version)
-        return [api.job_json(j) for j in created]
-
-    queued = _write(request, queue)
-    for job in queued:
-        _supervisor(request).wake(job["machine"])
+    order = JobRequest(kind=JobKind.SEND, program=name, version=version, machines=machines)
+    created = actions.queue.create_jobs(_svc(request), page.who, order)
+    queued = [j.model_dump(mode="json") for j in created]
     return _html("_sent.html", page, request, queued=queued)
 
 
@@ -831,25 +782,19 @@ async def upload_program(
     request: Request,
     page: Writing,
     file: UploadFile,
-    name: Annotated[str, Form()] = "",
-    comment: Annotated[str, Form()] = "",
+    name: Annotated[str, Form(max_length=100)] = "",
+    comment: Annotated[str, Form(max_length=1000)] = "",
 ) -> Response:
     """Store an uploaded file as a new draft version (programmers)."""
-    web_session.need(page.who, Role.PROGRAMMER)
-    program = library.check_program_name(name.strip() or (file.filename or ""))
-    data = await file.read(library.MAX_PROGRAM_BYTES + 1)
-    if not data:
-        raise InputError("the upload is empty")
-
-    def store(session: Session) -> int:
-        version, _ = library.add_version(
-            session, program, data, author=page.who.name, comment=comment
+    actions.library.may_upload(page.who)  # before the file is read
+    data = await _read_upload(file)
+    program = name.strip() or (file.filename or "")
+    version = await run_in_threadpool(
+        lambda: actions.library.upload_program(
+            _svc(request), page.who, program, data, comment=comment
         )
-        return version.number
-
-    number = await run_in_threadpool(_write, request, store)
-    api.changed(request, "program", program)
-    return _redirect(request, f"/library/{quote(program)}?v={number}")
+    )
+    return _redirect(request, f"/library/{quote(program)}?v={version.number}")
 
 
 def _redirect(request: Request, target: str) -> Response:
@@ -867,60 +812,49 @@ def inbox_page(request: Request, page: Viewing, state: str = "new") -> HTMLRespo
     try:
         states = [ReceivedState(state)] if state != "all" else list(ReceivedState)
     except ValueError:
-        raise InputError(f"state {state!r}: new, accepted, discarded, failed or all") from None
-
-    def load(session: Session) -> list[dict[str, Any]]:
-        return [api.received_json(r) for r in inbox.list_received(session, states)]
-
+        raise InputError(f"state {state[:20]!r}: new, accepted, discarded, failed or all") from None
+    found = actions.inbox.list_received(_svc(request), page.who, states)
+    items = [r.model_dump(mode="json") for r in found]
     template = "_inbox.html" if _is_htmx(request) else "inbox.html"
-    return _html(template, page, request, items=_read(request, load), state=state)
+    return _html(template, page, request, items=items, state=state)
 
 
 @router.get("/inbox/{received_id}")
-def received_page(request: Request, received_id: int, page: Viewing) -> HTMLResponse:
-    """One reception beside the released version of the same program."""
-
-    def load(session: Session) -> dict[str, Any]:
-        row = inbox.get(session, received_id)
-        try:
-            base = library.released_version(session, row.name)
-        except NotFound:
-            base = None
-        old = render.program_text(library.content(session, base)) if base is not None else ""
-        new = render.program_text(inbox.content(session, row))
-        return {
-            "item": api.received_json(row),
-            "base": api.version_json(base) if base is not None else None,
-            "diff": render.side_by_side(old, new),
-            "unified": inbox.diff_to_released(session, received_id),
-        }
-
-    return _html("received.html", page, request, **_read(request, load))
+def received_page(request: Request, received_id: ReceivedId, page: Viewing) -> HTMLResponse:
+    """One reception beside the library version of the same program."""
+    svc = _svc(request)
+    item = actions.inbox.get_received(svc, page.who, received_id)
+    new = actions.inbox.received_content(svc, page.who, received_id).data
+    old = actions.inbox.base_content(svc, page.who, received_id)
+    return _html(
+        "received.html",
+        page,
+        request,
+        item=item.model_dump(mode="json", exclude={"base", "diff"}),
+        base=item.base.model_dump(mode="json") if item.base is not None else None,
+        diff=render.side_by_side(render.program_text(old), render.program_text(new)),
+        unified=item.diff,
+    )
 
 
 @router.post("/inbox/{received_id}/accept")
 def accept_received(
-    request: Request, received_id: int, page: Writing, name: Annotated[str, Form()] = ""
+    request: Request,
+    received_id: ReceivedId,
+    page: Writing,
+    name: Annotated[str, Form(max_length=100)] = "",
 ) -> Response:
     """Make the reception a new draft version (programmers)."""
-    web_session.need(page.who, Role.PROGRAMMER)
-
-    def accept(session: Session) -> tuple[str, int]:
-        version = inbox.accept(session, received_id, actor=page.who.name, name=name.strip() or None)
-        return version.program.name, version.number
-
-    program, number = _write(request, accept)
-    api.changed(request, "inbox", str(received_id))
-    api.changed(request, "program", program)
-    return _redirect(request, f"/library/{quote(program)}?v={number}")
+    version = actions.inbox.accept_received(
+        _svc(request), page.who, received_id, name.strip() or None
+    )
+    return _redirect(request, f"/library/{quote(version.program)}?v={version.number}")
 
 
 @router.post("/inbox/{received_id}/discard")
-def discard_received(request: Request, received_id: int, page: Writing) -> Response:
+def discard_received(request: Request, received_id: ReceivedId, page: Writing) -> Response:
     """Drop the reception from the inbox (programmers)."""
-    web_session.need(page.who, Role.PROGRAMMER)
-    _write(request, lambda s: inbox.discard(s, received_id, actor=page.who.name))
-    api.changed(request, "inbox", str(received_id))
+    actions.inbox.discard_received(_svc(request), page.who, received_id)
     return _redirect(request, "/inbox")
 
 
@@ -935,28 +869,25 @@ def _blank(value: str | None) -> str | None:
 def history_page(
     request: Request,
     page: Viewing,
-    machine: str = "",
-    action: str = "",
-    actor: str = "",
-    program: str = "",
-    before: int | None = None,
+    machine: Short = "",
+    action: Short = "",
+    actor: Short = "",
+    program: Annotated[str, Query(max_length=255)] = "",
+    before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """The audit trail, filterable, newest first."""
     filters = {"machine": machine, "action": action, "actor": actor, "program": program}
-
-    def load(session: Session) -> list[dict[str, Any]]:
-        rows = audit.query(
-            session,
-            machine=_blank(machine),
-            action=_blank(action),
-            actor=_blank(actor),
-            program=_blank(program),
-            limit=100,
-            before_id=before,
-        )
-        return [api.audit_json(r) for r in rows]
-
-    rows = _read(request, load)
+    found = actions.admin.list_audit(
+        _svc(request),
+        page.who,
+        machine=_blank(machine),
+        action=_blank(action),
+        actor=_blank(actor),
+        program=_blank(program),
+        limit=100,
+        before=before,
+    )
+    rows = [r.model_dump(mode="json") for r in found]
     query = "&".join(f"{k}={quote(v)}" for k, v in filters.items() if v.strip())
     machines = sorted(_supervisor(request).machines)
     return _html(
@@ -968,29 +899,22 @@ def history_page(
 def history_csv(
     request: Request,
     page: Viewing,
-    machine: str = "",
-    action: str = "",
-    actor: str = "",
-    program: str = "",
+    machine: Short = "",
+    action: Short = "",
+    actor: Short = "",
+    program: Annotated[str, Query(max_length=255)] = "",
 ) -> Response:
     """The filtered audit trail as CSV (the API's export, for a logged-in person)."""
-
-    def export(session: Session) -> Response:
-        out = api.list_audit(
-            session,
-            page.who,
-            machine=_blank(machine),
-            action=_blank(action),
-            actor=_blank(actor),
-            program=_blank(program),
-            limit=10_000,
-            before=None,
-            format="csv",
-        )
-        assert isinstance(out, Response)
-        return out
-
-    return _read(request, export)
+    rows = actions.admin.list_audit(
+        _svc(request),
+        page.who,
+        machine=_blank(machine),
+        action=_blank(action),
+        actor=_blank(actor),
+        program=_blank(program),
+        limit=10_000,
+    )
+    return actions.admin.audit_csv_response(rows)
 
 
 # -- stylesheet of the highlighted code -----------------------------------------------------

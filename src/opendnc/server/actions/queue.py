@@ -1,0 +1,129 @@
+"""Queue actions: queue jobs (send, drip-feed, receive, delete, backup, put a file), list
+them, cancel, move and retry. A cancel or a move only changes rows: the machine's runner
+reads them at its safe points (:func:`opendnc.server.jobs.cancel_requested`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from sqlalchemy.orm import Session
+
+from opendnc.errors import InputError
+from opendnc.server import jobs, library
+from opendnc.server.actions import policy
+from opendnc.server.actions.base import Caller, Services, require
+from opendnc.server.actions.models import JobOut, JobRequest
+from opendnc.server.machine_files import check_path
+from opendnc.server.store.models import JobKind, JobState, Role
+
+__all__ = [
+    "cancel_job",
+    "create_jobs",
+    "get_job",
+    "list_jobs",
+    "move_job",
+    "retry_job",
+]
+
+
+def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
+    """Queue one job per machine: all of them, or (any refusal) none."""
+    kind = order.kind
+    policy.may_queue(who, kind)
+    configs = [svc.machine(name).config for name in order.machines]
+    program = order.program
+    path = None
+    if kind in jobs.PROGRAM_JOBS:
+        if program is None:
+            raise InputError(f"a {kind.value} job names a program")
+        library.check_program_name(program)
+    if kind is not JobKind.SEND and kind is not JobKind.DRIPFEED:
+        if order.path is None:
+            raise InputError(f"a {kind.value} job names a path on the control")
+        # a file browser's path stays on the control's drive; other kinds name a file the
+        # machine's connector checks (a share-relative name on a Haas)
+        path = check_path(order.path) if kind is JobKind.PUT_FILE else order.path
+        if "\x00" in path:
+            raise InputError("a path holds no NUL character")
+    if order.from_line is not None and kind is not JobKind.DRIPFEED:
+        raise InputError("only a drip-feed starts from a line")
+
+    def queue(session: Session) -> list[JobOut]:
+        version = policy.version_for(session, program, order.version) if program else None
+        for config in configs:
+            policy.check_machine(config, kind, version)
+        params: dict[str, str | int] = {}
+        if path is not None:
+            params["path"] = path
+        if order.from_line is not None:
+            params["from_line"] = order.from_line
+        created = [
+            jobs.enqueue(session, kind, config.name, actor=who.name, version=version, params=params)
+            for config in configs
+        ]
+        return [JobOut.of(j) for j in created]
+
+    out = svc.write(queue)
+    svc.wake([j.machine for j in out])
+    return out
+
+
+def _live(svc: Services) -> dict[int, tuple[int, int | None]]:
+    return {m.job_id: m.job_progress for m in svc.runner.machines.values() if m.job_id is not None}
+
+
+def list_jobs(
+    svc: Services,
+    who: Caller,
+    *,
+    machine: str | None = None,
+    states: Sequence[JobState] = (),
+    limit: int = 200,
+) -> list[JobOut]:
+    """Jobs: the queued ones in queue order first, then the rest newest first (three
+    queries, however many jobs)."""
+    require(who, Role.VIEWER)
+    live = _live(svc)
+
+    def load(session: Session) -> list[JobOut]:
+        found = jobs.list_jobs(session, machine=machine, states=states, limit=limit)
+        return [JobOut.of(j, live.get(j.id)) for j in found]
+
+    return svc.read(load)
+
+
+def get_job(svc: Services, who: Caller, job_id: int) -> JobOut:
+    """One job."""
+    require(who, Role.VIEWER)
+    live = _live(svc).get(job_id)
+    return svc.read(lambda s: JobOut.of(jobs.get_job(s, job_id), live))
+
+
+def cancel_job(svc: Services, who: Caller, job_id: int) -> JobOut:
+    """Cancel a queued job, or ask a running one to stop at its next safe point (a
+    drip-feed within a chunk); the request is a row, whichever server runs the job."""
+    require(who, Role.OPERATOR)
+    return svc.write(lambda s: JobOut.of(jobs.cancel(s, job_id, actor=who.name)))
+
+
+def move_job(svc: Services, who: Caller, job_id: int, index: int) -> JobOut:
+    """Put a queued job at ``index`` (0 = next) in its machine's queue."""
+    require(who, Role.OPERATOR)
+    return svc.write(lambda s: JobOut.of(jobs.move(s, job_id, index, actor=who.name)))
+
+
+def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = None) -> JobOut:
+    """Queue a failed, interrupted or cancelled job again, under the rules a new one of its
+    kind meets (a drip-feed: programmers, on a machine that still allows it)."""
+    require(who, Role.OPERATOR)
+
+    def retry(session: Session) -> JobOut:
+        old = jobs.get_job(session, job_id)
+        if old.kind in policy.JOB_ROLES:  # a report is retried like any job
+            policy.may_queue(who, old.kind)
+        policy.check_machine(svc.machine(old.machine).config, old.kind, old.version)
+        return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
+
+    out = svc.write(retry)
+    svc.wake([out.machine])
+    return out

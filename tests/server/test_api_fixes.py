@@ -1,0 +1,396 @@
+"""The API's and the pages' rules one by one: keys and sessions, logins, the queue's order and
+cancel, receive names, bounded ids, query counts, offline controls. In-process, on memory
+controls (tests/server/inprocess_app.py)."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterator
+from datetime import timedelta
+from typing import Any
+
+import pytest
+from sqlalchemy import event, select
+
+from opendnc.server import auth, jobs, library
+from opendnc.server.actions import Services
+from opendnc.server.store.models import ApiKey, AuditEntry, Job, JobKind, JobState, Role, utcnow
+from opendnc.server.web import session as web_session
+from tests.server.harness import wait_for
+from tests.server.inprocess_app import App, running
+
+MACHINES: list[dict[str, object]] = [
+    {"name": "tnc", "kind": "lsv2", "host": "127.0.0.1", "port": 1, "poll_interval": 0.2},
+    {"name": "tnc-off", "kind": "lsv2", "host": "127.0.0.1", "port": 1},
+    {
+        "name": "haas",
+        "kind": "haas_serial",
+        "serial": "socket://127.0.0.1:1",
+        "dripfeed": True,
+        "poll_interval": 0.2,
+    },
+]
+ADMIN = Role.ADMIN
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
+    with running(tmp_path_factory.mktemp("fixes"), MACHINES, offline=("tnc-off",)) as served:
+        with served.server.sessions.begin() as s:
+            library.add_version(s, "O1.nc", b"%\nO1\nM30\n%\n", author="t")
+            library.release(s, "O1.nc", 1, actor="t")
+        yield served
+
+
+@pytest.fixture
+def fresh_guard(app: App) -> Iterator[None]:
+    # the login guard counts per address: every test here comes from 127.0.0.1
+    guard = app.server.core.get(Services).guard
+    guard.reset()
+    yield
+    guard.reset()
+
+
+def _statements(app: App) -> Any:
+    seen: list[str] = []
+
+    def note(_conn: Any, _cursor: Any, statement: str, *_args: Any) -> None:
+        seen.append(statement.split(None, 1)[0].upper())
+
+    class Counter:
+        def __enter__(self) -> list[str]:
+            event.listen(app.server.engine, "before_cursor_execute", note)
+            return seen
+
+        def __exit__(self, *_exc: object) -> None:
+            event.remove(app.server.engine, "before_cursor_execute", note)
+
+    return Counter()
+
+
+def _job(app: App, machine: str = "tnc", **body: Any) -> dict[str, Any]:
+    reply = app.client.post(
+        "/api/jobs", json={"machines": [machine], **body}, headers=app.api(ADMIN)
+    )
+    assert reply.status_code == 201, reply.text
+    job: dict[str, Any] = reply.json()[0]
+    return job
+
+
+def _finished(app: App, job_id: int) -> dict[str, Any]:
+    def done() -> dict[str, Any] | None:
+        job: dict[str, Any] = app.client.get(f"/api/jobs/{job_id}", headers=app.api(ADMIN)).json()
+        return job if job["state"] not in ("queued", "running") else None
+
+    result: dict[str, Any] = wait_for(f"job {job_id}", done, timeout=30)
+    return result
+
+
+# -- keys and sessions ----------------------------------------------------------------------
+
+
+def test_a_session_key_is_only_a_cookie_and_an_api_key_only_a_bearer(app: App) -> None:
+    session_key = app.session_keys[ADMIN]
+    as_bearer = app.client.get("/api/machines", headers={"Authorization": f"Bearer {session_key}"})
+    assert as_bearer.status_code == 401
+    assert "web session" in as_bearer.json()["detail"]
+    api_key = app.api_keys[ADMIN]
+    as_cookie = app.client.get(
+        "/", headers={"Cookie": f"{web_session.COOKIE}={api_key}"}, follow_redirects=False
+    )
+    assert as_cookie.status_code == 303  # to the login
+    assert app.client.get("/", headers=app.page(ADMIN)).status_code == 200
+
+
+def test_reads_do_not_write_and_last_used_is_written_once_a_minute(app: App) -> None:
+    key = app.api_keys[Role.VIEWER]
+    with app.server.sessions.begin() as s:
+        s.execute(ApiKey.__table__.update().values(last_used=None))
+    with _statements(app) as seen:
+        for _ in range(10):
+            assert app.client.get("/api/jobs", headers=app.api(Role.VIEWER)).status_code == 200
+            assert app.client.get("/library", headers=app.page(Role.VIEWER)).status_code == 200
+    writes = [s for s in seen if s in ("UPDATE", "INSERT", "DELETE")]
+    # the API key's and the session's first use; nothing for the 18 requests after them
+    assert writes == ["UPDATE", "UPDATE"], seen
+    with app.server.sessions() as s:
+        row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
+        assert row is not None
+        assert row.last_used is not None
+        first = row.last_used
+        # a minute later the next request writes again
+        row.last_used = first - timedelta(seconds=61)
+        s.commit()
+    app.client.get("/api/jobs", headers=app.api(Role.VIEWER))
+    with app.server.sessions() as s:
+        row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
+        assert row is not None
+        assert row.last_used is not None
+        assert row.last_used > first
+
+
+def _login(app: App, user: str, password: str) -> Any:
+    return app.client.post(
+        "/login",
+        data={"username": user, "password": password, "next": "/"},
+        follow_redirects=False,
+    )
+
+
+def test_logins_are_audited_as_logins_and_failures_slow_down(app: App, fresh_guard: None) -> None:
+    with app.server.sessions.begin() as s:
+        auth.create_user(s, "ann", Role.OPERATOR, password="ann-secret-1")
+    ok = _login(app, "ann", "ann-secret-1")
+    assert ok.status_code == 303
+    for _ in range(6):
+        assert _login(app, "ann", "wrong-password").status_code == 401
+    slowed = _login(app, "ann", "wrong-password")
+    assert slowed.status_code == 429
+    assert 1 <= int(slowed.headers["Retry-After"]) <= 2
+    # while the user must wait, even the right password waits (a guesser learns nothing)
+    assert _login(app, "ann", "ann-secret-1").status_code == 429
+    with app.server.sessions() as s:
+        rows = s.scalars(
+            select(AuditEntry).where(AuditEntry.actor == "ann").order_by(AuditEntry.id)
+        ).all()
+    assert [(r.action, r.result) for r in rows] == [("login", "ok")] + [("login", "refused")] * 6
+    assert rows[0].detail["key_id"] is not None
+    assert rows[0].detail["via"] == "web"
+
+
+def test_unknown_api_keys_are_audited_and_slowed_per_address(app: App, fresh_guard: None) -> None:
+    bad = {"Authorization": "Bearer odk_not-a-key"}
+    with app.server.sessions() as s:
+        before = s.scalar(select(AuditEntry.id).order_by(AuditEntry.id.desc()).limit(1)) or 0
+    answers = [app.client.get("/api/jobs", headers=bad).status_code for _ in range(7)]
+    assert answers == [401] * 6 + [429]
+    # a good key from the same address waits too: the address is what is being slowed
+    assert app.client.get("/api/jobs", headers=app.api(ADMIN)).status_code == 429
+    with app.server.sessions() as s:
+        refused = s.scalars(
+            select(AuditEntry).where(
+                AuditEntry.action == "login", AuditEntry.actor == "api", AuditEntry.id > before
+            )
+        ).all()
+    assert len(refused) == 6
+
+
+def test_the_guard_waits_twice_as_long_after_each_further_failure() -> None:
+    now = [0.0]
+    guard = auth.LoginGuard(free=2, clock=lambda: now[0])
+    for _ in range(2):
+        guard.failed("user:a")
+    guard.check("user:a")  # the free ones cost nothing
+    waits = []
+    for _ in range(4):
+        guard.failed("user:a")
+        with pytest.raises(auth.TooManyRequests) as refused:
+            guard.check("user:a", "address:x")
+        waits.append(refused.value.retry_after)
+    assert waits == [2, 4, 8, 16]
+    now[0] += 16
+    guard.check("user:a")
+    guard.succeeded("user:a")
+    guard.failed("user:a")
+    guard.check("user:a")
+
+
+# -- the queue ------------------------------------------------------------------------------
+
+
+def test_history_is_newest_first_and_fifty_jobs_take_as_many_queries_as_five(app: App) -> None:
+    with app.server.sessions.begin() as s:
+        version = library.get_version(s, "O1.nc", 1)
+        made = []
+        for n in range(50):
+            job = jobs.enqueue(s, JobKind.SEND, "tnc", actor="t", version=version)
+            job.state = JobState.DONE
+            job.position = float(50 - n)  # positions that disagree with the ids
+            made.append(job.id)
+    counts = []
+    for limit in (5, 50):
+        with _statements(app) as seen:
+            reply = app.client.get(
+                "/api/jobs", params={"machine": "tnc", "limit": limit}, headers=app.api(ADMIN)
+            )
+        counts.append(sum(1 for s in seen if s == "SELECT"))
+        ids = [j["id"] for j in reply.json()]
+        assert ids == sorted(ids, reverse=True)
+        assert ids[0] >= made[-1]
+    assert counts[0] == counts[1], counts
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "/api/jobs/9223372036854775808",
+        "/api/jobs/2147483648",
+        "/api/jobs/0",
+        "/api/inbox/99999999999999999999",
+        "/api/audit?before=9223372036854775808",
+        "/api/jobs?limit=0",
+        "/api/jobs?limit=-1",
+        "/api/audit?limit=0",
+        "/api/programs/O1.nc/diff?a=1&b=9223372036854775808",
+    ],
+)
+def test_numbers_out_of_range_are_refused_with_422(app: App, url: str) -> None:
+    reply = app.client.get(url, headers=app.api(ADMIN))
+    assert reply.status_code == 422, reply.text
+
+
+def test_bodies_that_are_not_json_or_not_text_are_refused_with_422(app: App) -> None:
+    odd = app.client.post(
+        "/api/keys",
+        content=b"\xff\xfe\x00garbage",
+        headers={**app.api(ADMIN), "Content-Type": "application/octet-stream"},
+    )
+    assert odd.status_code == 422, odd.text
+    huge = app.client.post(
+        "/api/jobs",
+        content=b'{"program": "O1.nc", "version": 1e400, "machines": ["tnc"]}',
+        headers={**app.api(ADMIN), "Content-Type": "application/json"},
+    )
+    assert huge.status_code == 422, huge.text
+    long_search = app.client.get(
+        "/api/programs", params={"q": "x" * 60_000}, headers=app.api(ADMIN)
+    )
+    assert long_search.status_code == 422
+
+
+def test_a_retry_needs_no_body_and_a_folder_in_a_name_is_a_clear_4xx(app: App) -> None:
+    job = _job(app, program="O1.nc", path=None)
+    with app.server.sessions.begin() as s:
+        row = s.get(Job, job["id"])
+        assert row is not None
+        row.state = JobState.FAILED  # whatever it did, it is finished now
+    reply = app.client.post(f"/api/jobs/{job['id']}/retry", headers=app.api(ADMIN))
+    assert reply.status_code == 201, reply.text
+    assert reply.json()["params"]["retry_of"] == job["id"]
+    folder = app.client.put("/api/programs/a%2Fb", content=b"x", headers=app.api(ADMIN))
+    assert folder.status_code == 404
+    assert "folders" in folder.json()["detail"]
+    # no catch-all PUT route answers the POST routes
+    lock = app.client.post("/api/programs/O1.nc/lock", headers=app.api(Role.APPROVER))
+    assert lock.status_code == 200, lock.text
+
+
+def test_a_cancel_reaches_a_running_drip_feed_through_the_database(app: App) -> None:
+    app.controls["haas"].line_time = 0.05
+    data = b"%\nO2\n" + b"G1 X1.\n" * 400 + b"M30\n%\n"
+    with app.server.sessions.begin() as s:
+        library.add_version(s, "O2.nc", data, author="t")
+        library.release(s, "O2.nc", 1, actor="t")
+    job = _job(app, "haas", kind="dripfeed", program="O2.nc")
+    wait_for(
+        "the feed running",
+        lambda: (
+            app.client.get(f"/api/jobs/{job['id']}", headers=app.api(ADMIN)).json()["state"]
+            == "running"
+        ),
+        timeout=20,
+    )
+    # as another server sharing the database would: a row, no call into this process
+    with app.server.sessions.begin() as s:
+        row = s.get(Job, job["id"])
+        assert row is not None
+        row.cancel_requested = True
+    ended = _finished(app, job["id"])
+    assert ended["state"] == "interrupted"
+    assert "cancelled at line" in ended["error"]
+    assert 2 < ended["line"] < 400
+
+
+def test_a_received_file_keeps_its_name_and_meets_its_library_program(app: App) -> None:
+    text = b"0 BEGIN PGM 1001 MM\n1 L X+1 R0 FMAX\n2 END PGM 1001 MM\n"
+    with app.server.sessions.begin() as s:
+        library.add_version(s, "1001.I", text, author="t")
+        library.release(s, "1001.I", 1, actor="t")
+    changed = text.replace(b"X+1", b"X+2")
+    app.controls["tnc"].files["TNC:/nc_prog/1001.I"] = changed
+    names = []
+    for _ in range(2):
+        job = _job(app, kind="receive", path="TNC:/nc_prog/1001.I")
+        ended = _finished(app, job["id"])
+        assert ended["state"] == "done", ended
+        with app.server.sessions() as s:
+            row = s.scalar(
+                select(AuditEntry).where(
+                    AuditEntry.job_id == job["id"], AuditEntry.action == "job.receive"
+                )
+            )
+            assert row is not None
+            received_id = row.detail["received_id"]
+        item = app.client.get(f"/api/inbox/{received_id}", headers=app.api(ADMIN)).json()
+        names.append(item["name"])
+        assert item["base"]["program"] == "1001.I"
+        assert item["base"]["number"] == 1
+        assert "-1 L X+1 R0 FMAX" in item["diff"]
+        assert "+1 L X+2 R0 FMAX" in item["diff"]
+        assert item["sha256"] == hashlib.sha256(changed).hexdigest()
+    assert names == ["1001.I", "1001.I"]
+    inbox = app.server.config.library.inbox
+    assert sorted(p.name for p in inbox.glob("1001*")) == ["1001.2.I", "1001.I"]
+
+
+def test_an_offline_control_answers_503_in_one_line(app: App) -> None:
+    reply = app.client.get("/api/machines/tnc-off/files", headers=app.api(ADMIN))
+    assert reply.status_code == 503
+    detail = reply.json()["detail"]
+    assert detail.startswith("tnc-off is offline")
+    assert "\n" not in detail
+    page = app.client.get("/machines/tnc-off/files", headers=app.page(ADMIN))
+    assert page.status_code == 503
+
+
+def test_the_file_browser_puts_and_deletes_through_jobs(app: App) -> None:
+    control = app.controls["tnc"]
+    control.files["TNC:/nc_prog/GONE.H"] = b"1 END PGM GONE MM\n"
+    # a delete from the page is a job, run by the machine's own connector; the answer lists
+    # the folder once the machine's queue ran
+    reply = app.client.post(
+        "/machines/tnc/files/delete",
+        data={"path": "TNC:/nc_prog/GONE.H"},
+        headers=app.page(Role.PROGRAMMER),
+    )
+    assert reply.status_code == 200, reply.text
+    assert "delete TNC:/nc_prog/GONE.H queued" in reply.text
+    assert "TNC:/nc_prog/GONE.H" not in control.files
+    with app.server.sessions() as s:
+        (job,) = s.scalars(
+            select(Job).where(Job.kind == JobKind.DELETE, Job.machine == "tnc")
+        ).all()
+        assert job.state is JobState.DONE
+        assert job.created_by == "programmer"
+    # an upload is a library draft first, then a put_file job of that version
+    reply = app.client.post(
+        "/machines/tnc/files/upload",
+        data={"folder": "TNC:/nc_prog/sub"},
+        files={"file": ("NEW.H", b"1 END PGM NEW MM\n")},
+        headers=app.page(Role.PROGRAMMER),
+    )
+    assert reply.status_code == 200, reply.text
+    assert control.files["TNC:/nc_prog/sub/NEW.H"] == b"1 END PGM NEW MM\n"
+    program = app.client.get("/api/programs/NEW.H", headers=app.api(ADMIN)).json()
+    assert [v["state"] for v in program["versions"]] == ["draft"]
+    # an operator may not delete (a page that hides the button is not the guard)
+    refused = app.client.post(
+        "/machines/tnc/files/delete",
+        data={"path": "TNC:/nc_prog/sub/NEW.H"},
+        headers=app.page(Role.OPERATOR),
+    )
+    assert refused.status_code == 403
+    assert "TNC:/nc_prog/sub/NEW.H" in control.files
+
+
+def test_jobs_stay_queued_for_a_later_time(app: App) -> None:
+    # a row due tomorrow is never claimed: the runner reads the database, not this process
+    with app.server.sessions.begin() as s:
+        version = library.get_version(s, "O1.nc", 1)
+        job = jobs.enqueue(
+            s, JobKind.SEND, "tnc", actor="t", version=version, not_before=utcnow() + timedelta(1)
+        )
+        job_id = job.id
+    app.server.machines.wake("tnc")
+    reply = app.client.post(f"/api/jobs/{job_id}/cancel", headers=app.api(Role.OPERATOR))
+    assert reply.json()["state"] == "cancelled"
