@@ -31,6 +31,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import RemoteProtocolError, TransferError, TransportError
 from opendnc.server import jobs, library
+from opendnc.server.components import cancel_and_wait
 from opendnc.server.errors import NotFound
 from opendnc.server.executors import (
     Claimed,
@@ -117,8 +118,6 @@ class JobRunner:
     async def stop(self) -> None:
         """End the sweep; a settle still waiting for the database is given up (the next start
         marks its job interrupted)."""
-        from opendnc.server.components import cancel_and_wait
-
         tasks = [t for t in (self._sweep, *self._settling) if t is not None]
         self._sweep = None
         await cancel_and_wait(*tasks)
