@@ -71,6 +71,7 @@ from opendnc.xmodem.sender import SenderConfig
 sys.path.insert(0, str(Path(__file__).parent))
 from simproc import start_server
 from soak_serial_lsv2 import pattern_serial_lsv2
+from soak_server import report as report_server
 
 # -- bookkeeping --------------------------------------------------------------------------
 
@@ -621,8 +622,19 @@ def haas_simulator(root: Path) -> Iterator[tuple[subprocess.Popen[str], int]]:
             proc.communicate()
 
 
-def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
+def run(
+    seconds: float, smoke: bool, seed: int, server: bool = True, server_db: str | None = None
+) -> dict[str, object]:
     started = time.monotonic()
+    # The server part runs beside the device patterns for the whole soak, in a process of its
+    # own: its clients must not wait for this process's interpreter lock.
+    server_proc = None
+    if server:
+        command = [sys.executable, str(Path(__file__).with_name("soak_server.py")), "--json"]
+        command += ["--seconds", str(8.0 if smoke else seconds), "--seed", str(seed)]
+        command += ["--smoke"] if smoke else []
+        command += ["--db", server_db] if server_db else []
+        server_proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     work = Path(tempfile.mkdtemp(prefix="opendnc-soak-"))
     soak = Soak(work, random.Random(seed), smoke, started + seconds)
     (work / "outside").mkdir()
@@ -669,6 +681,13 @@ def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
             tnc.kill()
             tnc.communicate()
         shutil.rmtree(work, ignore_errors=True)
+    server_part: dict[str, object] = {}
+    if server_proc is not None:
+        out, _ = server_proc.communicate(timeout=seconds + 300)
+        lines = out.strip().splitlines()
+        server_part = (
+            json.loads(lines[-1]) if lines else {"error": "the server part printed nothing"}
+        )
     memory["soak_process_peak"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return {
         "seconds": round(time.monotonic() - started, 1),
@@ -676,6 +695,7 @@ def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
         "seed": seed,
         "patterns": {name: asdict(t) for name, t in sorted(soak.tallies.items())},
         "memory": memory,
+        "server": server_part or None,
     }
 
 
@@ -698,6 +718,11 @@ def report(result: dict[str, object]) -> None:
     for name, t in patterns.items():
         for note in t["notes"]:
             print(f"  {name}: {note}")
+    server = result.get("server")
+    if isinstance(server, dict) and "error" in server:
+        print(f"server: {server['error']}")
+    elif isinstance(server, dict):
+        report_server(server)
 
 
 def main() -> None:
@@ -706,15 +731,25 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help="one short round of each pattern")
     parser.add_argument("--seed", type=int, default=1, help="seed of every random choice")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument(
+        "--no-server", action="store_true", help="leave out the server part (opendnc serve)"
+    )
+    parser.add_argument(
+        "--server-db", default=None, help="database URL for the server part (default SQLite)"
+    )
     args = parser.parse_args()
-    result = run(args.seconds, args.smoke, args.seed)
+    result = run(args.seconds, args.smoke, args.seed, not args.no_server, args.server_db)
     if args.json:
         print(json.dumps(result))
     else:
         report(result)
     patterns = result["patterns"]
     assert isinstance(patterns, dict)
-    sys.exit(1 if any(t["silent"] for t in patterns.values()) else 0)
+    server = result.get("server")
+    server_bad = isinstance(server, dict) and bool(
+        server.get("error") or server.get("five_xx") or server.get("hung")
+    )
+    sys.exit(1 if any(t["silent"] for t in patterns.values()) or server_bad else 0)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""``benchmarks/soak.py --smoke`` runs every fault pattern once and finds no defect of ours.
+"""``benchmarks/soak.py --smoke`` runs every fault pattern once (and the server part for a few
+seconds) and finds no defect of ours.
 
 The DPRNT and MDC patterns check defects fixed on another branch (issue 15 items 1 and 2):
 until that is merged they report failures here, so they are expected to fail (not strict).
@@ -54,3 +55,17 @@ def test_no_failure_in_the_haas_patterns(result: dict[str, Any]) -> None:
     for name in HAAS:
         tally = patterns[name]
         assert (tally["failures"], tally["silent"]) == (0, 0), (name, tally["notes"])
+
+
+def test_the_server_part_answered_every_request_and_closed_every_slow_socket(
+    result: dict[str, Any],
+) -> None:
+    server = result["server"]
+    assert server["server_alive"]
+    assert server["load"]["requests"] > 0
+    assert server["abuse"]["requests"] > 0
+    assert (server["five_xx"], server["hung"]) == (0, 0), server["five_xx_examples"]
+    for kind in ("slow_headers", "slow_bodies"):
+        assert server[kind]["sockets"] >= 1, kind
+        assert server[kind]["held_past_deadline"] == 0, server[kind]
+    assert server["event_streams"].get("200", 0) >= 1, server["event_streams"]

@@ -237,12 +237,18 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
         # Its ports open before the app starts, so a taken one is a plain error naming it.
         await server.mtconnect.start()
     port = listener.getsockname()[1]  # the real one for :0
+    from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
+
+    raise_file_limit()  # connections are limited by the server (limits.py), not by running out
     settings = uvicorn.Config(
         server.app,
         log_level="warning",
         lifespan="on",
         # Event streams never end by themselves: at a stop they get this long, then go.
         timeout_graceful_shutdown=max(1, round(plan.connections)),
+        # The guarded protocol times out incomplete headers and refuses connections past the
+        # limit (docs/server.md#limits).
+        http=uvicorn_protocol(Limits()),
     )
     web = Web(settings)
     serving = asyncio.create_task(web.serve(sockets=[listener]))

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
@@ -23,11 +22,10 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response, StreamingResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field, JsonValue
-from sqlalchemy.orm import Session
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from opendnc.errors import DncError
-from opendnc.server import actions, audit, auth, deps
+from opendnc.server import actions, audit, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
@@ -49,6 +47,7 @@ from opendnc.server.actions.models import (
     VersionOut,
 )
 from opendnc.server.components import core_of
+from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
 from opendnc.server.events import Event, JobFinished, Overflow
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
@@ -159,16 +158,11 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
     return JSONResponse({"detail": detail}, exc.status_code, headers=exc.headers)
 
 
-router = APIRouter(prefix="/api", responses=ERRORS)
+# ApiRoute: request sessions end in the route's thread; JSON bodies hold finite numbers only.
+router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
 
-
-def _db(request: Request) -> Iterator[Session]:
-    # For the routes beside this module (dprnt_api) that read with their own queries.
-    with deps.database(request).reads() as session:
-        yield session
-
-
-Db = Annotated[Session, Depends(_db)]
+# For the routes beside this module (dprnt_api) that read with their own queries.
+Db = dbsession.Db
 _bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 
 

@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, api, dprnt_api, utilization_api, web
+from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
@@ -28,6 +28,7 @@ from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
 from opendnc.server.kinds import connector_for
+from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
 from opendnc.server.machines import Connector
@@ -142,6 +143,8 @@ def build(
             await core.stop(stop_deadline)
 
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
+    edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
+    app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
     app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)

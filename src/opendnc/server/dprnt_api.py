@@ -25,6 +25,7 @@ from opendnc.server.actions import require
 from opendnc.server.actions.models import MAX_ID
 from opendnc.server.api import ERRORS, Db, Viewer
 from opendnc.server.dprnt_capture import line_json
+from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
 from opendnc.server.store.models import DprntLine, Role
 
@@ -33,7 +34,7 @@ __all__ = ["CSV_COLUMNS", "csv_response", "lines_after", "recent_lines", "router
 CSV_COLUMNS = ["id", "at", "machine", "line", "fields", "complete"]
 MAX_LIMIT = 10_000
 
-router = APIRouter(prefix="/api", responses=ERRORS)
+router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
 
 
 def lines_after(session: Session, machine: str, since: int, limit: int) -> list[dict[str, Any]]:

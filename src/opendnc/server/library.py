@@ -14,6 +14,7 @@ import re
 from collections.abc import Sequence
 
 from sqlalchemy import Select, func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from opendnc.errors import InputError
@@ -23,6 +24,7 @@ from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVers
 
 __all__ = [
     "MAX_PROGRAM_BYTES",
+    "MAX_SEARCH",
     "add_version",
     "check_program_name",
     "content",
@@ -31,11 +33,13 @@ __all__ = [
     "get_version",
     "list_programs",
     "release",
+    "same_name_but_case",
     "set_locked",
 ]
 
 # Larger than any program a control's memory takes; a drip-fed mould program can be tens of MB.
 MAX_PROGRAM_BYTES = 256 * 1024 * 1024
+MAX_SEARCH = 255  # the API's bound on a search (a name is at most 100 characters)
 
 # One file name, as controls and shares accept it: no folders, no dot-names, no Windows
 # device names, nothing a path join could turn into a different place.
@@ -64,11 +68,34 @@ def check_program_name(name: str) -> str:
         )
     if name.split(".")[0].upper() in _WINDOWS_DEVICES:
         raise InputError(f"program name {name!r} is a reserved device name on Windows")
+    if name.endswith("."):
+        # Windows and SMB shares drop a trailing dot: 'O1.nc.' would be the file 'O1.nc'.
+        raise InputError(
+            f"program name {name!r} ends in '.', which Windows drops: call it {name.rstrip('.')!r}"
+        )
     return name
 
 
+def same_name_but_case(session: Session, name: str) -> str | None:
+    """The existing program whose name differs from ``name`` only in case, if there is one.
+
+    Windows, SMB shares and macOS fold case: 'o1.nc' and 'O1.NC' there are one file, so the
+    library holds at most one of them (docs/server.md#program-names).
+    """
+    stmt = select(Program.name).where(
+        func.lower(Program.name) == name.lower(), Program.name != name
+    )
+    return session.scalars(stmt).first()
+
+
 def list_programs(session: Session, search: str = "") -> Sequence[Program]:
-    """Programs whose name contains ``search`` (case-insensitive), by name."""
+    """Programs whose name contains ``search`` (case-insensitive), by name.
+
+    ``search`` longer than a name can be (:data:`MAX_SEARCH`) is an :class:`InputError`: it
+    could match nothing, and SQLite refuses a LIKE pattern of 50,000 characters and more.
+    ``%`` and ``_`` in it match themselves."""
+    if len(search) > MAX_SEARCH:
+        raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
     stmt = select(Program).order_by(Program.name).options(_VERSIONS)
     if search:
         stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
@@ -135,11 +162,7 @@ def add_version(
     if len(data) > MAX_PROGRAM_BYTES:
         raise InputError(f"{name}: {len(data)} bytes is more than the library takes")
     digest = hashlib.sha256(data).hexdigest()
-    program = session.scalar(_with_versions(name))
-    if program is None:
-        program = Program(name=name, versions=[])
-        session.add(program)
-        session.flush()
+    program = _program_for_update(session, name)
     if program.locked:
         raise Conflict(f"program {name!r} is locked")
     if program.versions and program.versions[-1].sha256 == digest:
@@ -171,6 +194,30 @@ def add_version(
         comment=comment,
     )
     return version, True
+
+
+def _program_for_update(session: Session, name: str) -> Program:
+    # Two uploads of one name at the same moment must not both number their version N+1. On
+    # PostgreSQL the program's row is locked until the commit (SQLite has no row locks and
+    # needs none: a writing transaction there holds the database's write lock throughout).
+    stmt = _with_versions(name).with_for_update()
+    program = session.scalar(stmt)
+    if program is not None:
+        return program
+    other = same_name_but_case(session, name)
+    if other is not None:
+        raise Conflict(
+            f"program {name!r} differs from {other!r} only in case, and file systems that "
+            f"fold case (Windows, network shares) would make them one file: use {other!r}"
+        )
+    try:
+        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
+            session.add(Program(name=name, versions=[]))
+    except IntegrityError:
+        pass
+    program = session.scalar(stmt)
+    assert program is not None  # created here or by the upload that won the race
+    return program
 
 
 def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:

@@ -15,6 +15,7 @@ waiting for the write lock, so a burst of job claims does not hold the live view
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -22,15 +23,17 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Connection, Engine, create_engine, event
 from sqlalchemy.engine import make_url
-from sqlalchemy.exc import ArgumentError
+from sqlalchemy.exc import ArgumentError, DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.errors import InputError
+from opendnc.errors import InputError, TransportError, os_reason
 
 __all__ = [
     "READ_ONLY",
+    "DatabaseUnreachable",
+    "connect",
     "current_revision",
     "head_revision",
     "make_engine",
@@ -42,6 +45,13 @@ __all__ = [
 MIGRATIONS = Path(__file__).with_name("migrations")
 READ_ONLY = "opendnc_read_only"  # execution option of the sessions that only read
 
+# Connections kept open, and the most the pool opens at once: one for each worker thread that
+# can hold a session at the same moment (the web requests' 40, AnyIO's default, and the machine
+# tasks' asyncio executor, min(32, CPUs + 4)), so a thread never waits for a connection while
+# the threads that hold the connections wait for something else (docs/server.md#database-sessions).
+POOL_SIZE = 5
+MAX_OVERFLOW = 40 + min(32, (os.cpu_count() or 1) + 4) + 2 - POOL_SIZE
+
 
 def make_engine(url: str) -> Engine:
     """An engine for ``url``; :class:`InputError` for a URL SQLAlchemy cannot use."""
@@ -52,13 +62,22 @@ def make_engine(url: str) -> Engine:
     if parsed.get_backend_name() == "sqlite":
         database = parsed.database or ""
         if database and database != ":memory:":
-            Path(database).parent.mkdir(parents=True, exist_ok=True)
-        engine = create_engine(parsed, connect_args={"timeout": 30})
+            try:
+                Path(database).parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise DatabaseUnreachable(
+                    f"cannot make the database's folder {Path(database).parent}: {os_reason(exc)}"
+                ) from None
+        engine = create_engine(
+            parsed, connect_args={"timeout": 30}, pool_size=POOL_SIZE, max_overflow=MAX_OVERFLOW
+        )
         event.listen(engine, "connect", _sqlite_pragmas)
         event.listen(engine, "begin", _sqlite_begin)
         return engine
     if parsed.get_backend_name() == "postgresql":
-        return create_engine(parsed, pool_pre_ping=True)
+        return create_engine(
+            parsed, pool_pre_ping=True, pool_size=POOL_SIZE, max_overflow=MAX_OVERFLOW
+        )
     raise InputError(
         f"unsupported database {parsed.get_backend_name()!r}: use sqlite or postgresql"
     )
@@ -107,9 +126,29 @@ def _alembic_config(connection: Any) -> Config:
     return config
 
 
+class DatabaseUnreachable(TransportError):
+    """The database could not be connected to (down, refusing, a file that cannot be opened)."""
+
+
+def reason_of(exc: DBAPIError) -> str:
+    """The driver's first line about ``exc``, without SQLAlchemy's decoration, lower case."""
+    text = str(exc.orig).strip().splitlines()[0] if str(exc.orig).strip() else type(exc).__name__
+    return text[:1].lower() + text[1:]
+
+
+def connect(engine: Engine) -> Connection:
+    """A connection of ``engine``; :class:`DatabaseUnreachable` in one line if none opens."""
+    try:
+        return engine.connect()
+    except DBAPIError as exc:
+        where = engine.url.render_as_string(hide_password=True)
+        raise DatabaseUnreachable(f"cannot reach the database {where}: {reason_of(exc)}") from None
+
+
 def migrate(engine: Engine, revision: str = "head") -> None:
-    """Bring the schema to ``revision`` (upgrade or downgrade)."""
-    with engine.begin() as connection:
+    """Bring the schema to ``revision`` (upgrade or downgrade); :class:`DatabaseUnreachable`
+    when the database cannot be reached."""
+    with connect(engine) as connection, connection.begin():
         config = _alembic_config(connection)
         current = MigrationContext.configure(connection).get_current_revision()
         heads = ScriptDirectory.from_config(config)

@@ -1,0 +1,98 @@
+"""Program names that Windows or an SMB share would make one file are refused (issue 20 item 11),
+and a database that cannot be reached at start is one line, not a traceback."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.errors import InputError
+from opendnc.server import library
+from opendnc.server.errors import Conflict
+
+
+@pytest.mark.parametrize("name", ["O1.nc.", "O1.nc..", "PART.", "O1.nc ", "O1 .nc", " O1.nc"])
+def test_a_name_with_a_trailing_dot_or_a_space_is_refused(name: str) -> None:
+    with pytest.raises(InputError) as caught:
+        library.check_program_name(name)
+    assert "\n" not in str(caught.value)
+    if name.endswith(".") and ".." not in name:
+        assert f"call it {name.rstrip('.')!r}" in str(caught.value)
+
+
+@given(st.text(max_size=120))
+def test_every_accepted_name_is_its_own_file_name_everywhere(name: str) -> None:
+    try:
+        accepted = library.check_program_name(name)
+    except InputError:
+        return
+    assert accepted == name
+    # Windows strips trailing dots and spaces; an accepted name has none to strip.
+    assert name.rstrip(". ") == name
+    assert "/" not in name
+    assert "\\" not in name
+
+
+def test_a_name_differing_only_in_case_is_refused_naming_the_one_that_exists(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as session:
+        library.add_version(session, "O1.nc", b"G0 X0\n", author="ann")
+    for other in ("o1.nc", "O1.NC", "o1.Nc"):
+        with sessions.begin() as session, pytest.raises(Conflict) as caught:
+            library.add_version(session, other, b"G0 X1\n", author="bob")
+        assert "'O1.nc'" in str(caught.value)
+        assert "only in case" in str(caught.value)
+    with sessions.begin() as session:  # the existing name itself takes new versions
+        version, created = library.add_version(session, "O1.nc", b"G0 X2\n", author="bob")
+        assert (version.number, created) == (2, True)
+    with sessions() as session:
+        assert [p.name for p in library.list_programs(session)] == ["O1.nc"]
+
+
+def test_a_search_longer_than_a_name_is_refused_and_wildcards_match_themselves(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as session:
+        library.add_version(session, "A_1.nc", b"G0\n", author="ann")
+        library.add_version(session, "AB1.nc", b"G0\n", author="ann")
+    with sessions() as session:
+        assert [p.name for p in library.list_programs(session, "a_")] == ["A_1.nc"]
+        assert library.list_programs(session, "%") == []
+        with pytest.raises(InputError):
+            library.list_programs(session, "a" * 60000)
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+    return port
+
+
+@pytest.mark.parametrize("command", ["serve", "keys"])
+def test_an_unreachable_database_at_start_is_one_line(tmp_path: Path, command: str) -> None:
+    config = tmp_path / "shop.toml"
+    config.write_text(f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{tmp_path / "lib"}"\n')
+    url = f"postgresql+psycopg://postgres@127.0.0.1:{_closed_port()}/opendnc"
+    args = ["serve"] if command == "serve" else ["keys", "create", "--role", "admin"]
+    done = subprocess.run(
+        [sys.executable, "-m", "opendnc.cli.main", *args, "--config", str(config), "--db", url],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "COLUMNS": "80"},  # a narrow terminal must not wrap it
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"error: cannot reach the database {url}: "), line
+    assert "refused" in line.lower()
