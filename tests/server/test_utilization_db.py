@@ -220,8 +220,8 @@ def test_the_recorder_stores_program_part_count_and_alarm(
             ).order_by(StatusSample.id)
         ).all()
     assert [tuple(r) for r in rows] == [
-        ("active", "O1234", 7, ""),
-        ("active", "O1234", 8, ""),
+        ("running", "O1234", 7, ""),
+        ("running", "O1234", 8, ""),
         ("alarm", "O1234", 8, "1010 SPINDLE"),
     ]
     assert [s.part_count for s in tl.history("vf2", t0)] == [7, 8, 8]
