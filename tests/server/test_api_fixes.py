@@ -343,6 +343,30 @@ def test_an_offline_control_answers_503_in_one_line(app: App) -> None:
     assert page.status_code == 503
 
 
+def test_the_file_browser_reads_on_the_machine_s_own_link(app: App) -> None:
+    control = app.controls["tnc"]
+    control.files["TNC:/nc_prog/sub/A.H"] = b"1 END PGM A MM\n"
+    links = control.connects
+    listing = app.client.get(
+        "/api/machines/tnc/files", params={"path": "TNC:/nc_prog"}, headers=app.api(Role.VIEWER)
+    ).json()
+    names = [(e["name"], e["is_dir"]) for e in listing["entries"]]
+    assert names[0] == ("sub", True)  # folders first
+    content = app.client.get(
+        "/api/machines/tnc/files/content",
+        params={"path": "TNC:/nc_prog/sub/A.H"},
+        headers=app.api(Role.VIEWER),
+    )
+    assert content.content == b"1 END PGM A MM\n"
+    assert content.headers["content-type"] == "application/octet-stream"
+    page = app.client.get("/machines/tnc/files", headers=app.page(Role.VIEWER))
+    assert "sub/" in page.text
+    assert control.connects == links  # no second link: the machine's task did the reading
+    # a control without a file browser has none, whoever asks
+    haas = app.client.get("/api/machines/haas/files", headers=app.api(ADMIN))
+    assert haas.status_code == 409
+
+
 def test_the_file_browser_puts_and_deletes_through_jobs(app: App) -> None:
     control = app.controls["tnc"]
     control.files["TNC:/nc_prog/GONE.H"] = b"1 END PGM GONE MM\n"
