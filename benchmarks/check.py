@@ -21,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from opendnc.gcode.program import parse_plain
 from opendnc.nccheck import Control, check_text
 
 TARGET_S = 2.0
@@ -39,7 +40,7 @@ def gcode_program(blocks: int) -> str:
                 "G90",
                 f"T{tool} M06",
                 f"G00 G54 X0. Y0. S{2000 + tool * 100} M03",
-                "G43 H01 Z5.",
+                f"G43 H{tool:02d} Z5.",
                 "G01 Z-1. F300.",
             ]
         angle = i * 0.01
@@ -111,14 +112,25 @@ def main() -> None:
             path.write_text(make(args.blocks), "ascii")
             lines = path.read_text("ascii").count("\n")
             read, wall, cpu, blocks, problems = best(path, control, args.runs)
-            verdict = ""
-            if control is Control.HAAS:
-                verdict = " (target < 2 s: " + ("met)" if wall < TARGET_S else "MISSED)")
             print(
                 f"{control.value:10s} {lines:,} lines, {blocks:,} blocks run, {problems} "
                 f"problems: read {read * 1000:.1f} ms; read + check {wall:.3f} s wall "
-                f"= {wall / read:,.0f}x reading{verdict}, {cpu:.3f} s CPU"
+                f"= {wall / read:,.0f}x reading, {cpu:.3f} s CPU"
             )
+            if control is Control.HAAS:
+                # the floor: only the shared parser's fast path over every line (CPU time)
+                text = path.read_text("ascii")
+                started_cpu = time.process_time()
+                for line in text.splitlines():
+                    parse_plain(line)
+                floor = time.process_time() - started_cpu
+                print(f"{'':10s} floor: parsing every line alone {floor:.3f} s CPU")
+                # wall time counts the other processes sharing the cores; CPU time is the run's
+                print(
+                    f"{'':10s} target < {TARGET_S:g} s: wall "
+                    f"{'met' if wall < TARGET_S else 'MISSED'}, CPU "
+                    f"{'met' if cpu < TARGET_S else 'MISSED'}"
+                )
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"load average (1 min) {load:.1f} on {os.cpu_count()} cores")
 

@@ -17,6 +17,9 @@ Five patterns take turns until ``--seconds`` have passed (``--smoke``: one short
                   wrong bytes, or a file left by a failed one.
 * ``mdc-abuse``   one client floods Q500 and never reads, another connects and never reads;
                   a well-behaved client must still get answers within 10 s.
+* ``serial-*``    serial LSV2 over the virtual cable at 1e-4 bit errors, NC text and binary
+                  both ways (``benchmarks/soak_serial_lsv2.py``, which also runs alone).
+                  ``caught``: a typed error; silent: success reported with wrong bytes.
 * ``dprnt``       a DPRNT source sends good lines among garbage lines, over-long lines (5 kB,
                   sometimes 1 MiB) and a cut last line. Failure: a complete line lost; silent: a
                   fragment or cut line recorded as if it were a complete line.
@@ -67,6 +70,7 @@ from opendnc.xmodem.sender import SenderConfig
 
 sys.path.insert(0, str(Path(__file__).parent))
 from simproc import start_server
+from soak_serial_lsv2 import pattern_serial_lsv2
 
 # -- bookkeeping --------------------------------------------------------------------------
 
@@ -641,6 +645,7 @@ def run(seconds: float, smoke: bool, seed: int) -> dict[str, object]:
         lambda s: pattern_xmodem(s, Mode.ONE_K),
         pattern_mdc_abuse,
         pattern_dprnt,
+        pattern_serial_lsv2,  # serial LSV2 at 1e-4 (benchmarks/soak_serial_lsv2.py)
     ]
     rounds = 0
     try:

@@ -3,9 +3,11 @@
 - ```` ```sh ```` and ```` ```python ```` blocks run, top to bottom, in one bash session
   (``cd``, variables and ``&`` jobs carry over); ```` ```text ```` and bare fences do not.
 - ``<!-- readme-test: skip: REASON -->`` on the line before a fence skips that block.
-- A trailing ``# ... [exit N]`` expects exit status N; ``# ... [not run]`` shows a line only.
-- A line ending in ``&`` starts a background job: its output goes to a log and the run waits
-  (with a deadline) for its first line, which every server prints once it listens.
+- A trailing ``# ... [exit N]`` expects exit status N; ``# ... [not run]`` shows a line only;
+  ``# ... [prints TEXT]`` expects TEXT in what the command prints on stdout.
+- A line ending in ``&`` starts a background job whose output goes to a log. The run does not
+  wait for it: the README itself must, as a person pasting it would need, so the next command
+  is ``opendnc wait ...`` (or a command that waits by itself, see :data:`SELF_WAITING`).
 - Python blocks run with the venv's python at their place in the order, in the same folder.
 """
 
@@ -18,11 +20,15 @@ from dataclasses import dataclass, field
 
 RUN_FENCES = frozenset({"sh", "python"})
 ALLOWED_FENCES = frozenset({"sh", "python", "text", ""})
-READY_DEADLINE_S = 20
+#: Commands that may follow a background job because they wait for it themselves: `opendnc
+#: wait`, the shell's `wait` for a job, and an XModem sender (it waits for the receiver's start
+#: request up to its --timeout).
+SELF_WAITING = ("opendnc wait ", "wait $", "opendnc xmodem send ")
 
 _FENCE = re.compile(r"^```(\S*)\s*$")
 _SKIP = re.compile(r"^<!--\s*readme-test:\s*skip:?\s*(.*?)\s*-->\s*$")
 _EXIT = re.compile(r"\[exit (\d+)\]")
+_PRINTS = re.compile(r"\[prints (.+?)\]")
 _HEREDOC = re.compile(r"<<-?\s*(['\"]?)(\w+)\1")
 
 
@@ -111,6 +117,30 @@ def split_commands(block: Block) -> list[Command]:
     return commands
 
 
+def is_background(command: Command) -> bool:
+    """True for a command that starts a background job (a line ending in ``&``)."""
+    code = _code_part(_last(command.text)).rstrip()
+    return not command.heredoc and code.endswith("&") and not code.endswith("&&")
+
+
+def unwaited_background_jobs(block: Block) -> list[Command]:
+    """Background jobs not followed by a command that waits for them (see SELF_WAITING); an
+    assignment of ``$!`` in between is allowed."""
+    commands = [
+        c for c in split_commands(block) if c.text.strip() and not c.text.lstrip().startswith("#")
+    ]
+    bad = []
+    for index, command in enumerate(commands):
+        if not is_background(command):
+            continue
+        rest = commands[index + 1 :]
+        while rest and re.fullmatch(r"\w+=\$!", rest[0].text.strip()):
+            rest = rest[1:]
+        if not rest or not rest[0].text.lstrip().startswith(SELF_WAITING):
+            bad.append(command)
+    return bad
+
+
 def _last(text: str) -> str:
     return text.split("\n")[-1]
 
@@ -134,13 +164,21 @@ def _shell(block: Block, state_dir: str) -> list[str]:
         if "[not run]" in comment:
             continue
         expected = _EXIT.search(comment)
+        prints = _PRINTS.search(comment)
         lines = command.text.split("\n")
         body = "\n".join([*lines[:-1], code.rstrip()])  # without the trailing comment
-        if not command.heredoc and code.rstrip().endswith("&") and not code.rstrip().endswith("&&"):
+        if is_background(command):
             head = body.rstrip()[:-1].rstrip()
             log = f"{state_dir}/{command.line}.log"
-            out.append(f"{head} > {log} 2>&1 &")
-            out.append(f"__ready $! {log} {command.line}")
+            out.append(f"{head} > {log} 2>&1 &")  # no wait here: the README must wait
+        elif prints is not None:
+            want = shlex.quote(prints.group(1))
+            out.append(f"__out=$({body})")
+            out.append("printf '%s\\n' \"$__out\"")
+            out.append(
+                f'[[ "$__out" == *{want}* ]] || {{ echo "README.md:{command.line}: '
+                f'expected the output to contain "{want} >&2; exit 1; }}'
+            )
         elif expected is not None:
             out.append(f"__rc=0; {body} || __rc=$?")
             want = expected.group(1)
@@ -165,30 +203,17 @@ def _python(block: Block, state_dir: str) -> list[str]:
     ]
 
 
-PRELUDE = f"""\
+PRELUDE = """\
 set -e -o pipefail
 __line=0
-__t0=${{EPOCHREALTIME/./}}
-__show() {{  # "+ 12.3s README.md:LINE: command" before each command
-  local us=$(( ${{EPOCHREALTIME/./}} - __t0 ))
+__t0=${EPOCHREALTIME/./}
+__show() {  # "+ 12.3s README.md:LINE: command" before each command
+  local us=$(( ${EPOCHREALTIME/./} - __t0 ))
   printf '+ %d.%ds %s\\n' $((us / 1000000)) $((us % 1000000 / 100000)) "$1"
-}}
+}
 trap 'echo "README.md:$__line: exit status $?" >&2' ERR
-__stop() {{ local p; p=$(jobs -p); if [ -n "$p" ]; then kill $p 2>/dev/null || true; fi; }}
+__stop() { local p; p=$(jobs -p); if [ -n "$p" ]; then kill $p 2>/dev/null || true; fi; }
 trap __stop EXIT
-__ready() {{  # pid log line: wait for the first output of a background job
-  local deadline=$((SECONDS + {READY_DEADLINE_S}))
-  while [ ! -s "$2" ]; do
-    if ! kill -0 "$1" 2>/dev/null; then
-      echo "README.md:$3: background command ended before it was ready:" >&2; cat "$2" >&2
-      exit 1
-    fi
-    if [ "$SECONDS" -ge "$deadline" ]; then
-      echo "README.md:$3: background command printed nothing in {READY_DEADLINE_S} s" >&2; exit 1
-    fi
-    sleep 0.05
-  done
-}}
 """
 
 

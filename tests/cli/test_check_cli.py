@@ -60,7 +60,9 @@ def test_json_has_problems_tools_extents_and_moves() -> None:
     assert result["stock"] == {"min": [0.0, 0.0, -20.0], "max": [100.0, 80.0, 0.0], "axis": "Z"}
     assert result["extents"]["Z"] == [-15.0, 100.0]
     arcs = [m for m in result["moves"] if m["kind"].startswith("arc")]
-    assert arcs[0]["center"] == [100.0, 40.0, -5.0]
+    # RND R5 rounds the corner at (0, 80) to the right, then C turns about CC X+100 Y+40
+    assert (arcs[0]["line"], arcs[0]["kind"], arcs[0]["center"]) == (10, "arc_cw", [5, 75, -5])
+    assert (arcs[1]["line"], arcs[1]["kind"], arcs[1]["center"]) == (13, "arc_cw", [100, 40, -5])
     assert arcs[0]["plane"] == "xy"
 
 

@@ -137,6 +137,10 @@ def test_options_before_and_after_give_the_same_answer(tnc: int) -> None:
         ["haas", "q"],
         ["nosuch"],
         ["xmodem", "send", "missing.nc", "--port", "/dev/null"],
+        ["xmodem", "send", "--port", "/dev/null"],
+        ["xmodem", "recv", "out", "--port", "p", "--mode", "bad"],
+        ["sim", "tnc", "--bogus"],
+        ["lsv2", "--timeout", "soon", "info"],
     ],
 )
 def test_usage_errors_are_one_line_with_status_2(args: list[str]) -> None:
@@ -147,6 +151,11 @@ def test_usage_errors_are_one_line_with_status_2(args: list[str]) -> None:
     assert len(lines) == 1, result.stderr
     assert lines[0].startswith("error: ")
     assert "--help" in lines[0]
+    # click's own messages in our style: lower case, no sentences ending in full stops
+    message = lines[0].removeprefix("error: ").split(" (see '", 1)[0]
+    assert message[0].islower(), message
+    assert ". " not in message, message
+    assert not message.endswith("."), message
 
 
 def test_a_locked_action_prints_the_exact_line_that_runs_it(tnc: int) -> None:

@@ -48,6 +48,9 @@ def test_demo_shows_live_values(tmp_path: Path) -> None:
     for axis, value in positions.items():
         assert f"{axis}={value:.4f}" in out
     assert "10000" in out
+    # overrides as `opendnc lsv2 status` shows them (issue 23: the tour printed None)
+    assert "feed 100 %  spindle 100 %  rapid 100 %" in out
+    assert "None" not in out
     assert "MILL_D10_ROUGH" in out  # tool table
     assert "Q500" in out
     assert "PROGRAM" in out

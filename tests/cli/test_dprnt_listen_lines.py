@@ -10,6 +10,8 @@ import csv
 import json
 import socket
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -19,7 +21,13 @@ from opendnc.cli.main import app
 runner = CliRunner()
 
 
-def capture(data: bytes, csv_path: Path) -> tuple[list[list[str]], dict[str, int]]:
+def capture(
+    data: bytes,
+    csv_path: Path,
+    *extra: str,
+    output: list[str] | None = None,
+    before_send: Callable[[], None] | None = None,
+) -> tuple[list[list[str]], dict[str, int]]:
     """Serve ``data`` to one client over real TCP, capture it with the CLI into ``csv_path``;
     return the CSV rows and the summary the command prints last."""
     server = socket.create_server(("127.0.0.1", 0))
@@ -29,6 +37,8 @@ def capture(data: bytes, csv_path: Path) -> tuple[list[list[str]], dict[str, int
     def serve() -> None:
         try:
             conn, _ = server.accept()
+            if before_send is not None:
+                before_send()
             with conn:
                 conn.sendall(data)
                 conn.shutdown(socket.SHUT_WR)
@@ -49,13 +59,17 @@ def capture(data: bytes, csv_path: Path) -> tuple[list[list[str]], dict[str, int
                 str(csv_path),
                 "--max-connects",
                 "1",
+                *extra,
             ],
+            env={"COLUMNS": "200"},
         )
     finally:
         server.close()
         thread.join(timeout=10)
     assert not errors, errors
     assert result.exit_code == 0, result.output
+    if output is not None:
+        output.append(result.output)
     summary = json.loads(result.output.strip().splitlines()[-1])
     rows = list(csv.reader(csv_path.read_text(encoding="utf-8").splitlines()))
     return rows, summary
@@ -89,3 +103,33 @@ def test_line_cut_by_disconnect_is_kept_and_marked(tmp_path: Path) -> None:
     rows, summary = capture(b"GOOD 1\r\nHALF 2", tmp_path / "o.csv")
     assert [(row[1], row[3]) for row in rows[1:]] == [("GOOD 1", "yes"), ("HALF 2", "no")]
     assert summary == {"lines": 2, "cut": 1, "dropped": 0}
+
+
+def test_values_are_shown_with_their_labels(tmp_path: Path) -> None:
+    """What `DPRNT[X*#100[22]*Z*#5223[44]]` prints, shown as the README says: X=0 Z=-0.5."""
+    shown: list[str] = []
+    ready = tmp_path / "ready"
+    seen: list[bool] = []
+
+    def flag_is_up() -> None:  # the listener has the port open: its ready flag must exist
+        deadline = time.monotonic() + 5
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        seen.append(ready.exists())
+
+    rows, _ = capture(
+        b"X  0.00 Z -0.5000\r\nP 7\r\n",
+        tmp_path / "o.csv",
+        "--ready-file",
+        str(ready),
+        output=shown,
+        before_send=flag_is_up,
+    )
+    lines = [line for line in shown[0].splitlines() if line[:2].isdigit()]  # timestamped
+    assert [line.split(" ", 1)[1] for line in lines] == [
+        "X  0.00 Z -0.5000  X=0 Z=-0.5",
+        "P 7  P=7",
+    ]
+    assert [row[1] for row in rows[1:]] == ["X  0.00 Z -0.5000", "P 7"]
+    assert seen == [True]  # created once the port was open
+    assert not ready.exists()  # and removed when the listener ended

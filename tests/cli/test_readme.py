@@ -3,7 +3,8 @@
 The rules a README section follows are in the module :mod:`tests.cli.readme_blocks` docstring
 (fences that run, markers, background servers). The run happens under ``unshare`` with a
 private loopback and a private ``/tmp``, so the README's literal ports and paths never meet
-another test run.
+another test run. It runs in a fresh checkout (a git repository of this tree's files), which
+must be as clean afterwards as before: the README's examples keep their files out of git's way.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,11 +28,12 @@ from tests.cli.readme_blocks import (
     build_script,
     parse_readme,
     split_commands,
+    unwaited_background_jobs,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
-RUN_DEADLINE = 120.0  # seconds for the whole README; it takes well under 60 s
+RUN_DEADLINE = 420.0  # seconds for the whole README: about 100 commands, 1-3 min on a busy machine
 # <file>, HOST:PORT style words or [--optional] flags cannot run as typed
 PLACEHOLDER = re.compile(r"(?<![<\d])<[A-Za-z][\w.-]*>|\[--")
 
@@ -72,6 +75,60 @@ def test_structure_every_command_is_parsed() -> None:
             )
 
 
+def test_structure_every_background_job_is_waited_for() -> None:
+    # pasted as one script, the line after `cmd &` runs at once: it must wait for cmd to listen
+    for block in _blocks():
+        if block.lang != "sh" or block.skip is not None:
+            continue
+        for command in unwaited_background_jobs(block):
+            raise AssertionError(
+                f"README.md:{command.line}: {command.text.strip()!r} starts a background job; "
+                "follow it with `opendnc wait ...` (tcp://, http:// or the job's --ready-file)"
+            )
+
+
+def test_structure_every_curl_line_states_its_answer() -> None:
+    checked = 0
+    for block in _blocks():
+        if block.lang != "sh" or block.skip is not None:
+            continue
+        for command in split_commands(block):
+            if command.text.lstrip().startswith("curl "):
+                assert "[prints " in command.text, (
+                    f"README.md:{command.line}: a curl line says what it answers: [prints ...]"
+                )
+                checked += 1
+    assert checked >= 5
+
+
+def _fresh_checkout(target: Path) -> None:
+    """``target`` as a fresh clone of this tree would be: its files, committed, nothing else."""
+    git = peers.require_command("git")
+    listed = subprocess.run(
+        [git, "-C", str(ROOT), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+        capture_output=True,
+        check=True,
+    ).stdout.split(b"\0")
+    for name in filter(None, (n.decode() for n in listed)):
+        source = ROOT / name
+        if source.is_file():
+            (target / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target / name)
+    ident = ["-c", "user.name=readme", "-c", "user.email=readme@localhost"]
+    for step in (["init", "-q"], ["add", "-A"], [*ident, "commit", "-q", "-m", "snapshot"]):
+        subprocess.run([git, *step], cwd=target, check=True, capture_output=True)
+
+
+def _git_status(target: Path) -> str:
+    return subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=all", "--ignored=no"],
+        cwd=target,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+
+
 def _isolation() -> list[str]:
     """``unshare`` arguments for a private loopback and /tmp: as root, else in a user namespace."""
     unshare = peers.require_command("unshare")
@@ -100,7 +157,10 @@ def test_readme_runs_in_order(tmp_path: Path) -> None:
     blocks = _blocks()
     assert any(b.lang in RUN_FENCES and b.skip is None for b in blocks)
     private_tmp = tmp_path / "tmp"  # /tmp inside the run; the README runs in /tmp/work
-    (private_tmp / "work").mkdir(parents=True)
+    checkout = private_tmp / "work"
+    checkout.mkdir(parents=True)
+    _fresh_checkout(checkout)
+    assert _git_status(checkout) == ""
     script = build_script(blocks, state_dir="/tmp/.readme-test")
     (tmp_path / "readme.sh").write_text(script, encoding="utf-8")
 
@@ -143,6 +203,10 @@ def test_readme_runs_in_order(tmp_path: Path) -> None:
     (tmp_path / "transcript.txt").write_text(output, encoding="utf-8")  # for a look afterwards
     assert proc.returncode == 0, f"README run failed\n{_tail(output, private_tmp)}"
     assert output.rstrip().endswith("README-DONE"), "the run stopped before the README's end"
+    # the answers the README promises (each curl line's [prints ...]) were checked in the run;
+    # its files stayed where git does not see them
+    left = _git_status(checkout)
+    assert left == "", f"following the README left files in the checkout:\n{left}"
 
 
 def _host_tmp_folders(*paths: Path) -> set[str]:

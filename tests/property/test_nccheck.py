@@ -129,3 +129,18 @@ def test_q_formulas_give_a_value_or_a_problem(tokens: list[str]) -> None:
         assert math.isfinite(result.end.variables[9])
     else:
         assert [p.line for p in result.errors] == [3]
+
+
+plain_words = st.builds(
+    lambda letter, digits: letter + digits,
+    st.sampled_from("GXYZF"),
+    st.from_regex(r"[0-9]{1,25}(\.[0-9]{0,5})?", fullmatch=True),
+)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(plain_words, min_size=1, max_size=80), st.sampled_from(["", " !", "(", "#", "Q"]))
+def test_long_plain_lines_stay_fast(words: list[str], tail: str) -> None:
+    line = " ".join(words) + tail
+    text = f"%\nO1\n{line}\nM30\n%\n"
+    assert_well_formed(checked(text, Control.HAAS, None), text)

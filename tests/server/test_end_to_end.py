@@ -210,6 +210,15 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
             assert row["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
             assert row["bytes"] == len(PROGRAM)
             assert row["detail"]["by"] == "admin-1"
+        # what each load's outcome says about its check (issue 20, item 6)
+        notes = {name: row["detail"]["verification"] for name, row in rows.items()}
+        assert notes == {
+            "tnc-a": "verified",
+            "tnc-b": "verified",
+            "vf4-ngc": "verified",
+            "vf2-serial": "not verified (checksum mode only)",
+        }
+        assert rows["vf2-serial"]["detail"]["verified"] is None
 
     for root in shop.tnc_roots:
         assert (root / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM

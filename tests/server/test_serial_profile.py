@@ -149,6 +149,9 @@ def test_a_text_load_has_leader_trailer_eob_waits_for_xon_and_paces_lines(shop: 
     assert wire == (b"\0" * 10 + b"%\r\nO01234 (PROFILE)\r\nG00 X1.\r\nM30\r\n%\r\n" + b"\0" * 6)
     (done,) = wait_jobs(client, key, [job_id])
     assert done["state"] == "done", done["error"]
+    audit = client.get("/api/audit", headers=auth(key), params={"action": "job.send"}).json()
+    (row,) = [r for r in audit if r["job_id"] == job_id]
+    assert row["detail"]["verification"] == "not verified (plain text has no check)"
 
     # When each line crossed the cable (its monitor's timestamps, b>a is the PC sending):
     # a line leaves only after the previous one's delay; at 115200 baud a whole line takes

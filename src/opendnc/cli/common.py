@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import enum
 import json
@@ -84,3 +85,35 @@ def run_cli(func: Callable[[], None]) -> None:
     """Run ``func`` under :func:`cli_errors`."""
     with cli_errors():
         func()
+
+
+READY_FILE_HELP = (
+    "Create this file once everything listens, remove it on stop "
+    "(a script waits for it with `opendnc wait FILE`)."
+)
+
+
+@contextmanager
+def ready_file(path: PurePath | None) -> Iterator[Callable[[], None]]:
+    """Yield ``mark()``, which creates ``path`` (a readiness flag for `opendnc wait`).
+
+    A flag left by an earlier run that did not stop cleanly is removed at once; the flag is
+    removed again when the block ends, so a waiter never takes a stopped run for a ready one.
+    """
+    import os
+
+    if path is not None:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+
+    def mark() -> None:
+        if path is not None:
+            with open(path, "w", encoding="utf-8") as flag:
+                flag.write(f"{os.getpid()}\n")
+
+    try:
+        yield mark
+    finally:
+        if path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from opendnc.cli.common import cli_errors, console
+from opendnc.cli.lsv2_machine import _text as status_text  # the words `lsv2 status` uses
 from opendnc.cli.lsv2_machine import machine_status
 from opendnc.errors import DncError
 
@@ -97,8 +98,6 @@ def _tour_tnc(tnc: Client, workdir: Path) -> None:
         raise typer.Exit(1)
 
     status = machine_status(tnc)
-    overrides = status["overrides"] or {}
-    axes = status["axes"] or {}
     word = tnc.read_plc("W4", 1)[0]
     console.print(
         _kv(
@@ -107,11 +106,9 @@ def _tour_tnc(tnc: Client, workdir: Path) -> None:
                 ("execution mode", status["execution_mode"]),
                 ("program state", status["program_state"]),
                 ("selected program", status["selected_program"]),
-                (
-                    "overrides F/S/rapid",
-                    " / ".join(str(overrides.get(k)) for k in ("feed", "spindle", "rapid")),
-                ),
-                ("axes", "  ".join(f"{k}={val}" for k, val in axes.items())),
+                # shown as `opendnc lsv2 status` shows them: feed 100 %  spindle 100 % ...
+                ("overrides", status_text(status["overrides"])),
+                ("axes", status_text(status["axes"])),
                 ("PLC word W4", word),
             ],
         )

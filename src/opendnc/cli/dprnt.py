@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 from rich.text import Text
 
-from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.cli.common import cli_errors, console, err_console, ready_file
 from opendnc.haas.listen import (
     CallbackSink,
     CapturedLine,
@@ -19,6 +19,7 @@ from opendnc.haas.listen import (
     LineSink,
     open_source,
 )
+from opendnc.transport.base import ByteStream
 
 app = typer.Typer(help="Capture DPRNT output from a Haas.", no_args_is_help=True)
 
@@ -44,13 +45,19 @@ def listen(
         "--retry",
         help="Keep trying while the port does not open (default: fail at once with the reason).",
     ),
+    ready: Path | None = typer.Option(
+        None,
+        "--ready-file",
+        help="Create this file once the port is open, remove it at the end (a script waits "
+        "for it with `opendnc wait FILE` before it starts the program that prints).",
+    ),
 ) -> None:
     """Timestamp, parse and store every DPRNT line; reconnect with backoff on disconnect.
 
     A line over 4096 bytes is dropped whole and reported; a line cut by a disconnect is kept
     and marked (CSV column ``complete`` = ``no``, JSON ``"complete": false``).
     """
-    with cli_errors():
+    with cli_errors(), ready_file(ready) as mark_ready:
         sinks: list[LineSink] = []
         if csv_path is not None:
             sinks.append(CsvSink(csv_path))
@@ -61,10 +68,15 @@ def listen(
         else:
             sinks.append(CallbackSink(_show))
 
+        def opener(spec: str) -> ByteStream:
+            stream = open_source(spec, baudrate=baud)
+            mark_ready()  # lines printed from now on are read
+            return stream
+
         listener = DprntListener(
             port,
             sinks,
-            opener=lambda spec: open_source(spec, baudrate=baud),
+            opener=opener,
             on_status=lambda message: err_console.print(f"[dim]{message}[/]", highlight=False),
             retry_unopened=retry,
         )
@@ -83,6 +95,8 @@ def _show(line: CapturedLine) -> None:
     text.append(line.text)
     if not line.complete:
         text.append("  [cut: the link ended before the line end]", style="yellow")
-    if line.numbers:
-        text.append("  " + " ".join(f"{n:g}" for n in line.numbers), style="cyan")
+    if line.fields:
+        # each number with the label written before it in the line: X=0 Z=-0.5
+        shown = (f"{f.label}={f.value:g}" if f.label else f"{f.value:g}" for f in line.fields)
+        text.append("  " + " ".join(shown), style="cyan")
     console.print(text, highlight=False)

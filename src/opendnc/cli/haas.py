@@ -7,13 +7,14 @@ Sub-groups live in their own Typer apps (``macro``, ``share``); a new command is
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
 
-from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.cli.common import cli_errors, console, err_console, print_json
 from opendnc.errors import ControlRefused, InputError
 from opendnc.haas.mdc import Refused, reply_name
 
@@ -22,12 +23,15 @@ if TYPE_CHECKING:  # clients and progress bars load with the command that uses t
 
     from opendnc.haas.dnc import DncConfig
     from opendnc.haas.mdc_client import MdcClient
+    from opendnc.haas.verify import VerifyResult
+    from opendnc.transport.base import ByteStream
 
 # MDC port (Setting 143): opendnc.haas.mdc_client.DEFAULT_PORT, without importing the client
 DEFAULT_PORT = 5051
 
 app = typer.Typer(
-    help="Haas controls: MDC queries, macro variables, Net Share.", no_args_is_help=True
+    help="Haas controls: MDC queries, macro variables, Net Share, load checks.",
+    no_args_is_help=True,
 )
 macro_app = typer.Typer(help="Read or write macro variables over MDC.", no_args_is_help=True)
 share_app = typer.Typer(help="Haas Net Share (SMB or a mounted folder).", no_args_is_help=True)
@@ -407,3 +411,121 @@ def dnc_cmd(
             f"XOFF {report.xoffs}x ({report.paused_seconds:.1f} s held)",
             highlight=False,
         )
+
+
+# --------------------------------------------------------------------------- end-to-end checks
+def punch_back_check(
+    stream: ByteStream,
+    file: Path,
+    sent: bytes,
+    *,
+    eob: str,
+    timeout: float,
+    ignore_spaces: bool,
+) -> VerifyResult:
+    """Wait for the control's punch of ``file`` on ``stream`` and compare (shared with
+    ``xmodem send --verify``); one stderr line tells the operator what to do."""
+    from opendnc.haas.verify import verify_by_punch
+    from opendnc.xmodem.haas import Eob, program_header
+
+    try:
+        eob_choice = Eob(eob.lower())
+    except ValueError:
+        raise InputError(f"bad --eob {eob!r}: use lf, cr, crlf, crcr or lflf") from None
+    header = program_header(sent)
+    name = header.name if header is not None else file.name
+    err_console.print(
+        f"waiting up to {timeout:g} s for the control to punch {name} "
+        "(at the control: select it and send it, Setting 14 = XMODEM)",
+        highlight=False,
+        soft_wrap=True,
+    )
+    return verify_by_punch(
+        stream, sent, eob=eob_choice, timeout=timeout, ignore_spaces=ignore_spaces
+    )
+
+
+def verified_line(result: VerifyResult, file: Path) -> str:
+    """The one line a successful check prints."""
+    name = result.program or "the program"
+    return f"verified: {name} on the control matches {file.name} ({result.lines} lines)"
+
+
+@app.command("verify")
+def verify_cmd(
+    file: Path = typer.Argument(..., help="The program as sent.", exists=True, dir_okay=False),
+    port: str = typer.Option(
+        ..., "--port", help="Serial device, tcp://HOST:PORT, socket:// or rfc2217:// URL."
+    ),
+    baud: int = typer.Option(9600, "--baud", help="Baud rate (Setting 11)."),
+    eob: str = typer.Option("lf", "--eob", help="EOB (Setting 25): lf, cr, crlf, crcr, lflf."),
+    timeout: float = typer.Option(
+        300.0, "--timeout", help="Seconds to wait for the operator to start the punch."
+    ),
+    ignore_spaces: bool = typer.Option(
+        False, "--ignore-spaces", help="Ignore blanks (Setting 41 adds spaces when punching)."
+    ),
+    json_out: bool = ResultJsonOpt,
+) -> None:
+    """Check a load end to end: receive the control's punch of FILE and compare them.
+
+    Checksum XModem can let two cancelling bit errors through; this finds them. Line ends,
+    leader, SUB padding and the % lines do not count.
+    """
+    from opendnc.xmodem.files import open_port
+
+    with cli_errors():
+        try:
+            sent = file.read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read {file}: {exc.strerror or exc}") from None
+        with contextlib.closing(open_port(port, baud, "N")) as stream:
+            result = punch_back_check(
+                stream, file, sent, eob=eob, timeout=timeout, ignore_spaces=ignore_spaces
+            )
+        if json_out:
+            print_json(result)
+        else:
+            console.print(verified_line(result, file), highlight=False, soft_wrap=True)
+
+
+@app.command("check-line")
+def check_line_cmd(
+    files: list[Path] = typer.Argument(..., help="Program files.", exists=True, dir_okay=False),
+    add: bool = typer.Option(
+        False, "--add", help="Write (or renew) the (ODNC CRC32 ...) line after the O line."
+    ),
+    json_out: bool = ResultJsonOpt,
+) -> None:
+    """Check, or add, a program's (ODNC CRC32 ...) line: a sum that travels in the program.
+
+    A program that carries it can be checked whenever it is punched, by whoever receives it
+    (`xmodem recv` refuses one that does not match). Exit status 1 if any file fails.
+    """
+    from opendnc.atomicfile import atomic_write
+    from opendnc.haas.verify import CheckState, add_check_line, check_line
+
+    with cli_errors():
+        results = []
+        for file in files:
+            data = file.read_bytes()
+            if add:
+                data = add_check_line(data)
+                with atomic_write(file) as out:
+                    out.write(data)
+            result = check_line(data)
+            results.append({"file": str(file), **dataclasses.asdict(result)})
+            if not json_out:
+                state = {
+                    CheckState.OK: f"ok ({result.actual})",
+                    CheckState.MISSING: "no check line (add one with --add)",
+                    CheckState.MISMATCH: (
+                        f"DAMAGED: the line says {result.expected}, the text sums to "
+                        f"{result.actual}"
+                    ),
+                }[result.state]
+                console.print(f"{file}: {state}", highlight=False, soft_wrap=True)
+        if json_out:
+            print_json(results)
+        if any(r["state"] == CheckState.MISMATCH for r in results):
+            raise typer.Exit(1)

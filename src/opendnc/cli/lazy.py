@@ -18,6 +18,7 @@ The root group (:class:`RootGroup`) adds what every command shares:
 
 from __future__ import annotations
 
+import re
 import shlex
 import sys
 from collections.abc import Mapping, Sequence
@@ -122,7 +123,7 @@ class LazyGroup(TyperGroup):
         except click.UsageError as exc:
             matches = get_close_matches(args[0], self.list_commands(ctx)) if args else []
             if matches:
-                exc.message = exc.message.rstrip(".") + f". Did you mean {matches[0]!r}?"
+                exc.message = exc.message.rstrip(".") + f"; did you mean {matches[0]!r}?"
             raise
 
 
@@ -144,12 +145,37 @@ def lazy_typer(help: str, entries: Mapping[str, Lazy], *, root: bool = False) ->
         pretty_exceptions_enable=False,
     )
 
+    if root:
+
+        @app.callback()
+        def _root_group(
+            version: bool = typer.Option(
+                False,
+                "--version",
+                help="Print the opendnc version and exit.",
+                is_eager=True,
+                callback=_print_version,
+            ),
+        ) -> None:
+            pass
+
+        _root_group.__doc__ = help
+        return app
+
     @app.callback()
     def _group() -> None:
         pass
 
     _group.__doc__ = help
     return app
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from opendnc import __version__
+
+        typer.echo(f"opendnc {__version__}")
+        raise typer.Exit()
 
 
 # --------------------------------------------------------------------------- global options
@@ -280,9 +306,26 @@ class RootGroup(LazyGroup):
 
 
 def _error_line(message: str) -> None:
-    text = " ".join(message.split())
+    text = plain_message(message)
     sys.stderr.write(f"error: {text}\n")
     sys.stderr.flush()
+
+
+# a capitalised English word where a sentence starts: the start, after ". ", ": " or "("
+_SENTENCE_START = re.compile(r"(^|\. |: |\()([A-Z][a-z]+)\b")
+
+
+def plain_message(message: str) -> str:
+    """Click's own messages in our style: one line, lower case, no full stop.
+
+    ``No such command 'inf'. Did you mean 'info'?`` becomes
+    ``no such command 'inf'; did you mean 'info'?``; names in quotes and upper-case words
+    (``TNC``, ``'X'``) stay as they are.
+    """
+    text = " ".join(message.split()).replace(": Value error, ", ": ")
+    text = _SENTENCE_START.sub(lambda m: m.group(1) + m.group(2).lower(), text)
+    text = text.replace(". ", "; ")
+    return text[:-1] if text.endswith(".") else text
 
 
 def _report_usage(exc: click.UsageError) -> int:
@@ -290,5 +333,5 @@ def _report_usage(exc: click.UsageError) -> int:
         exc.show()  # a group called without a command prints its help
         return exc.exit_code
     where = exc.ctx.command_path if exc.ctx is not None else "opendnc"
-    _error_line(f"{exc.format_message()} (see '{where} --help')")
+    _error_line(f"{plain_message(exc.format_message())} (see '{where} --help')")
     return exc.exit_code

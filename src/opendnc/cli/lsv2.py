@@ -15,7 +15,7 @@ import typer
 from rich.markup import escape
 
 from opendnc.cli import lsv2_machine
-from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.cli.common import cli_errors, console, err_console, print_json
 from opendnc.cli.lsv2_serial import (
     BaudOpt,
     BytesizeOpt,
@@ -23,6 +23,7 @@ from opendnc.cli.lsv2_serial import (
     ParityOpt,
     SerialOpt,
     StopbitsOpt,
+    TelegramSizeOpt,
     serial_line,
 )
 from opendnc.cli.lsv2_session import JsonOpt, Settings, bar, connect, relabel, want_json
@@ -53,10 +54,11 @@ def main(
     bytesize: int = BytesizeOpt,
     stopbits: float = StopbitsOpt,
     flow: str = FlowOpt,
+    telegram_size: int = TelegramSizeOpt,
 ) -> None:
     """Heidenhain controls over LSV2 (TCP, or RS-232 with --serial)."""
     with cli_errors():
-        line = serial_line(serial, baud, parity, bytesize, stopbits, flow)
+        line = serial_line(serial, baud, parity, bytesize, stopbits, flow, telegram_size)
     ctx.obj = Settings(host, port, timeout, json_out, unsafe, line)
 
 
@@ -255,6 +257,16 @@ def _transfer_many(
             progress.update(task, completed=base)
             landed = _landed(source, target, download=download)
             console.print(f"{verb} {source} -> {landed} ({moved:,} bytes)", highlight=False)
+    changes = tnc.telegram_changes
+    if changes:
+        # the line was bad enough to change the upload telegram size (docs/lsv2-serial.md)
+        steps = " -> ".join(str(n) for n in [changes[0][0], *(new for _, new in changes)])
+        err_console.print(f"serial: telegram size {steps} bytes", highlight=False)
+    if tnc.serial_restarts:
+        err_console.print(
+            f"serial: {tnc.serial_restarts} transfer(s) started again after a link failure",
+            highlight=False,
+        )
 
 
 def _landed(source: str, target: str, *, download: bool) -> str:

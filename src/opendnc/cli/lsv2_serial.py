@@ -23,6 +23,7 @@ __all__ = [
     "ParityOpt",
     "SerialOpt",
     "StopbitsOpt",
+    "TelegramSizeOpt",
     "resolve_baud",
     "serial_line",
 ]
@@ -41,10 +42,22 @@ ParityOpt = typer.Option("E", "--parity", help="Serial parity: N, E or O.")
 BytesizeOpt = typer.Option(8, "--bytesize", help="Serial data bits: 7 or 8.")
 StopbitsOpt = typer.Option(1.0, "--stopbits", help="Serial stop bits: 1, 1.5 or 2.")
 FlowOpt = typer.Option("none", "--flow", help=f"Flow control: {', '.join(FLOW_CONTROLS)}.")
+TelegramSizeOpt = typer.Option(
+    256,
+    "--telegram-size",
+    help="Serial telegram size to ask for, 64-4096 bytes (uploads shrink below it on a bad "
+    "line and grow back; 4096 is faster on a clean line).",
+)
 
 
 def serial_line(
-    url: str | None, baud: str, parity: str, bytesize: int, stopbits: float, flow: str
+    url: str | None,
+    baud: str,
+    parity: str,
+    bytesize: int,
+    stopbits: float,
+    flow: str,
+    telegram_size: int | None = None,
 ) -> SerialLine | None:
     """The :class:`SerialLine` of the ``--serial`` options (``None`` without ``--serial``)."""
     if not url:
@@ -60,7 +73,13 @@ def serial_line(
     from opendnc.lsv2.serial_stream import SerialLine
 
     return SerialLine(
-        url, rate, parity=parity.upper(), bytesize=bytesize, stopbits=stopbits, flow=flow.lower()
+        url,
+        rate,
+        parity=parity.upper(),
+        bytesize=bytesize,
+        stopbits=stopbits,
+        flow=flow.lower(),
+        telegram_size=telegram_size,
     )
 
 

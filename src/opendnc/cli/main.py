@@ -50,6 +50,9 @@ COMMANDS: dict[str, Lazy] = {
     "requests": Lazy(
         "opendnc.cli.serve:requests_app", "Remote-request rules: test which rule takes a request."
     ),
+    "wait": Lazy(
+        "opendnc.cli.wait:wait", "Wait until servers listen or files exist (for scripts)."
+    ),
     "cluster": Lazy(
         "opendnc.cli.cluster:app", "Several servers on one database: servers and their machines."
     ),

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 
 from opendnc.atomicfile import atomic_write
-from opendnc.cli.common import cli_errors, console
+from opendnc.cli.common import READY_FILE_HELP, cli_errors, console, ready_file
 from opendnc.errors import InputError, TransportError
 
 
@@ -29,11 +29,17 @@ def fleet(
     ),
     bind: str = typer.Option("127.0.0.1:8000", "--bind", help="Server address in --config-out."),
     poll: float = typer.Option(1.0, "--poll", help="Status poll interval in --config-out."),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
     """Run many virtual controls at once (and write the server configuration for them)."""
     from opendnc.sim.fleet import server_config, start_fleet
 
     async def main(folder: Path) -> None:
+        # before the ready line: a signal sent as soon as it appears must stop, not kill
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
         started = await start_fleet(
             folder,
             tnc=tnc,
@@ -56,16 +62,13 @@ def fleet(
                 highlight=False,
                 soft_wrap=True,
             )
-            stop = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(sig, stop.set)
+            mark_ready()
             await stop.wait()
         finally:
             await started.close()
         console.print("stopped")
 
-    with cli_errors():
+    with cli_errors(), ready_file(ready) as mark_ready:
         if tnc < 0 or haas < 0 or serial_haas < 0:
             raise InputError("--tnc and --haas count controls: 0 or more")
         try:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import sys
+import signal
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
 
-from opendnc.cli.common import cli_errors, err_console
+from opendnc.cli.common import READY_FILE_HELP, cli_errors, err_console, ready_file
 from opendnc.errors import InputError, TransportError
 from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SimHaas, SimOptions
@@ -81,6 +82,12 @@ def haas(
     haas_quirks: bool = typer.Option(
         True, "--haas-quirks/--no-haas-quirks", help="Extra NAKs and CAN after EOT, as a Haas does."
     ),
+    punch_back: bool = typer.Option(
+        False,
+        "--punch-back",
+        help="Punch every program received by XModem back out (an operator checking a load).",
+    ),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
     """Run a virtual Haas: MDC on TCP, DPRNT to TCP/file, programs from --root."""
     with cli_errors():
@@ -115,12 +122,21 @@ def haas(
             trace=_trace if trace else None,
         )
         serial_options = _serial_options(
-            serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks
+            serial_mode, baud or 9600, parity, eob, dnc_timeout, haas_quirks, punch_back
         )
-        with contextlib.suppress(KeyboardInterrupt):
+        with contextlib.suppress(KeyboardInterrupt), ready_file(ready) as mark_ready:
             try:
                 asyncio.run(
-                    _serve(config, root, options, serial, baud or 9600, run, serial_options)
+                    _serve(
+                        config,
+                        root,
+                        options,
+                        serial,
+                        baud or 9600,
+                        run,
+                        serial_options,
+                        mark_ready,
+                    )
                 )
             except OSError as exc:
                 # a taken MDC/DPRNT port: asyncio's strerror names the address
@@ -135,7 +151,14 @@ async def _serve(
     baud: int,
     run: int | None,
     serial_options: SerialOptions | None = None,
+    mark_ready: Callable[[], None] = lambda: None,
 ) -> None:
+    # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly;
+    # installed before the ready lines, so a signal sent as soon as they appear stops the run
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
     sim = SimHaas(config, root, options)
     if options.trace is not None:
         sim.control.event_hooks.append(
@@ -158,19 +181,32 @@ async def _serve(
         if sim.dprnt_file is not None:
             print(f"DPRNT file {sim.dprnt_file.path}", flush=True)
         print(f"MEMORY {root} programs={len(sim.control.store.numbers())}", flush=True)
+        mark_ready()
         if run is not None:
             if sim.dprnt_tcp is not None:
-                # DPRNT lines printed before a reader connects are lost, as on the control
-                await sim.dprnt_tcp.wait_reader(30.0)
-            sim.control.start_program(run)
-        await asyncio.Event().wait()  # until interrupted
+                # DPRNT lines printed before a reader connects are lost, as on the control;
+                # a stop while waiting for one ends the run at once
+                reader = asyncio.ensure_future(sim.dprnt_tcp.wait_reader(30.0))
+                stopped = asyncio.ensure_future(stop.wait())
+                await asyncio.wait({reader, stopped}, return_when=asyncio.FIRST_COMPLETED)
+                for task in (reader, stopped):
+                    task.cancel()
+            if not stop.is_set():
+                sim.control.start_program(run)
+        await stop.wait()
     finally:
         await sim.close()
-        sys.stdout.flush()
+        print("stopped", flush=True)
 
 
 def _serial_options(
-    mode: str, baud: int, parity: str, eob: str, dnc_timeout: float, quirks: bool
+    mode: str,
+    baud: int,
+    parity: str,
+    eob: str,
+    dnc_timeout: float,
+    quirks: bool,
+    punch_back: bool = False,
 ) -> SerialOptions:
     """The serial front-end's options (imported here: only --serial needs them)."""
     from opendnc.sim.haas.serial_front import SerialOptions, parse_mode
@@ -190,4 +226,5 @@ def _serial_options(
         mode=parse_mode(mode),
         quirks=XmodemQuirks() if quirks else XmodemQuirks(extra_naks=0, can_after_eot=False),
         dnc_timeout=dnc_timeout,
+        punch_back=punch_back,
     )

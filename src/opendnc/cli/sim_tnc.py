@@ -11,7 +11,7 @@ from pathlib import Path
 
 import typer
 
-from opendnc.cli.common import cli_errors, console, err_console
+from opendnc.cli.common import READY_FILE_HELP, cli_errors, console, err_console, ready_file
 from opendnc.errors import TransportError
 
 #: The simulator's profiles, named here so `--help` does not load the simulator (a test keeps
@@ -67,22 +67,29 @@ def tnc(
         help="What the --serial lines speak: lsv2, or blockwise (FE modes: programs pushed "
         "to TNC:\\ and sent on request).",
     ),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
     """Serve a virtual TNC over LSV2 (TCP and/or RS-232 lines) until Ctrl-C.
 
     The state (files, machine parameters) lives in --root and survives restarts.
     """
-    from opendnc.sim.tnc import PROFILES, TraceHook, new_event_loop, serve_tnc
+    from opendnc.sim.tnc import TraceHook, get_profile, new_event_loop, serve_tnc
     from opendnc.sim.tnc.serial_front import serve_serial
 
     if no_tcp and not serial:
         err_console.print("[bold red]error:[/] --no-tcp needs at least one --serial line")
         raise typer.Exit(1)
-    if profile.lower() not in PROFILES:
-        err_console.print(f"[bold red]error:[/] unknown profile {profile!r}")
-        raise typer.Exit(1)
+    with cli_errors():
+        get_profile(profile)  # an unknown one is refused with the list of profiles
 
     async def main() -> None:
+        # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,
+        # so the state of the control is saved to --root; installed before the ready line, so
+        # a signal sent as soon as it appears is not the default (a kill)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
         server = await serve_tnc(
             profile,
             root,
@@ -121,12 +128,7 @@ def tnc(
             soft_wrap=True,
         )
         console.print(f"root: {server.control.root}", highlight=False, soft_wrap=True)
-        # SIGTERM and SIGINT (even where a background shell ignores it) end the run cleanly,
-        # so the state of the control is saved to --root.
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
+        mark_ready()
         try:
             await stop.wait()
         finally:
@@ -135,7 +137,7 @@ def tnc(
             await server.close()
         console.print("stopped")
 
-    with cli_errors():
+    with cli_errors(), ready_file(ready) as mark_ready:
         try:
             with asyncio.Runner(loop_factory=new_event_loop) as runner:
                 runner.run(main())

@@ -16,6 +16,7 @@ if TYPE_CHECKING:  # the transfer machinery loads with the command that runs, no
     from rich.progress import Progress
 
     from opendnc.xmodem.events import Event
+    from opendnc.xmodem.files import SendReport
 
 app = typer.Typer(help="XModem transfers (Haas RS-232: checksum mode, setting 14 = XMODEM)")
 
@@ -70,11 +71,23 @@ def send_cmd(
     binary: bool = typer.Option(
         False, "--binary", help="Send any bytes (default: refuse a file that is not NC text)"
     ),
+    verify: bool = typer.Option(
+        False,
+        "--verify",
+        help="Then wait for the control to punch the program back and compare (checksum "
+        "mode cannot see two cancelling bit errors)",
+    ),
+    verify_timeout: float = typer.Option(
+        300.0, "--verify-timeout", help="Seconds to wait for the punch back (--verify)"
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print the result as JSON"),
 ) -> None:
-    """Send FILE to a receiver that is waiting (on a Haas: start the receive first)."""
+    """Send FILE to a receiver that is waiting (on a Haas: start the receive first).
+
+    With --verify the operator then punches the program back (on a Haas: select it, SEND)
+    and opendnc compares it with FILE, line by line.
+    """
     from opendnc.nctext import check_program_file
-    from opendnc.xmodem.events import EotAnswer
     from opendnc.xmodem.files import open_port, send_file
     from opendnc.xmodem.sender import SenderConfig
 
@@ -85,31 +98,54 @@ def send_cmd(
             check_program_file(file, action="not sent (--binary sends any bytes)")
         # the port opens before the bar: a port that does not open is one error line
         stream = open_port(port, baud, parity.upper())
-        with contextlib.closing(stream), _progress() as bar:
-            task = bar.add_task(f"send {file.name}", total=size)
-            report = send_file(
+        with contextlib.closing(stream):
+            with _progress() as bar:
+                task = bar.add_task(f"send {file.name}", total=size)
+                report = send_file(
+                    stream,
+                    file,
+                    mode=mode,
+                    eob=eob,
+                    config=config,
+                    progress=lambda done, total: bar.update(task, completed=done, total=total),
+                    on_event=_report_event,
+                    binary=binary,
+                )
+            if not json_out:
+                _print_sent(report)
+            if not verify:
+                if json_out:
+                    print_json(report)
+                return
+            from opendnc.cli.haas import punch_back_check, verified_line
+
+            verified = punch_back_check(
                 stream,
                 file,
-                mode=mode,
-                eob=eob,
-                config=config,
-                progress=lambda done, total: bar.update(task, completed=done, total=total),
-                on_event=_report_event,
-                binary=binary,
+                file.read_bytes(),
+                eob=(eob or Eob.LF).value,
+                timeout=verify_timeout,
+                ignore_spaces=False,
             )
         if json_out:
-            print_json(report)
-            return
-        name = f" {report.program.name}" if report.program else ""
+            print_json({"sent": report, "verify": verified})
+        else:
+            console.print(verified_line(verified, file), highlight=False, soft_wrap=True)
+
+
+def _print_sent(report: SendReport) -> None:
+    from opendnc.xmodem.events import EotAnswer
+
+    name = f" {report.program.name}" if report.program else ""
+    console.print(
+        f"sent{name} {report.size} bytes in {report.blocks} blocks, {report.seconds:.1f} s"
+    )
+    if report.eot_answer is EotAnswer.CAN:
+        console.print("receiver answered EOT with CAN (Haas style); all blocks were ACKed")
+    elif report.eot_answer in (EotAnswer.NONE, EotAnswer.CLOSED):
         console.print(
-            f"sent{name} {report.size} bytes in {report.blocks} blocks, {report.seconds:.1f} s"
+            "[yellow]receiver did not acknowledge EOT[/]; all data blocks were acknowledged"
         )
-        if report.eot_answer is EotAnswer.CAN:
-            console.print("receiver answered EOT with CAN (Haas style); all blocks were ACKed")
-        elif report.eot_answer in (EotAnswer.NONE, EotAnswer.CLOSED):
-            console.print(
-                "[yellow]receiver did not acknowledge EOT[/]; all data blocks were acknowledged"
-            )
 
 
 @app.command("recv")
@@ -178,7 +214,8 @@ def recv_cmd(
         print_json(report)
         return
     name = f" program {report.program.name}" if report.program else ""
+    check = {"ok": ", check line ok", "missing": ""}.get(report.check_line or "missing", "")
     console.print(
         f"received{name} {report.size} bytes in {report.blocks} blocks -> {report.path} "
-        f"({report.seconds:.1f} s)"
+        f"({report.seconds:.1f} s{check})"
     )

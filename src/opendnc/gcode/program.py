@@ -92,7 +92,7 @@ COMPARISONS = frozenset({"EQ", "NE", "GT", "GE", "LT", "LE"})
 LOGIC = frozenset({"AND", "OR", "XOR"})
 KEYWORDS = FUNCTIONS | COMPARISONS | LOGIC | {"MOD", "IF", "THEN", "GOTO", "WHILE", "DO", "END"}
 
-_TOKEN = re.compile(r"\s*(?:(\d+\.?\d*|\.\d+)|([A-Z]+)|(.))")
+_TOKEN = re.compile(r"\s*(?:(\d+(?:\.\d*)?|\.\d+)|([A-Z]+)|(.))")
 
 
 def tokenize(text: str) -> list[str]:
@@ -404,11 +404,13 @@ _DPRNT = re.compile(r"^\s*DPRNT\s*\[", re.IGNORECASE)
 
 # A block of plain address words with literal numbers (most of any real program): parsed by
 # one regular expression instead of the tokenizer; anything else takes the full parser.
-_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+")
-_PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+\.?\d*|\.\d+))")
+# Numbers are written so that a digit string splits one way only, and the repetition is
+# possessive: a long line that fails to match fails in linear time (no backtracking blow-up).
+_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++")
+_PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+(?:\.\d*)?|\.\d+))")
 # A whole line of plain words (``N120 G01 X1.5 Y-2. F300.``): the common case, parsed by one
 # match; literal numbers repeat a lot (G01, Z-1., F300.), so their Num values are shared.
-_PLAIN_LINE = re.compile(r"\s*(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+\.?\d*|\.\d+) *)+)")
+_PLAIN_LINE = re.compile(r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++)")
 _NUMBERS: dict[str, Num] = {}
 
 

@@ -48,7 +48,7 @@ from opendnc.lsv2.drive import AsyncDriver
 from opendnc.lsv2.localfiles import AtomicFile, image_bytes, is_binary_name, read_local
 from opendnc.lsv2.ops.base import Op, T
 from opendnc.lsv2.ops.extras import ScopeRecording
-from opendnc.lsv2.ops.files import FileInfo, Progress
+from opendnc.lsv2.ops.files import FileInfo, Progress, text_size
 from opendnc.lsv2.ops.machine import Uptimes
 from opendnc.lsv2.ops.session import SystemInfo
 from opendnc.lsv2.payloads import (
@@ -57,6 +57,7 @@ from opendnc.lsv2.payloads import (
     ScopeSignal,
     SystemParameters,
     Versions,
+    to_wire_ascii,
 )
 from opendnc.lsv2.plc import PlcOperand, PlcValue
 from opendnc.lsv2.runinfo import (
@@ -69,6 +70,7 @@ from opendnc.lsv2.runinfo import (
     SelectedProgram,
     ToolInfo,
 )
+from opendnc.lsv2.serial_link import SerialLinkError
 from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.lsv2.tables import Table
 
@@ -120,6 +122,14 @@ class AsyncClient:
         self.serial = serial
         """RS-232 line settings when the control is reached over serial LSV2 (else TCP)."""
         self._driver: AsyncDriver | None = None
+        self.serial_checks = 0
+        """Text uploads verified end to end over serial (docs/lsv2-serial.md)."""
+        self.serial_readbacks = 0
+        """Of those, how many needed a read-back (the reported size was not the expected)."""
+        self.serial_attempts = 3
+        """Tries of one file transfer over serial when the link gives a telegram up."""
+        self.serial_restarts = 0
+        """Transfers started again over a fresh serial link."""
 
     @classmethod
     def over_serial(cls, line: SerialLine | str, **options: Any) -> AsyncClient:
@@ -151,8 +161,11 @@ class AsyncClient:
         driver.state.passwords.update(self.passwords)
         self._driver = driver
         try:
+            limit = self.max_buffer
+            if self.serial is not None and self.serial.telegram_size is not None:
+                limit = min(limit, self.serial.telegram_size)
             await driver.run(
-                ops.connect(driver.state, max_buffer=self.max_buffer, secure_send=self.secure_send)
+                ops.connect(driver.state, max_buffer=limit, secure_send=self.secure_send)
             )
         except BaseException:
             self._driver = None
@@ -223,6 +236,12 @@ class AsyncClient:
     def buffer_size(self) -> int:
         """Negotiated telegram size in bytes."""
         return self._state.buffer_size
+
+    @property
+    def telegram_changes(self) -> list[tuple[int, int]]:
+        """Upload telegram sizes changed over serial, as ``(old, new)`` (docs/lsv2-serial.md)."""
+        sizer = self._state.sizer
+        return list(sizer.changes) if sizer is not None else []
 
     @property
     def secure_file_send(self) -> bool:
@@ -319,25 +338,77 @@ class AsyncClient:
     ) -> None:
         """Store ``data`` as ``remote``; ``binary=None`` picks the mode by file type."""
         mode = is_binary_name(remote) if binary is None else binary
-        await self._run(
-            ops.upload(
-                self._state, remote, data, binary=mode, overwrite=overwrite, progress=progress
-            )
-        )
-        if self.serial is not None and mode:
-            await self._check_serial_size(remote, len(data), upload=True)
+        for attempt in range(1, self._attempts() + 1):
+            try:
+                await self._run(
+                    ops.upload(
+                        self._state,
+                        remote,
+                        data,
+                        binary=mode,
+                        overwrite=overwrite,
+                        progress=progress,
+                    )
+                )
+                break
+            except SerialLinkError:
+                if attempt >= self._attempts():
+                    raise
+                await self._reconnect()  # the control drops the partial file; start again
+        if self.serial is not None:
+            if mode:
+                await self._check_serial_size(remote, len(data), upload=True)
+            else:
+                await self._check_serial_text(remote, data)
+
+    def _attempts(self) -> int:
+        # Over serial a transfer whose telegram the link gave up is started once more over a
+        # fresh link (docs/lsv2-serial.md, "Telegram size"); over TCP a failure is final.
+        return 1 if self.serial is None else self.serial_attempts
+
+    async def _reconnect(self) -> None:
+        driver, self._driver = self._driver, None
+        if driver is not None:
+            await driver.close()
+        self.serial_restarts += 1
+        await self.connect()
+
+    async def _serial_fault(self, remote: str, what: str, *, upload: bool) -> TransferError:
+        if upload:
+            # no damaged program left on the control
+            with contextlib.suppress(DncError):
+                await self.delete_file(remote)
+        return TransferError(f"{what}: the serial line let an error through; try again")
 
     async def _check_serial_size(self, remote: str, size: int, *, upload: bool) -> None:
         # Serial LSV2's XOR block check cannot see a lost NUL byte (docs/lsv2-serial.md, "What
         # the block check cannot see"): compare the sizes of binary files at both ends.
         info = await self.file_info(remote)
-        if info is None or info.size == size:
+        if info is not None and info.size == size:
             return
-        if upload:
-            with contextlib.suppress(DncError):
-                await self.delete_file(remote)
-        what = f"{remote} has {info.size} bytes on the control, {size} here"
-        raise TransferError(f"{what}: the serial line let an error through; try again")
+        got = "no such file" if info is None else f"{info.size} bytes"
+        what = f"{remote}: {got} on the control, {size} bytes here"
+        raise await self._serial_fault(remote, what, upload=upload)
+
+    async def _check_serial_text(self, remote: str, data: bytes) -> None:
+        # Text has no size to compare as is: the control writes its own line end for every
+        # NUL that ended a line on the wire. The size it reports is that of CR LF line ends
+        # (docs/lsv2-serial.md, "Every text upload verified"); any other size is settled by
+        # reading the file back, NUL line ends and all, and comparing it with what was sent.
+        self.serial_checks += 1
+        info = await self.file_info(remote)
+        if info is not None and info.size == text_size(data):
+            return
+        if info is not None:
+            self.serial_readbacks += 1
+            sent = to_wire_ascii(data)
+            back = await self.read_file(remote, binary=False, line_end=b"\0")
+            if back == sent:
+                return  # a control that stores other line ends: the text itself is exact
+            what = f"{remote} reads back {len(back)} bytes on the control, {len(sent)} sent"
+        else:
+            what = f"{remote}: no such file on the control after the upload"
+        raise await self._serial_fault(remote, what, upload=True)
 
     async def read_file(
         self, remote: str, *, binary: bool | None = None, line_end: bytes = b"\r\n"
@@ -383,20 +454,27 @@ class AsyncClient:
         if os.path.isdir(target):
             target = os.path.join(target, remote.replace("\\", "/").rsplit("/", 1)[-1])
         mode = is_binary_name(remote) if binary is None else binary
-        with AtomicFile(target) as out:
-            count = await self._run(
-                ops.download(
-                    self._state,
-                    remote,
-                    out.write,
-                    binary=mode,
-                    line_end=line_end,
-                    progress=progress,
-                )
-            )
-            if self.serial is not None and mode:
-                await self._check_serial_size(remote, count, upload=False)
-            return count
+        for attempt in range(1, self._attempts() + 1):
+            try:
+                with AtomicFile(target) as out:
+                    count = await self._run(
+                        ops.download(
+                            self._state,
+                            remote,
+                            out.write,
+                            binary=mode,
+                            line_end=line_end,
+                            progress=progress,
+                        )
+                    )
+                    if self.serial is not None and mode:
+                        await self._check_serial_size(remote, count, upload=False)
+                    return count
+            except SerialLinkError:
+                if attempt >= self._attempts():
+                    raise
+                await self._reconnect()  # no partial file was kept; fetch it again
+        raise AssertionError("unreachable")
 
     # -- machine state ---------------------------------------------------------------------
 

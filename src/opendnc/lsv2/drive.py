@@ -147,7 +147,9 @@ class BlockingDriver(_DriverBase):
         (``trace_bytes`` then sees the serial line's own bytes)."""
         if serial is not None:
             line = open_lsv2_serial(serial, on_link=trace_bytes)
-            return cls(line, timeout=timeout, safe_mode=safe_mode, trace=trace)
+            driver = cls(line, timeout=timeout, safe_mode=safe_mode, trace=trace)
+            driver.state.sizer = line.sizer  # upload blocks follow the line
+            return driver
         stream = TcpStream(host, port, timeout=timeout)
         return cls(
             stream, timeout=timeout, safe_mode=safe_mode, trace=trace, trace_bytes=trace_bytes
@@ -300,7 +302,9 @@ class AsyncDriver(_DriverBase):
         with ``serial`` (``trace_bytes`` then sees the serial line's own bytes)."""
         if serial is not None:
             link = await AsyncSerialLink.open(serial, on_link=trace_bytes)
-            return cls(link, timeout=timeout, safe_mode=safe_mode, trace=trace)
+            adriver = cls(link, timeout=timeout, safe_mode=safe_mode, trace=trace)
+            adriver.state.sizer = link.stream.sizer  # upload blocks follow the line
+            return adriver
         loop = asyncio.get_running_loop()
         try:
             async with asyncio.timeout(timeout):

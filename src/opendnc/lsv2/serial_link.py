@@ -38,7 +38,10 @@ Choices where the public sources are silent (each is a setting or documented her
 * **Repeats** — a receiver whose DLE '1' was lost gets the same telegram again. With
   ``drop_repeats`` (default) a telegram identical to the previous one received, with nothing
   of ours framed in between, is acknowledged but not delivered twice. Answers can be alike
-  (``T_OK`` after every file block), so once ours went out an equal telegram is new; and a
+  (``T_OK`` after every file block): once ours went out, an equal telegram confirms ours only
+  if the peer answered our DLE '1' for its previous one with EOT at once; if every frame of
+  ours was refused with NAK it is the peer's repeat; otherwise ours fails with a typed error
+  rather than a guess that could lose or double a file block. And a
   receiver that yielded and then refused the peer's block (or saw none) waits LSV2TIME1 for
   the peer to repeat it before repeating its own (docs/lsv2-serial.md, "Equal telegrams in a
   row").
@@ -231,6 +234,8 @@ class LinkStats:
     failures: int = 0
     line_errors: int = 0
     """Characters the port marked as failing their parity or framing check."""
+    ambiguous: int = 0
+    """Telegrams given up because the peer's answer could be a repeat (see the docs)."""
 
 
 class _S(enum.Enum):
@@ -251,6 +256,8 @@ class _Outgoing:
     framed: bool = False  # the frame went out at least once: the peer may hold it
     enq_again: bool = False  # this try's ENQ was repeated after a late NAK
     prior_body: bytes | None = None  # the peer's last telegram when ours was first framed
+    prior_confirmed: bool = False  # ... and the peer had our DLE 1 for it (its EOT came)
+    unrefused: int = 0  # times framed and not answered with NAK: the peer may have taken it
     failures: list[HostStatus] = field(default_factory=list)
 
 
@@ -266,12 +273,16 @@ class SerialLink:
         max_body: int = 4096,
         drop_repeats: bool = True,
         on_bytes: CharHook | None = None,
+        nak_retries: int | None = None,
     ) -> None:
         if retries < 0:
             raise InputError(f"retries must be 0 or more, got {retries}")
         self.role = role
         self.timing = timing
         self.retries = retries
+        self.nak_retries = retries if nak_retries is None else max(retries, nak_retries)
+        """Repeats allowed while the peer refuses with NAK: it is there and reading, so a
+        noisy line gets more tries than a silent peer (default: ``retries``)."""
         self.max_body = max_body
         """Largest telegram body (name + payload) accepted; longer blocks are refused (NAK)."""
         self.drop_repeats = drop_repeats
@@ -288,6 +299,11 @@ class SerialLink:
         self._scan = 0
         self._spoilt = False  # the block being read began without its DLE STX
         self._last_body: bytes | None = None
+        # The peer answered our DLE 1 for its last telegram with EOT: it had the DLE 1 and
+        # will never send that telegram again (docs/lsv2-serial.md, "Equal telegrams in a row").
+        self._last_confirmed = False
+        self._acked_last = False  # this receive phase ended its block with DLE 1 (not NAK)
+        self._acked_at = 0.0  # when that DLE 1 went out
         # We yielded to the peer's ENQ while our framed telegram waited for its DLE 1 (or for
         # DLE 0 of a repeat): a new telegram from the peer in this receive phase acknowledges it.
         self._ack_by_answer: HostStatus | None = None
@@ -430,12 +446,14 @@ class SerialLink:
             self._write(_EOT)
         self._state = _S.IDLE
         self._deadline = None
-        if out.tries > self.retries:
+        limit = self.nak_retries if status is HostStatus.TX_ERROR else self.retries
+        if out.tries > limit:
             self._out.popleft()
             self.stats.failures += 1
             if out.framed and self._last_body is None:
                 # The peer may never have had it: its next telegram may repeat its last one.
                 self._last_body = out.prior_body
+                self._last_confirmed = out.prior_confirmed
             if not eot:
                 self._write(_EOT)  # release a peer that may still wait for our frame
             cls = (
@@ -463,8 +481,24 @@ class SerialLink:
         self._last_body = None  # we spoke: the next telegram from the peer is new
         self._events.append(TelegramSent(out.frame, out.tries))
 
+    def _give_up_ambiguous(self, body: bytes) -> None:
+        """Report our telegram as failed: the peer's answer cannot confirm it (see above)."""
+        out = self._out.popleft()
+        self.stats.failures += 1
+        self.stats.ambiguous += 1
+        # Whichever it was, the peer now has our DLE 1 for ``body`` (or repeats it once more).
+        self._last_body = body
+        self._last_confirmed = False
+        what = out.frame.mnemonic if out.frame is not None else "link check"
+        detail = (
+            f"{what} unconfirmed, and the peer's next telegram equals its previous one, "
+            "whose DLE 1 may have been lost: cannot tell whether it arrived"
+        )
+        self._events.append(LinkFailed(out.frame, SerialLinkError(HostStatus.NO_QUITT, detail)))
+
     def _nak(self, now: float) -> None:
         self._phase_failed = True
+        self._acked_last = False
         self.stats.naks_sent += 1
         self._write(_NAK)
         self._state = _S.RECV_END
@@ -477,8 +511,15 @@ class SerialLink:
         self._ack_by_answer = status
         self._ready(now)
 
-    def _receive_ended(self, now: float) -> None:
+    def _receive_ended(self, now: float, *, eot: bool = False) -> None:
         """The peer's transmission is over (EOT or LSV2TIME2): the line is idle again."""
+        if self._acked_last:
+            # An EOT right after our DLE 1 shows the peer had it; without one (LSV2TIME2) the
+            # peer may still be waiting for it and repeat its telegram.
+            self._acked_last = False
+            # Only an EOT well inside the peer's LSV2TIME1 counts: a peer that never had our
+            # DLE 1 also ends with EOT, when its LSV2TIME1 runs out (taken as ours: time1).
+            self._last_confirmed = eot and now - self._acked_at < self.timing.time1 / 2
         self._state = _S.IDLE
         self._deadline = None
         status = self._ack_by_answer
@@ -500,6 +541,10 @@ class SerialLink:
         self._start_next(now)
 
     def _ready(self, now: float) -> None:
+        if self._acked_last:
+            # A new ENQ instead of the EOT after our DLE 1: the peer may be repeating.
+            self._acked_last = False
+            self._last_confirmed = False
         self._phase_failed = False
         self._write(READY)
         self._state = _S.RECV_START
@@ -570,11 +615,12 @@ class SerialLink:
             return
         if b == EOT:
             if state in (_S.RECV_START, _S.RECV_END):
-                self._receive_ended(now)
+                self._receive_ended(now, eot=state is _S.RECV_END)
                 return
         elif b == NAK:
             if state is _S.SEND_ACK:
                 self.stats.naks_received += 1
+                self._out[0].unrefused -= 1  # the peer refused this frame: it does not hold it
                 self._retry(now, HostStatus.TX_ERROR, eot=True)
                 return
             if state is _S.SEND_READY:
@@ -616,8 +662,10 @@ class SerialLink:
                     self._write(_EOT)
                 return
             self._write(out.wire)
+            out.unrefused += 1
             if not out.framed:
                 out.prior_body = self._last_body
+                out.prior_confirmed = self._last_confirmed
             out.framed = True
             # The peer may take this telegram and answer it with one equal to its last (T_OK
             # after T_OK): that answer is new, though nothing confirmed ours yet (our DLE 1
@@ -700,18 +748,41 @@ class SerialLink:
             return
         frame = Frame(body[:4].decode("ascii"), body[4:])
         repeat = body == self._last_body
+        ambiguous = False
         if self._ack_by_answer is not None and not repeat and self._out:
-            # The peer sent a new telegram after ours: it has ours (module docstring).
-            self._ack_by_answer = None
-            self.stats.implicit_acks += 1
-            self._sent_ok(now, implicit=True)
+            out = self._out[0]
+            if body == out.prior_body and not out.prior_confirmed:
+                # The peer's last telegram again, and it may never have had our DLE 1 for it:
+                # its repeat (then ours never arrived) or its new answer, equal to the last
+                # (T_OK after T_OK). Taken for an answer, a file block the peer never read
+                # was counted delivered (docs/lsv2-serial.md, "Equal telegrams in a row").
+                if out.unrefused <= 0:
+                    # Every frame of ours was refused with NAK: the peer never took it, so
+                    # this is its repeat. Acknowledge it, pass it not on, and send ours again
+                    # when the receive phase ends (``_ack_by_answer`` stays set for that).
+                    repeat = True
+                    self._last_body = body
+                else:
+                    self._ack_by_answer = None
+                    ambiguous = True
+            else:
+                # The peer sent a new telegram after ours: it has ours (module docstring).
+                self._ack_by_answer = None
+                self.stats.implicit_acks += 1
+                self._sent_ok(now, implicit=True)
         self._write(RECEIVED)
         self._state = _S.RECV_END
         self._deadline = now + self.timing.time2
+        self._acked_last = True
+        self._acked_at = now
+        if ambiguous:
+            self._give_up_ambiguous(body)
+            return
         if self.drop_repeats and repeat:
             self.stats.repeats_dropped += 1
             return
         self._last_body = body
+        self._last_confirmed = False
         self.stats.received += 1
         self._events.append(TelegramReceived(frame))
 

@@ -25,6 +25,7 @@ from typing import get_args
 
 from opendnc.errors import InputError, TransportError, TransportTimeout
 from opendnc.lsv2.framing import Frame, TelegramFramer
+from opendnc.lsv2.ops.base import TelegramSizer
 from opendnc.lsv2.serial_link import (
     DEFAULT_TIMING,
     CharHook,
@@ -77,11 +78,19 @@ class SerialLine:
     flow: str = "none"
     timing: LinkTiming = field(default=DEFAULT_TIMING)
     retries: int = 3
+    nak_retries: int = 12
+    """Repeats of a telegram the control refuses with NAK (a live but noisy line): at a
+    bit-error rate of 1e-4 a 256-byte telegram fails about one try in five, so three repeats
+    lost a block in 600 (docs/lsv2-serial.md, "Telegram size")."""
     link_check: bool = True
     """Send the lone ENQ before the first telegram, as TNCremo does."""
     mark_errors: bool = True
     """Have the port mark characters that fail their parity or framing check, so that such a
     character spoils its block (POSIX devices; docs/lsv2-serial.md, "Parity errors")."""
+    telegram_size: int | None = None
+    """Telegram size to ask for (bytes, 64-4096; caps the negotiated buffer, which starts at
+    256 and can only grow); ``None`` leaves it to the client's ``max_buffer``. Uploads adapt
+    below it to the line (docs/lsv2-serial.md, "Telegram size")."""
 
     def __post_init__(self) -> None:
         if self.flow not in FLOW_CONTROLS:
@@ -94,6 +103,8 @@ class SerialLine:
             raise InputError(f"stop bits must be 1, 1.5 or 2, got {self.stopbits:g}")
         if self.baud is not None and self.baud <= 0:
             raise InputError(f"bad baud rate {self.baud}")
+        if self.telegram_size is not None and not 64 <= self.telegram_size <= 4096:
+            raise InputError(f"telegram size must be 64-4096 bytes, got {self.telegram_size}")
 
     @property
     def bits_per_char(self) -> int:
@@ -164,9 +175,12 @@ def probe_baud(
 class _Pump:
     """Runs a :class:`SerialLink` over a blocking byte stream with the monotonic clock."""
 
-    def __init__(self, stream: ByteStream, link: SerialLink) -> None:
+    def __init__(
+        self, stream: ByteStream, link: SerialLink, sizer: TelegramSizer | None = None
+    ) -> None:
         self.stream = stream
         self.link = link
+        self.sizer = sizer
         self.inbox: list[Frame] = []
         self.checked = False
         self.spoken = False
@@ -187,6 +201,11 @@ class _Pump:
     def until(self, done: Callable[[], bool], idle_deadline: float | None) -> None:
         """Pump until ``done`` holds; ``idle_deadline`` bounds waits while the line is idle."""
         link = self.link
+        naks = link.stats.naks_sent
+        heard = time.monotonic()
+        # The control gives a telegram up silently once its retries are spent: we refused it
+        # (NAK) and nothing more comes. Its retry would follow within its LSV2TIME1.
+        gave_up = link.timing.time1 + link.timing.time2 + 0.5
         while True:
             self.flush()
             while (event := link.next_event()) is not None:
@@ -200,6 +219,8 @@ class _Pump:
                         self.stale += 1
                 elif isinstance(event, TelegramSent):
                     self.spoken = True
+                    if self.sizer is not None and event.frame.mnemonic == "S_FL":
+                        self.sizer.block_sent(event.tries)
                 elif isinstance(event, LinkChecked):
                     self.checked = True
                 elif isinstance(event, LinkFailed):
@@ -207,13 +228,23 @@ class _Pump:
             if done():
                 return
             now = time.monotonic()
-            if link.deadline is None and idle_deadline is not None and now >= idle_deadline:
-                raise TransportTimeout("no answer from the control over the serial line")
+            if link.deadline is None and idle_deadline is not None:
+                refused = link.stats.naks_sent - naks
+                if refused and now - heard >= gave_up:
+                    raise SerialLinkError(
+                        HostStatus.TX_ERROR,
+                        f"the control's telegram refused {refused} times here, then given up "
+                        "(its retries spent)",
+                    )
+                if now >= idle_deadline:
+                    raise TransportTimeout("no answer from the control over the serial line")
             try:
                 got = self._read(4096)
             except TransportTimeout:
                 got = _NOTHING
             now = time.monotonic()
+            if got.data:
+                heard = now
             link.receive_data(got.data, now, got.errors)
             link.tick(now)
 
@@ -230,11 +261,21 @@ class SerialLsv2Stream:
         link_check: bool = True,
         on_link: CharHook | None = None,
         description: str = "serial line",
+        telegram_size: int | None = None,
+        nak_retries: int | None = None,
     ) -> None:
         self.line = line
         self.description = description
-        self.link = SerialLink(LinkRole.CLIENT, timing=timing, retries=retries, on_bytes=on_link)
-        self._pump = _Pump(line, self.link)
+        self.link = SerialLink(
+            LinkRole.CLIENT,
+            timing=timing,
+            retries=retries,
+            on_bytes=on_link,
+            nak_retries=nak_retries,
+        )
+        self.sizer = TelegramSizer(ceiling=telegram_size or 4096)
+        """Upload telegram size, fed by the tries each block needed (docs/lsv2-serial.md)."""
+        self._pump = _Pump(line, self.link, self.sizer)
         self._framer = TelegramFramer()
         self._timeout: float | None = 10.0
         self._closed = False
@@ -291,6 +332,8 @@ def open_lsv2_serial(line: SerialLine, *, on_link: CharHook | None = None) -> Se
         link_check=line.link_check,
         on_link=on_link,
         description=line.describe(),
+        telegram_size=line.telegram_size,
+        nak_retries=line.nak_retries,
     )
 
 

@@ -28,7 +28,7 @@ class Budget:
 
 
 _KLARTEXT = re.compile(r"^\s*\d*\s*BEGIN\s+PGM\b", re.IGNORECASE | re.MULTILINE)
-_ISO_HEAD = re.compile(r"^\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]\b", re.MULTILINE)
+_ISO_HEAD = re.compile(r"^[ \t]*%[ \t]*\w[\w.-]*[ \t]+G7[01]\b", re.MULTILINE)
 
 
 def guess_control(text: str, name: str = "") -> Control:
@@ -83,6 +83,10 @@ def check_text(
         # reported as not checked (the property tests assert this never happens)
         problem = Problem(1, Severity.ERROR, f"internal error: the dry run failed ({exc!r})")
         result = CheckResult(control=chosen, name=name, problems=(problem,))
+    if chosen is Control.HAAS:
+        text_problem = _text_problem(text)
+        if text_problem is not None:
+            result = replace(result, problems=_merged(result.problems, text_problem))
     if machine is not None and not machine.accepts(chosen):
         family = machine.family or "unknown"
         mismatch = Problem(
@@ -93,3 +97,27 @@ def check_text(
         )
         result = replace(result, problems=(mismatch, *result.problems))
     return result
+
+
+def _text_problem(text: str) -> Problem | None:
+    """The first byte no Haas program holds (docs/nc-text.md): senders refuse such a file."""
+    from opendnc.nctext import find_problem
+
+    try:
+        data = text.encode("latin-1")
+    except UnicodeEncodeError as exc:
+        line = text.count("\n", 0, exc.start) + 1
+        return Problem(line, Severity.ERROR, "a character beyond 8 bits is not NC program text")
+    found = find_problem(data)
+    if found is None:
+        return None
+    return Problem(
+        found.line,
+        Severity.ERROR,
+        f"byte 0x{found.byte:02X} ({found.reason}) at column {found.column} is not NC "
+        "program text: the file would be refused before sending",
+    )
+
+
+def _merged(problems: tuple[Problem, ...], extra: Problem) -> tuple[Problem, ...]:
+    return tuple(sorted((*problems, extra), key=lambda p: p.line))

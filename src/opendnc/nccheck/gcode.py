@@ -55,8 +55,8 @@ from opendnc.nccheck.result import (
 __all__ = ["run_gcode"]
 
 _O_LINE = re.compile(r"^\s*[O:](\d{1,5})\b")
-_ISO_LINE = re.compile(r"^\s*%\s*([A-Za-z_][\w.-]*)")
-_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*[A-Za-z_][\w.-]*\s+G7[01]", re.IGNORECASE)
+_ISO_LINE = re.compile(r"^\s*%\s*(\w[\w.-]*)")
+_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*\w[\w.-]*\s+G7[01]", re.IGNORECASE)
 _N_ONLY = re.compile(r"^\s*/?\s*N\s*(\d+)", re.IGNORECASE)
 _COMMENT_TEXT = re.compile(r"\(([^)]*)\)")
 
@@ -130,6 +130,7 @@ class _Run:
         self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
         self.globals: dict[int, float] = {}
         self.programs: dict[int, _Program] = {}
+        self.missing: set[int] = set()  # called programs the library does not have
         self.frames: list[_Frame] = []
         self.warned: set[str] = set()
         self.header_units: Units | None = None
@@ -155,6 +156,7 @@ class _Run:
         self.off: list[float | None] = [0.0, 0.0, 0.0]
         self.blocks_run = 0
         self.jumps: dict[int, int] = {}
+        self.jump_detail: dict[int, str] = {}
         self.no_feed_reported = False
         self.locals: dict[int, float] = {}
         self.main_locals = self.locals
@@ -251,6 +253,9 @@ class _Run:
                 continue
             try:
                 block = parse_block(text)
+            except RecursionError:
+                self._static(program, line, "an expression nested too deeply")
+                block = Block(text)
             except InputError as exc:
                 if self.iso:
                     # ISO cycles and Q-parameter lines are beyond the macro-B parser
@@ -431,6 +436,9 @@ class _Run:
                 except InputError as exc:
                     self.error(line, str(exc).split(" in block ")[0])
                     raise _Stop from None
+                except RecursionError:
+                    self.error(line, "an expression nested too deeply")
+                    raise _Stop from None
         except _Stop:
             pass
 
@@ -457,12 +465,18 @@ class _Run:
         where, count = max(self.jumps.items(), key=lambda item: item[1])
         self.error(
             where,
-            f"endless loop: the jump back at line {where} ran {count:,} times; the dry "
+            f"endless loop: the jump back at line {where}{self.jump_detail.get(where, '')} "
+            f"ran {count:,} times; the dry "
             f"run stopped after {self.blocks_run:,} blocks",
         )
         raise _Stop
 
     def _jump(self, line: int) -> None:
+        frame = self.frames[-1] if self.frames else None
+        if frame is not None and frame.program.external:
+            # a loop inside a library program: named by its call in this file
+            self.jump_detail[frame.call_line] = f" (in {frame.program.name} line {line})"
+            line = frame.call_line
         self.jumps[line] = self.jumps.get(line, 0) + 1
 
     def _execute(self, block: Block, frame: _Frame, index: int, line: int) -> None:
@@ -598,9 +612,15 @@ class _Run:
                     raise InputError(f"G154 P{number}: work offsets are P1 to P99")
                 self.work_offset = 109.0 + number if number <= 20 else 1000.0 + number
                 self._offsets()
-            elif (code in (4, 10, 28, 53, 65, 92, 52) and not self.iso) or (
-                code in (4,) and self.iso
-            ):
+            elif code in (43, 44) and not self.iso and "H" in v and self.tool is not None:
+                if round(v["H"]) != self.tool:
+                    self.report(
+                        line,
+                        Severity.WARNING,
+                        f"G{code:g} H{round(v['H'])} with tool T{self.tool} in the spindle "
+                        "(length offset of another tool)",
+                    )
+            elif code == 4 or (code in (10, 28, 53, 65, 92, 52) and not self.iso):
                 special = code
             elif code in codes.NOT_DRAWN_G and not self.iso:
                 self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
@@ -945,25 +965,29 @@ class _Run:
             return program
         name = f"O{number:05d}"
         text = None
-        if self.library is not None:
+        if self.library is not None and number not in self.missing:
             try:
                 text = self.library(name)
             except Exception:  # a library callback must not break the dry run
                 text = None
         if text is None:
+            self.missing.add(number)  # asked once: a loop of calls does not ask again
             self.report(line, Severity.WARNING, f"calls {name}, which is not in the library")
             return None
-        loaded = _Run(text, self.control, name, None, None, self.budget)
-        program = self._program(name, number, [], external=True)
-        body = loaded.main
-        program.lines, program.blocks = body.lines, body.blocks
-        program.numbers, program.loop_end, program.loop_start = (
-            body.numbers,
-            body.loop_end,
-            body.loop_start,
-        )
-        for problem in loaded.problems.values():
+        body = _Run(text, self.control, name, None, None, self.budget)
+        for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
+        main = body.main
+        program = _Program(
+            name,
+            number,
+            main.lines,
+            main.blocks,
+            main.numbers,
+            main.loop_end,
+            main.loop_start,
+            external=True,
+        )
         self.programs[number] = program
         return program
 
@@ -1018,7 +1042,12 @@ class _Run:
                     a: v for a, v in zip(_AXES, self.m, strict=True) if v is not None
                 },
                 tool=str(self.tool) if self.tool is not None else None,
-                variables={**self.globals, **self.main_locals},
+                variables={
+                    **self.globals,
+                    **self.main_locals,
+                    3901: float(self.counters[0]),  # parts counted by this run (from 0)
+                    3902: float(self.counters[1]),
+                },
                 ended=self.ended,
             ),
         )

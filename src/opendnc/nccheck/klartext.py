@@ -37,7 +37,7 @@ from opendnc.nccheck.result import (
 __all__ = ["run_klartext"]
 
 _NUMBERED = re.compile(r"^\s*(\d+)\s*(.*)$")
-_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*|\.\d+)"
+_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
 _AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
 _POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
 _WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
@@ -82,7 +82,7 @@ class _Frame:
 class _Expr:
     """A tiny Q-parameter formula evaluator (``Q1 = Q2 * 3 + SIN Q3``, ``FN 4: ... DIV ...``)."""
 
-    _TOKEN = re.compile(r"\s*(QL\d+|QR\d+|Q\d+|\d+\.?\d*(?:E[+-]?\d+)?|\.\d+|[A-Z]+|\S)")
+    _TOKEN = re.compile(r"\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?(?:E[+-]?\d+)?|\.\d+|[A-Z]+|\S)")
     _FUNCTIONS: ClassVar[dict[str, Callable[[float], float]]] = {
         "SIN": lambda x: math.sin(math.radians(x)),
         "COS": lambda x: math.cos(math.radians(x)),
@@ -127,16 +127,17 @@ class _Expr:
 
     def sum(self) -> float:
         left = self.product()
-        while self.peek() in ("+", "-", "LEN"):
+        while self.peek() in ("+", "-", "LEN", "ANG"):
             op = self.take()
             right = self.product()
-            left = (
-                left + right
-                if op == "+"
-                else left - right
-                if op == "-"
-                else math.hypot(left, right)
-            )
+            if op == "+":
+                left += right
+            elif op == "-":
+                left -= right
+            elif op == "LEN":  # FN 8: length of the vector (left, right)
+                left = math.hypot(left, right)
+            else:  # FN 13: angle of the vector (left, right) from +X, in degrees
+                left = math.degrees(math.atan2(right, left))
         return left
 
     def product(self) -> float:
@@ -207,10 +208,12 @@ class _Run:
             axes = machine.work_offsets["G54"]
             self.preset = (axes.get("X"), axes.get("Y"), axes.get("Z"))
         self.frames: list[_Frame] = []
+        self.called: dict[str, _Program | None] = {}  # CALL PGM name -> program (asked once)
         self.q: dict[str, float] = {}
         self.units: Units | None = None
         self.stock_min: list[float] | None = None
         self.stock: Stock | None = None
+        self.stock_axis = "Z"
         self.pos: list[float | None] = [None, None, None]
         self.center: tuple[float, float] | None = None
         self.last_dir: tuple[float, float] | None = None
@@ -228,6 +231,7 @@ class _Run:
         self.jumps: dict[int, int] = {}
         self.warned: set[str] = set()
         self.no_feed = False
+        self.corner: tuple[str, float, _Line] | None = None  # RND/CHF for the next corner
         self.blocks_run = 0
         self.end_line: _Line | None = None
         self.ended = False
@@ -262,13 +266,17 @@ class _Run:
                 continue
             upper = code.upper()
             match = _NUMBERED.match(upper)
-            tilde = upper.endswith("~")
+            # "~" continues a block on the next line; it may stand after a ";" comment
+            tilde = raw.rstrip().endswith("~")
             upper = upper.rstrip("~").strip()
-            if match is None or (continuing and lines):
-                if lines and (continuing or not match):
-                    lines[-1].params.append(upper)
-                    continuing = tilde
-                    continue
+            takes_params = bool(lines) and (
+                continuing or lines[-1].text.startswith(("CYCL DEF", "PATTERN DEF"))
+            )
+            if lines and (continuing or (match is None and takes_params)):
+                lines[-1].params.append(upper)
+                continuing = tilde
+                continue
+            if match is None:  # a block without a number: run it all the same
                 lines.append(_Line(number, None, upper, raw))
                 continuing = tilde
                 continue
@@ -277,6 +285,10 @@ class _Run:
             lines.append(_Line(number, block, body, raw))
             continuing = tilde
         program = _Program(name, lines, external=external)
+        for item in lines:  # also the blocks the run may never reach
+            message = _static_problem(item.text)
+            if message:
+                self._static(program, item, message)
         for index, item in enumerate(lines):
             if item.text.startswith("LBL"):
                 label = _label(item.text[3:])
@@ -337,6 +349,9 @@ class _Run:
                     self._execute(item, frame)
                 except ZeroDivisionError:
                     self.error(item, "division by zero")
+                    raise _Stop from None
+                except RecursionError:
+                    self.error(item, "a formula nested too deeply")
                     raise _Stop from None
                 except (ValueError, OverflowError) as exc:
                     self.error(item, str(exc) or "a value is out of range")
@@ -474,11 +489,19 @@ class _Run:
             self.error(item, f"END PGM units {got_units or '(none)'} differ from BEGIN PGM {units}")
 
     def _blk_form(self, item: _Line) -> None:
-        values = {a: v for inc, a, v in self._axes(item.text) if not inc}
-        incremental = {a: v for inc, a, v in self._axes(item.text) if inc}
-        if "0.1" in item.text:
+        form = re.match(r"^BLK FORM\s+0\.([12])(?!\d)\s*(.*)$", item.text)
+        if form is None:
+            return  # BLK FORM CYLINDER, ROTATION...: no box to draw
+        kind, rest = form.groups()
+        axis = re.match(r"^([XYZ])(?:\s+|$)", rest)  # 0.1 names the tool axis first
+        if kind == "1" and axis:
+            self.stock_axis = axis.group(1)
+            rest = rest[axis.end() :]
+        values = {a: v for inc, a, v in self._axes(rest) if not inc}
+        incremental = {a: v for inc, a, v in self._axes(rest) if inc}
+        if kind == "1":
             self.stock_min = [values.get(a, 0.0) for a in "XYZ"]
-        elif "0.2" in item.text:
+        else:
             if self.stock_min is None:
                 self.error(item, "BLK FORM 0.2 without BLK FORM 0.1")
                 return
@@ -490,7 +513,9 @@ class _Run:
             if any(h <= lo for h, lo in zip(high, low, strict=True)):
                 self.error(item, "BLK FORM: the MAX point must be above the MIN point")
                 return
-            self.stock = Stock((low[0], low[1], low[2]), (high[0], high[1], high[2]))
+            self.stock = Stock(
+                (low[0], low[1], low[2]), (high[0], high[1], high[2]), self.stock_axis
+            )
 
     def _axes(self, text: str) -> list[tuple[bool, str, float]]:
         return [
@@ -586,6 +611,11 @@ class _Run:
     def _go(
         self, item: _Line, target: list[float | None], *, rapid: bool, feed: float | None
     ) -> None:
+        if self.corner is not None:
+            if rapid:
+                self.corner = None  # a rounding needs two contour lines
+            else:
+                self._round_corner(item, target, feed)
         start = self.pos
         self.path.line(
             tuple(start), tuple(target), item.line, rapid=rapid, feed=feed,
@@ -646,6 +676,7 @@ class _Run:
         self.center = (ca, cb)
 
     def _circle(self, item: _Line, kind: str, text: str) -> None:
+        self.corner = None  # RND/CHF are drawn between straight lines only
         words = self._words(text)
         _rapid, feed = self._feed(item, words, text)
         a, b, plane = self._plane()
@@ -832,8 +863,65 @@ class _Run:
             value = float(match.group(1)) if match else None
         if value is None or value <= 0:
             self.error(item, f"{kind} needs a positive {'radius R' if kind == 'RND' else 'length'}")
+            value = None
         if "F" in words:
             self.feed = words["F"]
+        self.corner = None if value is None else (kind, value, item)
+
+    def _round_corner(self, item: _Line, target: list[float | None], feed: float | None) -> None:
+        """RND/CHF pending at the current position, between the last line and one to
+        ``target``: trim both lines and put the arc or chamfer between them (line-line
+        corners in the working plane; other corners stay sharp)."""
+        corner, self.corner = self.corner, None
+        if corner is None:
+            return
+        kind, size, where = corner
+        a, b, plane = self._plane()
+        c = 3 - a - b
+        last = self.path.moves[-1] if self.path.moves else None
+        here, there = self.pos, target
+        if (
+            last is None
+            or None in here
+            or None in there
+            or here[c] != there[c]
+            or last.start[c] != last.end[c]
+            or math.dist(last.end, tuple(float(v or 0.0) for v in here)) > 1e-9
+        ):
+            return
+        p1 = (float(here[a] or 0.0), float(here[b] or 0.0))
+        p0 = (last.start[a], last.start[b])
+        p2 = (float(there[a] or 0.0), float(there[b] or 0.0))
+        back, ahead = math.dist(p1, p0), math.dist(p1, p2)
+        if back < 1e-9 or ahead < 1e-9:
+            return
+        u = ((p0[0] - p1[0]) / back, (p0[1] - p1[1]) / back)
+        v = ((p2[0] - p1[0]) / ahead, (p2[1] - p1[1]) / ahead)
+        cos = max(-1.0, min(1.0, u[0] * v[0] + u[1] * v[1]))
+        theta = math.acos(cos)  # the inner angle of the corner
+        if theta < 1e-6 or math.pi - theta < 1e-6:
+            return  # no corner (straight on, or back on itself)
+        cut = size / math.tan(theta / 2) if kind == "RND" else size
+        if cut >= back - 1e-9 or cut >= ahead - 1e-9:
+            self.error(where, f"{kind} {size:g} does not fit its corner")
+            return
+        trimmed = self.path.trim_last_feed(cut)
+        if trimmed is None:
+            return
+        start = [0.0, 0.0, 0.0]
+        start[a], start[b], start[c] = p1[0] + v[0] * cut, p1[1] + v[1] * cut, trimmed.end[c]
+        self.pos = list(trimmed.end)
+        if kind == "CHF":
+            self._go(where, list(start), rapid=False, feed=feed)
+            return
+        bisector = (u[0] + v[0], u[1] + v[1])
+        norm = math.hypot(*bisector)
+        reach = size / math.sin(theta / 2)
+        centre = (p1[0] + bisector[0] / norm * reach, p1[1] + bisector[1] / norm * reach)
+        # turning left (counter-clockwise) when the next line bends to the left of the last
+        incoming = (-u[0], -u[1])
+        clockwise = incoming[0] * v[1] - incoming[1] * v[0] < 0
+        self._arc(where, list(start), centre, plane, clockwise=clockwise, feed=feed)
 
     # ------------------------------------------------------------------ M functions
     def _m_functions(self, item: _Line, text: str) -> None:
@@ -890,20 +978,24 @@ class _Run:
         self.frames.append(_Frame(frame.program, index + 1, "lbl", call_line, label))
 
     def _call_program(self, item: _Line, target: str) -> None:
-        name = target.strip().strip('"').split()[0] if target.strip() else ""
-        text = None
-        if self.library is not None and name:
-            try:
-                text = self.library(name)
-            except Exception:  # a library callback must not break the dry run
-                text = None
-        if text is None:
+        # the name as written (file names keep their case), quoted or not
+        written = re.search(r'CALL\s+PGM\s+"?([^"\s;]+)', item.raw, re.IGNORECASE)
+        name = written.group(1) if written else target.strip()
+        if name not in self.called:
+            text = None
+            if self.library is not None and name:
+                try:
+                    text = self.library(name)
+                except Exception:  # a library callback must not break the dry run
+                    text = None
+            self.called[name] = None if text is None else self._parse(text, name, external=True)
+        program = self.called[name]
+        if program is None:
             self.report(item, Severity.WARNING, f"CALL PGM {name}: not in the library")
             return
         if len(self.frames) > _CALL_NEST:
             self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
             raise _Stop
-        program = self._parse(text, name, external=True)
         # the called program's own first line is its BEGIN PGM: skip it
         start = 1 if program.lines and program.lines[0].text.startswith("BEGIN PGM") else 0
         call_line = self.frames[-1].call_line if self.frames[-1].kind != "main" else item.line
@@ -922,28 +1014,26 @@ class _Run:
             if "=" not in body:
                 self.error(item, f"FN {number} needs Q... = ...")
                 return
+            # the line names its function itself: FN 6: Q20 = SIN-Q5, FN 13: Q1 = +25 ANG -Q2
             target, formula = body.split("=", 1)
-            if number == 5:
-                formula = "SQRT " + formula
-            elif number == 6:
-                formula = "SIN " + formula
-            elif number == 7:
-                formula = "COS " + formula
             self.q[target.strip()] = self.formula(formula)
         elif 9 <= number <= 12:
-            jump = re.match(r"^IF\s+(.*?)\s+(EQU|NE|GT|LT)\s+(.*?)\s+GOTO\s+LBL\s*(.*)$", body)
-            if jump is None:
+            # split with partition and one search: linear on any line (no backtracking)
+            condition, goto, target = body.partition("GOTO LBL")
+            compare = re.search(r"\s(EQU|NE|GT|LT)\s", condition)
+            if not condition.startswith("IF") or not goto or compare is None:
                 self.error(item, f"FN {number} needs IF ... GOTO LBL ...")
                 return
-            left, right = self.formula(jump.group(1)), self.formula(jump.group(3))
+            left = self.formula(condition[2 : compare.start()])
+            right = self.formula(condition[compare.end() :])
             taken = {
                 "EQU": left == right,
                 "NE": left != right,
                 "GT": left > right,
                 "LT": left < right,
-            }[jump.group(2)]
+            }[compare.group(1)]
             if taken:
-                label = _label(jump.group(4))
+                label = _label(target)
                 index = frame.program.labels.get(label)
                 if index is None:
                     self.error(item, f"label {label} is not defined")
@@ -1075,6 +1165,35 @@ class _Run:
                 ended=self.ended,
             ),
         )
+
+
+_KNOWN_HEADS = frozenset(
+    {
+        "L", "LN", "LP", "C", "CR", "CT", "CP", "CC", "RND", "CHF", "APPR", "DEP", "BEGIN",
+        "END", "BLK", "TOOL", "LBL", "CALL", "FN", "CYCL", "PATTERN", "STOP", "PLANE",
+        "FUNCTION", "TCH", "SEL", "DECLARE",
+    }
+)  # fmt: skip
+_M_WORD = re.compile(r"\bM(\d+)\b")
+_M_HEADS = frozenset({"L", "LN", "LP", "C", "CR", "CT", "CP", "APPR", "DEP", "RND", "CHF", "STOP"})
+
+
+def _static_problem(text: str) -> str | None:
+    """An unknown block keyword or M function, found without running the block."""
+    head = text.split(" ", 1)[0] if text else ""
+    if not (
+        head in _KNOWN_HEADS
+        or text.startswith("*")
+        or re.match(r"^(Q|QL|QR|QS)\d+\s*=", text)
+        or re.match(r"^M\d+\b", text)
+    ):
+        return f"unknown block {head!r}"
+    if not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
+        return None  # names (BEGIN PGM M100, CALL PGM M5.H, LBL) are not M functions
+    for match in _M_WORD.finditer(_STRING.sub("", text)):
+        if float(match.group(1)) not in codes.HEIDENHAIN_M:
+            return f"M{int(match.group(1))} is not an M function of the TNC"
+    return None
 
 
 def _label(text: str) -> str:

@@ -232,6 +232,30 @@ class Toolpath:
         self._add(Move(kind, start, end, line, self.tool, center=center, plane=plane, feed=feed))
         return length
 
+    def trim_last_feed(self, length: float) -> Move | None:
+        """Shorten the last move, a straight feed, by ``length`` at its end (for a rounded or
+        chamfered corner); the shortened move, or None when that is not possible."""
+        if not self.moves or self.moves_dropped:
+            return None
+        last = self.moves[-1]
+        if last.kind is not MoveKind.FEED:
+            return None
+        full = math.dist(last.start, last.end)
+        if length >= full - 1e-9:
+            return None
+        k = (full - length) / full
+        end = tuple(s + (e - s) * k for s, e in zip(last.start, last.end, strict=True))
+        trimmed = Move(
+            last.kind, last.start, (end[0], end[1], end[2]), last.line, last.tool, feed=last.feed
+        )
+        self.moves[-1] = trimmed
+        self.feed -= length
+        if self._current is not None:
+            self._current.feed_distance -= length
+        if last.feed:
+            self.seconds -= length / last.feed * 60.0
+        return trimmed
+
     def scale_travel(self, factor: float) -> None:
         """Express the travel in other units (the program's, when the machine's differ)."""
         self.travel = [(low * factor, high * factor) for low, high in self.travel]

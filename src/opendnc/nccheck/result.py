@@ -199,7 +199,8 @@ class CheckResult:
             f"{self.name or 'program'}: {errors} error{'s' * (errors != 1)}, "
             f"{warnings} warning{'s' * (warnings != 1)}; {self.control.value}, "
             f"{len(self.tools)} tool{'s' * (len(self.tools) != 1)}, "
-            f"{len(self.moves)} moves, about {minutes}:{seconds:02d} min"
+            f"{len(self.moves)} move{'s' * (len(self.moves) != 1)}, "
+            f"about {minutes}:{seconds:02d} min"
         )
 
     def to_dict(self) -> dict[str, Any]:

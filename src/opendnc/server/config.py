@@ -202,7 +202,12 @@ def load_config(path: str | Path) -> ShopConfig:
         raise ConfigError("", f"cannot read {path}: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise ConfigError("", f"{path} is not UTF-8 text") from exc
-    return parse_config(text, base=path.parent.resolve(), source=path)
+    try:
+        return parse_config(text, base=path.parent.resolve(), source=path)
+    except ConfigError as exc:
+        if exc.source is not None:
+            raise
+        raise ConfigError(exc.key, exc.problem, source=path) from None
 
 
 def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopConfig:

@@ -8,6 +8,7 @@ Kept apart from :mod:`opendnc.server.config` so each machine kind's module
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from opendnc.errors import InputError
@@ -21,10 +22,12 @@ NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 class ConfigError(InputError):
     """The configuration file is malformed; the message names the key."""
 
-    def __init__(self, key: str, problem: str) -> None:
+    def __init__(self, key: str, problem: str, *, source: Path | None = None) -> None:
         self.key = key
         self.problem = problem
-        super().__init__(f"{key}: {problem}" if key else problem)
+        self.source = source  # the file, once known: the message then starts with its name
+        text = f"{key}: {problem}" if key else problem
+        super().__init__(f"{source}: {text}" if source is not None else text)
 
 
 def table_at(raw: dict[str, Any], key: str) -> dict[str, Any]:

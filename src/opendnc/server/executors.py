@@ -160,7 +160,10 @@ class SendExecutor(_Base):
         verified = await run.connector.verify(job.name, job.data)
         if verified is False:
             raise TransferError(f"{job.name}: the control holds different bytes after the load")
-        return {"nbytes": len(job.data), "verified": verified}
+        # "verified", or why not (a serial Haas: checksum mode only; docs/xmodem.md)
+        why = getattr(run.connector, "unverified", None) or "not verified"
+        note = "verified" if verified else why
+        return {"nbytes": len(job.data), "verified": verified, "verification": note}
 
 
 class ReportExecutor(SendExecutor):

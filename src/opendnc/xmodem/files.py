@@ -62,6 +62,9 @@ class ReceiveReport:
     blocks: int
     program: ProgramHeader | None
     seconds: float
+    # the program's (ODNC CRC32 ...) line: "ok", "missing", or None for --binary
+    # (a mismatch is refused, docs/xmodem.md#end-to-end-checks)
+    check_line: str | None = None
 
 
 def open_port(url: str, baud: int = 9600, parity: str = "N") -> ByteStream:
@@ -178,6 +181,7 @@ def receive_file(
     out = Path(out)
     stream, owned = _stream(port, baud, parity)
     started = time.monotonic()
+    checked: str | None = None
     try:
         with atomic_output(out / "program.nc" if folder_target else out) as pending:
             done = receive(
@@ -204,6 +208,7 @@ def receive_file(
                     what="received program",
                     action="the file was not written (--binary receives any bytes)",
                 )
+                checked = _check_line(pending.temp)
             with pending.temp.open("rb") as check:
                 head = check.read(4096)
             if folder_target:
@@ -217,4 +222,15 @@ def receive_file(
         blocks=done.blocks,
         program=program_header(head),
         seconds=time.monotonic() - started,
+        check_line=checked,
     )
+
+
+def _check_line(path: Path) -> str:
+    """Check the program's check line, if it has one; a mismatch raises (nothing written)."""
+    from opendnc.haas.verify import CheckState, ProgramDamaged, check_line
+
+    result = check_line(path.read_bytes())
+    if result.state == CheckState.MISMATCH:
+        raise ProgramDamaged(result, "received program")
+    return result.state

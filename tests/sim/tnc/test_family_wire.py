@@ -117,7 +117,7 @@ def test_tnc426_specifics(wire: Wire) -> None:
     assert parts[:3] == [b"TNC 426/430M", b"280476 24 ", b"GR495.07SA"]
     assert wire.ask("C_CC", b"\x00\x07").payload == err(24)  # no 4096-byte buffer
     assert wire.ask("C_CC", b"\x00\x03").mnemonic == "T_OK"  # 1024 is fine
-    assert wire.ask("A_LG", b"FILEPLC\0807667\0").payload == err(49)
+    assert wire.ask("A_LG", b"FILESYS\0807667\0").payload == err(49)  # no SYS: drive
     wire.login("DNC", "MONITOR")
     assert wire.ask("R_RI", b"\x00\x16").payload == err(24)  # no axis read-out
     assert wire.ask("R_RI", b"\x00\x17").payload == b"\x00\x00"

@@ -60,8 +60,12 @@ def test_lathes_keep_programs_under_ncps(fresh: TncHandle) -> None:
     assert len(programs) >= 2
     assert all(f.startswith(LATHE_PROGRAMS + "/") for f in programs), programs
     assert "nc_prog/ncps/PGM01.nc" in programs
-    # no milling programs on a lathe station
-    assert not {f for f in host_files(fresh.root) if f.upper().endswith((".H", ".I"))}
+    # every program type of docs/tnc-profiles.md#paths-and-drives sits in ncps and only there
+    files = host_files(fresh.root)
+    for suffix in (".nc", ".ncs", ".h", ".i"):
+        typed = {f for f in files if f.lower().endswith(suffix)}
+        assert typed, f"no {suffix} file on a fresh lathe station"
+        assert all(f.startswith(LATHE_PROGRAMS + "/") for f in typed), typed
 
 
 @pytest.mark.parametrize("fresh", ["tnc640", "tnc620", "tnc320", "tnc7"], indirect=True)

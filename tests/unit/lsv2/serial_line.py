@@ -55,6 +55,11 @@ class Outcome:
     to_client: list[int]
 
 
+def echo(_index: int, request: Frame) -> Frame:
+    """The default control: answer ``R_XX`` + payload with ``S_XX`` + the same payload."""
+    return Frame("S_XX", request.payload)
+
+
 def exchange(
     requests: list[bytes],
     *,
@@ -65,9 +70,12 @@ def exchange(
     link_check: bool = False,
     answer_timeout: float = 60.0,
     horizon: float = 3600.0,
+    answer: Callable[[int, Frame], Frame] = echo,
+    mnemonic: str = "R_XX",
 ) -> Outcome:
-    """Client sends each request (as telegram ``R_XX`` + payload) once the previous answer came;
-    the control answers each delivered request with ``S_XX`` + the same payload."""
+    """Client sends each request (as telegram ``mnemonic`` + payload) once the previous answer
+    came; the control answers the ``i``-th delivered request with ``answer(i, request)``
+    (by default ``S_XX`` + the same payload). ``served`` and ``answers`` hold payloads."""
     kwargs = {"timing": timing} if timing else {}
     client = SerialLink(LinkRole.CLIENT, retries=retries, **kwargs)
     control = SerialLink(LinkRole.CONTROL, retries=retries, **kwargs)
@@ -96,7 +104,7 @@ def exchange(
     def next_request() -> None:
         nonlocal waiting_since
         if pending:
-            client.send(Frame("R_XX", pending.pop(0)), now)
+            client.send(Frame(mnemonic, pending.pop(0)), now)
             waiting_since = now
         else:
             waiting_since = None
@@ -109,8 +117,8 @@ def exchange(
         # events of both engines
         while (ev := control.next_event()) is not None:
             if isinstance(ev, TelegramReceived):
+                control.send(answer(len(served), ev.frame), now)
                 served.append(ev.frame.payload)
-                control.send(Frame("S_XX", ev.frame.payload), now)
         while (ev := client.next_event()) is not None:
             if isinstance(ev, TelegramReceived):
                 answers.append(ev.frame.payload)

@@ -458,3 +458,126 @@ def test_doubled_enq_whose_first_answer_arrives_late_frames_once() -> None:
     pc.receive_data(RECEIVED, 3.1)
     assert pc.data_to_send() == EOT
     assert pc.next_event() == TelegramSent(Frame("A_LG", b"INSPECT\x00"), 2)
+
+
+# -- the mirror case: a repeated answer must not confirm a block (docs/lsv2-serial.md) --------
+
+S_FL3 = encode_serial_frame(Frame("S_FL", b"3 L X+3\x00"))
+
+
+def _upload_until_block_2_framed(pc: SerialLink, *, eot_after_dle1: bool) -> None:
+    """Block 1 goes through; its T_OK is taken (EOT after our DLE 1 or not); block 2 framed."""
+    pc.send(Frame("S_FL", b"1 L X+1\x00"), 0.0)
+    assert pc.data_to_send() == ENQ
+    pc.receive_data(READY, 0.01)
+    assert pc.data_to_send() == S_FL1
+    pc.receive_data(RECEIVED, 0.05)
+    assert pc.data_to_send() == EOT
+    assert pc.next_event() == TelegramSent(Frame("S_FL", b"1 L X+1\x00"), 1)
+    pc.receive_data(ENQ, 0.06)
+    assert pc.data_to_send() == READY
+    pc.receive_data(T_OK, 0.07)
+    assert pc.data_to_send() == RECEIVED  # lost on the way when eot_after_dle1 is False
+    assert pc.next_event() == TelegramReceived(Frame("T_OK"))
+    pc.send(Frame("S_FL", b"2 L X+2\x00"), 0.07)
+    if eot_after_dle1:
+        pc.receive_data(EOT, 0.08)
+        t = 0.09
+    else:
+        pc.tick(1.07)  # LSV2TIME2 without the control's EOT: did it have our DLE 1?
+        t = 1.08
+    assert pc.data_to_send() == ENQ
+    pc.receive_data(READY, t)
+    assert pc.data_to_send() == S_FL2
+
+
+def test_repeated_answer_after_a_lost_dle1_never_confirms_the_next_block() -> None:
+    """Our DLE 1 for the control's T_OK was lost (no EOT followed), so the control may repeat
+    that T_OK. Block 2 goes out, its DLE 1 never comes, the control sends T_OK: its repeat (it
+    never read block 2) or its answer to block 2, the line cannot tell. Taken as an answer,
+    block 2 was missing from the file and the upload reported success (issue: 254 bytes short);
+    now it is a typed link error and the T_OK is not passed on."""
+    pc = SerialLink(LinkRole.CLIENT)
+    _upload_until_block_2_framed(pc, eot_after_dle1=False)
+    # block 2 spoilt at the control, its NAK lost; our retry ENQ lost too; the control's
+    # LSV2TIME1 for its T_OK ran out: EOT, ENQ, the same T_OK again
+    pc.tick(4.1)
+    assert pc.data_to_send() == EOT + ENQ
+    pc.receive_data(EOT + ENQ, 4.5)
+    assert pc.data_to_send() == READY
+    pc.receive_data(T_OK, 4.6)
+    assert pc.data_to_send() == RECEIVED  # the control must stop repeating it either way
+    event = pc.next_event()
+    assert isinstance(event, LinkFailed)
+    assert event.frame == Frame("S_FL", b"2 L X+2\x00")
+    assert event.error.status is HostStatus.NO_QUITT
+    assert "cannot tell whether it arrived" in str(event.error)
+    assert pc.next_event() is None  # no T_OK: the upload must not go on to block 3
+    assert pc.stats.ambiguous == 1
+    pc.receive_data(EOT, 4.7)
+    assert pc.idle
+
+
+def test_answer_after_a_confirmed_one_still_confirms_the_block() -> None:
+    """The single fault stays safe: the control had our DLE 1 for its T_OK (its EOT came at
+    once), so it never repeats that T_OK; a T_OK after our unconfirmed block 2 is its answer."""
+    pc = SerialLink(LinkRole.CLIENT)
+    _upload_until_block_2_framed(pc, eot_after_dle1=True)
+    pc.receive_data(ENQ, 1.2)  # block 2's DLE 1 lost; the control answers after LSV2TIME2
+    assert pc.data_to_send() == READY
+    pc.receive_data(T_OK, 1.3)
+    assert pc.data_to_send() == RECEIVED
+    assert pc.next_event() == TelegramSent(Frame("S_FL", b"2 L X+2\x00"), 1)
+    assert pc.next_event() == TelegramReceived(Frame("T_OK"))
+    assert pc.stats.ambiguous == 0
+
+
+def test_late_eot_is_no_confirmation() -> None:
+    """An EOT long after our DLE 1 is the control's LSV2TIME1 running out (it never had the
+    DLE 1): the T_OK stays unconfirmed and a T_OK after block 2 stays ambiguous."""
+    pc = SerialLink(LinkRole.CLIENT, timing=LinkTiming(time2=3.0))
+    pc.send(Frame("T_OK"), 0.0)  # any telegram of ours, answered by the control's T_OK
+    pc.data_to_send()
+    pc.receive_data(READY, 0.01)
+    pc.data_to_send()
+    pc.receive_data(RECEIVED, 0.02)
+    assert pc.data_to_send() == EOT
+    pc.receive_data(ENQ, 0.03)
+    pc.receive_data(T_OK, 0.04)
+    assert pc.data_to_send() == READY + RECEIVED
+    pc.receive_data(EOT, 2.9)  # 2.86 s after our DLE 1: the control gave up waiting for it
+    pc.send(Frame("S_FL", b"3 L X+3\x00"), 2.9)
+    assert pc.data_to_send() == ENQ
+    pc.receive_data(READY, 2.91)
+    assert pc.data_to_send() == S_FL3
+    pc.receive_data(ENQ, 3.0)
+    pc.receive_data(T_OK, 3.1)
+    assert pc.next_event() == TelegramSent(Frame("T_OK"), 1)
+    assert pc.next_event() == TelegramReceived(Frame("T_OK"))  # the first one
+    event = pc.next_event()
+    assert isinstance(event, LinkFailed), event
+    assert pc.next_event() is None
+
+
+def test_repeated_answer_after_a_refused_block_is_a_repeat_and_the_block_goes_again() -> None:
+    """The sequence that lost a block through the cable: our DLE 1 for T_OK lost, block 2
+    refused with NAK, our retry ENQ lost, and the control, waiting in vain for block 2 again,
+    repeats its T_OK. Every frame of block 2 was refused, so the control does not hold it: the
+    T_OK is its repeat (acknowledged, not passed on) and block 2 goes out again."""
+    pc = SerialLink(LinkRole.CLIENT)
+    _upload_until_block_2_framed(pc, eot_after_dle1=False)
+    pc.receive_data(NAK, 1.12)
+    assert pc.data_to_send() == EOT + ENQ  # that ENQ is lost
+    pc.receive_data(ENQ, 4.12)  # the control's LSV2TIME1 ran out first
+    assert pc.data_to_send() == READY
+    pc.receive_data(T_OK, 4.13)
+    assert pc.data_to_send() == RECEIVED
+    assert pc.next_event() is None  # neither a confirmation of block 2 nor a second T_OK
+    assert pc.stats.repeats_dropped == 1
+    pc.receive_data(EOT, 4.14)
+    assert pc.data_to_send() == ENQ  # block 2 again
+    pc.receive_data(READY, 4.15)
+    assert pc.data_to_send() == S_FL2
+    pc.receive_data(RECEIVED, 4.2)
+    assert pc.data_to_send() == EOT
+    assert pc.next_event() == TelegramSent(Frame("S_FL", b"2 L X+2\x00"), 3)

@@ -68,6 +68,8 @@ DEFECTS = [
     ("feed_without_f.nc", 7, None, ERROR, "no feed rate"),
     ("cycle_without_depth.nc", 7, None, ERROR, "without a depth (Z)"),
     ("while_without_end.nc", 4, None, ERROR, "WHILE ... DO1 without END1"),
+    ("iso_unknown_g.i", 4, None, ERROR, "G65 is not a G code of the Heidenhain ISO control"),
+    ("lower_case_word.nc", 6, None, ERROR, "byte 0x79 (a lower-case letter outside a comment)"),
     ("kt_cr_radius_too_small.h", 8, 7, ERROR, "too small for a chord of 60"),
     ("kt_missing_label.h", 8, 7, ERROR, "label 7 is not defined"),
     ("kt_end_pgm_mismatch.h", 9, 8, ERROR, "END PGM OTHER does not match BEGIN PGM TEST"),
@@ -79,6 +81,7 @@ DEFECTS = [
     ("kt_arc_end_off_circle.h", 9, 8, ERROR, "start radius 20.0000, end radius 25.0000"),
     ("kt_no_end_pgm.h", 8, 7, ERROR, "no END PGM"),
     ("kt_unknown_m.h", 4, 3, ERROR, "M77 is not an M function"),
+    ("kt_unknown_block_in_unused_label.h", 6, 5, ERROR, "unknown block 'LX+10'"),
 ]
 
 

@@ -238,3 +238,143 @@ def test_klartext_approach_departure_and_normal_vectors() -> None:
     assert result.feed_distance == pytest.approx(
         7 + math.hypot(20, 20) + 50 + math.hypot(70, 20) + math.hypot(21, 22, 5)
     )
+
+
+def test_a_length_offset_of_another_tool_is_a_warning() -> None:
+    result = haas("G21 G90 G54\nT2 M06\nG43 H2 Z50.\nT3 M06\nG43 H2 Z50.")
+    assert [(p.line, p.severity) for p in result.problems] == [(7, Severity.WARNING)]
+    assert result.problems[0].message.startswith("G43 H2 with tool T3 in the spindle")
+
+
+def test_blank_form_with_decimals_that_look_like_its_numbers() -> None:
+    result = klartext("BLK FORM 0.1 Y X-10.1 Y+0.1 Z-20.2", "BLK FORM 0.2 X+10.1 Y+50.2 Z+0.1")
+    assert result.problems == ()
+    assert result.stock is not None
+    assert result.stock.minimum == (-10.1, 0.1, -20.2)
+    assert result.stock.maximum == (10.1, 50.2, 0.1)
+    assert result.stock.axis == "Y"
+
+
+def test_program_names_are_not_m_functions() -> None:
+    text = "0 BEGIN PGM M100 MM\n1 CALL PGM TNC:\\M5000.H\n2 L Z+5 R0 FMAX M77\n3 END PGM M100 MM\n"
+    result = check_text(
+        text, library={"TNC:\\M5000.H": "0 BEGIN PGM M5000 MM\n1 END PGM M5000 MM"}.get
+    )
+    assert [(p.line, p.message) for p in result.problems] == [
+        (3, "M77 is not an M function of the TNC")
+    ]
+
+
+def test_an_endless_loop_in_a_library_program_is_named_by_its_call() -> None:
+    from opendnc.nccheck import Budget
+
+    sub = "%\nO2000\nN1 #100 = #100 + 1\nGOTO 1\nM99\n%\n"
+    main = "%\nO1000\nG21\nM98 P2000\nM30\n%\n"
+    result = check_text(main, library={"O02000": sub}.get, budget=Budget(blocks=50_000))
+    assert [(p.line, p.severity) for p in result.problems] == [(4, Severity.ERROR)]
+    assert result.problems[0].message.startswith(
+        "endless loop: the jump back at line 4 (in O02000 line 4)"
+    )
+
+
+def test_iso_programs_with_a_number_as_their_name() -> None:
+    from opendnc.nccheck import Units
+
+    text = "%1000 G70 *\nN10 T1 G17 S1000 *\nN20 G00 X+0 Y+0 Z+1 M03 *\nN30 G01 X+2 F10 *\n"
+    text += "N99999999 %1000 G70 *\n"
+    assert guess_control(text) is Control.ISO
+    result = check_text(text)
+    assert result.problems == ()
+    assert result.units is Units.INCH
+    assert result.end.ended
+    # a Haas bolt-hole G70 on the line after the O number is still G-code for a Haas
+    assert guess_control("%\nO01000\nG70 I1. J0. L4\nM30\n%\n") is Control.HAAS
+
+
+def test_the_library_is_asked_once_and_may_fail() -> None:
+    asked: list[str] = []
+
+    def library(name: str) -> str | None:
+        asked.append(name)
+        raise OSError("library offline")
+
+    text = "%\nO1000\n#1 = 0\nWHILE [#1 LT 5] DO1\nG65 P9832\n#1 = #1 + 1\nEND1\nM30\n%\n"
+    result = check_text(text, library=library)
+    assert asked == ["O09832"]
+    assert [(p.line, p.severity, p.message) for p in result.problems] == [
+        (5, Severity.WARNING, "calls O09832, which is not in the library")
+    ]
+
+
+def test_call_pgm_asks_the_library_by_the_name_as_written() -> None:
+    sub = "0 BEGIN PGM sub MM\n1 Q5 = Q5 + 1\n2 END PGM sub MM\n"
+    asked: list[str] = []
+
+    def library(name: str) -> str | None:
+        asked.append(name)
+        return sub if name == "TNC:\\parts\\sub.h" else None
+
+    result = check_text(
+        "0 BEGIN PGM T MM\n1 LBL 1\n2 CALL PGM TNC:\\parts\\sub.h\n3 CALL LBL 1 REP 2\n"
+        "4 END PGM T MM\n",
+        library=library,
+    )
+    assert result.problems == ()
+    assert asked == ["TNC:\\parts\\sub.h"]
+    assert result.end.variables[5] == 3.0
+
+
+def test_fn_functions_as_the_tnc_writes_them() -> None:
+    result = klartext(
+        "FN 0: Q1 = +30",
+        "FN 1: Q2 = +Q1 + +10",
+        "FN 2: Q3 = +Q2 - +4",
+        "FN 3: Q4 = +Q3 * +2",
+        "FN 4: Q5 = +Q4 DIV +8",
+        "FN 5: Q6 = SQRT +81",
+        "FN 6: Q7 = SIN+Q1",
+        "FN 7: Q8 = COS-60",
+        "FN 8: Q9 = +3 LEN +4",
+        "FN 13: Q10 = +1 ANG +1",
+        "Q11 = 2 ^ 3 + ABS -1",
+    )
+    assert result.problems == ()
+    values = result.end.variables
+    expected = {1: 30, 2: 40, 3: 36, 4: 72, 5: 9, 6: 9, 7: 0.5, 8: 0.5, 9: 5, 10: 45, 11: 9}
+    assert values == pytest.approx({k: float(v) for k, v in expected.items()})
+
+
+def test_rounded_and_chamfered_corners() -> None:
+    result = klartext(
+        "TOOL CALL 1 Z S1000",
+        "L X+0 Y+0 Z-1 R0 FMAX M3",
+        "L X+10 F100",
+        "RND R2",
+        "L Y+10",  # left turn: a quarter circle of R2 around (8, 2)
+        "CHF 3",
+        "L X+0",  # a 3 mm chamfer from (10, 7) to (7, 10)
+    )
+    assert result.problems == ()
+    kinds = [m.kind for m in result.moves]
+    assert kinds[-5:] == [MoveKind.FEED, MoveKind.ARC_CCW, MoveKind.FEED, MoveKind.FEED,
+                          MoveKind.FEED]  # fmt: skip
+    arc = result.moves[-4]
+    assert arc.start == pytest.approx((8.0, 0.0, -1.0))
+    assert arc.end == pytest.approx((10.0, 2.0, -1.0))
+    assert arc.center == pytest.approx((8.0, 2.0, -1.0))
+    chamfer = result.moves[-2]
+    assert chamfer.start == pytest.approx((10.0, 7.0, -1.0))
+    assert chamfer.end == pytest.approx((7.0, 10.0, -1.0))
+    assert result.feed_distance == pytest.approx(8 + math.pi + 5 + math.hypot(3, 3) + 7)
+
+
+def test_a_rounding_too_big_for_its_corner_is_an_error() -> None:
+    result = klartext(
+        "TOOL CALL 1 Z S1000",
+        "L X+0 Y+0 Z-1 R0 FMAX M3",
+        "L X+3 F100",
+        "RND R5",
+        "L Y+10",
+    )
+    assert [(p.line, p.severity) for p in result.problems] == [(5, Severity.ERROR)]
+    assert result.problems[0].message == "RND 5 does not fit its corner"

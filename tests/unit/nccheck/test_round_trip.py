@@ -4,14 +4,17 @@ where the machine ends, which tool is in the spindle and what the macro variable
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from opendnc.gcode.program import program_lines
 from opendnc.nccheck import Budget, CheckResult, MachineLimits, check_text
+from opendnc.sim.haas.control import HaasConfig, HaasControl
 from opendnc.sim.haas.machine import MachineState
 from opendnc.sim.haas.runner import BlockSource, ProgramRunner, RunnerEvent, StepResult
+from opendnc.sim.haas.store import ProgramStore
 
 PROGRAM = """%
 O01234 (ROUND TRIP)
@@ -69,13 +72,21 @@ def agree(machine: MachineState, result: CheckResult, variables: list[int]) -> N
         assert math.isclose(end.variables[number], machine.get(number) or 0.0), number
 
 
-def test_the_virtual_haas_and_the_dry_run_agree() -> None:
-    machine, step = run_virtual(PROGRAM)
-    assert step is StepResult.ENDED
+def test_the_virtual_haas_and_the_dry_run_agree(tmp_path: Path) -> None:
+    # the whole virtual control: the program stored in its memory and started (MEM mode)
+    control = HaasControl(HaasConfig(), ProgramStore(tmp_path), clock=lambda: 0.0)
+    number = control.save_program(PROGRAM)
+    control.start_program(number)
+    for _ in range(10_000):
+        if control.step() is not StepResult.RAN:
+            break
+    assert not control.machine.alarms
+    assert control.machine.m30_counter_1 == 1
+    machine = control.machine
     result = check_text(PROGRAM, name="O01234")
     assert result.problems == ()
     assert result.end.ended
-    agree(machine, result, [100, 101, 103, 104, 105, 106])
+    agree(machine, result, [100, 101, 103, 104, 105, 106, 3901])
     assert 102 not in result.end.variables
     assert machine.get(102) is None
     # the values the program computed, worked out by hand
@@ -104,14 +115,23 @@ _block = st.one_of(
     st.builds(lambda t: f"T{t} M06", st.integers(1, 20)),
     st.builds(lambda n, v: f"#{n} = #{n} + {v}", st.integers(100, 105), st.integers(-9, 9)),
     st.builds(lambda n: f"#{n} = #5041 + #5043", st.integers(100, 105)),
+    st.builds(
+        lambda count, dx: (
+            f"#110 = 0\nWHILE [#110 LT {count}] DO1\nG91 G01 X{dx:.3f} F10.\n"
+            "#110 = #110 + 1\nEND1\nG90"
+        ),
+        st.integers(0, 4),
+        st.floats(-2, 2, allow_nan=False),
+    ),
+    st.builds(lambda n: f"IF [#100 GT {n}] GOTO 900", st.integers(-20, 20)),
 )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(st.lists(_block, max_size=25))
 def test_generated_programs_agree(blocks: list[str]) -> None:
     start = ["G28 G91 Z0.", "G28 X0. Y0.", "G90 T1 M06", "S1000 M03"]
-    text = "%\nO01000\n" + "\n".join([*start, *blocks, "M30"]) + "\n%\n"
+    text = "%\nO01000\n" + "\n".join([*start, *blocks, "N900 G90", "M30"]) + "\n%\n"
     machine, step = run_virtual(text)
     assert step is StepResult.ENDED
     # the virtual Haas starts with every work offset at 0: the dry run is told so, as the
@@ -120,4 +140,4 @@ def test_generated_programs_agree(blocks: list[str]) -> None:
     machine_limits = MachineLimits(work_offsets={"G54": zero, "G55": zero})
     result = check_text(text, machine=machine_limits, budget=Budget(seconds=5.0))
     assert result.errors == ()
-    agree(machine, result, [n for n in range(100, 106) if machine.get(n) is not None])
+    agree(machine, result, [n for n in (*range(100, 106), 110) if machine.get(n) is not None])

@@ -83,6 +83,60 @@ Step = Message | Slow | Expect | Send | Receive
 Op = Generator[Step, Message | None, T]
 
 
+TELEGRAM_FLOOR = 64
+"""Smallest telegram an adaptive upload shrinks to (docs/lsv2-serial.md, "Telegram size")."""
+
+
+@dataclass
+class TelegramSizer:
+    """Upload telegram size that follows the line (docs/lsv2-serial.md, "Telegram size").
+
+    Fed with the tries every file block needed: after ``shrink_after`` retried blocks in a row
+    the size halves (down to ``floor``), after ``grow_after`` clean blocks in a row it doubles
+    (up to the ceiling: the negotiated buffer and the size asked for). Every change is kept in
+    :attr:`changes` as ``(old, new)``.
+    """
+
+    ceiling: int = 4096
+    floor: int = TELEGRAM_FLOOR
+    shrink_after: int = 2
+    grow_after: int = 16
+    size: int = 0
+    """Current telegram size (0: not started, the ceiling)."""
+    changes: list[tuple[int, int]] = field(default_factory=list)
+    _bad: int = 0
+    _clean: int = 0
+    _cap: int = 0  # the ceiling in force: the negotiated buffer, at most ``ceiling``
+
+    def limit(self, ceiling: int) -> int:
+        """Telegram size for the next block, within ``ceiling`` (the negotiated buffer)."""
+        ceiling = min(ceiling, self.ceiling)
+        self._cap = ceiling
+        if self.size == 0 or self.size > ceiling:
+            self.size = ceiling
+        return max(min(self.size, ceiling), min(self.floor, ceiling))
+
+    def block_sent(self, tries: int) -> None:
+        """A file block of ours went through after ``tries`` transmissions."""
+        if tries > 1:
+            self._clean = 0
+            self._bad += 1
+            if self._bad >= self.shrink_after and self.size > self.floor:
+                self._bad = 0
+                self._change(max(self.floor, self.size // 2))
+            return
+        self._bad = 0
+        self._clean += 1
+        cap = self._cap or self.ceiling
+        if self._clean >= self.grow_after and 0 < self.size < cap:
+            self._clean = 0
+            self._change(min(cap, self.size * 2))
+
+    def _change(self, new: int) -> None:
+        self.changes.append((self.size, new))
+        self.size = new
+
+
 @dataclass
 class SessionState:
     """What a client knows about its session; ops read and update it, drivers keep it."""
@@ -97,6 +151,8 @@ class SessionState:
     buffer_size: int = DEFAULT_BUFFER_SIZE
     secure_send: bool = False
     connected: bool = False
+    sizer: TelegramSizer | None = None
+    """Set over serial LSV2: upload blocks follow the line (docs/lsv2-serial.md)."""
 
     @property
     def scheme(self) -> AttributeScheme:
@@ -107,6 +163,13 @@ class SessionState:
     def data_limit(self) -> int:
         """Largest data block per ``S_FL`` (buffer minus header and a small margin)."""
         return self.buffer_size - 10
+
+    @property
+    def upload_limit(self) -> int:
+        """Largest data block for the next upload ``S_FL`` (adaptive over serial)."""
+        if self.sizer is None:
+            return self.data_limit
+        return self.sizer.limit(self.buffer_size) - 10
 
     def require_params(self) -> SystemParameters:
         """The system parameters (read during connect)."""

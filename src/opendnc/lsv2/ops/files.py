@@ -61,6 +61,7 @@ __all__ = [
     "make_dir",
     "move_file",
     "remove_dir",
+    "text_size",
     "upload",
     "walk",
 ]
@@ -320,6 +321,27 @@ def ascii_blocks(data: bytes, limit: int) -> Iterator[bytes]:
         start = end
 
 
+def text_size(data: bytes, line_end: bytes = b"\r\n") -> int:
+    """Size of text ``data`` on a control that stores each line end as ``line_end``.
+
+    A text upload sends every CR LF or LF as one NUL (:func:`to_wire_ascii`) and the control
+    writes its own line end for each NUL: what ``R_FI`` then reports for a file that arrived
+    whole (docs/lsv2-serial.md, "Every text upload verified").
+    """
+    wire = to_wire_ascii(data)
+    return len(wire) + wire.count(b"\0") * (len(line_end) - 1)
+
+
+def _block_end(data: bytes, start: int, limit: int, *, text: bool) -> int:
+    """End of the block that starts at ``start`` (see :func:`ascii_blocks`)."""
+    end = min(start + limit, len(data))
+    if text and end < len(data):
+        cut = data.rfind(b"\0", start, end)
+        if cut >= start:
+            end = cut + 1
+    return end
+
+
 def binary_blocks(data: bytes, limit: int) -> Iterator[bytes]:
     """Cut ``data`` into blocks of ``limit`` bytes."""
     view = memoryview(data)
@@ -350,12 +372,16 @@ def upload(
         reply = yield SendFile(path, mode)
     expect(reply, Ok, f"upload {remote}")
     payload = data if binary else to_wire_ascii(data)
-    blocks = binary_blocks if binary else ascii_blocks
     done, total = 0, len(data)
     if progress is not None:
         progress(0, total)
     context = f"upload {remote}"
-    for block in blocks(payload, state.data_limit):
+    start = 0
+    while start < len(payload):
+        # the limit is asked per block: over serial it follows the line (TelegramSizer)
+        end = _block_end(payload, start, state.upload_limit, text=not binary)
+        block = payload[start:end]
+        start = end
         reply = yield FileData(block)
         if type(reply) is not Ok:
             refuse(reply, context)

@@ -239,6 +239,15 @@ class HaasSerialConnector:
         """None: XModem's block checks are the only verification a serial Haas offers."""
         return None
 
+    @property
+    def unverified(self) -> str:
+        """What a load's outcome says instead of "verified" (docs/xmodem.md#end-to-end-checks):
+        checksum XModem lets two cancelling bit errors through, and the control cannot be
+        asked for the program; the operator's punch back (`opendnc haas verify`) can check."""
+        if self.config.profile.protocol == "text":
+            return "not verified (plain text has no check)"
+        return "not verified (checksum mode only)"
+
     async def listen(self, seconds: float) -> Reception | None:
         """Receive one XModem transfer (or text punch) if the control starts one within
         ``seconds``."""

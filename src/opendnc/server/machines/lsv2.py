@@ -85,6 +85,7 @@ class Lsv2Connector(NetworkOnly):
                 bytesize=profile.bytesize,
                 stopbits=profile.stopbits,
                 flow=profile.flow,
+                telegram_size=256,  # as the CLI: uploads adapt below it (docs/lsv2-serial.md)
             )
             return AsyncClient.over_serial(line, timeout=10.0)
         return AsyncClient(config.host, config.port, timeout=10.0)

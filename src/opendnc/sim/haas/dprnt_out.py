@@ -14,6 +14,8 @@ from pathlib import Path
 TCP_EOL = b"\r\n"
 """Line end on the TCP port and in the file (NGC; Haas documents CR for serial)."""
 
+SESSION_END_TIMEOUT = 2.0  # seconds close() waits for its connection handlers to end
+
 
 class TcpDprntOutput:
     """The control listens on a port; one reader connects and receives printed lines.
@@ -30,6 +32,9 @@ class TcpDprntOutput:
         self.sent = 0
         self.dropped = 0
         self._server: asyncio.Server | None = None
+        # the connection handlers still running: close() lets them end before it returns, or
+        # a stop would cancel them mid-read and Python 3.11 logs that as a traceback
+        self._sessions: set[asyncio.Task[None]] = set()
         self._connected = asyncio.Event()
 
     async def start(self) -> int:
@@ -50,11 +55,17 @@ class TcpDprntOutput:
             self._server.close()
         for writer in list(self.readers):
             writer.close()
+        if self._sessions:
+            await asyncio.wait(list(self._sessions), timeout=SESSION_END_TIMEOUT)
         if self._server is not None:
             with contextlib.suppress(OSError):
                 await self._server.wait_closed()
 
     async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._sessions.add(task)
+            task.add_done_callback(self._sessions.discard)
         if len(self.readers) >= self.max_readers:
             writer.close()
             return

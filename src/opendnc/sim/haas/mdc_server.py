@@ -27,6 +27,8 @@ from opendnc.errors import RemoteProtocolError
 from opendnc.haas import mdc
 from opendnc.sim.haas.control import HaasControl
 
+SESSION_END_TIMEOUT = 2.0  # seconds close() waits for its connection handlers to end
+
 MAX_CONNECTIONS = 2
 DRAIN_TIMEOUT = 5.0
 """Seconds a connection may leave replies unread (past the high-water mark) before it is dropped."""
@@ -96,6 +98,9 @@ class MdcServer:
         self.dropped = 0
         """Connections dropped because they stopped reading their replies."""
         self._server: asyncio.Server | None = None
+        # the connection handlers still running: close() lets them end before it returns, or
+        # a stop would cancel them mid-read and Python 3.11 logs that as a traceback
+        self._sessions: set[asyncio.Task[None]] = set()
         self._watchdogs: dict[asyncio.StreamWriter, asyncio.Task[None]] = {}
 
     async def start(self) -> int:
@@ -112,11 +117,17 @@ class MdcServer:
             task.cancel()
         for writer in list(self.writers):
             writer.transport.abort()  # unread replies need not be flushed
+        if self._sessions:
+            await asyncio.wait(list(self._sessions), timeout=SESSION_END_TIMEOUT)
         if self._server is not None:
             with contextlib.suppress(OSError):
                 await self._server.wait_closed()
 
     async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._sessions.add(task)
+            task.add_done_callback(self._sessions.discard)
         if len(self.writers) >= self.max_connections:
             self.refused += 1
             writer.close()

@@ -141,6 +141,9 @@ class SerialOptions:
     dnc_timeout: float = 10.0  # silence (while waiting for blocks) that means a broken link
     xon_at_start: bool = True  # DNC: announce readiness with DC1
     dprnt_eol: bytes = b"\r"  # Haas documents CR after each DPRNT block
+    # The operator's part of a punch-back check (docs/xmodem.md#end-to-end-checks): after each
+    # program received by XModem, punch it out again, then return to the mode before.
+    punch_back: bool = False
 
 
 class _Abort(DncError):
@@ -362,7 +365,7 @@ class SerialFrontEnd:
                 self.port, self.write, self.options, interrupt=self._interrupt, stop=self._stop
             )
             if isinstance(data, bytes):
-                self._store(data)
+                self._store(data, selection)
         elif mode is SerialMode.AUTO:
             got = receive_xmodem(
                 self.port,
@@ -373,7 +376,7 @@ class SerialFrontEnd:
                 stop=self._stop,
             )
             if isinstance(got, bytes):
-                self._store(got)
+                self._store(got, selection)
             elif self.mdc_enabled() and got.text.lstrip(_LEADER).startswith(b"?"):
                 self._serve_mdc(got.text)
                 return False
@@ -385,10 +388,15 @@ class SerialFrontEnd:
             self._dnc_xmodem()
         return True
 
-    def _store(self, data: bytes) -> None:
+    def _store(self, data: bytes, selection: Selection) -> None:
         text = from_wire(data, self.options.eob).decode("latin-1")
         number = self.call(lambda: self.control.save_program(text))
         self.programs.append(number)
+        if self.options.punch_back:
+            # what the memory now holds goes out as the control punches it (a damaged load
+            # comes back damaged), then the port returns to what it was doing
+            self._jobs.put(Selection(SerialMode.PUNCH, number))
+            self._jobs.put(selection)
 
     # --------------------------------------------------------------- DNC
     def _dnc(self, first: bytes) -> None:

@@ -166,6 +166,26 @@ def lathe_demo() -> str:
     )
 
 
+def lathe_subprogram() -> str:
+    """A DIN subprogram (``.ncs``) of the kind a lathe's main programs call."""
+    return "%GROOVE.ncs\r\nMACHINING\r\nN1 G0 X62 Z-20\r\nN2 G1 X54 F0.08\r\nN3 G0 X62\r\nEND\r\n"
+
+
+def lathe_klartext_demo(name: str) -> str:
+    """A conversational program in X and Z only (the lathe station's ``.H`` example)."""
+    body = [
+        f"BEGIN PGM {name} MM",
+        "TOOL CALL 1 Z S1500 F200",
+        "L X+60 Z+2 R0 FMAX M3",
+        "L Z-30 F150",
+        "L X+70",
+        "L Z+2 FMAX M5",
+        "M30",
+        f"END PGM {name} MM",
+    ]
+    return "\r\n".join(f"{i} {line}" for i, line in enumerate(body)) + "\r\n"
+
+
 def populate(fs: ControlFs, profile: Profile) -> None:
     """Fill a fresh root like a new programming station (only once per root)."""
     # One marker per family: a root first used by another family still gets this one's
@@ -195,6 +215,12 @@ def populate(fs: ControlFs, profile: Profile) -> None:
         put(paths.mdi_program, lathe_demo())
         put(prog + "\\DEMO_SHAFT.nc", lathe_demo().replace("PGM01", "DEMO_SHAFT"))
         put(prog + "\\demo\\FLANGE.nc", lathe_demo().replace("PGM01", "FLANGE"))
+        put(prog + "\\GROOVE.ncs", lathe_subprogram())
+        # The program types docs/tnc-profiles.md#paths-and-drives names (conversational .H,
+        # ISO .I) are in ncps too, so a client's file search for them finds one of each there
+        # (docs/tnc-profiles.md#fresh-roots says why).
+        put(prog + "\\SHAFT.H", lathe_klartext_demo("SHAFT"))
+        put(prog + "\\2001.I", iso_demo(2001))
     else:
         # Sub-folder programs live in the project folder where the family has one (iTNC 530:
         # TNC:\nc_prog next to the programs in TNC:\), else in the program folder itself.

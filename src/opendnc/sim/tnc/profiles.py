@@ -416,7 +416,11 @@ PROFILES: dict[str, Profile] = {
         old_attributes=True,
         paths=ITNC_PATHS,
         ri_selectors=frozenset({23, 24, 25, 26}),
-        logins=frozenset({"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG"}),
+        # FILEPLC (with the PLC password) opens PLC: on every family, this one included
+        # (docs/tnc-profiles.md#drives-and-logins); FILESYS and FILELOG have no drive here.
+        logins=frozenset(
+            {"INSPECT", "DIAGNOSTICS", "FILE", "MONITOR", "DNC", "PLCDEBUG", "FILEPLC"}
+        ),
         data_paths=False,
         scope=False,
         keys=KeyStyle.OLD,
