@@ -23,27 +23,26 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from opendnc.server.config import MqttConfig, MtconnectConfig
-from opendnc.server.events import Event, EventBus
+from opendnc.server.events import EventBus, MachineStatusChanged
+from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.shdr import MtconnectOutput
 
 
-def _event(name: str, poll: int, change: bool) -> Event:
+def _event(name: str, poll: int, change: bool) -> MachineStatusChanged:
     at = datetime(2026, 1, 1, tzinfo=UTC) + timedelta(seconds=poll)
-    status: dict[str, Any] = {
-        "at": at.isoformat(),
-        "available": True,
-        "execution": ("ACTIVE" if poll % 2 else "READY") if change else "ACTIVE",
-        "mode": "AUTOMATIC",
-        "program": "O1000",
-        "line": poll if change else 12,
-        "part_count": 7,
-        "tool": 3,
-        "overrides": {"feed": 100.0, "spindle": 100.0, "rapid": 50.0},
-        "errors": [],
-        "message": "",
-    }
-    return Event("machine", name, {"name": name, "online": True, "status": status})
+    status = MachineStatus(
+        at=at,
+        available=True,
+        execution=("ACTIVE" if poll % 2 else "READY") if change else "ACTIVE",
+        mode="AUTOMATIC",
+        program="O1000",
+        line=poll if change else 12,
+        part_count=7,
+        tool=3,
+        overrides={"feed": 100.0, "spindle": 100.0, "rapid": 50.0},
+    )
+    return MachineStatusChanged(name, True, status)
 
 
 def _measure(take: Any, names: list[str], polls: int, change: bool) -> float:
@@ -63,7 +62,7 @@ async def main(machines: int, polls: int) -> None:
     for label, change in (("unchanged", False), ("2 items changed", True)):
         publisher.queue.clear()
         mqtt_us = _measure(publisher.take, names, polls, change)
-        shdr_us = _measure(lambda e: shdr.take(e.key, e.data), names, polls, change)
+        shdr_us = _measure(shdr.take, names, polls, change)
         per_second = machines * (mqtt_us + shdr_us) / 1e6
         print(
             f"{machines} machines, {label}: MQTT {mqtt_us:.1f} us/event, "
@@ -81,6 +80,8 @@ async def whole_state(machines: int) -> None:
     names = [f"m{i}" for i in range(machines)]
     config = MqttConfig(host="127.0.0.1", prefix=prefix)
     publisher = MqttPublisher(config, "bench", names, EventBus())
+    for name in names:  # every machine read once: only a known machine's state is published
+        publisher.take(_event(name, 0, change=False))
     topics = [m.topic for m in publisher._whole_state()] + [publisher.health_topic]
     start = time.perf_counter()
     task = asyncio.create_task(publisher.run())

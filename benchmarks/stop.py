@@ -33,13 +33,21 @@ def main() -> int:
     selected = "tests/server/test_stop.py"
     if args.backend != "both":
         selected += f"::test_signals_stop_a_busy_server_within_the_deadline[{args.backend}]"
-    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", selected]
-    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, check=False)
-    lines = [line for line in done.stdout.splitlines() if line.startswith("stop rounds")]
-    print("\n".join(lines) if lines else done.stdout[-4000:])
-    if done.returncode != 0:
-        print(done.stdout[-4000:], done.stderr[-2000:], sep="\n", file=sys.stderr)
-    return done.returncode
+    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", "--timeout=0"]
+    command.append(selected)
+    wanted = ("stop rounds", "round ")
+    tail: list[str] = []
+    with subprocess.Popen(
+        command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    ) as run:
+        assert run.stdout is not None
+        for line in run.stdout:  # each round as it ends
+            tail = [*tail[-80:], line]
+            if line.startswith(wanted):
+                print(line, end="", flush=True)
+    if run.returncode != 0:
+        print("".join(tail), file=sys.stderr)
+    return run.returncode
 
 
 if __name__ == "__main__":

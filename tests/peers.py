@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import os
 import shutil
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -36,3 +37,21 @@ def require_module(name: str) -> ModuleType:
     except ImportError:
         missing_peer(f"python module {name!r}")
         raise AssertionError("unreachable") from None
+
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def require_reference(relative: str) -> Path:
+    """Return the file ``shared/reference/RELATIVE`` beside the repository or skip/fail.
+
+    CI has ``shared/`` beside the clone; a developer's work tree may sit deeper (a worktree
+    folder), so the folders above the repository are searched upwards. The reference data stays
+    outside the repository: its README asks that it not be copied into the project.
+    """
+    for folder in (REPO, *REPO.parents):
+        path = folder / "shared" / "reference" / relative
+        if path.is_file():
+            return path
+    missing_peer(f"reference file shared/reference/{relative}")
+    raise AssertionError("unreachable")

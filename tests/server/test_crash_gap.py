@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from opendnc.server.state import State
 from opendnc.server.store.db import make_engine, make_sessions
 from opendnc.server.store.models import StatusSample, utcnow
 from opendnc.server.web.timeline import Timeline
@@ -51,22 +52,22 @@ def test_a_killed_server_leaves_a_no_record_gap_the_timeline_shows(
         )
         procs.stop("server", signal.SIGKILL)
         killed = utcnow()
-        assert samples()[-1] != ("tnc-1", "none")  # a killed server wrote no end
+        assert samples()[-1] != ("tnc-1", "no_record")  # a killed server wrote no end
         time.sleep(1.0)  # down for a while
         serve(procs, config, db_url)
         wait_for(
             "a ready state after the restart",
-            lambda: [s for m, s in samples() if m == "tnc-1"][-2:] == ["none", "ready"],
+            lambda: [s for m, s in samples() if m == "tnc-1"][-2:] == ["no_record", "ready"],
             describe=samples,
         )
         timeline = Timeline(sessions)
         history = timeline.history("tnc-1", killed - timedelta(hours=1))
-        gap = [s for s in history if s.state == "none"]
+        gap = [s for s in history if s.state is State.NO_RECORD]
         assert len(gap) == 1
         assert gap[0].at <= killed  # from the last heartbeat before the kill
         assert killed - gap[0].at < timedelta(seconds=35)
         strip = timeline.segments("tnc-1", hours=1)
         assert "no record (server stopped)" in [s.label for s in strip]
-        assert [s.state for s in strip][-2:] == ["none", "ready"]
+        assert [s.state for s in strip][-2:] == ["no_record", "ready"]
     finally:
         engine.dispose()

@@ -310,6 +310,10 @@ def test_dripfeed_interrupted_then_restarted_from_its_line(
         (done,) = wait_jobs(client, key, [again.json()["id"]])
         assert done["state"] == "done", done["error"]
         assert done["params"]["from_line"] == stopped_at
+        # Its bytes are the stored program's from that line on (one definition of progress),
+        # not what went over the wire with the preamble and the control's line ends.
+        rest = b"".join(program.splitlines(keepends=True)[stopped_at - 1 :])
+        assert done["bytes_done"] == len(rest), (done["bytes_done"], len(rest))
         # The second run: the restart preamble, then the program from that line to M30.
         wait_for("the control to finish the run", lambda: len(front.messages) > runs_before)
         assert front.messages[-1] == "RS232 DONE", front.messages

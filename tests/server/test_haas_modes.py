@@ -3,10 +3,14 @@ Q104, with the control's own word kept beside it (docs/server.md#machine-status)
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import pytest
 
 from opendnc.haas.mdc import parse_reply
+from opendnc.server.events import MachineStatusChanged
 from opendnc.server.items import items_of
+from opendnc.server.machines.base import MachineStatus
 from opendnc.server.machines.haas_ngc import mdc_status
 
 Q500 = parse_reply("PROGRAM, O00123, IDLE, PARTS, 380")
@@ -41,7 +45,7 @@ def test_the_status_carries_the_mtconnect_mode_and_the_controls_word(
 @pytest.mark.parametrize(("reply", "mode", "native"), CASES)
 def test_the_outputs_take_the_mode_as_the_status_has_it(reply: str, mode: str, native: str) -> None:
     status = mdc_status(Q500, parse_reply(reply), None)
-    items = items_of({"online": True, "status": status.as_json()})
+    items = items_of(MachineStatusChanged("vf2", True, status))
     assert items["controller_mode"] == (mode or None)
 
 
@@ -49,5 +53,6 @@ def test_the_outputs_take_the_mode_as_the_status_has_it(reply: str, mode: str, n
 def test_the_outputs_map_no_control_words_themselves(word: str) -> None:
     # One place maps a Haas's words: the connector. A status whose mode is not MTConnect's is
     # a mode not known to the outputs, not one they guess.
-    items = items_of({"online": True, "status": {"available": True, "mode": word}})
+    status = MachineStatus(at=datetime.now(UTC), available=True, mode=word)
+    items = items_of(MachineStatusChanged("vf2", True, status))
     assert items["controller_mode"] is None

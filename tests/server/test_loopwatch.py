@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import time
 
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, JobQueued
 from opendnc.server.loopwatch import LoopWatch
 
 
@@ -38,10 +38,10 @@ def test_a_subscriber_drains_its_backlog_oldest_first() -> None:
         bus.bind(asyncio.get_running_loop())
         with bus.subscribe(maxsize=10) as sub:
             for n in range(4):
-                bus.publish("job", str(n), {})
-            first = await sub.get()
+                bus.publish(JobQueued(n, "m", "send"))
+            first = await sub.next()
             rest = sub.drain()
             assert sub.drain() == []
             return [first.key] + [e.key for e in rest]
 
-    assert asyncio.run(scenario()) == ["0", "1", "2", "3"]
+    assert asyncio.run(scenario()) == ["0:queued", "1:queued", "2:queued", "3:queued"]

@@ -12,12 +12,14 @@ import getpass
 import signal
 import subprocess
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import Event, EventBus
+from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
 from tests.peers import require_command
@@ -130,6 +132,17 @@ def test_retained_state_changes_jobs_and_the_last_will(
         )
         assert done[0]["id"] == job_id
         assert not any(m.retain for m in late.on("haas-1/jobs"))
+        # Every event names the program and its version; the first says it was queued.
+        events = [m.json() for m in late.on("haas-1/jobs") if m.json()["id"] == job_id]
+        assert events[0]["event"] == "queued"
+        assert events[0]["state"] == "queued"
+        assert events[0]["by"] == "admin"
+        assert [e["event"] for e in events][-1] == "finished"
+        assert "started" in [e["event"] for e in events]
+        for event in events:
+            assert (event["program"], event["version"], event["kind"]) == ("O01000.nc", 1, "send")
+        # The status names the machine's state by the one classifier.
+        assert late.last("haas-1/status").json()["state"] in ("ready", "running")  # type: ignore[union-attr]
 
         # The server dies without a word: the broker publishes its will.
         procs.stop("server", signal.SIGKILL)
@@ -145,8 +158,64 @@ def test_a_clean_stop_says_offline_itself(
     with Listener(prefix) as listener:
         topic = "opendnc/dnc-test/online"
         wait_for("online", lambda: (m := listener.last(topic)) and m.payload == b"true")
+        wait_for(
+            "the machine available",
+            lambda: (
+                (m := listener.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE"
+            ),
+        )
         procs.stop("server", signal.SIGTERM)
         wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
+    # What the broker keeps after a clean stop: the machine unavailable, not AVAILABLE for good.
+    with Listener(prefix) as after:
+        kept = wait_for("the retained availability", lambda: after.last("haas-1/availability"))
+        assert kept.retain
+        assert kept.json()["value"] == "UNAVAILABLE"
+        status = wait_for("the retained status", lambda: after.last("haas-1/status"))
+        assert _items(status)["availability"]["value"] == "UNAVAILABLE"
+        assert _items(status)["message"]["value"] == "the opendnc server stopped"
+        assert status.json()["state"] == "offline"
+
+
+def test_a_restart_publishes_each_machine_once_its_state_is_known(
+    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+) -> None:
+    """No UNAVAILABLE-then-AVAILABLE flip after a restart: a machine's retained state is
+    published once its first status is read, not as a placeholder at connect."""
+    mqtt = f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+    start_outputs_server(tmp_path, procs, ngc.fleet, mqtt)
+    with Listener(prefix) as first:
+        wait_for(
+            "the machine available",
+            lambda: (m := first.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE",
+            describe=lambda: procs.log("server"),
+        )
+        # The first run's own messages: the machine was published once, when known.
+        live = [m.json()["value"] for m in first.on("haas-1/availability") if not m.retain]
+        assert "UNAVAILABLE" not in live, live
+    procs.stop("server", signal.SIGTERM)
+    with Listener(prefix) as watcher:
+        wait_for(
+            "the stop's retained state",
+            lambda: (
+                (m := watcher.last("haas-1/availability")) and m.json()["value"] == "UNAVAILABLE"
+            ),
+        )
+        seen = len(watcher.messages)
+        start_outputs_server(tmp_path, procs, ngc.fleet, mqtt)
+        wait_for(
+            "the machine available again",
+            lambda: watcher.last("haas-1/availability").json()["value"] == "AVAILABLE",  # type: ignore[union-attr]
+            describe=lambda: procs.log("server"),
+        )
+        wait_for(
+            "the server online", lambda: watcher.last("opendnc/dnc-test/online").payload == b"true"
+        )  # type: ignore[union-attr]
+        since = [m for m in watcher.messages[seen:] if m.topic.endswith("haas-1/availability")]
+        assert [m.json()["value"] for m in since] == ["AVAILABLE"]
+        statuses = [m for m in watcher.messages[seen:] if m.topic.endswith("haas-1/status")]
+        assert statuses
+        assert {_items(m)["availability"]["value"] for m in statuses} == {"AVAILABLE"}
 
 
 def _private_broker(procs_dir: Path, port: int, passwords: str = "") -> subprocess.Popen[bytes]:
@@ -230,14 +299,9 @@ def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
     async def run() -> MqttPublisher:
         publisher = MqttPublisher(config, "dnc", ["m1"], EventBus())
         for i in range(25):
-            publisher.take(Event("job", str(i), {"id": i, "machine": "m1", "state": "done"}))
-            publisher.take(
-                Event(
-                    "machine",
-                    "m1",
-                    {"online": True, "status": {"available": True, "program": f"O{i}"}},
-                )
-            )
+            publisher.take(JobFinished(i, "m1", "send", "O1", 1, outcome="done"))
+            status = MachineStatus(at=datetime.now(UTC), available=True, program=f"O{i}")
+            publisher.take(MachineStatusChanged("m1", True, status))
         return publisher
 
     publisher = asyncio.run(run())

@@ -11,6 +11,7 @@ import socket
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree as ET
 
 import pytest
@@ -19,8 +20,16 @@ from hypothesis import strategies as st
 
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.items import Reading
-from opendnc.server.shdr import condition_lines, event_line, message_line, shdr_state
+from opendnc.server.shdr import (
+    MTCONNECT_VERSION,
+    condition_lines,
+    devices_xml,
+    event_line,
+    message_line,
+    shdr_state,
+)
 from opendnc.sim.haas.machine import Mode
+from tests.peers import require_module, require_reference
 from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
 from tests.server.outputs_support import ShdrReader, start_outputs_server
 from tests.server.test_from_the_control import FleetThread
@@ -115,7 +124,9 @@ def test_each_machine_is_a_device_on_its_own_port(
     assert outputs["mqtt"] is None
     assert {n: o["port"] for n, o in outputs["mtconnect"].items()} == ports
     assert got.status_code == 200, got.text
-    ns = {"m": "urn:mtconnect.org:MTConnectDevices:1.3"}
+    # It is valid by the schema of the version it declares (what an agent checks it against).
+    _validate_devices(got.text)
+    ns = {"m": f"urn:mtconnect.org:MTConnectDevices:{MTCONNECT_VERSION}"}
     root = ET.fromstring(got.content)
     devices = root.findall(".//m:Device", ns)
     assert [d.get("name") for d in devices] == ["tnc-1", "haas-1", "away"]
@@ -124,6 +135,47 @@ def test_each_machine_is_a_device_on_its_own_port(
     for device in devices:
         names = {d.get("name") for d in device.iter(f"{{{ns['m']}}}DataItem")}
         assert names == KEYS | {"system", "dprnt"}
+
+
+def _validate_devices(document: str) -> None:
+    """Validate a Devices file against the MTConnect schema of the version it declares (the
+    Institute's schemas are XSD 1.1, which lxml's libxml2 cannot read: xmlschema can)."""
+    root = ET.fromstring(document)
+    version = root.find("{*}Header").get("version")  # type: ignore[union-attr]
+    assert root.tag == f"{{urn:mtconnect.org:MTConnectDevices:{version}}}MTConnectDevices"
+    xsd = require_reference(f"mtconnect-schema/MTConnectDevices_{version}.xsd")
+    errors = [str(e).splitlines()[0] for e in _schema(xsd).iter_errors(document)]
+    assert errors == []
+
+
+_SCHEMAS: dict[Path, object] = {}
+
+
+def _schema(path: Path) -> Any:
+    xmlschema = require_module("xmlschema")
+    if path not in _SCHEMAS:
+        _SCHEMAS[path] = xmlschema.XMLSchema11(str(path))
+    return _SCHEMAS[path]
+
+
+def test_the_devices_file_is_valid_by_the_schema_it_declares() -> None:
+    # Names that make ids awkward: digits first, dashes and dots, two that fold alike.
+    document = devices_xml(["mill-1", "mill_1", "2lathe", "vf.2", "Ünïcode"], "dnc 1")
+    _validate_devices(document)
+    header = ET.fromstring(document).find("{*}Header")
+    assert header is not None
+    assert int(header.get("assetBufferSize", "0")) >= 1  # the schema's least
+
+
+def test_the_schema_check_catches_what_the_old_file_had_wrong() -> None:
+    # The check is real: the file as it was (version 1.3, an asset buffer of 0) fails it.
+    old = devices_xml(["mill-1"], "dnc").replace(MTCONNECT_VERSION, "1.3")
+    old = old.replace('assetBufferSize="1"', 'assetBufferSize="0"')
+    xsd = require_reference("mtconnect-schema/MTConnectDevices_1.3.xsd")
+    errors = "\n".join(str(e) for e in _schema(xsd).iter_errors(old))
+    assert "assetBufferSize" in errors
+    assert "LINE_NUMBER" in errors
+    assert "ABSOLUTE" in errors
 
 
 def test_an_agent_that_stops_reading_does_not_stop_the_others(

@@ -8,14 +8,14 @@ import asyncio
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
 
 import pytest
 from sqlalchemy import Engine, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, JobQueued, MachineStatusChanged
+from opendnc.server.machines.base import MachineStatus
 from opendnc.server.store.db import current_revision, make_engine, migrate
 from opendnc.server.store.models import StatusSample
 from opendnc.server.web.timeline import Timeline, running
@@ -23,8 +23,24 @@ from opendnc.server.web.timeline import Timeline, running
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
 
 
-def _machine(execution: str, mode: str = "AUTOMATIC", online: bool = True) -> dict[str, Any]:
-    return {"online": online, "status": {"execution": execution, "mode": mode, "errors": []}}
+def _status(execution: str, mode: str = "AUTOMATIC") -> MachineStatus:
+    return MachineStatus(at=T0, available=True, execution=execution, mode=mode)
+
+
+def note(
+    tl: Timeline,
+    name: str,
+    at: datetime,
+    execution: str,
+    mode: str = "AUTOMATIC",
+    online: bool = True,
+) -> bool:
+    """Note a reachable control's execution and mode at ``at`` (what a status poll reads)."""
+    return tl.note(name, _status(execution, mode), online=online, at=at)
+
+
+def _event(execution: str) -> MachineStatusChanged:
+    return MachineStatusChanged("m", True, _status(execution))
 
 
 def _rows(sessions: sessionmaker[Session]) -> list[tuple[str, datetime, str, str, str]]:
@@ -65,54 +81,57 @@ def test_changes_only_are_stored_and_a_new_timeline_reads_them_back(
     sessions: sessionmaker[Session],
 ) -> None:
     tl = Timeline(sessions)
-    assert tl.note("m", _machine("READY"), T0)
-    assert not tl.note("m", _machine("READY"), T0 + timedelta(minutes=5))  # no change
-    assert tl.note("m", _machine("ACTIVE"), T0 + timedelta(hours=1))
-    assert tl.note("other", _machine("", online=False), T0 + timedelta(hours=1))
+    assert note(tl, "m", T0, "READY")
+    assert not note(tl, "m", T0 + timedelta(minutes=5), "READY")  # no change
+    assert note(tl, "m", T0 + timedelta(hours=1), "ACTIVE")
+    assert note(tl, "other", T0 + timedelta(hours=1), "", online=False)
     assert tl.flush() == 3
     assert tl.flush() == 0
     tl.stopped(T0 + timedelta(hours=2))  # the server stops ...
     assert tl.flush() == 2
     assert _rows(sessions) == [
         ("m", T0, "ready", "AUTOMATIC", "READY"),
-        ("m", T0 + timedelta(hours=1), "active", "AUTOMATIC", "ACTIVE"),
+        ("m", T0 + timedelta(hours=1), "running", "AUTOMATIC", "ACTIVE"),
         ("other", T0 + timedelta(hours=1), "offline", "", ""),
-        ("m", T0 + timedelta(hours=2), "none", "", ""),
-        ("other", T0 + timedelta(hours=2), "none", "", ""),
+        ("m", T0 + timedelta(hours=2), "no_record", "", ""),
+        ("other", T0 + timedelta(hours=2), "no_record", "", ""),
     ]
 
     # ... and starts again: a new timeline on the same database.
     again = Timeline(sessions)
-    assert again.note("m", _machine("READY", "MANUAL"), T0 + timedelta(hours=3))
+    assert note(again, "m", T0 + timedelta(hours=3), "READY", "MANUAL")
     # Not yet written: the page sees it anyway.
     segments = again.segments("m", hours=4, width=400, now=T0 + timedelta(hours=4))
     assert [(s.x, s.width, s.state) for s in segments] == [
         (0.0, 100.0, "ready"),
-        (100.0, 100.0, "active"),
-        (200.0, 100.0, "none"),
+        (100.0, 100.0, "running"),
+        (200.0, 100.0, "no_record"),
         (300.0, 100.0, "ready"),
     ]
     assert [s.label for s in segments] == [
         "ready, automatic",
-        "active, automatic",
+        "running, active, automatic",
         "no record (server stopped)",
         "ready, manual",
     ]
     again.flush()
     # A window that starts inside a stretch begins with the sample in force then.
     late = again.segments("m", hours=1, width=100, now=T0 + timedelta(hours=1, minutes=30))
-    assert [(s.x, s.width, s.state) for s in late] == [(0.0, 50.0, "ready"), (50.0, 50.0, "active")]
+    assert [(s.x, s.width, s.state) for s in late] == [
+        (0.0, 50.0, "ready"),
+        (50.0, 50.0, "running"),
+    ]
 
 
 def test_samples_older_than_the_retention_are_pruned(sessions: sessionmaker[Session]) -> None:
     now = T0 + timedelta(days=30)
     tl = Timeline(sessions)  # the default: 7 days
-    tl.note("m", _machine("READY"), now - timedelta(days=8))
-    tl.note("m", _machine("ACTIVE"), now - timedelta(days=6, hours=23))
-    tl.note("m", _machine("READY"), now - timedelta(hours=1))
+    note(tl, "m", now - timedelta(days=8), "READY")
+    note(tl, "m", now - timedelta(days=6, hours=23), "ACTIVE")
+    note(tl, "m", now - timedelta(hours=1), "READY")
     tl.flush()
     assert tl.prune(now) == 1
-    assert [r[2] for r in _rows(sessions)] == ["active", "ready"]
+    assert [r[2] for r in _rows(sessions)] == ["running", "ready"]
     assert Timeline(sessions, retention_days=0.5).prune(now) == 1
     assert [r[2] for r in _rows(sessions)] == ["ready"]
 
@@ -125,16 +144,16 @@ def test_the_recorder_writes_bus_changes_and_marks_the_stop(
         bus.bind(asyncio.get_running_loop())
         tl = Timeline(sessions)
         async with running(tl, bus):
-            bus.publish("machine", "m", _machine("READY"))
-            bus.publish("machine", "m", _machine("READY"))  # a poll that changed nothing
-            bus.publish("job", "1", {"machine": "m"})  # not a state
-            bus.publish("machine", "m", _machine("ACTIVE"))
+            bus.publish(_event("READY"))
+            bus.publish(_event("READY"))  # a poll that changed nothing
+            bus.publish(JobQueued(1, "m", "send", "O1", 1))  # not a state
+            bus.publish(_event("ACTIVE"))
             deadline = time.monotonic() + 20
             while len(await asyncio.to_thread(_rows, sessions)) < 2:
                 assert time.monotonic() < deadline, "the changes were never written"
                 await asyncio.sleep(0.05)
-        # Stopped: a "none" sample closes the record.
-        assert [r[2] for r in _rows(sessions)] == ["ready", "active", "none"]
+        # Stopped: a "no_record" sample closes the record.
+        assert [r[2] for r in _rows(sessions)] == ["ready", "running", "no_record"]
 
     asyncio.run(scenario())
     with engine.connect() as conn:
@@ -181,21 +200,21 @@ def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_
 
     states = asyncio.run(scenario())
     assert "ready" in states
-    assert states[-1] == "none"  # from the first server's stop until now
+    assert states[-1] == "no_record"  # from the first server's stop until now
 
 
 def test_a_database_that_is_away_keeps_the_samples_for_the_next_flush(
     sessions: sessionmaker[Session], engine: Engine
 ) -> None:
     tl = Timeline(sessions)
-    tl.note("m", _machine("READY"), T0)
+    note(tl, "m", T0, "READY")
     with engine.begin() as conn:  # the table is gone for a moment (a database being restored)
         conn.execute(text("ALTER TABLE status_samples RENAME TO status_samples_away"))
     try:
         assert tl.flush() == 0
-        tl.note("m", _machine("ACTIVE"), T0 + timedelta(minutes=1))
+        note(tl, "m", T0 + timedelta(minutes=1), "ACTIVE")
     finally:
         with engine.begin() as conn:
             conn.execute(text("ALTER TABLE status_samples_away RENAME TO status_samples"))
     assert tl.flush() == 2
-    assert [r[2] for r in _rows(sessions)] == ["ready", "active"]  # in their order
+    assert [r[2] for r in _rows(sessions)] == ["ready", "running"]  # in their order

@@ -2,7 +2,7 @@
 is doing: 200 virtual machines polled, an event stream open, on SQLite and PostgreSQL, signalled
 again and again.
 
-The rounds are a parameter: ``OPENDNC_STOP_ROUNDS`` (default 4, half SIGTERM, half SIGINT) and
+The rounds are a parameter: ``OPENDNC_STOP_ROUNDS`` (default 2: one SIGTERM, one SIGINT) and
 ``OPENDNC_STOP_MACHINES`` (default 200); ``benchmarks/stop.py`` runs 50 rounds and prints the
 figures each round's line below gives.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 from opendnc.cli.serve import STOP_TIMEOUT
 from tests.server.harness import Procs, auth, create_key, httpx, serve, wait_for
 
-ROUNDS = int(os.environ.get("OPENDNC_STOP_ROUNDS", "4"))
+ROUNDS = int(os.environ.get("OPENDNC_STOP_ROUNDS", "2"))
 MACHINES = int(os.environ.get("OPENDNC_STOP_MACHINES", "200"))
 SLACK = 1.0  # seconds beyond the deadline for the process to be reaped
 
@@ -89,14 +89,16 @@ def test_signals_stop_a_busy_server_within_the_deadline(
         os.kill(proc.pid, sig)
         proc.wait(STOP_TIMEOUT + 30)
         took.append(time.monotonic() - began)
+        print(f"\nround {round_ + 1}: {sig.name} stopped in {took[-1]:.2f} s", flush=True)
         stop_stream.set()
         procs.procs.pop("server")
-        log = procs.log("server")
-        assert "the server did not stop within" not in log, log[-3000:]  # the watchdog's
-        assert took[-1] < STOP_TIMEOUT + SLACK, (sig.name, took[-1], log[-3000:])
     backend = db_url.split(":", 1)[0]
+    log = procs.log("server")
+    cut = log.count("the server did not stop within")  # the watchdog's line
     print(
         f"\nstop rounds on {backend}: {ROUNDS} with {MACHINES} machines; seconds "
-        f"median {statistics.median(took):.2f}, max {max(took):.2f}, "
-        f"all {', '.join(f'{t:.2f}' for t in took)}"
+        f"median {statistics.median(took):.2f}, max {max(took):.2f}; "
+        f"ended by the watchdog {cut}; all {', '.join(f'{t:.2f}' for t in took)}"
     )
+    assert max(took) < STOP_TIMEOUT + SLACK, log[-3000:]
+    assert cut == 0, log[-3000:]

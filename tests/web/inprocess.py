@@ -36,6 +36,26 @@ class Served:
 
 
 @contextmanager
+def serving(server: Any) -> Iterator[str]:
+    """Serve a built server (``opendnc.server.app.build``) with uvicorn on a loopback port in a
+    thread of this process; its base URL. The engine is disposed of at the end."""
+    # a port the system picks, bound here: one chosen beforehand could be taken meanwhile
+    listener = listen_socket("127.0.0.1", 0)
+    port = listener.getsockname()[1]
+    web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
+    thread = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
+    thread.start()
+    wait_for("the server", lambda: web.started)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        web.should_exit = True
+        thread.join(30)
+        listener.close()
+        server.engine.dispose()
+
+
+@contextmanager
 def serve_one_tnc(tmp_path: Path, user: str, role: Role, password: str) -> Iterator[Served]:
     """Serve the dashboard for one virtual TNC, with ``user`` of ``role`` able to log in."""
     fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
@@ -45,19 +65,7 @@ def serve_one_tnc(tmp_path: Path, user: str, role: Role, password: str) -> Itera
         server = build(parse_config(text, base=tmp_path), database=f"sqlite:///{database}")
         with server.sessions.begin() as session:
             auth.create_user(session, user, role, password=password)
-        # a port the system picks, bound here: one chosen beforehand could be taken meanwhile
-        listener = listen_socket("127.0.0.1", 0)
-        port = listener.getsockname()[1]
-        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-        serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-        serving.start()
-        wait_for("the server", lambda: web.started)
-        try:
-            yield Served(f"http://127.0.0.1:{port}", server, database, fleet)
-        finally:
-            web.should_exit = True
-            serving.join(30)
-            listener.close()
-            server.engine.dispose()
+        with serving(server) as url:
+            yield Served(url, server, database, fleet)
     finally:
         fleet.stop()

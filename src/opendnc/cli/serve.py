@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import errno
 import os
+import signal
 import socket
 import threading
 import time
@@ -78,6 +79,7 @@ def serve(
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
         plan = StopPlan(stop_timeout)
+        plan.listen()
         from opendnc.server.single_server import SingleServerLock
 
         guard = SingleServerLock(db or shop.server.database)
@@ -86,12 +88,17 @@ def serve(
             server = build(shop, database=db, stop_deadline=plan.components)
             try:
                 asyncio.run(_serve(server, listener, host, plan))
+            except KeyboardInterrupt:
+                # uvicorn raises the SIGINT it handled again once it has stopped: the stop
+                # is done, and ends below like a SIGTERM's.
+                if not plan.signal:
+                    raise
             finally:
                 server.engine.dispose()
         finally:
             guard.release()
             listener.close()
-        plan.exit_now_if_stuck()
+        plan.exit_after_signal()
 
 
 def parse_bind(bind: str) -> tuple[str, int]:
@@ -155,6 +162,31 @@ class StopPlan:
         self.signal = 0
         self._lock = threading.Lock()
 
+    def listen(self) -> None:
+        """Arm the watchdog when a signal arrives, not when the main thread gets round to
+        its handler (on a busy machine that can be seconds later): the signal's byte on
+        Python's wakeup descriptor, written the moment the signal is caught, wakes a thread
+        of ours. From the main thread only; the web server's handler arms it as well."""
+        reader, writer = os.pipe()
+        os.set_blocking(writer, False)
+        try:
+            signal.set_wakeup_fd(writer, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread (tests calling serve() from a thread)
+            os.close(reader)
+            os.close(writer)
+            return
+        threading.Thread(target=self._hear, args=(reader,), name="stop-ear", daemon=True).start()
+
+    def _hear(self, reader: int) -> None:
+        while not self.signal:
+            try:
+                data = os.read(reader, 64)
+            except OSError:
+                return
+            for number in data:
+                if number in (signal.SIGTERM, signal.SIGINT):
+                    self.signalled(number)
+
     def signalled(self, sig: int) -> None:
         """The first SIGTERM or SIGINT: arm the watchdog."""
         with self._lock:
@@ -168,17 +200,16 @@ class StopPlan:
         _last_words(f"error: the server did not stop within {self.deadline:g} s; ending it")
         os._exit(128 + self.signal)
 
-    def exit_now_if_stuck(self) -> None:
-        """After a signalled stop, end the process at once if worker threads are still busy
-        (blocked in a driver or a port read: the interpreter would wait for them)."""
+    def exit_after_signal(self) -> None:
+        """After a signalled stop (everything stopped, the database let go), end the process
+        at once: the interpreter's own shutdown would wait for worker threads still blocked
+        in a driver or a port read, and then tears down a shop's worth of objects (seconds
+        on a busy machine, out of the watchdog's reach). Exit status 128 + the signal, as a
+        shell reports a process the signal ended."""
         if not self.signal:
             return
-        busy = [
-            t for t in threading.enumerate() if t is not threading.current_thread() and not t.daemon
-        ]
-        if busy:
-            _last_words("")
-            os._exit(128 + self.signal)
+        _last_words("")
+        os._exit(128 + self.signal)
 
 
 def _last_words(line: str) -> None:

@@ -12,10 +12,9 @@ large 413, bad parameter 422, too many failed logins 429, machine unreachable 50
 
 from __future__ import annotations
 
-import asyncio
 import json
 import logging
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
@@ -51,11 +50,12 @@ from opendnc.server.actions.models import (
 )
 from opendnc.server.components import core_of
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
-from opendnc.server.events import EventBus
+from opendnc.server.events import Event, JobFinished, Overflow
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
+from opendnc.server.streams import throttled_stream
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -578,47 +578,43 @@ def revoke_key(svc: Svc, key_id: Id, who: Caller) -> RevokedOut:
 async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
-    supervisor = deps.machines(request)
-    bus: EventBus = supervisor.bus
+    machines = deps.machines(request)
+    stream = throttled_stream(
+        machines.bus,
+        _ApiEvents(machines),
+        interval=EVENT_INTERVAL,
+        disconnected=request.is_disconnected,
+    )
     return StreamingResponse(
-        _event_stream(request, supervisor, bus),
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache"},
+        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
     )
 
 
-def _sse(kind: str, data: dict[str, Any]) -> bytes:
-    return f"event: {kind}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+def _sse(event: Event) -> bytes:
+    data = json.dumps(event.as_json(), separators=(",", ":"))
+    return f"event: {event.kind}\ndata: {data}\n\n".encode()
 
 
-async def _event_stream(
-    request: Request, supervisor: Machines, bus: EventBus
-) -> AsyncIterator[bytes]:
-    with bus.subscribe() as sub:
-        for state in supervisor.machines.values():
-            yield _sse("machine", state.as_json())
-        pending: dict[tuple[str, str], dict[str, Any]] = {}
-        loop = asyncio.get_running_loop()
-        flush_at = loop.time() + EVENT_INTERVAL
-        while not await request.is_disconnected():
-            timeout = max(0.0, flush_at - loop.time())
-            try:
-                # The first event, then everything queued meanwhile, in one go: a wait per
-                # event costs the loop more than the event (thousands of progress reports a
-                # second while hundreds of transfers run).
-                events = [await asyncio.wait_for(sub.get(), timeout), *sub.drain()]
-                for event in events:
-                    # Keep only the newest event per machine or job until the next flush.
-                    pending[(event.kind, event.key)] = event.data
-            except TimeoutError:
-                pass
-            if loop.time() >= flush_at:
-                if sub.overflowed:
-                    sub.overflowed = False
-                    yield _sse("overflow", {})
-                for (kind, _key), data in pending.items():
-                    yield _sse(kind, data)
-                if not pending:
-                    yield b": keep-alive\n\n"
-                pending.clear()
-                flush_at = loop.time() + EVENT_INTERVAL
+class _ApiEvents:
+    """The API's stream: every machine first, then the newest event per machine and per
+    job's progress (each start and end of a job, each line and reception kept)."""
+
+    def __init__(self, machines: Machines) -> None:
+        self.machines = machines
+        self.pending: dict[tuple[str, str], Event] = {}
+
+    async def snapshot(self, overflow: bool) -> bytes:
+        self.pending.clear()
+        head = _sse(Overflow()) if overflow else b""
+        return head + b"".join(_sse(state.event()) for state in self.machines.machines.values())
+
+    def take(self, event: Event) -> None:
+        if isinstance(event, JobFinished):
+            # the job's last word makes its progress still pending stale
+            self.pending.pop((event.kind, str(event.job_id)), None)
+        self.pending[(event.kind, event.key)] = event
+
+    async def flush(self) -> bytes:
+        out = b"".join(_sse(event) for event in self.pending.values())
+        self.pending.clear()
+        return out

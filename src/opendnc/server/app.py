@@ -24,7 +24,7 @@ from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
 from opendnc.server.deps import Database
 from opendnc.server.dprnt_capture import DprntCapture
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
 from opendnc.server.kinds import connector_for
@@ -124,9 +124,7 @@ def build(
             config.library.path,
             sessions,
             poll=config.library.poll,
-            on_version=lambda name, number: bus.publish(
-                "program", name, {"name": name, "version": number, "source": "watcher"}
-            ),
+            on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
         )
     )
     netshare = None

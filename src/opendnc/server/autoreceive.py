@@ -33,6 +33,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.errors import ControlRefused
 from opendnc.server import audit, inbox
 from opendnc.server.config import Lsv2Machine, ShopConfig
+from opendnc.server.events import ProgramReceived
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines.base import Connector, FolderSource
 from opendnc.server.store.models import AuditEntry
@@ -237,7 +238,7 @@ class AutoReceive:
         else:
             message = f"received {entry.path} into the inbox as {name}"
         bus = self.machines.bus
-        bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        bus.publish(ProgramReceived(machine.name, message))
         if failed or machine.after_receive != "delete":
             return
         # Only now that the reception is committed may the control's copy go.

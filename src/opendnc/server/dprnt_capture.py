@@ -29,7 +29,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.listen import CapturedLine, DprntListener, open_source
 from opendnc.server.config import HaasNgcMachine, HaasSerialMachine, MachineConfig
-from opendnc.server.events import EventBus
+from opendnc.server.events import DprntLinePrinted, DprntStatus, EventBus
 from opendnc.server.kinds.base import ConnectorHooks
 from opendnc.server.store.models import DprntLine
 
@@ -45,17 +45,17 @@ LineHook = Callable[[str, str, datetime], None]
 """Called with (machine, line text, time captured) after each line is stored."""
 
 
+def line_event(row: DprntLine) -> DprntLinePrinted:
+    """A stored line as the event the bus carries."""
+    return DprntLinePrinted(
+        row.id, row.machine, row.at.isoformat(), row.text, tuple(row.fields), row.complete
+    )
+
+
 def line_json(row: DprntLine) -> dict[str, Any]:
-    """A stored line as JSON (``numbers`` in order, ``fields`` with their labels)."""
-    return {
-        "id": row.id,
-        "machine": row.machine,
-        "at": row.at.isoformat(),
-        "line": row.text,
-        "numbers": [f["value"] for f in row.fields],
-        "fields": row.fields,
-        "complete": row.complete,
-    }
+    """A stored line as JSON (``numbers`` in order, ``fields`` with their labels): the same
+    as its event's."""
+    return line_event(row).as_json()
 
 
 class DprntSink:
@@ -85,10 +85,9 @@ class DprntSink:
             )
             session.add(row)
             session.flush()
-            data = line_json(row)
+            event = line_event(row)
             text, at = row.text, row.at
-        # keyed by the line's id: the event stream keeps every line, not just the newest
-        self.bus.publish("dprnt", str(data["id"]), data)
+        self.bus.publish(event)
         if self.on_line is not None:
             self.on_line(self.machine, text, at)
 
@@ -145,7 +144,7 @@ class DprntCapture:
         def report(message: str) -> None:
             self.status[machine] = message
             log.info("%s DPRNT: %s", machine, message)
-            self.bus.publish("dprnt_status", machine, {"machine": machine, "message": message})
+            self.bus.publish(DprntStatus(machine, message))
 
         return report
 

@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
 from opendnc.server import inbox
+from opendnc.server.events import stored_progress
 from opendnc.server.machine_files import browser_of, check_path
 from opendnc.server.machine_state import MachineState
 from opendnc.server.machines.base import Connector
@@ -70,10 +71,17 @@ class Claimed:
     name: str  # program name, or the path on the control
     data: bytes  # what to send (empty for jobs that take from the control)
     params: dict[str, Any]
+    version: int | None = None  # the program version it sends
+
+    @property
+    def program(self) -> str | None:
+        """The library program it sends (None for jobs that take from the control)."""
+        return self.name if self.version is not None else None
 
 
 JobEvent = Callable[..., None]
-"""``event(state, **extra)``: publish the job's progress (``"running"`` with byte counts)."""
+"""``event(bytes_done=..., bytes_total=..., line=..., lines=...)``: publish the job's progress
+(a :class:`~opendnc.server.events.JobProgress`), in bytes of the program as stored."""
 
 
 @dataclass
@@ -142,10 +150,13 @@ class SendExecutor(_Base):
         await run.safe_point("before the transfer")
         last = [0.0]
 
-        def progress(done: int, total: int | None) -> None:
+        def progress(wire_done: int, wire_total: int | None) -> None:
             if run.cancel_requested:
                 run.link_unknown = True
-                raise JobCancelled(f"cancelled after {done} bytes of the transfer")
+                raise JobCancelled(f"cancelled after {wire_done} bytes of the transfer")
+            # In bytes of the program as stored, whatever the connector counts (an XModem
+            # load counts its wire form): one definition of progress everywhere.
+            done, total = stored_progress(wire_done, wire_total, len(job.data))
             state.job_progress = (done, total)
             # A transfer reports every chunk, hundreds a second on a fast link; watchers need
             # a few, and the last one (the API and the cards read job_progress for the rest).
@@ -153,7 +164,7 @@ class SendExecutor(_Base):
             if now - last[0] < PROGRESS_EVERY and (total is None or done < total):
                 return
             last[0] = now
-            run.event("running", bytes_done=done, bytes_total=total)
+            run.event(bytes_done=done, bytes_total=total)
 
         await run.connector.send(job.name, job.data, progress)
         await run.safe_point("after the transfer, before its verification")
@@ -195,9 +206,7 @@ class DripFeedExecutor(_Base):
                 # Progress is in bytes like every job's (the card's share and sizes); the line
                 # travels beside it for the restart prompt.
                 state.job_progress = (nbytes, total or None)
-                run.event(
-                    "running", bytes_done=nbytes, bytes_total=total or None, line=line, lines=lines
-                )
+                run.event(bytes_done=nbytes, bytes_total=total or None, line=line, lines=lines)
             if run.cancel_requested:
                 raise JobCancelled(f"cancelled at line {line}")
 
@@ -206,7 +215,11 @@ class DripFeedExecutor(_Base):
             counts = await run.connector.dripfeed(job.name, job.data, from_line, progress)
         except Exception as exc:
             raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0], fed[0]) from exc
-        return {**counts, "from_line": from_line}
+        # Progress and the job's bytes are bytes of the stored program (from the start line),
+        # as for every job; what went over the wire (EOB, leader, restart preamble) is kept
+        # beside them in the audit row.
+        wire = counts.get("nbytes")
+        return {**counts, "nbytes": fed[0] or wire, "wire_bytes": wire, "from_line": from_line}
 
 
 class ReceiveExecutor(_Base):

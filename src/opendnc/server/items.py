@@ -1,17 +1,19 @@
 """The one vocabulary of the server's open outputs: MTConnect data items per machine.
 
-The MQTT publisher and the MTConnect SHDR adapter both turn the supervisor's ``machine``
-events into these items, keep each item's last value with the time it changed, and report
-only what changed (docs/server.md#open-outputs). An unknown value is ``None``: MTConnect's
-UNAVAILABLE, MQTT's ``quality: "unavailable"``.
+The MQTT publisher and the MTConnect SHDR adapter both turn the machines' status events
+(:class:`~opendnc.server.events.MachineStatusChanged`) into these items, keep each item's last
+value with the time it changed, and report only what changed (docs/server.md#open-outputs).
+An unknown value is ``None``: MTConnect's UNAVAILABLE, MQTT's ``quality: "unavailable"``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+
+from opendnc.server.events import MachineStatusChanged
+from opendnc.server.state import State
 
 __all__ = [
     "ITEMS",
@@ -69,7 +71,7 @@ def controller_mode(mode: str) -> str | None:
     return mode if mode in _MODES else None
 
 
-def _number(value: Any, *, positive: bool = False) -> int | float | None:
+def _number(value: float | None, *, positive: bool = False) -> int | float | None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
     if positive and value <= 0:
@@ -77,31 +79,36 @@ def _number(value: Any, *, positive: bool = False) -> int | float | None:
     return value
 
 
-def items_of(machine: Mapping[str, Any]) -> dict[str, Value]:
-    """Every item's value from a ``machine`` event (``MachineState.as_json()``)."""
-    status = machine.get("status") or {}
+def items_of(event: MachineStatusChanged | None) -> dict[str, Value]:
+    """Every item's value from a machine's status event (None: nothing known yet).
+
+    Availability is the classifier's: a machine it calls offline is UNAVAILABLE, every other
+    state (unknown included: the control answers but does not say what it does) AVAILABLE.
+    """
     values: dict[str, Value] = {spec.key: None for spec in ITEMS}
-    if not machine.get("online") or not status.get("available"):
+    status = event.status if event is not None else None
+    if event is None or status is None or event.state is State.OFFLINE:
         values["availability"] = "UNAVAILABLE"
         # The reason the server cannot reach the control is the one thing known about it.
-        values["message"] = str(status.get("message") or machine.get("last_error") or "") or None
+        if event is not None:
+            values["message"] = (status.message if status else "") or event.last_error or None
         return values
-    execution = str(status.get("execution") or "")
-    overrides = status.get("overrides") or {}
+    execution = status.execution
+    overrides = status.overrides
     values.update(
         availability="AVAILABLE",
         execution=execution if execution in _EXECUTION else None,
-        controller_mode=controller_mode(str(status.get("mode") or "")),
-        program=str(status.get("program") or "") or None,
+        controller_mode=controller_mode(status.mode),
+        program=status.program or None,
         # Program lines count from 1: a 0 is a control that does not tell.
-        line_number=_number(status.get("line"), positive=True),
-        part_count=_number(status.get("part_count")),
-        tool_number=_number(status.get("tool")),
+        line_number=_number(status.line, positive=True),
+        part_count=_number(status.part_count),
+        tool_number=_number(status.tool),
         feed_override=_number(overrides.get("feed")),
         rapid_override=_number(overrides.get("rapid")),
         spindle_override=_number(overrides.get("spindle")),
-        message=str(status.get("message") or "") or None,
-        system=tuple(str(e) for e in status.get("errors") or ()),
+        message=status.message or None,
+        system=tuple(status.errors),
     )
     return values
 
@@ -114,47 +121,68 @@ class Reading:
     timestamp: datetime
 
 
-def _parse_time(text: Any) -> datetime | None:
-    if not isinstance(text, str):
-        return None
-    try:
-        at = datetime.fromisoformat(text)
-    except ValueError:
-        return None
-    return at if at.tzinfo is not None else at.replace(tzinfo=UTC)
-
-
 class ItemTracker:
     """The last reading of every item of every machine: the state an output sends whole on
-    connect, and the changes it reports by exception."""
+    connect, and the changes it reports by exception.
+
+    Until its first status event a machine is *not known*: its items read UNAVAILABLE, as an
+    agent marks them, but an output that retains what it publishes (MQTT) waits for the first
+    event rather than announcing UNAVAILABLE and then AVAILABLE a moment later.
+    """
 
     def __init__(self, machines: Iterable[str]) -> None:
         start = datetime.now(UTC)
-        # Until its first status read a machine is unavailable, as an agent marks it.
-        first = {key: Reading(value, start) for key, value in items_of({}).items()}
+        first = {key: Reading(value, start) for key, value in items_of(None).items()}
         self._state: dict[str, dict[str, Reading]] = {name: dict(first) for name in machines}
+        self._known: dict[str, State] = {}
 
     @property
     def machines(self) -> list[str]:
         """The machines tracked, in configuration order."""
         return list(self._state)
 
+    def known(self, machine: str) -> bool:
+        """Whether ``machine``'s status has been read since the server started."""
+        return machine in self._known
+
+    def state(self, machine: str) -> State | None:
+        """The classifier's state of ``machine`` at its last event (None: not known yet)."""
+        return self._known.get(machine)
+
     def snapshot(self, machine: str) -> dict[str, Reading]:
         """Every item of ``machine`` as last seen."""
         return dict(self._state[machine])
 
-    def update(self, machine: str, data: Mapping[str, Any]) -> dict[str, Reading]:
-        """Take a ``machine`` event; the items whose value changed (empty if none did)."""
-        readings = self._state.get(machine)
+    def update(self, event: MachineStatusChanged) -> dict[str, Reading]:
+        """Take a status event; the items whose value changed (empty if none did)."""
+        readings = self._state.get(event.machine)
         if readings is None:
             return {}
-        status = data.get("status") or {}
-        at = _parse_time(status.get("at")) or datetime.now(UTC)
+        self._known[event.machine] = event.state
+        at = event.status.at if event.status is not None else datetime.now(UTC)
+        at = at if at.tzinfo is not None else at.replace(tzinfo=UTC)
         changed: dict[str, Reading] = {}
-        for key, value in items_of(data).items():
+        for key, value in items_of(event).items():
             if readings[key].value != value:
                 readings[key] = changed[key] = Reading(value, at)
         return changed
+
+    def stopped(self, message: str) -> dict[str, dict[str, Reading]]:
+        """The server stops: every known machine becomes unavailable with ``message``; the
+        items that changed, per machine."""
+        at = datetime.now(UTC)
+        out: dict[str, dict[str, Reading]] = {}
+        for machine in list(self._known):
+            readings = self._state[machine]
+            values = items_of(None)
+            values["message"] = message
+            changed = {}
+            for key, value in values.items():
+                if readings[key].value != value:
+                    readings[key] = changed[key] = Reading(value, at)
+            self._known[machine] = State.OFFLINE
+            out[machine] = changed
+        return out
 
 
 def shdr_time(at: datetime) -> str:

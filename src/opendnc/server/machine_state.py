@@ -14,9 +14,10 @@ from datetime import datetime
 from typing import Any
 
 from opendnc.server.config import MachineConfig, ShopConfig
-from opendnc.server.events import EventBus, on_loop
+from opendnc.server.events import EventBus, MachineStatusChanged, on_loop
 from opendnc.server.machine_files import Errands
 from opendnc.server.machines.base import MachineStatus
+from opendnc.server.state import classify
 
 __all__ = ["MachineState", "Machines"]
 
@@ -43,6 +44,11 @@ class MachineState:
             status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
         self.status = status
 
+    def event(self) -> MachineStatusChanged:
+        """The machine as it is now, as an event (published on every status read)."""
+        name, json = self.config.name, self.as_json()
+        return MachineStatusChanged(name, self.online, self.status, self.last_error, json)
+
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
         done, total = self.job_progress
@@ -52,6 +58,8 @@ class MachineState:
             "description": self.config.description,
             "released_only": self.config.released_only,
             "online": self.online,
+            # the one classifier's word: running, ready, stopped, alarm, offline, unknown
+            "state": classify(self.status, online=self.online).value,
             "status": self.status.as_json() if self.status else None,
             "last_error": self.last_error,
             "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
@@ -108,7 +116,7 @@ class Machines:
 
     def publish(self, state: MachineState) -> None:
         """Send ``state`` to the event bus (the cards, the outputs, the timeline)."""
-        self.bus.publish("machine", state.config.name, state.as_json())
+        self.bus.publish(state.event())
 
     def note_dprnt(self, machine: str, text: str, at: datetime) -> None:
         """Put a line ``machine`` printed with DPRNT into its status (from any thread: the

@@ -29,8 +29,9 @@ from typing import TYPE_CHECKING, Any
 
 from opendnc.errors import InputError
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import Event, EventBus
+from opendnc.server.events import DprntLinePrinted, Event, EventBus, JobEvent, MachineStatusChanged
 from opendnc.server.items import ITEMS, ItemTracker, Reading, shdr_time
+from opendnc.server.state import State
 
 if TYPE_CHECKING:
     import aiomqtt
@@ -40,6 +41,9 @@ if TYPE_CHECKING:
 __all__ = ["MqttPublisher", "Outgoing", "item_payload", "status_payload"]
 
 log = logging.getLogger(__name__)
+
+STOP_SECONDS = 2.0
+"""How long a clean stop may take to tell the broker every machine is unavailable."""
 
 _UNITS = {spec.key: spec.units for spec in ITEMS if spec.units}
 
@@ -70,11 +74,15 @@ def item_payload(key: str, reading: Reading) -> dict[str, Any]:
     return data
 
 
-def status_payload(machine: str, readings: dict[str, Reading]) -> dict[str, Any]:
-    """A machine's whole state: every item, and when the newest of them changed."""
+def status_payload(
+    machine: str, readings: dict[str, Reading], state: State | None = None
+) -> dict[str, Any]:
+    """A machine's whole state: the classifier's word for it, every item, and when the newest
+    of them changed."""
     newest = max(r.timestamp for r in readings.values())
     return {
         "machine": machine,
+        "state": (state or State.UNKNOWN).value,
         "timestamp": shdr_time(newest),
         "items": {key: item_payload(key, readings[key]) for key in readings},
     }
@@ -130,25 +138,34 @@ class MqttPublisher:
 
     def take(self, event: Event) -> None:
         """Turn one bus event into messages (the state is kept even while disconnected)."""
-        if event.kind == "machine":
-            changed = self.tracker.update(event.key, event.data)
-            if changed and self.connected:
-                # While away, the next connection sends the whole state anyway: queueing
-                # retained changes would only replay older values after it.
-                self._changes(event.key, changed)
-        elif event.kind in ("job", "dprnt"):
-            # Every job event and every printed line is news of its own: not retained, kept
-            # in the queue while the broker is away.
-            machine = str(event.data.get("machine", ""))
-            if machine in self.tracker.machines:
-                data = {**event.data, "timestamp": shdr_time(datetime.now(UTC))}
-                leaf = "jobs" if event.kind == "job" else "dprnt"
-                self._put(Outgoing(self.topic(machine, leaf), _dumps(data), retain=False))
+        match event:
+            case MachineStatusChanged(machine=machine):
+                first = not self.tracker.known(machine)
+                changed = self.tracker.update(event)
+                if first and machine in self.tracker.machines:
+                    # Known at last: its whole state, once (not UNAVAILABLE at connect and
+                    # AVAILABLE a moment later).
+                    changed = self.tracker.snapshot(machine)
+                if changed and self.connected:
+                    # While away, the next connection sends the whole state anyway: queueing
+                    # retained changes would only replay older values after it.
+                    self._changes(machine, changed)
+            case JobEvent(machine=machine) | DprntLinePrinted(machine=machine):
+                # Every job event and every printed line is news of its own: not retained,
+                # kept in the queue while the broker is away.
+                if machine in self.tracker.machines:
+                    data = {**event.as_json(), "timestamp": shdr_time(datetime.now(UTC))}
+                    leaf = "jobs" if isinstance(event, JobEvent) else "dprnt"
+                    self._put(Outgoing(self.topic(machine, leaf), _dumps(data), retain=False))
 
     def _changes(self, machine: str, changed: dict[str, Reading]) -> None:
-        self._put(self._status_message(machine, self.tracker.snapshot(machine)))
-        for key, reading in changed.items():
-            self._put(self._item_message(machine, key, reading))
+        for message in self._machine_messages(machine, changed):
+            self._put(message)
+
+    def _machine_messages(self, machine: str, changed: dict[str, Reading]) -> list[Outgoing]:
+        out = [self._status_message(machine, self.tracker.snapshot(machine))]
+        out += [self._item_message(machine, key, r) for key, r in changed.items()]
+        return out
 
     def _put(self, message: Outgoing) -> None:
         if len(self.queue) >= self.config.queue:
@@ -160,15 +177,22 @@ class MqttPublisher:
     def _whole_state(self) -> list[Outgoing]:
         out = []
         for machine in self.tracker.machines:
-            readings = self.tracker.snapshot(machine)
-            out.append(self._status_message(machine, readings))
-            out.extend(self._item_message(machine, key, r) for key, r in readings.items())
+            if self.tracker.known(machine):  # the others follow with their first status
+                out += self._machine_messages(machine, self.tracker.snapshot(machine))
+        return out
+
+    def _stop_messages(self) -> list[Outgoing]:
+        """What a clean stop publishes: every known machine unavailable (retained), so the
+        broker does not keep saying AVAILABLE for machines nobody watches any more."""
+        out = []
+        for machine, changed in self.tracker.stopped("the opendnc server stopped").items():
+            out += self._machine_messages(machine, changed)
         return out
 
     # A machine's state is retained, so a subscriber that comes later reads it at once.
 
     def _status_message(self, machine: str, readings: dict[str, Reading]) -> Outgoing:
-        payload = _dumps(status_payload(machine, readings))
+        payload = _dumps(status_payload(machine, readings, self.tracker.state(machine)))
         return Outgoing(self.topic(machine, "status"), payload, retain=True)
 
     def _item_message(self, machine: str, key: str, reading: Reading) -> Outgoing:
@@ -195,9 +219,8 @@ class MqttPublisher:
 
     async def _follow(self, sub: Subscription) -> None:
         while True:
-            event = await sub.get()
-            if sub.overflowed:
-                sub.overflowed = False
+            event = await sub.next()
+            if sub.take_overflow():
                 log.warning("mqtt: fell behind the event bus; some events were dropped")
             try:
                 self.take(event)
@@ -239,12 +262,10 @@ class MqttPublisher:
                         await self._session(client)
                     except asyncio.CancelledError:
                         # A clean stop says so itself: the broker sends the will only when
-                        # the link dies.
+                        # the link dies. Bounded: a stop must not wait on a slow broker.
                         with contextlib.suppress(Exception, asyncio.CancelledError):
-                            await asyncio.wait_for(
-                                client.publish(self.health_topic, "false", qos=1, retain=True),
-                                2,
-                            )
+                            async with asyncio.timeout(STOP_SECONDS):
+                                await self._say_stopped(client)
                         raise
             except (aiomqtt.MqttError, OSError) as exc:
                 log.warning("mqtt: %s: %s; again in %.0f s", where, exc, backoff)
@@ -253,6 +274,11 @@ class MqttPublisher:
                 self.synced.clear()
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2, self.max_backoff)
+
+    async def _say_stopped(self, client: aiomqtt.Client) -> None:
+        for message in self._stop_messages():
+            await client.publish(message.topic, message.payload, qos=1, retain=True)
+        await client.publish(self.health_topic, "false", qos=1, retain=True)
 
     async def _session(self, client: aiomqtt.Client) -> None:
         # The whole state supersedes every retained change still queued; job events stay.

@@ -58,7 +58,7 @@ from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
 from opendnc.server.config import HaasNgcMachine, NetShareConfig
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, NetshareChanged
 from opendnc.server.store.models import AuditEntry
 
 __all__ = ["NetShare", "ScanReport", "local_now"]
@@ -554,8 +554,7 @@ class NetShare(RunsTask):
     # ------------------------------------------------------------------ events
     def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
         if self.bus is not None:
-            data = {"action": action, "machine": machine, "name": name, **extra}
-            self.bus.publish("netshare", machine or "nas", data)
+            self.bus.publish(NetshareChanged(action, machine, name, extra))
 
 
 def _free_path(folder: Path, name: str) -> Path:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 from datetime import datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -19,6 +20,7 @@ from opendnc.errors import InputError
 from opendnc.server import audit, inbox, jobs, library, requests
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import NotFound
+from opendnc.server.events import ProgramReceived, publish_job_queued
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Reception
 from opendnc.server.requests import RequestSettings
@@ -56,6 +58,7 @@ class RemoteRequests:
         settings = self.settings
         machine = state.config
         folder = self.inbox_folder
+        queued: list[dict[str, Any]] = []  # the requested programs' jobs, announced once committed
 
         def handle() -> tuple[str, float | None]:
             with self.sessions.begin() as session:
@@ -74,18 +77,26 @@ class RemoteRequests:
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
                     return f"received {row.name} into the inbox", None
-                return self._answer(session, machine, names), settings.delay
+                return self._answer(session, machine, names, queued), settings.delay
 
         message, delay = await asyncio.to_thread(handle)
         state.last_error = "" if not reception.failed else message
         bus = self.machines.bus
-        bus.publish("received", machine.name, {"machine": machine.name, "message": message})
+        bus.publish(ProgramReceived(machine.name, message))
+        for job in queued:
+            publish_job_queued(bus, **job)
         if delay is not None:
             # Wake the machine when the answer falls due (the request delay).
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
             state.wake.set()
 
-    def _answer(self, session: Session, machine: MachineConfig, names: list[str]) -> str:
+    def _answer(
+        self,
+        session: Session,
+        machine: MachineConfig,
+        names: list[str],
+        queued: list[dict[str, Any]],
+    ) -> str:
         settings = self.settings
         due = utcnow() + timedelta(seconds=settings.delay)
         problems: list[str] = []
@@ -108,7 +119,7 @@ class RemoteRequests:
             if version is None:
                 problems.append(f"{name} NOT RELEASED")
                 continue
-            jobs.enqueue(
+            job = jobs.enqueue(
                 session,
                 JobKind.SEND,
                 machine.name,
@@ -116,6 +127,16 @@ class RemoteRequests:
                 version=version,
                 params={"request": True},
                 not_before=due,
+            )
+            queued.append(
+                {
+                    "job_id": job.id,
+                    "machine": machine.name,
+                    "job_kind": JobKind.SEND.value,
+                    "program": version.program.name,
+                    "version": version.number,
+                    "by": job.created_by,
+                }
             )
             sent.append(name)
         audit.record(

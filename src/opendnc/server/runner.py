@@ -31,7 +31,9 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import RemoteProtocolError, TransferError, TransportError
 from opendnc.server import jobs, library
+from opendnc.server.components import cancel_and_wait
 from opendnc.server.errors import NotFound
+from opendnc.server.events import JobFinished, JobProgress, JobStarted
 from opendnc.server.executors import (
     Claimed,
     DripFeedBroken,
@@ -117,8 +119,6 @@ class JobRunner:
     async def stop(self) -> None:
         """End the sweep; a settle still waiting for the database is given up (the next start
         marks its job interrupted)."""
-        from opendnc.server.components import cancel_and_wait
-
         tasks = [t for t in (self._sweep, *self._settling) if t is not None]
         self._sweep = None
         await cancel_and_wait(*tasks)
@@ -189,16 +189,20 @@ class JobRunner:
             if job_id in self._unsettled:
                 continue  # its end is written as soon as the database answers
 
-            def hand_back(session: Session, job_id: int = job_id) -> str:
+            def hand_back(session: Session, job_id: int = job_id) -> JobFinished:
                 job = jobs.get_job(session, job_id)
+                program = job.version.program.name if job.version is not None else None
+                number = job.version.number if job.version is not None else None
+                fields = (job_id, job.machine, job.kind.value, program, number)
                 if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-                    return job.state.value
+                    return JobFinished(*fields, outcome=job.state.value)
                 reason = "this server lost track of the job (database outage); not run"
-                return jobs.fail(session, job_id, reason, retryable=True).state.value
+                ended = jobs.fail(session, job_id, reason, retryable=True).state.value
+                return JobFinished(*fields, outcome=ended, error=reason)
 
-            ended = await self._durably(f"handing back job {job_id}", hand_back)
-            log.warning("job %d was held by no machine task: now %s", job_id, ended)
-            self._event(job_id, machine, ended)
+            event = await self._durably(f"handing back job {job_id}", hand_back)
+            log.warning("job %d was held by no machine task: now %s", job_id, event.outcome)
+            self.machines.bus.publish(event)
             self.machines.wake(machine)
 
     # -- running --------------------------------------------------------------------------
@@ -235,12 +239,16 @@ class JobRunner:
         # In the same step of the loop as the discard: the sweep never sees neither.
         state.job_id, state.job_progress = claimed.job_id, (0, len(claimed.data) or None)
         self._claiming.discard(name)
-        self._event(claimed.job_id, name, "running")
+        self.machines.bus.publish(
+            JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
+        )
         run = JobRun(
             claimed,
             state,
             connector,
-            event=lambda s, **extra: self._event(claimed.job_id, name, s, **extra),
+            event=lambda **progress: self.machines.bus.publish(
+                JobProgress(*_fields(claimed, name), **progress)
+            ),
             check_cancel=lambda: self._cancel_requested(claimed.job_id),
         )
         watch = asyncio.create_task(self._watch_cancel(run), name=f"cancel-watch-{claimed.job_id}")
@@ -283,7 +291,8 @@ class JobRunner:
                     jobs.fail(session, job.id, "the job names no program", retryable=False)
                     return None
                 data = library.content(session, job.version)
-                return Claimed(job.id, job.kind, job.version.program.name, data, params)
+                program, number = job.version.program.name, job.version.number
+                return Claimed(job.id, job.kind, program, data, params, number)
             return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
 
     async def _execute(self, run: JobRun) -> dict[str, Any]:
@@ -345,7 +354,7 @@ class JobRunner:
                 ended = "unknown"
             finally:
                 self._unsettled.discard(job_id)
-            self._event(job_id, state.config.name, label or ended, **extra)
+            self._ended(run, label or ended, **extra)
             if state.job_id == job_id:
                 state.job_id = None
                 state.job_progress = (0, None)
@@ -368,7 +377,7 @@ class JobRunner:
             task.add_done_callback(self._settling.discard)
             return
         self.database_error = ""
-        self._event(job_id, state.config.name, label or ended, **extra)
+        self._ended(run, label or ended, **extra)
         state.job_id = None
 
     # -- cancels ----------------------------------------------------------------------------
@@ -403,6 +412,11 @@ class JobRunner:
 
     # -- events ---------------------------------------------------------------------------
 
-    def _event(self, job_id: int, machine: str, state: str, **extra: Any) -> None:
-        data = {"id": job_id, "machine": machine, "state": state, **extra}
-        self.machines.bus.publish("job", str(job_id), data)
+    def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
+        fields = _fields(run.job, run.state.config.name)
+        self.machines.bus.publish(JobFinished(*fields, outcome=outcome, error=error))
+
+
+def _fields(job: Claimed, machine: str) -> tuple[int, str, str, str | None, int | None]:
+    """What every event of ``job`` carries: id, machine, kind, program, version."""
+    return job.job_id, machine, job.kind.value, job.program, job.version

@@ -23,12 +23,13 @@ from typing import Any
 from xml.etree import ElementTree as ET
 
 from opendnc.server.config import ConfigError, MtconnectConfig
-from opendnc.server.events import EventBus
+from opendnc.server.events import DprntLinePrinted, EventBus, MachineStatusChanged
 from opendnc.server.items import ITEMS, ItemSpec, ItemTracker, Reading, Value, shdr_time
 
 __all__ = [
     "DPRNT",
     "HEARTBEAT_MS",
+    "MTCONNECT_VERSION",
     "MtconnectOutput",
     "ShdrAdapter",
     "condition_lines",
@@ -262,42 +263,50 @@ class MtconnectOutput:
         """Send every change, until cancelled."""
         with self.bus.subscribe() as sub:
             while True:
-                event = await sub.get()
+                event = await sub.next()
                 try:
-                    if event.kind == "machine":
-                        self.take(event.key, event.data)
-                    elif event.kind == "dprnt":
-                        self.printed(event.data)
+                    match event:
+                        case MachineStatusChanged():
+                            self.take(event)
+                        case DprntLinePrinted():
+                            self.printed(event)
                 except Exception:  # one odd event must not end the output
                     log.exception("mtconnect: cannot send %s event %s", event.kind, event.key)
 
-    def take(self, machine: str, data: dict[str, object]) -> None:
-        """Report the items of a ``machine`` event that changed."""
-        changed = self.tracker.update(machine, data)
-        if not changed:
+    def take(self, event: MachineStatusChanged) -> None:
+        """Report the items of a machine's status event that changed."""
+        changed = self.tracker.update(event)
+        adapter = self.adapters.get(event.machine)
+        if not changed or adapter is None:
             return
-        before = self._conditions[machine]
+        before = self._conditions[event.machine]
         lines = shdr_state(changed, before)
         for key in _CONDITION & changed.keys():
             before[key] = changed[key].value
-        self.adapters[machine].send(lines)
+        adapter.send(lines)
 
-    def printed(self, data: dict[str, object]) -> None:
+    def printed(self, event: DprntLinePrinted) -> None:
         """Send a DPRNT line (every one: two equal measurements are two observations)."""
-        adapter = self.adapters.get(str(data.get("machine", "")))
+        adapter = self.adapters.get(event.machine)
         if adapter is None:
             return
         at = datetime.now(UTC)
-        with contextlib.suppress(TypeError, ValueError):
-            at = datetime.fromisoformat(str(data.get("at")))
-        adapter.dprnt = Reading(str(data.get("line", "")) or None, at)
+        with contextlib.suppress(ValueError):
+            at = datetime.fromisoformat(event.at)
+        adapter.dprnt = Reading(event.line or None, at)
         adapter.send([message_line(shdr_time(at), DPRNT.key, adapter.dprnt.value)])
+
+
+MTCONNECT_VERSION = "1.4"
+"""The MTConnect version the Devices file declares: the first whose schema has every data item
+the adapter sends (LINE_NUMBER with subType ABSOLUTE came with 1.4)."""
 
 
 def devices_xml(machines: list[str], server_name: str) -> str:
     """An MTConnect Devices document for an agent: one device per machine, its data items
-    named by the SHDR keys (ids are made unique across the document)."""
-    ns = "urn:mtconnect.org:MTConnectDevices:1.3"
+    named by the SHDR keys (ids are made unique across the document). It validates against
+    the MTConnectDevices schema of :data:`MTCONNECT_VERSION`."""
+    ns = f"urn:mtconnect.org:MTConnectDevices:{MTCONNECT_VERSION}"
     root = ET.Element("MTConnectDevices", xmlns=ns)
     ET.SubElement(
         root,
@@ -305,9 +314,10 @@ def devices_xml(machines: list[str], server_name: str) -> str:
         creationTime=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         sender=server_name,
         instanceId="1",
-        version="1.3",
+        version=MTCONNECT_VERSION,
         bufferSize="131072",
-        assetBufferSize="0",
+        # The server keeps no assets, but the schema's least buffer is one asset.
+        assetBufferSize="1",
         assetCount="0",
     )
     devices = ET.SubElement(root, "Devices")

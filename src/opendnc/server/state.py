@@ -18,7 +18,7 @@ from enum import StrEnum
 
 from opendnc.server.machines.base import MachineStatus
 
-__all__ = ["State", "classify", "classify_words"]
+__all__ = ["State", "classify", "classify_words", "from_stored"]
 
 
 class State(StrEnum):
@@ -64,3 +64,16 @@ def classify(status: MachineStatus | None, *, online: bool) -> State:
         execution=status.execution,
         errors=bool(status.errors),
     )
+
+
+# What status samples written before the classifier said (docs/dashboard.md#status-timeline).
+_OLD_WORDS = {"active": State.RUNNING, "none": State.NO_RECORD}
+
+
+def from_stored(word: str) -> State:
+    """The state a stored status sample names: today's words, and the ``active`` (running)
+    and ``none`` (no record) of samples written before; anything else is unknown."""
+    try:
+        return State(word)
+    except ValueError:
+        return _OLD_WORDS.get(word, State.UNKNOWN)

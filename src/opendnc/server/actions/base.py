@@ -3,18 +3,21 @@ transaction helpers that commit before anyone is told (a wake-up, an event)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import ClassVar, Protocol, TypeVar
+from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.auth import LoginGuard, Principal
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import Forbidden, NotFound
-from opendnc.server.events import EventBus
+from opendnc.server.events import EventBus, InboxChanged, ProgramChanged, publish_job_queued
 from opendnc.server.machine_state import MachineState
 from opendnc.server.store.models import Role
+
+if TYPE_CHECKING:
+    from opendnc.server.actions.models import JobOut
 
 __all__ = ["Caller", "Runner", "Services", "require"]
 
@@ -87,7 +90,23 @@ class Services:
     def changed(self, kind: str, key: str) -> None:
         """Tell the event stream that the library (``program``) or the inbox (``inbox``)
         changed (after the commit: a page that reloads its list must see the change)."""
-        self.runner.bus.publish(kind, key, {"name": key, "source": "request"})
+        event = ProgramChanged(key) if kind == "program" else InboxChanged(key)
+        self.runner.bus.publish(event)
+
+    def queued(self, queued: Sequence[JobOut]) -> None:
+        """Announce jobs just committed to the queue (a ``queued`` job event each, with
+        program and version) and wake their machines."""
+        for job in queued:
+            publish_job_queued(
+                self.runner.bus,
+                job_id=job.id,
+                machine=job.machine,
+                job_kind=job.kind.value,
+                program=job.program,
+                version=job.version,
+                by=job.created_by,
+            )
+        self.wake([job.machine for job in queued])
 
     def wake(self, machines: list[str]) -> None:
         """Tell the machines' tasks that a job may be waiting (after the commit)."""

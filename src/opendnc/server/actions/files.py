@@ -116,7 +116,7 @@ def put_file(
 
     out = svc.write(store)
     svc.changed("program", name)
-    svc.wake([machine])
+    svc.queued([out])
     return out
 
 

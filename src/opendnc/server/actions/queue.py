@@ -64,7 +64,7 @@ def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
         return [JobOut.of(j) for j in created]
 
     out = svc.write(queue)
-    svc.wake([j.machine for j in out])
+    svc.queued(out)
     return out
 
 
@@ -125,5 +125,5 @@ def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = N
         return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
 
     out = svc.write(retry)
-    svc.wake([out.machine])
+    svc.queued([out])
     return out

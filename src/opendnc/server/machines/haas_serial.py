@@ -185,7 +185,9 @@ class HaasSerialConnector:
         """Available while the port opens; with ``mdc`` also program, mode and parts."""
         client = self._mdc
         if client is None:
-            return MachineStatus(at=utcnow(), available=True, execution="READY")
+            # The port is open, but without MDC the control tells nothing of what it does:
+            # its execution is unknown (UNAVAILABLE), not READY (docs/server.md#machine-status).
+            return MachineStatus(at=utcnow(), available=True)
         if time.monotonic() < self._quiet_until:
             # Not asked (a query would reach a control still waiting in DNC mode as program
             # input): its state is not known, and the status says so rather than READY.

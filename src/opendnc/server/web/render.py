@@ -19,6 +19,9 @@ from pygments import highlight
 from pygments.formatters import HtmlFormatter
 from pygments.lexers import GcodeLexer
 
+from opendnc.server.events import percent
+from opendnc.server.state import State
+
 __all__ = [
     "Card",
     "DiffRow",
@@ -36,8 +39,9 @@ KIND_LABEL = {
     "haas_ngc": "Haas NGC · Ethernet",
     "haas_serial": "Haas · RS-232",
 }
-# How a card is filed by the overview's filters.
-STATES = ("running", "idle", "alarm", "offline")
+# How a card is filed by the overview's filters: the classifier's states, andon-coloured
+# (docs/dashboard.md#live-overview).
+STATES = tuple(s.value for s in State if s is not State.NO_RECORD)
 CARD_DPRNT_CHARS = 120  # of the last DPRNT line on a card (the whole line is in its title)
 
 
@@ -53,6 +57,7 @@ def environment() -> Environment:
     env.filters["size"] = human_size
     env.filters["when"] = when
     env.globals["KIND_LABEL"] = KIND_LABEL
+    env.globals["percent"] = percent  # one rounding for the card and the queue table
     return env
 
 
@@ -166,7 +171,7 @@ class Card:
     name: str
     kind: str
     description: str
-    state: str  # one of STATES
+    state: str  # one of STATES: the classifier's word, also the card's colour class
     online: bool
     mode: str
     native_mode: str  # the control's own word beside the MTConnect one (a Haas's MEM)
@@ -199,28 +204,23 @@ def _words(value: str) -> str:
 
 
 def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Card:
-    """The card of one machine from its live JSON (``MachineState.as_json()``)."""
+    """The card of one machine from its live JSON (``MachineState.as_json()``), whose
+    ``state`` is the classifier's: a job under way is not the machine running (a load into
+    memory runs nothing), and a control that tells nothing is unknown, not ready."""
     status = machine.get("status") or {}
     job = machine.get("job")
     online = bool(machine.get("online"))
     errors = status.get("errors") or []
     execution = status.get("execution", "") if online else ""
+    if execution == "UNAVAILABLE":
+        execution = ""  # the control does not say: the state (unknown) tells it already
     alarm = "; ".join(errors)
-    if not online:
-        state = "offline"
-    elif errors:
-        state = "alarm"
-    elif job is not None or execution == "ACTIVE":
-        state = "running"
-    else:
-        state = "idle"
     done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
-    percent = int(100 * done / total) if job and total else None
     return Card(
         name=machine["name"],
         kind=machine["kind"],
         description=machine.get("description", ""),
-        state=state,
+        state=str(machine.get("state") or State.UNKNOWN.value),
         online=online,
         mode=_words(status.get("mode", "")) if online else "",
         native_mode=str(status.get("native_mode") or "") if online else "",
@@ -229,7 +229,7 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         line=int(status.get("line") or 0) if online else 0,
         job_id=job["id"] if job else None,
         job_label=job_label,
-        percent=percent,
+        percent=percent(done, total) if job else None,
         done=done,
         total=total,
         queued=queued,
@@ -246,6 +246,22 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
 def card_oob(name: str, html: str) -> str:
     """``html`` as the new inside of ``#card-<name>`` (an htmx out-of-band swap)."""
     return f'<div id="card-{escape(name)}" hx-swap-oob="innerHTML">{html}</div>'
+
+
+def progress_text(c: Card) -> str:
+    """The running job's progress as the card and the queue table both show it."""
+    if c.job_id is None or c.percent is None:
+        return ""
+    return f" · {c.percent}%"
+
+
+def queue_progress_oob(c: Card) -> str:
+    """The machine page's queue table's progress of the running job, as the card has it (an
+    out-of-band swap of ``#queue-progress-<name>``)."""
+    return (
+        f'<span id="queue-progress-{escape(c.name)}" hx-swap-oob="innerHTML">'
+        f"{escape(progress_text(c))}</span>"
+    )
 
 
 def sse_event(name: str, html: str) -> bytes:

@@ -5,9 +5,13 @@ machine, the moments its state changed (changes only: a status poll that finds t
 writes nothing). With the server's database each change becomes a ``status_samples`` row,
 written in batches off the event loop and pruned after ``[server] timeline_retention_days``,
 so the timeline survives a restart (docs/dashboard.md#status-timeline). When the server stops
-it writes a ``none`` sample for every machine: the time it was down shows as no record, not as
+it writes a ``no_record`` sample for every machine: the time it was down shows as no record, not as
 the last state stretched over the gap. Without a database the changes stay in memory (the
 bookkeeping's own tests). The machine page draws the last hours as an SVG strip.
+
+The state is the one classifier's (:func:`opendnc.server.state.classify`), stored by its
+value; samples written before it say ``active`` for running and ``none`` for no record, and
+read as such (:func:`opendnc.server.state.from_stored`).
 """
 
 from __future__ import annotations
@@ -26,7 +30,9 @@ from sqlalchemy import delete, select
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.events import EventBus, Subscription
+from opendnc.server.events import EventBus, MachineStatusChanged, Subscription
+from opendnc.server.machines.base import MachineStatus
+from opendnc.server.state import State, classify, from_stored
 from opendnc.server.store.models import StatusSample, utcnow
 
 __all__ = ["Sample", "Segment", "Timeline", "running"]
@@ -37,7 +43,6 @@ MAX_CHANGES = 5000  # per machine in memory: a control that flips state every se
 FLUSH_SECONDS = 1.0  # changes reach the database within about this
 PRUNE_SECONDS = 3600.0
 MAX_PENDING = 10_000  # held while the database is away; the oldest go first beyond this
-NONE = "none"  # no record: the server was not running
 HEARTBEAT = 30.0  # seconds between two notes that the server is recording (crash gaps)
 
 
@@ -46,20 +51,26 @@ class Sample:
     """A machine's state from ``at`` on."""
 
     at: datetime
-    state: str  # offline, active, ready, stopped, alarm, none
+    state: State
     mode: str = ""
     execution: str = ""
 
     @property
     def label(self) -> str:
-        """What a person reads for it: ``active, automatic``."""
-        if self.state == NONE:
+        """What a person reads for it: the state, the control's execution word where it says
+        more, the mode (``stopped, feed hold, automatic``)."""
+        if self.state is State.NO_RECORD:
             return "no record (server stopped)"
-        if self.state == "offline":
+        if self.state is State.OFFLINE:
             return "offline"
-        execution = self.execution.replace("_", " ").lower() or "ready"
+        execution = self.execution.replace("_", " ").lower()
         mode = self.mode.replace("_", " ").lower()
-        return f"{execution}{', ' + mode if mode else ''}"
+        said = [self.state.value]
+        if execution not in ("", "unavailable", self.state.value):
+            said.append(execution)
+        if mode:
+            said.append(mode)
+        return ", ".join(said)
 
 
 @dataclass(frozen=True)
@@ -68,26 +79,18 @@ class Segment:
 
     x: float
     width: float
-    state: str  # offline, active, ready, stopped, alarm, none
+    state: str  # a State's value: the strip's colour class
     label: str
 
 
-def _state(machine: dict[str, Any]) -> tuple[str, str, str]:
-    """(state, mode, execution) of a machine's live JSON."""
-    status = machine.get("status") or {}
-    if not machine.get("online"):
-        return "offline", "", ""
-    execution = str(status.get("execution") or "")[:32]
-    mode = str(status.get("mode") or "")[:64]
-    if status.get("errors"):
-        kind = "alarm"
-    elif execution == "ACTIVE":
-        kind = "active"
-    elif execution in ("STOPPED", "INTERRUPTED", "FEED_HOLD"):
-        kind = "stopped"
-    else:
-        kind = "ready"
-    return kind, mode, execution
+Key = tuple[State, str, str]  # (state, mode, execution): a change of any is a sample
+
+
+def _key(status: MachineStatus | None, online: bool) -> Key:
+    state = classify(status, online=online)
+    if state is State.OFFLINE or status is None:
+        return state, "", ""
+    return state, status.mode[:64], status.execution[:32]
 
 
 class Timeline:
@@ -103,14 +106,21 @@ class Timeline:
         self.retention = timedelta(days=retention_days)
         self.changes: dict[str, deque[Sample]] = {}  # without a database
         self.pending: deque[tuple[str, Sample]] = deque(maxlen=MAX_PENDING)
-        self._last: dict[str, tuple[str, str, str]] = {}
+        self._last: dict[str, Key] = {}
         self._lock = threading.Lock()
 
-    def note(self, name: str, machine: dict[str, Any], at: datetime | None = None) -> bool:
+    def note(
+        self,
+        name: str,
+        status: MachineStatus | None,
+        *,
+        online: bool,
+        at: datetime | None = None,
+    ) -> bool:
         """Record the machine's state if it differs from the last one noted (True if so)."""
-        return self._add(name, _state(machine), at)
+        return self._add(name, _key(status, online), at)
 
-    def _add(self, name: str, key: tuple[str, str, str], at: datetime | None) -> bool:
+    def _add(self, name: str, key: Key, at: datetime | None) -> bool:
         with self._lock:
             if self._last.get(name) == key:
                 return False
@@ -125,7 +135,7 @@ class Timeline:
     def stopped(self, at: datetime | None = None) -> None:
         """The server stops: from now on, no record for any machine noted so far."""
         for name in list(self._last):
-            self._add(name, (NONE, "", ""), at)
+            self._add(name, (State.NO_RECORD, "", ""), at)
 
     def beat(self, server: str, at: datetime | None = None) -> None:
         """Note that ``server`` is recording now (one row of its own, ``@server``, moved
@@ -160,9 +170,10 @@ class Timeline:
                     .order_by(StatusSample.at.desc(), StatusSample.id.desc())
                     .limit(1)
                 ).first()
-                if last is None or last.state == NONE:
+                if last is None or from_stored(last.state) is State.NO_RECORD:
                     continue
-                session.add(StatusSample(machine=name, at=max(alive, last.at), state=NONE))
+                no_record = State.NO_RECORD.value
+                session.add(StatusSample(machine=name, at=max(alive, last.at), state=no_record))
                 marked += 1
             return marked
 
@@ -180,7 +191,11 @@ class Timeline:
             with self.sessions.begin() as session:
                 session.add_all(
                     StatusSample(
-                        machine=name, at=s.at, state=s.state, mode=s.mode, execution=s.execution
+                        machine=name,
+                        at=s.at,
+                        state=s.state.value,
+                        mode=s.mode,
+                        execution=s.execution,
                     )
                     for name, s in batch
                 )
@@ -218,7 +233,9 @@ class Timeline:
                 .where(StatusSample.machine == name, StatusSample.at > since)
                 .order_by(StatusSample.at, StatusSample.id)
             ).all()
-            out = [Sample(r.at, r.state, r.mode, r.execution) for r in (*before, *after)]
+            out = [
+                Sample(r.at, from_stored(r.state), r.mode, r.execution) for r in (*before, *after)
+            ]
         with self._lock:
             out += [s for n, s in self.pending if n == name]
         return out
@@ -231,12 +248,11 @@ class Timeline:
     async def _listen(self, sub: Subscription) -> None:
         flushed = pruned = time.monotonic()
         while True:
-            try:
-                event = await asyncio.wait_for(sub.get(), FLUSH_SECONDS)
-                if event.kind == "machine":
-                    self.note(event.key, event.data)
-            except TimeoutError:
-                pass
+            # A get with its own deadline, not wait_for around it: a cancel must end this
+            # loop whatever the get is doing (docs/server.md#events-and-states).
+            event = await sub.get(FLUSH_SECONDS)
+            if isinstance(event, MachineStatusChanged):
+                self.note(event.machine, event.status, online=event.online)
             now = time.monotonic()
             if self.sessions is not None and self.pending and now - flushed >= FLUSH_SECONDS:
                 flushed = now
@@ -270,7 +286,8 @@ class Timeline:
             begin = max(sample.at, start)
             x = (begin - start).total_seconds() / span * width
             w = (until - begin).total_seconds() / span * width
-            out.append(Segment(round(x, 2), round(max(w, 0.5), 2), sample.state, sample.label))
+            segment = Segment(round(x, 2), round(max(w, 0.5), 2), sample.state.value, sample.label)
+            out.append(segment)
         return out
 
 

@@ -12,9 +12,8 @@ pool, so the machines' event loop never waits for a query).
 
 from __future__ import annotations
 
-import asyncio
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 from urllib.parse import quote
@@ -31,6 +30,18 @@ from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
 from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
+from opendnc.server.events import (
+    DprntLinePrinted,
+    DprntStatus,
+    Event,
+    InboxChanged,
+    JobEvent,
+    JobProgress,
+    MachineStatusChanged,
+    NetshareChanged,
+    ProgramChanged,
+    ProgramReceived,
+)
 from opendnc.server.library import MAX_PROGRAM_BYTES
 from opendnc.server.machine_state import Machines
 from opendnc.server.store.models import (
@@ -43,6 +54,7 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
+from opendnc.server.streams import throttled_stream
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -53,7 +65,6 @@ T = TypeVar("T")
 router = APIRouter(include_in_schema=False)
 # A card changes at most this often on the overview (per machine), like the API's events.
 CARD_INTERVAL = 0.5
-KEEP_ALIVE = 15.0
 FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
 ROLES = [r.name.lower() for r in Role]
 # A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
@@ -263,8 +274,14 @@ async def card_events(
     shown = None
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
+    stream = throttled_stream(
+        _supervisor(request).bus,
+        _Cards(request, machine, shown),
+        interval=CARD_INTERVAL,
+        disconnected=request.is_disconnected,
+    )
     return StreamingResponse(
-        _card_stream(request, machine, shown),
+        stream,
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
@@ -286,86 +303,85 @@ def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
     return _read(request, load)
 
 
-async def _card_stream(
-    request: Request, only: str | None, dprnt_shown: list[int] | None = None
-) -> AsyncIterator[bytes]:
-    supervisor = _supervisor(request)
-    env = render.environment().get_template("_card.html")
-    labels: dict[int, str] = {}
-    watched = set(supervisor.machines) if only is None else {only}
-    sent: dict[str, str] = {}  # the HTML each card has in the browser now
-    console = _Console(only, dprnt_shown) if only is not None and dprnt_shown is not None else None
-    capture = deps.dprnt(request)
-    # The capture's word as the stream starts (it may have changed since the page was drawn).
-    capture_said = capture.status.get(only, "") if console and only is not None else None
-    with supervisor.bus.subscribe() as sub:
-        # A fresh copy of every card first: whatever changed between the page and this stream.
-        pending: set[str] = set(watched)
-        job_changes: set[str] = set()
-        new_lines = console is not None  # and the console's lines printed since the page
-        loop = asyncio.get_running_loop()
-        flush_at = quiet_since = loop.time()
-        while not await request.is_disconnected():
-            timeout = max(0.0, flush_at - loop.time())
-            try:
-                events = [await asyncio.wait_for(sub.get(), timeout)]
-                # Everything queued meanwhile in one go: hundreds of transfers report
-                # progress thousands of times a second, and a wait per event would let the
-                # queue overflow (and every card be drawn again) while the loop spins.
-                events += sub.drain()
-                for event in events:
-                    machine = event.key if event.kind == "machine" else event.data.get("machine")
-                    if isinstance(machine, str) and machine in watched:
-                        if event.kind == "dprnt":
-                            new_lines = console is not None
-                        elif event.kind == "dprnt_status":
-                            capture_said = str(event.data.get("message", "")) if console else None
-                        else:
-                            pending.add(machine)
-                        if event.kind == "job" and "bytes_done" not in event.data:
-                            job_changes.add(machine)  # started or ended, not mere progress
-                if loop.time() < flush_at:
-                    continue  # a steady stream of events must not hold the flush back
-            except TimeoutError:
-                pass
-            if sub.overflowed:
-                sub.overflowed = False
-                pending = set(watched)
-                job_changes = set(watched)
-                new_lines = console is not None
-            out = []
-            if pending:
-                names = sorted(pending)
-                pending = set()
-                cards = await run_in_threadpool(_cards_cached, request, names, labels)
-                changed = []
-                for c in cards:
-                    html = env.render(c=c, whole=only is not None)  # a machine page's card
-                    if sent.get(c.name) != html:  # a status poll that changed nothing
-                        sent[c.name] = html
-                        changed.append(render.card_oob(c.name, html))
-                if changed:
-                    # One message for every card that changed: the browser parses and swaps
-                    # them in one go instead of running a swap per card.
-                    out.append(render.sse_event("cards", "".join(changed)))
-                out += [render.sse_event(f"jobs-{name}", "") for name in sorted(job_changes)]
-                job_changes = set()
-            if console is not None and new_lines:
-                new_lines = False
-                html = await run_in_threadpool(_read, request, console.update)
-                if html:
-                    out.append(render.sse_event(f"dprnt-{console.machine}", html))
-            if console is not None and capture_said is not None:
-                said = f" · {render.text_escape(capture_said)}" if capture_said else ""
-                capture_said = None
-                out.append(render.sse_event(f"dprnt-status-{console.machine}", said))
-            if out:
-                quiet_since = loop.time()
-                yield b"".join(out)
-            if loop.time() - quiet_since > KEEP_ALIVE:
-                quiet_since = loop.time()
-                yield b": keep-alive\n\n"  # lets a proxy and the server see a dead client
-            flush_at = loop.time() + CARD_INTERVAL
+class _Cards:
+    """The live cards' stream: the cards that changed (one ``cards`` message), the machine
+    pages told when a job starts or ends, and one machine page's DPRNT console."""
+
+    def __init__(self, request: Request, only: str | None, dprnt_shown: list[int] | None) -> None:
+        supervisor = _supervisor(request)
+        self.request = request
+        self.only = only
+        self.template = render.environment().get_template("_card.html")
+        self.labels: dict[int, str] = {}
+        self.watched = set(supervisor.machines) if only is None else {only}
+        self.sent: dict[str, str] = {}  # the HTML each card has in the browser now
+        self.console = _Console(only, dprnt_shown) if only and dprnt_shown is not None else None
+        capture = deps.dprnt(request)
+        # The capture's word as the stream starts (it may have changed since the page was drawn).
+        self.capture_said: str | None = (
+            capture.status.get(only, "") if self.console and only is not None else None
+        )
+        self.pending: set[str] = set()
+        self.job_changes: set[str] = set()
+        self.new_lines = False
+
+    async def snapshot(self, overflow: bool) -> bytes:
+        # A fresh copy of every card: whatever changed between the page and this stream (or
+        # was lost when the stream fell behind), and the console's lines printed since.
+        self.pending = set(self.watched)
+        if overflow:
+            self.job_changes = set(self.watched)
+        self.new_lines = self.console is not None
+        return b""
+
+    def take(self, event: Event) -> None:
+        match event:
+            case MachineStatusChanged(machine=machine) if machine in self.watched:
+                self.pending.add(machine)
+            case JobProgress(machine=machine) if machine in self.watched:
+                self.pending.add(machine)
+            case JobEvent(machine=machine) if machine in self.watched:
+                self.pending.add(machine)  # queued, started or ended: the queue changed
+                self.job_changes.add(machine)
+            case DprntLinePrinted(machine=machine) if machine in self.watched:
+                self.new_lines = self.console is not None
+            case DprntStatus(machine=machine, message=message) if machine in self.watched:
+                self.capture_said = message if self.console else None
+            case ProgramReceived(machine=machine) if machine in self.watched:
+                self.pending.add(machine)
+
+    async def flush(self) -> bytes:
+        out = []
+        if self.pending:
+            names = sorted(self.pending)
+            self.pending = set()
+            cards = await run_in_threadpool(_cards_cached, self.request, names, self.labels)
+            changed = []
+            for c in cards:
+                html = self.template.render(c=c, whole=self.only is not None)  # a machine page's
+                if self.sent.get(c.name) != html:  # a status poll that changed nothing
+                    self.sent[c.name] = html
+                    changed.append(render.card_oob(c.name, html))
+                    if self.only is not None:
+                        # the queue table's progress says what the card says
+                        changed.append(render.queue_progress_oob(c))
+            if changed:
+                # One message for every card that changed: the browser parses and swaps
+                # them in one go instead of running a swap per card.
+                out.append(render.sse_event("cards", "".join(changed)))
+            out += [render.sse_event(f"jobs-{name}", "") for name in sorted(self.job_changes)]
+            self.job_changes = set()
+        console = self.console
+        if console is not None and self.new_lines:
+            self.new_lines = False
+            html = await run_in_threadpool(_read, self.request, console.update)
+            if html:
+                out.append(render.sse_event(f"dprnt-{console.machine}", html))
+        if console is not None and self.capture_said is not None:
+            said = f" · {render.text_escape(self.capture_said)}" if self.capture_said else ""
+            self.capture_said = None
+            out.append(render.sse_event(f"dprnt-status-{console.machine}", said))
+        return b"".join(out)
 
 
 class _Console:
@@ -417,9 +433,9 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
 
 # Which bus events change which list page (the watcher's and the routes' ``program``, a
 # reception's ``received`` or ``netshare``, an accept's or discard's ``inbox``).
-LIST_EVENTS = {
-    "inbox": {"received", "netshare", "inbox"},
-    "library": {"program"},
+LIST_EVENTS: dict[str, tuple[type[Event], ...]] = {
+    "inbox": (ProgramReceived, NetshareChanged, InboxChanged),
+    "library": (ProgramChanged,),
 }
 
 
@@ -429,40 +445,39 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic!r}: inbox or library")
+    stream = throttled_stream(
+        _supervisor(request).bus,
+        _ListChanges(topic),
+        interval=CARD_INTERVAL,
+        disconnected=request.is_disconnected,
+    )
     return StreamingResponse(
-        _list_stream(request, topic),
+        stream,
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
 
 
-async def _list_stream(request: Request, topic: str) -> AsyncIterator[bytes]:
-    kinds = LIST_EVENTS[topic]
-    with _supervisor(request).bus.subscribe() as sub:
-        # Once at the start: whatever changed between the page and this stream.
-        dirty = True
-        loop = asyncio.get_running_loop()
-        flush_at = quiet_since = loop.time()
-        while not await request.is_disconnected():
-            try:
-                event = await asyncio.wait_for(sub.get(), max(0.0, flush_at - loop.time()))
-                # the backlog in one go (it holds every machine's progress too)
-                dirty = dirty or any(e.kind in kinds for e in [event, *sub.drain()])
-                if loop.time() < flush_at:
-                    continue
-            except TimeoutError:
-                pass
-            if sub.overflowed:
-                sub.overflowed = False
-                dirty = True
-            if dirty:
-                dirty = False
-                quiet_since = loop.time()
-                yield render.sse_event(topic, "")
-            elif loop.time() - quiet_since > KEEP_ALIVE:
-                quiet_since = loop.time()
-                yield b": keep-alive\n\n"
-            flush_at = loop.time() + CARD_INTERVAL
+class _ListChanges:
+    """A list page's stream: one event named after its topic when the list may have changed."""
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.kinds = LIST_EVENTS[topic]
+        self.dirty = False
+
+    async def snapshot(self, overflow: bool) -> bytes:
+        self.dirty = True  # whatever changed between the page and this stream, or was lost
+        return b""
+
+    def take(self, event: Event) -> None:
+        self.dirty = self.dirty or isinstance(event, self.kinds)
+
+    async def flush(self) -> bytes:
+        if not self.dirty:
+            return b""
+        self.dirty = False
+        return render.sse_event(self.topic, "")
 
 
 # -- machine page -------------------------------------------------------------------------
@@ -485,7 +500,7 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     caps = capabilities_of(state.config)
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
-    timeline.note(name, live)
+    timeline.note(name, state.status, online=state.online)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
     context["timeline_hours"] = TIMELINE_HOURS
     context["timeline_days"] = timeline.retention.total_seconds() / 86400
