@@ -49,8 +49,10 @@ class MemoryControl:
     listens: bool = False
     online: bool = True  # False: connect() fails like an unreachable control
     line_time: float = 0.0  # seconds a drip-feed takes per line
+    connects: int = 0  # how often a link was opened to this control
 
     async def connect(self) -> None:
+        self.connects += 1
         if not self.online:
             raise ControlRefused(f"{self.config.name}: no answer")
 

@@ -215,7 +215,7 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         missing = client.get("/api/machines/nope/dprnt", headers=auth(key))
         assert missing.status_code == 404
         bad = client.get("/api/machines/vf2/dprnt", headers=auth(key), params={"since": -1})
-        assert bad.status_code == 422  # a bad parameter is refused at the edge
+        assert bad.status_code == 422  # refused where it is read (docs/server.md#api-contract)
     events.stop()
 
     # A restarted server shows the last line it had stored until the program prints again.

@@ -203,7 +203,6 @@ def _svc(request: Request) -> actions.Services:
 
 
 Svc = Annotated[actions.Services, Depends(_svc)]
-Name = Annotated[str, Field(max_length=255)]
 
 
 # -- health and outputs ---------------------------------------------------------------------

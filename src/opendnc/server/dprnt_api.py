@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request
@@ -22,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from opendnc.server import deps
 from opendnc.server.actions import require
-from opendnc.server.actions.models import MAX_ID
+from opendnc.server.actions.models import MAX_ID, Timestamp
 from opendnc.server.api import ERRORS, Db, Viewer
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.edge import ApiRoute
@@ -91,7 +90,7 @@ class DprntLineOut(BaseModel):
 
     id: int
     machine: str
-    at: datetime
+    at: Timestamp
     line: str
     numbers: list[float]
     fields: list[FieldOut]

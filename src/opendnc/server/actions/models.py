@@ -8,7 +8,7 @@ from datetime import datetime
 from typing import Annotated
 
 from fastapi import Path, Query
-from pydantic import BaseModel, ConfigDict, Field, JsonValue
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer
 
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.store.models import (
@@ -42,6 +42,7 @@ __all__ = [
     "ReceivedOut",
     "RemoteFileOut",
     "RevokedOut",
+    "Timestamp",
     "UploadOut",
     "VersionOut",
 ]
@@ -55,6 +56,9 @@ IdQuery = Annotated[int, Query(ge=1, le=MAX_ID)]
 Count = Annotated[int, Query(ge=1, le=10_000)]
 """A ``limit``: at least one row, at most what one page of any list holds."""
 LineNumber = Annotated[int, Field(ge=1, le=MAX_ID)]
+Timestamp = Annotated[datetime, PlainSerializer(datetime.isoformat, return_type=str)]
+"""A time as the server writes it everywhere (``2026-11-27T01:02:03.456789+00:00``, UTC): the
+same text in an API answer, an event and a CSV row, so a client may compare them."""
 
 
 class VersionOut(BaseModel):
@@ -68,7 +72,7 @@ class VersionOut(BaseModel):
     author: str
     comment: str
     source: str
-    created: datetime
+    created: Timestamp
 
     @classmethod
     def of(cls, v: ProgramVersion) -> VersionOut:
@@ -97,7 +101,7 @@ class ProgramOut(BaseModel):
 
     name: str
     locked: bool
-    created: datetime
+    created: Timestamp
     versions: list[VersionOut]
 
     @classmethod
@@ -135,9 +139,9 @@ class JobOut(BaseModel):
     attempts: int
     max_attempts: int
     created_by: str
-    created: datetime
-    started: datetime | None
-    finished: datetime | None
+    created: Timestamp
+    started: Timestamp | None
+    finished: Timestamp | None
     bytes_done: int
     bytes_total: int | None
     error: str
@@ -176,7 +180,7 @@ class AuditOut(BaseModel):
     """One row of the audit trail."""
 
     id: int
-    at: datetime
+    at: Timestamp
     actor: str
     action: str
     machine: str | None
@@ -215,7 +219,7 @@ class ReceivedOut(BaseModel):
     size: int
     state: ReceivedState
     reason: str
-    at: datetime
+    at: Timestamp
     version_id: int | None
 
     @classmethod
@@ -263,7 +267,7 @@ class StatusOut(BaseModel):
 
     model_config = ConfigDict(extra="allow")
 
-    at: datetime
+    at: Timestamp
     available: bool
     execution: str
     mode: str
@@ -276,7 +280,7 @@ class StatusOut(BaseModel):
     errors: list[str]
     message: str
     dprnt: str = ""
-    dprnt_at: datetime | None = None
+    dprnt_at: Timestamp | None = None
 
 
 class JobProgressOut(BaseModel):
@@ -301,7 +305,7 @@ class MachineOut(BaseModel):
     online: bool
     status: StatusOut | None
     last_error: str
-    last_error_at: datetime | None
+    last_error_at: Timestamp | None
     link_errors: int
     job: JobProgressOut | None
 
@@ -312,7 +316,7 @@ class RemoteFileOut(BaseModel):
     name: str
     path: str
     size: int
-    modified: datetime
+    modified: Timestamp
     is_dir: bool
 
     @classmethod
