@@ -14,14 +14,13 @@ import socket
 import sys
 from pathlib import Path
 
-import pytest
-
+from tests.peers import require_module
 from tests.server.harness import Procs, create_key, serve
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from http_load import Connection, LoadResult, endpoint, readers_and_writers, timed
 
-httpx = pytest.importorskip("httpx")
+httpx = require_module("httpx")
 
 
 def closed_port() -> int:

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
+from opendnc.errors import InputError
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits
@@ -33,6 +34,11 @@ from opendnc.nccheck.result import (
     Stock,
     Units,
 )
+
+
+class FormulaError(InputError):
+    """A Q-parameter formula that cannot be read (reported as a problem, never raised out)."""
+
 
 __all__ = ["run_klartext"]
 
@@ -113,16 +119,16 @@ class _Expr:
     def take(self) -> str:
         token = self.peek()
         if token is None:
-            raise ValueError("the formula ends early")
+            raise FormulaError("the formula ends early")
         self.pos += 1
         return token
 
     def value(self) -> float:
         result = self.sum()
         if self.peek() is not None:
-            raise ValueError(f"unexpected {self.peek()!r} in the formula")
+            raise FormulaError(f"unexpected {self.peek()!r} in the formula")
         if not math.isfinite(result):
-            raise ValueError("the formula overflowed")
+            raise FormulaError("the formula overflowed")
         return result
 
     def sum(self) -> float:
@@ -173,7 +179,7 @@ class _Expr:
         if token == "(":
             inner = self.sum()
             if self.take() != ")":
-                raise ValueError("a formula bracket is not closed")
+                raise FormulaError("a formula bracket is not closed")
             return inner
         if token == "PI":
             return math.pi
@@ -183,7 +189,7 @@ class _Expr:
             return self.lookup(token)
         if token[0].isdigit() or token[0] == ".":
             return float(token)
-        raise ValueError(f"unexpected {token!r} in the formula")
+        raise FormulaError(f"unexpected {token!r} in the formula")
 
 
 class _Run:
@@ -353,7 +359,7 @@ class _Run:
                 except RecursionError:
                     self.error(item, "a formula nested too deeply")
                     raise _Stop from None
-                except (ValueError, OverflowError) as exc:
+                except (FormulaError, ValueError, OverflowError) as exc:
                     self.error(item, str(exc) or "a value is out of range")
                     raise _Stop from None
         except _Stop:

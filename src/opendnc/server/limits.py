@@ -25,7 +25,6 @@ import ctypes
 import ctypes.util
 import json
 import logging
-import resource
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,7 +52,14 @@ RESERVED_FILES = 256
 
 
 def raise_file_limit() -> int:
-    """Raise this process's soft limit of open files to its hard limit; the new soft limit."""
+    """Raise this process's soft limit of open files to its hard limit; the new soft limit.
+
+    Windows has no such limit to raise (its sockets are not counted against one): 4096.
+    """
+    try:
+        import resource
+    except ImportError:
+        return 4096 + RESERVED_FILES
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if hard == resource.RLIM_INFINITY:
         hard = max(soft, 65536)
@@ -68,6 +74,10 @@ def raise_file_limit() -> int:
 
 def default_max_connections() -> int:
     """Connections the server accepts at once: what the open-files limit leaves, at most 4096."""
+    try:
+        import resource  # POSIX only: see raise_file_limit
+    except ImportError:
+        return 4096
     soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft == resource.RLIM_INFINITY:
         return 4096

@@ -25,9 +25,10 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import deps
-from opendnc.server.api import Viewer
+from opendnc.server.api import ERRORS, Viewer
 from opendnc.server.components import RunsTask
 from opendnc.server.config import ShopConfig
+from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
 from opendnc.server.shifts import DAYS, Calendar
 from opendnc.server.store.db import read_only
@@ -77,7 +78,8 @@ DEFINITIONS = {
     "stops": "5 minutes or more not running, named by the worst state in them",
 }
 
-router = APIRouter(prefix="/api")
+# The API's documented errors and its route class (sessions, strict JSON), as every /api route.
+router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
 
 
 def install(app: FastAPI) -> None:
@@ -342,7 +344,18 @@ def csv_response(r: Report) -> Response:
     )
 
 
-@router.get("/utilization")
+@router.get(
+    "/utilization",
+    response_class=Response,
+    responses={
+        200: {
+            "content": {
+                "application/json": {"schema": {"type": "object"}},
+                "text/csv": {"schema": {"type": "string"}},
+            }
+        }
+    },
+)
 async def utilization(
     request: Request,
     _who: Viewer,
