@@ -14,7 +14,7 @@ from decimal import ROUND_HALF_UP, Decimal
 from typing import Annotated, Any
 from urllib.parse import urlencode
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, Response
 from sqlalchemy.orm import Session, sessionmaker
@@ -262,22 +262,42 @@ def _params(first: date, last: date, group: Group, machines: list[str] | None) -
     return urlencode(query)
 
 
-@router.get("/utilization")
-async def utilization_page(
+@dataclass(frozen=True)
+class Question:
+    """What the page and its CSV were asked: the span in whole local days, the grouping and
+    the machines, read once from the query."""
+
+    config: ShopConfig
+    now: datetime
+    first: date
+    last: date
+    grouping: Group
+    names: list[str]
+    machines: list[str] | None
+
+
+def _question(
     request: Request,
-    page: Viewing,
     start: Annotated[str, Query(alias="from")] = "",
     end: Annotated[str, Query(alias="to")] = "",
     group: str = "day",
     machines: Annotated[list[str] | None, Query()] = None,
-) -> HTMLResponse:
-    """Utilization of the shop over whole days: Gantt, bars per period, the table."""
+) -> Question:
     config = _config(request)
-    cal = config.calendar
     now = datetime.now(UTC)
-    grouping = _group(group)
-    first, last = _span(cal, start, end, now)
+    first, last = _span(config.calendar, start, end, now)
     names = pick_machines(config, machines)
+    return Question(config, now, first, last, _group(group), names, machines)
+
+
+Asked = Annotated[Question, Depends(_question)]
+
+
+@router.get("/utilization")
+async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLResponse:
+    """Utilization of the shop over whole days: Gantt, bars per period, the table."""
+    config, cal, now, grouping = ask.config, ask.config.calendar, ask.now, ask.grouping
+    first, last, names, machines = ask.first, ask.last, ask.names, ask.machines
     r, slices, figures = await run_in_threadpool(
         _compute, _sessions(request), config, first, last, grouping, names, now
     )
@@ -321,21 +341,10 @@ def _group(value: str) -> Group:
 
 
 @router.get("/utilization.csv")
-async def utilization_csv(
-    request: Request,
-    page: Viewing,
-    start: Annotated[str, Query(alias="from")] = "",
-    end: Annotated[str, Query(alias="to")] = "",
-    group: str = "day",
-    machines: Annotated[list[str] | None, Query()] = None,
-) -> Response:
+async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Response:
     """The page's table as CSV (the API's export, for a logged-in person)."""
-    config = _config(request)
-    cal = config.calendar
-    now = datetime.now(UTC)
-    first, last = _span(cal, start, end, now)
-    names = pick_machines(config, machines)
-    grouping = _group(group)
+    cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
+    first, last, names = ask.first, ask.last, ask.names
 
     def work() -> Report:
         sessions = _sessions(request)
