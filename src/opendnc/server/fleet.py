@@ -50,8 +50,11 @@ class Fleet:
         requests: RemoteRequests,
         autoreceive: AutoReceive,
         connector_factory: ConnectorFactory,
+        *,
+        serve_all: bool = True,
     ) -> None:
         self.machines = machines
+        self.serve_all = serve_all  # False in a cluster: the leases decide (server/cluster.py)
         self.runner = runner
         self.requests = requests
         self.autoreceive = autoreceive
@@ -59,7 +62,9 @@ class Fleet:
         self._tasks: dict[str, asyncio.Task[None]] = {}
 
     async def start(self) -> None:
-        """Serve every configured machine."""
+        """Serve every configured machine (in a cluster, none until a lease is held)."""
+        if not self.serve_all:
+            return
         for name in self.machines.machines:
             self.serve(name)
 

@@ -29,6 +29,7 @@ from opendnc.errors import InputError
 from opendnc.server import audit, library
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.notify import notify
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -49,10 +50,12 @@ __all__ = [
     "list_jobs",
     "machines_with_due_jobs",
     "move",
+    "note_progress",
     "queue_lengths",
     "recover",
     "retry",
     "sync_machines",
+    "take_over",
     "version_to_send",
 ]
 
@@ -145,6 +148,7 @@ def enqueue(
         sha256=version.sha256 if version else None,
         kind=kind.value,
     )
+    notify(session, "job", machine)  # the server serving it claims it at once
     return job
 
 
@@ -309,6 +313,66 @@ def recover(session: Session, worker: str) -> list[Job]:
     return list(jobs)
 
 
+def take_over(session: Session, machine: str, server: str, keep: Iterable[int] = ()) -> list[Job]:
+    """``server`` has just taken ``machine``'s lease: end, exactly once, every job the
+    database says runs there but no task of ``server`` runs (``keep``: the ones it does).
+
+    Their server died or lost the machine mid-job. A drip-feed ends interrupted at the last
+    line its server recorded (the machine ran an unknown part beyond it; a person restarts it
+    from a line); every other job is queued again at its place, without a backoff: a load is
+    idempotent and verified, a read or a backup harmless to repeat. The rows are locked, so
+    a job's old server finishing it at the same moment (it cannot: its lease check fails) or
+    a second taker never ends it twice. The audit row names both servers.
+    """
+    kept = set(keep)
+    found = session.scalars(
+        select(Job)
+        .where(Job.machine == machine, Job.state == JobState.RUNNING)
+        .with_for_update()
+        .options(_with_program())
+    ).all()
+    ended: list[Job] = []
+    for job in found:
+        if job.id in kept:
+            continue
+        was = job.claimed_by or "a server"
+        if job.kind is JobKind.DRIPFEED:
+            job.state = JobState.INTERRUPTED
+            job.finished = utcnow()
+            where = f" at line {job.line}" if job.line else ""
+            job.error = f"{was} stopped while feeding{where}; {server} took the machine over"
+            result = "interrupted"
+        else:
+            job.state = JobState.QUEUED
+            job.not_before = None
+            job.error = f"{was} stopped while this job ran; {server} queued it again"
+            result = "queued again"
+        audit.record(
+            session,
+            server,
+            "job.takeover",
+            machine=machine,
+            job_id=job.id,
+            result=result,
+            previous=was,
+            attempt=job.attempts,
+            line=job.line if job.kind is JobKind.DRIPFEED else None,
+            **_program_fields(job),
+        )
+        ended.append(job)
+    return ended
+
+
+def note_progress(session: Session, job_id: int, *, line: int | None, nbytes: int) -> None:
+    """Record how far a running job got (a drip-feed's line): what a server that takes the
+    machine over reports if this one dies."""
+    job = session.get(Job, job_id)
+    if job is not None and job.state is JobState.RUNNING:
+        if line is not None:
+            job.line = line
+        job.bytes_done = nbytes
+
+
 def machines_with_due_jobs(session: Session) -> list[str]:
     """Machines that have a queued job whose time has come."""
     now = utcnow()
@@ -373,6 +437,7 @@ def cancel(session: Session, job_id: int, *, actor: str) -> Job:
         job.finished = utcnow()
     elif job.state is JobState.RUNNING:
         job.cancel_requested = True
+        notify(session, "cancel", str(job.id))  # whichever server runs it stops it at once
     else:
         raise Conflict(f"job {job_id} is {job.state.value}; nothing to cancel")
     audit.record(session, actor, "job.cancel", machine=job.machine, job_id=job.id)
@@ -399,6 +464,7 @@ def move(session: Session, job_id: int, index: int, *, actor: str) -> Job:
     for n, item in enumerate(queue, start=1):
         item.position = float(n)
     audit.record(session, actor, "job.move", machine=job.machine, job_id=job.id, index=index)
+    notify(session, "job", job.machine)
     return job
 
 

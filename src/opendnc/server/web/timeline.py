@@ -276,7 +276,8 @@ class Timeline:
             # A get with its own deadline, not wait_for around it: a cancel must end this
             # loop whatever the get is doing (docs/server.md#events-and-states).
             event = await sub.get(FLUSH_SECONDS)
-            if isinstance(event, MachineStatusChanged):
+            if isinstance(event, MachineStatusChanged) and event.served:
+                # (a machine another server serves is recorded by that server)
                 self.note(event.machine, event.status, online=event.online)
             now = time.monotonic()
             if self.sessions is not None and self.pending and now - flushed >= FLUSH_SECONDS:
