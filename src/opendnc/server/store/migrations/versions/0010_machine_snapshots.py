@@ -1,7 +1,7 @@
 """Each machine's status as its serving server last saw it (several servers on one PostgreSQL).
 
 Revision ID: 0010
-Revises: 0009
+Revises: 0007
 Create Date: 2026-11-27
 
 Written by hand to match the models: the server holding a machine's lease writes the machine's
@@ -14,7 +14,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0010"
-down_revision = "0009"
+down_revision = "0007"
 branch_labels = None
 depends_on = None
 
