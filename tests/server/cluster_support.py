@@ -8,6 +8,7 @@ import json
 import re
 import signal
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,15 +49,21 @@ class Cluster:
     clients: dict[str, httpx.Client] = field(default_factory=dict)
     owners_seen: dict[str, set[str]] = field(default_factory=dict)
 
-    def start(self, name: str) -> httpx.Client:
-        """``opendnc serve --name NAME`` (again, after a kill: the log goes on)."""
-        url = serve(self.procs, self.config, self.db, "--name", name, name=name)
-        self.urls[name] = url
-        old = self.clients.pop(name, None)
-        if old is not None:
-            old.close()
-        self.clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(self.key))
-        return self.clients[name]
+    def start(self, *names: str) -> None:
+        """``opendnc serve --name NAME`` for each name at once (again, after a kill: the
+        log goes on); returns once each says where it listens."""
+        with ThreadPoolExecutor(len(names)) as pool:
+            urls = pool.map(
+                lambda name: serve(self.procs, self.config, self.db, "--name", name, name=name),
+                names,
+            )
+            for name, url in zip(names, urls, strict=True):
+                self.urls[name] = url
+                old = self.clients.pop(name, None)
+                if old is not None:
+                    old.close()
+                headers = auth(self.key)
+                self.clients[name] = httpx.Client(base_url=url, timeout=30, headers=headers)
 
     def kill(self, name: str) -> None:
         """SIGKILL: no clean stop, the leases stay until they expire."""

@@ -92,16 +92,29 @@ def kill_mid_run(cluster: Cluster, victim: str, via: str) -> float:
     return time.monotonic() - killed
 
 
+T0 = [0.0]
+
+
+def phase(what: str) -> None:
+    now = time.monotonic()
+    print(f"{what}: {now - T0[0]:.1f} s", flush=True)
+    T0[0] = now
+
+
 def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
-    tmp_path: Path, procs: Procs, pg_url: str
+    tmp_path: Path, pg_url: str, procs: Procs
 ) -> None:
+    # (the database before the processes: it is dropped after they have stopped)
+    T0[0] = time.monotonic()
     cluster = start_cluster(
         procs, tmp_path, pg_url, tnc=20, serial_haas=1, pin={"haas-serial-1": ["dnc-1"]}
     )
+    phase("fleet and key")
     try:
-        cluster.start("dnc-1")
-        cluster.start("dnc-2")
+        cluster.start("dnc-1", "dnc-2")
+        phase("servers")
         owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
+        phase("settled")
         assert owners["haas-serial-1"] == "dnc-1"
         spread = Counter(owners[m] for m in cluster.tncs)
         assert sorted(spread.values()) in ([10, 10], [9, 11])  # even, the pinned one aside
@@ -113,8 +126,10 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
                     m["online"] for m in cluster.clients[name].get("/api/machines").json()
                 ),
             )
-        programs = publish_programs(cluster.clients["dnc-2"], 10, 120_000)
+        phase("online")
+        programs = publish_programs(cluster.clients["dnc-2"], 10, 40_000)
         ids = queue_everything(cluster, programs)
+        phase("queued")
         assert len(ids) == 200
         took = kill_mid_run(cluster, "dnc-2", "dnc-1")
         print(f"takeover after SIGKILL: {took:.1f} s (lease {3.0} s)")
@@ -122,9 +137,12 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
         takeovers = audit_rows(cluster.db, "job.takeover")
         assert takeovers, "no job was under way on the killed server"
         assert {(r["actor"], r["previous"]) for r in takeovers} == {("dnc-1", "dnc-2")}
+        phase("taken over")
         cluster.start("dnc-2")  # back: it takes its share by hand-over, no live lease taken
         cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
+        phase("restarted")
         check_exactly_once(cluster, programs, ids)
+        phase("all done")
         # which server did what: every start names its server, the pinned machine only dnc-1
         starts = audit_rows(cluster.db, "job.start")
         assert {r["actor"] for r in starts} == {"dnc-1", "dnc-2"}
@@ -136,14 +154,14 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
 
 
 def test_three_servers_failover_and_a_cancel_sent_to_another_server(
-    tmp_path: Path, procs: Procs, pg_url: str
+    tmp_path: Path, pg_url: str, procs: Procs
 ) -> None:
+    # (the database before the processes: it is dropped after they have stopped)
     # each telegram answered 1 ms late: a big load is on the wire long enough to cancel
     cluster = start_cluster(procs, tmp_path, pg_url, tnc=20, latency_ms=1.0)
     servers = {"dnc-1", "dnc-2", "dnc-3"}
     try:
-        for name in sorted(servers):
-            cluster.start(name)
+        cluster.start(*sorted(servers))
         owners = cluster.wait_settled("dnc-3", servers)
         assert sorted(Counter(owners.values()).values()) in ([6, 7, 7], [6, 6, 8])
         # a cancel sent to one server stops the job another runs

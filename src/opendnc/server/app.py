@@ -29,7 +29,7 @@ from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
 from opendnc.server.kinds import connector_for
-from opendnc.server.leases import LIBRARY, Leases
+from opendnc.server.leases import LIBRARY, Leases, held_elsewhere
 from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
@@ -119,7 +119,17 @@ def build(
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
-    core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
+    core.add(
+        TimelineRecorder(
+            timeline,
+            bus,
+            server=config.server.name,
+            machines=names,
+            held_elsewhere=(lambda: held_elsewhere(sessions, config.server.name))
+            if clustered
+            else None,
+        )
+    )
     core.add(utilization_api.HourSummer(sessions, names))
 
     def connectors(machine: MachineConfig) -> Connector:

@@ -22,6 +22,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import case, func, or_, select
+from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.orm import Session, selectinload
 from sqlalchemy.orm.interfaces import LoaderOption
 
@@ -78,8 +79,28 @@ DEFAULT_ATTEMPTS = {
 def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
     """Make the ``machines`` table match the configuration (rows are never deleted: jobs
     and audit rows keep pointing at machines that left the configuration)."""
+    configs = list(machines)
+    if session.get_bind().dialect.name == "postgresql" and configs:
+        # Several servers of a cluster may start at once: one statement that inserts or
+        # updates each row, so the second never fails on the first's new row.
+        statement = pg_insert(Machine).values(
+            [
+                {"name": c.name, "kind": c.kind.value, "released_only": c.released_only}
+                for c in configs
+            ]
+        )
+        session.execute(
+            statement.on_conflict_do_update(
+                index_elements=[Machine.name],
+                set_={
+                    "kind": statement.excluded.kind,
+                    "released_only": statement.excluded.released_only,
+                },
+            )
+        )
+        return
     existing = {m.name: m for m in session.scalars(select(Machine))}
-    for config in machines:
+    for config in configs:
         row = existing.get(config.name)
         if row is None:
             session.add(

@@ -43,6 +43,7 @@ __all__ = [
     "Leases",
     "ServerRow",
     "assign",
+    "held_elsewhere",
     "holds",
     "view_in",
 ]
@@ -349,6 +350,12 @@ def holds(session: Session, machine: str, server: str, epoch: int) -> bool:
         .with_for_update(read=True)
     ).first()
     return found is not None and int(found[0]) == epoch
+
+
+def held_elsewhere(sessions: sessionmaker[Session], server: str) -> set[str]:
+    """The machines whose live lease another server than ``server`` holds now."""
+    view = cluster_view(sessions)
+    return {row.machine for row in view.leases if row.live and row.owner != server}
 
 
 def cluster_view(sessions: sessionmaker[Session]) -> ClusterView:
