@@ -25,10 +25,11 @@ TAKEOVER_LIMIT = 15.0  # what the issue asks of a takeover (the default lease is
 def program(k: int, size: int) -> bytes:
     """A TNC program ``P<k>.H`` of about ``size`` bytes, different for every ``k``."""
     moves = []
-    n = 0
-    while sum(len(m) for m in moves) < size:
+    n = length = 0
+    while length < size:
         n += 1
         moves.append(b"%d L X+%d.%03d Y+%d R0 F%d\r\n" % (n, k, n % 1000, n, 100 + k))
+        length += len(moves[-1])
     head = b"0 BEGIN PGM P%02d MM\r\n" % k
     return head + b"".join(moves) + b"%d END PGM P%02d MM\r\n" % (n + 1, k)
 
@@ -87,10 +88,12 @@ class Cluster:
         }
 
     def settled(self, via: str, servers: set[str]) -> dict[str, str] | None:
-        """Every machine held by one of ``servers``, each of them holding some."""
+        """Every machine held by one of ``servers``, evenly (within one of each other)."""
         owners = self.owners(via)
         everyone = set(self.tncs) | set(self.serial)
-        if set(owners) == everyone and set(owners.values()) == servers:
+        counts = Counter(owners.values())
+        even = max(counts.values(), default=0) - min(counts.values(), default=0) <= 1
+        if set(owners) == everyone and set(counts) == servers and even:
             return owners
         return None
 

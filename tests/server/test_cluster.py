@@ -158,12 +158,13 @@ def test_three_servers_failover_and_a_cancel_sent_to_another_server(
 ) -> None:
     # (the database before the processes: it is dropped after they have stopped)
     # each telegram answered 1 ms late: a big load is on the wire long enough to cancel
+    T0[0] = time.monotonic()
     cluster = start_cluster(procs, tmp_path, pg_url, tnc=20, latency_ms=1.0)
     servers = {"dnc-1", "dnc-2", "dnc-3"}
     try:
         cluster.start(*sorted(servers))
         owners = cluster.wait_settled("dnc-3", servers)
-        assert sorted(Counter(owners.values()).values()) in ([6, 7, 7], [6, 6, 8])
+        assert sorted(Counter(owners.values()).values()) == [6, 7, 7]
         # a cancel sent to one server stops the job another runs
         big = publish_programs(cluster.clients["dnc-1"], 1, 3_000_000)
         victim = next(m for m in cluster.tncs if owners[m] == "dnc-2")
@@ -193,14 +194,17 @@ def test_three_servers_failover_and_a_cancel_sent_to_another_server(
         assert [r["actor"] for r in starts] == ["dnc-2"]
         del big
         # 200 loads, one server killed mid-run and started again
-        programs = publish_programs(cluster.clients["dnc-3"], 10, 40_000, first=1)
+        programs = publish_programs(cluster.clients["dnc-3"], 10, 150_000, first=1)
         ids = queue_everything(cluster, programs)
+        phase("cancelled, queued")
         assert len(ids) == 200
         took = kill_mid_run(cluster, "dnc-1", "dnc-3")
         print(f"takeover after SIGKILL of one of three: {took:.1f} s")
         assert took < TAKEOVER_LIMIT
         cluster.start("dnc-1")
         cluster.wait_settled("dnc-3", servers)
+        phase("taken over, restarted")
         check_exactly_once(cluster, programs, ids)
+        phase("all done")
     finally:
         cluster.close()
