@@ -33,7 +33,8 @@ def _running(sessions: sessionmaker[Session], machine: str, kind: JobKind, worke
         job_id = job.id
     with sessions.begin() as session:
         claimed = jobs.claim(session, machine, worker)
-        assert claimed is not None and claimed.id == job_id
+        assert claimed is not None
+        assert claimed.id == job_id
     return job_id
 
 
@@ -73,7 +74,8 @@ def test_the_new_server_ends_the_old_ones_jobs_once(sessions: sessionmaker[Sessi
         sent, fed = jobs.get_job(session, load), jobs.get_job(session, feed)
         assert (sent.state, sent.not_before, sent.attempts) == (JobState.QUEUED, None, 1)
         assert (fed.state, fed.line, fed.bytes_done) == (JobState.INTERRUPTED, 42, 900)
-        assert "at line 42" in fed.error and "dnc-1" in fed.error
+        assert "at line 42" in fed.error
+        assert "dnc-1" in fed.error
         rows = session.scalars(select(AuditEntry).where(AuditEntry.action == "job.takeover"))
         trail = sorted((r.job_id, r.actor, r.result, r.detail["previous"]) for r in rows)
         assert trail == [
@@ -82,7 +84,9 @@ def test_the_new_server_ends_the_old_ones_jobs_once(sessions: sessionmaker[Sessi
         ]
         # the queued load is claimed again, by its new server
         again = jobs.claim(session, "mill-1", "dnc-2")
-        assert again is not None and again.id == load and again.attempts == 2
+        assert again is not None
+        assert again.id == load
+        assert again.attempts == 2
 
 
 def test_a_job_this_server_runs_is_kept(sessions: sessionmaker[Session]) -> None:
@@ -105,7 +109,8 @@ def test_a_machine_with_a_running_job_is_not_handed_over(
     for _ in range(3):  # dnc-2 joins: one machine is its own now, but both run a job
         b.renew()
         a.renew()  # (told the machines are idle: the database's running job decides)
-    assert a.held == set(MACHINES) and not b.held
+    assert a.held == set(MACHINES)
+    assert not b.held
     with sessions.begin() as session:
         for job_id in job_ids:
             jobs.finish(session, job_id)
