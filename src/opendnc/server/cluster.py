@@ -143,10 +143,7 @@ class Cluster:
     def _idle(self, machine: str) -> bool:
         """A machine may be handed over now: no job runs or is being claimed there (the lease
         code checks the database for a running job as well). From the renewal's thread."""
-        if machine.startswith("@"):
-            return True
-        state = self.machines.get(machine)
-        return state is None or (state.job_id is None and machine not in self.runner._claiming)
+        return machine.startswith("@") or not self.runner.busy(machine)
 
     async def _apply(self, holding: Holding) -> None:
         self._epochs = dict(holding.epochs)

@@ -105,8 +105,9 @@ class LeaseChanged(Event):
     A gain is published before the machine's task starts (its first status follows it), a
     loss once the task has stopped (no status of this server follows it): what an output
     needs to say "this server serves the machine from now on / no longer" (a Sparkplug
-    DBIRTH / DDEATH). A single server on SQLite serves every machine and publishes none.
-    ``epoch`` is the lease's, which grows at every change of owner.
+    DBIRTH / DDEATH). A single server (SQLite) holds every machine: it publishes a gain for
+    each as it starts and a loss for each as it stops, with epoch 0. ``epoch`` is the
+    lease's, which grows at every change of owner.
     """
 
     kind: ClassVar[str] = "lease"

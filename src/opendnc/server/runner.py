@@ -480,6 +480,11 @@ class JobRunner:
                 raise
             # the next line is noted once the database answers
 
+    def busy(self, machine: str) -> bool:
+        """True while a job of ``machine`` is being claimed or runs here."""
+        state = self.machines.get(machine)
+        return machine in self._claiming or (state is not None and state.job_id is not None)
+
     def cancel_now(self, job_id: int) -> None:
         """A cancel of job ``job_id`` was committed (a notice from any server): a job running
         here stops at its next safe point without waiting for the next read of its row."""
