@@ -410,11 +410,12 @@ def main() -> None:
             for n in (int(x) for x in args.sizes.split(",")):
                 folder = Path(tmp) / str(n)
                 folder.mkdir()
-                _cluster_report(
-                    run_cluster(
-                        n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease
-                    )
+                logs = args.logs or folder
+                logs.mkdir(parents=True, exist_ok=True)
+                found = run_cluster(
+                    n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease, logs
                 )
+                _cluster_report(found)
         return
     print(
         f"{'N':>5} {'online':>8} {'server CPU':>11} {'age p50':>8} {'age p99':>8} "
