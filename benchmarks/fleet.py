@@ -310,15 +310,18 @@ def run_cluster(
             )  # fmt: skip
             bases[f"dnc-{i}"] = f"http://127.0.0.1:{port}"
         started = time.monotonic()
-        deadline = started + 300
+        deadline = started + 600
+        missing: dict[str, int | str] = {}
         while True:
-            try:
-                if all(_ages(b, key, poll)[1] == 0 for b in bases.values()):
-                    break
-            except OSError:
-                pass
+            for s, b in bases.items():
+                try:
+                    missing[s] = _ages(b, key, poll)[1]
+                except OSError as exc:
+                    missing[s] = str(exc)
+            if all(m == 0 for m in missing.values()):
+                break
             if any(p.poll() is not None for p in procs.values()) or time.monotonic() > deadline:
-                raise SystemExit(f"machines did not come online on every server for N={n}")
+                raise SystemExit(f"N={n}: machines not online (per server: {missing})")
             time.sleep(1.0)
         online_after = time.monotonic() - started
         view = _get(bases["dnc-1"] + "/api/cluster", key)
