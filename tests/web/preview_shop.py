@@ -17,6 +17,7 @@ require_module("jinja2")
 require_module("uvicorn")
 
 from benchmarks.preview_programs import klartext_part, milling_program  # noqa: E402
+
 from opendnc.server import auth, library  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
@@ -75,7 +76,7 @@ def preview_shop(tmp: Path, programs: dict[str, bytes] | None = None) -> Iterato
     with server.sessions.begin() as session:
         for user, role in (("admin", Role.ADMIN), ("viewer", Role.VIEWER)):
             auth.create_user(session, user, role, password=PASSWORDS[user])
-        _row, key = auth.create_key(session, "vera", Role.VIEWER, actor="test")
+        _row, key = auth.create_key(session, "viewer", Role.VIEWER, actor="test")
         for name, data in (PROGRAMS if programs is None else programs).items():
             library.add_version(session, name, data, author="test")
     with serving(server) as url:

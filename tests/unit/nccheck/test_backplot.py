@@ -4,6 +4,7 @@ line), arcs cut within the tolerance, and the binary layout read field by field.
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 
@@ -27,7 +28,9 @@ def feed(a: tuple[float, float, float], b: tuple[float, float, float], line: int
 
 
 def chain(points: list[tuple[float, float, float]], kind: MoveKind = MoveKind.FEED) -> list[Move]:
-    return [Move(kind, a, b, i + 1, tool="1") for i, (a, b) in enumerate(zip(points, points[1:]))]
+    return [
+        Move(kind, a, b, i + 1, tool="1") for i, (a, b) in enumerate(itertools.pairwise(points))
+    ]
 
 
 def test_a_straight_line_of_many_moves_is_two_points() -> None:
@@ -82,7 +85,7 @@ def test_a_full_circle_is_cut_into_chords_within_the_tolerance() -> None:
     assert kept[0] == kept[-1] == (10.0, 0.0, 0.0)
     assert kept[1][1] > 0
     # each chord's middle within the tolerance of the circle: the sagitta
-    for (x0, y0, _), (x1, y1, _) in zip(kept, kept[1:]):
+    for (x0, y0, _), (x1, y1, _) in itertools.pairwise(kept):
         assert radius - math.hypot((x0 + x1) / 2, (y0 + y1) / 2) <= tol + 1e-6
     # and not much finer than needed: a sagitta of tol / 2 needs 2 pi / (2 acos(1 - 0.0005))
     assert len(kept) - 1 <= 2 * math.ceil(math.pi / math.acos(1 - tol / 2 / radius))

@@ -82,6 +82,8 @@ class PreviewCache:
         self._done: OrderedDict[tuple[str, str], Preview] = OrderedDict()
         self._running: dict[tuple[str, str], Future[Preview]] = {}
         self._bytes = 0
+        self.waited = 0
+        """Requests that waited for a preview another request was making."""
 
     def get(self, key: tuple[str, str], make: Callable[[], Preview]) -> Preview:
         """The preview of ``key``, made by ``make`` when neither kept nor being made."""
@@ -91,7 +93,9 @@ class PreviewCache:
                 self._done.move_to_end(key)
                 return found
             running = self._running.get(key)
-            if running is None:
+            if running is not None:
+                self.waited += 1
+            else:
                 future: Future[Preview] = Future()
                 self._running[key] = future
         if running is not None:

@@ -68,8 +68,10 @@ def window(text: str, *, name: str, size: int, line: int | None = None) -> Listi
     target = min(line, total) if line is not None and total else None
     first = max(1, target - BEFORE) if target is not None else 1
     shown = lines[first - 1 : first - 1 + WINDOW] if total else []
-    rows = highlight_lines("\n".join(shown))
-    rows += [Markup("")] * (len(shown) - len(rows))  # a last empty line highlights to nothing
+    # one row a line: the highlighter may end with an empty line of its own, or drop an
+    # empty last line
+    rows = highlight_lines("\n".join(shown))[: len(shown)]
+    rows += [Markup("")] * (len(shown) - len(rows))
     dialect = "klartext" if guess_control(text[:4096], name) is Control.HEIDENHAIN else "gcode"
     return Listing(
         first=first,
