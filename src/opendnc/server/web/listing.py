@@ -19,7 +19,7 @@ from opendnc.server.web.render import highlight_lines
 
 __all__ = ["SCRIPT_MAX_BYTES", "WINDOW", "Listing", "window"]
 
-WINDOW = 200
+WINDOW = 100
 """Lines the server renders in one window."""
 BEFORE = 20
 """Lines shown above the target of ``?line=N`` (so the reader sees where it comes from)."""

@@ -10,15 +10,11 @@
   var OVERSCAN = 20;     // rows drawn above and below the view
   var MAX_MATCHES = 200000;
 
+  var DECODER = new TextDecoder("latin1");
   function latin1(buffer) {
-    // NC programs are 7-bit text; latin-1 keeps every byte as it is (TextDecoder's "latin1"
-    // is windows-1252, which would change bytes 0x80-0x9F)
-    var bytes = new Uint8Array(buffer);
-    var parts = [];
-    for (var i = 0; i < bytes.length; i += 8192) {
-      parts.push(String.fromCharCode.apply(null, bytes.subarray(i, i + 8192)));
-    }
-    return parts.join("");
+    // NC programs are 7-bit text. The browser's "latin1" is windows-1252, which shows the
+    // C1 control bytes 0x80-0x9F as other characters (the check reports such bytes anyway).
+    return DECODER.decode(buffer);
   }
 
   function Listing(root) {
@@ -91,6 +87,7 @@
         return reply.arrayBuffer();
       })
       .then(function (buffer) {
+        performance.mark("listing-fetched");
         var lines = latin1(buffer).split(/\r\n|\r|\n/);
         if (lines.length > 1 && lines[lines.length - 1] === "") lines.pop();
         if (lines.length === 1 && lines[0] === "") lines = [];
@@ -131,8 +128,9 @@
     var pages = this.root.querySelector(".listing-pages");
     if (pages) pages.hidden = true;
     this.root.querySelector(".listing-find").hidden = false;
-    this.root.classList.add("ready");
     this.render();
+    this.root.classList.add("ready");
+    performance.mark("listing-ready");
   };
 
   Listing.prototype.scale = function () {

@@ -135,8 +135,8 @@
   Preview.prototype.load = function (path) {
     var t0 = performance.now();
     this.path = path;
-    var gl = this.canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true }) ||
-      this.canvas.getContext("webgl", { antialias: true, preserveDrawingBuffer: true });
+    var gl = this.canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: false }) ||
+      this.canvas.getContext("webgl", { antialias: false, preserveDrawingBuffer: false });
     if (!gl) throw new Error("this browser cannot draw the preview (no WebGL)");
     this.gl = gl;
     var indexType = gl.UNSIGNED_INT;
@@ -456,28 +456,48 @@
   };
 
   Preview.prototype.pick = function (cx, cy) {
-    // the point nearest the pointer (within 8 px) among what is drawn: its file line
+    // the drawn segment nearest the pointer (within 6 px): the file line of the move there
     var rect = this.canvas.getBoundingClientRect();
     var m = this.matrix(rect.width, rect.height);
-    var px = ((cx - rect.left) / rect.width) * 2 - 1;
-    var py = 1 - ((cy - rect.top) / rect.height) * 2;
-    var limit = 8 * 2 / Math.min(rect.width, rect.height);
-    var best = limit * limit;
+    var mx = cx - rect.left;
+    var my = cy - rect.top;
+    var hw = rect.width / 2;
+    var hh = rect.height / 2;
+    var best = 36;  // 6 px, squared
     var found = -1;
+    var along = 0;
     var p = this.path.points;
     var runs = this.path.runs;
     for (var r = 0; r < runs.length; r += 4) {
       if ((runs[r + 2] & 1) && !this.showRapids) continue;
-      var end = runs[r] + runs[r + 1];
-      for (var i = runs[r]; i < end; i++) {
+      var first = runs[r];
+      var end = first + runs[r + 1];
+      var ax = 0, ay = 0;
+      for (var i = first; i < end; i++) {
         var x = p[3 * i], y = p[3 * i + 1], z = p[3 * i + 2];
-        var dx = m[0] * x + m[4] * y + m[8] * z + m[12] - px;
-        var dy = m[1] * x + m[5] * y + m[9] * z + m[13] - py;
-        var d = dx * dx + dy * dy;
-        if (d < best) { best = d; found = i; }
+        var bx = (m[0] * x + m[4] * y + m[8] * z + m[12] + 1) * hw;
+        var by = (1 - (m[1] * x + m[5] * y + m[9] * z + m[13])) * hh;
+        if (i > first) {
+          var dx = bx - ax, dy = by - ay;
+          var len2 = dx * dx + dy * dy;
+          var t = len2 > 0 ? ((mx - ax) * dx + (my - ay) * dy) / len2 : 0;
+          t = t < 0 ? 0 : (t > 1 ? 1 : t);
+          var ex = ax + t * dx - mx, ey = ay + t * dy - my;
+          var d = ex * ex + ey * ey;
+          if (d < best) { best = d; found = i; along = t; }
+        }
+        ax = bx;
+        ay = by;
       }
     }
-    return found < 0 ? 0 : this.path.lines[found];
+    if (found < 0) return 0;
+    var lines = this.path.lines;
+    var a = lines[found - 1];
+    var b = lines[found];
+    // a drawn segment may stand for many merged moves of increasing lines: the one under
+    // the pointer, as far along them as the pointer is along the segment
+    if (b > a + 1) return a + Math.max(1, Math.ceil(along * (b - a)));
+    return b;
   };
 
   Preview.prototype.mark = function (line) {
