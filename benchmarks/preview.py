@@ -41,10 +41,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from headless_chromium import CHROMIUM, CHROMIUM_ARGS
-from preview_programs import milling_program
-
 from opendnc.nccheck import check_text
 from opendnc.nccheck.backplot import build, encode
+from preview_programs import milling_program
 
 TARGET_DRAW_S = 1.0
 TARGET_LONG_TASK_MS = 200.0

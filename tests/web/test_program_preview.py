@@ -39,7 +39,8 @@ DRAWN = """(canvas) => {
     n++;
     const p = i / 4, x = p % copy.width, y = Math.floor(p / copy.width);
     if (x < x0) x0 = x; if (x > x1) x1 = x; if (y < y0) y0 = y; if (y > y1) y1 = y;
-    const key = '#' + [data[i], data[i+1], data[i+2]].map(v => v.toString(16).padStart(2, '0')).join('');
+    const hex = v => v.toString(16).padStart(2, '0');
+    const key = '#' + hex(data[i]) + hex(data[i+1]) + hex(data[i+2]);
     colours[key] = (colours[key] || 0) + 1;
   }
   return {n, x0, y0, x1, y1, w: copy.width, h: copy.height, colours};
