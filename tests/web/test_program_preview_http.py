@@ -121,7 +121,7 @@ def test_the_facts_fragment_names_time_tools_extents_and_stock(http: Any) -> Non
     assert 'href="#L4"' in html  # TOOL CALL 5 is block 3, file line 4
     # Z from the drilling depth -15 to the retract +100: a size of 115
     assert re.search(r"<th scope=\"row\">Z</th><td>-15.000</td><td>100.000</td><td>115.000", html)
-    assert "BLK FORM" in html
+    assert "120 × 80 × 20 mm" in html  # the stock, 0.1 X+0 Y+0 Z-20 to 0.2 X+120 Y+80 Z+0
 
 
 def test_the_text_is_a_window_around_the_line_asked_for(http: Any) -> None:

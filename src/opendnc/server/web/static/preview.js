@@ -55,10 +55,12 @@
     "attribute float aDist;",
     "uniform mat4 uMvp;",
     "uniform float uSize;",
+    "uniform float uBias;",
     "varying vec4 vColor;",
     "varying float vDist;",
     "void main() {",
     "  gl_Position = uMvp * vec4(aPos, 1.0);",
+    "  gl_Position.z += uBias;",
     "  gl_PointSize = uSize;",
     "  vColor = aColor;",
     "  vDist = aDist;",
@@ -157,6 +159,7 @@
       dist: gl.getAttribLocation(program, "aDist"),
       mvp: gl.getUniformLocation(program, "uMvp"),
       size: gl.getUniformLocation(program, "uSize"),
+      bias: gl.getUniformLocation(program, "uBias"),
       dash: gl.getUniformLocation(program, "uDash"),
       tint: gl.getUniformLocation(program, "uTint")
     };
@@ -412,11 +415,14 @@
     gl.uniform4f(loc.tint, 0, 0, 0, 0);
     var t = this.toolpath;
     this.attribs(t);
-    // rapids first: where a retract goes back up a drilled hole, the cut shows
+    // rapids a little behind: where a retract goes back up a drilled hole, the cut shows
+    gl.uniform1f(loc.bias, 0);
     if (t.rapidCount && this.showRapids) {
+      gl.uniform1f(loc.bias, 0.002);
       gl.uniform1f(loc.dash, 8 / this.scale);  // an 8-pixel period on screen, whatever the zoom
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, t.rapids);
       gl.drawElements(gl.LINES, t.rapidCount, this.indexType, 0);
+      gl.uniform1f(loc.bias, 0);
     }
     gl.uniform1f(loc.dash, 0);
     if (t.feedCount) {
