@@ -192,3 +192,21 @@ def test_requests_for_a_preview_being_made_wait_for_it() -> None:
     assert made == [1]
     assert len(results) == 2
     assert results[0] is results[1]
+
+
+def test_a_dry_run_made_elsewhere_is_kept_for_the_preview() -> None:
+    from opendnc.nccheck import check_text
+    from opendnc.server.actions.preview import PreviewCache, of_result
+
+    text = "%\nO1\nT1 M06\nG00 X0 Y0 Z5\nG01 Z-1 F100\nX10\nM30\n%\n"
+    cache = PreviewCache()
+    kept = of_result("O1.nc", "a" * 64, check_text(text, name="O1.nc"))
+    cache.put(("O1.nc", "a" * 64), kept)
+
+    def never() -> Any:
+        raise AssertionError("the kept preview is made again")
+
+    assert cache.get(("O1.nc", "a" * 64), never) is kept
+    assert decode(kept.toolpath).tools == ("1",)
+    assert kept.facts["tools"][0]["tool"] == "1"
+    assert "moves" not in kept.facts

@@ -17,12 +17,12 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
-from opendnc.nccheck import check_text
+from opendnc.nccheck import CheckResult, check_text
 from opendnc.nccheck.backplot import build, encode
 from opendnc.server.actions.base import Caller, Services
 from opendnc.server.actions.library import program_content
 
-__all__ = ["CACHE_BYTES", "Preview", "PreviewCache", "preview"]
+__all__ = ["CACHE_BYTES", "Preview", "PreviewCache", "of_result", "preview", "remember"]
 
 CACHE_BYTES = 64 * 1024 * 1024
 """Toolpaths kept in memory (a 100,000-move program's is about 0.3 MB)."""
@@ -53,7 +53,11 @@ class Preview:
 def compute(name: str, sha256: str, data: bytes) -> Preview:
     """Dry-run ``data`` (the program ``name``) and decimate its moves."""
     # NC programs are 7-bit text; latin-1 never fails and keeps every byte's position
-    result = check_text(data.decode("latin-1"), name=name)
+    return of_result(name, sha256, check_text(data.decode("latin-1"), name=name))
+
+
+def of_result(name: str, sha256: str, result: CheckResult) -> Preview:
+    """The preview of a dry run already made (of the text alone, as :func:`compute` runs it)."""
     facts = result.to_dict()
     facts.pop("moves", None)
     facts.pop("problems", None)
@@ -111,11 +115,23 @@ class PreviewCache:
             del self._running[key]
             self._done[key] = made
             self._bytes += made.size
-            while self._bytes > self.limit and len(self._done) > 1:
-                _, dropped = self._done.popitem(last=False)
-                self._bytes -= dropped.size
+            self._trim()
         future.set_result(made)
         return made
+
+    def put(self, key: tuple[str, str], made: Preview) -> None:
+        """Keep ``made`` for ``key`` unless it is kept or being made already."""
+        with self._lock:
+            if key in self._done or key in self._running:
+                return
+            self._done[key] = made
+            self._bytes += made.size
+            self._trim()
+
+    def _trim(self) -> None:
+        while self._bytes > self.limit and len(self._done) > 1:
+            _, dropped = self._done.popitem(last=False)
+            self._bytes -= dropped.size
 
     def clear(self) -> None:
         """Forget every kept preview."""
@@ -133,3 +149,9 @@ def preview(svc: Services, who: Caller, name: str, number: int | None) -> Previe
     content = program_content(svc, who, name, number)
     key = (name, content.sha256)
     return CACHE.get(key, lambda: compute(name, content.sha256, content.data))
+
+
+def remember(name: str, sha256: str, result: CheckResult) -> None:
+    """Keep the preview of a text-alone dry run someone else made (the library's check on
+    save), so the page's preview does not run it again."""
+    CACHE.put((name, sha256), of_result(name, sha256, result))
