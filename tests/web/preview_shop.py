@@ -41,6 +41,7 @@ PROGRAMS: dict[str, bytes] = {
     "O02000.nc": milling_program(BIG_MOVES).encode(),
     "BRACKET.H": klartext_part().encode(),
     "O04000.nc": long_program(100_000),
+    "O05000.nc": b"%\nO05000 (NOTHING TO CUT)\nM30\n%\n",
 }
 
 

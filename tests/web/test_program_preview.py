@@ -190,3 +190,13 @@ def test_a_100000_line_program_is_a_short_page_and_every_line_is_reachable(
     sync_api.expect(page.locator(".listing-box #L54321")).to_be_in_viewport()
     sync_api.expect(page.locator(".listing-box #L54321")).to_have_class("ln hl")
     page.screenshot(path=ARTIFACTS / "listing-100k.png", full_page=True)
+
+
+def test_a_program_without_moves_says_so(clean: Shop) -> None:
+    page = _login(clean)
+    page.goto(clean.url + "/library/O05000.nc")
+    page.wait_for_selector(".preview-view[data-drawn]")
+    sync_api.expect(page.locator(".preview-status")).to_have_text(
+        "No move to draw: the program never moves from a known position."
+    )
+    sync_api.expect(page.locator(".preview-facts")).to_contain_text("no tool change")

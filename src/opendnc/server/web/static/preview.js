@@ -115,7 +115,16 @@
     var self = this;
     var t0 = performance.now();
     performance.mark("preview-fetch");
-    return fetch(this.root.dataset.toolpath, { credentials: "same-origin" })
+    var reply = fetch(this.root.dataset.toolpath, { credentials: "same-origin" });
+    try {
+      // the context and its shaders while the toolpath is on its way (a task of its own)
+      this.setup();
+    } catch (error) {
+      self.root.classList.add("failed");
+      self.say(String(error.message || error));
+      return Promise.resolve();
+    }
+    return reply
       .then(function (reply) {
         if (!reply.ok) {
           return reply.text().then(function (text) {
@@ -134,9 +143,7 @@
       });
   };
 
-  Preview.prototype.load = function (path) {
-    var t0 = performance.now();
-    this.path = path;
+  Preview.prototype.setup = function () {
     var gl = this.canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: false }) ||
       this.canvas.getContext("webgl", { antialias: false, preserveDrawingBuffer: false });
     if (!gl) throw new Error("this browser cannot draw the preview (no WebGL)");
@@ -166,6 +173,11 @@
     this.palette = [];
     for (var i = 0; i < 8; i++) this.palette.push(rgb(css("--tc" + i, "#1f5fbf")));
     this.rapidColor = rgb(css("--rapid", "#c2410c"));
+  };
+
+  Preview.prototype.load = function (path) {
+    var t0 = performance.now();
+    this.path = path;
     this.toolpath = this.buildPath(path);
     this.extras = this.buildExtras(path.meta);
     this.fit();
