@@ -54,7 +54,7 @@ from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
-from opendnc.server.streams import throttled_stream
+from opendnc.server.streams import event_stream_response
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -573,14 +573,8 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
-    stream = throttled_stream(
-        machines.bus,
-        _ApiEvents(machines),
-        interval=EVENT_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    return event_stream_response(
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
     )
 
 

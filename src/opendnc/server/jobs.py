@@ -203,10 +203,21 @@ def _running(session: Session, job_id: int) -> Job:
     return job
 
 
-def _program_fields(job: Job) -> dict[str, Any]:
-    if job.version is None:
-        return {}
-    return {"program": job.version.program.name, "sha256": job.version.sha256}
+def _record_ending(session: Session, job: Job, **detail: Any) -> None:
+    """The audit row of a run's ending (done, a retry, failed, interrupted): its action is the
+    job's kind, its actor the server that ran it; it names the program the job carried."""
+    program: dict[str, Any] = {}
+    if job.version is not None:
+        program = {"program": job.version.program.name, "sha256": job.version.sha256}
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        **detail,
+        **program,
+    )
 
 
 def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail: Any) -> Job:
@@ -216,17 +227,7 @@ def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail
     job.finished = utcnow()
     if nbytes is not None:
         job.bytes_done = nbytes
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        nbytes=nbytes,
-        by=job.created_by,
-        **_program_fields(job),
-        **detail,
-    )
+    _record_ending(session, job, nbytes=nbytes, by=job.created_by, **detail)
     return job
 
 
@@ -262,18 +263,14 @@ def fail(
     else:
         job.state = JobState.CANCELLED if job.cancel_requested else JobState.FAILED
         job.finished = utcnow()
-    audit.record(
+    _record_ending(
         session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
+        job,
         result="retry" if again else job.state.value,
         error=error,
         attempt=job.attempts,
         line=line,
         nbytes=nbytes,
-        **_program_fields(job),
     )
     return job
 
@@ -284,16 +281,7 @@ def interrupt(session: Session, job_id: int, reason: str) -> Job:
     job.state = JobState.INTERRUPTED
     job.error = reason
     job.finished = utcnow()
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        result="interrupted",
-        error=reason,
-        **_program_fields(job),
-    )
+    _record_ending(session, job, result="interrupted", error=reason)
     return job
 
 
