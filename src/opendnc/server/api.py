@@ -39,6 +39,7 @@ from opendnc.server.actions.models import (
     KeyOut,
     LineNumber,
     MachineOut,
+    ProgramListed,
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
@@ -295,8 +296,9 @@ async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Call
 @router.get("/programs")
 def list_programs(
     svc: Svc, who: Caller, q: Annotated[str, Query(max_length=255)] = ""
-) -> list[ProgramOut]:
-    """Programs in the library, optionally filtered by part of the name."""
+) -> list[ProgramListed]:
+    """Programs in the library, optionally filtered by part of the name: each with its newest
+    and its released version (``/api/programs/{name}`` has every version)."""
     return actions.library.list_programs(svc, who, q)
 
 
