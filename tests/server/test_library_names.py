@@ -145,4 +145,5 @@ def test_the_list_has_each_programs_newest_and_released_version_in_queries_that_
     with sessions() as session:
         assert [p.name for p in library.list_programs(session, "b.")] == ["B.nc"]
         b = library.list_programs(session, "b.")[0]
-        assert b.newest is not None and b.newest.program.name == "B.nc"
+        assert b.newest is not None
+        assert b.newest.program.name == "B.nc"

@@ -114,9 +114,7 @@ def list_programs(session: Session, search: str = "") -> list[Listed]:
     ``_`` in it match themselves."""
     if len(search) > MAX_SEARCH:
         raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
-    where = (
-        [func.lower(Program.name).contains(search.lower(), autoescape=True)] if search else []
-    )
+    where = [func.lower(Program.name).contains(search.lower(), autoescape=True)] if search else []
     per_program = (
         select(
             ProgramVersion.program_id,
@@ -208,7 +206,7 @@ def released_version(session: Session, name: str) -> ProgramVersion | None:
     return version
 
 
-def _versions_of(name: str) -> Select[tuple[ProgramVersion]]:
+def _versions_of(name: str) -> Select[ProgramVersion]:
     # each with its program set (relationships never load lazily)
     return (
         select(ProgramVersion)
