@@ -29,6 +29,7 @@ from opendnc.server import actions, audit, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
+    ClusterOut,
     Count,
     DiffOut,
     FolderOut,
@@ -249,6 +250,13 @@ def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | N
     actions.require(who, Role.VIEWER)
     parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
+
+
+@router.get("/cluster")
+def cluster(svc: Svc, who: Caller) -> ClusterOut:
+    """The servers sharing the database, their heartbeats and machine leases (the same as
+    ``opendnc cluster status --json``, from any server)."""
+    return actions.admin.cluster_status(svc, who)
 
 
 @router.get(

@@ -294,6 +294,10 @@ class NetShare(RunsTask):
     # ------------------------------------------------------------------ state
     def load(self) -> None:
         """Rebuild what was pushed, collected and archived from the audit trail."""
+        # from scratch: in a cluster another server may have run the share meanwhile
+        self.pushed.clear()
+        self.collected.clear()
+        self.baselined.clear()
         with self.sessions() as session:
             rows = session.scalars(
                 select(AuditEntry)
@@ -324,6 +328,7 @@ class NetShare(RunsTask):
     async def run(self) -> None:
         """Scan every ``interval`` seconds until cancelled; one failed scan (the database
         away at start included: the first scan loads the state) stops nothing."""
+        self._loaded = False  # each start reads the trail: a cluster's share moves between servers
         while True:
             try:
                 await self.scan()

@@ -10,6 +10,7 @@ from typing import Annotated, Self
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
+from opendnc.server.leases import ClusterView
 from opendnc.server.library import Listed
 from opendnc.server.store.models import (
     Job,
@@ -23,6 +24,8 @@ from opendnc.server.store.models import (
 __all__ = [
     "MAX_ID",
     "AuditOut",
+    "ClusterOut",
+    "ClusterServerOut",
     "Content",
     "Count",
     "DiffOut",
@@ -33,6 +36,7 @@ __all__ = [
     "JobOut",
     "JobRequest",
     "KeyOut",
+    "LeaseOut",
     "LineNumber",
     "MachineOut",
     "ProgramListed",
@@ -337,3 +341,45 @@ class JobRequest(BaseModel):
     path: str | None = Field(default=None, min_length=1, max_length=255)
     machines: list[str] = Field(min_length=1, max_length=1000)
     from_line: LineNumber | None = None
+
+
+class ClusterServerOut(BaseModel):
+    """One server sharing the database (several servers, docs/server.md#several-servers)."""
+
+    name: str
+    host: str
+    pid: int
+    url: str
+    started: datetime
+    heartbeat_age: float = Field(description="seconds since its last heartbeat (database clock)")
+    alive: bool
+    machines: int = Field(description="machines whose live lease it holds")
+
+
+class LeaseOut(BaseModel):
+    """One machine's lease (``@library``: the library watcher and the net share)."""
+
+    machine: str
+    owner: str
+    epoch: int
+    expires_in: float = Field(description="seconds; negative once expired")
+    live: bool
+
+
+class ClusterOut(BaseModel):
+    """The servers of the database and their leases, as ``opendnc cluster status --json``."""
+
+    now: datetime
+    servers: list[ClusterServerOut]
+    leases: list[LeaseOut]
+
+    @classmethod
+    def of(cls, view: ClusterView) -> ClusterOut:
+        """The model of a :class:`~opendnc.server.leases.ClusterView`."""
+        return cls(
+            now=view.now,
+            servers=[
+                ClusterServerOut.model_validate(s, from_attributes=True) for s in view.servers
+            ],
+            leases=[LeaseOut.model_validate(row, from_attributes=True) for row in view.leases],
+        )
