@@ -34,6 +34,7 @@ __all__ = [
     "JobProgress",
     "JobQueued",
     "JobStarted",
+    "MachineServing",
     "MachineStatusChanged",
     "NetshareChanged",
     "Overflow",
@@ -90,6 +91,24 @@ class MachineStatusChanged(Event):
 
     def as_json(self) -> dict[str, Any]:
         return dict(self.snapshot)
+
+
+@dataclass(frozen=True)
+class MachineServing(Event):
+    """This server started (``served``) or stopped serving a machine: its task began or
+    ended (:meth:`Fleet.serve <opendnc.server.fleet.Fleet.serve>`, ``release``); SSE
+    ``serving``. With several servers a machine moves between them (docs/server.md)."""
+
+    kind: ClassVar[str] = "serving"
+    machine: str
+    served: bool
+
+    @property
+    def key(self) -> str:
+        return self.machine
+
+    def as_json(self) -> dict[str, Any]:
+        return {"machine": self.machine, "served": self.served}
 
 
 # -- jobs ------------------------------------------------------------------------------------
