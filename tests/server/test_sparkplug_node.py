@@ -238,3 +238,21 @@ def test_configuration(tmp_path: Path) -> None:
         with pytest.raises(ConfigError) as caught:
             parse_config(BASE + f'[sparkplug]\nurl = "mqtt://h"\n{bad}\n', base=tmp_path)
         assert caught.value.key == key, bad
+
+
+def test_the_count_goes_on_in_memory_while_the_database_is_away(tmp_path: Path) -> None:
+    import asyncio
+
+    from sqlalchemy.exc import OperationalError
+
+    edge = node(tmp_path)
+    edge.bd_seq = 254
+
+    def away() -> int:
+        raise OperationalError("SELECT", {}, Exception("connection refused"))
+
+    edge.next_bd_seq = away
+    asyncio.run(edge._take_bd_seq())
+    assert edge.bd_seq == 255
+    asyncio.run(edge._take_bd_seq())
+    assert edge.bd_seq == 0

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib
 import json
 import logging
 import ssl
@@ -462,8 +463,7 @@ class SparkplugNode:
         backoff = self.min_backoff
         where = f"{self.config.broker.host}:{self.config.broker.port}"
         while True:
-            # A new session, a new bdSeq (stored before connecting: see sparkplug_store).
-            self.bd_seq = await asyncio.to_thread(self.next_bd_seq) % BD_SEQ_MODULO
+            await self._take_bd_seq()
             try:
                 async with self._client(self.death()) as client:
                     self.connected = True
@@ -494,6 +494,16 @@ class SparkplugNode:
                 self._host_stamp = -1
             await asyncio.sleep(backoff)
             backoff = min(max(backoff, self.min_backoff) * 2, self.max_backoff)
+
+    async def _take_bd_seq(self) -> None:
+        """A new session, a new bdSeq, stored before connecting (sparkplug_store). With the
+        database away the count goes on in memory: the output must not stop for it."""
+        try:
+            self.bd_seq = await asyncio.to_thread(self.next_bd_seq) % BD_SEQ_MODULO
+        except Exception as exc:
+            last = self.bd_seq if self.bd_seq is not None else -1
+            self.bd_seq = (last + 1) % BD_SEQ_MODULO
+            log.warning("sparkplug: bdSeq not stored (%s); using %d", exc, self.bd_seq)
 
     async def _send(self, client: aiomqtt.Client, message: Outgoing) -> None:
         await client.publish(message.topic, message.payload, qos=message.qos, retain=False)
@@ -544,9 +554,9 @@ class SparkplugNode:
 
 def _import() -> Any:
     try:
-        import pysparkplug
+        # By name: the types stay Any here, so a checker without the package still passes.
+        return importlib.import_module("pysparkplug")
     except ImportError:
         raise InputError(
             "[sparkplug] needs pysparkplug (the 'server' extra): pip install 'opendnc[server]'"
         ) from None
-    return pysparkplug
