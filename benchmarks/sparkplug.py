@@ -22,7 +22,7 @@ import uuid
 from datetime import UTC, datetime, timedelta
 
 from opendnc.server.config import MqttConfig, SparkplugConfig
-from opendnc.server.events import EventBus, MachineServing, MachineStatusChanged
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.sparkplug import SparkplugNode
 
@@ -56,7 +56,7 @@ def in_process(machines: int, polls: int) -> None:
     names = [f"m{i}" for i in range(machines)]
     node = _node(names)
     for name in names:
-        node.take(MachineServing(name, served=True))
+        node.take(LeaseChanged(name, "bench-node", True))
         node.take(_event(name, 0, change=False))
     start = time.perf_counter()
     births = node.births()
@@ -90,7 +90,7 @@ async def session(machines: int) -> None:
     node._sub_cm = node.bus.subscribe(maxsize=100_000)
     node._sub = node._sub_cm.__enter__()
     for name in names:
-        node.take(MachineServing(name, served=True))
+        node.take(LeaseChanged(name, "bench-node", True))
         node.take(_event(name, 0, change=False))
     got: list[str] = []
     if hasattr(mqtt, "CallbackAPIVersion"):  # paho 2 wants one; 1.x (with pysparkplug) none

@@ -25,7 +25,7 @@ require_module("pysparkplug")
 require_module("google.protobuf")
 
 from opendnc.server.config import parse_config  # noqa: E402
-from opendnc.server.events import EventBus, MachineServing, MachineStatusChanged  # noqa: E402
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
 from opendnc.server.machines.base import MachineStatus  # noqa: E402
 from opendnc.server.sparkplug import REBIRTH, SparkplugNode  # noqa: E402
 from opendnc.server.sparkplug_store import next_bd_seq  # noqa: E402
@@ -119,7 +119,7 @@ def test_births_data_rebirth_deaths_and_bd_seq_across_restarts(tmp_path: Path, g
             wait_for("NBIRTH", lambda: host_of(listener, group).of("NBIRTH"))
             first = bd_seq_of(host_of(listener, group), "dnc-a")
 
-            edge.publish(MachineServing("mill-1", served=True))
+            edge.publish(LeaseChanged("mill-1", "dnc-a", True))
             edge.publish(status("mill-1", program="A.H", part_count=1))
             wait_for("DBIRTH", lambda: host_of(listener, group).of("DBIRTH", device="mill-1"))
             edge.publish(status("mill-1", program="A.H", part_count=2))
@@ -149,7 +149,7 @@ def test_births_data_rebirth_deaths_and_bd_seq_across_restarts(tmp_path: Path, g
             wait_for("the DBIRTH again", lambda: len(host_of(listener, group).of("DBIRTH")) == 2)
             assert bd_seq_of(host_of(listener, group), "dnc-a") == first
 
-            edge.publish(MachineServing("mill-1", served=False))
+            edge.publish(LeaseChanged("mill-1", "dnc-a", False))
             wait_for("DDEATH", lambda: host_of(listener, group).of("DDEATH", device="mill-1"))
         finally:
             edge.stop()
@@ -182,7 +182,7 @@ def test_waits_for_the_primary_host_and_leaves_when_it_goes(tmp_path: Path, grou
             ).wait_for_publish(10)
             edge = NodeThread(tmp_path, toml(group, f'primary_host = "{host_id}"\n'), ["mill-1"])
             try:
-                edge.publish(MachineServing("mill-1", served=True))
+                edge.publish(LeaseChanged("mill-1", "dnc-a", True))
                 edge.publish(status("mill-1"))
                 wait_for(
                     "the node to read the host's STATE", lambda: edge.node._host_stamp == stamp
@@ -281,8 +281,9 @@ def test_a_served_machine_through_sigkill_and_restart(
 
 
 def test_a_machine_moves_between_servers(tmp_path: Path, group: str) -> None:
-    """Without leases (another part of the cluster work) the move is the fleet's own
-    ``release`` on one server and ``serve`` on the other, as the leases call them."""
+    """A machine's lease moves: its old server stops serving it and says so, the new one
+    says so and serves it, as the cluster component does (``LeaseChanged`` around
+    ``Fleet.release`` and ``Fleet.serve``, server/cluster.py)."""
     from tests.server.inprocess_app import running
 
     machines: list[dict[str, object]] = [{"name": "m1", "kind": "lsv2", "host": "127.0.0.1"}]
@@ -297,9 +298,17 @@ def test_a_machine_moves_between_servers(tmp_path: Path, group: str) -> None:
         loop = app.server.machines._loop
         asyncio.run_coroutine_threadsafe(coroutine, loop).result(30)
 
-    def call(app: Any, fn: Any, *args: Any) -> None:
+    def lose(app: Any, machine: str) -> None:
         async def go() -> None:
-            fn(*args)
+            await app.server.fleet.release(machine)
+            app.server.bus.publish(LeaseChanged(machine, app.server.config.server.name, False))
+
+        on_loop(app, go())
+
+    def gain(app: Any, machine: str) -> None:
+        async def go() -> None:
+            app.server.bus.publish(LeaseChanged(machine, app.server.config.server.name, True))
+            app.server.fleet.serve(machine)
 
         on_loop(app, go())
 
@@ -312,21 +321,17 @@ def test_a_machine_moves_between_servers(tmp_path: Path, group: str) -> None:
         wait_for("m1 born on dnc-a", lambda: host_of(listener, group).of("DBIRTH", "dnc-a"))
         with running(tmp_path / "b", machines, extra=extra("dnc-b")) as b:
             wait_for("m1 born on dnc-b", lambda: host_of(listener, group).of("DBIRTH", "dnc-b"))
-            on_loop(b, b.server.fleet.release("m1"))  # one server at a time from here
+            lose(b, "m1")  # one server at a time from here
             wait_for("dnc-b lets go", lambda: host_of(listener, group).of("DDEATH", "dnc-b"))
 
-            on_loop(a, a.server.fleet.release("m1"))
-            call(b, b.server.fleet.serve, "m1")
+            lose(a, "m1")
+            gain(b, "m1")
             wait_for(
                 "m1 born again on dnc-b",
                 lambda: len(host_of(listener, group).of("DBIRTH", "dnc-b")) == 2,
             )
             host = host_of(listener, group)
-            moved = [k for k in host.kinds() if k.startswith(("DBIRTH", "DDEATH"))]
-            nodes = [s.node for s in host.seen if s.kind in ("DBIRTH", "DDEATH")]
-            assert list(zip(moved, nodes, strict=True))[-2:] == [
-                ("DDEATH:m1", "dnc-a"),
-                ("DBIRTH:m1", "dnc-b"),
-            ]
+            moved = [(s.kind, s.node) for s in host.seen if s.kind in ("DBIRTH", "DDEATH")]
+            assert moved[-2:] == [("DDEATH", "dnc-a"), ("DBIRTH", "dnc-b")]
             assert host.device("dnc-b", "m1").alive  # type: ignore[union-attr]
             assert not host.device("dnc-a", "m1").alive  # type: ignore[union-attr]

@@ -19,7 +19,7 @@ require_module("pysparkplug")
 require_module("google.protobuf")
 
 from opendnc.server.config import ConfigError, parse_config  # noqa: E402
-from opendnc.server.events import EventBus, MachineServing, MachineStatusChanged  # noqa: E402
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
 from opendnc.server.machines.base import MachineStatus  # noqa: E402
 from opendnc.server.sparkplug import (  # noqa: E402
     DEVICE_METRICS,
@@ -92,7 +92,7 @@ def test_birth_data_by_exception_and_death(tmp_path: Path) -> None:
     assert nbirth[REBIRTH].datatype == spb.BOOLEAN
 
     # Gained, not read yet: no device until its first status.
-    edge.take(MachineServing("mill-1", served=True))
+    edge.take(LeaseChanged("mill-1", "dnc-7", True))
     assert edge.changes() == []
     edge.take(status("mill-2"))  # a machine this server does not serve: nothing
     edge.take(status("mill-1"))
@@ -134,7 +134,7 @@ def test_birth_data_by_exception_and_death(tmp_path: Path) -> None:
     assert device.values["alarms"] == "1023 SPINDLE"
 
     # Released: DDEATH, and its statuses are not this node's any more.
-    edge.take(MachineServing("mill-1", served=False))
+    edge.take(LeaseChanged("mill-1", "dnc-7", False))
     edge.take(status("mill-1", 4))
     assert run(host, edge.changes()) == ["DDEATH:mill-1"]
     assert not device.alive
@@ -144,7 +144,7 @@ def test_seq_wraps_after_255_and_a_rebirth_starts_again_at_zero(tmp_path: Path) 
     edge = node(tmp_path)
     host = spb.Host("plant1")
     run(host, edge.births())
-    edge.take(MachineServing("mill-1", served=True))
+    edge.take(LeaseChanged("mill-1", "dnc-7", True))
     for n in range(300):
         edge.take(status("mill-1", n, part_count=n))
         run(host, edge.changes())  # the host checks every seq as it takes it
@@ -153,7 +153,7 @@ def test_seq_wraps_after_255_and_a_rebirth_starts_again_at_zero(tmp_path: Path) 
     assert seqs[254:257] == [255, 0, 1]
     assert len(seqs) == 300
     # A rebirth: NBIRTH seq 0, the same bdSeq (same session), every device born again.
-    edge.take(MachineServing("mill-2", served=True))
+    edge.take(LeaseChanged("mill-2", "dnc-7", True))
     edge.take(status("mill-2"))
     assert run(host, edge.births()) == ["NBIRTH", "DBIRTH:mill-1", "DBIRTH:mill-2"]
     assert [s.payload.seq for s in host.seen[-3:]] == [0, 1, 2]
@@ -164,7 +164,7 @@ def test_an_offline_machine_is_born_unavailable_with_null_items(tmp_path: Path) 
     edge = node(tmp_path)
     host = spb.Host("plant1")
     run(host, edge.births())
-    edge.take(MachineServing("mill-2", served=True))
+    edge.take(LeaseChanged("mill-2", "dnc-7", True))
     edge.take(MachineStatusChanged("mill-2", False, None, last_error="no route"))
     run(host, edge.changes())
     values = host.of("DBIRTH", device="mill-2")[0].payload.by_name()

@@ -34,7 +34,7 @@ __all__ = [
     "JobProgress",
     "JobQueued",
     "JobStarted",
-    "MachineServing",
+    "LeaseChanged",
     "MachineStatusChanged",
     "NetshareChanged",
     "Overflow",
@@ -94,21 +94,35 @@ class MachineStatusChanged(Event):
 
 
 @dataclass(frozen=True)
-class MachineServing(Event):
-    """This server started (``served``) or stopped serving a machine: its task began or
-    ended (:meth:`Fleet.serve <opendnc.server.fleet.Fleet.serve>`, ``release``); SSE
-    ``serving``. With several servers a machine moves between them (docs/server.md)."""
+class LeaseChanged(Event):
+    """This server gained (``held``) or lost a machine's lease (several servers on one
+    database, docs/server.md#several-servers); SSE ``lease``.
 
-    kind: ClassVar[str] = "serving"
+    A gain is published before the machine's task starts (its first status follows it), a
+    loss once the task has stopped (no status of this server follows it): what an output
+    needs to say "this server serves the machine from now on / no longer" (a Sparkplug
+    DBIRTH / DDEATH). A single server (SQLite) holds every machine: it publishes a gain for
+    each as it starts and a loss for each as it stops, with epoch 0. ``epoch`` is the
+    lease's, which grows at every change of owner.
+    """
+
+    kind: ClassVar[str] = "lease"
     machine: str
-    served: bool
+    server: str
+    held: bool
+    epoch: int = 0
 
     @property
     def key(self) -> str:
         return self.machine
 
     def as_json(self) -> dict[str, Any]:
-        return {"machine": self.machine, "served": self.served}
+        return {
+            "machine": self.machine,
+            "server": self.server,
+            "held": self.held,
+            "epoch": self.epoch,
+        }
 
 
 # -- jobs ------------------------------------------------------------------------------------

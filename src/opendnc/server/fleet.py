@@ -23,7 +23,7 @@ from opendnc.errors import DncError
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import MachineConfig
-from opendnc.server.events import MachineServing
+from opendnc.server.events import LeaseChanged
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Connector, MachineStatus
 from opendnc.server.remote_request import RemoteRequests
@@ -61,14 +61,21 @@ class Fleet:
 
     async def start(self) -> None:
         """Serve every configured machine."""
+        server = self.machines.config.server.name
         for name in self.machines.machines:
+            # a single server holds every machine: the same word a cluster's gain is
+            self.machines.bus.publish(LeaseChanged(name, server, True))
             self.serve(name)
 
     async def stop(self) -> None:
         """Stop every machine's task (each closes its link)."""
         tasks = list(self._tasks.values())
+        names = list(self._tasks)
         self._tasks.clear()
         await cancel_and_wait(*tasks)
+        server = self.machines.config.server.name
+        for name in names:
+            self.machines.bus.publish(LeaseChanged(name, server, False))
 
     @property
     def served(self) -> frozenset[str]:
@@ -80,9 +87,6 @@ class Fleet:
         if name in self._tasks:
             return
         state = self.machines.machines[name]
-        # Told before the task's first status: an output (Sparkplug's DBIRTH) then knows the
-        # statuses that follow are this server's to report.
-        self.machines.bus.publish(MachineServing(name, served=True))
         self._tasks[name] = asyncio.create_task(self._supervise(state), name=f"machine-{name}")
         state.wake.set()  # a first look at its queue
 
@@ -90,9 +94,6 @@ class Fleet:
         """Stop serving machine ``name``: its task ends and its link closes."""
         task = self._tasks.pop(name, None)
         if task is not None:
-            # Told first: the offline status below is this server letting go, not the machine
-            # going offline, and an output that speaks for the machine (Sparkplug) stops now.
-            self.machines.bus.publish(MachineServing(name, served=False))
             await cancel_and_wait(task)
         state = self.machines.get(name)
         if state is not None:

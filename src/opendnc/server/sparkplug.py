@@ -6,8 +6,9 @@ device of it. A subscriber of the event bus like the plain MQTT output, beside i
 * each MQTT session takes the next ``bdSeq`` (kept in the database), registers an NDEATH
   carrying it as the MQTT will, and starts with NBIRTH (``seq`` 0, the bdSeq, the
   ``Node Control/Rebirth`` metric) and a DBIRTH for every machine served and read;
-* a machine this server starts serving (:class:`~opendnc.server.events.MachineServing`) is
-  born (DBIRTH) at its first status; one it stops serving dies (DDEATH);
+* a machine this server starts serving (:class:`~opendnc.server.events.LeaseChanged`: a
+  single server holds every machine from its start, a cluster's server the ones whose lease
+  it holds) is born (DBIRTH) at its first status; one it stops serving dies (DDEATH);
 * a status that changes metrics sends DDATA with only those metrics, by alias;
 * every message after NBIRTH takes the next ``seq`` (0..255, then 0 again);
 * an NCMD with ``Node Control/Rebirth`` true births the node and its devices again;
@@ -39,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 from opendnc.errors import InputError
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import SparkplugConfig
-from opendnc.server.events import EventBus, MachineServing, MachineStatusChanged
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
 from opendnc.server.items import items_of
 from opendnc.server.sparkplug_store import BD_SEQ_MODULO
 
@@ -263,8 +264,8 @@ class SparkplugNode:
     def take(self, event: object) -> None:
         """Fold one bus event into what the node knows; the session sends what changed."""
         match event:
-            case MachineServing(machine=machine, served=served) if machine in self._names:
-                if served:
+            case LeaseChanged(machine=machine, held=held) if machine in self._names:
+                if held:
                     self.served.add(machine)
                 else:
                     self.served.discard(machine)
