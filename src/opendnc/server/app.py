@@ -42,6 +42,8 @@ from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.sparkplug import SparkplugNode
+from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
@@ -117,7 +119,9 @@ def build(
     )
     requests = core.add(RemoteRequests(machines, sessions, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
-    outputs = core.add(Outputs(_mqtt(config, bus), _mtconnect(config, bus)))
+    outputs = core.add(
+        Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
+    )
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
@@ -219,6 +223,28 @@ def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:
             "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
         ) from None
     return MqttPublisher(config.mqtt, config.server.name, [m.name for m in config.machines], bus)
+
+
+def _sparkplug(
+    config: ShopConfig, bus: EventBus, sessions: sessionmaker[Session]
+) -> SparkplugNode | None:
+    spb = config.sparkplug
+    if spb is None:
+        return None
+    for module in ("aiomqtt", "pysparkplug"):
+        try:
+            __import__(module)  # a configured output that cannot run fails at start
+        except ImportError:
+            raise ConfigError(
+                "sparkplug",
+                f"needs {module}, part of the 'server' extra: pip install 'opendnc[server]'",
+            ) from None
+    return SparkplugNode(
+        spb,
+        [m.name for m in config.machines],
+        bus,
+        lambda: next_bd_seq(sessions, spb.group, spb.node),
+    )
 
 
 def _mtconnect(config: ShopConfig, bus: EventBus) -> MtconnectOutput | None:

@@ -480,3 +480,18 @@ class MachineSnapshot(Base):
     server: Mapped[str] = mapped_column(String(64), default="")
     updated: Mapped[datetime] = mapped_column(UtcDateTime(), index=True)
     data: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class SparkplugNode(Base):
+    """A Sparkplug B edge node's birth/death sequence number (``bdSeq``), kept across restarts.
+
+    ``bd_seq`` is the number of the node's latest MQTT session: each new session takes the next
+    one (0..255, then 0 again), so a host can tell a late NDEATH of an old session from the
+    current one (docs/server.md#sparkplug-b).
+    """
+
+    __tablename__ = "sparkplug_nodes"
+
+    group_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    node_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    bd_seq: Mapped[int] = mapped_column(Integer, default=0)
