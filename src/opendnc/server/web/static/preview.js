@@ -540,14 +540,20 @@
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, this.markBuffer);
       gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint32Array(idx), gl.DYNAMIC_DRAW);
     }
-    this.say(idx.length ? "" : "Line " + line + " moves nothing that is drawn.");
+    var note = this.root.querySelector(".preview-note");
+    note.textContent = idx.length ? "Line " + line : "Line " + line + ": no move drawn";
+    note.hidden = false;
     this.redraw();
   };
 
   Preview.prototype.markHash = function () {
     var m = /^#L(\d+)$/.exec(location.hash);
     if (m) this.mark(parseInt(m[1], 10));
-    else if (this.marked) { this.marked = null; this.redraw(); }
+    else if (this.marked) {
+      this.marked = null;
+      this.root.querySelector(".preview-note").hidden = true;
+      this.redraw();
+    }
   };
 
   Preview.prototype.bind = function () {
