@@ -154,13 +154,16 @@ def server_side(text: str, runs: int) -> dict[str, float]:
     }
 
 
-def browser_runs(url: str, runs: int) -> list[dict[str, Any]]:
-    """Open the program page ``runs`` times, each in a fresh context; the page's figures."""
+def browser_runs(url: str, runs: int, gpu: bool = False) -> list[dict[str, Any]]:
+    """Open the program page ``runs`` times, each in a fresh context; the page's figures.
+    ``gpu`` drops ``--disable-gpu``: the compositor then runs in the GPU process (SwiftShader
+    here), as on a desktop, instead of reading each WebGL frame back on the main thread."""
     from playwright.sync_api import sync_playwright
 
     out = []
+    args = [a for a in CHROMIUM_ARGS if not (gpu and a == "--disable-gpu")]
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=args)
         login = browser.new_context()
         page = login.new_page()
         page.goto(url + "/login")
@@ -198,6 +201,11 @@ def main() -> None:
     parser.add_argument("--moves", type=int, default=100_000)
     parser.add_argument("--runs", type=int, default=5, help="browser runs (fresh contexts)")
     parser.add_argument("--server-runs", type=int, default=3)
+    parser.add_argument(
+        "--gpu",
+        action="store_true",
+        help="without --disable-gpu (GPU-process compositing, as on a desktop)",
+    )
     args = parser.parse_args()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     text = milling_program(args.moves)
@@ -236,12 +244,13 @@ def main() -> None:
         if not Path(CHROMIUM).exists():
             print(f"no Chromium at {CHROMIUM}: browser figures skipped")
             return
-        results = browser_runs(url, args.runs)
+        results = browser_runs(url, args.runs, gpu=args.gpu)
     drawn = [r["drawn"] / 1000 for r in results]
     since_fetch = [(r["drawn"] - r["fetch"]) / 1000 for r in results]
     longest = [max([d for _, d in r["long_after"]], default=0.0) for r in results]
     counts = [len(r["long_after"]) for r in results]
-    print(f"browser ({args.runs} runs, fresh context each, server cache warm):")
+    mode = "GPU-process compositing" if args.gpu else "--disable-gpu: software compositing"
+    print(f"browser ({args.runs} runs, fresh context each, server cache warm; {mode}):")
     for i, r in enumerate(results, 1):
         tasks = ", ".join(f"{d:.0f} at {t:.0f}" for t, d in r["long_after"]) or "none"
         print(
