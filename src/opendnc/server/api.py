@@ -39,6 +39,7 @@ from opendnc.server.actions.models import (
     KeyOut,
     LineNumber,
     MachineOut,
+    ProgramListed,
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
@@ -166,21 +167,29 @@ Db = dbsession.Db
 _bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 
 
-def _principal(
+async def _principal(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> auth.Principal:
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     svc = _svc(request)
-    guard = svc.guard
     host = request.client.host if request.client else "?"
-    address = f"address:{host}"
-    guard.check(address)
+    svc.guard.check(f"address:{host}")
+    key = credentials.credentials.strip()
+    known = svc.keys.get(key)
+    if known is not None:
+        # checked a moment ago: no worker thread, no query (auth.KeyCache)
+        deps.key_use(request).note(known.who.key_id)
+        return known.who
+    return await run_in_threadpool(_check_key, request, svc, host, key)
+
+
+def _check_key(request: Request, svc: actions.Services, host: str, key: str) -> auth.Principal:
     try:
-        return auth.authenticate(svc.reads, svc.sessions, credentials.credentials.strip()).who
+        return auth.authenticate(svc.reads, key, deps.key_use(request), svc.keys).who
     except Unauthorized as exc:
-        guard.failed(address)
+        svc.guard.failed(f"address:{host}")
         with svc.sessions.begin() as session:
             audit.record(
                 session,
@@ -202,7 +211,12 @@ def _svc(request: Request) -> actions.Services:
     return core_of(request.app).get(actions.Services)
 
 
-Svc = Annotated[actions.Services, Depends(_svc)]
+async def _svc_dep(request: Request) -> actions.Services:
+    # async: a plain function dependency costs a trip to a worker thread and back per request
+    return _svc(request)
+
+
+Svc = Annotated[actions.Services, Depends(_svc_dep)]
 
 
 # -- health and outputs ---------------------------------------------------------------------
@@ -295,8 +309,9 @@ async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Call
 @router.get("/programs")
 def list_programs(
     svc: Svc, who: Caller, q: Annotated[str, Query(max_length=255)] = ""
-) -> list[ProgramOut]:
-    """Programs in the library, optionally filtered by part of the name."""
+) -> list[ProgramListed]:
+    """Programs in the library, optionally filtered by part of the name: each with its newest
+    and its released version (``/api/programs/{name}`` has every version)."""
     return actions.library.list_programs(svc, who, q)
 
 

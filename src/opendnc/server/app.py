@@ -27,6 +27,7 @@ from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
+from opendnc.server.key_use import KeyUse
 from opendnc.server.kinds import connector_for
 from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
@@ -91,6 +92,7 @@ def build(
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
     core.add(actions.Services(sessions, database_part.reads, machines))
+    core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]

@@ -11,7 +11,14 @@ from sqlalchemy.orm import Session
 from opendnc.errors import InputError
 from opendnc.server import library
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, DiffOut, ProgramOut, UploadOut, VersionOut
+from opendnc.server.actions.models import (
+    Content,
+    DiffOut,
+    ProgramListed,
+    ProgramOut,
+    UploadOut,
+    VersionOut,
+)
 from opendnc.server.store.models import Role
 
 __all__ = [
@@ -30,13 +37,14 @@ T = TypeVar("T")
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
 
 
-def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramOut]:
-    """Programs whose name holds ``search`` (any case), by name."""
+def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramListed]:
+    """Programs whose name holds ``search`` (any case), by name: each with its newest and
+    its released version."""
     require(who, Role.VIEWER)
     search = search.strip()
     if len(search) > MAX_SEARCH:
         return []
-    return svc.read(lambda s: [ProgramOut.of(p) for p in library.list_programs(s, search)])
+    return svc.read(lambda s: [ProgramListed.of(p) for p in library.list_programs(s, search)])
 
 
 def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:

@@ -10,6 +10,7 @@ from typing import Annotated, Self
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
+from opendnc.server.library import Listed
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -34,6 +35,7 @@ __all__ = [
     "KeyOut",
     "LineNumber",
     "MachineOut",
+    "ProgramListed",
     "ProgramOut",
     "ReceivedDetail",
     "ReceivedOut",
@@ -103,6 +105,31 @@ class ProgramOut(FromRow):
     locked: bool
     created: Timestamp
     versions: list[VersionOut]
+
+
+class ProgramListed(BaseModel):
+    """A program in the library's list: its newest and its released version, and how many
+    versions it has (``GET /api/programs/{name}`` lists them all)."""
+
+    name: str
+    locked: bool
+    created: Timestamp
+    version_count: int
+    newest: VersionOut | None
+    released: VersionOut | None
+
+    @classmethod
+    def of(cls, listed: Listed) -> ProgramListed:
+        """From the library's list entry."""
+        p = listed.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=listed.count,
+            newest=VersionOut.of(listed.newest) if listed.newest is not None else None,
+            released=VersionOut.of(listed.released) if listed.released is not None else None,
+        )
 
 
 class DiffOut(BaseModel):

@@ -110,7 +110,10 @@ def _svc(request: Request) -> actions.Services:
 
 def _page(request: Request) -> Page:
     try:
-        who, key = web_session.principal(_svc(request).reads, _sessions(request), request)
+        svc = _svc(request)
+        who, key = web_session.principal(
+            svc.reads, svc.sessions, deps.key_use(request), svc.keys, request
+        )
     except Unauthorized:
         target = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginNeeded(target) from None
@@ -205,7 +208,7 @@ def login(
 def logout(request: Request, page: Writing) -> RedirectResponse:
     """End the session."""
     response = RedirectResponse("/login", status_code=303)
-    web_session.log_out(_sessions(request), request, response)
+    web_session.log_out(_sessions(request), _svc(request).keys, request, response)
     return response
 
 
