@@ -3,6 +3,7 @@ and a database that cannot be reached at start is one line, not a traceback."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import socket
 import subprocess
@@ -17,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import library
-from opendnc.server.errors import Conflict
+from opendnc.server.errors import Conflict, NotFound
 
 
 @pytest.mark.parametrize("name", ["O1.nc.", "O1.nc..", "PART.", "O1.nc ", "O1 .nc", " O1.nc"])
@@ -147,3 +148,30 @@ def test_the_list_has_each_programs_newest_and_released_version_in_queries_that_
         b = library.list_programs(session, "b.")[0]
         assert b.newest is not None
         assert b.newest.program.name == "B.nc"
+
+
+def test_a_programs_history_gives_its_newest_versions_oldest_first_and_the_count(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as session:
+        for n in range(1, 6):
+            library.add_version(session, "H.nc", f"G0 X{n}\n".encode(), author=f"u{n}")
+        library.release(session, "H.nc", 4, actor="boss")
+    with sessions() as session:
+        newest = library.history(session, "H.nc", limit=2)
+        everything = library.history(session, "H.nc")
+        with pytest.raises(NotFound):
+            library.history(session, "h.nc")
+    assert newest.count == everything.count == 5
+    assert [v.number for v in newest.versions] == [4, 5]
+    assert [v.number for v in everything.versions] == [1, 2, 3, 4, 5]
+    assert [v.state.value for v in everything.versions] == [
+        "draft",
+        "draft",
+        "draft",
+        "released",
+        "draft",
+    ]
+    assert newest.versions[0].author == "u4"
+    assert newest.versions[1].sha256 == hashlib.sha256(b"G0 X5\n").hexdigest()
+    assert newest.versions[1].created.tzinfo is not None

@@ -12,6 +12,8 @@ import difflib
 import hashlib
 import re
 from dataclasses import dataclass
+from datetime import datetime
+from typing import NamedTuple
 
 from sqlalchemy import Select, func, select
 from sqlalchemy.exc import IntegrityError
@@ -25,13 +27,16 @@ from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVers
 __all__ = [
     "MAX_PROGRAM_BYTES",
     "MAX_SEARCH",
+    "History",
     "Listed",
+    "VersionRow",
     "add_version",
     "check_program_name",
     "content",
     "diff",
     "get_program",
     "get_version",
+    "history",
     "list_programs",
     "release",
     "same_name_but_case",
@@ -167,6 +172,50 @@ def get_program(session: Session, name: str) -> Program:
     if program is None:
         raise NotFound(f"no program named {name!r}")
     return program
+
+
+class VersionRow(NamedTuple):
+    """A version as a list shows it, read as plain columns (no ORM object per version)."""
+
+    number: int
+    sha256: str
+    size: int
+    state: ProgramState
+    author: str
+    comment: str
+    source: str
+    created: datetime
+
+
+@dataclass(frozen=True)
+class History:
+    """A program, how many versions it has, and its newest ones (oldest first)."""
+
+    program: Program
+    count: int
+    versions: list[VersionRow]
+
+
+def history(session: Session, name: str, limit: int | None = None) -> History:
+    """``name`` with its newest ``limit`` versions (all without a limit); :class:`NotFound`
+    otherwise. Versions are read as columns: a long history costs what its rows cost."""
+    program = session.scalar(select(Program).where(Program.name == name))
+    if program is None:
+        raise NotFound(f"no program named {name!r}")
+    v = ProgramVersion
+    stmt = (
+        select(v.number, v.sha256, v.size, v.state, v.author, v.comment, v.source, v.created)
+        .where(v.program_id == program.id)
+        .order_by(v.number.desc())
+    )
+    if limit is not None:
+        stmt = stmt.limit(limit)
+    rows = [VersionRow(*row) for row in session.execute(stmt)]
+    rows.reverse()
+    count = len(rows)
+    if limit is not None and count >= limit:
+        count = session.scalar(select(func.count()).where(v.program_id == program.id)) or 0
+    return History(program, count, rows)
 
 
 def _with_versions(name: str) -> Select[Program]:

@@ -10,7 +10,7 @@ from typing import Annotated
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer
 
-from opendnc.server.library import Listed
+from opendnc.server.library import History, Listed, VersionRow
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.store.models import (
     AuditEntry,
@@ -91,6 +91,11 @@ class VersionOut(BaseModel):
             created=v.created,
         )
 
+    @classmethod
+    def of_row(cls, program: str, v: VersionRow) -> VersionOut:
+        """From a version read as columns."""
+        return cls(program=program, **v._asdict())
+
 
 class UploadOut(VersionOut):
     """A stored upload; ``created_new`` is false when the newest version had these bytes."""
@@ -99,11 +104,13 @@ class UploadOut(VersionOut):
 
 
 class ProgramOut(BaseModel):
-    """A program with its versions, oldest first."""
+    """A program with its versions, oldest first: all of them, or the newest ones when the
+    request set a ``limit`` (``version_count`` says how many there are)."""
 
     name: str
     locked: bool
     created: Timestamp
+    version_count: int
     versions: list[VersionOut]
 
     @classmethod
@@ -113,7 +120,20 @@ class ProgramOut(BaseModel):
             name=p.name,
             locked=p.locked,
             created=p.created,
+            version_count=len(p.versions),
             versions=[VersionOut.of(v) for v in p.versions],
+        )
+
+    @classmethod
+    def of_history(cls, h: History) -> ProgramOut:
+        """From the library's history of a program."""
+        p = h.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=h.count,
+            versions=[VersionOut.of_row(p.name, v) for v in h.versions],
         )
 
 
