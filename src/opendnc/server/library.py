@@ -340,20 +340,29 @@ def _program_for_update(session: Session, name: str) -> Program:
     program = session.scalar(stmt)
     if program is not None:
         return program
+    _refuse_case_twin(session, name)
+    try:
+        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
+            session.add(Program(name=name))
+    except IntegrityError:
+        # Another upload created it (or a name that differs only in case: the unique index on
+        # the folded name refuses the second of two at the same moment, which the check above
+        # cannot see on PostgreSQL while the first is not committed).
+        pass
+    program = session.scalar(stmt)
+    if program is None:
+        _refuse_case_twin(session, name)
+        raise Conflict(f"program {name!r} could not be created; try again")  # pragma: no cover
+    return program
+
+
+def _refuse_case_twin(session: Session, name: str) -> None:
     other = same_name_but_case(session, name)
     if other is not None:
         raise Conflict(
             f"program {name!r} differs from {other!r} only in case, and file systems that "
             f"fold case (Windows, network shares) would make them one file: use {other!r}"
         )
-    try:
-        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
-            session.add(Program(name=name))
-    except IntegrityError:
-        pass
-    program = session.scalar(stmt)
-    assert program is not None  # created here or by the upload that won the race
-    return program
 
 
 def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:
