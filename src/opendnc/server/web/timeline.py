@@ -146,8 +146,11 @@ class Timeline:
             return True
 
     def forget(self, name: str) -> None:
-        """Another server of a cluster records ``name`` from now on: this one's stop marks
-        no gap in its record."""
+        """This server no longer serves ``name`` (a cluster's lease lost): no record from
+        now on, until the machine's new server notes its state; this one's stop marks
+        nothing more for it."""
+        if name in self._last:
+            self._add(name, (State.NO_RECORD, "", "", "", None, ""), None)
         with self._lock:
             self._last.pop(name, None)
 
