@@ -13,6 +13,7 @@ import signal
 import threading
 import time
 import uuid
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,7 @@ class NodeThread:
         migrate(engine)
         self.engine = engine
         sessions = make_sessions(engine)
-        spc = config.sparkplug
+        spc = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
