@@ -11,6 +11,7 @@ Example::
     bind = "127.0.0.1:8000"
     database = "sqlite:///opendnc.db"      # or postgresql+psycopg://user@host/db
     name = "dnc-1"                         # names this process's claims in a shared database
+    lease_seconds = 10                     # several servers: a dead one's machines move after this
 
     [library]
     path = "programs"                      # the watched library folder
@@ -35,6 +36,7 @@ Example::
     name = "lathe-2"
     kind = "haas_serial"
     serial = "/dev/ttyUSB0"
+    servers = ["dnc-1"]                    # several servers: only dnc-1 reaches this port
     [machines.serial_profile]              # plain text, not XModem (docs/server.md#serial-profile)
     baud = 9600
     protocol = "text"
@@ -188,6 +190,7 @@ class ServerConfig:
     database: str = ""
     name: str = "opendnc"
     timeline_days: float = 7.0  # status samples older than this are pruned
+    lease_seconds: float = 10.0  # a cluster's machine leases: a dead server's go after this
 
 
 @dataclass(frozen=True)
@@ -514,7 +517,11 @@ def _requests(table: dict[str, Any]) -> RequestSettings:
 
 
 def _server(table: dict[str, Any], base: Path) -> ServerConfig:
-    _known(table, "server", {"bind", "database", "name", "timeline_retention_days", "timezone"})
+    _known(
+        table,
+        "server",
+        {"bind", "database", "name", "timeline_retention_days", "timezone", "lease_seconds"},
+    )
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
     # Port 0 takes any free port (tests, the demo); the server prints the one it got.
@@ -535,12 +542,16 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     days = _get(table, "server", "timeline_retention_days", float, 7.0)
     if not 0 < days <= 3660:
         raise ConfigError("server.timeline_retention_days", "expected days, more than 0")
+    lease = _get(table, "server", "lease_seconds", float, 10.0)
+    if not 0.5 <= lease <= 300:
+        raise ConfigError("server.lease_seconds", "expected seconds between 0.5 and 300")
     return ServerConfig(
         bind_host=host.strip("[]"),
         bind_port=int(port_text),
         database=database,
         name=name,
         timeline_days=float(days),
+        lease_seconds=float(lease),
     )
 
 

@@ -79,6 +79,10 @@ class MachineStatusChanged(Event):
     status: MachineStatus | None
     last_error: str = ""  # why the link broke last (kept after a reconnect)
     snapshot: Mapping[str, Any] = field(default_factory=dict, compare=False)
+    served: bool = True
+    """False when another server of a cluster serves the machine and this is its status as
+    that server wrote it (docs/server.md#several-servers): shown on every server's pages,
+    streams and MTConnect, but recorded (timeline) and published (MQTT) by its server only."""
 
     @property
     def key(self) -> str:

@@ -51,8 +51,11 @@ class Fleet:
         requests: RemoteRequests,
         autoreceive: AutoReceive,
         connector_factory: ConnectorFactory,
+        *,
+        serve_all: bool = True,
     ) -> None:
         self.machines = machines
+        self.serve_all = serve_all  # False in a cluster: the leases decide (server/cluster.py)
         self.runner = runner
         self.requests = requests
         self.autoreceive = autoreceive
@@ -60,7 +63,9 @@ class Fleet:
         self._tasks: dict[str, asyncio.Task[None]] = {}
 
     async def start(self) -> None:
-        """Serve every configured machine."""
+        """Serve every configured machine (in a cluster, none until a lease is held)."""
+        if not self.serve_all:
+            return
         server = self.machines.config.server.name
         for name in self.machines.machines:
             # a single server holds every machine: the same word a cluster's gain is

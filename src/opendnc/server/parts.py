@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.exc import SQLAlchemyError
@@ -76,9 +77,17 @@ class TimelineRecorder:
     needs = ("machines",)
 
     def __init__(
-        self, timeline: Timeline, bus: EventBus, *, server: str, machines: list[str]
+        self,
+        timeline: Timeline,
+        bus: EventBus,
+        *,
+        server: str,
+        machines: list[str],
+        held_elsewhere: Callable[[], set[str]] | None = None,
     ) -> None:
         self.timeline = timeline
+        # several servers: the machines another server serves now, whose record is its own
+        self.held_elsewhere = held_elsewhere
         self.bus = bus
         self.server = server
         self.machines = machines
@@ -88,7 +97,13 @@ class TimelineRecorder:
 
     async def start(self) -> None:
         """Close a crash's gap, subscribe and record, start the heartbeat."""
-        gap = await asyncio.to_thread(self.timeline.close_gap, self.server, self.machines)
+
+        def close_gap() -> int:
+            others = self.held_elsewhere() if self.held_elsewhere is not None else set()
+            mine = [m for m in self.machines if m not in others]
+            return self.timeline.close_gap(self.server, mine)
+
+        gap = await asyncio.to_thread(close_gap)
         if gap:
             log.warning("the server did not stop cleanly: no record marked for %d machines", gap)
         recording = running(self.timeline, self.bus)

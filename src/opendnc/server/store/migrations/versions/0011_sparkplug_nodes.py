@@ -1,7 +1,7 @@
 """The Sparkplug B edge nodes' bdSeq, kept across restarts.
 
-Revision ID: 0010
-Revises: 0007
+Revision ID: 0011
+Revises: 0010 (written on 0007; chained after 0010 when main was merged)
 Create Date: 2026-11-27
 
 Written by hand to match the model: one row per (group, edge node) with the bdSeq of the
@@ -13,8 +13,8 @@ from __future__ import annotations
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0010"
-down_revision = "0007"
+revision = "0011"
+down_revision = "0010"
 branch_labels = None
 depends_on = None
 
