@@ -448,7 +448,7 @@ class _Console:
     holds more than that and never shows a line twice, whenever the stream (re)connects.
     """
 
-    def __init__(self, machine: str, shown: list[int], zone: tzinfo) -> None:
+    def __init__(self, machine: str, shown: list[int], zone: tzinfo = UTC) -> None:
         self.machine = machine
         self.shown: deque[int] = deque(sorted(shown))
         self.zone = zone

@@ -240,3 +240,36 @@ document.addEventListener("DOMContentLoaded", () => {
   updateAgo();
   setInterval(updateAgo, 15_000);
 });
+
+// -- sending to many machines: "all machines" picks every box; the send asks first -------
+
+document.addEventListener("change", (event) => {
+  const box = event.target;
+  if (!(box instanceof HTMLInputElement)) return;
+  const form = box.form;
+  if (!form) return;
+  const name = box.dataset.pickAll;
+  const boxes = (n) => Array.from(form.querySelectorAll(`input[type=checkbox][name="${n}"]`));
+  if (name) {
+    for (const each of boxes(name)) each.checked = box.checked;
+    return;
+  }
+  const all = form.querySelector(`input[data-pick-all="${box.name}"]`);
+  if (all) {
+    const picked = boxes(box.name).filter((b) => b.checked).length;
+    all.checked = picked === boxes(box.name).length;
+    all.indeterminate = picked > 0 && !all.checked;
+  }
+});
+
+document.addEventListener("htmx:confirm", (event) => {
+  // A form marked data-confirm-many="N" asks before it sends to N machines or more, naming them.
+  const form = event.detail.elt;
+  if (!(form instanceof HTMLFormElement) || !form.dataset.confirmMany) return;
+  const picked = Array.from(form.querySelectorAll('input[type=checkbox][name="machines"]:checked'));
+  if (picked.length < Number(form.dataset.confirmMany)) return;
+  event.preventDefault();
+  const names = picked.map((b) => b.value);
+  const shown = names.length > 8 ? names.slice(0, 8).join(", ") + ", …" : names.join(", ");
+  if (window.confirm(`Send to ${names.length} machines (${shown})?`)) event.detail.issueRequest(true);
+});
