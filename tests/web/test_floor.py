@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -27,7 +26,14 @@ from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from opendnc.sim.haas.machine import Alarm  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
-from tests.web.browser import PASSWORDS, TIMEOUT_MS, Shop, chromium, sync_api  # noqa: E402
+from tests.web.browser import (  # noqa: E402
+    ARTIFACTS,
+    PASSWORDS,
+    TIMEOUT_MS,
+    Shop,
+    chromium,
+    sync_api,
+)
 from tests.web.inprocess import serving  # noqa: E402
 
 PROGRAM = b"%\r\nO01000 (FACE)\r\nG20\r\nG00 X0. Y0.\r\nM30\r\n%\r\n"
@@ -142,7 +148,7 @@ def test_a_machine_going_into_alarm_is_announced(clean: Shop) -> None:
         assert _counts(page)["alarm"] == 1
         # the card's colour is the classifier's alarm red, from the one mapping
         colour = card.locator(".card-body").evaluate("e => getComputedStyle(e).borderTopColor")
-        assert colour == "rgb(198, 40, 40)"
+        assert colour == "rgb(208, 49, 45)"  # the utilization page's alarm red too
         # Turned off, the next alarm is shown but silent.
         page.get_by_label("Alarm sound").uncheck()
         _alarm(clean, "haas-2", on=True)
@@ -152,6 +158,8 @@ def test_a_machine_going_into_alarm_is_announced(clean: Shop) -> None:
         sync_api.expect(page.locator("#alarm-list li")).to_have_count(2)
         assert page.evaluate("window.opendnc.alerts") == 2
         assert page.evaluate("window.opendnc.beeps") == 1
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=ARTIFACTS / "floor-alarm-1280.png", full_page=True)
     finally:
         _alarm(clean, "haas-1", on=False)
         _alarm(clean, "haas-2", on=False)
@@ -251,10 +259,9 @@ def test_no_overflow_and_no_word_broken_at_both_widths(clean: Shop, viewport: An
         if path == "/machines/tnc-1":
             sync_api.expect(page.locator("#history")).to_contain_text("O01000.nc")
         problems = page.evaluate(MEASURE, [WHOLE, SCROLLERS])
-        shot = Path(__file__).resolve().parent.parent / "artifacts" / "screenshots"
-        shot.mkdir(parents=True, exist_ok=True)
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
         name = path.strip("/").replace("/", "-") or "floor"
-        page.screenshot(path=str(shot / f"floor-{name}-{viewport[0]}.png"), full_page=True)
+        page.screenshot(path=ARTIFACTS / f"floor-{name}-{viewport[0]}.png", full_page=True)
         assert problems == [], (path, viewport, problems)
     page.context.close()
 
