@@ -148,3 +148,8 @@ def test_a_control_that_is_offline_or_silent_reports_no_parts_tool_or_overrides(
     html = render.render("_card.html", c=c, whole=False)
     for word in ("Tool", "Parts", "Overrides"):
         assert word not in html
+
+
+def test_a_controls_path_wraps_after_a_folder_never_inside_a_name() -> None:
+    assert str(render.breakable_path("TNC:/nc_prog/POCKET.H")) == "TNC:/<wbr>nc_prog/<wbr>POCKET.H"
+    assert str(render.breakable_path("C:\\a<b>")) == "C:\\<wbr>a&lt;b&gt;"  # escaped, then marked

@@ -59,6 +59,7 @@ def environment() -> Environment:
     env.filters["size"] = human_size
     env.filters["when"] = _when_filter
     env.filters["stamp"] = _stamp_filter
+    env.filters["path"] = breakable_path
     env.globals["KIND_LABEL"] = KIND_LABEL
     env.globals["percent"] = percent  # one rounding for the card and the queue table
     return env
@@ -130,6 +131,13 @@ def stamp(value: datetime | str | None, zone: tzinfo = UTC, *, with_zone: bool =
     return Markup(
         '<time class="stamp" datetime="{0}" title="{0}"><span>{1}</span> <span>{2}</span></time>'
     ).format(full, day, hour)
+
+
+def breakable_path(value: str) -> Markup:
+    """A control's path that may wrap after each folder (``TNC:/nc_prog/<wbr>POCKET.H``),
+    never inside a name."""
+    text = str(escape(value))
+    return Markup(text.replace("/", "/<wbr>").replace("\\", "\\<wbr>"))
 
 
 def _zone(ctx: Context) -> tzinfo:
