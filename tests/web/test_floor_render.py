@@ -55,10 +55,10 @@ def test_the_timeline_axis_names_the_hours_of_the_shops_clock() -> None:
 
 
 def test_the_night_the_clocks_go_back_has_its_hours_once_each() -> None:
-    end = datetime(2026, 10, 25, 3, 30, tzinfo=UTC)  # 04:30 CET, the night of the change
+    end = datetime(2026, 10, 25, 3, 45, tzinfo=UTC)  # 04:45 CET, the night of the change
     labels = [t.label for t in render.axis_ticks(end - timedelta(hours=4), end, BERLIN)]
-    # 01:30 CEST ... 02:00 CEST, 02:00 CET, 03:00, 04:00 ... 04:30 CET: five real hours
-    assert labels == ["01:30", "02:00", "02:00", "03:00", "04:00", "04:30 CET"]
+    # 01:45 CEST ... 02:00 CEST, 02:00 CET, 03:00, 04:00 ... 04:45 CET: five real hours
+    assert labels == ["01:45", "02:00", "02:00", "03:00", "04:00", "04:45 CET"]
 
 
 def test_a_jobs_rate_and_time_left_follow_from_its_bytes_and_start() -> None:

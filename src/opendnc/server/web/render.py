@@ -176,7 +176,7 @@ def axis_ticks(start: datetime, end: datetime, zone: tzinfo = UTC, *, hours: int
     at = hour.astimezone(UTC) + step
     while at < end:
         left = (at - start).total_seconds() / span * 100
-        if 6 < left < 90:
+        if 6 < left < 84:  # clear of the end labels (the last one carries the zone)
             ticks.append(Tick(round(left, 2), at.astimezone(zone).strftime("%H:%M"), iso(at, zone)))
         at += step
     ticks.append(Tick(100.0, end.astimezone(zone).strftime("%H:%M %Z"), iso(end, zone)))
