@@ -60,6 +60,7 @@ def environment() -> Environment:
     env.filters["when"] = _when_filter
     env.filters["stamp"] = _stamp_filter
     env.filters["path"] = breakable_path
+    env.filters["clock"] = _clock_filter
     env.globals["KIND_LABEL"] = KIND_LABEL
     env.globals["percent"] = percent  # one rounding for the card and the queue table
     return env
@@ -148,6 +149,11 @@ def _zone(ctx: Context) -> tzinfo:
 @pass_context
 def _when_filter(ctx: Context, value: datetime | str | None) -> str:
     return when(value, _zone(ctx))
+
+
+@pass_context
+def _clock_filter(ctx: Context, value: datetime | str | None) -> str:
+    return clock(value, _zone(ctx))
 
 
 @pass_context
