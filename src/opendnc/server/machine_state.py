@@ -42,6 +42,7 @@ class MachineState:
     seen_state: State | None = None
     state_since: datetime | None = None
     errands: Errands = field(default_factory=Errands)  # file browser reads on the connector
+    served: bool = True  # False while another server of a cluster serves it (its status read)
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
@@ -60,7 +61,9 @@ class MachineState:
         if state is not self.seen_state:
             self.seen_state, self.state_since = state, datetime.now(UTC)
         name, json = self.config.name, self.as_json()
-        return MachineStatusChanged(name, self.online, self.status, self.last_error, json)
+        return MachineStatusChanged(
+            name, self.online, self.status, self.last_error, json, served=self.served
+        )
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
