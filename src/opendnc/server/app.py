@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from fastapi import FastAPI
 from sqlalchemy import Engine
@@ -28,6 +28,7 @@ from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
+from opendnc.server.key_use import KeyUse
 from opendnc.server.kinds import connector_for
 from opendnc.server.leases import LIBRARY, Leases, held_elsewhere
 from opendnc.server.limits import LimitsMiddleware
@@ -41,6 +42,8 @@ from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.sparkplug import SparkplugNode
+from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
@@ -100,6 +103,7 @@ def build(
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
     core.add(actions.Services(sessions, database_part.reads, machines))
+    core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
@@ -115,7 +119,9 @@ def build(
     )
     requests = core.add(RemoteRequests(machines, sessions, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
-    outputs = core.add(Outputs(_mqtt(config, bus), _mtconnect(config, bus)))
+    outputs = core.add(
+        Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
+    )
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
@@ -217,6 +223,29 @@ def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:
             "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
         ) from None
     return MqttPublisher(config.mqtt, config.server.name, [m.name for m in config.machines], bus)
+
+
+def _sparkplug(
+    config: ShopConfig, bus: EventBus, sessions: sessionmaker[Session]
+) -> SparkplugNode | None:
+    if config.sparkplug is None:
+        return None
+    # Left out, the node is the server's name: `serve --name` sets it after the file is read.
+    spb = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
+    for module in ("aiomqtt", "pysparkplug"):
+        try:
+            __import__(module)  # a configured output that cannot run fails at start
+        except ImportError:
+            raise ConfigError(
+                "sparkplug",
+                f"needs {module}, part of the 'server' extra: pip install 'opendnc[server]'",
+            ) from None
+    return SparkplugNode(
+        spb,
+        [m.name for m in config.machines],
+        bus,
+        lambda: next_bd_seq(sessions, spb.group, spb.node),
+    )
 
 
 def _mtconnect(config: ShopConfig, bus: EventBus) -> MtconnectOutput | None:

@@ -48,6 +48,7 @@ __all__ = [
     "finish",
     "get_job",
     "interrupt",
+    "last_finished",
     "list_jobs",
     "machines_running",
     "machines_with_due_jobs",
@@ -230,9 +231,24 @@ def _running(session: Session, job_id: int) -> Job:
 
 
 def _program_fields(job: Job) -> dict[str, Any]:
+    """The program a job carried, as its audit rows name it."""
     if job.version is None:
         return {}
     return {"program": job.version.program.name, "sha256": job.version.sha256}
+
+
+def _record_ending(session: Session, job: Job, **detail: Any) -> None:
+    """The audit row of a run's ending (done, a retry, failed, interrupted): its action is the
+    job's kind, its actor the server that ran it; it names the program the job carried."""
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        **detail,
+        **_program_fields(job),
+    )
 
 
 def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail: Any) -> Job:
@@ -242,17 +258,7 @@ def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail
     job.finished = utcnow()
     if nbytes is not None:
         job.bytes_done = nbytes
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        nbytes=nbytes,
-        by=job.created_by,
-        **_program_fields(job),
-        **detail,
-    )
+    _record_ending(session, job, nbytes=nbytes, by=job.created_by, **detail)
     return job
 
 
@@ -288,18 +294,14 @@ def fail(
     else:
         job.state = JobState.CANCELLED if job.cancel_requested else JobState.FAILED
         job.finished = utcnow()
-    audit.record(
+    _record_ending(
         session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
+        job,
         result="retry" if again else job.state.value,
         error=error,
         attempt=job.attempts,
         line=line,
         nbytes=nbytes,
-        **_program_fields(job),
     )
     return job
 
@@ -310,16 +312,7 @@ def interrupt(session: Session, job_id: int, reason: str) -> Job:
     job.state = JobState.INTERRUPTED
     job.error = reason
     job.finished = utcnow()
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        result="interrupted",
-        error=reason,
-        **_program_fields(job),
-    )
+    _record_ending(session, job, result="interrupted", error=reason)
     return job
 
 
@@ -422,6 +415,17 @@ def queue_lengths(session: Session) -> dict[str, int]:
         .group_by(Job.machine)
     )
     return {machine: int(count) for machine, count in session.execute(stmt)}
+
+
+def last_finished(session: Session, machines: Iterable[str] | None = None) -> dict[str, Job]:
+    """Each machine's most recently finished job (done, failed, cancelled or interrupted),
+    its version and program loaded; ``machines`` limits the machines asked about."""
+    ended = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
+    newest = select(func.max(Job.id)).where(Job.state.in_(ended)).group_by(Job.machine)
+    if machines is not None:
+        newest = newest.where(Job.machine.in_(list(machines)))
+    stmt = select(Job).where(Job.id.in_(newest)).options(_with_program())
+    return {job.machine: job for job in session.scalars(stmt)}
 
 
 def _with_program() -> LoaderOption:

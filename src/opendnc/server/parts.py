@@ -1,5 +1,5 @@
-"""Components around parts that have a life of their own: the open outputs (MQTT, MTConnect)
-and the status timeline's recorder."""
+"""Components around parts that have a life of their own: the open outputs (MQTT, Sparkplug B,
+MTConnect) and the status timeline's recorder."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from opendnc.server.components import cancel_and_wait
 from opendnc.server.events import EventBus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.web.timeline import HEARTBEAT, Timeline, running
 
 __all__ = ["Outputs", "TimelineRecorder"]
@@ -29,17 +30,26 @@ class Outputs:
     name = "outputs"
     needs = ("machines",)
 
-    def __init__(self, mqtt: MqttPublisher | None, mtconnect: MtconnectOutput | None) -> None:
+    def __init__(
+        self,
+        mqtt: MqttPublisher | None,
+        mtconnect: MtconnectOutput | None,
+        sparkplug: SparkplugNode | None = None,
+    ) -> None:
         self.mqtt = mqtt
         self.mtconnect = mtconnect
+        self.sparkplug = sparkplug
         self._tasks: list[asyncio.Task[None]] = []
 
-    def as_dict(self) -> dict[str, MqttPublisher | MtconnectOutput | None]:
+    def as_dict(self) -> dict[str, MqttPublisher | MtconnectOutput | SparkplugNode | None]:
         """The outputs by name (``None`` where not configured)."""
-        return {"mqtt": self.mqtt, "mtconnect": self.mtconnect}
+        return {"mqtt": self.mqtt, "sparkplug": self.sparkplug, "mtconnect": self.mtconnect}
 
     async def start(self) -> None:
-        """Open the MTConnect ports, start both outputs' tasks."""
+        """Open the MTConnect ports, start the outputs' tasks (the Sparkplug node subscribes
+        here, before the machines' tasks announce what this server serves)."""
+        if self.sparkplug is not None:
+            await self.sparkplug.start()
         if self.mqtt is not None:
             self._tasks.append(asyncio.create_task(self.mqtt.run(), name="mqtt"))
         if self.mtconnect is not None:
@@ -47,9 +57,11 @@ class Outputs:
             self._tasks.append(asyncio.create_task(self.mtconnect.run(), name="mtconnect"))
 
     async def stop(self) -> None:
-        """Stop the tasks, close the MTConnect ports."""
+        """Stop the tasks (the Sparkplug node sends its death), close the MTConnect ports."""
         tasks, self._tasks = self._tasks, []
         await cancel_and_wait(*tasks)
+        if self.sparkplug is not None:
+            await self.sparkplug.stop()
         if self.mtconnect is not None:
             await self.mtconnect.close()
 

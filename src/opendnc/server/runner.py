@@ -264,7 +264,7 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.job_id, state.job_progress = claimed.job_id, (0, len(claimed.data) or None)
+        state.start_job(claimed.job_id, len(claimed.data) or None)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)

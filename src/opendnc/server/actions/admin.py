@@ -54,6 +54,7 @@ def revoke_key(svc: Services, who: Caller, key_id: int) -> RevokedOut:
     """Revoke a key for good (twice is harmless)."""
     require(who, Role.ADMIN)
     svc.write(lambda s: auth.revoke_key(s, key_id, actor=who.name))
+    svc.keys.forget(key_id)  # at once, not when the cache's seconds are up
     return RevokedOut(id=key_id, revoked=True)
 
 

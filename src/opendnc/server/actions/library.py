@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
+from typing import TypeVar
 
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
 from opendnc.server import library
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, DiffOut, ProgramOut, UploadOut, VersionOut
+from opendnc.server.actions.models import (
+    Content,
+    DiffOut,
+    ProgramListed,
+    ProgramOut,
+    UploadOut,
+    VersionOut,
+)
 from opendnc.server.store.models import Role
 
 __all__ = [
@@ -23,23 +32,26 @@ __all__ = [
     "upload_program",
 ]
 
+T = TypeVar("T")
+
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
 
 
-def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramOut]:
-    """Programs whose name holds ``search`` (any case), by name."""
+def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramListed]:
+    """Programs whose name holds ``search`` (any case), by name: each with its newest and
+    its released version."""
     require(who, Role.VIEWER)
     search = search.strip()
     if len(search) > MAX_SEARCH:
         return []
-    return svc.read(lambda s: [ProgramOut.of(p) for p in library.list_programs(s, search)])
+    return svc.read(lambda s: [ProgramListed.of(p) for p in library.list_programs(s, search)])
 
 
-def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:
-    """One program and its versions."""
+def get_program(svc: Services, who: Caller, name: str, limit: int | None = None) -> ProgramOut:
+    """One program and its versions: the newest ``limit`` of them, or all."""
     require(who, Role.VIEWER)
     library.check_program_name(name)
-    return svc.read(lambda s: ProgramOut.of(library.get_program(s, name)))
+    return svc.read(lambda s: ProgramOut.of_history(library.history(s, name, limit)))
 
 
 def program_content(svc: Services, who: Caller, name: str, number: int | None) -> Content:
@@ -90,24 +102,29 @@ def upload_program(
         )
         return UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
 
-    out = svc.write(store)
-    svc.changed("program", name)
-    return out
+    return _change(svc, name, store)
 
 
 def release_version(svc: Services, who: Caller, name: str, number: int) -> VersionOut:
     """Release a version (the one released before becomes superseded)."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: VersionOut.of(library.release(s, name, number, actor=who.name)))
-    svc.changed("program", name)
-    return out
+    return _change(
+        svc, name, lambda s: VersionOut.of(library.release(s, name, number, actor=who.name))
+    )
 
 
 def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOut:
     """Lock a program against new versions and state changes, or unlock it."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name)))
+    return _change(
+        svc, name, lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name))
+    )
+
+
+def _change(svc: Services, name: str, change: Callable[[Session], T]) -> T:
+    """Run ``change`` in one write transaction, then tell the pages that ``name`` changed."""
+    out = svc.write(change)
     svc.changed("program", name)
     return out

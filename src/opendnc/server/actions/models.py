@@ -5,22 +5,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Annotated
+from typing import Annotated, Self
 
 from fastapi import Path, Query
-from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
 from opendnc.server.leases import ClusterView
-from opendnc.server.machine_files import RemoteFile
+from opendnc.server.library import History, Listed, VersionRow
 from opendnc.server.store.models import (
-    AuditEntry,
     Job,
     JobKind,
     JobState,
     Program,
     ProgramState,
-    ProgramVersion,
-    Received,
     ReceivedState,
 )
 
@@ -33,6 +30,7 @@ __all__ = [
     "Count",
     "DiffOut",
     "FolderOut",
+    "FromRow",
     "Id",
     "IdQuery",
     "JobOut",
@@ -41,6 +39,7 @@ __all__ = [
     "LeaseOut",
     "LineNumber",
     "MachineOut",
+    "ProgramListed",
     "ProgramOut",
     "ReceivedDetail",
     "ReceivedOut",
@@ -65,7 +64,19 @@ Timestamp = Annotated[datetime, PlainSerializer(datetime.isoformat, return_type=
 same text in an API answer, an event and a CSV row, so a client may compare them."""
 
 
-class VersionOut(BaseModel):
+class FromRow(BaseModel):
+    """A model read off a row (or a dataclass) attribute by attribute: its fields are named
+    as the row's are."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    @classmethod
+    def of(cls, row: object) -> Self:
+        """From the row (the relations its fields name loaded with it)."""
+        return cls.model_validate(row)
+
+
+class VersionOut(FromRow):
     """One version of a program."""
 
     program: str
@@ -78,20 +89,16 @@ class VersionOut(BaseModel):
     source: str
     created: Timestamp
 
+    @field_validator("program", mode="before")
     @classmethod
-    def of(cls, v: ProgramVersion) -> VersionOut:
-        """From the row (its program loaded with it)."""
-        return cls(
-            program=v.program.name,
-            number=v.number,
-            sha256=v.sha256,
-            size=v.size,
-            state=v.state,
-            author=v.author,
-            comment=v.comment,
-            source=v.source,
-            created=v.created,
-        )
+    def _program_name(cls, value: object) -> object:
+        # a version row names its program through the relation: the model keeps the name
+        return value.name if isinstance(value, Program) else value
+
+    @classmethod
+    def of_row(cls, program: str, v: VersionRow) -> VersionOut:
+        """From a version read as columns."""
+        return cls(program=program, **v._asdict())
 
 
 class UploadOut(VersionOut):
@@ -101,11 +108,13 @@ class UploadOut(VersionOut):
 
 
 class ProgramOut(BaseModel):
-    """A program with its versions, oldest first."""
+    """A program with its versions, oldest first: all of them, or the newest ones when the
+    request set a ``limit`` (``version_count`` says how many there are)."""
 
     name: str
     locked: bool
     created: Timestamp
+    version_count: int
     versions: list[VersionOut]
 
     @classmethod
@@ -115,7 +124,45 @@ class ProgramOut(BaseModel):
             name=p.name,
             locked=p.locked,
             created=p.created,
+            version_count=len(p.versions),
             versions=[VersionOut.of(v) for v in p.versions],
+        )
+
+    @classmethod
+    def of_history(cls, h: History) -> ProgramOut:
+        """From the library's history of a program."""
+        p = h.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=h.count,
+            versions=[VersionOut.of_row(p.name, v) for v in h.versions],
+        )
+
+
+class ProgramListed(BaseModel):
+    """A program in the library's list: its newest and its released version, and how many
+    versions it has (``GET /api/programs/{name}`` lists them all)."""
+
+    name: str
+    locked: bool
+    created: Timestamp
+    version_count: int
+    newest: VersionOut | None
+    released: VersionOut | None
+
+    @classmethod
+    def of(cls, listed: Listed) -> ProgramListed:
+        """From the library's list entry."""
+        p = listed.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=listed.count,
+            newest=VersionOut.of(listed.newest) if listed.newest is not None else None,
+            released=VersionOut.of(listed.released) if listed.released is not None else None,
         )
 
 
@@ -180,7 +227,7 @@ class JobOut(BaseModel):
         )
 
 
-class AuditOut(BaseModel):
+class AuditOut(FromRow):
     """One row of the audit trail."""
 
     id: int
@@ -195,25 +242,8 @@ class AuditOut(BaseModel):
     bytes: int | None
     detail: dict[str, JsonValue]
 
-    @classmethod
-    def of(cls, a: AuditEntry) -> AuditOut:
-        """From the row."""
-        return cls(
-            id=a.id,
-            at=a.at,
-            actor=a.actor,
-            action=a.action,
-            machine=a.machine,
-            program=a.program,
-            sha256=a.sha256,
-            job_id=a.job_id,
-            result=a.result,
-            bytes=a.bytes,
-            detail=dict(a.detail),
-        )
 
-
-class ReceivedOut(BaseModel):
+class ReceivedOut(FromRow):
     """A program received from a control (or a failed try)."""
 
     id: int
@@ -225,21 +255,6 @@ class ReceivedOut(BaseModel):
     reason: str
     at: Timestamp
     version_id: int | None
-
-    @classmethod
-    def of(cls, r: Received) -> ReceivedOut:
-        """From the row."""
-        return cls(
-            id=r.id,
-            machine=r.machine,
-            name=r.name,
-            sha256=r.sha256,
-            size=r.size,
-            state=r.state,
-            reason=r.reason,
-            at=r.at,
-            version_id=r.version_id,
-        )
 
 
 class ReceivedDetail(ReceivedOut):
@@ -314,7 +329,7 @@ class MachineOut(BaseModel):
     job: JobProgressOut | None
 
 
-class RemoteFileOut(BaseModel):
+class RemoteFileOut(FromRow):
     """One entry of a folder on a control."""
 
     name: str
@@ -322,11 +337,6 @@ class RemoteFileOut(BaseModel):
     size: int
     modified: Timestamp
     is_dir: bool
-
-    @classmethod
-    def of(cls, f: RemoteFile) -> RemoteFileOut:
-        """From the connector's listing."""
-        return cls(name=f.name, path=f.path, size=f.size, modified=f.modified, is_dir=f.is_dir)
 
 
 class FolderOut(BaseModel):

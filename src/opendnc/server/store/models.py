@@ -30,6 +30,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    func,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -232,7 +233,6 @@ class Program(Base):
     """A program name in the library (``O01234``, ``POCKET.H``) and its versions."""
 
     __tablename__ = "programs"
-
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(255), unique=True)
     locked: Mapped[bool] = mapped_column(Boolean, default=False)
@@ -241,6 +241,11 @@ class Program(Base):
     versions: Mapped[list[ProgramVersion]] = relationship(
         back_populates="program", order_by="ProgramVersion.number", lazy=NO_LAZY_SQL
     )
+
+
+# Names that differ only in case are one file on Windows and SMB shares: the database refuses
+# the second even when two uploads race (docs/server.md#program-names).
+Index("uq_programs_name_folded", func.lower(Program.name), unique=True)
 
 
 class ProgramVersion(Base):
@@ -480,3 +485,18 @@ class MachineSnapshot(Base):
     server: Mapped[str] = mapped_column(String(64), default="")
     updated: Mapped[datetime] = mapped_column(UtcDateTime(), index=True)
     data: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class SparkplugNode(Base):
+    """A Sparkplug B edge node's birth/death sequence number (``bdSeq``), kept across restarts.
+
+    ``bd_seq`` is the number of the node's latest MQTT session: each new session takes the next
+    one (0..255, then 0 again), so a host can tell a late NDEATH of an old session from the
+    current one (docs/server.md#sparkplug-b).
+    """
+
+    __tablename__ = "sparkplug_nodes"
+
+    group_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    node_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    bd_seq: Mapped[int] = mapped_column(Integer, default=0)

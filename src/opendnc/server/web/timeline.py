@@ -85,6 +85,8 @@ class Segment:
     width: float
     state: str  # a State's value: the strip's colour class
     label: str
+    start: datetime | None = None  # the stretch's bounds within the strip (its title says them)
+    end: datetime | None = None
 
 
 # (state, mode, execution, program, part count, alarm text): a change of any is a sample
@@ -323,7 +325,14 @@ class Timeline:
             begin = max(sample.at, start)
             x = (begin - start).total_seconds() / span * width
             w = (until - begin).total_seconds() / span * width
-            segment = Segment(round(x, 2), round(max(w, 0.5), 2), sample.state.value, sample.label)
+            segment = Segment(
+                round(x, 2),
+                round(max(w, 0.5), 2),
+                sample.state.value,
+                sample.label,
+                begin,
+                until,
+            )
             out.append(segment)
         return out
 
