@@ -26,6 +26,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from opendnc.server.components import Component, cancel_and_wait
@@ -90,6 +91,7 @@ class Cluster:
 
     async def start(self) -> None:
         """Join: serve nothing until a renewal grants a lease; listen for notices."""
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="cluster-leases")
         for state in self.machines.machines.values():
             state.served = False
         self.listener = Listener(self.database_url, self._notice, on_reconnect=self._reread)
@@ -111,6 +113,7 @@ class Cluster:
             if not database_down(exc):
                 raise
             log.warning("leases not freed (the database is away): they expire by themselves")
+        self._thread.shutdown(wait=False)
 
     def view(self) -> ClusterView:
         """Servers, heartbeats and leases as the database sees them now (blocking)."""
@@ -119,22 +122,27 @@ class Cluster:
     # -- renewals ---------------------------------------------------------------------------
 
     async def _renewing(self) -> None:
+        loop = asyncio.get_running_loop()
         while True:
             began = time.monotonic()
             try:
-                holding = await asyncio.to_thread(self.leases.renew, can_hand_over=self._idle)
+                # On a thread of its own: behind hundreds of machines' blocking calls in the
+                # shared pool, a renewal could wait longer than the lease lasts.
+                holding = await loop.run_in_executor(self._thread, self._renew)
             except Exception as exc:
                 self.renew_failures += 1
                 if not database_down(exc):
                     log.exception("renewing the leases failed")
                 else:
-                    log.warning("leases not renewed: %s", str(exc).splitlines()[0])
-                if time.monotonic() >= self.leases.valid_until and self.serving:
-                    # Another server may hold them by now: stop before it starts.
-                    log.warning("leases may have expired: serving no machine until renewed")
-                    for machine in sorted(self.serving):
-                        await self._lose(machine)
-                    self.leases.held = frozenset()
+                    log.warning("leases not renewed: %s", (str(exc) or repr(exc)).splitlines()[0])
+                try:
+                    if time.monotonic() >= self.leases.valid_until and self.serving:
+                        # Another server may hold them by now: stop before it starts.
+                        log.warning("leases may have expired: serving no machine until renewed")
+                        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
+                        self.leases.held = frozenset()
+                except Exception:
+                    log.exception("stopping the machines of expired leases failed")
             else:
                 self.renewals += 1
                 try:
@@ -142,6 +150,9 @@ class Cluster:
                 except Exception:  # one bad round must not end the renewals
                     log.exception("acting on the leases failed")
             await asyncio.sleep(max(0.0, self.renew_every - (time.monotonic() - began)))
+
+    def _renew(self) -> Holding:
+        return self.leases.renew(can_hand_over=self._idle)
 
     def _idle(self, machine: str) -> bool:
         """A machine may be handed over now: no job runs or is being claimed there (the lease

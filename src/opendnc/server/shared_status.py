@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -81,6 +82,7 @@ class SharedStatus:
 
     async def start(self) -> None:
         """Subscribe to the served machines' status and start sharing."""
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="shared-status")
         self._task = asyncio.create_task(self._run(), name="shared-status")
 
     async def stop(self) -> None:
@@ -88,6 +90,7 @@ class SharedStatus:
         task, self._task = self._task, None
         if task is not None:
             await cancel_and_wait(task)
+        self._thread.shutdown(wait=False)
 
     async def _run(self) -> None:
         pending: dict[str, dict[str, Any]] = {}
@@ -106,7 +109,7 @@ class SharedStatus:
                             pending[state.config.name] = state.as_json()
                 batch, pending = pending, {}
                 try:
-                    rows = await asyncio.to_thread(self._exchange, batch)
+                    rows = await loop.run_in_executor(self._thread, self._exchange, batch)
                 except Exception as exc:
                     if not database_down(exc):
                         log.exception("sharing the machines' status failed")
