@@ -263,7 +263,9 @@ class Leases:
                     )
                 )
             grace = self.ttl / 2  # a free machine waits this long for the server assigned it
-            for machine in sorted(self.machines):  # one order for every server's locks
+            free: list[str] = []  # rows there but expired or released
+            new: list[str] = []  # no row yet
+            for machine in sorted(self.machines):
                 if machine in renewed or machine in hand_over:
                     continue
                 row = leases.get(machine)
@@ -273,8 +275,8 @@ class Leases:
                 due = wanted.get(machine) == self.server
                 if not due and free_since is not None and free_since > now - grace:
                     continue
-                if self._take(session, machine, now, exists=row is not None):
-                    renewed.add(machine)
+                (new if row is None else free).append(machine)
+            renewed |= self._take(session, free, new, now)
             epochs = {
                 machine: epoch
                 for machine, epoch in session.execute(
@@ -299,37 +301,62 @@ class Leases:
         """The machines this server may act on now: held, and not past the lease."""
         return self.held if time.monotonic() < self.valid_until else frozenset()
 
-    def _take(self, session: Session, machine: str, now: datetime, exists: bool) -> bool:
-        # One statement: of two servers taking the same free row, the second finds it live.
-        # A row that is there is only updated where free (an UPDATE whose condition fails
-        # keeps no lock); a new row is inserted unless another server just did: a live row
-        # is never locked by a server that cannot take it, so renewals do not deadlock.
-        if exists:
-            taken = session.execute(
-                update(MachineLease)
+    def _take(self, session: Session, free: list[str], new: list[str], now: datetime) -> set[str]:
+        """Take the ``free`` rows (expired or released) and insert the ``new`` ones, in two
+        statements however many: a server taking hundreds of machines must not spend its
+        lease on round trips. A row another server is taking right now is skipped (``SKIP
+        LOCKED``), a row that turned live meanwhile is not taken (the condition is checked
+        again under the lock), and a row another server just inserted is left to it: a live
+        lease is never taken, and two servers' renewals never wait on each other."""
+        taken: set[str] = set()
+        if free:
+            lockable = (
+                select(MachineLease.machine)
                 .where(
-                    MachineLease.machine == machine,
+                    MachineLease.machine.in_(free),
                     (MachineLease.expires <= now) | (MachineLease.owner == ""),
                 )
-                .values(
-                    owner=self.server,
-                    epoch=MachineLease.epoch + 1,
-                    acquired=now,
-                    expires=now + self.ttl,
-                )
-                .returning(MachineLease.machine)
-            ).first()
-            return taken is not None
-        insert = self._insert(session)
-        statement = insert(MachineLease).values(  # type: ignore[attr-defined]
-            machine=machine, owner=self.server, epoch=1, acquired=now, expires=now + self.ttl
-        )
-        taken = session.execute(
-            statement.on_conflict_do_nothing(index_elements=[MachineLease.machine]).returning(
-                MachineLease.machine
+                .order_by(MachineLease.machine)
+                .with_for_update(skip_locked=True)
             )
-        ).first()
-        return taken is not None
+            taken |= set(
+                session.scalars(
+                    update(MachineLease)
+                    .where(
+                        MachineLease.machine.in_(lockable.scalar_subquery()),
+                        (MachineLease.expires <= now) | (MachineLease.owner == ""),
+                    )
+                    .values(
+                        owner=self.server,
+                        epoch=MachineLease.epoch + 1,
+                        acquired=now,
+                        expires=now + self.ttl,
+                    )
+                    .returning(MachineLease.machine)
+                )
+            )
+        if new:
+            insert = self._insert(session)
+            statement = insert(MachineLease).values(  # type: ignore[attr-defined]
+                [
+                    {
+                        "machine": machine,
+                        "owner": self.server,
+                        "epoch": 1,
+                        "acquired": now,
+                        "expires": now + self.ttl,
+                    }
+                    for machine in sorted(new)
+                ]
+            )
+            taken |= set(
+                session.scalars(
+                    statement.on_conflict_do_nothing(
+                        index_elements=[MachineLease.machine]
+                    ).returning(MachineLease.machine)
+                )
+            )
+        return taken
 
     def release_all(self) -> None:
         """A clean stop: free every lease at once and leave the cluster."""
