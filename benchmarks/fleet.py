@@ -327,6 +327,7 @@ def run_cluster(
         view = _get(bases["dnc-1"] + "/api/cluster", key)
         spread = {s["name"]: s["machines"] for s in view["servers"]}
         cpu0 = {s: _cpu_seconds(p.pid) for s, p in procs.items()}
+        fleet0 = _cpu_seconds(fleet.pid)
         t0 = time.monotonic()
         ages: dict[str, list[float]] = {s: [] for s in procs}
         while time.monotonic() - t0 < seconds:
@@ -336,6 +337,7 @@ def run_cluster(
             time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
         span = time.monotonic() - t0
         cpu = {s: (_cpu_seconds(p.pid) - cpu0[s]) / span for s, p in procs.items()}
+        fleet_cpu = (_cpu_seconds(fleet.pid) - fleet0) / span
         # the failover: SIGKILL the last server
         victim = f"dnc-{servers}"
         os.killpg(procs[victim].pid, signal.SIGKILL)
@@ -367,6 +369,8 @@ def run_cluster(
             "takeover": takeover,
             "status_back": status_back,
             "lease": lease,
+            "fleet_cpu": fleet_cpu,
+            "load": os.getloadavg()[0],
         }
     finally:
         for proc in procs.values():
@@ -378,7 +382,8 @@ def run_cluster(
 def _cluster_report(r: dict[str, Any]) -> None:
     print(
         f"N={r['n']} over {r['servers']} servers (lease {r['lease']:g} s), every machine online "
-        f"on every server after {r['online_s']:.1f} s; load average {os.getloadavg()[0]:.1f}"
+        f"on every server after {r['online_s']:.1f} s; the fleet's process {r['fleet_cpu']:.2f} c; "
+        f"load average {r['load']:.1f}"
     )
     print(f"{'server':>8} {'machines':>9} {'CPU':>7} {'age p50':>8} {'age p99':>8} {'age max':>8}")
     for s in r["cpu"]:
