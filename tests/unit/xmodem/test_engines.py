@@ -412,3 +412,33 @@ def test_receiver_text_start_ends_on_plain_text_only_when_set() -> None:
     started.data_to_send()
     started.receive_data(b"\n" + encode_block(1, b"G0", crc=False))
     assert started.data_to_send() == bytes([ACK])
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="known (issue 20): in checksum mode a NAK that the receiver sent before block 1 "
+    "reached it (the rest of a Haas's start-request burst) makes the sender send block 1 "
+    "again, and the copy's ACK is taken for the next block's",
+)
+def test_the_rest_of_a_start_request_burst_does_not_run_the_sender_ahead() -> None:
+    data = bytes(range(32, 127)) * 20  # 15 blocks
+    sender = XmodemSender(data, Mode.CHECKSUM)
+    receiver = XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(crc_tries=0))
+    assert receiver.data_to_send() == bytes([NAK])  # its start request; a Haas repeats it
+    sender.receive_data(bytes([NAK]))  # the sender reads the first NAK of a burst alone,
+    wire = [sender.data_to_send()]  # sends block 1,
+    sender.receive_data(bytes([NAK, NAK]))  # and the rest of the burst after that
+    copies = sender.data_to_send()
+    wire += [copies[i : i + 132] for i in range(0, len(copies), 132)]
+    acks = b""
+    for frame in wire:  # the receiver reads each copy on its own and ACKs each
+        receiver.receive_data(frame)
+        acks += receiver.data_to_send()
+    sender.receive_data(acks)  # the ACKs reach the sender together
+    receiver.receive_data(sender.data_to_send())  # what it sent reaches the receiver together
+    sender.receive_data(receiver.data_to_send())
+    receiver.timed_out()  # a block the receiver dropped as queued after another: NAK
+    sender.receive_data(receiver.data_to_send())
+    receiver.receive_data(sender.data_to_send())
+    assert receiver.error is None, receiver.error  # seen: "block 4 arrived while block 3 ..."
