@@ -29,6 +29,7 @@ from opendnc.server import actions, audit, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
+    ClusterOut,
     Count,
     DiffOut,
     FolderOut,
@@ -55,7 +56,7 @@ from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
-from opendnc.server.streams import throttled_stream
+from opendnc.server.streams import event_stream_response
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -251,6 +252,13 @@ def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | N
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
 
 
+@router.get("/cluster")
+def cluster(svc: Svc, who: Caller) -> ClusterOut:
+    """The servers sharing the database, their heartbeats and machine leases (the same as
+    ``opendnc cluster status --json``, from any server)."""
+    return actions.admin.cluster_status(svc, who)
+
+
 @router.get(
     "/mtconnect/devices.xml",
     response_model=None,
@@ -378,6 +386,25 @@ def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
     """The bytes of one version."""
     content = actions.library.program_content(svc, who, name, number)
     return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+
+
+@router.get(
+    "/programs/{name}/versions/{number}/toolpath",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+def program_toolpath(svc: Svc, name: str, number: Id, who: Caller) -> Response:
+    """The dry run's toolpath of one version, decimated to its shape, as little-endian
+    binary: runs of points with their kind, tool and file lines (docs/check.md#toolpath-binary)."""
+    found = actions.preview.preview(svc, who, name, number)
+    return OctetStream(
+        found.toolpath,
+        headers={
+            "X-Content-SHA256": found.sha256,
+            "X-Toolpath-Moves": str(found.moves),
+            "X-Toolpath-Points": str(found.points),
+        },
+    )
 
 
 VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
@@ -589,14 +616,8 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
-    stream = throttled_stream(
-        machines.bus,
-        _ApiEvents(machines),
-        interval=EVENT_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    return event_stream_response(
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
     )
 
 

@@ -22,6 +22,7 @@ from sqlalchemy.orm import Session, joinedload, selectinload
 from opendnc.errors import InputError
 from opendnc.server import audit
 from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.notify import notify
 from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVersion
 
 __all__ = [
@@ -329,6 +330,7 @@ def add_version(
         source=source,
         comment=comment,
     )
+    notify(session, "library", f"{version.number}:{name}")  # the other servers' pages and streams
     return version, True
 
 
@@ -382,6 +384,7 @@ def release(session: Session, name: str, number: int, *, actor: str) -> ProgramV
     audit.record(
         session, actor, "program.release", program=name, sha256=target.sha256, version=number
     )
+    notify(session, "library", f"{number}:{name}")
     return target
 
 

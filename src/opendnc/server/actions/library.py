@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
+from typing import TypeVar
 
 from sqlalchemy.orm import Session
 
@@ -29,6 +31,8 @@ __all__ = [
     "set_locked",
     "upload_program",
 ]
+
+T = TypeVar("T")
 
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
 
@@ -98,24 +102,29 @@ def upload_program(
         )
         return UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
 
-    out = svc.write(store)
-    svc.changed("program", name)
-    return out
+    return _change(svc, name, store)
 
 
 def release_version(svc: Services, who: Caller, name: str, number: int) -> VersionOut:
     """Release a version (the one released before becomes superseded)."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: VersionOut.of(library.release(s, name, number, actor=who.name)))
-    svc.changed("program", name)
-    return out
+    return _change(
+        svc, name, lambda s: VersionOut.of(library.release(s, name, number, actor=who.name))
+    )
 
 
 def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOut:
     """Lock a program against new versions and state changes, or unlock it."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name)))
+    return _change(
+        svc, name, lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name))
+    )
+
+
+def _change(svc: Services, name: str, change: Callable[[Session], T]) -> T:
+    """Run ``change`` in one write transaction, then tell the pages that ``name`` changed."""
+    out = svc.write(change)
     svc.changed("program", name)
     return out

@@ -1,7 +1,7 @@
 """A unique index on the folded (lower-case) program name.
 
-Revision ID: 0010
-Revises: 0007
+Revision ID: 0012
+Revises: 0011 (written on 0007; chained after 0011 when main was merged)
 Create Date: 2026-11-27
 
 Names that differ only in case are one file on Windows and SMB shares. The library refuses
@@ -18,8 +18,8 @@ import logging
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0010"
-down_revision = "0007"
+revision = "0012"
+down_revision = "0011"
 branch_labels = None
 depends_on = None
 
