@@ -123,6 +123,8 @@ def config_text(tmp_path: Path, machines: list[dict[str, object]]) -> str:
     """A configuration for ``machines`` (each a table of ``[[machines]]``)."""
 
     def value(v: object) -> str:
+        if isinstance(v, dict):  # a TOML inline table (travel = { x = [-30.0, 0.0] })
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
         return json.dumps(v) if not isinstance(v, bool) else str(v).lower()
 
     lines = [
