@@ -104,6 +104,8 @@ function klartextTokens(line) {
       out.push(["v", m[0]]);
     } else if ((m = /^I?(?:P[AR]|[XYZABCUVW])[-+]?(?:[0-9.]+|Q[RLS]?\d+)?(?![A-Z])/i.exec(rest))) {
       out.push(["ax", m[0]]);
+    } else if ((m = /^R[0LR](?![0-9A-Z])/i.exec(rest))) { // radius compensation
+      out.push(["k", m[0]]);
     } else if ((m = /^(?:D[LR]|R)[-+]?[0-9.]+/i.exec(rest))) {
       out.push(["hd", m[0]]);
     } else if ((m = /^(?:F|S)[-+]?[0-9.]+/i.exec(rest))) {
