@@ -263,7 +263,8 @@ def test_the_editor_searches_replaces_goes_to_a_line_and_saves_a_checked_draft(
         "editor",
     )
     assert saved.count("F150.") == original.count("F100.")
-    assert "\r" not in saved and "\nM300\n" in saved
+    assert "\r" not in saved
+    assert "\nM300\n" in saved
 
 
 def test_the_editor_highlights_klartext_at_768_wide(app: App, browser: Any) -> None:
@@ -327,4 +328,5 @@ def test_the_editor_is_for_programmers(app: App, tmp_path: Path) -> None:
         data={"text": KLARTEXT.decode(), "comment": " "},
         headers=app.page(Role.PROGRAMMER),
     )
-    assert blank.status_code == 400 and "comment" in blank.text
+    assert blank.status_code == 400
+    assert "comment" in blank.text
