@@ -261,3 +261,26 @@ def test_a_called_program_is_found_in_the_library(app: App, tmp_path: Path) -> N
     _put(app, "O09011.nc", sub.replace(b"O09010", b"O09011"))
     second = _put(app, "O01003.nc", main + b"(AGAIN)\n")
     assert second["check"]["warnings"] == 0, second["check"]
+
+
+def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
+    from opendnc.errors import InputError
+    from opendnc.server.actions import policy
+    from opendnc.server.config import parse_config
+    from opendnc.server.errors import Conflict
+    from opendnc.server.program_checks import Checked
+
+    def config(line: str) -> Any:
+        return parse_config(f"[library]\npath = 'lib'\n{line}\n", base=tmp_path).library
+
+    assert config("").check_blocks is True
+    assert config("check = 'block'").check_blocks is True
+    assert config("check = 'warn'").check_blocks is False
+    with pytest.raises(InputError, match="library.check"):
+        config("check = 'off'")
+    problem = {"line": 3, "block": None, "severity": "error", "message": "G999 is not a G code"}
+    failed = Checked(1, "", "haas", 1, 0, "", [problem], {}, None)
+    with pytest.raises(Conflict, match=r"O1 v1: the program check found 1 error \(line 3: G999"):
+        policy.check_passes(failed, None, "O1 v1")
+    assert policy.check_passes(failed, "why", "O1 v1") is True  # overridden: audited
+    assert policy.check_passes(failed, None, "O1 v1", blocks=False) is False  # shown only

@@ -146,7 +146,9 @@ def release_version(
     def release(session: Session) -> VersionOut:
         version = library.get_version(session, name, number)
         check = checks.in_transaction(svc, session, version, None)
-        if policy.check_passes(check, reason, f"{name} v{number}"):
+        if policy.check_passes(
+            check, reason, f"{name} v{number}", blocks=svc.runner.config.library.check_blocks
+        ):
             audit.record(
                 session,
                 who.name,

@@ -94,10 +94,12 @@ def override_reason(who: Caller, override: str | None) -> str | None:
     return reason
 
 
-def check_passes(check: Checked, reason: str | None, what: str) -> bool:
+def check_passes(check: Checked, reason: str | None, what: str, *, blocks: bool = True) -> bool:
     """Refuse (409) ``what`` (``"P.H v3 to tnc1"``) when ``check`` found errors and there is
-    no override ``reason``; True when the override lets it through (the caller audits it)."""
-    if check.ok:
+    no override ``reason``; True when the override lets it through (the caller audits it).
+    ``blocks`` is the shop's ``[library] check`` (False for ``"warn"``: errors are shown
+    only, nothing is refused or overridden)."""
+    if check.ok or not blocks:
         return False
     if reason is not None:
         return True

@@ -68,7 +68,9 @@ def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
                 limits = checks.limits_of(svc, config.name)
                 check = checks.in_transaction(svc, session, version, limits)
                 what = f"{version.program.name} v{version.number} to {config.name}"
-                if policy.check_passes(check, reason, what):
+                if policy.check_passes(
+                    check, reason, what, blocks=svc.runner.config.library.check_blocks
+                ):
                     overridden[config.name] = check
         created = []
         for config in configs:
@@ -174,7 +176,13 @@ def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = N
             check = checks.in_transaction(svc, session, old.version, limits)
             kept = old.params.get("check_override")
             what = f"{old.version.program.name} v{old.version.number} to {old.machine}"
-            policy.check_passes(check, kept if isinstance(kept, str) else None, what)
+            policy.check_passes(
+                check,
+                kept
+                if isinstance(kept, str, blocks=svc.runner.config.library.check_blocks)
+                else None,
+                what,
+            )
         return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
 
     out = svc.write(retry)
