@@ -168,11 +168,12 @@ def running(
     tmp_path: Path,
     machines: list[dict[str, object]],
     offline: tuple[str, ...] = (),
+    extra: str = "",
     check: str | None = None,
 ) -> Iterator[App]:
     """The server for ``machines`` on memory controls, started, with a key and a web
-    session for a user of every role; the ``offline`` ones never answer; ``check`` as in
-    :func:`config_text`."""
+    session for a user of every role; the ``offline`` ones never answer. ``extra`` is TOML
+    put before the machines (``[server]``, outputs); ``check`` as in :func:`config_text`."""
     controls: dict[str, MemoryControl] = {}
 
     def connector(config: MachineConfig) -> MemoryControl:
@@ -182,7 +183,7 @@ def running(
         control.config = config
         return control
 
-    config = parse_config(config_text(tmp_path, machines, check), base=tmp_path)
+    config = parse_config(extra + "\n" + config_text(tmp_path, machines, check), base=tmp_path)
     server = build(
         config, database=f"sqlite:///{tmp_path / 'db.sqlite'}", connector_factory=connector
     )

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from sqlalchemy import Engine, event
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
@@ -96,3 +97,53 @@ def test_an_unreachable_database_at_start_is_one_line(tmp_path: Path, command: s
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith(f"error: cannot reach the database {url}: "), line
     assert "refused" in line.lower()
+
+
+def test_the_list_has_each_programs_newest_and_released_version_in_queries_that_do_not_grow(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    with sessions.begin() as session:
+        library.add_version(session, "EMPTY.nc", b"G0\n", author="ann")
+        for n in range(1, 4):
+            library.add_version(session, "B.nc", f"G0 X{n}\n".encode(), author="ann")
+        library.release(session, "B.nc", 2, actor="ann")
+        library.add_version(session, "A.nc", b"G0 Y1\n", author="bob")
+        library.release(session, "A.nc", 1, actor="bob")
+    statements: list[str] = []
+
+    def note(*args: object) -> None:
+        statements.append(str(args[2]))
+
+    def listed() -> dict[str, tuple[int, int | None, int | None]]:
+        statements.clear()
+        event.listen(engine, "before_cursor_execute", note)
+        try:
+            with sessions() as session:
+                found = library.list_programs(session)
+                return {
+                    p.name: (
+                        p.count,
+                        p.newest.number if p.newest else None,
+                        p.released.number if p.released else None,
+                    )
+                    for p in found
+                }
+        finally:
+            event.remove(engine, "before_cursor_execute", note)
+
+    before = listed()
+    assert list(before) == ["A.nc", "B.nc", "EMPTY.nc"]  # by name
+    assert before == {"A.nc": (1, 1, 1), "B.nc": (3, 3, 2), "EMPTY.nc": (1, 1, None)}
+    queries = len(statements)
+    with sessions.begin() as session:
+        for n in range(4, 40):
+            library.add_version(session, "B.nc", f"G0 X{n}\n".encode(), author="ann")
+        library.release(session, "B.nc", 39, actor="ann")
+    after = listed()
+    assert after["B.nc"] == (39, 39, 39)
+    assert len(statements) == queries
+    with sessions() as session:
+        assert [p.name for p in library.list_programs(session, "b.")] == ["B.nc"]
+        b = library.list_programs(session, "b.")[0]
+        assert b.newest is not None
+        assert b.newest.program.name == "B.nc"

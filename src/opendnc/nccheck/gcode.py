@@ -41,7 +41,13 @@ from opendnc.haas import macros
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits, offset_key
-from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
+from opendnc.nccheck.path import (
+    RAPID_MM_PER_MIN,
+    Toolpath,
+    radius_arc_center,
+    rapid_rate,
+    short_radius,
+)
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
@@ -764,18 +770,11 @@ class _Run:
                     "an arc given by R with the same start and end point does not move",
                 )
                 return
-            if abs(radius) < chord / 2 - tol:
-                self.error(
-                    line,
-                    f"arc radius R{radius:g} is too small for a chord of {chord:.4g} "
-                    f"(at least {chord / 2:.4g})",
-                )
+            too_small = short_radius(radius, chord, tol)
+            if too_small is not None:
+                self.error(line, f"arc radius {too_small}")
                 raise _Stop
-            half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
-            ua, ub = (ea - sa) / chord, (eb - sb) / chord
-            side = 1.0 if (not clockwise) ^ (radius < 0) else -1.0
-            ca = (sa + ea) / 2 - side * half * ub
-            cb = (sb + eb) / 2 + side * half * ua
+            ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=not clockwise)
         else:
             ka, kb = letters[a], letters[b]
             if ka not in v and kb not in v:
@@ -1023,17 +1022,10 @@ class _Run:
                             "control's own macros)",
                         )
                     )
-        problems.sort(key=lambda p: p.line)
-        return CheckResult(
-            control=self.control,
-            name=self.name,
-            problems=tuple(problems),
-            tools=self.path.tools(),
-            extents=self.path.extents(),
-            rapid_distance=self.path.rapid,
-            feed_distance=self.path.feed,
-            cycle_time_s=self.path.seconds,
-            moves=tuple(self.path.moves),
+        return self.path.result(
+            self.control,
+            self.name,
+            problems,
             units=self.units,
             blocks=self.blocks_run,
             end=EndState(

@@ -30,6 +30,7 @@ from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
     CheckOut,
+    ClusterOut,
     Count,
     DiffOut,
     FolderOut,
@@ -40,6 +41,7 @@ from opendnc.server.actions.models import (
     KeyOut,
     LineNumber,
     MachineOut,
+    ProgramListed,
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
@@ -56,7 +58,7 @@ from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
-from opendnc.server.streams import throttled_stream
+from opendnc.server.streams import event_stream_response
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -168,21 +170,29 @@ Db = dbsession.Db
 _bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 
 
-def _principal(
+async def _principal(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> auth.Principal:
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     svc = _svc(request)
-    guard = svc.guard
     host = request.client.host if request.client else "?"
-    address = f"address:{host}"
-    guard.check(address)
+    svc.guard.check(f"address:{host}")
+    key = credentials.credentials.strip()
+    known = svc.keys.get(key)
+    if known is not None:
+        # checked a moment ago: no worker thread, no query (auth.KeyCache)
+        deps.key_use(request).note(known.who.key_id)
+        return known.who
+    return await run_in_threadpool(_check_key, request, svc, host, key)
+
+
+def _check_key(request: Request, svc: actions.Services, host: str, key: str) -> auth.Principal:
     try:
-        return auth.authenticate(svc.reads, svc.sessions, credentials.credentials.strip()).who
+        return auth.authenticate(svc.reads, key, deps.key_use(request), svc.keys).who
     except Unauthorized as exc:
-        guard.failed(address)
+        svc.guard.failed(f"address:{host}")
         with svc.sessions.begin() as session:
             audit.record(
                 session,
@@ -204,7 +214,12 @@ def _svc(request: Request) -> actions.Services:
     return core_of(request.app).get(actions.Services)
 
 
-Svc = Annotated[actions.Services, Depends(_svc)]
+async def _svc_dep(request: Request) -> actions.Services:
+    # async: a plain function dependency costs a trip to a worker thread and back per request
+    return _svc(request)
+
+
+Svc = Annotated[actions.Services, Depends(_svc_dep)]
 
 
 # -- health and outputs ---------------------------------------------------------------------
@@ -237,6 +252,13 @@ def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | N
     actions.require(who, Role.VIEWER)
     parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
+
+
+@router.get("/cluster")
+def cluster(svc: Svc, who: Caller) -> ClusterOut:
+    """The servers sharing the database, their heartbeats and machine leases (the same as
+    ``opendnc cluster status --json``, from any server)."""
+    return actions.admin.cluster_status(svc, who)
 
 
 @router.get(
@@ -297,8 +319,9 @@ async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Call
 @router.get("/programs")
 def list_programs(
     svc: Svc, who: Caller, q: Annotated[str, Query(max_length=255)] = ""
-) -> list[ProgramOut]:
-    """Programs in the library, optionally filtered by part of the name."""
+) -> list[ProgramListed]:
+    """Programs in the library, optionally filtered by part of the name: each with its newest
+    and its released version (``/api/programs/{name}`` has every version)."""
     return actions.library.list_programs(svc, who, q)
 
 
@@ -594,14 +617,8 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
-    stream = throttled_stream(
-        machines.bus,
-        _ApiEvents(machines),
-        interval=EVENT_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    return event_stream_response(
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
     )
 
 

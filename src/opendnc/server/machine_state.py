@@ -37,6 +37,7 @@ class MachineState:
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     errands: Errands = field(default_factory=Errands)  # file browser reads on the connector
+    served: bool = True  # False while another server of a cluster serves it (its status read)
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
@@ -47,7 +48,9 @@ class MachineState:
     def event(self) -> MachineStatusChanged:
         """The machine as it is now, as an event (published on every status read)."""
         name, json = self.config.name, self.as_json()
-        return MachineStatusChanged(name, self.online, self.status, self.last_error, json)
+        return MachineStatusChanged(
+            name, self.online, self.status, self.last_error, json, served=self.served
+        )
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""

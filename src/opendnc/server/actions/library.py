@@ -4,6 +4,8 @@ save), release (its program check must pass, or a programmer overrides it), lock
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
+from typing import TypeVar
 
 from sqlalchemy.orm import Session
 
@@ -11,7 +13,14 @@ from opendnc.errors import InputError
 from opendnc.server import audit, library
 from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, DiffOut, ProgramOut, UploadOut, VersionOut
+from opendnc.server.actions.models import (
+    Content,
+    DiffOut,
+    ProgramListed,
+    ProgramOut,
+    UploadOut,
+    VersionOut,
+)
 from opendnc.server.store.models import Role
 
 __all__ = [
@@ -26,16 +35,19 @@ __all__ = [
     "upload_program",
 ]
 
+T = TypeVar("T")
+
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
 
 
-def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramOut]:
-    """Programs whose name holds ``search`` (any case), by name."""
+def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramListed]:
+    """Programs whose name holds ``search`` (any case), by name: each with its newest and
+    its released version."""
     require(who, Role.VIEWER)
     search = search.strip()
     if len(search) > MAX_SEARCH:
         return []
-    return svc.read(lambda s: [ProgramOut.of(p) for p in library.list_programs(s, search)])
+    return svc.read(lambda s: [ProgramListed.of(p) for p in library.list_programs(s, search)])
 
 
 def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:
@@ -100,8 +112,7 @@ def _store(
         out = UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
         return out, checks.Target.of(version)
 
-    out, target = svc.write(store)
-    svc.changed("program", name)
+    out, target = _change(svc, name, store)
     # checked on save, after the commit (the dry run holds no write lock)
     out.check = checks.check_out(target, checks.ensure(svc, target, None), None)
     return out
@@ -163,15 +174,20 @@ def release_version(
             )
         return VersionOut.of(library.release(session, name, number, actor=who.name))
 
-    out = svc.write(release)
-    svc.changed("program", name)
-    return out
+    return _change(svc, name, release)
 
 
 def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOut:
     """Lock a program against new versions and state changes, or unlock it."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name)))
+    return _change(
+        svc, name, lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name))
+    )
+
+
+def _change(svc: Services, name: str, change: Callable[[Session], T]) -> T:
+    """Run ``change`` in one write transaction, then tell the pages that ``name`` changed."""
+    out = svc.write(change)
     svc.changed("program", name)
     return out

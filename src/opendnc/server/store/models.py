@@ -466,6 +466,38 @@ class MachineLease(Base):
     expires: Mapped[datetime] = mapped_column(UtcDateTime())
 
 
+class MachineSnapshot(Base):
+    """A machine as its serving server last saw it, for the other servers of a cluster.
+
+    The server that holds a machine's lease writes its status here (what ``/api/machines``
+    shows for it) a few times a second; every other server reads the rows it does not serve,
+    so the dashboard, the API, the event streams and MTConnect are the same on every server.
+    ``updated`` is the database's clock: a reader asks for rows newer than the last it saw.
+    """
+
+    __tablename__ = "machine_snapshots"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    server: Mapped[str] = mapped_column(String(64), default="")
+    updated: Mapped[datetime] = mapped_column(UtcDateTime(), index=True)
+    data: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class SparkplugNode(Base):
+    """A Sparkplug B edge node's birth/death sequence number (``bdSeq``), kept across restarts.
+
+    ``bd_seq`` is the number of the node's latest MQTT session: each new session takes the next
+    one (0..255, then 0 again), so a host can tell a late NDEATH of an old session from the
+    current one (docs/server.md#sparkplug-b).
+    """
+
+    __tablename__ = "sparkplug_nodes"
+
+    group_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    node_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    bd_seq: Mapped[int] = mapped_column(Integer, default=0)
+
+
 class VersionCheck(Base):
     """The dry run of one program version (:mod:`opendnc.nccheck`), kept so a page, a release
     and a send read it instead of running it again: ``limits`` is ``""`` for the check of the

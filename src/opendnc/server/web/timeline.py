@@ -30,7 +30,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.events import EventBus, MachineStatusChanged, Subscription
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged, Subscription
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.state import State, classify, from_stored
 from opendnc.server.store.models import StatusSample, utcnow
@@ -144,6 +144,12 @@ class Timeline:
             else:
                 self.pending.append((name, sample))
             return True
+
+    def forget(self, name: str) -> None:
+        """Another server of a cluster records ``name`` from now on: this one's stop marks
+        no gap in its record."""
+        with self._lock:
+            self._last.pop(name, None)
 
     def stopped(self, at: datetime | None = None) -> None:
         """The server stops: from now on, no record for any machine noted so far."""
@@ -276,7 +282,10 @@ class Timeline:
             # A get with its own deadline, not wait_for around it: a cancel must end this
             # loop whatever the get is doing (docs/server.md#events-and-states).
             event = await sub.get(FLUSH_SECONDS)
-            if isinstance(event, MachineStatusChanged):
+            if isinstance(event, LeaseChanged) and not event.held:
+                self.forget(event.machine)
+            elif isinstance(event, MachineStatusChanged) and event.served:
+                # (a machine another server serves is recorded by that server)
                 self.note(event.machine, event.status, online=event.online)
             now = time.monotonic()
             if self.sessions is not None and self.pending and now - flushed >= FLUSH_SECONDS:

@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import actions, auth, deps, dprnt_api, jobs
-from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
+from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
 from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
@@ -54,7 +54,7 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.streams import throttled_stream
+from opendnc.server.streams import event_stream_response
 from opendnc.server.web import render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -114,7 +114,10 @@ def _svc(request: Request) -> actions.Services:
 
 def _page(request: Request) -> Page:
     try:
-        who, key = web_session.principal(_svc(request).reads, _sessions(request), request)
+        svc = _svc(request)
+        who, key = web_session.principal(
+            svc.reads, svc.sessions, deps.key_use(request), svc.keys, request
+        )
     except Unauthorized:
         target = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginNeeded(target) from None
@@ -139,6 +142,10 @@ ReceivedId = Annotated[int, Path(ge=1, le=MAX_ID)]
 VersionPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
 Short = Annotated[str, Query(max_length=64)]
+# Form fields: a program name, a path on a control, a program line or version
+ProgramField = Annotated[str, Form(max_length=100)]
+ControlPath = Annotated[str, Form(max_length=255)]
+NumberField = Annotated[int | None, Form(ge=1, le=MAX_ID)]
 
 
 def _read(request: Request, work: Callable[[Session], T]) -> T:
@@ -205,7 +212,7 @@ def login(
 def logout(request: Request, page: Writing) -> RedirectResponse:
     """End the session."""
     response = RedirectResponse("/login", status_code=303)
-    web_session.log_out(_sessions(request), request, response)
+    web_session.log_out(_sessions(request), _svc(request).keys, request, response)
     return response
 
 
@@ -278,17 +285,8 @@ async def card_events(
     shown = None
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
-    stream = throttled_stream(
-        _supervisor(request).bus,
-        _Cards(request, machine, shown),
-        interval=CARD_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream,
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
-    )
+    source = _Cards(request, machine, shown)
+    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
 def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
@@ -449,17 +447,8 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic!r}: inbox or library")
-    stream = throttled_stream(
-        _supervisor(request).bus,
-        _ListChanges(topic),
-        interval=CARD_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream,
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
-    )
+    source = _ListChanges(topic)
+    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
 class _ListChanges:
@@ -563,18 +552,20 @@ def machine_dprnt_csv(request: Request, name: str, page: Viewing) -> Response:
 @router.get("/machines/{name}/jobs")
 def machine_jobs(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The queue and history fragment (refreshed by the page while jobs run)."""
-    return _html("_jobs.html", page, request, **_machine_context(request, page, name))
+    return _jobs_fragment(request, page, name)
 
 
-def _after_job_action(request: Request, page: Page, machine: str) -> HTMLResponse:
+def _jobs_fragment(request: Request, page: Page, machine: str) -> HTMLResponse:
+    """The machine's queue and history: what the page shows again after a job action."""
     return _html("_jobs.html", page, request, **_machine_context(request, page, machine))
 
 
 @router.post("/jobs/{job_id}/cancel")
 def cancel_job(request: Request, job_id: JobId, page: Writing) -> HTMLResponse:
     """Cancel a queued job, or ask a running one to stop (at its next safe point)."""
-    job = actions.queue.cancel_job(_svc(request), page.who, job_id)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.cancel_job(_svc(request), page.who, job_id).machine
+    )
 
 
 @router.post("/jobs/{job_id}/move")
@@ -582,21 +573,20 @@ def move_job(
     request: Request, job_id: JobId, page: Writing, index: Annotated[int, Form(ge=0, le=MAX_ID)]
 ) -> HTMLResponse:
     """Put a queued job at ``index`` in its queue."""
-    job = actions.queue.move_job(_svc(request), page.who, job_id, index)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.move_job(_svc(request), page.who, job_id, index).machine
+    )
 
 
 @router.post("/jobs/{job_id}/retry")
 def retry_job(
-    request: Request,
-    job_id: JobId,
-    page: Writing,
-    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    request: Request, job_id: JobId, page: Writing, from_line: NumberField = None
 ) -> HTMLResponse:
     """Queue a failed, interrupted or cancelled job again (a drip-feed from a line, which
     programmers restart: it runs the machine)."""
-    job = actions.queue.retry_job(_svc(request), page.who, job_id, from_line)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.retry_job(_svc(request), page.who, job_id, from_line).machine
+    )
 
 
 @router.post("/machines/{name}/dripfeed")
@@ -604,16 +594,17 @@ def start_dripfeed(
     request: Request,
     name: str,
     page: Writing,
-    program: Annotated[str, Form(max_length=100)],
-    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    program: ProgramField,
+    from_line: NumberField = None,
 ) -> HTMLResponse:
     """Drip-feed the released version of ``program`` to the machine (programmers; the page
     asks first, since the machine runs it as it arrives)."""
     order = JobRequest(
         kind=JobKind.DRIPFEED, program=program.strip(), machines=[name], from_line=from_line
     )
-    job = actions.queue.create_jobs(_svc(request), page.who, order)[0]
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.create_jobs(_svc(request), page.who, order)[0].machine
+    )
 
 
 # -- file browser (controls with one) -------------------------------------------------------
@@ -632,7 +623,11 @@ async def machine_files_page(
 @router.get("/machines/{name}/files/download")
 async def machine_file_download(request: Request, name: str, path: str, page: Viewing) -> Response:
     """One file of the control, as a download."""
-    content = await actions.files.read_file(_svc(request), page.who, name, path)
+    return _download(await actions.files.read_file(_svc(request), page.who, name, path))
+
+
+def _download(content: Content) -> Response:
+    """``content`` as a file to save under its own name, with its SHA-256 beside it."""
     return Response(
         content.data,
         media_type="application/octet-stream",
@@ -660,7 +655,7 @@ async def machine_file_upload(
     name: str,
     page: Writing,
     file: UploadFile,
-    folder: Annotated[str, Form(max_length=255)],
+    folder: ControlPath,
 ) -> HTMLResponse:
     """Put a file from the person's computer on the control: a library draft first, then a
     ``put_file`` job under the machine's policy (programmers)."""
@@ -674,19 +669,29 @@ async def machine_file_upload(
 
 @router.post("/machines/{name}/files/delete")
 async def machine_file_delete(
-    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+    request: Request, name: str, page: Writing, path: ControlPath
 ) -> HTMLResponse:
     """Delete a file on the control: a ``delete`` job (programmers; the page asks first)."""
-    job = await run_in_threadpool(actions.files.delete_file, _svc(request), page.who, name, path)
-    return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
+    return await _file_job(request, page, actions.files.delete_file, name, path)
 
 
 @router.post("/machines/{name}/files/receive")
 async def machine_file_receive(
-    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+    request: Request, name: str, page: Writing, path: ControlPath
 ) -> HTMLResponse:
     """Bring a file of the control to the inbox under its own name: a ``receive`` job."""
-    job = await run_in_threadpool(actions.files.receive_file, _svc(request), page.who, name, path)
+    return await _file_job(request, page, actions.files.receive_file, name, path)
+
+
+async def _file_job(
+    request: Request,
+    page: Page,
+    action: Callable[[actions.Services, auth.Principal, str, str], JobOut],
+    machine: str,
+    path: str,
+) -> HTMLResponse:
+    """Queue ``action``'s job on the file ``path`` of ``machine``, then show its folder."""
+    job = await run_in_threadpool(action, _svc(request), page.who, machine, path)
     return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
 
 
@@ -753,15 +758,7 @@ def program_page(
 @router.get("/library/{name}/versions/{number}/download")
 def download_version(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
     """The bytes of one version, as a file."""
-    content = actions.library.program_content(_svc(request), page.who, name, number)
-    return Response(
-        content.data,
-        media_type="application/octet-stream",
-        headers={
-            "Content-Disposition": f'attachment; filename="{name}"',
-            "X-Content-SHA256": content.sha256,
-        },
-    )
+    return _download(actions.library.program_content(_svc(request), page.who, name, number))
 
 
 def _override(override: str | None, reason: str) -> str | None:
@@ -856,7 +853,7 @@ def send_program(
     name: str,
     page: Writing,
     machines: Annotated[list[str] | None, Form()] = None,
-    version: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    version: NumberField = None,
     override: Override = None,
     reason: Reason = "",
 ) -> HTMLResponse:
@@ -882,7 +879,7 @@ async def upload_program(
     request: Request,
     page: Writing,
     file: UploadFile,
-    name: Annotated[str, Form(max_length=100)] = "",
+    name: ProgramField = "",
     comment: Annotated[str, Form(max_length=1000)] = "",
 ) -> Response:
     """Store an uploaded file as a new draft version (programmers)."""
@@ -942,7 +939,7 @@ def accept_received(
     request: Request,
     received_id: ReceivedId,
     page: Writing,
-    name: Annotated[str, Form(max_length=100)] = "",
+    name: ProgramField = "",
 ) -> Response:
     """Make the reception a new draft version (programmers)."""
     version = actions.inbox.accept_received(
@@ -961,60 +958,73 @@ def discard_received(request: Request, received_id: ReceivedId, page: Writing) -
 # -- history ------------------------------------------------------------------------------
 
 
-def _blank(value: str | None) -> str | None:
-    return value.strip() or None if value else None
+@dataclass(frozen=True)
+class _AuditFilters:
+    """The history's filters as the person typed them (the form shows them again)."""
+
+    machine: str
+    action: str
+    actor: str
+    program: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {
+            "machine": self.machine,
+            "action": self.action,
+            "actor": self.actor,
+            "program": self.program,
+        }
+
+    def rows(
+        self, request: Request, page: Page, limit: int, before: int | None = None
+    ) -> list[AuditOut]:
+        """The audit rows they select, newest first (a blank filter selects everything)."""
+        blank = {k: v.strip() or None for k, v in self.as_dict().items()}
+        return actions.admin.list_audit(
+            _svc(request),
+            page.who,
+            machine=blank["machine"],
+            action=blank["action"],
+            actor=blank["actor"],
+            program=blank["program"],
+            limit=limit,
+            before=before,
+        )
+
+
+def _audit_filters(
+    machine: Short = "",
+    action: Short = "",
+    actor: Short = "",
+    program: Annotated[str, Query(max_length=255)] = "",
+) -> _AuditFilters:
+    return _AuditFilters(machine, action, actor, program)
+
+
+AuditFilters = Annotated[_AuditFilters, Depends(_audit_filters)]
 
 
 @router.get("/history")
 def history_page(
     request: Request,
     page: Viewing,
-    machine: Short = "",
-    action: Short = "",
-    actor: Short = "",
-    program: Annotated[str, Query(max_length=255)] = "",
+    filters: AuditFilters,
     before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """The audit trail, filterable, newest first."""
-    filters = {"machine": machine, "action": action, "actor": actor, "program": program}
-    found = actions.admin.list_audit(
-        _svc(request),
-        page.who,
-        machine=_blank(machine),
-        action=_blank(action),
-        actor=_blank(actor),
-        program=_blank(program),
-        limit=100,
-        before=before,
-    )
-    rows = [r.model_dump(mode="json") for r in found]
-    query = "&".join(f"{k}={quote(v)}" for k, v in filters.items() if v.strip())
+    rows = [r.model_dump(mode="json") for r in filters.rows(request, page, 100, before)]
+    typed = filters.as_dict()
+    query = "&".join(f"{k}={quote(v)}" for k, v in typed.items() if v.strip())
     machines = sorted(_supervisor(request).machines)
     return _html(
-        "history.html", page, request, rows=rows, filters=filters, query=query, machines=machines
+        "history.html", page, request, rows=rows, filters=typed, query=query, machines=machines
     )
 
 
 @router.get("/history.csv")
-def history_csv(
-    request: Request,
-    page: Viewing,
-    machine: Short = "",
-    action: Short = "",
-    actor: Short = "",
-    program: Annotated[str, Query(max_length=255)] = "",
-) -> Response:
+def history_csv(request: Request, page: Viewing, filters: AuditFilters) -> Response:
     """The filtered audit trail as CSV (the API's export, for a logged-in person)."""
-    rows = actions.admin.list_audit(
-        _svc(request),
-        page.who,
-        machine=_blank(machine),
-        action=_blank(action),
-        actor=_blank(actor),
-        program=_blank(program),
-        limit=10_000,
-    )
-    return actions.admin.audit_csv_response(rows)
+    return actions.admin.audit_csv_response(filters.rows(request, page, 10_000))
 
 
 # -- stylesheet of the highlighted code -----------------------------------------------------
