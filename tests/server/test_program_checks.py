@@ -278,7 +278,7 @@ def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
     assert config("check = 'warn'").check_blocks is False
     with pytest.raises(InputError, match="library.check"):
         config("check = 'off'")
-    problem = {"line": 3, "block": None, "severity": "error", "message": "G999 is not a G code"}
+    problem = {"line": 3, "block": None, "severity": "error", "message": "G999 is not a G"}
     failed = Checked(1, "", "haas", 1, 0, "", [problem], {}, None)
     with pytest.raises(Conflict, match=r"O1 v1: the program check found 1 error \(line 3: G999"):
         policy.check_passes(failed, None, "O1 v1")

@@ -4,8 +4,8 @@ Starts two virtual TNCs, a virtual Haas NGC (MDC and net share) and a virtual Ha
 virtual RS-232 cable in this process, fills a library with example programs (released ones
 and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
 the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
-``--check`` sends a released program of its family to every machine, prints what happened and exits (what
-the test suite runs).
+``--check`` sends a released program of its family to every machine, prints what happened and
+exits (what the test suite runs).
 """
 
 from __future__ import annotations

@@ -178,10 +178,9 @@ def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = N
             what = f"{old.version.program.name} v{old.version.number} to {old.machine}"
             policy.check_passes(
                 check,
-                kept
-                if isinstance(kept, str, blocks=svc.runner.config.library.check_blocks)
-                else None,
+                kept if isinstance(kept, str) else None,
                 what,
+                blocks=svc.runner.config.library.check_blocks,
             )
         return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
 
