@@ -276,7 +276,7 @@ def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
     assert config("").check_blocks is True
     assert config("check = 'block'").check_blocks is True
     assert config("check = 'warn'").check_blocks is False
-    with pytest.raises(InputError, match="library.check"):
+    with pytest.raises(InputError, match=r"library\.check"):
         config("check = 'off'")
     problem = {"line": 3, "block": None, "severity": "error", "message": "G999 is not a G"}
     failed = Checked(1, "", "haas", 1, 0, "", [problem], {}, None)
