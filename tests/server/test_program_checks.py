@@ -284,3 +284,34 @@ def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
         policy.check_passes(failed, None, "O1 v1")
     assert policy.check_passes(failed, "why", "O1 v1") is True  # overridden: audited
     assert policy.check_passes(failed, None, "O1 v1", blocks=False) is False  # shown only
+
+
+def _kept(app: App, name: str) -> list[tuple[int, str, int]]:
+    # (version, limits, errors) of the kept checks of the program ``name``
+    from opendnc.server.store.models import Program, ProgramVersion
+
+    with app.server.sessions() as s:
+        rows = s.execute(
+            select(ProgramVersion.number, VersionCheck.limits, VersionCheck.errors)
+            .join(VersionCheck, VersionCheck.version_id == ProgramVersion.id)
+            .join(Program, Program.id == ProgramVersion.program_id)
+            .where(Program.name == name)
+        )
+        return [tuple(r) for r in rows]
+
+
+def test_versions_from_the_inbox_and_the_folder_are_checked_when_saved(app: App) -> None:
+    from opendnc.server import inbox
+    from tests.server.harness import wait_for
+
+    with app.server.sessions.begin() as s:
+        received = inbox.store(
+            s, "tnc", BAD, folder=app.server.config.library.inbox, name="O01010.nc"
+        )
+        received_id = received.id
+    reply = app.client.post(f"/api/inbox/{received_id}/accept", headers=app.api(Role.PROGRAMMER))
+    assert reply.status_code == 200, reply.text
+    assert _kept(app, "O01010.nc") == [(1, "", 1)]  # before anyone asked for it
+
+    (app.server.config.library.path / "O01011.nc").write_bytes(BAD)
+    wait_for("the watcher's checked version", lambda: _kept(app, "O01011.nc") == [(1, "", 1)])

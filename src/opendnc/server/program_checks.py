@@ -20,7 +20,7 @@ from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.nccheck import Budget, CheckResult, Library, MachineLimits, Severity, check_text
 from opendnc.server.store.models import Program, ProgramState, ProgramVersion, VersionCheck
@@ -31,6 +31,7 @@ __all__ = [
     "PARALLEL",
     "Checked",
     "Library",
+    "check_saved",
     "limits_key",
     "load",
     "run",
@@ -232,3 +233,24 @@ def called_program(session: Session, called: str) -> bytes | None:
 
     blob = session.get(Blob, chosen.sha256)
     return blob.data if blob is not None else None
+
+
+def library_lookup(reads: sessionmaker[Session]) -> Library:
+    """The checker's ``library`` callback on the database: a called program's text."""
+
+    def find(called: str) -> str | None:
+        with reads() as session:
+            data = called_program(session, called)
+        return data.decode("latin-1") if data is not None else None
+
+    return find
+
+
+def check_saved(
+    sessions: sessionmaker[Session], version_id: int, name: str, data: bytes
+) -> Checked:
+    """Check a version just saved (committed) by the text alone and keep the result, in a
+    transaction of its own after the dry run (the folder watcher's and the inbox's saves)."""
+    result = run(name, data, None, library_lookup(sessions))
+    with sessions.begin() as session:
+        return store(session, version_id, "", result)

@@ -45,11 +45,7 @@ def limits_of(svc: Services, machine: str) -> MachineLimits:
 
 
 def _library(svc: Services) -> program_checks.Library:
-    def find(called: str) -> str | None:
-        data = svc.read(lambda s: program_checks.called_program(s, called))
-        return data.decode("latin-1") if data is not None else None
-
-    return find
+    return program_checks.library_lookup(svc.reads)
 
 
 def ensure(svc: Services, target: Target, limits: MachineLimits | None) -> Checked:
