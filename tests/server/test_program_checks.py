@@ -280,7 +280,8 @@ def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
         config("check = 'off'")
     problem = {"line": 3, "block": None, "severity": "error", "message": "G999 is not a G"}
     failed = Checked(1, "", "haas", 1, 0, "", [problem], {}, None)
-    with pytest.raises(Conflict, match=r"O1 v1: the program check found 1 error \(line 3: G999"):
+    wanted = r"^O1 v1: the program check found 1 error, on line 3: G999 is not a G; a programmer"
+    with pytest.raises(Conflict, match=wanted):
         policy.check_passes(failed, None, "O1 v1")
     assert policy.check_passes(failed, "why", "O1 v1") is True  # overridden: audited
     assert policy.check_passes(failed, None, "O1 v1", blocks=False) is False  # shown only

@@ -105,7 +105,8 @@ def check_passes(check: Checked, reason: str | None, what: str, *, blocks: bool 
         return True
     first = check.first_error() or {}
     count = f"{check.errors} error{'s' * (check.errors != 1)}"
+    where = "on" if check.errors == 1 else "the first on"
     raise Conflict(
-        f"{what}: the program check found {count} (line {first.get('line', '?')}: "
-        f"{first.get('message', '')}); a programmer may override with a reason"
+        f"{what}: the program check found {count}, {where} line {first.get('line', '?')}: "
+        f"{first.get('message', '')}; a programmer may override it with a reason"
     )
