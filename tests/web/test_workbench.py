@@ -152,6 +152,16 @@ def test_the_program_page_lists_the_problems_with_links_to_their_lines(
         tab.close()
 
 
+def test_a_problem_opens_the_editor_at_its_line(app: App, browser: Any) -> None:
+    tab = Tab(app, browser, Role.PROGRAMMER, 1280, 800)
+    page = tab.goto("/library/O02001.nc")
+    page.get_by_role("link", name="Edit at line 7").click()
+    page.wait_for_url("**/versions/1/edit#L7")
+    expect(page.locator("#ed-status")).to_contain_text("Line 7, column 1")
+    expect(page.locator(".ed-gutter .cur")).to_have_text("7")
+    tab.close()
+
+
 def test_the_send_form_shows_each_machines_check_and_the_override_is_audited(
     app: App, browser: Any
 ) -> None:
