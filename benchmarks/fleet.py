@@ -59,14 +59,20 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
 
 
-def _cli(*args: str, **kwargs: Any) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "opendnc.cli.main", *args],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        **kwargs,
-    )
+def _cli(*args: str, log: Path | None = None, **kwargs: Any) -> subprocess.Popen[bytes]:
+    # A long run logs more than a pipe holds: to a file then, or the child blocks writing.
+    err: Any = subprocess.PIPE if log is None else log.open("ab")
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-m", "opendnc.cli.main", *args],
+            start_new_session=True,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            **kwargs,
+        )
+    finally:
+        if log is not None:
+            err.close()
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -259,7 +265,14 @@ def _ages(base: str, key: str, poll: float) -> tuple[list[float], int]:
 
 
 def run_cluster(
-    n: int, servers: int, seconds: float, poll: float, folder: Path, pg: str, lease: float
+    n: int,
+    servers: int,
+    seconds: float,
+    poll: float,
+    folder: Path,
+    pg: str,
+    lease: float,
+    logs: Path,
 ) -> dict[str, Any]:
     """One fleet of ``n`` machines served by ``servers`` servers on one PostgreSQL database."""
     name = f"lease_bench_{uuid.uuid4().hex[:10]}"
@@ -293,7 +306,7 @@ def run_cluster(
             port = _free_port()
             procs[f"dnc-{i}"] = _cli(
                 "serve", "--config", str(config), "--db", db, "--name", f"dnc-{i}",
-                "--bind", f"127.0.0.1:{port}",
+                "--bind", f"127.0.0.1:{port}", log=logs / f"dnc-{i}.log",
             )  # fmt: skip
             bases[f"dnc-{i}"] = f"http://127.0.0.1:{port}"
         started = time.monotonic()
@@ -390,17 +403,19 @@ def main() -> None:
         help="PostgreSQL admin URL (--servers 2 or more: a database is made and dropped)",
     )
     parser.add_argument("--lease", type=float, default=10.0, help="lease seconds (--servers)")
+    parser.add_argument("--logs", type=Path, default=None, help="keep the servers' logs here")
     args = parser.parse_args()
     if args.servers > 1:
         with tempfile.TemporaryDirectory(prefix="opendnc-cluster-bench-") as tmp:
             for n in (int(x) for x in args.sizes.split(",")):
                 folder = Path(tmp) / str(n)
                 folder.mkdir()
-                _cluster_report(
-                    run_cluster(
-                        n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease
-                    )
+                logs = args.logs or folder
+                logs.mkdir(parents=True, exist_ok=True)
+                found = run_cluster(
+                    n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease, logs
                 )
+                _cluster_report(found)
         return
     print(
         f"{'N':>5} {'online':>8} {'server CPU':>11} {'age p50':>8} {'age p99':>8} "

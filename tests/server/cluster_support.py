@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import signal
 from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
@@ -136,8 +135,11 @@ def start_cluster(
     serial_haas: int = 0,
     pin: dict[str, list[str]] | None = None,
     latency_ms: float = 0.0,
+    block_rate: float = 0.0,
+    extra: dict[str, str] | None = None,
 ) -> Cluster:
-    """The fleet and its configuration (short leases, pins); no server started yet."""
+    """The fleet and its configuration (short leases, pins, ``extra`` lines of a machine's
+    table); no server started yet."""
     config = root / "shop.toml"
     receipts = root / "receipts.jsonl"
     procs.start(
@@ -160,6 +162,8 @@ def start_cluster(
         str(receipts),
         "--latency",
         str(latency_ms),
+        "--block-rate",
+        str(block_rate),
     )
     wait_for(
         "the fleet", lambda: "listening" in procs.log("fleet"), describe=lambda: procs.log("fleet")
@@ -171,11 +175,13 @@ def start_cluster(
         f'path = "{root / "programs"}"\ninbox = "{root / "inbox"}"\n'
         f'archive = "{root / "archive"}"\n'
     )
-    for machine, servers in (pin or {}).items():
-        text, n = re.subn(
-            rf'(name = "{re.escape(machine)}"\n)', rf"\1servers = {json.dumps(servers)}\n", text
-        )
-        assert n == 1, machine
+    lines = {m: f"servers = {json.dumps(servers)}" for m, servers in (pin or {}).items()}
+    for machine, line in (extra or {}).items():
+        lines[machine] = f"{lines[machine]}\n{line}" if machine in lines else line
+    for machine, line in lines.items():
+        named = f'name = "{machine}"\n'
+        assert text.count(named) == 1, machine
+        text = text.replace(named, named + line + "\n")
     config.write_text(text)
     cluster = Cluster(
         procs,

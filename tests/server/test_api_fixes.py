@@ -264,6 +264,26 @@ def test_history_is_newest_first_and_fifty_jobs_take_as_many_queries_as_five(app
     assert counts[0] == counts[1] >= 3, counts  # the key, the jobs, their versions, programs
 
 
+def test_the_library_list_and_a_programs_page_of_versions_stay_bounded(app: App) -> None:
+    for n in range(1, 4):
+        put = app.client.put(
+            "/api/programs/LIM.nc", content=f"G0 X{n}\n".encode(), headers=app.api(ADMIN)
+        )
+        assert put.status_code == 201, put.text
+    listed = app.client.get("/api/programs", params={"q": "LIM"}, headers=app.api(ADMIN)).json()
+    assert [(p["name"], p["version_count"], p["newest"]["number"]) for p in listed] == [
+        ("LIM.nc", 3, 3)
+    ]
+    assert listed[0]["released"] is None
+    page = app.client.get(
+        "/api/programs/LIM.nc", params={"limit": 2}, headers=app.api(ADMIN)
+    ).json()
+    assert page["version_count"] == 3
+    assert [v["number"] for v in page["versions"]] == [2, 3]
+    whole = app.client.get("/api/programs/LIM.nc", headers=app.api(ADMIN)).json()
+    assert [v["number"] for v in whole["versions"]] == [1, 2, 3]
+
+
 @pytest.mark.parametrize(
     "url",
     [

@@ -11,10 +11,14 @@ machine never has another owner.
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -101,6 +105,16 @@ def phase(what: str) -> None:
     T0[0] = now
 
 
+def _steady(view: dict[str, Any]) -> dict[str, Any]:
+    """A cluster document without what changes from one read to the next."""
+    return {
+        "servers": [
+            (s["name"], s["host"], s["pid"], s["url"], s["machines"]) for s in view["servers"]
+        ],
+        "leases": [(r["machine"], r["owner"], r["epoch"]) for r in view["leases"]],
+    }
+
+
 def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
     tmp_path: Path, pg_url: str, procs: Procs
 ) -> None:
@@ -143,12 +157,31 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
         phase("restarted")
         check_exactly_once(cluster, programs, ids)
         phase("all done")
+        for name in ("dnc-1", "dnc-2"):  # the status of every machine, from either server
+            wait_for(
+                f"every machine online on {name} again",
+                lambda name=name: all(  # type: ignore[misc]
+                    m["online"] for m in cluster.clients[name].get("/api/machines").json()
+                ),
+            )
         # which server did what: every start names its server, the pinned machine only dnc-1
         starts = audit_rows(cluster.db, "job.start")
         assert {r["actor"] for r in starts} == {"dnc-1", "dnc-2"}
         assert cluster.owners_seen["haas-serial-1"] == {"dnc-1"}
         view = cluster.clients["dnc-2"].get("/api/cluster").json()
         assert {s["name"] for s in view["servers"] if s["alive"]} == {"dnc-1", "dnc-2"}
+        # the same document as the command line's, but for the moment it was read
+        shown = subprocess.run(
+            [
+                *(sys.executable, "-m", "opendnc.cli.main", "cluster", "status", "--json"),
+                *("--config", str(cluster.config), "--db", pg_url),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        )
+        assert _steady(json.loads(shown.stdout)) == _steady(view)
     finally:
         cluster.close()
 
@@ -206,5 +239,66 @@ def test_three_servers_failover_and_a_cancel_sent_to_another_server(
         phase("taken over, restarted")
         check_exactly_once(cluster, programs, ids)
         phase("all done")
+    finally:
+        cluster.close()
+
+
+MOVES = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(6000))
+LONG = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{MOVES}M30\n%\n".encode()
+
+
+def test_a_dripfeed_on_a_killed_server_ends_interrupted_at_its_line(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    # a serial Haas any server may serve, running 1000 blocks a second: LONG's 6,000 lines
+    # take about 6 s, long enough to kill the server feeding it midway
+    cluster = start_cluster(
+        procs,
+        tmp_path,
+        pg_url,
+        tnc=2,
+        serial_haas=1,
+        block_rate=1000,
+        extra={"haas-serial-1": "dripfeed = true"},
+    )
+    try:
+        cluster.start("dnc-1", "dnc-2")
+        owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
+        feeder = owners["haas-serial-1"]
+        other = ({"dnc-1", "dnc-2"} - {feeder}).pop()
+        client = cluster.clients[other]  # asked of the server that does not feed it
+        wait_for(
+            "the serial Haas online",
+            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
+        )
+        assert client.put("/api/programs/O03000.nc", content=LONG).status_code == 201
+        assert client.post("/api/programs/O03000.nc/versions/1/release").status_code == 200
+        sent = client.post(
+            "/api/jobs",
+            json={"kind": "dripfeed", "program": "O03000.nc", "machines": ["haas-serial-1"]},
+        )
+        assert sent.status_code == 201, sent.text
+        job_id = sent.json()[0]["id"]
+        # the feeding server records its line in the job's row as it goes
+        seen = wait_for(
+            "the feed to be well under way",
+            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 300 and j,
+        )
+        assert seen["state"] == "running"
+        cluster.kill(feeder)
+        ended = wait_for(
+            "the feed to end",
+            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["state"] != "running" and j,
+            timeout=60,
+        )
+        assert ended["state"] == "interrupted", ended
+        assert seen["line"] <= ended["line"] < LONG.count(b"\n")
+        assert f"at line {ended['line']}" in ended["error"]
+        assert ended["attempts"] == 1  # not fed again by anyone
+        (row,) = [r for r in audit_rows(cluster.db, "job.takeover") if r["job_id"] == job_id]
+        assert (row["actor"], row["previous"], row["result"]) == (other, feeder, "interrupted")
+        assert row["line"] == ended["line"]
+        starts = [r for r in audit_rows(cluster.db, "job.start") if r["job_id"] == job_id]
+        assert [r["actor"] for r in starts] == [feeder]
     finally:
         cluster.close()

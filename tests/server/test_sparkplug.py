@@ -13,6 +13,7 @@ import signal
 import threading
 import time
 import uuid
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,7 @@ from opendnc.server.sparkplug_store import next_bd_seq  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.sim.haas.machine import Mode  # noqa: E402
 from tests.server import spb_decoder as spb  # noqa: E402
-from tests.server.harness import Procs, wait_for  # noqa: E402
+from tests.server.harness import Procs, auth, create_key, httpx, wait_for  # noqa: E402
 from tests.server.outputs_support import (  # noqa: E402
     Listener,
     clear_retained,
@@ -72,7 +73,7 @@ class NodeThread:
         migrate(engine)
         self.engine = engine
         sessions = make_sessions(engine)
-        spc = config.sparkplug
+        spc = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
@@ -226,12 +227,18 @@ def test_a_served_machine_through_sigkill_and_restart(
     try:
         extra = f'[sparkplug]\nurl = "mqtt://127.0.0.1:1883"\ngroup = "{group}"\n'
         with Listener(f"spBv1.0/{group}") as listener:
-            start_outputs_server(tmp_path, procs, fleet.fleet, extra, name="dnc-b")
+            port = start_outputs_server(tmp_path, procs, fleet.fleet, extra, name="dnc-b")
             wait_for(
                 "the machine born with its status",
                 lambda: host_of(listener, group).of("DBIRTH", device="haas-1"),
                 describe=lambda: procs.log("server"),
             )
+            key = create_key(tmp_path / "shop.toml", f"sqlite:///{tmp_path / 'opendnc.db'}")
+            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+                said = client.get("/api/outputs", headers=auth(key)).json()["sparkplug"]
+            assert said["connected"] is True
+            assert (said["group"], said["node"], said["devices"]) == (group, "dnc-b", ["haas-1"])
+            assert said["bd_seq"] == bd_seq_of(host_of(listener, group), "dnc-b")
             device = host_of(listener, group).device("dnc-b", "haas-1")
             assert device is not None
             assert device.values["availability"] == "AVAILABLE"

@@ -5,6 +5,7 @@ Every payload is read back with the tests' own decoder (tests/server/spb_decoder
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -54,7 +55,8 @@ def node(tmp_path: Path, extra: str = "") -> SparkplugNode:
         BASE + '[sparkplug]\nurl = "mqtt://127.0.0.1"\ngroup = "plant1"\n' + extra, base=tmp_path
     )
     assert config.sparkplug is not None
-    made = SparkplugNode(config.sparkplug, ["mill-1", "mill-2"], EventBus(), lambda: 0)
+    spc = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
+    made = SparkplugNode(spc, ["mill-1", "mill-2"], EventBus(), lambda: 0)
     made._spb = __import__("pysparkplug")  # what start() does, without a broker
     made.bd_seq = 7
     return made
@@ -224,7 +226,7 @@ def test_configuration(tmp_path: Path) -> None:
         base=tmp_path,
     )
     assert config.sparkplug is not None
-    assert config.sparkplug.node == "dnc-7"  # the server's name by default
+    assert config.sparkplug.node == ""  # the server's name, filled in at build (serve --name)
     assert config.sparkplug.broker.tls
     assert config.sparkplug.broker.port == 8883
     assert config.sparkplug.primary_host == ""

@@ -254,6 +254,10 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
         # Its ports open before the app starts, so a taken one is a plain error naming it.
         await server.mtconnect.start()
     port = listener.getsockname()[1]  # the real one for :0
+    if server.cluster is not None:
+        # where the others' `cluster status` says this server answers
+        where = f"[{host}]" if ":" in host else host
+        server.cluster.leases.url = f"http://{where}:{port}/"
     from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
 
     raise_file_limit()  # connections are limited by the server (limits.py), not by running out

@@ -30,6 +30,9 @@ def fleet(
     bind: str = typer.Option("127.0.0.1:8000", "--bind", help="Server address in --config-out."),
     poll: float = typer.Option(1.0, "--poll", help="Status poll interval in --config-out."),
     ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
+    block_rate: float = typer.Option(
+        0.0, "--block-rate", help="Blocks a second each serial Haas runs (0: as fast as it can)."
+    ),
     latency: float = typer.Option(
         0.0, "--latency", help="Milliseconds each virtual TNC takes to answer a telegram."
     ),
@@ -56,6 +59,7 @@ def fleet(
             serial_haas=serial_haas,
             receipts=receipts,
             latency=latency / 1000,
+            block_rate=block_rate,
         )
         try:
             if config_out is not None:

@@ -326,9 +326,10 @@ def list_programs(
 
 
 @router.get("/programs/{name}")
-def get_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
-    """One program and its versions."""
-    return actions.library.get_program(svc, who, name)
+def get_program(svc: Svc, name: str, who: Caller, limit: Count = 200) -> ProgramOut:
+    """One program and its newest ``limit`` versions, oldest first (``version_count`` says
+    how many it has)."""
+    return actions.library.get_program(svc, who, name, limit)
 
 
 _UPLOAD_BODY = {

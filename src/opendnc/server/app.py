@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from fastapi import FastAPI
 from sqlalchemy import Engine
@@ -228,9 +228,10 @@ def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:
 def _sparkplug(
     config: ShopConfig, bus: EventBus, sessions: sessionmaker[Session]
 ) -> SparkplugNode | None:
-    spb = config.sparkplug
-    if spb is None:
+    if config.sparkplug is None:
         return None
+    # Left out, the node is the server's name: `serve --name` sets it after the file is read.
+    spb = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
     for module in ("aiomqtt", "pysparkplug"):
         try:
             __import__(module)  # a configured output that cannot run fails at start

@@ -137,7 +137,10 @@ class Cluster:
                     self.leases.held = frozenset()
             else:
                 self.renewals += 1
-                await self._apply(holding)
+                try:
+                    await self._apply(holding)
+                except Exception:  # one bad round must not end the renewals
+                    log.exception("acting on the leases failed")
             await asyncio.sleep(max(0.0, self.renew_every - (time.monotonic() - began)))
 
     def _idle(self, machine: str) -> bool:
@@ -153,18 +156,24 @@ class Cluster:
                 await self._lose(machine)
         for machine in sorted(holding.gained):
             self._pending[machine] = holding.epochs[machine]
-        for machine, epoch in sorted(self._pending.items()):
-            if machine not in holding.held or machine in self.serving:
-                self._pending.pop(machine, None)
-                continue
-            try:
-                await self._gain(machine, epoch)
-            except Exception as exc:
-                if not database_down(exc):
-                    raise
-                log.warning("%s: jobs not taken over yet (database away); next renewal", machine)
-                continue
-            self._pending.pop(machine, None)
+        due = {
+            m: e for m, e in self._pending.items() if m in holding.held and m not in self.serving
+        }
+        self._pending.clear()
+        if not due:
+            return
+        try:
+            # one transaction for all of them: a server taking 500 machines at once must not
+            # spend its lease on 500 round trips
+            await self.runner.take_over({m: e for m, e in due.items() if m != LIBRARY})
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            log.warning("jobs of %d machines not taken over yet (database away)", len(due))
+            self._pending.update(due)  # the next renewal tries again
+            return
+        for machine, epoch in sorted(due.items()):
+            await self._gain(machine, epoch)
 
     async def _gain(self, machine: str, epoch: int) -> None:
         if machine == LIBRARY:
@@ -176,7 +185,6 @@ class Cluster:
         state = self.machines.machines.get(machine)
         if state is None:
             return
-        await self.runner.take_over(machine, epoch)
         state.served = True
         state.job_id, state.job_progress = None, (0, None)  # a status row's, not this task's
         self.serving.add(machine)

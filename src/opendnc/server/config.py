@@ -172,7 +172,7 @@ class SparkplugConfig:
 
     broker: MqttConfig  # host, port, TLS and login (its prefix and queue are not used)
     group: str
-    node: str
+    node: str = ""  # "": the server's name (app.py fills it in)
     primary_host: str = ""  # "": publish whenever connected
 
 
@@ -268,7 +268,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     mqtt = _mqtt(_table(raw, "mqtt"), base) if "mqtt" in raw else None
     sparkplug = None
     if "sparkplug" in raw:
-        sparkplug = _sparkplug(_table(raw, "sparkplug"), base, server.name)
+        sparkplug = _sparkplug(_table(raw, "sparkplug"), base)
     mtconnect = _mtconnect(_table(raw, "mtconnect"), machines) if "mtconnect" in raw else None
     try:
         calendar = parse_calendar(raw)  # [server] timezone and [[shifts]] (server/shifts.py)
@@ -336,7 +336,7 @@ def _broker(table: dict[str, Any], name: str, base: Path) -> MqttConfig:
 _SPARKPLUG_ID = re.compile(r"^[^/+#\s\x00]{1,64}$")
 
 
-def _sparkplug(table: dict[str, Any], base: Path, server_name: str) -> SparkplugConfig:
+def _sparkplug(table: dict[str, Any], base: Path) -> SparkplugConfig:
     _known(
         table,
         "sparkplug",
@@ -344,9 +344,11 @@ def _sparkplug(table: dict[str, Any], base: Path, server_name: str) -> Sparkplug
     )
     broker = _broker(table, "sparkplug", base)
     ids = {}
-    for key, default in (("group", ""), ("node", server_name), ("primary_host", "")):
-        value = _get(table, "sparkplug", key, str, default)
-        if (value or key != "primary_host") and not _SPARKPLUG_ID.match(value):
+    for key in ("group", "node", "primary_host"):
+        value = _get(table, "sparkplug", key, str, "")
+        # The node may be left out: it is then the server's name, which `opendnc serve
+        # --name` sets per cluster member after the file is read (app.py fills it in).
+        if (value or key == "group") and not _SPARKPLUG_ID.match(value):
             raise ConfigError(
                 f"sparkplug.{key}", f"expected one topic level (no '/', '+', '#'), got {value!r}"
             )

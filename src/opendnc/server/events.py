@@ -106,8 +106,8 @@ class LeaseChanged(Event):
     loss once the task has stopped (no status of this server follows it): what an output
     needs to say "this server serves the machine from now on / no longer" (a Sparkplug
     DBIRTH / DDEATH). A single server (SQLite) holds every machine: it publishes a gain for
-    each as it starts and a loss for each as it stops, with epoch 0. ``epoch`` is the
-    lease's, which grows at every change of owner.
+    each as it starts (epoch 0) and no loss: its stop ends them all at once, as a cluster
+    server's crash does. ``epoch`` is the lease's, which grows at every change of owner.
     """
 
     kind: ClassVar[str] = "lease"

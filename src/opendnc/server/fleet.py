@@ -75,13 +75,8 @@ class Fleet:
     async def stop(self) -> None:
         """Stop every machine's task (each closes its link)."""
         tasks = list(self._tasks.values())
-        names = list(self._tasks)
         self._tasks.clear()
         await cancel_and_wait(*tasks)
-        if self.serve_all:
-            server = self.machines.config.server.name
-            for name in names:
-                self.machines.bus.publish(LeaseChanged(name, server, False))
 
     @property
     def served(self) -> frozenset[str]:

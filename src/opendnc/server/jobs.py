@@ -48,6 +48,7 @@ __all__ = [
     "finish",
     "get_job",
     "interrupt",
+    "last_finished",
     "list_jobs",
     "machines_with_due_jobs",
     "move",
@@ -405,6 +406,17 @@ def queue_lengths(session: Session) -> dict[str, int]:
         .group_by(Job.machine)
     )
     return {machine: int(count) for machine, count in session.execute(stmt)}
+
+
+def last_finished(session: Session, machines: Iterable[str] | None = None) -> dict[str, Job]:
+    """Each machine's most recently finished job (done, failed, cancelled or interrupted),
+    its version and program loaded; ``machines`` limits the machines asked about."""
+    ended = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
+    newest = select(func.max(Job.id)).where(Job.state.in_(ended)).group_by(Job.machine)
+    if machines is not None:
+        newest = newest.where(Job.machine.in_(list(machines)))
+    stmt = select(Job).where(Job.id.in_(newest)).options(_with_program())
+    return {job.machine: job for job in session.scalars(stmt)}
 
 
 def _with_program() -> LoaderOption:

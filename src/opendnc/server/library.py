@@ -12,6 +12,8 @@ import difflib
 import hashlib
 import re
 from dataclasses import dataclass
+from datetime import datetime
+from typing import NamedTuple
 
 from sqlalchemy import Select, func, select
 from sqlalchemy.exc import IntegrityError
@@ -26,13 +28,16 @@ from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVers
 __all__ = [
     "MAX_PROGRAM_BYTES",
     "MAX_SEARCH",
+    "History",
     "Listed",
+    "VersionRow",
     "add_version",
     "check_program_name",
     "content",
     "diff",
     "get_program",
     "get_version",
+    "history",
     "list_programs",
     "release",
     "same_name_but_case",
@@ -170,6 +175,50 @@ def get_program(session: Session, name: str) -> Program:
     return program
 
 
+class VersionRow(NamedTuple):
+    """A version as a list shows it, read as plain columns (no ORM object per version)."""
+
+    number: int
+    sha256: str
+    size: int
+    state: ProgramState
+    author: str
+    comment: str
+    source: str
+    created: datetime
+
+
+@dataclass(frozen=True)
+class History:
+    """A program, how many versions it has, and its newest ones (oldest first)."""
+
+    program: Program
+    count: int
+    versions: list[VersionRow]
+
+
+def history(session: Session, name: str, limit: int | None = None) -> History:
+    """``name`` with its newest ``limit`` versions (all without a limit); :class:`NotFound`
+    otherwise. Versions are read as columns: a long history costs what its rows cost."""
+    program = session.scalar(select(Program).where(Program.name == name))
+    if program is None:
+        raise NotFound(f"no program named {name!r}")
+    v = ProgramVersion
+    stmt = (
+        select(v.number, v.sha256, v.size, v.state, v.author, v.comment, v.source, v.created)
+        .where(v.program_id == program.id)
+        .order_by(v.number.desc())
+    )
+    if limit is not None:
+        stmt = stmt.limit(limit)
+    rows = [VersionRow(*row) for row in session.execute(stmt)]
+    rows.reverse()
+    count = len(rows)
+    if limit is not None and count >= limit:
+        count = session.scalar(select(func.count()).where(v.program_id == program.id)) or 0
+    return History(program, count, rows)
+
+
 def _with_versions(name: str) -> Select[Program]:
     # the program and its versions in two queries (relationships never load lazily)
     return select(Program).where(Program.name == name).options(_VERSIONS)
@@ -293,20 +342,29 @@ def _program_for_update(session: Session, name: str) -> Program:
     program = session.scalar(stmt)
     if program is not None:
         return program
+    _refuse_case_twin(session, name)
+    try:
+        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
+            session.add(Program(name=name))
+    except IntegrityError:
+        # Another upload created it (or a name that differs only in case: the unique index on
+        # the folded name refuses the second of two at the same moment, which the check above
+        # cannot see on PostgreSQL while the first is not committed).
+        pass
+    program = session.scalar(stmt)
+    if program is None:
+        _refuse_case_twin(session, name)
+        raise Conflict(f"program {name!r} could not be created; try again")  # pragma: no cover
+    return program
+
+
+def _refuse_case_twin(session: Session, name: str) -> None:
     other = same_name_but_case(session, name)
     if other is not None:
         raise Conflict(
             f"program {name!r} differs from {other!r} only in case, and file systems that "
             f"fold case (Windows, network shares) would make them one file: use {other!r}"
         )
-    try:
-        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
-            session.add(Program(name=name))
-    except IntegrityError:
-        pass
-    program = session.scalar(stmt)
-    assert program is not None  # created here or by the upload that won the race
-    return program
 
 
 def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:

@@ -27,7 +27,7 @@ import asyncio
 import contextlib
 import logging
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol, TypeVar
 
 from sqlalchemy import select
@@ -264,7 +264,7 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.job_id, state.job_progress = claimed.job_id, (0, len(claimed.data) or None)
+        state.start_job(claimed.job_id, len(claimed.data) or None)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
@@ -502,43 +502,38 @@ class JobRunner:
         if epoch is None or not holds(session, machine, self.worker, epoch):
             raise LeaseLost(f"{self.worker} no longer holds the lease of {machine}")
 
-    async def take_over(self, machine: str, epoch: int) -> None:
-        """This server has just taken ``machine``'s lease (at ``epoch``): end the jobs its
-        previous server left running there (:func:`jobs.take_over`), before the machine's
-        task starts."""
+    async def take_over(self, epochs: Mapping[str, int]) -> None:
+        """This server has just taken these machines' leases (machine -> epoch): end the
+        jobs their previous servers left running there (:func:`jobs.take_over`), in one
+        transaction, before the machines' tasks start. Raises if the database is away."""
         keep = set(self.running)
 
         def adopt(session: Session) -> list[JobFinished]:
-            if not holds(session, machine, self.worker, epoch):
-                return []
-            ended = jobs.take_over(session, machine, self.worker, keep)
-            return [
-                JobFinished(
-                    job.id,
-                    machine,
-                    job.kind.value,
-                    job.version.program.name if job.version is not None else None,
-                    job.version.number if job.version is not None else None,
-                    outcome=job.state.value,
-                    error=job.error,
-                )
-                for job in ended
-            ]
+            out = []
+            for machine, epoch in sorted(epochs.items()):
+                if not holds(session, machine, self.worker, epoch):
+                    continue
+                for job in jobs.take_over(session, machine, self.worker, keep):
+                    version = job.version
+                    out.append(
+                        JobFinished(
+                            job.id,
+                            machine,
+                            job.kind.value,
+                            version.program.name if version is not None else None,
+                            version.number if version is not None else None,
+                            outcome=job.state.value,
+                            error=job.error,
+                        )
+                    )
+            return out
 
-        for event in await self._durably(f"taking over the jobs of {machine}", adopt):
-            log.warning("job %d of %s taken over: %s", event.job_id, machine, event.outcome)
+        for event in await asyncio.to_thread(self._transaction, adopt):
+            log.warning("job %d of %s taken over: %s", event.job_id, event.machine, event.outcome)
             self.machines.bus.publish(event)
             if event.outcome == JobState.QUEUED.value:
-                self.machines.bus.publish(
-                    JobQueued(
-                        event.job_id,
-                        machine,
-                        event.job_kind,
-                        event.program,
-                        event.version,
-                        by=self.worker,
-                    )
-                )
+                fields = (event.job_id, event.machine, event.job_kind, event.program)
+                self.machines.bus.publish(JobQueued(*fields, event.version, by=self.worker))
 
     # -- events ---------------------------------------------------------------------------
 

@@ -29,7 +29,7 @@ from opendnc.server.events import MachineStatusChanged
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.runner import database_down
-from opendnc.server.store.models import MachineSnapshot
+from opendnc.server.store.models import MachineLease, MachineSnapshot
 
 __all__ = ["SharedStatus", "status_from_json"]
 
@@ -74,6 +74,8 @@ class SharedStatus:
         self._seen: dict[str, datetime] = {}  # machine -> the newest row applied
         self._cursor: datetime | None = None
         self._task: asyncio.Task[None] | None = None
+        self._rounds = 0
+        self.unserved: set[str] = set()  # machines no server holds a live lease on
         self.written = 0  # rows written, for the benchmark
         self.applied = 0  # rows read and published
 
@@ -112,6 +114,8 @@ class SharedStatus:
                     continue
                 for machine, data in rows:
                     self._apply(machine, data)
+                for machine in self.unserved:
+                    self._orphan(machine)
 
     def _exchange(self, batch: dict[str, dict[str, Any]]) -> list[tuple[str, dict[str, Any]]]:
         """Write ``batch``; read the rows of other servers written since the last read."""
@@ -134,6 +138,16 @@ class SharedStatus:
                     ],
                 )
                 self.written += len(batch)
+            self._rounds += 1
+            if self._rounds % 4 == 1:  # once a second: which machines nobody serves
+                live = set(
+                    session.scalars(
+                        select(MachineLease.machine).where(
+                            MachineLease.owner != "", MachineLease.expires > now
+                        )
+                    )
+                )
+                self.unserved = set(self.machines.machines) - live
             query = select(MachineSnapshot).where(MachineSnapshot.server != self.server)
             if self._cursor is not None:
                 query = query.where(MachineSnapshot.updated > self._cursor - OVERLAP)
@@ -148,6 +162,16 @@ class SharedStatus:
                 self._seen[row.machine] = row.updated
                 out.append((row.machine, dict(row.data)))
             return out
+
+    def _orphan(self, machine: str) -> None:
+        """No server holds the machine's lease (its server died, or every server it is
+        pinned to is down): say so instead of showing its last status as if it were live."""
+        state = self.machines.get(machine)
+        if state is None or state.served or not state.online:
+            return
+        state.online = False
+        state.last_error = "no server serves this machine now"
+        self.machines.publish(state)
 
     def _apply(self, machine: str, data: dict[str, Any]) -> None:
         state = self.machines.get(machine)

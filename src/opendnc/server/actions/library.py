@@ -50,11 +50,11 @@ def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramL
     return svc.read(lambda s: [ProgramListed.of(p) for p in library.list_programs(s, search)])
 
 
-def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:
-    """One program and its versions."""
+def get_program(svc: Services, who: Caller, name: str, limit: int | None = None) -> ProgramOut:
+    """One program and its versions: the newest ``limit`` of them, or all."""
     require(who, Role.VIEWER)
     library.check_program_name(name)
-    return svc.read(lambda s: ProgramOut.of(library.get_program(s, name)))
+    return svc.read(lambda s: ProgramOut.of_history(library.history(s, name, limit)))
 
 
 def program_content(svc: Services, who: Caller, name: str, number: int | None) -> Content:

@@ -11,7 +11,7 @@ from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
 from opendnc.server.leases import ClusterView
-from opendnc.server.library import Listed
+from opendnc.server.library import History, Listed, VersionRow
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -98,6 +98,11 @@ class VersionOut(FromRow):
         # a version row names its program through the relation: the model keeps the name
         return value.name if isinstance(value, Program) else value
 
+    @classmethod
+    def of_row(cls, program: str, v: VersionRow) -> VersionOut:
+        """From a version read as columns."""
+        return cls(program=program, **v._asdict())
+
 
 class ProblemOut(BaseModel):
     """One problem a program check found: the file's 1-based ``line`` (Klartext: also its
@@ -139,13 +144,38 @@ class UploadOut(VersionOut):
     check: CheckOut | None = None
 
 
-class ProgramOut(FromRow):
-    """A program with its versions, oldest first."""
+class ProgramOut(BaseModel):
+    """A program with its versions, oldest first: all of them, or the newest ones when the
+    request set a ``limit`` (``version_count`` says how many there are)."""
 
     name: str
     locked: bool
     created: Timestamp
+    version_count: int
     versions: list[VersionOut]
+
+    @classmethod
+    def of(cls, p: Program) -> ProgramOut:
+        """From the row (its versions loaded with it)."""
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=len(p.versions),
+            versions=[VersionOut.of(v) for v in p.versions],
+        )
+
+    @classmethod
+    def of_history(cls, h: History) -> ProgramOut:
+        """From the library's history of a program."""
+        p = h.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=h.count,
+            versions=[VersionOut.of_row(p.name, v) for v in h.versions],
+        )
 
 
 class ProgramListed(BaseModel):

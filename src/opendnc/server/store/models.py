@@ -30,6 +30,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    func,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -233,7 +234,6 @@ class Program(Base):
     """A program name in the library (``O01234``, ``POCKET.H``) and its versions."""
 
     __tablename__ = "programs"
-
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(255), unique=True)
     locked: Mapped[bool] = mapped_column(Boolean, default=False)
@@ -242,6 +242,11 @@ class Program(Base):
     versions: Mapped[list[ProgramVersion]] = relationship(
         back_populates="program", order_by="ProgramVersion.number", lazy=NO_LAZY_SQL
     )
+
+
+# Names that differ only in case are one file on Windows and SMB shares: the database refuses
+# the second even when two uploads race (docs/server.md#program-names).
+Index("uq_programs_name_folded", func.lower(Program.name), unique=True)
 
 
 class ProgramVersion(Base):

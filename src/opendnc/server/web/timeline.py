@@ -85,6 +85,8 @@ class Segment:
     width: float
     state: str  # a State's value: the strip's colour class
     label: str
+    start: datetime | None = None  # the stretch's bounds within the strip (its title says them)
+    end: datetime | None = None
 
 
 # (state, mode, execution, program, part count, alarm text): a change of any is a sample
@@ -146,8 +148,11 @@ class Timeline:
             return True
 
     def forget(self, name: str) -> None:
-        """Another server of a cluster records ``name`` from now on: this one's stop marks
-        no gap in its record."""
+        """This server no longer serves ``name`` (a cluster's lease lost): no record from
+        now on, until the machine's new server notes its state; this one's stop marks
+        nothing more for it."""
+        if name in self._last:
+            self._add(name, (State.NO_RECORD, "", "", "", None, ""), None)
         with self._lock:
             self._last.pop(name, None)
 
@@ -320,7 +325,14 @@ class Timeline:
             begin = max(sample.at, start)
             x = (begin - start).total_seconds() / span * width
             w = (until - begin).total_seconds() / span * width
-            segment = Segment(round(x, 2), round(max(w, 0.5), 2), sample.state.value, sample.label)
+            segment = Segment(
+                round(x, 2),
+                round(max(w, 0.5), 2),
+                sample.state.value,
+                sample.label,
+                begin,
+                until,
+            )
             out.append(segment)
         return out
 

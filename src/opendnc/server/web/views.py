@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Annotated, Any, TypeVar
 from urllib.parse import quote
 
@@ -75,6 +76,7 @@ SHOWN_CHARS = 200_000
 MAX_EDIT_BYTES = 512 * 1024
 MAX_EDIT_CHARS = 1024 * 1024
 TIMELINE_HOURS = 4
+WALL_SECONDS = 15  # each page of the wall display shows this long
 # The DPRNT console keeps this many of a machine's newest lines (the CSV has more).
 CONSOLE_LINES = 200
 
@@ -156,7 +158,15 @@ def _read(request: Request, work: Callable[[Session], T]) -> T:
         return work(session)
 
 
+def _zone(request: Request) -> tzinfo:
+    # the shop's clock ([server] timezone): every time a person reads is on it
+    return _supervisor(request).config.calendar.zone
+
+
 def _html(template: str, page: Page | None, request: Request, **context: Any) -> HTMLResponse:
+    calendar = _supervisor(request).config.calendar
+    context.setdefault("zone", calendar.zone)
+    context.setdefault("zone_name", calendar.zone_name)
     return HTMLResponse(
         render.render(template, page=page, path=request.url.path, roles=ROLES, **context)
     )
@@ -224,19 +234,38 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
     states = supervisor.machines
     wanted = names if names is not None else list(states)
 
-    def load(session: Session) -> tuple[dict[str, int], dict[int, str]]:
+    def load(session: Session) -> tuple[dict[str, int], dict[int, str], dict[str, render.LastJob]]:
         queued = jobs.queue_lengths(session)
         running = [states[name].job_id for name in wanted]
-        return queued, _job_labels(session, [i for i in running if i is not None])
+        labels = _job_labels(session, [i for i in running if i is not None])
+        return queued, labels, _last_jobs(session, wanted)
 
-    queued, labels = _read(request, load)
+    queued, labels, last = _read(request, load)
+    zone = _zone(request)
     out = []
     for name in wanted:
         data = states[name].as_json()
         job_id = states[name].job_id
         label = labels.get(job_id, "") if job_id is not None else ""
-        out.append(render.card(data, queued=queued.get(name, 0), job_label=label))
+        out.append(
+            render.card(
+                data,
+                queued=queued.get(name, 0),
+                job_label=label,
+                last_job=last.get(name),
+                zone=zone,
+            )
+        )
     return out
+
+
+def _last_jobs(session: Session, names: list[str]) -> dict[str, render.LastJob]:
+    # each machine's last finished job, as its card tells it (one query for all)
+    found = jobs.last_finished(session, names)
+    return {
+        name: render.LastJob(_label(job), job.state.value, job.finished, job.error)
+        for name, job in found.items()
+    }
 
 
 def _label(job: Job) -> str:
@@ -263,9 +292,27 @@ def _job_labels(session: Session, ids: list[int]) -> dict[int, str]:
 @router.get("/")
 def overview(request: Request, page: Viewing) -> HTMLResponse:
     """A card per machine, kept live by server-sent events."""
+    return _html("overview.html", page, request, **_floor(request))
+
+
+def _floor(request: Request) -> dict[str, Any]:
+    # what the overview and the wall display show: the cards, how many are in each state,
+    # the machines in alarm, and the zone the times are on
     cards = _cards(request)
     counts = {state: sum(1 for c in cards if c.state == state) for state in render.STATES}
-    return _html("overview.html", page, request, cards=cards, counts=counts)
+    in_alarm = [c for c in cards if c.state == "alarm"]
+    return {"cards": cards, "counts": counts, "in_alarm": in_alarm}
+
+
+@router.get("/wall")
+def wall(
+    request: Request,
+    page: Viewing,
+    every: Annotated[int, Query(ge=3, le=600)] = WALL_SECONDS,
+) -> HTMLResponse:
+    """The floor for a screen on the wall: large type, no controls, the pages of a shop
+    larger than the screen shown in turn (``every`` seconds each)."""
+    return _html("wall.html", page, request, every=every, **_floor(request))
 
 
 @router.get("/events/cards")
@@ -315,9 +362,15 @@ class _Cards:
         self.only = only
         self.template = render.environment().get_template("_card.html")
         self.labels: dict[int, str] = {}
+        # each machine's last finished job: read again only when one of its jobs ends
+        self.last: dict[str, render.LastJob] = {}
+        self.last_stale: set[str] = set(supervisor.machines) if only is None else {only}
+        self.zone = _zone(request)
         self.watched = set(supervisor.machines) if only is None else {only}
         self.sent: dict[str, str] = {}  # the HTML each card has in the browser now
-        self.console = _Console(only, dprnt_shown) if only and dprnt_shown is not None else None
+        self.console = (
+            _Console(only, dprnt_shown, self.zone) if only and dprnt_shown is not None else None
+        )
         capture = deps.dprnt(request)
         # The capture's word as the stream starts (it may have changed since the page was drawn).
         self.capture_said: str | None = (
@@ -345,6 +398,7 @@ class _Cards:
             case JobEvent(machine=machine) if machine in self.watched:
                 self.pending.add(machine)  # queued, started or ended: the queue changed
                 self.job_changes.add(machine)
+                self.last_stale.add(machine)
             case DprntLinePrinted(machine=machine) if machine in self.watched:
                 self.new_lines = self.console is not None
             case DprntStatus(machine=machine, message=message) if machine in self.watched:
@@ -357,10 +411,11 @@ class _Cards:
         if self.pending:
             names = sorted(self.pending)
             self.pending = set()
-            cards = await run_in_threadpool(_cards_cached, self.request, names, self.labels)
+            cards = await run_in_threadpool(_cards_cached, self.request, names, self)
             changed = []
             for c in cards:
-                html = self.template.render(c=c, whole=self.only is not None)  # a machine page's
+                # a machine page's card shows the whole DPRNT line
+                html = self.template.render(c=c, whole=self.only is not None, zone=self.zone)
                 if self.sent.get(c.name) != html:  # a status poll that changed nothing
                     self.sent[c.name] = html
                     changed.append(render.card_oob(c.name, html))
@@ -395,9 +450,10 @@ class _Console:
     holds more than that and never shows a line twice, whenever the stream (re)connects.
     """
 
-    def __init__(self, machine: str, shown: list[int]) -> None:
+    def __init__(self, machine: str, shown: list[int], zone: tzinfo = UTC) -> None:
         self.machine = machine
         self.shown: deque[int] = deque(sorted(shown))
+        self.zone = zone
 
     def update(self, session: Session) -> str:
         last = self.shown[-1] if self.shown else 0
@@ -412,16 +468,25 @@ class _Console:
         while len(self.shown) > CONSOLE_LINES:
             gone.append(self.shown.popleft())
         first = self.shown[0]
-        return render.render("_dprnt.html", lines=[x for x in lines if x["id"] >= first], gone=gone)
+        shown = [x for x in lines if x["id"] >= first]
+        return render.render("_dprnt.html", lines=shown, gone=gone, zone=self.zone)
 
 
-def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) -> list[render.Card]:
-    # The labels of running jobs do not change: look each up once per stream.
+def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[render.Card]:
+    # The labels of running jobs do not change: look each up once per stream; a machine's
+    # last finished job only when one of its jobs ended.
     states = _supervisor(request).machines
+    labels, last = stream.labels, stream.last
 
     def load(session: Session) -> dict[str, int]:
         new = [states[n].job_id for n in names if states[n].job_id not in labels]
         labels.update(_job_labels(session, [i for i in new if i is not None]))
+        stale = [n for n in names if n in stream.last_stale]
+        if stale:
+            for n in stale:
+                last.pop(n, None)
+            last.update(_last_jobs(session, stale))
+            stream.last_stale.difference_update(stale)
         return jobs.queue_lengths(session)
 
     queued = _read(request, load)
@@ -429,7 +494,15 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
     for name in names:
         job_id = states[name].job_id
         label = labels.get(job_id, "") if job_id is not None else ""
-        out.append(render.card(states[name].as_json(), queued=queued.get(name, 0), job_label=label))
+        out.append(
+            render.card(
+                states[name].as_json(),
+                queued=queued.get(name, 0),
+                job_label=label,
+                last_job=last.get(name),
+                zone=stream.zone,
+            )
+        )
     return out
 
 
@@ -494,7 +567,11 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
     timeline.note(name, state.status, online=state.online)
-    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
+    now = datetime.now(UTC)
+    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS, now=now)
+    context["timeline_ticks"] = render.axis_ticks(
+        now - timedelta(hours=TIMELINE_HOURS), now, _zone(request)
+    )
     context["timeline_hours"] = TIMELINE_HOURS
     context["timeline_days"] = timeline.retention.total_seconds() / 86400
     context["console_lines"] = CONSOLE_LINES
@@ -510,7 +587,10 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
             "span": f"{lines[0]['id']}-{lines[-1]['id']}" if lines else "0-0",
             "status": capture.status.get(name, "") if capture is not None else "",
         }
-    context["card"] = render.card(live, queued=len(context["queue"]))
+    last = _read(request, lambda s: _last_jobs(s, [name]))
+    context["card"] = render.card(
+        live, queued=len(context["queue"]), last_job=last.get(name), zone=_zone(request)
+    )
     return context
 
 
