@@ -346,3 +346,32 @@ def test_the_editor_is_for_programmers(app: App, tmp_path: Path) -> None:
     )
     assert blank.status_code == 400
     assert "comment" in blank.text
+
+
+def test_a_program_of_20000_lines_is_edited_with_only_the_lines_in_view_drawn(
+    app: App, browser: Any
+) -> None:
+    big = _haas_program(20_000)
+    with app.server.sessions.begin() as s:
+        library.add_version(s, "O04000.nc", big, author="ann")
+    tab = Tab(app, browser, Role.PROGRAMMER, 1280, 800)
+    page = tab.goto("/library/O04000.nc/versions/1/edit")
+    expect(page.locator("#ed-status")).to_contain_text("20,000 lines")
+    page.get_by_label("Go to line").fill("19500")
+    page.get_by_role("button", name="Go", exact=True).click()
+    expect(page.locator(".ed-gutter .cur")).to_have_text("19500")
+    shown = _visible_lines(page)
+    assert "G01 X19500. Y5. F100." in shown
+    assert len(shown) < 60
+    assert page.locator(".ed-gutter-lines div").count() < 60
+    # typing at the end of that line changes the text and the drawn line alike
+    page.keyboard.press("End")
+    page.keyboard.type(" (HERE)")
+    expect(page.locator(".ed-view")).to_contain_text("G01 X19500. Y5. F100. (HERE)")
+    assert (
+        page.get_by_role("textbox", name="Text of O04000.nc")
+        .input_value()
+        .split("\n")[19499]
+        .endswith("(HERE)")
+    )
+    tab.close()
