@@ -149,6 +149,7 @@ class _Run:
         self.feed_mode = 94
         self.feed: float | None = None
         self.speed = 0.0
+        self.block_words: dict[str, float] = {}
         self.spindle_on = False
         self.work_offset = 54.0
         self.cycle: _Cycle | None = None
@@ -562,6 +563,7 @@ class _Run:
         self, g: list[float], m: list[float], v: dict[str, float], frame: _Frame, line: int
     ) -> None:
         self.prev_end = self.w[:]
+        self.block_words = v
         special = 0.0
         if g:
             special = self._g_codes(g, v, line)
@@ -570,6 +572,7 @@ class _Run:
                 return
         if "F" in v:
             self.feed = v["F"]
+            self.path.feed_rate(self.feed)
         if "S" in v:
             self.speed = v["S"]
             self.path.spindle_speed(self.speed)
@@ -924,7 +927,12 @@ class _Run:
         if known is not None and str(tool) not in known and tool != 0:
             self.error(line, f"tool T{tool} is not in the tool table of {self.machine_name()}")
         if tool != 0:
-            self.path.change_tool(str(tool), line, speed=self.speed or None, feed=self.feed)
+            # S and F of the changing block are the new tool's; the ones before it belong to
+            # the tool before (the first S and F after the change are taken as they come)
+            block = self.block_words
+            self.path.change_tool(
+                str(tool), line, speed=block.get("S") or None, feed=block.get("F")
+            )
 
     def machine_name(self) -> str:
         return (self.machine.name if self.machine else "") or "the machine"

@@ -133,6 +133,11 @@ class Toolpath:
         if self._current is not None and self._current.speed is None and speed:
             self._current.speed = speed
 
+    def feed_rate(self, feed: float) -> None:
+        """The first F after a tool change is that tool's feed."""
+        if self._current is not None and self._current.feed is None and feed:
+            self._current.feed = feed
+
     def result(
         self,
         control: Control,

@@ -390,6 +390,25 @@ def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
     return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
 
 
+@router.get(
+    "/programs/{name}/versions/{number}/toolpath",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+def program_toolpath(svc: Svc, name: str, number: Id, who: Caller) -> Response:
+    """The dry run's toolpath of one version, decimated to its shape, as little-endian
+    binary: runs of points with their kind, tool and file lines (docs/check.md#toolpath-binary)."""
+    found = actions.preview.preview(svc, who, name, number)
+    return OctetStream(
+        found.toolpath,
+        headers={
+            "X-Content-SHA256": found.sha256,
+            "X-Toolpath-Moves": str(found.moves),
+            "X-Toolpath-Points": str(found.points),
+        },
+    )
+
+
 VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
 
 

@@ -50,6 +50,7 @@ __all__ = [
     "interrupt",
     "last_finished",
     "list_jobs",
+    "machines_running",
     "machines_with_due_jobs",
     "move",
     "note_progress",
@@ -375,6 +376,14 @@ def take_over(session: Session, machine: str, server: str, keep: Iterable[int] =
         )
         ended.append(job)
     return ended
+
+
+def machines_running(session: Session, machines: Sequence[str]) -> set[str]:
+    """Which of ``machines`` have a job running (by any server)."""
+    if not machines:
+        return set()
+    stmt = select(Job.machine).where(Job.machine.in_(machines), Job.state == JobState.RUNNING)
+    return set(session.scalars(stmt.distinct()))
 
 
 def note_progress(session: Session, job_id: int, *, line: int | None, nbytes: int) -> None:

@@ -263,7 +263,7 @@ class Leases:
                     )
                 )
             grace = self.ttl / 2  # a free machine waits this long for the server assigned it
-            for machine in self.machines:
+            for machine in sorted(self.machines):  # one order for every server's locks
                 if machine in renewed or machine in hand_over:
                     continue
                 row = leases.get(machine)
@@ -273,7 +273,7 @@ class Leases:
                 due = wanted.get(machine) == self.server
                 if not due and free_since is not None and free_since > now - grace:
                     continue
-                if self._take(session, machine, now):
+                if self._take(session, machine, now, exists=row is not None):
                     renewed.add(machine)
             epochs = {
                 machine: epoch
@@ -299,23 +299,35 @@ class Leases:
         """The machines this server may act on now: held, and not past the lease."""
         return self.held if time.monotonic() < self.valid_until else frozenset()
 
-    def _take(self, session: Session, machine: str, now: datetime) -> bool:
+    def _take(self, session: Session, machine: str, now: datetime, exists: bool) -> bool:
         # One statement: of two servers taking the same free row, the second finds it live.
+        # A row that is there is only updated where free (an UPDATE whose condition fails
+        # keeps no lock); a new row is inserted unless another server just did: a live row
+        # is never locked by a server that cannot take it, so renewals do not deadlock.
+        if exists:
+            taken = session.execute(
+                update(MachineLease)
+                .where(
+                    MachineLease.machine == machine,
+                    (MachineLease.expires <= now) | (MachineLease.owner == ""),
+                )
+                .values(
+                    owner=self.server,
+                    epoch=MachineLease.epoch + 1,
+                    acquired=now,
+                    expires=now + self.ttl,
+                )
+                .returning(MachineLease.machine)
+            ).first()
+            return taken is not None
         insert = self._insert(session)
         statement = insert(MachineLease).values(  # type: ignore[attr-defined]
             machine=machine, owner=self.server, epoch=1, acquired=now, expires=now + self.ttl
         )
         taken = session.execute(
-            statement.on_conflict_do_update(
-                index_elements=[MachineLease.machine],
-                set_={
-                    "owner": self.server,
-                    "epoch": MachineLease.epoch + 1,
-                    "acquired": now,
-                    "expires": now + self.ttl,
-                },
-                where=(MachineLease.expires <= now) | (MachineLease.owner == ""),
-            ).returning(MachineLease.machine)
+            statement.on_conflict_do_nothing(index_elements=[MachineLease.machine]).returning(
+                MachineLease.machine
+            )
         ).first()
         return taken is not None
 

@@ -509,9 +509,11 @@ class JobRunner:
         keep = set(self.running)
 
         def adopt(session: Session) -> list[JobFinished]:
-            out = []
+            out: list[JobFinished] = []
+            # one query for all: usually few of them have a job left running
+            busy = jobs.machines_running(session, list(epochs))
             for machine, epoch in sorted(epochs.items()):
-                if not holds(session, machine, self.worker, epoch):
+                if machine not in busy or not holds(session, machine, self.worker, epoch):
                     continue
                 for job in jobs.take_over(session, machine, self.worker, keep):
                     version = job.version

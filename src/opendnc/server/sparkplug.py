@@ -181,6 +181,7 @@ class SparkplugNode:
     ) -> None:
         self.config = config
         self.machines = list(machines)
+        self._names = frozenset(machines)
         self.bus = bus
         self.next_bd_seq = next_bd_seq  # blocking (the database): run in a thread
         self.min_backoff = min_backoff
@@ -279,10 +280,6 @@ class SparkplugNode:
                 return
         self._dirty.add(machine)
         self._wake.set()
-
-    @property
-    def _names(self) -> set[str]:
-        return set(self.machines)
 
     # -- what to send ------------------------------------------------------------------------
 
@@ -486,6 +483,8 @@ class SparkplugNode:
                         backoff = 0.0
             except (aiomqtt.MqttError, OSError) as exc:
                 log.warning("sparkplug: %s: %s; again in %.0f s", where, exc, backoff)
+            except Exception:  # a bug in one session must not end the output for good
+                log.exception("sparkplug: the session ended by an error; again in %.0f s", backoff)
             finally:
                 self.connected = False
                 self.node_born = False

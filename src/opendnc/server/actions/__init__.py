@@ -13,7 +13,8 @@ result, so both give the same answer to the same request.
 
 Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs),
 :mod:`.checks` (program checks), :mod:`.files` (a control's files), :mod:`.inbox`
-(receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state).
+(receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
+:mod:`.preview` (a version's dry run and toolpath).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from opendnc.server.actions import (
     library,
     machines,
     policy,
+    preview,
     queue,
 )
 from opendnc.server.actions.base import Caller, Services, require
@@ -40,6 +42,7 @@ __all__ = [
     "library",
     "machines",
     "policy",
+    "preview",
     "queue",
     "require",
 ]

@@ -56,7 +56,7 @@ from opendnc.server.store.models import (
     Role,
 )
 from opendnc.server.streams import event_stream_response
-from opendnc.server.web import render
+from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
 
@@ -68,9 +68,6 @@ router = APIRouter(include_in_schema=False)
 CARD_INTERVAL = 0.5
 FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
 ROLES = [r.name.lower() for r in Role]
-# A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
-# is a download away.
-SHOWN_CHARS = 200_000
 # The editor takes programs up to this size (a form field holds at most 1 MiB, and a browser
 # sends every line end as CR LF); a larger one is edited offline and uploaded.
 MAX_EDIT_BYTES = 512 * 1024
@@ -804,8 +801,10 @@ def program_page(
     v: VersionNumber | None = None,
     a: VersionNumber | None = None,
     b: VersionNumber | None = None,
+    line: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
-    """One program: versions, the text of one of them highlighted, or a diff of two."""
+    """One program: versions, the text of one of them highlighted (from ``line``), its
+    preview, or a diff of two."""
     svc = _svc(request)
     program = actions.library.get_program(svc, page.who, name)
     shown = actions.library.program_content(svc, page.who, name, v)
@@ -818,8 +817,7 @@ def program_page(
         "program": program.model_dump(mode="json"),
         "shown": version.model_dump(mode="json"),
         "released": released[-1] if released else None,
-        "lines": render.highlight_lines(text[:SHOWN_CHARS]),
-        "clipped": len(text) > SHOWN_CHARS,
+        "listing": listing.window(text, name=name, size=len(shown.data), line=line),
         "check": check.model_dump(mode="json"),
         "diff": None,
     }
