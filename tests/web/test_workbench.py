@@ -8,6 +8,7 @@ look at."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -142,7 +143,8 @@ def test_the_program_page_lists_the_problems_with_links_to_their_lines(
         # the link goes to the line in the text
         first.get_by_role("link", name="O02001.nc:5").click()
         assert page.url.endswith("#L5")
-        expect(page.locator("tr#L5")).to_contain_text("G999 X1.")
+        expect(page.locator("#L5")).to_contain_text("G999 X1.")
+        expect(page.locator("#L5")).to_have_class(re.compile(r"\bhl\b"))
         # an approver may release past the errors only with the box ticked and a reason
         expect(page.get_by_role("button", name="Release anyway")).to_be_visible()
         page.evaluate("window.scrollTo(0, 0)")
