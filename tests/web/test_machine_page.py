@@ -113,6 +113,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
             library=tmp / "lib",
             dripfeed=True,
             mdc=True,
+            check="warn",
         )
         ngc_ports = (free_port(), free_port())
         text = text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n')
