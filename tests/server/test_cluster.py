@@ -120,8 +120,15 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
 ) -> None:
     # (the database before the processes: it is dropped after they have stopped)
     T0[0] = time.monotonic()
+    # each telegram answered 1 ms late: the loads last long enough to kill a server mid-run
     cluster = start_cluster(
-        procs, tmp_path, pg_url, tnc=20, serial_haas=1, pin={"haas-serial-1": ["dnc-1"]}
+        procs,
+        tmp_path,
+        pg_url,
+        tnc=20,
+        serial_haas=1,
+        pin={"haas-serial-1": ["dnc-1"]},
+        latency_ms=1.0,
     )
     phase("fleet and key")
     try:
@@ -141,7 +148,7 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
                 ),
             )
         phase("online")
-        programs = publish_programs(cluster.clients["dnc-2"], 10, 40_000)
+        programs = publish_programs(cluster.clients["dnc-2"], 10, 150_000)
         ids = queue_everything(cluster, programs)
         phase("queued")
         assert len(ids) == 200
