@@ -111,7 +111,7 @@ def build(
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
     core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
-    core.add(utilization_api.HourSummer(sessions, names))
+    core.add(utilization_api.HourSummer(sessions, names, config.calendar))
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
