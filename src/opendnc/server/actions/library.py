@@ -9,8 +9,16 @@ from sqlalchemy.orm import Session
 from opendnc.errors import InputError
 from opendnc.server import library
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, DiffOut, ProgramOut, UploadOut, VersionOut
-from opendnc.server.store.models import Role
+from opendnc.server.actions.models import (
+    Content,
+    DiffOut,
+    ProgramOut,
+    TextMatch,
+    UploadOut,
+    VersionOut,
+)
+from opendnc.server.program_title import HEAD, title_of
+from opendnc.server.store.models import Program, Role
 
 __all__ = [
     "get_program",
@@ -24,15 +32,40 @@ __all__ = [
 ]
 
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
+MIN_TEXT = 2  # a search in the text of one character would list most of the library
 
 
-def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramOut]:
-    """Programs whose name holds ``search`` (any case), by name."""
+def list_programs(svc: Services, who: Caller, search: str = "", text: str = "") -> list[ProgramOut]:
+    """Programs whose name or title holds ``search`` (any case), and whose newest version's
+    text holds ``text`` (any case; at most :data:`~opendnc.server.library.MAX_TEXT_HITS`),
+    by name, each with its title."""
     require(who, Role.VIEWER)
-    search = search.strip()
-    if len(search) > MAX_SEARCH:
-        return []
-    return svc.read(lambda s: [ProgramOut.of(p) for p in library.list_programs(s, search)])
+    search, text = search.strip(), text.strip()
+    if len(search) > library.MAX_SEARCH or len(text) > library.MAX_SEARCH:
+        raise InputError(f"a search is at most {library.MAX_SEARCH} characters")
+    if text and len(text) < MIN_TEXT:
+        raise InputError(f"a search in the text needs at least {MIN_TEXT} characters")
+
+    def load(session: Session) -> list[ProgramOut]:
+        found: list[tuple[Program, TextMatch | None]]
+        if text:
+            hits = library.search_text(session, text)
+            found = [(h.program, TextMatch(line=h.line, text=h.text)) for h in hits]
+        else:
+            found = [(p, None) for p in library.list_programs(session)]
+        newest = [p.versions[-1].sha256 for p, _ in found if p.versions]
+        heads = library.heads(session, newest, HEAD)
+        out = []
+        for program, match in found:
+            title = (
+                title_of(heads.get(program.versions[-1].sha256, b"")) if program.versions else ""
+            )
+            if search and search.lower() not in f"{program.name}\n{title}".lower():
+                continue
+            out.append(ProgramOut.of(program).model_copy(update={"title": title, "match": match}))
+        return out
+
+    return svc.read(load)
 
 
 def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:

@@ -42,6 +42,7 @@ __all__ = [
     "ReceivedOut",
     "RemoteFileOut",
     "RevokedOut",
+    "TextMatch",
     "Timestamp",
     "UploadOut",
     "VersionOut",
@@ -96,13 +97,25 @@ class UploadOut(VersionOut):
     created_new: bool
 
 
+class TextMatch(BaseModel):
+    """Where a search in the program's text found it: the first line of its newest version
+    that holds it."""
+
+    line: int
+    text: str
+
+
 class ProgramOut(BaseModel):
-    """A program with its versions, oldest first."""
+    """A program with its versions, oldest first; in a list also its newest version's title
+    (the O-line's comment, Klartext's first comment or name) and where a search in the text
+    found it."""
 
     name: str
     locked: bool
     created: Timestamp
     versions: list[VersionOut]
+    title: str = ""
+    match: TextMatch | None = None
 
     @classmethod
     def of(cls, p: Program) -> ProgramOut:

@@ -14,7 +14,14 @@ from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict
 from opendnc.server.store.models import JobKind, ProgramState, ProgramVersion, Role
 
-__all__ = ["JOB_ROLES", "check_machine", "may_queue", "version_for"]
+__all__ = [
+    "JOB_ROLES",
+    "TAKE_BACK_ROLE",
+    "check_machine",
+    "may_queue",
+    "may_take_back",
+    "version_for",
+]
 
 # The least role for each kind of job a person may queue (a report is the server's own).
 JOB_ROLES = {
@@ -27,6 +34,18 @@ JOB_ROLES = {
     JobKind.DELETE: Role.PROGRAMMER,
     JobKind.PUT_FILE: Role.PROGRAMMER,
 }
+
+
+# A control's file taken back into the library becomes a new version of a program: the
+# role that adds versions (a receive into the inbox is the operator's).
+TAKE_BACK_ROLE = Role.PROGRAMMER
+
+
+def may_take_back(who: Caller) -> None:
+    """Refuse ``who`` taking a control's file back into the library (403) below
+    :data:`TAKE_BACK_ROLE`."""
+    may_queue(who, JobKind.RECEIVE)
+    require(who, TAKE_BACK_ROLE)
 
 
 def may_queue(who: Caller, kind: JobKind) -> None:

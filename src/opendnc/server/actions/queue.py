@@ -26,8 +26,15 @@ __all__ = [
 ]
 
 
-def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
-    """Queue one job per machine: all of them, or (any refusal) none."""
+def create_jobs(
+    svc: Services,
+    who: Caller,
+    order: JobRequest,
+    *,
+    params: dict[str, str | int | bool] | None = None,
+) -> list[JobOut]:
+    """Queue one job per machine: all of them, or (any refusal) none. ``params`` are the
+    actions' own (a take-back's ``into_library``), never a request's."""
     kind = order.kind
     policy.may_queue(who, kind)
     configs = [svc.machine(name).config for name in order.machines]
@@ -52,13 +59,13 @@ def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
         version = policy.version_for(session, program, order.version) if program else None
         for config in configs:
             policy.check_machine(config, kind, version)
-        params: dict[str, str | int] = {}
+        extra: dict[str, str | int | bool] = dict(params or {})
         if path is not None:
-            params["path"] = path
+            extra["path"] = path
         if order.from_line is not None:
-            params["from_line"] = order.from_line
+            extra["from_line"] = order.from_line
         created = [
-            jobs.enqueue(session, kind, config.name, actor=who.name, version=version, params=params)
+            jobs.enqueue(session, kind, config.name, actor=who.name, version=version, params=extra)
             for config in configs
         ]
         return [JobOut.of(j) for j in created]
