@@ -14,8 +14,16 @@ TNCs over LSV2, half virtual Haas NGCs over MDC) and writes the server's configu
 Target (the server issue): 500 machines on this 2-core machine, p99 status age under 2 s and
 the server under one core. The fleet process runs on the same two cores and costs CPU too.
 
+With ``--servers K`` (K >= 2) the fleet is served by K ``opendnc serve`` processes on one
+fresh PostgreSQL database (``--pg``; docs/server.md#several-servers): the figures are per
+server (its CPU, the status age of every machine as that server shows it, polled there or
+read from the others' rows), and then one server is SIGKILLed: the takeover time is from the
+kill until every machine's lease is held by a live server again, and the status time until
+every machine shows a fresh status (younger than twice the poll) on a surviving server.
+
     .venv/bin/python benchmarks/fleet.py                    # N = 50, 200, 500
     .venv/bin/python benchmarks/fleet.py --sizes 20 --seconds 5
+    .venv/bin/python benchmarks/fleet.py --sizes 1000 --servers 2
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import sys
 import tempfile
 import time
 import urllib.request
+import uuid
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -50,14 +59,20 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICKS  # utime + stime
 
 
-def _cli(*args: str, **kwargs: Any) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "opendnc.cli.main", *args],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        **kwargs,
-    )
+def _cli(*args: str, log: Path | None = None, **kwargs: Any) -> subprocess.Popen[bytes]:
+    # A long run logs more than a pipe holds: to a file then, or the child blocks writing.
+    err: Any = subprocess.PIPE if log is None else log.open("ab")
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-m", "opendnc.cli.main", *args],
+            start_new_session=True,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            **kwargs,
+        )
+    finally:
+        if log is not None:
+            err.close()
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -199,13 +214,209 @@ def _stall(stall: dict[str, Any] | None) -> str:
     return f"{stall['seconds'] * 1000:.0f} ms ({wait} ms)"
 
 
+def _start_fleet(n: int, poll: float, folder: Path) -> tuple[subprocess.Popen[bytes], Path]:
+    config = folder / f"fleet-{n}.toml"
+    fleet = _cli(
+        "sim",
+        "fleet",
+        "--tnc",
+        str(n // 2),
+        "--haas",
+        str(n - n // 2),
+        "--config-out",
+        str(config),
+        "--poll",
+        str(poll),
+        "--root",
+        str(folder / f"machines-{n}"),
+    )
+    deadline = time.monotonic() + 180
+    while not config.exists():
+        if fleet.poll() is not None or time.monotonic() > deadline:
+            raise SystemExit(f"fleet did not start: {fleet.stderr.read().decode()}")  # type: ignore[union-attr]
+        time.sleep(0.1)
+    return fleet, config
+
+
+def _database(pg: str, create: bool, name: str) -> None:
+    from sqlalchemy import create_engine, text
+
+    admin = create_engine(pg, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            if create:
+                conn.execute(text(f'CREATE DATABASE "{name}"'))
+            else:
+                conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+    finally:
+        admin.dispose()
+
+
+def _ages(base: str, key: str, poll: float) -> tuple[list[float], int]:
+    listed = _get(base + "/api/machines", key)
+    now = datetime.now(UTC)
+    ages, missing = [], 0
+    for m in listed:
+        if m["status"] is None or not m["online"]:
+            missing += 1
+            continue
+        ages.append((now - datetime.fromisoformat(m["status"]["at"])).total_seconds())
+    return ages, missing
+
+
+def run_cluster(
+    n: int,
+    servers: int,
+    seconds: float,
+    poll: float,
+    folder: Path,
+    pg: str,
+    lease: float,
+    logs: Path,
+) -> dict[str, Any]:
+    """One fleet of ``n`` machines served by ``servers`` servers on one PostgreSQL database."""
+    name = f"lease_bench_{uuid.uuid4().hex[:10]}"
+    _database(pg, True, name)
+    db = pg.rsplit("/", 1)[0] + f"/{name}"
+    fleet, config = _start_fleet(n, poll, folder)
+    procs: dict[str, subprocess.Popen[bytes]] = {}
+    try:
+        text = config.read_text().replace("[server]\n", f"[server]\nlease_seconds = {lease}\n", 1)
+        config.write_text(text)
+        key = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "opendnc.cli.main",
+                "keys",
+                "create",
+                "--role",
+                "viewer",
+                "--config",
+                str(config),
+                "--db",
+                db,
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        bases = {}
+        for i in range(1, servers + 1):
+            port = _free_port()
+            procs[f"dnc-{i}"] = _cli(
+                "serve", "--config", str(config), "--db", db, "--name", f"dnc-{i}",
+                "--bind", f"127.0.0.1:{port}", log=logs / f"dnc-{i}.log",
+            )  # fmt: skip
+            bases[f"dnc-{i}"] = f"http://127.0.0.1:{port}"
+        started = time.monotonic()
+        deadline = started + 300
+        while True:
+            try:
+                if all(_ages(b, key, poll)[1] == 0 for b in bases.values()):
+                    break
+            except OSError:
+                pass
+            if any(p.poll() is not None for p in procs.values()) or time.monotonic() > deadline:
+                raise SystemExit(f"machines did not come online on every server for N={n}")
+            time.sleep(1.0)
+        online_after = time.monotonic() - started
+        view = _get(bases["dnc-1"] + "/api/cluster", key)
+        spread = {s["name"]: s["machines"] for s in view["servers"]}
+        cpu0 = {s: _cpu_seconds(p.pid) for s, p in procs.items()}
+        t0 = time.monotonic()
+        ages: dict[str, list[float]] = {s: [] for s in procs}
+        while time.monotonic() - t0 < seconds:
+            tick = time.monotonic()
+            for s, base in bases.items():
+                ages[s] += _ages(base, key, poll)[0]
+            time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
+        span = time.monotonic() - t0
+        cpu = {s: (_cpu_seconds(p.pid) - cpu0[s]) / span for s, p in procs.items()}
+        # the failover: SIGKILL the last server
+        victim = f"dnc-{servers}"
+        os.killpg(procs[victim].pid, signal.SIGKILL)
+        procs[victim].wait()
+        killed = time.monotonic()
+        survivor = bases["dnc-1"]
+        takeover = status_back = None
+        while time.monotonic() - killed < 120 and (takeover is None or status_back is None):
+            if takeover is None:
+                leases = _get(survivor + "/api/cluster", key)["leases"]
+                held = [r for r in leases if r["live"] and not r["machine"].startswith("@")]
+                if len(held) == n and all(r["owner"] != victim for r in held):
+                    takeover = time.monotonic() - killed
+            if takeover is not None and status_back is None:
+                # (right after the kill the dead server's rows are still young: not news)
+                fresh, missing = _ages(survivor, key, poll)
+                if not missing and max(fresh) < 2 * poll:
+                    status_back = time.monotonic() - killed
+            time.sleep(0.1)
+        return {
+            "n": n,
+            "servers": servers,
+            "online_s": online_after,
+            "spread": spread,
+            "cpu": cpu,
+            "p50": {s: _percentile(a, 50) for s, a in ages.items()},
+            "p99": {s: _percentile(a, 99) for s, a in ages.items()},
+            "max": {s: max(a) for s, a in ages.items()},
+            "takeover": takeover,
+            "status_back": status_back,
+            "lease": lease,
+        }
+    finally:
+        for proc in procs.values():
+            _stop(proc)
+        _stop(fleet)
+        _database(pg, False, name)
+
+
+def _cluster_report(r: dict[str, Any]) -> None:
+    print(
+        f"N={r['n']} over {r['servers']} servers (lease {r['lease']:g} s), every machine online "
+        f"on every server after {r['online_s']:.1f} s; load average {os.getloadavg()[0]:.1f}"
+    )
+    print(f"{'server':>8} {'machines':>9} {'CPU':>7} {'age p50':>8} {'age p99':>8} {'age max':>8}")
+    for s in r["cpu"]:
+        print(
+            f"{s:>8} {r['spread'].get(s, 0):>9} {r['cpu'][s]:>5.2f} c {r['p50'][s]:>7.2f}s "
+            f"{r['p99'][s]:>7.2f}s {r['max'][s]:>7.2f}s"
+        )
+    take = "not within 120 s" if r["takeover"] is None else f"{r['takeover']:.1f} s"
+    back = "not within 120 s" if r["status_back"] is None else f"{r['status_back']:.1f} s"
+    print(
+        f"SIGKILL of dnc-{r['servers']}: leases taken over after {take}, fresh status after {back}"
+    )
+
+
 def main() -> None:
     """Run the sizes and print one line each."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="50,200,500", help="fleet sizes, comma-separated")
     parser.add_argument("--seconds", type=float, default=20.0, help="measuring window per size")
     parser.add_argument("--poll", type=float, default=1.0, help="status poll interval (s)")
+    parser.add_argument("--servers", type=int, default=1, help="servers on one PostgreSQL")
+    parser.add_argument(
+        "--pg",
+        default="postgresql+psycopg://postgres@127.0.0.1:5432/postgres",
+        help="PostgreSQL admin URL (--servers 2 or more: a database is made and dropped)",
+    )
+    parser.add_argument("--lease", type=float, default=10.0, help="lease seconds (--servers)")
+    parser.add_argument("--logs", type=Path, default=None, help="keep the servers' logs here")
     args = parser.parse_args()
+    if args.servers > 1:
+        with tempfile.TemporaryDirectory(prefix="opendnc-cluster-bench-") as tmp:
+            for n in (int(x) for x in args.sizes.split(",")):
+                folder = Path(tmp) / str(n)
+                folder.mkdir()
+                logs = args.logs or folder
+                logs.mkdir(parents=True, exist_ok=True)
+                found = run_cluster(
+                    n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease, logs
+                )
+                _cluster_report(found)
+        return
     print(
         f"{'N':>5} {'online':>8} {'server CPU':>11} {'age p50':>8} {'age p99':>8} "
         f"{'age max':>8} {'missed':>12}  longest loop stall (CPU wait)"

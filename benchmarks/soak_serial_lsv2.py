@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import random
+import shutil
 import sys
 import tempfile
 import time
@@ -189,7 +190,10 @@ def pattern_serial_lsv2(soak: _Soak) -> None:
     """The ``serial-lsv2`` pattern of ``benchmarks/soak.py``: one round per turn."""
     stats = SerialSoak()
     work = soak.work / "serial-lsv2"
-    work.mkdir(exist_ok=True)
+    # Each turn starts afresh (its round counter restarts at 0, so its folders would clash
+    # with the last turn's; the 180 s soak ran one turn only).
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir()
     one_round(stats, work, soak.rng)
     for case, t in stats.tallies.items():
         tally = soak.tally(f"serial-{case}")

@@ -161,10 +161,14 @@ class App:
 
 @contextmanager
 def running(
-    tmp_path: Path, machines: list[dict[str, object]], offline: tuple[str, ...] = ()
+    tmp_path: Path,
+    machines: list[dict[str, object]],
+    offline: tuple[str, ...] = (),
+    extra: str = "",
 ) -> Iterator[App]:
     """The server for ``machines`` on memory controls, started, with a key and a web
-    session for a user of every role; the ``offline`` ones never answer."""
+    session for a user of every role; the ``offline`` ones never answer. ``extra`` is TOML
+    put before the machines (``[server]``, outputs)."""
     controls: dict[str, MemoryControl] = {}
 
     def connector(config: MachineConfig) -> MemoryControl:
@@ -174,7 +178,7 @@ def running(
         control.config = config
         return control
 
-    config = parse_config(config_text(tmp_path, machines), base=tmp_path)
+    config = parse_config(extra + "\n" + config_text(tmp_path, machines), base=tmp_path)
     server = build(
         config, database=f"sqlite:///{tmp_path / 'db.sqlite'}", connector_factory=connector
     )

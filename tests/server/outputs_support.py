@@ -33,6 +33,14 @@ CONDITION_LEVELS = {"NORMAL", "WARNING", "FAULT", "UNAVAILABLE"}
 TIMESTAMP = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d{1,6})?Z")
 
 
+def paho_client() -> Any:
+    """A paho client with the callbacks of either paho line: 1.x (which Sparkplug's encoder
+    needs, docs/server.md#sparkplug-b) takes no callback version, 2.x wants one."""
+    if hasattr(mqtt, "CallbackAPIVersion"):
+        return mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    return mqtt.Client()
+
+
 def require_broker(address: tuple[str, int] = BROKER) -> None:
     """Skip (or fail under CI) when no MQTT broker listens at ``address``."""
     try:
@@ -69,7 +77,7 @@ class Listener:
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        self.client = paho_client()
         if self.username is not None:
             self.client.username_pw_set(self.username, self.password)
         self.client.on_message = self._on_message

@@ -15,6 +15,7 @@ from sqlalchemy import event, select
 
 from opendnc.server import auth, jobs, library
 from opendnc.server.actions import Services
+from opendnc.server.key_use import KeyUse
 from opendnc.server.store.models import ApiKey, AuditEntry, Job, JobKind, JobState, Role, utcnow
 from opendnc.server.web import session as web_session
 from tests.server.harness import wait_for
@@ -106,31 +107,65 @@ def test_a_session_key_is_only_a_cookie_and_an_api_key_only_a_bearer(app: App) -
     assert app.client.get("/", headers=app.page(ADMIN)).status_code == 200
 
 
-def test_reads_do_not_write_and_last_used_is_written_once_a_minute(app: App) -> None:
+def test_requests_never_write_for_their_key_and_its_last_use_is_written_by_the_flush(
+    app: App,
+) -> None:
     key = app.api_keys[Role.VIEWER]
+    uses = app.server.core.get(KeyUse)
     with app.server.sessions.begin() as s:
         s.execute(ApiKey.__table__.update().values(last_used=None))
+    before = utcnow()
     with _statements(app) as seen:
         for _ in range(10):
             assert app.client.get("/api/jobs", headers=app.api(Role.VIEWER)).status_code == 200
             assert app.client.get("/library", headers=app.page(Role.VIEWER)).status_code == 200
-    # the API key's and the session's first use; nothing for the 18 requests after them
-    writes = [s.split()[0] for s in seen if s.split()[0] in ("UPDATE", "INSERT", "DELETE")]
-    assert writes == ["UPDATE", "UPDATE"], seen
+    writes = [s for s in seen if s.split()[0] in ("UPDATE", "INSERT", "DELETE")]
+    assert writes == [], writes
     with app.server.sessions() as s:
         row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
+        assert row is not None
+        key_id = row.id
+    assert uses.pending()[key_id] >= before
+    # The component's write (once a minute; here at once): both keys in one statement.
+    assert uses.flush() >= 2
+    assert uses.pending() == {}
+    with app.server.sessions() as s:
+        row = s.get(ApiKey, key_id)
         assert row is not None
         assert row.last_used is not None
         first = row.last_used
-        # a minute later the next request writes again
-        row.last_used = first - timedelta(seconds=61)
-        s.commit()
-    app.client.get("/api/jobs", headers=app.api(Role.VIEWER))
+        assert first >= before
+    # An older time noted later never moves it back.
+    uses.note(key_id, first - timedelta(minutes=5))
+    uses.flush()
     with app.server.sessions() as s:
-        row = s.scalar(select(ApiKey).where(ApiKey.key_hash == auth.key_hash(key)))
+        row = s.get(ApiKey, key_id)
+        assert row is not None
+        assert row.last_used == first
+    app.client.get("/api/jobs", headers=app.api(Role.VIEWER))
+    uses.flush()
+    with app.server.sessions() as s:
+        row = s.get(ApiKey, key_id)
         assert row is not None
         assert row.last_used is not None
         assert row.last_used > first
+
+
+def test_a_key_revoked_through_the_api_is_refused_at_once_though_checked_a_moment_ago(
+    app: App,
+) -> None:
+    made = app.client.post(
+        "/api/keys", json={"user": "viewer-x", "role": "viewer"}, headers=app.api(ADMIN)
+    )
+    assert made.status_code == 201, made.text
+    key = made.json()["key"]
+    bearer = {"Authorization": f"Bearer {key}"}
+    assert app.client.get("/api/machines", headers=bearer).status_code == 200
+    revoked = app.client.delete(f"/api/keys/{made.json()['id']}", headers=app.api(ADMIN))
+    assert revoked.status_code == 200, revoked.text
+    refused = app.client.get("/api/machines", headers=bearer)
+    assert refused.status_code == 401
+    assert "revoked" in refused.json()["detail"]
 
 
 def _login(app: App, user: str, password: str) -> Any:
@@ -213,6 +248,7 @@ def test_history_is_newest_first_and_fifty_jobs_take_as_many_queries_as_five(app
             made.append(job.id)
     counts = []
     for limit in (5, 50):
+        app.server.core.get(Services).keys.forget()  # each request reads its key
         with _statements(app) as seen:
             reply = app.client.get(
                 "/api/jobs", params={"machine": "tnc", "limit": limit}, headers=app.api(ADMIN)
@@ -222,6 +258,26 @@ def test_history_is_newest_first_and_fifty_jobs_take_as_many_queries_as_five(app
         assert ids == sorted(ids, reverse=True)
         assert ids[0] >= made[-1]
     assert counts[0] == counts[1] >= 3, counts  # the key, the jobs, their versions, programs
+
+
+def test_the_library_list_and_a_programs_page_of_versions_stay_bounded(app: App) -> None:
+    for n in range(1, 4):
+        put = app.client.put(
+            "/api/programs/LIM.nc", content=f"G0 X{n}\n".encode(), headers=app.api(ADMIN)
+        )
+        assert put.status_code == 201, put.text
+    listed = app.client.get("/api/programs", params={"q": "LIM"}, headers=app.api(ADMIN)).json()
+    assert [(p["name"], p["version_count"], p["newest"]["number"]) for p in listed] == [
+        ("LIM.nc", 3, 3)
+    ]
+    assert listed[0]["released"] is None
+    page = app.client.get(
+        "/api/programs/LIM.nc", params={"limit": 2}, headers=app.api(ADMIN)
+    ).json()
+    assert page["version_count"] == 3
+    assert [v["number"] for v in page["versions"]] == [2, 3]
+    whole = app.client.get("/api/programs/LIM.nc", headers=app.api(ADMIN)).json()
+    assert [v["number"] for v in whole["versions"]] == [1, 2, 3]
 
 
 @pytest.mark.parametrize(

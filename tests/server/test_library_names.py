@@ -3,20 +3,32 @@ and a database that cannot be reached at start is one line, not a traceback."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import socket
 import subprocess
 import sys
+import threading
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from sqlalchemy import Engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import library
-from opendnc.server.errors import Conflict
+from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.store.db import (
+    current_revision,
+    head_revision,
+    make_engine,
+    make_sessions,
+    migrate,
+)
+from tests.server.harness import wait_for
 
 
 @pytest.mark.parametrize("name", ["O1.nc.", "O1.nc..", "PART.", "O1.nc ", "O1 .nc", " O1.nc"])
@@ -96,3 +108,139 @@ def test_an_unreachable_database_at_start_is_one_line(tmp_path: Path, command: s
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith(f"error: cannot reach the database {url}: "), line
     assert "refused" in line.lower()
+
+
+def test_the_list_has_each_programs_newest_and_released_version_in_queries_that_do_not_grow(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    with sessions.begin() as session:
+        library.add_version(session, "EMPTY.nc", b"G0\n", author="ann")
+        for n in range(1, 4):
+            library.add_version(session, "B.nc", f"G0 X{n}\n".encode(), author="ann")
+        library.release(session, "B.nc", 2, actor="ann")
+        library.add_version(session, "A.nc", b"G0 Y1\n", author="bob")
+        library.release(session, "A.nc", 1, actor="bob")
+    statements: list[str] = []
+
+    def note(*args: object) -> None:
+        statements.append(str(args[2]))
+
+    def listed() -> dict[str, tuple[int, int | None, int | None]]:
+        statements.clear()
+        event.listen(engine, "before_cursor_execute", note)
+        try:
+            with sessions() as session:
+                found = library.list_programs(session)
+                return {
+                    p.name: (
+                        p.count,
+                        p.newest.number if p.newest else None,
+                        p.released.number if p.released else None,
+                    )
+                    for p in found
+                }
+        finally:
+            event.remove(engine, "before_cursor_execute", note)
+
+    before = listed()
+    assert list(before) == ["A.nc", "B.nc", "EMPTY.nc"]  # by name
+    assert before == {"A.nc": (1, 1, 1), "B.nc": (3, 3, 2), "EMPTY.nc": (1, 1, None)}
+    queries = len(statements)
+    with sessions.begin() as session:
+        for n in range(4, 40):
+            library.add_version(session, "B.nc", f"G0 X{n}\n".encode(), author="ann")
+        library.release(session, "B.nc", 39, actor="ann")
+    after = listed()
+    assert after["B.nc"] == (39, 39, 39)
+    assert len(statements) == queries
+    with sessions() as session:
+        assert [p.name for p in library.list_programs(session, "b.")] == ["B.nc"]
+        b = library.list_programs(session, "b.")[0]
+        assert b.newest is not None
+        assert b.newest.program.name == "B.nc"
+
+
+def test_a_programs_history_gives_its_newest_versions_oldest_first_and_the_count(
+    sessions: sessionmaker[Session],
+) -> None:
+    with sessions.begin() as session:
+        for n in range(1, 6):
+            library.add_version(session, "H.nc", f"G0 X{n}\n".encode(), author=f"u{n}")
+        library.release(session, "H.nc", 4, actor="boss")
+    with sessions() as session:
+        newest = library.history(session, "H.nc", limit=2)
+        everything = library.history(session, "H.nc")
+        with pytest.raises(NotFound):
+            library.history(session, "h.nc")
+    assert newest.count == everything.count == 5
+    assert [v.number for v in newest.versions] == [4, 5]
+    assert [v.number for v in everything.versions] == [1, 2, 3, 4, 5]
+    assert [v.state.value for v in everything.versions] == [
+        "draft",
+        "draft",
+        "draft",
+        "released",
+        "draft",
+    ]
+    assert newest.versions[0].author == "u4"
+    assert newest.versions[1].sha256 == hashlib.sha256(b"G0 X5\n").hexdigest()
+    assert newest.versions[1].created.tzinfo is not None
+
+
+def test_two_uploads_of_case_twins_at_the_same_moment_leave_one_program_and_a_409(
+    sessions: sessionmaker[Session], engine: Engine
+) -> None:
+    # The first upload has inserted its program and not committed yet when the second checks
+    # for a case twin: on PostgreSQL the check cannot see it, the unique index on the folded
+    # name makes the second wait for the first and then refuses it.
+    outcome: dict[str, object] = {}
+    first = sessions()
+    first.begin()
+    library.add_version(first, "a.nc", b"G0 X1\n", author="ann")
+
+    def second() -> None:
+        try:
+            with sessions.begin() as session:
+                library.add_version(session, "A.nc", b"G0 X2\n", author="bob")
+            outcome["second"] = "stored"
+        except Conflict as exc:
+            outcome["second"] = str(exc)
+
+    racer = threading.Thread(target=second)
+    racer.start()
+    if engine.dialect.name == "postgresql":
+        # Commit only once the second upload waits for the first's row in the index.
+        with engine.connect() as conn:
+            waiting = text(
+                "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() "
+                "AND wait_event_type = 'Lock'"
+            )
+            wait_for("the second upload to wait", lambda: conn.execute(waiting).scalar())
+    first.commit()
+    first.close()
+    racer.join(60)
+    assert not racer.is_alive()
+    assert "only in case" in str(outcome["second"]), outcome
+    with sessions() as session:
+        assert [p.name for p in library.list_programs(session)] == ["a.nc"]
+
+
+def test_a_database_that_holds_case_twins_migrates_without_the_index(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        migrate(engine, "0007")
+        with engine.begin() as conn:
+            for name in ("x.nc", "X.nc", "y.nc"):
+                conn.execute(
+                    text("INSERT INTO programs (name, locked, created) VALUES (:n, :l, :c)"),
+                    {"n": name, "l": False, "c": datetime.now(UTC)},
+                )
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        with engine.connect() as conn:
+            names = conn.execute(text("SELECT name FROM programs ORDER BY name")).scalars()
+            assert list(names) == ["X.nc", "x.nc", "y.nc"]
+        with make_sessions(engine).begin() as session, pytest.raises(Conflict):
+            library.add_version(session, "Y.nc", b"G0\n", author="ann")  # the check still refuses
+    finally:
+        engine.dispose()

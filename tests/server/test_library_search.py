@@ -91,7 +91,7 @@ def test_the_list_names_titles_and_sizes_and_q_searches_them(app: App) -> None:
     assert listed["O1000.nc"]["title"] == "BRACKET OP1"
     assert listed["POCKET.H"]["title"] == "POCKET 40X20"
     assert listed["O2000.nc"]["title"] == "ODD"
-    assert listed["O2000.nc"]["versions"][-1]["size"] == len(ODD)
+    assert listed["O2000.nc"]["newest"]["size"] == len(ODD)
     by_title = app.client.get("/api/programs", params={"q": "bracket"}, headers=viewer).json()
     assert [p["name"] for p in by_title] == ["O1000.nc"]
     found = app.client.get("/api/programs", params={"text": "g84"}, headers=viewer).json()

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import warnings
 
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, inspect, text
-from sqlalchemy.exc import DBAPIError
+from sqlalchemy.exc import DBAPIError, SAWarning
 
 from opendnc.server import audit, inbox, library
 from opendnc.server.store.db import (
@@ -21,6 +22,32 @@ from opendnc.server.store.db import (
     migrate,
 )
 from opendnc.server.store.models import Base
+
+FOLDED = "uq_programs_name_folded"
+
+
+def _differences(conn: Connection) -> list[object]:
+    """What Alembic finds between the models and the migrated schema.
+
+    SQLAlchemy reflects no expression index on SQLite (it warns) and Alembic compares none,
+    so the index on the folded program name is left to its own test below."""
+
+    def include(_obj: object, name: str | None, kind: str, *_rest: object) -> bool:
+        return not (kind == "index" and name == FOLDED)
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Skipped unsupported reflection", SAWarning)
+        warnings.filterwarnings("ignore", "autogenerate skipping .* expression-based index")
+        context = MigrationContext.configure(conn, opts={"include_object": include})
+        return list(compare_metadata(context, Base.metadata))
+
+
+def _has_folded_index(conn: Connection) -> bool:
+    if conn.dialect.name == "sqlite":
+        query = "SELECT count(*) FROM sqlite_master WHERE type = 'index' AND name = :n"
+    else:
+        query = "SELECT count(*) FROM pg_indexes WHERE indexname = :n"
+    return bool(conn.execute(text(query), {"n": FOLDED}).scalar())
 
 
 def test_migrates_an_empty_database_to_head_and_back(db_url: str) -> None:
@@ -51,7 +78,8 @@ def test_migrates_an_empty_database_to_head_and_back(db_url: str) -> None:
 
 def test_models_match_the_migrations(engine: Engine) -> None:
     with engine.connect() as conn:
-        differences = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+        differences = _differences(conn)
+        assert _has_folded_index(conn)
     assert differences == []
 
 
@@ -130,7 +158,7 @@ def test_upgrade_from_the_revision_before_head(db_url: str) -> None:
         migrate(engine)
         assert current_revision(engine) == head_revision()
         with engine.connect() as conn:
-            assert compare_metadata(MigrationContext.configure(conn), Base.metadata) == []
+            assert _differences(conn) == []
         sessions = make_sessions(engine)
         with sessions.begin() as session:
             version, created = library.add_version(session, "O1.nc", data, author="bob")

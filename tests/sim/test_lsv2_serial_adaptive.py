@@ -8,7 +8,6 @@ import random
 import time
 from pathlib import Path
 
-import pytest
 from typer.testing import CliRunner
 
 from opendnc.cli.main import app
@@ -76,8 +75,10 @@ def test_upload_telegrams_shrink_on_a_bad_line_and_grow_back(tmp_path: Path) -> 
     assert any(new > old for old, new in changes), changes
 
 
-@pytest.mark.parametrize("seed", [11, 12])
-def test_cli_moves_files_both_ways_at_1e_4(seed: int, tmp_path: Path) -> None:
+def test_cli_moves_files_both_ways_at_1e_4(tmp_path: Path) -> None:
+    # One noise pattern: the CLI's path is what this adds; many patterns at this rate are
+    # test_lsv2_serial_faults.py's and the property tests' (test_lsv2_serial_transfers.py).
+    seed = 11
     text = program(300)  # about 9 KB
     blob = random.Random(seed).randbytes(8000) + b"\x10" * 64
     (tmp_path / "T.H").write_bytes(text)

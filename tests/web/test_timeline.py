@@ -31,6 +31,11 @@ def test_only_changes_are_kept_and_segments_fill_the_window() -> None:
         (300.0, 100.0, "offline"),
     ]
     assert segments[1].label == "running, active, automatic"
+    # each stretch knows its bounds (its title on the page says them on the shop's clock)
+    assert (segments[1].start, segments[1].end) == (
+        T0 + timedelta(hours=1),
+        T0 + timedelta(hours=3),
+    )
 
 
 def test_what_began_before_the_window_is_cut_at_its_start() -> None:
@@ -38,6 +43,7 @@ def test_what_began_before_the_window_is_cut_at_its_start() -> None:
     _note(tl, "m", T0, "STOPPED")
     segments = tl.segments("m", hours=1, width=100, now=T0 + timedelta(hours=3))
     assert [(s.x, s.width, s.state) for s in segments] == [(0.0, 100.0, "stopped")]
+    assert segments[0].start == T0 + timedelta(hours=2)  # cut at the window's start
     assert tl.segments("other", now=T0) == []
 
 

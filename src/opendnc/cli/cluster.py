@@ -34,7 +34,10 @@ def status(
         finally:
             engine.dispose()
     if json_out:
-        print_json(view)
+        from opendnc.server.actions.models import ClusterOut
+
+        # the very document GET /api/cluster answers
+        print_json(ClusterOut.of(view).model_dump(mode="json"))
         return
     servers = Table("server", "host", "pid", "address", "heartbeat", "machines", box=None)
     for row in view.servers:
@@ -42,5 +45,8 @@ def status(
         servers.add_row(row.name, row.host, str(row.pid), row.url or "-", age, str(row.machines))
     console.print(servers if view.servers else "no server has joined this database")
     unserved = sorted(row.machine for row in view.leases if not row.live)
+    duties = [row.owner for row in view.leases if row.machine == "@library" and row.live]
+    if duties:
+        console.print(f"library watcher and net share: {duties[0]}", highlight=False)
     if unserved:
         console.print(f"not served now: {', '.join(unserved)}", highlight=False)

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
     from opendnc.server.app import Server
+    from opendnc.server.config import ShopConfig
 
 keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
 users_app = typer.Typer(help="People who log in to the DNC server.", no_args_is_help=True)
@@ -57,6 +58,9 @@ def serve(
     config: Path = ConfigOption,
     db: str | None = DbOption,
     bind: str | None = typer.Option(None, "--bind", help="HOST:PORT (default from the config)."),
+    name: str | None = typer.Option(
+        None, "--name", help="This server's name (default [server] name; one per cluster member)."
+    ),
     stop_timeout: float = typer.Option(
         STOP_TIMEOUT,
         "--stop-timeout",
@@ -72,6 +76,8 @@ def serve(
         from opendnc.server.config import load_config
 
         shop = load_config(config)
+        if name is not None:
+            shop = _named(shop, name)
         host, port = shop.server.bind_host, shop.server.bind_port
         if bind is not None:
             host, port = parse_bind(bind)
@@ -99,6 +105,17 @@ def serve(
             guard.release()
             listener.close()
         plan.exit_after_signal()
+
+
+def _named(shop: ShopConfig, name: str) -> ShopConfig:
+    """``shop`` with the server called ``name`` (several servers share one file)."""
+    from dataclasses import replace
+
+    from opendnc.server.configkeys import NAME
+
+    if not NAME.fullmatch(name):
+        raise InputError(f"--name {name!r}: use letters, digits, '-', '_' or '.' (at most 64)")
+    return replace(shop, server=replace(shop.server, name=name))
 
 
 def parse_bind(bind: str) -> tuple[str, int]:
@@ -237,6 +254,10 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
         # Its ports open before the app starts, so a taken one is a plain error naming it.
         await server.mtconnect.start()
     port = listener.getsockname()[1]  # the real one for :0
+    if server.cluster is not None:
+        # where the others' `cluster status` says this server answers
+        where = f"[{host}]" if ":" in host else host
+        server.cluster.leases.url = f"http://{where}:{port}/"
     from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
 
     raise_file_limit()  # connections are limited by the server (limits.py), not by running out

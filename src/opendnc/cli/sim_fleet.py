@@ -30,6 +30,15 @@ def fleet(
     bind: str = typer.Option("127.0.0.1:8000", "--bind", help="Server address in --config-out."),
     poll: float = typer.Option(1.0, "--poll", help="Status poll interval in --config-out."),
     ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
+    block_rate: float = typer.Option(
+        0.0, "--block-rate", help="Blocks a second each serial Haas runs (0: as fast as it can)."
+    ),
+    latency: float = typer.Option(
+        0.0, "--latency", help="Milliseconds each virtual TNC takes to answer a telegram."
+    ),
+    receipts: Path | None = typer.Option(
+        None, "--receipts", help="Append one JSON line per program a virtual TNC received."
+    ),
 ) -> None:
     """Run many virtual controls at once (and write the server configuration for them)."""
     from opendnc.sim.fleet import server_config, start_fleet
@@ -48,6 +57,9 @@ def fleet(
             base_port=base_port,
             profile=profile,
             serial_haas=serial_haas,
+            receipts=receipts,
+            latency=latency / 1000,
+            block_rate=block_rate,
         )
         try:
             if config_out is not None:

@@ -41,7 +41,13 @@ from opendnc.haas import macros
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits, offset_key
-from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
+from opendnc.nccheck.path import (
+    RAPID_MM_PER_MIN,
+    Toolpath,
+    radius_arc_center,
+    rapid_rate,
+    short_radius,
+)
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
@@ -143,6 +149,7 @@ class _Run:
         self.feed_mode = 94
         self.feed: float | None = None
         self.speed = 0.0
+        self.block_words: dict[str, float] = {}
         self.spindle_on = False
         self.work_offset = 54.0
         self.cycle: _Cycle | None = None
@@ -556,6 +563,7 @@ class _Run:
         self, g: list[float], m: list[float], v: dict[str, float], frame: _Frame, line: int
     ) -> None:
         self.prev_end = self.w[:]
+        self.block_words = v
         special = 0.0
         if g:
             special = self._g_codes(g, v, line)
@@ -564,6 +572,7 @@ class _Run:
                 return
         if "F" in v:
             self.feed = v["F"]
+            self.path.feed_rate(self.feed)
         if "S" in v:
             self.speed = v["S"]
             self.path.spindle_speed(self.speed)
@@ -764,18 +773,11 @@ class _Run:
                     "an arc given by R with the same start and end point does not move",
                 )
                 return
-            if abs(radius) < chord / 2 - tol:
-                self.error(
-                    line,
-                    f"arc radius R{radius:g} is too small for a chord of {chord:.4g} "
-                    f"(at least {chord / 2:.4g})",
-                )
+            too_small = short_radius(radius, chord, tol)
+            if too_small is not None:
+                self.error(line, f"arc radius {too_small}")
                 raise _Stop
-            half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
-            ua, ub = (ea - sa) / chord, (eb - sb) / chord
-            side = 1.0 if (not clockwise) ^ (radius < 0) else -1.0
-            ca = (sa + ea) / 2 - side * half * ub
-            cb = (sb + eb) / 2 + side * half * ua
+            ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=not clockwise)
         else:
             ka, kb = letters[a], letters[b]
             if ka not in v and kb not in v:
@@ -925,7 +927,12 @@ class _Run:
         if known is not None and str(tool) not in known and tool != 0:
             self.error(line, f"tool T{tool} is not in the tool table of {self.machine_name()}")
         if tool != 0:
-            self.path.change_tool(str(tool), line, speed=self.speed or None, feed=self.feed)
+            # S and F of the changing block are the new tool's; the ones before it belong to
+            # the tool before (the first S and F after the change are taken as they come)
+            block = self.block_words
+            self.path.change_tool(
+                str(tool), line, speed=block.get("S") or None, feed=block.get("F")
+            )
 
     def machine_name(self) -> str:
         return (self.machine.name if self.machine else "") or "the machine"
@@ -1023,17 +1030,10 @@ class _Run:
                             "control's own macros)",
                         )
                     )
-        problems.sort(key=lambda p: p.line)
-        return CheckResult(
-            control=self.control,
-            name=self.name,
-            problems=tuple(problems),
-            tools=self.path.tools(),
-            extents=self.path.extents(),
-            rapid_distance=self.path.rapid,
-            feed_distance=self.path.feed,
-            cycle_time_s=self.path.seconds,
-            moves=tuple(self.path.moves),
+        return self.path.result(
+            self.control,
+            self.name,
+            problems,
             units=self.units,
             blocks=self.blocks_run,
             end=EndState(

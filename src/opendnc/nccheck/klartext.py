@@ -23,7 +23,13 @@ from opendnc.errors import InputError
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits
-from opendnc.nccheck.path import RAPID_MM_PER_MIN, Toolpath, rapid_rate
+from opendnc.nccheck.path import (
+    RAPID_MM_PER_MIN,
+    Toolpath,
+    radius_arc_center,
+    rapid_rate,
+    short_radius,
+)
 from opendnc.nccheck.result import (
     CheckResult,
     Control,
@@ -729,17 +735,11 @@ class _Run:
             if chord < 1e-9:
                 self.error(item, "CR with the same start and end point")
                 raise _Stop
-            if abs(radius) < chord / 2 - tol:
-                self.error(
-                    item,
-                    f"radius R{radius:g} is too small for a chord of {chord:.4g} "
-                    f"(at least {chord / 2:.4g})",
-                )
+            too_small = short_radius(radius, chord, tol)
+            if too_small is not None:
+                self.error(item, f"radius {too_small}")
                 raise _Stop
-            half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
-            ua, ub = (ea - sa) / chord, (eb - sb) / chord
-            side = 1.0 if ccw ^ (radius < 0) else -1.0
-            ca, cb = (sa + ea) / 2 - side * half * ub, (sb + eb) / 2 + side * half * ua
+            ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=ccw)
             clockwise = cw
         else:  # CT: tangential to the element before
             if self.last_dir is None:
@@ -1150,17 +1150,10 @@ class _Run:
         problems = list(self.problems.values())
         if self.machine is not None:
             problems += self.path.travel_problems(self.machine.name)
-        problems.sort(key=lambda p: p.line)
-        return CheckResult(
-            control=Control.HEIDENHAIN,
-            name=self.name,
-            problems=tuple(problems),
-            tools=self.path.tools(),
-            extents=self.path.extents(),
-            rapid_distance=self.path.rapid,
-            feed_distance=self.path.feed,
-            cycle_time_s=self.path.seconds,
-            moves=tuple(self.path.moves),
+        return self.path.result(
+            Control.HEIDENHAIN,
+            self.name,
+            problems,
             stock=self.stock,
             units=self.units,
             blocks=self.blocks_run,

@@ -13,12 +13,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from opendnc.nccheck.result import (
+    CheckResult,
+    Control,
+    EndState,
     Move,
     MoveKind,
     Plane,
     Point,
     Problem,
     Severity,
+    Stock,
     ToolUse,
     Units,
 )
@@ -35,6 +39,32 @@ _PLANE_AXES = {Plane.XY: (0, 1, 2), Plane.ZX: (2, 0, 1), Plane.YZ: (1, 2, 0)}
 def rapid_rate(units: Units) -> float:
     """The assumed rapid traverse in ``units`` per minute (docs/check.md#cycle-time)."""
     return RAPID_INCH_PER_MIN if units is Units.INCH else RAPID_MM_PER_MIN
+
+
+def radius_arc_center(
+    start: tuple[float, float],
+    end: tuple[float, float],
+    chord: float,
+    radius: float,
+    *,
+    ccw: bool,
+) -> tuple[float, float]:
+    """The centre (in the plane's two axes) of the arc of ``radius`` from ``start`` to ``end``,
+    ``chord`` apart (not 0): of the two circles through both points, the one on the side the
+    direction gives; a negative radius (the longer arc) takes the other one. A chord a little
+    longer than the diameter (within the caller's tolerance) gives the centre on the chord."""
+    (sa, sb), (ea, eb) = start, end
+    half = math.sqrt(max(radius * radius - chord * chord / 4, 0.0))
+    ua, ub = (ea - sa) / chord, (eb - sb) / chord
+    side = 1.0 if ccw ^ (radius < 0) else -1.0
+    return (sa + ea) / 2 - side * half * ub, (sb + eb) / 2 + side * half * ua
+
+
+def short_radius(radius: float, chord: float, tol: float) -> str | None:
+    """Why no arc of ``radius`` spans ``chord`` (shorter than half of it, beyond ``tol``)."""
+    if abs(radius) < chord / 2 - tol:
+        return f"R{radius:g} is too small for a chord of {chord:.4g} (at least {chord / 2:.4g})"
+    return None
 
 
 @dataclass
@@ -103,6 +133,40 @@ class Toolpath:
         if self._current is not None and self._current.speed is None and speed:
             self._current.speed = speed
 
+    def feed_rate(self, feed: float) -> None:
+        """The first F after a tool change is that tool's feed."""
+        if self._current is not None and self._current.feed is None and feed:
+            self._current.feed = feed
+
+    def result(
+        self,
+        control: Control,
+        name: str,
+        problems: list[Problem],
+        *,
+        units: Units | None,
+        blocks: int,
+        end: EndState,
+        stock: Stock | None = None,
+    ) -> CheckResult:
+        """What a dry run that drew this path found: ``problems`` by line (in the order found
+        where lines tie), with the path's tools, extents, distances, moves and time."""
+        return CheckResult(
+            control=control,
+            name=name,
+            problems=tuple(sorted(problems, key=lambda p: p.line)),
+            tools=self.tools(),
+            extents=self.extents(),
+            rapid_distance=self.rapid,
+            feed_distance=self.feed,
+            cycle_time_s=self.seconds,
+            moves=tuple(self.moves),
+            stock=stock,
+            units=units,
+            blocks=blocks,
+            end=end,
+        )
+
     def tools(self) -> tuple[ToolUse, ...]:
         """Every tool loaded, in order of first use."""
         return tuple(
@@ -166,6 +230,12 @@ class Toolpath:
             self.seconds += length / self.rapid_rate * 60.0
             self._add(Move(MoveKind.RAPID, (x0, y0, z0), (x1, y1, z1), line, self.tool))
             return
+        self._count_feed(length, feed, seconds)
+        self._add(Move(MoveKind.FEED, (x0, y0, z0), (x1, y1, z1), line, self.tool, feed=feed))
+
+    def _count_feed(self, length: float, feed: float | None, seconds: float | None) -> None:
+        """A cutting move of ``length``: the path's and the tool's feed distance, and its time
+        (``seconds`` where the run knows it, else at ``feed``; no feed, no time)."""
         self.feed += length
         if self._current is not None:
             self._current.feed_distance += length
@@ -173,7 +243,6 @@ class Toolpath:
             self.seconds += seconds
         elif feed:
             self.seconds += length / feed * 60.0
-        self._add(Move(MoveKind.FEED, (x0, y0, z0), (x1, y1, z1), line, self.tool, feed=feed))
 
     def arc(
         self,
@@ -221,13 +290,7 @@ class Toolpath:
                     ),
                     line,
                 )
-        self.feed += length
-        if self._current is not None:
-            self._current.feed_distance += length
-        if seconds is not None:
-            self.seconds += seconds
-        elif feed:
-            self.seconds += length / feed * 60.0
+        self._count_feed(length, feed, seconds)
         kind = MoveKind.ARC_CW if clockwise else MoveKind.ARC_CCW
         self._add(Move(kind, start, end, line, self.tool, center=center, plane=plane, feed=feed))
         return length

@@ -29,6 +29,7 @@ from opendnc.server import actions, audit, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
+    ClusterOut,
     Count,
     DiffOut,
     FolderOut,
@@ -39,6 +40,7 @@ from opendnc.server.actions.models import (
     KeyOut,
     LineNumber,
     MachineOut,
+    ProgramListed,
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
@@ -54,7 +56,7 @@ from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
-from opendnc.server.streams import throttled_stream
+from opendnc.server.streams import event_stream_response
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -166,21 +168,29 @@ Db = dbsession.Db
 _bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 
 
-def _principal(
+async def _principal(
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> auth.Principal:
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     svc = _svc(request)
-    guard = svc.guard
     host = request.client.host if request.client else "?"
-    address = f"address:{host}"
-    guard.check(address)
+    svc.guard.check(f"address:{host}")
+    key = credentials.credentials.strip()
+    known = svc.keys.get(key)
+    if known is not None:
+        # checked a moment ago: no worker thread, no query (auth.KeyCache)
+        deps.key_use(request).note(known.who.key_id)
+        return known.who
+    return await run_in_threadpool(_check_key, request, svc, host, key)
+
+
+def _check_key(request: Request, svc: actions.Services, host: str, key: str) -> auth.Principal:
     try:
-        return auth.authenticate(svc.reads, svc.sessions, credentials.credentials.strip()).who
+        return auth.authenticate(svc.reads, key, deps.key_use(request), svc.keys).who
     except Unauthorized as exc:
-        guard.failed(address)
+        svc.guard.failed(f"address:{host}")
         with svc.sessions.begin() as session:
             audit.record(
                 session,
@@ -202,7 +212,12 @@ def _svc(request: Request) -> actions.Services:
     return core_of(request.app).get(actions.Services)
 
 
-Svc = Annotated[actions.Services, Depends(_svc)]
+async def _svc_dep(request: Request) -> actions.Services:
+    # async: a plain function dependency costs a trip to a worker thread and back per request
+    return _svc(request)
+
+
+Svc = Annotated[actions.Services, Depends(_svc_dep)]
 
 
 # -- health and outputs ---------------------------------------------------------------------
@@ -235,6 +250,13 @@ def outputs(request: Request, who: Caller) -> dict[str, dict[str, JsonValue] | N
     actions.require(who, Role.VIEWER)
     parts = deps.outputs(request).as_dict()
     return {name: part.as_json() if part is not None else None for name, part in parts.items()}
+
+
+@router.get("/cluster")
+def cluster(svc: Svc, who: Caller) -> ClusterOut:
+    """The servers sharing the database, their heartbeats and machine leases (the same as
+    ``opendnc cluster status --json``, from any server)."""
+    return actions.admin.cluster_status(svc, who)
 
 
 @router.get(
@@ -306,17 +328,19 @@ def list_programs(
     who: Caller,
     q: Annotated[str, Query(max_length=255)] = "",
     text: Annotated[str, Query(max_length=255)] = "",
-) -> list[ProgramOut]:
-    """Programs in the library with their titles: ``q`` filters by part of the name or
-    title, ``text`` finds programs whose newest version contains it (any case, at most 100,
-    each with its first matching line)."""
+) -> list[ProgramListed]:
+    """Programs in the library with their titles, each with its newest and its released
+    version (``/api/programs/{name}`` has every version): ``q`` filters by part of the name
+    or title, ``text`` finds programs whose newest version contains it (any case, at most
+    100, each with its first matching line)."""
     return actions.library.list_programs(svc, who, q, text)
 
 
 @router.get("/programs/{name}")
-def get_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
-    """One program and its versions."""
-    return actions.library.get_program(svc, who, name)
+def get_program(svc: Svc, name: str, who: Caller, limit: Count = 200) -> ProgramOut:
+    """One program and its newest ``limit`` versions, oldest first (``version_count`` says
+    how many it has)."""
+    return actions.library.get_program(svc, who, name, limit)
 
 
 _UPLOAD_BODY = {
@@ -375,6 +399,25 @@ def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
     """The bytes of one version."""
     content = actions.library.program_content(svc, who, name, number)
     return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+
+
+@router.get(
+    "/programs/{name}/versions/{number}/toolpath",
+    response_model=None,
+    responses={200: {"content": {"application/octet-stream": _BINARY}}},
+)
+def program_toolpath(svc: Svc, name: str, number: Id, who: Caller) -> Response:
+    """The dry run's toolpath of one version, decimated to its shape, as little-endian
+    binary: runs of points with their kind, tool and file lines (docs/check.md#toolpath-binary)."""
+    found = actions.preview.preview(svc, who, name, number)
+    return OctetStream(
+        found.toolpath,
+        headers={
+            "X-Content-SHA256": found.sha256,
+            "X-Toolpath-Moves": str(found.moves),
+            "X-Toolpath-Points": str(found.points),
+        },
+    )
 
 
 VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
@@ -586,14 +629,8 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     """Server-sent events: a snapshot of every machine, then changes (rate-limited)."""
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
-    stream = throttled_stream(
-        machines.bus,
-        _ApiEvents(machines),
-        interval=EVENT_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream, media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    return event_stream_response(
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
     )
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from fastapi import FastAPI
 from sqlalchemy import Engine
@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc import __version__
 from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
 from opendnc.server.autoreceive import AutoReceive
+from opendnc.server.cluster import Cluster
 from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
 from opendnc.server.deps import Database
@@ -27,7 +28,9 @@ from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
+from opendnc.server.key_use import KeyUse
 from opendnc.server.kinds import connector_for
+from opendnc.server.leases import LIBRARY, Leases, held_elsewhere
 from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
@@ -37,7 +40,10 @@ from opendnc.server.netshare import NetShare
 from opendnc.server.parts import Outputs, TimelineRecorder
 from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
+from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.sparkplug import SparkplugNode
+from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
@@ -64,6 +70,7 @@ class Server:
     mqtt: MqttPublisher | None = None
     mtconnect: MtconnectOutput | None = None
     timeline: Timeline | None = None
+    cluster: Cluster | None = None
 
 
 def build(
@@ -78,8 +85,13 @@ def build(
     """Migrate the database and assemble the app (nothing runs until its lifespan starts).
 
     ``connector_factory`` replaces the kinds' own connectors (tests with a fake control).
+    On PostgreSQL the server joins the database's cluster (docs/server.md#several-servers):
+    it serves the machines whose lease it holds, and the library watcher and the net share
+    only while it holds the shop-wide duties' lease.
     """
-    engine = make_engine(database or config.server.database)
+    url = database or config.server.database
+    engine = make_engine(url)
+    clustered = engine.dialect.name == "postgresql"
     migrate(engine)
     sessions = make_sessions(engine)
     bus = EventBus()
@@ -91,6 +103,7 @@ def build(
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
     core.add(actions.Services(sessions, database_part.reads, machines))
+    core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
@@ -106,11 +119,23 @@ def build(
     )
     requests = core.add(RemoteRequests(machines, sessions, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
-    outputs = core.add(Outputs(_mqtt(config, bus), _mtconnect(config, bus)))
+    outputs = core.add(
+        Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
+    )
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
-    core.add(TimelineRecorder(timeline, bus, server=config.server.name, machines=names))
+    core.add(
+        TimelineRecorder(
+            timeline,
+            bus,
+            server=config.server.name,
+            machines=names,
+            held_elsewhere=(lambda: held_elsewhere(sessions, config.server.name))
+            if clustered
+            else None,
+        )
+    )
     core.add(utilization_api.HourSummer(sessions, names, config.calendar))
 
     def connectors(machine: MachineConfig) -> Connector:
@@ -118,21 +143,39 @@ def build(
         return connector_for(machine, capture.hooks_for(machine))
 
     fleet = core.add(
-        Fleet(machines, runner, requests, autoreceive, connector_factory or connectors)
+        Fleet(
+            machines,
+            runner,
+            requests,
+            autoreceive,
+            connector_factory or connectors,
+            serve_all=not clustered,
+        )
     )
     core.add(LoopWatch())
-    watcher = core.add(
-        LibraryWatcher(
-            config.library.path,
-            sessions,
-            poll=config.library.poll,
-            on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
-        )
+    watcher = LibraryWatcher(
+        config.library.path,
+        sessions,
+        poll=config.library.poll,
+        on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
     )
     netshare = None
     if config.netshare is not None:
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
-        netshare = core.add(NetShare(config.netshare, shares, config.library.inbox, sessions, bus))
+        netshare = NetShare(config.netshare, shares, config.library.inbox, sessions, bus)
+    duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
+    cluster = None
+    if clustered:
+        pins = {m.name: frozenset(m.servers) for m in config.machines}
+        pins[LIBRARY] = frozenset()
+        leases = Leases(sessions, config.server.name, pins, ttl=config.server.lease_seconds)
+        cluster = core.add(
+            Cluster(leases, machines, runner, fleet, database_url=url, duties=duties)
+        )
+        core.add(SharedStatus(machines, sessions, config.server.name))
+    else:
+        for duty in duties:
+            core.add(duty)
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
@@ -166,6 +209,7 @@ def build(
         outputs.mqtt,
         outputs.mtconnect,
         timeline,
+        cluster,
     )
 
 
@@ -179,6 +223,29 @@ def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:
             "mqtt", "needs aiomqtt, part of the 'server' extra: pip install 'opendnc[server]'"
         ) from None
     return MqttPublisher(config.mqtt, config.server.name, [m.name for m in config.machines], bus)
+
+
+def _sparkplug(
+    config: ShopConfig, bus: EventBus, sessions: sessionmaker[Session]
+) -> SparkplugNode | None:
+    if config.sparkplug is None:
+        return None
+    # Left out, the node is the server's name: `serve --name` sets it after the file is read.
+    spb = replace(config.sparkplug, node=config.sparkplug.node or config.server.name)
+    for module in ("aiomqtt", "pysparkplug"):
+        try:
+            __import__(module)  # a configured output that cannot run fails at start
+        except ImportError:
+            raise ConfigError(
+                "sparkplug",
+                f"needs {module}, part of the 'server' extra: pip install 'opendnc[server]'",
+            ) from None
+    return SparkplugNode(
+        spb,
+        [m.name for m in config.machines],
+        bus,
+        lambda: next_bd_seq(sessions, spb.group, spb.node),
+    )
 
 
 def _mtconnect(config: ShopConfig, bus: EventBus) -> MtconnectOutput | None:

@@ -5,11 +5,11 @@ API keys are 256-bit random tokens shown once; the database keeps only their SHA
 enough for a key of that strength (a slow hash protects guessable passwords, not random keys)
 and lets a request be checked with one indexed look-up.
 
-A key is checked in a read-only transaction: a GET or an event stream never writes. Its
-``last_used`` is written at most once a minute (:data:`LAST_USED_EVERY`), in a short write of
-its own. A web session is a key labelled :data:`SESSION_LABEL`; it is valid only as the
-dashboard's cookie, never as ``Authorization: Bearer``, so it cannot escape the session's
-expiry. Failed logins and unknown keys are counted per user and per address
+A key is checked in a read-only transaction: a request never writes for its key. Its use is
+noted in memory and ``last_used`` written once a minute for every key at once
+(:mod:`opendnc.server.key_use`). A web session is a key labelled :data:`SESSION_LABEL`; it is
+valid only as the dashboard's cookie, never as ``Authorization: Bearer``, so it cannot escape
+the session's expiry. Failed logins and unknown keys are counted per user and per address
 (:class:`LoginGuard`): past a few, each further try waits longer (HTTP 429 with
 ``Retry-After``).
 """
@@ -35,11 +35,14 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 from opendnc.errors import InputError
 from opendnc.server import audit
 from opendnc.server.errors import Conflict, NotFound, TooManyRequests, Unauthorized
+from opendnc.server.key_use import KeyUse
 from opendnc.server.store.models import ApiKey, Role, User, utcnow
 
 __all__ = [
+    "KEY_CACHE_SECONDS",
     "LAST_USED_EVERY",
     "SESSION_LABEL",
+    "KeyCache",
     "KeyCheck",
     "LoginGuard",
     "Principal",
@@ -247,16 +250,79 @@ def authenticate_key(session: Session, key: str) -> Principal:
     return check.who
 
 
+KEY_CACHE_SECONDS = 5.0  # how long a checked key is taken without reading it again
+
+
+class KeyCache:
+    """Keys checked in the last :data:`KEY_CACHE_SECONDS`, so a request does not read its key.
+
+    Reading the key was a transaction of its own on every request, as much work as the
+    request's own query; a dashboard asks every second or two with the same key. A key
+    revoked through this server is forgotten at once (:meth:`forget`); one revoked by another
+    server sharing the database stops working here within the cache's seconds. Unknown and
+    revoked keys are never kept: a new key works at once. Bounded; per process.
+    """
+
+    def __init__(
+        self,
+        seconds: float = KEY_CACHE_SECONDS,
+        size: int = 10_000,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.seconds = seconds
+        self.size = size
+        self.clock = clock
+        self._checks: OrderedDict[tuple[str, bool], tuple[float, KeyCheck]] = OrderedDict()
+        self._lock = threading.Lock()  # requests check keys on the loop and in worker threads
+
+    def get(self, key: str, *, web: bool = False) -> KeyCheck | None:
+        """The check of ``key`` if it is fresh enough."""
+        entry = (_key_hash(key), web)
+        with self._lock:
+            found = self._checks.get(entry)
+            if found is None:
+                return None
+            if self.clock() - found[0] > self.seconds:
+                del self._checks[entry]
+                return None
+            return found[1]
+
+    def put(self, key: str, check: KeyCheck, *, web: bool = False) -> None:
+        """Keep a successful check of ``key``."""
+        with self._lock:
+            self._checks[(_key_hash(key), web)] = (self.clock(), check)
+            self._checks.move_to_end((_key_hash(key), web))
+            while len(self._checks) > self.size:
+                self._checks.popitem(last=False)
+
+    def forget(self, key_id: int | None = None) -> None:
+        """Forget key ``key_id`` (revoked), or every key with None."""
+        with self._lock:
+            if key_id is None:
+                self._checks.clear()
+                return
+            for entry in [e for e, (_t, c) in self._checks.items() if c.who.key_id == key_id]:
+                del self._checks[entry]
+
+
 def authenticate(
-    reads: sessionmaker[Session], writes: sessionmaker[Session], key: str, *, web: bool = False
+    reads: sessionmaker[Session],
+    key: str,
+    uses: KeyUse,
+    cache: KeyCache | None = None,
+    *,
+    web: bool = False,
 ) -> KeyCheck:
-    """:func:`check_key` in a read-only transaction, then :func:`touch` in a write of its
-    own only when ``last_used`` is due (at most once a minute per key)."""
-    with reads() as session:
-        check = check_key(session, key, web=web)
-    if check.last_used is None or utcnow() - check.last_used >= LAST_USED_EVERY:
-        with writes.begin() as session:
-            touch(session, check)
+    """Who ``key`` stands for: from ``cache`` if it was checked a moment ago, otherwise
+    :func:`check_key` in a read-only transaction. The use is noted in ``uses``, which writes
+    ``last_used`` once a minute for every key at once (never on the request's path)."""
+    check = cache.get(key, web=web) if cache is not None else None
+    if check is None:
+        with reads() as session:
+            check = check_key(session, key, web=web)
+        if cache is not None:
+            cache.put(key, check, web=web)
+    uses.note(check.who.key_id)
     return check
 
 

@@ -11,6 +11,7 @@ Example::
     bind = "127.0.0.1:8000"
     database = "sqlite:///opendnc.db"      # or postgresql+psycopg://user@host/db
     name = "dnc-1"                         # names this process's claims in a shared database
+    lease_seconds = 10                     # several servers: a dead one's machines move after this
 
     [library]
     path = "programs"                      # the watched library folder
@@ -35,6 +36,7 @@ Example::
     name = "lathe-2"
     kind = "haas_serial"
     serial = "/dev/ttyUSB0"
+    servers = ["dnc-1"]                    # several servers: only dnc-1 reaches this port
     [machines.serial_profile]              # plain text, not XModem (docs/server.md#serial-profile)
     baud = 9600
     protocol = "text"
@@ -59,6 +61,12 @@ Example::
     prefix = "acme/plant1/milling"         # ISA-95-like: enterprise/site/area
     username = "dnc"                       # optional, with password
     password = "secret"
+
+    [sparkplug]                            # Sparkplug B edge node (server/sparkplug.py)
+    url = "mqtt://127.0.0.1:1883"          # its own broker link (mqtts:// for TLS)
+    group = "plant1"                       # the Sparkplug group id
+    node = "dnc-1"                         # the edge node id (default: the server's name)
+    primary_host = "scada"                 # optional: publish only while this host is online
 
     [mtconnect]                            # MTConnect SHDR adapter (server/shdr.py)
     bind = "127.0.0.1:7878"                # the first machine's port; the next ones count up
@@ -111,6 +119,7 @@ __all__ = [
     "SerialProfile",
     "ServerConfig",
     "ShopConfig",
+    "SparkplugConfig",
     "load_config",
     "parse_config",
 ]
@@ -155,6 +164,16 @@ class MqttConfig:
 
 
 @dataclass(frozen=True)
+class SparkplugConfig:
+    """The Sparkplug B edge node: its broker and its ids (server/sparkplug.py)."""
+
+    broker: MqttConfig  # host, port, TLS and login (its prefix and queue are not used)
+    group: str
+    node: str = ""  # "": the server's name (app.py fills it in)
+    primary_host: str = ""  # "": publish whenever connected
+
+
+@dataclass(frozen=True)
 class MtconnectConfig:
     """The MTConnect SHDR adapter: one TCP port per machine (server/shdr.py)."""
 
@@ -171,6 +190,7 @@ class ServerConfig:
     database: str = ""
     name: str = "opendnc"
     timeline_days: float = 7.0  # status samples older than this are pruned
+    lease_seconds: float = 10.0  # a cluster's machine leases: a dead server's go after this
 
 
 @dataclass(frozen=True)
@@ -184,6 +204,7 @@ class ShopConfig:
     requests: RequestSettings = field(default_factory=RequestSettings)
     netshare: NetShareConfig | None = None
     mqtt: MqttConfig | None = None
+    sparkplug: SparkplugConfig | None = None
     mtconnect: MtconnectConfig | None = None
     calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
 
@@ -221,8 +242,11 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     _known(
         raw,
         "",
-        {"server", "library", "machines", "requests", "netshare", "mqtt", "mtconnect", "shifts"},
-    )
+        {
+            "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
+            "mtconnect", "shifts",
+        },
+    )  # fmt: skip
     server = _server(_table(raw, "server"), base)
     library = _library(_table(raw, "library"), base)
     machines_raw = raw.get("machines", [])
@@ -239,6 +263,9 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     if "netshare" in raw:
         netshare = _netshare(_table(raw, "netshare"), base, library, machines)
     mqtt = _mqtt(_table(raw, "mqtt"), base) if "mqtt" in raw else None
+    sparkplug = None
+    if "sparkplug" in raw:
+        sparkplug = _sparkplug(_table(raw, "sparkplug"), base)
     mtconnect = _mtconnect(_table(raw, "mtconnect"), machines) if "mtconnect" in raw else None
     try:
         calendar = parse_calendar(raw)  # [server] timezone and [[shifts]] (server/shifts.py)
@@ -253,6 +280,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         requests=requests,
         netshare=netshare,
         mqtt=mqtt,
+        sparkplug=sparkplug,
         mtconnect=mtconnect,
         calendar=calendar,
     )
@@ -261,13 +289,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
 def _mqtt(table: dict[str, Any], base: Path) -> MqttConfig:
     keys = {"url", "prefix", "username", "password", "ca_file", "queue"}
     _known(table, "mqtt", keys)
-    url = _get(table, "mqtt", "url", str, "")
-    match = re.fullmatch(r"(mqtts?)://([^:/\s]+|\[[0-9A-Fa-f:]+\])(?::(\d{1,5}))?/?", url)
-    if match is None:
-        raise ConfigError("mqtt.url", f"expected mqtt://HOST[:PORT] or mqtts://..., got {url!r}")
-    tls = match.group(1) == "mqtts"
-    port = int(match.group(3)) if match.group(3) else (8883 if tls else 1883)
-    _port_range(port, "mqtt.url")
+    broker = _broker(table, "mqtt", base)
     prefix = _get(table, "mqtt", "prefix", str, "opendnc")
     levels = prefix.split("/")
     # Wildcards and '$' topics belong to subscribers and the broker; an empty level is a typo.
@@ -275,26 +297,60 @@ def _mqtt(table: dict[str, Any], base: Path) -> MqttConfig:
         raise ConfigError("mqtt.prefix", "expected topic levels like enterprise/site/area")
     if prefix.startswith("$"):
         raise ConfigError("mqtt.prefix", "topics starting with '$' are the broker's")
-    username = _get(table, "mqtt", "username", str, "")
-    password = _get(table, "mqtt", "password", str, "")
-    if password and not username:
-        raise ConfigError("mqtt.password", "a password needs a username")
-    ca_text = _get(table, "mqtt", "ca_file", str, "")
-    if ca_text and not tls:
-        raise ConfigError("mqtt.ca_file", "a CA file is for TLS (mqtts://)")
     queue = _get(table, "mqtt", "queue", int, 10000)
     if not 10 <= queue <= 1_000_000:
         raise ConfigError("mqtt.queue", "expected 10..1000000 messages")
+    return replace(broker, prefix=prefix, queue=queue)
+
+
+def _broker(table: dict[str, Any], name: str, base: Path) -> MqttConfig:
+    """A broker link's keys (url, username, password, ca_file) of table ``name``."""
+    url = _get(table, name, "url", str, "")
+    match = re.fullmatch(r"(mqtts?)://([^:/\s]+|\[[0-9A-Fa-f:]+\])(?::(\d{1,5}))?/?", url)
+    if match is None:
+        raise ConfigError(f"{name}.url", f"expected mqtt://HOST[:PORT] or mqtts://..., got {url!r}")
+    tls = match.group(1) == "mqtts"
+    port = int(match.group(3)) if match.group(3) else (8883 if tls else 1883)
+    _port_range(port, f"{name}.url")
+    username = _get(table, name, "username", str, "")
+    password = _get(table, name, "password", str, "")
+    if password and not username:
+        raise ConfigError(f"{name}.password", "a password needs a username")
+    ca_text = _get(table, name, "ca_file", str, "")
+    if ca_text and not tls:
+        raise ConfigError(f"{name}.ca_file", "a CA file is for TLS (mqtts://)")
     return MqttConfig(
         host=match.group(2).strip("[]"),
         port=port,
         tls=tls,
         ca_file=(base / ca_text).resolve() if ca_text else None,
-        prefix=prefix,
         username=username,
         password=password,
-        queue=queue,
     )
+
+
+# Sparkplug B ids are single topic levels: no '/', and none of MQTT's wildcards.
+_SPARKPLUG_ID = re.compile(r"^[^/+#\s\x00]{1,64}$")
+
+
+def _sparkplug(table: dict[str, Any], base: Path) -> SparkplugConfig:
+    _known(
+        table,
+        "sparkplug",
+        {"url", "group", "node", "primary_host", "username", "password", "ca_file"},
+    )
+    broker = _broker(table, "sparkplug", base)
+    ids = {}
+    for key in ("group", "node", "primary_host"):
+        value = _get(table, "sparkplug", key, str, "")
+        # The node may be left out: it is then the server's name, which `opendnc serve
+        # --name` sets per cluster member after the file is read (app.py fills it in).
+        if (value or key == "group") and not _SPARKPLUG_ID.match(value):
+            raise ConfigError(
+                f"sparkplug.{key}", f"expected one topic level (no '/', '+', '#'), got {value!r}"
+            )
+        ids[key] = value
+    return SparkplugConfig(broker, ids["group"], ids["node"], ids["primary_host"])
 
 
 def _mtconnect(table: dict[str, Any], machines: tuple[MachineConfig, ...]) -> MtconnectConfig:
@@ -461,7 +517,11 @@ def _requests(table: dict[str, Any]) -> RequestSettings:
 
 
 def _server(table: dict[str, Any], base: Path) -> ServerConfig:
-    _known(table, "server", {"bind", "database", "name", "timeline_retention_days", "timezone"})
+    _known(
+        table,
+        "server",
+        {"bind", "database", "name", "timeline_retention_days", "timezone", "lease_seconds"},
+    )
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
     # Port 0 takes any free port (tests, the demo); the server prints the one it got.
@@ -482,12 +542,16 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     days = _get(table, "server", "timeline_retention_days", float, 7.0)
     if not 0 < days <= 3660:
         raise ConfigError("server.timeline_retention_days", "expected days, more than 0")
+    lease = _get(table, "server", "lease_seconds", float, 10.0)
+    if not 0.5 <= lease <= 300:
+        raise ConfigError("server.lease_seconds", "expected seconds between 0.5 and 300")
     return ServerConfig(
         bind_host=host.strip("[]"),
         bind_port=int(port_text),
         database=database,
         name=name,
         timeline_days=float(days),
+        lease_seconds=float(lease),
     )
 
 

@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.components import core_of
 from opendnc.server.dprnt_capture import DprntCapture
+from opendnc.server.key_use import KeyUse
 from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
 from opendnc.server.runner import JobRunner
@@ -36,6 +37,7 @@ __all__ = [
     "TimelineDep",
     "database",
     "dprnt",
+    "key_use",
     "loopwatch",
     "machines",
     "outputs",
@@ -95,6 +97,11 @@ def outputs(request: Request) -> Outputs:
 def loopwatch(request: Request) -> LoopWatch:
     """The event loop's stall watch."""
     return core_of(request.app).get(LoopWatch)
+
+
+def key_use(request: Request) -> KeyUse:
+    """Where requests note the keys they used (written once a minute)."""
+    return core_of(request.app).get(KeyUse)
 
 
 def dprnt(request: Request) -> DprntCapture:

@@ -34,6 +34,7 @@ __all__ = [
     "JobProgress",
     "JobQueued",
     "JobStarted",
+    "LeaseChanged",
     "MachineStatusChanged",
     "NetshareChanged",
     "Overflow",
@@ -78,6 +79,10 @@ class MachineStatusChanged(Event):
     status: MachineStatus | None
     last_error: str = ""  # why the link broke last (kept after a reconnect)
     snapshot: Mapping[str, Any] = field(default_factory=dict, compare=False)
+    served: bool = True
+    """False when another server of a cluster serves the machine and this is its status as
+    that server wrote it (docs/server.md#several-servers): shown on every server's pages,
+    streams and MTConnect, but recorded (timeline) and published (MQTT) by its server only."""
 
     @property
     def key(self) -> str:
@@ -90,6 +95,38 @@ class MachineStatusChanged(Event):
 
     def as_json(self) -> dict[str, Any]:
         return dict(self.snapshot)
+
+
+@dataclass(frozen=True)
+class LeaseChanged(Event):
+    """This server gained (``held``) or lost a machine's lease (several servers on one
+    database, docs/server.md#several-servers); SSE ``lease``.
+
+    A gain is published before the machine's task starts (its first status follows it), a
+    loss once the task has stopped (no status of this server follows it): what an output
+    needs to say "this server serves the machine from now on / no longer" (a Sparkplug
+    DBIRTH / DDEATH). A single server (SQLite) holds every machine: it publishes a gain for
+    each as it starts (epoch 0) and no loss: its stop ends them all at once, as a cluster
+    server's crash does. ``epoch`` is the lease's, which grows at every change of owner.
+    """
+
+    kind: ClassVar[str] = "lease"
+    machine: str
+    server: str
+    held: bool
+    epoch: int = 0
+
+    @property
+    def key(self) -> str:
+        return self.machine
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "machine": self.machine,
+            "server": self.server,
+            "held": self.held,
+            "epoch": self.epoch,
+        }
 
 
 # -- jobs ------------------------------------------------------------------------------------

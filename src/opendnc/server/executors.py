@@ -206,6 +206,7 @@ class DripFeedExecutor(_Base):
                 # Progress is in bytes like every job's (the card's share and sizes); the line
                 # travels beside it for the restart prompt.
                 state.job_progress = (nbytes, total or None)
+                state.job_line = (line, lines)
                 run.event(bytes_done=nbytes, bytes_total=total or None, line=line, lines=lines)
             if run.cancel_requested:
                 raise JobCancelled(f"cancelled at line {line}")

@@ -23,6 +23,7 @@ from opendnc.errors import DncError
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import MachineConfig
+from opendnc.server.events import LeaseChanged
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Connector, MachineStatus
 from opendnc.server.remote_request import RemoteRequests
@@ -50,8 +51,11 @@ class Fleet:
         requests: RemoteRequests,
         autoreceive: AutoReceive,
         connector_factory: ConnectorFactory,
+        *,
+        serve_all: bool = True,
     ) -> None:
         self.machines = machines
+        self.serve_all = serve_all  # False in a cluster: the leases decide (server/cluster.py)
         self.runner = runner
         self.requests = requests
         self.autoreceive = autoreceive
@@ -59,8 +63,13 @@ class Fleet:
         self._tasks: dict[str, asyncio.Task[None]] = {}
 
     async def start(self) -> None:
-        """Serve every configured machine."""
+        """Serve every configured machine (in a cluster, none until a lease is held)."""
+        if not self.serve_all:
+            return
+        server = self.machines.config.server.name
         for name in self.machines.machines:
+            # a single server holds every machine: the same word a cluster's gain is
+            self.machines.bus.publish(LeaseChanged(name, server, True))
             self.serve(name)
 
     async def stop(self) -> None:

@@ -149,6 +149,11 @@ class ItemTracker:
         """The classifier's state of ``machine`` at its last event (None: not known yet)."""
         return self._known.get(machine)
 
+    def forget(self, machine: str) -> None:
+        """No longer known here (another server of a cluster serves it now): not in the
+        whole state a reconnect sends, nor made unavailable by a stop."""
+        self._known.pop(machine, None)
+
     def snapshot(self, machine: str) -> dict[str, Reading]:
         """Every item of ``machine`` as last seen."""
         return dict(self._state[machine])

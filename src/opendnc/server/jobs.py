@@ -22,6 +22,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import case, func, or_, select
+from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.orm import Session, selectinload
 from sqlalchemy.orm.interfaces import LoaderOption
 
@@ -29,6 +30,7 @@ from opendnc.errors import InputError
 from opendnc.server import audit, library
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.notify import notify
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -46,13 +48,17 @@ __all__ = [
     "finish",
     "get_job",
     "interrupt",
+    "last_finished",
     "list_jobs",
+    "machines_running",
     "machines_with_due_jobs",
     "move",
+    "note_progress",
     "queue_lengths",
     "recover",
     "retry",
     "sync_machines",
+    "take_over",
     "version_to_send",
 ]
 
@@ -75,8 +81,28 @@ DEFAULT_ATTEMPTS = {
 def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
     """Make the ``machines`` table match the configuration (rows are never deleted: jobs
     and audit rows keep pointing at machines that left the configuration)."""
+    configs = list(machines)
+    if session.get_bind().dialect.name == "postgresql" and configs:
+        # Several servers of a cluster may start at once: one statement that inserts or
+        # updates each row, so the second never fails on the first's new row.
+        statement = pg_insert(Machine).values(
+            [
+                {"name": c.name, "kind": c.kind.value, "released_only": c.released_only}
+                for c in configs
+            ]
+        )
+        session.execute(
+            statement.on_conflict_do_update(
+                index_elements=[Machine.name],
+                set_={
+                    "kind": statement.excluded.kind,
+                    "released_only": statement.excluded.released_only,
+                },
+            )
+        )
+        return
     existing = {m.name: m for m in session.scalars(select(Machine))}
-    for config in machines:
+    for config in configs:
         row = existing.get(config.name)
         if row is None:
             session.add(
@@ -145,6 +171,7 @@ def enqueue(
         sha256=version.sha256 if version else None,
         kind=kind.value,
     )
+    notify(session, "job", machine)  # the server serving it claims it at once
     return job
 
 
@@ -204,9 +231,24 @@ def _running(session: Session, job_id: int) -> Job:
 
 
 def _program_fields(job: Job) -> dict[str, Any]:
+    """The program a job carried, as its audit rows name it."""
     if job.version is None:
         return {}
     return {"program": job.version.program.name, "sha256": job.version.sha256}
+
+
+def _record_ending(session: Session, job: Job, **detail: Any) -> None:
+    """The audit row of a run's ending (done, a retry, failed, interrupted): its action is the
+    job's kind, its actor the server that ran it; it names the program the job carried."""
+    audit.record(
+        session,
+        job.claimed_by or "server",
+        f"job.{job.kind.value}",
+        machine=job.machine,
+        job_id=job.id,
+        **detail,
+        **_program_fields(job),
+    )
 
 
 def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail: Any) -> Job:
@@ -216,17 +258,7 @@ def finish(session: Session, job_id: int, *, nbytes: int | None = None, **detail
     job.finished = utcnow()
     if nbytes is not None:
         job.bytes_done = nbytes
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        nbytes=nbytes,
-        by=job.created_by,
-        **_program_fields(job),
-        **detail,
-    )
+    _record_ending(session, job, nbytes=nbytes, by=job.created_by, **detail)
     return job
 
 
@@ -262,18 +294,14 @@ def fail(
     else:
         job.state = JobState.CANCELLED if job.cancel_requested else JobState.FAILED
         job.finished = utcnow()
-    audit.record(
+    _record_ending(
         session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
+        job,
         result="retry" if again else job.state.value,
         error=error,
         attempt=job.attempts,
         line=line,
         nbytes=nbytes,
-        **_program_fields(job),
     )
     return job
 
@@ -284,16 +312,7 @@ def interrupt(session: Session, job_id: int, reason: str) -> Job:
     job.state = JobState.INTERRUPTED
     job.error = reason
     job.finished = utcnow()
-    audit.record(
-        session,
-        job.claimed_by or "server",
-        f"job.{job.kind.value}",
-        machine=job.machine,
-        job_id=job.id,
-        result="interrupted",
-        error=reason,
-        **_program_fields(job),
-    )
+    _record_ending(session, job, result="interrupted", error=reason)
     return job
 
 
@@ -307,6 +326,74 @@ def recover(session: Session, worker: str) -> list[Job]:
     for job in jobs:
         interrupt(session, job.id, "the server stopped while this job ran")
     return list(jobs)
+
+
+def take_over(session: Session, machine: str, server: str, keep: Iterable[int] = ()) -> list[Job]:
+    """``server`` has just taken ``machine``'s lease: end, exactly once, every job the
+    database says runs there but no task of ``server`` runs (``keep``: the ones it does).
+
+    Their server died or lost the machine mid-job. A drip-feed ends interrupted at the last
+    line its server recorded (the machine ran an unknown part beyond it; a person restarts it
+    from a line); every other job is queued again at its place, without a backoff: a load is
+    idempotent and verified, a read or a backup harmless to repeat. The rows are locked, so
+    a job's old server finishing it at the same moment (it cannot: its lease check fails) or
+    a second taker never ends it twice. The audit row names both servers.
+    """
+    kept = set(keep)
+    found = session.scalars(
+        select(Job)
+        .where(Job.machine == machine, Job.state == JobState.RUNNING)
+        .with_for_update()
+        .options(_with_program())
+    ).all()
+    ended: list[Job] = []
+    for job in found:
+        if job.id in kept:
+            continue
+        was = job.claimed_by or "a server"
+        if job.kind is JobKind.DRIPFEED:
+            job.state = JobState.INTERRUPTED
+            job.finished = utcnow()
+            where = f" at line {job.line}" if job.line else ""
+            job.error = f"{was} stopped while feeding{where}; {server} took the machine over"
+            result = "interrupted"
+        else:
+            job.state = JobState.QUEUED
+            job.not_before = None
+            job.error = f"{was} stopped while this job ran; {server} queued it again"
+            result = "queued again"
+        audit.record(
+            session,
+            server,
+            "job.takeover",
+            machine=machine,
+            job_id=job.id,
+            result=result,
+            previous=was,
+            attempt=job.attempts,
+            line=job.line if job.kind is JobKind.DRIPFEED else None,
+            **_program_fields(job),
+        )
+        ended.append(job)
+    return ended
+
+
+def machines_running(session: Session, machines: Sequence[str]) -> set[str]:
+    """Which of ``machines`` have a job running (by any server)."""
+    if not machines:
+        return set()
+    stmt = select(Job.machine).where(Job.machine.in_(machines), Job.state == JobState.RUNNING)
+    return set(session.scalars(stmt.distinct()))
+
+
+def note_progress(session: Session, job_id: int, *, line: int | None, nbytes: int) -> None:
+    """Record how far a running job got (a drip-feed's line): what a server that takes the
+    machine over reports if this one dies."""
+    job = session.get(Job, job_id)
+    if job is not None and job.state is JobState.RUNNING:
+        if line is not None:
+            job.line = line
+        job.bytes_done = nbytes
 
 
 def machines_with_due_jobs(session: Session) -> list[str]:
@@ -328,6 +415,17 @@ def queue_lengths(session: Session) -> dict[str, int]:
         .group_by(Job.machine)
     )
     return {machine: int(count) for machine, count in session.execute(stmt)}
+
+
+def last_finished(session: Session, machines: Iterable[str] | None = None) -> dict[str, Job]:
+    """Each machine's most recently finished job (done, failed, cancelled or interrupted),
+    its version and program loaded; ``machines`` limits the machines asked about."""
+    ended = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
+    newest = select(func.max(Job.id)).where(Job.state.in_(ended)).group_by(Job.machine)
+    if machines is not None:
+        newest = newest.where(Job.machine.in_(list(machines)))
+    stmt = select(Job).where(Job.id.in_(newest)).options(_with_program())
+    return {job.machine: job for job in session.scalars(stmt)}
 
 
 def _with_program() -> LoaderOption:
@@ -373,6 +471,7 @@ def cancel(session: Session, job_id: int, *, actor: str) -> Job:
         job.finished = utcnow()
     elif job.state is JobState.RUNNING:
         job.cancel_requested = True
+        notify(session, "cancel", str(job.id))  # whichever server runs it stops it at once
     else:
         raise Conflict(f"job {job_id} is {job.state.value}; nothing to cancel")
     audit.record(session, actor, "job.cancel", machine=job.machine, job_id=job.id)
@@ -399,6 +498,7 @@ def move(session: Session, job_id: int, index: int, *, actor: str) -> Job:
     for n, item in enumerate(queue, start=1):
         item.position = float(n)
     audit.record(session, actor, "job.move", machine=job.machine, job_id=job.id, index=index)
+    notify(session, "job", job.machine)
     return job
 
 

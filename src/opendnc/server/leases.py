@@ -33,9 +33,22 @@ from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.store.models import ClusterServer, MachineLease, utcnow
+from opendnc.server.store.models import ClusterServer, Job, JobState, MachineLease, utcnow
 
-__all__ = ["ClusterView", "Holding", "LeaseRow", "Leases", "ServerRow", "assign"]
+__all__ = [
+    "LIBRARY",
+    "ClusterView",
+    "Holding",
+    "LeaseRow",
+    "Leases",
+    "ServerRow",
+    "assign",
+    "held_elsewhere",
+    "holds",
+    "view_in",
+]
+
+LIBRARY = "@library"  # the lease of the shop-wide duties: the library watcher and the net share
 
 DEFAULT_TTL = (
     10.0  # seconds a lease lasts unrenewed: the failover time is about this plus a renewal
@@ -199,7 +212,11 @@ class Leases:
             now = self._now(session)
             self._heartbeat(session, now)
             live = self.live_servers(session, now)
-            wanted = assign(self.all_machines, live)
+            # The duties (names with "@", never a machine's) are placed apart from the
+            # machines, so they do not skew the machines' even share.
+            duties = {m: p for m, p in self.all_machines.items() if m.startswith("@")}
+            wanted = assign({m: p for m, p in self.all_machines.items() if m not in duties}, live)
+            wanted.update(assign(duties, live))
             leases = {row.machine: row for row in session.scalars(select(MachineLease))}
             mine = {
                 m for m, row in leases.items() if row.owner == self.server and m in self.machines
@@ -207,6 +224,27 @@ class Leases:
             hand_over = {
                 m for m in mine if wanted.get(m, self.server) != self.server and can_hand_over(m)
             }
+            if hand_over:
+                # Never hand over a machine with a job running: lock the rows first (a claim
+                # under way holds its lease row and commits before), then look for running
+                # jobs in a statement of its own, which sees that claim.
+                locked = set(
+                    session.scalars(
+                        select(MachineLease.machine)
+                        .where(
+                            MachineLease.machine.in_(hand_over), MachineLease.owner == self.server
+                        )
+                        .with_for_update()
+                    )
+                )
+                busy = set(
+                    session.scalars(
+                        select(Job.machine).where(
+                            Job.machine.in_(locked), Job.state == JobState.RUNNING
+                        )
+                    )
+                )
+                hand_over = locked - busy
             if hand_over:
                 session.execute(
                     update(MachineLease)
@@ -225,7 +263,7 @@ class Leases:
                     )
                 )
             grace = self.ttl / 2  # a free machine waits this long for the server assigned it
-            for machine in self.machines:
+            for machine in sorted(self.machines):  # one order for every server's locks
                 if machine in renewed or machine in hand_over:
                     continue
                 row = leases.get(machine)
@@ -235,7 +273,7 @@ class Leases:
                 due = wanted.get(machine) == self.server
                 if not due and free_since is not None and free_since > now - grace:
                     continue
-                if self._take(session, machine, now):
+                if self._take(session, machine, now, exists=row is not None):
                     renewed.add(machine)
             epochs = {
                 machine: epoch
@@ -261,23 +299,35 @@ class Leases:
         """The machines this server may act on now: held, and not past the lease."""
         return self.held if time.monotonic() < self.valid_until else frozenset()
 
-    def _take(self, session: Session, machine: str, now: datetime) -> bool:
+    def _take(self, session: Session, machine: str, now: datetime, exists: bool) -> bool:
         # One statement: of two servers taking the same free row, the second finds it live.
+        # A row that is there is only updated where free (an UPDATE whose condition fails
+        # keeps no lock); a new row is inserted unless another server just did: a live row
+        # is never locked by a server that cannot take it, so renewals do not deadlock.
+        if exists:
+            taken = session.execute(
+                update(MachineLease)
+                .where(
+                    MachineLease.machine == machine,
+                    (MachineLease.expires <= now) | (MachineLease.owner == ""),
+                )
+                .values(
+                    owner=self.server,
+                    epoch=MachineLease.epoch + 1,
+                    acquired=now,
+                    expires=now + self.ttl,
+                )
+                .returning(MachineLease.machine)
+            ).first()
+            return taken is not None
         insert = self._insert(session)
         statement = insert(MachineLease).values(  # type: ignore[attr-defined]
             machine=machine, owner=self.server, epoch=1, acquired=now, expires=now + self.ttl
         )
         taken = session.execute(
-            statement.on_conflict_do_update(
-                index_elements=[MachineLease.machine],
-                set_={
-                    "owner": self.server,
-                    "epoch": MachineLease.epoch + 1,
-                    "acquired": now,
-                    "expires": now + self.ttl,
-                },
-                where=(MachineLease.expires <= now) | (MachineLease.owner == ""),
-            ).returning(MachineLease.machine)
+            statement.on_conflict_do_nothing(index_elements=[MachineLease.machine]).returning(
+                MachineLease.machine
+            )
         ).first()
         return taken is not None
 
@@ -298,18 +348,45 @@ class Leases:
         return cluster_view(self.sessions)
 
 
+def holds(session: Session, machine: str, server: str, epoch: int) -> bool:
+    """True while ``server`` holds ``machine``'s lease at ``epoch`` (fencing).
+
+    The row stays locked (``FOR SHARE``) until ``session``'s transaction ends, so no other
+    server can take the lease between this check and the commit of what it guards: a job's
+    claim, its end, its progress. A lease that ran out but was not taken yet still holds: no
+    other server has acted on the machine, since taking it raises the epoch.
+    """
+    found = session.execute(
+        select(MachineLease.epoch)
+        .where(MachineLease.machine == machine, MachineLease.owner == server)
+        .with_for_update(read=True)
+    ).first()
+    return found is not None and int(found[0]) == epoch
+
+
+def held_elsewhere(sessions: sessionmaker[Session], server: str) -> set[str]:
+    """The machines whose live lease another server than ``server`` holds now."""
+    view = cluster_view(sessions)
+    return {row.machine for row in view.leases if row.live and row.owner != server}
+
+
 def cluster_view(sessions: sessionmaker[Session]) -> ClusterView:
     """Servers, heartbeats and leases of the database behind ``sessions``."""
     with sessions() as session:
-        if session.get_bind().dialect.name == "postgresql":
-            now = session.execute(text("SELECT now()")).scalar_one()
-        else:
-            now = utcnow()
-        leases = list(session.scalars(select(MachineLease).order_by(MachineLease.machine)))
-        servers = list(session.scalars(select(ClusterServer).order_by(ClusterServer.name)))
+        return view_in(session)
+
+
+def view_in(session: Session) -> ClusterView:
+    """Servers, heartbeats and leases as ``session``'s database sees them now."""
+    if session.get_bind().dialect.name == "postgresql":
+        now = session.execute(text("SELECT now()")).scalar_one()
+    else:
+        now = utcnow()
+    leases = list(session.scalars(select(MachineLease).order_by(MachineLease.machine)))
+    servers = list(session.scalars(select(ClusterServer).order_by(ClusterServer.name)))
     counts: dict[str, int] = {}
     for row in leases:
-        if row.owner and row.expires > now:
+        if row.owner and row.expires > now and not row.machine.startswith("@"):
             counts[row.owner] = counts.get(row.owner, 0) + 1
     return ClusterView(
         now=now,

@@ -13,21 +13,27 @@ import hashlib
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from datetime import datetime
+from typing import NamedTuple
 
 from sqlalchemy import ColumnElement, Select, String, cast, func, literal, select
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm import Session, joinedload, selectinload
 
 from opendnc.errors import InputError
 from opendnc.server import audit
 from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.notify import notify
 from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVersion
 
 __all__ = [
     "MAX_PROGRAM_BYTES",
     "MAX_SEARCH",
     "MAX_TEXT_HITS",
+    "History",
+    "Listed",
     "TextHit",
+    "VersionRow",
     "add_version",
     "check_program_name",
     "content",
@@ -35,6 +41,7 @@ __all__ = [
     "get_program",
     "get_version",
     "heads",
+    "history",
     "list_programs",
     "release",
     "same_name_but_case",
@@ -93,18 +100,81 @@ def same_name_but_case(session: Session, name: str) -> str | None:
     return session.scalars(stmt).first()
 
 
-def list_programs(session: Session, search: str = "") -> Sequence[Program]:
+@dataclass(frozen=True)
+class Listed:
+    """A program as the library's list shows it: how many versions, the newest, the released."""
+
+    program: Program
+    count: int
+    newest: ProgramVersion | None
+    released: ProgramVersion | None
+
+    @property
+    def name(self) -> str:
+        """The program's name."""
+        return self.program.name
+
+
+def list_programs(
+    session: Session, search: str = "", names: Sequence[str] | None = None
+) -> list[Listed]:
     """Programs whose name contains ``search`` (case-insensitive), by name.
 
-    ``search`` longer than a name can be (:data:`MAX_SEARCH`) is an :class:`InputError`: it
-    could match nothing, and SQLite refuses a LIKE pattern of 50,000 characters and more.
-    ``%`` and ``_`` in it match themselves."""
+    Each with its newest and its released version only: the list's cost does not grow with
+    the versions a program has had (:func:`get_program` has them all). ``search`` longer
+    than a name can be (:data:`MAX_SEARCH`) is an :class:`InputError`: it could match
+    nothing, and SQLite refuses a LIKE pattern of 50,000 characters and more. ``%`` and
+    ``_`` in it match themselves. ``names`` lists only these (those a search in the text
+    found)."""
     if len(search) > MAX_SEARCH:
         raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
-    stmt = select(Program).order_by(Program.name).options(_VERSIONS)
-    if search:
-        stmt = stmt.where(func.lower(Program.name).contains(search.lower(), autoescape=True))
-    return session.scalars(stmt).all()
+    where = [func.lower(Program.name).contains(search.lower(), autoescape=True)] if search else []
+    if names is not None:
+        where.append(Program.name.in_(list(names)))
+    per_program = (
+        select(
+            ProgramVersion.program_id,
+            func.max(ProgramVersion.number).label("newest"),
+            func.count().label("count"),
+        )
+        .group_by(ProgramVersion.program_id)
+        .subquery()
+    )
+    programs = session.execute(
+        select(Program, per_program.c.count, per_program.c.newest)
+        .outerjoin(per_program, per_program.c.program_id == Program.id)
+        .where(*where)
+        .order_by(Program.name)
+    ).all()
+    if not programs:
+        return []
+    # The newest and the released version of each listed program, in one query.
+    picked = session.scalars(
+        select(ProgramVersion)
+        .join(Program, Program.id == ProgramVersion.program_id)
+        .outerjoin(
+            per_program,
+            (per_program.c.program_id == ProgramVersion.program_id)
+            & (per_program.c.newest == ProgramVersion.number),
+        )
+        .where(
+            *where,
+            (ProgramVersion.state == ProgramState.RELEASED) | per_program.c.newest.is_not(None),
+        )
+        .options(joinedload(ProgramVersion.program))
+    ).all()
+    newest: dict[int, ProgramVersion] = {}
+    released: dict[int, ProgramVersion] = {}
+    for version in picked:
+        if version.state is ProgramState.RELEASED:
+            released[version.program_id] = version
+        known = newest.get(version.program_id)
+        if known is None or version.number > known.number:
+            newest[version.program_id] = version
+    return [
+        Listed(program, count or 0, newest.get(program.id), released.get(program.id))
+        for program, count, _newest in programs
+    ]
 
 
 def get_program(session: Session, name: str) -> Program:
@@ -115,31 +185,95 @@ def get_program(session: Session, name: str) -> Program:
     return program
 
 
+class VersionRow(NamedTuple):
+    """A version as a list shows it, read as plain columns (no ORM object per version)."""
+
+    number: int
+    sha256: str
+    size: int
+    state: ProgramState
+    author: str
+    comment: str
+    source: str
+    created: datetime
+
+
+@dataclass(frozen=True)
+class History:
+    """A program, how many versions it has, and its newest ones (oldest first)."""
+
+    program: Program
+    count: int
+    versions: list[VersionRow]
+
+
+def history(session: Session, name: str, limit: int | None = None) -> History:
+    """``name`` with its newest ``limit`` versions (all without a limit); :class:`NotFound`
+    otherwise. Versions are read as columns: a long history costs what its rows cost."""
+    program = session.scalar(select(Program).where(Program.name == name))
+    if program is None:
+        raise NotFound(f"no program named {name!r}")
+    v = ProgramVersion
+    stmt = (
+        select(v.number, v.sha256, v.size, v.state, v.author, v.comment, v.source, v.created)
+        .where(v.program_id == program.id)
+        .order_by(v.number.desc())
+    )
+    if limit is not None:
+        stmt = stmt.limit(limit)
+    rows = [VersionRow(*row) for row in session.execute(stmt)]
+    rows.reverse()
+    count = len(rows)
+    if limit is not None and count >= limit:
+        count = session.scalar(select(func.count()).where(v.program_id == program.id)) or 0
+    return History(program, count, rows)
+
+
 def _with_versions(name: str) -> Select[Program]:
     # the program and its versions in two queries (relationships never load lazily)
     return select(Program).where(Program.name == name).options(_VERSIONS)
 
 
 def get_version(session: Session, name: str, number: int | None = None) -> ProgramVersion:
-    """Version ``number`` of ``name``; the newest one when ``number`` is None."""
-    program = get_program(session, name)
-    if not program.versions:
-        raise NotFound(f"program {name!r} has no versions")
+    """Version ``number`` of ``name``; the newest one when ``number`` is None.
+
+    One indexed look-up, whatever the number of versions the program has."""
+    stmt = _versions_of(name)
     if number is None:
-        return program.versions[-1]
-    for version in program.versions:
-        if version.number == number:
-            return version
+        stmt = stmt.order_by(ProgramVersion.number.desc()).limit(1)
+    else:
+        stmt = stmt.where(ProgramVersion.number == number)
+    version = session.scalar(stmt)
+    if version is not None:
+        return version
+    if session.scalar(select(Program.id).where(Program.name == name)) is None:
+        raise NotFound(f"no program named {name!r}")
+    if number is None:
+        raise NotFound(f"program {name!r} has no versions")
     raise NotFound(f"program {name!r} has no version {number}")
 
 
 def released_version(session: Session, name: str) -> ProgramVersion | None:
-    """The released version of ``name``, if one is."""
-    program = get_program(session, name)
-    for version in reversed(program.versions):
-        if version.state is ProgramState.RELEASED:
-            return version
-    return None
+    """The released version of ``name``, if one is (:class:`NotFound` without the program)."""
+    version = session.scalar(
+        _versions_of(name)
+        .where(ProgramVersion.state == ProgramState.RELEASED)
+        .order_by(ProgramVersion.number.desc())
+        .limit(1)
+    )
+    if version is None and session.scalar(select(Program.id).where(Program.name == name)) is None:
+        raise NotFound(f"no program named {name!r}")
+    return version
+
+
+def _versions_of(name: str) -> Select[ProgramVersion]:
+    # each with its program set (relationships never load lazily)
+    return (
+        select(ProgramVersion)
+        .join(Program, Program.id == ProgramVersion.program_id)
+        .where(Program.name == name)
+        .options(joinedload(ProgramVersion.program))
+    )
 
 
 def content(session: Session, version: ProgramVersion) -> bytes:
@@ -170,14 +304,21 @@ def add_version(
     program = _program_for_update(session, name)
     if program.locked:
         raise Conflict(f"program {name!r} is locked")
-    if program.versions and program.versions[-1].sha256 == digest:
-        return program.versions[-1], False
+    # Only the newest version is read: an upload's cost does not grow with the history.
+    newest = session.scalar(
+        select(ProgramVersion)
+        .where(ProgramVersion.program_id == program.id)
+        .order_by(ProgramVersion.number.desc())
+        .limit(1)
+        .options(joinedload(ProgramVersion.program))
+    )
+    if newest is not None and newest.sha256 == digest:
+        return newest, False
     if session.get(Blob, digest) is None:
         session.add(Blob(sha256=digest, size=len(data), data=data))
-    number = (program.versions[-1].number + 1) if program.versions else 1
     version = ProgramVersion(
-        program=program,
-        number=number,
+        program_id=program.id,
+        number=newest.number + 1 if newest is not None else 1,
         sha256=digest,
         size=len(data),
         state=ProgramState.DRAFT,
@@ -185,6 +326,7 @@ def add_version(
         comment=comment,
         source=source,
     )
+    version.program = program
     session.add(version)
     session.flush()
     audit.record(
@@ -194,10 +336,11 @@ def add_version(
         program=name,
         sha256=digest,
         nbytes=len(data),
-        version=number,
+        version=version.number,
         source=source,
         comment=comment,
     )
+    notify(session, "library", f"{version.number}:{name}")  # the other servers' pages and streams
     return version, True
 
 
@@ -205,24 +348,33 @@ def _program_for_update(session: Session, name: str) -> Program:
     # Two uploads of one name at the same moment must not both number their version N+1. On
     # PostgreSQL the program's row is locked until the commit (SQLite has no row locks and
     # needs none: a writing transaction there holds the database's write lock throughout).
-    stmt = _with_versions(name).with_for_update()
+    stmt = select(Program).where(Program.name == name).with_for_update()
     program = session.scalar(stmt)
     if program is not None:
         return program
+    _refuse_case_twin(session, name)
+    try:
+        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
+            session.add(Program(name=name))
+    except IntegrityError:
+        # Another upload created it (or a name that differs only in case: the unique index on
+        # the folded name refuses the second of two at the same moment, which the check above
+        # cannot see on PostgreSQL while the first is not committed).
+        pass
+    program = session.scalar(stmt)
+    if program is None:
+        _refuse_case_twin(session, name)
+        raise Conflict(f"program {name!r} could not be created; try again")  # pragma: no cover
+    return program
+
+
+def _refuse_case_twin(session: Session, name: str) -> None:
     other = same_name_but_case(session, name)
     if other is not None:
         raise Conflict(
             f"program {name!r} differs from {other!r} only in case, and file systems that "
             f"fold case (Windows, network shares) would make them one file: use {other!r}"
         )
-    try:
-        with session.begin_nested():  # a savepoint: losing the race to create it is not an error
-            session.add(Program(name=name, versions=[]))
-    except IntegrityError:
-        pass
-    program = session.scalar(stmt)
-    assert program is not None  # created here or by the upload that won the race
-    return program
 
 
 def release(session: Session, name: str, number: int, *, actor: str) -> ProgramVersion:
@@ -242,6 +394,7 @@ def release(session: Session, name: str, number: int, *, actor: str) -> ProgramV
     audit.record(
         session, actor, "program.release", program=name, sha256=target.sha256, version=number
     )
+    notify(session, "library", f"{number}:{name}")
     return target
 
 
@@ -275,7 +428,7 @@ MAX_TEXT_HITS = 100  # programs a search in the text lists at most
 class TextHit:
     """A program whose newest version holds the searched text, and its first line that does."""
 
-    program: Program
+    name: str
     line: int
     text: str
 
@@ -324,7 +477,7 @@ def search_text(session: Session, text: str, limit: int = MAX_TEXT_HITS) -> list
         haystack = cast(Blob.data, String)
         found = haystack.like(f"%{_escape_like(text)}%", escape="\\")
     rows = session.execute(
-        select(Program, ProgramVersion.sha256)
+        select(Program.name, ProgramVersion.sha256)
         .join(newest, newest.c.program_id == Program.id)
         .join(
             ProgramVersion,
@@ -334,15 +487,14 @@ def search_text(session: Session, text: str, limit: int = MAX_TEXT_HITS) -> list
         .where(found)
         .order_by(Program.name)
         .limit(limit)
-        .options(_VERSIONS)
     ).all()
     hits = []
     wanted = text.lower()
-    for program, digest in rows:
+    for name, digest in rows:
         blob = session.get(Blob, digest)
         data = blob.data.decode("latin-1") if blob is not None else ""
         for number, line in enumerate(data.splitlines(), 1):
             if wanted in line.lower():
-                hits.append(TextHit(program, number, line.strip()[:200]))
+                hits.append(TextHit(name, number, line.strip()[:200]))
                 break
     return hits

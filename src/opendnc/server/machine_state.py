@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass, field, replace
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 from opendnc.server.config import MachineConfig, ShopConfig
 from opendnc.server.events import EventBus, MachineStatusChanged, on_loop
 from opendnc.server.machine_files import Errands
 from opendnc.server.machines.base import MachineStatus
-from opendnc.server.state import classify
+from opendnc.server.state import State, classify
 
 __all__ = ["MachineState", "Machines"]
 
@@ -34,9 +34,15 @@ class MachineState:
     link_errors: int = 0  # how often the link broke since the server started
     job_id: int | None = None
     job_progress: tuple[int, int | None] = (0, None)
+    job_started: datetime | None = None  # when the running job started (its rate, time left)
+    job_line: tuple[int, int] | None = None  # a drip-feed's line reached, of its lines
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
+    # the classifier's state as last published, and since when (the card's "alarm since 14:02")
+    seen_state: State | None = None
+    state_since: datetime | None = None
     errands: Errands = field(default_factory=Errands)  # file browser reads on the connector
+    served: bool = True  # False while another server of a cluster serves it (its status read)
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
@@ -44,14 +50,23 @@ class MachineState:
             status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
         self.status = status
 
+    def start_job(self, job_id: int, total: int | None) -> None:
+        """A job starts on this machine: its progress, start time and line start anew."""
+        self.job_id, self.job_progress = job_id, (0, total)
+        self.job_started, self.job_line = datetime.now(UTC), None
+
     def event(self) -> MachineStatusChanged:
         """The machine as it is now, as an event (published on every status read)."""
+        state = classify(self.status, online=self.online)
+        if state is not self.seen_state:
+            self.seen_state, self.state_since = state, datetime.now(UTC)
         name, json = self.config.name, self.as_json()
-        return MachineStatusChanged(name, self.online, self.status, self.last_error, json)
+        return MachineStatusChanged(
+            name, self.online, self.status, self.last_error, json, served=self.served
+        )
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
-        done, total = self.job_progress
         return {
             "name": self.config.name,
             "kind": self.config.kind.value,
@@ -64,10 +79,18 @@ class MachineState:
             "last_error": self.last_error,
             "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
             "link_errors": self.link_errors,
-            "job": None
-            if self.job_id is None
-            else {"id": self.job_id, "bytes_done": done, "bytes_total": total},
+            # since when the machine is in this state, as far as this server saw it
+            "state_since": self.state_since.isoformat() if self.state_since else None,
+            "job": None if self.job_id is None else self._job_json(),
         }
+
+    def _job_json(self) -> dict[str, Any]:
+        done, total = self.job_progress
+        job: dict[str, Any] = {"id": self.job_id, "bytes_done": done, "bytes_total": total}
+        job["started"] = self.job_started.isoformat() if self.job_started else None
+        if self.job_line is not None:
+            job["line"], job["lines"] = self.job_line
+        return job
 
 
 class Machines:

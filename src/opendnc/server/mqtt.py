@@ -29,7 +29,14 @@ from typing import TYPE_CHECKING, Any
 
 from opendnc.errors import InputError
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import DprntLinePrinted, Event, EventBus, JobEvent, MachineStatusChanged
+from opendnc.server.events import (
+    DprntLinePrinted,
+    Event,
+    EventBus,
+    JobEvent,
+    LeaseChanged,
+    MachineStatusChanged,
+)
 from opendnc.server.items import ITEMS, ItemTracker, Reading, shdr_time
 from opendnc.server.state import State
 
@@ -139,6 +146,10 @@ class MqttPublisher:
     def take(self, event: Event) -> None:
         """Turn one bus event into messages (the state is kept even while disconnected)."""
         match event:
+            case MachineStatusChanged(served=False):
+                pass  # another server of a cluster serves it and publishes it
+            case LeaseChanged(machine=machine, held=False):
+                self.tracker.forget(machine)  # its new server publishes it from now on
             case MachineStatusChanged(machine=machine):
                 first = not self.tracker.known(machine)
                 changed = self.tracker.update(event)

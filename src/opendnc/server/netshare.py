@@ -38,12 +38,13 @@ down runs when it comes back. The clock is injectable (tests do not wait for 18:
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import logging
 import os
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -199,7 +200,7 @@ class _SmbFolder:
     def entries(self) -> dict[str, tuple[int, int]]:
         smbclient = self._session()
         found = {}
-        try:
+        with _smb_errors(f"cannot list {self.label}"):
             for entry in smbclient.scandir(self.target.unc(), **self._options()):
                 # the listing carries size, time and attributes: no extra call per file
                 info = entry.smb_info
@@ -207,25 +208,31 @@ class _SmbFolder:
                 if _is_program_name(entry.name) and plain and info.end_of_file <= MAX_FILE:
                     written = int(info.last_write_time.timestamp() * 1e9)
                     found[entry.name] = (int(info.end_of_file), written)
-        except Exception as exc:
-            raise TransportError(f"cannot list {self.label}: {exc}") from exc
         return found
 
     def read(self, name: str) -> bytes:
         smbclient = self._session()
-        try:
-            with smbclient.open_file(self.target.unc(name), mode="rb", **self._options()) as f:
-                data: bytes = f.read()
-        except Exception as exc:
-            raise TransportError(f"cannot read {self.target.describe(name)}: {exc}") from exc
+        with (
+            _smb_errors(f"cannot read {self.target.describe(name)}"),
+            smbclient.open_file(self.target.unc(name), mode="rb", **self._options()) as f,
+        ):
+            data: bytes = f.read()
         return data
 
     def remove(self, name: str) -> None:
         smbclient = self._session()
-        try:
+        with _smb_errors(f"cannot remove {self.target.describe(name)}"):
             smbclient.remove(self.target.unc(name), **self._options())
-        except Exception as exc:
-            raise TransportError(f"cannot remove {self.target.describe(name)}: {exc}") from exc
+
+
+@contextlib.contextmanager
+def _smb_errors(what: str) -> Iterator[None]:
+    """Any failure of an SMB call (smbprotocol raises its own tree, and ValueError) as a
+    :class:`TransportError` that says ``what`` failed."""
+    try:
+        yield
+    except Exception as exc:
+        raise TransportError(f"{what}: {exc}") from exc
 
 
 def _folder_for(spec: str) -> _Folder:
@@ -287,6 +294,10 @@ class NetShare(RunsTask):
     # ------------------------------------------------------------------ state
     def load(self) -> None:
         """Rebuild what was pushed, collected and archived from the audit trail."""
+        # from scratch: in a cluster another server may have run the share meanwhile
+        self.pushed.clear()
+        self.collected.clear()
+        self.baselined.clear()
         with self.sessions() as session:
             rows = session.scalars(
                 select(AuditEntry)
@@ -317,6 +328,7 @@ class NetShare(RunsTask):
     async def run(self) -> None:
         """Scan every ``interval`` seconds until cancelled; one failed scan (the database
         away at start included: the first scan loads the state) stops nothing."""
+        self._loaded = False  # each start reads the trail: a cluster's share moves between servers
         while True:
             try:
                 await self.scan()

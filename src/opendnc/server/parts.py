@@ -1,11 +1,12 @@
-"""Components around parts that have a life of their own: the open outputs (MQTT, MTConnect)
-and the status timeline's recorder."""
+"""Components around parts that have a life of their own: the open outputs (MQTT, Sparkplug B,
+MTConnect) and the status timeline's recorder."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy.exc import SQLAlchemyError
@@ -14,6 +15,7 @@ from opendnc.server.components import cancel_and_wait
 from opendnc.server.events import EventBus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.web.timeline import HEARTBEAT, Timeline, running
 
 __all__ = ["Outputs", "TimelineRecorder"]
@@ -28,17 +30,26 @@ class Outputs:
     name = "outputs"
     needs = ("machines",)
 
-    def __init__(self, mqtt: MqttPublisher | None, mtconnect: MtconnectOutput | None) -> None:
+    def __init__(
+        self,
+        mqtt: MqttPublisher | None,
+        mtconnect: MtconnectOutput | None,
+        sparkplug: SparkplugNode | None = None,
+    ) -> None:
         self.mqtt = mqtt
         self.mtconnect = mtconnect
+        self.sparkplug = sparkplug
         self._tasks: list[asyncio.Task[None]] = []
 
-    def as_dict(self) -> dict[str, MqttPublisher | MtconnectOutput | None]:
+    def as_dict(self) -> dict[str, MqttPublisher | MtconnectOutput | SparkplugNode | None]:
         """The outputs by name (``None`` where not configured)."""
-        return {"mqtt": self.mqtt, "mtconnect": self.mtconnect}
+        return {"mqtt": self.mqtt, "sparkplug": self.sparkplug, "mtconnect": self.mtconnect}
 
     async def start(self) -> None:
-        """Open the MTConnect ports, start both outputs' tasks."""
+        """Open the MTConnect ports, start the outputs' tasks (the Sparkplug node subscribes
+        here, before the machines' tasks announce what this server serves)."""
+        if self.sparkplug is not None:
+            await self.sparkplug.start()
         if self.mqtt is not None:
             self._tasks.append(asyncio.create_task(self.mqtt.run(), name="mqtt"))
         if self.mtconnect is not None:
@@ -46,9 +57,11 @@ class Outputs:
             self._tasks.append(asyncio.create_task(self.mtconnect.run(), name="mtconnect"))
 
     async def stop(self) -> None:
-        """Stop the tasks, close the MTConnect ports."""
+        """Stop the tasks (the Sparkplug node sends its death), close the MTConnect ports."""
         tasks, self._tasks = self._tasks, []
         await cancel_and_wait(*tasks)
+        if self.sparkplug is not None:
+            await self.sparkplug.stop()
         if self.mtconnect is not None:
             await self.mtconnect.close()
 
@@ -64,9 +77,17 @@ class TimelineRecorder:
     needs = ("machines",)
 
     def __init__(
-        self, timeline: Timeline, bus: EventBus, *, server: str, machines: list[str]
+        self,
+        timeline: Timeline,
+        bus: EventBus,
+        *,
+        server: str,
+        machines: list[str],
+        held_elsewhere: Callable[[], set[str]] | None = None,
     ) -> None:
         self.timeline = timeline
+        # several servers: the machines another server serves now, whose record is its own
+        self.held_elsewhere = held_elsewhere
         self.bus = bus
         self.server = server
         self.machines = machines
@@ -76,7 +97,13 @@ class TimelineRecorder:
 
     async def start(self) -> None:
         """Close a crash's gap, subscribe and record, start the heartbeat."""
-        gap = await asyncio.to_thread(self.timeline.close_gap, self.server, self.machines)
+
+        def close_gap() -> int:
+            others = self.held_elsewhere() if self.held_elsewhere is not None else set()
+            mine = [m for m in self.machines if m not in others]
+            return self.timeline.close_gap(self.server, mine)
+
+        gap = await asyncio.to_thread(close_gap)
         if gap:
             log.warning("the server did not stop cleanly: no record marked for %d machines", gap)
         recording = running(self.timeline, self.bus)

@@ -13,6 +13,12 @@ recognised by re-reading the job. A claim whose answer was lost is found by the 
 hands any job this server holds as running but does not run back to the queue (a load) or ends
 it interrupted (a drip-feed). Cancels are read from the job's row (``cancel_requested``) while
 it runs, so a cancel served by any process reaches it.
+
+Several servers on one database (docs/server.md#several-servers): a runner with a ``fence``
+(:class:`opendnc.server.cluster.Cluster`) claims jobs only for machines whose lease this
+server holds, and checks the lease's epoch in the same transaction as every change it makes
+to a job (claim, progress, end): a server that lost a machine while it was paused cannot
+finish a job the machine's new server has already taken over (:func:`jobs.take_over`).
 """
 
 from __future__ import annotations
@@ -21,19 +27,19 @@ import asyncio
 import contextlib
 import logging
 from collections import Counter
-from collections.abc import Callable, Iterable
-from typing import Any, TypeVar
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any, Protocol, TypeVar
 
 from sqlalchemy import select
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.errors import RemoteProtocolError, TransferError, TransportError
+from opendnc.errors import DncError, RemoteProtocolError, TransferError, TransportError
 from opendnc.server import jobs, library
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.errors import NotFound
-from opendnc.server.events import JobFinished, JobProgress, JobStarted
+from opendnc.server.events import JobFinished, JobProgress, JobQueued, JobStarted
 from opendnc.server.executors import (
     Claimed,
     DripFeedBroken,
@@ -42,12 +48,13 @@ from opendnc.server.executors import (
     JobRun,
     unknown_kind,
 )
+from opendnc.server.leases import holds
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Connector
 from opendnc.server.store.db import read_only
 from opendnc.server.store.models import Job, JobKind, JobState
 
-__all__ = ["JobRunner", "database_down"]
+__all__ = ["Fence", "JobRunner", "LeaseLost", "database_down"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +62,17 @@ T = TypeVar("T")
 CANCEL_POLL = 0.5  # seconds between two reads of a running job's cancel flag
 RETRY_FIRST = 0.2  # seconds before the first retry of a write the database refused
 RETRY_MAX = 5.0
+
+
+class LeaseLost(DncError):
+    """This server no longer holds the machine's lease: another server has taken it over."""
+
+
+class Fence(Protocol):
+    """Which machines this server may act on, and at which lease epoch (several servers)."""
+
+    def epoch(self, machine: str) -> int | None:
+        """The epoch of this server's live lease on ``machine``; None if it holds none."""
 
 
 def database_down(exc: BaseException) -> bool:
@@ -97,6 +115,9 @@ class JobRunner:
         self._settling: set[asyncio.Task[None]] = set()
         self._unsettled: set[int] = set()  # jobs whose end waits for the database
         self._sweep: asyncio.Task[None] | None = None
+        self.fence: Fence | None = None  # set by the cluster (several servers), else None
+        self._epochs: dict[int, int] = {}  # running job -> the lease epoch it was claimed at
+        self._lines: dict[int, tuple[int | None, int]] = {}  # drip-feed -> (line, bytes) fed
 
     # -- lifecycle ----------------------------------------------------------------------
 
@@ -108,6 +129,8 @@ class JobRunner:
         def prepare() -> list[int]:
             with self.sessions.begin() as session:
                 jobs.sync_machines(session, config.machines)
+                if self.fence is not None:
+                    return []  # each machine's server takes its jobs over with its lease
                 return [job.id for job in jobs.recover(session, self.worker)]
 
         for job_id in await asyncio.to_thread(prepare):
@@ -196,11 +219,15 @@ class JobRunner:
                 fields = (job_id, job.machine, job.kind.value, program, number)
                 if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
                     return JobFinished(*fields, outcome=job.state.value)
+                self._check_lease(session, job.machine, self._epochs.get(job_id))
                 reason = "this server lost track of the job (database outage); not run"
                 ended = jobs.fail(session, job_id, reason, retryable=True).state.value
                 return JobFinished(*fields, outcome=ended, error=reason)
 
-            event = await self._durably(f"handing back job {job_id}", hand_back)
+            try:
+                event = await self._durably(f"handing back job {job_id}", hand_back)
+            except LeaseLost:
+                continue  # the machine's new server takes the job over
             log.warning("job %d was held by no machine task: now %s", job_id, event.outcome)
             self.machines.bus.publish(event)
             self.machines.wake(machine)
@@ -237,7 +264,7 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.job_id, state.job_progress = claimed.job_id, (0, len(claimed.data) or None)
+        state.start_job(claimed.job_id, len(claimed.data) or None)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
@@ -246,9 +273,7 @@ class JobRunner:
             claimed,
             state,
             connector,
-            event=lambda **progress: self.machines.bus.publish(
-                JobProgress(*_fields(claimed, name), **progress)
-            ),
+            event=lambda **progress: self._progress(claimed, name, progress),
             check_cancel=lambda: self._cancel_requested(claimed.job_id),
         )
         watch = asyncio.create_task(self._watch_cancel(run), name=f"cancel-watch-{claimed.job_id}")
@@ -271,6 +296,7 @@ class JobRunner:
         finally:
             watch.cancel()
             self.running.pop(claimed.job_id, None)
+            self._lines.pop(claimed.job_id, None)
         if run.cancel_requested:
             # The work was done before the cancel could stop it: said so in its audit row.
             outcome["cancel"] = "requested too late: the work was already done"
@@ -278,10 +304,19 @@ class JobRunner:
         return True
 
     def _claim(self, machine: str) -> Claimed | None:
+        epoch = None
+        if self.fence is not None:
+            epoch = self.fence.epoch(machine)
+            if epoch is None:
+                return None  # not this server's machine (any more)
         with self.sessions.begin() as session:
+            if epoch is not None and not holds(session, machine, self.worker, epoch):
+                return None
             job = jobs.claim(session, machine, self.worker)
             if job is None:
                 return None
+            if epoch is not None:
+                self._epochs[job.id] = epoch
             params = dict(job.params)
             if job.kind is JobKind.REPORT:
                 report = str(params.get("report", "")).encode("latin-1")
@@ -315,6 +350,7 @@ class JobRunner:
             job = jobs.get_job(session, run.job.job_id)
             if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
                 return job.state.value  # an earlier try went through; its answer was lost
+            self._check_lease(session, job.machine, self._epochs.get(job.id))
             return jobs.fail(
                 session,
                 run.job.job_id,
@@ -331,6 +367,7 @@ class JobRunner:
         job = jobs.get_job(session, run.job.job_id)
         if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
             return job.state.value  # an earlier try went through; its answer was lost
+        self._check_lease(session, job.machine, self._epochs.get(job.id))
         return jobs.finish(session, run.job.job_id, **outcome).state.value
 
     async def _settle(
@@ -349,11 +386,15 @@ class JobRunner:
         async def write_it() -> None:
             try:
                 ended = await self._durably(what, write)
+            except LeaseLost as exc:
+                log.warning("job %d: %s; its end is left to that server", job_id, exc)
+                ended = "taken over"
             except Exception:
                 log.exception("%s failed", what)
                 ended = "unknown"
             finally:
                 self._unsettled.discard(job_id)
+                self._epochs.pop(job_id, None)
             self._ended(run, label or ended, **extra)
             if state.job_id == job_id:
                 state.job_id = None
@@ -363,6 +404,13 @@ class JobRunner:
         try:
             # The usual case answers at once; the machine's task waits for it.
             ended = await asyncio.to_thread(self._transaction, write)
+        except LeaseLost as exc:
+            # Another server has the machine now and ends the job itself (a load queued
+            # again, a drip-feed interrupted): this server writes nothing.
+            log.warning("job %d: %s; its end is left to that server", job_id, exc)
+            self._epochs.pop(job_id, None)
+            state.job_id = None
+            return
         except Exception as exc:
             if not database_down(exc):
                 # Not the database's absence (the row gone, a bug): nothing to wait for, and
@@ -377,6 +425,7 @@ class JobRunner:
             task.add_done_callback(self._settling.discard)
             return
         self.database_error = ""
+        self._epochs.pop(job_id, None)
         self._ended(run, label or ended, **extra)
         state.job_id = None
 
@@ -404,13 +453,98 @@ class JobRunner:
             return False
 
     async def _watch_cancel(self, run: JobRun) -> None:
-        """Mirror the job's cancel flag into ``run`` while it runs."""
+        """Mirror the job's cancel flag into ``run`` while it runs; record a drip-feed's line
+        as it goes (a server that takes the machine over ends the job there)."""
+        noted: tuple[int | None, int] | None = None
         while not run.cancel_requested:
             await asyncio.sleep(self.cancel_poll)
             with contextlib.suppress(NotFound):
                 run.cancel_requested = await self._cancel_requested(run.job.job_id)
+            reached = self._lines.get(run.job.job_id)
+            if reached is not None and reached != noted:
+                noted = reached
+                with contextlib.suppress(LeaseLost, NotFound):
+                    await self._note_progress(run, reached)
+
+    async def _note_progress(self, run: JobRun, reached: tuple[int | None, int]) -> None:
+        job_id, machine = run.job.job_id, run.state.config.name
+
+        def note(session: Session) -> None:
+            self._check_lease(session, machine, self._epochs.get(job_id))
+            jobs.note_progress(session, job_id, line=reached[0], nbytes=reached[1])
+
+        try:
+            await asyncio.to_thread(self._transaction, note)
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            # the next line is noted once the database answers
+
+    def busy(self, machine: str) -> bool:
+        """True while a job of ``machine`` is being claimed or runs here."""
+        state = self.machines.get(machine)
+        return machine in self._claiming or (state is not None and state.job_id is not None)
+
+    def cancel_now(self, job_id: int) -> None:
+        """A cancel of job ``job_id`` was committed (a notice from any server): a job running
+        here stops at its next safe point without waiting for the next read of its row."""
+        run = self.running.get(job_id)
+        if run is not None:
+            run.cancel_requested = True
+
+    # -- several servers --------------------------------------------------------------------
+
+    def _check_lease(self, session: Session, machine: str, epoch: int | None) -> None:
+        """Raise :class:`LeaseLost` unless this server still holds ``machine`` at ``epoch``
+        (nothing to check for a single server)."""
+        if self.fence is None:
+            return
+        if epoch is None or not holds(session, machine, self.worker, epoch):
+            raise LeaseLost(f"{self.worker} no longer holds the lease of {machine}")
+
+    async def take_over(self, epochs: Mapping[str, int]) -> None:
+        """This server has just taken these machines' leases (machine -> epoch): end the
+        jobs their previous servers left running there (:func:`jobs.take_over`), in one
+        transaction, before the machines' tasks start. Raises if the database is away."""
+        keep = set(self.running)
+
+        def adopt(session: Session) -> list[JobFinished]:
+            out: list[JobFinished] = []
+            # one query for all: usually few of them have a job left running
+            busy = jobs.machines_running(session, list(epochs))
+            for machine, epoch in sorted(epochs.items()):
+                if machine not in busy or not holds(session, machine, self.worker, epoch):
+                    continue
+                for job in jobs.take_over(session, machine, self.worker, keep):
+                    version = job.version
+                    out.append(
+                        JobFinished(
+                            job.id,
+                            machine,
+                            job.kind.value,
+                            version.program.name if version is not None else None,
+                            version.number if version is not None else None,
+                            outcome=job.state.value,
+                            error=job.error,
+                        )
+                    )
+            return out
+
+        for event in await asyncio.to_thread(self._transaction, adopt):
+            log.warning("job %d of %s taken over: %s", event.job_id, event.machine, event.outcome)
+            self.machines.bus.publish(event)
+            if event.outcome == JobState.QUEUED.value:
+                fields = (event.job_id, event.machine, event.job_kind, event.program)
+                self.machines.bus.publish(JobQueued(*fields, event.version, by=self.worker))
 
     # -- events ---------------------------------------------------------------------------
+
+    def _progress(self, job: Claimed, machine: str, progress: dict[str, Any]) -> None:
+        # From the transfer's thread too: a drip-feed's line is kept for the cancel watch,
+        # which records it in the job's row (what a taking-over server reports).
+        if job.kind is JobKind.DRIPFEED:
+            self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
+        self.machines.bus.publish(JobProgress(*_fields(job, machine), **progress))
 
     def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)

@@ -18,9 +18,18 @@ import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
+from starlette.requests import Request
+from starlette.responses import StreamingResponse
+
 from opendnc.server.events import Event, EventBus
 
-__all__ = ["KEEP_ALIVE", "KEEP_ALIVE_COMMENT", "StreamSource", "throttled_stream"]
+__all__ = [
+    "KEEP_ALIVE",
+    "KEEP_ALIVE_COMMENT",
+    "StreamSource",
+    "event_stream_response",
+    "throttled_stream",
+]
 
 KEEP_ALIVE = 15.0
 """Seconds without a message after which a stream sends a comment."""
@@ -81,3 +90,16 @@ async def throttled_stream(
                 quiet_since = now
                 yield KEEP_ALIVE_COMMENT
             flush_at = loop.time() + interval
+
+
+def event_stream_response(
+    request: Request, bus: EventBus, source: StreamSource, *, interval: float
+) -> StreamingResponse:
+    """The response of a route that streams ``source``: until the client goes away, never
+    cached, and not buffered by a proxy in front of the server (nginx honours the header)."""
+    stream = throttled_stream(bus, source, interval=interval, disconnected=request.is_disconnected)
+    return StreamingResponse(
+        stream,
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )

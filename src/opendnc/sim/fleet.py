@@ -11,7 +11,9 @@ to the share is in the control's memory, as on a machine whose share is mounted 
 
 from __future__ import annotations
 
+import hashlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -82,6 +84,8 @@ async def start_fleet(
     baud: int = 115200,
     block_rate: float = 0.0,
     dnc_timeout: float = 10.0,
+    receipts: Path | None = None,
+    latency: float = 0.0,
     dprnt: bool = False,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
@@ -94,6 +98,10 @@ async def start_fleet(
     (0: as fast as it can); a drip-feed that stops for ``dnc_timeout`` seconds raises the
     control's DNC link alarm. With ``dprnt`` each Haas NGC prints its DPRNT lines to a TCP
     port of its own (Setting 263), which :func:`server_config` names as its source.
+
+    ``receipts``: every program a virtual TNC receives completely is one JSON line in this
+    file (machine, path, size, sha256), so a test counts what each control received;
+    ``latency``: seconds each virtual TNC takes to answer a telegram (a busy control).
     """
     if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
@@ -103,7 +111,10 @@ async def start_fleet(
     try:
         for i in range(tnc):
             folder = root / f"tnc-{i + 1}"
-            server = await serve_tnc(profile, folder, host, base_port + i if base_port else 0)
+            port = base_port + i if base_port else 0
+            server = await serve_tnc(profile, folder, host, port, latency=latency)
+            if receipts is not None:
+                server.control.on_received = _receipt(receipts, f"tnc-{i + 1}")
             fleet._tncs.append(server)
             fleet.machines.append(FleetMachine(f"tnc-{i + 1}", "lsv2", host, server.port, folder))
         for j in range(haas):
@@ -136,6 +147,22 @@ async def start_fleet(
         await fleet.close()
         raise
     return fleet
+
+
+def _receipt(path: Path, machine: str) -> Callable[[str, Path], None]:
+    def note(target: str, host: Path) -> None:
+        data = host.read_bytes()
+        line = {
+            "machine": machine,
+            "path": target,
+            "size": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(),
+        }
+        # one short append per line: whole lines, whatever else writes the file
+        with path.open("a", encoding="utf-8") as out:
+            out.write(json.dumps(line) + "\n")
+
+    return note
 
 
 async def _start_serial_haas(

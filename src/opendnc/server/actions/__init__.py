@@ -13,12 +13,21 @@ result, so both give the same answer to the same request.
 
 Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs),
 :mod:`.files` (a control's files), :mod:`.inbox` (receptions), :mod:`.admin` (keys, the audit
-trail), :mod:`.machines` (live state).
+trail), :mod:`.machines` (live state), :mod:`.preview` (a version's dry run and toolpath).
 """
 
 from __future__ import annotations
 
-from opendnc.server.actions import admin, files, inbox, library, machines, policy, queue
+from opendnc.server.actions import (
+    admin,
+    files,
+    inbox,
+    library,
+    machines,
+    policy,
+    preview,
+    queue,
+)
 from opendnc.server.actions.base import Caller, Services, require
 
 __all__ = [
@@ -30,6 +39,7 @@ __all__ = [
     "library",
     "machines",
     "policy",
+    "preview",
     "queue",
     "require",
 ]

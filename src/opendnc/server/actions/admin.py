@@ -13,7 +13,8 @@ from sqlalchemy.orm import Session
 from opendnc.errors import InputError
 from opendnc.server import audit, auth
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import AuditOut, KeyOut, RevokedOut
+from opendnc.server.actions.models import AuditOut, ClusterOut, KeyOut, RevokedOut
+from opendnc.server.leases import view_in
 from opendnc.server.store.models import Role
 
 __all__ = ["AUDIT_COLUMNS", "audit_csv_response", "create_key", "list_audit", "revoke_key"]
@@ -53,6 +54,7 @@ def revoke_key(svc: Services, who: Caller, key_id: int) -> RevokedOut:
     """Revoke a key for good (twice is harmless)."""
     require(who, Role.ADMIN)
     svc.write(lambda s: auth.revoke_key(s, key_id, actor=who.name))
+    svc.keys.forget(key_id)  # at once, not when the cache's seconds are up
     return RevokedOut(id=key_id, revoked=True)
 
 
@@ -98,3 +100,10 @@ def audit_csv_response(rows: Sequence[AuditOut]) -> Response:
         media_type="text/csv",
         headers={"Content-Disposition": 'attachment; filename="audit.csv"'},
     )
+
+
+def cluster_status(svc: Services, who: Caller) -> ClusterOut:
+    """The servers sharing this database, their heartbeats and leases (any server answers
+    the same; a single server on SQLite lists none)."""
+    require(who, Role.VIEWER)
+    return svc.read(lambda session: ClusterOut.of(view_in(session)))

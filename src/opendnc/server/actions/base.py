@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.auth import LoginGuard, Principal
+from opendnc.server.auth import KeyCache, LoginGuard, Principal
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import Forbidden, NotFound
 from opendnc.server.events import EventBus, InboxChanged, ProgramChanged, publish_job_queued
@@ -55,12 +55,14 @@ class Services:
 
     ``sessions`` write (each action is one transaction, committed before it wakes a machine
     or tells the event stream); ``reads`` never take SQLite's write lock; ``guard`` slows
-    down repeated failed logins (per process)."""
+    down repeated failed logins, ``keys`` keeps keys checked a moment ago (both per
+    process)."""
 
     sessions: sessionmaker[Session]
     reads: sessionmaker[Session]
     runner: Runner
     guard: LoginGuard = field(default_factory=LoginGuard)
+    keys: KeyCache = field(default_factory=KeyCache)
     name: ClassVar[str] = "actions"
     needs: ClassVar[tuple[str, ...]] = ("database", "machines")
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
+from typing import TypeVar
 
 from sqlalchemy.orm import Session
 
@@ -12,13 +14,14 @@ from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
     Content,
     DiffOut,
+    ProgramListed,
     ProgramOut,
     TextMatch,
     UploadOut,
     VersionOut,
 )
 from opendnc.server.program_title import HEAD, title_of
-from opendnc.server.store.models import Program, Role
+from opendnc.server.store.models import Role
 
 __all__ = [
     "get_program",
@@ -31,48 +34,51 @@ __all__ = [
     "upload_program",
 ]
 
+T = TypeVar("T")
+
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
 MIN_TEXT = 2  # a search in the text of one character would list most of the library
 
 
-def list_programs(svc: Services, who: Caller, search: str = "", text: str = "") -> list[ProgramOut]:
+def list_programs(
+    svc: Services, who: Caller, search: str = "", text: str = ""
+) -> list[ProgramListed]:
     """Programs whose name or title holds ``search`` (any case), and whose newest version's
     text holds ``text`` (any case; at most :data:`~opendnc.server.library.MAX_TEXT_HITS`),
-    by name, each with its title."""
+    by name: each with its newest and its released version and its title."""
     require(who, Role.VIEWER)
     search, text = search.strip(), text.strip()
-    if len(search) > library.MAX_SEARCH or len(text) > library.MAX_SEARCH:
-        raise InputError(f"a search is at most {library.MAX_SEARCH} characters")
+    if len(search) > MAX_SEARCH or len(text) > MAX_SEARCH:
+        raise InputError(f"a search is at most {MAX_SEARCH} characters")
     if text and len(text) < MIN_TEXT:
         raise InputError(f"a search in the text needs at least {MIN_TEXT} characters")
 
-    def load(session: Session) -> list[ProgramOut]:
-        found: list[tuple[Program, TextMatch | None]]
+    def load(session: Session) -> list[ProgramListed]:
+        matches: dict[str, TextMatch] = {}
+        names = None
         if text:
             hits = library.search_text(session, text)
-            found = [(h.program, TextMatch(line=h.line, text=h.text)) for h in hits]
-        else:
-            found = [(p, None) for p in library.list_programs(session)]
-        newest = [p.versions[-1].sha256 for p, _ in found if p.versions]
-        heads = library.heads(session, newest, HEAD)
+            matches = {h.name: TextMatch(line=h.line, text=h.text) for h in hits}
+            names = list(matches)
+        listed = library.list_programs(session, names=names)
+        heads = library.heads(session, [x.newest.sha256 for x in listed if x.newest], HEAD)
         out = []
-        for program, match in found:
-            title = (
-                title_of(heads.get(program.versions[-1].sha256, b"")) if program.versions else ""
-            )
-            if search and search.lower() not in f"{program.name}\n{title}".lower():
+        for item in listed:
+            title = title_of(heads.get(item.newest.sha256, b"")) if item.newest else ""
+            if search and search.lower() not in f"{item.name}\n{title}".lower():
                 continue
-            out.append(ProgramOut.of(program).model_copy(update={"title": title, "match": match}))
+            row = ProgramListed.of(item)
+            out.append(row.model_copy(update={"title": title, "match": matches.get(item.name)}))
         return out
 
     return svc.read(load)
 
 
-def get_program(svc: Services, who: Caller, name: str) -> ProgramOut:
-    """One program and its versions."""
+def get_program(svc: Services, who: Caller, name: str, limit: int | None = None) -> ProgramOut:
+    """One program and its versions: the newest ``limit`` of them, or all."""
     require(who, Role.VIEWER)
     library.check_program_name(name)
-    return svc.read(lambda s: ProgramOut.of(library.get_program(s, name)))
+    return svc.read(lambda s: ProgramOut.of_history(library.history(s, name, limit)))
 
 
 def program_content(svc: Services, who: Caller, name: str, number: int | None) -> Content:
@@ -123,24 +129,29 @@ def upload_program(
         )
         return UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
 
-    out = svc.write(store)
-    svc.changed("program", name)
-    return out
+    return _change(svc, name, store)
 
 
 def release_version(svc: Services, who: Caller, name: str, number: int) -> VersionOut:
     """Release a version (the one released before becomes superseded)."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: VersionOut.of(library.release(s, name, number, actor=who.name)))
-    svc.changed("program", name)
-    return out
+    return _change(
+        svc, name, lambda s: VersionOut.of(library.release(s, name, number, actor=who.name))
+    )
 
 
 def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOut:
     """Lock a program against new versions and state changes, or unlock it."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    out = svc.write(lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name)))
+    return _change(
+        svc, name, lambda s: ProgramOut.of(library.set_locked(s, name, locked, actor=who.name))
+    )
+
+
+def _change(svc: Services, name: str, change: Callable[[Session], T]) -> T:
+    """Run ``change`` in one write transaction, then tell the pages that ``name`` changed."""
+    out = svc.write(change)
     svc.changed("program", name)
     return out

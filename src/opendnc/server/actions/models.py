@@ -5,38 +5,41 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Annotated
+from typing import Annotated, Self
 
 from fastapi import Path, Query
-from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
-from opendnc.server.machine_files import RemoteFile
+from opendnc.server.leases import ClusterView
+from opendnc.server.library import History, Listed, VersionRow
 from opendnc.server.store.models import (
-    AuditEntry,
     Job,
     JobKind,
     JobState,
     Program,
     ProgramState,
-    ProgramVersion,
-    Received,
     ReceivedState,
 )
 
 __all__ = [
     "MAX_ID",
     "AuditOut",
+    "ClusterOut",
+    "ClusterServerOut",
     "Content",
     "Count",
     "DiffOut",
     "FolderOut",
+    "FromRow",
     "Id",
     "IdQuery",
     "JobOut",
     "JobRequest",
     "KeyOut",
+    "LeaseOut",
     "LineNumber",
     "MachineOut",
+    "ProgramListed",
     "ProgramOut",
     "ReceivedDetail",
     "ReceivedOut",
@@ -62,7 +65,19 @@ Timestamp = Annotated[datetime, PlainSerializer(datetime.isoformat, return_type=
 same text in an API answer, an event and a CSV row, so a client may compare them."""
 
 
-class VersionOut(BaseModel):
+class FromRow(BaseModel):
+    """A model read off a row (or a dataclass) attribute by attribute: its fields are named
+    as the row's are."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    @classmethod
+    def of(cls, row: object) -> Self:
+        """From the row (the relations its fields name loaded with it)."""
+        return cls.model_validate(row)
+
+
+class VersionOut(FromRow):
     """One version of a program."""
 
     program: str
@@ -75,26 +90,56 @@ class VersionOut(BaseModel):
     source: str
     created: Timestamp
 
+    @field_validator("program", mode="before")
     @classmethod
-    def of(cls, v: ProgramVersion) -> VersionOut:
-        """From the row (its program loaded with it)."""
-        return cls(
-            program=v.program.name,
-            number=v.number,
-            sha256=v.sha256,
-            size=v.size,
-            state=v.state,
-            author=v.author,
-            comment=v.comment,
-            source=v.source,
-            created=v.created,
-        )
+    def _program_name(cls, value: object) -> object:
+        # a version row names its program through the relation: the model keeps the name
+        return value.name if isinstance(value, Program) else value
+
+    @classmethod
+    def of_row(cls, program: str, v: VersionRow) -> VersionOut:
+        """From a version read as columns."""
+        return cls(program=program, **v._asdict())
 
 
 class UploadOut(VersionOut):
     """A stored upload; ``created_new`` is false when the newest version had these bytes."""
 
     created_new: bool
+
+
+class ProgramOut(BaseModel):
+    """A program with its versions, oldest first: all of them, or the newest ones when the
+    request set a ``limit`` (``version_count`` says how many there are)."""
+
+    name: str
+    locked: bool
+    created: Timestamp
+    version_count: int
+    versions: list[VersionOut]
+
+    @classmethod
+    def of(cls, p: Program) -> ProgramOut:
+        """From the row (its versions loaded with it)."""
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=len(p.versions),
+            versions=[VersionOut.of(v) for v in p.versions],
+        )
+
+    @classmethod
+    def of_history(cls, h: History) -> ProgramOut:
+        """From the library's history of a program."""
+        p = h.program
+        return cls(
+            name=p.name,
+            locked=p.locked,
+            created=p.created,
+            version_count=h.count,
+            versions=[VersionOut.of_row(p.name, v) for v in h.versions],
+        )
 
 
 class TextMatch(BaseModel):
@@ -105,26 +150,32 @@ class TextMatch(BaseModel):
     text: str
 
 
-class ProgramOut(BaseModel):
-    """A program with its versions, oldest first; in a list also its newest version's title
+class ProgramListed(BaseModel):
+    """A program in the library's list: its newest and its released version, how many
+    versions it has (``GET /api/programs/{name}`` lists them all), its newest version's title
     (the O-line's comment, Klartext's first comment or name) and where a search in the text
     found it."""
 
     name: str
     locked: bool
     created: Timestamp
-    versions: list[VersionOut]
+    version_count: int
+    newest: VersionOut | None
+    released: VersionOut | None
     title: str = ""
     match: TextMatch | None = None
 
     @classmethod
-    def of(cls, p: Program) -> ProgramOut:
-        """From the row (its versions loaded with it)."""
+    def of(cls, listed: Listed) -> ProgramListed:
+        """From the library's list entry."""
+        p = listed.program
         return cls(
             name=p.name,
             locked=p.locked,
             created=p.created,
-            versions=[VersionOut.of(v) for v in p.versions],
+            version_count=listed.count,
+            newest=VersionOut.of(listed.newest) if listed.newest is not None else None,
+            released=VersionOut.of(listed.released) if listed.released is not None else None,
         )
 
 
@@ -189,7 +240,7 @@ class JobOut(BaseModel):
         )
 
 
-class AuditOut(BaseModel):
+class AuditOut(FromRow):
     """One row of the audit trail."""
 
     id: int
@@ -204,25 +255,8 @@ class AuditOut(BaseModel):
     bytes: int | None
     detail: dict[str, JsonValue]
 
-    @classmethod
-    def of(cls, a: AuditEntry) -> AuditOut:
-        """From the row."""
-        return cls(
-            id=a.id,
-            at=a.at,
-            actor=a.actor,
-            action=a.action,
-            machine=a.machine,
-            program=a.program,
-            sha256=a.sha256,
-            job_id=a.job_id,
-            result=a.result,
-            bytes=a.bytes,
-            detail=dict(a.detail),
-        )
 
-
-class ReceivedOut(BaseModel):
+class ReceivedOut(FromRow):
     """A program received from a control (or a failed try)."""
 
     id: int
@@ -234,21 +268,6 @@ class ReceivedOut(BaseModel):
     reason: str
     at: Timestamp
     version_id: int | None
-
-    @classmethod
-    def of(cls, r: Received) -> ReceivedOut:
-        """From the row."""
-        return cls(
-            id=r.id,
-            machine=r.machine,
-            name=r.name,
-            sha256=r.sha256,
-            size=r.size,
-            state=r.state,
-            reason=r.reason,
-            at=r.at,
-            version_id=r.version_id,
-        )
 
 
 class ReceivedDetail(ReceivedOut):
@@ -323,7 +342,7 @@ class MachineOut(BaseModel):
     job: JobProgressOut | None
 
 
-class RemoteFileOut(BaseModel):
+class RemoteFileOut(FromRow):
     """One entry of a folder on a control."""
 
     name: str
@@ -331,11 +350,6 @@ class RemoteFileOut(BaseModel):
     size: int
     modified: Timestamp
     is_dir: bool
-
-    @classmethod
-    def of(cls, f: RemoteFile) -> RemoteFileOut:
-        """From the connector's listing."""
-        return cls(name=f.name, path=f.path, size=f.size, modified=f.modified, is_dir=f.is_dir)
 
 
 class FolderOut(BaseModel):
@@ -370,3 +384,45 @@ class JobRequest(BaseModel):
     path: str | None = Field(default=None, min_length=1, max_length=255)
     machines: list[str] = Field(min_length=1, max_length=1000)
     from_line: LineNumber | None = None
+
+
+class ClusterServerOut(BaseModel):
+    """One server sharing the database (several servers, docs/server.md#several-servers)."""
+
+    name: str
+    host: str
+    pid: int
+    url: str
+    started: datetime
+    heartbeat_age: float = Field(description="seconds since its last heartbeat (database clock)")
+    alive: bool
+    machines: int = Field(description="machines whose live lease it holds")
+
+
+class LeaseOut(BaseModel):
+    """One machine's lease (``@library``: the library watcher and the net share)."""
+
+    machine: str
+    owner: str
+    epoch: int
+    expires_in: float = Field(description="seconds; negative once expired")
+    live: bool
+
+
+class ClusterOut(BaseModel):
+    """The servers of the database and their leases, as ``opendnc cluster status --json``."""
+
+    now: datetime
+    servers: list[ClusterServerOut]
+    leases: list[LeaseOut]
+
+    @classmethod
+    def of(cls, view: ClusterView) -> ClusterOut:
+        """The model of a :class:`~opendnc.server.leases.ClusterView`."""
+        return cls(
+            now=view.now,
+            servers=[
+                ClusterServerOut.model_validate(s, from_attributes=True) for s in view.servers
+            ],
+            leases=[LeaseOut.model_validate(row, from_attributes=True) for row in view.leases],
+        )

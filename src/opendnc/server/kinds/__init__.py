@@ -131,6 +131,19 @@ def parse_machine(raw: object, prefix: str) -> MachineConfig:
         "poll_interval": poll,
         "description": get_key(raw, prefix, "description", str, ""),
         "envelope": _envelope(raw, prefix),
+        "servers": _servers(raw, prefix),
     }
     machine: MachineConfig = spec.parse(own, prefix, common)
     return machine
+
+
+def _servers(raw: dict[str, Any], prefix: str) -> tuple[str, ...]:
+    """``servers = ["dnc-1"]``: the servers of a cluster that may serve the machine (the one
+    host its serial port is on); empty, any of them (docs/server.md#several-servers)."""
+    value = raw.get("servers", [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{prefix}.servers", 'expected a list of server names: ["dnc-1"]')
+    for name in value:
+        if not NAME.fullmatch(name):
+            raise ConfigError(f"{prefix}.servers", f"{name!r} is not a server name")
+    return tuple(dict.fromkeys(value))

@@ -62,10 +62,12 @@ class MachineBase:
     poll_interval: float = 1.0
     description: str = ""
     envelope: Envelope | None = None  # travel and work offsets for program checks (docs/check.md)
+    servers: tuple[str, ...] = ()  # the servers that may serve it (a cluster); empty: any
 
 
 COMMON_KEYS = {
     "name", "kind", "released_only", "poll_interval", "description", "travel", "work_offsets",
+    "servers",
 }  # fmt: skip
 
 

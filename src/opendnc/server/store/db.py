@@ -45,12 +45,15 @@ __all__ = [
 MIGRATIONS = Path(__file__).with_name("migrations")
 READ_ONLY = "opendnc_read_only"  # execution option of the sessions that only read
 
-# Connections kept open, and the most the pool opens at once: one for each worker thread that
-# can hold a session at the same moment (the web requests' 40, AnyIO's default, and the machine
-# tasks' asyncio executor, min(32, CPUs + 4)), so a thread never waits for a connection while
-# the threads that hold the connections wait for something else (docs/server.md#database-sessions).
-POOL_SIZE = 5
-MAX_OVERFLOW = 40 + min(32, (os.cpu_count() or 1) + 4) + 2 - POOL_SIZE
+# The most connections the pool holds: one for each worker thread that can hold a session at
+# the same moment (the web requests' 40, AnyIO's default, and the machine tasks' asyncio
+# executor, min(32, CPUs + 4)), so a thread never waits for a connection while the threads
+# that hold the connections wait for something else (docs/server.md#database-sessions). They
+# are opened as needed and then kept: a pool that kept only a few closed and reopened the rest
+# under load, and opening one (SQLite's pragmas, a PostgreSQL backend) cost more than the
+# query it was opened for. A small overflow covers threads outside those two pools.
+POOL_SIZE = 40 + min(32, (os.cpu_count() or 1) + 4) + 2
+MAX_OVERFLOW = 8
 
 
 def make_engine(url: str) -> Engine:

@@ -31,6 +31,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    func,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -235,7 +236,6 @@ class Program(Base):
     """A program name in the library (``O01234``, ``POCKET.H``) and its versions."""
 
     __tablename__ = "programs"
-
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(255), unique=True)
     locked: Mapped[bool] = mapped_column(Boolean, default=False)
@@ -244,6 +244,11 @@ class Program(Base):
     versions: Mapped[list[ProgramVersion]] = relationship(
         back_populates="program", order_by="ProgramVersion.number", lazy=NO_LAZY_SQL
     )
+
+
+# Names that differ only in case are one file on Windows and SMB shares: the database refuses
+# the second even when two uploads race (docs/server.md#program-names).
+Index("uq_programs_name_folded", func.lower(Program.name), unique=True)
 
 
 class ProgramVersion(Base):
@@ -504,3 +509,35 @@ class MachineLease(Base):
     epoch: Mapped[int] = mapped_column(BigInteger, default=0)
     acquired: Mapped[datetime] = mapped_column(UtcDateTime())
     expires: Mapped[datetime] = mapped_column(UtcDateTime())
+
+
+class MachineSnapshot(Base):
+    """A machine as its serving server last saw it, for the other servers of a cluster.
+
+    The server that holds a machine's lease writes its status here (what ``/api/machines``
+    shows for it) a few times a second; every other server reads the rows it does not serve,
+    so the dashboard, the API, the event streams and MTConnect are the same on every server.
+    ``updated`` is the database's clock: a reader asks for rows newer than the last it saw.
+    """
+
+    __tablename__ = "machine_snapshots"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    server: Mapped[str] = mapped_column(String(64), default="")
+    updated: Mapped[datetime] = mapped_column(UtcDateTime(), index=True)
+    data: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class SparkplugNode(Base):
+    """A Sparkplug B edge node's birth/death sequence number (``bdSeq``), kept across restarts.
+
+    ``bd_seq`` is the number of the node's latest MQTT session: each new session takes the next
+    one (0..255, then 0 again), so a host can tell a late NDEATH of an old session from the
+    current one (docs/server.md#sparkplug-b).
+    """
+
+    __tablename__ = "sparkplug_nodes"
+
+    group_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    node_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    bd_seq: Mapped[int] = mapped_column(Integer, default=0)

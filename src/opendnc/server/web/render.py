@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta, tzinfo
 from functools import cache
 from pathlib import Path
 from typing import Any
 
-from jinja2 import Environment, FileSystemLoader, select_autoescape
+from jinja2 import Environment, FileSystemLoader, pass_context, select_autoescape
+from jinja2.runtime import Context
 from markupsafe import Markup, escape
 from pygments import highlight
 from pygments.formatters import HtmlFormatter
@@ -25,6 +26,7 @@ from opendnc.server.state import State
 __all__ = [
     "Card",
     "DiffRow",
+    "LastJob",
     "card",
     "card_oob",
     "environment",
@@ -55,7 +57,10 @@ def environment() -> Environment:
         lstrip_blocks=True,
     )
     env.filters["size"] = human_size
-    env.filters["when"] = when
+    env.filters["when"] = _when_filter
+    env.filters["stamp"] = _stamp_filter
+    env.filters["path"] = breakable_path
+    env.filters["clock"] = _clock_filter
     env.globals["KIND_LABEL"] = KIND_LABEL
     env.globals["percent"] = percent  # one rounding for the card and the queue table
     return env
@@ -80,15 +85,108 @@ def human_size(n: int | None) -> str:
     return f"{n} B"  # pragma: no cover
 
 
-def when(value: datetime | str | None) -> str:
-    """A timestamp as ``YYYY-MM-DD HH:MM:SS`` UTC (what a shop's records use)."""
+def _aware(value: datetime | str | None) -> datetime | None:
     if value is None or value == "":
-        return ""
+        return None
     if isinstance(value, str):
         value = datetime.fromisoformat(value)
-    if value.tzinfo is not None:
-        value = value.astimezone(UTC)
-    return value.strftime("%Y-%m-%d %H:%M:%S")
+    return value if value.tzinfo is not None else value.replace(tzinfo=UTC)  # stored as UTC
+
+
+def when(value: datetime | str | None, zone: tzinfo = UTC) -> str:
+    """A timestamp on the shop's clock with its zone: ``2026-03-02 14:02:31 CET``."""
+    at = _aware(value)
+    if at is None:
+        return ""
+    return at.astimezone(zone).strftime("%Y-%m-%d %H:%M:%S %Z")
+
+
+def iso(value: datetime | str | None, zone: tzinfo = UTC) -> str:
+    """A timestamp as ISO 8601 with the shop's offset: ``2026-03-02T14:02:31+01:00``."""
+    at = _aware(value)
+    return at.astimezone(zone).isoformat(timespec="seconds") if at is not None else ""
+
+
+def clock(value: datetime | str | None, zone: tzinfo = UTC, now: datetime | None = None) -> str:
+    """A time as people on the floor read it: ``14:02 CET`` today, with the date otherwise."""
+    at = _aware(value)
+    if at is None:
+        return ""
+    local = at.astimezone(zone)
+    today = (now or datetime.now(UTC)).astimezone(zone).date()
+    if local.date() == today:
+        return local.strftime("%H:%M %Z")
+    return local.strftime("%Y-%m-%d %H:%M %Z")
+
+
+def stamp(value: datetime | str | None, zone: tzinfo = UTC, *, with_zone: bool = True) -> Markup:
+    """A ``<time>`` element: the local time (with its zone unless the page names it once),
+    ISO with the offset in its title and ``datetime``."""
+    at = _aware(value)
+    if at is None:
+        return Markup("")
+    full = iso(at, zone)
+    text = when(at, zone) if with_zone else at.astimezone(zone).strftime("%Y-%m-%d %H:%M:%S")
+    day, _, hour = text.partition(" ")
+    # two unbreakable halves: a narrow column wraps between the date and the time, not inside
+    return Markup(
+        '<time class="stamp" datetime="{0}" title="{0}"><span>{1}</span> <span>{2}</span></time>'
+    ).format(full, day, hour)
+
+
+def breakable_path(value: str) -> Markup:
+    """A control's path that may wrap after each folder (``TNC:/nc_prog/<wbr>POCKET.H``),
+    never inside a name."""
+    text = str(escape(value))
+    return Markup(text.replace("/", "/<wbr>").replace("\\", "\\<wbr>"))
+
+
+def _zone(ctx: Context) -> tzinfo:
+    zone = ctx.get("zone")
+    return zone if isinstance(zone, tzinfo) else UTC
+
+
+@pass_context
+def _when_filter(ctx: Context, value: datetime | str | None) -> str:
+    return when(value, _zone(ctx))
+
+
+@pass_context
+def _clock_filter(ctx: Context, value: datetime | str | None) -> str:
+    return clock(value, _zone(ctx))
+
+
+@pass_context
+def _stamp_filter(ctx: Context, value: datetime | str | None, with_zone: bool = True) -> Markup:
+    return stamp(value, _zone(ctx), with_zone=with_zone)
+
+
+@dataclass(frozen=True)
+class Tick:
+    """A time on a strip's axis: ``left`` percent from the strip's start."""
+
+    left: float
+    label: str
+    iso: str
+
+
+def axis_ticks(start: datetime, end: datetime, zone: tzinfo = UTC, *, hours: int = 1) -> list[Tick]:
+    """The axis of a strip from ``start`` to ``end``: both ends (the last with the zone) and
+    each full ``hours`` on the shop's clock between them, those too near an end left out."""
+    span = (end - start).total_seconds()
+    local_start = start.astimezone(zone)
+    ticks = [Tick(0.0, local_start.strftime("%H:%M"), iso(start, zone))]
+    # the first full hour after the start, in the shop's zone (a DST change shifts the hours)
+    hour = local_start.replace(minute=0, second=0, microsecond=0)
+    step = timedelta(hours=hours)
+    at = hour.astimezone(UTC) + step
+    while at < end:
+        left = (at - start).total_seconds() / span * 100
+        if 6 < left < 84:  # clear of the end labels (the last one carries the zone)
+            ticks.append(Tick(round(left, 2), at.astimezone(zone).strftime("%H:%M"), iso(at, zone)))
+        at += step
+    ticks.append(Tick(100.0, end.astimezone(zone).strftime("%H:%M %Z"), iso(end, zone)))
+    return ticks
 
 
 # -- G-code -------------------------------------------------------------------------------
@@ -165,8 +263,18 @@ def side_by_side(old: str, new: str, *, context: int = 3) -> list[DiffRow]:
 
 
 @dataclass(frozen=True)
+class LastJob:
+    """A machine's most recently finished job, as its card tells it."""
+
+    label: str  # "send O1000.nc v2"
+    state: str  # done, failed, cancelled, interrupted
+    finished: datetime | None
+    error: str = ""
+
+
+@dataclass(frozen=True)
 class Card:
-    """What a machine's card shows."""
+    """What a machine's card shows (times already on the shop's clock, with their zone)."""
 
     name: str
     kind: str
@@ -188,7 +296,22 @@ class Card:
     last_error_at: str
     alarm: str
     dprnt: str = ""  # the last line the program printed, whole
-    dprnt_at: str = ""  # when the server captured it (UTC)
+    dprnt_at: str = ""  # when the server captured it (the shop's clock)
+    # The last reading, to the minute: a card changes once a minute, not at every poll.
+    updated: str = ""  # "14:02 CET"
+    updated_iso: str = ""  # "2026-03-02T14:02:00+01:00"
+    since: str = ""  # when the machine entered its state
+    since_iso: str = ""
+    rate: str = ""  # of the running job: "12.3 kB/s"
+    left: str = ""  # of the running job: "about 2 min left"
+    feed_line: int | None = None  # a drip-feed's line reached
+    feed_lines: int | None = None  # ... of its lines
+    parts: int | None = None  # the control's part counter (a Haas's MDC)
+    tool: int | None = None  # the tool in the spindle
+    overrides: str = ""  # "feed 100 %, spindle 90 %"
+    last_job: LastJob | None = None
+    last_job_at: str = ""  # when it ended, on the shop's clock
+    last_job_iso: str = ""
 
     @property
     def dprnt_shown(self) -> str:
@@ -203,10 +326,54 @@ def _words(value: str) -> str:
     return value.replace("_", " ").lower()
 
 
-def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Card:
+def duration(seconds: float) -> str:
+    """``75`` → ``1 min 15 s``; ``7300`` → ``2 h 1 min`` (two units at most)."""
+    s = max(0, round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s" if s % 60 and s < 600 else f"{s // 60} min"
+    return f"{s // 3600} h {s % 3600 // 60} min"
+
+
+def job_pace(
+    done: int, total: int | None, started: datetime | None, now: datetime
+) -> tuple[str, str]:
+    """A running job's rate and time left (``"12.3 kB/s"``, ``"about 2 min left"``), from
+    the bytes done since it started; empty while too little is known to say."""
+    if started is None or done <= 0:
+        return "", ""
+    elapsed = (now - started).total_seconds()
+    if elapsed < 1:
+        return "", ""
+    rate = done / elapsed
+    left = ""
+    if total and total > done:
+        left = f"about {duration((total - done) / rate)} left"
+    return f"{human_size(round(rate))}/s", left
+
+
+def _overrides(values: dict[str, float] | None) -> str:
+    if not values:
+        return ""
+    # a no-break space: "100 %" never splits at a line end
+    return ", ".join(f"{k} {round(v)}\u00a0%" for k, v in values.items())
+
+
+def card(
+    machine: dict[str, Any],
+    *,
+    queued: int = 0,
+    job_label: str = "",
+    last_job: LastJob | None = None,
+    zone: tzinfo = UTC,
+    now: datetime | None = None,
+) -> Card:
     """The card of one machine from its live JSON (``MachineState.as_json()``), whose
     ``state`` is the classifier's: a job under way is not the machine running (a load into
-    memory runs nothing), and a control that tells nothing is unknown, not ready."""
+    memory runs nothing), and a control that tells nothing is unknown, not ready. Times are
+    shown on ``zone``'s clock."""
+    now = now or datetime.now(UTC)
     status = machine.get("status") or {}
     job = machine.get("job")
     online = bool(machine.get("online"))
@@ -216,6 +383,12 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         execution = ""  # the control does not say: the state (unknown) tells it already
     alarm = "; ".join(errors)
     done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
+    rate, left = job_pace(done, total, _aware(job.get("started")), now) if job else ("", "")
+    at = _aware(status.get("at"))
+    minute = at.replace(second=0, microsecond=0) if at is not None else None
+    since = _aware(machine.get("state_since"))
+    live = online and status.get("available", False)
+    finished = last_job.finished if last_job is not None else None
     return Card(
         name=machine["name"],
         kind=machine["kind"],
@@ -234,12 +407,27 @@ def card(machine: dict[str, Any], *, queued: int = 0, job_label: str = "") -> Ca
         total=total,
         queued=queued,
         last_error=machine.get("last_error", ""),
-        last_error_at=when(machine.get("last_error_at")),
+        last_error_at=when(machine.get("last_error_at"), zone),
         alarm=alarm,
         # A printed line is a fact of the past with its time: shown whether or not the
         # machine answers now.
         dprnt=str(status.get("dprnt") or ""),
-        dprnt_at=when(status.get("dprnt_at")),
+        dprnt_at=when(status.get("dprnt_at"), zone),
+        updated=clock(minute, zone, now),
+        updated_iso=iso(minute, zone),
+        since=clock(since, zone, now),
+        since_iso=iso(since, zone),
+        rate=rate,
+        left=left,
+        feed_line=job.get("line") if job else None,
+        feed_lines=job.get("lines") if job else None,
+        # what the control reports, where it does (None: it does not say)
+        parts=status.get("part_count") if live else None,
+        tool=status.get("tool") if live and status.get("tool") else None,
+        overrides=_overrides(status.get("overrides")) if live else "",
+        last_job=last_job,
+        last_job_at=clock(finished, zone, now),
+        last_job_iso=iso(finished, zone),
     )
 
 

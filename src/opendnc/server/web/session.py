@@ -27,6 +27,7 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 from opendnc.server import audit, auth
 from opendnc.server.auth import SESSION_LABEL
 from opendnc.server.errors import Forbidden, Unauthorized
+from opendnc.server.key_use import KeyUse
 from opendnc.server.store.models import ApiKey, utcnow
 
 __all__ = [
@@ -97,8 +98,10 @@ def log_in(
     return who
 
 
-def log_out(sessions: sessionmaker[Session], request: Request, response: Response) -> None:
-    """Revoke the session's key and clear the cookie."""
+def log_out(
+    sessions: sessionmaker[Session], keys: auth.KeyCache, request: Request, response: Response
+) -> None:
+    """Revoke the session's key (forgetting it in ``keys``) and clear the cookie."""
     key = request.cookies.get(COOKIE)
     response.delete_cookie(COOKIE, path="/")
     if not key:
@@ -109,25 +112,33 @@ def log_out(sessions: sessionmaker[Session], request: Request, response: Respons
             .where(ApiKey.key_hash == auth.key_hash(key))
             .options(joinedload(ApiKey.user))
         )
-        if row is not None and row.label == SESSION_LABEL:
-            auth.revoke_key(session, row.id, actor=row.user.name)
+        if row is None or row.label != SESSION_LABEL:
+            return
+        auth.revoke_key(session, row.id, actor=row.user.name)
+        key_id = row.id
+    keys.forget(key_id)
 
 
 def principal(
-    reads: sessionmaker[Session], sessions: sessionmaker[Session], request: Request
+    reads: sessionmaker[Session],
+    sessions: sessionmaker[Session],
+    uses: KeyUse,
+    keys: auth.KeyCache,
+    request: Request,
 ) -> tuple[auth.Principal, str]:
     """Who the session cookie stands for, and its key; :class:`Unauthorized` if none.
 
-    Reads only, except for ``last_used`` once a minute and the revocation of an expired
-    session."""
+    Reads only (the use is noted in ``uses``; a key checked a moment ago is taken from
+    ``keys``), except for the revocation of an expired session."""
     key = request.cookies.get(COOKIE)
     if not key:
         raise Unauthorized("log in first")
-    check = auth.authenticate(reads, sessions, key, web=True)
+    check = auth.authenticate(reads, key, uses, keys, web=True)
     if utcnow() - check.created > timedelta(hours=SESSION_HOURS):
         with sessions.begin() as session:
             assert check.who.key_id is not None
             auth.revoke_key(session, check.who.key_id, actor="server")
+        keys.forget(check.who.key_id)
         raise Unauthorized("the session has expired; log in again")
     return check.who, key
 

@@ -30,7 +30,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.events import EventBus, MachineStatusChanged, Subscription
+from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged, Subscription
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.state import State, classify, from_stored
 from opendnc.server.store.models import StatusSample, utcnow
@@ -85,6 +85,8 @@ class Segment:
     width: float
     state: str  # a State's value: the strip's colour class
     label: str
+    start: datetime | None = None  # the stretch's bounds within the strip (its title says them)
+    end: datetime | None = None
 
 
 # (state, mode, execution, program, part count, alarm text): a change of any is a sample
@@ -144,6 +146,15 @@ class Timeline:
             else:
                 self.pending.append((name, sample))
             return True
+
+    def forget(self, name: str) -> None:
+        """This server no longer serves ``name`` (a cluster's lease lost): no record from
+        now on, until the machine's new server notes its state; this one's stop marks
+        nothing more for it."""
+        if name in self._last:
+            self._add(name, (State.NO_RECORD, "", "", "", None, ""), None)
+        with self._lock:
+            self._last.pop(name, None)
 
     def stopped(self, at: datetime | None = None) -> None:
         """The server stops: from now on, no record for any machine noted so far."""
@@ -276,7 +287,10 @@ class Timeline:
             # A get with its own deadline, not wait_for around it: a cancel must end this
             # loop whatever the get is doing (docs/server.md#events-and-states).
             event = await sub.get(FLUSH_SECONDS)
-            if isinstance(event, MachineStatusChanged):
+            if isinstance(event, LeaseChanged) and not event.held:
+                self.forget(event.machine)
+            elif isinstance(event, MachineStatusChanged) and event.served:
+                # (a machine another server serves is recorded by that server)
                 self.note(event.machine, event.status, online=event.online)
             now = time.monotonic()
             if self.sessions is not None and self.pending and now - flushed >= FLUSH_SECONDS:
@@ -311,7 +325,14 @@ class Timeline:
             begin = max(sample.at, start)
             x = (begin - start).total_seconds() / span * width
             w = (until - begin).total_seconds() / span * width
-            segment = Segment(round(x, 2), round(max(w, 0.5), 2), sample.state.value, sample.label)
+            segment = Segment(
+                round(x, 2),
+                round(max(w, 0.5), 2),
+                sample.state.value,
+                sample.label,
+                begin,
+                until,
+            )
             out.append(segment)
         return out
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Annotated, Any, TypeVar
 from urllib.parse import quote
 
@@ -26,7 +27,7 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import actions, auth, deps, dprnt_api, jobs
-from opendnc.server.actions.models import MAX_ID, JobOut, JobRequest
+from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
 from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
@@ -54,8 +55,8 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.streams import throttled_stream
-from opendnc.server.web import render
+from opendnc.server.streams import event_stream_response
+from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
 
@@ -67,10 +68,8 @@ router = APIRouter(include_in_schema=False)
 CARD_INTERVAL = 0.5
 FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
 ROLES = [r.name.lower() for r in Role]
-# A page shows this much of a program (a drip-fed mould program can be tens of MB); the rest
-# is a download away.
-SHOWN_CHARS = 200_000
 TIMELINE_HOURS = 4
+WALL_SECONDS = 15  # each page of the wall display shows this long
 # The DPRNT console keeps this many of a machine's newest lines (the CSV has more).
 CONSOLE_LINES = 200
 
@@ -110,7 +109,10 @@ def _svc(request: Request) -> actions.Services:
 
 def _page(request: Request) -> Page:
     try:
-        who, key = web_session.principal(_svc(request).reads, _sessions(request), request)
+        svc = _svc(request)
+        who, key = web_session.principal(
+            svc.reads, svc.sessions, deps.key_use(request), svc.keys, request
+        )
     except Unauthorized:
         target = request.url.path + (f"?{request.url.query}" if request.url.query else "")
         raise LoginNeeded(target) from None
@@ -135,6 +137,10 @@ ReceivedId = Annotated[int, Path(ge=1, le=MAX_ID)]
 VersionPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 VersionNumber = Annotated[int, Query(ge=1, le=MAX_ID)]
 Short = Annotated[str, Query(max_length=64)]
+# Form fields: a program name, a path on a control, a program line or version
+ProgramField = Annotated[str, Form(max_length=100)]
+ControlPath = Annotated[str, Form(max_length=255)]
+NumberField = Annotated[int | None, Form(ge=1, le=MAX_ID)]
 
 
 def _read(request: Request, work: Callable[[Session], T]) -> T:
@@ -145,7 +151,15 @@ def _read(request: Request, work: Callable[[Session], T]) -> T:
         return work(session)
 
 
+def _zone(request: Request) -> tzinfo:
+    # the shop's clock ([server] timezone): every time a person reads is on it
+    return _supervisor(request).config.calendar.zone
+
+
 def _html(template: str, page: Page | None, request: Request, **context: Any) -> HTMLResponse:
+    calendar = _supervisor(request).config.calendar
+    context.setdefault("zone", calendar.zone)
+    context.setdefault("zone_name", calendar.zone_name)
     return HTMLResponse(
         render.render(template, page=page, path=request.url.path, roles=ROLES, **context)
     )
@@ -201,7 +215,7 @@ def login(
 def logout(request: Request, page: Writing) -> RedirectResponse:
     """End the session."""
     response = RedirectResponse("/login", status_code=303)
-    web_session.log_out(_sessions(request), request, response)
+    web_session.log_out(_sessions(request), _svc(request).keys, request, response)
     return response
 
 
@@ -213,19 +227,38 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
     states = supervisor.machines
     wanted = names if names is not None else list(states)
 
-    def load(session: Session) -> tuple[dict[str, int], dict[int, str]]:
+    def load(session: Session) -> tuple[dict[str, int], dict[int, str], dict[str, render.LastJob]]:
         queued = jobs.queue_lengths(session)
         running = [states[name].job_id for name in wanted]
-        return queued, _job_labels(session, [i for i in running if i is not None])
+        labels = _job_labels(session, [i for i in running if i is not None])
+        return queued, labels, _last_jobs(session, wanted)
 
-    queued, labels = _read(request, load)
+    queued, labels, last = _read(request, load)
+    zone = _zone(request)
     out = []
     for name in wanted:
         data = states[name].as_json()
         job_id = states[name].job_id
         label = labels.get(job_id, "") if job_id is not None else ""
-        out.append(render.card(data, queued=queued.get(name, 0), job_label=label))
+        out.append(
+            render.card(
+                data,
+                queued=queued.get(name, 0),
+                job_label=label,
+                last_job=last.get(name),
+                zone=zone,
+            )
+        )
     return out
+
+
+def _last_jobs(session: Session, names: list[str]) -> dict[str, render.LastJob]:
+    # each machine's last finished job, as its card tells it (one query for all)
+    found = jobs.last_finished(session, names)
+    return {
+        name: render.LastJob(_label(job), job.state.value, job.finished, job.error)
+        for name, job in found.items()
+    }
 
 
 def _label(job: Job) -> str:
@@ -252,9 +285,27 @@ def _job_labels(session: Session, ids: list[int]) -> dict[int, str]:
 @router.get("/")
 def overview(request: Request, page: Viewing) -> HTMLResponse:
     """A card per machine, kept live by server-sent events."""
+    return _html("overview.html", page, request, **_floor(request))
+
+
+def _floor(request: Request) -> dict[str, Any]:
+    # what the overview and the wall display show: the cards, how many are in each state,
+    # the machines in alarm, and the zone the times are on
     cards = _cards(request)
     counts = {state: sum(1 for c in cards if c.state == state) for state in render.STATES}
-    return _html("overview.html", page, request, cards=cards, counts=counts)
+    in_alarm = [c for c in cards if c.state == "alarm"]
+    return {"cards": cards, "counts": counts, "in_alarm": in_alarm}
+
+
+@router.get("/wall")
+def wall(
+    request: Request,
+    page: Viewing,
+    every: Annotated[int, Query(ge=3, le=600)] = WALL_SECONDS,
+) -> HTMLResponse:
+    """The floor for a screen on the wall: large type, no controls, the pages of a shop
+    larger than the screen shown in turn (``every`` seconds each)."""
+    return _html("wall.html", page, request, every=every, **_floor(request))
 
 
 @router.get("/events/cards")
@@ -274,17 +325,8 @@ async def card_events(
     shown = None
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
-    stream = throttled_stream(
-        _supervisor(request).bus,
-        _Cards(request, machine, shown),
-        interval=CARD_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream,
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
-    )
+    source = _Cards(request, machine, shown)
+    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
 def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
@@ -313,9 +355,15 @@ class _Cards:
         self.only = only
         self.template = render.environment().get_template("_card.html")
         self.labels: dict[int, str] = {}
+        # each machine's last finished job: read again only when one of its jobs ends
+        self.last: dict[str, render.LastJob] = {}
+        self.last_stale: set[str] = set(supervisor.machines) if only is None else {only}
+        self.zone = _zone(request)
         self.watched = set(supervisor.machines) if only is None else {only}
         self.sent: dict[str, str] = {}  # the HTML each card has in the browser now
-        self.console = _Console(only, dprnt_shown) if only and dprnt_shown is not None else None
+        self.console = (
+            _Console(only, dprnt_shown, self.zone) if only and dprnt_shown is not None else None
+        )
         capture = deps.dprnt(request)
         # The capture's word as the stream starts (it may have changed since the page was drawn).
         self.capture_said: str | None = (
@@ -343,6 +391,7 @@ class _Cards:
             case JobEvent(machine=machine) if machine in self.watched:
                 self.pending.add(machine)  # queued, started or ended: the queue changed
                 self.job_changes.add(machine)
+                self.last_stale.add(machine)
             case DprntLinePrinted(machine=machine) if machine in self.watched:
                 self.new_lines = self.console is not None
             case DprntStatus(machine=machine, message=message) if machine in self.watched:
@@ -355,10 +404,11 @@ class _Cards:
         if self.pending:
             names = sorted(self.pending)
             self.pending = set()
-            cards = await run_in_threadpool(_cards_cached, self.request, names, self.labels)
+            cards = await run_in_threadpool(_cards_cached, self.request, names, self)
             changed = []
             for c in cards:
-                html = self.template.render(c=c, whole=self.only is not None)  # a machine page's
+                # a machine page's card shows the whole DPRNT line
+                html = self.template.render(c=c, whole=self.only is not None, zone=self.zone)
                 if self.sent.get(c.name) != html:  # a status poll that changed nothing
                     self.sent[c.name] = html
                     changed.append(render.card_oob(c.name, html))
@@ -393,9 +443,10 @@ class _Console:
     holds more than that and never shows a line twice, whenever the stream (re)connects.
     """
 
-    def __init__(self, machine: str, shown: list[int]) -> None:
+    def __init__(self, machine: str, shown: list[int], zone: tzinfo = UTC) -> None:
         self.machine = machine
         self.shown: deque[int] = deque(sorted(shown))
+        self.zone = zone
 
     def update(self, session: Session) -> str:
         last = self.shown[-1] if self.shown else 0
@@ -410,16 +461,25 @@ class _Console:
         while len(self.shown) > CONSOLE_LINES:
             gone.append(self.shown.popleft())
         first = self.shown[0]
-        return render.render("_dprnt.html", lines=[x for x in lines if x["id"] >= first], gone=gone)
+        shown = [x for x in lines if x["id"] >= first]
+        return render.render("_dprnt.html", lines=shown, gone=gone, zone=self.zone)
 
 
-def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) -> list[render.Card]:
-    # The labels of running jobs do not change: look each up once per stream.
+def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[render.Card]:
+    # The labels of running jobs do not change: look each up once per stream; a machine's
+    # last finished job only when one of its jobs ended.
     states = _supervisor(request).machines
+    labels, last = stream.labels, stream.last
 
     def load(session: Session) -> dict[str, int]:
         new = [states[n].job_id for n in names if states[n].job_id not in labels]
         labels.update(_job_labels(session, [i for i in new if i is not None]))
+        stale = [n for n in names if n in stream.last_stale]
+        if stale:
+            for n in stale:
+                last.pop(n, None)
+            last.update(_last_jobs(session, stale))
+            stream.last_stale.difference_update(stale)
         return jobs.queue_lengths(session)
 
     queued = _read(request, load)
@@ -427,7 +487,15 @@ def _cards_cached(request: Request, names: list[str], labels: dict[int, str]) ->
     for name in names:
         job_id = states[name].job_id
         label = labels.get(job_id, "") if job_id is not None else ""
-        out.append(render.card(states[name].as_json(), queued=queued.get(name, 0), job_label=label))
+        out.append(
+            render.card(
+                states[name].as_json(),
+                queued=queued.get(name, 0),
+                job_label=label,
+                last_job=last.get(name),
+                zone=stream.zone,
+            )
+        )
     return out
 
 
@@ -445,17 +513,8 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic!r}: inbox or library")
-    stream = throttled_stream(
-        _supervisor(request).bus,
-        _ListChanges(topic),
-        interval=CARD_INTERVAL,
-        disconnected=request.is_disconnected,
-    )
-    return StreamingResponse(
-        stream,
-        media_type="text/event-stream",
-        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
-    )
+    source = _ListChanges(topic)
+    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
 class _ListChanges:
@@ -501,7 +560,11 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
     timeline.note(name, state.status, online=state.online)
-    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS)
+    now = datetime.now(UTC)
+    context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS, now=now)
+    context["timeline_ticks"] = render.axis_ticks(
+        now - timedelta(hours=TIMELINE_HOURS), now, _zone(request)
+    )
     context["timeline_hours"] = TIMELINE_HOURS
     context["timeline_days"] = timeline.retention.total_seconds() / 86400
     context["console_lines"] = CONSOLE_LINES
@@ -517,7 +580,10 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
             "span": f"{lines[0]['id']}-{lines[-1]['id']}" if lines else "0-0",
             "status": capture.status.get(name, "") if capture is not None else "",
         }
-    context["card"] = render.card(live, queued=len(context["queue"]))
+    last = _read(request, lambda s: _last_jobs(s, [name]))
+    context["card"] = render.card(
+        live, queued=len(context["queue"]), last_job=last.get(name), zone=_zone(request)
+    )
     return context
 
 
@@ -559,18 +625,20 @@ def machine_dprnt_csv(request: Request, name: str, page: Viewing) -> Response:
 @router.get("/machines/{name}/jobs")
 def machine_jobs(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The queue and history fragment (refreshed by the page while jobs run)."""
-    return _html("_jobs.html", page, request, **_machine_context(request, page, name))
+    return _jobs_fragment(request, page, name)
 
 
-def _after_job_action(request: Request, page: Page, machine: str) -> HTMLResponse:
+def _jobs_fragment(request: Request, page: Page, machine: str) -> HTMLResponse:
+    """The machine's queue and history: what the page shows again after a job action."""
     return _html("_jobs.html", page, request, **_machine_context(request, page, machine))
 
 
 @router.post("/jobs/{job_id}/cancel")
 def cancel_job(request: Request, job_id: JobId, page: Writing) -> HTMLResponse:
     """Cancel a queued job, or ask a running one to stop (at its next safe point)."""
-    job = actions.queue.cancel_job(_svc(request), page.who, job_id)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.cancel_job(_svc(request), page.who, job_id).machine
+    )
 
 
 @router.post("/jobs/{job_id}/move")
@@ -578,21 +646,20 @@ def move_job(
     request: Request, job_id: JobId, page: Writing, index: Annotated[int, Form(ge=0, le=MAX_ID)]
 ) -> HTMLResponse:
     """Put a queued job at ``index`` in its queue."""
-    job = actions.queue.move_job(_svc(request), page.who, job_id, index)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.move_job(_svc(request), page.who, job_id, index).machine
+    )
 
 
 @router.post("/jobs/{job_id}/retry")
 def retry_job(
-    request: Request,
-    job_id: JobId,
-    page: Writing,
-    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    request: Request, job_id: JobId, page: Writing, from_line: NumberField = None
 ) -> HTMLResponse:
     """Queue a failed, interrupted or cancelled job again (a drip-feed from a line, which
     programmers restart: it runs the machine)."""
-    job = actions.queue.retry_job(_svc(request), page.who, job_id, from_line)
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.retry_job(_svc(request), page.who, job_id, from_line).machine
+    )
 
 
 @router.post("/machines/{name}/dripfeed")
@@ -600,16 +667,17 @@ def start_dripfeed(
     request: Request,
     name: str,
     page: Writing,
-    program: Annotated[str, Form(max_length=100)],
-    from_line: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    program: ProgramField,
+    from_line: NumberField = None,
 ) -> HTMLResponse:
     """Drip-feed the released version of ``program`` to the machine (programmers; the page
     asks first, since the machine runs it as it arrives)."""
     order = JobRequest(
         kind=JobKind.DRIPFEED, program=program.strip(), machines=[name], from_line=from_line
     )
-    job = actions.queue.create_jobs(_svc(request), page.who, order)[0]
-    return _after_job_action(request, page, job.machine)
+    return _jobs_fragment(
+        request, page, actions.queue.create_jobs(_svc(request), page.who, order)[0].machine
+    )
 
 
 # -- file browser (controls with one) -------------------------------------------------------
@@ -628,7 +696,11 @@ async def machine_files_page(
 @router.get("/machines/{name}/files/download")
 async def machine_file_download(request: Request, name: str, path: str, page: Viewing) -> Response:
     """One file of the control, as a download."""
-    content = await actions.files.read_file(_svc(request), page.who, name, path)
+    return _download(await actions.files.read_file(_svc(request), page.who, name, path))
+
+
+def _download(content: Content) -> Response:
+    """``content`` as a file to save under its own name, with its SHA-256 beside it."""
     return Response(
         content.data,
         media_type="application/octet-stream",
@@ -658,7 +730,7 @@ async def machine_file_upload(
     name: str,
     page: Writing,
     file: UploadFile,
-    folder: Annotated[str, Form(max_length=255)],
+    folder: ControlPath,
 ) -> HTMLResponse:
     """Put a file from the person's computer on the control: a library draft first, then a
     ``put_file`` job under the machine's policy (programmers)."""
@@ -672,19 +744,29 @@ async def machine_file_upload(
 
 @router.post("/machines/{name}/files/delete")
 async def machine_file_delete(
-    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+    request: Request, name: str, page: Writing, path: ControlPath
 ) -> HTMLResponse:
     """Delete a file on the control: a ``delete`` job (programmers; the page asks first)."""
-    job = await run_in_threadpool(actions.files.delete_file, _svc(request), page.who, name, path)
-    return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
+    return await _file_job(request, page, actions.files.delete_file, name, path)
 
 
 @router.post("/machines/{name}/files/receive")
 async def machine_file_receive(
-    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+    request: Request, name: str, page: Writing, path: ControlPath
 ) -> HTMLResponse:
     """Bring a file of the control to the inbox under its own name: a ``receive`` job."""
-    job = await run_in_threadpool(actions.files.receive_file, _svc(request), page.who, name, path)
+    return await _file_job(request, page, actions.files.receive_file, name, path)
+
+
+async def _file_job(
+    request: Request,
+    page: Page,
+    action: Callable[[actions.Services, auth.Principal, str, str], JobOut],
+    machine: str,
+    path: str,
+) -> HTMLResponse:
+    """Queue ``action``'s job on the file ``path`` of ``machine``, then show its folder."""
+    job = await run_in_threadpool(action, _svc(request), page.who, machine, path)
     return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
 
 
@@ -730,8 +812,10 @@ def program_page(
     v: VersionNumber | None = None,
     a: VersionNumber | None = None,
     b: VersionNumber | None = None,
+    line: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
-    """One program: versions, the text of one of them highlighted, or a diff of two."""
+    """One program: versions, the text of one of them highlighted (from ``line``), its
+    preview, or a diff of two."""
     svc = _svc(request)
     program = actions.library.get_program(svc, page.who, name)
     shown = actions.library.program_content(svc, page.who, name, v)
@@ -743,8 +827,7 @@ def program_page(
         "program": program.model_dump(mode="json"),
         "shown": version.model_dump(mode="json"),
         "released": released[-1] if released else None,
-        "lines": render.highlight_lines(text[:SHOWN_CHARS]),
-        "clipped": len(text) > SHOWN_CHARS,
+        "listing": listing.window(text, name=name, size=len(shown.data), line=line),
         "diff": None,
     }
     if a is not None and b is not None:
@@ -762,15 +845,7 @@ def program_page(
 @router.get("/library/{name}/versions/{number}/download")
 def download_version(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
     """The bytes of one version, as a file."""
-    content = actions.library.program_content(_svc(request), page.who, name, number)
-    return Response(
-        content.data,
-        media_type="application/octet-stream",
-        headers={
-            "Content-Disposition": f'attachment; filename="{name}"',
-            "X-Content-SHA256": content.sha256,
-        },
-    )
+    return _download(actions.library.program_content(_svc(request), page.who, name, number))
 
 
 @router.post("/library/{name}/versions/{number}/release")
@@ -795,7 +870,7 @@ def send_program(
     name: str,
     page: Writing,
     machines: Annotated[list[str] | None, Form()] = None,
-    version: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+    version: NumberField = None,
 ) -> HTMLResponse:
     """Queue the program for the picked machines (operators)."""
     if not machines:
@@ -812,7 +887,7 @@ async def upload_program(
     request: Request,
     page: Writing,
     file: UploadFile,
-    name: Annotated[str, Form(max_length=100)] = "",
+    name: ProgramField = "",
     comment: Annotated[str, Form(max_length=1000)] = "",
 ) -> Response:
     """Store an uploaded file as a new draft version (programmers)."""
@@ -872,7 +947,7 @@ def accept_received(
     request: Request,
     received_id: ReceivedId,
     page: Writing,
-    name: Annotated[str, Form(max_length=100)] = "",
+    name: ProgramField = "",
 ) -> Response:
     """Make the reception a new draft version (programmers)."""
     version = actions.inbox.accept_received(
@@ -891,60 +966,73 @@ def discard_received(request: Request, received_id: ReceivedId, page: Writing) -
 # -- history ------------------------------------------------------------------------------
 
 
-def _blank(value: str | None) -> str | None:
-    return value.strip() or None if value else None
+@dataclass(frozen=True)
+class _AuditFilters:
+    """The history's filters as the person typed them (the form shows them again)."""
+
+    machine: str
+    action: str
+    actor: str
+    program: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {
+            "machine": self.machine,
+            "action": self.action,
+            "actor": self.actor,
+            "program": self.program,
+        }
+
+    def rows(
+        self, request: Request, page: Page, limit: int, before: int | None = None
+    ) -> list[AuditOut]:
+        """The audit rows they select, newest first (a blank filter selects everything)."""
+        blank = {k: v.strip() or None for k, v in self.as_dict().items()}
+        return actions.admin.list_audit(
+            _svc(request),
+            page.who,
+            machine=blank["machine"],
+            action=blank["action"],
+            actor=blank["actor"],
+            program=blank["program"],
+            limit=limit,
+            before=before,
+        )
+
+
+def _audit_filters(
+    machine: Short = "",
+    action: Short = "",
+    actor: Short = "",
+    program: Annotated[str, Query(max_length=255)] = "",
+) -> _AuditFilters:
+    return _AuditFilters(machine, action, actor, program)
+
+
+AuditFilters = Annotated[_AuditFilters, Depends(_audit_filters)]
 
 
 @router.get("/history")
 def history_page(
     request: Request,
     page: Viewing,
-    machine: Short = "",
-    action: Short = "",
-    actor: Short = "",
-    program: Annotated[str, Query(max_length=255)] = "",
+    filters: AuditFilters,
     before: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> HTMLResponse:
     """The audit trail, filterable, newest first."""
-    filters = {"machine": machine, "action": action, "actor": actor, "program": program}
-    found = actions.admin.list_audit(
-        _svc(request),
-        page.who,
-        machine=_blank(machine),
-        action=_blank(action),
-        actor=_blank(actor),
-        program=_blank(program),
-        limit=100,
-        before=before,
-    )
-    rows = [r.model_dump(mode="json") for r in found]
-    query = "&".join(f"{k}={quote(v)}" for k, v in filters.items() if v.strip())
+    rows = [r.model_dump(mode="json") for r in filters.rows(request, page, 100, before)]
+    typed = filters.as_dict()
+    query = "&".join(f"{k}={quote(v)}" for k, v in typed.items() if v.strip())
     machines = sorted(_supervisor(request).machines)
     return _html(
-        "history.html", page, request, rows=rows, filters=filters, query=query, machines=machines
+        "history.html", page, request, rows=rows, filters=typed, query=query, machines=machines
     )
 
 
 @router.get("/history.csv")
-def history_csv(
-    request: Request,
-    page: Viewing,
-    machine: Short = "",
-    action: Short = "",
-    actor: Short = "",
-    program: Annotated[str, Query(max_length=255)] = "",
-) -> Response:
+def history_csv(request: Request, page: Viewing, filters: AuditFilters) -> Response:
     """The filtered audit trail as CSV (the API's export, for a logged-in person)."""
-    rows = actions.admin.list_audit(
-        _svc(request),
-        page.who,
-        machine=_blank(machine),
-        action=_blank(action),
-        actor=_blank(actor),
-        program=_blank(program),
-        limit=10_000,
-    )
-    return actions.admin.audit_csv_response(rows)
+    return actions.admin.audit_csv_response(filters.rows(request, page, 10_000))
 
 
 # -- stylesheet of the highlighted code -----------------------------------------------------

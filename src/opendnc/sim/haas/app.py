@@ -100,15 +100,16 @@ class SimHaas:
             await self.dprnt_tcp.close()
 
     async def _execute(self) -> None:
-        # One block per tick at --block-rate; a DNC source that has no next block yet
-        # parks the executor until a front-end appends lines (it calls control.wake()).
-        rate = self.options.block_rate
+        # One block per tick at --block-rate (read at every block: a test may slow the control
+        # down mid-run); a DNC source that has no next block yet parks the executor until a
+        # front-end appends lines (it calls control.wake()).
         while True:
             await self._wake.wait()
             self._wake.clear()
             while (result := self.control.step()) is not None:
                 if result is StepResult.WAITING:
                     break
+                rate = self.options.block_rate
                 await asyncio.sleep(1.0 / rate if rate > 0 else 0)
 
 

@@ -54,6 +54,9 @@ class Control:
         )
         self.monitor_owner: int | None = None
         self.remote_status = bytes(12)
+        self.on_received: Callable[[str, Path], None] | None = None
+        """Called with the control's path and the host file of every completed upload (a
+        fleet's receipts: how often each control received what)."""
         self._load_state()
 
     # -- persistence ------------------------------------------------------------------------

@@ -371,10 +371,11 @@ class ControlFs:
         fd, path = create_temp(self.partial_dir, "up")
         return path, fd
 
-    def commit_partial(self, partial: Path, wp: WirePath, overwrite: bool) -> None:
-        """Move a finished upload into place atomically."""
+    def commit_partial(self, partial: Path, wp: WirePath, overwrite: bool) -> Path:
+        """Move a finished upload into place atomically; returns where it is on the host."""
         host = self.check_new_file(wp, overwrite)
         os.replace(partial, host)
+        return host
 
     def write_atomic(self, wp: WirePath, data: bytes, overwrite: bool = True) -> None:
         """Write a whole file via a partial file and a rename."""

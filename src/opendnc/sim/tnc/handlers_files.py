@@ -241,12 +241,14 @@ def file_done(s: Session, m: FileDone) -> list[Message]:
             up.flush()
         finally:
             os.close(up.fd)
-        s.control.fs.commit_partial(up.partial, up.target, up.overwrite)
+        host = s.control.fs.commit_partial(up.partial, up.target, up.overwrite)
     except (OSError, ControlRefused) as exc:
         up.partial.unlink(missing_ok=True)
         code = exc.code if isinstance(exc, ControlRefused) else E.T_ER_NO_NEW_FILE
         return [Refused(code)] if s.secure_send else []
     s.control.log_event(f"File received: {up.target}")
+    if s.control.on_received is not None:
+        s.control.on_received(str(up.target), host)
     return [OK] if s.secure_send else []
 
 

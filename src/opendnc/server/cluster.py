@@ -1,0 +1,224 @@
+"""This server's part in a cluster: several servers on one PostgreSQL database.
+
+:class:`Cluster` is a component (PostgreSQL only; SQLite serves one server). Every
+``lease/4`` seconds it renews this server's heartbeat and machine leases
+(:class:`~opendnc.server.leases.Leases`), then acts on what changed:
+
+- a machine gained: the jobs its previous server left running there are ended once
+  (:meth:`JobRunner.take_over`: a load queued again, a drip-feed interrupted at its last
+  recorded line), a :class:`~opendnc.server.events.LeaseChanged` is published, and the
+  machine's task starts (:meth:`Fleet.serve`);
+- a machine lost (handed over at a safe point, or taken after this server could not renew
+  in time): its task stops (:meth:`Fleet.release`) and a ``LeaseChanged`` says so;
+- the shop-wide duties (the library watcher, the net share) run on the one server holding
+  the :data:`~opendnc.server.leases.LIBRARY` lease.
+
+If the database cannot be reached, this server stops serving its machines once its leases
+could have expired, so two servers never drive one machine. It listens for the other
+servers' notices (:mod:`opendnc.server.notify`): a queued or moved job wakes its machine at
+once, a cancel reaches the job running here at once. docs/server.md#several-servers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from opendnc.server.components import Component, cancel_and_wait
+from opendnc.server.events import LeaseChanged, ProgramChanged
+from opendnc.server.fleet import Fleet
+from opendnc.server.leases import LIBRARY, ClusterView, Holding, Leases, cluster_view
+from opendnc.server.machine_state import Machines
+from opendnc.server.notify import Listener, Notice
+from opendnc.server.runner import JobRunner, database_down
+
+__all__ = ["Cluster"]
+
+log = logging.getLogger(__name__)
+
+
+class Cluster:
+    """Holds this server's leases and serves exactly the machines it holds (a component)."""
+
+    name = "cluster"
+    needs = ("machines", "runner", "fleet")
+
+    def __init__(
+        self,
+        leases: Leases,
+        machines: Machines,
+        runner: JobRunner,
+        fleet: Fleet,
+        *,
+        database_url: str,
+        duties: Sequence[Component] = (),
+    ) -> None:
+        self.leases = leases
+        self.machines = machines
+        self.runner = runner
+        self.fleet = fleet
+        self.database_url = database_url
+        self.duties = list(duties)
+        self.renew_every = max(0.1, leases.ttl.total_seconds() / 4)
+        self.serving: set[str] = set()  # machines whose task runs here (and the duties)
+        self._epochs: dict[str, int] = {}
+        self._pending: dict[str, int] = {}  # gained, its jobs not taken over yet -> epoch
+        self._tasks: list[asyncio.Task[Any]] = []
+        self.listener: Listener | None = None
+        self.renewals = 0
+        self.renew_failures = 0
+        runner.fence = self
+
+    @property
+    def server(self) -> str:
+        """This server's name."""
+        return self.leases.server
+
+    # -- the fence the runner asks ----------------------------------------------------------
+
+    def epoch(self, machine: str) -> int | None:
+        """The epoch of this server's live lease on ``machine``; None if it holds none."""
+        if machine not in self.serving or machine not in self.leases.serving():
+            return None
+        return self._epochs.get(machine)
+
+    # -- lifecycle --------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Join: serve nothing until a renewal grants a lease; listen for notices."""
+        for state in self.machines.machines.values():
+            state.served = False
+        self.listener = Listener(self.database_url, self._notice, on_reconnect=self._reread)
+        self._tasks = [
+            asyncio.create_task(self.listener.run(), name="cluster-notices"),
+            asyncio.create_task(self._renewing(), name="cluster-leases"),
+        ]
+
+    async def stop(self) -> None:
+        """Leave: stop serving every machine, then free the leases at once (the others take
+        them without waiting for them to expire)."""
+        tasks, self._tasks = self._tasks, []
+        await cancel_and_wait(*tasks)
+        # all at once: a server with hundreds of machines closes their links side by side
+        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
+        try:
+            await asyncio.to_thread(self.leases.release_all)
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            log.warning("leases not freed (the database is away): they expire by themselves")
+
+    def view(self) -> ClusterView:
+        """Servers, heartbeats and leases as the database sees them now (blocking)."""
+        return cluster_view(self.leases.sessions)
+
+    # -- renewals ---------------------------------------------------------------------------
+
+    async def _renewing(self) -> None:
+        while True:
+            began = time.monotonic()
+            try:
+                holding = await asyncio.to_thread(self.leases.renew, can_hand_over=self._idle)
+            except Exception as exc:
+                self.renew_failures += 1
+                if not database_down(exc):
+                    log.exception("renewing the leases failed")
+                else:
+                    log.warning("leases not renewed: %s", str(exc).splitlines()[0])
+                if time.monotonic() >= self.leases.valid_until and self.serving:
+                    # Another server may hold them by now: stop before it starts.
+                    log.warning("leases may have expired: serving no machine until renewed")
+                    for machine in sorted(self.serving):
+                        await self._lose(machine)
+                    self.leases.held = frozenset()
+            else:
+                self.renewals += 1
+                try:
+                    await self._apply(holding)
+                except Exception:  # one bad round must not end the renewals
+                    log.exception("acting on the leases failed")
+            await asyncio.sleep(max(0.0, self.renew_every - (time.monotonic() - began)))
+
+    def _idle(self, machine: str) -> bool:
+        """A machine may be handed over now: no job runs or is being claimed there (the lease
+        code checks the database for a running job as well). From the renewal's thread."""
+        return machine.startswith("@") or not self.runner.busy(machine)
+
+    async def _apply(self, holding: Holding) -> None:
+        self._epochs = dict(holding.epochs)
+        for machine in sorted(holding.lost):
+            self._pending.pop(machine, None)
+            if machine in self.serving:
+                await self._lose(machine)
+        for machine in sorted(holding.gained):
+            self._pending[machine] = holding.epochs[machine]
+        due = {
+            m: e for m, e in self._pending.items() if m in holding.held and m not in self.serving
+        }
+        self._pending.clear()
+        if not due:
+            return
+        try:
+            # one transaction for all of them: a server taking 500 machines at once must not
+            # spend its lease on 500 round trips
+            await self.runner.take_over({m: e for m, e in due.items() if m != LIBRARY})
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            log.warning("jobs of %d machines not taken over yet (database away)", len(due))
+            self._pending.update(due)  # the next renewal tries again
+            return
+        for machine, epoch in sorted(due.items()):
+            await self._gain(machine, epoch)
+
+    async def _gain(self, machine: str, epoch: int) -> None:
+        if machine == LIBRARY:
+            for duty in self.duties:
+                await duty.start()
+            self.serving.add(machine)
+            log.info("%s runs the shop-wide duties (library watcher, net share)", self.server)
+            return
+        state = self.machines.machines.get(machine)
+        if state is None:
+            return
+        state.served = True
+        state.job_id, state.job_progress = None, (0, None)  # a status row's, not this task's
+        self.serving.add(machine)
+        self.machines.bus.publish(LeaseChanged(machine, self.server, True, epoch))
+        self.fleet.serve(machine)
+
+    async def _lose(self, machine: str) -> None:
+        self.serving.discard(machine)
+        if machine == LIBRARY:
+            for duty in reversed(self.duties):
+                with contextlib.suppress(Exception):
+                    await duty.stop()
+            return
+        state = self.machines.machines.get(machine)
+        if state is not None:
+            state.served = False
+        await self.fleet.release(machine)
+        self.machines.bus.publish(LeaseChanged(machine, self.server, False, 0))
+
+    # -- notices ----------------------------------------------------------------------------
+
+    def _notice(self, notice: Notice) -> None:
+        if notice.topic == "job":
+            if notice.key in self.serving:
+                self.machines.wake(notice.key)
+        elif notice.topic == "cancel":
+            with contextlib.suppress(ValueError):
+                self.runner.cancel_now(int(notice.key))
+        elif notice.topic == "library":
+            number, _, name = notice.key.partition(":")
+            version = int(number) if number.isdigit() else None
+            self.machines.bus.publish(ProgramChanged(name, version, "cluster"))
+
+    def _reread(self) -> None:
+        # notices sent while the listener was away are lost: look at every queue again
+        for machine in self.serving:
+            self.machines.wake(machine)

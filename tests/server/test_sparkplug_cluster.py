@@ -1,0 +1,111 @@
+"""Sparkplug B across a failover: two servers on one PostgreSQL database, each its own edge
+node, read by the tests' own host application (tests/server/spb_decoder.py) on Mosquitto.
+
+Each machine is born by the server that holds its lease; one server SIGKILLed reads to the
+host as its NDEATH (the broker sends the will) and DBIRTHs of its machines from the other;
+started again, it is born with the next bdSeq and takes its share back: DDEATH from one node,
+DBIRTH from the other.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.peers import require_module
+
+require_module("pysparkplug")
+require_module("google.protobuf")
+
+from tests.server import spb_decoder as spb  # noqa: E402
+from tests.server.cluster_support import TAKEOVER_LIMIT, start_cluster  # noqa: E402
+from tests.server.conftest import _pg_database  # noqa: E402
+from tests.server.harness import Procs, wait_for  # noqa: E402
+from tests.server.outputs_support import Listener, require_broker  # noqa: E402
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    yield from _pg_database()
+
+
+def host_of(listener: Listener, group: str) -> spb.Host:
+    host = spb.Host(group)
+    for message in list(listener.messages):
+        host.take(message.topic, message.payload)
+    return host
+
+
+def born_by(host: spb.Host, machines: list[str]) -> dict[str, str]:
+    """Each machine's node as the host sees it now (alive device of an alive node)."""
+    out: dict[str, str] = {}
+    for name, node in host.nodes.items():
+        for machine, device in node.devices.items():
+            if node.alive and device.alive and machine in machines:
+                assert machine not in out, f"{machine} alive on two nodes"
+                out[machine] = name
+    return out
+
+
+def test_failover_reads_as_death_and_birth_to_a_sparkplug_host(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    require_broker()
+    group = f"opendnc-test-{uuid.uuid4().hex[:10]}"
+    cluster = start_cluster(procs, tmp_path, pg_url, tnc=4)
+    with cluster.config.open("a") as f:
+        f.write(f'\n[sparkplug]\nurl = "mqtt://127.0.0.1:1883"\ngroup = "{group}"\n')
+    machines = cluster.tncs
+    try:
+        with Listener(f"spBv1.0/{group}") as listener:
+            cluster.start("dnc-1", "dnc-2")
+            owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
+            wait_for(
+                "each machine born by its lease holder",
+                lambda: born_by(host_of(listener, group), machines) == owners,
+                describe=lambda: (born_by(host_of(listener, group), machines), owners),
+            )
+            first = host_of(listener, group).of("NBIRTH", node="dnc-1")[-1]
+            bd_seq = first.payload.by_name()["bdSeq"].value
+            lost = sorted(m for m, o in owners.items() if o == "dnc-1")
+            assert lost
+
+            cluster.kill("dnc-1")
+            wait_for("dnc-1's will", lambda: host_of(listener, group).of("NDEATH", node="dnc-1"))
+            death = host_of(listener, group).of("NDEATH", node="dnc-1")[-1]
+            assert death.payload.by_name()["bdSeq"].value == bd_seq
+            wait_for(
+                "dnc-2 to bear dnc-1's machines",
+                lambda: (
+                    born_by(host_of(listener, group), machines) == dict.fromkeys(machines, "dnc-2")
+                ),
+                timeout=TAKEOVER_LIMIT + 10,
+            )
+
+            cluster.start("dnc-1")
+            cluster.wait_settled("dnc-2", {"dnc-1", "dnc-2"})
+            wait_for(
+                "dnc-1 born again with its share",
+                lambda: (
+                    set(born_by(host_of(listener, group), machines).values()) == {"dnc-1", "dnc-2"}
+                ),
+                timeout=60,
+            )
+            host = host_of(listener, group)  # every seq checked as it took the messages
+            again = host.of("NBIRTH", node="dnc-1")[-1]
+            assert again.payload.by_name()["bdSeq"].value == (bd_seq + 1) % 256
+            # Handed back: DDEATH from dnc-2, then DBIRTH from dnc-1, for each such machine.
+            for machine, node in born_by(host, machines).items():
+                if node == "dnc-1":
+                    moves = [
+                        (s.kind, s.node)
+                        for s in host.seen
+                        if s.device == machine and s.kind in ("DBIRTH", "DDEATH")
+                    ]
+                    assert moves[-2:] == [("DDEATH", "dnc-2"), ("DBIRTH", "dnc-1")], moves
+    finally:
+        procs.stop_all()
+        cluster.close()
