@@ -52,6 +52,8 @@ def list_programs(
         raise InputError(f"a search is at most {MAX_SEARCH} characters")
     if text and len(text) < MIN_TEXT:
         raise InputError(f"a search in the text needs at least {MIN_TEXT} characters")
+    if "\x00" in text:  # (PostgreSQL's text holds none: it would be a 500, not a miss)
+        raise InputError("a search in the text holds no NUL character")
 
     def load(session: Session) -> list[ProgramListed]:
         matches: dict[str, TextMatch] = {}
