@@ -31,7 +31,7 @@ def _fill(sessions: sessionmaker[Session]) -> None:
 
 def _hits(sessions: sessionmaker[Session], text: str) -> list[tuple[str, int, str]]:
     with sessions() as session:
-        return [(h.program.name, h.line, h.text) for h in library.search_text(session, text)]
+        return [(h.name, h.line, h.text) for h in library.search_text(session, text)]
 
 
 def test_the_text_search_finds_lines_in_any_case_in_the_newest_versions(
@@ -72,7 +72,7 @@ def test_the_text_search_is_bounded(sessions: sessionmaker[Session]) -> None:
     with sessions() as session:
         hits = library.search_text(session, "m30")
     assert len(hits) == library.MAX_TEXT_HITS
-    assert hits[0].program.name == "P0000.nc"
+    assert hits[0].name == "P0000.nc"
 
 
 @pytest.fixture(scope="module")
