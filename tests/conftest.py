@@ -11,7 +11,10 @@ import pytest
 # module fixtures are set up as often as before), and every other file follows as collected.
 # The list need not be exact; a file that grew slow only makes the run end later.
 LONGEST_FIRST = (
+    "tests/interop/test_xmodem_pypi.py",
+    "tests/interop/test_xmodem_lrzsz.py",
     "tests/sim/haas_serial/test_dnc_large.py",
+    "tests/bench/test_soak_serial_lsv2.py",
     "tests/sim/test_heidenhain_blockwise_cable.py",
     "tests/cli/test_readme.py",
     "tests/server/test_from_the_control.py",

@@ -71,7 +71,9 @@ def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
     assert "login: admin / " in out
     assert "API key: odk_" in out
     assert "all machines online" in out
-    for machine in ("tnc-1", "tnc-2", "haas-1", "haas-serial-1"):
+    for machine in ("tnc-1", "tnc-2"):
+        assert f"POCKET.H -> {machine}: sent" in out
+    for machine in ("haas-1", "haas-serial-1"):
         assert f"O01000.nc -> {machine}: sent" in out
     # the NGC has a DPRNT source and runs a program that prints (issue 23)
     assert "DPRNT haas-1: BORE  1 DIA  1.0002" in out

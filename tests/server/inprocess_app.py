@@ -119,10 +119,13 @@ class MemoryControl:
         progress(len(data), len(data))
 
 
-def config_text(tmp_path: Path, machines: list[dict[str, object]]) -> str:
-    """A configuration for ``machines`` (each a table of ``[[machines]]``)."""
+def config_text(tmp_path: Path, machines: list[dict[str, object]], check: str | None = None) -> str:
+    """A configuration for ``machines`` (each a table of ``[[machines]]``); ``check`` is the
+    library's ``block`` (the default) or ``warn`` for program check errors."""
 
     def value(v: object) -> str:
+        if isinstance(v, dict):  # a TOML inline table (travel = { x = [-30.0, 0.0] })
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
         return json.dumps(v) if not isinstance(v, bool) else str(v).lower()
 
     lines = [
@@ -130,6 +133,7 @@ def config_text(tmp_path: Path, machines: list[dict[str, object]]) -> str:
         f"path = {value(str(tmp_path / 'lib'))}",
         f"inbox = {value(str(tmp_path / 'inbox'))}",
         f"archive = {value(str(tmp_path / 'archive'))}",
+        *([f"check = {value(check)}"] if check else []),
     ]
     for machine in machines:
         lines += ["", "[[machines]]", *(f"{k} = {value(v)}" for k, v in machine.items())]
@@ -165,10 +169,11 @@ def running(
     machines: list[dict[str, object]],
     offline: tuple[str, ...] = (),
     extra: str = "",
+    check: str | None = None,
 ) -> Iterator[App]:
     """The server for ``machines`` on memory controls, started, with a key and a web
     session for a user of every role; the ``offline`` ones never answer. ``extra`` is TOML
-    put before the machines (``[server]``, outputs)."""
+    put before the machines (``[server]``, outputs); ``check`` as in :func:`config_text`."""
     controls: dict[str, MemoryControl] = {}
 
     def connector(config: MachineConfig) -> MemoryControl:
@@ -178,7 +183,7 @@ def running(
         control.config = config
         return control
 
-    config = parse_config(extra + "\n" + config_text(tmp_path, machines), base=tmp_path)
+    config = parse_config(extra + "\n" + config_text(tmp_path, machines, check), base=tmp_path)
     server = build(
         config, database=f"sqlite:///{tmp_path / 'db.sqlite'}", connector_factory=connector
     )

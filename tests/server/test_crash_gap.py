@@ -34,7 +34,9 @@ def test_a_killed_server_leaves_a_no_record_gap_the_timeline_shows(
     tmp_path: Path, tnc: FleetThread, procs: Procs, db_url: str
 ) -> None:
     config = tmp_path / "shop.toml"
-    config.write_text(server_config(tnc.fleet, poll_interval=0.3, library=tmp_path / "lib"))
+    config.write_text(
+        server_config(tnc.fleet, poll_interval=0.3, library=tmp_path / "lib", check="warn")
+    )
     engine = make_engine(db_url)
     sessions = make_sessions(engine)
     try:

@@ -87,6 +87,7 @@ def _server(
         poll_interval=0.5,
         library=tmp_path / "lib",
         dripfeed=dripfeed,
+        check="warn",
     )
     config.write_text(text + f"\n[requests]\ndelay = {DELAY}\n" + extra)
     key = create_key(config, db_url)

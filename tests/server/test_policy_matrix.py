@@ -3,6 +3,11 @@
 Both adapters call one actions layer, so they must give the same answer; and that answer must
 be the one the rules below (written out here, independently of the code) give. A case whose
 API and page answers differ, or differ from the rules, is listed with both.
+
+Each machine is sent a program of its own family (Klartext to a TNC, G-code to a Haas), so
+the program check passes there; the check's own rules have their cases: a program of the
+other family is an error that blocks a send and a release, an override needs a programmer
+and a reason.
 """
 
 from __future__ import annotations
@@ -22,6 +27,11 @@ from tests.server.inprocess_app import ROLES, App, running
 
 PROGRAM = "P.H"
 TEXT = b"0 BEGIN PGM P MM\n1 L X+0 R0 FMAX\n2 END PGM P MM\n"
+HAAS_PROGRAM = "O01000.nc"
+HAAS_TEXT = b"%\nO01000\nG00 G90 G54 X0. Y0.\nM30\n%\n"
+# the program check's error: a program no control runs (its last block has an unknown G code)
+BROKEN_TEXT = b"%\nO01001\nG00 G90 G54 X0. Y0.\nG999\nM30\n%\n"
+REASON = "checked on the machine by hand"
 
 # name, configuration, and what the rules know of it
 MACHINES: dict[str, dict[str, object]] = {
@@ -52,6 +62,16 @@ def _browser(m: str) -> bool:
     return MACHINES[m]["kind"] == "lsv2"
 
 
+def _program(m: str) -> str:
+    # a program of the machine's own family: its check passes there
+    return PROGRAM if MACHINES[m]["kind"] == "lsv2" else HAAS_PROGRAM
+
+
+def _foreign(m: str) -> str:
+    # a program of the other family: its check on this machine is an error
+    return HAAS_PROGRAM if MACHINES[m]["kind"] == "lsv2" else PROGRAM
+
+
 @pytest.fixture(scope="module")
 def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
     tmp = tmp_path_factory.mktemp("matrix")
@@ -64,7 +84,10 @@ def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
         with served.server.sessions.begin() as s:
             library.add_version(s, PROGRAM, TEXT, author="t")
             library.release(s, PROGRAM, 1, actor="t")
-            library.add_version(s, PROGRAM, TEXT + b"3 ;draft\n", author="t")  # v2, a draft
+            library.add_version(s, PROGRAM, TEXT.replace(b"X+0", b"X+1"), author="t")  # v2
+            library.add_version(s, HAAS_PROGRAM, HAAS_TEXT, author="t")
+            library.release(s, HAAS_PROGRAM, 1, actor="t")
+            library.add_version(s, HAAS_PROGRAM, HAAS_TEXT.replace(b"X0.", b"X1."), author="t")
         for control in served.controls.values():
             control.files["TNC:/nc_prog/OLD.H"] = b"old"
         yield served
@@ -78,7 +101,7 @@ _counter = itertools.count(1)
 def _later_job(app: App, machine: str, kind: JobKind, state: JobState) -> int:
     # A job that never runs by itself here (due tomorrow), in the state the case needs.
     with app.server.sessions.begin() as s:
-        version = library.get_version(s, PROGRAM, 1)
+        version = library.get_version(s, _program(machine), 1)
         job = jobs.enqueue(
             s,
             kind,
@@ -98,10 +121,10 @@ def _reception(app: App) -> int:
         return inbox.store(s, "tnc", data, folder=app.server.config.library.inbox).id
 
 
-def _draft_program(app: App) -> str:
-    name = f"R{next(_counter)}.H"
+def _draft_program(app: App, text: bytes = TEXT) -> str:
+    name = f"R{next(_counter)}.H" if text is TEXT else f"O0{next(_counter) + 2000}.nc"
     with app.server.sessions.begin() as s:
-        library.add_version(s, name, TEXT, author="t")
+        library.add_version(s, name, text, author="t")
     return name
 
 
@@ -156,25 +179,57 @@ def _job_case(name: str, kind: JobKind, state: JobState, needed: Role, verb: str
 CASES = [
     Case(
         "send the released version",
-        lambda app, role, m: _jobs(app, role, {"program": PROGRAM, "machines": [m]}),
-        lambda app, role, m: _form(app, role, f"/library/{PROGRAM}/send", {"machines": m}),
+        lambda app, role, m: _jobs(app, role, {"program": _program(m), "machines": [m]}),
+        lambda app, role, m: _form(app, role, f"/library/{_program(m)}/send", {"machines": m}),
         lambda role, m: _role(role, Role.OPERATOR),
     ),
     Case(
         "send a draft",
-        lambda app, role, m: _jobs(app, role, {"program": PROGRAM, "version": 2, "machines": [m]}),
+        lambda app, role, m: _jobs(
+            app, role, {"program": _program(m), "version": 2, "machines": [m]}
+        ),
         lambda app, role, m: _form(
-            app, role, f"/library/{PROGRAM}/send", {"machines": m, "version": "2"}
+            app, role, f"/library/{_program(m)}/send", {"machines": m, "version": "2"}
         ),
         lambda role, m: _role(role, Role.OPERATOR, 409 if _released_only(m) else "ok"),
     ),
     Case(
         "drip-feed (no version: the released one)",
         lambda app, role, m: _jobs(
-            app, role, {"kind": "dripfeed", "program": PROGRAM, "machines": [m]}
+            app, role, {"kind": "dripfeed", "program": _program(m), "machines": [m]}
         ),
-        lambda app, role, m: _form(app, role, f"/machines/{m}/dripfeed", {"program": PROGRAM}),
+        lambda app, role, m: _form(app, role, f"/machines/{m}/dripfeed", {"program": _program(m)}),
         lambda role, m: _role(role, Role.PROGRAMMER, "ok" if _dripfeed(m) else 409),
+    ),
+    Case(
+        "send a program the check refuses (another family)",
+        lambda app, role, m: _jobs(app, role, {"program": _foreign(m), "machines": [m]}),
+        lambda app, role, m: _form(app, role, f"/library/{_foreign(m)}/send", {"machines": m}),
+        lambda role, m: _role(role, Role.OPERATOR, 409),
+    ),
+    Case(
+        "override the check with a reason",
+        lambda app, role, m: _jobs(
+            app, role, {"program": _foreign(m), "machines": [m], "override": REASON}
+        ),
+        lambda app, role, m: _form(
+            app,
+            role,
+            f"/library/{_foreign(m)}/send",
+            {"machines": m, "override": "on", "reason": REASON},
+        ),
+        # an operator may send, but not past the check
+        lambda role, m: _role(role, Role.PROGRAMMER),
+    ),
+    Case(
+        "override the check without a reason",
+        lambda app, role, m: _jobs(
+            app, role, {"program": _foreign(m), "machines": [m], "override": " "}
+        ),
+        lambda app, role, m: _form(
+            app, role, f"/library/{_foreign(m)}/send", {"machines": m, "override": "on"}
+        ),
+        lambda role, m: _role(role, Role.PROGRAMMER, 400),
     ),
     _job_case("cancel a queued job", JobKind.SEND, JobState.QUEUED, Role.OPERATOR, "cancel"),
     _job_case("move a queued job", JobKind.SEND, JobState.QUEUED, Role.OPERATOR, "move"),
@@ -257,6 +312,34 @@ CASES = [
         per_machine=False,
     ),
     Case(
+        "release a version the check refuses",
+        lambda app, role, _m: app.client.post(
+            f"/api/programs/{_draft_program(app, BROKEN_TEXT)}/versions/1/release",
+            headers=app.api(role),
+        ),
+        lambda app, role, _m: _form(
+            app, role, f"/library/{_draft_program(app, BROKEN_TEXT)}/versions/1/release"
+        ),
+        lambda role, _m: _role(role, Role.APPROVER, 409),
+        per_machine=False,
+    ),
+    Case(
+        "release a version the check refuses, with an override",
+        lambda app, role, _m: app.client.post(
+            f"/api/programs/{_draft_program(app, BROKEN_TEXT)}/versions/1/release",
+            json={"override": REASON},
+            headers=app.api(role),
+        ),
+        lambda app, role, _m: _form(
+            app,
+            role,
+            f"/library/{_draft_program(app, BROKEN_TEXT)}/versions/1/release",
+            {"override": "on", "reason": REASON},
+        ),
+        lambda role, _m: _role(role, Role.APPROVER),
+        per_machine=False,
+    ),
+    Case(
         "lock a program",
         lambda app, role, _m: app.client.post(
             f"/api/programs/{_draft_program(app)}/lock", headers=app.api(role)
@@ -319,7 +402,7 @@ def test_the_api_and_the_pages_answer_alike_and_by_the_rules(app: App, role: Rol
                     f"{case.name} on {machine}: rules {expected}, api {app_answer} "
                     f"({api.text[:120]}), page {page_answer} ({page.text[-200:]!r})"
                 )
-    assert checked == 12 * len(MACHINES) + 5
+    assert checked == 15 * len(MACHINES) + 7
     assert not wrong, "\n".join(wrong)
 
 

@@ -93,7 +93,7 @@ def serial_shop(tmp_path: Path) -> Iterator[tuple[FleetThread, Running]]:
     fleet = FleetThread(tmp_path / "machines", tnc=0, haas=0, serial_haas=1, baud=38400)
     running = None
     try:
-        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp_path / "lib")
+        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp_path / "lib", check="warn")
         text = text.replace(
             "serial_profile = { baud = 38400 }",
             f"serial_profile = {{ baud = 38400, idle_timeout = {SILENCE:g} }}",

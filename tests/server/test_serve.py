@@ -109,7 +109,9 @@ def test_a_job_queued_through_the_api_wakes_its_machine_from_the_right_thread(
     try:
         (machine,) = fleet.fleet.machines
         config = tmp_path / "shop.toml"
-        config.write_text(server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib"))
+        config.write_text(
+            server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib", check="warn")
+        )
         db_url = f"sqlite:///{tmp_path / 'opendnc.db'}"
         key = create_key(config, db_url)
         with start_server(procs, config, db_url) as client:

@@ -177,7 +177,7 @@ def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_
     async def scenario() -> list[str]:
         fleet = await start_fleet(tmp_path / "machines", tnc=1, haas=0)
         try:
-            text = server_config(fleet, poll_interval=0.3, library=tmp_path / "lib")
+            text = server_config(fleet, poll_interval=0.3, library=tmp_path / "lib", check="warn")
             config = parse_config(text, base=tmp_path)
             first = build(config, database=db_url)
             async with first.app.router.lifespan_context(first.app):

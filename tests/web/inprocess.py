@@ -61,7 +61,7 @@ def serve_one_tnc(tmp_path: Path, user: str, role: Role, password: str) -> Itera
     fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
     database = tmp_path / "db.sqlite"
     try:
-        text = server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib")
+        text = server_config(fleet.fleet, poll_interval=0.5, library=tmp_path / "lib", check="warn")
         server = build(parse_config(text, base=tmp_path), database=f"sqlite:///{database}")
         with server.sessions.begin() as session:
             auth.create_user(session, user, role, password=password)

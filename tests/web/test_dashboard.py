@@ -76,7 +76,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
     procs = Procs(logs)
     try:
         config = tmp / "shop.toml"
-        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp / "lib")
+        text = server_config(fleet.fleet, poll_interval=0.3, library=tmp / "lib", check="warn")
         config.write_text(text)
         db_url = f"sqlite:///{tmp / 'opendnc.db'}"
         _prepare(db_url)

@@ -113,6 +113,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Haas]:
             library=tmp / "lib",
             dripfeed=True,
             mdc=True,
+            check="warn",
         )
         ngc_ports = (free_port(), free_port())
         text = text.replace("mdc = true\n", 'mdc = true\ndprnt = "serial"\n')
@@ -278,11 +279,13 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     sync_api.expect(running).to_contain_text("O03000.nc")
     job_id = int(running.locator("td").first.inner_text())
     wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
-    # The control crawls (five blocks a second, still taking blocks, so the link stays alive)
-    # while the programmer stops the feed: however long a busy machine takes over the click,
-    # the stop lands mid-program. Then it runs at full speed again.
+    # The control slows to a tenth of its speed while the programmer stops the feed: the rest
+    # of the program would take about a minute, so however long a busy machine takes over the
+    # click, the stop lands mid-program. It still takes blocks: the feed reads the stop only
+    # when the control asks for more (XON), not while it holds the line with XOFF. Then it
+    # runs at full speed again.
     options = clean.fleet.fleet.sims[MACHINE].options
-    clean.fleet.call(lambda: setattr(options, "block_rate", 5))
+    clean.fleet.call(lambda: setattr(options, "block_rate", 100))
     page.get_by_role("button", name=f"Stop job {job_id}").click()
 
     row = page.locator("#history tr", has=page.locator("td", has_text=re.compile(rf"^{job_id}$")))

@@ -4,8 +4,8 @@ Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port) an
 Haas on a virtual RS-232 cable in this process, fills a library with example programs (released ones
 and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
 the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
-``--check`` sends a released program to every machine, prints what happened and exits (what
-the test suite runs).
+``--check`` sends a released program of its family to every machine, prints what happened and
+exits (what the test suite runs).
 """
 
 from __future__ import annotations
@@ -190,7 +190,8 @@ async def _print_dprnt(server: object, fleet: object) -> None:
 
 
 async def _check(server: object, fleet: object) -> None:
-    """Send the released O01000 to every machine and wait for the outcome."""
+    """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC) and
+    wait for the outcome."""
     from sqlalchemy import select
 
     from opendnc.server import actions, jobs
@@ -210,14 +211,18 @@ async def _check(server: object, fleet: object) -> None:
             raise DncError(f"machines not online: {', '.join(away)}")
         await asyncio.sleep(0.1)
     console.print("all machines online", highlight=False)
-    names = [m.name for m in fleet.machines]
-    # through the actions layer, as a person's send would go (it wakes the machines)
-    order = JobRequest(kind=JobKind.SEND, program="O01000.nc", machines=names)
+    # each machine a released program of its own family (the library's program check
+    # refuses a Haas program on a TNC): through the actions layer, as a person's send would go
+    svc = server.core.get(actions.Services)
     demo = Principal("demo", Role.ADMIN)
-    created = await asyncio.to_thread(
-        actions.queue.create_jobs, server.core.get(actions.Services), demo, order
-    )
+    created = []
+    for program, kinds in (("O01000.nc", ("haas",)), ("POCKET.H", ("lsv2",))):
+        names = [m.name for m in fleet.machines if m.kind.startswith(kinds)]
+        if names:
+            order = JobRequest(kind=JobKind.SEND, program=program, machines=names)
+            created += await asyncio.to_thread(actions.queue.create_jobs, svc, demo, order)
     ids = [j.id for j in created]
+    programs = {j.id: j.program for j in created}
     while True:
         with server.sessions() as session:
             states = [jobs.get_job(session, i) for i in ids]
@@ -228,7 +233,7 @@ async def _check(server: object, fleet: object) -> None:
         await asyncio.sleep(0.1)
     for job in states:
         outcome = "sent" if job.state is JobState.DONE else f"{job.state.value}: {job.error}"
-        console.print(f"O01000.nc -> {job.machine}: {outcome}", highlight=False)
+        console.print(f"{programs[job.id]} -> {job.machine}: {outcome}", highlight=False)
     if any(j.state is not JobState.DONE for j in states):
         raise DncError("not every machine received the program")
     # the NGC's DPRNT lines, captured by the server (the program it runs at start prints 3)

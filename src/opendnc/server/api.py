@@ -29,6 +29,7 @@ from opendnc.server import actions, audit, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
+    CheckOut,
     ClusterOut,
     Count,
     DiffOut,
@@ -44,6 +45,7 @@ from opendnc.server.actions.models import (
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
+    ReleaseRequest,
     RevokedOut,
     UploadOut,
     VersionOut,
@@ -429,10 +431,29 @@ def program_diff(svc: Svc, name: str, a: VersionNumber, b: VersionNumber, who: C
     return actions.library.program_diff(svc, who, name, a, b)
 
 
+@router.get("/programs/{name}/versions/{number}/check")
+def version_check(
+    svc: Svc,
+    name: str,
+    number: Id,
+    who: Caller,
+    machine: Annotated[str | None, Query(max_length=64)] = None,
+) -> CheckOut:
+    """The program check (dry run) of one version: its problems with their lines, tools,
+    extents and estimated time; with ``machine``, as that machine would take it (family,
+    travel, protected program numbers). Run once and kept."""
+    return actions.checks.version_check(svc, who, name, number, machine or None)
+
+
 @router.post("/programs/{name}/versions/{number}/release")
-def release_version(svc: Svc, name: str, number: Id, who: Caller) -> VersionOut:
-    """Release a version (the previously released one becomes superseded)."""
-    return actions.library.release_version(svc, who, name, number)
+def release_version(
+    svc: Svc, name: str, number: Id, who: Caller, body: ReleaseRequest | None = None
+) -> VersionOut:
+    """Release a version (the previously released one becomes superseded). A version whose
+    program check finds errors is refused (409) unless ``override`` gives a reason
+    (programmers; audited)."""
+    override = body.override if body is not None else None
+    return actions.library.release_version(svc, who, name, number, override)
 
 
 @router.post("/programs/{name}/lock")

@@ -134,6 +134,9 @@ class LibraryConfig:
     archive: Path
     backups: Path | None = None  # LSV2 backups, one folder per machine (default: ./backups)
     poll: bool = False  # poll the library folder instead of change notifications (shares)
+    # program check errors refuse a release and a send (unless overridden); False ("warn"):
+    # they are shown only (docs/server.md#program-checks)
+    check_blocks: bool = True
 
 
 @dataclass(frozen=True)
@@ -556,10 +559,13 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
 
 
 def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
-    _known(table, "library", {"path", "inbox", "archive", "backups", "watch"})
+    _known(table, "library", {"path", "inbox", "archive", "backups", "watch", "check"})
     watch = _get(table, "library", "watch", str, "notify")
     if watch not in ("notify", "poll"):
         raise ConfigError("library.watch", "expected notify or poll (poll for network shares)")
+    check = _get(table, "library", "check", str, "block")
+    if check not in ("block", "warn"):
+        raise ConfigError("library.check", "expected block or warn (program check errors)")
 
     def folder(key: str, default: str) -> Path:
         value: str = _get(table, "library", key, str, default)
@@ -573,4 +579,5 @@ def _library(table: dict[str, Any], base: Path) -> LibraryConfig:
         archive=folder("archive", "archive"),
         backups=folder("backups", "backups"),
         poll=watch == "poll",
+        check_blocks=check == "block",
     )

@@ -24,7 +24,7 @@ from pathlib import Path
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import library
+from opendnc.server import library, program_checks
 from opendnc.server.components import RunsTask
 
 __all__ = ["LibraryWatcher"]
@@ -144,7 +144,10 @@ class LibraryWatcher(RunsTask):
                 version, created = library.add_version(
                     session, path.name, data, author="watcher", source="watcher"
                 )
-                return version.number, created
+                number, version_id = version.number, version.id
+            if created:  # checked on save, after the commit (docs/server.md#program-checks)
+                program_checks.check_saved(self.sessions, version_id, path.name, data)
+            return number, created
 
         try:
             number, created = await asyncio.to_thread(store)

@@ -198,10 +198,12 @@ def server_config(
     library: Path | None = None,
     dripfeed: bool = False,
     mdc: bool = False,
+    check: str | None = None,
 ) -> str:
     """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
     (``dripfeed`` allows drip-feeding the serial Haas machines; ``mdc`` has the server read
-    their status by MDC on the cable, as they answer Q-commands there)."""
+    their status by MDC on the cable, as they answer Q-commands there; ``check`` is the
+    library's ``block`` or ``warn`` for program check errors, with ``library``)."""
 
     def q(value: object) -> str:
         return json.dumps(str(value))  # a JSON string is a valid TOML basic string
@@ -217,6 +219,8 @@ def server_config(
             f"inbox = {q(library / 'inbox')}",
             f"archive = {q(library / 'archive')}",
         ]
+        if check is not None:
+            lines.append(f"check = {q(check)}")
     for m in fleet.machines:
         lines += [
             "",

@@ -64,6 +64,13 @@ class SenderConfig:
     # each ACK; on a pty (no line delay) a block sent at once can land before that flush and
     # be lost (rx then waits 5 s and NAKs). About 1 ms avoids it; real lines need 0.
     turnaround: float = 0.0
+    # Quiet time after the ACK of block 1 when it went out more than once. In checksum mode NAK
+    # means both "start" and "send again": the rest of a Haas's start-request burst, read after
+    # block 1 went out, sends copies of block 1, and the receiver ACKs each copy as a duplicate.
+    # Taking those ACKs for the next blocks' runs the sender ahead until the receiver sees a
+    # block out of order and cancels (docs/xmodem.md#repeated-blocks). Answers that arrive
+    # during this pause belong to the copies and are dropped; the next block goes after it.
+    settle: float = 1.0
 
 
 class SenderState(enum.Enum):
@@ -111,6 +118,7 @@ class XmodemSender(EngineBase):
         # ((seq, offset, large allowed), frame, payload bytes)
         self._next: tuple[tuple[int, int, bool], bytes, int] | None = None
         self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
+        self._copies = 0  # times the current block went out
         self._unanswered = False  # the current block met a timeout: it may have arrived
         self._cans = 0  # consecutive CAN bytes seen
         self._eot_naks = 0
@@ -246,6 +254,13 @@ class XmodemSender(EngineBase):
         self._seq = (self._seq + 1) & 0xFF
         self._failures = 0
         self._unanswered = False
+        if self._copies > 1 and self._blocks == 1:
+            # Block 1 went out again on a NAK or 'C' that may have been the rest of the
+            # receiver's start requests: the copies' ACKs may still come, so let them pass
+            # before block 2. (A NAK of a later block is unambiguous and costs no pause.)
+            self.state = SenderState.PAUSE
+            self._arm(self.config.settle)
+            return
         self._next_after_turnaround()
 
     def _on_nak(self, reason: str) -> None:
@@ -288,6 +303,7 @@ class XmodemSender(EngineBase):
             self._events.append(FallbackToSmall(self._seq))
             self._build_block()
         self._emit(self._block)
+        self._copies += 1
         self._arm(self.config.ack_timeout)
 
     def _on_cancel(self) -> None:
@@ -346,6 +362,7 @@ class XmodemSender(EngineBase):
         self.state = SenderState.WAIT_ACK
         self._build_block()
         self._emit(self._block)
+        self._copies = 1
         self._arm(self.config.ack_timeout)
 
     def _send_eot(self) -> None:

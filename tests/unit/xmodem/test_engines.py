@@ -29,7 +29,7 @@ from opendnc.xmodem.framing import (
     encode_block,
 )
 from opendnc.xmodem.receiver import PlainTextStart, ReceiverConfig, XmodemReceiver
-from opendnc.xmodem.sender import SenderConfig, XmodemSender
+from opendnc.xmodem.sender import SenderConfig, SenderState, XmodemSender
 from tests.unit.xmodem.memwire import run_wired
 
 
@@ -412,3 +412,45 @@ def test_receiver_text_start_ends_on_plain_text_only_when_set() -> None:
     started.data_to_send()
     started.receive_data(b"\n" + encode_block(1, b"G0", crc=False))
     assert started.data_to_send() == bytes([ACK])
+
+
+def test_the_rest_of_a_start_request_burst_does_not_run_the_sender_ahead() -> None:
+    data = bytes(range(32, 127)) * 20  # 15 blocks
+    sender = XmodemSender(data, Mode.CHECKSUM)
+    receiver = XmodemReceiver(Mode.CHECKSUM, ReceiverConfig(crc_tries=0))
+    assert receiver.data_to_send() == bytes([NAK])  # its start request; a Haas repeats it
+    sender.receive_data(bytes([NAK]))  # the sender reads the first NAK of a burst alone,
+    wire = [sender.data_to_send()]  # sends block 1,
+    sender.receive_data(bytes([NAK, NAK]))  # and the rest of the burst after that
+    copies = sender.data_to_send()
+    wire += [copies[i : i + 132] for i in range(0, len(copies), 132)]
+    acks = b""
+    for frame in wire:  # the receiver reads each copy on its own and ACKs each
+        receiver.receive_data(frame)
+        acks += receiver.data_to_send()
+    sender.receive_data(acks)  # the ACKs reach the sender together
+    receiver.receive_data(sender.data_to_send())  # what it sent reaches the receiver together
+    sender.receive_data(receiver.data_to_send())
+    receiver.timed_out()  # a block the receiver dropped as queued after another: NAK
+    sender.receive_data(receiver.data_to_send())
+    receiver.receive_data(sender.data_to_send())
+    assert receiver.error is None, receiver.error  # seen: "block 4 arrived while block 3 ..."
+    # the sender lets the copies' answers pass, then goes on: the file arrives whole
+    for _ in range(100):
+        if sender.finished and receiver.finished:
+            break
+        out = sender.data_to_send()
+        if out:
+            receiver.receive_data(out)
+        elif sender.state is SenderState.PAUSE:
+            sender.timed_out()  # the settle pause ends
+        else:
+            receiver.timed_out()  # e.g. a receiver that answers EOT after a pause
+        sender.receive_data(receiver.data_to_send())
+    assert sender.error is None, sender.error
+    assert receiver.error is None, receiver.error
+    received = b""
+    while (event := receiver.next_event()) is not None:
+        if isinstance(event, DataReceived):
+            received += event.data
+    assert received.rstrip(b"\x1a") == data  # the last block is padded with SUB

@@ -12,14 +12,16 @@ pages (:mod:`opendnc.server.web.views`) only parse a request, call an action and
 result, so both give the same answer to the same request.
 
 Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs),
-:mod:`.files` (a control's files), :mod:`.inbox` (receptions), :mod:`.admin` (keys, the audit
-trail), :mod:`.machines` (live state), :mod:`.preview` (a version's dry run and toolpath).
+:mod:`.checks` (program checks), :mod:`.files` (a control's files), :mod:`.inbox`
+(receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
+:mod:`.preview` (a version's dry run and toolpath).
 """
 
 from __future__ import annotations
 
 from opendnc.server.actions import (
     admin,
+    checks,
     files,
     inbox,
     library,
@@ -34,6 +36,7 @@ __all__ = [
     "Caller",
     "Services",
     "admin",
+    "checks",
     "files",
     "inbox",
     "library",

@@ -154,4 +154,4 @@ def take_back(svc: Services, who: Caller, machine: str, path: str) -> JobOut:
 
     svc.read(check)
     order = JobRequest(kind=JobKind.RECEIVE, path=target, machines=[machine])
-    return queue.create_jobs(svc, who, order, params={"into_library": True, "by": who.name})[0]
+    return queue.create_jobs(svc, who, order, extra={"into_library": True, "by": who.name})[0]

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from sqlalchemy.orm import Session
 
 from opendnc.server import inbox, library
+from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import Content, ReceivedDetail, ReceivedOut, VersionOut
 from opendnc.server.store.models import ReceivedState, Role
@@ -71,11 +72,15 @@ def accept_received(
 ) -> VersionOut:
     """Make a reception a new draft version of ``name`` (default: its own name)."""
     require(who, Role.PROGRAMMER)
-    out = svc.write(
-        lambda s: VersionOut.of(inbox.accept(s, received_id, actor=who.name, name=name))
-    )
+
+    def accept(session: Session) -> tuple[VersionOut, checks.Target]:
+        version = inbox.accept(session, received_id, actor=who.name, name=name)
+        return VersionOut.of(version), checks.Target.of(version)
+
+    out, target = svc.write(accept)
     svc.changed("inbox", str(received_id))
     svc.changed("program", out.program)
+    checks.ensure(svc, target, None)  # checked on save, after the commit
     return out
 
 

@@ -1,4 +1,5 @@
-"""Library actions: list and read programs, upload a version (a draft), release, lock."""
+"""Library actions: list and read programs, upload or edit a version (a draft, checked on
+save), release (its program check must pass, or a programmer overrides it), lock."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from typing import TypeVar
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import library
+from opendnc.server import audit, library
+from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
     Content,
@@ -30,6 +32,7 @@ __all__ = [
     "program_content",
     "program_diff",
     "release_version",
+    "save_edit",
     "set_locked",
     "upload_program",
 ]
@@ -125,22 +128,82 @@ def upload_program(
     if sha256 and hashlib.sha256(data).hexdigest() != sha256.strip().lower():
         raise InputError("the upload does not match its X-Content-SHA256 header")
 
-    def store(session: Session) -> UploadOut:
+    return _store(svc, who, name, data, comment, "upload")
+
+
+def _store(
+    svc: Services, who: Caller, name: str, data: bytes, comment: str, source: str
+) -> UploadOut:
+    def store(session: Session) -> tuple[UploadOut, checks.Target]:
         version, created = library.add_version(
-            session, name, data, author=who.name, comment=comment
+            session, name, data, author=who.name, comment=comment, source=source
         )
-        return UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
+        out = UploadOut(**VersionOut.of(version).model_dump(), created_new=created)
+        return out, checks.Target.of(version)
 
-    return _change(svc, name, store)
+    out, target = _change(svc, name, store)
+    # checked on save, after the commit (the dry run holds no write lock)
+    out.check = checks.check_out(target, checks.ensure(svc, target, None), None)
+    return out
 
 
-def release_version(svc: Services, who: Caller, name: str, number: int) -> VersionOut:
-    """Release a version (the one released before becomes superseded)."""
+def save_edit(
+    svc: Services, who: Caller, name: str, base: int, text: str, *, comment: str
+) -> UploadOut:
+    """Store ``text``, edited in the browser from version ``base``, as the next version of
+    ``name`` (a draft; programmers), with the ``comment`` that says why; it is checked on
+    save. The line ends of ``base`` are kept (a browser sends CR LF whatever it was given)."""
+    may_upload(who)
+    library.check_program_name(name)
+    why = comment.strip()
+    if not why:
+        raise InputError("an edit needs a comment saying what changed")
+    old = program_content(svc, who, name, base).data
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    if b"\r\n" in old:
+        text = text.replace("\n", "\r\n")
+    try:
+        data = text.encode("latin-1")
+    except UnicodeEncodeError as exc:
+        line = text.count("\n", 0, exc.start) + 1
+        raise InputError(f"line {line}: {text[exc.start]!r} is not NC program text") from None
+    if not data:
+        raise InputError("the edited program is empty")
+    return _store(svc, who, name, data, why, "editor")
+
+
+def release_version(
+    svc: Services, who: Caller, name: str, number: int, override: str | None = None
+) -> VersionOut:
+    """Release a version (the one released before becomes superseded). Its program check
+    must find no error, unless ``override`` gives a reason (programmers; audited)."""
     require(who, Role.APPROVER)
     library.check_program_name(name)
-    return _change(
-        svc, name, lambda s: VersionOut.of(library.release(s, name, number, actor=who.name))
-    )
+    reason = policy.override_reason(who, override)
+    target = svc.read(lambda s: checks.Target.of(library.get_version(s, name, number)))
+    checks.ensure(svc, target, None)  # before the transaction: the dry run takes no lock
+
+    def release(session: Session) -> VersionOut:
+        version = library.get_version(session, name, number)
+        check = checks.in_transaction(svc, session, version, None)
+        if policy.check_passes(
+            check, reason, f"{name} v{number}", blocks=svc.runner.config.library.check_blocks
+        ):
+            audit.record(
+                session,
+                who.name,
+                "program.check_override",
+                program=name,
+                sha256=version.sha256,
+                version=number,
+                to="release",
+                reason=reason,
+                errors=check.errors,
+                first=check.first_error(),
+            )
+        return VersionOut.of(library.release(session, name, number, actor=who.name))
+
+    return _change(svc, name, release)
 
 
 def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOut:

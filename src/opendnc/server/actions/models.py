@@ -24,6 +24,7 @@ from opendnc.server.store.models import (
 __all__ = [
     "MAX_ID",
     "AuditOut",
+    "CheckOut",
     "ClusterOut",
     "ClusterServerOut",
     "Content",
@@ -39,10 +40,12 @@ __all__ = [
     "LeaseOut",
     "LineNumber",
     "MachineOut",
+    "ProblemOut",
     "ProgramListed",
     "ProgramOut",
     "ReceivedDetail",
     "ReceivedOut",
+    "ReleaseRequest",
     "RemoteFileOut",
     "RevokedOut",
     "TextMatch",
@@ -102,10 +105,44 @@ class VersionOut(FromRow):
         return cls(program=program, **v._asdict())
 
 
+class ProblemOut(BaseModel):
+    """One problem a program check found: the file's 1-based ``line`` (Klartext: also its
+    ``block`` number), ``error`` or ``warning``, and what is wrong."""
+
+    line: int
+    block: int | None
+    severity: str
+    message: str
+
+
+class CheckOut(BaseModel):
+    """The program check (dry run) of one version, alone or against a machine.
+
+    ``errors`` block a release and a send unless a programmer overrides them with a reason;
+    ``warnings`` are shown. ``problems`` holds at most 500 (the counts are exact); ``facts``
+    the checker's tools, extents, distances, estimated ``cycle_time_s`` and units
+    (docs/check.md#json, without the moves)."""
+
+    program: str
+    version: int
+    sha256: str
+    machine: str | None
+    control: str
+    ok: bool
+    errors: int
+    warnings: int
+    summary: str
+    problems: list[ProblemOut]
+    facts: dict[str, JsonValue]
+    checked: Timestamp
+
+
 class UploadOut(VersionOut):
-    """A stored upload; ``created_new`` is false when the newest version had these bytes."""
+    """A stored upload; ``created_new`` is false when the newest version had these bytes;
+    ``check`` is its program check (run on save)."""
 
     created_new: bool
+    check: CheckOut | None = None
 
 
 class ProgramOut(BaseModel):
@@ -186,6 +223,19 @@ class DiffOut(BaseModel):
     a: int
     b: int
     lines: list[str]
+
+
+OVERRIDE = Field(
+    default=None,
+    max_length=1000,
+    description="a reason to go on although the program check found errors (programmers; audited)",
+)
+
+
+class ReleaseRequest(BaseModel):
+    """What a release may carry: the override of a program check's errors."""
+
+    override: str | None = OVERRIDE
 
 
 class JobOut(BaseModel):
@@ -375,7 +425,9 @@ class JobRequest(BaseModel):
 
     ``send``, ``dripfeed`` and ``put_file`` name a ``program`` (and optionally its
     ``version``: without it the released one); ``receive``, ``delete``, ``backup`` and
-    ``put_file`` name a ``path`` on the control.
+    ``put_file`` name a ``path`` on the control. A send or drip-feed of a version whose
+    program check finds errors on a machine is refused unless ``override`` gives a reason
+    (programmers; audited).
     """
 
     kind: JobKind = JobKind.SEND
@@ -384,6 +436,7 @@ class JobRequest(BaseModel):
     path: str | None = Field(default=None, min_length=1, max_length=255)
     machines: list[str] = Field(min_length=1, max_length=1000)
     from_line: LineNumber | None = None
+    override: str | None = OVERRIDE
 
 
 class ClusterServerOut(BaseModel):

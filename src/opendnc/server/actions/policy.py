@@ -1,6 +1,7 @@
 """The rules every request to the queue passes: which role each kind of job needs, what a
-machine takes (``released_only``, the drip-feed opt-in, the file browser), and what a
-version means when none is named. Nothing else in the server decides these."""
+machine takes (``released_only``, the drip-feed opt-in, the file browser), what a version
+means when none is named, and what a program check's errors block (a release, a send, a
+drip-feed) and who may override them. Nothing else in the server decides these."""
 
 from __future__ import annotations
 
@@ -12,14 +13,19 @@ from opendnc.server.actions.base import Caller, require
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict
+from opendnc.server.program_checks import Checked
 from opendnc.server.store.models import JobKind, ProgramState, ProgramVersion, Role
 
 __all__ = [
+    "CHECKED_JOBS",
     "JOB_ROLES",
+    "OVERRIDE_ROLE",
     "TAKE_BACK_ROLE",
     "check_machine",
+    "check_passes",
     "may_queue",
     "may_take_back",
+    "override_reason",
     "version_for",
 ]
 
@@ -78,3 +84,43 @@ def version_for(session: Session, program: str, number: int | None) -> ProgramVe
     """The version a send, drip-feed or put of ``program`` means: ``number``, or without it
     the released one (none released: refused with 409), for the API and the pages alike."""
     return jobs.version_to_send(session, program, number)
+
+
+# Jobs that put a library version on a machine to run: its program check must pass there.
+# (A put_file is the file browser's: any file, a tool table too; it needs a programmer, who
+# may override anyway.)
+CHECKED_JOBS = frozenset({JobKind.SEND, JobKind.DRIPFEED})
+# Who may release or send a version although its program check found errors (with a reason).
+OVERRIDE_ROLE = Role.PROGRAMMER
+
+
+def override_reason(who: Caller, override: str | None) -> str | None:
+    """The reason of an override of a program check's errors, or None when none is given.
+
+    An override needs the programmer role (403) and a reason that is not blank (400), whether
+    or not the check finds errors: the request is refused the same way every time."""
+    if override is None:
+        return None
+    require(who, OVERRIDE_ROLE)
+    reason = " ".join(override.split())
+    if not reason:
+        raise InputError("an override of the program check needs a reason")
+    return reason
+
+
+def check_passes(check: Checked, reason: str | None, what: str, *, blocks: bool = True) -> bool:
+    """Refuse (409) ``what`` (``"P.H v3 to tnc1"``) when ``check`` found errors and there is
+    no override ``reason``; True when the override lets it through (the caller audits it).
+    ``blocks`` is the shop's ``[library] check`` (False for ``"warn"``: errors are shown
+    only, nothing is refused or overridden)."""
+    if check.ok or not blocks:
+        return False
+    if reason is not None:
+        return True
+    first = check.first_error() or {}
+    count = f"{check.errors} error{'s' * (check.errors != 1)}"
+    where = "on" if check.errors == 1 else "the first on"
+    raise Conflict(
+        f"{what}: the program check found {count}, {where} line {first.get('line', '?')}: "
+        f"{first.get('message', '')}; a programmer may override it with a reason"
+    )

@@ -9,11 +9,12 @@ from collections.abc import Sequence
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import jobs, library
-from opendnc.server.actions import policy
+from opendnc.server import audit, jobs, library
+from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import JobOut, JobRequest
 from opendnc.server.machine_files import check_path
+from opendnc.server.program_checks import Checked
 from opendnc.server.store.models import JobKind, JobState, Role
 
 __all__ = [
@@ -31,12 +32,15 @@ def create_jobs(
     who: Caller,
     order: JobRequest,
     *,
-    params: dict[str, str | int | bool] | None = None,
+    extra: dict[str, str | int | bool] | None = None,
 ) -> list[JobOut]:
-    """Queue one job per machine: all of them, or (any refusal) none. ``params`` are the
-    actions' own (a take-back's ``into_library``), never a request's."""
+    """Queue one job per machine: all of them, or (any refusal) none. A send or drip-feed
+    is refused where the version's program check finds errors for that machine, unless the
+    order's ``override`` gives a reason (programmers; audited per machine). ``extra`` are
+    the actions' own parameters (a take-back's ``into_library``), never a request's."""
     kind = order.kind
     policy.may_queue(who, kind)
+    reason = policy.override_reason(who, order.override)
     configs = [svc.machine(name).config for name in order.machines]
     program = order.program
     path = None
@@ -54,20 +58,56 @@ def create_jobs(
             raise InputError("a path holds no NUL character")
     if order.from_line is not None and kind is not JobKind.DRIPFEED:
         raise InputError("only a drip-feed starts from a line")
+    checked = kind in policy.CHECKED_JOBS and program is not None
+    if checked and program is not None:
+        # the dry runs before the transaction: they may take seconds and take no lock
+        target = svc.read(lambda s: checks.Target.of(policy.version_for(s, program, order.version)))
+        for config in configs:
+            checks.ensure(svc, target, checks.limits_of(svc, config.name))
 
     def queue(session: Session) -> list[JobOut]:
         version = policy.version_for(session, program, order.version) if program else None
+        overridden: dict[str, Checked] = {}
         for config in configs:
             policy.check_machine(config, kind, version)
-        extra: dict[str, str | int | bool] = dict(params or {})
-        if path is not None:
-            extra["path"] = path
-        if order.from_line is not None:
-            extra["from_line"] = order.from_line
-        created = [
-            jobs.enqueue(session, kind, config.name, actor=who.name, version=version, params=extra)
-            for config in configs
-        ]
+        for config in configs:
+            if checked and version is not None:
+                limits = checks.limits_of(svc, config.name)
+                check = checks.in_transaction(svc, session, version, limits)
+                what = f"{version.program.name} v{version.number} to {config.name}"
+                if policy.check_passes(
+                    check, reason, what, blocks=svc.runner.config.library.check_blocks
+                ):
+                    overridden[config.name] = check
+        created = []
+        for config in configs:
+            params: dict[str, str | int | bool] = dict(extra or {})
+            if path is not None:
+                params["path"] = path
+            if order.from_line is not None:
+                params["from_line"] = order.from_line
+            if config.name in overridden and reason is not None:
+                params["check_override"] = reason  # a retry of the job keeps it
+            job = jobs.enqueue(
+                session, kind, config.name, actor=who.name, version=version, params=params
+            )
+            created.append(job)
+            if config.name in overridden and version is not None:
+                session.flush()
+                audit.record(
+                    session,
+                    who.name,
+                    "program.check_override",
+                    machine=config.name,
+                    program=version.program.name,
+                    sha256=version.sha256,
+                    job_id=job.id,
+                    version=version.number,
+                    to=kind.value,
+                    reason=reason,
+                    errors=overridden[config.name].errors,
+                    first=overridden[config.name].first_error(),
+                )
         return [JobOut.of(j) for j in created]
 
     out = svc.write(queue)
@@ -121,14 +161,34 @@ def move_job(svc: Services, who: Caller, job_id: int, index: int) -> JobOut:
 
 def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = None) -> JobOut:
     """Queue a failed, interrupted or cancelled job again, under the rules a new one of its
-    kind meets (a drip-feed: programmers, on a machine that still allows it)."""
+    kind meets (a drip-feed: programmers, on a machine that still allows it; a send's program
+    check, whose override the job keeps)."""
     require(who, Role.OPERATOR)
+    old_job = get_job(svc, who, job_id)
+    if old_job.kind in policy.CHECKED_JOBS and old_job.program is not None:
+        target = svc.read(
+            lambda s: checks.Target.of(
+                library.get_version(s, old_job.program or "", old_job.version)
+            )
+        )
+        checks.ensure(svc, target, checks.limits_of(svc, old_job.machine))
 
     def retry(session: Session) -> JobOut:
         old = jobs.get_job(session, job_id)
         if old.kind in policy.JOB_ROLES:  # a report is retried like any job
             policy.may_queue(who, old.kind)
         policy.check_machine(svc.machine(old.machine).config, old.kind, old.version)
+        if old.kind in policy.CHECKED_JOBS and old.version is not None:
+            limits = checks.limits_of(svc, old.machine)
+            check = checks.in_transaction(svc, session, old.version, limits)
+            kept = old.params.get("check_override")
+            what = f"{old.version.program.name} v{old.version.number} to {old.machine}"
+            policy.check_passes(
+                check,
+                kept if isinstance(kept, str) else None,
+                what,
+                blocks=svc.runner.config.library.check_blocks,
+            )
         return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
 
     out = svc.write(retry)

@@ -62,6 +62,7 @@ __all__ = [
     "UtilizationHour",
     "UtilizationMark",
     "UtilizationStretch",
+    "VersionCheck",
     "utcnow",
 ]
 
@@ -541,3 +542,27 @@ class SparkplugNode(Base):
     group_id: Mapped[str] = mapped_column(String(64), primary_key=True)
     node_id: Mapped[str] = mapped_column(String(64), primary_key=True)
     bd_seq: Mapped[int] = mapped_column(Integer, default=0)
+
+
+class VersionCheck(Base):
+    """The dry run of one program version (:mod:`opendnc.nccheck`), kept so a page, a release
+    and a send read it instead of running it again: ``limits`` is ``""`` for the check of the
+    text alone, else a digest of the machine limits it ran against (family, travel, work
+    offsets, protected numbers), so machines alike share one row and a changed configuration
+    makes a new one. ``problems`` holds ``{line, block, severity, message}`` each."""
+
+    __tablename__ = "version_checks"
+    __table_args__ = (
+        UniqueConstraint("version_id", "limits", name="uq_version_checks_version_limits"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    version_id: Mapped[int] = mapped_column(ForeignKey("program_versions.id"))
+    limits: Mapped[str] = mapped_column(String(64), default="")
+    control: Mapped[str] = mapped_column(String(16))
+    errors: Mapped[int] = mapped_column(Integer, default=0)
+    warnings: Mapped[int] = mapped_column(Integer, default=0)
+    summary: Mapped[str] = mapped_column(Text, default="")
+    problems: Mapped[list[Any]] = mapped_column(JSON, default=list)
+    facts: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)  # tools, extents, time
+    checked: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)

@@ -7,6 +7,7 @@ and hand plain values to these functions.
 from __future__ import annotations
 
 import difflib
+import re
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta, tzinfo
 from functools import cache
@@ -31,8 +32,11 @@ __all__ = [
     "card_oob",
     "environment",
     "highlight_lines",
+    "language_of",
     "pygments_css",
     "side_by_side",
+    "word_diff",
+    "words",
 ]
 
 HERE = Path(__file__).parent
@@ -212,6 +216,15 @@ def pygments_css() -> str:
     return str(HtmlFormatter(style="default").get_style_defs(".code"))  # type: ignore[no-untyped-call]
 
 
+def language_of(name: str, data: bytes) -> str:
+    """``klartext`` for a Heidenhain conversational program, else ``gcode`` (what the
+    editor highlights; the checker's own guess)."""
+    from opendnc.nccheck import Control, guess_control
+
+    control = guess_control(data[:4096].decode("latin-1"), name)
+    return "klartext" if control is Control.HEIDENHAIN else "gcode"
+
+
 def program_text(data: bytes) -> str:
     """Program bytes as text: G-code is ASCII; latin-1 shows a stray byte instead of failing."""
     return data.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n")
@@ -219,24 +232,74 @@ def program_text(data: bytes) -> str:
 
 @dataclass(frozen=True)
 class DiffRow:
-    """One row of a side-by-side diff: ``tag`` is equal, replace, delete, insert or skip."""
+    """One row of a side-by-side diff: ``tag`` is equal, replace, delete, insert or skip.
+
+    A replace row's cells mark the words that changed (``wd-del``, ``wd-ins``); a skip row
+    says how many unchanged lines it stands for (``skipped``)."""
 
     tag: str
     old_no: int | None
     old: Markup
     new_no: int | None
     new: Markup
+    skipped: int = 0
+
+
+# The words of an NC line a diff compares: a comment, a macro variable, an address with its
+# value (G01, X-1.5, FMAX, Q12), a run of spaces, or a run of anything else.
+_WORD = re.compile(r"\([^)]*\)?|;.*|#\[[^\]]*\]?|#\d+|[A-Za-z]+[-+]?[\d.]*|\s+|[^\sA-Za-z(;#]+")
+WORD_DIFF_CHARS = 2000  # longer lines are marked whole (a word diff is quadratic)
+
+
+def words(line: str) -> list[str]:
+    """``line`` cut into the words a diff compares (joined again they give ``line``)."""
+    return _WORD.findall(line)
+
+
+def word_diff(old: str, new: str) -> tuple[Markup, Markup]:
+    """The two lines with the words that differ marked: removed words in ``old`` as
+    ``<span class="wd-del">``, added ones in ``new`` as ``<span class="wd-ins">``."""
+    if len(old) > WORD_DIFF_CHARS or len(new) > WORD_DIFF_CHARS:
+        return (
+            Markup('<span class="wd-del">%s</span>') % old if old else Markup(""),
+            Markup('<span class="wd-ins">%s</span>') % new if new else Markup(""),
+        )
+    a, b = words(old), words(new)
+    left: list[str] = []
+    right: list[str] = []
+    matcher = difflib.SequenceMatcher(None, a, b, autojunk=False)
+    for tag, i1, i2, j1, j2 in matcher.get_opcodes():
+        gone, came = "".join(a[i1:i2]), "".join(b[j1:j2])
+        if tag == "equal":
+            left.append(escape(gone))
+            right.append(escape(came))
+            continue
+        if gone:
+            left.append(Markup('<span class="wd-del">%s</span>') % gone)
+        if came:
+            right.append(Markup('<span class="wd-ins">%s</span>') % came)
+    return Markup("").join(left), Markup("").join(right)
+
+
+def _skip(count: int) -> DiffRow:
+    return DiffRow("skip", None, Markup(""), None, Markup(""), skipped=count)
 
 
 def side_by_side(old: str, new: str, *, context: int = 3) -> list[DiffRow]:
-    """Rows of a side-by-side diff of two programs, unchanged runs shortened to ``context``."""
+    """Rows of a side-by-side diff of two programs: unchanged runs shortened to ``context``
+    lines and a skip row saying how many were left out, changed words marked inside a
+    replaced line (:func:`word_diff`). No rows when the two are the same."""
     a, b = old.splitlines(), new.splitlines()
     ha, hb = highlight_lines(old), highlight_lines(new)
     rows: list[DiffRow] = []
     matcher = difflib.SequenceMatcher(None, a, b, autojunk=False)
-    for group in matcher.get_grouped_opcodes(context):
-        if rows:
-            rows.append(DiffRow("skip", None, Markup(""), None, Markup("")))
+    groups = list(matcher.get_grouped_opcodes(context))
+    if not groups:
+        return []  # the same text
+    shown_to = 0  # the old side's line after the last row shown
+    for group in groups:
+        if group[0][1] > shown_to:
+            rows.append(_skip(group[0][1] - shown_to))
         for tag, i1, i2, j1, j2 in group:
             span = max(i2 - i1, j2 - j1)
             for k in range(span):
@@ -247,15 +310,22 @@ def side_by_side(old: str, new: str, *, context: int = 3) -> list[DiffRow]:
                     row_tag = "insert"
                 elif tag == "replace" and not has_new:
                     row_tag = "delete"
+                old_html = ha[i] if has_old and i < len(ha) else Markup("")
+                new_html = hb[j] if has_new and j < len(hb) else Markup("")
+                if row_tag == "replace":
+                    old_html, new_html = word_diff(a[i], b[j])
                 rows.append(
                     DiffRow(
                         row_tag,
                         i + 1 if has_old else None,
-                        ha[i] if has_old and i < len(ha) else Markup(""),
+                        old_html,
                         j + 1 if has_new else None,
-                        hb[j] if has_new and j < len(hb) else Markup(""),
+                        new_html,
                     )
                 )
+        shown_to = group[-1][2]
+    if shown_to < len(a):
+        rows.append(_skip(len(a) - shown_to))
     return rows
 
 

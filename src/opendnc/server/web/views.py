@@ -68,6 +68,10 @@ router = APIRouter(include_in_schema=False)
 CARD_INTERVAL = 0.5
 FINISHED = [JobState.DONE, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED]
 ROLES = [r.name.lower() for r in Role]
+# The editor takes programs up to this size (a form field holds at most 1 MiB, and a browser
+# sends every line end as CR LF); a larger one is edited offline and uploaded.
+MAX_EDIT_BYTES = 512 * 1024
+MAX_EDIT_CHARS = 1024 * 1024
 TIMELINE_HOURS = 4
 WALL_SECONDS = 15  # each page of the wall display shows this long
 # The DPRNT console keeps this many of a machine's newest lines (the CSV has more).
@@ -823,11 +827,13 @@ def program_page(
     version = next(x for x in program.versions if x.number == number)
     text = render.program_text(shown.data)
     released = [x.number for x in program.versions if x.state is ProgramState.RELEASED]
+    check = actions.checks.version_check(svc, page.who, name, number)
     context: dict[str, Any] = {
         "program": program.model_dump(mode="json"),
         "shown": version.model_dump(mode="json"),
         "released": released[-1] if released else None,
         "listing": listing.window(text, name=name, size=len(shown.data), line=line),
+        "check": check.model_dump(mode="json"),
         "diff": None,
     }
     if a is not None and b is not None:
@@ -848,11 +854,81 @@ def download_version(request: Request, name: str, number: VersionPath, page: Vie
     return _download(actions.library.program_content(_svc(request), page.who, name, number))
 
 
+def _override(override: str | None, reason: str) -> str | None:
+    # the form's "override" box: ticked, its reason (blank is refused by the rules); else none
+    return reason if override else None
+
+
+Override = Annotated[str | None, Form(max_length=10)]
+Reason = Annotated[str, Form(max_length=1000)]
+
+
 @router.post("/library/{name}/versions/{number}/release")
-def release_version(request: Request, name: str, number: VersionPath, page: Writing) -> Response:
-    """Release a version (approvers)."""
-    actions.library.release_version(_svc(request), page.who, name, number)
+def release_version(
+    request: Request,
+    name: str,
+    number: VersionPath,
+    page: Writing,
+    override: Override = None,
+    reason: Reason = "",
+) -> Response:
+    """Release a version (approvers); a program check's errors need the override box and a
+    reason."""
+    actions.library.release_version(
+        _svc(request), page.who, name, number, _override(override, reason)
+    )
     return _redirect(request, f"/library/{quote(name)}?v={number}")
+
+
+@router.get("/library/{name}/checks")
+def machine_checks(
+    request: Request, name: str, page: Viewing, version: VersionNumber | None = None
+) -> HTMLResponse:
+    """The send form's list: a version's program check on each machine (a fragment)."""
+    names = [m.config.name for m in _supervisor(request).machines.values()]
+    found = actions.checks.machine_checks(_svc(request), page.who, name, version, names)
+    rows = [c.model_dump(mode="json") for c in found]
+    return _html("_machine_checks.html", page, request, checks=rows, program=name)
+
+
+@router.get("/library/{name}/versions/{number}/edit")
+def edit_page(request: Request, name: str, number: VersionPath, page: Viewing) -> HTMLResponse:
+    """The editor: version ``number`` as text to change and save as a new draft
+    (programmers)."""
+    actions.library.may_upload(page.who)
+    svc = _svc(request)
+    program = actions.library.get_program(svc, page.who, name)
+    content = actions.library.program_content(svc, page.who, name, number)
+    if len(content.data) > MAX_EDIT_BYTES:
+        raise InputError(
+            f"{name} v{number} is {render.human_size(len(content.data))}: the browser's editor "
+            f"takes {render.human_size(MAX_EDIT_BYTES)}; download it, edit it and upload it"
+        )
+    version = next(x for x in program.versions if x.number == number)
+    return _html(
+        "editor.html",
+        page,
+        request,
+        program=program.model_dump(mode="json"),
+        shown=version.model_dump(mode="json"),
+        text=render.program_text(content.data),
+        language=render.language_of(name, content.data),
+    )
+
+
+@router.post("/library/{name}/versions/{number}/edit")
+def save_edit(
+    request: Request,
+    name: str,
+    number: VersionPath,
+    page: Writing,
+    text: Annotated[str, Form(max_length=MAX_EDIT_CHARS)],
+    comment: Annotated[str, Form(max_length=1000)] = "",
+) -> Response:
+    """Save the edited text as a new draft with its comment (programmers); the program page
+    of the new version shows its check."""
+    saved = actions.library.save_edit(_svc(request), page.who, name, number, text, comment=comment)
+    return _redirect(request, f"/library/{quote(name)}?v={saved.number}#check")
 
 
 @router.post("/library/{name}/lock")
@@ -871,12 +947,21 @@ def send_program(
     page: Writing,
     machines: Annotated[list[str] | None, Form()] = None,
     version: NumberField = None,
+    override: Override = None,
+    reason: Reason = "",
 ) -> HTMLResponse:
-    """Queue the program for the picked machines (operators)."""
+    """Queue the program for the picked machines (operators); a program check's errors need
+    the override box and a reason (programmers)."""
     if not machines:
         actions.policy.may_queue(page.who, JobKind.SEND)  # the role first, as the API does
         raise InputError("pick at least one machine")
-    order = JobRequest(kind=JobKind.SEND, program=name, version=version, machines=machines)
+    order = JobRequest(
+        kind=JobKind.SEND,
+        program=name,
+        version=version,
+        machines=machines,
+        override=_override(override, reason),
+    )
     created = actions.queue.create_jobs(_svc(request), page.who, order)
     queued = [j.model_dump(mode="json") for j in created]
     return _html("_sent.html", page, request, queued=queued)
