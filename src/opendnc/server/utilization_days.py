@@ -3,7 +3,7 @@
 A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization`);
 summing them for every question takes seconds. So every finished local day of the shop's
 calendar is summed once more, per **slot**: each shift's part of the day, and the time
-outside shifts (``utilization_days``, migration 0013). A day, a week or a shift of a question
+outside shifts (``utilization_days``, migration 0014). A day, a week or a shift of a question
 is then a sum of a few of these rows; the hours (and the samples) are read only for the days
 a span cuts at its ends.
 

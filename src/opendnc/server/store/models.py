@@ -443,7 +443,7 @@ class UtilizationMark(Base):
 class UtilizationDay(Base):
     """One machine's local day of the shop's calendar in one slot (a shift's part of it, or
     ``shift`` empty: the time outside shifts), summed from its finished hours
-    (server/utilization_days.py, migration 0013). ``shift_day`` is the day the shift began
+    (server/utilization_days.py, migration 0014). ``shift_day`` is the day the shift began
     (the day before for the morning part of a night shift). Kept per calendar: a changed
     ``[server] timezone`` or ``[[shifts]]`` builds them again from the hours."""
 

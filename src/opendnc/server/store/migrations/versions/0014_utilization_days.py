@@ -1,7 +1,7 @@
 """Utilization per local day: each machine's finished hours summed per day and shift.
 
-Revision ID: 0013
-Revises: 0012 (written on 0007; chained after 0012 when main was merged)
+Revision ID: 0014
+Revises: 0013 (written on 0007; chained after 0013 when main was merged)
 Create Date: 2026-11-27
 
 Written by hand to match the models. ``utilization_days`` holds one row per machine, local
@@ -17,8 +17,8 @@ from __future__ import annotations
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0013"
-down_revision = "0012"
+revision = "0014"
+down_revision = "0013"
 branch_labels = None
 depends_on = None
 
