@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import statistics
 import sys
@@ -46,6 +47,7 @@ from opendnc.server.shifts import parse_calendar
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.store.models import StatusSample
 from opendnc.server.utilization import Group, buckets, equal_periods, report, roll
+from opendnc.server.utilization_api import HourSummer
 
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
 CAL = parse_calendar(
@@ -154,13 +156,36 @@ def fill(url: str, machines: list[str], start: datetime, end: datetime, seed: in
     return written
 
 
-def _time(sessions: sessionmaker[Session], work: Any, repeat: int) -> list[float]:
+def _backend_cpu(session: Session) -> float:
+    """CPU seconds the PostgreSQL backend serving ``session`` has used (0 on SQLite, which
+    runs in this process and counts in its CPU time)."""
+    if session.get_bind().dialect.name != "postgresql":
+        return 0.0
+    pid = session.execute(text("SELECT pg_backend_pid()")).scalar()
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:  # not on this machine, or not Linux
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+CPU: dict[str, list[float]] = {}
+
+
+def _time(sessions: sessionmaker[Session], work: Any, repeat: int, key: str = "") -> list[float]:
+    """Wall seconds of ``repeat`` runs of ``work``; the CPU seconds of each (this process
+    and the database server's backend: what the load of the machine does not change) go to
+    :data:`CPU` under ``key``."""
     out = []
     for _ in range(repeat):
-        started = time.perf_counter()
         with sessions.begin() as session:
+            backend = _backend_cpu(session)
+            cpu = time.process_time()
+            started = time.perf_counter()
             work(session)
-        out.append(time.perf_counter() - started)
+            out.append(time.perf_counter() - started)
+            cpu = time.process_time() - cpu + _backend_cpu(session) - backend
+        CPU.setdefault(key, []).append(cpu)
     return out
 
 
@@ -234,6 +259,10 @@ def run(
     _clone(url, own, names[len(own) :], since)
     out["copies_keep_samples_of_days"] = None if copy_days < 0 else copy_days
     out["clone_s"] = round(time.perf_counter() - t0, 1)
+    # summing the local days from the hours (the server does it in the background too)
+    t0 = time.perf_counter()
+    HourSummer(sessions, names, CAL).sum_now(now)
+    out["sum_days_s"] = round(time.perf_counter() - t0, 1)
     with engine.connect() as conn:
         out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
         out["hour_rows"] = conn.execute(text("SELECT COUNT(*) FROM utilization_hours")).scalar()
@@ -246,28 +275,43 @@ def run(
     week = (midnight - timedelta(days=6), now)
     day = (midnight - timedelta(days=1), midnight)
 
-    def question(span: tuple[datetime, datetime], group: Group, at: datetime) -> Any:
-        return lambda s: report(s, CAL, names, span[0], span[1], group, now=at)
+    def question(
+        span: tuple[datetime, datetime], group: Group, at: datetime, days: bool = True
+    ) -> Any:
+        return lambda s: report(s, CAL, names, span[0], span[1], group, now=at, use_days=days)
 
+    CPU.clear()
     timings = {
-        "year_by_week": _time(sessions, question(year, Group.WEEK, now), repeat),
-        "year_by_day": _time(sessions, question(year, Group.DAY, now), repeat),
-        "7_days_by_day": _time(sessions, question(week, Group.DAY, now), repeat),
-        "1_day_by_shift": _time(sessions, question(day, Group.SHIFT, now), repeat),
+        "year_by_week": _time(sessions, question(year, Group.WEEK, now), repeat, "year_by_week"),
+        "year_by_week_from_hours": _time(
+            sessions, question(year, Group.WEEK, now, days=False), 1, "year_by_week_from_hours"
+        ),
+        "year_by_day": _time(sessions, question(year, Group.DAY, now), repeat, "year_by_day"),
+        "year_by_shift": _time(sessions, question(year, Group.SHIFT, now), repeat, "year_by_shift"),
+        "7_days_by_day": _time(sessions, question(week, Group.DAY, now), repeat, "7_days_by_day"),
+        "1_day_by_shift": _time(
+            sessions, question(day, Group.SHIFT, now), repeat, "1_day_by_shift"
+        ),
         "gantt_7_days": _time(
             sessions,
             lambda s: buckets(s, names, equal_periods(*week, timedelta(hours=1)), now=now),
             repeat,
+            "gantt_7_days",
         ),
     }
     # one more hour of samples for every machine, then the year again (it sums that hour)
     later = now + timedelta(hours=1)
     fill(url, names, now, later, seed + 1)
     timings["year_after_1_hour_more"] = _time(
-        sessions, question((start, later), Group.WEEK, later + timedelta(minutes=3)), 1
+        sessions,
+        question((start, later), Group.WEEK, later + timedelta(minutes=3)),
+        1,
+        "year_after_1_hour_more",
     )
     out["seconds"] = {k: [round(v, 3) for v in vs] for k, vs in timings.items()}
     out["median_s"] = {k: round(statistics.median(vs), 3) for k, vs in timings.items()}
+    out["median_cpu_s"] = {k: round(statistics.median(vs), 3) for k, vs in CPU.items()}
+    out["load_average"] = [round(x, 1) for x in os.getloadavg()]
     engine.dispose()
     return out
 
@@ -336,8 +380,15 @@ def main(argv: list[str] | None = None) -> None:
             f"summing {summed['samples']} samples took {summed['seconds']} s "
             f"({summed['samples_per_second']} samples/s)"
         )
+        print(
+            f"  load average {result['load_average']}; "
+            f"summing the days took {result['sum_days_s']} s"
+        )
         for key, seconds in result["seconds"].items():
-            print(f"  {key}: median {result['median_s'][key]} s  (runs: {seconds})")
+            print(
+                f"  {key}: median {result['median_s'][key]} s, CPU "
+                f"{result['median_cpu_s'][key]} s  (runs: {seconds})"
+            )
         sys.stdout.flush()
 
 

@@ -75,3 +75,6 @@ def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
         assert f"POCKET.H -> {machine}: sent" in out
     for machine in ("haas-1", "haas-serial-1"):
         assert f"O01000.nc -> {machine}: sent" in out
+    # the NGC has a DPRNT source and runs a program that prints (issue 23)
+    assert "DPRNT haas-1: BORE  1 DIA  1.0002" in out
+    assert "DPRNT haas-1: BORE  3 DIA  1.0000" in out

@@ -258,6 +258,19 @@ CASES = [
         lambda role, m: _role(role, Role.OPERATOR),
     ),
     Case(
+        "take a file of the control back into the library",
+        lambda app, role, m: app.client.post(
+            f"/api/machines/{m}/files/take-back",
+            params={"path": "TNC:/nc_prog/OLD.H"},
+            headers=app.api(role),
+        ),
+        lambda app, role, m: _form(
+            app, role, f"/machines/{m}/files/take-back", {"path": "TNC:/nc_prog/OLD.H"}
+        ),
+        # a new version of a program: the programmer's, on a control with a file browser
+        lambda role, m: _role(role, Role.PROGRAMMER, "ok" if _browser(m) else 409),
+    ),
+    Case(
         "put a draft on the control",
         lambda app, role, m: _jobs(
             app,
@@ -389,7 +402,7 @@ def test_the_api_and_the_pages_answer_alike_and_by_the_rules(app: App, role: Rol
                     f"{case.name} on {machine}: rules {expected}, api {app_answer} "
                     f"({api.text[:120]}), page {page_answer} ({page.text[-200:]!r})"
                 )
-    assert checked == 14 * len(MACHINES) + 7
+    assert checked == 15 * len(MACHINES) + 7
     assert not wrong, "\n".join(wrong)
 
 

@@ -1,7 +1,7 @@
 """`opendnc demo`: the DNC server with a virtual shop floor, on embedded defaults.
 
-Starts two virtual TNCs, a virtual Haas NGC (MDC and net share) and a virtual Haas on a
-virtual RS-232 cable in this process, fills a library with example programs (released ones
+Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port) and a virtual
+Haas on a virtual RS-232 cable in this process, fills a library with example programs (released ones
 and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
 the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
 ``--check`` sends a released program of its family to every machine, prints what happened and
@@ -24,6 +24,14 @@ from opendnc.cli.common import cli_errors, console
 from opendnc.cli.serve import listen_socket, parse_bind, require_server_extra
 from opendnc.errors import DncError, InputError
 
+# What the virtual NGC runs once at start so its DPRNT lines reach the machine's page.
+PRINTS = (
+    "%\nO03000 (PROBE BORE, PRINT SIZE)\n#100 = 1\n#101 = 1.0002\n"
+    "WHILE [#100 LE 3] DO1\nDPRNT[BORE*#100[20]*DIA*#101[24]]\n"
+    "#100 = #100 + 1\n#101 = #101 - 0.0001\nEND1\nM30\n%\n"
+)
+
+
 # Example programs: Haas ISO programs and a Heidenhain conversational one (CRLF, as stored).
 EXAMPLES: dict[str, list[bytes]] = {
     "O01000.nc": [
@@ -39,6 +47,7 @@ EXAMPLES: dict[str, list[bytes]] = {
         b"G43 H02 Z0.1 M08\r\nG83 Z-0.5 R0.1 Q0.1 F10.\r\nX1.5\r\nY1.5\r\nX0.5\r\nG80 M09\r\n"
         b"G28 G91 Z0.\r\nM30\r\n%\r\n",
     ],
+    "O03000.nc": [PRINTS.replace("\n", "\r\n").encode()],  # the one the NGC runs
     "POCKET.H": [
         b"0 BEGIN PGM POCKET MM\r\n1 BLK FORM 0.1 Z X+0 Y+0 Z-20\r\n"
         b"2 BLK FORM 0.2 X+100 Y+100 Z+0\r\n3 TOOL CALL 1 Z S4000 F800\r\n"
@@ -90,7 +99,8 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
     from opendnc.sim.fleet import server_config, start_fleet
 
     port = listener.getsockname()[1]  # the real one when --bind said :0
-    fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1)
+    # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
+    fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1, dprnt=True)
     try:
         text = server_config(
             fleet,
@@ -141,6 +151,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
         )
         names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
         console.print(f"machines: {names}", highlight=False, soft_wrap=True)
+        printing = asyncio.create_task(_print_dprnt(server, fleet))
         try:
             if check:
                 await _check(server, fleet)
@@ -152,6 +163,9 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
                 console.print("serving; Ctrl-C stops the demo", highlight=False)
                 await stop.wait()
         finally:
+            printing.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await printing
             web.should_exit = True
             await serving
             server.engine.dispose()
@@ -160,14 +174,31 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
     console.print("demo finished")
 
 
+async def _print_dprnt(server: object, fleet: object) -> None:
+    """Once the server reads the NGC's DPRNT port, run a program there that prints three
+    lines (a cycle start at the control): the demo's DPRNT console is not empty."""
+    from opendnc.sim.fleet import Fleet
+
+    assert isinstance(fleet, Fleet)
+    for machine in fleet.machines:
+        sim = fleet.sims.get(machine.name)
+        if not machine.dprnt_port or sim is None or sim.dprnt_tcp is None:
+            continue
+        if await sim.dprnt_tcp.wait_reader(60):
+            number = sim.control.save_program(PRINTS)
+            sim.control.start_program(number)
+
+
 async def _check(server: object, fleet: object) -> None:
     """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC) and
     wait for the outcome."""
+    from sqlalchemy import select
+
     from opendnc.server import actions, jobs
     from opendnc.server.actions.models import JobRequest
     from opendnc.server.app import Server
     from opendnc.server.auth import Principal
-    from opendnc.server.store.models import JobKind, JobState, Role
+    from opendnc.server.store.models import DprntLine, JobKind, JobState, Role
     from opendnc.sim.fleet import Fleet
 
     assert isinstance(server, Server)
@@ -205,3 +236,14 @@ async def _check(server: object, fleet: object) -> None:
         console.print(f"{programs[job.id]} -> {job.machine}: {outcome}", highlight=False)
     if any(j.state is not JobState.DONE for j in states):
         raise DncError("not every machine received the program")
+    # the NGC's DPRNT lines, captured by the server (the program it runs at start prints 3)
+    while True:
+        with server.sessions() as session:
+            printed = session.scalars(select(DprntLine.text).order_by(DprntLine.id)).all()
+        if len(printed) >= 3 or loop.time() > deadline:
+            break
+        await asyncio.sleep(0.1)
+    for line in printed:
+        console.print(f"DPRNT haas-1: {line}", highlight=False)
+    if len(printed) < 3:
+        raise DncError("the demo's DPRNT lines did not arrive")

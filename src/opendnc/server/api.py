@@ -313,16 +313,29 @@ async def machine_file_content(svc: Svc, name: str, path: ControlPath, who: Call
     return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
 
 
+@router.post("/machines/{name}/files/take-back", status_code=201)
+def take_back_machine_file(svc: Svc, name: str, path: ControlPath, who: Caller) -> JobOut:
+    """Take a file of the control back into the library (programmers): a ``receive`` job
+    that stores it as a new draft version of the program of the file's name; 409 if that
+    program is locked or the machine has no file browser."""
+    return actions.files.take_back(svc, who, name, path)
+
+
 # -- library --------------------------------------------------------------------------------
 
 
 @router.get("/programs")
 def list_programs(
-    svc: Svc, who: Caller, q: Annotated[str, Query(max_length=255)] = ""
+    svc: Svc,
+    who: Caller,
+    q: Annotated[str, Query(max_length=255)] = "",
+    text: Annotated[str, Query(max_length=255)] = "",
 ) -> list[ProgramListed]:
-    """Programs in the library, optionally filtered by part of the name: each with its newest
-    and its released version (``/api/programs/{name}`` has every version)."""
-    return actions.library.list_programs(svc, who, q)
+    """Programs in the library with their titles, each with its newest and its released
+    version (``/api/programs/{name}`` has every version): ``q`` filters by part of the name
+    or title, ``text`` finds programs whose newest version contains it (any case, at most
+    100, each with its first matching line)."""
+    return actions.library.list_programs(svc, who, q, text)
 
 
 @router.get("/programs/{name}")

@@ -136,7 +136,7 @@ def build(
             else None,
         )
     )
-    core.add(utilization_api.HourSummer(sessions, names))
+    core.add(utilization_api.HourSummer(sessions, names, config.calendar))
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it

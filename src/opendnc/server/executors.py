@@ -240,13 +240,24 @@ class ReceiveExecutor(_Base):
         machine = run.state.config.name
         own_name = run.job.name.replace("\\", "/").rsplit("/", 1)[-1].rsplit(":", 1)[-1]
 
-        def keep() -> int:
+        into_library = bool(run.job.params.get("into_library"))
+        actor = str(run.job.params.get("by") or "server")  # who asked for the take-back
+
+        def keep() -> dict[str, Any]:
             with self.sessions.begin() as session:
                 row = inbox.store(session, machine, data, folder=self.folder, name=own_name or None)
-                return row.id
+                out: dict[str, Any] = {"received_id": row.id}
+                if into_library:  # a take-back: the inbox's accept, in the same transaction
+                    try:
+                        with session.begin_nested():
+                            version = inbox.accept(session, row.id, actor=actor)
+                        out["program"], out["version"] = version.program.name, version.number
+                    except DncError as exc:  # locked meanwhile: the file waits in the inbox
+                        out["kept_in_inbox"] = str(exc)
+                return out
 
-        received_id = await asyncio.to_thread(keep)
-        return {"nbytes": len(data), "path": run.job.name, "received_id": received_id}
+        kept = await asyncio.to_thread(keep)
+        return {"nbytes": len(data), "path": run.job.name, **kept}
 
 
 class DeleteExecutor(_Base):

@@ -11,11 +11,12 @@ from __future__ import annotations
 import difflib
 import hashlib
 import re
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import NamedTuple
 
-from sqlalchemy import Select, func, select
+from sqlalchemy import ColumnElement, Select, String, cast, func, literal, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, joinedload, selectinload
 
@@ -28,8 +29,10 @@ from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVers
 __all__ = [
     "MAX_PROGRAM_BYTES",
     "MAX_SEARCH",
+    "MAX_TEXT_HITS",
     "History",
     "Listed",
+    "TextHit",
     "VersionRow",
     "add_version",
     "check_program_name",
@@ -37,10 +40,12 @@ __all__ = [
     "diff",
     "get_program",
     "get_version",
+    "heads",
     "history",
     "list_programs",
     "release",
     "same_name_but_case",
+    "search_text",
     "set_locked",
 ]
 
@@ -110,17 +115,22 @@ class Listed:
         return self.program.name
 
 
-def list_programs(session: Session, search: str = "") -> list[Listed]:
+def list_programs(
+    session: Session, search: str = "", names: Sequence[str] | None = None
+) -> list[Listed]:
     """Programs whose name contains ``search`` (case-insensitive), by name.
 
     Each with its newest and its released version only: the list's cost does not grow with
     the versions a program has had (:func:`get_program` has them all). ``search`` longer
     than a name can be (:data:`MAX_SEARCH`) is an :class:`InputError`: it could match
     nothing, and SQLite refuses a LIKE pattern of 50,000 characters and more. ``%`` and
-    ``_`` in it match themselves."""
+    ``_`` in it match themselves. ``names`` lists only these (those a search in the text
+    found)."""
     if len(search) > MAX_SEARCH:
         raise InputError(f"a search is at most {MAX_SEARCH} characters (a name's length)")
     where = [func.lower(Program.name).contains(search.lower(), autoescape=True)] if search else []
+    if names is not None:
+        where.append(Program.name.in_(list(names)))
     per_program = (
         select(
             ProgramVersion.program_id,
@@ -409,3 +419,82 @@ def diff(session: Session, name: str, a: int, b: int, *, context: int = 3) -> li
             old_lines, new_lines, f"{name} v{a}", f"{name} v{b}", n=context, lineterm=""
         )
     )
+
+
+MAX_TEXT_HITS = 100  # programs a search in the text lists at most
+
+
+@dataclass(frozen=True)
+class TextHit:
+    """A program whose newest version holds the searched text, and its first line that does."""
+
+    name: str
+    line: int
+    text: str
+
+
+def heads(session: Session, digests: Iterable[str], size: int) -> dict[str, bytes]:
+    """The first ``size`` bytes of each content of ``digests`` (read in the database, not
+    whole): what a list needs to name each program's title."""
+    wanted = sorted(set(digests))
+    out: dict[str, bytes] = {}
+    for i in range(0, len(wanted), 500):
+        rows = session.execute(
+            select(Blob.sha256, func.substr(Blob.data, 1, size)).where(
+                Blob.sha256.in_(wanted[i : i + 500])
+            )
+        )
+        out.update({digest: bytes(head or b"") for digest, head in rows})
+    return out
+
+
+def _escape_like(text: str) -> str:
+    return text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+
+
+def search_text(session: Session, text: str, limit: int = MAX_TEXT_HITS) -> list[TextHit]:
+    """Programs whose newest version contains ``text`` (any case, ASCII), by name, at most
+    ``limit``; each with its first line that does. ``%``, ``_`` and ``\\`` match
+    themselves. The database looks through the contents (LIKE), this only through the
+    programs it found."""
+    if not text:
+        return []
+    if len(text) > MAX_SEARCH:
+        raise InputError(f"a search is at most {MAX_SEARCH} characters")
+    newest = (
+        select(ProgramVersion.program_id, func.max(ProgramVersion.number).label("number"))
+        .group_by(ProgramVersion.program_id)
+        .subquery()
+    )
+    haystack: ColumnElement[str]
+    if session.get_bind().dialect.name == "postgresql":
+        # bytea as text: encode(..., 'escape') keeps ASCII and doubles backslashes
+        haystack = func.encode(Blob.data, literal("escape"))
+        needle = text.replace("\\", "\\\\")
+        found = haystack.ilike(f"%{_escape_like(needle)}%", escape="\\")
+    else:
+        # SQLite: the bytes as text; its LIKE ignores ASCII case
+        haystack = cast(Blob.data, String)
+        found = haystack.like(f"%{_escape_like(text)}%", escape="\\")
+    rows = session.execute(
+        select(Program.name, ProgramVersion.sha256)
+        .join(newest, newest.c.program_id == Program.id)
+        .join(
+            ProgramVersion,
+            (ProgramVersion.program_id == Program.id) & (ProgramVersion.number == newest.c.number),
+        )
+        .join(Blob, Blob.sha256 == ProgramVersion.sha256)
+        .where(found)
+        .order_by(Program.name)
+        .limit(limit)
+    ).all()
+    hits = []
+    wanted = text.lower()
+    for name, digest in rows:
+        blob = session.get(Blob, digest)
+        data = blob.data.decode("latin-1") if blob is not None else ""
+        for number, line in enumerate(data.splitlines(), 1):
+            if wanted in line.lower():
+                hits.append(TextHit(name, number, line.strip()[:200]))
+                break
+    return hits

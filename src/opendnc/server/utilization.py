@@ -19,24 +19,27 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, time, timedelta
 from typing import Any
 
 from sqlalchemy import (
+    ARRAY,
     Column,
     Integer,
     MetaData,
+    Select,
     String,
     Table,
     TypeDecorator,
+    bindparam,
     delete,
     func,
     insert,
     select,
+    true,
     type_coerce,
-    union_all,
 )
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -51,8 +54,10 @@ from opendnc.server.store.models import (
     UtilizationMark,
     UtilizationStretch,
 )
+from opendnc.server.utilization_days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
 from opendnc.server.utilization_sums import (
     HOUR,
+    RECENT_ALARMS,
     STATES,
     TOP_STOPS,
     AlarmSummary,
@@ -63,6 +68,7 @@ from opendnc.server.utilization_sums import (
     MachineReport,
     Point,
     Stretch,
+    SummedAlarms,
     as_utc,
     bin_at,
     bins_within,
@@ -96,6 +102,7 @@ __all__ = [
     "buckets",
     "equal_periods",
     "make_bins",
+    "marks_of",
     "point_of",
     "read_many",
     "report",
@@ -149,27 +156,53 @@ class _FastUtc(TypeDecorator[datetime]):
         return at if at.tzinfo else at.replace(tzinfo=UTC)
 
 
-_AT = type_coerce(StatusSample.at, _FastUtc()).label("at")
+_SAMPLES: Table = StatusSample.__table__  # type: ignore[assignment]
+
+
+_AT = type_coerce(_SAMPLES.c.at, _FastUtc()).label("at")
 
 
 _SAMPLE_COLUMNS = (
-    StatusSample.machine,
-    StatusSample.id,
+    _SAMPLES.c.machine,
+    _SAMPLES.c.id,
     _AT,
-    StatusSample.state,
-    StatusSample.execution,
-    StatusSample.program,
-    StatusSample.part_count,
-    StatusSample.alarm,
+    _SAMPLES.c.state,
+    _SAMPLES.c.execution,
+    _SAMPLES.c.program,
+    _SAMPLES.c.part_count,
+    _SAMPLES.c.alarm,
 )
 
 
-UNION_CHUNK = 200  # per-machine subqueries in one statement (SQLite allows 500)
+UNION_CHUNK = 200  # machines in one IN list (SQLite allows 999 parameters)
 
 
 def _chunks(items: Sequence[str], size: int = UNION_CHUNK) -> Iterator[Sequence[str]]:
     for i in range(0, len(items), size):
         yield items[i : i + size]
+
+
+def _each(
+    session: Session,
+    make: Callable[[Any], Select[Any]],
+    machines: Sequence[str],
+    **params: Any,
+) -> Iterator[Any]:
+    """The rows of ``make(machine)`` (a statement about one machine, typically with a
+    ``LIMIT``) for each of ``machines``. On PostgreSQL one statement for all of them (a
+    lateral join over the names as one array parameter); elsewhere (SQLite, in process, no
+    round trips) the one statement prepared once and run per machine: both cost less than
+    compiling one statement of hundreds of parts."""
+    connection = session.connection()
+    if connection.dialect.name == "postgresql":
+        names = func.unnest(bindparam("machines", type_=ARRAY(String()))).table_valued("name")
+        each = make(names.c.name).lateral("each")
+        statement = select(each).select_from(names).join(each, true())
+        yield from connection.execute(statement, {"machines": list(machines), **params})
+        return
+    prepared = make(bindparam("machine", type_=String()))
+    for machine in machines:
+        yield from connection.execute(prepared, {"machine": machine, **params})
 
 
 def read_points(session: Session, machine: str, start: datetime, end: datetime) -> list[Point]:
@@ -183,35 +216,44 @@ def read_many(
     """Each machine's samples in ``[start, end)`` and the one in force at ``start``, in two
     statements for all of them (one index seek per machine for the one in force)."""
     out: dict[str, list[Point]] = {m: [] for m in machines}
-    for chunk in _chunks(machines):
-        before = union_all(
-            *(
-                select(*_SAMPLE_COLUMNS)
-                .where(StatusSample.machine == m, StatusSample.at < start)
-                .order_by(StatusSample.at.desc(), StatusSample.id.desc())
-                .limit(1)
-                .subquery()
-                .select()
-                for m in chunk
-            )
+    c = _SAMPLES.c
+
+    def before(machine: Any) -> Select[Any]:
+        return (
+            select(*_SAMPLE_COLUMNS)
+            .where(c.machine == machine, c.at < bindparam("start", type_=UtcDateTime()))
+            .order_by(c.at.desc(), c.id.desc())
+            .limit(1)
         )
-        for row in session.execute(before):
-            out[row[0]].append(point_of_columns(row))
+
+    for row in _each(session, before, machines, start=start):
+        out[row[0]].append(point_of_columns(row))
+    for chunk in _chunks(machines):
         rows = session.execute(
             select(*_SAMPLE_COLUMNS)
-            .where(StatusSample.machine.in_(chunk), StatusSample.at >= start, StatusSample.at < end)
-            .order_by(StatusSample.machine, StatusSample.at, StatusSample.id)
+            .where(c.machine.in_(chunk), c.at >= start, c.at < end)
+            .order_by(c.machine, c.at, c.id)
         )
         for row in rows:
             out[row[0]].append(point_of_columns(row))
     return out
 
 
-def roll(session: Session, machines: Iterable[str], now: datetime) -> int:
+def roll(
+    session: Session,
+    machines: Iterable[str],
+    now: datetime,
+    calendar: Calendar | None = None,
+    *,
+    days: int | None = BUILD_DAYS,
+) -> int:
     """Sum the finished hours of ``machines`` not summed yet (up to the hour before ``now``
-    less a margin); how many machine-hours were written. Call in a write transaction."""
+    less a margin), then (given the shop's ``calendar``) up to ``days`` of their finished
+    local days per machine (:mod:`opendnc.server.utilization_days`; None: all of them);
+    how many machine-hours were written. Call in a write transaction."""
     target = floor_hour(now - ROLL_MARGIN)
     written = 0
+    machines = list(machines)
     with _roll_lock:
         marks = {m.machine: m for m in session.scalars(select(UtilizationMark))}
         seen = max((m.last_id for m in marks.values()), default=0)
@@ -227,13 +269,26 @@ def roll(session: Session, machines: Iterable[str], now: datetime) -> int:
             if mark is not None and first < mark.until:
                 # a sample for an hour already summed: sum this machine again from a day
                 # before it (what carries into that point is read from the samples there)
-                _rewind(session, mark, floor_hour(first) - REWIND)
+                _rewind(session, mark, floor_hour(first) - REWIND, calendar)
         for machine in machines:
             written += _roll_machine(session, machine, marks.get(machine), target, last_id)
+        if calendar is not None:
+            session.flush()
+            build_days(session, calendar, machines, marks_of(session, machines), days)
     return written
 
 
-def _rewind(session: Session, mark: UtilizationMark, at: datetime) -> None:
+def marks_of(session: Session, machines: Sequence[str] | None = None) -> dict[str, UtilizationMark]:
+    """How far each machine's hours are summed (all machines', or those of ``machines``)."""
+    query = select(UtilizationMark)
+    if machines is not None:
+        query = query.where(UtilizationMark.machine.in_(machines))
+    return {m.machine: m for m in session.scalars(query)}
+
+
+def _rewind(
+    session: Session, mark: UtilizationMark, at: datetime, calendar: Calendar | None
+) -> None:
     """Forget ``mark``'s machine's sums from ``at`` on (not before its first sample still
     kept: hours whose samples were pruned stay as they were summed)."""
     machine = mark.machine
@@ -250,6 +305,7 @@ def _rewind(session: Session, mark: UtilizationMark, at: datetime) -> None:
             UtilizationStretch.machine == machine, UtilizationStretch.end > at
         )
     )
+    forget_days(session, calendar, machine, at)
     before = read_many(session, [machine], at, at)[machine]
     mark.until = at
     mark.carry = Carry.fresh(before[-1] if before else None).as_json()
@@ -286,7 +342,8 @@ def _roll_machine(
             "cycle_seconds": f.cycle_seconds,
         }
         for b, f in zip(bins, figures, strict=True)
-        if f.seconds[State.NO_RECORD] < 3600.0 or f.runs or f.parts
+        # (an hour of no record is not stored, unless it says the machine counts parts)
+        if f.seconds[State.NO_RECORD] < 3600.0 or f.runs or f.parts is not None
     ]
     for chunk in range(0, len(rows), 5000):
         session.connection().execute(insert(_HOURS), rows[chunk : chunk + 5000])
@@ -341,11 +398,13 @@ def report(
     now: datetime | None = None,
     use_hours: bool = True,
     sum_first: bool = True,
+    use_days: bool = True,
 ) -> Report:
     """Utilization of ``machines`` over ``[start, end)``. Finished hours not summed yet are
     summed first (a write transaction), unless ``sum_first=False`` (the caller summed them in
-    a short write transaction of its own and reads here). ``use_hours=False`` reads every
-    sample (the reference the summed hours are tested against)."""
+    a short write transaction of its own and reads here). Whole local days come from the
+    summed days where there are (``use_days=False``: from the hours), the rest from the
+    hours; ``use_hours=False`` reads every sample (the reference both are tested against)."""
     if start.tzinfo is None or end.tzinfo is None:
         raise InputError("utilization: times need a UTC offset")
     start, end = start.astimezone(UTC), end.astimezone(UTC)
@@ -356,11 +415,25 @@ def report(
     now = now or datetime.now(UTC)
     periods = periods_of(calendar, group, start, end)
     scheduled = calendar.scheduled(start, end)
+    summed = {m: SummedAlarms() for m in machines}
     per_period, totals, stretches = _collect(
-        session, machines, start, end, periods, scheduled, now, use_hours, sum_first=sum_first
+        session,
+        machines,
+        start,
+        end,
+        periods,
+        scheduled,
+        now,
+        use_hours,
+        sum_first=sum_first,
+        calendar=calendar,
+        use_days=use_days,
+        group=group,
+        alarms_out=summed,
     )
     reports = [
-        machine_report(m, totals[m], per_period[m], stretches[m], start, end) for m in machines
+        machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
+        for m in machines
     ]
     return Report(start, end, group, calendar, periods, reports)
 
@@ -406,8 +479,14 @@ def _collect(
     *,
     stretches: bool = True,
     sum_first: bool = True,
+    calendar: Calendar | None = None,
+    use_days: bool = False,
+    group: Group | None = None,
+    alarms_out: dict[str, SummedAlarms] | None = None,
 ) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
     want_stretches = stretches
+    if alarms_out is None:
+        alarms_out = {m: SummedAlarms() for m in machines}
     bins = make_bins(periods, scheduled, start, end)
     slots = [(b.period, b.in_shift) for b in bins]
     slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
@@ -418,7 +497,7 @@ def _collect(
     raw = [(start, end)]
     if use_hours and machines:
         if sum_first:
-            sum_safely(session, machines, now)
+            sum_safely(session, machines, now, calendar)
         marks = {
             m.machine: m
             for m in session.scalars(
@@ -426,11 +505,27 @@ def _collect(
             )
         }
         until = min((m.until for m in marks.values()), default=start)
-        raw, hour_slots = _plan(bins, slot_ids, start, end, until)
+        days = None
+        if use_days and calendar is not None and group is not None:
+            days = day_span(session, calendar, machines, marks, start, end)
+        if (
+            days is not None
+            and calendar is not None
+            and group is not None
+            and not sum_days(session, calendar, machines, days, group, bins, slot_ids, acc)
+        ):
+            days = None
+        skip = None
+        if days is not None and calendar is not None:
+            skip = (calendar.instant(days[0], time(0)), calendar.instant(days[1], time(0)))
+        raw, hour_slots = _plan(bins, slot_ids, start, end, until, skip)
         in_shift = {i: shift for (_p, shift), i in slot_ids.items()}
-        _sum_hours(session, machines, hour_slots, acc, in_shift)
+        # before and after the summed days, so the hours between are not read again
+        cut = skip[0] if skip is not None else end
+        for run in ([x for x in hour_slots if x[0] < cut], [x for x in hour_slots if x[0] >= cut]):
+            _sum_hours(session, machines, run, acc, in_shift)
         if want_stretches:
-            _stored_stretches(session, machines, start, end, found_by)
+            _stored_stretches(session, machines, start, end, found_by, alarms_out)
         tail_from = max(start, min(until, end))
     pieces = [
         (
@@ -482,15 +577,20 @@ def _collect(
     per_period: dict[str, list[Figures]] = {}
     totals: dict[str, Figures] = {}
     for machine in machines:
-        totals[machine] = Figures()
-        per_period[machine] = [Figures() for _ in periods]
+        total = totals[machine] = Figures()
+        mine: list[Figures | None] = [None] * len(periods)
         for (period, _shift), slot in slot_ids.items():
             summed = acc[machine].get(slot)
             if summed is None:
                 continue
-            totals[machine].add(summed)
+            total.add(summed)
             if period is not None:
-                per_period[machine][period].add(summed)
+                held = mine[period]
+                if held is None:  # (a year by day has 73 000 of these: no copies)
+                    mine[period] = summed
+                else:
+                    held.add(summed)
+        per_period[machine] = [f if f is not None else Figures() for f in mine]
     return per_period, totals, found_by
 
 
@@ -545,20 +645,22 @@ def _finish_many(
     }
     names = sorted(open_)
     later: dict[str, list[Point]] = {m: [] for m in names}
-    for chunk in _chunks(names):
-        statement = union_all(
-            *(
-                select(*_SAMPLE_COLUMNS)
-                .where(StatusSample.machine == m, StatusSample.at >= open_[m][1])
-                .order_by(StatusSample.at, StatusSample.id)
-                .limit(FINISH_FIRST)
-                .subquery()
-                .select()
-                for m in chunk
-            )
+    c = _SAMPLES.c
+
+    def first(machine: Any) -> Select[Any]:
+        return (
+            select(*_SAMPLE_COLUMNS)
+            .where(c.machine == machine, c.at >= bindparam("at", type_=UtcDateTime()))
+            .order_by(c.at, c.id)
+            .limit(FINISH_FIRST)
         )
-        for row in session.execute(statement):
-            later[row[0]].append(point_of_columns(row))
+
+    # each machine's frontier differs: run the one statement per machine
+    connection = session.connection()
+    prepared = first(bindparam("machine", type_=String()))
+    for machine in names:
+        for row in connection.execute(prepared, {"machine": machine, "at": open_[machine][1]}):
+            later[machine].append(point_of_columns(row))
     for machine in names:
         carry, at = open_[machine]
         points = sorted(later[machine], key=lambda p: p.at)
@@ -579,12 +681,19 @@ def _finish_many(
             )
 
 
-def sum_safely(session: Session, machines: Sequence[str], now: datetime) -> None:
+def sum_safely(
+    session: Session,
+    machines: Sequence[str],
+    now: datetime,
+    calendar: Calendar | None = None,
+    *,
+    days: int | None = BUILD_DAYS,
+) -> None:
     """:func:`roll` in a savepoint: if another server sharing the database summed the same
     hours just now, its sums stand and this one's are dropped."""
     try:
         with session.begin_nested():
-            roll(session, machines, now)
+            roll(session, machines, now, calendar, days=days)
     except IntegrityError:
         log.info("utilization: another server summed these hours first")
 
@@ -595,8 +704,10 @@ def _plan(
     start: datetime,
     end: datetime,
     until: datetime,
+    skip: tuple[datetime, datetime] | None = None,
 ) -> tuple[list[tuple[datetime, datetime]], list[tuple[datetime, int]]]:
-    """Which hours come summed (each with its slot), and which spans from the samples."""
+    """Which hours come summed (each with its slot), and which spans from the samples;
+    the hours in ``skip`` come from the summed days."""
     hour_slots: list[tuple[datetime, int]] = []
     raw: list[tuple[datetime, datetime]] = []
     ends = [b.end for b in bins]
@@ -616,6 +727,9 @@ def _plan(
     read(start, first)
     hour = first
     while hour < last:
+        if skip is not None and skip[0] <= hour < skip[1]:
+            hour = skip[1]
+            continue
         j = bin_at(hour, ends)
         if j < len(bins) and bins[j].end >= hour + HOUR:
             hour_slots.append((hour, slot_ids[(bins[j].period, bins[j].in_shift)]))
@@ -694,33 +808,57 @@ def _sum_hours(
                     f.scheduled[State.NO_RECORD] += missing
 
 
+LONG_SPAN = timedelta(days=14)  # from here on, most stops of a machine overlap a span
+
+
 def _stored_stretches(
     session: Session,
     machines: Sequence[str],
     start: datetime,
     end: datetime,
     out: dict[str, list[Stretch]],
+    alarms_out: dict[str, SummedAlarms],
 ) -> None:
-    """The summed stops (each machine's longest) and alarms (all, by text later) overlapping
-    the span: one statement each for all machines."""
-    t = UtilizationStretch
+    """The summed stops (each machine's longest) and alarms (per text, and the newest)
+    overlapping the span: a few statements for all machines."""
+    t = _STRETCHES.c
     columns = (t.machine, t.kind, t.start, t.end, t.state, t.text)
-    overlap = (t.end > start, t.start < end)
-    for chunk in _chunks(machines):
-        stops = union_all(
-            *(
-                select(*columns)
-                .where(t.machine == m, t.kind == "stop", *overlap)
-                .order_by(t.seconds.desc(), t.start)
-                .limit(TOP_STOPS)
-                .subquery()
-                .select()
-                for m in chunk
-            )
+    # Over a long span the longest stops come first by their length's index (most overlap);
+    # over a short one, the few that end in the span by the end's (the length's would walk
+    # past many). A function of the column keeps the database from the end's index.
+    ends_after = func.coalesce(t.end, t.end) > start if end - start >= LONG_SPAN else t.end > start
+    overlap = (ends_after, t.start < end)
+
+    def stops(machine: Any) -> Select[Any]:
+        return (
+            select(*columns)
+            .where(t.machine == machine, t.kind == "stop", *overlap)
+            .order_by(t.seconds.desc(), t.start)
+            .limit(TOP_STOPS)
         )
-        alarms = select(*columns).where(t.machine.in_(chunk), t.kind == "alarm", *overlap)
-        for statement in (stops, alarms):
-            for r in session.execute(statement):
-                out[r.machine].append(
-                    Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
-                )
+
+    def recent(machine: Any) -> Select[Any]:
+        # a machine's alarms follow one another: the newest to start are the newest to end
+        return (
+            select(*columns)
+            .where(t.machine == machine, t.kind == "alarm", t.end > start, t.start < end)
+            .order_by(t.end.desc())
+            .limit(RECENT_ALARMS)
+        )
+
+    for r in _each(session, stops, machines):
+        out[r.machine].append(
+            Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
+        )
+    for r in _each(session, recent, machines):
+        alarms_out[r.machine].recent.append(
+            Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
+        )
+    for chunk in _chunks(machines):
+        per_text = (
+            select(t.machine, t.text, func.count(), func.sum(t.seconds), func.max(t.seconds))
+            .where(t.machine.in_(chunk), t.kind == "alarm", t.end > start, t.start < end)
+            .group_by(t.machine, t.text)
+        )
+        for machine, text, count, seconds, longest in session.execute(per_text):
+            alarms_out[machine].by_text[text] = (int(count), float(seconds), float(longest))

@@ -38,10 +38,12 @@ from opendnc.server.utilization import (
     Group,
     Report,
     Stretch,
+    marks_of,
     report,
     roll,
     sum_safely,
 )
+from opendnc.server.utilization_days import build_days
 
 __all__ = [
     "CSV_COLUMNS",
@@ -95,9 +97,15 @@ class HourSummer(RunsTask):
     name = "utilization"
     needs = ("database",)
 
-    def __init__(self, sessions: sessionmaker[Session], machines: list[str]) -> None:
+    def __init__(
+        self,
+        sessions: sessionmaker[Session],
+        machines: list[str],
+        calendar: Calendar | None = None,
+    ) -> None:
         self.sessions = sessions
         self.machines = machines
+        self.calendar = calendar
 
     async def run(self) -> None:
         """Sum, then wait, until cancelled; a database that is away is tried next round."""
@@ -109,9 +117,16 @@ class HourSummer(RunsTask):
                 log.warning("utilization: summing the finished hours failed: %s", exc)
 
     def sum_now(self, now: datetime | None = None) -> int:
-        """Sum what finished up to ``now``; how many machine-hours were written."""
+        """Sum what finished up to ``now`` (the hours, then the local days, a few weeks of
+        days per transaction until all are); how many machine-hours were written."""
+        now = now or datetime.now(UTC)
         with self.sessions.begin() as session:
-            return roll(session, self.machines, now or datetime.now(UTC))
+            written = roll(session, self.machines, now, self.calendar)
+        while self.calendar is not None:
+            with self.sessions.begin() as session:
+                if not build_days(session, self.calendar, self.machines, marks_of(session)):
+                    break
+        return written
 
 
 def _config(request: Request) -> ShopConfig:
@@ -196,7 +211,7 @@ def run_report(
     names = pick_machines(config, machines)
     now = now or datetime.now(UTC)
     with sessions.begin() as session:  # short: what finished since the last summing
-        sum_safely(session, names, now)
+        sum_safely(session, names, now, calendar)
     # the question itself only reads (on SQLite it does not hold the write lock meanwhile)
     with read_only(sessions)() as session:
         return report(session, calendar, names, since, until, grouping, now=now, sum_first=False)

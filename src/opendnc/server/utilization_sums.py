@@ -53,6 +53,7 @@ __all__ = [
     "MachineReport",
     "Point",
     "Stretch",
+    "SummedAlarms",
     "as_utc",
     "bin_at",
     "bins_within",
@@ -170,9 +171,15 @@ class Figures:
 
     def add(self, other: Figures) -> None:
         """Add ``other`` into these figures."""
-        for s in STATES:
-            self.seconds[s] += other.seconds[s]
-            self.scheduled[s] += other.scheduled[s]
+        # (a year's report adds tens of thousands of these: skip the zeros)
+        mine = self.seconds
+        for s, value in other.seconds.items():
+            if value:
+                mine[s] += value
+        mine = self.scheduled
+        for s, value in other.scheduled.items():
+            if value:
+                mine[s] += value
         if other.parts is not None:
             self.parts = (self.parts or 0) + other.parts
         self.runs += other.runs
@@ -497,6 +504,15 @@ class AlarmSummary:
 
 
 @dataclass
+class SummedAlarms:
+    """Stored alarms of one machine summed in the database: per text (count, seconds,
+    longest), and the newest ones (at most :data:`RECENT_ALARMS`)."""
+
+    by_text: dict[str, tuple[int, float, float]] = field(default_factory=dict)
+    recent: list[Stretch] = field(default_factory=list)
+
+
+@dataclass
 class MachineReport:
     """One machine over the span: totals, per period, its longest stops and its alarms."""
 
@@ -571,26 +587,26 @@ def machine_report(
     found: list[Stretch],
     start: datetime,
     end: datetime,
+    summed: SummedAlarms | None = None,
 ) -> MachineReport:
-    """One machine's report from its sums and the stops and alarms found: the 10 longest
-    stops and the alarms by text that overlap ``[start, end)``, the newest alarms."""
+    """One machine's report from its sums and the stops and alarms found (and those
+    ``summed`` in the database): the 10 longest stops and the alarms by text that overlap
+    ``[start, end)``, the newest alarms."""
     stops = sorted(
         (s for s in found if s.kind == "stop" and s.end > start and s.start < end),
         key=lambda s: (-s.seconds, s.start),
     )[:TOP_STOPS]
     alarms = [s for s in found if s.kind == "alarm" and s.end > start and s.start < end]
-    by_text: dict[str, list[Stretch]] = {}
+    by_text: dict[str, tuple[int, float, float]] = dict(summed.by_text) if summed else {}
     for a in alarms:
-        by_text.setdefault(a.text, []).append(a)
+        count, seconds, longest = by_text.get(a.text, (0, 0.0, 0.0))
+        by_text[a.text] = (count + 1, seconds + a.seconds, max(longest, a.seconds))
     summary = sorted(
-        (
-            AlarmSummary(
-                text, len(items), sum(a.seconds for a in items), max(a.seconds for a in items)
-            )
-            for text, items in by_text.items()
-        ),
+        (AlarmSummary(text, *figures) for text, figures in by_text.items()),
         key=lambda a: (-a.seconds, a.text),
     )
+    if summed:
+        alarms += summed.recent
     recent = sorted(alarms, key=lambda a: a.start, reverse=True)[:RECENT_ALARMS]
     return MachineReport(machine, totals, periods, stops, summary, recent)
 

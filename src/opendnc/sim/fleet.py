@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from opendnc.errors import InputError
 from opendnc.haas.mdc import ControlType
 from opendnc.sim.haas.app import SimHaas, SimOptions
-from opendnc.sim.haas.control import HaasConfig
+from opendnc.sim.haas.control import DprntDestination, HaasConfig
 from opendnc.sim.tnc.server import TncServer, serve_tnc
 
 if TYPE_CHECKING:
@@ -42,6 +42,7 @@ class FleetMachine:
     root: Path
     serial: str = ""  # the PC's end of a virtual cable
     baud: int = 0
+    dprnt_port: int = 0  # a Haas NGC's DPRNT port (Setting 263), 0 for none
 
 
 @dataclass
@@ -85,6 +86,7 @@ async def start_fleet(
     dnc_timeout: float = 10.0,
     receipts: Path | None = None,
     latency: float = 0.0,
+    dprnt: bool = False,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -94,7 +96,8 @@ async def start_fleet(
     is a classic control: it answers XModem, drip-feed and MDC Q-commands (Setting 143 ON)
     on its cable (``auto`` serial mode) and runs at most ``block_rate`` blocks a second
     (0: as fast as it can); a drip-feed that stops for ``dnc_timeout`` seconds raises the
-    control's DNC link alarm.
+    control's DNC link alarm. With ``dprnt`` each Haas NGC prints its DPRNT lines to a TCP
+    port of its own (Setting 263), which :func:`server_config` names as its source.
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -119,16 +122,23 @@ async def start_fleet(
             folder.mkdir(parents=True, exist_ok=True)
             port = base_port + tnc + j if base_port else 0
             sim = SimHaas(
-                HaasConfig(model="VF-2", serial_number=f"{1000000 + j}"),
+                HaasConfig(
+                    model="VF-2",
+                    serial_number=f"{1000000 + j}",
+                    dprnt=DprntDestination.TCP if dprnt else DprntDestination.NONE,
+                ),
                 folder,
-                SimOptions(host=host, mdc_port=port),
+                SimOptions(host=host, mdc_port=port, dprnt_tcp_port=0 if dprnt else None),
             )
             await sim.start()
             fleet._haas.append(sim)
             fleet.sims[f"haas-{j + 1}"] = sim
             assert sim.mdc is not None  # mdc_port was given
+            printer = sim.dprnt_tcp.port if sim.dprnt_tcp is not None else 0
             fleet.machines.append(
-                FleetMachine(f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder)
+                FleetMachine(
+                    f"haas-{j + 1}", "haas_ngc", host, sim.mdc.port, folder, dprnt_port=printer
+                )
             )
         for k in range(serial_haas):
             folder = root / f"haas-serial-{k + 1}"
@@ -230,4 +240,6 @@ def server_config(
                 lines.append("dripfeed = true")
         else:
             lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
+            if m.dprnt_port:
+                lines.append(f"dprnt = {q(f'tcp://{m.host}:{m.dprnt_port}')}")
     return "\n".join(lines) + "\n"

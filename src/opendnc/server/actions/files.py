@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import hashlib
 
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from opendnc.server import jobs, library
 from opendnc.server.actions import queue
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest, RemoteFileOut
-from opendnc.server.actions.policy import check_machine, may_queue
+from opendnc.server.actions.policy import check_machine, may_queue, may_take_back
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, Unavailable
@@ -30,9 +31,9 @@ from opendnc.server.machine_files import (
     file_name,
 )
 from opendnc.server.machines.base import Connector
-from opendnc.server.store.models import JobKind, Role
+from opendnc.server.store.models import JobKind, Program, Role
 
-__all__ = ["delete_file", "list_folder", "put_file", "read_file", "receive_file"]
+__all__ = ["delete_file", "list_folder", "put_file", "read_file", "receive_file", "take_back"]
 
 ERRAND_TIMEOUT = 15.0  # a listing waits this long for the machine's task (a job may run)
 
@@ -132,3 +133,25 @@ def receive_file(svc: Services, who: Caller, machine: str, path: str) -> JobOut:
     may_queue(who, JobKind.RECEIVE)
     order = JobRequest(kind=JobKind.RECEIVE, path=check_path(path), machines=[machine])
     return queue.create_jobs(svc, who, order)[0]
+
+
+def take_back(svc: Services, who: Caller, machine: str, path: str) -> JobOut:
+    """Queue a ``receive`` job that stores the control's file as a new draft version of the
+    library program of the file's name (programmers): what the operator changed at the
+    control comes back into the library, beside the versions it came from. A program that
+    is locked is refused now (409); one locked before the job runs keeps the file in the
+    inbox (the job says so)."""
+    may_take_back(who)
+    target = check_path(path)
+    name = library.check_program_name(file_name(target))
+    if not capabilities_of(svc.machine(machine).config).file_browser:
+        raise Conflict(f"{machine} has no file browser")
+
+    def check(session: Session) -> None:
+        program = session.scalar(select(Program).where(Program.name == name))
+        if program is not None and program.locked:
+            raise Conflict(f"program {name!r} is locked: unlock it to take {target} back")
+
+    svc.read(check)
+    order = JobRequest(kind=JobKind.RECEIVE, path=target, machines=[machine])
+    return queue.create_jobs(svc, who, order, extra={"into_library": True, "by": who.name})[0]

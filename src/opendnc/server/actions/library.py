@@ -18,9 +18,11 @@ from opendnc.server.actions.models import (
     DiffOut,
     ProgramListed,
     ProgramOut,
+    TextMatch,
     UploadOut,
     VersionOut,
 )
+from opendnc.server.program_title import HEAD, title_of
 from opendnc.server.store.models import Role
 
 __all__ = [
@@ -38,16 +40,43 @@ __all__ = [
 T = TypeVar("T")
 
 MAX_SEARCH = 100  # a name is at most 100 characters: a longer search finds nothing
+MIN_TEXT = 2  # a search in the text of one character would list most of the library
 
 
-def list_programs(svc: Services, who: Caller, search: str = "") -> list[ProgramListed]:
-    """Programs whose name holds ``search`` (any case), by name: each with its newest and
-    its released version."""
+def list_programs(
+    svc: Services, who: Caller, search: str = "", text: str = ""
+) -> list[ProgramListed]:
+    """Programs whose name or title holds ``search`` (any case), and whose newest version's
+    text holds ``text`` (any case; at most :data:`~opendnc.server.library.MAX_TEXT_HITS`),
+    by name: each with its newest and its released version and its title."""
     require(who, Role.VIEWER)
-    search = search.strip()
-    if len(search) > MAX_SEARCH:
-        return []
-    return svc.read(lambda s: [ProgramListed.of(p) for p in library.list_programs(s, search)])
+    search, text = search.strip(), text.strip()
+    if len(search) > MAX_SEARCH or len(text) > MAX_SEARCH:
+        raise InputError(f"a search is at most {MAX_SEARCH} characters")
+    if text and len(text) < MIN_TEXT:
+        raise InputError(f"a search in the text needs at least {MIN_TEXT} characters")
+    if "\x00" in text:  # (PostgreSQL's text holds none: it would be a 500, not a miss)
+        raise InputError("a search in the text holds no NUL character")
+
+    def load(session: Session) -> list[ProgramListed]:
+        matches: dict[str, TextMatch] = {}
+        names = None
+        if text:
+            hits = library.search_text(session, text)
+            matches = {h.name: TextMatch(line=h.line, text=h.text) for h in hits}
+            names = list(matches)
+        listed = library.list_programs(session, names=names)
+        heads = library.heads(session, [x.newest.sha256 for x in listed if x.newest], HEAD)
+        out = []
+        for item in listed:
+            title = title_of(heads.get(item.newest.sha256, b"")) if item.newest else ""
+            if search and search.lower() not in f"{item.name}\n{title}".lower():
+                continue
+            row = ProgramListed.of(item)
+            out.append(row.model_copy(update={"title": title, "match": matches.get(item.name)}))
+        return out
+
+    return svc.read(load)
 
 
 def get_program(svc: Services, who: Caller, name: str, limit: int | None = None) -> ProgramOut:

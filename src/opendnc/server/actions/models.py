@@ -48,6 +48,7 @@ __all__ = [
     "ReleaseRequest",
     "RemoteFileOut",
     "RevokedOut",
+    "TextMatch",
     "Timestamp",
     "UploadOut",
     "VersionOut",
@@ -178,9 +179,19 @@ class ProgramOut(BaseModel):
         )
 
 
+class TextMatch(BaseModel):
+    """Where a search in the program's text found it: the first line of its newest version
+    that holds it."""
+
+    line: int
+    text: str
+
+
 class ProgramListed(BaseModel):
-    """A program in the library's list: its newest and its released version, and how many
-    versions it has (``GET /api/programs/{name}`` lists them all)."""
+    """A program in the library's list: its newest and its released version, how many
+    versions it has (``GET /api/programs/{name}`` lists them all), its newest version's title
+    (the O-line's comment, Klartext's first comment or name) and where a search in the text
+    found it."""
 
     name: str
     locked: bool
@@ -188,6 +199,8 @@ class ProgramListed(BaseModel):
     version_count: int
     newest: VersionOut | None
     released: VersionOut | None
+    title: str = ""
+    match: TextMatch | None = None
 
     @classmethod
     def of(cls, listed: Listed) -> ProgramListed:

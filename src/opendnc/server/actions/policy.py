@@ -20,9 +20,11 @@ __all__ = [
     "CHECKED_JOBS",
     "JOB_ROLES",
     "OVERRIDE_ROLE",
+    "TAKE_BACK_ROLE",
     "check_machine",
     "check_passes",
     "may_queue",
+    "may_take_back",
     "override_reason",
     "version_for",
 ]
@@ -38,6 +40,18 @@ JOB_ROLES = {
     JobKind.DELETE: Role.PROGRAMMER,
     JobKind.PUT_FILE: Role.PROGRAMMER,
 }
+
+
+# A control's file taken back into the library becomes a new version of a program: the
+# role that adds versions (a receive into the inbox is the operator's).
+TAKE_BACK_ROLE = Role.PROGRAMMER
+
+
+def may_take_back(who: Caller) -> None:
+    """Refuse ``who`` taking a control's file back into the library (403) below
+    :data:`TAKE_BACK_ROLE`."""
+    may_queue(who, JobKind.RECEIVE)
+    require(who, TAKE_BACK_ROLE)
 
 
 def may_queue(who: Caller, kind: JobKind) -> None:

@@ -27,10 +27,17 @@ __all__ = [
 ]
 
 
-def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
+def create_jobs(
+    svc: Services,
+    who: Caller,
+    order: JobRequest,
+    *,
+    extra: dict[str, str | int | bool] | None = None,
+) -> list[JobOut]:
     """Queue one job per machine: all of them, or (any refusal) none. A send or drip-feed
     is refused where the version's program check finds errors for that machine, unless the
-    order's ``override`` gives a reason (programmers; audited per machine)."""
+    order's ``override`` gives a reason (programmers; audited per machine). ``extra`` are
+    the actions' own parameters (a take-back's ``into_library``), never a request's."""
     kind = order.kind
     policy.may_queue(who, kind)
     reason = policy.override_reason(who, order.override)
@@ -74,7 +81,7 @@ def create_jobs(svc: Services, who: Caller, order: JobRequest) -> list[JobOut]:
                     overridden[config.name] = check
         created = []
         for config in configs:
-            params: dict[str, str | int] = {}
+            params: dict[str, str | int | bool] = dict(extra or {})
             if path is not None:
                 params["path"] = path
             if order.from_line is not None:

@@ -11,13 +11,14 @@ file system.
 from __future__ import annotations
 
 import enum
-from datetime import UTC, datetime
+from datetime import UTC, date, datetime
 from typing import Any, Final
 
 from sqlalchemy import (
     JSON,
     BigInteger,
     Boolean,
+    Date,
     DateTime,
     Enum,
     Float,
@@ -56,6 +57,8 @@ __all__ = [
     "Role",
     "StatusSample",
     "User",
+    "UtilizationDay",
+    "UtilizationDayMark",
     "UtilizationHour",
     "UtilizationMark",
     "UtilizationStretch",
@@ -435,6 +438,44 @@ class UtilizationMark(Base):
     until: Mapped[datetime] = mapped_column(UtcDateTime())
     last_id: Mapped[int] = mapped_column(Integer, default=0)
     carry: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class UtilizationDay(Base):
+    """One machine's local day of the shop's calendar in one slot (a shift's part of it, or
+    ``shift`` empty: the time outside shifts), summed from its finished hours
+    (server/utilization_days.py, migration 0014). ``shift_day`` is the day the shift began
+    (the day before for the morning part of a night shift). Kept per calendar: a changed
+    ``[server] timezone`` or ``[[shifts]]`` builds them again from the hours."""
+
+    __tablename__ = "utilization_days"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    day: Mapped[date] = mapped_column(Date, primary_key=True)
+    shift: Mapped[str] = mapped_column(String(32), primary_key=True)
+    shift_day: Mapped[date] = mapped_column(Date, primary_key=True)
+    week: Mapped[date] = mapped_column(Date)  # the Monday of the day's ISO week
+    running: Mapped[float] = mapped_column(Float, default=0.0)
+    ready: Mapped[float] = mapped_column(Float, default=0.0)
+    stopped: Mapped[float] = mapped_column(Float, default=0.0)
+    alarm: Mapped[float] = mapped_column(Float, default=0.0)
+    offline: Mapped[float] = mapped_column(Float, default=0.0)
+    unknown: Mapped[float] = mapped_column(Float, default=0.0)
+    no_record: Mapped[float] = mapped_column(Float, default=0.0)
+    parts: Mapped[int | None] = mapped_column(Integer, nullable=True, default=None)
+    runs: Mapped[int] = mapped_column(Integer, default=0)
+    cycles: Mapped[int] = mapped_column(Integer, default=0)
+    cycle_seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class UtilizationDayMark(Base):
+    """Up to which local midnight (``until``, UTC) one machine's days are summed, and for
+    which calendar (a digest of the zone and the shifts)."""
+
+    __tablename__ = "utilization_day_marks"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    calendar: Mapped[str] = mapped_column(String(64))
+    until: Mapped[datetime] = mapped_column(UtcDateTime())
 
 
 class ClusterServer(Base):

@@ -243,7 +243,7 @@ def _compute(
     start = cal.instant(first, time(0))
     end = cal.instant(last + timedelta(days=1), time(0))
     with sessions.begin() as session:  # short: what finished since the last summing
-        sum_safely(session, machines, now)
+        sum_safely(session, machines, now, cal)
     with read_only(sessions)() as session:
         r = report(session, cal, machines, start, end, group, now=now, sum_first=False)
         shown_end = min(end, max(start + timedelta(minutes=5), now))
@@ -349,7 +349,7 @@ async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Respon
     def work() -> Report:
         sessions = _sessions(request)
         with sessions.begin() as session:
-            sum_safely(session, names, now)
+            sum_safely(session, names, now, cal)
         with read_only(sessions)() as session:
             return report(
                 session,

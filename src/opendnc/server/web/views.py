@@ -718,6 +718,8 @@ def _download(content: Content) -> Response:
 async def _after_file_job(request: Request, page: Page, job: JobOut, folder: str) -> HTMLResponse:
     # The folder as it is once the job ran: the listing waits behind the machine's queue.
     note = f"job {job.id}: {job.kind.value} {job.params.get('path', '')} queued"
+    if job.params.get("into_library"):
+        note += " (into the library as a new draft version)"
     try:
         return await machine_files_page(request, job.machine, page, folder, note)
     except (Conflict, Unavailable) as exc:
@@ -772,6 +774,16 @@ async def _file_job(
     return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
 
 
+@router.post("/machines/{name}/files/take-back")
+async def machine_file_take_back(
+    request: Request, name: str, page: Writing, path: Annotated[str, Form(max_length=255)]
+) -> HTMLResponse:
+    """Take a file of the control back into the library as a new draft version of the
+    program of its name: a ``receive`` job (programmers)."""
+    job = await run_in_threadpool(actions.files.take_back, _svc(request), page.who, name, path)
+    return await _after_file_job(request, page, job, path.replace("\\", "/").rsplit("/", 1)[0])
+
+
 async def _read_upload(file: UploadFile) -> bytes:
     data = await file.read(MAX_PROGRAM_BYTES + 1)
     if len(data) > MAX_PROGRAM_BYTES:
@@ -784,13 +796,16 @@ async def _read_upload(file: UploadFile) -> bytes:
 
 @router.get("/library")
 def library_page(
-    request: Request, page: Viewing, q: Annotated[str, Query(max_length=255)] = ""
+    request: Request,
+    page: Viewing,
+    q: Annotated[str, Query(max_length=255)] = "",
+    text: Annotated[str, Query(max_length=255)] = "",
 ) -> HTMLResponse:
-    """Programs, searchable by name."""
-    found = actions.library.list_programs(_svc(request), page.who, q)
+    """Programs, searchable by name or title and in their text."""
+    found = actions.library.list_programs(_svc(request), page.who, q, text)
     programs = [p.model_dump(mode="json") for p in found]
     template = "_programs.html" if _is_htmx(request) else "library.html"
-    return _html(template, page, request, programs=programs, q=q)
+    return _html(template, page, request, programs=programs, q=q, text=text)
 
 
 @router.get("/library/{name}")

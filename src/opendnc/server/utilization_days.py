@@ -1,0 +1,450 @@
+"""Utilization summed per machine, local day and shift: what a question over months reads.
+
+A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization`);
+summing them for every question takes seconds. So every finished local day of the shop's
+calendar is summed once more, per **slot**: each shift's part of the day, and the time
+outside shifts (``utilization_days``, migration 0014). A day, a week or a shift of a question
+is then a sum of a few of these rows; the hours (and the samples) are read only for the days
+a span cuts at its ends.
+
+A day row is the sum of the day's hour rows, so it answers exactly what those hours answer.
+That needs every boundary of the day (its midnights, each shift's start and end) on a full
+UTC hour: true for a zone whose offset is whole hours (Europe/Berlin, America/Chicago) with
+shifts on the hour. A calendar with a shift at 05:30, a zone like Asia/Kolkata, or shifts
+that overlap, is not summed per day: its questions keep reading the hours.
+
+Days are built from the hours as these are summed (the server's background summing, a
+question's short write transaction), at most :data:`BUILD_DAYS` per machine at a time, and
+kept per calendar: a changed ``[server] timezone`` or ``[[shifts]]`` builds them again. A
+sample that arrives late for a summed hour drops its machine's days from that day on.
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import hashlib
+import itertools
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Any
+
+from sqlalchemy import (
+    Column,
+    Date,
+    MetaData,
+    String,
+    Table,
+    case,
+    delete,
+    func,
+    insert,
+    select,
+    true,
+)
+from sqlalchemy.orm import Session
+
+from opendnc.server.shifts import Calendar
+from opendnc.server.state import State
+from opendnc.server.store.models import (
+    UtcDateTime,
+    UtilizationDay,
+    UtilizationDayMark,
+    UtilizationHour,
+    UtilizationMark,
+)
+from opendnc.server.utilization_sums import STATES, Bin, Figures, Group
+
+__all__ = [
+    "BUILD_DAYS",
+    "Piece",
+    "build_days",
+    "calendar_key",
+    "day_span",
+    "forget_days",
+    "pieces_of",
+    "rolls_up",
+    "sum_days",
+]
+
+BUILD_DAYS = 62  # days per machine summed in one go (a write transaction stays short)
+
+
+_DAYS: Table = UtilizationDay.__table__  # type: ignore[assignment]
+
+
+_HOURS: Table = UtilizationHour.__table__  # type: ignore[assignment]
+
+
+# which day and slot each hour being summed into days goes to (this connection's own)
+_HOUR_PIECES = Table(
+    "utilization_hour_pieces",
+    MetaData(),
+    Column("hour", UtcDateTime(), primary_key=True),
+    Column("day", Date, nullable=False),
+    Column("shift", String(32), nullable=False),
+    Column("shift_day", Date, nullable=False),
+    Column("week", Date, nullable=False),
+    prefixes=["TEMPORARY"],
+)
+
+
+@dataclass(frozen=True)
+class Piece:
+    """A part of a local ``day`` in one slot: within the shift ``shift`` that began on
+    ``shift_day``, or outside shifts (``shift`` empty), as UTC instants ``[start, end)``."""
+
+    day: date
+    shift: str
+    shift_day: date
+    start: datetime
+    end: datetime
+
+
+def calendar_key(calendar: Calendar) -> str:
+    """A digest of the zone and the shifts: day rows are valid for this calendar only."""
+    text = (
+        calendar.zone_name
+        + "|"
+        + ";".join(
+            f"{s.name},{sorted(s.days)},{s.start.isoformat()},{s.end.isoformat()},{s.ends_at_midnight}"
+            for s in calendar.shifts
+        )
+    )
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _on_the_hour(at: datetime) -> bool:
+    return at.minute == 0 and at.second == 0 and at.microsecond == 0
+
+
+@functools.lru_cache(maxsize=32)
+def rolls_up(calendar: Calendar) -> bool:
+    """Whether ``calendar``'s days can be summed from whole hours: shifts on the hour that
+    do not overlap, in a zone whose offset is whole hours (checked around the year)."""
+    if any(s.start.minute or s.end.minute for s in calendar.shifts):
+        return False
+    year = datetime.now(UTC).year
+    for month in range(1, 13):
+        offset = datetime(year, month, 1, tzinfo=calendar.zone).utcoffset() or timedelta(0)
+        if offset % timedelta(hours=1):
+            return False
+    monday = date(year, 1, 5) - timedelta(days=date(year, 1, 5).weekday())
+    a = calendar.instant(monday, time(0))
+    periods = calendar.shift_periods(a, a + timedelta(days=15))
+    return all(x.end <= y.start for x, y in itertools.pairwise(periods))
+
+
+def pieces_of(calendar: Calendar, day: date) -> list[Piece]:
+    """Local ``day`` cut at its shifts' starts and ends, in time order."""
+    return list(_pieces(calendar, day))
+
+
+@functools.lru_cache(maxsize=8192)
+def _pieces(calendar: Calendar, day: date) -> tuple[Piece, ...]:
+    start = calendar.instant(day, time(0))
+    end = calendar.instant(day + timedelta(days=1), time(0))
+    shifts = calendar.shift_periods(start, end)
+    cuts = {start, end}
+    for p in shifts:
+        cuts.update(t for t in (p.start, p.end) if start < t < end)
+    edges = sorted(cuts)
+    out = []
+    for a, b in itertools.pairwise(edges):
+        covering = [p for p in shifts if p.start <= a < p.end]
+        if covering:
+            p = covering[-1]
+            out.append(Piece(day, p.shift, date.fromisoformat(p.key[:10]), a, b))
+        else:
+            out.append(Piece(day, "", day, a, b))
+    return tuple(out)
+
+
+def _midnight(calendar: Calendar, day: date) -> datetime:
+    return calendar.instant(day, time(0))
+
+
+def _day_of(calendar: Calendar, at: datetime) -> date:
+    return calendar.local(at).date()
+
+
+def build_days(
+    session: Session,
+    calendar: Calendar,
+    machines: Sequence[str],
+    marks: dict[str, UtilizationMark],
+    limit: int | None = BUILD_DAYS,
+) -> int:
+    """Sum the finished local days of ``machines`` (those whose hours are all summed, by
+    ``marks``) not summed yet, at most ``limit`` per machine; how many machine-days that
+    was. Call in a write transaction, after the hours."""
+    if not rolls_up(calendar):
+        return 0
+    key = calendar_key(calendar)
+    names = [m for m in machines if m in marks]
+    days = {
+        d.machine: d
+        for d in session.scalars(
+            select(UtilizationDayMark).where(UtilizationDayMark.machine.in_(names))
+        )
+    }
+    todo: dict[tuple[date, date], list[str]] = defaultdict(list)
+    for machine in names:
+        mark = days.get(machine)
+        if mark is None or mark.calendar != key:
+            session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
+            first = session.scalar(
+                select(func.min(UtilizationHour.hour)).where(UtilizationHour.machine == machine)
+            )
+            begin = _day_of(calendar, first if first is not None else marks[machine].until)
+            if mark is None:
+                mark = UtilizationDayMark(machine=machine)
+                session.add(mark)
+            mark.calendar, mark.until = key, _midnight(calendar, begin)
+        since = _day_of(calendar, mark.until)
+        until = _day_of(calendar, marks[machine].until)  # its midnight is summed; the day not
+        if limit is not None:
+            until = min(until, since + timedelta(days=limit))
+        day = since
+        while day < until and all_on_the_hour(pieces_of(calendar, day)):
+            day += timedelta(days=1)
+        until = day  # (a zone that once had a half-hour offset stops there)
+        if until > since:
+            todo[(since, until)].append(machine)
+            mark.until = _midnight(calendar, until)
+    built = 0
+    for (since, until), group in todo.items():
+        _build(session, calendar, group, since, until)
+        built += (until - since).days * len(group)
+    session.flush()
+    return built
+
+
+def _build(
+    session: Session, calendar: Calendar, machines: list[str], since: date, until: date
+) -> None:
+    pieces: list[dict[str, object]] = []
+    day = since
+    while day < until:
+        for p in pieces_of(calendar, day):
+            hour = p.start
+            while hour < p.end:
+                pieces.append(
+                    {
+                        "hour": hour,
+                        "day": p.day,
+                        "shift": p.shift,
+                        "shift_day": p.shift_day,
+                        "week": p.day - timedelta(days=p.day.weekday()),
+                    }
+                )
+                hour += timedelta(hours=1)
+        day += timedelta(days=1)
+    connection = session.connection()
+    _HOUR_PIECES.create(connection, checkfirst=True)
+    connection.execute(delete(_HOUR_PIECES))
+    connection.execute(insert(_HOUR_PIECES), pieces)
+    h, s = _HOURS.c, _HOUR_PIECES.c
+    states = [s_.value for s_ in STATES]
+    query = (
+        select(
+            h.machine,
+            s.day,
+            s.shift,
+            s.shift_day,
+            s.week,
+            *(func.sum(h[name]) for name in states),
+            func.sum(h.parts),
+            func.sum(h.runs),
+            func.sum(h.cycles),
+            func.sum(h.cycle_seconds),
+        )
+        .join(_HOUR_PIECES, s.hour == h.hour)
+        .where(
+            h.machine.in_(machines),
+            h.hour >= _midnight(calendar, since),
+            h.hour < _midnight(calendar, until),
+        )
+        .group_by(h.machine, s.day, s.shift, s.shift_day, s.week)
+    )
+    columns = [
+        "machine",
+        "day",
+        "shift",
+        "shift_day",
+        "week",
+        *states,
+        "parts",
+        "runs",
+        "cycles",
+        "cycle_seconds",
+    ]
+    connection.execute(insert(_DAYS).from_select(columns, query))
+    connection.execute(delete(_HOUR_PIECES))
+
+
+def forget_days(session: Session, calendar: Calendar | None, machine: str, at: datetime) -> None:
+    """Drop ``machine``'s days from the one holding ``at`` on (its hours from ``at`` on are
+    summed again): they are summed again from the hours when those are. Without the
+    calendar (or with another one than they were summed for) all of them."""
+    mark = session.get(UtilizationDayMark, machine)
+    if mark is None:
+        return
+    if calendar is None or mark.calendar != calendar_key(calendar):
+        session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
+        session.delete(mark)
+        return
+    day = _day_of(calendar, at)
+    session.execute(
+        delete(UtilizationDay).where(UtilizationDay.machine == machine, UtilizationDay.day >= day)
+    )
+    mark.until = min(mark.until, _midnight(calendar, day))
+
+
+def day_span(
+    session: Session,
+    calendar: Calendar,
+    machines: Sequence[str],
+    marks: dict[str, UtilizationMark],
+    start: datetime,
+    end: datetime,
+) -> tuple[date, date] | None:
+    """The whole local days ``[first, last)`` within ``[start, end)`` that every machine
+    has summed, or None (too few, or the calendar is not summed per day)."""
+    if not rolls_up(calendar) or not marks:
+        return None
+    key = calendar_key(calendar)
+    days = list(
+        session.scalars(
+            select(UtilizationDayMark).where(UtilizationDayMark.machine.in_(list(marks)))
+        )
+    )
+    if len(days) < len(marks) or any(d.calendar != key for d in days):
+        return None  # a machine with hours but no days (being built, or a new calendar)
+    first = _day_of(calendar, start)
+    if _midnight(calendar, first) < start:
+        first += timedelta(days=1)
+    last = _day_of(calendar, end)
+    summed = _day_of(calendar, min(d.until for d in days))
+    last = min(last, summed)
+    if last - first < timedelta(days=2):
+        return None  # a day or two: the hours answer as fast
+    return first, last
+
+
+def sum_days(
+    session: Session,
+    calendar: Calendar,
+    machines: Sequence[str],
+    span: tuple[date, date],
+    group: Group,
+    bins: Sequence[Bin],
+    slot_ids: dict[tuple[int | None, bool], int],
+    acc: dict[str, dict[int, Figures]],
+) -> bool:
+    """Add the day rows of ``span`` into ``acc`` per machine and ``group`` period (summed
+    in SQL by day, week or shift, under a slot of the period); False (nothing added) if a
+    piece of a day lies across two bins or a key across two periods (not the calendar's
+    own periods)."""
+    ends = [b.end for b in bins]
+    period_of: dict[tuple[object, ...], int] = {}
+    length: dict[int, list[float]] = {}  # per period: all the time, the shift time
+    slot_of: dict[int, int] = {}
+    day = span[0]
+    while day < span[1]:
+        for p in pieces_of(calendar, day):
+            j = bisect.bisect_right(ends, p.start)
+            if j >= len(bins) or bins[j].end < p.end or bins[j].start > p.start:
+                return False
+            b = bins[j]
+            period = -1 if b.period is None else b.period
+            key = _key(group, p)
+            if period_of.setdefault(key, period) != period:
+                return False
+            seconds = (p.end - p.start).total_seconds()
+            total = length.setdefault(period, [0.0, 0.0])
+            total[0] += seconds
+            if b.in_shift:
+                total[1] += seconds
+            slot_of.setdefault(period, slot_ids[(b.period, b.in_shift)])
+        day += timedelta(days=1)
+    d = _DAYS.c
+    by_group: dict[Group, list[Any]] = {
+        Group.DAY: [d.day],
+        Group.WEEK: [d.week],
+        Group.SHIFT: [d.shift, case((d.shift == "", None), else_=d.shift_day)],
+    }
+    keys = by_group[group]
+    names = [s.value for s in STATES]
+    # (a shop without shifts schedules every hour: its pieces have no shift's name)
+    in_shift = d.shift != "" if calendar.shifts else true()
+    rows = (
+        session.connection()
+        .execute(
+            select(
+                d.machine,
+                *keys,
+                *(func.sum(d[name]) for name in names),
+                *(func.sum(case((in_shift, d[name]), else_=0.0)) for name in names),
+                func.sum(d.parts),
+                func.count(d.parts),
+                func.sum(d.runs),
+                func.sum(d.cycles),
+                func.sum(d.cycle_seconds),
+            )
+            .where(d.machine.in_(machines), d.day >= span[0], d.day < span[1])
+            .group_by(d.machine, *keys)
+        )
+        .all()
+    )
+    n, k = len(STATES), 1 + len(keys)
+    found: dict[str, dict[int, Figures]] = {m: {} for m in machines}
+    for row in rows:
+        at = period_of.get(tuple(row[1:k]))
+        if at is None:  # pragma: no cover - every day of the span was cut into pieces
+            return False
+        found[row[0]][at] = Figures(
+            dict(zip(STATES, (float(v or 0.0) for v in row[k : k + n]), strict=True)),
+            dict(zip(STATES, (float(v or 0.0) for v in row[k + n : k + 2 * n]), strict=True)),
+            int(row[k + 2 * n] or 0) if row[k + 2 * n + 1] else None,
+            int(row[k + 2 * n + 2] or 0),
+            int(row[k + 2 * n + 3] or 0),
+            float(row[k + 2 * n + 4] or 0.0),
+        )
+    for machine in machines:
+        mine, into = found[machine], acc[machine]
+        for period, (whole, inside) in length.items():
+            f = mine.get(period)
+            if f is None:
+                f = Figures()
+            # pieces without a row are time without any record (those hours were not stored)
+            shift_missing = inside - f.scheduled_total
+            off_missing = (whole - inside) - (f.total - f.scheduled_total)
+            if shift_missing > 0.5:
+                f.seconds[State.NO_RECORD] += shift_missing
+                f.scheduled[State.NO_RECORD] += shift_missing
+            if off_missing > 0.5:
+                f.seconds[State.NO_RECORD] += off_missing
+            slot = slot_of[period]
+            held = into.get(slot)
+            if held is None:
+                into[slot] = f
+            else:
+                held.add(f)
+    return True
+
+
+def _key(group: Group, p: Piece) -> tuple[object, ...]:
+    """What the day rows of ``p`` are grouped by for ``group``."""
+    if group is Group.DAY:
+        return (p.day,)
+    if group is Group.WEEK:
+        return (p.day - timedelta(days=p.day.weekday()),)
+    return (p.shift, p.shift_day if p.shift else None)
+
+
+def all_on_the_hour(pieces: Sequence[Piece]) -> bool:
+    """Whether every piece starts and ends on a full UTC hour."""
+    return all(_on_the_hour(p.start) and _on_the_hour(p.end) for p in pieces)
