@@ -64,12 +64,14 @@ class SenderConfig:
     # each ACK; on a pty (no line delay) a block sent at once can land before that flush and
     # be lost (rx then waits 5 s and NAKs). About 1 ms avoids it; real lines need 0.
     turnaround: float = 0.0
-    # Quiet time after the ACK of block 1 when it went out more than once. In checksum mode NAK
-    # means both "start" and "send again": the rest of a Haas's start-request burst, read after
-    # block 1 went out, sends copies of block 1, and the receiver ACKs each copy as a duplicate.
-    # Taking those ACKs for the next blocks' runs the sender ahead until the receiver sees a
-    # block out of order and cancels (docs/xmodem.md#repeated-blocks). Answers that arrive
-    # during this pause belong to the copies and are dropped; the next block goes after it.
+    # Longest wait, after the ACK of block 1 when block 1 went out more than once, for the
+    # answers to its copies. In checksum mode NAK means both "start" and "send again": the rest
+    # of a Haas's start-request burst, read after block 1 went out, sends copies of block 1, and
+    # the receiver ACKs each copy as a duplicate. Taking those ACKs for the next blocks' runs
+    # the sender ahead until the receiver sees a block out of order and cancels
+    # (docs/xmodem.md#repeated-blocks). The wait ends as soon as every copy is answered, and
+    # never lasts more than a quarter of ``ack_timeout``: it must end well before the
+    # receiver's own block timeout, or its NAK for block 2 would cross block 2.
     settle: float = 1.0
 
 
@@ -79,6 +81,7 @@ class SenderState(enum.Enum):
     WAIT_START = "wait_start"
     WAIT_ACK = "wait_ack"
     PAUSE = "pause"  # turnaround before the next block
+    SETTLE = "settle"  # answers to block 1's copies still to come (SenderConfig.settle)
     WAIT_EOT_ACK = "wait_eot_ack"
     DONE = "done"
 
@@ -119,6 +122,7 @@ class XmodemSender(EngineBase):
         self._next: tuple[tuple[int, int, bool], bytes, int] | None = None
         self._failures = 0  # NAKs/timeouts of the current block (or of the EOT)
         self._copies = 0  # times the current block went out
+        self._owed = 0  # answers still due for the copies of block 1 (SETTLE)
         self._unanswered = False  # the current block met a timeout: it may have arrived
         self._cans = 0  # consecutive CAN bytes seen
         self._eot_naks = 0
@@ -183,6 +187,8 @@ class XmodemSender(EngineBase):
                 self._arm(min(cfg.start_timeout - self._waited, cfg.ack_timeout))
         elif self.state is SenderState.PAUSE:
             self._send_next_block()
+        elif self.state is SenderState.SETTLE:
+            self._next_after_turnaround()
         elif self.state is SenderState.WAIT_ACK:
             self._unanswered = True
             self._on_nak(f"no answer in {cfg.ack_timeout:g} s")
@@ -245,6 +251,9 @@ class XmodemSender(EngineBase):
         if self.state is SenderState.WAIT_EOT_ACK:
             self._done(EotAnswer.ACK)
             return
+        if self.state is SenderState.SETTLE:
+            self._copy_answered()
+            return
         if self.state is not SenderState.WAIT_ACK:
             return
         self._offset += self._block_len
@@ -256,12 +265,18 @@ class XmodemSender(EngineBase):
         self._unanswered = False
         if self._copies > 1 and self._blocks == 1:
             # Block 1 went out again on a NAK or 'C' that may have been the rest of the
-            # receiver's start requests: the copies' ACKs may still come, so let them pass
-            # before block 2. (A NAK of a later block is unambiguous and costs no pause.)
-            self.state = SenderState.PAUSE
-            self._arm(self.config.settle)
+            # receiver's start requests: the copies' answers may still come, so let them pass
+            # before block 2. (A NAK of a later block is unambiguous and costs no wait.)
+            self.state = SenderState.SETTLE
+            self._owed = self._copies - 1
+            self._arm(min(self.config.settle, self.config.ack_timeout / 4))
             return
         self._next_after_turnaround()
+
+    def _copy_answered(self) -> None:
+        self._owed -= 1
+        if self._owed <= 0:
+            self._next_after_turnaround()
 
     def _on_nak(self, reason: str) -> None:
         if self.state is SenderState.WAIT_EOT_ACK:
@@ -276,6 +291,9 @@ class XmodemSender(EngineBase):
             else:
                 self._events.append(Retry(self._seq, self._eot_naks, "EOT NAKed"))
                 self._send_eot()
+            return
+        if self.state is SenderState.SETTLE:
+            self._copy_answered()  # a copy that arrived damaged: block 1 itself was ACKed
             return
         if self.state is not SenderState.WAIT_ACK:
             return

@@ -442,8 +442,8 @@ def test_the_rest_of_a_start_request_burst_does_not_run_the_sender_ahead() -> No
         out = sender.data_to_send()
         if out:
             receiver.receive_data(out)
-        elif sender.state is SenderState.PAUSE:
-            sender.timed_out()  # the settle pause ends
+        elif sender.state is SenderState.SETTLE:
+            sender.timed_out()  # the wait for the copies' answers ends
         else:
             receiver.timed_out()  # e.g. a receiver that answers EOT after a pause
         sender.receive_data(receiver.data_to_send())
