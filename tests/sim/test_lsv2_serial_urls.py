@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import json
 import os
-import select
+import queue
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -46,17 +47,41 @@ class Bench:
     server: subprocess.Popen[str]
 
 
+_LINES: dict[tuple[int, str], queue.Queue[str]] = {}
+
+
+def _lines(proc: subprocess.Popen[str], stream_name: str) -> queue.Queue[str]:
+    """The stream's lines as a thread reads them. (``select`` on the pipe would miss a line
+    that an earlier ``readline`` already pulled into the text buffer: the settings line often
+    comes in the same read as the one before it.)"""
+    key = (proc.pid, stream_name)
+    if key not in _LINES:
+        stream = proc.stdout if stream_name == "stdout" else proc.stderr
+        assert stream is not None
+        lines: queue.Queue[str] = queue.Queue()
+
+        def pump() -> None:
+            for line in stream:
+                lines.put(line)
+            lines.put("")  # the end of the stream
+
+        threading.Thread(target=pump, daemon=True).start()
+        _LINES[key] = lines
+    return _LINES[key]
+
+
 def _wait_line(proc: subprocess.Popen[str], stream_name: str, marker: str) -> str:
-    stream = proc.stdout if stream_name == "stdout" else proc.stderr
-    assert stream is not None
+    lines = _lines(proc, stream_name)
     deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        if select.select([stream], [], [], 0.1)[0]:
-            line = stream.readline()
-            assert line, f"{proc.args!r} ended before it listened"
-            if marker in line:
-                return line
-    raise AssertionError(f"{proc.args!r} did not listen within 15 s")
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            line = lines.get(timeout=left)
+        except queue.Empty:
+            break
+        assert line, f"{proc.args!r} ended before it listened"
+        if marker in line:
+            return line
+    raise AssertionError(f"{proc.args!r} did not print {marker!r} within 15 s")
 
 
 def _socat(device: str) -> tuple[subprocess.Popen[str], str]:
