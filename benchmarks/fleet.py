@@ -132,24 +132,7 @@ def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any
                 raise SystemExit(f"fleet did not start: {fleet.stderr.read().decode()}")  # type: ignore[union-attr]
             time.sleep(0.1)
         db = f"sqlite:///{folder / f'fleet-{n}.db'}"
-        key = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "opendnc.cli.main",
-                "keys",
-                "create",
-                "--role",
-                "viewer",
-                "--config",
-                str(config),
-                "--db",
-                db,
-            ],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        key = _viewer_key(config, db)
         # The server's port is picked once the fleet holds all of its ports (picked before,
         # a virtual TNC could take it, and the benchmark would read LSV2 as HTTP).
         port = _free_port()
@@ -212,6 +195,14 @@ def _stall(stall: dict[str, Any] | None) -> str:
         return "none of 50 ms"
     wait = "?" if stall["wait"] is None else f"{stall['wait'] * 1000:.0f}"
     return f"{stall['seconds'] * 1000:.0f} ms ({wait} ms)"
+
+
+def _viewer_key(config: Path, db: str) -> str:
+    """A viewer API key made with the CLI against the fleet's config and database."""
+    argv = ["keys", "create", "--role", "viewer", "--config", str(config), "--db", db]
+    cmd = [sys.executable, "-m", "opendnc.cli.main", *argv]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    return done.stdout.strip()
 
 
 def _start_fleet(n: int, poll: float, folder: Path) -> tuple[subprocess.Popen[bytes], Path]:
@@ -283,24 +274,7 @@ def run_cluster(
     try:
         text = config.read_text().replace("[server]\n", f"[server]\nlease_seconds = {lease}\n", 1)
         config.write_text(text)
-        key = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "opendnc.cli.main",
-                "keys",
-                "create",
-                "--role",
-                "viewer",
-                "--config",
-                str(config),
-                "--db",
-                db,
-            ],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        key = _viewer_key(config, db)
         bases = {}
         for i in range(1, servers + 1):
             port = _free_port()
