@@ -25,6 +25,7 @@ from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from opendnc.sim.haas.machine import Alarm  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 from tests.web.browser import (  # noqa: E402
     ARTIFACTS,
@@ -34,7 +35,6 @@ from tests.web.browser import (  # noqa: E402
     chromium,
     sync_api,
 )
-from tests.web.inprocess import serving  # noqa: E402
 
 PROGRAM = b"%\r\nO01000 (FACE)\r\nG20\r\nG00 X0. Y0.\r\nM30\r\n%\r\n"
 WIDTHS = ((1280, 800), (768, 1024))
@@ -176,12 +176,14 @@ def test_the_wall_display_is_large_has_no_controls_and_turns_its_pages(clean: Sh
     page.goto(clean.url + "/wall?every=3")
     sync_api.expect(page.locator(".cards > .card")).to_have_count(3)
     assert page.locator("button, input, select, textarea, nav, form").count() == 0
-    size = page.locator(".card h2").first.evaluate("e => parseFloat(getComputedStyle(e).fontSize)")
+    # Cards are swapped in as the machines report: find and measure in one script, so the
+    # element measured is the one in the page (a detached one has no computed size).
+    size, detail = page.evaluate(
+        "['.card h2', '.card dd'].map(s =>"
+        " parseFloat(getComputedStyle(document.querySelector(s)).fontSize))"
+    )
     # on a 55" full-HD screen (0.63 mm a pixel) a name is 30 mm high, its details 18 mm
     assert size >= 48
-    detail = page.locator(".card dd").first.evaluate(
-        "e => parseFloat(getComputedStyle(e).fontSize)"
-    )
     assert detail >= 28
     pages = int(page.evaluate("document.body.dataset.wallPages"))
     assert pages >= 2
