@@ -94,6 +94,18 @@ def kill_mid_run(cluster: Cluster, victim: str, via: str) -> float:
     killed = time.monotonic()
     live = set(cluster.clients)
     cluster.wait_settled(via, live, timeout=TAKEOVER_LIMIT * 3)
+    # A lease is taken first and the jobs its dead holder left running are ended just after
+    # (the next step of the same renewal): the take-over is done once those are ended too.
+    wait_for(
+        f"the jobs {victim} ran to be taken over",
+        lambda: (
+            not any(
+                j["server"] == victim
+                for j in cluster.clients[via].get("/api/jobs", params={"state": "running"}).json()
+            )
+        ),
+        timeout=TAKEOVER_LIMIT * 3,
+    )
     return time.monotonic() - killed
 
 

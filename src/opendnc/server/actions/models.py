@@ -261,6 +261,10 @@ class JobOut(BaseModel):
     error: str
     cancel_requested: bool
     line: int
+    server: str | None = Field(
+        description="the server that claimed it last (its worker name; several may share a "
+        "database)"
+    )
 
     @classmethod
     def of(cls, j: Job, live: tuple[int, int | None] | None = None) -> JobOut:
@@ -287,6 +291,7 @@ class JobOut(BaseModel):
             error=j.error,
             cancel_requested=j.cancel_requested,
             line=j.line,
+            server=j.claimed_by,
         )
 
 
