@@ -110,7 +110,10 @@ def serve_library(folder: Path, programs: dict[str, bytes]) -> Iterator[str]:
         for name, data in programs.items():
             library.add_version(session, name, data, author="bench")
     listener = listen_socket("127.0.0.1", 0)
-    web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
+    config = uvicorn.Config(
+        server.app, log_level="warning", loop="asyncio", timeout_graceful_shutdown=2
+    )
+    web = uvicorn.Server(config)
     thread = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
     thread.start()
     deadline = time.monotonic() + 60

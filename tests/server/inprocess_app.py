@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -25,7 +24,6 @@ httpx = require_module("httpx")
 require_module("jinja2")
 uvicorn = require_module("uvicorn")
 
-from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
@@ -36,6 +34,7 @@ from opendnc.server.machines.base import DripProgress, Progress, Reception  # no
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 
 ROLES = [Role.VIEWER, Role.OPERATOR, Role.PROGRAMMER, Role.APPROVER, Role.ADMIN]
 
@@ -197,14 +196,7 @@ def running(
             session_keys[role] = auth.create_key(
                 session, name, role, label=auth.SESSION_LABEL, action="login"
             )[1]
-    # uvicorn on a loopback port the system picks, in a thread: real HTTP, one process
-    listener = listen_socket("127.0.0.1", 0)
-    port = listener.getsockname()[1]
-    web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-    serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-    serving.start()
-    try:
-        wait_for("the server", lambda: web.started, timeout=30)
+    with serving(server) as url:
         wait_for(
             "the machines online",
             lambda: all(
@@ -212,10 +204,5 @@ def running(
             ),
             timeout=30,
         )
-        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+        with httpx.Client(base_url=url, timeout=30) as client:
             yield App(server, client, controls, api_keys, session_keys)
-    finally:
-        web.should_exit = True
-        serving.join(30)
-        listener.close()
-        server.engine.dispose()

@@ -3,7 +3,6 @@ without a browser: the server is built here and served by uvicorn on a loopback 
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -13,15 +12,13 @@ from typing import Any
 from tests.peers import require_module
 
 require_module("jinja2")
-uvicorn = require_module("uvicorn")
 
-from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
-from tests.server.harness import wait_for  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
 
@@ -33,26 +30,6 @@ class Served:
     server: Any
     database: Path
     fleet: FleetThread
-
-
-@contextmanager
-def serving(server: Any) -> Iterator[str]:
-    """Serve a built server (``opendnc.server.app.build``) with uvicorn on a loopback port in a
-    thread of this process; its base URL. The engine is disposed of at the end."""
-    # a port the system picks, bound here: one chosen beforehand could be taken meanwhile
-    listener = listen_socket("127.0.0.1", 0)
-    port = listener.getsockname()[1]
-    web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-    thread = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-    thread.start()
-    wait_for("the server", lambda: web.started)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        web.should_exit = True
-        thread.join(30)
-        listener.close()
-        server.engine.dispose()
 
 
 @contextmanager

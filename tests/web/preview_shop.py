@@ -22,8 +22,8 @@ from opendnc.server import auth, library  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 from tests.web.browser import PASSWORDS  # noqa: E402
-from tests.web.inprocess import serving  # noqa: E402
 
 __all__ = ["BIG_MOVES", "PROGRAMS", "PreviewShop", "long_program", "preview_shop"]
 

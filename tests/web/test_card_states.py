@@ -32,8 +32,8 @@ from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web.render import human_size  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
-from tests.web.inprocess import serving  # noqa: E402
 
 PASSWORD = "operator-secret"
 # About 12 kB of NC text, 40 bytes a line: 300 line ends become CR LF on the wire (2.5 % more).

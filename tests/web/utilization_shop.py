@@ -8,7 +8,6 @@ this timeline (see :data:`EXPECTED`), not read back from the code.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -22,12 +21,11 @@ from tests.peers import require_module
 require_module("jinja2")
 uvicorn = require_module("uvicorn")
 
-from opendnc.cli.serve import listen_socket  # noqa: E402
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.store.models import Role, StatusSample  # noqa: E402
-from tests.server.harness import wait_for  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
 
 BERLIN = ZoneInfo("Europe/Berlin")
 DAY = (2026, 1, 5)  # a Monday in winter (UTC+1)
@@ -164,16 +162,5 @@ def serve_util_shop(tmp_path: Path, password: str = "viewer-secret-1") -> Iterat
         auth.create_user(session, "viewer", Role.VIEWER, password=password)
         _row, key = auth.create_key(session, "viewer", Role.VIEWER, label="utilization test")
     write_timeline(server.sessions)
-    listener = listen_socket("127.0.0.1", 0)
-    port = listener.getsockname()[1]
-    web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", loop="asyncio"))
-    serving = threading.Thread(target=web.run, kwargs={"sockets": [listener]}, daemon=True)
-    serving.start()
-    wait_for("the server", lambda: web.started)
-    try:
-        yield UtilShop(f"http://127.0.0.1:{port}", server, key)
-    finally:
-        web.should_exit = True
-        serving.join(30)
-        listener.close()
-        server.engine.dispose()
+    with serving(server) as url:
+        yield UtilShop(url, server, key)

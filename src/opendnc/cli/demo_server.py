@@ -129,7 +129,12 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
                     library.add_version(session, name, data, author="demo", source="example")
                 if name in RELEASED:
                     library.release(session, name, 1, actor="demo")
-        web = uvicorn.Server(uvicorn.Config(server.app, log_level="warning", lifespan="on"))
+        # An open dashboard holds an event stream that never ends by itself: at Ctrl-C it
+        # gets two seconds, then goes (as `serve` does with its own deadline).
+        settings = uvicorn.Config(
+            server.app, log_level="warning", lifespan="on", timeout_graceful_shutdown=2
+        )
+        web = uvicorn.Server(settings)
         serving = asyncio.create_task(web.serve(sockets=[listener]))
         while not web.started:
             if serving.done():
