@@ -15,6 +15,7 @@ errors"); on a clean line the answers equal those over TCP and files travel byte
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -61,8 +62,10 @@ def _lines(proc: subprocess.Popen[str], stream_name: str) -> queue.Queue[str]:
         lines: queue.Queue[str] = queue.Queue()
 
         def pump() -> None:
-            for line in stream:
-                lines.put(line)
+            # the test closes the pipe when it stops the process: the end of the stream too
+            with contextlib.suppress(ValueError, OSError):
+                for line in stream:
+                    lines.put(line)
             lines.put("")  # the end of the stream
 
         threading.Thread(target=pump, daemon=True).start()
