@@ -80,6 +80,7 @@ def _server(
     *,
     dripfeed: bool = False,
     extra: str = "",
+    check: str = "warn",
 ) -> tuple[httpx.Client, str]:
     config = tmp_path / "shop.toml"
     text = server_config(
@@ -87,7 +88,7 @@ def _server(
         poll_interval=0.5,
         library=tmp_path / "lib",
         dripfeed=dripfeed,
-        check="warn",
+        check=check,
     )
     config.write_text(text + f"\n[requests]\ndelay = {DELAY}\n" + extra)
     key = create_key(config, db_url)
@@ -173,6 +174,83 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
         assert (first_start - asked).total_seconds() >= DELAY
         # The request itself is no inbox item.
         assert client.get("/api/inbox", headers=auth(key)).json() == []
+
+
+# A typo on line 5: G300 is no G code of a Haas mill (its manual's G-code table).
+TYPO = "%\nO02000 (BRACKET OP3)\nG20\nG00 G90 G54 X0. Y0.\nG300 X1.\nM30\n%\n"
+# A Heidenhain conversational program stored under an O-number a Haas operator can ask for.
+KLARTEXT = (
+    "0 BEGIN PGM O03000 MM\n1 BLK FORM 0.1 Z X+0 Y+0 Z-20\n2 BLK FORM 0.2 X+100 Y+100 Z+0\n"
+    "3 TOOL CALL 1 Z S2000\n4 L X+0 Y+0 FMAX M3\n5 L X+10 F200\n6 END PGM O03000 MM\n"
+)
+
+
+def test_a_requested_program_that_fails_its_check_is_not_sent_but_reported(
+    tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
+) -> None:
+    # The same rule as a send from the API: errors for this machine block it (nobody at
+    # the control can override them); warnings do not.
+    sim = haas.fleet.sims["haas-serial-1"]
+    request = "%\nO09999 (REQ O1234 REQ O2000 REQ O3000)\nM30\n%\n"
+    haas.call(lambda: sim.control.save_program(request))
+    client, key = _server(tmp_path, haas, procs, db_url, check="block")
+    with client:
+        for name, text in (("O01234.nc", STORED), ("O02000.nc", TYPO), ("O03000.nc", KLARTEXT)):
+            put = client.put(f"/api/programs/{name}", content=text.encode(), headers=auth(key))
+            assert put.status_code == 201, put.text  # drafts: this machine takes them
+        # STORED feeds with the spindle stopped: a warning, no error, on this machine
+        stored = client.get(
+            "/api/programs/O01234.nc/versions/1/check",
+            headers=auth(key),
+            params={"machine": "haas-serial-1"},
+        ).json()
+        assert (stored["errors"], stored["warnings"] > 0) == (0, True), stored
+        port = haas.fleet.serial_ports["haas-serial-1"]
+        port.select("punch:O9999")
+        port.select("auto")
+
+        def memory() -> dict[int, str]:
+            numbers = (1234, 9998)
+            return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
+
+        got = wait_for(
+            "the answer in the control's memory",
+            lambda: len(memory()) == 2 and memory(),
+            describe=lambda: (port.messages, procs.log("server")),
+        )
+        assert got[1234].split() == STORED.split()
+        report = [line.strip() for line in got[9998].splitlines() if line.strip()]
+        assert report[1].startswith("O09998 (OPENDNC REQUEST FAILED"), report
+        # each refused program, then the line of its first error and what it is
+        typo = report.index("(O02000.NC FAILED ITS CHECK)")
+        assert report[typo + 1].startswith("(LINE 5: G300 "), report
+        klartext = report.index("(O03000.NC FAILED ITS CHECK)")
+        assert report[klartext + 1].startswith("(LINE 1: "), report
+        # the family mismatch, however the control's short lines wrap it
+        words = " ".join(report[klartext + 1 : klartext + 3]).split()
+        words = [w.strip("()") for w in words]
+        assert "HEIDENHAIN" in words, report
+        assert "HAAS" in words, report
+        # The answer is queued in one transaction: only O01234 and the report went out.
+        sent = client.get("/api/jobs", headers=auth(key), params={"machine": "haas-serial-1"})
+        assert sorted((j["kind"], j["program"], j["state"]) for j in sent.json()) == [
+            ("report", None, "done"),
+            ("send", "O01234.nc", "done"),
+        ]
+        for number in (2000, 3000):
+            assert _read(haas, sim, number) is None
+        (row,) = client.get(
+            "/api/audit", headers=auth(key), params={"action": "program.request"}
+        ).json()
+        assert row["result"] == "refused"
+        assert row["detail"]["sent"] == ["O01234.nc"]
+        assert [r.split(" ")[0] for r in row["detail"]["refused"]] == ["O02000.nc", "O03000.nc"]
+        failed = {f["program"]: f for f in row["detail"]["failed_checks"]}
+        assert sorted(failed) == ["O02000.nc", "O03000.nc"]
+        assert (failed["O02000.nc"]["version"], failed["O02000.nc"]["first"]["line"]) == (1, 5)
+        assert "G300" in failed["O02000.nc"]["reason"]
+        assert failed["O03000.nc"]["first"]["line"] == 1
+        assert all(f["errors"] >= 1 for f in failed.values())
 
 
 def test_a_rule_that_builds_a_path_is_answered_with_a_failure_report(

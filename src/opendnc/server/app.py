@@ -102,7 +102,7 @@ def build(
     database_part = core.add(Database(engine, sessions))
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
-    core.add(actions.Services(sessions, database_part.reads, machines))
+    services = core.add(actions.Services(sessions, database_part.reads, machines))
     core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
@@ -117,7 +117,7 @@ def build(
             retry_backoff=retry_backoff,
         )
     )
-    requests = core.add(RemoteRequests(machines, sessions, config.requests, config.library.inbox))
+    requests = core.add(RemoteRequests(machines, services, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
     outputs = core.add(
         Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))

@@ -5,11 +5,17 @@ The rules that tell a request from a program are :mod:`opendnc.server.requests`;
 applies them to each reception a machine's task hands it, queues the requested programs after
 the request delay (the released version; the newest where the machine takes drafts) and the
 report programs the settings ask for, and wakes the machine when the answer falls due.
+
+A requested program goes out under the rules a send from the API meets
+(:func:`opendnc.server.actions.policy.may_put_on`): a version whose program check for this
+machine finds errors is not sent (nobody at the control can override it) and the report says
+so, with the first error's line.
 """
 
 from __future__ import annotations
 
 import asyncio
+import textwrap
 from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -18,13 +24,15 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import audit, inbox, jobs, library, requests
+from opendnc.server.actions import checks, policy
+from opendnc.server.actions.base import Services
 from opendnc.server.config import MachineConfig
-from opendnc.server.errors import NotFound
+from opendnc.server.errors import Conflict, NotFound
 from opendnc.server.events import ProgramReceived, publish_job_queued
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Reception
 from opendnc.server.requests import RequestSettings
-from opendnc.server.store.models import JobKind, utcnow
+from opendnc.server.store.models import JobKind, ProgramVersion, utcnow
 
 __all__ = ["RemoteRequests"]
 
@@ -33,17 +41,18 @@ class RemoteRequests:
     """Files receptions and answers requests; a component with nothing to start."""
 
     name = "remote-requests"
-    needs = ("machines",)
+    needs = ("machines", "actions")
 
     def __init__(
         self,
         machines: Machines,
-        sessions: sessionmaker[Session],
+        services: Services,
         settings: RequestSettings,
         inbox_folder: Path,
     ) -> None:
         self.machines = machines
-        self.sessions = sessions
+        self.services = services  # a send's rules: the actions layer's (policy.may_put_on)
+        self.sessions: sessionmaker[Session] = services.sessions
         self.settings = settings
         self.inbox_folder = inbox_folder
 
@@ -61,6 +70,9 @@ class RemoteRequests:
         queued: list[dict[str, Any]] = []  # the requested programs' jobs, announced once committed
 
         def handle() -> tuple[str, float | None]:
+            names = None if reception.failed else requests.find_request(reception.data, settings)
+            if names is not None:
+                self._check(machine, names)  # the dry runs before the write transaction
             with self.sessions.begin() as session:
                 if reception.failed:
                     row = inbox.store(
@@ -71,7 +83,6 @@ class RemoteRequests:
                         failed=reception.failed,
                     )
                     return f"reception failed: {row.reason}", None
-                names = requests.find_request(reception.data, settings)
                 if names is None:
                     row = inbox.store(session, machine.name, reception.data, folder=folder)
                     if settings.reports == "all":
@@ -90,6 +101,36 @@ class RemoteRequests:
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
             state.wake.set()
 
+    def _version(self, session: Session, machine: MachineConfig, name: str) -> ProgramVersion | str:
+        """The version a request for ``name`` sends to ``machine``, or why there is none
+        (the report's line)."""
+        try:
+            # A rule builds the name from what the operator typed: only a program name
+            # is looked up (docs/server.md#receiving-and-remote-request).
+            library.check_program_name(name)
+        except InputError:
+            return f"{name} NOT A PROGRAM NAME"
+        try:
+            version = library.released_version(session, name)
+            if version is None and not machine.released_only:
+                version = library.get_version(session, name)
+        except NotFound:
+            return f"{name} NOT IN LIBRARY"
+        if version is None:
+            return f"{name} NOT RELEASED"
+        return version
+
+    def _check(self, machine: MachineConfig, names: list[str]) -> None:
+        """Have the requested versions' program checks for ``machine`` stored (a dry run
+        may take seconds; none runs inside the answer's write transaction)."""
+        svc = self.services
+        limits = checks.limits_of(svc, machine.name)
+        with svc.reads() as session:
+            found = [self._version(session, machine, name) for name in names]
+            targets = [checks.Target.of(v) for v in found if isinstance(v, ProgramVersion)]
+        for target in targets:
+            checks.ensure(svc, target, limits)
+
     def _answer(
         self,
         session: Session,
@@ -99,25 +140,43 @@ class RemoteRequests:
     ) -> str:
         settings = self.settings
         due = utcnow() + timedelta(seconds=settings.delay)
-        problems: list[str] = []
+        problems: list[str] = []  # one a program, for the audit trail
+        report: list[str] = []  # the report's lines (a comment each, 60 characters at most)
         sent: list[str] = []
+        failed_checks: list[dict[str, Any]] = []
         for name in names:
-            try:
-                # A rule builds the name from what the operator typed: only a program name
-                # is looked up (docs/server.md#receiving-and-remote-request).
-                library.check_program_name(name)
-            except InputError:
-                problems.append(f"{name} NOT A PROGRAM NAME")
+            version = self._version(session, machine, name)
+            if isinstance(version, str):
+                problems.append(version)
+                report.append(version)
                 continue
             try:
-                version = library.released_version(session, name)
-                if version is None and not machine.released_only:
-                    version = library.get_version(session, name)
-            except NotFound:
-                problems.append(f"{name} NOT IN LIBRARY")
+                # nobody at the control can override a check: no reason, ever
+                policy.may_put_on(self.services, session, machine, JobKind.SEND, version, None)
+            except policy.CheckFailed as refused:
+                first = refused.check.first_error() or {}
+                line = f"LINE {first.get('line', '?')}: {first.get('message', '')}"
+                problems.append(f"{name} FAILED ITS CHECK, {line}")
+                # the program, then the first error on a line or two of its own: a
+                # control's comment is short, and the error is what the operator needs
+                report.append(f"{name} FAILED ITS CHECK")
+                report += textwrap.wrap(
+                    line, requests.COMMENT_WIDTH, max_lines=2, placeholder=" ..."
+                )
+                failed_checks.append(
+                    {
+                        "program": name,
+                        "version": version.number,
+                        "sha256": version.sha256,
+                        "errors": refused.check.errors,
+                        "first": first,
+                        "reason": str(refused),
+                    }
+                )
                 continue
-            if version is None:
-                problems.append(f"{name} NOT RELEASED")
+            except Conflict as refused:
+                problems.append(f"{name} REFUSED: {refused}")
+                report.append(problems[-1])
                 continue
             job = jobs.enqueue(
                 session,
@@ -147,10 +206,11 @@ class RemoteRequests:
             requested=names,
             sent=sent,
             refused=problems,
+            failed_checks=failed_checks,
             result="ok" if not problems else "refused",
         )
         if problems and settings.reports != "none":
-            self._report(session, machine, "REQUEST FAILED", problems, due)
+            self._report(session, machine, "REQUEST FAILED", report, due)
         elif sent and settings.reports == "all":
             self._report(session, machine, "REQUEST", [f"SENDING {n}" for n in sent], due)
         return f"request for {', '.join(names)}: {len(sent)} queued, {len(problems)} refused"

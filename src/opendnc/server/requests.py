@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from opendnc.errors import InputError
 
 __all__ = [
+    "COMMENT_WIDTH",
     "RequestMatch",
     "RequestRule",
     "RequestSettings",
@@ -27,6 +28,10 @@ __all__ = [
     "match_request",
     "report_program",
 ]
+
+
+COMMENT_WIDTH = 60
+"""Characters of a report line the control shows (a longer one is cut there)."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +135,7 @@ def _comment(text: str) -> str:
     # A Haas comment cannot hold parentheses; keep it to the printable upper-case alphabet
     # that every control shows.
     cleaned = re.sub(r"[^A-Z0-9 .,:=/_+-]", " ", text.upper())
-    return re.sub(r"\s+", " ", cleaned).strip()[:60]
+    return re.sub(r"\s+", " ", cleaned).strip()[:COMMENT_WIDTH]
 
 
 def report_program(number: int, title: str, lines: list[str]) -> bytes:

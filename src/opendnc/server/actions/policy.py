@@ -1,15 +1,19 @@
 """The rules every request to the queue passes: which role each kind of job needs, what a
 machine takes (``released_only``, the drip-feed opt-in, the file browser), what a version
 means when none is named, and what a program check's errors block (a release, a send, a
-drip-feed) and who may override them. Nothing else in the server decides these."""
+drip-feed) and who may override them. Nothing else in the server decides these: a job queued
+from the API or a page, a retry and a control's remote request
+(:mod:`opendnc.server.remote_request`) all ask :func:`may_put_on`."""
 
 from __future__ import annotations
 
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
+from opendnc.nccheck import limits_for
 from opendnc.server import jobs
-from opendnc.server.actions.base import Caller, require
+from opendnc.server.actions import checks
+from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict
@@ -21,8 +25,10 @@ __all__ = [
     "JOB_ROLES",
     "OVERRIDE_ROLE",
     "TAKE_BACK_ROLE",
+    "CheckFailed",
     "check_machine",
     "check_passes",
+    "may_put_on",
     "may_queue",
     "may_take_back",
     "override_reason",
@@ -108,6 +114,16 @@ def override_reason(who: Caller, override: str | None) -> str | None:
     return reason
 
 
+class CheckFailed(Conflict):
+    """A release or a send refused because the version's program check found errors and
+    nobody overrode them (HTTP 409, like any conflict); ``check`` is that check, for a
+    caller that tells someone in its own words (a control's request report)."""
+
+    def __init__(self, message: str, check: Checked) -> None:
+        super().__init__(message)
+        self.check = check
+
+
 def check_passes(check: Checked, reason: str | None, what: str, *, blocks: bool = True) -> bool:
     """Refuse (409) ``what`` (``"P.H v3 to tnc1"``) when ``check`` found errors and there is
     no override ``reason``; True when the override lets it through (the caller audits it).
@@ -120,7 +136,34 @@ def check_passes(check: Checked, reason: str | None, what: str, *, blocks: bool 
     first = check.first_error() or {}
     count = f"{check.errors} error{'s' * (check.errors != 1)}"
     where = "on" if check.errors == 1 else "the first on"
-    raise Conflict(
+    raise CheckFailed(
         f"{what}: the program check found {count}, {where} line {first.get('line', '?')}: "
-        f"{first.get('message', '')}; a programmer may override it with a reason"
+        f"{first.get('message', '')}; a programmer may override it with a reason",
+        check,
     )
+
+
+def may_put_on(
+    svc: Services,
+    session: Session,
+    machine: MachineConfig,
+    kind: JobKind,
+    version: ProgramVersion | None,
+    reason: str | None,
+) -> Checked | None:
+    """Whether a ``kind`` job of ``version`` may go to ``machine``, within the write
+    transaction that queues it: refused (409) where the machine does not take it
+    (:func:`check_machine`), or, for a send or a drip-feed, where the version's program
+    check for that machine (its family, travel, protected numbers) finds errors and there
+    is no override ``reason`` (:class:`CheckFailed`). Returns the check when an override
+    lets it through (the caller audits it), else None.
+
+    The check is read from ``version_checks``: the caller runs :func:`checks.ensure` for
+    the machine before the transaction, so no dry run holds the write lock."""
+    check_machine(machine, kind, version)
+    if kind not in CHECKED_JOBS or version is None:
+        return None
+    check = checks.in_transaction(svc, session, version, limits_for(machine))
+    what = f"{version.program.name} v{version.number} to {machine.name}"
+    blocks = svc.runner.config.library.check_blocks
+    return check if check_passes(check, reason, what, blocks=blocks) else None

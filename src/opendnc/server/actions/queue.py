@@ -69,16 +69,9 @@ def create_jobs(
         version = policy.version_for(session, program, order.version) if program else None
         overridden: dict[str, Checked] = {}
         for config in configs:
-            policy.check_machine(config, kind, version)
-        for config in configs:
-            if checked and version is not None:
-                limits = checks.limits_of(svc, config.name)
-                check = checks.in_transaction(svc, session, version, limits)
-                what = f"{version.program.name} v{version.number} to {config.name}"
-                if policy.check_passes(
-                    check, reason, what, blocks=svc.runner.config.library.check_blocks
-                ):
-                    overridden[config.name] = check
+            check = policy.may_put_on(svc, session, config, kind, version, reason)
+            if check is not None:
+                overridden[config.name] = check
         created = []
         for config in configs:
             params: dict[str, str | int | bool] = dict(extra or {})
@@ -177,18 +170,10 @@ def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = N
         old = jobs.get_job(session, job_id)
         if old.kind in policy.JOB_ROLES:  # a report is retried like any job
             policy.may_queue(who, old.kind)
-        policy.check_machine(svc.machine(old.machine).config, old.kind, old.version)
-        if old.kind in policy.CHECKED_JOBS and old.version is not None:
-            limits = checks.limits_of(svc, old.machine)
-            check = checks.in_transaction(svc, session, old.version, limits)
-            kept = old.params.get("check_override")
-            what = f"{old.version.program.name} v{old.version.number} to {old.machine}"
-            policy.check_passes(
-                check,
-                kept if isinstance(kept, str) else None,
-                what,
-                blocks=svc.runner.config.library.check_blocks,
-            )
+        kept = old.params.get("check_override")
+        config = svc.machine(old.machine).config
+        reason = kept if isinstance(kept, str) else None
+        policy.may_put_on(svc, session, config, old.kind, old.version, reason)
         return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
 
     out = svc.write(retry)
