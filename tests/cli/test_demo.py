@@ -58,13 +58,14 @@ def test_demo_shows_live_values(tmp_path: Path) -> None:
 
 
 def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
-    # `make demo` runs the server demo; --check does one round trip and exits.
+    # `make demo` runs the server demo; --check does one round trip and exits. The computer's
+    # zone (TZ here) is the shop's clock: the pages show the times of the people using them.
     proc = subprocess.run(
         [sys.executable, "-m", "opendnc.cli.main", "demo", "--check", "--bind", "127.0.0.1:0"],
         capture_output=True,
         text=True,
         timeout=120,
-        env={**os.environ, "COLUMNS": "200"},
+        env={**os.environ, "COLUMNS": "200", "TZ": "America/Chicago"},
     )
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
@@ -78,3 +79,6 @@ def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
     # the NGC has a DPRNT source and runs a program that prints (issue 23)
     assert "DPRNT haas-1: BORE  1 DIA  1.0002" in out
     assert "DPRNT haas-1: BORE  3 DIA  1.0000" in out
+    assert "times in America/Chicago" in out
+    # the demo has a net share: its NAS folder's programs reach the NGC's share
+    assert "net share -> haas-1: O01000.nc, O02000.nc, O04000.nc, O05000.nc" in out

@@ -2,8 +2,11 @@
 
 Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port) and a virtual
 Haas on a virtual RS-232 cable in this process, fills a library with example programs (released ones
-and a draft with two versions), and runs the server on SQLite in a scratch folder. It prints
-the dashboard's address and a login first, then an API key, and serves until Ctrl-C.
+and a draft with two versions), and runs the server on SQLite in a scratch folder, on this
+computer's time zone (or ``--timezone``), with a hybrid net share: a NAS folder holding programs
+as a CAM office leaves them (one the released version, one a draft, one edited after its
+release, one the library never saw), copied to the NGC's share. It prints the dashboard's
+address and a login first, then an API key, and serves until Ctrl-C.
 ``--check`` sends a released program of its family to every machine, prints what happened and
 exits (what the test suite runs).
 """
@@ -55,7 +58,20 @@ EXAMPLES: dict[str, list[bytes]] = {
         b"7 L Z+50 R0 FMAX M30\r\n8 END PGM POCKET MM\r\n"
     ],
 }
-RELEASED = ("O01000.nc", "POCKET.H")
+# O04000 is released; the NAS holds a copy edited after that (the net share page flags it).
+EXAMPLES["O04000.nc"] = [
+    b"%\r\nO04000 (SPOT DRILL)\r\nG20\r\nT3 M06\r\nG00 G90 G54 X1. Y1.\r\nS2000 M03\r\n"
+    b"G43 H03 Z0.1 M08\r\nG81 Z-0.1 R0.1 F8.\r\nX2.\r\nG80 M09\r\nG28 G91 Z0.\r\nM30\r\n%\r\n"
+]
+RELEASED = ("O01000.nc", "O04000.nc", "POCKET.H")
+# The demo's NAS folder: file name -> bytes, as a CAM office drops them.
+NAS_FILES: dict[str, bytes] = {
+    "O01000.nc": EXAMPLES["O01000.nc"][0],  # the released version
+    "O02000.nc": EXAMPLES["O02000.nc"][1],  # a draft nobody released yet
+    "O04000.nc": EXAMPLES["O04000.nc"][0].replace(b"F8.", b"F12."),  # edited after release
+    "O05000.nc": b"%\r\nO05000 (CHAMFER, NEW JOB)\r\nG20\r\nT4 M06\r\nG00 G90 G54 X0. Y0.\r\n"
+    b"S4000 M03\r\nG43 H04 Z0.1\r\nG01 Z-0.05 F10.\r\nG28 G91 Z0.\r\nM30\r\n%\r\n",
+}
 
 
 def demo(
@@ -69,6 +85,11 @@ def demo(
     check: bool = typer.Option(
         False, "--check", help="Send a program to every machine, report, and exit."
     ),
+    timezone: str | None = typer.Option(
+        None,
+        "--timezone",
+        help="The shop's clock, an IANA name like Europe/Berlin (default: this computer's).",
+    ),
 ) -> None:
     """Run the DNC server with a virtual shop floor (two TNCs, two Haas) and print a login."""
     if tour:
@@ -78,18 +99,21 @@ def demo(
         return
     with cli_errors():
         require_server_extra()
+        from opendnc.server.host_zone import host_zone_name
+
+        zone = timezone or host_zone_name()
         host, port = parse_bind(bind)
         # bound before the virtual machines start: a port in use is one line, nothing started
         with listen_socket(host, port) as listener:
             if folder is not None:
                 folder.mkdir(parents=True, exist_ok=True)
-                asyncio.run(_run(folder, host, listener, check))
+                asyncio.run(_run(folder, host, listener, check, zone))
             else:
                 with tempfile.TemporaryDirectory(prefix="opendnc-demo-") as tmp:
-                    asyncio.run(_run(Path(tmp), host, listener, check))
+                    asyncio.run(_run(Path(tmp), host, listener, check, zone))
 
 
-async def _run(folder: Path, host: str, listener: socket.socket, check: bool) -> None:
+async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zone: str) -> None:
     import uvicorn
 
     from opendnc.server import auth, library
@@ -102,12 +126,20 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
     # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
     fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1, dprnt=True)
     try:
+        nas = folder / "nas"
+        nas.mkdir(exist_ok=True)
+        for name, data in NAS_FILES.items():
+            if not (nas / name).exists():  # a kept --dir: a file changed there stays so
+                (nas / name).write_bytes(data)
         text = server_config(
             fleet,
             bind=f"{host}:{port}",
             poll_interval=0.5,
             library=folder / "library",
             dripfeed=True,  # a virtual machine: nothing moves
+            timezone=zone,
+            netshare=nas,
+            netshare_interval=1.0,
         )
         (folder / "shop.toml").write_text(text)
         shop = parse_config(text, base=folder, source=folder / "shop.toml")
@@ -156,6 +188,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool) ->
         )
         names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
         console.print(f"machines: {names}", highlight=False, soft_wrap=True)
+        console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
         printing = asyncio.create_task(_print_dprnt(server, fleet))
         try:
             if check:
@@ -203,7 +236,7 @@ async def _check(server: object, fleet: object) -> None:
     from opendnc.server.actions.models import JobRequest
     from opendnc.server.app import Server
     from opendnc.server.auth import Principal
-    from opendnc.server.store.models import DprntLine, JobKind, JobState, Role
+    from opendnc.server.store.models import AuditEntry, DprntLine, JobKind, JobState, Role
     from opendnc.sim.fleet import Fleet
 
     assert isinstance(server, Server)
@@ -252,3 +285,22 @@ async def _check(server: object, fleet: object) -> None:
         console.print(f"DPRNT haas-1: {line}", highlight=False)
     if len(printed) < 3:
         raise DncError("the demo's DPRNT lines did not arrive")
+    # the net share copied the NAS folder's programs to every Haas NGC's share
+    served = [m.name for m in fleet.machines if m.kind == "haas_ngc"]
+    wanted = {(machine, name) for machine in served for name in NAS_FILES}
+    while True:
+        with server.sessions() as session:
+            rows = session.execute(
+                select(AuditEntry.machine, AuditEntry.program).where(
+                    AuditEntry.action == "netshare.push", AuditEntry.result == "ok"
+                )
+            ).all()
+        pushed = {(m or "", p or "") for m, p in rows} & wanted
+        if pushed == wanted or loop.time() > deadline:
+            break
+        await asyncio.sleep(0.1)
+    for machine in served:
+        copied = ", ".join(sorted(p for m, p in pushed if m == machine))
+        console.print(f"net share -> {machine}: {copied}", highlight=False)
+    if pushed != wanted:
+        raise DncError("the net share did not copy the NAS folder's programs in time")

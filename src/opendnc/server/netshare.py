@@ -62,7 +62,7 @@ from opendnc.server.config import HaasNgcMachine, NetShareConfig
 from opendnc.server.events import EventBus, NetshareChanged
 from opendnc.server.store.models import AuditEntry
 
-__all__ = ["NetShare", "ScanReport", "local_now"]
+__all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,7 @@ def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-class _Folder(Protocol):
+class Folder(Protocol):
     """A folder the net share reads: the NAS, or a machine's share (local or SMB)."""
 
     label: str
@@ -235,8 +235,17 @@ def _smb_errors(what: str) -> Iterator[None]:
         raise TransportError(f"{what}: {exc}") from exc
 
 
-def _folder_for(spec: str) -> _Folder:
+def _folder_for(spec: str) -> Folder:
     return _folder_at(share.parse_target(spec))  # InputError: a local folder that is not there
+
+
+def open_folder(target: str | Path | share.ShareTarget, *, own_connections: bool = False) -> Folder:
+    """A folder of the net share as the scan reads it: a machine's share (its ``share``
+    setting: a folder or ``smb://``), or the NAS (``own_connections``: its SMB login checked
+    on a connection of its own). :class:`InputError` for a local folder that is not there."""
+    if isinstance(target, str):
+        target = share.parse_target(target)
+    return _folder_at(target, own_connections=own_connections)
 
 
 def _folder_at(
@@ -255,7 +264,7 @@ class _Stable:
     def __init__(self) -> None:
         self._last: dict[str, dict[str, tuple[int, int]]] = {}
 
-    def names(self, folder: _Folder, entries: dict[str, tuple[int, int]]) -> list[str]:
+    def names(self, folder: Folder, entries: dict[str, tuple[int, int]]) -> list[str]:
         last = self._last.get(folder.label, {})
         self._last[folder.label] = entries
         return sorted(name for name, seen in entries.items() if last.get(name) == seen)

@@ -199,11 +199,16 @@ def server_config(
     dripfeed: bool = False,
     mdc: bool = False,
     check: str | None = None,
+    timezone: str | None = None,
+    netshare: Path | None = None,
+    netshare_interval: float = 5.0,
 ) -> str:
     """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
     (``dripfeed`` allows drip-feeding the serial Haas machines; ``mdc`` has the server read
     their status by MDC on the cable, as they answer Q-commands there; ``check`` is the
-    library's ``block`` or ``warn`` for program check errors, with ``library``)."""
+    library's ``block`` or ``warn`` for program check errors, with ``library``;
+    ``timezone`` the shop's clock; ``netshare`` a NAS folder whose programs the hybrid net
+    share copies to every Haas NGC's share, scanned every ``netshare_interval`` seconds)."""
 
     def q(value: object) -> str:
         return json.dumps(str(value))  # a JSON string is a valid TOML basic string
@@ -211,6 +216,8 @@ def server_config(
     lines = ["[server]", f"bind = {q(bind)}"]
     if database:
         lines.append(f"database = {q(database)}")
+    if timezone:
+        lines.append(f"timezone = {q(timezone)}")
     if library is not None:
         lines += [
             "",
@@ -242,4 +249,13 @@ def server_config(
             lines += [f"mdc_port = {m.port}", f"share = {q(m.root)}"]
             if m.dprnt_port:
                 lines.append(f"dprnt = {q(f'tcp://{m.host}:{m.dprnt_port}')}")
+    served = [m.name for m in fleet.machines if m.kind == "haas_ngc"]
+    if netshare is not None and served:
+        lines += [
+            "",
+            "[netshare]",
+            f"path = {q(netshare)}",
+            f"machines = [{', '.join(q(name) for name in served)}]",
+            f"interval = {netshare_interval}",
+        ]
     return "\n".join(lines) + "\n"

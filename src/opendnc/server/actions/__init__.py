@@ -14,7 +14,8 @@ result, so both give the same answer to the same request.
 Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs),
 :mod:`.checks` (program checks), :mod:`.files` (a control's files), :mod:`.inbox`
 (receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
-:mod:`.preview` (a version's dry run and toolpath).
+:mod:`.preview` (a version's dry run and toolpath), :mod:`.netshare` (the hybrid net share's
+folders and files).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from opendnc.server.actions import (
     inbox,
     library,
     machines,
+    netshare,
     policy,
     preview,
     queue,
@@ -41,6 +43,7 @@ __all__ = [
     "inbox",
     "library",
     "machines",
+    "netshare",
     "policy",
     "preview",
     "queue",

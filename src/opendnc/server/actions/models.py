@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Annotated, Self
+from typing import Annotated, Literal, Self
 
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
@@ -40,6 +40,7 @@ __all__ = [
     "LeaseOut",
     "LineNumber",
     "MachineOut",
+    "NetShareOut",
     "ProblemOut",
     "ProgramListed",
     "ProgramOut",
@@ -48,6 +49,9 @@ __all__ = [
     "ReleaseRequest",
     "RemoteFileOut",
     "RevokedOut",
+    "ShareFileOut",
+    "ShareFolderOut",
+    "ShareMatch",
     "TextMatch",
     "Timestamp",
     "UploadOut",
@@ -484,3 +488,53 @@ class ClusterOut(BaseModel):
             ],
             leases=[LeaseOut.model_validate(row, from_attributes=True) for row in view.leases],
         )
+
+
+ShareMatch = Literal["same", "differs", "not released", "not in library", "unreadable"]
+"""A net share file beside the library: the released version's bytes (``same``), other
+bytes (``differs``), a program with no released version (``not released``), no program of
+that name, or a file that could not be read just now."""
+
+
+class ShareFileOut(BaseModel):
+    """A program file in a net share folder, beside the library's program of its name
+    (names compared without case: SMB shares fold it)."""
+
+    name: str
+    size: int
+    modified: Timestamp
+    sha256: str | None
+    library: ShareMatch
+    program: str | None = Field(description="the library's program of this name")
+    released: int | None = Field(description="its released version, compared with")
+    version: int | None = Field(description="the library version with exactly these bytes")
+    version_state: ProgramState | None
+
+
+class ShareFolderOut(BaseModel):
+    """The NAS folder (``machine`` None) or a subscribed machine's share, and its files."""
+
+    machine: str | None
+    where: str = Field(description="the folder; an SMB one without its login")
+    online: bool | None = Field(description="the machine's link (None for the NAS)")
+    error: str = Field(description="why the folder could not be listed, or empty")
+    files: list[ShareFileOut]
+
+
+class NetShareOut(BaseModel):
+    """The hybrid net share (docs/server.md#hybrid-net-share) as it is now: its folders and
+    their files, its archive and schedule, and its newest audit rows."""
+
+    configured: bool
+    candidates: list[str] = Field(
+        default_factory=list, description="unconfigured: the machines with a share to serve"
+    )
+    nas: ShareFolderOut | None = None
+    machines: list[ShareFolderOut] = Field(default_factory=list)
+    archive: str = ""
+    archive_at: str | None = Field(default=None, description="HH:MM daily, server local time")
+    archive_every: float | None = Field(default=None, description="or every so many seconds")
+    last_archive: Timestamp | None = None
+    interval: float = 0.0
+    collect: bool = False
+    activity: list[AuditOut] = Field(default_factory=list)

@@ -508,15 +508,18 @@ def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[re
 LIST_EVENTS: dict[str, tuple[type[Event], ...]] = {
     "inbox": (ProgramReceived, NetshareChanged, InboxChanged),
     "library": (ProgramChanged,),
+    # what the net share did, and a release (which changes how its files compare)
+    "netshare": (NetshareChanged, ProgramChanged),
 }
 
 
 @router.get("/events/lists")
 async def list_events(request: Request, page: Viewing, topic: str) -> StreamingResponse:
-    """Server-sent events named ``topic`` (``inbox`` or ``library``), no data, at most every
-    :data:`CARD_INTERVAL` while that list changes: the page reloads the list on each."""
+    """Server-sent events named ``topic`` (``inbox``, ``library`` or ``netshare``), no data,
+    at most every :data:`CARD_INTERVAL` while that list changes: the page reloads the list on
+    each."""
     if topic not in LIST_EVENTS:
-        raise InputError(f"topic {topic!r}: inbox or library")
+        raise InputError(f"topic {topic[:20]!r}: inbox, library or netshare")
     source = _ListChanges(topic)
     return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
@@ -1046,6 +1049,17 @@ def discard_received(request: Request, received_id: ReceivedId, page: Writing) -
     """Drop the reception from the inbox (programmers)."""
     actions.inbox.discard_received(_svc(request), page.who, received_id)
     return _redirect(request, "/inbox")
+
+
+# -- net share ----------------------------------------------------------------------------
+
+
+@router.get("/netshare")
+def netshare_page(request: Request, page: Viewing) -> HTMLResponse:
+    """The hybrid net share: its folders and files beside the library, and what it did."""
+    found = actions.netshare.net_share(_svc(request), page.who)
+    template = "_netshare.html" if _is_htmx(request) else "netshare.html"
+    return _html(template, page, request, share=found.model_dump(mode="json"))
 
 
 # -- history ------------------------------------------------------------------------------
