@@ -67,6 +67,9 @@ def create_jobs(
 
     def queue(session: Session) -> list[JobOut]:
         version = policy.version_for(session, program, order.version) if program else None
+        # every machine's own refusal first: one a check override cannot lift is said first
+        for config in configs:
+            policy.check_machine(config, kind, version)
         overridden: dict[str, Checked] = {}
         for config in configs:
             check = policy.may_put_on(svc, session, config, kind, version, reason)
