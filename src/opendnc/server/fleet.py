@@ -1,11 +1,12 @@
 """One supervised task per machine: connect, poll the status, listen, and run due jobs.
 
 A task that loses its control closes the link, waits with exponential backoff (0.5 s up to
-30 s) and connects again; an error in one machine's task never reaches another's. Between two
-status polls the task lets the runner (:mod:`opendnc.server.runner`) claim and run the
-machine's due jobs on the same connector, auto-receive (:mod:`opendnc.server.autoreceive`)
-look at an out-tray folder, and, on a control that sends by itself, listens for a punch that
-remote requests (:mod:`opendnc.server.remote_request`) files or answers.
+10 s, cut short by a job queued for it) and connects again; an error in one machine's task
+never reaches another's. Between two status polls the task lets the runner
+(:mod:`opendnc.server.runner`) claim and run the machine's due jobs on the same connector,
+auto-receive (:mod:`opendnc.server.autoreceive`) look at an out-tray folder, and, on a
+control that sends by itself, listens for a punch that remote requests
+(:mod:`opendnc.server.remote_request`) files or answers.
 
 Which machines this process serves is decided at run time: :meth:`Fleet.serve` starts a
 machine's task and :meth:`Fleet.release` stops it (closing its link), so a later "which
@@ -36,6 +37,9 @@ log = logging.getLogger(__name__)
 
 ConnectorFactory = Callable[[MachineConfig], Connector]
 CLOSE_TIMEOUT = 2.0  # seconds a link may take to close when its task stops
+# The longest wait between two tries to reach a control that is away: a machine switched on
+# in the morning is seen within this, and a hundred absent ones cost ten tries a second.
+BACKOFF_MAX_S = 10.0
 
 
 class Fleet:
@@ -114,6 +118,7 @@ class Fleet:
                 await connector.connect()
                 state.online = True
                 backoff = 0.5
+                state.wake.set()  # what was queued while it was away runs at once
                 await self._serve(state, connector)
             except asyncio.CancelledError:
                 await _close(connector)
@@ -131,8 +136,11 @@ class Fleet:
                 )
                 self.machines.publish(state)
                 await _close(connector)
-                await asyncio.sleep(backoff)
-                backoff = min(backoff * 2, 30.0)
+                # a job queued meanwhile cuts the wait short: the person who queued it
+                # expects a try now, not at the end of a long backoff
+                await _wait(state.wake, backoff)
+                state.wake.clear()
+                backoff = min(backoff * 2, BACKOFF_MAX_S)
 
     async def _serve(self, state: MachineState, connector: Connector) -> None:
         while True:
