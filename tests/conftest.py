@@ -4,38 +4,67 @@ from __future__ import annotations
 
 import pytest
 
-# The files whose tests take longest (tens of seconds each: `pytest --durations=80`), longest
-# first. pytest-xdist hands the first tests of the collection out round-robin as the run
-# starts, so these begin on every worker at once instead of one of them keeping a worker busy
-# alone at the end of the run. Only the order changes: each file keeps its own order (its
-# module fixtures are set up as often as before), and every other file follows as collected.
-# The list need not be exact; a file that grew slow only makes the run end later.
+# The files whose longest test takes longest (10 s and more on a busy machine, measured with
+# `pytest --durations=0`), longest first. pytest-xdist hands the first tests of the collection
+# out round-robin as the run starts, so these begin on every worker at once instead of one of
+# them keeping a worker busy alone at the end of the run. Only the order changes: each file
+# keeps its own order (its module fixtures are set up as often as before), and every other
+# file follows as collected. The list need not be exact; a file that grew slow only makes the
+# run end later.
 LONGEST_FIRST = (
-    "tests/interop/test_xmodem_pypi.py",
-    "tests/interop/test_xmodem_lrzsz.py",
-    "tests/sim/haas_serial/test_dnc_large.py",
-    "tests/bench/test_soak_serial_lsv2.py",
-    "tests/sim/test_heidenhain_blockwise_cable.py",
     "tests/cli/test_readme.py",
-    "tests/server/test_from_the_control.py",
-    "tests/web/test_machine_page.py",
-    "tests/server/test_serial_mdc_status.py",
-    "tests/server/test_end_to_end.py",
-    "tests/server/test_leases.py",
-    "tests/web/test_dashboard.py",
-    "tests/server/test_sim_fleet_cli.py",
-    "tests/server/test_serial_profile.py",
-    "tests/sim/test_xmodem_text_check.py",
-    "tests/server/test_serve.py",
-    "tests/sim/test_lsv2_serial_adaptive.py",
-    "tests/sim/test_lsv2_serial_faults.py",
-    "tests/unit/test_portable.py",
-    "tests/server/test_limits.py",
-    "tests/sim/tnc/test_properties.py",
-    "tests/server/test_stop.py",
-    "tests/server/test_tnc_autoreceive.py",
-    "tests/sim/haas_serial/test_cli_serial.py",
     "tests/bench/test_soak_smoke.py",
+    "tests/server/test_end_to_end.py",
+    "tests/interop/test_xmodem_pypi.py",
+    "tests/server/test_cluster.py",
+    "tests/server/test_from_the_control.py",
+    "tests/web/test_program_preview.py",
+    "tests/server/test_limits.py",
+    "tests/sim/haas_serial/test_cli_serial.py",
+    "tests/web/test_utilization_pages.py",
+    "tests/bench/test_soak_serial_lsv2.py",
+    "tests/web/test_workbench.py",
+    "tests/server/test_stop.py",
+    "tests/sim/surface/test_report_page.py",
+    "tests/web/test_program_preview_http.py",
+    "tests/web/test_dashboard.py",
+    "tests/sim/haas_serial/test_dnc_large.py",
+    "tests/server/test_api_contract.py",
+    "tests/web/test_machine_page.py",
+    "tests/sim/test_lsv2_serial_adaptive.py",
+    "tests/server/test_request_load.py",
+    "tests/server/test_serial_mdc_status.py",
+    "tests/server/test_utilization_days.py",
+    "tests/sim/test_heidenhain_blockwise_cable.py",
+    "tests/server/test_utilization_db.py",
+    "tests/web/test_library_page.py",
+    "tests/server/test_dprnt_capture.py",
+    "tests/server/test_crash_gap.py",
+    "tests/server/test_cli_users.py",
+    "tests/server/test_tnc_autoreceive.py",
+    "tests/sim/test_lsv2_serial_faults.py",
+    "tests/web/test_sessions.py",
+    "tests/sim/haas_serial/test_punch_back_verify.py",
+    "tests/server/test_netshare.py",
+    "tests/web/test_card_states.py",
+    "tests/web/test_netshare_page.py",
+    "tests/cli/test_demo.py",
+    "tests/server/test_serial_profile.py",
+    "tests/server/test_sparkplug_cluster.py",
+    "tests/server/test_runner_endings.py",
+    "tests/server/test_mqtt.py",
+    "tests/interop/test_xmodem_lrzsz.py",
+    "tests/sim/test_xmodem_text_check.py",
+    "tests/server/test_policy_matrix.py",
+    "tests/property/test_backplot.py",
+    "tests/cli/test_cli_messages.py",
+    "tests/web/test_floor.py",
+    "tests/server/test_mtconnect.py",
+    "tests/server/test_sparkplug.py",
+    "tests/server/test_serve.py",
+    "tests/web/test_utilization_api.py",
+    "tests/server/test_leases.py",
+    "tests/sim/test_lsv2_serial_cable.py",
 )
 
 
