@@ -46,6 +46,16 @@ def _pg_database() -> Iterator[str]:
         admin.dispose()
 
 
+def on(backend: str) -> pytest.MarkDecorator:
+    """Run a test that takes ``db_url`` on ``backend`` only ("sqlite" or "postgresql").
+
+    The storage's own tests (the store, the queue, leases, a server killed mid-queue, the
+    request load) run on both. A test whose subject is something else (a protocol through
+    the server, a page, a command) runs on one: each backend carries about half of them, and
+    the suite does not start a second fleet of processes to repeat the same transfer."""
+    return pytest.mark.parametrize("db_url", [backend], indirect=True)
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def db_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
     """An empty database URL, on each backend."""

@@ -13,6 +13,7 @@ from opendnc.server import auth
 from opendnc.server.errors import Unauthorized
 from opendnc.server.store.db import make_engine, make_sessions
 from opendnc.server.store.models import Role
+from tests.server.conftest import on
 
 
 def _cli(*args: str, stdin: str) -> subprocess.CompletedProcess[str]:
@@ -26,6 +27,7 @@ def _cli(*args: str, stdin: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@on("postgresql")
 def test_create_a_user_then_change_the_password(tmp_path: Path, db_url: str) -> None:
     config = tmp_path / "shop.toml"
     config.write_text("")

@@ -18,6 +18,7 @@ from sqlalchemy import inspect, text
 
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.store.db import current_revision, make_engine, migrate
+from tests.server.conftest import on
 from tests.server.srvx_support import (
     PRINTS,
     STORED,
@@ -127,6 +128,7 @@ class EventReader:
         self._stop.set()
 
 
+@on("postgresql")
 def test_lines_printed_by_a_running_program_are_stored_and_served(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
@@ -228,6 +230,7 @@ def test_lines_printed_by_a_running_program_are_stored_and_served(
         )
 
 
+@on("sqlite")
 def test_lines_printed_on_a_serial_haas_port_between_mdc_and_xmodem(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:

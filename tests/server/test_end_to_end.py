@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from tests.server.conftest import on
 from tests.server.harness import (
     DEADLINE,
     Procs,
@@ -231,6 +232,7 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
     assert received[0].read_bytes().replace(b"\r\n", b"\n") == PROGRAM.replace(b"\r\n", b"\n")
 
 
+@on("sqlite")
 def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
     viewer = shop.key("viewer")
     operator = shop.key("operator")
@@ -272,6 +274,7 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
     assert not library.exists() or not any(p.is_file() for p in library.rglob("*"))
 
 
+@on("postgresql")
 def test_killed_machine_retries_its_job_when_it_returns(shop: Shop, procs: Procs) -> None:
     admin = shop.key("admin")
     procs.stop("tnc1", signal.SIGKILL)  # tnc-b is away when the job is queued
@@ -357,6 +360,7 @@ def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
     assert [p.name for p in library.rglob("*") if p.is_file()] in ([], ["O01234.nc"])
 
 
+@on("sqlite")
 def test_tnc_killed_mid_load_keeps_no_partial_program_and_gets_it_again(
     shop: Shop, procs: Procs
 ) -> None:
@@ -452,6 +456,7 @@ def _changed_lines(client: httpx.Client, admin: str, a: int, b: int) -> list[str
     return [line.rstrip("\r\n") for line in diff if line[:1] in "+-"]
 
 
+@on("postgresql")
 def test_diff_between_versions_and_a_reordered_cancelled_queue(shop: Shop, procs: Procs) -> None:
     admin = shop.key("admin")
     second = PROGRAM.replace(b"G01 X1.5 F20.", b"G01 X2.5 F15.")
@@ -501,6 +506,7 @@ def test_diff_between_versions_and_a_reordered_cancelled_queue(shop: Shop, procs
     assert (shop.tnc_roots[0] / "TNC" / "nc_prog" / "O01234.nc").read_bytes() == PROGRAM
 
 
+@on("sqlite")
 def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
     admin = shop.key("admin")
     operator = shop.key("operator")

@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 import pytest
 
 from opendnc.sim.fleet import Fleet, server_config, start_fleet
+from tests.server.conftest import on
 from tests.server.harness import (
     Procs,
     auth,
@@ -98,6 +99,7 @@ def _server(
 STORED = "%\nO01234 (BRACKET OP2)\nG20\nG00 G90 G54 X0. Y0.\nG01 X2.5 F15.\nM30\n%\n"
 
 
+@on("postgresql")
 def test_a_haas_punch_lands_in_the_inbox_under_its_o_number(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
@@ -126,6 +128,7 @@ def test_a_haas_punch_lands_in_the_inbox_under_its_o_number(
     assert (tmp_path / "lib" / "inbox" / "O01234.nc").read_bytes() == got
 
 
+@on("sqlite")
 def test_remote_request_sends_the_program_and_reports_the_missing_one(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
@@ -185,6 +188,7 @@ KLARTEXT = (
 )
 
 
+@on("postgresql")
 def test_a_requested_program_that_fails_its_check_is_not_sent_but_reported(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
@@ -253,6 +257,7 @@ def test_a_requested_program_that_fails_its_check_is_not_sent_but_reported(
         assert all(f["errors"] >= 1 for f in failed.values())
 
 
+@on("sqlite")
 def test_a_rule_that_builds_a_path_is_answered_with_a_failure_report(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> None:

@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from tests.server.conftest import on
 from tests.server.harness import wait_jobs
 from tests.server.srvx_support import (
     STORED,
@@ -39,6 +40,7 @@ def _status(client: Any, key: str) -> dict[str, Any]:
     return status
 
 
+@on("sqlite")
 def test_status_by_mdc_on_the_serial_port_and_a_punch_still_arrives(
     tmp_path: Path, haas: FleetThread, procs: Procs, db_url: str
 ) -> None:
@@ -95,6 +97,7 @@ def test_status_by_mdc_on_the_serial_port_and_a_punch_still_arrives(
 QUIET = 30.0  # seconds the server's port stays silent after a broken feed (docs/server.md)
 
 
+@on("postgresql")
 def test_after_a_broken_feed_and_its_restart_the_status_asks_the_control_again(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:

@@ -20,6 +20,7 @@ import pytest
 from opendnc.errors import TransportTimeout
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.transport import PortStream, open_stream
+from tests.server.conftest import on
 from tests.server.harness import (
     Procs,
     auth,
@@ -118,6 +119,7 @@ def _job(shop: Shop, job_id: int) -> dict[str, Any]:
     return job
 
 
+@on("postgresql")
 def test_a_text_load_has_leader_trailer_eob_waits_for_xon_and_paces_lines(shop: Shop) -> None:
     client, key = shop.client, shop.key
     put = client.put("/api/programs/O01234.nc", content=PROGRAM, headers=auth(key))
@@ -177,6 +179,7 @@ def _line_starts(pieces: list[tuple[float, bytes]]) -> list[float]:
     return starts
 
 
+@on("sqlite")
 def test_a_text_punch_lands_in_the_inbox_and_one_cut_short_is_kept_apart(shop: Shop) -> None:
     client, key = shop.client, shop.key
     shop.control.write(

@@ -7,6 +7,7 @@ from collections import Counter
 from pathlib import Path
 
 from opendnc.server.config import MachineKind, load_config
+from tests.server.conftest import on
 from tests.server.harness import (
     Procs,
     auth,
@@ -18,6 +19,7 @@ from tests.server.harness import (
 )
 
 
+@on("sqlite")
 def test_fleet_config_out_serves_exactly_the_started_controls(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:

@@ -22,6 +22,7 @@ from opendnc.lsv2 import Client
 from opendnc.server.autoreceive import FolderWatch, size_problem
 from opendnc.server.config import ConfigError, Lsv2Machine, parse_config
 from opendnc.server.machine_files import RemoteFile
+from tests.server.conftest import on
 from tests.server.harness import (
     Procs,
     auth,
@@ -104,6 +105,7 @@ def _names(items: list[dict[str, Any]]) -> list[tuple[str, str]]:
     return [(i["machine"], i["name"]) for i in items]
 
 
+@on("sqlite")
 def test_files_on_the_tnc_reach_the_inbox_once(
     tmp_path: Path, tncs: FleetThread, procs: Procs, db_url: str
 ) -> None:
