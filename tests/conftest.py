@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 # The files whose longest test takes longest (10 s and more on a busy machine, measured with
@@ -73,3 +75,49 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     of the order."""
     rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("::", 1)[0], len(rank)))
+
+
+# Files whose module fixture is dear (a server, a fleet of virtual controls, Chromium, Samba,
+# a soak run): each runs on one worker, so its fixture is set up once. Spread over the six
+# workers they were set up up to six times each, and a late one kept the run going alone at
+# its end (seen: the dashboard's server, fleet and browser set up in the run's last minute).
+ONE_WORKER = frozenset(
+    {
+        "tests/bench/test_soak_smoke.py",
+        "tests/interop/test_haas_share_samba.py",
+        "tests/server/test_api_contract.py",
+        "tests/server/test_api_fixes.py",
+        "tests/server/test_library_search.py",
+        "tests/server/test_policy_matrix.py",
+        "tests/server/test_program_checks.py",
+        "tests/sim/test_heidenhain_blockwise_cable.py",
+        "tests/sim/test_lsv2_serial_cable.py",
+        "tests/web/test_dashboard.py",
+        "tests/web/test_floor.py",
+        "tests/web/test_library_page.py",
+        "tests/web/test_machine_page.py",
+        "tests/web/test_netshare_page.py",
+        "tests/web/test_program_preview.py",
+        "tests/web/test_program_preview_http.py",
+        "tests/web/test_utilization_api.py",
+        "tests/web/test_utilization_pages.py",
+        "tests/web/test_workbench.py",
+    }
+)
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """With ``-n`` (``--dist load``): every test is a unit of its own, but each of
+    :data:`ONE_WORKER`'s files is one unit. (pytest-xdist's ``loadgroup`` does this with a
+    mark, but it renames the test ids to do it, which pytest 9.2 no longer lets it do.) The
+    files go out first, the largest first, then every other test in the collection's order."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class OneWorkerFiles(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return path if path in ONE_WORKER else nodeid
+
+    return OneWorkerFiles(config, log)
