@@ -286,6 +286,7 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     # runs at full speed again.
     options = clean.fleet.fleet.sims[MACHINE].options
     clean.fleet.call(lambda: setattr(options, "block_rate", 100))
+    said_before = len(front.messages)  # (the module's earlier tests left theirs)
     page.get_by_role("button", name=f"Stop job {job_id}").click()
 
     row = page.locator("#history tr", has=page.locator("td", has_text=re.compile(rf"^{job_id}$")))
@@ -305,7 +306,11 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     size = f"{fed['bytes_done'] / 1000:.1f} kB"
     sync_api.expect(row.locator("td").nth(5)).to_have_text(size)
     # The control, starved, raises its DNC link alarm; the setter resets it, then restarts.
-    wait_for("the DNC link alarm", lambda: front.messages, describe=lambda: front.messages)
+    wait_for(
+        "the DNC link alarm",
+        lambda: len(front.messages) > said_before,
+        describe=lambda: front.messages,
+    )
     assert front.messages[-1].startswith("RS232 ABORT DNC link lost"), front.messages
     clean.fleet.call(control.reset)
     lines_before, runs_before = front.dnc_lines, len(front.messages)
