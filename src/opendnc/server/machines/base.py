@@ -14,7 +14,7 @@ the link, which must not overwrite it.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -67,11 +67,24 @@ class MachineStatus:
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready dict."""
-        data = asdict(self)
-        data["at"] = self.at.isoformat()
-        data["dprnt_at"] = self.dprnt_at.isoformat() if self.dprnt_at else None
-        data["errors"] = list(self.errors)
-        return data
+        # Field by field, not dataclasses.asdict: this runs for every machine on every poll
+        # and every API read, and asdict deep-copies each value through copy's machinery.
+        return {
+            "at": self.at.isoformat(),
+            "available": self.available,
+            "execution": self.execution,
+            "mode": self.mode,
+            "native_mode": self.native_mode,
+            "program": self.program,
+            "line": self.line,
+            "part_count": self.part_count,
+            "tool": self.tool,
+            "overrides": dict(self.overrides),
+            "errors": list(self.errors),
+            "message": self.message,
+            "dprnt": self.dprnt,
+            "dprnt_at": self.dprnt_at.isoformat() if self.dprnt_at else None,
+        }
 
 
 @dataclass(frozen=True)
