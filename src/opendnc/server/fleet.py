@@ -143,11 +143,13 @@ class Fleet:
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
 
     async def _serve(self, state: MachineState, connector: Connector) -> None:
+        loop = asyncio.get_running_loop()
         while True:
             if state.wake.is_set():
                 state.wake.clear()
                 await self.runner.run_due(state, connector)
             await state.errands.run(connector)  # the file browser's reads, between jobs
+            asked = loop.time()
             state.set_status(await connector.status())
             self.machines.publish(state)
             await self.autoreceive.look(state, connector)
@@ -158,7 +160,12 @@ class Fleet:
                 if reception is not None:
                     await self.requests.received(state, reception)
             else:
-                await _wait(state.wake, state.config.poll_interval)
+                # Polls start every poll_interval, however long the last one took to answer:
+                # a status is never older than the interval plus one answer's time (waiting
+                # the whole interval after each answer would add the answer's time to every
+                # status's age, and under load that is a large part of it).
+                left = state.config.poll_interval - (loop.time() - asked)
+                await _wait(state.wake, max(0.0, left))
 
 
 async def _wait(event: asyncio.Event, seconds: float) -> None:
