@@ -169,10 +169,18 @@ def build(
         pins = {m.name: frozenset(m.servers) for m in config.machines}
         pins[LIBRARY] = frozenset()
         leases = Leases(sessions, config.server.name, pins, ttl=config.server.lease_seconds)
+        shared = core.add(SharedStatus(machines, sessions, config.server.name))
         cluster = core.add(
-            Cluster(leases, machines, runner, fleet, database_url=url, duties=duties)
+            Cluster(
+                leases,
+                machines,
+                runner,
+                fleet,
+                database_url=url,
+                duties=duties,
+                on_status=shared.wake,
+            )
         )
-        core.add(SharedStatus(machines, sessions, config.server.name))
     else:
         for duty in duties:
             core.add(duty)

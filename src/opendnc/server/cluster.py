@@ -16,7 +16,8 @@
 If the database cannot be reached, this server stops serving its machines once its leases
 could have expired, so two servers never drive one machine. It listens for the other
 servers' notices (:mod:`opendnc.server.notify`): a queued or moved job wakes its machine at
-once, a cancel reaches the job running here at once. docs/server.md#several-servers.
+once, a cancel reaches the job running here at once, and another server's new statuses are read
+at once (``on_status``, :mod:`opendnc.server.shared_status`). docs/server.md#several-servers.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -57,6 +58,7 @@ class Cluster:
         *,
         database_url: str,
         duties: Sequence[Component] = (),
+        on_status: Callable[[str], None] = lambda _server: None,
     ) -> None:
         self.leases = leases
         self.machines = machines
@@ -64,6 +66,7 @@ class Cluster:
         self.fleet = fleet
         self.database_url = database_url
         self.duties = list(duties)
+        self.on_status = on_status  # a server wrote statuses ("" after a reconnect: maybe)
         self.renew_every = max(0.1, leases.ttl.total_seconds() / 4)
         self.serving: set[str] = set()  # machines whose task runs here (and the duties)
         self._epochs: dict[str, int] = {}
@@ -228,8 +231,11 @@ class Cluster:
             number, _, name = notice.key.partition(":")
             version = int(number) if number.isdigit() else None
             self.machines.bus.publish(ProgramChanged(name, version, "cluster"))
+        elif notice.topic == "status":
+            self.on_status(notice.key)
 
     def _reread(self) -> None:
         # notices sent while the listener was away are lost: look at every queue again
         for machine in self.serving:
             self.machines.wake(machine)
+        self.on_status("")

@@ -1,27 +1,40 @@
 """Every machine's status on every server of a cluster, through the database.
 
 Each machine is polled by one server only, the one holding its lease (:mod:`.cluster`). That
-server writes what ``/api/machines`` shows for the machine into ``machine_snapshots`` a few
-times a second; every server reads the rows of the machines it does not serve and publishes
-them on its own bus (:class:`~opendnc.server.events.MachineStatusChanged` with
-``served=False``), so the dashboard, the API, the event streams and MTConnect read the same on
-every server (docs/server.md#several-servers). Only the serving server records a machine's
-timeline and publishes it over MQTT.
+server writes what ``/api/machines`` shows for the machine into ``machine_snapshots``; every
+server reads the rows of the machines it does not serve and publishes them on its own bus
+(:class:`~opendnc.server.events.MachineStatusChanged` with ``served=False``), so the
+dashboard, the API, the event streams and MTConnect read the same on every server
+(docs/server.md#several-servers). Only the serving server records a machine's timeline and
+publishes it over MQTT.
 
-Times are the database's: a reader asks for rows written since the last it saw, less a margin
-for transactions that began before and committed after it.
+The age a user sees on another server is the poll's age at the serving server plus the way
+here, so the way is kept short and cheap:
+
+- the writer gathers :data:`INTERVAL` of polls into one transaction; a machine whose status is
+  the same as the last one written but for its time gets one array ``UPDATE`` of its poll
+  time (``polled``) for all such machines, a changed one an upsert of its whole ``data``;
+- the transaction ends with a notice (``status:<server>``, :mod:`.notify`) that wakes the
+  other servers' readers at once (and a reader reads every :data:`FALLBACK` seconds anyway:
+  notices are hints);
+- a reader asks for the rows each writing server wrote since the newest it read from that
+  server (no look-back: one server writes in one transaction at a time, so its ``updated``
+  times commit in order), and reads ``data`` only for rows whose ``changed`` differs from
+  what it shows.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime, timedelta
+from dataclasses import dataclass, replace
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import select, text
+from sqlalchemy import and_, or_, select, text
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -29,15 +42,31 @@ from opendnc.server.components import cancel_and_wait
 from opendnc.server.events import MachineStatusChanged
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import MachineStatus
+from opendnc.server.notify import notify
 from opendnc.server.runner import database_down
 from opendnc.server.store.models import MachineLease, MachineSnapshot
 
-__all__ = ["SharedStatus", "status_from_json"]
+__all__ = ["FALLBACK", "INTERVAL", "NOTICE", "SharedStatus", "status_from_json"]
 
 log = logging.getLogger(__name__)
 
-INTERVAL = 0.25  # seconds between two writes (and two reads) of the snapshots
-OVERLAP = timedelta(seconds=5)  # a read looks back this far: commits land out of order
+INTERVAL = 0.1  # seconds of polls gathered into one write
+FALLBACK = 1.0  # seconds a reader waits for a notice before it reads anyway
+UNSERVED_EVERY = 1.0  # seconds between two looks at which machines nobody serves
+NOTICE = "status"  # the notice's topic; its key is the writing server
+
+_SNAPSHOTS = MachineSnapshot.__table__
+
+# One statement for every machine whose status only got younger: its poll time, nothing else.
+# A row another server wrote since (the machine moved and back) is left alone and written
+# whole instead (the rows not returned).
+_TOUCH = text(
+    "UPDATE machine_snapshots AS s SET updated = :now, polled = v.polled "
+    "FROM unnest(CAST(:machines AS varchar[]), CAST(:polled AS timestamptz[])) "
+    "AS v(machine, polled) "
+    "WHERE s.machine = v.machine AND s.server = :server "
+    "RETURNING s.machine"
+)
 
 
 def status_from_json(data: Mapping[str, Any] | None) -> MachineStatus | None:
@@ -54,6 +83,16 @@ def status_from_json(data: Mapping[str, Any] | None) -> MachineStatus | None:
     return MachineStatus(**values)
 
 
+@dataclass(frozen=True)
+class _Row:
+    """What a read found for one machine: ``data`` None when only its poll time moved."""
+
+    machine: str
+    changed: datetime | None
+    polled: datetime | None
+    data: Mapping[str, Any] | None
+
+
 class SharedStatus:
     """Writes the served machines' status, reads the others' (a component, PostgreSQL only)."""
 
@@ -67,104 +106,227 @@ class SharedStatus:
         server: str,
         *,
         interval: float = INTERVAL,
+        fallback: float = FALLBACK,
     ) -> None:
         self.machines = machines
         self.sessions = sessions
         self.server = server
         self.interval = interval
-        self._seen: dict[str, datetime] = {}  # machine -> the newest row applied
-        self._cursor: datetime | None = None
-        self._task: asyncio.Task[None] | None = None
-        self._rounds = 0
+        self.fallback = fallback
+        self._tasks: list[asyncio.Task[None]] = []
+        self._wake = asyncio.Event()
+        # the writer's thread: what each machine's row holds (its status's time left out)
+        self._written: dict[str, dict[str, Any]] = {}
+        # the reader's thread: each writing server -> the newest ``updated`` read from it
+        self._cursor: dict[str, datetime] = {}
+        self._looked: datetime | None = None  # the database's time of the last lease look
+        # the loop: each machine shown from a row -> (its ``changed``, the status it gave)
+        self._shown: dict[str, tuple[datetime | None, MachineStatus | None]] = {}
+        self._refetch: set[str] = set()  # machines whose data the next read takes whole
         self.unserved: set[str] = set()  # machines no server holds a live lease on
-        self.written = 0  # rows written, for the benchmark
+        self.written = 0  # rows written whole, for the benchmark and the tests
+        self.touched = 0  # rows whose poll time only was written
         self.applied = 0  # rows read and published
+        self.reads = 0
 
     async def start(self) -> None:
-        """Subscribe to the served machines' status and start sharing."""
-        self._thread = ThreadPoolExecutor(1, thread_name_prefix="shared-status")
-        self._task = asyncio.create_task(self._run(), name="shared-status")
+        """Start writing the served machines' status and reading the others'."""
+        self._writer = ThreadPoolExecutor(1, thread_name_prefix="shared-status-write")
+        self._reader = ThreadPoolExecutor(1, thread_name_prefix="shared-status-read")
+        # subscribed here, not in the task: no status published from now on is missed
+        self._sub_cm = self.machines.bus.subscribe(maxsize=100_000)
+        sub = self._sub_cm.__enter__()
+        self._tasks = [
+            asyncio.create_task(self._writing(sub), name="shared-status-write"),
+            asyncio.create_task(self._reading(), name="shared-status-read"),
+        ]
 
     async def stop(self) -> None:
         """Stop sharing."""
-        task, self._task = self._task, None
-        if task is not None:
-            await cancel_and_wait(task)
-        self._thread.shutdown(wait=False)
+        tasks, self._tasks = self._tasks, []
+        await cancel_and_wait(*tasks)
+        self._sub_cm.__exit__(None, None, None)
+        self._writer.shutdown(wait=False)
+        self._reader.shutdown(wait=False)
 
-    async def _run(self) -> None:
-        pending: dict[str, dict[str, Any]] = {}
-        with self.machines.bus.subscribe(maxsize=100_000) as sub:
-            while True:
-                loop = asyncio.get_running_loop()
-                until = loop.time() + self.interval
-                while (left := until - loop.time()) > 0:
-                    event = await sub.get(left)
-                    if isinstance(event, MachineStatusChanged) and event.served:
-                        pending[event.machine] = dict(event.snapshot)
-                if sub.take_overflow():
-                    # events were lost: the served machines as they are now
-                    for state in self.machines.machines.values():
-                        if state.served:
-                            pending[state.config.name] = state.as_json()
-                batch, pending = pending, {}
-                try:
-                    rows = await loop.run_in_executor(self._thread, self._exchange, batch)
-                except Exception as exc:
-                    if not database_down(exc):
-                        log.exception("sharing the machines' status failed")
-                    pending = {**batch, **pending}  # written at the next try
-                    continue
-                for machine, data in rows:
-                    self._apply(machine, data)
-                for machine in self.unserved:
-                    self._orphan(machine)
+    def wake(self, server: str = "") -> None:
+        """A notice that ``server`` wrote statuses ("" for "maybe": the listener came back):
+        read now. Called on the loop."""
+        if server != self.server:
+            self._wake.set()
 
-    def _exchange(self, batch: dict[str, dict[str, Any]]) -> list[tuple[str, dict[str, Any]]]:
-        """Write ``batch``; read the rows of other servers written since the last read."""
+    # -- writing ----------------------------------------------------------------------------
+
+    async def _writing(self, sub: Any) -> None:
+        loop = asyncio.get_running_loop()
+        pending: dict[str, Mapping[str, Any]] = {}
+        while True:
+            await asyncio.sleep(self.interval)
+            for event in sub.drain():
+                if isinstance(event, MachineStatusChanged) and event.served:
+                    pending[event.machine] = event.snapshot  # a fresh dict, never changed
+            if sub.take_overflow():
+                # events were lost: the served machines as they are now
+                for state in self.machines.machines.values():
+                    if state.served:
+                        pending[state.config.name] = state.as_json()
+            if not pending:
+                continue
+            batch, pending = pending, {}
+            try:
+                await loop.run_in_executor(self._writer, self._write, batch)
+            except Exception as exc:
+                if not database_down(exc):
+                    log.exception("sharing the machines' status failed")
+                pending = {**batch, **pending}  # written at the next try
+
+    def _write(self, batch: Mapping[str, Mapping[str, Any]]) -> None:
+        """Write ``batch`` (machine -> snapshot) in one transaction, and say so. Writer's
+        thread."""
+        contents = {m: _content(snapshot) for m, snapshot in batch.items()}
+        touch = [m for m, content in contents.items() if self._written.get(m) == content]
+        whole = [m for m, content in contents.items() if self._written.get(m) != content]
         with self.sessions.begin() as session:
             now = session.execute(text("SELECT now()")).scalar_one()
-            if batch:
+            if touch:
+                params = {
+                    "now": now,
+                    "server": self.server,
+                    "machines": touch,
+                    "polled": [_polled(batch[m]) for m in touch],
+                }
+                done = set(session.scalars(_TOUCH, params))
+                whole += [m for m in touch if m not in done]
+                self.touched += len(done)
+            if whole:
                 statement = pg_insert(MachineSnapshot)
                 session.execute(
                     statement.on_conflict_do_update(
                         index_elements=[MachineSnapshot.machine],
                         set_={
-                            "server": statement.excluded.server,
-                            "updated": statement.excluded.updated,
-                            "data": statement.excluded.data,
+                            key: statement.excluded[key]
+                            for key in ("server", "updated", "data", "changed", "polled")
                         },
                     ),
                     [
-                        {"machine": m, "server": self.server, "updated": now, "data": data}
-                        for m, data in batch.items()
+                        {
+                            "machine": m,
+                            "server": self.server,
+                            "updated": now,
+                            "changed": now,
+                            "polled": _polled(batch[m]),
+                            "data": batch[m],
+                        }
+                        for m in whole
                     ],
                 )
-                self.written += len(batch)
-            self._rounds += 1
-            if self._rounds % 4 == 1:  # once a second: which machines nobody serves
-                live = set(
-                    session.scalars(
-                        select(MachineLease.machine).where(
-                            MachineLease.owner != "", MachineLease.expires > now
+            notify(session, NOTICE, self.server)
+        for m in whole:
+            self._written[m] = contents[m]
+        self.written += len(whole)
+
+    # -- reading ----------------------------------------------------------------------------
+
+    async def _reading(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_look = 0.0  # at which loop time to look at the unserved machines again
+        while True:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(self.fallback):
+                    await self._wake.wait()
+            self._wake.clear()
+            look = loop.time() >= next_look
+            refetch, self._refetch = self._refetch, set()
+            try:
+                rows, unserved, served = await loop.run_in_executor(
+                    self._reader, self._read, refetch, look
+                )
+            except Exception as exc:
+                if not database_down(exc):
+                    log.exception("reading the machines' status failed")
+                self._refetch |= refetch
+                continue
+            if unserved is not None:
+                next_look = loop.time() + UNSERVED_EVERY
+                self.unserved = unserved
+            self.unserved -= served
+            for row in rows:
+                self._apply(row)
+            for machine in self.unserved:
+                self._orphan(machine)
+
+    def _read(self, refetch: set[str], look: bool) -> tuple[list[_Row], set[str] | None, set[str]]:
+        """The other servers' rows written since the last read (and ``refetch``'s whole);
+        with ``look``, the machines nobody serves; the machines whose rows were written after
+        the last look (their server held them then). Reader's thread."""
+        t = _SNAPSHOTS.c
+        newer = [and_(t.server == w, t.updated > since) for w, since in self._cursor.items()]
+        query = select(t.machine, t.server, t.updated, t.changed, t.polled).where(
+            t.server != self.server, or_(t.server.not_in(list(self._cursor)), *newer)
+        )
+        unserved = None
+        with self.sessions.begin() as session:
+            found = session.execute(query).all()
+            need = set(refetch)
+            for row in found:
+                shown = self._shown.get(row.machine)
+                if row.changed is None or shown is None or shown[0] != row.changed:
+                    need.add(row.machine)
+            whole = {}
+            if need:
+                whole = {
+                    r.machine: r
+                    for r in session.execute(
+                        select(t.machine, t.changed, t.polled, t.data).where(
+                            t.machine.in_(need), t.server != self.server
                         )
                     )
+                }
+            if look:
+                now = session.execute(text("SELECT now()")).scalar_one()
+                live = session.scalars(
+                    select(MachineLease.machine).where(
+                        MachineLease.owner != "", MachineLease.expires > now
+                    )
                 )
-                self.unserved = set(self.machines.machines) - live
-            query = select(MachineSnapshot).where(MachineSnapshot.server != self.server)
-            if self._cursor is not None:
-                query = query.where(MachineSnapshot.updated > self._cursor - OVERLAP)
-            found = session.scalars(query).all()
-            self._cursor = now
-            out = []
-            for row in found:
-                if self._seen.get(row.machine) == row.updated:
-                    continue
-                if row.machine in self._seen and self._seen[row.machine] > row.updated:
-                    continue
-                self._seen[row.machine] = row.updated
-                out.append((row.machine, dict(row.data)))
-            return out
+                unserved = set(self.machines.machines) - set(live)
+                self._looked = now
+        self.reads += 1
+        for row in found:
+            since = self._cursor.get(row.server)
+            if since is None or row.updated > since:
+                self._cursor[row.server] = row.updated
+        out = [_Row(r.machine, r.changed, r.polled, r.data) for r in whole.values()]
+        out += [_Row(r.machine, r.changed, r.polled, None) for r in found if r.machine not in whole]
+        looked = self._looked
+        served = {r.machine for r in found if looked is not None and r.updated > looked}
+        return out, unserved, served
+
+    def _apply(self, row: _Row) -> None:
+        state = self.machines.get(row.machine)
+        if state is None or state.served:
+            self._shown.pop(row.machine, None)
+            return
+        if row.data is None:
+            # only the poll time moved: on the status this server shows from that row
+            shown = self._shown.get(row.machine)
+            if shown is None or shown[1] is not state.status:
+                # something else set it meanwhile (this server served the machine, or said
+                # nobody does): the row's whole data at the next read
+                self._refetch.add(row.machine)
+                self._wake.set()
+                return
+        else:
+            try:
+                _fill(state, row.data)
+            except (KeyError, TypeError, ValueError):
+                log.warning("%s: a status row this server cannot read; left out", row.machine)
+                return
+        if state.status is not None and row.polled is not None and row.polled > state.status.at:
+            state.status = replace(state.status, at=row.polled)
+        self._shown[row.machine] = (row.changed, state.status)
+        self.applied += 1
+        self.machines.publish(state)
 
     def _orphan(self, machine: str) -> None:
         """No server holds the machine's lease (its server died, or every server it is
@@ -174,19 +336,22 @@ class SharedStatus:
             return
         state.online = False
         state.last_error = "no server serves this machine now"
+        self._shown.pop(machine, None)  # its next row is read whole (online again)
         self.machines.publish(state)
 
-    def _apply(self, machine: str, data: dict[str, Any]) -> None:
-        state = self.machines.get(machine)
-        if state is None or state.served:
-            return
-        try:
-            _fill(state, data)
-        except (KeyError, TypeError, ValueError):
-            log.warning("%s: a status row this server cannot read; left out", machine)
-            return
-        self.applied += 1
-        self.machines.publish(state)
+
+def _content(snapshot: Mapping[str, Any]) -> dict[str, Any]:
+    """A snapshot without its status's time: two polls that read the same compare equal."""
+    status = snapshot.get("status")
+    if not status:
+        return dict(snapshot)
+    return {**snapshot, "status": {**status, "at": None}}
+
+
+def _polled(snapshot: Mapping[str, Any]) -> datetime | None:
+    """The time of the snapshot's status, None without a status."""
+    status = snapshot.get("status")
+    return datetime.fromisoformat(str(status["at"])) if status else None
 
 
 def _fill(state: MachineState, data: Mapping[str, Any]) -> None:

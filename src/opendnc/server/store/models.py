@@ -516,9 +516,12 @@ class MachineSnapshot(Base):
     """A machine as its serving server last saw it, for the other servers of a cluster.
 
     The server that holds a machine's lease writes its status here (what ``/api/machines``
-    shows for it) a few times a second; every other server reads the rows it does not serve,
-    so the dashboard, the API, the event streams and MTConnect are the same on every server.
-    ``updated`` is the database's clock: a reader asks for rows newer than the last it saw.
+    shows for it) several times a second; every other server reads the rows it does not
+    serve, so the dashboard, the API, the event streams and MTConnect are the same on every
+    server (:mod:`opendnc.server.shared_status`). ``data`` is rewritten only when something
+    but the status's time changed (``changed``); each poll moves ``polled``, the time of the
+    status the row stands for. ``updated`` and ``changed`` are the database's clock (the
+    writing transaction's start): a reader asks for rows newer than the last it saw.
     """
 
     __tablename__ = "machine_snapshots"
@@ -527,6 +530,8 @@ class MachineSnapshot(Base):
     server: Mapped[str] = mapped_column(String(64), default="")
     updated: Mapped[datetime] = mapped_column(UtcDateTime(), index=True)
     data: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    changed: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    polled: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
 
 
 class SparkplugNode(Base):
