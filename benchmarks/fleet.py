@@ -19,7 +19,11 @@ fresh PostgreSQL database (``--pg``; docs/server.md#several-servers): the figure
 server (its CPU, the status age of every machine as that server shows it, polled there or
 read from the others' rows), and then one server is SIGKILLed: the takeover time is from the
 kill until every machine's lease is held by a live server again, and the status time until
-every machine shows a fresh status (younger than twice the poll) on a surviving server.
+every machine shows a fresh status (younger than twice the poll) on a surviving server. The
+status age is what a user of that server's API sees: the age of each machine's status as
+``/api/machines`` answers it, when the answer has arrived; a machine that server shows offline
+or without a status has no age and is counted apart ("not shown"). The PostgreSQL backends
+of the benchmark's database are on the same cores (a local database): their CPU is given too.
 
     .venv/bin/python benchmarks/fleet.py                    # N = 50, 200, 500
     .venv/bin/python benchmarks/fleet.py --sizes 20 --seconds 5
@@ -243,6 +247,32 @@ def _database(pg: str, create: bool, name: str) -> None:
         admin.dispose()
 
 
+def _backends(pg: str, name: str) -> list[int]:
+    """The process ids of the PostgreSQL backends connected to database ``name`` now."""
+    from sqlalchemy import create_engine, text
+
+    admin = create_engine(pg)
+    try:
+        with admin.connect() as conn:
+            query = text("SELECT pid FROM pg_stat_activity WHERE datname = :name")
+            return [int(pid) for pid in conn.execute(query, {"name": name}).scalars()]
+    finally:
+        admin.dispose()
+
+
+def _cpu_total(pids: list[int]) -> float | None:
+    """The CPU seconds of ``pids`` together (those still running); None if the database
+    runs elsewhere (its processes are not this machine's)."""
+    total, seen = 0.0, 0
+    for pid in pids:
+        try:
+            total += _cpu_seconds(pid)
+            seen += 1
+        except OSError:
+            continue
+    return total if seen else None
+
+
 def _ages(base: str, key: str, poll: float) -> tuple[list[float], int]:
     listed = _get(base + "/api/machines", key)
     now = datetime.now(UTC)
@@ -302,16 +332,23 @@ def run_cluster(
         spread = {s["name"]: s["machines"] for s in view["servers"]}
         cpu0 = {s: _cpu_seconds(p.pid) for s, p in procs.items()}
         fleet0 = _cpu_seconds(fleet.pid)
+        backends = _backends(pg, name)
+        pg0 = _cpu_total(backends)
         t0 = time.monotonic()
         ages: dict[str, list[float]] = {s: [] for s in procs}
+        unshown = dict.fromkeys(procs, 0)
         while time.monotonic() - t0 < seconds:
             tick = time.monotonic()
             for s, base in bases.items():
-                ages[s] += _ages(base, key, poll)[0]
+                found, missing_now = _ages(base, key, poll)
+                ages[s] += found
+                unshown[s] += missing_now
             time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
         span = time.monotonic() - t0
         cpu = {s: (_cpu_seconds(p.pid) - cpu0[s]) / span for s, p in procs.items()}
         fleet_cpu = (_cpu_seconds(fleet.pid) - fleet0) / span
+        pg_cpu = None if pg0 is None else ((_cpu_total(backends) or 0.0) - pg0) / span
+        load = os.getloadavg()[0]  # at the end of the window, before the kill
         # the failover: SIGKILL the last server
         victim = f"dnc-{servers}"
         os.killpg(procs[victim].pid, signal.SIGKILL)
@@ -340,11 +377,14 @@ def run_cluster(
             "p50": {s: _percentile(a, 50) for s, a in ages.items()},
             "p99": {s: _percentile(a, 99) for s, a in ages.items()},
             "max": {s: max(a) for s, a in ages.items()},
+            "readings": {s: len(a) + unshown[s] for s, a in ages.items()},
+            "unshown": unshown,
+            "pg_cpu": pg_cpu,
             "takeover": takeover,
             "status_back": status_back,
             "lease": lease,
             "fleet_cpu": fleet_cpu,
-            "load": os.getloadavg()[0],
+            "load": load,
         }
     finally:
         for proc in procs.values():
@@ -354,16 +394,20 @@ def run_cluster(
 
 
 def _cluster_report(r: dict[str, Any]) -> None:
+    database = "?" if r["pg_cpu"] is None else f"{r['pg_cpu']:.2f} c"
     print(
         f"N={r['n']} over {r['servers']} servers (lease {r['lease']:g} s), every machine online "
-        f"on every server after {r['online_s']:.1f} s; the fleet's process {r['fleet_cpu']:.2f} c; "
-        f"load average {r['load']:.1f}"
+        f"on every server after {r['online_s']:.1f} s; the fleet's process {r['fleet_cpu']:.2f} c, "
+        f"the database's backends {database}; load average {r['load']:.1f}"
     )
-    print(f"{'server':>8} {'machines':>9} {'CPU':>7} {'age p50':>8} {'age p99':>8} {'age max':>8}")
+    print(
+        f"{'server':>8} {'machines':>9} {'CPU':>7} {'age p50':>8} {'age p99':>8} {'age max':>8} "
+        f"{'not shown':>14}"
+    )
     for s in r["cpu"]:
         print(
             f"{s:>8} {r['spread'].get(s, 0):>9} {r['cpu'][s]:>5.2f} c {r['p50'][s]:>7.2f}s "
-            f"{r['p99'][s]:>7.2f}s {r['max'][s]:>7.2f}s"
+            f"{r['p99'][s]:>7.2f}s {r['max'][s]:>7.2f}s {r['unshown'][s]:>6}/{r['readings'][s]:<7}"
         )
     take = "not within 120 s" if r["takeover"] is None else f"{r['takeover']:.1f} s"
     back = "not within 120 s" if r["status_back"] is None else f"{r['status_back']:.1f} s"
