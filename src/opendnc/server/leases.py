@@ -217,7 +217,15 @@ class Leases:
             duties = {m: p for m, p in self.all_machines.items() if m.startswith("@")}
             wanted = assign({m: p for m, p in self.all_machines.items() if m not in duties}, live)
             wanted.update(assign(duties, live))
-            leases = {row.machine: row for row in session.scalars(select(MachineLease))}
+            # plain rows, not ORM objects: an ORM object per machine would also make each
+            # UPDATE below evaluate its condition on all of them (a thousand machines: most
+            # of a renewal's CPU)
+            leases = {
+                row.machine: row
+                for row in session.execute(
+                    select(MachineLease.machine, MachineLease.owner, MachineLease.expires)
+                )
+            }
             mine = {
                 m for m, row in leases.items() if row.owner == self.server and m in self.machines
             }
