@@ -27,15 +27,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import and_, or_, select, text
-from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy import select, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.components import cancel_and_wait
@@ -57,15 +57,44 @@ NOTICE = "status"  # the notice's topic; its key is the writing server
 
 _SNAPSHOTS = MachineSnapshot.__table__
 
-# One statement for every machine whose status only got younger: its poll time, nothing else.
-# A row another server wrote since (the machine moved and back) is left alone and written
-# whole instead (the rows not returned).
+# Each write is one or two statements whatever the number of machines, with arrays for
+# parameters: text, because these run ten times a second and SQLAlchemy's ORM insert and
+# update cost more CPU than the database does. ``now()`` is the transaction's start.
+
+# Every machine whose status only got younger: its poll time, nothing else. A row another
+# server wrote since (the machine moved and back) is left alone and written whole instead
+# (the rows not returned).
 _TOUCH = text(
-    "UPDATE machine_snapshots AS s SET updated = :now, polled = v.polled "
+    "UPDATE machine_snapshots AS s SET updated = now(), polled = v.polled "
     "FROM unnest(CAST(:machines AS varchar[]), CAST(:polled AS timestamptz[])) "
     "AS v(machine, polled) "
     "WHERE s.machine = v.machine AND s.server = :server "
     "RETURNING s.machine"
+)
+# Every machine whose status changed: the whole row.
+_UPSERT = text(
+    "INSERT INTO machine_snapshots (machine, server, updated, changed, polled, data) "
+    "SELECT v.machine, :server, now(), now(), v.polled, CAST(v.data AS json) "
+    "FROM unnest(CAST(:machines AS varchar[]), CAST(:polled AS timestamptz[]), "
+    "CAST(:data AS text[])) AS v(machine, polled, data) "
+    "ON CONFLICT (machine) DO UPDATE SET server = excluded.server, "
+    "updated = excluded.updated, changed = excluded.changed, polled = excluded.polled, "
+    "data = excluded.data"
+)
+
+# The rows of the other servers written since the newest read from each (all of a server not
+# read from yet).
+_NEWER = text(
+    "SELECT s.machine, s.server, s.updated, s.changed, s.polled FROM machine_snapshots AS s "
+    "LEFT JOIN unnest(CAST(:servers AS varchar[]), CAST(:since AS timestamptz[])) "
+    "AS c(server, since) ON c.server = s.server "
+    "WHERE s.server <> :me AND (c.since IS NULL OR s.updated > c.since)"
+).columns(
+    _SNAPSHOTS.c.machine,
+    _SNAPSHOTS.c.server,
+    _SNAPSHOTS.c.updated,
+    _SNAPSHOTS.c.changed,
+    _SNAPSHOTS.c.polled,
 )
 
 
@@ -187,10 +216,8 @@ class SharedStatus:
         touch = [m for m, content in contents.items() if self._written.get(m) == content]
         whole = [m for m, content in contents.items() if self._written.get(m) != content]
         with self.sessions.begin() as session:
-            now = session.execute(text("SELECT now()")).scalar_one()
             if touch:
                 params = {
-                    "now": now,
                     "server": self.server,
                     "machines": touch,
                     "polled": [_polled(batch[m]) for m in touch],
@@ -199,27 +226,13 @@ class SharedStatus:
                 whole += [m for m in touch if m not in done]
                 self.touched += len(done)
             if whole:
-                statement = pg_insert(MachineSnapshot)
-                session.execute(
-                    statement.on_conflict_do_update(
-                        index_elements=[MachineSnapshot.machine],
-                        set_={
-                            key: statement.excluded[key]
-                            for key in ("server", "updated", "data", "changed", "polled")
-                        },
-                    ),
-                    [
-                        {
-                            "machine": m,
-                            "server": self.server,
-                            "updated": now,
-                            "changed": now,
-                            "polled": _polled(batch[m]),
-                            "data": batch[m],
-                        }
-                        for m in whole
-                    ],
-                )
+                params = {
+                    "server": self.server,
+                    "machines": whole,
+                    "polled": [_polled(batch[m]) for m in whole],
+                    "data": [json.dumps(batch[m]) for m in whole],
+                }
+                session.execute(_UPSERT, params)
             notify(session, NOTICE, self.server)
         for m in whole:
             self._written[m] = contents[m]
@@ -260,13 +273,14 @@ class SharedStatus:
         with ``look``, the machines nobody serves; the machines whose rows were written after
         the last look (their server held them then). Reader's thread."""
         t = _SNAPSHOTS.c
-        newer = [and_(t.server == w, t.updated > since) for w, since in self._cursor.items()]
-        query = select(t.machine, t.server, t.updated, t.changed, t.polled).where(
-            t.server != self.server, or_(t.server.not_in(list(self._cursor)), *newer)
-        )
+        cursor = {
+            "me": self.server,
+            "servers": list(self._cursor),
+            "since": list(self._cursor.values()),
+        }
         unserved = None
         with self.sessions.begin() as session:
-            found = session.execute(query).all()
+            found = session.execute(_NEWER, cursor).all()
             need = set(refetch)
             for row in found:
                 shown = self._shown.get(row.machine)
@@ -293,8 +307,8 @@ class SharedStatus:
                 self._looked = now
         self.reads += 1
         for row in found:
-            since = self._cursor.get(row.server)
-            if since is None or row.updated > since:
+            newest = self._cursor.get(row.server)
+            if newest is None or row.updated > newest:
                 self._cursor[row.server] = row.updated
         out = [_Row(r.machine, r.changed, r.polled, r.data) for r in whole.values()]
         out += [_Row(r.machine, r.changed, r.polled, None) for r in found if r.machine not in whole]
@@ -323,7 +337,8 @@ class SharedStatus:
                 log.warning("%s: a status row this server cannot read; left out", row.machine)
                 return
         if state.status is not None and row.polled is not None and row.polled > state.status.at:
-            state.status = replace(state.status, at=row.polled)
+            # (in UTC as the serving server wrote it, whatever the database session's zone)
+            state.status = replace(state.status, at=row.polled.astimezone(UTC))
         self._shown[row.machine] = (row.changed, state.status)
         self.applied += 1
         self.machines.publish(state)
@@ -348,10 +363,11 @@ def _content(snapshot: Mapping[str, Any]) -> dict[str, Any]:
     return {**snapshot, "status": {**status, "at": None}}
 
 
-def _polled(snapshot: Mapping[str, Any]) -> datetime | None:
-    """The time of the snapshot's status, None without a status."""
+def _polled(snapshot: Mapping[str, Any]) -> str | None:
+    """The time of the snapshot's status (ISO 8601, as the database reads it), None without
+    a status."""
     status = snapshot.get("status")
-    return datetime.fromisoformat(str(status["at"])) if status else None
+    return str(status["at"]) if status else None
 
 
 def _fill(state: MachineState, data: Mapping[str, Any]) -> None:
