@@ -16,8 +16,10 @@ the server under one core. The fleet process runs on the same two cores and cost
 
 With ``--servers K`` (K >= 2) the fleet is served by K ``opendnc serve`` processes on one
 fresh PostgreSQL database (``--pg``; docs/server.md#several-servers): the figures are per
-server (its CPU, the status age of every machine as that server shows it, polled there or
-read from the others' rows), and then one server is SIGKILLed: the takeover time is from the
+server (its CPU over ``--quiet`` seconds that nobody reads the API, and then while the
+benchmark reads every server's list about once a second; the status age of every machine as
+that server shows it, polled there ("own") or read from the others' rows), and then one server
+is SIGKILLed: the takeover time is from the
 kill until every machine's lease is held by a live server again, and the status time until
 every machine shows a fresh status (younger than twice the poll) on a surviving server. The
 status age is what a user of that server's API sees: the age of each machine's status as
@@ -273,16 +275,38 @@ def _cpu_total(pids: list[int]) -> float | None:
     return total if seen else None
 
 
-def _ages(base: str, key: str, poll: float) -> tuple[list[float], int]:
+def _ages(base: str, key: str, poll: float) -> tuple[dict[str, float], int]:
+    """Each machine's status age as the server at ``base`` shows it now (machine -> seconds),
+    and how many it shows offline or without a status."""
     listed = _get(base + "/api/machines", key)
-    now = datetime.now(UTC)
-    ages, missing = [], 0
+    now = datetime.now(UTC)  # after the answer: the age the reader has in hand
+    ages, missing = {}, 0
     for m in listed:
         if m["status"] is None or not m["online"]:
             missing += 1
             continue
-        ages.append((now - datetime.fromisoformat(m["status"]["at"])).total_seconds())
+        ages[m["name"]] = (now - datetime.fromisoformat(m["status"]["at"])).total_seconds()
     return ages, missing
+
+
+def _cpus(procs: dict[str, subprocess.Popen[bytes]], fleet: int, pg: list[int]) -> dict[str, Any]:
+    """CPU seconds so far of each server, the fleet's process and the database backends."""
+    return {
+        "servers": {s: _cpu_seconds(p.pid) for s, p in procs.items()},
+        "fleet": _cpu_seconds(fleet),
+        "pg": _cpu_total(pg),
+        "at": time.monotonic(),
+    }
+
+
+def _cores(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """The cores used between two :func:`_cpus`."""
+    span = after["at"] - before["at"]
+    return {
+        "servers": {s: (after["servers"][s] - c) / span for s, c in before["servers"].items()},
+        "fleet": (after["fleet"] - before["fleet"]) / span,
+        "pg": None if before["pg"] is None else ((after["pg"] or 0.0) - before["pg"]) / span,
+    }
 
 
 def run_cluster(
@@ -294,8 +318,11 @@ def run_cluster(
     pg: str,
     lease: float,
     logs: Path,
+    quiet: float = 10.0,
 ) -> dict[str, Any]:
-    """One fleet of ``n`` machines served by ``servers`` servers on one PostgreSQL database."""
+    """One fleet of ``n`` machines served by ``servers`` servers on one PostgreSQL database:
+    ``quiet`` seconds nobody reads the API (what serving and sharing cost), then ``seconds``
+    of reading every server's ``/api/machines`` about once a second."""
     name = f"lease_bench_{uuid.uuid4().hex[:10]}"
     _database(pg, True, name)
     db = pg.rsplit("/", 1)[0] + f"/{name}"
@@ -330,25 +357,32 @@ def run_cluster(
         online_after = time.monotonic() - started
         view = _get(bases["dnc-1"] + "/api/cluster", key)
         spread = {s["name"]: s["machines"] for s in view["servers"]}
-        cpu0 = {s: _cpu_seconds(p.pid) for s, p in procs.items()}
-        fleet0 = _cpu_seconds(fleet.pid)
+        owners = {r["machine"]: r["owner"] for r in view["leases"]}
         backends = _backends(pg, name)
-        pg0 = _cpu_total(backends)
-        t0 = time.monotonic()
+        c0 = _cpus(procs, fleet.pid, backends)
+        time.sleep(quiet)
+        c1 = _cpus(procs, fleet.pid, backends)
+        load_quiet = os.getloadavg()[0]
         ages: dict[str, list[float]] = {s: [] for s in procs}
+        own: dict[str, list[float]] = {s: [] for s in procs}  # machines that server polls
+        others: dict[str, list[float]] = {s: [] for s in procs}  # read from the database
         unshown = dict.fromkeys(procs, 0)
-        while time.monotonic() - t0 < seconds:
+        while time.monotonic() - c1["at"] < seconds:
             tick = time.monotonic()
             for s, base in bases.items():
                 found, missing_now = _ages(base, key, poll)
-                ages[s] += found
+                ages[s] += found.values()
+                own[s] += [a for m, a in found.items() if owners.get(m) == s]
+                others[s] += [a for m, a in found.items() if owners.get(m) != s]
                 unshown[s] += missing_now
             time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
-        span = time.monotonic() - t0
-        cpu = {s: (_cpu_seconds(p.pid) - cpu0[s]) / span for s, p in procs.items()}
-        fleet_cpu = (_cpu_seconds(fleet.pid) - fleet0) / span
-        pg_cpu = None if pg0 is None else ((_cpu_total(backends) or 0.0) - pg0) / span
+        c2 = _cpus(procs, fleet.pid, backends)
         load = os.getloadavg()[0]  # at the end of the window, before the kill
+        cores_quiet, cores = _cores(c0, c1), _cores(c1, c2)
+        moved = sum(
+            r["owner"] != owners.get(r["machine"])
+            for r in _get(bases["dnc-1"] + "/api/cluster", key)["leases"]
+        )
         # the failover: SIGKILL the last server
         victim = f"dnc-{servers}"
         os.killpg(procs[victim].pid, signal.SIGKILL)
@@ -365,7 +399,7 @@ def run_cluster(
             if takeover is not None and status_back is None:
                 # (right after the kill the dead server's rows are still young: not news)
                 fresh, missing = _ages(survivor, key, poll)
-                if not missing and max(fresh) < 2 * poll:
+                if not missing and max(fresh.values()) < 2 * poll:
                     status_back = time.monotonic() - killed
             time.sleep(0.1)
         return {
@@ -373,17 +407,25 @@ def run_cluster(
             "servers": servers,
             "online_s": online_after,
             "spread": spread,
-            "cpu": cpu,
+            "cpu": cores["servers"],
+            "cpu_quiet": cores_quiet["servers"],
+            "quiet": quiet,
+            "load_quiet": load_quiet,
+            "moved": moved,
+            "own_p99": {s: _percentile(a, 99) if a else None for s, a in own.items()},
+            "others_p99": {s: _percentile(a, 99) if a else None for s, a in others.items()},
             "p50": {s: _percentile(a, 50) for s, a in ages.items()},
             "p99": {s: _percentile(a, 99) for s, a in ages.items()},
             "max": {s: max(a) for s, a in ages.items()},
             "readings": {s: len(a) + unshown[s] for s, a in ages.items()},
             "unshown": unshown,
-            "pg_cpu": pg_cpu,
+            "pg_cpu": cores["pg"],
+            "pg_cpu_quiet": cores_quiet["pg"],
             "takeover": takeover,
             "status_back": status_back,
             "lease": lease,
-            "fleet_cpu": fleet_cpu,
+            "fleet_cpu": cores["fleet"],
+            "fleet_cpu_quiet": cores_quiet["fleet"],
             "load": load,
         }
     finally:
@@ -394,20 +436,35 @@ def run_cluster(
 
 
 def _cluster_report(r: dict[str, Any]) -> None:
-    database = "?" if r["pg_cpu"] is None else f"{r['pg_cpu']:.2f} c"
+    def cores(value: float | None) -> str:
+        return "?" if value is None else f"{value:.2f} c"
+
     print(
         f"N={r['n']} over {r['servers']} servers (lease {r['lease']:g} s), every machine online "
-        f"on every server after {r['online_s']:.1f} s; the fleet's process {r['fleet_cpu']:.2f} c, "
-        f"the database's backends {database}; load average {r['load']:.1f}"
+        f"on every server after {r['online_s']:.1f} s; {r['moved']} leases moved in the windows"
     )
     print(
-        f"{'server':>8} {'machines':>9} {'CPU':>7} {'age p50':>8} {'age p99':>8} {'age max':>8} "
-        f"{'not shown':>14}"
+        f"  nobody reading ({r['quiet']:g} s, load average {r['load_quiet']:.1f}): the fleet's "
+        f"process {cores(r['fleet_cpu_quiet'])}, the database's backends "
+        f"{cores(r['pg_cpu_quiet'])}"
+    )
+    print(
+        f"  each server's /api/machines read about once a second (load average "
+        f"{r['load']:.1f}): the fleet's process {cores(r['fleet_cpu'])}, the database's "
+        f"backends {cores(r['pg_cpu'])}"
+    )
+    print(
+        f"{'server':>8} {'machines':>9} {'CPU quiet':>10} {'CPU read':>9} {'age p50':>8} "
+        f"{'age p99':>8} {'age max':>8} {'p99 own':>8} {'others':>7} {'not shown':>14}"
     )
     for s in r["cpu"]:
+        own, others = r["own_p99"][s], r["others_p99"][s]
         print(
-            f"{s:>8} {r['spread'].get(s, 0):>9} {r['cpu'][s]:>5.2f} c {r['p50'][s]:>7.2f}s "
-            f"{r['p99'][s]:>7.2f}s {r['max'][s]:>7.2f}s {r['unshown'][s]:>6}/{r['readings'][s]:<7}"
+            f"{s:>8} {r['spread'].get(s, 0):>9} {r['cpu_quiet'][s]:>8.2f} c "
+            f"{r['cpu'][s]:>7.2f} c {r['p50'][s]:>7.2f}s {r['p99'][s]:>7.2f}s "
+            f"{r['max'][s]:>7.2f}s {'-' if own is None else f'{own:.2f}s':>8} "
+            f"{'-' if others is None else f'{others:.2f}s':>7} "
+            f"{r['unshown'][s]:>6}/{r['readings'][s]:<7}"
         )
     take = "not within 120 s" if r["takeover"] is None else f"{r['takeover']:.1f} s"
     back = "not within 120 s" if r["status_back"] is None else f"{r['status_back']:.1f} s"
@@ -429,6 +486,13 @@ def main() -> None:
         help="PostgreSQL admin URL (--servers 2 or more: a database is made and dropped)",
     )
     parser.add_argument("--lease", type=float, default=10.0, help="lease seconds (--servers)")
+    parser.add_argument(
+        "--quiet",
+        type=float,
+        default=10.0,
+        help="seconds of CPU measured with nobody reading the API, before the reading window "
+        "(--servers)",
+    )
     parser.add_argument("--logs", type=Path, default=None, help="keep the servers' logs here")
     args = parser.parse_args()
     if args.servers > 1:
@@ -439,7 +503,15 @@ def main() -> None:
                 logs = args.logs or folder
                 logs.mkdir(parents=True, exist_ok=True)
                 found = run_cluster(
-                    n, args.servers, args.seconds, args.poll, folder, args.pg, args.lease, logs
+                    n,
+                    args.servers,
+                    args.seconds,
+                    args.poll,
+                    folder,
+                    args.pg,
+                    args.lease,
+                    logs,
+                    quiet=args.quiet,
                 )
                 _cluster_report(found)
         return
