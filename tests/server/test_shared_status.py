@@ -184,6 +184,18 @@ def test_two_servers_share_statuses_by_notice_and_only_what_changed(
                 ).one()
                 assert (row.server, row.data["status"]["execution"]) == ("dnc-1", "ACTIVE")
 
+            # dnc-2 holds m1 for a moment and lets it go before its first poll (its task
+            # stopped: offline, as Fleet.release leaves it); dnc-1's next poll reads the same,
+            # so only the time moves in the row, and yet dnc-2 shows m1 online again
+            b.serve("m1", True)
+            shown.online = False
+            b.serve("m1", False)
+            touched = a.shared.touched
+            a.poll("m1", t0 + timedelta(seconds=4.5), execution="ACTIVE")
+            await _until("m1 online again", lambda: shown.online)
+            assert shown.status.at == t0 + timedelta(seconds=4.5)  # type: ignore[union-attr]
+            assert a.shared.touched == touched + 1
+
             # dnc-2 serves m2 for a moment and polls it without writing (no write round in
             # between), then gives it back: dnc-1's next poll moves only the time in the
             # row, yet dnc-2 shows dnc-1's status, not its own with dnc-1's time

@@ -46,7 +46,7 @@ from opendnc.server.notify import notify
 from opendnc.server.runner import database_down
 from opendnc.server.store.models import MachineLease, MachineSnapshot
 
-__all__ = ["FALLBACK", "INTERVAL", "NOTICE", "SharedStatus", "status_from_json"]
+__all__ = ["FALLBACK", "INTERVAL", "NOTICE", "ORPHANED", "SharedStatus", "status_from_json"]
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +54,7 @@ INTERVAL = 0.1  # seconds of polls gathered into one write
 FALLBACK = 1.0  # seconds a reader waits for a notice before it reads anyway
 UNSERVED_EVERY = 1.0  # seconds between two looks at which machines nobody serves
 NOTICE = "status"  # the notice's topic; its key is the writing server
+ORPHANED = "no server serves this machine now"  # a machine's last error while nobody does
 
 _SNAPSHOTS = MachineSnapshot.__table__
 
@@ -122,6 +123,30 @@ class _Row:
     data: Mapping[str, Any] | None
 
 
+@dataclass(frozen=True)
+class _Shown:
+    """What a row put into a machine's state: a row that moves only the poll time applies to
+    that state only while nothing else has changed it."""
+
+    status: MachineStatus | None
+    online: bool
+    last_error: str
+    job_id: int | None
+
+    @classmethod
+    def of(cls, state: MachineState) -> _Shown:
+        return cls(state.status, state.online, state.last_error, state.job_id)
+
+    def still(self, state: MachineState) -> bool:
+        """Whether ``state`` is as this row left it (the status the very same object)."""
+        return (
+            state.status is self.status
+            and state.online == self.online
+            and state.last_error == self.last_error
+            and state.job_id == self.job_id
+        )
+
+
 class SharedStatus:
     """Writes the served machines' status, reads the others' (a component, PostgreSQL only)."""
 
@@ -150,7 +175,7 @@ class SharedStatus:
         self._cursor: dict[str, datetime] = {}
         self._looked: datetime | None = None  # the database's time of the last lease look
         # the loop: each machine shown from a row -> (its ``changed``, the status it gave)
-        self._shown: dict[str, tuple[datetime | None, MachineStatus | None]] = {}
+        self._shown: dict[str, tuple[datetime | None, _Shown]] = {}
         self._refetch: set[str] = set()  # machines whose data the next read takes whole
         self.unserved: set[str] = set()  # machines no server holds a live lease on
         self.written = 0  # rows written whole, for the benchmark and the tests
@@ -324,9 +349,9 @@ class SharedStatus:
         if row.data is None:
             # only the poll time moved: on the status this server shows from that row
             shown = self._shown.get(row.machine)
-            if shown is None or shown[1] is not state.status:
-                # something else set it meanwhile (this server served the machine, or said
-                # nobody does): the row's whole data at the next read
+            if shown is None or not shown[1].still(state):
+                # something else changed it meanwhile (this server served the machine and let
+                # it go, or said nobody serves it): the row's whole data at the next read
                 self._refetch.add(row.machine)
                 self._wake.set()
                 return
@@ -339,7 +364,7 @@ class SharedStatus:
         if state.status is not None and row.polled is not None and row.polled > state.status.at:
             # (in UTC as the serving server wrote it, whatever the database session's zone)
             state.status = replace(state.status, at=row.polled.astimezone(UTC))
-        self._shown[row.machine] = (row.changed, state.status)
+        self._shown[row.machine] = (row.changed, _Shown.of(state))
         self.applied += 1
         self.machines.publish(state)
 
@@ -350,7 +375,7 @@ class SharedStatus:
         if state is None or state.served or not state.online:
             return
         state.online = False
-        state.last_error = "no server serves this machine now"
+        state.last_error = ORPHANED
         self._shown.pop(machine, None)  # its next row is read whole (online again)
         self.machines.publish(state)
 
