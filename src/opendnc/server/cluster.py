@@ -37,6 +37,7 @@ from opendnc.server.leases import LIBRARY, ClusterView, Holding, Leases, cluster
 from opendnc.server.machine_state import Machines
 from opendnc.server.notify import Listener, Notice
 from opendnc.server.runner import JobRunner, database_down
+from opendnc.server.shared_status import ORPHANED
 
 __all__ = ["Cluster"]
 
@@ -201,6 +202,9 @@ class Cluster:
             return
         state.served = True
         state.job_id, state.job_progress = None, (0, None)  # a status row's, not this task's
+        if state.last_error == ORPHANED:
+            # this server's word while nobody served it, not the link's: it is served now
+            state.last_error = ""
         self.serving.add(machine)
         self.machines.bus.publish(LeaseChanged(machine, self.server, True, epoch))
         self.fleet.serve(machine)
