@@ -527,13 +527,16 @@ class AsyncMdcClient:
             return result
 
     async def _do(self, step: IoStep) -> bytes | None:
+        # asyncio.timeout, not wait_for: wait_for wraps each read in a task of its own, and a
+        # server polling hundreds of controls does this a few thousand times a second
         try:
             if isinstance(step, Send):
                 self._writer.write(step.data)
-                await asyncio.wait_for(self._writer.drain(), step.timeout)
+                async with asyncio.timeout(step.timeout):
+                    await self._writer.drain()
                 return b""
-            timeout = max(step.timeout, ASYNC_WAITING)
-            return await asyncio.wait_for(self._reader.read(4096), timeout)
+            async with asyncio.timeout(max(step.timeout, ASYNC_WAITING)):
+                return await self._reader.read(4096)
         except TimeoutError:
             return None
         except ConnectionResetError:
