@@ -185,6 +185,46 @@ def test_a_late_sample_sums_its_machine_again(sessions: sessionmaker[Session]) -
     assert [(a.text, a.seconds) for a in m.alarms] == [("E1", 3600.0)]
 
 
+def test_a_machine_named_with_64_characters_has_its_stops_and_alarms(
+    sessions: sessionmaker[Session],
+) -> None:
+    """The longest name a machine may have (PostgreSQL's identifier type holds 63 bytes: the
+    names must not pass through it)."""
+    name = "cell-7-" + "x" * 57
+    assert len(name) == 64
+    t0 = datetime(2026, 1, 5, 6, tzinfo=BERLIN)
+    steps = [
+        (0, "running", "ACTIVE", ""),
+        (60, "alarm", "STOPPED", "1010 SPINDLE"),
+        (80, "ready", "READY", ""),
+        (120, "running", "ACTIVE", ""),
+    ]
+    with sessions.begin() as session:
+        session.add_all(
+            StatusSample(
+                machine=name,
+                at=t0 + timedelta(minutes=minute),
+                state=state,
+                execution=execution,
+                alarm=alarm,
+            )
+            for minute, state, execution, alarm in steps
+        )
+    # a day and a half of summed hours; the samples are read only for the last hour
+    span = (t0 - timedelta(hours=30), t0 + timedelta(hours=3, minutes=30))
+    with sessions.begin() as session:
+        r = report(session, CAL, [name], *span, Group.DAY, now=span[1] + timedelta(hours=1))
+    m = r.machines[0]
+    assert [(a.text, a.count, a.seconds) for a in m.alarms] == [("1010 SPINDLE", 1, 1200.0)]
+    assert [(a.start, a.end) for a in m.recent_alarms] == [
+        (t0 + timedelta(minutes=60), t0 + timedelta(minutes=80))
+    ]
+    assert [(s.start, s.end, s.state) for s in m.stops] == [
+        (t0 + timedelta(minutes=60), t0 + timedelta(minutes=120), State.ALARM)
+    ]
+    assert m.totals.seconds[State.RUNNING] == 3600.0 + 90 * 60.0
+
+
 def test_the_recorder_stores_program_part_count_and_alarm(
     sessions: sessionmaker[Session],
 ) -> None:

@@ -195,7 +195,14 @@ def _each(
     compiling one statement of hundreds of parts."""
     connection = session.connection()
     if connection.dialect.name == "postgresql":
-        names = func.unnest(bindparam("machines", type_=ARRAY(String()))).table_valued("name")
+        # (render_derived names the column: a bare ``anon_1.name`` would be read by
+        # PostgreSQL as ``name(anon_1)``, a cast to its 63-byte identifier type, which cuts
+        # longer names and keeps the planner from the machine's indexes)
+        names = (
+            func.unnest(bindparam("machines", type_=ARRAY(String())))
+            .table_valued("name")
+            .render_derived()
+        )
         each = make(names.c.name).lateral("each")
         statement = select(each).select_from(names).join(each, true())
         yield from connection.execute(statement, {"machines": list(machines), **params})
@@ -257,10 +264,16 @@ def roll(
     with _roll_lock:
         marks = {m.machine: m for m in session.scalars(select(UtilizationMark))}
         seen = max((m.last_id for m in marks.values()), default=0)
-        late = session.execute(
-            select(StatusSample.machine, func.min(StatusSample.at))
+        # the samples written since, by their ids first: grouped at once, SQLite would
+        # rather walk the whole (machine, at) index in machine order than sort a few rows
+        recent = (
+            select(StatusSample.machine, StatusSample.at)
             .where(StatusSample.id > seen)
-            .group_by(StatusSample.machine)
+            .order_by(StatusSample.id)
+            .subquery()
+        )
+        late = session.execute(
+            select(recent.c.machine, func.min(recent.c.at)).group_by(recent.c.machine)
         ).all()
         last_id = session.scalar(select(func.max(StatusSample.id))) or 0
         for machine, first in late:
