@@ -17,6 +17,12 @@ Days are built from the hours as these are summed (the server's background summi
 question's short write transaction), at most :data:`BUILD_DAYS` per machine at a time, and
 kept per calendar: a changed ``[server] timezone`` or ``[[shifts]]`` builds them again. A
 sample that arrives late for a summed hour drops its machine's days from that day on.
+
+A year by week is still 240 000 day rows for 200 machines, so each week of the calendar is
+summed once more from its day rows when its last day is (``utilization_weeks``, migration
+0016: all the time and the shift time per state in one row): a question by week reads the
+weeks it holds whole from these, and only the days before and after them from the days. A
+week row goes with any of its days.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from typing import Any
 
 from sqlalchemy import (
     Column,
+    ColumnElement,
     Date,
     MetaData,
     String,
@@ -54,6 +61,7 @@ from opendnc.server.store.models import (
     UtilizationDayMark,
     UtilizationHour,
     UtilizationMark,
+    UtilizationWeek,
 )
 from opendnc.server.utilization_sums import STATES, Bin, Figures, Group
 
@@ -76,6 +84,12 @@ _DAYS: Table = UtilizationDay.__table__  # type: ignore[assignment]
 
 
 _HOURS: Table = UtilizationHour.__table__  # type: ignore[assignment]
+
+
+_WEEKS: Table = UtilizationWeek.__table__  # type: ignore[assignment]
+
+
+_NAMES = [s.value for s in STATES]
 
 
 # which day and slot each hour being summed into days goes to (this connection's own)
@@ -195,6 +209,7 @@ def build_days(
         mark = days.get(machine)
         if mark is None or mark.calendar != key:
             session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
+            session.execute(delete(UtilizationWeek).where(UtilizationWeek.machine == machine))
             first = session.scalar(
                 select(func.min(UtilizationHour.hour)).where(UtilizationHour.machine == machine)
             )
@@ -217,6 +232,7 @@ def build_days(
     built = 0
     for (since, until), group in todo.items():
         _build(session, calendar, group, since, until)
+        _build_weeks(session, calendar, group, since, until)
         built += (until - since).days * len(group)
     session.flush()
     return built
@@ -285,6 +301,59 @@ def _build(
     connection.execute(delete(_HOUR_PIECES))
 
 
+def _monday(day: date) -> date:
+    return day - timedelta(days=day.weekday())
+
+
+def _in_shift(calendar: Calendar) -> ColumnElement[bool]:
+    """Which day rows are shift time (a shop without shifts schedules every hour: its
+    pieces have no shift's name)."""
+    return _DAYS.c.shift != "" if calendar.shifts else true()
+
+
+def _build_weeks(
+    session: Session, calendar: Calendar, machines: list[str], since: date, until: date
+) -> None:
+    """Sum the weeks whose last day is among the days ``[since, until)`` just summed (their
+    earlier days were summed before) from their day rows."""
+    first, last = _monday(since), until - timedelta(days=7)  # the Mondays of those weeks
+    if last < first:
+        return
+    d = _DAYS.c
+    in_shift = _in_shift(calendar)
+    query = (
+        select(
+            d.machine,
+            d.week,
+            *(func.sum(d[name]) for name in _NAMES),
+            *(func.sum(case((in_shift, d[name]), else_=0.0)) for name in _NAMES),
+            func.sum(d.parts),
+            func.sum(d.runs),
+            func.sum(d.cycles),
+            func.sum(d.cycle_seconds),
+        )
+        .where(
+            d.machine.in_(machines),
+            d.day >= first,
+            d.day < until,
+            d.week >= first,
+            d.week <= last,
+        )
+        .group_by(d.machine, d.week)
+    )
+    columns = [
+        "machine",
+        "week",
+        *_NAMES,
+        *(f"shift_{name}" for name in _NAMES),
+        "parts",
+        "runs",
+        "cycles",
+        "cycle_seconds",
+    ]
+    session.connection().execute(insert(_WEEKS).from_select(columns, query))
+
+
 def forget_days(session: Session, calendar: Calendar | None, machine: str, at: datetime) -> None:
     """Drop ``machine``'s days from the one holding ``at`` on (its hours from ``at`` on are
     summed again): they are summed again from the hours when those are. Without the
@@ -294,11 +363,17 @@ def forget_days(session: Session, calendar: Calendar | None, machine: str, at: d
         return
     if calendar is None or mark.calendar != calendar_key(calendar):
         session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
+        session.execute(delete(UtilizationWeek).where(UtilizationWeek.machine == machine))
         session.delete(mark)
         return
     day = _day_of(calendar, at)
     session.execute(
         delete(UtilizationDay).where(UtilizationDay.machine == machine, UtilizationDay.day >= day)
+    )
+    session.execute(  # the week holding that day is not whole any more
+        delete(UtilizationWeek).where(
+            UtilizationWeek.machine == machine, UtilizationWeek.week >= _monday(day)
+        )
     )
     mark.until = min(mark.until, _midnight(calendar, day))
 
@@ -377,56 +452,90 @@ def sum_days(
         Group.SHIFT: [d.shift, case((d.shift == "", None), else_=d.shift_day)],
     }
     keys = by_group[group]
-    names = [s.value for s in STATES]
-    # (a shop without shifts schedules every hour: its pieces have no shift's name)
-    in_shift = d.shift != "" if calendar.shifts else true()
-    rows = (
-        session.connection()
-        .execute(
+    days = [span]
+    weeks = None
+    if group is Group.WEEK:
+        # the whole weeks of the span from the week rows, the days before and after them
+        # from the day rows (a year is 52 rows per machine instead of 1 200)
+        first = _monday(span[0] + timedelta(days=6))
+        last = _monday(span[1])
+        if first < last:
+            weeks = (first, last)
+            days = [(a, b) for a, b in ((span[0], first), (last, span[1])) if a < b]
+    in_shift = _in_shift(calendar)
+    connection = session.connection()
+    rows: list[Any] = []
+    for since, until in days:  # (the two ends of a span by week fall in two different weeks)
+        rows += connection.execute(
             select(
                 d.machine,
                 *keys,
-                *(func.sum(d[name]) for name in names),
-                *(func.sum(case((in_shift, d[name]), else_=0.0)) for name in names),
+                *(func.sum(d[name]) for name in _NAMES),
+                *(func.sum(case((in_shift, d[name]), else_=0.0)) for name in _NAMES),
                 func.sum(d.parts),
                 func.count(d.parts),
                 func.sum(d.runs),
                 func.sum(d.cycles),
                 func.sum(d.cycle_seconds),
             )
-            .where(d.machine.in_(machines), d.day >= span[0], d.day < span[1])
+            .where(d.machine.in_(machines), d.day >= since, d.day < until)
             .group_by(d.machine, *keys)
-        )
-        .all()
-    )
+        ).all()
+    if weeks is not None:
+        w = _WEEKS.c
+        rows += connection.execute(
+            select(
+                w.machine,
+                w.week,
+                *(w[name] for name in _NAMES),
+                *(w[f"shift_{name}"] for name in _NAMES),
+                w.parts,
+                case((w.parts.is_(None), 0), else_=1),  # as the days' count of parts
+                w.runs,
+                w.cycles,
+                w.cycle_seconds,
+            ).where(w.machine.in_(machines), w.week >= weeks[0], w.week < weeks[1])
+        ).all()
     n, k = len(STATES), 1 + len(keys)
-    found: dict[str, dict[int, Figures]] = {m: {} for m in machines}
+    rows_of: dict[str, dict[int, Any]] = {m: {} for m in machines}
     for row in rows:
         at = period_of.get(tuple(row[1:k]))
         if at is None:  # pragma: no cover - every day of the span was cut into pieces
             return False
-        found[row[0]][at] = Figures(
-            dict(zip(STATES, (float(v or 0.0) for v in row[k : k + n]), strict=True)),
-            dict(zip(STATES, (float(v or 0.0) for v in row[k + n : k + 2 * n]), strict=True)),
-            int(row[k + 2 * n] or 0) if row[k + 2 * n + 1] else None,
-            int(row[k + 2 * n + 2] or 0),
-            int(row[k + 2 * n + 3] or 0),
-            float(row[k + 2 * n + 4] or 0.0),
-        )
+        rows_of[row[0]][at] = row
+    nothing = (0.0,) * n
+    record = STATES.index(State.NO_RECORD)
+    # (a year per day is 73 000 of these: plain lists, one Figures each)
     for machine in machines:
-        mine, into = found[machine], acc[machine]
+        mine, into = rows_of[machine], acc[machine]
         for period, (whole, inside) in length.items():
-            f = mine.get(period)
-            if f is None:
-                f = Figures()
+            row = mine.get(period)
+            if row is None:
+                spent, planned = list(nothing), list(nothing)
+                parts, runs, cycles, cycle_seconds = None, 0, 0, 0.0
+            else:
+                spent = [float(v or 0.0) for v in row[k : k + n]]
+                planned = [float(v or 0.0) for v in row[k + n : k + 2 * n]]
+                parts = int(row[k + 2 * n] or 0) if row[k + 2 * n + 1] else None
+                runs, cycles = int(row[k + 2 * n + 2] or 0), int(row[k + 2 * n + 3] or 0)
+                cycle_seconds = float(row[k + 2 * n + 4] or 0.0)
             # pieces without a row are time without any record (those hours were not stored)
-            shift_missing = inside - f.scheduled_total
-            off_missing = (whole - inside) - (f.total - f.scheduled_total)
+            shift_time = sum(planned)
+            shift_missing = inside - shift_time
+            off_missing = (whole - inside) - (sum(spent) - shift_time)
             if shift_missing > 0.5:
-                f.seconds[State.NO_RECORD] += shift_missing
-                f.scheduled[State.NO_RECORD] += shift_missing
+                spent[record] += shift_missing
+                planned[record] += shift_missing
             if off_missing > 0.5:
-                f.seconds[State.NO_RECORD] += off_missing
+                spent[record] += off_missing
+            f = Figures(
+                dict(zip(STATES, spent, strict=True)),
+                dict(zip(STATES, planned, strict=True)),
+                parts,
+                runs,
+                cycles,
+                cycle_seconds,
+            )
             slot = slot_of[period]
             held = into.get(slot)
             if held is None:

@@ -62,6 +62,7 @@ __all__ = [
     "UtilizationHour",
     "UtilizationMark",
     "UtilizationStretch",
+    "UtilizationWeek",
     "VersionCheck",
     "utcnow",
 ]
@@ -414,7 +415,15 @@ class UtilizationStretch(Base):
 
     __tablename__ = "utilization_stretches"
     __table_args__ = (
-        Index("ix_utilization_stretches_machine_end", "machine", "kind", "end"),
+        # (on PostgreSQL carrying what a question reads of an alarm: the alarms of a year
+        # per text are then read from the index alone, not from all over the table)
+        Index(
+            "ix_utilization_stretches_machine_end",
+            "machine",
+            "kind",
+            "end",
+            postgresql_include=["start", "seconds", "state", "text"],
+        ),
         Index("ix_utilization_stretches_machine_seconds", "machine", "kind", "seconds"),
     )
 
@@ -461,6 +470,36 @@ class UtilizationDay(Base):
     offline: Mapped[float] = mapped_column(Float, default=0.0)
     unknown: Mapped[float] = mapped_column(Float, default=0.0)
     no_record: Mapped[float] = mapped_column(Float, default=0.0)
+    parts: Mapped[int | None] = mapped_column(Integer, nullable=True, default=None)
+    runs: Mapped[int] = mapped_column(Integer, default=0)
+    cycles: Mapped[int] = mapped_column(Integer, default=0)
+    cycle_seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class UtilizationWeek(Base):
+    """One machine's week of the shop's calendar (``week``: its Monday), the sum of its day
+    rows (server/utilization_days.py, migration 0016): the seconds in each state, and within
+    shifts (``shift_``), as a question over months groups them by week. Written once the
+    week's last day is summed; dropped with its days."""
+
+    __tablename__ = "utilization_weeks"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    week: Mapped[date] = mapped_column(Date, primary_key=True)
+    running: Mapped[float] = mapped_column(Float, default=0.0)
+    ready: Mapped[float] = mapped_column(Float, default=0.0)
+    stopped: Mapped[float] = mapped_column(Float, default=0.0)
+    alarm: Mapped[float] = mapped_column(Float, default=0.0)
+    offline: Mapped[float] = mapped_column(Float, default=0.0)
+    unknown: Mapped[float] = mapped_column(Float, default=0.0)
+    no_record: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_running: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_ready: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_stopped: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_alarm: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_offline: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_unknown: Mapped[float] = mapped_column(Float, default=0.0)
+    shift_no_record: Mapped[float] = mapped_column(Float, default=0.0)
     parts: Mapped[int | None] = mapped_column(Integer, nullable=True, default=None)
     runs: Mapped[int] = mapped_column(Integer, default=0)
     cycles: Mapped[int] = mapped_column(Integer, default=0)
