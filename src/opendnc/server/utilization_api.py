@@ -225,11 +225,16 @@ def _pct(value: float | None) -> float | None:
     return None if value is None else round(value, 2)
 
 
+# (a year per week is 10 000 figures: an enum member's ``.value`` is a slow property)
+_NAMED = tuple((s, s.value) for s in STATES)
+
+
 def figures_json(f: Figures) -> dict[str, Any]:
     """One machine's figures over some time as JSON (seconds, rounded to 0.1)."""
+    seconds, scheduled = f.seconds, f.scheduled
     return {
-        "seconds": {s.value: round(f.seconds[s], 1) for s in STATES},
-        "shift_seconds": {s.value: round(f.scheduled[s], 1) for s in STATES},
+        "seconds": {name: round(seconds[s], 1) for s, name in _NAMED},
+        "shift_seconds": {name: round(scheduled[s], 1) for s, name in _NAMED},
         "utilization": _pct(f.utilization),
         "utilization_recorded": _pct(f.utilization_recorded),
         "parts": f.parts,
