@@ -13,15 +13,26 @@ answers), in the server's own database layout:
 1. the first question, which sums every finished hour of the year once (``utilization_hours``);
 2. the year per week for all machines (the headline), the last 7 days per day, one day per
    shift, and the page's Gantt slices for a week;
-3. the year again after one more hour of samples arrived (the steady state: each question
+3. ``api_year_by_week``: the headline as the API answers it (summing what finished in a
+   short write transaction, the report in a read-only one, the JSON body), and
+   ``api_first``: the same as the first question this process asks;
+4. the year again after one more hour of samples arrived (the steady state: each question
    sums the hours that finished since the last one).
+
+Each question runs ``--repeat`` times; the medians are printed: wall seconds, and CPU
+seconds (this process, plus on PostgreSQL the backends serving it; what the load of a
+shared machine changes least). On PostgreSQL each question runs once more untimed with
+every SELECT explained (``EXPLAIN ANALYZE``): the database's own execution time, including
+parallel workers the backend's CPU time does not hold. After the days are summed the tables
+are analyzed (and vacuumed on PostgreSQL), as autovacuum does by then on a running server.
 
     .venv/bin/python benchmarks/utilization.py                      # 200 machines, a year
     .venv/bin/python benchmarks/utilization.py --machines 20 --days 30 --backend sqlite
     .venv/bin/python benchmarks/utilization.py --json
 
 PostgreSQL is the one at 127.0.0.1:5432 (trust), in a database of its own that is dropped
-at the end; SQLite is a file in a temporary folder.
+at the end; SQLite is a file in a temporary folder. With both (the default) a table of the
+two side by side ends the output.
 """
 
 from __future__ import annotations
@@ -40,14 +51,21 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import create_engine, insert, text
-from sqlalchemy.orm import Session, sessionmaker
+from fastapi.responses import JSONResponse
+from sqlalchemy import Engine, create_engine, event, insert, text
 
 from opendnc.server.shifts import parse_calendar
-from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.store.db import make_engine, make_sessions, migrate, read_only
 from opendnc.server.store.models import StatusSample
-from opendnc.server.utilization import Group, buckets, equal_periods, report, roll
-from opendnc.server.utilization_api import HourSummer
+from opendnc.server.utilization import (
+    Group,
+    buckets,
+    equal_periods,
+    report,
+    roll,
+    sum_safely,
+)
+from opendnc.server.utilization_api import HourSummer, report_json
 
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
 CAL = parse_calendar(
@@ -156,37 +174,80 @@ def fill(url: str, machines: list[str], start: datetime, end: datetime, seed: in
     return written
 
 
-def _backend_cpu(session: Session) -> float:
-    """CPU seconds the PostgreSQL backend serving ``session`` has used (0 on SQLite, which
-    runs in this process and counts in its CPU time)."""
-    if session.get_bind().dialect.name != "postgresql":
+def _backend_cpu(engine: Engine) -> float:
+    """CPU seconds the PostgreSQL backends connected to ``engine``'s database have used (0 on
+    SQLite, which runs in this process and counts in its CPU time). A parallel worker's
+    time is not held here (it ends with its query): the EXPLAIN ANALYZE pass shows it."""
+    if engine.dialect.name != "postgresql":
         return 0.0
-    pid = session.execute(text("SELECT pg_backend_pid()")).scalar()
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:  # not on this machine, or not Linux
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    with engine.connect() as conn:
+        pids = conn.execute(
+            text(
+                "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
+                "AND backend_type = 'client backend'"
+            )
+        ).scalars()
+        total = 0.0
+        for pid in pids:
+            try:
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # not on this machine, or not Linux
+                continue
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
 CPU: dict[str, list[float]] = {}
+EXPLAINED: dict[str, float] = {}
 
 
-def _time(sessions: sessionmaker[Session], work: Any, repeat: int, key: str = "") -> list[float]:
-    """Wall seconds of ``repeat`` runs of ``work``; the CPU seconds of each (this process
-    and the database server's backend: what the load of the machine does not change) go to
-    :data:`CPU` under ``key``."""
+def _time(engine: Engine, work: Any, repeat: int, key: str) -> list[float]:
+    """Wall seconds of ``repeat`` runs of ``work(engine)``; the CPU seconds of each (this
+    process and the database's backends: what the load of the machine does not change) go
+    to :data:`CPU` under ``key``."""
     out = []
     for _ in range(repeat):
-        with sessions.begin() as session:
-            backend = _backend_cpu(session)
-            cpu = time.process_time()
-            started = time.perf_counter()
-            work(session)
-            out.append(time.perf_counter() - started)
-            cpu = time.process_time() - cpu + _backend_cpu(session) - backend
+        backend = _backend_cpu(engine)
+        cpu = time.process_time()
+        started = time.perf_counter()
+        work(engine)
+        out.append(time.perf_counter() - started)
+        cpu = time.process_time() - cpu + _backend_cpu(engine) - backend
         CPU.setdefault(key, []).append(cpu)
     return out
+
+
+def _explained(engine: Engine, work: Any) -> float:
+    """Run ``work(engine)`` once with every SELECT explained on its own connection (after it
+    ran, so the temporary tables it reads are there); the summed execution times in
+    seconds. PostgreSQL only."""
+    total = [0.0]
+
+    def explain(
+        conn: Any, cursor: Any, statement: str, params: Any, context: Any, many: bool
+    ) -> None:
+        if many or not statement.lstrip().upper().startswith("SELECT"):
+            return
+        with cursor.connection.cursor() as explaining:
+            explaining.execute("EXPLAIN (ANALYZE, FORMAT JSON) " + statement, params)
+            total[0] += explaining.fetchone()[0][0]["Execution Time"] / 1000
+
+    event.listen(engine, "after_cursor_execute", explain)
+    try:
+        work(engine)
+    finally:
+        event.remove(engine, "after_cursor_execute", explain)
+    return total[0]
+
+
+def _in_transaction(question: Any) -> Any:
+    """``question(session)`` in a write transaction of its own, as a work for :func:`_time`."""
+
+    def work(engine: Engine) -> Any:
+        with make_sessions(engine).begin() as session:
+            return question(session)
+
+    return work
 
 
 def _clone(url: str, names: list[str], copies: list[str], since: datetime | None) -> None:
@@ -263,6 +324,10 @@ def run(
     t0 = time.perf_counter()
     HourSummer(sessions, names, CAL).sum_now(now)
     out["sum_days_s"] = round(time.perf_counter() - t0, 1)
+    # what autovacuum has done by then on a server: the planner knows the sizes, and on
+    # PostgreSQL the summed tables are marked all-visible (an index alone answers)
+    with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+        conn.execute(text("VACUUM ANALYZE" if engine.dialect.name == "postgresql" else "ANALYZE"))
     with engine.connect() as conn:
         out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
         out["hour_rows"] = conn.execute(text("SELECT COUNT(*) FROM utilization_hours")).scalar()
@@ -278,39 +343,58 @@ def run(
     def question(
         span: tuple[datetime, datetime], group: Group, at: datetime, days: bool = True
     ) -> Any:
-        return lambda s: report(s, CAL, names, span[0], span[1], group, now=at, use_days=days)
+        return _in_transaction(
+            lambda s: report(s, CAL, names, span[0], span[1], group, now=at, use_days=days)
+        )
 
-    CPU.clear()
-    timings = {
-        "year_by_week": _time(sessions, question(year, Group.WEEK, now), repeat, "year_by_week"),
-        "year_by_week_from_hours": _time(
-            sessions, question(year, Group.WEEK, now, days=False), 1, "year_by_week_from_hours"
-        ),
-        "year_by_day": _time(sessions, question(year, Group.DAY, now), repeat, "year_by_day"),
-        "year_by_shift": _time(sessions, question(year, Group.SHIFT, now), repeat, "year_by_shift"),
-        "7_days_by_day": _time(sessions, question(week, Group.DAY, now), repeat, "7_days_by_day"),
-        "1_day_by_shift": _time(
-            sessions, question(day, Group.SHIFT, now), repeat, "1_day_by_shift"
-        ),
-        "gantt_7_days": _time(
-            sessions,
-            lambda s: buckets(s, names, equal_periods(*week, timedelta(hours=1)), now=now),
-            repeat,
-            "gantt_7_days",
-        ),
+    def api(span: tuple[datetime, datetime], group: Group, at: datetime) -> Any:
+        """What ``GET /api/utilization`` does (utilization_api.run_report and the route)."""
+
+        def work(engine: Engine) -> bytes:
+            factory = make_sessions(engine)
+            with factory.begin() as session:
+                sum_safely(session, names, at, CAL)
+            with read_only(factory)() as session:
+                r = report(session, CAL, names, *span, group, now=at, sum_first=False)
+            return bytes(JSONResponse(report_json(r)).body)
+
+        return work
+
+    gantt = _in_transaction(
+        lambda s: buckets(s, names, equal_periods(*week, timedelta(hours=1)), now=now)
+    )
+    questions: dict[str, tuple[Any, int]] = {
+        "year_by_week": (question(year, Group.WEEK, now), repeat),
+        "api_year_by_week": (api(year, Group.WEEK, now), repeat),
+        "year_by_week_from_hours": (question(year, Group.WEEK, now, days=False), 1),
+        "year_by_day": (question(year, Group.DAY, now), repeat),
+        "year_by_shift": (question(year, Group.SHIFT, now), repeat),
+        "7_days_by_day": (question(week, Group.DAY, now), repeat),
+        "1_day_by_shift": (question(day, Group.SHIFT, now), repeat),
+        "gantt_7_days": (gantt, repeat),
     }
+    CPU.clear()
+    EXPLAINED.clear()
+    # the first question this process asks (its statements not compiled yet), once
+    body: list[bytes] = []
+    first = _time(engine, lambda e: body.append(api(year, Group.WEEK, now)(e)), 1, "api_first")
+    out["json_bytes_year_by_week"] = len(body[0])
+    timings = {"api_first": first}
+    timings |= {key: _time(engine, work, n, key) for key, (work, n) in questions.items()}
+    if engine.dialect.name == "postgresql":
+        for key, (work, _n) in questions.items():
+            EXPLAINED[key] = _explained(engine, work)
     # one more hour of samples for every machine, then the year again (it sums that hour)
     later = now + timedelta(hours=1)
     fill(url, names, now, later, seed + 1)
-    timings["year_after_1_hour_more"] = _time(
-        sessions,
-        question((start, later), Group.WEEK, later + timedelta(minutes=3)),
-        1,
-        "year_after_1_hour_more",
+    key = "year_after_1_hour_more"
+    timings[key] = _time(
+        engine, question((start, later), Group.WEEK, later + timedelta(minutes=3)), 1, key
     )
     out["seconds"] = {k: [round(v, 3) for v in vs] for k, vs in timings.items()}
     out["median_s"] = {k: round(statistics.median(vs), 3) for k, vs in timings.items()}
     out["median_cpu_s"] = {k: round(statistics.median(vs), 3) for k, vs in CPU.items()}
+    out["explain_analyze_s"] = {k: round(v, 3) for k, v in EXPLAINED.items()}
     out["load_average"] = [round(x, 1) for x in os.getloadavg()]
     engine.dispose()
     return out
@@ -361,14 +445,16 @@ def main(argv: list[str] | None = None) -> None:
         default=2,
         help="days of samples the copied machines keep (-1: all of them)",
     )
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=23)
     parser.add_argument("--json", action="store_true", help="one JSON line per backend")
     args = parser.parse_args(argv)
     backends = ["sqlite", "postgresql"] if args.backend == "both" else [args.backend]
+    results = []
     for backend in backends:
         go = _sqlite if backend == "sqlite" else _postgresql
         result = go(args.machines, args.distinct, args.days, args.repeat, args.seed, args.copy_days)
+        results.append(result)
         if args.json:
             print(json.dumps(result), flush=True)
             continue
@@ -382,14 +468,42 @@ def main(argv: list[str] | None = None) -> None:
         )
         print(
             f"  load average {result['load_average']}; "
-            f"summing the days took {result['sum_days_s']} s"
+            f"summing the days took {result['sum_days_s']} s; "
+            f"the year by week is {result['json_bytes_year_by_week']} bytes of JSON"
         )
         for key, seconds in result["seconds"].items():
+            explained = result["explain_analyze_s"].get(key)
             print(
                 f"  {key}: median {result['median_s'][key]} s, CPU "
-                f"{result['median_cpu_s'][key]} s  (runs: {seconds})"
+                f"{result['median_cpu_s'][key]} s"
+                + ("" if explained is None else f", EXPLAIN ANALYZE {explained} s")
+                + f"  (runs: {seconds})"
             )
         sys.stdout.flush()
+    if len(results) > 1 and not args.json:
+        _side_by_side(results)
+
+
+def _side_by_side(results: list[dict[str, Any]]) -> None:
+    """The medians of every backend in one table (Markdown, as docs/dashboard.md has it)."""
+    names = [r["backend"] for r in results]
+    head = ["question"]
+    for name in names:
+        head += [f"{name} wall", f"{name} CPU"]
+        if name == "postgresql":
+            head.append("EXPLAIN ANALYZE")
+    print()
+    print("| " + " | ".join(head) + " |")
+    print("| " + " | ".join("---" for _ in head) + " |")
+    for key in results[0]["median_s"]:
+        row = [key]
+        for r in results:
+            row += [f"{r['median_s'][key]:.3f}", f"{r['median_cpu_s'][key]:.3f}"]
+            if r["backend"] == "postgresql":
+                explained = r["explain_analyze_s"].get(key)
+                row.append("" if explained is None else f"{explained:.3f}")
+        print("| " + " | ".join(row) + " |")
+    print(f"(seconds, medians; load average at the end {[r['load_average'] for r in results]})")
 
 
 if __name__ == "__main__":
