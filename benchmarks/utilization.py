@@ -51,7 +51,6 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from fastapi.responses import JSONResponse
 from sqlalchemy import Engine, create_engine, event, insert, text
 
 from opendnc.server.shifts import parse_calendar
@@ -65,7 +64,7 @@ from opendnc.server.utilization import (
     roll,
     sum_safely,
 )
-from opendnc.server.utilization_api import HourSummer, report_json
+from opendnc.server.utilization_api import HourSummer, report_response
 
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
 CAL = parse_calendar(
@@ -356,7 +355,7 @@ def run(
                 sum_safely(session, names, at, CAL)
             with read_only(factory)() as session:
                 r = report(session, CAL, names, *span, group, now=at, sum_first=False)
-            return bytes(JSONResponse(report_json(r)).body)
+            return bytes(report_response(r).body)
 
         return work
 

@@ -45,6 +45,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
+from opendnc.server.gc_pause import paused
 from opendnc.server.shifts import Calendar, Period
 from opendnc.server.state import State
 from opendnc.server.store.models import (
@@ -429,25 +430,26 @@ def report(
     periods = periods_of(calendar, group, start, end)
     scheduled = calendar.scheduled(start, end)
     summed = {m: SummedAlarms() for m in machines}
-    per_period, totals, stretches = _collect(
-        session,
-        machines,
-        start,
-        end,
-        periods,
-        scheduled,
-        now,
-        use_hours,
-        sum_first=sum_first,
-        calendar=calendar,
-        use_days=use_days,
-        group=group,
-        alarms_out=summed,
-    )
-    reports = [
-        machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
-        for m in machines
-    ]
+    with paused():  # (a figure per machine and period: tens of thousands over a year)
+        per_period, totals, stretches = _collect(
+            session,
+            machines,
+            start,
+            end,
+            periods,
+            scheduled,
+            now,
+            use_hours,
+            sum_first=sum_first,
+            calendar=calendar,
+            use_days=use_days,
+            group=group,
+            alarms_out=summed,
+        )
+        reports = [
+            machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
+            for m in machines
+        ]
     return Report(start, end, group, calendar, periods, reports)
 
 
@@ -465,18 +467,19 @@ def buckets(
     if not periods:
         return {m: [] for m in machines}
     start, end = periods[0].start, periods[-1].end
-    per_period, _totals, _stretches = _collect(
-        session,
-        machines,
-        start,
-        end,
-        list(periods),
-        [],
-        now or datetime.now(UTC),
-        True,
-        stretches=False,
-        sum_first=sum_first,
-    )
+    with paused():
+        per_period, _totals, _stretches = _collect(
+            session,
+            machines,
+            start,
+            end,
+            list(periods),
+            [],
+            now or datetime.now(UTC),
+            True,
+            stretches=False,
+            sum_first=sum_first,
+        )
     return per_period
 
 

@@ -30,6 +30,7 @@ from opendnc.server.components import RunsTask
 from opendnc.server.config import ShopConfig
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
+from opendnc.server.gc_pause import paused
 from opendnc.server.shifts import DAYS, Calendar
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization import (
@@ -51,6 +52,7 @@ __all__ = [
     "install",
     "parse_span",
     "report_json",
+    "report_response",
     "router",
     "run_report",
 ]
@@ -364,6 +366,12 @@ def csv_response(r: Report) -> Response:
     )
 
 
+def report_response(r: Report, format: str = "json") -> Response:
+    """The report as the API's answer: JSON, or the CSV download (``format="csv"``)."""
+    with paused():  # (a JSON object per machine and period, all alive until sent)
+        return csv_response(r) if format == "csv" else JSONResponse(report_json(r))
+
+
 @router.get(
     "/utilization",
     response_class=Response,
@@ -388,15 +396,12 @@ async def utilization(
     """Utilization per machine and period (JSON, or ``format=csv``)."""
     if format not in ("json", "csv"):
         raise InputError(f"format: expected json or csv, got {format!r}")
-    r = await run_in_threadpool(
-        run_report,
-        _sessions(request),
-        _config(request),
-        start=start,
-        end=end,
-        machines=machines,
-        group=group,
-    )
-    if format == "csv":
-        return csv_response(r)
-    return JSONResponse(report_json(r))
+    sessions, config = _sessions(request), _config(request)
+
+    def answer() -> Response:
+        r = run_report(sessions, config, start=start, end=end, machines=machines, group=group)
+        # the body too in the pool's thread: a year by week is 5 MB of JSON, and the event
+        # loop serves every other request meanwhile
+        return report_response(r, format)
+
+    return await run_in_threadpool(answer)
