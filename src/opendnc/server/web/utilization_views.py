@@ -35,7 +35,7 @@ from opendnc.server.utilization import (
     report,
     sum_safely,
 )
-from opendnc.server.utilization_api import csv_response, pick_machines
+from opendnc.server.utilization_api import pick_machines, report_response
 from opendnc.server.web import render
 from opendnc.server.web.views import ROLES, Viewing
 
@@ -346,12 +346,12 @@ async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Respon
     cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
     first, last, names = ask.first, ask.last, ask.names
 
-    def work() -> Report:
+    def work() -> Response:
         sessions = _sessions(request)
         with sessions.begin() as session:
             sum_safely(session, names, now, cal)
         with read_only(sessions)() as session:
-            return report(
+            r = report(
                 session,
                 cal,
                 names,
@@ -361,6 +361,7 @@ async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Respon
                 now=now,
                 sum_first=False,
             )
+        return report_response(r, "csv")  # (in the pool's thread, not the event loop)
 
     _ = page
-    return csv_response(await run_in_threadpool(work))
+    return await run_in_threadpool(work)
