@@ -6,6 +6,7 @@ sums in the background, and migration 0007 goes up from 0004 (through those betw
 from __future__ import annotations
 
 import asyncio
+import json
 import random
 import time
 from datetime import UTC, datetime, timedelta
@@ -223,6 +224,32 @@ def test_a_machine_named_with_64_characters_has_its_stops_and_alarms(
         (t0 + timedelta(minutes=60), t0 + timedelta(minutes=120), State.ALARM)
     ]
     assert m.totals.seconds[State.RUNNING] == 3600.0 + 90 * 60.0
+
+
+def test_the_api_writes_the_json_the_standard_library_writes(
+    sessions: sessionmaker[Session],
+) -> None:
+    """The API's encoder (pydantic's, for speed) gives the bytes of Starlette's JSONResponse
+    (the standard library's): texts a control may send, None, whole and cut numbers."""
+    _random_timeline(sessions, 4)
+    odd = 'Überlast "Spindel" \\ \t\x01\x1f ✓ \u2028 </script>'
+    with sessions.begin() as session:
+        session.add(
+            StatusSample(machine="haas-1", at=START + timedelta(hours=30), state="alarm", alarm=odd)
+        )
+    with sessions.begin() as session:
+        r = report(session, CAL, MACHINES, START, END, Group.DAY, now=NOW)
+    assert odd in {a.text for m in r.machines for a in m.alarms}
+    response = utilization_api.report_response(r)
+    expected = json.dumps(
+        utilization_api.report_json(r),
+        ensure_ascii=False,
+        allow_nan=False,
+        indent=None,
+        separators=(",", ":"),
+    ).encode()
+    assert bytes(response.body) == expected
+    assert response.media_type == "application/json"
 
 
 def test_the_recorder_stores_program_part_count_and_alarm(
