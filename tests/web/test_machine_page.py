@@ -328,7 +328,8 @@ def test_a_dripfeed_starts_from_the_page_and_restarts_from_its_line(clean: Haas)
     # The control has the whole program: the card shows its state again well before the port's
     # 30 s of quiet after the break would have ended (docs/server.md#drip-feed).
     card = page.locator(f"#card-{MACHINE}")
-    sync_api.expect(card.locator(".program")).to_contain_text("O03000", timeout=15_000)
+    # (25 s: once, on a loaded CI run, the card took longer than 15 s; the cause is not known)
+    sync_api.expect(card.locator(".program")).to_contain_text("O03000", timeout=25_000)
     sync_api.expect(card.locator(".mode")).to_have_text("automatic")
     sync_api.expect(card.locator(".native-mode")).to_have_text("DNC")
     ARTIFACTS.mkdir(parents=True, exist_ok=True)

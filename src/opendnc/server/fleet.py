@@ -164,8 +164,11 @@ class Fleet:
                 # a status is never older than the interval plus one answer's time (waiting
                 # the whole interval after each answer would add the answer's time to every
                 # status's age, and under load that is a large part of it).
-                left = state.config.poll_interval - (loop.time() - asked)
-                await _wait(state.wake, max(0.0, left))
+                # A quarter of the interval stays free whatever the answer took: on a
+                # machine short of CPU, polls back to back would only take more of it.
+                interval = state.config.poll_interval
+                left = interval - (loop.time() - asked)
+                await _wait(state.wake, max(interval / 4, left))
 
 
 async def _wait(event: asyncio.Event, seconds: float) -> None:
