@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import pytest
+
+# argon2's cheapest parameters for the passwords the tests make and check, in this process
+# and in the servers and commands it starts (they inherit the environment): a third of a CPU
+# second each at the shop's cost, hundreds of them in a run (opendnc.server.auth).
+os.environ.setdefault("OPENDNC_PASSWORD_PROFILE", "cheapest")
 
 # The files whose longest test takes longest (10 s and more on a busy machine, measured with
 # `pytest --durations=0`), longest first. pytest-xdist hands the first tests of the collection
