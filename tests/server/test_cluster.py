@@ -288,9 +288,9 @@ def test_a_dripfeed_on_a_killed_server_ends_interrupted_at_its_line(
     try:
         cluster.start("dnc-1", "dnc-2")
         owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
-        feeder = owners["haas-serial-1"]
-        other = ({"dnc-1", "dnc-2"} - {feeder}).pop()
-        client = cluster.clients[other]  # asked of the server that does not feed it
+        # asked of the server that does not hold it now (the job's own row names the feeder:
+        # the machine may still be handed over before the job is claimed)
+        client = cluster.clients[({"dnc-1", "dnc-2"} - {owners["haas-serial-1"]}).pop()]
         wait_for(
             "the serial Haas online",
             lambda: client.get("/api/machines/haas-serial-1").json()["online"],
@@ -309,6 +309,9 @@ def test_a_dripfeed_on_a_killed_server_ends_interrupted_at_its_line(
             lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 300 and j,
         )
         assert seen["state"] == "running"
+        feeder = seen["server"]
+        other = ({"dnc-1", "dnc-2"} - {feeder}).pop()
+        client = cluster.clients[other]
         cluster.kill(feeder)
         ended = wait_for(
             "the feed to end",
