@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from opendnc.cli.serve import STOP_TIMEOUT
+from tests.server.conftest import on
 from tests.server.harness import Procs, auth, create_key, httpx, serve, wait_for
 
 ROUNDS = int(os.environ.get("OPENDNC_STOP_ROUNDS", "2"))
@@ -64,6 +65,7 @@ def _stream(url: str, key: str, stop: threading.Event) -> None:
         return  # the server went away: what the test wanted
 
 
+@on("postgresql")  # its connections are the harder ones to close in time
 def test_signals_stop_a_busy_server_within_the_deadline(
     tmp_path: Path, procs: Procs, db_url: str
 ) -> None:
