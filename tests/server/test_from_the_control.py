@@ -149,15 +149,7 @@ def test_remote_request_sends_the_program_and_reports_the_missing_one(
         port.select("punch:O9999")  # send the request ...
         port.select("auto")  # ... then switch to receive, within the request delay
 
-        def memory() -> dict[int, str]:
-            numbers = (1234, 9998)
-            return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
-
-        got = wait_for(
-            "the answer in the control's memory",
-            lambda: len(memory()) == 2 and memory(),
-            describe=lambda: (port.messages, procs.log("server")),
-        )
+        got = _answer_in_memory(haas, sim, port, procs)
         assert got[1234].split() == STORED.split()
         assert "(O05555.NC NOT IN LIBRARY)" in got[9998]
         assert got[9998].split()[1:3] == ["O09998", "(OPENDNC"]
@@ -213,15 +205,7 @@ def test_a_requested_program_that_fails_its_check_is_not_sent_but_reported(
         port.select("punch:O9999")
         port.select("auto")
 
-        def memory() -> dict[int, str]:
-            numbers = (1234, 9998)
-            return {n: text for n in numbers if (text := _read(haas, sim, n)) is not None}
-
-        got = wait_for(
-            "the answer in the control's memory",
-            lambda: len(memory()) == 2 and memory(),
-            describe=lambda: (port.messages, procs.log("server")),
-        )
+        got = _answer_in_memory(haas, sim, port, procs)
         assert got[1234].split() == STORED.split()
         report = [line.strip() for line in got[9998].splitlines() if line.strip()]
         assert report[1].startswith("O09998 (OPENDNC REQUEST FAILED"), report
@@ -291,6 +275,20 @@ def test_a_rule_that_builds_a_path_is_answered_with_a_failure_report(
         assert client.get("/api/programs", headers=auth(key)).json() == []
         assert client.get("/api/inbox", headers=auth(key)).json() == []
     assert not any(tmp_path.rglob("passwd"))
+
+
+def _answer_in_memory(haas: FleetThread, sim: Any, port: Any, procs: Procs) -> dict[int, str]:
+    """The sent program O01234 and the report O09998, once both are in the control's memory."""
+
+    def memory() -> dict[int, str]:
+        return {n: text for n in (1234, 9998) if (text := _read(haas, sim, n)) is not None}
+
+    got: dict[int, str] = wait_for(
+        "the answer in the control's memory",
+        lambda: len(memory()) == 2 and memory(),
+        describe=lambda: (port.messages, procs.log("server")),
+    )
+    return got
 
 
 def _read(haas: FleetThread, sim: Any, number: int) -> str | None:

@@ -52,6 +52,34 @@ def chromium() -> Iterator[Any]:
             browser.close()
 
 
+def watched_context(browser: Any, url: str, problems: list[str], viewport: tuple[int, int]) -> Any:
+    """A fresh context of ``browser`` that refuses, and notes in ``problems``, any request
+    that does not go to ``url`` (the pages ship everything they need)."""
+    ctx = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
+    ctx.set_default_timeout(TIMEOUT_MS)
+
+    def route(r: Any) -> None:
+        if r.request.url.startswith(url):
+            r.continue_()
+        else:
+            problems.append(f"request left the machine: {r.request.url}")
+            r.abort()
+
+    ctx.route("**/*", route)
+    return ctx
+
+
+def watched_page(ctx: Any, problems: list[str]) -> Any:
+    """A new page of ``ctx`` whose console errors and page errors go to ``problems``."""
+    page = ctx.new_page()
+    page.on(
+        "console",
+        lambda m: problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None,
+    )
+    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    return page
+
+
 @dataclass
 class Shop:
     """The running shop and browser."""
@@ -63,30 +91,11 @@ class Shop:
     problems: list[str] = field(default_factory=list)
 
     def context(self, viewport: tuple[int, int] = (1280, 800)) -> Any:
-        """A fresh browser context that records console errors and foreign requests."""
-        ctx = self.browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
-        ctx.set_default_timeout(TIMEOUT_MS)
-
-        def route(r: Any) -> None:
-            if r.request.url.startswith(self.url):
-                r.continue_()
-            else:
-                self.problems.append(f"request left the machine: {r.request.url}")
-                r.abort()
-
-        ctx.route("**/*", route)
-        return ctx
+        """A fresh browser context that records foreign requests."""
+        return watched_context(self.browser, self.url, self.problems, viewport)
 
     def page(self, ctx: Any) -> Any:
-        page = ctx.new_page()
-        page.on(
-            "console",
-            lambda m: (
-                self.problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None
-            ),
-        )
-        page.on("pageerror", lambda e: self.problems.append(f"page error: {e}"))
-        return page
+        return watched_page(ctx, self.problems)
 
     def login(self, user: str, viewport: tuple[int, int] = (1280, 800)) -> Any:
         page = self.page(self.context(viewport))

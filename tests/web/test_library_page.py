@@ -18,7 +18,7 @@ require_module("playwright.sync_api")
 
 from opendnc.server import library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
-from tests.web.browser import ARTIFACTS, TIMEOUT_MS, chromium  # noqa: E402
+from tests.web.browser import ARTIFACTS, chromium, watched_context, watched_page  # noqa: E402
 from tests.web.inprocess import Served, serve_one_tnc  # noqa: E402
 from tests.web.test_utilization_pages import OVERFLOW_JS, WRAPS_JS  # noqa: E402
 
@@ -51,22 +51,7 @@ def browser() -> Iterator[Any]:
 
 def _open(browser: Any, url: str, size: tuple[int, int]) -> tuple[Any, list[str]]:
     problems: list[str] = []
-    ctx = browser.new_context(viewport={"width": size[0], "height": size[1]})
-    ctx.set_default_timeout(TIMEOUT_MS)
-
-    def route(r: Any) -> None:
-        if r.request.url.startswith(url):
-            r.continue_()
-        else:
-            problems.append(f"request left the machine: {r.request.url}")
-            r.abort()
-
-    ctx.route("**/*", route)
-    page = ctx.new_page()
-    page.on(
-        "console", lambda m: problems.append(f"console: {m.text}") if m.type == "error" else None
-    )
-    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    page = watched_page(watched_context(browser, url, problems, size), problems)
     page.goto(url + "/library")
     page.get_by_label("User name").fill("programmer")
     page.get_by_label("Password").fill(PASSWORD)

@@ -15,7 +15,7 @@ from tests.peers import require_module
 
 require_module("playwright.sync_api")
 
-from tests.web.browser import ARTIFACTS, TIMEOUT_MS, chromium  # noqa: E402
+from tests.web.browser import ARTIFACTS, chromium, watched_context, watched_page  # noqa: E402
 from tests.web.utilization_shop import UtilShop, serve_util_shop  # noqa: E402
 
 WIDTHS = [(1280, 800), (768, 1024)]
@@ -65,22 +65,7 @@ def browser() -> Iterator[Any]:
 
 def _open(browser: Any, shop: UtilShop, size: tuple[int, int], query: str) -> tuple[Any, list[str]]:
     problems: list[str] = []
-    ctx = browser.new_context(viewport={"width": size[0], "height": size[1]})
-    ctx.set_default_timeout(TIMEOUT_MS)
-
-    def route(r: Any) -> None:
-        if r.request.url.startswith(shop.url):
-            r.continue_()
-        else:
-            problems.append(f"request left the machine: {r.request.url}")
-            r.abort()
-
-    ctx.route("**/*", route)
-    page = ctx.new_page()
-    page.on(
-        "console", lambda m: problems.append(f"console: {m.text}") if m.type == "error" else None
-    )
-    page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    page = watched_page(watched_context(browser, shop.url, problems, size), problems)
     page.goto(shop.url + "/utilization?" + query)
     page.get_by_label("User name").fill("viewer")
     page.get_by_label("Password").fill("viewer-secret-1")
