@@ -103,9 +103,11 @@ def _pypi(action: str, mode: str, path: Path) -> list[str]:
 
 
 def _lrzsz(action: str, mode: str, path: Path) -> list[str]:
+    # A file name relative to the endpoint's folder (the transfer's): Debian's lrzsz
+    # 0.12.21-10+deb12u1 refuses an absolute path with "Security Violation".
     if action == "send":
-        return ["sx", "-X", "-q", *(["-k"] if mode == "1k" else []), str(path)]
-    return ["rx", "-X", "-q", *(["-c"] if mode != "checksum" else []), str(path)]
+        return ["sx", "-X", "-q", *(["-k"] if mode == "1k" else []), path.name]
+    return ["rx", "-X", "-q", *(["-c"] if mode != "checksum" else []), path.name]
 
 
 def _sx_to_ours(action: str, mode: str, path: Path) -> list[str]:
@@ -205,13 +207,17 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
     with tempfile.TemporaryDirectory() as tmp:
         src, dst = Path(tmp) / "src.bin", Path(tmp) / "dst.bin"
         src.write_bytes(data)
+        # Every endpoint runs in the transfer's folder (lrzsz takes only relative names);
+        # PYTHONPATH lets ``python -m tests.…`` find the checkout from there.
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
         with link() as (fd_send, fd_recv):
             sender = subprocess.Popen(
                 make("send", mode, src),
                 stdin=fd_send,
                 stdout=fd_send,
                 stderr=subprocess.PIPE,
-                cwd=ROOT,
+                cwd=tmp,
+                env=env,
             )
             time.sleep(SENDER_HEAD_START)
             start = time.perf_counter()
@@ -220,7 +226,8 @@ def transfer(link: Link, impl: str, mode: str, data: bytes, limit: float) -> Run
                 stdin=fd_recv,
                 stdout=fd_recv,
                 stderr=subprocess.PIPE,
-                cwd=ROOT,
+                cwd=tmp,
+                env=env,
             )
             note = ""
             try:

@@ -53,5 +53,9 @@ def require_reference(relative: str) -> Path:
         path = folder / "shared" / "reference" / relative
         if path.is_file():
             return path
-    missing_peer(f"reference file shared/reference/{relative}")
+    expected = REPO.parent / "shared" / "reference" / relative
+    missing_peer(
+        f"reference file shared/reference/{relative}: expected at {expected} (a shared/ "
+        f"folder beside the clone, as CI lays it out) or in a folder above {REPO}"
+    )
     raise AssertionError("unreachable")

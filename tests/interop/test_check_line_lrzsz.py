@@ -27,7 +27,7 @@ CONFIG = ReceiverConfig(start_timeout=20)
 def _sx(source: Path, out: Path) -> str | None:
     """``sx`` sends ``source``; our receiver writes into the folder ``out``."""
     require_command("sx")
-    with peer_link(["sx", "-X", "-q", str(source)], cwd=source.parent) as (stream, proc):
+    with peer_link(["sx", "-X", "-q", source.name], cwd=source.parent) as (stream, proc):
         try:
             report = receive_file(stream, out, mode=Mode.CHECKSUM, config=CONFIG)
         finally:
