@@ -40,11 +40,6 @@ class ShareTarget:
     password: str | None = field(default=None, repr=False)  # never in a log or an error
     local: Path | None = None
 
-    @property
-    def is_smb(self) -> bool:
-        """True for an SMB target."""
-        return self.local is None
-
     def unc(self, name: str = "") -> str:
         r"""UNC path ``\\host\share\folder\name`` of ``name`` in the target folder."""
         parts = [self.share, *[p for p in self.folder.split("/") if p]]

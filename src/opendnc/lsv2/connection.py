@@ -242,7 +242,3 @@ class Lsv2Connection:
     def closed(self) -> bool:
         """True once the peer closed the connection."""
         return self._eof
-
-    def set_max_payload(self, limit: int) -> None:
-        """Change the largest payload accepted from the peer."""
-        self._framer.max_payload = limit

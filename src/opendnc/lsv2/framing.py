@@ -151,11 +151,6 @@ class TelegramFramer:
         """Wire bytes of ``frame`` (header + payload in one string, for a single write)."""
         return HEADER.pack(len(frame.payload), frame.mnemonic.encode("ascii")) + frame.payload
 
-    @staticmethod
-    def encode_parts(mnemonic: bytes, payload: bytes) -> bytes:
-        """Fast path used by the connection engine: no :class:`Frame` object needed."""
-        return HEADER.pack(len(payload), mnemonic) + payload
-
 
 # --- RS-232 --------------------------------------------------------------------------------
 

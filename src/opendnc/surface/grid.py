@@ -43,11 +43,6 @@ class Units(enum.Enum):
         """``G20`` or ``G21``."""
         return "G20" if self is Units.INCH else "G21"
 
-    @property
-    def per_mm(self) -> float:
-        """Length of one millimetre in these units."""
-        return 1 / 25.4 if self is Units.INCH else 1.0
-
     @classmethod
     def parse(cls, text: str) -> Units:
         """``inch``/``in``/``g20`` or ``mm``/``metric``/``g21``."""

@@ -242,12 +242,6 @@ def wire_path(path: str) -> str:
     return p
 
 
-def join_path(folder: str, name: str) -> str:
-    """Join a wire folder path and a name."""
-    folder = wire_path(folder)
-    return folder + name if folder.endswith(("\\", ":")) else f"{folder}\\{name}"
-
-
 def split_path(path: str) -> tuple[str, str]:
     """Split a wire path into (folder with trailing separator, name)."""
     p = wire_path(path).rstrip("\\")

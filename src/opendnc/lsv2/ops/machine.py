@@ -10,7 +10,6 @@ from typing import TypeVar
 from opendnc.errors import ControlRefused, RemoteProtocolError
 from opendnc.lsv2.constants import (
     ExecutionMode,
-    Family,
     Login,
     MemoryType,
     ProgramState,
@@ -266,8 +265,3 @@ def date_time(state: SessionState) -> Op[datetime]:
     yield from ensure_login(state, Login.DIAGNOSTICS)
     reply = yield from ask(ReadDateTime(), DateTimeReply, "read date and time")
     return datetime.fromtimestamp(reply.timestamp, UTC)
-
-
-def old_keys(state: SessionState) -> bool:
-    """TNC 4xx controls use the old key-code table."""
-    return state.family is Family.TNC4XX
