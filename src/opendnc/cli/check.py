@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
+
+if TYPE_CHECKING:
+    from opendnc.nccheck import CheckResult
 
 __all__ = ["check"]
 
@@ -50,20 +54,53 @@ def check(
             limits = limits_for(load_config(config).machine(machine))
         except InputError as exc:
             raise typer.BadParameter(str(exc), param_hint="'--machine'") from None
+    data = _read(file)
+    if data is None:
+        from opendnc.nccheck import guess_control
+        from opendnc.nccheck.oversize import not_checked
+
+        size = file.stat().st_size
+        result = not_checked(str(file), size, chosen or guess_control("", str(file)))
+        _print(result, str(file), json_output)
+        raise typer.Exit(1)
+    # NC programs are 7-bit text; latin-1 never fails and keeps every byte's position
+    text = data.decode("latin-1")
+    result = check_text(text, control=chosen, name=str(file), machine=limits, library=None)
+    _print(result, str(file), json_output)
+    raise typer.Exit(0 if result.ok else 1)
+
+
+def _read(file: Path) -> bytes | None:
+    """The program's bytes; None when it is larger than the check reads.
+
+    Only a regular file is read: a device (``/dev/zero``) never ends and a FIFO may never
+    deliver, so both are usage errors rather than a hang or a read until memory runs out.
+    """
+    import os
+    import stat
+
+    from opendnc.nccheck.oversize import MAX_PROGRAM_BYTES
+
     try:
-        data = file.read_bytes()
+        # stat, not open: opening a FIFO blocks until a writer comes
+        mode = os.stat(file).st_mode
+        if not stat.S_ISREG(mode):
+            what = "a FIFO" if stat.S_ISFIFO(mode) else "a device or other special file"
+            raise typer.BadParameter(f"{file} is {what}, not a regular file", param_hint="'FILE'")
+        with open(file, "rb") as stream:
+            data = stream.read(MAX_PROGRAM_BYTES + 1)
     except OSError as exc:
         raise typer.BadParameter(
             f"cannot read {file}: {exc.strerror or exc}", param_hint="'FILE'"
         ) from None
-    # NC programs are 7-bit text; latin-1 never fails and keeps every byte's position
-    text = data.decode("latin-1")
-    result = check_text(text, control=chosen, name=str(file), machine=limits, library=None)
+    return None if len(data) > MAX_PROGRAM_BYTES else data
+
+
+def _print(result: CheckResult, name: str, json_output: bool) -> None:
     if json_output:
         sys.stdout.write(result.to_json() + "\n")
     else:
-        out = [problem.format(str(file)) for problem in result.problems]
+        out = [problem.format(name) for problem in result.problems]
         out.append(result.summary())
         sys.stdout.write("\n".join(out) + "\n")
     sys.stdout.flush()
-    raise typer.Exit(0 if result.ok else 1)

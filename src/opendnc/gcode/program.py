@@ -186,9 +186,15 @@ class _Parser:
         token = self.take()
         if token[0].isdigit() or token[0] == ".":
             try:
-                return Num(float(token))
+                value = float(token)
             except ValueError:
                 raise self.error(f"bad number {token!r}") from None
+            if not math.isfinite(value) or len(token) - token.count(".") > MAX_DIGITS:
+                # no control takes a word of this many digits (Fanuc and Haas take about 8);
+                # a longer one is a damaged file, and a float of it may overflow to infinity
+                shown = token if len(token) <= 12 else f"{token[:12]}... ({len(token)} digits)"
+                raise self.error(f"number {shown} is out of range")
+            return Num(value)
         if token == "#":
             return Var(self.primary())
         if token == "[":
@@ -406,11 +412,18 @@ _DPRNT = re.compile(r"^\s*DPRNT\s*\[", re.IGNORECASE)
 # one regular expression instead of the tokenizer; anything else takes the full parser.
 # Numbers are written so that a digit string splits one way only, and the repetition is
 # possessive: a long line that fails to match fails in linear time (no backtracking blow-up).
-_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++")
+MAX_DIGITS = 32
+"""Digits of a number word beyond which the parser refuses it (docs/check.md#g-code; Ours)."""
+
+# At most 32 digits a part: a longer number (a float may overflow to infinity) takes the full
+# parser, which refuses a value out of range with a typed error.
+_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++")
 _PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+(?:\.\d*)?|\.\d+))")
 # A whole line of plain words (``N120 G01 X1.5 Y-2. F300.``): the common case, parsed by one
 # match; literal numbers repeat a lot (G01, Z-1., F300.), so their Num values are shared.
-_PLAIN_LINE = re.compile(r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++)")
+_PLAIN_LINE = re.compile(
+    r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++)"
+)
 _NUMBERS: dict[str, Num] = {}
 
 
