@@ -8,6 +8,7 @@ otherwise (warnings allowed), 2 for a usage error (docs/check.md#command-line).
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -22,7 +23,10 @@ __all__ = ["check"]
 def check(
     file: Path = typer.Argument(..., help="The program to check.", dir_okay=False),
     control: str = typer.Option(
-        "", "--control", help="haas, heidenhain or iso (default: guessed from the text)."
+        "",
+        "--control",
+        help="haas, heidenhain, iso, or a G-code control: haas-mill, haas-lathe, fanuc-mill, "
+        "fanuc-lathe (default: guessed from the text).",
     ),
     machine: str = typer.Option(
         "", "--machine", help="Check against this machine of --config (family, travel, ...)."
@@ -33,27 +37,35 @@ def check(
     json_output: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ) -> None:
     """Dry-run an NC program: problems with their lines, tools, extents, estimated time."""
+    from opendnc.errors import InputError
     from opendnc.nccheck import Control, MachineLimits, check_text, limits_for
+    from opendnc.nccheck.dialects import DIALECTS, dialect_named
 
     chosen = None
+    dialect: str | None = None
     if control:
         try:
             chosen = Control(control.lower())
         except ValueError:
-            raise typer.BadParameter(
-                "expected haas, heidenhain or iso", param_hint="'--control'"
-            ) from None
+            try:  # a G-code control by name: haas-lathe, fanuc-mill, ...
+                dialect = dialect_named(control).name
+            except InputError:
+                names = ", ".join(("haas", "heidenhain", "iso", *DIALECTS))
+                raise typer.BadParameter(f"expected {names}", param_hint="'--control'") from None
+            chosen = Control.HAAS
     limits: MachineLimits | None = None
     if machine or config:
         if not (machine and config):
             raise typer.BadParameter("--machine and --config go together", param_hint="'--machine'")
-        from opendnc.errors import InputError
         from opendnc.server.config import load_config
 
         try:
             limits = limits_for(load_config(config).machine(machine))
         except InputError as exc:
             raise typer.BadParameter(str(exc), param_hint="'--machine'") from None
+    if dialect is not None:
+        # the named control wins over the machine's own control key
+        limits = replace(limits, dialect=dialect) if limits else MachineLimits(dialect=dialect)
     data = _read(file)
     if data is None:
         from opendnc.nccheck import guess_control

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from opendnc.errors import InputError
 from opendnc.gcode.program import (
@@ -1283,7 +1283,7 @@ class _Run:
                             "control's own macros)",
                         )
                     )
-        return self.path.result(
+        result = self.path.result(
             self.control,
             self.name,
             problems,
@@ -1304,6 +1304,7 @@ class _Run:
                 ended=self.ended,
             ),
         )
+        return result if self.iso else replace(result, dialect=self.dialect.name)
 
 
 def _capped(problems: list[Problem]) -> list[Problem]:
