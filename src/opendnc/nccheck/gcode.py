@@ -1224,8 +1224,10 @@ class _Run:
         if program is not None:
             return program
         name = f"O{number:05d}"
+        if number in self.missing:
+            return None  # reported at its first call: one warning per missing program
         text = None
-        if self.library is not None and number not in self.missing:
+        if self.library is not None:
             try:
                 text = self.library(name)
             except Exception:  # a library callback must not break the dry run
