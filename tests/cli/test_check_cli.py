@@ -218,3 +218,44 @@ def test_an_overflowing_number_is_an_error_also_in_json(tmp_path: Path, word: st
     assert status == 1
     problems = json.loads(output)["problems"]
     assert [(p["line"], p["severity"]) for p in problems] == [(4, "error")]
+
+
+def test_rapid_rate_and_control_are_machine_keys(tmp_path: Path) -> None:
+    from opendnc.nccheck import limits_for
+
+    text = (
+        '[[machines]]\nname = "st20"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+        'rapid_rate = 400.0\ncontrol = "haas-lathe"\n'
+    )
+    limits = limits_for(parse_config(text, base=tmp_path).machine("st20"))
+    assert (limits.rapid_rate, limits.dialect) == (400.0, "haas-lathe")
+    # the rapid rate is what the time estimate takes: 100 units at 400 per minute is 15 s
+    from opendnc.nccheck import check_text
+
+    program = "%\nO01000\nG21\nG00 X0. Y0. Z0.\nG00 Z100.\nM30\n%\n"
+    assert check_text(program, machine=limits).cycle_time_s == pytest.approx(15.0)
+
+
+@pytest.mark.parametrize(
+    ("line", "key"),
+    [
+        ('control = "okuma"', "machines[0].control"),
+        ("rapid_rate = 0", "machines[0].rapid_rate"),
+        ('rapid_rate = "fast"', "machines[0].rapid_rate"),
+    ],
+)
+def test_bad_check_keys_name_the_key(tmp_path: Path, line: str, key: str) -> None:
+    text = f'[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n{line}\n'
+    with pytest.raises(InputError) as caught:
+        parse_config(text, base=tmp_path)
+    assert str(caught.value).startswith(f"{key}: ")
+
+
+def test_the_control_option_takes_a_dialect() -> None:
+    path = Path(__file__).resolve().parents[1] / "data" / "nccheck" / "corpus" / "gcode"
+    status, output = run_in_process(path / "fanuc_lathe.nc", "--control", "fanuc-lathe")
+    assert status == 0
+    assert "; fanuc-lathe, 4 tools" in output
+    status, output = run_in_process(path / "fanuc_lathe.nc", "--control", "haas-mill")
+    assert status == 1
+    assert "G96 is not a G code of the Haas mill control" in output
