@@ -1236,7 +1236,10 @@ class _Run:
             self.missing.add(number)  # asked once: a loop of calls does not ask again
             self.report(line, Severity.WARNING, f"calls {name}, which is not in the library")
             return None
-        body = _Run(text, self.control, name, None, None, self.budget)
+        # the called program is read with the caller's dialect (a lathe sub of a lathe job)
+        body = _Run(
+            text, self.control, name, MachineLimits(dialect=self.dialect.name), None, self.budget
+        )
         for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
         main = body.main
