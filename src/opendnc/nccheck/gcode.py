@@ -76,6 +76,7 @@ _ARGUMENTS = {
 }  # fmt: skip
 _MAX_NESTING = 20
 _AXES = "XYZ"
+_FAST_LETTERS = frozenset("XYZF")
 MAX_PROBLEMS = 200
 """Problems a result lists; the rest are counted in one last problem (docs/check.md#g-code)."""
 _LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): Ours
@@ -583,6 +584,31 @@ class _Run:
 
     # ------------------------------------------------------------------ words
     def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
+        motion = self.motion
+        if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
+            # the bulk of CAM output: X/Y/Z (and F) in G00/G01; the same as _apply does for
+            # it, without its lists and checks of every other word
+            fast: dict[str, float] = {}
+            code = None
+            for letter, value in words:
+                if letter in _FAST_LETTERS:
+                    fast[letter] = value
+                elif letter == "G" and (value == 0.0 or value == 1.0) and code is None:
+                    code = value
+                else:
+                    break
+            else:
+                if code is not None:
+                    self.motion = motion = code
+                self.prev_end = self.w  # _move_to replaces self.w: this keeps the old one
+                self.block_words = fast
+                if "F" in fast:
+                    self.feed = fast["F"]
+                    self.path.feed_rate(self.feed)
+                if "X" in fast or "Y" in fast or "Z" in fast:
+                    work, machine = self._target(fast)
+                    self._move_to(work, machine, line, motion == 0.0)
+                return
         g: list[float] = []
         m: list[float] = []
         v: dict[str, float] = {}
