@@ -818,6 +818,8 @@ class _Run:
             return
         factor = 25.4 if units is Units.MM else 1 / 25.4
         self.path.scale_travel(factor)
+        if machine.rapid_rate:  # given in the travel's units too
+            self.path.rapid_rate = machine.rapid_rate * factor
         for number, value in self.configured.items():
             if self.globals.get(number) == value:  # not set by the program since
                 self.globals[number] = value * factor

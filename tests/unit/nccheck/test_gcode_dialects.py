@@ -7,7 +7,7 @@ import math
 import pytest
 
 from opendnc.errors import InputError
-from opendnc.nccheck import Budget, CheckResult, MachineLimits, Severity, check_text
+from opendnc.nccheck import Budget, CheckResult, MachineLimits, Severity, Units, check_text
 from opendnc.nccheck.dialects import DIALECTS, dialect_named, guess_dialect
 from opendnc.nccheck.gcode import MAX_PROBLEMS
 
@@ -139,3 +139,13 @@ def test_a_title_comment_before_the_leading_percent_is_not_the_program() -> None
 def test_one_message_per_missing_called_program() -> None:
     result = run("G65 P9810 Z10.\nG65 P9810 Z20.\nM30")
     assert messages(result) == [(3, "warning", "calls O09810, which is not in the library")]
+
+
+def test_the_rapid_rate_is_taken_in_the_travel_units() -> None:
+    # 1000 in/min is 25,400 mm/min: 254 mm of rapid take 0.6 s
+    machine = MachineLimits(rapid_rate=1000.0, travel={"Z": (-500.0, 500.0)}, travel_units=None)
+    inch = MachineLimits(rapid_rate=1000.0, travel={"Z": (-20.0, 20.0)}, travel_units=Units.INCH)
+    text = "%\nO01000\nG21\nG00 X0. Y0. Z0.\nG00 Z254.\nM30\n%\n"
+    assert check_text(text, machine=inch).cycle_time_s == pytest.approx(0.6)
+    # without units the rate is in the program's: 1000 mm/min, 15.24 s
+    assert check_text(text, machine=machine).cycle_time_s == pytest.approx(15.24)
