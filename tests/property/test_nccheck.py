@@ -154,3 +154,37 @@ def test_long_plain_lines_stay_fast(words: list[str], tail: str) -> None:
     line = " ".join(words) + tail
     text = f"%\nO1\n{line}\nM30\n%\n"
     assert_well_formed(checked(text, Control.HAAS, None), text)
+
+
+_bracketed = st.recursive(
+    st.sampled_from(["1", "#1", "2.5", "SIN[30.]"]),
+    lambda inner: st.one_of(
+        st.builds(lambda a, b: f"[{a} + {b}]", inner, inner),
+        st.builds(lambda a: f"ABS[{a}]", inner),
+    ),
+    max_leaves=6,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_bracketed, st.data(), st.sampled_from(["", "N10 ", "/ ", "(NOTE) "]))
+def test_a_missing_bracket_names_the_column_of_its_opening(
+    expression: str, data: st.DataObject, prefix: str
+) -> None:
+    from opendnc.errors import InputError
+    from opendnc.gcode.program import parse_block
+
+    closing = [i for i, c in enumerate(expression) if c == "]"]
+    if not closing:
+        return
+    cut = data.draw(st.sampled_from(closing))
+    line = f"{prefix}#100 = {expression[:cut]}{expression[cut + 1 :]}"
+    try:
+        parse_block(line)
+    except InputError as exc:
+        message = str(exc)
+        assert "missing ']' to close the '[' at column " in message
+        column = int(message.split(" at column ")[1].split()[0])
+        assert line[column - 1] == "["
+    else:
+        raise AssertionError(f"{line!r} parsed")
