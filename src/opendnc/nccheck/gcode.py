@@ -786,10 +786,12 @@ class _Run:
         elif code in codes.LATHE_CONTOUR:
             return code
         elif code in codes.LATHE_NOT_DRAWN:
+            self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
             if code in (90.0, 92.0, 94.0):
                 self.motion = code  # modal single cycles (group 01)
                 self.cycle = None
-            self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
+            else:
+                return code  # G74-G76: X/Z are the cycle's end point; the tool comes back
         elif code == 32:
             self.motion = 1.0  # threading: a straight feed move at F per revolution (lead)
             self.cycle = None

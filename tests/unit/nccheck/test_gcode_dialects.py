@@ -149,3 +149,17 @@ def test_the_rapid_rate_is_taken_in_the_travel_units() -> None:
     assert check_text(text, machine=inch).cycle_time_s == pytest.approx(0.6)
     # without units the rate is in the program's: 1000 mm/min, 15.24 s
     assert check_text(text, machine=machine).cycle_time_s == pytest.approx(15.24)
+
+
+def test_lathe_cycles_bring_the_tool_back() -> None:
+    # G74-G76 and the single cycles G90/G92/G94 end where they started: their X/Z are the
+    # cycle's end point, not a move
+    body = (
+        "G21 G99\nT0101\nG97 S800 M03\nG00 X40. Z5.\n"
+        "G76 P020060 Q100 R0.05\nG76 X33.8 Z-18. P1100 Q350 F1.75\n"
+        "G74 Z-30. Q5000 F0.1\nG90 X30. Z-20. F0.2\nX28.\nG00 X40. Z5.\nM30"
+    )
+    result = run(body, "fanuc-lathe")
+    assert result.errors == ()
+    assert result.extents["Z"] == (5.0, 5.0)
+    assert result.end.position == {"X": 20.0, "Y": 0.0, "Z": 5.0}
