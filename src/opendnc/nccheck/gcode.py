@@ -77,6 +77,11 @@ _ARGUMENTS = {
 _MAX_NESTING = 20
 _AXES = "XYZ"
 _FAST_LETTERS = frozenset("XYZF")
+# G31 skip (probe) moves, G36 work offset and G37 tool length measurement: feed moves
+# made with the spindle stopped on purpose (Haas mill, Fanuc M)
+_PROBE_MOVES = frozenset((31.0, 36.0, 37.0))
+# non-modal codes that decide a block's motion themselves (Haas / Fanuc; not Heidenhain ISO)
+_SPECIAL = frozenset((10.0, 28.0, 53.0, 65.0, 92.0, 52.0)) | _PROBE_MOVES
 MAX_PROBLEMS = 200
 """Problems a result lists; the rest are counted in one last problem (docs/check.md#g-code)."""
 _LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): Ours
@@ -730,7 +735,7 @@ class _Run:
                     raise InputError(f"G{code:g} P{number}: work offsets are P1 to P{top}")
                 self.work_offset = 109.0 + number if number <= 20 else 1000.0 + number
                 self._offsets()
-            elif code == 4 or (code in (10, 28, 53, 65, 92, 52) and not self.iso):
+            elif code == 4 or (code in _SPECIAL and not self.iso):
                 special = code
             elif code in codes.NOT_DRAWN_G and not self.iso:
                 self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
@@ -879,6 +884,12 @@ class _Run:
                     if letter in v:
                         self.globals[5201 + axis] = v[letter]
                 self._offsets()
+            elif special in _PROBE_MOVES:
+                # a probe or tool-setter move (skip): the spindle is stopped on purpose
+                work, machine = self._target(v)
+                running, self.spindle_on = self.spindle_on, True
+                self._move_to(work, machine, line, rapid=False)
+                self.spindle_on = running
             elif special == 92:
                 w, _m = self._target(v)
                 for axis, letter in enumerate(_AXES):
@@ -1240,6 +1251,11 @@ class _Run:
         else:
             found = self._find(number, line)
             if found is None:
+                # what the missing program does is not known: it may start the spindle (a
+                # shop's tool change macro), so a cut after it is not reported as one with
+                # the spindle stopped (the call is a warning already)
+                self.spindle_on = True
+                self.stopped_cut_reported = False
                 return
             program, index = found, 0
         if kind == "g65":

@@ -163,3 +163,15 @@ def test_lathe_cycles_bring_the_tool_back() -> None:
     assert result.errors == ()
     assert result.extents["Z"] == (5.0, 5.0)
     assert result.end.position == {"X": 20.0, "Y": 0.0, "Z": 5.0}
+
+
+def test_probe_moves_are_made_with_the_spindle_stopped() -> None:
+    body = MILL + "G31 Z-10. F500.\nG00 Z5.\nM30"
+    assert run(body).errors == ()
+
+
+def test_a_missing_called_program_may_have_started_the_spindle() -> None:
+    body = MILL + "G65 P9000 T2 (THE SHOP'S TOOL CHANGE MACRO)\nG01 Z-1. F300.\nM30"
+    result = run(body)
+    assert result.errors == ()
+    assert [p.message for p in result.warnings] == ["calls O09000, which is not in the library"]
