@@ -10,13 +10,22 @@ alongside.
 
     .venv/bin/python benchmarks/check.py            # 100,000 blocks, best of 3
     .venv/bin/python benchmarks/check.py --blocks 20000 --runs 1
+    .venv/bin/python benchmarks/check.py --large 1000000   # one G-code run, CPU and peak RSS
+
+``--large N`` (:func:`gcode_large`) checks one generated G-code program of N blocks in a
+child process, as ``opendnc check`` does (the default budget), and prints its CPU time, its
+peak resident memory, the blocks checked and whether the run reached the program's end.
+Target (issue 31): 1,000,000 blocks checked to the end in under 5 s of CPU and 300 MiB.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -98,11 +107,64 @@ def best(path: Path, control: Control, runs: int) -> tuple[float, float, float, 
     return read_best, wall_best, cpu_best, blocks, problems
 
 
+LARGE_CPU_S = 5.0
+LARGE_RSS_MIB = 300.0
+
+
+def _large_child(path: str) -> None:
+    """In the child: read and check ``path`` with the default budget; print JSON figures."""
+    import resource
+
+    started = time.process_time()
+    text = Path(path).read_bytes().decode("latin-1")
+    result = check_text(text, name=Path(path).name)
+    cpu = time.process_time() - started
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    errors = [p.message for p in result.errors]
+    print(json.dumps({"cpu": cpu, "rss": peak, "blocks": result.blocks, "ended": result.end.ended,
+                      "errors": errors[:3], "moves": len(result.moves)}))  # fmt: skip
+
+
+def gcode_large(blocks: int) -> None:
+    """One G-code program of ``blocks`` blocks, checked in a child process: CPU, peak RSS."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "large.nc"
+        path.write_text(gcode_program(blocks), "ascii")
+        size = path.stat().st_size
+        done = subprocess.run(
+            [sys.executable, __file__, "--large-child", str(path)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    figures = json.loads(done.stdout)
+    print(
+        f"gcode      {blocks:,} blocks ({size / 1e6:.1f} MB): {figures['blocks']:,} blocks "
+        f"checked, ended {figures['ended']}, {figures['cpu']:.2f} s CPU, peak RSS "
+        f"{figures['rss']:.0f} MiB, {figures['moves']:,} moves kept"
+    )
+    if figures["errors"]:
+        print(f"{'':10s} errors: {figures['errors']}")
+    print(
+        f"{'':10s} target {LARGE_CPU_S:g} s CPU: "
+        f"{'met' if figures['cpu'] < LARGE_CPU_S and figures['ended'] else 'MISSED'}; "
+        f"{LARGE_RSS_MIB:g} MiB: {'met' if figures['rss'] < LARGE_RSS_MIB else 'MISSED'}"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blocks", type=int, default=100_000)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--large", type=int, default=0, help="one G-code run of this many blocks")
+    parser.add_argument("--large-child", default="", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.large_child:
+        _large_child(args.large_child)
+        return
+    if args.large:
+        gcode_large(args.large)
+        return
     with tempfile.TemporaryDirectory() as folder:
         for control, make, suffix in (
             (Control.HAAS, gcode_program, ".nc"),

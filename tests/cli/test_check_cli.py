@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -75,7 +76,7 @@ def test_the_control_can_be_forced() -> None:
 @pytest.mark.parametrize(
     "args",
     [
-        ["--control", "fanuc"],
+        ["--control", "okuma"],
         ["--machine", "vf2"],
         ["--config", "shop.toml"],
     ],
@@ -149,3 +150,112 @@ def test_bad_travel_keys_name_the_key(tmp_path: Path, line: str, key: str) -> No
     with pytest.raises(InputError) as caught:
         parse_config(text, base=tmp_path)
     assert str(caught.value).startswith(f"{key}: ")
+
+
+# --------------------------------------------------------------------------- what it reads
+
+
+def run_in_process(*args: str | Path) -> tuple[int, str]:
+    """The command in this process (cheaper than a subprocess): exit status and output."""
+    from typer.testing import CliRunner
+
+    from opendnc.cli.main import app
+
+    done = CliRunner().invoke(app, ["check", *map(str, args)])
+    return done.exit_code, done.output
+
+
+def test_a_fifo_is_refused_at_once(tmp_path: Path) -> None:
+    fifo = tmp_path / "program.nc"
+    os.mkfifo(fifo)  # nobody writes: opening it for reading would block forever
+    done = check(fifo)  # the subprocess's timeout fails the test if it blocks
+    assert done.returncode == 2
+    assert "is a FIFO, not a regular file" in done.stderr
+    assert done.stdout == ""
+
+
+def _one_gib_of_memory() -> None:
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
+
+
+def test_a_device_is_refused_rather_than_read_until_memory_runs_out() -> None:
+    # a subprocess with 1 GiB of address space: reading /dev/zero ends in MemoryError, not in
+    # the test run being killed
+    done = subprocess.run(
+        [*CLI, "/dev/zero"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        preexec_fn=_one_gib_of_memory,
+    )
+    assert done.returncode == 2, done.stderr[-300:]
+    assert "is a device or other special file" in done.stderr
+
+
+def test_a_program_larger_than_the_check_reads_is_an_error(tmp_path: Path) -> None:
+    from opendnc.nccheck.oversize import MAX_PROGRAM_BYTES
+
+    big = tmp_path / "O01000.nc"
+    block = b"G01 X1. Y1. F100.\n"
+    big.write_bytes(b"%\nO01000\n" + block * (MAX_PROGRAM_BYTES // len(block) + 1) + b"M30\n%\n")
+    status, output = run_in_process(big)
+    assert status == 1
+    assert f"{big}:1: error: not checked: 16.8 MB is more than the check reads (16 MiB)" in output
+
+
+@pytest.mark.parametrize("word", ["S", "F"])
+def test_an_overflowing_number_is_an_error_also_in_json(tmp_path: Path, word: str) -> None:
+    program = tmp_path / "O01000.nc"
+    digits = "9" * 309  # float() of it is infinity
+    program.write_text(f"%\nO01000\nG21 G90 G17\n{word}{digits} M03\nM30\n%\n", "ascii")
+    status, output = run_in_process(program)
+    assert status == 1
+    assert f"{program}:4: error: number 999999999999... (309 digits) is out of range" in output
+    status, output = run_in_process(program, "--json")
+    assert status == 1
+    problems = json.loads(output)["problems"]
+    assert [(p["line"], p["severity"]) for p in problems] == [(4, "error")]
+
+
+def test_rapid_rate_and_control_are_machine_keys(tmp_path: Path) -> None:
+    from opendnc.nccheck import limits_for
+
+    text = (
+        '[[machines]]\nname = "st20"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n'
+        'rapid_rate = 400.0\ncontrol = "haas-lathe"\n'
+    )
+    limits = limits_for(parse_config(text, base=tmp_path).machine("st20"))
+    assert (limits.rapid_rate, limits.dialect) == (400.0, "haas-lathe")
+    # the rapid rate is what the time estimate takes: 100 units at 400 per minute is 15 s
+    from opendnc.nccheck import check_text
+
+    program = "%\nO01000\nG21\nG00 X0. Y0. Z0.\nG00 Z100.\nM30\n%\n"
+    assert check_text(program, machine=limits).cycle_time_s == pytest.approx(15.0)
+
+
+@pytest.mark.parametrize(
+    ("line", "key"),
+    [
+        ('control = "okuma"', "machines[0].control"),
+        ("rapid_rate = 0", "machines[0].rapid_rate"),
+        ('rapid_rate = "fast"', "machines[0].rapid_rate"),
+    ],
+)
+def test_bad_check_keys_name_the_key(tmp_path: Path, line: str, key: str) -> None:
+    text = f'[[machines]]\nname = "vf2"\nkind = "haas_ngc"\nhost = "127.0.0.1"\n{line}\n'
+    with pytest.raises(InputError) as caught:
+        parse_config(text, base=tmp_path)
+    assert str(caught.value).startswith(f"{key}: ")
+
+
+def test_the_control_option_takes_a_dialect() -> None:
+    path = Path(__file__).resolve().parents[1] / "data" / "nccheck" / "corpus" / "gcode"
+    status, output = run_in_process(path / "fanuc_lathe.nc", "--control", "fanuc-lathe")
+    assert status == 0
+    assert "; fanuc-lathe, 4 tools" in output
+    status, output = run_in_process(path / "fanuc_lathe.nc", "--control", "haas-mill")
+    assert status == 1
+    assert "G96 is not a G code of the Haas mill control" in output

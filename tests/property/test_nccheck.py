@@ -33,6 +33,14 @@ gcode_lines = st.sampled_from(
         "G04 P1.", "G10 L2 P1 X1.", "G52 X1.", "G92 X0", "G12", "G65", "M97", "X", "G",
         "DPRNT[X#5041[44]]", "POPEN", "(COMMENT", "/G00 X1.", "G1X1.Y2.Z3.F4.",
         "#1 = #1 + [", "G95 F0.1", "G93 F2.", "G73 Z-2. R1. Q0.5 L3",
+        # Fanuc and lathe words (dialects), overflowing numbers, unset variables
+        "G71 U2. R0.5", "G71 P10 Q20 U0.5 W0.1 F0.3", "G70 P10 Q20", "G70 P20 Q10",
+        "N20 X5.", "G96 S200", "G97 S500", "G50 S3000", "G50 X10. Z1.", "T0101",
+        "G01 U-2. W-5. F0.2", "G54.1 P2", "G54.1 P400", "M29 S500", "G84 Z-5. R1. F1.",
+        "G41 D1 X1.", "G42 G02 X1. R1.", "G40 G02 X1. R1.", "G43 Z1.", "#3001 = 0",
+        "S" + "9" * 320, "F1" + "0" * 40 + ".5", "#1 = 1 / #7", "#[#9] = 2",
+        "G76 X1. Z-1. K0.1 D0.1 F1.", "G90 X10. Z-5. F0.2", "G83 Z-5. R1.", "G32 W-10. F1.5",
+        "IF [#1 GT [2 GOTO 10", "#3000 = 2000",
     ]
 )  # fmt: skip
 klartext_lines = st.sampled_from(
@@ -80,7 +88,9 @@ def checked(text: str, control: Control | None, machine: MachineLimits | None) -
 
 
 controls = st.sampled_from([None, Control.HAAS, Control.HEIDENHAIN, Control.ISO])
-machines = st.sampled_from([None, LIMITS])
+machines = st.sampled_from(
+    [None, LIMITS, MachineLimits(dialect="fanuc-lathe"), MachineLimits(dialect="haas-mill")]
+)
 
 
 @settings(max_examples=150, deadline=None)
@@ -144,3 +154,37 @@ def test_long_plain_lines_stay_fast(words: list[str], tail: str) -> None:
     line = " ".join(words) + tail
     text = f"%\nO1\n{line}\nM30\n%\n"
     assert_well_formed(checked(text, Control.HAAS, None), text)
+
+
+_bracketed = st.recursive(
+    st.sampled_from(["1", "#1", "2.5", "SIN[30.]"]),
+    lambda inner: st.one_of(
+        st.builds(lambda a, b: f"[{a} + {b}]", inner, inner),
+        st.builds(lambda a: f"ABS[{a}]", inner),
+    ),
+    max_leaves=6,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_bracketed, st.data(), st.sampled_from(["", "N10 ", "/ ", "(NOTE) "]))
+def test_a_missing_bracket_names_the_column_of_its_opening(
+    expression: str, data: st.DataObject, prefix: str
+) -> None:
+    from opendnc.errors import InputError
+    from opendnc.gcode.program import parse_block
+
+    closing = [i for i, c in enumerate(expression) if c == "]"]
+    if not closing:
+        return
+    cut = data.draw(st.sampled_from(closing))
+    line = f"{prefix}#100 = {expression[:cut]}{expression[cut + 1 :]}"
+    try:
+        parse_block(line)
+    except InputError as exc:
+        message = str(exc)
+        assert "missing ']' to close the '[' at column " in message
+        column = int(message.split(" at column ")[1].split()[0])
+        assert line[column - 1] == "["
+    else:
+        raise AssertionError(f"{line!r} parsed")

@@ -231,14 +231,14 @@ def test_errors_block_a_release_unless_overridden(app: App) -> None:
     assert clean.status_code == 200
 
 
-def test_a_program_larger_than_the_check_reads_is_a_warning(
+def test_a_program_larger_than_the_check_reads_is_an_error(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(program_checks, "CHECK_BYTES", 100)
     result = program_checks.run("BIG.nc", CLEAN * 10, None)
-    assert result.ok
-    assert len(result.warnings) == 1
-    assert "not checked" in result.warnings[0].message
+    assert not result.ok  # not checked must never pass: it would release and send unchecked
+    assert len(result.errors) == 1
+    assert "not checked" in result.errors[0].message
     # under the bound the same text is run
     assert program_checks.run("BIG.nc", CLEAN, None).problems == ()
 

@@ -97,16 +97,29 @@ _TOKEN = re.compile(r"\s*(?:(\d+(?:\.\d*)?|\.\d+)|([A-Z]+)|(.))")
 
 def tokenize(text: str) -> list[str]:
     """Split upper-case block text into numbers, words and single characters."""
+    return _tokens_at(text)[0]
+
+
+def _tokens_at(text: str) -> tuple[list[str], list[int]]:
+    """The tokens of :func:`tokenize` and the 0-based column where each starts (a word
+    split into single letters gives each letter its own column)."""
     tokens: list[str] = []
+    columns: list[int] = []
     for match in _TOKEN.finditer(text):
         number, word, char = match.groups()
         if number is not None:
             tokens.append(number)
+            columns.append(match.start(1))
         elif word is not None:
-            tokens.extend(_split_word(word))
+            at = match.start(2)
+            for part in _split_word(word):
+                tokens.append(part)
+                columns.append(at)
+                at += len(part)
         elif char is not None and not char.isspace():
             tokens.append(char)
-    return tokens
+            columns.append(match.start(3))
+    return tokens, columns
 
 
 def _split_word(word: str) -> list[str]:
@@ -120,10 +133,14 @@ def _split_word(word: str) -> list[str]:
 
 
 class _Parser:
-    def __init__(self, tokens: list[str], source: str) -> None:
+    def __init__(
+        self, tokens: list[str], source: str, columns: list[int] | None = None, base: int = 0
+    ) -> None:
         self.tokens = tokens
         self.pos = 0
         self.source = source
+        self.columns = columns
+        self.base = base  # column of the parsed text's first character in the source line
 
     def error(self, what: str) -> InputError:
         return InputError(f"{what} in block {self.source!r}")
@@ -143,6 +160,18 @@ class _Parser:
         got = self.take()
         if got != token:
             raise self.error(f"expected {token!r}, found {got!r}")
+
+    def close(self, opened: int) -> None:
+        """Expect the ``]`` that closes the ``[`` at token index ``opened``."""
+        found = self.peek()
+        if found == "]":
+            self.pos += 1
+            return
+        where = ""
+        if self.columns is not None:
+            where = f" at column {self.base + self.columns[opened] + 1}"
+        after = f" (found {found!r})" if found is not None else ""
+        raise self.error(f"missing ']' to close the '['{where}{after}")
 
     def at_end(self) -> bool:
         return self.pos >= len(self.tokens)
@@ -186,24 +215,33 @@ class _Parser:
         token = self.take()
         if token[0].isdigit() or token[0] == ".":
             try:
-                return Num(float(token))
+                value = float(token)
             except ValueError:
                 raise self.error(f"bad number {token!r}") from None
+            if not math.isfinite(value) or len(token) - token.count(".") > MAX_DIGITS:
+                # no control takes a word of this many digits (Fanuc and Haas take about 8);
+                # a longer one is a damaged file, and a float of it may overflow to infinity
+                shown = token if len(token) <= 12 else f"{token[:12]}... ({len(token)} digits)"
+                raise self.error(f"number {shown} is out of range")
+            return Num(value)
         if token == "#":
             return Var(self.primary())
         if token == "[":
+            opened = self.pos - 1
             inner = self.expression()
-            self.expect("]")
+            self.close(opened)
             return inner
         if token in FUNCTIONS:
+            opened = self.pos
             self.expect("[")
             arg = self.expression()
-            self.expect("]")
+            self.close(opened)
             if token == "ATAN" and self.peek() == "/" and self.peek(1) == "[":
                 self.take()
+                opened = self.pos
                 self.take()
                 second = self.expression()
-                self.expect("]")
+                self.close(opened)
                 return Func(token, (arg, second))
             return Func(token, (arg,))
         raise self.error(f"unexpected {token!r} in expression")
@@ -247,6 +285,10 @@ def evaluate(expr: Expr, lookup: Lookup) -> float | None:
         result = a * b
     elif op in ("/", "MOD"):
         if b == 0:
+            unset = unset_variables(expr.right, lookup)
+            if unset:
+                names = ", ".join(f"#{n}" for n in unset)
+                raise InputError(f"division by zero: {names} {_is_are(unset)} unset (null)")
             raise InputError("division by zero in macro expression")
         result = a / b if op == "/" else math.fmod(a, b)
     elif op in COMPARISONS:
@@ -257,6 +299,37 @@ def evaluate(expr: Expr, lookup: Lookup) -> float | None:
     if not math.isfinite(result):
         raise InputError(f"macro expression overflowed ({op})")
     return result
+
+
+def unset_variables(expr: Expr, lookup: Lookup) -> tuple[int, ...]:
+    """The variables ``expr`` reads that hold the null value (for messages that name the
+    cause of a zero, rather than the zero)."""
+    found: list[int] = []
+
+    def walk(node: Expr) -> None:
+        if isinstance(node, Var):
+            walk(node.index)
+            try:
+                number = variable_number(node.index, lookup)
+            except InputError:
+                return
+            if number != 0 and lookup(number) is None and number not in found:
+                found.append(number)
+        elif isinstance(node, Unary):
+            walk(node.operand)
+        elif isinstance(node, Binary):
+            walk(node.left)
+            walk(node.right)
+        elif isinstance(node, Func):
+            for arg in node.args:
+                walk(arg)
+
+    walk(expr)
+    return tuple(found)
+
+
+def _is_are(names: tuple[int, ...]) -> str:
+    return "is" if len(names) == 1 else "are"
 
 
 def _num(value: float | None) -> float:
@@ -406,11 +479,18 @@ _DPRNT = re.compile(r"^\s*DPRNT\s*\[", re.IGNORECASE)
 # one regular expression instead of the tokenizer; anything else takes the full parser.
 # Numbers are written so that a digit string splits one way only, and the repetition is
 # possessive: a long line that fails to match fails in linear time (no backtracking blow-up).
-_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++")
+MAX_DIGITS = 32
+"""Digits of a number word beyond which the parser refuses it (docs/check.md#g-code; Ours)."""
+
+# At most 32 digits a part: a longer number (a float may overflow to infinity) takes the full
+# parser, which refuses a value out of range with a typed error.
+_PLAIN_BLOCK = re.compile(r"(?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++")
 _PLAIN_WORD = re.compile(r"([A-Z])([+-]?(?:\d+(?:\.\d*)?|\.\d+))")
 # A whole line of plain words (``N120 G01 X1.5 Y-2. F300.``): the common case, parsed by one
 # match; literal numbers repeat a lot (G01, Z-1., F300.), so their Num values are shared.
-_PLAIN_LINE = re.compile(r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d+(?:\.\d*)?|\.\d+) *)++)")
+_PLAIN_LINE = re.compile(
+    r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++)"
+)
 _NUMBERS: dict[str, Num] = {}
 
 
@@ -451,29 +531,36 @@ def parse_block(line: str) -> Block:
     body = source.lstrip()
     if body.strip() == "%":  # tape delimiter inside a stream: nothing to execute
         return Block(source)
+    base = len(source) - len(body)  # where body starts in the line, for error columns
     deleted = body.startswith("/")
     if deleted:
         body = body[1:]
+        base += 1
     number = None
     if match := _N_WORD.match(body):
         number = int(match.group(1))
         body = body[match.end() :]
+        base += match.end()
     if _DPRNT.match(body):
         # DPRNT text is kept as written: its own case and parentheses-free text rules
         return Block(source, number, deleted, Dprnt(dprnt.parse_statement(body)))
-    code = _COMMENT.sub(" ", body).upper().strip().rstrip(";").strip()
-    statement = _parse_statement(code, source) if code else Words(())
+    # comments become blanks of their own length, so columns stay those of the line
+    masked = _COMMENT.sub(lambda m: " " * len(m.group()), body).upper()
+    code = masked.strip().rstrip(";").strip()
+    base += len(masked) - len(masked.lstrip())
+    statement = _parse_statement(code, source, base) if code else Words(())
     return Block(source, number, deleted, statement)
 
 
-def _parse_statement(code: str, source: str) -> Statement:
+def _parse_statement(code: str, source: str, base: int = 0) -> Statement:
     if _PLAIN_BLOCK.fullmatch(code):
         return Words(
             tuple((letter, Num(float(value))) for letter, value in _PLAIN_WORD.findall(code))
         )
     if code in ("POPEN", "PCLOS"):
         return PortControl(code == "POPEN")
-    parser = _Parser(tokenize(code), source)
+    tokens, columns = _tokens_at(code)
+    parser = _Parser(tokens, source, columns, base)
     first = parser.peek()
     if first == "#":
         assign = _assignment(parser)
@@ -528,9 +615,10 @@ def _assignment(parser: _Parser) -> Assign:
 
 
 def _bracketed(parser: _Parser) -> Expr:
+    opened = parser.pos
     parser.expect("[")
     inner = parser.expression()
-    parser.expect("]")
+    parser.close(opened)
     return inner
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from opendnc.errors import InputError
 from opendnc.gcode.program import (
@@ -35,11 +35,13 @@ from opendnc.gcode.program import (
     evaluate,
     parse_block,
     parse_plain,
+    unset_variables,
     variable_number,
 )
 from opendnc.haas import macros
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
+from opendnc.nccheck.dialects import Dialect, dialect_named, guess_dialect
 from opendnc.nccheck.limits import MachineLimits, offset_key
 from opendnc.nccheck.path import (
     RAPID_MM_PER_MIN,
@@ -74,6 +76,16 @@ _ARGUMENTS = {
 }  # fmt: skip
 _MAX_NESTING = 20
 _AXES = "XYZ"
+_FAST_LETTERS = frozenset("XYZF")
+# G31 skip (probe) moves, G36 work offset and G37 tool length measurement: feed moves
+# made with the spindle stopped on purpose (Haas mill, Fanuc M)
+_PROBE_MOVES = frozenset((31.0, 36.0, 37.0))
+# non-modal codes that decide a block's motion themselves (Haas / Fanuc; not Heidenhain ISO)
+_SPECIAL = frozenset((10.0, 28.0, 53.0, 65.0, 92.0, 52.0)) | _PROBE_MOVES
+MAX_PROBLEMS = 200
+"""Problems a result lists; the rest are counted in one last problem (docs/check.md#g-code)."""
+_LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): Ours
+_COMMENT_ONLY = re.compile(r"^(?:\([^)]*\)\s*)+$")
 
 
 class _Stop(Exception):
@@ -97,7 +109,7 @@ class _Frame:
     program: _Program
     pc: int
     locals: dict[int, float]
-    kind: str  # main, m97, m98, g65
+    kind: str  # main, m97, m98, g65, cycle (a lathe contour P..Q)
     call_line: int  # file line of the outermost call (the main program's line)
     repeat: int = 1
     start: int = 0
@@ -110,6 +122,7 @@ class _Cycle:
     r: float | None = None  # R plane, absolute work Z
     initial: float | None = None
     dwell: float = 0.0
+    peck_checked: bool = False
 
 
 class _Run:
@@ -129,8 +142,11 @@ class _Run:
         self.library = library
         self.budget = budget
         self.problems: dict[tuple[int, str], Problem] = {}
-        self.g_codes = codes.ISO_G if self.iso else codes.HAAS_G
-        self.m_codes = codes.HEIDENHAIN_M if self.iso else codes.HAAS_M
+        named = machine.dialect if machine is not None else None
+        self.dialect: Dialect = dialect_named(named) if named else guess_dialect(text)
+        self.lathe = self.dialect.lathe and not self.iso
+        self.g_codes = codes.ISO_G if self.iso else self.dialect.g_codes
+        self.m_codes = codes.HEIDENHAIN_M if self.iso else self.dialect.m_codes
         travel = dict(machine.travel) if machine and machine.travel else None
         rapid = (machine.rapid_rate if machine else None) or RAPID_MM_PER_MIN
         self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
@@ -144,13 +160,22 @@ class _Run:
         # modal state
         self.units: Units | None = self.header_units
         self.motion = 0.0
-        self.plane = Plane.XY
+        self.plane = Plane.ZX if self.lathe else Plane.XY
         self.absolute = True
-        self.feed_mode = 94
+        self.feed_mode = 95 if self.lathe else 94  # lathes power on in feed per revolution
         self.feed: float | None = None
         self.speed = 0.0
         self.block_words: dict[str, float] = {}
         self.spindle_on = False
+        self.spindle_stop: tuple[str, int] | None = None  # what stopped it, and where
+        self.stopped_cut_reported = False
+        self.rigid_tap = False  # Fanuc M29: the next G84 turns the spindle itself
+        self.comp = 40.0  # cutter compensation G40 / G41 / G42
+        self.d_word: float | None = None  # D in force (cutter radius offset number)
+        self.h_word: float | None = None  # H in force (tool length offset number)
+        self.css: float | None = None  # lathe G96 surface speed (None: G97 rpm)
+        self.max_rpm: float | None = None  # lathe G50 S clamp
+        self.timer_base = 0.0  # #3001 = n sets the millisecond timer to n
         self.work_offset = 54.0
         self.cycle: _Cycle | None = None
         self.cycle_return_r = False  # G99
@@ -159,6 +184,8 @@ class _Run:
         self.counters = [0, 0]
         self.w: list[float | None] = [None, None, None]  # work position
         self.m: list[float | None] = [None, None, None]  # machine position
+        if self.lathe:  # most lathes have no Y axis: it stays at 0 so moves are drawn
+            self.w[1] = self.m[1] = 0.0
         self.prev_end: list[float | None] = [None, None, None]
         self.off: list[float | None] = [0.0, 0.0, 0.0]
         self.blocks_run = 0
@@ -223,6 +250,8 @@ class _Run:
             else:
                 match = _O_LINE.match(stripped)
                 if match is not None:
+                    if not programs and title[1] is None and _only_comments(current):
+                        current = []  # a title comment before the O line: part of this one
                     if current or programs or title[1] is not None:
                         programs.append((title[0], title[1], current))
                         current = []
@@ -320,9 +349,12 @@ class _Run:
 
     def _code_problem(self, letter: str, value: float) -> str | None:
         table = self.g_codes if letter == "G" else self.m_codes
-        if value in table or (letter == "M" and value >= 100 and not self.iso):
+        if value in table:
             return None
-        control = "Heidenhain ISO" if self.iso else "Haas"
+        m_from = self.dialect.m_from
+        if letter == "M" and not self.iso and m_from is not None and value >= m_from:
+            return None
+        control = "Heidenhain ISO" if self.iso else self.dialect.title
         return f"{letter}{value:g} is not a {letter} code of the {control} control"
 
     # ------------------------------------------------------------------ variables
@@ -336,7 +368,7 @@ class _Run:
         if 4000 < number < 4200:
             return self._modal_variable(number)
         if number == 3001:
-            return self.path.seconds * 1000.0
+            return self.path.seconds * 1000.0 - self.timer_base
         if number == 3026:
             return float(self.tool) if self.tool is not None else 0.0
         if number == 3027:
@@ -375,12 +407,25 @@ class _Run:
                 self.locals[number] = value
             return
         if number == macros.ALARM_VARIABLE:
-            code = macros.alarm_for(value)  # InputError for a bad alarm number
+            # Haas: alarm 1000 + n (InputError for a bad number); Fanuc B: alarm 3000 + n
+            code = macros.alarm_for(value) if self.dialect.haas else 3000 + int(value or 0)
             comment = _COMMENT_TEXT.search(source)
             text = comment.group(1).strip() if comment else "PROGRAMMABLE ALARM"
-            self.report(line, Severity.WARNING, f"the program raises alarm {code} ({text})")
-            raise _Stop
-        stored = macros.check_write(number, value)
+            # what the control alarms on is an error; the run goes on to find the rest
+            self.error(line, f"the program raises alarm {code} ({text})")
+            return
+        if number in self.dialect.writable:
+            if number == 3001:  # the millisecond timer: a program resets it to time a part
+                self.timer_base = self.path.seconds * 1000.0 - (value or 0.0)
+            else:
+                self.globals[number] = value or 0.0
+            return
+        try:
+            stored = macros.check_write(number, value)
+        except InputError:
+            if self.dialect.haas or macros.lookup(number) is not None:
+                raise
+            stored = value  # a Fanuc variable the Haas table does not hold
         if number in (3901, 3902):
             self.counters[number - 3901] = int(stored or 0)
         elif stored is None:
@@ -441,11 +486,11 @@ class _Run:
                         continue
                     self._execute(block, frame, index, line)
                 except InputError as exc:
+                    # the control would alarm here; the dry run reports it and goes on with
+                    # the next block, so one fault does not hide the ones after it
                     self.error(line, str(exc).split(" in block ")[0])
-                    raise _Stop from None
                 except RecursionError:
                     self.error(line, "an expression nested too deeply")
-                    raise _Stop from None
         except _Stop:
             pass
 
@@ -455,16 +500,20 @@ class _Run:
         if frame.kind == "main":
             self.error(last, "no program end (M30, M02 or M99)")
             raise _Stop
-        self.warn_once(last, f"end-{program.name}", f"{program.name} ends without M99")
+        if frame.kind == "cycle":  # the last block of a lathe contour: back to the cycle
+            self.frames.pop()
+            return
+        # the control alarms when a sub-program runs off its end (Fanuc B, Haas mill)
+        self.report(last, Severity.ERROR, f"{program.name} ends without M99")
         self._return(frame, last)
 
     def _endless(self, line: int) -> None:
         self.frames[1:] = []  # report at the main program's line
         if not self.jumps:
-            # no jump back: a long program (or deep calls), not a loop; the rest is not checked
-            self.report(
+            # no jump back: a long program (or deep calls), not a loop. The rest is not
+            # checked, so this is an error: a stopped check must never pass as a clean one
+            self.error(
                 line,
-                Severity.WARNING,
                 f"the dry run stopped here after {self.blocks_run:,} blocks (its budget ran "
                 "out); the rest of the program is not checked",
             )
@@ -491,12 +540,12 @@ class _Run:
         if type(statement) is Words:
             self._words(statement, frame, line)
         elif isinstance(statement, Assign):
-            number = variable_number(statement.target, self.get)
+            number = self._target_number(statement.target)
             self.set(number, evaluate(statement.value, self.get), line, block.source)
         elif isinstance(statement, IfThen):
             if self.value(statement.condition):
                 then = statement.then
-                number = variable_number(then.target, self.get)
+                number = self._target_number(then.target)
                 self.set(number, evaluate(then.value, self.get), line, block.source)
         elif isinstance(statement, IfGoto):
             if self.value(statement.condition):
@@ -518,6 +567,17 @@ class _Run:
         elif isinstance(statement, Dprnt | PortControl):
             pass  # output only: nothing moves
 
+    def _target_number(self, target: Expr) -> int:
+        """The variable an assignment writes; ``#[#8] = 1`` with #8 unset names #8."""
+        number = variable_number(target, self.get)
+        if number == 0:
+            unset = unset_variables(target, self.get)
+            if unset:
+                names = ", ".join(f"#{n}" for n in unset)
+                verb = "is" if len(unset) == 1 else "are"
+                raise InputError(f"the assignment writes #0 because {names} {verb} unset (null)")
+        return number
+
     def _goto(self, frame: _Frame, target: float, index: int, line: int) -> None:
         number = round(target)
         found = frame.program.numbers.get(number)
@@ -529,6 +589,31 @@ class _Run:
 
     # ------------------------------------------------------------------ words
     def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
+        motion = self.motion
+        if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
+            # the bulk of CAM output: X/Y/Z (and F) in G00/G01; the same as _apply does for
+            # it, without its lists and checks of every other word
+            fast: dict[str, float] = {}
+            code = None
+            for letter, value in words:
+                if letter in _FAST_LETTERS:
+                    fast[letter] = value
+                elif letter == "G" and (value == 0.0 or value == 1.0) and code is None:
+                    code = value
+                else:
+                    break
+            else:
+                if code is not None:
+                    self.motion = motion = code
+                self.prev_end = self.w  # _move_to replaces self.w: this keeps the old one
+                self.block_words = fast
+                if "F" in fast:
+                    self.feed = fast["F"]
+                    self.path.feed_rate(self.feed)
+                if "X" in fast or "Y" in fast or "Z" in fast:
+                    work, machine = self._target(fast)
+                    self._move_to(work, machine, line, motion == 0.0)
+                return
         g: list[float] = []
         m: list[float] = []
         v: dict[str, float] = {}
@@ -573,12 +658,30 @@ class _Run:
         if "F" in v:
             self.feed = v["F"]
             self.path.feed_rate(self.feed)
-        if "S" in v:
-            self.speed = v["S"]
-            self.path.spindle_speed(self.speed)
+        if "S" in v and not (self.lathe and special == 50):  # G50 S is the lathe's clamp
+            if self.css is not None:
+                self.css = v["S"]
+            else:
+                self.speed = v["S"]
+                self.path.spindle_speed(self.speed)
+        if "D" in v and not self.lathe:
+            self.d_word = v["D"]
         if "T" in v and not self.iso:
-            self.next_tool = round(v["T"])
-        self._motion(special, v, line)
+            if self.lathe:  # T0101: turret station 1, offset 1; the turret turns at once
+                tool = round(v["T"])
+                self._tool_change(tool // 100 if tool >= 100 else tool, line)
+            else:
+                self.next_tool = round(v["T"])
+        if m:
+            for code in m:
+                # M03/M04 (M13/M14 with coolant) start the spindle before the block's move
+                if code in (3.0, 4.0, 13.0, 14.0):
+                    self.spindle_on = True
+                    self.stopped_cut_reported = False
+        if self.lathe and special in codes.LATHE_CONTOUR:
+            self._contour(frame, special, v, line)
+        else:
+            self._motion(special, v, line)
         if "T" in v and self.iso:
             self._tool_change(round(v["T"]), line)
         for code in m:
@@ -588,11 +691,19 @@ class _Run:
         """Apply modal codes; return a non-modal code that decides this block's motion."""
         special = 0.0
         motion_codes = 0
+        comp: float | None = None
+        lathe = self.lathe
         for code in g:
             if code in codes.MOTION:
                 self.motion = code
                 self.cycle = None
                 motion_codes += 1
+            elif lathe and (done := self._lathe_code(code, v, line)) is not None:
+                special = done or special
+            elif code in (40, 41, 42):
+                comp = code
+            elif code in (43, 44, 43.4) and not self.iso and not lathe:
+                self._length_offset(code, v, line)
             elif code in codes.CYCLES:
                 self.cycle = _Cycle(code, initial=self.w[2])
                 if self.iso:
@@ -600,6 +711,7 @@ class _Run:
                     self.cycle = None
             elif code == 80:
                 self.cycle = None
+                self.rigid_tap = False
             elif code in (17, 18, 19):
                 self.plane = (Plane.XY, Plane.ZX, Plane.YZ)[int(code) - 17]
             elif code in (20, 21) and not self.iso:
@@ -615,27 +727,84 @@ class _Run:
             elif (54 <= code <= 59 or 110 <= code <= 129) and code == int(code) and not self.iso:
                 self.work_offset = code
                 self._offsets()
-            elif code == 154 and not self.iso:
+            elif code in (154, 54.1) and not self.iso:
+                # Haas G154 Pn and Fanuc G54.1 Pn: the additional work offsets (#7001 on)
                 number = round(v.get("P", 1))
-                if not 1 <= number <= 99:
-                    raise InputError(f"G154 P{number}: work offsets are P1 to P99")
+                top = 99 if code == 154 else 300
+                if not 1 <= number <= top:
+                    raise InputError(f"G{code:g} P{number}: work offsets are P1 to P{top}")
                 self.work_offset = 109.0 + number if number <= 20 else 1000.0 + number
                 self._offsets()
-            elif code in (43, 44) and not self.iso and "H" in v and self.tool is not None:
-                if round(v["H"]) != self.tool:
-                    self.report(
-                        line,
-                        Severity.WARNING,
-                        f"G{code:g} H{round(v['H'])} with tool T{self.tool} in the spindle "
-                        "(length offset of another tool)",
-                    )
-            elif code == 4 or (code in (10, 28, 53, 65, 92, 52) and not self.iso):
+            elif code == 4 or (code in _SPECIAL and not self.iso):
                 special = code
             elif code in codes.NOT_DRAWN_G and not self.iso:
                 self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
         if motion_codes > 1:
             self.error(line, "two motion codes (G00-G03) in one block")
+        if comp is not None:
+            self._compensation(comp, v, line)
         return special
+
+    def _compensation(self, code: float, v: dict[str, float], line: int) -> None:
+        """G41/G42 start and G40 cancel cutter compensation: on a straight move only (Fanuc
+        alarm PS0034, Haas alarm on an arc), and G41/G42 with a D offset in force."""
+        moves = any(k in v for k in "XYZIJKR")
+        arc = self.motion in (2.0, 3.0) and self.cycle is None and moves
+        if arc and code != self.comp:
+            what = "cancel (G40)" if code == 40 else f"start (G{code:g})"
+            self.error(line, f"cutter compensation {what} on an arc: it must be a straight move")
+        if code != 40 and not self.lathe and not self.iso:
+            offset = v.get("D", self.d_word)
+            if offset is None or round(offset) == 0:
+                self.error(line, f"G{code:g} without a cutter radius offset (D)")
+        self.comp = code
+
+    def _length_offset(self, code: float, v: dict[str, float], line: int) -> None:
+        """G43/G44/G43.4 need a tool length offset H (in the block or in force)."""
+        offset = v.get("H", self.h_word)
+        if offset is None:
+            self.error(line, f"G{code:g} without a tool length offset (H)")
+            return
+        self.h_word = offset
+        if "H" in v and self.tool is not None and round(v["H"]) != self.tool:
+            self.report(
+                line,
+                Severity.WARNING,
+                f"G{code:g} H{round(v['H'])} with tool T{self.tool} in the spindle "
+                "(length offset of another tool)",
+            )
+
+    def _lathe_code(self, code: float, v: dict[str, float], line: int) -> float | None:
+        """A G code whose meaning on a lathe differs from a mill's; None: not one of them.
+        Returns the block's non-modal code (or 0.0)."""
+        if code in (98.0, 99.0):  # feed per minute / per revolution (G-code system A)
+            self.feed_mode = 94 if code == 98 else 95
+        elif code == 96:  # constant surface speed: S is metres (feet) per minute
+            self.css = v.get("S", self.css or 0.0)
+        elif code == 97:  # spindle speed in rpm
+            self.css = None
+        elif code == 50:
+            if "S" in v:
+                self.max_rpm = v["S"]
+            if any(k in v for k in "XZUW"):
+                return 92.0  # sets the coordinates, as G92 does on a mill
+        elif code in codes.LATHE_CONTOUR:
+            return code
+        elif code in codes.LATHE_NOT_DRAWN:
+            self.warn_once(line, f"G{code:g}", f"G{code:g} is not drawn by the dry run")
+            if code in (90.0, 92.0, 94.0):
+                self.motion = code  # modal single cycles (group 01)
+                self.cycle = None
+            else:
+                return code  # G74-G76: X/Z are the cycle's end point; the tool comes back
+        elif code == 32:
+            self.motion = 1.0  # threading: a straight feed move at F per revolution (lead)
+            self.cycle = None
+        elif code in codes.LATHE_CYCLES:
+            self.cycle = _Cycle(code, initial=self.w[2])
+        else:
+            return None
+        return 0.0
 
     def _units(self, units: Units, line: int) -> None:
         if self.units is not None and units is not self.units:
@@ -656,12 +825,16 @@ class _Run:
             return
         factor = 25.4 if units is Units.MM else 1 / 25.4
         self.path.scale_travel(factor)
+        if machine.rapid_rate:  # given in the travel's units too
+            self.path.rapid_rate = machine.rapid_rate * factor
         for number, value in self.configured.items():
             if self.globals.get(number) == value:  # not set by the program since
                 self.globals[number] = value * factor
 
     # ------------------------------------------------------------------ motion
     def _target(self, v: dict[str, float]) -> tuple[list[float | None], list[float | None]]:
+        if self.lathe:
+            return self._lathe_target(v)
         w, m = self.w[:], self.m[:]
         for axis, letter in enumerate(_AXES):
             if letter in v:
@@ -675,6 +848,24 @@ class _Run:
                     w[axis] = None if current is None else current + value
                     machine = m[axis]
                     m[axis] = None if machine is None else machine + value
+        return w, m
+
+    def _lathe_target(self, v: dict[str, float]) -> tuple[list[float | None], list[float | None]]:
+        """A lathe's end point: X is a diameter (the dry run keeps the radius, so arcs' I and R
+        agree with it), U/V/W are incremental X/Y/Z (G-code system A: no G90/G91)."""
+        w, m = self.w[:], self.m[:]
+        for axis, (letter, step) in enumerate((("X", "U"), ("Y", "V"), ("Z", "W"))):
+            half = 0.5 if axis == 0 else 1.0
+            if letter in v:
+                value = v[letter] * half
+                w[axis] = value
+                off = self.off[axis]
+                m[axis] = None if off is None else value + off
+            elif step in v:
+                delta = v[step] * half
+                current, machine = w[axis], m[axis]
+                w[axis] = None if current is None else current + delta
+                m[axis] = None if machine is None else machine + delta
         return w, m
 
     def _motion(self, special: float, v: dict[str, float], line: int) -> None:
@@ -693,6 +884,12 @@ class _Run:
                     if letter in v:
                         self.globals[5201 + axis] = v[letter]
                 self._offsets()
+            elif special in _PROBE_MOVES:
+                # a probe or tool-setter move (skip): the spindle is stopped on purpose
+                work, machine = self._target(v)
+                running, self.spindle_on = self.spindle_on, True
+                self._move_to(work, machine, line, rapid=False)
+                self.spindle_on = running
             elif special == 92:
                 w, _m = self._target(v)
                 for axis, letter in enumerate(_AXES):
@@ -708,10 +905,12 @@ class _Run:
                 self._holes(v, line)
             return
         motion = self.motion
+        if self.lathe:
+            has_axes = has_axes or "U" in v or "W" in v
         if motion == 0 or motion == 1:
             if has_axes:
                 self._linear(v, line, rapid=motion == 0)
-        elif has_axes or any(k in v for k in "IJKR"):
+        elif motion in (2.0, 3.0) and (has_axes or any(k in v for k in "IJKR")):
             self._arc(v, line, clockwise=motion == 2)
 
     def _move_to(
@@ -719,7 +918,7 @@ class _Run:
     ) -> None:
         seconds = None
         if not rapid:
-            seconds = self._feed_seconds(line)
+            seconds = self._feed_seconds(line, w[2])
         self.path.line(
             (self.w[0], self.w[1], self.w[2]),
             (w[0], w[1], w[2]),
@@ -734,18 +933,49 @@ class _Run:
 
     def _feed_rate(self) -> float | None:
         if self.feed_mode == 95 and self.feed is not None:
-            return self.feed * self.speed if self.speed else None
+            rpm = self._rpm()
+            return self.feed * rpm if rpm else None
         return self.feed if self.feed_mode == 94 else None
 
-    def _feed_seconds(self, line: int) -> float | None:
+    def _rpm(self) -> float:
+        """Spindle speed now: S, or under G96 the surface speed at the tool's radius (X),
+        clamped by G50 S (or a default clamp: Ours)."""
+        if self.css is None:
+            return self.speed
+        clamp = self.max_rpm or _LATHE_MAX_RPM
+        radius = abs(self.w[0]) if self.w[0] is not None else 0.0
+        if radius < 1e-6:
+            return clamp
+        per_unit = 12.0 if self.units is Units.INCH else 1000.0  # ft or m per minute
+        return min(clamp, self.css * per_unit / (2 * math.pi * radius))
+
+    def _feed_seconds(self, line: int, end_z: float | None = None) -> float | None:
         if not self.feed and not self.no_feed_reported:
             self.no_feed_reported = True
             self.error(line, "a feed move with no feed rate (F) in force")
         if not self.spindle_on:
-            self.warn_once(line, "spindle", "a feed move with the spindle stopped")
+            self._stopped_feed(line, end_z)
         if self.feed_mode == 93 and self.feed:
             return 60.0 / self.feed  # inverse time: the move takes 1/F minutes
         return None
+
+    def _stopped_feed(self, line: int, end_z: float | None) -> None:
+        """A feed move with the spindle stopped: an error below Z0 (the top of the stock, or a
+        lathe part's face: the tool cuts), else a warning (it may be in the air)."""
+        start_z = self.w[2]
+        tol = 0.0005 if self.units is Units.INCH else 0.01
+        below = (start_z is not None and start_z < -tol) or (end_z is not None and end_z < -tol)
+        if not below:
+            self.warn_once(line, "spindle", "a feed move with the spindle stopped")
+            return
+        if self.stopped_cut_reported:
+            return  # once until the spindle starts again
+        self.stopped_cut_reported = True
+        cause = ""
+        if self.spindle_stop is not None:
+            what, where = self.spindle_stop
+            cause = f" ({what} at line {where} stopped it)"
+        self.error(line, f"a feed move below Z0 with the spindle stopped{cause}")
 
     def _linear(self, v: dict[str, float], line: int, *, rapid: bool) -> None:
         w, m = self._target(v)
@@ -753,7 +983,7 @@ class _Run:
 
     def _arc(self, v: dict[str, float], line: int, *, clockwise: bool) -> None:
         w, m = self._target(v)
-        self._feed_seconds(line)
+        self._feed_seconds(line, w[2])
         a, b, c = {Plane.XY: (0, 1, 2), Plane.ZX: (2, 0, 1), Plane.YZ: (1, 2, 0)}[self.plane]
         start = self.w
         sa, sb, ea, eb = start[a], start[b], w[a], w[b]
@@ -776,7 +1006,8 @@ class _Run:
             too_small = short_radius(radius, chord, tol)
             if too_small is not None:
                 self.error(line, f"arc radius {too_small}")
-                raise _Stop
+                self.w, self.m = w, m  # the run goes on from where the arc was meant to end
+                return
             ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=not clockwise)
         else:
             ka, kb = letters[a], letters[b]
@@ -784,7 +1015,8 @@ class _Run:
                 self.error(
                     line, f"G0{2 if clockwise else 3} without its centre ({ka}/{kb}) or radius (R)"
                 )
-                raise _Stop
+                self.w, self.m = w, m
+                return
             if self.iso:  # Heidenhain ISO: I, J, K are the absolute circle centre
                 ca, cb = v.get(ka, sa), v.get(kb, sb)
             else:
@@ -797,7 +1029,8 @@ class _Run:
                     f"arc end is not on its circle: start radius {r0:.4f}, end radius "
                     f"{r1:.4f} (differ by {abs(r0 - r1):.4f})",
                 )
-                raise _Stop
+                self.w, self.m = w, m
+                return
         center = [0.0, 0.0, 0.0]
         center[a], center[b] = ca, cb
         startp = (float(start[0] or 0.0), float(start[1] or 0.0), float(start[2] or 0.0))
@@ -818,7 +1051,8 @@ class _Run:
 
     def _home(self, v: dict[str, float], line: int) -> None:
         """G28: through the given point, then the named axes to machine zero (all if none)."""
-        named = [axis for axis, letter in enumerate(_AXES) if letter in v]
+        letters = ("XU", "YV", "ZW") if self.lathe else _AXES
+        named = [axis for axis, names in enumerate(letters) if any(k in v for k in names)]
         if named:
             w, m = self._target(v)
             self._move_to(w, m, line, rapid=True)
@@ -836,9 +1070,10 @@ class _Run:
         w, m = self.w[:], self.m[:]
         for axis, letter in enumerate(_AXES):
             if letter in v:
-                m[axis] = v[letter]
+                value = v[letter] / 2 if self.lathe and axis == 0 else v[letter]  # diameter
+                m[axis] = value
                 off = self.off[axis]
-                w[axis] = None if off is None else v[letter] - off
+                w[axis] = None if off is None else value - off
         self._move_to(w, m, line, rapid=True)
 
     def _g10(self, v: dict[str, float], line: int) -> None:
@@ -872,10 +1107,16 @@ class _Run:
             cycle.dwell = v["P"]
         if cycle.z is None:
             self.error(line, f"canned cycle G{cycle.code:g} without a depth (Z)")
-            raise _Stop
+            return
+        if not cycle.peck_checked:
+            cycle.peck_checked = True
+            self._cycle_words(cycle, v, line)
         repeats = round(v.get("L", v.get("K", 1)))
         xy: dict[str, float] = {k: v[k] for k in ("X", "Y") if k in v}
         r_plane = cycle.r if cycle.r is not None else initial
+        rigid = cycle.code == 84 and self.rigid_tap and not self.spindle_on
+        if rigid:
+            self.spindle_on = True  # the rigid tapping cycle turns the spindle (Fanuc M29)
         for _ in range(max(0, min(repeats, 10_000))):
             w, m = self._target(xy)
             self._move_to(w, m, line, rapid=True)
@@ -886,6 +1127,19 @@ class _Run:
             back = r_plane if self.cycle_return_r or initial is None else initial
             if back is not None:
                 self._to_z(back, line, rapid=cycle.code not in codes.FEED_RETRACT)
+        if rigid:
+            self.spindle_on = False
+
+    def _cycle_words(self, cycle: _Cycle, v: dict[str, float], line: int) -> None:
+        """What a cycle needs before its first hole (the control alarms without it)."""
+        # a mill's peck cycles need the peck depth Q (Fanuc alarm PS0045; a Haas takes I/J/K
+        # instead); a lathe's G83 without Q drills in one go
+        haas_pecks = self.dialect.haas and "I" in v
+        if cycle.code in (73.0, 83.0) and not self.lathe and "Q" not in v and not haas_pecks:
+            self.error(line, f"G{cycle.code:g} without a peck depth (Q)")
+        if cycle.code == 84 and not self.spindle_on and not self.rigid_tap:
+            self.error(line, "a tap (G84) with the spindle stopped")
+            self.stopped_cut_reported = True  # the same fault: not again for its holes
 
     def _to_z(self, z: float, line: int, *, rapid: bool) -> None:
         w, m = self.w[:], self.m[:]
@@ -897,15 +1151,24 @@ class _Run:
     # ------------------------------------------------------------------ M codes, tools, calls
     def _m_code(self, value: float, frame: _Frame, v: dict[str, float], line: int) -> None:
         code = round(value)
+        if code in self.dialect.spindle_stops and not (self.iso or self.lathe):
+            # M05, and M06: the tool change orients and stops the spindle (Haas, Fanuc)
+            if self.spindle_on:
+                self.spindle_stop = (f"M{code:02d}", line)
+            self.spindle_on = False
         if code == 6 and not self.iso:
             if self.next_tool is None:
                 self.report(line, Severity.WARNING, "M06 with no tool selected (T)")
                 return
             self._tool_change(self.next_tool, line)
         elif code in (3, 4, 13, 14):
-            self.spindle_on = True
+            pass  # started before the block's move (_apply)
         elif code == 5:
+            if self.spindle_on:
+                self.spindle_stop = ("M05", line)
             self.spindle_on = False
+        elif code == self.dialect.rigid_tap_m and not self.iso:
+            self.rigid_tap = True  # Fanuc M29 S..: the next G84 is a rigid tap
         elif code in (30, 2):
             if code == 30:
                 self.counters = [self.counters[0] + 1, self.counters[1] + 1]
@@ -937,17 +1200,48 @@ class _Run:
     def machine_name(self) -> str:
         return (self.machine.name if self.machine else "") or "the machine"
 
+    def _contour(self, frame: _Frame, code: float, v: dict[str, float], line: int) -> None:
+        """Lathe G70-G73 P.. Q..: the blocks Np..Nq are the contour. The roughing cycles
+        (G71-G73) run it once, drawn as the finished contour (Ours: the roughing passes are
+        not drawn), and the program goes on after Nq; G70 runs it and goes on after itself."""
+        if "P" not in v or "Q" not in v:
+            return  # the first block of the two-block form (G71 U.. R..): depth and retract
+        program = frame.program
+        first, last = round(v["P"]), round(v["Q"])
+        start, end = program.numbers.get(first), program.numbers.get(last)
+        if start is None or end is None:
+            missing = first if start is None else last
+            raise InputError(f"G{code:g}: no block N{missing} in {program.name} (P{first} Q{last})")
+        if end < start:
+            raise InputError(f"G{code:g}: N{last} (Q) comes before N{first} (P)")
+        if code != 70:
+            self.warn_once(line, "lathe-roughing", "lathe roughing cycles are drawn as their "
+                           "finished contour")  # fmt: skip
+            frame.pc = max(frame.pc, end + 1)
+        if len(self.frames) > _MAX_NESTING:
+            self.error(line, f"sub-program calls nest deeper than {_MAX_NESTING} levels")
+            return
+        contour = _Program(
+            program.name,
+            program.number,
+            program.lines[start : end + 1],
+            program.blocks[start : end + 1],
+            external=program.external,
+        )
+        call_line = frame.call_line if frame.kind != "main" else line
+        self.frames.append(_Frame(contour, 0, self.locals, "cycle", call_line))
+
     def _call(self, frame: _Frame, kind: str, v: dict[str, float], line: int) -> None:
         if "P" not in v:
             self.error(line, f"{kind.upper()} without a program or block number (P)")
-            raise _Stop
+            return
         number = round(v["P"])
         repeats = round(v.get("L", 1))
         if repeats < 1:
             return
         if len(self.frames) > _MAX_NESTING:
             self.error(line, f"sub-program calls nest deeper than {_MAX_NESTING} levels")
-            raise _Stop
+            return
         call_line = frame.call_line if frame.kind != "main" else line
         if kind == "m97":
             index = frame.program.numbers.get(number)
@@ -957,6 +1251,11 @@ class _Run:
         else:
             found = self._find(number, line)
             if found is None:
+                # what the missing program does is not known: it may start the spindle (a
+                # shop's tool change macro), so a cut after it is not reported as one with
+                # the spindle stopped (the call is a warning already)
+                self.spindle_on = True
+                self.stopped_cut_reported = False
                 return
             program, index = found, 0
         if kind == "g65":
@@ -971,8 +1270,10 @@ class _Run:
         if program is not None:
             return program
         name = f"O{number:05d}"
+        if number in self.missing:
+            return None  # reported at its first call: one warning per missing program
         text = None
-        if self.library is not None and number not in self.missing:
+        if self.library is not None:
             try:
                 text = self.library(name)
             except Exception:  # a library callback must not break the dry run
@@ -981,7 +1282,10 @@ class _Run:
             self.missing.add(number)  # asked once: a loop of calls does not ask again
             self.report(line, Severity.WARNING, f"calls {name}, which is not in the library")
             return None
-        body = _Run(text, self.control, name, None, None, self.budget)
+        # the called program is read with the caller's dialect (a lathe sub of a lathe job)
+        body = _Run(
+            text, self.control, name, MachineLimits(dialect=self.dialect.name), None, self.budget
+        )
         for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
         main = body.main
@@ -1015,7 +1319,7 @@ class _Run:
 
     # ------------------------------------------------------------------ result
     def result(self) -> CheckResult:
-        problems = list(self.problems.values())
+        problems = _capped(list(self.problems.values()))
         if self.machine is not None:
             problems += self.path.travel_problems(self.machine.name)
             number = self.main.number
@@ -1030,7 +1334,7 @@ class _Run:
                             "control's own macros)",
                         )
                     )
-        return self.path.result(
+        result = self.path.result(
             self.control,
             self.name,
             problems,
@@ -1051,6 +1355,26 @@ class _Run:
                 ended=self.ended,
             ),
         )
+        return result if self.iso else replace(result, dialect=self.dialect.name)
+
+
+def _capped(problems: list[Problem]) -> list[Problem]:
+    """The first :data:`MAX_PROBLEMS` problems by line, and one more counting the rest."""
+    if len(problems) <= MAX_PROBLEMS:
+        return problems
+    problems.sort(key=lambda p: p.line)
+    kept, rest = problems[:MAX_PROBLEMS], problems[MAX_PROBLEMS:]
+    errors = sum(p.severity is Severity.ERROR for p in rest)
+    last = Problem(
+        rest[0].line,
+        Severity.ERROR if errors else Severity.WARNING,
+        f"{len(rest)} more problems not listed ({errors} errors, {len(rest) - errors} warnings)",
+    )
+    return [*kept, last]
+
+
+def _only_comments(lines: list[tuple[int, str]]) -> bool:
+    return all(_COMMENT_ONLY.match(text) for _, text in lines)
 
 
 def _first_line(program: _Program) -> int:

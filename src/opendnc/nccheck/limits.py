@@ -64,6 +64,9 @@ class MachineLimits:
     """Program numbers (inclusive ranges) a program must not be stored as."""
     rapid_rate: float | None = None
     """Rapid traverse in program units per minute, for the time estimate (None: a default)."""
+    dialect: str | None = None
+    """The G-code control (``haas-lathe``, ``fanuc-mill``, ... of
+    :data:`opendnc.nccheck.dialects.DIALECTS`); None: guessed from the program."""
 
     def accepts(self, control: Control) -> bool:
         """True when this machine's control runs programs written for ``control``."""
@@ -147,13 +150,18 @@ def offset_key(code: str) -> str:
 
 @dataclass(frozen=True)
 class Envelope:
-    """The optional machine keys ``travel`` and ``work_offsets`` of a configured machine."""
+    """The optional machine keys of a configured machine for program checks: ``travel``,
+    ``work_offsets``, ``rapid_rate`` and ``control`` (docs/check.md#machine-limits)."""
 
     travel: tuple[tuple[str, float, float], ...] = ()
     """(axis, min, max) in machine coordinates."""
     units: Units | None = None
     work_offsets: tuple[tuple[str, tuple[tuple[str, float], ...]], ...] = ()
     """(offset name, ((axis, value), ...))."""
+    rapid_rate: float | None = None
+    """Rapid traverse in :attr:`units` (or the program's) per minute, for the time estimate."""
+    control: str | None = None
+    """The G-code dialect of the machine's control (``haas-lathe``); None: guessed."""
 
     def travel_map(self) -> dict[str, tuple[float, float]]:
         """Axis -> (min, max)."""
@@ -169,7 +177,7 @@ def parse_envelope(raw: Mapping[str, Any], prefix: str) -> Envelope | None:
 
     :class:`LimitsError` names the bad key (``machines[0].travel.x``).
     """
-    if "travel" not in raw and "work_offsets" not in raw:
+    if not any(key in raw for key in ("travel", "work_offsets", "rapid_rate", "control")):
         return None
     travel: dict[str, tuple[float, float]] = {}
     units = None
@@ -180,10 +188,29 @@ def parse_envelope(raw: Mapping[str, Any], prefix: str) -> Envelope | None:
         if "work_offsets" in raw
         else {}
     )
+    rapid = raw.get("rapid_rate")
+    if rapid is not None and (
+        isinstance(rapid, bool)
+        or not isinstance(rapid, int | float)
+        or not (math.isfinite(rapid) and rapid > 0)
+    ):
+        raise LimitsError(f"{prefix}.rapid_rate", f"expected units per minute > 0, got {rapid!r}")
+    control = raw.get("control")
+    if control is not None:
+        from opendnc.nccheck.dialects import DIALECTS, dialect_named
+
+        try:
+            control = dialect_named(str(control)).name
+        except InputError:
+            raise LimitsError(
+                f"{prefix}.control", f"expected one of {', '.join(DIALECTS)}"
+            ) from None
     return Envelope(
         travel=tuple((axis, low, high) for axis, (low, high) in travel.items()),
         units=units,
         work_offsets=tuple((name, tuple(axes.items())) for name, axes in offsets.items()),
+        rapid_rate=float(rapid) if rapid is not None else None,
+        control=control,
     )
 
 
@@ -215,4 +242,6 @@ def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> 
         work_offsets=envelope.offsets_map(),
         tools=frozenset(tools) if tools is not None else None,
         protected=(HAAS_PROTECTED,) if family == "haas" else (),
+        rapid_rate=envelope.rapid_rate,
+        dialect=envelope.control,
     )

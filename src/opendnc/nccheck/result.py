@@ -175,6 +175,9 @@ class CheckResult:
     blocks: int = 0
     """Blocks the dry run executed (a loop counts each pass)."""
     end: EndState = field(default_factory=EndState)
+    dialect: str | None = None
+    """G-code: the control dialect checked against (``haas-lathe``, ``fanuc-mill``; ``mill``
+    or ``lathe`` when guessed: Haas and Fanuc codes of that kind); None for Heidenhain."""
 
     @property
     def errors(self) -> tuple[Problem, ...]:
@@ -197,17 +200,25 @@ class CheckResult:
         minutes, seconds = divmod(round(self.cycle_time_s), 60)
         return (
             f"{self.name or 'program'}: {errors} error{'s' * (errors != 1)}, "
-            f"{warnings} warning{'s' * (warnings != 1)}; {self.control.value}, "
+            f"{warnings} warning{'s' * (warnings != 1)}; {self._language()}, "
             f"{len(self.tools)} tool{'s' * (len(self.tools) != 1)}, "
             f"{len(self.moves)} move{'s' * (len(self.moves) != 1)}, "
             f"about {minutes}:{seconds:02d} min"
         )
+
+    def _language(self) -> str:
+        # a guessed mill program keeps its plain name ("haas"); a lathe or a named control
+        # says which table it was checked against
+        if self.dialect is None or self.dialect == "mill":
+            return self.control.value
+        return self.dialect
 
     def to_dict(self) -> dict[str, Any]:
         """The result as plain JSON-ready values (docs/check.md#json)."""
         return {
             "name": self.name,
             "control": self.control.value,
+            "dialect": self.dialect,
             "ok": self.ok,
             "units": self.units.value if self.units else None,
             "problems": [

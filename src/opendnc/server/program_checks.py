@@ -5,9 +5,9 @@ again (docs/server.md#program-checks).
 A check runs in the caller's thread (the routes that reach it run in FastAPI's thread pool,
 never on the event loop), at most :data:`PARALLEL` at a time in this process, within the
 checker's block and CPU-time budget; a program larger than :data:`CHECK_BYTES` is not run
-and its result says so (a warning: it does not block). Checks against a machine are kept by
-a digest of the machine's limits, not by its name, so the machines of one kind and envelope
-share one row and a changed ``travel`` makes a new one.
+and its result is an error saying so (it blocks a release or a send until overridden). Checks
+against a machine are kept by a digest of the machine's limits, not by its name, so the
+machines of one kind and envelope share one row and a changed ``travel`` makes a new one.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.nccheck import Budget, CheckResult, Library, MachineLimits, Severity, check_text
+from opendnc.nccheck import Budget, CheckResult, Library, MachineLimits, check_text
+from opendnc.nccheck.oversize import MAX_PROGRAM_BYTES, not_checked
 from opendnc.server.store.models import Program, ProgramState, ProgramVersion, VersionCheck
 
 __all__ = [
@@ -38,9 +39,9 @@ __all__ = [
     "store",
 ]
 
-CHECK_BYTES = 16 * 1024 * 1024
+CHECK_BYTES = MAX_PROGRAM_BYTES
 """A larger program is not dry-run (a drip-fed mould program can be hundreds of MB; the
-checker's budget would stop part way anyway): its check is one warning saying so."""
+checker's budget would stop part way anyway): its check is one error saying so, never a pass."""
 PARALLEL = 2
 """Dry runs at once in this process (each takes a core for up to its budget)."""
 BUDGET = Budget(seconds=5.0, moves=0)  # the server keeps no moves: the preview runs its own
@@ -104,6 +105,7 @@ def limits_key(limits: MachineLimits | None) -> str:
         "tools": sorted(limits.tools) if limits.tools is not None else None,
         "protected": [list(r) for r in limits.protected],
         "rapid": limits.rapid_rate,
+        "dialect": limits.dialect,
     }
     text = json.dumps(shape, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
@@ -120,6 +122,7 @@ def anonymous(limits: MachineLimits) -> MachineLimits:
         tools=limits.tools,
         protected=limits.protected,
         rapid_rate=limits.rapid_rate,
+        dialect=limits.dialect,
     )
 
 
@@ -131,16 +134,10 @@ def run(
 ) -> CheckResult:
     """The dry run of ``data`` (bounded: see the module's text). Never raises on content."""
     if len(data) > CHECK_BYTES:
-        from opendnc.nccheck import Problem, guess_control
+        from opendnc.nccheck import guess_control
 
         text_head = data[:4096].decode("latin-1")
-        note = Problem(
-            1,
-            Severity.WARNING,
-            f"not checked: {len(data) / 1e6:.1f} MB is more than the library's check reads "
-            f"({CHECK_BYTES // (1024 * 1024)} MiB)",
-        )
-        return CheckResult(control=guess_control(text_head, name), name=name, problems=(note,))
+        return not_checked(name, len(data), guess_control(text_head, name))
     text = data.decode("latin-1")  # NC programs are 7-bit text; latin-1 keeps every byte
     with _SLOTS:
         return check_text(

@@ -112,7 +112,8 @@ _block = st.one_of(
     ),
     st.builds(lambda z: f"G53 Z{z:.3f}", st.floats(-10, 0, allow_nan=False)),
     st.sampled_from(["G28 G91 Z0.", "G90 G28 X0. Y0.", "G54", "G55", "G90", "G91"]),
-    st.builds(lambda t: f"T{t} M06", st.integers(1, 20)),
+    # a tool change stops the spindle (Haas, Fanuc): the program starts it again
+    st.builds(lambda t: f"T{t} M06\nM03", st.integers(1, 20)),
     st.builds(lambda n, v: f"#{n} = #{n} + {v}", st.integers(100, 105), st.integers(-9, 9)),
     st.builds(lambda n: f"#{n} = #5041 + #5043", st.integers(100, 105)),
     st.builds(

@@ -11,7 +11,7 @@ def test_each_tool_gets_the_first_s_and_f_after_its_change() -> None:
         "%\nO1\nG21 G90\n"
         "T1 M06\nG00 G54 X0. Y0. S1200 M03\nG43 H01 Z5.\nG01 Z-1. F800.\nX50.\n"
         "T3 M06\nG00 X0. Y0. S4000 M03\nG01 Z-2. F300.\nX20.\n"
-        "T4 M06 S2500 F150.\nG01 Z-3.\n"
+        "T4 M06 S2500 F150.\nM03\nG01 Z-3.\n"
         "T5 M06\nG00 X5.\n"  # no S nor F of its own
         "M30\n%\n"
     )

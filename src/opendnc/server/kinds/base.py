@@ -67,7 +67,7 @@ class MachineBase:
 
 COMMON_KEYS = {
     "name", "kind", "released_only", "poll_interval", "description", "travel", "work_offsets",
-    "servers",
+    "rapid_rate", "control", "servers",
 }  # fmt: skip
 
 
