@@ -137,7 +137,7 @@ class Codec:
         """One block: its characters and the EOB."""
         return self.encode_text(text, line) + self.eob_bytes
 
-    def decode_byte(self, byte: int) -> str | None | Bad:
+    def decode_byte(self, byte: int) -> str | Bad | None:
         """One wire byte as a character (CR and LF for ISO line ends, ``"\\n"`` for the EIA
         EOB), ``None`` for feed, or :class:`Bad` for a byte the code does not have."""
         if self.code is Code.EIA:

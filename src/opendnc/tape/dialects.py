@@ -34,7 +34,9 @@ DIALECTS: Mapping[str, Dialect] = MappingProxyType(
             Dialect("fanuc"),
             Dialect("haas"),
             # Siemens: ";" comments, no G80 (cycles are modal calls), Z to machine zero
-            Dialect("siemens", comment="; {}", safety="G0 {plane} G40 G90", retract=("SUPA G0 Z0",)),
+            Dialect(
+                "siemens", comment="; {}", safety="G0 {plane} G40 G90", retract=("SUPA G0 Z0",)
+            ),
             Dialect("okuma", retract=()),
             Dialect("fagor", retract=()),
         )

@@ -66,9 +66,14 @@ def check_send_name(profile: Profile, head: list[str], path: Path) -> None:
     """Refuse a program the control would not take under its name (before any byte goes)."""
     if profile.naming is Naming.O_NUMBER:
         if o_number(head, profile.o_digits) is None:
-            raise InputError(f"{path.name}: no O-number line (O and up to {profile.o_digits} digits)")
+            raise InputError(
+                f"{path.name}: no O-number line (O and up to {profile.o_digits} digits)"
+            )
     elif profile.naming is Naming.FANUC_30I:
-        if not any(_ANGLE.match(text) for text in head) and o_number(head, profile.o_digits) is None:
+        if (
+            not any(_ANGLE.match(text) for text in head)
+            and o_number(head, profile.o_digits) is None
+        ):
             raise InputError(f"{path.name}: no O-number line and no <NAME> line")
     elif profile.naming is Naming.OKUMA:
         okuma_name(path)

@@ -72,7 +72,9 @@ class Profile:
         bits, parity, stop = self.line_settings
         check_line(parity, bits, stop, self.flow)
         if self.code is Code.EIA and (bits, parity) != (8, "N"):
-            raise InputError(f"{self.name}: an EIA line is 8 bits without UART parity ({self.line})")
+            raise InputError(
+                f"{self.name}: an EIA line is 8 bits without UART parity ({self.line})"
+            )
 
     @property
     def line_settings(self) -> tuple[int, str, float]:

@@ -22,7 +22,7 @@ Limits (``max_block``, ``max_bytes``) turn endless garbage into a typed error.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from opendnc.tape.codes import DC1, DC2, DC3, DC4, Bad, Code, Codec
 from opendnc.tape.errors import TapeCharacterError, TapeParityError, TvCheckError
@@ -41,7 +41,7 @@ class End(enum.Enum):
 class ReaderConfig:
     """How to read: the codec, TV check, and what ends a record."""
 
-    codec: Codec = Codec()
+    codec: Codec = field(default_factory=Codec)
     tv_check: bool = False
     end_at_percent: bool = True
     dc_codes: bool = True
