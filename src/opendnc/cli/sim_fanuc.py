@@ -18,9 +18,11 @@ def fanuc(
     root: Path = typer.Option(Path("fanuc-memory"), "--root", help="Program memory folder."),
     profile: str = typer.Option("fanuc-0i", "--profile", help="Control profile it behaves as."),
     baud: int | None = typer.Option(None, "--baud", help="Baud rate (parameter 0103)."),
-    code: str = typer.Option("iso", "--code", help="iso or eia (parameter 0000 bit 1)."),
-    stop_bits: int = typer.Option(2, "--stop-bits", help="1 or 2 (parameter 0101 bit 0)."),
-    eob: str = typer.Option("lf", "--eob", help="Punch EOB in ISO: lf, crlf, cr, lfcrcr."),
+    code: str | None = typer.Option(None, "--code", help="iso or eia (parameter 0000 bit 1)."),
+    stop_bits: int | None = typer.Option(
+        None, "--stop-bits", help="1 or 2 (parameter 0101 bit 0)."
+    ),
+    eob: str | None = typer.Option(None, "--eob", help="Punch EOB in ISO: lf, crlf, cr, lfcrcr."),
     tv_check: bool = typer.Option(False, "--tv-check", help="TV check (parameter 0000 bit 0)."),
     param: list[str] = typer.Option(
         [], "--param", help="Set a parameter by number: 0000=3, 0101=1, 0103=11 (repeatable)."
@@ -47,14 +49,14 @@ def fanuc(
         try:
             params = FanucParams(
                 baud=baud or prof.baud,
-                code=Code(code.lower()),
-                stop_bits=stop_bits,
+                code=Code(code.lower()) if code else prof.code,
+                stop_bits=stop_bits or int(prof.line_settings[2]),
                 tv_check=tv_check or prof.tv_check,
-                eob=Eob(eob.lower()),
+                eob=Eob(eob.lower()) if eob else prof.eob,
             )
         except ValueError:
             raise InputError(f"bad --code {code!r} or --eob {eob!r}") from None
-        if stop_bits not in (1, 2):
+        if params.stop_bits not in (1, 2):
             raise InputError("--stop-bits is 1 or 2")
         numbers: dict[str, int] = {}
         for item in param:

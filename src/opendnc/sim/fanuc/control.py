@@ -131,7 +131,13 @@ class VirtualFanuc:
         on_message: Callable[[str], None] | None = None,
     ) -> None:
         base = profile or get_profile("fanuc-0i")
-        self.params = params or FanucParams(baud=base.baud, tv_check=base.tv_check)
+        self.params = params or FanucParams(
+            baud=base.baud,
+            code=base.code,
+            stop_bits=int(base.line_settings[2]),
+            tv_check=base.tv_check,
+            eob=base.eob,
+        )
         p = self.params
         line = base.line if p.code is Code.ISO else "8N" + str(p.stop_bits)
         if p.code is Code.ISO and base.line[:2] in ("7E", "8N"):
@@ -343,7 +349,7 @@ class VirtualFanuc:
             except TapeWireError as exc:
                 self._abort(self._alarm_for(exc), str(exc))
                 return
-            if reader.ended is End.PERCENT:
+            if reader.ended is not None:  # its %, DC4 or end-of-file byte
                 self._send(DC3)
                 name = self._store(reader)
                 if name is not None and self.options.punch_back:
@@ -465,7 +471,7 @@ class VirtualFanuc:
                 self._send(DC1)
                 xoff = False
             if reader.ended is not None and backlog == 0:
-                if reader.ended is End.PERCENT:
+                if reader.ended is not End.QUIET:
                     self._send(DC3)
                     self._note(f"TAPE DONE {executed} blocks")
                 else:
