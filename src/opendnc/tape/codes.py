@@ -55,6 +55,7 @@ EIA_TABLE: Mapping[str, int] = MappingProxyType(
 )  # fmt: skip
 EIA_EOB = 0x80  # channel 8 alone, "CR"
 EIA_FEED = frozenset({NUL, DEL})  # blank tape and tape feed (all of channels 1-7)
+_EIA_RAW = frozenset({NUL, DEL, DC1, DC2, DC3, DC4})
 
 
 def even_parity(char: int) -> int:
@@ -123,6 +124,8 @@ class Codec:
             out = bytearray()
             for column, char in enumerate(text, start=1):
                 value = table.get(char)
+                if value is None and ord(char) in _EIA_RAW:
+                    value = ord(char)  # feed and the DC codes are the same bytes in EIA
                 if value is None:
                     raise NoCodeError(char, "EIA", line, column)
                 out.append(value)

@@ -128,6 +128,20 @@ class _Incoming:
         return bytes(flow)
 
 
+def _config(
+    profile: Profile, feed: TapeFeed, chunk: int | None, xoff_timeout: float, wait_dc1: bool | None
+) -> DncConfig:
+    return DncConfig(
+        flow=Flow(profile.flow),
+        chunk=chunk or default_chunk(profile),
+        xoff_timeout=xoff_timeout,
+        wait_for_xon=profile.wait_dc1 if wait_dc1 is None else wait_dc1,
+        text_check=False,
+        leader=leader_bytes(profile, profile.leader, feed.codec),
+        trailer=leader_bytes(profile, profile.trailer, feed.codec),
+    )
+
+
 def send_program(
     port: str | PortStream,
     path: Path,
@@ -164,16 +178,11 @@ def send_program(
     if not drip_feed:
         check_send_name(profile, _head(path), path)
     feed = TapeFeed(path, profile, from_line=from_line, retract=retract, codec=codec)
-    flow = Flow(profile.flow)
-    config = DncConfig(
-        flow=flow,
-        chunk=chunk or default_chunk(profile),
-        xoff_timeout=xoff_timeout,
-        wait_for_xon=profile.wait_dc1 if wait_dc1 is None else wait_dc1,
-        text_check=False,
-        leader=leader_bytes(profile, profile.leader, feed.codec),
-        trailer=leader_bytes(profile, profile.trailer, feed.codec),
-    )
+    try:
+        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1)
+    except BaseException:
+        feed.close()
+        raise
     owned = isinstance(port, str)
     try:
         stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
