@@ -8,7 +8,14 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from opendnc.cli.common import cli_errors, console, err_console, print_json
+from opendnc.cli.common import (
+    READY_FILE_HELP,
+    cli_errors,
+    console,
+    err_console,
+    print_json,
+    ready_file,
+)
 from opendnc.errors import InputError
 
 if TYPE_CHECKING:
@@ -255,16 +262,23 @@ def recv_cmd(
     quiet_ends: bool = typer.Option(
         False, "--quiet-ends", help="A quiet line ends the record normally (no end mark)."
     ),
+    ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
     json_out: bool = JsonOpt,
 ) -> None:
     """Receive one punched program (on the control: PUNCH); nothing is written unless whole."""
-    from opendnc.tape.serial_io import receive_program
+    from opendnc.tape.serial_io import open_tape_port, receive_program
 
     with cli_errors():
         prof = _profile(profile, baud=baud, line=line, code=code, tv_check=tv_check)
-        report = receive_program(
-            port, out, prof, timeout=timeout, quiet=quiet, quiet_ends=quiet_ends
-        )
+        if not out.is_dir() and not out.parent.is_dir():
+            raise InputError(f"no folder {out.parent} for {out.name}")
+        # the port is open before the ready file appears: a punch after it is never lost
+        stream = open_tape_port(port, prof)
+        with contextlib.closing(stream), ready_file(ready) as mark_ready:
+            mark_ready()
+            report = receive_program(
+                stream, out, prof, timeout=timeout, quiet=quiet, quiet_ends=quiet_ends
+            )
         if json_out:
             print_json(report)
             return

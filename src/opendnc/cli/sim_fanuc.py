@@ -83,14 +83,14 @@ def fanuc(
             mode=parse_mode(mode),
             on_message=lambda text: print(text, flush=True),
         )
+        shown = " ".join(f"{k}={v}" for k, v in params.numbers().items())
+        print(
+            f"SERIAL {serial} {params.baud} {sim.profile.line} {params.code.value.upper()}",
+            flush=True,
+        )
+        print(f"PARAMS {shown}", flush=True)
+        print(f"MODE {mode} MEMORY {root} programs={len(sim.programs())}", flush=True)
         with contextlib.suppress(KeyboardInterrupt), ready_file(ready) as mark_ready, sim:
-            shown = " ".join(f"{k}={v}" for k, v in params.numbers().items())
-            print(
-                f"SERIAL {serial} {params.baud} {sim.profile.line} {params.code.value.upper()}",
-                flush=True,
-            )
-            print(f"PARAMS {shown}", flush=True)
-            print(f"MODE {mode} MEMORY {root} programs={len(sim.programs())}", flush=True)
             mark_ready()
             if run is not None:
                 sim.run(run)

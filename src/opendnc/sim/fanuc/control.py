@@ -98,10 +98,11 @@ class FanucOptions:
     block_rate: float = 200.0  # blocks per second in tape mode
     buffer_blocks: int = 16
     resume_blocks: int = 4
-    # Characters accepted after DC3: a real Fanuc takes 10. The virtual cable and the ptys
-    # hold 10-15 kB the sender wrote before it could see the DC3 (measured), so the
+    # Characters accepted after DC3: a real Fanuc takes 10. On the virtual cable the PC's
+    # pty holds up to 64 kB and the cable's lane 4 kB that the sender wrote before it could
+    # see the DC3 (measured: a 24 kB program was all written in 0.5 s at 9600 baud), so the
     # simulator's default allows that much (docs/tape.md#virtual-fanuc).
-    overrun_limit: int = 32768
+    overrun_limit: int = 72 * 1024
     dc1_interval: float = 0.5  # longer than the PC's linger after a send (0.25 s)
     stall_timeout: float = 5.0
     punch_back: bool = False
