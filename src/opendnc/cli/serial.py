@@ -140,7 +140,12 @@ def send_cmd(
     json_out: bool = JsonOpt,
 ) -> None:
     """Send FILE to a control reading tape (on a Fanuc: EDIT, READ; the control's DC1 starts it)."""
-    from opendnc.tape.serial_io import open_tape_port, send_program, verify_punch
+    from opendnc.tape.serial_io import (
+        check_before_send,
+        open_tape_port,
+        send_program,
+        verify_punch,
+    )
 
     with cli_errors():
         prof = _profile(
@@ -154,6 +159,7 @@ def send_cmd(
             wait_dc1=wait_dc1,
             leader=leader,
         )
+        check_before_send(file, prof)  # a program the control would refuse never opens the port
         stream = open_tape_port(port, prof)
         with contextlib.closing(stream):
             kept = bytearray()
@@ -207,9 +213,12 @@ def dnc_cmd(
     json_out: bool = JsonOpt,
 ) -> None:
     """Drip-feed FILE to a control in tape/DNC mode (it runs as it arrives)."""
-    from opendnc.tape.serial_io import send_program
+    from opendnc.errors import SafetyLockError
+    from opendnc.tape.serial_io import check_before_send, send_program
 
     with cli_errors():
+        if not unsafe:
+            raise SafetyLockError(f"drip-feeding {file.name} (it runs on the machine)")
         prof = _profile(
             profile,
             baud=baud,
@@ -221,6 +230,7 @@ def dnc_cmd(
             wait_dc1=wait_dc1,
             leader=leader,
         )
+        check_before_send(file, prof, drip_feed=True)
         report = send_program(
             port,
             file,

@@ -102,7 +102,7 @@ def _head(path: Path) -> list[str]:
         raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
 
 
-class _Incoming:
+class Incoming:
     """Splits the control's bytes: DC1/DC3 (either parity) for the run, the rest kept
     (a punch that starts while a send lingers belongs to the next receive)."""
 
@@ -142,6 +142,70 @@ def _config(
     )
 
 
+def prepare_send(
+    path: Path,
+    profile: Profile,
+    *,
+    drip_feed: bool = False,
+    from_line: int = 1,
+    retract: bool = True,
+    chunk: int | None = None,
+    xoff_timeout: float = 60.0,
+    wait_dc1: bool | None = None,
+    text_check: bool = True,
+    codec: Codec | None = None,
+    safe_mode: bool = True,
+) -> tuple[TapeFeed, DncConfig]:
+    """The checks before a send (safety, NC text, name rules) and its feed and run config:
+    what the blocking and the asyncio drivers share."""
+    if drip_feed and safe_mode:
+        raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
+    if from_line != 1 and not drip_feed:
+        raise InputError("a restart from a line is a drip-feed (use dnc)")
+    if text_check:
+        check_program_file(path, action="not sent")
+    if not drip_feed:
+        check_send_name(profile, _head(path), path)
+    feed = TapeFeed(path, profile, from_line=from_line, retract=retract, codec=codec)
+    try:
+        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1)
+    except BaseException:
+        feed.close()
+        raise
+    return feed, config
+
+
+def check_before_send(path: Path, profile: Profile, *, drip_feed: bool = False) -> None:
+    """Every check a send makes, before any port opens: NC text, the name rules and a pass
+    over the whole file in the profile's code (a character without a code is named)."""
+    check_program_file(path, action="not sent")
+    if not drip_feed:
+        check_send_name(profile, _head(path), path)
+    feed = TapeFeed(path, profile)
+    try:
+        for _block in feed:
+            pass
+    finally:
+        feed.close()
+
+
+def tape_report(run: DncRun, feed: TapeFeed) -> TapeReport:
+    """The report of a finished run."""
+    report = run.report()
+    return TapeReport(
+        path=feed.path,
+        profile=feed.profile.name,
+        bytes_sent=report.bytes_sent,
+        lines=report.lines,
+        xoffs=report.xoffs,
+        xons=report.xons,
+        paused_seconds=report.paused_seconds,
+        seconds=report.seconds,
+        restart=report.restart,
+        warnings=feed.warnings,
+    )
+
+
 def send_program(
     port: str | PortStream,
     path: Path,
@@ -169,20 +233,19 @@ def send_program(
     a DC3 lasts longer than ``xoff_timeout``. ``keep`` collects what the control sent that
     was not flow control (a punch that follows).
     """
-    if drip_feed and safe_mode:
-        raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
-    if from_line != 1 and not drip_feed:
-        raise InputError("a restart from a line is a drip-feed (use dnc)")
-    if text_check:
-        check_program_file(path, action="not sent")
-    if not drip_feed:
-        check_send_name(profile, _head(path), path)
-    feed = TapeFeed(path, profile, from_line=from_line, retract=retract, codec=codec)
-    try:
-        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1)
-    except BaseException:
-        feed.close()
-        raise
+    feed, config = prepare_send(
+        path,
+        profile,
+        drip_feed=drip_feed,
+        from_line=from_line,
+        retract=retract,
+        chunk=chunk,
+        xoff_timeout=xoff_timeout,
+        wait_dc1=wait_dc1,
+        text_check=text_check,
+        codec=codec,
+        safe_mode=safe_mode,
+    )
     owned = isinstance(port, str)
     try:
         stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
@@ -190,7 +253,7 @@ def send_program(
         feed.close()
         raise
     run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event)
-    incoming = _Incoming()
+    incoming = Incoming()
     timeout: float | None = None
     try:
         while True:
@@ -223,19 +286,7 @@ def send_program(
             stream.close()
     if keep is not None:
         keep += incoming.kept
-    report = run.report()
-    return TapeReport(
-        path=path,
-        profile=profile.name,
-        bytes_sent=report.bytes_sent,
-        lines=report.lines,
-        xoffs=report.xoffs,
-        xons=report.xons,
-        paused_seconds=report.paused_seconds,
-        seconds=report.seconds,
-        restart=report.restart,
-        warnings=feed.warnings,
-    )
+    return tape_report(run, feed)
 
 
 def receive_record(
