@@ -29,11 +29,11 @@ from opendnc.errors import (
 )
 from opendnc.haas.dnc_engine import DncConfig, DncEvent, DncRun, Drain, Flow, Send, Wait
 from opendnc.haas.modal import RestartPlan
-from opendnc.nctext import check_program_file
+from opendnc.nctext import check_program, check_program_file
 from opendnc.tape.codes import DC1, DC2, DC3, Codec
 from opendnc.tape.feed import HEAD_LINES, TapeFeed, leader_bytes
 from opendnc.tape.naming import check_send_name
-from opendnc.tape.profiles import Profile
+from opendnc.tape.profiles import Framing, Profile
 from opendnc.tape.reader import ReaderConfig, TapeReader
 from opendnc.tape.session import PunchReceiver, Received
 from opendnc.transport.base import PortStream
@@ -374,6 +374,10 @@ def receive_program(
             stream.close()
     target = unique_path(folder, record.name or "received.nc") if folder is not None else out
     data = record.text.encode("latin-1")
+    if profile.framing in (Framing.PERCENT, Framing.OKUMA):
+        # the NC-text guard: on a line without parity a bit error can still make a valid
+        # character of the code (G -> g); Siemens and Fagor text may hold lower case
+        check_program(data, what=target.name, action="not written")
     try:
         with atomic_write(target) as handle:
             handle.write(data)

@@ -3,6 +3,7 @@ drip-feed with DC3 back-pressure and restart, faults that end in typed errors.""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from pathlib import Path
 
@@ -104,6 +105,17 @@ def test_noisy_punch_is_a_typed_error_and_no_file(tmp_path: Path) -> None:
         with pytest.raises(DncError):
             receive_program(b.pc, out, b.profile, timeout=3, quiet=0.5)
     assert list(out.iterdir()) == []
+
+
+def test_noisy_send_raises_th_at_the_control_and_stores_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "O0011.nc"
+    path.write_text("%\nO0011\n" + BODY * 10 + "%\n")
+    with bench(get_profile("fanuc-0i"), tmp_path / "mem", noise=2e-3, seed=3) as b:
+        with contextlib.suppress(DncError):  # a DC1 the noise ate: our own typed timeout
+            send_program(b.pc, path, b.profile, xoff_timeout=1.0)
+        wait_for(lambda: bool(b.sim.alarms))
+        assert b.sim.alarms[0].number == 1
+        assert b.sim.programs() == []
 
 
 def test_cut_link_is_a_typed_error_and_no_file(tmp_path: Path) -> None:
