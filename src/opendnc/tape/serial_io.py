@@ -42,6 +42,9 @@ from opendnc.transport.urls import open_stream
 POLL = 0.05
 READ_SIZE = 4096
 WRITE_TIMEOUT = 30.0
+# after the last byte, keep the port open until the control's flow bytes have stopped this
+# long (closing can discard what an adapter or a serial server still holds; see DncConfig)
+LINGER = 0.25
 Progress = Callable[[int, int], None]
 Clock = Callable[[], float]
 
@@ -129,9 +132,15 @@ class Incoming:
 
 
 def _config(
-    profile: Profile, feed: TapeFeed, chunk: int | None, xoff_timeout: float, wait_dc1: bool | None
+    profile: Profile,
+    feed: TapeFeed,
+    chunk: int | None,
+    xoff_timeout: float,
+    wait_dc1: bool | None,
+    linger: float,
 ) -> DncConfig:
     return DncConfig(
+        linger=linger,
         flow=Flow(profile.flow),
         chunk=chunk or default_chunk(profile),
         xoff_timeout=xoff_timeout,
@@ -155,6 +164,7 @@ def prepare_send(
     text_check: bool = True,
     codec: Codec | None = None,
     safe_mode: bool = True,
+    linger: float = LINGER,
 ) -> tuple[TapeFeed, DncConfig]:
     """The checks before a send (safety, NC text, name rules) and its feed and run config:
     what the blocking and the asyncio drivers share."""
@@ -168,7 +178,7 @@ def prepare_send(
         check_send_name(profile, _head(path), path)
     feed = TapeFeed(path, profile, from_line=from_line, retract=retract, codec=codec)
     try:
-        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1)
+        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1, linger)
     except BaseException:
         feed.close()
         raise
@@ -225,13 +235,15 @@ def send_program(
     on_event: Callable[[DncEvent], None] | None = None,
     clock: Clock = time.monotonic,
     keep: bytearray | None = None,
+    linger: float = LINGER,
 ) -> TapeReport:
     """Send ``path`` to a control reading tape (``drip_feed``: running it in tape/DNC mode).
 
     Waits for the control's DC1 when the profile says so (``wait_dc1`` overrides), stops on
     DC3 within one write of ``chunk`` bytes, resumes on DC1; :class:`TransportTimeout` when
     a DC3 lasts longer than ``xoff_timeout``. ``keep`` collects what the control sent that
-    was not flow control (a punch that follows).
+    was not flow control (a punch that follows). ``linger``: seconds of quiet from the
+    control after the last byte before the port is let go.
     """
     feed, config = prepare_send(
         path,
@@ -245,6 +257,7 @@ def send_program(
         text_check=text_check,
         codec=codec,
         safe_mode=safe_mode,
+        linger=linger,
     )
     owned = isinstance(port, str)
     try:

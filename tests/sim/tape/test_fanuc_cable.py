@@ -37,7 +37,7 @@ def test_send_and_punch_back_byte_exact(name: str, tmp_path: Path) -> None:
     options = FanucOptions(punch_back=True)
     with bench(profile, tmp_path / "mem", options=options) as b:
         kept = bytearray()
-        report = send_program(b.pc, path, b.profile, keep=kept, xoff_timeout=10)
+        report = send_program(b.pc, path, b.profile, keep=kept, xoff_timeout=10, linger=0.05)
         record = verify_punch(b.pc, path, b.profile, already=bytes(kept), timeout=10)
         stored = b.sim.programs()
         assert b.sim.alarms == []
@@ -54,7 +54,7 @@ def test_eia_round_trip(tmp_path: Path) -> None:
     path.write_text(text)
     params = FanucParams(baud=115200, code=Code.EIA)
     with bench(profile, tmp_path / "mem", params=params) as b:
-        send_program(b.pc, path, b.profile, xoff_timeout=10)
+        send_program(b.pc, path, b.profile, xoff_timeout=10, linger=0.05)
         wait_for(lambda: b.sim.programs() == ["O0002.nc"])
         b.sim.select(Selection(Mode.PUNCH, "O0002.nc"))
         record = receive_record(b.pc, b.profile, timeout=10)
@@ -74,12 +74,12 @@ def test_drip_feed_back_pressure_and_restart(tmp_path: Path) -> None:
     profile = get_profile("fanuc-0i")
     tape = Selection(Mode.TAPE)
     with bench(profile, tmp_path / "mem", options=options, baud=460800, mode=tape) as b:
-        report = send_program(b.pc, path, b.profile, drip_feed=True, safe_mode=False)
+        report = send_program(b.pc, path, b.profile, drip_feed=True, safe_mode=False, linger=0.05)
         wait_for(lambda: any(m.startswith(("TAPE DONE", "ALARM")) for m in b.sim.messages))
         assert b.sim.alarms == [], b.sim.messages
         first = b.sim.executed
         restart = send_program(
-            b.pc, path, b.profile, drip_feed=True, safe_mode=False, from_line=250
+            b.pc, path, b.profile, drip_feed=True, safe_mode=False, from_line=250, linger=0.05
         )
         wait_for(lambda: sum(m.startswith("TAPE DONE") for m in b.sim.messages) == 2)
         second = b.sim.executed[len(first) :]
