@@ -3,6 +3,7 @@ punch receiver give only typed errors on any bytes."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
@@ -92,3 +93,17 @@ def test_a_program_reads_back_as_sent(lines: list[str], name: str, eob: Eob) -> 
     tail = ["%"] if profile.end_at_percent else []
     assert program == head + content + tail
     assert reader.label == (["$O0001.MIN"] if profile.framing.value == "okuma" else [])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(max_size=300), st.sampled_from(sorted(PROFILES)), st.sampled_from(list(Code)))
+def test_any_file_is_framed_or_refused_with_a_typed_error(
+    data: bytes, name: str, code: Code
+) -> None:
+    profile = PROFILES[name].with_changes(line="8N2") if code is Code.EIA else PROFILES[name]
+    profile = profile.with_changes(code=code)
+    with TemporaryDirectory() as folder:
+        path = Path(folder) / "O0001.nc"
+        path.write_bytes(data)
+        with contextlib.suppress(DncError):
+            program_wire(path, profile)
