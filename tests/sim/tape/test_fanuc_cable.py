@@ -178,3 +178,41 @@ def test_popen_dprnt_pclos_go_out_of_the_port(tmp_path: Path) -> None:
         record = receive_record(b.pc, b.profile, timeout=5)
     assert record.text == "X   1.500\nX   2.500\n"
     assert record.ended.value == "DC4"
+
+
+RETRACT = {"fanuc": "G91 G28 Z0.", "haas": "G91 G28 Z0.", "siemens": "SUPA G0 Z0"}
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_drip_feed_restart_in_every_dialect(name: str, tmp_path: Path) -> None:
+    profile = PROFILES[name]
+    moves = "".join(f"G01 X{i}. Y0.5\n" for i in range(1, 9))
+    text = program_for(profile.framing).replace("M30\n", moves + "M30\n")
+    lines = text.splitlines()
+    start = lines.index("G01 X3. Y0.5") + 1  # file line numbers are 1-based
+    path = tmp_path / "O0001.nc"
+    path.write_text(text)
+    tape = Selection(Mode.TAPE)
+    with bench(profile, tmp_path / "mem", mode=tape, options=FanucOptions(block_rate=0)) as b:
+        report = send_program(
+            b.pc, path, b.profile, drip_feed=True, safe_mode=False, from_line=start, linger=0.05
+        )
+        wait_for(lambda: any(m.startswith("TAPE DONE") for m in b.sim.messages))
+        run = b.sim.executed
+        assert b.sim.alarms == []
+    closing = ["%"] if profile.end_at_percent else []
+    tail = [line for line in lines[start - 1 :] if line != "%"]
+    assert run[-len(tail) - len(closing) :] == tail + closing
+    assert {"G21", "T1 M06", "G54", "S1200 M03"} <= set(run[: -len(tail)])
+    retract = RETRACT.get(profile.dialect)
+    if retract is None:
+        assert not {"G91 G28 Z0.", "SUPA G0 Z0"} & set(run)
+        assert any("retract by hand" in warning for warning in report.warnings)
+    else:
+        assert retract in run
+    if profile.framing is Framing.SIEMENS:
+        assert run[:3] == [
+            "%_N_O0001_MPF",
+            ";$PATH=/_N_MPF_DIR",
+            f"; OPENDNC RESTART AT LINE {start}",
+        ]
