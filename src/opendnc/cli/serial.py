@@ -40,6 +40,7 @@ def _profile(
     tv_check: bool | None = None,
     wait_dc1: bool | None = None,
     leader: int | None = None,
+    punch_dc2: bool | None = None,
 ) -> Profile:
     from opendnc.tape.codes import Code, Eob
     from opendnc.tape.profiles import get_profile
@@ -64,6 +65,7 @@ def _profile(
         wait_dc1=wait_dc1,
         leader=leader,
         trailer=leader,
+        punch_dc2=punch_dc2,
     )
     changed.line_settings  # noqa: B018 (checks a --line before any port opens)
     return changed
@@ -77,6 +79,9 @@ FlowOpt = typer.Option(None, "--flow", help="xonxoff (DC1/DC3, done by opendnc),
 TvOpt = typer.Option(None, "--tv-check/--no-tv-check", help="TV check (even blocks).")
 Dc1Opt = typer.Option(
     None, "--wait-dc1/--no-wait-dc1", help="Start only on the control's DC1 (its READ)."
+)
+Dc2Opt = typer.Option(
+    None, "--punch-dc2/--no-punch-dc2", help="A punch starts with DC2 and ends with DC4."
 )
 LeaderOpt = typer.Option(None, "--leader", help="Feed characters before and after.")
 JsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
@@ -131,6 +136,7 @@ def send_cmd(
     tv_check: bool | None = TvOpt,
     wait_dc1: bool | None = Dc1Opt,
     leader: int | None = LeaderOpt,
+    punch_dc2: bool | None = Dc2Opt,
     chunk: int | None = typer.Option(None, "--chunk", help="Bytes per write."),
     xoff_timeout: float = typer.Option(60.0, "--xoff-timeout", help="Fail if DC3 lasts longer."),
     verify: bool = typer.Option(
@@ -158,6 +164,7 @@ def send_cmd(
             tv_check=tv_check,
             wait_dc1=wait_dc1,
             leader=leader,
+            punch_dc2=punch_dc2,
         )
         check_before_send(file, prof)  # a program the control would refuse never opens the port
         stream = open_tape_port(port, prof)
@@ -265,6 +272,7 @@ def recv_cmd(
     line: str | None = LineOpt,
     code: str | None = CodeOpt,
     tv_check: bool | None = TvOpt,
+    punch_dc2: bool | None = Dc2Opt,
     timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the punch."),
     quiet: float | None = typer.Option(
         None, "--quiet", help="Seconds of silence that end the receive (default: the profile's)."
@@ -279,7 +287,9 @@ def recv_cmd(
     from opendnc.tape.serial_io import open_tape_port, receive_program
 
     with cli_errors():
-        prof = _profile(profile, baud=baud, line=line, code=code, tv_check=tv_check)
+        prof = _profile(
+            profile, baud=baud, line=line, code=code, tv_check=tv_check, punch_dc2=punch_dc2
+        )
         if not out.is_dir() and not out.parent.is_dir():
             raise InputError(f"no folder {out.parent} for {out.name}")
         # the port is open before the ready file appears: a punch after it is never lost
