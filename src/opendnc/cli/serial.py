@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -170,9 +171,16 @@ def send_cmd(
         stream = open_tape_port(port, prof)
         with contextlib.closing(stream):
             kept = bytearray()
-            report = send_program(
-                stream, file, prof, chunk=chunk, xoff_timeout=xoff_timeout, keep=kept
-            )
+            with _bar(f"send {file.name}", file.stat().st_size, json_out) as progress:
+                report = send_program(
+                    stream,
+                    file,
+                    prof,
+                    chunk=chunk,
+                    xoff_timeout=xoff_timeout,
+                    keep=kept,
+                    progress=progress,
+                )
             result: dict[str, Any] = {"sent": report}
             if not json_out:
                 _print_sent(report)
@@ -188,11 +196,29 @@ def send_cmd(
             print_json(result)
 
 
+@contextlib.contextmanager
+def _bar(label: str, total: int, json_out: bool) -> Iterator[Callable[[int, int], None]]:
+    """A byte progress bar on stderr (none with --json); yields the engine's progress callback."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+
+    bar = Progress(
+        TextColumn(label),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        console=err_console,
+        disable=json_out,
+    )
+    with bar:
+        task = bar.add_task(label, total=total)
+        yield lambda done, size: bar.update(task, completed=done, total=size)
+
+
 def _print_sent(report: Any) -> None:
     console.print(
         f"sent {report.path.name} ({report.profile}): {report.bytes_sent} bytes, "
-        f"{report.lines} blocks in {report.seconds:.2f} s; DC3 {report.xoffs}x "
-        f"({report.paused_seconds:.2f} s held)",
+        f"{report.lines} blocks in {report.seconds:.2f} s; held {report.paused_seconds:.2f} s "
+        f"(waiting for DC1, DC3 {report.xoffs}x)",
         highlight=False,
     )
 
@@ -238,17 +264,19 @@ def dnc_cmd(
             leader=leader,
         )
         check_before_send(file, prof, drip_feed=True)
-        report = send_program(
-            port,
-            file,
-            prof,
-            drip_feed=True,
-            from_line=from_line,
-            retract=not no_retract,
-            chunk=chunk,
-            xoff_timeout=xoff_timeout,
-            safe_mode=not unsafe,
-        )
+        with _bar(f"dnc {file.name}", file.stat().st_size, json_out) as progress:
+            report = send_program(
+                port,
+                file,
+                prof,
+                drip_feed=True,
+                from_line=from_line,
+                retract=not no_retract,
+                chunk=chunk,
+                xoff_timeout=xoff_timeout,
+                safe_mode=not unsafe,
+                progress=progress,
+            )
         if json_out:
             print_json(report)
             return
