@@ -35,6 +35,11 @@ def fanuc(
     buffer_blocks: int = typer.Option(
         16, "--buffer-blocks", help="Tape-mode buffer (DC3 when full)."
     ),
+    read_rate: float = typer.Option(
+        0.0,
+        "--read-rate",
+        help="Characters a second READ stores (0 = as they come; DC3 when behind).",
+    ),
     run: str | None = typer.Option(None, "--run", help="Run this stored program (DPRNT output)."),
     ready: Path | None = typer.Option(None, "--ready-file", help=READY_FILE_HELP),
 ) -> None:
@@ -70,6 +75,7 @@ def fanuc(
             buffer_blocks=buffer_blocks,
             punch_back=punch_back,
             resume_blocks=max(0, buffer_blocks // 4),
+            read_rate=read_rate,
         )
         stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):

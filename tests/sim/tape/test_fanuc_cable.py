@@ -94,6 +94,24 @@ def test_drip_feed_back_pressure_and_restart(tmp_path: Path) -> None:
     assert second == ["%", *preamble, *moves[250 - len(head) - 1 :], "M30", "%"]
 
 
+def test_send_paused_by_a_slow_memory_arrives_whole(tmp_path: Path) -> None:
+    # 24 kB, more than the cable and the ptys hold, into a memory slower than the line
+    blocks = "".join(
+        f"G01 X{i % 50}.5 Y{i % 7}.25 (PASS {i:04d} OF THE SLOW READ)\n" for i in range(500)
+    )
+    text = "%\nO0012 (SLOW)\n" + blocks + "M30\n%\n"
+    path = tmp_path / "O0012.nc"
+    path.write_text(text)
+    options = FanucOptions(read_rate=30000, read_buffer=256)
+    with bench(get_profile("fanuc-0i"), tmp_path / "mem", options=options, baud=460800) as b:
+        report = send_program(b.pc, path, b.profile, linger=0.05)
+        wait_for(lambda: b.sim.programs() == ["O0012.nc"])
+        assert b.sim.alarms == []
+    assert report.xoffs >= 1
+    assert report.paused_seconds > 0.05
+    assert (tmp_path / "mem" / "O0012.nc").read_text() == text
+
+
 def test_noisy_punch_is_a_typed_error_and_no_file(tmp_path: Path) -> None:
     mem = tmp_path / "mem"
     mem.mkdir()

@@ -107,6 +107,10 @@ class FanucOptions:
     stall_timeout: float = 5.0
     punch_back: bool = False
     punch_delay: float = 0.05
+    # READ: characters a second the memory stores (0 = as fast as they come) and the buffer
+    # in front of it: DC3 when it holds read_buffer characters, DC1 at a quarter of that
+    read_rate: float = 0.0
+    read_buffer: int = 256
 
 
 @dataclass
@@ -328,35 +332,59 @@ class VirtualFanuc:
                 break
 
     def _read_job(self) -> None:
+        options = self.options
         reader = self._reader()
+        pending = bytearray()  # read off the line, not yet stored (read_rate > 0)
+        xoff = False
+        after_xoff = 0
+        stream = self._stream_()
         self._send(DC1)
-        asked = time.monotonic()
-        heard = asked
+        asked = heard = stored_at = time.monotonic()
         while not self._interrupted():
+            stream.set_timeout(0.002 if pending else POLL)
             data = self._read()
             now = time.monotonic()
-            if not data:
-                if not reader.started and now - asked >= self.options.dc1_interval:
-                    self._send(DC1)
-                    asked = now
-                elif reader.started and now - heard > self.options.stall_timeout:
-                    self._abort(ALARM_NOT_READY, f"no data for {self.options.stall_timeout:g} s")
-                    return
-                continue
-            heard = now
-            self.busy = reader.started
+            if data:
+                heard = now
+                self.busy = True
+                if xoff:
+                    after_xoff += len(data)
+                    if after_xoff > options.overrun_limit:
+                        self._abort(ALARM_OVERFLOW, f"{after_xoff} characters after DC3")
+                        break
+                pending += data
+            elif not reader.started and not pending and now - asked >= options.dc1_interval:
+                self._send(DC1)
+                asked = now
+            elif reader.started and not xoff and now - heard > options.stall_timeout:
+                self._abort(ALARM_NOT_READY, f"no data for {options.stall_timeout:g} s")
+                break
+            # store what the memory takes: all of it, or read_rate characters a second
+            take = len(pending)
+            if options.read_rate > 0:
+                take = min(take, int((now - stored_at) * options.read_rate))
+            if take or not pending:
+                stored_at = now
+            chunk, pending[:take] = bytes(pending[:take]), b""
             try:
-                reader.feed(data)
+                reader.feed(chunk)
             except TapeWireError as exc:
                 self._abort(self._alarm_for(exc), str(exc))
-                return
+                break
             if reader.ended is not None:  # its %, DC4 or end-of-file byte
                 self._send(DC3)
                 name = self._store(reader)
-                if name is not None and self.options.punch_back:
-                    time.sleep(self.options.punch_delay)
+                if name is not None and options.punch_back:
+                    time.sleep(options.punch_delay)
                     self._punch(name)
-                return
+                break
+            if not xoff and len(pending) >= options.read_buffer:
+                self._send(DC3)
+                xoff, after_xoff = True, 0
+            elif xoff and len(pending) <= options.read_buffer // 4:
+                self._send(DC1)
+                xoff = False
+        stream.set_timeout(POLL)
 
     def _store(self, reader: TapeReader) -> str | None:
         name = received_name(self.profile, reader.label, reader.program) or "O0000.nc"
