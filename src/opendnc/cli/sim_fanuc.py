@@ -70,6 +70,8 @@ def fanuc(
                 raise InputError(f"bad --param {item!r}: use NUMBER=VALUE, e.g. 0000=3")
             numbers[key.strip()] = int(value)
         params = FanucParams.from_numbers(numbers, params)
+        if run is not None and not mode.strip().lower().startswith("idle"):
+            raise InputError("--run prints on the port: use it with --mode idle")
         options = FanucOptions(
             block_rate=block_rate,
             buffer_blocks=buffer_blocks,
