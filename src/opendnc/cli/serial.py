@@ -330,8 +330,9 @@ def recv_cmd(
         if json_out:
             print_json(report)
             return
+        names = ", ".join(path.name for path in report.paths or (report.path,))
         console.print(
-            f"received {report.path.name}: {report.bytes} bytes, {report.lines} lines "
+            f"received {names}: {report.bytes} bytes, {report.lines} lines "
             f"(ended at {report.ended})",
             highlight=False,
         )

@@ -32,7 +32,7 @@ from opendnc.haas.modal import RestartPlan
 from opendnc.nctext import check_program, check_program_file
 from opendnc.tape.codes import DC1, DC2, DC3, Codec
 from opendnc.tape.feed import HEAD_LINES, TapeFeed, leader_bytes
-from opendnc.tape.naming import check_send_name
+from opendnc.tape.naming import check_send_name, received_name
 from opendnc.tape.profiles import Framing, Profile
 from opendnc.tape.reader import ReaderConfig, TapeReader
 from opendnc.tape.session import PunchReceiver, Received
@@ -75,6 +75,9 @@ class ReceiveReport:
     lines: int
     ended: str
     seconds: float
+    # a Sinumerik archive holds several files, each from its own %_N_..._MPF line: all of
+    # them, in order (``path`` is the first)
+    paths: tuple[Path, ...] = ()
 
 
 def open_tape_port(url: str, profile: Profile, *, baud: int | None = None) -> PortStream:
@@ -385,25 +388,49 @@ def receive_program(
     finally:
         if isinstance(port, str):
             stream.close()
-    target = unique_path(folder, record.name or "received.nc") if folder is not None else out
-    data = record.text.encode("latin-1")
-    if profile.framing in (Framing.PERCENT, Framing.OKUMA):
-        # the NC-text guard: on a line without parity a bit error can still make a valid
-        # character of the code (G -> g); Siemens and Fagor text may hold lower case
-        check_program(data, what=target.name, action="not written")
-    try:
-        with atomic_write(target) as handle:
-            handle.write(data)
-    except OSError as exc:
-        raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
+    parts = split_archive(record.text) if profile.framing is Framing.SIEMENS else [record.text]
+    if len(parts) > 1 and folder is None:
+        raise InputError(f"the control sent {len(parts)} files: receive them into a folder")
+    written: list[Path] = []
+    total = 0
+    for index, text in enumerate(parts):
+        name = record.name if index == 0 else received_name(profile, [], text.splitlines())
+        target = unique_path(folder, name or "received.nc") if folder is not None else out
+        data = text.encode("latin-1")
+        if profile.framing in (Framing.PERCENT, Framing.OKUMA):
+            # the NC-text guard: on a line without parity a bit error can still make a valid
+            # character of the code (G -> g); Siemens and Fagor text may hold lower case
+            check_program(data, what=target.name, action="not written")
+        try:
+            with atomic_write(target) as handle:
+                handle.write(data)
+        except OSError as exc:
+            raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
+        written.append(target)
+        total += len(data)
     return ReceiveReport(
-        path=target,
+        path=written[0],
         name=record.name,
-        bytes=len(data),
+        bytes=total,
         lines=record.text.count("\n"),
         ended=record.ended.value,
         seconds=clock() - started,
+        paths=tuple(written),
     )
+
+
+def split_archive(text: str) -> list[str]:
+    """A Sinumerik punch-tape archive cut into its files, each starting at a ``%`` in
+    column 1 (docs/tape.md#framing); text before the first ``%`` stays with the first."""
+    parts: list[str] = []
+    for line in text.splitlines(keepends=True):
+        if line.startswith("%") and parts and parts[-1].strip():
+            parts.append(line)
+        elif parts:
+            parts[-1] += line
+        else:
+            parts.append(line)
+    return parts or [text]
 
 
 def expected_text(path: Path, profile: Profile, codec: Codec | None = None) -> str:

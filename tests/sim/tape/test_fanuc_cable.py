@@ -112,6 +112,22 @@ def test_send_paused_by_a_slow_memory_arrives_whole(tmp_path: Path) -> None:
     assert (tmp_path / "mem" / "O0012.nc").read_text() == text
 
 
+def test_a_sinumerik_archive_is_received_file_by_file(tmp_path: Path) -> None:
+    first = "%_N_SHAFT_MPF\n;$PATH=/_N_MPF_DIR\nG0 X10\nM30\n"
+    second = "%_N_HOLES_SPF\n;$PATH=/_N_SPF_DIR\nG1 X1 F100\nM17\n"
+    mem = tmp_path / "mem"
+    mem.mkdir()
+    (mem / "ARCHIVE.MPF").write_text(first + second)
+    out = tmp_path / "out"
+    out.mkdir()
+    with bench(get_profile("siemens-840d"), mem, mode=Selection(Mode.IDLE)) as b:
+        b.sim.select(Selection(Mode.PUNCH, "ARCHIVE.MPF"))
+        report = receive_program(b.pc, out, b.profile, timeout=5)
+    assert [p.name for p in report.paths] == ["SHAFT.MPF", "HOLES.SPF"]
+    assert (out / "SHAFT.MPF").read_text() == first
+    assert (out / "HOLES.SPF").read_text() == second
+
+
 def test_noisy_punch_is_a_typed_error_and_no_file(tmp_path: Path) -> None:
     mem = tmp_path / "mem"
     mem.mkdir()
