@@ -16,6 +16,7 @@ from opendnc.tape.profiles import PROFILES, Framing, get_profile
 from opendnc.tape.serial_io import receive_program, receive_record, send_program, verify_punch
 from tests.sim.tape.conftest import bench, wait_for
 
+FAST = 2_000_000  # baud of the back-pressure tests: 181,818 characters a second
 BODY = "G21\nG00 G17 G40 G80 G90\nT1 M06\nG54\nS1200 M03\nG00 X1. Y-1.5\nG01 Z-0.1 F20.\nM30\n"
 
 
@@ -63,23 +64,24 @@ def test_eia_round_trip(tmp_path: Path) -> None:
 
 
 def test_drip_feed_back_pressure_and_restart(tmp_path: Path) -> None:
-    # 24 kB, more than the cable and the ptys hold (about 10 kB), at 460800 baud so the test
-    # stays short: the control runs slower than the line, so only its DC3 can stop us
+    # 100 kB: more than the PC's pty (64 kB) and the cable (4 kB) hold, so the PC cannot have
+    # written it all before the control's first DC3; 2 Mbaud keeps the test short. The
+    # control runs slower than the line: only its DC3 can hold us back.
     comment = "(" + "PASS" * 10 + ")"
-    moves = [f"G01 X{i % 50}.5 Y{i % 7}.25 Z-0.{i % 9}5 F20. {comment}" for i in range(300)]
+    moves = [f"G01 X{i % 50}.5 Y{i % 7}.25 Z-0.{i % 9}5 F20. {comment}" for i in range(1250)]
     head = ["%", "O0003 (DNC)", "G21", "T2 M06", "G55", "S900 M03"]
     path = tmp_path / "O0003.nc"
     path.write_text("\n".join([*head, *moves, "M30", "%"]) + "\n")
-    options = FanucOptions(block_rate=400, buffer_blocks=16, resume_blocks=4)
+    options = FanucOptions(block_rate=1500, buffer_blocks=16, resume_blocks=4)
     profile = get_profile("fanuc-0i")
     tape = Selection(Mode.TAPE)
-    with bench(profile, tmp_path / "mem", options=options, baud=460800, mode=tape) as b:
+    with bench(profile, tmp_path / "mem", options=options, baud=FAST, mode=tape) as b:
         report = send_program(b.pc, path, b.profile, drip_feed=True, safe_mode=False, linger=0.05)
         wait_for(lambda: any(m.startswith(("TAPE DONE", "ALARM")) for m in b.sim.messages))
         assert b.sim.alarms == [], b.sim.messages
         first = b.sim.executed
         restart = send_program(
-            b.pc, path, b.profile, drip_feed=True, safe_mode=False, from_line=250, linger=0.05
+            b.pc, path, b.profile, drip_feed=True, safe_mode=False, from_line=1200, linger=0.05
         )
         wait_for(lambda: sum(m.startswith("TAPE DONE") for m in b.sim.messages) == 2)
         second = b.sim.executed[len(first) :]
@@ -89,21 +91,21 @@ def test_drip_feed_back_pressure_and_restart(tmp_path: Path) -> None:
     assert first == [*head, *moves, "M30", "%"]
     assert restart.restart is not None
     preamble = list(restart.restart.preamble)
-    assert preamble[:2] == ["O0003 (DNC)", "(OPENDNC RESTART AT LINE 250)"]
+    assert preamble[:2] == ["O0003 (DNC)", "(OPENDNC RESTART AT LINE 1200)"]
     assert {"G21", "T2 M06", "G55", "S900 M03"} <= set(preamble)
-    assert second == ["%", *preamble, *moves[250 - len(head) - 1 :], "M30", "%"]
+    assert second == ["%", *preamble, *moves[1200 - len(head) - 1 :], "M30", "%"]
 
 
 def test_send_paused_by_a_slow_memory_arrives_whole(tmp_path: Path) -> None:
-    # 24 kB, more than the cable and the ptys hold, into a memory slower than the line
+    # 100 kB, more than the ptys and the cable hold, into a memory slower than the line
     blocks = "".join(
-        f"G01 X{i % 50}.5 Y{i % 7}.25 (PASS {i:04d} OF THE SLOW READ)\n" for i in range(500)
+        f"G01 X{i % 50}.5 Y{i % 7}.25 (PASS {i:04d} OF THE SLOW READ)\n" for i in range(2000)
     )
     text = "%\nO0012 (SLOW)\n" + blocks + "M30\n%\n"
     path = tmp_path / "O0012.nc"
     path.write_text(text)
-    options = FanucOptions(read_rate=30000, read_buffer=256)
-    with bench(get_profile("fanuc-0i"), tmp_path / "mem", options=options, baud=460800) as b:
+    options = FanucOptions(read_rate=100_000, read_buffer=256)
+    with bench(get_profile("fanuc-0i"), tmp_path / "mem", options=options, baud=FAST) as b:
         report = send_program(b.pc, path, b.profile, linger=0.05)
         wait_for(lambda: b.sim.programs() == ["O0012.nc"])
         assert b.sim.alarms == []
