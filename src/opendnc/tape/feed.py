@@ -20,6 +20,7 @@ import re
 from collections.abc import Iterator
 from pathlib import Path
 
+from opendnc.errors import InputError
 from opendnc.haas.dnc_engine import ProgramFeed
 from opendnc.haas.modal import ModalState, track
 from opendnc.tape.codes import Codec
@@ -151,8 +152,6 @@ class TapeFeed(ProgramFeed):
             if (stripped.startswith("%") and stripped != "%") or stripped.startswith(";$PATH="):
                 head.append((number, text, done))
             state = track(state, text)
-        from opendnc.errors import InputError
-
         raise InputError(f"{self.path} has fewer than {self.from_line} lines")
 
 
