@@ -115,12 +115,21 @@ def _haas_waiting(tmp: Path) -> tuple[list[str], str, Callable[[str], list[socke
     return [*args, "--run", "100"], r"^MEMORY", lambda _out: []
 
 
+def _fanuc(tmp: Path) -> tuple[list[str], str, Callable[[str], list[socket.socket]]]:
+    # its serial line: a TCP port on loopback (a serial device server), closed by the test
+    line = socket.create_server(("127.0.0.1", 0))
+    port = line.getsockname()[1]
+    args = ["sim", "fanuc", "--serial", f"tcp://127.0.0.1:{port}", "--root", str(tmp / "fanuc")]
+    return args, r"^MODE ", lambda _out: [line]
+
+
 SIMULATORS = {
     "tnc": _tnc,
     "haas": _haas,
     "haas-run": _haas_waiting,
     "fleet": _fleet,
     "cable": _cable,
+    "fanuc": _fanuc,
 }
 
 

@@ -39,6 +39,9 @@ COMMANDS: dict[str, Lazy] = {
     "xmodem": Lazy("opendnc.cli.xmodem:app", "XModem transfers (Haas RS-232)."),
     "haas": Lazy("opendnc.cli.haas:app", "Haas controls: MDC queries, macro variables, Net Share."),
     "dprnt": Lazy("opendnc.cli.dprnt:app", "Capture DPRNT output from a Haas."),
+    "serial": Lazy(
+        "opendnc.cli.serial:app", "Tape code over RS-232 for any control (Fanuc, Siemens, ...)."
+    ),
     "heidenhain": Lazy(
         "opendnc.cli.heidenhain:app", "Heidenhain blockwise (FE) file transfer over RS-232."
     ),

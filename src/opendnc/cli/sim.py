@@ -13,6 +13,7 @@ app = lazy_typer(
         "tnc": Lazy("opendnc.cli.sim_tnc:tnc", "Run a virtual Heidenhain TNC (LSV2 over TCP)."),
         "cable": Lazy("opendnc.cli.sim_cable:cable", "Run a virtual null-modem cable."),
         "haas": Lazy("opendnc.cli.sim_haas:haas", "Run a virtual Haas control."),
+        "fanuc": Lazy("opendnc.cli.sim_fanuc:fanuc", "Run a virtual Fanuc on a serial port."),
         "fleet": Lazy("opendnc.cli.sim_fleet:fleet", "Run many virtual controls in one process."),
     },
 )

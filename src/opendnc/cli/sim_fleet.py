@@ -20,6 +20,9 @@ def fleet(
     serial_haas: int = typer.Option(
         0, "--serial-haas", help="Virtual Haas on virtual RS-232 cables (XModem, drip-feed)."
     ),
+    fanuc: int = typer.Option(
+        0, "--fanuc", help="Virtual Fanucs on virtual RS-232 cables (tape code, fanuc-0i)."
+    ),
     base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
     root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
@@ -60,6 +63,7 @@ def fleet(
             receipts=receipts,
             latency=latency / 1000,
             block_rate=block_rate,
+            fanuc=fanuc,
         )
         try:
             if config_out is not None:
@@ -81,7 +85,7 @@ def fleet(
         console.print("stopped")
 
     with cli_errors(), ready_file(ready) as mark_ready:
-        if tnc < 0 or haas < 0 or serial_haas < 0:
+        if tnc < 0 or haas < 0 or serial_haas < 0 or fanuc < 0:
             raise InputError("--tnc and --haas count controls: 0 or more")
         try:
             if root is not None:

@@ -11,6 +11,7 @@ to the share is in the control's memory, as on a machine whose share is mounted 
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import json
 from collections.abc import Callable
@@ -26,6 +27,7 @@ from opendnc.sim.tnc.server import TncServer, serve_tnc
 
 if TYPE_CHECKING:
     from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.fanuc import VirtualFanuc
     from opendnc.sim.haas.serial_front import SerialFrontEnd
 
 __all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
@@ -36,7 +38,9 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    kind: str  # "lsv2", "haas_ngc" or "haas_serial", as in the server's configuration
+    # "lsv2", "haas_ngc" or "haas_serial", as in the server's configuration; "serial" for a
+    # virtual Fanuc (a tape-code control, which the server does not serve yet)
+    kind: str
     host: str
     port: int  # 0 for a serial machine
     root: Path
@@ -58,6 +62,8 @@ class Fleet:
     operator's key press."""
     sims: dict[str, SimHaas] = field(default_factory=dict, repr=False)
     """Every virtual Haas by machine name (its ``control`` holds program memory and state)."""
+    fanucs: dict[str, VirtualFanuc] = field(default_factory=dict, repr=False)
+    """Every virtual Fanuc by machine name (:class:`opendnc.sim.fanuc.VirtualFanuc`)."""
 
     async def close(self) -> None:
         """Stop every control."""
@@ -65,6 +71,9 @@ class Fleet:
             await tnc.close()
         for haas in self._haas:
             await haas.close()
+        for fanuc in self.fanucs.values():
+            await asyncio.to_thread(fanuc.close)
+        self.fanucs.clear()
         for cable in self._cables:
             cable.close()
         self._tncs.clear()
@@ -87,6 +96,7 @@ async def start_fleet(
     receipts: Path | None = None,
     latency: float = 0.0,
     dprnt: bool = False,
+    fanuc: int = 0,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -102,8 +112,12 @@ async def start_fleet(
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
     ``latency``: seconds each virtual TNC takes to answer a telegram (a busy control).
+    ``fanuc``: virtual Fanucs (``opendnc.sim.fanuc``, profile fanuc-0i, in READ) on cables of
+    their own at ``baud``, 11 bits a character.
     """
-    if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas == 0:
+    if fanuc < 0:
+        raise InputError("--fanuc counts controls: 0 or more")
+    if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas + fanuc == 0:
         raise InputError("start at least one control (--tnc N and/or --haas M)")
     if base_port and not 0 < base_port <= 65535 - (tnc + haas):
         raise InputError(f"--base-port {base_port}: the fleet needs {tnc + haas} ports above it")
@@ -143,6 +157,8 @@ async def start_fleet(
         for k in range(serial_haas):
             folder = root / f"haas-serial-{k + 1}"
             await _start_serial_haas(fleet, folder, k, baud, block_rate, dnc_timeout)
+        for n in range(fanuc):
+            await asyncio.to_thread(_start_fanuc, fleet, root / f"fanuc-{n + 1}", n, baud)
     except BaseException:
         await fleet.close()
         raise
@@ -189,6 +205,21 @@ async def _start_serial_haas(
     fleet.machines.append(FleetMachine(name, "haas_serial", "", 0, folder, cable.path_b, baud))
 
 
+def _start_fanuc(fleet: Fleet, folder: Path, n: int, baud: int) -> None:
+    # Imported here: the cable needs ptys (POSIX), the simulator pyserial.
+    from opendnc.sim.cable.link import VirtualCable
+    from opendnc.sim.fanuc import VirtualFanuc
+    from opendnc.tape.profiles import get_profile
+
+    profile = get_profile("fanuc-0i").with_changes(baud=baud)
+    cable = VirtualCable(baud, profile.bits_per_char).start()
+    fleet._cables.append(cable)
+    sim = VirtualFanuc(cable.path_a, folder, profile=profile).start()
+    name = f"fanuc-{n + 1}"
+    fleet.fanucs[name] = sim
+    fleet.machines.append(FleetMachine(name, "serial", "", 0, folder, cable.path_b, baud))
+
+
 def server_config(
     fleet: Fleet,
     *,
@@ -229,6 +260,15 @@ def server_config(
         if check is not None:
             lines.append(f"check = {q(check)}")
     for m in fleet.machines:
+        if m.kind == "serial":
+            # the server has no tape-code kind yet: the machine is listed for the reader
+            lines += [
+                "",
+                f"# {m.name}: a virtual Fanuc, not served yet (no `serial` machine kind):",
+                f"# opendnc serial send PROGRAM --profile fanuc-0i --port {m.serial} "
+                f"--baud {m.baud}",
+            ]
+            continue
         lines += [
             "",
             "[[machines]]",

@@ -1,0 +1,113 @@
+"""Program names: the rules a sent program must meet, and what a received one is called.
+
+Rules by :class:`~opendnc.tape.profiles.Naming` (docs/tape.md#names):
+
+* O-numbers: ``O`` and 1..``o_digits`` digits on the first program line (``O0001 (PART)``);
+  a received program is stored as ``O0001.nc``;
+* Fanuc 30i: an O-number or a name of up to 32 characters in ``<...>``;
+* Okuma: ``$NAME.MIN`` before the ``%``: a letter and up to 15 letters or digits, an
+  extension of up to 3; the name comes from the file name when sending;
+* Siemens: ``%_N_NAME_MPF`` (or ``_SPF``), NAME up to 24 of ``0-9 A-Z a-z _``; from the
+  file name when the file has no header; received as ``NAME.MPF``;
+* Fagor: the header's comment (``%comment,MX,``, up to 20 characters) names the file.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from opendnc.errors import InputError
+from opendnc.tape.profiles import Naming, Profile
+
+_O_LINE = re.compile(r"^\s*O(\d+)")
+_ANGLE = re.compile(r"^\s*<([^<>]{1,32})>")
+_SIEMENS_HEAD = re.compile(r"^%(?:_N_)?([0-9A-Za-z_]+?)_(MPF|SPF)\s*$")
+_SIEMENS_NAME = re.compile(r"^[0-9A-Za-z_]{1,24}$")
+_OKUMA_NAME = re.compile(r"^[A-Z][A-Z0-9]{0,15}$")
+_OKUMA_HEAD = re.compile(r"^\$([A-Z][A-Z0-9]{0,15})(?:\.([A-Z]{1,3}))?")
+_SAFE = re.compile(r"[^0-9A-Za-z_.-]+")
+
+
+def o_number(lines: list[str], digits: int) -> str | None:
+    """``O1234`` from the first line that starts with an O-number, checking its length."""
+    for text in lines:
+        match = _O_LINE.match(text)
+        if match:
+            if len(match.group(1)) > digits:
+                raise InputError(
+                    f"O{match.group(1)} has more than {digits} digits, more than the control takes"
+                )
+            return "O" + match.group(1)
+    return None
+
+
+def okuma_name(path: Path) -> str:
+    """``$`` header name for ``path``: its stem, upper case, which must follow Okuma's rule."""
+    stem = path.stem.upper()
+    if not _OKUMA_NAME.match(stem):
+        raise InputError(
+            f"{path.name}: an Okuma file name is a letter and up to 15 letters or digits"
+        )
+    return f"{stem}.MIN"
+
+
+def siemens_name(path: Path) -> str:
+    """The Siemens program name for ``path`` (its stem), checked."""
+    stem = path.stem
+    if not _SIEMENS_NAME.match(stem):
+        raise InputError(
+            f"{path.name}: a Sinumerik name is up to 24 of 0-9 A-Z a-z _ ({stem!r} is not)"
+        )
+    return stem
+
+
+def check_send_name(profile: Profile, head: list[str], path: Path) -> None:
+    """Refuse a program the control would not take under its name (before any byte goes)."""
+    if profile.naming is Naming.O_NUMBER:
+        if o_number(head, profile.o_digits) is None:
+            raise InputError(
+                f"{path.name}: no O-number line (O and up to {profile.o_digits} digits)"
+            )
+    elif profile.naming is Naming.FANUC_30I:
+        if (
+            not any(_ANGLE.match(text) for text in head)
+            and o_number(head, profile.o_digits) is None
+        ):
+            raise InputError(f"{path.name}: no O-number line and no <NAME> line")
+    elif profile.naming is Naming.OKUMA:
+        okuma_name(path)
+    elif profile.naming is Naming.SIEMENS:
+        first = next((text.strip() for text in head if text.strip()), "")
+        if not (first.startswith("%") and first != "%"):
+            siemens_name(path)
+
+
+def received_name(profile: Profile, label: list[str], program: list[str]) -> str | None:
+    """The file name for a received program, or ``None`` when it carries no name."""
+    if profile.naming in (Naming.O_NUMBER, Naming.FANUC_30I):
+        for text in program[:3]:
+            match = _O_LINE.match(text) or _ANGLE.match(text)
+            if match:
+                name = match.group(1)
+                return f"O{name}.nc" if match.re is _O_LINE else _safe(name) + ".nc"
+        return None
+    if profile.naming is Naming.OKUMA:
+        for text in label:
+            match = _OKUMA_HEAD.match(text.strip())
+            if match:
+                return f"{match.group(1)}.{match.group(2) or 'MIN'}"
+        return None
+    first = program[0].strip() if program else ""
+    if profile.naming is Naming.SIEMENS:
+        match = _SIEMENS_HEAD.match(first)
+        return f"{match.group(1)}.{match.group(2)}" if match else None
+    # Fagor: %comment,flags,
+    if first.startswith("%") and "," in first:
+        comment = _safe(first[1:].split(",", 1)[0].strip())
+        return f"{comment}.PIM" if comment else None
+    return None
+
+
+def _safe(name: str) -> str:
+    return _SAFE.sub("_", name).strip("._") or "program"

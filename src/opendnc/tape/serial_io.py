@@ -1,0 +1,479 @@
+"""Blocking drivers of the tape engine over a port: send, drip-feed, receive a punch.
+
+The decisions are the engine's: a :class:`~opendnc.haas.dnc_engine.DncRun` over a
+:class:`~opendnc.tape.feed.TapeFeed` for a send or a drip-feed (DC1 starts, DC3 pauses,
+DC1 resumes; small writes so little follows a DC3), a
+:class:`~opendnc.tape.session.PunchReceiver` for a punch. This module only carries out
+their steps on a :class:`~opendnc.transport.base.PortStream` from the one dispatcher
+(:func:`opendnc.transport.open_stream`: devices, ``socket://``, ``tcp://``, ``rfc2217://``).
+
+A drip-feed runs the program on the machine: :func:`send_program` refuses it with
+:class:`~opendnc.errors.SafetyLockError` unless ``safe_mode=False``. A received program is
+written with :mod:`opendnc.atomicfile`: whole or not at all.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from opendnc.atomicfile import atomic_write
+from opendnc.errors import (
+    InputError,
+    PeerClosed,
+    SafetyLockError,
+    TransferError,
+    TransportTimeout,
+)
+from opendnc.haas.dnc_engine import DncConfig, DncEvent, DncRun, Drain, Flow, Send, Wait
+from opendnc.haas.modal import RestartPlan
+from opendnc.nctext import check_program, check_program_file
+from opendnc.tape.codes import DC1, DC2, DC3, Codec
+from opendnc.tape.feed import HEAD_LINES, TapeFeed, leader_bytes
+from opendnc.tape.naming import check_send_name, received_name
+from opendnc.tape.profiles import Framing, Profile
+from opendnc.tape.reader import ReaderConfig, TapeReader
+from opendnc.tape.session import PunchReceiver, Received
+from opendnc.transport.base import PortStream
+from opendnc.transport.urls import open_stream
+
+POLL = 0.05
+READ_SIZE = 4096
+WRITE_TIMEOUT = 30.0
+# after the last byte, keep the port open until the control's flow bytes have stopped this
+# long (closing can discard what an adapter or a serial server still holds; see DncConfig)
+LINGER = 0.25
+Progress = Callable[[int, int], None]
+Clock = Callable[[], float]
+
+
+@dataclass(frozen=True, slots=True)
+class TapeReport:
+    """What a send or drip-feed did."""
+
+    path: Path
+    profile: str
+    bytes_sent: int
+    lines: int
+    xoffs: int
+    xons: int
+    paused_seconds: float
+    seconds: float
+    restart: RestartPlan | None
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiveReport:
+    """What a receive wrote."""
+
+    path: Path
+    name: str | None
+    bytes: int
+    lines: int
+    ended: str
+    seconds: float
+    # a Sinumerik archive holds several files, each from its own %_N_..._MPF line: all of
+    # them, in order (``path`` is the first)
+    paths: tuple[Path, ...] = ()
+
+
+def open_tape_port(url: str, profile: Profile, *, baud: int | None = None) -> PortStream:
+    """Open ``url`` with ``profile``'s line (a 7E line as 8N with parity in the codec)."""
+    bits, parity, stop = profile.port_settings
+    return open_stream(
+        url,
+        baud or profile.baud,
+        parity=parity,
+        bytesize=bits,
+        stopbits=stop,
+        flow="rtscts" if profile.flow == "rtscts" else "none",
+        timeout=POLL,
+        write_timeout=WRITE_TIMEOUT,
+    )
+
+
+def default_chunk(profile: Profile) -> int:
+    """Bytes per write: fewer than the control accepts after its DC3 (Fanuc: 10)."""
+    return max(1, min(16, profile.xoff_slack - 2))
+
+
+def _head(path: Path) -> list[str]:
+    try:
+        with path.open("rb") as handle:
+            return [handle.readline().decode("latin-1") for _ in range(HEAD_LINES)]
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
+
+
+class Incoming:
+    """Splits the control's bytes: DC1/DC3 (either parity) for the run, the rest kept
+    (a punch that starts while a send lingers belongs to the next receive)."""
+
+    def __init__(self) -> None:
+        self.kept = bytearray()
+        self._punching = False
+
+    def split(self, data: bytes) -> bytes:
+        if self._punching:
+            self.kept += data
+            return b""
+        flow = bytearray()
+        for index, byte in enumerate(data):
+            low = byte & 0x7F
+            if low in (DC1, DC3):
+                flow.append(low)
+            elif low == DC2:
+                self._punching = True
+                self.kept += data[index:]
+                break
+            else:
+                self.kept.append(byte)
+        return bytes(flow)
+
+
+def _config(
+    profile: Profile,
+    feed: TapeFeed,
+    chunk: int | None,
+    xoff_timeout: float,
+    wait_dc1: bool | None,
+    linger: float,
+) -> DncConfig:
+    return DncConfig(
+        linger=linger,
+        flow=Flow(profile.flow),
+        chunk=chunk or default_chunk(profile),
+        xoff_timeout=xoff_timeout,
+        wait_for_xon=profile.wait_dc1 if wait_dc1 is None else wait_dc1,
+        text_check=False,
+        leader=leader_bytes(profile, profile.leader, feed.codec),
+        trailer=leader_bytes(profile, profile.trailer, feed.codec),
+    )
+
+
+def prepare_send(
+    path: Path,
+    profile: Profile,
+    *,
+    drip_feed: bool = False,
+    from_line: int = 1,
+    retract: bool = True,
+    chunk: int | None = None,
+    xoff_timeout: float = 60.0,
+    wait_dc1: bool | None = None,
+    text_check: bool = True,
+    codec: Codec | None = None,
+    safe_mode: bool = True,
+    linger: float = LINGER,
+) -> tuple[TapeFeed, DncConfig]:
+    """The checks before a send (safety, NC text, name rules) and its feed and run config:
+    what the blocking and the asyncio drivers share."""
+    if drip_feed and safe_mode:
+        raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
+    if from_line != 1 and not drip_feed:
+        raise InputError("a restart from a line is a drip-feed (use dnc)")
+    if text_check:
+        check_program_file(path, action="not sent")
+    if not drip_feed:
+        check_send_name(profile, _head(path), path)
+    feed = TapeFeed(path, profile, from_line=from_line, retract=retract, codec=codec)
+    try:
+        config = _config(profile, feed, chunk, xoff_timeout, wait_dc1, linger)
+    except BaseException:
+        feed.close()
+        raise
+    return feed, config
+
+
+def check_before_send(path: Path, profile: Profile, *, drip_feed: bool = False) -> None:
+    """Every check a send makes, before any port opens: NC text, the name rules and a pass
+    over the whole file in the profile's code (a character without a code is named)."""
+    check_program_file(path, action="not sent")
+    if not drip_feed:
+        check_send_name(profile, _head(path), path)
+    feed = TapeFeed(path, profile)
+    try:
+        for _block in feed:
+            pass
+    finally:
+        feed.close()
+
+
+def tape_report(run: DncRun, feed: TapeFeed) -> TapeReport:
+    """The report of a finished run."""
+    report = run.report()
+    return TapeReport(
+        path=feed.path,
+        profile=feed.profile.name,
+        bytes_sent=report.bytes_sent,
+        lines=report.lines,
+        xoffs=report.xoffs,
+        xons=report.xons,
+        paused_seconds=report.paused_seconds,
+        seconds=report.seconds,
+        restart=report.restart,
+        warnings=feed.warnings,
+    )
+
+
+def send_program(
+    port: str | PortStream,
+    path: Path,
+    profile: Profile,
+    *,
+    drip_feed: bool = False,
+    from_line: int = 1,
+    retract: bool = True,
+    baud: int | None = None,
+    chunk: int | None = None,
+    xoff_timeout: float = 60.0,
+    wait_dc1: bool | None = None,
+    text_check: bool = True,
+    codec: Codec | None = None,
+    safe_mode: bool = True,
+    progress: Progress | None = None,
+    on_event: Callable[[DncEvent], None] | None = None,
+    clock: Clock = time.monotonic,
+    keep: bytearray | None = None,
+    linger: float = LINGER,
+) -> TapeReport:
+    """Send ``path`` to a control reading tape (``drip_feed``: running it in tape/DNC mode).
+
+    Waits for the control's DC1 when the profile says so (``wait_dc1`` overrides), stops on
+    DC3 within one write of ``chunk`` bytes, resumes on DC1; :class:`TransportTimeout` when
+    a DC3 lasts longer than ``xoff_timeout``. ``keep`` collects what the control sent that
+    was not flow control (a punch that follows). ``linger``: seconds of quiet from the
+    control after the last byte before the port is let go.
+    """
+    feed, config = prepare_send(
+        path,
+        profile,
+        drip_feed=drip_feed,
+        from_line=from_line,
+        retract=retract,
+        chunk=chunk,
+        xoff_timeout=xoff_timeout,
+        wait_dc1=wait_dc1,
+        text_check=text_check,
+        codec=codec,
+        safe_mode=safe_mode,
+        linger=linger,
+    )
+    owned = isinstance(port, str)
+    try:
+        stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
+    except BaseException:
+        feed.close()
+        raise
+    run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event)
+    incoming = Incoming()
+    timeout: float | None = None
+    try:
+        while True:
+            try:
+                run.incoming(incoming.split(stream.read_nowait(READ_SIZE)))
+            except PeerClosed:
+                run.link_closed()
+            step = run.next_step()
+            if isinstance(step, Send):
+                stream.write(step.data)
+                if step.drain:
+                    stream.drain()
+            elif isinstance(step, Wait):
+                if step.seconds != timeout:
+                    timeout = step.seconds
+                    stream.set_timeout(timeout)
+                try:
+                    run.incoming(incoming.split(stream.read(READ_SIZE)))
+                except TransportTimeout:
+                    pass
+                except PeerClosed:
+                    run.link_closed()
+            elif isinstance(step, Drain):
+                stream.drain()
+            else:
+                break
+    finally:
+        feed.close()
+        if owned:
+            stream.close()
+    if keep is not None:
+        keep += incoming.kept
+    return tape_report(run, feed)
+
+
+def receive_record(
+    stream: PortStream,
+    profile: Profile,
+    *,
+    timeout: float | None = 60.0,
+    quiet: float | None = None,
+    quiet_ends: bool = False,
+    codec: Codec | None = None,
+    already: bytes = b"",
+    clock: Clock = time.monotonic,
+) -> Received:
+    """Read one punched record from ``stream`` (see :class:`PunchReceiver`)."""
+    receiver = PunchReceiver(
+        profile, codec=codec, start_timeout=timeout, quiet=quiet, quiet_ends=quiet_ends
+    )
+    receiver.receive_data(already)
+    serial = -1
+    deadline = float("inf")
+    current: float | None = None
+    while not receiver.finished:
+        timer = receiver.timer
+        if timer is not None and timer.serial != serial:
+            serial, deadline = timer.serial, clock() + timer.seconds
+        now = clock()
+        if timer is not None and now >= deadline:
+            receiver.timed_out()
+            continue
+        wait = POLL if timer is None else max(0.001, min(POLL, deadline - now))
+        if wait != current:
+            current = wait
+            stream.set_timeout(wait)
+        try:
+            receiver.receive_data(stream.read(READ_SIZE))
+        except TransportTimeout:
+            continue
+        except PeerClosed:
+            receiver.peer_closed()
+    return receiver.result()
+
+
+def unique_path(folder: Path, name: str) -> Path:
+    """``folder/name``, or ``name-1``, ``name-2`` ... when taken: never overwrite."""
+    target = folder / name
+    stem, suffix = target.stem, target.suffix
+    count = 1
+    while target.exists():
+        target = folder / f"{stem}-{count}{suffix}"
+        count += 1
+    return target
+
+
+def receive_program(
+    port: str | PortStream,
+    out: Path,
+    profile: Profile,
+    *,
+    baud: int | None = None,
+    timeout: float | None = 60.0,
+    quiet: float | None = None,
+    quiet_ends: bool = False,
+    codec: Codec | None = None,
+    clock: Clock = time.monotonic,
+) -> ReceiveReport:
+    """Receive one punched program into ``out`` (a folder: named by the program, never
+    overwriting; or a file name). Nothing is written unless the record is whole."""
+    started = clock()
+    folder = out if out.is_dir() else None
+    if folder is None and not out.parent.is_dir():
+        raise InputError(f"no folder {out.parent} for {out.name}")
+    stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
+    try:
+        record = receive_record(
+            stream,
+            profile,
+            timeout=timeout,
+            quiet=quiet,
+            quiet_ends=quiet_ends,
+            codec=codec,
+            clock=clock,
+        )
+    finally:
+        if isinstance(port, str):
+            stream.close()
+    parts = split_archive(record.text) if profile.framing is Framing.SIEMENS else [record.text]
+    if len(parts) > 1 and folder is None:
+        raise InputError(f"the control sent {len(parts)} files: receive them into a folder")
+    written: list[Path] = []
+    total = 0
+    for index, text in enumerate(parts):
+        name = record.name if index == 0 else received_name(profile, [], text.splitlines())
+        target = unique_path(folder, name or "received.nc") if folder is not None else out
+        data = text.encode("latin-1")
+        if profile.framing in (Framing.PERCENT, Framing.OKUMA):
+            # the NC-text guard: on a line without parity a bit error can still make a valid
+            # character of the code (G -> g); Siemens and Fagor text may hold lower case
+            check_program(data, what=target.name, action="not written")
+        try:
+            with atomic_write(target) as handle:
+                handle.write(data)
+        except OSError as exc:
+            raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
+        written.append(target)
+        total += len(data)
+    return ReceiveReport(
+        path=written[0],
+        name=record.name,
+        bytes=total,
+        lines=record.text.count("\n"),
+        ended=record.ended.value,
+        seconds=clock() - started,
+        paths=tuple(written),
+    )
+
+
+def split_archive(text: str) -> list[str]:
+    """A Sinumerik punch-tape archive cut into its files, each starting at a ``%`` in
+    column 1 (docs/tape.md#framing); text before the first ``%`` stays with the first."""
+    parts: list[str] = []
+    for line in text.splitlines(keepends=True):
+        if line.startswith("%") and parts and parts[-1].strip():
+            parts.append(line)
+        elif parts:
+            parts[-1] += line
+        else:
+            parts.append(line)
+    return parts or [text]
+
+
+def expected_text(path: Path, profile: Profile, codec: Codec | None = None) -> str:
+    """What a control stores of ``path`` sent with ``profile`` (read back from our bytes)."""
+    from opendnc.tape.feed import program_wire
+
+    used = codec or profile.codec()
+    reader = TapeReader(
+        ReaderConfig(
+            codec=used,
+            end_at_percent=profile.end_at_percent,
+            eof_char=None if profile.eof_byte is None else chr(profile.eof_byte),
+        )
+    )
+    reader.feed(program_wire(path, profile, codec=used))
+    reader.quiet()
+    return reader.text()
+
+
+def first_difference(expected: str, got: str) -> str | None:
+    """``None`` when equal (line ends aside), else which line differs and how."""
+    want, have = expected.splitlines(), got.splitlines()
+    for number, (a, b) in enumerate(zip(want, have, strict=False), start=1):
+        if a.rstrip() != b.rstrip():
+            return f"line {number}: sent {a!r}, punched {b!r}"
+    if len(want) != len(have):
+        return f"sent {len(want)} lines, punched {len(have)}"
+    return None
+
+
+def verify_punch(
+    stream: PortStream,
+    path: Path,
+    profile: Profile,
+    *,
+    already: bytes = b"",
+    timeout: float = 60.0,
+    codec: Codec | None = None,
+) -> Received:
+    """Wait for the control to punch ``path`` back and compare; :class:`TransferError`
+    names the first line that differs."""
+    record = receive_record(stream, profile, timeout=timeout, codec=codec, already=already)
+    problem = first_difference(expected_text(path, profile, codec), record.text)
+    if problem is not None:
+        raise TransferError(f"verify of {path.name} failed: {problem}")
+    return record

@@ -1,0 +1,162 @@
+"""Receiving a punch (sans-IO): wait for the control's DC2, read the record, end it right.
+
+The control drives a punch: it sends DC2 (punch on), leader, the record, trailer, DC4
+(punch off). :class:`PunchReceiver` is fed what arrives and told when its :attr:`timer` ran
+out; the driver holds the clock and the port. It ends
+
+* at the record's closing ``%`` (ISO) or ER (EIA), without waiting for the DC4;
+* at DC4 or at the profile's end-of-file byte (Siemens, Fagor), or
+* after ``quiet`` seconds without a byte, but only as a failure unless ``quiet_ends``
+  (a capture without an end mark, such as DPRNT without PCLOS): a link cut in the middle
+  of a program must never leave a file that looks whole.
+
+Every failure is typed: :class:`~opendnc.errors.TransportTimeout` when no punch starts,
+:class:`~opendnc.errors.TransferError` for a record cut short, and the reader's
+:class:`~opendnc.tape.errors.TapeWireError` for damaged characters.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from opendnc.errors import TransferError, TransportTimeout
+from opendnc.tape.codes import DC2, Codec
+from opendnc.tape.naming import received_name
+from opendnc.tape.profiles import Profile
+from opendnc.tape.reader import End, ReaderConfig, TapeReader
+from opendnc.xmodem.events import Timer
+
+
+class State(enum.Enum):
+    """Where a punch receive is."""
+
+    WAITING = "waiting"  # for DC2 (or the first character)
+    RECEIVING = "receiving"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """A whole record: its text (LF line ends), its name if it carries one, why it ended."""
+
+    text: str
+    name: str | None
+    label: tuple[str, ...]
+    ended: End
+    wire_bytes: int
+
+
+class PunchReceiver:
+    """Sans-IO receive of one punched record for ``profile``; see the module doc."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        *,
+        codec: Codec | None = None,
+        start_timeout: float | None = None,
+        quiet: float | None = None,
+        quiet_ends: bool = False,
+    ) -> None:
+        self.profile = profile
+        self.reader = TapeReader(
+            ReaderConfig(
+                codec=codec or profile.codec(),
+                tv_check=profile.tv_check,
+                end_at_percent=profile.end_at_percent,
+                eof_char=None if profile.eof_byte is None else chr(profile.eof_byte),
+            )
+        )
+        self.quiet = profile.quiet if quiet is None else quiet
+        self.quiet_ends = quiet_ends
+        self.start_timeout = start_timeout
+        self.state = State.WAITING
+        self.leftover = b""  # bytes after the end of the record
+        self._serial = 0
+        self.timer: Timer | None = None
+        if start_timeout is not None:
+            self.timer = Timer(self._serial, start_timeout)
+
+    @property
+    def finished(self) -> bool:
+        """The record is complete."""
+        return self.state is State.DONE
+
+    def receive_data(self, data: bytes) -> None:
+        """Bytes from the control."""
+        if not data or self.state is State.DONE:
+            return
+        if self.state is State.WAITING and self.profile.punch_dc2:
+            start = _find_dc2(data)
+            if start < 0:
+                return  # flow bytes, noise or an earlier punch's tail: not ours
+            data = data[start + 1 :]
+            self._start()
+        used = self.reader.feed(data)
+        if self.state is State.WAITING and (self.reader.started or self.reader.ended):
+            self._start()
+        if self.state is State.RECEIVING:
+            self._arm(self.quiet)
+        if self.reader.ended is not None:
+            self.leftover = data[used:]
+            self._check_end()
+
+    def _start(self) -> None:
+        self.state = State.RECEIVING
+        self._arm(self.quiet)
+
+    def _arm(self, seconds: float) -> None:
+        self._serial += 1
+        self.timer = Timer(self._serial, seconds)
+
+    def timed_out(self) -> None:
+        """The timer ran out without new bytes."""
+        if self.state is State.WAITING:
+            raise TransportTimeout(
+                f"no punch from the control within {self.start_timeout:g} s "
+                "(select the program and press PUNCH)"
+            )
+        if self.state is State.RECEIVING:
+            self.reader.quiet()
+            self._check_end()
+
+    def peer_closed(self) -> None:
+        """The link closed: a record not yet ended is lost."""
+        if self.state is not State.DONE:
+            raise TransferError(self._cut("the link closed"))
+
+    def _cut(self, what: str) -> str:
+        reader = self.reader
+        return (
+            f"{what} after {reader.received} bytes, in line {reader.line}, before the end "
+            "of the program: nothing was written"
+        )
+
+    def _check_end(self) -> None:
+        reader = self.reader
+        ended = reader.ended
+        if ended is End.QUIET and not self.quiet_ends:
+            raise TransferError(self._cut(f"the line went quiet for {self.quiet:g} s"))
+        if not reader.blocks:
+            raise TransferError("the control ended the punch without sending a program")
+        self.state = State.DONE
+        self.timer = None
+
+    def result(self) -> Received:
+        """The record, once :attr:`finished`."""
+        reader = self.reader
+        assert reader.ended is not None
+        assert self.finished
+        return Received(
+            text=reader.text(),
+            name=received_name(self.profile, reader.label, reader.program),
+            label=tuple(reader.label),
+            ended=reader.ended,
+            wire_bytes=reader.received,
+        )
+
+
+def _find_dc2(data: bytes) -> int:
+    # DC2 has an even number of ones: the same byte with or without the ISO parity bit
+    return data.find(bytes((DC2,)))

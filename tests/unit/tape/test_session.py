@@ -1,0 +1,65 @@
+"""The punch receiver's endings and the split of the control's bytes during a send."""
+
+from __future__ import annotations
+
+import pytest
+
+from opendnc.errors import TransferError, TransportTimeout
+from opendnc.tape.codes import Code, Codec
+from opendnc.tape.profiles import get_profile
+from opendnc.tape.reader import End
+from opendnc.tape.serial_io import Incoming, first_difference
+from opendnc.tape.session import PunchReceiver
+
+
+def _iso(text: str) -> bytes:
+    return Codec(Code.ISO, parity=True).encode_text(text, 0)
+
+
+def test_a_punch_starts_at_dc2_and_ends_at_its_percent() -> None:
+    receiver = PunchReceiver(get_profile("fanuc-0i"), start_timeout=1.0)
+    receiver.receive_data(_iso("\x11\x13O0001\n"))  # flow bytes and stray text before DC2
+    assert not receiver.finished
+    receiver.receive_data(b"\x12\0\0" + _iso("%\nO0009\nG01\n%\n") + b"\0\x14")
+    result = receiver.result()
+    assert (result.text, result.name, result.ended) == (
+        "%\nO0009\nG01\n%\n",
+        "O0009.nc",
+        End.PERCENT,
+    )
+    assert receiver.leftover == _iso("\n") + b"\0\x14"
+
+
+def test_quiet_before_the_end_is_a_failure_unless_asked() -> None:
+    strict = PunchReceiver(get_profile("fanuc-0i"), quiet=0.1)
+    strict.receive_data(b"\x12" + _iso("%\nO0009\nG01\n"))
+    with pytest.raises(TransferError, match=r"quiet .* line 4.*nothing was written"):
+        strict.timed_out()
+    loose = PunchReceiver(get_profile("fanuc-0i"), quiet=0.1, quiet_ends=True)
+    loose.receive_data(b"\x12" + _iso("X 1.500\n"))
+    loose.timed_out()
+    assert loose.result().text == "X 1.500\n"
+
+
+def test_no_punch_and_a_closed_link_are_typed() -> None:
+    waiting = PunchReceiver(get_profile("fanuc-0i"), start_timeout=2.0)
+    with pytest.raises(TransportTimeout, match="no punch from the control within 2 s"):
+        waiting.timed_out()
+    cut = PunchReceiver(get_profile("siemens-840d"))
+    cut.receive_data(b"%_N_A_MPF\nG0 X1\n")
+    with pytest.raises(TransferError, match="the link closed after 16 bytes"):
+        cut.peer_closed()
+
+
+def test_incoming_takes_both_dc3_bytes_and_keeps_a_punch_whole() -> None:
+    incoming = Incoming()
+    assert incoming.split(b"\x11\x93\x13\x91") == b"\x11\x13\x13\x11"
+    punch = b"\x12\x00" + _iso("%\nX3\n")
+    assert incoming.split(b"\x11" + punch) == b"\x11"
+    assert incoming.split(b"\x13") == b""  # after DC2 everything belongs to the punch
+    assert bytes(incoming.kept) == punch + b"\x13"
+
+
+def test_first_difference_names_the_line() -> None:
+    assert first_difference("%\nA\nB\n", "%\nA \nB\n") is None
+    assert first_difference("%\nA\nB\n", "%\nA\nC\n") == "line 3: sent 'B', punched 'C'"
