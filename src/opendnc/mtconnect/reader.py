@@ -1,0 +1,218 @@
+"""Reading one device of an MTConnect agent over HTTP (httpx), asyncio.
+
+The loop is the one the standard's clients use (docs/mtconnect-input.md#reading): ``probe``
+once, ``current`` for every value as it is, then one long ``sample?from=&interval=``
+stream, resumed from the next sequence when it breaks. A new ``instanceId`` (the agent
+restarted) means probe and current again; a gap (``OUT_OF_RANGE``, or a document whose
+buffer starts past what we took) means current again. An agent that does not stream
+(``UNSUPPORTED``, or a plain document where a stream was asked for) is polled with
+``current`` instead. What the documents say is parsed by :mod:`.documents` and kept by
+:mod:`.device_state`; this module only moves bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from dataclasses import dataclass
+
+import httpx
+
+from opendnc.errors import RemoteProtocolError, TransportError, TransportTimeout, os_reason
+from opendnc.mtconnect.device_state import DeviceState, Snapshot
+from opendnc.mtconnect.documents import (
+    AgentRefused,
+    Streams,
+    parse_devices,
+    parse_streams,
+)
+from opendnc.mtconnect.multipart import MultipartSplitter, boundary_of
+
+__all__ = ["AgentReader", "ReaderCounts"]
+
+log = logging.getLogger(__name__)
+
+# errorCode words that mean "this agent will not stream": poll current instead
+_NO_STREAMING = frozenset({"UNSUPPORTED", "INVALID_REQUEST", "INVALID_QUERY_PARAMETER"})
+
+
+class _Restarted(Exception):
+    """The agent's instanceId changed under a stream."""
+
+
+class _Gap(Exception):
+    """Observations we had not taken left the agent's buffer."""
+
+
+@dataclass
+class ReaderCounts:
+    """What happened on the link since the reader opened (for logs, tests and benchmarks)."""
+
+    probes: int = 0
+    currents: int = 0
+    streams: int = 0  # sample streams opened
+    documents: int = 0  # streamed documents taken
+    restarts: int = 0  # instanceId changes seen
+    gaps: int = 0  # resynchronisations after lost observations
+
+
+class AgentReader:
+    """One device of an agent at ``url`` (``http://host:port``, maybe with a path prefix).
+
+    :meth:`open` probes and reads current; :meth:`follow` then keeps :meth:`snapshot` up to
+    date until the agent cannot be reached, which it raises as a
+    :class:`~opendnc.errors.TransportError` (the caller reconnects with :meth:`open`).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        device: str = "",
+        *,
+        interval: float = 0.1,
+        heartbeat: float = 1.0,
+        timeout: float = 3.0,
+        streaming: bool = True,
+        count: int = 1000,
+    ) -> None:
+        self.url = url.rstrip("/")
+        self.device = device
+        self.interval = interval
+        self.heartbeat = heartbeat
+        self.timeout = timeout
+        self.streaming = streaming
+        self.count = count
+        self.counts = ReaderCounts()
+        self.state: DeviceState | None = None
+        self.changed = asyncio.Event()  # set whenever a document changed the state
+        self._client: httpx.AsyncClient | None = None
+
+    def _path(self, request: str) -> str:
+        return f"{self.url}/{self.device}/{request}" if self.device else f"{self.url}/{request}"
+
+    def snapshot(self) -> Snapshot:
+        """The device's latest values (empty before :meth:`open`)."""
+        return self.state.snapshot() if self.state is not None else Snapshot()
+
+    async def open(self) -> Snapshot:
+        """Probe the agent and read every current value."""
+        if self._client is None:
+            # Streams send at least one document per heartbeat: three missed ones is a dead link.
+            timeout = httpx.Timeout(self.timeout, read=max(self.timeout, 3 * self.heartbeat))
+            self._client = httpx.AsyncClient(timeout=timeout, trust_env=False)
+        devices = parse_devices(await self._get(self._path("probe")))
+        self.counts.probes += 1
+        self.state = DeviceState(devices, self.device)
+        await self._current()
+        return self.snapshot()
+
+    async def close(self) -> None:
+        """Close the HTTP client; safe to call at any time."""
+        client, self._client = self._client, None
+        if client is not None:
+            with contextlib.suppress(httpx.HTTPError, RuntimeError):
+                await client.aclose()
+
+    async def follow(self) -> None:
+        """Keep the state up to date; returns never, raises when the agent is gone."""
+        while True:
+            try:
+                if self.streaming:
+                    await self._stream()
+                else:
+                    await asyncio.sleep(self.interval)
+                    await self._current()
+            except _Restarted:
+                self.counts.restarts += 1
+                log.info("%s: the agent restarted; probing again", self.url)
+                await self.open()
+            except _Gap:
+                self.counts.gaps += 1
+                log.info("%s: observations were lost; reading current", self.url)
+                await self._current()
+            except AgentRefused as exc:
+                if "OUT_OF_RANGE" in exc.codes:
+                    self.counts.gaps += 1
+                    await self._current()
+                elif self.streaming and _NO_STREAMING & set(exc.codes):
+                    log.info("%s: no streaming (%s); polling current", self.url, exc)
+                    self.streaming = False
+                else:
+                    raise
+
+    async def _current(self) -> None:
+        assert self.state is not None
+        current = parse_streams(await self._get(self._path("current")))
+        self.counts.currents += 1
+        if current.header.instance_id != self.state.instance_id:
+            raise _Restarted
+        self.state.load(current)
+        self.changed.set()
+
+    def _take(self, sample: Streams) -> None:
+        state = self.state
+        assert state is not None
+        if sample.header.instance_id != state.instance_id:
+            raise _Restarted
+        if sample.header.first_sequence > state.last_sequence + 1:
+            raise _Gap
+        if state.update(sample):
+            self.changed.set()
+
+    async def _stream(self) -> None:
+        """One sample stream from the next sequence, until it ends (a clean end returns)."""
+        assert self.state is not None
+        assert self._client is not None
+        params = {
+            "from": str(self.state.last_sequence + 1),
+            "count": str(self.count),
+            "interval": str(round(self.interval * 1000)),
+            "heartbeat": str(round(self.heartbeat * 1000)),
+        }
+        try:
+            async with self._client.stream("GET", self._path("sample"), params=params) as answer:
+                boundary = boundary_of(answer.headers.get("content-type", ""))
+                if boundary is None:
+                    # a plain document (an error, or an agent that does not stream)
+                    self._take(parse_streams(await answer.aread()))
+                    self.streaming = False
+                    return
+                self.counts.streams += 1
+                splitter = MultipartSplitter(boundary)
+                async for chunk in answer.aiter_bytes():
+                    for part in splitter.feed(chunk):
+                        self.counts.documents += 1
+                        self._take(parse_streams(part))
+                    if splitter.closed:
+                        return
+        except httpx.TimeoutException:
+            raise TransportTimeout(f"{self.url}: the agent's stream went silent") from None
+        except httpx.HTTPError as exc:
+            if isinstance(exc, httpx.RemoteProtocolError | httpx.ReadError):
+                return  # the agent closed the stream: resume it (a restart shows on reconnect)
+            raise TransportError(f"{self.url}: {_reason(exc)}") from None
+
+    async def _get(self, url: str) -> bytes:
+        if self._client is None:
+            raise TransportError(f"{self.url}: not open")
+        try:
+            answer = await self._client.get(url)
+        except httpx.TimeoutException:
+            raise TransportTimeout(f"{self.url}: no answer from the agent in time") from None
+        except httpx.HTTPError as exc:
+            raise TransportError(f"{self.url}: {_reason(exc)}") from None
+        if answer.status_code >= 400 and b"MTConnectError" not in answer.content[:4096]:
+            raise RemoteProtocolError(f"{self.url}: HTTP {answer.status_code} from the agent")
+        return answer.content
+
+
+def _reason(exc: httpx.HTTPError) -> str:
+    """The cause's words ("connection refused"), not httpx's wrapping."""
+    cause: BaseException | None = exc
+    while cause is not None and cause.__cause__ is not None:
+        cause = cause.__cause__
+    text = str(cause or exc) or type(exc).__name__
+    if isinstance(cause, OSError):
+        text = os_reason(cause)
+    return f"cannot read the agent: {text}"
