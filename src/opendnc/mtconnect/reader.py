@@ -116,10 +116,16 @@ class AgentReader:
 
     async def follow(self) -> None:
         """Keep the state up to date; returns never, raises when the agent is gone."""
+        empty = 0  # streams in a row that ended without a document
         while True:
             try:
                 if self.streaming:
-                    await self._stream()
+                    empty = 0 if await self._stream() else empty + 1
+                    if empty >= 3:
+                        # an agent that ends every stream at once would be asked again and again
+                        raise RemoteProtocolError(
+                            f"{self.url}: the agent ends every stream at once"
+                        )
                 else:
                     await asyncio.sleep(self.interval)
                     await self._current()
@@ -160,8 +166,8 @@ class AgentReader:
         if state.update(sample):
             self.changed.set()
 
-    async def _stream(self) -> None:
-        """One sample stream from the next sequence, until it ends (a clean end returns)."""
+    async def _stream(self) -> int:
+        """One sample stream from the next sequence, until it ends; the documents it held."""
         assert self.state is not None
         assert self._client is not None
         params = {
@@ -170,6 +176,7 @@ class AgentReader:
             "interval": str(round(self.interval * 1000)),
             "heartbeat": str(round(self.heartbeat * 1000)),
         }
+        taken = 0
         try:
             async with self._client.stream("GET", self._path("sample"), params=params) as answer:
                 boundary = boundary_of(answer.headers.get("content-type", ""))
@@ -177,21 +184,23 @@ class AgentReader:
                     # a plain document (an error, or an agent that does not stream)
                     self._take(parse_streams(await answer.aread()))
                     self.streaming = False
-                    return
+                    return 1
                 self.counts.streams += 1
                 splitter = MultipartSplitter(boundary)
                 async for chunk in answer.aiter_bytes():
                     for part in splitter.feed(chunk):
                         self.counts.documents += 1
+                        taken += 1
                         self._take(parse_streams(part))
                     if splitter.closed:
-                        return
+                        break
         except httpx.TimeoutException:
             raise TransportTimeout(f"{self.url}: the agent's stream went silent") from None
+        except (httpx.RemoteProtocolError, httpx.ReadError):
+            pass  # the agent closed the stream: resume it (a restart shows then)
         except httpx.HTTPError as exc:
-            if isinstance(exc, httpx.RemoteProtocolError | httpx.ReadError):
-                return  # the agent closed the stream: resume it (a restart shows on reconnect)
             raise TransportError(f"{self.url}: {_reason(exc)}") from None
+        return taken
 
     async def _get(self, url: str) -> bytes:
         if self._client is None:
@@ -210,9 +219,8 @@ class AgentReader:
 def _reason(exc: httpx.HTTPError) -> str:
     """The cause's words ("connection refused"), not httpx's wrapping."""
     cause: BaseException | None = exc
-    while cause is not None and cause.__cause__ is not None:
-        cause = cause.__cause__
-    text = str(cause or exc) or type(exc).__name__
-    if isinstance(cause, OSError):
-        text = os_reason(cause)
-    return f"cannot read the agent: {text}"
+    while cause is not None:
+        if isinstance(cause, OSError):
+            return f"cannot read the agent: {os_reason(cause)}"
+        cause = cause.__cause__ or cause.__context__
+    return f"cannot read the agent: {exc or type(exc).__name__}"
