@@ -104,6 +104,9 @@ class DeviceState:
             self._field[item.id] = field
             taken.add(field)
         self.last_sequence = 0  # the newest observation taken
+        # Every device of MTConnect 1.1 and later has an Availability item; one without it
+        # (an older agent) is taken as available while its agent answers.
+        self._has_availability = "availability" in taken
 
     def load(self, current: Streams) -> None:
         """Take a ``current`` answer: every value as it is now (what was known before goes)."""
@@ -184,7 +187,7 @@ class DeviceState:
             for level, description in entries.values():
                 (faults if level == "Fault" else warnings).append(description)
         return Snapshot(
-            availability=text("availability"),
+            availability=text("availability") if self._has_availability else "AVAILABLE",
             execution=text("execution"),
             controller_mode=text("controller_mode"),
             emergency_stop=text("emergency_stop"),

@@ -73,6 +73,7 @@ class AgentReader:
         interval: float = 0.1,
         heartbeat: float = 1.0,
         timeout: float = 3.0,
+        poll: float = 1.0,
         streaming: bool = True,
         count: int = 1000,
     ) -> None:
@@ -81,6 +82,7 @@ class AgentReader:
         self.interval = interval
         self.heartbeat = heartbeat
         self.timeout = timeout
+        self.poll = poll  # seconds between current requests when the agent does not stream
         self.streaming = streaming
         self.count = count
         self.counts = ReaderCounts()
@@ -127,7 +129,7 @@ class AgentReader:
                             f"{self.url}: the agent ends every stream at once"
                         )
                 else:
-                    await asyncio.sleep(self.interval)
+                    await asyncio.sleep(self.poll)
                     await self._current()
             except _Restarted:
                 self.counts.restarts += 1

@@ -1,0 +1,146 @@
+"""The ``mtconnect`` kind against the virtual agent over real sockets: a scripted run appears on
+the floor (``/api/machines``) with the script's states, part count and alarm text within a
+second; an agent restart and a sequence gap lose and double nothing
+(docs/mtconnect-input.md)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector
+from opendnc.sim.mtconnect.machine import ScriptedMachine
+from tests.server.mtconnect_support import AgentThread, Floor, agent_thread, floor
+
+LAG_S = 1.0  # the most a change at the agent may take to show on the floor
+POLL_S = 0.2  # the machines' poll_interval here: the floor's lag is about this plus the stream's
+
+
+def _machine(agent: AgentThread, name: str, **extra: object) -> dict[str, object]:
+    return {
+        "name": name,
+        "kind": "mtconnect",
+        "url": agent.agent.url,
+        "device": name,
+        "poll_interval": POLL_S,
+        **extra,
+    }
+
+
+Step = tuple[str, Callable[[ScriptedMachine], object], dict[str, Any]]
+
+# The script, and what the floor must show after each step: the classifier's state, the
+# agent's execution word, and what the script put there (program, line, parts, alarm text).
+SCRIPT: list[Step] = [
+    ("start", lambda m: m.start("O1234"), {"state": "running", "execution": "ACTIVE"}),
+    ("cut", lambda m: m.cut(25), {"state": "running", "line": 26, "program": "O1234"}),
+    ("feed hold", lambda m: m.feed_hold(), {"state": "stopped", "execution": "FEED_HOLD"}),
+    ("resume", lambda m: m.resume(), {"state": "running", "execution": "ACTIVE"}),
+    (
+        "alarm",
+        lambda m: m.alarm("1010", "SPINDLE OVERLOAD"),
+        {"state": "alarm", "execution": "STOPPED", "errors": ["1010 SPINDLE OVERLOAD"]},
+    ),
+    ("reset", lambda m: m.reset(), {"state": "ready", "execution": "READY", "errors": []}),
+    ("start again", lambda m: m.start("O1234"), {"state": "running", "part_count": 3}),
+    (
+        "part counted",
+        lambda m: m.finish(),
+        {"state": "ready", "execution": "PROGRAM_COMPLETED", "part_count": 4},
+    ),
+    ("e-stop", lambda m: m.emergency_stop(), {"state": "alarm", "errors": [EMERGENCY_STOP]}),
+    ("reset e-stop", lambda m: m.reset(), {"state": "ready", "errors": []}),
+    ("switched off", lambda m: m.power_off(), {"state": "offline"}),
+]
+
+
+def _shows(want: dict[str, Any]) -> Callable[[dict[str, Any]], bool]:
+    def check(machine: dict[str, Any]) -> bool:
+        status = machine["status"] or {}
+        seen = {"state": machine["state"], **status}
+        return all(seen.get(key) == value for key, value in want.items())
+
+    return check
+
+
+def test_a_scripted_run_shows_on_the_floor_within_a_second(tmp_path: Path) -> None:
+    with agent_thread(["mill"]) as agent, floor(tmp_path, [_machine(agent, "mill")]) as shop:
+        agent.step("mill", lambda m: m.power_on(parts=3))
+        shop.until("mill", "ready", _shows({"state": "ready", "part_count": 3}), 0)
+        lags = []
+        for what, action, want in SCRIPT:
+            done = agent.step("mill", action)
+            lags.append(shop.until("mill", what, _shows(want), done))
+            if what == "alarm":
+                # the card, as the dashboard renders it: the kind, the alarm's text, the parts
+                page = shop.page("/")
+                card = page[page.index('data-machine="mill"') :]
+                card = card[: card.index("</dl>")]
+                assert "MTConnect agent" in card
+                assert "Alarm: 1010 SPINDLE OVERLOAD" in card
+                assert '<dd class="parts">3</dd>' in card
+        assert max(lags) < LAG_S, dict(zip([s[0] for s in SCRIPT], lags, strict=True))
+
+
+def _connector(shop: Floor, name: str) -> MtconnectConnector:
+    connector = shop.connectors[name][-1]
+    assert isinstance(connector, MtconnectConnector)
+    return connector
+
+
+def test_an_agent_restart_loses_and_doubles_nothing(tmp_path: Path) -> None:
+    with agent_thread(["vmc"]) as agent, floor(tmp_path, [_machine(agent, "vmc")]) as shop:
+        agent.step("vmc", lambda m: m.power_on(parts=10))
+        agent.step("vmc", lambda m: m.start("O2000"))
+        shop.until("vmc", "running", _shows({"state": "running", "part_count": 10}), 0)
+        first = agent.call(lambda: agent.agent.instance)
+        agent.run(agent.agent.restart)
+        assert agent.call(lambda: agent.agent.instance) != first
+        # the agent resends every value after its restart: none of them counts again
+        shop.until("vmc", "back", _shows({"state": "running", "part_count": 10}), 0)
+        done = agent.step("vmc", lambda m: m.finish())
+        shop.until("vmc", "one part more", _shows({"part_count": 11}), done)
+        agent.step("vmc", lambda m: m.start("O2000"))
+        done = agent.step("vmc", lambda m: m.finish())
+        shop.until("vmc", "another", _shows({"part_count": 12, "state": "ready"}), done)
+        reader = _connector(shop, "vmc").reader
+        assert reader is not None
+        assert reader.counts.probes >= 1
+
+
+def test_a_sequence_gap_loses_and_doubles_nothing(tmp_path: Path) -> None:
+    # A buffer of 16 observations, and a link that stalls while 30 parts are made: the stream
+    # resumes from a sequence that has left the buffer (OUT_OF_RANGE), and the reader reads
+    # current instead of the lost observations.
+    with (
+        agent_thread(["cell"], buffer_size=16) as agent,
+        floor(tmp_path, [_machine(agent, "cell")]) as shop,
+    ):
+        agent.step("cell", lambda m: m.power_on(parts=0))
+        shop.until("cell", "ready", _shows({"state": "ready", "part_count": 0}), 0)
+        reader = _connector(shop, "cell").reader
+        assert reader is not None
+        gaps = reader.counts.gaps
+        agent.call(lambda: setattr(agent.agent, "stalled", True))
+        for _ in range(30):
+            agent.step("cell", lambda m: (m.start("O3000"), m.finish()))
+        done = agent.step("cell", lambda m: m.alarm("77", "COOLANT LOW"))
+        agent.call(lambda: setattr(agent.agent, "stalled", False))
+        want = {"part_count": 30, "state": "alarm", "errors": ["77 COOLANT LOW"]}
+        shop.until("cell", "after the gap", _shows(want), done)
+        assert reader.counts.gaps == gaps + 1
+
+
+def test_an_agent_that_does_not_stream_is_polled(tmp_path: Path) -> None:
+    with (
+        agent_thread(["old"], streaming=False) as agent,
+        floor(tmp_path, [_machine(agent, "old")]) as shop,
+    ):
+        agent.step("old", lambda m: m.power_on(parts=5))
+        done = agent.step("old", lambda m: m.start("O9"))
+        shop.until("old", "running", _shows({"state": "running", "part_count": 5}), done)
+        reader = _connector(shop, "old").reader
+        assert reader is not None
+        assert not reader.streaming
+        assert reader.counts.streams == 0
