@@ -126,10 +126,11 @@ class DeviceState:
                 continue  # seen already: a resent observation must not count twice
             self._take(observation)
             taken += 1
-        # an empty (heartbeat) answer moves nothing; a full one moves to its end
-        if sample.observations:
-            newest = max(o.sequence for o in sample.observations)
-            self.last_sequence = max(self.last_sequence, newest)
+        # A sample answer holds every observation of ours up to its nextSequence - 1 (a
+        # device's stream skips the other devices' ones, and a quiet one is empty): the next
+        # request starts there.
+        newest = max((o.sequence for o in sample.observations), default=0)
+        self.last_sequence = max(self.last_sequence, newest, sample.header.next_sequence - 1)
         return taken
 
     def _check(self, streams: Streams) -> None:

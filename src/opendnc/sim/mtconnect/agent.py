@@ -18,7 +18,6 @@ import asyncio
 import contextlib
 import socket
 import uuid
-from collections import deque
 from collections.abc import Awaitable, Callable, Iterator, MutableMapping
 from datetime import UTC, datetime
 from typing import Any
@@ -72,7 +71,9 @@ class VirtualAgent:
         self.sender = sender
         self.instance = 1
         self.stalled = False  # streams send nothing while set (a slow link: tests make gaps)
-        self._buffer: deque[Stored] = deque(maxlen=buffer_size)
+        # a ring: sequence s sits at s % buffer_size while it is in the buffer (a sample reads
+        # only what it sends, whatever the buffer's size)
+        self._ring: list[Stored | None] = [None] * buffer_size
         self._latest: dict[tuple[int, str], Stored] = {}  # (device, item key) -> newest
         self._active: dict[int, dict[str, tuple[str, str]]] = {}  # conditions by native code
         self._next = 1
@@ -136,7 +137,7 @@ class VirtualAgent:
     ) -> None:
         stored = Stored(self._next, index, item, datetime.now(UTC), value, level, native_code)
         self._next += 1
-        self._buffer.append(stored)
+        self._ring[stored.sequence % self.buffer_size] = stored
         self._latest[(index, item.key)] = stored
 
     def _notify(self) -> None:
@@ -146,7 +147,7 @@ class VirtualAgent:
     @property
     def first_sequence(self) -> int:
         """The oldest sequence still in the buffer."""
-        return self._buffer[0].sequence if self._buffer else self._next
+        return max(1, self._next - self.buffer_size)
 
     def _current_observations(self, only: int | None) -> Iterator[Stored]:
         for (index, _key), stored in self._latest.items():
@@ -216,7 +217,7 @@ class VirtualAgent:
         await self.close()
         latest = sorted(self._latest.values(), key=lambda s: s.sequence)
         self.instance += 1
-        self._buffer.clear()
+        self._ring = [None] * self.buffer_size
         self._latest.clear()
         self._next = 1
         for stored in latest:
@@ -249,20 +250,20 @@ class VirtualAgent:
             code, text, instance=self.instance, sender=self.sender, buffer_size=self.buffer_size
         )
 
-    def _sample(self, start: int, count: int, only: int | None) -> tuple[bytes, int]:
+    def _chosen(self, start: int, count: int, only: int | None) -> tuple[list[Stored], int]:
         """Up to ``count`` observations from ``start`` (of device ``only``), and the next
         sequence to ask for."""
-        chosen: list[Stored] = []
-        end = start
-        for stored in self._buffer:
-            if stored.sequence < start:
-                continue
-            if len(chosen) >= count:
-                break
-            end = stored.sequence + 1
-            if only is None or stored.device == only:
+        end = min(self._next, start + count)
+        chosen = []
+        for sequence in range(start, end):
+            stored = self._ring[sequence % self.buffer_size]
+            if stored is not None and (only is None or stored.device == only):
                 chosen.append(stored)
-        return self._document(chosen, end, only), end
+        return chosen, end
+
+    def _sample(self, start: int, count: int, only: int | None) -> bytes:
+        chosen, end = self._chosen(start, count, only)
+        return self._document(chosen, end, only)
 
     async def _app(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -305,7 +306,7 @@ class VirtualAgent:
                 return
             count = numbers.get("count", 100)
             if "interval" not in numbers:
-                await _answer(send, 200, self._sample(start, count, only)[0])
+                await _answer(send, 200, self._sample(start, count, only))
                 return
             heartbeat = numbers.get("heartbeat", 10000) / 1000
             await self._stream(
@@ -355,12 +356,13 @@ class VirtualAgent:
                     text = f"'from' {start} has left the buffer (first {self.first_sequence})"
                     await send(_part(boundary, self._error("OUT_OF_RANGE", text), last=True))
                     return
-                if start < self._next or now - quiet_since >= heartbeat:
-                    body, start = self._sample(start, count, only)
-                    await send(_part(boundary, body))
-                    quiet_since = now
+                chosen, end = self._chosen(start, count, only)
+                if chosen or now - quiet_since >= heartbeat:
+                    await send(_part(boundary, self._document(chosen, end, only)))
+                    start, quiet_since = end, now
                     await _either(asyncio.Event(), gone, interval)  # at most one per interval
                     continue
+                start = end  # other devices' observations: nothing to send for this one
                 await _either(changed, gone, heartbeat - (now - quiet_since))
             await send({"type": "http.response.body", "body": b"--" + boundary + b"--\r\n"})
         finally:
