@@ -104,9 +104,11 @@ def test_an_agent_restart_loses_and_doubles_nothing(tmp_path: Path) -> None:
         agent.step("vmc", lambda m: m.start("O2000"))
         done = agent.step("vmc", lambda m: m.finish())
         shop.until("vmc", "another", _shows({"part_count": 12, "state": "ready"}), done)
+        # the link follows the new instance (probed again, by the reader or a reconnect)
         reader = _connector(shop, "vmc").reader
         assert reader is not None
-        assert reader.counts.probes >= 1
+        assert reader.state is not None
+        assert reader.state.instance_id == agent.call(lambda: agent.agent.instance)
 
 
 def test_a_sequence_gap_loses_and_doubles_nothing(tmp_path: Path) -> None:
