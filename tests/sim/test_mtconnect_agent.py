@@ -94,6 +94,12 @@ def test_current_sample_and_the_agents_refusals() -> None:
                     "O77",
                 )
                 assert values["d2_exec"] == "UNAVAILABLE"
+                # a device's own probe names the items its streams carry
+                probe = parse_devices((await client.get(f"{agent.url}/m2/probe")).content)
+                second = parse_streams((await client.get(f"{agent.url}/m2/current")).content)
+                assert [d.name for d in probe.devices] == ["m2"]
+                declared = {i.id for i in probe.devices[0].items}
+                assert {o.data_item_id for o in second.observations} == declared
                 # the buffer of 8 has rolled: from=1 has left it
                 answer = await client.get(f"{agent.url}/sample", params={"from": "1"})
                 assert answer.status_code == 400

@@ -287,9 +287,12 @@ class VirtualAgent:
             await _answer(send, 400, self._error("INVALID_PARAMETER_VALUE", "not a number"))
             return
         if request == "probe":
-            names = self.names if only is None else [self.names[only]]
             body = devices_xml(
-                names, instance=self.instance, sender=self.sender, buffer_size=self.buffer_size
+                self.names,
+                instance=self.instance,
+                sender=self.sender,
+                buffer_size=self.buffer_size,
+                only=only,
             )
             await _answer(send, 200, body)
         elif request == "current" and "interval" not in numbers:

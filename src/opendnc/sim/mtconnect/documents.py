@@ -97,8 +97,11 @@ def _header(instance: int, sender: str, buffer_size: int) -> dict[str, str]:
     }
 
 
-def devices_xml(names: list[str], *, instance: int, sender: str, buffer_size: int) -> bytes:
-    """The probe answer for devices ``names``."""
+def devices_xml(
+    names: list[str], *, instance: int, sender: str, buffer_size: int, only: int | None = None
+) -> bytes:
+    """The probe answer for devices ``names`` (or only device ``only``: its ids stay those of
+    the whole agent's, as streams documents name them)."""
     header = _header(instance, sender, buffer_size)
     header |= {
         "assetBufferSize": "1024",
@@ -109,6 +112,8 @@ def devices_xml(names: list[str], *, instance: int, sender: str, buffer_size: in
     root = _document("Devices", header)
     devices = ET.SubElement(root, "Devices")
     for index, name in enumerate(names):
+        if only is not None and index != only:
+            continue
         ident = ident_of(index)
         device = ET.SubElement(
             devices, "Device", id=ident, name=name, uuid=f"opendnc-sim-{sender}-{name}"
