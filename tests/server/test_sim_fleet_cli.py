@@ -80,3 +80,15 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
 
         wait_for("every machine online", lambda: all(m[1] for m in machines()), describe=machines)
         assert sorted(m[0] for m in machines()) == sorted(m.name for m in shop.machines)
+
+        def agents() -> dict[str, str]:
+            listed = client.get("/api/machines", headers=auth(key)).json()
+            return {m["name"]: m["state"] for m in listed if m["kind"] == "mtconnect"}
+
+        # every device of the agent is read, each as its own machine, from its scripted cycle
+        working = {"ready", "running", "stopped", "alarm"}
+        wait_for(
+            "the agent's machines",
+            lambda: len(agents()) == 2 and set(agents().values()) <= working,
+            describe=agents,
+        )
