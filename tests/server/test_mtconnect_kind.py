@@ -9,7 +9,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector
+import pytest
+
+from opendnc.mtconnect.device_state import Snapshot
+from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector, agent_status
+from opendnc.server.state import State, classify
 from opendnc.sim.mtconnect.machine import ScriptedMachine
 from tests.server.mtconnect_support import AgentThread, Floor, agent_thread, floor
 
@@ -146,3 +150,51 @@ def test_an_agent_that_does_not_stream_is_polled(tmp_path: Path) -> None:
         assert reader is not None
         assert not reader.streaming
         assert reader.counts.streams == 0
+
+
+@pytest.mark.parametrize(
+    ("snapshot", "state", "execution"),
+    [
+        (Snapshot(availability="AVAILABLE", execution="ACTIVE"), State.RUNNING, "ACTIVE"),
+        (Snapshot(availability="AVAILABLE", execution="WAIT"), State.READY, "WAIT"),
+        (Snapshot(availability="AVAILABLE", execution="INTERRUPTED"), State.STOPPED, "INTERRUPTED"),
+        # the later standard's word for an M01 stop is our model's OPTIONAL_STOP
+        (
+            Snapshot(availability="AVAILABLE", execution="PROGRAM_OPTIONAL_STOP"),
+            State.STOPPED,
+            "OPTIONAL_STOP",
+        ),
+        # a word outside the standard is not guessed at
+        (Snapshot(availability="AVAILABLE", execution="RUNNING"), State.UNKNOWN, "UNAVAILABLE"),
+        (Snapshot(availability="AVAILABLE"), State.UNKNOWN, "UNAVAILABLE"),
+        (Snapshot(availability=None, execution="ACTIVE"), State.OFFLINE, "ACTIVE"),
+        (
+            Snapshot(availability="AVAILABLE", execution="ACTIVE", emergency_stop="TRIGGERED"),
+            State.ALARM,
+            "ACTIVE",
+        ),
+        (
+            Snapshot(availability="AVAILABLE", execution="READY", faults=("1 X",)),
+            State.ALARM,
+            "READY",
+        ),
+        (
+            Snapshot(availability="AVAILABLE", execution="READY", warnings=("9 LOW OIL",)),
+            State.READY,
+            "READY",
+        ),
+    ],
+)
+def test_the_agents_words_go_through_the_one_classifier(
+    snapshot: Snapshot, state: State, execution: str
+) -> None:
+    status = agent_status(snapshot)
+    assert status.execution == execution
+    assert classify(status, online=True) is state
+
+
+def test_the_mode_is_mtconnects_and_a_foreign_word_is_kept_apart() -> None:
+    ours = agent_status(Snapshot(availability="AVAILABLE", controller_mode="MANUAL_DATA_INPUT"))
+    assert (ours.mode, ours.native_mode) == ("MANUAL_DATA_INPUT", "")
+    theirs = agent_status(Snapshot(availability="AVAILABLE", controller_mode="FEED_HOLD"))
+    assert (theirs.mode, theirs.native_mode) == ("", "FEED_HOLD")

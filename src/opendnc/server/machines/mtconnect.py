@@ -55,7 +55,8 @@ def agent_status(snapshot: Snapshot) -> MachineStatus:
         available=snapshot.availability == "AVAILABLE",
         execution=execution if execution in _EXECUTION else "UNAVAILABLE",
         mode=mode if mode in _MODES else "",
-        native_mode=mode,
+        # the agent's word beside ours only where it is not already MTConnect's own
+        native_mode="" if mode in _MODES else mode,
         program=snapshot.program or "",
         line=snapshot.line or 0,
         part_count=snapshot.part_count,
