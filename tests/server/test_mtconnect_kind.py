@@ -12,6 +12,8 @@ from typing import Any
 import pytest
 
 from opendnc.mtconnect.device_state import Snapshot
+from opendnc.server.events import MachineStatusChanged
+from opendnc.server.items import items_of
 from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector, agent_status
 from opendnc.server.state import State, classify
 from opendnc.sim.mtconnect.machine import ScriptedMachine
@@ -198,3 +200,22 @@ def test_the_mode_is_mtconnects_and_a_foreign_word_is_kept_apart() -> None:
     assert (ours.mode, ours.native_mode) == ("MANUAL_DATA_INPUT", "")
     theirs = agent_status(Snapshot(availability="AVAILABLE", controller_mode="FEED_HOLD"))
     assert (theirs.mode, theirs.native_mode) == ("", "FEED_HOLD")
+
+
+def test_the_open_outputs_take_an_agents_machine_as_any_other() -> None:
+    # MQTT, Sparkplug B and our SHDR adapter all read items_of(): the same items, the alarm's
+    # text in the SYSTEM condition
+    snapshot = Snapshot(
+        availability="AVAILABLE",
+        execution="STOPPED",
+        controller_mode="AUTOMATIC",
+        program="O1234",
+        line=26,
+        part_count=4,
+        faults=("1010 SPINDLE OVERLOAD",),
+    )
+    items = items_of(MachineStatusChanged("mill", True, agent_status(snapshot)))
+    assert items["availability"] == "AVAILABLE"
+    assert (items["execution"], items["controller_mode"]) == ("STOPPED", "AUTOMATIC")
+    assert (items["program"], items["line_number"], items["part_count"]) == ("O1234", 26, 4)
+    assert items["system"] == ("1010 SPINDLE OVERLOAD",)

@@ -171,7 +171,12 @@ class VirtualAgent:
 
     async def start(self) -> None:
         """Listen (on a free port the first time when ``port`` is 0)."""
-        import uvicorn
+        try:
+            import uvicorn
+        except ImportError:
+            raise InputError(
+                "the virtual MTConnect agent needs opendnc[server] (uvicorn)"
+            ) from None
 
         class Web(uvicorn.Server):
             # the process's signals belong to whoever runs the agent (the fleet, a test)
