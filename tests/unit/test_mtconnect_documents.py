@@ -71,8 +71,8 @@ def event(tag: str, ident: str, sequence: int, value: str) -> str:
     )
 
 
-def condition(level: str, sequence: int, code: str = "", text: str = "") -> str:
-    native = f' nativeCode="{code}"' if code else ""
+def condition(level: str, sequence: int, code: str = "", text: str = "", cid: str = "") -> str:
+    native = (f' nativeCode="{code}"' if code else "") + (f' conditionId="{cid}"' if cid else "")
     return (
         '<ComponentStream component="Controller" componentId="c"><Condition>'
         f'<{level} dataItemId="sys" type="SYSTEM" sequence="{sequence}"'
@@ -163,6 +163,19 @@ def test_conditions_become_faults_with_their_text_and_clear_by_code() -> None:
     state.update(parse_streams(streams(17, 1, 45, condition("Normal", 44))))
     assert state.snapshot().faults == ()
     assert state.snapshot().warnings == ()
+
+
+def test_a_condition_id_tells_activations_of_one_code_apart() -> None:
+    # MTConnect 2.3: two activations of code 500 at once, cleared one by one by their id
+    state = DeviceState(parse_devices(PROBE), "mill-7")
+    state.load(parse_streams(CURRENT))
+    body = condition("Fault", 40, "500", "AXIS X", cid="a1") + condition(
+        "Fault", 41, "500", "AXIS Y", cid="a2"
+    )
+    state.update(parse_streams(streams(17, 1, 42, body)))
+    assert state.snapshot().faults == ("500 AXIS X", "500 AXIS Y")
+    state.update(parse_streams(streams(17, 1, 43, condition("Normal", 42, "500", cid="a1"))))
+    assert state.snapshot().faults == ("500 AXIS Y",)
 
 
 def test_a_new_instance_is_refused_by_the_state() -> None:

@@ -153,8 +153,10 @@ class DeviceState:
             self._values[field] = observation.value
 
     def _condition(self, ident: str, observation: Observation) -> None:
-        assert observation.condition is not None
-        level, code = observation.condition.level, observation.condition.native_code
+        condition = observation.condition
+        assert condition is not None
+        # an activation is told apart by its conditionId (2.3+), else by its native code
+        level, code = condition.level, condition.condition_id or condition.native_code
         active = self._active.setdefault(ident, {})
         if level in ("Normal", "Unavailable"):
             # Normal with a code clears that entry; without one (or Unavailable), all of them
@@ -164,7 +166,8 @@ class DeviceState:
                 active.clear()
             return
         text = observation.value or ""
-        described = " ".join(p for p in (code, text) if p) or self._conditions[ident].type
+        described = " ".join(p for p in (condition.native_code, text) if p)
+        described = described or self._conditions[ident].type
         active[code] = (level, described)
 
     def snapshot(self) -> Snapshot:

@@ -106,6 +106,7 @@ class Condition:
     native_code: str = ""
     native_severity: str = ""
     qualifier: str = ""
+    condition_id: str = ""  # MTConnect 2.3+: one activation, from Warning/Fault to Normal
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,7 @@ def _observation(element: etree._Element, device: str) -> Observation:
             native_code=element.get("nativeCode", ""),
             native_severity=element.get("nativeSeverity", ""),
             qualifier=element.get("qualifier", ""),
+            condition_id=element.get("conditionId", ""),
         )
     return Observation(
         device=device,

@@ -103,11 +103,16 @@ class AgentReader:
             # Streams send at least one document per heartbeat: three missed ones is a dead link.
             timeout = httpx.Timeout(self.timeout, read=max(self.timeout, 3 * self.heartbeat))
             self._client = httpx.AsyncClient(timeout=timeout, trust_env=False)
-        devices = parse_devices(await self._get(self._path("probe")))
-        self.counts.probes += 1
-        self.state = DeviceState(devices, self.device)
-        await self._current()
-        return self.snapshot()
+        for _ in range(3):
+            devices = parse_devices(await self._get(self._path("probe")))
+            self.counts.probes += 1
+            self.state = DeviceState(devices, self.device)
+            try:
+                await self._current()
+            except _Restarted:
+                continue  # it restarted between the two requests: probe the new one
+            return self.snapshot()
+        raise RemoteProtocolError(f"{self.url}: the agent restarts again and again")
 
     async def close(self) -> None:
         """Close the HTTP client; safe to call at any time."""
