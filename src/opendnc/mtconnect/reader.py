@@ -123,31 +123,41 @@ class AgentReader:
 
     async def follow(self) -> None:
         """Keep the state up to date; returns never, raises when the agent is gone."""
-        empty = 0  # streams in a row that ended without a document
+        pending = ""  # "probe" or "current": what the next turn reads first
+        idle = 0  # turns in a row that brought no streamed document
         while True:
+            if idle >= 3:
+                # an agent that ends every stream at once, or is out of range at once again,
+                # would be asked again and again
+                raise RemoteProtocolError(f"{self.url}: the agent's stream brings nothing")
             try:
-                if self.streaming:
-                    empty = 0 if await self._stream() else empty + 1
-                    if empty >= 3:
-                        # an agent that ends every stream at once would be asked again and again
-                        raise RemoteProtocolError(
-                            f"{self.url}: the agent ends every stream at once"
-                        )
+                if pending == "probe":
+                    pending, idle = "", 0
+                    await self.open()
+                elif pending == "current":
+                    pending = ""
+                    await self._current()
+                elif self.streaming:
+                    idle = 0 if await self._stream() else idle + 1
+                    if idle:
+                        await asyncio.sleep(self.interval)  # not back to back on an empty end
                 else:
+                    idle = 0
                     await asyncio.sleep(self.poll)
                     await self._current()
             except _Restarted:
                 self.counts.restarts += 1
                 log.info("%s: the agent restarted; probing again", self.url)
-                await self.open()
+                pending = "probe"
             except _Gap:
                 self.counts.gaps += 1
                 log.info("%s: observations were lost; reading current", self.url)
-                await self._current()
+                pending, idle = "current", idle + 1
             except AgentRefused as exc:
                 if "OUT_OF_RANGE" in exc.codes:
                     self.counts.gaps += 1
-                    await self._current()
+                    log.info("%s: out of the agent's buffer; reading current", self.url)
+                    pending, idle = "current", idle + 1
                 elif self.streaming and _NO_STREAMING & set(exc.codes):
                     log.info("%s: no streaming (%s); polling current", self.url, exc)
                     self.streaming = False
@@ -203,8 +213,10 @@ class AgentReader:
                         break
         except httpx.TimeoutException:
             raise TransportTimeout(f"{self.url}: the agent's stream went silent") from None
-        except (httpx.RemoteProtocolError, httpx.ReadError):
-            pass  # the agent closed the stream: resume it (a restart shows then)
+        except (httpx.RemoteProtocolError, httpx.ReadError) as exc:
+            if not taken:  # dropped before a document: the agent is going away
+                raise TransportError(f"{self.url}: {_reason(exc)}") from None
+            # the agent closed a stream that worked: resume it (a restart shows then)
         except httpx.HTTPError as exc:
             raise TransportError(f"{self.url}: {_reason(exc)}") from None
         return taken

@@ -208,12 +208,21 @@ class VirtualAgent:
 
     async def close(self) -> None:
         """Stop serving (open streams end)."""
+        web, serving = self._web, self._serving
+        if web is not None and serving is not None:
+            web.should_exit = True
+            # uvicorn stops listening at its next tick: streams end after that, or a client
+            # would reconnect to the closing agent and be ended at once, again and again
+            deadline = asyncio.get_running_loop().time() + 2
+            while any(s.is_serving() for s in web.servers) and not serving.done():
+                if asyncio.get_running_loop().time() > deadline:
+                    break
+                await asyncio.sleep(0.005)
         self._closing = True
         self._notify()
-        if self._web is not None and self._serving is not None:
-            self._web.should_exit = True
+        if serving is not None:
             with contextlib.suppress(Exception):
-                await self._serving
+                await serving
         self._web = self._serving = None
 
     async def restart(self) -> None:
@@ -348,7 +357,11 @@ class VirtualAgent:
             {
                 "type": "http.response.start",
                 "status": 200,
-                "headers": [(b"content-type", b"multipart/mixed;boundary=" + boundary)],
+                # a stream is its connection's last answer, as the reference agent's is
+                "headers": [
+                    (b"content-type", b"multipart/mixed;boundary=" + boundary),
+                    (b"connection", b"close"),
+                ],
             }
         )
         try:
