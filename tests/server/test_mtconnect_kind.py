@@ -71,13 +71,23 @@ def _shows(want: dict[str, Any]) -> Callable[[dict[str, Any]], bool]:
 
 
 def test_a_scripted_run_shows_on_the_floor_within_a_second(tmp_path: Path) -> None:
-    with agent_thread(["mill"]) as agent, floor(tmp_path, [_machine(agent, "mill")]) as shop:
-        agent.step("mill", lambda m: m.power_on(parts=3))
-        shop.until("mill", "ready", _shows({"state": "ready", "part_count": 3}), 0)
-        lags = []
+    # The same script on two agents: one streams ("mill"), one does not and is polled with
+    # current ("old"); both machines on one floor.
+    with (
+        agent_thread(["mill"]) as agent,
+        agent_thread(["old"], streaming=False) as polled,
+        floor(tmp_path, [_machine(agent, "mill"), _machine(polled, "old")]) as shop,
+    ):
+        machines = {"mill": agent, "old": polled}
+        for name, sim in machines.items():
+            sim.step(name, lambda m: m.power_on(parts=3))
+            shop.until(name, "ready", _shows({"state": "ready", "part_count": 3}), 0)
+        lags: dict[str, list[float]] = {"mill": [], "old": []}
         for what, action, want in SCRIPT:
-            done = agent.step("mill", action)
-            lags.append(shop.until("mill", what, _shows(want), done))
+            done = {name: sim.step(name, action) for name, sim in machines.items()}
+            seen = shop.until_each(what, dict.fromkeys(machines, _shows(want)), done)
+            for name, lag in seen.items():
+                lags[name].append(lag)
             if what == "alarm":
                 # the card, as the dashboard renders it: the kind, the alarm's text, the parts
                 page = shop.page("/")
@@ -86,7 +96,16 @@ def test_a_scripted_run_shows_on_the_floor_within_a_second(tmp_path: Path) -> No
                 assert "MTConnect agent" in card
                 assert "Alarm: 1010 SPINDLE OVERLOAD" in card
                 assert '<dd class="parts">3</dd>' in card
-        assert max(lags) < LAG_S, dict(zip([s[0] for s in SCRIPT], lags, strict=True))
+        steps = [s[0] for s in SCRIPT]
+        for name in machines:
+            assert max(lags[name]) < LAG_S, (name, dict(zip(steps, lags[name], strict=True)))
+        streamed, old = _connector(shop, "mill").reader, _connector(shop, "old").reader
+        assert streamed is not None
+        assert old is not None
+        assert streamed.streaming
+        assert streamed.counts.documents > len(SCRIPT)
+        assert not old.streaming  # refused UNSUPPORTED: it polls current
+        assert old.counts.streams == 0
 
 
 def _connector(shop: Floor, name: str) -> MtconnectConnector:
@@ -95,8 +114,11 @@ def _connector(shop: Floor, name: str) -> MtconnectConnector:
     return connector
 
 
-def test_an_agent_restart_loses_and_doubles_nothing(tmp_path: Path) -> None:
-    with agent_thread(["vmc"]) as agent, floor(tmp_path, [_machine(agent, "vmc")]) as shop:
+def test_an_agent_restart_and_a_sequence_gap_lose_and_double_nothing(tmp_path: Path) -> None:
+    with (
+        agent_thread(["vmc"], buffer_size=16) as agent,
+        floor(tmp_path, [_machine(agent, "vmc")]) as shop,
+    ):
         agent.step("vmc", lambda m: m.power_on(parts=10))
         agent.step("vmc", lambda m: m.start("O2000"))
         shop.until("vmc", "running", _shows({"state": "running", "part_count": 10}), 0)
@@ -107,51 +129,25 @@ def test_an_agent_restart_loses_and_doubles_nothing(tmp_path: Path) -> None:
         shop.until("vmc", "back", _shows({"state": "running", "part_count": 10}), 0)
         done = agent.step("vmc", lambda m: m.finish())
         shop.until("vmc", "one part more", _shows({"part_count": 11}), done)
-        agent.step("vmc", lambda m: m.start("O2000"))
-        done = agent.step("vmc", lambda m: m.finish())
-        shop.until("vmc", "another", _shows({"part_count": 12, "state": "ready"}), done)
         # the link follows the new instance (probed again, by the reader or a reconnect)
         reader = _connector(shop, "vmc").reader
         assert reader is not None
         assert reader.state is not None
         assert reader.state.instance_id == agent.call(lambda: agent.agent.instance)
 
-
-def test_a_sequence_gap_loses_and_doubles_nothing(tmp_path: Path) -> None:
-    # A buffer of 16 observations, and a link that stalls while 30 parts are made: the stream
-    # resumes from a sequence that has left the buffer (OUT_OF_RANGE), and the reader reads
-    # current instead of the lost observations.
-    with (
-        agent_thread(["cell"], buffer_size=16) as agent,
-        floor(tmp_path, [_machine(agent, "cell")]) as shop,
-    ):
-        agent.step("cell", lambda m: m.power_on(parts=0))
-        shop.until("cell", "ready", _shows({"state": "ready", "part_count": 0}), 0)
-        reader = _connector(shop, "cell").reader
-        assert reader is not None
+        # A buffer of 16 observations, and a link that stalls while 30 parts are made: the
+        # stream resumes from a sequence that has left the buffer (OUT_OF_RANGE), and the
+        # reader reads current instead of the lost observations.
         gaps = reader.counts.gaps
         agent.call(lambda: setattr(agent.agent, "stalled", True))
         for _ in range(30):
-            agent.step("cell", lambda m: (m.start("O3000"), m.finish()))
-        done = agent.step("cell", lambda m: m.alarm("77", "COOLANT LOW"))
+            agent.step("vmc", lambda m: (m.start("O3000"), m.finish()))
+        done = agent.step("vmc", lambda m: m.alarm("77", "COOLANT LOW"))
         agent.call(lambda: setattr(agent.agent, "stalled", False))
-        want = {"part_count": 30, "state": "alarm", "errors": ["77 COOLANT LOW"]}
-        shop.until("cell", "after the gap", _shows(want), done)
+        want = {"part_count": 41, "state": "alarm", "errors": ["77 COOLANT LOW"]}
+        shop.until("vmc", "after the gap", _shows(want), done)
+        assert _connector(shop, "vmc").reader is reader  # no reconnect: the reader resynced
         assert reader.counts.gaps == gaps + 1
-
-
-def test_an_agent_that_does_not_stream_is_polled(tmp_path: Path) -> None:
-    with (
-        agent_thread(["old"], streaming=False) as agent,
-        floor(tmp_path, [_machine(agent, "old")]) as shop,
-    ):
-        agent.step("old", lambda m: m.power_on(parts=5))
-        done = agent.step("old", lambda m: m.start("O9"))
-        shop.until("old", "running", _shows({"state": "running", "part_count": 5}), done)
-        reader = _connector(shop, "old").reader
-        assert reader is not None
-        assert not reader.streaming
-        assert reader.counts.streams == 0
 
 
 @pytest.mark.parametrize(
