@@ -100,6 +100,13 @@ class Floor:
         answer.raise_for_status()
         return next(m for m in answer.json() if m["name"] == name)
 
+    def api(self, path: str, **params: Any) -> Any:
+        """An API answer's JSON as the viewer gets it."""
+        headers = {"Authorization": f"Bearer {self.key}"}
+        answer = self.client.get(path, params=params, headers=headers)
+        answer.raise_for_status()
+        return answer.json()
+
     def page(self, path: str) -> str:
         """A page's HTML as the viewer sees it."""
         answer = self.client.get(path, headers={"Cookie": f"{web_session.COOKIE}={self.session}"})

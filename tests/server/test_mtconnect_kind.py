@@ -17,6 +17,7 @@ from opendnc.server.items import items_of
 from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector, agent_status
 from opendnc.server.state import State, classify
 from opendnc.sim.mtconnect.machine import ScriptedMachine
+from tests.server.harness import wait_for
 from tests.server.mtconnect_support import AgentThread, Floor, agent_thread, floor
 
 LAG_S = 1.0  # the most a change at the agent may take to show on the floor
@@ -148,6 +149,14 @@ def test_an_agent_restart_and_a_sequence_gap_lose_and_double_nothing(tmp_path: P
         shop.until("vmc", "after the gap", _shows(want), done)
         assert _connector(shop, "vmc").reader is reader  # no reconnect: the reader resynced
         assert reader.counts.gaps == gaps + 1
+
+        # Utilization counts the parts made while the server watched: 1 before the gap and 30
+        # in it, none again for the restart's resent count (the recorder writes within 1 s).
+        def parts() -> Any:
+            report = shop.api("/api/utilization", machines="vmc")
+            return report["machines"][0]["totals"]["parts"]
+
+        wait_for("the parts counted", lambda: parts() == 31, timeout=5, describe=parts)
 
 
 @pytest.mark.parametrize(
