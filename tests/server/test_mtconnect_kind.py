@@ -198,6 +198,7 @@ def test_the_agents_words_go_through_the_one_classifier(
     status = agent_status(snapshot)
     assert status.execution == execution
     assert classify(status, online=True) is state
+    assert ("UNAVAILABLE" in status.message) == (state is State.OFFLINE)
 
 
 def test_the_mode_is_mtconnects_and_a_foreign_word_is_kept_apart() -> None:

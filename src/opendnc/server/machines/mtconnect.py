@@ -50,9 +50,12 @@ def agent_status(snapshot: Snapshot) -> MachineStatus:
     execution = snapshot.execution or "UNAVAILABLE"
     execution = _ALIASES.get(execution, execution)
     mode = snapshot.controller_mode or ""
+    available = snapshot.availability == "AVAILABLE"
     return MachineStatus(
         at=utcnow(),
-        available=snapshot.availability == "AVAILABLE",
+        available=available,
+        # the agent answers, but not for the machine: say whose word "offline" is
+        message="" if available else "the agent reports the machine UNAVAILABLE",
         execution=execution if execution in _EXECUTION else "UNAVAILABLE",
         mode=mode if mode in _MODES else "",
         # the agent's word beside ours only where it is not already MTConnect's own
