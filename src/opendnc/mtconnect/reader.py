@@ -76,6 +76,7 @@ class AgentReader:
         poll: float = 1.0,
         streaming: bool = True,
         count: int = 1000,
+        grace: float = 2.0,
     ) -> None:
         self.url = url.rstrip("/")
         self.device = device
@@ -85,6 +86,10 @@ class AgentReader:
         self.poll = poll  # seconds between current requests when the agent does not stream
         self.streaming = streaming
         self.count = count
+        # seconds an agent that refuses or drops connections is asked again before the
+        # reader gives up: an agent restarting is back within them, and the machine's state
+        # (the last values, kept meanwhile) does not flicker to offline for it
+        self.grace = grace
         self.counts = ReaderCounts()
         self.state: DeviceState | None = None
         self.changed = asyncio.Event()  # set whenever a document changed the state
@@ -125,6 +130,8 @@ class AgentReader:
         """Keep the state up to date; returns never, raises when the agent is gone."""
         pending = ""  # "probe" or "current": what the next turn reads first
         idle = 0  # turns in a row that brought no streamed document
+        lost: float | None = None  # when the agent stopped taking connections
+        loop = asyncio.get_running_loop()
         while True:
             if idle >= 3:
                 # an agent that ends every stream at once, or is out of range at once again,
@@ -145,6 +152,15 @@ class AgentReader:
                     idle = 0
                     await asyncio.sleep(self.poll)
                     await self._current()
+                lost = None
+            except TransportTimeout:
+                raise  # a silent agent is not restarting: it hangs
+            except TransportError:
+                lost = loop.time() if lost is None else lost
+                if loop.time() - lost >= self.grace:
+                    raise
+                pending = "probe"  # when it answers again, maybe as a new instance
+                await asyncio.sleep(min(0.2, self.grace / 4))
             except _Restarted:
                 self.counts.restarts += 1
                 log.info("%s: the agent restarted; probing again", self.url)
