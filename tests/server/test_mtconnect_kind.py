@@ -97,6 +97,11 @@ def test_a_scripted_run_shows_on_the_floor_within_a_second(tmp_path: Path) -> No
                 assert "MTConnect agent" in card
                 assert "Alarm: 1010 SPINDLE OVERLOAD" in card
                 assert '<dd class="parts">3</dd>' in card
+                # and the machine's own page, without the file browser an agent has not
+                page = shop.page("/machines/mill")
+                assert "MTConnect agent" in page
+                assert "1010 SPINDLE OVERLOAD" in page
+                assert "Files on the control" not in page
         steps = [s[0] for s in SCRIPT]
         for name in machines:
             assert max(lags[name]) < LAG_S, (name, dict(zip(steps, lags[name], strict=True)))
