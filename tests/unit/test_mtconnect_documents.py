@@ -209,6 +209,9 @@ def test_an_error_document_is_the_agents_refusal_with_its_codes() -> None:
         b'<MTConnectStreams><Header instanceId="x"/></MTConnectStreams>',
         b"<html><body>proxy error</body></html>",
         b"<MTConnectStreams>",
+        # nesting past libxml2's limit (huge_tree off), and a number past Python's int digits
+        b"<MTConnectStreams>" + b"<a>" * 5000 + b"</a>" * 5000 + b"</MTConnectStreams>",
+        b'<MTConnectStreams><Header instanceId="' + b"9" * 5000 + b'"/></MTConnectStreams>',
     ],
 )
 def test_bad_documents_are_typed_errors(document: bytes) -> None:
