@@ -134,12 +134,12 @@ class AgentReader:
         loop = asyncio.get_running_loop()
         while True:
             if idle >= 3:
-                # an agent that ends every stream at once, or is out of range at once again,
-                # would be asked again and again
+                # an agent that ends every stream at once, is out of range at once again, or
+                # restarts at every answer would be asked again and again
                 raise RemoteProtocolError(f"{self.url}: the agent's stream brings nothing")
             try:
                 if pending == "probe":
-                    pending, idle = "", 0
+                    pending = ""
                     await self.open()
                 elif pending == "current":
                     pending = ""
@@ -157,14 +157,16 @@ class AgentReader:
                 raise  # a silent agent is not restarting: it hangs
             except TransportError:
                 lost = loop.time() if lost is None else lost
-                if loop.time() - lost >= self.grace:
-                    raise
+                if loop.time() - lost >= self.grace or self._client is None:
+                    raise  # gone for good, or closed under us: not opened again here
                 pending = "probe"  # when it answers again, maybe as a new instance
                 await asyncio.sleep(min(0.2, self.grace / 4))
             except _Restarted:
                 self.counts.restarts += 1
                 log.info("%s: the agent restarted; probing again", self.url)
-                pending = "probe"
+                # counted as a turn without a document: two agents answering in turn (behind
+                # a balancer) would otherwise be probed again and again
+                pending, idle = "probe", idle + 1
             except _Gap:
                 self.counts.gaps += 1
                 log.info("%s: observations were lost; reading current", self.url)
@@ -202,7 +204,8 @@ class AgentReader:
     async def _stream(self) -> int:
         """One sample stream from the next sequence, until it ends; the documents it held."""
         assert self.state is not None
-        assert self._client is not None
+        if self._client is None:
+            raise TransportError(f"{self.url}: not open")  # closed under a running follow()
         params = {
             "from": str(self.state.last_sequence + 1),
             "count": str(self.count),
