@@ -127,8 +127,9 @@ async def start_fleet(
     """
     if min(tnc, haas, serial_haas, mtconnect) < 0 or tnc + haas + serial_haas + mtconnect == 0:
         raise InputError("start at least one control (--tnc N, --haas M, --mtconnect K)")
-    if base_port and not 0 < base_port <= 65535 - (tnc + haas):
-        raise InputError(f"--base-port {base_port}: the fleet needs {tnc + haas} ports above it")
+    ports = tnc + haas + (1 if mtconnect else 0)  # the MTConnect machines share one agent
+    if base_port and not 0 < base_port <= 65535 - ports:
+        raise InputError(f"--base-port {base_port}: the fleet needs {ports} ports above it")
     fleet = Fleet()
     try:
         for i in range(tnc):
