@@ -30,6 +30,11 @@ of the benchmark's database are on the same cores (a local database): their CPU 
     .venv/bin/python benchmarks/fleet.py                    # N = 50, 200, 500
     .venv/bin/python benchmarks/fleet.py --sizes 20 --seconds 5
     .venv/bin/python benchmarks/fleet.py --sizes 1000 --servers 2
+    .venv/bin/python benchmarks/fleet.py --sizes 100 --mtconnect 100   # agents' devices
+
+With ``--mtconnect M`` M machines of each fleet are devices of one virtual MTConnect agent
+running scripted cycles (the server follows one sample stream per machine); the rest are
+TNCs and Haas NGCs as above.
 """
 
 from __future__ import annotations
@@ -113,16 +118,22 @@ def _percentile(values: list[float], p: float) -> float:
     return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
 
 
-def run_size(n: int, seconds: float, poll: float, folder: Path) -> dict[str, Any]:
+def _counts(n: int, mtconnect: int) -> list[str]:
+    """The fleet's arguments for ``n`` machines, ``mtconnect`` of them behind a virtual agent
+    and the rest half virtual TNCs, half virtual Haas NGCs."""
+    rest = n - min(n, mtconnect)
+    return ["--tnc", str(rest // 2), "--haas", str(rest - rest // 2), "--mtconnect", str(n - rest)]
+
+
+def run_size(
+    n: int, seconds: float, poll: float, folder: Path, mtconnect: int = 0
+) -> dict[str, Any]:
     """Measure one fleet size; returns the figures."""
     config = folder / f"fleet-{n}.toml"
     fleet = _cli(
         "sim",
         "fleet",
-        "--tnc",
-        str(n // 2),
-        "--haas",
-        str(n - n // 2),
+        *_counts(n, mtconnect),
         "--config-out",
         str(config),
         "--poll",
@@ -211,15 +222,14 @@ def _viewer_key(config: Path, db: str) -> str:
     return done.stdout.strip()
 
 
-def _start_fleet(n: int, poll: float, folder: Path) -> tuple[subprocess.Popen[bytes], Path]:
+def _start_fleet(
+    n: int, poll: float, folder: Path, mtconnect: int = 0
+) -> tuple[subprocess.Popen[bytes], Path]:
     config = folder / f"fleet-{n}.toml"
     fleet = _cli(
         "sim",
         "fleet",
-        "--tnc",
-        str(n // 2),
-        "--haas",
-        str(n - n // 2),
+        *_counts(n, mtconnect),
         "--config-out",
         str(config),
         "--poll",
@@ -494,6 +504,12 @@ def main() -> None:
         "(--servers)",
     )
     parser.add_argument("--logs", type=Path, default=None, help="keep the servers' logs here")
+    parser.add_argument(
+        "--mtconnect",
+        type=int,
+        default=0,
+        help="of each fleet, this many machines behind one virtual MTConnect agent",
+    )
     args = parser.parse_args()
     if args.servers > 1:
         with tempfile.TemporaryDirectory(prefix="opendnc-cluster-bench-") as tmp:
@@ -521,7 +537,7 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory(prefix="opendnc-fleet-bench-") as tmp:
         for n in (int(x) for x in args.sizes.split(",")):
-            r = run_size(n, args.seconds, args.poll, Path(tmp))
+            r = run_size(n, args.seconds, args.poll, Path(tmp), args.mtconnect)
             print(
                 f"{r['n']:>5} {r['online_s']:>7.1f}s {r['cpu_cores']:>9.2f} c "
                 f"{r['age_p50']:>7.2f}s {r['age_p99']:>7.2f}s {r['age_max']:>7.2f}s "

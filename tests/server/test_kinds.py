@@ -17,7 +17,7 @@ from opendnc.server.config import (
     MachineKind,
     parse_config,
 )
-from opendnc.server.kinds import KINDS, connector_for, spec_of
+from opendnc.server.kinds import KINDS, Capabilities, MtconnectMachine, connector_for, spec_of
 
 SHOP = """
 [[machines]]
@@ -39,11 +39,17 @@ host = ""
 serial = "socket://127.0.0.1:7000"
 dripfeed = true
 mdc = true
+
+[[machines]]
+name = "agent"
+kind = "mtconnect"
+url = "http://127.0.0.1:5000/"
+device = "dmu50"
 """
 
 
 def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path) -> None:
-    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(tnc, Lsv2Machine)
     assert tnc.port == 19000
     assert isinstance(ngc, HaasNgcMachine)
@@ -54,11 +60,13 @@ def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path)
     assert "dripfeed" not in fields[Lsv2Machine] | fields[HaasNgcMachine]
     assert "port" not in fields[HaasSerialMachine] | fields[HaasNgcMachine]
     assert "receive_folder" not in fields[HaasSerialMachine] | fields[HaasNgcMachine]
-    assert [spec_of(m).kind for m in (tnc, ngc, serial)] == list(KINDS)
+    assert isinstance(agent, MtconnectMachine)
+    assert (agent.url, agent.device, agent.streaming) == ("http://127.0.0.1:5000", "dmu50", True)
+    assert [spec_of(m).kind for m in (tnc, ngc, serial, agent)] == list(KINDS)
 
 
 def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
-    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
     assert capabilities_of(tnc).file_browser
     assert capabilities_of(tnc).receive
     assert not capabilities_of(tnc).dripfeed
@@ -70,17 +78,23 @@ def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
     assert "part_count" in capabilities_of(serial).status_fields  # mdc = true
     without_mdc = dataclasses.replace(serial, mdc=False)
     assert capabilities_of(without_mdc).status_fields == frozenset()
+    assert capabilities_of(agent) == Capabilities(
+        status_fields=capabilities_of(agent).status_fields
+    )
+    assert "part_count" in capabilities_of(agent).status_fields
 
 
 def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
     from opendnc.server.machines.haas_ngc import HaasNgcConnector
     from opendnc.server.machines.haas_serial import HaasSerialConnector
     from opendnc.server.machines.lsv2 import Lsv2Connector
+    from opendnc.server.machines.mtconnect import MtconnectConnector
 
-    tnc, ngc, serial = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(connector_for(tnc), Lsv2Connector)
     assert isinstance(connector_for(ngc), HaasNgcConnector)
     assert isinstance(connector_for(serial), HaasSerialConnector)
+    assert isinstance(connector_for(agent), MtconnectConnector)
 
 
 @pytest.mark.parametrize(
@@ -95,6 +109,8 @@ def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
         ('kind = "haas_serial"\nserial = "/dev/x"\nmdc_interval = 0', "mdc_interval", "seconds"),
         ('kind = "haas_serial"\nserial = "/dev/x"\nportt = 1', "portt", "unknown key"),
         ('kind = "fanuc"\nhost = "h"', "kind", "expected one of"),
+        ('kind = "mtconnect"\nurl = "10.0.0.3:5000"', "url", "http://HOST:PORT"),
+        ('kind = "mtconnect"\nurl = "http://h:5000"\ndevice = "a/b"', "device", "device's name"),
     ],
 )  # fmt: skip
 def test_errors_name_the_key(entry: str, key: str, words: str, tmp_path: Path) -> None:

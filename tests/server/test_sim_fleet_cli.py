@@ -35,6 +35,8 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         "2",
         "--serial-haas",
         "1",
+        "--mtconnect",
+        "2",
         "--root",
         str(tmp_path / "machines"),
         "--config-out",
@@ -49,8 +51,13 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
     )
     shop = load_config(config)
     kinds = Counter(m.kind for m in shop.machines)
-    assert kinds == {MachineKind.LSV2: 3, MachineKind.HAAS_NGC: 2, MachineKind.HAAS_SERIAL: 1}
-    assert len({m.name for m in shop.machines}) == 6
+    assert kinds == {
+        MachineKind.LSV2: 3,
+        MachineKind.HAAS_NGC: 2,
+        MachineKind.HAAS_SERIAL: 1,
+        MachineKind.MTCONNECT: 2,
+    }
+    assert len({m.name for m in shop.machines}) == 8
     assert (shop.server.bind_host, shop.server.bind_port) == ("127.0.0.1", port)
     for m in shop.machines:
         assert m.poll_interval == 0.3
@@ -59,6 +66,9 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         elif m.kind is MachineKind.HAAS_NGC:
             assert listening(m.mdc_port)(), m
             assert Path(m.share).is_dir(), m
+        elif m.kind is MachineKind.MTCONNECT:
+            assert listening(int(m.url.rsplit(":", 1)[1]))(), m
+            assert m.device.startswith("mtc-"), m
         else:
             assert Path(m.serial).exists(), m
     key = create_key(config, db_url)
@@ -70,3 +80,15 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
 
         wait_for("every machine online", lambda: all(m[1] for m in machines()), describe=machines)
         assert sorted(m[0] for m in machines()) == sorted(m.name for m in shop.machines)
+
+        def agents() -> dict[str, str]:
+            listed = client.get("/api/machines", headers=auth(key)).json()
+            return {m["name"]: m["state"] for m in listed if m["kind"] == "mtconnect"}
+
+        # every device of the agent is read, each as its own machine, from its scripted cycle
+        working = {"ready", "running", "stopped", "alarm"}
+        wait_for(
+            "the agent's machines",
+            lambda: len(agents()) == 2 and set(agents().values()) <= working,
+            describe=agents,
+        )

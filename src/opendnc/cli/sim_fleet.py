@@ -23,6 +23,12 @@ def fleet(
     fanuc: int = typer.Option(
         0, "--fanuc", help="Virtual Fanucs on virtual RS-232 cables (tape code, fanuc-0i)."
     ),
+    mtconnect: int = typer.Option(
+        0, "--mtconnect", help="Machines behind one virtual MTConnect agent (scripted cycles)."
+    ),
+    mtconnect_cycle: float = typer.Option(
+        30.0, "--mtconnect-cycle", help="Seconds of one scripted part cycle (--mtconnect)."
+    ),
     base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
     root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
@@ -64,6 +70,8 @@ def fleet(
             latency=latency / 1000,
             block_rate=block_rate,
             fanuc=fanuc,
+            mtconnect=mtconnect,
+            mtconnect_cycle=mtconnect_cycle,
         )
         try:
             if config_out is not None:
@@ -85,8 +93,10 @@ def fleet(
         console.print("stopped")
 
     with cli_errors(), ready_file(ready) as mark_ready:
-        if tnc < 0 or haas < 0 or serial_haas < 0 or fanuc < 0:
-            raise InputError("--tnc and --haas count controls: 0 or more")
+        if min(tnc, haas, serial_haas, fanuc, mtconnect) < 0:
+            raise InputError("--tnc, --haas, --fanuc and --mtconnect count controls: 0 or more")
+        if mtconnect_cycle < 1:
+            raise InputError("--mtconnect-cycle: at least 1 second")
         try:
             if root is not None:
                 asyncio.run(main(root))

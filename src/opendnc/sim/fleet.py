@@ -29,6 +29,8 @@ if TYPE_CHECKING:
     from opendnc.sim.cable.link import VirtualCable
     from opendnc.sim.fanuc import VirtualFanuc
     from opendnc.sim.haas.serial_front import SerialFrontEnd
+    from opendnc.sim.mtconnect.agent import VirtualAgent
+    from opendnc.sim.mtconnect.machine import ScriptedMachine
 
 __all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
 
@@ -38,8 +40,8 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    # "lsv2", "haas_ngc" or "haas_serial", as in the server's configuration; "serial" for a
-    # virtual Fanuc (a tape-code control, which the server does not serve yet)
+    # "lsv2", "haas_ngc", "haas_serial" or "mtconnect", as in the server's configuration;
+    # "serial" for a virtual Fanuc (a tape-code control, which the server does not serve yet)
     kind: str
     host: str
     port: int  # 0 for a serial machine
@@ -47,6 +49,7 @@ class FleetMachine:
     serial: str = ""  # the PC's end of a virtual cable
     baud: int = 0
     dprnt_port: int = 0  # a Haas NGC's DPRNT port (Setting 263), 0 for none
+    device: str = ""  # an MTConnect machine's device name at the fleet's agent
 
 
 @dataclass
@@ -64,6 +67,11 @@ class Fleet:
     """Every virtual Haas by machine name (its ``control`` holds program memory and state)."""
     fanucs: dict[str, VirtualFanuc] = field(default_factory=dict, repr=False)
     """Every virtual Fanuc by machine name (:class:`opendnc.sim.fanuc.VirtualFanuc`)."""
+    agent: VirtualAgent | None = field(default=None, repr=False)
+    """The one virtual MTConnect agent of the ``mtconnect`` machines (None without them)."""
+    scripted: dict[str, ScriptedMachine] = field(default_factory=dict, repr=False)
+    """The scripted machine behind each ``mtconnect`` machine, by machine name."""
+    _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
 
     async def close(self) -> None:
         """Stop every control."""
@@ -76,6 +84,14 @@ class Fleet:
         self.fanucs.clear()
         for cable in self._cables:
             cable.close()
+        for task in self._cycles:
+            task.cancel()
+        if self._cycles:
+            await asyncio.gather(*self._cycles, return_exceptions=True)
+        if self.agent is not None:
+            await self.agent.close()
+        self._cycles.clear()
+        self.agent = None
         self._tncs.clear()
         self._haas.clear()
         self._cables.clear()
@@ -97,6 +113,8 @@ async def start_fleet(
     latency: float = 0.0,
     dprnt: bool = False,
     fanuc: int = 0,
+    mtconnect: int = 0,
+    mtconnect_cycle: float = 30.0,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -108,6 +126,9 @@ async def start_fleet(
     (0: as fast as it can); a drip-feed that stops for ``dnc_timeout`` seconds raises the
     control's DNC link alarm. With ``dprnt`` each Haas NGC prints its DPRNT lines to a TCP
     port of its own (Setting 263), which :func:`server_config` names as its source.
+    ``mtconnect`` machines are devices ``mtc-1``, ... of one virtual MTConnect agent (the
+    port after the Haas ones), each running a scripted cycle of ``mtconnect_cycle`` seconds
+    (a part each, a feed hold every fifth, an alarm every thirteenth).
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -115,12 +136,12 @@ async def start_fleet(
     ``fanuc``: virtual Fanucs (``opendnc.sim.fanuc``, profile fanuc-0i, in READ) on cables of
     their own at ``baud``, 11 bits a character.
     """
-    if fanuc < 0:
-        raise InputError("--fanuc counts controls: 0 or more")
-    if tnc < 0 or haas < 0 or serial_haas < 0 or tnc + haas + serial_haas + fanuc == 0:
-        raise InputError("start at least one control (--tnc N and/or --haas M)")
-    if base_port and not 0 < base_port <= 65535 - (tnc + haas):
-        raise InputError(f"--base-port {base_port}: the fleet needs {tnc + haas} ports above it")
+    counts = (tnc, haas, serial_haas, fanuc, mtconnect)
+    if min(counts) < 0 or sum(counts) == 0:
+        raise InputError("start at least one control (--tnc N, --haas M, --fanuc F, --mtconnect K)")
+    ports = tnc + haas + (1 if mtconnect else 0)  # the MTConnect machines share one agent
+    if base_port and not 0 < base_port <= 65535 - ports:
+        raise InputError(f"--base-port {base_port}: the fleet needs {ports} ports above it")
     fleet = Fleet()
     try:
         for i in range(tnc):
@@ -159,6 +180,9 @@ async def start_fleet(
             await _start_serial_haas(fleet, folder, k, baud, block_rate, dnc_timeout)
         for n in range(fanuc):
             await asyncio.to_thread(_start_fanuc, fleet, root / f"fanuc-{n + 1}", n, baud)
+        if mtconnect:
+            port = base_port + tnc + haas if base_port else 0
+            await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle)
     except BaseException:
         await fleet.close()
         raise
@@ -220,6 +244,28 @@ def _start_fanuc(fleet: Fleet, folder: Path, n: int, baud: int) -> None:
     fleet.machines.append(FleetMachine(name, "serial", "", 0, folder, cable.path_b, baud))
 
 
+async def _start_mtconnect(
+    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
+) -> None:
+    # Imported here: the agent is served by uvicorn (the server extra).
+    from opendnc.sim.mtconnect.agent import VirtualAgent
+    from opendnc.sim.mtconnect.machine import ScriptedMachine, run_cycles
+
+    names = [f"mtc-{i + 1}" for i in range(count)]
+    agent = VirtualAgent(names, host=host, port=port, buffer_size=max(1024, 64 * count))
+    await agent.start()
+    fleet.agent = agent
+    for i, name in enumerate(names):
+        machine = ScriptedMachine(agent, name)
+        fleet.scripted[name] = machine
+        # cycles of slightly different lengths, so the floor is not in lockstep
+        length = cycle * (1 + 0.07 * (i % 5))
+        fleet._cycles.append(asyncio.create_task(run_cycles(machine, length), name=name))
+        fleet.machines.append(
+            FleetMachine(name, "mtconnect", host, agent.port, root / name, device=name)
+        )
+
+
 def server_config(
     fleet: Fleet,
     *,
@@ -274,10 +320,14 @@ def server_config(
             "[[machines]]",
             f"name = {q(m.name)}",
             f"kind = {q(m.kind)}",
-            f"host = {q(m.host)}",
             f"poll_interval = {poll_interval}",
         ]
-        if m.kind == "lsv2":
+        if m.kind != "mtconnect":
+            lines.append(f"host = {q(m.host)}")
+        if m.kind == "mtconnect":
+            where = f"[{m.host}]" if ":" in m.host else m.host
+            lines += [f"url = {q(f'http://{where}:{m.port}')}", f"device = {q(m.device)}"]
+        elif m.kind == "lsv2":
             lines.append(f"port = {m.port}")
         elif m.kind == "haas_serial":
             lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]

@@ -40,6 +40,7 @@ class MachineKind(StrEnum):
     LSV2 = "lsv2"  # Heidenhain over LSV2 (TCP, or serial with `serial = "..."`)
     HAAS_SERIAL = "haas_serial"  # Haas RS-232: XModem, drip-feed, DPRNT
     HAAS_NGC = "haas_ngc"  # Haas NGC over Ethernet: MDC Q-commands and the net share
+    MTCONNECT = "mtconnect"  # any control with an MTConnect agent: status only
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ KIND_LABEL = {
     "lsv2": "Heidenhain · LSV2",
     "haas_ngc": "Haas NGC · Ethernet",
     "haas_serial": "Haas · RS-232",
+    "mtconnect": "MTConnect agent",
 }
 # How a card is filed by the overview's filters: the classifier's states, andon-coloured
 # (docs/dashboard.md#live-overview).
