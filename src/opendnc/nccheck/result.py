@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "MAX_PROBLEMS",
     "CheckResult",
     "Control",
     "EndState",
@@ -27,6 +28,9 @@ __all__ = [
 ]
 
 Point = tuple[float, float, float]
+
+MAX_PROBLEMS = 200
+"""Problems a result lists at most; :attr:`CheckResult.more_problems` counts the rest."""
 
 
 class Control(enum.Enum):
@@ -175,6 +179,10 @@ class CheckResult:
     blocks: int = 0
     """Blocks the dry run executed (a loop counts each pass)."""
     end: EndState = field(default_factory=EndState)
+    more_problems: int = 0
+    """Problems found beyond the :data:`MAX_PROBLEMS` listed (counted, not listed)."""
+    more_errors: int = 0
+    """How many of :attr:`more_problems` are errors (so :attr:`ok` still sees them)."""
 
     @property
     def errors(self) -> tuple[Problem, ...]:
@@ -188,8 +196,8 @@ class CheckResult:
 
     @property
     def ok(self) -> bool:
-        """True when there is no error (warnings allowed)."""
-        return not self.errors
+        """True when there is no error (warnings allowed), listed or beyond the cap."""
+        return not self.errors and not self.more_errors
 
     def summary(self) -> str:
         """One line: errors, warnings, tools, moves and the estimated time."""
@@ -219,6 +227,7 @@ class CheckResult:
                 }
                 for p in self.problems
             ],
+            "more_problems": self.more_problems,
             "tools": [
                 {
                     "tool": t.tool,
