@@ -146,6 +146,7 @@ class _Run:
         self.motion = 0.0
         self.plane = Plane.XY
         self.absolute = True
+        self.iso_centre: dict[str, float] = {}  # Heidenhain ISO: I/J/K in force (like CC)
         self.feed_mode = 94
         self.feed: float | None = None
         self.speed = 0.0
@@ -201,6 +202,7 @@ class _Run:
     # ------------------------------------------------------------------ program text
     def _split(self, text: str) -> _Program:
         """The file's programs: the first is the main one, others are callable by O number."""
+        self.iso_ended = False
         raw = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
         programs: list[tuple[str, int | None, list[tuple[int, str]]]] = []
         current: list[tuple[int, str]] = []
@@ -219,6 +221,7 @@ class _Run:
                     continue
                 if _ISO_END.match(stripped):
                     current.append((index, "M30"))  # END of an ISO program
+                    self.iso_ended = True
                     continue
             else:
                 match = _O_LINE.match(stripped)
@@ -231,6 +234,9 @@ class _Run:
                     continue
             current.append((index, stripped.rstrip("*").rstrip() if self.iso else stripped))
         programs.append((title[0], title[1], current))
+        if self.iso and current and not self.iso_ended:
+            # the TNC needs the end block N99999999 %NAME G71 (docs/check.md#heidenhain-iso)
+            self.error(current[-1][0], f"the ISO program has no end block (N99999999 %{title[0]})")
         built = [self._program(n, num, lines) for n, num, lines in programs]
         for program in built:
             if program.number is not None:
@@ -703,6 +709,9 @@ class _Run:
                     line, "G92", "G92 shifts the coordinates: machine travel not checked"
                 )
             return
+        if self.iso and not has_axes and "R" not in v and any(k in v for k in "IJK"):
+            self._iso_centre(v)  # "N100 I+20 J+60 *": a circle centre (pole) of its own
+            return
         if self.cycle is not None:
             if has_axes or "R" in v or "L" in v:
                 self._holes(v, line)
@@ -713,6 +722,16 @@ class _Run:
                 self._linear(v, line, rapid=motion == 0)
         elif has_axes or any(k in v for k in "IJKR"):
             self._arc(v, line, clockwise=motion == 2)
+
+    def _iso_centre(self, v: dict[str, float]) -> None:
+        """Heidenhain ISO I/J/K: the circle centre, absolute (G90) or from the position (G91)."""
+        for axis, letter in enumerate("IJK"):
+            if letter in v:
+                base = self.w[axis]
+                if self.absolute:
+                    self.iso_centre[letter] = v[letter]
+                elif base is not None:
+                    self.iso_centre[letter] = base + v[letter]
 
     def _move_to(
         self, w: list[float | None], m: list[float | None], line: int, rapid: bool
@@ -780,6 +799,9 @@ class _Run:
             ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=not clockwise)
         else:
             ka, kb = letters[a], letters[b]
+            if self.iso:
+                self._iso_centre(v)
+                v = {**v, **self.iso_centre}
             if ka not in v and kb not in v:
                 self.error(
                     line, f"G0{2 if clockwise else 3} without its centre ({ka}/{kb}) or radius (R)"
