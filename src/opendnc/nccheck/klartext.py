@@ -1327,7 +1327,8 @@ def _decimal_comma(text: str) -> tuple[str, str | None]:
     if found is None:
         return text, None
     fixed = found.replace(",", ".")
-    return "".join(parts), f"a decimal comma in {found}: the TNC reads {fixed} only with a point"
+    message = f"a decimal comma ({found}): the TNC reads a decimal point only (write {fixed})"
+    return "".join(parts), message
 
 
 def _label(text: str) -> str:
