@@ -12,6 +12,7 @@ The facts are in docs/check.md#klartext.
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import time
@@ -54,6 +55,7 @@ _VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
 _AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
 _POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
 _WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
+_WORD_START = re.compile(r"\b(?:F|S|R|DL|DR|M|REP|L)\s*[+\-.\dQ]")  # any word at all
 _Q_PARAM = re.compile(r"^(Q|QL|QR)(\d+)$")
 # a cycle parameter is a number, a Q parameter or one of the words the TNC offers in its
 # place (Q206 = AUTO / FAUTO / FMAX, PREDEF for a GLOBAL DEF value): docs/check.md#cycles
@@ -65,6 +67,8 @@ _DRILLING = (200, 201, 203, 205)
 # defining one leaves the cycle a CYCL CALL or M99 runs unchanged
 _DEF_ACTIVE = frozenset({7, 8, 9, 10, 11, 13, 14, 19, 26, 32, 247})
 _CALL_NEST = 20
+# the working plane's two axes by tool axis (index 0, 1, 2 = X, Y, Z)
+_PLANES = ((1, 2, Plane.YZ), (2, 0, Plane.ZX), (0, 1, Plane.XY))
 # lines without a block number that belong to the CYCL DEF / PATTERN DEF before them
 _PARAM_LINE = re.compile(r"^(Q\d+\s*=|POS\d|POINT|ROW|PAT|FRAME|CIRC|PITCH|\))")
 # a digit, a comma, a digit: a decimal comma, which the TNC does not read (docs/check.md)
@@ -78,13 +82,14 @@ class _Stop(Exception):
     """The run ends here."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Line:
+    # one per program line, so kept small: a million-block program holds a million of them
     line: int
     block: int | None
     text: str  # upper case, comment removed
-    raw: str
-    params: list[str] = field(default_factory=list)  # continuation lines (cycle parameters)
+    raw: str  # the line as written, kept only where case matters (TOOL CALL, CALL PGM)
+    params: tuple[str, ...] | list[str] = ()  # continuation lines (cycle parameters)
     note: str | None = None  # a problem found while reading the line
 
 
@@ -300,10 +305,10 @@ class _Run:
     # ------------------------------------------------------------------ parsing
     def _parse(self, text: str, name: str, external: bool = False) -> _Program:
         lines: list[_Line] = []
-        raw_lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
         continuing = False
-        for number, raw in enumerate(raw_lines, start=1):
-            code = raw.split(";", 1)[0].strip()
+        # read line by line (CR LF, LF or CR ends): no second copy of a large program
+        for number, raw in enumerate(io.StringIO(text, newline=None), start=1):
+            code = raw.partition(";")[0].strip()
             if not code:
                 continue
             upper = code.upper()
@@ -324,12 +329,16 @@ class _Run:
                 )
             )
             if lines and (continuing or (match is None and takes_params)):
-                lines[-1].params.append(upper)
+                last = lines[-1]
+                if isinstance(last.params, list):
+                    last.params.append(upper)
+                else:
+                    last.params = [upper]
                 lines[-1].note = lines[-1].note or note
                 continuing = tilde
                 continue
             if match is None:  # a block without a number: run it all the same
-                lines.append(_Line(number, None, upper, raw, note=note))
+                lines.append(_Line(number, None, upper, _case_kept(upper, raw), note=note))
                 continuing = tilde
                 continue
             block = int(match.group(1))
@@ -339,7 +348,7 @@ class _Run:
             if not body:  # "3 ; T1 D=12": a numbered comment block
                 continuing = tilde
                 continue
-            lines.append(_Line(number, block, body, raw, note=note))
+            lines.append(_Line(number, block, body, _case_kept(body, raw), note=note))
             continuing = tilde
         program = _Program(name, lines, external=external)
         for item in lines:  # also the blocks the run may never reach
@@ -348,13 +357,14 @@ class _Run:
             message = _static_problem(item.text)
             if message:
                 self._static(program, item, message)
-        for index, item in enumerate(lines):
+        with_labels = [(i, item) for i, item in enumerate(lines) if "LBL" in item.text]
+        for index, item in with_labels:
             if item.text.startswith("LBL"):
                 label = _label(item.text[3:])
                 if label in program.labels and label != "0":
                     self._static(program, item, f"label {label} is defined twice")
                 program.labels.setdefault(label, index)
-        for item in lines:
+        for _, item in with_labels:
             text_ = item.text
             target = None
             if text_.startswith("CALL LBL"):
@@ -603,12 +613,16 @@ class _Run:
             )
 
     def _axes(self, text: str) -> list[tuple[bool, str, float]]:
-        return [
-            (inc == "I", axis, self.number(sign, token))
-            for inc, axis, sign, token in _AXIS_WORD.findall(text)
-        ]
+        out = []
+        for inc, axis, sign, token in _AXIS_WORD.findall(text):
+            # a literal number without a call (the bulk of every program runs here)
+            value = self.q_value(token) if token[0] == "Q" else float(token)
+            out.append((inc == "I", axis, -value if sign == "-" else value))
+        return out
 
     def _words(self, text: str) -> dict[str, float]:
+        if not _WORD_START.search(text):
+            return {}
         return {key: self.number(sign, token) for key, sign, token in _WORD.findall(text)}
 
     # ------------------------------------------------------------------ tools
@@ -655,7 +669,7 @@ class _Run:
 
     # ------------------------------------------------------------------ paths
     def _plane(self) -> tuple[int, int, Plane]:
-        return {2: (0, 1, Plane.XY), 1: (2, 0, Plane.ZX), 0: (1, 2, Plane.YZ)}[self.axis]
+        return _PLANES[self.axis]
 
     def _feed(self, item: _Line, words: dict[str, float], text: str) -> tuple[bool, float | None]:
         """(rapid, feed) of a path block: FMAX is for its block only, F stays in force."""
@@ -704,7 +718,7 @@ class _Run:
         start = self.pos
         self.path.line(
             tuple(start), tuple(target), item.line, rapid=rapid, feed=feed,
-            machine_end=self._machine(target),
+            machine_end=self._machine(target) if self.path.check_travel else None,
         )  # fmt: skip
         a, b, _ = self._plane()
         sa, sb, ea, eb = start[a], start[b], target[a], target[b]
@@ -1300,12 +1314,17 @@ def _static_problem(text: str) -> str | None:
         or re.match(r"^M\d+\b", text)
     ):
         return f"unknown block {head!r}"
-    if not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
+    if "M" not in text or not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
         return None  # names (BEGIN PGM M100, CALL PGM M5.H, LBL) are not M functions
     for match in _M_WORD.finditer(_STRING.sub("", text)):
         if float(match.group(1)) not in codes.HEIDENHAIN_M:
             return f"M{int(match.group(1))} is not an M function of the TNC"
     return None
+
+
+def _case_kept(text: str, raw: str) -> str:
+    """``raw`` where a block needs the case of its text (tool and program names), else ""."""
+    return raw if text.startswith(("TOOL CALL", "CALL PGM")) else ""
 
 
 def _decimal_comma(text: str) -> tuple[str, str | None]:
