@@ -3,6 +3,10 @@ capped with a count of the rest, and a budget that stops a run is an error."""
 
 from __future__ import annotations
 
+import re
+
+import pytest
+
 from opendnc.nccheck import MAX_PROBLEMS, Budget, check_text
 
 
@@ -48,3 +52,29 @@ def test_a_time_budget_that_stops_a_run_is_an_error() -> None:
     result = check_text(program(*moves), budget=Budget(seconds=0.0))
     assert [p.severity.value for p in result.problems] == ["error"]
     assert "its budget of 0 s of CPU ran out" in result.problems[0].message
+
+
+def test_the_plain_line_path_draws_what_the_general_path_draws(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from opendnc.nccheck import klartext
+
+    text = program(
+        "L X+10 Y+5 R0 F200",
+        "CYCL DEF 7.0 DATUM SHIFT",
+        "CYCL DEF 7.1 X+3",
+        "L X-4.5 Y+.5",
+        "L  Z-2.25  F50",
+        "L X+7. Y+8 Z+1 R0",
+        "RND R1",
+        "L X+20",
+        "L X+20 Y+20 M5",
+        "L X+0",
+    )
+    fast = check_text(text)
+    monkeypatch.setattr(klartext, "_PLAIN_L", re.compile(r"(?!)"))  # never the fast path
+    general = check_text(text)
+    assert fast.moves == general.moves
+    assert fast.problems == general.problems
+    assert fast.end.position == general.end.position
+    assert fast.feed_distance == general.feed_distance
