@@ -10,13 +10,22 @@ alongside.
 
     .venv/bin/python benchmarks/check.py            # 100,000 blocks, best of 3
     .venv/bin/python benchmarks/check.py --blocks 20000 --runs 1
+    .venv/bin/python benchmarks/check.py --large 1000000   # + one large Klartext file
+
+``--large N`` also checks an N-block Klartext file the way ``opendnc check`` does (read the
+file, default budget) in a fresh process and prints its CPU time, peak RSS (the whole
+process: interpreter, file text and dry run) and how many blocks the run reached; the
+target (issue: check 1M Klartext blocks to the end) is under 5 s CPU and 300 MiB.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +34,8 @@ from opendnc.gcode.program import parse_plain
 from opendnc.nccheck import Control, check_text
 
 TARGET_S = 2.0
+LARGE_CPU_S = 5.0
+LARGE_RSS_MIB = 300.0
 
 
 def gcode_program(blocks: int) -> str:
@@ -98,11 +109,65 @@ def best(path: Path, control: Control, runs: int) -> tuple[float, float, float, 
     return read_best, wall_best, cpu_best, blocks, problems
 
 
+def large_child(path: str) -> None:
+    """In a fresh process: check ``path`` as the command line does, print one JSON line."""
+    import resource
+
+    started = time.process_time()
+    text = Path(path).read_text("latin-1")
+    result = check_text(text, name=Path(path).name)
+    cpu = time.process_time() - started
+    peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    print(
+        json.dumps(
+            {
+                "cpu_s": cpu,
+                "peak_rss_mib": peak_kib / 1024,
+                "blocks": result.blocks,
+                "ended": result.end.ended,
+                "errors": [p.message for p in result.errors][:3],
+            }
+        )
+    )
+
+
+def large(blocks: int) -> None:
+    """Check one ``blocks``-block Klartext file in a child process and print the figures."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "large.h"
+        path.write_text(klartext_program(blocks), "ascii")
+        lines = path.read_text("ascii").count("\n")
+        out = subprocess.run(
+            [sys.executable, __file__, "--large-child", str(path)],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+    got = json.loads(out.strip().splitlines()[-1])
+    cpu, rss = got["cpu_s"], got["peak_rss_mib"]
+    print(
+        f"klartext   {lines:,} lines in one file: {got['blocks']:,} blocks run, "
+        f"{'ran to its end' if got['ended'] else 'STOPPED'}; {cpu:.2f} s CPU "
+        f"(target < {LARGE_CPU_S:g}: {'met' if cpu < LARGE_CPU_S else 'MISSED'}), "
+        f"peak RSS {rss:.0f} MiB (target < {LARGE_RSS_MIB:g}: "
+        f"{'met' if rss < LARGE_RSS_MIB else 'MISSED'})"
+    )
+    for message in got["errors"]:
+        print(f"{'':10s} error: {message}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blocks", type=int, default=100_000)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--large", type=int, default=0, help="also one N-block Klartext file")
+    parser.add_argument("--large-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.large_child:
+        large_child(args.large_child)
+        return
+    if args.large:
+        large(args.large)
     with tempfile.TemporaryDirectory() as folder:
         for control, make, suffix in (
             (Control.HAAS, gcode_program, ".nc"),
