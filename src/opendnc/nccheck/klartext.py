@@ -16,7 +16,8 @@ import io
 import math
 import re
 import time
-from collections.abc import Callable
+from array import array
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
@@ -76,7 +77,7 @@ _PLANES = ((1, 2, Plane.YZ), (2, 0, Plane.ZX), (0, 1, Plane.XY))
 _PARAM_LINE = re.compile(r"^(Q\d+\s*=|POS\d|POINT|ROW|PAT|FRAME|CIRC|PITCH|\))")
 # a digit, a comma, a digit: a decimal comma, which the TNC does not read (docs/check.md)
 _DECIMAL_COMMA = re.compile(r"(\d),(\d)")
-_TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*")
+_TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*", "CALL PGM", "SEL ")
 _SPINDLE_START = re.compile(r"\bM(3|4|13|14)\b")
 _PRESET_Q = range(100, 200)  # Q100-Q199: set by the TNC itself (tool radius, results)
 
@@ -96,10 +97,84 @@ class _Line:
     note: str | None = None  # a problem found while reading the line
 
 
+_BIG = 2**62  # block numbers from here on are kept outside the array
+
+
+class _Lines:
+    """A program's blocks in parallel arrays, a :class:`_Line` made on each access.
+
+    A million-block program would otherwise hold a million line objects (two int objects
+    each); here a block costs its text and two array slots, and the rare parts (the case-kept
+    raw line, cycle parameters, a reading problem) sit in dictionaries by index.
+    """
+
+    __slots__ = ("_big", "_blocks", "_notes", "_numbers", "_params", "_raw", "_texts")
+
+    def __init__(self) -> None:
+        self._texts: list[str] = []
+        self._numbers = array("q")
+        self._blocks = array("q")  # -1: a block without a number
+        self._raw: dict[int, str] = {}
+        self._params: dict[int, list[str]] = {}
+        self._notes: dict[int, str] = {}
+        self._big: dict[int, int] = {}
+
+    def __len__(self) -> int:
+        return len(self._texts)
+
+    def __getitem__(self, index: int) -> _Line:
+        if index < 0:
+            index += len(self._texts)
+        block: int | None = self._blocks[index]
+        if block == _BIG:
+            block = self._big.get(index)
+        return _Line(
+            self._numbers[index],
+            None if block is None or block < 0 else block,
+            self._texts[index],
+            self._raw.get(index, ""),
+            self._params.get(index, ()),
+            self._notes.get(index),
+        )
+
+    def __iter__(self) -> Iterator[_Line]:
+        return (self[index] for index in range(len(self._texts)))
+
+    def add(self, line: int, block: int | None, text: str, raw: str, note: str | None) -> None:
+        index = len(self._texts)
+        self._texts.append(text)
+        self._numbers.append(line)
+        if block is not None and block >= _BIG:  # a 309-digit "block number" stays exact
+            self._big[index] = block
+            block = _BIG
+        self._blocks.append(-1 if block is None else block)
+        if raw:
+            self._raw[index] = raw
+        if note:
+            self._notes[index] = note
+
+    def last_text(self) -> str:
+        return self._texts[-1]
+
+    def texts(self) -> list[str]:
+        """The blocks' texts (read only)."""
+        return self._texts
+
+    def has_note(self, index: int) -> bool:
+        return index in self._notes
+
+    def add_param(self, text: str, note: str | None) -> None:
+        """A continuation line (cycle parameter) of the last block."""
+        index = len(self._texts) - 1
+        self._params.setdefault(index, []).append(text)
+        if note and index not in self._notes:
+            self._notes[index] = note
+
+
 @dataclass
 class _Program:
     name: str
-    lines: list[_Line]
+    lines: _Lines
     labels: dict[str, int] = field(default_factory=dict)
     external: bool = False
 
@@ -307,7 +382,7 @@ class _Run:
 
     # ------------------------------------------------------------------ parsing
     def _parse(self, text: str, name: str, external: bool = False) -> _Program:
-        lines: list[_Line] = []
+        lines = _Lines()
         continuing = False
         # read line by line (CR LF, LF or CR ends): no second copy of a large program
         for number, raw in enumerate(io.StringIO(text, newline=None), start=1):
@@ -327,21 +402,16 @@ class _Run:
             takes_params = bool(lines) and (
                 continuing
                 or (
-                    lines[-1].text.startswith(("CYCL DEF", "PATTERN DEF"))
+                    lines.last_text().startswith(("CYCL DEF", "PATTERN DEF"))
                     and _PARAM_LINE.match(upper) is not None
                 )
             )
             if lines and (continuing or (match is None and takes_params)):
-                last = lines[-1]
-                if isinstance(last.params, list):
-                    last.params.append(upper)
-                else:
-                    last.params = [upper]
-                lines[-1].note = lines[-1].note or note
+                lines.add_param(upper, note)
                 continuing = tilde
                 continue
             if match is None:  # a block without a number: run it all the same
-                lines.append(_Line(number, None, upper, _case_kept(upper, raw), note=note))
+                lines.add(number, None, upper, _case_kept(upper, raw), note)
                 continuing = tilde
                 continue
             block = int(match.group(1))
@@ -351,16 +421,19 @@ class _Run:
             if not body:  # "3 ; T1 D=12": a numbered comment block
                 continuing = tilde
                 continue
-            lines.append(_Line(number, block, body, _case_kept(body, raw), note=note))
+            lines.add(number, block, body, _case_kept(body, raw), note)
             continuing = tilde
         program = _Program(name, lines, external=external)
-        for item in lines:  # also the blocks the run may never reach
-            if item.note:
-                self._static(program, item, item.note)
-            message = _static_problem(item.text)
-            if message:
-                self._static(program, item, message)
-        with_labels = [(i, item) for i, item in enumerate(lines) if "LBL" in item.text]
+        texts = lines.texts()
+        for index, text_ in enumerate(texts):  # also the blocks the run may never reach
+            message = _static_problem(text_)
+            if message or lines.has_note(index):
+                item = lines[index]
+                if item.note:
+                    self._static(program, item, item.note)
+                if message:
+                    self._static(program, item, message)
+        with_labels = [(i, lines[i]) for i, text_ in enumerate(texts) if "LBL" in text_]
         for index, item in with_labels:
             if item.text.startswith("LBL"):
                 label = _label(item.text[3:])
