@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 from opendnc.gcode.program import parse_plain
-from opendnc.nccheck import Control, check_text
+from opendnc.nccheck import Budget, Control, check_text
 
 TARGET_S = 2.0
 LARGE_CPU_S = 5.0
@@ -109,13 +109,13 @@ def best(path: Path, control: Control, runs: int) -> tuple[float, float, float, 
     return read_best, wall_best, cpu_best, blocks, problems
 
 
-def large_child(path: str) -> None:
+def large_child(path: str, seconds: float, moves: int) -> None:
     """In a fresh process: check ``path`` as the command line does, print one JSON line."""
     import resource
 
     started = time.process_time()
     text = Path(path).read_text("latin-1")
-    result = check_text(text, name=Path(path).name)
+    result = check_text(text, name=Path(path).name, budget=Budget(seconds=seconds, moves=moves))
     cpu = time.process_time() - started
     peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
     print(
@@ -131,14 +131,23 @@ def large_child(path: str) -> None:
     )
 
 
-def large(blocks: int) -> None:
+def large(blocks: int, seconds: float, moves: int) -> None:
     """Check one ``blocks``-block Klartext file in a child process and print the figures."""
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "large.h"
         path.write_text(klartext_program(blocks), "ascii")
         lines = path.read_text("ascii").count("\n")
         out = subprocess.run(
-            [sys.executable, __file__, "--large-child", str(path)],
+            [
+                sys.executable,
+                __file__,
+                "--large-child",
+                str(path),
+                "--large-seconds",
+                str(seconds),
+                "--large-moves",
+                str(moves),
+            ],
             check=True,
             capture_output=True,
             text=True,
@@ -146,7 +155,8 @@ def large(blocks: int) -> None:
     got = json.loads(out.strip().splitlines()[-1])
     cpu, rss = got["cpu_s"], got["peak_rss_mib"]
     print(
-        f"klartext   {lines:,} lines in one file: {got['blocks']:,} blocks run, "
+        f"klartext   {lines:,} lines in one file (budget {seconds:g} s CPU, {moves:,} moves "
+        f"kept): {got['blocks']:,} blocks run, "
         f"{'ran to its end' if got['ended'] else 'STOPPED'}; {cpu:.2f} s CPU "
         f"(target < {LARGE_CPU_S:g}: {'met' if cpu < LARGE_CPU_S else 'MISSED'}), "
         f"peak RSS {rss:.0f} MiB (target < {LARGE_RSS_MIB:g}: "
@@ -161,13 +171,19 @@ def main() -> None:
     parser.add_argument("--blocks", type=int, default=100_000)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--large", type=int, default=0, help="also one N-block Klartext file")
+    parser.add_argument(
+        "--large-seconds", type=float, default=Budget().seconds, help="the large run's budget"
+    )
+    parser.add_argument(
+        "--large-moves", type=int, default=Budget().moves, help="moves the large run keeps"
+    )
     parser.add_argument("--large-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.large_child:
-        large_child(args.large_child)
+        large_child(args.large_child, args.large_seconds, args.large_moves)
         return
     if args.large:
-        large(args.large)
+        large(args.large, args.large_seconds, args.large_moves)
     with tempfile.TemporaryDirectory() as folder:
         for control, make, suffix in (
             (Control.HAAS, gcode_program, ".nc"),
