@@ -156,6 +156,13 @@ class _Lines:
     def last_text(self) -> str:
         return self._texts[-1]
 
+    def first(self, prefix: str) -> _Line | None:
+        """The first block whose text starts with ``prefix`` (no record made for the rest)."""
+        for index, text in enumerate(self._texts):
+            if text.startswith(prefix):
+                return self[index]
+        return None
+
     def texts(self) -> list[str]:
         """The blocks' texts (read only)."""
         return self._texts
@@ -514,10 +521,9 @@ class _Run:
             pass
         if self.end_line is None and self.main.lines and self.begin is not None:
             # the run stopped (M30, an error): END PGM is still needed in the file
-            for item in self.main.lines:
-                if item.text.startswith("END PGM"):
-                    self._check_end(item)
-                    break
+            end = self.main.lines.first("END PGM")
+            if end is not None:
+                self._check_end(end)
             else:
                 self.error(self.main.lines[-1], "the program has no END PGM")
 
@@ -761,12 +767,17 @@ class _Run:
             return False, self.tool_feed
         if "F" in words:
             self.feed = words["F"]
+        return False, self._cutting(item)
+
+    def _cutting(self, item: _Line) -> float | None:
+        """The feed in force for a cutting move (an error when none, a warning when the
+        spindle is stopped)."""
         if not self.feed and not self.no_feed:
             self.no_feed = True
             self.error(item, "a path with no feed rate (F) in force")
         if not self.spindle_on:
             self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
-        return False, self.feed
+        return self.feed
 
     def _target(
         self, text: str, axes: list[tuple[bool, str, float]] | None = None
@@ -819,9 +830,9 @@ class _Run:
             index = _AXIS_INDEX[word[0]]
             target[index] = float(word[1:]) + shift[index]
         feed = plain.group(2)
-        words = {} if feed is None else {"F": float(feed)}
-        rapid, rate = self._feed(item, words, "")
-        self._go(item, target, rapid=rapid, feed=rate)
+        if feed is not None:
+            self.feed = float(feed)
+        self._go(item, target, rapid=False, feed=self._cutting(item))
 
     def _linear(self, item: _Line, text: str) -> None:
         axes = self._axes(text)
@@ -1141,10 +1152,9 @@ class _Run:
                 self.spindle_on = code != 5 and self.spindle_on
             elif code in (2, 30):
                 if self.frames and self.frames[-1].kind == "main":
-                    for later in self.main.lines:
-                        if later.text.startswith("END PGM"):
-                            self._check_end(later)
-                            break
+                    end = self.main.lines.first("END PGM")
+                    if end is not None:
+                        self._check_end(end)
                     self.ended = True
                     raise _Stop
             elif code == 99 and self.cycle is not None:

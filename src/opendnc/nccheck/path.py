@@ -219,12 +219,10 @@ class Toolpath:
         self._see(end)
         if machine_end is not None and self.check_travel:
             self._check(machine_end, line)
-        if None in start[:3] or None in end[:3]:
-            return  # a move from or to an unknown position is neither drawn nor measured
         x0, y0, z0 = start[0], start[1], start[2]
         x1, y1, z1 = end[0], end[1], end[2]
         if x0 is None or y0 is None or z0 is None or x1 is None or y1 is None or z1 is None:
-            return  # (checked above; this tells the type checker)
+            return  # a move from or to an unknown position is neither drawn nor measured
         length = math.hypot(x1 - x0, y1 - y0, z1 - z0)
         if length == 0.0:
             return
