@@ -390,46 +390,44 @@ class _Run:
     # ------------------------------------------------------------------ parsing
     def _parse(self, text: str, name: str, external: bool = False) -> _Program:
         lines = _Lines()
-        continuing = False
+        continuing = False  # the line before ended in "~"
+        defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
         # read line by line (CR LF, LF or CR ends): no second copy of a large program
         for number, raw in enumerate(io.StringIO(text, newline=None), start=1):
             code = raw.partition(";")[0].strip()
             if not code:
                 continue
             upper = code.upper()
-            if upper.startswith("/"):  # a skippable block "/ 11 STOP": run as with skip off
+            if upper[0] == "/":  # a skippable block "/ 11 STOP": run as with skip off
                 upper = upper[1:].lstrip()
             note = None
             if "," in upper and not upper.lstrip("0123456789 ").startswith(_TEXT_HEADS):
                 upper, note = _decimal_comma(upper)
-            match = _NUMBERED.match(upper)
             # "~" continues a block on the next line; it may stand after a ";" comment
-            tilde = raw.rstrip().endswith("~")
-            upper = upper.rstrip("~").strip()
-            takes_params = bool(lines) and (
-                continuing
-                or (
-                    lines.last_text().startswith(("CYCL DEF", "PATTERN DEF"))
-                    and _PARAM_LINE.match(upper) is not None
-                )
-            )
-            if lines and (continuing or (match is None and takes_params)):
+            tilde = "~" in raw and raw.rstrip().endswith("~")
+            if upper.endswith("~"):
+                upper = upper.rstrip("~").strip()
+            match = _NUMBERED.match(upper)
+            if len(lines) and (
+                continuing or (match is None and defines and _PARAM_LINE.match(upper))
+            ):
                 lines.add_param(upper, note)
                 continuing = tilde
                 continue
+            continuing = tilde
             if match is None:  # a block without a number: run it all the same
                 lines.add(number, None, upper, _case_kept(upper, raw), note)
-                continuing = tilde
+                defines = upper.startswith(("CYCL DEF", "PATTERN DEF"))
                 continue
-            block = int(match.group(1))
-            body = match.group(2).rstrip("~").strip()
-            if body.startswith("/"):
+            body = match.group(2)
+            if body.endswith("~"):
+                body = body.rstrip("~").strip()
+            if body[:1] == "/":
                 body = body[1:].lstrip()
             if not body:  # "3 ; T1 D=12": a numbered comment block
-                continuing = tilde
                 continue
-            lines.add(number, block, body, _case_kept(body, raw), note)
-            continuing = tilde
+            lines.add(number, int(match.group(1)), body, _case_kept(body, raw), note)
+            defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
         program = _Program(name, lines, external=external)
         texts = lines.texts()
         for index, text_ in enumerate(texts):  # also the blocks the run may never reach
