@@ -163,6 +163,10 @@ class _Lines:
                 return self[index]
         return None
 
+    def line_number(self, index: int) -> int:
+        """The file line of block ``index``."""
+        return self._numbers[index]
+
     def texts(self) -> list[str]:
         """The blocks' texts (read only)."""
         return self._texts
@@ -493,16 +497,26 @@ class _Run:
         try:
             while True:
                 frame = self.frames[-1]
-                if frame.pc >= len(frame.program.lines):
+                lines = frame.program.lines
+                pc = frame.pc
+                texts = lines.texts()
+                if pc >= len(texts):
                     self._fall_off(frame)
                     continue
-                item = frame.program.lines[frame.pc]
-                frame.pc += 1
+                frame.pc = pc + 1
                 self.blocks_run += 1
                 if self.blocks_run & 1023 == 0 and (
                     self.blocks_run >= limit or time.thread_time() > deadline
                 ):
-                    self._endless(item, out_of_time=self.blocks_run < limit)
+                    self._endless(lines[pc], out_of_time=self.blocks_run < limit)
+                text = texts[pc]
+                if text[:2] == "L " and self.corner is None and not self.m89:
+                    # the bulk of a posted program: no line record unless it reports
+                    plain = _PLAIN_L.fullmatch(text)
+                    if plain is not None:
+                        self._plain_line(lines, pc, plain)
+                        continue
+                item = lines[pc]
                 # an error ends its block only: the run goes on, so one problem never
                 # hides the ones after it (the block's effect is left out)
                 try:
@@ -570,13 +584,7 @@ class _Run:
         if "M" in text and (head in _M_HEADS or head == "CYCL") and _SPINDLE_START.search(text):
             # M3/M4/M13/M14 act at the start of their block, before its move (TNC)
             self.spindle_on = True
-        if head == "L" and self.corner is None and not self.m89:
-            plain = _PLAIN_L.fullmatch(text)
-            if plain is not None:
-                self._plain_line(item, plain)
-            else:
-                self._linear(item, text[1:])
-        elif head in ("L", "LN"):
+        if head in ("L", "LN"):
             self._linear(item, text[len(head) :])
         elif head in ("APPR", "DEP"):
             # approach / departure contours: drawn as a straight move to their end point
@@ -819,18 +827,33 @@ class _Run:
                 self.last_dir = ((ea - sa) / length, (eb - sb) / length)
         self.pos = target
 
-    def _plain_line(self, item: _Line, plain: re.Match[str]) -> None:
+    def _plain_line(self, lines: _Lines, index: int, plain: re.Match[str]) -> None:
         """``L X.. Y.. Z.. [R0] [F..]`` with absolute literal coordinates, the bulk of a
-        posted program: the same as :meth:`_linear` with less work per block."""
+        posted program: the same as :meth:`_linear` (no RND/CHF pending, no M89) with less
+        work per block; the block's line record is made only when it reports."""
         target = self.pos[:]
         shift = self.shift
         for word in plain.group(1).split():
-            index = _AXIS_INDEX[word[0]]
-            target[index] = float(word[1:]) + shift[index]
+            axis = _AXIS_INDEX[word[0]]
+            target[axis] = float(word[1:]) + shift[axis]
         feed = plain.group(2)
         if feed is not None:
             self.feed = float(feed)
-        self._go(item, target, rapid=False, feed=self._cutting(item))
+        if not self.feed or not self.spindle_on:
+            self._go(lines[index], target, rapid=False, feed=self._cutting(lines[index]))
+            return
+        start = self.pos
+        self.path.line(
+            tuple(start), tuple(target), lines.line_number(index), rapid=False, feed=self.feed,
+            machine_end=self._machine(target) if self.path.check_travel else None,
+        )  # fmt: skip
+        a, b, _ = _PLANES[self.axis]  # the direction at the end, as _go keeps it
+        sa, sb, ea, eb = start[a], start[b], target[a], target[b]
+        if sa is not None and sb is not None and ea is not None and eb is not None:
+            length = math.hypot(ea - sa, eb - sb)
+            if length > 1e-9:
+                self.last_dir = ((ea - sa) / length, (eb - sb) / length)
+        self.pos = target
 
     def _linear(self, item: _Line, text: str) -> None:
         axes = self._axes(text)
