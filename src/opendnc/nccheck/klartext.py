@@ -1282,6 +1282,12 @@ class _Run:
             raise _Stop
         else:
             self.warn_once(item, f"FN{number}", f"FN {number} is not simulated by the dry run")
+            # FN 18: SYSREAD Q5 = ID..., FN 26-28 and others: the target is set (to a value
+            # the dry run does not know, 0), so reading it later is no "read before set"
+            named = body.partition("=")[0].split() if "=" in body else []
+            target = _Q_PARAM.match(named[-1]) if named else None
+            if target is not None:
+                self.q.setdefault(target.group(0), 0.0)
 
     # ------------------------------------------------------------------ cycles
     def _cycle_def(self, item: _Line) -> None:

@@ -78,3 +78,8 @@ def test_the_plain_line_path_draws_what_the_general_path_draws(
     assert fast.problems == general.problems
     assert fast.end.position == general.end.position
     assert fast.feed_distance == general.feed_distance
+
+
+def test_a_parameter_an_unsimulated_function_sets_is_not_read_before_set() -> None:
+    result = check_text(program("FN 18: SYSREAD Q5 = ID990 NR1", "Q6 = Q5 + Q7"))
+    assert [p.message.split(" is ")[0] for p in result.warnings] == ["FN 18", "Q7"]
