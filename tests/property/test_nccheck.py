@@ -59,6 +59,12 @@ klartext_lines = st.sampled_from(
         "CYCL CALL", "CYCL CALL PAT", "PATTERN DEF POS1 (X+1 Y+2 Z+0)", "CYCL DEF 7.0 DATUM",
         "CYCL DEF 7.1 X+5", "L X+0 R0 FMAX M99", "M89", "STOP", "STOP M5", "M30", "FN 18: SYSREAD",
         "PLANE SPATIAL", "~", "; comment", "* - part",
+        # round 2: forms that were false errors or misses
+        "L X+10,5 Y+0", "RND R0,5", "/ 12 STOP", "13 /L X+1", "3 ; T1 D=12", "CYCL DEF 1.0 X",
+        "CYCL DEF 1.1 SET UP 2", "CYCL DEF 251 POCKET", "CYCL DEF 14.0 CONTOUR",
+        "Q206= AUTO", "Q204=PREDEF", "Q201=+5", "LP PR+5 PA+0", "LP IPA+10", "M13",
+        "L X+1 Y+1 F100 M13", 'CALL PGM "A,1"', "FN 18: SYSREAD Q5 = ID990 NR1",
+        "QL3 = QL4 + 1", "L X+1 Y+" + "9" * 309, "9" * 309 + " L X+1",
     ]
 )  # fmt: skip
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 from opendnc.nccheck.api import Budget, Library, check_text, guess_control
 from opendnc.nccheck.limits import MachineLimits, limits_for, parse_travel, parse_work_offsets
 from opendnc.nccheck.result import (
+    MAX_PROBLEMS,
     CheckResult,
     Control,
     EndState,
@@ -36,6 +37,7 @@ from opendnc.nccheck.result import (
 )
 
 __all__ = [
+    "MAX_PROBLEMS",
     "Budget",
     "CheckResult",
     "Control",

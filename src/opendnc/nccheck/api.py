@@ -27,8 +27,18 @@ class Budget:
     """Moves kept for the preview (counting and checks go on past it)."""
 
 
-_KLARTEXT = re.compile(r"^\s*\d*\s*BEGIN\s+PGM\b", re.IGNORECASE | re.MULTILINE)
-_ISO_HEAD = re.compile(r"^[ \t]*%[ \t]*\w[\w.-]*[ \t]+G7[01]\b", re.MULTILINE)
+# Matched against one line at a time, after its leading blanks are stripped: the classes
+# that follow each other (digits, then blanks, then a word) never overlap, so a match is
+# linear in the line's length. (A MULTILINE ``^\s*\d*\s*`` over the head spanned lines and
+# backtracked cubically on a file of blank lines: 4,096 of them froze the server.)
+_KLARTEXT = re.compile(r"\d*[ \t]*BEGIN[ \t]+PGM\b", re.IGNORECASE)
+_ISO_HEAD = re.compile(r"%[ \t]*\w[\w.-]*[ \t]+G7[01]\b")
+_LINE_END = re.compile(r"\r\n?|\n")
+
+
+def _head_lines(text: str) -> list[str]:
+    """The lines of ``text`` (CR LF, LF or CR-only ends), each without its leading blanks."""
+    return [line.lstrip(" \t") for line in _LINE_END.split(text)]
 
 
 def guess_control(text: str, name: str = "") -> Control:
@@ -38,13 +48,13 @@ def guess_control(text: str, name: str = "") -> Control:
     ``%NAME G71`` start line, Heidenhain ISO; anything else (``%``, ``O`` numbers,
     G-words) G-code for a Haas / Fanuc macro-B control.
     """
-    head = text[:4096]
-    if _KLARTEXT.search(head):
+    lines = _head_lines(text[:4096])
+    if any(_KLARTEXT.match(line) for line in lines):
         return Control.HEIDENHAIN
     lowered = name.lower()
     if lowered.endswith(".h"):
         return Control.HEIDENHAIN
-    if lowered.endswith(".i") or _ISO_HEAD.search(head):
+    if lowered.endswith(".i") or any(_ISO_HEAD.match(line) for line in lines):
         return Control.ISO
     return Control.HAAS
 

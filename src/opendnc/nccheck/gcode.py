@@ -51,6 +51,7 @@ from opendnc.nccheck.path import (
     short_radius,
 )
 from opendnc.nccheck.result import (
+    MAX_PROBLEMS,
     CheckResult,
     Control,
     EndState,
@@ -82,8 +83,6 @@ _FAST_LETTERS = frozenset("XYZF")
 _PROBE_MOVES = frozenset((31.0, 36.0, 37.0))
 # non-modal codes that decide a block's motion themselves (Haas / Fanuc; not Heidenhain ISO)
 _SPECIAL = frozenset((10.0, 28.0, 53.0, 65.0, 92.0, 52.0)) | _PROBE_MOVES
-MAX_PROBLEMS = 200
-"""Problems a result lists; the rest are counted in one last problem (docs/check.md#g-code)."""
 _LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): Ours
 _COMMENT_ONLY = re.compile(r"^(?:\([^)]*\)\s*)+$")
 
@@ -162,6 +161,7 @@ class _Run:
         self.motion = 0.0
         self.plane = Plane.ZX if self.lathe else Plane.XY
         self.absolute = True
+        self.iso_centre: dict[str, float] = {}  # Heidenhain ISO: I/J/K in force (like CC)
         self.feed_mode = 95 if self.lathe else 94  # lathes power on in feed per revolution
         self.feed: float | None = None
         self.speed = 0.0
@@ -228,6 +228,7 @@ class _Run:
     # ------------------------------------------------------------------ program text
     def _split(self, text: str) -> _Program:
         """The file's programs: the first is the main one, others are callable by O number."""
+        self.iso_ended = False
         raw = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
         programs: list[tuple[str, int | None, list[tuple[int, str]]]] = []
         current: list[tuple[int, str]] = []
@@ -246,6 +247,7 @@ class _Run:
                     continue
                 if _ISO_END.match(stripped):
                     current.append((index, "M30"))  # END of an ISO program
+                    self.iso_ended = True
                     continue
             else:
                 match = _O_LINE.match(stripped)
@@ -260,6 +262,9 @@ class _Run:
                     continue
             current.append((index, stripped.rstrip("*").rstrip() if self.iso else stripped))
         programs.append((title[0], title[1], current))
+        if self.iso and current and not self.iso_ended:
+            # the TNC needs the end block N99999999 %NAME G71 (docs/check.md#heidenhain-iso)
+            self.error(current[-1][0], f"the ISO program has no end block (N99999999 %{title[0]})")
         built = [self._program(n, num, lines) for n, num, lines in programs]
         for program in built:
             if program.number is not None:
@@ -900,6 +905,9 @@ class _Run:
                     line, "G92", "G92 shifts the coordinates: machine travel not checked"
                 )
             return
+        if self.iso and not has_axes and "R" not in v and any(k in v for k in "IJK"):
+            self._iso_centre(v)  # "N100 I+20 J+60 *": a circle centre (pole) of its own
+            return
         if self.cycle is not None:
             if has_axes or "R" in v or "L" in v:
                 self._holes(v, line)
@@ -912,6 +920,16 @@ class _Run:
                 self._linear(v, line, rapid=motion == 0)
         elif motion in (2.0, 3.0) and (has_axes or any(k in v for k in "IJKR")):
             self._arc(v, line, clockwise=motion == 2)
+
+    def _iso_centre(self, v: dict[str, float]) -> None:
+        """Heidenhain ISO I/J/K: the circle centre, absolute (G90) or from the position (G91)."""
+        for axis, letter in enumerate("IJK"):
+            if letter in v:
+                base = self.w[axis]
+                if self.absolute:
+                    self.iso_centre[letter] = v[letter]
+                elif base is not None:
+                    self.iso_centre[letter] = base + v[letter]
 
     def _move_to(
         self, w: list[float | None], m: list[float | None], line: int, rapid: bool
@@ -1011,6 +1029,9 @@ class _Run:
             ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=not clockwise)
         else:
             ka, kb = letters[a], letters[b]
+            if self.iso:
+                self._iso_centre(v)
+                v = {**v, **self.iso_centre}
             if ka not in v and kb not in v:
                 self.error(
                     line, f"G0{2 if clockwise else 3} without its centre ({ka}/{kb}) or radius (R)"
@@ -1319,7 +1340,7 @@ class _Run:
 
     # ------------------------------------------------------------------ result
     def result(self) -> CheckResult:
-        problems = _capped(list(self.problems.values()))
+        problems, more = _capped(list(self.problems.values()))
         if self.machine is not None:
             problems += self.path.travel_problems(self.machine.name)
             number = self.main.number
@@ -1355,22 +1376,20 @@ class _Run:
                 ended=self.ended,
             ),
         )
+        result = replace(
+            result,
+            more_problems=len(more),
+            more_errors=sum(p.severity is Severity.ERROR for p in more),
+        )
         return result if self.iso else replace(result, dialect=self.dialect.name)
 
 
-def _capped(problems: list[Problem]) -> list[Problem]:
-    """The first :data:`MAX_PROBLEMS` problems by line, and one more counting the rest."""
+def _capped(problems: list[Problem]) -> tuple[list[Problem], list[Problem]]:
+    """The first :data:`MAX_PROBLEMS` problems by line, and the rest (counted, not listed)."""
     if len(problems) <= MAX_PROBLEMS:
-        return problems
+        return problems, []
     problems.sort(key=lambda p: p.line)
-    kept, rest = problems[:MAX_PROBLEMS], problems[MAX_PROBLEMS:]
-    errors = sum(p.severity is Severity.ERROR for p in rest)
-    last = Problem(
-        rest[0].line,
-        Severity.ERROR if errors else Severity.WARNING,
-        f"{len(rest)} more problems not listed ({errors} errors, {len(rest) - errors} warnings)",
-    )
-    return [*kept, last]
+    return problems[:MAX_PROBLEMS], problems[MAX_PROBLEMS:]
 
 
 def _only_comments(lines: list[tuple[int, str]]) -> bool:

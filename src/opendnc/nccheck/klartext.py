@@ -12,11 +12,13 @@ The facts are in docs/check.md#klartext.
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 from opendnc.errors import InputError
@@ -31,6 +33,7 @@ from opendnc.nccheck.path import (
     short_radius,
 )
 from opendnc.nccheck.result import (
+    MAX_PROBLEMS,
     CheckResult,
     Control,
     EndState,
@@ -53,31 +56,149 @@ _VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
 _AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
 _POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
 _WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
+# a straight move with absolute literal X/Y/Z only, and at most R0 and F: see _plain_line
+# at most 15 digits a part: a longer number takes the general path, which reports one that
+# overflows (a float of 309 digits is inf, which no move or JSON answer may carry)
+_PLAIN_L = re.compile(
+    r"L((?: +[XYZ][+-]?\d{1,15}(?:\.\d{0,15})?)+)(?: +R0)?(?: +F(\d{1,15}(?:\.\d{0,15})?))? *"
+)
+_AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
+_WORD_START = re.compile(r"\b(?:F|S|R|DL|DR|M|REP|L)\s*[+\-.\dQ]")  # any word at all
 _Q_PARAM = re.compile(r"^(Q|QL|QR)(\d+)$")
-_CYCLE_PARAM = re.compile(r"\b(Q\d+)\s*=\s*" + _VALUE)
+# a cycle parameter is a number, a Q parameter or one of the words the TNC offers in its
+# place (Q206 = AUTO / FAUTO / FMAX, PREDEF for a GLOBAL DEF value): docs/check.md#cycles
+_CYCLE_PARAM = re.compile(r"\b(Q\d+)\s*=\s*(?:" + _VALUE + r"|(AUTO|FAUTO|FMAX|FU|FZ|PREDEF)\b)")
 _STRING = re.compile(r'"([^"]*)"')
 _TOL_MM = 0.01
 _DRILLING = (200, 201, 203, 205)
+# cycles that take effect where they are defined and are not called (docs/check.md#cycles):
+# defining one leaves the cycle a CYCL CALL or M99 runs unchanged
+_DEF_ACTIVE = frozenset({7, 8, 9, 10, 11, 13, 14, 19, 26, 32, 247})
 _CALL_NEST = 20
+# the working plane's two axes by tool axis (index 0, 1, 2 = X, Y, Z)
+_PLANES = ((1, 2, Plane.YZ), (2, 0, Plane.ZX), (0, 1, Plane.XY))
+# lines without a block number that belong to the CYCL DEF / PATTERN DEF before them
+_PARAM_LINE = re.compile(r"^(Q\d+\s*=|POS\d|POINT|ROW|PAT|FRAME|CIRC|PITCH|\))")
+# a digit, a comma, a digit: a decimal comma, which the TNC does not read (docs/check.md)
+_DECIMAL_COMMA = re.compile(r"(\d),(\d)")
+_TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*", "CALL PGM", "SEL ")
+_SPINDLE_START = re.compile(r"\bM(3|4|13|14)\b")
+_PRESET_Q = range(100, 200)  # Q100-Q199: set by the TNC itself (tool radius, results)
+
+
+def _literal(token: str) -> float:
+    """A number written in the program; one too large for a float is an error of its block
+    (``float`` would give inf, which no move, time or JSON answer may carry)."""
+    value = float(token)
+    if not math.isfinite(value):
+        raise ValueError(f"the number {token[:12]}... is out of range")
+    return value
 
 
 class _Stop(Exception):
     """The run ends here."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Line:
+    # one per program line, so kept small: a million-block program holds a million of them
     line: int
     block: int | None
     text: str  # upper case, comment removed
-    raw: str
-    params: list[str] = field(default_factory=list)  # continuation lines (cycle parameters)
+    raw: str  # the line as written, kept only where case matters (TOOL CALL, CALL PGM)
+    params: tuple[str, ...] | list[str] = ()  # continuation lines (cycle parameters)
+    note: str | None = None  # a problem found while reading the line
+
+
+_BIG = 2**62  # block numbers from here on are kept outside the array
+
+
+class _Lines:
+    """A program's blocks in parallel arrays, a :class:`_Line` made on each access.
+
+    A million-block program would otherwise hold a million line objects (two int objects
+    each); here a block costs its text and two array slots, and the rare parts (the case-kept
+    raw line, cycle parameters, a reading problem) sit in dictionaries by index.
+    """
+
+    __slots__ = ("_big", "_blocks", "_notes", "_numbers", "_params", "_raw", "_texts")
+
+    def __init__(self) -> None:
+        self._texts: list[str] = []
+        self._numbers = array("q")
+        self._blocks = array("q")  # -1: a block without a number
+        self._raw: dict[int, str] = {}
+        self._params: dict[int, list[str]] = {}
+        self._notes: dict[int, str] = {}
+        self._big: dict[int, int] = {}
+
+    def __len__(self) -> int:
+        return len(self._texts)
+
+    def __getitem__(self, index: int) -> _Line:
+        if index < 0:
+            index += len(self._texts)
+        block: int | None = self._blocks[index]
+        if block == _BIG:
+            block = self._big.get(index)
+        return _Line(
+            self._numbers[index],
+            None if block is None or block < 0 else block,
+            self._texts[index],
+            self._raw.get(index, ""),
+            self._params.get(index, ()),
+            self._notes.get(index),
+        )
+
+    def __iter__(self) -> Iterator[_Line]:
+        return (self[index] for index in range(len(self._texts)))
+
+    def add(self, line: int, block: int | None, text: str, raw: str, note: str | None) -> None:
+        index = len(self._texts)
+        self._texts.append(text)
+        self._numbers.append(line)
+        if block is not None and block >= _BIG:  # a 309-digit "block number" stays exact
+            self._big[index] = block
+            block = _BIG
+        self._blocks.append(-1 if block is None else block)
+        if raw:
+            self._raw[index] = raw
+        if note:
+            self._notes[index] = note
+
+    def last_text(self) -> str:
+        return self._texts[-1]
+
+    def first(self, prefix: str) -> _Line | None:
+        """The first block whose text starts with ``prefix`` (no record made for the rest)."""
+        for index, text in enumerate(self._texts):
+            if text.startswith(prefix):
+                return self[index]
+        return None
+
+    def line_number(self, index: int) -> int:
+        """The file line of block ``index``."""
+        return self._numbers[index]
+
+    def texts(self) -> list[str]:
+        """The blocks' texts (read only)."""
+        return self._texts
+
+    def has_note(self, index: int) -> bool:
+        return index in self._notes
+
+    def add_param(self, text: str, note: str | None) -> None:
+        """A continuation line (cycle parameter) of the last block."""
+        index = len(self._texts) - 1
+        self._params.setdefault(index, []).append(text)
+        if note and index not in self._notes:
+            self._notes[index] = note
 
 
 @dataclass
 class _Program:
     name: str
-    lines: list[_Line]
+    lines: _Lines
     labels: dict[str, int] = field(default_factory=dict)
     external: bool = False
 
@@ -194,7 +315,7 @@ class _Expr:
         if _Q_PARAM.match(token):
             return self.lookup(token)
         if token[0].isdigit() or token[0] == ".":
-            return float(token)
+            return _literal(token)
         raise FormulaError(f"unexpected {token!r} in the formula")
 
 
@@ -212,6 +333,11 @@ class _Run:
         self.library = library
         self.budget = budget
         self.problems: dict[tuple[int, str], Problem] = {}
+        self.more_problems = 0
+        self.more_errors = 0
+        self.unset_reads: set[str] = set()
+        self.pending_unset: list[str] = []  # read before set, reported at the block's end
+        self.cycle_words: dict[str, str] = {}  # Q206 -> "AUTO" of the cycle in force
         travel = dict(machine.travel) if machine and machine.travel else None
         rapid = (machine.rapid_rate if machine else None) or RAPID_MM_PER_MIN
         self.path = Toolpath(max_moves=budget.moves, rapid_rate=rapid, travel=travel)
@@ -257,7 +383,18 @@ class _Run:
         if frame is not None and frame.program.external:
             message = f"in {frame.program.name} line {line}: {message}"
             line, block = frame.call_line, None
-        self.problems.setdefault((line, message), Problem(line, severity, message, block))
+        self._keep(Problem(line, severity, message, block))
+
+    def _keep(self, problem: Problem) -> None:
+        """List ``problem`` once; past :data:`MAX_PROBLEMS` only count it (bounded memory)."""
+        key = (problem.line, problem.message)
+        if key in self.problems:
+            return
+        if len(self.problems) < MAX_PROBLEMS:
+            self.problems[key] = problem
+            return
+        self.more_problems += 1
+        self.more_errors += problem.severity is Severity.ERROR
 
     def error(self, where: _Line, message: str) -> None:
         self.report(where, Severity.ERROR, message)
@@ -269,45 +406,63 @@ class _Run:
 
     # ------------------------------------------------------------------ parsing
     def _parse(self, text: str, name: str, external: bool = False) -> _Program:
-        lines: list[_Line] = []
-        raw_lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
-        continuing = False
-        for number, raw in enumerate(raw_lines, start=1):
-            code = raw.split(";", 1)[0].strip()
+        lines = _Lines()
+        continuing = False  # the line before ended in "~"
+        defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
+        # read line by line (CR LF, LF or CR ends): no second copy of a large program
+        for number, raw in enumerate(io.StringIO(text, newline=None), start=1):
+            code = raw.partition(";")[0].strip()
             if not code:
                 continue
             upper = code.upper()
-            match = _NUMBERED.match(upper)
+            if upper[0] == "/":  # a skippable block "/ 11 STOP": run as with skip off
+                upper = upper[1:].lstrip()
+            note = None
+            if "," in upper and not upper.lstrip("0123456789 ").startswith(_TEXT_HEADS):
+                upper, note = _decimal_comma(upper)
             # "~" continues a block on the next line; it may stand after a ";" comment
-            tilde = raw.rstrip().endswith("~")
-            upper = upper.rstrip("~").strip()
-            takes_params = bool(lines) and (
-                continuing or lines[-1].text.startswith(("CYCL DEF", "PATTERN DEF"))
-            )
-            if lines and (continuing or (match is None and takes_params)):
-                lines[-1].params.append(upper)
+            tilde = "~" in raw and raw.rstrip().endswith("~")
+            if upper.endswith("~"):
+                upper = upper.rstrip("~").strip()
+            match = _NUMBERED.match(upper)
+            if len(lines) and (
+                continuing or (match is None and defines and _PARAM_LINE.match(upper))
+            ):
+                lines.add_param(upper, note)
                 continuing = tilde
                 continue
-            if match is None:  # a block without a number: run it all the same
-                lines.append(_Line(number, None, upper, raw))
-                continuing = tilde
-                continue
-            block = int(match.group(1))
-            body = match.group(2).rstrip("~").strip()
-            lines.append(_Line(number, block, body, raw))
             continuing = tilde
+            if match is None:  # a block without a number: run it all the same
+                lines.add(number, None, upper, _case_kept(upper, raw), note)
+                defines = upper.startswith(("CYCL DEF", "PATTERN DEF"))
+                continue
+            body = match.group(2)
+            if body.endswith("~"):
+                body = body.rstrip("~").strip()
+            if body[:1] == "/":
+                body = body[1:].lstrip()
+            if not body:  # "3 ; T1 D=12": a numbered comment block
+                continue
+            lines.add(number, int(match.group(1)), body, _case_kept(body, raw), note)
+            defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
         program = _Program(name, lines, external=external)
-        for item in lines:  # also the blocks the run may never reach
-            message = _static_problem(item.text)
-            if message:
-                self._static(program, item, message)
-        for index, item in enumerate(lines):
+        texts = lines.texts()
+        for index, text_ in enumerate(texts):  # also the blocks the run may never reach
+            message = _static_problem(text_)
+            if message or lines.has_note(index):
+                item = lines[index]
+                if item.note:
+                    self._static(program, item, item.note)
+                if message:
+                    self._static(program, item, message)
+        with_labels = [(i, lines[i]) for i, text_ in enumerate(texts) if "LBL" in text_]
+        for index, item in with_labels:
             if item.text.startswith("LBL"):
                 label = _label(item.text[3:])
                 if label in program.labels and label != "0":
                     self._static(program, item, f"label {label} is defined twice")
                 program.labels.setdefault(label, index)
-        for item in lines:
+        for _, item in with_labels:
             text_ = item.text
             target = None
             if text_.startswith("CALL LBL"):
@@ -321,16 +476,22 @@ class _Run:
     def _static(self, program: _Program, where: _Line, message: str) -> None:
         if program.external:
             return  # reported through the call
-        self.problems.setdefault(
-            (where.line, message), Problem(where.line, Severity.ERROR, message, where.block)
-        )
+        self._keep(Problem(where.line, Severity.ERROR, message, where.block))
 
     # ------------------------------------------------------------------ values
     def q_value(self, name: str) -> float:
-        return self.q.get(name, 0.0)
+        value = self.q.get(name)
+        if value is not None:
+            return value
+        if name not in self.unset_reads and not name.startswith("QR"):
+            number = int(name.lstrip("QLR"))
+            if name.startswith("QL") or number not in _PRESET_Q:
+                self.unset_reads.add(name)
+                self.pending_unset.append(name)
+        return 0.0
 
     def number(self, sign: str, token: str) -> float:
-        value = self.q_value(token) if token.startswith("Q") else float(token)
+        value = self.q_value(token) if token.startswith("Q") else _literal(token)
         return -value if sign == "-" else value
 
     def formula(self, text: str) -> float:
@@ -340,6 +501,8 @@ class _Run:
     def run(self) -> None:
         # CPU time of this thread: a busy machine must not turn a long program into a "loop"
         deadline = time.thread_time() + self.budget.seconds
+        # the block budget is for loops: a program's own blocks always run to its end
+        limit = self.budget.blocks + len(self.main.lines)
         self.frames.append(_Frame(self.main, 0, "main", 0))
         if not self.main.lines or not self.main.lines[0].text.startswith("BEGIN PGM"):
             first = self.main.lines[0] if self.main.lines else _Line(1, None, "", "")
@@ -347,37 +510,57 @@ class _Run:
         try:
             while True:
                 frame = self.frames[-1]
-                if frame.pc >= len(frame.program.lines):
+                lines = frame.program.lines
+                pc = frame.pc
+                texts = lines.texts()
+                if pc >= len(texts):
                     self._fall_off(frame)
                     continue
-                item = frame.program.lines[frame.pc]
-                frame.pc += 1
+                frame.pc = pc + 1
                 self.blocks_run += 1
                 if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run >= self.budget.blocks or time.thread_time() > deadline
+                    self.blocks_run >= limit or time.thread_time() > deadline
                 ):
-                    self._endless(item)
+                    self._endless(lines[pc], out_of_time=self.blocks_run < limit)
+                text = texts[pc]
+                if text[:2] == "L " and self.corner is None and not self.m89:
+                    # the bulk of a posted program: no line record unless it reports
+                    plain = _PLAIN_L.fullmatch(text)
+                    if plain is not None:
+                        self._plain_line(lines, pc, plain)
+                        continue
+                item = lines[pc]
+                # an error ends its block only: the run goes on, so one problem never
+                # hides the ones after it (the block's effect is left out)
                 try:
                     self._execute(item, frame)
                 except ZeroDivisionError:
                     self.error(item, "division by zero")
-                    raise _Stop from None
                 except RecursionError:
                     self.error(item, "a formula nested too deeply")
-                    raise _Stop from None
                 except (FormulaError, ValueError, OverflowError) as exc:
                     self.error(item, str(exc) or "a value is out of range")
-                    raise _Stop from None
+                if self.pending_unset:
+                    self._unset_read(item)
         except _Stop:
             pass
         if self.end_line is None and self.main.lines and self.begin is not None:
             # the run stopped (M30, an error): END PGM is still needed in the file
-            for item in self.main.lines:
-                if item.text.startswith("END PGM"):
-                    self._check_end(item)
-                    break
+            end = self.main.lines.first("END PGM")
+            if end is not None:
+                self._check_end(end)
             else:
                 self.error(self.main.lines[-1], "the program has no END PGM")
+
+    def _unset_read(self, item: _Line) -> None:
+        for name in self.pending_unset:
+            self.report(
+                item,
+                Severity.WARNING,
+                f"{name} is read before the program sets it: the TNC takes the value an "
+                "earlier program left (the dry run takes 0)",
+            )
+        self.pending_unset.clear()
 
     def _fall_off(self, frame: _Frame) -> None:
         last = frame.program.lines[-1] if frame.program.lines else _Line(1, None, "", "")
@@ -386,15 +569,17 @@ class _Run:
             raise _Stop
         self.frames.pop()
 
-    def _endless(self, item: _Line) -> None:
+    def _endless(self, item: _Line, *, out_of_time: bool) -> None:
         self.frames[1:] = []
         if not self.jumps:
-            # no jump back: a long program, not a loop; what follows is not checked
-            self.report(
+            # no jump back: a long program, not a loop; what follows is not checked, and
+            # an unchecked program must not pass (an error, never a silent exit 0)
+            blocks = f"{self.blocks_run:,} blocks"
+            spent = f"{self.budget.seconds:g} s of CPU" if out_of_time else blocks
+            self.error(
                 item,
-                Severity.WARNING,
-                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget "
-                "ran out); the rest of the program is not checked",
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget of "
+                f"{spent} ran out); the rest of the program is not checked",
             )
             raise _Stop
         where, count = max(self.jumps.items(), key=lambda kv: kv[1])
@@ -409,6 +594,9 @@ class _Run:
     def _execute(self, item: _Line, frame: _Frame) -> None:
         text = item.text
         head = text.split(" ", 1)[0] if text else ""
+        if "M" in text and (head in _M_HEADS or head == "CYCL") and _SPINDLE_START.search(text):
+            # M3/M4/M13/M14 act at the start of their block, before its move (TNC)
+            self.spindle_on = True
         if head in ("L", "LN"):
             self._linear(item, text[len(head) :])
         elif head in ("APPR", "DEP"):
@@ -417,6 +605,8 @@ class _Run:
             self._linear(item, text[len(head) :].lstrip().partition(" ")[2])
         elif head in ("C", "CR", "CT", "CP"):
             self._circle(item, head, text[len(head) :])
+            if "M" in text:
+                self._m_functions(item, text)
         elif head == "LP":
             self._polar_line(item, text[2:])
         elif head == "CC":
@@ -530,12 +720,16 @@ class _Run:
             )
 
     def _axes(self, text: str) -> list[tuple[bool, str, float]]:
-        return [
-            (inc == "I", axis, self.number(sign, token))
-            for inc, axis, sign, token in _AXIS_WORD.findall(text)
-        ]
+        out = []
+        for inc, axis, sign, token in _AXIS_WORD.findall(text):
+            # a literal number without a call (the bulk of every program runs here)
+            value = self.q_value(token) if token[0] == "Q" else _literal(token)
+            out.append((inc == "I", axis, -value if sign == "-" else value))
+        return out
 
     def _words(self, text: str) -> dict[str, float]:
+        if not _WORD_START.search(text):
+            return {}
         return {key: self.number(sign, token) for key, sign, token in _WORD.findall(text)}
 
     # ------------------------------------------------------------------ tools
@@ -582,7 +776,7 @@ class _Run:
 
     # ------------------------------------------------------------------ paths
     def _plane(self) -> tuple[int, int, Plane]:
-        return {2: (0, 1, Plane.XY), 1: (2, 0, Plane.ZX), 0: (1, 2, Plane.YZ)}[self.axis]
+        return _PLANES[self.axis]
 
     def _feed(self, item: _Line, words: dict[str, float], text: str) -> tuple[bool, float | None]:
         """(rapid, feed) of a path block: FMAX is for its block only, F stays in force."""
@@ -592,12 +786,17 @@ class _Run:
             return False, self.tool_feed
         if "F" in words:
             self.feed = words["F"]
+        return False, self._cutting(item)
+
+    def _cutting(self, item: _Line) -> float | None:
+        """The feed in force for a cutting move (an error when none, a warning when the
+        spindle is stopped)."""
         if not self.feed and not self.no_feed:
             self.no_feed = True
             self.error(item, "a path with no feed rate (F) in force")
         if not self.spindle_on:
             self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
-        return False, self.feed
+        return self.feed
 
     def _target(
         self, text: str, axes: list[tuple[bool, str, float]] | None = None
@@ -631,9 +830,37 @@ class _Run:
         start = self.pos
         self.path.line(
             tuple(start), tuple(target), item.line, rapid=rapid, feed=feed,
-            machine_end=self._machine(target),
+            machine_end=self._machine(target) if self.path.check_travel else None,
         )  # fmt: skip
         a, b, _ = self._plane()
+        sa, sb, ea, eb = start[a], start[b], target[a], target[b]
+        if sa is not None and sb is not None and ea is not None and eb is not None:
+            length = math.hypot(ea - sa, eb - sb)
+            if length > 1e-9:
+                self.last_dir = ((ea - sa) / length, (eb - sb) / length)
+        self.pos = target
+
+    def _plain_line(self, lines: _Lines, index: int, plain: re.Match[str]) -> None:
+        """``L X.. Y.. Z.. [R0] [F..]`` with absolute literal coordinates, the bulk of a
+        posted program: the same as :meth:`_linear` (no RND/CHF pending, no M89) with less
+        work per block; the block's line record is made only when it reports."""
+        target = self.pos[:]
+        shift = self.shift
+        for word in plain.group(1).split():
+            axis = _AXIS_INDEX[word[0]]
+            target[axis] = float(word[1:]) + shift[axis]
+        feed = plain.group(2)
+        if feed is not None:
+            self.feed = float(feed)
+        if not self.feed or not self.spindle_on:
+            self._go(lines[index], target, rapid=False, feed=self._cutting(lines[index]))
+            return
+        start = self.pos
+        self.path.line(
+            tuple(start), tuple(target), lines.line_number(index), rapid=False, feed=self.feed,
+            machine_end=self._machine(target) if self.path.check_travel else None,
+        )  # fmt: skip
+        a, b, _ = _PLANES[self.axis]  # the direction at the end, as _go keeps it
         sa, sb, ea, eb = start[a], start[b], target[a], target[b]
         if sa is not None and sb is not None and ea is not None and eb is not None:
             length = math.hypot(ea - sa, eb - sb)
@@ -712,10 +939,10 @@ class _Run:
         if kind == "C":
             if self.center is None:
                 self.error(item, "C without a circle centre (CC)")
-                raise _Stop
+                return
             if not (cw or ccw):
                 self.error(item, "C needs a direction of rotation DR+ or DR-")
-                raise _Stop
+                return
             ca, cb = self.center
             r0, r1 = math.hypot(sa - ca, sb - cb), math.hypot(ea - ca, eb - cb)
             if abs(r0 - r1) > tol:
@@ -724,27 +951,27 @@ class _Run:
                     f"the arc's end is not on its circle: start radius {r0:.4f}, end radius "
                     f"{r1:.4f} (differ by {abs(r0 - r1):.4f})",
                 )
-                raise _Stop
+                return
             clockwise = cw
         elif kind == "CR":
             radius = words.get("R")
             if radius is None or not (cw or ccw):
                 self.error(item, "CR needs a radius R and a direction DR+ or DR-")
-                raise _Stop
+                return
             chord = math.hypot(ea - sa, eb - sb)
             if chord < 1e-9:
                 self.error(item, "CR with the same start and end point")
-                raise _Stop
+                return
             too_small = short_radius(radius, chord, tol)
             if too_small is not None:
                 self.error(item, f"radius {too_small}")
-                raise _Stop
+                return
             ca, cb = radius_arc_center((sa, sb), (ea, eb), chord, radius, ccw=ccw)
             clockwise = cw
         else:  # CT: tangential to the element before
             if self.last_dir is None:
                 self.error(item, "CT needs a contour element before it to be tangent to")
-                raise _Stop
+                return
             da, db = ea - sa, eb - sb
             na, nb = -self.last_dir[1], self.last_dir[0]
             dot = da * na + db * nb
@@ -785,14 +1012,21 @@ class _Run:
         self.pos = list(end)
 
     def _polar(self, text: str) -> tuple[float, float] | None:
+        """Radius and angle of an LP end point about the pole (CC is known); None when they
+        build on a position the dry run does not know (IPR/IPA, or PR/PA left out)."""
         a, b, _ = self._plane()
-        if self.center is None or self.pos[a] is None or self.pos[b] is None:
-            return None
+        assert self.center is not None
         ca, cb = self.center
-        pa, pb = float(self.pos[a] or 0.0), float(self.pos[b] or 0.0)
-        radius = math.hypot(pa - ca, pb - cb)
-        angle = math.degrees(math.atan2(pb - cb, pa - ca))
-        for inc, key, sign, token in _POLAR.findall(text):
+        words = _POLAR.findall(text)
+        absolute = {key for inc, key, _, _ in words if not inc}
+        radius = angle = 0.0
+        if absolute != {"PR", "PA"}:  # the end builds on the position: it must be known
+            if self.pos[a] is None or self.pos[b] is None:
+                return None
+            pa, pb = float(self.pos[a] or 0.0), float(self.pos[b] or 0.0)
+            radius = math.hypot(pa - ca, pb - cb)
+            angle = math.degrees(math.atan2(pb - cb, pa - ca))
+        for inc, key, sign, token in words:
             value = self.number(sign, token)
             if key == "PR":
                 radius = radius + value if inc else value
@@ -802,13 +1036,19 @@ class _Run:
 
     def _polar_line(self, item: _Line, text: str) -> None:
         words = self._words(text)
+        if self.center is None:
+            self.error(item, "LP needs a pole (CC)")
+            return
         polar = self._polar(text)
-        if polar is None:
-            self.error(item, "LP needs a pole (CC) and a known position")
-            raise _Stop
-        radius, angle = polar
         a, b, _ = self._plane()
-        assert self.center is not None
+        if polar is None:
+            # the TNC knows where the tool is (after TOOL CALL it is somewhere); the dry
+            # run does not, so this move is not drawn and the position stays unknown
+            self.warn_once(item, "lp-unknown", "an LP from an unknown position is not drawn")
+            self.pos[a] = self.pos[b] = None
+            self._m_functions(item, text)
+            return
+        radius, angle = polar
         target = self.pos[:]
         target[a] = self.center[0] + radius * math.cos(math.radians(angle))
         target[b] = self.center[1] + radius * math.sin(math.radians(angle))
@@ -826,10 +1066,10 @@ class _Run:
     ) -> None:
         if self.center is None:
             self.error(item, "CP needs a pole (CC)")
-            raise _Stop
+            return
         if not (cw or ccw):
             self.error(item, "CP needs a direction of rotation DR+ or DR-")
-            raise _Stop
+            return
         a, b, plane = self._plane()
         c = 3 - a - b
         ca, cb = self.center
@@ -845,7 +1085,7 @@ class _Run:
                     sweep = -((start_angle - value) % 360.0 or 360.0)
         if sweep == 0:
             self.error(item, "CP without an angle PA or IPA")
-            raise _Stop
+            return
         rise = 0.0
         for inc, axis, value in self._axes(text):
             if "XYZ".find(axis) == c:
@@ -869,6 +1109,10 @@ class _Run:
             value = float(match.group(1)) if match else None
         if value is None or value <= 0:
             self.error(item, f"{kind} needs a positive {'radius R' if kind == 'RND' else 'length'}")
+            value = None
+        elif self.last_dir is None:
+            # the TNC rounds the corner between the element before and the one after
+            self.error(item, f"{kind} needs a contour element before it")
             value = None
         if "F" in words:
             self.feed = words["F"]
@@ -942,10 +1186,9 @@ class _Run:
                 self.spindle_on = code != 5 and self.spindle_on
             elif code in (2, 30):
                 if self.frames and self.frames[-1].kind == "main":
-                    for later in self.main.lines:
-                        if later.text.startswith("END PGM"):
-                            self._check_end(later)
-                            break
+                    end = self.main.lines.first("END PGM")
+                    if end is not None:
+                        self._check_end(end)
                     self.ended = True
                     raise _Stop
             elif code == 99 and self.cycle is not None:
@@ -962,7 +1205,7 @@ class _Run:
         index = frame.program.labels.get(label)
         if index is None:
             self.error(item, f"label {label} is not defined")
-            raise _Stop
+            return
         call_index = frame.pc - 1
         if len(parts) > 1 and index < call_index:
             key = (id(frame), call_index)
@@ -979,7 +1222,7 @@ class _Run:
             return
         if len(self.frames) > _CALL_NEST:
             self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
-            raise _Stop
+            return
         call_line = frame.call_line if frame.kind != "main" else item.line
         self.frames.append(_Frame(frame.program, index + 1, "lbl", call_line, label))
 
@@ -1001,7 +1244,7 @@ class _Run:
             return
         if len(self.frames) > _CALL_NEST:
             self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
-            raise _Stop
+            return
         # the called program's own first line is its BEGIN PGM: skip it
         start = 1 if program.lines and program.lines[0].text.startswith("BEGIN PGM") else 0
         call_line = self.frames[-1].call_line if self.frames[-1].kind != "main" else item.line
@@ -1043,7 +1286,7 @@ class _Run:
                 index = frame.program.labels.get(label)
                 if index is None:
                     self.error(item, f"label {label} is not defined")
-                    raise _Stop
+                    return
                 if index < frame.pc:
                     self._jump(item)
                 frame.pc = index + 1
@@ -1052,6 +1295,12 @@ class _Run:
             raise _Stop
         else:
             self.warn_once(item, f"FN{number}", f"FN {number} is not simulated by the dry run")
+            # FN 18: SYSREAD Q5 = ID..., FN 26-28 and others: the target is set (to a value
+            # the dry run does not know, 0), so reading it later is no "read before set"
+            named = body.partition("=")[0].split() if "=" in body else []
+            target = _Q_PARAM.match(named[-1]) if named else None
+            if target is not None:
+                self.q.setdefault(target.group(0), 0.0)
 
     # ------------------------------------------------------------------ cycles
     def _cycle_def(self, item: _Line) -> None:
@@ -1060,31 +1309,45 @@ class _Run:
             self.error(item, "CYCL DEF without a cycle number")
             return
         number = int(match.group(1))
-        params: dict[str, float] = {}
-        for text in [item.text, *item.params]:
-            for name, sign, token in _CYCLE_PARAM.findall(text):
-                params[name] = self.number(sign, token)
-        if number in _DRILLING:
-            needed = ["Q200", "Q201", "Q206", "Q203", "Q204"]
-            missing = [q for q in needed if q not in params]
-            if missing:
-                self.error(item, f"cycle {number} without {', '.join(missing)}")
-                return
-            if params["Q201"] > 0:
-                self.report(item, Severity.WARNING, f"cycle {number}: depth Q201 is positive")
-            elif params["Q201"] == 0:
-                self.report(item, Severity.WARNING, f"cycle {number}: depth Q201 is 0 (no hole)")
-            self.cycle = (number, params, item.line)
-        elif number == 7:
-            sub = int(match.group(2) or 0)
+        sub = int(match.group(2) or 0)
+        if number == 7:
             if sub >= 1:
                 for inc, axis, value in self._axes(item.text.split(None, 3)[-1]):
                     index = "XYZ".find(axis)
                     if index >= 0:
                         self.shift[index] = self.shift[index] + value if inc else value
+            return
+        if number in _DEF_ACTIVE:
+            message = f"cycle {number} is not simulated by the dry run"
+            self.warn_once(item, f"cycle{number}", message)
+            return
+        if sub >= 1 and self.cycle is not None and self.cycle[0] == number:
+            return  # an old-style cycle's parameter block (CYCL DEF 1.1 SET UP 2)
+        params: dict[str, float] = {}
+        words: dict[str, str] = {}
+        for text in [item.text, *item.params]:
+            for name, sign, token, word in _CYCLE_PARAM.findall(text):
+                if word:
+                    words[name] = word
+                else:
+                    params[name] = self.number(sign, token)
+        self.cycle_words = words
+        depth = params.get("Q201")
+        if 200 <= number <= 209 and depth is not None and depth > 0:
+            # a control alarm, not a warning: displayDepthErr is on by default (TNC)
+            self.error(item, f"cycle {number}: depth Q201 is positive (the TNC stops: wrong sign)")
+        if number in _DRILLING:
+            needed = ["Q200", "Q201", "Q206", "Q203", "Q204"]
+            missing = [q for q in needed if q not in params and q not in words]
+            if missing:
+                self.error(item, f"cycle {number} without {', '.join(missing)}")
+                self.cycle = (number, {}, item.line)  # still defined: no second error at CALL
+                return
+            if depth == 0:
+                self.report(item, Severity.WARNING, f"cycle {number}: depth Q201 is 0 (no hole)")
         else:
             self.warn_once(item, f"cycle{number}", f"cycle {number} is not drawn by the dry run")
-            self.cycle = None
+        self.cycle = (number, params, item.line)
 
     def _pattern(self, item: _Line) -> None:
         text = " ".join([item.text, *item.params])
@@ -1101,7 +1364,7 @@ class _Run:
 
     def _cycle_call(self, item: _Line, rest: str) -> None:
         if self.cycle is None:
-            self.error(item, "CYCL CALL without a drilling cycle defined (CYCL DEF)")
+            self.error(item, "CYCL CALL without a cycle defined (CYCL DEF)")
             return
         if rest.startswith("PAT"):
             a, b, _ = self._plane()
@@ -1122,11 +1385,15 @@ class _Run:
     def _drill(self, item: _Line, surface: float | None = None) -> None:
         assert self.cycle is not None
         number, q, _ = self.cycle
+        if number not in _DRILLING or "Q201" not in q:
+            return  # a cycle the dry run does not draw, a PREDEF depth, or one reported
         axis = self.axis
-        top = (surface if surface is not None else 0.0) + q["Q203"] + self.shift[axis]
-        clearance = top + q["Q200"]
-        second = top + max(q["Q204"], q["Q200"])
-        feed = q["Q206"]
+        # PREDEF values come from GLOBAL DEF, which the dry run does not read: 0 (Ours)
+        top = (surface if surface is not None else 0.0) + q.get("Q203", 0.0) + self.shift[axis]
+        clearance = top + q.get("Q200", 0.0)
+        second = top + max(q.get("Q204", 0.0), q.get("Q200", 0.0))
+        # AUTO / FAUTO / FMAX plunge: the tool's feed from TOOL CALL (or the feed in force)
+        feed = q.get("Q206", self.tool_feed or self.feed)
         if not self.spindle_on:
             self.warn_once(item, "spindle", "a cutting move with the spindle stopped")
         for height, rapid in (
@@ -1150,7 +1417,9 @@ class _Run:
         problems = list(self.problems.values())
         if self.machine is not None:
             problems += self.path.travel_problems(self.machine.name)
-        return self.path.result(
+        if self.more_problems:
+            problems = problems[:MAX_PROBLEMS]
+        result = self.path.result(
             Control.HEIDENHAIN,
             self.name,
             problems,
@@ -1164,6 +1433,9 @@ class _Run:
                 ended=self.ended,
             ),
         )
+        if not self.more_problems:
+            return result
+        return replace(result, more_problems=self.more_problems, more_errors=self.more_errors)
 
 
 _KNOWN_HEADS = frozenset(
@@ -1187,12 +1459,40 @@ def _static_problem(text: str) -> str | None:
         or re.match(r"^M\d+\b", text)
     ):
         return f"unknown block {head!r}"
-    if not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
+    if "M" not in text or not (head in _M_HEADS or text.startswith(("CYCL CALL", "M"))):
         return None  # names (BEGIN PGM M100, CALL PGM M5.H, LBL) are not M functions
     for match in _M_WORD.finditer(_STRING.sub("", text)):
         if float(match.group(1)) not in codes.HEIDENHAIN_M:
             return f"M{int(match.group(1))} is not an M function of the TNC"
     return None
+
+
+def _case_kept(text: str, raw: str) -> str:
+    """``raw`` where a block needs the case of its text (tool and program names), else ""."""
+    return raw if text.startswith(("TOOL CALL", "CALL PGM")) else ""
+
+
+def _decimal_comma(text: str) -> tuple[str, str | None]:
+    """``text`` with ``10,5`` read as ``10.5`` outside strings, and the error to report.
+
+    The TNC writes and reads numbers with a decimal point; a comma is an error, never a
+    silent ``10`` (docs/check.md#klartext). The dry run then draws the number as meant.
+    """
+    parts = re.split(r'("[^"]*")', text)
+    found = None
+    for index in range(0, len(parts), 2):
+        match = _DECIMAL_COMMA.search(parts[index])
+        if match is None:
+            continue
+        if found is None:
+            number = re.search(r"[\d.]*\d,\d[\d.]*", parts[index])
+            found = number.group(0) if number else match.group(0)
+        parts[index] = _DECIMAL_COMMA.sub(r"\1.\2", parts[index])
+    if found is None:
+        return text, None
+    fixed = found.replace(",", ".")
+    message = f"a decimal comma ({found}): the TNC reads a decimal point only (write {fixed})"
+    return "".join(parts), message
 
 
 def _label(text: str) -> str:

@@ -112,6 +112,9 @@ class Toolpath:
         self.check_travel = bool(travel)
         self._overruns: dict[tuple[int, bool], _Overrun] = {}
         self.moves_dropped = 0
+        # the end point of the last move: the next move's start shares it (one tuple, not
+        # two, per point: a million moves keep half the points)
+        self._last_end: Point | None = None
 
     # ------------------------------------------------------------------ tools
     def change_tool(self, tool: str, line: int, **info: float | str | None) -> None:
@@ -216,22 +219,25 @@ class Toolpath:
         self._see(end)
         if machine_end is not None and self.check_travel:
             self._check(machine_end, line)
-        if None in start[:3] or None in end[:3]:
-            return  # a move from or to an unknown position is neither drawn nor measured
         x0, y0, z0 = start[0], start[1], start[2]
         x1, y1, z1 = end[0], end[1], end[2]
         if x0 is None or y0 is None or z0 is None or x1 is None or y1 is None or z1 is None:
-            return  # (checked above; this tells the type checker)
-        length = math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2 + (z1 - z0) ** 2)
+            return  # a move from or to an unknown position is neither drawn nor measured
+        length = math.hypot(x1 - x0, y1 - y0, z1 - z0)
         if length == 0.0:
             return
+        begin: Point = (x0, y0, z0)
+        if begin == self._last_end and self._last_end is not None:
+            begin = self._last_end
+        finish: Point = (x1, y1, z1)
+        self._last_end = finish
         if rapid:
             self.rapid += length
             self.seconds += length / self.rapid_rate * 60.0
-            self._add(Move(MoveKind.RAPID, (x0, y0, z0), (x1, y1, z1), line, self.tool))
+            self._add(Move(MoveKind.RAPID, begin, finish, line, self.tool))
             return
         self._count_feed(length, feed, seconds)
-        self._add(Move(MoveKind.FEED, (x0, y0, z0), (x1, y1, z1), line, self.tool, feed=feed))
+        self._add(Move(MoveKind.FEED, begin, finish, line, self.tool, feed=feed))
 
     def _count_feed(self, length: float, feed: float | None, seconds: float | None) -> None:
         """A cutting move of ``length``: the path's and the tool's feed distance, and its time
@@ -293,6 +299,7 @@ class Toolpath:
         self._count_feed(length, feed, seconds)
         kind = MoveKind.ARC_CW if clockwise else MoveKind.ARC_CCW
         self._add(Move(kind, start, end, line, self.tool, center=center, plane=plane, feed=feed))
+        self._last_end = end
         return length
 
     def trim_last_feed(self, length: float) -> Move | None:

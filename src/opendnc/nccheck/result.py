@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "MAX_PROBLEMS",
     "CheckResult",
     "Control",
     "EndState",
@@ -27,6 +28,9 @@ __all__ = [
 ]
 
 Point = tuple[float, float, float]
+
+MAX_PROBLEMS = 200
+"""Problems a result lists at most; :attr:`CheckResult.more_problems` counts the rest."""
 
 
 class Control(enum.Enum):
@@ -178,6 +182,10 @@ class CheckResult:
     dialect: str | None = None
     """G-code: the control dialect checked against (``haas-lathe``, ``fanuc-mill``; ``mill``
     or ``lathe`` when guessed: Haas and Fanuc codes of that kind); None for Heidenhain."""
+    more_problems: int = 0
+    """Problems found beyond the :data:`MAX_PROBLEMS` listed (counted, not listed)."""
+    more_errors: int = 0
+    """How many of :attr:`more_problems` are errors (so :attr:`ok` still sees them)."""
 
     @property
     def errors(self) -> tuple[Problem, ...]:
@@ -191,16 +199,19 @@ class CheckResult:
 
     @property
     def ok(self) -> bool:
-        """True when there is no error (warnings allowed)."""
-        return not self.errors
+        """True when there is no error (warnings allowed), listed or beyond the cap."""
+        return not self.errors and not self.more_errors
 
     def summary(self) -> str:
         """One line: errors, warnings, tools, moves and the estimated time."""
-        errors, warnings = len(self.errors), len(self.warnings)
+        # past the cap problems are counted, not listed: the counts include them
+        errors = len(self.errors) + self.more_errors
+        warnings = len(self.warnings) + self.more_problems - self.more_errors
+        unlisted = f" ({self.more_problems} not listed)" if self.more_problems else ""
         minutes, seconds = divmod(round(self.cycle_time_s), 60)
         return (
             f"{self.name or 'program'}: {errors} error{'s' * (errors != 1)}, "
-            f"{warnings} warning{'s' * (warnings != 1)}; {self._language()}, "
+            f"{warnings} warning{'s' * (warnings != 1)}{unlisted}; {self._language()}, "
             f"{len(self.tools)} tool{'s' * (len(self.tools) != 1)}, "
             f"{len(self.moves)} move{'s' * (len(self.moves) != 1)}, "
             f"about {minutes}:{seconds:02d} min"
@@ -230,6 +241,7 @@ class CheckResult:
                 }
                 for p in self.problems
             ],
+            "more_problems": self.more_problems,
             "tools": [
                 {
                     "tool": t.tool,

@@ -18,8 +18,10 @@ HEAD = 2048  # bytes of a program read for its title
 MAX_TITLE = 80
 
 _O_LINE = re.compile(r"^\s*(?:N\d+\s*)?[O:]\s*\d{1,8}\b[^(]*\(([^)]*)\)?", re.IGNORECASE)
-_BEGIN = re.compile(r"^\s*\d*\s*BEGIN\s+PGM\s+(\S+)", re.IGNORECASE)
-_KLARTEXT_COMMENT = re.compile(r"^\s*\d*\s*;\s*(.*)$")
+# matched on a line with its leading blanks stripped: digits, blanks and words follow each
+# other without overlapping classes, so no pattern here backtracks more than linearly
+_BEGIN = re.compile(r"\d*[ \t]*BEGIN[ \t]+PGM[ \t]+(\S+)", re.IGNORECASE)
+_KLARTEXT_COMMENT = re.compile(r"\d*[ \t]*;(.*)$")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
@@ -36,10 +38,10 @@ def title_of(head: bytes) -> str:
         lines = lines[:-1]  # the last line may be cut
     seen = [(i, line) for i, line in enumerate(lines) if line.strip() and line.strip() != "%"]
     for index, (_, line) in enumerate(seen[:3]):
-        begin = _BEGIN.match(line)
+        begin = _BEGIN.match(line.lstrip())
         if begin:
             after = seen[index + 1][1] if index + 1 < len(seen) else ""
-            comment = _KLARTEXT_COMMENT.match(after)
+            comment = _KLARTEXT_COMMENT.match(after.lstrip())
             if comment and _clean(comment.group(1)):
                 return _clean(comment.group(1))
             return _clean(begin.group(1))

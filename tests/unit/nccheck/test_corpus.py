@@ -77,7 +77,7 @@ DEFECTS = [
     ("kt_division_by_zero.h", 9, 8, ERROR, "division by zero"),
     ("kt_endless_loop.h", 10, 9, ERROR, "endless loop: the jump back at line 10"),
     ("kt_circle_without_cc.h", 8, 7, ERROR, "without a circle centre (CC)"),
-    ("kt_cycl_call_without_def.h", 9, 8, ERROR, "CYCL CALL without a drilling cycle"),
+    ("kt_cycl_call_without_def.h", 9, 8, ERROR, "CYCL CALL without a cycle defined"),
     ("kt_arc_end_off_circle.h", 9, 8, ERROR, "start radius 20.0000, end radius 25.0000"),
     ("kt_no_end_pgm.h", 8, 7, ERROR, "no END PGM"),
     ("kt_unknown_m.h", 4, 3, ERROR, "M77 is not an M function"),

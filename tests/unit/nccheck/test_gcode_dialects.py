@@ -7,9 +7,9 @@ import math
 import pytest
 
 from opendnc.errors import InputError
-from opendnc.nccheck import Budget, CheckResult, MachineLimits, Severity, Units, check_text
+from opendnc.nccheck import Budget, CheckResult, MachineLimits, Units, check_text
 from opendnc.nccheck.dialects import DIALECTS, dialect_named, guess_dialect
-from opendnc.nccheck.gcode import MAX_PROBLEMS
+from opendnc.nccheck.result import MAX_PROBLEMS
 
 
 def run(body: str, dialect: str | None = None, **kwargs: object) -> CheckResult:
@@ -115,10 +115,9 @@ def test_the_run_goes_on_after_a_runtime_error() -> None:
 def test_problems_are_capped_with_a_count_of_the_rest() -> None:
     body = "\n".join(f"#{100 + i % 50} = {i} / 0" for i in range(MAX_PROBLEMS + 50)) + "\nM30"
     result = run(body)
-    assert len(result.problems) == MAX_PROBLEMS + 1
-    last = result.problems[-1]
-    assert last.severity is Severity.ERROR
-    assert last.message == "50 more problems not listed (50 errors, 0 warnings)"
+    assert len(result.problems) == MAX_PROBLEMS
+    assert (result.more_problems, result.more_errors) == (50, 50)
+    assert not result.ok
 
 
 def test_a_run_stopped_by_its_budget_is_an_error() -> None:

@@ -128,6 +128,7 @@ def test_work_offsets_set_by_the_program_and_g28() -> None:
 def test_klartext_repeat_and_subprogram_counts() -> None:
     result = klartext(
         "Q1 = 0",
+        "Q2 = 0",  # set before it is read (else a warning)
         "LBL 1",
         "Q1 = Q1 + 1",
         "CALL LBL 1 REP 4",
@@ -315,8 +316,8 @@ def test_call_pgm_asks_the_library_by_the_name_as_written() -> None:
         return sub if name == "TNC:\\parts\\sub.h" else None
 
     result = check_text(
-        "0 BEGIN PGM T MM\n1 LBL 1\n2 CALL PGM TNC:\\parts\\sub.h\n3 CALL LBL 1 REP 2\n"
-        "4 END PGM T MM\n",
+        "0 BEGIN PGM T MM\n1 Q5 = 0\n1 LBL 1\n2 CALL PGM TNC:\\parts\\sub.h\n"
+        "3 CALL LBL 1 REP 2\n4 END PGM T MM\n",
         library=library,
     )
     assert result.problems == ()

@@ -1,0 +1,85 @@
+"""How a Klartext dry run goes on and ends: errors end their block only, the problem list is
+capped with a count of the rest, and a budget that stops a run is an error."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from opendnc.nccheck import MAX_PROBLEMS, Budget, check_text
+
+
+def program(*body: str) -> str:
+    lines = ["BEGIN PGM T MM", "TOOL CALL 1 Z S1000 F100", "L X+0 Y+0 Z+0 R0 FMAX M3", *body]
+    lines += ["M30", "END PGM T MM"]
+    return "\n".join(f"{n} {text}" for n, text in enumerate(lines)) + "\n"
+
+
+def test_every_problem_is_reported_up_to_the_cap_and_the_rest_counted() -> None:
+    # each C has no circle centre: a runtime error of its own block, and the run goes on
+    result = check_text(program(*(f"C X+{n} Y+0 DR+" for n in range(1, 301))))
+    assert len(result.problems) == MAX_PROBLEMS
+    assert result.more_problems == 300 - MAX_PROBLEMS
+    assert result.more_errors == 300 - MAX_PROBLEMS
+    assert {p.line for p in result.problems} == set(range(4, 4 + MAX_PROBLEMS))  # file lines 4 on
+    assert result.end.ended  # the run reached M30
+    assert result.to_dict()["more_problems"] == 100
+    assert not result.ok
+
+
+def test_a_long_program_without_loops_runs_to_its_end() -> None:
+    moves = [f"L X+{n % 50} Y+{n % 7} F100" for n in range(3000)]
+    result = check_text(program(*moves), budget=Budget(blocks=1000))
+    assert result.errors == ()
+    assert result.end.ended
+    assert result.blocks == 3 + 3000 + 1  # up to M30
+
+
+def test_a_block_budget_that_stops_a_run_is_an_error() -> None:
+    # calls are not jumps back: 200 calls of a 100-block label exceed 1,000 blocks
+    label = [f"L X+{n % 50} F100" for n in range(100)]
+    body = ["CALL LBL 1"] * 200 + ["M30", "LBL 1", *label, "LBL 0"]
+    result = check_text(program(*body), budget=Budget(blocks=1000))
+    assert [p.severity.value for p in result.problems] == ["error"]
+    assert "its budget of" in result.problems[0].message
+    assert "the rest of the program is not checked" in result.problems[0].message
+    assert not result.ok
+
+
+def test_a_time_budget_that_stops_a_run_is_an_error() -> None:
+    moves = [f"L X+{n % 50} F100" for n in range(3000)]
+    result = check_text(program(*moves), budget=Budget(seconds=0.0))
+    assert [p.severity.value for p in result.problems] == ["error"]
+    assert "its budget of 0 s of CPU ran out" in result.problems[0].message
+
+
+def test_the_plain_line_path_draws_what_the_general_path_draws(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from opendnc.nccheck import klartext
+
+    text = program(
+        "L X+10 Y+5 R0 F200",
+        "CYCL DEF 7.0 DATUM SHIFT",
+        "CYCL DEF 7.1 X+3",
+        "L X-4.5 Y+.5",
+        "L  Z-2.25  F50",
+        "L X+7. Y+8 Z+1 R0",
+        "RND R1",
+        "L X+20",
+        "L X+20 Y+20 M5",
+        "L X+0",
+    )
+    fast = check_text(text)
+    monkeypatch.setattr(klartext, "_PLAIN_L", re.compile(r"(?!)"))  # never the fast path
+    general = check_text(text)
+    assert fast.moves == general.moves
+    assert fast.problems == general.problems
+    assert fast.end.position == general.end.position
+    assert fast.feed_distance == general.feed_distance
+
+
+def test_a_parameter_an_unsimulated_function_sets_is_not_read_before_set() -> None:
+    result = check_text(program("FN 18: SYSREAD Q5 = ID990 NR1", "Q6 = Q5 + Q7"))
+    assert [p.message.split(" is ")[0] for p in result.warnings] == ["FN 18", "Q7"]
