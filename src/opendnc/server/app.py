@@ -38,6 +38,7 @@ from opendnc.server.machines import Connector
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.netshare import NetShare
 from opendnc.server.parts import Outputs, TimelineRecorder
+from opendnc.server.refusals import Refusals
 from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
@@ -104,6 +105,7 @@ def build(
     # every command of the API and the pages goes through the actions (docs/server.md)
     services = core.add(actions.Services(sessions, database_part.reads, machines))
     core.add(KeyUse(sessions))  # the keys' last use, written once a minute
+    core.add(Refusals(sessions))  # refused logins and keys, one audit row a minute per source
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]

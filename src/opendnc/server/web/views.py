@@ -30,7 +30,15 @@ from opendnc.server import actions, auth, deps, dprnt_api, jobs
 from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
-from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
+from opendnc.server.errors import (
+    Conflict,
+    Forbidden,
+    NotFound,
+    TooLarge,
+    TooManyRequests,
+    Unauthorized,
+    Unavailable,
+)
 from opendnc.server.events import (
     DprntLinePrinted,
     DprntStatus,
@@ -45,6 +53,7 @@ from opendnc.server.events import (
 )
 from opendnc.server.library import MAX_PROGRAM_BYTES
 from opendnc.server.machine_state import Machines
+from opendnc.server.refusals import Refusals
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -56,6 +65,7 @@ from opendnc.server.store.models import (
     Role,
 )
 from opendnc.server.streams import event_stream_response
+from opendnc.server.throttle import DEVICE_COOKIE
 from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -177,9 +187,26 @@ def _is_htmx(request: Request) -> bool:
 
 
 @router.get("/login")
-def login_form(request: Request, next: str = "/") -> HTMLResponse:
-    """The login page."""
-    return _html("login.html", None, request, next=_safe_next(next), error="")
+def login_form(request: Request, next: str = "/") -> Response:
+    """The login page (with the form's CSRF token, web_session.login_token)."""
+    return _login_page(request, next, "", "", 200)
+
+
+def _login_page(request: Request, next: str, error: str, username: str, status: int) -> Response:
+    token, new = web_session.login_token(request)
+    page = _html(
+        "login.html",
+        None,
+        request,
+        next=_safe_next(next),
+        error=error,
+        username=username,
+        login_csrf=token,
+    )
+    page.status_code = status
+    if new:
+        web_session.set_login_cookie(page, token, secure=request.url.scheme == "https")
+    return page
 
 
 def _safe_next(target: str) -> str:
@@ -193,25 +220,33 @@ def login(
     username: Annotated[str, Form()],
     password: Annotated[str, Form()],
     next: Annotated[str, Form()] = "/",
+    csrf: Annotated[str, Form(max_length=100)] = "",
 ) -> Response:
-    """Check the password, start a session, go where the user was heading."""
+    """Check the form's token and the password, start a session, go where the user was
+    heading (docs/server.md#throttling)."""
     response = RedirectResponse(_safe_next(next), status_code=303)
+    address = request.client.host if request.client else "?"
     try:
+        web_session.check_login_csrf(request, csrf)
         web_session.log_in(
             _sessions(request),
             _svc(request).guard,
+            core_of(request.app).get(Refusals),
             response,
             username,
             password,
             secure=request.url.scheme == "https",
-            address=request.client.host if request.client else "?",
+            address=address,
+            device=request.cookies.get(DEVICE_COOKIE),
         )
-    except (Unauthorized, InputError) as exc:
-        page = _html(
-            "login.html", None, request, next=_safe_next(next), error=str(exc), username=username
-        )
-        page.status_code = 401
+    except Forbidden as exc:
+        return _login_page(request, next, str(exc), username, 403)
+    except TooManyRequests as exc:
+        page = _login_page(request, next, str(exc), username, 429)
+        page.headers["Retry-After"] = str(exc.retry_after)
         return page
+    except (Unauthorized, InputError) as exc:
+        return _login_page(request, next, str(exc), username, 401)
     return response
 
 
