@@ -50,7 +50,9 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
+from opendnc.server.clients import StreamsFull
 from opendnc.server.components import core_of
+from opendnc.server.downloads import stored_response
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
 from opendnc.server.events import Event, JobFinished, Overflow
@@ -139,7 +141,7 @@ async def error_response(_request: Request, exc: DncError) -> JSONResponse:
     headers: dict[str, str] | None = None
     if status == 401:
         headers = {"WWW-Authenticate": "Bearer"}
-    elif isinstance(exc, TooManyRequests):
+    elif isinstance(exc, TooManyRequests | StreamsFull):
         headers = {"Retry-After": str(exc.retry_after)}
     elif status == 500:
         log.error("unexpected error", exc_info=exc)
@@ -407,9 +409,8 @@ async def _body(request: Request, limit: int) -> bytes:
     responses={200: {"content": {"application/octet-stream": _BINARY}}},
 )
 def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
-    """The bytes of one version."""
-    content = actions.library.program_content(svc, who, name, number)
-    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+    """The bytes of one version (streamed as the client reads them)."""
+    return stored_response(svc.reads, actions.library.program_stored(svc, who, name, number))
 
 
 @router.get(
@@ -598,9 +599,8 @@ def get_received(svc: Svc, received_id: Id, who: Caller) -> ReceivedDetail:
     responses={200: {"content": {"application/octet-stream": _BINARY}}},
 )
 def received_content(svc: Svc, received_id: Id, who: Caller) -> Response:
-    """The received bytes."""
-    content = actions.inbox.received_content(svc, who, received_id)
-    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+    """The received bytes (streamed as the client reads them)."""
+    return stored_response(svc.reads, actions.inbox.received_stored(svc, who, received_id))
 
 
 class AcceptRequest(BaseModel):
@@ -660,7 +660,7 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
     return event_stream_response(
-        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL, who=who.name
     )
 
 

@@ -30,6 +30,7 @@ from opendnc.server import actions, auth, deps, dprnt_api, jobs
 from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
+from opendnc.server.downloads import stored_response
 from opendnc.server.errors import (
     Conflict,
     Forbidden,
@@ -365,7 +366,8 @@ async def card_events(
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
     source = _Cards(request, machine, shown)
-    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
+    bus = _supervisor(request).bus
+    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
 
 
 def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
@@ -556,7 +558,8 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic[:20]!r}: inbox, library or netshare")
     source = _ListChanges(topic)
-    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
+    bus = _supervisor(request).bus
+    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
 
 
 class _ListChanges:
@@ -889,7 +892,11 @@ def program_page(
 @router.get("/library/{name}/versions/{number}/download")
 def download_version(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
     """The bytes of one version, as a file."""
-    return _download(actions.library.program_content(_svc(request), page.who, name, number))
+    svc = _svc(request)
+    stored = actions.library.program_stored(svc, page.who, name, number)
+    response = stored_response(svc.reads, stored)  # streamed as the browser reads it
+    response.headers["Content-Disposition"] = f'attachment; filename="{stored.name}"'
+    return response
 
 
 def _override(override: str | None, reason: str) -> str | None:
