@@ -103,17 +103,10 @@ def _quiet_socket(port: int) -> socket.socket:
 
 
 def _closed(sock: socket.socket) -> bool:
-    """True once the server closed or reset ``sock`` (what it sent first is thrown away)."""
-    sock.setblocking(False)
-    try:
-        while True:
-            data = sock.recv(1 << 20)
-            if not data:
-                return True
-    except BlockingIOError:
-        return False
-    except OSError:
-        return True
+    """True once the server closed or reset ``sock``, asked of the kernel without reading
+    (a read would make room for more: the client would be reading after all)."""
+    info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 8)
+    return info[0] != 1  # 1: TCP_ESTABLISHED
 
 
 def downloads(url: str, key: str, pid: int, count: int, send_timeout: float) -> None:
