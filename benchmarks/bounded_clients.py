@@ -195,14 +195,19 @@ def streams(url: str, key: str, pid: int, count: int, gets: int) -> None:
     time.sleep(10)
     idle_cpu = (cpu_seconds(pid) - cpu0) / (time.monotonic() - wall0) * 100
     times = []
+    print(f"  ({count} streams open; timing GETs)", flush=True)
     with httpx.Client(base_url=url, timeout=30, headers={"Authorization": f"Bearer {key}"}) as h:
         h.get("/api/machines").raise_for_status()
         for _ in range(gets):
             started = time.perf_counter()
             h.get("/api/machines").raise_for_status()
             times.append(time.perf_counter() - started)
+        stalls = h.get("/api/health/loop").json().get("recent_stalls", [])
     times.sort()
     p99 = times[min(len(times) - 1, int(len(times) * 0.99))]
+    worst = sorted(stalls, key=lambda st: -st["seconds"])[:3]
+    shown = ", ".join(f"{st['seconds'] * 1000:.0f} ms (ran {st['run'] * 1000:.0f})" for st in worst)
+    print(f"  the loop's longest recent stalls: {shown or 'none'}")
     print(
         f"streams: {count} opened ({dict(statuses)}); server CPU while they idle "
         f"{idle_cpu:.0f} % of a core; GET /api/machines x{gets}: p50 "
