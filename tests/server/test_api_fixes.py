@@ -292,6 +292,7 @@ def test_a_login_needs_the_login_form_s_token_and_this_origin(app: App, browser:
     with app.server.sessions.begin() as s:
         auth.create_user(s, "fritz", Role.VIEWER, password="fritz-secret-1")
     form = {"username": "fritz", "password": "fritz-secret-1", "next": "/"}
+    before = _last_audit_id(app)
     # another site's form: no token, or a token of its own without this browser's cookie
     bare = browser.post("/login", data=form, follow_redirects=False)
     assert bare.status_code == 403
@@ -303,6 +304,9 @@ def test_a_login_needs_the_login_form_s_token_and_this_origin(app: App, browser:
     evil = {"Origin": "http://evil.example"}
     assert log_in(browser, "fritz", "fritz-secret-1", headers=evil).status_code == 403
     assert log_in(browser, "fritz", "fritz-secret-1").status_code == 303
+    refused = _refusals(app, before, "fritz")
+    assert sum(r.detail["count"] for r in refused) == 3  # each refusal audited
+    assert refused[-1].detail["error"] == "a login from http://evil.example is refused"
 
 
 def test_an_unknown_name_costs_a_password_check_like_a_known_one(

@@ -241,6 +241,8 @@ def login(
             device=request.cookies.get(DEVICE_COOKIE),
         )
     except Forbidden as exc:
+        refusals = core_of(request.app).get(Refusals)
+        refusals.note(actor=username, via="web", address=address, name=username, error=str(exc))
         return _login_page(request, next, str(exc), username, 403)
     except TooManyRequests as exc:
         page = _login_page(request, next, str(exc), username, 429)
