@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import random
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Protocol
 
@@ -83,8 +84,12 @@ async def throttled_stream(
         out = await source.snapshot(False) + await source.flush()
         if out:
             yield out
-        sent = flushed = loop.time()  # the last message of any kind; the last flush
-        said = sent  # the last message that was not a comment
+        flushed = loop.time()  # the last flush
+        said = flushed  # the last message that was not a comment
+        # The last message of any kind, set back by a random part of a heartbeat: streams
+        # opened together (every page reconnecting after a restart) then do not all send
+        # their heartbeats in the same turn of the loop, which a request would wait behind.
+        sent = flushed - keep_alive * random.uniform(0.0, 0.25)
         ends = said + idle if idle is not None else math.inf
         while disconnected is None or not await disconnected():
             now = loop.time()
