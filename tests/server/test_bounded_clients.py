@@ -145,5 +145,3 @@ def test_the_clients_table_is_read_and_its_bad_values_name_the_key(tmp_path: Pat
     ]:
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
             parse_config(f"[clients]\n{bad}\n" + base, base=tmp_path)
-
-
