@@ -5,6 +5,8 @@ allowance, and device cookies that only this process issued for that user
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from opendnc.server.errors import TooManyRequests
 from opendnc.server.throttle import FREE, Bucket, Throttle
@@ -82,3 +84,18 @@ def test_a_device_cookie_remembers_the_newest_eight_users() -> None:
     assert len(cookie) < 400
     known = [n for n in range(10) if guard.device_of(cookie, f"user{n}") is not None]
     assert known == list(range(2, 10))
+
+
+@settings(max_examples=200, deadline=None)
+@given(cookie=st.text(max_size=2000), user=st.text(min_size=1, max_size=64))
+def test_any_cookie_is_a_known_device_only_if_this_throttle_issued_it(
+    cookie: str, user: str
+) -> None:
+    guard = _GUARD
+    assert guard.device_of(cookie, user) is None  # a browser's own text is never trusted
+    issued = guard.device_cookie(cookie, user)
+    assert guard.device_of(issued, user) is not None
+    assert len(issued) <= 8 * 33 + 23
+
+
+_GUARD = Throttle()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import math
+import re
 import secrets
 import threading
 import time
@@ -47,6 +48,10 @@ FREE: Mapping[str, int] = {
 DEVICE_COOKIE = "opendnc_device"
 DEVICE_DAYS = 90
 _DEVICE_USERS = 8  # user names one browser is known for (a shared terminal in the shop)
+# what this module writes: token_urlsafe(16) and a hex HMAC cut to 32 digits (a cookie that
+# holds anything else was not written here, and is not echoed back)
+_DEVICE = re.compile(r"[A-Za-z0-9_-]{22}")
+_MARK = re.compile(r"[0-9a-f]{32}")
 
 
 @dataclass(frozen=True)
@@ -125,7 +130,7 @@ class Throttle:
     # -- device cookies ---------------------------------------------------------------------
 
     def _mark(self, device: str, user: str) -> str:
-        message = f"{device}\x00{user.lower()}".encode()
+        message = f"{device}\x00{user.lower()}".encode("utf-8", "surrogatepass")
         return hmac.new(self._secret, message, hashlib.sha256).hexdigest()[:32]
 
     def device_of(self, cookie: str | None, user: str) -> str | None:
@@ -137,7 +142,8 @@ class Throttle:
         if not device or not marks:
             return None
         mark = self._mark(device, user)
-        known = any(hmac.compare_digest(mark, m) for m in marks.split(","))
+        # compare_digest takes ASCII text only: a mark with anything else is not ours
+        known = any(m.isascii() and hmac.compare_digest(mark, m) for m in marks.split(","))
         return device if known else None
 
     def device_cookie(self, cookie: str | None, user: str) -> str:
@@ -147,9 +153,10 @@ class Throttle:
         if cookie and len(cookie) <= 1024:
             device, _, joined = cookie.partition(":")
             marks = joined.split(",")
-        if not device or len(device) != 22 or not device.isascii():
+        if not _DEVICE.fullmatch(device):
             device, marks = secrets.token_urlsafe(16), []
         mark = self._mark(device, user)
         # keep only marks that could be ours (a forged list stays short)
-        kept = [m for m in marks if len(m) == 32 and m != mark][-(_DEVICE_USERS - 1) :]
+        kept = [m for m in marks if _MARK.fullmatch(m) and m != mark]
+        kept = kept[-(_DEVICE_USERS - 1) :]
         return f"{device}:{','.join([*kept, mark])}"
