@@ -301,11 +301,13 @@ def test_a_login_needs_the_login_form_s_token_and_this_origin(app: App, browser:
     foreign = browser.post("/login", data={**form, "csrf": token}, follow_redirects=False)
     assert foreign.status_code == 403
     assert web_session.COOKIE not in foreign.cookies
+    odd = browser.post("/login", data={**form, "csrf": "é" * 43}, follow_redirects=False)
+    assert odd.status_code == 403  # any text is a refusal, never an error
     evil = {"Origin": "http://evil.example"}
     assert log_in(browser, "fritz", "fritz-secret-1", headers=evil).status_code == 403
     assert log_in(browser, "fritz", "fritz-secret-1").status_code == 303
     refused = _refusals(app, before, "fritz")
-    assert sum(r.detail["count"] for r in refused) == 3  # each refusal audited
+    assert sum(r.detail["count"] for r in refused) == 4  # each refusal audited
     assert refused[-1].detail["error"] == "a login from http://evil.example is refused"
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import re
 import secrets
 from datetime import timedelta
 
@@ -56,6 +57,7 @@ CSRF_FIELD = "csrf"
 SESSION_HOURS = 12
 LOGIN_COOKIE = "opendnc_login"  # the login form's CSRF token (see login_token)
 LOGIN_TOKEN_HOURS = 12
+_LOGIN_TOKEN = re.compile(r"[A-Za-z0-9_-]{43}")  # secrets.token_urlsafe(32)
 
 
 def csrf_token(key: str) -> str:
@@ -143,7 +145,7 @@ def login_token(request: Request) -> tuple[str, bool]:
     send, ``SameSite=Strict``): a cross-site ``POST /login`` has the field but not the cookie
     (login CSRF: logging a victim in as the attacker)."""
     sent = request.cookies.get(LOGIN_COOKIE, "")
-    if len(sent) == 43 and sent.isascii():
+    if _LOGIN_TOKEN.fullmatch(sent):  # only what login_token writes is repeated in the form
         return sent, False
     return secrets.token_urlsafe(32), True
 
@@ -166,7 +168,10 @@ def check_login_csrf(request: Request, form_token: str | None) -> None:
     another site's page (:class:`Forbidden`)."""
     cookie = request.cookies.get(LOGIN_COOKIE, "")
     sent = form_token or ""
-    if not cookie or not hmac.compare_digest(sent.encode(), cookie.encode()):
+    same = _LOGIN_TOKEN.fullmatch(cookie) and hmac.compare_digest(
+        sent.encode("utf-8", "surrogatepass"), cookie.encode()
+    )
+    if not same:
         raise Forbidden("the login did not come from this server's login page; log in again")
     origin = request.headers.get("origin")
     if origin and origin.rstrip("/") != str(request.base_url).rstrip("/"):
