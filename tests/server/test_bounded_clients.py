@@ -14,10 +14,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server import library
 from opendnc.server.clients import ClientLimits
 from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.downloads import blob_pieces
+from opendnc.server.errors import NotFound
 from opendnc.server.store.models import Role
 from tests.server.harness import wait_for
 from tests.server.inprocess_app import App, running
@@ -145,3 +148,15 @@ def test_the_clients_table_is_read_and_its_bad_values_name_the_key(tmp_path: Pat
     ]:
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
             parse_config(f"[clients]\n{bad}\n" + base, base=tmp_path)
+
+
+def test_a_blob_is_read_in_pieces_on_each_database(sessions: sessionmaker[Session]) -> None:
+    data = bytes(range(256)) * 1000 + b"tail"  # every byte value, not a multiple of a piece
+    with sessions.begin() as s:
+        version, _ = library.add_version(s, "PIECES.nc", data, author="t")
+        sha, size = version.sha256, version.size
+    pieces = list(blob_pieces(sessions, sha, size, chunk=100_000))
+    assert [len(p) for p in pieces] == [100_000, 100_000, 56_004]
+    assert b"".join(pieces) == data
+    with pytest.raises(NotFound):  # a blob shorter than it says (removed under a download)
+        list(blob_pieces(sessions, sha, size + 10, chunk=100_000))
