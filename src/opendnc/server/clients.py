@@ -62,7 +62,9 @@ class ClientLimits:
     send_timeout: float = 30.0  # a piece of a response not taken by the client in this: cut
     heartbeat: float = 5.0  # an event stream's comment when it has nothing else to send
     stream_idle: float = 900.0  # an event stream with only heartbeats for this long ends
-    streams_per_user: int = 32  # event streams one user (or key's user) may hold open
+    # event streams one user (or a key's user) may hold open: a shop floor's tablets often
+    # share one account, two streams a page
+    streams_per_user: int = 200
     streams_total: int = 2000  # event streams the server holds open
 
 

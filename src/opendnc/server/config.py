@@ -72,7 +72,7 @@ Example::
     send_timeout = 30                      # a client that takes nothing for this long is cut
     heartbeat = 5                          # an event stream's keep-alive comment, seconds
     stream_idle = 900                      # a stream with only keep-alives this long ends
-    streams_per_user = 32                  # event streams open at once, per user
+    streams_per_user = 200                 # event streams open at once, per user
     streams_total = 2000                   # ... and on the server
 
     [mtconnect]                            # MTConnect SHDR adapter (server/shdr.py)
