@@ -26,6 +26,7 @@ import argparse
 import http.client
 import itertools
 import json
+import re
 import statistics
 import subprocess
 import sys
@@ -63,8 +64,18 @@ def _request(method: str, url: str, key: str, body: Any = None, raw: bytes | Non
 
 def _login(host: str, port: int) -> str:
     conn = http.client.HTTPConnection(host, port, timeout=30)
-    form = urllib.parse.urlencode({"username": "admin", "password": PASSWORD, "next": "/"})
-    conn.request("POST", "/login", form, {"Content-Type": "application/x-www-form-urlencoded"})
+    # the login form's CSRF token and the cookie it must match (docs/server.md#throttling)
+    conn.request("GET", "/login")
+    page = conn.getresponse()
+    token = re.search(r'name="csrf" value="([^"]+)"', page.read().decode())
+    login_cookie = (page.getheader("Set-Cookie") or "").split(";", 1)[0]
+    if token is None or not login_cookie:
+        raise SystemExit("the login page carries no CSRF token")
+    form = urllib.parse.urlencode(
+        {"username": "admin", "password": PASSWORD, "next": "/", "csrf": token.group(1)}
+    )
+    headers = {"Content-Type": "application/x-www-form-urlencoded", "Cookie": login_cookie}
+    conn.request("POST", "/login", form, headers)
     reply = conn.getresponse()
     reply.read()
     cookie = reply.getheader("Set-Cookie") or ""

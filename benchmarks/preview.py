@@ -26,6 +26,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import statistics
 import sys
 import tempfile
@@ -231,11 +232,15 @@ def main() -> None:
     ):
         # the first request runs the dry run (the page's later ones find it kept)
         started = time.perf_counter()
-        opener = urllib.request.build_opener()
-        login = urllib.parse.urlencode({"username": "bench", "password": PASSWORD, "next": "/"})
-        opener.addheaders = []
         cookies = urllib.request.HTTPCookieProcessor()
         opener = urllib.request.build_opener(cookies)
+        # the login form first: its CSRF token and cookie (docs/server.md#throttling)
+        form = opener.open(url + "/login", timeout=60).read().decode()
+        token = re.search(r'name="csrf" value="([^"]+)"', form)
+        assert token is not None, "the login page carries no CSRF token"
+        login = urllib.parse.urlencode(
+            {"username": "bench", "password": PASSWORD, "next": "/", "csrf": token.group(1)}
+        )
         opener.open(url + "/login", login.encode(), timeout=60).read()
         body = opener.open(url + f"/library/{NAME}/versions/1/toolpath", timeout=300).read()
         cold = time.perf_counter() - started

@@ -71,6 +71,8 @@ def start(work: Path, database: str | None) -> tuple[subprocess.Popen[bytes], st
     config = work / "shop.toml"
     config.write_text(
         f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{work / "lib"}"\n\n'
+        # one key opens every event stream of the soak (docs/server.md#bounded-clients)
+        "[clients]\nstreams_per_user = 2000\n\n"
         '[[machines]]\nname = "m1"\nkind = "lsv2"\nhost = "127.0.0.1"\nport = 9\n'
     )
     url = database or f"sqlite:///{work / 'opendnc.db'}"

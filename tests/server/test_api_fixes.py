@@ -8,18 +8,23 @@ import hashlib
 import threading
 from collections.abc import Iterator
 from datetime import timedelta
-from typing import Any
+from typing import Any, Literal
 
+import httpx
 import pytest
+from argon2 import PasswordHasher, extract_parameters
 from sqlalchemy import event, select
 
 from opendnc.server import auth, jobs, library
 from opendnc.server.actions import Services
+from opendnc.server.errors import Unauthorized
 from opendnc.server.key_use import KeyUse
+from opendnc.server.refusals import Refusals
 from opendnc.server.store.models import ApiKey, AuditEntry, Job, JobKind, JobState, Role, utcnow
 from opendnc.server.web import session as web_session
 from tests.server.harness import wait_for
 from tests.server.inprocess_app import App, running
+from tests.server.logins import log_in, login_form_token
 
 MACHINES: list[dict[str, object]] = [
     {"name": "tnc", "kind": "lsv2", "host": "127.0.0.1", "port": 1, "poll_interval": 0.2},
@@ -173,16 +178,40 @@ def test_a_key_revoked_through_the_api_is_refused_at_once_though_checked_a_momen
 
 
 def _login(app: App, user: str, password: str) -> Any:
-    return app.client.post(
-        "/login",
-        data={"username": user, "password": password, "next": "/"},
-        follow_redirects=False,
-    )
+    return log_in(app.client, user, password)
+
+
+def _refusals(app: App, before: int, actor: str) -> list[AuditEntry]:
+    app.server.core.get(Refusals).flush(everything=True)
+    with app.server.sessions() as s:
+        return list(
+            s.scalars(
+                select(AuditEntry).where(
+                    AuditEntry.action == "login",
+                    AuditEntry.result == "refused",
+                    AuditEntry.actor == actor,
+                    AuditEntry.id > before,
+                )
+            ).all()
+        )
+
+
+def _last_audit_id(app: App) -> int:
+    with app.server.sessions() as s:
+        return s.scalar(select(AuditEntry.id).order_by(AuditEntry.id.desc()).limit(1)) or 0
+
+
+@pytest.fixture
+def browser(app: App) -> Iterator[Any]:
+    # another browser at the same address (127.0.0.1): its own cookies
+    with httpx.Client(base_url=app.client.base_url, timeout=30) as client:
+        yield client
 
 
 def test_logins_are_audited_as_logins_and_failures_slow_down(app: App, fresh_guard: None) -> None:
     with app.server.sessions.begin() as s:
         auth.create_user(s, "ann", Role.OPERATOR, password="ann-secret-1")
+    before = _last_audit_id(app)
     ok = _login(app, "ann", "ann-secret-1")
     assert ok.status_code == 303
     for _ in range(6):
@@ -190,52 +219,122 @@ def test_logins_are_audited_as_logins_and_failures_slow_down(app: App, fresh_gua
     slowed = _login(app, "ann", "wrong-password")
     assert slowed.status_code == 429
     assert 1 <= int(slowed.headers["Retry-After"]) <= 2
-    # while the user must wait, even the right password waits (a guesser learns nothing)
+    # while this browser must wait, even the right password waits (a guesser learns nothing)
     assert _login(app, "ann", "ann-secret-1").status_code == 429
     with app.server.sessions() as s:
         rows = s.scalars(
-            select(AuditEntry).where(AuditEntry.actor == "ann").order_by(AuditEntry.id)
+            select(AuditEntry).where(AuditEntry.actor == "ann", AuditEntry.id > before)
         ).all()
-    assert [(r.action, r.result) for r in rows] == [("login", "ok")] + [("login", "refused")] * 6
+    assert [(r.action, r.result) for r in rows] == [("login", "ok")]
     assert rows[0].detail["key_id"] is not None
     assert rows[0].detail["via"] == "web"
+    # the eight refusals: counted, summed into a row a minute (two if a minute ended between)
+    refused = _refusals(app, before, "ann")
+    assert 1 <= len(refused) <= 2
+    assert sum(r.detail["count"] for r in refused) == 8
+    assert sum(r.detail["throttled"] for r in refused) == 2
+    assert {r.detail["address"] for r in refused} == {"127.0.0.1"}
 
 
-def test_unknown_api_keys_are_audited_and_slowed_per_address(app: App, fresh_guard: None) -> None:
+def test_a_valid_key_and_a_login_work_after_100_wrong_keys_from_the_same_address(
+    app: App, fresh_guard: None, browser: Any
+) -> None:
+    with app.server.sessions.begin() as s:
+        auth.create_user(s, "cleo", Role.VIEWER, password="cleo-secret-1")
+    before = _last_audit_id(app)
+    # a script sending a new wrong key each time (another prefix each time): past the
+    # address's allowance (100 free; the 101st starts the wait) it is slowed
+    answers = [
+        app.client.get("/api/jobs", headers={"Authorization": f"Bearer odk_{n:06d}x"})
+        for n in range(110)
+    ]
+    assert [a.status_code for a in answers] == [401] * 101 + [429] * 9
+    assert 1 <= int(answers[-1].headers["Retry-After"]) <= 1024
+    # neither the valid key nor a login at that address is refused for what the script did
+    assert app.client.get("/api/jobs", headers=app.api(ADMIN)).status_code == 200
+    assert log_in(browser, "cleo", "cleo-secret-1").status_code == 303
+    refused = _refusals(app, before, "api")
+    assert 1 <= len(refused) <= 2
+    assert sum(r.detail["count"] for r in refused) == 110
+    assert sum(r.detail["throttled"] for r in refused) == 9
+    assert len(refused[0].detail["names"]) == 10  # the first prefixes tried, then a count
+    assert sum(len(r.detail["names"]) + r.detail["more_names"] for r in refused) >= 110
+
+
+def test_a_key_s_prefix_waits_after_five_wrong_tries_other_keys_do_not(
+    app: App, fresh_guard: None
+) -> None:
     bad = {"Authorization": "Bearer odk_not-a-key"}
-    with app.server.sessions() as s:
-        before = s.scalar(select(AuditEntry.id).order_by(AuditEntry.id.desc()).limit(1)) or 0
     answers = [app.client.get("/api/jobs", headers=bad).status_code for _ in range(7)]
     assert answers == [401] * 6 + [429]
-    # a good key from the same address waits too: the address is what is being slowed
-    assert app.client.get("/api/jobs", headers=app.api(ADMIN)).status_code == 429
-    with app.server.sessions() as s:
-        refused = s.scalars(
-            select(AuditEntry).where(
-                AuditEntry.action == "login", AuditEntry.actor == "api", AuditEntry.id > before
-            )
-        ).all()
-    assert len(refused) == 6
+    other = {"Authorization": "Bearer odk_other-key"}
+    assert app.client.get("/api/jobs", headers=other).status_code == 401
+    assert app.client.get("/api/jobs", headers=app.api(ADMIN)).status_code == 200
 
 
-def test_the_guard_waits_twice_as_long_after_each_further_failure() -> None:
-    now = [0.0]
-    guard = auth.LoginGuard(free=2, clock=lambda: now[0])
-    for _ in range(2):
-        guard.failed("user:a")
-    guard.check("user:a")  # the free ones cost nothing
-    waits = []
-    for _ in range(4):
-        guard.failed("user:a")
-        with pytest.raises(auth.TooManyRequests) as refused:
-            guard.check("user:a", "address:x")
-        waits.append(refused.value.retry_after)
-    assert waits == [2, 4, 8, 16]
-    now[0] += 16
-    guard.check("user:a")
-    guard.succeeded("user:a")
-    guard.failed("user:a")
-    guard.check("user:a")
+def test_a_guesser_slows_new_browsers_for_the_name_never_the_user_s_own(
+    app: App, fresh_guard: None, browser: Any
+) -> None:
+    with app.server.sessions.begin() as s:
+        auth.create_user(s, "dora", Role.OPERATOR, password="dora-secret-1")
+        auth.create_user(s, "emil", Role.OPERATOR, password="emil-secret-1")
+    assert log_in(browser, "dora", "dora-secret-1").status_code == 303  # dora's own browser
+    # someone else (app.client: no device cookie for dora) guesses dora's password
+    guesses = [_login(app, "dora", f"guess-{n}").status_code for n in range(7)]
+    assert guesses == [401] * 6 + [429]
+    assert _login(app, "dora", "dora-secret-1").status_code == 429  # a new browser waits
+    # dora's browser is not slowed by the guesser, nor is another user at the same address
+    assert log_in(browser, "dora", "dora-secret-1").status_code == 303
+    assert _login(app, "emil", "emil-secret-1").status_code == 303
+
+
+def test_a_login_needs_the_login_form_s_token_and_this_origin(app: App, browser: Any) -> None:
+    with app.server.sessions.begin() as s:
+        auth.create_user(s, "fritz", Role.VIEWER, password="fritz-secret-1")
+    form = {"username": "fritz", "password": "fritz-secret-1", "next": "/"}
+    before = _last_audit_id(app)
+    # another site's form: no token, or a token of its own without this browser's cookie
+    bare = browser.post("/login", data=form, follow_redirects=False)
+    assert bare.status_code == 403
+    assert "login page" in bare.text
+    token = login_form_token(app.client)
+    foreign = browser.post("/login", data={**form, "csrf": token}, follow_redirects=False)
+    assert foreign.status_code == 403
+    assert web_session.COOKIE not in foreign.cookies
+    odd = browser.post("/login", data={**form, "csrf": "é" * 43}, follow_redirects=False)
+    assert odd.status_code == 403  # any text is a refusal, never an error
+    evil = {"Origin": "http://evil.example"}
+    assert log_in(browser, "fritz", "fritz-secret-1", headers=evil).status_code == 403
+    assert log_in(browser, "fritz", "fritz-secret-1").status_code == 303
+    refused = _refusals(app, before, "fritz")
+    assert sum(r.detail["count"] for r in refused) == 4  # each refusal audited
+    assert refused[-1].detail["error"] == "a login from http://evil.example is refused"
+
+
+def test_an_unknown_name_costs_a_password_check_like_a_known_one(
+    app: App, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    checked: list[str] = []
+
+    class Counting(PasswordHasher):
+        def verify(self, hash: str | bytes, password: str | bytes) -> Literal[True]:
+            checked.append(hash if isinstance(hash, str) else hash.decode())
+            return super().verify(hash, password)
+
+    counting = Counting.from_parameters(extract_parameters(auth.dummy_hash()))
+    monkeypatch.setattr(auth, "_hasher", counting)
+    with app.server.sessions.begin() as s:
+        known = auth.create_user(s, "gus", Role.VIEWER, password="gus-secret-1")
+        auth.create_user(s, "hal", Role.VIEWER)  # a service user: no password
+        stored = known.password_hash
+    for name in ["gus", "nobody-by-this-name", "hal"]:
+        with app.server.sessions() as s, pytest.raises(Unauthorized):
+            auth.check_password(s, name, "wrong-password")
+    assert len(checked) == 3  # one verification each, whether the name exists or not
+    assert checked[0] == stored
+    assert checked[1] == checked[2] == auth.dummy_hash()
+    assert stored is not None
+    assert extract_parameters(auth.dummy_hash()) == extract_parameters(stored)
 
 
 # -- the queue ------------------------------------------------------------------------------

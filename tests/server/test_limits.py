@@ -30,7 +30,11 @@ LIMITS = Limits()
 
 def shop(tmp_path: Path) -> Path:
     config = tmp_path / "shop.toml"
-    config.write_text(f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{tmp_path / "lib"}"\n')
+    # one key holds the thousand event streams of the memory test (docs/server.md#bounded-clients)
+    config.write_text(
+        f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{tmp_path / "lib"}"\n'
+        "[clients]\nstreams_per_user = 1000\n"
+    )
     return config
 
 

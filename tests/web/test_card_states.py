@@ -32,6 +32,7 @@ from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web.render import human_size  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
+from tests.server.logins import log_in  # noqa: E402
 from tests.server.serving import serving  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
@@ -101,11 +102,7 @@ def test_a_load_is_no_run_a_silent_control_is_unknown_and_progress_agrees(shop: 
 
 def _load_and_compare(shop: Shop, api: Any, page: Any, loaded: str, silent: str) -> None:
     machines = shop.server.machines.machines
-    login = page.post(
-        "/login",
-        data={"username": "olga", "password": PASSWORD, "next": "/"},
-        follow_redirects=False,
-    )
+    login = log_in(page, "olga", PASSWORD)
     assert login.status_code == 303, login.text
 
     overview = page.get("/").text

@@ -21,6 +21,7 @@ httpx = require_module("httpx")
 
 from opendnc.server.store.models import Role  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
+from tests.server.logins import log_in  # noqa: E402
 from tests.web.inprocess import Served, serve_one_tnc  # noqa: E402
 
 PASSWORD = "viewer-secret"
@@ -40,11 +41,7 @@ def test_cards_arrive_while_another_connection_holds_the_write_lock(
     wait_for("the machine online", lambda: server.machines.machines[name].online)
     messages: list[str] = []
     with httpx.Client(base_url=shop.url, timeout=30) as http:
-        reply = http.post(
-            "/login",
-            data={"username": "viewer", "password": PASSWORD, "next": "/"},
-            follow_redirects=False,
-        )
+        reply = log_in(http, "viewer", PASSWORD)
         assert reply.status_code == 303, reply.text
 
         def read() -> None:

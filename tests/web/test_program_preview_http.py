@@ -18,6 +18,7 @@ httpx = require_module("httpx")
 
 from opendnc.nccheck.backplot import decode  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
+from tests.server.logins import log_in  # noqa: E402
 from tests.web.browser import PASSWORDS  # noqa: E402
 from tests.web.preview_shop import PreviewShop, preview_shop  # noqa: E402
 
@@ -35,11 +36,7 @@ def http(shop: PreviewShop) -> Iterator[Any]:
 
 
 def _login(http: Any, user: str = "viewer") -> None:
-    reply = http.post(
-        "/login",
-        data={"username": user, "password": PASSWORDS[user], "next": "/"},
-        follow_redirects=False,
-    )
+    reply = log_in(http, user, PASSWORDS[user])
     assert reply.status_code == 303, reply.text
 
 

@@ -22,6 +22,7 @@ from opendnc.server import auth  # noqa: E402
 from opendnc.server.actions import Services  # noqa: E402
 from opendnc.server.store.models import ApiKey, Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
+from tests.server.logins import log_in  # noqa: E402
 from tests.web.inprocess import serve_one_tnc  # noqa: E402
 
 Http = Any
@@ -39,9 +40,7 @@ def client(tmp_path: Path) -> Iterator[tuple[Http, Any]]:
 
 
 def _login(http: Http, user: str = "op") -> str:
-    reply = http.post(
-        "/login", data={"username": user, "password": PASSWORD, "next": "/"}, follow_redirects=False
-    )
+    reply = log_in(http, user, PASSWORD)
     assert reply.status_code == 303, reply.text
     page = http.get("/").text
     token = re.search(r'"X-CSRF-Token": "([0-9a-f]{64})"', page)
@@ -59,11 +58,7 @@ def test_pages_need_a_session_and_the_login_never_redirects_off_site(
     htmx = http.get("/machines/tnc-1/jobs", headers={"HX-Request": "true"})
     assert htmx.status_code == 401
     assert htmx.headers["HX-Redirect"].startswith("/login?next=")
-    reply = http.post(
-        "/login",
-        data={"username": "op", "password": PASSWORD, "next": "//evil.example/x"},
-        follow_redirects=False,
-    )
+    reply = log_in(http, "op", PASSWORD, next="//evil.example/x")
     assert reply.headers["location"] == "/"
     cookie = reply.headers["set-cookie"].lower()
     assert "httponly" in cookie

@@ -7,7 +7,7 @@ session's cookie is not a key. Routes that touch the database are plain function
 FastAPI runs in its thread pool, so a slow query never blocks the event loop that polls the
 machines. Errors map to one status each (:func:`opendnc.server.errors.http_status`): bad
 input 400, no key 401, role too low 403, unknown name 404, state does not allow it 409, too
-large 413, bad parameter 422, too many failed logins 429, machine unreachable 503.
+large 413, bad parameter 422, too many wrong keys 429, machine unreachable 503.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pydantic import BaseModel, Field, JsonValue
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from opendnc.errors import DncError
-from opendnc.server import actions, audit, auth, dbsession, deps
+from opendnc.server import actions, auth, dbsession, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
@@ -50,15 +50,19 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
+from opendnc.server.clients import StreamsFull
 from opendnc.server.components import core_of
+from opendnc.server.downloads import stored_response
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
 from opendnc.server.events import Event, JobFinished, Overflow
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
+from opendnc.server.refusals import Refusals
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
 from opendnc.server.streams import event_stream_response
+from opendnc.server.throttle import Bucket
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -81,7 +85,7 @@ _REASONS = {
     404: "no such program, version, job, reception, key or machine",
     409: "the current state (or the machine's policy) does not allow this",
     413: "the body is larger than the server takes",
-    429: "too many failed logins from this address; wait Retry-After seconds",
+    429: "too many wrong keys with this prefix or from this address; wait Retry-After seconds",
     503: "the machine cannot be reached now",
 }
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -137,7 +141,7 @@ async def error_response(_request: Request, exc: DncError) -> JSONResponse:
     headers: dict[str, str] | None = None
     if status == 401:
         headers = {"WWW-Authenticate": "Bearer"}
-    elif isinstance(exc, TooManyRequests):
+    elif isinstance(exc, TooManyRequests | StreamsFull):
         headers = {"Retry-After": str(exc.retry_after)}
     elif status == 500:
         log.error("unexpected error", exc_info=exc)
@@ -178,7 +182,6 @@ async def _principal(
         raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
     svc = _svc(request)
     host = request.client.host if request.client else "?"
-    svc.guard.check(f"address:{host}")
     key = credentials.credentials.strip()
     known = svc.keys.get(key)
     if known is not None:
@@ -189,20 +192,28 @@ async def _principal(
 
 
 def _check_key(request: Request, svc: actions.Services, host: str, key: str) -> auth.Principal:
+    # The key is checked before the throttle is asked: a valid key is never refused because
+    # of what others sent from its address (docs/server.md#throttling).
     try:
         return auth.authenticate(svc.reads, key, deps.key_use(request), svc.keys).who
     except Unauthorized as exc:
-        svc.guard.failed(f"address:{host}")
-        with svc.sessions.begin() as session:
-            audit.record(
-                session,
-                "api",
-                "login",
-                result="refused",
+        prefix = key[: auth.KEY_PREFIX_CHARS]
+        buckets = [Bucket("key", prefix), Bucket("key-address", host)]
+        refusals = core_of(request.app).get(Refusals)
+        try:
+            svc.guard.check(buckets)
+        except TooManyRequests as slowed:
+            refusals.note(
+                actor="api",
                 via="api",
                 address=host,
+                name=prefix,
                 error=str(exc),
+                throttled=True,
             )
+            raise slowed from None
+        svc.guard.failed(buckets)
+        refusals.note(actor="api", via="api", address=host, name=prefix, error=str(exc))
         raise
 
 
@@ -398,9 +409,8 @@ async def _body(request: Request, limit: int) -> bytes:
     responses={200: {"content": {"application/octet-stream": _BINARY}}},
 )
 def program_content(svc: Svc, name: str, number: Id, who: Caller) -> Response:
-    """The bytes of one version."""
-    content = actions.library.program_content(svc, who, name, number)
-    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+    """The bytes of one version (streamed as the client reads them)."""
+    return stored_response(svc.reads, actions.library.program_stored(svc, who, name, number))
 
 
 @router.get(
@@ -589,9 +599,8 @@ def get_received(svc: Svc, received_id: Id, who: Caller) -> ReceivedDetail:
     responses={200: {"content": {"application/octet-stream": _BINARY}}},
 )
 def received_content(svc: Svc, received_id: Id, who: Caller) -> Response:
-    """The received bytes."""
-    content = actions.inbox.received_content(svc, who, received_id)
-    return OctetStream(content.data, headers={"X-Content-SHA256": content.sha256})
+    """The received bytes (streamed as the client reads them)."""
+    return stored_response(svc.reads, actions.inbox.received_stored(svc, who, received_id))
 
 
 class AcceptRequest(BaseModel):
@@ -651,7 +660,7 @@ async def events(request: Request, who: Caller) -> StreamingResponse:
     actions.require(who, Role.VIEWER)
     machines = deps.machines(request)
     return event_stream_response(
-        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL
+        request, machines.bus, _ApiEvents(machines), interval=EVENT_INTERVAL, who=who.name
     )
 
 

@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc import __version__
 from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
 from opendnc.server.autoreceive import AutoReceive
+from opendnc.server.clients import Clients, SendTimeout
 from opendnc.server.cluster import Cluster
 from opendnc.server.components import STOP_DEADLINE, Core
 from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
@@ -38,6 +39,7 @@ from opendnc.server.machines import Connector
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.server.netshare import NetShare
 from opendnc.server.parts import Outputs, TimelineRecorder
+from opendnc.server.refusals import Refusals
 from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
@@ -104,6 +106,8 @@ def build(
     # every command of the API and the pages goes through the actions (docs/server.md)
     services = core.add(actions.Services(sessions, database_part.reads, machines))
     core.add(KeyUse(sessions))  # the keys' last use, written once a minute
+    core.add(Refusals(sessions))  # refused logins and keys, one audit row a minute per source
+    clients = core.add(Clients(config.clients))  # send timeout, event stream slots
     capture = core.add(DprntCapture(machines, sessions))
     backups = config.library.backups or config.library.archive / "backups"
     executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
@@ -196,6 +200,8 @@ def build(
     app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
     edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
     app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
+    # responses: a client that stops reading is cut (outermost: it finds the connection)
+    app.add_middleware(SendTimeout, limits=lambda: clients.limits)
     app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)

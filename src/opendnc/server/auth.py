@@ -9,15 +9,14 @@ A key is checked in a read-only transaction: a request never writes for its key.
 noted in memory and ``last_used`` written once a minute for every key at once
 (:mod:`opendnc.server.key_use`). A web session is a key labelled :data:`SESSION_LABEL`; it is
 valid only as the dashboard's cookie, never as ``Authorization: Bearer``, so it cannot escape
-the session's expiry. Failed logins and unknown keys are counted per user and per address
-(:class:`LoginGuard`): past a few, each further try waits longer (HTTP 429 with
-``Retry-After``).
+the session's expiry. Failed logins and unknown keys are counted by
+:class:`opendnc.server.throttle.Throttle`, which never refuses a valid credential because of
+someone else's failures.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import re
 import secrets
@@ -35,23 +34,24 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import audit
-from opendnc.server.errors import Conflict, NotFound, TooManyRequests, Unauthorized
+from opendnc.server.errors import Conflict, NotFound, Unauthorized
 from opendnc.server.key_use import KeyUse
 from opendnc.server.store.models import ApiKey, Role, User, utcnow
 
 __all__ = [
     "KEY_CACHE_SECONDS",
+    "KEY_PREFIX_CHARS",
     "LAST_USED_EVERY",
     "SESSION_LABEL",
     "KeyCache",
     "KeyCheck",
-    "LoginGuard",
     "Principal",
     "authenticate_key",
     "check_key",
     "check_password",
     "create_key",
     "create_user",
+    "dummy_hash",
     "find_user",
     "key_hash",
     "revoke_key",
@@ -60,6 +60,7 @@ __all__ = [
 ]
 
 KEY_PREFIX = "odk_"
+KEY_PREFIX_CHARS = len(KEY_PREFIX) + 6  # what a key's row keeps of it, shown to people
 SESSION_LABEL = "web session"  # the label of the keys behind the dashboard's cookies
 LAST_USED_EVERY = timedelta(minutes=1)
 _USER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$")
@@ -148,20 +149,34 @@ def set_password(session: Session, name: str, password: str, *, actor: str) -> U
 def check_password(session: Session, name: str, password: str) -> Principal:
     """The user ``name`` if ``password`` is theirs; :class:`Unauthorized` otherwise.
 
-    The caller audits the attempt (:func:`opendnc.server.web.session.log_in` records a
-    ``login`` row either way, the refusal in a transaction of its own)."""
+    Every refusal costs one password verification, the same as a wrong password of a real
+    user: an unknown name, a disabled user or one without a password is checked against
+    :func:`dummy_hash`, so how long a refusal takes does not tell which names exist. The
+    caller counts and audits the refusal (:func:`opendnc.server.web.session.log_in`)."""
     user = session.scalar(select(User).where(User.name == name))
-    ok = False
-    if user is not None and user.password_hash and not user.disabled:
-        try:
-            ok = _hasher.verify(user.password_hash, password)
-        except (VerificationError, InvalidHashError):
-            ok = False
+    usable = user is not None and bool(user.password_hash) and not user.disabled
+    stored = user.password_hash if user is not None and usable else None
+    try:
+        ok = _hasher.verify(stored or dummy_hash(), password) and stored is not None
+    except (VerificationError, InvalidHashError):
+        ok = False
     if not ok or user is None:
         raise Unauthorized("wrong user name or password")
     if _hasher.check_needs_rehash(user.password_hash or ""):
         user.password_hash = _hasher.hash(password)
     return Principal(user.name, Role(user.role))
+
+
+_dummy: tuple[PasswordHasher, str] | None = None
+
+
+def dummy_hash() -> str:
+    """A hash of a random password, made with the current profile (once per hasher): what a
+    login for a name without a usable password is verified against."""
+    global _dummy
+    if _dummy is None or _dummy[0] is not _hasher:
+        _dummy = (_hasher, _hasher.hash(secrets.token_urlsafe(24)))
+    return _dummy[1]
 
 
 def create_key(
@@ -196,7 +211,7 @@ def create_key(
     key = KEY_PREFIX + secrets.token_urlsafe(32)
     row = ApiKey(
         user_id=user.id,
-        prefix=key[: len(KEY_PREFIX) + 6],
+        prefix=key[:KEY_PREFIX_CHARS],
         key_hash=_key_hash(key),
         role=int(role),
         label=label,
@@ -344,68 +359,6 @@ def authenticate(
             cache.put(key, check, web=web)
     uses.note(check.who.key_id)
     return check
-
-
-class LoginGuard:
-    """Slows down guessing: failed logins counted per user and per address.
-
-    The first :attr:`free` failures of a user or an address cost nothing; each one after
-    makes the next try wait twice as long (2 s, 4 s, ... at most :attr:`longest`), refused
-    meanwhile with :class:`TooManyRequests`. A success clears the user's and the address's
-    count. In memory, per process, and bounded (the oldest entries go first): it slows an
-    attacker, the audit trail keeps the record.
-    """
-
-    def __init__(
-        self,
-        *,
-        free: int = 5,
-        longest: float = 900.0,
-        size: int = 10_000,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.free = free
-        self.longest = longest
-        self.size = size
-        self.clock = clock
-        self._failures: OrderedDict[str, tuple[int, float]] = OrderedDict()
-        self._lock = threading.Lock()  # routes run in worker threads
-
-    def check(self, *who: str) -> None:
-        """Refuse with :class:`TooManyRequests` while any of ``who`` must wait."""
-        now = self.clock()
-        with self._lock:
-            waits = [self._failures.get(k, (0, 0.0))[1] - now for k in who]
-        wait = max(waits, default=0.0)
-        if wait > 0:
-            seconds = math.ceil(wait)
-            raise TooManyRequests(
-                f"too many failed logins; try again in {seconds} s", retry_after=seconds
-            )
-
-    def failed(self, *who: str) -> None:
-        """Count a failure for each of ``who``."""
-        now = self.clock()
-        with self._lock:
-            for key in who:
-                count, _ = self._failures.pop(key, (0, 0.0))
-                count += 1
-                extra = count - self.free
-                until = now + min(2.0**extra, self.longest) if extra > 0 else 0.0
-                self._failures[key] = (count, until)
-            while len(self._failures) > self.size:
-                self._failures.popitem(last=False)
-
-    def reset(self) -> None:
-        """Forget every failure."""
-        with self._lock:
-            self._failures.clear()
-
-    def succeeded(self, *who: str) -> None:
-        """Forget the failures of each of ``who``."""
-        with self._lock:
-            for key in who:
-                self._failures.pop(key, None)
 
 
 def revoke_key(session: Session, key_id: int, *, actor: str) -> None:

@@ -68,6 +68,13 @@ Example::
     node = "dnc-1"                         # the edge node id (default: the server's name)
     primary_host = "scada"                 # optional: publish only while this host is online
 
+    [clients]                              # what one HTTP client may hold (server/clients.py)
+    send_timeout = 30                      # a client that takes nothing for this long is cut
+    heartbeat = 5                          # an event stream's keep-alive comment, seconds
+    stream_idle = 900                      # a stream with only keep-alives this long ends
+    streams_per_user = 200                 # event streams open at once, per user
+    streams_total = 2000                   # ... and on the server
+
     [mtconnect]                            # MTConnect SHDR adapter (server/shdr.py)
     bind = "127.0.0.1:7878"                # the first machine's port; the next ones count up
     ports = { "mill-1" = 7900 }            # optional: a machine's own port
@@ -83,6 +90,7 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
+from opendnc.server.clients import ClientLimits, parse_clients
 from opendnc.server.configkeys import NAME as _NAME
 from opendnc.server.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.kinds import (
@@ -210,6 +218,7 @@ class ShopConfig:
     sparkplug: SparkplugConfig | None = None
     mtconnect: MtconnectConfig | None = None
     calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
+    clients: ClientLimits = field(default_factory=ClientLimits)  # [clients]: bounded clients
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -247,7 +256,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts",
+            "mtconnect", "shifts", "clients",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -262,6 +271,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
             raise ConfigError(f"machines[{i}].name", f"{machine.name!r} is used twice")
         seen.add(machine.name.lower())
     requests = _requests(_table(raw, "requests"))
+    clients = parse_clients(_table(raw, "clients"))  # server/clients.py
     netshare = None
     if "netshare" in raw:
         netshare = _netshare(_table(raw, "netshare"), base, library, machines)
@@ -286,6 +296,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         sparkplug=sparkplug,
         mtconnect=mtconnect,
         calendar=calendar,
+        clients=clients,
     )
 
 

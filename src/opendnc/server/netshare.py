@@ -9,7 +9,11 @@ folder is archived; programs written on the machines come back to the server's i
 1. **push**: a NAS file that stopped changing (same size and time in two scans) and whose
    content a machine has not had yet is copied into that machine's share, whole or not at
    all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
-   again at the next scan.
+   again at the next scan, but audited only when its outcome changes (the first failure, a
+   new reason, the success after): a share that stays away, or a file that keeps failing, is
+   one row, not one a scan. A name no share can take (longer than :data:`MAX_PUSH_NAME`
+   bytes: the copy's temporary name would pass the 255 bytes a file name may have) is not
+   tried at all: one ``skipped`` row per machine and content.
 2. **collect** (``collect = true``): a file in a machine's share that the server
    did not put there, or that changed since (the operator edited it), is filed in the inbox by
    :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
@@ -42,6 +46,7 @@ import contextlib
 import hashlib
 import logging
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -50,7 +55,7 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any, Protocol
 
-from sqlalchemy import select
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.atomicfile import AtomicWriter
@@ -68,6 +73,10 @@ log = logging.getLogger(__name__)
 
 ACTOR = "netshare"
 MAX_FILE = 64 * 1024 * 1024  # larger files in a share are not programs to move around
+# A push writes ".NAME.xxxxxxxx.part" first (15 bytes more than the name) and renames it: a
+# longer name fails on every file system and share that caps a name at 255 bytes, which is
+# nearly all of them.
+MAX_PUSH_NAME = 240
 
 
 def local_now() -> datetime:
@@ -91,6 +100,15 @@ def _is_program_name(name: str) -> bool:
     if name.startswith(".") or name.endswith((".part", ".tmp", "~")) or len(name) > 255:
         return False
     return name.isprintable() and "/" not in name and "\\" not in name
+
+
+def _reason(error: str) -> str:
+    # A push's error may name its temporary copy, whose middle is random each time; without
+    # it, the same failure reads the same at every scan.
+    return _TEMP_NAME.sub(".part", error)
+
+
+_TEMP_NAME = re.compile(r"\.[0-9A-Za-z_]{8}\.part\b")
 
 
 def _sha(data: bytes) -> str:
@@ -292,6 +310,9 @@ class NetShare(RunsTask):
         self.bus = bus
         self.clock = clock
         self.pushed: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 put there
+        # (machine, name) -> (sha256, reason) of a push that failed or was skipped: the same
+        # outcome again writes no row
+        self.failing: dict[tuple[str, str], tuple[str, str]] = {}
         self.collected: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 taken
         self.baselined: set[str] = set()  # machines whose share history is recorded
         self.last_archive: datetime | None = None
@@ -307,16 +328,23 @@ class NetShare(RunsTask):
         self.pushed.clear()
         self.collected.clear()
         self.baselined.clear()
+        self.failing.clear()
         with self.sessions() as session:
             rows = session.scalars(
                 select(AuditEntry)
-                .where(AuditEntry.actor == ACTOR, AuditEntry.result == "ok")
+                .where(AuditEntry.actor == ACTOR)
+                .where(or_(AuditEntry.result == "ok", AuditEntry.action == "netshare.push"))
                 .order_by(AuditEntry.id)
             ).all()
             for row in rows:
                 key = (row.machine or "", row.program or "")
-                if row.action == "netshare.push" and row.sha256:
+                if row.action == "netshare.push" and row.result != "ok":
+                    # the last outcome of a push that has not succeeded since
+                    reason = _reason(str(row.detail.get("error") or ""))
+                    self.failing[key] = (row.sha256 or "", reason)
+                elif row.action == "netshare.push" and row.sha256:
                     self.pushed[key] = row.sha256
+                    self.failing.pop(key, None)
                 elif row.action == "netshare.collect" and row.sha256:
                     self.collected[key] = row.sha256
                 elif row.action == "netshare.baseline" and row.machine:
@@ -390,18 +418,30 @@ class NetShare(RunsTask):
     # ------------------------------------------------------------------ push
     def _push(self, machine: HaasNgcMachine, name: str, data: bytes, report: ScanReport) -> None:
         digest = _sha(data)
-        if self.pushed.get((machine.name, name)) == digest:
+        key = (machine.name, name)
+        if self.pushed.get(key) == digest:
             return
         error = ""
         destination = ""
-        try:
-            target = share.parse_target(machine.share)
-            with tempfile.TemporaryDirectory(prefix="opendnc-netshare-") as tmp:
-                source = Path(tmp) / name
-                source.write_bytes(data)
-                destination = share.push([source], target)[0].destination
-        except (DncError, OSError) as exc:
-            error = str(exc) or type(exc).__name__
+        skipped = len(name.encode("utf-8", "surrogateescape")) > MAX_PUSH_NAME
+        if skipped:
+            error = (
+                f"not pushed: the name is longer than {MAX_PUSH_NAME} bytes, more than a "
+                "share's temporary copy of it can hold; rename it on the NAS"
+            )
+        else:
+            try:
+                target = share.parse_target(machine.share)
+                with tempfile.TemporaryDirectory(prefix="opendnc-netshare-") as tmp:
+                    source = Path(tmp) / name
+                    source.write_bytes(data)
+                    destination = share.push([source], target)[0].destination
+            except (DncError, OSError) as exc:
+                error = str(exc) or type(exc).__name__
+        if error:
+            report.failed.append((machine.name, name, error))
+            if self.failing.get(key) == (digest, _reason(error)):
+                return  # the same outcome as the last scan's: audited then
         with self.sessions.begin() as session:
             audit.record(
                 session,
@@ -411,16 +451,17 @@ class NetShare(RunsTask):
                 program=name,
                 sha256=digest,
                 nbytes=len(data),
-                result="failed" if error else "ok",
+                result=("skipped" if skipped else "failed") if error else "ok",
                 source=self.nas.where(name),
                 destination=destination,
                 error=error or None,
             )
         if error:
-            report.failed.append((machine.name, name, error))
+            self.failing[key] = (digest, _reason(error))
             self._publish("push", machine.name, name, error=error)
             return
-        self.pushed[(machine.name, name)] = digest
+        self.failing.pop(key, None)
+        self.pushed[key] = digest
         report.pushed.append((machine.name, name))
         self._publish("push", machine.name, name)
 

@@ -9,12 +9,13 @@ from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.auth import KeyCache, LoginGuard, Principal
+from opendnc.server.auth import KeyCache, Principal
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import Forbidden, NotFound
 from opendnc.server.events import EventBus, InboxChanged, ProgramChanged, publish_job_queued
 from opendnc.server.machine_state import MachineState
 from opendnc.server.store.models import Role
+from opendnc.server.throttle import Throttle
 
 if TYPE_CHECKING:
     from opendnc.server.actions.models import JobOut
@@ -55,13 +56,13 @@ class Services:
 
     ``sessions`` write (each action is one transaction, committed before it wakes a machine
     or tells the event stream); ``reads`` never take SQLite's write lock; ``guard`` slows
-    down repeated failed logins, ``keys`` keeps keys checked a moment ago (both per
+    down repeated failed logins and keys, ``keys`` keeps keys checked a moment ago (both per
     process)."""
 
     sessions: sessionmaker[Session]
     reads: sessionmaker[Session]
     runner: Runner
-    guard: LoginGuard = field(default_factory=LoginGuard)
+    guard: Throttle = field(default_factory=Throttle)
     keys: KeyCache = field(default_factory=KeyCache)
     name: ClassVar[str] = "actions"
     needs: ClassVar[tuple[str, ...]] = ("database", "machines")

@@ -9,7 +9,13 @@ from sqlalchemy.orm import Session
 from opendnc.server import inbox, library
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import Content, ReceivedDetail, ReceivedOut, VersionOut
+from opendnc.server.actions.models import (
+    Content,
+    ReceivedDetail,
+    ReceivedOut,
+    Stored,
+    VersionOut,
+)
 from opendnc.server.store.models import ReceivedState, Role
 
 __all__ = [
@@ -52,6 +58,17 @@ def received_content(svc: Services, who: Caller, received_id: int) -> Content:
     def load(session: Session) -> Content:
         row = inbox.get(session, received_id)
         return Content(row.name, row.sha256, inbox.content(session, row))
+
+    return svc.read(load)
+
+
+def received_stored(svc: Services, who: Caller, received_id: int) -> Stored:
+    """Where the received bytes are kept, for a download that streams them."""
+    require(who, Role.VIEWER)
+
+    def load(session: Session) -> Stored:
+        row = inbox.get(session, received_id)
+        return Stored(row.name, row.sha256, row.size)
 
     return svc.read(load)
 

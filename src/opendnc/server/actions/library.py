@@ -18,6 +18,7 @@ from opendnc.server.actions.models import (
     DiffOut,
     ProgramListed,
     ProgramOut,
+    Stored,
     TextMatch,
     UploadOut,
     VersionOut,
@@ -94,6 +95,19 @@ def program_content(svc: Services, who: Caller, name: str, number: int | None) -
     def load(session: Session) -> Content:
         version = library.get_version(session, name, number)
         return Content(name, version.sha256, library.content(session, version))
+
+    return svc.read(load)
+
+
+def program_stored(svc: Services, who: Caller, name: str, number: int | None) -> Stored:
+    """Where the bytes of version ``number`` of ``name`` (the newest without it) are kept,
+    for a download that streams them."""
+    require(who, Role.VIEWER)
+    library.check_program_name(name)
+
+    def load(session: Session) -> Stored:
+        version = library.get_version(session, name, number)
+        return Stored(name, version.sha256, version.size)
 
     return svc.read(load)
 

@@ -429,6 +429,16 @@ class Content:
     data: bytes
 
 
+@dataclass(frozen=True)
+class Stored:
+    """Bytes kept in the database, not read yet: a download streams them in pieces
+    (:mod:`opendnc.server.downloads`)."""
+
+    name: str
+    sha256: str
+    size: int
+
+
 class JobRequest(BaseModel):
     """What a client asks the queue for.
 

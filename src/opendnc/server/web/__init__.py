@@ -49,7 +49,11 @@ async def _error(request: Request, exc: DncError) -> Response:
     if request.url.path.startswith("/api/") or not isinstance(response, JSONResponse):
         return response
     status = response.status_code
-    retry = {"Retry-After": response.headers["Retry-After"]} if status == 429 else {}
+    retry = (
+        {"Retry-After": response.headers["Retry-After"]}
+        if "Retry-After" in response.headers
+        else {}
+    )
     if request.headers.get("HX-Request") == "true":
         html = render.render("_alert.html", message=str(exc), status=status)
         return HTMLResponse(

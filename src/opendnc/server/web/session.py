@@ -6,45 +6,58 @@ the page's scripts cannot read (``HttpOnly``) and the browser never sends from a
 (:func:`opendnc.server.auth.check_key`), so it cannot outlive the session. Logging out revokes
 it; a session older than :data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as
 keys means one look-up, one revocation path and one audit trail, with no new table. A login
-is audited as ``login`` (refused ones too, in a transaction of their own) and slowed after
-repeated failures per user and per address (:class:`opendnc.server.auth.LoginGuard`).
+is audited as ``login`` (refused ones summed per minute, :mod:`opendnc.server.refusals`) and
+slowed after repeated failures (:class:`opendnc.server.throttle.Throttle`), never for a
+browser that logged in as that user before, because of someone else's failures.
 
 Writes from a page also carry a CSRF token: a hash of the session key that only a page served
 to that session knows. ``SameSite=Strict`` already keeps other sites' forms from carrying the
-cookie; the token keeps that true in browsers or proxies that ignore the attribute.
+cookie; the token keeps that true in browsers or proxies that ignore the attribute. The login
+form carries one too, from a cookie of its own (:func:`login_token`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import re
+import secrets
 from datetime import timedelta
 
 from fastapi import Request, Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
-from opendnc.server import audit, auth
+from opendnc.server import auth
 from opendnc.server.auth import SESSION_LABEL
-from opendnc.server.errors import Forbidden, Unauthorized
+from opendnc.server.errors import Forbidden, TooManyRequests, Unauthorized
 from opendnc.server.key_use import KeyUse
+from opendnc.server.refusals import Refusals
 from opendnc.server.store.models import ApiKey, utcnow
+from opendnc.server.throttle import DEVICE_COOKIE, DEVICE_DAYS, Bucket, Throttle
 
 __all__ = [
     "COOKIE",
     "CSRF_HEADER",
+    "LOGIN_COOKIE",
     "SESSION_HOURS",
     "check_csrf",
+    "check_login_csrf",
     "csrf_token",
     "log_in",
     "log_out",
+    "login_token",
     "principal",
+    "set_login_cookie",
 ]
 
 COOKIE = "opendnc_session"
 CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf"
 SESSION_HOURS = 12
+LOGIN_COOKIE = "opendnc_login"  # the login form's CSRF token (see login_token)
+LOGIN_TOKEN_HOURS = 12
+_LOGIN_TOKEN = re.compile(r"[A-Za-z0-9_-]{43}")  # secrets.token_urlsafe(32)
 
 
 def csrf_token(key: str) -> str:
@@ -54,27 +67,44 @@ def csrf_token(key: str) -> str:
 
 def log_in(
     sessions: sessionmaker[Session],
-    guard: auth.LoginGuard,
+    guard: Throttle,
+    refusals: Refusals,
     response: Response,
     name: str,
     password: str,
     *,
     secure: bool,
     address: str,
+    device: str | None = None,
 ) -> auth.Principal:
     """Check the password and set the session cookie on ``response`` (audited as ``login``;
-    :class:`~opendnc.server.errors.TooManyRequests` after repeated failures)."""
-    who_keys = (f"user:{name.lower()}", f"address:{address}")
-    guard.check(*who_keys)
+    :class:`~opendnc.server.errors.TooManyRequests` after repeated failures).
+
+    ``device`` is the browser's device cookie: one that names this user limits the throttle
+    to the browser's own failures (docs/server.md#throttling); a successful login sets it."""
+    known = guard.device_of(device, name)
+    buckets = (
+        [Bucket("device", f"{known}:{name.lower()}")]
+        if known is not None
+        else [Bucket("user", name.lower()), Bucket("address", address)]
+    )
+    try:
+        guard.check(buckets)
+    except TooManyRequests as exc:
+        refusals.note(
+            actor=name, via="web", address=address, name=name, error=str(exc), throttled=True
+        )
+        raise
     try:
         with sessions.begin() as session:
             who = auth.check_password(session, name, password)
-    except Unauthorized:
-        guard.failed(*who_keys)
-        with sessions.begin() as session:  # the refusal is recorded although nothing else is
-            audit.record(session, name[:64], "login", result="refused", via="web", address=address)
+    except Unauthorized as exc:
+        guard.failed(buckets)
+        refusals.note(actor=name, via="web", address=address, name=name, error=str(exc))
         raise
-    guard.succeeded(*who_keys)
+    # The user's bucket stays as it is after a login from a known browser: the failures in
+    # it are someone else's, and forgetting them would give a guesser a fresh allowance.
+    guard.succeeded(buckets[:1])
     with sessions.begin() as session:
         _, key = auth.create_key(
             session,
@@ -95,7 +125,57 @@ def log_in(
         secure=secure,
         path="/",
     )
+    response.set_cookie(
+        DEVICE_COOKIE,
+        guard.device_cookie(device, who.name),
+        max_age=DEVICE_DAYS * 86400,
+        httponly=True,
+        samesite="strict",
+        secure=secure,
+        path="/login",
+    )
     return who
+
+
+def login_token(request: Request) -> tuple[str, bool]:
+    """The login form's CSRF token: the browser's login cookie, or a new one (True: set it).
+
+    Before a login there is no session to derive a token from, so the token is a random value
+    in a cookie of its own that the form repeats (a cookie another site can neither read nor
+    send, ``SameSite=Strict``): a cross-site ``POST /login`` has the field but not the cookie
+    (login CSRF: logging a victim in as the attacker)."""
+    sent = request.cookies.get(LOGIN_COOKIE, "")
+    if _LOGIN_TOKEN.fullmatch(sent):  # only what login_token writes is repeated in the form
+        return sent, False
+    return secrets.token_urlsafe(32), True
+
+
+def set_login_cookie(response: Response, token: str, *, secure: bool) -> None:
+    """Give the browser the login form's token (see :func:`login_token`)."""
+    response.set_cookie(
+        LOGIN_COOKIE,
+        token,
+        max_age=LOGIN_TOKEN_HOURS * 3600,
+        httponly=True,
+        samesite="strict",
+        secure=secure,
+        path="/login",
+    )
+
+
+def check_login_csrf(request: Request, form_token: str | None) -> None:
+    """Refuse a login whose form token is not the browser's login cookie, or that comes from
+    another site's page (:class:`Forbidden`)."""
+    cookie = request.cookies.get(LOGIN_COOKIE, "")
+    sent = form_token or ""
+    same = _LOGIN_TOKEN.fullmatch(cookie) and hmac.compare_digest(
+        sent.encode("utf-8", "surrogatepass"), cookie.encode()
+    )
+    if not same:
+        raise Forbidden("the login did not come from this server's login page; log in again")
+    origin = request.headers.get("origin")
+    if origin and origin.rstrip("/") != str(request.base_url).rstrip("/"):
+        raise Forbidden(f"a login from {origin} is refused")
 
 
 def log_out(

@@ -30,7 +30,16 @@ from opendnc.server import actions, auth, deps, dprnt_api, jobs
 from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.components import core_of
-from opendnc.server.errors import Conflict, NotFound, TooLarge, Unauthorized, Unavailable
+from opendnc.server.downloads import stored_response
+from opendnc.server.errors import (
+    Conflict,
+    Forbidden,
+    NotFound,
+    TooLarge,
+    TooManyRequests,
+    Unauthorized,
+    Unavailable,
+)
 from opendnc.server.events import (
     DprntLinePrinted,
     DprntStatus,
@@ -45,6 +54,7 @@ from opendnc.server.events import (
 )
 from opendnc.server.library import MAX_PROGRAM_BYTES
 from opendnc.server.machine_state import Machines
+from opendnc.server.refusals import Refusals
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -56,6 +66,7 @@ from opendnc.server.store.models import (
     Role,
 )
 from opendnc.server.streams import event_stream_response
+from opendnc.server.throttle import DEVICE_COOKIE
 from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.timeline import Timeline
@@ -177,9 +188,26 @@ def _is_htmx(request: Request) -> bool:
 
 
 @router.get("/login")
-def login_form(request: Request, next: str = "/") -> HTMLResponse:
-    """The login page."""
-    return _html("login.html", None, request, next=_safe_next(next), error="")
+def login_form(request: Request, next: str = "/") -> Response:
+    """The login page (with the form's CSRF token, web_session.login_token)."""
+    return _login_page(request, next, "", "", 200)
+
+
+def _login_page(request: Request, next: str, error: str, username: str, status: int) -> Response:
+    token, new = web_session.login_token(request)
+    page = _html(
+        "login.html",
+        None,
+        request,
+        next=_safe_next(next),
+        error=error,
+        username=username,
+        login_csrf=token,
+    )
+    page.status_code = status
+    if new:
+        web_session.set_login_cookie(page, token, secure=request.url.scheme == "https")
+    return page
 
 
 def _safe_next(target: str) -> str:
@@ -193,25 +221,35 @@ def login(
     username: Annotated[str, Form()],
     password: Annotated[str, Form()],
     next: Annotated[str, Form()] = "/",
+    csrf: Annotated[str, Form(max_length=100)] = "",
 ) -> Response:
-    """Check the password, start a session, go where the user was heading."""
+    """Check the form's token and the password, start a session, go where the user was
+    heading (docs/server.md#throttling)."""
     response = RedirectResponse(_safe_next(next), status_code=303)
+    address = request.client.host if request.client else "?"
     try:
+        web_session.check_login_csrf(request, csrf)
         web_session.log_in(
             _sessions(request),
             _svc(request).guard,
+            core_of(request.app).get(Refusals),
             response,
             username,
             password,
             secure=request.url.scheme == "https",
-            address=request.client.host if request.client else "?",
+            address=address,
+            device=request.cookies.get(DEVICE_COOKIE),
         )
-    except (Unauthorized, InputError) as exc:
-        page = _html(
-            "login.html", None, request, next=_safe_next(next), error=str(exc), username=username
-        )
-        page.status_code = 401
+    except Forbidden as exc:
+        refusals = core_of(request.app).get(Refusals)
+        refusals.note(actor=username, via="web", address=address, name=username, error=str(exc))
+        return _login_page(request, next, str(exc), username, 403)
+    except TooManyRequests as exc:
+        page = _login_page(request, next, str(exc), username, 429)
+        page.headers["Retry-After"] = str(exc.retry_after)
         return page
+    except (Unauthorized, InputError) as exc:
+        return _login_page(request, next, str(exc), username, 401)
     return response
 
 
@@ -330,7 +368,8 @@ async def card_events(
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
     source = _Cards(request, machine, shown)
-    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
+    bus = _supervisor(request).bus
+    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
 
 
 def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
@@ -521,7 +560,8 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic[:20]!r}: inbox, library or netshare")
     source = _ListChanges(topic)
-    return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
+    bus = _supervisor(request).bus
+    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
 
 
 class _ListChanges:
@@ -854,7 +894,11 @@ def program_page(
 @router.get("/library/{name}/versions/{number}/download")
 def download_version(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
     """The bytes of one version, as a file."""
-    return _download(actions.library.program_content(_svc(request), page.who, name, number))
+    svc = _svc(request)
+    stored = actions.library.program_stored(svc, page.who, name, number)
+    response = stored_response(svc.reads, stored)  # streamed as the browser reads it
+    response.headers["Content-Disposition"] = f'attachment; filename="{stored.name}"'
+    return response
 
 
 def _override(override: str | None, reason: str) -> str | None:
