@@ -54,7 +54,7 @@ from opendnc.server.machines.base import Connector
 from opendnc.server.store.db import read_only
 from opendnc.server.store.models import Job, JobKind, JobState
 
-__all__ = ["Fence", "JobRunner", "LeaseLost", "database_down"]
+__all__ = ["Fence", "Fenced", "JobRunner", "LeaseLost", "database_down"]
 
 log = logging.getLogger(__name__)
 
@@ -62,14 +62,21 @@ T = TypeVar("T")
 CANCEL_POLL = 0.5  # seconds between two reads of a running job's cancel flag
 RETRY_FIRST = 0.2  # seconds before the first retry of a write the database refused
 RETRY_MAX = 5.0
+SETTLE_WAIT = 2.0  # seconds a machine's task waits for a job's end to be written
 
 
 class LeaseLost(DncError):
     """This server no longer holds the machine's lease: another server has taken it over."""
 
 
+class Fenced(DncError):
+    """This server stopped driving the machine: its lease could not be renewed in time."""
+
+
 class Fence(Protocol):
     """Which machines this server may act on, and at which lease epoch (several servers)."""
+
+    lock_limit: float  # seconds a transaction holding a lease row may stay silent
 
     def epoch(self, machine: str) -> int | None:
         """The epoch of this server's live lease on ``machine``; None if it holds none."""
@@ -284,6 +291,9 @@ class JobRunner:
             # Stopping the server mid-transfer: the next start marks the job interrupted.
             raise
         except Exception as exc:
+            if isinstance(exc, Fenced) or isinstance(exc.__cause__, Fenced):
+                self._fenced_off(run, exc)
+                return True
             await self._failed(run, exc)
             if run.link_unknown:
                 # A transfer stopped half-way: the control's side of the link is not known.
@@ -310,7 +320,8 @@ class JobRunner:
             if epoch is None:
                 return None  # not this server's machine (any more)
         with self.sessions.begin() as session:
-            if epoch is not None and not holds(session, machine, self.worker, epoch):
+            lock = self.fence.lock_limit if self.fence is not None else None
+            if epoch is not None and not holds(session, machine, self.worker, epoch, lock):
                 return None
             job = jobs.claim(session, machine, self.worker)
             if job is None:
@@ -363,6 +374,36 @@ class JobRunner:
 
         await self._settle(run, None, fail, error=reason)
 
+    def _fenced_off(self, run: JobRun, exc: Exception) -> None:
+        """``run`` stopped because this server's lease could expire: it writes nothing now
+        (its database is likely away, and the machine's task is about to stop)."""
+        job_id, machine = run.job.job_id, run.state.config.name
+        if not isinstance(exc, DripFeedBroken):
+            # A load is idempotent: whoever holds the machine next queues it again.
+            log.warning("job %d on %s stopped: %s", job_id, machine, exc)
+            self._epochs.pop(job_id, None)
+            run.state.job_id = None
+            return
+        # Paused at a block boundary: the line is exact here. It is written (fenced) once the
+        # database answers, if this server still holds the lease then; a server that took
+        # the machine meanwhile ends the job at the last line this one wrote.
+        line, nbytes = exc.line, exc.nbytes
+        reason = (
+            f"paused at line {line}: {self.worker} lost touch with the database and stopped "
+            f"driving {machine} (restart from there)"
+        )
+        log.warning("job %d: drip-feed paused at line %d (%s)", job_id, line, exc)
+
+        def pause(session: Session) -> str:
+            job = jobs.get_job(session, job_id)
+            if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
+                return job.state.value
+            self._check_lease(session, machine, self._epochs.get(job_id))
+            ended = jobs.fail(session, job_id, reason, retryable=False, line=line, nbytes=nbytes)
+            return ended.state.value
+
+        self._settle_later(run, None, pause, {"error": reason})
+
     def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> str:
         job = jobs.get_job(session, run.job.job_id)
         if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
@@ -382,28 +423,17 @@ class JobRunner:
         background until it goes through."""
         state, job_id = run.state, run.job.job_id
         what = f"recording the end of job {job_id}"
-
-        async def write_it() -> None:
-            try:
-                ended = await self._durably(what, write)
-            except LeaseLost as exc:
-                log.warning("job %d: %s; its end is left to that server", job_id, exc)
-                ended = "taken over"
-            except Exception:
-                log.exception("%s failed", what)
-                ended = "unknown"
-            finally:
-                self._unsettled.discard(job_id)
-                self._epochs.pop(job_id, None)
-            self._ended(run, label or ended, **extra)
-            if state.job_id == job_id:
-                state.job_id = None
-                state.job_progress = (0, None)
-            self.machines.wake(state.config.name)
-
+        # The usual case answers at once; the machine's task waits for it, but never longer
+        # than SETTLE_WAIT: a database gone silent must not stop the machine's polling.
+        attempt = asyncio.ensure_future(asyncio.to_thread(self._transaction, write))
+        attempt.add_done_callback(_retrieved)  # whoever waits for it may be gone
+        done, _ = await asyncio.wait({attempt}, timeout=SETTLE_WAIT)
+        if not done:
+            self._trouble(what, TimeoutError(f"no answer within {SETTLE_WAIT:.0f} s"))
+            self._settle_later(run, label, write, extra, first=attempt)
+            return
         try:
-            # The usual case answers at once; the machine's task waits for it.
-            ended = await asyncio.to_thread(self._transaction, write)
+            ended = attempt.result()
         except LeaseLost as exc:
             # Another server has the machine now and ends the job itself (a load queued
             # again, a drip-feed interrupted): this server writes nothing.
@@ -419,15 +449,58 @@ class JobRunner:
                 state.job_id = None
                 return
             self._trouble(what, exc)
-            self._unsettled.add(job_id)
-            task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
-            self._settling.add(task)
-            task.add_done_callback(self._settling.discard)
+            self._settle_later(run, label, write, extra)
             return
         self.database_error = ""
         self._epochs.pop(job_id, None)
         self._ended(run, label or ended, **extra)
         state.job_id = None
+
+    def _settle_later(
+        self,
+        run: JobRun,
+        label: str | None,
+        write: Callable[[Session], str],
+        extra: Mapping[str, Any],
+        first: asyncio.Future[str] | None = None,
+    ) -> None:
+        """Write ``run``'s end in the background, retrying until the database takes it. The
+        machine keeps the job meanwhile (``state.job_id``: no new claim) while its task goes
+        on polling; no sweep or take-over hands the job back (``_unsettled``). ``first``: an
+        attempt still under way, waited for before trying again."""
+        state, job_id = run.state, run.job.job_id
+        what = f"recording the end of job {job_id}"
+        self._unsettled.add(job_id)
+
+        async def write_it() -> None:
+            try:
+                ended: str | None = None
+                if first is not None:
+                    try:
+                        ended = await first
+                    except Exception as exc:
+                        if isinstance(exc, LeaseLost) or not database_down(exc):
+                            raise
+                if ended is None:
+                    ended = await self._durably(what, write)
+            except LeaseLost as exc:
+                log.warning("job %d: %s; its end is left to that server", job_id, exc)
+                ended = "taken over"
+            except Exception:
+                log.exception("%s failed", what)
+                ended = "unknown"
+            finally:
+                self._unsettled.discard(job_id)
+                self._epochs.pop(job_id, None)
+            self._ended(run, label or ended, **extra)
+            if state.job_id == job_id:
+                state.job_id = None
+                state.job_progress = (0, None)
+            self.machines.wake(state.config.name)
+
+        task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
+        self._settling.add(task)
+        task.add_done_callback(self._settling.discard)
 
     # -- cancels ----------------------------------------------------------------------------
 
@@ -480,6 +553,21 @@ class JobRunner:
                 raise
             # the next line is noted once the database answers
 
+    async def wait_stopped(self, machines: Iterable[str], timeout: float) -> None:
+        """Wait (at most ``timeout`` s) until no job of ``machines`` runs here any more: a
+        fenced drip-feed stops at its next block boundary by itself."""
+        names = set(machines)
+        end = asyncio.get_running_loop().time() + timeout
+        while any(run.state.config.name in names for run in self.running.values()):
+            if asyncio.get_running_loop().time() >= end:
+                return
+            await asyncio.sleep(0.02)
+
+    @property
+    def waiting_writes(self) -> int:
+        """Job ends this runner holds until the database takes them."""
+        return len(self._unsettled)
+
     def busy(self, machine: str) -> bool:
         """True while a job of ``machine`` is being claimed or runs here."""
         state = self.machines.get(machine)
@@ -499,14 +587,16 @@ class JobRunner:
         (nothing to check for a single server)."""
         if self.fence is None:
             return
-        if epoch is None or not holds(session, machine, self.worker, epoch):
+        if epoch is None or not holds(session, machine, self.worker, epoch, self.fence.lock_limit):
             raise LeaseLost(f"{self.worker} no longer holds the lease of {machine}")
 
     async def take_over(self, epochs: Mapping[str, int]) -> None:
         """This server has just taken these machines' leases (machine -> epoch): end the
         jobs their previous servers left running there (:func:`jobs.take_over`), in one
         transaction, before the machines' tasks start. Raises if the database is away."""
-        keep = set(self.running)
+        # the jobs running here, and those whose end is on its way to the database (a fenced
+        # drip-feed's exact line, a finished load's "done"): never handed back
+        keep = set(self.running) | self._unsettled
 
         def adopt(session: Session) -> list[JobFinished]:
             out: list[JobFinished] = []
@@ -542,6 +632,13 @@ class JobRunner:
     def _progress(self, job: Claimed, machine: str, progress: dict[str, Any]) -> None:
         # From the transfer's thread too: a drip-feed's line is kept for the cancel watch,
         # which records it in the job's row (what a taking-over server reports).
+        if self.fence is not None and self.fence.epoch(machine) != self._epochs.get(job.job_id):
+            # Called after each block written whole and before the next: a server whose
+            # lease could expire soon writes not one block more, whatever its event loop
+            # and its database are doing (the check reads the process's clock only).
+            raise Fenced(
+                f"{self.worker} stopped driving {machine}: its lease could not be renewed in time"
+            )
         if job.kind is JobKind.DRIPFEED:
             self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
         self.machines.bus.publish(JobProgress(*_fields(job, machine), **progress))
@@ -549,6 +646,12 @@ class JobRunner:
     def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)
         self.machines.bus.publish(JobFinished(*fields, outcome=outcome, error=error))
+
+
+def _retrieved(future: asyncio.Future[Any]) -> None:
+    """Mark ``future``'s error as seen (its waiter handles it, or has been cancelled)."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _fields(job: Claimed, machine: str) -> tuple[int, str, str, str | None, int | None]:
