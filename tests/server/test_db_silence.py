@@ -1,0 +1,206 @@
+"""A server whose PostgreSQL goes silent or away, with a real database behind a proxy the test
+controls (tests/server/db_proxy.py) and virtual controls in this process.
+
+- Two servers, one cut off by a frozen link (no reset, no answer: a dropped network): the cut
+  server stops writing to the serial Haas it drip-feeds before the other server takes its
+  lease, checked at the virtual control (the blocks it received, with their times, against
+  the lease's ``acquired`` time in the database).
+- One server configured alone (``cluster = false``) through a database outage several times
+  its lease: its drip-feed never stops, a load whose end could not be written is recorded
+  once afterwards and received once, health says 503 meanwhile, and the API and the pages
+  answer 503 with one line each while the log says so once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.peers import require_module
+from tests.server.conftest import _pg_database
+from tests.server.db_proxy import DbProxy
+from tests.server.harness import Procs, auth, create_key, serve, wait_for
+
+httpx = require_module("httpx")
+require_module("psycopg")
+
+from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
+
+LEASE = 3.0  # seconds: as the cluster tests, so the fence and the failover fit in a test
+BLOCKS = 200  # blocks a second the virtual Haas runs
+MOVES = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(3000))
+PROGRAM = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{MOVES}M30\n%\n".encode()
+
+
+class FleetLoop:
+    """Virtual controls on an event loop of their own thread (so the test reads them live)."""
+
+    def __init__(self, root: Path, **options: Any) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.fleet: Fleet = self._run(start_fleet(root, **options))
+
+    def _run(self, coro: Any) -> Any:
+        future: Future[Any] = asyncio.run_coroutine_threadsafe(coro, self.loop)
+        return future.result(30)
+
+    def stop(self) -> None:
+        self._run(self.fleet.close())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+class Sampler:
+    """Reads a counter every 10 ms in a thread: (wall time, value) at each change."""
+
+    def __init__(self, read: Callable[[], int]) -> None:
+        self.read = read
+        self.changes: list[tuple[float, int]] = [(time.time(), read())]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.01):
+            value = self.read()
+            if value != self.changes[-1][1]:
+                self.changes.append((time.time(), value))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    yield from _pg_database()
+
+
+def _config(fleet: Fleet, root: Path, extra: str = "") -> Path:
+    text = server_config(fleet, poll_interval=0.5, library=root / "lib", dripfeed=True)
+    text = text.replace("[server]\n", f"[server]\nlease_seconds = {LEASE}\n{extra}", 1)
+    path = root / "shop.toml"
+    path.write_text(text)
+    return path
+
+
+def _lease(db: str, machine: str) -> tuple[str, float]:
+    """The machine's lease owner and when it took it (wall clock), from the database."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.db import make_engine, make_sessions
+    from opendnc.server.store.models import MachineLease
+
+    engine = make_engine(db)
+    try:
+        with make_sessions(engine)() as session:
+            row = session.scalars(select(MachineLease).where(MachineLease.machine == machine)).one()
+            return row.owner, row.acquired.timestamp()
+    finally:
+        engine.dispose()
+
+
+def _dripfeed(client: httpx.Client, machine: str) -> int:
+    assert client.put("/api/programs/O03000.nc", content=PROGRAM).status_code == 201
+    assert client.post("/api/programs/O03000.nc/versions/1/release").status_code == 200
+    sent = client.post(
+        "/api/jobs", json={"kind": "dripfeed", "program": "O03000.nc", "machines": [machine]}
+    )
+    assert sent.status_code == 201, sent.text
+    job_id: int = sent.json()[0]["id"]
+    return job_id
+
+
+def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_over(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    fleet = FleetLoop(tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=BLOCKS)
+    # each server reaches the database through a proxy of its own: the one that ends up
+    # feeding the Haas is cut off
+    proxies = {name: DbProxy(pg_url) for name in ("dnc-1", "dnc-2")}
+    sampler: Sampler | None = None
+    clients: dict[str, httpx.Client] = {}
+    try:
+        config = _config(fleet.fleet, tmp_path)
+        key = create_key(config, pg_url)
+        with ThreadPoolExecutor(2) as pool:
+            urls = dict(
+                zip(
+                    proxies,
+                    pool.map(
+                        lambda n: serve(
+                            procs, config, proxies[n].url_for(pg_url), "--name", n, name=n
+                        ),
+                        proxies,
+                    ),
+                    strict=True,
+                )
+            )
+        for name, url in urls.items():
+            clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        client = clients["dnc-1"]
+        wait_for(
+            "a server online with the serial Haas",
+            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
+        )
+        job_id = _dripfeed(client, "haas-serial-1")
+        feeding = wait_for(
+            "the feed under way",
+            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
+        )
+        cut = feeding["server"]
+        other = ({"dnc-1", "dnc-2"} - {cut}).pop()
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        sampler = Sampler(lambda: front.dnc_lines)
+        changes = sampler.changes
+        wait_for("blocks reaching the Haas before the cut", lambda: len(changes) > 3)
+        proxies[cut].freeze()
+        frozen = time.time()
+        owner = wait_for(
+            f"{other} to take the serial Haas",
+            lambda: (o := _lease(pg_url, "haas-serial-1"))[0] == other and o,
+            timeout=LEASE * 6,
+        )
+        taken = owner[1]
+        # the survivor ends the feed once (interrupted at the line the cut server recorded);
+        # the sampler watches the Haas meanwhile for blocks that must not come
+        survivor = clients[other]
+        ended = wait_for(
+            "the feed to end",
+            lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["state"] != "running" and j,
+        )
+        assert ended["state"] == "interrupted", ended
+        wait_for(
+            f"{cut} to say it stopped driving",
+            lambda: "serving no machine until renewed" in procs.log(cut),
+            timeout=5,
+        )
+        sampler.stop()
+        last_block = sampler.changes[-1][0]
+        assert last_block < taken, (
+            f"a block reached the Haas {last_block - taken:.2f} s after {other} took it"
+        )
+        # stopped by its own clock within the lease of its last renewal, not later
+        assert last_block - frozen < LEASE, last_block - frozen
+        assert "leases may have expired" in procs.log(cut)
+        assert ended["line"] <= front.dnc_lines + 8  # the header lines are not DNC blocks
+    finally:
+        if sampler is not None:
+            sampler.stop()
+        for client in clients.values():
+            client.close()
+        for name in list(procs.procs):
+            procs.stop(name, signal.SIGKILL)  # a frozen server's clean stop waits for nothing
+        for proxy in proxies.values():
+            proxy.close()
+        fleet.stop()
