@@ -14,6 +14,7 @@ controls (tests/server/db_proxy.py) and virtual controls in this process.
 from __future__ import annotations
 
 import asyncio
+import re
 import signal
 import threading
 import time
@@ -180,20 +181,37 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
             lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["state"] != "running" and j,
         )
         assert ended["state"] == "interrupted", ended
-        wait_for(
-            f"{cut} to say it stopped driving",
-            lambda: "serving no machine until renewed" in procs.log(cut),
-            timeout=5,
-        )
         sampler.stop()
         last_block = sampler.changes[-1][0]
         assert last_block < taken, (
             f"a block reached the Haas {last_block - taken:.2f} s after {other} took it"
         )
+        wait_for(
+            f"{cut} to say it stopped driving",
+            lambda: "serving no machine until renewed" in procs.log(cut),
+            timeout=5,
+        )
         # stopped by its own clock within the lease of its last renewal, not later
         assert last_block - frozen < LEASE, last_block - frozen
         assert "leases may have expired" in procs.log(cut)
-        assert ended["line"] <= front.dnc_lines + 8  # the header lines are not DNC blocks
+        # the cut server paused the feed at a block boundary and knows where: the control
+        # holds every block before that line whole (line 1 is "%", line 2 the O-number line
+        # that names the run; blocks count from line 3)
+        paused = re.search(r"drip-feed paused at line (\d+)", procs.log(cut))
+        assert paused is not None, procs.log(cut)
+        line = int(paused.group(1))
+        assert front.dnc_lines == line - 3, (line, front.dnc_lines)
+        # back in touch, it corrects the line the survivor ended the job at (the last one it
+        # could write down before the cut) to where the control really is
+        proxies[cut].restore()
+        corrected = wait_for(
+            "the exact line in the job's row",
+            lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["line"] == line and j,
+            timeout=20,
+            describe=lambda: survivor.get(f"/api/jobs/{job_id}").json(),
+        )
+        assert corrected["state"] == "interrupted"
+        assert f"paused at line {line}" in corrected["error"]
     finally:
         if sampler is not None:
             sampler.stop()

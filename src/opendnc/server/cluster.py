@@ -235,6 +235,7 @@ class Cluster:
         log.warning("%s: serving no machine until renewed", why)
         try:
             await self.runner.wait_stopped(serving, timeout=min(1.0, self.margin / 2))
+            self.runner.fence_off(serving)  # a feed held by XOFF: paused where it is
             # all at once: a server with hundreds of machines closes their links side by side
             await asyncio.gather(*(self._lose(m) for m in serving))
         except Exception:

@@ -36,7 +36,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, RemoteProtocolError, TransferError, TransportError
-from opendnc.server import jobs, library
+from opendnc.server import audit, jobs, library
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.errors import NotFound
 from opendnc.server.events import JobFinished, JobProgress, JobQueued, JobStarted
@@ -125,6 +125,7 @@ class JobRunner:
         self.fence: Fence | None = None  # set by the cluster (several servers), else None
         self._epochs: dict[int, int] = {}  # running job -> the lease epoch it was claimed at
         self._lines: dict[int, tuple[int | None, int]] = {}  # drip-feed -> (line, bytes) fed
+        self._paused: set[int] = set()  # fenced drip-feeds whose pause is recorded
 
     # -- lifecycle ----------------------------------------------------------------------
 
@@ -374,10 +375,26 @@ class JobRunner:
 
         await self._settle(run, None, fail, error=reason)
 
+    def fence_off(self, machines: Iterable[str]) -> None:
+        """The machines' tasks are about to stop (a fence): a drip-feed still running there
+        (held by the control's XOFF, so it wrote nothing since its last whole line) is
+        recorded as paused at that line, as if it had stopped there by itself."""
+        names = set(machines)
+        for job_id, run in list(self.running.items()):
+            if run.state.config.name not in names or run.job.kind is not JobKind.DRIPFEED:
+                continue
+            line, nbytes = self._lines.get(job_id, (None, 0))
+            start = int(run.job.params.get("from_line", 1))
+            why = "the control held the feed (XOFF) when the lease ran short"
+            self._fenced_off(run, DripFeedBroken(why, line or start, nbytes))
+
     def _fenced_off(self, run: JobRun, exc: Exception) -> None:
         """``run`` stopped because this server's lease could expire: it writes nothing now
         (its database is likely away, and the machine's task is about to stop)."""
         job_id, machine = run.job.job_id, run.state.config.name
+        if job_id in self._paused:
+            return  # recorded already (by the fence, before the feed itself stopped)
+        self._paused.add(job_id)
         if not isinstance(exc, DripFeedBroken):
             # A load is idempotent: whoever holds the machine next queues it again.
             log.warning("job %d on %s stopped: %s", job_id, machine, exc)
@@ -394,15 +411,39 @@ class JobRunner:
         )
         log.warning("job %d: drip-feed paused at line %d (%s)", job_id, line, exc)
 
+        def correct(session: Session) -> str:
+            # Another server took the machine meanwhile and ended the job at the last line
+            # this one managed to write down (it writes every half second, and not at all
+            # while the database is silent): the control has more, up to `line`. A restart
+            # from the older line would run those blocks twice.
+            job = jobs.get_job(session, job_id)
+            if job.state is not JobState.INTERRUPTED or (job.line or 0) >= line:
+                return job.state.value
+            recorded = job.line
+            job.line, job.bytes_done = line, nbytes
+            job.error = f"{reason}; it had been recorded at line {recorded}"
+            audit.record(
+                session,
+                self.worker,
+                "job.paused",
+                machine=machine,
+                job_id=job_id,
+                result=job.state.value,
+                nbytes=nbytes,
+                line=line,
+                recorded=recorded,
+            )
+            return job.state.value
+
         def pause(session: Session) -> str:
             job = jobs.get_job(session, job_id)
             if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-                return job.state.value
+                return correct(session)  # ended by the machine's next server meanwhile
             self._check_lease(session, machine, self._epochs.get(job_id))
             ended = jobs.fail(session, job_id, reason, retryable=False, line=line, nbytes=nbytes)
             return ended.state.value
 
-        self._settle_later(run, None, pause, {"error": reason})
+        self._settle_later(run, None, pause, {"error": reason}, or_else=correct)
 
     def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> str:
         job = jobs.get_job(session, run.job.job_id)
@@ -463,11 +504,13 @@ class JobRunner:
         write: Callable[[Session], str],
         extra: Mapping[str, Any],
         first: asyncio.Future[str] | None = None,
+        or_else: Callable[[Session], str] | None = None,
     ) -> None:
         """Write ``run``'s end in the background, retrying until the database takes it. The
         machine keeps the job meanwhile (``state.job_id``: no new claim) while its task goes
         on polling; no sweep or take-over hands the job back (``_unsettled``). ``first``: an
-        attempt still under way, waited for before trying again."""
+        attempt still under way, waited for before trying again; ``or_else``: written instead
+        when another server has taken the machine over meanwhile."""
         state, job_id = run.state, run.job.job_id
         what = f"recording the end of job {job_id}"
         self._unsettled.add(job_id)
@@ -486,12 +529,16 @@ class JobRunner:
             except LeaseLost as exc:
                 log.warning("job %d: %s; its end is left to that server", job_id, exc)
                 ended = "taken over"
+                if or_else is not None:
+                    with contextlib.suppress(Exception):
+                        ended = await self._durably(what, or_else)
             except Exception:
                 log.exception("%s failed", what)
                 ended = "unknown"
             finally:
                 self._unsettled.discard(job_id)
                 self._epochs.pop(job_id, None)
+                self._paused.discard(job_id)
             self._ended(run, label or ended, **extra)
             if state.job_id == job_id:
                 state.job_id = None
