@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 
 from tests.peers import require_module
+from tests.server.cluster_support import program
 from tests.server.conftest import _pg_database
 from tests.server.db_proxy import DbProxy
 from tests.server.harness import Procs, auth, create_key, serve, wait_for
@@ -33,6 +34,7 @@ from tests.server.harness import Procs, auth, create_key, serve, wait_for
 httpx = require_module("httpx")
 require_module("psycopg")
 
+from opendnc.server.auth import KEY_PREFIX  # noqa: E402
 from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
 
 LEASE = 3.0  # seconds: as the cluster tests, so the fence and the failover fit in a test
@@ -221,4 +223,123 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
             procs.stop(name, signal.SIGKILL)  # a frozen server's clean stop waits for nothing
         for proxy in proxies.values():
             proxy.close()
+        fleet.stop()
+
+
+SHORT = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(1400))
+SHORT_PROGRAM = f"%\nO03001 (SHORT RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{SHORT}M30\n%\n".encode()
+
+
+def test_a_lone_server_rides_out_a_database_outage(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    receipts = tmp_path / "receipts.jsonl"
+    fleet = FleetLoop(
+        tmp_path / "machines",
+        tnc=1,
+        haas=0,
+        serial_haas=1,
+        block_rate=BLOCKS,
+        latency=0.005,
+        receipts=receipts,
+    )
+    proxy = DbProxy(pg_url)
+    client: httpx.Client | None = None
+    try:
+        # the only server: no leases, no fencing; its lease setting is what a cluster
+        # server would have fenced itself after
+        config = _config(fleet.fleet, tmp_path, "cluster = false\n")
+        config.write_text(
+            config.read_text().replace(f"lease_seconds = {LEASE}", "lease_seconds = 1")
+        )
+        key = create_key(config, pg_url)
+        url = serve(procs, config, proxy.url_for(pg_url), "--name", "alone", name="alone")
+        client = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        api = client
+        assert api.get("/api/health").json()["leases"]["mode"] == "single"
+        for machine in ("tnc-1", "haas-serial-1"):
+            wait_for(
+                f"{machine} online",
+                lambda m=machine: api.get(f"/api/machines/{m}").json()["online"],
+            )
+        tnc_program = program(1, 60_000)
+        assert api.put("/api/programs/P01.H", content=tnc_program).status_code == 201
+        assert api.post("/api/programs/P01.H/versions/1/release").status_code == 200
+        assert api.put("/api/programs/O03001.nc", content=SHORT_PROGRAM).status_code == 201
+        assert api.post("/api/programs/O03001.nc/versions/1/release").status_code == 200
+        feed = api.post(
+            "/api/jobs",
+            json={"kind": "dripfeed", "program": "O03001.nc", "machines": ["haas-serial-1"]},
+        )
+        assert feed.status_code == 201, feed.text
+        feed_id = feed.json()[0]["id"]
+        wait_for("the feed under way", lambda: api.get(f"/api/jobs/{feed_id}").json()["line"] > 30)
+        load = api.post("/api/jobs", json={"program": "P01.H", "machines": ["tnc-1"]})
+        assert load.status_code == 201, load.text
+        load_id = load.json()[0]["id"]
+        wait_for(
+            "the load running", lambda: api.get(f"/api/jobs/{load_id}").json()["state"] != "queued"
+        )
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        proxy.drop()  # the database stops: connections closed, new ones refused
+        cut_at = front.dnc_lines
+        # during the outage: health says so, every route answers 503 in one line
+        health = api.get("/api/health")
+        assert health.status_code == 503, health.text
+        doc = health.json()
+        assert doc["status"] == "unavailable"
+        assert not doc["database"]["ok"]
+        assert doc["leases"] == {
+            "mode": "single",
+            "serving": 2,
+            "fenced": False,
+            "valid_for": None,
+            "renew_failures": 0,
+        }
+        listed = api.get("/api/jobs")
+        assert listed.status_code == 503, listed.text
+        assert listed.json()["detail"].startswith("the database is unavailable now:")
+        assert "\n" not in listed.json()["detail"]
+        # a page: its session cookie is looked up in the database (a key never seen here)
+        cookie = {"opendnc_session": KEY_PREFIX + "x" * 43}
+        page = httpx.get(f"{url}/", cookies=cookie, timeout=30)
+        assert page.status_code == 503, page.text
+        assert page.headers["content-type"].startswith("text/html")
+        assert "the database is unavailable now" in page.text
+        # the feed goes on: three lease lengths' worth of blocks reach the Haas meanwhile
+        wait_for(
+            "the feed going on through the outage",
+            lambda: front.dnc_lines >= cut_at + 3 * BLOCKS,
+            describe=lambda: front.dnc_lines - cut_at,
+        )
+        assert api.get("/api/health").status_code == 503  # still away
+        proxy.restore()
+        wait_for("health again", lambda: api.get("/api/health").status_code == 200)
+        feed_job = wait_for(
+            "the feed to end",
+            lambda: (j := api.get(f"/api/jobs/{feed_id}").json())["state"] != "running" and j,
+        )
+        assert feed_job["state"] == "done", feed_job
+        # every block once: all lines but the two "%" and the O-number line naming the run
+        assert front.dnc_lines == SHORT_PROGRAM.count(b"\n") - 3
+        load_job = wait_for(
+            "the load's end recorded",
+            lambda: (
+                (j := api.get(f"/api/jobs/{load_id}").json())["state"] not in ("queued", "running")
+                and j
+            ),
+        )
+        assert (load_job["state"], load_job["attempts"]) == ("done", 1), load_job
+        received = [line for line in receipts.read_text().splitlines() if "P01.H" in line]
+        assert len(received) == 1, received  # loaded once, never again
+        log = procs.log("alone")
+        assert log.count("the database is unavailable:") == 1, log
+        assert "Traceback" not in log, log
+        assert "leases may have expired" not in log
+        assert "lost track" not in log
+    finally:
+        if client is not None:
+            client.close()
+        procs.stop_all()
+        proxy.close()
         fleet.stop()
