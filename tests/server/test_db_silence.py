@@ -193,6 +193,11 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
             lambda: "serving no machine until renewed" in procs.log(cut),
             timeout=5,
         )
+        print(
+            f"frozen at 0: last block at {last_block - frozen:+.2f} s, "
+            f"{other} took the machine at {taken - frozen:+.2f} s",
+            flush=True,
+        )
         # stopped by its own clock within the lease of its last renewal, not later
         assert last_block - frozen < LEASE, last_block - frozen
         assert "leases may have expired" in procs.log(cut)
@@ -204,7 +209,7 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
         line = int(paused.group(1))
         assert front.dnc_lines == line - 3, (line, front.dnc_lines)
         # back in touch, it corrects the line the survivor ended the job at (the last one it
-        # could write down before the cut) to where the control really is
+        # could write down before the cut, usually well behind) to where the control is
         proxies[cut].restore()
         corrected = wait_for(
             "the exact line in the job's row",
@@ -213,7 +218,7 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
             describe=lambda: survivor.get(f"/api/jobs/{job_id}").json(),
         )
         assert corrected["state"] == "interrupted"
-        assert f"paused at line {line}" in corrected["error"]
+        assert f"line {line}" in corrected["error"]
     finally:
         if sampler is not None:
             sampler.stop()

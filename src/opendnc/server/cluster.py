@@ -234,8 +234,12 @@ class Cluster:
         self.fences += 1
         log.warning("%s: serving no machine until renewed", why)
         try:
-            await self.runner.wait_stopped(serving, timeout=min(1.0, self.margin / 2))
-            self.runner.fence_off(serving)  # a feed held by XOFF: paused where it is
+            wait = min(1.0, self.margin / 3)
+            await self.runner.wait_stopped(serving, timeout=wait)
+            # a feed held by the control's XOFF writes nothing and asks nothing: its link is
+            # closed under it, and it comes back with the line it stopped at
+            await self.runner.stop_runs(serving, timeout=wait)
+            self.runner.fence_off(serving)  # one whose link would not close: its last line
             # all at once: a server with hundreds of machines closes their links side by side
             await asyncio.gather(*(self._lose(m) for m in serving))
         except Exception:

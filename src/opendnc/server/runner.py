@@ -292,7 +292,10 @@ class JobRunner:
             # Stopping the server mid-transfer: the next start marks the job interrupted.
             raise
         except Exception as exc:
-            if isinstance(exc, Fenced) or isinstance(exc.__cause__, Fenced):
+            fenced = isinstance(exc, Fenced) or isinstance(exc.__cause__, Fenced)
+            if fenced or (self.fence is not None and self.fence.epoch(name) is None):
+                # stopped by the fence (its own check, or the link it closed under a feed
+                # held by XOFF): nothing is written now
                 self._fenced_off(run, exc)
                 return True
             await self._failed(run, exc)
@@ -375,17 +378,34 @@ class JobRunner:
 
         await self._settle(run, None, fail, error=reason)
 
+    async def stop_runs(self, machines: Iterable[str], timeout: float) -> None:
+        """Stop the jobs still running on ``machines`` (a fence: a feed held by the control's
+        XOFF never reaches its next block check) by closing their links under them, then
+        wait (at most ``timeout`` s) for each to come back with where it stopped."""
+        names = set(machines)
+        runs = [r for r in self.running.values() if r.state.config.name in names]
+        if not runs:
+            return
+
+        async def close(run: JobRun) -> None:
+            with contextlib.suppress(Exception):
+                async with asyncio.timeout(timeout):
+                    await run.connector.close()
+
+        await asyncio.gather(*(close(run) for run in runs))
+        await self.wait_stopped(names, timeout)
+
     def fence_off(self, machines: Iterable[str]) -> None:
         """The machines' tasks are about to stop (a fence): a drip-feed still running there
-        (held by the control's XOFF, so it wrote nothing since its last whole line) is
-        recorded as paused at that line, as if it had stopped there by itself."""
+        (its link would not close) is recorded as paused at the last line it reported whole,
+        as if it had stopped there by itself."""
         names = set(machines)
         for job_id, run in list(self.running.items()):
             if run.state.config.name not in names or run.job.kind is not JobKind.DRIPFEED:
                 continue
             line, nbytes = self._lines.get(job_id, (None, 0))
             start = int(run.job.params.get("from_line", 1))
-            why = "the control held the feed (XOFF) when the lease ran short"
+            why = "its link did not close when the lease ran short"
             self._fenced_off(run, DripFeedBroken(why, line or start, nbytes))
 
     def _fenced_off(self, run: JobRun, exc: Exception) -> None:
@@ -409,7 +429,13 @@ class JobRunner:
             f"paused at line {line}: {self.worker} lost touch with the database and stopped "
             f"driving {machine} (restart from there)"
         )
-        log.warning("job %d: drip-feed paused at line %d (%s)", job_id, line, exc)
+        log.warning(
+            "job %d: drip-feed paused at line %d (%s stopped driving %s)",
+            job_id,
+            line,
+            self.worker,
+            machine,
+        )
 
         def correct(session: Session) -> str:
             # Another server took the machine meanwhile and ended the job at the last line
@@ -679,6 +705,8 @@ class JobRunner:
     def _progress(self, job: Claimed, machine: str, progress: dict[str, Any]) -> None:
         # From the transfer's thread too: a drip-feed's line is kept for the cancel watch,
         # which records it in the job's row (what a taking-over server reports).
+        if job.kind is JobKind.DRIPFEED:
+            self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
         if self.fence is not None and self.fence.epoch(machine) != self._epochs.get(job.job_id):
             # Called after each block written whole and before the next: a server whose
             # lease could expire soon writes not one block more, whatever its event loop
@@ -686,8 +714,6 @@ class JobRunner:
             raise Fenced(
                 f"{self.worker} stopped driving {machine}: its lease could not be renewed in time"
             )
-        if job.kind is JobKind.DRIPFEED:
-            self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
         self.machines.bus.publish(JobProgress(*_fields(job, machine), **progress))
 
     def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
