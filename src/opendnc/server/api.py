@@ -259,7 +259,7 @@ class HealthOut(BaseModel):
 
 @router.get("/health", response_model=HealthOut, responses={503: {"model": HealthOut}})
 async def health(request: Request) -> JSONResponse:
-    """Health probe; needs no key. Asks the database ``SELECT 1`` (at most 2 s) and answers
+    """Health probe; needs no key. Asks the database ``SELECT 1`` (at most 5 s) and answers
     503 when it does not answer. Async: the probe waits on its own thread, so the answer comes
     even while every worker thread is stuck on a silent database."""
     from opendnc.server.cluster import Cluster

@@ -29,7 +29,7 @@ __all__ = ["PROBE_TIMEOUT", "DatabaseHealth", "is_database_down", "reason"]
 
 log = logging.getLogger("opendnc.server")
 
-PROBE_TIMEOUT = 2.0  # seconds the health probe waits for the database's answer
+PROBE_TIMEOUT = 5.0  # seconds the health probe waits for the database's answer (a loaded machine)
 
 
 def is_database_down(exc: BaseException) -> bool:
