@@ -231,7 +231,8 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
         fleet.stop()
 
 
-SHORT = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(1400))
+SHORT = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(2000))
+LONE_LEASE = 1.0  # what a cluster server would fence itself after; the outage lasts 3 of it
 SHORT_PROGRAM = f"%\nO03001 (SHORT RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{SHORT}M30\n%\n".encode()
 
 
@@ -245,7 +246,7 @@ def test_a_lone_server_rides_out_a_database_outage(
         haas=0,
         serial_haas=1,
         block_rate=BLOCKS,
-        latency=0.005,
+        latency=0.02,  # seconds a TNC telegram takes: the load lasts into the outage
         receipts=receipts,
     )
     proxy = DbProxy(pg_url)
@@ -255,7 +256,7 @@ def test_a_lone_server_rides_out_a_database_outage(
         # server would have fenced itself after
         config = _config(fleet.fleet, tmp_path, "cluster = false\n")
         config.write_text(
-            config.read_text().replace(f"lease_seconds = {LEASE}", "lease_seconds = 1")
+            config.read_text().replace(f"lease_seconds = {LEASE}", f"lease_seconds = {LONE_LEASE}")
         )
         key = create_key(config, pg_url)
         url = serve(procs, config, proxy.url_for(pg_url), "--name", "alone", name="alone")
@@ -283,11 +284,11 @@ def test_a_lone_server_rides_out_a_database_outage(
         assert load.status_code == 201, load.text
         load_id = load.json()[0]["id"]
         wait_for(
-            "the load running", lambda: api.get(f"/api/jobs/{load_id}").json()["state"] != "queued"
+            "the load running", lambda: api.get(f"/api/jobs/{load_id}").json()["state"] == "running"
         )
         front = fleet.fleet.serial_ports["haas-serial-1"]
         proxy.drop()  # the database stops: connections closed, new ones refused
-        cut_at = front.dnc_lines
+        cut_time = time.monotonic()
         # during the outage: health says so, every route answers 503 in one line
         health = api.get("/api/health")
         assert health.status_code == 503, health.text
@@ -311,11 +312,20 @@ def test_a_lone_server_rides_out_a_database_outage(
         assert page.status_code == 503, page.text
         assert page.headers["content-type"].startswith("text/html")
         assert "the database is unavailable now" in page.text
-        # the feed goes on: three lease lengths' worth of blocks reach the Haas meanwhile
+        # the feed goes on: blocks still reach the Haas after three lease lengths of outage
+        # (the control takes them as it runs them, once its buffer is full)
+        late = wait_for(
+            "two lease lengths of outage",
+            lambda: time.monotonic() - cut_time >= 2 * LONE_LEASE and front.dnc_lines,
+        )
         wait_for(
-            "the feed going on through the outage",
-            lambda: front.dnc_lines >= cut_at + 3 * BLOCKS,
-            describe=lambda: front.dnc_lines - cut_at,
+            "blocks reaching the Haas after three lease lengths of outage",
+            lambda: time.monotonic() - cut_time >= 3 * LONE_LEASE and front.dnc_lines > late,
+        )
+        # and the load reaches the TNC whole meanwhile: its end can only be written later
+        wait_for(
+            "the TNC to have the program",
+            lambda: receipts.exists() and "P01.H" in receipts.read_text(),
         )
         assert api.get("/api/health").status_code == 503  # still away
         proxy.restore()
@@ -326,7 +336,10 @@ def test_a_lone_server_rides_out_a_database_outage(
         )
         assert feed_job["state"] == "done", feed_job
         # every block once: all lines but the two "%" and the O-number line naming the run
-        assert front.dnc_lines == SHORT_PROGRAM.count(b"\n") - 3
+        # (the last ones may still be on their way through the cable)
+        blocks = SHORT_PROGRAM.count(b"\n") - 3
+        wait_for("every block at the Haas", lambda: front.dnc_lines >= blocks, timeout=30)
+        assert front.dnc_lines == blocks
         load_job = wait_for(
             "the load's end recorded",
             lambda: (
@@ -339,7 +352,9 @@ def test_a_lone_server_rides_out_a_database_outage(
         assert len(received) == 1, received  # loaded once, never again
         log = procs.log("alone")
         assert log.count("the database is unavailable:") == 1, log
+        assert f"database unavailable while recording the end of job {load_id}" in log
         assert "Traceback" not in log, log
+        assert "Background on this error" not in log, log  # one line per message
         assert "leases may have expired" not in log
         assert "lost track" not in log
     finally:
