@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -203,11 +204,12 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
         assert "leases may have expired" in procs.log(cut)
         # the cut server paused the feed at a block boundary and knows where: the control
         # holds every block before that line whole (line 1 is "%", line 2 the O-number line
-        # that names the run; blocks count from line 3)
+        # that names the run; blocks count from line 3), and at most that line too when the
+        # link had to be closed under a feed caught writing it (docs/server.md)
         paused = re.search(r"drip-feed paused at line (\d+)", procs.log(cut))
         assert paused is not None, procs.log(cut)
         line = int(paused.group(1))
-        assert front.dnc_lines == line - 3, (line, front.dnc_lines)
+        assert line - 3 <= front.dnc_lines <= line - 2, (line, front.dnc_lines)
         # back in touch, it corrects the line the survivor ended the job at (the last one it
         # could write down before the cut, usually well behind) to where the control is
         proxies[cut].restore()
@@ -328,6 +330,7 @@ def test_a_lone_server_rides_out_a_database_outage(
             lambda: receipts.exists() and "P01.H" in receipts.read_text(),
         )
         assert api.get("/api/health").status_code == 503  # still away
+        restored = time.time()
         proxy.restore()
         wait_for("health again", lambda: api.get("/api/health").status_code == 200)
         feed_job = wait_for(
@@ -348,11 +351,12 @@ def test_a_lone_server_rides_out_a_database_outage(
             ),
         )
         assert (load_job["state"], load_job["attempts"]) == ("done", 1), load_job
+        # its end was written once the database was back (the control had it during the outage)
+        assert datetime.fromisoformat(load_job["finished"]).timestamp() >= restored
         received = [line for line in receipts.read_text().splitlines() if "P01.H" in line]
         assert len(received) == 1, received  # loaded once, never again
         log = procs.log("alone")
         assert log.count("the database is unavailable:") == 1, log
-        assert f"database unavailable while recording the end of job {load_id}" in log
         assert "Traceback" not in log, log
         assert "Background on this error" not in log, log  # one line per message
         assert "leases may have expired" not in log

@@ -234,11 +234,13 @@ class Cluster:
         self.fences += 1
         log.warning("%s: serving no machine until renewed", why)
         try:
-            wait = min(1.0, self.margin / 3)
-            await self.runner.wait_stopped(serving, timeout=wait)
+            # a feed that writes stops at its next line by itself; most of the margin is
+            # spent waiting for that, since a link closed under a writing feed may leave the
+            # control one block further than the feed could report
+            await self.runner.wait_stopped(serving, timeout=min(1.0, self.margin / 2))
             # a feed held by the control's XOFF writes nothing and asks nothing: its link is
             # closed under it, and it comes back with the line it stopped at
-            await self.runner.stop_runs(serving, timeout=wait)
+            await self.runner.stop_runs(serving, timeout=min(0.5, self.margin / 4))
             self.runner.fence_off(serving)  # one whose link would not close: its last line
             # all at once: a server with hundreds of machines closes their links side by side
             await asyncio.gather(*(self._lose(m) for m in serving))
