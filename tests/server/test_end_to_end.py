@@ -237,7 +237,9 @@ def test_api_refuses_missing_keys_low_roles_and_bad_names(shop: Shop) -> None:
     viewer = shop.key("viewer")
     operator = shop.key("operator")
     with shop.start_server() as client:
-        assert client.get("/api/health").json() == {"status": "ok"}
+        health = client.get("/api/health").json()
+        assert (health["status"], health["database"]["ok"]) == ("ok", True)
+        assert health["leases"]["mode"] == "single"
         assert client.get("/api/machines").status_code == 401
         assert client.put("/api/programs/O1.nc", content=PROGRAM).status_code == 401
         bad_key = auth("odk_" + "x" * 43)

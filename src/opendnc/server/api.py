@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
@@ -236,16 +237,73 @@ Svc = Annotated[actions.Services, Depends(_svc_dep)]
 # -- health and outputs ---------------------------------------------------------------------
 
 
+class DatabaseHealthOut(BaseModel):
+    """The database as this server sees it now."""
+
+    ok: bool
+    reason: str = Field(description="why it is unavailable; empty when it answers")
+    seconds: float = Field(description="how long it has been in this state")
+    answer_ms: float | None = Field(description="the probe's SELECT 1; null when it failed")
+    waiting_writes: int = Field(description="job ends waiting for the database to be written")
+
+
+class LeaseHealthOut(BaseModel):
+    """Which machines this server may drive: all of them (a single server) or those whose
+    lease it holds (a cluster)."""
+
+    mode: Literal["single", "cluster"]
+    serving: int = Field(description="machines this server drives now")
+    fenced: bool = Field(description="a cluster server whose leases could have expired")
+    valid_for: float | None = Field(description="seconds its leases are still its own")
+    renew_failures: int
+
+
 class HealthOut(BaseModel):
-    """The server answers."""
+    """Whether the server can do its work: 503 (``unavailable``) while the database is away;
+    ``degraded`` when it answers but this cluster server holds no valid lease yet."""
 
-    status: Literal["ok"]
+    status: Literal["ok", "degraded", "unavailable"]
+    database: DatabaseHealthOut
+    leases: LeaseHealthOut
+    components: dict[str, str] = Field(description="each component: running or stopped")
 
 
-@router.get("/health")
-def health() -> HealthOut:
-    """Liveness probe; needs no key."""
-    return HealthOut(status="ok")
+@router.get("/health", response_model=HealthOut, responses={503: {"model": HealthOut}})
+async def health(request: Request) -> JSONResponse:
+    """Health probe; needs no key. Asks the database ``SELECT 1`` (at most 5 s) and answers
+    503 when it does not answer. Async: the probe waits on its own thread, so the answer comes
+    even while every worker thread is stuck on a silent database."""
+    from opendnc.server.cluster import Cluster
+
+    core = core_of(request.app)
+    database = deps.database(request).health
+    took = await database.probe()
+    cluster = core.find(Cluster)
+    if cluster is not None:
+        leases = LeaseHealthOut(mode="cluster", **cluster.health())
+    else:
+        served = sum(s.served for s in deps.machines(request).machines.values())
+        leases = LeaseHealthOut(
+            mode="single", serving=served, fenced=False, valid_for=None, renew_failures=0
+        )
+    status: Literal["ok", "degraded", "unavailable"] = "ok"
+    if not database.ok:
+        status = "unavailable"
+    elif leases.fenced:
+        status = "degraded"
+    out = HealthOut(
+        status=status,
+        database=DatabaseHealthOut(
+            ok=database.ok,
+            reason=database.reason,
+            seconds=round(time.monotonic() - database.since, 3),
+            answer_ms=None if took is None else round(took * 1000, 1),
+            waiting_writes=deps.runner(request).waiting_writes,
+        ),
+        leases=leases,
+        components=core.states(),
+    )
+    return JSONResponse(out.model_dump(), status_code=503 if status == "unavailable" else 200)
 
 
 @router.get("/health/loop")

@@ -44,6 +44,7 @@ from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.single_server import refuse_beside_a_cluster
 from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
@@ -93,9 +94,12 @@ def build(
     """
     url = database or config.server.database
     engine = make_engine(url)
-    clustered = engine.dialect.name == "postgresql"
+    # PostgreSQL is shared with other servers unless this one is configured as the only one
+    clustered = engine.dialect.name == "postgresql" and config.server.cluster
     migrate(engine)
     sessions = make_sessions(engine)
+    if engine.dialect.name == "postgresql" and not clustered:
+        refuse_beside_a_cluster(sessions, config.server.name)
     bus = EventBus()
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)

@@ -13,8 +13,11 @@
 - the shop-wide duties (the library watcher, the net share) run on the one server holding
   the :data:`~opendnc.server.leases.LIBRARY` lease.
 
-If the database cannot be reached, this server stops serving its machines once its leases
-could have expired, so two servers never drive one machine. It listens for the other
+If the database cannot be reached, or goes silent, this server stops driving its machines
+before its leases could expire (``margin`` earlier), so two servers never drive one machine:
+the renewal is awaited against that deadline on the process's monotonic clock, never longer,
+and the runner asks :meth:`Cluster.epoch` before each block it writes
+(docs/server.md#a-silent-database). It listens for the other
 servers' notices (:mod:`opendnc.server.notify`): a queued or moved job wakes its machine at
 once, a cancel reaches the job running here at once, and another server's new statuses are read
 at once (``on_status``, :mod:`opendnc.server.shared_status`). docs/server.md#several-servers.
@@ -39,9 +42,13 @@ from opendnc.server.notify import Listener, Notice
 from opendnc.server.runner import JobRunner, database_down
 from opendnc.server.shared_status import ORPHANED
 
-__all__ = ["Cluster"]
+__all__ = ["FENCE_MARGIN_MIN", "Cluster"]
 
 log = logging.getLogger(__name__)
+
+# The least time before its leases could expire at which a server stops driving its machines:
+# a drip-feed's next block boundary and the links' closing must fit in it.
+FENCE_MARGIN_MIN = 1.0
 
 
 class Cluster:
@@ -68,7 +75,16 @@ class Cluster:
         self.database_url = database_url
         self.duties = list(duties)
         self.on_status = on_status  # a server wrote statuses ("" after a reconnect: maybe)
-        self.renew_every = max(0.1, leases.ttl.total_seconds() / 4)
+        ttl = leases.ttl.total_seconds()
+        self.renew_every = max(0.1, ttl / 4)
+        # Stop driving this long before the leases could be someone else's (a quarter of a
+        # lease, at least FENCE_MARGIN_MIN, at most half of it).
+        self.margin = min(ttl / 2, max(ttl / 4, FENCE_MARGIN_MIN))
+        # A transaction of this server that holds lease rows gives them back after this much
+        # silence from it (PostgreSQL ends it): a cut-off server locks nobody out for long.
+        self.lock_limit = ttl / 2
+        self.fenced = False  # stopped driving until a renewal comes back in time
+        self.fences = 0
         self.serving: set[str] = set()  # machines whose task runs here (and the duties)
         self._epochs: dict[str, int] = {}
         self._pending: dict[str, int] = {}  # gained, its jobs not taken over yet -> epoch
@@ -76,6 +92,7 @@ class Cluster:
         self.listener: Listener | None = None
         self.renewals = 0
         self.renew_failures = 0
+        self._asked = time.monotonic()  # when the renewal under way began
         runner.fence = self
 
     @property
@@ -86,10 +103,25 @@ class Cluster:
     # -- the fence the runner asks ----------------------------------------------------------
 
     def epoch(self, machine: str) -> int | None:
-        """The epoch of this server's live lease on ``machine``; None if it holds none."""
-        if machine not in self.serving or machine not in self.leases.serving():
+        """The epoch of this server's live lease on ``machine``; None if it holds none, or
+        if the lease could expire within ``margin`` (from any thread: a drip-feed's asks
+        before each block it writes)."""
+        if self.fenced or machine not in self.serving or machine not in self.leases.held:
+            return None
+        if time.monotonic() >= self.leases.valid_until - self.margin:
             return None
         return self._epochs.get(machine)
+
+    def health(self) -> dict[str, Any]:
+        """The leases as ``/api/health`` shows them."""
+        left = self.leases.valid_until - self.margin - time.monotonic()
+        serving = sorted(m for m in self.serving if m != LIBRARY)
+        return {
+            "serving": len(serving),
+            "fenced": self.fenced or (bool(self.serving) and left <= 0),
+            "valid_for": round(max(0.0, left), 3) if self.leases.held else None,
+            "renew_failures": self.renew_failures,
+        }
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -129,34 +161,95 @@ class Cluster:
         loop = asyncio.get_running_loop()
         while True:
             began = time.monotonic()
+            # On a thread of its own: behind hundreds of machines' blocking calls in the
+            # shared pool, a renewal could wait longer than the lease lasts.
+            renewal = loop.run_in_executor(self._thread, self._renew)
             try:
-                # On a thread of its own: behind hundreds of machines' blocking calls in the
-                # shared pool, a renewal could wait longer than the lease lasts.
-                holding = await loop.run_in_executor(self._thread, self._renew)
+                holding = await self._within_the_lease(renewal)
             except Exception as exc:
                 self.renew_failures += 1
                 if not database_down(exc):
                     log.exception("renewing the leases failed")
                 else:
                     log.warning("leases not renewed: %s", (str(exc) or repr(exc)).splitlines()[0])
-                try:
-                    if time.monotonic() >= self.leases.valid_until and self.serving:
-                        # Another server may hold them by now: stop before it starts.
-                        log.warning("leases may have expired: serving no machine until renewed")
-                        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
-                        self.leases.held = frozenset()
-                except Exception:
-                    log.exception("stopping the machines of expired leases failed")
+                if time.monotonic() >= self.leases.valid_until - self.margin:
+                    await self._fence("leases may have expired")
             else:
-                self.renewals += 1
-                try:
-                    await self._apply(holding)
-                except Exception:  # one bad round must not end the renewals
-                    log.exception("acting on the leases failed")
-            await asyncio.sleep(max(0.0, self.renew_every - (time.monotonic() - began)))
+                if time.monotonic() >= holding.valid_until - self.margin:
+                    # It came back, but too late to drive anything on it: the next one may
+                    # not (a database that answers slowly is as good as a silent one here).
+                    self.renew_failures += 1
+                    took = time.monotonic() - began
+                    await self._fence(f"leases may have expired (a renewal took {took:.1f} s)")
+                else:
+                    self.renewals += 1
+                    self.fenced = False
+                    try:
+                        await self._apply(holding)
+                    except Exception:  # one bad round must not end the renewals
+                        log.exception("acting on the leases failed")
+            await self._pause(began + self.renew_every)
+
+    async def _pause(self, until: float) -> None:
+        """Sleep until the next renewal is due, stopping the machines on the way if the
+        leases could expire first (a refused renewal comes back at once; its retry waits)."""
+        now = time.monotonic()
+        if self.serving and not self.fenced:
+            deadline = self.leases.valid_until - self.margin
+            if deadline < until:
+                await asyncio.sleep(max(0.0, deadline - now))
+                await self._fence("leases may have expired")
+                now = time.monotonic()
+        await asyncio.sleep(max(0.0, until - now))
+
+    async def _within_the_lease(self, renewal: asyncio.Future[Holding]) -> Holding:
+        """The renewal's result. While it does not come (a database that went silent: no
+        error, no answer), stop driving the machines ``margin`` before the leases could be
+        another server's, then go on waiting for the same renewal: a stuck one is not joined
+        by a second."""
+        while True:
+            wait = None
+            if self.serving and not self.fenced:
+                wait = self.leases.valid_until - self.margin - time.monotonic()
+                if wait <= 0:
+                    silent = time.monotonic() - self._asked
+                    await self._fence(
+                        f"leases may have expired (no answer from the database for {silent:.1f} s)"
+                    )
+                    continue
+            done, _ = await asyncio.wait({renewal}, timeout=wait)
+            if done:
+                return renewal.result()
+
+    async def _fence(self, why: str) -> None:
+        """Stop driving every machine now: the runner writes no further block (``epoch``
+        answers None from here), a drip-feed gets a moment to stop at its block boundary,
+        then every machine's task stops and its link closes."""
+        self.fenced = True
+        self._epochs = {}
+        serving = sorted(self.serving)
+        self.leases.held = frozenset()
+        if not serving:
+            return
+        self.fences += 1
+        log.warning("%s: serving no machine until renewed", why)
+        try:
+            # a feed that writes stops at its next line by itself; most of the margin is
+            # spent waiting for that, since a link closed under a writing feed may leave the
+            # control one block further than the feed could report
+            await self.runner.wait_stopped(serving, timeout=min(1.0, self.margin / 2))
+            # a feed held by the control's XOFF writes nothing and asks nothing: its link is
+            # closed under it, and it comes back with the line it stopped at
+            await self.runner.stop_runs(serving, timeout=min(0.5, self.margin / 4))
+            self.runner.fence_off(serving)  # one whose link would not close: its last line
+            # all at once: a server with hundreds of machines closes their links side by side
+            await asyncio.gather(*(self._lose(m) for m in serving))
+        except Exception:
+            log.exception("stopping the machines of expired leases failed")
 
     def _renew(self) -> Holding:
-        return self.leases.renew(can_hand_over=self._idle)
+        self._asked = time.monotonic()
+        return self.leases.renew(can_hand_over=self._idle, lock_limit=self.lock_limit)
 
     def _idle(self, machine: str) -> bool:
         """A machine may be handed over now: no job runs or is being claimed there (the lease
@@ -169,7 +262,9 @@ class Cluster:
             self._pending.pop(machine, None)
             if machine in self.serving:
                 await self._lose(machine)
-        for machine in sorted(holding.gained):
+        # Every held machine not served here yet: gained now, or again after a fence (which
+        # may have raced a renewal's own idea of what was gained).
+        for machine in sorted(holding.held - self.serving):
             self._pending[machine] = holding.epochs[machine]
         due = {
             m: e for m, e in self._pending.items() if m in holding.held and m not in self.serving

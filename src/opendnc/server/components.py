@@ -148,6 +148,11 @@ class Core:
     def __iter__(self) -> Iterator[Component]:
         return iter(self.order())
 
+    def states(self) -> dict[str, str]:
+        """Each component's name and whether it runs now ("running" or "stopped")."""
+        started = {c.name for c in self._started}
+        return {c.name: "running" if c.name in started else "stopped" for c in self.order()}
+
     def order(self) -> list[Component]:
         """Every component after the ones it needs (registration order otherwise)."""
         done: dict[str, Component] = {}

@@ -12,6 +12,7 @@ Example::
     database = "sqlite:///opendnc.db"      # or postgresql+psycopg://user@host/db
     name = "dnc-1"                         # names this process's claims in a shared database
     lease_seconds = 10                     # several servers: a dead one's machines move after this
+    cluster = true                         # PostgreSQL: false for a lone server (no fencing)
 
     [library]
     path = "programs"                      # the watched library folder
@@ -202,6 +203,9 @@ class ServerConfig:
     name: str = "opendnc"
     timeline_days: float = 7.0  # status samples older than this are pruned
     lease_seconds: float = 10.0  # a cluster's machine leases: a dead server's go after this
+    # PostgreSQL: share the database with other servers (leases, fencing); False: the only
+    # server, which drives its machines through a database outage (docs/server.md)
+    cluster: bool = True
 
 
 @dataclass(frozen=True)
@@ -534,7 +538,15 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     _known(
         table,
         "server",
-        {"bind", "database", "name", "timeline_retention_days", "timezone", "lease_seconds"},
+        {
+            "bind",
+            "database",
+            "name",
+            "timeline_retention_days",
+            "timezone",
+            "lease_seconds",
+            "cluster",
+        },
     )
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
     host, sep, port_text = bind.rpartition(":")
@@ -559,7 +571,9 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     lease = _get(table, "server", "lease_seconds", float, 10.0)
     if not 0.5 <= lease <= 300:
         raise ConfigError("server.lease_seconds", "expected seconds between 0.5 and 300")
+    cluster = _get(table, "server", "cluster", bool, True)
     return ServerConfig(
+        cluster=bool(cluster),
         bind_host=host.strip("[]"),
         bind_port=int(port_text),
         database=database,

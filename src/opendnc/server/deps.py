@@ -15,6 +15,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.components import core_of
+from opendnc.server.db_health import DatabaseHealth
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.key_use import KeyUse
 from opendnc.server.loopwatch import LoopWatch
@@ -57,6 +58,7 @@ class Database:
         self.engine = engine
         self.sessions = sessions
         self.reads = read_only(sessions)
+        self.health = DatabaseHealth(engine)  # answers, or an outage since when and why
 
     async def start(self) -> None:
         """Nothing to start (the database was migrated when the server was built)."""

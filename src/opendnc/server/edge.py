@@ -6,6 +6,8 @@
   JSON, and a 60,000-character query does not need to come back whole.
 * Non-finite numbers in a JSON body are refused (422) before any model sees them: the API's
   numbers are counts, ids and versions, never infinities.
+* A database that cannot be reached is 503 with one line saying so (a page: an HTML page),
+  logged once per outage (:mod:`opendnc.server.db_health`), not a traceback per request.
 * Anything else unexpected is logged with its traceback and answered 500 with a one-line body.
 """
 
@@ -19,9 +21,12 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
-from sqlalchemy.exc import DataError
+from fastapi.responses import HTMLResponse, JSONResponse, Response
+from sqlalchemy.exc import DataError, DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 
+from opendnc.server import deps
+from opendnc.server.db_health import is_database_down
 from opendnc.server.dbsession import SessionRoute
 
 try:
@@ -75,6 +80,34 @@ async def _data_error(request: Request, exc: DataError) -> JSONResponse:
     if isinstance(exc.orig, NumericOutOfRange):
         return await _out_of_range(request, exc)
     return await _unexpected(request, exc)
+
+
+DATABASE_RETRY_AFTER = "5"  # seconds a client is asked to wait before it tries again
+
+
+async def _database_away(request: Request, exc: Exception) -> Response:
+    """503 for a database that cannot be reached; anything else from the driver is a bug."""
+    if not is_database_down(exc):
+        return await _unexpected(request, exc)
+    why = deps.database(request).health.failed(exc)  # logs the first of an outage only
+    return database_unavailable(request, why)
+
+
+def database_unavailable(request: Request, why: str) -> Response:
+    """The answer to a request that needs the database while it is away: JSON under
+    ``/api/``, an alert for htmx, an HTML page for a page."""
+    message = f"the database is unavailable now: {why}"
+    headers = {"Retry-After": DATABASE_RETRY_AFTER}
+    if request.url.path.startswith("/api/"):
+        return JSONResponse({"detail": message}, status_code=503, headers=headers)
+    from opendnc.server.web import render  # the pages import the API, which imports this
+
+    if request.headers.get("HX-Request") == "true":
+        html = render.render("_alert.html", message=message, status=503)
+        headers |= {"HX-Retarget": "#alert", "HX-Reswap": "innerHTML"}
+        return HTMLResponse(html, status_code=503, headers=headers)
+    html = render.render("error.html", message=message, status=503, page=None, path="")
+    return HTMLResponse(html, status_code=503, headers=headers)
 
 
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -137,4 +170,6 @@ def install(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(OverflowError, _out_of_range)
     app.add_exception_handler(DataError, _data_error)  # type: ignore[arg-type]
+    for away in (OperationalError, InterfaceError, PoolTimeout, DBAPIError):
+        app.add_exception_handler(away, _database_away)
     app.add_exception_handler(Exception, _unexpected)

@@ -27,8 +27,9 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from typing import Any
 
-from sqlalchemy import delete, select, text, update
+from sqlalchemy import delete, func, select, text, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.orm import Session, sessionmaker
@@ -161,8 +162,26 @@ class Leases:
         self.valid_until = 0.0
         self._started: datetime | None = None
 
-    def _now(self, session: Session) -> datetime:
+    def _now(self, session: Session, lock_limit: float | None = None) -> datetime:
         if session.get_bind().dialect.name == "postgresql":
+            if lock_limit is not None:
+                # In the same round trip: this transaction's statements, and its silences
+                # between them, end after lock_limit (the leases' rows it locks are free
+                # again soon after a network cut, however the cut looks from here).
+                limit = str(max(100, int(lock_limit * 1000)))
+                value = (
+                    session.execute(
+                        text(
+                            "SELECT now(), set_config('statement_timeout', :limit, true),"
+                            " set_config('idle_in_transaction_session_timeout', :limit, true)"
+                        ),
+                        {"limit": limit},
+                    )
+                    .scalars()
+                    .first()
+                )
+                assert isinstance(value, datetime)
+                return value
             value = session.execute(text("SELECT now()")).scalar_one()
             assert isinstance(value, datetime)
             return value
@@ -199,17 +218,23 @@ class Leases:
         )
         return frozenset(rows) | {self.server}
 
-    def renew(self, *, can_hand_over: Callable[[str], bool] = lambda _m: True) -> Holding:
+    def renew(
+        self,
+        *,
+        can_hand_over: Callable[[str], bool] = lambda _m: True,
+        lock_limit: float | None = None,
+    ) -> Holding:
         """Heartbeat, renew what this server holds, hand over and take what is due.
 
         ``can_hand_over(machine)`` says whether a machine is at a safe point (no job running):
-        a machine assigned to another live server is released only then.
+        a machine assigned to another live server is released only then. ``lock_limit``
+        (seconds, PostgreSQL): the transaction ends after a statement or a silence this long.
         """
         # The leases run from before the transaction began: however long it takes, this
         # server stops trusting them no later than the database lets another take them.
         began = time.monotonic()
         with self.sessions.begin() as session:
-            now = self._now(session)
+            now = self._now(session, lock_limit)
             self._heartbeat(session, now)
             live = self.live_servers(session, now)
             # The duties (names with "@", never a machine's) are placed apart from the
@@ -383,16 +408,24 @@ class Leases:
         return cluster_view(self.sessions)
 
 
-def holds(session: Session, machine: str, server: str, epoch: int) -> bool:
+def holds(
+    session: Session, machine: str, server: str, epoch: int, lock_limit: float | None = None
+) -> bool:
     """True while ``server`` holds ``machine``'s lease at ``epoch`` (fencing).
 
     The row stays locked (``FOR SHARE``) until ``session``'s transaction ends, so no other
     server can take the lease between this check and the commit of what it guards: a job's
     claim, its end, its progress. A lease that ran out but was not taken yet still holds: no
-    other server has acted on the machine, since taking it raises the epoch.
+    other server has acted on the machine, since taking it raises the epoch. ``lock_limit``
+    (seconds, PostgreSQL): the transaction ends when it stays silent this long, so a server
+    cut off in the middle of it does not keep the row locked.
     """
+    columns: list[Any] = [MachineLease.epoch]
+    if lock_limit is not None and session.get_bind().dialect.name == "postgresql":
+        limit = str(max(100, int(lock_limit * 1000)))
+        columns.append(func.set_config("idle_in_transaction_session_timeout", limit, True))
     found = session.execute(
-        select(MachineLease.epoch)
+        select(*columns)
         .where(MachineLease.machine == machine, MachineLease.owner == server)
         .with_for_update(read=True)
     ).first()

@@ -22,6 +22,8 @@ from sqlalchemy import text
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session
 
+from opendnc.server.store.db import pg_connect_args
+
 __all__ = ["CHANNEL", "Listener", "Notice", "notify"]
 
 CHANNEL = "opendnc"
@@ -85,8 +87,9 @@ class Listener:
         delay = 0.5
         while True:
             try:
+                # the engine's deadlines: a silent network breaks the listener too
                 async with await psycopg.AsyncConnection.connect(
-                    self.conninfo, autocommit=True
+                    self.conninfo, autocommit=True, **pg_connect_args()
                 ) as conn:
                     await conn.execute(f"LISTEN {CHANNEL}")
                     self.connections += 1

@@ -36,7 +36,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeout
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, RemoteProtocolError, TransferError, TransportError
-from opendnc.server import jobs, library
+from opendnc.server import audit, jobs, library
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.errors import NotFound
 from opendnc.server.events import JobFinished, JobProgress, JobQueued, JobStarted
@@ -54,7 +54,7 @@ from opendnc.server.machines.base import Connector
 from opendnc.server.store.db import read_only
 from opendnc.server.store.models import Job, JobKind, JobState
 
-__all__ = ["Fence", "JobRunner", "LeaseLost", "database_down"]
+__all__ = ["Fence", "Fenced", "JobRunner", "LeaseLost", "database_down"]
 
 log = logging.getLogger(__name__)
 
@@ -62,14 +62,21 @@ T = TypeVar("T")
 CANCEL_POLL = 0.5  # seconds between two reads of a running job's cancel flag
 RETRY_FIRST = 0.2  # seconds before the first retry of a write the database refused
 RETRY_MAX = 5.0
+SETTLE_WAIT = 2.0  # seconds a machine's task waits for a job's end to be written
 
 
 class LeaseLost(DncError):
     """This server no longer holds the machine's lease: another server has taken it over."""
 
 
+class Fenced(DncError):
+    """This server stopped driving the machine: its lease could not be renewed in time."""
+
+
 class Fence(Protocol):
     """Which machines this server may act on, and at which lease epoch (several servers)."""
+
+    lock_limit: float  # seconds a transaction holding a lease row may stay silent
 
     def epoch(self, machine: str) -> int | None:
         """The epoch of this server's live lease on ``machine``; None if it holds none."""
@@ -118,6 +125,7 @@ class JobRunner:
         self.fence: Fence | None = None  # set by the cluster (several servers), else None
         self._epochs: dict[int, int] = {}  # running job -> the lease epoch it was claimed at
         self._lines: dict[int, tuple[int | None, int]] = {}  # drip-feed -> (line, bytes) fed
+        self._paused: set[int] = set()  # fenced drip-feeds whose pause is recorded
 
     # -- lifecycle ----------------------------------------------------------------------
 
@@ -284,6 +292,12 @@ class JobRunner:
             # Stopping the server mid-transfer: the next start marks the job interrupted.
             raise
         except Exception as exc:
+            fenced = isinstance(exc, Fenced) or isinstance(exc.__cause__, Fenced)
+            if fenced or (self.fence is not None and self.fence.epoch(name) is None):
+                # stopped by the fence (its own check, or the link it closed under a feed
+                # held by XOFF): nothing is written now
+                self._fenced_off(run, exc)
+                return True
             await self._failed(run, exc)
             if run.link_unknown:
                 # A transfer stopped half-way: the control's side of the link is not known.
@@ -310,7 +324,8 @@ class JobRunner:
             if epoch is None:
                 return None  # not this server's machine (any more)
         with self.sessions.begin() as session:
-            if epoch is not None and not holds(session, machine, self.worker, epoch):
+            lock = self.fence.lock_limit if self.fence is not None else None
+            if epoch is not None and not holds(session, machine, self.worker, epoch, lock):
                 return None
             job = jobs.claim(session, machine, self.worker)
             if job is None:
@@ -363,6 +378,99 @@ class JobRunner:
 
         await self._settle(run, None, fail, error=reason)
 
+    async def stop_runs(self, machines: Iterable[str], timeout: float) -> None:
+        """Stop the jobs still running on ``machines`` (a fence: a feed held by the control's
+        XOFF never reaches its next block check) by closing their links under them, then
+        wait (at most ``timeout`` s) for each to come back with where it stopped."""
+        names = set(machines)
+        runs = [r for r in self.running.values() if r.state.config.name in names]
+        if not runs:
+            return
+
+        async def close(run: JobRun) -> None:
+            with contextlib.suppress(Exception):
+                async with asyncio.timeout(timeout):
+                    await run.connector.close()
+
+        await asyncio.gather(*(close(run) for run in runs))
+        await self.wait_stopped(names, timeout)
+
+    def fence_off(self, machines: Iterable[str]) -> None:
+        """The machines' tasks are about to stop (a fence): a drip-feed still running there
+        (its link would not close) is recorded as paused at the last line it reported whole,
+        as if it had stopped there by itself."""
+        names = set(machines)
+        for job_id, run in list(self.running.items()):
+            if run.state.config.name not in names or run.job.kind is not JobKind.DRIPFEED:
+                continue
+            line, nbytes = self._lines.get(job_id, (None, 0))
+            start = int(run.job.params.get("from_line", 1))
+            why = "its link did not close when the lease ran short"
+            self._fenced_off(run, DripFeedBroken(why, line or start, nbytes))
+
+    def _fenced_off(self, run: JobRun, exc: Exception) -> None:
+        """``run`` stopped because this server's lease could expire: it writes nothing now
+        (its database is likely away, and the machine's task is about to stop)."""
+        job_id, machine = run.job.job_id, run.state.config.name
+        if job_id in self._paused:
+            return  # recorded already (by the fence, before the feed itself stopped)
+        self._paused.add(job_id)
+        if not isinstance(exc, DripFeedBroken):
+            # A load is idempotent: whoever holds the machine next queues it again.
+            log.warning("job %d on %s stopped: %s", job_id, machine, exc)
+            self._epochs.pop(job_id, None)
+            run.state.job_id = None
+            return
+        # Paused at a block boundary: the line is exact here. It is written (fenced) once the
+        # database answers, if this server still holds the lease then; a server that took
+        # the machine meanwhile ends the job at the last line this one wrote.
+        line, nbytes = exc.line, exc.nbytes
+        reason = (
+            f"paused at line {line}: {self.worker} lost touch with the database and stopped "
+            f"driving {machine} (restart from there)"
+        )
+        log.warning(
+            "job %d: drip-feed paused at line %d (%s stopped driving %s)",
+            job_id,
+            line,
+            self.worker,
+            machine,
+        )
+
+        def correct(session: Session) -> str:
+            # Another server took the machine meanwhile and ended the job at the last line
+            # this one managed to write down (it writes every half second, and not at all
+            # while the database is silent): the control has more, up to `line`. A restart
+            # from the older line would run those blocks twice.
+            job = jobs.get_job(session, job_id)
+            if job.state is not JobState.INTERRUPTED or (job.line or 0) >= line:
+                return job.state.value
+            recorded = job.line
+            job.line, job.bytes_done = line, nbytes
+            job.error = f"{reason}; it had been recorded at line {recorded}"
+            audit.record(
+                session,
+                self.worker,
+                "job.paused",
+                machine=machine,
+                job_id=job_id,
+                result=job.state.value,
+                nbytes=nbytes,
+                line=line,
+                recorded=recorded,
+            )
+            return job.state.value
+
+        def pause(session: Session) -> str:
+            job = jobs.get_job(session, job_id)
+            if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
+                return correct(session)  # ended by the machine's next server meanwhile
+            self._check_lease(session, machine, self._epochs.get(job_id))
+            ended = jobs.fail(session, job_id, reason, retryable=False, line=line, nbytes=nbytes)
+            return ended.state.value
+
+        self._settle_later(run, None, pause, {"error": reason}, or_else=correct)
+
     def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> str:
         job = jobs.get_job(session, run.job.job_id)
         if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
@@ -382,28 +490,17 @@ class JobRunner:
         background until it goes through."""
         state, job_id = run.state, run.job.job_id
         what = f"recording the end of job {job_id}"
-
-        async def write_it() -> None:
-            try:
-                ended = await self._durably(what, write)
-            except LeaseLost as exc:
-                log.warning("job %d: %s; its end is left to that server", job_id, exc)
-                ended = "taken over"
-            except Exception:
-                log.exception("%s failed", what)
-                ended = "unknown"
-            finally:
-                self._unsettled.discard(job_id)
-                self._epochs.pop(job_id, None)
-            self._ended(run, label or ended, **extra)
-            if state.job_id == job_id:
-                state.job_id = None
-                state.job_progress = (0, None)
-            self.machines.wake(state.config.name)
-
+        # The usual case answers at once; the machine's task waits for it, but never longer
+        # than SETTLE_WAIT: a database gone silent must not stop the machine's polling.
+        attempt = asyncio.ensure_future(asyncio.to_thread(self._transaction, write))
+        attempt.add_done_callback(_retrieved)  # whoever waits for it may be gone
+        done, _ = await asyncio.wait({attempt}, timeout=SETTLE_WAIT)
+        if not done:
+            self._trouble(what, TimeoutError(f"no answer within {SETTLE_WAIT:.0f} s"))
+            self._settle_later(run, label, write, extra, first=attempt)
+            return
         try:
-            # The usual case answers at once; the machine's task waits for it.
-            ended = await asyncio.to_thread(self._transaction, write)
+            ended = attempt.result()
         except LeaseLost as exc:
             # Another server has the machine now and ends the job itself (a load queued
             # again, a drip-feed interrupted): this server writes nothing.
@@ -419,15 +516,64 @@ class JobRunner:
                 state.job_id = None
                 return
             self._trouble(what, exc)
-            self._unsettled.add(job_id)
-            task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
-            self._settling.add(task)
-            task.add_done_callback(self._settling.discard)
+            self._settle_later(run, label, write, extra)
             return
         self.database_error = ""
         self._epochs.pop(job_id, None)
         self._ended(run, label or ended, **extra)
         state.job_id = None
+
+    def _settle_later(
+        self,
+        run: JobRun,
+        label: str | None,
+        write: Callable[[Session], str],
+        extra: Mapping[str, Any],
+        first: asyncio.Future[str] | None = None,
+        or_else: Callable[[Session], str] | None = None,
+    ) -> None:
+        """Write ``run``'s end in the background, retrying until the database takes it. The
+        machine keeps the job meanwhile (``state.job_id``: no new claim) while its task goes
+        on polling; no sweep or take-over hands the job back (``_unsettled``). ``first``: an
+        attempt still under way, waited for before trying again; ``or_else``: written instead
+        when another server has taken the machine over meanwhile."""
+        state, job_id = run.state, run.job.job_id
+        what = f"recording the end of job {job_id}"
+        self._unsettled.add(job_id)
+
+        async def write_it() -> None:
+            try:
+                ended: str | None = None
+                if first is not None:
+                    try:
+                        ended = await first
+                    except Exception as exc:
+                        if isinstance(exc, LeaseLost) or not database_down(exc):
+                            raise
+                if ended is None:
+                    ended = await self._durably(what, write)
+            except LeaseLost as exc:
+                log.warning("job %d: %s; its end is left to that server", job_id, exc)
+                ended = "taken over"
+                if or_else is not None:
+                    with contextlib.suppress(Exception):
+                        ended = await self._durably(what, or_else)
+            except Exception:
+                log.exception("%s failed", what)
+                ended = "unknown"
+            finally:
+                self._unsettled.discard(job_id)
+                self._epochs.pop(job_id, None)
+                self._paused.discard(job_id)
+            self._ended(run, label or ended, **extra)
+            if state.job_id == job_id:
+                state.job_id = None
+                state.job_progress = (0, None)
+            self.machines.wake(state.config.name)
+
+        task = asyncio.create_task(write_it(), name=f"settle-{job_id}")
+        self._settling.add(task)
+        task.add_done_callback(self._settling.discard)
 
     # -- cancels ----------------------------------------------------------------------------
 
@@ -480,6 +626,21 @@ class JobRunner:
                 raise
             # the next line is noted once the database answers
 
+    async def wait_stopped(self, machines: Iterable[str], timeout: float) -> None:
+        """Wait (at most ``timeout`` s) until no job of ``machines`` runs here any more: a
+        fenced drip-feed stops at its next block boundary by itself."""
+        names = set(machines)
+        end = asyncio.get_running_loop().time() + timeout
+        while any(run.state.config.name in names for run in self.running.values()):
+            if asyncio.get_running_loop().time() >= end:
+                return
+            await asyncio.sleep(0.02)
+
+    @property
+    def waiting_writes(self) -> int:
+        """Job ends this runner holds until the database takes them."""
+        return len(self._unsettled)
+
     def busy(self, machine: str) -> bool:
         """True while a job of ``machine`` is being claimed or runs here."""
         state = self.machines.get(machine)
@@ -499,14 +660,16 @@ class JobRunner:
         (nothing to check for a single server)."""
         if self.fence is None:
             return
-        if epoch is None or not holds(session, machine, self.worker, epoch):
+        if epoch is None or not holds(session, machine, self.worker, epoch, self.fence.lock_limit):
             raise LeaseLost(f"{self.worker} no longer holds the lease of {machine}")
 
     async def take_over(self, epochs: Mapping[str, int]) -> None:
         """This server has just taken these machines' leases (machine -> epoch): end the
         jobs their previous servers left running there (:func:`jobs.take_over`), in one
         transaction, before the machines' tasks start. Raises if the database is away."""
-        keep = set(self.running)
+        # the jobs running here, and those whose end is on its way to the database (a fenced
+        # drip-feed's exact line, a finished load's "done"): never handed back
+        keep = set(self.running) | self._unsettled
 
         def adopt(session: Session) -> list[JobFinished]:
             out: list[JobFinished] = []
@@ -544,11 +707,24 @@ class JobRunner:
         # which records it in the job's row (what a taking-over server reports).
         if job.kind is JobKind.DRIPFEED:
             self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
+        if self.fence is not None and self.fence.epoch(machine) != self._epochs.get(job.job_id):
+            # Called after each block written whole and before the next: a server whose
+            # lease could expire soon writes not one block more, whatever its event loop
+            # and its database are doing (the check reads the process's clock only).
+            raise Fenced(
+                f"{self.worker} stopped driving {machine}: its lease could not be renewed in time"
+            )
         self.machines.bus.publish(JobProgress(*_fields(job, machine), **progress))
 
     def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)
         self.machines.bus.publish(JobFinished(*fields, outcome=outcome, error=error))
+
+
+def _retrieved(future: asyncio.Future[Any]) -> None:
+    """Mark ``future``'s error as seen (its waiter handles it, or has been cancelled)."""
+    if not future.cancelled():
+        future.exception()
 
 
 def _fields(job: Claimed, machine: str) -> tuple[int, str, str, str | None, int | None]:

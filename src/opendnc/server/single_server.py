@@ -1,10 +1,17 @@
-"""SQLite serves one server: a second server on the same file is refused with one line.
+"""One server alone: SQLite always, PostgreSQL with ``[server] cluster = false``.
+
+SQLite serves one server: a second server on the same file is refused with one line.
 
 Several servers coordinate through PostgreSQL (:mod:`opendnc.server.leases`); SQLite has no
 shared clock, row locks or notifications, and two servers on one file would both serve every
 machine. The guard is an operating-system lock on a file beside the database, held for the
 server's life: the system drops it when the process ends, however it ends, so a crashed
 server never locks the next one out.
+
+On PostgreSQL a server configured as the only one (``cluster = false``) takes no leases and
+never fences itself: it drives its machines through a database outage. It refuses to start
+while another live server of a cluster holds leases or heartbeats there
+(:func:`refuse_beside_a_cluster`), since both would drive the same machines.
 """
 
 from __future__ import annotations
@@ -15,10 +22,12 @@ from pathlib import Path
 from typing import IO
 
 from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError
+from opendnc.server.leases import cluster_view
 
-__all__ = ["DatabaseInUse", "SingleServerLock"]
+__all__ = ["DatabaseInUse", "SingleServerLock", "refuse_beside_a_cluster"]
 
 
 class DatabaseInUse(DncError):
@@ -93,3 +102,17 @@ def _unlock(handle: IO[str]) -> None:
     import fcntl
 
     fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+
+
+def refuse_beside_a_cluster(sessions: sessionmaker[Session], server: str) -> None:
+    """Raise :class:`DatabaseInUse` if another live server shares this database (a heartbeat
+    younger than its lease, or a live machine lease of its own)."""
+    view = cluster_view(sessions)
+    others = {s.name for s in view.servers if s.alive and s.name != server}
+    others |= {r.owner for r in view.leases if r.live and r.owner != server}
+    if others:
+        raise DatabaseInUse(
+            f"other opendnc servers use this database ({', '.join(sorted(others))}); a server "
+            "with [server] cluster = false must be the only one: stop them first, or set "
+            "cluster = true (docs/server.md#one-server-alone)"
+        )

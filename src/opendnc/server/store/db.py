@@ -11,11 +11,18 @@ never commit: the dashboard's pages and live cards, the job sweep) start with a 
 ``BEGIN`` instead: under write-ahead logging they read the last committed state without
 waiting for the write lock, so a burst of job claims does not hold the live views back
 (docs/server.md#event-loop-stalls).
+
+Every PostgreSQL connection gets deadlines (:func:`pg_connect_args`): a connect timeout, TCP
+keepalives and a TCP user timeout (a network that drops packets breaks the connection instead of
+leaving a call blocked for ever), and server-side statement and idle-in-transaction timeouts (a
+transaction whose client went silent gives its row locks back: a cut-off server's lease rows
+must not stay locked). docs/server.md#database-deadlines.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +46,7 @@ __all__ = [
     "make_engine",
     "make_sessions",
     "migrate",
+    "pg_connect_args",
     "read_only",
 ]
 
@@ -54,6 +62,17 @@ READ_ONLY = "opendnc_read_only"  # execution option of the sessions that only re
 # query it was opened for. A small overflow covers threads outside those two pools.
 POOL_SIZE = 40 + min(32, (os.cpu_count() or 1) + 4) + 2
 MAX_OVERFLOW = 8
+
+# Deadlines of every PostgreSQL connection (docs/server.md#database-deadlines). Generous for a
+# single statement (a utilization sum over months), short for the network: a connection that
+# cannot be opened in 5 s, or whose sent data stays unacknowledged for 15 s, is given up.
+CONNECT_TIMEOUT_S = 5
+KEEPALIVE_IDLE_S = 10  # a quiet connection is probed after this
+KEEPALIVE_INTERVAL_S = 3  # then every this
+KEEPALIVE_COUNT = 3  # and declared dead after this many unanswered probes
+TCP_USER_TIMEOUT_MS = 15_000  # sent bytes unacknowledged this long: the connection is dead
+STATEMENT_TIMEOUT_MS = 60_000
+IDLE_IN_TRANSACTION_MS = 60_000
 
 
 def make_engine(url: str) -> Engine:
@@ -79,11 +98,35 @@ def make_engine(url: str) -> Engine:
         return engine
     if parsed.get_backend_name() == "postgresql":
         return create_engine(
-            parsed, pool_pre_ping=True, pool_size=POOL_SIZE, max_overflow=MAX_OVERFLOW
+            parsed,
+            pool_pre_ping=True,
+            pool_size=POOL_SIZE,
+            max_overflow=MAX_OVERFLOW,
+            connect_args=pg_connect_args(dict(parsed.query)),
         )
     raise InputError(
         f"unsupported database {parsed.get_backend_name()!r}: use sqlite or postgresql"
     )
+
+
+def pg_connect_args(given: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """libpq's connection parameters for the deadlines above, leaving out any the database URL
+    sets itself (``given``: its query parameters), which win."""
+    given = given or {}
+    options = (
+        f"-c statement_timeout={STATEMENT_TIMEOUT_MS} "
+        f"-c idle_in_transaction_session_timeout={IDLE_IN_TRANSACTION_MS}"
+    )
+    wanted: dict[str, Any] = {
+        "connect_timeout": CONNECT_TIMEOUT_S,
+        "keepalives": 1,
+        "keepalives_idle": KEEPALIVE_IDLE_S,
+        "keepalives_interval": KEEPALIVE_INTERVAL_S,
+        "keepalives_count": KEEPALIVE_COUNT,
+        "tcp_user_timeout": TCP_USER_TIMEOUT_MS,
+        "options": options,
+    }
+    return {k: v for k, v in wanted.items() if k not in given}
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
@@ -152,6 +195,9 @@ def migrate(engine: Engine, revision: str = "head") -> None:
     """Bring the schema to ``revision`` (upgrade or downgrade); :class:`DatabaseUnreachable`
     when the database cannot be reached."""
     with connect(engine) as connection, connection.begin():
+        if connection.dialect.name == "postgresql":
+            # a migration may rewrite a large table: no statement deadline for it
+            connection.exec_driver_sql("SET LOCAL statement_timeout = 0")
         config = _alembic_config(connection)
         current = MigrationContext.configure(connection).get_current_revision()
         heads = ScriptDirectory.from_config(config)

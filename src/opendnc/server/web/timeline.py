@@ -121,6 +121,7 @@ class Timeline:
         self.retention = timedelta(days=retention_days)
         self.changes: dict[str, deque[Sample]] = {}  # without a database
         self.pending: deque[tuple[str, Sample]] = deque(maxlen=MAX_PENDING)
+        self._failing = False  # the last flush failed: the outage is logged once, not per try
         self._last: dict[str, Key] = {}
         self._lock = threading.Lock()
 
@@ -227,11 +228,15 @@ class Timeline:
                     for name, s in batch
                 )
         except SQLAlchemyError as exc:
-            log.warning("status timeline: %d samples not written yet: %s", len(batch), exc)
+            if not self._failing:
+                first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                log.warning("status timeline: %d samples not written yet: %s", len(batch), first)
+            self._failing = True
             with self._lock:
                 # back in front of what came meanwhile; beyond the limit the oldest go
                 self.pending = deque([*batch, *self.pending], maxlen=MAX_PENDING)
             return 0
+        self._failing = False
         return len(batch)
 
     def prune(self, now: datetime | None = None) -> int:

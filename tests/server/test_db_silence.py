@@ -1,0 +1,369 @@
+"""A server whose PostgreSQL goes silent or away, with a real database behind a proxy the test
+controls (tests/server/db_proxy.py) and virtual controls in this process.
+
+- Two servers, one cut off by a frozen link (no reset, no answer: a dropped network): the cut
+  server stops writing to the serial Haas it drip-feeds before the other server takes its
+  lease, checked at the virtual control (the blocks it received, with their times, against
+  the lease's ``acquired`` time in the database).
+- One server configured alone (``cluster = false``) through a database outage several times
+  its lease: its drip-feed never stops, a load whose end could not be written is recorded
+  once afterwards and received once, health says 503 meanwhile, and the API and the pages
+  answer 503 with one line each while the log says so once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.peers import require_module
+from tests.server.cluster_support import program
+from tests.server.conftest import _pg_database
+from tests.server.db_proxy import DbProxy
+from tests.server.harness import Procs, auth, create_key, serve, wait_for
+
+httpx = require_module("httpx")
+require_module("psycopg")
+
+from opendnc.server.auth import KEY_PREFIX  # noqa: E402
+from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
+
+LEASE = 3.0  # seconds: as the cluster tests, so the fence and the failover fit in a test
+BLOCKS = 200  # blocks a second the virtual Haas runs
+MOVES = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(3000))
+PROGRAM = f"%\nO03000 (LONG RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{MOVES}M30\n%\n".encode()
+
+
+class FleetLoop:
+    """Virtual controls on an event loop of their own thread (so the test reads them live)."""
+
+    def __init__(self, root: Path, **options: Any) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.fleet: Fleet = self._run(start_fleet(root, **options))
+
+    def _run(self, coro: Any) -> Any:
+        future: Future[Any] = asyncio.run_coroutine_threadsafe(coro, self.loop)
+        return future.result(30)
+
+    def stop(self) -> None:
+        self._run(self.fleet.close())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+class Sampler:
+    """Reads a counter every 10 ms in a thread: (wall time, value) at each change."""
+
+    def __init__(self, read: Callable[[], int]) -> None:
+        self.read = read
+        self.changes: list[tuple[float, int]] = [(time.time(), read())]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.01):
+            value = self.read()
+            if value != self.changes[-1][1]:
+                self.changes.append((time.time(), value))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    yield from _pg_database()
+
+
+def _config(fleet: Fleet, root: Path, extra: str = "") -> Path:
+    text = server_config(fleet, poll_interval=0.5, library=root / "lib", dripfeed=True)
+    text = text.replace("[server]\n", f"[server]\nlease_seconds = {LEASE}\n{extra}", 1)
+    path = root / "shop.toml"
+    path.write_text(text)
+    return path
+
+
+def _lease(db: str, machine: str) -> tuple[str, float]:
+    """The machine's lease owner and when it took it (wall clock), from the database."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.db import make_engine, make_sessions
+    from opendnc.server.store.models import MachineLease
+
+    engine = make_engine(db)
+    try:
+        with make_sessions(engine)() as session:
+            row = session.scalars(select(MachineLease).where(MachineLease.machine == machine)).one()
+            return row.owner, row.acquired.timestamp()
+    finally:
+        engine.dispose()
+
+
+def _dripfeed(client: httpx.Client, machine: str) -> int:
+    assert client.put("/api/programs/O03000.nc", content=PROGRAM).status_code == 201
+    assert client.post("/api/programs/O03000.nc/versions/1/release").status_code == 200
+    sent = client.post(
+        "/api/jobs", json={"kind": "dripfeed", "program": "O03000.nc", "machines": [machine]}
+    )
+    assert sent.status_code == 201, sent.text
+    job_id: int = sent.json()[0]["id"]
+    return job_id
+
+
+def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_over(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    fleet = FleetLoop(tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=BLOCKS)
+    # each server reaches the database through a proxy of its own: the one that ends up
+    # feeding the Haas is cut off
+    proxies = {name: DbProxy(pg_url) for name in ("dnc-1", "dnc-2")}
+    sampler: Sampler | None = None
+    clients: dict[str, httpx.Client] = {}
+    try:
+        config = _config(fleet.fleet, tmp_path)
+        key = create_key(config, pg_url)
+        with ThreadPoolExecutor(2) as pool:
+            urls = dict(
+                zip(
+                    proxies,
+                    pool.map(
+                        lambda n: serve(
+                            procs, config, proxies[n].url_for(pg_url), "--name", n, name=n
+                        ),
+                        proxies,
+                    ),
+                    strict=True,
+                )
+            )
+        for name, url in urls.items():
+            clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        client = clients["dnc-1"]
+        wait_for(
+            "a server online with the serial Haas",
+            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
+        )
+        job_id = _dripfeed(client, "haas-serial-1")
+        feeding = wait_for(
+            "the feed under way",
+            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
+        )
+        cut = feeding["server"]
+        other = ({"dnc-1", "dnc-2"} - {cut}).pop()
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        sampler = Sampler(lambda: front.dnc_lines)
+        changes = sampler.changes
+        wait_for("blocks reaching the Haas before the cut", lambda: len(changes) > 3)
+        proxies[cut].freeze()
+        frozen = time.time()
+        owner = wait_for(
+            f"{other} to take the serial Haas",
+            lambda: (o := _lease(pg_url, "haas-serial-1"))[0] == other and o,
+            timeout=LEASE * 6,
+        )
+        taken = owner[1]
+        # the survivor ends the feed once (interrupted at the line the cut server recorded);
+        # the sampler watches the Haas meanwhile for blocks that must not come
+        survivor = clients[other]
+        ended = wait_for(
+            "the feed to end",
+            lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["state"] != "running" and j,
+        )
+        assert ended["state"] == "interrupted", ended
+        sampler.stop()
+        last_block = sampler.changes[-1][0]
+        assert last_block < taken, (
+            f"a block reached the Haas {last_block - taken:.2f} s after {other} took it"
+        )
+        wait_for(
+            f"{cut} to say it stopped driving",
+            lambda: "serving no machine until renewed" in procs.log(cut),
+            timeout=5,
+        )
+        print(
+            f"frozen at 0: last block at {last_block - frozen:+.2f} s, "
+            f"{other} took the machine at {taken - frozen:+.2f} s",
+            flush=True,
+        )
+        # stopped by its own clock within the lease of its last renewal, not later
+        assert last_block - frozen < LEASE, last_block - frozen
+        assert "leases may have expired" in procs.log(cut)
+        # the cut server paused the feed at a block boundary and knows where: the control
+        # holds every block before that line whole (line 1 is "%", line 2 the O-number line
+        # that names the run; blocks count from line 3), and at most that line too when the
+        # link had to be closed under a feed caught writing it (docs/server.md)
+        paused = re.search(r"drip-feed paused at line (\d+)", procs.log(cut))
+        assert paused is not None, procs.log(cut)
+        line = int(paused.group(1))
+        assert line - 3 <= front.dnc_lines <= line - 2, (line, front.dnc_lines)
+        # back in touch, it corrects the line the survivor ended the job at (the last one it
+        # could write down before the cut, usually well behind) to where the control is
+        proxies[cut].restore()
+        corrected = wait_for(
+            "the exact line in the job's row",
+            lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["line"] == line and j,
+            timeout=20,
+            describe=lambda: survivor.get(f"/api/jobs/{job_id}").json(),
+        )
+        assert corrected["state"] == "interrupted"
+        assert f"line {line}" in corrected["error"]
+    finally:
+        if sampler is not None:
+            sampler.stop()
+        for client in clients.values():
+            client.close()
+        for name in list(procs.procs):
+            procs.stop(name, signal.SIGKILL)  # a frozen server's clean stop waits for nothing
+        for proxy in proxies.values():
+            proxy.close()
+        fleet.stop()
+
+
+SHORT = "".join(f"G01 X{i % 50}.5 Y{i % 7}. F30.\n" for i in range(2000))
+LONE_LEASE = 1.0  # what a cluster server would fence itself after; the outage lasts 3 of it
+SHORT_PROGRAM = f"%\nO03001 (SHORT RUN)\nG20\nT1 M06\nG54\nS1200 M03\n{SHORT}M30\n%\n".encode()
+
+
+def test_a_lone_server_rides_out_a_database_outage(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    receipts = tmp_path / "receipts.jsonl"
+    fleet = FleetLoop(
+        tmp_path / "machines",
+        tnc=1,
+        haas=0,
+        serial_haas=1,
+        block_rate=BLOCKS,
+        latency=0.02,  # seconds a TNC telegram takes: the load lasts into the outage
+        receipts=receipts,
+    )
+    proxy = DbProxy(pg_url)
+    client: httpx.Client | None = None
+    try:
+        # the only server: no leases, no fencing; its lease setting is what a cluster
+        # server would have fenced itself after
+        config = _config(fleet.fleet, tmp_path, "cluster = false\n")
+        config.write_text(
+            config.read_text().replace(f"lease_seconds = {LEASE}", f"lease_seconds = {LONE_LEASE}")
+        )
+        key = create_key(config, pg_url)
+        url = serve(procs, config, proxy.url_for(pg_url), "--name", "alone", name="alone")
+        client = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        api = client
+        assert api.get("/api/health").json()["leases"]["mode"] == "single"
+        for machine in ("tnc-1", "haas-serial-1"):
+            wait_for(
+                f"{machine} online",
+                lambda m=machine: api.get(f"/api/machines/{m}").json()["online"],
+            )
+        tnc_program = program(1, 60_000)
+        assert api.put("/api/programs/P01.H", content=tnc_program).status_code == 201
+        assert api.post("/api/programs/P01.H/versions/1/release").status_code == 200
+        assert api.put("/api/programs/O03001.nc", content=SHORT_PROGRAM).status_code == 201
+        assert api.post("/api/programs/O03001.nc/versions/1/release").status_code == 200
+        feed = api.post(
+            "/api/jobs",
+            json={"kind": "dripfeed", "program": "O03001.nc", "machines": ["haas-serial-1"]},
+        )
+        assert feed.status_code == 201, feed.text
+        feed_id = feed.json()[0]["id"]
+        wait_for("the feed under way", lambda: api.get(f"/api/jobs/{feed_id}").json()["line"] > 30)
+        load = api.post("/api/jobs", json={"program": "P01.H", "machines": ["tnc-1"]})
+        assert load.status_code == 201, load.text
+        load_id = load.json()[0]["id"]
+        wait_for(
+            "the load running", lambda: api.get(f"/api/jobs/{load_id}").json()["state"] == "running"
+        )
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        proxy.drop()  # the database stops: connections closed, new ones refused
+        cut_time = time.monotonic()
+        # during the outage: health says so, every route answers 503 in one line
+        health = api.get("/api/health")
+        assert health.status_code == 503, health.text
+        doc = health.json()
+        assert doc["status"] == "unavailable"
+        assert not doc["database"]["ok"]
+        assert doc["leases"] == {
+            "mode": "single",
+            "serving": 2,
+            "fenced": False,
+            "valid_for": None,
+            "renew_failures": 0,
+        }
+        listed = api.get("/api/jobs")
+        assert listed.status_code == 503, listed.text
+        assert listed.json()["detail"].startswith("the database is unavailable now:")
+        assert "\n" not in listed.json()["detail"]
+        # a page: its session cookie is looked up in the database (a key never seen here)
+        cookie = {"opendnc_session": KEY_PREFIX + "x" * 43}
+        page = httpx.get(f"{url}/", cookies=cookie, timeout=30)
+        assert page.status_code == 503, page.text
+        assert page.headers["content-type"].startswith("text/html")
+        assert "the database is unavailable now" in page.text
+        # the feed goes on: blocks still reach the Haas after three lease lengths of outage
+        # (the control takes them as it runs them, once its buffer is full)
+        late = wait_for(
+            "two lease lengths of outage",
+            lambda: time.monotonic() - cut_time >= 2 * LONE_LEASE and front.dnc_lines,
+        )
+        wait_for(
+            "blocks reaching the Haas after three lease lengths of outage",
+            lambda: time.monotonic() - cut_time >= 3 * LONE_LEASE and front.dnc_lines > late,
+        )
+        # and the load reaches the TNC whole meanwhile: its end can only be written later
+        wait_for(
+            "the TNC to have the program",
+            lambda: receipts.exists() and "P01.H" in receipts.read_text(),
+        )
+        assert api.get("/api/health").status_code == 503  # still away
+        restored = time.time()
+        proxy.restore()
+        wait_for("health again", lambda: api.get("/api/health").status_code == 200)
+        feed_job = wait_for(
+            "the feed to end",
+            lambda: (j := api.get(f"/api/jobs/{feed_id}").json())["state"] != "running" and j,
+        )
+        assert feed_job["state"] == "done", feed_job
+        # every block once: all lines but the two "%" and the O-number line naming the run
+        # (the last ones may still be on their way through the cable)
+        blocks = SHORT_PROGRAM.count(b"\n") - 3
+        wait_for("every block at the Haas", lambda: front.dnc_lines >= blocks, timeout=30)
+        assert front.dnc_lines == blocks
+        load_job = wait_for(
+            "the load's end recorded",
+            lambda: (
+                (j := api.get(f"/api/jobs/{load_id}").json())["state"] not in ("queued", "running")
+                and j
+            ),
+        )
+        assert (load_job["state"], load_job["attempts"]) == ("done", 1), load_job
+        # its end was written once the database was back (the control had it during the outage)
+        assert datetime.fromisoformat(load_job["finished"]).timestamp() >= restored
+        received = [line for line in receipts.read_text().splitlines() if "P01.H" in line]
+        assert len(received) == 1, received  # loaded once, never again
+        log = procs.log("alone")
+        assert log.count("the database is unavailable:") == 1, log
+        assert "Traceback" not in log, log
+        assert "Background on this error" not in log, log  # one line per message
+        assert "leases may have expired" not in log
+        assert "lost track" not in log
+    finally:
+        if client is not None:
+            client.close()
+        procs.stop_all()
+        proxy.close()
+        fleet.stop()
