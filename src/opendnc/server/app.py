@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
 from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
+from opendnc.server.alerts import Alerts
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.cluster import Cluster
 from opendnc.server.components import STOP_DEADLINE, Core
@@ -122,6 +123,8 @@ def build(
     outputs = core.add(
         Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
     )
+    if config.alerts is not None:  # e-mail and webhooks (docs/server.md#alerts)
+        core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
