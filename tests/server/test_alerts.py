@@ -1,0 +1,475 @@
+"""Alerts (docs/server.md#alerts): rules on the machines' states and the jobs' ends, sent to a
+real SMTP server (aiosmtpd) and a real HTTP receiver on loopback, once per episode, each
+delivery in the audit trail.
+
+Most tests drive the alerts component in this process with events on a real bus (cheap and
+exact: the clock is the test's); the last one runs the whole server around a virtual Haas."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import hmac
+import logging
+import socket
+import time
+import tomllib
+from collections.abc import Awaitable, Callable, Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+from zoneinfo import ZoneInfo
+
+import pytest
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.server.alert_rules import AlertEngine, Phase
+from opendnc.server.alerts import Alerts
+from opendnc.server.alerts_config import AlertKind, AlertsConfig, parse_alerts
+from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.machines.base import MachineStatus
+from opendnc.server.shifts import Calendar
+from opendnc.server.store.models import AuditEntry
+from tests.server.alerts_support import (
+    SmtpPeer,
+    WebhookPeer,
+    self_signed,
+    smtp_server,
+    webhook_receiver,
+)
+from tests.server.conftest import on
+from tests.server.harness import free_port
+
+BERLIN = Calendar(ZoneInfo("Europe/Berlin"))
+NOON = datetime(2026, 7, 1, 12, 0, tzinfo=UTC)  # 14:00 in Berlin (CEST, UTC+2)
+MACHINES = {"mill-1", "mill-2"}
+
+
+def config(text: str) -> AlertsConfig:
+    return parse_alerts(tomllib.loads(text)["alerts"], Path("."), MACHINES)
+
+
+def reading(machine: str, execution: str, *, online: bool = True, errors: tuple[str, ...] = ()):  # type: ignore[no-untyped-def]
+    status = MachineStatus(
+        at=NOON, available=True, execution=execution, program="O01234", errors=errors
+    )
+    return MachineStatusChanged(machine, online, status if online else None, "no answer")
+
+
+@dataclass
+class Clock:
+    now: datetime = NOON
+
+    def __call__(self) -> datetime:
+        return self.now
+
+
+async def until(what: str, check: Callable[[], Any], timeout: float = 15) -> Any:
+    """Poll ``check`` on the loop until true; fail naming ``what`` at the deadline."""
+    end = time.monotonic() + timeout
+    pause = 0.01
+    while not (value := check()):
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out waiting for {what}")
+        await asyncio.sleep(pause)
+        pause = min(0.1, pause * 1.5)
+    return value
+
+
+def run_alerts(
+    cfg: AlertsConfig,
+    sessions: sessionmaker[Session],
+    scenario: Callable[[Alerts, EventBus, Clock], Awaitable[None]],
+) -> None:
+    """Start an alerts component on a bus, run ``scenario``, stop it."""
+
+    async def main() -> None:
+        bus, clock = EventBus(), Clock()
+        bus.bind(asyncio.get_running_loop())
+        alerts = Alerts(cfg, bus, sessions, BERLIN, "dnc-t", tick=0.05, clock=clock)
+        await alerts.start()
+        try:
+            await scenario(alerts, bus, clock)
+        finally:
+            await asyncio.wait_for(alerts.stop(), 5)
+
+    asyncio.run(main())
+
+
+def audit_rows(sessions: sessionmaker[Session]) -> list[AuditEntry]:
+    with sessions() as session:
+        rows = session.scalars(
+            select(AuditEntry).where(AuditEntry.action == "alert").order_by(AuditEntry.id)
+        ).all()
+        session.expunge_all()
+        return list(rows)
+
+
+def signature(secret: bytes, body: bytes) -> str:
+    return "sha256=" + hmac.new(secret, body, hashlib.sha256).hexdigest()
+
+
+@pytest.fixture
+def smtp() -> Iterator[SmtpPeer]:
+    with smtp_server() as peer:
+        yield peer
+
+
+@pytest.fixture
+def hook() -> Iterator[WebhookPeer]:
+    with webhook_receiver() as peer:
+        yield peer
+
+
+def targets(smtp: SmtpPeer, hook: WebhookPeer) -> str:
+    return f"""
+[alerts]
+public_url = "https://dnc.example.com/"
+backoff = 0.05
+[alerts.email]
+host = "127.0.0.1"
+port = {smtp.port}
+from = "dnc@shop.example"
+to = ["lead@shop.example", "night@shop.example"]
+[[alerts.webhooks]]
+name = "ops"
+url = "{hook.url}"
+secret = "s3cret-hook"
+"""
+
+
+# -- the rules, in time the test sets -------------------------------------------------------
+
+
+def test_a_stop_alerts_once_its_minutes_are_up_and_once_only() -> None:
+    rules = config(
+        '[alerts]\n[[alerts.webhooks]]\nname = "w"\nurl = "http://127.0.0.1:9/x"\n'
+        '[[alerts.rules]]\nname = "long-stop"\nwhen = "stopped"\nminutes = 10\n'
+        'machines = ["mill-1"]\n'
+    ).rules
+    engine = AlertEngine(rules)
+    minute = timedelta(minutes=1)
+    assert engine.status(reading("mill-1", "FEED_HOLD"), NOON) == []
+    assert engine.tick(NOON + 9 * minute + timedelta(seconds=59)) == []
+    assert engine.status(reading("mill-1", "FEED_HOLD"), NOON + 9 * minute) == []
+    (fired,) = engine.tick(NOON + 10 * minute)
+    assert (fired.phase, fired.machine, fired.since) == (Phase.FIRED, "mill-1", NOON)
+    assert fired.detail == "FEED_HOLD, program O01234"
+    # the stop goes on, poll after poll: nothing more
+    for n in range(11, 30):
+        assert engine.status(reading("mill-1", "STOPPED"), NOON + n * minute) == []
+        assert engine.tick(NOON + n * minute) == []
+    # a lost link is not the stop's end, so the link coming back raises nothing again
+    assert engine.status(reading("mill-1", "", online=False), NOON + 31 * minute) == []
+    assert engine.status(reading("mill-1", "FEED_HOLD"), NOON + 32 * minute) == []
+    assert engine.tick(NOON + 60 * minute) == []
+    # the end (no on_clear: silent), then a short stop (under its minutes: silent) ...
+    assert engine.status(reading("mill-1", "ACTIVE"), NOON + 61 * minute) == []
+    assert engine.status(reading("mill-1", "FEED_HOLD"), NOON + 62 * minute) == []
+    assert engine.status(reading("mill-1", "ACTIVE"), NOON + 65 * minute) == []
+    # ... and a second long stop: a second alert, since its own start
+    engine.status(reading("mill-1", "FEED_HOLD"), NOON + 70 * minute)
+    (second,) = engine.tick(NOON + 80 * minute)
+    assert second.since == NOON + 70 * minute
+    # another machine is not this rule's
+    engine.status(reading("mill-2", "FEED_HOLD"), NOON)
+    assert engine.tick(NOON + 120 * minute) == []
+
+
+def test_alarm_offline_and_the_machines_of_another_server() -> None:
+    rules = config(
+        '[alerts]\n[[alerts.webhooks]]\nname = "w"\nurl = "http://127.0.0.1:9/x"\n'
+        '[[alerts.rules]]\nname = "alarm"\nwhen = "alarm"\non_clear = true\n'
+        '[[alerts.rules]]\nname = "gone"\nwhen = "offline"\nminutes = 5\n'
+    ).rules
+    engine = AlertEngine(rules)
+    second = timedelta(seconds=1)
+    (alarm,) = engine.status(reading("mill-2", "STOPPED", errors=("1010 SPINDLE",)), NOON)
+    assert (alarm.rule.name, alarm.kind, alarm.detail) == ("alarm", AlertKind.ALARM, "1010 SPINDLE")
+    assert engine.status(reading("mill-2", "STOPPED", errors=("1010 SPINDLE",)), NOON) == []
+    (cleared,) = engine.status(reading("mill-2", "READY"), NOON + 60 * second)
+    assert (cleared.phase, cleared.since, cleared.at) == (Phase.CLEARED, NOON, NOON + 60 * second)
+    # offline for 4 minutes: nothing; then offline again for 5: one alert since then
+    engine.status(reading("mill-1", "", online=False), NOON)
+    assert engine.status(reading("mill-1", "READY"), NOON + 240 * second) == []
+    engine.status(reading("mill-1", "", online=False), NOON + 300 * second)
+    assert engine.tick(NOON + 599 * second) == []
+    (gone,) = engine.tick(NOON + 600 * second)
+    assert (gone.kind, gone.since, gone.detail) == (
+        AlertKind.OFFLINE,
+        NOON + 300 * second,
+        "no answer",
+    )
+    # a machine another server serves now: its open episodes are that server's
+    engine.status(reading("mill-2", "STOPPED", errors=("E",)), NOON)
+    moved = MachineStatusChanged("mill-2", True, None, served=False)
+    assert engine.status(moved, NOON) == []
+    assert ("alarm", "mill-2") not in engine.open_episodes()
+
+
+def test_the_configuration_names_the_bad_key_and_never_the_password(tmp_path: Path) -> None:
+    base = '[alerts]\n[alerts.email]\nhost = "smtp.example.com"\nfrom = "a@b.example"\n'
+    to = 'to = ["x@y.example"]\n'
+    rule = to + '[[alerts.rules]]\nname = "r"\n'
+    cases = {
+        to: "alerts.rules: no rule",
+        'to = ["not-an-address"]\n': "alerts.email.to[0]",
+        to + 'username = "u"\npassword = "hunter2-pw"\n': "needs starttls or ssl",
+        rule + 'when = "melted"\n': "alerts.rules[0].when",
+        rule + 'when = "alarm"\nmachines = ["mill-9"]\n': "no machine named 'mill-9'",
+        rule + 'when = "alarm"\nsend_to = ["pager"]\n': "no target 'pager'",
+        rule + 'when = "job_failed"\nminutes = 3\n': "alerts.rules[0].minutes",
+        rule + 'when = "alarm"\nrepeat = true\n': "alerts.rules[0].repeat: unknown key",
+    }
+    machine = '\n[[machines]]\nname = "mill-1"\nkind = "lsv2"\nhost = "127.0.0.1"\n'
+    for extra, expected in cases.items():
+        with pytest.raises(ConfigError) as caught:
+            parse_config(machine + base + extra, base=tmp_path)
+        assert expected in str(caught.value), extra
+        assert "hunter2-pw" not in str(caught.value)
+    good = parse_config(
+        machine
+        + '[alerts]\n[alerts.email]\nhost = "smtp.example.com"\nstarttls = true\n'
+        + 'from = "a@b.example"\nto = "x@y.example"\nusername = "u"\npassword = "hunter2-pw"\n'
+        + '[[alerts.rules]]\nname = "r"\nwhen = "alarm"\n',
+        base=tmp_path,
+    )
+    assert good.alerts is not None
+    assert good.alerts.email is not None
+    assert (good.alerts.email.port, good.alerts.email.to) == (587, ("x@y.example",))
+    assert good.alerts.email.password == "hunter2-pw"
+    assert "hunter2-pw" not in repr(good)
+
+
+# -- the component, with real peers --------------------------------------------------------
+
+
+@on("sqlite")
+def test_one_stop_through_several_polls_sends_one_message_a_second_stop_a_second(
+    smtp: SmtpPeer, hook: WebhookPeer, sessions: sessionmaker[Session]
+) -> None:
+    cfg = config(
+        targets(smtp, hook) + '[[alerts.rules]]\nname = "stop"\nwhen = "stopped"\non_clear = true\n'
+    )
+
+    async def scenario(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
+        for _poll in range(4):  # a stop seen by four polls
+            bus.publish(reading("mill-1", "FEED_HOLD"))
+            await asyncio.sleep(0.06)  # the rules' tick runs in between
+        bus.publish(reading("mill-1", "ACTIVE"))  # it ends: the clear goes after the stop's
+        await until("the stop and its end by mail", lambda: len(smtp.taken()) >= 2)
+        await until("the stop and its end by webhook", lambda: len(hook.taken()) >= 2)
+        assert len(smtp.taken()) == 2
+        assert len(hook.taken()) == 2
+        clock.now = NOON + timedelta(minutes=30)
+        bus.publish(reading("mill-1", "FEED_HOLD"))
+        bus.publish(reading("mill-1", "FEED_HOLD"))
+        await until("the second stop by mail", lambda: len(smtp.taken()) >= 3)
+        await until("the second stop by webhook", lambda: len(hook.taken()) >= 3)
+
+    run_alerts(cfg, sessions, scenario)
+    first, end, second = smtp.taken()
+    assert first.subject == "[opendnc] mill-1 stopped since 2026-07-01 14:00 (Europe/Berlin)"
+    assert (first.sender, first.recipients) == (
+        "dnc@shop.example",
+        ["lead@shop.example", "night@shop.example"],
+    )
+    assert "Machine: mill-1" in first.text
+    assert "Since:   2026-07-01 14:00:00 Europe/Berlin" in first.text
+    assert "Detail:  FEED_HOLD, program O01234" in first.text
+    assert "Page:    https://dnc.example.com/machines/mill-1" in first.text
+    assert end.subject.startswith("[opendnc] mill-1 running again or ready (was stopped since ")
+    assert second.subject == "[opendnc] mill-1 stopped since 2026-07-01 14:30 (Europe/Berlin)"
+
+    posts = hook.taken()
+    for post in posts:
+        assert post.headers["content-type"] == "application/json"
+        assert post.headers["x-opendnc-signature"] == signature(b"s3cret-hook", post.body)
+        assert post.path == "/hook"
+    body = posts[0].json()
+    assert body == {
+        "version": 1,
+        "server": "dnc-t",
+        "rule": "stop",
+        "kind": "stopped",
+        "phase": "fired",
+        "machine": "mill-1",
+        "since": "2026-07-01T12:00:00+00:00",
+        "since_local": "2026-07-01T14:00:00+02:00",
+        "timezone": "Europe/Berlin",
+        "at": "2026-07-01T12:00:00+00:00",
+        "text": "mill-1 stopped since 2026-07-01 14:00 (Europe/Berlin)",
+        "detail": "FEED_HOLD, program O01234",
+        "job_id": None,
+        "program": None,
+        "url": "https://dnc.example.com/machines/mill-1",
+    }
+    assert [p.json()["phase"] for p in posts] == ["fired", "cleared", "fired"]
+    assert posts[2].json()["since"] == "2026-07-01T12:30:00+00:00"
+
+    rows = audit_rows(sessions)
+    assert len(rows) == 6
+    assert {r.result for r in rows} == {"ok"}
+    assert {r.machine for r in rows} == {"mill-1"}
+    by_target = sorted((r.detail["target"], r.detail["phase"]) for r in rows)
+    mail = f"email lead@shop.example,night@shop.example via 127.0.0.1:{smtp.port}"
+    web = f"webhook ops (127.0.0.1:{hook.url.split(':')[2].split('/')[0]})"
+    expected = [(t, p) for t in (mail, web) for p in ("fired", "cleared", "fired")]
+    assert by_target == sorted(expected)
+
+
+@on("sqlite")
+def test_a_failed_job_sends_its_alert_once(
+    smtp: SmtpPeer, hook: WebhookPeer, sessions: sessionmaker[Session]
+) -> None:
+    rules = '[[alerts.rules]]\nname = "jobs"\nwhen = "job_failed"\nmachines = ["mill-1"]\n'
+    cfg = config(targets(smtp, hook) + rules)
+
+    async def scenario(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
+        error = "TNC:/nc_prog/O01234.nc: the control refused the file"
+        bus.publish(JobFinished(7, "mill-1", "send", "O01234.nc", 2, outcome="failed", error=error))
+        bus.publish(JobFinished(7, "mill-1", "send", "O01234.nc", 2, outcome="failed", error=error))
+        bus.publish(JobFinished(8, "mill-1", "send", "O01234.nc", 2, outcome="cancelled"))
+        bus.publish(JobFinished(9, "mill-1", "send", "O01234.nc", 2, outcome="queued"))
+        bus.publish(JobFinished(10, "mill-2", "send", "O01234.nc", 2, outcome="failed"))
+        bus.publish(JobFinished(11, "mill-1", "dripfeed", "O7.nc", 1, outcome="interrupted"))
+        await until("two job alerts by mail", lambda: len(smtp.taken()) >= 2)
+        await until("two job alerts by webhook", lambda: len(hook.taken()) >= 2)
+
+    run_alerts(cfg, sessions, scenario)
+    mails = smtp.taken()
+    assert [m.subject for m in mails] == [
+        "[opendnc] mill-1: job 7 (O01234.nc) failed at 2026-07-01 14:00 (Europe/Berlin)",
+        "[opendnc] mill-1: job 11 (O7.nc) failed at 2026-07-01 14:00 (Europe/Berlin)",
+    ]
+    assert "Detail:  TNC:/nc_prog/O01234.nc: the control refused the file" in mails[0].text
+    assert "Job:     7 (O01234.nc)" in mails[0].text
+    assert [(p.json()["job_id"], p.json()["kind"]) for p in hook.taken()] == [
+        (7, "job_failed"),
+        (11, "job_failed"),
+    ]
+    assert sorted(r.job_id or 0 for r in audit_rows(sessions)) == [7, 7, 11, 11]
+
+
+@on("sqlite")
+def test_a_dead_target_is_audited_as_failed_logged_once_and_holds_nothing_up(
+    hook: WebhookPeer, sessions: sessionmaker[Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    dead = free_port()  # nothing listens there
+    # an SMTP server that takes the connection and never says a word
+    silent = socket.create_server(("127.0.0.1", 0))
+    silent_port = silent.getsockname()[1]
+    hook.fail_next = 1  # the good webhook fails once: its retry gets through
+    cfg = config(f"""
+[alerts]
+backoff = 0.05
+[alerts.email]
+host = "127.0.0.1"
+port = {silent_port}
+from = "dnc@shop.example"
+to = ["lead@shop.example"]
+timeout = 0.5
+retries = 0
+[[alerts.webhooks]]
+name = "dead"
+url = "http://127.0.0.1:{dead}/hook"
+retries = 1
+[[alerts.webhooks]]
+name = "ops"
+url = "{hook.url}"
+secret = "plain-token"
+sign = "header"
+[[alerts.rules]]
+name = "alarm"
+when = "alarm"
+""")
+
+    async def scenario(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
+        began = time.monotonic()
+        bus.publish(reading("mill-1", "STOPPED", errors=("1010",)))
+        bus.publish(reading("mill-2", "STOPPED", errors=("1011",)))
+        # the webhook does not wait for the silent SMTP server, nor for the dead webhook
+        await until("both alarms by webhook", lambda: len(hook.taken()) >= 3)
+        assert time.monotonic() - began < 1.5
+        await until(
+            "the dead targets audited",
+            lambda: len([r for r in audit_rows(sessions) if r.result == "failed"]) >= 4,
+        )
+
+    with caplog.at_level(logging.WARNING, logger="opendnc.server.alerts"), silent:
+        run_alerts(cfg, sessions, scenario)
+    posts = hook.taken()
+    assert [p.json()["machine"] for p in posts] == ["mill-1", "mill-1", "mill-2"]  # a retry
+    assert all(p.headers["x-opendnc-secret"] == "plain-token" for p in posts)
+    rows = audit_rows(sessions)
+    failed = sorted(
+        (r.machine, r.detail["target"], r.detail["attempts"]) for r in rows if r.result == "failed"
+    )
+    assert failed == sorted(
+        [(m, f"webhook dead (127.0.0.1:{dead})", 2) for m in ("mill-1", "mill-2")]
+        + [
+            (m, f"email lead@shop.example via 127.0.0.1:{silent_port}", 1)
+            for m in ("mill-1", "mill-2")
+        ]
+    )
+    for row in rows:
+        if row.result == "failed":
+            assert row.detail["error"]
+    ok = [r for r in rows if r.result == "ok"]
+    assert sorted((r.machine, r.detail["attempts"]) for r in ok) == [("mill-1", 2), ("mill-2", 1)]
+    # one warning per outage and target, not one per message
+    down = [r.getMessage() for r in caplog.records if "not reachable" in r.getMessage()]
+    assert len(down) == 2, down
+    assert "plain-token" not in caplog.text
+
+
+@on("sqlite")
+def test_starttls_and_login_and_the_password_never_shows(
+    tmp_path: Path, sessions: sessionmaker[Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    cert, key = self_signed(tmp_path)
+    right, wrong = "pw-Right-42", "pw-Wrong-43"
+    with (
+        smtp_server(tls=(cert, key), users={"dnc": right}) as smtp,
+        caplog.at_level(logging.DEBUG, logger="opendnc"),
+    ):
+        for n, password in enumerate((right, wrong), start=1):
+            cfg = config(f"""
+[alerts]
+[alerts.email]
+host = "127.0.0.1"
+port = {smtp.port}
+starttls = true
+ca_file = "{cert}"
+username = "dnc"
+password = "{password}"
+from = "dnc@shop.example"
+to = ["lead@shop.example"]
+retries = 0
+[[alerts.rules]]
+name = "alarm"
+when = "alarm"
+""")
+            assert password not in repr(cfg)
+
+            async def scenario(alerts: Alerts, bus: EventBus, clock: Clock, n: int = n) -> None:
+                bus.publish(reading("mill-1", "STOPPED", errors=("1010",)))
+                await until("the delivery audited", lambda: len(audit_rows(sessions)) >= n)
+
+            run_alerts(cfg, sessions, scenario)
+    (mail,) = smtp.taken()  # the right login only
+    assert mail.login == "dnc"
+    # both were tried (smtplib tries a refused login by each mechanism the server offers)
+    assert set(smtp.logins) == {("dnc", right), ("dnc", wrong)}
+    sent, refused = audit_rows(sessions)
+    assert (sent.result, refused.result) == ("ok", "failed")
+    assert "535" in refused.detail["error"]  # the server's answer: credentials invalid
+    for row in (sent, refused):
+        assert right not in repr(row.detail)
+        assert wrong not in repr(row.detail)
+    assert "not reachable" in caplog.text
+    assert right not in caplog.text
+    assert wrong not in caplog.text
