@@ -465,3 +465,111 @@ when = "alarm"
     assert "not reachable" in caplog.text
     assert right not in caplog.text
     assert wrong not in caplog.text
+
+
+# -- the whole server ----------------------------------------------------------------------
+
+
+def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
+    tmp_path: Path, smtp: SmtpPeer, hook: WebhookPeer
+) -> None:
+    from opendnc.server import auth
+    from opendnc.server.app import build
+    from opendnc.server.store.models import Role
+    from opendnc.sim.fleet import server_config
+    from opendnc.sim.haas.machine import Status
+    from tests.server.harness import httpx, wait_for
+    from tests.server.serving import serving
+    from tests.server.test_from_the_control import FleetThread
+
+    ngc = FleetThread(tmp_path / "machines", tnc=0, haas=1)
+    try:
+        text = server_config(
+            ngc.fleet, poll_interval=0.2, library=tmp_path / "lib", timezone="Europe/Berlin"
+        )
+        text += targets(smtp, hook) + (
+            '[[alerts.rules]]\nname = "stop"\nwhen = "stopped"\non_clear = true\n'
+            '[[alerts.rules]]\nname = "jobs"\nwhen = "job_failed"\nsend_to = ["email", "ops"]\n'
+        )
+        server = build(
+            parse_config(text, base=tmp_path), database=f"sqlite:///{tmp_path / 'db.sqlite'}"
+        )
+        assert server.core.find(Alerts) is not None
+        with server.sessions.begin() as session:
+            auth.create_user(session, "admin", Role.ADMIN)
+            key = auth.create_key(session, "admin", Role.ADMIN, label="test")[1]
+        headers = {"Authorization": f"Bearer {key}"}
+        machine = server.machines.machines["haas-1"]
+        control = ngc.fleet.sims["haas-1"].control.machine
+
+        def hold(status: Any) -> None:
+            ngc.call(lambda: setattr(control, "status", status))
+
+        with serving(server) as url, httpx.Client(base_url=url, timeout=30) as client:
+            wait_for("the Haas online", lambda: machine.status is not None)
+            before = datetime.now(UTC)
+            hold(Status.FEED_HOLD)  # the operator presses feed hold
+            wait_for("the stop by mail", lambda: smtp.taken())
+            arrived = datetime.now(UTC)
+            # the stop lasts through several more polls (every 0.2 s) ...
+            wait_for(
+                "three more polls of the stopped Haas",
+                lambda: (
+                    machine.status is not None
+                    and machine.status.at > arrived + timedelta(seconds=0.6)
+                    and machine.status.execution == "FEED_HOLD"
+                ),
+            )
+            hold(Status.IDLE)  # ... and ends: its end is the next message, nothing between
+            wait_for("the end of the stop by mail", lambda: len(smtp.taken()) >= 2)
+            hold(Status.FEED_HOLD)  # a second stop: a second message
+            wait_for("the second stop by mail", lambda: len(smtp.taken()) >= 3)
+
+            job = client.post(
+                "/api/jobs",
+                headers=headers,
+                json={"kind": "receive", "path": "O09999.nc", "machines": ["haas-1"]},
+            ).json()[0]
+            wait_for("the job's alert by mail", lambda: len(smtp.taken()) >= 4)
+            wait_for("every alert by webhook", lambda: len(hook.taken()) >= 4)
+            state = client.get(f"/api/jobs/{job['id']}", headers=headers).json()
+            assert state["state"] == "failed"
+            audited = wait_for(
+                "eight deliveries audited",
+                lambda: (
+                    (
+                        rows := client.get(
+                            "/api/audit", headers=headers, params={"action": "alert"}
+                        ).json()
+                    )
+                    and len(rows) >= 8
+                    and rows
+                ),
+            )
+
+        mails = smtp.taken()
+        assert len(mails) == 4
+        stop, end, again, failed = mails
+        assert stop.subject.startswith("[opendnc] haas-1 stopped since ")
+        assert end.subject.startswith("[opendnc] haas-1 running again or ready (was stopped")
+        assert again.subject.startswith("[opendnc] haas-1 stopped since ")
+        assert f"job {job['id']} failed" in failed.subject
+        assert "cannot read O09999.nc" in failed.text
+        posts = [p.json() for p in hook.taken()]
+        assert [(p["rule"], p["phase"]) for p in posts] == [
+            ("stop", "fired"),
+            ("stop", "cleared"),
+            ("stop", "fired"),
+            ("jobs", "fired"),
+        ]
+        # the stop began between the feed hold and the message; the mail says it in Berlin
+        since = datetime.fromisoformat(posts[0]["since"])
+        assert before <= since <= arrived
+        local = since.astimezone(ZoneInfo("Europe/Berlin"))
+        assert stop.subject.endswith(f"since {local:%Y-%m-%d %H:%M} (Europe/Berlin)")
+        assert posts[0]["url"] == "https://dnc.example.com/machines/haas-1"
+        assert {row["result"] for row in audited} == {"ok"}
+        assert {row["detail"]["target"].split()[0] for row in audited} == {"email", "webhook"}
+        assert sorted(row["job_id"] or 0 for row in audited)[-2:] == [job["id"], job["id"]]
+    finally:
+        ngc.stop()
