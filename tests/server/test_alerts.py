@@ -244,6 +244,31 @@ def test_the_configuration_names_the_bad_key_and_never_the_password(tmp_path: Pa
     assert "hunter2-pw" not in repr(good)
 
 
+def test_the_examples_in_the_readme_and_docs_are_valid(tmp_path: Path) -> None:
+    repo = Path(__file__).resolve().parents[2]
+    readme = (repo / "README.md").read_text(encoding="utf-8")
+    block = readme.split("The configuration (docs/server.md", 1)[1]
+    block = block.split("```text\n", 1)[1].split("```", 1)[0]
+    shop = parse_config(block, base=tmp_path)
+    assert shop.alerts is not None
+    assert [r.kind for r in shop.alerts.rules] == [
+        AlertKind.ALARM,
+        AlertKind.STOPPED,
+        AlertKind.JOB_FAILED,
+    ]
+    docs = (repo / "docs" / "server.md").read_text(encoding="utf-8").split("## Alerts", 1)[1]
+    table = docs.split("```toml\n", 1)[1].split("```", 1)[0]
+    machines = "".join(
+        f'[[machines]]\nname = "{m}"\nkind = "lsv2"\nhost = "127.0.0.1"\n'
+        for m in ("mill-1", "vf2")
+    )
+    documented = parse_config(machines + table, base=tmp_path).alerts
+    assert documented is not None
+    assert documented.email is not None
+    assert documented.email.ca_file == tmp_path / "ca.pem"
+    assert {r.name for r in documented.rules} == {"alarm", "long-stop", "jobs"}
+
+
 # -- the component, with real peers --------------------------------------------------------
 
 
