@@ -29,7 +29,7 @@ from opendnc.server.alert_rules import AlertEngine, Phase
 from opendnc.server.alerts import Alerts
 from opendnc.server.alerts_config import AlertKind, AlertsConfig, parse_alerts
 from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.shifts import Calendar
 from opendnc.server.store.models import AuditEntry
@@ -208,6 +208,17 @@ def test_alarm_offline_and_the_machines_of_another_server() -> None:
     moved = MachineStatusChanged("mill-2", True, None, served=False)
     assert engine.status(moved, NOON) == []
     assert ("alarm", "mill-2") not in engine.open_episodes()
+    # this server loses mill-1 (several servers): the offline reading its task's end leaves
+    # is no outage, and its open episode is the new server's now
+    engine.status(reading("mill-1", "", online=False), NOON + 700 * second)
+    engine.lease(LeaseChanged("mill-1", "dnc-1", held=False))
+    assert engine.open_episodes() == {}
+    engine.status(reading("mill-1", "", online=False), NOON + 701 * second)
+    assert engine.tick(NOON + 3600 * second) == []
+    # gained again: its own readings count again
+    engine.lease(LeaseChanged("mill-1", "dnc-1", held=True))
+    engine.status(reading("mill-1", "", online=False), NOON + 3600 * second)
+    assert [a.since for a in engine.tick(NOON + 3900 * second)] == [NOON + 3600 * second]
 
 
 def test_the_configuration_names_the_bad_key_and_never_the_password(tmp_path: Path) -> None:

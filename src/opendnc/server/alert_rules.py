@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from datetime import datetime
 
 from opendnc.server.alerts_config import AlertKind, AlertRule
-from opendnc.server.events import JobFinished, MachineStatusChanged
+from opendnc.server.events import JobFinished, LeaseChanged, MachineStatusChanged
 from opendnc.server.state import State
 
 __all__ = ["Alert", "AlertEngine", "Phase"]
@@ -75,6 +75,21 @@ class AlertEngine:
         self._episodes: dict[tuple[str, str], _Episode] = {}
         # a job's end can be published twice (a hand-back after an outage): one alert a job
         self._jobs: deque[int] = deque(maxlen=remember_jobs)
+        self._elsewhere: set[str] = set()  # machines whose lease this server lost
+
+    def lease(self, event: LeaseChanged) -> None:
+        """This server gained or lost a machine (several servers): a lost one's episodes go
+        (its new server alerts for it), and the offline reading its task's end leaves is not
+        an outage."""
+        if event.held:
+            self._elsewhere.discard(event.machine)
+        else:
+            self._elsewhere.add(event.machine)
+            self._forget(event.machine)
+
+    def _forget(self, machine: str) -> None:
+        for key in [k for k in self._episodes if k[1] == machine]:
+            del self._episodes[key]
 
     def open_episodes(self) -> dict[tuple[str, str], datetime]:
         """(rule, machine) of every open episode, and since when."""
@@ -83,10 +98,9 @@ class AlertEngine:
     def status(self, event: MachineStatusChanged, now: datetime) -> list[Alert]:
         """A machine's reading: episodes start, fire or end."""
         machine = event.machine
-        if not event.served:
+        if not event.served or machine in self._elsewhere:
             # another server of the cluster serves it now: its alerts are that server's
-            for key in [k for k in self._episodes if k[1] == machine]:
-                del self._episodes[key]
+            self._forget(machine)
             return []
         state = event.state
         out: list[Alert] = []

@@ -38,7 +38,7 @@ from opendnc.server.alert_delivery import (
 from opendnc.server.alert_rules import Alert, AlertEngine
 from opendnc.server.alerts_config import AlertsConfig, EmailTarget, WebhookTarget
 from opendnc.server.components import cancel_and_wait
-from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
 from opendnc.server.shifts import Calendar
 
 if TYPE_CHECKING:
@@ -169,6 +169,8 @@ class Alerts:
                     self.raise_all(self.engine.status(event, now))
                 elif isinstance(event, JobFinished):
                     self.raise_all(self.engine.job(event, now))
+                elif isinstance(event, LeaseChanged):
+                    self.engine.lease(event)
                 self.raise_all(self.engine.tick(now))
             except Exception:  # a bug in one rule must not end the watch for the others
                 log.exception("alerts: an event could not be judged")
