@@ -75,10 +75,14 @@ class _Handler:
 
 @contextmanager
 def smtp_server(
-    *, tls: tuple[Path, Path] | None = None, users: dict[str, str] | None = None
+    *,
+    tls: tuple[Path, Path] | None = None,
+    users: dict[str, str] | None = None,
+    implicit: bool = False,
 ) -> Iterator[SmtpPeer]:
     """An SMTP server on 127.0.0.1; with ``tls`` (cert, key) it offers STARTTLS and requires
-    it, with ``users`` it requires a login (only after STARTTLS)."""
+    it (or, ``implicit``, speaks TLS from the start), with ``users`` it requires a login
+    (only after STARTTLS)."""
     import ssl
 
     peer = SmtpPeer(free_port())
@@ -86,7 +90,10 @@ def smtp_server(
     if tls is not None:
         context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
         context.load_cert_chain(str(tls[0]), str(tls[1]))
-        options.update(tls_context=context, require_starttls=True)
+        if implicit:
+            options.update(ssl_context=context)
+        else:
+            options.update(tls_context=context, require_starttls=True)
     if users is not None:
 
         def check(server: Any, session: Any, envelope: Any, mechanism: str, data: Any) -> Any:

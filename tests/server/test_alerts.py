@@ -502,6 +502,32 @@ when = "alarm"
     assert right not in caplog.text
     assert wrong not in caplog.text
 
+    # SMTP over TLS from the start (port 465's way), the certificate checked against ca_file
+    with smtp_server(tls=(cert, key), implicit=True) as smtps:
+        cfg = config(f"""
+[alerts]
+[alerts.email]
+host = "127.0.0.1"
+port = {smtps.port}
+ssl = true
+ca_file = "{cert}"
+from = "dnc@shop.example"
+to = ["lead@shop.example"]
+retries = 0
+[[alerts.rules]]
+name = "alarm"
+when = "alarm"
+""")
+
+        async def over_tls(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
+            bus.publish(reading("mill-2", "STOPPED", errors=("1010",)))
+            await until("the delivery audited", lambda: len(audit_rows(sessions)) >= 3)
+
+        run_alerts(cfg, sessions, over_tls)
+    (mail,) = smtps.taken()
+    assert audit_rows(sessions)[-1].result == "ok"
+    assert mail.subject.startswith("[opendnc] mill-2 in alarm since ")
+
 
 # -- the whole server ----------------------------------------------------------------------
 

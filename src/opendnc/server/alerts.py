@@ -38,6 +38,7 @@ from opendnc.server.alert_delivery import (
 from opendnc.server.alert_rules import Alert, AlertEngine
 from opendnc.server.alerts_config import AlertsConfig, EmailTarget, WebhookTarget
 from opendnc.server.components import cancel_and_wait
+from opendnc.server.configkeys import ConfigError
 from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
 from opendnc.server.shifts import Calendar
 
@@ -114,6 +115,14 @@ class Alerts:
         tick: float = TICK,
         clock: Callable[[], datetime] = _now,
     ) -> None:
+        if config.webhooks:
+            try:
+                import httpx  # noqa: F401  (configured webhooks that cannot run fail at build)
+            except ImportError:
+                raise ConfigError(
+                    "alerts.webhooks",
+                    "needs httpx, part of the 'server' extra: pip install 'opendnc[server]'",
+                ) from None
         self.config = config
         self.bus = bus
         self.sessions = sessions
