@@ -133,7 +133,8 @@ def email_of(body: AlertBody, target: EmailTarget) -> EmailMessage:
     message["From"] = target.sender
     message["To"] = ", ".join(target.to)
     message["Date"] = formatdate(localtime=False)
-    message["Message-ID"] = make_msgid("opendnc")
+    # the sender's domain, not the host's name: make_msgid would look that up (DNS)
+    message["Message-ID"] = make_msgid("opendnc", domain=target.sender.rsplit("@", 1)[1])
     since = datetime.fromisoformat(body.since_local)
     lines = [
         body.text,
