@@ -596,6 +596,15 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
             wait_for("every alert by webhook", lambda: len(hook.taken()) >= 4)
             state = client.get(f"/api/jobs/{job['id']}", headers=headers).json()
             assert state["state"] == "failed"
+            # what a viewer sees of it: both targets up, nothing waiting, the second stop open
+            assert client.get("/api/alerts").status_code == 401
+            seen = client.get("/api/alerts", headers=headers).json()
+            assert seen["configured"] is True
+            assert [(t["name"], t["reachable"], t["queued"]) for t in seen["targets"]] == [
+                ("email", True, 0),
+                ("ops", True, 0),
+            ]
+            assert [(e["rule"], e["machine"]) for e in seen["open"]] == [("stop", "haas-1")]
             audited = wait_for(
                 "eight deliveries audited",
                 lambda: (

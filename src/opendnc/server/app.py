@@ -18,7 +18,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
+from opendnc.server import actions, alerts_api, api, dprnt_api, edge, utilization_api, web
 from opendnc.server.alerts import Alerts
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.cluster import Cluster
@@ -202,6 +202,7 @@ def build(
     app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)
+    app.include_router(alerts_api.router)
     utilization_api.install(app)
     web.install(app)
     return Server(
