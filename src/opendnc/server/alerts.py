@@ -16,9 +16,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
@@ -39,7 +39,13 @@ from opendnc.server.alert_rules import Alert, AlertEngine
 from opendnc.server.alerts_config import AlertsConfig, EmailTarget, WebhookTarget
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.configkeys import ConfigError
-from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.events import (
+    EventBus,
+    JobFinished,
+    LeaseChanged,
+    MachineStatusChanged,
+    Subscription,
+)
 from opendnc.server.shifts import Calendar
 
 if TYPE_CHECKING:
@@ -133,8 +139,6 @@ class Alerts:
         self.engine = AlertEngine(config.rules)
         self.outboxes = {t.name: _Outbox(config.queue) for t in config.targets}
         self.down: dict[str, bool] = {t.name: False for t in config.targets}
-        self.deliveries: deque[Delivery] = deque(maxlen=100)  # the newest, for a look
-        self._smtp: ThreadPoolExecutor | None = None
         self._client: httpx.AsyncClient | None = None
         self._stack = contextlib.ExitStack()
         self._tasks: list[asyncio.Task[None]] = []
@@ -147,8 +151,6 @@ class Alerts:
             # no connection pool kept across alerts: minutes apart, a kept one is stale
             limits = httpx.Limits(max_keepalive_connections=0)
             self._client = httpx.AsyncClient(limits=limits, follow_redirects=False)
-        if self.config.email is not None:
-            self._smtp = ThreadPoolExecutor(1, thread_name_prefix="alerts-smtp")
         subscription = self._stack.enter_context(self.bus.subscribe(maxsize=1000))
         self._tasks.append(asyncio.create_task(self._watch(subscription), name="alerts"))
         for target in self.config.targets:
@@ -163,13 +165,10 @@ class Alerts:
         client, self._client = self._client, None
         if client is not None:
             await client.aclose()
-        smtp, self._smtp = self._smtp, None
-        if smtp is not None:
-            smtp.shutdown(wait=False, cancel_futures=True)  # a hung SMTP is not waited for
 
     # -- watching -------------------------------------------------------------------------
 
-    async def _watch(self, subscription: Any) -> None:
+    async def _watch(self, subscription: Subscription) -> None:
         while True:
             event = await subscription.get(timeout=self.tick)
             now = self.clock()
@@ -202,7 +201,6 @@ class Alerts:
         while True:
             alert = await outbox.get()
             delivery = await self.deliver(target, alert)
-            self.deliveries.append(delivery)
             self._note(target, delivery)
             await self._audit(delivery)
 
@@ -224,10 +222,7 @@ class Alerts:
 
     async def _try(self, target: EmailTarget | WebhookTarget, body: AlertBody) -> None:
         if isinstance(target, EmailTarget):
-            assert self._smtp is not None
-            loop = asyncio.get_running_loop()
-            message = email_of(body, target)
-            await loop.run_in_executor(self._smtp, send_email, target, message)
+            await _in_thread(send_email, target, email_of(body, target))
         else:
             assert self._client is not None
             await post_webhook(self._client, target, body.encode())
@@ -269,3 +264,35 @@ class Alerts:
             await asyncio.to_thread(write)
         except SQLAlchemyError as exc:  # the database is away: the alert itself went (or not)
             log.warning("alerts: audit row not written: %s", type(exc).__name__)
+
+
+async def _in_thread(function: Callable[..., None], *args: Any) -> None:
+    """Run ``function(*args)`` in a daemon thread of its own and wait for it.
+
+    Not the loop's default executor, whose threads the database work uses, nor an executor of
+    our own: Python joins an executor's threads at exit, so an SMTP server that hangs would
+    hold up the end of a stopped server for its whole timeout. A cancelled wait leaves the
+    thread to end at its socket's timeout, unwaited for.
+    """
+    loop = asyncio.get_running_loop()
+    done: asyncio.Future[None] = loop.create_future()
+
+    def settle(error: BaseException | None) -> None:
+        if done.done():
+            return
+        if error is None:
+            done.set_result(None)
+        else:
+            done.set_exception(error)
+
+    def run() -> None:
+        error: BaseException | None = None
+        try:
+            function(*args)
+        except BaseException as exc:  # handed to the waiting task, which decides
+            error = exc
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile: nobody waits
+            loop.call_soon_threadsafe(settle, error)
+
+    threading.Thread(target=run, name="alerts-smtp", daemon=True).start()
+    await done
