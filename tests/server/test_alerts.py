@@ -545,11 +545,16 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
     from tests.server.test_from_the_control import FleetThread
 
     ngc = FleetThread(tmp_path / "machines", tnc=0, haas=1)
+    dead = free_port()  # a webhook nobody listens to
+    hung = socket.create_server(("127.0.0.1", 0))  # one that takes the request, never answers
     try:
         text = server_config(
             ngc.fleet, poll_interval=0.2, library=tmp_path / "lib", timezone="Europe/Berlin"
         )
+        hung_url = f"http://127.0.0.1:{hung.getsockname()[1]}/"
         text += targets(smtp, hook) + (
+            f'[[alerts.webhooks]]\nname = "dead"\nurl = "http://127.0.0.1:{dead}/"\nretries = 0\n'
+            f'[[alerts.webhooks]]\nname = "hung"\nurl = "{hung_url}"\ntimeout = 60\n'
             '[[alerts.rules]]\nname = "stop"\nwhen = "stopped"\non_clear = true\n'
             '[[alerts.rules]]\nname = "jobs"\nwhen = "job_failed"\nsend_to = ["email", "ops"]\n'
         )
@@ -596,27 +601,32 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
             wait_for("every alert by webhook", lambda: len(hook.taken()) >= 4)
             state = client.get(f"/api/jobs/{job['id']}", headers=headers).json()
             assert state["state"] == "failed"
-            # what a viewer sees of it: both targets up, nothing waiting, the second stop open
-            assert client.get("/api/alerts").status_code == 401
-            seen = client.get("/api/alerts", headers=headers).json()
-            assert seen["configured"] is True
-            assert [(t["name"], t["reachable"], t["queued"]) for t in seen["targets"]] == [
-                ("email", True, 0),
-                ("ops", True, 0),
-            ]
-            assert [(e["rule"], e["machine"]) for e in seen["open"]] == [("stop", "haas-1")]
             audited = wait_for(
-                "eight deliveries audited",
+                "eleven deliveries audited",
                 lambda: (
                     (
                         rows := client.get(
                             "/api/audit", headers=headers, params={"action": "alert"}
                         ).json()
                     )
-                    and len(rows) >= 8
+                    and len(rows) >= 11
                     and rows
                 ),
             )
+            # the machine's task went on polling all along, the hung webhook notwithstanding
+            assert machine.status is not None
+            assert machine.status.at > datetime.now(UTC) - timedelta(seconds=2)
+            # what a viewer sees of the targets, and the second stop still open
+            assert client.get("/api/alerts").status_code == 401
+            seen = client.get("/api/alerts", headers=headers).json()
+            assert seen["configured"] is True
+            assert [(t["name"], t["reachable"], t["queued"]) for t in seen["targets"]] == [
+                ("email", True, 0),
+                ("ops", True, 0),
+                ("dead", False, 0),
+                ("hung", True, 2),  # the first stop still in flight; its end and the next wait
+            ]
+            assert [(e["rule"], e["machine"]) for e in seen["open"]] == [("stop", "haas-1")]
 
         mails = smtp.taken()
         assert len(mails) == 4
@@ -639,8 +649,21 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
         local = since.astimezone(ZoneInfo("Europe/Berlin"))
         assert stop.subject.endswith(f"since {local:%Y-%m-%d %H:%M} (Europe/Berlin)")
         assert posts[0]["url"] == "https://dnc.example.com/machines/haas-1"
-        assert {row["result"] for row in audited} == {"ok"}
-        assert {row["detail"]["target"].split()[0] for row in audited} == {"email", "webhook"}
+        # newest first: the dead webhook's three failures (the stops'; the job's rule names
+        # only email and ops), the others' eight deliveries, the hung one's none yet
+        failed_rows = [row for row in audited if row["result"] != "ok"]
+        assert [
+            (r["result"], r["detail"]["target"], r["detail"]["phase"]) for r in failed_rows
+        ] == [
+            ("failed", f"webhook dead (127.0.0.1:{dead})", phase)
+            for phase in ("fired", "cleared", "fired")
+        ]
+        assert all("ConnectError" in r["detail"]["error"] for r in failed_rows)
+        ok = [row["detail"]["target"].split()[0:2] for row in audited if row["result"] == "ok"]
+        assert sorted(name for kind, name in ok if kind == "webhook") == ["ops"] * 4
+        assert len([1 for kind, _name in ok if kind == "email"]) == 4
+        assert not [row for row in audited if "hung" in row["detail"]["target"]]
         assert sorted(row["job_id"] or 0 for row in audited)[-2:] == [job["id"], job["id"]]
     finally:
+        hung.close()
         ngc.stop()
