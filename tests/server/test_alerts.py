@@ -234,6 +234,9 @@ def test_the_configuration_names_the_bad_key_and_never_the_password(tmp_path: Pa
         rule + 'when = "alarm"\nsend_to = ["pager"]\n': "no target 'pager'",
         rule + 'when = "job_failed"\nminutes = 3\n': "alerts.rules[0].minutes",
         rule + 'when = "alarm"\nrepeat = true\n': "alerts.rules[0].repeat: unknown key",
+        to + '[[alerts.webhooks]]\nname = "w"\nurl = "http://127.0.0.1:99999/?t=hunter2-pw"\n': (
+            "alerts.webhooks[0].url: expected a TCP port"
+        ),
     }
     machine = '\n[[machines]]\nname = "mill-1"\nkind = "lsv2"\nhost = "127.0.0.1"\n'
     for extra, expected in cases.items():

@@ -33,6 +33,7 @@ from opendnc.server.alert_delivery import (
     body_of,
     email_of,
     post_webhook,
+    scrub,
     send_email,
 )
 from opendnc.server.alert_rules import Alert, AlertEngine
@@ -215,6 +216,9 @@ class Alerts:
                 return Delivery(alert, body, target.describe(), attempts=attempt)
             except DeliveryError as exc:
                 error = str(exc)
+            except Exception as exc:  # a library's own error (a URL it refuses, ...): one line,
+                # secrets out, and the target's task goes on with the next alert
+                error = scrub(f"{type(exc).__name__}: {exc}", *_secrets(target))
             if attempt <= target.retries:
                 await asyncio.sleep(delay)
                 delay *= 2
@@ -264,6 +268,13 @@ class Alerts:
             await asyncio.to_thread(write)
         except SQLAlchemyError as exc:  # the database is away: the alert itself went (or not)
             log.warning("alerts: audit row not written: %s", type(exc).__name__)
+
+
+def _secrets(target: EmailTarget | WebhookTarget) -> tuple[str, ...]:
+    """What no message about ``target`` may show."""
+    if isinstance(target, EmailTarget):
+        return (target.password,)
+    return (target.url, target.secret)
 
 
 async def _in_thread(function: Callable[..., None], *args: Any) -> None:

@@ -278,6 +278,9 @@ def _webhook(table: dict[str, Any], prefix: str) -> WebhookTarget:
     if not _URL.match(url):
         # the URL itself is not repeated: a chat webhook's path is its token
         raise ConfigError(f"{prefix}.url", "expected http://HOST[:PORT]/PATH or https://...")
+    port = re.match(r"^https?://(?:[^\s/?#@]*@)?[^\s/?#:]+:(\d+)(?:[/?#]|$)", url)
+    if port is not None:
+        port_range(int(port.group(1)), f"{prefix}.url")
     if "secret" in table and not isinstance(table["secret"], str):
         raise ConfigError(f"{prefix}.secret", "expected a string")
     secret = str(table.get("secret", ""))
