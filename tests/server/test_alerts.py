@@ -670,3 +670,46 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
     finally:
         hung.close()
         ngc.stop()
+
+
+def test_the_alerts_test_command_sends_to_each_target_and_says_how_it_went(
+    tmp_path: Path, smtp: SmtpPeer, hook: WebhookPeer
+) -> None:
+    from typer.testing import CliRunner
+
+    from opendnc.cli.main import app
+
+    dead = free_port()
+    shop = tmp_path / "shop.toml"
+    shop.write_text(
+        '[[machines]]\nname = "mill-1"\nkind = "lsv2"\nhost = "127.0.0.1"\n'
+        + targets(smtp, hook)
+        + f'[[alerts.webhooks]]\nname = "dead"\nurl = "http://127.0.0.1:{dead}/"\nretries = 0\n'
+        + '[[alerts.rules]]\nname = "alarm"\nwhen = "alarm"\n',
+        encoding="utf-8",
+    )
+    runner = CliRunner()
+    result = runner.invoke(app, ["alerts", "test", "--config", str(shop), "--to", "ops"])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith("sent    webhook ops (127.0.0.1:")
+    (post,) = hook.taken()
+    assert (post.json()["machine"], post.json()["kind"], post.json()["rule"]) == (
+        "mill-1",
+        "alarm",
+        "test",
+    )
+    assert post.headers["x-opendnc-signature"] == signature(b"s3cret-hook", post.body)
+    assert smtp.taken() == []  # only the target asked for
+
+    result = runner.invoke(app, ["alerts", "test", "--config", str(shop)])
+    assert result.exit_code == 1
+    lines = result.output.splitlines()
+    assert lines[0].startswith("sent    email lead@shop.example,night@shop.example via ")
+    assert lines[1].startswith("sent    webhook ops")
+    assert lines[2].startswith(f"failed  webhook dead (127.0.0.1:{dead}): ConnectError")
+    assert len(smtp.taken()) == 1
+    assert smtp.taken()[0].subject.startswith("[opendnc] mill-1 in alarm since ")
+
+    result = runner.invoke(app, ["alerts", "test", "--config", str(shop), "--to", "pager"])
+    assert result.exit_code == 1
+    assert "no target 'pager' (have dead, email, ops)" in result.output
