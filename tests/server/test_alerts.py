@@ -295,9 +295,12 @@ def test_one_stop_through_several_polls_sends_one_message_a_second_stop_a_second
     )
 
     async def scenario(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
-        for _poll in range(4):  # a stop seen by four polls
+        bus.publish(reading("mill-1", "FEED_HOLD"))
+        await until("the stop by mail", lambda: smtp.taken())
+        for _poll in range(4):  # the stop goes on through four more polls
             bus.publish(reading("mill-1", "FEED_HOLD"))
             await asyncio.sleep(0.06)  # the rules' tick runs in between
+        clock.now = NOON + timedelta(minutes=7)
         bus.publish(reading("mill-1", "ACTIVE"))  # it ends: the clear goes after the stop's
         await until("the stop and its end by mail", lambda: len(smtp.taken()) >= 2)
         await until("the stop and its end by webhook", lambda: len(hook.taken()) >= 2)
@@ -322,8 +325,11 @@ def test_one_stop_through_several_polls_sends_one_message_a_second_stop_a_second
     assert "Since:   2026-07-01 14:00:00 Europe/Berlin" in first.text
     assert "Detail:  FEED_HOLD, program O01234" in first.text
     assert "Page:    https://dnc.example.com/machines/mill-1" in first.text
-    assert end.subject.startswith("[opendnc] mill-1 running again or ready (was stopped since ")
+    assert end.subject.startswith("[opendnc] mill-1 no longer stopped (was stopped since ")
     assert second.subject == "[opendnc] mill-1 stopped since 2026-07-01 14:30 (Europe/Berlin)"
+    assert "Since:   2026-07-01 14:00:00 Europe/Berlin" in end.text
+    assert "Until:   2026-07-01 14:07:00 Europe/Berlin" in end.text
+    assert "Until:" not in first.text
 
     posts = hook.taken()
     for post in posts:
@@ -349,6 +355,10 @@ def test_one_stop_through_several_polls_sends_one_message_a_second_stop_a_second
         "url": "https://dnc.example.com/machines/mill-1",
     }
     assert [p.json()["phase"] for p in posts] == ["fired", "cleared", "fired"]
+    assert (posts[1].json()["since"], posts[1].json()["at"]) == (
+        "2026-07-01T12:00:00+00:00",
+        "2026-07-01T12:07:00+00:00",
+    )
     assert posts[2].json()["since"] == "2026-07-01T12:30:00+00:00"
 
     rows = audit_rows(sessions)
@@ -635,7 +645,7 @@ def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
         assert len(mails) == 4
         stop, end, again, failed = mails
         assert stop.subject.startswith("[opendnc] haas-1 stopped since ")
-        assert end.subject.startswith("[opendnc] haas-1 running again or ready (was stopped")
+        assert end.subject.startswith("[opendnc] haas-1 no longer stopped (was stopped")
         assert again.subject.startswith("[opendnc] haas-1 stopped since ")
         assert f"job {job['id']} failed" in failed.subject
         assert "cannot read O09999.nc" in failed.text

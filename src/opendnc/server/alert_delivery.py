@@ -49,7 +49,7 @@ BODY_VERSION = 1
 
 _WHAT = {
     AlertKind.ALARM: ("in alarm", "no longer in alarm"),
-    AlertKind.STOPPED: ("stopped", "running again or ready"),
+    AlertKind.STOPPED: ("stopped", "no longer stopped"),
     AlertKind.OFFLINE: ("offline", "online again"),
     AlertKind.JOB_FAILED: ("job failed", ""),
 }
@@ -143,6 +143,9 @@ def email_of(body: AlertBody, target: EmailTarget) -> EmailMessage:
         f"What:    {_WHAT[AlertKind(body.kind)][1 if body.phase == Phase.CLEARED else 0]}",
         f"Since:   {since:%Y-%m-%d %H:%M:%S} {body.timezone}",
     ]
+    if body.phase == Phase.CLEARED:
+        until = datetime.fromisoformat(body.at).astimezone(since.tzinfo)
+        lines.append(f"Until:   {until:%Y-%m-%d %H:%M:%S} {body.timezone}")
     if body.detail:
         lines.append(f"Detail:  {body.detail}")
     if body.job_id is not None:
