@@ -141,7 +141,7 @@ class AlertsConfig:
     email: EmailTarget | None = None
     webhooks: tuple[WebhookTarget, ...] = ()
     public_url: str = ""  # the dashboard's address as people reach it: links in messages
-    queue: int = 1000  # alerts waiting per target; the oldest go first when it is full
+    queue: int = 1000  # alerts waiting per target; when it is full, the oldest are dropped
     backoff: float = 1.0  # seconds before the first retry, doubled each time
 
     @property
