@@ -59,6 +59,7 @@ COMMANDS: dict[str, Lazy] = {
     "cluster": Lazy(
         "opendnc.cli.cluster:app", "Several servers on one database: servers and their machines."
     ),
+    "alerts": Lazy("opendnc.cli.alerts:app", "Alerts by e-mail and webhook: send a test."),
     "demo": Lazy(
         "opendnc.cli.demo_server:demo",
         "The DNC server with a virtual shop floor (--tour: a short command-line tour).",

@@ -18,7 +18,8 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, api, dprnt_api, edge, utilization_api, web
+from opendnc.server import actions, alerts_api, api, dprnt_api, edge, utilization_api, web
+from opendnc.server.alerts import Alerts
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.clients import Clients, SendTimeout
 from opendnc.server.cluster import Cluster
@@ -130,6 +131,8 @@ def build(
     outputs = core.add(
         Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
     )
+    if config.alerts is not None:  # e-mail and webhooks (docs/server.md#alerts)
+        core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
 
     timeline = Timeline(sessions, retention_days=config.server.timeline_days)
     names = [m.name for m in config.machines]
@@ -209,6 +212,7 @@ def build(
     app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)
+    app.include_router(alerts_api.router)
     utilization_api.install(app)
     web.install(app)
     return Server(

@@ -91,6 +91,7 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
+from opendnc.server.alerts_config import AlertsConfig, parse_alerts
 from opendnc.server.clients import ClientLimits, parse_clients
 from opendnc.server.configkeys import NAME as _NAME
 from opendnc.server.configkeys import ConfigError, get_key, known_keys, port_range, table_at
@@ -223,6 +224,7 @@ class ShopConfig:
     mtconnect: MtconnectConfig | None = None
     calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
     clients: ClientLimits = field(default_factory=ClientLimits)  # [clients]: bounded clients
+    alerts: AlertsConfig | None = None  # [alerts] (server/alerts_config.py)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -260,7 +262,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients",
+            "mtconnect", "shifts", "clients", "alerts",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -289,6 +291,8 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     except CalendarError as exc:
         key, _, problem = str(exc).partition(": ")  # the calendar's messages start with the key
         raise ConfigError(key, problem) from None
+    names = {m.name for m in machines}
+    alerts = parse_alerts(_table(raw, "alerts"), base, names) if "alerts" in raw else None
     return ShopConfig(
         server=server,
         library=library,
@@ -301,6 +305,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         mtconnect=mtconnect,
         calendar=calendar,
         clients=clients,
+        alerts=alerts,
     )
 
 
