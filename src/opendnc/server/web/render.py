@@ -105,6 +105,12 @@ def when(value: datetime | str | None, zone: tzinfo = UTC) -> str:
     return at.astimezone(zone).strftime("%Y-%m-%d %H:%M:%S %Z")
 
 
+def zone_label(at: datetime | None = None, zone: tzinfo = UTC) -> str:
+    """The shop's zone as its clock times name it at ``at`` (now by default): ``CET``,
+    ``CEST``; the one label every page, card and clock shows."""
+    return (at or datetime.now(UTC)).astimezone(zone).strftime("%Z")
+
+
 def iso(value: datetime | str | None, zone: tzinfo = UTC) -> str:
     """A timestamp as ISO 8601 with the shop's offset: ``2026-03-02T14:02:31+01:00``."""
     at = _aware(value)

@@ -58,6 +58,7 @@ from opendnc.server.store.models import (
 from opendnc.server.streams import event_stream_response
 from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
+from opendnc.server.web.heartbeat import Heartbeat
 from opendnc.server.web.timeline import Timeline
 
 __all__ = ["LoginNeeded", "Page", "router"]
@@ -164,6 +165,7 @@ def _html(template: str, page: Page | None, request: Request, **context: Any) ->
     calendar = _supervisor(request).config.calendar
     context.setdefault("zone", calendar.zone)
     context.setdefault("zone_name", calendar.zone_name)
+    context.setdefault("zone_label", render.zone_label(None, calendar.zone))
     return HTMLResponse(
         render.render(template, page=page, path=request.url.path, roles=ROLES, **context)
     )
@@ -329,7 +331,7 @@ async def card_events(
     shown = None
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
-    source = _Cards(request, machine, shown)
+    source = Heartbeat(_Cards(request, machine, shown), _zone(request))
     return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
@@ -520,7 +522,7 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     each."""
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic[:20]!r}: inbox, library or netshare")
-    source = _ListChanges(topic)
+    source = Heartbeat(_ListChanges(topic), _zone(request))
     return event_stream_response(request, _supervisor(request).bus, source, interval=CARD_INTERVAL)
 
 
