@@ -264,11 +264,15 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.start_job(claimed.job_id, len(claimed.data) or None)
+        state.start_job(
+            claimed.job_id, len(claimed.data) or None, claimed.kind.value, claimed.name
+        )
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
         )
+        # what the server does to the machine is part of its state (a drip-feed: running)
+        self.machines.publish(state)
         run = JobRun(
             claimed,
             state,

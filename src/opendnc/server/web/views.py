@@ -568,7 +568,7 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     caps = capabilities_of(state.config)
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
-    timeline.note(name, state.status, online=state.online)
+    timeline.note(name, state.reading(), online=state.online)
     now = datetime.now(UTC)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS, now=now)
     context["timeline_ticks"] = render.axis_ticks(
