@@ -4,6 +4,7 @@ archive on the schedule (the clock is injected), and the same in a running serve
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import time
@@ -17,13 +18,16 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.share import ShareTarget
+from opendnc.server import jobs, library
 from opendnc.server.config import ConfigError, NetShareConfig, parse_config
 from opendnc.server.events import EventBus
+from opendnc.server.kinds import connector_for
 from opendnc.server.netshare import NetShare, ScanReport
-from opendnc.server.store.models import AuditEntry, Received
+from opendnc.server.store.models import AuditEntry, JobKind, Received
 from opendnc.sim.fleet import server_config
 from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD
 from tests.interop.test_haas_share_samba import Samba, samba
+from tests.server.conftest import on
 from tests.server.srvx_support import (
     FleetThread,
     Procs,
@@ -420,3 +424,33 @@ def test_a_nas_over_smb(
         trail = json.dumps([(r.action, r.detail) for r in rows])
     assert SMB_PASSWORD not in trail
     assert all(SMB_PASSWORD not in r.getMessage() for r in caplog.records)
+
+
+@on("sqlite")
+def test_our_own_send_never_comes_back_as_a_reception(
+    tmp_path: Path, ngc: FleetThread, sessions: sessionmaker[Session]
+) -> None:
+    """A send to a Haas NGC writes the program into its share, which the net share collects
+    from: it came back as a new inbox item, audited as a receive by the machine. What a job of
+    ours wrote (name and content) is ours; the same name with the operator's edit is not."""
+    net = _make(tmp_path, ngc, sessions, Clock(datetime(2026, 11, 23, 9, 0).astimezone()))
+    _scan_until(net, lambda _r: len(net.baselined) == 2, "the first look at the shares")
+    shop = parse_config(server_config(ngc.fleet, library=tmp_path / "lib"), base=tmp_path)
+    with sessions.begin() as session:
+        jobs.sync_machines(session, shop.machines)
+        version, _new = library.add_version(session, "O01000.nc", PROGRAM.encode(), author="ann")
+        jobs.enqueue(session, JobKind.SEND, "haas-1", actor="ann", version=version)
+    # the send itself, as the machine's task runs it: into the control's share
+    connector = connector_for(next(m for m in shop.machines if m.name == "haas-1"))
+    asyncio.run(connector.send("O01000.nc", PROGRAM.encode(), lambda _d, _t: None))
+    root = ngc.fleet.sims["haas-1"].control.store.root
+    assert (root / "O01000.nc").read_bytes() == PROGRAM.encode()
+    for _ in range(3):  # a file is taken once it is the same in two scans
+        assert net.scan_sync().collected == []
+    with sessions() as session:
+        assert session.scalars(select(Received)).all() == []
+    assert _audit(sessions, "program.receive") == []
+    # the operator edits it at the control: now it is the machine's work
+    (root / "O01000.nc").write_text(EDITED)
+    got = _scan_until(net, lambda r: bool(r.collected), "the edited copy")
+    assert got.collected == [("haas-1", "O01000.nc")]

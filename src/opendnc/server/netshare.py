@@ -11,7 +11,8 @@ folder is archived; programs written on the machines come back to the server's i
    all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
    again at the next scan.
 2. **collect** (``collect = true``): a file in a machine's share that the server
-   did not put there, or that changed since (the operator edited it), is filed in the inbox by
+   did not put there (neither the push nor a send job of its own: :func:`sent_by_us`), or
+   that changed since (the operator edited it), is filed in the inbox by
    :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
    first saw it is taken as the machine's history, not as new work (one ``netshare.baseline``
    row lists it).
@@ -60,7 +61,7 @@ from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
 from opendnc.server.config import HaasNgcMachine, NetShareConfig
 from opendnc.server.events import EventBus, NetshareChanged
-from opendnc.server.store.models import AuditEntry
+from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
 
 __all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
 
@@ -446,6 +447,10 @@ class NetShare(RunsTask):
             if self.pushed.get(key) == digest or self.collected.get(key) == digest:
                 continue
             with self.sessions.begin() as session:
+                if sent_by_us(session, machine.name, name, digest):
+                    # a send job of ours wrote it into the share: never a reception
+                    self.collected[key] = digest
+                    continue
                 row = inbox.store(session, machine.name, data, folder=self.inbox_folder)
                 audit.record(
                     session,
@@ -576,6 +581,26 @@ class NetShare(RunsTask):
     def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
         if self.bus is not None:
             self.bus.publish(NetshareChanged(action, machine, name, extra))
+
+
+def sent_by_us(session: Session, machine: str, name: str, digest: str) -> bool:
+    """Whether a job of this server put exactly this file (name and content) on ``machine``:
+    a send to a Haas NGC writes the program into the share this collects from. The job's
+    row is there from its claim on, before the file is written, so a scan never sees the
+    file first; a failed send that wrote it counts too."""
+    found = session.scalar(
+        select(Job.id)
+        .join(ProgramVersion, Job.version_id == ProgramVersion.id)
+        .join(Program, ProgramVersion.program_id == Program.id)
+        .where(
+            Job.machine == machine,
+            Job.kind.in_((JobKind.SEND, JobKind.PUT_FILE)),
+            Program.name == name,
+            ProgramVersion.sha256 == digest,
+        )
+        .limit(1)
+    )
+    return found is not None
 
 
 def _free_path(folder: Path, name: str) -> Path:
