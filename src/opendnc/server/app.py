@@ -162,7 +162,11 @@ def build(
     netshare = None
     if config.netshare is not None:
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
-        netshare = NetShare(config.netshare, shares, config.library.inbox, sessions, bus)
+        # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
+        gate = actions.policy.share_gate(services)
+        netshare = NetShare(
+            config.netshare, shares, config.library.inbox, sessions, bus, gate=gate
+        )
     duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
     cluster = None
     if clustered:

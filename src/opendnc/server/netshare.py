@@ -8,8 +8,10 @@ folder is archived; programs written on the machines come back to the server's i
 
 1. **push**: a NAS file that stopped changing (same size and time in two scans) and whose
    content a machine has not had yet is copied into that machine's share, whole or not at
-   all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
-   again at the next scan.
+   all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``), if the queue's policy
+   lets it go there (the ``gate``: a ``released_only`` machine takes released library
+   versions only, a program check's errors block): a refusal is audited with its reason. A
+   failed copy is tried again at the next scan.
 2. **collect** (``collect = true``): a file in a machine's share that the server
    did not put there (neither the push nor a send job of its own: :func:`sent_by_us`), or
    that changed since (the operator edited it), is filed in the inbox by
@@ -84,6 +86,12 @@ class ScanReport:
     collected: list[tuple[str, str]] = field(default_factory=list)
     archived: list[str] = field(default_factory=list)
     failed: list[tuple[str, str, str]] = field(default_factory=list)
+    refused: list[tuple[str, str, str]] = field(default_factory=list)  # by the policy
+
+
+ShareGate = Callable[[HaasNgcMachine, str, bytes], str | None]
+"""Whether a NAS file (name, content) may go into a machine's share: None, or why not
+(:func:`opendnc.server.actions.policy.share_gate`, the queue's one gate)."""
 
 
 def _is_program_name(name: str) -> bool:
@@ -285,6 +293,7 @@ class NetShare(RunsTask):
         bus: EventBus | None = None,
         *,
         clock: Callable[[], datetime] = local_now,
+        gate: ShareGate | None = None,
     ) -> None:
         self.config = config
         self.machines = {name: machines[name] for name in config.machines}
@@ -292,6 +301,8 @@ class NetShare(RunsTask):
         self.sessions = sessions
         self.bus = bus
         self.clock = clock
+        self.gate = gate
+        self.refused: dict[tuple[str, str], tuple[str, str]] = {}  # -> (sha256, why), audited
         self.pushed: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 put there
         self.collected: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 taken
         self.baselined: set[str] = set()  # machines whose share history is recorded
@@ -391,8 +402,31 @@ class NetShare(RunsTask):
     # ------------------------------------------------------------------ push
     def _push(self, machine: HaasNgcMachine, name: str, data: bytes, report: ScanReport) -> None:
         digest = _sha(data)
-        if self.pushed.get((machine.name, name)) == digest:
+        key = (machine.name, name)
+        if self.pushed.get(key) == digest:
             return
+        why = self.gate(machine, name, data) if self.gate is not None else None
+        if why is not None:
+            # asked again every scan (a release may come), audited once per content and reason
+            report.refused.append((machine.name, name, why))
+            if self.refused.get(key) != (digest, why):
+                self.refused[key] = (digest, why)
+                with self.sessions.begin() as session:
+                    audit.record(
+                        session,
+                        ACTOR,
+                        "netshare.push",
+                        machine=machine.name,
+                        program=name,
+                        sha256=digest,
+                        nbytes=len(data),
+                        result="refused",
+                        source=self.nas.where(name),
+                        error=why,
+                    )
+                self._publish("push", machine.name, name, error=why)
+            return
+        self.refused.pop(key, None)
         error = ""
         destination = ""
         try:
