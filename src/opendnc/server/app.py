@@ -164,9 +164,7 @@ def build(
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
         # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
         gate = actions.policy.share_gate(services)
-        netshare = NetShare(
-            config.netshare, shares, config.library.inbox, sessions, bus, gate=gate
-        )
+        netshare = NetShare(config.netshare, shares, config.library.inbox, sessions, bus, gate=gate)
     duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
     cluster = None
     if clustered:

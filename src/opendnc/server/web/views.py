@@ -967,9 +967,15 @@ def send_program(
         machines=machines,
         override=_override(override, reason),
     )
-    created = actions.queue.create_jobs(_svc(request), page.who, order)
-    queued = [j.model_dump(mode="json") for j in created]
-    return _html("_sent.html", page, request, queued=queued)
+    # each machine that takes it gets it; each refusal is named in the panel, not at the top
+    try:
+        done = actions.queue.queue_each(_svc(request), page.who, order)
+    except actions.queue.RefusedEverywhere as nowhere:
+        answer = _html("_sent.html", page, request, queued=[], refused=nowhere.refused)
+        answer.status_code = 409
+        return answer
+    queued = [j.model_dump(mode="json") for j in done.jobs]
+    return _html("_sent.html", page, request, queued=queued, refused=done.refused)
 
 
 @router.post("/library")
