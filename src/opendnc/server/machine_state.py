@@ -36,6 +36,10 @@ class MachineState:
     job_progress: tuple[int, int | None] = (0, None)
     job_started: datetime | None = None  # when the running job started (its rate, time left)
     job_line: tuple[int, int] | None = None  # a drip-feed's line reached, of its lines
+    # when this server first saw the running job's bytes move, and how many there were: its
+    # rate is measured from there (the wait for the control before the first byte is no
+    # part of it: a 9 s load once said "about 5 min 13 s left" after its slow start)
+    job_flowing: tuple[datetime, int] | None = None
     job_kind: str = ""  # the running job's kind (send, dripfeed, receive, ...)
     job_program: str = ""  # the program (or path) it moves
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
@@ -57,6 +61,7 @@ class MachineState:
         self.job_id, self.job_progress = job_id, (0, total)
         self.job_started, self.job_line = datetime.now(UTC), None
         self.job_kind, self.job_program = kind, program
+        self.job_flowing = None
 
     def reading(self) -> MachineStatus | None:
         """The status the one classifier reads: the control's last word, unless what the
@@ -117,6 +122,11 @@ class MachineState:
         done, total = self.job_progress
         job: dict[str, Any] = {"id": self.job_id, "bytes_done": done, "bytes_total": total}
         job["started"] = self.job_started.isoformat() if self.job_started else None
+        if self.job_flowing is None and done > 0:
+            self.job_flowing = (datetime.now(UTC), done)
+        if self.job_flowing is not None:
+            job["flowing"] = self.job_flowing[0].isoformat()
+            job["flowing_bytes"] = self.job_flowing[1]
         if self.job_line is not None:
             job["line"], job["lines"] = self.job_line
         return job

@@ -344,7 +344,7 @@ class JobRunner:
         retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
         retryable = retryable and not isinstance(exc, JobCancelled)
         line = exc.line if isinstance(exc, DripFeedBroken) else None
-        nbytes = exc.nbytes if isinstance(exc, DripFeedBroken) else None
+        nbytes = exc.nbytes if isinstance(exc, DripFeedBroken | JobCancelled) else None
         if line is not None:
             reason = f"{reason} (stopped at line {line}; restart from there)"
 

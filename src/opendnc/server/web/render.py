@@ -412,17 +412,28 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60} min"
 
 
+PACE_AFTER = 2.0  # seconds of bytes flowing before a rate and a time left are said
+
+
 def job_pace(
-    done: int, total: int | None, started: datetime | None, now: datetime
+    done: int,
+    total: int | None,
+    started: datetime | None,
+    now: datetime,
+    flowing: tuple[datetime, int] | None = None,
 ) -> tuple[str, str]:
     """A running job's rate and time left (``"12.3 kB/s"``, ``"about 2 min left"``), from
-    the bytes done since it started; empty while too little is known to say."""
-    if started is None or done <= 0:
+    the bytes done since they began to flow (``flowing``: when the server first saw them
+    move, and how many there were; without it, since the job started), once they have
+    flowed :data:`PACE_AFTER` seconds; empty while too little is known to say. The wait for
+    a control before its first byte (a Haas's NAK, a TNC's login) is no part of the rate."""
+    since, base = flowing if flowing is not None else (started, 0)
+    if since is None or done <= base:
         return "", ""
-    elapsed = (now - started).total_seconds()
-    if elapsed < 1:
+    elapsed = (now - since).total_seconds()
+    if elapsed < (PACE_AFTER if flowing is not None else 1):
         return "", ""
-    rate = done / elapsed
+    rate = (done - base) / elapsed
     left = ""
     if total and total > done:
         left = f"about {duration((total - done) / rate)} left"
@@ -459,7 +470,11 @@ def card(
         execution = ""  # the control does not say: the state (unknown) tells it already
     alarm = "; ".join(errors)
     done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
-    rate, left = job_pace(done, total, _aware(job.get("started")), now) if job else ("", "")
+    rate, left = ("", "")
+    if job:
+        flowed = _aware(job.get("flowing"))
+        flowing = (flowed, int(job.get("flowing_bytes") or 0)) if flowed is not None else None
+        rate, left = job_pace(done, total, _aware(job.get("started")), now, flowing)
     at = _aware(status.get("at"))
     minute = at.replace(second=0, microsecond=0) if at is not None else None
     since = _aware(machine.get("state_since"))
