@@ -36,7 +36,7 @@ from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
 from opendnc.server.machines import Connector
 from opendnc.server.mqtt import MqttPublisher
-from opendnc.server.netshare import NetShare
+from opendnc.server.netshare import NetShare, local_now
 from opendnc.server.parts import Outputs, TimelineRecorder
 from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
@@ -164,7 +164,16 @@ def build(
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
         # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
         gate = actions.policy.share_gate(services)
-        netshare = NetShare(config.netshare, shares, config.library.inbox, sessions, bus, gate=gate)
+        zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's
+        netshare = NetShare(
+            config.netshare,
+            shares,
+            config.library.inbox,
+            sessions,
+            bus,
+            gate=gate,
+            clock=lambda: local_now(zone),
+        )
     duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
     cluster = None
     if clustered:

@@ -18,7 +18,7 @@ folder is archived; programs written on the machines come back to the server's i
    :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
    first saw it is taken as the machine's history, not as new work (one ``netshare.baseline``
    row lists it).
-3. **archive** (daily at ``archive_at``, server local time, or every ``archive_every``
+3. **archive** (daily at ``archive_at`` on the shop's clock, or every ``archive_every``
    seconds, once no NAS file is still being written): the NAS files, pushed first, move
    into ``archive/YYYY-MM-DD/`` (never overwriting) and the copies the server pushed are
    removed from the shares if they still hold exactly the pushed bytes; an edited copy stays
@@ -49,7 +49,7 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import datetime, timedelta, tzinfo
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -73,9 +73,10 @@ ACTOR = "netshare"
 MAX_FILE = 64 * 1024 * 1024  # larger files in a share are not programs to move around
 
 
-def local_now() -> datetime:
-    """Now in the server's local time zone (the shop's clock for ``archive_at``)."""
-    return datetime.now().astimezone()
+def local_now(zone: tzinfo | None = None) -> datetime:
+    """Now on the shop's clock (``[server] timezone``, which ``archive_at`` is on; without
+    one, this computer's zone)."""
+    return datetime.now(zone) if zone is not None else datetime.now().astimezone()
 
 
 @dataclass

@@ -307,6 +307,8 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
     context: dict[str, Any] = {
         "report": r,
         "zone": cal.zone_name,
+        "zone_name": cal.zone_name,  # the page's clock (base.html) and its label, as elsewhere
+        "zone_label": render.zone_label(None, cal.zone),
         "first": first.isoformat(),
         "last": last.isoformat(),
         "group": grouping.value,
