@@ -185,3 +185,29 @@ def test_the_send_panel_lists_every_error_its_count_says() -> None:
     for text in ("P.nc:3</a> G02 without a radius", "P.nc:9</a> X beyond the travel"):
         assert text in html, html
     assert "no coolant" not in html  # the warnings are counted, the check page lists them
+
+
+@pytest.mark.parametrize(
+    ("state", "execution", "said"),
+    [
+        ("running", "ACTIVE", "Running since"),
+        ("alarm", "STOPPED", "Alarm since"),
+        ("stopped", "FEED_HOLD", "Stopped, feed hold since"),
+        ("stopped", "STOPPED", "Stopped since"),
+        ("ready", "PROGRAM_COMPLETED", "Ready, program completed since"),
+    ],
+)
+def test_a_card_says_its_state_in_plain_words(state: str, execution: str, said: str) -> None:
+    """Not "Running (active)" or "Alarm (stopped)": the execution word only where it adds."""
+    machine = {
+        "name": "tnc-1",
+        "kind": "lsv2",
+        "online": True,
+        "state": state,
+        "state_since": "2026-01-05T12:30:00+00:00",
+        "status": {"at": "2026-01-05T13:02:31+00:00", "available": True, "execution": execution},
+    }
+    c = render.card(machine, zone=BERLIN, now=WINTER)
+    html = render.render("_card.html", c=c, whole=False, zone=BERLIN)
+    line = html.split('<p class="since small">')[1].split("<time")[0].strip()
+    assert line == said

@@ -402,6 +402,26 @@ def _words(value: str) -> str:
     return value.replace("_", " ").lower()
 
 
+# The control's execution words that say no more than the state they make: "Running (active)"
+# and "Alarm (stopped)" read as jargon, or as a contradiction.
+_SAID_BY_STATE = {
+    "running": {"ACTIVE"},
+    "ready": {"READY", "WAIT"},
+    "stopped": {"STOPPED", "PROGRAM_STOPPED"},
+}
+
+
+def state_detail(state: str, execution: str) -> str:
+    """What the control's execution word adds to the state, in plain words (``"feed hold"``
+    for a stopped machine, ``"program completed"`` for a ready one), or nothing: an alarm is
+    said by its text, a running machine by its program."""
+    if not execution or state in ("alarm", "offline", "unknown"):
+        return ""
+    if execution in _SAID_BY_STATE.get(state, ()):
+        return ""
+    return _words(execution)
+
+
 def duration(seconds: float) -> str:
     """``75`` → ``1 min 15 s``; ``7300`` → ``2 h 1 min`` (two units at most)."""
     s = max(0, round(seconds))
@@ -488,7 +508,7 @@ def card(
         online=online,
         mode=_words(status.get("mode", "")) if online else "",
         native_mode=str(status.get("native_mode") or "") if online else "",
-        execution=_words(execution),
+        execution=state_detail(str(machine.get("state") or ""), execution),
         program=status.get("program", "") if online else "",
         line=int(status.get("line") or 0) if online else 0,
         job_id=job["id"] if job else None,
