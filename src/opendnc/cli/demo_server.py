@@ -24,7 +24,7 @@ from pathlib import Path
 import typer
 
 from opendnc.cli.common import cli_errors, console
-from opendnc.cli.serve import listen_socket, parse_bind, require_server_extra
+from opendnc.cli.serve import bind_option, listen_socket, require_server_extra
 from opendnc.errors import DncError, InputError
 
 # What the virtual NGC runs once at start so its DPRNT lines reach the machine's page.
@@ -102,7 +102,7 @@ def demo(
         from opendnc.server.host_zone import host_zone_name
 
         zone = timezone or host_zone_name()
-        host, port = parse_bind(bind)
+        host, port = bind_option(bind)
         # bound before the virtual machines start: a port in use is one line, nothing started
         with listen_socket(host, port) as listener:
             if folder is not None:
