@@ -359,3 +359,15 @@ def test_a_stopped_server_greys_the_page_within_5_s_and_it_comes_back(
     # reconnections); nothing else
     away = ("ERR_CONNECTION_REFUSED", "ERR_INCOMPLETE_CHUNKED_ENCODING", "[object Event]")
     assert [p for p in problems if not any(a in p for a in away)] == [], problems
+
+
+def test_per_shift_without_shifts_says_why_it_is_empty(clean: Shop) -> None:
+    """"By shift" in a shop without shifts showed empty panels and no word why."""
+    page = clean.login("admin")
+    page.goto(clean.url + "/utilization?group=shift")
+    hint = page.locator("#no-shifts")
+    sync_api.expect(hint).to_contain_text("No shifts are configured")
+    assert page.locator(".util-bars").count() == 0
+    hint.get_by_role("link", name="per day").click()
+    sync_api.expect(page.locator("#bars-h")).to_have_text("Per day")
+    page.context.close()
