@@ -362,7 +362,7 @@ def test_a_stopped_server_greys_the_page_within_5_s_and_it_comes_back(
 
 
 def test_per_shift_without_shifts_says_why_it_is_empty(clean: Shop) -> None:
-    """"By shift" in a shop without shifts showed empty panels and no word why."""
+    """ "By shift" in a shop without shifts showed empty panels and no word why."""
     page = clean.login("admin")
     page.goto(clean.url + "/utilization?group=shift")
     hint = page.locator("#no-shifts")

@@ -37,6 +37,7 @@ from opendnc.server.events import (
     Event,
     InboxChanged,
     JobEvent,
+    JobFinished,
     JobProgress,
     MachineStatusChanged,
     NetshareChanged,
@@ -510,8 +511,9 @@ def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[re
 LIST_EVENTS: dict[str, tuple[type[Event], ...]] = {
     "inbox": (ProgramReceived, NetshareChanged, InboxChanged),
     "library": (ProgramChanged,),
-    # what the net share did, and a release (which changes how its files compare)
-    "netshare": (NetshareChanged, ProgramChanged),
+    # what the net share did, a release (which changes how its files compare), and a job's
+    # end (a send to a Haas NGC writes into its share: the page's "Replace" button)
+    "netshare": (NetshareChanged, ProgramChanged, JobFinished),
 }
 
 
