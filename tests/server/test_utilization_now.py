@@ -60,6 +60,7 @@ def test_a_machine_that_ran_two_minutes_ran_two_minutes(sessions: sessionmaker[S
     assert (stop.start, stop.end, stop.ongoing) == (T0 - timedelta(minutes=8), NOW, True)
     assert halted.totals.seconds[State.READY] == 600.0
     data = report_json(r)
+    assert data["until"] == "2026-01-05T14:02:00+01:00"  # the figures end at now
     assert data["machines"][0]["totals"]["seconds"]["running"] == 120.0
     assert data["machines"][1]["stops"][0]["seconds"] == 600.0
 

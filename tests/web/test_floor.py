@@ -368,6 +368,8 @@ def test_per_shift_without_shifts_says_why_it_is_empty(clean: Shop) -> None:
     hint = page.locator("#no-shifts")
     sync_api.expect(hint).to_contain_text("No shifts are configured")
     assert page.locator(".util-bars").count() == 0
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "floor-utilization-shift-1280.png", full_page=True)
     hint.get_by_role("link", name="per day").click()
     sync_api.expect(page.locator("#bars-h")).to_have_text("Per day")
     page.context.close()

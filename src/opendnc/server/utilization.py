@@ -396,6 +396,7 @@ class Report:
     calendar: Calendar
     periods: list[Period]
     machines: list[MachineReport]
+    until: datetime | None = None  # where the figures end: the span's end, or now within it
 
 
 MAX_SPAN = timedelta(days=400)
@@ -450,7 +451,8 @@ def report(
             machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
             for m in machines
         ]
-    return Report(start, end, group, calendar, periods, reports)
+    until = min(end, max(start, now))  # nothing after now is counted
+    return Report(start, end, group, calendar, periods, reports, until)
 
 
 def buckets(
