@@ -50,7 +50,8 @@ def test_a_quiet_stream_beats_every_two_seconds() -> None:
     beat = Heartbeat(_Quiet(), BERLIN, clock=lambda: now[0])
 
     async def run() -> list[bytes]:
-        out = [await beat.snapshot(False)]  # at once: the page learns the zone
+        # the stream sends the snapshot with the first flush (at once: the zone is known)
+        out = [await beat.snapshot(False) + await beat.flush()]
         for _ in range(10):  # the stream's loop flushes every 0.5 s
             now[0] += 0.5
             out.append(await beat.flush())

@@ -54,9 +54,10 @@ class Heartbeat:
         self.last = clock()
 
     async def snapshot(self, overflow: bool) -> bytes:
-        """The source's snapshot, and a first heartbeat: the page knows the zone at once."""
-        self.last = self.clock()
-        return await self.source.snapshot(overflow) + heartbeat_event(self.zone)
+        """The source's snapshot; the flush that follows it carries a first heartbeat, after
+        what the source sends (the page knows the zone at once, and reads its own first)."""
+        self.last = float("-inf")
+        return await self.source.snapshot(overflow)
 
     def take(self, event: Event) -> None:
         """Fold ``event`` into the source."""
