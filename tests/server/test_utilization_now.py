@@ -85,3 +85,15 @@ def test_the_reference_also_ends_at_now() -> None:
     _periods, ran = summarize("ran", points, CAL, Group.DAY, DAY, DAY + timedelta(days=1), now=NOW)
     assert ran.totals.seconds[State.RUNNING] == 120.0
     assert ran.totals.total == (NOW - DAY).total_seconds()
+
+
+@on("sqlite")
+def test_a_span_after_now_counts_nothing(sessions: sessionmaker[Session]) -> None:
+    _write(sessions)
+    later = DAY + timedelta(days=3)
+    with sessions.begin() as session:
+        r = report(session, CAL, ["ran", "halted"], later, later + timedelta(days=2), now=NOW)
+    for m in r.machines:
+        assert m.totals.total == 0.0
+        assert m.stops == []
+    assert r.until == later
