@@ -48,6 +48,7 @@ class MemoryControl:
     listens: bool = False
     online: bool = True  # False: connect() fails like an unreachable control
     line_time: float = 0.0  # seconds a drip-feed takes per line
+    chunk_time: float = 0.0  # seconds a load takes per tenth of the program
     connects: int = 0  # how often a link was opened to this control
 
     async def connect(self) -> None:
@@ -65,6 +66,11 @@ class MemoryControl:
         return (getattr(self.config, "folder", "") or "TNC:/nc_prog").rstrip("/")
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
+        if self.chunk_time:
+            # in tenths, as a slow link reports; ``progress`` may raise to stop the load
+            for tenth in range(1, 10):
+                await asyncio.sleep(self.chunk_time)
+                progress(len(data) * tenth // 10, len(data))
         self.files[f"{self._folder()}/{name}"] = data
         progress(len(data), len(data))
 

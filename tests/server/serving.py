@@ -21,10 +21,11 @@ GRACE_S = 2
 
 
 @contextmanager
-def serving(server: Any) -> Iterator[str]:
-    """Serve ``server.app``; its base URL. The engine is disposed of at the end."""
+def serving(server: Any, port: int = 0) -> Iterator[str]:
+    """Serve ``server.app``; its base URL. The engine is disposed of at the end. ``port``:
+    one this test served on before (a server started again where its pages are open)."""
     # bound here with port 0: a port chosen beforehand could be taken meanwhile
-    listener = listen_socket("127.0.0.1", 0)
+    listener = listen_socket("127.0.0.1", port)
     port = listener.getsockname()[1]
     config = uvicorn.Config(
         server.app, log_level="warning", loop="asyncio", timeout_graceful_shutdown=GRACE_S

@@ -464,6 +464,41 @@ def test_a_cancel_reaches_a_running_drip_feed_through_the_database(app: App) -> 
     assert 2 < ended["line"] < 400
 
 
+def test_a_load_cancelled_midway_keeps_the_bytes_its_message_says(app: App) -> None:
+    """ "cancelled after 7424 bytes" in the error, 0 B in the Bytes column: one number."""
+    app.controls["tnc"].chunk_time = 0.2
+    data = b"%\nO3\n" + b"G1 X1.\n" * 1000 + b"M30\n%\n"
+    try:
+        with app.server.sessions.begin() as s:
+            library.add_version(s, "O3.nc", data, author="t")
+            library.release(s, "O3.nc", 1, actor="t")
+        job = _job(app, "tnc", program="O3.nc")
+        wait_for(
+            "the load under way",
+            lambda: (
+                app.client.get(f"/api/jobs/{job['id']}", headers=app.api(ADMIN)).json()[
+                    "bytes_done"
+                ]
+                > 0
+            ),
+            timeout=20,
+        )
+        with app.server.sessions.begin() as s:
+            row = s.get(Job, job["id"])
+            assert row is not None
+            row.cancel_requested = True
+        ended = _finished(app, job["id"])
+    finally:
+        app.controls["tnc"].chunk_time = 0.0
+    assert ended["state"] == "cancelled"
+    said = int(ended["error"].split("cancelled after ")[1].split(" bytes")[0])
+    assert 0 < said < len(data)
+    assert ended["bytes_done"] == said
+    rows = app.client.get("/api/audit", params={"action": "job.send"}, headers=app.api(ADMIN))
+    (row,) = [r for r in rows.json() if r["job_id"] == job["id"]]
+    assert row["bytes"] == said
+
+
 def test_a_received_file_keeps_its_name_and_meets_its_library_program(app: App) -> None:
     text = b"0 BEGIN PGM 1001 MM\n1 L X+1 R0 FMAX\n2 END PGM 1001 MM\n"
     with app.server.sessions.begin() as s:

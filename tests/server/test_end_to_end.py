@@ -8,6 +8,7 @@ byte-identical everywhere, with audit rows; the same suite runs on SQLite and Po
 from __future__ import annotations
 
 import hashlib
+import json
 import signal
 from collections.abc import Callable
 from pathlib import Path
@@ -182,15 +183,29 @@ def test_released_program_reaches_four_machines_byte_identical(shop: Shop, procs
         assert up.status_code == 201, up.text
         assert up.json()["sha256"] == hashlib.sha256(PROGRAM).hexdigest()
 
-        # A draft is refused for the released-only machine, and nothing is queued.
+        # A draft goes to the machine that takes drafts; the released-only machine refuses
+        # it, named with its reason in the answer's header (and the audit trail).
         draft = client.post(
             "/api/jobs",
             headers=auth(admin),
             json={"program": "O01234.nc", "version": 1, "machines": ["tnc-a", "tnc-b"]},
         )
-        assert draft.status_code == 409
-        assert "released programs only" in draft.json()["detail"]
-        assert client.get("/api/jobs", headers=auth(admin)).json() == []
+        assert draft.status_code == 201, draft.text
+        assert [j["machine"] for j in draft.json()] == ["tnc-a"]
+        (refused,) = json.loads(draft.headers["OpenDNC-Refused"])
+        assert refused["machine"] == "tnc-b"
+        assert "released programs only" in refused["reason"]
+        (early,) = wait_jobs(client, admin, [draft.json()[0]["id"]])
+        assert early["state"] == "done", early["error"]
+        # the released-only machine alone: refused (409), nothing queued
+        alone = client.post(
+            "/api/jobs",
+            headers=auth(admin),
+            json={"program": "O01234.nc", "version": 1, "machines": ["tnc-b"]},
+        )
+        assert alone.status_code == 409
+        assert "released programs only" in alone.json()["detail"]
+        assert len(client.get("/api/jobs", headers=auth(admin)).json()) == 1
 
         rel = client.post("/api/programs/O01234.nc/versions/1/release", headers=auth(admin))
         assert rel.status_code == 200

@@ -329,6 +329,9 @@ def interrupt_dripfeed(
     assert started.status_code == 201, started.text
     job_id: int = started.json()[0]["id"]
     wait_for("the feed to be well under way", lambda: front.dnc_lines > 300)
+    # what the server does to the control is its state: the feed runs the program
+    machine = client.get("/api/machines/haas-serial-1", headers=auth(key)).json()
+    assert (machine["state"], machine["status"]["program"]) == ("running", "O03000.nc"), machine
     assert client.post(f"/api/jobs/{job_id}/cancel", headers=auth(key)).status_code == 200
     first: dict[str, Any] = wait_for(
         "the feed to stop",
@@ -339,6 +342,14 @@ def interrupt_dripfeed(
     )
     assert first["state"] == "interrupted", first
     stopped_at = int(first["error"].rsplit("line ", 1)[1].split(";")[0])
+    # a feed a person cancelled leaves a stopped program, not an unknown or a ready machine
+    wait_for(
+        "the machine stopped",
+        lambda: (
+            client.get("/api/machines/haas-serial-1", headers=auth(key)).json()["state"]
+            == "stopped"
+        ),
+    )
     return job_id, first, stopped_at
 
 

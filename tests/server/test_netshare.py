@@ -4,6 +4,7 @@ archive on the schedule (the clock is injected), and the same in a running serve
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import time
@@ -17,13 +18,19 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.share import ShareTarget
-from opendnc.server.config import ConfigError, NetShareConfig, parse_config
+from opendnc.server import jobs, library
+from opendnc.server.actions.base import Services
+from opendnc.server.actions.policy import share_gate
+from opendnc.server.config import ConfigError, HaasNgcMachine, NetShareConfig, parse_config
 from opendnc.server.events import EventBus
+from opendnc.server.kinds import connector_for
+from opendnc.server.machine_state import Machines
 from opendnc.server.netshare import NetShare, ScanReport
-from opendnc.server.store.models import AuditEntry, Received
+from opendnc.server.store.models import AuditEntry, JobKind, Received
 from opendnc.sim.fleet import server_config
 from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD
 from tests.interop.test_haas_share_samba import Samba, samba
+from tests.server.conftest import on
 from tests.server.srvx_support import (
     FleetThread,
     Procs,
@@ -65,9 +72,12 @@ def _make(
     ngc: FleetThread,
     sessions: sessionmaker[Session],
     clock: Clock,
+    gated: bool = False,
     **overrides: Any,
 ) -> NetShare:
     text = server_config(ngc.fleet, library=tmp_path / "lib")
+    # haas-1 takes released programs only
+    text = text.replace('name = "haas-1"\n', 'name = "haas-1"\nreleased_only = true\n')
     shop = parse_config(text, base=tmp_path)
     nas = tmp_path / "nas"
     nas.mkdir(exist_ok=True)
@@ -80,8 +90,16 @@ def _make(
         **overrides,
     }
     config = NetShareConfig(**settings)
-    machines = {m.name: m for m in shop.machines}
-    return NetShare(config, machines, tmp_path / "inbox", sessions, EventBus(), clock=clock)
+    machines = {m.name: m for m in shop.machines if isinstance(m, HaasNgcMachine)}
+    gate = None
+    if gated:  # the server's own gate: the queue's policy, through the actions
+        with sessions.begin() as session:
+            jobs.sync_machines(session, shop.machines)
+        services = Services(sessions, sessions, Machines(shop, EventBus()))
+        gate = share_gate(services)
+    return NetShare(
+        config, machines, tmp_path / "inbox", sessions, EventBus(), clock=clock, gate=gate
+    )
 
 
 def _scan_until(net: NetShare, done: Callable[[ScanReport], bool], what: str) -> ScanReport:
@@ -94,6 +112,7 @@ def _scan_until(net: NetShare, done: Callable[[ScanReport], bool], what: str) ->
         total.collected += report.collected
         total.archived += report.archived
         total.failed += report.failed
+        total.refused += report.refused
         if done(total):
             return total
         time.sleep(0.02)
@@ -420,3 +439,73 @@ def test_a_nas_over_smb(
         trail = json.dumps([(r.action, r.detail) for r in rows])
     assert SMB_PASSWORD not in trail
     assert all(SMB_PASSWORD not in r.getMessage() for r in caplog.records)
+
+
+@on("sqlite")
+def test_our_own_send_never_comes_back_as_a_reception(
+    tmp_path: Path, ngc: FleetThread, sessions: sessionmaker[Session]
+) -> None:
+    """A send to a Haas NGC writes the program into its share, which the net share collects
+    from: it came back as a new inbox item, audited as a receive by the machine. What a job of
+    ours wrote (name and content) is ours; the same name with the operator's edit is not."""
+    net = _make(tmp_path, ngc, sessions, Clock(datetime(2026, 11, 23, 9, 0).astimezone()))
+    _scan_until(net, lambda _r: len(net.baselined) == 2, "the first look at the shares")
+    shop = parse_config(server_config(ngc.fleet, library=tmp_path / "lib"), base=tmp_path)
+    with sessions.begin() as session:
+        jobs.sync_machines(session, shop.machines)
+        version, _new = library.add_version(session, "O01000.nc", PROGRAM.encode(), author="ann")
+        jobs.enqueue(session, JobKind.SEND, "haas-1", actor="ann", version=version)
+    # the send itself, as the machine's task runs it: into the control's share
+    connector = connector_for(next(m for m in shop.machines if m.name == "haas-1"))
+    asyncio.run(connector.send("O01000.nc", PROGRAM.encode(), lambda _d, _t: None))
+    root = ngc.fleet.sims["haas-1"].control.store.root
+    assert (root / "O01000.nc").read_bytes() == PROGRAM.encode()
+    for _ in range(3):  # a file is taken once it is the same in two scans
+        assert net.scan_sync().collected == []
+    with sessions() as session:
+        assert session.scalars(select(Received)).all() == []
+    assert _audit(sessions, "program.receive") == []
+    # the operator edits it at the control: now it is the machine's work
+    (root / "O01000.nc").write_text(EDITED)
+    got = _scan_until(net, lambda r: bool(r.collected), "the edited copy")
+    assert got.collected == [("haas-1", "O01000.nc")]
+
+
+@on("sqlite")
+def test_a_draft_never_reaches_a_released_only_machines_share(
+    tmp_path: Path, ngc: FleetThread, sessions: sessionmaker[Session]
+) -> None:
+    """The net share copied a draft, an edit after release and a file the library never saw
+    to every machine: what reaches a share now passes the queue's one gate (may_put_on)."""
+    net = _make(tmp_path, ngc, sessions, Clock(datetime(2026, 11, 23, 9).astimezone()), True)
+    _scan_until(net, lambda _r: len(net.baselined) == 2, "the first look at the shares")
+    with sessions.begin() as session:
+        library.add_version(session, "O01000.nc", PROGRAM.encode(), author="ann")  # a draft
+    (tmp_path / "nas" / "O01000.nc").write_text(PROGRAM)
+    (tmp_path / "nas" / "O05000.nc").write_text(MADE_HERE.replace("O02000", "O05000"))
+    got = _scan_until(net, lambda r: len(r.pushed) == 2, "the pushes to haas-2")
+    assert sorted(got.pushed) == [("haas-2", "O01000.nc"), ("haas-2", "O05000.nc")]
+    assert sorted({(m, n) for m, n, _why in got.refused}) == [
+        ("haas-1", "O01000.nc"),
+        ("haas-1", "O05000.nc"),
+    ]
+    root = ngc.fleet.sims["haas-1"].control.store.root
+    assert not (root / "O01000.nc").exists()
+    assert not (root / "O05000.nc").exists()
+    refused = [r for r in _audit(sessions, "netshare.push") if r.result == "refused"]
+    reasons = {r.program: r.detail["error"] for r in refused}
+    assert "version 1 is draft" in reasons["O01000.nc"], reasons
+    assert "no version of O05000.nc" in reasons["O05000.nc"], reasons
+    assert net.scan_sync().pushed == []  # asked again, audited once
+    assert len([r for r in _audit(sessions, "netshare.push") if r.result == "refused"]) == 2
+    # released: now it goes
+    with sessions.begin() as session:
+        library.release(session, "O01000.nc", 1, actor="ann")
+    released = _scan_until(net, lambda r: bool(r.pushed), "the released version")
+    assert released.pushed == [("haas-1", "O01000.nc")]
+    assert (root / "O01000.nc").read_bytes() == PROGRAM.encode()
+    # an edit of the released program on the NAS is no version: refused again
+    (tmp_path / "nas" / "O01000.nc").write_text(EDITED)
+    edited = _scan_until(net, lambda r: bool(r.pushed), "the edit to haas-2")
+    assert edited.pushed == [("haas-2", "O01000.nc")]
+    assert (root / "O01000.nc").read_bytes() == PROGRAM.encode()

@@ -98,6 +98,41 @@ def test_released_only_machine_refuses_a_draft(sessions: sessionmaker[Session]) 
         actions.queue.create_jobs(svc, op, JobRequest(program="O01234", machines=["mill-1"]))
 
 
+def test_a_send_to_many_goes_to_the_machines_that_take_it_and_names_each_refused(
+    sessions: sessionmaker[Session],
+) -> None:
+    """ "All machines" with one refusing it refused the whole send, named one machine, and
+    left no trace in the audit trail."""
+    shop = [*MACHINES, HaasNgcMachine(name="vf4", host="127.0.0.1")]
+    svc = services(sessions, shop)
+    op = Principal("op", Role.OPERATOR)
+    with sessions.begin() as s:
+        jobs.sync_machines(s, shop)
+        library.add_version(s, "O01234", PROGRAM, author="ann")  # a Haas program, a draft
+    order = JobRequest(program="O01234", version=1, machines=["mill-1", "vf2", "vf4"])
+    done = actions.queue.queue_each(svc, op, order)
+    assert [j.machine for j in done.jobs] == ["vf4"]
+    assert [r.machine for r in done.refused] == ["vf2", "mill-1"]  # the machine's own rule first
+    vf2, mill = (r.reason for r in done.refused)
+    assert "accepts released programs only" in vf2
+    assert "the program check found 1 error" in mill
+    refusal = done.refused[0]
+    # on every machine: 409 naming each, and the refusals are in the audit trail all the same
+    with pytest.raises(actions.queue.RefusedEverywhere) as nowhere:
+        actions.queue.queue_each(svc, op, JobRequest(program="O01234", version=1, machines=["vf2"]))
+    assert [r.machine for r in nowhere.value.refused] == ["vf2"]
+    assert str(nowhere.value) == refusal.reason  # one machine: its own words, as before
+    with sessions() as s:
+        rows = audit.query(s, action="job.refused")
+        assert [(r.machine, r.actor, r.result, r.program) for r in rows] == [
+            ("vf2", "op", "refused", "O01234"),  # newest first
+            ("mill-1", "op", "refused", "O01234"),
+            ("vf2", "op", "refused", "O01234"),
+        ]
+        assert "released programs only" in rows[0].detail["error"]
+        assert [j.machine for j in jobs.list_jobs(s)] == ["vf4"]
+
+
 def test_queue_order_claim_retry_and_cancel(sessions: sessionmaker[Session]) -> None:
     with sessions.begin() as s:
         _machines(s)

@@ -3,6 +3,7 @@ the API waking a machine's task from a worker thread."""
 
 from __future__ import annotations
 
+import signal
 import socket
 import subprocess
 import sys
@@ -78,10 +79,17 @@ def test_the_demo_on_a_port_in_use_is_one_line(tmp_path: Path, silent_port: int)
     assert done.stdout == ""  # no virtual machine was started, no login printed
 
 
-def test_a_malformed_bind_is_one_line(tmp_path: Path) -> None:
-    done = _serve("--config", str(_config(tmp_path, "127.0.0.1:8000")), "--bind", "8000")
-    assert done.returncode == 1
-    assert done.stderr.strip() == "error: --bind '8000': expected HOST:PORT"
+@pytest.mark.parametrize(
+    ("bind", "said"),
+    [("8000", "expected HOST:PORT"), ("127.0.0.1:99999", "a port is 0 to 65535")],
+)
+def test_a_malformed_bind_is_a_usage_error_in_one_line(
+    tmp_path: Path, bind: str, said: str
+) -> None:
+    # the README: every failure is exit status 1, a usage error 2
+    done = _serve("--config", str(_config(tmp_path, "127.0.0.1:8000")), "--bind", bind)
+    assert done.returncode == 2
+    assert done.stderr.strip() == f"error: --bind {bind!r}: {said}"
 
 
 def test_the_harness_reaches_its_own_server_when_the_configured_port_is_taken(
@@ -127,3 +135,36 @@ def test_a_job_queued_through_the_api_wakes_its_machine_from_the_right_thread(
         assert "Non-thread-safe" not in procs.log("server")
     finally:
         fleet.stop()
+
+
+def test_sigterm_ends_the_server_itself_with_sqlite_let_go(tmp_path: Path) -> None:
+    """uvicorn raised the SIGTERM again once it had stopped: the shell said "Terminated" and
+    SQLite's -wal and -shm files stayed. The server ends itself, status 143, files gone."""
+    config = tmp_path / "shop.toml"
+    config.write_text('[server]\ndatabase = "sqlite:///opendnc.db"\n[library]\npath = "lib"\n')
+    command = ["serve", "--config", str(config), "--bind", "127.0.0.1:0"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "opendnc.cli.main", *command],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"},
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()  # blocks until the server listens (or ends)
+        assert line.startswith("opendnc server on http://127.0.0.1:"), line
+        assert (tmp_path / "opendnc.db-wal").exists()  # the database is open in WAL mode
+        proc.send_signal(signal.SIGTERM)
+        _out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143, err  # 128 + SIGTERM, ended by itself, not by the signal
+    assert err == ""
+    assert sorted(p.name for p in tmp_path.glob("opendnc.db*")) == [
+        "opendnc.db",
+        "opendnc.db.server-lock",
+    ]

@@ -9,7 +9,9 @@ its status word over MDC and the classifier says "alarm".
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -34,6 +36,8 @@ from tests.web.browser import (  # noqa: E402
     Shop,
     chromium,
     sync_api,
+    watched_context,
+    watched_page,
 )
 
 PROGRAM = b"%\r\nO01000 (FACE)\r\nG20\r\nG00 X0. Y0.\r\nM30\r\n%\r\n"
@@ -196,7 +200,8 @@ def test_the_wall_display_is_large_has_no_controls_and_turns_its_pages(clean: Sh
     for box in (c.bounding_box() for c in visible.all()):
         assert box is not None
         assert box["y"] + box["height"] <= 600
-    sync_api.expect(page.locator("#wall-clock")).to_have_text(re.compile(r"\d\d:\d\d"))
+    # the shop's zone named as the cards name it (CET, CEST), not the browser's "GMT+1"
+    sync_api.expect(page.locator("#wall-clock")).to_have_text(re.compile(r"\d\d:\d\d CES?T"))
     page.context.close()
 
 
@@ -304,4 +309,67 @@ def test_all_machines_in_one_click_and_a_question_before_sending_to_many(clean: 
     page.get_by_role("button", name="Send", exact=True).click()
     sync_api.expect(page.locator("#send-result")).to_contain_text("haas-2")
     assert len(asked) == 2
+    page.context.close()
+
+
+def _bare_server(tmp: Path) -> Any:
+    """A server without machines on its own SQLite file, that a test may stop and start."""
+    text = '[server]\ntimezone = "Europe/Berlin"\n[library]\npath = "lib"\n'
+    server = build(parse_config(text, base=tmp), database=f"sqlite:///{tmp / 'db.sqlite'}")
+    with server.sessions.begin() as session:
+        if auth.find_user(session, "admin") is None:
+            auth.create_user(session, "admin", Role.ADMIN, password=PASSWORDS["admin"])
+    return server
+
+
+def test_a_stopped_server_greys_the_page_within_5_s_and_it_comes_back(
+    clean: Shop, tmp_path: Path
+) -> None:
+    """40 s after the server stopped, the page still said "Running, updated just now": a lost
+    stream greys the page, says since when, and the page reconnects by itself."""
+    problems: list[str] = []
+    with serving(_bare_server(tmp_path)) as url:
+        port = int(url.rsplit(":", 1)[1])
+        page = watched_page(watched_context(clean.browser, url, problems, (1280, 800)), problems)
+        page.goto(url + "/")
+        page.get_by_label("User name").fill("admin")
+        page.get_by_label("Password").fill(PASSWORDS["admin"])
+        page.get_by_role("button", name="Log in").click()
+        page.wait_for_url(url + "/")
+        # the stream is open and its heartbeat heard: live
+        page.wait_for_function("window.opendncLive && window.opendncLive.opened > 0")
+        banner = page.locator("#stale")
+        sync_api.expect(banner).to_be_hidden()
+        stopped = time.monotonic()
+    # the server has stopped (its thread joined); the page knows within 5 s of the stop
+    left = max(0.0, 5.0 - (time.monotonic() - stopped))
+    sync_api.expect(banner).to_be_visible(timeout=left * 1000)
+    sync_api.expect(banner).to_contain_text(
+        re.compile(r"No connection to the server since \d\d:\d\d:\d\d CES?T")
+    )
+    assert page.evaluate("document.documentElement.classList.contains('stale')")
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "floor-stale-1280.png")
+    # the same server again, on the same port: the page comes back by itself
+    with serving(_bare_server(tmp_path), port=port):
+        sync_api.expect(banner).to_be_hidden(timeout=TIMEOUT_MS)
+        assert not page.evaluate("document.documentElement.classList.contains('stale')")
+        page.context.close()
+    # what the browser and htmx log while the server is away (a stream cut, refused
+    # reconnections); nothing else
+    away = ("ERR_CONNECTION_REFUSED", "ERR_INCOMPLETE_CHUNKED_ENCODING", "[object Event]")
+    assert [p for p in problems if not any(a in p for a in away)] == [], problems
+
+
+def test_per_shift_without_shifts_says_why_it_is_empty(clean: Shop) -> None:
+    """ "By shift" in a shop without shifts showed empty panels and no word why."""
+    page = clean.login("admin")
+    page.goto(clean.url + "/utilization?group=shift")
+    hint = page.locator("#no-shifts")
+    sync_api.expect(hint).to_contain_text("No shifts are configured")
+    assert page.locator(".util-bars").count() == 0
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=ARTIFACTS / "floor-utilization-shift-1280.png", full_page=True)
+    hint.get_by_role("link", name="per day").click()
+    sync_api.expect(page.locator("#bars-h")).to_have_text("Per day")
     page.context.close()

@@ -78,6 +78,21 @@ def test_a_jobs_rate_and_time_left_follow_from_its_bytes_and_start() -> None:
     assert render.job_pace(100, None, start, start + timedelta(seconds=10)) == ("10 B/s", "")
 
 
+def test_the_time_left_is_measured_from_the_first_bytes_not_the_wait_before_them() -> None:
+    """A 9 s load first said "about 5 min 13 s left": the control's start (a Haas's NAK
+    every few seconds) counted as transfer time."""
+    start = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
+    first = (start + timedelta(seconds=3), 1_000)  # 3 s waiting for the control, then bytes
+    total = 100_000  # 100 kB at 16.5 kB/s: 6 s of transfer
+    soon = start + timedelta(seconds=3.5)
+    assert render.job_pace(9_250, total, start, soon, first) == ("", "")  # too early to say
+    at = start + timedelta(seconds=5)
+    rate, left = render.job_pace(34_000, total, start, at, first)
+    assert (rate, left) == ("16.5 kB/s", "about 4 s left")
+    # what the rate from the job's start would have said
+    assert render.job_pace(34_000, total, start, at)[1] == "about 10 s left"
+
+
 @given(st.floats(min_value=0, max_value=10 * 86400, allow_nan=False))
 def test_a_duration_reads_as_two_units_at_most(seconds: float) -> None:
     text = render.duration(seconds)
@@ -153,3 +168,46 @@ def test_a_control_that_is_offline_or_silent_reports_no_parts_tool_or_overrides(
 def test_a_controls_path_wraps_after_a_folder_never_inside_a_name() -> None:
     assert str(render.breakable_path("TNC:/nc_prog/POCKET.H")) == "TNC:/<wbr>nc_prog/<wbr>POCKET.H"
     assert str(render.breakable_path("C:\\a<b>")) == "C:\\<wbr>a&lt;b&gt;"  # escaped, then marked
+
+
+def test_the_send_panel_lists_every_error_its_count_says() -> None:
+    """The send panel said "tnc-1 2 errors" and listed one."""
+    problems = [
+        {"severity": "error", "line": 3, "message": "G02 without a radius"},
+        {"severity": "warning", "line": 4, "message": "no coolant"},
+        {"severity": "error", "line": 9, "message": "X beyond the travel"},
+    ]
+    check = {"machine": "tnc-1", "version": 2, "ok": False, "errors": 2, "warnings": 1}
+    html = render.render(
+        "_machine_checks.html", checks=[{**check, "problems": problems}], program="P.nc"
+    )
+    assert "2 errors" in html
+    for text in ("P.nc:3</a> G02 without a radius", "P.nc:9</a> X beyond the travel"):
+        assert text in html, html
+    assert "no coolant" not in html  # the warnings are counted, the check page lists them
+
+
+@pytest.mark.parametrize(
+    ("state", "execution", "said"),
+    [
+        ("running", "ACTIVE", "Running since"),
+        ("alarm", "STOPPED", "Alarm since"),
+        ("stopped", "FEED_HOLD", "Stopped, feed hold since"),
+        ("stopped", "STOPPED", "Stopped since"),
+        ("ready", "PROGRAM_COMPLETED", "Ready, program completed since"),
+    ],
+)
+def test_a_card_says_its_state_in_plain_words(state: str, execution: str, said: str) -> None:
+    """Not "Running (active)" or "Alarm (stopped)": the execution word only where it adds."""
+    machine = {
+        "name": "tnc-1",
+        "kind": "lsv2",
+        "online": True,
+        "state": state,
+        "state_since": "2026-01-05T12:30:00+00:00",
+        "status": {"at": "2026-01-05T13:02:31+00:00", "available": True, "execution": execution},
+    }
+    c = render.card(machine, zone=BERLIN, now=WINTER)
+    html = render.render("_card.html", c=c, whole=False, zone=BERLIN)
+    line = html.split('<p class="since small">')[1].split("<time")[0].strip()
+    assert line == said

@@ -328,3 +328,47 @@ def test_a_viewer_gets_the_whole_width_and_768_puts_the_panel_under_the_versions
         assert abs(s["left"] - boxes["content"]["left"]) <= 1, (s, boxes)
         assert abs(s["right"] - boxes["content"]["right"]) <= 1, (s, boxes)
     page.context.close()
+
+
+def test_a_foreign_file_on_a_machine_is_replaced_by_the_released_version_in_one_click(
+    clean: ShareShop,
+) -> None:
+    """A file on a machine that is not the released version: one click sends the released
+    one there, through the queue (its policy, its audit row)."""
+    released = b"%\r\nO08000 (CHAMFER)\r\nG20\r\nG01 X0.5 F10.\r\nM30\r\n%\r\n"
+    page = clean.shop.login("admin")
+    # the library's released O08000.nc, and an operator's own edit of it on haas-2
+    page.goto(clean.shop.url + "/library")
+    share = clean.shares["haas-2"]
+    reply = page.request.post(
+        clean.shop.url + "/library",
+        multipart={
+            "file": {"name": "O08000.nc", "mimeType": "text/plain", "buffer": released},
+            "name": "O08000.nc",
+        },
+        headers={"X-CSRF-Token": _csrf(page)},
+    )
+    assert reply.ok, reply.text()
+    released_reply = page.request.post(
+        clean.shop.url + "/library/O08000.nc/versions/1/release",
+        headers={"X-CSRF-Token": _csrf(page)},
+    )
+    assert released_reply.ok, released_reply.text()
+    (share / "O08000.nc").write_bytes(released.replace(b"F10.", b"F25."))
+    page.goto(clean.shop.url + "/netshare")
+    section = page.locator("section[aria-labelledby='folder-haas-2-h']")
+    row = section.locator("tr", has_text="O08000.nc")
+    sync_api.expect(row.locator("td.match")).to_contain_text("differs from released v1")
+    _shoot(page, "netshare-replace-1280.png")
+    row.get_by_role("button", name="Replace with released v1").click()
+    sync_api.expect(page.locator("#share-result")).to_contain_text("Queued: haas-2")
+    wait_for(
+        "the released version in the share", lambda: (share / "O08000.nc").read_bytes() == released
+    )
+    sync_api.expect(row.locator("td.match")).to_contain_text("same as released v1")
+    page.context.close()
+
+
+def _csrf(page: Any) -> str:
+    token = page.evaluate("JSON.parse(document.body.getAttribute('hx-headers'))['X-CSRF-Token']")
+    return str(token)

@@ -175,11 +175,25 @@ def test_the_send_form_shows_each_machines_check_and_the_override_is_audited(
     expect(checks.locator("li[data-machine='haas-1']")).to_contain_text(
         "heidenhain program cannot run"
     )
-    # a Klartext program to the Haas: refused, with the reason on the page
+    # a Klartext program to the TNC and the Haas: queued on the TNC, and the Haas named in
+    # the panel with the reason (it refused the whole send, named at the page's top)
     page.get_by_role("checkbox", name="haas-1").check()
+    page.get_by_role("checkbox", name="tnc-1").check()
+    page.once("dialog", lambda d: d.accept())  # two machines: asked first
     page.get_by_role("button", name="Send", exact=True).click()
-    expect(page.locator("#alert")).to_contain_text("the program check found 1 error")
-    expect(page.locator("#send-result")).to_be_empty()
+    result = page.locator("#send-result")
+    expect(result).to_contain_text("Queued: tnc-1")
+    expect(result.locator(".refused li")).to_have_count(1)
+    expect(result.locator(".refused li")).to_contain_text(
+        "haas-1: K.H v1 to haas-1: the program check found 1 error"
+    )
+    expect(page.locator("#alert")).to_be_empty()
+    tab.shot("send-refused")
+    # the Haas alone: refused everywhere, said in the panel all the same
+    page.get_by_role("checkbox", name="tnc-1").uncheck()
+    page.get_by_role("button", name="Send", exact=True).click()
+    expect(result.locator(".ok")).to_have_count(0)
+    expect(result.locator(".refused")).to_contain_text("Not sent to 1 machine")
     # overridden with a reason: queued, and the history has who and why
     page.get_by_text("Override check errors").click()
     page.get_by_role("checkbox", name="Send although the check finds errors").check()
@@ -194,6 +208,12 @@ def test_the_send_form_shows_each_machines_check_and_the_override_is_audited(
         )
     assert [(r.actor, r.machine, r.program, r.detail["reason"]) for r in rows] == [
         ("programmer", "haas-1", "K.H", "test cut on the Haas, by hand")
+    ]
+    with app.server.sessions() as s:
+        refused = list(s.scalars(select(AuditEntry).where(AuditEntry.action == "job.refused")))
+    assert [(r.actor, r.machine, r.program) for r in refused] == [
+        ("programmer", "haas-1", "K.H"),
+        ("programmer", "haas-1", "K.H"),
     ]
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import typer
 
 from opendnc.cli.common import cli_errors, console
-from opendnc.cli.serve import listen_socket, parse_bind, require_server_extra
+from opendnc.cli.serve import bind_option, listen_socket, require_server_extra
 from opendnc.errors import DncError, InputError
 
 # What the virtual NGC runs once at start so its DPRNT lines reach the machine's page.
@@ -74,6 +74,23 @@ NAS_FILES: dict[str, bytes] = {
 }
 
 
+# Two shifts every day of the week (a demo runs on a Sunday too): the utilization page per
+# shift has something to show, and its figures are over shift time.
+DEMO_SHIFTS = """
+[[shifts]]
+name = "early"
+start = "06:00"
+end = "14:00"
+days = ["mon-sun"]
+
+[[shifts]]
+name = "late"
+start = "14:00"
+end = "22:00"
+days = ["mon-sun"]
+"""
+
+
 def demo(
     tour: bool = typer.Option(
         False, "--tour", help="The short command-line tour of one virtual TNC and Haas instead."
@@ -102,7 +119,7 @@ def demo(
         from opendnc.server.host_zone import host_zone_name
 
         zone = timezone or host_zone_name()
-        host, port = parse_bind(bind)
+        host, port = bind_option(bind)
         # bound before the virtual machines start: a port in use is one line, nothing started
         with listen_socket(host, port) as listener:
             if folder is not None:
@@ -141,6 +158,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
             netshare=nas,
             netshare_interval=1.0,
         )
+        text += DEMO_SHIFTS  # utilization per shift has something to show
         (folder / "shop.toml").write_text(text)
         shop = parse_config(text, base=folder, source=folder / "shop.toml")
         server = build(shop, database=f"sqlite:///{folder / 'opendnc.db'}", sweep_interval=1.0)

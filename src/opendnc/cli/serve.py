@@ -80,7 +80,7 @@ def serve(
             shop = _named(shop, name)
         host, port = shop.server.bind_host, shop.server.bind_port
         if bind is not None:
-            host, port = parse_bind(bind)
+            host, port = bind_option(bind)
         # The address first: a port in use must stop the server before it migrates the
         # database or connects a single machine, with one line that says what to do.
         listener = listen_socket(host, port)
@@ -121,9 +121,23 @@ def _named(shop: ShopConfig, name: str) -> ShopConfig:
 def parse_bind(bind: str) -> tuple[str, int]:
     """``HOST:PORT`` (``[v6]:PORT`` too) as a host and a port; :class:`InputError` if not."""
     host, sep, port_text = bind.rpartition(":")
-    if not sep or not host or not port_text.isdigit() or int(port_text) > 65535:
+    if not sep or not host or not port_text.isdigit():
         raise InputError(f"--bind {bind!r}: expected HOST:PORT")
+    if int(port_text) > 65535:
+        raise InputError(f"--bind {bind!r}: a port is 0 to 65535")
     return host.strip("[]"), int(port_text)
+
+
+def bind_option(bind: str) -> tuple[str, int]:
+    """:func:`parse_bind` for a command's ``--bind``: a value that is no address is a usage
+    error (one line, exit status 2, as the README says of usage errors), not a failure."""
+    try:
+        return parse_bind(bind)
+    except InputError as exc:
+        from opendnc.cli.common import err_console
+
+        err_console.print(f"error: {exc}", highlight=False, soft_wrap=True, markup=False)
+        raise typer.Exit(2) from None
 
 
 def listen_socket(host: str, port: int) -> socket.socket:
@@ -249,6 +263,18 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
         def handle_exit(self, sig: int, frame: FrameType | None) -> None:
             plan.signalled(sig)
             super().handle_exit(sig, frame)
+
+        @contextlib.contextmanager
+        def capture_signals(self) -> Iterator[None]:
+            # uvicorn raises a signal it handled again once it has stopped: SIGTERM's default
+            # action then ended the process there ("Terminated"), before the database was let
+            # go (SQLite's -wal and -shm files left behind). The stop is ours to end:
+            # StopPlan.exit_after_signal, after the engine is disposed of.
+            with super().capture_signals():
+                try:
+                    yield
+                finally:
+                    self._captured_signals.clear()
 
     if server.mtconnect is not None:
         # Its ports open before the app starts, so a taken one is a plain error naming it.

@@ -540,9 +540,18 @@ def unlock_program(svc: Svc, name: str, who: Caller) -> ProgramOut:
 
 
 @router.post("/jobs", status_code=201)
-def create_jobs(svc: Svc, body: JobRequest, who: Caller) -> list[JobOut]:
-    """Queue one job per machine (all or none)."""
-    return actions.queue.create_jobs(svc, who, body)
+def create_jobs(svc: Svc, body: JobRequest, who: Caller, response: Response) -> list[JobOut]:
+    """Queue one job on each machine that takes it (201, the jobs); each machine refused is
+    named with its reason in the ``OpenDNC-Refused`` header (JSON, ASCII) and the audit
+    trail (``job.refused``). Refused on every machine: 409 naming each."""
+    queued = actions.queue.queue_each(svc, who, body)
+    if queued.refused:
+        said = [{"machine": r.machine, "reason": r.reason} for r in queued.refused]
+        response.headers[REFUSED_HEADER] = json.dumps(said, ensure_ascii=True)
+    return queued.jobs
+
+
+REFUSED_HEADER = "OpenDNC-Refused"
 
 
 @router.get("/jobs")

@@ -38,7 +38,7 @@ from opendnc.server.loopwatch import LoopWatch
 from opendnc.server.machine_state import Machines
 from opendnc.server.machines import Connector
 from opendnc.server.mqtt import MqttPublisher
-from opendnc.server.netshare import NetShare
+from opendnc.server.netshare import NetShare, local_now
 from opendnc.server.parts import Outputs, TimelineRecorder
 from opendnc.server.refusals import Refusals
 from opendnc.server.remote_request import RemoteRequests
@@ -173,7 +173,18 @@ def build(
     netshare = None
     if config.netshare is not None:
         shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
-        netshare = NetShare(config.netshare, shares, config.library.inbox, sessions, bus)
+        # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
+        gate = actions.policy.share_gate(services)
+        zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's
+        netshare = NetShare(
+            config.netshare,
+            shares,
+            config.library.inbox,
+            sessions,
+            bus,
+            gate=gate,
+            clock=lambda: local_now(zone),
+        )
     duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
     cluster = None
     if clustered:

@@ -49,7 +49,12 @@ PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
 
 
 class JobCancelled(TransferError):
-    """A cancel requested in the database reached the job at a safe point."""
+    """A cancel requested in the database reached the job at a safe point; ``nbytes`` the
+    program bytes it had moved by then (its row's Bytes say the same as its message)."""
+
+    def __init__(self, reason: str, nbytes: int | None = None) -> None:
+        super().__init__(reason)
+        self.nbytes = nbytes
 
 
 class DripFeedBroken(DncError):
@@ -151,12 +156,12 @@ class SendExecutor(_Base):
         last = [0.0]
 
         def progress(wire_done: int, wire_total: int | None) -> None:
-            if run.cancel_requested:
-                run.link_unknown = True
-                raise JobCancelled(f"cancelled after {wire_done} bytes of the transfer")
             # In bytes of the program as stored, whatever the connector counts (an XModem
             # load counts its wire form): one definition of progress everywhere.
             done, total = stored_progress(wire_done, wire_total, len(job.data))
+            if run.cancel_requested:
+                run.link_unknown = True
+                raise JobCancelled(f"cancelled after {done} bytes of the program", done)
             state.job_progress = (done, total)
             # A transfer reports every chunk, hundreds a second on a fast link; watchers need
             # a few, and the last one (the API and the cards read job_progress for the rest).

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
+from datetime import UTC, tzinfo
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ __all__ = [
 ]
 
 
-def _name_for(machine: str, data: bytes, given: str | None = None) -> str:
+def _name_for(machine: str, data: bytes, given: str | None = None, zone: tzinfo = UTC) -> str:
     if given:
         try:
             return library.check_program_name(given)
@@ -54,7 +55,8 @@ def _name_for(machine: str, data: bytes, given: str | None = None) -> str:
     header = program_header(data)
     if header is not None:
         return f"O{header.number:05d}.nc"
-    return f"{machine}-{utcnow():%Y%m%d-%H%M%S}.nc"
+    # on the shop's clock, as every time a person reads (a UTC stamp misled a CET shop)
+    return f"{machine}-{utcnow().astimezone(zone):%Y%m%d-%H%M%S}.nc"
 
 
 def _free_path(folder: Path, name: str) -> Path:
@@ -78,10 +80,12 @@ def store(
     failed: str = "",
     name: str | None = None,
     remote: dict[str, object] | None = None,
+    zone: tzinfo = UTC,
 ) -> Received:
     """Keep a reception (``failed`` gives the reason a reception broke off).
 
     ``name`` is the file's own name where it had one (a file found on the control), and
+    ``zone`` the shop's clock a name made of the time is on (a punch without an O-number), and
     ``remote`` what the control said of that file (path, size, time); the audit row keeps it,
     which is how auto-receive knows after a restart what it already took
     (:mod:`opendnc.server.autoreceive`).
@@ -89,7 +93,7 @@ def store(
     digest = hashlib.sha256(data).hexdigest()
     if session.get(Blob, digest) is None:
         session.add(Blob(sha256=digest, size=len(data), data=data))
-    name = _name_for(machine, data, name)
+    name = _name_for(machine, data, name, zone)
     target = _free_path(folder / "failed" if failed else folder, name)
     with atomic_write(target) as out:
         out.write(data)

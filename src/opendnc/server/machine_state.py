@@ -36,6 +36,12 @@ class MachineState:
     job_progress: tuple[int, int | None] = (0, None)
     job_started: datetime | None = None  # when the running job started (its rate, time left)
     job_line: tuple[int, int] | None = None  # a drip-feed's line reached, of its lines
+    # when this server first saw the running job's bytes move, and how many there were: its
+    # rate is measured from there (the wait for the control before the first byte is no
+    # part of it: a 9 s load once said "about 5 min 13 s left" after its slow start)
+    job_flowing: tuple[datetime, int] | None = None
+    job_kind: str = ""  # the running job's kind (send, dripfeed, receive, ...)
+    job_program: str = ""  # the program (or path) it moves
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     # the classifier's state as last published, and since when (the card's "alarm since 14:02")
@@ -50,23 +56,51 @@ class MachineState:
             status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
         self.status = status
 
-    def start_job(self, job_id: int, total: int | None) -> None:
+    def start_job(self, job_id: int, total: int | None, kind: str = "", program: str = "") -> None:
         """A job starts on this machine: its progress, start time and line start anew."""
         self.job_id, self.job_progress = job_id, (0, total)
         self.job_started, self.job_line = datetime.now(UTC), None
+        self.job_kind, self.job_program = kind, program
+        self.job_flowing = None
+
+    def reading(self) -> MachineStatus | None:
+        """The status the one classifier reads: the control's last word, unless what the
+        server itself is doing to the machine says more. A drip-feed runs the program (the
+        control executes what it is fed: running, whatever was polled before it); a load
+        into a control that tells nothing (a serial Haas without MDC) has it waiting on the
+        transfer, reachable and not cutting (ready). No status is polled while a job runs,
+        so without this a serial Haas would read "unknown" through a whole drip-feed."""
+        status = self.status
+        if self.job_id is None or not self.online:
+            return status
+        base = status or MachineStatus(at=datetime.now(UTC), available=True)
+        if self.job_kind == "dripfeed":
+            return replace(
+                base,
+                execution="ACTIVE",
+                program=self.job_program or base.program,
+                errors=(),
+                message=f"drip-feed of {self.job_program} from the server",
+            )
+        silent = base.execution in ("", "UNAVAILABLE") and not base.errors
+        if silent and self.job_kind in ("send", "report"):
+            return replace(base, execution="WAIT", message=f"loading {self.job_program}")
+        return status
 
     def event(self) -> MachineStatusChanged:
         """The machine as it is now, as an event (published on every status read)."""
-        state = classify(self.status, online=self.online)
+        reading = self.reading()
+        state = classify(reading, online=self.online)
         if state is not self.seen_state:
             self.seen_state, self.state_since = state, datetime.now(UTC)
         name, json = self.config.name, self.as_json()
         return MachineStatusChanged(
-            name, self.online, self.status, self.last_error, json, served=self.served
+            name, self.online, reading, self.last_error, json, served=self.served
         )
 
     def as_json(self) -> dict[str, Any]:
         """A JSON-ready summary for the API."""
+        reading = self.reading()
         return {
             "name": self.config.name,
             "kind": self.config.kind.value,
@@ -74,8 +108,8 @@ class MachineState:
             "released_only": self.config.released_only,
             "online": self.online,
             # the one classifier's word: running, ready, stopped, alarm, offline, unknown
-            "state": classify(self.status, online=self.online).value,
-            "status": self.status.as_json() if self.status else None,
+            "state": classify(reading, online=self.online).value,
+            "status": reading.as_json() if reading else None,
             "last_error": self.last_error,
             "last_error_at": self.last_error_at.isoformat() if self.last_error_at else None,
             "link_errors": self.link_errors,
@@ -88,6 +122,11 @@ class MachineState:
         done, total = self.job_progress
         job: dict[str, Any] = {"id": self.job_id, "bytes_done": done, "bytes_total": total}
         job["started"] = self.job_started.isoformat() if self.job_started else None
+        if self.job_flowing is None and done > 0:
+            self.job_flowing = (datetime.now(UTC), done)
+        if self.job_flowing is not None:
+            job["flowing"] = self.job_flowing[0].isoformat()
+            job["flowing_bytes"] = self.job_flowing[1]
         if self.job_line is not None:
             job["line"], job["lines"] = self.job_line
         return job

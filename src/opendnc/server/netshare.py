@@ -8,18 +8,21 @@ folder is archived; programs written on the machines come back to the server's i
 
 1. **push**: a NAS file that stopped changing (same size and time in two scans) and whose
    content a machine has not had yet is copied into that machine's share, whole or not at
-   all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``). A failed copy is tried
-   again at the next scan, but audited only when its outcome changes (the first failure, a
-   new reason, the success after): a share that stays away, or a file that keeps failing, is
-   one row, not one a scan. A name no share can take (longer than :data:`MAX_PUSH_NAME`
-   bytes: the copy's temporary name would pass the 255 bytes a file name may have) is not
-   tried at all: one ``skipped`` row per machine and content.
+   all (:func:`opendnc.haas.share.push`; a local folder or ``smb://``), if the queue's policy
+   lets it go there (the ``gate``: a ``released_only`` machine takes released library
+   versions only, a program check's errors block): a refusal is audited with its reason. A
+   failed copy is tried again at the next scan, but audited only when its outcome changes
+   (the first failure, a new reason, the success after): a share that stays away, or a file
+   that keeps failing, is one row, not one a scan. A name no share can take (longer than
+   :data:`MAX_PUSH_NAME` bytes: the copy's temporary name would pass the 255 bytes a file
+   name may have) is not tried at all: one ``skipped`` row per machine and content.
 2. **collect** (``collect = true``): a file in a machine's share that the server
-   did not put there, or that changed since (the operator edited it), is filed in the inbox by
+   did not put there (neither the push nor a send job of its own: :func:`sent_by_us`), or
+   that changed since (the operator edited it), is filed in the inbox by
    :func:`opendnc.server.inbox.store`, once per content. What a share held when the server
    first saw it is taken as the machine's history, not as new work (one ``netshare.baseline``
    row lists it).
-3. **archive** (daily at ``archive_at``, server local time, or every ``archive_every``
+3. **archive** (daily at ``archive_at`` on the shop's clock, or every ``archive_every``
    seconds, once no NAS file is still being written): the NAS files, pushed first, move
    into ``archive/YYYY-MM-DD/`` (never overwriting) and the copies the server pushed are
    removed from the shares if they still hold exactly the pushed bytes; an edited copy stays
@@ -51,7 +54,7 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import datetime, timedelta, tzinfo
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -65,7 +68,7 @@ from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
 from opendnc.server.config import HaasNgcMachine, NetShareConfig
 from opendnc.server.events import EventBus, NetshareChanged
-from opendnc.server.store.models import AuditEntry
+from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
 
 __all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
 
@@ -79,9 +82,10 @@ MAX_FILE = 64 * 1024 * 1024  # larger files in a share are not programs to move 
 MAX_PUSH_NAME = 240
 
 
-def local_now() -> datetime:
-    """Now in the server's local time zone (the shop's clock for ``archive_at``)."""
-    return datetime.now().astimezone()
+def local_now(zone: tzinfo | None = None) -> datetime:
+    """Now on the shop's clock (``[server] timezone``, which ``archive_at`` is on; without
+    one, this computer's zone)."""
+    return datetime.now(zone) if zone is not None else datetime.now().astimezone()
 
 
 @dataclass
@@ -92,6 +96,12 @@ class ScanReport:
     collected: list[tuple[str, str]] = field(default_factory=list)
     archived: list[str] = field(default_factory=list)
     failed: list[tuple[str, str, str]] = field(default_factory=list)
+    refused: list[tuple[str, str, str]] = field(default_factory=list)  # by the policy
+
+
+ShareGate = Callable[[HaasNgcMachine, str, bytes], str | None]
+"""Whether a NAS file (name, content) may go into a machine's share: None, or why not
+(:func:`opendnc.server.actions.policy.share_gate`, the queue's one gate)."""
 
 
 def _is_program_name(name: str) -> bool:
@@ -302,6 +312,7 @@ class NetShare(RunsTask):
         bus: EventBus | None = None,
         *,
         clock: Callable[[], datetime] = local_now,
+        gate: ShareGate | None = None,
     ) -> None:
         self.config = config
         self.machines = {name: machines[name] for name in config.machines}
@@ -309,6 +320,8 @@ class NetShare(RunsTask):
         self.sessions = sessions
         self.bus = bus
         self.clock = clock
+        self.gate = gate
+        self.refused: dict[tuple[str, str], tuple[str, str]] = {}  # -> (sha256, why), audited
         self.pushed: dict[tuple[str, str], str] = {}  # (machine, name) -> sha256 put there
         # (machine, name) -> (sha256, reason) of a push that failed or was skipped: the same
         # outcome again writes no row
@@ -421,6 +434,28 @@ class NetShare(RunsTask):
         key = (machine.name, name)
         if self.pushed.get(key) == digest:
             return
+        why = self.gate(machine, name, data) if self.gate is not None else None
+        if why is not None:
+            # asked again every scan (a release may come), audited once per content and reason
+            report.refused.append((machine.name, name, why))
+            if self.refused.get(key) != (digest, why):
+                self.refused[key] = (digest, why)
+                with self.sessions.begin() as session:
+                    audit.record(
+                        session,
+                        ACTOR,
+                        "netshare.push",
+                        machine=machine.name,
+                        program=name,
+                        sha256=digest,
+                        nbytes=len(data),
+                        result="refused",
+                        source=self.nas.where(name),
+                        error=why,
+                    )
+                self._publish("push", machine.name, name, error=why)
+            return
+        self.refused.pop(key, None)
         error = ""
         destination = ""
         skipped = len(name.encode("utf-8", "surrogateescape")) > MAX_PUSH_NAME
@@ -487,6 +522,10 @@ class NetShare(RunsTask):
             if self.pushed.get(key) == digest or self.collected.get(key) == digest:
                 continue
             with self.sessions.begin() as session:
+                if sent_by_us(session, machine.name, name, digest):
+                    # a send job of ours wrote it into the share: never a reception
+                    self.collected[key] = digest
+                    continue
                 row = inbox.store(session, machine.name, data, folder=self.inbox_folder)
                 audit.record(
                     session,
@@ -617,6 +656,26 @@ class NetShare(RunsTask):
     def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
         if self.bus is not None:
             self.bus.publish(NetshareChanged(action, machine, name, extra))
+
+
+def sent_by_us(session: Session, machine: str, name: str, digest: str) -> bool:
+    """Whether a job of this server put exactly this file (name and content) on ``machine``:
+    a send to a Haas NGC writes the program into the share this collects from. The job's
+    row is there from its claim on, before the file is written, so a scan never sees the
+    file first; a failed send that wrote it counts too."""
+    found = session.scalar(
+        select(Job.id)
+        .join(ProgramVersion, Job.version_id == ProgramVersion.id)
+        .join(Program, ProgramVersion.program_id == Program.id)
+        .where(
+            Job.machine == machine,
+            Job.kind.in_((JobKind.SEND, JobKind.PUT_FILE)),
+            Program.name == name,
+            ProgramVersion.sha256 == digest,
+        )
+        .limit(1)
+    )
+    return found is not None
 
 
 def _free_path(folder: Path, name: str) -> Path:

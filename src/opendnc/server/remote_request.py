@@ -15,6 +15,7 @@ so, with the first error's line.
 from __future__ import annotations
 
 import asyncio
+import logging
 import textwrap
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -35,6 +36,8 @@ from opendnc.server.requests import RequestSettings
 from opendnc.server.store.models import JobKind, ProgramVersion, utcnow
 
 __all__ = ["RemoteRequests"]
+
+log = logging.getLogger(__name__)
 
 
 class RemoteRequests:
@@ -66,7 +69,14 @@ class RemoteRequests:
         """File a program the control sent: into the inbox, or answer it as a request."""
         settings = self.settings
         machine = state.config
+        if reception.failed and not reception.data:
+            # Broke off before a single byte of a program: nothing was received (what a
+            # control sends as a stopped drip-feed leaves its DNC mode looks like a start).
+            # Not an inbox item, nor the machine's last error.
+            log.info("%s: a reception that brought nothing: %s", machine.name, reception.failed)
+            return
         folder = self.inbox_folder
+        zone = self.machines.config.calendar.zone
         queued: list[dict[str, Any]] = []  # the requested programs' jobs, announced once committed
 
         def handle() -> tuple[str, float | None]:
@@ -81,10 +91,13 @@ class RemoteRequests:
                         reception.data,
                         folder=folder,
                         failed=reception.failed,
+                        zone=zone,
                     )
                     return f"reception failed: {row.reason}", None
                 if names is None:
-                    row = inbox.store(session, machine.name, reception.data, folder=folder)
+                    row = inbox.store(
+                        session, machine.name, reception.data, folder=folder, zone=zone
+                    )
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
                     return f"received {row.name} into the inbox", None
@@ -92,6 +105,8 @@ class RemoteRequests:
 
         message, delay = await asyncio.to_thread(handle)
         state.last_error = "" if not reception.failed else message
+        if reception.failed:
+            state.last_error_at = utcnow()
         bus = self.machines.bus
         bus.publish(ProgramReceived(machine.name, message))
         for job in queued:

@@ -272,11 +272,13 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.start_job(claimed.job_id, len(claimed.data) or None)
+        state.start_job(claimed.job_id, len(claimed.data) or None, claimed.kind.value, claimed.name)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
         )
+        # what the server does to the machine is part of its state (a drip-feed: running)
+        self.machines.publish(state)
         run = JobRun(
             claimed,
             state,
@@ -357,7 +359,7 @@ class JobRunner:
         retryable = isinstance(exc, TransportError | TransferError | RemoteProtocolError)
         retryable = retryable and not isinstance(exc, JobCancelled)
         line = exc.line if isinstance(exc, DripFeedBroken) else None
-        nbytes = exc.nbytes if isinstance(exc, DripFeedBroken) else None
+        nbytes = exc.nbytes if isinstance(exc, DripFeedBroken | JobCancelled) else None
         if line is not None:
             reason = f"{reason} (stopped at line {line}; restart from there)"
 

@@ -74,11 +74,16 @@ async def throttled_stream(
     keep_alive: float = KEEP_ALIVE,
     idle: float | None = None,
     maxsize: int = 1000,
+    beat: Callable[[], bytes] | None = None,
 ) -> AsyncIterator[bytes]:
     """Server-sent events from ``source``: a snapshot, then at most one flush per
     ``interval`` while events arrive, a keep-alive comment after ``keep_alive`` quiet
     seconds; until ``idle`` seconds pass with nothing but comments, ``disconnected()`` (asked
-    only when the stream wakes anyway, never polled) says so, or the task is cancelled."""
+    only when the stream wakes anyway, never polled) says so, or the task is cancelled.
+
+    ``beat`` makes the keep-alive a message a page's script sees (a named event: a browser's
+    EventSource drops comments), so the page can tell a quiet stream from a dead one; like the
+    comment it does not count as saying something, so an idle stream still ends."""
     loop = asyncio.get_running_loop()
     with bus.subscribe(maxsize) as sub:
         out = await source.snapshot(False) + await source.flush()
@@ -101,7 +106,7 @@ async def throttled_stream(
                 now = loop.time()
                 if now - sent >= keep_alive and now < ends:
                     sent = now
-                    yield KEEP_ALIVE_COMMENT
+                    yield beat() if beat is not None else KEEP_ALIVE_COMMENT
                 continue
             # The first event, then everything queued meanwhile, in one go: a wait per
             # event costs the loop more than the event while hundreds of transfers run. Until
@@ -148,16 +153,21 @@ def event_stream_response(
     *,
     interval: float,
     who: str | None = None,
+    beat: Callable[[], bytes] | None = None,
+    keep_alive: float | None = None,
 ) -> StreamingResponse:
     """The response of a route that streams ``source``: until the client goes away, never
     cached, and not buffered by a proxy in front of the server (nginx honours the header).
 
     ``who`` (the user) takes one of the server's stream slots; beyond its caps the route is
-    refused with :class:`opendnc.server.clients.StreamsFull` (503, ``Retry-After``)."""
+    refused with :class:`opendnc.server.clients.StreamsFull` (503, ``Retry-After``). ``beat``
+    and ``keep_alive`` (at most ``[clients] heartbeat``) are :func:`throttled_stream`'s: the
+    dashboard's pages need a heartbeat they can see, every 2 s."""
     clients = core_of(request.app).find(Clients)
     limits = clients.limits if clients is not None else ClientLimits()
     give_back = clients.slots.take(who or "?") if clients is not None else (lambda: None)
+    every = limits.heartbeat if keep_alive is None else min(keep_alive, limits.heartbeat)
     stream = throttled_stream(
-        bus, source, interval=interval, keep_alive=limits.heartbeat, idle=limits.stream_idle
+        bus, source, interval=interval, keep_alive=every, idle=limits.stream_idle, beat=beat
     )
     return _SlotResponse(stream, give_back)

@@ -396,6 +396,7 @@ class Report:
     calendar: Calendar
     periods: list[Period]
     machines: list[MachineReport]
+    until: datetime | None = None  # where the figures end: the span's end, or now within it
 
 
 MAX_SPAN = timedelta(days=400)
@@ -450,7 +451,8 @@ def report(
             machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
             for m in machines
         ]
-    return Report(start, end, group, calendar, periods, reports)
+    until = min(end, max(start, now))  # nothing after now is counted
+    return Report(start, end, group, calendar, periods, reports, until)
 
 
 def buckets(
@@ -503,6 +505,10 @@ def _collect(
     want_stretches = stretches
     if alarms_out is None:
         alarms_out = {m: SummedAlarms() for m in machines}
+    # what has not happened yet counts nowhere: a span that holds ``now`` is summed up to
+    # ``now`` (the state in force is not stretched to the span's end), and its later periods
+    # stay empty, so every percentage is over the time that has passed
+    end = min(end, max(start, now))
     bins = make_bins(periods, scheduled, start, end)
     slots = [(b.period, b.in_shift) for b in bins]
     slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
@@ -628,6 +634,7 @@ def _finish(
         rows = session.execute(
             select(*_SAMPLE_COLUMNS)
             .where(StatusSample.machine == machine, StatusSample.at >= at)
+            .where(StatusSample.at < now)  # (a stop ends at now at the latest)
             .order_by(StatusSample.at, StatusSample.id)
             .limit(FINISH_BATCH)
         ).all()
@@ -638,7 +645,7 @@ def _finish(
         follow(points, carry, out)
         if len(points) < FINISH_BATCH:
             if carry.stop_start is not None or carry.alarm_start is not None:
-                out += open_stretches(carry, max(now, points[-1].at))
+                out += open_stretches(carry, now)
             return
         at = points[-1].at + timedelta(microseconds=1)
 
@@ -667,6 +674,7 @@ def _finish_many(
         return (
             select(*_SAMPLE_COLUMNS)
             .where(c.machine == machine, c.at >= bindparam("at", type_=UtcDateTime()))
+            .where(c.at < bindparam("now", type_=UtcDateTime()))  # (what is known at now)
             .order_by(c.at, c.id)
             .limit(FINISH_FIRST)
         )
@@ -675,7 +683,8 @@ def _finish_many(
     connection = session.connection()
     prepared = first(bindparam("machine", type_=String()))
     for machine in names:
-        for row in connection.execute(prepared, {"machine": machine, "at": open_[machine][1]}):
+        params = {"machine": machine, "at": open_[machine][1], "now": now}
+        for row in connection.execute(prepared, params):
             later[machine].append(point_of_columns(row))
     for machine in names:
         carry, at = open_[machine]

@@ -276,6 +276,8 @@ def report_json(r: Report) -> dict[str, Any]:
     return {
         "from": _local(r.start, cal),
         "to": _local(r.end, cal),
+        # the figures end here: at "to", or at now when the span holds it
+        "until": _local(r.until or r.end, cal),
         "timezone": cal.zone_name,
         "group": r.group.value,
         "states": [s.value for s in STATES],

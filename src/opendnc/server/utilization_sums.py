@@ -627,6 +627,9 @@ def summarize(
     computes from the samples."""
     start, end = start.astimezone(UTC), end.astimezone(UTC)
     periods = periods_of(calendar, group, start, end)
+    if now is not None:  # nothing counts after now (as in :func:`report`)
+        end = min(end, max(start, now))
+        points = [p for p in points if p.at < now]
     bins = make_bins(periods, calendar.scheduled(start, end), start, end)
     inside = [p for p in points if p.at < end]
     # from the first point on, so what carries into the span is known (a point before the

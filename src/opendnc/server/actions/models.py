@@ -542,7 +542,7 @@ class NetShareOut(BaseModel):
     nas: ShareFolderOut | None = None
     machines: list[ShareFolderOut] = Field(default_factory=list)
     archive: str = ""
-    archive_at: str | None = Field(default=None, description="HH:MM daily, server local time")
+    archive_at: str | None = Field(default=None, description="HH:MM daily, on the shop's clock")
     archive_every: float | None = Field(default=None, description="or every so many seconds")
     last_archive: Timestamp | None = None
     interval: float = 0.0

@@ -7,7 +7,11 @@ from the API or a page, a retry and a control's remote request
 
 from __future__ import annotations
 
-from sqlalchemy.orm import Session
+import hashlib
+from collections.abc import Callable
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session, contains_eager, joinedload
 
 from opendnc.errors import InputError
 from opendnc.nccheck import limits_for
@@ -15,10 +19,10 @@ from opendnc.server import jobs
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import MachineConfig
+from opendnc.server.config import HaasNgcMachine, MachineConfig
 from opendnc.server.errors import Conflict
 from opendnc.server.program_checks import Checked
-from opendnc.server.store.models import JobKind, ProgramState, ProgramVersion, Role
+from opendnc.server.store.models import JobKind, Program, ProgramState, ProgramVersion, Role
 
 __all__ = [
     "CHECKED_JOBS",
@@ -32,6 +36,7 @@ __all__ = [
     "may_queue",
     "may_take_back",
     "override_reason",
+    "share_gate",
     "version_for",
 ]
 
@@ -167,3 +172,56 @@ def may_put_on(
     what = f"{version.program.name} v{version.number} to {machine.name}"
     blocks = svc.runner.config.library.check_blocks
     return check if check_passes(check, reason, what, blocks=blocks) else None
+
+
+def share_gate(svc: Services) -> Callable[[HaasNgcMachine, str, bytes], str | None]:
+    """The net share's gate (:class:`opendnc.server.netshare.NetShare`): whether a NAS file
+    may be copied into a machine's share, by the same rule as a send (:func:`may_put_on`),
+    for the library version it is (by name and content; the released one where several
+    match). None: it may; else why not. A file the library never saw, or an edit of a
+    program the library does not hold, is no version: a ``released_only`` machine refuses
+    it; another takes it (the NAS folder is the shop's drop folder), unchecked. A check's
+    errors block: nobody stands at the NAS to override them with a reason."""
+
+    def gate(machine: HaasNgcMachine, name: str, data: bytes) -> str | None:
+        digest = hashlib.sha256(data).hexdigest()
+
+        def find(session: Session) -> checks.Target | None:
+            version = session.scalar(
+                select(ProgramVersion)
+                .join(Program, ProgramVersion.program_id == Program.id)
+                .where(Program.name == name, ProgramVersion.sha256 == digest)
+                .options(contains_eager(ProgramVersion.program))
+                .order_by(
+                    (ProgramVersion.state == ProgramState.RELEASED).desc(),
+                    ProgramVersion.number.desc(),
+                )
+                .limit(1)
+            )
+            return checks.Target.of(version) if version is not None else None
+
+        target = svc.read(find)
+        if target is None:
+            if machine.released_only:
+                return (
+                    f"{machine.name} accepts released programs only; the library has no "
+                    f"version of {name} with this content"
+                )
+            return None
+        checks.ensure(svc, target, limits_for(machine))  # the dry run outside the write
+
+        def decide(session: Session) -> str | None:
+            version = session.get(
+                ProgramVersion, target.version_id, options=[joinedload(ProgramVersion.program)]
+            )
+            if version is None:
+                return f"{name}: its library version is gone"
+            try:
+                may_put_on(svc, session, machine, JobKind.SEND, version, None)
+            except Conflict as exc:
+                return str(exc)
+            return None
+
+        return svc.write(decide)
+
+    return gate

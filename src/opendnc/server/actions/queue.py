@@ -5,6 +5,7 @@ reads them at its safe points (:func:`opendnc.server.jobs.cancel_requested`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 from sqlalchemy.orm import Session
 
@@ -13,18 +14,40 @@ from opendnc.server import audit, jobs, library
 from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import JobOut, JobRequest
+from opendnc.server.errors import Conflict
 from opendnc.server.machine_files import check_path
 from opendnc.server.program_checks import Checked
-from opendnc.server.store.models import JobKind, JobState, Role
+from opendnc.server.store.models import JobKind, JobState, ProgramVersion, Role
 
 __all__ = [
+    "Queued",
+    "Refusal",
+    "RefusedEverywhere",
     "cancel_job",
     "create_jobs",
     "get_job",
     "list_jobs",
     "move_job",
+    "queue_each",
     "retry_job",
 ]
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """A machine a request to the queue left out, and why (the policy's own words)."""
+
+    machine: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Queued:
+    """What a request to many machines did: the jobs queued on the machines that take
+    them, and each machine refused with its reason."""
+
+    jobs: list[JobOut]
+    refused: list[Refusal]
 
 
 def create_jobs(
@@ -34,10 +57,32 @@ def create_jobs(
     *,
     extra: dict[str, str | int | bool] | None = None,
 ) -> list[JobOut]:
-    """Queue one job per machine: all of them, or (any refusal) none. A send or drip-feed
-    is refused where the version's program check finds errors for that machine, unless the
-    order's ``override`` gives a reason (programmers; audited per machine). ``extra`` are
-    the actions' own parameters (a take-back's ``into_library``), never a request's."""
+    """Queue one job per machine: all of them, or (any refusal) none (the actions' own
+    requests: a take-back, the file browser, the demo). A send or drip-feed is refused where
+    the version's program check finds errors for that machine, unless the order's
+    ``override`` gives a reason (programmers; audited per machine). ``extra`` are the
+    actions' own parameters (a take-back's ``into_library``), never a request's."""
+    return _create(svc, who, order, extra=extra, each=False).jobs
+
+
+def queue_each(svc: Services, who: Caller, order: JobRequest) -> Queued:
+    """Queue one job on each machine that takes it, and name each one that refuses it with
+    its reason (its machine's rule, the program check), audited as ``job.refused``: a send
+    to four machines of which two fail the check goes to the other two. Refused on every
+    machine: :class:`~opendnc.server.errors.Conflict` (409) naming each and why, the
+    refusals audited all the same. What concerns the request itself (the role, the
+    program, the version) refuses it whole, as before."""
+    return _create(svc, who, order, each=True)
+
+
+def _create(
+    svc: Services,
+    who: Caller,
+    order: JobRequest,
+    *,
+    extra: dict[str, str | int | bool] | None = None,
+    each: bool,
+) -> Queued:
     kind = order.kind
     policy.may_queue(who, kind)
     reason = policy.override_reason(who, order.override)
@@ -65,18 +110,38 @@ def create_jobs(
         for config in configs:
             checks.ensure(svc, target, checks.limits_of(svc, config.name))
 
+    refused: dict[str, str] = {}
+
     def queue(session: Session) -> list[JobOut]:
+        refused.clear()
         version = policy.version_for(session, program, order.version) if program else None
         # every machine's own refusal first: one a check override cannot lift is said first
         for config in configs:
-            policy.check_machine(config, kind, version)
+            try:
+                policy.check_machine(config, kind, version)
+            except Conflict as exc:
+                if not each:
+                    raise
+                refused[config.name] = str(exc)
         overridden: dict[str, Checked] = {}
         for config in configs:
-            check = policy.may_put_on(svc, session, config, kind, version, reason)
+            if config.name in refused:
+                continue
+            try:
+                check = policy.may_put_on(svc, session, config, kind, version, reason)
+            except Conflict as exc:
+                if not each:
+                    raise
+                refused[config.name] = str(exc)
+                continue
             if check is not None:
                 overridden[config.name] = check
+        if len(refused) == len(configs):
+            raise _NoMachine(refused)
         created = []
         for config in configs:
+            if config.name in refused:
+                continue
             params: dict[str, str | int | bool] = dict(extra or {})
             if path is not None:
                 params["path"] = path
@@ -104,11 +169,75 @@ def create_jobs(
                     errors=overridden[config.name].errors,
                     first=overridden[config.name].first_error(),
                 )
+        _audit_refusals(session, who, kind, version, refused)
         return [JobOut.of(j) for j in created]
 
-    out = svc.write(queue)
+    try:
+        out = svc.write(queue)
+    except _NoMachine as none:
+        # nothing queued: the refusals are audited in a transaction of their own
+        version_of = None
+        if program is not None:
+            version_of = (program, order.version)
+        left, conflict = none.refused, none.conflict()
+        svc.write(lambda s: _audit_refusals(s, who, kind, version_of, left))
+        raise conflict from None
     svc.queued(out)
-    return out
+    return Queued(out, [Refusal(m, why) for m, why in refused.items()])
+
+
+class _NoMachine(Exception):
+    """Every machine of a request refused it (the transaction rolls back)."""
+
+    def __init__(self, refused: dict[str, str]) -> None:
+        super().__init__("no machine takes it")
+        self.refused = dict(refused)
+
+    def conflict(self) -> RefusedEverywhere:
+        """409 in the policy's words: one machine's as it said it, several named each."""
+        refusals = [Refusal(m, why) for m, why in self.refused.items()]
+        if len(refusals) == 1:
+            return RefusedEverywhere(refusals[0].reason, refusals)
+        said = "; ".join(f"{r.machine}: {r.reason}" for r in refusals)
+        return RefusedEverywhere(f"refused on every machine: {said}", refusals)
+
+
+class RefusedEverywhere(Conflict):
+    """A request every machine refused (HTTP 409); ``refused`` names each and why."""
+
+    def __init__(self, message: str, refused: list[Refusal]) -> None:
+        super().__init__(message)
+        self.refused = refused
+
+
+def _audit_refusals(
+    session: Session,
+    who: Caller,
+    kind: JobKind,
+    version: ProgramVersion | tuple[str, int | None] | None,
+    refused: dict[str, str],
+) -> None:
+    """One ``job.refused`` row per machine left out, with the reason."""
+    program: str | None = None
+    number: int | None = None
+    sha: str | None = None
+    if isinstance(version, ProgramVersion):
+        program, number, sha = version.program.name, version.number, version.sha256
+    elif version is not None:
+        program, number = version
+    for machine, why in refused.items():
+        audit.record(
+            session,
+            who.name,
+            "job.refused",
+            machine=machine,
+            program=program,
+            sha256=sha,
+            result="refused",
+            to=kind.value,
+            version=number,
+            error=why,
+        )
 
 
 def _live(svc: Services) -> dict[int, tuple[int, int | None]]:

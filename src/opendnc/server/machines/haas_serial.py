@@ -31,6 +31,7 @@ import asyncio
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportError, TransportTimeout
@@ -38,6 +39,7 @@ from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
+from opendnc.server.executors import JobCancelled
 from opendnc.server.kinds.base import SerialProfile
 from opendnc.server.kinds.haas_serial import HaasSerialMachine
 from opendnc.server.machines.base import (
@@ -128,6 +130,11 @@ class HaasSerialConnector:
         self._mdc: MdcClient | None = None
         self._tap: TapStream | None = None  # the port as listening and MDC read it
         self._last: tuple[float, MachineStatus] | None = None  # the last MDC reading
+        # What the last drip-feed left the control in, when it did not end well: a broken
+        # feed is an alarm with its text, a cancelled one a stopped program. A control
+        # without MDC never says otherwise, so it stands until the next transfer (a load, a
+        # drip-feed, a punch); with MDC, until the control answers again.
+        self._left: MachineStatus | None = None
         self.on_dprnt = on_dprnt
         """Where DPRNT lines printed on the port go (``dprnt = "serial"``)."""
 
@@ -184,6 +191,8 @@ class HaasSerialConnector:
     async def status(self) -> MachineStatus:
         """Available while the port opens; with ``mdc`` also program, mode and parts."""
         client = self._mdc
+        if self._left is not None and (client is None or time.monotonic() < self._quiet_until):
+            return replace(self._left, at=utcnow())
         if client is None:
             # The port is open, but without MDC the control tells nothing of what it does:
             # its execution is unknown (UNAVAILABLE), not READY (docs/server.md#machine-status).
@@ -216,6 +225,10 @@ class HaasSerialConnector:
 
         status = await asyncio.to_thread(poll)
         self._last = (time.monotonic(), status)
+        if status.execution != "UNAVAILABLE":
+            self._left = None  # the control answered: its own word from now on
+        elif self._left is not None:
+            return replace(self._left, at=utcnow())
         return status
 
     async def send(self, name: str, data: bytes, progress: Progress) -> None:
@@ -236,6 +249,7 @@ class HaasSerialConnector:
         await asyncio.to_thread(
             lambda: xmodem_send(stream, wire, mode=Mode.CHECKSUM, progress=progress)
         )
+        self._left = None  # the control took a program: it is out of the broken feed
 
     async def verify(self, name: str, data: bytes) -> bool | None:
         """None: XModem's block checks are the only verification a serial Haas offers."""
@@ -256,6 +270,12 @@ class HaasSerialConnector:
         if time.monotonic() < self._quiet_until:
             await asyncio.sleep(seconds)
             return None
+        reception = await self._listen(seconds)
+        if reception is not None and not reception.failed:
+            self._left = None  # the operator punched: the control is out of the broken feed
+        return reception
+
+    async def _listen(self, seconds: float) -> Reception | None:
         if self.config.profile.protocol == "text":
             return await asyncio.to_thread(self._listen_text, seconds)
 
@@ -320,6 +340,8 @@ class HaasSerialConnector:
         skipped = _line_offset(data, from_line)
 
         feed_total = len(data) - skipped
+        reached = [from_line]
+        self._left = None
         # Where the last report was, so every report counts only the new bytes' line ends (a
         # count from the start each time is quadratic in the program, and drip-fed programs
         # are the big ones).
@@ -334,13 +356,15 @@ class HaasSerialConnector:
                 seen[:] = [0, 0]
             seen[1] += data.count(b"\n", seen[0], done)
             seen[0] = done
-            progress(max(from_line, seen[1] + 1), lines, max(0, done - skipped), feed_total)
+            reached[0] = max(from_line, seen[1] + 1)
+            progress(reached[0], lines, max(0, done - skipped), feed_total)
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
             counts = await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
-        except BaseException:
+        except BaseException as exc:
             self._quiet_until = time.monotonic() + self.quiet_after_break
+            self._left = _after_feed(name, reached[0], lines, exc)
             raise
         finally:
             self._last = None  # the reading from before the feed is stale: ask afresh
@@ -402,6 +426,31 @@ class HaasSerialConnector:
         finally:
             stream.set_timeout(1.0)
         return Reception(capture.program(), failed=capture.failed)
+
+
+def _after_feed(name: str, line: int, lines: int, exc: BaseException) -> MachineStatus | None:
+    """What a drip-feed that ended with ``exc`` at ``line`` left the control in: a person's
+    cancel stopped the program (stopped); anything else broke it (an alarm, with why). A
+    server that stops says nothing of the control (None)."""
+    if isinstance(exc, asyncio.CancelledError | KeyboardInterrupt | SystemExit):
+        return None
+    where = f"at line {line} of {lines}"
+    if isinstance(exc, JobCancelled):
+        return MachineStatus(
+            at=utcnow(),
+            available=True,
+            execution="INTERRUPTED",
+            program=name,
+            message=f"drip-feed of {name} cancelled {where}",
+        )
+    reason = str(exc) or type(exc).__name__
+    return MachineStatus(
+        at=utcnow(),
+        available=True,
+        execution="INTERRUPTED",
+        program=name,
+        errors=(f"Drip-feed of {name} broke {where}: {reason}"[:200],),
+    )
 
 
 def eob(profile: SerialProfile) -> Eob:

@@ -35,6 +35,11 @@ _EXECUTION = {
     ProgramState.IDLE: "READY",
     ProgramState.UNDEFINED: "READY",
 }
+
+# What the card and the alarm statistics say for a program the control stopped with an NC
+# error when its error list cannot be read (TNC 640, 620, 320 and TNC7 answer the error
+# list's run information only on an iTNC 530; the program state still says "error").
+PROGRAM_ERROR = "Program stopped by an NC error (its text is on the control)"
 _MODE = {
     ExecutionMode.MANUAL: "MANUAL",
     ExecutionMode.MDI: "MANUAL_DATA_INPUT",
@@ -103,7 +108,9 @@ class Lsv2Connector(NetworkOnly):
         mode = await client.execution_mode()
         state = await client.program_state()
         program = await client.selected_program()
-        if self._polls % DETAIL_EVERY == 0:
+        # a program stopped by an error: its text now, not a few polls later
+        in_error = state is ProgramState.ERROR
+        if self._polls % DETAIL_EVERY == 0 or (in_error and not self._errors):
             # Overrides, tool and the error list change seldom: read them every few polls.
             overrides = await self._optional("overrides", client.overrides)
             errors = await self._optional("nc_errors", client.nc_errors)
@@ -114,6 +121,9 @@ class Lsv2Connector(NetworkOnly):
             self._errors = tuple(e.text for e in errors or ())
             self._tool = tool.number if tool is not None else None
         self._polls += 1
+        alarms = self._errors
+        if in_error and not alarms:
+            alarms = (PROGRAM_ERROR,)  # an error state is an alarm, with or without its text
         return MachineStatus(
             at=utcnow(),
             available=True,
@@ -123,7 +133,7 @@ class Lsv2Connector(NetworkOnly):
             line=program.line,
             tool=self._tool,
             overrides=dict(self._overrides),
-            errors=self._errors,
+            errors=alarms,
         )
 
     async def _optional(self, what: str, read: Callable[[], Awaitable[T]]) -> T | None:

@@ -106,6 +106,12 @@ def when(value: datetime | str | None, zone: tzinfo = UTC) -> str:
     return at.astimezone(zone).strftime("%Y-%m-%d %H:%M:%S %Z")
 
 
+def zone_label(at: datetime | None = None, zone: tzinfo = UTC) -> str:
+    """The shop's zone as its clock times name it at ``at`` (now by default): ``CET``,
+    ``CEST``; the one label every page, card and clock shows."""
+    return (at or datetime.now(UTC)).astimezone(zone).strftime("%Z")
+
+
 def iso(value: datetime | str | None, zone: tzinfo = UTC) -> str:
     """A timestamp as ISO 8601 with the shop's offset: ``2026-03-02T14:02:31+01:00``."""
     at = _aware(value)
@@ -397,6 +403,26 @@ def _words(value: str) -> str:
     return value.replace("_", " ").lower()
 
 
+# The control's execution words that say no more than the state they make: "Running (active)"
+# and "Alarm (stopped)" read as jargon, or as a contradiction.
+_SAID_BY_STATE = {
+    "running": {"ACTIVE"},
+    "ready": {"READY", "WAIT"},
+    "stopped": {"STOPPED", "PROGRAM_STOPPED"},
+}
+
+
+def state_detail(state: str, execution: str) -> str:
+    """What the control's execution word adds to the state, in plain words (``"feed hold"``
+    for a stopped machine, ``"program completed"`` for a ready one), or nothing: an alarm is
+    said by its text, a running machine by its program."""
+    if not execution or state in ("alarm", "offline", "unknown"):
+        return ""
+    if execution in _SAID_BY_STATE.get(state, ()):
+        return ""
+    return _words(execution)
+
+
 def duration(seconds: float) -> str:
     """``75`` → ``1 min 15 s``; ``7300`` → ``2 h 1 min`` (two units at most)."""
     s = max(0, round(seconds))
@@ -407,17 +433,28 @@ def duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60} min"
 
 
+PACE_AFTER = 2.0  # seconds of bytes flowing before a rate and a time left are said
+
+
 def job_pace(
-    done: int, total: int | None, started: datetime | None, now: datetime
+    done: int,
+    total: int | None,
+    started: datetime | None,
+    now: datetime,
+    flowing: tuple[datetime, int] | None = None,
 ) -> tuple[str, str]:
     """A running job's rate and time left (``"12.3 kB/s"``, ``"about 2 min left"``), from
-    the bytes done since it started; empty while too little is known to say."""
-    if started is None or done <= 0:
+    the bytes done since they began to flow (``flowing``: when the server first saw them
+    move, and how many there were; without it, since the job started), once they have
+    flowed :data:`PACE_AFTER` seconds; empty while too little is known to say. The wait for
+    a control before its first byte (a Haas's NAK, a TNC's login) is no part of the rate."""
+    since, base = flowing if flowing is not None else (started, 0)
+    if since is None or done <= base:
         return "", ""
-    elapsed = (now - started).total_seconds()
-    if elapsed < 1:
+    elapsed = (now - since).total_seconds()
+    if elapsed < (PACE_AFTER if flowing is not None else 1):
         return "", ""
-    rate = done / elapsed
+    rate = (done - base) / elapsed
     left = ""
     if total and total > done:
         left = f"about {duration((total - done) / rate)} left"
@@ -454,7 +491,11 @@ def card(
         execution = ""  # the control does not say: the state (unknown) tells it already
     alarm = "; ".join(errors)
     done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
-    rate, left = job_pace(done, total, _aware(job.get("started")), now) if job else ("", "")
+    rate, left = ("", "")
+    if job:
+        flowed = _aware(job.get("flowing"))
+        flowing = (flowed, int(job.get("flowing_bytes") or 0)) if flowed is not None else None
+        rate, left = job_pace(done, total, _aware(job.get("started")), now, flowing)
     at = _aware(status.get("at"))
     minute = at.replace(second=0, microsecond=0) if at is not None else None
     since = _aware(machine.get("state_since"))
@@ -468,7 +509,7 @@ def card(
         online=online,
         mode=_words(status.get("mode", "")) if online else "",
         native_mode=str(status.get("native_mode") or "") if online else "",
-        execution=_words(execution),
+        execution=state_detail(str(machine.get("state") or ""), execution),
         program=status.get("program", "") if online else "",
         line=int(status.get("line") or 0) if online else 0,
         job_id=job["id"] if job else None,

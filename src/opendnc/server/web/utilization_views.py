@@ -307,6 +307,8 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
     context: dict[str, Any] = {
         "report": r,
         "zone": cal.zone_name,
+        "zone_name": cal.zone_name,  # the page's clock (base.html) and its label, as elsewhere
+        "zone_label": render.zone_label(None, cal.zone),
         "first": first.isoformat(),
         "last": last.isoformat(),
         "group": grouping.value,
@@ -320,7 +322,8 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
         "duration": _duration,
         "clock": lambda at: _clock(at, cal),
         "shifts": cal.shifts,
-        "span_label": f"{_clock(r.start, cal)} to {_clock(span_end, cal)}",
+        "span_label": f"{_clock(r.start, cal)} to {_clock(span_end, cal)}"
+        + (f" (counted up to now, {_clock(r.until, cal)})" if r.until and r.until < r.end else ""),
         "stops": sorted(
             ((m.machine, s) for m in r.machines for s in m.stops),
             key=lambda item: -item[1].seconds,

@@ -46,6 +46,7 @@ from opendnc.server.events import (
     Event,
     InboxChanged,
     JobEvent,
+    JobFinished,
     JobProgress,
     MachineStatusChanged,
     NetshareChanged,
@@ -69,6 +70,7 @@ from opendnc.server.streams import event_stream_response
 from opendnc.server.throttle import DEVICE_COOKIE
 from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
+from opendnc.server.web.heartbeat import HEARTBEAT, Heartbeat, heartbeat_event
 from opendnc.server.web.timeline import Timeline
 
 __all__ = ["LoginNeeded", "Page", "router"]
@@ -175,6 +177,7 @@ def _html(template: str, page: Page | None, request: Request, **context: Any) ->
     calendar = _supervisor(request).config.calendar
     context.setdefault("zone", calendar.zone)
     context.setdefault("zone_name", calendar.zone_name)
+    context.setdefault("zone_label", render.zone_label(None, calendar.zone))
     return HTMLResponse(
         render.render(template, page=page, path=request.url.path, roles=ROLES, **context)
     )
@@ -367,9 +370,18 @@ async def card_events(
     shown = None
     if machine is not None and dprnt is not None and capabilities_of(states[machine].config).dprnt:
         shown = _shown_ids(request, machine, dprnt)
-    source = _Cards(request, machine, shown)
+    zone = _zone(request)
+    source = Heartbeat(_Cards(request, machine, shown), zone)
     bus = _supervisor(request).bus
-    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
+    return event_stream_response(
+        request,
+        bus,
+        source,
+        interval=CARD_INTERVAL,
+        who=page.who.name,
+        beat=lambda: heartbeat_event(zone),
+        keep_alive=HEARTBEAT,
+    )
 
 
 def _shown_ids(request: Request, machine: str, span: str) -> list[int]:
@@ -547,8 +559,9 @@ def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[re
 LIST_EVENTS: dict[str, tuple[type[Event], ...]] = {
     "inbox": (ProgramReceived, NetshareChanged, InboxChanged),
     "library": (ProgramChanged,),
-    # what the net share did, and a release (which changes how its files compare)
-    "netshare": (NetshareChanged, ProgramChanged),
+    # what the net share did, a release (which changes how its files compare), and a job's
+    # end (a send to a Haas NGC writes into its share: the page's "Replace" button)
+    "netshare": (NetshareChanged, ProgramChanged, JobFinished),
 }
 
 
@@ -559,9 +572,18 @@ async def list_events(request: Request, page: Viewing, topic: str) -> StreamingR
     each."""
     if topic not in LIST_EVENTS:
         raise InputError(f"topic {topic[:20]!r}: inbox, library or netshare")
-    source = _ListChanges(topic)
+    zone = _zone(request)
+    source = Heartbeat(_ListChanges(topic), zone)
     bus = _supervisor(request).bus
-    return event_stream_response(request, bus, source, interval=CARD_INTERVAL, who=page.who.name)
+    return event_stream_response(
+        request,
+        bus,
+        source,
+        interval=CARD_INTERVAL,
+        who=page.who.name,
+        beat=lambda: heartbeat_event(zone),
+        keep_alive=HEARTBEAT,
+    )
 
 
 class _ListChanges:
@@ -606,7 +628,7 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
     caps = capabilities_of(state.config)
     context["machine"] = live
     timeline: Timeline = deps.timeline(request)
-    timeline.note(name, state.status, online=state.online)
+    timeline.note(name, state.reading(), online=state.online)
     now = datetime.now(UTC)
     context["timeline"] = timeline.segments(name, hours=TIMELINE_HOURS, now=now)
     context["timeline_ticks"] = render.axis_ticks(
@@ -1009,9 +1031,15 @@ def send_program(
         machines=machines,
         override=_override(override, reason),
     )
-    created = actions.queue.create_jobs(_svc(request), page.who, order)
-    queued = [j.model_dump(mode="json") for j in created]
-    return _html("_sent.html", page, request, queued=queued)
+    # each machine that takes it gets it; each refusal is named in the panel, not at the top
+    try:
+        done = actions.queue.queue_each(_svc(request), page.who, order)
+    except actions.queue.RefusedEverywhere as nowhere:
+        answer = _html("_sent.html", page, request, queued=[], refused=nowhere.refused)
+        answer.status_code = 409
+        return answer
+    queued = [j.model_dump(mode="json") for j in done.jobs]
+    return _html("_sent.html", page, request, queued=queued, refused=done.refused)
 
 
 @router.post("/library")

@@ -198,17 +198,25 @@ class Wall {
 let wall = null;
 
 function tickClock() {
+  // The time on the shop's zone, named as every card names it ("CET", "CEST": the server's
+  // word, from the page and then each heartbeat), not the browser's ("GMT+1").
   const clock = document.getElementById("wall-clock");
   if (!clock) return;
-  const options = { hour: "2-digit", minute: "2-digit", timeZoneName: "short", hour12: false };
+  const options = { hour: "2-digit", minute: "2-digit", hour12: false };
+  const label = (window.opendncLive && window.opendncLive.zone) || document.body.dataset.zoneLabel || "";
+  let text;
   try {
     options.timeZone = clock.dataset.zone;
-    clock.textContent = new Intl.DateTimeFormat(undefined, options).format(new Date());
+    text = new Intl.DateTimeFormat("en-GB", options).format(new Date());
   } catch (e) {
-    delete options.timeZone; // a zone this browser does not know: its own clock
-    clock.textContent = new Intl.DateTimeFormat(undefined, options).format(new Date());
+    delete options.timeZone; // a zone this browser does not know: its own clock, named so
+    options.timeZoneName = "short";
+    clock.textContent = new Intl.DateTimeFormat("en-GB", options).format(new Date());
+    return;
   }
+  clock.textContent = label ? `${text} ${label}` : text;
 }
+document.addEventListener("opendnc:zone", tickClock);
 
 document.addEventListener("DOMContentLoaded", () => {
   for (const body of cardBodies()) known.set(body.dataset.machine, body.dataset.state);
