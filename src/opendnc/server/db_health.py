@@ -1,7 +1,8 @@
 """Whether the database answers, as this server sees it, and what a request gets when it does not.
 
 The server goes on without its database for a while (machines are polled, a single server's
-jobs go on: docs/server.md#health-and-database-outages), but a request that needs it cannot be answered.
+jobs go on: docs/server.md#health-and-database-outages), but a request that needs it cannot
+be answered.
 Such a request gets 503 with one line saying why (a page: an HTML page), and the log says so
 once per outage, when it begins and when it ends, not with a traceback per request.
 
