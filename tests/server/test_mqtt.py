@@ -11,9 +11,11 @@ import asyncio
 import getpass
 import signal
 import subprocess
+import uuid
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -22,7 +24,7 @@ from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
-from tests.peers import require_command
+from tests.peers import require_command, require_module
 from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
 from tests.server.outputs_support import (
     Listener,
@@ -149,13 +151,25 @@ def test_retained_state_changes_jobs_and_the_last_will(
         wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
 
 
-def test_a_clean_stop_says_offline_itself(
-    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+def test_a_clean_stop_leaves_every_output_saying_offline(
+    db_url: str, tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
 ) -> None:
-    start_outputs_server(
-        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
-    )
-    with Listener(prefix) as listener:
+    """SIGTERM, on SQLite (one server) and on PostgreSQL (a cluster of one, whose stop lets
+    every machine go before the outputs stop): the broker keeps the machine unavailable, the
+    Sparkplug host sees the device die before the node, an agent reads UNAVAILABLE."""
+    require_module("pysparkplug")
+    group = f"opendnc-test-{uuid.uuid4().hex[:10]}"
+    shdr = free_port()
+    with Listener(prefix) as listener, Listener(f"spBv1.0/{group}") as spb_listener:
+        start_outputs_server(
+            tmp_path,
+            procs,
+            ngc.fleet,
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+            f'[sparkplug]\nurl = "mqtt://127.0.0.1:1883"\ngroup = "{group}"\n'
+            f'[mtconnect]\nbind = "127.0.0.1:{shdr}"\n',
+            db=db_url,
+        )
         topic = "opendnc/dnc-test/online"
         wait_for("online", lambda: (m := listener.last(topic)) and m.payload == b"true")
         wait_for(
@@ -163,9 +177,23 @@ def test_a_clean_stop_says_offline_itself(
             lambda: (
                 (m := listener.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE"
             ),
+            describe=lambda: procs.log("server"),
         )
-        procs.stop("server", signal.SIGTERM)
+        wait_for("the device born", lambda: spb_host(spb_listener, group).of("DBIRTH"))
+        wait_for("the SHDR port", listening(shdr))
+        agent = ShdrReader(shdr)
+        try:
+            agent.until("available", lambda: agent.values.get("availability") == "AVAILABLE")
+            procs.stop("server", signal.SIGTERM)
+            agent.until("unavailable", lambda: agent.values["availability"] == "UNAVAILABLE")
+            assert agent.conditions["system"] == {"": "UNAVAILABLE"}
+            assert agent.values["message"] == "the opendnc server stopped"
+        finally:
+            agent.close()
         wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
+        wait_for("the node's death", lambda: spb_host(spb_listener, group).of("NDEATH"))
+        # The device dies by itself, before its node (the host's rules checked as it reads).
+        assert spb_host(spb_listener, group).kinds()[-2:] == ["DDEATH:haas-1", "NDEATH"]
     # What the broker keeps after a clean stop: the machine unavailable, not AVAILABLE for good.
     with Listener(prefix) as after:
         kept = wait_for("the retained availability", lambda: after.last("haas-1/availability"))
@@ -175,6 +203,16 @@ def test_a_clean_stop_says_offline_itself(
         assert _items(status)["availability"]["value"] == "UNAVAILABLE"
         assert _items(status)["message"]["value"] == "the opendnc server stopped"
         assert status.json()["state"] == "offline"
+
+
+def spb_host(listener: Listener, group: str) -> Any:
+    """The tests' own Sparkplug host fed every message so far (tests/server/spb_decoder.py)."""
+    from tests.server import spb_decoder
+
+    host = spb_decoder.Host(group)
+    for message in list(listener.messages):
+        host.take(message.topic, message.payload)
+    return host
 
 
 def test_a_restart_publishes_each_machine_once_its_state_is_known(

@@ -33,6 +33,7 @@ from typing import Any
 from opendnc.server.components import Component, cancel_and_wait
 from opendnc.server.events import LeaseChanged, ProgramChanged
 from opendnc.server.fleet import Fleet
+from opendnc.server.items import SERVER_STOPPED
 from opendnc.server.leases import LIBRARY, ClusterView, Holding, Leases, cluster_view
 from opendnc.server.machine_state import Machines
 from opendnc.server.notify import Listener, Notice
@@ -110,7 +111,7 @@ class Cluster:
         tasks, self._tasks = self._tasks, []
         await cancel_and_wait(*tasks)
         # all at once: a server with hundreds of machines closes their links side by side
-        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
+        await asyncio.gather(*(self._lose(m, SERVER_STOPPED) for m in sorted(self.serving)))
         try:
             await asyncio.to_thread(self.leases.release_all)
         except Exception as exc:
@@ -143,7 +144,8 @@ class Cluster:
                     if time.monotonic() >= self.leases.valid_until and self.serving:
                         # Another server may hold them by now: stop before it starts.
                         log.warning("leases may have expired: serving no machine until renewed")
-                        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
+                        why = f"{self.server} cannot reach the database; another server takes over"
+                        await asyncio.gather(*(self._lose(m, why) for m in sorted(self.serving)))
                         self.leases.held = frozenset()
                 except Exception:
                     log.exception("stopping the machines of expired leases failed")
@@ -168,7 +170,7 @@ class Cluster:
         for machine in sorted(holding.lost):
             self._pending.pop(machine, None)
             if machine in self.serving:
-                await self._lose(machine)
+                await self._lose(machine, f"{self.server} handed this machine to another server")
         for machine in sorted(holding.gained):
             self._pending[machine] = holding.epochs[machine]
         due = {
@@ -209,7 +211,7 @@ class Cluster:
         self.machines.bus.publish(LeaseChanged(machine, self.server, True, epoch))
         self.fleet.serve(machine)
 
-    async def _lose(self, machine: str) -> None:
+    async def _lose(self, machine: str, reason: str) -> None:
         self.serving.discard(machine)
         if machine == LIBRARY:
             for duty in reversed(self.duties):
@@ -220,7 +222,8 @@ class Cluster:
         if state is not None:
             state.served = False
         await self.fleet.release(machine)
-        self.machines.bus.publish(LeaseChanged(machine, self.server, False, 0))
+        # the outputs say the machine is no longer served from here, and why
+        self.machines.bus.publish(LeaseChanged(machine, self.server, False, 0, reason))
 
     # -- notices ----------------------------------------------------------------------------
 

@@ -37,7 +37,7 @@ from opendnc.server.events import (
     LeaseChanged,
     MachineStatusChanged,
 )
-from opendnc.server.items import ITEMS, ItemTracker, Reading, shdr_time
+from opendnc.server.items import ITEMS, SERVER_STOPPED, ItemTracker, Reading, shdr_time
 from opendnc.server.state import State
 
 if TYPE_CHECKING:
@@ -125,6 +125,7 @@ class MqttPublisher:
         self.connected = False
         self.synced = asyncio.Event()  # set once a connection has sent the whole state
         self._ready = asyncio.Event()
+        self._sub: Subscription | None = None
 
     def as_json(self) -> dict[str, Any]:
         """The link's state for the API."""
@@ -149,7 +150,14 @@ class MqttPublisher:
             case MachineStatusChanged(served=False):
                 pass  # another server of a cluster serves it and publishes it
             case LeaseChanged(machine=machine, held=False):
-                self.tracker.forget(machine)  # its new server publishes it from now on
+                # No longer served here (handed over, the server stops, the database lost):
+                # the broker must not keep this server's last AVAILABLE for it, so it goes
+                # out unavailable with the reason; its next server publishes it from then on.
+                reason = event.reason or f"{event.server} no longer serves this machine"
+                for changed in self.tracker.stopped(reason, [machine]).values():
+                    if changed and self.connected:
+                        self._changes(machine, changed)
+                self.tracker.forget(machine)
             case MachineStatusChanged(machine=machine):
                 first = not self.tracker.known(machine)
                 changed = self.tracker.update(event)
@@ -196,7 +204,7 @@ class MqttPublisher:
         """What a clean stop publishes: every known machine unavailable (retained), so the
         broker does not keep saying AVAILABLE for machines nobody watches any more."""
         out = []
-        for machine, changed in self.tracker.stopped("the opendnc server stopped").items():
+        for machine, changed in self.tracker.stopped(SERVER_STOPPED).items():
             out += self._machine_messages(machine, changed)
         return out
 
@@ -220,6 +228,7 @@ class MqttPublisher:
                 "[mqtt] needs aiomqtt (the 'server' extra): pip install 'opendnc[server]'"
             ) from None
         with self.bus.subscribe(maxsize=self.config.queue) as sub:
+            self._sub = sub
             follow = asyncio.create_task(self._follow(sub), name="mqtt-follow")
             try:
                 await self._connect_loop()
@@ -287,6 +296,17 @@ class MqttPublisher:
             backoff = min(backoff * 2, self.max_backoff)
 
     async def _say_stopped(self, client: aiomqtt.Client) -> None:
+        # The state that changed before the stop goes out first: the events not followed yet
+        # (a cluster's stop lets every machine go just before the outputs stop) and the
+        # retained messages still queued; then every machine still known here as stopped,
+        # then the health. Job events still queued are left: the state comes first.
+        if self._sub is not None:
+            for event in self._sub.drain():
+                with contextlib.suppress(Exception):
+                    self.take(event)
+        for message in [m for m in self.queue if m.retain]:
+            await client.publish(message.topic, message.payload, qos=1, retain=True)
+        self.queue.clear()
         for message in self._stop_messages():
             await client.publish(message.topic, message.payload, qos=1, retain=True)
         await client.publish(self.health_topic, "false", qos=1, retain=True)

@@ -8,7 +8,10 @@ device of it. A subscriber of the event bus like the plain MQTT output, beside i
   ``Node Control/Rebirth`` metric) and a DBIRTH for every machine served and read;
 * a machine this server starts serving (:class:`~opendnc.server.events.LeaseChanged`: a
   single server holds every machine from its start, a cluster's server the ones whose lease
-  it holds) is born (DBIRTH) at its first status; one it stops serving dies (DDEATH);
+  it holds) is born (DBIRTH) at its first status that the control answered; one it stops
+  serving, or whose control stops answering, dies (DDEATH), and the latter is born again
+  when the control answers;
+* a clean stop sends a DDEATH for every device born, then the node's NDEATH;
 * a status that changes metrics sends DDATA with only those metrics, by alias;
 * every message after NBIRTH takes the next ``seq`` (0..255, then 0 again);
 * an NCMD with ``Node Control/Rebirth`` true births the node and its devices again;
@@ -43,6 +46,7 @@ from opendnc.server.config import SparkplugConfig
 from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
 from opendnc.server.items import items_of
 from opendnc.server.sparkplug_store import BD_SEQ_MODULO
+from opendnc.server.state import State
 
 if TYPE_CHECKING:
     import aiomqtt
@@ -65,7 +69,7 @@ BD_SEQ = "bdSeq"
 REBIRTH = "Node Control/Rebirth"
 SOFTWARE = "Node Info/Software"
 STOP_SECONDS = 2.0
-"""How long a clean stop may take to send the node's death."""
+"""How long a clean stop may take to send the devices' and the node's deaths."""
 
 
 class Kind(Enum):
@@ -339,17 +343,30 @@ class SparkplugNode:
                 out.append(message)
         return out
 
+    def _ddeath(self, machine: str) -> Outgoing | None:
+        """The device's DDEATH if the host has it as born (and it is no longer)."""
+        if self.born.pop(machine, None) is None:
+            return None
+        payload = self._spb.DDeath(timestamp=_ms(), seq=self._next_seq()).encode()
+        return Outgoing(self.topic("DDEATH", machine), payload)
+
+    def deaths(self) -> list[Outgoing]:
+        """A DDEATH for every device born in this session (a clean stop, before NDEATH)."""
+        out = [self._ddeath(machine) for machine in self.machines]
+        return [message for message in out if message is not None]
+
     def _device_change(self, machine: str) -> Outgoing | None:
         p = self._spb
         now = _ms()
         if machine not in self.served:
-            if self.born.pop(machine, None) is None:
-                return None
-            payload = p.DDeath(timestamp=now, seq=self._next_seq()).encode()
-            return Outgoing(self.topic("DDEATH", machine), payload)
+            return self._ddeath(machine)
         values = self.values.get(machine)
         if values is None:
             return None  # gained, not read yet: born with its first status
+        if values["state"] == State.OFFLINE.value:
+            # The link to the control is lost: Sparkplug 3.0 (section 5.7) has the edge node
+            # publish the device's DDEATH; it is born again once the control answers.
+            return self._ddeath(machine)
         at = self.stamps.get(machine, now)
         sent = self.born.get(machine)
         if sent is None:
@@ -471,12 +488,13 @@ class SparkplugNode:
                     try:
                         await self._session(client)
                     except asyncio.CancelledError:
-                        # A clean stop sends the death itself: the broker sends the will only
-                        # when the link dies.
+                        # A clean stop sends the deaths itself (the broker sends the will only
+                        # when the link dies): each device's, then the node's.
                         if self.node_born:
                             with contextlib.suppress(Exception, asyncio.CancelledError):
                                 async with asyncio.timeout(STOP_SECONDS):
-                                    await self._send(client, self.death())
+                                    for message in [*self.deaths(), self.death()]:
+                                        await self._send(client, message)
                         raise
                     except _Reconnect:
                         await self._send(client, self.death())
