@@ -8,6 +8,7 @@ plain paho client listens. Every test uses its own topic prefix.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import getpass
 import signal
 import subprocess
@@ -20,7 +21,8 @@ from typing import Any
 import pytest
 
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.items import SERVER_STOPPED
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
@@ -327,6 +329,52 @@ def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
     finally:
         broker.terminate()
         broker.wait(10)
+
+
+def test_a_machine_let_go_is_left_unavailable_with_the_reason(prefix: str) -> None:
+    """A lease handed over (the server goes on) and a cluster's stop (the loss comes just
+    before the outputs stop, not yet followed): either way the broker keeps the machine
+    unavailable with the reason, not this server's last AVAILABLE."""
+    config = MqttConfig(host="127.0.0.1", prefix=prefix)
+    handed = "dnc-1 handed this machine to another server"
+
+    async def until(what: str, check: Any) -> None:
+        async with asyncio.timeout(20):
+            while not check():
+                await asyncio.sleep(0.02)
+
+    def status_of(machine: str) -> dict[str, Any] | None:
+        found = listener.last(f"{machine}/status")
+        return found.json() if found is not None else None
+
+    async def run() -> None:
+        bus = EventBus()
+        publisher = MqttPublisher(config, "dnc-1", ["m1", "m2"], bus)
+        task = asyncio.create_task(publisher.run())
+        await until("connected", publisher.synced.is_set)
+        for machine in ("m1", "m2"):
+            at = datetime.now(UTC)
+            bus.publish(MachineStatusChanged(machine, True, MachineStatus(at, True, "READY")))
+        await until("both ready", lambda: all(status_of(m) for m in ("m1", "m2")))
+        assert {status_of(m)["state"] for m in ("m1", "m2")} == {"ready"}  # type: ignore[index]
+
+        bus.publish(LeaseChanged("m1", "dnc-1", False, 0, handed))
+        await until("m1 let go", lambda: status_of("m1")["state"] == "offline")  # type: ignore[index]
+        bus.publish(LeaseChanged("m2", "dnc-1", False, 0, SERVER_STOPPED))
+        task.cancel()  # at once: the stop finds the loss not followed yet
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    with Listener(prefix) as listener:
+        asyncio.run(run())
+        wait_for("offline", lambda: listener.last("opendnc/dnc-1/online").payload == b"false")  # type: ignore[union-attr]
+    with Listener(prefix) as after:  # what the broker keeps
+        for machine, why in (("m1", handed), ("m2", SERVER_STOPPED)):
+            kept = wait_for("the retained state", lambda m=machine: after.last(f"{m}/status"))  # type: ignore[misc]
+            assert kept.retain
+            assert kept.json()["state"] == "offline"
+            assert _items(kept)["availability"]["value"] == "UNAVAILABLE"
+            assert _items(kept)["message"]["value"] == why
 
 
 def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
