@@ -12,6 +12,7 @@ from opendnc.errors import ControlRefused, DncError, InputError, TransportError
 from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
+from opendnc.lsv2.localfiles import is_binary_name
 from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.machine_files import RemoteFile
@@ -156,6 +157,26 @@ class Lsv2Connector(NetworkOnly):
         """
         line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         return await self._require().read_file(self._target(name), line_end=line_end) == data
+
+    async def holds(self, name: str, data: bytes) -> bool:
+        """Whether the machine's folder already holds exactly ``data`` as ``name`` (what a
+        server that took the machine over asks before sending a load again).
+
+        The file's entry first (one telegram): no such file, or a binary file of another size,
+        is a plain no. Otherwise the file is read back and compared as :meth:`verify` does: a
+        text file's size on the control depends on how the control stores line ends, so only
+        its content can say.
+        """
+        target = self._target(name)
+        try:
+            info = await self._require().file_info(target)
+        except ControlRefused:
+            return False  # the folder itself is not there
+        if info is None:
+            return False
+        if is_binary_name(target) and info.size != len(data):
+            return False
+        return await self.verify(name, data) is True
 
     async def fetch(self, path: str) -> bytes:
         """Read a file from the control (binary: the bytes as the control holds them)."""
