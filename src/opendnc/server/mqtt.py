@@ -20,7 +20,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import ssl
 import uuid
 from collections import deque
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from opendnc.errors import InputError
+from opendnc.server.broker import BrokerLink, Will
 from opendnc.server.config import MqttConfig
 from opendnc.server.events import (
     DprntLinePrinted,
@@ -48,9 +48,6 @@ if TYPE_CHECKING:
 __all__ = ["MqttPublisher", "Outgoing", "item_payload", "status_payload"]
 
 log = logging.getLogger(__name__)
-
-STOP_SECONDS = 2.0
-"""How long a clean stop may take to tell the broker every machine is unavailable."""
 
 _UNITS = {spec.key: spec.units for spec in ITEMS if spec.units}
 
@@ -117,15 +114,28 @@ class MqttPublisher:
         self.tracker = ItemTracker(machines)
         self.health_topic = f"{config.prefix}/opendnc/{server_name}/online"
         self.identifier = f"opendnc-{server_name}-{uuid.uuid4().hex[:8]}"
-        self.min_backoff = min_backoff
-        self.max_backoff = max_backoff
+        self.link = BrokerLink(
+            config, self.identifier, "mqtt", min_backoff=min_backoff, max_backoff=max_backoff
+        )
         self.queue: deque[Outgoing] = deque()
         self.dropped = 0  # messages lost to a full queue (broker away or slow)
-        self.connects = 0
-        self.connected = False
         self.synced = asyncio.Event()  # set once a connection has sent the whole state
         self._ready = asyncio.Event()
         self._sub: Subscription | None = None
+
+    @property
+    def connected(self) -> bool:
+        """Whether a session with the broker is up (changes are then queued to be sent)."""
+        return self.link.connected
+
+    @connected.setter
+    def connected(self, value: bool) -> None:
+        self.link.connected = value
+
+    @property
+    def connects(self) -> int:
+        """How many sessions the broker accepted since the start."""
+        return self.link.connects
 
     def as_json(self) -> dict[str, Any]:
         """The link's state for the API."""
@@ -231,7 +241,9 @@ class MqttPublisher:
             self._sub = sub
             follow = asyncio.create_task(self._follow(sub), name="mqtt-follow")
             try:
-                await self._connect_loop()
+                await self.link.run(
+                    self._session, self._will, stopping=self._say_stopped, after=self._session_ended
+                )
             finally:
                 follow.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
@@ -247,53 +259,12 @@ class MqttPublisher:
             except Exception:  # one odd event must not end the output
                 log.exception("mqtt: cannot publish %s event %s", event.kind, event.key)
 
-    def _client(self) -> aiomqtt.Client:
-        import aiomqtt
+    def _will(self) -> Will:
+        # retained: a subscriber that comes later still reads that the server is gone
+        return Will(self.health_topic, "false", qos=1, retain=True)
 
-        tls_context = None
-        if self.config.tls:
-            cafile = str(self.config.ca_file) if self.config.ca_file else None
-            tls_context = ssl.create_default_context(cafile=cafile)
-        return aiomqtt.Client(
-            self.config.host,
-            self.config.port,
-            username=self.config.username or None,
-            password=self.config.password or None,
-            identifier=self.identifier,
-            will=aiomqtt.Will(self.health_topic, "false", qos=1, retain=True),
-            tls_context=tls_context,
-            timeout=10,
-            keepalive=30,
-        )
-
-    async def _connect_loop(self) -> None:
-        import aiomqtt
-
-        backoff = self.min_backoff
-        where = f"{self.config.host}:{self.config.port}"
-        while True:
-            try:
-                async with self._client() as client:
-                    self.connected = True
-                    self.connects += 1
-                    backoff = self.min_backoff
-                    log.info("mqtt: connected to %s", where)
-                    try:
-                        await self._session(client)
-                    except asyncio.CancelledError:
-                        # A clean stop says so itself: the broker sends the will only when
-                        # the link dies. Bounded: a stop must not wait on a slow broker.
-                        with contextlib.suppress(Exception, asyncio.CancelledError):
-                            async with asyncio.timeout(STOP_SECONDS):
-                                await self._say_stopped(client)
-                        raise
-            except (aiomqtt.MqttError, OSError) as exc:
-                log.warning("mqtt: %s: %s; again in %.0f s", where, exc, backoff)
-            finally:
-                self.connected = False
-                self.synced.clear()
-            await asyncio.sleep(backoff)
-            backoff = min(backoff * 2, self.max_backoff)
+    def _session_ended(self) -> None:
+        self.synced.clear()
 
     async def _say_stopped(self, client: aiomqtt.Client) -> None:
         # The state that changed before the stop goes out first: the events not followed yet

@@ -31,7 +31,6 @@ import contextlib
 import importlib
 import json
 import logging
-import ssl
 import time
 import uuid
 from collections.abc import Callable
@@ -41,6 +40,7 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from opendnc.errors import InputError
+from opendnc.server.broker import BrokerLink, ReconnectNow, Will
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import SparkplugConfig
 from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
@@ -68,8 +68,6 @@ log = logging.getLogger(__name__)
 BD_SEQ = "bdSeq"
 REBIRTH = "Node Control/Rebirth"
 SOFTWARE = "Node Info/Software"
-STOP_SECONDS = 2.0
-"""How long a clean stop may take to send the devices' and the node's deaths."""
 
 
 class Kind(Enum):
@@ -163,10 +161,6 @@ class Outgoing:
     qos: int = 0
 
 
-class _Reconnect(Exception):
-    """The primary host went offline: end this session and start a new one."""
-
-
 class SparkplugNode:
     """The edge node; a component (started by the outputs, before the machines' tasks)."""
 
@@ -188,9 +182,15 @@ class SparkplugNode:
         self._names = frozenset(machines)
         self.bus = bus
         self.next_bd_seq = next_bd_seq  # blocking (the database): run in a thread
-        self.min_backoff = min_backoff
-        self.max_backoff = max_backoff
-        self.identifier = f"opendnc-spb-{config.node}-{uuid.uuid4().hex[:8]}"
+        self.link = BrokerLink(
+            config.broker,
+            f"opendnc-spb-{config.node}-{uuid.uuid4().hex[:8]}",
+            "sparkplug",
+            clean_session=True,
+            min_backoff=min_backoff,
+            max_backoff=max_backoff,
+        )
+        self.identifier = self.link.identifier
         self._aliases = {
             (machine, name): (index + 1) * _ALIAS_BLOCK + offset
             for index, machine in enumerate(self.machines)
@@ -210,8 +210,6 @@ class SparkplugNode:
         self._host_stamp = -1
         self._rebirth = False
         self._host_left = False
-        self.connected = False
-        self.connects = 0
         self.nbirths = 0  # NBIRTHs sent (a rebirth counts)
         self._wake = asyncio.Event()
         self._sub_cm: contextlib.AbstractContextManager[Subscription] | None = None
@@ -236,6 +234,16 @@ class SparkplugNode:
         cm, self._sub_cm, self._sub = self._sub_cm, None, None
         if cm is not None:
             cm.__exit__(None, None, None)
+
+    @property
+    def connected(self) -> bool:
+        """Whether a session with the broker is up."""
+        return self.link.connected
+
+    @property
+    def connects(self) -> int:
+        """How many sessions the broker accepted since the start."""
+        return self.link.connects
 
     def as_json(self) -> dict[str, Any]:
         """The node's state for the API."""
@@ -434,7 +442,13 @@ class SparkplugNode:
         """Follow the bus and keep a session with the broker, until cancelled."""
         follow = asyncio.create_task(self._follow(), name="sparkplug-follow")
         try:
-            await self._connect_loop()
+            await self.link.run(
+                self._session,
+                self._will,
+                stopping=self._say_stopped,
+                before=self._take_bd_seq,
+                after=self._session_ended,
+            )
         finally:
             await cancel_and_wait(follow)
 
@@ -451,67 +465,24 @@ class SparkplugNode:
             except Exception:  # one odd event must not end the output
                 log.exception("sparkplug: cannot take %s event %s", event.kind, event.key)
 
-    def _client(self, will: Outgoing) -> aiomqtt.Client:
-        import aiomqtt
+    def _will(self) -> Will:
+        # the session's NDEATH, with the bdSeq taken for it just before (Sparkplug 3.0)
+        death = self.death()
+        return Will(death.topic, death.payload, qos=death.qos, retain=False)
 
-        broker = self.config.broker
-        tls_context = None
-        if broker.tls:
-            cafile = str(broker.ca_file) if broker.ca_file else None
-            tls_context = ssl.create_default_context(cafile=cafile)
-        return aiomqtt.Client(
-            broker.host,
-            broker.port,
-            username=broker.username or None,
-            password=broker.password or None,
-            identifier=self.identifier,
-            will=aiomqtt.Will(will.topic, will.payload, qos=will.qos, retain=False),
-            clean_session=True,
-            tls_context=tls_context,
-            timeout=10,
-            keepalive=30,
-        )
+    async def _say_stopped(self, client: aiomqtt.Client) -> None:
+        # A clean stop sends the deaths itself (the broker sends the will only when the link
+        # dies): each device's, then the node's.
+        if self.node_born:
+            for message in [*self.deaths(), self.death()]:
+                await self._send(client, message)
 
-    async def _connect_loop(self) -> None:
-        import aiomqtt
-
-        backoff = self.min_backoff
-        where = f"{self.config.broker.host}:{self.config.broker.port}"
-        while True:
-            await self._take_bd_seq()
-            try:
-                async with self._client(self.death()) as client:
-                    self.connected = True
-                    self.connects += 1
-                    backoff = self.min_backoff
-                    log.info("sparkplug: connected to %s (bdSeq %d)", where, self.bd_seq)
-                    try:
-                        await self._session(client)
-                    except asyncio.CancelledError:
-                        # A clean stop sends the deaths itself (the broker sends the will only
-                        # when the link dies): each device's, then the node's.
-                        if self.node_born:
-                            with contextlib.suppress(Exception, asyncio.CancelledError):
-                                async with asyncio.timeout(STOP_SECONDS):
-                                    for message in [*self.deaths(), self.death()]:
-                                        await self._send(client, message)
-                        raise
-                    except _Reconnect:
-                        await self._send(client, self.death())
-                        backoff = 0.0
-            except (aiomqtt.MqttError, OSError) as exc:
-                log.warning("sparkplug: %s: %s; again in %.0f s", where, exc, backoff)
-            except Exception:  # a bug in one session must not end the output for good
-                log.exception("sparkplug: the session ended by an error; again in %.0f s", backoff)
-            finally:
-                self.connected = False
-                self.node_born = False
-                self.born = {}
-                self._host_left = False
-                self.host_online = not self.config.primary_host
-                self._host_stamp = -1
-            await asyncio.sleep(backoff)
-            backoff = min(max(backoff, self.min_backoff) * 2, self.max_backoff)
+    def _session_ended(self) -> None:
+        self.node_born = False
+        self.born = {}
+        self._host_left = False
+        self.host_online = not self.config.primary_host
+        self._host_stamp = -1
 
     async def _take_bd_seq(self) -> None:
         """A new session, a new bdSeq, stored before connecting (sparkplug_store). With the
@@ -527,6 +498,7 @@ class SparkplugNode:
         await client.publish(message.topic, message.payload, qos=message.qos, retain=False)
 
     async def _session(self, client: aiomqtt.Client) -> None:
+        log.info("sparkplug: session with bdSeq %s", self.bd_seq)
         await client.subscribe(self.topic("NCMD"), qos=1)
         if self.config.primary_host:
             await client.subscribe(self.state_topic, qos=1)
@@ -534,7 +506,10 @@ class SparkplugNode:
         try:
             while True:
                 if self._host_left:
-                    raise _Reconnect
+                    # the host went offline: this session ends with its death, and the next
+                    # one (a new bdSeq) waits for the host again
+                    await self._send(client, self.death())
+                    raise ReconnectNow
                 if self.host_online:
                     if not self.node_born or self._rebirth:
                         self._rebirth = False
