@@ -158,14 +158,15 @@ class Lsv2Connector(NetworkOnly):
         line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         return await self._require().read_file(self._target(name), line_end=line_end) == data
 
-    async def holds(self, name: str, data: bytes) -> bool:
+    async def holds(self, name: str, data: bytes) -> bool | None:
         """Whether the machine's folder already holds exactly ``data`` as ``name`` (what a
         server that took the machine over asks before sending a load again).
 
         The file's entry first (one telegram): no such file, or a binary file of another size,
         is a plain no. Otherwise the file is read back and compared as :meth:`verify` does: a
         text file's size on the control depends on how the control stores line ends, so only
-        its content can say.
+        its content can say. A control that refuses the read-back cannot say (None): the load
+        is then sent again rather than failed for a read it was never asked to allow.
         """
         target = self._target(name)
         try:
@@ -176,7 +177,10 @@ class Lsv2Connector(NetworkOnly):
             return False
         if is_binary_name(target) and info.size != len(data):
             return False
-        return await self.verify(name, data) is True
+        try:
+            return await self.verify(name, data) is True
+        except ControlRefused:
+            return None
 
     async def fetch(self, path: str) -> bytes:
         """Read a file from the control (binary: the bytes as the control holds them)."""
