@@ -27,6 +27,7 @@ from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
 from tests.peers import require_command, require_module
+from tests.server.conftest import on
 from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
 from tests.server.outputs_support import (
     Listener,
@@ -153,12 +154,14 @@ def test_retained_state_changes_jobs_and_the_last_will(
         wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
 
 
+@on("postgresql")
 def test_a_clean_stop_leaves_every_output_saying_offline(
     db_url: str, tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
 ) -> None:
-    """SIGTERM, on SQLite (one server) and on PostgreSQL (a cluster of one, whose stop lets
-    every machine go before the outputs stop): the broker keeps the machine unavailable, the
-    Sparkplug host sees the device die before the node, an agent reads UNAVAILABLE."""
+    """SIGTERM on PostgreSQL (a cluster of one, whose stop lets every machine go just before
+    the outputs stop: the harder case; a single server's stop on SQLite is read by the
+    restart test below): the broker keeps the machine unavailable, the Sparkplug host sees
+    the device die before the node, an agent reads UNAVAILABLE."""
     require_module("pysparkplug")
     group = f"opendnc-test-{uuid.uuid4().hex[:10]}"
     shdr = free_port()
