@@ -71,12 +71,12 @@ def test_a_takeover_sends_no_load_the_control_already_has(
         owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
         victim = "dnc-2"
         machine = next(m for m, owner in owners.items() if owner == victim)
-        programs = publish_programs(cluster.clients["dnc-1"], 4, 40_000)
+        programs = publish_programs(cluster.clients["dnc-1"], 3, 30_000)
         names = sorted(programs)
 
         # Loads until one is caught in the window (the first, almost always).
         caught: tuple[int, str] | None = None
-        for name in names[:3]:
+        for name in names[:2]:
             sent = cluster.clients["dnc-1"].post(
                 "/api/jobs", json={"program": name, "machines": [machine]}
             )
@@ -90,7 +90,7 @@ def test_a_takeover_sends_no_load_the_control_already_has(
         assert caught is not None, "no load was caught between its receipt and its end"
         job_id, name = caught
         # A second load waits behind it: the control does not have that one.
-        behind = names[3]
+        behind = names[2]
         queued = cluster.clients["dnc-1"].post(
             "/api/jobs", json={"program": behind, "machines": [machine]}
         )
