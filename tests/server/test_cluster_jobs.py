@@ -90,6 +90,11 @@ def test_the_new_server_ends_the_old_ones_jobs_once(sessions: sessionmaker[Sessi
         assert again is not None
         assert again.id == load
         assert again.attempts == 2
+        # a person's retry of it (after it failed) sends it, without asking the control first
+        jobs.fail(session, load, "refused", retryable=False)
+        retried = jobs.retry(session, load, actor="t")
+        assert retried.params["retry_of"] == load
+        assert jobs.TAKEN_OVER_FROM not in retried.params
 
 
 def test_a_job_this_server_runs_is_kept(sessions: sessionmaker[Session]) -> None:

@@ -536,6 +536,7 @@ def retry(session: Session, job_id: int, *, actor: str, from_line: int | None = 
             "cancelled jobs are retried"
         )
     params = dict(old.params)
+    params.pop(TAKEN_OVER_FROM, None)  # a person asks for a load: it is sent, not first asked
     if from_line is not None:
         if old.kind is not JobKind.DRIPFEED:
             raise InputError("only a drip-feed restarts from a line")
