@@ -30,12 +30,18 @@ def test_a_tnc_is_asked_for_the_file_and_its_bytes(tmp_path: Path) -> None:
             other = PROGRAM.replace(b"X+1.", b"X+2.", 1)
             answers.append(await held_at_control(connector, "P01.H", other))
             answers.append(await held_at_control(connector, "P02.H", PROGRAM))
+            # a file put anywhere on the drive (the file browser's): the same question by path
+            path = "TNC:/nc_prog/Q1.H"
+            answers.append(await connector.holds_file(path, PROGRAM))
+            await connector.put_file(path, PROGRAM, lambda _done, _total: None)
+            answers.append(await connector.holds_file(path, PROGRAM))
+            answers.append(await connector.holds_file(path, other))
             return answers
         finally:
             await connector.close()
             await tnc.close()
 
-    assert asyncio.run(run()) == [False, True, False, False]
+    assert asyncio.run(run()) == [False, True, False, False, False, True, False]
 
 
 def test_a_haas_share_is_asked_for_the_file_and_its_hash(tmp_path: Path) -> None:

@@ -321,15 +321,30 @@ class PutFileExecutor(_Base):
     name = "executor.put_file"
 
     async def run(self, run: JobRun) -> dict[str, Any]:
-        """Write the file (a cancel before that point is honoured)."""
+        """Write the file (a cancel before that point is honoured); one a take-over queued
+        again is not written if the control already holds these bytes there."""
         path = check_path(str(run.job.params.get("path", "")))
+        checked: dict[str, Any] = {}
+        if run.job.params.get(TAKEN_OVER_FROM):
+            await run.safe_point("before asking the control what it holds")
+            ask = getattr(run.connector, "holds_file", None)
+            held = None if ask is None else await ask(path, run.job.data)
+            if held:
+                size = len(run.job.data)
+                return {
+                    "nbytes": size,
+                    "path": path,
+                    "verification": ALREADY_AT_CONTROL,
+                    "sent": False,
+                }
+            checked["takeover_check"] = NOT_AT_CONTROL if held is False else CANNOT_ASK
         await run.safe_point("before the write")
 
         def progress(done: int, total: int | None) -> None:
             run.state.job_progress = (done, total)
 
         await browser_of(run.connector).put_file(path, run.job.data, progress)
-        return {"nbytes": len(run.job.data), "path": path}
+        return {"nbytes": len(run.job.data), "path": path, **checked}
 
 
 class BackupExecutor(_Base):

@@ -69,9 +69,9 @@ __all__ = [
 # (opendnc.server.actions.policy), the one place every caller's request passes through.
 PROGRAM_JOBS = (JobKind.SEND, JobKind.DRIPFEED, JobKind.PUT_FILE)
 
-LOADS = (JobKind.SEND, JobKind.REPORT)
-"""Program loads into the control's program folder: what a take-over checks at the control
-before sending again (docs/server.md#jobs-1)."""
+LOADS = (JobKind.SEND, JobKind.REPORT, JobKind.PUT_FILE)
+"""Jobs that write a file to the control: what a take-over checks at the control before
+writing again (docs/server.md#jobs-1)."""
 
 TAKEN_OVER_FROM = "taken_over_from"
 """The ``params`` key of a load queued again by a take-over: the server that had it running."""

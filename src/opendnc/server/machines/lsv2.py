@@ -168,17 +168,23 @@ class Lsv2Connector(NetworkOnly):
         its content can say. A control that refuses the read-back cannot say (None): the load
         is then sent again rather than failed for a read it was never asked to allow.
         """
-        target = self._target(name)
+        return await self.holds_file(self._target(name), data)
+
+    async def holds_file(self, path: str, data: bytes) -> bool | None:
+        """:meth:`holds` for a file anywhere on the control's drive (a ``put_file`` job)."""
+        client = self._require()
         try:
-            info = await self._require().file_info(target)
+            info = await client.file_info(path)
         except ControlRefused:
             return False  # the folder itself is not there
         if info is None:
             return False
-        if is_binary_name(target) and info.size != len(data):
+        if is_binary_name(path) and info.size != len(data):
             return False
+        # read as written (the mode by the file's type), text with the line end it came with
+        line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         try:
-            return await self.verify(name, data) is True
+            return await client.read_file(path, line_end=line_end) == data
         except ControlRefused:
             return None
 
