@@ -11,7 +11,10 @@ will the broker publishes when the server dies.
 The broker never holds anything up: messages wait in a bounded queue that drops its oldest one
 when full (``dropped`` counts them), the link is made again with backoff (1 s up to 60 s), and
 every (re)connection sends the whole state first, so retained topics are right again at once.
-aiomqtt is imported here only: the server's core runs without it.
+A machine this server lets go (a cluster's lease moved, or the server stops) and, on a clean
+stop, every machine still known is published unavailable with the reason, retained.
+aiomqtt is imported only when an output runs (here and in :mod:`opendnc.server.broker`,
+the link both outputs share): the server's core runs without it.
 """
 
 from __future__ import annotations
