@@ -24,6 +24,7 @@ import time
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import MqttConfig, MtconnectConfig
 from opendnc.server.events import EventBus, MachineStatusChanged
 from opendnc.server.machines.base import MachineStatus
@@ -117,23 +118,27 @@ async def clean_stop(machines: int) -> None:
     task = asyncio.create_task(publisher.run())
     await publisher.synced.wait()
     start = time.perf_counter()
-    task.cancel()
-    await asyncio.gather(task, return_exceptions=True)
+    await cancel_and_wait(task)  # as the server's outputs component stops it
     elapsed = time.perf_counter() - start
-    offline = 0
+    offline, health = 0, b""
     async with aiomqtt.Client("127.0.0.1", 1883) as reader:
         await reader.subscribe(f"{prefix}/+/status", qos=1)
+        await reader.subscribe(publisher.health_topic, qos=1)
         try:
             async with asyncio.timeout(2):
                 async for message in reader.messages:  # the retained ones, then silence
-                    offline += b'"state":"offline"' in bytes(message.payload)  # type: ignore[arg-type]
+                    payload = bytes(message.payload)  # type: ignore[arg-type]
+                    if str(message.topic) == publisher.health_topic:
+                        health = payload
+                    else:
+                        offline += b'"state":"offline"' in payload
         except TimeoutError:
             pass
         for topic in topics:
             await reader.publish(topic, b"", qos=1, retain=True)
     print(
         f"clean stop of {machines} machines: {elapsed:.2f} s, {offline} of {machines} "
-        "kept offline by the broker"
+        f"kept offline by the broker, online {health.decode() or '(none)'}"
     )
 
 

@@ -380,6 +380,38 @@ def test_a_machine_let_go_is_left_unavailable_with_the_reason(prefix: str) -> No
             assert _items(kept)["message"]["value"] == why
 
 
+def test_a_stop_that_cancels_again_still_leaves_everything_offline(prefix: str) -> None:
+    """A stop repeats its cancel while the outputs say their last words (the components'
+    cancel_and_wait every half second; here every 10 ms): the words go on within their own
+    bound, so every machine is left unavailable and the health "false", not "true"."""
+    # enough messages (13 a machine) for many repeated cancels to land while they go out, and
+    # fewer retained topics than Mosquitto queues for a subscriber (1000)
+    names = [f"m{i}" for i in range(60)]
+    config = MqttConfig(host="127.0.0.1", prefix=prefix)
+
+    async def run() -> None:
+        publisher = MqttPublisher(config, "dnc-1", names, EventBus())
+        for machine in names:  # known before the link is up: the whole state goes at connect
+            publisher.take(
+                MachineStatusChanged(machine, True, MachineStatus(datetime.now(UTC), True, "READY"))
+            )
+        task = asyncio.create_task(publisher.run())
+        async with asyncio.timeout(20):
+            await publisher.synced.wait()
+            while not task.done():  # an impatient stop
+                task.cancel()
+                await asyncio.sleep(0.01)
+
+    with Listener(prefix) as listener:
+        asyncio.run(run())
+        wait_for("offline", lambda: listener.last("opendnc/dnc-1/online").payload == b"false")  # type: ignore[union-attr]
+    with Listener(prefix) as after:  # what the broker keeps
+        wait_for("every machine's state", lambda: all(after.last(f"{m}/status") for m in names))
+        states = {m: after.last(f"{m}/status").json()["state"] for m in names}  # type: ignore[union-attr]
+        assert set(states.values()) == {"offline"}, states
+        assert after.last("opendnc/dnc-1/online").payload == b"false"  # type: ignore[union-attr]
+
+
 def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
     """While the broker is away only job events queue (the state is resent whole); past the
     limit the oldest go first and are counted."""

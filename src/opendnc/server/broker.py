@@ -28,7 +28,7 @@ __all__ = ["STOP_SECONDS", "BrokerLink", "ReconnectNow", "Will"]
 log = logging.getLogger(__name__)
 
 STOP_SECONDS = 2.0
-"""How long a clean stop may take to say an output's last words."""
+"""How long a clean stop may take to say an output's last words (whatever cancels it again)."""
 
 Session = Callable[["aiomqtt.Client"], Awaitable[None]]
 
@@ -96,6 +96,29 @@ class BrokerLink:
             keepalive=30,
         )
 
+    async def _last_words(self, stopping: Session, client: aiomqtt.Client) -> None:
+        """Run ``stopping(client)`` to its end or for :data:`STOP_SECONDS`, whichever comes
+        first, whatever cancels arrive meanwhile: a stop repeats its cancel every half second
+        (:func:`~opendnc.server.components.cancel_and_wait`), and one that cut the last words
+        short would leave the broker saying what is no longer true (measured: 41 to 244 of 500
+        machines left offline and the health left "true")."""
+        loop = asyncio.get_running_loop()
+        words = asyncio.ensure_future(stopping(client))
+        end = loop.time() + STOP_SECONDS
+        while not words.done():
+            left = end - loop.time()
+            if left <= 0:
+                log.warning("%s: the last words took more than %.0f s; cut", self.label,
+                            STOP_SECONDS)  # fmt: skip
+                words.cancel()
+                break
+            try:
+                await asyncio.wait({words}, timeout=left)
+            except asyncio.CancelledError:
+                continue  # the stop again: the words go on, within their own bound
+        with contextlib.suppress(Exception, asyncio.CancelledError):
+            await words  # its error (a broken link) or its cancel ends nothing more here
+
     async def run(
         self,
         session: Session,
@@ -127,9 +150,7 @@ class BrokerLink:
                         await session(client)
                     except asyncio.CancelledError:
                         if stopping is not None:
-                            with contextlib.suppress(Exception, asyncio.CancelledError):
-                                async with asyncio.timeout(STOP_SECONDS):
-                                    await stopping(client)
+                            await self._last_words(stopping, client)
                         raise
             except ReconnectNow:
                 backoff = 0.0
