@@ -8,7 +8,9 @@ event for polls where nothing changed (the common case) and where two items chan
 
 With ``--broker`` it also times the whole state a (re)connection sends, to the Mosquitto at
 127.0.0.1:1883 under a prefix of its own (deleted afterwards): one retained status and 12
-retained items per machine, QoS 1, until the broker has acknowledged them all.
+retained items per machine, QoS 1, until the broker has acknowledged them all; and a clean
+stop: from the cancel to the end of the publisher, and how many machines the broker then
+keeps as offline (a stop has 2 s with the broker: docs/server.md#mqtt).
 
     .venv/bin/python benchmarks/outputs.py
     .venv/bin/python benchmarks/outputs.py --machines 500 --polls 20 --broker
@@ -22,6 +24,7 @@ import time
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import MqttConfig, MtconnectConfig
 from opendnc.server.events import EventBus, MachineStatusChanged
 from opendnc.server.machines.base import MachineStatus
@@ -99,6 +102,46 @@ async def whole_state(machines: int) -> None:
     )
 
 
+async def clean_stop(machines: int) -> None:
+    import uuid
+
+    import aiomqtt
+
+    prefix = f"opendnc-bench/{uuid.uuid4().hex[:8]}"
+    names = [f"m{i}" for i in range(machines)]
+    publisher = MqttPublisher(
+        MqttConfig(host="127.0.0.1", prefix=prefix), "bench", names, EventBus()
+    )
+    for name in names:
+        publisher.take(_event(name, 0, change=False))
+    topics = [m.topic for m in publisher._whole_state()] + [publisher.health_topic]
+    task = asyncio.create_task(publisher.run())
+    await publisher.synced.wait()
+    start = time.perf_counter()
+    await cancel_and_wait(task)  # as the server's outputs component stops it
+    elapsed = time.perf_counter() - start
+    offline, health = 0, b""
+    async with aiomqtt.Client("127.0.0.1", 1883) as reader:
+        await reader.subscribe(f"{prefix}/+/status", qos=1)
+        await reader.subscribe(publisher.health_topic, qos=1)
+        try:
+            async with asyncio.timeout(2):
+                async for message in reader.messages:  # the retained ones, then silence
+                    payload = bytes(message.payload)  # type: ignore[arg-type]
+                    if str(message.topic) == publisher.health_topic:
+                        health = payload
+                    else:
+                        offline += b'"state":"offline"' in payload
+        except TimeoutError:
+            pass
+        for topic in topics:
+            await reader.publish(topic, b"", qos=1, retain=True)
+    print(
+        f"clean stop of {machines} machines: {elapsed:.2f} s, {offline} of {machines} "
+        f"kept offline by the broker, online {health.decode() or '(none)'}"
+    )
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=500)
@@ -108,3 +151,4 @@ if __name__ == "__main__":
     asyncio.run(main(args.machines, args.polls))
     if args.broker:
         asyncio.run(whole_state(args.machines))
+        asyncio.run(clean_stop(args.machines))

@@ -211,9 +211,16 @@ class ShdrReader:
 
 
 def start_outputs_server(
-    tmp_path: Path, procs: Procs, fleet: Any, extra: str, *, name: str = "dnc-test"
+    tmp_path: Path,
+    procs: Procs,
+    fleet: Any,
+    extra: str,
+    *,
+    name: str = "dnc-test",
+    db: str | None = None,
 ) -> int:
-    """``opendnc serve`` for ``fleet`` with the ``extra`` TOML appended; its HTTP port."""
+    """``opendnc serve`` for ``fleet`` with the ``extra`` TOML appended (on the database
+    ``db``, SQLite in ``tmp_path`` without it); its HTTP port."""
     from tests.server.harness import serve
 
     # The configured bind is replaced by a port the system picks (harness.serve says why).
@@ -223,5 +230,5 @@ def start_outputs_server(
     text = text.replace("[server]\n", f'[server]\nname = "{name}"\n', 1)
     config = tmp_path / "shop.toml"
     config.write_text(text + "\n" + extra)
-    url = serve(procs, config, f"sqlite:///{tmp_path / 'opendnc.db'}")
+    url = serve(procs, config, db or f"sqlite:///{tmp_path / 'opendnc.db'}")
     return int(url.rstrip("/").rsplit(":", 1)[1])

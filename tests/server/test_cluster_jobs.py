@@ -73,6 +73,9 @@ def test_the_new_server_ends_the_old_ones_jobs_once(sessions: sessionmaker[Sessi
     with sessions.begin() as session:
         sent, fed = jobs.get_job(session, load), jobs.get_job(session, feed)
         assert (sent.state, sent.not_before, sent.attempts) == (JobState.QUEUED, None, 1)
+        # its next run asks the control first whether the old server's transfer got there
+        assert sent.params[jobs.TAKEN_OVER_FROM] == "dnc-1"
+        assert jobs.TAKEN_OVER_FROM not in fed.params
         assert (fed.state, fed.line, fed.bytes_done) == (JobState.INTERRUPTED, 42, 900)
         assert "at line 42" in fed.error
         assert "dnc-1" in fed.error
@@ -87,6 +90,11 @@ def test_the_new_server_ends_the_old_ones_jobs_once(sessions: sessionmaker[Sessi
         assert again is not None
         assert again.id == load
         assert again.attempts == 2
+        # a person's retry of it (after it failed) sends it, without asking the control first
+        jobs.fail(session, load, "refused", retryable=False)
+        retried = jobs.retry(session, load, actor="t")
+        assert retried.params["retry_of"] == load
+        assert jobs.TAKEN_OVER_FROM not in retried.params
 
 
 def test_a_job_this_server_runs_is_kept(sessions: sessionmaker[Session]) -> None:

@@ -8,21 +8,26 @@ plain paho client listens. Every test uses its own topic prefix.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import getpass
 import signal
 import subprocess
+import uuid
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from opendnc.server.config import MqttConfig
-from opendnc.server.events import EventBus, JobFinished, MachineStatusChanged
+from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.items import SERVER_STOPPED
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
-from tests.peers import require_command
+from tests.peers import require_command, require_module
+from tests.server.conftest import on
 from tests.server.harness import Procs, auth, create_key, free_port, httpx, listening, wait_for
 from tests.server.outputs_support import (
     Listener,
@@ -149,13 +154,27 @@ def test_retained_state_changes_jobs_and_the_last_will(
         wait_for("the last will", lambda: late.last(online).payload == b"false")  # type: ignore[union-attr]
 
 
-def test_a_clean_stop_says_offline_itself(
-    tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
+@on("postgresql")
+def test_a_clean_stop_leaves_every_output_saying_offline(
+    db_url: str, tmp_path: Path, ngc: FleetThread, procs: Procs, prefix: str
 ) -> None:
-    start_outputs_server(
-        tmp_path, procs, ngc.fleet, f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
-    )
-    with Listener(prefix) as listener:
+    """SIGTERM on PostgreSQL (a cluster of one, whose stop lets every machine go just before
+    the outputs stop: the harder case; a single server's stop on SQLite is read by the
+    restart test below): the broker keeps the machine unavailable, the Sparkplug host sees
+    the device die before the node, an agent reads UNAVAILABLE."""
+    require_module("pysparkplug")
+    group = f"opendnc-test-{uuid.uuid4().hex[:10]}"
+    shdr = free_port()
+    with Listener(prefix) as listener, Listener(f"spBv1.0/{group}") as spb_listener:
+        start_outputs_server(
+            tmp_path,
+            procs,
+            ngc.fleet,
+            f'[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n'
+            f'[sparkplug]\nurl = "mqtt://127.0.0.1:1883"\ngroup = "{group}"\n'
+            f'[mtconnect]\nbind = "127.0.0.1:{shdr}"\n',
+            db=db_url,
+        )
         topic = "opendnc/dnc-test/online"
         wait_for("online", lambda: (m := listener.last(topic)) and m.payload == b"true")
         wait_for(
@@ -163,9 +182,23 @@ def test_a_clean_stop_says_offline_itself(
             lambda: (
                 (m := listener.last("haas-1/availability")) and m.json()["value"] == "AVAILABLE"
             ),
+            describe=lambda: procs.log("server"),
         )
-        procs.stop("server", signal.SIGTERM)
+        wait_for("the device born", lambda: spb_host(spb_listener, group).of("DBIRTH"))
+        wait_for("the SHDR port", listening(shdr))
+        agent = ShdrReader(shdr)
+        try:
+            agent.until("available", lambda: agent.values.get("availability") == "AVAILABLE")
+            procs.stop("server", signal.SIGTERM)
+            agent.until("unavailable", lambda: agent.values["availability"] == "UNAVAILABLE")
+            assert agent.conditions["system"] == {"": "UNAVAILABLE"}
+            assert agent.values["message"] == "the opendnc server stopped"
+        finally:
+            agent.close()
         wait_for("offline", lambda: listener.last(topic).payload == b"false")  # type: ignore[union-attr]
+        wait_for("the node's death", lambda: spb_host(spb_listener, group).of("NDEATH"))
+        # The device dies by itself, before its node (the host's rules checked as it reads).
+        assert spb_host(spb_listener, group).kinds()[-2:] == ["DDEATH:haas-1", "NDEATH"]
     # What the broker keeps after a clean stop: the machine unavailable, not AVAILABLE for good.
     with Listener(prefix) as after:
         kept = wait_for("the retained availability", lambda: after.last("haas-1/availability"))
@@ -175,6 +208,16 @@ def test_a_clean_stop_says_offline_itself(
         assert _items(status)["availability"]["value"] == "UNAVAILABLE"
         assert _items(status)["message"]["value"] == "the opendnc server stopped"
         assert status.json()["state"] == "offline"
+
+
+def spb_host(listener: Listener, group: str) -> Any:
+    """The tests' own Sparkplug host fed every message so far (tests/server/spb_decoder.py)."""
+    from tests.server import spb_decoder
+
+    host = spb_decoder.Host(group)
+    for message in list(listener.messages):
+        host.take(message.topic, message.payload)
+    return host
 
 
 def test_a_restart_publishes_each_machine_once_its_state_is_known(
@@ -289,6 +332,84 @@ def test_a_broker_outage_blocks_nothing_and_the_state_comes_back(
     finally:
         broker.terminate()
         broker.wait(10)
+
+
+def test_a_machine_let_go_is_left_unavailable_with_the_reason(prefix: str) -> None:
+    """A lease handed over (the server goes on) and a cluster's stop (the loss comes just
+    before the outputs stop, not yet followed): either way the broker keeps the machine
+    unavailable with the reason, not this server's last AVAILABLE."""
+    config = MqttConfig(host="127.0.0.1", prefix=prefix)
+    handed = "dnc-1 handed this machine to another server"
+
+    async def until(what: str, check: Any) -> None:
+        async with asyncio.timeout(20):
+            while not check():
+                await asyncio.sleep(0.02)
+
+    def status_of(machine: str) -> dict[str, Any] | None:
+        found = listener.last(f"{machine}/status")
+        return found.json() if found is not None else None
+
+    async def run() -> None:
+        bus = EventBus()
+        publisher = MqttPublisher(config, "dnc-1", ["m1", "m2"], bus)
+        task = asyncio.create_task(publisher.run())
+        await until("connected", publisher.synced.is_set)
+        for machine in ("m1", "m2"):
+            at = datetime.now(UTC)
+            bus.publish(MachineStatusChanged(machine, True, MachineStatus(at, True, "READY")))
+        await until("both ready", lambda: all(status_of(m) for m in ("m1", "m2")))
+        assert {status_of(m)["state"] for m in ("m1", "m2")} == {"ready"}  # type: ignore[index]
+
+        bus.publish(LeaseChanged("m1", "dnc-1", False, 0, handed))
+        await until("m1 let go", lambda: status_of("m1")["state"] == "offline")  # type: ignore[index]
+        bus.publish(LeaseChanged("m2", "dnc-1", False, 0, SERVER_STOPPED))
+        task.cancel()  # at once: the stop finds the loss not followed yet
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    with Listener(prefix) as listener:
+        asyncio.run(run())
+        wait_for("offline", lambda: listener.last("opendnc/dnc-1/online").payload == b"false")  # type: ignore[union-attr]
+    with Listener(prefix) as after:  # what the broker keeps
+        for machine, why in (("m1", handed), ("m2", SERVER_STOPPED)):
+            kept = wait_for("the retained state", lambda m=machine: after.last(f"{m}/status"))  # type: ignore[misc]
+            assert kept.retain
+            assert kept.json()["state"] == "offline"
+            assert _items(kept)["availability"]["value"] == "UNAVAILABLE"
+            assert _items(kept)["message"]["value"] == why
+
+
+def test_a_stop_that_cancels_again_still_leaves_everything_offline(prefix: str) -> None:
+    """A stop repeats its cancel while the outputs say their last words (the components'
+    cancel_and_wait every half second; here every 10 ms): the words go on within their own
+    bound, so every machine is left unavailable and the health "false", not "true"."""
+    # enough messages (13 a machine) for many repeated cancels to land while they go out, and
+    # fewer retained topics than Mosquitto queues for a subscriber (1000)
+    names = [f"m{i}" for i in range(60)]
+    config = MqttConfig(host="127.0.0.1", prefix=prefix)
+
+    async def run() -> None:
+        publisher = MqttPublisher(config, "dnc-1", names, EventBus())
+        for machine in names:  # known before the link is up: the whole state goes at connect
+            publisher.take(
+                MachineStatusChanged(machine, True, MachineStatus(datetime.now(UTC), True, "READY"))
+            )
+        task = asyncio.create_task(publisher.run())
+        async with asyncio.timeout(20):
+            await publisher.synced.wait()
+            while not task.done():  # an impatient stop
+                task.cancel()
+                await asyncio.sleep(0.01)
+
+    with Listener(prefix) as listener:
+        asyncio.run(run())
+        wait_for("offline", lambda: listener.last("opendnc/dnc-1/online").payload == b"false")  # type: ignore[union-attr]
+    with Listener(prefix) as after:  # what the broker keeps
+        wait_for("every machine's state", lambda: all(after.last(f"{m}/status") for m in names))
+        states = {m: after.last(f"{m}/status").json()["state"] for m in names}  # type: ignore[union-attr]
+        assert set(states.values()) == {"offline"}, states
+        assert after.last("opendnc/dnc-1/online").payload == b"false"  # type: ignore[union-attr]
 
 
 def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:

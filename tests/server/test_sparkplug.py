@@ -261,6 +261,28 @@ def test_a_served_machine_through_sigkill_and_restart(
             )
             assert host_of(listener, group).of("DDATA", device="haas-1")
 
+            # The control stops answering (its MDC port closes under the link): the node says
+            # the device is dead, not a DDATA "unavailable" (Sparkplug 3.0, 5.7), and bears it
+            # again once the control answers on the same port.
+            assert sim.mdc is not None
+            mdc = sim.mdc
+            fleet.run(mdc.close)
+            wait_for(
+                "the device's death",
+                lambda: host_of(listener, group).of("DDEATH", device="haas-1"),
+                describe=lambda: host_of(listener, group).kinds(),
+            )
+            assert not host_of(listener, group).device("dnc-b", "haas-1").alive  # type: ignore[union-attr]
+            fleet.run(mdc.start)
+            wait_for(
+                "born again when it answers",
+                lambda: len(host_of(listener, group).of("DBIRTH", device="haas-1")) == 2,
+                describe=lambda: host_of(listener, group).kinds(),
+            )
+            host = host_of(listener, group)
+            assert host.kinds()[-2:] == ["DDEATH:haas-1", "DBIRTH:haas-1"]
+            assert host.device("dnc-b", "haas-1").values["availability"] == "AVAILABLE"  # type: ignore[union-attr]
+
             # Killed: the broker sends the will, the NDEATH of that session.
             procs.stop("server", signal.SIGKILL)
             wait_for("the will", lambda: host_of(listener, group).of("NDEATH"))
@@ -270,7 +292,7 @@ def test_a_served_machine_through_sigkill_and_restart(
             start_outputs_server(tmp_path, procs, fleet.fleet, extra, name="dnc-b")
             wait_for(
                 "born again",
-                lambda: len(host_of(listener, group).of("DBIRTH", device="haas-1")) == 2,
+                lambda: len(host_of(listener, group).of("DBIRTH", device="haas-1")) == 3,
                 describe=lambda: procs.log("server"),
             )
             assert bd_seq_of(host_of(listener, group), "dnc-b") == (first + 1) % 256

@@ -24,7 +24,12 @@ from tests.server import spb_decoder as spb  # noqa: E402
 from tests.server.cluster_support import TAKEOVER_LIMIT, start_cluster  # noqa: E402
 from tests.server.conftest import _pg_database  # noqa: E402
 from tests.server.harness import Procs, wait_for  # noqa: E402
-from tests.server.outputs_support import Listener, require_broker  # noqa: E402
+from tests.server.outputs_support import (  # noqa: E402
+    Listener,
+    clear_retained,
+    require_broker,
+    unique_prefix,
+)
 
 
 @pytest.fixture
@@ -55,12 +60,14 @@ def test_failover_reads_as_death_and_birth_to_a_sparkplug_host(
 ) -> None:
     require_broker()
     group = f"opendnc-test-{uuid.uuid4().hex[:10]}"
+    prefix = unique_prefix()
     cluster = start_cluster(procs, tmp_path, pg_url, tnc=4)
     with cluster.config.open("a") as f:
         f.write(f'\n[sparkplug]\nurl = "mqtt://127.0.0.1:1883"\ngroup = "{group}"\n')
+        f.write(f'\n[mqtt]\nurl = "mqtt://127.0.0.1:1883"\nprefix = "{prefix}"\n')
     machines = cluster.tncs
     try:
-        with Listener(f"spBv1.0/{group}") as listener:
+        with Listener(f"spBv1.0/{group}") as listener, Listener(prefix) as plain:
             cluster.start("dnc-1", "dnc-2")
             owners = cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})
             wait_for(
@@ -106,6 +113,29 @@ def test_failover_reads_as_death_and_birth_to_a_sparkplug_host(
                         if s.device == machine and s.kind in ("DBIRTH", "DDEATH")
                     ]
                     assert moves[-2:] == [("DDEATH", "dnc-2"), ("DBIRTH", "dnc-1")], moves
+                    # MQTT's one topic per machine: dnc-2 leaves it offline with the reason,
+                    # then dnc-1 publishes it from its first status.
+                    wait_for(
+                        f"{machine} published by dnc-1 after the hand-over",
+                        lambda m=machine: _handed_then_served(plain, m),  # type: ignore[misc]
+                        describe=lambda m=machine: [  # type: ignore[misc]
+                            (s.json()["state"], s.json()["items"]["message"]["value"])
+                            for s in plain.on(f"{m}/status")
+                        ],
+                    )
     finally:
         procs.stop_all()
         cluster.close()
+        clear_retained(prefix)
+
+
+def _handed_then_served(plain: Listener, machine: str) -> bool:
+    """The machine's status said "handed over" (offline) and later something else."""
+    said = [s.json() for s in plain.on(f"{machine}/status")]
+    handed = [
+        i
+        for i, s in enumerate(said)
+        if s["state"] == "offline"
+        and s["items"]["message"]["value"] == "dnc-2 handed this machine to another server"
+    ]
+    return bool(handed) and said[-1]["state"] != "offline"

@@ -162,19 +162,39 @@ def test_seq_wraps_after_255_and_a_rebirth_starts_again_at_zero(tmp_path: Path) 
     assert host.of("NBIRTH")[-1].payload.by_name()["bdSeq"].value == 7
 
 
-def test_an_offline_machine_is_born_unavailable_with_null_items(tmp_path: Path) -> None:
+def test_a_device_lives_while_its_control_answers(tmp_path: Path) -> None:
+    """Sparkplug 3.0, 5.7: an edge node that loses its device publishes the device's DDEATH.
+    A machine whose control does not answer is not born (a DBIRTH says the device is online);
+    it is born with its first answered status, dies when the link is lost, and is born again
+    (with every metric, unknown ones null) when the control answers again."""
     edge = node(tmp_path)
     host = spb.Host("plant1")
     run(host, edge.births())
     edge.take(LeaseChanged("mill-2", "dnc-7", True))
     edge.take(MachineStatusChanged("mill-2", False, None, last_error="no route"))
-    run(host, edge.changes())
+    assert run(host, edge.changes()) == []
+    edge.take(status("mill-2", program="", part_count=None, overrides={}))
+    assert run(host, edge.changes()) == ["DBIRTH:mill-2"]
     values = host.of("DBIRTH", device="mill-2")[0].payload.by_name()
-    assert values["state"].value == "offline"
-    assert values["availability"].value == "UNAVAILABLE"
-    assert values["message"].value == "no route"
-    assert values["alarm"].is_null
+    assert values["state"].value == "ready"
+    assert values["availability"].value == "AVAILABLE"
+    assert values["alarm"].value is False
     assert values["program"].is_null
+    assert values["part_count"].is_null
+
+    lost = MachineStatus(at=START, available=False, message="connection refused")
+    edge.take(MachineStatusChanged("mill-2", False, lost, last_error="connection refused"))
+    assert run(host, edge.changes()) == ["DDEATH:mill-2"]
+    assert not host.device("dnc-7", "mill-2").alive  # type: ignore[union-attr]
+    edge.take(MachineStatusChanged("mill-2", False, None, last_error="no route"))  # still away
+    assert run(host, edge.changes()) == []
+    edge.take(status("mill-2", 1))
+    assert run(host, edge.changes()) == ["DBIRTH:mill-2"]
+    assert host.device("dnc-7", "mill-2").values["program"] == "PART.H"  # type: ignore[union-attr]
+    # A rebirth while it is away bears only the node and the devices that answer.
+    edge.take(MachineStatusChanged("mill-2", False, lost, last_error="connection refused"))
+    assert run(host, edge.changes()) == ["DDEATH:mill-2"]
+    assert run(host, edge.births()) == ["NBIRTH"]
 
 
 def test_ndeath_carries_the_sessions_bd_seq(tmp_path: Path) -> None:

@@ -36,6 +36,7 @@ from typing import Any
 from opendnc.server.components import Component, cancel_and_wait
 from opendnc.server.events import LeaseChanged, ProgramChanged
 from opendnc.server.fleet import Fleet
+from opendnc.server.items import SERVER_STOPPED
 from opendnc.server.leases import LIBRARY, ClusterView, Holding, Leases, cluster_view
 from opendnc.server.machine_state import Machines
 from opendnc.server.notify import Listener, Notice
@@ -142,7 +143,7 @@ class Cluster:
         tasks, self._tasks = self._tasks, []
         await cancel_and_wait(*tasks)
         # all at once: a server with hundreds of machines closes their links side by side
-        await asyncio.gather(*(self._lose(m) for m in sorted(self.serving)))
+        await asyncio.gather(*(self._lose(m, SERVER_STOPPED) for m in sorted(self.serving)))
         try:
             await asyncio.to_thread(self.leases.release_all)
         except Exception as exc:
@@ -243,7 +244,8 @@ class Cluster:
             await self.runner.stop_runs(serving, timeout=min(0.5, self.margin / 4))
             self.runner.fence_off(serving)  # one whose link would not close: its last line
             # all at once: a server with hundreds of machines closes their links side by side
-            await asyncio.gather(*(self._lose(m) for m in serving))
+            why_lost = f"{self.server} cannot reach the database; another server takes over"
+            await asyncio.gather(*(self._lose(m, why_lost) for m in serving))
         except Exception:
             log.exception("stopping the machines of expired leases failed")
 
@@ -261,7 +263,7 @@ class Cluster:
         for machine in sorted(holding.lost):
             self._pending.pop(machine, None)
             if machine in self.serving:
-                await self._lose(machine)
+                await self._lose(machine, f"{self.server} handed this machine to another server")
         # Every held machine not served here yet: gained now, or again after a fence (which
         # may have raced a renewal's own idea of what was gained).
         for machine in sorted(holding.held - self.serving):
@@ -304,7 +306,7 @@ class Cluster:
         self.machines.bus.publish(LeaseChanged(machine, self.server, True, epoch))
         self.fleet.serve(machine)
 
-    async def _lose(self, machine: str) -> None:
+    async def _lose(self, machine: str, reason: str) -> None:
         self.serving.discard(machine)
         if machine == LIBRARY:
             for duty in reversed(self.duties):
@@ -315,7 +317,8 @@ class Cluster:
         if state is not None:
             state.served = False
         await self.fleet.release(machine)
-        self.machines.bus.publish(LeaseChanged(machine, self.server, False, 0))
+        # the outputs say the machine is no longer served from here, and why
+        self.machines.bus.publish(LeaseChanged(machine, self.server, False, 0, reason))
 
     # -- notices ----------------------------------------------------------------------------
 

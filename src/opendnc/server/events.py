@@ -108,6 +108,8 @@ class LeaseChanged(Event):
     DBIRTH / DDEATH). A single server (SQLite) holds every machine: it publishes a gain for
     each as it starts (epoch 0) and no loss: its stop ends them all at once, as a cluster
     server's crash does. ``epoch`` is the lease's, which grows at every change of owner.
+    ``reason`` says why a loss happened (the server stops, the lease was handed over or may
+    have expired), in words an output can show as the machine's message.
     """
 
     kind: ClassVar[str] = "lease"
@@ -115,6 +117,7 @@ class LeaseChanged(Event):
     server: str
     held: bool
     epoch: int = 0
+    reason: str = ""
 
     @property
     def key(self) -> str:

@@ -22,12 +22,14 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.errors import DncError, InputError, TransferError
 from opendnc.server import inbox
 from opendnc.server.events import stored_progress
+from opendnc.server.jobs import TAKEN_OVER_FROM
 from opendnc.server.machine_files import browser_of, check_path
 from opendnc.server.machine_state import MachineState
 from opendnc.server.machines.base import Connector
 from opendnc.server.store.models import JobKind
 
 __all__ = [
+    "ALREADY_AT_CONTROL",
     "BackupExecutor",
     "Claimed",
     "DeleteExecutor",
@@ -41,6 +43,7 @@ __all__ = [
     "ReportExecutor",
     "SendExecutor",
     "default_executors",
+    "held_at_control",
 ]
 
 log = logging.getLogger(__name__)
@@ -142,6 +145,27 @@ class _Base:
         """Nothing to stop."""
 
 
+ALREADY_AT_CONTROL = "already at the control, not sent again"
+"""A taken-over load's audit row when the control held its bytes (docs/server.md#jobs-1)."""
+NOT_AT_CONTROL = "the control did not hold these bytes: sent again"
+CANNOT_ASK = "the control cannot be asked what it holds: sent again"
+
+
+async def held_at_control(connector: Connector, name: str, data: bytes) -> bool | None:
+    """Whether the control already holds exactly ``data`` as program ``name``: True, False,
+    or None where the connector cannot ask (a serial Haas has no file access over its port).
+
+    A connector that can tell has an async ``holds(name, data)``; it is optional beside the
+    :class:`~opendnc.server.machines.base.Connector` protocol, which every control implements.
+    A link error propagates: the load then fails like any other and is retried.
+    """
+    ask = getattr(connector, "holds", None)
+    if ask is None:
+        return None
+    answer = await ask(name, data)
+    return None if answer is None else bool(answer)
+
+
 class SendExecutor(_Base):
     """A program load: transfer, then read back where the control allows it."""
 
@@ -150,8 +174,24 @@ class SendExecutor(_Base):
 
     async def run(self, run: JobRun) -> dict[str, Any]:
         """Load the program; a cancel is honoured before the transfer, between its chunks and
-        before the read-back."""
+        before the read-back. A load a take-over queued again asks the control first and is
+        not sent again if the control already holds these bytes."""
         job, state = run.job, run.state
+        checked: dict[str, Any] = {}
+        if job.params.get(TAKEN_OVER_FROM):
+            await run.safe_point("before asking the control what it holds")
+            held = await held_at_control(run.connector, job.name, job.data)
+            if held:
+                size = len(job.data)
+                state.job_progress = (size, size)
+                run.event(bytes_done=size, bytes_total=size)
+                return {
+                    "nbytes": size,
+                    "verified": True,
+                    "verification": ALREADY_AT_CONTROL,
+                    "sent": False,
+                }
+            checked["takeover_check"] = NOT_AT_CONTROL if held is False else CANNOT_ASK
         await run.safe_point("before the transfer")
         last = [0.0]
 
@@ -179,7 +219,7 @@ class SendExecutor(_Base):
         # "verified", or why not (a serial Haas: checksum mode only; docs/xmodem.md)
         why = getattr(run.connector, "unverified", None) or "not verified"
         note = "verified" if verified else why
-        return {"nbytes": len(job.data), "verified": verified, "verification": note}
+        return {"nbytes": len(job.data), "verified": verified, "verification": note, **checked}
 
 
 class ReportExecutor(SendExecutor):
@@ -286,15 +326,30 @@ class PutFileExecutor(_Base):
     name = "executor.put_file"
 
     async def run(self, run: JobRun) -> dict[str, Any]:
-        """Write the file (a cancel before that point is honoured)."""
+        """Write the file (a cancel before that point is honoured); one a take-over queued
+        again is not written if the control already holds these bytes there."""
         path = check_path(str(run.job.params.get("path", "")))
+        checked: dict[str, Any] = {}
+        if run.job.params.get(TAKEN_OVER_FROM):
+            await run.safe_point("before asking the control what it holds")
+            ask = getattr(run.connector, "holds_file", None)
+            held = None if ask is None else await ask(path, run.job.data)
+            if held:
+                size = len(run.job.data)
+                return {
+                    "nbytes": size,
+                    "path": path,
+                    "verification": ALREADY_AT_CONTROL,
+                    "sent": False,
+                }
+            checked["takeover_check"] = NOT_AT_CONTROL if held is False else CANNOT_ASK
         await run.safe_point("before the write")
 
         def progress(done: int, total: int | None) -> None:
             run.state.job_progress = (done, total)
 
         await browser_of(run.connector).put_file(path, run.job.data, progress)
-        return {"nbytes": len(run.job.data), "path": path}
+        return {"nbytes": len(run.job.data), "path": path, **checked}
 
 
 class BackupExecutor(_Base):

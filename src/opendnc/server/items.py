@@ -17,6 +17,7 @@ from opendnc.server.state import State
 
 __all__ = [
     "ITEMS",
+    "SERVER_STOPPED",
     "ItemSpec",
     "ItemTracker",
     "Reading",
@@ -25,6 +26,9 @@ __all__ = [
     "items_of",
     "shdr_time",
 ]
+
+SERVER_STOPPED = "the opendnc server stopped"
+"""The message every output leaves with each machine when the server stops cleanly."""
 
 Value = str | int | float | tuple[str, ...] | None
 """An item's value: a condition's is the tuple of active faults; None is UNAVAILABLE."""
@@ -172,12 +176,15 @@ class ItemTracker:
                 readings[key] = changed[key] = Reading(value, at)
         return changed
 
-    def stopped(self, message: str) -> dict[str, dict[str, Reading]]:
-        """The server stops: every known machine becomes unavailable with ``message``; the
-        items that changed, per machine."""
+    def stopped(
+        self, message: str, machines: Iterable[str] | None = None
+    ) -> dict[str, dict[str, Reading]]:
+        """The server stops (or no longer serves ``machines``): every known machine (of
+        those) becomes unavailable with ``message``; the items that changed, per machine."""
         at = datetime.now(UTC)
         out: dict[str, dict[str, Reading]] = {}
-        for machine in list(self._known):
+        wanted = list(self._known) if machines is None else list(machines)
+        for machine in [m for m in wanted if m in self._known]:
             readings = self._state[machine]
             values = items_of(None)
             values["message"] = message

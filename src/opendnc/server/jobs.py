@@ -41,6 +41,8 @@ from opendnc.server.store.models import (
 )
 
 __all__ = [
+    "LOADS",
+    "TAKEN_OVER_FROM",
     "cancel",
     "claim",
     "enqueue",
@@ -66,6 +68,13 @@ __all__ = [
 # ``released_only`` policy, the drip-feed opt-in) is decided by the actions layer
 # (opendnc.server.actions.policy), the one place every caller's request passes through.
 PROGRAM_JOBS = (JobKind.SEND, JobKind.DRIPFEED, JobKind.PUT_FILE)
+
+LOADS = (JobKind.SEND, JobKind.REPORT, JobKind.PUT_FILE)
+"""Jobs that write a file to the control: what a take-over checks at the control before
+writing again (docs/server.md#jobs-1)."""
+
+TAKEN_OVER_FROM = "taken_over_from"
+"""The ``params`` key of a load queued again by a take-over: the server that had it running."""
 
 DEFAULT_ATTEMPTS = {
     JobKind.SEND: 3,
@@ -334,10 +343,14 @@ def take_over(session: Session, machine: str, server: str, keep: Iterable[int] =
 
     Their server died or lost the machine mid-job. A drip-feed ends interrupted at the last
     line its server recorded (the machine ran an unknown part beyond it; a person restarts it
-    from a line); every other job is queued again at its place, without a backoff: a load is
-    idempotent and verified, a read or a backup harmless to repeat. The rows are locked, so
-    a job's old server finishing it at the same moment (it cannot: its lease check fails) or
-    a second taker never ends it twice. The audit row names both servers.
+    from a line); every other job is queued again at its place, without a backoff: a read or
+    a backup is harmless to repeat, and a program load is marked (``params``
+    :data:`TAKEN_OVER_FROM`) so that its next run first asks the control whether it already
+    holds those bytes (the old server may have finished the transfer without recording it)
+    and ends done without sending them again if so (:mod:`opendnc.server.executors`). The
+    rows are locked, so a job's old server finishing it at the same moment (it cannot: its
+    lease check fails) or a second taker never ends it twice. The audit row names both
+    servers.
     """
     kept = set(keep)
     found = session.scalars(
@@ -360,8 +373,16 @@ def take_over(session: Session, machine: str, server: str, keep: Iterable[int] =
         else:
             job.state = JobState.QUEUED
             job.not_before = None
-            job.error = f"{was} stopped while this job ran; {server} queued it again"
             result = "queued again"
+            if job.kind in LOADS:
+                # a new dict: the JSON column sees a changed value, not a changed object
+                job.params = {**job.params, TAKEN_OVER_FROM: was}
+                job.error = (
+                    f"{was} stopped while this job ran; {server} queued it again, to ask the "
+                    "control first whether it already has the program"
+                )
+            else:
+                job.error = f"{was} stopped while this job ran; {server} queued it again"
         audit.record(
             session,
             server,
@@ -515,6 +536,7 @@ def retry(session: Session, job_id: int, *, actor: str, from_line: int | None = 
             "cancelled jobs are retried"
         )
     params = dict(old.params)
+    params.pop(TAKEN_OVER_FROM, None)  # a person asks for a load: it is sent, not first asked
     if from_line is not None:
         if old.kind is not JobKind.DRIPFEED:
             raise InputError("only a drip-feed restarts from a line")

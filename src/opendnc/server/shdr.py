@@ -24,7 +24,15 @@ from xml.etree import ElementTree as ET
 
 from opendnc.server.config import ConfigError, MtconnectConfig
 from opendnc.server.events import DprntLinePrinted, EventBus, MachineStatusChanged
-from opendnc.server.items import ITEMS, ItemSpec, ItemTracker, Reading, Value, shdr_time
+from opendnc.server.items import (
+    ITEMS,
+    SERVER_STOPPED,
+    ItemSpec,
+    ItemTracker,
+    Reading,
+    Value,
+    shdr_time,
+)
 
 __all__ = [
     "DPRNT",
@@ -255,7 +263,9 @@ class MtconnectOutput:
         }
 
     async def close(self) -> None:
-        """Close every port."""
+        """Tell every agent its machine is unavailable now, then close every port."""
+        for machine, changed in self.tracker.stopped(SERVER_STOPPED).items():
+            self._send_changes(machine, changed)
         for adapter in self.adapters.values():
             await adapter.close()
 
@@ -275,11 +285,13 @@ class MtconnectOutput:
 
     def take(self, event: MachineStatusChanged) -> None:
         """Report the items of a machine's status event that changed."""
-        changed = self.tracker.update(event)
-        adapter = self.adapters.get(event.machine)
+        self._send_changes(event.machine, self.tracker.update(event))
+
+    def _send_changes(self, machine: str, changed: dict[str, Reading]) -> None:
+        adapter = self.adapters.get(machine)
         if not changed or adapter is None:
             return
-        before = self._conditions[event.machine]
+        before = self._conditions[machine]
         lines = shdr_state(changed, before)
         for key in _CONDITION & changed.keys():
             before[key] = changed[key].value

@@ -8,7 +8,10 @@ device of it. A subscriber of the event bus like the plain MQTT output, beside i
   ``Node Control/Rebirth`` metric) and a DBIRTH for every machine served and read;
 * a machine this server starts serving (:class:`~opendnc.server.events.LeaseChanged`: a
   single server holds every machine from its start, a cluster's server the ones whose lease
-  it holds) is born (DBIRTH) at its first status; one it stops serving dies (DDEATH);
+  it holds) is born (DBIRTH) at its first status that the control answered; one it stops
+  serving, or whose control stops answering, dies (DDEATH), and the latter is born again
+  when the control answers;
+* a clean stop sends a DDEATH for every device born, then the node's NDEATH;
 * a status that changes metrics sends DDATA with only those metrics, by alias;
 * every message after NBIRTH takes the next ``seq`` (0..255, then 0 again);
 * an NCMD with ``Node Control/Rebirth`` true births the node and its devices again;
@@ -28,7 +31,6 @@ import contextlib
 import importlib
 import json
 import logging
-import ssl
 import time
 import uuid
 from collections.abc import Callable
@@ -38,11 +40,13 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from opendnc.errors import InputError
+from opendnc.server.broker import BrokerLink, ReconnectNow, Will
 from opendnc.server.components import cancel_and_wait
 from opendnc.server.config import SparkplugConfig
 from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
 from opendnc.server.items import items_of
 from opendnc.server.sparkplug_store import BD_SEQ_MODULO
+from opendnc.server.state import State
 
 if TYPE_CHECKING:
     import aiomqtt
@@ -64,8 +68,6 @@ log = logging.getLogger(__name__)
 BD_SEQ = "bdSeq"
 REBIRTH = "Node Control/Rebirth"
 SOFTWARE = "Node Info/Software"
-STOP_SECONDS = 2.0
-"""How long a clean stop may take to send the node's death."""
 
 
 class Kind(Enum):
@@ -159,10 +161,6 @@ class Outgoing:
     qos: int = 0
 
 
-class _Reconnect(Exception):
-    """The primary host went offline: end this session and start a new one."""
-
-
 class SparkplugNode:
     """The edge node; a component (started by the outputs, before the machines' tasks)."""
 
@@ -184,9 +182,15 @@ class SparkplugNode:
         self._names = frozenset(machines)
         self.bus = bus
         self.next_bd_seq = next_bd_seq  # blocking (the database): run in a thread
-        self.min_backoff = min_backoff
-        self.max_backoff = max_backoff
-        self.identifier = f"opendnc-spb-{config.node}-{uuid.uuid4().hex[:8]}"
+        self.link = BrokerLink(
+            config.broker,
+            f"opendnc-spb-{config.node}-{uuid.uuid4().hex[:8]}",
+            "sparkplug",
+            clean_session=True,
+            min_backoff=min_backoff,
+            max_backoff=max_backoff,
+        )
+        self.identifier = self.link.identifier
         self._aliases = {
             (machine, name): (index + 1) * _ALIAS_BLOCK + offset
             for index, machine in enumerate(self.machines)
@@ -206,8 +210,6 @@ class SparkplugNode:
         self._host_stamp = -1
         self._rebirth = False
         self._host_left = False
-        self.connected = False
-        self.connects = 0
         self.nbirths = 0  # NBIRTHs sent (a rebirth counts)
         self._wake = asyncio.Event()
         self._sub_cm: contextlib.AbstractContextManager[Subscription] | None = None
@@ -232,6 +234,16 @@ class SparkplugNode:
         cm, self._sub_cm, self._sub = self._sub_cm, None, None
         if cm is not None:
             cm.__exit__(None, None, None)
+
+    @property
+    def connected(self) -> bool:
+        """Whether a session with the broker is up."""
+        return self.link.connected
+
+    @property
+    def connects(self) -> int:
+        """How many sessions the broker accepted since the start."""
+        return self.link.connects
 
     def as_json(self) -> dict[str, Any]:
         """The node's state for the API."""
@@ -339,17 +351,30 @@ class SparkplugNode:
                 out.append(message)
         return out
 
+    def _ddeath(self, machine: str) -> Outgoing | None:
+        """The device's DDEATH if the host has it as born (and it is no longer)."""
+        if self.born.pop(machine, None) is None:
+            return None
+        payload = self._spb.DDeath(timestamp=_ms(), seq=self._next_seq()).encode()
+        return Outgoing(self.topic("DDEATH", machine), payload)
+
+    def deaths(self) -> list[Outgoing]:
+        """A DDEATH for every device born in this session (a clean stop, before NDEATH)."""
+        out = [self._ddeath(machine) for machine in self.machines]
+        return [message for message in out if message is not None]
+
     def _device_change(self, machine: str) -> Outgoing | None:
         p = self._spb
         now = _ms()
         if machine not in self.served:
-            if self.born.pop(machine, None) is None:
-                return None
-            payload = p.DDeath(timestamp=now, seq=self._next_seq()).encode()
-            return Outgoing(self.topic("DDEATH", machine), payload)
+            return self._ddeath(machine)
         values = self.values.get(machine)
         if values is None:
             return None  # gained, not read yet: born with its first status
+        if values["state"] == State.OFFLINE.value:
+            # The link to the control is lost: Sparkplug 3.0 (section 5.7) has the edge node
+            # publish the device's DDEATH; it is born again once the control answers.
+            return self._ddeath(machine)
         at = self.stamps.get(machine, now)
         sent = self.born.get(machine)
         if sent is None:
@@ -417,7 +442,13 @@ class SparkplugNode:
         """Follow the bus and keep a session with the broker, until cancelled."""
         follow = asyncio.create_task(self._follow(), name="sparkplug-follow")
         try:
-            await self._connect_loop()
+            await self.link.run(
+                self._session,
+                self._will,
+                stopping=self._say_stopped,
+                before=self._take_bd_seq,
+                after=self._session_ended,
+            )
         finally:
             await cancel_and_wait(follow)
 
@@ -434,66 +465,24 @@ class SparkplugNode:
             except Exception:  # one odd event must not end the output
                 log.exception("sparkplug: cannot take %s event %s", event.kind, event.key)
 
-    def _client(self, will: Outgoing) -> aiomqtt.Client:
-        import aiomqtt
+    def _will(self) -> Will:
+        # the session's NDEATH, with the bdSeq taken for it just before (Sparkplug 3.0)
+        death = self.death()
+        return Will(death.topic, death.payload, qos=death.qos, retain=False)
 
-        broker = self.config.broker
-        tls_context = None
-        if broker.tls:
-            cafile = str(broker.ca_file) if broker.ca_file else None
-            tls_context = ssl.create_default_context(cafile=cafile)
-        return aiomqtt.Client(
-            broker.host,
-            broker.port,
-            username=broker.username or None,
-            password=broker.password or None,
-            identifier=self.identifier,
-            will=aiomqtt.Will(will.topic, will.payload, qos=will.qos, retain=False),
-            clean_session=True,
-            tls_context=tls_context,
-            timeout=10,
-            keepalive=30,
-        )
+    async def _say_stopped(self, client: aiomqtt.Client) -> None:
+        # A clean stop sends the deaths itself (the broker sends the will only when the link
+        # dies): each device's, then the node's.
+        if self.node_born:
+            for message in [*self.deaths(), self.death()]:
+                await self._send(client, message)
 
-    async def _connect_loop(self) -> None:
-        import aiomqtt
-
-        backoff = self.min_backoff
-        where = f"{self.config.broker.host}:{self.config.broker.port}"
-        while True:
-            await self._take_bd_seq()
-            try:
-                async with self._client(self.death()) as client:
-                    self.connected = True
-                    self.connects += 1
-                    backoff = self.min_backoff
-                    log.info("sparkplug: connected to %s (bdSeq %d)", where, self.bd_seq)
-                    try:
-                        await self._session(client)
-                    except asyncio.CancelledError:
-                        # A clean stop sends the death itself: the broker sends the will only
-                        # when the link dies.
-                        if self.node_born:
-                            with contextlib.suppress(Exception, asyncio.CancelledError):
-                                async with asyncio.timeout(STOP_SECONDS):
-                                    await self._send(client, self.death())
-                        raise
-                    except _Reconnect:
-                        await self._send(client, self.death())
-                        backoff = 0.0
-            except (aiomqtt.MqttError, OSError) as exc:
-                log.warning("sparkplug: %s: %s; again in %.0f s", where, exc, backoff)
-            except Exception:  # a bug in one session must not end the output for good
-                log.exception("sparkplug: the session ended by an error; again in %.0f s", backoff)
-            finally:
-                self.connected = False
-                self.node_born = False
-                self.born = {}
-                self._host_left = False
-                self.host_online = not self.config.primary_host
-                self._host_stamp = -1
-            await asyncio.sleep(backoff)
-            backoff = min(max(backoff, self.min_backoff) * 2, self.max_backoff)
+    def _session_ended(self) -> None:
+        self.node_born = False
+        self.born = {}
+        self._host_left = False
+        self.host_online = not self.config.primary_host
+        self._host_stamp = -1
 
     async def _take_bd_seq(self) -> None:
         """A new session, a new bdSeq, stored before connecting (sparkplug_store). With the
@@ -509,6 +498,7 @@ class SparkplugNode:
         await client.publish(message.topic, message.payload, qos=message.qos, retain=False)
 
     async def _session(self, client: aiomqtt.Client) -> None:
+        log.info("sparkplug: session with bdSeq %s", self.bd_seq)
         await client.subscribe(self.topic("NCMD"), qos=1)
         if self.config.primary_host:
             await client.subscribe(self.state_topic, qos=1)
@@ -516,7 +506,10 @@ class SparkplugNode:
         try:
             while True:
                 if self._host_left:
-                    raise _Reconnect
+                    # the host went offline: this session ends with its death, and the next
+                    # one (a new bdSeq) waits for the host again
+                    await self._send(client, self.death())
+                    raise ReconnectNow
                 if self.host_online:
                     if not self.node_born or self._rebirth:
                         self._rebirth = False

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import tempfile
 from pathlib import Path
 
@@ -132,6 +133,29 @@ class HaasNgcConnector(NetworkOnly):
             return None
         local = target.local / name
         return await asyncio.to_thread(lambda: local.is_file() and local.read_bytes() == data)
+
+    async def holds(self, name: str, data: bytes) -> bool:
+        """Whether the share already holds exactly ``data`` as ``name`` (what a server that
+        took the machine over asks before sending a load again): the share's listing for the
+        file's size, then the file's SHA-256 against the program's. A local folder or SMB
+        alike; a share that cannot be listed is a :class:`TransportError` (the load is then
+        retried like one that could not be copied)."""
+        target = self._target()
+
+        def look() -> bool:
+            from opendnc.server.netshare import open_folder  # the scan's own folder code
+
+            folder = open_folder(target)
+            entry = folder.entries().get(name)
+            if entry is None or entry[0] != len(data):
+                return False
+            try:
+                there = hashlib.sha256(folder.read(name)).digest()
+            except OSError:  # gone between the listing and the read: not there
+                return False
+            return there == hashlib.sha256(data).digest()
+
+        return await asyncio.to_thread(look)
 
     def _local(self, path: str) -> Path:
         target = self._target()

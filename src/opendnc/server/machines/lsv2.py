@@ -12,6 +12,7 @@ from opendnc.errors import ControlRefused, DncError, InputError, TransportError
 from opendnc.lsv2 import AsyncClient, Client
 from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
+from opendnc.lsv2.localfiles import is_binary_name
 from opendnc.lsv2.serial_stream import SerialLine
 from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.machine_files import RemoteFile
@@ -166,6 +167,36 @@ class Lsv2Connector(NetworkOnly):
         """
         line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
         return await self._require().read_file(self._target(name), line_end=line_end) == data
+
+    async def holds(self, name: str, data: bytes) -> bool | None:
+        """Whether the machine's folder already holds exactly ``data`` as ``name`` (what a
+        server that took the machine over asks before sending a load again).
+
+        The file's entry first (one telegram): no such file, or a binary file of another size,
+        is a plain no. Otherwise the file is read back and compared as :meth:`verify` does: a
+        text file's size on the control depends on how the control stores line ends, so only
+        its content can say. A control that refuses the read-back cannot say (None): the load
+        is then sent again rather than failed for a read it was never asked to allow.
+        """
+        return await self.holds_file(self._target(name), data)
+
+    async def holds_file(self, path: str, data: bytes) -> bool | None:
+        """:meth:`holds` for a file anywhere on the control's drive (a ``put_file`` job)."""
+        client = self._require()
+        try:
+            info = await client.file_info(path)
+        except ControlRefused:
+            return False  # the folder itself is not there
+        if info is None:
+            return False
+        if is_binary_name(path) and info.size != len(data):
+            return False
+        # read as written (the mode by the file's type), text with the line end it came with
+        line_end = b"\r\n" if b"\r\n" in data or b"\n" not in data else b"\n"
+        try:
+            return await client.read_file(path, line_end=line_end) == data
+        except ControlRefused:
+            return None
 
     async def fetch(self, path: str) -> bytes:
         """Read a file from the control (binary: the bytes as the control holds them)."""
