@@ -84,7 +84,9 @@ class RemoteRequests:
                     )
                     return f"reception failed: {row.reason}", None
                 if names is None:
-                    row = inbox.store(session, machine.name, reception.data, folder=folder)
+                    row = inbox.store(
+                        session, machine.name, reception.data, folder=folder, name=reception.name
+                    )
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
                     return f"received {row.name} into the inbox", None

@@ -89,10 +89,12 @@ class MachineStatus:
 
 @dataclass(frozen=True)
 class Reception:
-    """A program the control sent by itself (a punch); ``failed`` says why it broke off."""
+    """A program the control sent by itself (a punch); ``failed`` says why it broke off,
+    ``name`` is the name the program carries where the link told it (a tape punch)."""
 
     data: bytes
     failed: str = ""
+    name: str | None = None
 
 
 class Connector(Protocol):
