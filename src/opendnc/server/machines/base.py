@@ -162,7 +162,9 @@ class NetworkOnly:
         self, name: str, data: bytes, from_line: int, progress: DripProgress
     ) -> dict[str, int]:
         """Drip-feed is a serial Haas's way of running a program."""
-        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
+        raise InputError(
+            f"{self.config.name}: drip-feed is for serial machines (haas_serial, serial)"
+        )
 
 
 class StreamWrapper:

@@ -1,0 +1,254 @@
+"""The ``serial`` kind (tape-code controls) against virtual Fanucs on virtual RS-232 cables,
+with the whole server in this process (docs/server.md#tape-code-controls-serial): a load lands
+in the control's memory under its O-number, a punch lands in the inbox under its name, a
+drip-feed opted in runs to its end with the card showing running, one not opted in is refused
+with the reason.
+
+One fleet (two virtual Fanucs) and one server serve every test of the module; each test selects
+the control's mode it needs, as the operator would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.peers import require_module
+
+httpx = require_module("httpx")
+require_module("serial")
+
+from opendnc.server import auth  # noqa: E402
+from opendnc.server.app import Server, build  # noqa: E402
+from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.kinds import SerialMachine  # noqa: E402
+from opendnc.server.store.models import Role  # noqa: E402
+from opendnc.sim.fanuc.control import Mode, Selection, VirtualFanuc  # noqa: E402
+from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
+from tests.server.harness import wait_for  # noqa: E402
+from tests.server.inprocess_app import config_text  # noqa: E402
+from tests.server.serving import serving  # noqa: E402
+
+POLL_S = 0.2  # the machines' poll_interval: the listening window between two jobs
+
+
+@dataclass
+class Shop:
+    server: Server
+    client: Any
+    key: str
+    fleet: Fleet
+
+    def headers(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {self.key}"}
+
+    def fanuc(self, name: str) -> VirtualFanuc:
+        return self.fleet.fanucs[name]
+
+    def machine(self, name: str) -> dict[str, Any]:
+        answer = self.client.get("/api/machines", headers=self.headers())
+        answer.raise_for_status()
+        return next(m for m in answer.json() if m["name"] == name)
+
+    def put(self, name: str, text: str, *, release: bool = False) -> None:
+        answer = self.client.put(f"/api/programs/{name}", content=text, headers=self.headers())
+        assert answer.status_code in (200, 201), answer.text
+        if release:
+            number = answer.json()["number"]
+            done = self.client.post(
+                f"/api/programs/{name}/versions/{number}/release", headers=self.headers()
+            )
+            assert done.status_code == 200, done.text
+
+    def queue(self, kind: str, program: str, machine: str) -> Any:
+        return self.client.post(
+            "/api/jobs",
+            json={"kind": kind, "program": program, "machines": [machine]},
+            headers=self.headers(),
+        )
+
+    def finished(self, job_id: int) -> dict[str, Any]:
+        def done() -> dict[str, Any] | None:
+            job: dict[str, Any] = self.client.get(
+                f"/api/jobs/{job_id}", headers=self.headers()
+            ).json()
+            return job if job["state"] not in ("queued", "running") else None
+
+        result: dict[str, Any] = wait_for(f"job {job_id}", done, timeout=30)
+        return result
+
+
+@pytest.fixture(scope="module")
+def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
+    root = tmp_path_factory.mktemp("serial-kind")
+    fleet = asyncio.run(start_fleet(root / "machines", tnc=0, haas=0, fanuc=2))
+    try:
+        one, two = (m for m in fleet.machines if m.kind == "serial")
+        machines: list[dict[str, object]] = [
+            {
+                "name": one.name,
+                "kind": "serial",
+                "serial": one.serial,
+                "profile": "fanuc-0i",
+                "baud": one.baud,
+                "dripfeed": True,
+                "poll_interval": POLL_S,
+            },
+            # not opted in to drip-feed: loads and punches only
+            {
+                "name": two.name,
+                "kind": "serial",
+                "serial": two.serial,
+                "baud": two.baud,
+                "poll_interval": POLL_S,
+            },
+        ]
+        config = parse_config(config_text(root, machines, check="warn"), base=root)
+        server = build(config, database=f"sqlite:///{root / 'db.sqlite'}")
+        with server.sessions.begin() as session:
+            auth.create_user(session, "admin", Role.ADMIN)
+            key = auth.create_key(session, "admin", Role.ADMIN, label="test")[1]
+        with serving(server) as url, httpx.Client(base_url=url, timeout=30) as client:
+            shop = Shop(server, client, key, fleet)
+            wait_for("both ports open", lambda: all(m["online"] for m in _machines(shop)))
+            yield shop
+    finally:
+        asyncio.run(fleet.close())
+
+
+def _machines(shop: Shop) -> list[dict[str, Any]]:
+    answer = shop.client.get("/api/machines", headers=shop.headers())
+    answer.raise_for_status()
+    machines: list[dict[str, Any]] = answer.json()
+    return machines
+
+
+def _blocks(text: str) -> list[str]:
+    """A program's blocks, without the tape's % lines and blank lines."""
+    return [line.strip() for line in text.splitlines() if line.strip() not in ("", "%")]
+
+
+LOAD = "%\nO0042 (BRACKET)\nG00 G90 G54 X0. Y0.\nG01 X12.5 F300.\nM30\n%\n"
+
+
+def test_a_load_arrives_in_the_controls_memory_under_its_o_number(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-2")
+    fanuc.select(Selection(Mode.READ))  # EDIT + READ at the control
+    shop.put("O0042.nc", LOAD, release=True)
+    answer = shop.queue("send", "O0042.nc", "fanuc-2")
+    assert answer.status_code == 201, answer.text
+    job = shop.finished(answer.json()[0]["id"])
+    assert job["state"] == "done", job
+    stored = wait_for("the program in memory", lambda: "O0042.nc" in fanuc.programs())
+    assert stored
+    got = (fanuc.root / "O0042.nc").read_text()
+    assert _blocks(got) == _blocks(LOAD)
+    assert fanuc.alarms == []
+    assert shop.machine("fanuc-2")["state"] == "ready"  # a load runs nothing
+
+
+PUNCHED = "%\nO0123 (PUNCHED AT THE CONTROL)\nG00 X1. Y2.\nM30\n%\n"
+
+
+def test_a_punch_from_the_control_lands_in_the_inbox_under_its_name(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-1")
+    fanuc.select(Selection(Mode.IDLE))
+    (fanuc.root / "O0123.nc").write_text(PUNCHED)
+
+    def punches() -> int:
+        return sum(m.startswith("PUNCH") for m in fanuc.messages)
+
+    for count in (1, 2):  # twice: the second never overwrites the first
+        fanuc.select(Selection(Mode.PUNCH, "O0123"))  # the operator's PUNCH key
+        wait_for("the punch to go out", lambda: punches() == count)  # noqa: B023
+
+    def arrived() -> list[dict[str, Any]]:
+        items: list[dict[str, Any]] = shop.client.get("/api/inbox", headers=shop.headers()).json()
+        mine = [i for i in items if i["machine"] == "fanuc-1"]
+        return mine if len(mine) == 2 else []
+
+    items = wait_for(
+        "both punches in the inbox",
+        arrived,
+        timeout=20,
+        describe=lambda: (
+            shop.client.get("/api/inbox", headers=shop.headers()).text,
+            fanuc.messages,
+            shop.machine("fanuc-1"),
+        ),
+    )
+    assert sorted((i["name"], i["state"]) for i in items) == [
+        ("O0123.nc", "new"),
+        ("O0123.nc", "new"),
+    ]
+    for item in items:
+        content = shop.client.get(f"/api/inbox/{item['id']}/content", headers=shop.headers())
+        assert _blocks(content.text) == _blocks(PUNCHED)
+    inbox = Path(shop.server.config.library.inbox)
+    assert sorted(p.name for p in inbox.glob("O0123*")) == ["O0123.2.nc", "O0123.nc"]
+
+
+MOVES = "".join(f"G01 X{i % 40}.5 Y{i % 9}. F600.\n" for i in range(400))
+LONG = f"%\nO0300 (DRIP)\nG00 G90 G54 X0. Y0.\n{MOVES}M30\n%\n"
+
+
+def test_a_dripfeed_opted_in_runs_to_the_end_and_the_card_shows_running(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-1")
+    fanuc.select(Selection(Mode.TAPE))  # TAPE/DNC mode at the control
+    before = len(fanuc.executed)
+    shop.put("O0300.nc", LONG, release=True)
+    answer = shop.queue("dripfeed", "O0300.nc", "fanuc-1")
+    assert answer.status_code == 201, answer.text
+    job_id = answer.json()[0]["id"]
+    running = wait_for(
+        "the card to show running",
+        lambda: (m := shop.machine("fanuc-1"))["state"] == "running" and m,
+        timeout=20,
+    )
+    assert running["status"]["program"] == "O0300.nc"
+    assert running["status"]["execution"] == "ACTIVE"
+    job = shop.finished(job_id)
+    assert job["state"] == "done", job
+    # the control ran every block of the program, in order, to its M30
+    wait_for(
+        "the end of the tape",
+        lambda: any(m.startswith("TAPE DONE") for m in fanuc.messages),
+        timeout=10,
+        describe=lambda: (fanuc.executed[-3:], fanuc.messages, job),
+    )
+    ran = [block for block in fanuc.executed[before:] if block != "%"]
+    assert ran == _blocks(LONG)
+    assert fanuc.alarms == []
+    wait_for("the card to show ready again", lambda: shop.machine("fanuc-1")["state"] == "ready")
+
+
+def test_a_dripfeed_not_opted_in_is_refused_with_the_reason(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-2")
+    shop.put("O0301.nc", "%\nO0301 (NO RUN)\nG00 X0.\nM30\n%\n", release=True)
+    before = list(fanuc.executed)
+    answer = shop.queue("dripfeed", "O0301.nc", "fanuc-2")
+    assert answer.status_code == 409, answer.text
+    assert "does not allow drip-feed" in answer.text
+    assert "dripfeed = true" in answer.text
+    assert fanuc.executed == before
+
+
+def test_the_fleet_configuration_serves_its_fanucs(shop: Shop, tmp_path: Path) -> None:
+    text = server_config(shop.fleet, dripfeed=True)
+    config = parse_config(text, base=tmp_path)
+    fanucs = {m.name: m for m in config.machines}
+    assert set(fanucs) == {"fanuc-1", "fanuc-2"}
+    for fleet_machine in shop.fleet.machines:
+        machine = fanucs[fleet_machine.name]
+        assert isinstance(machine, SerialMachine)
+        assert machine.serial == fleet_machine.serial
+        assert machine.tape.baud == fleet_machine.baud
+        assert machine.dripfeed is True
+        # opendnc check reads the machine's G-code as the profile's control speaks it
+        assert machine.envelope is not None
+        assert machine.envelope.control == "fanuc-mill"
