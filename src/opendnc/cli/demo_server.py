@@ -97,7 +97,7 @@ def demo(
         help="The shop's clock, an IANA name like Europe/Berlin (default: this computer's).",
     ),
 ) -> None:
-    """Run the DNC server with a virtual shop floor (two TNCs, two Haas) and print a login."""
+    """Run the DNC server with a virtual shop floor (TNCs, Haas, a Fanuc) and print a login."""
     if tour:
         from opendnc.cli.demo import demo as cli_tour
 
