@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -65,10 +65,10 @@ class Shop:
             )
             assert done.status_code == 200, done.text
 
-    def queue(self, kind: str, program: str, machine: str) -> Any:
+    def queue(self, kind: str, program: str, machine: str, **more: Any) -> Any:
         return self.client.post(
             "/api/jobs",
-            json={"kind": kind, "program": program, "machines": [machine]},
+            json={"kind": kind, "program": program, "machines": [machine], **more},
             headers=self.headers(),
         )
 
@@ -99,15 +99,20 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
                 "dripfeed": True,
                 "poll_interval": POLL_S,
             },
-            # not opted in to drip-feed: loads and punches only
+            # not opted in to drip-feed: loads (checked by the punch back) and punches only
             {
                 "name": two.name,
                 "kind": "serial",
                 "serial": two.serial,
                 "baud": two.baud,
+                "verify": "punch",
+                "verify_timeout": 10.0,
                 "poll_interval": POLL_S,
             },
         ]
+        # the operator of fanuc-2 punches every program read straight back
+        fanuc = fleet.fanucs[two.name]
+        fanuc.options = replace(fanuc.options, punch_back=True)
         config = parse_config(config_text(root, machines, check="warn"), base=root)
         server = build(config, database=f"sqlite:///{root / 'db.sqlite'}")
         with server.sessions.begin() as session:
@@ -136,7 +141,9 @@ def _blocks(text: str) -> list[str]:
 LOAD = "%\nO0042 (BRACKET)\nG00 G90 G54 X0. Y0.\nG01 X12.5 F300.\nM30\n%\n"
 
 
-def test_a_load_arrives_in_the_controls_memory_under_its_o_number(shop: Shop) -> None:
+def test_a_load_arrives_under_its_o_number_and_is_verified_by_the_punch_back(
+    shop: Shop,
+) -> None:
     fanuc = shop.fanuc("fanuc-2")
     fanuc.select(Selection(Mode.READ))  # EDIT + READ at the control
     shop.put("O0042.nc", LOAD, release=True)
@@ -144,6 +151,13 @@ def test_a_load_arrives_in_the_controls_memory_under_its_o_number(shop: Shop) ->
     assert answer.status_code == 201, answer.text
     job = shop.finished(answer.json()[0]["id"])
     assert job["state"] == "done", job
+    # the outcome is in the audit row of the load: compared with what the control punched back
+    audit = shop.client.get(
+        "/api/audit", params={"action": "job.send"}, headers=shop.headers()
+    ).json()
+    (row,) = [r for r in audit if r["job_id"] == job["id"]]
+    assert row["detail"]["verified"] is True
+    assert row["detail"]["verification"] == "verified"
     stored = wait_for("the program in memory", lambda: "O0042.nc" in fanuc.programs())
     assert stored
     got = (fanuc.root / "O0042.nc").read_text()
@@ -252,3 +266,30 @@ def test_the_fleet_configuration_serves_its_fanucs(shop: Shop, tmp_path: Path) -
         # opendnc check reads the machine's G-code as the profile's control speaks it
         assert machine.envelope is not None
         assert machine.envelope.control == "fanuc-mill"
+
+
+def test_a_dripfeed_restarts_from_a_line_with_the_modal_state_first(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-1")
+    fanuc.select(Selection(Mode.TAPE))
+    before, tapes = len(fanuc.executed), len(fanuc.messages)
+    shop.put("O0300.nc", LONG, release=True)  # the same text: the released version stays
+    answer = shop.queue("dripfeed", "O0300.nc", "fanuc-1", from_line=200)
+    assert answer.status_code == 201, answer.text
+    job = shop.finished(answer.json()[0]["id"])
+    assert job["state"] == "done", job
+    assert job["params"] == {"from_line": 200}
+    wait_for(
+        "the end of the tape",
+        lambda: any(m.startswith("TAPE DONE") for m in fanuc.messages[tapes:]),
+        timeout=10,
+    )
+    ran = [block for block in fanuc.executed[before:] if block != "%"]
+    rest = _blocks("\n".join(LONG.splitlines()[199:]))
+    assert ran[-len(rest) :] == rest  # line 200 on, each block once
+    preamble = ran[: -len(rest)]
+    assert preamble, ran[:5]
+    # the work offset and absolute mode of line 3 are restored before line 200 runs
+    assert any("G54" in block for block in preamble), preamble
+    assert "G01 F600." in preamble  # the modal feed of the moves before line 200
+    # and no block of lines 3 to 199 runs again
+    assert not set(preamble) & set(_blocks(LONG)[1:198]), preamble
