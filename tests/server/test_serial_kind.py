@@ -293,3 +293,48 @@ def test_a_dripfeed_restarts_from_a_line_with_the_modal_state_first(shop: Shop) 
     assert "G01 F600." in preamble  # the modal feed of the moves before line 200
     # and no block of lines 3 to 199 runs again
     assert not set(preamble) & set(_blocks(LONG)[1:198]), preamble
+
+
+def _iso(text: str) -> bytes:
+    """ISO characters with even parity in bit 8, as a Fanuc punches them (docs/tape.md)."""
+    return bytes(c | 0x80 if bin(c).count("1") % 2 else c for c in text.encode("ascii"))
+
+
+def test_a_damaged_punch_is_a_failed_reception_that_names_where(tmp_path: Path) -> None:
+    # The connector alone on a cable whose far end we write to as the control: a character
+    # with its parity bit wrong (the line's bit error) in the third block.
+    from opendnc.server.kinds import parse_machine
+    from opendnc.server.machines.base import MachineStatus
+    from opendnc.server.machines.serial import TapeConnector
+    from opendnc.sim.cable.link import VirtualCable
+    from opendnc.transport import open_stream
+
+    with VirtualCable(115200, 11) as cable:
+        config = parse_machine(
+            {"name": "lathe", "kind": "serial", "serial": cable.path_b, "baud": 115200}, "m"
+        )
+        assert isinstance(config, SerialMachine)
+        told: list[MachineStatus] = []
+        connector = TapeConnector(config, on_status=told.append)
+        control = open_stream(cable.path_a, 115200, timeout=0.05)
+        try:
+            good = _iso("%\nO0007 (BAD LINE)\n")
+            bad = bytes([_iso("G")[0] ^ 0x80]) + _iso("00 X1.\nM30\n%\n")
+            control.write(b"\x12" + b"\0" * 4 + good + bad)  # DC2, feed, the record
+
+            async def listen() -> Any:
+                await connector.connect()
+                try:
+                    return await connector.listen(3.0)
+                finally:
+                    await connector.close()
+
+            reception = asyncio.run(listen())
+        finally:
+            control.close()
+    assert reception is not None
+    assert reception.data == b""  # nothing that could pass for the program
+    assert reception.failed.startswith("parity error (TH) at line 3, column 1"), reception
+    # the status said so while it lasted, and is ready again after
+    assert [s.message for s in told] == ["receiving a punch", ""]
+    assert told[-1].execution == "READY"

@@ -30,11 +30,14 @@ from opendnc.errors import (
 from opendnc.server.kinds.serial import SerialMachine
 from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
+from opendnc.tape.codes import DC1, DC2, DC3, DC4
 from opendnc.tape.serial_io import open_tape_port, receive_record, send_program, verify_punch
 from opendnc.transport.base import PortStream
 
 __all__ = ["Activity", "TapeConnector"]
 
+# flow control (DC1, DC3), punch off (DC4), feed (NUL, DEL): no sign that a punch began
+_NOT_PROGRAM = frozenset({0x00, DC1, DC3, DC4, 0x7F})
 LINE_EVERY = 1.0  # least seconds between two status reports of a drip-feed's line
 
 
@@ -44,6 +47,7 @@ class Activity(enum.Enum):
     IDLE = "idle"
     LOADING = "loading"
     RUNNING = "running"  # drip-feeding: the control runs what arrives
+    RECEIVING = "receiving"  # the control punches a program
 
 
 class TapeConnector:
@@ -107,7 +111,10 @@ class TapeConnector:
                 line=line,
                 message=f"drip-feeding {program}",
             )
-        message = f"loading {program}" if activity is Activity.LOADING else ""
+        message = {
+            Activity.LOADING: f"loading {program}",
+            Activity.RECEIVING: "receiving a punch",
+        }.get(activity, "")
         return MachineStatus(at=utcnow(), available=True, execution="READY", message=message)
 
     def _set(self, activity: Activity, program: str = "", line: int = 0) -> None:
@@ -162,8 +169,10 @@ class TapeConnector:
         return await asyncio.to_thread(self._listen, seconds)
 
     def _listen(self, seconds: float) -> Reception | None:
-        stream = self._require()
+        stream = _Watched(self._require(), self.config.tape.punch_dc2, self._receiving)
         already, self._pending = self._pending, b""
+        if already:
+            stream.saw(already)
         try:
             record = receive_record(stream, self.config.tape, timeout=seconds, already=already)
         except TransportTimeout as exc:
@@ -181,7 +190,13 @@ class TapeConnector:
             # damaged characters or a record cut short: kept apart with the reason, never
             # written as if whole
             return Reception(b"", failed=str(exc))
+        finally:
+            if stream.started:
+                self._set(Activity.IDLE)
         return Reception(record.text.encode("latin-1"), name=record.name)
+
+    def _receiving(self) -> None:
+        self._set(Activity.RECEIVING)
 
     async def fetch(self, path: str) -> bytes:
         """A tape control sends programs itself (a punch), it cannot be asked for one."""
@@ -261,3 +276,51 @@ def _line_starts(data: bytes) -> list[int]:
 def _line_at(starts: list[int], offset: int, lines: int) -> int:
     """The program line (from 1) that byte ``offset`` is in, at most ``lines``."""
     return min(lines, bisect_right(starts, offset))
+
+
+class _Watched:
+    """The port as a punch receive reads it, telling ``on_start`` once when a punch begins
+    (the control's DC2, or any character but flow control and feed where it sends no DC2)."""
+
+    def __init__(self, inner: PortStream, dc2: bool, on_start: Callable[[], None]) -> None:
+        self.inner = inner
+        self.dc2 = dc2
+        self.on_start = on_start
+        self.started = False
+
+    def saw(self, data: bytes) -> None:
+        """Look at bytes read from the port (the first punch byte starts the status)."""
+        if self.started or not data:
+            return
+        begun = DC2 in data if self.dc2 else any((b & 0x7F) not in _NOT_PROGRAM for b in data)
+        if begun:
+            self.started = True
+            self.on_start()
+
+    def read(self, max_bytes: int) -> bytes:
+        """Read from the port."""
+        data = self.inner.read(max_bytes)
+        self.saw(data)
+        return data
+
+    def read_nowait(self, max_bytes: int) -> bytes:
+        """Read what is there now."""
+        data = self.inner.read_nowait(max_bytes)
+        self.saw(data)
+        return data
+
+    def write(self, data: bytes) -> None:
+        """Write to the port."""
+        self.inner.write(data)
+
+    def drain(self) -> None:
+        """Wait until written bytes left the port."""
+        self.inner.drain()
+
+    def set_timeout(self, seconds: float | None) -> None:
+        """Change the port's read timeout."""
+        self.inner.set_timeout(seconds)
+
+    def close(self) -> None:
+        """Close the port."""
+        self.inner.close()
