@@ -338,3 +338,34 @@ def test_a_damaged_punch_is_a_failed_reception_that_names_where(tmp_path: Path) 
     # the status said so while it lasted, and is ready again after
     assert [s.message for s in told] == ["receiving a punch", ""]
     assert told[-1].execution == "READY"
+
+
+def test_opendnc_check_reads_a_serial_machine_in_its_profiles_dialect(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from opendnc.cli.main import app
+
+    config = tmp_path / "shop.toml"
+    machine = '[[machines]]\nname = "{}"\nkind = "serial"\nserial = "/dev/null"\n{}\n'
+    config.write_text(
+        machine.format("fanuc", "")  # fanuc-0i: fanuc-mill
+        + machine.format("okuma", 'profile = "okuma-osp"')  # no dialect of its own: guessed
+        + machine.format("haas-on-tape", 'control = "haas-mill"')  # the key wins
+    )
+    # G187 (smoothness) is a Haas code that a Fanuc mill does not know
+    program = tmp_path / "O0101.nc"
+    program.write_text("%\nO0101 (SMOOTH)\nG21\nG187 P1 E0.01\nG00 G90 G54 X0. Y0.\nM30\n%\n")
+    runner = CliRunner()
+
+    def check(name: str) -> tuple[int, str]:
+        args = ["check", str(program), "--machine", name, "--config", str(config)]
+        done = runner.invoke(app, args)
+        return done.exit_code, done.output
+
+    code, out = check("fanuc")
+    assert code == 1
+    assert "G187 is not a G code of the Fanuc mill control" in out
+    assert check("okuma")[0] == 0
+    code, out = check("haas-on-tape")
+    assert code == 0
+    assert "haas-mill" in out
