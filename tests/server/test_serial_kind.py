@@ -27,6 +27,7 @@ from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.kinds import SerialMachine  # noqa: E402
+from opendnc.server.machines.base import MachineStatus, Reception  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fanuc.control import Mode, Selection, VirtualFanuc  # noqa: E402
 from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
@@ -300,11 +301,11 @@ def _iso(text: str) -> bytes:
     return bytes(c | 0x80 if bin(c).count("1") % 2 else c for c in text.encode("ascii"))
 
 
-def test_a_damaged_punch_is_a_failed_reception_that_names_where(tmp_path: Path) -> None:
-    # The connector alone on a cable whose far end we write to as the control: a character
-    # with its parity bit wrong (the line's bit error) in the third block.
+def _punched(*records: bytes, listens: int) -> tuple[list[Reception | None], list[MachineStatus]]:
+    """The connector alone on a cable whose far end we write to as the control: ``records``
+    written at once (as a control punches them), then ``listens`` listening windows; what each
+    window received and every status the connector told."""
     from opendnc.server.kinds import parse_machine
-    from opendnc.server.machines.base import MachineStatus
     from opendnc.server.machines.serial import TapeConnector
     from opendnc.sim.cable.link import VirtualCable
     from opendnc.transport import open_stream
@@ -318,26 +319,49 @@ def test_a_damaged_punch_is_a_failed_reception_that_names_where(tmp_path: Path) 
         connector = TapeConnector(config, on_status=told.append)
         control = open_stream(cable.path_a, 115200, timeout=0.05)
         try:
-            good = _iso("%\nO0007 (BAD LINE)\n")
-            bad = bytes([_iso("G")[0] ^ 0x80]) + _iso("00 X1.\nM30\n%\n")
-            control.write(b"\x12" + b"\0" * 4 + good + bad)  # DC2, feed, the record
 
-            async def listen() -> Any:
+            def punch() -> None:
+                control.write(b"".join(records))
+                control.drain()
+                assert cable.wait_idle(5.0)  # all on the PC's side before its first read
+
+            async def listen() -> list[Reception | None]:
                 await connector.connect()
                 try:
-                    return await connector.listen(3.0)
+                    await asyncio.to_thread(punch)
+                    return [await connector.listen(3.0) for _ in range(listens)]
                 finally:
                     await connector.close()
 
-            reception = asyncio.run(listen())
+            return asyncio.run(listen()), told
         finally:
             control.close()
+
+
+def _record(text: str) -> bytes:
+    """A punch as a Fanuc sends it: DC2, feed, the record, feed, DC4."""
+    return b"\x12" + b"\0" * 4 + _iso(text) + b"\0" * 4 + b"\x14"
+
+
+def test_a_damaged_punch_is_a_failed_reception_that_names_where() -> None:
+    # a character with its parity bit wrong (the line's bit error) in the third block
+    good = _iso("%\nO0007 (BAD LINE)\n")
+    bad = bytes([_iso("G")[0] ^ 0x80]) + _iso("00 X1.\nM30\n%\n")
+    (reception,), told = _punched(b"\x12" + b"\0" * 4 + good + bad, listens=1)
     assert reception is not None
     assert reception.data == b""  # nothing that could pass for the program
     assert reception.failed.startswith("parity error (TH) at line 3, column 1"), reception
     # the status said so while it lasted, and is ready again after
     assert [s.message for s in told] == ["receiving a punch", ""]
     assert told[-1].execution == "READY"
+
+
+def test_two_punches_back_to_back_both_arrive() -> None:
+    # both on the line before the port is read: the second starts in the first one's last read
+    first, second = "%\nO0008 (ONE)\nG00 X1.\nM30\n%\n", "%\nO0009 (TWO)\nG00 X2.\nM30\n%\n"
+    receptions, _ = _punched(_record(first), _record(second), listens=2)
+    got = [(r.name, r.failed, _blocks(r.data.decode())) for r in receptions if r is not None]
+    assert got == [("O0008.nc", "", _blocks(first)), ("O0009.nc", "", _blocks(second))]
 
 
 def test_opendnc_check_reads_a_serial_machine_in_its_profiles_dialect(tmp_path: Path) -> None:

@@ -173,8 +173,11 @@ class TapeConnector:
         already, self._pending = self._pending, b""
         if already:
             stream.saw(already)
+        rest = bytearray()  # a punch that followed this one at once: the next listen's start
         try:
-            record = receive_record(stream, self.config.tape, timeout=seconds, already=already)
+            record = receive_record(
+                stream, self.config.tape, timeout=seconds, already=already, leftover=rest
+            )
         except TransportTimeout as exc:
             if str(exc).startswith("no punch"):
                 return None  # nobody punched: the usual case
@@ -193,6 +196,7 @@ class TapeConnector:
         finally:
             if stream.started:
                 self._set(Activity.IDLE)
+        self._pending = bytes(rest)
         return Reception(record.text.encode("latin-1"), name=record.name)
 
     def _receiving(self) -> None:
