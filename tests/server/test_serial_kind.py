@@ -29,6 +29,7 @@ from opendnc.server.config import parse_config  # noqa: E402
 from opendnc.server.kinds import SerialMachine  # noqa: E402
 from opendnc.server.machines.base import MachineStatus, Reception  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
+from opendnc.server.web import session as web_session  # noqa: E402
 from opendnc.sim.fanuc.control import Mode, Selection, VirtualFanuc  # noqa: E402
 from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
@@ -43,10 +44,20 @@ class Shop:
     server: Server
     client: Any
     key: str
+    cookie: str  # a web session's, for the dashboard's pages
     fleet: Fleet
 
     def headers(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.key}"}
+
+    def card(self, name: str) -> str:
+        """The machine's card on the dashboard, as a browser gets it."""
+        page = self.client.get("/", headers={"Cookie": f"{web_session.COOKIE}={self.cookie}"})
+        page.raise_for_status()
+        text = str(page.text)
+        at = text.index(f'data-machine="{name}"')
+        card = text[text.rindex("<div", 0, at) :]  # from its opening tag, which holds the state
+        return card[: card.index("</dl>")]
 
     def fanuc(self, name: str) -> VirtualFanuc:
         return self.fleet.fanucs[name]
@@ -119,8 +130,11 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
         with server.sessions.begin() as session:
             auth.create_user(session, "admin", Role.ADMIN)
             key = auth.create_key(session, "admin", Role.ADMIN, label="test")[1]
+            cookie = auth.create_key(
+                session, "admin", Role.ADMIN, label=auth.SESSION_LABEL, action="login"
+            )[1]
         with serving(server) as url, httpx.Client(base_url=url, timeout=30) as client:
-            shop = Shop(server, client, key, fleet)
+            shop = Shop(server, client, key, cookie, fleet)
             wait_for("both ports open", lambda: all(m["online"] for m in _machines(shop)))
             yield shop
     finally:
@@ -220,13 +234,18 @@ def test_a_dripfeed_opted_in_runs_to_the_end_and_the_card_shows_running(shop: Sh
     answer = shop.queue("dripfeed", "O0300.nc", "fanuc-1")
     assert answer.status_code == 201, answer.text
     job_id = answer.json()[0]["id"]
-    running = wait_for(
-        "the card to show running",
-        lambda: (m := shop.machine("fanuc-1"))["state"] == "running" and m,
-        timeout=20,
-    )
+
+    def shown() -> tuple[dict[str, Any], str] | None:
+        # the API's machine and the dashboard's card at the same moment of the feed
+        machine, card = shop.machine("fanuc-1"), shop.card("fanuc-1")
+        if machine["state"] == "running" and 'data-state="running"' in card:
+            return machine, card
+        return None
+
+    running, card = wait_for("the card to show running", shown, timeout=20)
     assert running["status"]["program"] == "O0300.nc"
     assert running["status"]["execution"] == "ACTIVE"
+    assert "Tape code · RS-232" in card
     job = shop.finished(job_id)
     assert job["state"] == "done", job
     # the control ran every block of the program, in order, to its M30
