@@ -241,16 +241,16 @@ class TapeConnector:
         told = [0.0]
 
         def on_progress(done: int, total: int) -> None:
-            # The engine counts the wire (leader, EOB, preamble): the share of it sent is
-            # taken as the share of the program's bytes from the start line, and the line is
-            # the program line those bytes reach.
-            fed = feed_total if total <= 0 else min(feed_total, feed_total * done // total)
-            line = _line_at(starts, skipped + fed, lines)
-            progress(max(from_line, line), lines, fed, feed_total)
+            # ``done``: where in the file the lines written whole end (the engine counts the
+            # file, not the wire with its leader, parity and preamble) -> the first line the
+            # control has not got whole, where a restart begins, and the bytes this feed took
+            # from its start line to there.
+            line = max(from_line, _line_at(starts, done, lines))
+            progress(line, lines, max(0, done - skipped), feed_total)
             now = time.monotonic()
             if now - told[0] >= LINE_EVERY:
                 told[0] = now
-                self._set(Activity.RUNNING, name, max(from_line, line))
+                self._set(Activity.RUNNING, name, line)
 
         with tempfile.TemporaryDirectory(prefix="opendnc-tape-") as tmp:
             path = Path(tmp) / name
