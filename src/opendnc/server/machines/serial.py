@@ -23,6 +23,7 @@ from pathlib import Path
 from opendnc.errors import (
     DncError,
     InputError,
+    PeerClosed,
     TransferError,
     TransportError,
     TransportTimeout,
@@ -179,16 +180,16 @@ class TapeConnector:
                 stream, self.config.tape, timeout=seconds, already=already, leftover=rest
             )
         except TransportTimeout as exc:
-            if str(exc).startswith("no punch"):
+            if not stream.started:
                 return None  # nobody punched: the usual case
             return Reception(b"", failed=str(exc))
-        except TransportError:
-            raise  # the port itself failed: the machine's task reconnects
         except TransferError as exc:
-            if str(exc).startswith("the link closed after 0 bytes"):
+            if not stream.started and isinstance(exc.__context__, PeerClosed):
                 # the port went away with nothing received: a link error, not a reception
                 raise TransportError(f"{self.config.name}: the port closed") from exc
             return Reception(b"", failed=str(exc))
+        except TransportError:
+            raise  # the port itself failed: the machine's task reconnects
         except DncError as exc:
             # damaged characters or a record cut short: kept apart with the reason, never
             # written as if whole
