@@ -181,6 +181,20 @@ def test_a_load_arrives_under_its_o_number_and_is_verified_by_the_punch_back(
     assert shop.machine("fanuc-2")["state"] == "ready"  # a load runs nothing
 
 
+def test_a_program_without_the_controls_name_fails_before_a_byte_goes(shop: Shop) -> None:
+    fanuc = shop.fanuc("fanuc-2")
+    fanuc.select(Selection(Mode.READ))
+    stored = fanuc.programs()
+    shop.put("FACE.nc", "%\n(NO O-NUMBER)\nG00 X0.\nM30\n%\n", release=True)
+    answer = shop.queue("send", "FACE.nc", "fanuc-2")
+    assert answer.status_code == 201, answer.text
+    job = shop.finished(answer.json()[0]["id"])
+    assert job["state"] == "failed", job
+    assert "no O-number line (O and up to 4 digits)" in job["error"]
+    assert fanuc.programs() == stored  # the control got nothing to store
+    assert fanuc.alarms == []
+
+
 PUNCHED = "%\nO0123 (PUNCHED AT THE CONTROL)\nG00 X1. Y2.\nM30\n%\n"
 
 
