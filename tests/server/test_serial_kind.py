@@ -125,7 +125,9 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Shop]:
         # the operator of fanuc-2 punches every program read straight back
         fanuc = fleet.fanucs[two.name]
         fanuc.options = replace(fanuc.options, punch_back=True)
-        config = parse_config(config_text(root, machines, check="warn"), base=root)
+        # a short request delay: the requested program (or the report) follows the punch soon
+        text = config_text(root, machines, check="warn") + "\n[requests]\ndelay = 0.3\n"
+        config = parse_config(text, base=root)
         server = build(config, database=f"sqlite:///{root / 'db.sqlite'}")
         with server.sessions.begin() as session:
             auth.create_user(session, "admin", Role.ADMIN)
@@ -429,3 +431,23 @@ def test_opendnc_check_reads_a_serial_machine_in_its_profiles_dialect(tmp_path: 
     code, out = check("haas-on-tape")
     assert code == 0
     assert "haas-mill" in out
+
+
+def test_a_request_punched_at_the_control_is_answered_in_its_own_digits(shop: Shop) -> None:
+    # The operator punches a request for a program the library lacks: the report program
+    # comes back into the control's memory as O9998 (a 0i takes 4 digits), saying why.
+    fanuc = shop.fanuc("fanuc-2")
+    fanuc.select(Selection(Mode.IDLE))
+    (fanuc.root / "O9999.nc").write_text("%\nO9999 (REQ O0777)\n%\n")
+    punched = sum(m.startswith("PUNCH") for m in fanuc.messages)
+    fanuc.select(Selection(Mode.PUNCH, "O9999"))
+    wait_for(
+        "the punch to go out",
+        lambda: sum(m.startswith("PUNCH") for m in fanuc.messages) > punched,
+    )
+    fanuc.select(Selection(Mode.READ))  # and selects READ for the answer
+    wait_for("the report in memory", lambda: "O9998.nc" in fanuc.programs(), timeout=30)
+    report = (fanuc.root / "O9998.nc").read_text()
+    assert "O9998 (OPENDNC REQUEST FAILED)" in report
+    assert "NOT IN LIBRARY" in report
+    assert fanuc.alarms == []

@@ -53,6 +53,7 @@ class Capabilities:
     dprnt: bool = False  # capture lines the program prints
     receive: bool = False  # the control sends programs by itself (punch or out-tray folder)
     status_fields: frozenset[str] = frozenset()  # which MachineStatus fields the control reports
+    o_digits: int = 5  # digits of an O-number the server writes for it (a report program)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -138,7 +138,13 @@ def connector(config: SerialMachine, hooks: ConnectorHooks) -> Connector:
 
 def capabilities(config: SerialMachine) -> Capabilities:
     """A tape control punches programs to the listening port; drip-feed when opted in."""
-    return Capabilities(dripfeed=config.dripfeed, receive=True, status_fields=STATUS_FIELDS)
+    return Capabilities(
+        dripfeed=config.dripfeed,
+        receive=True,
+        status_fields=STATUS_FIELDS,
+        # a report program's O-number as the profile takes it (a Fanuc 0i: O9998)
+        o_digits=min(5, config.tape.o_digits),
+    )
 
 
 SPEC = KindSpec(
