@@ -431,6 +431,13 @@ def test_opendnc_check_reads_a_serial_machine_in_its_profiles_dialect(tmp_path: 
     code, out = check("haas-on-tape")
     assert code == 0
     assert "haas-mill" in out
+    # a Klartext program is no program for a Fanuc: refused on line 1, naming its control
+    klartext = tmp_path / "POCKET.H"
+    klartext.write_text("0 BEGIN PGM POCKET MM\n1 L Z+50 R0 FMAX M3\n2 END PGM POCKET MM\n")
+    program = klartext
+    code, out = check("fanuc")
+    assert code == 1
+    assert "POCKET.H:1: error: a heidenhain program cannot run on fanuc (fanuc-mill control)" in out
 
 
 def test_a_request_punched_at_the_control_is_answered_in_its_own_digits(shop: Shop) -> None:
