@@ -76,6 +76,9 @@ def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
         assert f"POCKET.H -> {machine}: sent" in out
     for machine in ("haas-1", "haas-serial-1"):
         assert f"O01000.nc -> {machine}: sent" in out
+    # the virtual Fanuc, a tape-code control of the serial kind
+    assert "O0100.nc -> fanuc-1: sent" in out
+    assert "fanuc-1 (serial)" in out
     # the NGC has a DPRNT source and runs a program that prints (issue 23)
     assert "DPRNT haas-1: BORE  1 DIA  1.0002" in out
     assert "DPRNT haas-1: BORE  3 DIA  1.0000" in out

@@ -17,7 +17,14 @@ from opendnc.server.config import (
     MachineKind,
     parse_config,
 )
-from opendnc.server.kinds import KINDS, Capabilities, MtconnectMachine, connector_for, spec_of
+from opendnc.server.kinds import (
+    KINDS,
+    Capabilities,
+    MtconnectMachine,
+    SerialMachine,
+    connector_for,
+    spec_of,
+)
 
 SHOP = """
 [[machines]]
@@ -45,11 +52,22 @@ name = "agent"
 kind = "mtconnect"
 url = "http://127.0.0.1:5000/"
 device = "dmu50"
+
+[[machines]]
+name = "tape"
+kind = "serial"
+serial = "socket://127.0.0.1:7001"
+profile = "okuma-osp"
+baud = 4800
+eob = "lf"
+tv_check = true
+dripfeed = true
+verify = "punch"
 """
 
 
 def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path) -> None:
-    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(tnc, Lsv2Machine)
     assert tnc.port == 19000
     assert isinstance(ngc, HaasNgcMachine)
@@ -62,11 +80,19 @@ def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path)
     assert "receive_folder" not in fields[HaasSerialMachine] | fields[HaasNgcMachine]
     assert isinstance(agent, MtconnectMachine)
     assert (agent.url, agent.device, agent.streaming) == ("http://127.0.0.1:5000", "dmu50", True)
-    assert [spec_of(m).kind for m in (tnc, ngc, serial, agent)] == list(KINDS)
+    assert isinstance(tape, SerialMachine)
+    # the named profile with the machine's overrides; the rest is the profile's own
+    assert (tape.tape.name, tape.tape.baud, tape.tape.eob.value) == ("okuma-osp", 4800, "lf")
+    assert tape.tape.tv_check
+    assert tape.tape.leader == 600  # okuma-osp's feed, not overridden
+    assert (tape.dripfeed, tape.verify) == (True, "punch")
+    own = {f.name for f in dataclasses.fields(tape)}
+    assert not own & {"mdc", "dprnt", "profile", "port", "receive_folder"}
+    assert [spec_of(m).kind for m in (tnc, ngc, serial, agent, tape)] == list(KINDS)
 
 
 def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
-    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
     assert capabilities_of(tnc).file_browser
     assert capabilities_of(tnc).receive
     assert not capabilities_of(tnc).dripfeed
@@ -82,6 +108,12 @@ def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
         status_fields=capabilities_of(agent).status_fields
     )
     assert "part_count" in capabilities_of(agent).status_fields
+    # a tape control reports nothing: its status is what the server drives on the port
+    assert capabilities_of(tape).receive
+    assert capabilities_of(tape).dripfeed
+    assert not capabilities_of(dataclasses.replace(tape, dripfeed=False)).dripfeed
+    assert not capabilities_of(tape).file_browser
+    assert "part_count" not in capabilities_of(tape).status_fields
 
 
 def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
@@ -89,19 +121,21 @@ def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
     from opendnc.server.machines.haas_serial import HaasSerialConnector
     from opendnc.server.machines.lsv2 import Lsv2Connector
     from opendnc.server.machines.mtconnect import MtconnectConnector
+    from opendnc.server.machines.serial import TapeConnector
 
-    tnc, ngc, serial, agent = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(connector_for(tnc), Lsv2Connector)
     assert isinstance(connector_for(ngc), HaasNgcConnector)
     assert isinstance(connector_for(serial), HaasSerialConnector)
     assert isinstance(connector_for(agent), MtconnectConnector)
+    assert isinstance(connector_for(tape), TapeConnector)
 
 
 @pytest.mark.parametrize(
     ("entry", "key", "words"),
     [
         ('kind = "lsv2"\nhost = "h"\nport = "x"', "port", "expected int"),
-        ('kind = "lsv2"\nhost = "h"\ndripfeed = true', "dripfeed", "serial Haas"),
+        ('kind = "lsv2"\nhost = "h"\ndripfeed = true', "dripfeed", "haas_serial, serial"),
         ('kind = "lsv2"\nhost = "h"\ndprnt = "serial"', "dprnt", "Haas feature"),
         ('kind = "haas_ngc"\nhost = "h"\nmdc = true', "mdc", "only for haas_serial"),
         ('kind = "haas_ngc"\nhost = "h"\ndprnt = "serial"', "dprnt", "haas_serial"),
@@ -111,6 +145,14 @@ def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
         ('kind = "fanuc"\nhost = "h"', "kind", "expected one of"),
         ('kind = "mtconnect"\nurl = "10.0.0.3:5000"', "url", "http://HOST:PORT"),
         ('kind = "mtconnect"\nurl = "http://h:5000"\ndevice = "a/b"', "device", "device's name"),
+        ('kind = "serial"', "serial", "device or URL"),
+        ('kind = "serial"\nserial = "/x"\nprofile = "fanuc-9"', "profile", "fanuc-0i, fanuc-30i"),
+        ('kind = "serial"\nserial = "/x"\nbaud = 9601', "baud", "standard rate"),
+        ('kind = "serial"\nserial = "/x"\ncode = "ascii"', "code", "iso, eia"),
+        ('kind = "serial"\nserial = "/x"\neob = "crcr"', "eob", "lf, crlf, cr, lfcrcr"),
+        ('kind = "serial"\nserial = "/x"\nverify = "read"', "verify", '"punch"'),
+        ('kind = "serial"\nserial = "/x"\ncontrol = "okuma"', "control", "fanuc-mill"),
+        ('kind = "serial"\nserial = "/x"\nmdc = true', "mdc", "only for haas_serial"),
     ],
 )  # fmt: skip
 def test_errors_name_the_key(entry: str, key: str, words: str, tmp_path: Path) -> None:

@@ -37,6 +37,8 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         "1",
         "--mtconnect",
         "2",
+        "--fanuc",
+        "1",
         "--root",
         str(tmp_path / "machines"),
         "--config-out",
@@ -56,8 +58,9 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         MachineKind.HAAS_NGC: 2,
         MachineKind.HAAS_SERIAL: 1,
         MachineKind.MTCONNECT: 2,
+        MachineKind.SERIAL: 1,
     }
-    assert len({m.name for m in shop.machines}) == 8
+    assert len({m.name for m in shop.machines}) == 9
     assert (shop.server.bind_host, shop.server.bind_port) == ("127.0.0.1", port)
     for m in shop.machines:
         assert m.poll_interval == 0.3

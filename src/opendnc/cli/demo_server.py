@@ -1,7 +1,8 @@
 """`opendnc demo`: the DNC server with a virtual shop floor, on embedded defaults.
 
-Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port) and a virtual
-Haas on a virtual RS-232 cable in this process, fills a library with example programs (released ones
+Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port), a virtual
+Haas and a virtual Fanuc (tape code, the ``serial`` kind) on virtual RS-232 cables in this
+process, fills a library with example programs (released ones
 and a draft with two versions), and runs the server on SQLite in a scratch folder, on this
 computer's time zone (or ``--timezone``), with a hybrid net share: a NAS folder holding programs
 as a CAM office leaves them (one the released version, one a draft, one edited after its
@@ -63,7 +64,12 @@ EXAMPLES["O04000.nc"] = [
     b"%\r\nO04000 (SPOT DRILL)\r\nG20\r\nT3 M06\r\nG00 G90 G54 X1. Y1.\r\nS2000 M03\r\n"
     b"G43 H03 Z0.1 M08\r\nG81 Z-0.1 R0.1 F8.\r\nX2.\r\nG80 M09\r\nG28 G91 Z0.\r\nM30\r\n%\r\n"
 ]
-RELEASED = ("O01000.nc", "O04000.nc", "POCKET.H")
+# A Fanuc 0i program (tape code, LF, a 4-digit O-number) for the virtual Fanuc.
+EXAMPLES["O0100.nc"] = [
+    b"%\nO0100 (FACE MILL, FANUC)\nG21\nT1 M06\nG00 G90 G54 X-40. Y0.\nS3000 M03\n"
+    b"G43 H01 Z2. M08\nG01 Z0. F500.\nX190. F1000.\nG00 Z25. M09\nG91 G28 Z0.\nM30\n%\n"
+]
+RELEASED = ("O01000.nc", "O04000.nc", "POCKET.H", "O0100.nc")
 # The demo's NAS folder: file name -> bytes, as a CAM office drops them.
 NAS_FILES: dict[str, bytes] = {
     "O01000.nc": EXAMPLES["O01000.nc"][0],  # the released version
@@ -108,7 +114,7 @@ def demo(
         help="The shop's clock, an IANA name like Europe/Berlin (default: this computer's).",
     ),
 ) -> None:
-    """Run the DNC server with a virtual shop floor (two TNCs, two Haas) and print a login."""
+    """Run the DNC server with a virtual shop floor (TNCs, Haas, a Fanuc) and print a login."""
     if tour:
         from opendnc.cli.demo import demo as cli_tour
 
@@ -141,7 +147,9 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
 
     port = listener.getsockname()[1]  # the real one when --bind said :0
     # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
-    fleet = await start_fleet(folder / "machines", tnc=2, haas=1, serial_haas=1, dprnt=True)
+    fleet = await start_fleet(
+        folder / "machines", tnc=2, haas=1, serial_haas=1, fanuc=1, dprnt=True
+    )
     try:
         nas = folder / "nas"
         nas.mkdir(exist_ok=True)
@@ -246,8 +254,8 @@ async def _print_dprnt(server: object, fleet: object) -> None:
 
 
 async def _check(server: object, fleet: object) -> None:
-    """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC) and
-    wait for the outcome."""
+    """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC, O0100
+    to a tape-code control) and wait for the outcome."""
     from sqlalchemy import select
 
     from opendnc.server import actions, jobs
@@ -272,7 +280,8 @@ async def _check(server: object, fleet: object) -> None:
     svc = server.core.get(actions.Services)
     demo = Principal("demo", Role.ADMIN)
     created = []
-    for program, kinds in (("O01000.nc", ("haas",)), ("POCKET.H", ("lsv2",))):
+    families = (("O01000.nc", ("haas",)), ("POCKET.H", ("lsv2",)), ("O0100.nc", ("serial",)))
+    for program, kinds in families:
         names = [m.name for m in fleet.machines if m.kind.startswith(kinds)]
         if names:
             order = JobRequest(kind=JobKind.SEND, program=program, machines=names)

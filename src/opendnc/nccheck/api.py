@@ -98,7 +98,8 @@ def check_text(
         if text_problem is not None:
             result = replace(result, problems=_merged(result.problems, text_problem))
     if machine is not None and not machine.accepts(chosen):
-        family = machine.family or "unknown"
+        # the machine's G-code control by name where it has one (a Fanuc is no Haas)
+        family = machine.dialect or machine.family or "unknown"
         mismatch = Problem(
             1,
             Severity.ERROR,

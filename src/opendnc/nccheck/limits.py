@@ -228,12 +228,16 @@ def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> 
     ``kind`` gives the family (``lsv2`` -> heidenhain, ``haas_*`` -> haas); the optional
     ``envelope`` attribute (:class:`Envelope`) the travel and work offsets; ``tools`` is
     the tool list the control reported (LSV2 tool table, Haas tool offsets), if any.
+    A machine of another kind whose ``control`` names a G-code dialect (a tape-code Fanuc)
+    runs G-code: the ``haas`` family, as a G-code program's language is called.
     """
     kind = str(getattr(machine.kind, "value", machine.kind))
     family = "heidenhain" if kind == "lsv2" else "haas" if kind.startswith("haas") else None
     envelope = getattr(machine, "envelope", None)
     if not isinstance(envelope, Envelope):
         envelope = Envelope()
+    if family is None and envelope.control is not None:
+        family = "haas"
     return MachineLimits(
         name=machine.name,
         family=family,
@@ -241,7 +245,7 @@ def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> 
         travel_units=envelope.units,
         work_offsets=envelope.offsets_map(),
         tools=frozenset(tools) if tools is not None else None,
-        protected=(HAAS_PROTECTED,) if family == "haas" else (),
+        protected=(HAAS_PROTECTED,) if kind.startswith("haas") else (),
         rapid_rate=envelope.rapid_rate,
         dialect=envelope.control,
     )

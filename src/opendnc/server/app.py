@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, replace
+from functools import partial
 
 from fastapi import FastAPI
 from sqlalchemy import Engine
@@ -151,7 +152,10 @@ def build(
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
-        return connector_for(machine, capture.hooks_for(machine))
+        hooks = capture.hooks_for(machine)
+        # a control that reports nothing tells through the connector what the server does
+        hooks = replace(hooks, on_status=partial(machines.note_status, machine.name))
+        return connector_for(machine, hooks)
 
     fleet = core.add(
         Fleet(

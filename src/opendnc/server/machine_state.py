@@ -180,6 +180,18 @@ class Machines:
         """Send ``state`` to the event bus (the cards, the outputs, the timeline)."""
         self.bus.publish(state.event())
 
+    def note_status(self, machine: str, status: MachineStatus) -> None:
+        """Take a status a connector tells by itself (from any thread): a control that reports
+        nothing, whose state is what the server does with it, changes during a job, when no
+        poll runs (a tape control drip-feeding is running)."""
+        if self.call_on_loop(self.note_status, machine, status):
+            return
+        state = self.machines.get(machine)
+        if state is None or not state.online:
+            return
+        state.set_status(status)
+        self.publish(state)
+
     def note_dprnt(self, machine: str, text: str, at: datetime) -> None:
         """Put a line ``machine`` printed with DPRNT into its status (from any thread: the
         capture runs in listener threads and in the serial connector's worker)."""

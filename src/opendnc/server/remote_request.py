@@ -30,6 +30,7 @@ from opendnc.server.actions.base import Services
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, NotFound
 from opendnc.server.events import ProgramReceived, publish_job_queued
+from opendnc.server.kinds import capabilities_of
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Reception
 from opendnc.server.requests import RequestSettings
@@ -96,7 +97,12 @@ class RemoteRequests:
                     return f"reception failed: {row.reason}", None
                 if names is None:
                     row = inbox.store(
-                        session, machine.name, reception.data, folder=folder, zone=zone
+                        session,
+                        machine.name,
+                        reception.data,
+                        folder=folder,
+                        zone=zone,
+                        name=reception.name,
                     )
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
@@ -239,12 +245,13 @@ class RemoteRequests:
         due: datetime | None = None,
     ) -> None:
         number = self.settings.report_program
-        text = requests.report_program(number, title, lines).decode("ascii")
+        digits = capabilities_of(machine).o_digits
+        text = requests.report_program(number, title, lines, digits).decode("ascii")
         jobs.enqueue(
             session,
             JobKind.REPORT,
             machine.name,
             actor="server",
             not_before=due,
-            params={"name": f"O{number:05d}.nc", "report": text},
+            params={"name": f"O{number:0{digits}d}.nc", "report": text},
         )

@@ -138,9 +138,10 @@ def _comment(text: str) -> str:
     return re.sub(r"\s+", " ", cleaned).strip()[:COMMENT_WIDTH]
 
 
-def report_program(number: int, title: str, lines: list[str]) -> bytes:
-    """A short program the operator sees: ``O09998 (OPENDNC ...)`` with one comment a line."""
-    body = [f"O{number:05d} ({_comment('OPENDNC ' + title)})"]
+def report_program(number: int, title: str, lines: list[str], digits: int = 5) -> bytes:
+    """A short program the operator sees: ``O09998 (OPENDNC ...)`` with one comment a line
+    (``digits``: the O-number's width, ``O9998`` on a control of 4-digit O-numbers)."""
+    body = [f"O{number:0{digits}d} ({_comment('OPENDNC ' + title)})"]
     body += [f"({_comment(line)})" for line in lines]
     body.append("M30")
     return ("%\r\n" + "\r\n".join(body) + "\r\n%\r\n").encode("ascii")

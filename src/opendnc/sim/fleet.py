@@ -40,8 +40,8 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    # "lsv2", "haas_ngc", "haas_serial" or "mtconnect", as in the server's configuration;
-    # "serial" for a virtual Fanuc (a tape-code control, which the server does not serve yet)
+    # "lsv2", "haas_ngc", "haas_serial", "mtconnect" or "serial" (a virtual Fanuc), as in the
+    # server's configuration
     kind: str
     host: str
     port: int  # 0 for a serial machine
@@ -281,9 +281,9 @@ def server_config(
     netshare_interval: float = 5.0,
 ) -> str:
     """The ``opendnc serve`` configuration (TOML) for exactly the controls of ``fleet``
-    (``dripfeed`` allows drip-feeding the serial Haas machines; ``mdc`` has the server read
-    their status by MDC on the cable, as they answer Q-commands there; ``check`` is the
-    library's ``block`` or ``warn`` for program check errors, with ``library``;
+    (``dripfeed`` allows drip-feeding the serial Haas machines and the virtual Fanucs; ``mdc``
+    has the server read their status by MDC on the cable, as they answer Q-commands there;
+    ``check`` is the library's ``block`` or ``warn`` for program check errors, with ``library``;
     ``timezone`` the shop's clock; ``netshare`` a NAS folder whose programs the hybrid net
     share copies to every Haas NGC's share, scanned every ``netshare_interval`` seconds)."""
 
@@ -306,15 +306,6 @@ def server_config(
         if check is not None:
             lines.append(f"check = {q(check)}")
     for m in fleet.machines:
-        if m.kind == "serial":
-            # the server has no tape-code kind yet: the machine is listed for the reader
-            lines += [
-                "",
-                f"# {m.name}: a virtual Fanuc, not served yet (no `serial` machine kind):",
-                f"# opendnc serial send PROGRAM --profile fanuc-0i --port {m.serial} "
-                f"--baud {m.baud}",
-            ]
-            continue
         lines += [
             "",
             "[[machines]]",
@@ -322,13 +313,18 @@ def server_config(
             f"kind = {q(m.kind)}",
             f"poll_interval = {poll_interval}",
         ]
-        if m.kind != "mtconnect":
+        if m.kind not in ("mtconnect", "serial"):
             lines.append(f"host = {q(m.host)}")
         if m.kind == "mtconnect":
             where = f"[{m.host}]" if ":" in m.host else m.host
             lines += [f"url = {q(f'http://{where}:{m.port}')}", f"device = {q(m.device)}"]
         elif m.kind == "lsv2":
             lines.append(f"port = {m.port}")
+        elif m.kind == "serial":
+            # a virtual Fanuc: the tape engine's fanuc-0i profile at the cable's rate
+            lines += [f"serial = {q(m.serial)}", 'profile = "fanuc-0i"', f"baud = {m.baud}"]
+            if dripfeed:
+                lines.append("dripfeed = true")
         elif m.kind == "haas_serial":
             lines += [f"serial = {q(m.serial)}", f"serial_profile = {{ baud = {m.baud} }}"]
             if mdc:

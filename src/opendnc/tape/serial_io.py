@@ -315,8 +315,11 @@ def receive_record(
     codec: Codec | None = None,
     already: bytes = b"",
     clock: Clock = time.monotonic,
+    leftover: bytearray | None = None,
 ) -> Received:
-    """Read one punched record from ``stream`` (see :class:`PunchReceiver`)."""
+    """Read one punched record from ``stream`` (see :class:`PunchReceiver`); ``leftover``
+    gets the bytes read after the record's end (the start of a punch that followed at once),
+    for the next receive's ``already``."""
     receiver = PunchReceiver(
         profile, codec=codec, start_timeout=timeout, quiet=quiet, quiet_ends=quiet_ends
     )
@@ -342,6 +345,8 @@ def receive_record(
             continue
         except PeerClosed:
             receiver.peer_closed()
+    if leftover is not None:
+        leftover += receiver.leftover
     return receiver.result()
 
 

@@ -1,5 +1,5 @@
-"""`sim fleet --fanuc N`: virtual Fanucs on cables of their own, listed in the server
-configuration as not served yet."""
+"""`sim fleet --fanuc N`: virtual Fanucs on cables of their own, served by the server's
+``serial`` kind (tests/server/test_serial_kind.py runs them with the server)."""
 
 from __future__ import annotations
 
@@ -16,10 +16,14 @@ def test_a_fleet_fanuc_reads_a_program(tmp_path: Path) -> None:
     program = tmp_path / "O0010.nc"
     program.write_text("%\nO0010 (FLEET)\nG00 X0.\nM30\n%\n")
 
+    machine_serial = ""
+
     async def main() -> tuple[str, list[str]]:
+        nonlocal machine_serial
         fleet = await start_fleet(tmp_path / "fleet", tnc=0, haas=0, fanuc=1)
         try:
             (machine,) = fleet.machines
+            machine_serial = machine.serial
             profile = get_profile("fanuc-0i").with_changes(baud=machine.baud)
             await asyncio.to_thread(send_program, machine.serial, program, profile)
             sim = fleet.fanucs["fanuc-1"]
@@ -30,5 +34,5 @@ def test_a_fleet_fanuc_reads_a_program(tmp_path: Path) -> None:
 
     config, programs = asyncio.run(main())
     assert programs == ["O0010.nc"]
-    assert "# fanuc-1: a virtual Fanuc, not served yet" in config
-    assert "[[machines]]" not in config
+    assert 'kind = "serial"' in config
+    assert f'serial = "{machine_serial}"' in config

@@ -80,7 +80,8 @@ def check_machine(
     caps = capabilities_of(machine)
     if kind is JobKind.DRIPFEED and not caps.dripfeed:
         raise Conflict(
-            f"{machine.name} does not allow drip-feed (dripfeed = true enables it on a serial Haas)"
+            f"{machine.name} does not allow drip-feed (dripfeed = true in its configuration "
+            "enables it on a serial Haas or a serial tape control)"
         )
     if kind in (JobKind.PUT_FILE,) and not caps.file_browser:
         raise Conflict(f"{machine.name} has no file browser")

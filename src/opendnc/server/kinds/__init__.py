@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
 from opendnc.server.configkeys import NAME, ConfigError, get_key, known_keys
-from opendnc.server.kinds import haas_ngc, haas_serial, lsv2, mtconnect
+from opendnc.server.kinds import haas_ngc, haas_serial, lsv2, mtconnect, serial
 from opendnc.server.kinds.base import (
     COMMON_KEYS,
     LSV2_SERIAL,
@@ -29,6 +29,7 @@ from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.kinds.haas_serial import HaasSerialMachine
 from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.kinds.mtconnect import MtconnectMachine
+from opendnc.server.kinds.serial import SerialMachine
 
 if TYPE_CHECKING:
     from opendnc.server.machines.base import Connector
@@ -46,6 +47,7 @@ __all__ = [
     "MachineConfig",
     "MachineKind",
     "MtconnectMachine",
+    "SerialMachine",
     "SerialProfile",
     "capabilities_of",
     "connector_for",
@@ -55,7 +57,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MachineConfig = Lsv2Machine | HaasNgcMachine | HaasSerialMachine | MtconnectMachine
+MachineConfig = Lsv2Machine | HaasNgcMachine | HaasSerialMachine | MtconnectMachine | SerialMachine
 """One machine of the shop: a discriminated union on ``kind``."""
 
 KINDS: dict[MachineKind, KindSpec[Any]] = {
@@ -63,6 +65,7 @@ KINDS: dict[MachineKind, KindSpec[Any]] = {
     MachineKind.HAAS_NGC: haas_ngc.SPEC,
     MachineKind.HAAS_SERIAL: haas_serial.SPEC,
     MachineKind.MTCONNECT: mtconnect.SPEC,
+    MachineKind.SERIAL: serial.SPEC,
 }
 
 

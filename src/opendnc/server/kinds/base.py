@@ -19,7 +19,7 @@ from opendnc.server.configkeys import ConfigError, get_key, known_keys
 
 if TYPE_CHECKING:
     from opendnc.haas.listen import CapturedLine
-    from opendnc.server.machines.base import Connector
+    from opendnc.server.machines.base import Connector, MachineStatus
 
 __all__ = [
     "COMMON_KEYS",
@@ -41,6 +41,7 @@ class MachineKind(StrEnum):
     HAAS_SERIAL = "haas_serial"  # Haas RS-232: XModem, drip-feed, DPRNT
     HAAS_NGC = "haas_ngc"  # Haas NGC over Ethernet: MDC Q-commands and the net share
     MTCONNECT = "mtconnect"  # any control with an MTConnect agent: status only
+    SERIAL = "serial"  # tape-code RS-232 (Fanuc, Mitsubishi, Mazak, Okuma, Siemens, Fagor)
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ class Capabilities:
     dprnt: bool = False  # capture lines the program prints
     receive: bool = False  # the control sends programs by itself (punch or out-tray folder)
     status_fields: frozenset[str] = frozenset()  # which MachineStatus fields the control reports
+    o_digits: int = 5  # digits of an O-number the server writes for it (a report program)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -191,9 +193,12 @@ def parse_profile(
 @dataclass(frozen=True)
 class ConnectorHooks:
     """What the server hands a connector when it makes one: where lines the control prints
-    on the connector's own link go (a serial Haas with ``dprnt = "serial"``)."""
+    on the connector's own link go (a serial Haas with ``dprnt = "serial"``), and where a
+    connector whose control reports nothing tells what the server makes it do (a tape control
+    drip-feeding: running), since no status poll runs during a job."""
 
     on_dprnt: Callable[[CapturedLine], None] | None = None
+    on_status: Callable[[MachineStatus], None] | None = None
 
 
 M = TypeVar("M", bound=MachineBase)

@@ -99,7 +99,7 @@ SPEC = KindSpec(
     connector=connector,
     capabilities=capabilities,
     misplaced={
-        "dripfeed": "drip-feed is for serial Haas machines",
+        "dripfeed": "drip-feed is for serial machines (haas_serial, serial)",
         "mdc": "only for haas_serial (a Haas NGC always reports by MDC over TCP)",
     },
 )

@@ -89,10 +89,12 @@ class MachineStatus:
 
 @dataclass(frozen=True)
 class Reception:
-    """A program the control sent by itself (a punch); ``failed`` says why it broke off."""
+    """A program the control sent by itself (a punch); ``failed`` says why it broke off,
+    ``name`` is the name the program carries where the link told it (a tape punch)."""
 
     data: bytes
     failed: str = ""
+    name: str | None = None
 
 
 class Connector(Protocol):
@@ -160,7 +162,9 @@ class NetworkOnly:
         self, name: str, data: bytes, from_line: int, progress: DripProgress
     ) -> dict[str, int]:
         """Drip-feed is a serial Haas's way of running a program."""
-        raise InputError(f"{self.config.name}: drip-feed is for serial Haas machines")
+        raise InputError(
+            f"{self.config.name}: drip-feed is for serial machines (haas_serial, serial)"
+        )
 
 
 class StreamWrapper:

@@ -45,6 +45,7 @@ KIND_LABEL = {
     "haas_ngc": "Haas NGC · Ethernet",
     "haas_serial": "Haas · RS-232",
     "mtconnect": "MTConnect agent",
+    "serial": "Tape code · RS-232",
 }
 # How a card is filed by the overview's filters: the classifier's states, andon-coloured
 # (docs/dashboard.md#live-overview).
