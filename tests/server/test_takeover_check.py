@@ -1,5 +1,5 @@
 """What a server that took a machine over asks the control before sending a load again
-(docs/server.md#jobs-1): a virtual TNC over LSV2 and a Haas NGC's net share folder, each
+(docs/server.md#jobs-in-a-cluster): a virtual TNC over LSV2 and a Haas NGC's net share folder, each
 holding the program, another program under the name, or nothing."""
 
 from __future__ import annotations

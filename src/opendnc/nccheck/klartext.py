@@ -91,7 +91,7 @@ def _literal(token: str) -> float:
     (``float`` would give inf, which no move, time or JSON answer may carry)."""
     value = float(token)
     if not math.isfinite(value):
-        raise ValueError(f"the number {token[:12]}... is out of range")
+        raise FormulaError(f"the number {token[:12]}... is out of range")
     return value
 
 

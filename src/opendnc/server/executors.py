@@ -146,7 +146,8 @@ class _Base:
 
 
 ALREADY_AT_CONTROL = "already at the control, not sent again"
-"""A taken-over load's audit row when the control held its bytes (docs/server.md#jobs-1)."""
+"""A taken-over load's audit row when the control held its bytes
+(docs/server.md#jobs-in-a-cluster)."""
 NOT_AT_CONTROL = "the control did not hold these bytes: sent again"
 CANNOT_ASK = "the control cannot be asked what it holds: sent again"
 

@@ -71,7 +71,7 @@ PROGRAM_JOBS = (JobKind.SEND, JobKind.DRIPFEED, JobKind.PUT_FILE)
 
 LOADS = (JobKind.SEND, JobKind.REPORT, JobKind.PUT_FILE)
 """Jobs that write a file to the control: what a take-over checks at the control before
-writing again (docs/server.md#jobs-1)."""
+writing again (docs/server.md#jobs-in-a-cluster)."""
 
 TAKEN_OVER_FROM = "taken_over_from"
 """The ``params`` key of a load queued again by a take-over: the server that had it running."""
