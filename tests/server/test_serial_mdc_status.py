@@ -110,13 +110,14 @@ def test_after_a_broken_feed_and_its_restart_the_status_asks_the_control_again(
             wait_for("the first MDC status", lambda: _status(client, key).get("native_mode"))
             job_id, _first, stopped_at = interrupt_dripfeed(client, key, front)
             broke = time.monotonic()
-            # The port is silent now, so the control's state is not known: not READY.
+            # The feed broke: what the server was doing to the machine is its state, an
+            # alarm that names the drip-feed and its program (docs/dashboard.md), not READY.
             quiet = wait_for(
-                "the status of the quiet port",
+                "the status of the broken feed",
                 lambda: "drip-feed" in (s := _status(client, key)).get("message", "") and s,
                 describe=lambda: _status(client, key),
             )
-            assert (quiet["execution"], quiet["mode"], quiet["program"]) == ("UNAVAILABLE", "", "")
+            assert (quiet["execution"], quiet["program"]) == ("INTERRUPTED", "O03000.nc"), quiet
             wait_for("the control's DNC link alarm", lambda: front.messages)
             fleet.call(control.reset)  # the operator's RESET, then the restart from the line
             again = client.post(
