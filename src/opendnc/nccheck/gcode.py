@@ -65,8 +65,10 @@ __all__ = ["run_gcode"]
 
 _O_LINE = re.compile(r"^\s*[O:](\d{1,5})\b")
 _ISO_LINE = re.compile(r"^\s*%\s*(\w[\w.-]*)")
-_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*\w[\w.-]*\s+G7[01]", re.IGNORECASE)
-_N_ONLY = re.compile(r"^\s*/?\s*N\s*(\d+)", re.IGNORECASE)
+# possessive runs (*+): adjacent blank and digit runs would otherwise be split every way on
+# a long line of blanks that fails to match, quadratic
+_ISO_END = re.compile(r"^\s*+N?\d*+\s*+%\s*+\w[\w.-]*+\s+G7[01]", re.IGNORECASE)
+_N_ONLY = re.compile(r"^\s*+/?\s*+N\s*+(\d+)", re.IGNORECASE)
 _COMMENT_TEXT = re.compile(r"\(([^)]*)\)")
 
 # Fanuc macro-B argument specification I: address -> local variable
@@ -414,7 +416,8 @@ class _Run:
         if number == macros.ALARM_VARIABLE:
             # Haas: alarm 1000 + n (InputError for a bad number); Fanuc B: alarm 3000 + n
             code = macros.alarm_for(value) if self.dialect.haas else 3000 + int(value or 0)
-            comment = _COMMENT_TEXT.search(source)
+            # up to the last ")": a search from each "(" with no ")" after it is quadratic
+            comment = _COMMENT_TEXT.search(source, 0, source.rfind(")") + 1)
             text = comment.group(1).strip() if comment else "PROGRAMMABLE ALARM"
             # what the control alarms on is an error; the run goes on to find the rest
             self.error(line, f"the program raises alarm {code} ({text})")
