@@ -67,14 +67,18 @@ _FANUC_LATHE = Dialect(
     haas=False,
 )  # fmt: skip
 # When no control is named: the union of Haas and Fanuc of the guessed kind, so that a code
-# either control has is never reported (a false error blocks a release)
-_MILL = Dialect("mill", "Haas/Fanuc mill", False, codes.HAAS_G, codes.HAAS_M)
+# either control has is never reported (a false error blocks a release); the M codes too: a
+# Fanuc takes every M code (the machine builder's), so the union does
+_MILL = Dialect(
+    "mill", "Haas/Fanuc mill", False, codes.HAAS_G, codes.HAAS_M, m_from=_FANUC_MILL.m_from
+)
 _LATHE = Dialect(
     "lathe",
     "Haas/Fanuc lathe",
     True,
     codes.HAAS_LATHE_G | codes.FANUC_LATHE_G,
     codes.HAAS_LATHE_M,
+    m_from=_FANUC_LATHE.m_from,
 )
 
 DIALECTS: dict[str, Dialect] = {

@@ -2,9 +2,10 @@
 
 The clean programs are in the styles of common posts and hand-written programs (Fusion 360
 for a Haas mill, Mastercam for a Fanuc mill, Renishaw probing macro calls, a Haas lathe, a
-Fanuc lathe, a class program): each checks with no error, with its control guessed and with
-its control named. Each defect file holds one defect class (or, for ``two_faults.nc``, a fault
-that used to end the run before a real one); the test prints what was caught, missed and
+Fanuc lathe, a class program, a Fanuc mill and lathe with the machine builder's M codes):
+each checks with no error, with its control guessed and with its control named. Each defect
+file holds one defect class (or, for ``two_faults.nc``, a fault that used to end the run
+before a real one); the test prints what was caught, missed and
 falsely reported, then asserts none was missed and no error was false.
 """
 
@@ -27,6 +28,8 @@ CLEAN = {
     "haas_lathe.nc": "haas-lathe",
     "fanuc_lathe.nc": "fanuc-lathe",
     "class_program.nc": "fanuc-mill",
+    "fanuc_mill_builder_m_codes.nc": "fanuc-mill",
+    "fanuc_lathe_builder_m_codes.nc": "fanuc-lathe",
 }
 
 # file -> the errors it must give: (file line, words of the message)
