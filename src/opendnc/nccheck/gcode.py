@@ -1138,9 +1138,11 @@ class _Run:
         repeats = round(v.get("L", v.get("K", 1)))
         xy: dict[str, float] = {k: v[k] for k in ("X", "Y") if k in v}
         r_plane = cycle.r if cycle.r is not None else initial
-        rigid = cycle.code == 84 and self.rigid_tap and not self.spindle_on
+        starts = self.rigid_tap or self.dialect.tap_starts_spindle
+        rigid = cycle.code == 84 and starts and not self.spindle_on
         if rigid:
-            self.spindle_on = True  # the rigid tapping cycle turns the spindle (Fanuc M29)
+            # the cycle turns the spindle itself: Fanuc rigid tapping (M29), any Haas G84
+            self.spindle_on = True
         for _ in range(max(0, min(repeats, 10_000))):
             w, m = self._target(xy)
             self._move_to(w, m, line, rapid=True)
@@ -1161,7 +1163,8 @@ class _Run:
         haas_pecks = self.dialect.haas and "I" in v
         if cycle.code in (73.0, 83.0) and not self.lathe and "Q" not in v and not haas_pecks:
             self.error(line, f"G{cycle.code:g} without a peck depth (Q)")
-        if cycle.code == 84 and not self.spindle_on and not self.rigid_tap:
+        starts = self.rigid_tap or self.dialect.tap_starts_spindle
+        if cycle.code == 84 and not self.spindle_on and not starts:
             self.error(line, "a tap (G84) with the spindle stopped")
             self.stopped_cut_reported = True  # the same fault: not again for its holes
 
