@@ -44,6 +44,9 @@ class Dialect:
     """System variables a program may write: the millisecond and hour timers (reset)."""
     rigid_tap_m: int | None = 29
     """The M code that puts the next G84 in rigid mode (the cycle turns the spindle)."""
+    tap_starts_spindle: bool = False
+    """G84 starts the spindle itself, so a tap with the spindle stopped is no fault (Haas:
+    "It is not necessary to start the spindle CW before this canned cycle")."""
 
     @property
     def family(self) -> str:
@@ -53,28 +56,35 @@ class Dialect:
 
 _HAAS_MILL = Dialect(
     "haas-mill", "Haas mill", False, codes.HAAS_MILL_G, codes.HAAS_M, fanuc=False,
-    rigid_tap_m=None,
+    rigid_tap_m=None, tap_starts_spindle=True,
 )  # fmt: skip
 _FANUC_MILL = Dialect(
     "fanuc-mill", "Fanuc mill", False, codes.FANUC_MILL_G, codes.HAAS_M, m_from=0, haas=False
 )
 _HAAS_LATHE = Dialect(
     "haas-lathe", "Haas lathe", True, codes.HAAS_LATHE_G, codes.HAAS_LATHE_M, fanuc=False,
-    rigid_tap_m=None,
+    rigid_tap_m=None, tap_starts_spindle=True,
 )  # fmt: skip
 _FANUC_LATHE = Dialect(
     "fanuc-lathe", "Fanuc lathe", True, codes.FANUC_LATHE_G, codes.HAAS_LATHE_M, m_from=0,
     haas=False,
 )  # fmt: skip
 # When no control is named: the union of Haas and Fanuc of the guessed kind, so that a code
-# either control has is never reported (a false error blocks a release)
-_MILL = Dialect("mill", "Haas/Fanuc mill", False, codes.HAAS_G, codes.HAAS_M)
+# either control has is never reported (a false error blocks a release); the M codes too: a
+# Fanuc takes every M code (the machine builder's), so the union does; and a tap with the
+# spindle stopped runs on a Haas, so the union lets it pass
+_MILL = Dialect(
+    "mill", "Haas/Fanuc mill", False, codes.HAAS_G, codes.HAAS_M, m_from=_FANUC_MILL.m_from,
+    tap_starts_spindle=True,
+)  # fmt: skip
 _LATHE = Dialect(
     "lathe",
     "Haas/Fanuc lathe",
     True,
     codes.HAAS_LATHE_G | codes.FANUC_LATHE_G,
     codes.HAAS_LATHE_M,
+    m_from=_FANUC_LATHE.m_from,
+    tap_starts_spindle=True,
 )
 
 DIALECTS: dict[str, Dialect] = {

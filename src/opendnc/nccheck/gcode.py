@@ -65,8 +65,10 @@ __all__ = ["run_gcode"]
 
 _O_LINE = re.compile(r"^\s*[O:](\d{1,5})\b")
 _ISO_LINE = re.compile(r"^\s*%\s*(\w[\w.-]*)")
-_ISO_END = re.compile(r"^\s*N?\d*\s*%\s*\w[\w.-]*\s+G7[01]", re.IGNORECASE)
-_N_ONLY = re.compile(r"^\s*/?\s*N\s*(\d+)", re.IGNORECASE)
+# possessive runs (*+): adjacent blank and digit runs would otherwise be split every way on
+# a long line of blanks that fails to match, quadratic
+_ISO_END = re.compile(r"^\s*+N?\d*+\s*+%\s*+\w[\w.-]*+\s+G7[01]", re.IGNORECASE)
+_N_ONLY = re.compile(r"^\s*+/?\s*+N\s*+(\d+)", re.IGNORECASE)
 _COMMENT_TEXT = re.compile(r"\(([^)]*)\)")
 
 # Fanuc macro-B argument specification I: address -> local variable
@@ -414,7 +416,8 @@ class _Run:
         if number == macros.ALARM_VARIABLE:
             # Haas: alarm 1000 + n (InputError for a bad number); Fanuc B: alarm 3000 + n
             code = macros.alarm_for(value) if self.dialect.haas else 3000 + int(value or 0)
-            comment = _COMMENT_TEXT.search(source)
+            # up to the last ")": a search from each "(" with no ")" after it is quadratic
+            comment = _COMMENT_TEXT.search(source, 0, source.rfind(")") + 1)
             text = comment.group(1).strip() if comment else "PROGRAMMABLE ALARM"
             # what the control alarms on is an error; the run goes on to find the rest
             self.error(line, f"the program raises alarm {code} ({text})")
@@ -1135,9 +1138,11 @@ class _Run:
         repeats = round(v.get("L", v.get("K", 1)))
         xy: dict[str, float] = {k: v[k] for k in ("X", "Y") if k in v}
         r_plane = cycle.r if cycle.r is not None else initial
-        rigid = cycle.code == 84 and self.rigid_tap and not self.spindle_on
+        starts = self.rigid_tap or self.dialect.tap_starts_spindle
+        rigid = cycle.code == 84 and starts and not self.spindle_on
         if rigid:
-            self.spindle_on = True  # the rigid tapping cycle turns the spindle (Fanuc M29)
+            # the cycle turns the spindle itself: Fanuc rigid tapping (M29), any Haas G84
+            self.spindle_on = True
         for _ in range(max(0, min(repeats, 10_000))):
             w, m = self._target(xy)
             self._move_to(w, m, line, rapid=True)
@@ -1158,7 +1163,8 @@ class _Run:
         haas_pecks = self.dialect.haas and "I" in v
         if cycle.code in (73.0, 83.0) and not self.lathe and "Q" not in v and not haas_pecks:
             self.error(line, f"G{cycle.code:g} without a peck depth (Q)")
-        if cycle.code == 84 and not self.spindle_on and not self.rigid_tap:
+        starts = self.rigid_tap or self.dialect.tap_starts_spindle
+        if cycle.code == 84 and not self.spindle_on and not starts:
             self.error(line, "a tap (G84) with the spindle stopped")
             self.stopped_cut_reported = True  # the same fault: not again for its holes
 

@@ -52,10 +52,12 @@ class FormulaError(InputError):
 __all__ = ["run_klartext"]
 
 _NUMBERED = re.compile(r"^\s*(\d+)\s*(.*)$")
-_VALUE = r"([+-]?)\s*(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
-_AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*" + _VALUE)
-_POLAR = re.compile(r"\b(I?)(PR|PA)\s*" + _VALUE)
-_WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*" + _VALUE)
+# possessive blanks (\s*+): two blank runs side by side (around an optional sign or "=")
+# would otherwise be split every way on a long run of blanks, quadratic on user text
+_VALUE = r"([+-]?)\s*+(QL\d+|QR\d+|Q\d+|\d+(?:\.\d*)?|\.\d+)"
+_AXIS_WORD = re.compile(r"\b(I?)([XYZABCUVW])\s*+" + _VALUE)
+_POLAR = re.compile(r"\b(I?)(PR|PA)\s*+" + _VALUE)
+_WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*+" + _VALUE)
 # a straight move with absolute literal X/Y/Z only, and at most R0 and F: see _plain_line
 # at most 15 digits a part: a longer number takes the general path, which reports one that
 # overflows (a float of 309 digits is inf, which no move or JSON answer may carry)
@@ -67,7 +69,7 @@ _WORD_START = re.compile(r"\b(?:F|S|R|DL|DR|M|REP|L)\s*[+\-.\dQ]")  # any word a
 _Q_PARAM = re.compile(r"^(Q|QL|QR)(\d+)$")
 # a cycle parameter is a number, a Q parameter or one of the words the TNC offers in its
 # place (Q206 = AUTO / FAUTO / FMAX, PREDEF for a GLOBAL DEF value): docs/check.md#cycles
-_CYCLE_PARAM = re.compile(r"\b(Q\d+)\s*=\s*(?:" + _VALUE + r"|(AUTO|FAUTO|FMAX|FU|FZ|PREDEF)\b)")
+_CYCLE_PARAM = re.compile(r"\b(Q\d++)\s*+=\s*+(?:" + _VALUE + r"|(AUTO|FAUTO|FMAX|FU|FZ|PREDEF)\b)")
 _STRING = re.compile(r'"([^"]*)"')
 _TOL_MM = 0.01
 _DRILLING = (200, 201, 203, 205)
@@ -81,6 +83,9 @@ _PLANES = ((1, 2, Plane.YZ), (2, 0, Plane.ZX), (0, 1, Plane.XY))
 _PARAM_LINE = re.compile(r"^(Q\d+\s*=|POS\d|POINT|ROW|PAT|FRAME|CIRC|PITCH|\))")
 # a digit, a comma, a digit: a decimal comma, which the TNC does not read (docs/check.md)
 _DECIMAL_COMMA = re.compile(r"(\d),(\d)")
+# the whole number that holds the comma, for the message; the lookbehind starts the search at
+# the start of a number only, so a long digit run is scanned once, not once a digit
+_COMMA_NUMBER = re.compile(r"(?<![\d.])[\d.]*\d,\d[\d.]*")
 _TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*", "CALL PGM", "SEL ")
 _SPINDLE_START = re.compile(r"\bM(3|4|13|14)\b")
 _PRESET_Q = range(100, 200)  # Q100-Q199: set by the TNC itself (tool radius, results)
@@ -1352,7 +1357,9 @@ class _Run:
     def _pattern(self, item: _Line) -> None:
         text = " ".join([item.text, *item.params])
         self.pattern = []
-        for body in re.findall(r"POS\d+\s*\(([^)]*)\)", text):
+        # up to the last ")": a "(" with no ")" after it would be scanned to the end once a
+        # POS, quadratic on a long line; cut there, every search ends at the next ")"
+        for body in re.findall(r"POS\d+\s*\(([^)]*)\)", text[: text.rfind(")") + 1]):
             point: list[float | None] = [None, None, None]
             for inc, axis, value in self._axes(body):
                 index = "XYZ".find(axis)
@@ -1485,7 +1492,7 @@ def _decimal_comma(text: str) -> tuple[str, str | None]:
         if match is None:
             continue
         if found is None:
-            number = re.search(r"[\d.]*\d,\d[\d.]*", parts[index])
+            number = _COMMA_NUMBER.search(parts[index])
             found = number.group(0) if number else match.group(0)
         parts[index] = _DECIMAL_COMMA.sub(r"\1.\2", parts[index])
     if found is None:

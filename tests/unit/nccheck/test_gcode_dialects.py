@@ -62,8 +62,21 @@ def test_fanuc_alarms_are_3000_plus_n() -> None:
 def test_rigid_tapping_turns_the_spindle_itself_on_fanuc() -> None:
     body = MILL + "M29 S500\nG84 X10. Y10. Z-10. R2. F625.\nG80\nM30"
     assert run(body, "fanuc-mill").problems == ()
-    result = run(body, "haas-mill")  # a Haas has no M29 rigid mode: the spindle is stopped
-    assert (8, "error", "a tap (G84) with the spindle stopped") in messages(result)
+    result = run(body.replace("M29 S500", "S500"), "fanuc-mill")  # conventional: stopped
+    assert messages(result) == [(8, "error", "a tap (G84) with the spindle stopped")]
+
+
+@pytest.mark.parametrize("dialect", ["haas-mill", "haas-lathe", "mill", "lathe", None])
+def test_a_haas_tap_starts_the_spindle_itself(dialect: str | None) -> None:
+    # Haas G84: "not necessary to start the spindle CW before this canned cycle"; the guessed
+    # union takes what a Haas takes
+    lathe = dialect is not None and "lathe" in dialect
+    head = "G21 G99\nT0303\nG97 S400\nG00 X0. Z5.\n" if lathe else MILL + "S500\n"
+    body = head + "G84 Z-10. R2. F1.25\nG80\nM30"
+    result = run(body, dialect)
+    assert not any("spindle stopped" in p.message for p in result.problems), messages(result)
+    fanuc = run(body, "fanuc-lathe" if lathe else "fanuc-mill")  # no M29, no M03: stopped
+    assert any("a tap (G84) with the spindle stopped" in p.message for p in fanuc.errors)
 
 
 def test_a_lathe_turns_diameters_and_surface_speed_into_time() -> None:

@@ -65,3 +65,46 @@ def test_cr_only_line_ends_are_lines() -> None:
     assert title_of(text.encode("latin-1")) == "BRACKET OP1"
     assert guess_control("%\rO1000\rG0 X1.\rM30\r%") is Control.HAAS
     assert guess_control("\r\r  %PART G71 *\rN10 G00 X+0 *\r") is Control.ISO
+
+
+# One long line of user text that a regex searched from every position (or split a blank run
+# every way) in quadratic time: 20 kB of the decimal-comma shape took 11.7 s before. Each
+# 200 kB line must be checked well inside the bound.
+_LONG = 200_000
+
+
+def _klartext(block: str) -> str:
+    return f"0 BEGIN PGM A MM\n1 {block}\n2 END PGM A MM\n"
+
+
+LONG_LINES = {
+    "decimal comma after a digit run": (
+        _klartext("L X" + "1" * _LONG + ",X Y1,5"),
+        Control.HEIDENHAIN,
+        "a decimal comma (1,5)",
+    ),
+    "axis word, blanks, no value": (_klartext("L X" + " " * _LONG + "!"), Control.HEIDENHAIN, ""),
+    "cycle parameter, blanks around =": (
+        _klartext("CYCL DEF 200 Q200" + " " * _LONG + "=" + " " * _LONG + "!"),
+        Control.HEIDENHAIN,
+        "",
+    ),
+    "pattern points never closed": (
+        _klartext("PATTERN DEF " + "POS1 (" * (_LONG // 6)),
+        Control.HEIDENHAIN,
+        "",
+    ),
+    "alarm comment never closed": (
+        "%\nO1\n#3000=1" + "(" * _LONG + "\nM30\n%\n",
+        Control.HAAS,
+        "raises alarm 1001 (PROGRAMMABLE ALARM)",
+    ),
+}
+
+
+@pytest.mark.parametrize("shape", LONG_LINES, ids=list(LONG_LINES))
+def test_a_long_line_is_scanned_in_linear_time(shape: str) -> None:
+    text, control, words = LONG_LINES[shape]
+    result, spent = _timed(check_text, text, control=control, budget=Budget(seconds=30))
+    assert spent < BOUND_S
+    assert not words or any(words in p.message for p in result.problems)  # type: ignore[attr-defined]
