@@ -218,3 +218,51 @@ def test_a_database_that_is_away_keeps_the_samples_for_the_next_flush(
             conn.execute(text("ALTER TABLE status_samples_away RENAME TO status_samples"))
     assert tl.flush() == 2
     assert [r[2] for r in _rows(sessions)] == ["ready", "running"]  # in their order
+
+
+def test_a_sample_the_database_cannot_hold_does_not_stop_the_recorder(
+    sessions: sessionmaker[Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    # A part count beyond the Integer column (SQLite's driver raised OverflowError, which
+    # killed the recorder; PostgreSQL's DataError put the batch back to fail for ever) and a
+    # program name no database encodes (a serial control's byte 0xFF, surrogate-escaped).
+    def status(execution: str, program: str = "", parts: int | None = None) -> MachineStatus:
+        return MachineStatus(
+            at=T0, available=True, execution=execution, program=program, part_count=parts
+        )
+
+    async def scenario() -> None:
+        bus = EventBus()
+        bus.bind(asyncio.get_running_loop())
+        tl = Timeline(sessions)
+        async with running(tl, bus):
+            bus.publish(MachineStatusChanged("a", True, status("READY")))
+            bus.publish(MachineStatusChanged("b", True, status("READY", program="O\udcff1")))
+            bus.publish(MachineStatusChanged("b", True, status("ACTIVE", parts=10**300)))
+            bus.publish(MachineStatusChanged("c", True, status("ACTIVE", parts=3_000_000_000)))
+            bus.publish(MachineStatusChanged("a", True, status("ACTIVE", parts=7)))
+            deadline = time.monotonic() + 20
+            while len(await asyncio.to_thread(_rows, sessions)) < 4:
+                assert time.monotonic() < deadline, "the recorder stopped writing"
+                await asyncio.sleep(0.05)
+            # a later change still gets written: the recorder lives on
+            bus.publish(MachineStatusChanged("c", True, status("READY")))
+            while len(await asyncio.to_thread(_rows, sessions)) < 5:
+                assert time.monotonic() < deadline, "the recorder stopped writing"
+                await asyncio.sleep(0.05)
+
+    with caplog.at_level("WARNING", logger="opendnc.server.web.timeline"):
+        asyncio.run(scenario())
+    with sessions() as session:
+        rows = session.scalars(select(StatusSample).order_by(StatusSample.id)).all()
+        written = [(r.machine, r.state, r.part_count) for r in rows if r.state != "no_record"]
+    assert written == [
+        ("a", "ready", None),
+        ("b", "running", None),  # the count the column cannot hold is unknown
+        ("c", "running", None),
+        ("a", "running", 7),
+        ("c", "ready", None),
+    ]
+    dropped = [r.getMessage() for r in caplog.records if "dropped" in r.getMessage()]
+    assert len(dropped) == 1, dropped
+    assert "a sample of b" in dropped[0]

@@ -4,7 +4,9 @@ bad answer ends in a typed error within a deadline, never a hang or an endless l
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
 
 import pytest
 
@@ -13,7 +15,12 @@ from tests.peers import require_module
 require_module("httpx")
 require_module("lxml")
 
-from opendnc.errors import DncError, RemoteProtocolError, TransportError  # noqa: E402
+from opendnc.errors import (  # noqa: E402
+    DncError,
+    RemoteProtocolError,
+    TransportError,
+    TransportTimeout,
+)
 from opendnc.mtconnect.reader import AgentReader  # noqa: E402
 from tests.unit.test_mtconnect_documents import CURRENT, PROBE  # noqa: E402
 
@@ -48,13 +55,22 @@ def _agent(sample: bytes) -> Answer:
     return answer
 
 
+Send = Callable[[str, asyncio.StreamWriter], Awaitable[None]]  # writes the answer to a path
+
+
 async def _follow(answer: Answer) -> DncError:
+    async def send(path: str, writer: asyncio.StreamWriter) -> None:
+        writer.write(answer(path))
+        await writer.drain()
+
+    return await _follow_peer(send)
+
+
+async def _follow_peer(send: Send, **options: Any) -> DncError:
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             head = await reader.readuntil(b"\r\n\r\n")
-            path = head.split(b" ", 2)[1].decode()
-            writer.write(answer(path))
-            await writer.drain()
+            await send(head.split(b" ", 2)[1].decode(), writer)
         except (asyncio.IncompleteReadError, ConnectionError):
             pass
         finally:
@@ -62,7 +78,8 @@ async def _follow(answer: Answer) -> DncError:
 
     server = await asyncio.start_server(handle, "127.0.0.1", 0)
     port = server.sockets[0].getsockname()[1]
-    client = AgentReader(f"http://127.0.0.1:{port}", heartbeat=0.2, timeout=1.0, grace=0.3)
+    settings: dict[str, Any] = {"heartbeat": 0.2, "timeout": 1.0, "grace": 0.3, **options}
+    client = AgentReader(f"http://127.0.0.1:{port}", **settings)
 
     async def read() -> None:
         await client.open()
@@ -110,3 +127,77 @@ def test_a_bad_answer_is_a_typed_error(answer: Answer, kind: type[DncError], wor
     error = asyncio.run(_follow(answer))
     assert isinstance(error, kind), repr(error)
     assert words in str(error)
+
+
+_PLAIN_HEAD = b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nConnection: close\r\n\r\n"
+
+
+def _endless(on: str, *, chunk: bytes, pause: float) -> Send:
+    """A peer that answers probe and current well, but ``on`` (a request's word) with a
+    plain body of ``chunk`` after ``chunk`` for ever, ``pause`` seconds apart (until the
+    client goes)."""
+
+    async def send(path: str, writer: asyncio.StreamWriter) -> None:
+        if on not in path:
+            writer.write(_agent(b"")(path))
+            await writer.drain()
+            return
+        writer.write(_PLAIN_HEAD + b"<MTConnectStreams>")
+        while True:
+            writer.write(chunk)
+            await writer.drain()
+            # the peer's pace (a slow trickle, or a flood that leaves the loop a turn)
+            await asyncio.sleep(pause)
+
+    return send
+
+
+async def _declared_huge(path: str, writer: asyncio.StreamWriter) -> None:
+    """Probe answered well; everything else says a body of 1 GB is coming (and sends none)."""
+    if "probe" in path:
+        writer.write(_http(PROBE))
+    else:
+        writer.write(
+            b"HTTP/1.1 200 OK\r\nContent-Type: text/xml\r\nContent-Length: 1000000000\r\n\r\n"
+        )
+    await writer.drain()
+    await writer.wait_closed()  # held open until the client goes: it must not wait for it
+
+
+async def _trickled_part(path: str, writer: asyncio.StreamWriter) -> None:
+    """Probe and current answered well; the sample stream's first part comes a byte at a
+    time, each well within the read timeout."""
+    if "sample" not in path:
+        writer.write(_agent(b"")(path))
+        await writer.drain()
+        return
+    writer.write(_stream(b"--BND\r\nContent-length: 100000\r\n\r\n"))
+    while True:
+        writer.write(b" ")
+        await writer.drain()
+        await asyncio.sleep(0.05)  # the peer's pace
+
+
+@pytest.mark.parametrize(
+    ("send", "kind", "words"),
+    [
+        # a wrong URL or a broken agent: a plain body that never ends, fast
+        (_endless("probe", chunk=b" " * 65536, pause=0), RemoteProtocolError, "larger than"),
+        (_endless("sample", chunk=b" " * 65536, pause=0), RemoteProtocolError, "larger than"),
+        # a body said to be too large is refused before it is read
+        (_declared_huge, RemoteProtocolError, "larger than"),
+        # a byte at a time, each well within the read timeout: the document's deadline ends it
+        (_endless("current", chunk=b" ", pause=0.05), TransportTimeout, "within 0.5 s"),
+        (_endless("sample", chunk=b" ", pause=0.05), TransportTimeout, "within 0.5 s"),
+        # one streamed document trickled the same way
+        (_trickled_part, TransportTimeout, "within 0.5 s"),
+    ],
+)
+def test_an_endless_plain_answer_is_a_typed_error_in_time(
+    send: Send, kind: type[DncError], words: str
+) -> None:
+    started = time.monotonic()
+    error = asyncio.run(_follow_peer(send, max_document=256 * 1024, deadline=0.5))
+    assert isinstance(error, kind), repr(error)
+    assert words in str(error)
+    assert time.monotonic() - started < 5

@@ -146,6 +146,31 @@ def test_a_resent_observation_does_not_count_twice() -> None:
     assert state.snapshot().part_count == 42
 
 
+@pytest.mark.parametrize(
+    ("value", "read"),
+    [
+        ("1e300", None),  # would overflow the status timeline's Integer column
+        ("3000000000", None),
+        ("2147483648", None),
+        ("-5", None),
+        ("nan", None),
+        ("inf", None),
+        ("2.5", None),
+        ("12a", None),
+        ("2147483647", 2**31 - 1),
+        ("7.0", 7),
+        ("0", 0),
+    ],
+)
+def test_a_count_out_of_range_or_not_whole_reads_as_unavailable(
+    value: str, read: int | None
+) -> None:
+    state = DeviceState(parse_devices(PROBE), "mill-7")
+    state.load(parse_streams(CURRENT))
+    state.update(parse_streams(streams(17, 1, 42, event("PartCount", "pc", 40, value))))
+    assert state.snapshot().part_count == read
+
+
 def test_conditions_become_faults_with_their_text_and_clear_by_code() -> None:
     state = DeviceState(parse_devices(PROBE), "mill-7")
     state.load(parse_streams(CURRENT))

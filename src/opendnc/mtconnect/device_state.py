@@ -38,6 +38,8 @@ _FIELDS = {
 _NOT_THE_COUNT = frozenset({"TARGET", "REMAINING", "BAD", "GOOD", "FAILED", "REJECT"})
 # LineNumber subtypes: INCREMENTAL counts lines since the last reset, not the program's line.
 _NOT_THE_LINE = frozenset({"INCREMENTAL"})
+# The largest line, part count or tool number reported: the status timeline's Integer column.
+MAX_NUMBER = 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -179,11 +181,19 @@ class DeviceState:
             return None if value is None or value == UNAVAILABLE else value
 
         def number(field: str) -> int | None:
+            # A line, part count or tool number is a whole number from 0 to 2**31 - 1 (what
+            # the database's Integer column holds); anything else ("12a", "nan", "1e300",
+            # "-5", "2.5") reads as unavailable, not as a value nothing downstream can keep.
             value = text(field)
-            try:
-                return int(float(value)) if value is not None else None
-            except (ValueError, OverflowError):  # "12a", "nan", "inf"
+            if value is None:
                 return None
+            try:
+                number = float(value)
+            except ValueError:  # "12a"
+                return None
+            if not number.is_integer() or not 0 <= number <= MAX_NUMBER:  # also nan, inf
+                return None
+            return int(number)
 
         faults: list[str] = []
         warnings: list[str] = []

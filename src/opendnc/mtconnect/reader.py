@@ -29,9 +29,16 @@ from opendnc.mtconnect.documents import (
 )
 from opendnc.mtconnect.multipart import MultipartSplitter, boundary_of
 
-__all__ = ["AgentReader", "ReaderCounts"]
+__all__ = ["DOCUMENT_DEADLINE", "MAX_DOCUMENT", "AgentReader", "ReaderCounts"]
 
 log = logging.getLogger(__name__)
+
+# The largest document taken (a probe of a big machine is a few hundred kB): a wrong URL, or
+# a peer that sends one body for ever, would otherwise be held in memory whole.
+MAX_DOCUMENT = 16 * 1024 * 1024
+# Seconds one document may take to arrive whole: httpx's read timeout is per read, so a
+# peer trickling a byte at a time would never time out without it.
+DOCUMENT_DEADLINE = 30.0
 
 # errorCode words that mean "this agent will not stream": poll current instead
 _NO_STREAMING = frozenset({"UNSUPPORTED", "INVALID_REQUEST", "INVALID_QUERY_PARAMETER"})
@@ -63,6 +70,9 @@ class AgentReader:
     :meth:`open` probes and reads current; :meth:`follow` then keeps :meth:`snapshot` up to
     date until the agent cannot be reached, which it raises as a
     :class:`~opendnc.errors.TransportError` (the caller reconnects with :meth:`open`).
+    A document larger than ``max_document`` bytes is a
+    :class:`~opendnc.errors.RemoteProtocolError`; one that does not arrive whole within
+    ``deadline`` seconds (a peer trickling bytes) a :class:`~opendnc.errors.TransportTimeout`.
     """
 
     def __init__(
@@ -77,6 +87,8 @@ class AgentReader:
         streaming: bool = True,
         count: int = 1000,
         grace: float = 2.0,
+        max_document: int = MAX_DOCUMENT,
+        deadline: float = DOCUMENT_DEADLINE,
     ) -> None:
         self.url = url.rstrip("/")
         self.device = device
@@ -90,6 +102,8 @@ class AgentReader:
         # reader gives up: an agent restarting is back within them, and the machine's state
         # (the last values, kept meanwhile) does not flicker to offline for it
         self.grace = grace
+        self.max_document = max_document  # bytes of one document, plain or streamed
+        self.deadline = deadline  # seconds for one document to arrive whole
         self.counts = ReaderCounts()
         self.state: DeviceState | None = None
         self.changed = asyncio.Event()  # set whenever a document changed the state
@@ -213,23 +227,32 @@ class AgentReader:
             "heartbeat": str(round(self.heartbeat * 1000)),
         }
         taken = 0
+        loop = asyncio.get_running_loop()
         try:
             async with self._client.stream("GET", self._path("sample"), params=params) as answer:
                 boundary = boundary_of(answer.headers.get("content-type", ""))
                 if boundary is None:
                     # a plain document (an error, or an agent that does not stream)
-                    self._take(parse_streams(await answer.aread()))
+                    async with asyncio.timeout(self.deadline):
+                        body = await self._body(answer)
+                    self._take(parse_streams(body))
                     self.streaming = False
                     return 1
                 self.counts.streams += 1
-                splitter = MultipartSplitter(boundary)
+                splitter = MultipartSplitter(boundary, max_part=self.max_document)
+                due = loop.time() + self.deadline  # for the next document
                 async for chunk in answer.aiter_bytes():
                     for part in splitter.feed(chunk):
                         self.counts.documents += 1
                         taken += 1
                         self._take(parse_streams(part))
+                        due = loop.time() + self.deadline
                     if splitter.closed:
                         break
+                    if loop.time() > due:  # bytes keep coming, a whole document does not
+                        raise TransportTimeout(self._late())
+        except TimeoutError:  # the plain document's deadline (asyncio's, not httpx's)
+            raise TransportTimeout(self._late()) from None
         except httpx.TimeoutException:
             raise TransportTimeout(f"{self.url}: the agent's stream went silent") from None
         except (httpx.RemoteProtocolError, httpx.ReadError) as exc:
@@ -244,14 +267,36 @@ class AgentReader:
         if self._client is None:
             raise TransportError(f"{self.url}: not open")
         try:
-            answer = await self._client.get(url)
+            # the whole exchange, head included: a peer may trickle that too
+            async with asyncio.timeout(self.deadline), self._client.stream("GET", url) as answer:
+                status = answer.status_code
+                body = await self._body(answer)
+        except TimeoutError:  # the document's deadline (asyncio's, not httpx's)
+            raise TransportTimeout(self._late()) from None
         except httpx.TimeoutException:
             raise TransportTimeout(f"{self.url}: no answer from the agent in time") from None
         except httpx.HTTPError as exc:
             raise TransportError(f"{self.url}: {_reason(exc)}") from None
-        if answer.status_code >= 400 and b"MTConnectError" not in answer.content[:4096]:
-            raise RemoteProtocolError(f"{self.url}: HTTP {answer.status_code} from the agent")
-        return answer.content
+        if status >= 400 and b"MTConnectError" not in body[:4096]:
+            raise RemoteProtocolError(f"{self.url}: HTTP {status} from the agent")
+        return body
+
+    async def _body(self, answer: httpx.Response) -> bytes:
+        """A plain answer's whole body, at most ``max_document`` bytes (the callers bound
+        its time)."""
+        too_large = f"{self.url}: the agent's answer is larger than {self.max_document} bytes"
+        declared = answer.headers.get("content-length", "")
+        if declared.isdigit() and int(declared) > self.max_document:
+            raise RemoteProtocolError(too_large)
+        body = bytearray()
+        async for chunk in answer.aiter_bytes():
+            body += chunk
+            if len(body) > self.max_document:
+                raise RemoteProtocolError(too_large)
+        return bytes(body)
+
+    def _late(self) -> str:
+        return f"{self.url}: the agent's answer did not arrive whole within {self.deadline:g} s"
 
 
 def _reason(exc: httpx.HTTPError) -> str:

@@ -27,7 +27,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from sqlalchemy import delete, select
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.exc import DataError, DBAPIError, IntegrityError, SQLAlchemyError, StatementError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged, Subscription
@@ -87,6 +87,32 @@ class Segment:
     label: str
     start: datetime | None = None  # the stretch's bounds within the strip (its title says them)
     end: datetime | None = None
+
+
+# What a failed write raises: the database's own errors, and those the driver raises for a
+# value it cannot bind (sqlite3: OverflowError for an int beyond 64 bits, UnicodeEncodeError).
+_WRITE_ERRORS = (SQLAlchemyError, OverflowError, ValueError)
+_INT_MIN, _INT_MAX = -(2**31), 2**31 - 1  # the part_count column's Integer
+
+
+def _refused(exc: BaseException) -> bool:
+    """Whether the error is about a sample's values (retrying it cannot help), not about a
+    database that is away (a lost connection, a table being restored)."""
+    if not isinstance(exc, SQLAlchemyError):
+        return True  # raised by the driver binding a value
+    if isinstance(exc, DataError | IntegrityError):
+        return True
+    # a StatementError that is no DBAPIError wraps an error of binding a parameter
+    return isinstance(exc, StatementError) and not isinstance(exc, DBAPIError)
+
+
+def _in_column(count: int | None) -> int | None:
+    """A part count the column holds; one beyond it (a control's garbage) as unknown."""
+    return count if count is None or _INT_MIN <= count <= _INT_MAX else None
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 # (state, mode, execution, program, part count, alarm text): a change of any is a sample
@@ -204,7 +230,8 @@ class Timeline:
 
     def flush(self) -> int:
         """Write the pending changes (one transaction); how many were written. A database
-        that is away keeps them pending for the next try."""
+        that is away keeps them pending for the next try; a sample the database refuses (a
+        value out of its column's range) is dropped with a log line, the others written."""
         if self.sessions is None:
             return 0
         with self._lock:
@@ -213,31 +240,62 @@ class Timeline:
         if not batch:
             return 0
         try:
-            with self.sessions.begin() as session:
-                session.add_all(
-                    StatusSample(
-                        machine=name,
-                        at=s.at,
-                        state=s.state.value,
-                        mode=s.mode,
-                        execution=s.execution,
-                        program=s.program,
-                        part_count=s.part_count,
-                        alarm=s.alarm,
+            self._write(batch)
+        except _WRITE_ERRORS as exc:
+            if not _refused(exc):
+                self._away(batch, exc)
+                return 0
+            # Some sample of the batch is refused: one by one, so the others still go in and
+            # the refused one is not queued again (it would fail every later flush).
+            written = 0
+            for i, (name, sample) in enumerate(batch):
+                try:
+                    self._write([(name, sample)])
+                except _WRITE_ERRORS as one:
+                    if not _refused(one):
+                        self._away(batch[i:], one)
+                        return written
+                    log.warning(
+                        "status timeline: a sample of %s at %s dropped, the database refuses "
+                        "it: %s",
+                        name,
+                        sample.at.isoformat(),
+                        _first_line(one),
                     )
-                    for name, s in batch
-                )
-        except SQLAlchemyError as exc:
-            if not self._failing:
-                first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-                log.warning("status timeline: %d samples not written yet: %s", len(batch), first)
-            self._failing = True
-            with self._lock:
-                # back in front of what came meanwhile; beyond the limit the oldest go
-                self.pending = deque([*batch, *self.pending], maxlen=MAX_PENDING)
-            return 0
+                else:
+                    written += 1
+            self._failing = False
+            return written
         self._failing = False
         return len(batch)
+
+    def _write(self, batch: list[tuple[str, Sample]]) -> None:
+        assert self.sessions is not None
+        with self.sessions.begin() as session:
+            session.add_all(
+                StatusSample(
+                    machine=name,
+                    at=s.at,
+                    state=s.state.value,
+                    mode=s.mode[:64],
+                    execution=s.execution[:32],
+                    program=s.program[:64],
+                    part_count=_in_column(s.part_count),
+                    alarm=s.alarm[:200],
+                )
+                for name, s in batch
+            )
+
+    def _away(self, batch: list[tuple[str, Sample]], exc: BaseException) -> None:
+        """The database did not take ``batch``: pending again, for the next flush."""
+        if not self._failing:
+            log.warning(
+                "status timeline: %d samples not written yet: %s", len(batch), _first_line(exc)
+            )
+        self._failing = True
+        with self._lock:
+            # back in front of what came meanwhile; beyond the limit the oldest go
+            self.pending = deque([*batch, *self.pending], maxlen=MAX_PENDING)
 
     def prune(self, now: datetime | None = None) -> int:
         """Delete the samples older than the retention; how many went."""
