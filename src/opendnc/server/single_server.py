@@ -165,6 +165,7 @@ class ServerLock(RunsTask):
         )
         self._connection: Connection | None = None
         self._guard = threading.Lock()  # the check runs in a thread, the stop in another
+        self._stopped = False
         self._refused = False  # a re-take refused: said once until it is taken again
 
     @property
@@ -188,43 +189,46 @@ class ServerLock(RunsTask):
         )
 
     def _take(self) -> bool:
-        with self._guard:
-            if self._connection is not None:
-                return True
-            how = "pg_try_advisory_lock" if self.alone else "pg_try_advisory_lock_shared"
-            connection = self._engine.connect()
-            try:
-                got = connection.execute(text(f"SELECT {how}(:key)"), {"key": SERVER_LOCK_KEY})
-                taken = bool(got.scalar())
-            except BaseException:
-                connection.close()
-                raise
-            if not taken:
-                connection.close()
-                return False
-            self._connection = connection
+        # no lock held across the network: a stop must not wait for a silent database
+        if self._connection is not None:
             return True
+        how = "pg_try_advisory_lock" if self.alone else "pg_try_advisory_lock_shared"
+        connection = self._engine.connect()
+        try:
+            got = connection.execute(text(f"SELECT {how}(:key)"), {"key": SERVER_LOCK_KEY})
+            taken = bool(got.scalar())
+        except BaseException:
+            connection.close()
+            raise
+        with self._guard:
+            if taken and not self._stopped:
+                self._connection = connection
+                return True
+        connection.close()
+        return False
 
     def check(self) -> None:
         """Ask the lock's connection; take the lock again if it was lost (blocking)."""
-        with self._guard:
-            connection = self._connection
-            if connection is not None:
-                try:
-                    connection.execute(text("SELECT 1"))
-                    return
-                except SQLAlchemyError as exc:
+        connection = self._connection
+        if connection is not None:
+            try:
+                connection.execute(text("SELECT 1"))
+                return
+            except SQLAlchemyError as exc:
+                with self._guard:
+                    if self._connection is not connection:
+                        return  # released meanwhile (a stop)
                     self._connection = None
-                    connection.invalidate()
-                    log.warning(
-                        "lost the database connection holding this server's lock (%s); %s",
-                        str(exc).splitlines()[0],
-                        "still driving every machine (cluster = false: the only server), taking "
-                        "it again once the database answers"
-                        if self.alone
-                        else "taking it again once the database answers",
-                    )
-                    return
+                connection.invalidate()
+                log.warning(
+                    "lost the database connection holding this server's lock (%s); %s",
+                    str(exc).splitlines()[0],
+                    "still driving every machine (cluster = false: the only server), taking "
+                    "it again once the database answers"
+                    if self.alone
+                    else "taking it again once the database answers",
+                )
+                return
         try:
             taken = self._take()
         except SQLAlchemyError:
@@ -232,7 +236,7 @@ class ServerLock(RunsTask):
         if taken:
             self._refused = False
             log.warning("this server holds its lock on the database again")
-        elif not self._refused:
+        elif not self._stopped and not self._refused:
             self._refused = True
             log.error(
                 "could not take this server's lock on the database again: another server took "
@@ -250,6 +254,7 @@ class ServerLock(RunsTask):
     def release(self) -> None:
         """Give the lock back (closing its connection ends its session)."""
         with self._guard:
+            self._stopped = True
             connection, self._connection = self._connection, None
         if connection is not None:
             try:
