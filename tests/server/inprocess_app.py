@@ -175,10 +175,12 @@ def running(
     offline: tuple[str, ...] = (),
     extra: str = "",
     check: str | None = None,
+    database: str | None = None,
 ) -> Iterator[App]:
     """The server for ``machines`` on memory controls, started, with a key and a web
     session for a user of every role; the ``offline`` ones never answer. ``extra`` is TOML
-    put before the machines (``[server]``, outputs); ``check`` as in :func:`config_text`."""
+    put before the machines (``[server]``, outputs); ``check`` as in :func:`config_text`;
+    ``database`` a URL (a SQLite file in ``tmp_path`` if None)."""
     controls: dict[str, MemoryControl] = {}
 
     def connector(config: MachineConfig) -> MemoryControl:
@@ -190,7 +192,9 @@ def running(
 
     config = parse_config(extra + "\n" + config_text(tmp_path, machines, check), base=tmp_path)
     server = build(
-        config, database=f"sqlite:///{tmp_path / 'db.sqlite'}", connector_factory=connector
+        config,
+        database=database or f"sqlite:///{tmp_path / 'db.sqlite'}",
+        connector_factory=connector,
     )
     api_keys: dict[Role, str] = {}
     session_keys: dict[Role, str] = {}

@@ -1,17 +1,29 @@
 """A server configured as the only one on PostgreSQL (``[server] cluster = false``) refuses to
-start beside a live cluster server, in one line, and starts once that server is gone."""
+start beside a live cluster server or another lone one, in one line, and starts once that
+server is gone; a cluster server refuses beside a lone one. A lone server whose lock's
+connection a blip ended takes the lock again."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
-from sqlalchemy import Engine
+from sqlalchemy import Engine, create_engine, text
+from sqlalchemy.engine import make_url
 
+from opendnc.server.app import build
+from opendnc.server.config import parse_config
 from opendnc.server.leases import Leases
-from opendnc.server.single_server import DatabaseInUse, refuse_beside_a_cluster
+from opendnc.server.single_server import (
+    SERVER_LOCK_KEY,
+    DatabaseInUse,
+    ServerLock,
+    refuse_beside_a_cluster,
+)
 from opendnc.server.store.db import make_engine, make_sessions, migrate
-from tests.server.conftest import _pg_database
+from tests.server.conftest import PG_ADMIN, _pg_database
+from tests.server.inprocess_app import config_text
 
 
 @pytest.fixture
@@ -36,3 +48,82 @@ def test_a_lone_server_refuses_to_start_beside_a_live_cluster_server(pg: Engine)
     assert "\n" not in message
     other.release_all()  # a clean stop: gone from the database at once
     refuse_beside_a_cluster(sessions, "alone")
+
+
+def _backends_holding_the_lock(url: str) -> list[int]:
+    admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            rows = conn.execute(
+                text(
+                    "SELECT l.pid FROM pg_locks l JOIN pg_database d ON d.oid = l.database "
+                    "WHERE l.locktype = 'advisory' AND l.objid = :key AND d.datname = :name"
+                ),
+                {"key": SERVER_LOCK_KEY, "name": make_url(url).database},
+            )
+            return [int(r[0]) for r in rows]
+    finally:
+        admin.dispose()
+
+
+def _end_sessions(pids: list[int]) -> None:
+    admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            for pid in pids:
+                conn.execute(text("SELECT pg_terminate_backend(:pid)"), {"pid": pid})
+    finally:
+        admin.dispose()
+
+
+def test_two_lone_servers_or_a_lone_and_a_cluster_server_never_share_a_database(
+    tmp_path: Path,
+) -> None:
+    # a lone server writes no heartbeat or lease: the lock is what the others see
+    for url in _pg_database():
+        machines = [{"name": "tnc", "kind": "lsv2", "host": "127.0.0.1", "port": 1}]
+        lone = parse_config(
+            "[server]\ncluster = false\n" + config_text(tmp_path, machines), base=tmp_path
+        )
+        clustered = parse_config(config_text(tmp_path, machines), base=tmp_path)
+        first = build(lone, database=url)
+        try:
+            for config in (lone, clustered):
+                with pytest.raises(DatabaseInUse) as refused:
+                    build(config, database=url)
+                assert "cluster = false" in str(refused.value)
+                assert "\n" not in str(refused.value)
+        finally:
+            first.core.get(ServerLock).release()
+            first.engine.dispose()
+        # gone: cluster servers share the database, and a lone one is refused beside them
+        one, two = build(clustered, database=url), build(clustered, database=url)
+        try:
+            with pytest.raises(DatabaseInUse):
+                build(lone, database=url)
+        finally:
+            for server in (one, two):
+                server.core.get(ServerLock).release()
+                server.engine.dispose()
+
+
+def test_a_lone_server_takes_its_lock_again_after_a_database_blip(
+    pg: Engine, caplog: pytest.LogCaptureFixture
+) -> None:
+    url = pg.url.render_as_string(hide_password=False)
+    lone = ServerLock(url, alone=True)
+    lone.acquire()
+    try:
+        _end_sessions(_backends_holding_the_lock(url))  # the blip ends its session
+        lone.check()  # sees it lost (and keeps driving: nothing here stops it)
+        assert not lone.held
+        assert "still driving every machine" in caplog.text
+        lone.check()  # the database answers: it takes the lock again
+        assert lone.held
+        with pytest.raises(DatabaseInUse):
+            ServerLock(url, alone=True).acquire()
+        with pytest.raises(DatabaseInUse):
+            ServerLock(url, alone=False).acquire()
+    finally:
+        lone.release()
+    assert _backends_holding_the_lock(url) == []

@@ -99,3 +99,34 @@ def test_any_cookie_is_a_known_device_only_if_this_throttle_issued_it(
 
 
 _GUARD = Throttle()
+
+
+def test_a_bucket_s_thousands_of_failures_keep_it_waiting_and_counted() -> None:
+    # 2.0**1024 overflowed after the bucket was taken out: it was forgotten, the try's other
+    # buckets went uncounted, and the request ended in an exception
+    guard = Throttle(free={"user": 0, "address": 0}, longest=900.0, clock=lambda: 0.0)
+    address = Bucket("address", "x")
+    for _ in range(1100):
+        guard.failed([USER, address])
+    assert guard.wait([USER]) == 900.0
+    assert guard.wait([address]) == 900.0
+
+
+def test_throwaway_buckets_never_push_out_one_that_waits() -> None:
+    now = [0.0]
+    guard = Throttle(free={"user": 2, "key": 5}, size=50, clock=lambda: now[0])
+    guard.failed([USER] * 5)  # the guessed name waits 8 s
+    guard.failed([Bucket("user", f"old{i}") for i in range(10) for _ in range(3)])  # 2 s
+    now[0] += 3
+    # wrong keys and unknown names, each new: far more than the bound holds
+    for i in range(500):
+        guard.failed([Bucket("key", f"junk{i}"), Bucket("user", f"nobody{i}")])
+    assert guard.wait([USER]) == 5.0
+    assert guard.wait([Bucket("user", "old1")]) == 0.0
+    assert all(len(kind) <= 50 for kind in guard._failures.values())
+    # every bucket of the kind waits: only then does the oldest go
+    full = Throttle(free={"user": 0}, size=50, clock=lambda: now[0])
+    full.failed([USER])
+    full.failed([Bucket("user", f"late{i}") for i in range(50)])
+    assert full.wait([USER]) == 0.0
+    assert full.wait([Bucket("user", "late0")]) == 2.0

@@ -10,6 +10,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 CODE_DIRS = ("src", "tests", "benchmarks")
+# the web pages' scripts, styles and templates cite docs as well
+CODE_SUFFIXES = (".py", ".js", ".css", ".html")
 
 _LINK = re.compile(r"\]\(([^)#\s]+)?(?:#([^)\s]+))?\)")
 _CITE = re.compile(r"docs/([\w-]+\.md)(?:#([\w-]+))?")
@@ -55,7 +57,11 @@ def test_links_in_docs_resolve(page: Path) -> None:
 def code_files() -> list[Path]:
     files = []
     for top in CODE_DIRS:
-        files += [p for p in (REPO / top).rglob("*.py") if p.name != "test_docs.py"]
+        files += [
+            p
+            for p in (REPO / top).rglob("*")
+            if p.suffix in CODE_SUFFIXES and p.is_file() and p.name != "test_docs.py"
+        ]
     return sorted(files)
 
 

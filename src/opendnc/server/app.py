@@ -46,7 +46,7 @@ from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
-from opendnc.server.single_server import refuse_beside_a_cluster
+from opendnc.server.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
 from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
@@ -100,14 +100,27 @@ def build(
     clustered = engine.dialect.name == "postgresql" and config.server.cluster
     migrate(engine)
     sessions = make_sessions(engine)
-    if engine.dialect.name == "postgresql" and not clustered:
-        refuse_beside_a_cluster(sessions, config.server.name)
+    server_lock = None
+    if engine.dialect.name == "postgresql":
+        # a lone server holds the lock exclusively, a cluster's shared: each refuses beside
+        # the other (a lone server writes no rows a cluster server could see)
+        server_lock = ServerLock(url, alone=not clustered)
+        try:
+            server_lock.acquire()
+            if not clustered:
+                refuse_beside_a_cluster(sessions, config.server.name)
+        except DatabaseInUse:
+            server_lock.release()
+            engine.dispose()
+            raise
     bus = EventBus()
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)
 
     core = Core()
     database_part = core.add(Database(engine, sessions))
+    if server_lock is not None:
+        core.add(server_lock)
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
     services = core.add(actions.Services(sessions, database_part.reads, machines))

@@ -89,14 +89,20 @@ async def _database_away(request: Request, exc: Exception) -> Response:
     """503 for a database that cannot be reached; anything else from the driver is a bug."""
     if not is_database_down(exc):
         return await _unexpected(request, exc)
-    why = deps.database(request).health.failed(exc)  # logs the first of an outage only
-    return database_unavailable(request, why)
+    deps.database(request).health.failed(exc)  # logs the first of an outage only
+    return database_unavailable(request)
 
 
-def database_unavailable(request: Request, why: str) -> Response:
+# What anyone is told, with or without a key: the driver's own words name the database's host,
+# address and user, so they go to the server log only (once per outage, db_health.py).
+DATABASE_UNAVAILABLE = "the database is unavailable now: the server log has the details"
+
+
+def database_unavailable(request: Request) -> Response:
     """The answer to a request that needs the database while it is away: JSON under
-    ``/api/``, an alert for htmx, an HTML page for a page."""
-    message = f"the database is unavailable now: {why}"
+    ``/api/``, an alert for htmx, an HTML page for a page. It never says why (see
+    :data:`DATABASE_UNAVAILABLE`)."""
+    message = DATABASE_UNAVAILABLE
     headers = {"Retry-After": DATABASE_RETRY_AFTER}
     if request.url.path.startswith("/api/"):
         return JSONResponse({"detail": message}, status_code=503, headers=headers)

@@ -15,8 +15,11 @@ buckets a try is measured against:
 * An address is a bucket only for guesses, and with a far higher allowance
   (:data:`FREE`): a proxy or the server's own host carries many people's logins.
 
-In memory, per process, bounded (the oldest buckets go first). The audit trail keeps the
-record (:mod:`opendnc.server.refusals`).
+In memory, per process, bounded per kind (:attr:`Throttle.size` buckets of each): when a kind
+is full, the buckets whose wait has passed go first, and a bucket that still waits goes only
+when every bucket of its kind waits (the oldest first). So throwaway buckets (a new wrong key,
+an unknown user name, from rotating addresses) cannot push out the bucket that is slowing a
+guesser. The audit trail keeps the record (:mod:`opendnc.server.refusals`).
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ _DEVICE_USERS = 8  # user names one browser is known for (a shared terminal in t
 # holds anything else was not written here, and is not echoed back)
 _DEVICE = re.compile(r"[A-Za-z0-9_-]{22}")
 _MARK = re.compile(r"[0-9a-f]{32}")
+# Failures past the free ones that are still counted: 2**30 s is past any sensible longest
+# wait, and a float power past 1023 overflows (a bucket's count would otherwise grow forever).
+_MOST_EXTRA = 30
 
 
 @dataclass(frozen=True)
@@ -80,7 +86,11 @@ class Throttle:
         self.longest = longest
         self.size = size
         self.clock = clock
-        self._failures: OrderedDict[Bucket, tuple[int, float]] = OrderedDict()
+        # per kind, oldest first: (failures, waits until)
+        self._failures: dict[str, OrderedDict[Bucket, tuple[int, float]]] = {}
+        # per kind: no bucket's wait passes before this (set when a full kind was all waiting;
+        # until then only a bucket added since can have passed, so no sweep is needed)
+        self._waiting_until: dict[str, float] = {}
         self._lock = threading.Lock()  # routes run in worker threads
         # Signs device cookies. Per process: after a restart (or on another server sharing
         # the database) a browser is new again, which costs it nothing unless its user name
@@ -91,7 +101,7 @@ class Throttle:
         """Seconds until every one of ``buckets`` allows a try (0.0: now)."""
         now = self.clock()
         with self._lock:
-            waits = [self._failures.get(b, (0, 0.0))[1] - now for b in buckets]
+            waits = [self._of(b.kind).get(b, (0, 0.0))[1] - now for b in buckets]
         return max([0.0, *waits])
 
     def check(self, buckets: Iterable[Bucket]) -> None:
@@ -108,24 +118,58 @@ class Throttle:
         now = self.clock()
         with self._lock:
             for bucket in buckets:
-                count, _ = self._failures.pop(bucket, (0, 0.0))
-                count += 1
-                extra = count - self.free.get(bucket.kind, 5)
-                until = now + min(2.0**extra, self.longest) if extra > 0 else 0.0
-                self._failures[bucket] = (count, until)
-            while len(self._failures) > self.size:
-                self._failures.popitem(last=False)
+                kind = self._of(bucket.kind)
+                free = self.free.get(bucket.kind, 5)
+                count, _ = kind.get(bucket, (0, 0.0))
+                count = min(count + 1, free + _MOST_EXTRA)
+                extra = count - free
+                until = (
+                    now + min(2.0 ** min(extra, _MOST_EXTRA), self.longest) if extra > 0 else 0.0
+                )
+                kind.pop(bucket, None)
+                kind[bucket] = (count, until)
+                self._trim(bucket, now)
+
+    def _of(self, kind: str) -> OrderedDict[Bucket, tuple[int, float]]:
+        return self._failures.setdefault(kind, OrderedDict())
+
+    def _trim(self, added: Bucket, now: float) -> None:
+        """Keep ``added``'s kind within :attr:`size`: first the buckets whose wait has passed,
+        then (every one waiting) the oldest."""
+        name = added.kind
+        kind = self._of(name)
+        until = kind[added][1]
+        bound = self._waiting_until.get(name, 0.0)
+        if len(kind) <= self.size or (now < bound and until > now):
+            self._waiting_until[name] = min(bound, until)
+        if len(kind) <= self.size:
+            return
+        if now < bound:
+            if until <= now:
+                # every other bucket still waits: the one just added is the only one passed
+                del kind[added]
+                return
+            kind.popitem(last=False)  # every bucket waits: the oldest goes
+            return
+        # one sweep drops every passed bucket: its cost is shared by the many adds it makes
+        # room for
+        for bucket in [b for b, (_, ends) in kind.items() if ends <= now]:
+            del kind[bucket]
+        if len(kind) > self.size:
+            self._waiting_until[name] = min(ends for _, ends in kind.values())
+            kind.popitem(last=False)  # every bucket waits: the oldest goes
 
     def succeeded(self, buckets: Iterable[Bucket]) -> None:
         """Forget the failures of each of ``buckets``."""
         with self._lock:
             for bucket in buckets:
-                self._failures.pop(bucket, None)
+                self._of(bucket.kind).pop(bucket, None)
 
     def reset(self) -> None:
         """Forget every failure."""
         with self._lock:
             self._failures.clear()
+            self._waiting_until.clear()
 
     # -- device cookies ---------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-// opendnc program editor (docs/dashboard.md#editor): a plain <textarea> that holds the text
+// opendnc program editor (docs/dashboard.md#program-check-and-editor): a plain <textarea> that holds the text
 // and is submitted with the form, over a highlighted copy of the lines in view. Only the
 // visible lines are highlighted and numbered, so a program of 20,000 lines scrolls as
 // smoothly as one of 20. No library, no build step: this file is shipped as it is.
