@@ -63,3 +63,18 @@ def test_incoming_takes_both_dc3_bytes_and_keeps_a_punch_whole() -> None:
 def test_first_difference_names_the_line() -> None:
     assert first_difference("%\nA\nB\n", "%\nA \nB\n") is None
     assert first_difference("%\nA\nB\n", "%\nA\nC\n") == "line 3: sent 'B', punched 'C'"
+
+
+def test_only_characters_and_the_leader_keep_a_punch_open() -> None:
+    receiver = PunchReceiver(get_profile("fanuc-0i"), start_timeout=1.0, quiet=0.5)
+    receiver.receive_data(b"\x12")
+    armed = receiver.timer
+    receiver.receive_data(b"\0" * 20)  # leader: the punch is coming
+    assert receiver.timer is not armed
+    receiver.receive_data(_iso("%\nO0009\n"))
+    armed = receiver.timer
+    for _ in range(50):  # a noisy line after the start: filler and DC codes only
+        receiver.receive_data(b"\0\x11\xff\x93" * 100)
+    assert receiver.timer is armed
+    with pytest.raises(TransferError, match=r"quiet for 0\.5 s"):
+        receiver.timed_out()
