@@ -12,6 +12,7 @@ import pytest
 from opendnc.errors import DncError, TransferError
 from opendnc.sim.fanuc import FanucOptions, FanucParams, Mode, Selection
 from opendnc.tape.codes import Code
+from opendnc.tape.errors import TapeNameError
 from opendnc.tape.profiles import PROFILES, Framing, get_profile
 from opendnc.tape.serial_io import receive_program, receive_record, send_program, verify_punch
 from tests.sim.tape.conftest import bench, wait_for
@@ -128,6 +129,22 @@ def test_a_sinumerik_archive_is_received_file_by_file(tmp_path: Path) -> None:
     assert [p.name for p in report.paths] == ["SHAFT.MPF", "HOLES.SPF"]
     assert (out / "SHAFT.MPF").read_text() == first
     assert (out / "HOLES.SPF").read_text() == second
+
+
+def test_an_archive_with_a_bad_name_writes_none_of_its_files(tmp_path: Path) -> None:
+    """The second part's name (300 characters) is refused before the first part is written."""
+    first = "%_N_PARTA_MPF\n;$PATH=/_N_MPF_DIR\nG0 X10\nM30\n"
+    second = f"%_N_{'B' * 300}_MPF\nG1 X1 F100\nM30\n"
+    mem = tmp_path / "mem"
+    mem.mkdir()
+    (mem / "ARCHIVE.MPF").write_text(first + second)
+    out = tmp_path / "out"
+    out.mkdir()
+    with bench(get_profile("siemens-840d"), mem, mode=Selection(Mode.IDLE)) as b:
+        b.sim.select(Selection(Mode.PUNCH, "ARCHIVE.MPF"))
+        with pytest.raises(TapeNameError, match="up to 24 characters"):
+            receive_program(b.pc, out, b.profile, timeout=5)
+    assert list(out.iterdir()) == []
 
 
 def test_noisy_punch_is_a_typed_error_and_no_file(tmp_path: Path) -> None:

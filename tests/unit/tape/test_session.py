@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from opendnc.errors import TransferError, TransportTimeout
+from opendnc.errors import InputError, TransferError, TransportTimeout
 from opendnc.tape.codes import Code, Codec
 from opendnc.tape.profiles import get_profile
 from opendnc.tape.reader import End
-from opendnc.tape.serial_io import Incoming, first_difference
+from opendnc.tape.serial_io import Incoming, first_difference, unique_path, write_files
 from opendnc.tape.session import PunchReceiver
 
 
@@ -78,3 +80,21 @@ def test_only_characters_and_the_leader_keep_a_punch_open() -> None:
     assert receiver.timer is armed
     with pytest.raises(TransferError, match=r"quiet for 0\.5 s"):
         receiver.timed_out()
+
+
+def test_files_are_written_all_or_none(tmp_path: Path) -> None:
+    (tmp_path / "B.SPF").mkdir()  # the second rename fails: a folder holds its name
+    (tmp_path / "B.SPF" / "keep").write_text("x")
+    with pytest.raises(InputError, match=r"cannot write .*B\.SPF: .*nothing was written"):
+        write_files([(tmp_path / "A.MPF", b"%_N_A_MPF\n"), (tmp_path / "B.SPF", b"%_N_B_SPF\n")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["B.SPF"]
+    write_files([(tmp_path / "A.MPF", b"A\n"), (tmp_path / "C.SPF", b"C\n")])
+    assert (tmp_path / "A.MPF").read_bytes() + (tmp_path / "C.SPF").read_bytes() == b"A\nC\n"
+
+
+def test_unique_path_skips_names_taken_on_disk_or_planned(tmp_path: Path) -> None:
+    (tmp_path / "O0001.nc").write_text("%\n")
+    planned = [tmp_path / "O0001-1.nc"]
+    assert unique_path(tmp_path, "O0001.nc", planned) == tmp_path / "O0001-2.nc"
+    with pytest.raises(InputError, match="file name too long"):
+        unique_path(tmp_path, "N" * 5000 + ".nc")
