@@ -10,12 +10,19 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import DncError, TransferError
+from opendnc.sim.cable import VirtualCable
 from opendnc.sim.fanuc import FanucOptions, FanucParams, Mode, Selection
 from opendnc.tape.codes import Code
 from opendnc.tape.errors import TapeNameError
 from opendnc.tape.profiles import PROFILES, Framing, get_profile
-from opendnc.tape.serial_io import receive_program, receive_record, send_program, verify_punch
-from tests.sim.tape.conftest import bench, wait_for
+from opendnc.tape.serial_io import (
+    open_tape_port,
+    receive_program,
+    receive_record,
+    send_program,
+    verify_punch,
+)
+from tests.sim.tape.conftest import BAUD, bench, wait_for
 
 FAST = 2_000_000  # baud of the back-pressure tests: 181,818 characters a second
 BODY = "G21\nG00 G17 G40 G80 G90\nT1 M06\nG54\nS1200 M03\nG00 X1. Y-1.5\nG01 Z-0.1 F20.\nM30\n"
@@ -144,6 +151,35 @@ def test_an_archive_with_a_bad_name_writes_none_of_its_files(tmp_path: Path) -> 
         b.sim.select(Selection(Mode.PUNCH, "ARCHIVE.MPF"))
         with pytest.raises(TapeNameError, match="up to 24 characters"):
             receive_program(b.pc, out, b.profile, timeout=5)
+    assert list(out.iterdir()) == []
+
+
+def test_endless_feed_after_a_punch_starts_ends_in_quiet(tmp_path: Path) -> None:
+    """The control's side of the cable sends DC2, a record's start, then NUL and DC1 for ever."""
+    profile = get_profile("fanuc-0i").with_changes(baud=BAUD)
+    out = tmp_path / "out"
+    out.mkdir()
+    stop = threading.Event()
+    with VirtualCable(BAUD, profile.bits_per_char) as cable:
+        control = open_tape_port(cable.path_a, profile)
+        pc = open_tape_port(cable.path_b, profile)
+
+        def feed_for_ever() -> None:
+            control.write(b"\x12" + profile.codec().encode_text("%\nO0001\nG01 X1.\n", 0))
+            while not stop.is_set():  # ~10 kB/s at 115200 baud: the PC reads it all
+                control.write(b"\0\x11" * 32)
+
+        writer = threading.Thread(target=feed_for_ever, daemon=True)
+        writer.start()
+        try:
+            with pytest.raises(TransferError, match=r"quiet for 0\.5 s.*nothing was written"):
+                receive_program(pc, out, profile, timeout=5, quiet=0.5)
+        finally:
+            stop.set()
+            writer.join(5)
+            pc.close()
+            control.close()
+    assert not writer.is_alive()
     assert list(out.iterdir()) == []
 
 
