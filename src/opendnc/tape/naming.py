@@ -11,8 +11,8 @@ Rules by :class:`~opendnc.tape.profiles.Naming` (docs/tape.md#names):
   file name when the file has no header; received as ``NAME.MPF``;
 * Fagor: the header's comment (``%comment,MX,``, up to 20 characters) names the file.
 
-A received name breaking these rules (an O-number with more digits than the profile's, a
-Sinumerik or Fagor name too long) is damage, not a name: :class:`TapeNameError`, before any
+A received name breaking these rules (an O-number with more digits than the profile's, an
+Okuma, Sinumerik or Fagor name too long) is damage, not a name: :class:`TapeNameError`, before any
 path is made of it (a block of 4096 characters is no file name the OS takes).
 """
 
@@ -109,6 +109,11 @@ def received_name(profile: Profile, label: list[str], program: list[str]) -> str
         for text in label:
             match = _OKUMA_HEAD.match(text.strip())
             if match:
+                if text.strip()[match.end() : match.end() + 1].isalnum():
+                    # more letters than the rule takes: refused, never cut to a shorter name
+                    raise TapeNameError(
+                        text.strip(), "an Okuma name is up to 16 characters, its extension 3"
+                    )
                 return f"{match.group(1)}.{match.group(2) or 'MIN'}"
         return None
     first = program[0].strip() if program else ""

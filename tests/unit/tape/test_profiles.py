@@ -121,5 +121,10 @@ def test_received_names_breaking_the_rules_are_typed_errors() -> None:
     assert received_name(get_profile("siemens-840d"), [], [f"%_N_{'B' * 24}_MPF"]) == (
         "B" * 24 + ".MPF"
     )
+    okuma = get_profile("okuma-osp")
+    for label in ("$ABCDEFGHIJKLMNOPQ.MIN", "$PART1.MINX"):
+        with pytest.raises(TapeNameError, match="Okuma name is up to 16"):
+            received_name(okuma, [label], ["%"])
+    assert received_name(okuma, ["$ABCDEFGHIJKLMNOP.SUB"], ["%"]) == "ABCDEFGHIJKLMNOP.SUB"
     with pytest.raises(TapeNameError, match="up to 20 characters"):
         received_name(get_profile("fagor"), [], [f"%{'F' * 21},MX,"])
