@@ -61,7 +61,7 @@ class TvCheckError(TapeWireError):
 
 class TapeNameError(RemoteProtocolError):
     """A received program carries a name the control's naming rules do not allow (too many
-    O-number digits, a Sinumerik or Fagor name too long): damage, never a file name."""
+    O-number digits, an Okuma, Sinumerik or Fagor name too long): damage, never a file name."""
 
     def __init__(self, name: str, rule: str) -> None:
         self.name = name

@@ -12,8 +12,9 @@ Rules by :class:`~opendnc.tape.profiles.Naming` (docs/tape.md#names):
 * Fagor: the header's comment (``%comment,MX,``, up to 20 characters) names the file.
 
 A received name breaking these rules (an O-number with more digits than the profile's, an
-Okuma, Sinumerik or Fagor name too long) is damage, not a name: :class:`TapeNameError`, before any
-path is made of it (a block of 4096 characters is no file name the OS takes).
+Okuma, Sinumerik or Fagor name too long) is damage, not a name: :class:`TapeNameError`,
+raised before any path is made of it (a block of 4096 characters is no file name the OS
+takes).
 """
 
 from __future__ import annotations
