@@ -60,6 +60,41 @@ def test_punch_receiver_gives_only_typed_errors(pieces: list[bytes], name: str) 
         pass
 
 
+# bytes a noisy line or a feeding control sends: NUL, DEL (with and without parity), DC codes
+MAX_BYTES = 200
+FILLER = st.lists(
+    st.sampled_from([b"\0", b"\x7f", b"\xff", b"\x11", b"\x13", b"\x93"]),
+    min_size=MAX_BYTES + 1,
+    max_size=2 * MAX_BYTES,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.one_of(
+        st.binary(min_size=MAX_BYTES + 1, max_size=600),
+        st.tuples(st.binary(max_size=40), FILLER).map(
+            lambda parts: b"\x12%\n" + parts[0] + b"".join(parts[1])
+        ),
+    ),
+    st.sampled_from(list(Code)),
+    st.integers(1, 64),
+)
+def test_a_stream_longer_than_max_bytes_ends(data: bytes, code: Code, chunk: int) -> None:
+    """More than ``max_bytes`` bytes never keep a record open: it ended within them, or a
+    typed error."""
+    reader = TapeReader(
+        ReaderConfig(codec=Codec(code, parity=code is Code.ISO), max_bytes=MAX_BYTES)
+    )
+    try:
+        for start in range(0, len(data), chunk):
+            reader.feed(data[start : start + chunk])
+    except DncError:
+        return
+    assert reader.ended is not None
+    assert reader.received <= MAX_BYTES
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     st.lists(LINE, min_size=1, max_size=12),

@@ -57,3 +57,14 @@ class TvCheckError(TapeWireError):
     """A block had an odd number of characters while TV check was on (Fanuc alarm 002)."""
 
     kind = "odd block length (TV check)"
+
+
+class TapeNameError(RemoteProtocolError):
+    """A received program carries a name the control's naming rules do not allow (too many
+    O-number digits, an Okuma, Sinumerik or Fagor name too long): damage, never a file name."""
+
+    def __init__(self, name: str, rule: str) -> None:
+        self.name = name
+        self.rule = rule
+        shown = name if len(name) <= 32 else f"{name[:32]}... ({len(name)} characters)"
+        super().__init__(f"the control sent a program named {shown!r}: {rule}")

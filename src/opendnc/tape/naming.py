@@ -10,6 +10,11 @@ Rules by :class:`~opendnc.tape.profiles.Naming` (docs/tape.md#names):
 * Siemens: ``%_N_NAME_MPF`` (or ``_SPF``), NAME up to 24 of ``0-9 A-Z a-z _``; from the
   file name when the file has no header; received as ``NAME.MPF``;
 * Fagor: the header's comment (``%comment,MX,``, up to 20 characters) names the file.
+
+A received name breaking these rules (an O-number with more digits than the profile's, an
+Okuma, Sinumerik or Fagor name too long) is damage, not a name: :class:`TapeNameError`,
+raised before any path is made of it (a block of 4096 characters is no file name the OS
+takes).
 """
 
 from __future__ import annotations
@@ -18,12 +23,15 @@ import re
 from pathlib import Path
 
 from opendnc.errors import InputError
+from opendnc.tape.errors import TapeNameError
 from opendnc.tape.profiles import Naming, Profile
 
 _O_LINE = re.compile(r"^\s*O(\d+)")
 _ANGLE = re.compile(r"^\s*<([^<>]{1,32})>")
 _SIEMENS_HEAD = re.compile(r"^%(?:_N_)?([0-9A-Za-z_]+?)_(MPF|SPF)\s*$")
-_SIEMENS_NAME = re.compile(r"^[0-9A-Za-z_]{1,24}$")
+SIEMENS_MAX = 24  # characters of a Sinumerik program name (S-HMI, S-ONE)
+FAGOR_MAX = 20  # characters of a Fagor header comment (FAG)
+_SIEMENS_NAME = re.compile(rf"^[0-9A-Za-z_]{{1,{SIEMENS_MAX}}}$")
 _OKUMA_NAME = re.compile(r"^[A-Z][A-Z0-9]{0,15}$")
 _OKUMA_HEAD = re.compile(r"^\$([A-Z][A-Z0-9]{0,15})(?:\.([A-Z]{1,3}))?")
 _SAFE = re.compile(r"[^0-9A-Za-z_.-]+")
@@ -90,21 +98,41 @@ def received_name(profile: Profile, label: list[str], program: list[str]) -> str
             match = _O_LINE.match(text) or _ANGLE.match(text)
             if match:
                 name = match.group(1)
-                return f"O{name}.nc" if match.re is _O_LINE else _safe(name) + ".nc"
+                if match.re is not _O_LINE:
+                    return _safe(name) + ".nc"
+                if len(name) > profile.o_digits:
+                    raise TapeNameError(
+                        f"O{name}", f"an O-number has up to {profile.o_digits} digits here"
+                    )
+                return f"O{name}.nc"
         return None
     if profile.naming is Naming.OKUMA:
         for text in label:
             match = _OKUMA_HEAD.match(text.strip())
             if match:
+                if text.strip()[match.end() : match.end() + 1].isalnum():
+                    # more letters than the rule takes: refused, never cut to a shorter name
+                    raise TapeNameError(
+                        text.strip(), "an Okuma name is up to 16 characters, its extension 3"
+                    )
                 return f"{match.group(1)}.{match.group(2) or 'MIN'}"
         return None
     first = program[0].strip() if program else ""
     if profile.naming is Naming.SIEMENS:
         match = _SIEMENS_HEAD.match(first)
-        return f"{match.group(1)}.{match.group(2)}" if match else None
+        if match is None:
+            return None
+        if len(match.group(1)) > SIEMENS_MAX:
+            raise TapeNameError(
+                match.group(1), f"a Sinumerik name is up to {SIEMENS_MAX} characters"
+            )
+        return f"{match.group(1)}.{match.group(2)}"
     # Fagor: %comment,flags,
     if first.startswith("%") and "," in first:
-        comment = _safe(first[1:].split(",", 1)[0].strip())
+        comment = first[1:].split(",", 1)[0].strip()
+        if len(comment) > FAGOR_MAX:
+            raise TapeNameError(comment, f"a Fagor header comment is up to {FAGOR_MAX} characters")
+        comment = _safe(comment)
         return f"{comment}.PIM" if comment else None
     return None
 

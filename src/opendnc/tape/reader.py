@@ -16,7 +16,10 @@ and the virtual control reading one. It
   an even number of characters (comments and spaces count, the EOB does not);
 * ends on DC4, on the profile's end-of-file byte (Siemens, Fagor) or the closing ``%``.
 
-Limits (``max_block``, ``max_bytes``) turn endless garbage into a typed error.
+Limits turn endless garbage into a typed error: ``max_bytes`` counts every wire byte (feed
+and DC codes too: a noisy line or a control sending feed for ever must end), ``max_block`` the
+characters of a block, ``max_leader`` the feed before the record's first character (a leader
+is legitimately long, but not endless; docs/tape.md#leader-label-and-tv-check).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ class ReaderConfig:
     eof_char: str | None = None  # e.g. "\x1a" (SUB) on Siemens
     max_block: int = 4096
     max_bytes: int = 16 << 20
+    max_leader: int = 1 << 16  # feed bytes (NUL, DEL, blank, space) before the first character
 
 
 class TapeReader:
@@ -64,6 +68,8 @@ class TapeReader:
         self.ended: End | None = None
         self.dc2 = False  # DC2 seen
         self.received = 0  # wire bytes fed
+        self.characters = 0  # characters read (not feed, not DC codes, not leading spaces)
+        self.leader = 0  # feed bytes before the first character
         self._block: list[str] = []
         self._after_lf = False
         self._after_cr = False
@@ -87,21 +93,29 @@ class TapeReader:
         for index, byte in enumerate(data):
             if self.ended is not None:
                 return index
+            # every byte counts, before anything may skip it: feed and DC codes included
             self.received += 1
+            if self.received > config.max_bytes:
+                raise TapeCharacterError(
+                    self.line, len(self._block) + 1, f"more than {config.max_bytes} bytes"
+                )
             if config.dc_codes and (byte if self._eia else byte & 0x7F) in self._dc:
                 self._control(byte & 0x7F)
                 continue
             char = decode(byte)
-            if char is None:
-                continue
             if isinstance(char, Bad):
                 error = TapeParityError if char.parity else TapeCharacterError
                 raise error(self.line, len(self._block) + 1, f"byte 0x{char.byte:02X}")
+            if char is None or (char == " " and not self.started):
+                if not self.started:  # leader: feed (or spaces) before the first character
+                    self.leader += 1
+                    if self.leader > config.max_leader:
+                        raise TapeCharacterError(
+                            1, 1, f"more than {config.max_leader} feed bytes before the program"
+                        )
+                continue
+            self.characters += 1
             self._char(char)
-            if self.received > config.max_bytes:
-                raise TapeCharacterError(
-                    self.line, len(self._block), f"more than {config.max_bytes} bytes"
-                )
         return len(data)
 
     def _control(self, code: int) -> None:
@@ -128,8 +142,6 @@ class TapeReader:
         if char == self.config.eof_char:
             self._finish(End.EOF)
             return
-        if not self._block and not self.blocks and char == " ":
-            return  # space feed before the first character
         if (
             char == "%"
             and not self._block

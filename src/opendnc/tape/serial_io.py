@@ -9,23 +9,26 @@ their steps on a :class:`~opendnc.transport.base.PortStream` from the one dispat
 
 A drip-feed runs the program on the machine: :func:`send_program` refuses it with
 :class:`~opendnc.errors.SafetyLockError` unless ``safe_mode=False``. A received program is
-written with :mod:`opendnc.atomicfile`: whole or not at all.
+written with :mod:`opendnc.atomicfile`: whole or not at all, and the files of an archive all
+or none (:func:`write_files`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 
-from opendnc.atomicfile import atomic_write
+from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import (
     InputError,
     PeerClosed,
     SafetyLockError,
     TransferError,
     TransportTimeout,
+    os_reason,
 )
 from opendnc.haas.dnc_engine import DncConfig, DncEvent, DncRun, Drain, Flow, Send, Wait
 from opendnc.haas.modal import RestartPlan
@@ -350,15 +353,55 @@ def receive_record(
     return receiver.result()
 
 
-def unique_path(folder: Path, name: str) -> Path:
-    """``folder/name``, or ``name-1``, ``name-2`` ... when taken: never overwrite."""
+def unique_path(folder: Path, name: str, taken: Collection[Path] = ()) -> Path:
+    """``folder/name``, or ``name-1``, ``name-2`` ... when taken on disk or in ``taken``
+    (names chosen for files not yet written): never overwrite. :class:`InputError` when the
+    OS cannot look the path up (a name too long, a folder it may not read)."""
     target = folder / name
     stem, suffix = target.stem, target.suffix
     count = 1
-    while target.exists():
-        target = folder / f"{stem}-{count}{suffix}"
-        count += 1
+    try:
+        while target in taken or target.exists():
+            target = folder / f"{stem}-{count}{suffix}"
+            count += 1
+    except OSError as exc:
+        raise InputError(f"cannot use {_short(target)}: {os_reason(exc)}") from exc
     return target
+
+
+def write_files(files: list[tuple[Path, bytes]]) -> None:
+    """Write every file or none: each goes to a temp file beside its target, and the temps
+    take their names only once all are written. A failure removes the temps and the files
+    already renamed (targets :func:`unique_path` chose, so no earlier file is lost):
+    :class:`InputError`."""
+    writers: list[AtomicWriter] = []
+    renamed: list[Path] = []
+    current = files[0][0] if files else Path()
+    try:
+        for current, data in files:
+            writer = AtomicWriter(current)
+            writers.append(writer)
+            writer.write(data)
+        for writer in writers:
+            current = writer.target
+            writer.commit()
+            renamed.append(current)
+    except BaseException as exc:
+        for writer in writers:
+            writer.discard()  # nothing for one already committed
+        for path in renamed:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        if isinstance(exc, OSError):
+            raise InputError(
+                f"cannot write {_short(current)}: {os_reason(exc)}; nothing was written"
+            ) from exc
+        raise
+
+
+def _short(path: Path) -> str:
+    text = str(path)
+    return text if len(text) <= 200 else f"{text[:200]}... ({len(text)} characters)"
 
 
 def receive_program(
@@ -376,9 +419,12 @@ def receive_program(
     """Receive one punched program into ``out`` (a folder: named by the program, never
     overwriting; or a file name). Nothing is written unless the record is whole."""
     started = clock()
-    folder = out if out.is_dir() else None
-    if folder is None and not out.parent.is_dir():
-        raise InputError(f"no folder {out.parent} for {out.name}")
+    try:
+        folder = out if out.is_dir() else None
+        if folder is None and not out.parent.is_dir():
+            raise InputError(f"no folder {out.parent} for {out.name}")
+    except OSError as exc:
+        raise InputError(f"cannot use {_short(out)}: {os_reason(exc)}") from exc
     stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
     try:
         record = receive_record(
@@ -396,27 +442,25 @@ def receive_program(
     parts = split_archive(record.text) if profile.framing is Framing.SIEMENS else [record.text]
     if len(parts) > 1 and folder is None:
         raise InputError(f"the control sent {len(parts)} files: receive them into a folder")
-    written: list[Path] = []
-    total = 0
+    # every name and every check before the first byte is written: an archive whose third
+    # part is damaged must not leave the first two on disk
+    files: list[tuple[Path, bytes]] = []
     for index, text in enumerate(parts):
         name = record.name if index == 0 else received_name(profile, [], text.splitlines())
-        target = unique_path(folder, name or "received.nc") if folder is not None else out
+        taken = [path for path, _ in files]
+        target = out if folder is None else unique_path(folder, name or "received.nc", taken)
         data = text.encode("latin-1")
         if profile.framing in (Framing.PERCENT, Framing.OKUMA):
             # the NC-text guard: on a line without parity a bit error can still make a valid
             # character of the code (G -> g); Siemens and Fagor text may hold lower case
             check_program(data, what=target.name, action="not written")
-        try:
-            with atomic_write(target) as handle:
-                handle.write(data)
-        except OSError as exc:
-            raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
-        written.append(target)
-        total += len(data)
+        files.append((target, data))
+    write_files(files)
+    written = [path for path, _ in files]
     return ReceiveReport(
         path=written[0],
         name=record.name,
-        bytes=total,
+        bytes=sum(len(data) for _, data in files),
         lines=record.text.count("\n"),
         ended=record.ended.value,
         seconds=clock() - started,

@@ -6,7 +6,8 @@ out; the driver holds the clock and the port. It ends
 
 * at the record's closing ``%`` (ISO) or ER (EIA), without waiting for the DC4;
 * at DC4 or at the profile's end-of-file byte (Siemens, Fagor), or
-* after ``quiet`` seconds without a byte, but only as a failure unless ``quiet_ends``
+* after ``quiet`` seconds without a character (feed and DC codes once the record started do
+  not count: a noisy line must not keep it open), but only as a failure unless ``quiet_ends``
   (a capture without an end mark, such as DPRNT without PCLOS): a link cut in the middle
   of a program must never leave a file that looks whole.
 
@@ -93,10 +94,14 @@ class PunchReceiver:
                 return  # flow bytes, noise or an earlier punch's tail: not ours
             data = data[start + 1 :]
             self._start()
-        used = self.reader.feed(data)
-        if self.state is State.WAITING and (self.reader.started or self.reader.ended):
+        reader = self.reader
+        progress = reader.characters + reader.leader
+        used = reader.feed(data)
+        if self.state is State.WAITING and (reader.started or reader.ended):
             self._start()
-        if self.state is State.RECEIVING:
+        elif self.state is State.RECEIVING and reader.characters + reader.leader > progress:
+            # only a character (or the leader, bounded by max_leader) shows the punch goes on:
+            # filler or DC codes after the start must not keep a dead record open for ever
             self._arm(self.quiet)
         if self.reader.ended is not None:
             self.leftover = data[used:]

@@ -10,11 +10,19 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import DncError, TransferError
+from opendnc.sim.cable import VirtualCable
 from opendnc.sim.fanuc import FanucOptions, FanucParams, Mode, Selection
 from opendnc.tape.codes import Code
+from opendnc.tape.errors import TapeNameError
 from opendnc.tape.profiles import PROFILES, Framing, get_profile
-from opendnc.tape.serial_io import receive_program, receive_record, send_program, verify_punch
-from tests.sim.tape.conftest import bench, wait_for
+from opendnc.tape.serial_io import (
+    open_tape_port,
+    receive_program,
+    receive_record,
+    send_program,
+    verify_punch,
+)
+from tests.sim.tape.conftest import BAUD, bench, wait_for
 
 FAST = 2_000_000  # baud of the back-pressure tests: 181,818 characters a second
 BODY = "G21\nG00 G17 G40 G80 G90\nT1 M06\nG54\nS1200 M03\nG00 X1. Y-1.5\nG01 Z-0.1 F20.\nM30\n"
@@ -128,6 +136,51 @@ def test_a_sinumerik_archive_is_received_file_by_file(tmp_path: Path) -> None:
     assert [p.name for p in report.paths] == ["SHAFT.MPF", "HOLES.SPF"]
     assert (out / "SHAFT.MPF").read_text() == first
     assert (out / "HOLES.SPF").read_text() == second
+
+
+def test_an_archive_with_a_bad_name_writes_none_of_its_files(tmp_path: Path) -> None:
+    """The second part's name (300 characters) is refused before the first part is written."""
+    first = "%_N_PARTA_MPF\n;$PATH=/_N_MPF_DIR\nG0 X10\nM30\n"
+    second = f"%_N_{'B' * 300}_MPF\nG1 X1 F100\nM30\n"
+    mem = tmp_path / "mem"
+    mem.mkdir()
+    (mem / "ARCHIVE.MPF").write_text(first + second)
+    out = tmp_path / "out"
+    out.mkdir()
+    with bench(get_profile("siemens-840d"), mem, mode=Selection(Mode.IDLE)) as b:
+        b.sim.select(Selection(Mode.PUNCH, "ARCHIVE.MPF"))
+        with pytest.raises(TapeNameError, match="up to 24 characters"):
+            receive_program(b.pc, out, b.profile, timeout=5)
+    assert list(out.iterdir()) == []
+
+
+def test_endless_feed_after_a_punch_starts_ends_in_quiet(tmp_path: Path) -> None:
+    """The control's side of the cable sends DC2, a record's start, then NUL and DC1 for ever."""
+    profile = get_profile("fanuc-0i").with_changes(baud=BAUD)
+    out = tmp_path / "out"
+    out.mkdir()
+    stop = threading.Event()
+    with VirtualCable(BAUD, profile.bits_per_char) as cable:
+        control = open_tape_port(cable.path_a, profile)
+        pc = open_tape_port(cable.path_b, profile)
+
+        def feed_for_ever() -> None:
+            control.write(b"\x12" + profile.codec().encode_text("%\nO0001\nG01 X1.\n", 0))
+            while not stop.is_set():  # ~10 kB/s at 115200 baud: the PC reads it all
+                control.write(b"\0\x11" * 32)
+
+        writer = threading.Thread(target=feed_for_ever, daemon=True)
+        writer.start()
+        try:
+            with pytest.raises(TransferError, match=r"quiet for 0\.5 s.*nothing was written"):
+                receive_program(pc, out, profile, timeout=5, quiet=0.5)
+        finally:
+            stop.set()
+            writer.join(5)
+            pc.close()
+            control.close()
+    assert not writer.is_alive()
+    assert list(out.iterdir()) == []
 
 
 def test_noisy_punch_is_a_typed_error_and_no_file(tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ from opendnc.errors import InputError
 from opendnc.haas.modal import scan
 from opendnc.tape.codes import Code
 from opendnc.tape.dialects import dialect_preamble, get_dialect
+from opendnc.tape.errors import TapeNameError
 from opendnc.tape.feed import TapeFeed, program_wire
 from opendnc.tape.naming import check_send_name, received_name
 from opendnc.tape.profiles import PROFILES, get_profile
@@ -109,3 +110,21 @@ def test_restart_keeps_a_siemens_header(tmp_path: Path) -> None:
         feed.close()
     assert wire.startswith("%_N_A_MPF\n;$PATH=/_N_MPF_DIR\n; OPENDNC RESTART AT LINE 5\nG21\n")
     assert wire.endswith("G1 X2 F100.\nM30\n\x1a")
+
+
+def test_received_names_breaking_the_rules_are_typed_errors() -> None:
+    with pytest.raises(TapeNameError, match="up to 4 digits"):
+        received_name(get_profile("fanuc-0i"), [], ["%", "O12345 (X)"])
+    assert received_name(get_profile("haas"), [], ["%", "O12345"]) == "O12345.nc"
+    with pytest.raises(TapeNameError, match=r"'B{32}\.\.\. \(4000 characters\)'.* 24"):
+        received_name(get_profile("siemens-840d"), [], [f"%_N_{'B' * 4000}_MPF"])
+    assert received_name(get_profile("siemens-840d"), [], [f"%_N_{'B' * 24}_MPF"]) == (
+        "B" * 24 + ".MPF"
+    )
+    okuma = get_profile("okuma-osp")
+    for label in ("$ABCDEFGHIJKLMNOPQ.MIN", "$PART1.MINX"):
+        with pytest.raises(TapeNameError, match="Okuma name is up to 16"):
+            received_name(okuma, [label], ["%"])
+    assert received_name(okuma, ["$ABCDEFGHIJKLMNOP.SUB"], ["%"]) == "ABCDEFGHIJKLMNOP.SUB"
+    with pytest.raises(TapeNameError, match="up to 20 characters"):
+        received_name(get_profile("fagor"), [], [f"%{'F' * 21},MX,"])

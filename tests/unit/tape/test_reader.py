@@ -63,3 +63,22 @@ def test_limits_turn_garbage_into_typed_errors() -> None:
     reader = TapeReader(ReaderConfig(codec=Codec(Code.ISO, parity=False), max_block=8))
     with pytest.raises(TapeCharacterError, match="longer than 8"):
         reader.feed(b"X" * 9)
+
+
+def test_filler_and_dc_codes_count_against_max_bytes() -> None:
+    reader = TapeReader(ReaderConfig(codec=Codec(Code.ISO, parity=False), max_bytes=1000))
+    reader.feed(b"\x12%\nO0001\n")  # the record has started
+    noise = b"\0\x11" * 100_000  # 200 000 bytes of NUL and DC1: never a character
+    with pytest.raises(TapeCharacterError, match="more than 1000 bytes"):
+        reader.feed(noise)
+    assert reader.received == 1001
+
+
+def test_a_leader_is_skipped_up_to_max_leader() -> None:
+    config = ReaderConfig(codec=Codec(Code.ISO, parity=False), max_leader=600)
+    reader = TapeReader(config)
+    reader.feed(b"\0" * 300 + b" " * 300 + b"%\nO0001\n" + b"\0" * 700)  # trailer: no leader
+    assert (reader.leader, reader.blocks) == (600, ["%", "O0001"])
+    long = TapeReader(config)
+    with pytest.raises(TapeCharacterError, match="more than 600 feed bytes before the program"):
+        long.feed(b"\x7f" * 601 + b"%\n")

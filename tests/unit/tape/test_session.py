@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from opendnc.errors import TransferError, TransportTimeout
+from opendnc.errors import InputError, TransferError, TransportTimeout
 from opendnc.tape.codes import Code, Codec
 from opendnc.tape.profiles import get_profile
 from opendnc.tape.reader import End
-from opendnc.tape.serial_io import Incoming, first_difference
+from opendnc.tape.serial_io import Incoming, first_difference, unique_path, write_files
 from opendnc.tape.session import PunchReceiver
 
 
@@ -63,3 +65,36 @@ def test_incoming_takes_both_dc3_bytes_and_keeps_a_punch_whole() -> None:
 def test_first_difference_names_the_line() -> None:
     assert first_difference("%\nA\nB\n", "%\nA \nB\n") is None
     assert first_difference("%\nA\nB\n", "%\nA\nC\n") == "line 3: sent 'B', punched 'C'"
+
+
+def test_only_characters_and_the_leader_keep_a_punch_open() -> None:
+    receiver = PunchReceiver(get_profile("fanuc-0i"), start_timeout=1.0, quiet=0.5)
+    receiver.receive_data(b"\x12")
+    armed = receiver.timer
+    receiver.receive_data(b"\0" * 20)  # leader: the punch is coming
+    assert receiver.timer is not armed
+    receiver.receive_data(_iso("%\nO0009\n"))
+    armed = receiver.timer
+    for _ in range(50):  # a noisy line after the start: filler and DC codes only
+        receiver.receive_data(b"\0\x11\xff\x93" * 100)
+    assert receiver.timer is armed
+    with pytest.raises(TransferError, match=r"quiet for 0\.5 s"):
+        receiver.timed_out()
+
+
+def test_files_are_written_all_or_none(tmp_path: Path) -> None:
+    (tmp_path / "B.SPF").mkdir()  # the second rename fails: a folder holds its name
+    (tmp_path / "B.SPF" / "keep").write_text("x")
+    with pytest.raises(InputError, match=r"cannot write .*B\.SPF: .*nothing was written"):
+        write_files([(tmp_path / "A.MPF", b"%_N_A_MPF\n"), (tmp_path / "B.SPF", b"%_N_B_SPF\n")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["B.SPF"]
+    write_files([(tmp_path / "A.MPF", b"A\n"), (tmp_path / "C.SPF", b"C\n")])
+    assert (tmp_path / "A.MPF").read_bytes() + (tmp_path / "C.SPF").read_bytes() == b"A\nC\n"
+
+
+def test_unique_path_skips_names_taken_on_disk_or_planned(tmp_path: Path) -> None:
+    (tmp_path / "O0001.nc").write_text("%\n")
+    planned = [tmp_path / "O0001-1.nc"]
+    assert unique_path(tmp_path, "O0001.nc", planned) == tmp_path / "O0001-2.nc"
+    with pytest.raises(InputError, match="file name too long"):
+        unique_path(tmp_path, "N" * 5000 + ".nc")

@@ -387,7 +387,11 @@ class VirtualFanuc:
         stream.set_timeout(POLL)
 
     def _store(self, reader: TapeReader) -> str | None:
-        name = received_name(self.profile, reader.label, reader.program) or "O0000.nc"
+        try:
+            name = received_name(self.profile, reader.label, reader.program) or "O0000.nc"
+        except DncError as exc:  # a name the control's rules do not allow
+            self._note(f"ERROR cannot store the program: {exc}")
+            return None
         try:
             with atomic_write(self.root / name) as handle:
                 handle.write(reader.text().encode("latin-1"))
