@@ -57,7 +57,8 @@ def test_an_idle_stream_wakes_only_for_its_heartbeats_and_ends_after_its_idle_ti
     assert got[1] == KEEP_ALIVE_COMMENT
     assert set(got[3:]) == {KEEP_ALIVE_COMMENT}
     assert 3 <= len(got[3:]) <= 4  # a heartbeat every 0.25 s of the last second
-    # it ended by itself, a second after its last news
-    assert 1.2 <= took <= 3.0
+    # it ended by itself, a second after its last news (which came with the first
+    # heartbeat, itself up to a quarter of one early: streams opened together spread out)
+    assert 1.1 <= took <= 3.0
     # a wake-up per heartbeat and per event (about ten), not one per 0.02 s interval (~60)
     assert asked <= 15

@@ -493,6 +493,8 @@ class VirtualFanuc:
             while len(reader.blocks) > executed and time.monotonic() >= next_run:
                 block = reader.blocks[executed]
                 executed += 1
+                if not block.strip():
+                    continue  # an EOB alone: nothing to run (where a line break split, it lands)
                 with self._lock:
                     self.state.executed.append(block)
                 next_run = max(next_run + period, time.monotonic())  # no catching up
