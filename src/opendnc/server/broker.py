@@ -116,8 +116,13 @@ class BrokerLink:
                 await asyncio.wait({words}, timeout=left)
             except asyncio.CancelledError:
                 continue  # the stop again: the words go on, within their own bound
+        # Its error (a broken link) or its cancel ends nothing more here, and a cancel it
+        # swallows (a client's wait for an acknowledgement can) never holds the stop: one
+        # second more at most.
         with contextlib.suppress(Exception, asyncio.CancelledError):
-            await words  # its error (a broken link) or its cancel ends nothing more here
+            await asyncio.wait({words}, timeout=1.0)
+        if words.done() and not words.cancelled():
+            words.exception()  # retrieved: a broken link's error is not reported again
 
     async def run(
         self,
