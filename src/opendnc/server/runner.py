@@ -524,6 +524,9 @@ class JobRunner:
         self._epochs.pop(job_id, None)
         self._ended(run, label or ended, **extra)
         state.job_id = None
+        # the job no longer speaks for the machine: the card shows the control's own word
+        # again at once, not the drip-feed's "running" until a poll happens to change it
+        self.machines.publish(state)
 
     def _settle_later(
         self,
