@@ -21,13 +21,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import re
 import resource
 import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from collections import Counter
@@ -35,58 +31,9 @@ from pathlib import Path
 
 import httpx
 
-SERVER_LINE = re.compile(rb"opendnc server on (http://\S+?)/ ")
+from served import cpu_seconds, rss_mib, start_serve, stop_serve
+
 BIG = 64 * 1000 * 1000
-
-
-def rss_mib(pid: int, field: str = "VmRSS") -> float:
-    """A memory figure of process ``pid`` in MiB."""
-    text = Path(f"/proc/{pid}/status").read_text()
-    found = re.search(rf"{field}:\s+(\d+) kB", text)
-    return int(found.group(1)) / 1024 if found else 0.0
-
-
-def cpu_seconds(pid: int) -> float:
-    """User and system CPU seconds of process ``pid`` so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def start(work: Path, clients: str) -> tuple[subprocess.Popen[bytes], str, str]:
-    """``opendnc serve`` with one machine that is switched off and ``clients`` as its
-    ``[clients]`` table; (process, URL, admin key)."""
-    config = work / "shop.toml"
-    config.write_text(
-        f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{work / "lib"}"\n\n'
-        + (f"[clients]\n{clients}\n\n" if clients else "")
-        + '[[machines]]\nname = "m1"\nkind = "lsv2"\nhost = "127.0.0.1"\nport = 9\n'
-    )
-    url = f"sqlite:///{work / 'opendnc.db'}"
-    cli = [sys.executable, "-m", "opendnc.cli.main"]
-    made = subprocess.run(
-        [*cli, "keys", "create", "--role", "admin", "--config", str(config), "--db", url],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    )
-    log = work / "server.log"
-    with log.open("wb") as out:
-        proc = subprocess.Popen(
-            [*cli, "serve", "--config", str(config), "--db", url, "--bind", "127.0.0.1:0"],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-        )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        found = SERVER_LINE.search(log.read_bytes())
-        if found:
-            return proc, found.group(1).decode(), made.stdout.strip()
-        if proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    proc.kill()
-    raise SystemExit(f"the server did not start: {log.read_text()[-2000:]}")
 
 
 def _port(url: str) -> int:
@@ -238,19 +185,14 @@ def main() -> None:
     if args.no_clients_table:
         clients = ""
     with tempfile.TemporaryDirectory(prefix="opendnc-bounded-") as folder:
-        proc, url, key = start(Path(folder), clients)
+        proc, url, key = start_serve(Path(folder), clients=clients)
         try:
             if args.part in ("all", "downloads"):
                 downloads(url, key, proc.pid, args.downloads, args.send_timeout)
             if args.part in ("all", "streams"):
                 streams(url, key, proc.pid, args.streams, args.gets)
         finally:
-            proc.terminate()
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_serve(proc)
 
 
 if __name__ == "__main__":

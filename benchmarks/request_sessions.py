@@ -22,7 +22,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).parent))
 from http_load import Connection, LoadResult, endpoint, readers_and_writers, timed
-from soak_server import start
+from served import start_serve, stop_serve
 
 
 async def burst(url: str, key: str, size: int = 45, rounds: int = 3) -> LoadResult:
@@ -42,13 +42,12 @@ async def burst(url: str, key: str, size: int = 45, rounds: int = 3) -> LoadResu
 def measure(seconds: float, database: str | None) -> dict[str, Any]:
     """Both rounds against one fresh server."""
     with tempfile.TemporaryDirectory(prefix="opendnc-sessions-") as folder:
-        proc, url, key = start(Path(folder), database)
+        proc, url, key = start_serve(Path(folder), database=database)
         try:
             mixed = asyncio.run(readers_and_writers(url, key, seconds=seconds, machine="m1"))
             bursts = asyncio.run(burst(url, key))
         finally:
-            proc.terminate()
-            proc.wait(15)
+            stop_serve(proc)
     return {
         "database": "postgresql" if database else "sqlite",
         "load_average": os.getloadavg()[0],

@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import random
-import re
-import subprocess
-import sys
 import tempfile
 import time
 from collections import Counter
@@ -24,9 +21,9 @@ from typing import Any
 
 from http_load import Connection, LoadResult, endpoint, readers_and_writers, timed
 from opendnc.server.limits import Limits
+from served import rss_mib, start_serve, stop_serve
 
 LIMITS = Limits()
-SERVER_LINE = re.compile(rb"opendnc server on (http://\S+?)/ ")
 
 BAD: list[tuple[str, str, bytes, str]] = [
     ("GET", "/api/jobs/99999999999999999999", b"", ""),
@@ -57,50 +54,6 @@ BAD: list[tuple[str, str, bytes, str]] = [
     ("POST", "/api/jobs/1/move", b'{"index":1e400}', "application/json"),
     ("GET", "/api/inbox/-1", b"", ""),
 ]
-
-
-def rss_mib(pid: int, field: str = "VmRSS") -> float:
-    """A memory figure of process ``pid`` in MiB."""
-    text = Path(f"/proc/{pid}/status").read_text()
-    found = re.search(rf"{field}:\s+(\d+) kB", text)
-    return int(found.group(1)) / 1024 if found else 0.0
-
-
-def start(work: Path, database: str | None) -> tuple[subprocess.Popen[bytes], str, str]:
-    """``opendnc serve`` with one machine that is switched off; (process, URL, admin key)."""
-    config = work / "shop.toml"
-    config.write_text(
-        f'[server]\nbind = "127.0.0.1:0"\n[library]\npath = "{work / "lib"}"\n\n'
-        # one key opens every event stream of the soak (docs/server.md#bounded-clients)
-        "[clients]\nstreams_per_user = 2000\n\n"
-        '[[machines]]\nname = "m1"\nkind = "lsv2"\nhost = "127.0.0.1"\nport = 9\n'
-    )
-    url = database or f"sqlite:///{work / 'opendnc.db'}"
-    cli = [sys.executable, "-m", "opendnc.cli.main"]
-    made = subprocess.run(
-        [*cli, "keys", "create", "--role", "admin", "--config", str(config), "--db", url],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60,
-    )
-    log = work / "server.log"
-    with log.open("wb") as out:
-        proc = subprocess.Popen(
-            [*cli, "serve", "--config", str(config), "--db", url, "--bind", "127.0.0.1:0"],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-        )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        found = SERVER_LINE.search(log.read_bytes())
-        if found:
-            return proc, found.group(1).decode(), made.stdout.strip()
-        if proc.poll() is not None:
-            break
-        time.sleep(0.05)
-    proc.kill()
-    raise SystemExit(f"the server did not start: {log.read_text()[-2000:]}")
 
 
 class Slow:
@@ -185,7 +138,8 @@ def soak_server(
     )
     with tempfile.TemporaryDirectory(prefix="opendnc-soak-server-") as folder:
         work = Path(folder)
-        proc, url, key = start(work, database)
+        # one key opens every event stream of the soak (docs/server.md#bounded-clients)
+        proc, url, key = start_serve(work, clients="streams_per_user = 2000", database=database)
         _host, port = endpoint(url)
         try:
             time.sleep(1)
@@ -230,12 +184,7 @@ def soak_server(
             after = rss_mib(proc.pid)
             alive = proc.poll() is None
         finally:
-            proc.terminate()
-            try:
-                proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_serve(proc)
         log = (work / "server.log").read_text(errors="replace")
     header_deadline = LIMITS.header_timeout + 3
     body_deadline = LIMITS.body_timeout + 3

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+import functools
+import inspect
+import typing
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -72,19 +76,75 @@ def _profile(
     return changed
 
 
-BaudOpt = typer.Option(None, "--baud", help="Baud rate (default: the profile's).")
-LineOpt = typer.Option(None, "--line", help="Data bits, parity, stop bits: 7E2, 8N2, 8N1 ...")
-CodeOpt = typer.Option(None, "--code", help="iso or eia (default: the profile's).")
-EobOpt = typer.Option(None, "--eob", help="End of block: lf, crlf, cr or lfcrcr.")
-FlowOpt = typer.Option(None, "--flow", help="xonxoff (DC1/DC3, done by opendnc), rtscts, none.")
-TvOpt = typer.Option(None, "--tv-check/--no-tv-check", help="TV check (even blocks).")
-Dc1Opt = typer.Option(
-    None, "--wait-dc1/--no-wait-dc1", help="Start only on the control's DC1 (its READ)."
-)
-Dc2Opt = typer.Option(
-    None, "--punch-dc2/--no-punch-dc2", help="A punch starts with DC2 and ends with DC4."
-)
-LeaderOpt = typer.Option(None, "--leader", help="Feed characters before and after.")
+# The options that change the chosen profile, by the name of the command's parameter (the same
+# as _profile's keyword): (option, type, help). Each is None unless given: the profile's own.
+_CHANGES: dict[str, tuple[str, type, str]] = {
+    "baud": ("--baud", int, "Baud rate (default: the profile's)."),
+    "line": ("--line", str, "Data bits, parity, stop bits: 7E2, 8N2, 8N1 ..."),
+    "code": ("--code", str, "iso or eia (default: the profile's)."),
+    "eob": ("--eob", str, "End of block: lf, crlf, cr or lfcrcr."),
+    "flow": ("--flow", str, "xonxoff (DC1/DC3, done by opendnc), rtscts, none."),
+    "tv_check": ("--tv-check/--no-tv-check", bool, "TV check (even blocks)."),
+    "wait_dc1": ("--wait-dc1/--no-wait-dc1", bool, "Start only on the control's DC1 (its READ)."),
+    "leader": ("--leader", int, "Feed characters before and after."),
+    "punch_dc2": ("--punch-dc2/--no-punch-dc2", bool, "A punch starts with DC2 and ends with DC4."),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class ProfileChanges:
+    """The profile-changing options a command was given (``None``: the profile's own)."""
+
+    values: Mapping[str, Any]
+
+    def apply(self, name: str) -> Profile:
+        """Profile ``name`` with these changes (:class:`InputError` for a bad value)."""
+        return _profile(name, **self.values)
+
+
+NO_CHANGES = ProfileChanges({})
+
+Command = Callable[..., None]
+
+
+def with_profile_changes(*names: str) -> Callable[[Command], Command]:
+    """Give a command the options of :data:`_CHANGES` named ``names``, in the place of its
+    ``changes`` parameter (which receives them as one :class:`ProfileChanges`): each command
+    that changes a profile states which changes it takes, and each option is defined once."""
+
+    def wrap(command: Command) -> Command:
+        hints = typing.get_type_hints(command)
+        params: list[inspect.Parameter] = []
+        for param in inspect.signature(command).parameters.values():
+            if param.name != "changes":
+                params.append(param.replace(annotation=hints[param.name]))
+                continue
+            for name in names:
+                option, kind, text = _CHANGES[name]
+                params.append(
+                    param.replace(
+                        name=name,
+                        annotation=kind | None,
+                        default=typer.Option(None, option, help=text),
+                    )
+                )
+
+        @functools.wraps(command)
+        def run(**kwargs: Any) -> None:
+            given = {name: kwargs.pop(name) for name in names}
+            command(changes=ProfileChanges(given), **kwargs)
+
+        # typer reads the options from the signature and its annotations
+        run.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+        run.__annotations__ = {param.name: param.annotation for param in params}
+        return run
+
+    return wrap
+
+
+PortOpt = typer.Option(..., "--port", "-p", help=PORT_HELP)
+ProfileOpt = typer.Option("fanuc-0i", "--profile", help=PROFILE_HELP)
+ChunkOpt = typer.Option(None, "--chunk", help="Bytes per write.")
 JsonOpt = typer.Option(False, "--json", help="Print the result as JSON.")
 
 
@@ -125,20 +185,15 @@ def _profile_row(p: Profile) -> dict[str, Any]:
 
 
 @app.command("send")
+@with_profile_changes(
+    "baud", "line", "code", "eob", "flow", "tv_check", "wait_dc1", "leader", "punch_dc2"
+)
 def send_cmd(
     file: Path = typer.Argument(..., help="Program to send.", exists=True, dir_okay=False),
-    port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
-    profile: str = typer.Option("fanuc-0i", "--profile", help=PROFILE_HELP),
-    baud: int | None = BaudOpt,
-    line: str | None = LineOpt,
-    code: str | None = CodeOpt,
-    eob: str | None = EobOpt,
-    flow: str | None = FlowOpt,
-    tv_check: bool | None = TvOpt,
-    wait_dc1: bool | None = Dc1Opt,
-    leader: int | None = LeaderOpt,
-    punch_dc2: bool | None = Dc2Opt,
-    chunk: int | None = typer.Option(None, "--chunk", help="Bytes per write."),
+    port: str = PortOpt,
+    profile: str = ProfileOpt,
+    changes: ProfileChanges = NO_CHANGES,
+    chunk: int | None = ChunkOpt,
     xoff_timeout: float = typer.Option(60.0, "--xoff-timeout", help="Fail if DC3 lasts longer."),
     verify: bool = typer.Option(
         False, "--verify", help="Then wait for the control to punch it back and compare."
@@ -155,18 +210,7 @@ def send_cmd(
     )
 
     with cli_errors():
-        prof = _profile(
-            profile,
-            baud=baud,
-            line=line,
-            code=code,
-            eob=eob,
-            flow=flow,
-            tv_check=tv_check,
-            wait_dc1=wait_dc1,
-            leader=leader,
-            punch_dc2=punch_dc2,
-        )
+        prof = changes.apply(profile)
         check_before_send(file, prof)  # a program the control would refuse never opens the port
         stream = open_tape_port(port, prof)
         with contextlib.closing(stream):
@@ -224,23 +268,17 @@ def _print_sent(report: Any) -> None:
 
 
 @app.command("dnc")
+@with_profile_changes("baud", "line", "code", "eob", "flow", "tv_check", "wait_dc1", "leader")
 def dnc_cmd(
     file: Path = typer.Argument(..., help="Program to drip-feed.", exists=True, dir_okay=False),
-    port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
-    profile: str = typer.Option("fanuc-0i", "--profile", help=PROFILE_HELP),
+    port: str = PortOpt,
+    profile: str = ProfileOpt,
     from_line: int = typer.Option(
         1, "--from-line", help="Restart at this file line (the modal preamble is sent first)."
     ),
     no_retract: bool = typer.Option(False, "--no-retract", help="Preamble without the Z retract."),
-    baud: int | None = BaudOpt,
-    line: str | None = LineOpt,
-    code: str | None = CodeOpt,
-    eob: str | None = EobOpt,
-    flow: str | None = FlowOpt,
-    tv_check: bool | None = TvOpt,
-    wait_dc1: bool | None = Dc1Opt,
-    leader: int | None = LeaderOpt,
-    chunk: int | None = typer.Option(None, "--chunk", help="Bytes per write."),
+    changes: ProfileChanges = NO_CHANGES,
+    chunk: int | None = ChunkOpt,
     xoff_timeout: float = typer.Option(120.0, "--xoff-timeout", help="Fail if DC3 lasts longer."),
     unsafe: bool = typer.Option(False, "--unsafe", help="Required: the program runs."),
     json_out: bool = JsonOpt,
@@ -252,17 +290,7 @@ def dnc_cmd(
     with cli_errors():
         if not unsafe:
             raise SafetyLockError(f"drip-feeding {file.name} (it runs on the machine)")
-        prof = _profile(
-            profile,
-            baud=baud,
-            line=line,
-            code=code,
-            eob=eob,
-            flow=flow,
-            tv_check=tv_check,
-            wait_dc1=wait_dc1,
-            leader=leader,
-        )
+        prof = changes.apply(profile)
         check_before_send(file, prof, drip_feed=True)
         with _bar(f"dnc {file.name}", file.stat().st_size, json_out) as progress:
             report = send_program(
@@ -292,15 +320,12 @@ def dnc_cmd(
 
 
 @app.command("recv")
+@with_profile_changes("baud", "line", "code", "tv_check", "punch_dc2")
 def recv_cmd(
     out: Path = typer.Argument(..., help="Folder (named by the program) or file to write."),
-    port: str = typer.Option(..., "--port", "-p", help=PORT_HELP),
-    profile: str = typer.Option("fanuc-0i", "--profile", help=PROFILE_HELP),
-    baud: int | None = BaudOpt,
-    line: str | None = LineOpt,
-    code: str | None = CodeOpt,
-    tv_check: bool | None = TvOpt,
-    punch_dc2: bool | None = Dc2Opt,
+    port: str = PortOpt,
+    profile: str = ProfileOpt,
+    changes: ProfileChanges = NO_CHANGES,
     timeout: float = typer.Option(60.0, "--timeout", help="Seconds to wait for the punch."),
     quiet: float | None = typer.Option(
         None, "--quiet", help="Seconds of silence that end the receive (default: the profile's)."
@@ -315,9 +340,7 @@ def recv_cmd(
     from opendnc.tape.serial_io import open_tape_port, receive_program
 
     with cli_errors():
-        prof = _profile(
-            profile, baud=baud, line=line, code=code, tv_check=tv_check, punch_dc2=punch_dc2
-        )
+        prof = changes.apply(profile)
         if not out.is_dir() and not out.parent.is_dir():
             raise InputError(f"no folder {out.parent} for {out.name}")
         # the port is open before the ready file appears: a punch after it is never lost

@@ -1,7 +1,8 @@
 """Drip-feed (DNC) a program to a Haas over RS-232, with XON/XOFF done by us.
 
 The decisions live in the sans-IO engine, :mod:`opendnc.haas.dnc_engine` (its names are
-re-exported here); this module holds its two drivers, which only carry out the engine's steps:
+re-exported here). This module holds its two entry points; they check the program, then hand
+the run to the drivers every engine shares (:mod:`opendnc.haas.dnc_drivers`):
 
 * :func:`stream_program` -- blocking, over any port :func:`opendnc.transport.open_stream`
   opens (a device, ``socket://`` or ``tcp://`` to a serial server, ``rfc2217://``) or an
@@ -15,11 +16,11 @@ Drip-feeding makes the machine move, so both refuse with
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import time
 from pathlib import Path
 
-from opendnc.errors import PeerClosed, SafetyLockError, TransportError, TransportTimeout
+from opendnc.errors import SafetyLockError
+from opendnc.haas.dnc_drivers import run_on_port, run_on_streams
 from opendnc.haas.dnc_engine import (
     POLL,
     XOFF,
@@ -73,7 +74,6 @@ __all__ = [
     "stream_program_async",
 ]
 
-READ_SIZE = 4096  # the control sends flow bytes, a DPRNT line at most: any size will do
 WRITE_TIMEOUT = 30.0  # seconds a write may wait: a held CTS ends in a clear error, not a hang
 
 
@@ -134,50 +134,13 @@ def stream_program(
     """
     cfg = config or DncConfig()
     feed = _prepare(path, from_line, cfg, safe_mode)
-    owned = isinstance(port, str)
-    try:
-        stream = (
-            open_dnc_port(
-                port, baud, parity=parity, bytesize=bytesize, stopbits=stopbits, flow=cfg.flow
-            )
-            if isinstance(port, str)
-            else port
+
+    def open_port(url: str) -> PortStream:
+        return open_dnc_port(
+            url, baud, parity=parity, bytesize=bytesize, stopbits=stopbits, flow=cfg.flow
         )
-    except BaseException:
-        feed.close()
-        raise
-    run = DncRun(feed, cfg, clock=clock, progress=progress, on_event=on_event)
-    timeout: float | None = None
-    try:
-        while True:
-            # look at the control's bytes before every write: a DC3 stops the next chunk
-            try:
-                run.incoming(stream.read_nowait(READ_SIZE))
-            except PeerClosed:
-                run.link_closed()
-            step = run.next_step()
-            if isinstance(step, Send):
-                stream.write(step.data)
-                if step.drain:
-                    stream.drain()
-            elif isinstance(step, Wait):
-                if step.seconds != timeout:
-                    timeout = step.seconds
-                    stream.set_timeout(timeout)
-                try:
-                    run.incoming(stream.read(READ_SIZE))
-                except TransportTimeout:
-                    pass
-                except PeerClosed:
-                    run.link_closed()
-            elif isinstance(step, Drain):
-                stream.drain()
-            else:
-                break
-    finally:
-        feed.close()
-        if owned:
-            stream.close()
+
+    run = run_on_port(feed, cfg, port, open_port, progress=progress, on_event=on_event, clock=clock)
     return run.report()
 
 
@@ -192,44 +155,11 @@ async def stream_program_async(
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
 ) -> DncReport:
-    """:func:`stream_program` over asyncio streams (e.g. a serial server reached over TCP).
-
-    A reader task hands the control's bytes to the engine as they come; the writer sends one
-    chunk at a time and yields in between, so a DC3 stops it before the next chunk.
-    """
+    """:func:`stream_program` over asyncio streams (e.g. a serial server reached over TCP);
+    see :func:`~opendnc.haas.dnc_drivers.run_on_streams`."""
     cfg = config or DncConfig()
     feed = _prepare(path, from_line, cfg, safe_mode)
-    run = DncRun(feed, cfg, progress=progress, on_event=on_event)
-    news = asyncio.Event()
-
-    async def read_control() -> None:
-        while data := await reader.read(READ_SIZE):
-            run.incoming(data)
-            news.set()
-        run.link_closed()
-        news.set()
-
-    reading = asyncio.create_task(read_control())
-    try:
-        while True:
-            step = run.next_step()
-            if isinstance(step, Send):
-                writer.write(step.data)
-                await writer.drain()
-                await asyncio.sleep(0)  # let the reader task see a DC3 first
-            elif isinstance(step, Wait):
-                news.clear()
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(news.wait(), step.seconds)
-            elif isinstance(step, Drain):
-                await writer.drain()
-            else:
-                break
-    except OSError as exc:
-        raise TransportError(f"link failed during the drip-feed: {exc}") from exc
-    finally:
-        reading.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await reading
-        feed.close()
+    run = await run_on_streams(
+        feed, cfg, reader, writer, what="drip-feed", progress=progress, on_event=on_event
+    )
     return run.report()

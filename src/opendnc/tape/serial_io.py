@@ -5,7 +5,10 @@ The decisions are the engine's: a :class:`~opendnc.haas.dnc_engine.DncRun` over 
 DC1 resumes; small writes so little follows a DC3), a
 :class:`~opendnc.tape.session.PunchReceiver` for a punch. This module only carries out
 their steps on a :class:`~opendnc.transport.base.PortStream` from the one dispatcher
-(:func:`opendnc.transport.open_stream`: devices, ``socket://``, ``tcp://``, ``rfc2217://``).
+(:func:`opendnc.transport.open_stream`: devices, ``socket://``, ``tcp://``, ``rfc2217://``);
+the run's steps through :func:`opendnc.haas.dnc_drivers.run_on_port`, which the Haas
+drip-feed shares, the punch's waits from :func:`opendnc.tape.session.receive_steps`, which
+the asyncio driver (:mod:`opendnc.tape.aio`) shares.
 
 A drip-feed runs the program on the machine: :func:`send_program` refuses it with
 :class:`~opendnc.errors.SafetyLockError` unless ``safe_mode=False``. A received program is
@@ -20,6 +23,7 @@ import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 from opendnc.atomicfile import AtomicWriter
 from opendnc.errors import (
@@ -30,7 +34,8 @@ from opendnc.errors import (
     TransportTimeout,
     os_reason,
 )
-from opendnc.haas.dnc_engine import DncConfig, DncEvent, DncRun, Drain, Flow, Send, Wait
+from opendnc.haas.dnc_drivers import READ_SIZE, run_on_port
+from opendnc.haas.dnc_engine import DncConfig, DncEvent, DncRun, Flow
 from opendnc.haas.modal import RestartPlan
 from opendnc.nctext import check_program, check_program_file
 from opendnc.tape.codes import DC1, DC2, DC3, Codec
@@ -38,12 +43,11 @@ from opendnc.tape.feed import HEAD_LINES, TapeFeed, leader_bytes
 from opendnc.tape.naming import check_send_name, received_name
 from opendnc.tape.profiles import Framing, Profile
 from opendnc.tape.reader import ReaderConfig, TapeReader
-from opendnc.tape.session import PunchReceiver, Received
+from opendnc.tape.session import PunchReceiver, Received, receive_steps
 from opendnc.transport.base import PortStream
 from opendnc.transport.urls import open_stream
 
 POLL = 0.05
-READ_SIZE = 4096
 WRITE_TIMEOUT = 30.0
 # after the last byte, keep the port open until the control's flow bytes have stopped this
 # long (closing can discard what an adapter or a serial server still holds; see DncConfig)
@@ -157,6 +161,23 @@ def _config(
     )
 
 
+class SendOptions(TypedDict, total=False):
+    """How to send a program: the keywords :func:`send_program` and
+    :func:`~opendnc.tape.aio.send_program_async` pass on to :func:`prepare_send` (which holds
+    their defaults)."""
+
+    drip_feed: bool
+    from_line: int
+    retract: bool
+    chunk: int | None
+    xoff_timeout: float
+    wait_dc1: bool | None
+    text_check: bool
+    codec: Codec | None
+    safe_mode: bool
+    linger: float
+
+
 def prepare_send(
     path: Path,
     profile: Profile,
@@ -173,7 +194,7 @@ def prepare_send(
     linger: float = LINGER,
 ) -> tuple[TapeFeed, DncConfig]:
     """The checks before a send (safety, NC text, name rules) and its feed and run config:
-    what the blocking and the asyncio drivers share."""
+    what the blocking and the asyncio drivers share (the keywords are :class:`SendOptions`)."""
     if drip_feed and safe_mode:
         raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
     if from_line != 1 and not drip_feed:
@@ -227,21 +248,12 @@ def send_program(
     path: Path,
     profile: Profile,
     *,
-    drip_feed: bool = False,
-    from_line: int = 1,
-    retract: bool = True,
     baud: int | None = None,
-    chunk: int | None = None,
-    xoff_timeout: float = 60.0,
-    wait_dc1: bool | None = None,
-    text_check: bool = True,
-    codec: Codec | None = None,
-    safe_mode: bool = True,
     progress: Progress | None = None,
     on_event: Callable[[DncEvent], None] | None = None,
     clock: Clock = time.monotonic,
     keep: bytearray | None = None,
-    linger: float = LINGER,
+    **options: Unpack[SendOptions],
 ) -> TapeReport:
     """Send ``path`` to a control reading tape (``drip_feed``: running it in tape/DNC mode).
 
@@ -249,60 +261,25 @@ def send_program(
     DC3 within one write of ``chunk`` bytes, resumes on DC1; :class:`TransportTimeout` when
     a DC3 lasts longer than ``xoff_timeout``. ``keep`` collects what the control sent that
     was not flow control (a punch that follows). ``linger``: seconds of quiet from the
-    control after the last byte before the port is let go.
+    control after the last byte before the port is let go. The ``options`` are
+    :class:`SendOptions`, checked by :func:`prepare_send` before any port opens.
     """
-    feed, config = prepare_send(
-        path,
-        profile,
-        drip_feed=drip_feed,
-        from_line=from_line,
-        retract=retract,
-        chunk=chunk,
-        xoff_timeout=xoff_timeout,
-        wait_dc1=wait_dc1,
-        text_check=text_check,
-        codec=codec,
-        safe_mode=safe_mode,
-        linger=linger,
-    )
-    owned = isinstance(port, str)
-    try:
-        stream = open_tape_port(port, profile, baud=baud) if isinstance(port, str) else port
-    except BaseException:
-        feed.close()
-        raise
-    run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event)
+    feed, config = prepare_send(path, profile, **options)
     incoming = Incoming()
-    timeout: float | None = None
-    try:
-        while True:
-            try:
-                run.incoming(incoming.split(stream.read_nowait(READ_SIZE)))
-            except PeerClosed:
-                run.link_closed()
-            step = run.next_step()
-            if isinstance(step, Send):
-                stream.write(step.data)
-                if step.drain:
-                    stream.drain()
-            elif isinstance(step, Wait):
-                if step.seconds != timeout:
-                    timeout = step.seconds
-                    stream.set_timeout(timeout)
-                try:
-                    run.incoming(incoming.split(stream.read(READ_SIZE)))
-                except TransportTimeout:
-                    pass
-                except PeerClosed:
-                    run.link_closed()
-            elif isinstance(step, Drain):
-                stream.drain()
-            else:
-                break
-    finally:
-        feed.close()
-        if owned:
-            stream.close()
+
+    def open_port(url: str) -> PortStream:
+        return open_tape_port(url, profile, baud=baud)
+
+    run = run_on_port(
+        feed,
+        config,
+        port,
+        open_port,
+        split=incoming.split,
+        progress=progress,
+        on_event=on_event,
+        clock=clock,
+    )
     if keep is not None:
         keep += incoming.kept
     return tape_report(run, feed)
@@ -327,30 +304,28 @@ def receive_record(
         profile, codec=codec, start_timeout=timeout, quiet=quiet, quiet_ends=quiet_ends
     )
     receiver.receive_data(already)
-    serial = -1
-    deadline = float("inf")
+    steps = receive_steps(receiver, clock)
     current: float | None = None
-    while not receiver.finished:
-        timer = receiver.timer
-        if timer is not None and timer.serial != serial:
-            serial, deadline = timer.serial, clock() + timer.seconds
-        now = clock()
-        if timer is not None and now >= deadline:
-            receiver.timed_out()
-            continue
-        wait = POLL if timer is None else max(0.001, min(POLL, deadline - now))
-        if wait != current:
-            current = wait
-            stream.set_timeout(wait)
-        try:
-            receiver.receive_data(stream.read(READ_SIZE))
-        except TransportTimeout:
-            continue
-        except PeerClosed:
-            receiver.peer_closed()
+    try:
+        wait = next(steps)
+        while True:
+            # a short poll even without a timer: a read never blocks for long
+            poll = POLL if wait is None else max(0.001, min(POLL, wait))
+            if poll != current:
+                current = poll
+                stream.set_timeout(poll)
+            try:
+                data: bytes | None = stream.read(READ_SIZE)
+            except TransportTimeout:
+                data = None
+            except PeerClosed:
+                data = b""
+            wait = steps.send(data)
+    except StopIteration as done:
+        record: Received = done.value
     if leftover is not None:
         leftover += receiver.leftover
-    return receiver.result()
+    return record
 
 
 def unique_path(folder: Path, name: str, taken: Collection[Path] = ()) -> Path:

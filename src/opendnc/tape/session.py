@@ -2,7 +2,9 @@
 
 The control drives a punch: it sends DC2 (punch on), leader, the record, trailer, DC4
 (punch off). :class:`PunchReceiver` is fed what arrives and told when its :attr:`timer` ran
-out; the driver holds the clock and the port. It ends
+out; :func:`receive_steps` turns its timers into waits on a clock the driver passes in, so a
+driver (blocking or asyncio, :mod:`opendnc.tape.serial_io` and :mod:`opendnc.tape.aio`) only
+reads the port. A receive ends
 
 * at the record's closing ``%`` (ISO) or ER (EIA), without waiting for the DC4;
 * at DC4 or at the profile's end-of-file byte (Siemens, Fagor), or
@@ -19,6 +21,7 @@ Every failure is typed: :class:`~opendnc.errors.TransportTimeout` when no punch 
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 
 from opendnc.errors import TransferError, TransportTimeout
@@ -165,3 +168,35 @@ class PunchReceiver:
 def _find_dc2(data: bytes) -> int:
     # DC2 has an even number of ones: the same byte with or without the ISO parity bit
     return data.find(bytes((DC2,)))
+
+
+ReceiveSteps = Generator[float | None, bytes | None, Received]
+
+
+def receive_steps(receiver: PunchReceiver, clock: Callable[[], float]) -> ReceiveSteps:
+    """The waits of ``receiver``'s receive, for a driver that holds the port.
+
+    Yields how long the driver may wait for the control's bytes (``None``: without limit), and
+    is sent what came: the bytes, ``None`` when nothing came within that time, ``b""`` when
+    the link closed. Returns the record (``StopIteration.value``); raises the receiver's errors.
+    A driver may wait less than it is told and send ``None``: the timer is measured on
+    ``clock``, not counted in waits.
+    """
+    serial, deadline = -1, float("inf")
+    while not receiver.finished:
+        timer = receiver.timer
+        wait: float | None = None
+        if timer is not None:
+            if timer.serial != serial:
+                serial, deadline = timer.serial, clock() + timer.seconds
+            wait = deadline - clock()
+            if wait <= 0:
+                receiver.timed_out()
+                continue
+        data = yield wait
+        if data is None:
+            continue
+        if not data:
+            receiver.peer_closed()
+        receiver.receive_data(data)
+    return receiver.result()
