@@ -18,7 +18,7 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
-from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
