@@ -56,7 +56,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, tzinfo
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -66,10 +66,14 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
-from opendnc.server.config import NetShareConfig
 from opendnc.server.events import EventBus, NetshareChanged
 from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
+
+if TYPE_CHECKING:
+    # for types only: the configuration loads the kinds, and a Haas NGC's connector reads
+    # its share through this module's folders
+    from opendnc.server.config import NetShareConfig
 
 __all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
 

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 
 from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
 from opendnc.server.configkeys import NAME, ConfigError, get_key, known_keys
-from opendnc.server.kinds import haas_ngc, haas_serial, lsv2, mtconnect, serial
 from opendnc.server.kinds.base import (
     COMMON_KEYS,
     Capabilities,
@@ -26,6 +25,11 @@ from opendnc.server.kinds.base import (
     ReceiveFolder,
     SharedMachine,
 )
+from opendnc.server.kinds.haas_ngc import spec as haas_ngc
+from opendnc.server.kinds.haas_serial import spec as haas_serial
+from opendnc.server.kinds.lsv2 import spec as lsv2
+from opendnc.server.kinds.mtconnect import spec as mtconnect
+from opendnc.server.kinds.serial import spec as serial
 
 if TYPE_CHECKING:
     from opendnc.server.machines.base import Connector
