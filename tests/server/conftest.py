@@ -98,7 +98,7 @@ def shop(db_url: str, tmp_path: Path) -> Iterator[Any]:
     from opendnc.server import library
     from opendnc.server.app import build
     from opendnc.server.config import MachineConfig, parse_config
-    from opendnc.server.kinds import connector_for
+    from opendnc.server.kinds.registry import connector_for
     from opendnc.server.machines.base import Connector
     from opendnc.sim.fleet import server_config
     from tests.server.db_outage import Outage

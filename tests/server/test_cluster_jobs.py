@@ -11,7 +11,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server import jobs, library
-from opendnc.server.config import Lsv2Machine
+from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.leases import Leases, holds
 from opendnc.server.store.models import AuditEntry, JobKind, JobState
 

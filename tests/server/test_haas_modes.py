@@ -10,8 +10,8 @@ import pytest
 from opendnc.haas.mdc import parse_reply
 from opendnc.server.events import MachineStatusChanged
 from opendnc.server.items import items_of
+from opendnc.server.kinds.haas_ngc.connector import mdc_status
 from opendnc.server.machines.base import MachineStatus
-from opendnc.server.machines.haas_ngc import mdc_status
 
 Q500 = parse_reply("PROGRAM, O00123, IDLE, PARTS, 380")
 

@@ -11,7 +11,7 @@ from zoneinfo import ZoneInfo
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server import inbox, jobs
-from opendnc.server.config import HaasNgcMachine
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from tests.server.conftest import on
 
 BERLIN = ZoneInfo("Europe/Berlin")

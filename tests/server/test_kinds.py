@@ -9,22 +9,14 @@ from pathlib import Path
 import pytest
 
 from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import (
-    ConfigError,
-    HaasNgcMachine,
-    HaasSerialMachine,
-    Lsv2Machine,
-    MachineKind,
-    parse_config,
-)
-from opendnc.server.kinds import (
-    KINDS,
-    Capabilities,
-    MtconnectMachine,
-    SerialMachine,
-    connector_for,
-    spec_of,
-)
+from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.kinds.base import Capabilities
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.kinds.haas_serial import HaasSerialMachine
+from opendnc.server.kinds.lsv2 import Lsv2Machine
+from opendnc.server.kinds.mtconnect import MtconnectMachine
+from opendnc.server.kinds.registry import KINDS, connector_for, spec_of
+from opendnc.server.kinds.serial import SerialMachine
 
 SHOP = """
 [[machines]]
@@ -117,11 +109,11 @@ def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
 
 
 def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
-    from opendnc.server.machines.haas_ngc import HaasNgcConnector
-    from opendnc.server.machines.haas_serial import HaasSerialConnector
-    from opendnc.server.machines.lsv2 import Lsv2Connector
-    from opendnc.server.machines.mtconnect import MtconnectConnector
-    from opendnc.server.machines.serial import TapeConnector
+    from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
+    from opendnc.server.kinds.haas_serial.connector import HaasSerialConnector
+    from opendnc.server.kinds.lsv2.connector import Lsv2Connector
+    from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
+    from opendnc.server.kinds.serial.connector import TapeConnector
 
     tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(connector_for(tnc), Lsv2Connector)
@@ -186,7 +178,7 @@ dripfeed = false
 mdc_port = 5051
 """
     vf, tnc = parse_config(text, base=tmp_path).machines
-    assert vf.kind is MachineKind.HAAS_SERIAL
-    assert tnc.kind is MachineKind.LSV2
+    assert vf.kind == "haas_serial"
+    assert tnc.kind == "lsv2"
     assert "machines[0].host: only for haas_ngc and lsv2; ignored" in caplog.text
     assert "machines[1].mdc_port" in caplog.text

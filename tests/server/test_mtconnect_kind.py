@@ -14,7 +14,11 @@ import pytest
 from opendnc.mtconnect.device_state import Snapshot
 from opendnc.server.events import MachineStatusChanged
 from opendnc.server.items import items_of
-from opendnc.server.machines.mtconnect import EMERGENCY_STOP, MtconnectConnector, agent_status
+from opendnc.server.kinds.mtconnect.connector import (
+    EMERGENCY_STOP,
+    MtconnectConnector,
+    agent_status,
+)
 from opendnc.server.state import State, classify
 from opendnc.sim.mtconnect.machine import ScriptedMachine
 from tests.server.harness import wait_for

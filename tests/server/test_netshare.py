@@ -21,9 +21,9 @@ from opendnc.haas.share import ShareTarget
 from opendnc.server import jobs, library
 from opendnc.server.actions.base import Services
 from opendnc.server.actions.policy import share_gate
-from opendnc.server.config import ConfigError, HaasNgcMachine, NetShareConfig, parse_config
+from opendnc.server.config import ConfigError, NetShareConfig, parse_config
 from opendnc.server.events import EventBus
-from opendnc.server.kinds import connector_for
+from opendnc.server.kinds.registry import connector_for, shares_of
 from opendnc.server.machine_state import Machines
 from opendnc.server.netshare import NetShare, ScanReport
 from opendnc.server.store.models import AuditEntry, JobKind, Received
@@ -90,7 +90,7 @@ def _make(
         **overrides,
     }
     config = NetShareConfig(**settings)
-    machines = {m.name: m for m in shop.machines if isinstance(m, HaasNgcMachine)}
+    machines = shares_of(shop.machines)
     gate = None
     if gated:  # the server's own gate: the queue's policy, through the actions
         with sessions.begin() as session:
@@ -365,7 +365,7 @@ def test_a_machine_share_over_smb(
     nas.mkdir()
     clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())
     config = NetShareConfig(path=nas, machines=("vf2",), archive=tmp_path / "archive")
-    machines = {m.name: m for m in shop.machines}
+    machines = shares_of(shop.machines)
     net = NetShare(config, machines, tmp_path / "inbox", sessions, clock=clock)
     _scan_until(net, lambda _r: "vf2" in net.baselined, "the first look at the share")
 
@@ -408,7 +408,7 @@ def test_a_nas_over_smb(
         )
         shop = parse_config(text, base=tmp_path)
         assert shop.netshare is not None
-        machines = {m.name: m for m in shop.machines}
+        machines = shares_of(shop.machines)
         return NetShare(shop.netshare, machines, tmp_path / "inbox", sessions, clock=clock)
 
     clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())

@@ -14,8 +14,9 @@ from opendnc.errors import InputError
 from opendnc.server import actions, audit, auth, jobs, library
 from opendnc.server.actions.models import JobRequest
 from opendnc.server.auth import Principal
-from opendnc.server.config import HaasNgcMachine, Lsv2Machine
 from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.store.models import ApiKey, JobKind, JobState, ProgramState, Role
 from tests.server.actions_support import services
 

@@ -19,7 +19,7 @@ import pytest
 from opendnc.errors import DncError
 from opendnc.server.config import parse_config
 from opendnc.server.executors import JobCancelled
-from opendnc.server.kinds import connector_for
+from opendnc.server.kinds.registry import connector_for
 from opendnc.server.machine_state import MachineState
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.state import State, classify

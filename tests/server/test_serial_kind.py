@@ -26,7 +26,7 @@ require_module("serial")
 from opendnc.server import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config import parse_config  # noqa: E402
-from opendnc.server.kinds import SerialMachine  # noqa: E402
+from opendnc.server.kinds.serial import SerialMachine  # noqa: E402
 from opendnc.server.machines.base import MachineStatus, Reception  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
@@ -343,8 +343,8 @@ def _punched(*records: bytes, listens: int) -> tuple[list[Reception | None], lis
     """The connector alone on a cable whose far end we write to as the control: ``records``
     written at once (as a control punches them), then ``listens`` listening windows; what each
     window received and every status the connector told."""
-    from opendnc.server.kinds import parse_machine
-    from opendnc.server.machines.serial import TapeConnector
+    from opendnc.server.kinds.registry import parse_machine
+    from opendnc.server.kinds.serial.connector import TapeConnector
     from opendnc.sim.cable.link import VirtualCable
     from opendnc.transport import open_stream
 

@@ -7,10 +7,11 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from opendnc.server.config import HaasNgcMachine, Lsv2Machine
 from opendnc.server.executors import held_at_control
-from opendnc.server.machines.haas_ngc import HaasNgcConnector
-from opendnc.server.machines.lsv2 import Lsv2Connector
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
+from opendnc.server.kinds.lsv2 import Lsv2Machine
+from opendnc.server.kinds.lsv2.connector import Lsv2Connector
 from opendnc.sim.tnc.server import serve_tnc
 from tests.server.cluster_support import program
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
-from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,9 @@ import pytest
 
 from opendnc.lsv2 import Client
 from opendnc.server.autoreceive import FolderWatch, size_problem
-from opendnc.server.config import ConfigError, Lsv2Machine, parse_config
+from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.kinds.base import ReceiveFolder
+from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.machine_files import RemoteFile
 from tests.server.conftest import on
 from tests.server.harness import (
@@ -228,7 +229,7 @@ def _file(name: str, size: int, second: int) -> RemoteFile:
 
 def test_a_file_is_due_once_it_stopped_changing_and_until_received() -> None:
     machine = Lsv2Machine(name="m", host="h", receive_folder=OUT)
-    watch = FolderWatch(replace(machine, receive_pattern="*.h"))
+    watch = FolderWatch(machine.name, ReceiveFolder(machine.receive_folder, "*.h"))
     a, note = _file("A.H", 10, 1), _file("NOTE.TXT", 5, 1)
     assert watch.due([a, note]) == []  # first sight: it may still be written
     grown = _file("A.H", 20, 2)

@@ -15,9 +15,9 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from opendnc.server.config import parse_config
-from opendnc.server.kinds import connector_for
+from opendnc.server.kinds.lsv2.connector import PROGRAM_ERROR
+from opendnc.server.kinds.registry import connector_for
 from opendnc.server.machines.base import MachineStatus
-from opendnc.server.machines.lsv2 import PROGRAM_ERROR
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State, classify
 from opendnc.server.utilization_sums import Group, Point, summarize

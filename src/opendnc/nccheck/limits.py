@@ -219,20 +219,23 @@ class _MachineLike(Protocol):
     def name(self) -> str: ...
 
     @property
-    def kind(self) -> Any: ...
+    def control_family(self) -> str | None: ...
+
+    @property
+    def protected_programs(self) -> tuple[tuple[int, int], ...]: ...
 
 
 def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> MachineLimits:
     """The limits of a configured machine (``server.config.MachineConfig`` or alike).
 
-    ``kind`` gives the family (``lsv2`` -> heidenhain, ``haas_*`` -> haas); the optional
-    ``envelope`` attribute (:class:`Envelope`) the travel and work offsets; ``tools`` is
-    the tool list the control reported (LSV2 tool table, Haas tool offsets), if any.
-    A machine of another kind whose ``control`` names a G-code dialect (a tape-code Fanuc)
+    The machine's kind says its ``control_family`` (``heidenhain``, ``haas``, or None) and
+    its ``protected_programs`` as data, so this module needs nothing of the server; the
+    optional ``envelope`` attribute (:class:`Envelope`) gives the travel and work offsets;
+    ``tools`` is the tool list the control reported (LSV2 tool table, Haas tool offsets), if
+    any. A machine of no family whose ``control`` names a G-code dialect (a tape-code Fanuc)
     runs G-code: the ``haas`` family, as a G-code program's language is called.
     """
-    kind = str(getattr(machine.kind, "value", machine.kind))
-    family = "heidenhain" if kind == "lsv2" else "haas" if kind.startswith("haas") else None
+    family = machine.control_family
     envelope = getattr(machine, "envelope", None)
     if not isinstance(envelope, Envelope):
         envelope = Envelope()
@@ -245,7 +248,7 @@ def limits_for(machine: _MachineLike, *, tools: Iterable[str] | None = None) -> 
         travel_units=envelope.units,
         work_offsets=envelope.offsets_map(),
         tools=frozenset(tools) if tools is not None else None,
-        protected=(HAAS_PROTECTED,) if kind.startswith("haas") else (),
+        protected=tuple(machine.protected_programs),
         rapid_rate=envelope.rapid_rate,
         dialect=envelope.control,
     )

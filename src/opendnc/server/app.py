@@ -25,14 +25,14 @@ from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.clients import Clients, SendTimeout
 from opendnc.server.cluster import Cluster
 from opendnc.server.components import STOP_DEADLINE, Core
-from opendnc.server.config import ConfigError, HaasNgcMachine, MachineConfig, ShopConfig
+from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
 from opendnc.server.deps import Database
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.events import EventBus, ProgramChanged
 from opendnc.server.executors import default_executors
 from opendnc.server.fleet import ConnectorFactory, Fleet
 from opendnc.server.key_use import KeyUse
-from opendnc.server.kinds import connector_for
+from opendnc.server.kinds.registry import connector_for, shares_of
 from opendnc.server.leases import LIBRARY, Leases, held_elsewhere
 from opendnc.server.limits import LimitsMiddleware
 from opendnc.server.loopwatch import LoopWatch
@@ -189,7 +189,7 @@ def build(
     )
     netshare = None
     if config.netshare is not None:
-        shares = {m.name: m for m in config.machines if isinstance(m, HaasNgcMachine)}
+        shares = shares_of(config.machines)
         # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
         gate = actions.policy.share_gate(services)
         zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's

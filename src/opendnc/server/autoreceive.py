@@ -32,8 +32,10 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import ControlRefused
 from opendnc.server import audit, inbox
-from opendnc.server.config import Lsv2Machine, ShopConfig
+from opendnc.server.config import ShopConfig
 from opendnc.server.events import ProgramReceived
+from opendnc.server.kinds.base import ReceiveFolder
+from opendnc.server.kinds.registry import receive_folder_of
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines.base import Connector, FolderSource
 from opendnc.server.store.models import AuditEntry
@@ -62,10 +64,11 @@ def _key(entry: RemoteFile) -> tuple[int, str]:
 class FolderWatch:
     """Which files of one machine's receive folder are due to be read (no I/O of its own)."""
 
-    def __init__(self, machine: Lsv2Machine) -> None:
-        self.machine = machine.name
-        self.folder = machine.receive_folder
-        self.pattern = machine.receive_pattern.lower()
+    def __init__(self, machine: str, receive: ReceiveFolder) -> None:
+        self.machine = machine
+        self.receive = receive
+        self.folder = receive.folder
+        self.pattern = receive.pattern.lower()
         self.seen: dict[str, Seen] = {}  # remote path (upper case: TNC names ignore case)
         self.loaded = False
         self._last: dict[str, tuple[int, str]] = {}
@@ -148,11 +151,8 @@ class AutoReceive:
         self.sessions = sessions
         config: ShopConfig = machines.config
         self.inbox_folder = config.library.inbox
-        self.watches = {
-            m.name: FolderWatch(m)
-            for m in config.machines
-            if isinstance(m, Lsv2Machine) and m.receive_folder
-        }
+        found = ((m.name, receive_folder_of(m)) for m in config.machines)
+        self.watches = {name: FolderWatch(name, r) for name, r in found if r is not None}
         self._polls: dict[str, int] = {}
 
     async def start(self) -> None:
@@ -166,10 +166,9 @@ class AutoReceive:
         watch = self.watches.get(state.config.name)
         if watch is None or not isinstance(connector, FolderSource):
             return
-        assert isinstance(state.config, Lsv2Machine)  # only LSV2 machines have a watch
         polls = self._polls.get(watch.machine, 0)
         self._polls[watch.machine] = polls + 1
-        if polls % state.config.receive_every == 0:
+        if polls % watch.receive.every == 0:
             await self._look(state, connector, watch)
 
     async def _look(self, state: MachineState, connector: FolderSource, watch: FolderWatch) -> None:
@@ -214,7 +213,6 @@ class AutoReceive:
         failed: str,
     ) -> None:
         machine = state.config
-        assert isinstance(machine, Lsv2Machine)
         folder: Path = self.inbox_folder
 
         def keep() -> str:
@@ -239,7 +237,7 @@ class AutoReceive:
             message = f"received {entry.path} into the inbox as {name}"
         bus = self.machines.bus
         bus.publish(ProgramReceived(machine.name, message))
-        if failed or machine.after_receive != "delete":
+        if failed or watch.receive.after != "delete":
             return
         # Only now that the reception is committed may the control's copy go.
         error = ""

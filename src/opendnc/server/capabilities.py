@@ -3,11 +3,12 @@
 The shared contract of the server's shape (docs/server.md#shape-components-and-kinds): code
 that needs to know whether a machine has a file browser or can drip-feed asks
 :func:`capabilities_of`, never ``machine.kind``. Each machine kind's module
-(:mod:`opendnc.server.kinds`) declares its own values; this module is the stable place to ask.
+(``kinds/<kind>/``) declares its own values; this module is the stable place to ask.
 """
 
 from __future__ import annotations
 
-from opendnc.server.kinds import Capabilities, capabilities_of
+from opendnc.server.kinds.base import Capabilities
+from opendnc.server.kinds.registry import capabilities_of
 
 __all__ = ["Capabilities", "capabilities_of"]

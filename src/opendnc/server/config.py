@@ -95,16 +95,8 @@ from opendnc.server.alerts_config import AlertsConfig, parse_alerts
 from opendnc.server.clients import ClientLimits, parse_clients
 from opendnc.server.configkeys import NAME as _NAME
 from opendnc.server.configkeys import ConfigError, get_key, known_keys, port_range, table_at
-from opendnc.server.kinds import (
-    LSV2_SERIAL,
-    HaasNgcMachine,
-    HaasSerialMachine,
-    Lsv2Machine,
-    MachineConfig,
-    MachineKind,
-    SerialProfile,
-    parse_machine,
-)
+from opendnc.server.kinds.base import MachineConfig, SerialProfile
+from opendnc.server.kinds.registry import parse_machine, shares_of
 from opendnc.server.requests import RequestRule, RequestSettings
 from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
 
@@ -115,14 +107,9 @@ _table = table_at
 _port_range = port_range
 
 __all__ = [
-    "LSV2_SERIAL",
     "ConfigError",
-    "HaasNgcMachine",
-    "HaasSerialMachine",
     "LibraryConfig",
-    "Lsv2Machine",
     "MachineConfig",
-    "MachineKind",
     "MqttConfig",
     "MtconnectConfig",
     "NetShareConfig",
@@ -451,7 +438,7 @@ def _netshare(
             "netshare.path", "missing (the NAS folder, mounted here, or smb://HOST/SHARE/PATH)"
         )
     nas: Path | ShareTarget = _nas(table, path_text, base)
-    with_share = {m.name: m for m in machines if isinstance(m, HaasNgcMachine) and m.share}
+    with_share = shares_of(machines)
     names_raw = table.get("machines")
     if names_raw is None:
         names = tuple(with_share)

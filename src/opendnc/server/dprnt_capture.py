@@ -28,9 +28,10 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.listen import CapturedLine, DprntListener, open_source
-from opendnc.server.config import HaasNgcMachine, HaasSerialMachine, MachineConfig
+from opendnc.server.config import MachineConfig
 from opendnc.server.events import DprntLinePrinted, DprntStatus, EventBus
 from opendnc.server.kinds.base import ConnectorHooks
+from opendnc.server.kinds.registry import dprnt_of
 from opendnc.server.store.models import DprntLine
 
 if TYPE_CHECKING:
@@ -117,17 +118,19 @@ class DprntCapture:
         self.listeners: dict[str, DprntListener] = {}
         self._serial: dict[str, DprntSink] = {}
         for machine in machines.config.machines:
-            source = _source(machine)
-            if source == "serial":
-                # A serial Haas prints on the port its connector owns: the connector gets
-                # this sink when it is made (hooks_for) and taps the port itself.
+            source = dprnt_of(machine)
+            if source is None:
+                continue
+            if source.own_port:
+                # A control that prints on the port its connector owns (a serial Haas): the
+                # connector gets this sink when it is made (hooks_for) and taps the port.
                 self._serial[machine.name] = DprntSink(
                     machine.name, sessions, self.bus, machines.note_dprnt
                 )
-                self.status[machine.name] = f"capturing on {_serial_port(machine)}"
-            elif source:
+                self.status[machine.name] = f"capturing on {source.own_port}"
+            elif source.url:
                 self.listeners[machine.name] = DprntListener(
-                    source,
+                    source.url,
                     [DprntSink(machine.name, sessions, self.bus, machines.note_dprnt)],
                     opener=opener,
                     backoff_max=backoff_max,
@@ -179,17 +182,6 @@ class DprntCapture:
             listener.stop()
         threads, self._threads = self._threads, []
         await asyncio.gather(*(asyncio.to_thread(t.join, 5.0) for t in threads))
-
-
-def _source(machine: MachineConfig) -> str:
-    """Where ``machine`` prints (``tcp://...``, ``serial`` or ``""``)."""
-    if isinstance(machine, HaasNgcMachine | HaasSerialMachine):
-        return machine.dprnt
-    return ""
-
-
-def _serial_port(machine: MachineConfig) -> str:
-    return machine.serial if isinstance(machine, HaasSerialMachine) else ""
 
 
 def last_lines(session: Session) -> dict[str, tuple[str, datetime]]:

@@ -25,7 +25,7 @@ from opendnc.server.events import stored_progress
 from opendnc.server.jobs import TAKEN_OVER_FROM
 from opendnc.server.machine_files import browser_of, check_path
 from opendnc.server.machine_state import MachineState
-from opendnc.server.machines.base import Connector
+from opendnc.server.machines.base import Connector, JobCancelled
 from opendnc.server.store.models import JobKind
 
 __all__ = [
@@ -49,15 +49,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
-
-
-class JobCancelled(TransferError):
-    """A cancel requested in the database reached the job at a safe point; ``nbytes`` the
-    program bytes it had moved by then (its row's Bytes say the same as its message)."""
-
-    def __init__(self, reason: str, nbytes: int | None = None) -> None:
-        super().__init__(reason)
-        self.nbytes = nbytes
 
 
 class DripFeedBroken(DncError):

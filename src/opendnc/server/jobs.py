@@ -95,10 +95,7 @@ def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
         # Several servers of a cluster may start at once: one statement that inserts or
         # updates each row, so the second never fails on the first's new row.
         statement = pg_insert(Machine).values(
-            [
-                {"name": c.name, "kind": c.kind.value, "released_only": c.released_only}
-                for c in configs
-            ]
+            [{"name": c.name, "kind": c.kind, "released_only": c.released_only} for c in configs]
         )
         session.execute(
             statement.on_conflict_do_update(
@@ -115,12 +112,10 @@ def sync_machines(session: Session, machines: Iterable[MachineConfig]) -> None:
         row = existing.get(config.name)
         if row is None:
             session.add(
-                Machine(
-                    name=config.name, kind=config.kind.value, released_only=config.released_only
-                )
+                Machine(name=config.name, kind=config.kind, released_only=config.released_only)
             )
         else:
-            row.kind = config.kind.value
+            row.kind = config.kind
             row.released_only = config.released_only
     session.flush()
 

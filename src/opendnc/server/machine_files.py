@@ -19,7 +19,6 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 from opendnc.errors import InputError
-from opendnc.server.config import Lsv2Machine, MachineConfig
 from opendnc.server.errors import Unavailable
 
 if TYPE_CHECKING:
@@ -31,7 +30,6 @@ __all__ = [
     "RemoteFile",
     "browser_of",
     "check_path",
-    "default_folder",
     "file_name",
 ]
 
@@ -76,12 +74,6 @@ def check_path(path: str) -> str:
 def file_name(path: str) -> str:
     """The last part of a path on a control (``TNC:/nc_prog/1001.I`` -> ``1001.I``)."""
     return path.replace("\\", "/").rstrip("/").rsplit("/", 1)[-1]
-
-
-def default_folder(machine: MachineConfig) -> str:
-    """Where the server puts programs on ``machine`` (the browser opens there)."""
-    folder = machine.folder if isinstance(machine, Lsv2Machine) else ""
-    return check_path(folder or "TNC:/nc_prog")
 
 
 def browser_of(connector: Connector) -> FileBrowser:

@@ -103,7 +103,7 @@ class MachineState:
         reading = self.reading()
         return {
             "name": self.config.name,
-            "kind": self.config.kind.value,
+            "kind": self.config.kind,
             "description": self.config.description,
             "released_only": self.config.released_only,
             "online": self.online,

@@ -56,7 +56,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, tzinfo
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -66,9 +66,14 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
-from opendnc.server.config import HaasNgcMachine, NetShareConfig
 from opendnc.server.events import EventBus, NetshareChanged
+from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
+
+if TYPE_CHECKING:
+    # for types only: the configuration loads the kinds, and a Haas NGC's connector reads
+    # its share through this module's folders
+    from opendnc.server.config import NetShareConfig
 
 __all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
 
@@ -99,7 +104,7 @@ class ScanReport:
     refused: list[tuple[str, str, str]] = field(default_factory=list)  # by the policy
 
 
-ShareGate = Callable[[HaasNgcMachine, str, bytes], str | None]
+ShareGate = Callable[[SharedMachine, str, bytes], str | None]
 """Whether a NAS file (name, content) may go into a machine's share: None, or why not
 (:func:`opendnc.server.actions.policy.share_gate`, the queue's one gate)."""
 
@@ -306,7 +311,7 @@ class NetShare(RunsTask):
     def __init__(
         self,
         config: NetShareConfig,
-        machines: dict[str, HaasNgcMachine],
+        machines: dict[str, SharedMachine],
         inbox_folder: Path,
         sessions: sessionmaker[Session],
         bus: EventBus | None = None,
@@ -429,7 +434,7 @@ class NetShare(RunsTask):
         return report
 
     # ------------------------------------------------------------------ push
-    def _push(self, machine: HaasNgcMachine, name: str, data: bytes, report: ScanReport) -> None:
+    def _push(self, machine: SharedMachine, name: str, data: bytes, report: ScanReport) -> None:
         digest = _sha(data)
         key = (machine.name, name)
         if self.pushed.get(key) == digest:
@@ -501,7 +506,7 @@ class NetShare(RunsTask):
         self._publish("push", machine.name, name)
 
     # ------------------------------------------------------------------ collect
-    def _collect(self, machine: HaasNgcMachine, report: ScanReport) -> None:
+    def _collect(self, machine: SharedMachine, report: ScanReport) -> None:
         folder = _folder_for(machine.share)
         entries = folder.entries()
         found: dict[str, bytes] = {}
@@ -543,7 +548,7 @@ class NetShare(RunsTask):
             report.collected.append((machine.name, name))
             self._publish("collect", machine.name, name)
 
-    def _baseline(self, machine: HaasNgcMachine, found: dict[str, bytes]) -> None:
+    def _baseline(self, machine: SharedMachine, found: dict[str, bytes]) -> None:
         files = {name: _sha(data) for name, data in found.items()}
         with self.sessions.begin() as session:
             audit.record(session, ACTOR, "netshare.baseline", machine=machine.name, files=files)

@@ -30,7 +30,7 @@ from opendnc.server.actions.base import Services
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, NotFound
 from opendnc.server.events import ProgramReceived, publish_job_queued
-from opendnc.server.kinds import capabilities_of
+from opendnc.server.kinds.registry import capabilities_of
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Reception
 from opendnc.server.requests import RequestSettings

@@ -24,10 +24,10 @@ from opendnc.server.actions.policy import check_machine, may_queue, may_take_bac
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, Unavailable
+from opendnc.server.kinds.registry import program_folder_of
 from opendnc.server.machine_files import (
     browser_of,
     check_path,
-    default_folder,
     file_name,
 )
 from opendnc.server.machines.base import Connector
@@ -53,7 +53,7 @@ async def list_folder(svc: Services, who: Caller, machine: str, folder: str | No
     folders first, then by name."""
     require(who, Role.VIEWER)
     config = _browsable(svc, machine)
-    where = check_path(folder) if folder else default_folder(config)
+    where = check_path(folder) if folder else program_folder_of(config)
 
     async def listing(connector: Connector) -> list[RemoteFileOut]:
         found = await browser_of(connector).list_files(where)

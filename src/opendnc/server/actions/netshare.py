@@ -19,7 +19,8 @@ from opendnc.server.actions.models import (
     ShareFolderOut,
     ShareMatch,
 )
-from opendnc.server.config import HaasNgcMachine, NetShareConfig
+from opendnc.server.config import NetShareConfig
+from opendnc.server.kinds.registry import shares_of, spec_of
 from opendnc.server.netshare import ACTOR, open_folder
 from opendnc.server.netshare_files import FolderListing, list_folder, nas_folder, share_label
 from opendnc.server.store.models import Program, ProgramState, ProgramVersion, Role
@@ -41,14 +42,14 @@ def net_share(svc: Services, who: Caller, *, activity: int = ACTIVITY) -> NetSha
     config = svc.runner.config.netshare
     if config is None:
         shops = svc.runner.config.machines
-        candidates = [m.name for m in shops if isinstance(m, HaasNgcMachine) and m.share]
+        candidates = list(shares_of(shops))
         return NetShareOut(configured=False, candidates=candidates)
     nas = list_folder(nas_folder(config.path))
     shares: list[tuple[str, bool, FolderListing]] = []
     for name in config.machines:
         state = svc.machine(name)
-        # the configuration subscribes only machines with a share (a Haas NGC)
-        spec = state.config.share if isinstance(state.config, HaasNgcMachine) else ""
+        # the configuration subscribes only machines with a share (its kind says which)
+        spec = spec_of(state.config).share(state.config)
         try:
             listing = list_folder(open_folder(spec))
         except DncError as exc:  # a mounted share that is not there

@@ -19,8 +19,9 @@ from opendnc.server import jobs
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import HaasNgcMachine, MachineConfig
+from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict
+from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.program_checks import Checked
 from opendnc.server.store.models import JobKind, Program, ProgramState, ProgramVersion, Role
 
@@ -175,7 +176,7 @@ def may_put_on(
     return check if check_passes(check, reason, what, blocks=blocks) else None
 
 
-def share_gate(svc: Services) -> Callable[[HaasNgcMachine, str, bytes], str | None]:
+def share_gate(svc: Services) -> Callable[[SharedMachine, str, bytes], str | None]:
     """The net share's gate (:class:`opendnc.server.netshare.NetShare`): whether a NAS file
     may be copied into a machine's share, by the same rule as a send (:func:`may_put_on`),
     for the library version it is (by name and content; the released one where several
@@ -184,7 +185,8 @@ def share_gate(svc: Services) -> Callable[[HaasNgcMachine, str, bytes], str | No
     it; another takes it (the NAS folder is the shop's drop folder), unchecked. A check's
     errors block: nobody stands at the NAS to override them with a reason."""
 
-    def gate(machine: HaasNgcMachine, name: str, data: bytes) -> str | None:
+    def gate(seat: SharedMachine, name: str, data: bytes) -> str | None:
+        machine = seat.config
         digest = hashlib.sha256(data).hexdigest()
 
         def find(session: Session) -> checks.Target | None:

@@ -1,18 +1,21 @@
 """What every machine kind shares: the common configuration fields, the serial line profile,
-the capabilities record, and :class:`KindSpec`, the one object a kind module exports.
+the capabilities record, and :class:`KindSpec`, the one object a kind package exports.
 
-A kind module (:mod:`.lsv2`, :mod:`.haas_ngc`, :mod:`.haas_serial`) owns its configuration
-schema (a frozen dataclass with only that kind's fields), the parser of its keys, the factory
-of its connector and its capabilities; :mod:`opendnc.server.kinds` maps each
-:class:`MachineKind` to its spec (docs/server.md#shape-components-and-kinds).
+A kind package (``kinds/<kind>/``) owns its configuration schema (a frozen dataclass with only
+that kind's fields), the parser of its keys, its connector, its capabilities and the hooks
+generic code asks instead of testing for a concrete class (where the control prints, which
+folder it sends from, which share it reads). :mod:`opendnc.server.kinds.registry` holds the one
+table of kinds (docs/server.md#shape-components-and-kinds).
+
+This module names no kind: it imports only leaves (the program check's envelope, the key
+readers), so every kind package, the registry and the generic server modules can import it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, fields
-from enum import StrEnum
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from opendnc.nccheck.limits import Envelope
 from opendnc.server.configkeys import ConfigError, get_key, known_keys
@@ -23,25 +26,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     "COMMON_KEYS",
-    "LSV2_SERIAL",
     "Capabilities",
     "ConnectorHooks",
+    "DprntSource",
     "KindSpec",
     "MachineBase",
-    "MachineKind",
+    "MachineConfig",
+    "ReceiveFolder",
     "SerialProfile",
+    "SharedMachine",
     "parse_profile",
+    "schema_keys",
 ]
-
-
-class MachineKind(StrEnum):
-    """How the server reaches a control."""
-
-    LSV2 = "lsv2"  # Heidenhain over LSV2 (TCP, or serial with `serial = "..."`)
-    HAAS_SERIAL = "haas_serial"  # Haas RS-232: XModem, drip-feed, DPRNT
-    HAAS_NGC = "haas_ngc"  # Haas NGC over Ethernet: MDC Q-commands and the net share
-    MTCONNECT = "mtconnect"  # any control with an MTConnect agent: status only
-    SERIAL = "serial"  # tape-code RS-232 (Fanuc, Mitsubishi, Mazak, Okuma, Siemens, Fagor)
 
 
 @dataclass(frozen=True)
@@ -58,7 +54,16 @@ class Capabilities:
 
 @dataclass(frozen=True, kw_only=True)
 class MachineBase:
-    """The fields every machine has, whatever its kind."""
+    """The fields every machine has, whatever its kind.
+
+    ``kind`` is the kind's key in the configuration and the database (``kind = "lsv2"``),
+    set by each schema; ``control_family`` and ``protected_programs`` are what the program
+    check needs of the kind (:func:`opendnc.nccheck.limits_for` reads them: data, so the
+    checker imports nothing of the server)."""
+
+    kind: ClassVar[str]
+    control_family: ClassVar[str | None] = None  # "heidenhain", "haas" (G-code); None: guess
+    protected_programs: ClassVar[tuple[tuple[int, int], ...]] = ()  # O-numbers kept off limits
 
     name: str
     released_only: bool = False
@@ -88,7 +93,7 @@ class SerialProfile:
     stopbits: float = 1
     flow: str = "xonxoff"
     eob: str = "CRLF"  # LF, CR, CRLF, CRCR, LFLF (Haas Setting 25)
-    protocol: str = "xmodem"  # haas_serial: "xmodem" or "text" for loads and punches
+    protocol: str = "xmodem"  # "xmodem" or "text" for loads and punches (where a kind offers both)
     leader: int = 0  # characters before the program (tape leader), plain text only
     trailer: int = 0  # characters after it
     leader_char: str = "\x00"  # what leader and trailer are made of (NUL, or e.g. "%")
@@ -107,10 +112,6 @@ class SerialProfile:
         return self.leader_char.encode("latin-1") * self.trailer
 
 
-# LSV2 over RS-232 runs at 57600 baud 8E1 without flow control by default (the controls' own
-# default); a Haas at 9600 8N1 with XON/XOFF.
-LSV2_SERIAL = SerialProfile(baud=57600, parity="E", flow="none")
-
 _LINE_KEYS = {"baud", "parity", "bytesize", "stopbits", "flow"}
 _PROFILE_KEYS = _LINE_KEYS | {
     "eob", "protocol", "leader", "trailer", "leader_char", "line_delay", "wait_for_xon",
@@ -121,8 +122,8 @@ _PROFILE_KEYS = _LINE_KEYS | {
 def parse_profile(
     raw: dict[str, Any], prefix: str, default: SerialProfile, *, line_only: bool = False
 ) -> SerialProfile:
-    """The ``serial_profile`` table; ``line_only`` for links that frame their own telegrams
-    (LSV2), where only the line settings mean anything."""
+    """The ``serial_profile`` table; ``line_only`` for links that frame their own telegrams,
+    where only the line settings mean anything."""
     known_keys(raw, prefix, _LINE_KEYS if line_only else _PROFILE_KEYS)
     baud = get_key(raw, prefix, "baud", int, default.baud)
     if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
@@ -193,12 +194,60 @@ def parse_profile(
 @dataclass(frozen=True)
 class ConnectorHooks:
     """What the server hands a connector when it makes one: where lines the control prints
-    on the connector's own link go (a serial Haas with ``dprnt = "serial"``), and where a
-    connector whose control reports nothing tells what the server makes it do (a tape control
-    drip-feeding: running), since no status poll runs during a job."""
+    on the connector's own link go (a control printing on the port it is loaded through), and
+    where a connector whose control reports nothing tells what the server makes it do (a tape
+    control drip-feeding: running), since no status poll runs during a job."""
 
     on_dprnt: Callable[[CapturedLine], None] | None = None
     on_status: Callable[[MachineStatus], None] | None = None
+
+
+MachineConfig = MachineBase
+"""One machine of the shop, of any kind (the registry's kinds parse into subclasses)."""
+
+
+@dataclass(frozen=True)
+class DprntSource:
+    """Where a control prints its DPRNT lines: ``url`` (``tcp://HOST:PORT``) the server
+    connects to, or ``own_port`` (the device the machine's connector owns and taps itself)."""
+
+    url: str = ""
+    own_port: str = ""
+
+
+@dataclass(frozen=True)
+class ReceiveFolder:
+    """A folder on the control whose files come to the inbox by themselves (auto-receive)."""
+
+    folder: str  # a path on the control
+    pattern: str = "*"  # which files (a glob, any case)
+    every: int = 5  # status polls between two listings
+    after: str = "keep"  # keep or delete a received file on the control
+
+
+@dataclass(frozen=True)
+class SharedMachine:
+    """A machine with a network share the net share fills and collects from."""
+
+    config: MachineBase
+    share: str  # a local folder or smb://...
+
+    @property
+    def name(self) -> str:
+        """The machine's name."""
+        return self.config.name
+
+
+def _no_dprnt(config: MachineBase) -> DprntSource | None:
+    return None
+
+
+def _no_receive(config: MachineBase) -> ReceiveFolder | None:
+    return None
+
+
+def _no_text(config: MachineBase) -> str:
+    return ""
 
 
 M = TypeVar("M", bound=MachineBase)
@@ -208,21 +257,32 @@ M = TypeVar("M", bound=MachineBase)
 class KindSpec(Generic[M]):
     """One machine kind: its schema, the keys only it has, and what it does with a config.
 
-    ``parse(raw, prefix, common)`` reads the kind's keys from one ``[[machines]]`` table
-    (``common`` holds the fields of :class:`MachineBase`, already checked); ``connector``
-    makes the link to the control; ``capabilities`` says what the machine can do as configured.
-    ``misplaced`` names the kind's keys that another kind refuses, with the reason (the
-    other keys of another kind are passed over with a warning: earlier versions took every key
-    for every kind, and files written then keep working).
+    ``kind`` is the key in ``[[machines]]`` (``kind = "lsv2"``) and in the database;
+    ``label`` what pages call it. ``parse(raw, prefix, common)`` reads the kind's keys from
+    one ``[[machines]]`` table (``common`` holds the fields of :class:`MachineBase`, already
+    checked); ``connector`` makes the link to the control; ``capabilities`` says what the
+    machine can do as configured. ``misplaced`` names the kind's keys that another kind
+    refuses, with the reason (the other keys of another kind are passed over with a warning:
+    earlier versions took every key for every kind, and files written then keep working).
+
+    The hooks answer what generic code needs of a configured machine, so that it never tests
+    for a concrete class: ``dprnt`` where it prints, ``receive_folder`` which folder on the
+    control is collected, ``program_folder`` where the file browser opens (a path on the
+    control), ``share`` the network share the net share serves (``""``: none).
     """
 
-    kind: MachineKind
+    kind: str
+    label: str
     schema: type[M]
     keys: frozenset[str]
     parse: Callable[[dict[str, Any], str, dict[str, Any]], M]
     connector: Callable[[M, ConnectorHooks], Connector]
     capabilities: Callable[[M], Capabilities]
-    misplaced: dict[str, str]
+    misplaced: dict[str, str] = field(default_factory=dict)
+    dprnt: Callable[[M], DprntSource | None] = _no_dprnt
+    receive_folder: Callable[[M], ReceiveFolder | None] = _no_receive
+    program_folder: Callable[[M], str] = _no_text
+    share: Callable[[M], str] = _no_text
 
 
 def schema_keys(schema: type[MachineBase]) -> frozenset[str]:

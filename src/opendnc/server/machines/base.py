@@ -19,7 +19,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-from opendnc.errors import InputError
+from opendnc.errors import InputError, TransferError
 from opendnc.transport.base import ByteStream
 
 if TYPE_CHECKING:
@@ -30,6 +30,7 @@ __all__ = [
     "Connector",
     "DripProgress",
     "FolderSource",
+    "JobCancelled",
     "MachineStatus",
     "NetworkOnly",
     "Progress",
@@ -85,6 +86,15 @@ class MachineStatus:
             "dprnt": self.dprnt,
             "dprnt_at": self.dprnt_at.isoformat() if self.dprnt_at else None,
         }
+
+
+class JobCancelled(TransferError):
+    """A cancel requested in the database reached the job at a safe point; ``nbytes`` the
+    program bytes it had moved by then (its row's Bytes say the same as its message)."""
+
+    def __init__(self, reason: str, nbytes: int | None = None) -> None:
+        super().__init__(reason)
+        self.nbytes = nbytes
 
 
 @dataclass(frozen=True)

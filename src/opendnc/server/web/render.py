@@ -22,6 +22,7 @@ from pygments.formatters import HtmlFormatter
 from pygments.lexers import GcodeLexer
 
 from opendnc.server.events import percent
+from opendnc.server.kinds.registry import label_of
 from opendnc.server.state import State
 
 __all__ = [
@@ -40,13 +41,6 @@ __all__ = [
 ]
 
 HERE = Path(__file__).parent
-KIND_LABEL = {
-    "lsv2": "Heidenhain · LSV2",
-    "haas_ngc": "Haas NGC · Ethernet",
-    "haas_serial": "Haas · RS-232",
-    "mtconnect": "MTConnect agent",
-    "serial": "Tape code · RS-232",
-}
 # How a card is filed by the overview's filters: the classifier's states, andon-coloured
 # (docs/dashboard.md#live-overview).
 STATES = tuple(s.value for s in State if s is not State.NO_RECORD)
@@ -67,7 +61,7 @@ def environment() -> Environment:
     env.filters["stamp"] = _stamp_filter
     env.filters["path"] = breakable_path
     env.filters["clock"] = _clock_filter
-    env.globals["KIND_LABEL"] = KIND_LABEL
+    env.globals["kind_label"] = label_of  # each kind names itself (its spec's label)
     env.globals["percent"] = percent  # one rounding for the card and the queue table
     return env
 

@@ -4,36 +4,23 @@ connector, what they can do."""
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 from opendnc.server.configkeys import ConfigError, get_key, port_range
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
+    DprntSource,
     KindSpec,
-    MachineBase,
-    MachineKind,
     schema_keys,
 )
-
-if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
+from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
+from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
+from opendnc.server.machines.base import Connector
 
 __all__ = ["SPEC", "STATUS_FIELDS", "HaasNgcMachine", "tcp_dprnt"]
 
 STATUS_FIELDS = frozenset({"execution", "mode", "native_mode", "program", "part_count", "tool"})
-
-
-@dataclass(frozen=True, kw_only=True)
-class HaasNgcMachine(MachineBase):
-    """A Haas NGC control on the network."""
-
-    kind: Literal[MachineKind.HAAS_NGC] = MachineKind.HAAS_NGC
-    host: str
-    mdc_port: int = 5051
-    share: str = ""  # the net share folder programs go to (local path or smb://)
-    dprnt: str = ""  # tcp://HOST:PORT where the control prints (Setting 263); "" for none
 
 
 def tcp_dprnt(value: str, key: str) -> str:
@@ -67,8 +54,6 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> HaasNgcMa
 
 def connector(config: HaasNgcMachine, hooks: ConnectorHooks) -> Connector:
     """MDC for status, the share for programs."""
-    from opendnc.server.machines.haas_ngc import HaasNgcConnector
-
     return HaasNgcConnector(config)
 
 
@@ -77,8 +62,19 @@ def capabilities(config: HaasNgcMachine) -> Capabilities:
     return Capabilities(dprnt=bool(config.dprnt), status_fields=STATUS_FIELDS)
 
 
+def dprnt(config: HaasNgcMachine) -> DprntSource | None:
+    """The TCP port the control prints to (Setting 263), if configured."""
+    return DprntSource(url=config.dprnt) if config.dprnt else None
+
+
+def share(config: HaasNgcMachine) -> str:
+    """The control's network share (the net share fills it and collects from it)."""
+    return config.share
+
+
 SPEC = KindSpec(
-    kind=MachineKind.HAAS_NGC,
+    kind="haas_ngc",
+    label="Haas NGC · Ethernet",
     schema=HaasNgcMachine,
     keys=schema_keys(HaasNgcMachine),
     parse=parse,
@@ -87,4 +83,6 @@ SPEC = KindSpec(
     misplaced={
         "dprnt": "DPRNT is a Haas feature",
     },
+    dprnt=dprnt,
+    share=share,
 )

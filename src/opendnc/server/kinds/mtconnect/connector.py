@@ -18,7 +18,7 @@ from pathlib import Path
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.mtconnect.device_state import Snapshot
 from opendnc.mtconnect.reader import AgentReader
-from opendnc.server.kinds.mtconnect import MtconnectMachine
+from opendnc.server.kinds.mtconnect.schema import MtconnectMachine
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 

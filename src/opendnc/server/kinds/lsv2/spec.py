@@ -1,47 +1,28 @@
 """Heidenhain controls over LSV2 (TCP, or RS-232 with ``serial``): schema, connector, what they
-can do."""
+can do, the out-tray folder collected into the inbox and the folder the file browser opens."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.server.configkeys import ConfigError, get_key, port_range, table_at
 from opendnc.server.kinds.base import (
-    LSV2_SERIAL,
     Capabilities,
     ConnectorHooks,
     KindSpec,
-    MachineBase,
-    MachineKind,
-    SerialProfile,
+    ReceiveFolder,
     parse_profile,
     schema_keys,
 )
+from opendnc.server.kinds.lsv2.connector import Lsv2Connector
+from opendnc.server.kinds.lsv2.schema import LSV2_SERIAL, Lsv2Machine
+from opendnc.server.machine_files import check_path
+from opendnc.server.machines.base import Connector
 
-if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
-
-__all__ = ["SPEC", "STATUS_FIELDS", "Lsv2Machine"]
+__all__ = ["LSV2_SERIAL", "SPEC", "STATUS_FIELDS", "Lsv2Machine"]
 
 STATUS_FIELDS = frozenset({"execution", "mode", "program", "line", "tool", "overrides", "errors"})
-
-
-@dataclass(frozen=True, kw_only=True)
-class Lsv2Machine(MachineBase):
-    """A Heidenhain control reached over LSV2."""
-
-    kind: Literal[MachineKind.LSV2] = MachineKind.LSV2
-    host: str = ""  # TCP
-    port: int = 19000
-    serial: str = ""  # or RS-232: a device or URL
-    profile: SerialProfile = LSV2_SERIAL  # the line of an RS-232 link
-    folder: str = ""  # where programs go on the control (default TNC:/nc_prog)
-    receive_folder: str = ""  # a folder whose files come to the inbox (auto-receive)
-    receive_pattern: str = "*"  # which files of receive_folder (a glob, any case)
-    receive_every: int = 5  # status polls between two listings of receive_folder
-    after_receive: str = "keep"  # keep or delete a received file on the control
 
 
 def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> Lsv2Machine:
@@ -80,8 +61,6 @@ def _receive(raw: dict[str, Any], prefix: str) -> tuple[str, str, int, str]:
             if key in raw:
                 raise ConfigError(f"{prefix}.{key}", "needs receive_folder")
         return "", pattern, every, after
-    from opendnc.server.machine_files import check_path  # it imports the configuration
-
     try:
         folder = check_path(folder)
     except InputError as exc:
@@ -97,8 +76,6 @@ def _receive(raw: dict[str, Any], prefix: str) -> tuple[str, str, int, str]:
 
 def connector(config: Lsv2Machine, hooks: ConnectorHooks) -> Connector:
     """One LSV2 session (TCP or RS-232)."""
-    from opendnc.server.machines.lsv2 import Lsv2Connector
-
     return Lsv2Connector(config)
 
 
@@ -110,8 +87,23 @@ def capabilities(config: Lsv2Machine) -> Capabilities:
     )
 
 
+def receive_folder(config: Lsv2Machine) -> ReceiveFolder | None:
+    """The out-tray folder, if configured."""
+    if not config.receive_folder:
+        return None
+    return ReceiveFolder(
+        config.receive_folder, config.receive_pattern, config.receive_every, config.after_receive
+    )
+
+
+def program_folder(config: Lsv2Machine) -> str:
+    """Where programs go on the control (TNC:/nc_prog unless ``folder`` says otherwise)."""
+    return check_path(config.folder or "TNC:/nc_prog")
+
+
 SPEC = KindSpec(
-    kind=MachineKind.LSV2,
+    kind="lsv2",
+    label="Heidenhain · LSV2",
     schema=Lsv2Machine,
     keys=schema_keys(Lsv2Machine),
     parse=parse,
@@ -121,4 +113,6 @@ SPEC = KindSpec(
         "receive_folder": "only for lsv2 (a serial Haas punches by itself, "
         "a Haas NGC's share is collected)",
     },
+    receive_folder=receive_folder,
+    program_folder=program_folder,
 )

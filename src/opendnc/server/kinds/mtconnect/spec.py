@@ -5,21 +5,18 @@ sample stream) and files it like any other machine; it sends nothing to it
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 from opendnc.server.configkeys import ConfigError, get_key
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
     KindSpec,
-    MachineBase,
-    MachineKind,
     schema_keys,
 )
-
-if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
+from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
+from opendnc.server.kinds.mtconnect.schema import MtconnectMachine
+from opendnc.server.machines.base import Connector
 
 __all__ = ["SPEC", "STATUS_FIELDS", "MtconnectMachine"]
 
@@ -29,16 +26,6 @@ STATUS_FIELDS = frozenset(
 
 _URL = re.compile(r"https?://([^/\s:]+|\[[0-9A-Fa-f:]+\])(:\d{1,5})?(/[^\s?#]*)?")
 _DEVICE = re.compile(r"[^/\s?#]{1,128}")
-
-
-@dataclass(frozen=True, kw_only=True)
-class MtconnectMachine(MachineBase):
-    """A machine read through an MTConnect agent."""
-
-    kind: Literal[MachineKind.MTCONNECT] = MachineKind.MTCONNECT
-    url: str  # the agent: http://host:5000 (a path prefix is kept)
-    device: str = ""  # the device's name at the agent; "" when the agent has only one
-    streaming: bool = True  # sample?interval= stream; False polls current every poll_interval
 
 
 def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> MtconnectMachine:
@@ -59,8 +46,6 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> Mtconnect
 
 def connector(config: MtconnectMachine, hooks: ConnectorHooks) -> Connector:
     """The agent reader."""
-    from opendnc.server.machines.mtconnect import MtconnectConnector
-
     return MtconnectConnector(config)
 
 
@@ -70,11 +55,11 @@ def capabilities(config: MtconnectMachine) -> Capabilities:
 
 
 SPEC = KindSpec(
-    kind=MachineKind.MTCONNECT,
+    kind="mtconnect",
+    label="MTConnect agent",
     schema=MtconnectMachine,
     keys=schema_keys(MtconnectMachine),
     parse=parse,
     connector=connector,
     capabilities=capabilities,
-    misplaced={},
 )

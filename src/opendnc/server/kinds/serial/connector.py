@@ -28,7 +28,7 @@ from opendnc.errors import (
     TransportError,
     TransportTimeout,
 )
-from opendnc.server.kinds.serial import SerialMachine
+from opendnc.server.kinds.serial.schema import SerialMachine
 from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 from opendnc.tape.codes import DC1, DC2, DC3, DC4

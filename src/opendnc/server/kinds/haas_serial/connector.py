@@ -39,18 +39,18 @@ from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
-from opendnc.server.executors import JobCancelled
 from opendnc.server.kinds.base import SerialProfile
-from opendnc.server.kinds.haas_serial import HaasSerialMachine
+from opendnc.server.kinds.haas_ngc.connector import mdc_status
+from opendnc.server.kinds.haas_serial.schema import HaasSerialMachine
 from opendnc.server.machines.base import (
     DripProgress,
+    JobCancelled,
     MachineStatus,
     Progress,
     Reception,
     StreamWrapper,
 )
 from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
-from opendnc.server.machines.haas_ngc import mdc_status
 from opendnc.server.store.models import utcnow
 from opendnc.transport import ByteStream, PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive

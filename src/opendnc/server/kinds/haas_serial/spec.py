@@ -3,41 +3,26 @@ schema, connector, what they can do."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
 from opendnc.server.configkeys import ConfigError, get_key, table_at
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
+    DprntSource,
     KindSpec,
-    MachineBase,
-    MachineKind,
     SerialProfile,
     parse_profile,
     schema_keys,
 )
-from opendnc.server.kinds.haas_ngc import tcp_dprnt
-
-if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
+from opendnc.server.kinds.haas_ngc.spec import tcp_dprnt
+from opendnc.server.kinds.haas_serial.connector import HaasSerialConnector
+from opendnc.server.kinds.haas_serial.schema import HaasSerialMachine
+from opendnc.server.machines.base import Connector
 
 __all__ = ["MDC_STATUS_FIELDS", "SPEC", "HaasSerialMachine"]
 
 MDC_STATUS_FIELDS = frozenset({"execution", "mode", "native_mode", "program", "part_count"})
-
-
-@dataclass(frozen=True, kw_only=True)
-class HaasSerialMachine(MachineBase):
-    """A Haas control on a serial line."""
-
-    kind: Literal[MachineKind.HAAS_SERIAL] = MachineKind.HAAS_SERIAL
-    serial: str  # device or URL (socket://, rfc2217://)
-    profile: SerialProfile = field(default_factory=SerialProfile)
-    dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
-    mdc: bool = False  # status by MDC Q-commands on the port (Setting 143 ON)
-    mdc_interval: float = 3.0  # least seconds between two MDC status reads
-    dprnt: str = ""  # "serial" (the same port) or tcp://HOST:PORT; "" for none
 
 
 def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> HaasSerialMachine:
@@ -76,8 +61,6 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> HaasSeria
 
 def connector(config: HaasSerialMachine, hooks: ConnectorHooks) -> Connector:
     """XModem (or text) on the port; printed lines to ``hooks.on_dprnt``."""
-    from opendnc.server.machines.haas_serial import HaasSerialConnector
-
     return HaasSerialConnector(config, on_dprnt=hooks.on_dprnt)
 
 
@@ -91,8 +74,16 @@ def capabilities(config: HaasSerialMachine) -> Capabilities:
     )
 
 
+def dprnt(config: HaasSerialMachine) -> DprntSource | None:
+    """The machine's own port (the connector taps it) or a TCP port, if configured."""
+    if config.dprnt == "serial":
+        return DprntSource(own_port=config.serial)
+    return DprntSource(url=config.dprnt) if config.dprnt else None
+
+
 SPEC = KindSpec(
-    kind=MachineKind.HAAS_SERIAL,
+    kind="haas_serial",
+    label="Haas · RS-232",
     schema=HaasSerialMachine,
     keys=schema_keys(HaasSerialMachine),
     parse=parse,
@@ -102,4 +93,5 @@ SPEC = KindSpec(
         "dripfeed": "drip-feed is for serial machines (haas_serial, serial)",
         "mdc": "only for haas_serial (a Haas NGC always reports by MDC over TCP)",
     },
+    dprnt=dprnt,
 )

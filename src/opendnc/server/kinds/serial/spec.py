@@ -9,8 +9,8 @@ a failure at the first job.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Literal
+from dataclasses import replace
+from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.nccheck.limits import Envelope
@@ -19,14 +19,12 @@ from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
     KindSpec,
-    MachineBase,
-    MachineKind,
 )
+from opendnc.server.kinds.serial.connector import TapeConnector
+from opendnc.server.kinds.serial.schema import SerialMachine
+from opendnc.server.machines.base import Connector
 from opendnc.tape.codes import Code, Eob
 from opendnc.tape.profiles import PROFILES, Profile, get_profile
-
-if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
 
 __all__ = ["CONTROL_OF_PROFILE", "SPEC", "STATUS_FIELDS", "SerialMachine"]
 
@@ -52,18 +50,6 @@ _KEYS = frozenset(
         "dripfeed", "verify", "verify_timeout",
     }
 )  # fmt: skip
-
-
-@dataclass(frozen=True, kw_only=True)
-class SerialMachine(MachineBase):
-    """A tape-code control on a serial line."""
-
-    kind: Literal[MachineKind.SERIAL] = MachineKind.SERIAL
-    serial: str  # device or URL (socket://, rfc2217://), as for a serial Haas
-    tape: Profile  # the named profile with this machine's overrides
-    dripfeed: bool = False  # drip-feeding runs the program on the machine: an explicit opt-in
-    verify: str = ""  # "punch": after a load, wait for the operator's punch back and compare
-    verify_timeout: float = 120.0  # seconds the punch back may take to start
 
 
 def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> SerialMachine:
@@ -131,8 +117,6 @@ def _with_control(envelope: Envelope | None, tape: Profile) -> Envelope | None:
 
 def connector(config: SerialMachine, hooks: ConnectorHooks) -> Connector:
     """The tape engine on the port; what it does goes to ``hooks.on_status``."""
-    from opendnc.server.machines.serial import TapeConnector
-
     return TapeConnector(config, on_status=hooks.on_status)
 
 
@@ -148,11 +132,11 @@ def capabilities(config: SerialMachine) -> Capabilities:
 
 
 SPEC = KindSpec(
-    kind=MachineKind.SERIAL,
+    kind="serial",
+    label="Tape code · RS-232",
     schema=SerialMachine,
     keys=_KEYS,
     parse=parse,
     connector=connector,
     capabilities=capabilities,
-    misplaced={},
 )

@@ -14,7 +14,7 @@ from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.lsv2.localfiles import is_binary_name
 from opendnc.lsv2.serial_stream import SerialLine
-from opendnc.server.kinds.lsv2 import Lsv2Machine
+from opendnc.server.kinds.lsv2.schema import Lsv2Machine
 from opendnc.server.machine_files import RemoteFile
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow

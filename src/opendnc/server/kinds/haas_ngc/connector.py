@@ -18,8 +18,9 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
-from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
+from opendnc.server.netshare import open_folder  # the scan's own folder code
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector", "controller_mode", "mdc_status"]
@@ -143,8 +144,6 @@ class HaasNgcConnector(NetworkOnly):
         target = self._target()
 
         def look() -> bool:
-            from opendnc.server.netshare import open_folder  # the scan's own folder code
-
             folder = open_folder(target)
             entry = folder.entries().get(name)
             if entry is None or entry[0] != len(data):
