@@ -311,8 +311,11 @@ class Decision:
 
     @property
     def refused(self) -> tuple[Verdict, ...]:
-        """The verdicts that refuse it."""
-        return tuple(v for v in self.verdicts if not v.allowed)
+        """The verdicts that refuse it: the machines' own rules (which no override lifts)
+        first, then the program checks' errors, each in the order asked."""
+        refused = [v for v in self.verdicts if not v.allowed]
+        rules = [v for v in refused if v.refusal is not Refusal.CHECK_FAILED]
+        return tuple(rules + [v for v in refused if v.refusal is Refusal.CHECK_FAILED])
 
     def verdict(self, machine: str | None) -> Verdict:
         """The verdict of ``machine``."""
@@ -320,11 +323,9 @@ class Decision:
 
     def first_refusal(self) -> Verdict | None:
         """The refusal to say when the request goes everywhere or nowhere: a machine's own
-        rule (which no override lifts) before a program check's errors."""
+        rule before a program check's errors."""
         refused = self.refused
-        rules = [v for v in refused if v.refusal is not Refusal.CHECK_FAILED]
-        first = rules or list(refused)
-        return first[0] if first else None
+        return refused[0] if refused else None
 
     def require_all(self) -> None:
         """Raise the first refusal (:meth:`first_refusal`), if any machine refuses."""
