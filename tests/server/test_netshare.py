@@ -484,7 +484,7 @@ def test_a_draft_never_reaches_a_released_only_machines_share(
     tmp_path: Path, ngc: FleetThread, sessions: sessionmaker[Session]
 ) -> None:
     """The net share copied a draft, an edit after release and a file the library never saw
-    to every machine: what reaches a share now passes the queue's one gate (may_put_on)."""
+    to every machine: what reaches a share now gets the decision a send gets (policy.authorize)."""
     net = _make(tmp_path, ngc, sessions, Clock(datetime(2026, 11, 23, 9).astimezone()), True)
     _scan_until(net, lambda _r: len(net.baselined) == 2, "the first look at the shares")
     with sessions.begin() as session:
