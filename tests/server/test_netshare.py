@@ -23,9 +23,10 @@ from opendnc.server.actions.base import Services
 from opendnc.server.actions.policy import share_gate
 from opendnc.server.config import ConfigError, NetShareConfig, parse_config
 from opendnc.server.events import EventBus
+from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.kinds.registry import connector_for, shares_of
 from opendnc.server.machine_state import Machines
-from opendnc.server.netshare import NetShare, ScanReport
+from opendnc.server.netshare import NetShare, ScanReport, ShareGate
 from opendnc.server.store.models import AuditEntry, JobKind, Received
 from opendnc.sim.fleet import server_config
 from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD
@@ -55,6 +56,12 @@ def ngc(tmp_path: Path) -> Iterator[FleetThread]:
         yield fleet
     finally:
         fleet.stop()
+
+
+def open_gate(machine: SharedMachine, name: str, data: bytes) -> str | None:
+    """A shop whose policy lets every file into every share: the tests of the copying
+    itself, not of the policy (the server always gives the share the policy's gate)."""
+    return None
 
 
 class Clock:
@@ -91,7 +98,7 @@ def _make(
     }
     config = NetShareConfig(**settings)
     machines = shares_of(shop.machines)
-    gate = None
+    gate: ShareGate = open_gate
     if gated:  # the server's own gate: the queue's policy, through the actions
         with sessions.begin() as session:
             jobs.sync_machines(session, shop.machines)
@@ -366,7 +373,7 @@ def test_a_machine_share_over_smb(
     clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())
     config = NetShareConfig(path=nas, machines=("vf2",), archive=tmp_path / "archive")
     machines = shares_of(shop.machines)
-    net = NetShare(config, machines, tmp_path / "inbox", sessions, clock=clock)
+    net = NetShare(config, machines, tmp_path / "inbox", sessions, clock=clock, gate=open_gate)
     _scan_until(net, lambda _r: "vf2" in net.baselined, "the first look at the share")
 
     (nas / "O01000.nc").write_text(PROGRAM)
@@ -409,7 +416,9 @@ def test_a_nas_over_smb(
         shop = parse_config(text, base=tmp_path)
         assert shop.netshare is not None
         machines = shares_of(shop.machines)
-        return NetShare(shop.netshare, machines, tmp_path / "inbox", sessions, clock=clock)
+        return NetShare(
+            shop.netshare, machines, tmp_path / "inbox", sessions, clock=clock, gate=open_gate
+        )
 
     clock = Clock(datetime(2026, 11, 23, 9, 0).astimezone())
     wrong = make("not-the-password")
@@ -476,7 +485,7 @@ def test_a_draft_never_reaches_a_released_only_machines_share(
     tmp_path: Path, ngc: FleetThread, sessions: sessionmaker[Session]
 ) -> None:
     """The net share copied a draft, an edit after release and a file the library never saw
-    to every machine: what reaches a share now passes the queue's one gate (may_put_on)."""
+    to every machine: what reaches a share now gets the decision a send gets (policy.authorize)."""
     net = _make(tmp_path, ngc, sessions, Clock(datetime(2026, 11, 23, 9).astimezone()), True)
     _scan_until(net, lambda _r: len(net.baselined) == 2, "the first look at the shares")
     with sessions.begin() as session:

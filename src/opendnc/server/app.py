@@ -190,7 +190,7 @@ def build(
     netshare = None
     if config.netshare is not None:
         shares = shares_of(config.machines)
-        # what reaches a share passes the queue's one gate (actions.policy.may_put_on)
+        # what reaches a share is decided as a send is (actions.policy.authorize)
         gate = actions.policy.share_gate(services)
         zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's
         netshare = NetShare(

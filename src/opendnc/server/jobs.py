@@ -43,6 +43,7 @@ from opendnc.server.store.models import (
 __all__ = [
     "LOADS",
     "TAKEN_OVER_FROM",
+    "NotReleased",
     "cancel",
     "claim",
     "enqueue",
@@ -179,14 +180,21 @@ def enqueue(
     return job
 
 
-def version_to_send(session: Session, name: str, number: int | None) -> ProgramVersion:
-    """Version ``number`` of ``name``, or the released one without it (none released: refused).
+class NotReleased(Conflict):
+    """A program asked for without a version number that has no released version (409)."""
 
-    What a send, a drip-feed or a file put without a version means, wherever it is asked."""
+
+def version_to_send(session: Session, name: str, number: int | None) -> ProgramVersion:
+    """Version ``number`` of ``name``, or the released one without it (none released:
+    :class:`NotReleased`).
+
+    What a send, a drip-feed, a file put or a control's request means by a program, wherever
+    it is asked: :func:`opendnc.server.actions.policy.authorize` resolves it so, and nothing
+    else in the server picks a version to put on a machine."""
     if number is None:
         version = library.released_version(session, name)
         if version is None:
-            raise Conflict(f"program {name!r} has no released version; name one")
+            raise NotReleased(f"program {name!r} has no released version; name one")
         return version
     return library.get_version(session, name, number)
 

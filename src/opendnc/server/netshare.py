@@ -106,7 +106,9 @@ class ScanReport:
 
 ShareGate = Callable[[SharedMachine, str, bytes], str | None]
 """Whether a NAS file (name, content) may go into a machine's share: None, or why not
-(:func:`opendnc.server.actions.policy.share_gate`, the queue's one gate)."""
+(:func:`opendnc.server.actions.policy.share_gate`: the decision a send gets, from
+:func:`opendnc.server.actions.policy.authorize`). Every net share has one: a copy into a
+share is a program reaching a machine."""
 
 
 def _is_program_name(name: str) -> bool:
@@ -316,8 +318,8 @@ class NetShare(RunsTask):
         sessions: sessionmaker[Session],
         bus: EventBus | None = None,
         *,
+        gate: ShareGate,
         clock: Callable[[], datetime] = local_now,
-        gate: ShareGate | None = None,
     ) -> None:
         self.config = config
         self.machines = {name: machines[name] for name in config.machines}
@@ -439,7 +441,7 @@ class NetShare(RunsTask):
         key = (machine.name, name)
         if self.pushed.get(key) == digest:
             return
-        why = self.gate(machine, name, data) if self.gate is not None else None
+        why = self.gate(machine, name, data)
         if why is not None:
             # asked again every scan (a release may come), audited once per content and reason
             report.refused.append((machine.name, name, why))

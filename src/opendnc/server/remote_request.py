@@ -6,10 +6,11 @@ applies them to each reception a machine's task hands it, queues the requested p
 the request delay (the released version; the newest where the machine takes drafts) and the
 report programs the settings ask for, and wakes the machine when the answer falls due.
 
-A requested program goes out under the rules a send from the API meets
-(:func:`opendnc.server.actions.policy.may_put_on`): a version whose program check for this
-machine finds errors is not sent (nobody at the control can override it) and the report says
-so, with the first error's line.
+A requested program goes out under the decision a send from the API gets
+(:func:`opendnc.server.actions.policy.authorize`), the version included: the released one
+(the version rule every send follows; none released, the report says so), refused where the
+machine's policy refuses it or where its program check for this machine finds errors (nobody
+at the control can override them); the report says why, with the first error's line.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
 from opendnc.server import audit, inbox, jobs, library, requests
-from opendnc.server.actions import checks, policy
+from opendnc.server.actions import policy
 from opendnc.server.actions.base import Services
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, NotFound
@@ -34,11 +35,14 @@ from opendnc.server.kinds.registry import capabilities_of
 from opendnc.server.machine_state import Machines, MachineState
 from opendnc.server.machines.base import Reception
 from opendnc.server.requests import RequestSettings
-from opendnc.server.store.models import JobKind, ProgramVersion, utcnow
+from opendnc.server.store.models import JobKind, utcnow
 
 __all__ = ["RemoteRequests"]
 
 log = logging.getLogger(__name__)
+
+Asked = policy.Decision | str
+"""A requested program's prepared decision, or the report's line of why there is none."""
 
 
 class RemoteRequests:
@@ -55,7 +59,7 @@ class RemoteRequests:
         inbox_folder: Path,
     ) -> None:
         self.machines = machines
-        self.services = services  # a send's rules: the actions layer's (policy.may_put_on)
+        self.services = services  # a send's rules: the actions layer's (policy.authorize)
         self.sessions: sessionmaker[Session] = services.sessions
         self.settings = settings
         self.inbox_folder = inbox_folder
@@ -82,8 +86,8 @@ class RemoteRequests:
 
         def handle() -> tuple[str, float | None]:
             names = None if reception.failed else requests.find_request(reception.data, settings)
-            if names is not None:
-                self._check(machine, names)  # the dry runs before the write transaction
+            # decided before the write transaction (a check's dry run may take seconds)
+            asked = self._prepare(machine, names) if names is not None else []
             with self.sessions.begin() as session:
                 if reception.failed:
                     row = inbox.store(
@@ -107,7 +111,7 @@ class RemoteRequests:
                     if settings.reports == "all":
                         self._report(session, machine, "RECEIVED", [f"{row.name} IN INBOX"])
                     return f"received {row.name} into the inbox", None
-                return self._answer(session, machine, names, queued), settings.delay
+                return self._answer(session, machine, asked, queued), settings.delay
 
         message, delay = await asyncio.to_thread(handle)
         state.last_error = "" if not reception.failed else message
@@ -122,60 +126,63 @@ class RemoteRequests:
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
             state.wake.set()
 
-    def _version(self, session: Session, machine: MachineConfig, name: str) -> ProgramVersion | str:
-        """The version a request for ``name`` sends to ``machine``, or why there is none
-        (the report's line)."""
-        try:
-            # A rule builds the name from what the operator typed: only a program name
-            # is looked up (docs/server.md#receiving-and-remote-request).
-            library.check_program_name(name)
-        except InputError:
-            return f"{name} NOT A PROGRAM NAME"
-        try:
-            version = library.released_version(session, name)
-            if version is None and not machine.released_only:
-                version = library.get_version(session, name)
-        except NotFound:
-            return f"{name} NOT IN LIBRARY"
-        if version is None:
-            return f"{name} NOT RELEASED"
-        return version
-
-    def _check(self, machine: MachineConfig, names: list[str]) -> None:
-        """Have the requested versions' program checks for ``machine`` stored (a dry run
-        may take seconds; none runs inside the answer's write transaction)."""
-        svc = self.services
-        limits = checks.limits_of(svc, machine.name)
-        with svc.reads() as session:
-            found = [self._version(session, machine, name) for name in names]
-            targets = [checks.Target.of(v) for v in found if isinstance(v, ProgramVersion)]
-        for target in targets:
-            checks.ensure(svc, target, limits)
+    def _prepare(self, machine: MachineConfig, names: list[str]) -> list[tuple[str, Asked]]:
+        """Each requested name with its prepared decision, or why there is none (the
+        report's line)."""
+        asked: list[tuple[str, Asked]] = []
+        for name in names:
+            try:
+                # A rule builds the name from what the operator typed: only a program name
+                # is looked up (docs/server.md#receiving-and-remote-request).
+                library.check_program_name(name)
+            except InputError:
+                asked.append((name, f"{name} NOT A PROGRAM NAME"))
+                continue
+            try:
+                decision = policy.authorize(
+                    self.services,
+                    f"request@{machine.name}",
+                    policy.Wanted(name),  # no number: the released one
+                    [machine.name],
+                    policy.Action.request(),
+                )
+            except NotFound:
+                asked.append((name, f"{name} NOT IN LIBRARY"))
+            except jobs.NotReleased:
+                asked.append((name, f"{name} NOT RELEASED"))
+            else:
+                asked.append((name, decision))
+        return asked
 
     def _answer(
         self,
         session: Session,
         machine: MachineConfig,
-        names: list[str],
+        asked: list[tuple[str, Asked]],
         queued: list[dict[str, Any]],
     ) -> str:
         settings = self.settings
         due = utcnow() + timedelta(seconds=settings.delay)
+        names = [name for name, _ in asked]
         problems: list[str] = []  # one a program, for the audit trail
         report: list[str] = []  # the report's lines (a comment each, 60 characters at most)
         sent: list[str] = []
         failed_checks: list[dict[str, Any]] = []
-        for name in names:
-            version = self._version(session, machine, name)
-            if isinstance(version, str):
-                problems.append(version)
-                report.append(version)
+        for name, prepared in asked:
+            if isinstance(prepared, str):
+                problems.append(prepared)
+                report.append(prepared)
                 continue
             try:
-                # nobody at the control can override a check: no reason, ever
-                policy.may_put_on(self.services, session, machine, JobKind.SEND, version, None)
-            except policy.CheckFailed as refused:
-                first = refused.check.first_error() or {}
+                decision = prepared.confirm(session)
+            except Conflict as stale:  # released anew meanwhile: the next request gets it
+                problems.append(f"{name} REFUSED: {stale}")
+                report.append(problems[-1])
+                continue
+            verdict = decision.verdict(machine.name)
+            version = decision.row
+            if verdict.refusal is policy.Refusal.CHECK_FAILED and verdict.check is not None:
+                first = verdict.check.first_error() or {}
                 line = f"LINE {first.get('line', '?')}: {first.get('message', '')}"
                 problems.append(f"{name} FAILED ITS CHECK, {line}")
                 # the program, then the first error on a line or two of its own: a
@@ -187,23 +194,23 @@ class RemoteRequests:
                 failed_checks.append(
                     {
                         "program": name,
-                        "version": version.number,
-                        "sha256": version.sha256,
-                        "errors": refused.check.errors,
+                        "version": decision.version.number if decision.version else None,
+                        "sha256": decision.version.sha256 if decision.version else None,
+                        "errors": verdict.check.errors,
                         "first": first,
-                        "reason": str(refused),
+                        "reason": verdict.reason,
                     }
                 )
                 continue
-            except Conflict as refused:
-                problems.append(f"{name} REFUSED: {refused}")
+            if not verdict.allowed or version is None:
+                problems.append(f"{name} REFUSED: {verdict.reason}")
                 report.append(problems[-1])
                 continue
             job = jobs.enqueue(
                 session,
                 JobKind.SEND,
                 machine.name,
-                actor=f"request@{machine.name}",
+                actor=decision.actor,
                 version=version,
                 params={"request": True},
                 not_before=due,

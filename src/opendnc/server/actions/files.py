@@ -17,10 +17,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from opendnc.server import jobs, library
-from opendnc.server.actions import queue
+from opendnc.server.actions import policy, queue
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest, RemoteFileOut
-from opendnc.server.actions.policy import check_machine, may_queue, may_take_back
+from opendnc.server.actions.policy import may_queue, may_take_back
 from opendnc.server.capabilities import capabilities_of
 from opendnc.server.config import MachineConfig
 from opendnc.server.errors import Conflict, Unavailable
@@ -93,18 +93,18 @@ def put_file(
     """Store ``data`` in the library as a draft of ``filename`` (programmers), then queue
     a ``put_file`` job of that version to ``folder/filename`` on the control, under the
     machine's policy. A refusal stores nothing."""
-    may_queue(who, JobKind.PUT_FILE)
+    # the role and the machine's file browser now; the version is the draft stored below
+    prepared = policy.authorize(svc, who, None, [machine], policy.Action.put_file())
     name = library.check_program_name(filename)
     target = check_path(f"{check_path(folder)}/{name}")
-    config = svc.machine(machine).config
-    if not capabilities_of(config).file_browser:
-        raise Conflict(f"{machine} has no file browser")
+    prepared.require_all()
 
     def store(session: Session) -> JobOut:
         version, _ = library.add_version(
             session, name, data, author=who.name, comment=f"put on {machine} as {target}"
         )
-        check_machine(config, JobKind.PUT_FILE, version)  # a refusal rolls the draft back too
+        # a refusal (released_only takes no draft) rolls the draft back too
+        prepared.confirm(session, created=version).require_all()
         job = jobs.enqueue(
             session,
             JobKind.PUT_FILE,

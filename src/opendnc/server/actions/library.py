@@ -10,7 +10,7 @@ from typing import TypeVar
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import audit, library
+from opendnc.server import library
 from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
@@ -191,30 +191,16 @@ def release_version(
 ) -> VersionOut:
     """Release a version (the one released before becomes superseded). Its program check
     must find no error, unless ``override`` gives a reason (programmers; audited)."""
-    require(who, Role.APPROVER)
-    library.check_program_name(name)
-    reason = policy.override_reason(who, override)
-    target = svc.read(lambda s: checks.Target.of(library.get_version(s, name, number)))
-    checks.ensure(svc, target, None)  # before the transaction: the dry run takes no lock
+    # the role, the name, the override and the check of the text, before the transaction
+    prepared = policy.authorize(
+        svc, who, policy.Wanted(name, number), [], policy.Action.release(), override=override
+    )
 
     def release(session: Session) -> VersionOut:
-        version = library.get_version(session, name, number)
-        check = checks.in_transaction(svc, session, version, None)
-        if policy.check_passes(
-            check, reason, f"{name} v{number}", blocks=svc.runner.config.library.check_blocks
-        ):
-            audit.record(
-                session,
-                who.name,
-                "program.check_override",
-                program=name,
-                sha256=version.sha256,
-                version=number,
-                to="release",
-                reason=reason,
-                errors=check.errors,
-                first=check.first_error(),
-            )
+        decision = prepared.confirm(session)
+        decision.require_all()
+        for verdict in decision.verdicts:
+            policy.record_override(session, decision, verdict)
         return VersionOut.of(library.release(session, name, number, actor=who.name))
 
     return _change(svc, name, release)

@@ -10,13 +10,12 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import audit, jobs, library
-from opendnc.server.actions import checks, policy
+from opendnc.server import audit, jobs
+from opendnc.server.actions import policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import JobOut, JobRequest
 from opendnc.server.errors import Conflict
 from opendnc.server.machine_files import check_path
-from opendnc.server.program_checks import Checked
 from opendnc.server.store.models import JobKind, JobState, ProgramVersion, Role
 
 __all__ = [
@@ -84,15 +83,14 @@ def _create(
     each: bool,
 ) -> Queued:
     kind = order.kind
-    policy.may_queue(who, kind)
-    reason = policy.override_reason(who, order.override)
-    configs = [svc.machine(name).config for name in order.machines]
     program = order.program
+    wanted = policy.Wanted(program, order.version) if program is not None else None
+    # the role, the override, the version and each machine's check, before the transaction:
+    # a dry run may take seconds and takes no lock
+    prepared = policy.authorize(
+        svc, who, wanted, order.machines, policy.Action.queue(kind), override=order.override
+    )
     path = None
-    if kind in jobs.PROGRAM_JOBS:
-        if program is None:
-            raise InputError(f"a {kind.value} job names a program")
-        library.check_program_name(program)
     if kind is not JobKind.SEND and kind is not JobKind.DRIPFEED:
         if order.path is None:
             raise InputError(f"a {kind.value} job names a path on the control")
@@ -103,72 +101,34 @@ def _create(
             raise InputError("a path holds no NUL character")
     if order.from_line is not None and kind is not JobKind.DRIPFEED:
         raise InputError("only a drip-feed starts from a line")
-    checked = kind in policy.CHECKED_JOBS and program is not None
-    if checked and program is not None:
-        # the dry runs before the transaction: they may take seconds and take no lock
-        target = svc.read(lambda s: checks.Target.of(policy.version_for(s, program, order.version)))
-        for config in configs:
-            checks.ensure(svc, target, checks.limits_of(svc, config.name))
 
     refused: dict[str, str] = {}
 
     def queue(session: Session) -> list[JobOut]:
+        decision = prepared.confirm(session)  # the version and each machine, read once
+        if not each:
+            decision.require_all()
         refused.clear()
-        version = policy.version_for(session, program, order.version) if program else None
-        # every machine's own refusal first: one a check override cannot lift is said first
-        for config in configs:
-            try:
-                policy.check_machine(config, kind, version)
-            except Conflict as exc:
-                if not each:
-                    raise
-                refused[config.name] = str(exc)
-        overridden: dict[str, Checked] = {}
-        for config in configs:
-            if config.name in refused:
-                continue
-            try:
-                check = policy.may_put_on(svc, session, config, kind, version, reason)
-            except Conflict as exc:
-                if not each:
-                    raise
-                refused[config.name] = str(exc)
-                continue
-            if check is not None:
-                overridden[config.name] = check
-        if len(refused) == len(configs):
+        refused.update({v.machine or "": v.reason for v in decision.refused})
+        if not decision.allowed:
             raise _NoMachine(refused)
+        version = decision.row
         created = []
-        for config in configs:
-            if config.name in refused:
-                continue
+        for verdict in decision.allowed:
+            machine = verdict.machine or ""
             params: dict[str, str | int | bool] = dict(extra or {})
             if path is not None:
                 params["path"] = path
             if order.from_line is not None:
                 params["from_line"] = order.from_line
-            if config.name in overridden and reason is not None:
-                params["check_override"] = reason  # a retry of the job keeps it
+            if verdict.overridden and decision.override is not None:
+                params["check_override"] = decision.override.why  # a retry of the job keeps it
             job = jobs.enqueue(
-                session, kind, config.name, actor=who.name, version=version, params=params
+                session, kind, machine, actor=who.name, version=version, params=params
             )
             created.append(job)
-            if config.name in overridden and version is not None:
-                session.flush()
-                audit.record(
-                    session,
-                    who.name,
-                    "program.check_override",
-                    machine=config.name,
-                    program=version.program.name,
-                    sha256=version.sha256,
-                    job_id=job.id,
-                    version=version.number,
-                    to=kind.value,
-                    reason=reason,
-                    errors=overridden[config.name].errors,
-                    first=overridden[config.name].first_error(),
-                )
+            if verdict.overridden:
+                policy.record_override(session, decision, verdict, job_id=job.id)
         _audit_refusals(session, who, kind, version, refused)
         return [JobOut.of(j) for j in created]
 
@@ -290,23 +250,30 @@ def retry_job(svc: Services, who: Caller, job_id: int, from_line: int | None = N
     check, whose override the job keeps)."""
     require(who, Role.OPERATOR)
     old_job = get_job(svc, who, job_id)
-    if old_job.kind in policy.CHECKED_JOBS and old_job.program is not None:
-        target = svc.read(
-            lambda s: checks.Target.of(
-                library.get_version(s, old_job.program or "", old_job.version)
-            )
-        )
-        checks.ensure(svc, target, checks.limits_of(svc, old_job.machine))
+    kept = old_job.params.get("check_override")
+    override = None
+    if isinstance(kept, str):  # the override the job was queued with, by whoever queued it
+        override = policy.Override(old_job.created_by, kept)
+    wanted = None
+    if old_job.program is not None:
+        wanted = policy.Wanted(old_job.program, old_job.version)
+    prepared = policy.authorize(
+        svc,
+        who,
+        wanted,
+        [old_job.machine],
+        policy.Action.retry(old_job.kind),
+        override=override,
+    )
 
     def retry(session: Session) -> JobOut:
-        old = jobs.get_job(session, job_id)
-        if old.kind in policy.JOB_ROLES:  # a report is retried like any job
-            policy.may_queue(who, old.kind)
-        kept = old.params.get("check_override")
-        config = svc.machine(old.machine).config
-        reason = kept if isinstance(kept, str) else None
-        policy.may_put_on(svc, session, config, old.kind, old.version, reason)
-        return JobOut.of(jobs.retry(session, job_id, actor=who.name, from_line=from_line))
+        decision = prepared.confirm(session)
+        decision.require_all()
+        job = jobs.retry(session, job_id, actor=who.name, from_line=from_line)
+        for verdict in decision.allowed:
+            if verdict.overridden:
+                policy.record_override(session, decision, verdict, job_id=job.id)
+        return JobOut.of(job)
 
     out = svc.write(retry)
     svc.queued([out])
