@@ -15,7 +15,7 @@ import pytest
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
 from opendnc.server.state import State
-from opendnc.server.utilization import Group, Point, stored_state, summarize
+from opendnc.server.utilization.collect import Group, Point, stored_state, summarize
 
 BERLIN = ZoneInfo("Europe/Berlin")
 H = 3600.0

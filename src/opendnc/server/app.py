@@ -19,7 +19,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, alerts_api, api, dprnt_api, edge, utilization_api, web
+from opendnc.server import actions, alerts_api, api, dprnt_api, edge, web
 from opendnc.server.alerts import Alerts
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.clients import Clients, SendTimeout
@@ -50,6 +50,8 @@ from opendnc.server.single_server import DatabaseInUse, ServerLock, refuse_besid
 from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.utilization import component as utilization_component
+from opendnc.server.utilization import routes as utilization_routes
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
 
@@ -161,7 +163,7 @@ def build(
             else None,
         )
     )
-    core.add(utilization_api.HourSummer(sessions, names, config.calendar))
+    core.add(utilization_component.HourSummer(sessions, names, config.calendar))
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
@@ -241,7 +243,7 @@ def build(
     api.install(app)
     app.include_router(dprnt_api.router)
     app.include_router(alerts_api.router)
-    utilization_api.install(app)
+    utilization_routes.install(app)
     web.install(app)
     return Server(
         config,

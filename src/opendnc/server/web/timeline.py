@@ -54,7 +54,7 @@ class Sample:
     state: State
     mode: str = ""
     execution: str = ""
-    # for utilization (server/utilization.py): a change of these is a sample of its own
+    # for utilization (server/utilization/): a change of these is a sample of its own
     program: str = ""
     part_count: int | None = None
     alarm: str = ""

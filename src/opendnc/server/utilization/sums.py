@@ -1,9 +1,9 @@
 """The arithmetic of utilization: one machine's status timeline swept into sums per piece of
 time (seconds per state, shift time, parts, runs and cycles), its stops and its alarms.
 
-No database here: :mod:`opendnc.server.utilization` reads the samples and the summed hours and
-hands the points to :func:`sweep`; :func:`summarize` does the whole of it for one machine's
-points (the tests' reference). States come from the one classifier
+No database here: :mod:`opendnc.server.utilization.collect` reads the samples and the summed
+hours and hands the points to :func:`sweep`; :func:`summarize` does the whole of it for one
+machine's points (the tests' reference). States come from the one classifier
 (:mod:`opendnc.server.state`). Definitions (docs/dashboard.md#utilization):
 
 * **time in each state**: a sample's state lasts until the machine's next sample; before a

@@ -3,7 +3,7 @@ per machine and per shift, day or week of the shop's calendar (:mod:`opendnc.ser
 
 The samples are ``status_samples`` (one row per change of a machine's state, program, part
 counter or alarm; server/web/timeline.py); the arithmetic and the definitions are
-:mod:`opendnc.server.utilization_sums` (docs/dashboard.md#utilization).
+:mod:`opendnc.server.utilization.sums` (docs/dashboard.md#utilization).
 
 A year of 200 machines is too many samples to read for every question (about 20 million at a
 change every 5 minutes), so finished hours are summed once into ``utilization_hours`` and
@@ -55,8 +55,8 @@ from opendnc.server.store.models import (
     UtilizationMark,
     UtilizationStretch,
 )
-from opendnc.server.utilization_days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
-from opendnc.server.utilization_sums import (
+from opendnc.server.utilization.days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
+from opendnc.server.utilization.sums import (
     HOUR,
     RECENT_ALARMS,
     STATES,
@@ -257,7 +257,7 @@ def roll(
 ) -> int:
     """Sum the finished hours of ``machines`` not summed yet (up to the hour before ``now``
     less a margin), then (given the shop's ``calendar``) up to ``days`` of their finished
-    local days per machine (:mod:`opendnc.server.utilization_days`; None: all of them);
+    local days per machine (:mod:`opendnc.server.utilization.days`; None: all of them);
     how many machine-hours were written. Call in a write transaction."""
     target = floor_hour(now - ROLL_MARGIN)
     written = 0

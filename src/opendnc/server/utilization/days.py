@@ -1,6 +1,6 @@
 """Utilization summed per machine, local day and shift: what a question over months reads.
 
-A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization`);
+A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization.collect`);
 summing them for every question takes seconds. So every finished local day of the shop's
 calendar is summed once more, per **slot**: each shift's part of the day, and the time
 outside shifts (``utilization_days``, migration 0014). A day, a week or a shift of a question
@@ -63,7 +63,7 @@ from opendnc.server.store.models import (
     UtilizationMark,
     UtilizationWeek,
 )
-from opendnc.server.utilization_sums import STATES, Bin, Figures, Group
+from opendnc.server.utilization.sums import STATES, Bin, Figures, Group
 
 __all__ = [
     "BUILD_DAYS",
