@@ -84,7 +84,6 @@ from opendnc.server.utilization.sums import (
     periods_of,
     point_of,
     point_of_columns,
-    stored_state,
     summarize,
     sweep,
 )
@@ -108,7 +107,6 @@ __all__ = [
     "read_many",
     "report",
     "roll",
-    "stored_state",
     "sum_safely",
     "summarize",
     "sweep",

@@ -37,7 +37,7 @@ from enum import StrEnum
 from typing import Any, NamedTuple
 
 from opendnc.server.shifts import Calendar, Period
-from opendnc.server.state import State, classify_words
+from opendnc.server.state import State, from_stored
 
 __all__ = [
     "HOUR",
@@ -68,7 +68,6 @@ __all__ = [
     "periods_of",
     "point_of",
     "point_of_columns",
-    "stored_state",
     "summarize",
     "sweep",
 ]
@@ -107,22 +106,6 @@ class Group(StrEnum):
     WEEK = "week"
 
 
-def stored_state(state: str, execution: str = "") -> State:
-    """A stored sample's state in the classifier's words. Samples written before the one
-    classifier said ``active`` for running, ``none`` for no record, and filed a control that
-    reported no execution word as ``ready``: its execution word decides (``unknown``)."""
-    if state in ("none", "no_record"):
-        return State.NO_RECORD
-    if state in ("active", "running"):
-        return State.RUNNING
-    if state == "ready":
-        return classify_words(online=True, execution=execution, errors=False)
-    try:
-        return State(state)
-    except ValueError:
-        return State.UNKNOWN
-
-
 class Point(NamedTuple):
     """A machine's state from ``at`` on (one stored sample). A named tuple: a year of
     samples makes millions of them."""
@@ -136,7 +119,7 @@ class Point(NamedTuple):
 
 @functools.lru_cache(maxsize=4096)
 def _state_of(state: str, execution: str) -> State:
-    return stored_state(state, execution)
+    return from_stored(state, execution)
 
 
 def point_of(row: Any) -> Point:
