@@ -20,13 +20,21 @@ import secrets
 import signal
 import socket
 import tempfile
+from collections.abc import Callable, Sized
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
 
 import typer
 
 from opendnc.cli.common import cli_errors, console
 from opendnc.cli.serve import bind_option, listen_socket, require_server_extra
 from opendnc.errors import DncError, InputError
+
+if TYPE_CHECKING:
+    from opendnc.server.app import Server
+    from opendnc.sim.fleet import Fleet
+
+T = TypeVar("T")
 
 # What the virtual NGC runs once at start so its DPRNT lines reach the machine's page.
 PRINTS = (
@@ -255,26 +263,51 @@ async def _print_dprnt(server: object, fleet: object) -> None:
 
 async def _check(server: object, fleet: object) -> None:
     """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC, O0100
-    to a tape-code control) and wait for the outcome."""
-    from sqlalchemy import select
-
-    from opendnc.server import actions, jobs
-    from opendnc.server.actions.models import JobRequest
+    to a tape-code control) and wait for the outcome; then for the NGC's DPRNT lines and the
+    net share's copies."""
     from opendnc.server.app import Server
-    from opendnc.server.auth import Principal
-    from opendnc.server.store.models import AuditEntry, DprntLine, JobKind, JobState, Role
     from opendnc.sim.fleet import Fleet
 
     assert isinstance(server, Server)
     assert isinstance(fleet, Fleet)
+    deadline = asyncio.get_running_loop().time() + 60
+    await _all_online(server, deadline)
+    await _send_everywhere(server, fleet, deadline)
+    await _dprnt_printed(server, deadline)
+    await _net_share_copied(server, fleet, deadline)
+
+
+async def _poll(probe: Callable[[], T], done: Callable[[T], bool], deadline: float) -> T:
+    """``probe()`` every 0.1 s until ``done`` holds of its answer or the loop's clock passes
+    ``deadline``; its last answer."""
     loop = asyncio.get_running_loop()
-    deadline = loop.time() + 60
-    while not all(m.online for m in server.machines.machines.values()):
-        if loop.time() > deadline:
-            away = [m.config.name for m in server.machines.machines.values() if not m.online]
-            raise DncError(f"machines not online: {', '.join(away)}")
+    while True:
+        value = probe()
+        if done(value) or loop.time() > deadline:
+            return value
         await asyncio.sleep(0.1)
+
+
+async def _all_online(server: Server, deadline: float) -> None:
+    """Wait until every machine is online."""
+    machines = server.machines.machines.values()
+    away = await _poll(lambda: [m.config.name for m in machines if not m.online], _empty, deadline)
+    if away:
+        raise DncError(f"machines not online: {', '.join(away)}")
     console.print("all machines online", highlight=False)
+
+
+def _empty(items: Sized) -> bool:
+    return not items
+
+
+async def _send_everywhere(server: Server, fleet: Fleet, deadline: float) -> None:
+    """Send each machine a released program of its own family and wait until all are sent."""
+    from opendnc.server import actions, jobs
+    from opendnc.server.actions.models import JobRequest
+    from opendnc.server.auth import Principal
+    from opendnc.server.store.models import Job, JobKind, JobState, Role
+
     # each machine a released program of its own family (the library's program check
     # refuses a Haas program on a TNC): through the actions layer, as a person's send would go
     svc = server.core.get(actions.Services)
@@ -288,46 +321,60 @@ async def _check(server: object, fleet: object) -> None:
             created += await asyncio.to_thread(actions.queue.create_jobs, svc, demo, order)
     ids = [j.id for j in created]
     programs = {j.id: j.program for j in created}
-    while True:
+
+    def states() -> list[Job]:
         with server.sessions() as session:
-            states = [jobs.get_job(session, i) for i in ids]
-        if all(j.state.finished for j in states):
-            break
-        if loop.time() > deadline:
-            raise DncError("the demo's jobs did not finish in time")
-        await asyncio.sleep(0.1)
-    for job in states:
+            return [jobs.get_job(session, i) for i in ids]
+
+    found = await _poll(states, lambda js: all(j.state.finished for j in js), deadline)
+    if not all(j.state.finished for j in found):
+        raise DncError("the demo's jobs did not finish in time")
+    for job in found:
         outcome = "sent" if job.state is JobState.DONE else f"{job.state.value}: {job.error}"
         console.print(f"{programs[job.id]} -> {job.machine}: {outcome}", highlight=False)
-    if any(j.state is not JobState.DONE for j in states):
+    if any(j.state is not JobState.DONE for j in found):
         raise DncError("not every machine received the program")
-    # the NGC's DPRNT lines, captured by the server (the program it runs at start prints 3)
-    while True:
+
+
+async def _dprnt_printed(server: Server, deadline: float) -> None:
+    """Wait for the NGC's DPRNT lines, captured by the server (the program it runs at start
+    prints 3)."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.models import DprntLine
+
+    def lines() -> list[str]:
         with server.sessions() as session:
-            printed = session.scalars(select(DprntLine.text).order_by(DprntLine.id)).all()
-        if len(printed) >= 3 or loop.time() > deadline:
-            break
-        await asyncio.sleep(0.1)
+            return list(session.scalars(select(DprntLine.text).order_by(DprntLine.id)))
+
+    printed = await _poll(lines, lambda found: len(found) >= 3, deadline)
     for line in printed:
         console.print(f"DPRNT haas-1: {line}", highlight=False)
     if len(printed) < 3:
         raise DncError("the demo's DPRNT lines did not arrive")
-    # the net share copied the NAS folder's programs to every Haas NGC's share
+
+
+async def _net_share_copied(server: Server, fleet: Fleet, deadline: float) -> None:
+    """Wait until the net share copied the NAS folder's programs to every Haas NGC's share."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.models import AuditEntry
+
     served = [m.name for m in fleet.machines if m.kind == "haas_ngc"]
     wanted = {(machine, name) for machine in served for name in NAS_FILES}
-    while True:
+
+    def pushed() -> set[tuple[str, str]]:
         with server.sessions() as session:
             rows = session.execute(
                 select(AuditEntry.machine, AuditEntry.program).where(
                     AuditEntry.action == "netshare.push", AuditEntry.result == "ok"
                 )
             ).all()
-        pushed = {(m or "", p or "") for m, p in rows} & wanted
-        if pushed == wanted or loop.time() > deadline:
-            break
-        await asyncio.sleep(0.1)
+        return {(m or "", p or "") for m, p in rows} & wanted
+
+    copied = await _poll(pushed, lambda found: found == wanted, deadline)
     for machine in served:
-        copied = ", ".join(sorted(p for m, p in pushed if m == machine))
-        console.print(f"net share -> {machine}: {copied}", highlight=False)
-    if pushed != wanted:
+        names = ", ".join(sorted(p for m, p in copied if m == machine))
+        console.print(f"net share -> {machine}: {names}", highlight=False)
+    if copied != wanted:
         raise DncError("the net share did not copy the NAS folder's programs in time")

@@ -404,16 +404,32 @@ def _transition(
     j = bin_at(p.at, ends)
     # a change outside the bins (read only for what it carries) counts nowhere
     fig = figures[j] if j < len(figures) and bins[j].start <= p.at else None
+    completed = _count_parts(p, carry, fig)
+    _count_run(p, carry, fig, completed)
+    _follow_alarm(p, carry, stretches)
+    _follow_stop(p, carry, stretches)
+    return p.state
+
+
+def _count_parts(p: Point, carry: Carry, fig: Figures | None) -> bool:
+    """Add the parts the counter gained at ``p`` to ``fig``; whether it gained any."""
+    if p.part_count is None:
+        return False
     completed = False
-    if p.part_count is not None:
-        if carry.counter is not None and p.part_count != carry.counter:
-            # a counter that went down was reset: its new value is what was made since
-            gained = p.part_count - carry.counter if p.part_count > carry.counter else p.part_count
-            if gained > 0:
-                completed = True
-                if fig is not None:
-                    fig.parts = (fig.parts or 0) + gained
-        carry.counter = p.part_count
+    if carry.counter is not None and p.part_count != carry.counter:
+        # a counter that went down was reset: its new value is what was made since
+        gained = p.part_count - carry.counter if p.part_count > carry.counter else p.part_count
+        if gained > 0:
+            completed = True
+            if fig is not None:
+                fig.parts = (fig.parts or 0) + gained
+    carry.counter = p.part_count
+    return completed
+
+
+def _count_run(p: Point, carry: Carry, fig: Figures | None, completed: bool) -> None:
+    """A run ends at ``p`` when the counter rose after running, or, without a counter, when
+    running went back to ready; a stop that aborts it, or ready, starts the next afresh."""
     ready_ends_run = carry.counter is None and p.state is State.READY and carry.ran
     if ((completed and (carry.ran or carry.run > 0)) or ready_ends_run) and fig is not None:
         fig.runs += 1
@@ -422,7 +438,10 @@ def _transition(
             fig.cycle_seconds += carry.run
     if completed or ready_ends_run or p.state in _ABORT or p.state is State.READY:
         carry.run, carry.run_known, carry.ran = 0.0, True, False
-    # alarms: one stretch per alarm text
+
+
+def _follow_alarm(p: Point, carry: Carry, stretches: list[Stretch] | None) -> None:
+    """Alarms: one stretch per alarm text."""
     if carry.alarm_start is not None and (
         p.state is not State.ALARM or p.alarm != carry.alarm_text
     ):
@@ -433,7 +452,10 @@ def _transition(
         carry.alarm_start, carry.alarm_text = None, ""
     if p.state is State.ALARM and carry.alarm_start is None:
         carry.alarm_start, carry.alarm_text = p.at, p.alarm
-    # stops: consecutive states that are not running, joined
+
+
+def _follow_stop(p: Point, carry: Carry, stretches: list[Stretch] | None) -> None:
+    """Stops: consecutive states that are not running, joined, named by the worst of them."""
     if p.state in _NOT_RUNNING:
         if carry.stop_start is None:
             carry.stop_start, carry.stop_state, carry.stop_text = p.at, p.state, ""
@@ -447,7 +469,6 @@ def _transition(
                 Stretch("stop", carry.stop_start, p.at, carry.stop_state, carry.stop_text)
             )
         carry.stop_start, carry.stop_text = None, ""
-    return p.state
 
 
 def open_stretches(carry: Carry, end: datetime) -> list[Stretch]:
