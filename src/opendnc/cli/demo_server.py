@@ -147,11 +147,9 @@ def demo(
 async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zone: str) -> None:
     import uvicorn
 
-    from opendnc.server import auth, library
     from opendnc.server.app import build
     from opendnc.server.config import parse_config
-    from opendnc.server.store.models import Role
-    from opendnc.sim.fleet import server_config, start_fleet
+    from opendnc.sim.fleet import start_fleet
 
     port = listener.getsockname()[1]  # the real one when --bind said :0
     # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
@@ -160,41 +158,12 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     )
     try:
         nas = folder / "nas"
-        nas.mkdir(exist_ok=True)
-        for name, data in NAS_FILES.items():
-            if not (nas / name).exists():  # a kept --dir: a file changed there stays so
-                (nas / name).write_bytes(data)
-        text = server_config(
-            fleet,
-            bind=f"{host}:{port}",
-            poll_interval=0.5,
-            library=folder / "library",
-            dripfeed=True,  # a virtual machine: nothing moves
-            timezone=zone,
-            netshare=nas,
-            netshare_interval=1.0,
-        )
-        text += DEMO_SHIFTS  # utilization per shift has something to show
-        (folder / "shop.toml").write_text(text)
+        text = _write_shop(folder, nas, fleet, f"{host}:{port}", zone)
         shop = parse_config(text, base=folder, source=folder / "shop.toml")
         server = build(shop, database=f"sqlite:///{folder / 'opendnc.db'}", sweep_interval=1.0)
         password = secrets.token_urlsafe(9)
         viewer_password = secrets.token_urlsafe(9)
-        with server.sessions.begin() as session:
-            for user, role, secret in (
-                ("admin", Role.ADMIN, password),
-                ("viewer", Role.VIEWER, viewer_password),
-            ):
-                if auth.find_user(session, user) is None:
-                    auth.create_user(session, user, role, password=secret, actor="demo")
-                else:  # a kept --dir: the login printed below must be the one that works
-                    auth.set_password(session, user, secret, actor="demo")
-            _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
-            for name, versions in EXAMPLES.items():
-                for data in versions:
-                    library.add_version(session, name, data, author="demo", source="example")
-                if name in RELEASED:
-                    library.release(session, name, 1, actor="demo")
+        key = _seed(server, password, viewer_password)
         # An open dashboard holds an event stream that never ends by itself: at Ctrl-C it
         # gets two seconds, then goes (as `serve` does with its own deadline).
         settings = uvicorn.Config(
@@ -209,20 +178,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
                 raise InputError(f"the server on {host}:{port} stopped at once (see above)")
             await asyncio.sleep(0.05)
         url = f"http://{host}:{port}/"
-        console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
-        console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
-        console.print(
-            f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True
-        )
-        console.print(f"API key: {key}", highlight=False, soft_wrap=True)
-        console.print(
-            f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",
-            highlight=False,
-            soft_wrap=True,
-        )
-        names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
-        console.print(f"machines: {names}", highlight=False, soft_wrap=True)
-        console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
+        _announce(url, (password, viewer_password, key), fleet, zone, nas)
         printing = asyncio.create_task(_print_dprnt(server, fleet))
         try:
             if check:
@@ -244,6 +200,70 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     finally:
         await fleet.close()
     console.print("demo finished")
+
+
+def _write_shop(folder: Path, nas: Path, fleet: Fleet, bind: str, zone: str) -> str:
+    """Fill the NAS folder and write the demo's ``shop.toml``; its text."""
+    from opendnc.sim.fleet import server_config
+
+    nas.mkdir(exist_ok=True)
+    for name, data in NAS_FILES.items():
+        if not (nas / name).exists():  # a kept --dir: a file changed there stays so
+            (nas / name).write_bytes(data)
+    text = server_config(
+        fleet,
+        bind=bind,
+        poll_interval=0.5,
+        library=folder / "library",
+        dripfeed=True,  # a virtual machine: nothing moves
+        timezone=zone,
+        netshare=nas,
+        netshare_interval=1.0,
+    )
+    text += DEMO_SHIFTS  # utilization per shift has something to show
+    (folder / "shop.toml").write_text(text)
+    return text
+
+
+def _seed(server: Server, password: str, viewer_password: str) -> str:
+    """The demo's users (admin and viewer, with these passwords) and example programs; a new
+    admin API key."""
+    from opendnc.server import auth, library
+    from opendnc.server.store.models import Role
+
+    with server.sessions.begin() as session:
+        for user, role, secret in (
+            ("admin", Role.ADMIN, password),
+            ("viewer", Role.VIEWER, viewer_password),
+        ):
+            if auth.find_user(session, user) is None:
+                auth.create_user(session, user, role, password=secret, actor="demo")
+            else:  # a kept --dir: the login printed below must be the one that works
+                auth.set_password(session, user, secret, actor="demo")
+        _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
+        for name, versions in EXAMPLES.items():
+            for data in versions:
+                library.add_version(session, name, data, author="demo", source="example")
+            if name in RELEASED:
+                library.release(session, name, 1, actor="demo")
+    return key
+
+
+def _announce(url: str, secrets_: tuple[str, str, str], fleet: Fleet, zone: str, nas: Path) -> None:
+    """Print where the demo is and how to log in."""
+    password, viewer_password, key = secrets_
+    console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
+    console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
+    console.print(f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True)
+    console.print(f"API key: {key}", highlight=False, soft_wrap=True)
+    console.print(
+        f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",
+        highlight=False,
+        soft_wrap=True,
+    )
+    names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
+    console.print(f"machines: {names}", highlight=False, soft_wrap=True)
+    console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
 
 
 async def _print_dprnt(server: object, fleet: object) -> None:
