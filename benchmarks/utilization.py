@@ -7,7 +7,7 @@ an hour, and every machine shows no record for a few minutes when the server res
 month). Half the machines count parts (a Haas's M30 counter). A state changes every few
 minutes: about 100 000 samples per machine and year.
 
-Then it times :func:`opendnc.server.utilization.report` (what ``GET /api/utilization``
+Then it times :func:`opendnc.server.utilization.collect.report` (what ``GET /api/utilization``
 answers), in the server's own database layout:
 
 1. the first question, which sums every finished hour of the year once (``utilization_hours``);
@@ -56,7 +56,8 @@ from sqlalchemy import Engine, create_engine, event, insert, text
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.store.db import make_engine, make_sessions, migrate, read_only
 from opendnc.server.store.models import StatusSample
-from opendnc.server.utilization import (
+from opendnc.server.utilization.answer import report_response
+from opendnc.server.utilization.collect import (
     Group,
     buckets,
     equal_periods,
@@ -64,7 +65,7 @@ from opendnc.server.utilization import (
     roll,
     sum_safely,
 )
-from opendnc.server.utilization_api import HourSummer, report_response
+from opendnc.server.utilization.component import HourSummer
 
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
 CAL = parse_calendar(
@@ -347,7 +348,7 @@ def run(
         )
 
     def api(span: tuple[datetime, datetime], group: Group, at: datetime) -> Any:
-        """What ``GET /api/utilization`` does (utilization_api.run_report and the route)."""
+        """What ``GET /api/utilization`` does (utilization.answer.run_report and the route)."""
 
         def work(engine: Engine) -> bytes:
             factory = make_sessions(engine)

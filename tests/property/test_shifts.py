@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from opendnc.errors import InputError
 from opendnc.server.shifts import DAYS, parse_calendar
-from opendnc.server.utilization_api import parse_when
+from opendnc.server.utilization.answer import parse_when
 
 scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.text(max_size=12))
 clocks = st.one_of(

@@ -20,7 +20,7 @@ from opendnc.server.kinds.registry import connector_for
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State, classify
-from opendnc.server.utilization_sums import Group, Point, summarize
+from opendnc.server.utilization.sums import Group, Point, summarize
 from opendnc.server.web.timeline import Timeline
 from opendnc.sim.tnc.population import klartext_demo
 from opendnc.sim.tnc.server import serve_tnc

@@ -18,8 +18,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.shifts import Calendar, parse_calendar
 from opendnc.server.store.models import StatusSample, UtilizationDay, UtilizationMark
-from opendnc.server.utilization import Group, MachineReport, report, sum_safely
-from opendnc.server.utilization_days import day_span, pieces_of, rolls_up
+from opendnc.server.utilization.collect import Group, MachineReport, report, sum_safely
+from opendnc.server.utilization.days import day_span, pieces_of, rolls_up
 from tests.server.test_utilization_db import _whole
 
 

@@ -17,14 +17,14 @@ import pytest
 from sqlalchemy import Engine, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import utilization_api
 from opendnc.server.config import parse_config
 from opendnc.server.machines.base import MachineStatus
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State
 from opendnc.server.store.db import current_revision, make_engine, migrate, read_only
 from opendnc.server.store.models import StatusSample, UtilizationHour, UtilizationMark
-from opendnc.server.utilization import Figures, Group, MachineReport, report, sum_safely
+from opendnc.server.utilization import answer, component
+from opendnc.server.utilization.collect import Figures, Group, MachineReport, report, sum_safely
 from opendnc.server.web.timeline import Timeline
 
 BERLIN = ZoneInfo("Europe/Berlin")
@@ -240,9 +240,9 @@ def test_the_api_writes_the_json_the_standard_library_writes(
     with sessions.begin() as session:
         r = report(session, CAL, MACHINES, START, END, Group.DAY, now=NOW)
     assert odd in {a.text for m in r.machines for a in m.alarms}
-    response = utilization_api.report_response(r)
+    response = answer.report_response(r)
     expected = json.dumps(
-        utilization_api.report_json(r),
+        answer.report_json(r),
         ensure_ascii=False,
         allow_nan=False,
         indent=None,
@@ -338,10 +338,10 @@ def test_the_server_sums_finished_hours_in_the_background(
     t0 = datetime.now(UTC) - timedelta(hours=5)
     with sessions.begin() as session:
         session.add(StatusSample(machine="m", at=t0, state="running", execution="ACTIVE"))
-    monkeypatch.setattr(utilization_api, "ROLL_EVERY", 0.05)
+    monkeypatch.setattr(component, "ROLL_EVERY", 0.05)
 
     async def summed() -> datetime:
-        summer = utilization_api.HourSummer(sessions, [m.name for m in config.machines])
+        summer = component.HourSummer(sessions, [m.name for m in config.machines])
         await summer.start()
         try:
             deadline = time.monotonic() + 30

@@ -12,9 +12,9 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.server.shifts import parse_calendar
 from opendnc.server.state import State
 from opendnc.server.store.models import StatusSample
-from opendnc.server.utilization import Group, report
-from opendnc.server.utilization_api import report_json
-from opendnc.server.utilization_sums import Point, summarize
+from opendnc.server.utilization.answer import report_json
+from opendnc.server.utilization.collect import Group, report
+from opendnc.server.utilization.sums import Point, summarize
 from tests.server.conftest import on
 
 BERLIN = ZoneInfo("Europe/Berlin")

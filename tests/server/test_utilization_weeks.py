@@ -15,8 +15,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.server.shifts import Calendar, parse_calendar
 from opendnc.server.state import State
 from opendnc.server.store.models import StatusSample, UtilizationWeek
-from opendnc.server.utilization import Group, marks_of, report, sum_safely
-from opendnc.server.utilization_days import build_days
+from opendnc.server.utilization.collect import Group, marks_of, report, sum_safely
+from opendnc.server.utilization.days import build_days
 from tests.server.test_utilization_db import _figures, _whole
 
 BERLIN = ZoneInfo("Europe/Berlin")

@@ -14,8 +14,8 @@ import pytest
 
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
-from opendnc.server.state import State
-from opendnc.server.utilization import Group, Point, stored_state, summarize
+from opendnc.server.state import State, from_stored
+from opendnc.server.utilization.collect import Group, Point, summarize
 
 BERLIN = ZoneInfo("Europe/Berlin")
 H = 3600.0
@@ -229,7 +229,7 @@ def test_weeks_are_iso_weeks_from_monday_midnight() -> None:
 def test_stored_states_in_the_classifiers_words(
     state: str, execution: str, expected: State
 ) -> None:
-    assert stored_state(state, execution) is expected
+    assert from_stored(state, execution) is expected
 
 
 def test_shift_and_zone_configuration() -> None:

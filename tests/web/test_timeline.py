@@ -67,11 +67,18 @@ def test_samples_written_before_the_classifier_read_as_its_states() -> None:
     # Stored history said "active" for running and "none" for no record: both still read.
     from opendnc.server.state import State, from_stored
 
-    assert [from_stored(w) for w in ("active", "none", "running", "no_record", "ready")] == [
+    stored = [
+        ("active", "ACTIVE"),
+        ("none", ""),
+        ("running", "ACTIVE"),
+        ("no_record", ""),
+        ("ready", "READY"),
+    ]
+    assert [from_stored(w, e) for w, e in stored] == [
         State.RUNNING,
         State.NO_RECORD,
         State.RUNNING,
         State.NO_RECORD,
         State.READY,
     ]
-    assert from_stored("garbage") is State.UNKNOWN
+    assert from_stored("garbage", "") is State.UNKNOWN

@@ -20,13 +20,21 @@ import secrets
 import signal
 import socket
 import tempfile
+from collections.abc import Callable, Sized
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
 
 import typer
 
 from opendnc.cli.common import cli_errors, console
 from opendnc.cli.serve import bind_option, listen_socket, require_server_extra
 from opendnc.errors import DncError, InputError
+
+if TYPE_CHECKING:
+    from opendnc.server.app import Server
+    from opendnc.sim.fleet import Fleet
+
+T = TypeVar("T")
 
 # What the virtual NGC runs once at start so its DPRNT lines reach the machine's page.
 PRINTS = (
@@ -139,11 +147,9 @@ def demo(
 async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zone: str) -> None:
     import uvicorn
 
-    from opendnc.server import auth, library
     from opendnc.server.app import build
     from opendnc.server.config import parse_config
-    from opendnc.server.store.models import Role
-    from opendnc.sim.fleet import server_config, start_fleet
+    from opendnc.sim.fleet import start_fleet
 
     port = listener.getsockname()[1]  # the real one when --bind said :0
     # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
@@ -152,41 +158,12 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     )
     try:
         nas = folder / "nas"
-        nas.mkdir(exist_ok=True)
-        for name, data in NAS_FILES.items():
-            if not (nas / name).exists():  # a kept --dir: a file changed there stays so
-                (nas / name).write_bytes(data)
-        text = server_config(
-            fleet,
-            bind=f"{host}:{port}",
-            poll_interval=0.5,
-            library=folder / "library",
-            dripfeed=True,  # a virtual machine: nothing moves
-            timezone=zone,
-            netshare=nas,
-            netshare_interval=1.0,
-        )
-        text += DEMO_SHIFTS  # utilization per shift has something to show
-        (folder / "shop.toml").write_text(text)
+        text = _write_shop(folder, nas, fleet, f"{host}:{port}", zone)
         shop = parse_config(text, base=folder, source=folder / "shop.toml")
         server = build(shop, database=f"sqlite:///{folder / 'opendnc.db'}", sweep_interval=1.0)
         password = secrets.token_urlsafe(9)
         viewer_password = secrets.token_urlsafe(9)
-        with server.sessions.begin() as session:
-            for user, role, secret in (
-                ("admin", Role.ADMIN, password),
-                ("viewer", Role.VIEWER, viewer_password),
-            ):
-                if auth.find_user(session, user) is None:
-                    auth.create_user(session, user, role, password=secret, actor="demo")
-                else:  # a kept --dir: the login printed below must be the one that works
-                    auth.set_password(session, user, secret, actor="demo")
-            _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
-            for name, versions in EXAMPLES.items():
-                for data in versions:
-                    library.add_version(session, name, data, author="demo", source="example")
-                if name in RELEASED:
-                    library.release(session, name, 1, actor="demo")
+        key = _seed(server, password, viewer_password)
         # An open dashboard holds an event stream that never ends by itself: at Ctrl-C it
         # gets two seconds, then goes (as `serve` does with its own deadline).
         settings = uvicorn.Config(
@@ -201,20 +178,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
                 raise InputError(f"the server on {host}:{port} stopped at once (see above)")
             await asyncio.sleep(0.05)
         url = f"http://{host}:{port}/"
-        console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
-        console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
-        console.print(
-            f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True
-        )
-        console.print(f"API key: {key}", highlight=False, soft_wrap=True)
-        console.print(
-            f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",
-            highlight=False,
-            soft_wrap=True,
-        )
-        names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
-        console.print(f"machines: {names}", highlight=False, soft_wrap=True)
-        console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
+        _announce(url, (password, viewer_password, key), fleet, zone, nas)
         printing = asyncio.create_task(_print_dprnt(server, fleet))
         try:
             if check:
@@ -238,6 +202,70 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     console.print("demo finished")
 
 
+def _write_shop(folder: Path, nas: Path, fleet: Fleet, bind: str, zone: str) -> str:
+    """Fill the NAS folder and write the demo's ``shop.toml``; its text."""
+    from opendnc.sim.fleet import server_config
+
+    nas.mkdir(exist_ok=True)
+    for name, data in NAS_FILES.items():
+        if not (nas / name).exists():  # a kept --dir: a file changed there stays so
+            (nas / name).write_bytes(data)
+    text = server_config(
+        fleet,
+        bind=bind,
+        poll_interval=0.5,
+        library=folder / "library",
+        dripfeed=True,  # a virtual machine: nothing moves
+        timezone=zone,
+        netshare=nas,
+        netshare_interval=1.0,
+    )
+    text += DEMO_SHIFTS  # utilization per shift has something to show
+    (folder / "shop.toml").write_text(text)
+    return text
+
+
+def _seed(server: Server, password: str, viewer_password: str) -> str:
+    """The demo's users (admin and viewer, with these passwords) and example programs; a new
+    admin API key."""
+    from opendnc.server import auth, library
+    from opendnc.server.store.models import Role
+
+    with server.sessions.begin() as session:
+        for user, role, secret in (
+            ("admin", Role.ADMIN, password),
+            ("viewer", Role.VIEWER, viewer_password),
+        ):
+            if auth.find_user(session, user) is None:
+                auth.create_user(session, user, role, password=secret, actor="demo")
+            else:  # a kept --dir: the login printed below must be the one that works
+                auth.set_password(session, user, secret, actor="demo")
+        _, key = auth.create_key(session, "admin", Role.ADMIN, label="demo", actor="demo")
+        for name, versions in EXAMPLES.items():
+            for data in versions:
+                library.add_version(session, name, data, author="demo", source="example")
+            if name in RELEASED:
+                library.release(session, name, 1, actor="demo")
+    return key
+
+
+def _announce(url: str, secrets_: tuple[str, str, str], fleet: Fleet, zone: str, nas: Path) -> None:
+    """Print where the demo is and how to log in."""
+    password, viewer_password, key = secrets_
+    console.print(f"dashboard: {url}", highlight=False, soft_wrap=True)
+    console.print(f"login: admin / {password}", highlight=False, soft_wrap=True)
+    console.print(f"(also: viewer / {viewer_password}, read-only)", highlight=False, soft_wrap=True)
+    console.print(f"API key: {key}", highlight=False, soft_wrap=True)
+    console.print(
+        f"try: curl -H 'Authorization: Bearer {key}' {url}api/machines",
+        highlight=False,
+        soft_wrap=True,
+    )
+    names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
+    console.print(f"machines: {names}", highlight=False, soft_wrap=True)
+    console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
+
+
 async def _print_dprnt(server: object, fleet: object) -> None:
     """Once the server reads the NGC's DPRNT port, run a program there that prints three
     lines (a cycle start at the control): the demo's DPRNT console is not empty."""
@@ -255,26 +283,51 @@ async def _print_dprnt(server: object, fleet: object) -> None:
 
 async def _check(server: object, fleet: object) -> None:
     """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC, O0100
-    to a tape-code control) and wait for the outcome."""
-    from sqlalchemy import select
-
-    from opendnc.server import actions, jobs
-    from opendnc.server.actions.models import JobRequest
+    to a tape-code control) and wait for the outcome; then for the NGC's DPRNT lines and the
+    net share's copies."""
     from opendnc.server.app import Server
-    from opendnc.server.auth import Principal
-    from opendnc.server.store.models import AuditEntry, DprntLine, JobKind, JobState, Role
     from opendnc.sim.fleet import Fleet
 
     assert isinstance(server, Server)
     assert isinstance(fleet, Fleet)
+    deadline = asyncio.get_running_loop().time() + 60
+    await _all_online(server, deadline)
+    await _send_everywhere(server, fleet, deadline)
+    await _dprnt_printed(server, deadline)
+    await _net_share_copied(server, fleet, deadline)
+
+
+async def _poll(probe: Callable[[], T], done: Callable[[T], bool], deadline: float) -> T:
+    """``probe()`` every 0.1 s until ``done`` holds of its answer or the loop's clock passes
+    ``deadline``; its last answer."""
     loop = asyncio.get_running_loop()
-    deadline = loop.time() + 60
-    while not all(m.online for m in server.machines.machines.values()):
-        if loop.time() > deadline:
-            away = [m.config.name for m in server.machines.machines.values() if not m.online]
-            raise DncError(f"machines not online: {', '.join(away)}")
+    while True:
+        value = probe()
+        if done(value) or loop.time() > deadline:
+            return value
         await asyncio.sleep(0.1)
+
+
+async def _all_online(server: Server, deadline: float) -> None:
+    """Wait until every machine is online."""
+    machines = server.machines.machines.values()
+    away = await _poll(lambda: [m.config.name for m in machines if not m.online], _empty, deadline)
+    if away:
+        raise DncError(f"machines not online: {', '.join(away)}")
     console.print("all machines online", highlight=False)
+
+
+def _empty(items: Sized) -> bool:
+    return not items
+
+
+async def _send_everywhere(server: Server, fleet: Fleet, deadline: float) -> None:
+    """Send each machine a released program of its own family and wait until all are sent."""
+    from opendnc.server import actions, jobs
+    from opendnc.server.actions.models import JobRequest
+    from opendnc.server.auth import Principal
+    from opendnc.server.store.models import Job, JobKind, JobState, Role
+
     # each machine a released program of its own family (the library's program check
     # refuses a Haas program on a TNC): through the actions layer, as a person's send would go
     svc = server.core.get(actions.Services)
@@ -288,46 +341,60 @@ async def _check(server: object, fleet: object) -> None:
             created += await asyncio.to_thread(actions.queue.create_jobs, svc, demo, order)
     ids = [j.id for j in created]
     programs = {j.id: j.program for j in created}
-    while True:
+
+    def states() -> list[Job]:
         with server.sessions() as session:
-            states = [jobs.get_job(session, i) for i in ids]
-        if all(j.state.finished for j in states):
-            break
-        if loop.time() > deadline:
-            raise DncError("the demo's jobs did not finish in time")
-        await asyncio.sleep(0.1)
-    for job in states:
+            return [jobs.get_job(session, i) for i in ids]
+
+    found = await _poll(states, lambda js: all(j.state.finished for j in js), deadline)
+    if not all(j.state.finished for j in found):
+        raise DncError("the demo's jobs did not finish in time")
+    for job in found:
         outcome = "sent" if job.state is JobState.DONE else f"{job.state.value}: {job.error}"
         console.print(f"{programs[job.id]} -> {job.machine}: {outcome}", highlight=False)
-    if any(j.state is not JobState.DONE for j in states):
+    if any(j.state is not JobState.DONE for j in found):
         raise DncError("not every machine received the program")
-    # the NGC's DPRNT lines, captured by the server (the program it runs at start prints 3)
-    while True:
+
+
+async def _dprnt_printed(server: Server, deadline: float) -> None:
+    """Wait for the NGC's DPRNT lines, captured by the server (the program it runs at start
+    prints 3)."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.models import DprntLine
+
+    def lines() -> list[str]:
         with server.sessions() as session:
-            printed = session.scalars(select(DprntLine.text).order_by(DprntLine.id)).all()
-        if len(printed) >= 3 or loop.time() > deadline:
-            break
-        await asyncio.sleep(0.1)
+            return list(session.scalars(select(DprntLine.text).order_by(DprntLine.id)))
+
+    printed = await _poll(lines, lambda found: len(found) >= 3, deadline)
     for line in printed:
         console.print(f"DPRNT haas-1: {line}", highlight=False)
     if len(printed) < 3:
         raise DncError("the demo's DPRNT lines did not arrive")
-    # the net share copied the NAS folder's programs to every Haas NGC's share
+
+
+async def _net_share_copied(server: Server, fleet: Fleet, deadline: float) -> None:
+    """Wait until the net share copied the NAS folder's programs to every Haas NGC's share."""
+    from sqlalchemy import select
+
+    from opendnc.server.store.models import AuditEntry
+
     served = [m.name for m in fleet.machines if m.kind == "haas_ngc"]
     wanted = {(machine, name) for machine in served for name in NAS_FILES}
-    while True:
+
+    def pushed() -> set[tuple[str, str]]:
         with server.sessions() as session:
             rows = session.execute(
                 select(AuditEntry.machine, AuditEntry.program).where(
                     AuditEntry.action == "netshare.push", AuditEntry.result == "ok"
                 )
             ).all()
-        pushed = {(m or "", p or "") for m, p in rows} & wanted
-        if pushed == wanted or loop.time() > deadline:
-            break
-        await asyncio.sleep(0.1)
+        return {(m or "", p or "") for m, p in rows} & wanted
+
+    copied = await _poll(pushed, lambda found: found == wanted, deadline)
     for machine in served:
-        copied = ", ".join(sorted(p for m, p in pushed if m == machine))
-        console.print(f"net share -> {machine}: {copied}", highlight=False)
-    if pushed != wanted:
+        names = ", ".join(sorted(p for m, p in copied if m == machine))
+        console.print(f"net share -> {machine}: {names}", highlight=False)
+    if copied != wanted:
         raise DncError("the net share did not copy the NAS folder's programs in time")

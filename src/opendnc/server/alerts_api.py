@@ -14,7 +14,7 @@ from pydantic import BaseModel
 from opendnc.server.actions import require
 from opendnc.server.actions.models import Timestamp
 from opendnc.server.alerts import Alerts
-from opendnc.server.api import ERRORS, Viewer
+from opendnc.server.api_shared import ERRORS, Viewer
 from opendnc.server.components import core_of
 from opendnc.server.edge import ApiRoute
 from opendnc.server.store.models import Role

@@ -17,16 +17,15 @@ import logging
 import time
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, FastAPI, Header, Query, Request
+from fastapi import APIRouter, FastAPI, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response, StreamingResponse
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field, JsonValue
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from opendnc.errors import DncError
-from opendnc.server import actions, auth, dbsession, deps
+from opendnc.server import actions, deps
 from opendnc.server.actions.models import (
     MAX_ID,
     AuditOut,
@@ -51,19 +50,18 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
+from opendnc.server.api_shared import ERRORS, Caller, Db, Svc, Viewer
 from opendnc.server.clients import StreamsFull
 from opendnc.server.components import core_of
 from opendnc.server.downloads import stored_response
 from opendnc.server.edge import ApiRoute
-from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, Unauthorized, http_status
+from opendnc.server.errors import NotFound, TooLarge, TooManyRequests, http_status
 from opendnc.server.events import Event, JobFinished, Overflow
 from opendnc.server.library import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machine_state import Machines
-from opendnc.server.refusals import Refusals
 from opendnc.server.shdr import devices_xml
 from opendnc.server.store.models import JobState, ReceivedState, Role
 from opendnc.server.streams import event_stream_response
-from opendnc.server.throttle import Bucket
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -73,25 +71,6 @@ log = logging.getLogger(__name__)
 EVENT_INTERVAL = 0.5
 
 
-class ErrorOut(BaseModel):
-    """Why a request was refused, in one line."""
-
-    detail: str
-
-
-_REASONS = {
-    400: "bad input (the reason says which)",
-    401: "no valid API key",
-    403: "the key's role does not allow this",
-    404: "no such program, version, job, reception, key or machine",
-    409: "the current state (or the machine's policy) does not allow this",
-    413: "the body is larger than the server takes",
-    429: "too many wrong keys with this prefix or from this address; wait Retry-After seconds",
-    503: "the machine cannot be reached now",
-}
-ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"model": ErrorOut, "description": reason} for status, reason in _REASONS.items()
-}
 _BINARY = {"schema": {"type": "string", "format": "binary"}}
 
 
@@ -169,70 +148,6 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
 
 # ApiRoute: request sessions end in the route's thread; JSON bodies hold finite numbers only.
 router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
-
-# For the routes beside this module (dprnt_api) that read with their own queries.
-Db = dbsession.Db
-_bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
-
-
-async def _principal(
-    request: Request,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> auth.Principal:
-    if credentials is None or credentials.scheme.lower() != "bearer":
-        raise Unauthorized("send an API key as 'Authorization: Bearer KEY'")
-    svc = _svc(request)
-    host = request.client.host if request.client else "?"
-    key = credentials.credentials.strip()
-    known = svc.keys.get(key)
-    if known is not None:
-        # checked a moment ago: no worker thread, no query (auth.KeyCache)
-        deps.key_use(request).note(known.who.key_id)
-        return known.who
-    return await run_in_threadpool(_check_key, request, svc, host, key)
-
-
-def _check_key(request: Request, svc: actions.Services, host: str, key: str) -> auth.Principal:
-    # The key is checked before the throttle is asked: a valid key is never refused because
-    # of what others sent from its address (docs/server.md#throttling).
-    try:
-        return auth.authenticate(svc.reads, key, deps.key_use(request), svc.keys).who
-    except Unauthorized as exc:
-        prefix = key[: auth.KEY_PREFIX_CHARS]
-        buckets = [Bucket("key", prefix), Bucket("key-address", host)]
-        refusals = core_of(request.app).get(Refusals)
-        try:
-            svc.guard.check(buckets)
-        except TooManyRequests as slowed:
-            refusals.note(
-                actor="api",
-                via="api",
-                address=host,
-                name=prefix,
-                error=str(exc),
-                throttled=True,
-            )
-            raise slowed from None
-        svc.guard.failed(buckets)
-        refusals.note(actor="api", via="api", address=host, name=prefix, error=str(exc))
-        raise
-
-
-Caller = Annotated[auth.Principal, Depends(_principal)]
-Viewer = Caller  # every key is at least a viewer; each action checks the role it needs
-
-
-def _svc(request: Request) -> actions.Services:
-    return core_of(request.app).get(actions.Services)
-
-
-async def _svc_dep(request: Request) -> actions.Services:
-    # async: a plain function dependency costs a trip to a worker thread and back per request
-    return _svc(request)
-
-
-Svc = Annotated[actions.Services, Depends(_svc_dep)]
-
 
 # -- health and outputs ---------------------------------------------------------------------
 

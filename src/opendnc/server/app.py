@@ -19,7 +19,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, alerts_api, api, dprnt_api, edge, utilization_api, web
+from opendnc.server import actions, alerts_api, api, dprnt_api, edge, web
 from opendnc.server.alerts import Alerts
 from opendnc.server.autoreceive import AutoReceive
 from opendnc.server.clients import Clients, SendTimeout
@@ -50,6 +50,8 @@ from opendnc.server.single_server import DatabaseInUse, ServerLock, refuse_besid
 from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.utilization import component as utilization_component
+from opendnc.server.utilization import routes as utilization_routes
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
 
@@ -100,19 +102,7 @@ def build(
     clustered = engine.dialect.name == "postgresql" and config.server.cluster
     migrate(engine)
     sessions = make_sessions(engine)
-    server_lock = None
-    if engine.dialect.name == "postgresql":
-        # a lone server holds the lock exclusively, a cluster's shared: each refuses beside
-        # the other (a lone server writes no rows a cluster server could see)
-        server_lock = ServerLock(url, alone=not clustered)
-        try:
-            server_lock.acquire()
-            if not clustered:
-                refuse_beside_a_cluster(sessions, config.server.name)
-        except DatabaseInUse:
-            server_lock.release()
-            engine.dispose()
-            raise
+    server_lock = _server_lock(config, url, engine, sessions, clustered)
     bus = EventBus()
     for folder in (config.library.path, config.library.inbox, config.library.archive):
         folder.mkdir(parents=True, exist_ok=True)
@@ -128,40 +118,11 @@ def build(
     core.add(Refusals(sessions))  # refused logins and keys, one audit row a minute per source
     clients = core.add(Clients(config.clients))  # send timeout, event stream slots
     capture = core.add(DprntCapture(machines, sessions))
-    backups = config.library.backups or config.library.archive / "backups"
-    executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
-    runner = core.add(
-        JobRunner(
-            machines,
-            sessions,
-            executors,
-            worker=config.server.name,
-            sweep_interval=sweep_interval,
-            retry_backoff=retry_backoff,
-        )
-    )
+    runner = _runner(core, config, sessions, machines, sweep_interval, retry_backoff)
     requests = core.add(RemoteRequests(machines, services, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
-    outputs = core.add(
-        Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
-    )
-    if config.alerts is not None:  # e-mail and webhooks (docs/server.md#alerts)
-        core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
-
-    timeline = Timeline(sessions, retention_days=config.server.timeline_days)
-    names = [m.name for m in config.machines]
-    core.add(
-        TimelineRecorder(
-            timeline,
-            bus,
-            server=config.server.name,
-            machines=names,
-            held_elsewhere=(lambda: held_elsewhere(sessions, config.server.name))
-            if clustered
-            else None,
-        )
-    )
-    core.add(utilization_api.HourSummer(sessions, names, config.calendar))
+    outputs = _outputs(core, config, sessions, bus)
+    timeline = _timeline(core, config, sessions, bus, clustered)
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
@@ -170,79 +131,16 @@ def build(
         hooks = replace(hooks, on_status=partial(machines.note_status, machine.name))
         return connector_for(machine, hooks)
 
+    factory = connector_factory or connectors
     fleet = core.add(
-        Fleet(
-            machines,
-            runner,
-            requests,
-            autoreceive,
-            connector_factory or connectors,
-            serve_all=not clustered,
-        )
+        Fleet(machines, runner, requests, autoreceive, factory, serve_all=not clustered)
     )
     core.add(LoopWatch())
-    watcher = LibraryWatcher(
-        config.library.path,
-        sessions,
-        poll=config.library.poll,
-        on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
-    )
-    netshare = None
-    if config.netshare is not None:
-        shares = shares_of(config.machines)
-        # what reaches a share is decided as a send is (actions.policy.authorize)
-        gate = actions.policy.share_gate(services)
-        zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's
-        netshare = NetShare(
-            config.netshare,
-            shares,
-            config.library.inbox,
-            sessions,
-            bus,
-            gate=gate,
-            clock=lambda: local_now(zone),
-        )
+    watcher = _watcher(config, sessions, bus)
+    netshare = _netshare(config, services, sessions, bus)
     duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
-    cluster = None
-    if clustered:
-        pins = {m.name: frozenset(m.servers) for m in config.machines}
-        pins[LIBRARY] = frozenset()
-        leases = Leases(sessions, config.server.name, pins, ttl=config.server.lease_seconds)
-        shared = core.add(SharedStatus(machines, sessions, config.server.name))
-        cluster = core.add(
-            Cluster(
-                leases,
-                machines,
-                runner,
-                fleet,
-                database_url=url,
-                duties=duties,
-                on_status=shared.wake,
-            )
-        )
-    else:
-        for duty in duties:
-            core.add(duty)
-
-    @asynccontextmanager
-    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
-        await core.start()
-        try:
-            yield
-        finally:
-            await core.stop(stop_deadline)
-
-    app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
-    edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
-    app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
-    # responses: a client that stops reading is cut (outermost: it finds the connection)
-    app.add_middleware(SendTimeout, limits=lambda: clients.limits)
-    app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
-    api.install(app)
-    app.include_router(dprnt_api.router)
-    app.include_router(alerts_api.router)
-    utilization_api.install(app)
-    web.install(app)
+    cluster = _cluster(core, config, url, sessions, machines, runner, fleet, duties, clustered)
+    app = _web_app(core, clients, stop_deadline)
     return Server(
         config,
         engine,
@@ -261,6 +159,176 @@ def build(
         timeline,
         cluster,
     )
+
+
+def _runner(
+    core: Core,
+    config: ShopConfig,
+    sessions: sessionmaker[Session],
+    machines: Machines,
+    sweep_interval: float,
+    retry_backoff: float,
+) -> JobRunner:
+    """The job runner and its executors."""
+    backups = config.library.backups or config.library.archive / "backups"
+    executors = [core.add(e) for e in default_executors(sessions, config.library.inbox, backups)]
+    return core.add(
+        JobRunner(
+            machines,
+            sessions,
+            executors,
+            worker=config.server.name,
+            sweep_interval=sweep_interval,
+            retry_backoff=retry_backoff,
+        )
+    )
+
+
+def _outputs(
+    core: Core, config: ShopConfig, sessions: sessionmaker[Session], bus: EventBus
+) -> Outputs:
+    """The open outputs (MQTT, MTConnect, Sparkplug), and the alerts where configured."""
+    outputs = core.add(
+        Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
+    )
+    if config.alerts is not None:  # e-mail and webhooks (docs/server.md#alerts)
+        core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
+    return outputs
+
+
+def _watcher(config: ShopConfig, sessions: sessionmaker[Session], bus: EventBus) -> LibraryWatcher:
+    """The library folder's watcher (run as a duty: alone, or by the cluster's holder)."""
+    return LibraryWatcher(
+        config.library.path,
+        sessions,
+        poll=config.library.poll,
+        on_version=lambda name, number: bus.publish(ProgramChanged(name, number, "watcher")),
+    )
+
+
+def _server_lock(
+    config: ShopConfig,
+    url: str,
+    engine: Engine,
+    sessions: sessionmaker[Session],
+    clustered: bool,
+) -> ServerLock | None:
+    """On PostgreSQL, the lock that keeps a lone server and a cluster apart, taken."""
+    if engine.dialect.name != "postgresql":
+        return None
+    # a lone server holds the lock exclusively, a cluster's shared: each refuses beside
+    # the other (a lone server writes no rows a cluster server could see)
+    server_lock = ServerLock(url, alone=not clustered)
+    try:
+        server_lock.acquire()
+        if not clustered:
+            refuse_beside_a_cluster(sessions, config.server.name)
+    except DatabaseInUse:
+        server_lock.release()
+        engine.dispose()
+        raise
+    return server_lock
+
+
+def _timeline(
+    core: Core, config: ShopConfig, sessions: sessionmaker[Session], bus: EventBus, clustered: bool
+) -> Timeline:
+    """The status timeline and its recorder, and utilization summing its finished hours."""
+    timeline = Timeline(sessions, retention_days=config.server.timeline_days)
+    names = [m.name for m in config.machines]
+    core.add(
+        TimelineRecorder(
+            timeline,
+            bus,
+            server=config.server.name,
+            machines=names,
+            held_elsewhere=(lambda: held_elsewhere(sessions, config.server.name))
+            if clustered
+            else None,
+        )
+    )
+    core.add(utilization_component.HourSummer(sessions, names, config.calendar))
+    return timeline
+
+
+def _netshare(
+    config: ShopConfig, services: actions.Services, sessions: sessionmaker[Session], bus: EventBus
+) -> NetShare | None:
+    """The net share, where one is configured."""
+    if config.netshare is None:
+        return None
+    shares = shares_of(config.machines)
+    # what reaches a share is decided as a send is (actions.policy.authorize)
+    gate = actions.policy.share_gate(services)
+    zone = config.calendar.zone  # archive_at is on the shop's clock, not this computer's
+    return NetShare(
+        config.netshare,
+        shares,
+        config.library.inbox,
+        sessions,
+        bus,
+        gate=gate,
+        clock=lambda: local_now(zone),
+    )
+
+
+def _cluster(
+    core: Core,
+    config: ShopConfig,
+    url: str,
+    sessions: sessionmaker[Session],
+    machines: Machines,
+    runner: JobRunner,
+    fleet: Fleet,
+    duties: list[LibraryWatcher | NetShare],
+    clustered: bool,
+) -> Cluster | None:
+    """In a cluster, the leases and the cluster component, which runs the shop-wide duties
+    while it holds their lease; alone, the duties as components of their own."""
+    if not clustered:
+        for duty in duties:
+            core.add(duty)
+        return None
+    pins = {m.name: frozenset(m.servers) for m in config.machines}
+    pins[LIBRARY] = frozenset()
+    leases = Leases(sessions, config.server.name, pins, ttl=config.server.lease_seconds)
+    shared = core.add(SharedStatus(machines, sessions, config.server.name))
+    return core.add(
+        Cluster(
+            leases,
+            machines,
+            runner,
+            fleet,
+            database_url=url,
+            duties=duties,
+            on_status=shared.wake,
+        )
+    )
+
+
+def _web_app(core: Core, clients: Clients, stop_deadline: float) -> FastAPI:
+    """The web app: the core started and stopped by its lifespan, the API and the pages."""
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        await core.start()
+        try:
+            yield
+        finally:
+            await core.stop(stop_deadline)
+
+    app = FastAPI(title="opendnc", version=__version__, lifespan=lifespan)
+    edge.install(app)  # bad input 422 with a printable echo, the unexpected 500 in one line
+    app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
+    # responses: a client that stops reading is cut (outermost: it finds the connection)
+    app.add_middleware(SendTimeout, limits=lambda: clients.limits)
+    app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
+    api.install(app)
+    app.include_router(dprnt_api.router)
+    app.include_router(alerts_api.router)
+    utilization_routes.install(app)
+    web.install(app)
+    return app
 
 
 def _mqtt(config: ShopConfig, bus: EventBus) -> MqttPublisher | None:

@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session
 from opendnc.server import deps
 from opendnc.server.actions import require
 from opendnc.server.actions.models import MAX_ID, Timestamp
-from opendnc.server.api import ERRORS, Db, Viewer
+from opendnc.server.api_shared import ERRORS, Db, Viewer
 from opendnc.server.dprnt_capture import line_json
 from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound

@@ -236,89 +236,118 @@ class Leases:
         with self.sessions.begin() as session:
             now = self._now(session, lock_limit)
             self._heartbeat(session, now)
-            live = self.live_servers(session, now)
-            # The duties (names with "@", never a machine's) are placed apart from the
-            # machines, so they do not skew the machines' even share.
-            duties = {m: p for m, p in self.all_machines.items() if m.startswith("@")}
-            wanted = assign({m: p for m, p in self.all_machines.items() if m not in duties}, live)
-            wanted.update(assign(duties, live))
-            # plain rows, not ORM objects: an ORM object per machine would also make each
-            # UPDATE below evaluate its condition on all of them (a thousand machines: most
-            # of a renewal's CPU)
-            leases = {
-                row.machine: row
-                for row in session.execute(
-                    select(MachineLease.machine, MachineLease.owner, MachineLease.expires)
-                )
-            }
+            wanted = self._wanted(self.live_servers(session, now))
+            leases = self._lease_rows(session)
             mine = {
                 m for m, row in leases.items() if row.owner == self.server and m in self.machines
             }
             hand_over = {
                 m for m in mine if wanted.get(m, self.server) != self.server and can_hand_over(m)
             }
-            if hand_over:
-                # Never hand over a machine with a job running: lock the rows first (a claim
-                # under way holds its lease row and commits before), then look for running
-                # jobs in a statement of its own, which sees that claim.
-                locked = set(
-                    session.scalars(
-                        select(MachineLease.machine)
-                        .where(
-                            MachineLease.machine.in_(hand_over), MachineLease.owner == self.server
-                        )
-                        .with_for_update()
-                    )
-                )
-                busy = set(
-                    session.scalars(
-                        select(Job.machine).where(
-                            Job.machine.in_(locked), Job.state == JobState.RUNNING
-                        )
-                    )
-                )
-                hand_over = locked - busy
-            if hand_over:
-                session.execute(
-                    update(MachineLease)
-                    .where(MachineLease.machine.in_(hand_over), MachineLease.owner == self.server)
-                    .values(owner="", expires=now)
-                )
-            keep = mine - hand_over
-            renewed: set[str] = set()
-            if keep:
-                renewed = set(
-                    session.scalars(
-                        update(MachineLease)
-                        .where(MachineLease.machine.in_(keep), MachineLease.owner == self.server)
-                        .values(expires=now + self.ttl)
-                        .returning(MachineLease.machine)
-                    )
-                )
-            grace = self.ttl / 2  # a free machine waits this long for the server assigned it
-            free: list[str] = []  # rows there but expired or released
-            new: list[str] = []  # no row yet
-            for machine in sorted(self.machines):
-                if machine in renewed or machine in hand_over:
-                    continue
-                row = leases.get(machine)
-                free_since = None if row is None else row.expires
-                if row is not None and row.owner and row.expires > now:
-                    continue  # live elsewhere: never taken
-                due = wanted.get(machine) == self.server
-                if not due and free_since is not None and free_since > now - grace:
-                    continue
-                (new if row is None else free).append(machine)
+            hand_over = self._hand_over(session, hand_over, now)
+            renewed = self._extend(session, mine - hand_over, now)
+            free, new = self._due(leases, wanted, renewed | hand_over, now)
             renewed |= self._take(session, free, new, now)
-            epochs = {
-                machine: epoch
-                for machine, epoch in session.execute(
-                    select(MachineLease.machine, MachineLease.epoch).where(
-                        MachineLease.owner == self.server
-                    )
+            epochs = self._epochs(session)
+        return self._hold(frozenset(renewed), epochs, began)
+
+    def _wanted(self, live: frozenset[str]) -> dict[str, str]:
+        """Which live server each machine and duty is assigned to."""
+        # The duties (names with "@", never a machine's) are placed apart from the
+        # machines, so they do not skew the machines' even share.
+        duties = {m: p for m, p in self.all_machines.items() if m.startswith("@")}
+        wanted = assign({m: p for m, p in self.all_machines.items() if m not in duties}, live)
+        wanted.update(assign(duties, live))
+        return wanted
+
+    @staticmethod
+    def _lease_rows(session: Session) -> dict[str, Any]:
+        """Every lease row (machine, owner, expires), by machine."""
+        # plain rows, not ORM objects: an ORM object per machine would also make each
+        # UPDATE below evaluate its condition on all of them (a thousand machines: most
+        # of a renewal's CPU)
+        return {
+            row.machine: row
+            for row in session.execute(
+                select(MachineLease.machine, MachineLease.owner, MachineLease.expires)
+            )
+        }
+
+    def _hand_over(self, session: Session, hand_over: set[str], now: datetime) -> set[str]:
+        """Release those of ``hand_over`` that run no job; which were released."""
+        if not hand_over:
+            return hand_over
+        # Never hand over a machine with a job running: lock the rows first (a claim
+        # under way holds its lease row and commits before), then look for running
+        # jobs in a statement of its own, which sees that claim.
+        locked = set(
+            session.scalars(
+                select(MachineLease.machine)
+                .where(MachineLease.machine.in_(hand_over), MachineLease.owner == self.server)
+                .with_for_update()
+            )
+        )
+        busy = set(
+            session.scalars(
+                select(Job.machine).where(Job.machine.in_(locked), Job.state == JobState.RUNNING)
+            )
+        )
+        hand_over = locked - busy
+        if hand_over:
+            session.execute(
+                update(MachineLease)
+                .where(MachineLease.machine.in_(hand_over), MachineLease.owner == self.server)
+                .values(owner="", expires=now)
+            )
+        return hand_over
+
+    def _extend(self, session: Session, keep: set[str], now: datetime) -> set[str]:
+        """Renew this server's leases of ``keep``; which it still held."""
+        if not keep:
+            return set()
+        return set(
+            session.scalars(
+                update(MachineLease)
+                .where(MachineLease.machine.in_(keep), MachineLease.owner == self.server)
+                .values(expires=now + self.ttl)
+                .returning(MachineLease.machine)
+            )
+        )
+
+    def _due(
+        self, leases: dict[str, Any], wanted: dict[str, str], settled: set[str], now: datetime
+    ) -> tuple[list[str], list[str]]:
+        """The machines to take, besides ``settled`` (renewed or handed over just now): those
+        whose row is free (expired or released), and those without a row yet."""
+        grace = self.ttl / 2  # a free machine waits this long for the server assigned it
+        free: list[str] = []  # rows there but expired or released
+        new: list[str] = []  # no row yet
+        for machine in sorted(self.machines):
+            if machine in settled:
+                continue
+            row = leases.get(machine)
+            free_since = None if row is None else row.expires
+            if row is not None and row.owner and row.expires > now:
+                continue  # live elsewhere: never taken
+            due = wanted.get(machine) == self.server
+            if not due and free_since is not None and free_since > now - grace:
+                continue
+            (new if row is None else free).append(machine)
+        return free, new
+
+    def _epochs(self, session: Session) -> dict[str, int]:
+        """The epoch of each lease this server holds."""
+        return {
+            machine: epoch
+            for machine, epoch in session.execute(
+                select(MachineLease.machine, MachineLease.epoch).where(
+                    MachineLease.owner == self.server
                 )
-            }
-        held = frozenset(renewed)
+            )
+        }
+
+    def _hold(self, held: frozenset[str], epochs: dict[str, int], began: float) -> Holding:
+        """Note ``held`` as what this server holds now; what changed since the last time."""
         holding = Holding(
             held=held,
             gained=held - self.held,

@@ -70,9 +70,21 @@ def classify(status: MachineStatus | None, *, online: bool) -> State:
 _OLD_WORDS = {"active": State.RUNNING, "none": State.NO_RECORD}
 
 
-def from_stored(word: str) -> State:
-    """The state a stored status sample names: today's words, and the ``active`` (running)
-    and ``none`` (no record) of samples written before; anything else is unknown."""
+def from_stored(word: str, execution: str) -> State:
+    """The state a stored status sample names, in today's words: the one reader of stored
+    state words, for the status timeline and utilization alike (docs/server.md#status-samples).
+
+    ``word`` is the sample's ``state`` column, ``execution`` the control's execution word
+    stored beside it. Samples written before the one classifier said ``active`` (running) and
+    ``none`` (no record); anything this server never wrote is unknown.
+    """
+    if word == State.READY.value:
+        # Before the classifier, a reachable control that said no execution word at all (a
+        # serial Haas without MDC) was filed as ``ready``; today that control is unknown, not
+        # idle. The stored word was the old writer's reading; the execution word is what the
+        # control itself said, so it decides. A sample written today reads the same either
+        # way: the classifier writes ``ready`` only for an execution word that means ready.
+        return classify_words(online=True, execution=execution, errors=False)
     try:
         return State(word)
     except ValueError:

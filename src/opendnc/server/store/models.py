@@ -388,7 +388,7 @@ class StatusSample(Base):
 
 
 class UtilizationHour(Base):
-    """One machine's hour (UTC) of the status timeline, summed (server/utilization.py): the
+    """One machine's hour (UTC) of the status timeline, summed (server/utilization/collect.py): the
     seconds in each state, parts counted, program runs that ended in it and their running
     seconds. Written once the hour is over; kept when the samples are pruned."""
 
@@ -452,7 +452,7 @@ class UtilizationMark(Base):
 class UtilizationDay(Base):
     """One machine's local day of the shop's calendar in one slot (a shift's part of it, or
     ``shift`` empty: the time outside shifts), summed from its finished hours
-    (server/utilization_days.py, migration 0014). ``shift_day`` is the day the shift began
+    (server/utilization/days.py, migration 0014). ``shift_day`` is the day the shift began
     (the day before for the morning part of a night shift). Kept per calendar: a changed
     ``[server] timezone`` or ``[[shifts]]`` builds them again from the hours."""
 
@@ -478,7 +478,7 @@ class UtilizationDay(Base):
 
 class UtilizationWeek(Base):
     """One machine's week of the shop's calendar (``week``: its Monday), the sum of its day
-    rows (server/utilization_days.py, migration 0016): the seconds in each state, and within
+    rows (server/utilization/days.py, migration 0016): the seconds in each state, and within
     shifts (``shift_``), as a question over months groups them by week. Written once the
     week's last day is summed; dropped with its days."""
 

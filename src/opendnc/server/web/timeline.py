@@ -54,7 +54,7 @@ class Sample:
     state: State
     mode: str = ""
     execution: str = ""
-    # for utilization (server/utilization.py): a change of these is a sample of its own
+    # for utilization (server/utilization/): a change of these is a sample of its own
     program: str = ""
     part_count: int | None = None
     alarm: str = ""
@@ -221,7 +221,7 @@ class Timeline:
                     .order_by(StatusSample.at.desc(), StatusSample.id.desc())
                     .limit(1)
                 ).first()
-                if last is None or from_stored(last.state) is State.NO_RECORD:
+                if last is None or from_stored(last.state, last.execution) is State.NO_RECORD:
                     continue
                 no_record = State.NO_RECORD.value
                 session.add(StatusSample(machine=name, at=max(alive, last.at), state=no_record))
@@ -326,7 +326,7 @@ class Timeline:
             out = [
                 Sample(
                     r.at,
-                    from_stored(r.state),
+                    from_stored(r.state, r.execution),
                     r.mode,
                     r.execution,
                     r.program,

@@ -25,7 +25,8 @@ from opendnc.server.config import ShopConfig
 from opendnc.server.shifts import Calendar, Period
 from opendnc.server.state import State
 from opendnc.server.store.db import read_only
-from opendnc.server.utilization import (
+from opendnc.server.utilization.answer import pick_machines, report_response
+from opendnc.server.utilization.collect import (
     STATES,
     Figures,
     Group,
@@ -35,7 +36,6 @@ from opendnc.server.utilization import (
     report,
     sum_safely,
 )
-from opendnc.server.utilization_api import pick_machines, report_response
 from opendnc.server.web import render
 from opendnc.server.web.views import ROLES, Viewing
 

@@ -1,9 +1,9 @@
 """The arithmetic of utilization: one machine's status timeline swept into sums per piece of
 time (seconds per state, shift time, parts, runs and cycles), its stops and its alarms.
 
-No database here: :mod:`opendnc.server.utilization` reads the samples and the summed hours and
-hands the points to :func:`sweep`; :func:`summarize` does the whole of it for one machine's
-points (the tests' reference). States come from the one classifier
+No database here: :mod:`opendnc.server.utilization.collect` reads the samples and the summed
+hours and hands the points to :func:`sweep`; :func:`summarize` does the whole of it for one
+machine's points (the tests' reference). States come from the one classifier
 (:mod:`opendnc.server.state`). Definitions (docs/dashboard.md#utilization):
 
 * **time in each state**: a sample's state lasts until the machine's next sample; before a
@@ -37,7 +37,7 @@ from enum import StrEnum
 from typing import Any, NamedTuple
 
 from opendnc.server.shifts import Calendar, Period
-from opendnc.server.state import State, classify_words
+from opendnc.server.state import State, from_stored
 
 __all__ = [
     "HOUR",
@@ -68,7 +68,6 @@ __all__ = [
     "periods_of",
     "point_of",
     "point_of_columns",
-    "stored_state",
     "summarize",
     "sweep",
 ]
@@ -107,22 +106,6 @@ class Group(StrEnum):
     WEEK = "week"
 
 
-def stored_state(state: str, execution: str = "") -> State:
-    """A stored sample's state in the classifier's words. Samples written before the one
-    classifier said ``active`` for running, ``none`` for no record, and filed a control that
-    reported no execution word as ``ready``: its execution word decides (``unknown``)."""
-    if state in ("none", "no_record"):
-        return State.NO_RECORD
-    if state in ("active", "running"):
-        return State.RUNNING
-    if state == "ready":
-        return classify_words(online=True, execution=execution, errors=False)
-    try:
-        return State(state)
-    except ValueError:
-        return State.UNKNOWN
-
-
 class Point(NamedTuple):
     """A machine's state from ``at`` on (one stored sample). A named tuple: a year of
     samples makes millions of them."""
@@ -136,7 +119,7 @@ class Point(NamedTuple):
 
 @functools.lru_cache(maxsize=4096)
 def _state_of(state: str, execution: str) -> State:
-    return stored_state(state, execution)
+    return from_stored(state, execution)
 
 
 def point_of(row: Any) -> Point:
@@ -421,16 +404,32 @@ def _transition(
     j = bin_at(p.at, ends)
     # a change outside the bins (read only for what it carries) counts nowhere
     fig = figures[j] if j < len(figures) and bins[j].start <= p.at else None
+    completed = _count_parts(p, carry, fig)
+    _count_run(p, carry, fig, completed)
+    _follow_alarm(p, carry, stretches)
+    _follow_stop(p, carry, stretches)
+    return p.state
+
+
+def _count_parts(p: Point, carry: Carry, fig: Figures | None) -> bool:
+    """Add the parts the counter gained at ``p`` to ``fig``; whether it gained any."""
+    if p.part_count is None:
+        return False
     completed = False
-    if p.part_count is not None:
-        if carry.counter is not None and p.part_count != carry.counter:
-            # a counter that went down was reset: its new value is what was made since
-            gained = p.part_count - carry.counter if p.part_count > carry.counter else p.part_count
-            if gained > 0:
-                completed = True
-                if fig is not None:
-                    fig.parts = (fig.parts or 0) + gained
-        carry.counter = p.part_count
+    if carry.counter is not None and p.part_count != carry.counter:
+        # a counter that went down was reset: its new value is what was made since
+        gained = p.part_count - carry.counter if p.part_count > carry.counter else p.part_count
+        if gained > 0:
+            completed = True
+            if fig is not None:
+                fig.parts = (fig.parts or 0) + gained
+    carry.counter = p.part_count
+    return completed
+
+
+def _count_run(p: Point, carry: Carry, fig: Figures | None, completed: bool) -> None:
+    """A run ends at ``p`` when the counter rose after running, or, without a counter, when
+    running went back to ready; a stop that aborts it, or ready, starts the next afresh."""
     ready_ends_run = carry.counter is None and p.state is State.READY and carry.ran
     if ((completed and (carry.ran or carry.run > 0)) or ready_ends_run) and fig is not None:
         fig.runs += 1
@@ -439,7 +438,10 @@ def _transition(
             fig.cycle_seconds += carry.run
     if completed or ready_ends_run or p.state in _ABORT or p.state is State.READY:
         carry.run, carry.run_known, carry.ran = 0.0, True, False
-    # alarms: one stretch per alarm text
+
+
+def _follow_alarm(p: Point, carry: Carry, stretches: list[Stretch] | None) -> None:
+    """Alarms: one stretch per alarm text."""
     if carry.alarm_start is not None and (
         p.state is not State.ALARM or p.alarm != carry.alarm_text
     ):
@@ -450,7 +452,10 @@ def _transition(
         carry.alarm_start, carry.alarm_text = None, ""
     if p.state is State.ALARM and carry.alarm_start is None:
         carry.alarm_start, carry.alarm_text = p.at, p.alarm
-    # stops: consecutive states that are not running, joined
+
+
+def _follow_stop(p: Point, carry: Carry, stretches: list[Stretch] | None) -> None:
+    """Stops: consecutive states that are not running, joined, named by the worst of them."""
     if p.state in _NOT_RUNNING:
         if carry.stop_start is None:
             carry.stop_start, carry.stop_state, carry.stop_text = p.at, p.state, ""
@@ -464,7 +469,6 @@ def _transition(
                 Stretch("stop", carry.stop_start, p.at, carry.stop_state, carry.stop_text)
             )
         carry.stop_start, carry.stop_text = None, ""
-    return p.state
 
 
 def open_stretches(carry: Carry, end: datetime) -> list[Stretch]:

@@ -3,7 +3,7 @@ per machine and per shift, day or week of the shop's calendar (:mod:`opendnc.ser
 
 The samples are ``status_samples`` (one row per change of a machine's state, program, part
 counter or alarm; server/web/timeline.py); the arithmetic and the definitions are
-:mod:`opendnc.server.utilization_sums` (docs/dashboard.md#utilization).
+:mod:`opendnc.server.utilization.sums` (docs/dashboard.md#utilization).
 
 A year of 200 machines is too many samples to read for every question (about 20 million at a
 change every 5 minutes), so finished hours are summed once into ``utilization_hours`` and
@@ -55,8 +55,8 @@ from opendnc.server.store.models import (
     UtilizationMark,
     UtilizationStretch,
 )
-from opendnc.server.utilization_days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
-from opendnc.server.utilization_sums import (
+from opendnc.server.utilization.days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
+from opendnc.server.utilization.sums import (
     HOUR,
     RECENT_ALARMS,
     STATES,
@@ -84,7 +84,6 @@ from opendnc.server.utilization_sums import (
     periods_of,
     point_of,
     point_of_columns,
-    stored_state,
     summarize,
     sweep,
 )
@@ -108,7 +107,6 @@ __all__ = [
     "read_many",
     "report",
     "roll",
-    "stored_state",
     "sum_safely",
     "summarize",
     "sweep",
@@ -257,7 +255,7 @@ def roll(
 ) -> int:
     """Sum the finished hours of ``machines`` not summed yet (up to the hour before ``now``
     less a margin), then (given the shop's ``calendar``) up to ``days`` of their finished
-    local days per machine (:mod:`opendnc.server.utilization_days`; None: all of them);
+    local days per machine (:mod:`opendnc.server.utilization.days`; None: all of them);
     how many machine-hours were written. Call in a write transaction."""
     target = floor_hour(now - ROLL_MARGIN)
     written = 0
@@ -485,6 +483,46 @@ def buckets(
     return per_period
 
 
+Slots = dict[tuple[int | None, bool], int]  # (period, shift time or not): its number
+
+
+@dataclass
+class _Tally:
+    """What one question sums into: the figures of each machine per slot (a period and
+    whether it is shift time), and the stops and alarms found per machine."""
+
+    machines: Sequence[str]
+    bins: list[Bin]
+    slot_ids: Slots
+    acc: dict[str, dict[int, Figures]]
+    found_by: dict[str, list[Stretch]]
+
+    @classmethod
+    def of(cls, machines: Sequence[str], bins: list[Bin]) -> _Tally:
+        """An empty tally of ``machines`` over ``bins``, a slot for each (period, shift)."""
+        slots = [(b.period, b.in_shift) for b in bins]
+        slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
+        return cls(machines, bins, slot_ids, {m: {} for m in machines}, {m: [] for m in machines})
+
+    def add(self, machine: str, piece: Bin, f: Figures) -> None:
+        """Add ``machine``'s figures of ``piece`` to the slot it belongs to."""
+        slot = self.slot_ids[(piece.period, piece.in_shift)]
+        self.acc[machine].setdefault(slot, Figures()).add(f)
+
+
+@dataclass
+class _Summed:
+    """What the summed hours and days left over: each machine's mark (how far it is summed),
+    the spans still to read from the samples, and where the tail after the marks begins."""
+
+    marks: dict[str, UtilizationMark]
+    raw: list[tuple[datetime, datetime]]
+    tail_from: datetime
+
+
+Frontiers = dict[str, tuple[Carry, datetime]]  # per machine: what is open, and from when
+
+
 def _collect(
     session: Session,
     machines: Sequence[str],
@@ -502,107 +540,146 @@ def _collect(
     group: Group | None = None,
     alarms_out: dict[str, SummedAlarms] | None = None,
 ) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
-    want_stretches = stretches
+    """Each machine's figures per period and in total over ``[start, end)``, and its stops:
+    from the summed days and hours where they hold the time, from the samples elsewhere
+    (``use_hours=False``: from every sample, the reference)."""
     if alarms_out is None:
         alarms_out = {m: SummedAlarms() for m in machines}
     # what has not happened yet counts nowhere: a span that holds ``now`` is summed up to
     # ``now`` (the state in force is not stretched to the span's end), and its later periods
     # stay empty, so every percentage is over the time that has passed
     end = min(end, max(start, now))
-    bins = make_bins(periods, scheduled, start, end)
-    slots = [(b.period, b.in_shift) for b in bins]
-    slot_ids = {s: i for i, s in enumerate(dict.fromkeys(slots))}
-    acc: dict[str, dict[int, Figures]] = {m: {} for m in machines}
-    found_by: dict[str, list[Stretch]] = {m: [] for m in machines}
-    tail_from = start
-    marks: dict[str, UtilizationMark] = {}
-    raw = [(start, end)]
+    tally = _Tally.of(machines, make_bins(periods, scheduled, start, end))
+    summed = _Summed({}, [(start, end)], start)
     if use_hours and machines:
         if sum_first:
             sum_safely(session, machines, now, calendar)
-        marks = {
-            m.machine: m
-            for m in session.scalars(
-                select(UtilizationMark).where(UtilizationMark.machine.in_(machines))
-            )
-        }
-        until = min((m.until for m in marks.values()), default=start)
-        days = None
-        if use_days and calendar is not None and group is not None:
-            days = day_span(session, calendar, machines, marks, start, end)
-        if (
-            days is not None
-            and calendar is not None
-            and group is not None
-            and not sum_days(session, calendar, machines, days, group, bins, slot_ids, acc)
-        ):
-            days = None
-        skip = None
-        if days is not None and calendar is not None:
-            skip = (calendar.instant(days[0], time(0)), calendar.instant(days[1], time(0)))
-        raw, hour_slots = _plan(bins, slot_ids, start, end, until, skip)
-        in_shift = {i: shift for (_p, shift), i in slot_ids.items()}
-        # before and after the summed days, so the hours between are not read again
-        cut = skip[0] if skip is not None else end
-        for run in ([x for x in hour_slots if x[0] < cut], [x for x in hour_slots if x[0] >= cut]):
-            _sum_hours(session, machines, run, acc, in_shift)
-        if want_stretches:
-            _stored_stretches(session, machines, start, end, found_by, alarms_out)
-        tail_from = max(start, min(until, end))
-    pieces = [
-        (
-            a,
-            b,
-            [
-                Bin(max(x.start, a), min(x.end, b), x.period, x.in_shift)
-                for x in bins_within(bins, a, b)
-            ],
+        summed = _from_sums(session, tally, start, end, calendar, group if use_days else None)
+        if stretches:
+            _stored_stretches(session, machines, start, end, tally.found_by, alarms_out)
+    frontiers = _sweep_samples(session, tally, summed, end, use_hours)
+    for machine, mark in summed.marks.items():
+        if machine not in frontiers and mark.until >= end:
+            frontiers[machine] = (Carry.from_json(mark.carry), mark.until)
+    if stretches:
+        _finish_many(session, frontiers, now, tally.found_by)
+    per_period, totals = _per_period(tally, len(periods))
+    return per_period, totals, tally.found_by
+
+
+def _from_sums(
+    session: Session,
+    tally: _Tally,
+    start: datetime,
+    end: datetime,
+    calendar: Calendar | None,
+    group: Group | None,
+) -> _Summed:
+    """Add what the summed days (with a ``group``) and the summed hours hold of
+    ``[start, end)`` to ``tally``; what they do not hold is left to read from the samples."""
+    machines = tally.machines
+    marks = {
+        m.machine: m
+        for m in session.scalars(
+            select(UtilizationMark).where(UtilizationMark.machine.in_(machines))
         )
-        for a, b in raw
-    ]
-    frontiers: dict[str, tuple[Carry, datetime]] = {}  # what is open where the span ends
-    for a, b, local_bins in pieces:
-        is_tail = a >= tail_from
-        if use_hours:
-            read = read_many(session, machines, a, b)
-        for machine in machines:
-            mark = marks.get(machine)
-            sweep_from = a
-            if not use_hours:
-                # the reference: every sample from the machine's first, so what carries
-                # into the span (a run, a stop, the counter) is known exactly
-                first = session.scalar(
-                    select(func.min(StatusSample.at)).where(StatusSample.machine == machine)
-                )
-                sweep_from = min(a, as_utc(first)) if first is not None else a
-                carry = Carry()
-                points = read_points(session, machine, sweep_from, b)
-            elif is_tail and mark is not None and mark.until == a:
-                points = read[machine]
-                carry = Carry.from_json(mark.carry)
-            else:
-                points = read[machine]
-                carry = Carry.fresh(in_force(points, a))
+    }
+    until = min((m.until for m in marks.values()), default=start)
+    skip = _from_days(session, tally, marks, start, end, calendar, group)
+    raw, hour_slots = _plan(tally.bins, tally.slot_ids, start, end, until, skip)
+    in_shift = {i: shift for (_p, shift), i in tally.slot_ids.items()}
+    # before and after the summed days, so the hours between are not read again
+    cut = skip[0] if skip is not None else end
+    for run in ([x for x in hour_slots if x[0] < cut], [x for x in hour_slots if x[0] >= cut]):
+        _sum_hours(session, machines, run, tally.acc, in_shift)
+    return _Summed(marks, raw, max(start, min(until, end)))
+
+
+def _from_days(
+    session: Session,
+    tally: _Tally,
+    marks: dict[str, UtilizationMark],
+    start: datetime,
+    end: datetime,
+    calendar: Calendar | None,
+    group: Group | None,
+) -> tuple[datetime, datetime] | None:
+    """Add the whole local days of ``[start, end)`` that are summed to ``tally``; the span
+    they cover (None: no days were used)."""
+    if calendar is None or group is None:
+        return None
+    machines = tally.machines
+    days = day_span(session, calendar, machines, marks, start, end)
+    if days is None:
+        return None
+    if not sum_days(
+        session, calendar, machines, days, group, tally.bins, tally.slot_ids, tally.acc
+    ):
+        return None
+    return calendar.instant(days[0], time(0)), calendar.instant(days[1], time(0))
+
+
+def _sweep_samples(
+    session: Session, tally: _Tally, summed: _Summed, end: datetime, use_hours: bool
+) -> Frontiers:
+    """Sweep the samples of the spans the sums do not hold into ``tally``; what is open at
+    ``end`` per machine (a stop that runs on)."""
+    frontiers: Frontiers = {}
+    for a, b in summed.raw:
+        local_bins = [
+            Bin(max(x.start, a), min(x.end, b), x.period, x.in_shift)
+            for x in bins_within(tally.bins, a, b)
+        ]
+        is_tail = a >= summed.tail_from
+        read = read_many(session, tally.machines, a, b) if use_hours else None
+        for machine in tally.machines:
+            tail_mark = summed.marks.get(machine) if is_tail else None
+            sweep_from, points, carry = _points_of(session, machine, a, b, read, tail_mark)
             found: list[Stretch] = []
             figs = sweep(points, sweep_from, b, local_bins, carry, found)
             for x, f in zip(local_bins, figs, strict=True):
-                acc[machine].setdefault(slot_ids[(x.period, x.in_shift)], Figures()).add(f)
+                tally.add(machine, x, f)
             if is_tail:
-                found_by[machine] += found
+                tally.found_by[machine] += found
                 if b == end:
                     frontiers[machine] = (carry, end)
-    for machine, mark in marks.items():
-        if machine not in frontiers and mark.until >= end:
-            frontiers[machine] = (Carry.from_json(mark.carry), mark.until)
-    if want_stretches:
-        _finish_many(session, frontiers, now, found_by)
+    return frontiers
+
+
+def _points_of(
+    session: Session,
+    machine: str,
+    a: datetime,
+    b: datetime,
+    read: dict[str, list[Point]] | None,
+    tail_mark: UtilizationMark | None,
+) -> tuple[datetime, list[Point], Carry]:
+    """Where ``machine``'s sweep of ``[a, b)`` starts, its points, and what carries into it:
+    from ``read`` (the samples read for all machines), or without it from every sample since
+    the machine's first."""
+    if read is None:
+        # the reference: every sample from the machine's first, so what carries into the
+        # span (a run, a stop, the counter) is known exactly
+        first = session.scalar(
+            select(func.min(StatusSample.at)).where(StatusSample.machine == machine)
+        )
+        sweep_from = min(a, as_utc(first)) if first is not None else a
+        return sweep_from, read_points(session, machine, sweep_from, b), Carry()
+    points = read[machine]
+    if tail_mark is not None and tail_mark.until == a:
+        return a, points, Carry.from_json(tail_mark.carry)  # summed up to here: carry on
+    return a, points, Carry.fresh(in_force(points, a))
+
+
+def _per_period(tally: _Tally, periods: int) -> tuple[dict[str, list[Figures]], dict[str, Figures]]:
+    """Each machine's slots added up per period, and its total."""
     per_period: dict[str, list[Figures]] = {}
     totals: dict[str, Figures] = {}
-    for machine in machines:
+    for machine in tally.machines:
         total = totals[machine] = Figures()
-        mine: list[Figures | None] = [None] * len(periods)
-        for (period, _shift), slot in slot_ids.items():
-            summed = acc[machine].get(slot)
+        mine: list[Figures | None] = [None] * periods
+        for (period, _shift), slot in tally.slot_ids.items():
+            summed = tally.acc[machine].get(slot)
             if summed is None:
                 continue
             total.add(summed)
@@ -613,7 +690,7 @@ def _collect(
                 else:
                     held.add(summed)
         per_period[machine] = [f if f is not None else Figures() for f in mine]
-    return per_period, totals, found_by
+    return per_period, totals
 
 
 FINISH_BATCH = 1000
@@ -775,6 +852,18 @@ def _sum_hours(
     """Sum the hours in SQL, per machine and slot (a temporary table maps hour to slot)."""
     if not hour_slots:
         return
+    rows = _hour_sums(session, machines, hour_slots)
+    for row in rows:
+        machine, slot = row[0], int(row[1])
+        acc[machine].setdefault(slot, Figures()).add(_figures_of(row[2:], in_shift[slot]))
+    _no_record_hours(machines, hour_slots, rows, acc, in_shift)
+
+
+def _hour_sums(
+    session: Session, machines: Sequence[str], hour_slots: Sequence[tuple[datetime, int]]
+) -> list[Any]:
+    """Rows of (machine, slot, seconds per state, parts, part rows, runs, cycles, cycle
+    seconds): the summed hours of ``hour_slots`` added up per machine and slot."""
     connection = session.connection()
     _SLOTS.create(connection, checkfirst=True)  # temporary: this connection's own
     session.execute(delete(_SLOTS))
@@ -800,22 +889,34 @@ def _sum_hours(
         .group_by(h.machine, _SLOTS.c.slot)
     ).all()
     session.execute(delete(_SLOTS))
-    for row in rows:
-        machine, slot = row[0], int(row[1])
-        values = row[2:]
-        f = Figures()
-        for k, s in enumerate(STATES):
-            f.seconds[s] = float(values[k] or 0.0)
-        parts_sum, parts_rows, runs, cycles, cycle_seconds = values[len(STATES) :]
-        f.parts = int(parts_sum or 0) if parts_rows else None
-        if in_shift[slot]:
-            f.scheduled = dict(f.seconds)
-        f.runs, f.cycles, f.cycle_seconds = (
-            int(runs or 0),
-            int(cycles or 0),
-            float(cycle_seconds or 0),
-        )
-        acc[machine].setdefault(slot, Figures()).add(f)
+    return list(rows)
+
+
+def _figures_of(values: Sequence[Any], in_shift: bool) -> Figures:
+    """The figures of one row of :func:`_hour_sums` (after machine and slot)."""
+    f = Figures()
+    for k, s in enumerate(STATES):
+        f.seconds[s] = float(values[k] or 0.0)
+    parts_sum, parts_rows, runs, cycles, cycle_seconds = values[len(STATES) :]
+    f.parts = int(parts_sum or 0) if parts_rows else None
+    if in_shift:
+        f.scheduled = dict(f.seconds)
+    f.runs, f.cycles, f.cycle_seconds = (
+        int(runs or 0),
+        int(cycles or 0),
+        float(cycle_seconds or 0),
+    )
+    return f
+
+
+def _no_record_hours(
+    machines: Sequence[str],
+    hour_slots: Sequence[tuple[datetime, int]],
+    rows: Sequence[Any],
+    acc: dict[str, dict[int, Figures]],
+    in_shift: dict[int, bool],
+) -> None:
+    """Count the time of ``hour_slots`` that no summed hour holds as no record."""
     # Hours without a row are hours without any record (not stored, to save space).
     slot_seconds: dict[int, float] = {}
     for _hour, slot in hour_slots:

@@ -1,4 +1,5 @@
-"""``GET /api/utilization``: utilization per machine and shift, day or week, as JSON or CSV.
+"""The answer of ``GET /api/utilization`` and of the utilization page's download: the
+parameters parsed, the report computed, and written as JSON or CSV.
 
 Parameters (docs/dashboard.md#utilization): ``from`` and ``to`` as ISO 8601 instants with
 an offset, or as dates (the shop's midnight in ``[server] timezone``); by default the last 7
@@ -10,57 +11,41 @@ dashboard exports. Every time in the answer is on the shop's clock with its offs
 
 from __future__ import annotations
 
-import asyncio
 import csv
 import io
-import logging
 from datetime import UTC, date, datetime, time, timedelta
-from typing import Annotated, Any
+from typing import Any
 
-from fastapi import APIRouter, FastAPI, Query, Request
-from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic_core import to_json
-from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import deps
-from opendnc.server.api import ERRORS, Viewer
-from opendnc.server.components import RunsTask
 from opendnc.server.config import ShopConfig
-from opendnc.server.edge import ApiRoute
 from opendnc.server.errors import NotFound
 from opendnc.server.gc_pause import paused
 from opendnc.server.shifts import DAYS, Calendar
 from opendnc.server.store.db import read_only
-from opendnc.server.utilization import (
+from opendnc.server.utilization.collect import (
     STATES,
     Figures,
     Group,
     Report,
     Stretch,
-    marks_of,
     report,
-    roll,
     sum_safely,
 )
-from opendnc.server.utilization_days import build_days
 
 __all__ = [
     "CSV_COLUMNS",
     "csv_text",
-    "install",
     "parse_span",
     "report_json",
     "report_response",
-    "router",
     "run_report",
 ]
 
 DEFAULT_DAYS = 7
-ROLL_EVERY = 600.0  # seconds between two rounds of summing finished hours
-log = logging.getLogger(__name__)
 CSV_COLUMNS = [
     "machine",
     "period",
@@ -82,62 +67,6 @@ DEFINITIONS = {
     "runs": "program runs that ended: the part counter rising, or running back to ready",
     "stops": "5 minutes or more not running, named by the worst state in them",
 }
-
-# The API's documented errors and its route class (sessions, strict JSON), as every /api route.
-router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
-
-
-def install(app: FastAPI) -> None:
-    """Add ``/api/utilization`` to ``app``."""
-    app.include_router(router)
-
-
-class HourSummer(RunsTask):
-    """A component: sums the finished hours every :data:`ROLL_EVERY` seconds while the
-    server runs, so no question waits for more than the last minutes' samples, and the hours
-    are summed long before their samples are pruned."""
-
-    name = "utilization"
-    needs = ("database",)
-
-    def __init__(
-        self,
-        sessions: sessionmaker[Session],
-        machines: list[str],
-        calendar: Calendar | None = None,
-    ) -> None:
-        self.sessions = sessions
-        self.machines = machines
-        self.calendar = calendar
-
-    async def run(self) -> None:
-        """Sum, then wait, until cancelled; a database that is away is tried next round."""
-        while True:
-            await asyncio.sleep(ROLL_EVERY)
-            try:
-                await asyncio.to_thread(self.sum_now)
-            except SQLAlchemyError as exc:
-                log.warning("utilization: summing the finished hours failed: %s", exc)
-
-    def sum_now(self, now: datetime | None = None) -> int:
-        """Sum what finished up to ``now`` (the hours, then the local days, a few weeks of
-        days per transaction until all are); how many machine-hours were written."""
-        now = now or datetime.now(UTC)
-        with self.sessions.begin() as session:
-            written = roll(session, self.machines, now, self.calendar)
-        while self.calendar is not None:
-            with self.sessions.begin() as session:
-                if not build_days(session, self.calendar, self.machines, marks_of(session)):
-                    break
-        return written
-
-
-def _config(request: Request) -> ShopConfig:
-    return deps.machines(request).config
-
-
-def _sessions(request: Request) -> sessionmaker[Session]:
-    return deps.database(request).sessions
 
 
 def parse_when(text: str, calendar: Calendar, key: str) -> datetime:
@@ -378,38 +307,3 @@ def report_response(r: Report, format: str = "json") -> Response:
         # for these plain values (JSONResponse: compact, UTF-8), three times as fast: a year
         # by week is 5 MB
         return Response(to_json(report_json(r)), media_type="application/json")
-
-
-@router.get(
-    "/utilization",
-    response_class=Response,
-    responses={
-        200: {
-            "content": {
-                "application/json": {"schema": {"type": "object"}},
-                "text/csv": {"schema": {"type": "string"}},
-            }
-        }
-    },
-)
-async def utilization(
-    request: Request,
-    _who: Viewer,
-    start: Annotated[str | None, Query(alias="from")] = None,
-    end: Annotated[str | None, Query(alias="to")] = None,
-    machines: Annotated[list[str] | None, Query()] = None,
-    group: str = "day",
-    format: str = "json",
-) -> Response:
-    """Utilization per machine and period (JSON, or ``format=csv``)."""
-    if format not in ("json", "csv"):
-        raise InputError(f"format: expected json or csv, got {format!r}")
-    sessions, config = _sessions(request), _config(request)
-
-    def answer() -> Response:
-        r = run_report(sessions, config, start=start, end=end, machines=machines, group=group)
-        # the body too in the pool's thread: a year by week is 5 MB of JSON, and the event
-        # loop serves every other request meanwhile
-        return report_response(r, format)
-
-    return await run_in_threadpool(answer)

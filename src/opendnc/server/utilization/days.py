@@ -1,6 +1,6 @@
 """Utilization summed per machine, local day and shift: what a question over months reads.
 
-A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization`);
+A year of 200 machines is 1.75 million summed hours (:mod:`opendnc.server.utilization.collect`);
 summing them for every question takes seconds. So every finished local day of the shop's
 calendar is summed once more, per **slot**: each shift's part of the day, and the time
 outside shifts (``utilization_days``, migration 0014). A day, a week or a shift of a question
@@ -33,7 +33,7 @@ import hashlib
 import itertools
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any
 
@@ -63,7 +63,7 @@ from opendnc.server.store.models import (
     UtilizationMark,
     UtilizationWeek,
 )
-from opendnc.server.utilization_sums import STATES, Bin, Figures, Group
+from opendnc.server.utilization.sums import STATES, Bin, Figures, Group
 
 __all__ = [
     "BUILD_DAYS",
@@ -90,6 +90,7 @@ _WEEKS: Table = UtilizationWeek.__table__  # type: ignore[assignment]
 
 
 _NAMES = [s.value for s in STATES]
+_RECORD = STATES.index(State.NO_RECORD)  # where no record is in a row's list of states
 
 
 # which day and slot each hour being summed into days goes to (this connection's own)
@@ -423,35 +424,94 @@ def sum_days(
     in SQL by day, week or shift, under a slot of the period); False (nothing added) if a
     piece of a day lies across two bins or a key across two periods (not the calendar's
     own periods)."""
+    layout = _layout(calendar, span, group, bins, slot_ids)
+    if layout is None:
+        return False
+    keys = _group_keys(group)
+    rows = _read_rows(session, calendar, machines, span, group, keys)
+    k = 1 + len(keys)
+    rows_of: dict[str, dict[int, Any]] = {m: {} for m in machines}
+    for row in rows:
+        at = layout.period_of.get(tuple(row[1:k]))
+        if at is None:  # pragma: no cover - every day of the span was cut into pieces
+            return False
+        rows_of[row[0]][at] = row
+    # (a year per day is 73 000 of these: plain lists, one Figures each)
+    for machine in machines:
+        mine, into = rows_of[machine], acc[machine]
+        for period, (whole, inside) in layout.length.items():
+            f = _figures_of(mine.get(period), k, whole, inside)
+            slot = layout.slot_of[period]
+            held = into.get(slot)
+            if held is None:
+                into[slot] = f
+            else:
+                held.add(f)
+    return True
+
+
+@dataclass
+class _Layout:
+    """How the pieces of a span's days fall into a question's periods: the period of each
+    key (day, week or shift), each period's length (all of it, the shift time) and slot."""
+
+    period_of: dict[tuple[object, ...], int] = field(default_factory=dict)
+    length: dict[int, list[float]] = field(default_factory=dict)
+    slot_of: dict[int, int] = field(default_factory=dict)
+
+
+def _layout(
+    calendar: Calendar,
+    span: tuple[date, date],
+    group: Group,
+    bins: Sequence[Bin],
+    slot_ids: dict[tuple[int | None, bool], int],
+) -> _Layout | None:
+    """Each piece of each day of ``span`` laid into the bin it lies in; None if a piece lies
+    across two bins or a key across two periods."""
     ends = [b.end for b in bins]
-    period_of: dict[tuple[object, ...], int] = {}
-    length: dict[int, list[float]] = {}  # per period: all the time, the shift time
-    slot_of: dict[int, int] = {}
+    out = _Layout()
     day = span[0]
     while day < span[1]:
         for p in pieces_of(calendar, day):
             j = bisect.bisect_right(ends, p.start)
             if j >= len(bins) or bins[j].end < p.end or bins[j].start > p.start:
-                return False
+                return None
             b = bins[j]
             period = -1 if b.period is None else b.period
-            key = _key(group, p)
-            if period_of.setdefault(key, period) != period:
-                return False
+            if out.period_of.setdefault(_key(group, p), period) != period:
+                return None
             seconds = (p.end - p.start).total_seconds()
-            total = length.setdefault(period, [0.0, 0.0])
+            total = out.length.setdefault(period, [0.0, 0.0])
             total[0] += seconds
             if b.in_shift:
                 total[1] += seconds
-            slot_of.setdefault(period, slot_ids[(b.period, b.in_shift)])
+            out.slot_of.setdefault(period, slot_ids[(b.period, b.in_shift)])
         day += timedelta(days=1)
+    return out
+
+
+def _group_keys(group: Group) -> list[Any]:
+    """The columns of a day row that name its period when grouped by ``group``."""
     d = _DAYS.c
     by_group: dict[Group, list[Any]] = {
         Group.DAY: [d.day],
         Group.WEEK: [d.week],
         Group.SHIFT: [d.shift, case((d.shift == "", None), else_=d.shift_day)],
     }
-    keys = by_group[group]
+    return by_group[group]
+
+
+def _read_rows(
+    session: Session,
+    calendar: Calendar,
+    machines: Sequence[str],
+    span: tuple[date, date],
+    group: Group,
+    keys: list[Any],
+) -> list[Any]:
+    """Rows of (machine, keys, seconds per state, shift seconds per state, parts, part rows,
+    runs, cycles, cycle seconds) per machine and period of ``span``."""
     days = [span]
     weeks = None
     if group is Group.WEEK:
@@ -464,6 +524,7 @@ def sum_days(
             days = [(a, b) for a, b in ((span[0], first), (last, span[1])) if a < b]
     in_shift = _in_shift(calendar)
     connection = session.connection()
+    d = _DAYS.c
     rows: list[Any] = []
     for since, until in days:  # (the two ends of a span by week fall in two different weeks)
         rows += connection.execute(
@@ -482,8 +543,15 @@ def sum_days(
             .group_by(d.machine, *keys)
         ).all()
     if weeks is not None:
-        w = _WEEKS.c
-        rows += connection.execute(
+        rows += _read_weeks(session, machines, weeks)
+    return rows
+
+
+def _read_weeks(session: Session, machines: Sequence[str], weeks: tuple[date, date]) -> list[Any]:
+    """The week rows of ``weeks`` in the columns of the day rows' sums."""
+    w = _WEEKS.c
+    return list(
+        session.connection().execute(
             select(
                 w.machine,
                 w.week,
@@ -495,54 +563,40 @@ def sum_days(
                 w.cycles,
                 w.cycle_seconds,
             ).where(w.machine.in_(machines), w.week >= weeks[0], w.week < weeks[1])
-        ).all()
-    n, k = len(STATES), 1 + len(keys)
-    rows_of: dict[str, dict[int, Any]] = {m: {} for m in machines}
-    for row in rows:
-        at = period_of.get(tuple(row[1:k]))
-        if at is None:  # pragma: no cover - every day of the span was cut into pieces
-            return False
-        rows_of[row[0]][at] = row
-    nothing = (0.0,) * n
-    record = STATES.index(State.NO_RECORD)
-    # (a year per day is 73 000 of these: plain lists, one Figures each)
-    for machine in machines:
-        mine, into = rows_of[machine], acc[machine]
-        for period, (whole, inside) in length.items():
-            row = mine.get(period)
-            if row is None:
-                spent, planned = list(nothing), list(nothing)
-                parts, runs, cycles, cycle_seconds = None, 0, 0, 0.0
-            else:
-                spent = [float(v or 0.0) for v in row[k : k + n]]
-                planned = [float(v or 0.0) for v in row[k + n : k + 2 * n]]
-                parts = int(row[k + 2 * n] or 0) if row[k + 2 * n + 1] else None
-                runs, cycles = int(row[k + 2 * n + 2] or 0), int(row[k + 2 * n + 3] or 0)
-                cycle_seconds = float(row[k + 2 * n + 4] or 0.0)
-            # pieces without a row are time without any record (those hours were not stored)
-            shift_time = sum(planned)
-            shift_missing = inside - shift_time
-            off_missing = (whole - inside) - (sum(spent) - shift_time)
-            if shift_missing > 0.5:
-                spent[record] += shift_missing
-                planned[record] += shift_missing
-            if off_missing > 0.5:
-                spent[record] += off_missing
-            f = Figures(
-                dict(zip(STATES, spent, strict=True)),
-                dict(zip(STATES, planned, strict=True)),
-                parts,
-                runs,
-                cycles,
-                cycle_seconds,
-            )
-            slot = slot_of[period]
-            held = into.get(slot)
-            if held is None:
-                into[slot] = f
-            else:
-                held.add(f)
-    return True
+        )
+    )
+
+
+def _figures_of(row: Any | None, k: int, whole: float, inside: float) -> Figures:
+    """One machine's figures of one period from its summed row (columns from ``k`` on; None:
+    no row), the period being ``whole`` seconds long, ``inside`` of them shift time."""
+    n = len(STATES)
+    if row is None:
+        spent, planned = [0.0] * n, [0.0] * n
+        parts, runs, cycles, cycle_seconds = None, 0, 0, 0.0
+    else:
+        spent = [float(v or 0.0) for v in row[k : k + n]]
+        planned = [float(v or 0.0) for v in row[k + n : k + 2 * n]]
+        parts = int(row[k + 2 * n] or 0) if row[k + 2 * n + 1] else None
+        runs, cycles = int(row[k + 2 * n + 2] or 0), int(row[k + 2 * n + 3] or 0)
+        cycle_seconds = float(row[k + 2 * n + 4] or 0.0)
+    # pieces without a row are time without any record (those hours were not stored)
+    shift_time = sum(planned)
+    shift_missing = inside - shift_time
+    off_missing = (whole - inside) - (sum(spent) - shift_time)
+    if shift_missing > 0.5:
+        spent[_RECORD] += shift_missing
+        planned[_RECORD] += shift_missing
+    if off_missing > 0.5:
+        spent[_RECORD] += off_missing
+    return Figures(
+        dict(zip(STATES, spent, strict=True)),
+        dict(zip(STATES, planned, strict=True)),
+        parts,
+        runs,
+        cycles,
+        cycle_seconds,
+    )
 
 
 def _key(group: Group, p: Piece) -> tuple[object, ...]:
