@@ -17,7 +17,7 @@ import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server import library
-from opendnc.server.clients import ClientLimits
+from opendnc.server.client_limits import ClientLimits
 from opendnc.server.config import ConfigError, parse_config
 from opendnc.server.downloads import blob_pieces
 from opendnc.server.errors import NotFound

@@ -30,12 +30,11 @@ import socket
 import struct
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from opendnc.server.configkeys import ConfigError, get_key, known_keys
+from opendnc.server.client_limits import ClientLimits
 from opendnc.server.errors import Unavailable
 
 __all__ = [
@@ -46,51 +45,12 @@ __all__ = [
     "SendTimeout",
     "StreamSlots",
     "StreamsFull",
-    "parse_clients",
 ]
 
 log = logging.getLogger(__name__)
 
 CHUNK = 256 * 1024  # bytes handed to the connection at a time
 RETRY_AFTER = 15  # seconds a refused stream is told to wait
-
-
-@dataclass(frozen=True)
-class ClientLimits:
-    """The ``[clients]`` settings (seconds, counts)."""
-
-    send_timeout: float = 30.0  # a piece of a response not taken by the client in this: cut
-    heartbeat: float = 5.0  # an event stream's comment when it has nothing else to send
-    stream_idle: float = 900.0  # an event stream with only heartbeats for this long ends
-    # event streams one user (or a key's user) may hold open: a shop floor's tablets often
-    # share one account, two streams a page
-    streams_per_user: int = 200
-    streams_total: int = 2000  # event streams the server holds open
-
-
-# [clients] keys: (smallest, largest) each may be
-_RANGES: dict[str, tuple[float, float]] = {
-    "send_timeout": (1.0, 3600.0),
-    "heartbeat": (1.0, 300.0),
-    "stream_idle": (1.0, 86400.0),
-    "streams_per_user": (1, 100_000),
-    "streams_total": (1, 100_000),
-}
-
-
-def parse_clients(table: dict[str, Any]) -> ClientLimits:
-    """The ``[clients]`` table; :class:`~opendnc.server.configkeys.ConfigError` names a
-    bad key."""
-    known_keys(table, "clients", set(_RANGES))
-    default = ClientLimits()
-    values: dict[str, Any] = {}
-    for key, (low, high) in _RANGES.items():
-        kind = int if isinstance(low, int) else float
-        value = get_key(table, "clients", key, kind, getattr(default, key))
-        if not low <= value <= high:
-            raise ConfigError(f"clients.{key}", f"expected {low:g} to {high:g}, got {value!r}")
-        values[key] = value
-    return ClientLimits(**values)
 
 
 class ClientTooSlow(Exception):

@@ -92,7 +92,7 @@ from typing import Any
 from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
 from opendnc.server.alerts_config import AlertsConfig, parse_alerts
-from opendnc.server.clients import ClientLimits, parse_clients
+from opendnc.server.client_limits import ClientLimits, parse_clients
 from opendnc.server.configkeys import NAME as _NAME
 from opendnc.server.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.kinds.base import MachineConfig, SerialProfile

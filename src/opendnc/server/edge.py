@@ -21,7 +21,7 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import HTMLResponse, JSONResponse, Response
+from fastapi.responses import JSONResponse, Response
 from sqlalchemy.exc import DataError, DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 
@@ -84,6 +84,12 @@ async def _data_error(request: Request, exc: DataError) -> JSONResponse:
 
 DATABASE_RETRY_AFTER = "5"  # seconds a client is asked to wait before it tries again
 
+ErrorPage = Callable[[Request, str, int], Response]
+"""How the pages answer an error: (request, message, status) to a response."""
+ERROR_PAGE = "error_page"
+"""The ``app.state`` attribute the pages put their :data:`ErrorPage` in when they are
+installed (the API sits under the pages and does not import them)."""
+
 
 async def _database_away(request: Request, exc: Exception) -> Response:
     """503 for a database that cannot be reached; anything else from the driver is a bug."""
@@ -100,20 +106,16 @@ DATABASE_UNAVAILABLE = "the database is unavailable now: the server log has the 
 
 def database_unavailable(request: Request) -> Response:
     """The answer to a request that needs the database while it is away: JSON under
-    ``/api/``, an alert for htmx, an HTML page for a page. It never says why (see
-    :data:`DATABASE_UNAVAILABLE`)."""
+    ``/api/``, else the pages' own error answer (:data:`ERROR_PAGE`: an alert for htmx, an
+    HTML page). It never says why (see :data:`DATABASE_UNAVAILABLE`)."""
     message = DATABASE_UNAVAILABLE
-    headers = {"Retry-After": DATABASE_RETRY_AFTER}
-    if request.url.path.startswith("/api/"):
-        return JSONResponse({"detail": message}, status_code=503, headers=headers)
-    from opendnc.server.web import render  # the pages import the API, which imports this
-
-    if request.headers.get("HX-Request") == "true":
-        html = render.render("_alert.html", message=message, status=503)
-        headers |= {"HX-Retarget": "#alert", "HX-Reswap": "innerHTML"}
-        return HTMLResponse(html, status_code=503, headers=headers)
-    html = render.render("error.html", message=message, status=503, page=None, path="")
-    return HTMLResponse(html, status_code=503, headers=headers)
+    page: ErrorPage | None = getattr(request.app.state, ERROR_PAGE, None)
+    if request.url.path.startswith("/api/") or page is None:
+        response: Response = JSONResponse({"detail": message}, status_code=503)
+    else:
+        response = page(request, message, 503)
+    response.headers["Retry-After"] = DATABASE_RETRY_AFTER
+    return response
 
 
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

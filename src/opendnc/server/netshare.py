@@ -45,29 +45,34 @@ down runs when it comes back. The clock is injectable (tests do not wait for 18:
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hashlib
 import logging
 import os
 import re
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, tzinfo
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.atomicfile import AtomicWriter
-from opendnc.errors import DncError, InputError, TransportError
+from opendnc.errors import DncError
 from opendnc.haas import share
 from opendnc.server import audit, inbox
 from opendnc.server.components import RunsTask
 from opendnc.server.events import EventBus, NetshareChanged
 from opendnc.server.kinds.base import SharedMachine
+from opendnc.server.share_folders import (
+    Folder,
+    LocalFolder,
+    folder_at,
+    folder_for,
+)
 from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
 
 if TYPE_CHECKING:
@@ -75,12 +80,11 @@ if TYPE_CHECKING:
     # its share through this module's folders
     from opendnc.server.config import NetShareConfig
 
-__all__ = ["Folder", "NetShare", "ScanReport", "local_now", "open_folder"]
+__all__ = ["NetShare", "ScanReport", "local_now"]
 
 log = logging.getLogger(__name__)
 
 ACTOR = "netshare"
-MAX_FILE = 64 * 1024 * 1024  # larger files in a share are not programs to move around
 # A push writes ".NAME.xxxxxxxx.part" first (15 bytes more than the name) and renames it: a
 # longer name fails on every file system and share that caps a name at 255 bytes, which is
 # nearly all of them.
@@ -111,14 +115,6 @@ ShareGate = Callable[[SharedMachine, str, bytes], str | None]
 share is a program reaching a machine."""
 
 
-def _is_program_name(name: str) -> bool:
-    # Hidden files, temporary copies (ours are ".NAME.xxxx.part") and editor backups are not
-    # programs.
-    if name.startswith(".") or name.endswith((".part", ".tmp", "~")) or len(name) > 255:
-        return False
-    return name.isprintable() and "/" not in name and "\\" not in name
-
-
 def _reason(error: str) -> str:
     # A push's error may name its temporary copy, whose middle is random each time; without
     # it, the same failure reads the same at every scan.
@@ -130,167 +126,6 @@ _TEMP_NAME = re.compile(r"\.[0-9A-Za-z_]{8}\.part\b")
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
-
-
-class Folder(Protocol):
-    """A folder the net share reads: the NAS, or a machine's share (local or SMB)."""
-
-    label: str
-
-    def where(self, name: str) -> str:
-        """Where ``name`` is, for people (no login in it)."""
-        ...
-
-    def entries(self) -> dict[str, tuple[int, int]]:
-        """Program files by name: (size, modification time); :class:`DncError` when away."""
-        ...
-
-    def read(self, name: str) -> bytes:
-        """The content of ``name``."""
-        ...
-
-    def remove(self, name: str) -> None:
-        """Delete ``name``."""
-        ...
-
-
-class _LocalFolder:
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.label = str(path)
-
-    def where(self, name: str) -> str:
-        return str(self.path / name)
-
-    def entries(self) -> dict[str, tuple[int, int]]:
-        try:
-            paths = list(self.path.iterdir())
-        except OSError as exc:
-            raise TransportError(f"cannot list {self.path}: {exc.strerror or exc}") from exc
-        found = {}
-        for path in paths:
-            if _is_program_name(path.name) and path.is_file() and not path.is_symlink():
-                try:
-                    st = path.stat()
-                except OSError:
-                    continue
-                if st.st_size <= MAX_FILE:
-                    found[path.name] = (st.st_size, st.st_mtime_ns)
-        return found
-
-    def read(self, name: str) -> bytes:
-        return (self.path / name).read_bytes()
-
-    def remove(self, name: str) -> None:
-        (self.path / name).unlink()
-
-
-_DIRECTORY, _REPARSE_POINT = 0x10, 0x400  # SMB file attribute bits
-
-
-class _SmbFolder:
-    """A folder over SMB (a machine's Local Net Share, or the NAS), through smbprotocol's
-    smbclient.
-
-    With ``own_connections`` the folder keeps its connections to itself instead of in
-    smbclient's process-wide pool, which hands an existing session to anyone naming the same
-    user on the same server without checking the password: the NAS's login is then really
-    checked, and its connection stays open from scan to scan.
-    """
-
-    def __init__(self, target: share.ShareTarget, *, own_connections: bool = False) -> None:
-        self.target = target
-        self.label = target.describe()
-        self._connections: dict[str, Any] | None = {} if own_connections else None
-
-    def where(self, name: str) -> str:
-        return self.target.describe(name)
-
-    def _session(self) -> Any:
-        try:
-            import smbclient
-        except ImportError as exc:  # the "haas" extra is optional
-            raise InputError("SMB shares need smbprotocol: pip install 'opendnc[haas]'") from exc
-        t = self.target
-        try:
-            smbclient.register_session(
-                t.host,
-                t.username,
-                t.password,
-                port=t.port,
-                connection_timeout=10,
-                connection_cache=self._connections,
-            )
-        except Exception as exc:  # smbprotocol raises its own tree and ValueError
-            raise TransportError(f"cannot open SMB session to {self.label}: {exc}") from exc
-        return smbclient
-
-    def _options(self) -> dict[str, Any]:
-        t = self.target
-        options: dict[str, Any] = {"port": t.port, "username": t.username, "password": t.password}
-        if self._connections is not None:
-            options["connection_cache"] = self._connections
-        return options
-
-    def entries(self) -> dict[str, tuple[int, int]]:
-        smbclient = self._session()
-        found = {}
-        with _smb_errors(f"cannot list {self.label}"):
-            for entry in smbclient.scandir(self.target.unc(), **self._options()):
-                # the listing carries size, time and attributes: no extra call per file
-                info = entry.smb_info
-                plain = not info.file_attributes & (_DIRECTORY | _REPARSE_POINT)
-                if _is_program_name(entry.name) and plain and info.end_of_file <= MAX_FILE:
-                    written = int(info.last_write_time.timestamp() * 1e9)
-                    found[entry.name] = (int(info.end_of_file), written)
-        return found
-
-    def read(self, name: str) -> bytes:
-        smbclient = self._session()
-        with (
-            _smb_errors(f"cannot read {self.target.describe(name)}"),
-            smbclient.open_file(self.target.unc(name), mode="rb", **self._options()) as f,
-        ):
-            data: bytes = f.read()
-        return data
-
-    def remove(self, name: str) -> None:
-        smbclient = self._session()
-        with _smb_errors(f"cannot remove {self.target.describe(name)}"):
-            smbclient.remove(self.target.unc(name), **self._options())
-
-
-@contextlib.contextmanager
-def _smb_errors(what: str) -> Iterator[None]:
-    """Any failure of an SMB call (smbprotocol raises its own tree, and ValueError) as a
-    :class:`TransportError` that says ``what`` failed."""
-    try:
-        yield
-    except Exception as exc:
-        raise TransportError(f"{what}: {exc}") from exc
-
-
-def _folder_for(spec: str) -> Folder:
-    return _folder_at(share.parse_target(spec))  # InputError: a local folder that is not there
-
-
-def open_folder(target: str | Path | share.ShareTarget, *, own_connections: bool = False) -> Folder:
-    """A folder of the net share as the scan reads it: a machine's share (its ``share``
-    setting: a folder or ``smb://``), or the NAS (``own_connections``: its SMB login checked
-    on a connection of its own). :class:`InputError` for a local folder that is not there."""
-    if isinstance(target, str):
-        target = share.parse_target(target)
-    return _folder_at(target, own_connections=own_connections)
-
-
-def _folder_at(
-    target: Path | share.ShareTarget, *, own_connections: bool = False
-) -> _LocalFolder | _SmbFolder:
-    if isinstance(target, Path):
-        return _LocalFolder(target)
-    if target.local is not None:
-        return _LocalFolder(target.local)
-    return _SmbFolder(target, own_connections=own_connections)
 
 
 class _Stable:
@@ -338,7 +173,7 @@ class NetShare(RunsTask):
         self.last_archive: datetime | None = None
         self._stable = _Stable()
         self._loaded = False
-        self.nas = _folder_at(config.path, own_connections=True)
+        self.nas = folder_at(config.path, own_connections=True)
         self._nas_away = ""  # why the NAS could not be listed (logged once per reason)
 
     # ------------------------------------------------------------------ state
@@ -509,7 +344,7 @@ class NetShare(RunsTask):
 
     # ------------------------------------------------------------------ collect
     def _collect(self, machine: SharedMachine, report: ScanReport) -> None:
-        folder = _folder_for(machine.share)
+        folder = folder_for(machine.share)
         entries = folder.entries()
         found: dict[str, bytes] = {}
         for name in self._stable.names(folder, entries):
@@ -631,7 +466,7 @@ class NetShare(RunsTask):
     def _move_out(self, name: str, data: bytes, destination: Path) -> None:
         """Move a NAS file into the archive: a rename on a mounted NAS; over SMB the bytes
         just read are written (whole or not at all), then the NAS copy is removed."""
-        if isinstance(self.nas, _LocalFolder):
+        if isinstance(self.nas, LocalFolder):
             shutil.move(str(self.nas.path / name), str(destination))
             return
         with AtomicWriter(destination, fsync=True) as out:
@@ -650,7 +485,7 @@ class NetShare(RunsTask):
             if digest is None:
                 continue
             try:
-                folder = _folder_for(machine.share)
+                folder = folder_for(machine.share)
                 if _sha(folder.read(name)) == digest:
                     folder.remove(name)
                     removed.append(machine.name)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from opendnc.errors import DncError
 from opendnc.haas.share import ShareTarget, parse_target
-from opendnc.server.netshare import Folder, open_folder
+from opendnc.server.share_folders import Folder, open_folder
 
 __all__ = ["Digests", "FolderListing", "ShareFile", "list_folder", "nas_folder", "share_label"]
 

@@ -32,7 +32,8 @@ from starlette.requests import Request
 from starlette.responses import StreamingResponse
 from starlette.types import Receive, Scope, Send
 
-from opendnc.server.clients import ClientLimits, Clients
+from opendnc.server.client_limits import ClientLimits
+from opendnc.server.clients import Clients
 from opendnc.server.components import core_of
 from opendnc.server.events import Event, EventBus
 

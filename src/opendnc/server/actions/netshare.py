@@ -21,8 +21,9 @@ from opendnc.server.actions.models import (
 )
 from opendnc.server.config import NetShareConfig
 from opendnc.server.kinds.registry import shares_of, spec_of
-from opendnc.server.netshare import ACTOR, open_folder
+from opendnc.server.netshare import ACTOR
 from opendnc.server.netshare_files import FolderListing, list_folder, nas_folder, share_label
+from opendnc.server.share_folders import open_folder
 from opendnc.server.store.models import Program, ProgramState, ProgramVersion, Role
 
 __all__ = ["ACTIVITY", "net_share"]

@@ -16,7 +16,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
-from opendnc.server import api
+from opendnc.server import api, edge
 from opendnc.server.web import preview_views, render, utilization_views, views
 
 __all__ = ["install"]
@@ -32,6 +32,17 @@ def install(app: FastAPI) -> None:
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
+    setattr(app.state, edge.ERROR_PAGE, _error_page)  # what a page gets while the database is away
+
+
+def _error_page(request: Request, message: str, status: int) -> Response:
+    """A page's error answer: an alert fragment for htmx, else the error page."""
+    if request.headers.get("HX-Request") == "true":
+        html = render.render("_alert.html", message=message, status=status)
+        headers = {"HX-Retarget": "#alert", "HX-Reswap": "innerHTML"}
+        return HTMLResponse(html, status_code=status, headers=headers)
+    html = render.render("error.html", message=message, status=status, page=None, path="")
+    return HTMLResponse(html, status_code=status)
 
 
 async def _login_needed(request: Request, exc: views.LoginNeeded) -> Response:

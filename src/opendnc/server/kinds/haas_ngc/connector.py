@@ -20,7 +20,7 @@ from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
 from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
 from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
-from opendnc.server.netshare import open_folder  # the scan's own folder code
+from opendnc.server.share_folders import open_folder  # the scan's own folder code
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector", "controller_mode", "mdc_status"]
