@@ -213,7 +213,7 @@ def _browser(url: str, cookie: str, n: int, send: Any, seconds: float) -> dict[s
 
 def run(n: int, seconds: float, poll: float, folder: Path) -> None:
     """Measure one fleet size and print the figures."""
-    from opendnc.server import auth
+    from opendnc.server.access import auth
     from opendnc.server.store.db import make_engine, make_sessions, migrate
     from opendnc.server.store.models import Role
 

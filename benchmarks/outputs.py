@@ -24,12 +24,12 @@ import time
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from opendnc.server.components import cancel_and_wait
-from opendnc.server.config import MqttConfig, MtconnectConfig
-from opendnc.server.events import EventBus, MachineStatusChanged
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.mqtt import MqttPublisher
-from opendnc.server.shdr import MtconnectOutput
+from opendnc.server.config.shop import MqttConfig, MtconnectConfig
+from opendnc.server.core.components import cancel_and_wait
+from opendnc.server.core.events import EventBus, MachineStatusChanged
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.outputs.mqtt import MqttPublisher
+from opendnc.server.outputs.shdr import MtconnectOutput
 
 
 def _event(name: str, poll: int, change: bool) -> MachineStatusChanged:

@@ -87,9 +87,10 @@ def serve_library(folder: Path, programs: dict[str, bytes]) -> Iterator[str]:
     import uvicorn
 
     from opendnc.cli.serve import listen_socket
-    from opendnc.server import auth, library
+    from opendnc.server.access import auth
     from opendnc.server.app import build as build_server
-    from opendnc.server.config import parse_config
+    from opendnc.server.config.shop import parse_config
+    from opendnc.server.library import versions as library
     from opendnc.server.store.models import Role
 
     q = json.dumps

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from http_load import Connection, LoadResult, endpoint, readers_and_writers, timed
-from opendnc.server.limits import Limits
+from opendnc.server.http.limits import Limits
 from served import rss_mib, start_serve, stop_serve
 
 LIMITS = Limits()

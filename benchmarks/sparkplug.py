@@ -21,10 +21,10 @@ import time
 import uuid
 from datetime import UTC, datetime, timedelta
 
-from opendnc.server.config import MqttConfig, SparkplugConfig
-from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.sparkplug import SparkplugNode
+from opendnc.server.config.shop import MqttConfig, SparkplugConfig
+from opendnc.server.core.events import EventBus, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.outputs.sparkplug import SparkplugNode
 
 
 def _event(name: str, poll: int, change: bool) -> MachineStatusChanged:

@@ -53,7 +53,7 @@ from typing import Any
 
 from sqlalchemy import Engine, create_engine, event, insert, text
 
-from opendnc.server.shifts import parse_calendar
+from opendnc.server.core.shifts import parse_calendar
 from opendnc.server.store.db import make_engine, make_sessions, migrate, read_only
 from opendnc.server.store.models import StatusSample
 from opendnc.server.utilization.answer import report_response

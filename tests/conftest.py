@@ -9,7 +9,7 @@ import pytest
 
 # argon2's cheapest parameters for the passwords the tests make and check, in this process
 # and in the servers and commands it starts (they inherit the environment): a third of a CPU
-# second each at the shop's cost, hundreds of them in a run (opendnc.server.auth).
+# second each at the shop's cost, hundreds of them in a run (opendnc.server.access.auth).
 os.environ.setdefault("OPENDNC_PASSWORD_PROFILE", "cheapest")
 
 # The files whose longest test takes longest (10 s and more on a busy machine, measured with

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import InputError
-from opendnc.server.config import parse_config
+from opendnc.server.config.shop import parse_config
 
 CLI = [sys.executable, "-m", "opendnc.cli.main", "check"]
 DATA = Path(__file__).resolve().parents[1] / "data" / "nccheck"

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from opendnc.server.program_title import HEAD, MAX_TITLE, title_of
+from opendnc.server.library.titles import HEAD, MAX_TITLE, title_of
 
 
 @pytest.mark.parametrize(

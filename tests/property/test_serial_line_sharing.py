@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc import LINE_NOISE, ControlType, ReplyFramer, frame_reply
-from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
+from opendnc.server.kinds.dprnt_tap import DprntTap, TapStream
 
 payloads = st.text(
     alphabet=st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters=">"),

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from opendnc.errors import InputError
-from opendnc.server.shifts import DAYS, parse_calendar
+from opendnc.server.core.shifts import DAYS, parse_calendar
 from opendnc.server.utilization.answer import parse_when
 
 scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.text(max_size=12))

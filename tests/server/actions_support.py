@@ -10,9 +10,9 @@ from pathlib import Path
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.actions import Services
-from opendnc.server.config import LibraryConfig, MachineConfig, ServerConfig, ShopConfig
-from opendnc.server.events import EventBus
-from opendnc.server.machine_state import MachineState
+from opendnc.server.config.shop import LibraryConfig, MachineConfig, ServerConfig, ShopConfig
+from opendnc.server.core.events import EventBus
+from opendnc.server.machines.state import MachineState
 from opendnc.server.store.db import read_only
 
 

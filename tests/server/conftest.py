@@ -95,11 +95,11 @@ def procs(tmp_path: Path) -> Iterator[Procs]:
 def shop(db_url: str, tmp_path: Path) -> Iterator[Any]:
     """One virtual TNC served by the server's components in this process, its connector
     gated (tests/server/inproc_server.py), and the way to cut the database (db_outage.py)."""
-    from opendnc.server import library
     from opendnc.server.app import build
-    from opendnc.server.config import MachineConfig, parse_config
+    from opendnc.server.config.shop import MachineConfig, parse_config
+    from opendnc.server.kinds.connector import Connector
     from opendnc.server.kinds.registry import connector_for
-    from opendnc.server.machines.base import Connector
+    from opendnc.server.library import versions as library
     from opendnc.sim.fleet import server_config
     from tests.server.db_outage import Outage
     from tests.server.harness import wait_for

@@ -126,7 +126,7 @@ def create_key(
         )
         assert done.returncode == 0, done.stderr
         return done.stdout.strip()
-    from opendnc.server import auth
+    from opendnc.server.access import auth
     from opendnc.server.store.db import make_engine, make_sessions, migrate
     from opendnc.server.store.models import Role
 

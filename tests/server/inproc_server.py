@@ -12,9 +12,10 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from opendnc.server import jobs
 from opendnc.server.app import Server
-from opendnc.server.machines.base import Connector, Progress
+from opendnc.server.core.status import Progress
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.store.models import AuditEntry, Job, JobKind
 from tests.server.db_outage import Outage
 from tests.server.harness import wait_for

@@ -19,11 +19,11 @@ httpx = require_module("httpx")
 require_module("lxml")
 uvicorn = require_module("uvicorn")
 
-from opendnc.server import auth  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
-from opendnc.server.config import MachineConfig, parse_config  # noqa: E402
+from opendnc.server.config.shop import MachineConfig, parse_config  # noqa: E402
+from opendnc.server.kinds.connector import Connector  # noqa: E402
 from opendnc.server.kinds.registry import connector_for  # noqa: E402
-from opendnc.server.machines.base import Connector  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from opendnc.sim.mtconnect.agent import VirtualAgent  # noqa: E402

@@ -25,13 +25,13 @@ import pytest
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.alert_rules import AlertEngine, Phase
-from opendnc.server.alerts import Alerts
-from opendnc.server.alerts_config import AlertKind, AlertsConfig, parse_alerts
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.shifts import Calendar
+from opendnc.server.alerts.component import Alerts
+from opendnc.server.alerts.rules import AlertEngine, Phase
+from opendnc.server.config.alerts import AlertKind, AlertsConfig, parse_alerts
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.shifts import Calendar
+from opendnc.server.core.status import MachineStatus
 from opendnc.server.store.models import AuditEntry
 from tests.server.alerts_support import (
     SmtpPeer,
@@ -445,7 +445,7 @@ when = "alarm"
         await until("both alarms by webhook", lambda: len(hook.taken()) >= 3)
         await until("four webhook deliveries audited", lambda: len(audit_rows(sessions)) >= 4)
 
-    with caplog.at_level(logging.WARNING, logger="opendnc.server.alerts"), silent:
+    with caplog.at_level(logging.WARNING, logger="opendnc.server.alerts.component"), silent:
         run_alerts(cfg, sessions, scenario)
     posts = hook.taken()
     assert [p.json()["machine"] for p in posts] == ["mill-1", "mill-1", "mill-2"]  # a retry
@@ -548,7 +548,7 @@ when = "alarm"
 def test_the_server_alerts_once_per_stop_of_a_virtual_haas_and_for_a_failed_job(
     tmp_path: Path, smtp: SmtpPeer, hook: WebhookPeer
 ) -> None:
-    from opendnc.server import auth
+    from opendnc.server.access import auth
     from opendnc.server.app import build
     from opendnc.server.store.models import Role
     from opendnc.sim.fleet import server_config

@@ -17,7 +17,7 @@ from tests.peers import require_module
 schemathesis = require_module("schemathesis")
 hypothesis = require_module("hypothesis")
 
-from opendnc.server import library  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from tests.server.inprocess_app import App, running  # noqa: E402
 

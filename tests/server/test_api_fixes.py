@@ -15,11 +15,13 @@ import pytest
 from argon2 import PasswordHasher, extract_parameters
 from sqlalchemy import event, select
 
-from opendnc.server import auth, jobs, library
+from opendnc.server.access import auth
+from opendnc.server.access.key_use import KeyUse
+from opendnc.server.access.refusals import Refusals
 from opendnc.server.actions import Services
-from opendnc.server.errors import Unauthorized
-from opendnc.server.key_use import KeyUse
-from opendnc.server.refusals import Refusals
+from opendnc.server.core.errors import Unauthorized
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import ApiKey, AuditEntry, Job, JobKind, JobState, Role, utcnow
 from opendnc.server.web import session as web_session
 from tests.server.harness import wait_for

@@ -16,11 +16,11 @@ from typing import Any
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import library
-from opendnc.server.client_limits import ClientLimits
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.downloads import blob_pieces
-from opendnc.server.errors import NotFound
+from opendnc.server.config.clients import ClientLimits
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.errors import NotFound
+from opendnc.server.http.downloads import blob_pieces
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import Role
 from tests.server.harness import wait_for
 from tests.server.inprocess_app import App, running

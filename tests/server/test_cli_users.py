@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import auth
-from opendnc.server.errors import Unauthorized
+from opendnc.server.access import auth
+from opendnc.server.core.errors import Unauthorized
 from opendnc.server.store.db import make_engine, make_sessions
 from opendnc.server.store.models import Role
 from tests.server.conftest import on

@@ -23,8 +23,8 @@ from typing import Any
 
 import pytest
 
-from opendnc.server.executors import ALREADY_AT_CONTROL
-from opendnc.server.shared_status import ORPHANED
+from opendnc.server.fleet.shared_status import ORPHANED
+from opendnc.server.jobs.executors import ALREADY_AT_CONTROL
 from tests.server.cluster_support import (
     TAKEOVER_LIMIT,
     Cluster,

@@ -10,9 +10,10 @@ import time
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import jobs, library
+from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.lsv2 import Lsv2Machine
-from opendnc.server.leases import Leases, holds
+from opendnc.server.library import versions as library
+from opendnc.server.machines.leases import Leases, holds
 from opendnc.server.store.models import AuditEntry, JobKind, JobState
 
 MACHINES = {"mill-1": frozenset[str](), "mill-2": frozenset[str]()}

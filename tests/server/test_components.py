@@ -12,12 +12,7 @@ from tests.peers import require_module
 
 require_module("fastapi")
 
-from opendnc.server.components import (  # noqa: E402
-    ComponentError,
-    Core,
-    RunsTask,
-    cancel_and_wait,
-)
+from opendnc.server.core.components import ComponentError, Core, RunsTask, cancel_and_wait  # noqa: E402
 
 
 class Part:

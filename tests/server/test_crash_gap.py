@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.server.state import State
+from opendnc.server.core.state import State
+from opendnc.server.machines.timeline import Timeline
 from opendnc.server.store.db import make_engine, make_sessions
 from opendnc.server.store.models import StatusSample, utcnow
-from opendnc.server.web.timeline import Timeline
 from opendnc.sim.fleet import server_config
 from tests.server.harness import Procs, serve, wait_for
 from tests.server.test_from_the_control import FleetThread

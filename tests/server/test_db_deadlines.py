@@ -12,7 +12,7 @@ from sqlalchemy import Engine, select, text
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.leases import Leases, holds
+from opendnc.server.machines.leases import Leases, holds
 from opendnc.server.store.db import (
     IDLE_IN_TRANSACTION_MS,
     STATEMENT_TIMEOUT_MS,

@@ -35,7 +35,7 @@ from tests.server.harness import Procs, auth, create_key, serve, wait_for
 httpx = require_module("httpx")
 require_module("psycopg")
 
-from opendnc.server.auth import KEY_PREFIX  # noqa: E402
+from opendnc.server.access.auth import KEY_PREFIX  # noqa: E402
 from opendnc.sim.fleet import Fleet, server_config, start_fleet  # noqa: E402
 
 LEASE = 3.0  # seconds: as the cluster tests, so the fence and the failover fit in a test

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from sqlalchemy import inspect, text
 
-from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.config.shop import ConfigError, parse_config
 from opendnc.server.store.db import current_revision, make_engine, migrate
 from tests.server.conftest import on
 from tests.server.srvx_support import (

@@ -15,8 +15,8 @@ import sys
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 
-from opendnc.server.config import MqttConfig, MtconnectConfig
-from opendnc.server.events import (
+from opendnc.server.config.shop import MqttConfig, MtconnectConfig
+from opendnc.server.core.events import (
     Event,
     EventBus,
     JobFinished,
@@ -27,9 +27,9 @@ from opendnc.server.events import (
     ProgramChanged,
     stored_progress,
 )
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.streams import KEEP_ALIVE_COMMENT, throttled_stream
-from opendnc.server.web.timeline import Timeline
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.http.streams import KEEP_ALIVE_COMMENT, throttled_stream
+from opendnc.server.machines.timeline import Timeline
 
 ROUNDS = 200
 DEADLINE = 2.0  # seconds a cancelled loop may take to end
@@ -114,8 +114,8 @@ def test_a_throttled_stream_ends_when_cancelled_as_an_event_arrives() -> None:
 
 
 def test_the_outputs_end_when_cancelled_as_an_event_arrives() -> None:
-    from opendnc.server.mqtt import MqttPublisher
-    from opendnc.server.shdr import MtconnectOutput
+    from opendnc.server.outputs.mqtt import MqttPublisher
+    from opendnc.server.outputs.shdr import MtconnectOutput
 
     async def scenario(bus: EventBus) -> int:
         publisher = MqttPublisher(MqttConfig(host="127.0.0.1"), "dnc", ["m1"], bus)

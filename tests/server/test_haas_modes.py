@@ -8,10 +8,10 @@ from datetime import UTC, datetime
 import pytest
 
 from opendnc.haas.mdc import parse_reply
-from opendnc.server.events import MachineStatusChanged
-from opendnc.server.items import items_of
+from opendnc.server.core.events import MachineStatusChanged
+from opendnc.server.core.status import MachineStatus
 from opendnc.server.kinds.haas_ngc.connector import mdc_status
-from opendnc.server.machines.base import MachineStatus
+from opendnc.server.outputs.items import items_of
 
 Q500 = parse_reply("PROGRAM, O00123, IDLE, PARTS, 380")
 

@@ -10,8 +10,9 @@ from zoneinfo import ZoneInfo
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import inbox, jobs
+from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.haas_ngc import HaasNgcMachine
+from opendnc.server.library import inbox
 from tests.server.conftest import on
 
 BERLIN = ZoneInfo("Europe/Berlin")

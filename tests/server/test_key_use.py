@@ -12,9 +12,9 @@ from sqlalchemy import create_engine
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import auth
-from opendnc.server.errors import Unauthorized
-from opendnc.server.key_use import KeyUse
+from opendnc.server.access import auth
+from opendnc.server.access.key_use import KeyUse
+from opendnc.server.core.errors import Unauthorized
 from opendnc.server.store.db import read_only
 from opendnc.server.store.models import ApiKey, Role, utcnow
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.config.shop import ConfigError, parse_config
 from opendnc.server.kinds.base import Capabilities
+from opendnc.server.kinds.capabilities import capabilities_of
 from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.kinds.haas_serial import HaasSerialMachine
 from opendnc.server.kinds.lsv2 import Lsv2Machine

@@ -16,7 +16,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.leases import Leases, assign
+from opendnc.server.machines.leases import Leases, assign
 from tests.server.harness import Procs, serve
 
 MACHINES = {f"m{i:02d}": frozenset[str]() for i in range(20)}

@@ -19,8 +19,8 @@ from sqlalchemy import Engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import library
-from opendnc.server.errors import Conflict, NotFound
+from opendnc.server.core.errors import Conflict, NotFound
+from opendnc.server.library import versions as library
 from opendnc.server.store.db import (
     current_revision,
     head_revision,

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import library
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import Role
 from tests.server.harness import wait_for
 from tests.server.inprocess_app import App, running

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.server.limits import Limits
+from opendnc.server.http.limits import Limits
 from tests.peers import require_module
 from tests.server.harness import SERVER_LINE, Procs, auth, create_key, serve, wait_for
 

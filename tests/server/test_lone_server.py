@@ -13,14 +13,14 @@ from sqlalchemy import Engine, create_engine, text
 from sqlalchemy.engine import make_url
 
 from opendnc.server.app import build
-from opendnc.server.config import parse_config
-from opendnc.server.leases import Leases
-from opendnc.server.single_server import (
+from opendnc.server.cluster.single_server import (
     SERVER_LOCK_KEY,
     DatabaseInUse,
     ServerLock,
     refuse_beside_a_cluster,
 )
+from opendnc.server.config.shop import parse_config
+from opendnc.server.machines.leases import Leases
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from tests.server.conftest import PG_ADMIN, _pg_database
 from tests.server.inprocess_app import config_text

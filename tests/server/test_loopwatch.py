@@ -6,8 +6,8 @@ from __future__ import annotations
 import asyncio
 import time
 
-from opendnc.server.events import EventBus, JobQueued
-from opendnc.server.loopwatch import LoopWatch
+from opendnc.server.core.events import EventBus, JobQueued
+from opendnc.server.core.loopwatch import LoopWatch
 
 
 def test_a_blocking_call_on_the_loop_is_a_stall_in_which_the_thread_did_not_run() -> None:

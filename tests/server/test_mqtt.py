@@ -20,11 +20,11 @@ from typing import Any
 
 import pytest
 
-from opendnc.server.config import MqttConfig
-from opendnc.server.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
-from opendnc.server.items import SERVER_STOPPED
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.mqtt import MqttPublisher
+from opendnc.server.config.shop import MqttConfig
+from opendnc.server.core.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.outputs.items import SERVER_STOPPED
+from opendnc.server.outputs.mqtt import MqttPublisher
 from opendnc.sim.haas.machine import Mode
 from tests.peers import require_command, require_module
 from tests.server.conftest import on

@@ -18,9 +18,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.items import Reading
-from opendnc.server.shdr import (
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.outputs.items import Reading
+from opendnc.server.outputs.shdr import (
     MTCONNECT_VERSION,
     condition_lines,
     devices_xml,

@@ -12,14 +12,14 @@ from typing import Any
 import pytest
 
 from opendnc.mtconnect.device_state import Snapshot
-from opendnc.server.events import MachineStatusChanged
-from opendnc.server.items import items_of
+from opendnc.server.core.events import MachineStatusChanged
+from opendnc.server.core.state import State, classify
 from opendnc.server.kinds.mtconnect.connector import (
     EMERGENCY_STOP,
     MtconnectConnector,
     agent_status,
 )
-from opendnc.server.state import State, classify
+from opendnc.server.outputs.items import items_of
 from opendnc.sim.mtconnect.machine import ScriptedMachine
 from tests.server.harness import wait_for
 from tests.server.mtconnect_support import AgentThread, Floor, agent_thread, floor

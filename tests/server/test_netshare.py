@@ -18,15 +18,16 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.haas.share import ShareTarget
-from opendnc.server import jobs, library
 from opendnc.server.actions.base import Services
 from opendnc.server.actions.policy import share_gate
-from opendnc.server.config import ConfigError, NetShareConfig, parse_config
-from opendnc.server.events import EventBus
+from opendnc.server.config.shop import ConfigError, NetShareConfig, parse_config
+from opendnc.server.core.events import EventBus
+from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.kinds.registry import connector_for, shares_of
-from opendnc.server.machine_state import Machines
-from opendnc.server.netshare import NetShare, ScanReport, ShareGate
+from opendnc.server.library import versions as library
+from opendnc.server.machines.state import Machines
+from opendnc.server.netshare.share import NetShare, ScanReport, ShareGate
 from opendnc.server.store.models import AuditEntry, JobKind, Received
 from opendnc.sim.fleet import server_config
 from tests.interop.test_haas_share_samba import PASSWORD as SMB_PASSWORD

@@ -10,8 +10,8 @@ import pytest
 from sqlalchemy import Engine, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.notify import Listener, Notice, notify
 from opendnc.server.store.db import make_engine, make_sessions
+from opendnc.server.store.notify import Listener, Notice, notify
 from tests.server.conftest import _pg_database
 
 

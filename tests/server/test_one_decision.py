@@ -21,11 +21,12 @@ from typing import Any
 import pytest
 from sqlalchemy import select
 
-from opendnc.server import jobs, library
+from opendnc.server.access.auth import Principal
 from opendnc.server.actions import Services, policy
-from opendnc.server.auth import Principal
-from opendnc.server.errors import Conflict
-from opendnc.server.machines.base import Reception
+from opendnc.server.core.errors import Conflict
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.kinds.connector import Reception
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import (
     AuditEntry,
     Job,

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.server.auth import KEY_PREFIX
-from opendnc.server.edge import DATABASE_UNAVAILABLE
+from opendnc.server.access.auth import KEY_PREFIX
+from opendnc.server.http.edge import DATABASE_UNAVAILABLE
 from opendnc.server.store.models import Role
 from tests.server.conftest import _pg_database
 from tests.server.db_outage import Outage

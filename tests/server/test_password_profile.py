@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 SHOW = (
-    "from opendnc.server import auth; h = auth._hasher; "
+    "from opendnc.server.access import auth; h = auth._hasher; "
     "print(h.time_cost, h.memory_cost, h.parallelism)"
 )
 

@@ -21,7 +21,9 @@ from typing import Any
 
 import pytest
 
-from opendnc.server import inbox, jobs, library
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.library import inbox
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import JobKind, JobState, Role, utcnow
 from tests.server.inprocess_app import ROLES, App, running
 

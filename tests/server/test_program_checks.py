@@ -14,7 +14,8 @@ import pytest
 from sqlalchemy import func, select
 
 from opendnc.nccheck import MachineLimits
-from opendnc.server import jobs, program_checks
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.library import checks as program_checks
 from opendnc.server.store.models import AuditEntry, JobState, Role, VersionCheck
 from tests.server.inprocess_app import App, running
 
@@ -266,9 +267,9 @@ def test_a_called_program_is_found_in_the_library(app: App, tmp_path: Path) -> N
 def test_a_shop_may_have_the_checks_errors_shown_only(tmp_path: Path) -> None:
     from opendnc.errors import InputError
     from opendnc.server.actions import policy
-    from opendnc.server.config import parse_config
-    from opendnc.server.errors import Conflict
-    from opendnc.server.program_checks import Checked
+    from opendnc.server.config.shop import parse_config
+    from opendnc.server.core.errors import Conflict
+    from opendnc.server.library.checks import Checked
 
     def config(line: str) -> Any:
         return parse_config(f"[library]\npath = 'lib'\n{line}\n", base=tmp_path).library
@@ -302,7 +303,7 @@ def _kept(app: App, name: str) -> list[tuple[int, str, int]]:
 
 
 def test_versions_from_the_inbox_and_the_folder_are_checked_when_saved(app: App) -> None:
-    from opendnc.server import inbox
+    from opendnc.server.library import inbox
     from tests.server.harness import wait_for
 
     with app.server.sessions.begin() as s:

@@ -11,12 +11,16 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import actions, audit, auth, jobs, library
+from opendnc.server import actions
+from opendnc.server.access import auth
+from opendnc.server.access.auth import Principal
 from opendnc.server.actions.models import JobRequest
-from opendnc.server.auth import Principal
-from opendnc.server.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.core.errors import Conflict, NotFound, Unauthorized
+from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.kinds.lsv2 import Lsv2Machine
+from opendnc.server.library import versions as library
+from opendnc.server.store import audit
 from opendnc.server.store.models import ApiKey, JobKind, JobState, ProgramState, Role
 from tests.server.actions_support import services
 

@@ -26,10 +26,11 @@ require_module("jinja2")
 require_module("uvicorn")
 
 from opendnc.errors import ControlRefused  # noqa: E402
-from opendnc.server import auth, library  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import ConfigError, parse_config  # noqa: E402
-from opendnc.server.configkeys import get_key  # noqa: E402
+from opendnc.server.config.shop import ConfigError, parse_config  # noqa: E402
+from opendnc.server.core.configkeys import get_key  # noqa: E402
+from opendnc.server.core.status import MachineStatus, Progress  # noqa: E402
 from opendnc.server.kinds.base import (  # noqa: E402
     Capabilities,
     ConnectorHooks,
@@ -37,8 +38,9 @@ from opendnc.server.kinds.base import (  # noqa: E402
     MachineBase,
     schema_keys,
 )
+from opendnc.server.kinds.connector import NetworkOnly  # noqa: E402
 from opendnc.server.kinds.registry import KINDS, register  # noqa: E402
-from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from tests.server.harness import auth as bearer  # noqa: E402
@@ -244,7 +246,7 @@ def test_the_scan_sees_a_concrete_name(tmp_path: Path) -> None:
         "from opendnc.server.kinds.lsv2 import SPEC\n"
         "from opendnc.server.kinds import haas_ngc\n"
         "import opendnc.server.kinds.serial.connector\n"
-        "from opendnc.server.config import MachineConfig\n"
+        "from opendnc.server.config.shop import MachineConfig\n"
         "def f(m: MachineConfig) -> bool:\n"
         "    return isinstance(m, HaasNgcMachine)\n"
     )

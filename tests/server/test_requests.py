@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.requests import RequestRule, RequestSettings, find_request, report_program
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.requests import RequestRule, RequestSettings, find_request, report_program
 from opendnc.xmodem.haas import program_header
 
 DEFAULT = RequestSettings()

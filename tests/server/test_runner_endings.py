@@ -17,10 +17,11 @@ require_module("fastapi")
 
 from sqlalchemy import select  # noqa: E402
 
-from opendnc.server import jobs, library  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.jobs import queue as jobs  # noqa: E402
 from opendnc.server.kinds.haas_serial.connector import XMODEM_SILENCE_FLOOR  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import AuditEntry, JobKind, JobState  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402

@@ -14,7 +14,7 @@ from tests.peers import require_module
 
 require_module("fastapi")
 
-from opendnc.server import jobs  # noqa: E402
+from opendnc.server.jobs import queue as jobs  # noqa: E402
 from opendnc.server.store.models import JobState, utcnow  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
 from tests.server.inproc_server import PROGRAM, Shop  # noqa: E402

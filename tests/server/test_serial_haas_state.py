@@ -17,12 +17,12 @@ from pathlib import Path
 import pytest
 
 from opendnc.errors import DncError
-from opendnc.server.config import parse_config
-from opendnc.server.executors import JobCancelled
+from opendnc.server.config.shop import parse_config
+from opendnc.server.core.state import State, classify
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.jobs.executors import JobCancelled
 from opendnc.server.kinds.registry import connector_for
-from opendnc.server.machine_state import MachineState
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.state import State, classify
+from opendnc.server.machines.state import MachineState
 
 PROGRAM = (
     b"%\nO03000 (LONG)\n" + b"".join(b"G01 X%d. F30.\n" % i for i in range(4000)) + b"M30\n%\n"

@@ -23,11 +23,12 @@ from tests.peers import require_module
 httpx = require_module("httpx")
 require_module("serial")
 
-from opendnc.server import auth  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
+from opendnc.server.kinds.connector import Reception  # noqa: E402
 from opendnc.server.kinds.serial import SerialMachine  # noqa: E402
-from opendnc.server.machines.base import MachineStatus, Reception  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from opendnc.sim.fanuc.control import Mode, Selection, VirtualFanuc  # noqa: E402

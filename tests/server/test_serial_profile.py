@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from opendnc.errors import TransportTimeout
-from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.config.shop import ConfigError, parse_config
 from opendnc.transport import PortStream, open_stream
 from tests.server.conftest import on
 from tests.server.harness import (

@@ -14,14 +14,14 @@ from pathlib import Path
 import pytest
 from sqlalchemy import select
 
-from opendnc.server.config import parse_config
-from opendnc.server.events import EventBus
-from opendnc.server.machine_state import Machines, MachineState
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.notify import Listener, Notice
-from opendnc.server.shared_status import NOTICE, SharedStatus, status_from_json
+from opendnc.server.config.shop import parse_config
+from opendnc.server.core.events import EventBus
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.fleet.shared_status import NOTICE, SharedStatus, status_from_json
+from opendnc.server.machines.state import Machines, MachineState
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.store.models import MachineLease, MachineSnapshot
+from opendnc.server.store.notify import Listener, Notice
 from tests.server.conftest import _pg_database
 
 SHOP = "".join(

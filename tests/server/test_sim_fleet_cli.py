@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from opendnc.server.config import load_config
+from opendnc.server.config.shop import load_config
 from tests.server.conftest import on
 from tests.server.harness import (
     Procs,

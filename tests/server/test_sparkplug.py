@@ -25,11 +25,11 @@ from tests.peers import require_module
 require_module("pysparkplug")
 require_module("google.protobuf")
 
-from opendnc.server.config import parse_config  # noqa: E402
-from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
-from opendnc.server.machines.base import MachineStatus  # noqa: E402
-from opendnc.server.sparkplug import REBIRTH, SparkplugNode  # noqa: E402
-from opendnc.server.sparkplug_store import next_bd_seq  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.core.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
+from opendnc.server.outputs.sparkplug import REBIRTH, SparkplugNode  # noqa: E402
+from opendnc.server.outputs.sparkplug_store import next_bd_seq  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.sim.haas.machine import Mode  # noqa: E402
 from tests.server import spb_decoder as spb  # noqa: E402
@@ -312,7 +312,7 @@ def test_a_served_machine_through_sigkill_and_restart(
 def test_a_machine_moves_between_servers(tmp_path: Path, group: str) -> None:
     """A machine's lease moves: its old server stops serving it and says so, the new one
     says so and serves it, as the cluster component does (``LeaseChanged`` around
-    ``Fleet.release`` and ``Fleet.serve``, server/cluster.py)."""
+    ``Fleet.release`` and ``Fleet.serve``, server/cluster/cluster.py)."""
     from tests.server.inprocess_app import running
 
     machines: list[dict[str, object]] = [{"name": "m1", "kind": "lsv2", "host": "127.0.0.1"}]

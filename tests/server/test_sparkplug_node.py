@@ -19,17 +19,17 @@ from tests.peers import require_module
 require_module("pysparkplug")
 require_module("google.protobuf")
 
-from opendnc.server.config import ConfigError, parse_config  # noqa: E402
-from opendnc.server.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
-from opendnc.server.machines.base import MachineStatus  # noqa: E402
-from opendnc.server.sparkplug import (  # noqa: E402
+from opendnc.server.config.shop import ConfigError, parse_config  # noqa: E402
+from opendnc.server.core.events import EventBus, LeaseChanged, MachineStatusChanged  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
+from opendnc.server.outputs.sparkplug import (  # noqa: E402
     DEVICE_METRICS,
     REBIRTH,
     Outgoing,
     SparkplugNode,
     host_state,
 )
-from opendnc.server.sparkplug_store import next_bd_seq  # noqa: E402
+from opendnc.server.outputs.sparkplug_store import next_bd_seq  # noqa: E402
 from tests.server import spb_decoder as spb  # noqa: E402
 
 BASE = """

@@ -13,12 +13,12 @@ import pytest
 from sqlalchemy import Engine, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.events import EventBus, JobQueued, MachineStatusChanged
-from opendnc.server.machines.base import MachineStatus
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.events import EventBus, JobQueued, MachineStatusChanged
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.machines.timeline import Timeline, running
 from opendnc.server.store.db import current_revision, make_engine, migrate
 from opendnc.server.store.models import StatusSample
-from opendnc.server.web.timeline import Timeline, running
 
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
 
@@ -251,7 +251,7 @@ def test_a_sample_the_database_cannot_hold_does_not_stop_the_recorder(
                 assert time.monotonic() < deadline, "the recorder stopped writing"
                 await asyncio.sleep(0.05)
 
-    with caplog.at_level("WARNING", logger="opendnc.server.web.timeline"):
+    with caplog.at_level("WARNING", logger="opendnc.server.machines.timeline"):
         asyncio.run(scenario())
     with sessions() as session:
         rows = session.scalars(select(StatusSample).order_by(StatusSample.id)).all()

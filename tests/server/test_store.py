@@ -12,7 +12,9 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Connection, Engine, inspect, text
 from sqlalchemy.exc import DBAPIError, SAWarning
 
-from opendnc.server import audit, inbox, library
+from opendnc.server.library import inbox
+from opendnc.server.library import versions as library
+from opendnc.server.store import audit
 from opendnc.server.store.db import (
     MIGRATIONS,
     current_revision,

@@ -8,11 +8,11 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.shifts import parse_calendar
-from opendnc.server.state import State
+from opendnc.server.core.shifts import parse_calendar
+from opendnc.server.core.state import State
+from opendnc.server.machines.timeline import Timeline
 from opendnc.server.store.models import StatusSample
 from opendnc.server.utilization.collect import Group, report
-from opendnc.server.web.timeline import Timeline
 from tests.server.conftest import on
 
 T0 = datetime(2026, 3, 2, 8, tzinfo=UTC)  # a Monday, on the full hour

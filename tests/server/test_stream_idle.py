@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import asyncio
 
-from opendnc.server.events import Event, EventBus, ProgramChanged
-from opendnc.server.streams import KEEP_ALIVE_COMMENT, throttled_stream
+from opendnc.server.core.events import Event, EventBus, ProgramChanged
+from opendnc.server.http.streams import KEEP_ALIVE_COMMENT, throttled_stream
 
 
 class Quiet:

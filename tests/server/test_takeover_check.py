@@ -7,7 +7,7 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from opendnc.server.executors import held_at_control
+from opendnc.server.jobs.executors import held_at_control
 from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
 from opendnc.server.kinds.lsv2 import Lsv2Machine

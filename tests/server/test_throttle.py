@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from opendnc.server.errors import TooManyRequests
-from opendnc.server.throttle import FREE, Bucket, Throttle
+from opendnc.server.access.throttle import FREE, Bucket, Throttle
+from opendnc.server.core.errors import TooManyRequests
 
 USER = Bucket("user", "a")
 

@@ -18,11 +18,11 @@ from typing import Any
 import pytest
 
 from opendnc.lsv2 import Client
-from opendnc.server.autoreceive import FolderWatch, size_problem
-from opendnc.server.config import ConfigError, parse_config
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.machine_files import RemoteFile
 from opendnc.server.kinds.base import ReceiveFolder
 from opendnc.server.kinds.lsv2 import Lsv2Machine
-from opendnc.server.machine_files import RemoteFile
+from opendnc.server.machines.autoreceive import FolderWatch, size_problem
 from tests.server.conftest import on
 from tests.server.harness import (
     Procs,

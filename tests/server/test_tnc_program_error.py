@@ -14,14 +14,14 @@ import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-from opendnc.server.config import parse_config
+from opendnc.server.config.shop import parse_config
+from opendnc.server.core.shifts import parse_calendar
+from opendnc.server.core.state import State, classify
+from opendnc.server.core.status import MachineStatus
 from opendnc.server.kinds.lsv2.connector import PROGRAM_ERROR
 from opendnc.server.kinds.registry import connector_for
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.shifts import parse_calendar
-from opendnc.server.state import State, classify
+from opendnc.server.machines.timeline import Timeline
 from opendnc.server.utilization.sums import Group, Point, summarize
-from opendnc.server.web.timeline import Timeline
 from opendnc.sim.tnc.population import klartext_demo
 from opendnc.sim.tnc.server import serve_tnc
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.shifts import Calendar, parse_calendar
+from opendnc.server.core.shifts import Calendar, parse_calendar
 from opendnc.server.store.models import StatusSample, UtilizationDay, UtilizationMark
 from opendnc.server.utilization.collect import Group, MachineReport, report, sum_safely
 from opendnc.server.utilization.days import day_span, pieces_of, rolls_up

@@ -17,15 +17,15 @@ import pytest
 from sqlalchemy import Engine, func, inspect, select, text
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.config import parse_config
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.shifts import parse_calendar
-from opendnc.server.state import State
+from opendnc.server.config.shop import parse_config
+from opendnc.server.core.shifts import parse_calendar
+from opendnc.server.core.state import State
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.machines.timeline import Timeline
 from opendnc.server.store.db import current_revision, make_engine, migrate, read_only
 from opendnc.server.store.models import StatusSample, UtilizationHour, UtilizationMark
 from opendnc.server.utilization import answer, component
 from opendnc.server.utilization.collect import Figures, Group, MachineReport, report, sum_safely
-from opendnc.server.web.timeline import Timeline
 
 BERLIN = ZoneInfo("Europe/Berlin")
 CAL = parse_calendar(

@@ -10,12 +10,16 @@ import opendnc.server.utilization as package
 
 PACKAGE = Path(package.__file__).parent
 # the modules of API routes: they sit above utilization, which must not reach up to them
-ROUTE_MODULES = {"opendnc.server.api", "opendnc.server.dprnt_api", "opendnc.server.alerts_api"}
+ROUTE_MODULES = {
+    "opendnc.server.http.api",
+    "opendnc.server.http.dprnt",
+    "opendnc.server.http.alerts",
+}
 
 
 def imported(path: Path) -> set[str]:
     """Every module ``path`` imports, at the top or inside a function, as a dotted name
-    (``from opendnc.server import api`` is ``opendnc.server.api``)."""
+    (``from opendnc.server import api`` is ``opendnc.server.http.api``)."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
@@ -51,12 +55,12 @@ def test_the_rule_sees_every_form_of_import(tmp_path: Path) -> None:
     # the check itself: each way of writing the forbidden import is caught
     for line in (
         "from opendnc.server import api",
-        "from opendnc.server.api import ERRORS",
+        "from opendnc.server.http.api import ERRORS",
         "import opendnc.server.web.views",
         "def f():\n    from opendnc.server.web import render",
     ):
         source = tmp_path / "m.py"
         source.write_text(line + "\n", encoding="utf-8")
         assert any(forbidden(n) for n in imported(source)), line
-    source.write_text("from opendnc.server.api_shared import ERRORS\n", encoding="utf-8")
+    source.write_text("from opendnc.server.http.shared import ERRORS\n", encoding="utf-8")
     assert not any(forbidden(n) for n in imported(source))

@@ -9,8 +9,8 @@ from zoneinfo import ZoneInfo
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.shifts import parse_calendar
-from opendnc.server.state import State
+from opendnc.server.core.shifts import parse_calendar
+from opendnc.server.core.state import State
 from opendnc.server.store.models import StatusSample
 from opendnc.server.utilization.answer import report_json
 from opendnc.server.utilization.collect import Group, report

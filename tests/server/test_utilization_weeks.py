@@ -12,8 +12,8 @@ from zoneinfo import ZoneInfo
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.shifts import Calendar, parse_calendar
-from opendnc.server.state import State
+from opendnc.server.core.shifts import Calendar, parse_calendar
+from opendnc.server.core.state import State
 from opendnc.server.store.models import StatusSample, UtilizationWeek
 from opendnc.server.utilization.collect import Group, marks_of, report, sum_safely
 from opendnc.server.utilization.days import build_days

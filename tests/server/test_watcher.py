@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server import library
-from opendnc.server.errors import NotFound
-from opendnc.server.watcher import LibraryWatcher
+from opendnc.server.core.errors import NotFound
+from opendnc.server.library import versions as library
+from opendnc.server.library.watcher import LibraryWatcher
 
 
 def _versions(sessions: sessionmaker[Session], name: str) -> list[bytes]:

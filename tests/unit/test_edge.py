@@ -14,8 +14,8 @@ from tests.peers import require_module
 
 require_module("fastapi")
 
-from opendnc.server.edge import ECHO_LIMIT, printable, strict_json  # noqa: E402
-from opendnc.server.limits import Limits  # noqa: E402
+from opendnc.server.http.edge import ECHO_LIMIT, printable, strict_json  # noqa: E402
+from opendnc.server.http.limits import Limits  # noqa: E402
 
 anything = st.recursive(
     st.none()

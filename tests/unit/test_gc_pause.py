@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from opendnc.server.gc_pause import paused
+from opendnc.server.core.gc_pause import paused
 
 
 @pytest.fixture(autouse=True)

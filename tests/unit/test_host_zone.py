@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from opendnc.server.host_zone import host_zone_name
+from opendnc.server.core.host_zone import host_zone_name
 
 
 def _database(tmp_path: Path, name: str) -> Path:

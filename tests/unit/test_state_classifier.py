@@ -6,8 +6,8 @@ from datetime import UTC, datetime
 
 import pytest
 
-from opendnc.server.machines.base import MachineStatus
-from opendnc.server.state import State, classify, classify_words
+from opendnc.server.core.state import State, classify, classify_words
+from opendnc.server.core.status import MachineStatus
 
 NOW = datetime(2026, 11, 27, tzinfo=UTC)
 

@@ -12,9 +12,9 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
-from opendnc.server.config import ConfigError, parse_config
-from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
-from opendnc.server.state import State, from_stored
+from opendnc.server.config.shop import ConfigError, parse_config
+from opendnc.server.core.shifts import Calendar, CalendarError, parse_calendar
+from opendnc.server.core.state import State, from_stored
 from opendnc.server.utilization.collect import Group, Point, summarize
 
 BERLIN = ZoneInfo("Europe/Berlin")

@@ -18,9 +18,10 @@ require_module("uvicorn")
 
 from benchmarks.preview_programs import klartext_part, milling_program  # noqa: E402
 
-from opendnc.server import auth, library  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from tests.server.serving import serving  # noqa: E402
 from tests.web.browser import PASSWORDS  # noqa: E402

@@ -12,12 +12,12 @@ from tests.peers import require_module
 
 require_module("jinja2")
 
-from opendnc.server.config import parse_config  # noqa: E402
-from opendnc.server.items import items_of  # noqa: E402
-from opendnc.server.machine_state import MachineState  # noqa: E402
-from opendnc.server.machines.base import MachineStatus  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
+from opendnc.server.machines.state import MachineState  # noqa: E402
+from opendnc.server.machines.timeline import Timeline  # noqa: E402
+from opendnc.server.outputs.items import items_of  # noqa: E402
 from opendnc.server.web import render  # noqa: E402
-from opendnc.server.web.timeline import Timeline  # noqa: E402
 
 AT = datetime(2026, 3, 2, 7, 0, tzinfo=UTC)
 

@@ -25,9 +25,9 @@ from tests.peers import require_module
 
 httpx = require_module("httpx")
 
-from opendnc.server import auth  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web.render import human_size  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402

@@ -22,7 +22,8 @@ require_module("pygments")
 require_module("playwright.sync_api")
 
 from opendnc.lsv2.constants import ExecutionMode  # noqa: E402
-from opendnc.server import auth, library  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402

@@ -12,7 +12,7 @@ from tests.peers import require_module
 
 require_module("jinja2")
 
-from opendnc.server.events import Event  # noqa: E402
+from opendnc.server.core.events import Event  # noqa: E402
 from opendnc.server.web.heartbeat import HEARTBEAT, Heartbeat, heartbeat_event  # noqa: E402
 
 BERLIN = ZoneInfo("Europe/Berlin")

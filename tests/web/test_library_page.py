@@ -16,7 +16,7 @@ from tests.peers import require_module
 
 require_module("playwright.sync_api")
 
-from opendnc.server import library  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from tests.web.browser import ARTIFACTS, chromium, watched_context, watched_page  # noqa: E402
 from tests.web.inprocess import Served, serve_one_tnc  # noqa: E402

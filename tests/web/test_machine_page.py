@@ -27,7 +27,8 @@ require_module("jinja2")
 require_module("pygments")
 require_module("playwright.sync_api")
 
-from opendnc.server import auth, library  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.db import make_engine, make_sessions, migrate  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402

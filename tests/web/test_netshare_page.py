@@ -31,9 +31,10 @@ from tests.peers import require_module
 require_module("jinja2")
 require_module("playwright.sync_api")
 
-from opendnc.server import auth, library  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402

@@ -18,7 +18,7 @@ from tests.peers import require_module
 
 httpx = require_module("httpx")
 
-from opendnc.server import auth  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.actions import Services  # noqa: E402
 from opendnc.server.store.models import ApiKey, Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
@@ -134,7 +134,8 @@ def test_the_file_browser_lists_the_control(client: tuple[Http, Any]) -> None:
 
 
 def test_an_interrupted_drip_feed_restarts_from_a_line(client: tuple[Http, Any]) -> None:
-    from opendnc.server import jobs, library
+    from opendnc.server.jobs import queue as jobs
+    from opendnc.server.library import versions as library
     from opendnc.server.store.models import Job, JobKind, JobState
 
     http, server = client

@@ -10,8 +10,8 @@ from tests.peers import require_module
 
 require_module("jinja2")
 
-from opendnc.server.machines.base import MachineStatus  # noqa: E402
-from opendnc.server.web.timeline import Timeline  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
+from opendnc.server.machines.timeline import Timeline  # noqa: E402
 from tests.server.test_status_timeline import note as _note  # noqa: E402
 
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
@@ -65,7 +65,7 @@ def test_states(status: MachineStatus | None, online: bool, state: str) -> None:
 
 def test_samples_written_before_the_classifier_read_as_its_states() -> None:
     # Stored history said "active" for running and "none" for no record: both still read.
-    from opendnc.server.state import State, from_stored
+    from opendnc.server.core.state import State, from_stored
 
     stored = [
         ("active", "ACTIVE"),

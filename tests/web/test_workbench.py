@@ -20,7 +20,7 @@ from tests.peers import require_module
 
 require_module("playwright.sync_api")
 
-from opendnc.server import library  # noqa: E402
+from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import AuditEntry, Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from tests.server.inprocess_app import App, running  # noqa: E402

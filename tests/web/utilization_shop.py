@@ -21,9 +21,9 @@ from tests.peers import require_module
 require_module("jinja2")
 uvicorn = require_module("uvicorn")
 
-from opendnc.server import auth  # noqa: E402
+from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
-from opendnc.server.config import parse_config  # noqa: E402
+from opendnc.server.config.shop import parse_config  # noqa: E402
 from opendnc.server.store.models import Role, StatusSample  # noqa: E402
 from tests.server.serving import serving  # noqa: E402
 

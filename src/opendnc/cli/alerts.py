@@ -29,9 +29,9 @@ def send_test(
         require_server_extra()
         import asyncio
 
-        from opendnc.server.alerts import Alerts
-        from opendnc.server.config import load_config
-        from opendnc.server.events import EventBus
+        from opendnc.server.alerts.component import Alerts
+        from opendnc.server.config.shop import load_config
+        from opendnc.server.core.events import EventBus
 
         shop = load_config(config)
         if shop.alerts is None:

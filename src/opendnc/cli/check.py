@@ -57,7 +57,7 @@ def check(
     if machine or config:
         if not (machine and config):
             raise typer.BadParameter("--machine and --config go together", param_hint="'--machine'")
-        from opendnc.server.config import load_config
+        from opendnc.server.config.shop import load_config
 
         try:
             limits = limits_for(load_config(config).machine(machine))

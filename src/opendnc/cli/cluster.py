@@ -22,8 +22,8 @@ def status(
     """Servers, their heartbeats and the machines each one serves."""
     with cli_errors():
         require_server_extra()
-        from opendnc.server.config import load_config
-        from opendnc.server.leases import cluster_view
+        from opendnc.server.config.shop import load_config
+        from opendnc.server.machines.leases import cluster_view
         from opendnc.server.store.db import make_engine, make_sessions, migrate
 
         shop = load_config(config)

@@ -130,7 +130,7 @@ def demo(
         return
     with cli_errors():
         require_server_extra()
-        from opendnc.server.host_zone import host_zone_name
+        from opendnc.server.core.host_zone import host_zone_name
 
         zone = timezone or host_zone_name()
         host, port = bind_option(bind)
@@ -148,7 +148,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     import uvicorn
 
     from opendnc.server.app import build
-    from opendnc.server.config import parse_config
+    from opendnc.server.config.shop import parse_config
     from opendnc.sim.fleet import start_fleet
 
     port = listener.getsockname()[1]  # the real one when --bind said :0
@@ -228,7 +228,8 @@ def _write_shop(folder: Path, nas: Path, fleet: Fleet, bind: str, zone: str) -> 
 def _seed(server: Server, password: str, viewer_password: str) -> str:
     """The demo's users (admin and viewer, with these passwords) and example programs; a new
     admin API key."""
-    from opendnc.server import auth, library
+    from opendnc.server.access import auth
+    from opendnc.server.library import versions as library
     from opendnc.server.store.models import Role
 
     with server.sessions.begin() as session:
@@ -323,9 +324,10 @@ def _empty(items: Sized) -> bool:
 
 async def _send_everywhere(server: Server, fleet: Fleet, deadline: float) -> None:
     """Send each machine a released program of its own family and wait until all are sent."""
-    from opendnc.server import actions, jobs
+    from opendnc.server import actions
+    from opendnc.server.access.auth import Principal
     from opendnc.server.actions.models import JobRequest
-    from opendnc.server.auth import Principal
+    from opendnc.server.jobs import queue as jobs
     from opendnc.server.store.models import Job, JobKind, JobState, Role
 
     # each machine a released program of its own family (the library's program check

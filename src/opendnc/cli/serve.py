@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
     from opendnc.server.app import Server
-    from opendnc.server.config import ShopConfig
+    from opendnc.server.config.shop import ShopConfig
 
 keys_app = typer.Typer(help="API keys of the DNC server.", no_args_is_help=True)
 users_app = typer.Typer(help="People who log in to the DNC server.", no_args_is_help=True)
@@ -73,7 +73,7 @@ def serve(
     with cli_errors():
         require_server_extra()
         from opendnc.server.app import build
-        from opendnc.server.config import load_config
+        from opendnc.server.config.shop import load_config
 
         shop = load_config(config)
         if name is not None:
@@ -86,7 +86,7 @@ def serve(
         listener = listen_socket(host, port)
         plan = StopPlan(stop_timeout)
         plan.listen()
-        from opendnc.server.single_server import SingleServerLock
+        from opendnc.server.cluster.single_server import SingleServerLock
 
         guard = SingleServerLock(db or shop.server.database)
         try:
@@ -111,7 +111,7 @@ def _named(shop: ShopConfig, name: str) -> ShopConfig:
     """``shop`` with the server called ``name`` (several servers share one file)."""
     from dataclasses import replace
 
-    from opendnc.server.configkeys import NAME
+    from opendnc.server.core.configkeys import NAME
 
     if not NAME.fullmatch(name):
         raise InputError(f"--name {name!r}: use letters, digits, '-', '_' or '.' (at most 64)")
@@ -284,7 +284,7 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
         # where the others' `cluster status` says this server answers
         where = f"[{host}]" if ":" in host else host
         server.cluster.leases.url = f"http://{where}:{port}/"
-    from opendnc.server.limits import Limits, raise_file_limit, uvicorn_protocol
+    from opendnc.server.http.limits import Limits, raise_file_limit, uvicorn_protocol
 
     raise_file_limit()  # connections are limited by the server (limits.py), not by running out
     settings = uvicorn.Config(
@@ -329,8 +329,8 @@ def keys_create(
     """Create an API key and print it (it is shown only this once)."""
     with cli_errors():
         require_server_extra()
-        from opendnc.server import auth
-        from opendnc.server.config import load_config
+        from opendnc.server.access import auth
+        from opendnc.server.config.shop import load_config
         from opendnc.server.store.db import make_engine, make_sessions, migrate
         from opendnc.server.store.models import Role
 
@@ -367,7 +367,7 @@ def _read_password(stdin: bool) -> str:
 
 @contextlib.contextmanager
 def _session(config: Path, db: str | None) -> Iterator[Session]:
-    from opendnc.server.config import load_config
+    from opendnc.server.config.shop import load_config
     from opendnc.server.store.db import make_engine, make_sessions, migrate
 
     shop = load_config(config)
@@ -393,7 +393,7 @@ def users_create(
     """Create a user who logs in to the dashboard (asks for the password twice)."""
     with cli_errors():
         require_server_extra()
-        from opendnc.server import auth
+        from opendnc.server.access import auth
         from opendnc.server.store.models import Role
 
         parsed = Role.parse(role)
@@ -415,7 +415,7 @@ def users_password(
     """Set a user's password."""
     with cli_errors():
         require_server_extra()
-        from opendnc.server import auth
+        from opendnc.server.access import auth
 
         password = _read_password(password_stdin)
         with _session(config, db) as session:
@@ -438,9 +438,9 @@ def requests_test(
     import sys
 
     with cli_errors():
-        from opendnc.server import library
-        from opendnc.server.config import load_config
-        from opendnc.server.requests import match_request
+        from opendnc.server.config.shop import load_config
+        from opendnc.server.core.requests import match_request
+        from opendnc.server.library import versions as library
 
         shop = load_config(config)
         text = sys.stdin.read() if program == "-" else program.replace("\\n", "\n")

@@ -1,7 +1,7 @@
 """Build the server: the database, its components and the API in one FastAPI app.
 
 ``build()`` only assembles: it registers every part of the server as a component of one
-:class:`~opendnc.server.components.Core` (docs/server.md#shape-components-and-kinds); the app's
+:class:`~opendnc.server.core.components.Core` (docs/server.md#shape-components-and-kinds); the app's
 one lifespan starts them in dependency order and stops them in reverse within a deadline, so a
 test can build the whole server around virtual controls and run it under uvicorn or an
 in-process client alike.
@@ -19,41 +19,44 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc import __version__
-from opendnc.server import actions, alerts_api, api, dprnt_api, edge, web
-from opendnc.server.alerts import Alerts
-from opendnc.server.autoreceive import AutoReceive
-from opendnc.server.clients import Clients, SendTimeout
-from opendnc.server.cluster import Cluster
-from opendnc.server.components import STOP_DEADLINE, Core
-from opendnc.server.config import ConfigError, MachineConfig, ShopConfig
-from opendnc.server.deps import Database
-from opendnc.server.dprnt_capture import DprntCapture
-from opendnc.server.events import EventBus, ProgramChanged
-from opendnc.server.executors import default_executors
-from opendnc.server.fleet import ConnectorFactory, Fleet
-from opendnc.server.key_use import KeyUse
+from opendnc.server import actions, web
+from opendnc.server.access.key_use import KeyUse
+from opendnc.server.access.refusals import Refusals
+from opendnc.server.alerts.component import Alerts
+from opendnc.server.cluster.cluster import Cluster
+from opendnc.server.cluster.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
+from opendnc.server.config.shop import ConfigError, MachineConfig, ShopConfig
+from opendnc.server.core.components import STOP_DEADLINE, Core
+from opendnc.server.core.events import EventBus, ProgramChanged
+from opendnc.server.core.loopwatch import LoopWatch
+from opendnc.server.fleet.remote_request import RemoteRequests
+from opendnc.server.fleet.shared_status import SharedStatus
+from opendnc.server.fleet.tasks import ConnectorFactory, Fleet
+from opendnc.server.http import alerts as alerts_api
+from opendnc.server.http import api, edge
+from opendnc.server.http import dprnt as dprnt_api
+from opendnc.server.http import utilization as utilization_routes
+from opendnc.server.http.clients import Clients, SendTimeout
+from opendnc.server.http.deps import Database
+from opendnc.server.http.limits import LimitsMiddleware
+from opendnc.server.jobs.executors import default_executors
+from opendnc.server.jobs.runner import JobRunner
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.registry import connector_for, shares_of
-from opendnc.server.leases import LIBRARY, Leases, held_elsewhere
-from opendnc.server.limits import LimitsMiddleware
-from opendnc.server.loopwatch import LoopWatch
-from opendnc.server.machine_state import Machines
-from opendnc.server.machines import Connector
-from opendnc.server.mqtt import MqttPublisher
-from opendnc.server.netshare import NetShare, local_now
-from opendnc.server.parts import Outputs, TimelineRecorder
-from opendnc.server.refusals import Refusals
-from opendnc.server.remote_request import RemoteRequests
-from opendnc.server.runner import JobRunner
-from opendnc.server.shared_status import SharedStatus
-from opendnc.server.shdr import MtconnectOutput
-from opendnc.server.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
-from opendnc.server.sparkplug import SparkplugNode
-from opendnc.server.sparkplug_store import next_bd_seq
+from opendnc.server.library.watcher import LibraryWatcher
+from opendnc.server.machines.autoreceive import AutoReceive
+from opendnc.server.machines.dprnt_capture import DprntCapture
+from opendnc.server.machines.leases import LIBRARY, Leases, held_elsewhere
+from opendnc.server.machines.state import Machines
+from opendnc.server.machines.timeline import Timeline
+from opendnc.server.netshare.share import NetShare, local_now
+from opendnc.server.outputs.mqtt import MqttPublisher
+from opendnc.server.outputs.parts import Outputs, TimelineRecorder
+from opendnc.server.outputs.shdr import MtconnectOutput
+from opendnc.server.outputs.sparkplug import SparkplugNode
+from opendnc.server.outputs.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.utilization import component as utilization_component
-from opendnc.server.utilization import routes as utilization_routes
-from opendnc.server.watcher import LibraryWatcher
-from opendnc.server.web.timeline import Timeline
 
 __all__ = ["ConnectorFactory", "Server", "build"]
 
@@ -322,7 +325,7 @@ def _web_app(core: Core, clients: Clients, stop_deadline: float) -> FastAPI:
     app.add_middleware(LimitsMiddleware)  # request bodies: size and deadline while they stream
     # responses: a client that stops reading is cut (outermost: it finds the connection)
     app.add_middleware(SendTimeout, limits=lambda: clients.limits)
-    app.state.core = core  # the one thing on app.state: routes get parts via server/deps.py
+    app.state.core = core  # the one thing on app.state: routes get parts via server/http/deps.py
     api.install(app)
     app.include_router(dprnt_api.router)
     app.include_router(alerts_api.router)

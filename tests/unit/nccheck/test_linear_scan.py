@@ -13,7 +13,7 @@ import time
 import pytest
 
 from opendnc.nccheck import Budget, Control, check_text, guess_control
-from opendnc.server.program_title import HEAD, title_of
+from opendnc.server.library.titles import HEAD, title_of
 
 BOUND_S = 1.0
 

@@ -2,12 +2,12 @@
 
 Each action is a function that takes the :class:`~opendnc.server.actions.base.Services`
 (database sessions, the machines' runner), the caller (a
-:class:`~opendnc.server.auth.Principal`: name and role, from an API key or a web session
+:class:`~opendnc.server.access.auth.Principal`: name and role, from an API key or a web session
 alike) and typed arguments; it returns a typed result (:mod:`.models`) or raises a typed
 error under :class:`~opendnc.errors.DncError` (``Forbidden`` 403, ``NotFound`` 404,
 ``Conflict`` 409, ``InputError`` 400, ``Unavailable`` 503). The roles, a machine's
 ``released_only`` policy, the drip-feed opt-in and the draft rules are decided here and
-nowhere else (:mod:`.policy`); the JSON API (:mod:`opendnc.server.api`) and the dashboard's
+nowhere else (:mod:`.policy`); the JSON API (:mod:`opendnc.server.http.api`) and the dashboard's
 pages (:mod:`opendnc.server.web.views`) only parse a request, call an action and render its
 result, so both give the same answer to the same request.
 

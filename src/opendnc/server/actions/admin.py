@@ -11,10 +11,11 @@ from fastapi.responses import Response
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import audit, auth
+from opendnc.server.access import auth
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import AuditOut, ClusterOut, KeyOut, RevokedOut
-from opendnc.server.leases import view_in
+from opendnc.server.machines.leases import view_in
+from opendnc.server.store import audit
 from opendnc.server.store.models import Role
 
 __all__ = ["AUDIT_COLUMNS", "audit_csv_response", "create_key", "list_audit", "revoke_key"]

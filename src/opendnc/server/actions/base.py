@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.auth import KeyCache, Principal
-from opendnc.server.config import ShopConfig
-from opendnc.server.errors import Forbidden, NotFound
-from opendnc.server.events import EventBus, InboxChanged, ProgramChanged, publish_job_queued
-from opendnc.server.machine_state import MachineState
+from opendnc.server.access.auth import KeyCache, Principal
+from opendnc.server.access.throttle import Throttle
+from opendnc.server.config.shop import ShopConfig
+from opendnc.server.core.errors import Forbidden, NotFound
+from opendnc.server.core.events import EventBus, InboxChanged, ProgramChanged, publish_job_queued
+from opendnc.server.machines.state import MachineState
 from opendnc.server.store.models import Role
-from opendnc.server.throttle import Throttle
 
 if TYPE_CHECKING:
     from opendnc.server.actions.models import JobOut

@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 
 from opendnc.nccheck import MachineLimits, limits_for
-from opendnc.server import library, program_checks
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import CheckOut, ProblemOut
-from opendnc.server.program_checks import Checked
+from opendnc.server.library import checks as program_checks
+from opendnc.server.library import versions as library
+from opendnc.server.library.checks import Checked
 from opendnc.server.store.models import ProgramVersion, Role
 
 __all__ = ["Target", "check_out", "ensure", "limits_of", "machine_checks", "version_check"]

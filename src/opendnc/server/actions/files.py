@@ -1,7 +1,7 @@
 """Files on a control, from the dashboard's file browser (or the API).
 
 Reading (a listing, a download) is an errand on the machine's own connector, run by its
-task between jobs (:class:`opendnc.server.machine_files.Errands`): no second link to the
+task between jobs (:class:`opendnc.server.core.machine_files.Errands`): no second link to the
 control. Changing a file is a job like every other, under the same rules: a file from a
 person's computer enters the library as a draft first and is then put on the control by a
 ``put_file`` job, which the machine's policy may refuse (``released_only`` takes no draft);
@@ -16,21 +16,18 @@ import hashlib
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from opendnc.server import jobs, library
 from opendnc.server.actions import policy, queue
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest, RemoteFileOut
 from opendnc.server.actions.policy import may_queue, may_take_back
-from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import MachineConfig
-from opendnc.server.errors import Conflict, Unavailable
+from opendnc.server.config.shop import MachineConfig
+from opendnc.server.core.errors import Conflict, Unavailable
+from opendnc.server.core.machine_files import browser_of, check_path, file_name
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.kinds.capabilities import capabilities_of
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.registry import program_folder_of
-from opendnc.server.machine_files import (
-    browser_of,
-    check_path,
-    file_name,
-)
-from opendnc.server.machines.base import Connector
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import JobKind, Program, Role
 
 __all__ = ["delete_file", "list_folder", "put_file", "read_file", "receive_file", "take_back"]

@@ -6,7 +6,6 @@ from collections.abc import Sequence
 
 from sqlalchemy.orm import Session
 
-from opendnc.server import inbox, library
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
@@ -16,6 +15,8 @@ from opendnc.server.actions.models import (
     Stored,
     VersionOut,
 )
+from opendnc.server.library import inbox
+from opendnc.server.library import versions as library
 from opendnc.server.store.models import ReceivedState, Role
 
 __all__ = [

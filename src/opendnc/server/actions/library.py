@@ -10,7 +10,6 @@ from typing import TypeVar
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import library
 from opendnc.server.actions import checks, policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
@@ -23,7 +22,8 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
-from opendnc.server.program_title import HEAD, title_of
+from opendnc.server.library import versions as library
+from opendnc.server.library.titles import HEAD, title_of
 from opendnc.server.store.models import Role
 
 __all__ = [
@@ -48,7 +48,7 @@ def list_programs(
     svc: Services, who: Caller, search: str = "", text: str = ""
 ) -> list[ProgramListed]:
     """Programs whose name or title holds ``search`` (any case), and whose newest version's
-    text holds ``text`` (any case; at most :data:`~opendnc.server.library.MAX_TEXT_HITS`),
+    text holds ``text`` (any case; at most :data:`~opendnc.server.library.versions.MAX_TEXT_HITS`),
     by name: each with its newest and its released version and its title."""
     require(who, Role.VIEWER)
     search, text = search.strip(), text.strip()

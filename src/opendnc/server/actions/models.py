@@ -10,8 +10,8 @@ from typing import Annotated, Literal, Self
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field, JsonValue, PlainSerializer, field_validator
 
-from opendnc.server.leases import ClusterView
-from opendnc.server.library import History, Listed, VersionRow
+from opendnc.server.library.versions import History, Listed, VersionRow
+from opendnc.server.machines.leases import ClusterView
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -432,7 +432,7 @@ class Content:
 @dataclass(frozen=True)
 class Stored:
     """Bytes kept in the database, not read yet: a download streams them in pieces
-    (:mod:`opendnc.server.downloads`)."""
+    (:mod:`opendnc.server.http.downloads`)."""
 
     name: str
     sha256: str
@@ -490,7 +490,7 @@ class ClusterOut(BaseModel):
 
     @classmethod
     def of(cls, view: ClusterView) -> ClusterOut:
-        """The model of a :class:`~opendnc.server.leases.ClusterView`."""
+        """The model of a :class:`~opendnc.server.machines.leases.ClusterView`."""
         return cls(
             now=view.now,
             servers=[

@@ -10,7 +10,6 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from opendnc.errors import DncError
-from opendnc.server import audit
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import (
     AuditOut,
@@ -19,11 +18,12 @@ from opendnc.server.actions.models import (
     ShareFolderOut,
     ShareMatch,
 )
-from opendnc.server.config import NetShareConfig
+from opendnc.server.config.shop import NetShareConfig
+from opendnc.server.core.folders import open_folder
 from opendnc.server.kinds.registry import shares_of, spec_of
-from opendnc.server.netshare import ACTOR
-from opendnc.server.netshare_files import FolderListing, list_folder, nas_folder, share_label
-from opendnc.server.share_folders import open_folder
+from opendnc.server.netshare.files import FolderListing, list_folder, nas_folder, share_label
+from opendnc.server.netshare.share import ACTOR
+from opendnc.server.store import audit
 from opendnc.server.store.models import Program, ProgramState, ProgramVersion, Role
 
 __all__ = ["ACTIVITY", "net_share"]

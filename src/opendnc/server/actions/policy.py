@@ -28,14 +28,16 @@ from sqlalchemy.orm import Session, contains_eager
 
 from opendnc.errors import DncError, InputError
 from opendnc.nccheck import MachineLimits, limits_for
-from opendnc.server import audit, jobs, library
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.capabilities import capabilities_of
-from opendnc.server.config import MachineConfig
-from opendnc.server.errors import Conflict
+from opendnc.server.config.shop import MachineConfig
+from opendnc.server.core.errors import Conflict
+from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.base import SharedMachine
-from opendnc.server.program_checks import Checked
+from opendnc.server.kinds.capabilities import capabilities_of
+from opendnc.server.library import versions as library
+from opendnc.server.library.checks import Checked
+from opendnc.server.store import audit
 from opendnc.server.store.models import JobKind, Program, ProgramState, ProgramVersion, Role
 
 __all__ = [
@@ -210,9 +212,9 @@ class Wanted:
 def resolve(session: Session, wanted: Wanted) -> ProgramVersion | None:
     """The one version rule: the version ``wanted`` means (its program loaded with it).
 
-    By number or by "the released one", :func:`opendnc.server.jobs.version_to_send`: an
-    unknown program or number is :class:`~opendnc.server.errors.NotFound` (404), no released
-    version :class:`~opendnc.server.jobs.NotReleased` (409). By content: None where the
+    By number or by "the released one", :func:`opendnc.server.jobs.queue.version_to_send`: an
+    unknown program or number is :class:`~opendnc.server.core.errors.NotFound` (404), no released
+    version :class:`~opendnc.server.jobs.queue.NotReleased` (409). By content: None where the
     library holds no such version (a file it never saw, an edit not stored)."""
     if wanted.sha256 is None:
         return jobs.version_to_send(session, wanted.program, wanted.number)
@@ -560,11 +562,11 @@ def record_override(
     )
 
 
-SHARE_ACTOR = "netshare"  # the audit's name of the net share (opendnc.server.netshare.ACTOR)
+SHARE_ACTOR = "netshare"  # the audit's name of the net share (opendnc.server.netshare.share.ACTOR)
 
 
 def share_gate(svc: Services) -> Callable[[SharedMachine, str, bytes], str | None]:
-    """The net share's gate (:class:`opendnc.server.netshare.NetShare`): whether a NAS file
+    """The net share's gate (:class:`opendnc.server.netshare.share.NetShare`): whether a NAS file
     may be copied into a machine's share, decided by :func:`authorize` like a send, for the
     library version the file is (same name and content; the released one where several
     are). None: it may; else why not. A file the library never saw, or an edit not stored

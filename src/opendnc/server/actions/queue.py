@@ -1,6 +1,6 @@
 """Queue actions: queue jobs (send, drip-feed, receive, delete, backup, put a file), list
 them, cancel, move and retry. A cancel or a move only changes rows: the machine's runner
-reads them at its safe points (:func:`opendnc.server.jobs.cancel_requested`)."""
+reads them at its safe points (:func:`opendnc.server.jobs.queue.cancel_requested`)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ from dataclasses import dataclass
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server import audit, jobs
 from opendnc.server.actions import policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import JobOut, JobRequest
-from opendnc.server.errors import Conflict
-from opendnc.server.machine_files import check_path
+from opendnc.server.core.errors import Conflict
+from opendnc.server.core.machine_files import check_path
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.store import audit
 from opendnc.server.store.models import JobKind, JobState, ProgramVersion, Role
 
 __all__ = [
@@ -68,7 +69,7 @@ def queue_each(svc: Services, who: Caller, order: JobRequest) -> Queued:
     """Queue one job on each machine that takes it, and name each one that refuses it with
     its reason (its machine's rule, the program check), audited as ``job.refused``: a send
     to four machines of which two fail the check goes to the other two. Refused on every
-    machine: :class:`~opendnc.server.errors.Conflict` (409) naming each and why, the
+    machine: :class:`~opendnc.server.core.errors.Conflict` (409) naming each and why, the
     refusals audited all the same. What concerns the request itself (the role, the
     program, the version) refuses it whole, as before."""
     return _create(svc, who, order, each=True)

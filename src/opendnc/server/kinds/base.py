@@ -18,11 +18,12 @@ from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from opendnc.nccheck.limits import Envelope
-from opendnc.server.configkeys import ConfigError, get_key, known_keys
+from opendnc.server.core.configkeys import ConfigError, get_key, known_keys
 
 if TYPE_CHECKING:
     from opendnc.haas.listen import CapturedLine
-    from opendnc.server.machines.base import Connector, MachineStatus
+    from opendnc.server.core.status import MachineStatus
+    from opendnc.server.kinds.connector import Connector
 
 __all__ = [
     "COMMON_KEYS",

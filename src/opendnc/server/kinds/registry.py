@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
-from opendnc.server.configkeys import NAME, ConfigError, get_key, known_keys
+from opendnc.server.core.configkeys import NAME, ConfigError, get_key, known_keys
 from opendnc.server.kinds.base import (
     COMMON_KEYS,
     Capabilities,
@@ -32,7 +32,7 @@ from opendnc.server.kinds.mtconnect import spec as mtconnect
 from opendnc.server.kinds.serial import spec as serial
 
 if TYPE_CHECKING:
-    from opendnc.server.machines.base import Connector
+    from opendnc.server.kinds.connector import Connector
 
 __all__ = [
     "KINDS",

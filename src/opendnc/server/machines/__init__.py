@@ -1,13 +1,7 @@
-"""One connector per control kind behind one small interface (:class:`Connector`).
+"""What the server knows of each machine: its live state and errands (:mod:`.state`), its
+stored status timeline (:mod:`.timeline`), its lease when several servers share one database
+(:mod:`.leases`, fencing included), auto-receive from a control's folder
+(:mod:`.autoreceive`) and DPRNT capture (:mod:`.dprnt_capture`).
 
-A connector knows its protocol and nothing of the database; the machine tasks
-(:mod:`opendnc.server.fleet`) own the loop, the runner (:mod:`opendnc.server.runner`) the queue.
-Which connector a machine gets is its kind package's business (:mod:`opendnc.server.kinds`,
-:func:`opendnc.server.kinds.registry.connector_for`).
+It may import core, store, kinds, config and library.
 """
-
-from __future__ import annotations
-
-from opendnc.server.machines.base import Connector, MachineStatus, Progress, Reception
-
-__all__ = ["Connector", "MachineStatus", "Progress", "Reception"]

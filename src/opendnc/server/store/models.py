@@ -557,7 +557,7 @@ class MachineSnapshot(Base):
     The server that holds a machine's lease writes its status here (what ``/api/machines``
     shows for it) several times a second; every other server reads the rows it does not
     serve, so the dashboard, the API, the event streams and MTConnect are the same on every
-    server (:mod:`opendnc.server.shared_status`). ``data`` is rewritten only when something
+    server (:mod:`opendnc.server.fleet.shared_status`). ``data`` is rewritten only when something
     but the status's time changed (``changed``); each poll moves ``polled``, the time of the
     status the row stands for. ``updated`` and ``changed`` are the database's clock (the
     writing transaction's start): a reader asks for rows newer than the last it saw.

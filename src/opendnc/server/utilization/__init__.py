@@ -3,7 +3,7 @@ per shift, day or week of the shop's calendar, read from the stored status timel
 (docs/dashboard.md#utilization).
 
 What it promises: every figure comes from the stored samples through the one reader of stored
-state words (:func:`opendnc.server.state.from_stored`), so utilization and the status
+state words (:func:`opendnc.server.core.state.from_stored`), so utilization and the status
 timeline never disagree about the same sample; finished hours and days are summed once and a
 question is answered from those sums (the same figures as reading every sample).
 
@@ -17,10 +17,10 @@ Its modules, lowest first:
 * :mod:`.routes`: ``GET /api/utilization``.
 
 What it may import: the database store (:mod:`opendnc.server.store`), the state classifier
-(:mod:`opendnc.server.state`), the shop's configuration and calendar
-(:mod:`opendnc.server.config`, :mod:`opendnc.server.shifts`), the components core, and for
-:mod:`.routes` only the pieces every API route shares (:mod:`opendnc.server.api_shared`).
-Never ``web/`` and never another module of API routes (``server/api.py``): the pages import
+(:mod:`opendnc.server.core.state`), the shop's configuration and calendar
+(:mod:`opendnc.server.config.shop`, :mod:`opendnc.server.core.shifts`), the components core, and for
+:mod:`.routes` only the pieces every API route shares (:mod:`opendnc.server.http.shared`).
+Never ``web/`` and never another module of API routes (``server/http/api.py``): the pages import
 this package, not the other way round. ``tests/server/test_utilization_layers.py`` holds it
 to that.
 """

@@ -21,10 +21,10 @@ from pydantic_core import to_json
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server.config import ShopConfig
-from opendnc.server.errors import NotFound
-from opendnc.server.gc_pause import paused
-from opendnc.server.shifts import DAYS, Calendar
+from opendnc.server.config.shop import ShopConfig
+from opendnc.server.core.errors import NotFound
+from opendnc.server.core.gc_pause import paused
+from opendnc.server.core.shifts import DAYS, Calendar
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.collect import (
     STATES,

@@ -1,8 +1,8 @@
 """Utilization from the stored status timeline: time per state, parts, runs, stops and alarms,
-per machine and per shift, day or week of the shop's calendar (:mod:`opendnc.server.shifts`).
+per machine and per shift, day or week of the shop's calendar (:mod:`opendnc.server.core.shifts`).
 
 The samples are ``status_samples`` (one row per change of a machine's state, program, part
-counter or alarm; server/web/timeline.py); the arithmetic and the definitions are
+counter or alarm; server/machines/timeline.py); the arithmetic and the definitions are
 :mod:`opendnc.server.utilization.sums` (docs/dashboard.md#utilization).
 
 A year of 200 machines is too many samples to read for every question (about 20 million at a
@@ -45,9 +45,9 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
-from opendnc.server.gc_pause import paused
-from opendnc.server.shifts import Calendar, Period
-from opendnc.server.state import State
+from opendnc.server.core.gc_pause import paused
+from opendnc.server.core.shifts import Calendar, Period
+from opendnc.server.core.state import State
 from opendnc.server.store.models import (
     StatusSample,
     UtcDateTime,

@@ -10,8 +10,8 @@ from datetime import UTC, datetime
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.components import RunsTask
-from opendnc.server.shifts import Calendar
+from opendnc.server.core.components import RunsTask
+from opendnc.server.core.shifts import Calendar
 from opendnc.server.utilization.collect import marks_of, roll
 from opendnc.server.utilization.days import build_days
 

@@ -53,8 +53,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session
 
-from opendnc.server.shifts import Calendar
-from opendnc.server.state import State
+from opendnc.server.core.shifts import Calendar
+from opendnc.server.core.state import State
 from opendnc.server.store.models import (
     UtcDateTime,
     UtilizationDay,

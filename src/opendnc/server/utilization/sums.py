@@ -4,7 +4,7 @@ time (seconds per state, shift time, parts, runs and cycles), its stops and its 
 No database here: :mod:`opendnc.server.utilization.collect` reads the samples and the summed
 hours and hands the points to :func:`sweep`; :func:`summarize` does the whole of it for one
 machine's points (the tests' reference). States come from the one classifier
-(:mod:`opendnc.server.state`). Definitions (docs/dashboard.md#utilization):
+(:mod:`opendnc.server.core.state`). Definitions (docs/dashboard.md#utilization):
 
 * **time in each state**: a sample's state lasts until the machine's next sample; before a
   machine's first sample, and from a server stop to the next start, it is ``no_record``;
@@ -36,8 +36,8 @@ from datetime import UTC, datetime, timedelta
 from enum import StrEnum
 from typing import Any, NamedTuple
 
-from opendnc.server.shifts import Calendar, Period
-from opendnc.server.state import State, from_stored
+from opendnc.server.core.shifts import Calendar, Period
+from opendnc.server.core.state import State, from_stored
 
 __all__ = [
     "HOUR",

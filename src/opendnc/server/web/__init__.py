@@ -16,7 +16,7 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
-from opendnc.server import api, edge
+from opendnc.server.http import api, edge
 from opendnc.server.web import preview_views, render, utilization_views, views
 
 __all__ = ["install"]

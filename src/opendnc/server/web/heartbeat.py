@@ -18,8 +18,8 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime, tzinfo
 
-from opendnc.server.events import Event
-from opendnc.server.streams import StreamSource
+from opendnc.server.core.events import Event
+from opendnc.server.http.streams import StreamSource
 from opendnc.server.web.render import sse_event, zone_label
 
 __all__ = ["HEARTBEAT", "Heartbeat", "heartbeat_event"]

@@ -21,9 +21,9 @@ from pygments import highlight
 from pygments.formatters import HtmlFormatter
 from pygments.lexers import GcodeLexer
 
-from opendnc.server.events import percent
+from opendnc.server.core.events import percent
+from opendnc.server.core.state import State
 from opendnc.server.kinds.registry import label_of
-from opendnc.server.state import State
 
 __all__ = [
     "Card",

@@ -3,11 +3,11 @@
 Logging in creates a key for the user, labelled as a web session, and puts it in a cookie
 the page's scripts cannot read (``HttpOnly``) and the browser never sends from another site
 (``SameSite=Strict``). Such a key is valid only as this cookie, never as an API key
-(:func:`opendnc.server.auth.check_key`), so it cannot outlive the session. Logging out revokes
-it; a session older than :data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as
+(:func:`opendnc.server.access.auth.check_key`), so it cannot outlive the session. Logging out
+revokes it; a session older than :data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as
 keys means one look-up, one revocation path and one audit trail, with no new table. A login
-is audited as ``login`` (refused ones summed per minute, :mod:`opendnc.server.refusals`) and
-slowed after repeated failures (:class:`opendnc.server.throttle.Throttle`), never for a
+is audited as ``login`` (refused ones summed per minute, :mod:`opendnc.server.access.refusals`) and
+slowed after repeated failures (:class:`opendnc.server.access.throttle.Throttle`), never for a
 browser that logged in as that user before, because of someone else's failures.
 
 Writes from a page also carry a CSRF token: a hash of the session key that only a page served
@@ -28,13 +28,13 @@ from fastapi import Request, Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
-from opendnc.server import auth
-from opendnc.server.auth import SESSION_LABEL
-from opendnc.server.errors import Forbidden, TooManyRequests, Unauthorized
-from opendnc.server.key_use import KeyUse
-from opendnc.server.refusals import Refusals
+from opendnc.server.access import auth
+from opendnc.server.access.auth import SESSION_LABEL
+from opendnc.server.access.key_use import KeyUse
+from opendnc.server.access.refusals import Refusals
+from opendnc.server.access.throttle import DEVICE_COOKIE, DEVICE_DAYS, Bucket, Throttle
+from opendnc.server.core.errors import Forbidden, TooManyRequests, Unauthorized
 from opendnc.server.store.models import ApiKey, utcnow
-from opendnc.server.throttle import DEVICE_COOKIE, DEVICE_DAYS, Bucket, Throttle
 
 __all__ = [
     "COOKIE",
@@ -78,7 +78,7 @@ def log_in(
     device: str | None = None,
 ) -> auth.Principal:
     """Check the password and set the session cookie on ``response`` (audited as ``login``;
-    :class:`~opendnc.server.errors.TooManyRequests` after repeated failures).
+    :class:`~opendnc.server.core.errors.TooManyRequests` after repeated failures).
 
     ``device`` is the browser's device cookie: one that names this user limits the throttle
     to the browser's own failures (docs/server.md#throttling); a successful login sets it."""

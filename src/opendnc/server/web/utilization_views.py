@@ -20,10 +20,10 @@ from fastapi.responses import HTMLResponse, Response
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import deps
-from opendnc.server.config import ShopConfig
-from opendnc.server.shifts import Calendar, Period
-from opendnc.server.state import State
+from opendnc.server.config.shop import ShopConfig
+from opendnc.server.core.shifts import Calendar, Period
+from opendnc.server.core.state import State
+from opendnc.server.http import deps
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.answer import pick_machines, report_response
 from opendnc.server.utilization.collect import (

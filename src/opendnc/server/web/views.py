@@ -26,12 +26,13 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.errors import InputError
-from opendnc.server import actions, auth, deps, dprnt_api, jobs
+from opendnc.server import actions
+from opendnc.server.access import auth
+from opendnc.server.access.refusals import Refusals
+from opendnc.server.access.throttle import DEVICE_COOKIE
 from opendnc.server.actions.models import MAX_ID, AuditOut, Content, JobOut, JobRequest
-from opendnc.server.capabilities import capabilities_of
-from opendnc.server.components import core_of
-from opendnc.server.downloads import stored_response
-from opendnc.server.errors import (
+from opendnc.server.core.components import core_of
+from opendnc.server.core.errors import (
     Conflict,
     Forbidden,
     NotFound,
@@ -40,7 +41,7 @@ from opendnc.server.errors import (
     Unauthorized,
     Unavailable,
 )
-from opendnc.server.events import (
+from opendnc.server.core.events import (
     DprntLinePrinted,
     DprntStatus,
     Event,
@@ -53,9 +54,15 @@ from opendnc.server.events import (
     ProgramChanged,
     ProgramReceived,
 )
-from opendnc.server.library import MAX_PROGRAM_BYTES
-from opendnc.server.machine_state import Machines
-from opendnc.server.refusals import Refusals
+from opendnc.server.http import deps
+from opendnc.server.http import dprnt as dprnt_api
+from opendnc.server.http.downloads import stored_response
+from opendnc.server.http.streams import event_stream_response
+from opendnc.server.jobs import queue as jobs
+from opendnc.server.kinds.capabilities import capabilities_of
+from opendnc.server.library.versions import MAX_PROGRAM_BYTES
+from opendnc.server.machines.state import Machines
+from opendnc.server.machines.timeline import Timeline
 from opendnc.server.store.models import (
     Job,
     JobKind,
@@ -66,12 +73,9 @@ from opendnc.server.store.models import (
     ReceivedState,
     Role,
 )
-from opendnc.server.streams import event_stream_response
-from opendnc.server.throttle import DEVICE_COOKIE
 from opendnc.server.web import listing, render
 from opendnc.server.web import session as web_session
 from opendnc.server.web.heartbeat import HEARTBEAT, Heartbeat, heartbeat_event
-from opendnc.server.web.timeline import Timeline
 
 __all__ = ["LoginNeeded", "Page", "router"]
 

@@ -18,9 +18,10 @@ from opendnc.errors import DncError, InputError, TransportError
 from opendnc.haas import share
 from opendnc.haas.mdc import Busy, Count, Mode, ProgramStatus, Reply
 from opendnc.haas.mdc_client import AsyncMdcClient
+from opendnc.server.core.folders import open_folder  # the scan's own folder code
+from opendnc.server.core.status import MachineStatus, Progress
+from opendnc.server.kinds.connector import NetworkOnly
 from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
-from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
-from opendnc.server.share_folders import open_folder  # the scan's own folder code
 from opendnc.server.store.models import utcnow
 
 __all__ = ["HaasNgcConnector", "controller_mode", "mdc_status"]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from opendnc.server.configkeys import ConfigError, get_key, port_range
+from opendnc.server.core.configkeys import ConfigError, get_key, port_range
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
@@ -14,9 +14,9 @@ from opendnc.server.kinds.base import (
     KindSpec,
     schema_keys,
 )
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
 from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
-from opendnc.server.machines.base import Connector
 
 __all__ = ["SPEC", "STATUS_FIELDS", "HaasNgcMachine", "tcp_dprnt"]
 

@@ -21,7 +21,7 @@ port listens for a text punch between the start and end triggers instead of aski
 docs/server.md#serial-profile.
 
 With ``dprnt = "serial"`` the lines the control prints on the same port are picked off while
-the connector listens or asks (:mod:`opendnc.server.machines.dprnt_tap`) and handed to
+the connector listens or asks (:mod:`opendnc.server.kinds.dprnt_tap`) and handed to
 :attr:`HaasSerialConnector.on_dprnt`.
 """
 
@@ -39,18 +39,12 @@ from opendnc.haas.dnc import DncConfig, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
+from opendnc.server.core.status import DripProgress, MachineStatus, Progress
 from opendnc.server.kinds.base import SerialProfile
+from opendnc.server.kinds.connector import JobCancelled, Reception, StreamWrapper
+from opendnc.server.kinds.dprnt_tap import DprntTap, TapStream
 from opendnc.server.kinds.haas_ngc.connector import mdc_status
 from opendnc.server.kinds.haas_serial.schema import HaasSerialMachine
-from opendnc.server.machines.base import (
-    DripProgress,
-    JobCancelled,
-    MachineStatus,
-    Progress,
-    Reception,
-    StreamWrapper,
-)
-from opendnc.server.machines.dprnt_tap import DprntTap, TapStream
 from opendnc.server.store.models import utcnow
 from opendnc.transport import ByteStream, PortStream, open_stream
 from opendnc.xmodem.driver import receive as xmodem_receive

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from opendnc.server.configkeys import ConfigError, get_key, table_at
+from opendnc.server.core.configkeys import ConfigError, get_key, table_at
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
@@ -15,10 +15,10 @@ from opendnc.server.kinds.base import (
     parse_profile,
     schema_keys,
 )
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.haas_ngc.spec import tcp_dprnt
 from opendnc.server.kinds.haas_serial.connector import HaasSerialConnector
 from opendnc.server.kinds.haas_serial.schema import HaasSerialMachine
-from opendnc.server.machines.base import Connector
 
 __all__ = ["MDC_STATUS_FIELDS", "SPEC", "HaasSerialMachine"]
 

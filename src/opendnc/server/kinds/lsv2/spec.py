@@ -6,7 +6,8 @@ from __future__ import annotations
 from typing import Any
 
 from opendnc.errors import InputError
-from opendnc.server.configkeys import ConfigError, get_key, port_range, table_at
+from opendnc.server.core.configkeys import ConfigError, get_key, port_range, table_at
+from opendnc.server.core.machine_files import check_path
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
@@ -15,10 +16,9 @@ from opendnc.server.kinds.base import (
     parse_profile,
     schema_keys,
 )
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.lsv2.connector import Lsv2Connector
 from opendnc.server.kinds.lsv2.schema import LSV2_SERIAL, Lsv2Machine
-from opendnc.server.machine_files import check_path
-from opendnc.server.machines.base import Connector
 
 __all__ = ["LSV2_SERIAL", "SPEC", "STATUS_FIELDS", "Lsv2Machine"]
 

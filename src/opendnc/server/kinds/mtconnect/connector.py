@@ -5,7 +5,7 @@ its own; a status poll takes the latest values it holds, so a poll costs no requ
 agent says maps one to one where our model already speaks MTConnect (execution, controller
 mode, program, line, part count); an E-stop pressed and every active Fault condition become
 the status's errors, with the condition's text, so the one classifier
-(:func:`opendnc.server.state.classify`) files the machine as in alarm
+(:func:`opendnc.server.core.state.classify`) files the machine as in alarm
 (docs/mtconnect-input.md#mapping).
 """
 
@@ -18,8 +18,9 @@ from pathlib import Path
 from opendnc.errors import DncError, InputError, TransportError
 from opendnc.mtconnect.device_state import Snapshot
 from opendnc.mtconnect.reader import AgentReader
+from opendnc.server.core.status import MachineStatus, Progress
+from opendnc.server.kinds.connector import NetworkOnly
 from opendnc.server.kinds.mtconnect.schema import MtconnectMachine
-from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["EMERGENCY_STOP", "MtconnectConnector", "agent_status"]

@@ -28,8 +28,9 @@ from opendnc.errors import (
     TransportError,
     TransportTimeout,
 )
+from opendnc.server.core.status import DripProgress, MachineStatus, Progress
+from opendnc.server.kinds.connector import Reception
 from opendnc.server.kinds.serial.schema import SerialMachine
-from opendnc.server.machines.base import DripProgress, MachineStatus, Progress, Reception
 from opendnc.server.store.models import utcnow
 from opendnc.tape.codes import DC1, DC2, DC3, DC4
 from opendnc.tape.serial_io import open_tape_port, receive_record, send_program, verify_punch

@@ -14,15 +14,15 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.nccheck.limits import Envelope
-from opendnc.server.configkeys import ConfigError, get_key
+from opendnc.server.core.configkeys import ConfigError, get_key
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
     KindSpec,
 )
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.serial.connector import TapeConnector
 from opendnc.server.kinds.serial.schema import SerialMachine
-from opendnc.server.machines.base import Connector
 from opendnc.tape.codes import Code, Eob
 from opendnc.tape.profiles import PROFILES, Profile, get_profile
 

@@ -1,0 +1,182 @@
+"""Which alerts the machines' states and the jobs' ends raise: one per episode
+(docs/server.md#alerts).
+
+An episode of a rule on a machine starts when its condition starts (the machine is seen in
+alarm, stopped or offline) and ends when a reading says otherwise. It raises one alert once
+the condition has lasted the rule's ``minutes``, and, if the rule asks, one more when it ends;
+nothing in between, however many status polls repeat the condition. A stop that ends before
+its minutes raise nothing. A failed job is an episode of its own.
+
+For the alarm and stopped rules a machine that is offline, or whose control does not say what
+it does (``unknown``), neither starts nor ends an episode: a link that drops during a long stop
+is not the stop's end, and would otherwise send the stop's message again when the link is back.
+
+The engine is plain synchronous code with the time passed in (``now``), so a test drives it
+through hours of a shop in a moment; :mod:`opendnc.server.alerts.component` feeds it from the event
+bus.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from dataclasses import dataclass
+from datetime import datetime
+
+from opendnc.server.config.alerts import AlertKind, AlertRule
+from opendnc.server.core.events import JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.state import State
+
+__all__ = ["Alert", "AlertEngine", "Phase"]
+
+# Job outcomes a supervisor hears about: a cancel is someone's decision, a retry not an end.
+FAILED_OUTCOMES = frozenset({"failed", "interrupted"})
+_STATE_OF = {AlertKind.ALARM: State.ALARM, AlertKind.STOPPED: State.STOPPED}
+_UNDECIDED = frozenset({State.OFFLINE, State.UNKNOWN, State.NO_RECORD})
+
+
+class Phase(enum.StrEnum):
+    """Whether an alert says a condition began or ended."""
+
+    FIRED = "fired"
+    CLEARED = "cleared"
+
+
+@dataclass(frozen=True)
+class Alert:
+    """One alert to send: which rule, which machine, what happened and since when (UTC)."""
+
+    rule: AlertRule
+    phase: Phase
+    machine: str
+    since: datetime  # when the condition began (the job's end for a failed job)
+    at: datetime  # when the alert was raised
+    detail: str = ""  # the alarm's text, the job's error, the link's last error
+    job_id: int | None = None
+    program: str | None = None
+
+    @property
+    def kind(self) -> AlertKind:
+        """What the rule watches for."""
+        return self.rule.kind
+
+
+@dataclass
+class _Episode:
+    since: datetime
+    detail: str
+    fired: bool = False
+
+
+class AlertEngine:
+    """The open episodes of every rule on every machine; returns the alerts to send."""
+
+    def __init__(self, rules: tuple[AlertRule, ...], *, remember_jobs: int = 1000) -> None:
+        self.rules = rules
+        self._episodes: dict[tuple[str, str], _Episode] = {}
+        # a job's end can be published twice (a hand-back after an outage): one alert a job
+        self._jobs: deque[int] = deque(maxlen=remember_jobs)
+        self._elsewhere: set[str] = set()  # machines whose lease this server lost
+
+    def lease(self, event: LeaseChanged) -> None:
+        """This server gained or lost a machine (several servers): a lost one's episodes go
+        (its new server alerts for it), and the offline reading its task's end leaves is not
+        an outage."""
+        if event.held:
+            self._elsewhere.discard(event.machine)
+        else:
+            self._elsewhere.add(event.machine)
+            self._forget(event.machine)
+
+    def _forget(self, machine: str) -> None:
+        for key in [k for k in self._episodes if k[1] == machine]:
+            del self._episodes[key]
+
+    def open_episodes(self) -> dict[tuple[str, str], datetime]:
+        """(rule, machine) of every open episode, and since when."""
+        return {key: episode.since for key, episode in self._episodes.items()}
+
+    def status(self, event: MachineStatusChanged, now: datetime) -> list[Alert]:
+        """A machine's reading: episodes start, fire or end."""
+        machine = event.machine
+        if not event.served or machine in self._elsewhere:
+            # another server of the cluster serves it now: its alerts are that server's
+            self._forget(machine)
+            return []
+        state = event.state
+        out: list[Alert] = []
+        for rule in self.rules:
+            if rule.kind is AlertKind.JOB_FAILED or not rule.applies_to(machine):
+                continue
+            key = (rule.name, machine)
+            if rule.kind is AlertKind.OFFLINE:
+                holds = state is State.OFFLINE
+            elif state in _UNDECIDED:
+                continue
+            else:
+                holds = state is _STATE_OF[rule.kind]
+            episode = self._episodes.get(key)
+            if holds and episode is None:
+                episode = self._episodes[key] = _Episode(now, _detail(rule.kind, event))
+            elif holds and episode is not None and not episode.fired:
+                episode.detail = _detail(rule.kind, event) or episode.detail
+            elif not holds and episode is not None:
+                del self._episodes[key]
+                if episode.fired and rule.on_clear:
+                    out.append(Alert(rule, Phase.CLEARED, machine, episode.since, now))
+                continue
+            if episode is not None:
+                out.extend(self._due(rule, machine, episode, now))
+        return out
+
+    def job(self, event: JobFinished, now: datetime) -> list[Alert]:
+        """A job's end: a failed one raises its alert, once."""
+        if event.outcome not in FAILED_OUTCOMES or event.job_id in self._jobs:
+            return []
+        self._jobs.append(event.job_id)
+        return [
+            Alert(
+                rule,
+                Phase.FIRED,
+                event.machine,
+                now,
+                now,
+                event.error or event.outcome,
+                event.job_id,
+                event.program,
+            )
+            for rule in self.rules
+            if rule.kind is AlertKind.JOB_FAILED and rule.applies_to(event.machine)
+        ]
+
+    def tick(self, now: datetime) -> list[Alert]:
+        """The episodes whose minutes are up by ``now`` (called every few seconds)."""
+        rules = {rule.name: rule for rule in self.rules}
+        out: list[Alert] = []
+        for (name, machine), episode in self._episodes.items():
+            out.extend(self._due(rules[name], machine, episode, now))
+        return out
+
+    @staticmethod
+    def _due(rule: AlertRule, machine: str, episode: _Episode, now: datetime) -> list[Alert]:
+        if episode.fired or (now - episode.since).total_seconds() < rule.minutes * 60:
+            return []
+        episode.fired = True
+        return [Alert(rule, Phase.FIRED, machine, episode.since, now, episode.detail)]
+
+
+def _detail(kind: AlertKind, event: MachineStatusChanged) -> str:
+    """What the control said about the condition, in one line."""
+    status = event.status
+    if kind is AlertKind.OFFLINE:
+        return event.last_error
+    if status is None:
+        return ""
+    if kind is AlertKind.ALARM:
+        return "; ".join(status.errors)
+    parts = [status.execution]
+    if status.program:
+        parts.append(f"program {status.program}")
+    if status.line:
+        parts.append(f"line {status.line}")
+    return ", ".join(parts)

@@ -1,0 +1,183 @@
+"""Answers for requests that fail before or outside the routes' own error mapping.
+
+* A request the routes cannot validate is 422 with FastAPI's list of errors, but every input
+  echoed back is made printable first: bytes that are not UTF-8 (a binary body sent to a JSON
+  route) crashed the default encoder, a non-finite number (``1e400`` reads as infinity) is not
+  JSON, and a 60,000-character query does not need to come back whole.
+* Non-finite numbers in a JSON body are refused (422) before any model sees them: the API's
+  numbers are counts, ids and versions, never infinities.
+* A database that cannot be reached is 503 with one line saying so (a page: an HTML page),
+  logged once per outage (:mod:`opendnc.server.store.health`), not a traceback per request.
+* Anything else unexpected is logged with its traceback and answered 500 with a one-line body.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
+from sqlalchemy.exc import DataError, DBAPIError, InterfaceError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
+
+from opendnc.server.http import deps
+from opendnc.server.http.sessions import SessionRoute
+from opendnc.server.store.health import is_database_down
+
+try:
+    from psycopg.errors import NumericValueOutOfRange as NumericOutOfRange
+except ImportError:  # pragma: no cover - SQLite only: there it is an OverflowError
+
+    class NumericOutOfRange(Exception):  # type: ignore[no-redef]
+        """Stands in for psycopg's error where psycopg is not installed."""
+
+
+__all__ = ["ECHO_LIMIT", "ApiRoute", "StrictJsonRequest", "install", "printable", "strict_json"]
+
+log = logging.getLogger("opendnc.server")
+
+ECHO_LIMIT = 200  # characters of a refused input shown back
+
+
+def printable(value: Any, depth: int = 0) -> Any:
+    """``value`` made safe for a JSON error body (bytes decoded, floats finite, cut short)."""
+    if depth > 8:
+        return "..."
+    if isinstance(value, bytes):
+        value = value[: ECHO_LIMIT * 4].decode("utf-8", "replace")
+    if isinstance(value, str):
+        return value if len(value) <= ECHO_LIMIT else value[:ECHO_LIMIT] + "..."
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, bool | int | float) or value is None:
+        return value
+    if isinstance(value, dict):
+        items = list(value.items())[:50]
+        return {str(printable(k, depth + 1)): printable(v, depth + 1) for k, v in items}
+    if isinstance(value, list | tuple | set | frozenset):
+        return [printable(v, depth + 1) for v in list(value)[:50]]
+    return printable(str(value), depth + 1)
+
+
+async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    errors = [printable(dict(error)) for error in exc.errors()]
+    return JSONResponse({"detail": errors}, status_code=422)
+
+
+async def _out_of_range(_request: Request, exc: Exception) -> JSONResponse:
+    # A number the database cannot store (an id of 2**63 on SQLite, 2**31 in a PostgreSQL
+    # integer column) that reached a query: the client's input, so 422, not 500. Routes
+    # bound their numbers themselves; this is the net under them.
+    return JSONResponse({"detail": "a number in the request is out of range"}, status_code=422)
+
+
+async def _data_error(request: Request, exc: DataError) -> JSONResponse:
+    if isinstance(exc.orig, NumericOutOfRange):
+        return await _out_of_range(request, exc)
+    return await _unexpected(request, exc)
+
+
+DATABASE_RETRY_AFTER = "5"  # seconds a client is asked to wait before it tries again
+
+ErrorPage = Callable[[Request, str, int], Response]
+"""How the pages answer an error: (request, message, status) to a response."""
+ERROR_PAGE = "error_page"
+"""The ``app.state`` attribute the pages put their :data:`ErrorPage` in when they are
+installed (the API sits under the pages and does not import them)."""
+
+
+async def _database_away(request: Request, exc: Exception) -> Response:
+    """503 for a database that cannot be reached; anything else from the driver is a bug."""
+    if not is_database_down(exc):
+        return await _unexpected(request, exc)
+    deps.database(request).health.failed(exc)  # logs the first of an outage only
+    return database_unavailable(request)
+
+
+# What anyone is told, with or without a key: the driver's own words name the database's host,
+# address and user, so they go to the server log only (once per outage, db_health.py).
+DATABASE_UNAVAILABLE = "the database is unavailable now: the server log has the details"
+
+
+def database_unavailable(request: Request) -> Response:
+    """The answer to a request that needs the database while it is away: JSON under
+    ``/api/``, else the pages' own error answer (:data:`ERROR_PAGE`: an alert for htmx, an
+    HTML page). It never says why (see :data:`DATABASE_UNAVAILABLE`)."""
+    message = DATABASE_UNAVAILABLE
+    page: ErrorPage | None = getattr(request.app.state, ERROR_PAGE, None)
+    if request.url.path.startswith("/api/") or page is None:
+        response: Response = JSONResponse({"detail": message}, status_code=503)
+    else:
+        response = page(request, message, 503)
+    response.headers["Retry-After"] = DATABASE_RETRY_AFTER
+    return response
+
+
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
+    return JSONResponse(
+        {"detail": f"internal error ({type(exc).__name__}); the server log has the details"},
+        status_code=500,
+    )
+
+
+class _NotFinite(ValueError):
+    pass
+
+
+def _refuse_constant(name: str) -> float:
+    raise _NotFinite(f"{name} is not a number this API takes")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _NotFinite(f"{text[:40]} is out of range")
+    return value
+
+
+def strict_json(data: bytes | str) -> Any:
+    """``json.loads`` that refuses ``NaN``, ``Infinity`` and numbers that overflow to them
+    (:class:`json.JSONDecodeError`, which FastAPI answers with 422)."""
+    try:
+        return json.loads(data, parse_constant=_refuse_constant, parse_float=_finite_float)
+    except _NotFinite as exc:
+        doc = data if isinstance(data, str) else data.decode("utf-8", "replace")
+        raise json.JSONDecodeError(str(exc), doc[:ECHO_LIMIT], 0) from None
+
+
+class StrictJsonRequest(Request):
+    """A request whose JSON body may hold only finite numbers."""
+
+    async def json(self) -> Any:
+        """The body as JSON (see :func:`strict_json`)."""
+        if not hasattr(self, "_json"):
+            self._json = strict_json(await self.body())
+        return self._json
+
+
+class ApiRoute(SessionRoute):
+    """The JSON API's routes: request sessions (:class:`SessionRoute`) and strict JSON."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def strict(request: Request) -> Response:
+            return await handler(StrictJsonRequest(request.scope, request.receive))
+
+        return strict
+
+
+def install(app: FastAPI) -> None:
+    """Add the validation and catch-all error answers to ``app``."""
+    app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
+    app.add_exception_handler(OverflowError, _out_of_range)
+    app.add_exception_handler(DataError, _data_error)  # type: ignore[arg-type]
+    for away in (OperationalError, InterfaceError, PoolTimeout, DBAPIError):
+        app.add_exception_handler(away, _database_away)
+    app.add_exception_handler(Exception, _unexpected)
