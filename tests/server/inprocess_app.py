@@ -28,7 +28,7 @@ from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config.shop import MachineConfig, parse_config  # noqa: E402
-from opendnc.server.core.machine_files import RemoteFile  # noqa: E402
+from opendnc.server.kinds.files import RemoteFile  # noqa: E402
 from opendnc.server.core.status import (  # noqa: E402
     DripProgress,
     MachineStatus,

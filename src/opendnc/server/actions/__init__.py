@@ -16,6 +16,9 @@ Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs
 (receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
 :mod:`.preview` (a version's dry run and toolpath), :mod:`.netshare` (the hybrid net share's
 folders and files).
+
+It may import every package under it (core to access); the routes (``http/``), the pages
+(``web/``) and the machine tasks (``fleet/``) stand above it and call it.
 """
 
 from __future__ import annotations

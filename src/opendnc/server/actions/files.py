@@ -1,7 +1,7 @@
 """Files on a control, from the dashboard's file browser (or the API).
 
 Reading (a listing, a download) is an errand on the machine's own connector, run by its
-task between jobs (:class:`opendnc.server.core.machine_files.Errands`): no second link to the
+task between jobs (:class:`opendnc.server.kinds.files.Errands`): no second link to the
 control. Changing a file is a job like every other, under the same rules: a file from a
 person's computer enters the library as a draft first and is then put on the control by a
 ``put_file`` job, which the machine's policy may refuse (``released_only`` takes no draft);
@@ -22,7 +22,7 @@ from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest
 from opendnc.server.actions.policy import may_queue, may_take_back
 from opendnc.server.config.shop import MachineConfig
 from opendnc.server.core.errors import Conflict, Unavailable
-from opendnc.server.core.machine_files import browser_of, check_path, file_name
+from opendnc.server.kinds.files import browser_of, check_path, file_name
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.capabilities import capabilities_of
 from opendnc.server.kinds.connector import Connector

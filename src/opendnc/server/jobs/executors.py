@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
 from opendnc.server.core.events import stored_progress
-from opendnc.server.core.machine_files import browser_of, check_path
+from opendnc.server.kinds.files import browser_of, check_path
 from opendnc.server.jobs.queue import TAKEN_OVER_FROM
 from opendnc.server.kinds.connector import Connector, JobCancelled
 from opendnc.server.library import inbox

@@ -15,7 +15,7 @@ from opendnc.server.core.status import DripProgress, MachineStatus, Progress
 from opendnc.transport.base import ByteStream
 
 if TYPE_CHECKING:
-    from opendnc.server.core.machine_files import RemoteFile
+    from opendnc.server.kinds.files import RemoteFile
     from opendnc.server.kinds.base import MachineBase
 
 __all__ = [

@@ -14,13 +14,10 @@ Its modules, lowest first:
 * :mod:`.collect`: reads the samples and summed hours from the database; :func:`.collect.report`.
 * :mod:`.answer`: parameters parsed, the report as JSON or CSV (the API's and the page's).
 * :mod:`.component`: the ``utilization`` component summing finished hours while the server runs.
-* :mod:`.routes`: ``GET /api/utilization``.
+Its route, ``GET /api/utilization``, is :mod:`opendnc.server.http.utilization`.
 
-What it may import: the database store (:mod:`opendnc.server.store`), the state classifier
-(:mod:`opendnc.server.core.state`), the shop's configuration and calendar
-(:mod:`opendnc.server.config.shop`, :mod:`opendnc.server.core.shifts`), the components core, and for
-:mod:`.routes` only the pieces every API route shares (:mod:`opendnc.server.http.shared`).
-Never ``web/`` and never another module of API routes (``server/http/api.py``): the pages import
-this package, not the other way round. ``tests/server/test_utilization_layers.py`` holds it
-to that.
+What it may import: the core (the state classifier, the shop's calendar, components), the
+database store and the shop's configuration (core, store, kinds, config), never the routes
+(``http/``) or the pages (``web/``), which import it. ``tests/server/test_layers.py`` holds
+it to that.
 """

@@ -4,6 +4,9 @@ Server-rendered Jinja templates with htmx and its server-sent-events extension, 
 and shipped in ``static/`` (see ``static/VERSIONS``): no build step, nothing fetched from the
 internet. People log in with a password and get a session cookie (:mod:`.session`); the pages
 call the same actions (:mod:`opendnc.server.actions`) as the JSON API under ``/api``.
+
+It is the top layer under ``app.py``: it may import every package of the server; none
+imports it.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.server.core.configkeys import ConfigError, get_key, port_range, table_at
-from opendnc.server.core.machine_files import check_path
+from opendnc.server.kinds.files import check_path
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
