@@ -28,13 +28,13 @@ from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import Server, build  # noqa: E402
 from opendnc.server.config.shop import MachineConfig, parse_config  # noqa: E402
-from opendnc.server.kinds.files import RemoteFile  # noqa: E402
 from opendnc.server.core.status import (  # noqa: E402
     DripProgress,
     MachineStatus,
     Progress,
 )
 from opendnc.server.kinds.connector import Reception  # noqa: E402
+from opendnc.server.kinds.files import RemoteFile  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.server.web import session as web_session  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402

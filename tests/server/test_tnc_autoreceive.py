@@ -19,8 +19,8 @@ import pytest
 
 from opendnc.lsv2 import Client
 from opendnc.server.config.shop import ConfigError, parse_config
-from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.kinds.base import ReceiveFolder
+from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.machines.autoreceive import FolderWatch, size_problem
 from tests.server.conftest import on

@@ -22,10 +22,10 @@ from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest
 from opendnc.server.actions.policy import may_queue, may_take_back
 from opendnc.server.config.shop import MachineConfig
 from opendnc.server.core.errors import Conflict, Unavailable
-from opendnc.server.kinds.files import browser_of, check_path, file_name
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.capabilities import capabilities_of
 from opendnc.server.kinds.connector import Connector
+from opendnc.server.kinds.files import browser_of, check_path, file_name
 from opendnc.server.kinds.registry import program_folder_of
 from opendnc.server.library import versions as library
 from opendnc.server.store.models import JobKind, Program, Role

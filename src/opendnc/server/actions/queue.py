@@ -14,8 +14,8 @@ from opendnc.server.actions import policy
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.actions.models import JobOut, JobRequest
 from opendnc.server.core.errors import Conflict
-from opendnc.server.kinds.files import check_path
 from opendnc.server.jobs import queue as jobs
+from opendnc.server.kinds.files import check_path
 from opendnc.server.store import audit
 from opendnc.server.store.models import JobKind, JobState, ProgramVersion, Role
 

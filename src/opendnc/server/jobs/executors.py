@@ -21,9 +21,9 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
 from opendnc.server.core.events import stored_progress
-from opendnc.server.kinds.files import browser_of, check_path
 from opendnc.server.jobs.queue import TAKEN_OVER_FROM
 from opendnc.server.kinds.connector import Connector, JobCancelled
+from opendnc.server.kinds.files import browser_of, check_path
 from opendnc.server.library import inbox
 from opendnc.server.machines.state import MachineState
 from opendnc.server.store.models import JobKind

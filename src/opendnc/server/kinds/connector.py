@@ -15,8 +15,8 @@ from opendnc.server.core.status import DripProgress, MachineStatus, Progress
 from opendnc.transport.base import ByteStream
 
 if TYPE_CHECKING:
-    from opendnc.server.kinds.files import RemoteFile
     from opendnc.server.kinds.base import MachineBase
+    from opendnc.server.kinds.files import RemoteFile
 
 __all__ = [
     "Connector",

@@ -33,9 +33,9 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.errors import ControlRefused
 from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.events import ProgramReceived
-from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.kinds.base import ReceiveFolder
 from opendnc.server.kinds.connector import Connector, FolderSource
+from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.kinds.registry import receive_folder_of
 from opendnc.server.library import inbox
 from opendnc.server.store import audit

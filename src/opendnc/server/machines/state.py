@@ -15,9 +15,9 @@ from typing import Any
 
 from opendnc.server.config.shop import MachineConfig, ShopConfig
 from opendnc.server.core.events import EventBus, MachineStatusChanged, on_loop
-from opendnc.server.kinds.files import Errands
 from opendnc.server.core.state import State, classify
 from opendnc.server.core.status import MachineStatus
+from opendnc.server.kinds.files import Errands
 
 __all__ = ["MachineState", "Machines"]
 

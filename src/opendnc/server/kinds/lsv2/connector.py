@@ -14,9 +14,9 @@ from opendnc.lsv2.backup import backup as lsv2_backup
 from opendnc.lsv2.constants import ExecutionMode, ProgramState
 from opendnc.lsv2.localfiles import is_binary_name
 from opendnc.lsv2.serial_stream import SerialLine
-from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.core.status import MachineStatus, Progress
 from opendnc.server.kinds.connector import NetworkOnly
+from opendnc.server.kinds.files import RemoteFile
 from opendnc.server.kinds.lsv2.schema import Lsv2Machine
 from opendnc.server.store.models import utcnow
 

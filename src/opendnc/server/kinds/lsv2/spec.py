@@ -7,7 +7,6 @@ from typing import Any
 
 from opendnc.errors import InputError
 from opendnc.server.core.configkeys import ConfigError, get_key, port_range, table_at
-from opendnc.server.kinds.files import check_path
 from opendnc.server.kinds.base import (
     Capabilities,
     ConnectorHooks,
@@ -17,6 +16,7 @@ from opendnc.server.kinds.base import (
     schema_keys,
 )
 from opendnc.server.kinds.connector import Connector
+from opendnc.server.kinds.files import check_path
 from opendnc.server.kinds.lsv2.connector import Lsv2Connector
 from opendnc.server.kinds.lsv2.schema import LSV2_SERIAL, Lsv2Machine
 
