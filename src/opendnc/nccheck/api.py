@@ -130,7 +130,9 @@ def check_source(
         if chosen is Control.HEIDENHAIN:
             from opendnc.nccheck.klartext import run_klartext
 
-            result = run_klartext(source, name=name, machine=machine, library=library, budget=budget)
+            result = run_klartext(
+                source, name=name, machine=machine, library=library, budget=budget
+            )
         else:
             from opendnc.nccheck.gcode import run_gcode
 

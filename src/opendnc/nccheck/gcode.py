@@ -52,7 +52,6 @@ from opendnc.nccheck.path import (
     rapid_rate,
     short_radius,
 )
-from opendnc.nccheck.source import Source, TextSource
 from opendnc.nccheck.result import (
     MAX_PROBLEMS,
     CheckResult,
@@ -63,6 +62,7 @@ from opendnc.nccheck.result import (
     Severity,
     Units,
 )
+from opendnc.nccheck.source import Source, TextSource
 
 __all__ = ["run_gcode"]
 
@@ -265,7 +265,9 @@ class _Run:
             if not self._advance():
                 break
         if not self.programs_seen:  # an empty file
-            self.programs_seen.append(_Program(self.name or "program", None, self.source, complete=True))
+            self.programs_seen.append(
+                _Program(self.name or "program", None, self.source, complete=True)
+            )
         return self.programs_seen[0]
 
     def _advance(self) -> bool:
@@ -323,10 +325,10 @@ class _Run:
                     current = None
                     continue
             text = stripped.rstrip("*").rstrip() if self.iso else stripped
-            if current is None and not self.iso and not self.programs_seen and len(held) < 64:
-                if _COMMENT_ONLY.match(text):
-                    held.append((index, offset, text))  # may be a title before an O line
-                    continue
+            first = current is None and not self.iso and not self.programs_seen
+            if first and len(held) < 64 and _COMMENT_ONLY.match(text):
+                held.append((index, offset, text))  # may be a title before an O line
+                continue
             if current is None:
                 current = self._new_program(title)
                 for item in held:
@@ -371,7 +373,9 @@ class _Run:
         program.last_line = line
         self.scanned += 1
 
-    def _keep(self, program: _Program, piece: int, blocks: list[tuple[int, Block | PlainWords]]) -> None:
+    def _keep(
+        self, program: _Program, piece: int, blocks: list[tuple[int, Block | PlainWords]]
+    ) -> None:
         cache = self.cache
         if len(cache) >= _CACHED:
             del cache[next(iter(cache))]  # the oldest piece goes
@@ -470,11 +474,9 @@ class _Run:
             stripped = text.strip().strip("\x1a")
             if not stripped or stripped == "%":
                 continue
-            if self.iso:
-                if _ISO_END.match(stripped):
-                    stripped = "M30"
-                else:
-                    stripped = stripped.rstrip("*").rstrip()
+            if self.iso:  # as the scan read it
+                end = _ISO_END.match(stripped)
+                stripped = "M30" if end else stripped.rstrip("*").rstrip()
             out.append((line, self._parse(program, line, stripped, index + len(out), check=False)))
             if len(out) == _CHUNK:
                 break
@@ -638,7 +640,9 @@ class _Run:
                 frame = self.frames[-1]
                 program = frame.program
                 index = frame.pc
-                entry = self._block(program, index) if index <= frame.stop or frame.stop < 0 else None
+                entry = (
+                    self._block(program, index) if index <= frame.stop or frame.stop < 0 else None
+                )
                 if entry is None:
                     self._fall_off(frame)
                     continue
@@ -1477,7 +1481,12 @@ class _Run:
             return None
         # the called program is read with the caller's dialect (a lathe sub of a lathe job)
         body = _Run(
-            TextSource(text), self.control, name, MachineLimits(dialect=self.dialect.name), None, self.budget
+            TextSource(text),
+            self.control,
+            name,
+            MachineLimits(dialect=self.dialect.name),
+            None,
+            self.budget,
         )
         for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")

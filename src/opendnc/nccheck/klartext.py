@@ -24,7 +24,6 @@ from opendnc.errors import InputError
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
 from opendnc.nccheck.limits import MachineLimits
-from opendnc.nccheck.source import Source, TextSource
 from opendnc.nccheck.path import (
     RAPID_MM_PER_MIN,
     Toolpath,
@@ -43,6 +42,7 @@ from opendnc.nccheck.result import (
     Stock,
     Units,
 )
+from opendnc.nccheck.source import Source, TextSource
 
 
 class FormulaError(InputError):
@@ -1243,7 +1243,9 @@ class _Run:
                     text = self.library(name)
                 except Exception:  # a library callback must not break the dry run
                     text = None
-            self.called[name] = None if text is None else self._parse(TextSource(text), name, external=True)
+            self.called[name] = (
+                None if text is None else self._parse(TextSource(text), name, external=True)
+            )
         program = self.called[name]
         if program is None:
             self.report(item, Severity.WARNING, f"CALL PGM {name}: not in the library")

@@ -141,9 +141,8 @@ def test_a_run_stopped_by_its_budget_is_an_error() -> None:
     result = run(body, budget=Budget(seconds=0.0))
     assert not result.ok
     (problem,) = result.errors
-    assert "after 1,024 blocks (its budget of 0 s of CPU ran out); the rest of the program is not checked" in (
-        problem.message
-    )
+    assert "after 1,024 blocks (its budget of 0 s of CPU ran out)" in problem.message
+    assert "the rest of the program is not checked" in problem.message
 
 
 def test_a_title_comment_before_the_leading_percent_is_not_the_program() -> None:
