@@ -12,11 +12,13 @@ alongside.
     .venv/bin/python benchmarks/check.py --blocks 20000 --runs 1
     .venv/bin/python benchmarks/check.py --large 1000000   # + one large file of each
 
-``--large N`` also checks an N-block G-code file and an N-block Klartext file the way
-``opendnc check`` does (read the file, default budget), each in a fresh process, and prints
-its CPU time, peak RSS (the whole process: interpreter, file text and dry run) and how many
-blocks the run reached; the target (issue: check 1M blocks to the end) is under 5 s CPU and
-300 MiB.
+By default it first checks large generated 3-D surface programs (short X Y Z moves, an F
+now and then) the way ``opendnc check`` does (streamed, no time limit, no moves kept), each
+in its own child process so the peak RSS is that case's: 1,000,000 G-code blocks, 1,000,000
+Klartext blocks and 10,000,000 G-code blocks (``--quick`` skips the last), and prints CPU s,
+peak RSS MiB and blocks checked. Targets (issue 33): under 5 s CPU and 300 MiB for the 1M
+cases, the same memory bound for 10M. ``--large 0`` skips them; ``--runs 0`` skips the
+100,000-block comparison.
 """
 
 from __future__ import annotations
@@ -29,10 +31,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from opendnc.gcode.program import parse_plain
-from opendnc.nccheck import Budget, Control, check_text
+from opendnc.nccheck import Budget, Control, check_file, check_text
 
 TARGET_S = 2.0
 LARGE_CPU_S = 5.0
@@ -110,13 +113,48 @@ def best(path: Path, control: Control, runs: int) -> tuple[float, float, float, 
     return read_best, wall_best, cpu_best, blocks, problems
 
 
-def large_child(path: str, seconds: float, moves: int) -> None:
-    """In a fresh process: check ``path`` as the command line does, print one JSON line."""
+def cam_gcode(blocks: int) -> Iterator[str]:
+    """A 3-D CAM finishing program of ``blocks`` lines: short G01 moves in X, Y and Z with
+    an occasional F, as a post writes a surface toolpath."""
+    yield "%\nO01000 (SURFACE)\nG21 G17 G40 G49 G80 G90\nT1 M06\nG00 G54 X0. Y0. S8000 M03\n"
+    yield "G43 H01 Z5.\nG01 Z0. F800.\n"
+    for i in range(blocks - 10):
+        a = i * 0.003
+        feed = " F1200." if i % 97 == 0 else ""
+        x, y, z = 50 + 40 * math.cos(a), 50 + 40 * math.sin(a), -1 - 0.5 * math.sin(a * 7)
+        yield f"X{x:.3f} Y{y:.3f} Z{z:.3f}{feed}\n"
+    yield "G00 Z5.\nM05\nM30\n%\n"
+
+
+def cam_klartext(blocks: int) -> Iterator[str]:
+    """The same surface as numbered Klartext ``L`` blocks."""
+    head = [
+        "BEGIN PGM SURFACE MM",
+        "BLK FORM 0.1 Z X+0 Y+0 Z-20",
+        "BLK FORM 0.2 X+100 Y+100 Z+0",
+        "TOOL CALL 1 Z S8000 F800",
+        "L Z+5 R0 FMAX M3",
+        "L X+90 Y+50 R0 FMAX",
+    ]
+    for n, line in enumerate(head):
+        yield f"{n} {line}\n"
+    n = len(head)
+    for i in range(blocks - 8):
+        a = i * 0.003
+        feed = " F1200" if i % 97 == 0 else ""
+        x, y, z = 50 + 40 * math.cos(a), 50 + 40 * math.sin(a), -1 - 0.5 * math.sin(a * 7)
+        yield f"{n} L X{x:+.3f} Y{y:+.3f} Z{z:+.3f}{feed}\n"
+        n += 1
+    yield f"{n} L Z+100 R0 FMAX M30\n{n + 1} END PGM SURFACE MM\n"
+
+
+def large_child(path: str) -> None:
+    """In a fresh process: check ``path`` as ``opendnc check`` does (streamed, no time
+    limit, no moves kept), print one JSON line with the CPU time, peak RSS and blocks."""
     import resource
 
     started = time.process_time()
-    text = Path(path).read_text("latin-1")
-    result = check_text(text, name=Path(path).name, budget=Budget(seconds=seconds, moves=moves))
+    result = check_file(Path(path), budget=Budget(seconds=None, moves=0))
     cpu = time.process_time() - started
     peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
     print(
@@ -132,64 +170,71 @@ def large_child(path: str, seconds: float, moves: int) -> None:
     )
 
 
-def large(blocks: int, seconds: float, moves: int) -> None:
-    """Check one ``blocks``-block G-code file and one Klartext file, each in a child process,
-    and print the figures."""
-    for language, make, suffix in (
-        ("gcode", gcode_program, ".nc"),
-        ("klartext", klartext_program, ".h"),
-    ):
+def large(cases: list[tuple[str, int]]) -> bool:
+    """Check each (language, blocks) case in its own child process (so the peak RSS is that
+    case's alone); print CPU s, peak RSS MiB and blocks checked. True when all ran to the
+    end within the targets."""
+    all_met = True
+    for language, blocks in cases:
+        make, suffix = (cam_gcode, ".nc") if language == "gcode" else (cam_klartext, ".h")
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / f"large{suffix}"
-            path.write_text(make(blocks), "ascii")
-            lines = path.read_text("ascii").count("\n")
-            out = subprocess.run(
-                [
-                    sys.executable,
-                    __file__,
-                    "--large-child",
-                    str(path),
-                    "--large-seconds",
-                    str(seconds),
-                    "--large-moves",
-                    str(moves),
-                ],
+            with path.open("w", encoding="ascii") as out:
+                out.writelines(make(blocks))
+            done = subprocess.run(
+                [sys.executable, __file__, "--large-child", str(path)],
                 check=True,
                 capture_output=True,
                 text=True,
-            ).stdout
-        got = json.loads(out.strip().splitlines()[-1])
+            )
+        got = json.loads(done.stdout.strip().splitlines()[-1])
         cpu, rss = got["cpu_s"], got["peak_rss_mib"]
+        # the CPU target is for 1M blocks; a larger case is held to the memory bound only
+        cpu_met = cpu < LARGE_CPU_S if blocks <= 1_000_000 else True
+        cpu_note = (
+            f" (target < 5 s: {'met' if cpu_met else 'MISSED'})" if blocks <= 1_000_000 else ""
+        )
+        met = got["ended"] and not got["errors"] and rss < LARGE_RSS_MIB
+        all_met = all_met and met and cpu_met
         print(
-            f"{language:10s} {lines:,} lines in one file (budget {seconds:g} s CPU, {moves:,} "
-            f"moves kept): {got['blocks']:,} blocks run, "
-            f"{'ran to its end' if got['ended'] else 'STOPPED'}; {cpu:.2f} s CPU "
-            f"(target < {LARGE_CPU_S:g}: {'met' if cpu < LARGE_CPU_S else 'MISSED'}), "
+            f"{language:9s} {blocks:>11,} blocks: checked {got['blocks']:,}, "
+            f"{'to the end' if got['ended'] else 'STOPPED'}; CPU {cpu:.2f} s"
+            f"{cpu_note}; "
             f"peak RSS {rss:.0f} MiB (target < {LARGE_RSS_MIB:g}: "
-            f"{'met' if rss < LARGE_RSS_MIB else 'MISSED'})"
+            f"{'met' if rss < LARGE_RSS_MIB else 'MISSED'})",
+            flush=True,
         )
         for message in got["errors"]:
-            print(f"{'':10s} error: {message}")
+            print(f"{'':9s} error: {message}")
+    return all_met
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blocks", type=int, default=100_000)
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--large", type=int, default=0, help="also one N-block file of each")
     parser.add_argument(
-        "--large-seconds", type=float, default=Budget().seconds, help="the large run's budget"
+        "--large",
+        type=int,
+        default=1_000_000,
+        help="blocks of the large G-code and Klartext files (0: skip them)",
     )
     parser.add_argument(
-        "--large-moves", type=int, default=Budget().moves, help="moves the large run keeps"
+        "--huge", type=int, default=10_000_000, help="blocks of the huge G-code file"
     )
+    parser.add_argument("--quick", action="store_true", help="skip the huge file")
     parser.add_argument("--large-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.large_child:
-        large_child(args.large_child, args.large_seconds, args.large_moves)
+        large_child(args.large_child)
         return
     if args.large:
-        large(args.large, args.large_seconds, args.large_moves)
+        cases = [("gcode", args.large), ("klartext", args.large)]
+        if not args.quick:
+            cases.append(("gcode", args.huge))
+        large(cases)
+    if not args.runs:
+        return
     with tempfile.TemporaryDirectory() as folder:
         for control, make, suffix in (
             (Control.HAAS, gcode_program, ".nc"),

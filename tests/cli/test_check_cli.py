@@ -195,15 +195,20 @@ def test_a_device_is_refused_rather_than_read_until_memory_runs_out() -> None:
     assert "is a device or other special file" in done.stderr
 
 
-def test_a_program_larger_than_the_check_reads_is_an_error(tmp_path: Path) -> None:
-    from opendnc.nccheck.oversize import MAX_PROGRAM_BYTES
-
+def test_the_only_error_on_the_last_block_fails_the_check(tmp_path: Path) -> None:
+    # the file is streamed (no size limit any more, tests/unit/nccheck/test_streaming.py
+    # shows its memory stays flat): its only error, on its last block, exits 1
     big = tmp_path / "O01000.nc"
-    block = b"G01 X1. Y1. F100.\n"
-    big.write_bytes(b"%\nO01000\n" + block * (MAX_PROGRAM_BYTES // len(block) + 1) + b"M30\n%\n")
+    pairs = 20_000
+    with big.open("wb") as out:
+        out.write(b"%\nO01000\nG21 G90 T1 M06\nS1000 M03\nG01 Z-1. F300.\n")
+        out.write(b"X1.5 Y2.5 Z-1.\nX2.5 Y1.5 Z-1.\n" * pairs)
+        out.write(b"G01 X1. #0=1\nM30\n%\n")
+    last = 5 + 2 * pairs + 1
     status, output = run_in_process(big)
-    assert status == 1
-    assert f"{big}:1: error: not checked: 16.8 MB is more than the check reads (16 MiB)" in output
+    assert status == 1, output[-300:]
+    assert f"{big}:{last}: error:" in output
+    assert len([line for line in output.splitlines() if ": error:" in line]) == 1
 
 
 @pytest.mark.parametrize("word", ["S", "F"])

@@ -38,7 +38,7 @@ def check(
 ) -> None:
     """Dry-run an NC program: problems with their lines, tools, extents, estimated time."""
     from opendnc.errors import InputError
-    from opendnc.nccheck import Control, MachineLimits, check_text, limits_for
+    from opendnc.nccheck import Budget, Control, MachineLimits, check_file, limits_for
     from opendnc.nccheck.dialects import DIALECTS, dialect_named
 
     chosen = None
@@ -66,32 +66,24 @@ def check(
     if dialect is not None:
         # the named control wins over the machine's own control key
         limits = replace(limits, dialect=dialect) if limits else MachineLimits(dialect=dialect)
-    data = _read(file)
-    if data is None:
-        from opendnc.nccheck import guess_control
-        from opendnc.nccheck.oversize import not_checked
-
-        size = file.stat().st_size
-        result = not_checked(str(file), size, chosen or guess_control("", str(file)))
-        _print(result, str(file), json_output)
-        raise typer.Exit(1)
-    # NC programs are 7-bit text; latin-1 never fails and keeps every byte's position
-    text = data.decode("latin-1")
-    result = check_text(text, control=chosen, name=str(file), machine=limits, library=None)
+    _readable(file)
+    # read as a stream (latin-1: every byte keeps its place), so memory does not grow with
+    # the program; no time limit: each block runs once and the block budget ends any loop.
+    # The moves are kept only for --json (its preview reads them)
+    budget = Budget(seconds=None, moves=Budget().moves if json_output else 0)
+    result = check_file(file, control=chosen, name=str(file), machine=limits, budget=budget)
     _print(result, str(file), json_output)
     raise typer.Exit(0 if result.ok else 1)
 
 
-def _read(file: Path) -> bytes | None:
-    """The program's bytes; None when it is larger than the check reads.
+def _readable(file: Path) -> None:
+    """Refuse what is not a readable regular file (a usage error).
 
     Only a regular file is read: a device (``/dev/zero``) never ends and a FIFO may never
     deliver, so both are usage errors rather than a hang or a read until memory runs out.
     """
     import os
     import stat
-
-    from opendnc.nccheck.oversize import MAX_PROGRAM_BYTES
 
     try:
         # stat, not open: opening a FIFO blocks until a writer comes
@@ -100,12 +92,11 @@ def _read(file: Path) -> bytes | None:
             what = "a FIFO" if stat.S_ISFIFO(mode) else "a device or other special file"
             raise typer.BadParameter(f"{file} is {what}, not a regular file", param_hint="'FILE'")
         with open(file, "rb") as stream:
-            data = stream.read(MAX_PROGRAM_BYTES + 1)
+            stream.read(1)
     except OSError as exc:
         raise typer.BadParameter(
             f"cannot read {file}: {exc.strerror or exc}", param_hint="'FILE'"
         ) from None
-    return None if len(data) > MAX_PROGRAM_BYTES else data
 
 
 def _print(result: CheckResult, name: str, json_output: bool) -> None:

@@ -19,7 +19,7 @@ preview. The facts it relies on are in docs/check.md.
 
 from __future__ import annotations
 
-from opendnc.nccheck.api import Budget, Library, check_text, guess_control
+from opendnc.nccheck.api import Budget, Library, check_file, check_text, guess_control
 from opendnc.nccheck.limits import MachineLimits, limits_for, parse_travel, parse_work_offsets
 from opendnc.nccheck.result import (
     MAX_PROBLEMS,
@@ -52,6 +52,7 @@ __all__ = [
     "Stock",
     "ToolUse",
     "Units",
+    "check_file",
     "check_text",
     "guess_control",
     "limits_for",

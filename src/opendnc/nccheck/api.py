@@ -5,11 +5,13 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from opendnc.nccheck.limits import MachineLimits
 from opendnc.nccheck.result import CheckResult, Control, Problem, Severity
+from opendnc.nccheck.source import Source
 
-__all__ = ["Budget", "Library", "check_text", "guess_control"]
+__all__ = ["Budget", "Library", "check_file", "check_source", "check_text", "guess_control"]
 
 Library = Callable[[str], str | None]
 """Looks a called program up by name (``"O09010"``, ``"PART2.H"``): its text, or None."""
@@ -20,11 +22,13 @@ class Budget:
     """How far a dry run may go before it calls the program endless."""
 
     blocks: int = 1_000_000
-    """Executed blocks (each pass of a loop counts)."""
-    seconds: float = 5.0
-    """CPU time of the dry run itself (its thread's, so a busy machine does not shorten it)."""
+    """Blocks run again (each pass of a loop after the first reading of its blocks counts);
+    every block of the file runs once outside this budget."""
+    seconds: float | None = 5.0
+    """CPU time of the dry run itself (its thread's, so a busy machine does not shorten it);
+    None: no time limit (the command line: the block budget still ends any loop)."""
     moves: int = 1_000_000
-    """Moves kept for the preview (counting and checks go on past it)."""
+    """Moves kept for the preview (counting and checks go on past it); 0 keeps none."""
 
 
 # Matched against one line at a time, after its leading blanks are stripped: the classes
@@ -75,18 +79,65 @@ def check_text(
     resolves called programs (a call it cannot resolve is a warning). Never raises on any
     text; always ends within ``budget``.
     """
-    chosen = control or guess_control(text, name)
+    from opendnc.nccheck.source import TextSource
+
+    return check_source(
+        TextSource(text),
+        control=control,
+        name=name,
+        machine=machine,
+        library=library,
+        budget=budget,
+    )
+
+
+def check_file(
+    path: Path,
+    *,
+    control: Control | None = None,
+    name: str = "",
+    machine: MachineLimits | None = None,
+    library: Library | None = None,
+    budget: Budget | None = None,
+) -> CheckResult:
+    """:func:`check_text` on a file read as a stream: its memory does not grow with the
+    program's length (docs/check.md#large-programs). The file is read as latin-1."""
+    from opendnc.nccheck.source import FileSource
+
+    return check_source(
+        FileSource(path),
+        control=control,
+        name=name or str(path),
+        machine=machine,
+        library=library,
+        budget=budget,
+    )
+
+
+def check_source(
+    source: Source,
+    *,
+    control: Control | None = None,
+    name: str = "",
+    machine: MachineLimits | None = None,
+    library: Library | None = None,
+    budget: Budget | None = None,
+) -> CheckResult:
+    """:func:`check_text` on the lines of ``source``."""
+    chosen = control or guess_control(source.head(4096), name)
     budget = budget or Budget()
     try:
         if chosen is Control.HEIDENHAIN:
             from opendnc.nccheck.klartext import run_klartext
 
-            result = run_klartext(text, name=name, machine=machine, library=library, budget=budget)
+            result = run_klartext(
+                source, name=name, machine=machine, library=library, budget=budget
+            )
         else:
             from opendnc.nccheck.gcode import run_gcode
 
             result = run_gcode(
-                text, control=chosen, name=name, machine=machine, library=library, budget=budget
+                source, control=chosen, name=name, machine=machine, library=library, budget=budget
             )
     except (RecursionError, MemoryError, ArithmeticError, LookupError, ValueError) as exc:
         # last resort, so a release or send is never blocked by a crash: the program is then
@@ -94,7 +145,7 @@ def check_text(
         problem = Problem(1, Severity.ERROR, f"internal error: the dry run failed ({exc!r})")
         result = CheckResult(control=chosen, name=name, problems=(problem,))
     if chosen is Control.HAAS:
-        text_problem = _text_problem(text)
+        text_problem = _text_problem(source)
         if text_problem is not None:
             result = replace(result, problems=_merged(result.problems, text_problem))
     if machine is not None and not machine.accepts(chosen):
@@ -110,16 +161,21 @@ def check_text(
     return result
 
 
-def _text_problem(text: str) -> Problem | None:
+def _text_problem(source: Source) -> Problem | None:
     """The first byte no Haas program holds (docs/nc-text.md): senders refuse such a file."""
-    from opendnc.nctext import find_problem
+    from opendnc.nctext import TextScanner
 
+    scanner = TextScanner()
     try:
-        data = text.encode("latin-1")
+        for piece in source.pieces():
+            scanner.feed(piece)
+            if scanner.problem is not None:
+                break
     except UnicodeEncodeError as exc:
-        line = text.count("\n", 0, exc.start) + 1
+        text = source.head(exc.start)
+        line = text.count("\n") + 1
         return Problem(line, Severity.ERROR, "a character beyond 8 bits is not NC program text")
-    found = find_problem(data)
+    found = scanner.finish()
     if found is None:
         return None
     return Problem(

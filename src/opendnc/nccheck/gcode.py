@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 import re
 import time
+from array import array
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 from opendnc.errors import InputError
@@ -60,6 +62,7 @@ from opendnc.nccheck.result import (
     Severity,
     Units,
 )
+from opendnc.nccheck.source import Source, TextSource
 
 __all__ = ["run_gcode"]
 
@@ -93,15 +96,32 @@ class _Stop(Exception):
     """The run ends here (program end, alarm, budget)."""
 
 
+_CHUNK = 256  # blocks per piece a program is re-read in (a power of two: index >> 8)
+_SHIFT = 8
+_CACHED = 64  # pieces kept parsed (about 16,000 blocks) for loops and sub-programs
+
+
 @dataclass
 class _Program:
+    """A program of the file, read as the run needs it: its blocks are parsed as the scan
+    reaches them and forgotten again; what stays is where each piece of 256 blocks starts
+    in the file (to read it again on a jump back), its N numbers and its WHILE/END pairs."""
+
     name: str
     number: int | None
-    lines: list[int]  # file line of each block
-    blocks: list[Block | PlainWords]  # plain literal words need no expression evaluation
+    source: Source | None = None
+    count: int = 0  # blocks scanned so far
+    complete: bool = False  # the scan has passed its last block
+    first_line: int = 0
+    last_line: int = 0
+    offsets: array[int] = field(default_factory=lambda: array("q"))  # piece -> file offset
+    starts: array[int] = field(default_factory=lambda: array("q"))  # piece -> file line
+    tail: list[tuple[int, Block | PlainWords]] = field(default_factory=list)  # last piece
     numbers: dict[int, int] = field(default_factory=dict)  # N -> block index
     loop_end: dict[int, int] = field(default_factory=dict)  # WHILE index -> END index
     loop_start: dict[int, int] = field(default_factory=dict)  # END index -> WHILE index
+    stacks: dict[int, list[tuple[int, int]]] = field(default_factory=dict)  # open WHILEs
+    gotos: list[tuple[int, int]] = field(default_factory=list)  # (line, N) of literal GOTOs
     external: bool = False
 
 
@@ -114,6 +134,7 @@ class _Frame:
     call_line: int  # file line of the outermost call (the main program's line)
     repeat: int = 1
     start: int = 0
+    stop: int = -1  # a lathe contour's last block (its frame ends after it); -1: none
 
 
 @dataclass
@@ -129,7 +150,7 @@ class _Cycle:
 class _Run:
     def __init__(
         self,
-        text: str,
+        source: Source,
         control: Control,
         name: str,
         machine: MachineLimits | None,
@@ -144,7 +165,9 @@ class _Run:
         self.budget = budget
         self.problems: dict[tuple[int, str], Problem] = {}
         named = machine.dialect if machine is not None else None
-        self.dialect: Dialect = dialect_named(named) if named else guess_dialect(text)
+        self.dialect: Dialect = (
+            dialect_named(named) if named else guess_dialect(source.head(1 << 20))
+        )
         self.lathe = self.dialect.lathe and not self.iso
         self.g_codes = codes.ISO_G if self.iso else self.dialect.g_codes
         self.m_codes = codes.HEIDENHAIN_M if self.iso else self.dialect.m_codes
@@ -157,7 +180,13 @@ class _Run:
         self.frames: list[_Frame] = []
         self.warned: set[str] = set()
         self.header_units: Units | None = None
-        self.main = self._split(text)
+        self.source = source
+        self.cache: dict[tuple[int, int], list[tuple[int, Block | PlainWords]]] = {}
+        self.scanned = 0  # blocks the scan has read (each once: a loop's passes are not)
+        self._scan = self._scanner()
+        self.scan_done = False
+        # the scan runs ahead to the main program's first block (and its ISO header)
+        self.main = self._first_program()
         # modal state
         self.units: Units | None = self.header_units
         self.motion = 0.0
@@ -228,19 +257,42 @@ class _Run:
             self.report(line, Severity.WARNING, message)
 
     # ------------------------------------------------------------------ program text
-    def _split(self, text: str) -> _Program:
-        """The file's programs: the first is the main one, others are callable by O number."""
+    def _first_program(self) -> _Program:
+        self.programs_seen: list[_Program] = []
+        while not self.programs_seen or (
+            not self.programs_seen[0].count and not self.programs_seen[0].complete
+        ):
+            if not self._advance():
+                break
+        if not self.programs_seen:  # an empty file
+            self.programs_seen.append(
+                _Program(self.name or "program", None, self.source, complete=True)
+            )
+        return self.programs_seen[0]
+
+    def _advance(self) -> bool:
+        """Scan one more block of the file; False at its end."""
+        if self.scan_done:
+            return False
+        if next(self._scan, None) is None:
+            self.scan_done = True
+            return False
+        return True
+
+    def _scanner(self) -> Iterator[bool]:
+        """Read the file in order: split it into programs (the first is the main one, the
+        others callable by O number), check every block once (also those the run never
+        reaches) and remember where each piece of blocks starts. Yields after each block."""
         self.iso_ended = False
-        raw = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
-        programs: list[tuple[str, int | None, list[tuple[int, str]]]] = []
-        current: list[tuple[int, str]] = []
+        held: list[tuple[int, int, str]] = []  # comment lines before the first O line
         title: tuple[str, int | None] = (self.name or "program", None)
-        for index, line in enumerate(raw, start=1):
+        current: _Program | None = None
+        for index, offset, line in self.source.lines():
             stripped = line.strip().strip("\x1a")
             if not stripped or stripped == "%":
                 continue
             if self.iso:
-                if not current and (match := _ISO_LINE.match(stripped)):
+                if current is None and not held and (match := _ISO_LINE.match(stripped)):
                     title = (match.group(1), None)
                     if re.search(r"\bG70\b", stripped):
                         self.header_units = Units.INCH
@@ -248,44 +300,111 @@ class _Run:
                         self.header_units = Units.MM
                     continue
                 if _ISO_END.match(stripped):
-                    current.append((index, "M30"))  # END of an ISO program
                     self.iso_ended = True
+                    if current is None:
+                        current = self._new_program(title)
+                    self._add(current, index, offset, "M30")  # END of an ISO program
+                    yield True
                     continue
             else:
                 match = _O_LINE.match(stripped)
                 if match is not None:
-                    if not programs and title[1] is None and _only_comments(current):
-                        current = []  # a title comment before the O line: part of this one
-                    if current or programs or title[1] is not None:
-                        programs.append((title[0], title[1], current))
-                        current = []
+                    if current is None and held and _only_comments(held):
+                        held = []  # a title comment before the O line: part of this one
+                    if held:
+                        current = self._new_program(title)
+                        for item in held:
+                            self._add(current, *item)
+                        held = []
+                    if current is not None or title[1] is not None:
+                        if current is None:
+                            current = self._new_program(title)
+                        self._close(current)
                     number = int(match.group(1))
                     title = (f"O{number:05d}", number)
+                    current = None
                     continue
-            current.append((index, stripped.rstrip("*").rstrip() if self.iso else stripped))
-        programs.append((title[0], title[1], current))
-        if self.iso and current and not self.iso_ended:
+            text = stripped.rstrip("*").rstrip() if self.iso else stripped
+            first = current is None and not self.iso and not self.programs_seen
+            if first and len(held) < 64 and _COMMENT_ONLY.match(text):
+                held.append((index, offset, text))  # may be a title before an O line
+                continue
+            if current is None:
+                current = self._new_program(title)
+                for item in held:
+                    self._add(current, *item)
+                held = []
+            self._add(current, index, offset, text)
+            yield True
+        if current is None:
+            current = self._new_program(title)
+            for item in held:
+                self._add(current, *item)
+        self._close(current)
+        if self.iso and current.count and not self.iso_ended:
             # the TNC needs the end block N99999999 %NAME G71 (docs/check.md#heidenhain-iso)
-            self.error(current[-1][0], f"the ISO program has no end block (N99999999 %{title[0]})")
-        built = [self._program(n, num, lines) for n, num, lines in programs]
-        for program in built:
-            if program.number is not None:
-                self.programs.setdefault(program.number, program)
-        return built[0]
+            self._static(
+                current,
+                current.last_line,
+                f"the ISO program has no end block (N99999999 %{title[0]})",
+            )
 
-    def _program(
-        self, name: str, number: int | None, lines: list[tuple[int, str]], external: bool = False
-    ) -> _Program:
-        program = _Program(name, number, [n for n, _ in lines], [], external=external)
-        stacks: dict[int, list[int]] = {}
-        g_codes, m_codes = self.g_codes, self.m_codes
-        for index, (line, text) in enumerate(lines):
-            plain = parse_plain(text)
-            if plain is not None:
-                number, words = plain
-                program.blocks.append(words)
+    def _new_program(self, title: tuple[str, int | None]) -> _Program:
+        program = _Program(title[0], title[1], self.source)
+        self.programs_seen.append(program)
+        if program.number is not None:
+            self.programs.setdefault(program.number, program)
+        return program
+
+    def _add(self, program: _Program, line: int, offset: int, text: str) -> None:
+        """Parse and check one block, and note it in ``program``."""
+        index = program.count
+        if not index & (_CHUNK - 1):
+            if program.tail:  # the piece before is complete: parsed, it stays a while
+                self._keep(program, (index >> _SHIFT) - 1, program.tail)
+            program.tail = []
+            program.offsets.append(offset)
+            program.starts.append(line)
+        if not index:
+            program.first_line = line
+        block = self._parse(program, line, text, index, check=True)
+        program.tail.append((line, block))
+        program.count = index + 1
+        program.last_line = line
+        self.scanned += 1
+
+    def _keep(
+        self, program: _Program, piece: int, blocks: list[tuple[int, Block | PlainWords]]
+    ) -> None:
+        cache = self.cache
+        if len(cache) >= _CACHED:
+            del cache[next(iter(cache))]  # the oldest piece goes
+        cache[(id(program), piece)] = blocks
+
+    def _close(self, program: _Program) -> None:
+        """The scan has passed the last block of ``program``: the checks that need all of it."""
+        program.complete = True
+        for loop, stack in program.stacks.items():
+            for _, line in stack:
+                self._static(program, line, f"WHILE ... DO{loop} without END{loop}")
+        program.stacks = {}
+        for line, target in program.gotos:
+            if target not in program.numbers:
+                self._static(program, line, f"GOTO {target}: no block N{target} in {program.name}")
+        program.gotos = []
+
+    def _parse(
+        self, program: _Program, line: int, text: str, index: int, *, check: bool
+    ) -> Block | PlainWords:
+        """One block; with ``check`` (its first reading) its static checks and its N number,
+        WHILE/END pair and GOTO target are noted too."""
+        plain = parse_plain(text)
+        if plain is not None:
+            number, words = plain
+            if check:
                 if number is not None:
                     program.numbers.setdefault(number, index)
+                g_codes, m_codes = self.g_codes, self.m_codes
                 for letter, value in words:
                     if (letter == "G" and value not in g_codes) or (
                         letter == "M" and value not in m_codes
@@ -293,53 +412,98 @@ class _Run:
                         message = self._code_problem(letter, value)
                         if message:
                             self._static(program, line, message)
-                continue
-            try:
-                block = parse_block(text)
-            except RecursionError:
+            return words
+        try:
+            block = parse_block(text)
+        except RecursionError:
+            if check:
                 self._static(program, line, "an expression nested too deeply")
-                block = Block(text)
-            except InputError as exc:
+            return Block(text)
+        except InputError as exc:
+            if check:
                 if self.iso:
                     # ISO cycles and Q-parameter lines are beyond the macro-B parser
                     self.warn_once(line, "iso-line", "ISO cycle and Q-parameter lines are not "
                                    "simulated by the dry run")  # fmt: skip
                 else:
                     self._static(program, line, str(exc).split(" in block ")[0])
-                block = Block(text)
-            program.blocks.append(block)
-            if block.number is not None:
-                program.numbers.setdefault(block.number, index)
-            statement = block.statement
-            if isinstance(statement, Words):
-                self._check_codes(program, line, statement)
-            elif isinstance(statement, While):
-                stacks.setdefault(statement.loop, []).append(index)
-            elif isinstance(statement, EndLoop):
-                stack = stacks.get(statement.loop)
-                if stack:
-                    start = stack.pop()
-                    program.loop_end[start] = index
-                    program.loop_start[index] = start
-                else:
-                    self._static(
-                        program, line, f"END{statement.loop} without WHILE ... DO{statement.loop}"
-                    )
-        for loop, stack in stacks.items():
-            for start in stack:
-                self._static(program, program.lines[start], f"WHILE ... DO{loop} without END{loop}")
-        for index, item in enumerate(program.blocks):
-            if not isinstance(item, Block):
-                continue
-            statement = item.statement
-            target = statement.target if isinstance(statement, Goto | IfGoto) else None
-            if isinstance(target, Num) and round(target.value) not in program.numbers:
+            return Block(text)
+        if not check:
+            return block
+        if block.number is not None:
+            program.numbers.setdefault(block.number, index)
+        statement = block.statement
+        if isinstance(statement, Words):
+            self._check_codes(program, line, statement)
+        elif isinstance(statement, While):
+            program.stacks.setdefault(statement.loop, []).append((index, line))
+        elif isinstance(statement, EndLoop):
+            stack = program.stacks.get(statement.loop)
+            if stack:
+                start = stack.pop()[0]
+                program.loop_end[start] = index
+                program.loop_start[index] = start
+            else:
                 self._static(
-                    program,
-                    program.lines[index],
-                    f"GOTO {target.value:g}: no block N{round(target.value)} in {program.name}",
+                    program, line, f"END{statement.loop} without WHILE ... DO{statement.loop}"
                 )
-        return program
+        if isinstance(statement, Goto | IfGoto) and isinstance(statement.target, Num):
+            program.gotos.append((line, round(statement.target.value)))
+        return block
+
+    def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
+        """Block ``index`` of ``program`` with its file line; None past its last block."""
+        while index >= program.count:
+            if program.complete or not self._advance():
+                return None
+        piece = index >> _SHIFT
+        if piece == len(program.offsets) - 1:
+            return program.tail[index & (_CHUNK - 1)]
+        blocks = self.cache.get((id(program), piece))
+        if blocks is None:
+            blocks = self._reread(program, piece)
+            self._keep(program, piece, blocks)
+        return blocks[index & (_CHUNK - 1)]
+
+    def _reread(self, program: _Program, piece: int) -> list[tuple[int, Block | PlainWords]]:
+        """Read a piece of ``program`` from the file again (a jump back to it)."""
+        assert program.source is not None
+        out: list[tuple[int, Block | PlainWords]] = []
+        index = piece << _SHIFT
+        for line, _, text in program.source.lines(program.offsets[piece], program.starts[piece]):
+            stripped = text.strip().strip("\x1a")
+            if not stripped or stripped == "%":
+                continue
+            if self.iso:  # as the scan read it
+                end = _ISO_END.match(stripped)
+                stripped = "M30" if end else stripped.rstrip("*").rstrip()
+            out.append((line, self._parse(program, line, stripped, index + len(out), check=False)))
+            if len(out) == _CHUNK:
+                break
+        return out
+
+    def _number(self, program: _Program, number: int) -> int | None:
+        """The index of block N``number`` of ``program`` (the scan reads on to find it)."""
+        found = program.numbers.get(number)
+        while found is None and not program.complete and self._advance():
+            found = program.numbers.get(number)
+        return found
+
+    def _loop_end(self, program: _Program, index: int) -> int | None:
+        """The END paired with the WHILE at ``index`` (the scan reads on to find it)."""
+        found = program.loop_end.get(index)
+        while found is None and not program.complete and self._advance():
+            found = program.loop_end.get(index)
+        return found
+
+    def _line_of(self, program: _Program, index: int) -> int:
+        entry = self._block(program, index)
+        return entry[0] if entry else program.last_line or 1
+
+    def _finish_scan(self) -> None:
+        """Scan the rest of the file: its blocks are checked even where the run never went."""
+        while self._advance():
+            pass
 
     def _static(self, program: _Program, line: int, message: str) -> None:
         if program.external:
@@ -466,25 +630,29 @@ class _Run:
     # ------------------------------------------------------------------ the run
     def run(self) -> None:
         # CPU time of this thread: a busy machine must not turn a long program into a "loop"
-        deadline = time.thread_time() + self.budget.seconds
+        seconds = self.budget.seconds
+        deadline = math.inf if seconds is None else time.thread_time() + seconds
+        # the block budget is for loops: each block of the file runs once outside it
         limit = self.budget.blocks
         self.frames.append(_Frame(self.main, 0, self.locals, "main", 0))
         try:
             while True:
                 frame = self.frames[-1]
                 program = frame.program
-                if frame.pc >= len(program.blocks):
+                index = frame.pc
+                entry = (
+                    self._block(program, index) if index <= frame.stop or frame.stop < 0 else None
+                )
+                if entry is None:
                     self._fall_off(frame)
                     continue
-                index = frame.pc
-                frame.pc += 1
-                block = program.blocks[index]
+                frame.pc = index + 1
+                line, block = entry
                 self.blocks_run += 1
                 if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run >= limit or time.thread_time() > deadline
+                    self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
                 ):
-                    self._endless(program.lines[index])
-                line = program.lines[index]
+                    self._endless(line)
                 try:
                     if type(block) is tuple:
                         self._plain(block, frame, line)
@@ -504,7 +672,7 @@ class _Run:
 
     def _fall_off(self, frame: _Frame) -> None:
         program = frame.program
-        last = program.lines[-1] if program.lines else 1
+        last = (program.last_line or 1) if frame.stop < 0 else self._line_of(program, frame.stop)
         if frame.kind == "main":
             self.error(last, "no program end (M30, M02 or M99)")
             raise _Stop
@@ -520,10 +688,15 @@ class _Run:
         if not self.jumps:
             # no jump back: a long program (or deep calls), not a loop. The rest is not
             # checked, so this is an error: a stopped check must never pass as a clean one
+            spent = (
+                f"{self.budget.blocks:,} blocks run again"
+                if self.blocks_run - self.scanned >= self.budget.blocks
+                else f"{self.budget.seconds:g} s of CPU"
+            )
             self.error(
                 line,
-                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget ran "
-                "out); the rest of the program is not checked",
+                f"the dry run stopped here after {self.blocks_run:,} blocks (its budget of "
+                f"{spent} ran out); the rest of the program is not checked",
             )
             raise _Stop
         where, count = max(self.jumps.items(), key=lambda item: item[1])
@@ -562,7 +735,7 @@ class _Run:
             self._goto(frame, self.value(statement.target), index, line)
         elif isinstance(statement, While):
             if not self.value(statement.condition):
-                end = frame.program.loop_end.get(index)
+                end = self._loop_end(frame.program, index)
                 if end is None:
                     raise InputError(f"WHILE ... DO{statement.loop} without END{statement.loop}")
                 frame.pc = end + 1
@@ -588,7 +761,7 @@ class _Run:
 
     def _goto(self, frame: _Frame, target: float, index: int, line: int) -> None:
         number = round(target)
-        found = frame.program.numbers.get(number)
+        found = self._number(frame.program, number)
         if found is None:
             raise InputError(f"GOTO {number}: no block N{number} in {frame.program.name}")
         if found <= index:
@@ -1235,7 +1408,7 @@ class _Run:
             return  # the first block of the two-block form (G71 U.. R..): depth and retract
         program = frame.program
         first, last = round(v["P"]), round(v["Q"])
-        start, end = program.numbers.get(first), program.numbers.get(last)
+        start, end = self._number(program, first), self._number(program, last)
         if start is None or end is None:
             missing = first if start is None else last
             raise InputError(f"G{code:g}: no block N{missing} in {program.name} (P{first} Q{last})")
@@ -1248,15 +1421,10 @@ class _Run:
         if len(self.frames) > _MAX_NESTING:
             self.error(line, f"sub-program calls nest deeper than {_MAX_NESTING} levels")
             return
-        contour = _Program(
-            program.name,
-            program.number,
-            program.lines[start : end + 1],
-            program.blocks[start : end + 1],
-            external=program.external,
-        )
         call_line = frame.call_line if frame.kind != "main" else line
-        self.frames.append(_Frame(contour, 0, self.locals, "cycle", call_line))
+        self.frames.append(
+            _Frame(program, start, self.locals, "cycle", call_line, start=start, stop=end)
+        )
 
     def _call(self, frame: _Frame, kind: str, v: dict[str, float], line: int) -> None:
         if "P" not in v:
@@ -1271,7 +1439,7 @@ class _Run:
             return
         call_line = frame.call_line if frame.kind != "main" else line
         if kind == "m97":
-            index = frame.program.numbers.get(number)
+            index = self._number(frame.program, number)
             if index is None:
                 raise InputError(f"M97 P{number}: no block N{number} in {frame.program.name}")
             program = frame.program
@@ -1294,6 +1462,8 @@ class _Run:
 
     def _find(self, number: int, line: int) -> _Program | None:
         program = self.programs.get(number)
+        while program is None and self._advance():  # a sub-program further on in the file
+            program = self.programs.get(number)
         if program is not None:
             return program
         name = f"O{number:05d}"
@@ -1311,21 +1481,17 @@ class _Run:
             return None
         # the called program is read with the caller's dialect (a lathe sub of a lathe job)
         body = _Run(
-            text, self.control, name, MachineLimits(dialect=self.dialect.name), None, self.budget
+            TextSource(text),
+            self.control,
+            name,
+            MachineLimits(dialect=self.dialect.name),
+            None,
+            self.budget,
         )
         for problem in body.problems.values():
             self.report(line, problem.severity, f"in {name} line {problem.line}: {problem.message}")
-        main = body.main
-        program = _Program(
-            name,
-            number,
-            main.lines,
-            main.blocks,
-            main.numbers,
-            main.loop_end,
-            main.loop_start,
-            external=True,
-        )
+        body._finish_scan()  # its every block checked, as a program of this file is
+        program = replace(body.main, name=name, number=number, external=True)
         self.programs[number] = program
         return program
 
@@ -1339,7 +1505,7 @@ class _Run:
         caller = self.frames[-1]
         self.locals = caller.locals
         if to_block is not None:
-            found = caller.program.numbers.get(round(to_block))
+            found = self._number(caller.program, round(to_block))
             if found is None:
                 raise InputError(f"M99 P{round(to_block)}: no block N{round(to_block)}")
             caller.pc = found
@@ -1354,7 +1520,7 @@ class _Run:
                 if number is not None and low <= number <= high:
                     problems.append(
                         Problem(
-                            _first_line(self.main),
+                            max(1, self.main.first_line - 1) if self.main.count else 1,
                             Severity.ERROR,
                             f"O{number:05d} is a protected program number on "
                             f"{self.machine_name()} (O{low:05d}-O{high:05d} hold the "
@@ -1398,12 +1564,8 @@ def _capped(problems: list[Problem]) -> tuple[list[Problem], list[Problem]]:
     return problems[:MAX_PROBLEMS], problems[MAX_PROBLEMS:]
 
 
-def _only_comments(lines: list[tuple[int, str]]) -> bool:
-    return all(_COMMENT_ONLY.match(text) for _, text in lines)
-
-
-def _first_line(program: _Program) -> int:
-    return max(1, program.lines[0] - 1) if program.lines else 1
+def _only_comments(lines: list[tuple[int, int, str]]) -> bool:
+    return all(_COMMENT_ONLY.match(text) for _, _, text in lines)
 
 
 def _work_base(code: float) -> int | None:
@@ -1430,7 +1592,7 @@ def _offset_base(key: str) -> int | None:
 
 
 def run_gcode(
-    text: str,
+    source: Source,
     *,
     control: Control,
     name: str,
@@ -1439,6 +1601,7 @@ def run_gcode(
     budget: Budget,
 ) -> CheckResult:
     """Dry-run a G-code program (see the module docstring)."""
-    run = _Run(text, control, name, machine, library, budget)
+    run = _Run(source, control, name, machine, library, budget)
     run.run()
+    run._finish_scan()
     return run.result()

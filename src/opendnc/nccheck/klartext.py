@@ -12,7 +12,6 @@ The facts are in docs/check.md#klartext.
 
 from __future__ import annotations
 
-import io
 import math
 import re
 import time
@@ -43,6 +42,7 @@ from opendnc.nccheck.result import (
     Stock,
     Units,
 )
+from opendnc.nccheck.source import Source, TextSource
 
 
 class FormulaError(InputError):
@@ -327,7 +327,7 @@ class _Expr:
 class _Run:
     def __init__(
         self,
-        text: str,
+        source: Source,
         name: str,
         machine: MachineLimits | None,
         library: Library | None,
@@ -379,7 +379,7 @@ class _Run:
         self.end_line: _Line | None = None
         self.ended = False
         self.begin: tuple[str, str] | None = None
-        self.main = self._parse(text, name)
+        self.main = self._parse(source, name)
 
     # ------------------------------------------------------------------ reporting
     def report(self, where: _Line, severity: Severity, message: str) -> None:
@@ -410,12 +410,12 @@ class _Run:
             self.report(where, Severity.WARNING, message)
 
     # ------------------------------------------------------------------ parsing
-    def _parse(self, text: str, name: str, external: bool = False) -> _Program:
+    def _parse(self, source: Source, name: str, external: bool = False) -> _Program:
         lines = _Lines()
         continuing = False  # the line before ended in "~"
         defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
         # read line by line (CR LF, LF or CR ends): no second copy of a large program
-        for number, raw in enumerate(io.StringIO(text, newline=None), start=1):
+        for number, _, raw in source.lines():
             code = raw.partition(";")[0].strip()
             if not code:
                 continue
@@ -505,7 +505,8 @@ class _Run:
     # ------------------------------------------------------------------ run
     def run(self) -> None:
         # CPU time of this thread: a busy machine must not turn a long program into a "loop"
-        deadline = time.thread_time() + self.budget.seconds
+        seconds = self.budget.seconds
+        deadline = math.inf if seconds is None else time.thread_time() + seconds
         # the block budget is for loops: a program's own blocks always run to its end
         limit = self.budget.blocks + len(self.main.lines)
         self.frames.append(_Frame(self.main, 0, "main", 0))
@@ -1242,7 +1243,9 @@ class _Run:
                     text = self.library(name)
                 except Exception:  # a library callback must not break the dry run
                     text = None
-            self.called[name] = None if text is None else self._parse(text, name, external=True)
+            self.called[name] = (
+                None if text is None else self._parse(TextSource(text), name, external=True)
+            )
         program = self.called[name]
         if program is None:
             self.report(item, Severity.WARNING, f"CALL PGM {name}: not in the library")
@@ -1513,7 +1516,7 @@ def _label(text: str) -> str:
 
 
 def run_klartext(
-    text: str,
+    source: Source,
     *,
     name: str,
     machine: MachineLimits | None,
@@ -1521,6 +1524,6 @@ def run_klartext(
     budget: Budget,
 ) -> CheckResult:
     """Dry-run a Klartext program (see the module docstring)."""
-    run = _Run(text, name, machine, library, budget)
+    run = _Run(source, name, machine, library, budget)
     run.run()
     return run.result()

@@ -112,6 +112,7 @@ class Toolpath:
         self.check_travel = bool(travel)
         self._overruns: dict[tuple[int, bool], _Overrun] = {}
         self.moves_dropped = 0
+        self.last: Move | None = None  # the last move, kept or not (a corner trims it)
         # the end point of the last move: the next move's start shares it (one tuple, not
         # two, per point: a million moves keep half the points)
         self._last_end: Point | None = None
@@ -164,6 +165,7 @@ class Toolpath:
             feed_distance=self.feed,
             cycle_time_s=self.seconds,
             moves=tuple(self.moves),
+            move_count=len(self.moves) + self.moves_dropped,
             stock=stock,
             units=units,
             blocks=blocks,
@@ -199,6 +201,7 @@ class Toolpath:
                     high[axis] = value
 
     def _add(self, move: Move) -> None:
+        self.last = move
         if len(self.moves) < self.max_moves:
             self.moves.append(move)
         else:
@@ -305,9 +308,9 @@ class Toolpath:
     def trim_last_feed(self, length: float) -> Move | None:
         """Shorten the last move, a straight feed, by ``length`` at its end (for a rounded or
         chamfered corner); the shortened move, or None when that is not possible."""
-        if not self.moves or self.moves_dropped:
+        last = self.last
+        if last is None:
             return None
-        last = self.moves[-1]
         if last.kind is not MoveKind.FEED:
             return None
         full = math.dist(last.start, last.end)
@@ -318,7 +321,9 @@ class Toolpath:
         trimmed = Move(
             last.kind, last.start, (end[0], end[1], end[2]), last.line, last.tool, feed=last.feed
         )
-        self.moves[-1] = trimmed
+        self.last = trimmed
+        if self.moves and self.moves[-1] is last:
+            self.moves[-1] = trimmed
         self.feed -= length
         if self._current is not None:
             self._current.feed_distance -= length

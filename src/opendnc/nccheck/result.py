@@ -186,6 +186,8 @@ class CheckResult:
     """Problems found beyond the :data:`MAX_PROBLEMS` listed (counted, not listed)."""
     more_errors: int = 0
     """How many of :attr:`more_problems` are errors (so :attr:`ok` still sees them)."""
+    move_count: int = 0
+    """Moves the run made, kept in :attr:`moves` or not (the budget's ``moves``)."""
 
     @property
     def errors(self) -> tuple[Problem, ...]:
@@ -208,12 +210,13 @@ class CheckResult:
         errors = len(self.errors) + self.more_errors
         warnings = len(self.warnings) + self.more_problems - self.more_errors
         unlisted = f" ({self.more_problems} not listed)" if self.more_problems else ""
+        moves = max(self.move_count, len(self.moves))
         minutes, seconds = divmod(round(self.cycle_time_s), 60)
         return (
             f"{self.name or 'program'}: {errors} error{'s' * (errors != 1)}, "
             f"{warnings} warning{'s' * (warnings != 1)}{unlisted}; {self._language()}, "
             f"{len(self.tools)} tool{'s' * (len(self.tools) != 1)}, "
-            f"{len(self.moves)} move{'s' * (len(self.moves) != 1)}, "
+            f"{moves} move{'s' * (moves != 1)}, "
             f"about {minutes}:{seconds:02d} min"
         )
 
@@ -261,6 +264,7 @@ class CheckResult:
             "feed_distance": _round(self.feed_distance),
             "cycle_time_s": round(self.cycle_time_s, 1),
             "blocks": self.blocks,
+            "move_count": max(self.move_count, len(self.moves)),
             "end": {
                 "position": {k: _round(v) for k, v in self.end.position.items()},
                 "tool": self.end.tool,

@@ -134,11 +134,15 @@ def test_problems_are_capped_with_a_count_of_the_rest() -> None:
 
 
 def test_a_run_stopped_by_its_budget_is_an_error() -> None:
+    # a straight program runs each block once, outside the block budget (which is for
+    # loops): only the time budget can stop it, and a stop is an error naming it
     body = "G21 G90\n" + "G00 X1.\nG00 X2.\n" * 2000 + "M30"
-    result = run(body, budget=Budget(blocks=2048))
+    assert run(body, budget=Budget(blocks=2048)).ok
+    result = run(body, budget=Budget(seconds=0.0))
     assert not result.ok
     (problem,) = result.errors
-    assert "its budget ran out); the rest of the program is not checked" in problem.message
+    assert "after 1,024 blocks (its budget of 0 s of CPU ran out)" in problem.message
+    assert "the rest of the program is not checked" in problem.message
 
 
 def test_a_title_comment_before_the_leading_percent_is_not_the_program() -> None:

@@ -1,0 +1,93 @@
+"""The dry run reads a program as a stream: its memory does not grow with the program.
+
+A program is generated to a file and checked with :func:`check_file` (as ``opendnc check``
+does); tracemalloc measures the peak of what the check allocates. A run that kept a record
+per block (the old list of parsed blocks, or every move) grows about linearly with the
+program; a streamed run stays within what it must remember (labels, open loops, a few
+pieces of re-readable blocks).
+"""
+
+from __future__ import annotations
+
+import tracemalloc
+from pathlib import Path
+
+from opendnc.nccheck import Budget, check_file
+
+
+def _gcode(path: Path, blocks: int, tail: str = "") -> int:
+    """A 3-D CAM-like program of about ``blocks`` blocks; returns the line of ``tail``."""
+    with path.open("w", encoding="ascii") as out:
+        out.write("%\nO01000\nG21 G90 T1 M06\nS5000 M03\nG01 Z-1. F800.\n")
+        for i in range(blocks):
+            feed = " F900." if i % 97 == 0 else ""
+            out.write(f"X{i % 100 * 0.5:.3f} Y{i % 77 * 0.25:.3f} Z-{1 + i % 5 * 0.1:.3f}{feed}\n")
+        out.write(f"{tail}\nM30\n%\n")
+    return 5 + blocks + 1
+
+
+def _peak(path: Path) -> int:
+    tracemalloc.start()
+    try:
+        result = check_file(path, budget=Budget(seconds=None, moves=0))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert result.ok, result.problems[:3]
+    assert result.end.ended
+    return peak
+
+
+def test_memory_does_not_grow_with_a_gcode_program(tmp_path: Path) -> None:
+    small, large = tmp_path / "small.nc", tmp_path / "large.nc"
+    # both files are larger than the piece the source reads at a time (1 MiB)
+    _gcode(small, 45_000)
+    _gcode(large, 180_000)
+    peak_small, peak_large = _peak(small), _peak(large)
+    # four times the blocks: the old run kept about 500 bytes a block (6.75 MB more here
+    # for even 50); measured growth under tracemalloc is about 2.5 MB (pieces of the read)
+    assert peak_large < peak_small + 5_000_000, (peak_small, peak_large)
+
+
+def test_a_loop_and_a_sub_program_behind_the_scan_are_read_again(tmp_path: Path) -> None:
+    # the sub-program after M30 is reached by a forward scan; the loop jumps back over
+    # more blocks than the pieces kept parsed, so they are read again from the file
+    program = tmp_path / "loop.nc"
+    body = "".join(f"X{i % 10}. Y{i % 7}.\n" for i in range(20_000))
+    program.write_text(
+        "%\nO01000\nG21 G90 T1 M06\nS5000 M03\nG01 Z-1. F800.\n#1 = 0\n"
+        f"WHILE [#1 LT 3] DO1\n{body}#1 = #1 + 1\nEND1\nM97 P100\nM30\n"
+        "N100 G01 X5. Y5.\n#2 = #1 * 2\nM99\n%\n",
+        "ascii",
+    )
+    result = check_file(program, budget=Budget(seconds=None, moves=0))
+    assert result.problems == ()
+    assert result.end.ended
+    assert result.end.variables[1] == 3.0
+    assert result.end.variables[2] == 6.0
+    # 4 blocks before the loop, the WHILE 4 times, 3 passes of the body with its count and
+    # END1, the call, the sub-program's 3 blocks and M30: each pass of the loop counts
+    assert result.blocks == 4 + 4 + 3 * (20_000 + 2) + 1 + 3 + 1
+
+
+def test_the_last_block_error_of_a_large_gcode_program(tmp_path: Path) -> None:
+    program = tmp_path / "last.nc"
+    line = _gcode(program, 100_000, tail="G01 X1. #0=1")
+    result = check_file(program, budget=Budget(seconds=None, moves=0))
+    assert [(p.line, p.severity.value) for p in result.problems] == [(line, "error")]
+    assert result.blocks == 3 + 100_000 + 1 + 1
+
+
+def test_the_last_block_error_of_a_large_klartext_program(tmp_path: Path) -> None:
+    program = tmp_path / "last.h"
+    blocks = 100_000
+    with program.open("w", encoding="ascii") as out:
+        out.write("0 BEGIN PGM LAST MM\n1 TOOL CALL 1 Z S5000\n2 L Z+5 R0 FMAX M3\n")
+        for n in range(3, blocks + 3):
+            out.write(f"{n} L X{n % 100 * 0.5:+.3f} Y{n % 77 * 0.25:+.3f} Z-1 F800\n")
+        n = blocks + 3
+        out.write(f"{n} CALL LBL 99\n{n + 1} L Z+100 R0 FMAX M30\n{n + 2} END PGM LAST MM\n")
+    result = check_file(program, budget=Budget(seconds=None, moves=0))
+    assert [(p.line, p.block, p.severity.value) for p in result.problems] == [
+        (blocks + 4, blocks + 3, "error")
+    ]
