@@ -344,6 +344,7 @@ def _send_until_under_way(
     return job_id, job
 
 
+@on("postgresql")  # a protocol's retry through the server: one backend is enough
 def test_machine_killed_mid_transfer_retries_and_leaves_no_partial_program(
     shop: Shop, procs: Procs
 ) -> None:
@@ -580,6 +581,7 @@ def test_receive_backup_and_delete_jobs_on_a_tnc(shop: Shop) -> None:
     assert (shop.tmp / "backups" / "tnc-a" / "O01234.nc").read_bytes() == PROGRAM
 
 
+@on("sqlite")  # a protocol through the server: one backend is enough
 def test_a_heidenhain_on_rs232_gets_its_program(tmp_path: Path, procs: Procs, db_url: str) -> None:
     # A TNC without a network: LSV2 over a virtual RS-232 cable, 8E1 as the controls default to.
     pc, tnc = tmp_path / "pc", tmp_path / "tnc-port"
