@@ -8,6 +8,8 @@ functions take the request, for helpers that are not routes.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from typing import TYPE_CHECKING, Annotated
 
 from fastapi import Depends, Request
@@ -15,7 +17,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.components import core_of
-from opendnc.server.db_health import DatabaseHealth
+from opendnc.server.db_health import WATCH_INTERVAL, WATCH_TIMEOUT, DatabaseHealth
 from opendnc.server.dprnt_capture import DprntCapture
 from opendnc.server.key_use import KeyUse
 from opendnc.server.loopwatch import LoopWatch
@@ -49,7 +51,9 @@ __all__ = [
 
 class Database:
     """The server's database as routes use it: a session factory for writes and one whose
-    transactions never take SQLite's write lock, for reads; a component."""
+    transactions never take SQLite's write lock, for reads, and its health, watched by a task
+    while the server runs (a silent database is noticed without a request waiting for it);
+    a component."""
 
     name = "database"
     needs: tuple[str, ...] = ()
@@ -59,12 +63,24 @@ class Database:
         self.sessions = sessions
         self.reads = read_only(sessions)
         self.health = DatabaseHealth(engine)  # answers, or an outage since when and why
+        # the watch's pace (db_health.py); a test may quicken it before the server starts
+        self.watch_interval = WATCH_INTERVAL
+        self.watch_timeout = WATCH_TIMEOUT
+        self._watch: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
-        """Nothing to start (the database was migrated when the server was built)."""
+        """Start watching the database's health (it was migrated when the server was built)."""
+        self._watch = asyncio.create_task(
+            self.health.watch(self.watch_interval, self.watch_timeout), name="database-watch"
+        )
 
     async def stop(self) -> None:
-        """Nothing to stop (the engine is disposed by whoever built the server)."""
+        """Stop the watch (the engine is disposed by whoever built the server)."""
+        task, self._watch = self._watch, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
 
 
 def database(request: Request) -> Database:
