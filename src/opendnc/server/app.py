@@ -44,12 +44,14 @@ from opendnc.server.parts import Outputs, TimelineRecorder
 from opendnc.server.refusals import Refusals
 from opendnc.server.remote_request import RemoteRequests
 from opendnc.server.runner import JobRunner
+from opendnc.server.shared_secrets import DEVICE_COOKIE_KEY, shared_secret
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
 from opendnc.server.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
 from opendnc.server.sparkplug import SparkplugNode
 from opendnc.server.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.throttle import Throttle
 from opendnc.server.watcher import LibraryWatcher
 from opendnc.server.web.timeline import Timeline
 
@@ -123,7 +125,9 @@ def build(
         core.add(server_lock)
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
-    services = core.add(actions.Services(sessions, database_part.reads, machines))
+    # device cookies are signed with the database's key: good on every server and after a restart
+    guard = Throttle(secret=shared_secret(sessions, DEVICE_COOKIE_KEY))
+    services = core.add(actions.Services(sessions, database_part.reads, machines, guard=guard))
     core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     core.add(Refusals(sessions))  # refused logins and keys, one audit row a minute per source
     clients = core.add(Clients(config.clients))  # send timeout, event stream slots

@@ -610,3 +610,16 @@ class VersionCheck(Base):
     problems: Mapped[list[Any]] = mapped_column(JSON, default=list)
     facts: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)  # tools, extents, time
     checked: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class ServerSecret(Base):
+    """A secret every server on this database shares, made once by the first that needs it
+    (:func:`opendnc.server.shared_secrets.shared_secret`): the key that signs the browsers'
+    device cookies, so a cookie one server of a cluster issued is good on the others and
+    after a restart (docs/server.md#throttling)."""
+
+    __tablename__ = "server_secrets"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    value: Mapped[bytes] = mapped_column(LargeBinary)
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
