@@ -623,3 +623,22 @@ class ServerSecret(Base):
     name: Mapped[str] = mapped_column(String(64), primary_key=True)
     value: Mapped[bytes] = mapped_column(LargeBinary)
     created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class AlertEpisode(Base):
+    """An alert episode that fired and has not ended: the alert went out (``fired``, by
+    ``server``) for the condition of ``rule`` on ``machine`` that began at ``since``.
+
+    The row is the claim: the server that inserts it sends the alert, one that finds it there
+    does not (after a restart, on another server of the cluster); the server that deletes it
+    when the condition ends sends the "cleared" alert (docs/server.md#alerts).
+    """
+
+    __tablename__ = "alert_episodes"
+
+    rule: Mapped[str] = mapped_column(String(128), primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    since: Mapped[datetime] = mapped_column(UtcDateTime())
+    fired: Mapped[datetime] = mapped_column(UtcDateTime())
+    server: Mapped[str] = mapped_column(String(64), default="")
+    detail: Mapped[str] = mapped_column(Text, default="")
