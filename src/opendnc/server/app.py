@@ -22,6 +22,7 @@ from opendnc import __version__
 from opendnc.server import actions, web
 from opendnc.server.access.key_use import KeyUse
 from opendnc.server.access.refusals import Refusals
+from opendnc.server.access.throttle import Throttle
 from opendnc.server.alerts.component import Alerts
 from opendnc.server.cluster.cluster import Cluster
 from opendnc.server.cluster.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
@@ -56,6 +57,7 @@ from opendnc.server.outputs.shdr import MtconnectOutput
 from opendnc.server.outputs.sparkplug import SparkplugNode
 from opendnc.server.outputs.sparkplug_store import next_bd_seq
 from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.store.secrets import DEVICE_COOKIE_KEY, shared_secret
 from opendnc.server.utilization import component as utilization_component
 
 __all__ = ["ConnectorFactory", "Server", "build"]
@@ -116,7 +118,9 @@ def build(
         core.add(server_lock)
     machines = core.add(Machines(config, bus))
     # every command of the API and the pages goes through the actions (docs/server.md)
-    services = core.add(actions.Services(sessions, database_part.reads, machines))
+    # device cookies are signed with the database's key: good on every server and after a restart
+    guard = Throttle(secret=shared_secret(sessions, DEVICE_COOKIE_KEY))
+    services = core.add(actions.Services(sessions, database_part.reads, machines, guard=guard))
     core.add(KeyUse(sessions))  # the keys' last use, written once a minute
     core.add(Refusals(sessions))  # refused logins and keys, one audit row a minute per source
     clients = core.add(Clients(config.clients))  # send timeout, event stream slots

@@ -81,6 +81,7 @@ class Throttle:
         longest: float = 900.0,
         size: int = 10_000,
         clock: Callable[[], float] = time.monotonic,
+        secret: bytes | None = None,
     ) -> None:
         self.free = dict(free)
         self.longest = longest
@@ -92,10 +93,10 @@ class Throttle:
         # until then only a bucket added since can have passed, so no sweep is needed)
         self._waiting_until: dict[str, float] = {}
         self._lock = threading.Lock()  # routes run in worker threads
-        # Signs device cookies. Per process: after a restart (or on another server sharing
-        # the database) a browser is new again, which costs it nothing unless its user name
-        # is being guessed at that moment.
-        self._secret = secrets.token_bytes(32)
+        # Signs device cookies. The server passes the key its database keeps
+        # (shared_secrets.py), so every server of a cluster and a restarted one know the
+        # cookies it issued; without one (a test, a tool) it is this process's own.
+        self._secret = secret if secret is not None else secrets.token_bytes(32)
 
     def wait(self, buckets: Iterable[Bucket]) -> float:
         """Seconds until every one of ``buckets`` allows a try (0.0: now)."""

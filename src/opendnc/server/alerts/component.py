@@ -9,6 +9,12 @@ another. SMTP runs in a thread of its own (smtplib blocks), never in the threads
 database work uses. A target that keeps failing is logged once when it goes down and once when
 it is back, not once per message; every delivery, sent or failed, is one audit row
 (``alert``, result ``ok`` or ``failed``, the target in ``detail``).
+
+An episode's alert is sent once across restarts and across the servers of a cluster: the
+``alert_episodes`` row is the claim. The server whose insert goes through sends the alert; one
+that finds the row (it restarted, or took the machine over) does not. The server whose delete
+takes the row when the condition ends sends the "cleared" alert, with the episode's first
+``since``. Without its database (an outage) an alert is sent rather than lost.
 """
 
 from __future__ import annotations
@@ -23,7 +29,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy import delete, select
+from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.alerts.delivery import (
@@ -54,6 +61,7 @@ from opendnc.server.core.events import (
 )
 from opendnc.server.core.shifts import Calendar
 from opendnc.server.store import audit
+from opendnc.server.store.models import AlertEpisode
 
 if TYPE_CHECKING:
     import httpx
@@ -149,9 +157,17 @@ class Alerts:
         self._client: httpx.AsyncClient | None = None
         self._stack = contextlib.ExitStack()
         self._tasks: list[asyncio.Task[None]] = []
+        self._unstored: set[tuple[str, str]] = set()  # fired during an outage: no row
+        self._store_down = False
 
     async def start(self) -> None:
-        """Subscribe to the bus, start the watch task and one task per target."""
+        """Read the fired episodes from the database, subscribe to the bus, start the watch
+        task and one task per target."""
+        if self.sessions is not None:
+            try:
+                self.engine.seed(await asyncio.to_thread(_stored_episodes, self.sessions))
+            except SQLAlchemyError as exc:  # each machine's keys are checked as it is seen
+                log.warning("alerts: the fired episodes could not be read: %s", type(exc).__name__)
         self._open()
         subscription = self._stack.enter_context(self.bus.subscribe(maxsize=1000))
         self._tasks.append(asyncio.create_task(self._watch(subscription), name="alerts"))
@@ -201,16 +217,66 @@ class Alerts:
             now = self.clock()
             try:
                 if isinstance(event, MachineStatusChanged):
-                    self.raise_all(self.engine.status(event, now))
+                    await self._settle(self.engine.status(event, now), now)
                 elif isinstance(event, JobFinished):
                     self.raise_all(self.engine.job(event, now))
                 elif isinstance(event, LeaseChanged):
                     self.engine.lease(event)
-                self.raise_all(self.engine.tick(now))
+                await self._settle(self.engine.tick(now), now)
             except Exception:  # a bug in one rule must not end the watch for the others
                 log.exception("alerts: an event could not be judged")
             if subscription.take_overflow():
                 log.warning("alerts: events lost while the bus was busy; the next poll repeats")
+
+    async def _settle(self, alerts: list[Alert], now: datetime) -> None:
+        """Raise ``alerts`` as the database's episodes allow (see the module docstring): an
+        episode's alert only if this server claimed it, its end only if this server deleted
+        its row (or sent it without one)."""
+        ended = self.engine.take_ended()
+        sessions = self.sessions
+        if sessions is None:
+            self.raise_all(alerts)
+            return
+        fired = [a for a in alerts if a.phase is Phase.FIRED and a.kind is not AlertKind.JOB_FAILED]
+        own_clears = {(a.rule.name, a.machine): a for a in alerts if a.phase is Phase.CLEARED}
+        if not fired and not ended:
+            self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
+            return
+        try:
+            claimed, deleted = await asyncio.to_thread(
+                _claim_and_end, sessions, self.server, fired, ended
+            )
+        except SQLAlchemyError as exc:
+            if not self._store_down:
+                log.warning("alerts: episodes not stored (sent all the same): %s", exc)
+            self._store_down = True
+            for key in ended:
+                self.engine.maybe_stored(key)  # its row is deleted at a later reading
+            self._unstored |= {(a.rule.name, a.machine) for a in fired}
+            self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
+            for key, clear in own_clears.items():
+                if key in self._unstored:
+                    self._unstored.discard(key)
+                    self.raise_all([clear])
+            return
+        if self._store_down:
+            log.warning("alerts: episodes are stored again")
+            self._store_down = False
+        rules = {rule.name: rule for rule in self.config.rules}
+        out: list[Alert] = []
+        for alert in alerts:
+            key = (alert.rule.name, alert.machine)
+            if alert.phase is Phase.CLEARED:
+                if key in self._unstored:  # it fired during an outage: no row to say so
+                    self._unstored.discard(key)
+                    out.append(alert)
+            elif alert.kind is AlertKind.JOB_FAILED or key in claimed:
+                out.append(alert)
+        for (name, machine), since in deleted.items():
+            rule = rules.get(name)
+            if rule is not None and rule.on_clear:
+                out.append(Alert(rule, Phase.CLEARED, machine, since, now))
+        self.raise_all(out)
 
     def raise_all(self, alerts: list[Alert]) -> None:
         """Put each alert into the outbox of each of its rule's targets."""
@@ -297,6 +363,53 @@ class Alerts:
             await asyncio.to_thread(write)
         except SQLAlchemyError as exc:  # the database is away: the alert itself went (or not)
             log.warning("alerts: audit row not written: %s", type(exc).__name__)
+
+
+def _stored_episodes(sessions: sessionmaker[Session]) -> set[tuple[str, str]]:
+    with sessions() as session:
+        rows = session.execute(select(AlertEpisode.rule, AlertEpisode.machine)).all()
+        return {(rule, machine) for rule, machine in rows}
+
+
+def _claim_and_end(
+    sessions: sessionmaker[Session],
+    server: str,
+    fired: list[Alert],
+    ended: list[tuple[str, str]],
+) -> tuple[set[tuple[str, str]], dict[tuple[str, str], datetime]]:
+    """Insert a row for each of ``fired`` (the keys whose insert went through: this server
+    sends those) and delete the rows of ``ended`` (the keys deleted here, with the episode's
+    ``since``: this server sends their ends). One transaction per claim: a claim another
+    server made first refuses this one alone."""
+    claimed: set[tuple[str, str]] = set()
+    for alert in fired:
+        try:
+            with sessions.begin() as session:
+                session.add(
+                    AlertEpisode(
+                        rule=alert.rule.name,
+                        machine=alert.machine,
+                        since=alert.since,
+                        fired=alert.at,
+                        server=server,
+                        detail=alert.detail[:2000],
+                    )
+                )
+        except IntegrityError:
+            continue  # sent already: before a restart, or by another server
+        claimed.add((alert.rule.name, alert.machine))
+    deleted: dict[tuple[str, str], datetime] = {}
+    if ended:
+        with sessions.begin() as session:
+            for name, machine in ended:
+                since = session.scalar(
+                    delete(AlertEpisode)
+                    .where(AlertEpisode.rule == name, AlertEpisode.machine == machine)
+                    .returning(AlertEpisode.since)
+                )
+                if since is not None:
+                    deleted[(name, machine)] = since
+    return claimed, deleted
 
 
 def _secrets(target: EmailTarget | WebhookTarget) -> tuple[str, ...]:

@@ -14,6 +14,12 @@ is not the stop's end, and would otherwise send the stop's message again when th
 The engine is plain synchronous code with the time passed in (``now``), so a test drives it
 through hours of a shop in a moment; :mod:`opendnc.server.alerts.component` feeds it from the event
 bus.
+
+Whether an episode's alert went out already is the database's to say (``alert_episodes``: a
+restarted server, or the next server of a cluster, must not send it again), so the engine
+also keeps which (rule, machine) the database may hold a fired episode of, and hands out
+(:meth:`AlertEngine.take_ended`) those whose condition no longer holds: the alerts component
+deletes their rows and sends the "cleared" alerts the deleted rows call for.
 """
 
 from __future__ import annotations
@@ -77,6 +83,38 @@ class AlertEngine:
         # a job's end can be published twice (a hand-back after an outage): one alert a job
         self._jobs: deque[int] = deque(maxlen=remember_jobs)
         self._elsewhere: set[str] = set()  # machines whose lease this server lost
+        # (rule, machine) the database may hold a fired episode of; until seeded from it,
+        # every key of a machine is such a key from the machine's first reading
+        self._maybe_stored: set[tuple[str, str]] = set()
+        self._seeded = False
+        self._seen: set[str] = set()
+        self._ended: list[tuple[str, str]] = []
+
+    def seed(self, stored: set[tuple[str, str]]) -> None:
+        """The (rule, machine) of the fired episodes the database holds now (at start)."""
+        self._maybe_stored |= stored
+        self._seeded = True
+
+    def maybe_stored(self, key: tuple[str, str]) -> None:
+        """The database may hold a fired episode of ``key`` (its row could not be deleted):
+        it is handed out again at the next reading where its condition does not hold."""
+        self._maybe_stored.add(key)
+
+    def take_ended(self) -> list[tuple[str, str]]:
+        """(rule, machine) whose condition ended or was seen not to hold while the database
+        may hold a fired episode of it; each once."""
+        ended, self._ended = self._ended, []
+        return ended
+
+    def _all_keys(self, machine: str) -> None:
+        for rule in self.rules:
+            if rule.kind is not AlertKind.JOB_FAILED and rule.applies_to(machine):
+                self._maybe_stored.add((rule.name, machine))
+
+    def _end(self, key: tuple[str, str]) -> None:
+        if key in self._maybe_stored:
+            self._maybe_stored.discard(key)
+            self._ended.append(key)
 
     def lease(self, event: LeaseChanged) -> None:
         """This server gained or lost a machine (several servers): a lost one's episodes go
@@ -84,6 +122,7 @@ class AlertEngine:
         an outage."""
         if event.held:
             self._elsewhere.discard(event.machine)
+            self._all_keys(event.machine)  # the server it came from may have stored some
         else:
             self._elsewhere.add(event.machine)
             self._forget(event.machine)
@@ -104,6 +143,9 @@ class AlertEngine:
             self._forget(machine)
             return []
         state = event.state
+        if not self._seeded and machine not in self._seen:
+            self._seen.add(machine)
+            self._all_keys(machine)
         out: list[Alert] = []
         for rule in self.rules:
             if rule.kind is AlertKind.JOB_FAILED or not rule.applies_to(machine):
@@ -122,9 +164,12 @@ class AlertEngine:
                 episode.detail = _detail(rule.kind, event) or episode.detail
             elif not holds and episode is not None:
                 del self._episodes[key]
+                self._end(key)
                 if episode.fired and rule.on_clear:
                     out.append(Alert(rule, Phase.CLEARED, machine, episode.since, now))
                 continue
+            elif not holds:
+                self._end(key)
             if episode is not None:
                 out.extend(self._due(rule, machine, episode, now))
         return out
@@ -157,11 +202,11 @@ class AlertEngine:
             out.extend(self._due(rules[name], machine, episode, now))
         return out
 
-    @staticmethod
-    def _due(rule: AlertRule, machine: str, episode: _Episode, now: datetime) -> list[Alert]:
+    def _due(self, rule: AlertRule, machine: str, episode: _Episode, now: datetime) -> list[Alert]:
         if episode.fired or (now - episode.since).total_seconds() < rule.minutes * 60:
             return []
         episode.fired = True
+        self._maybe_stored.add((rule.name, machine))  # its row is written as it is sent
         return [Alert(rule, Phase.FIRED, machine, episode.since, now, episode.detail)]
 
 

@@ -8,6 +8,8 @@ functions take the request, for helpers that are not routes.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 from typing import TYPE_CHECKING, Annotated
 
 from fastapi import Depends, Request
@@ -21,7 +23,7 @@ from opendnc.server.jobs.runner import JobRunner
 from opendnc.server.machines.dprnt_capture import DprntCapture
 from opendnc.server.machines.state import Machines
 from opendnc.server.store.db import read_only
-from opendnc.server.store.health import DatabaseHealth
+from opendnc.server.store.health import WATCH_INTERVAL, WATCH_TIMEOUT, DatabaseHealth
 
 if TYPE_CHECKING:
     from opendnc.server.machines.timeline import Timeline
@@ -49,7 +51,9 @@ __all__ = [
 
 class Database:
     """The server's database as routes use it: a session factory for writes and one whose
-    transactions never take SQLite's write lock, for reads; a component."""
+    transactions never take SQLite's write lock, for reads, and its health, watched by a task
+    while the server runs (a silent database is noticed without a request waiting for it);
+    a component."""
 
     name = "database"
     needs: tuple[str, ...] = ()
@@ -59,12 +63,24 @@ class Database:
         self.sessions = sessions
         self.reads = read_only(sessions)
         self.health = DatabaseHealth(engine)  # answers, or an outage since when and why
+        # the watch's pace (db_health.py); a test may quicken it before the server starts
+        self.watch_interval = WATCH_INTERVAL
+        self.watch_timeout = WATCH_TIMEOUT
+        self._watch: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
-        """Nothing to start (the database was migrated when the server was built)."""
+        """Start watching the database's health (it was migrated when the server was built)."""
+        self._watch = asyncio.create_task(
+            self.health.watch(self.watch_interval, self.watch_timeout), name="database-watch"
+        )
 
     async def stop(self) -> None:
-        """Nothing to stop (the engine is disposed by whoever built the server)."""
+        """Stop the watch (the engine is disposed by whoever built the server)."""
+        task, self._watch = self._watch, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
 
 
 def database(request: Request) -> Database:

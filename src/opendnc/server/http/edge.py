@@ -8,11 +8,14 @@
   numbers are counts, ids and versions, never infinities.
 * A database that cannot be reached is 503 with one line saying so (a page: an HTML page),
   logged once per outage (:mod:`opendnc.server.store.health`), not a traceback per request.
+  While an outage is known, :class:`OutageGate` answers so at once, before a route waits for
+  a silent database, and lets a request that is already waiting go with the same answer.
 * Anything else unexpected is logged with its traceback and answered 500 with a one-line body.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import math
@@ -24,7 +27,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from sqlalchemy.exc import DataError, DBAPIError, InterfaceError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from opendnc.server.core.components import core_of
 from opendnc.server.http import deps
 from opendnc.server.http.sessions import SessionRoute
 from opendnc.server.store.health import is_database_down
@@ -37,7 +42,16 @@ except ImportError:  # pragma: no cover - SQLite only: there it is an OverflowEr
         """Stands in for psycopg's error where psycopg is not installed."""
 
 
-__all__ = ["ECHO_LIMIT", "ApiRoute", "StrictJsonRequest", "install", "printable", "strict_json"]
+__all__ = [
+    "ECHO_LIMIT",
+    "OUTAGE_FREE",
+    "ApiRoute",
+    "OutageGate",
+    "StrictJsonRequest",
+    "install",
+    "printable",
+    "strict_json",
+]
 
 log = logging.getLogger("opendnc.server")
 
@@ -118,6 +132,79 @@ def database_unavailable(request: Request) -> Response:
     return response
 
 
+# Paths that never need the database: health says what is wrong, the static files are files.
+OUTAGE_FREE = ("/api/health", "/static/")
+
+
+class OutageGate:
+    """During a known database outage, answer every request that may need the database 503
+    at once (:func:`database_unavailable`), instead of letting each wait for its own deadline
+    on a silent connection (5 to 15 s).
+
+    A request already running when the outage is declared and not yet answering is answered
+    so too, at that moment: its route goes on in the background (its worker thread is stuck
+    until the connection's deadline) and whatever it sends later is dropped. A response that
+    has begun (an event stream, a download) is left alone.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self._outage: asyncio.Event | None = None  # set while an outage is known (this loop)
+        self._left: set[asyncio.Task[None]] = set()  # answered routes still running
+
+    def _event(self, scope: Scope) -> asyncio.Event:
+        if self._outage is None:
+            outage = self._outage = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            health = core_of(scope["app"]).get(deps.Database).health
+
+            def changed(ok: bool) -> None:
+                if not loop.is_closed():
+                    loop.call_soon_threadsafe(outage.clear if ok else outage.set)
+
+            health.listen(changed)
+            if not health.ok:
+                outage.set()
+        return self._outage
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope["path"].startswith(OUTAGE_FREE):
+            await self.app(scope, receive, send)
+            return
+        outage = self._event(scope)
+        if outage.is_set():
+            await database_unavailable(Request(scope))(scope, receive, send)
+            return
+        started = answered = False
+
+        async def send_unless_answered(message: Message) -> None:
+            nonlocal started
+            if answered:
+                return  # the client has had its 503
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        route = asyncio.ensure_future(self.app(scope, receive, send_unless_answered))
+        declared = asyncio.ensure_future(outage.wait())
+        try:
+            await asyncio.wait({route, declared}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            declared.cancel()
+        if route.done() or started:
+            await route
+            return
+        answered = True
+        self._left.add(route)
+        route.add_done_callback(self._forget)
+        await database_unavailable(Request(scope))(scope, receive, send)
+
+    def _forget(self, route: asyncio.Task[None]) -> None:
+        self._left.discard(route)
+        if not route.cancelled():
+            route.exception()  # the 503 was the answer; the route's own failure is the outage's
+
+
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
     log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
     return JSONResponse(
@@ -181,3 +268,4 @@ def install(app: FastAPI) -> None:
     for away in (OperationalError, InterfaceError, PoolTimeout, DBAPIError):
         app.add_exception_handler(away, _database_away)
     app.add_exception_handler(Exception, _unexpected)
+    app.add_middleware(OutageGate)

@@ -610,3 +610,35 @@ class VersionCheck(Base):
     problems: Mapped[list[Any]] = mapped_column(JSON, default=list)
     facts: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)  # tools, extents, time
     checked: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class ServerSecret(Base):
+    """A secret every server on this database shares, made once by the first that needs it
+    (:func:`opendnc.server.store.secrets.shared_secret`): the key that signs the browsers'
+    device cookies, so a cookie one server of a cluster issued is good on the others and
+    after a restart (docs/server.md#throttling)."""
+
+    __tablename__ = "server_secrets"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    value: Mapped[bytes] = mapped_column(LargeBinary)
+    created: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class AlertEpisode(Base):
+    """An alert episode that fired and has not ended: the alert went out (``fired``, by
+    ``server``) for the condition of ``rule`` on ``machine`` that began at ``since``.
+
+    The row is the claim: the server that inserts it sends the alert, one that finds it there
+    does not (after a restart, on another server of the cluster); the server that deletes it
+    when the condition ends sends the "cleared" alert (docs/server.md#alerts).
+    """
+
+    __tablename__ = "alert_episodes"
+
+    rule: Mapped[str] = mapped_column(String(128), primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    since: Mapped[datetime] = mapped_column(UtcDateTime())
+    fired: Mapped[datetime] = mapped_column(UtcDateTime())
+    server: Mapped[str] = mapped_column(String(64), default="")
+    detail: Mapped[str] = mapped_column(Text, default="")
