@@ -42,8 +42,8 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    # "lsv2", "haas_ngc", "haas_serial", "mtconnect", "opcua" or "serial" (a virtual Fanuc), as in the
-    # server's configuration
+    # "lsv2", "haas_ngc", "haas_serial", "mtconnect", "opcua" or "serial" (a virtual Fanuc),
+    # as in the server's configuration
     kind: str
     host: str
     port: int  # 0 for a serial machine
