@@ -3,8 +3,8 @@ run appears on the floor (``/api/machines``) with the script's states, part coun
 text within a second, over an unsecured and a Basic256Sha256 session; a server restart
 re-subscribes without counting a part twice (docs/opcua-input.md).
 
-One virtual server serves the whole module (asyncua builds its address space in seconds);
-each test uses machines of its own on it."""
+asyncua builds a server's address space in seconds, so one server serves the module and one
+test drives it (xdist would build a server per worker)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,8 @@ import asyncio
 from dataclasses import dataclass
 from typing import Any
 
-from asyncua import Node, ua
+from asyncua import ua
+from asyncua.common.node import Node
 
 from opendnc.opcua.model import ChannelMode, ChannelState, ProgramState, SignalColor
 from opendnc.sim.opcua.server import MachineNodes

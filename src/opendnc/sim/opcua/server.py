@@ -21,9 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from asyncua import Node, Server, ua
+from asyncua import ua
+from asyncua.common.node import Node
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_server import InternalServer
+from asyncua.server.server import Server
+from asyncua.ua.object_ids import ObjectIds
 
 from opendnc.errors import InputError
 from opendnc.opcua.model import (
@@ -165,7 +168,7 @@ class VirtualOpcuaServer:
         alert_type = await server.create_custom_event_type(
             tool,
             "AlertType",
-            ua.ObjectIds.AlarmConditionType,
+            ObjectIds.AlarmConditionType,
             [("ErrorCode", ua.VariantType.String)],
         )
         folder = await server.nodes.objects.add_folder(machinery, MACHINES_FOLDER)
@@ -189,9 +192,9 @@ async def _machine(
     )
     stacklight = await monitoring.add_object(tool, "Stacklight")
     lights = {}
-    for number, color in enumerate(LIGHTS):
-        element = await stacklight.add_object(ia, f"StackElement{number}")
-        await element.add_variable(ia, "NumberInList", number, ua.VariantType.UInt16)
+    for place, color in enumerate(LIGHTS):
+        element = await stacklight.add_object(ia, f"StackElement{place}")
+        await element.add_variable(ia, "NumberInList", place, ua.VariantType.UInt16)
         await element.add_variable(ia, "SignalColor", int(color), ua.VariantType.Int32)
         lights[color] = await element.add_variable(ia, "SignalOn", False)
     channel = await monitoring.add_object(tool, "Channel1")
@@ -213,7 +216,7 @@ async def _machine(
     notification = await machine.add_object(tool, "Notification")
     messages = await notification.add_object(tool, "Messages")
     await messages.set_event_notifier([ua.EventNotifier.SubscribeToEvents])
-    alert = await server.get_event_generator(alert_type, messages)
+    alert = await server.get_event_generator(alert_type, messages.nodeid)
     return MachineNodes(
         name, operation_mode, channel_state, channel_mode, feed, program, number, current,
         parts, lights, alert,

@@ -23,9 +23,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from asyncua import Client, Node, ua
+from asyncua import ua
+from asyncua.client.client import Client
+from asyncua.common.node import Node
 from asyncua.common.subscription import Subscription
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.ua.attribute_ids import AttributeIds
+from asyncua.ua.object_ids import ObjectIds
+from asyncua.ua.uaerrors import UaError
 
 from opendnc.errors import InputError, TransportError
 from opendnc.opcua.model import ChannelMode, ChannelState, MachineOperationMode, Paths, ProgramState
@@ -219,7 +224,7 @@ class OpcuaConnector(NetworkOnly):
                 await self._subscribe(client, machine)
         except TimeoutError:
             raise TransportError(f"{config.name}: {config.endpoint} did not answer") from None
-        except (OSError, ua.UaError, ConnectionError) as exc:
+        except (OSError, UaError, ConnectionError) as exc:
             raise TransportError(f"{config.name}: {config.endpoint}: {exc}") from None
 
     async def _secure(self, client: Client) -> None:
@@ -299,9 +304,9 @@ class OpcuaConnector(NetworkOnly):
                 on = await _child(node, Paths.SIGNAL_ON)
                 color = await _child(node, Paths.SIGNAL_COLOR)
                 if on is not None:
-                    items.append((on, lambda v, light=light: setattr(light, "on", bool(v))))
+                    items.append((on, _setter(light, "on", bool)))
                 if color is not None:
-                    items.append((color, lambda v, light=light: setattr(light, "color", _int(v))))
+                    items.append((color, _setter(light, "color", _int)))
         seconds = self.config.publishing_interval
         subscription = await client.create_subscription(seconds * 1000, handler)
         self._subscription = subscription
@@ -313,7 +318,7 @@ class OpcuaConnector(NetworkOnly):
         if messages is not None:
             namespace = await _namespace(client, self.config.namespace)
             await subscription.subscribe_events(
-                messages, ua.ObjectIds.BaseEventType, evfilter=_alert_filter(namespace)
+                messages, ObjectIds.BaseEventType, evfilter=_alert_filter(namespace)
             )
 
     async def _channel(self, machine: Node) -> Node | None:
@@ -342,7 +347,7 @@ class OpcuaConnector(NetworkOnly):
         try:
             async with asyncio.timeout(self.config.request_timeout):
                 await client.disconnect()
-        except (TimeoutError, OSError, ua.UaError, ConnectionError):
+        except (TimeoutError, OSError, UaError, ConnectionError):
             client.disconnect_socket()
 
     async def status(self) -> MachineStatus:
@@ -375,6 +380,13 @@ class OpcuaConnector(NetworkOnly):
     async def backup(self, path: str, target: Path) -> dict[str, int]:
         """Status only."""
         raise self._read_only("a backup")
+
+
+def _setter(light: Light, name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
+    def put(value: Any) -> None:
+        setattr(light, name, convert(value))
+
+    return put
 
 
 def _float(value: Any) -> float | None:
@@ -412,16 +424,16 @@ def _alert_filter(namespace: int) -> ua.EventFilter:
 
     def operand(type_id: int, *path: tuple[int, str]) -> ua.SimpleAttributeOperand:
         op = ua.SimpleAttributeOperand()
-        op.TypeDefinitionId = ua.NodeId(type_id)
+        op.TypeDefinitionId = ua.NodeId(ua.Int32(type_id))
         op.BrowsePath = [ua.QualifiedName(name, index) for index, name in path]
-        op.AttributeId = ua.AttributeIds.Value
+        op.AttributeId = AttributeIds.Value
         return op
 
     event_filter = ua.EventFilter()
     event_filter.SelectClauses = [
-        operand(ua.ObjectIds.BaseEventType, (0, "Message")),
-        operand(ua.ObjectIds.BaseEventType, (0, "Severity")),
-        operand(ua.ObjectIds.BaseEventType, (namespace, "ErrorCode")),
-        operand(ua.ObjectIds.AlarmConditionType, (0, "ActiveState"), (0, "Id")),
+        operand(ObjectIds.BaseEventType, (0, "Message")),
+        operand(ObjectIds.BaseEventType, (0, "Severity")),
+        operand(ObjectIds.BaseEventType, (namespace, "ErrorCode")),
+        operand(ObjectIds.AlarmConditionType, (0, "ActiveState"), (0, "Id")),
     ]
     return event_filter
