@@ -37,6 +37,8 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         "1",
         "--mtconnect",
         "2",
+        "--opcua",
+        "2",
         "--fanuc",
         "1",
         "--root",
@@ -58,9 +60,10 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         "haas_ngc": 2,
         "haas_serial": 1,
         "mtconnect": 2,
+        "opcua": 2,
         "serial": 1,
     }
-    assert len({m.name for m in shop.machines}) == 9
+    assert len({m.name for m in shop.machines}) == 11
     assert (shop.server.bind_host, shop.server.bind_port) == ("127.0.0.1", port)
     for m in shop.machines:
         assert m.poll_interval == 0.3
@@ -72,6 +75,9 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
         elif m.kind == "mtconnect":
             assert listening(int(m.url.rsplit(":", 1)[1]))(), m
             assert m.device.startswith("mtc-"), m
+        elif m.kind == "opcua":
+            assert listening(int(m.endpoint.rsplit(":", 1)[1]))(), m
+            assert m.machine.startswith("opc-"), m
         else:
             assert Path(m.serial).exists(), m
     key = create_key(config, db_url)
@@ -86,12 +92,13 @@ def test_fleet_config_out_serves_exactly_the_started_controls(
 
         def agents() -> dict[str, str]:
             listed = client.get("/api/machines", headers=auth(key)).json()
-            return {m["name"]: m["state"] for m in listed if m["kind"] == "mtconnect"}
+            return {m["name"]: m["state"] for m in listed if m["kind"] in ("mtconnect", "opcua")}
 
-        # every device of the agent is read, each as its own machine, from its scripted cycle
+        # every device of the agent and every machine tool of the OPC UA server is read, each
+        # as its own machine, from its scripted cycle
         working = {"ready", "running", "stopped", "alarm"}
         wait_for(
-            "the agent's machines",
-            lambda: len(agents()) == 2 and set(agents().values()) <= working,
+            "the agent's and the OPC UA server's machines",
+            lambda: len(agents()) == 4 and set(agents().values()) <= working,
             describe=agents,
         )

@@ -14,6 +14,7 @@ app = lazy_typer(
         "cable": Lazy("opendnc.cli.sim_cable:cable", "Run a virtual null-modem cable."),
         "haas": Lazy("opendnc.cli.sim_haas:haas", "Run a virtual Haas control."),
         "fanuc": Lazy("opendnc.cli.sim_fanuc:fanuc", "Run a virtual Fanuc on a serial port."),
+        "opcua": Lazy("opendnc.cli.sim_opcua:opcua", "Run a virtual OPC UA (umati) server."),
         "fleet": Lazy("opendnc.cli.sim_fleet:fleet", "Run many virtual controls in one process."),
     },
 )

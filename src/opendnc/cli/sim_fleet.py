@@ -29,6 +29,9 @@ def fleet(
     mtconnect_cycle: float = typer.Option(
         30.0, "--mtconnect-cycle", help="Seconds of one scripted part cycle (--mtconnect)."
     ),
+    opcua: int = typer.Option(
+        0, "--opcua", help="Machine tools of one virtual OPC UA server (scripted cycles)."
+    ),
     base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
     root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
@@ -72,6 +75,7 @@ def fleet(
             fanuc=fanuc,
             mtconnect=mtconnect,
             mtconnect_cycle=mtconnect_cycle,
+            opcua=opcua,
         )
         try:
             if config_out is not None:
@@ -93,8 +97,10 @@ def fleet(
         console.print("stopped")
 
     with cli_errors(), ready_file(ready) as mark_ready:
-        if min(tnc, haas, serial_haas, fanuc, mtconnect) < 0:
-            raise InputError("--tnc, --haas, --fanuc and --mtconnect count controls: 0 or more")
+        if min(tnc, haas, serial_haas, fanuc, mtconnect, opcua) < 0:
+            raise InputError(
+                "--tnc, --haas, --fanuc, --mtconnect and --opcua count controls: 0 or more"
+            )
         if mtconnect_cycle < 1:
             raise InputError("--mtconnect-cycle: at least 1 second")
         try:

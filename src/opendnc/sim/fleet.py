@@ -31,6 +31,8 @@ if TYPE_CHECKING:
     from opendnc.sim.haas.serial_front import SerialFrontEnd
     from opendnc.sim.mtconnect.agent import VirtualAgent
     from opendnc.sim.mtconnect.machine import ScriptedMachine
+    from opendnc.sim.opcua.machine import ScriptedMachineTool
+    from opendnc.sim.opcua.server import VirtualOpcuaServer
 
 __all__ = ["Fleet", "FleetMachine", "server_config", "start_fleet"]
 
@@ -40,8 +42,8 @@ class FleetMachine:
     """One started control: its name, kind, address and folder."""
 
     name: str
-    # "lsv2", "haas_ngc", "haas_serial", "mtconnect" or "serial" (a virtual Fanuc), as in the
-    # server's configuration
+    # "lsv2", "haas_ngc", "haas_serial", "mtconnect", "opcua" or "serial" (a virtual Fanuc),
+    # as in the server's configuration
     kind: str
     host: str
     port: int  # 0 for a serial machine
@@ -49,7 +51,8 @@ class FleetMachine:
     serial: str = ""  # the PC's end of a virtual cable
     baud: int = 0
     dprnt_port: int = 0  # a Haas NGC's DPRNT port (Setting 263), 0 for none
-    device: str = ""  # an MTConnect machine's device name at the fleet's agent
+    device: str = ""  # an MTConnect machine's device name at the fleet's agent, an OPC UA
+    # machine's browse name at the fleet's OPC UA server
 
 
 @dataclass
@@ -71,6 +74,10 @@ class Fleet:
     """The one virtual MTConnect agent of the ``mtconnect`` machines (None without them)."""
     scripted: dict[str, ScriptedMachine] = field(default_factory=dict, repr=False)
     """The scripted machine behind each ``mtconnect`` machine, by machine name."""
+    opcua: VirtualOpcuaServer | None = field(default=None, repr=False)
+    """The one virtual OPC UA server of the ``opcua`` machines (None without them)."""
+    machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
+    """The scripted machine tool behind each ``opcua`` machine, by machine name."""
     _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
 
     async def close(self) -> None:
@@ -90,6 +97,9 @@ class Fleet:
             await asyncio.gather(*self._cycles, return_exceptions=True)
         if self.agent is not None:
             await self.agent.close()
+        if self.opcua is not None:
+            await self.opcua.close()
+            self.opcua = None
         self._cycles.clear()
         self.agent = None
         self._tncs.clear()
@@ -115,6 +125,7 @@ async def start_fleet(
     fanuc: int = 0,
     mtconnect: int = 0,
     mtconnect_cycle: float = 30.0,
+    opcua: int = 0,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -128,7 +139,9 @@ async def start_fleet(
     port of its own (Setting 263), which :func:`server_config` names as its source.
     ``mtconnect`` machines are devices ``mtc-1``, ... of one virtual MTConnect agent (the
     port after the Haas ones), each running a scripted cycle of ``mtconnect_cycle`` seconds
-    (a part each, a feed hold every fifth, an alarm every thirteenth).
+    (a part each, a feed hold every fifth, an alarm every thirteenth). ``opcua`` machines are
+    machine tools ``opc-1``, ... of one virtual OPC UA server (the port after the agent's),
+    running the same cycle.
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -136,10 +149,13 @@ async def start_fleet(
     ``fanuc``: virtual Fanucs (``opendnc.sim.fanuc``, profile fanuc-0i, in READ) on cables of
     their own at ``baud``, 11 bits a character.
     """
-    counts = (tnc, haas, serial_haas, fanuc, mtconnect)
+    counts = (tnc, haas, serial_haas, fanuc, mtconnect, opcua)
     if min(counts) < 0 or sum(counts) == 0:
-        raise InputError("start at least one control (--tnc N, --haas M, --fanuc F, --mtconnect K)")
-    ports = tnc + haas + (1 if mtconnect else 0)  # the MTConnect machines share one agent
+        raise InputError(
+            "start at least one control (--tnc N, --haas M, --fanuc F, --mtconnect K, --opcua U)"
+        )
+    # the MTConnect machines share one agent, the OPC UA machines one server
+    ports = tnc + haas + (1 if mtconnect else 0) + (1 if opcua else 0)
     if base_port and not 0 < base_port <= 65535 - ports:
         raise InputError(f"--base-port {base_port}: the fleet needs {ports} ports above it")
     fleet = Fleet()
@@ -183,6 +199,9 @@ async def start_fleet(
         if mtconnect:
             port = base_port + tnc + haas if base_port else 0
             await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle)
+        if opcua:
+            port = base_port + tnc + haas + (1 if mtconnect else 0) if base_port else 0
+            await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
     except BaseException:
         await fleet.close()
         raise
@@ -266,6 +285,27 @@ async def _start_mtconnect(
         )
 
 
+async def _start_opcua(
+    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
+) -> None:
+    # Imported here: asyncua is the server extra's.
+    from opendnc.sim.opcua.machine import ScriptedMachineTool, run_cycles
+    from opendnc.sim.opcua.server import VirtualOpcuaServer
+
+    names = [f"opc-{i + 1}" for i in range(count)]
+    server = VirtualOpcuaServer(names, host=host, port=port)
+    fleet.opcua = server
+    await server.start()
+    for i, name in enumerate(names):
+        machine = ScriptedMachineTool(server.machines[name])
+        fleet.machine_tools[name] = machine
+        length = cycle * (1 + 0.07 * (i % 5))
+        fleet._cycles.append(asyncio.create_task(run_cycles(machine, length), name=name))
+        fleet.machines.append(
+            FleetMachine(name, "opcua", host, server.port, root / name, device=name)
+        )
+
+
 def server_config(
     fleet: Fleet,
     *,
@@ -313,11 +353,14 @@ def server_config(
             f"kind = {q(m.kind)}",
             f"poll_interval = {poll_interval}",
         ]
-        if m.kind not in ("mtconnect", "serial"):
+        if m.kind not in ("mtconnect", "serial", "opcua"):
             lines.append(f"host = {q(m.host)}")
         if m.kind == "mtconnect":
             where = f"[{m.host}]" if ":" in m.host else m.host
             lines += [f"url = {q(f'http://{where}:{m.port}')}", f"device = {q(m.device)}"]
+        elif m.kind == "opcua":
+            where = f"[{m.host}]" if ":" in m.host else m.host
+            lines += [f"endpoint = {q(f'opc.tcp://{where}:{m.port}')}", f"machine = {q(m.device)}"]
         elif m.kind == "lsv2":
             lines.append(f"port = {m.port}")
         elif m.kind == "serial":

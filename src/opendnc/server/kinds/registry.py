@@ -29,6 +29,7 @@ from opendnc.server.kinds.haas_ngc import spec as haas_ngc
 from opendnc.server.kinds.haas_serial import spec as haas_serial
 from opendnc.server.kinds.lsv2 import spec as lsv2
 from opendnc.server.kinds.mtconnect import spec as mtconnect
+from opendnc.server.kinds.opcua import spec as opcua
 from opendnc.server.kinds.serial import spec as serial
 
 if TYPE_CHECKING:
@@ -56,6 +57,7 @@ KINDS: dict[str, KindSpec[Any]] = {
     haas_ngc.SPEC.kind: haas_ngc.SPEC,
     haas_serial.SPEC.kind: haas_serial.SPEC,
     mtconnect.SPEC.kind: mtconnect.SPEC,
+    opcua.SPEC.kind: opcua.SPEC,
     serial.SPEC.kind: serial.SPEC,
 }
 """Every kind the server knows, by its ``kind`` key: one line per kind."""
