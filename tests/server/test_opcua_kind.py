@@ -16,12 +16,12 @@ import pytest
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from opendnc.opcua.model import ChannelMode, ChannelState, MachineOperationMode
+from opendnc.server.core.state import State, classify
 from opendnc.server.kinds.opcua.connector import (
     OpcuaConnector,
     Readings,
     machine_status,
 )
-from opendnc.server.state import State, classify
 from tests.server.harness import wait_for
 from tests.server.mtconnect_support import Floor, floor
 from tests.server.opcua_support import ServerThread, Step, self_signed, server_thread

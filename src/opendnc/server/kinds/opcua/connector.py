@@ -6,7 +6,7 @@ its browse names, and *subscribes*: one subscription with a monitored item per v
 state, the part count, the stacklight's elements) and an event monitored item on
 ``Notification/Messages`` for alerts. The server sends what changed; a status poll takes the
 latest values held here, so a poll costs no request. What the model says is put into our words
-here (:func:`machine_status`) and the one classifier (:func:`opendnc.server.state.classify`)
+here (:func:`machine_status`) and the one classifier (:func:`opendnc.server.core.state.classify`)
 files the machine; the mapping is ours, not the specification's (docs/opcua-input.md#mapping).
 
 A lost session (the server restarted, the network went) makes :meth:`OpcuaConnector.status`
@@ -34,8 +34,9 @@ from asyncua.ua.uaerrors import UaError
 
 from opendnc.errors import InputError, TransportError
 from opendnc.opcua.model import ChannelMode, ChannelState, MachineOperationMode, Paths, ProgramState
+from opendnc.server.core.status import MachineStatus, Progress
+from opendnc.server.kinds.connector import NetworkOnly
 from opendnc.server.kinds.opcua.schema import OpcuaMachine
-from opendnc.server.machines.base import MachineStatus, NetworkOnly, Progress
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Light", "OpcuaConnector", "Readings", "machine_status"]

@@ -7,10 +7,10 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from opendnc.server.configkeys import ConfigError, get_key
+from opendnc.server.core.configkeys import ConfigError, get_key
 from opendnc.server.kinds.base import Capabilities, ConnectorHooks, KindSpec, schema_keys
+from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.opcua.schema import SECURITY_MODES, SECURITY_POLICIES, OpcuaMachine
-from opendnc.server.machines.base import Connector
 
 __all__ = ["SPEC", "STATUS_FIELDS", "OpcuaMachine"]
 
