@@ -99,6 +99,7 @@ from opendnc.server.kinds.base import MachineConfig, SerialProfile
 from opendnc.server.kinds.registry import parse_machine, shares_of
 from opendnc.server.requests import RequestRule, RequestSettings
 from opendnc.server.shifts import Calendar, CalendarError, parse_calendar
+from opendnc.server.utilization.downtime import DowntimeConfig, parse_downtime
 
 # The parser's helpers under the names this module has always used.
 _get = get_key
@@ -212,6 +213,8 @@ class ShopConfig:
     calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
     clients: ClientLimits = field(default_factory=ClientLimits)  # [clients]: bounded clients
     alerts: AlertsConfig | None = None  # [alerts] (server/alerts_config.py)
+    # [downtime]: the reasons an operator picks for a stop (server/utilization/downtime.py)
+    downtime: DowntimeConfig = field(default_factory=DowntimeConfig)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -249,7 +252,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients", "alerts",
+            "mtconnect", "shifts", "clients", "alerts", "downtime",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -280,6 +283,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raise ConfigError(key, problem) from None
     names = {m.name for m in machines}
     alerts = parse_alerts(_table(raw, "alerts"), base, names) if "alerts" in raw else None
+    downtime = parse_downtime(_table(raw, "downtime"))
     return ShopConfig(
         server=server,
         library=library,
@@ -293,6 +297,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         calendar=calendar,
         clients=clients,
         alerts=alerts,
+        downtime=downtime,
     )
 
 

@@ -15,7 +15,7 @@ Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs
 :mod:`.checks` (program checks), :mod:`.files` (a control's files), :mod:`.inbox`
 (receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
 :mod:`.preview` (a version's dry run and toolpath), :mod:`.netshare` (the hybrid net share's
-folders and files).
+folders and files), :mod:`.floor` (standard times, parts reported, downtime reasons).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from opendnc.server.actions import (
     admin,
     checks,
     files,
+    floor,
     inbox,
     library,
     machines,
@@ -40,6 +41,7 @@ __all__ = [
     "admin",
     "checks",
     "files",
+    "floor",
     "inbox",
     "library",
     "machines",
