@@ -43,6 +43,7 @@ from opendnc.server.netshare import NetShare, local_now
 from opendnc.server.parts import Outputs, TimelineRecorder
 from opendnc.server.refusals import Refusals
 from opendnc.server.remote_request import RemoteRequests
+from opendnc.server.reports.mail import ShiftMailer
 from opendnc.server.runner import JobRunner
 from opendnc.server.shared_status import SharedStatus
 from opendnc.server.shdr import MtconnectOutput
@@ -248,6 +249,10 @@ def _timeline(
         )
     )
     core.add(utilization_component.HourSummer(sessions, names, config.calendar))
+    alerts = config.alerts
+    if alerts is not None and alerts.email is not None and config.calendar.shifts:
+        # the shift report at each shift's end (docs/dashboard.md#shift-report)
+        core.add(ShiftMailer(sessions, config, alerts.email, alerts.public_url))
     return timeline
 
 

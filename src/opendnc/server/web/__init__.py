@@ -17,7 +17,7 @@ from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
 from opendnc.server import api
-from opendnc.server.web import preview_views, render, utilization_views, views
+from opendnc.server.web import floor_views, preview_views, render, utilization_views, views
 
 __all__ = ["install"]
 
@@ -26,9 +26,14 @@ STATIC = Path(__file__).parent / "static"
 
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
+    # (here: the reports package renders with this package's templates)
+    from opendnc.server.reports import routes as shift_routes
+
     app.include_router(views.router)
     app.include_router(utilization_views.router)
     app.include_router(preview_views.router)
+    app.include_router(floor_views.router)
+    app.include_router(shift_routes.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
