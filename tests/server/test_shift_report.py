@@ -67,7 +67,8 @@ def test_a_finished_shift_with_its_stops_reasons_and_alarms(
         (mail,) = peer.taken()
     assert mail.subject == "[opendnc] Shift report on opendnc: early of Mon 05 Jan 2026"
     html_part = mail.message.get_body(("html",))
-    assert html_part is not None and "SPINDLE OVERLOAD" in str(html_part.get_content())
+    assert html_part is not None
+    assert "SPINDLE OVERLOAD" in str(html_part.get_content())
     (attached,) = list(mail.message.iter_attachments())
     assert attached.get_filename() == "shift-20260105-early.csv"
     assert "lost_h:setup" in str(attached.get_content())

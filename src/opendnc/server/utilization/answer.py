@@ -24,7 +24,7 @@ from opendnc.errors import InputError
 from opendnc.server.config import ShopConfig
 from opendnc.server.errors import NotFound
 from opendnc.server.gc_pause import paused
-from opendnc.server.shifts import DAYS, Calendar
+from opendnc.server.shifts import DAYS, Calendar, Period
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.collect import (
     STATES,
@@ -399,6 +399,7 @@ def csv_text(r: Report) -> str:
     cal = r.calendar
     for m in r.machines:
         mf = floor.of(m.machine) if floor is not None else None
+        rows: list[tuple[str, str, datetime, datetime, Figures, Oee | None, Period | None]]
         rows = [
             (p.key, p.shift, p.start, p.end, f, mf.periods[i] if mf else None, p)
             for i, (p, f) in enumerate(zip(r.periods, m.periods, strict=True))

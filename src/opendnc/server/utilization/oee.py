@@ -215,9 +215,10 @@ def standards_for(session: Session, names: Iterable[str]) -> dict[str, Standard]
         select(VersionCheck).where(VersionCheck.version_id.in_(ids)).order_by(VersionCheck.id)
     ):
         seconds = (check.facts or {}).get("cycle_time_s")
-        known = isinstance(seconds, int | float) and seconds > 0
+        if not isinstance(seconds, int | float) or seconds <= 0:
+            continue
         # the check of the text alone ("" limits) first: it is every machine's
-        if known and (check.version_id not in estimates or check.limits == ""):
+        if check.version_id not in estimates or check.limits == "":
             estimates[check.version_id] = float(seconds)
     for key, (name, vid, number, _released) in chosen.items():
         if vid in set_times:
