@@ -20,15 +20,16 @@ LAYERS = (
     "machines",
     "jobs",
     "netshare",
+    "utilization",
     "access",
     "actions",
     "fleet",
     "outputs",
     "cluster",
-    "utilization",
     "alerts",
     "http",
     "web",
+    "reports",
     "app",  # app.py: builds the server from all of them
 )
 """Lowest first: a package may import those before it, never one after it."""

@@ -56,6 +56,8 @@ from opendnc.server.outputs.parts import Outputs, TimelineRecorder
 from opendnc.server.outputs.shdr import MtconnectOutput
 from opendnc.server.outputs.sparkplug import SparkplugNode
 from opendnc.server.outputs.sparkplug_store import next_bd_seq
+from opendnc.server.reports import routes as shift_routes
+from opendnc.server.reports.mail import ShiftMailer
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.store.secrets import DEVICE_COOKIE_KEY, shared_secret
 from opendnc.server.utilization import component as utilization_component
@@ -255,6 +257,10 @@ def _timeline(
         )
     )
     core.add(utilization_component.HourSummer(sessions, names, config.calendar))
+    alerts = config.alerts
+    if alerts is not None and alerts.email is not None and config.calendar.shifts:
+        # the shift report at each shift's end (docs/dashboard.md#shift-report)
+        core.add(ShiftMailer(sessions, config, alerts.email, alerts.public_url))
     return timeline
 
 
@@ -335,6 +341,7 @@ def _web_app(core: Core, clients: Clients, stop_deadline: float) -> FastAPI:
     app.include_router(alerts_api.router)
     utilization_routes.install(app)
     web.install(app)
+    app.include_router(shift_routes.router)  # a page built on the pages' templates
     return app
 
 

@@ -15,7 +15,7 @@ Modules by subject: :mod:`.library` (programs and versions), :mod:`.queue` (jobs
 :mod:`.checks` (program checks), :mod:`.files` (a control's files), :mod:`.inbox`
 (receptions), :mod:`.admin` (keys, the audit trail), :mod:`.machines` (live state),
 :mod:`.preview` (a version's dry run and toolpath), :mod:`.netshare` (the hybrid net share's
-folders and files).
+folders and files), :mod:`.floor` (standard times, parts reported, downtime reasons).
 
 It may import every package under it (core to access); the routes (``http/``), the pages
 (``web/``) and the machine tasks (``fleet/``) stand above it and call it.
@@ -27,6 +27,7 @@ from opendnc.server.actions import (
     admin,
     checks,
     files,
+    floor,
     inbox,
     library,
     machines,
@@ -43,6 +44,7 @@ __all__ = [
     "admin",
     "checks",
     "files",
+    "floor",
     "inbox",
     "library",
     "machines",

@@ -93,6 +93,7 @@ from opendnc.errors import InputError
 from opendnc.haas.share import ShareTarget, parse_target
 from opendnc.server.config.alerts import AlertsConfig, parse_alerts
 from opendnc.server.config.clients import ClientLimits, parse_clients
+from opendnc.server.config.downtime import DowntimeConfig, parse_downtime
 from opendnc.server.core.configkeys import NAME as _NAME
 from opendnc.server.core.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.core.requests import RequestRule, RequestSettings
@@ -213,6 +214,8 @@ class ShopConfig:
     calendar: Calendar = field(default_factory=Calendar)  # time zone and shifts
     clients: ClientLimits = field(default_factory=ClientLimits)  # [clients]: bounded clients
     alerts: AlertsConfig | None = None  # [alerts] (server/config/alerts.py)
+    # [downtime]: the reasons an operator picks for a stop (server/utilization/downtime.py)
+    downtime: DowntimeConfig = field(default_factory=DowntimeConfig)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -250,7 +253,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients", "alerts",
+            "mtconnect", "shifts", "clients", "alerts", "downtime",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -281,6 +284,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         raise ConfigError(key, problem) from None
     names = {m.name for m in machines}
     alerts = parse_alerts(_table(raw, "alerts"), base, names) if "alerts" in raw else None
+    downtime = parse_downtime(_table(raw, "downtime"))
     return ShopConfig(
         server=server,
         library=library,
@@ -294,6 +298,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         calendar=calendar,
         clients=clients,
         alerts=alerts,
+        downtime=downtime,
     )
 
 

@@ -7,18 +7,21 @@ It shares only the documented errors and the caller's key check with the other A
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, FastAPI, Query, Request
+from fastapi import APIRouter, FastAPI, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
+from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server.actions import floor
 from opendnc.server.config.shop import ShopConfig
 from opendnc.server.http import deps
 from opendnc.server.http.edge import ApiRoute
-from opendnc.server.http.shared import ERRORS, Viewer
+from opendnc.server.http.shared import ERRORS, Svc, Viewer
 from opendnc.server.utilization.answer import report_response, run_report
 
 __all__ = ["install", "router"]
@@ -73,3 +76,49 @@ async def utilization(
         return report_response(r, format)
 
     return await run_in_threadpool(answer)
+
+
+class StandardIn(BaseModel):
+    """A standard cycle time, in seconds."""
+
+    seconds: float = Field(gt=0, le=floor.MAX_STANDARD)
+
+
+class PartsIn(BaseModel):
+    """Parts made: good and scrapped ones, and when (now by default)."""
+
+    good: int = Field(0, ge=0, le=floor.MAX_PARTS)
+    scrap: int = Field(0, ge=0, le=floor.MAX_PARTS)
+    note: str = Field("", max_length=floor.NOTE_MAX)
+    at: datetime | None = None
+
+
+class ReasonIn(BaseModel):
+    """The reason for the stop that began at ``start`` (as the utilization answer gives it)."""
+
+    start: datetime
+    reason: str = Field(max_length=64)
+    note: str = Field("", max_length=floor.NOTE_MAX)
+
+
+Name = Annotated[str, Path(max_length=255)]
+
+
+@router.put("/programs/{name}/versions/{number}/standard")
+def set_standard(
+    svc: Svc, who: Viewer, name: Name, number: Annotated[int, Path(ge=1)], body: StandardIn
+) -> floor.StandardOut:
+    """Set the standard cycle time of a program version (approver and up; audited)."""
+    return floor.set_standard(svc, who, name, number, body.seconds)
+
+
+@router.post("/machines/{name}/parts", status_code=201)
+def report_parts(svc: Svc, who: Viewer, name: Name, body: PartsIn) -> floor.PartsOut:
+    """Report parts made on a machine, good and scrapped (operator and up; audited)."""
+    return floor.report_parts(svc, who, name, body.good, body.scrap, body.note, body.at)
+
+
+@router.post("/machines/{name}/downtime")
+def pick_reason(svc: Svc, who: Viewer, name: Name, body: ReasonIn) -> floor.ReasonOut:
+    """Record the reason for a stop of a machine (operator and up; audited)."""
+    return floor.pick_reason(svc, who, name, body.start, body.reason, body.note)

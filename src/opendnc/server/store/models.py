@@ -43,18 +43,21 @@ __all__ = [
     "Base",
     "Blob",
     "ClusterServer",
+    "DowntimeReason",
     "DprntLine",
     "Job",
     "JobKind",
     "JobState",
     "Machine",
     "MachineLease",
+    "PartReport",
     "Program",
     "ProgramState",
     "ProgramVersion",
     "Received",
     "ReceivedState",
     "Role",
+    "StandardTime",
     "StatusSample",
     "User",
     "UtilizationDay",
@@ -642,3 +645,49 @@ class AlertEpisode(Base):
     fired: Mapped[datetime] = mapped_column(UtcDateTime())
     server: Mapped[str] = mapped_column(String(64), default="")
     detail: Mapped[str] = mapped_column(Text, default="")
+
+
+class StandardTime(Base):
+    """A supervisor's standard cycle time for one program version (OEE's ideal cycle,
+    server/utilization/oee.py, migration 0019); without a row the check's estimate counts."""
+
+    __tablename__ = "standard_times"
+
+    version_id: Mapped[int] = mapped_column(ForeignKey("program_versions.id"), primary_key=True)
+    seconds: Mapped[float] = mapped_column(Float)
+    set_by: Mapped[str] = mapped_column(String(64))
+    set_at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class PartReport(Base):
+    """Parts an operator (or a program through the API) reported for a machine: good ones
+    and scrapped ones, counted in the period that holds ``at`` (OEE's quality)."""
+
+    __tablename__ = "part_reports"
+    __table_args__ = (Index("ix_part_reports_machine_at", "machine", "at"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64))
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    good: Mapped[int] = mapped_column(Integer, default=0)
+    scrap: Mapped[int] = mapped_column(Integer, default=0)
+    by: Mapped[str] = mapped_column(String(64))
+    note: Mapped[str] = mapped_column(String(200), default="")
+
+
+class DowntimeReason(Base):
+    """Why a machine stopped: the reason an operator picked for the stop that began at
+    ``start`` (one per stop: picking again replaces it)."""
+
+    __tablename__ = "downtime_reasons"
+    __table_args__ = (
+        UniqueConstraint("machine", "start", name="uq_downtime_reasons_machine_start"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    machine: Mapped[str] = mapped_column(String(64))
+    start: Mapped[datetime] = mapped_column(UtcDateTime())
+    reason: Mapped[str] = mapped_column(String(64))
+    note: Mapped[str] = mapped_column(String(200), default="")
+    by: Mapped[str] = mapped_column(String(64))
+    at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)

@@ -21,10 +21,11 @@ from pydantic_core import to_json
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server.config.downtime import NO_REASON
 from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.errors import NotFound
 from opendnc.server.core.gc_pause import paused
-from opendnc.server.core.shifts import DAYS, Calendar
+from opendnc.server.core.shifts import DAYS, Calendar, Period
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.collect import (
     STATES,
@@ -35,10 +36,12 @@ from opendnc.server.utilization.collect import (
     report,
     sum_safely,
 )
+from opendnc.server.utilization.oee import FloorReport, Oee, floor_of
 
 __all__ = [
     "CSV_COLUMNS",
     "csv_text",
+    "full_report",
     "parse_span",
     "report_json",
     "report_response",
@@ -59,6 +62,15 @@ CSV_COLUMNS = [
     "parts",
     "runs",
     "cycle_mean_s",
+    "availability_pct",
+    "performance_pct",
+    "quality_pct",
+    "oee_pct",
+    "parts_made",
+    "parts_good",
+    "parts_scrap",
+    "parts_goal",
+    "stops_h",
 ]
 DEFINITIONS = {
     "utilization": "running time within shifts / shift time (percent)",
@@ -66,6 +78,12 @@ DEFINITIONS = {
     "parts": "increases of the control's part counter; null where it reports none",
     "runs": "program runs that ended: the part counter rising, or running back to ready",
     "stops": "5 minutes or more not running, named by the worst state in them",
+    "availability": "running time within shifts / planned (shift) time; the utilization",
+    "performance": "standard cycle time x runs / the running time of those runs",
+    "quality": "good parts / parts made (reported, else the control's counter, else runs)",
+    "oee": "availability x performance x quality",
+    "goal": "the parts the planned time makes at the standard pace",
+    "lost": "stop time per downtime reason, by the period the stop began in",
 }
 
 
@@ -141,12 +159,30 @@ def run_report(
     calendar = config.calendar
     since, until = parse_span(calendar, start, end, now)
     names = pick_machines(config, machines)
+    return full_report(sessions, config, names, since, until, grouping, now)
+
+
+def full_report(
+    sessions: sessionmaker[Session],
+    config: ShopConfig,
+    names: list[str],
+    since: datetime,
+    until: datetime,
+    grouping: Group,
+    now: datetime | None = None,
+) -> Report:
+    """The report every page, the API, the CSV and the shift report read: utilization, and
+    with it OEE, parts and the stops with their reasons (:func:`.oee.floor_of`)."""
     now = now or datetime.now(UTC)
+    calendar = config.calendar
     with sessions.begin() as session:  # short: what finished since the last summing
         sum_safely(session, names, now, calendar)
     # the question itself only reads (on SQLite it does not hold the write lock meanwhile)
     with read_only(sessions)() as session:
-        return report(session, calendar, names, since, until, grouping, now=now, sum_first=False)
+        r = report(session, calendar, names, since, until, grouping, now=now, sum_first=False)
+        retention = timedelta(days=config.server.timeline_days)
+        r.floor = floor_of(session, r, retention, config.downtime.reasons, now)
+    return r
 
 
 def _local(at: datetime, calendar: Calendar) -> str:
@@ -173,6 +209,85 @@ def figures_json(f: Figures) -> dict[str, Any]:
         "runs": f.runs,
         "cycle_mean_seconds": None if f.cycle_mean is None else round(f.cycle_mean, 1),
     }
+
+
+def _fraction(value: float | None) -> float | None:
+    return None if value is None else round(100.0 * value, 2)
+
+
+def oee_json(o: Oee) -> dict[str, Any]:
+    """One machine's OEE over some time as JSON (percentages, seconds rounded to 0.1)."""
+    return {
+        "availability": _fraction(o.availability),
+        "performance": _fraction(o.performance),
+        "quality": _fraction(o.quality),
+        "oee": _fraction(o.oee),
+        "planned_seconds": round(o.planned, 1),
+        "ideal_seconds": round(o.ideal, 1),
+        "timed_seconds": round(o.timed, 1),
+        "parts_made": o.made,
+        "parts_good": o.good,
+        "parts_scrap": o.scrap,
+        "parts_goal": o.goal,
+        "missing_standards": list(o.missing),
+    }
+
+
+def floor_json(r: Report) -> dict[str, Any]:
+    """The report's OEE and downtime as JSON: the Pareto, the standards in use, and per
+    machine its stops with reasons (an empty dict where the report has none)."""
+    floor: FloorReport | None = r.floor
+    if floor is None:
+        return {}
+    cal = r.calendar
+    return {
+        "performance_from": _local(floor.covered_from, cal),
+        "reasons": list(floor.reasons),
+        "pareto": [
+            {
+                "reason": p.reason,
+                "stops": p.stops,
+                "seconds": round(p.seconds, 1),
+                "share": round(p.share, 2),
+                "cumulative": round(p.cumulative, 2),
+            }
+            for p in floor.pareto
+        ],
+        "standards": [
+            {
+                "program": s.program,
+                "version_id": s.version_id,
+                "version": s.version,
+                "seconds": s.seconds,
+                "source": s.source or None,
+            }
+            for _key, s in sorted(floor.standards.items())
+        ],
+    }
+
+
+def _machine_floor_json(r: Report, machine: str) -> dict[str, Any]:
+    floor: FloorReport | None = r.floor
+    m = floor.of(machine) if floor is not None else None
+    if m is None:
+        return {}
+    cal = r.calendar
+    return {
+        "oee": oee_json(m.totals),
+        "downtime": [
+            {**_stretch_json(s.stop, cal), "reason": s.reason or None, "note": s.note}
+            for s in m.stops
+        ],
+        "lost_seconds": {k: round(v, 1) for k, v in floor.lost_by_reason(machine).items()}
+        if floor is not None
+        else {},
+    }
+
+
+def _period_oee(r: Report, machine: str, i: int) -> dict[str, Any]:
+    floor: FloorReport | None = r.floor
+    m = floor.of(machine) if floor is not None else None
+    return {} if m is None else {"oee": oee_json(m.periods[i])}
 
 
 def _stretch_json(s: Stretch, calendar: Calendar) -> dict[str, Any]:
@@ -226,9 +341,10 @@ def report_json(r: Report) -> dict[str, Any]:
                 "machine": m.machine,
                 "totals": figures_json(m.totals),
                 "periods": [
-                    {"key": p.key, **figures_json(f)}
-                    for p, f in zip(r.periods, m.periods, strict=True)
+                    {"key": p.key, **figures_json(f), **_period_oee(r, m.machine, i)}
+                    for i, (p, f) in enumerate(zip(r.periods, m.periods, strict=True))
                 ],
+                **_machine_floor_json(r, m.machine),
                 "stops": [_stretch_json(s, cal) for s in m.stops],
                 "alarms": [
                     {
@@ -243,6 +359,7 @@ def report_json(r: Report) -> dict[str, Any]:
             }
             for m in r.machines
         ],
+        **floor_json(r),
     }
 
 
@@ -256,19 +373,40 @@ def _opt(value: float | int | None, digits: int = 1) -> str:
     return str(value) if isinstance(value, int) else f"{value:.{digits}f}"
 
 
+def _oee_cells(o: Oee | None) -> list[str]:
+    if o is None:
+        return [""] * 8
+    return [
+        _opt(_fraction(o.availability), 2),
+        _opt(_fraction(o.performance), 2),
+        _opt(_fraction(o.quality), 2),
+        _opt(_fraction(o.oee), 2),
+        _opt(o.made),
+        _opt(o.good),
+        str(o.scrap),
+        _opt(o.goal),
+    ]
+
+
 def csv_text(r: Report) -> str:
     """The report as CSV: one row per machine and period, then the machine's total (period
     ``total``); hours with three decimals, times on the shop's clock with offset."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\r\n")
-    writer.writerow(CSV_COLUMNS)
+    floor: FloorReport | None = r.floor
+    reasons = [*floor.reasons, NO_REASON] if floor is not None else []
+    writer.writerow([*CSV_COLUMNS, *(f"lost_h:{name}" for name in reasons)])
     cal = r.calendar
     for m in r.machines:
+        mf = floor.of(m.machine) if floor is not None else None
+        rows: list[tuple[str, str, datetime, datetime, Figures, Oee | None, Period | None]]
         rows = [
-            (p.key, p.shift, p.start, p.end, f) for p, f in zip(r.periods, m.periods, strict=True)
+            (p.key, p.shift, p.start, p.end, f, mf.periods[i] if mf else None, p)
+            for i, (p, f) in enumerate(zip(r.periods, m.periods, strict=True))
         ]
-        rows.append(("total", "", r.start, r.end, m.totals))
-        for key, shift, start, end, f in rows:
+        rows.append(("total", "", r.start, r.end, m.totals, mf.totals if mf else None, None))
+        for key, shift, start, end, f, o, period in rows:
+            lost = floor.lost_by_reason(m.machine, period) if floor is not None else {}
             writer.writerow(
                 [
                     m.machine,
@@ -283,6 +421,9 @@ def csv_text(r: Report) -> str:
                     _opt(f.parts),
                     f.runs,
                     _opt(f.cycle_mean),
+                    *_oee_cells(o),
+                    _hours(sum(lost.values())) if floor is not None else "",
+                    *(_hours(lost.get(name, 0.0)) for name in reasons),
                 ]
             )
     return out.getvalue()

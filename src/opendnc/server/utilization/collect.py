@@ -395,6 +395,8 @@ class Report:
     periods: list[Period]
     machines: list[MachineReport]
     until: datetime | None = None  # where the figures end: the span's end, or now within it
+    # OEE, parts and stops with reasons (utilization/oee.py), where the question asked for them
+    floor: Any = None
 
 
 MAX_SPAN = timedelta(days=400)

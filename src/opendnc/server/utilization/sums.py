@@ -36,6 +36,7 @@ from datetime import UTC, datetime, timedelta
 from enum import StrEnum
 from typing import Any, NamedTuple
 
+from opendnc.server.config.downtime import STOP_MIN
 from opendnc.server.core.shifts import Calendar, Period
 from opendnc.server.core.state import State, from_stored
 
@@ -74,9 +75,6 @@ __all__ = [
 
 
 STATES: tuple[State, ...] = tuple(State)
-
-
-STOP_MIN = 300.0  # seconds: shorter pauses are part of the work (a tool change, a part swap)
 
 
 TOP_STOPS = 10

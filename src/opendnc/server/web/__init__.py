@@ -20,7 +20,7 @@ from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
 from opendnc.server.http import api, edge
-from opendnc.server.web import preview_views, render, utilization_views, views
+from opendnc.server.web import floor_views, preview_views, render, utilization_views, views
 
 __all__ = ["install"]
 
@@ -32,6 +32,7 @@ def install(app: FastAPI) -> None:
     app.include_router(views.router)
     app.include_router(utilization_views.router)
     app.include_router(preview_views.router)
+    app.include_router(floor_views.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]

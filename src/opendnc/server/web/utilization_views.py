@@ -25,7 +25,7 @@ from opendnc.server.core.shifts import Calendar, Period
 from opendnc.server.core.state import State
 from opendnc.server.http import deps
 from opendnc.server.store.db import read_only
-from opendnc.server.utilization.answer import pick_machines, report_response
+from opendnc.server.utilization.answer import full_report, pick_machines, report_response
 from opendnc.server.utilization.collect import (
     STATES,
     Figures,
@@ -33,8 +33,6 @@ from opendnc.server.utilization.collect import (
     Report,
     buckets,
     equal_periods,
-    report,
-    sum_safely,
 )
 from opendnc.server.web import render
 from opendnc.server.web.views import ROLES, Viewing
@@ -242,10 +240,8 @@ def _compute(
     cal = config.calendar
     start = cal.instant(first, time(0))
     end = cal.instant(last + timedelta(days=1), time(0))
-    with sessions.begin() as session:  # short: what finished since the last summing
-        sum_safely(session, machines, now, cal)
+    r = full_report(sessions, config, machines, start, end, group, now)
     with read_only(sessions)() as session:
-        r = report(session, cal, machines, start, end, group, now=now, sum_first=False)
         shown_end = min(end, max(start + timedelta(minutes=5), now))
         slices = equal_periods(start, shown_end, step_for(start, end))
         figures = buckets(session, machines, slices, now=now, sum_first=False)
@@ -329,11 +325,24 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
             key=lambda item: -item[1].seconds,
         )[:15],
         "alarms": [(m.machine, a) for m in r.machines for a in m.alarms],
+        "floor": r.floor,
+        "reason_of": _reason_of(r),
+        "fraction": lambda v: _percent(None if v is None else 100.0 * v),
     }
     html = render.render(
         "utilization.html", page=page, path=request.url.path, roles=ROLES, **context
     )
     return HTMLResponse(html)
+
+
+def _reason_of(r: Report) -> Any:
+    """The reason picked for a stop, by machine and the stop's start ("" while none is)."""
+    picked = {
+        (m.machine, s.stop.start): s.reason
+        for m in (r.floor.machines if r.floor else [])
+        for s in m.stops
+    }
+    return lambda machine, stop: picked.get((machine, stop.start), "")
 
 
 def _group(value: str) -> Group:
@@ -350,20 +359,9 @@ async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Respon
     first, last, names = ask.first, ask.last, ask.names
 
     def work() -> Response:
-        sessions = _sessions(request)
-        with sessions.begin() as session:
-            sum_safely(session, names, now, cal)
-        with read_only(sessions)() as session:
-            r = report(
-                session,
-                cal,
-                names,
-                cal.instant(first, time(0)),
-                cal.instant(last + timedelta(days=1), time(0)),
-                grouping,
-                now=now,
-                sum_first=False,
-            )
+        start = cal.instant(first, time(0))
+        end = cal.instant(last + timedelta(days=1), time(0))
+        r = full_report(_sessions(request), ask.config, names, start, end, grouping, now)
         return report_response(r, "csv")  # (in the pool's thread, not the event loop)
 
     _ = page

@@ -1,0 +1,443 @@
+"""OEE per machine and period, parts against a goal, and the stops with their reasons: what
+a supervisor reads at a glance, next to utilization (docs/dashboard.md#oee).
+
+In our words (ISO 22400's terms):
+
+* **planned time**: the shift time of the period (``[[shifts]]``; a shop without shifts
+  plans every hour), up to now;
+* **availability** = running time within shifts / planned time: the utilization figure
+  itself (one function, :attr:`.sums.Figures.utilization`);
+* **performance** = ideal cycle time x runs / running time, over the programs with a
+  standard time: each run of a program counts its standard, and its running seconds are the
+  time those runs took. A program without a standard is left out (and named);
+* **quality** = good parts / parts made. Parts made are the good and scrapped parts
+  reported (:class:`~opendnc.server.store.models.PartReport`) when good ones are, else the
+  control's part counter, else the runs; good = made - scrapped;
+* **OEE** = availability x performance x quality;
+* **goal**: the parts the planned time makes at the standard pace (planned time / the mean
+  standard time of what ran).
+
+The standard time of a program version is the one a supervisor set, else the check's
+estimate (``cycle_time_s`` of :mod:`opendnc.nccheck`). A program on the control is the
+library's program of that name (case-folded, without its folder), at its newest released
+version (else its newest). Runs and stops are read from the status samples, which are kept
+``[server] timeline_retention_days``: performance needs them; older stops come from the
+summed stops.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from opendnc.server.config.downtime import NO_REASON
+from opendnc.server.core.shifts import Period
+from opendnc.server.core.state import State
+from opendnc.server.store.models import (
+    PartReport,
+    Program,
+    ProgramState,
+    ProgramVersion,
+    StandardTime,
+    UtilizationStretch,
+    VersionCheck,
+)
+from opendnc.server.utilization.collect import Report, read_many
+from opendnc.server.utilization.downtime import (
+    ParetoRow,
+    StopWithReason,
+    pareto,
+    reasons_for,
+    with_reasons,
+)
+from opendnc.server.utilization.sums import (
+    Bin,
+    Carry,
+    Figures,
+    Point,
+    Stretch,
+    _transition,
+    as_utc,
+    open_stretches,
+)
+
+__all__ = [
+    "LOOK_BACK",
+    "FloorReport",
+    "MachineFloor",
+    "Oee",
+    "Standard",
+    "floor_of",
+    "oee_of",
+    "program_key",
+    "standards_for",
+]
+
+LOOK_BACK = timedelta(hours=12)  # samples read before a span: where its first stop began
+
+
+@dataclass(frozen=True)
+class Standard:
+    """The standard cycle time of the version a program name stands for."""
+
+    program: str
+    version_id: int | None = None
+    version: int | None = None
+    seconds: float | None = None
+    source: str = ""  # set (by a supervisor), estimate (the check's), "" (none)
+
+
+@dataclass
+class ProgramRuns:
+    """Runs of one program ended in a piece of time, and the running seconds they took."""
+
+    runs: int = 0
+    seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class Oee:
+    """OEE and its factors for one machine over one period (fractions 0..1, None where a
+    factor has nothing to stand on)."""
+
+    planned: float
+    running: float  # running time within the planned time
+    availability: float | None
+    ideal: float  # standard seconds of the runs of programs with a standard
+    timed: float  # the running seconds those runs took
+    performance: float | None
+    made: int | None
+    good: int | None
+    scrap: int
+    quality: float | None
+    oee: float | None
+    goal: int | None
+    missing: tuple[str, ...] = ()  # programs that ran without a standard time
+
+
+def oee_of(
+    figures: Figures,
+    runs: dict[str, ProgramRuns],
+    standards: dict[str, Standard],
+    good: int = 0,
+    scrap: int = 0,
+) -> Oee:
+    """The OEE of one machine and period from its utilization figures, its runs per program,
+    the standards and the parts reported (docs/dashboard.md#oee)."""
+    planned = figures.scheduled_total
+    running = figures.scheduled[State.RUNNING]
+    utilization = figures.utilization  # the same figure as the utilization column
+    availability = None if utilization is None else utilization / 100.0
+    ideal = timed = 0.0
+    counted = 0
+    missing = []
+    for program, r in sorted(runs.items()):
+        std = standards.get(program)
+        if std is None or std.seconds is None:
+            if r.runs:
+                missing.append(program or "(no name)")
+            continue
+        ideal += std.seconds * r.runs
+        timed += r.seconds
+        counted += r.runs
+    performance = ideal / timed if timed > 0 and ideal > 0 else None
+    if good > 0:
+        made: int | None = good + scrap
+    elif figures.parts is not None:
+        made = figures.parts
+    else:
+        made = figures.runs
+    good_out = None if made is None else max(made - scrap, 0)
+    quality = good_out / made if made and good_out is not None else None
+    oee = (
+        availability * performance * quality
+        if availability is not None and performance is not None and quality is not None
+        else None
+    )
+    goal = math.floor(planned * counted / ideal) if ideal > 0 and planned > 0 else None
+    return Oee(
+        planned=planned,
+        running=running,
+        availability=availability,
+        ideal=ideal,
+        timed=timed,
+        performance=performance,
+        made=made,
+        good=good_out,
+        scrap=scrap,
+        quality=quality,
+        oee=oee,
+        goal=goal,
+        missing=tuple(missing),
+    )
+
+
+def program_key(name: str) -> str:
+    """A program name on a control as the library's key: without its folder, case-folded
+    (``TNC:\\nc_prog\\POCKET.H`` and ``pocket.h`` are one)."""
+    return name.replace("\\", "/").rsplit("/", 1)[-1].strip().lower()
+
+
+def standards_for(session: Session, names: Iterable[str]) -> dict[str, Standard]:
+    """The standard of each program name (by :func:`program_key`): the set one of the
+    version it stands for, else that version's check estimate."""
+    keys = {program_key(n) for n in names if n}
+    out: dict[str, Standard] = {}
+    if not keys:
+        return out
+    rows = session.execute(
+        select(Program.name, ProgramVersion.id, ProgramVersion.number, ProgramVersion.state)
+        .join(ProgramVersion, ProgramVersion.program_id == Program.id)
+        .where(func.lower(Program.name).in_(keys))
+        .order_by(ProgramVersion.number)
+    ).all()
+    chosen: dict[str, tuple[str, int, int, bool]] = {}
+    for name, vid, number, state in rows:
+        key = name.lower()
+        released = state == ProgramState.RELEASED
+        held = chosen.get(key)
+        if held is None or released or not held[3]:
+            chosen[key] = (name, vid, number, released)
+    ids = [c[1] for c in chosen.values()]
+    set_times = {
+        r.version_id: r.seconds
+        for r in session.scalars(select(StandardTime).where(StandardTime.version_id.in_(ids)))
+    }
+    estimates: dict[int, float] = {}
+    for check in session.scalars(
+        select(VersionCheck).where(VersionCheck.version_id.in_(ids)).order_by(VersionCheck.id)
+    ):
+        seconds = (check.facts or {}).get("cycle_time_s")
+        if not isinstance(seconds, int | float) or seconds <= 0:
+            continue
+        # the check of the text alone ("" limits) first: it is every machine's
+        if check.version_id not in estimates or check.limits == "":
+            estimates[check.version_id] = float(seconds)
+    for key, (name, vid, number, _released) in chosen.items():
+        if vid in set_times:
+            out[key] = Standard(name, vid, number, set_times[vid], "set")
+        elif vid in estimates:
+            out[key] = Standard(name, vid, number, estimates[vid], "estimate")
+        else:
+            out[key] = Standard(name, vid, number)
+    return out
+
+
+def follow_runs(
+    points: Sequence[Point], start: datetime, end: datetime, bins: Sequence[Bin]
+) -> tuple[list[dict[str, ProgramRuns]], list[Stretch], Carry]:
+    """One machine's runs per program and bin over ``[start, end)`` (points in time order,
+    read from before ``start``), its stops and alarms found, and what is open at ``end``.
+    The runs are counted as :func:`.sums.sweep` counts them (the same transition)."""
+    per_bin: list[dict[str, ProgramRuns]] = [defaultdict(ProgramRuns) for _ in bins]
+    ends = [b.end for b in bins]
+    first = points[0] if points else None
+    carry = Carry.fresh(first)
+    program = program_key(first.program) if first is not None else ""
+    found: list[Stretch] = []
+    state = first.state if first is not None else State.NO_RECORD
+    at = first.at if first is not None else start
+    for p in [*points[1:], None]:
+        until = min(p.at, end) if p is not None else end
+        if state is State.RUNNING and until > at:
+            # as sums.sweep keeps the run in progress (what ends it counts it)
+            carry.run += (until - at).total_seconds()
+            carry.ran = True
+            if until > start:
+                _add_running(per_bin, bins, ends, program, max(at, start), until)
+        if p is None or p.at >= end:
+            break
+        # the one transition of sums.sweep, handed only the bin that holds p (a run that
+        # ends there is counted in it; outside the bins, only followed)
+        j = bisect.bisect_right(ends, p.at)
+        inside = j < len(bins) and bins[j].start <= p.at
+        tally = Figures()
+        if inside:
+            _transition(p, carry, [tally], [bins[j]], [ends[j]], found)
+        else:
+            _transition(p, carry, [], [], [], found)
+        if tally.runs:
+            per_bin[j][program].runs += tally.runs
+        state, at = p.state, p.at
+        if p.state is State.RUNNING and p.program:
+            program = program_key(p.program)
+    return per_bin, found, carry
+
+
+def _add_running(
+    per_bin: list[dict[str, ProgramRuns]],
+    bins: Sequence[Bin],
+    ends: list[datetime],
+    program: str,
+    a: datetime,
+    b: datetime,
+) -> None:
+    j = bisect.bisect_right(ends, a)
+    while j < len(bins) and bins[j].start < b:
+        lo, hi = max(a, bins[j].start), min(b, bins[j].end)
+        if hi > lo:
+            per_bin[j][program].seconds += (hi - lo).total_seconds()
+        j += 1
+
+
+@dataclass
+class MachineFloor:
+    """One machine's OEE in total and per period, and its stops with their reasons."""
+
+    machine: str
+    totals: Oee
+    periods: list[Oee]
+    stops: list[StopWithReason]
+    runs: dict[str, ProgramRuns] = field(default_factory=dict)
+
+
+@dataclass
+class FloorReport:
+    """OEE and downtime of a :class:`~.collect.Report`'s machines over its span."""
+
+    machines: list[MachineFloor]
+    pareto: list[ParetoRow]
+    standards: dict[str, Standard]
+    covered_from: datetime  # runs (performance) are read from here on
+    reasons: tuple[str, ...] = ()  # the configured reasons, in their order
+
+    def lost_by_reason(self, machine: str, period: Period | None = None) -> dict[str, float]:
+        """Seconds of the machine's stops per reason (those that began in ``period``, or
+        all), every configured reason and :data:`.downtime.NO_REASON` present."""
+        out = dict.fromkeys([*self.reasons, NO_REASON], 0.0)
+        m = self.of(machine)
+        for s in m.stops if m is not None else []:
+            if period is None or period.start <= s.stop.start < period.end:
+                name = s.reason or NO_REASON
+                out[name] = out.get(name, 0.0) + s.seconds
+        return out
+
+    def of(self, machine: str) -> MachineFloor | None:
+        """The machine's figures."""
+        return next((m for m in self.machines if m.machine == machine), None)
+
+
+def floor_of(
+    session: Session,
+    report: Report,
+    retention: timedelta,
+    reasons: Sequence[str] = (),
+    now: datetime | None = None,
+) -> FloorReport:
+    """OEE, parts, stops and reasons for ``report``'s machines, periods and span."""
+    now = now or datetime.now(UTC)
+    start, until = report.start, report.until or report.end
+    covered = max(start, now - retention)
+    periods = report.periods
+    names = [m.machine for m in report.machines]
+    bins = [Bin(max(p.start, covered), min(p.end, until), i) for i, p in enumerate(periods)]
+    bins = [b for b in bins if b.end > b.start]
+    read_from = covered - LOOK_BACK
+    points = read_many(session, names, read_from, until) if until > covered else {}
+    picked = reasons_for(session, names, start - LOOK_BACK, until)
+    parts = _parts(session, names, periods, start, until)
+    older = _older_stops(session, names, start, covered)
+    per_machine: dict[str, tuple[list[dict[str, ProgramRuns]], list[Stretch]]] = {}
+    programs: set[str] = set()
+    for name in names:
+        runs, found, carry = follow_runs(points.get(name, []), covered, until, bins)
+        found += [s for s in open_stretches(carry, until) if s.kind == "stop"]
+        per_machine[name] = (runs, found)
+        programs.update(k for r in runs for k in r)
+    standards = standards_for(session, programs)
+    machines = []
+    everything: list[StopWithReason] = []
+    for m in report.machines:
+        runs, found = per_machine[m.machine]
+        by_period: list[dict[str, ProgramRuns]] = [{} for _ in periods]
+        for b, r in zip(bins, runs, strict=True):
+            if b.period is not None:
+                _merge(by_period[b.period], r)
+        total_runs: dict[str, ProgramRuns] = {}
+        for r in by_period:
+            _merge(total_runs, r)
+        stops = [
+            _clip(s, start, until)
+            for s in older.get(m.machine, []) + [x for x in found if x.kind == "stop"]
+            if s.end > start and s.start < until
+        ]
+        stops.sort(key=lambda s: s.start)
+        with_reason = with_reasons(m.machine, stops, picked)
+        everything += with_reason
+        good_scrap = parts.get(m.machine, {})
+        total_good = sum(g for g, _s in good_scrap.values())
+        total_scrap = sum(s for _g, s in good_scrap.values())
+        machines.append(
+            MachineFloor(
+                m.machine,
+                oee_of(m.totals, total_runs, standards, total_good, total_scrap),
+                [
+                    oee_of(f, by_period[i], standards, *good_scrap.get(i, (0, 0)))
+                    for i, f in enumerate(m.periods)
+                ],
+                with_reason,
+                total_runs,
+            )
+        )
+    return FloorReport(machines, pareto(everything), standards, covered, tuple(reasons))
+
+
+def _merge(into: dict[str, ProgramRuns], more: dict[str, ProgramRuns]) -> None:
+    for program, r in more.items():
+        held = into.setdefault(program, ProgramRuns())
+        held.runs += r.runs
+        held.seconds += r.seconds
+
+
+def _clip(s: Stretch, start: datetime, end: datetime) -> Stretch:
+    """The stop as it counts in ``[start, end)`` (its start stays: it names the stop)."""
+    if s.end <= end:
+        return s
+    return Stretch(s.kind, s.start, end, s.state, s.text, ongoing=True)
+
+
+def _parts(
+    session: Session,
+    machines: Sequence[str],
+    periods: Sequence[Period],
+    start: datetime,
+    end: datetime,
+) -> dict[str, dict[int | None, tuple[int, int]]]:
+    """Good and scrapped parts reported per machine and period (``None``: in no period)."""
+    out: dict[str, dict[int | None, tuple[int, int]]] = defaultdict(dict)
+    starts = [p.start for p in periods]
+    for row in session.scalars(
+        select(PartReport).where(
+            PartReport.machine.in_(machines), PartReport.at >= start, PartReport.at < end
+        )
+    ):
+        at = as_utc(row.at)
+        i = bisect.bisect_right(starts, at) - 1
+        key = i if 0 <= i < len(periods) and periods[i].start <= at < periods[i].end else None
+        good, scrap = out[row.machine].get(key, (0, 0))
+        out[row.machine][key] = (good + row.good, scrap + row.scrap)
+    return out
+
+
+def _older_stops(
+    session: Session, machines: Sequence[str], start: datetime, covered: datetime
+) -> dict[str, list[Stretch]]:
+    """The summed stops of ``[start, covered)``: where the samples are no longer kept."""
+    out: dict[str, list[Stretch]] = defaultdict(list)
+    if covered <= start:
+        return out
+    t = UtilizationStretch
+    for row in session.scalars(
+        select(t).where(t.machine.in_(machines), t.kind == "stop", t.end > start, t.start < covered)
+    ):
+        out[row.machine].append(
+            Stretch("stop", as_utc(row.start), as_utc(row.end), State(row.state), row.text)
+        )
+    return out
