@@ -17,27 +17,16 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, Response
-from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server import actions
 from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.shifts import Calendar, Period
 from opendnc.server.core.state import State
-from opendnc.server.http import deps
-from opendnc.server.store.db import read_only
 from opendnc.server.utilization.answer import pick_machines, report_response
-from opendnc.server.utilization.collect import (
-    STATES,
-    Figures,
-    Group,
-    Report,
-    buckets,
-    equal_periods,
-    report,
-    sum_safely,
-)
+from opendnc.server.utilization.collect import STATES, Figures, Group, Report
 from opendnc.server.web import render
-from opendnc.server.web.views import ROLES, Viewing
+from opendnc.server.web.pages.base import ROLES, Viewing, parts
 
 __all__ = ["Bar", "GanttRow", "Segment", "router", "step_for"]
 
@@ -222,36 +211,6 @@ def _span(calendar: Calendar, first: str, last: str, now: datetime) -> tuple[dat
     return day_from, day_to
 
 
-def _config(request: Request) -> ShopConfig:
-    return deps.machines(request).config
-
-
-def _sessions(request: Request) -> sessionmaker[Session]:
-    return deps.database(request).sessions
-
-
-def _compute(
-    sessions: sessionmaker[Session],
-    config: ShopConfig,
-    first: date,
-    last: date,
-    group: Group,
-    machines: list[str],
-    now: datetime,
-) -> tuple[Report, list[Period], dict[str, list[Figures]]]:
-    cal = config.calendar
-    start = cal.instant(first, time(0))
-    end = cal.instant(last + timedelta(days=1), time(0))
-    with sessions.begin() as session:  # short: what finished since the last summing
-        sum_safely(session, machines, now, cal)
-    with read_only(sessions)() as session:
-        r = report(session, cal, machines, start, end, group, now=now, sum_first=False)
-        shown_end = min(end, max(start + timedelta(minutes=5), now))
-        slices = equal_periods(start, shown_end, step_for(start, end))
-        figures = buckets(session, machines, slices, now=now, sum_first=False)
-    return r, slices, figures
-
-
 def _params(first: date, last: date, group: Group, machines: list[str] | None) -> str:
     query: list[tuple[str, str]] = [
         ("from", first.isoformat()),
@@ -283,7 +242,7 @@ def _question(
     group: str = "day",
     machines: Annotated[list[str] | None, Query()] = None,
 ) -> Question:
-    config = _config(request)
+    config = parts(request).machines.config
     now = datetime.now(UTC)
     first, last = _span(config.calendar, start, end, now)
     names = pick_machines(config, machines)
@@ -296,11 +255,20 @@ Asked = Annotated[Question, Depends(_question)]
 @router.get("/utilization")
 async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLResponse:
     """Utilization of the shop over whole days: Gantt, bars per period, the table."""
-    config, cal, now, grouping = ask.config, ask.config.calendar, ask.now, ask.grouping
+    cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
     first, last, names, machines = ask.first, ask.last, ask.names, ask.machines
-    r, slices, figures = await run_in_threadpool(
-        _compute, _sessions(request), config, first, last, grouping, names, now
+    found = await run_in_threadpool(
+        actions.utilization.shop_figures,
+        page.svc,
+        page.who,
+        first,
+        last,
+        grouping,
+        names,
+        step_for(cal.instant(first, time(0)), cal.instant(last + timedelta(days=1), time(0))),
+        now,
     )
+    r, slices, figures = found.report, found.slices, found.figures
     span_end = r.end
     shown = slices[-1].end if slices else r.start
     rows = gantt_rows(cal, names, slices, figures)
@@ -344,27 +312,13 @@ def _group(value: str) -> Group:
 
 
 @router.get("/utilization.csv")
-async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Response:
+async def utilization_csv(page: Viewing, ask: Asked) -> Response:
     """The page's table as CSV (the API's export, for a logged-in person)."""
-    cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
+    now, grouping = ask.now, ask.grouping
     first, last, names = ask.first, ask.last, ask.names
 
     def work() -> Response:
-        sessions = _sessions(request)
-        with sessions.begin() as session:
-            sum_safely(session, names, now, cal)
-        with read_only(sessions)() as session:
-            r = report(
-                session,
-                cal,
-                names,
-                cal.instant(first, time(0)),
-                cal.instant(last + timedelta(days=1), time(0)),
-                grouping,
-                now=now,
-                sum_first=False,
-            )
+        r = actions.utilization.days_report(page.svc, page.who, first, last, grouping, names, now)
         return report_response(r, "csv")  # (in the pool's thread, not the event loop)
 
-    _ = page
     return await run_in_threadpool(work)
