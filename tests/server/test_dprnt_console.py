@@ -13,9 +13,11 @@ from tests.peers import require_module
 
 require_module("jinja2")
 
+from opendnc.server.actions.dprnt import DprntLineOut  # noqa: E402
+from opendnc.server.machines.dprnt_capture import newest_lines  # noqa: E402
 from opendnc.server.store.models import DprntLine  # noqa: E402
 from opendnc.server.web import render  # noqa: E402
-from opendnc.server.web.views import CONSOLE_LINES, _Console  # noqa: E402
+from opendnc.server.web.pages.live import CONSOLE_LINES, Console  # noqa: E402
 
 T0 = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
 
@@ -31,6 +33,13 @@ def _print(sessions: sessionmaker[Session], machine: str, texts: list[str]) -> l
         return [r.id for r in rows]
 
 
+def _newest(sessions: sessionmaker[Session], machine: str) -> list[DprntLineOut]:
+    # what the console is given: the machine's newest lines, as the read action returns them
+    with sessions() as session:
+        found = newest_lines(session, machine, CONSOLE_LINES)
+    return [DprntLineOut.model_validate(x) for x in found]
+
+
 def _parts(html: str) -> tuple[list[int], list[int]]:
     added = [int(i) for i in re.findall(r'<li id="dprnt-(\d+)"><time', html)]
     gone = [int(i) for i in re.findall(r'<li id="dprnt-(\d+)" hx-swap-oob="delete">', html)]
@@ -40,17 +49,14 @@ def _parts(html: str) -> tuple[list[int], list[int]]:
 def test_new_lines_are_added_and_old_ones_deleted(sessions: sessionmaker[Session]) -> None:
     shown = _print(sessions, "vf2", ["A 1", "A 2", "A 3"])
     _print(sessions, "other", ["B 1"])  # another machine's line is not this console's
-    console = _Console("vf2", shown)
-    with sessions() as session:
-        assert console.update(session) == ""  # nothing new
+    console = Console("vf2", shown)
+    assert console.update(_newest(sessions, "vf2")) == ""  # nothing new
     more = _print(sessions, "vf2", [f"C {i}" for i in range(CONSOLE_LINES)])
-    with sessions() as session:
-        added, gone = _parts(console.update(session))
+    added, gone = _parts(console.update(_newest(sessions, "vf2")))
     assert added == more  # all of them: each is among the newest
     assert gone == shown  # the page's three fell out
     last = _print(sessions, "vf2", ['<b>&"x"</b>'])
-    with sessions() as session:
-        html = console.update(session)
+    html = console.update(_newest(sessions, "vf2"))
     added, gone = _parts(html)
     assert (added, gone) == (last, more[:1])
     assert "&lt;b&gt;&amp;&#34;x&#34;&lt;/b&gt;" in html  # a printed line is text, not markup

@@ -22,6 +22,7 @@ LAYERS = (
     "netshare",
     "utilization",
     "access",
+    "utilization",
     "actions",
     "fleet",
     "outputs",
@@ -105,3 +106,69 @@ def test_the_rule_sees_every_form_of_import() -> None:
         assert upward("machines", line + "\n"), line
     assert upward("machines", "from opendnc.server.library import versions\n") == []
     assert upward("machines", "from opendnc.server.machines.state import MachineState\n") == []
+
+
+ROUTE_MODULES = {
+    "opendnc.server.http.api",
+    "opendnc.server.http.dprnt",
+    "opendnc.server.http.utilization",
+    "opendnc.server.http.alerts",
+}
+"""The JSON API's modules of routes: the pages call the actions, never these."""
+
+STORAGE = ("sqlalchemy", "opendnc.server.store.models")
+"""The database itself: a page or a route reads and writes through the actions."""
+
+NEEDS_STORAGE = {
+    "http/deps.py": "the Database component holds the engine and the session factories",
+    "http/sessions.py": "the request's session and its after-commit hook",
+    "http/edge.py": "tells a database outage (sqlalchemy.exc) from the route's own error",
+    "http/downloads.py": "streams a blob piece by piece as the client reads it",
+}
+"""The modules of ``http/`` that touch the storage, and why; ``web/`` has none."""
+
+
+def _reaches(name: str, targets: tuple[str, ...] | set[str]) -> bool:
+    return any(name == t or name.startswith(t + ".") for t in targets)
+
+
+def storage_imports(source: str) -> list[str]:
+    """The imports in ``source`` of sqlalchemy or of the tables."""
+    return sorted(n for n in imported(source) if _reaches(n, STORAGE))
+
+
+def route_imports(source: str) -> list[str]:
+    """The imports in ``source`` of a module of the API's routes."""
+    return sorted(n for n in imported(source) if _reaches(n, ROUTE_MODULES))
+
+
+def test_pages_and_routes_read_through_the_actions() -> None:
+    storage: dict[str, list[str]] = {}
+    routes: dict[str, list[str]] = {}
+    for layer in ("web", "http"):
+        for path in sorted((SERVER / layer).rglob("*.py")):
+            rel = str(path.relative_to(SERVER))
+            source = path.read_text(encoding="utf-8")
+            if (found := storage_imports(source)) and rel not in NEEDS_STORAGE:
+                storage[rel] = found
+            if layer == "web" and (found := route_imports(source)):
+                routes[rel] = found
+    assert storage == {}, "SQL or tables outside the actions: read through an action"
+    assert routes == {}, "a page calls a module of the API's routes: call the action"
+    for rel in NEEDS_STORAGE:
+        assert storage_imports((SERVER / rel).read_text(encoding="utf-8")), f"{rel}: not needed"
+
+
+def test_the_read_rule_sees_sql_and_routes() -> None:
+    for line in (
+        "from sqlalchemy import select",
+        "from sqlalchemy.orm import Session",
+        "import sqlalchemy",
+        "def f():\n    from opendnc.server.store.models import Job",
+        "if TYPE_CHECKING:\n    from opendnc.server.store import models",
+    ):
+        assert storage_imports(line + "\n"), line
+    assert storage_imports("from opendnc.server.store.health import x\n") == []
+    assert route_imports("from opendnc.server.http import dprnt\n")
+    assert route_imports("from opendnc.server.http.api import error_response\n")
+    assert route_imports("from opendnc.server.http.deps import database\n") == []

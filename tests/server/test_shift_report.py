@@ -87,7 +87,7 @@ def test_the_shift_report_and_the_utilization_page_agree(
     from opendnc.server.utilization.answer import full_report
     from opendnc.server.utilization.collect import Group
     from opendnc.server.web import render
-    from opendnc.server.web.utilization_views import _percent
+    from opendnc.server.web.pages.utilization import percent_text
 
     config = parse_config(CONFIG, base=tmp_path)
     write_timeline(sessions)
@@ -98,10 +98,10 @@ def test_the_shift_report_and_the_utilization_page_agree(
     page = render.render(
         "utilization.html", page=None, path="/utilization", roles=[], report=r, floor=r.floor,
         zone="", zone_name="", zone_label="", first="", last="", group="shift", query="",
-        rows=[], shown_pct=100, ticks=[], bars={}, states=[], percent=_percent,
+        rows=[], shown_pct=100, ticks=[], bars={}, states=[], percent=percent_text,
         duration=lambda s: "", clock=lambda at: "", shifts=config.calendar.shifts,
         span_label="", stops=[], alarms=[], reason_of=lambda m, s: "",
-        fraction=lambda v: _percent(None if v is None else 100.0 * v),
+        fraction=lambda v: percent_text(None if v is None else 100.0 * v),
     )  # fmt: skip
     report = mail_html(sr)
     for name in names:

@@ -55,6 +55,7 @@ __all__ = [
     "find_user",
     "key_hash",
     "revoke_key",
+    "revoke_session",
     "set_password",
     "touch",
 ]
@@ -152,7 +153,7 @@ def check_password(session: Session, name: str, password: str) -> Principal:
     Every refusal costs one password verification, the same as a wrong password of a real
     user: an unknown name, a disabled user or one without a password is checked against
     :func:`dummy_hash`, so how long a refusal takes does not tell which names exist. The
-    caller counts and audits the refusal (:func:`opendnc.server.web.session.log_in`)."""
+    caller counts and audits the refusal (:func:`opendnc.server.actions.sessions.log_in`)."""
     user = session.scalar(select(User).where(User.name == name))
     usable = user is not None and bool(user.password_hash) and not user.disabled
     stored = user.password_hash if user is not None and usable else None
@@ -369,3 +370,15 @@ def revoke_key(session: Session, key_id: int, *, actor: str) -> None:
     if row.revoked is None:
         row.revoked = utcnow()
         audit.record(session, actor, "key.revoke", key_id=key_id)
+
+
+def revoke_session(session: Session, key: str) -> int | None:
+    """Revoke the web session whose key is ``key`` (audited as its user's); its key id, or
+    None if ``key`` is no session's (an API key is never revoked this way)."""
+    row = session.scalar(
+        select(ApiKey).where(ApiKey.key_hash == key_hash(key)).options(joinedload(ApiKey.user))
+    )
+    if row is None or row.label != SESSION_LABEL:
+        return None
+    revoke_key(session, row.id, actor=row.user.name)
+    return row.id

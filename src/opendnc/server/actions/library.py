@@ -33,6 +33,7 @@ __all__ = [
     "program_content",
     "program_diff",
     "release_version",
+    "released_names",
     "save_edit",
     "set_locked",
     "upload_program",
@@ -117,6 +118,13 @@ def program_diff(svc: Services, who: Caller, name: str, a: int, b: int) -> DiffO
     require(who, Role.VIEWER)
     library.check_program_name(name)
     return svc.read(lambda s: DiffOut(program=name, a=a, b=b, lines=library.diff(s, name, a, b)))
+
+
+def released_names(svc: Services, who: Caller) -> list[str]:
+    """The programs with a released version, by name (what a drip-feed machine is offered;
+    viewers)."""
+    require(who, Role.VIEWER)
+    return svc.read(library.released_names)
 
 
 def may_upload(who: Caller) -> None:

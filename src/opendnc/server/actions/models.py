@@ -19,8 +19,11 @@ from opendnc.server.store.models import (
     Program,
     ProgramState,
     ReceivedState,
+    Role,
 )
 
+# The tables' words the pages and the routes are typed with (a job's kind and state, a
+# version's state, a reception's state, a role), so they need not import the tables.
 __all__ = [
     "MAX_ID",
     "AuditOut",
@@ -34,8 +37,10 @@ __all__ = [
     "FromRow",
     "Id",
     "IdQuery",
+    "JobKind",
     "JobOut",
     "JobRequest",
+    "JobState",
     "KeyOut",
     "LeaseOut",
     "LineNumber",
@@ -44,11 +49,14 @@ __all__ = [
     "ProblemOut",
     "ProgramListed",
     "ProgramOut",
+    "ProgramState",
     "ReceivedDetail",
     "ReceivedOut",
+    "ReceivedState",
     "ReleaseRequest",
     "RemoteFileOut",
     "RevokedOut",
+    "Role",
     "ShareFileOut",
     "ShareFolderOut",
     "ShareMatch",

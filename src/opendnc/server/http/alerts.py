@@ -12,12 +12,11 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
 from opendnc.server.actions import require
-from opendnc.server.actions.models import Timestamp
+from opendnc.server.actions.models import Role, Timestamp
 from opendnc.server.alerts.component import Alerts
 from opendnc.server.core.components import core_of
 from opendnc.server.http.edge import ApiRoute
 from opendnc.server.http.shared import ERRORS, Viewer
-from opendnc.server.store.models import Role
 
 __all__ = ["AlertEpisodeOut", "AlertTargetOut", "AlertsOut", "router"]
 

@@ -38,6 +38,7 @@ from opendnc.server.actions.models import (
     IdQuery,
     JobOut,
     JobRequest,
+    JobState,
     KeyOut,
     LineNumber,
     MachineOut,
@@ -45,24 +46,24 @@ from opendnc.server.actions.models import (
     ProgramOut,
     ReceivedDetail,
     ReceivedOut,
+    ReceivedState,
     ReleaseRequest,
     RevokedOut,
+    Role,
     UploadOut,
     VersionOut,
 )
 from opendnc.server.core.components import core_of
-from opendnc.server.core.errors import NotFound, TooLarge, TooManyRequests, http_status
+from opendnc.server.core.errors import NotFound, TooLarge
 from opendnc.server.core.events import Event, JobFinished, Overflow
 from opendnc.server.http import deps
-from opendnc.server.http.clients import StreamsFull
 from opendnc.server.http.downloads import stored_response
-from opendnc.server.http.edge import ApiRoute
+from opendnc.server.http.edge import ApiRoute, error_response
 from opendnc.server.http.shared import ERRORS, Caller, Db, Svc, Viewer
 from opendnc.server.http.streams import event_stream_response
 from opendnc.server.library.versions import MAX_PROGRAM_BYTES, check_program_name
 from opendnc.server.machines.state import Machines
 from opendnc.server.outputs.shdr import devices_xml
-from opendnc.server.store.models import JobState, ReceivedState, Role
 
 __all__ = ["Db", "Viewer", "install"]
 
@@ -114,19 +115,6 @@ def _openapi(app: FastAPI) -> dict[str, Any]:
                     content.pop("application/json", None)
         app.openapi_schema = doc
     return app.openapi_schema
-
-
-async def error_response(_request: Request, exc: DncError) -> JSONResponse:
-    """The JSON answer to ``exc`` (its status, one line, and the headers it calls for)."""
-    status = http_status(exc)
-    headers: dict[str, str] | None = None
-    if status == 401:
-        headers = {"WWW-Authenticate": "Bearer"}
-    elif isinstance(exc, TooManyRequests | StreamsFull):
-        headers = {"Retry-After": str(exc.retry_after)}
-    elif status == 500:
-        log.error("unexpected error", exc_info=exc)
-    return JSONResponse({"detail": str(exc) or type(exc).__name__}, status, headers=headers)
 
 
 async def _invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -29,8 +29,11 @@ from sqlalchemy.exc import DataError, DBAPIError, InterfaceError, OperationalErr
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from opendnc.errors import DncError
 from opendnc.server.core.components import core_of
+from opendnc.server.core.errors import TooManyRequests, http_status
 from opendnc.server.http import deps
+from opendnc.server.http.clients import StreamsFull
 from opendnc.server.http.sessions import SessionRoute
 from opendnc.server.store.health import is_database_down
 
@@ -48,12 +51,27 @@ __all__ = [
     "ApiRoute",
     "OutageGate",
     "StrictJsonRequest",
+    "error_response",
     "install",
     "printable",
     "strict_json",
 ]
 
 log = logging.getLogger("opendnc.server")
+
+
+async def error_response(_request: Request, exc: DncError) -> JSONResponse:
+    """The JSON answer to ``exc`` (its status, one line, and the headers it calls for)."""
+    status = http_status(exc)
+    headers: dict[str, str] | None = None
+    if status == 401:
+        headers = {"WWW-Authenticate": "Bearer"}
+    elif isinstance(exc, TooManyRequests | StreamsFull):
+        headers = {"Retry-After": str(exc.retry_after)}
+    elif status == 500:
+        log.error("unexpected error", exc_info=exc)
+    return JSONResponse({"detail": str(exc) or type(exc).__name__}, status, headers=headers)
+
 
 ECHO_LIMIT = 200  # characters of a refused input shown back
 

@@ -47,7 +47,7 @@ ERRORS: dict[int | str, dict[str, Any]] = {
 }
 
 
-# For the route modules (dprnt_api) that read with their own queries.
+# The request's database session, for the API routes that still take one.
 Db = dbsession.Db
 _bearer = HTTPBearer(auto_error=False, description="an API key: `opendnc keys create`")
 

@@ -1,5 +1,6 @@
-"""``GET /api/utilization``: the route, a thin adapter over :func:`answer.run_report` and
-:func:`answer.report_response` (docs/dashboard.md#utilization).
+"""``GET /api/utilization``: the route, a thin adapter over the read action
+:func:`opendnc.server.actions.utilization.report_for` and
+:func:`opendnc.server.utilization.answer.report_response` (docs/dashboard.md#utilization).
 
 It shares only the documented errors and the caller's key check with the other API routes
 (:mod:`opendnc.server.http.shared`), never the API's own module.
@@ -10,19 +11,17 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, FastAPI, Path, Query, Request
+from fastapi import APIRouter, FastAPI, Path, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
-from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server import actions
 from opendnc.server.actions import floor
-from opendnc.server.config.shop import ShopConfig
-from opendnc.server.http import deps
 from opendnc.server.http.edge import ApiRoute
 from opendnc.server.http.shared import ERRORS, Svc, Viewer
-from opendnc.server.utilization.answer import report_response, run_report
+from opendnc.server.utilization.answer import report_response
 
 __all__ = ["install", "router"]
 
@@ -33,14 +32,6 @@ router = APIRouter(prefix="/api", responses=ERRORS, route_class=ApiRoute)
 def install(app: FastAPI) -> None:
     """Add ``/api/utilization`` to ``app``."""
     app.include_router(router)
-
-
-def _config(request: Request) -> ShopConfig:
-    return deps.machines(request).config
-
-
-def _sessions(request: Request) -> sessionmaker[Session]:
-    return deps.database(request).sessions
 
 
 @router.get(
@@ -56,8 +47,8 @@ def _sessions(request: Request) -> sessionmaker[Session]:
     },
 )
 async def utilization(
-    request: Request,
-    _who: Viewer,
+    svc: Svc,
+    who: Viewer,
     start: Annotated[str | None, Query(alias="from")] = None,
     end: Annotated[str | None, Query(alias="to")] = None,
     machines: Annotated[list[str] | None, Query()] = None,
@@ -67,10 +58,11 @@ async def utilization(
     """Utilization per machine and period (JSON, or ``format=csv``)."""
     if format not in ("json", "csv"):
         raise InputError(f"format: expected json or csv, got {format!r}")
-    sessions, config = _sessions(request), _config(request)
 
     def answer() -> Response:
-        r = run_report(sessions, config, start=start, end=end, machines=machines, group=group)
+        r = actions.utilization.report_for(
+            svc, who, start=start, end=end, machines=machines, group=group
+        )
         # the body too in the pool's thread: a year by week is 5 MB of JSON, and the event
         # loop serves every other request meanwhile
         return report_response(r, format)

@@ -44,6 +44,7 @@ __all__ = [
     "history",
     "list_programs",
     "release",
+    "released_names",
     "same_name_but_case",
     "search_text",
     "set_locked",
@@ -251,6 +252,19 @@ def get_version(session: Session, name: str, number: int | None = None) -> Progr
     if number is None:
         raise NotFound(f"program {name!r} has no versions")
     raise NotFound(f"program {name!r} has no version {number}")
+
+
+def released_names(session: Session, limit: int = 2000) -> list[str]:
+    """The names of the programs with a released version, in order (at most ``limit``)."""
+    stmt = (
+        select(Program.name)
+        .join(ProgramVersion)
+        .where(ProgramVersion.state == ProgramState.RELEASED)
+        .distinct()
+        .order_by(Program.name)
+        .limit(limit)
+    )
+    return list(session.scalars(stmt))
 
 
 def released_version(session: Session, name: str) -> ProgramVersion | None:

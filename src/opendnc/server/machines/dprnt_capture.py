@@ -38,7 +38,15 @@ if TYPE_CHECKING:
     from opendnc.server.machines.state import Machines
 from opendnc.transport.base import ByteStream
 
-__all__ = ["DprntCapture", "DprntSink", "LineHook", "last_lines", "line_json"]
+__all__ = [
+    "DprntCapture",
+    "DprntSink",
+    "LineHook",
+    "last_lines",
+    "line_json",
+    "lines_after",
+    "newest_lines",
+]
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +190,28 @@ class DprntCapture:
             listener.stop()
         threads, self._threads = self._threads, []
         await asyncio.gather(*(asyncio.to_thread(t.join, 5.0) for t in threads))
+
+
+def lines_after(session: Session, machine: str, since: int, limit: int) -> list[dict[str, Any]]:
+    """``machine``'s stored lines after id ``since``, oldest first, at most ``limit``."""
+    rows = session.scalars(
+        select(DprntLine)
+        .where(DprntLine.machine == machine, DprntLine.id > since)
+        .order_by(DprntLine.id)
+        .limit(limit)
+    ).all()
+    return [line_json(row) for row in rows]
+
+
+def newest_lines(session: Session, machine: str, limit: int) -> list[dict[str, Any]]:
+    """``machine``'s newest ``limit`` stored lines, oldest first (what a console shows)."""
+    rows = session.scalars(
+        select(DprntLine)
+        .where(DprntLine.machine == machine)
+        .order_by(DprntLine.id.desc())
+        .limit(limit)
+    ).all()
+    return [line_json(row) for row in reversed(rows)]
 
 
 def last_lines(session: Session) -> dict[str, tuple[str, datetime]]:

@@ -7,7 +7,7 @@ from typing import Any
 
 from opendnc.server.reports.shift import ShiftReport
 from opendnc.server.web import render
-from opendnc.server.web.utilization_views import _duration, _percent
+from opendnc.server.web.pages.utilization import hours_text, percent_text
 
 __all__ = ["context_of", "mail_html", "subject_of"]
 
@@ -27,9 +27,9 @@ def context_of(sr: ShiftReport) -> dict[str, Any]:
 
     return {
         "sr": sr,
-        "percent": _percent,
-        "fraction": lambda v: _percent(None if v is None else 100.0 * v),
-        "duration": _duration,
+        "percent": percent_text,
+        "fraction": lambda v: percent_text(None if v is None else 100.0 * v),
+        "duration": hours_text,
         "clock": clock,
         "zone_name": cal.zone_name,
         "shifts": cal.shifts,

@@ -19,7 +19,7 @@ from opendnc.server.http import deps
 from opendnc.server.reports.render import context_of
 from opendnc.server.reports.shift import ShiftReport, build, last_finished, shift_period
 from opendnc.server.web import render
-from opendnc.server.web.views import ROLES, Viewing
+from opendnc.server.web.pages.base import ROLES, Viewing
 
 __all__ = ["router"]
 

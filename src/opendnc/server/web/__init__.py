@@ -5,8 +5,10 @@ and shipped in ``static/`` (see ``static/VERSIONS``): no build step, nothing fet
 internet. People log in with a password and get a session cookie (:mod:`.session`); the pages
 call the same actions (:mod:`opendnc.server.actions`) as the JSON API under ``/api``.
 
-It is the top layer under ``app.py``: it may import every package of the server; none
-imports it.
+The pages are in :mod:`.pages`, one module per page. It is the top layer under ``app.py``: it
+may import every package of the server but the JSON API's modules of routes (``http.api``,
+``http.dprnt``, ``http.utilization``, ``http.alerts``), and never ``sqlalchemy`` or the tables
+(``store.models``): it reads and writes through the actions. None imports it.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 
 from opendnc.errors import DncError
-from opendnc.server.http import api, edge
-from opendnc.server.web import floor_views, preview_views, render, utilization_views, views
+from opendnc.server.http import edge
+from opendnc.server.web import render
+from opendnc.server.web.pages import ROUTERS
+from opendnc.server.web.pages.base import LoginNeeded
 
 __all__ = ["install"]
 
@@ -29,12 +33,10 @@ STATIC = Path(__file__).parent / "static"
 
 def install(app: FastAPI) -> None:
     """Add the pages, their static files and their error pages to ``app`` (after the API)."""
-    app.include_router(views.router)
-    app.include_router(utilization_views.router)
-    app.include_router(preview_views.router)
-    app.include_router(floor_views.router)
+    for router in ROUTERS:
+        app.include_router(router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
-    app.add_exception_handler(views.LoginNeeded, _login_needed)  # type: ignore[arg-type]
+    app.add_exception_handler(LoginNeeded, _login_needed)  # type: ignore[arg-type]
     app.add_exception_handler(DncError, _error)  # type: ignore[arg-type]
     setattr(app.state, edge.ERROR_PAGE, _error_page)  # what a page gets while the database is away
 
@@ -49,7 +51,7 @@ def _error_page(request: Request, message: str, status: int) -> Response:
     return HTMLResponse(html, status_code=status)
 
 
-async def _login_needed(request: Request, exc: views.LoginNeeded) -> Response:
+async def _login_needed(request: Request, exc: LoginNeeded) -> Response:
     target = f"/login?next={quote(exc.next_url)}"
     if request.headers.get("HX-Request") == "true":
         return Response(status_code=401, headers={"HX-Redirect": target})
@@ -60,7 +62,7 @@ async def _login_needed(request: Request, exc: views.LoginNeeded) -> Response:
 
 async def _error(request: Request, exc: DncError) -> Response:
     """The API answers JSON; a page answers HTML (a fragment for htmx, else a page)."""
-    response = await api.error_response(request, exc)
+    response = await edge.error_response(request, exc)
     if request.url.path.startswith("/api/") or not isinstance(response, JSONResponse):
         return response
     status = response.status_code

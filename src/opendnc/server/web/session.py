@@ -5,10 +5,9 @@ the page's scripts cannot read (``HttpOnly``) and the browser never sends from a
 (``SameSite=Strict``). Such a key is valid only as this cookie, never as an API key
 (:func:`opendnc.server.access.auth.check_key`), so it cannot outlive the session. Logging out
 revokes it; a session older than :data:`SESSION_HOURS` is refused (and revoked). Keeping sessions as
-keys means one look-up, one revocation path and one audit trail, with no new table. A login
-is audited as ``login`` (refused ones summed per minute, :mod:`opendnc.server.access.refusals`) and
-slowed after repeated failures (:class:`opendnc.server.access.throttle.Throttle`), never for a
-browser that logged in as that user before, because of someone else's failures.
+keys means one look-up, one revocation path and one audit trail, with no new table. The
+password check, the throttle and the key are the session actions'
+(:mod:`opendnc.server.actions.sessions`); this module keeps the cookies and the CSRF tokens.
 
 Writes from a page also carry a CSRF token: a hash of the session key that only a page served
 to that session knows. ``SameSite=Strict`` already keeps other sites' forms from carrying the
@@ -22,19 +21,16 @@ import hashlib
 import hmac
 import re
 import secrets
-from datetime import timedelta
 
 from fastapi import Request, Response
-from sqlalchemy import select
-from sqlalchemy.orm import Session, joinedload, sessionmaker
 
 from opendnc.server.access import auth
-from opendnc.server.access.auth import SESSION_LABEL
 from opendnc.server.access.key_use import KeyUse
 from opendnc.server.access.refusals import Refusals
-from opendnc.server.access.throttle import DEVICE_COOKIE, DEVICE_DAYS, Bucket, Throttle
-from opendnc.server.core.errors import Forbidden, TooManyRequests, Unauthorized
-from opendnc.server.store.models import ApiKey, utcnow
+from opendnc.server.access.throttle import DEVICE_COOKIE, DEVICE_DAYS
+from opendnc.server.actions import Services, sessions
+from opendnc.server.actions.sessions import SESSION_HOURS
+from opendnc.server.core.errors import Forbidden, Unauthorized
 
 __all__ = [
     "COOKIE",
@@ -54,7 +50,6 @@ __all__ = [
 COOKIE = "opendnc_session"
 CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf"
-SESSION_HOURS = 12
 LOGIN_COOKIE = "opendnc_login"  # the login form's CSRF token (see login_token)
 LOGIN_TOKEN_HOURS = 12
 _LOGIN_TOKEN = re.compile(r"[A-Za-z0-9_-]{43}")  # secrets.token_urlsafe(32)
@@ -66,8 +61,7 @@ def csrf_token(key: str) -> str:
 
 
 def log_in(
-    sessions: sessionmaker[Session],
-    guard: Throttle,
+    svc: Services,
     refusals: Refusals,
     response: Response,
     name: str,
@@ -77,48 +71,12 @@ def log_in(
     address: str,
     device: str | None = None,
 ) -> auth.Principal:
-    """Check the password and set the session cookie on ``response`` (audited as ``login``;
-    :class:`~opendnc.server.core.errors.TooManyRequests` after repeated failures).
-
-    ``device`` is the browser's device cookie: one that names this user limits the throttle
-    to the browser's own failures (docs/server.md#throttling); a successful login sets it."""
-    known = guard.device_of(device, name)
-    buckets = (
-        [Bucket("device", f"{known}:{name.lower()}")]
-        if known is not None
-        else [Bucket("user", name.lower()), Bucket("address", address)]
-    )
-    try:
-        guard.check(buckets)
-    except TooManyRequests as exc:
-        refusals.note(
-            actor=name, via="web", address=address, name=name, error=str(exc), throttled=True
-        )
-        raise
-    try:
-        with sessions.begin() as session:
-            who = auth.check_password(session, name, password)
-    except Unauthorized as exc:
-        guard.failed(buckets)
-        refusals.note(actor=name, via="web", address=address, name=name, error=str(exc))
-        raise
-    # The user's bucket stays as it is after a login from a known browser: the failures in
-    # it are someone else's, and forgetting them would give a guesser a fresh allowance.
-    guard.succeeded(buckets[:1])
-    with sessions.begin() as session:
-        _, key = auth.create_key(
-            session,
-            who.name,
-            who.role,
-            label=SESSION_LABEL,
-            actor=who.name,
-            action="login",
-            via="web",
-            address=address,
-        )
+    """Log in (:func:`opendnc.server.actions.sessions.log_in`) and set the session cookie and
+    the browser's device cookie on ``response``."""
+    done = sessions.log_in(svc, refusals, name, password, address=address, device=device)
     response.set_cookie(
         COOKIE,
-        key,
+        done.key,
         max_age=SESSION_HOURS * 3600,
         httponly=True,
         samesite="strict",
@@ -127,14 +85,14 @@ def log_in(
     )
     response.set_cookie(
         DEVICE_COOKIE,
-        guard.device_cookie(device, who.name),
+        done.device,
         max_age=DEVICE_DAYS * 86400,
         httponly=True,
         samesite="strict",
         secure=secure,
         path="/login",
     )
-    return who
+    return done.who
 
 
 def login_token(request: Request) -> tuple[str, bool]:
@@ -178,49 +136,20 @@ def check_login_csrf(request: Request, form_token: str | None) -> None:
         raise Forbidden(f"a login from {origin} is refused")
 
 
-def log_out(
-    sessions: sessionmaker[Session], keys: auth.KeyCache, request: Request, response: Response
-) -> None:
-    """Revoke the session's key (forgetting it in ``keys``) and clear the cookie."""
+def log_out(svc: Services, request: Request, response: Response) -> None:
+    """Revoke the session's key and clear the cookie."""
     key = request.cookies.get(COOKIE)
     response.delete_cookie(COOKIE, path="/")
-    if not key:
-        return
-    with sessions.begin() as session:
-        row = session.scalar(
-            select(ApiKey)
-            .where(ApiKey.key_hash == auth.key_hash(key))
-            .options(joinedload(ApiKey.user))
-        )
-        if row is None or row.label != SESSION_LABEL:
-            return
-        auth.revoke_key(session, row.id, actor=row.user.name)
-        key_id = row.id
-    keys.forget(key_id)
+    if key:
+        sessions.log_out(svc, key)
 
 
-def principal(
-    reads: sessionmaker[Session],
-    sessions: sessionmaker[Session],
-    uses: KeyUse,
-    keys: auth.KeyCache,
-    request: Request,
-) -> tuple[auth.Principal, str]:
-    """Who the session cookie stands for, and its key; :class:`Unauthorized` if none.
-
-    Reads only (the use is noted in ``uses``; a key checked a moment ago is taken from
-    ``keys``), except for the revocation of an expired session."""
+def principal(svc: Services, uses: KeyUse, request: Request) -> tuple[auth.Principal, str]:
+    """Who the session cookie stands for, and its key; :class:`Unauthorized` if none."""
     key = request.cookies.get(COOKIE)
     if not key:
         raise Unauthorized("log in first")
-    check = auth.authenticate(reads, key, uses, keys, web=True)
-    if utcnow() - check.created > timedelta(hours=SESSION_HOURS):
-        with sessions.begin() as session:
-            assert check.who.key_id is not None
-            auth.revoke_key(session, check.who.key_id, actor="server")
-        keys.forget(check.who.key_id)
-        raise Unauthorized("the session has expired; log in again")
-    return check.who, key
+    return sessions.session_of(svc, uses, key), key
 
 
 def check_csrf(request: Request, key: str, form_token: str | None = None) -> None:

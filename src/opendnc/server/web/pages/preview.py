@@ -12,8 +12,7 @@ from fastapi.responses import HTMLResponse, Response
 
 from opendnc.server import actions
 from opendnc.server.actions.preview import Preview
-from opendnc.server.web import render
-from opendnc.server.web.views import ROLES, VersionPath, Viewing, _svc
+from opendnc.server.web.pages.base import VersionPath, Viewing, html
 
 __all__ = ["router", "toolpath_response"]
 
@@ -36,24 +35,22 @@ def toolpath_response(found: Preview) -> Response:
 
 
 @router.get("/library/{name}/versions/{number}/toolpath")
-def toolpath(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
+def toolpath(name: str, number: VersionPath, page: Viewing) -> Response:
     """The decimated toolpath of one version (docs/check.md#toolpath-binary)."""
-    return toolpath_response(actions.preview.preview(_svc(request), page.who, name, number))
+    return toolpath_response(actions.preview.preview(page.svc, page.who, name, number))
 
 
 @router.get("/library/{name}/versions/{number}/preview")
 def facts(request: Request, name: str, number: VersionPath, page: Viewing) -> HTMLResponse:
     """Extents, tools, distances and the estimated time of one version (a fragment)."""
-    found = actions.preview.preview(_svc(request), page.who, name, number)
-    html = render.render(
+    found = actions.preview.preview(page.svc, page.who, name, number)
+    return html(
         "_preview_facts.html",
-        page=page,
-        path=request.url.path,
-        roles=ROLES,
+        page,
+        request,
         name=name,
         number=number,
         facts=found.facts,
         moves=found.moves,
         points=found.points,
     )
-    return HTMLResponse(html)

@@ -17,25 +17,16 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, Response
-from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import InputError
+from opendnc.server import actions
 from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.shifts import Calendar, Period
 from opendnc.server.core.state import State
-from opendnc.server.http import deps
-from opendnc.server.store.db import read_only
-from opendnc.server.utilization.answer import full_report, pick_machines, report_response
-from opendnc.server.utilization.collect import (
-    STATES,
-    Figures,
-    Group,
-    Report,
-    buckets,
-    equal_periods,
-)
+from opendnc.server.utilization.answer import pick_machines, report_response
+from opendnc.server.utilization.collect import STATES, Figures, Group, Report
 from opendnc.server.web import render
-from opendnc.server.web.views import ROLES, Viewing
+from opendnc.server.web.pages.base import ROLES, Viewing, parts
 
 __all__ = ["Bar", "GanttRow", "Segment", "router", "step_for"]
 
@@ -101,12 +92,12 @@ def _clock(at: datetime, calendar: Calendar, *, day: bool = True) -> str:
     return local.strftime("%Y-%m-%d %H:%M %Z" if day else "%H:%M %Z")
 
 
-def _duration(seconds: float) -> str:
+def hours_text(seconds: float) -> str:
     minutes = round(seconds / 60)
     return f"{minutes // 60}:{minutes % 60:02d}"
 
 
-def _percent(value: float | None, decimals: int = 1) -> str:
+def percent_text(value: float | None, decimals: int = 1) -> str:
     if value is None:
         return "–"
     # half up, as people round (56.25 reads 56.3), not to the nearest even binary float
@@ -199,10 +190,10 @@ def bars(r: Report, figures: list[Figures]) -> list[Bar]:
         parts = ", ".join(
             f"{LABEL[s]} {f.seconds[s] / total * 100:.1f} %" for s in STATES if f.seconds[s] > 0
         )
-        title = f"{p.key}: utilization {_percent(f.utilization)}; {parts}"
+        title = f"{p.key}: utilization {percent_text(f.utilization)}; {parts}"
         x, width = round(i * slot + slot * 0.12, 3), round(slot * 0.76, 3)
-        short = _percent(f.utilization, 0 if len(r.periods) > 5 else 1)
-        out.append(Bar(p.key, label, stack, _percent(f.utilization), title, x, width, short))
+        short = percent_text(f.utilization, 0 if len(r.periods) > 5 else 1)
+        out.append(Bar(p.key, label, stack, percent_text(f.utilization), title, x, width, short))
     return out
 
 
@@ -218,34 +209,6 @@ def _span(calendar: Calendar, first: str, last: str, now: datetime) -> tuple[dat
     if (day_to - day_from).days + 1 > MAX_DAYS:
         raise InputError(f"a page shows at most {MAX_DAYS} days (the API more)")
     return day_from, day_to
-
-
-def _config(request: Request) -> ShopConfig:
-    return deps.machines(request).config
-
-
-def _sessions(request: Request) -> sessionmaker[Session]:
-    return deps.database(request).sessions
-
-
-def _compute(
-    sessions: sessionmaker[Session],
-    config: ShopConfig,
-    first: date,
-    last: date,
-    group: Group,
-    machines: list[str],
-    now: datetime,
-) -> tuple[Report, list[Period], dict[str, list[Figures]]]:
-    cal = config.calendar
-    start = cal.instant(first, time(0))
-    end = cal.instant(last + timedelta(days=1), time(0))
-    r = full_report(sessions, config, machines, start, end, group, now)
-    with read_only(sessions)() as session:
-        shown_end = min(end, max(start + timedelta(minutes=5), now))
-        slices = equal_periods(start, shown_end, step_for(start, end))
-        figures = buckets(session, machines, slices, now=now, sum_first=False)
-    return r, slices, figures
 
 
 def _params(first: date, last: date, group: Group, machines: list[str] | None) -> str:
@@ -279,7 +242,7 @@ def _question(
     group: str = "day",
     machines: Annotated[list[str] | None, Query()] = None,
 ) -> Question:
-    config = _config(request)
+    config = parts(request).machines.config
     now = datetime.now(UTC)
     first, last = _span(config.calendar, start, end, now)
     names = pick_machines(config, machines)
@@ -292,11 +255,20 @@ Asked = Annotated[Question, Depends(_question)]
 @router.get("/utilization")
 async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLResponse:
     """Utilization of the shop over whole days: Gantt, bars per period, the table."""
-    config, cal, now, grouping = ask.config, ask.config.calendar, ask.now, ask.grouping
+    cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
     first, last, names, machines = ask.first, ask.last, ask.names, ask.machines
-    r, slices, figures = await run_in_threadpool(
-        _compute, _sessions(request), config, first, last, grouping, names, now
+    found = await run_in_threadpool(
+        actions.utilization.shop_figures,
+        page.svc,
+        page.who,
+        first,
+        last,
+        grouping,
+        names,
+        step_for(cal.instant(first, time(0)), cal.instant(last + timedelta(days=1), time(0))),
+        now,
     )
+    r, slices, figures = found.report, found.slices, found.figures
     span_end = r.end
     shown = slices[-1].end if slices else r.start
     rows = gantt_rows(cal, names, slices, figures)
@@ -314,8 +286,8 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
         "ticks": axis_ticks(cal, r.start, span_end),
         "bars": {m.machine: bars(r, m.periods) for m in r.machines},
         "states": [(s.value, LABEL[s]) for s in STATES],
-        "percent": _percent,
-        "duration": _duration,
+        "percent": percent_text,
+        "duration": hours_text,
         "clock": lambda at: _clock(at, cal),
         "shifts": cal.shifts,
         "span_label": f"{_clock(r.start, cal)} to {_clock(span_end, cal)}"
@@ -327,7 +299,7 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
         "alarms": [(m.machine, a) for m in r.machines for a in m.alarms],
         "floor": r.floor,
         "reason_of": _reason_of(r),
-        "fraction": lambda v: _percent(None if v is None else 100.0 * v),
+        "fraction": lambda v: percent_text(None if v is None else 100.0 * v),
     }
     html = render.render(
         "utilization.html", page=page, path=request.url.path, roles=ROLES, **context
@@ -353,16 +325,13 @@ def _group(value: str) -> Group:
 
 
 @router.get("/utilization.csv")
-async def utilization_csv(request: Request, page: Viewing, ask: Asked) -> Response:
+async def utilization_csv(page: Viewing, ask: Asked) -> Response:
     """The page's table as CSV (the API's export, for a logged-in person)."""
-    cal, now, grouping = ask.config.calendar, ask.now, ask.grouping
+    now, grouping = ask.now, ask.grouping
     first, last, names = ask.first, ask.last, ask.names
 
     def work() -> Response:
-        start = cal.instant(first, time(0))
-        end = cal.instant(last + timedelta(days=1), time(0))
-        r = full_report(_sessions(request), ask.config, names, start, end, grouping, now)
+        r = actions.utilization.days_report(page.svc, page.who, first, last, grouping, names, now)
         return report_response(r, "csv")  # (in the pool's thread, not the event loop)
 
-    _ = page
     return await run_in_threadpool(work)

@@ -6,7 +6,7 @@ one the utilization page and the API show."""
 
 from __future__ import annotations
 
-from datetime import UTC, datetime, time, timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Form, Request
@@ -14,12 +14,11 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse
 
 from opendnc.errors import InputError
+from opendnc.server import actions
 from opendnc.server.actions import floor
-from opendnc.server.http import deps
-from opendnc.server.utilization.answer import full_report
 from opendnc.server.utilization.collect import Group, Report
 from opendnc.server.web import render
-from opendnc.server.web.views import ROLES, Page, Viewing, Writing, _svc
+from opendnc.server.web.pages.base import ROLES, Page, Viewing, Writing
 
 __all__ = ["floor_context", "router"]
 
@@ -29,17 +28,16 @@ Count = Annotated[int, Form(ge=0, le=floor.MAX_PARTS)]
 Note = Annotated[str, Form(max_length=floor.NOTE_MAX)]
 
 
-def floor_context(request: Request, name: str, now: datetime | None = None) -> dict[str, Any]:
+def floor_context(page: Page, name: str, now: datetime | None = None) -> dict[str, Any]:
     """What the panel shows of machine ``name``: yesterday and today on the shop's clock."""
-    svc = _svc(request)
+    svc = page.svc
     svc.machine(name)
-    config = deps.machines(request).config
+    config = page.parts.machines.config
     cal = config.calendar
     now = now or datetime.now(UTC)
     today = cal.local(now).date()
-    start = cal.instant(today - timedelta(days=1), time(0))
-    end = cal.instant(today + timedelta(days=1), time(0))
-    r: Report = full_report(svc.sessions, config, [name], start, end, Group.DAY, now)
+    first = today - timedelta(days=1)
+    r: Report = actions.utilization.days_report(svc, page.who, first, today, Group.DAY, [name], now)
     mf = r.floor.of(name)
     threshold = config.downtime.threshold
     stops = [s for s in mf.stops if s.seconds >= threshold]
@@ -56,8 +54,8 @@ def floor_context(request: Request, name: str, now: datetime | None = None) -> d
     }
 
 
-def _panel(request: Request, page: Page, name: str, note: str = "") -> HTMLResponse:
-    context = floor_context(request, name)
+def _panel(page: Page, name: str, note: str = "") -> HTMLResponse:
+    context = floor_context(page, name)
     html = render.render("_floor.html", page=page, roles=ROLES, notice=note, **context)
     return HTMLResponse(html)
 
@@ -65,7 +63,7 @@ def _panel(request: Request, page: Page, name: str, note: str = "") -> HTMLRespo
 @router.get("/machines/{name}/floor")
 async def floor_panel(request: Request, name: str, page: Viewing) -> HTMLResponse:
     """The floor panel (loaded by the machine page)."""
-    return await run_in_threadpool(_panel, request, page, name)
+    return await run_in_threadpool(_panel, page, name)
 
 
 @router.post("/machines/{name}/floor/reason")
@@ -84,8 +82,8 @@ async def pick_reason(
         raise InputError(f"start: not a time: {start!r}") from None
 
     def work() -> HTMLResponse:
-        done = floor.pick_reason(_svc(request), page.who, name, began, reason, note)
-        return _panel(request, page, name, f"Reason “{done.reason}” recorded.")
+        done = floor.pick_reason(page.svc, page.who, name, began, reason, note)
+        return _panel(page, name, f"Reason “{done.reason}” recorded.")
 
     return await run_in_threadpool(work)
 
@@ -97,7 +95,7 @@ async def report_parts(
     """Report parts good and scrapped, then show the panel again."""
 
     def work() -> HTMLResponse:
-        done = floor.report_parts(_svc(request), page.who, name, good, scrap, note)
-        return _panel(request, page, name, f"{done.good} good, {done.scrap} scrapped recorded.")
+        done = floor.report_parts(page.svc, page.who, name, good, scrap, note)
+        return _panel(page, name, f"{done.good} good, {done.scrap} scrapped recorded.")
 
     return await run_in_threadpool(work)
