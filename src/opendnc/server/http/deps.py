@@ -69,7 +69,13 @@ class Database:
         self._watch: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
-        """Start watching the database's health (it was migrated when the server was built)."""
+        """Start watching the database's health (it was migrated when the server was built).
+
+        Only a database across a network link can go silent; SQLite is a file of this
+        process, whose statements fail or answer. Watched, a busy machine's slow thread pool
+        would be taken for an outage and every request refused for nothing."""
+        if self.engine.dialect.name == "sqlite":
+            return
         self._watch = asyncio.create_task(
             self.health.watch(self.watch_interval, self.watch_timeout), name="database-watch"
         )

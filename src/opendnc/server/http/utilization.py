@@ -19,6 +19,7 @@ from pydantic import BaseModel, Field
 from opendnc.errors import InputError
 from opendnc.server import actions
 from opendnc.server.actions import floor
+from opendnc.server.actions.models import MAX_ID
 from opendnc.server.http.edge import ApiRoute
 from opendnc.server.http.shared import ERRORS, Svc, Viewer
 from opendnc.server.utilization.answer import report_response
@@ -98,7 +99,11 @@ Name = Annotated[str, Path(max_length=255)]
 
 @router.put("/programs/{name}/versions/{number}/standard")
 def set_standard(
-    svc: Svc, who: Viewer, name: Name, number: Annotated[int, Path(ge=1)], body: StandardIn
+    svc: Svc,
+    who: Viewer,
+    name: Name,
+    number: Annotated[int, Path(ge=1, le=MAX_ID)],
+    body: StandardIn,
 ) -> floor.StandardOut:
     """Set the standard cycle time of a program version (approver and up; audited)."""
     return floor.set_standard(svc, who, name, number, body.seconds)
