@@ -30,7 +30,10 @@ MIB = 1 << 20
 SIZES = [
     pytest.param(10_000 + 33, id="10k+33"),
     pytest.param(MIB, id="1MiB"),
-    pytest.param(5 * MIB - 77, id="5MiB-77", marks=pytest.mark.slow),
+    # not a multiple of any block size, and past 256 blocks many times over (the block number
+    # wraps at 32 KiB in 128-byte blocks): what a 5 MiB file also showed, for a fifth of the
+    # time (the transfer's speed is benchmarks/xmodem.py's)
+    pytest.param(MIB - 77, id="1MiB-77"),
 ]
 ROOT = Path(__file__).resolve().parents[2]
 
