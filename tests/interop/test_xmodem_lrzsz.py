@@ -41,7 +41,9 @@ MIB = 1 << 20
 SIZES = [
     pytest.param(10_000 + 33, id="10k+33"),
     pytest.param(MIB, id="1MiB"),
-    pytest.param(5 * MIB - 77, id="5MiB-77", marks=pytest.mark.slow),
+    # not a multiple of any block size, and the block number wrapped many times over: what
+    # 5 MiB also showed, for a fifth of the time (speed is benchmarks/xmodem.py's)
+    pytest.param(MIB - 77, id="1MiB-77"),
 ]
 RX_TURNAROUND = 0.0005
 
