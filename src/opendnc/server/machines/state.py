@@ -118,15 +118,22 @@ class MachineState:
             "job": None if self.job_id is None else self._job_json(),
         }
 
+    def flowing(self) -> tuple[datetime, int] | None:
+        """When this server first saw the running job's bytes move, and how many there were
+        (noted the first time it is asked after they moved): the job's rate starts there."""
+        done = self.job_progress[0]
+        if self.job_id is not None and self.job_flowing is None and done > 0:
+            self.job_flowing = (datetime.now(UTC), done)
+        return self.job_flowing
+
     def _job_json(self) -> dict[str, Any]:
         done, total = self.job_progress
         job: dict[str, Any] = {"id": self.job_id, "bytes_done": done, "bytes_total": total}
         job["started"] = self.job_started.isoformat() if self.job_started else None
-        if self.job_flowing is None and done > 0:
-            self.job_flowing = (datetime.now(UTC), done)
-        if self.job_flowing is not None:
-            job["flowing"] = self.job_flowing[0].isoformat()
-            job["flowing_bytes"] = self.job_flowing[1]
+        flowing = self.flowing()
+        if flowing is not None:
+            job["flowing"] = flowing[0].isoformat()
+            job["flowing_bytes"] = flowing[1]
         if self.job_line is not None:
             job["line"], job["lines"] = self.job_line
         return job

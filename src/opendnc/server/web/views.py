@@ -286,14 +286,12 @@ def _cards(request: Request, names: list[str] | None = None) -> list[render.Card
     zone = _zone(request)
     out = []
     for name in wanted:
-        data = states[name].as_json()
         job_id = states[name].job_id
         label = labels.get(job_id, "") if job_id is not None else ""
         out.append(
             render.card(
-                data,
+                render.Seen.of(states[name], label),
                 queued=queued.get(name, 0),
-                job_label=label,
                 last_job=last.get(name),
                 zone=zone,
             )
@@ -548,9 +546,8 @@ def _cards_cached(request: Request, names: list[str], stream: _Cards) -> list[re
         label = labels.get(job_id, "") if job_id is not None else ""
         out.append(
             render.card(
-                states[name].as_json(),
+                render.Seen.of(states[name], label),
                 queued=queued.get(name, 0),
-                job_label=label,
                 last_job=last.get(name),
                 zone=stream.zone,
             )
@@ -655,7 +652,10 @@ def _machine_context(request: Request, page: Page, name: str) -> dict[str, Any]:
         }
     last = _read(request, lambda s: _last_jobs(s, [name]))
     context["card"] = render.card(
-        live, queued=len(context["queue"]), last_job=last.get(name), zone=_zone(request)
+        render.Seen.of(state),
+        queued=len(context["queue"]),
+        last_job=last.get(name),
+        zone=_zone(request),
     )
     return context
 
