@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from pathlib import Path
 
 import pytest
 
@@ -221,3 +222,43 @@ def test_a_duty_is_found_by_the_class_of_its_part() -> None:
     watcher = Watcher("watcher", [])
     core.add(Duty(watcher, DutyFlag(held=True)))
     assert core.get(Watcher) is watcher
+
+
+def test_the_built_server_starts_each_part_after_what_it_needs_in_any_registration_order(
+    tmp_path: Path,
+) -> None:
+    """The server as build() makes it (alerts and the net share on): its start order holds
+    the needs the parts rely on, and registering its parts in reverse changes nothing."""
+    from opendnc.server.app import build
+    from opendnc.server.config.shop import parse_config
+    from tests.server.inprocess_app import config_text
+
+    (tmp_path / "nas").mkdir()
+    extra = (
+        '[alerts]\n[[alerts.webhooks]]\nname = "w"\nurl = "http://127.0.0.1:9/x"\n'
+        '[[alerts.rules]]\nname = "long-stop"\nwhen = "stopped"\nminutes = 10\n'
+        f'[netshare]\npath = "{tmp_path / "nas"}"\n'
+    )
+    (tmp_path / "share").mkdir()
+    haas = {
+        "name": "vf2",
+        "kind": "haas_ngc",
+        "host": "127.0.0.1",
+        "share": str(tmp_path / "share"),
+    }
+    text = extra + config_text(tmp_path, [haas])
+    server = build(parse_config(text, base=tmp_path), database=f"sqlite:///{tmp_path / 'db'}")
+    try:
+        order = [c.name for c in server.core.order()]
+        before = {name: set(order[: order.index(name)]) for name in order}
+        # the machines' first status finds every listener subscribed, the timeline among them
+        assert {"timeline", "outputs", "alerts", "runner"} <= before["fleet"]
+        # the duties are the core's components, after the policy their gate asks
+        assert {"database", "machines", "actions"} <= before["netshare"]
+        assert {"database", "machines"} <= before["library-watcher"]
+        reverse = Core()
+        for component in reversed(list(server.core._components.values())):
+            reverse.add(component)
+        assert [c.name for c in reverse.order()] == order
+    finally:
+        server.engine.dispose()
