@@ -14,6 +14,7 @@ from tests.peers import require_module
 require_module("jinja2")
 
 from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.core.jobwords import JobKind  # noqa: E402
 from opendnc.server.core.state import State  # noqa: E402
 from opendnc.server.core.status import MachineStatus  # noqa: E402
 from opendnc.server.machines.state import MachineState  # noqa: E402
@@ -126,7 +127,7 @@ def test_a_machine_state_becomes_the_card_through_the_one_classifier(tmp_path: P
     machine.online = True
     machine.set_status(MachineStatus(AT, True, execution="READY", program="O1"))
     # a drip-feed runs the program it feeds: the machine is running, whatever was polled
-    machine.start_job(9, 4_000, kind="dripfeed", program="O2")
+    machine.start_job(9, 4_000, kind=JobKind.DRIPFEED, program="O2")
     machine.job_progress, machine.job_line = (1_000, 4_000), (10, 40)
     seen = render.Seen.of(machine, "dripfeed O2 v1")
     assert (seen.name, seen.kind, seen.state) == ("vf2", "haas_ngc", State.RUNNING)

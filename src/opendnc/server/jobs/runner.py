@@ -280,7 +280,7 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.start_job(claimed.job_id, len(claimed.data) or None, claimed.kind.value, claimed.name)
+        state.start_job(claimed.job_id, len(claimed.data) or None, claimed.kind, claimed.name)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
