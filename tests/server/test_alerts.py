@@ -30,6 +30,7 @@ from opendnc.server.alerts.rules import AlertEngine, Phase
 from opendnc.server.config.alerts import AlertKind, AlertsConfig, parse_alerts
 from opendnc.server.config.shop import ConfigError, parse_config
 from opendnc.server.core.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.jobwords import JobKind, JobState
 from opendnc.server.core.shifts import Calendar
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.store.models import AuditEntry
@@ -381,12 +382,26 @@ def test_a_failed_job_sends_its_alert_once(
 
     async def scenario(alerts: Alerts, bus: EventBus, clock: Clock) -> None:
         error = "TNC:/nc_prog/O01234.nc: the control refused the file"
-        bus.publish(JobFinished(7, "mill-1", "send", "O01234.nc", 2, outcome="failed", error=error))
-        bus.publish(JobFinished(7, "mill-1", "send", "O01234.nc", 2, outcome="failed", error=error))
-        bus.publish(JobFinished(8, "mill-1", "send", "O01234.nc", 2, outcome="cancelled"))
-        bus.publish(JobFinished(9, "mill-1", "send", "O01234.nc", 2, outcome="queued"))
-        bus.publish(JobFinished(10, "mill-2", "send", "O01234.nc", 2, outcome="failed"))
-        bus.publish(JobFinished(11, "mill-1", "dripfeed", "O7.nc", 1, outcome="interrupted"))
+        bus.publish(
+            JobFinished(
+                7, "mill-1", JobKind.SEND, "O01234.nc", 2, outcome=JobState.FAILED, error=error
+            )
+        )
+        bus.publish(
+            JobFinished(
+                7, "mill-1", JobKind.SEND, "O01234.nc", 2, outcome=JobState.FAILED, error=error
+            )
+        )
+        bus.publish(
+            JobFinished(8, "mill-1", JobKind.SEND, "O01234.nc", 2, outcome=JobState.CANCELLED)
+        )
+        bus.publish(JobFinished(9, "mill-1", JobKind.SEND, "O01234.nc", 2, outcome=JobState.QUEUED))
+        bus.publish(
+            JobFinished(10, "mill-2", JobKind.SEND, "O01234.nc", 2, outcome=JobState.FAILED)
+        )
+        bus.publish(
+            JobFinished(11, "mill-1", JobKind.DRIPFEED, "O7.nc", 1, outcome=JobState.INTERRUPTED)
+        )
         await until("two job alerts by mail", lambda: len(smtp.taken()) >= 2)
         await until("two job alerts by webhook", lambda: len(hook.taken()) >= 2)
         await until("four deliveries audited", lambda: len(audit_rows(sessions)) >= 4)

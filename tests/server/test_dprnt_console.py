@@ -14,6 +14,8 @@ from tests.peers import require_module
 require_module("jinja2")
 
 from opendnc.server.actions.dprnt import DprntLineOut  # noqa: E402
+from opendnc.server.core.state import State  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
 from opendnc.server.machines.dprnt_capture import newest_lines  # noqa: E402
 from opendnc.server.store.models import DprntLine  # noqa: E402
 from opendnc.server.web import render  # noqa: E402
@@ -65,13 +67,10 @@ def test_new_lines_are_added_and_old_ones_deleted(sessions: sessionmaker[Session
 
 def test_a_card_shows_the_last_line_cut_and_whole_in_its_title() -> None:
     long = "PASS " + "1234567890" * 30  # longer than a card shows
-    machine = {
-        "name": "vf2",
-        "kind": "haas_ngc",
-        "online": False,  # a printed line is shown whether or not the machine answers now
-        "status": {"dprnt": long, "dprnt_at": "2026-01-05T08:00:00+00:00"},
-    }
-    card = render.card(machine)
+    at = datetime(2026, 1, 5, 8, 0, tzinfo=UTC)
+    status = MachineStatus(at, False, dprnt=long, dprnt_at=at)
+    # a printed line is shown whether or not the machine answers now
+    card = render.card(render.Seen("vf2", "haas_ngc", status, State.OFFLINE, online=False))
     template = render.environment().get_template("_card.html")
     html = template.render(c=card)
     shown = re.search(r'<dd class="dprnt" title="([^"]*)">([^<]*)</dd>', html)

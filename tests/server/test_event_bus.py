@@ -27,6 +27,7 @@ from opendnc.server.core.events import (
     ProgramChanged,
     stored_progress,
 )
+from opendnc.server.core.jobwords import JobKind, JobState
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.http.streams import KEEP_ALIVE_COMMENT, throttled_stream
 from opendnc.server.machines.timeline import Timeline
@@ -179,10 +180,12 @@ def test_a_get_with_a_deadline_returns_none_then_the_next_event() -> None:
 
 
 def test_job_events_name_the_program_and_its_version() -> None:
-    queued = JobQueued(7, "m1", "send", "O1234.nc", 3, by="ann")
-    started = JobStarted(7, "m1", "send", "O1234.nc", 3, bytes_total=1000)
-    progress = JobProgress(7, "m1", "send", "O1234.nc", 3, bytes_done=870, bytes_total=1000)
-    failed = JobFinished(7, "m1", "send", "O1234.nc", 3, outcome="failed", error="link lost")
+    queued = JobQueued(7, "m1", JobKind.SEND, "O1234.nc", 3, by="ann")
+    started = JobStarted(7, "m1", JobKind.SEND, "O1234.nc", 3, bytes_total=1000)
+    progress = JobProgress(7, "m1", JobKind.SEND, "O1234.nc", 3, bytes_done=870, bytes_total=1000)
+    failed = JobFinished(
+        7, "m1", JobKind.SEND, "O1234.nc", 3, outcome=JobState.FAILED, error="link lost"
+    )
     assert queued.as_json() == {
         "id": 7,
         "machine": "m1",
@@ -197,7 +200,7 @@ def test_job_events_name_the_program_and_its_version() -> None:
     assert (progress.as_json()["bytes_done"], progress.percent) == (870, 87)
     assert (failed.as_json()["state"], failed.as_json()["error"]) == ("failed", "link lost")
     # A stream coalesces a job's progress, never its starts and ends.
-    assert progress.key == JobProgress(7, "m1", "send", bytes_done=900).key
+    assert progress.key == JobProgress(7, "m1", JobKind.SEND, bytes_done=900).key
     assert len({queued.key, started.key, failed.key, progress.key}) == 4
 
 
@@ -255,7 +258,7 @@ def test_a_throttled_stream_sends_a_snapshot_coalesces_keeps_alive_and_resends_a
         while not got:
             await asyncio.sleep(0.01)
         for n in range(50):  # fifty progress reports of one job in one interval: one line
-            bus.publish(JobProgress(1, "m1", "send", bytes_done=n))
+            bus.publish(JobProgress(1, "m1", JobKind.SEND, bytes_done=n))
             await asyncio.sleep(0)
         while len(got) < 2:
             await asyncio.sleep(0.01)

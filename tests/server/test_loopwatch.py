@@ -7,6 +7,7 @@ import asyncio
 import time
 
 from opendnc.server.core.events import EventBus, JobQueued
+from opendnc.server.core.jobwords import JobKind
 from opendnc.server.core.loopwatch import LoopWatch
 
 
@@ -38,7 +39,7 @@ def test_a_subscriber_drains_its_backlog_oldest_first() -> None:
         bus.bind(asyncio.get_running_loop())
         with bus.subscribe(maxsize=10) as sub:
             for n in range(4):
-                bus.publish(JobQueued(n, "m", "send"))
+                bus.publish(JobQueued(n, "m", JobKind.SEND))
             first = await sub.next()
             rest = sub.drain()
             assert sub.drain() == []

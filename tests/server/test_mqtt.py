@@ -22,6 +22,7 @@ import pytest
 
 from opendnc.server.config.shop import MqttConfig
 from opendnc.server.core.events import EventBus, JobFinished, LeaseChanged, MachineStatusChanged
+from opendnc.server.core.jobwords import JobKind, JobState
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.outputs.items import SERVER_STOPPED
 from opendnc.server.outputs.mqtt import MqttPublisher
@@ -420,7 +421,7 @@ def test_the_queue_keeps_the_newest_and_counts_what_it_dropped() -> None:
     async def run() -> MqttPublisher:
         publisher = MqttPublisher(config, "dnc", ["m1"], EventBus())
         for i in range(25):
-            publisher.take(JobFinished(i, "m1", "send", "O1", 1, outcome="done"))
+            publisher.take(JobFinished(i, "m1", JobKind.SEND, "O1", 1, outcome=JobState.DONE))
             status = MachineStatus(at=datetime.now(UTC), available=True, program=f"O{i}")
             publisher.take(MachineStatusChanged("m1", True, status))
         return publisher

@@ -11,7 +11,7 @@ from sqlalchemy import Engine, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.store.db import make_engine, make_sessions
-from opendnc.server.store.notify import Listener, Notice, notify
+from opendnc.server.store.notify import Listener, Notice, Topic, notify
 from tests.server.conftest import _pg_database
 
 
@@ -37,15 +37,15 @@ def test_a_notice_arrives_at_commit_and_never_after_a_rollback(pg_url: str) -> N
         try:
             await asyncio.wait_for(listener.connected.wait(), 10)
             with sessions() as session:
-                notify(session, "job", "17")
+                notify(session, Topic.JOB, "17")
                 session.rollback()  # undone: never delivered
             with sessions.begin() as session:
-                notify(session, "cancel", "18")
+                notify(session, Topic.CANCEL, "18")
                 await asyncio.sleep(0.3)
                 assert got == []  # not before the commit
             await _eventually(lambda: got)
             await asyncio.sleep(0.2)
-            assert got == [Notice("cancel", "18")]
+            assert got == [Notice(Topic.CANCEL, "18")]
         finally:
             task.cancel()
             with pytest.raises(asyncio.CancelledError):
@@ -77,9 +77,9 @@ def test_a_cut_listener_reconnects_and_says_so(pg_url: str) -> None:
                 )
             await _eventually(lambda: listener.connections >= 2)
             with sessions.begin() as session:
-                notify(session, "library", "O1000.nc")
+                notify(session, Topic.LIBRARY, "O1000.nc")
             await _eventually(lambda: got)
-            assert got == [Notice("library", "O1000.nc")]
+            assert got == [Notice(Topic.LIBRARY, "O1000.nc")]
             assert len(reconnects) == 2
         finally:
             task.cancel()
@@ -96,11 +96,15 @@ def test_notify_does_nothing_on_sqlite(tmp_path: object) -> None:
     engine = make_engine(f"sqlite:///{tmp_path}/x.db")
     try:
         with make_sessions(engine).begin() as session:
-            notify(session, "job", "1")  # no error, no statement
+            notify(session, Topic.JOB, "1")  # no error, no statement
     finally:
         engine.dispose()
 
 
 def test_payloads_round_trip() -> None:
-    assert Notice.decode(Notice("job", "a:b").encode()) == Notice("job", "a:b")
-    assert Notice.decode("bare") == Notice("", "bare")
+    assert Notice.decode(Notice(Topic.JOB, "a:b").encode()) == Notice(Topic.JOB, "a:b")
+    assert Notice.decode("bare") == Notice(None, "bare")
+    # a newer server's topic is read as none this server acts on, not an error
+    assert Notice.decode("tomorrow:x") == Notice(None, "x")
+    for topic in Topic:
+        assert Notice.decode(Notice(topic, "k").encode()) == Notice(topic, "k")

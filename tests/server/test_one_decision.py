@@ -27,6 +27,7 @@ from opendnc.server.core.errors import Conflict
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.connector import Reception
 from opendnc.server.library import versions as library
+from opendnc.server.netshare.share import NetShare
 from opendnc.server.store.models import (
     AuditEntry,
     Job,
@@ -166,8 +167,7 @@ def _request(app: App, machine: str, text: str) -> AuditEntry:
 
 
 def _scan_until(app: App, done: Any, what: str) -> Any:
-    net = app.server.netshare
-    assert net is not None
+    net = app.server.core.get(NetShare)
     deadline = time.monotonic() + 15
     pushed: list[tuple[str, str]] = []
     refused: list[tuple[str, str, str]] = []

@@ -18,6 +18,7 @@ import pytest
 
 from opendnc.errors import DncError
 from opendnc.server.config.shop import parse_config
+from opendnc.server.core.jobwords import JobKind
 from opendnc.server.core.state import State, classify
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.jobs.executors import JobCancelled
@@ -42,7 +43,7 @@ def test_a_drip_feed_is_running_and_a_load_into_a_silent_control_is_ready(tmp_pa
     # the port opens; the control says nothing
     state.set_status(MachineStatus(at=datetime.now(UTC), available=True))
     assert state.as_json()["state"] == "unknown"
-    state.start_job(7, len(PROGRAM), "dripfeed", "O03000.nc")
+    state.start_job(7, len(PROGRAM), JobKind.DRIPFEED, "O03000.nc")
     assert state.as_json()["state"] == "running"
     event = state.event()
     assert classify(event.status, online=True) is State.RUNNING  # what the timeline records
@@ -50,12 +51,12 @@ def test_a_drip_feed_is_running_and_a_load_into_a_silent_control_is_ready(tmp_pa
     assert event.status.program == "O03000.nc"
     state.job_id = None  # the feed ended: the control's own (lack of) word again
     assert state.as_json()["state"] == "unknown"
-    state.start_job(8, len(PROGRAM), "send", "O01000.nc")
+    state.start_job(8, len(PROGRAM), JobKind.SEND, "O01000.nc")
     assert state.as_json()["state"] == "ready"
     assert state.as_json()["status"]["message"] == "loading O01000.nc"
     state.job_id = None
     state.online = False  # a job on a machine gone offline does not make it look alive
-    state.start_job(9, 1, "dripfeed", "O03000.nc")
+    state.start_job(9, 1, JobKind.DRIPFEED, "O03000.nc")
     assert state.as_json()["state"] == "offline"
 
 

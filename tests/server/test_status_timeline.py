@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.config.shop import ConfigError, parse_config
 from opendnc.server.core.events import EventBus, JobQueued, MachineStatusChanged
+from opendnc.server.core.jobwords import JobKind
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.machines.timeline import Timeline, running
 from opendnc.server.store.db import current_revision, make_engine, migrate
@@ -146,7 +147,7 @@ def test_the_recorder_writes_bus_changes_and_marks_the_stop(
         async with running(tl, bus):
             bus.publish(_event("READY"))
             bus.publish(_event("READY"))  # a poll that changed nothing
-            bus.publish(JobQueued(1, "m", "send", "O1", 1))  # not a state
+            bus.publish(JobQueued(1, "m", JobKind.SEND, "O1", 1))  # not a state
             bus.publish(_event("ACTIVE"))
             deadline = time.monotonic() + 20
             while len(await asyncio.to_thread(_rows, sessions)) < 2:
@@ -172,6 +173,7 @@ def test_the_retention_is_configured_in_days(tmp_path: Path) -> None:
 
 def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_url: str) -> None:
     from opendnc.server.app import build
+    from opendnc.server.outputs.parts import TimelineRecorder
     from opendnc.sim.fleet import server_config, start_fleet
 
     async def scenario() -> list[str]:
@@ -189,8 +191,7 @@ def test_the_machine_page_timeline_survives_a_server_restart(tmp_path: Path, db_
             # A new server process would build anew: only the database carries the timeline.
             second = build(config, database=db_url)
             try:
-                timeline = second.timeline
-                assert timeline is not None
+                timeline = second.core.get(TimelineRecorder).timeline
                 segments = await asyncio.to_thread(timeline.segments, "tnc-1", hours=1)
             finally:
                 second.engine.dispose()

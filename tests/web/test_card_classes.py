@@ -47,7 +47,7 @@ def test_the_card_the_items_and_the_timeline_agree(
     # a job under way (a load into memory) changes nothing of the machine's state
     machine.job_id, machine.job_progress = 4, (870, 1000)
 
-    card = render.card(machine.as_json(), job_label="send O1000.nc v2")
+    card = render.card(render.Seen.of(machine, "send O1000.nc v2"))
     html = render.environment().get_template("_card.html").render(c=card, whole=False)
     assert card.state == state
     assert f'class="card-body state-{state}" data-state="{state}"' in html

@@ -1,8 +1,9 @@
 """What the cards and pages say about times and jobs: the shop's clock with its zone, the
-timeline's axis, a job's rate and time left, a card built from a machine's live JSON."""
+timeline's axis, a job's rate and time left, a card built from the typed status and state."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from zoneinfo import ZoneInfo
 
@@ -15,6 +16,8 @@ from tests.peers import require_module
 require_module("jinja2")
 require_module("pygments")
 
+from opendnc.server.core.state import State  # noqa: E402
+from opendnc.server.core.status import MachineStatus  # noqa: E402
 from opendnc.server.web import render  # noqa: E402
 
 BERLIN = ZoneInfo("Europe/Berlin")
@@ -107,34 +110,30 @@ def test_a_duration_reads_as_two_units_at_most(seconds: float) -> None:
 
 def test_a_card_tells_the_job_the_feed_line_parts_tool_overrides_and_last_job() -> None:
     now = datetime(2026, 1, 5, 13, 2, 40, tzinfo=UTC)
-    machine = {
-        "name": "haas-1",
-        "kind": "haas_ngc",
-        "online": True,
-        "state": "running",
-        "state_since": "2026-01-05T12:30:00+00:00",
-        "status": {
-            "at": "2026-01-05T13:02:31+00:00",
-            "available": True,
-            "execution": "ACTIVE",
-            "mode": "AUTOMATIC",
-            "program": "O01000",
-            "part_count": 17,
-            "tool": 4,
-            "overrides": {"feed": 90.0, "spindle": 100.0},
-        },
-        "job": {
-            "id": 7,
-            "bytes_done": 30_000,
-            "bytes_total": 60_000,
-            "started": "2026-01-05T13:02:10+00:00",  # 30 s before now: 1 kB/s
-            "line": 1200,
-            "lines": 2400,
-        },
-    }
+    status = MachineStatus(
+        datetime(2026, 1, 5, 13, 2, 31, tzinfo=UTC),
+        True,
+        execution="ACTIVE",
+        mode="AUTOMATIC",
+        program="O01000",
+        part_count=17,
+        tool=4,
+        overrides={"feed": 90.0, "spindle": 100.0},
+    )
+    job = render.RunningJob(
+        7,
+        "",
+        30_000,
+        60_000,
+        started=datetime(2026, 1, 5, 13, 2, 10, tzinfo=UTC),  # 30 s before now: 1 kB/s
+        line=(1200, 2400),
+    )
+    since = datetime(2026, 1, 5, 12, 30, tzinfo=UTC)
+    seen = render.Seen("haas-1", "haas_ngc", status, State.RUNNING, True, since=since, job=job)
     last = render.LastJob("send O01000.nc v2", "failed", now - timedelta(hours=1), "timeout")
-    c = render.card(machine, job_label="dripfeed O01000.nc v2", last_job=last, zone=BERLIN, now=now)
+    c = render.card(seen, job_label="dripfeed O01000.nc v2", last_job=last, zone=BERLIN, now=now)
     assert (c.percent, c.rate, c.left) == (50, "1.0 kB/s", "about 30 s left")
+    assert c.job_label == "dripfeed O01000.nc v2"
     assert (c.feed_line, c.feed_lines) == (1200, 2400)
     assert (c.parts, c.tool) == (17, 4)
     assert c.overrides == "feed 90\u00a0%, spindle 100\u00a0%"
@@ -145,20 +144,14 @@ def test_a_card_tells_the_job_the_feed_line_parts_tool_overrides_and_last_job() 
     for text in ("line 1200 of 2400", "T4", "17", "about 30 s left", "timeout", "failed"):
         assert text in html, text
     # the card changes once a minute, not at every poll of the same minute
-    later = dict(machine, status=dict(machine["status"], at="2026-01-05T13:02:59+00:00"))
+    later = replace(seen, status=replace(status, at=datetime(2026, 1, 5, 13, 2, 59, tzinfo=UTC)))
     again = render.card(later, job_label=c.job_label, last_job=last, zone=BERLIN, now=now)
     assert render.render("_card.html", c=again, whole=False, zone=BERLIN) == html
 
 
 def test_a_control_that_is_offline_or_silent_reports_no_parts_tool_or_overrides() -> None:
-    machine = {
-        "name": "haas-serial-1",
-        "kind": "haas_serial",
-        "online": True,
-        "state": "unknown",
-        "status": {"at": "2026-01-05T13:02:31+00:00", "available": False, "tool": 3},
-    }
-    c = render.card(machine)
+    status = MachineStatus(datetime(2026, 1, 5, 13, 2, 31, tzinfo=UTC), False, tool=3)
+    c = render.card(render.Seen("haas-serial-1", "haas_serial", status, State.UNKNOWN, True))
     assert (c.parts, c.tool, c.overrides) == (None, None, "")
     html = render.render("_card.html", c=c, whole=False)
     for word in ("Tool", "Parts", "Overrides"):
@@ -199,15 +192,10 @@ def test_the_send_panel_lists_every_error_its_count_says() -> None:
 )
 def test_a_card_says_its_state_in_plain_words(state: str, execution: str, said: str) -> None:
     """Not "Running (active)" or "Alarm (stopped)": the execution word only where it adds."""
-    machine = {
-        "name": "tnc-1",
-        "kind": "lsv2",
-        "online": True,
-        "state": state,
-        "state_since": "2026-01-05T12:30:00+00:00",
-        "status": {"at": "2026-01-05T13:02:31+00:00", "available": True, "execution": execution},
-    }
-    c = render.card(machine, zone=BERLIN, now=WINTER)
+    status = MachineStatus(WINTER, True, execution=execution)
+    since = datetime(2026, 1, 5, 12, 30, tzinfo=UTC)
+    seen = render.Seen("tnc-1", "lsv2", status, State(state), True, since=since)
+    c = render.card(seen, zone=BERLIN, now=WINTER)
     html = render.render("_card.html", c=c, whole=False, zone=BERLIN)
     line = html.split('<p class="since small">')[1].split("<time")[0].strip()
     assert line == said

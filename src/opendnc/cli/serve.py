@@ -276,9 +276,10 @@ async def _serve(server: Server, listener: socket.socket, host: str, plan: StopP
                 finally:
                     self._captured_signals.clear()
 
-    if server.mtconnect is not None:
+    mtconnect = server.outputs.mtconnect
+    if mtconnect is not None:
         # Its ports open before the app starts, so a taken one is a plain error naming it.
-        await server.mtconnect.start()
+        await mtconnect.start()
     port = listener.getsockname()[1]  # the real one for :0
     if server.cluster is not None:
         # where the others' `cluster status` says this server answers

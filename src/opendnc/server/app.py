@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from functools import partial
 
 from fastapi import FastAPI
@@ -27,7 +27,7 @@ from opendnc.server.alerts.component import Alerts
 from opendnc.server.cluster.cluster import Cluster
 from opendnc.server.cluster.single_server import DatabaseInUse, ServerLock, refuse_beside_a_cluster
 from opendnc.server.config.shop import ConfigError, MachineConfig, ShopConfig
-from opendnc.server.core.components import STOP_DEADLINE, Core
+from opendnc.server.core.components import STOP_DEADLINE, Core, Duty, DutyFlag, core_of
 from opendnc.server.core.events import EventBus, ProgramChanged
 from opendnc.server.core.loopwatch import LoopWatch
 from opendnc.server.fleet.remote_request import RemoteRequests
@@ -65,26 +65,65 @@ from opendnc.server.utilization import component as utilization_component
 __all__ = ["ConnectorFactory", "Server", "build"]
 
 
-@dataclass
 class Server:
-    """The parts of one built server (``core`` holds every component)."""
+    """One built server: its app, and typed ways into the app's one registry (the core).
 
-    config: ShopConfig
-    engine: Engine
-    sessions: sessionmaker[Session]
-    bus: EventBus
-    core: Core
-    machines: Machines
-    runner: JobRunner
-    fleet: Fleet
-    watcher: LibraryWatcher
-    app: FastAPI
-    netshare: NetShare | None = None
-    dprnt: DprntCapture | None = None
-    mqtt: MqttPublisher | None = None
-    mtconnect: MtconnectOutput | None = None
-    timeline: Timeline | None = None
-    cluster: Cluster | None = None
+    It keeps no part of its own: each property asks the core (``server.runner`` is
+    ``server.core.get(JobRunner)``), so there is one list of the server's parts.
+    """
+
+    def __init__(self, app: FastAPI) -> None:
+        self.app = app
+
+    @property
+    def core(self) -> Core:
+        """Every component of the server."""
+        return core_of(self.app)
+
+    @property
+    def machines(self) -> Machines:
+        """The machines' live state (and the event bus, the configuration)."""
+        return self.core.get(Machines)
+
+    @property
+    def config(self) -> ShopConfig:
+        """The shop's configuration the server was built from."""
+        return self.machines.config
+
+    @property
+    def bus(self) -> EventBus:
+        """The event bus."""
+        return self.machines.bus
+
+    @property
+    def engine(self) -> Engine:
+        """The database engine (disposed by whoever built the server)."""
+        return self.core.get(Database).engine
+
+    @property
+    def sessions(self) -> sessionmaker[Session]:
+        """Sessions of the database."""
+        return self.core.get(Database).sessions
+
+    @property
+    def runner(self) -> JobRunner:
+        """The job runner."""
+        return self.core.get(JobRunner)
+
+    @property
+    def fleet(self) -> Fleet:
+        """The machines' tasks."""
+        return self.core.get(Fleet)
+
+    @property
+    def outputs(self) -> Outputs:
+        """The open outputs (MQTT, MTConnect, Sparkplug; None where not configured)."""
+        return self.core.get(Outputs)
+
+    @property
+    def cluster(self) -> Cluster | None:
+        """The cluster component; None for a server alone."""
+        return self.core.find(Cluster)
 
 
 def build(
@@ -115,7 +154,9 @@ def build(
         folder.mkdir(parents=True, exist_ok=True)
 
     core = Core()
-    database_part = core.add(Database(engine, sessions))
+    # every user of the database stops before the lock that keeps a lone server apart goes
+    lock_needs = (server_lock.name,) if server_lock is not None else ()
+    database_part = core.add(Database(engine, sessions, needs=lock_needs))
     if server_lock is not None:
         core.add(server_lock)
     machines = core.add(Machines(config, bus))
@@ -130,8 +171,8 @@ def build(
     runner = _runner(core, config, sessions, machines, sweep_interval, retry_backoff)
     requests = core.add(RemoteRequests(machines, services, config.requests, config.library.inbox))
     autoreceive = core.add(AutoReceive(machines, sessions))
-    outputs = _outputs(core, config, sessions, bus)
-    timeline = _timeline(core, config, sessions, bus, clustered)
+    listeners = _outputs(core, config, sessions, bus)
+    _timeline(core, config, sessions, bus, clustered)
 
     def connectors(machine: MachineConfig) -> Connector:
         # a serial Haas's printed lines go to the capture's sink for it
@@ -142,32 +183,27 @@ def build(
 
     factory = connector_factory or connectors
     fleet = core.add(
-        Fleet(machines, runner, requests, autoreceive, factory, serve_all=not clustered)
+        Fleet(
+            machines,
+            runner,
+            requests,
+            autoreceive,
+            factory,
+            serve_all=not clustered,
+            listeners=listeners,
+        )
     )
     core.add(LoopWatch())
-    watcher = _watcher(config, sessions, bus)
+    # the shop-wide duties: components of the core, working while this server holds the
+    # duty (alone: always; in a cluster: while the cluster holds the duties' lease)
+    duty = DutyFlag(held=not clustered)
+    core.add(Duty(_watcher(config, sessions, bus), duty))
     netshare = _netshare(config, services, sessions, bus)
-    duties: list[LibraryWatcher | NetShare] = [watcher] + ([netshare] if netshare else [])
-    cluster = _cluster(core, config, url, sessions, machines, runner, fleet, duties, clustered)
-    app = _web_app(core, clients, stop_deadline)
-    return Server(
-        config,
-        engine,
-        sessions,
-        bus,
-        core,
-        machines,
-        runner,
-        fleet,
-        watcher,
-        app,
-        netshare,
-        capture,
-        outputs.mqtt,
-        outputs.mtconnect,
-        timeline,
-        cluster,
-    )
+    if netshare is not None:
+        core.add(Duty(netshare, duty))
+    if clustered:
+        _cluster(core, config, url, sessions, machines, runner, fleet, duty)
+    return Server(_web_app(core, clients, stop_deadline))
 
 
 def _runner(
@@ -195,14 +231,17 @@ def _runner(
 
 def _outputs(
     core: Core, config: ShopConfig, sessions: sessionmaker[Session], bus: EventBus
-) -> Outputs:
-    """The open outputs (MQTT, MTConnect, Sparkplug), and the alerts where configured."""
-    outputs = core.add(
+) -> tuple[str, ...]:
+    """The open outputs (MQTT, MTConnect, Sparkplug), and the alerts where configured; the
+    names of the optional ones the machines' first statuses must find listening."""
+    core.add(
         Outputs(_mqtt(config, bus), _mtconnect(config, bus), _sparkplug(config, bus, sessions))
     )
-    if config.alerts is not None:  # e-mail and webhooks (docs/server.md#alerts)
-        core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
-    return outputs
+    if config.alerts is None:
+        return ()
+    # e-mail and webhooks (docs/server.md#alerts)
+    alerts = core.add(Alerts(config.alerts, bus, sessions, config.calendar, config.server.name))
+    return (alerts.name,)
 
 
 def _watcher(config: ShopConfig, sessions: sessionmaker[Session], bus: EventBus) -> LibraryWatcher:
@@ -293,15 +332,10 @@ def _cluster(
     machines: Machines,
     runner: JobRunner,
     fleet: Fleet,
-    duties: list[LibraryWatcher | NetShare],
-    clustered: bool,
-) -> Cluster | None:
-    """In a cluster, the leases and the cluster component, which runs the shop-wide duties
-    while it holds their lease; alone, the duties as components of their own."""
-    if not clustered:
-        for duty in duties:
-            core.add(duty)
-        return None
+    duty: DutyFlag,
+) -> Cluster:
+    """The leases and the cluster component, which holds the shop-wide duty while it holds
+    its lease."""
     pins = {m.name: frozenset(m.servers) for m in config.machines}
     pins[LIBRARY] = frozenset()
     leases = Leases(sessions, config.server.name, pins, ttl=config.server.lease_seconds)
@@ -313,7 +347,7 @@ def _cluster(
             runner,
             fleet,
             database_url=url,
-            duties=duties,
+            duty=duty,
             on_status=shared.wake,
         )
     )

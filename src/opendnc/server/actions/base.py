@@ -90,11 +90,10 @@ class Services:
             raise NotFound(f"no machine named {name!r}")
         return state
 
-    def changed(self, kind: str, key: str) -> None:
-        """Tell the event stream that the library (``program``) or the inbox (``inbox``)
+    def changed(self, news: ProgramChanged | InboxChanged) -> None:
+        """Tell the event stream that a program of the library or a reception of the inbox
         changed (after the commit: a page that reloads its list must see the change)."""
-        event = ProgramChanged(key) if kind == "program" else InboxChanged(key)
-        self.runner.bus.publish(event)
+        self.runner.bus.publish(news)
 
     def queued(self, queued: Sequence[JobOut]) -> None:
         """Announce jobs just committed to the queue (a ``queued`` job event each, with
@@ -104,7 +103,7 @@ class Services:
                 self.runner.bus,
                 job_id=job.id,
                 machine=job.machine,
-                job_kind=job.kind.value,
+                job_kind=job.kind,
                 program=job.program,
                 version=job.version,
                 by=job.created_by,

@@ -22,6 +22,7 @@ from opendnc.server.actions.models import Content, FolderOut, JobOut, JobRequest
 from opendnc.server.actions.policy import may_queue, may_take_back
 from opendnc.server.config.shop import MachineConfig
 from opendnc.server.core.errors import Conflict, Unavailable
+from opendnc.server.core.events import ProgramChanged
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.capabilities import capabilities_of
 from opendnc.server.kinds.connector import Connector
@@ -113,7 +114,7 @@ def put_file(
         return JobOut.of(job)
 
     out = svc.write(store)
-    svc.changed("program", name)
+    svc.changed(ProgramChanged(name))
     svc.queued([out])
     return out
 

@@ -15,6 +15,7 @@ from opendnc.server.actions.models import (
     Stored,
     VersionOut,
 )
+from opendnc.server.core.events import InboxChanged, ProgramChanged
 from opendnc.server.library import inbox
 from opendnc.server.library import versions as library
 from opendnc.server.store.models import ReceivedState, Role
@@ -96,8 +97,8 @@ def accept_received(
         return VersionOut.of(version), checks.Target.of(version)
 
     out, target = svc.write(accept)
-    svc.changed("inbox", str(received_id))
-    svc.changed("program", out.program)
+    svc.changed(InboxChanged(str(received_id)))
+    svc.changed(ProgramChanged(out.program))
     checks.ensure(svc, target, None)  # checked on save, after the commit
     return out
 
@@ -106,5 +107,5 @@ def discard_received(svc: Services, who: Caller, received_id: int) -> ReceivedOu
     """Drop a reception from the inbox (its row and file stay for the record)."""
     require(who, Role.PROGRAMMER)
     out = svc.write(lambda s: ReceivedOut.of(inbox.discard(s, received_id, actor=who.name)))
-    svc.changed("inbox", str(received_id))
+    svc.changed(InboxChanged(str(received_id)))
     return out

@@ -22,6 +22,7 @@ from opendnc.server.actions.models import (
     UploadOut,
     VersionOut,
 )
+from opendnc.server.core.events import ProgramChanged
 from opendnc.server.library import versions as library
 from opendnc.server.library.titles import HEAD, title_of
 from opendnc.server.store.models import Role
@@ -226,5 +227,5 @@ def set_locked(svc: Services, who: Caller, name: str, locked: bool) -> ProgramOu
 def _change(svc: Services, name: str, change: Callable[[Session], T]) -> T:
     """Run ``change`` in one write transaction, then tell the pages that ``name`` changed."""
     out = svc.write(change)
-    svc.changed("program", name)
+    svc.changed(ProgramChanged(name))
     return out

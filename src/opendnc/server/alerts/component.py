@@ -123,7 +123,7 @@ class Alerts:
     """Rules from ``[alerts]`` on the bus's events; deliveries to e-mail and webhooks."""
 
     name = "alerts"
-    needs = ("machines",)
+    needs = ("machines", "database")
 
     def __init__(
         self,

@@ -29,11 +29,11 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-from opendnc.server.core.components import Component, cancel_and_wait
+from opendnc.server.core.components import DutyFlag, cancel_and_wait
 from opendnc.server.core.events import LeaseChanged, ProgramChanged
 from opendnc.server.fleet.shared_status import ORPHANED
 from opendnc.server.fleet.tasks import Fleet
@@ -41,7 +41,7 @@ from opendnc.server.jobs.runner import JobRunner, database_down
 from opendnc.server.machines.leases import LIBRARY, ClusterView, Holding, Leases, cluster_view
 from opendnc.server.machines.state import Machines
 from opendnc.server.outputs.items import SERVER_STOPPED
-from opendnc.server.store.notify import Listener, Notice
+from opendnc.server.store.notify import Listener, Notice, Topic
 
 __all__ = ["FENCE_MARGIN_MIN", "Cluster"]
 
@@ -56,7 +56,7 @@ class Cluster:
     """Holds this server's leases and serves exactly the machines it holds (a component)."""
 
     name = "cluster"
-    needs = ("machines", "runner", "fleet")
+    needs = ("machines", "database", "runner", "fleet", "shared-status")
 
     def __init__(
         self,
@@ -66,7 +66,7 @@ class Cluster:
         fleet: Fleet,
         *,
         database_url: str,
-        duties: Sequence[Component] = (),
+        duty: DutyFlag | None = None,
         on_status: Callable[[str], None] = lambda _server: None,
     ) -> None:
         self.leases = leases
@@ -74,7 +74,9 @@ class Cluster:
         self.runner = runner
         self.fleet = fleet
         self.database_url = database_url
-        self.duties = list(duties)
+        # the shop-wide duties' flag: raised while this server holds their lease (the core
+        # starts and stops the duties themselves)
+        self.duty = duty if duty is not None else DutyFlag(held=False)
         self.on_status = on_status  # a server wrote statuses ("" after a reconnect: maybe)
         ttl = leases.ttl.total_seconds()
         self.renew_every = max(0.1, ttl / 4)
@@ -289,8 +291,7 @@ class Cluster:
 
     async def _gain(self, machine: str, epoch: int) -> None:
         if machine == LIBRARY:
-            for duty in self.duties:
-                await duty.start()
+            await self.duty.hold()
             self.serving.add(machine)
             log.info("%s runs the shop-wide duties (library watcher, net share)", self.server)
             return
@@ -309,9 +310,10 @@ class Cluster:
     async def _lose(self, machine: str, reason: str) -> None:
         self.serving.discard(machine)
         if machine == LIBRARY:
-            for duty in reversed(self.duties):
-                with contextlib.suppress(Exception):
-                    await duty.stop()
+            try:
+                await self.duty.release()
+            except Exception:  # the lease goes all the same: never two holders' duties
+                log.exception("stopping the shop-wide duties failed")
             return
         state = self.machines.machines.get(machine)
         if state is not None:
@@ -323,18 +325,21 @@ class Cluster:
     # -- notices ----------------------------------------------------------------------------
 
     def _notice(self, notice: Notice) -> None:
-        if notice.topic == "job":
-            if notice.key in self.serving:
-                self.machines.wake(notice.key)
-        elif notice.topic == "cancel":
-            with contextlib.suppress(ValueError):
-                self.runner.cancel_now(int(notice.key))
-        elif notice.topic == "library":
-            number, _, name = notice.key.partition(":")
-            version = int(number) if number.isdigit() else None
-            self.machines.bus.publish(ProgramChanged(name, version, "cluster"))
-        elif notice.topic == "status":
-            self.on_status(notice.key)
+        match notice.topic:
+            case Topic.JOB:
+                if notice.key in self.serving:
+                    self.machines.wake(notice.key)
+            case Topic.CANCEL:
+                with contextlib.suppress(ValueError):
+                    self.runner.cancel_now(int(notice.key))
+            case Topic.LIBRARY:
+                number, _, name = notice.key.partition(":")
+                version = int(number) if number.isdigit() else None
+                self.machines.bus.publish(ProgramChanged(name, version, "cluster"))
+            case Topic.STATUS:
+                self.on_status(notice.key)
+            case None:
+                pass  # a topic this server does not know (a newer one's): a hint, not news
 
     def _reread(self) -> None:
         # notices sent while the listener was away are lost: look at every queue again

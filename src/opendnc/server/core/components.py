@@ -29,6 +29,8 @@ __all__ = [
     "Component",
     "ComponentError",
     "Core",
+    "Duty",
+    "DutyFlag",
     "RunsTask",
     "StopReport",
     "core_of",
@@ -106,6 +108,82 @@ class RunsTask:
             await cancel_and_wait(task)
 
 
+class DutyFlag:
+    """Whether this server runs the shop-wide duties now (the library watcher, the net share).
+
+    A server alone holds it from the start; in a cluster, the cluster raises it while it holds
+    the duties' lease and lowers it when it loses it. The duties are components of the core
+    (:class:`Duty`): the core starts and stops them, the flag says whether they work. Raising
+    or lowering it returns once every started duty followed, so a cluster gives the lease away
+    only after its duties stopped.
+    """
+
+    def __init__(self, held: bool) -> None:
+        self.held = held
+        self._duties: list[Duty] = []
+
+    async def hold(self) -> None:
+        """Run the duties (each started duty starts its work; those started later, at once)."""
+        self.held = True
+        for duty in list(self._duties):
+            await duty.follow()
+
+    async def release(self) -> None:
+        """Stop the duties' work (in reverse order), returning once each has stopped."""
+        self.held = False
+        for duty in reversed(list(self._duties)):
+            try:
+                await duty.follow()
+            except Exception:  # one duty's failed stop must not keep the next one running
+                log.exception("%s failed to stop", duty.name)
+
+
+class Duty:
+    """A component whose work runs only while its :class:`DutyFlag` is held.
+
+    It bears the name and the needs of the part it runs (``inner``), and :meth:`Core.get`
+    finds it by that part's class: ``core.get(LibraryWatcher)`` is the watcher, on duty or not.
+    """
+
+    def __init__(self, inner: Component, flag: DutyFlag) -> None:
+        self.inner = inner
+        self.flag = flag
+        self.name = inner.name
+        self.needs = inner.needs
+        self._started = False  # by the core
+        self._working = False  # the inner part runs
+        self._lock = asyncio.Lock()  # the core's start or stop and the flag's change, in turn
+
+    @property
+    def working(self) -> bool:
+        """Whether the inner part runs now."""
+        return self._working
+
+    async def start(self) -> None:
+        """Join the flag; start the inner part if the flag is held."""
+        self._started = True
+        self.flag._duties.append(self)
+        await self.follow()
+
+    async def stop(self) -> None:
+        """Leave the flag; stop the inner part if it runs."""
+        self._started = False
+        with contextlib.suppress(ValueError):
+            self.flag._duties.remove(self)
+        await self.follow()
+
+    async def follow(self) -> None:
+        """Start or stop the inner part to match the core and the flag."""
+        async with self._lock:
+            wanted = self._started and self.flag.held
+            if wanted and not self._working:
+                await self.inner.start()
+                self._working = True
+            elif not wanted and self._working:
+                self._working = False
+                await self.inner.stop()
+
+
 @dataclass(frozen=True)
 class StopReport:
     """How a stop went: seconds per component, and the ones cut off at their deadline."""
@@ -134,16 +212,26 @@ class Core:
         return component
 
     def get(self, kind: type[C]) -> C:
-        """The one registered component of class ``kind``."""
-        found = [c for c in self._components.values() if isinstance(c, kind)]
+        """The one registered component of class ``kind`` (a :class:`Duty`'s part by its own)."""
+        found = self._of(kind)
         if len(found) != 1:
             raise ComponentError(f"{len(found)} components of type {kind.__name__}, not one")
         return found[0]
 
     def find(self, kind: type[C]) -> C | None:
         """The registered component of class ``kind``, or None (optional parts: outputs)."""
-        found = [c for c in self._components.values() if isinstance(c, kind)]
+        found = self._of(kind)
         return found[0] if len(found) == 1 else None
+
+    def _of(self, kind: type[C]) -> list[C]:
+        found: list[C] = []
+        for component in self._components.values():
+            part = component.inner if isinstance(component, Duty) else component
+            if isinstance(component, kind):
+                found.append(component)
+            elif isinstance(part, kind):
+                found.append(part)
+        return found
 
     def __iter__(self) -> Iterator[Component]:
         return iter(self.order())
@@ -154,7 +242,8 @@ class Core:
         return {c.name: "running" if c.name in started else "stopped" for c in self.order()}
 
     def order(self) -> list[Component]:
-        """Every component after the ones it needs (registration order otherwise)."""
+        """Every component after the ones it needs. Only the declared needs order them: the
+        components are taken by name, so the order of registration makes no difference."""
         done: dict[str, Component] = {}
         visiting: set[str] = set()
 
@@ -171,8 +260,8 @@ class Core:
             visiting.discard(component.name)
             done[component.name] = component
 
-        for component in self._components.values():
-            visit(component)
+        for name in sorted(self._components):
+            visit(self._components[name])
         return list(done.values())
 
     async def start(self) -> None:

@@ -20,6 +20,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from opendnc.server.core.jobwords import JobKind, JobState
 from opendnc.server.core.state import State, classify
 from opendnc.server.core.status import MachineStatus
 
@@ -41,6 +42,7 @@ __all__ = [
     "ProgramChanged",
     "ProgramReceived",
     "Subscription",
+    "TransferProgress",
     "on_loop",
     "publish_job_queued",
     "stored_progress",
@@ -146,7 +148,7 @@ class JobEvent(Event):
     event: ClassVar[str]
     job_id: int
     machine: str
-    job_kind: str  # send, dripfeed, receive, delete, backup, report
+    job_kind: JobKind
     program: str | None = None
     version: int | None = None
 
@@ -156,7 +158,7 @@ class JobEvent(Event):
         return f"{self.job_id}:{self.event}"
 
     @property
-    def state(self) -> str:
+    def state(self) -> JobState:
         """The job's state after this event."""
         raise NotImplementedError
 
@@ -165,8 +167,8 @@ class JobEvent(Event):
             "id": self.job_id,
             "machine": self.machine,
             "event": self.event,
-            "state": self.state,
-            "kind": self.job_kind,
+            "state": self.state.value,
+            "kind": self.job_kind.value,
             "program": self.program,
             "version": self.version,
         }
@@ -180,8 +182,8 @@ class JobQueued(JobEvent):
     by: str = ""
 
     @property
-    def state(self) -> str:
-        return "queued"
+    def state(self) -> JobState:
+        return JobState.QUEUED
 
     def as_json(self) -> dict[str, Any]:
         return {**super().as_json(), "by": self.by}
@@ -195,8 +197,8 @@ class JobStarted(JobEvent):
     bytes_total: int | None = None
 
     @property
-    def state(self) -> str:
-        return "running"
+    def state(self) -> JobState:
+        return JobState.RUNNING
 
     def as_json(self) -> dict[str, Any]:
         return {**super().as_json(), "bytes_done": 0, "bytes_total": self.bytes_total}
@@ -218,8 +220,31 @@ class JobProgress(JobEvent):
         return str(self.job_id)
 
     @property
-    def state(self) -> str:
-        return "running"
+    def state(self) -> JobState:
+        return JobState.RUNNING
+
+    @classmethod
+    def of(
+        cls,
+        job_id: int,
+        machine: str,
+        job_kind: JobKind,
+        program: str | None,
+        version: int | None,
+        progress: TransferProgress,
+    ) -> JobProgress:
+        """The event of a job's ``progress`` as its executor reported it."""
+        return cls(
+            job_id,
+            machine,
+            job_kind,
+            program,
+            version,
+            bytes_done=progress.bytes_done,
+            bytes_total=progress.bytes_total,
+            line=progress.line,
+            lines=progress.lines,
+        )
 
     @property
     def percent(self) -> int | None:
@@ -243,11 +268,11 @@ class JobFinished(JobEvent):
     interrupted, or queued again for a retry), ``error`` why it did not succeed."""
 
     event: ClassVar[str] = "finished"
-    outcome: str = "done"
+    outcome: JobState = JobState.DONE
     error: str = ""
 
     @property
-    def state(self) -> str:
+    def state(self) -> JobState:
         return self.outcome
 
     def as_json(self) -> dict[str, Any]:
@@ -255,6 +280,18 @@ class JobFinished(JobEvent):
         if self.error:
             out["error"] = self.error
         return out
+
+
+@dataclass(frozen=True)
+class TransferProgress:
+    """How far a job's transfer is, as an executor reports it to the runner (which publishes
+    it as a :class:`JobProgress`): bytes of the program as stored (:func:`stored_progress`),
+    and a drip-feed's line reached of its lines."""
+
+    bytes_done: int
+    bytes_total: int | None = None
+    line: int | None = None
+    lines: int | None = None
 
 
 def percent(done: int, total: int | None) -> int | None:
@@ -523,7 +560,7 @@ def publish_job_queued(
     *,
     job_id: int,
     machine: str,
-    job_kind: str,
+    job_kind: JobKind,
     program: str | None,
     version: int | None,
     by: str,

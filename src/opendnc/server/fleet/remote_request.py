@@ -30,7 +30,7 @@ from opendnc.server.actions.base import Services
 from opendnc.server.config.shop import MachineConfig
 from opendnc.server.core import requests
 from opendnc.server.core.errors import Conflict, NotFound
-from opendnc.server.core.events import ProgramReceived, publish_job_queued
+from opendnc.server.core.events import JobQueued, ProgramReceived
 from opendnc.server.core.requests import RequestSettings
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.kinds.connector import Reception
@@ -86,7 +86,7 @@ class RemoteRequests:
             return
         folder = self.inbox_folder
         zone = self.machines.config.calendar.zone
-        queued: list[dict[str, Any]] = []  # the requested programs' jobs, announced once committed
+        queued: list[JobQueued] = []  # the requested programs' jobs, announced once committed
 
         def handle() -> tuple[str, float | None]:
             names = None if reception.failed else requests.find_request(reception.data, settings)
@@ -123,8 +123,8 @@ class RemoteRequests:
             state.last_error_at = utcnow()
         bus = self.machines.bus
         bus.publish(ProgramReceived(machine.name, message))
-        for job in queued:
-            publish_job_queued(bus, **job)
+        for event in queued:
+            bus.publish(event)
         if delay is not None:
             # Wake the machine when the answer falls due (the request delay).
             asyncio.get_running_loop().call_later(delay + 0.05, state.wake.set)
@@ -163,7 +163,7 @@ class RemoteRequests:
         session: Session,
         machine: MachineConfig,
         asked: list[tuple[str, Asked]],
-        queued: list[dict[str, Any]],
+        queued: list[JobQueued],
     ) -> str:
         settings = self.settings
         due = utcnow() + timedelta(seconds=settings.delay)
@@ -219,15 +219,16 @@ class RemoteRequests:
                 params={"request": True},
                 not_before=due,
             )
+            # plain values now: the committed row's attributes may no longer be loaded
             queued.append(
-                {
-                    "job_id": job.id,
-                    "machine": machine.name,
-                    "job_kind": JobKind.SEND.value,
-                    "program": version.program.name,
-                    "version": version.number,
-                    "by": job.created_by,
-                }
+                JobQueued(
+                    job.id,
+                    machine.name,
+                    JobKind.SEND,
+                    version.program.name,
+                    version.number,
+                    by=job.created_by,
+                )
             )
             sent.append(name)
         audit.record(

@@ -44,7 +44,7 @@ from opendnc.server.core.status import MachineStatus
 from opendnc.server.jobs.runner import database_down
 from opendnc.server.machines.state import Machines, MachineState
 from opendnc.server.store.models import MachineLease, MachineSnapshot
-from opendnc.server.store.notify import notify
+from opendnc.server.store.notify import Topic, notify
 
 __all__ = ["FALLBACK", "INTERVAL", "NOTICE", "ORPHANED", "SharedStatus", "status_from_json"]
 
@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 INTERVAL = 0.1  # seconds of polls gathered into one write
 FALLBACK = 1.0  # seconds a reader waits for a notice before it reads anyway
 UNSERVED_EVERY = 1.0  # seconds between two looks at which machines nobody serves
-NOTICE = "status"  # the notice's topic; its key is the writing server
+NOTICE = Topic.STATUS  # the notice's topic; its key is the writing server
 ORPHANED = "no server serves this machine now"  # a machine's last error while nobody does
 
 _SNAPSHOTS = MachineSnapshot.__table__
@@ -151,7 +151,8 @@ class SharedStatus:
     """Writes the served machines' status, reads the others' (a component, PostgreSQL only)."""
 
     name = "shared-status"
-    needs = ("machines",)
+    # it shows other servers' machines to the outputs: they listen before its first status
+    needs = ("machines", "database", "outputs", "timeline")
 
     def __init__(
         self,

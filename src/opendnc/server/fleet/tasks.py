@@ -47,7 +47,17 @@ class Fleet:
     """The machines' tasks; a component."""
 
     name = "fleet"
-    needs = ("machines", "runner", "remote-requests", "auto-receive", "dprnt", "outputs")
+    # what must run before a machine's first status: the parts that hand it work, and every
+    # listener of its statuses (the outputs, the timeline; ``listeners`` adds optional ones)
+    needs: tuple[str, ...] = (
+        "machines",
+        "runner",
+        "remote-requests",
+        "auto-receive",
+        "dprnt",
+        "outputs",
+        "timeline",
+    )
 
     def __init__(
         self,
@@ -58,7 +68,9 @@ class Fleet:
         connector_factory: ConnectorFactory,
         *,
         serve_all: bool = True,
+        listeners: tuple[str, ...] = (),
     ) -> None:
+        self.needs = (*type(self).needs, *listeners)  # the alerts, where configured
         self.machines = machines
         self.serve_all = (
             serve_all  # False in a cluster: the leases decide (server/cluster/cluster.py)

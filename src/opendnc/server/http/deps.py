@@ -58,7 +58,11 @@ class Database:
     name = "database"
     needs: tuple[str, ...] = ()
 
-    def __init__(self, engine: Engine, sessions: sessionmaker[Session]) -> None:
+    def __init__(
+        self, engine: Engine, sessions: sessionmaker[Session], *, needs: tuple[str, ...] = ()
+    ) -> None:
+        # ("server-lock",) on PostgreSQL: every user of the database stops before the lock goes
+        self.needs = needs
         self.engine = engine
         self.sessions = sessions
         self.reads = read_only(sessions)

@@ -20,7 +20,7 @@ from typing import Any, Protocol
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
-from opendnc.server.core.events import stored_progress
+from opendnc.server.core.events import TransferProgress, stored_progress
 from opendnc.server.jobs.queue import TAKEN_OVER_FROM
 from opendnc.server.kinds.connector import Connector, JobCancelled
 from opendnc.server.kinds.files import browser_of, check_path
@@ -78,9 +78,9 @@ class Claimed:
         return self.name if self.version is not None else None
 
 
-JobEvent = Callable[..., None]
-"""``event(bytes_done=..., bytes_total=..., line=..., lines=...)``: publish the job's progress
-(a :class:`~opendnc.server.core.events.JobProgress`), in bytes of the program as stored."""
+ProgressSink = Callable[[TransferProgress], None]
+"""Where an executor reports its job's progress: the runner publishes each as a
+:class:`~opendnc.server.core.events.JobProgress` (bytes of the program as stored)."""
 
 
 @dataclass
@@ -90,7 +90,7 @@ class JobRun:
     job: Claimed
     state: MachineState
     connector: Connector
-    event: JobEvent
+    progress: ProgressSink
     check_cancel: Callable[[], Awaitable[bool]]
     """Ask the database now whether a cancel was requested (a safe point)."""
     cancel_requested: bool = False
@@ -176,7 +176,7 @@ class SendExecutor(_Base):
             if held:
                 size = len(job.data)
                 state.job_progress = (size, size)
-                run.event(bytes_done=size, bytes_total=size)
+                run.progress(TransferProgress(size, size))
                 return {
                     "nbytes": size,
                     "verified": True,
@@ -201,7 +201,7 @@ class SendExecutor(_Base):
             if now - last[0] < PROGRESS_EVERY and (total is None or done < total):
                 return
             last[0] = now
-            run.event(bytes_done=done, bytes_total=total)
+            run.progress(TransferProgress(done, total))
 
         await run.connector.send(job.name, job.data, progress)
         await run.safe_point("after the transfer, before its verification")
@@ -244,7 +244,7 @@ class DripFeedExecutor(_Base):
                 # travels beside it for the restart prompt.
                 state.job_progress = (nbytes, total or None)
                 state.job_line = (line, lines)
-                run.event(bytes_done=nbytes, bytes_total=total or None, line=line, lines=lines)
+                run.progress(TransferProgress(nbytes, total or None, line=line, lines=lines))
             if run.cancel_requested:
                 raise JobCancelled(f"cancelled at line {line}")
 

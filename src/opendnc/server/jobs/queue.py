@@ -39,7 +39,7 @@ from opendnc.server.store.models import (
     ProgramVersion,
     utcnow,
 )
-from opendnc.server.store.notify import notify
+from opendnc.server.store.notify import Topic, notify
 
 __all__ = [
     "LOADS",
@@ -177,7 +177,7 @@ def enqueue(
         sha256=version.sha256 if version else None,
         kind=kind.value,
     )
-    notify(session, "job", machine)  # the server serving it claims it at once
+    notify(session, Topic.JOB, machine)  # the server serving it claims it at once
     return job
 
 
@@ -496,7 +496,7 @@ def cancel(session: Session, job_id: int, *, actor: str) -> Job:
         job.finished = utcnow()
     elif job.state is JobState.RUNNING:
         job.cancel_requested = True
-        notify(session, "cancel", str(job.id))  # whichever server runs it stops it at once
+        notify(session, Topic.CANCEL, str(job.id))  # whichever server runs it stops it at once
     else:
         raise Conflict(f"job {job_id} is {job.state.value}; nothing to cancel")
     audit.record(session, actor, "job.cancel", machine=job.machine, job_id=job.id)
@@ -523,7 +523,7 @@ def move(session: Session, job_id: int, index: int, *, actor: str) -> Job:
     for n, item in enumerate(queue, start=1):
         item.position = float(n)
     audit.record(session, actor, "job.move", machine=job.machine, job_id=job.id, index=index)
-    notify(session, "job", job.machine)
+    notify(session, Topic.JOB, job.machine)
     return job
 
 

@@ -38,7 +38,13 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.errors import DncError, RemoteProtocolError, TransferError, TransportError
 from opendnc.server.core.components import cancel_and_wait
 from opendnc.server.core.errors import NotFound
-from opendnc.server.core.events import JobFinished, JobProgress, JobQueued, JobStarted
+from opendnc.server.core.events import (
+    JobFinished,
+    JobProgress,
+    JobQueued,
+    JobStarted,
+    TransferProgress,
+)
 from opendnc.server.jobs import queue as jobs
 from opendnc.server.jobs.executors import (
     Claimed,
@@ -112,7 +118,7 @@ class JobRunner:
         self.sessions = sessions
         self._reads = read_only(sessions)  # the sweep's queries need not wait for the lock
         self.executors: dict[JobKind, Executor] = {e.kind: e for e in executors}
-        self.needs = ("machines", *(e.name for e in self.executors.values()))
+        self.needs = ("machines", "database", *(e.name for e in self.executors.values()))
         self.worker = worker
         self.sweep_interval = sweep_interval
         self.retry_backoff = retry_backoff
@@ -226,12 +232,12 @@ class JobRunner:
                 job = jobs.get_job(session, job_id)
                 program = job.version.program.name if job.version is not None else None
                 number = job.version.number if job.version is not None else None
-                fields = (job_id, job.machine, job.kind.value, program, number)
+                fields = (job_id, job.machine, job.kind, program, number)
                 if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-                    return JobFinished(*fields, outcome=job.state.value)
+                    return JobFinished(*fields, outcome=job.state)
                 self._check_lease(session, job.machine, self._epochs.get(job_id))
                 reason = "this server lost track of the job (database outage); not run"
-                ended = jobs.fail(session, job_id, reason, retryable=True).state.value
+                ended = jobs.fail(session, job_id, reason, retryable=True).state
                 return JobFinished(*fields, outcome=ended, error=reason)
 
             try:
@@ -274,7 +280,7 @@ class JobRunner:
             self._claiming.discard(name)
             return False
         # In the same step of the loop as the discard: the sweep never sees neither.
-        state.start_job(claimed.job_id, len(claimed.data) or None, claimed.kind.value, claimed.name)
+        state.start_job(claimed.job_id, len(claimed.data) or None, claimed.kind, claimed.name)
         self._claiming.discard(name)
         self.machines.bus.publish(
             JobStarted(*_fields(claimed, name), bytes_total=len(claimed.data) or None)
@@ -285,7 +291,7 @@ class JobRunner:
             claimed,
             state,
             connector,
-            event=lambda **progress: self._progress(claimed, name, progress),
+            progress=lambda progress: self._progress(claimed, name, progress),
             check_cancel=lambda: self._cancel_requested(claimed.job_id),
         )
         watch = asyncio.create_task(self._watch_cancel(run), name=f"cancel-watch-{claimed.job_id}")
@@ -318,7 +324,7 @@ class JobRunner:
         if run.cancel_requested:
             # The work was done before the cancel could stop it: said so in its audit row.
             outcome["cancel"] = "requested too late: the work was already done"
-        await self._settle(run, "done", lambda s: self._finish(s, run, outcome))
+        await self._settle(run, JobState.DONE, lambda s: self._finish(s, run, outcome))
         return True
 
     def _claim(self, machine: str) -> Claimed | None:
@@ -365,10 +371,10 @@ class JobRunner:
         if line is not None:
             reason = f"{reason} (stopped at line {line}; restart from there)"
 
-        def fail(session: Session) -> str:
+        def fail(session: Session) -> JobState:
             job = jobs.get_job(session, run.job.job_id)
             if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-                return job.state.value  # an earlier try went through; its answer was lost
+                return job.state  # an earlier try went through; its answer was lost
             self._check_lease(session, job.machine, self._epochs.get(job.id))
             return jobs.fail(
                 session,
@@ -378,7 +384,7 @@ class JobRunner:
                 backoff=self.retry_backoff,
                 line=line,
                 nbytes=nbytes,
-            ).state.value
+            ).state
 
         await self._settle(run, None, fail, error=reason)
 
@@ -441,14 +447,14 @@ class JobRunner:
             machine,
         )
 
-        def correct(session: Session) -> str:
+        def correct(session: Session) -> JobState:
             # Another server took the machine meanwhile and ended the job at the last line
             # this one managed to write down (it writes every half second, and not at all
             # while the database is silent): the control has more, up to `line`. A restart
             # from the older line would run those blocks twice.
             job = jobs.get_job(session, job_id)
             if job.state is not JobState.INTERRUPTED or (job.line or 0) >= line:
-                return job.state.value
+                return job.state
             recorded = job.line
             job.line, job.bytes_done = line, nbytes
             job.error = f"{reason}; it had been recorded at line {recorded}"
@@ -463,30 +469,30 @@ class JobRunner:
                 line=line,
                 recorded=recorded,
             )
-            return job.state.value
+            return job.state
 
-        def pause(session: Session) -> str:
+        def pause(session: Session) -> JobState:
             job = jobs.get_job(session, job_id)
             if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
                 return correct(session)  # ended by the machine's next server meanwhile
             self._check_lease(session, machine, self._epochs.get(job_id))
             ended = jobs.fail(session, job_id, reason, retryable=False, line=line, nbytes=nbytes)
-            return ended.state.value
+            return ended.state
 
         self._settle_later(run, None, pause, {"error": reason}, or_else=correct)
 
-    def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> str:
+    def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> JobState:
         job = jobs.get_job(session, run.job.job_id)
         if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-            return job.state.value  # an earlier try went through; its answer was lost
+            return job.state  # an earlier try went through; its answer was lost
         self._check_lease(session, job.machine, self._epochs.get(job.id))
-        return jobs.finish(session, run.job.job_id, **outcome).state.value
+        return jobs.finish(session, run.job.job_id, **outcome).state
 
     async def _settle(
         self,
         run: JobRun,
-        label: str | None,
-        write: Callable[[Session], str],
+        label: JobState | None,
+        write: Callable[[Session], JobState],
         **extra: Any,
     ) -> None:
         """Record how ``run`` ended. While the database is away the machine keeps the job
@@ -533,11 +539,11 @@ class JobRunner:
     def _settle_later(
         self,
         run: JobRun,
-        label: str | None,
-        write: Callable[[Session], str],
+        label: JobState | None,
+        write: Callable[[Session], JobState],
         extra: Mapping[str, Any],
-        first: asyncio.Future[str] | None = None,
-        or_else: Callable[[Session], str] | None = None,
+        first: asyncio.Future[JobState] | None = None,
+        or_else: Callable[[Session], JobState] | None = None,
     ) -> None:
         """Write ``run``'s end in the background, retrying until the database takes it. The
         machine keeps the job meanwhile (``state.job_id``: no new claim) while its task goes
@@ -550,7 +556,7 @@ class JobRunner:
 
         async def write_it() -> None:
             try:
-                ended: str | None = None
+                ended: JobState | None = None
                 if first is not None:
                     try:
                         ended = await first
@@ -561,18 +567,20 @@ class JobRunner:
                     ended = await self._durably(what, write)
             except LeaseLost as exc:
                 log.warning("job %d: %s; its end is left to that server", job_id, exc)
-                ended = "taken over"
+                ended = None  # that server says how it ended
                 if or_else is not None:
                     with contextlib.suppress(Exception):
                         ended = await self._durably(what, or_else)
             except Exception:
                 log.exception("%s failed", what)
-                ended = "unknown"
+                ended = None  # not known here: the job's row says it
             finally:
                 self._unsettled.discard(job_id)
                 self._epochs.pop(job_id, None)
                 self._paused.discard(job_id)
-            self._ended(run, label or ended, **extra)
+            outcome = label or ended
+            if outcome is not None:
+                self._ended(run, outcome, **extra)
             if state.job_id == job_id:
                 state.job_id = None
                 state.job_progress = (0, None)
@@ -691,10 +699,10 @@ class JobRunner:
                         JobFinished(
                             job.id,
                             machine,
-                            job.kind.value,
+                            job.kind,
                             version.program.name if version is not None else None,
                             version.number if version is not None else None,
-                            outcome=job.state.value,
+                            outcome=job.state,
                             error=job.error,
                         )
                     )
@@ -703,17 +711,17 @@ class JobRunner:
         for event in await asyncio.to_thread(self._transaction, adopt):
             log.warning("job %d of %s taken over: %s", event.job_id, event.machine, event.outcome)
             self.machines.bus.publish(event)
-            if event.outcome == JobState.QUEUED.value:
+            if event.outcome is JobState.QUEUED:
                 fields = (event.job_id, event.machine, event.job_kind, event.program)
                 self.machines.bus.publish(JobQueued(*fields, event.version, by=self.worker))
 
     # -- events ---------------------------------------------------------------------------
 
-    def _progress(self, job: Claimed, machine: str, progress: dict[str, Any]) -> None:
+    def _progress(self, job: Claimed, machine: str, progress: TransferProgress) -> None:
         # From the transfer's thread too: a drip-feed's line is kept for the cancel watch,
         # which records it in the job's row (what a taking-over server reports).
         if job.kind is JobKind.DRIPFEED:
-            self._lines[job.job_id] = (progress.get("line"), int(progress.get("bytes_done", 0)))
+            self._lines[job.job_id] = (progress.line, progress.bytes_done)
         if self.fence is not None and self.fence.epoch(machine) != self._epochs.get(job.job_id):
             # Called after each block written whole and before the next: a server whose
             # lease could expire soon writes not one block more, whatever its event loop
@@ -721,9 +729,9 @@ class JobRunner:
             raise Fenced(
                 f"{self.worker} stopped driving {machine}: its lease could not be renewed in time"
             )
-        self.machines.bus.publish(JobProgress(*_fields(job, machine), **progress))
+        self.machines.bus.publish(JobProgress.of(*_fields(job, machine), progress))
 
-    def _ended(self, run: JobRun, outcome: str, error: str = "") -> None:
+    def _ended(self, run: JobRun, outcome: JobState, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)
         self.machines.bus.publish(JobFinished(*fields, outcome=outcome, error=error))
 
@@ -734,6 +742,6 @@ def _retrieved(future: asyncio.Future[Any]) -> None:
         future.exception()
 
 
-def _fields(job: Claimed, machine: str) -> tuple[int, str, str, str | None, int | None]:
+def _fields(job: Claimed, machine: str) -> tuple[int, str, JobKind, str | None, int | None]:
     """What every event of ``job`` carries: id, machine, kind, program, version."""
-    return job.job_id, machine, job.kind.value, job.program, job.version
+    return job.job_id, machine, job.kind, job.program, job.version

@@ -24,7 +24,7 @@ from opendnc.errors import InputError
 from opendnc.server.core.errors import Conflict, NotFound
 from opendnc.server.store import audit
 from opendnc.server.store.models import Blob, Program, ProgramState, ProgramVersion
-from opendnc.server.store.notify import notify
+from opendnc.server.store.notify import Topic, notify
 
 __all__ = [
     "MAX_PROGRAM_BYTES",
@@ -354,7 +354,8 @@ def add_version(
         source=source,
         comment=comment,
     )
-    notify(session, "library", f"{version.number}:{name}")  # the other servers' pages and streams
+    # the other servers' pages and streams
+    notify(session, Topic.LIBRARY, f"{version.number}:{name}")
     return version, True
 
 
@@ -408,7 +409,7 @@ def release(session: Session, name: str, number: int, *, actor: str) -> ProgramV
     audit.record(
         session, actor, "program.release", program=name, sha256=target.sha256, version=number
     )
-    notify(session, "library", f"{number}:{name}")
+    notify(session, Topic.LIBRARY, f"{number}:{name}")
     return target
 
 

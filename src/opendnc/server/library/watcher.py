@@ -45,6 +45,10 @@ class LibraryWatcher(RunsTask):
     """Feeds the library from a folder; :meth:`run` until cancelled (a component)."""
 
     name = "library-watcher"
+    needs: tuple[str, ...] = (
+        "database",
+        "machines",
+    )  # it publishes new versions on the machines' bus
 
     def __init__(
         self,

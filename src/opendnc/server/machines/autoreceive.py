@@ -145,7 +145,7 @@ class AutoReceive:
     task between two status polls (one listing never meets a transfer); a component."""
 
     name = "auto-receive"
-    needs = ("machines",)
+    needs = ("machines", "database")
 
     def __init__(self, machines: Machines, sessions: sessionmaker[Session]) -> None:
         self.machines = machines

@@ -109,7 +109,7 @@ class DprntCapture:
     connector taps its own port into; a component (``start`` / ``stop``)."""
 
     name = "dprnt"
-    needs = ("machines",)
+    needs = ("machines", "database")
 
     def __init__(
         self,

@@ -15,6 +15,7 @@ from typing import Any
 
 from opendnc.server.config.shop import MachineConfig, ShopConfig
 from opendnc.server.core.events import EventBus, MachineStatusChanged, on_loop
+from opendnc.server.core.jobwords import JobKind
 from opendnc.server.core.state import State, classify
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.kinds.files import Errands
@@ -40,7 +41,7 @@ class MachineState:
     # rate is measured from there (the wait for the control before the first byte is no
     # part of it: a 9 s load once said "about 5 min 13 s left" after its slow start)
     job_flowing: tuple[datetime, int] | None = None
-    job_kind: str = ""  # the running job's kind (send, dripfeed, receive, ...)
+    job_kind: JobKind | None = None  # the running job's kind
     job_program: str = ""  # the program (or path) it moves
     dprnt: tuple[str, datetime] | None = None  # the last DPRNT line and when it came
     wake: asyncio.Event = field(default_factory=asyncio.Event)
@@ -56,7 +57,9 @@ class MachineState:
             status = replace(status, dprnt=self.dprnt[0], dprnt_at=self.dprnt[1])
         self.status = status
 
-    def start_job(self, job_id: int, total: int | None, kind: str = "", program: str = "") -> None:
+    def start_job(
+        self, job_id: int, total: int | None, kind: JobKind | None = None, program: str = ""
+    ) -> None:
         """A job starts on this machine: its progress, start time and line start anew."""
         self.job_id, self.job_progress = job_id, (0, total)
         self.job_started, self.job_line = datetime.now(UTC), None
@@ -74,7 +77,7 @@ class MachineState:
         if self.job_id is None or not self.online:
             return status
         base = status or MachineStatus(at=datetime.now(UTC), available=True)
-        if self.job_kind == "dripfeed":
+        if self.job_kind is JobKind.DRIPFEED:
             return replace(
                 base,
                 execution="ACTIVE",
@@ -83,7 +86,7 @@ class MachineState:
                 message=f"drip-feed of {self.job_program} from the server",
             )
         silent = base.execution in ("", "UNAVAILABLE") and not base.errors
-        if silent and self.job_kind in ("send", "report"):
+        if silent and self.job_kind in (JobKind.SEND, JobKind.REPORT):
             return replace(base, execution="WAIT", message=f"loading {self.job_program}")
         return status
 
@@ -118,15 +121,22 @@ class MachineState:
             "job": None if self.job_id is None else self._job_json(),
         }
 
+    def flowing(self) -> tuple[datetime, int] | None:
+        """When this server first saw the running job's bytes move, and how many there were
+        (noted the first time it is asked after they moved): the job's rate starts there."""
+        done = self.job_progress[0]
+        if self.job_id is not None and self.job_flowing is None and done > 0:
+            self.job_flowing = (datetime.now(UTC), done)
+        return self.job_flowing
+
     def _job_json(self) -> dict[str, Any]:
         done, total = self.job_progress
         job: dict[str, Any] = {"id": self.job_id, "bytes_done": done, "bytes_total": total}
         job["started"] = self.job_started.isoformat() if self.job_started else None
-        if self.job_flowing is None and done > 0:
-            self.job_flowing = (datetime.now(UTC), done)
-        if self.job_flowing is not None:
-            job["flowing"] = self.job_flowing[0].isoformat()
-            job["flowing_bytes"] = self.job_flowing[1]
+        flowing = self.flowing()
+        if flowing is not None:
+            job["flowing"] = flowing[0].isoformat()
+            job["flowing_bytes"] = flowing[1]
         if self.job_line is not None:
             job["line"], job["lines"] = self.job_line
         return job

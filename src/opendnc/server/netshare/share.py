@@ -140,6 +140,7 @@ class NetShare(RunsTask):
     """The net share task (a component running :meth:`run`); :meth:`scan` for one pass."""
 
     name = "netshare"
+    needs: tuple[str, ...] = ("database", "machines", "actions")  # its gate is the actions' policy
 
     def __init__(
         self,

@@ -74,7 +74,7 @@ class TimelineRecorder:
     notes every :data:`~opendnc.server.machines.timeline.HEARTBEAT` seconds that it is recording."""
 
     name = "timeline"
-    needs = ("machines",)
+    needs = ("machines", "database")
 
     def __init__(
         self,

@@ -36,6 +36,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 from opendnc.errors import InputError
+from opendnc.server.core.jobwords import JobKind, JobState
 
 __all__ = [
     "ApiKey",
@@ -125,34 +126,6 @@ class ProgramState(enum.StrEnum):
     DRAFT = "draft"
     RELEASED = "released"
     SUPERSEDED = "superseded"
-
-
-class JobKind(enum.StrEnum):
-    """What a job does on its machine."""
-
-    SEND = "send"  # load one program version into the control
-    RECEIVE = "receive"  # take a program from the control into the inbox
-    BACKUP = "backup"  # LSV2: copy a folder of the control
-    DRIPFEED = "dripfeed"  # stream a program while the control runs it
-    DELETE = "delete"  # remove a file from the control
-    PUT_FILE = "put_file"  # write a library version to a path on the control (file browser)
-    REPORT = "report"  # a short program telling the operator what the server did
-
-
-class JobState(enum.StrEnum):
-    """Where a job is; only the queue module moves a job between these."""
-
-    QUEUED = "queued"
-    RUNNING = "running"
-    DONE = "done"
-    FAILED = "failed"
-    CANCELLED = "cancelled"
-    INTERRUPTED = "interrupted"  # the server or the link stopped while it ran
-
-    @property
-    def finished(self) -> bool:
-        """True once the job will not run again by itself."""
-        return self not in (JobState.QUEUED, JobState.RUNNING)
 
 
 # Stable constraint names, so Alembic's batch mode can rebuild SQLite tables.

@@ -14,6 +14,7 @@ some, so it reports every reconnect and the server then re-reads what it serves.
 from __future__ import annotations
 
 import asyncio
+import enum
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,31 +25,46 @@ from sqlalchemy.orm import Session
 
 from opendnc.server.store.db import pg_connect_args
 
-__all__ = ["CHANNEL", "Listener", "Notice", "notify"]
+__all__ = ["CHANNEL", "Listener", "Notice", "Topic", "notify"]
 
 CHANNEL = "opendnc"
 _log = logging.getLogger(__name__)
 
 
+class Topic(enum.StrEnum):
+    """What a notice is about; its key says which one."""
+
+    JOB = "job"  # a machine's queue changed: its server claims at once (key: the machine)
+    CANCEL = "cancel"  # a cancel was asked: the server running it stops it (key: the job id)
+    LIBRARY = "library"  # a program has a new version or state (key: "number:name")
+    STATUS = "status"  # a server wrote its machines' status rows (key: that server)
+
+
 @dataclass(frozen=True)
 class Notice:
-    """One wake-up: what changed (``job``, ``cancel``, ``library``, ...) and its key."""
+    """One wake-up: what changed and its key; ``topic`` is None for a payload this server
+    does not know (a bare key, or a newer server's topic): read and ignored."""
 
-    topic: str
+    topic: Topic | None
     key: str
 
     def encode(self) -> str:
         """The notification's payload."""
-        return f"{self.topic}:{self.key}"
+        return f"{self.topic.value if self.topic is not None else ''}:{self.key}"
 
     @classmethod
     def decode(cls, payload: str) -> Notice:
         """A payload back into a notice (one without a topic is a bare key)."""
-        topic, _, key = payload.partition(":")
-        return cls(topic, key) if key else cls("", topic)
+        word, _, key = payload.partition(":")
+        if not key:
+            return cls(None, word)
+        try:
+            return cls(Topic(word), key)
+        except ValueError:
+            return cls(None, key)
 
 
-def notify(session: Session, topic: str, key: str) -> None:
+def notify(session: Session, topic: Topic, key: str) -> None:
     """Wake the other servers when ``session``'s transaction commits (nothing on SQLite)."""
     if session.get_bind().dialect.name != "postgresql":
         return

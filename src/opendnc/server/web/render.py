@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import difflib
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta, tzinfo
 from functools import cache
 from pathlib import Path
@@ -22,13 +22,17 @@ from pygments.formatters import HtmlFormatter
 from pygments.lexers import GcodeLexer
 
 from opendnc.server.core.events import percent
-from opendnc.server.core.state import State
+from opendnc.server.core.state import State, classify
+from opendnc.server.core.status import MachineStatus
 from opendnc.server.kinds.registry import label_of
+from opendnc.server.machines.state import MachineState
 
 __all__ = [
     "Card",
     "DiffRow",
     "LastJob",
+    "RunningJob",
+    "Seen",
     "card",
     "card_oob",
     "environment",
@@ -351,7 +355,7 @@ class Card:
     name: str
     kind: str
     description: str
-    state: str  # one of STATES: the classifier's word, also the card's colour class
+    state: State  # one of STATES: the classifier's word, also the card's colour class
     online: bool
     mode: str
     native_mode: str  # the control's own word beside the MTConnect one (a Haas's MEM)
@@ -400,20 +404,20 @@ def _words(value: str) -> str:
 
 # The control's execution words that say no more than the state they make: "Running (active)"
 # and "Alarm (stopped)" read as jargon, or as a contradiction.
-_SAID_BY_STATE = {
-    "running": {"ACTIVE"},
-    "ready": {"READY", "WAIT"},
-    "stopped": {"STOPPED", "PROGRAM_STOPPED"},
+_SAID_BY_STATE: dict[State, frozenset[str]] = {
+    State.RUNNING: frozenset({"ACTIVE"}),
+    State.READY: frozenset({"READY", "WAIT"}),
+    State.STOPPED: frozenset({"STOPPED", "PROGRAM_STOPPED"}),
 }
 
 
-def state_detail(state: str, execution: str) -> str:
+def state_detail(state: State, execution: str) -> str:
     """What the control's execution word adds to the state, in plain words (``"feed hold"``
     for a stopped machine, ``"program completed"`` for a ready one), or nothing: an alarm is
     said by its text, a running machine by its program."""
-    if not execution or state in ("alarm", "offline", "unknown"):
+    if not execution or state in (State.ALARM, State.OFFLINE, State.UNKNOWN):
         return ""
-    if execution in _SAID_BY_STATE.get(state, ()):
+    if execution in _SAID_BY_STATE.get(state, frozenset()):
         return ""
     return _words(execution)
 
@@ -463,8 +467,138 @@ def _overrides(values: dict[str, float] | None) -> str:
     return ", ".join(f"{k} {round(v)}\u00a0%" for k, v in values.items())
 
 
+@dataclass(frozen=True)
+class RunningJob:
+    """The job a machine runs now, as its card tells it: its bytes of the program as stored,
+    when it started and when its bytes began to flow (its rate), a drip-feed's line."""
+
+    job_id: int
+    label: str = ""  # "send O1000.nc v2"
+    done: int = 0
+    total: int | None = None
+    started: datetime | None = None
+    flowing: tuple[datetime, int] | None = None  # when the bytes began to move, and how many
+    line: tuple[int, int] | None = None  # a drip-feed's line reached, of its lines
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What the server knows of one machine that its card shows: the status the classifier
+    read and the state it made of it, and the server's own words about the link."""
+
+    name: str
+    kind: str
+    status: MachineStatus | None
+    state: State
+    online: bool
+    description: str = ""
+    since: datetime | None = None  # when the machine entered ``state``
+    last_error: str = ""
+    last_error_at: datetime | None = None
+    job: RunningJob | None = None
+
+    @classmethod
+    def of(cls, machine: MachineState, job_label: str = "") -> Seen:
+        """A machine's live state as its card reads it (the status the one classifier
+        reads, and the state it makes of it)."""
+        reading = machine.reading()
+        job = None
+        if machine.job_id is not None:
+            done, total = machine.job_progress
+            job = RunningJob(
+                machine.job_id,
+                job_label,
+                done,
+                total,
+                machine.job_started,
+                machine.flowing(),
+                machine.job_line,
+            )
+        return cls(
+            machine.config.name,
+            machine.config.kind,
+            reading,
+            classify(reading, online=machine.online),
+            machine.online,
+            machine.config.description,
+            machine.state_since,
+            machine.last_error,
+            machine.last_error_at,
+            job,
+        )
+
+
+@dataclass(frozen=True)
+class _Control:
+    """What a card says the control reports now (nothing of it while the link is down)."""
+
+    mode: str = ""
+    native_mode: str = ""
+    execution: str = ""  # the control's word where it adds to the state
+    program: str = ""
+    line: int = 0
+    parts: int | None = None
+    tool: int | None = None
+    overrides: str = ""
+
+
+def _control(seen: Seen) -> _Control:
+    status = seen.status
+    if status is None or not seen.online:
+        return _Control()
+    execution = "" if status.execution == "UNAVAILABLE" else status.execution
+    said = _Control(
+        mode=_words(status.mode),
+        native_mode=status.native_mode,
+        execution=state_detail(seen.state, execution),
+        program=status.program,
+        line=status.line,
+    )
+    if not status.available:
+        return said  # a control that does not answer reports no counter, tool or override
+    return replace(
+        said,
+        parts=status.part_count,
+        tool=status.tool or None,
+        overrides=_overrides(status.overrides),
+    )
+
+
+@dataclass(frozen=True)
+class _Transfer:
+    """What a card says of the running job."""
+
+    job_id: int | None = None
+    label: str = ""
+    percent: int | None = None
+    done: int = 0
+    total: int | None = None
+    rate: str = ""
+    left: str = ""
+    feed_line: int | None = None
+    feed_lines: int | None = None
+
+
+def _transfer(job: RunningJob | None, label: str, now: datetime) -> _Transfer:
+    if job is None:
+        return _Transfer(label=label)
+    rate, left = job_pace(job.done, job.total, job.started, now, job.flowing)
+    feed_line, feed_lines = job.line if job.line is not None else (None, None)
+    return _Transfer(
+        job.job_id,
+        job.label or label,
+        percent(job.done, job.total),
+        job.done,
+        job.total,
+        rate,
+        left,
+        feed_line,
+        feed_lines,
+    )
+
+
 def card(
-    machine: dict[str, Any],
+    seen: Seen,
     *,
     queued: int = 0,
     job_label: str = "",
@@ -472,66 +606,52 @@ def card(
     zone: tzinfo = UTC,
     now: datetime | None = None,
 ) -> Card:
-    """The card of one machine from its live JSON (``MachineState.as_json()``), whose
+    """The card of one machine from what the server knows of it (:class:`Seen`), whose
     ``state`` is the classifier's: a job under way is not the machine running (a load into
     memory runs nothing), and a control that tells nothing is unknown, not ready. Times are
     shown on ``zone``'s clock."""
     now = now or datetime.now(UTC)
-    status = machine.get("status") or {}
-    job = machine.get("job")
-    online = bool(machine.get("online"))
-    errors = status.get("errors") or []
-    execution = status.get("execution", "") if online else ""
-    if execution == "UNAVAILABLE":
-        execution = ""  # the control does not say: the state (unknown) tells it already
-    alarm = "; ".join(errors)
-    done, total = (job["bytes_done"], job["bytes_total"]) if job else (0, None)
-    rate, left = ("", "")
-    if job:
-        flowed = _aware(job.get("flowing"))
-        flowing = (flowed, int(job.get("flowing_bytes") or 0)) if flowed is not None else None
-        rate, left = job_pace(done, total, _aware(job.get("started")), now, flowing)
-    at = _aware(status.get("at"))
-    minute = at.replace(second=0, microsecond=0) if at is not None else None
-    since = _aware(machine.get("state_since"))
-    live = online and status.get("available", False)
+    status = seen.status
+    control = _control(seen)
+    job = _transfer(seen.job, job_label, now)
+    # the last reading, to the minute: a card changes once a minute, not at every poll
+    minute = status.at.replace(second=0, microsecond=0) if status is not None else None
     finished = last_job.finished if last_job is not None else None
     return Card(
-        name=machine["name"],
-        kind=machine["kind"],
-        description=machine.get("description", ""),
-        state=str(machine.get("state") or State.UNKNOWN.value),
-        online=online,
-        mode=_words(status.get("mode", "")) if online else "",
-        native_mode=str(status.get("native_mode") or "") if online else "",
-        execution=state_detail(str(machine.get("state") or ""), execution),
-        program=status.get("program", "") if online else "",
-        line=int(status.get("line") or 0) if online else 0,
-        job_id=job["id"] if job else None,
-        job_label=job_label,
-        percent=percent(done, total) if job else None,
-        done=done,
-        total=total,
+        name=seen.name,
+        kind=seen.kind,
+        description=seen.description,
+        state=seen.state,
+        online=seen.online,
+        mode=control.mode,
+        native_mode=control.native_mode,
+        execution=control.execution,
+        program=control.program,
+        line=control.line,
+        job_id=job.job_id,
+        job_label=job.label,
+        percent=job.percent,
+        done=job.done,
+        total=job.total,
         queued=queued,
-        last_error=machine.get("last_error", ""),
-        last_error_at=when(machine.get("last_error_at"), zone),
-        alarm=alarm,
+        last_error=seen.last_error,
+        last_error_at=when(seen.last_error_at, zone),
+        alarm="; ".join(status.errors) if status is not None else "",
         # A printed line is a fact of the past with its time: shown whether or not the
         # machine answers now.
-        dprnt=str(status.get("dprnt") or ""),
-        dprnt_at=when(status.get("dprnt_at"), zone),
+        dprnt=status.dprnt if status is not None else "",
+        dprnt_at=when(status.dprnt_at, zone) if status is not None else "",
         updated=clock(minute, zone, now),
         updated_iso=iso(minute, zone),
-        since=clock(since, zone, now),
-        since_iso=iso(since, zone),
-        rate=rate,
-        left=left,
-        feed_line=job.get("line") if job else None,
-        feed_lines=job.get("lines") if job else None,
-        # what the control reports, where it does (None: it does not say)
-        parts=status.get("part_count") if live else None,
-        tool=status.get("tool") if live and status.get("tool") else None,
-        overrides=_overrides(status.get("overrides")) if live else "",
+        since=clock(seen.since, zone, now),
+        since_iso=iso(seen.since, zone),
+        rate=job.rate,
+        left=job.left,
+        feed_line=job.feed_line,
+        feed_lines=job.feed_lines,
+        parts=control.parts,
+        tool=control.tool,
+        overrides=control.overrides,
         last_job=last_job,
         last_job_at=clock(finished, zone, now),
         last_job_iso=iso(finished, zone),

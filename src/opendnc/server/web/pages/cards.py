@@ -29,9 +29,8 @@ def _build(page: Page, names: list[str], facts: CardJobs, zone: tzinfo) -> list[
         label = facts.labels.get(job_id, "") if job_id is not None else ""
         out.append(
             render.card(
-                states[name].as_json(),
+                render.Seen.of(states[name], label),
                 queued=facts.queued.get(name, 0),
-                job_label=label,
                 last_job=last_job(facts.last.get(name)),
                 zone=zone,
             )
