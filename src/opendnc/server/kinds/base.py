@@ -126,70 +126,103 @@ def parse_profile(
     """The ``serial_profile`` table; ``line_only`` for links that frame their own telegrams,
     where only the line settings mean anything."""
     known_keys(raw, prefix, _LINE_KEYS if line_only else _PROFILE_KEYS)
+    # the checks run in the order of the keys below, so the first bad key is the one named
+    line = _line_settings(raw, prefix, default)
+    tape = _tape_settings(raw, prefix, default)
+    wait_for_xon = get_key(raw, prefix, "wait_for_xon", bool, default.wait_for_xon)
+    if wait_for_xon and line["flow"] != "xonxoff":
+        raise ConfigError(f"{prefix}.wait_for_xon", 'needs flow = "xonxoff" (the XON is DC1)')
+    idle = get_key(raw, prefix, "idle_timeout", float, default.idle_timeout)
+    if not 0.1 <= idle <= 600:
+        raise ConfigError(f"{prefix}.idle_timeout", "expected 0.1..600 seconds")
+    return SerialProfile(**line, **tape, wait_for_xon=wait_for_xon, idle_timeout=idle)
+
+
+_BAUDS = (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+_Choice = TypeVar("_Choice", int, float, str)
+
+
+def _one_of(value: _Choice, allowed: tuple[_Choice, ...], where: str, expected: str) -> _Choice:
+    """``value`` if it is one of ``allowed``, else a :class:`ConfigError` at ``where``."""
+    if value not in allowed:
+        raise ConfigError(where, expected)
+    return value
+
+
+def _line_settings(raw: dict[str, Any], prefix: str, default: SerialProfile) -> dict[str, Any]:
+    """The UART settings (baud, parity, bytesize, stopbits, flow) as SerialProfile fields."""
     baud = get_key(raw, prefix, "baud", int, default.baud)
-    if baud not in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400):
-        raise ConfigError(f"{prefix}.baud", f"{baud} is not a standard rate")
     parity = get_key(raw, prefix, "parity", str, default.parity).upper()
-    if parity not in ("N", "E", "O"):
-        raise ConfigError(f"{prefix}.parity", "expected N, E or O")
-    bytesize = get_key(raw, prefix, "bytesize", int, default.bytesize)
-    if bytesize not in (7, 8):
-        raise ConfigError(f"{prefix}.bytesize", "expected 7 or 8")
-    stopbits = get_key(raw, prefix, "stopbits", float, float(default.stopbits))
-    if stopbits not in (1.0, 1.5, 2.0):
-        raise ConfigError(f"{prefix}.stopbits", "expected 1, 1.5 or 2")
-    flow = get_key(raw, prefix, "flow", str, default.flow)
-    if flow not in ("none", "xonxoff", "rtscts"):
-        raise ConfigError(f"{prefix}.flow", "expected none, xonxoff or rtscts")
+    return {
+        "baud": _one_of(baud, _BAUDS, f"{prefix}.baud", f"{baud} is not a standard rate"),
+        "parity": _one_of(parity, ("N", "E", "O"), f"{prefix}.parity", "expected N, E or O"),
+        "bytesize": _one_of(
+            get_key(raw, prefix, "bytesize", int, default.bytesize),
+            (7, 8),
+            f"{prefix}.bytesize",
+            "expected 7 or 8",
+        ),
+        "stopbits": _one_of(
+            get_key(raw, prefix, "stopbits", float, float(default.stopbits)),
+            (1.0, 1.5, 2.0),
+            f"{prefix}.stopbits",
+            "expected 1, 1.5 or 2",
+        ),
+        "flow": _one_of(
+            get_key(raw, prefix, "flow", str, default.flow),
+            ("none", "xonxoff", "rtscts"),
+            f"{prefix}.flow",
+            "expected none, xonxoff or rtscts",
+        ),
+    }
+
+
+def _tape_settings(raw: dict[str, Any], prefix: str, default: SerialProfile) -> dict[str, Any]:
+    """How a program is framed on the line (EOB, protocol, leader, delays, text triggers),
+    as SerialProfile fields."""
     eob = get_key(raw, prefix, "eob", str, default.eob).upper()
-    if eob not in ("CR", "LF", "CRLF", "CRCR", "LFLF"):
-        raise ConfigError(f"{prefix}.eob", "expected CR, LF, CRLF, CRCR or LFLF")
-    protocol = get_key(raw, prefix, "protocol", str, default.protocol)
-    if protocol not in ("xmodem", "text"):
-        raise ConfigError(f"{prefix}.protocol", "expected xmodem or text")
-    leader = get_key(raw, prefix, "leader", int, default.leader)
-    trailer = get_key(raw, prefix, "trailer", int, default.trailer)
-    for key, value in (("leader", leader), ("trailer", trailer)):
-        if not 0 <= value <= 4096:
+    settings: dict[str, Any] = {
+        "eob": _one_of(
+            eob,
+            ("CR", "LF", "CRLF", "CRCR", "LFLF"),
+            f"{prefix}.eob",
+            "expected CR, LF, CRLF, CRCR or LFLF",
+        ),
+        "protocol": _one_of(
+            get_key(raw, prefix, "protocol", str, default.protocol),
+            ("xmodem", "text"),
+            f"{prefix}.protocol",
+            "expected xmodem or text",
+        ),
+    }
+    for key in ("leader", "trailer"):
+        settings[key] = get_key(raw, prefix, key, int, getattr(default, key))
+    for key in ("leader", "trailer"):
+        if not 0 <= settings[key] <= 4096:
             raise ConfigError(f"{prefix}.{key}", "expected 0..4096 characters")
-    leader_char = get_key(raw, prefix, "leader_char", str, default.leader_char)
+    settings["leader_char"] = _leader_char(raw, prefix, default)
+    line_delay = get_key(raw, prefix, "line_delay", float, default.line_delay)
+    if not 0 <= line_delay <= 10:
+        raise ConfigError(f"{prefix}.line_delay", "expected 0..10 seconds")
+    settings["line_delay"] = line_delay
+    for key in ("start_trigger", "end_trigger"):
+        text = get_key(raw, prefix, key, str, getattr(default, key))
+        if len(text) > 16 or any(ord(c) > 0xFF for c in text):
+            raise ConfigError(f"{prefix}.{key}", "expected at most 16 Latin-1 characters")
+        settings[key] = text
+    return settings
+
+
+def _leader_char(raw: dict[str, Any], prefix: str, default: SerialProfile) -> str:
+    """The leader character: one ASCII character that the control cannot take for an end of
+    block or a flow-control byte (a leader of DC3 would stop the sender)."""
+    leader_char: str = get_key(raw, prefix, "leader_char", str, default.leader_char)
     if len(leader_char) != 1 or ord(leader_char) > 0x7F or leader_char in "\r\n\x11\x13":
         raise ConfigError(
             f"{prefix}.leader_char",
             'expected one ASCII character ("\\u0000" or "%"), no EOB or XON/XOFF',
         )
-    line_delay = get_key(raw, prefix, "line_delay", float, default.line_delay)
-    if not 0 <= line_delay <= 10:
-        raise ConfigError(f"{prefix}.line_delay", "expected 0..10 seconds")
-    triggers = {}
-    for key in ("start_trigger", "end_trigger"):
-        text = get_key(raw, prefix, key, str, getattr(default, key))
-        if len(text) > 16 or any(ord(c) > 0xFF for c in text):
-            raise ConfigError(f"{prefix}.{key}", "expected at most 16 Latin-1 characters")
-        triggers[key] = text
-    wait_for_xon = get_key(raw, prefix, "wait_for_xon", bool, default.wait_for_xon)
-    if wait_for_xon and flow != "xonxoff":
-        raise ConfigError(f"{prefix}.wait_for_xon", 'needs flow = "xonxoff" (the XON is DC1)')
-    idle = get_key(raw, prefix, "idle_timeout", float, default.idle_timeout)
-    if not 0.1 <= idle <= 600:
-        raise ConfigError(f"{prefix}.idle_timeout", "expected 0.1..600 seconds")
-    return SerialProfile(
-        baud=baud,
-        parity=parity,
-        bytesize=bytesize,
-        stopbits=stopbits,
-        flow=flow,
-        eob=eob,
-        protocol=protocol,
-        leader=leader,
-        trailer=trailer,
-        leader_char=leader_char,
-        line_delay=line_delay,
-        wait_for_xon=wait_for_xon,
-        start_trigger=triggers["start_trigger"],
-        end_trigger=triggers["end_trigger"],
-        idle_timeout=idle,
-    )
+    return leader_char
 
 
 @dataclass(frozen=True)
