@@ -218,6 +218,29 @@ def _email(table: dict[str, Any], base: Path) -> EmailTarget:
         {"host", "port", "starttls", "ssl", "ca_file", "username", "password", "from", "to",
          "timeout", "retries"},
     )  # fmt: skip
+    # the checks run in the order of the keys below, so the first bad key is the one named
+    host, port, starttls, over_tls, ca_text = _email_server(table, prefix)
+    username, password = _email_login(table, prefix, tls=starttls or over_tls)
+    sender, to = _email_addresses(table, prefix)
+    timeout, retries = _tries(table, prefix, 10.0)
+    return EmailTarget(
+        host=host,
+        sender=sender,
+        to=to,
+        port=port,
+        starttls=starttls,
+        ssl=over_tls,
+        ca_file=(base / ca_text).resolve() if ca_text else None,
+        username=username,
+        password=password,
+        timeout=timeout,
+        retries=retries,
+    )
+
+
+def _email_server(table: dict[str, Any], prefix: str) -> tuple[str, int, bool, bool, str]:
+    """Where the SMTP server is and how the link is secured: host, port, starttls, ssl and
+    the CA file's text (the port defaults to the one the TLS mode implies)."""
     host = get_key(table, prefix, "host", str, "")
     if not host or any(c.isspace() or c in "/@" for c in host):
         raise ConfigError(f"{prefix}.host", "expected the SMTP server's host name")
@@ -230,6 +253,11 @@ def _email(table: dict[str, Any], base: Path) -> EmailTarget:
     ca_text = get_key(table, prefix, "ca_file", str, "")
     if ca_text and not (starttls or over_tls):
         raise ConfigError(f"{prefix}.ca_file", "a CA file is for TLS (starttls or ssl)")
+    return host, port, starttls, over_tls, ca_text
+
+
+def _email_login(table: dict[str, Any], prefix: str, *, tls: bool) -> tuple[str, str]:
+    """The SMTP login (username, password), both or neither, and only over ``tls``."""
     username = get_key(table, prefix, "username", str, "")
     # a wrong type is named without its value: it may be the password
     if "password" in table and not isinstance(table["password"], str):
@@ -239,9 +267,14 @@ def _email(table: dict[str, Any], base: Path) -> EmailTarget:
         raise ConfigError(f"{prefix}.password", "a password needs a username")
     if username and not password:
         raise ConfigError(f"{prefix}.username", "a login needs a password")
-    if password and not (starttls or over_tls):
+    if password and not tls:
         # a login in clear text across the shop's network would give the password away
         raise ConfigError(f"{prefix}.password", "a login needs starttls or ssl")
+    return username, password
+
+
+def _email_addresses(table: dict[str, Any], prefix: str) -> tuple[str, tuple[str, ...]]:
+    """The sender and the recipients (``to`` may be one address or a list)."""
     sender = get_key(table, prefix, "from", str, "")
     if not _ADDRESS.match(sender):
         raise ConfigError(f"{prefix}.from", f"expected an e-mail address, got {sender!r}")
@@ -253,20 +286,7 @@ def _email(table: dict[str, Any], base: Path) -> EmailTarget:
     for i, address in enumerate(to_raw):
         if not isinstance(address, str) or not _ADDRESS.match(address):
             raise ConfigError(f"{prefix}.to[{i}]", f"expected an e-mail address, got {address!r}")
-    timeout, retries = _tries(table, prefix, 10.0)
-    return EmailTarget(
-        host=host,
-        sender=sender,
-        to=tuple(to_raw),
-        port=port,
-        starttls=starttls,
-        ssl=over_tls,
-        ca_file=(base / ca_text).resolve() if ca_text else None,
-        username=username,
-        password=password,
-        timeout=timeout,
-        retries=retries,
-    )
+    return sender, tuple(to_raw)
 
 
 def _webhook(table: dict[str, Any], prefix: str) -> WebhookTarget:
