@@ -334,6 +334,7 @@ def floor_of(
     """OEE, parts, stops and reasons for ``report``'s machines, periods and span."""
     now = now or datetime.now(UTC)
     start, until = report.start, report.until or report.end
+    # runs are followed in the kept samples only; older stops come from the summed stretches
     covered = max(start, now - retention)
     periods = report.periods
     names = [m.machine for m in report.machines]
@@ -344,31 +345,15 @@ def floor_of(
     picked = reasons_for(session, names, start - LOOK_BACK, until)
     parts = _parts(session, names, periods, start, until)
     older = _older_stops(session, names, start, covered)
-    per_machine: dict[str, tuple[list[dict[str, ProgramRuns]], list[Stretch]]] = {}
-    programs: set[str] = set()
-    for name in names:
-        runs, found, carry = follow_runs(points.get(name, []), covered, until, bins)
-        found += [s for s in open_stretches(carry, until) if s.kind == "stop"]
-        per_machine[name] = (runs, found)
-        programs.update(k for r in runs for k in r)
+    per_machine = {name: _follow(points.get(name, []), covered, until, bins) for name in names}
+    programs = {k for runs, _found in per_machine.values() for r in runs for k in r}
     standards = standards_for(session, programs)
     machines = []
     everything: list[StopWithReason] = []
     for m in report.machines:
         runs, found = per_machine[m.machine]
-        by_period: list[dict[str, ProgramRuns]] = [{} for _ in periods]
-        for b, r in zip(bins, runs, strict=True):
-            if b.period is not None:
-                _merge(by_period[b.period], r)
-        total_runs: dict[str, ProgramRuns] = {}
-        for r in by_period:
-            _merge(total_runs, r)
-        stops = [
-            _clip(s, start, until)
-            for s in older.get(m.machine, []) + [x for x in found if x.kind == "stop"]
-            if s.end > start and s.start < until
-        ]
-        stops.sort(key=lambda s: s.start)
+        by_period, total_runs = _runs_per_period(bins, runs, len(periods))
+        stops = _stops_in(older.get(m.machine, []) + found, start, until)
         with_reason = with_reasons(m.machine, stops, picked)
         everything += with_reason
         good_scrap = parts.get(m.machine, {})
@@ -387,6 +372,41 @@ def floor_of(
             )
         )
     return FloorReport(machines, pareto(everything), standards, covered, tuple(reasons))
+
+
+def _follow(
+    points: list[Point], covered: datetime, until: datetime, bins: list[Bin]
+) -> tuple[list[dict[str, ProgramRuns]], list[Stretch]]:
+    """One machine's runs per bin and its stops in the kept samples, the stop still going
+    at ``until`` included (it counts up to the end of the span)."""
+    runs, found, carry = follow_runs(points, covered, until, bins)
+    found += [s for s in open_stretches(carry, until) if s.kind == "stop"]
+    return runs, found
+
+
+def _runs_per_period(
+    bins: list[Bin], runs: list[dict[str, ProgramRuns]], periods: int
+) -> tuple[list[dict[str, ProgramRuns]], dict[str, ProgramRuns]]:
+    """The runs of each bin gathered per period, and over all periods."""
+    by_period: list[dict[str, ProgramRuns]] = [{} for _ in range(periods)]
+    for b, r in zip(bins, runs, strict=True):
+        if b.period is not None:
+            _merge(by_period[b.period], r)
+    total_runs: dict[str, ProgramRuns] = {}
+    for r in by_period:
+        _merge(total_runs, r)
+    return by_period, total_runs
+
+
+def _stops_in(stretches: list[Stretch], start: datetime, until: datetime) -> list[Stretch]:
+    """The stops among ``stretches`` that overlap ``[start, until)``, clipped, oldest first."""
+    stops = [
+        _clip(s, start, until)
+        for s in stretches
+        if s.kind == "stop" and s.end > start and s.start < until
+    ]
+    stops.sort(key=lambda s: s.start)
+    return stops
 
 
 def _merge(into: dict[str, ProgramRuns], more: dict[str, ProgramRuns]) -> None:
