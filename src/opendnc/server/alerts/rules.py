@@ -150,29 +150,34 @@ class AlertEngine:
         for rule in self.rules:
             if rule.kind is AlertKind.JOB_FAILED or not rule.applies_to(machine):
                 continue
-            key = (rule.name, machine)
-            if rule.kind is AlertKind.OFFLINE:
-                holds = state is State.OFFLINE
-            elif state in _UNDECIDED:
-                continue
-            else:
-                holds = state is _STATE_OF[rule.kind]
-            episode = self._episodes.get(key)
-            if holds and episode is None:
-                episode = self._episodes[key] = _Episode(now, _detail(rule.kind, event))
-            elif holds and episode is not None and not episode.fired:
-                episode.detail = _detail(rule.kind, event) or episode.detail
-            elif not holds and episode is not None:
-                del self._episodes[key]
-                self._end(key)
-                if episode.fired and rule.on_clear:
-                    out.append(Alert(rule, Phase.CLEARED, machine, episode.since, now))
-                continue
-            elif not holds:
-                self._end(key)
-            if episode is not None:
-                out.extend(self._due(rule, machine, episode, now))
+            holds = _holds(rule.kind, state)
+            if holds is not None:
+                out.extend(self._step(rule, event, holds, now))
         return out
+
+    def _step(
+        self, rule: AlertRule, event: MachineStatusChanged, holds: bool, now: datetime
+    ) -> list[Alert]:
+        """One rule's episode on a machine's reading whose condition ``holds`` or not: it
+        starts, takes the newest detail until it fires, fires when due, or ends."""
+        machine = event.machine
+        key = (rule.name, machine)
+        episode = self._episodes.get(key)
+        if holds and episode is None:
+            episode = self._episodes[key] = _Episode(now, _detail(rule.kind, event))
+        elif holds and episode is not None and not episode.fired:
+            episode.detail = _detail(rule.kind, event) or episode.detail
+        elif not holds and episode is not None:
+            del self._episodes[key]
+            self._end(key)
+            if episode.fired and rule.on_clear:
+                return [Alert(rule, Phase.CLEARED, machine, episode.since, now)]
+            return []
+        elif not holds:
+            self._end(key)
+        if episode is None:
+            return []
+        return self._due(rule, machine, episode, now)
 
     def job(self, event: JobFinished, now: datetime) -> list[Alert]:
         """A job's end: a failed one raises its alert, once."""
@@ -208,6 +213,16 @@ class AlertEngine:
         episode.fired = True
         self._maybe_stored.add((rule.name, machine))  # its row is written as it is sent
         return [Alert(rule, Phase.FIRED, machine, episode.since, now, episode.detail)]
+
+
+def _holds(kind: AlertKind, state: State) -> bool | None:
+    """Whether a reading in ``state`` meets a rule of ``kind``; ``None`` when the reading
+    cannot tell (an undecided state neither starts nor ends an episode)."""
+    if kind is AlertKind.OFFLINE:
+        return state is State.OFFLINE
+    if state in _UNDECIDED:
+        return None
+    return state is _STATE_OF[kind]
 
 
 def _detail(kind: AlertKind, event: MachineStatusChanged) -> str:
