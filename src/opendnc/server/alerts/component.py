@@ -238,7 +238,6 @@ class Alerts:
             self.raise_all(alerts)
             return
         fired = [a for a in alerts if a.phase is Phase.FIRED and a.kind is not AlertKind.JOB_FAILED]
-        own_clears = {(a.rule.name, a.machine): a for a in alerts if a.phase is Phase.CLEARED}
         if not fired and not ended:
             self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
             return
@@ -247,21 +246,44 @@ class Alerts:
                 _claim_and_end, sessions, self.server, fired, ended
             )
         except SQLAlchemyError as exc:
-            if not self._store_down:
-                log.warning("alerts: episodes not stored (sent all the same): %s", exc)
-            self._store_down = True
-            for key in ended:
-                self.engine.maybe_stored(key)  # its row is deleted at a later reading
-            self._unstored |= {(a.rule.name, a.machine) for a in fired}
-            self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
-            for key, clear in own_clears.items():
-                if key in self._unstored:
-                    self._unstored.discard(key)
-                    self.raise_all([clear])
+            self._send_unstored(alerts, fired, ended, exc)
             return
         if self._store_down:
             log.warning("alerts: episodes are stored again")
             self._store_down = False
+        self.raise_all(self._claimed(alerts, claimed, deleted, now))
+
+    def _send_unstored(
+        self,
+        alerts: list[Alert],
+        fired: list[Alert],
+        ended: list[tuple[str, str]],
+        exc: SQLAlchemyError,
+    ) -> None:
+        """The database is down: send the alerts all the same (a duplicate beats a lost
+        alarm), and remember what fired unstored so that its end is sent without a row."""
+        if not self._store_down:
+            log.warning("alerts: episodes not stored (sent all the same): %s", exc)
+        self._store_down = True
+        for key in ended:
+            self.engine.maybe_stored(key)  # its row is deleted at a later reading
+        self._unstored |= {(a.rule.name, a.machine) for a in fired}
+        self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
+        own_clears = {(a.rule.name, a.machine): a for a in alerts if a.phase is Phase.CLEARED}
+        for key, clear in own_clears.items():
+            if key in self._unstored:
+                self._unstored.discard(key)
+                self.raise_all([clear])
+
+    def _claimed(
+        self,
+        alerts: list[Alert],
+        claimed: set[tuple[str, str]],
+        deleted: dict[tuple[str, str], datetime],
+        now: datetime,
+    ) -> list[Alert]:
+        """What this server sends once the database answered: the episodes it claimed, ends
+        of those that fired during an outage, and ends of the rows it deleted."""
         rules = {rule.name: rule for rule in self.config.rules}
         out: list[Alert] = []
         for alert in alerts:
@@ -276,7 +298,7 @@ class Alerts:
             rule = rules.get(name)
             if rule is not None and rule.on_clear:
                 out.append(Alert(rule, Phase.CLEARED, machine, since, now))
-        self.raise_all(out)
+        return out
 
     def raise_all(self, alerts: list[Alert]) -> None:
         """Put each alert into the outbox of each of its rule's targets."""
