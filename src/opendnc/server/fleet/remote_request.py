@@ -37,9 +37,10 @@ from opendnc.server.kinds.connector import Reception
 from opendnc.server.kinds.registry import capabilities_of
 from opendnc.server.library import inbox
 from opendnc.server.library import versions as library
+from opendnc.server.library.checks import Checked
 from opendnc.server.machines.state import Machines, MachineState
 from opendnc.server.store import audit
-from opendnc.server.store.models import JobKind, utcnow
+from opendnc.server.store.models import JobKind, ProgramVersion, utcnow
 
 __all__ = ["RemoteRequests"]
 
@@ -186,50 +187,16 @@ class RemoteRequests:
             verdict = decision.verdict(machine.name)
             version = decision.row
             if verdict.refusal is policy.Refusal.CHECK_FAILED and verdict.check is not None:
-                first = verdict.check.first_error() or {}
-                line = f"LINE {first.get('line', '?')}: {first.get('message', '')}"
-                problems.append(f"{name} FAILED ITS CHECK, {line}")
-                # the program, then the first error on a line or two of its own: a
-                # control's comment is short, and the error is what the operator needs
-                report.append(f"{name} FAILED ITS CHECK")
-                report += textwrap.wrap(
-                    line, requests.COMMENT_WIDTH, max_lines=2, placeholder=" ..."
-                )
-                failed_checks.append(
-                    {
-                        "program": name,
-                        "version": decision.version.number if decision.version else None,
-                        "sha256": decision.version.sha256 if decision.version else None,
-                        "errors": verdict.check.errors,
-                        "first": first,
-                        "reason": verdict.reason,
-                    }
-                )
+                problem, lines, failed = _check_failure(name, decision, verdict, verdict.check)
+                problems.append(problem)
+                report += lines
+                failed_checks.append(failed)
                 continue
             if not verdict.allowed or version is None:
                 problems.append(f"{name} REFUSED: {verdict.reason}")
                 report.append(problems[-1])
                 continue
-            job = jobs.enqueue(
-                session,
-                JobKind.SEND,
-                machine.name,
-                actor=decision.actor,
-                version=version,
-                params={"request": True},
-                not_before=due,
-            )
-            # plain values now: the committed row's attributes may no longer be loaded
-            queued.append(
-                JobQueued(
-                    job.id,
-                    machine.name,
-                    JobKind.SEND,
-                    version.program.name,
-                    version.number,
-                    by=job.created_by,
-                )
-            )
+            queued.append(_queue_send(session, machine, decision.actor, version, due))
             sent.append(name)
         audit.record(
             session,
@@ -267,3 +234,53 @@ class RemoteRequests:
             not_before=due,
             params={"name": f"O{number:0{digits}d}.nc", "report": text},
         )
+
+
+def _check_failure(
+    name: str, decision: policy.Decision, verdict: policy.Verdict, check: Checked
+) -> tuple[str, list[str], dict[str, Any]]:
+    """A program its check refused: the audit's problem, the report's lines and the audit's
+    record of the failed check."""
+    first = check.first_error() or {}
+    line = f"LINE {first.get('line', '?')}: {first.get('message', '')}"
+    # the program, then the first error on a line or two of its own: a control's comment
+    # is short, and the error is what the operator needs
+    lines = [f"{name} FAILED ITS CHECK"]
+    lines += textwrap.wrap(line, requests.COMMENT_WIDTH, max_lines=2, placeholder=" ...")
+    failed = {
+        "program": name,
+        "version": decision.version.number if decision.version else None,
+        "sha256": decision.version.sha256 if decision.version else None,
+        "errors": check.errors,
+        "first": first,
+        "reason": verdict.reason,
+    }
+    return f"{name} FAILED ITS CHECK, {line}", lines, failed
+
+
+def _queue_send(
+    session: Session,
+    machine: MachineConfig,
+    actor: str,
+    version: ProgramVersion,
+    due: datetime,
+) -> JobQueued:
+    """Queue the send of a requested ``version``, to start at ``due``; its event."""
+    job = jobs.enqueue(
+        session,
+        JobKind.SEND,
+        machine.name,
+        actor=actor,
+        version=version,
+        params={"request": True},
+        not_before=due,
+    )
+    # plain values now: the committed row's attributes may no longer be loaded
+    return JobQueued(
+        job.id,
+        machine.name,
+        JobKind.SEND,
+        version.program.name,
+        version.number,
+        by=job.created_by,
+    )
