@@ -94,6 +94,12 @@ class InputError(DncError):
     """A local file, path or argument cannot be used as given."""
 
 
+class UsageError(DncError):
+    """A call the API does not allow in that order or combination: a mistake in the calling
+    code (a decision confirmed twice, a person's override asked of the server), not bad input
+    from a user or a wire."""
+
+
 class ProgramTextError(DncError):
     """A program that should be NC text holds a byte no NC program holds.
 

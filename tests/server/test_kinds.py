@@ -15,6 +15,7 @@ from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.kinds.haas_serial import HaasSerialMachine
 from opendnc.server.kinds.lsv2 import Lsv2Machine
 from opendnc.server.kinds.mtconnect import MtconnectMachine
+from opendnc.server.kinds.opcua import OpcuaMachine
 from opendnc.server.kinds.registry import KINDS, connector_for, spec_of
 from opendnc.server.kinds.serial import SerialMachine
 
@@ -55,11 +56,17 @@ eob = "lf"
 tv_check = true
 dripfeed = true
 verify = "punch"
+
+[[machines]]
+name = "umati"
+kind = "opcua"
+endpoint = "opc.tcp://127.0.0.1:4840"
+machine = "DMU 50"
 """
 
 
 def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path) -> None:
-    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape, umati = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(tnc, Lsv2Machine)
     assert tnc.port == 19000
     assert isinstance(ngc, HaasNgcMachine)
@@ -80,11 +87,17 @@ def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path)
     assert (tape.dripfeed, tape.verify) == (True, "punch")
     own = {f.name for f in dataclasses.fields(tape)}
     assert not own & {"mdc", "dprnt", "profile", "port", "receive_folder"}
-    assert [spec_of(m).kind for m in (tnc, ngc, serial, agent, tape)] == list(KINDS)
+    assert isinstance(umati, OpcuaMachine)
+    assert (umati.endpoint, umati.machine, umati.security_policy) == (
+        "opc.tcp://127.0.0.1:4840",
+        "DMU 50",
+        "None",
+    )
+    assert sorted(spec_of(m).kind for m in (tnc, ngc, serial, agent, tape, umati)) == sorted(KINDS)
 
 
 def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
-    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape, umati = parse_config(SHOP, base=tmp_path).machines
     assert capabilities_of(tnc).file_browser
     assert capabilities_of(tnc).receive
     assert not capabilities_of(tnc).dripfeed
@@ -115,7 +128,7 @@ def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
     from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
     from opendnc.server.kinds.serial.connector import TapeConnector
 
-    tnc, ngc, serial, agent, tape = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape, umati = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(connector_for(tnc), Lsv2Connector)
     assert isinstance(connector_for(ngc), HaasNgcConnector)
     assert isinstance(connector_for(serial), HaasSerialConnector)

@@ -14,7 +14,8 @@ import pytest
 from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
-from opendnc.server.config.shop import HaasNgcMachine, NetShareConfig, parse_config
+from opendnc.server.config.shop import NetShareConfig, parse_config
+from opendnc.server.kinds.haas_ngc import HaasNgcMachine
 from opendnc.server.netshare.share import MAX_PUSH_NAME, NetShare, ScanReport
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.store.models import AuditEntry

@@ -25,7 +25,7 @@ httpx = require_module("httpx")
 require_module("jinja2")
 require_module("uvicorn")
 
-from opendnc.errors import ControlRefused  # noqa: E402
+from opendnc.errors import ControlRefused, InputError  # noqa: E402
 from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config.shop import ConfigError, parse_config  # noqa: E402
@@ -265,5 +265,5 @@ def test_registering_a_taken_key_is_refused(drop_kind: KindSpec[DropMachine]) ->
         connector=_connector,
         capabilities=lambda config: Capabilities(),
     )
-    with pytest.raises(ValueError, match="lsv2"):
+    with pytest.raises(InputError, match="lsv2"):
         register(other)

@@ -26,7 +26,7 @@ from enum import StrEnum
 from sqlalchemy import select
 from sqlalchemy.orm import Session, contains_eager
 
-from opendnc.errors import DncError, InputError
+from opendnc.errors import DncError, InputError, UsageError
 from opendnc.nccheck import MachineLimits, limits_for
 from opendnc.server.actions import checks
 from opendnc.server.actions.base import Caller, Services, require
@@ -343,11 +343,11 @@ class Decision:
         transaction itself stored (the file browser's put), decided here for the first
         time."""
         if self.confirmed:
-            raise RuntimeError("a decision is confirmed once, in the transaction it commits")
+            raise UsageError("a decision is confirmed once, in the transaction it commits")
         row: ProgramVersion | None = None
         if created is not None:
             if self.action.via is not Via.PUT_FILE:
-                raise ValueError("only a put decides on a version its transaction stored")
+                raise UsageError("only a put decides on a version its transaction stored")
             row = created
         elif self.wanted is not None:
             row = resolve(session, self.wanted)
@@ -408,7 +408,7 @@ def authorize(
     if version is None and action.kind in jobs.PROGRAM_JOBS and action.via is not Via.PUT_FILE:
         raise InputError(f"a {action.kind.value} job names a program")
     if action.via is Via.PUT_FILE and version is not None:
-        raise ValueError("a put decides on the version its transaction stores (confirm)")
+        raise UsageError("a put decides on the version its transaction stores (confirm)")
     configs = [svc.machine(m).config for m in machines]
     if version is not None and action.via is not Via.SHARE:  # a NAS file may be named anyhow
         library.check_program_name(version.program)
@@ -442,7 +442,7 @@ def _may(actor: Actor, action: Action) -> str:
     """The actor's name, once its role allows ``action`` (403 otherwise)."""
     if isinstance(actor, str):
         if action.via not in (Via.REQUEST, Via.SHARE):
-            raise TypeError(f"a {action.via.value} is asked by a person, not by the server")
+            raise UsageError(f"a {action.via.value} is asked by a person, not by the server")
         return actor
     if action.via is Via.RELEASE:
         require(actor, Role.APPROVER)
@@ -455,7 +455,7 @@ def _override(actor: Actor, action: Action, override: str | Override | None) -> 
     if override is None:
         return None
     if action.via in (Via.REQUEST, Via.SHARE):
-        raise ValueError(f"nobody can give a reason at a {action.via.value}: no override")
+        raise UsageError(f"nobody can give a reason at a {action.via.value}: no override")
     if isinstance(override, Override):
         return override
     assert not isinstance(actor, str)  # _may let only a person through

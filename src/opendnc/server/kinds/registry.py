@@ -13,6 +13,7 @@ import logging
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from opendnc.errors import InputError
 from opendnc.nccheck.limits import Envelope, LimitsError, parse_envelope
 from opendnc.server.core.configkeys import NAME, ConfigError, get_key, known_keys
 from opendnc.server.kinds.base import (
@@ -68,7 +69,7 @@ def register(spec: KindSpec[Any]) -> None:
     A key that is taken is refused: a kind's key is stored in configurations and the
     database, so two kinds must never share one."""
     if spec.kind in KINDS and KINDS[spec.kind] is not spec:
-        raise ValueError(f"a machine kind {spec.kind!r} is already registered")
+        raise InputError(f"a machine kind {spec.kind!r} is already registered")
     KINDS[spec.kind] = spec
 
 

@@ -13,6 +13,7 @@ import secrets
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
+from opendnc.server.core.errors import Unavailable
 from opendnc.server.store.models import ServerSecret
 
 __all__ = ["DEVICE_COOKIE_KEY", "SECRET_BYTES", "shared_secret"]
@@ -35,5 +36,5 @@ def shared_secret(sessions: sessionmaker[Session], name: str) -> bytes:
     with sessions() as session:
         row = session.get(ServerSecret, name)
         if row is None:  # pragma: no cover - inserted or found above
-            raise RuntimeError(f"the shared secret {name!r} was neither found nor made")
+            raise Unavailable(f"the shared secret {name!r} was neither found nor made")
         return bytes(row.value)
