@@ -97,7 +97,7 @@ def test_each_machine_gets_its_kinds_schema_with_only_its_fields(tmp_path: Path)
 
 
 def test_capabilities_come_from_the_kind_module(tmp_path: Path) -> None:
-    tnc, ngc, serial, agent, tape, umati = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape, _umati = parse_config(SHOP, base=tmp_path).machines
     assert capabilities_of(tnc).file_browser
     assert capabilities_of(tnc).receive
     assert not capabilities_of(tnc).dripfeed
@@ -128,7 +128,7 @@ def test_the_connector_is_the_kinds(tmp_path: Path) -> None:
     from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
     from opendnc.server.kinds.serial.connector import TapeConnector
 
-    tnc, ngc, serial, agent, tape, umati = parse_config(SHOP, base=tmp_path).machines
+    tnc, ngc, serial, agent, tape, _umati = parse_config(SHOP, base=tmp_path).machines
     assert isinstance(connector_for(tnc), Lsv2Connector)
     assert isinstance(connector_for(ngc), HaasNgcConnector)
     assert isinstance(connector_for(serial), HaasSerialConnector)
