@@ -414,7 +414,9 @@ def machines_running(session: Session, machines: Sequence[str]) -> set[str]:
 def note_progress(session: Session, job_id: int, *, line: int | None, nbytes: int) -> None:
     """Record how far a running job got (a drip-feed's line): what a server that takes the
     machine over reports if this one dies."""
-    job = session.get(Job, job_id)
+    # The row locked first: a note read as running just before the job's end committed
+    # would otherwise write its older count over the end's (PostgreSQL, READ COMMITTED).
+    job = session.get(Job, job_id, with_for_update=True)
     if job is not None and job.state is JobState.RUNNING:
         if line is not None:
             job.line = line
