@@ -281,7 +281,12 @@ class JobOut(BaseModel):
     @classmethod
     def of(cls, j: Job, live: tuple[int, int | None] | None = None) -> JobOut:
         """From the row (its version and program loaded with it)."""
-        done, total = live if live is not None else (j.bytes_done, j.bytes_total or None)
+        # The live count only while the row says running: a job that ended between the two
+        # reads has its final count in the row (the machine's live one lags it by a chunk).
+        running = live is not None and j.state is JobState.RUNNING
+        done, total = (
+            live if running and live is not None else (j.bytes_done, j.bytes_total or None)
+        )
         return cls(
             id=j.id,
             kind=j.kind,
