@@ -21,6 +21,7 @@ from pygments import highlight
 from pygments.formatters import HtmlFormatter
 from pygments.lexers import GcodeLexer
 
+from opendnc.server.actions.machines import LastJob
 from opendnc.server.core.events import percent
 from opendnc.server.core.state import State, classify
 from opendnc.server.core.status import MachineStatus
@@ -336,16 +337,6 @@ def side_by_side(old: str, new: str, *, context: int = 3) -> list[DiffRow]:
 
 
 # -- machine cards ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LastJob:
-    """A machine's most recently finished job, as its card tells it."""
-
-    label: str  # "send O1000.nc v2"
-    state: str  # done, failed, cancelled, interrupted
-    finished: datetime | None
-    error: str = ""
 
 
 @dataclass(frozen=True)

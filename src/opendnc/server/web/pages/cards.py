@@ -11,14 +11,7 @@ from opendnc.server.actions.machines import CardJobs, LastJob, card_jobs
 from opendnc.server.web import render
 from opendnc.server.web.pages.base import Page
 
-__all__ = ["CardCache", "cards", "last_job"]
-
-
-def last_job(found: LastJob | None) -> render.LastJob | None:
-    """The action's last finished job as a card shows it."""
-    if found is None:
-        return None
-    return render.LastJob(found.label, found.state, found.finished, found.error)
+__all__ = ["CardCache", "cards"]
 
 
 def _build(page: Page, names: list[str], facts: CardJobs, zone: tzinfo) -> list[render.Card]:
@@ -31,7 +24,7 @@ def _build(page: Page, names: list[str], facts: CardJobs, zone: tzinfo) -> list[
             render.card(
                 render.Seen.of(states[name], label),
                 queued=facts.queued.get(name, 0),
-                last_job=last_job(facts.last.get(name)),
+                last_job=facts.last.get(name),
                 zone=zone,
             )
         )
