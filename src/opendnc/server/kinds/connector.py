@@ -24,6 +24,7 @@ __all__ = [
     "JobCancelled",
     "NetworkOnly",
     "Reception",
+    "StatusOnly",
     "StreamWrapper",
 ]
 
@@ -115,6 +116,37 @@ class NetworkOnly:
         raise InputError(
             f"{self.config.name}: drip-feed is for serial machines (haas_serial, serial)"
         )
+
+
+class StatusOnly(NetworkOnly):
+    """A machine read through a status interface of its own (an MTConnect agent, an OPC UA
+    server): it takes no programs and holds no files this server can reach. ``through``
+    names that interface in the refusals."""
+
+    through = "its status interface"
+
+    def _read_only(self, what: str) -> InputError:
+        return InputError(f"{self.config.name}: {what} is not possible through {self.through}")
+
+    async def send(self, name: str, data: bytes, progress: Progress) -> None:
+        """No programs go this way."""
+        raise self._read_only("sending a program")
+
+    async def verify(self, name: str, data: bytes) -> bool | None:
+        """Nothing to compare with."""
+        return None
+
+    async def fetch(self, path: str) -> bytes:
+        """No files this way."""
+        raise self._read_only("reading a file")
+
+    async def delete(self, path: str) -> None:
+        """No files this way."""
+        raise self._read_only("deleting a file")
+
+    async def backup(self, path: str, target: Path) -> dict[str, int]:
+        """No files this way."""
+        raise self._read_only("a backup")
 
 
 class StreamWrapper:

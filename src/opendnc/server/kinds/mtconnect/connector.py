@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from pathlib import Path
 
-from opendnc.errors import DncError, InputError, TransportError
+from opendnc.errors import DncError, TransportError
 from opendnc.mtconnect.device_state import Snapshot
 from opendnc.mtconnect.reader import AgentReader
-from opendnc.server.core.status import MachineStatus, Progress
-from opendnc.server.kinds.connector import NetworkOnly
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.kinds.connector import StatusOnly
 from opendnc.server.kinds.mtconnect.schema import MtconnectMachine
 from opendnc.server.store.models import utcnow
 
@@ -69,8 +68,10 @@ def agent_status(snapshot: Snapshot) -> MachineStatus:
     )
 
 
-class MtconnectConnector(NetworkOnly):
+class MtconnectConnector(StatusOnly):
     """One device of an agent, followed in a task while the link is up."""
+
+    through = "an MTConnect agent (read-only)"
 
     config: MtconnectMachine
 
@@ -121,28 +122,3 @@ class MtconnectConnector(NetworkOnly):
                 raise error
             raise TransportError(f"{self.config.name}: the agent reader stopped: {error!r}")
         return agent_status(self._reader.snapshot())
-
-    def _read_only(self, what: str) -> InputError:
-        return InputError(
-            f"{self.config.name}: {what} is not possible through an MTConnect agent (read-only)"
-        )
-
-    async def send(self, name: str, data: bytes, progress: Progress) -> None:
-        """An agent takes no programs."""
-        raise self._read_only("sending a program")
-
-    async def verify(self, name: str, data: bytes) -> bool | None:
-        """Nothing to compare with."""
-        return None
-
-    async def fetch(self, path: str) -> bytes:
-        """An agent holds no files."""
-        raise self._read_only("reading a file")
-
-    async def delete(self, path: str) -> None:
-        """An agent holds no files."""
-        raise self._read_only("deleting a file")
-
-    async def backup(self, path: str, target: Path) -> dict[str, int]:
-        """An agent holds no files."""
-        raise self._read_only("a backup")

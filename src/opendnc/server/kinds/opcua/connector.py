@@ -34,8 +34,8 @@ from asyncua.ua.uaerrors import UaError
 
 from opendnc.errors import InputError, TransportError
 from opendnc.opcua.model import ChannelMode, ChannelState, MachineOperationMode, Paths, ProgramState
-from opendnc.server.core.status import MachineStatus, Progress
-from opendnc.server.kinds.connector import NetworkOnly
+from opendnc.server.core.status import MachineStatus
+from opendnc.server.kinds.connector import StatusOnly
 from opendnc.server.kinds.opcua.schema import OpcuaMachine
 from opendnc.server.store.models import utcnow
 
@@ -186,8 +186,10 @@ class _Handler:
         log.info("subscription status: %s", status)
 
 
-class OpcuaConnector(NetworkOnly):
+class OpcuaConnector(StatusOnly):
     """One machine object of an OPC UA server, subscribed while the link is up."""
+
+    through = "OPC UA here"
 
     config: OpcuaMachine
 
@@ -358,29 +360,6 @@ class OpcuaConnector(NetworkOnly):
         if self._lost is not None:
             raise TransportError(f"{self.config.name}: the OPC UA session was lost: {self._lost}")
         return machine_status(self.readings)
-
-    def _read_only(self, what: str) -> InputError:
-        return InputError(f"{self.config.name}: {what} is not possible through OPC UA here")
-
-    async def send(self, name: str, data: bytes, progress: Progress) -> None:
-        """Status only: programs go another way (docs/opcua-input.md)."""
-        raise self._read_only("sending a program")
-
-    async def verify(self, name: str, data: bytes) -> bool | None:
-        """Nothing to compare with."""
-        return None
-
-    async def fetch(self, path: str) -> bytes:
-        """Status only."""
-        raise self._read_only("reading a file")
-
-    async def delete(self, path: str) -> None:
-        """Status only."""
-        raise self._read_only("deleting a file")
-
-    async def backup(self, path: str, target: Path) -> dict[str, int]:
-        """Status only."""
-        raise self._read_only("a backup")
 
 
 def _setter(light: Light, name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
