@@ -176,7 +176,11 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
         assert took < TAKEOVER_LIMIT
         takeovers = audit_rows(cluster.db, "job.takeover")
         assert takeovers, "no job was under way on the killed server"
-        assert {(r["actor"], r["previous"]) for r in takeovers} == {("dnc-1", "dnc-2")}
+        # every take-over is of the killed server's runs, dnc-1's among them; dnc-2 may have
+        # taken over its own before it died: a renewal late on a loaded machine fences it
+        # (a 3 s lease here), and it takes the lease back as a new epoch
+        assert {r["previous"] for r in takeovers} == {"dnc-2"}
+        assert ("dnc-1", "dnc-2") in {(r["actor"], r["previous"]) for r in takeovers}
         phase("taken over")
         cluster.start("dnc-2")  # back: it takes its share by hand-over, no live lease taken
         cluster.wait_settled("dnc-1", {"dnc-1", "dnc-2"})

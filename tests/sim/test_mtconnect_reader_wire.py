@@ -4,6 +4,7 @@ bad answer ends in a typed error within a deadline, never a hang or an endless l
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -67,7 +68,12 @@ async def _follow(answer: Answer) -> DncError:
 
 
 async def _follow_peer(send: Send, **options: Any) -> DncError:
+    handlers: set[asyncio.Task[Any]] = set()
+
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        handlers.add(task)
         try:
             head = await reader.readuntil(b"\r\n\r\n")
             await send(head.split(b" ", 2)[1].decode(), writer)
@@ -75,6 +81,8 @@ async def _follow_peer(send: Send, **options: Any) -> DncError:
             pass
         finally:
             writer.close()
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await writer.wait_closed()
 
     server = await asyncio.start_server(handle, "127.0.0.1", 0)
     port = server.sockets[0].getsockname()[1]
@@ -93,6 +101,11 @@ async def _follow_peer(send: Send, **options: Any) -> DncError:
     finally:
         await client.close()
         server.close()
+        # a sender still writing (an endless answer) is stopped and its socket closed here,
+        # not left to the garbage collector during some later test
+        for task in handlers:
+            task.cancel()
+        await asyncio.gather(*handlers, return_exceptions=True)
         await server.wait_closed()
 
 
