@@ -38,8 +38,10 @@ from tests.web.browser import (  # noqa: E402
     sync_api,
 )
 
-# A released program large enough that its transfer spans several card updates.
-BIG_LINES = 60_000
+# A released program large enough that its transfer, on a link that answers each telegram
+# 40 ms late, spans several card updates (390 kB: a larger one only costs the browser more
+# listing to draw).
+BIG_LINES = 15_000
 BIG = (
     b"%\r\nO03000 (LONG CONTOUR)\r\nG20\r\n"
     + b"".join(
@@ -150,9 +152,9 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
         }).observe(card, {childList: true, subtree: true});
     }"""
     )
-    # A link slow enough for the transfer to span several card updates (10 ms a telegram).
+    # A link slow enough for the transfer to span several card updates (40 ms a telegram).
     tnc = clean.fleet.fleet._tncs[0]
-    clean.fleet.call(lambda: setattr(tnc, "latency", 0.01))
+    clean.fleet.call(lambda: setattr(tnc, "latency", 0.04))
     sender = clean.page(overview.context)
     sender.goto(clean.url + "/library/O03000.nc")
     sender.get_by_label("tnc-1").check()
@@ -178,7 +180,7 @@ def test_send_a_released_program_and_watch_it_go(clean: Shop) -> None:
     sync_api.expect(history.locator("tr", has_text="O03000.nc")).to_contain_text("done")
     # ... and in the machine's file browser, from where it downloads byte for byte.
     files = overview.locator("table.files")
-    sync_api.expect(files.locator("tr", has_text="O03000.nc")).to_contain_text("1.6 MB")
+    sync_api.expect(files.locator("tr", has_text="O03000.nc")).to_contain_text("390.0 kB")
     with overview.expect_download() as download:
         overview.get_by_role("link", name="Download O03000.nc").click()
     assert Path(download.value.path()).read_bytes() == BIG
