@@ -174,6 +174,13 @@ class Fleet:
                 reception = await connector.listen(state.config.poll_interval)
                 if reception is not None:
                     await self.requests.received(state, reception)
+                else:
+                    # A port that reads nothing at once (an adapter pulled out, a cable's far
+                    # end gone) must not make this loop spin: a quarter of the interval
+                    # passes between two listens, as between two polls below.
+                    left = state.config.poll_interval / 4 - (loop.time() - asked)
+                    if left > 0:
+                        await _wait(state.wake, left)
             else:
                 # Polls start every poll_interval, however long the last one took to answer:
                 # a status is never older than the interval plus one answer's time (waiting
