@@ -176,10 +176,10 @@ def test_two_servers_200_jobs_failover_restart_and_a_pinned_serial_machine(
         assert took < TAKEOVER_LIMIT
         takeovers = audit_rows(cluster.db, "job.takeover")
         assert takeovers, "no job was under way on the killed server"
-        # every take-over is of the killed server's runs, dnc-1's among them; dnc-2 may have
-        # taken over its own before it died: a renewal late on a loaded machine fences it
-        # (a 3 s lease here), and it takes the lease back as a new epoch
-        assert {r["previous"] for r in takeovers} == {"dnc-2"}
+        # dnc-1 took over the killed server's runs. On a loaded machine a renewal late on a
+        # 3 s lease fences a server, and its runs are taken over too (by itself as a new
+        # epoch, or by the other): seen with either server as the previous one. What the
+        # cluster promises is checked below: every load reached its control exactly once.
         assert ("dnc-1", "dnc-2") in {(r["actor"], r["previous"]) for r in takeovers}
         phase("taken over")
         cluster.start("dnc-2")  # back: it takes its share by hand-over, no live lease taken
