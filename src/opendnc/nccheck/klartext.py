@@ -192,6 +192,14 @@ class _Lines:
     def has_note(self, index: int) -> bool:
         return index in self._notes
 
+    def join(self, text: str, note: str | None) -> None:
+        """A continuation line of a block that defines no cycle (a formula, an FN, a move
+        split with "~"): it is the rest of that block's text."""
+        index = len(self._texts) - 1
+        self._texts[index] = f"{self._texts[index]} {text}"
+        if note and index not in self._notes:
+            self._notes[index] = note
+
     def add_param(self, text: str, note: str | None) -> None:
         """A continuation line (cycle parameter) of the last block."""
         index = len(self._texts) - 1
@@ -433,7 +441,10 @@ class _Run:
             if len(lines) and (
                 continuing or (match is None and defines and _PARAM_LINE.match(upper))
             ):
-                lines.add_param(upper, note)
+                if defines:
+                    lines.add_param(upper, note)
+                else:  # "Q2 = COS ( ... ) + ( 5 * ~" goes on: one formula over two lines
+                    lines.join(upper, note)
                 continuing = tilde
                 continue
             continuing = tilde
