@@ -86,6 +86,8 @@ _DECIMAL_COMMA = re.compile(r"(\d),(\d)")
 # the whole number that holds the comma, for the message; the lookbehind starts the search at
 # the start of a number only, so a long digit run is scanned once, not once a digit
 _COMMA_NUMBER = re.compile(r"(?<![\d.])[\d.]*\d,\d[\d.]*")
+# an FN function head in any spacing: "FN 18: ", "FN18:", "FN18: " (after a block number)
+_FN_HEAD = re.compile(r"^(\d+\s+)?FN\s*(\d+)\s*:\s*")
 _TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*", "CALL PGM", "SEL ")
 _SPINDLE_START = re.compile(r"\bM(3|4|13|14)\b")
 _PRESET_Q = range(100, 200)  # Q100-Q199: set by the TNC itself (tool radius, results)
@@ -191,6 +193,14 @@ class _Lines:
 
     def has_note(self, index: int) -> bool:
         return index in self._notes
+
+    def join(self, text: str, note: str | None) -> None:
+        """A continuation line of a block that defines no cycle (a formula, an FN, a move
+        split with "~"): it is the rest of that block's text."""
+        index = len(self._texts) - 1
+        self._texts[index] = f"{self._texts[index]} {text}"
+        if note and index not in self._notes:
+            self._notes[index] = note
 
     def add_param(self, text: str, note: str | None) -> None:
         """A continuation line (cycle parameter) of the last block."""
@@ -422,6 +432,8 @@ class _Run:
             upper = code.upper()
             if upper[0] == "/":  # a skippable block "/ 11 STOP": run as with skip off
                 upper = upper[1:].lstrip()
+            if "FN" in upper:  # "FN18:SYSREAD", as posts write it, is "FN 18: SYSREAD"
+                upper = _FN_HEAD.sub(r"\1FN \2: ", upper, count=1)
             note = None
             if "," in upper and not upper.lstrip("0123456789 ").startswith(_TEXT_HEADS):
                 upper, note = _decimal_comma(upper)
@@ -433,7 +445,10 @@ class _Run:
             if len(lines) and (
                 continuing or (match is None and defines and _PARAM_LINE.match(upper))
             ):
-                lines.add_param(upper, note)
+                if defines:
+                    lines.add_param(upper, note)
+                else:  # "Q2 = COS ( ... ) + ( 5 * ~" goes on: one formula over two lines
+                    lines.join(upper, note)
                 continuing = tilde
                 continue
             continuing = tilde

@@ -83,3 +83,19 @@ def test_the_plain_line_path_draws_what_the_general_path_draws(
 def test_a_parameter_an_unsimulated_function_sets_is_not_read_before_set() -> None:
     result = check_text(program("FN 18: SYSREAD Q5 = ID990 NR1", "Q6 = Q5 + Q7"))
     assert [p.message.split(" is ")[0] for p in result.warnings] == ["FN 18", "Q7"]
+
+
+def test_a_formula_continued_with_a_tilde_is_one_block() -> None:
+    # "Q2 = ... + ( 5 * ~" then the rest on the next line, as the TNC's editor breaks it
+    text = program("Q1 = 2", "Q2 = ( 1 + Q1 ) * ~\n    ( 4 - 1 )", "L X+Q2 R0 FMAX")
+    result = check_text(text)
+    assert result.errors == ()
+    assert result.extents["X"] == (0.0, 9.0)
+
+
+@pytest.mark.parametrize("head", ["FN 18: SYSREAD", "FN18: SYSREAD", "FN18:SYSREAD"])
+def test_an_fn_head_is_read_in_any_spacing(head: str) -> None:
+    # posts write "FN18: SYSREAD Q10 = ID50 NR2 IDX1" (no blank after FN, or after the colon)
+    result = check_text(program(f"{head} Q10 = ID50 NR2 IDX1", "L X+Q10 R0 FMAX"))
+    assert result.errors == ()
+    assert [p.message for p in result.warnings] == ["FN 18 is not simulated by the dry run"]
