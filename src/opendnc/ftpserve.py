@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import logging
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from opendnc.errors import InputError, TransportError
 
-__all__ = ["Account", "FtpFolders"]
+__all__ = ["Account", "FtpFolders", "ftp_handler"]
 
 POLL = 0.2  # seconds one turn of the loop waits before it looks whether to stop
 
@@ -38,13 +39,23 @@ class Account:
 
 def _modules() -> tuple[Any, Any, Any, Any]:
     try:
-        from pyftpdlib.authorizers import DummyAuthorizer
-        from pyftpdlib.handlers import FTPHandler
-        from pyftpdlib.ioloop import IOLoop
-        from pyftpdlib.servers import FTPServer
+        with warnings.catch_warnings():
+            # on Python 3.11 pyftpdlib stands on the standard library's asyncore and asynchat,
+            # which warn that they are deprecated (3.12 has them no more: pyftpdlib then
+            # carries its own copies)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            from pyftpdlib.authorizers import DummyAuthorizer
+            from pyftpdlib.handlers import FTPHandler
+            from pyftpdlib.ioloop import IOLoop
+            from pyftpdlib.servers import FTPServer
     except ImportError as exc:  # part of the server extra
         raise InputError("an FTP server needs pyftpdlib: pip install 'opendnc[server]'") from exc
     return DummyAuthorizer, FTPHandler, IOLoop, FTPServer
+
+
+def ftp_handler() -> Any:
+    """pyftpdlib's command handler class, to derive a control with a quirk from (tests)."""
+    return _modules()[1]
 
 
 class FtpFolders:

@@ -41,7 +41,8 @@ def parse_ftp_server(table: dict[str, Any], base: Path) -> FtpServerConfig:
     if not sep or not host or not port_text.isdigit():
         raise ConfigError("ftp_server.bind", f"expected HOST:PORT, got {bind!r}")
     port = int(port_text)
-    port_range(port, "ftp_server.bind")
+    if port:  # 0: any free port (a test's server)
+        port_range(port, "ftp_server.bind")
     root = get_key(table, "ftp_server", "root", str, "ftp")
     return FtpServerConfig(
         host=host.strip("[]"),

@@ -164,9 +164,10 @@ class FtpDrop:
         return found
 
     def _nlst(self, ftp: ftplib.FTP, where: str, folder: str) -> list[RemoteFile]:
-        ftp.voidcmd("TYPE I")  # SIZE counts bytes in binary type only
+        names = ftp.nlst(*([where] if where else []))  # a listing is sent in type A ...
+        ftp.voidcmd("TYPE I")  # ... and SIZE counts bytes in type I only
         found = []
-        for entry in ftp.nlst(*([where] if where else [])):
+        for entry in names:
             name = entry.rsplit("/", 1)[-1]
             path = f"{where}/{name}" if where else name
             try:
