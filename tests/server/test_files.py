@@ -176,9 +176,14 @@ def test_a_send_is_stored_under_a_temporary_name_checked_and_then_renamed(tmp_pa
     assert (tmp_path / "O01000.nc").read_bytes() == PROGRAM
     steps = [c.split(" ", 1) for c in Recording.commands if c.split(" ")[0] in _FILE_COMMANDS]
     temp = steps[0][1]
-    assert temp.startswith(".O01000.nc.") and temp.endswith(".part")
-    assert steps == [["STOR", temp], ["SIZE", temp], ["RETR", temp], ["RNFR", temp]] + [
-        ["RNTO", "O01000.nc"]
+    assert temp.startswith(".O01000.nc.")
+    assert temp.endswith(".part")
+    assert steps == [
+        ["STOR", temp],
+        ["SIZE", temp],
+        ["RETR", temp],
+        ["RNFR", temp],
+        ["RNTO", "O01000.nc"],
     ]
     assert "PASV" in Recording.commands or "EPSV" in Recording.commands  # passive by default
 
@@ -188,7 +193,10 @@ _FILE_COMMANDS = {"STOR", "SIZE", "RETR", "RNFR", "RNTO", "DELE"}
 
 @pytest.mark.parametrize(
     ("handler", "reason"),
-    [(Flips, "read back differs"), (Truncates, f"stored {len(PROGRAM) - 5} bytes of {len(PROGRAM)}")],
+    [
+        (Flips, "read back differs"),
+        (Truncates, f"stored {len(PROGRAM) - 5} bytes of {len(PROGRAM)}"),
+    ],
 )
 def test_a_copy_the_control_did_not_keep_whole_is_a_typed_error_and_leaves_no_file(
     tmp_path: Path, handler: Any, reason: str
@@ -245,12 +253,14 @@ receive_folder = "out"
 def test_a_status_only_kind_takes_programs_through_its_files_table(tmp_path: Path) -> None:
     config = parse_config(_shop(tmp_path, MTC_WITH_FTP), base=tmp_path)
     (machine,) = config.machines
-    assert machine.files is not None and machine.files.user == "anonymous"
+    assert machine.files is not None
+    assert machine.files.user == "anonymous"
     connector = connector_for(machine)
     assert isinstance(connector, FilesConnector)  # the agent's reader, wrapped
     assert capabilities_of(machine).receive
     folder = receive_folder_of(machine)
-    assert folder is not None and folder.folder == "out"
+    assert folder is not None
+    assert folder.folder == "out"
 
 
 @pytest.mark.parametrize(
@@ -263,7 +273,7 @@ def test_a_status_only_kind_takes_programs_through_its_files_table(tmp_path: Pat
     ],
 )
 def test_a_bad_files_table_names_its_key(tmp_path: Path, files: str, key: str) -> None:
-    text = f'[[machines]]\nname = "m"\nkind = "mtconnect"\nurl = "http://h:5000"\n'
+    text = '[[machines]]\nname = "m"\nkind = "mtconnect"\nurl = "http://h:5000"\n'
     text += f"[machines.files]\n{files}\n"
     with pytest.raises(ConfigError) as caught:
         parse_config(_shop(tmp_path, text), base=tmp_path)
