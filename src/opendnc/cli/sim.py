@@ -15,6 +15,7 @@ app = lazy_typer(
         "haas": Lazy("opendnc.cli.sim_haas:haas", "Run a virtual Haas control."),
         "fanuc": Lazy("opendnc.cli.sim_fanuc:fanuc", "Run a virtual Fanuc on a serial port."),
         "opcua": Lazy("opendnc.cli.sim_opcua:opcua", "Run a virtual OPC UA (umati) server."),
+        "ftp": Lazy("opendnc.cli.sim_ftp:ftp", "Serve a virtual control's FTP folder."),
         "fleet": Lazy("opendnc.cli.sim_fleet:fleet", "Run many virtual controls in one process."),
     },
 )

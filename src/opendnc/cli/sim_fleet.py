@@ -32,6 +32,11 @@ def fleet(
     opcua: int = typer.Option(
         0, "--opcua", help="Machine tools of one virtual OPC UA server (scripted cycles)."
     ),
+    ftp: int = typer.Option(
+        0,
+        "--ftp",
+        help="Controls with an FTP folder for programs (status through the MTConnect agent).",
+    ),
     base_port: int = typer.Option(0, "--base-port", help="First TCP port (0 = any free ports)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on."),
     root: Path | None = typer.Option(None, "--root", help="Folder for the controls' files."),
@@ -76,6 +81,7 @@ def fleet(
             mtconnect=mtconnect,
             mtconnect_cycle=mtconnect_cycle,
             opcua=opcua,
+            ftp=ftp,
         )
         try:
             if config_out is not None:
@@ -97,9 +103,9 @@ def fleet(
         console.print("stopped")
 
     with cli_errors(), ready_file(ready) as mark_ready:
-        if min(tnc, haas, serial_haas, fanuc, mtconnect, opcua) < 0:
+        if min(tnc, haas, serial_haas, fanuc, mtconnect, opcua, ftp) < 0:
             raise InputError(
-                "--tnc, --haas, --fanuc, --mtconnect and --opcua count controls: 0 or more"
+                "--tnc, --haas, --fanuc, --mtconnect, --opcua and --ftp count controls: 0 or more"
             )
         if mtconnect_cycle < 1:
             raise InputError("--mtconnect-cycle: at least 1 second")

@@ -50,6 +50,7 @@ from opendnc.server.machines.dprnt_capture import DprntCapture
 from opendnc.server.machines.leases import LIBRARY, Leases, held_elsewhere
 from opendnc.server.machines.state import Machines
 from opendnc.server.machines.timeline import Timeline
+from opendnc.server.netshare.ftpserver import FtpServer, accounts_for
 from opendnc.server.netshare.share import NetShare, local_now
 from opendnc.server.outputs.mqtt import MqttPublisher
 from opendnc.server.outputs.parts import Outputs, TimelineRecorder
@@ -201,6 +202,10 @@ def build(
     netshare = _netshare(config, services, sessions, bus)
     if netshare is not None:
         core.add(Duty(netshare, duty))
+    # the boards that are FTP clients: this server's own ones only (docs/files.md)
+    accounts = accounts_for(config.machines, config.server.name, clustered)
+    if config.ftp_server is not None and accounts:
+        core.add(FtpServer(config.ftp_server, accounts))
     if clustered:
         _cluster(core, config, url, sessions, machines, runner, fleet, duty)
     return Server(_web_app(core, clients, stop_deadline))

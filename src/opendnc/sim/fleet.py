@@ -28,6 +28,7 @@ from opendnc.sim.tnc.server import TncServer, serve_tnc
 if TYPE_CHECKING:
     from opendnc.sim.cable.link import VirtualCable
     from opendnc.sim.fanuc import VirtualFanuc
+    from opendnc.sim.ftp import VirtualFtpFolder
     from opendnc.sim.haas.serial_front import SerialFrontEnd
     from opendnc.sim.mtconnect.agent import VirtualAgent
     from opendnc.sim.mtconnect.machine import ScriptedMachine
@@ -53,6 +54,7 @@ class FleetMachine:
     dprnt_port: int = 0  # a Haas NGC's DPRNT port (Setting 263), 0 for none
     device: str = ""  # an MTConnect machine's device name at the fleet's agent, an OPC UA
     # machine's browse name at the fleet's OPC UA server
+    ftp_port: int = 0  # the port of its FTP folder (an --ftp machine), 0 for none
 
 
 @dataclass
@@ -78,10 +80,15 @@ class Fleet:
     """The one virtual OPC UA server of the ``opcua`` machines (None without them)."""
     machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
     """The scripted machine tool behind each ``opcua`` machine, by machine name."""
+    ftp: dict[str, VirtualFtpFolder] = field(default_factory=dict, repr=False)
+    """The FTP folder of each ``--ftp`` machine, by machine name."""
     _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
 
     async def close(self) -> None:
         """Stop every control."""
+        for folder in self.ftp.values():
+            await asyncio.to_thread(folder.close)
+        self.ftp.clear()
         for tnc in self._tncs:
             await tnc.close()
         for haas in self._haas:
@@ -126,6 +133,7 @@ async def start_fleet(
     mtconnect: int = 0,
     mtconnect_cycle: float = 30.0,
     opcua: int = 0,
+    ftp: int = 0,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -149,13 +157,16 @@ async def start_fleet(
     ``fanuc``: virtual Fanucs (``opendnc.sim.fanuc``, profile fanuc-0i, in READ) on cables of
     their own at ``baud``, 11 bits a character.
     """
-    counts = (tnc, haas, serial_haas, fanuc, mtconnect, opcua)
+    counts = (tnc, haas, serial_haas, fanuc, mtconnect, opcua, ftp)
     if min(counts) < 0 or sum(counts) == 0:
         raise InputError(
-            "start at least one control (--tnc N, --haas M, --fanuc F, --mtconnect K, --opcua U)"
+            "start at least one control (--tnc N, --haas M, --fanuc F, --mtconnect K, --opcua U,"
+            " --ftp P)"
         )
-    # the MTConnect machines share one agent, the OPC UA machines one server
-    ports = tnc + haas + (1 if mtconnect else 0) + (1 if opcua else 0)
+    # the MTConnect machines (and the FTP ones' status) share one agent, the OPC UA machines
+    # one server; each FTP machine has a folder of its own
+    agent = 1 if mtconnect or ftp else 0
+    ports = tnc + haas + agent + (1 if opcua else 0) + ftp
     if base_port and not 0 < base_port <= 65535 - ports:
         raise InputError(f"--base-port {base_port}: the fleet needs {ports} ports above it")
     fleet = Fleet()
@@ -196,12 +207,15 @@ async def start_fleet(
             await _start_serial_haas(fleet, folder, k, baud, block_rate, dnc_timeout)
         for n in range(fanuc):
             await asyncio.to_thread(_start_fanuc, fleet, root / f"fanuc-{n + 1}", n, baud)
-        if mtconnect:
+        if mtconnect or ftp:
             port = base_port + tnc + haas if base_port else 0
-            await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle)
+            await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle, ftp)
         if opcua:
-            port = base_port + tnc + haas + (1 if mtconnect else 0) if base_port else 0
+            port = base_port + tnc + haas + agent if base_port else 0
             await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
+        first_ftp = base_port + tnc + haas + agent + (1 if opcua else 0) if base_port else 0
+        for n in range(ftp):
+            await _start_ftp(fleet, root, n, host, first_ftp + n if first_ftp else 0)
     except BaseException:
         await fleet.close()
         raise
@@ -264,13 +278,15 @@ def _start_fanuc(fleet: Fleet, folder: Path, n: int, baud: int) -> None:
 
 
 async def _start_mtconnect(
-    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
+    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float, ftp: int = 0
 ) -> None:
     # Imported here: the agent is served by uvicorn (the server extra).
     from opendnc.sim.mtconnect.agent import VirtualAgent
     from opendnc.sim.mtconnect.machine import ScriptedMachine, run_cycles
 
-    names = [f"mtc-{i + 1}" for i in range(count)]
+    # an --ftp machine reports its state through the agent as well (an Okuma or a Mazak with
+    # an agent and an FTP folder): its devices follow the --mtconnect ones
+    names = [f"mtc-{i + 1}" for i in range(count)] + [f"ftp-{i + 1}" for i in range(ftp)]
     agent = VirtualAgent(names, host=host, port=port, buffer_size=max(1024, 64 * count))
     await agent.start()
     fleet.agent = agent
@@ -304,6 +320,23 @@ async def _start_opcua(
         fleet.machines.append(
             FleetMachine(name, "opcua", host, server.port, root / name, device=name)
         )
+
+
+async def _start_ftp(fleet: Fleet, root: Path, n: int, host: str, port: int) -> None:
+    # Imported here: pyftpdlib is the server extra's.
+    from opendnc.sim.ftp import VirtualFtpFolder
+
+    name = f"ftp-{n + 1}"
+    folder = root / name
+    served = VirtualFtpFolder(folder, host=host, port=port)
+    await asyncio.to_thread(served.start)
+    fleet.ftp[name] = served
+    # its status device was started with the agent's
+    for i, m in enumerate(fleet.machines):
+        if m.name == name:
+            fleet.machines[i] = FleetMachine(
+                name, m.kind, m.host, m.port, folder, device=m.device, ftp_port=served.port
+            )
 
 
 def server_config(
@@ -358,6 +391,17 @@ def server_config(
         if m.kind == "mtconnect":
             where = f"[{m.host}]" if ":" in m.host else m.host
             lines += [f"url = {q(f'http://{where}:{m.port}')}", f"device = {q(m.device)}"]
+            if m.ftp_port:
+                # programs through the control's FTP folder (docs/files.md)
+                lines += [
+                    "[machines.files]",
+                    'mode = "ftp"',
+                    f"host = {q(m.host)}",
+                    f"port = {m.ftp_port}",
+                    'user = "dnc"',
+                    'password = "dnc"',
+                    "receive = true",
+                ]
         elif m.kind == "opcua":
             where = f"[{m.host}]" if ":" in m.host else m.host
             lines += [f"endpoint = {q(f'opc.tcp://{where}:{m.port}')}", f"machine = {q(m.device)}"]

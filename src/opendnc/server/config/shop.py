@@ -76,6 +76,18 @@ Example::
     streams_per_user = 200                 # event streams open at once, per user
     streams_total = 2000                   # ... and on the server
 
+    [[machines]]
+    name = "okuma-1"                       # any kind: status from its MTConnect agent ...
+    kind = "mtconnect"
+    url = "http://10.0.0.31:5000"
+    [machines.files]                       # ... programs through its FTP folder (docs/files.md)
+    mode = "ftp"                           # or "ftp-server" (the board is the client), "share"
+    host = "10.0.0.31"
+    user = "dnc"
+    password = "..."
+    folder = "/programs"
+    receive = true                         # files the control writes come to the inbox
+
     [mtconnect]                            # MTConnect SHDR adapter (server/outputs/shdr.py)
     bind = "127.0.0.1:7878"                # the first machine's port; the next ones count up
     ports = { "mill-1" = 7900 }            # optional: a machine's own port
@@ -94,6 +106,11 @@ from opendnc.haas.share import ShareTarget, parse_target
 from opendnc.server.config.alerts import AlertsConfig, parse_alerts
 from opendnc.server.config.clients import ClientLimits, parse_clients
 from opendnc.server.config.downtime import DowntimeConfig, parse_downtime
+from opendnc.server.config.ftp_server import (
+    FtpServerConfig,
+    parse_ftp_server,
+    with_account_folders,
+)
 from opendnc.server.core.configkeys import NAME as _NAME
 from opendnc.server.core.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.core.requests import RequestRule, RequestSettings
@@ -216,6 +233,8 @@ class ShopConfig:
     alerts: AlertsConfig | None = None  # [alerts] (server/config/alerts.py)
     # [downtime]: the reasons an operator picks for a stop (server/utilization/downtime.py)
     downtime: DowntimeConfig = field(default_factory=DowntimeConfig)
+    # [ftp_server]: for boards that are FTP clients (server/config/ftp_server.py)
+    ftp_server: FtpServerConfig | None = None
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -253,7 +272,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients", "alerts", "downtime",
+            "mtconnect", "shifts", "clients", "alerts", "downtime", "ftp_server",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -262,6 +281,10 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     if not isinstance(machines_raw, list):
         raise ConfigError("machines", "expected an array of tables ([[machines]])")
     machines = tuple(parse_machine(item, f"machines[{i}]") for i, item in enumerate(machines_raw))
+    ftp_server = None
+    if "ftp_server" in raw:
+        ftp_server = parse_ftp_server(_table(raw, "ftp_server"), base)
+    machines = with_account_folders(machines, ftp_server)  # docs/files.md
     seen: set[str] = set()
     for i, machine in enumerate(machines):
         if machine.name.lower() in seen:
@@ -299,6 +322,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         clients=clients,
         alerts=alerts,
         downtime=downtime,
+        ftp_server=ftp_server,
     )
 
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from opendnc.nccheck.limits import Envelope
 from opendnc.server.core.configkeys import ConfigError, get_key, known_keys
+from opendnc.server.kinds.filedrop_config import FilesConfig
 
 if TYPE_CHECKING:
     from opendnc.haas.listen import CapturedLine
@@ -72,11 +73,12 @@ class MachineBase:
     description: str = ""
     envelope: Envelope | None = None  # travel and work offsets for program checks (docs/check.md)
     servers: tuple[str, ...] = ()  # the servers that may serve it (a cluster); empty: any
+    files: FilesConfig | None = None  # programs as files in a folder, any kind (docs/files.md)
 
 
 COMMON_KEYS = {
     "name", "kind", "released_only", "poll_interval", "description", "travel", "work_offsets",
-    "rapid_rate", "control", "servers",
+    "rapid_rate", "control", "servers", "files",
 }  # fmt: skip
 
 

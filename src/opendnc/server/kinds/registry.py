@@ -26,6 +26,8 @@ from opendnc.server.kinds.base import (
     ReceiveFolder,
     SharedMachine,
 )
+from opendnc.server.kinds.filedrop import capabilities_with, receive_of, with_files
+from opendnc.server.kinds.filedrop_config import parse_files
 from opendnc.server.kinds.haas_ngc import spec as haas_ngc
 from opendnc.server.kinds.haas_serial import spec as haas_serial
 from opendnc.server.kinds.lsv2 import spec as lsv2
@@ -85,13 +87,14 @@ def label_of(kind: str) -> str:
 
 
 def capabilities_of(machine: MachineConfig) -> Capabilities:
-    """What ``machine`` can do as configured (its kind and its opt-ins)."""
-    return spec_of(machine).capabilities(machine)
+    """What ``machine`` can do as configured (its kind, its opt-ins, its files table)."""
+    return capabilities_with(spec_of(machine).capabilities(machine), machine)
 
 
 def connector_for(machine: MachineConfig, hooks: ConnectorHooks | None = None) -> Connector:
-    """The connector that reaches ``machine``'s control."""
-    return spec_of(machine).connector(machine, hooks or ConnectorHooks())
+    """The connector that reaches ``machine``'s control (its programs through its folder
+    where it has a files table: docs/files.md)."""
+    return with_files(spec_of(machine).connector(machine, hooks or ConnectorHooks()), machine)
 
 
 def dprnt_of(machine: MachineConfig) -> DprntSource | None:
@@ -100,8 +103,9 @@ def dprnt_of(machine: MachineConfig) -> DprntSource | None:
 
 
 def receive_folder_of(machine: MachineConfig) -> ReceiveFolder | None:
-    """The folder on ``machine``'s control that is collected into the inbox; None if none."""
-    return spec_of(machine).receive_folder(machine)
+    """The folder on ``machine``'s control that is collected into the inbox; None if none
+    (a files table that receives before the kind's own folder)."""
+    return receive_of(machine) or spec_of(machine).receive_folder(machine)
 
 
 def program_folder_of(machine: MachineConfig) -> str:
@@ -165,6 +169,7 @@ def parse_machine(raw: object, prefix: str) -> MachineConfig:
         "description": get_key(raw, prefix, "description", str, ""),
         "envelope": _envelope(raw, prefix),
         "servers": _servers(raw, prefix),
+        "files": parse_files(raw.get("files"), f"{prefix}.files", name),
     }
     machine: MachineConfig = spec.parse(own, prefix, common)
     return machine

@@ -14,6 +14,11 @@ What was received is rebuilt at start from the audit rows the inbox writes (``pr
 with ``remote``: path, size, time), so a file kept on the control (``after_receive = "keep"``,
 the default) is not received again after a restart. With ``after_receive = "delete"`` the file
 is deleted on the control after its reception is committed, never before.
+
+A file whose name and SHA-256 are those of a program this server sent to the machine is not
+received: a folder that is both the way out and the way in (a machine's ``files`` folder,
+docs/files.md) would otherwise echo every send into the inbox. It is remembered as seen, so
+it is read once, not at every listing.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from opendnc.server.kinds.registry import receive_folder_of
 from opendnc.server.library import inbox
 from opendnc.server.store import audit
 from opendnc.server.store.models import AuditEntry
+from opendnc.server.store.sends import sent_by_us
 
 if TYPE_CHECKING:
     from opendnc.server.machines.state import Machines, MachineState
@@ -141,8 +147,9 @@ def size_problem(entry: RemoteFile, data: bytes, again: RemoteFile | None) -> st
 
 
 class AutoReceive:
-    """Looks at the receive folder of every LSV2 machine that has one, from that machine's
-    task between two status polls (one listing never meets a transfer); a component."""
+    """Looks at the receive folder of every machine that has one (an LSV2 folder, a files
+    folder), from that machine's task between two status polls (one listing never meets a
+    transfer); a component."""
 
     name = "auto-receive"
     needs = ("machines", "database")
@@ -198,7 +205,17 @@ class AutoReceive:
             if failed is None and watch.known(entry, data):
                 watch.mark(entry, data)  # touched, not changed
                 continue
+            if failed is None and await asyncio.to_thread(self._ours, watch.machine, entry, data):
+                # One of our own sends, in a folder that is also the way in (a control's FTP
+                # folder): no echo into the inbox.
+                watch.mark(entry, data)
+                continue
             await self._file_found(state, connector, watch, entry, data, failed or "")
+
+    def _ours(self, machine: str, entry: RemoteFile, data: bytes) -> bool:
+        digest = hashlib.sha256(data).hexdigest()
+        with self.sessions() as session:
+            return sent_by_us(session, machine, entry.name, digest)
 
     def _load_watch(self, watch: FolderWatch) -> None:
         with self.sessions() as session:

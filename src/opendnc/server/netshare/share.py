@@ -69,7 +69,8 @@ from opendnc.server.core.folders import Folder, LocalFolder, folder_at, folder_f
 from opendnc.server.kinds.base import SharedMachine
 from opendnc.server.library import inbox
 from opendnc.server.store import audit
-from opendnc.server.store.models import AuditEntry, Job, JobKind, Program, ProgramVersion
+from opendnc.server.store.models import AuditEntry
+from opendnc.server.store.sends import sent_by_us
 
 if TYPE_CHECKING:
     # for types only: the configuration loads the kinds, and a Haas NGC's connector reads
@@ -495,26 +496,6 @@ class NetShare(RunsTask):
     def _publish(self, action: str, machine: str, name: str, **extra: Any) -> None:
         if self.bus is not None:
             self.bus.publish(NetshareChanged(action, machine, name, extra))
-
-
-def sent_by_us(session: Session, machine: str, name: str, digest: str) -> bool:
-    """Whether a job of this server put exactly this file (name and content) on ``machine``:
-    a send to a Haas NGC writes the program into the share this collects from. The job's
-    row is there from its claim on, before the file is written, so a scan never sees the
-    file first; a failed send that wrote it counts too."""
-    found = session.scalar(
-        select(Job.id)
-        .join(ProgramVersion, Job.version_id == ProgramVersion.id)
-        .join(Program, ProgramVersion.program_id == Program.id)
-        .where(
-            Job.machine == machine,
-            Job.kind.in_((JobKind.SEND, JobKind.PUT_FILE)),
-            Program.name == name,
-            ProgramVersion.sha256 == digest,
-        )
-        .limit(1)
-    )
-    return found is not None
 
 
 def _free_path(folder: Path, name: str) -> Path:
