@@ -372,7 +372,7 @@ def run(
     if not prepared:
         out |= _prepare(url, engine, names, own, start, now, seed, copy_days)
     if keep is not None:  # a copy of the filled database, for another run with --db
-        with engine.connect() as conn:
+        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
             conn.execute(text("VACUUM INTO :path"), {"path": str(keep)})
     with engine.connect() as conn:
         out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
