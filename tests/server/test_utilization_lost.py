@@ -94,7 +94,7 @@ def test_lost_time_per_reason_is_the_sum_over_every_stop(
     with sessions.begin() as session:
         r = report(session, cal, machines, start, end, group, now=now)
         until = r.until or r.end
-        floor = floor_of(session, r, timedelta(days=400), REASONS + ("other",), now)
+        floor = floor_of(session, r, timedelta(days=400), (*REASONS, "other"), now)
         if not ongoing:  # the summed days are read (not every stop one by one)
             assert covered_days(session, cal, machines, start, until) is not None
         picked = {
