@@ -41,6 +41,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import statistics
 import sys
 import tempfile
@@ -53,9 +54,18 @@ from typing import Any
 
 from sqlalchemy import Engine, create_engine, event, insert, text
 
+from opendnc.server.config.downtime import DEFAULT_REASONS
 from opendnc.server.core.shifts import parse_calendar
 from opendnc.server.store.db import make_engine, make_sessions, migrate, read_only
-from opendnc.server.store.models import StatusSample
+from opendnc.server.store.models import (
+    Blob,
+    PartReport,
+    Program,
+    ProgramState,
+    ProgramVersion,
+    StandardTime,
+    StatusSample,
+)
 from opendnc.server.utilization.answer import report_response
 from opendnc.server.utilization.collect import (
     Group,
@@ -66,6 +76,7 @@ from opendnc.server.utilization.collect import (
     sum_safely,
 )
 from opendnc.server.utilization.component import HourSummer
+from opendnc.server.utilization.oee import floor_of
 
 PG_ADMIN = "postgresql+psycopg://postgres@127.0.0.1:5432/postgres"
 CAL = parse_calendar(
@@ -289,18 +300,102 @@ def _clone(url: str, names: list[str], copies: list[str], since: datetime | None
         engine.dispose()
 
 
+RETENTION = timedelta(days=7)  # [server] timeline_retention_days by default
+
+
+def floor_data(url: str, names: list[str], now: datetime) -> dict[str, int]:
+    """What OEE and the downtime reasons read besides the timeline: a standard time for the
+    program every machine runs, a reason picked for two stops of three (round the configured
+    list), and a report of good and scrapped parts per machine and day of the last month."""
+    engine = create_engine(url)
+    try:
+        with make_sessions(engine).begin() as session:
+            session.add(Blob(sha256="0" * 64, size=1, data=b"%"))
+            program = Program(name="O1000")
+            session.add(program)
+            session.flush()
+            version = ProgramVersion(
+                program_id=program.id,
+                number=1,
+                sha256="0" * 64,
+                size=1,
+                state=ProgramState.RELEASED,
+                author="bench",
+            )
+            session.add(version)
+            session.flush()
+            session.add(StandardTime(version_id=version.id, seconds=600.0, set_by="bench"))
+            session.add_all(
+                PartReport(
+                    machine=m, at=now - timedelta(days=d, hours=3), good=40, scrap=d % 3, by="bench"
+                )
+                for m in names
+                for d in range(30)
+            )
+        cases = " ".join(f"WHEN {i} THEN '{r}'" for i, r in enumerate(DEFAULT_REASONS))
+        with engine.begin() as conn:
+            conn.execute(
+                text(
+                    'INSERT INTO downtime_reasons (machine, start, reason, note, "by", at) '
+                    f"SELECT machine, start, CASE id % {len(DEFAULT_REASONS)} {cases} END, '', "
+                    "'bench', \"end\" FROM utilization_stretches "
+                    "WHERE kind = 'stop' AND id % 3 <> 0"
+                )
+            )
+            reasons = conn.execute(text("SELECT COUNT(*) FROM downtime_reasons")).scalar()
+    finally:
+        engine.dispose()
+    return {"reasons_picked": int(reasons or 0), "part_reports": 30 * len(names)}
+
+
 def run(
-    url: str, machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
+    url: str,
+    machines: int,
+    distinct: int,
+    days: int,
+    repeat: int,
+    seed: int,
+    copy_days: int,
+    *,
+    prepared: bool = False,
+    keep: Path | None = None,
 ) -> dict[str, Any]:
-    """Fill a fresh database at ``url`` and time the questions; the numbers."""
+    """Fill a fresh database at ``url`` (unless it is ``prepared``) and time the questions;
+    the numbers."""
     engine = make_engine(url)
     migrate(engine)
-    sessions = make_sessions(engine)
     names = [f"m{i:03d}" for i in range(machines)]
     own = names[: min(distinct, machines)]
     now = datetime(2026, 11, 20, 9, 30, tzinfo=UTC)
     start = now - timedelta(days=days)
     out: dict[str, Any] = {"machines": machines, "distinct_timelines": len(own), "days": days}
+    if not prepared:
+        out |= _prepare(url, engine, names, own, start, now, seed, copy_days)
+    if keep is not None:  # a copy of the filled database, for another run with --db
+        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
+            conn.execute(text("VACUUM INTO :path"), {"path": str(keep)})
+    with engine.connect() as conn:
+        out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
+        out["hour_rows"] = conn.execute(text("SELECT COUNT(*) FROM utilization_hours")).scalar()
+        out["stretch_rows"] = conn.execute(
+            text("SELECT COUNT(*) FROM utilization_stretches")
+        ).scalar()
+    return _questions(url, engine, names, start, now, repeat, seed, out)
+
+
+def _prepare(
+    url: str,
+    engine: Engine,
+    names: list[str],
+    own: list[str],
+    start: datetime,
+    now: datetime,
+    seed: int,
+    copy_days: int,
+) -> dict[str, Any]:
+    """Fill the database and sum it as a running server has by ``now``; what it took."""
+    out: dict[str, Any] = {}
+    sessions = make_sessions(engine)
     t0 = time.perf_counter()
     samples = fill(url, own, start, now - timedelta(minutes=1), seed)
     out["fill_s"] = round(time.perf_counter() - t0, 1)
@@ -324,16 +419,25 @@ def run(
     t0 = time.perf_counter()
     HourSummer(sessions, names, CAL).sum_now(now)
     out["sum_days_s"] = round(time.perf_counter() - t0, 1)
+    out |= floor_data(url, names, now)
     # what autovacuum has done by then on a server: the planner knows the sizes, and on
     # PostgreSQL the summed tables are marked all-visible (an index alone answers)
     with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
         conn.execute(text("VACUUM ANALYZE" if engine.dialect.name == "postgresql" else "ANALYZE"))
-    with engine.connect() as conn:
-        out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
-        out["hour_rows"] = conn.execute(text("SELECT COUNT(*) FROM utilization_hours")).scalar()
-        out["stretch_rows"] = conn.execute(
-            text("SELECT COUNT(*) FROM utilization_stretches")
-        ).scalar()
+    return out
+
+
+def _questions(
+    url: str,
+    engine: Engine,
+    names: list[str],
+    start: datetime,
+    now: datetime,
+    repeat: int,
+    seed: int,
+    out: dict[str, Any],
+) -> dict[str, Any]:
+    """Time the questions on the filled database."""
     year = (start, now)
     local_now = CAL.local(now)
     midnight = CAL.instant(local_now.date(), datetime.min.time())
@@ -360,12 +464,28 @@ def run(
 
         return work
 
+    def api_oee(span: tuple[datetime, datetime], group: Group, at: datetime) -> Any:
+        """The same with OEE and the downtime reasons (utilization.answer.full_report)."""
+
+        def work(engine: Engine) -> bytes:
+            factory = make_sessions(engine)
+            with factory.begin() as session:
+                sum_safely(session, names, at, CAL)
+            with read_only(factory)() as session:
+                r = report(session, CAL, names, *span, group, now=at, sum_first=False)
+                r.floor = floor_of(session, r, RETENTION, DEFAULT_REASONS, at)
+            return bytes(report_response(r).body)
+
+        return work
+
     gantt = _in_transaction(
         lambda s: buckets(s, names, equal_periods(*week, timedelta(hours=1)), now=now)
     )
     questions: dict[str, tuple[Any, int]] = {
         "year_by_week": (question(year, Group.WEEK, now), repeat),
         "api_year_by_week": (api(year, Group.WEEK, now), repeat),
+        "api_year_by_week_oee": (api_oee(year, Group.WEEK, now), repeat),
+        "api_7_days_by_day_oee": (api_oee(week, Group.DAY, now), repeat),
         "year_by_week_from_hours": (question(year, Group.WEEK, now, days=False), 1),
         "year_by_day": (question(year, Group.DAY, now), repeat),
         "year_by_shift": (question(year, Group.SHIFT, now), repeat),
@@ -401,12 +521,27 @@ def run(
 
 
 def _sqlite(
-    machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
+    machines: int,
+    distinct: int,
+    days: int,
+    repeat: int,
+    seed: int,
+    copy_days: int,
+    db: Path | None = None,
 ) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="opendnc-util-bench-") as tmp:
-        url = f"sqlite:///{Path(tmp) / 'bench.db'}"
-        result = run(url, machines, distinct, days, repeat, seed, copy_days)
+        path = Path(tmp) / "bench.db"
+        prepared = db is not None and db.exists()
+        if prepared:
+            assert db is not None
+            shutil.copyfile(db, path)  # (the questions add an hour: the kept one stays)
+        url = f"sqlite:///{path}"
+        keep = db if db is not None and not prepared else None
+        result = run(
+            url, machines, distinct, days, repeat, seed, copy_days, prepared=prepared, keep=keep
+        )
         result["backend"] = "sqlite"
+        result["reused_db"] = prepared
         return result
 
 
@@ -442,18 +577,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--copy-days",
         type=int,
-        default=2,
-        help="days of samples the copied machines keep (-1: all of them)",
+        default=8,
+        help="days of samples the copied machines keep (-1: all of them; a server keeps 7)",
     )
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=23)
     parser.add_argument("--json", action="store_true", help="one JSON line per backend")
+    parser.add_argument(
+        "--db",
+        type=Path,
+        help="SQLite: a filled database kept here and reused by the next run with the same "
+        "path (the same --machines, --days and --seed)",
+    )
     args = parser.parse_args(argv)
     backends = ["sqlite", "postgresql"] if args.backend == "both" else [args.backend]
     results = []
     for backend in backends:
-        go = _sqlite if backend == "sqlite" else _postgresql
-        result = go(args.machines, args.distinct, args.days, args.repeat, args.seed, args.copy_days)
+        common = (args.machines, args.distinct, args.days, args.repeat, args.seed, args.copy_days)
+        result = _sqlite(*common, db=args.db) if backend == "sqlite" else _postgresql(*common)
         results.append(result)
         if args.json:
             print(json.dumps(result), flush=True)

@@ -16,6 +16,7 @@ from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.library import versions as library
 from opendnc.server.store import audit
 from opendnc.server.store.models import DowntimeReason, PartReport, Role, StandardTime, utcnow
+from opendnc.server.utilization.lost import repick
 from opendnc.server.utilization.sums import as_utc
 
 __all__ = [
@@ -168,6 +169,9 @@ def pick_reason(
             row = DowntimeReason(machine=machine, start=began, reason=chosen, note=text)
             session.add(row)
         row.reason, row.note, row.by, row.at = chosen, text, who.name, utcnow()
+        session.flush()
+        # a stop of a day whose lost time is summed: that day is summed again with it
+        repick(session, svc.runner.config.calendar, machine, began)
         audit.record(
             session,
             who.name,

@@ -401,6 +401,8 @@ class UtilizationStretch(Base):
             postgresql_include=["start", "seconds", "state", "text"],
         ),
         Index("ix_utilization_stretches_machine_seconds", "machine", "kind", "seconds"),
+        # (a stop is named by its start: a reason picked for it finds its length here)
+        Index("ix_utilization_stretches_machine_start", "machine", "kind", "start"),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -491,6 +493,40 @@ class UtilizationDayMark(Base):
     machine: Mapped[str] = mapped_column(String(64), primary_key=True)
     calendar: Mapped[str] = mapped_column(String(64))
     until: Mapped[datetime] = mapped_column(UtcDateTime())
+    # up to which local midnight the stops' lost time per reason is summed (migration 0020):
+    # never past the start of a stop still going; None: not begun
+    lost_until: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+
+
+class UtilizationLostDay(Base):
+    """The stops of one machine that began in one slot of a local day (as in
+    ``utilization_days``), per downtime reason (``reason`` empty: none picked yet): how many
+    and their seconds (server/utilization/lost.py, migration 0020). Summed once every stop
+    that began that day is over; a reason picked later sums the day again."""
+
+    __tablename__ = "utilization_lost_days"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    day: Mapped[date] = mapped_column(Date, primary_key=True)
+    shift: Mapped[str] = mapped_column(String(32), primary_key=True)
+    shift_day: Mapped[date] = mapped_column(Date, primary_key=True)
+    reason: Mapped[str] = mapped_column(String(64), primary_key=True)
+    week: Mapped[date] = mapped_column(Date)
+    stops: Mapped[int] = mapped_column(Integer, default=0)
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class UtilizationLostWeek(Base):
+    """The rows of ``utilization_lost_days`` of one machine and week summed per reason,
+    written when the week's last day is (migration 0020)."""
+
+    __tablename__ = "utilization_lost_weeks"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    week: Mapped[date] = mapped_column(Date, primary_key=True)
+    reason: Mapped[str] = mapped_column(String(64), primary_key=True)
+    stops: Mapped[int] = mapped_column(Integer, default=0)
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)
 
 
 class ClusterServer(Base):

@@ -56,6 +56,7 @@ from opendnc.server.store.models import (
     UtilizationStretch,
 )
 from opendnc.server.utilization.days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
+from opendnc.server.utilization.lost import build_lost, forget_lost
 from opendnc.server.utilization.sums import (
     HOUR,
     RECENT_ALARMS,
@@ -100,6 +101,7 @@ __all__ = [
     "Report",
     "Stretch",
     "buckets",
+    "each_machine",
     "equal_periods",
     "make_bins",
     "marks_of",
@@ -181,7 +183,7 @@ def _chunks(items: Sequence[str], size: int = UNION_CHUNK) -> Iterator[Sequence[
         yield items[i : i + size]
 
 
-def _each(
+def each_machine(
     session: Session,
     make: Callable[[Any], Select[Any]],
     machines: Sequence[str],
@@ -232,7 +234,7 @@ def read_many(
             .limit(1)
         )
 
-    for row in _each(session, before, machines, start=start):
+    for row in each_machine(session, before, machines, start=start):
         out[row[0]].append(point_of_columns(row))
     for chunk in _chunks(machines):
         rows = session.execute(
@@ -286,7 +288,9 @@ def roll(
             written += _roll_machine(session, machine, marks.get(machine), target, last_id)
         if calendar is not None:
             session.flush()
-            build_days(session, calendar, machines, marks_of(session, machines), days)
+            marks = marks_of(session, machines)
+            build_days(session, calendar, machines, marks, days)
+            build_lost(session, calendar, machines, marks, days)
     return written
 
 
@@ -307,6 +311,14 @@ def _rewind(
     first = session.scalar(select(func.min(_AT)).where(StatusSample.machine == machine))
     if first is not None:
         at = max(at, floor_hour(first))
+    # a stop summed again may have begun before ``at``: its day's lost time goes too
+    began = session.scalar(
+        select(func.min(UtilizationStretch.start)).where(
+            UtilizationStretch.machine == machine,
+            UtilizationStretch.kind == "stop",
+            UtilizationStretch.end > at,
+        )
+    )
     session.execute(
         delete(UtilizationHour).where(
             UtilizationHour.machine == machine, UtilizationHour.hour >= at
@@ -318,6 +330,7 @@ def _rewind(
         )
     )
     forget_days(session, calendar, machine, at)
+    forget_lost(session, calendar, machine, min(at, as_utc(began)) if began is not None else at)
     before = read_many(session, [machine], at, at)[machine]
     mark.until = at
     mark.carry = Carry.fresh(before[-1] if before else None).as_json()
@@ -974,11 +987,11 @@ def _stored_stretches(
             .limit(RECENT_ALARMS)
         )
 
-    for r in _each(session, stops, machines):
+    for r in each_machine(session, stops, machines):
         out[r.machine].append(
             Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
         )
-    for r in _each(session, recent, machines):
+    for r in each_machine(session, recent, machines):
         alarms_out[r.machine].recent.append(
             Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
         )

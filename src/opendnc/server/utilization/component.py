@@ -14,6 +14,7 @@ from opendnc.server.core.components import RunsTask
 from opendnc.server.core.shifts import Calendar
 from opendnc.server.utilization.collect import marks_of, roll
 from opendnc.server.utilization.days import build_days
+from opendnc.server.utilization.lost import build_lost
 
 __all__ = ["ROLL_EVERY", "HourSummer"]
 
@@ -56,6 +57,8 @@ class HourSummer(RunsTask):
             written = roll(session, self.machines, now, self.calendar)
         while self.calendar is not None:
             with self.sessions.begin() as session:
-                if not build_days(session, self.calendar, self.machines, marks_of(session)):
+                marks = marks_of(session)
+                built = build_days(session, self.calendar, self.machines, marks)
+                if not built + build_lost(session, self.calendar, self.machines, marks):
                     break
         return written

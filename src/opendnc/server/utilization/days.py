@@ -60,6 +60,8 @@ from opendnc.server.store.models import (
     UtilizationDay,
     UtilizationDayMark,
     UtilizationHour,
+    UtilizationLostDay,
+    UtilizationLostWeek,
     UtilizationMark,
     UtilizationWeek,
 )
@@ -209,8 +211,7 @@ def build_days(
     for machine in names:
         mark = days.get(machine)
         if mark is None or mark.calendar != key:
-            session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
-            session.execute(delete(UtilizationWeek).where(UtilizationWeek.machine == machine))
+            _drop_all(session, machine)
             first = session.scalar(
                 select(func.min(UtilizationHour.hour)).where(UtilizationHour.machine == machine)
             )
@@ -219,6 +220,7 @@ def build_days(
                 mark = UtilizationDayMark(machine=machine)
                 session.add(mark)
             mark.calendar, mark.until = key, _midnight(calendar, begin)
+            mark.lost_until = None  # (utilization/lost.py sums them again)
         since = _day_of(calendar, mark.until)
         until = _day_of(calendar, marks[machine].until)  # its midnight is summed; the day not
         if limit is not None:
@@ -355,6 +357,12 @@ def _build_weeks(
     session.connection().execute(insert(_WEEKS).from_select(columns, query))
 
 
+def _drop_all(session: Session, machine: str) -> None:
+    """Drop every summed day and week of ``machine``, and their lost time."""
+    for table in (UtilizationDay, UtilizationWeek, UtilizationLostDay, UtilizationLostWeek):
+        session.execute(delete(table).where(table.machine == machine))
+
+
 def forget_days(session: Session, calendar: Calendar | None, machine: str, at: datetime) -> None:
     """Drop ``machine``'s days from the one holding ``at`` on (its hours from ``at`` on are
     summed again): they are summed again from the hours when those are. Without the
@@ -363,8 +371,7 @@ def forget_days(session: Session, calendar: Calendar | None, machine: str, at: d
     if mark is None:
         return
     if calendar is None or mark.calendar != calendar_key(calendar):
-        session.execute(delete(UtilizationDay).where(UtilizationDay.machine == machine))
-        session.execute(delete(UtilizationWeek).where(UtilizationWeek.machine == machine))
+        _drop_all(session, machine)
         session.delete(mark)
         return
     day = _day_of(calendar, at)

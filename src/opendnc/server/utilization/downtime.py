@@ -23,6 +23,7 @@ from opendnc.server.utilization.sums import Stretch, as_utc
 __all__ = [
     "ParetoRow",
     "StopWithReason",
+    "order_pareto",
     "pareto",
     "reasons_for",
     "with_reasons",
@@ -99,7 +100,12 @@ def pareto(stops: Iterable[StopWithReason]) -> list[ParetoRow]:
         row.stops += 1
         row.seconds += s.seconds
         row.machines.add(s.machine)
-    ordered = sorted(rows.values(), key=lambda r: (r.reason == NO_REASON, -r.seconds, r.reason))
+    return order_pareto(rows.values())
+
+
+def order_pareto(rows: Iterable[ParetoRow]) -> list[ParetoRow]:
+    """``rows`` longest first, :data:`NO_REASON` last, with their shares filled in."""
+    ordered = sorted(rows, key=lambda r: (r.reason == NO_REASON, -r.seconds, r.reason))
     total = sum(r.seconds for r in ordered)
     running = 0.0
     for r in ordered:

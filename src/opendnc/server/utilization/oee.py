@@ -32,9 +32,10 @@ import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, date, datetime, time, timedelta
+from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Select, func, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
@@ -49,14 +50,15 @@ from opendnc.server.store.models import (
     UtilizationStretch,
     VersionCheck,
 )
-from opendnc.server.utilization.collect import Report, read_many
+from opendnc.server.utilization.collect import Report, each_machine, marks_of, read_many
 from opendnc.server.utilization.downtime import (
     ParetoRow,
     StopWithReason,
-    pareto,
+    order_pareto,
     reasons_for,
     with_reasons,
 )
+from opendnc.server.utilization.lost import Lost, covered_days, lost_of, stops_with_reasons
 from opendnc.server.utilization.sums import (
     Bin,
     Carry,
@@ -307,21 +309,31 @@ class FloorReport:
     standards: dict[str, Standard]
     covered_from: datetime  # runs (performance) are read from here on
     reasons: tuple[str, ...] = ()  # the configured reasons, in their order
+    lost: Lost = field(default_factory=Lost)  # every stop's time per reason
+    period_index: dict[datetime, int] = field(default_factory=dict)  # by a period's start
 
     def lost_by_reason(self, machine: str, period: Period | None = None) -> dict[str, float]:
         """Seconds of the machine's stops per reason (those that began in ``period``, or
         all), every configured reason and :data:`.downtime.NO_REASON` present."""
         out = dict.fromkeys([*self.reasons, NO_REASON], 0.0)
-        m = self.of(machine)
-        for s in m.stops if m is not None else []:
-            if period is None or period.start <= s.stop.start < period.end:
-                name = s.reason or NO_REASON
-                out[name] = out.get(name, 0.0) + s.seconds
+        if period is None:
+            for name, (_stops, seconds) in self.lost.totals.get(machine, {}).items():
+                out[name] = out.get(name, 0.0) + seconds
+            return out
+        i = self.period_index.get(period.start)
+        if i is None:
+            return out
+        for name, seconds in self.lost.periods.get(machine, {}).get(i, {}).items():
+            out[name] = out.get(name, 0.0) + seconds
         return out
 
     def of(self, machine: str) -> MachineFloor | None:
         """The machine's figures."""
         return next((m for m in self.machines if m.machine == machine), None)
+
+
+LIST_ALL = timedelta(days=2, hours=1)  # up to this span every stop is listed (to pick for)
+LISTED = 20  # over a longer span, each machine's longest stops
 
 
 def floor_of(
@@ -334,7 +346,7 @@ def floor_of(
     """OEE, parts, stops and reasons for ``report``'s machines, periods and span."""
     now = now or datetime.now(UTC)
     start, until = report.start, report.until or report.end
-    # runs are followed in the kept samples only; older stops come from the summed stretches
+    # runs are followed in the kept samples only; stops are summed with the hours
     covered = max(start, now - retention)
     periods = report.periods
     names = [m.machine for m in report.machines]
@@ -342,20 +354,19 @@ def floor_of(
     bins = [b for b in bins if b.end > b.start]
     read_from = covered - LOOK_BACK
     points = read_many(session, names, read_from, until) if until > covered else {}
-    picked = reasons_for(session, names, start - LOOK_BACK, until)
     parts = _parts(session, names, periods, start, until)
-    older = _older_stops(session, names, start, covered)
     per_machine = {name: _follow(points.get(name, []), covered, until, bins) for name in names}
     programs = {k for runs, _found in per_machine.values() for r in runs for k in r}
     standards = standards_for(session, programs)
+    stops, days = _stops(session, report, names, {m: f for m, (_r, f) in per_machine.items()})
+    lost = lost_of(
+        session, report.calendar, names, periods, report.group, start, until, days, stops
+    )
+    listed = stops if days is None else _longest(session, names, start, until, stops)
     machines = []
-    everything: list[StopWithReason] = []
     for m in report.machines:
-        runs, found = per_machine[m.machine]
+        runs, _found = per_machine[m.machine]
         by_period, total_runs = _runs_per_period(bins, runs, len(periods))
-        stops = _stops_in(older.get(m.machine, []) + found, start, until)
-        with_reason = with_reasons(m.machine, stops, picked)
-        everything += with_reason
         good_scrap = parts.get(m.machine, {})
         total_good = sum(g for g, _s in good_scrap.values())
         total_scrap = sum(s for _g, s in good_scrap.values())
@@ -367,11 +378,109 @@ def floor_of(
                     oee_of(f, by_period[i], standards, *good_scrap.get(i, (0, 0)))
                     for i, f in enumerate(m.periods)
                 ],
-                with_reason,
+                sorted(listed.get(m.machine, []), key=lambda s: s.stop.start),
                 total_runs,
             )
         )
-    return FloorReport(machines, pareto(everything), standards, covered, tuple(reasons))
+    index = {p.start: i for i, p in enumerate(periods)}
+    return FloorReport(machines, pareto_of(lost), standards, covered, tuple(reasons), lost, index)
+
+
+def _stops(
+    session: Session,
+    report: Report,
+    names: list[str],
+    found: dict[str, list[Stretch]],
+) -> tuple[dict[str, list[StopWithReason]], tuple[date, date] | None]:
+    """Every stop of the span that the summed days of lost time do not hold, with its
+    reason and clipped at the span's end (summed ones and those found in the samples after
+    the summed hours), and those days (None: no days, every stop is here)."""
+    start, until = report.start, report.until or report.end
+    days = None
+    if until - start > LIST_ALL:
+        days = covered_days(session, report.calendar, names, start, until)
+    if days is None:
+        summed = stops_with_reasons(session, names, start, until)
+    else:
+        cal = report.calendar
+        lo, hi = cal.instant(days[0], time(0)), cal.instant(days[1], time(0))
+        summed = stops_with_reasons(session, names, start, until, before=lo, after=hi)
+    marks = marks_of(session, names)
+    later: list[Stretch] = []
+    owner: list[str] = []
+    for name in names:
+        mark = marks.get(name)
+        for s in found.get(name, []):
+            # a stop that ended by the mark is summed (and read above); later ones are not
+            if s.end > start and s.start < until and (mark is None or s.end > mark.until):
+                later.append(s)
+                owner.append(name)
+    picked = (
+        reasons_for(session, sorted(set(owner)), min(s.start for s in later), until)
+        if later
+        else {}
+    )
+    out: dict[str, list[StopWithReason]] = {}
+    for name in names:
+        out[name] = [_clipped(s, until) for s in summed.get(name, [])]
+    for name, s in zip(owner, later, strict=True):
+        out[name] += with_reasons(name, [_clip(s, start, until)], picked)
+    return out, days
+
+
+def _clipped(s: StopWithReason, until: datetime) -> StopWithReason:
+    if s.stop.end <= until:
+        return s
+    return StopWithReason(s.machine, _clip(s.stop, s.stop.start, until), s.reason, s.note, s.by)
+
+
+def _longest(
+    session: Session,
+    names: list[str],
+    start: datetime,
+    until: datetime,
+    stops: dict[str, list[StopWithReason]],
+) -> dict[str, list[StopWithReason]]:
+    """Each machine's :data:`LISTED` longest stops of the span: the summed ones' from their
+    index, with ``stops`` (those outside the summed days)."""
+    t = UtilizationStretch.__table__.c
+
+    def longest(machine: Any) -> Select[Any]:
+        return (
+            select(t.machine, t.start)
+            .where(t.machine == machine, t.kind == "stop", t.end > start, t.start < until)
+            .order_by(t.seconds.desc(), t.start)
+            .limit(LISTED + 1)  # (one of them may end after the span: clipped, shorter)
+        )
+
+    starts: dict[str, set[datetime]] = defaultdict(set)
+    for machine, began in each_machine(session, longest, names):
+        starts[machine].add(as_utc(began))
+    out: dict[str, list[StopWithReason]] = {}
+    for name in names:
+        mine = {s.stop.start: s for s in stops.get(name, [])}
+        wanted = starts.get(name, set()) - set(mine)
+        if wanted:
+            lo, hi = min(wanted), max(wanted) + timedelta(microseconds=1)
+            for s in stops_with_reasons(session, [name], lo, hi).get(name, []):
+                if s.stop.start in wanted:
+                    mine[s.stop.start] = _clipped(s, until)
+        out[name] = sorted(mine.values(), key=lambda s: (-s.seconds, s.stop.start))[:LISTED]
+    return out
+
+
+def pareto_of(lost: Lost) -> list[ParetoRow]:
+    """The Pareto of every stop's lost time per reason (:func:`.downtime.pareto`'s order)."""
+    rows: dict[str, ParetoRow] = {}
+    for machine, by_reason in lost.totals.items():
+        for name, (stops, seconds) in by_reason.items():
+            if stops <= 0:
+                continue
+            row = rows.setdefault(name, ParetoRow(name))
+            row.stops += int(stops)
+            row.seconds += seconds
+            row.machines.add(machine)
+    return order_pareto(rows.values())
 
 
 def _follow(
@@ -396,17 +505,6 @@ def _runs_per_period(
     for r in by_period:
         _merge(total_runs, r)
     return by_period, total_runs
-
-
-def _stops_in(stretches: list[Stretch], start: datetime, until: datetime) -> list[Stretch]:
-    """The stops among ``stretches`` that overlap ``[start, until)``, clipped, oldest first."""
-    stops = [
-        _clip(s, start, until)
-        for s in stretches
-        if s.kind == "stop" and s.end > start and s.start < until
-    ]
-    stops.sort(key=lambda s: s.start)
-    return stops
 
 
 def _merge(into: dict[str, ProgramRuns], more: dict[str, ProgramRuns]) -> None:
@@ -443,21 +541,4 @@ def _parts(
         key = i if 0 <= i < len(periods) and periods[i].start <= at < periods[i].end else None
         good, scrap = out[row.machine].get(key, (0, 0))
         out[row.machine][key] = (good + row.good, scrap + row.scrap)
-    return out
-
-
-def _older_stops(
-    session: Session, machines: Sequence[str], start: datetime, covered: datetime
-) -> dict[str, list[Stretch]]:
-    """The summed stops of ``[start, covered)``: where the samples are no longer kept."""
-    out: dict[str, list[Stretch]] = defaultdict(list)
-    if covered <= start:
-        return out
-    t = UtilizationStretch
-    for row in session.scalars(
-        select(t).where(t.machine.in_(machines), t.kind == "stop", t.end > start, t.start < covered)
-    ):
-        out[row.machine].append(
-            Stretch("stop", as_utc(row.start), as_utc(row.end), State(row.state), row.text)
-        )
     return out

@@ -1,0 +1,138 @@
+"""Lost time per downtime reason summed per day and week (migration 0020) is the sum over
+every stop: random timelines, reasons picked for some stops before the days are summed and
+one after (which sums its day again), and a span of weeks whose stops are mostly read from
+the summed rows. The reference follows every sample of the machine from its first with the
+one state machine of utilization/sums.py and sums each stop by hand."""
+
+from __future__ import annotations
+
+from datetime import UTC, date, datetime, timedelta
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
+
+from opendnc.server.config.downtime import DEFAULT_REASONS, NO_REASON
+from opendnc.server.store.models import DowntimeReason, UtilizationStretch
+from opendnc.server.utilization.collect import Group, read_points, report, sum_safely
+from opendnc.server.utilization.lost import covered_days, repick
+from opendnc.server.utilization.oee import LISTED, floor_of
+from opendnc.server.utilization.sums import Bin, Carry, Stretch, as_utc, open_stretches, sweep
+from tests.server.test_utilization_days import CALENDARS, _names, _store, change
+
+REASONS = DEFAULT_REASONS[:3]
+
+
+def _every_stop(session: Session, machine: str, now: datetime) -> list[Stretch]:
+    """Every stop of the machine up to ``now``, from all of its samples."""
+    points = read_points(session, machine, datetime(2000, 1, 1, tzinfo=UTC), now)
+    if not points:
+        return []
+    carry, found = Carry(), []
+    sweep(points, points[0].at, now, [Bin(points[0].at, now)], carry, found)
+    found += open_stretches(carry, now)
+    return [s for s in found if s.kind == "stop"]
+
+
+@settings(
+    phases=[Phase.explicit, Phase.reuse, Phase.generate],
+    max_examples=6,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(
+    steps=st.lists(change, min_size=40, max_size=160),
+    group=st.sampled_from(list(Group)),
+    first_day=st.integers(0, 3),
+    days=st.integers(6, 20),
+    ongoing=st.booleans(),
+)
+def test_lost_time_per_reason_is_the_sum_over_every_stop(
+    sessions: sessionmaker[Session],
+    steps: list[Any],
+    group: Group,
+    first_day: int,
+    days: int,
+    ongoing: bool,
+) -> None:
+    cal = CALENDARS["berlin-3"]
+    machines = [f"m{next(_names)}", f"n{next(_names)}"]
+    monday = cal.instant(date(2026, 3, 2), datetime.min.time())
+    for i, m in enumerate(machines):
+        # (running at the end: no stop still going keeps the last days from being summed)
+        timeline = [*steps[i:], (60, 0, False, False)]
+        _store(sessions, m, monday - timedelta(hours=30 - 7 * i), timeline, counts=False)
+    start = monday + timedelta(days=first_day, hours=5)
+    # a span that ends in the past, or one that holds now (its last stop still going)
+    end = start + timedelta(days=days, hours=3)
+    now = end - timedelta(hours=20) if ongoing else end + timedelta(days=30)
+    with sessions.begin() as session:
+        sum_safely(session, machines, now)  # the hours: their stops are known
+        stored = session.scalars(
+            select(UtilizationStretch).where(
+                UtilizationStretch.kind == "stop", UtilizationStretch.machine.in_(machines)
+            )
+        ).all()
+        for k, s in enumerate(stored):
+            if k % 2 == 0:
+                session.add(
+                    DowntimeReason(machine=s.machine, start=s.start, reason=REASONS[k % 3], by="t")
+                )
+        later = stored[1] if len(stored) > 1 else None
+    with sessions.begin() as session:
+        sum_safely(session, machines, now, cal)  # the days, their stops' lost time with them
+    if later is not None:  # a reason picked for a stop of a summed day
+        with sessions.begin() as session:
+            session.add(
+                DowntimeReason(machine=later.machine, start=later.start, reason="other", by="t")
+            )
+            session.flush()
+            repick(session, cal, later.machine, as_utc(later.start))
+    with sessions.begin() as session:
+        r = report(session, cal, machines, start, end, group, now=now)
+        until = r.until or r.end
+        floor = floor_of(session, r, timedelta(days=400), (*REASONS, "other"), now)
+        if not ongoing:  # the summed days are read (not every stop one by one)
+            assert covered_days(session, cal, machines, start, until) is not None
+        picked = {
+            (x.machine, as_utc(x.start)): x.reason
+            for x in session.scalars(
+                select(DowntimeReason).where(DowntimeReason.machine.in_(machines))
+            )
+        }
+        every = {m: _every_stop(session, m, now) for m in machines}
+    pareto: dict[str, list[float]] = {}
+    for m in machines:
+        total: dict[str, float] = {}
+        per_period: list[dict[str, float]] = [{} for _ in r.periods]
+        mine = [s for s in every[m] if s.end > start and s.start < until]
+        for s in mine:
+            reason = picked.get((m, s.start), NO_REASON)
+            seconds = (min(s.end, until) - s.start).total_seconds()
+            total[reason] = total.get(reason, 0.0) + seconds
+            row = pareto.setdefault(reason, [0, 0.0])
+            row[0] += 1
+            row[1] += seconds
+            for i, p in enumerate(r.periods):
+                if p.start <= s.start < p.end:
+                    per_period[i][reason] = per_period[i].get(reason, 0.0) + seconds
+        got = {k: v for k, v in floor.lost_by_reason(m).items() if v}
+        assert got == pytest.approx(total, abs=1e-3)
+        for i, p in enumerate(r.periods):
+            got = {k: v for k, v in floor.lost_by_reason(m, p).items() if v}
+            assert got == pytest.approx(per_period[i], abs=1e-3), p.key
+        # the listed stops: the longest of them, whole and with their reasons
+        listed = floor.of(m)
+        assert listed is not None
+        longest = sorted(mine, key=lambda s: (-(min(s.end, until) - s.start), s.start))[:LISTED]
+        assert sorted(s.stop.start for s in listed.stops) == sorted(s.start for s in longest)
+        for s in listed.stops:
+            assert s.reason == picked.get((m, s.stop.start), "")
+    got_pareto = {p.reason: [p.stops, p.seconds] for p in floor.pareto}
+    assert set(got_pareto) == set(pareto)
+    for reason, (count, seconds) in pareto.items():
+        assert got_pareto[reason][0] == count
+        assert got_pareto[reason][1] == pytest.approx(seconds, abs=1e-3)
