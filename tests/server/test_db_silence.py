@@ -238,7 +238,8 @@ def _blocks_of(program: bytes) -> tuple[int, str]:
     """What a Haas runs of ``program`` fed once, in order: its lines but the two "%" and the
     O-number line naming the run (count, SHA-256 of each with LF), from the text itself."""
     lines = program.decode().splitlines()
-    assert lines[0] == "%" and lines[-1] == "%" and lines[1].startswith("O")
+    assert (lines[0], lines[-1]) == ("%", "%")
+    assert lines[1].startswith("O")
     body = lines[2:-1]
     return len(body), hashlib.sha256("".join(f"{b}\n" for b in body).encode()).hexdigest()
 
