@@ -126,3 +126,35 @@ def test_a_machine_with_a_running_job_is_not_handed_over(
     a.renew()
     b.renew()
     assert len(a.held) == len(b.held) == 1
+
+
+def test_a_continuation_goes_to_the_head_of_the_queue_once_the_position_is_in(
+    sessions: sessionmaker[Session],
+) -> None:
+    _shop(sessions)
+    feed = _running(sessions, "mill-2", JobKind.DRIPFEED, "dnc-1")
+    with sessions.begin() as session:
+        version = library.get_version(session, "P1.H", 1)
+        waiting = jobs.enqueue(session, JobKind.SEND, "mill-2", actor="t", version=version).id
+        jobs.take_over(session, "mill-2", "dnc-2")
+        assert jobs.get_job(session, feed).params[jobs.AWAITING_POSITION] == "dnc-1"
+        assert not jobs.position_said(session, feed)
+    with sessions.begin() as session:
+        follow = jobs.resume(session, feed, actor="dnc-1", offset=19, written=b"G1 ", line=2).id
+    with sessions.begin() as session:
+        assert jobs.position_said(session, feed)  # the new server stops waiting
+        cont = jobs.get_job(session, follow)
+        assert cont.params[jobs.RESUME] == {"offset": 19, "written": "473120"}  # "G1 " in hex
+        assert (cont.params[jobs.RESUME_OF], cont.params["from_line"]) == (feed, 2)
+        (row,) = session.scalars(select(AuditEntry).where(AuditEntry.action == "job.resume"))
+        assert (row.actor, row.job_id, row.detail["resume_of"]) == ("dnc-1", follow, feed)
+        # before the load that was queued first
+        claimed = jobs.claim(session, "mill-2", "dnc-2")
+        assert claimed is not None
+        assert claimed.id == follow
+        assert waiting != follow
+        # a person's retry of it starts at its line, never at the old position
+        jobs.fail(session, follow, "broke", retryable=False)
+        again = jobs.retry(session, follow, actor="t")
+        assert jobs.RESUME not in again.params
+        assert jobs.RESUME_OF not in again.params

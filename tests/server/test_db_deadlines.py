@@ -90,3 +90,26 @@ def test_a_silent_transaction_holding_a_lease_row_is_ended_by_the_database(
             cut.execute(text("SELECT 1"))
     finally:
         cut.close()
+
+
+def test_a_connection_returned_after_its_engine_was_disposed_is_closed(pg_url: str) -> None:
+    """Checked out, the engine disposed, handed back later: it goes to the old pool, which
+    nothing uses; left open there it waits for the garbage collector (psycopg's "connection
+    deleted while still open"). It is closed as it comes back."""
+    engine = make_engine(pg_url)
+    try:
+        conn = engine.connect()
+        conn.execute(text("SELECT 1"))
+        raw = conn.connection.dbapi_connection
+        assert raw is not None
+        engine.dispose()  # the old pool is dropped with this connection out
+        assert not raw.closed  # type: ignore[attr-defined]
+        conn.close()
+        assert raw.closed  # type: ignore[attr-defined]
+        # a connection of the new pool is kept open on its return, as pools do
+        with engine.connect() as fresh:
+            kept = fresh.connection.dbapi_connection
+        assert kept is not None
+        assert not kept.closed  # type: ignore[attr-defined]
+    finally:
+        engine.dispose()

@@ -14,6 +14,7 @@ controls (tests/server/db_proxy.py) and virtual controls in this process.
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import re
 import signal
 import threading
@@ -27,7 +28,7 @@ from typing import Any
 import pytest
 
 from tests.peers import require_module
-from tests.server.cluster_support import program
+from tests.server.cluster_support import audit_rows, program
 from tests.server.conftest import _pg_database
 from tests.server.db_proxy import DbProxy
 from tests.server.harness import Procs, auth, create_key, serve, wait_for
@@ -228,6 +229,127 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
             client.close()
         for name in list(procs.procs):
             procs.stop(name, signal.SIGKILL)  # a frozen server's clean stop waits for nothing
+        for proxy in proxies.values():
+            proxy.close()
+        fleet.stop()
+
+
+def _blocks_of(program: bytes) -> tuple[int, str]:
+    """What a Haas runs of ``program`` fed once, in order: its lines but the two "%" and the
+    O-number line naming the run (count, SHA-256 of each with LF), from the text itself."""
+    lines = program.decode().splitlines()
+    assert (lines[0], lines[-1]) == ("%", "%")
+    assert lines[1].startswith("O")
+    body = lines[2:-1]
+    return len(body), hashlib.sha256("".join(f"{b}\n" for b in body).encode()).hexdigest()
+
+
+def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    # a control that waits in DNC mode for the rest (no link alarm within the test)
+    fleet = FleetLoop(
+        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=BLOCKS, dnc_timeout=120
+    )
+    proxies = {name: DbProxy(pg_url) for name in ("dnc-1", "dnc-2")}
+    sampler: Sampler | None = None
+    clients: dict[str, httpx.Client] = {}
+    try:
+        config = _config(fleet.fleet, tmp_path, "resume_wait = 40\n")
+        key = create_key(config, pg_url)
+        with ThreadPoolExecutor(2) as pool:
+            urls = dict(
+                zip(
+                    proxies,
+                    pool.map(
+                        lambda n: serve(
+                            procs, config, proxies[n].url_for(pg_url), "--name", n, name=n
+                        ),
+                        proxies,
+                    ),
+                    strict=True,
+                )
+            )
+        for name, url in urls.items():
+            clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        client = clients["dnc-1"]
+        wait_for(
+            "a server online with the serial Haas",
+            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
+        )
+        job_id = _dripfeed(client, "haas-serial-1")
+        feeding = wait_for(
+            "the feed under way",
+            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
+        )
+        cut = feeding["server"]
+        other = ({"dnc-1", "dnc-2"} - {cut}).pop()
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        sampler = Sampler(lambda: front.dnc_lines)
+        changes = sampler.changes
+        wait_for("blocks reaching the Haas before the cut", lambda: len(changes) > 3)
+        proxies[cut].freeze()
+        owner = wait_for(
+            f"{other} to take the serial Haas",
+            lambda: (o := _lease(pg_url, "haas-serial-1"))[0] == other and o,
+            timeout=LEASE * 6,
+        )
+        taken = owner[1]
+        survivor = clients[other]
+        ended = wait_for(
+            "the survivor to end the feed",
+            lambda: (j := survivor.get(f"/api/jobs/{job_id}").json())["state"] != "running" and j,
+        )
+        assert ended["state"] == "interrupted", ended
+        at_takeover = front.dnc_lines
+        # the cut server comes back: it writes its exact position and queues the rest
+        proxies[cut].restore()
+
+        def continuation() -> dict[str, Any] | None:
+            for job in survivor.get("/api/jobs", params={"machine": "haas-serial-1"}).json():
+                if job["params"].get("resume_of") == job_id:
+                    return job  # type: ignore[no-any-return]
+            return None
+
+        follow = wait_for("the continuation queued", continuation, timeout=30)
+        done = wait_for(
+            "the continuation to end",
+            lambda: (
+                (j := survivor.get(f"/api/jobs/{follow['id']}").json())["state"]
+                not in ("queued", "running")
+                and j
+            ),
+            timeout=60,
+        )
+        assert done["state"] == "done", done
+        assert done["server"] == other
+        count, digest = _blocks_of(PROGRAM)
+        wait_for("every block at the Haas", lambda: front.dnc_lines >= count, timeout=30)
+        sampler.stop()
+        # the whole program once, in order: nothing twice, nothing left out
+        assert front.dnc_lines == count
+        assert front.dnc_sha256.hexdigest() == digest
+        # the cut server's last block came before the take-over, and nothing reached the
+        # control between the take-over and the continuation's start
+        started = datetime.fromisoformat(done["started"]).timestamp()
+        before = [t for t, n in sampler.changes if n <= at_takeover]
+        assert before[-1] < taken, before[-1] - taken
+        between = [(t, n) for t, n in sampler.changes if taken <= t < started and n > at_takeover]
+        assert not between, between
+        (row,) = [r for r in audit_rows(pg_url, "job.resume") if r["job_id"] == follow["id"]]
+        assert row["actor"] == cut
+        print(
+            f"continued at line {follow['params']['from_line']} by {other}: "
+            f"{count} blocks once, in order",
+            flush=True,
+        )
+    finally:
+        if sampler is not None:
+            sampler.stop()
+        for client in clients.values():
+            client.close()
+        for name in list(procs.procs):
+            procs.stop(name, signal.SIGKILL)
         for proxy in proxies.values():
             proxy.close()
         fleet.stop()

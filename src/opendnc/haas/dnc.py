@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from opendnc.errors import SafetyLockError
@@ -33,6 +34,7 @@ from opendnc.haas.dnc_engine import (
     DncStreamer,
     Drain,
     EventHandler,
+    FeedPosition,
     Finish,
     Flow,
     Paused,
@@ -60,6 +62,7 @@ __all__ = [
     "DncStreamer",
     "Drain",
     "EventHandler",
+    "FeedPosition",
     "Finish",
     "Flow",
     "Paused",
@@ -100,12 +103,24 @@ def open_dnc_port(
     )
 
 
-def _prepare(path: Path, from_line: int, config: DncConfig, safe_mode: bool) -> ProgramFeed:
+def _prepare(
+    path: Path,
+    from_line: int,
+    config: DncConfig,
+    safe_mode: bool,
+    resume: FeedPosition | None = None,
+) -> ProgramFeed:
     if safe_mode:
         raise SafetyLockError(f"drip-feeding {path.name} (it runs on the machine)")
     if config.text_check:
         check_program_file(path, action="not drip-fed")
-    return ProgramFeed(path, eob=config.eob, from_line=from_line, retract=config.retract)
+    return ProgramFeed(
+        path,
+        eob=config.eob,
+        from_line=from_line,
+        retract=config.retract,
+        resume_at=resume.offset if resume is not None else None,
+    )
 
 
 def stream_program(
@@ -122,10 +137,17 @@ def stream_program(
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
     clock: Clock = time.monotonic,
+    resume: FeedPosition | None = None,
+    stopped: Callable[[FeedPosition | None], None] | None = None,
 ) -> DncReport:
     """Drip-feed ``path`` to a control in DNC mode over ``port``: a URL or device name
     (opened with :func:`open_dnc_port`, closed at the end) or an open stream (left open;
     its read timeout is changed).
+
+    ``resume`` continues a run stopped at that position (the rest of its line and the lines
+    after, no leader, no opening ``%``; ``from_line`` is then ignored); ``stopped`` is told
+    where a run that ends with an error stopped, or None where that is not exactly known
+    (docs/server.md#a-fenced-drip-feed).
 
     Raises :class:`SafetyLockError` while ``safe_mode`` is on (a DNC run moves the machine),
     :class:`TransportTimeout` when XOFF lasts longer than ``config.xoff_timeout`` or a write
@@ -133,14 +155,24 @@ def stream_program(
     :class:`PeerClosed` when the port fails.
     """
     cfg = config or DncConfig()
-    feed = _prepare(path, from_line, cfg, safe_mode)
+    feed = _prepare(path, from_line, cfg, safe_mode, resume)
 
     def open_port(url: str) -> PortStream:
         return open_dnc_port(
             url, baud, parity=parity, bytesize=bytesize, stopbits=stopbits, flow=cfg.flow
         )
 
-    run = run_on_port(feed, cfg, port, open_port, progress=progress, on_event=on_event, clock=clock)
+    run = run_on_port(
+        feed,
+        cfg,
+        port,
+        open_port,
+        progress=progress,
+        on_event=on_event,
+        clock=clock,
+        skip=resume.written if resume is not None else b"",
+        stopped=stopped,
+    )
     return run.report()
 
 

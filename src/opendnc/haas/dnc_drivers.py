@@ -28,6 +28,7 @@ from opendnc.haas.dnc_engine import (
     DncRun,
     Drain,
     EventHandler,
+    FeedPosition,
     ProgramFeed,
     Progress,
     Send,
@@ -57,9 +58,12 @@ def drive(run: DncRun, stream: PortStream, *, split: Split = hear_all) -> None:
             run.link_closed()
         step = run.next_step()
         if isinstance(step, Send):
+            # a stop inside a write leaves the control an unknown part of the chunk
+            run.writing = True
             stream.write(step.data)
             if step.drain:
                 stream.drain()
+            run.writing = False
         elif isinstance(step, Wait):
             if step.seconds != timeout:
                 timeout = step.seconds
@@ -71,7 +75,9 @@ def drive(run: DncRun, stream: PortStream, *, split: Split = hear_all) -> None:
             except PeerClosed:
                 run.link_closed()
         elif isinstance(step, Drain):
+            run.writing = True
             stream.drain()
+            run.writing = False
         else:
             return
 
@@ -86,10 +92,14 @@ def run_on_port(
     progress: Progress | None = None,
     on_event: EventHandler | None = None,
     clock: Clock = time.monotonic,
+    skip: bytes = b"",
+    stopped: Callable[[FeedPosition | None], None] | None = None,
 ) -> DncRun:
     """Run ``feed`` to its end on ``port``: a URL or device name (opened with ``open_port``,
     closed at the end) or an open stream (left open). ``feed`` is closed whatever happens;
-    the finished run is returned for its report."""
+    the finished run is returned for its report. ``skip``: the bytes a continuation leaves
+    out (:class:`~opendnc.haas.dnc_engine.FeedPosition`); ``stopped`` is told where a run
+    that ends with an error stopped (None: not exactly known)."""
     owned = isinstance(port, str)
     try:
         stream = open_port(port) if isinstance(port, str) else port
@@ -97,8 +107,13 @@ def run_on_port(
         feed.close()
         raise
     try:
-        run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event)
-        drive(run, stream, split=split)
+        run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event, skip=skip)
+        try:
+            drive(run, stream, split=split)
+        except BaseException:
+            if stopped is not None:
+                stopped(run.position())
+            raise
     finally:
         feed.close()
         if owned:

@@ -89,6 +89,18 @@ class Resumed:
 DncEvent = Paused | Resumed
 
 
+@dataclass(frozen=True, slots=True)
+class FeedPosition:
+    """Where a stopped drip-feed is, exactly: the file offset at which the program's next
+    line starts (every line before it reached the control whole) and the wire bytes of that
+    line (or of the closing ``%``) the control already has, since an XOFF can stop a feed in
+    the middle of a line. A continuation reads the file from ``offset``, leaves out
+    ``written`` and sends the rest: no leader, no opening ``%``, nothing twice."""
+
+    offset: int
+    written: bytes = b""
+
+
 class DncStreamer:
     """Sans-IO flow control: ``queue()`` bytes, ``receive_data()`` what the control sends,
     write ``data_to_send()`` (empty while paused); call ``timed_out()`` when ``timer`` ran out.
@@ -189,6 +201,7 @@ class ProgramFeed:
         eob: Eob = Eob.LF,
         from_line: int = 1,
         retract: bool = True,
+        resume_at: int | None = None,
     ) -> None:
         if from_line < 1:
             raise InputError(f"--from-line must be 1 or more, got {from_line}")
@@ -202,6 +215,28 @@ class ProgramFeed:
         self.from_line = from_line
         self.retract = retract
         self.position = 0
+        # A continuation (FeedPosition.offset): the program's opening went out before, so
+        # reading starts at that line, with no "%" and no preamble in front of it.
+        self.resume_at = resume_at
+        self._before = ""  # the last non-blank line before resume_at (is a closing % owed?)
+        if resume_at is not None:
+            if not 0 <= resume_at <= self.total:
+                self._file.close()
+                raise InputError(f"{path.name}: no position {resume_at} in {self.total} bytes")
+            head = self._file.read(resume_at)
+            if head and not head.endswith(b"\n"):
+                self._file.close()
+                raise InputError(f"{path.name}: position {resume_at} is not the start of a line")
+            kept = [t.strip() for t in head.decode("latin-1").splitlines() if t.strip()]
+            self._before = kept[-1] if kept else ""
+            self.position = self.done_at = resume_at
+        # What the item last handed out is: "open" (an added opening %), "preamble" (a
+        # restart's), "line" (a program line), "close" (an added closing %): a position is
+        # only exact after an opening or a program line.
+        self.kind = ""
+        # a line with CR-only ends was split: its parts share one offset, so no offset says
+        # where within it a run stopped
+        self.cr_split = False
         # File offset up to which every line is out once the line last yielded is out: what
         # a run stopped there has done (a restart from the next line skips and repeats
         # nothing). The preamble of a restart has done none of its own line.
@@ -220,6 +255,7 @@ class ProgramFeed:
             self.position += len(raw)
             text = raw.rstrip(b"\r\n").decode("latin-1")
             if "\r" in text:  # old Mac-style files: CR only
+                self.cr_split = True
                 *parts, last = text.split("\r")
                 for part in parts:
                     yield number, part, start
@@ -230,15 +266,16 @@ class ProgramFeed:
     def __iter__(self) -> Iterator[bytes]:
         wire = self.eob.wire
         lines = self._read_lines()
-        opened = False
-        last = ""
-        if self.from_line > 1:
+        opened = self.resume_at is not None
+        last = self._before
+        if self.from_line > 1 and self.resume_at is None:
             state = ModalState()
             before = 0
             for number, text, done in lines:
                 if number >= self.from_line:
                     self.plan = restart_preamble(state, self.from_line, retract=self.retract)
                     self.done_at = before
+                    self.kind = "preamble"
                     for block in self.plan.preamble:
                         self.lines += 1
                         yield block.encode("latin-1") + wire
@@ -247,6 +284,7 @@ class ProgramFeed:
                     if text.strip():
                         last = text.strip()
                         self.lines += 1
+                        self.kind = "line"
                         yield text.encode("latin-1") + wire
                     break
                 before = done
@@ -262,14 +300,17 @@ class ProgramFeed:
                 opened = True
                 if stripped != "%":
                     self.lines += 1
+                    self.kind = "open"
                     yield b"%" + wire
             last = stripped
             self.done_at = done
             self.lines += 1
+            self.kind = "line"
             yield text.encode("latin-1") + wire
         self.done_at = self.position
         if last != "%":
             self.lines += 1
+            self.kind = "close"
             yield b"%" + wire
 
 
@@ -337,9 +378,16 @@ class DncRun:
         clock: Clock = time.monotonic,
         progress: Progress | None = None,
         on_event: EventHandler | None = None,
+        skip: bytes = b"",
     ) -> None:
         self.feed = feed
         self.config = config
+        # a continuation: these first bytes of the stream reached the control before (its
+        # FeedPosition.written), checked against the program and not sent again
+        self.skip = skip
+        # set by a driver while a write or drain is under way: a run stopped then may have
+        # left the control more than ``sent`` says, so it has no exact position
+        self.writing = False
         self.streamer = DncStreamer(config)
         self.clock = clock
         self.progress = progress
@@ -358,17 +406,48 @@ class DncRun:
         self._gap_due = False  # a line just went out whole: its line delay starts next step
         self._gap_until = self.started  # no line before this time (the line delay)
         self._queued = 0  # bytes queued to the streamer so far
-        # (queued bytes at the end of a line, the feed's done_at for it), oldest first: what
-        # progress reports once the streamer has handed those bytes out
-        self._marks: deque[tuple[int, int]] = deque()
+        # (queued bytes at the end of a line, the feed's done_at for it, what the line was),
+        # oldest first: what progress reports once the streamer has handed those bytes out
+        self._marks: deque[tuple[int, int, str]] = deque()
+        self._whole: tuple[int, int, str] | None = None  # the last mark handed out whole
         self._reported = -1
 
     def _wire(self) -> Iterator[bytes]:
+        if self.skip or self.feed.resume_at is not None:
+            yield from self._continued()
+            return
         if self.config.leader:
+            self.feed.kind = "leader"
             yield self.config.leader
         yield from self.feed
         if self.config.trailer:
+            self.feed.kind = "trailer"
             yield self.config.trailer
+
+    def _continued(self) -> Iterator[bytes]:
+        """The stream of a continuation: no leader; the bytes the control has are left out."""
+
+        def rest() -> Iterator[bytes]:
+            yield from self.feed
+            if self.config.trailer:
+                self.feed.kind = "trailer"
+                yield self.config.trailer
+
+        left = self.skip
+        for item in rest():
+            if left:
+                n = min(len(left), len(item))
+                if item[:n] != left[:n]:
+                    raise InputError(
+                        f"{self.feed.path.name}: the bytes the control has at this position "
+                        "are not this program's"
+                    )
+                left, item = left[n:], item[n:]
+                if not item:
+                    continue
+            yield item
+        if left:
+            raise InputError(f"{self.feed.path.name}: the position is past the program's end")
 
     def fill(self) -> None:
         """Read program lines until a few chunks are queued (constant memory); with a line
@@ -390,7 +469,7 @@ class DncRun:
             return
         self.streamer.queue(line)
         self._queued += len(line)
-        self._marks.append((self._queued, self.feed.done_at))
+        self._marks.append((self._queued, self.feed.done_at, self.feed.kind))
 
     def _report_progress(self) -> None:
         """Progress for the lines the driver has written whole (it calls :meth:`next_step`
@@ -398,7 +477,8 @@ class DncRun:
         run stopped from the callback names the first line the control did not get whole."""
         done = None
         while self._marks and self._marks[0][0] <= self.streamer.sent:
-            done = self._marks.popleft()[1]
+            self._whole = self._marks.popleft()
+            done = self._whole[1]
         if done is not None and done != self._reported and self.progress is not None:
             self._reported = done
             self.progress(done, self.feed.total)
@@ -486,6 +566,47 @@ class DncRun:
         if now >= self._deadline:
             self.streamer.timed_out()
         return max(0.001, min(POLL, self._deadline - now))
+
+    def position(self) -> FeedPosition | None:
+        """Where a run stopped before its end, exactly (:class:`FeedPosition`), or None where
+        that is not known: a stop inside a write, the leader, the opening ``%`` or a restart's
+        preamble, or a file with CR-only line ends."""
+        if self.writing or self.feed.cr_split or self.finished:
+            return None
+        sent = self.streamer.sent
+        whole = self._whole
+        for mark in self._marks:
+            if mark[0] > sent:
+                break
+            whole = mark
+        if whole is None or whole[2] not in ("open", "line"):
+            return None
+        ended, offset, _kind = whole
+        written = sent - ended
+        if written:
+            # the bytes of the next item the control has: from the stream handed out, which
+            # the streamer no longer holds, so rebuilt from the program itself
+            nxt = next((m for m in self._marks if m[0] > sent), None)
+            if nxt is None or nxt[2] not in ("line", "close", "trailer"):
+                return None
+            item = self._item_at(offset, nxt[2])
+            if item is None:
+                return None
+            return FeedPosition(offset, item[:written])
+        return FeedPosition(offset)
+
+    def _item_at(self, offset: int, kind: str) -> bytes | None:
+        """The wire bytes of the item after ``offset`` (the next non-blank program line, the
+        added closing ``%`` or the trailer), read again from the file."""
+        if kind == "trailer":
+            return self.config.trailer
+        with self.feed.path.open("rb") as file:
+            file.seek(offset)
+            for raw in file:
+                text = raw.rstrip(b"\r\n")
+                if text.strip():
+                    return (text if kind == "line" else b"%") + self.feed.eob.wire
+        return b"%" + self.feed.eob.wire if kind == "close" else None
 
     def report(self) -> DncReport:
         """What the run did."""

@@ -230,6 +230,7 @@ def _runner(
             worker=config.server.name,
             sweep_interval=sweep_interval,
             retry_backoff=retry_backoff,
+            resume_wait=config.server.resume_wait,
         )
     )
 

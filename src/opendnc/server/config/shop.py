@@ -13,6 +13,7 @@ Example::
     name = "dnc-1"                         # names this process's claims in a shared database
     lease_seconds = 10                     # several servers: a dead one's machines move after this
     cluster = true                         # PostgreSQL: false for a lone server (no fencing)
+    resume_wait = 60                       # a feed taken over: seconds its position is awaited
 
     [library]
     path = "programs"                      # the watched library folder
@@ -213,6 +214,9 @@ class ServerConfig:
     # PostgreSQL: share the database with other servers (leases, fencing); False: the only
     # server, which drives its machines through a database outage (docs/server.md)
     cluster: bool = True
+    # seconds a machine taken over mid-feed stays silent waiting for the fenced server's
+    # exact position (docs/server.md#a-fenced-drip-feed)
+    resume_wait: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -568,6 +572,7 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
             "timezone",
             "lease_seconds",
             "cluster",
+            "resume_wait",
         },
     )
     bind = _get(table, "server", "bind", str, "127.0.0.1:8000")
@@ -594,7 +599,11 @@ def _server(table: dict[str, Any], base: Path) -> ServerConfig:
     if not 0.5 <= lease <= 300:
         raise ConfigError("server.lease_seconds", "expected seconds between 0.5 and 300")
     cluster = _get(table, "server", "cluster", bool, True)
+    resume_wait = _get(table, "server", "resume_wait", float, 60.0)
+    if not 0 <= resume_wait <= 3600:
+        raise ConfigError("server.resume_wait", "expected seconds between 0 and 3600")
     return ServerConfig(
+        resume_wait=float(resume_wait),
         cluster=bool(cluster),
         bind_host=host.strip("[]"),
         bind_port=int(port_text),

@@ -160,6 +160,11 @@ class Fleet:
     async def _serve(self, state: MachineState, connector: Connector) -> None:
         loop = asyncio.get_running_loop()
         while True:
+            if state.awaiting_position is not None:
+                # taken over mid-feed: the control may still wait in DNC mode for the rest,
+                # so nothing is said to it (no poll, no listening) until the old server's
+                # position is in or the wait is over (docs/server.md#a-fenced-drip-feed)
+                await self.runner.await_position(state)
             if state.wake.is_set():
                 state.wake.clear()
                 await self.runner.run_due(state, connector)

@@ -20,8 +20,9 @@ from typing import Any, Protocol
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError, InputError, TransferError
+from opendnc.haas.dnc_engine import FeedPosition
 from opendnc.server.core.events import TransferProgress, stored_progress
-from opendnc.server.jobs.queue import TAKEN_OVER_FROM
+from opendnc.server.jobs.queue import RESUME, TAKEN_OVER_FROM
 from opendnc.server.kinds.connector import Connector, JobCancelled
 from opendnc.server.kinds.files import browser_of, check_path
 from opendnc.server.library import inbox
@@ -44,6 +45,7 @@ __all__ = [
     "SendExecutor",
     "default_executors",
     "held_at_control",
+    "position_of",
 ]
 
 log = logging.getLogger(__name__)
@@ -53,12 +55,27 @@ PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
 
 class DripFeedBroken(DncError):
     """A drip-feed stopped; ``line`` is the program line it had reached, ``nbytes`` the
-    program bytes it had fed to get there."""
+    program bytes it had fed to get there, ``position`` where exactly it stopped when the
+    connector knows (what a continuation starts from: docs/server.md#a-fenced-drip-feed)."""
 
-    def __init__(self, reason: str, line: int, nbytes: int = 0) -> None:
+    def __init__(
+        self, reason: str, line: int, nbytes: int = 0, position: FeedPosition | None = None
+    ) -> None:
         super().__init__(reason)
         self.line = line
         self.nbytes = nbytes
+        self.position = position
+
+
+def position_of(params: dict[str, Any]) -> FeedPosition | None:
+    """The position a continuation job starts from (its ``params``), or None."""
+    found = params.get(RESUME)
+    if not isinstance(found, dict):
+        return None
+    try:
+        return FeedPosition(int(found["offset"]), bytes.fromhex(str(found.get("written", ""))))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"a continuation's position is not readable: {found!r}") from exc
 
 
 @dataclass(frozen=True)
@@ -232,6 +249,17 @@ class DripFeedExecutor(_Base):
         """Feed from the job's start line; a cancel stops it within one chunk."""
         job, state = run.job, run.state
         from_line = int(job.params.get("from_line", 1))
+        resume = position_of(job.params)
+        # where the feed stopped, when the connector can say (a fenced feed is continued
+        # from there on the machine's next server)
+        stops: list[FeedPosition | None] = []
+        extra: dict[str, Any] = {}
+        if getattr(run.connector, "resumes_feeds", False):
+            extra["stopped"] = stops.append
+            if resume is not None:
+                extra["resume"] = resume
+        elif resume is not None:
+            raise InputError(f"{state.config.name}: this control's feeds cannot be continued")
         reached = [from_line]
         fed = [0]
 
@@ -250,9 +278,11 @@ class DripFeedExecutor(_Base):
 
         await run.safe_point("before the feed")
         try:
-            counts = await run.connector.dripfeed(job.name, job.data, from_line, progress)
+            counts = await run.connector.dripfeed(job.name, job.data, from_line, progress, **extra)
         except Exception as exc:
-            raise DripFeedBroken(str(exc) or type(exc).__name__, reached[0], fed[0]) from exc
+            where = stops[-1] if stops else None
+            why = str(exc) or type(exc).__name__
+            raise DripFeedBroken(why, reached[0], fed[0], where) from exc
         # Progress and the job's bytes are bytes of the stored program (from the start line),
         # as for every job; what went over the wire (EOB, leader, restart preamble) is kept
         # beside them in the audit row.

@@ -42,7 +42,10 @@ from opendnc.server.store.models import (
 from opendnc.server.store.notify import Topic, notify
 
 __all__ = [
+    "AWAITING_POSITION",
     "LOADS",
+    "RESUME",
+    "RESUME_OF",
     "TAKEN_OVER_FROM",
     "NotReleased",
     "cancel",
@@ -58,8 +61,10 @@ __all__ = [
     "machines_with_due_jobs",
     "move",
     "note_progress",
+    "position_said",
     "queue_lengths",
     "recover",
+    "resume",
     "retry",
     "sync_machines",
     "take_over",
@@ -77,6 +82,16 @@ writing again (docs/server.md#jobs-in-a-cluster)."""
 
 TAKEN_OVER_FROM = "taken_over_from"
 """The ``params`` key of a load queued again by a take-over: the server that had it running."""
+
+RESUME = "resume"
+"""The ``params`` key of a drip-feed's continuation: ``{"offset": file offset of the line it
+starts at, "written": hex of that line's wire bytes the control has}``
+(:class:`opendnc.haas.dnc_engine.FeedPosition`)."""
+RESUME_OF = "resume_of"
+"""The ``params`` key of a continuation: the fenced drip-feed it continues."""
+AWAITING_POSITION = "awaiting_position"
+"""The ``params`` key of a drip-feed a take-over ended: the server that was feeding it, whose
+exact position the machine's new server waits for (removed once that server has said it)."""
 
 DEFAULT_ATTEMPTS = {
     JobKind.SEND: 3,
@@ -374,6 +389,10 @@ def take_over(session: Session, machine: str, server: str, keep: Iterable[int] =
             where = f" at line {job.line}" if job.line else ""
             job.error = f"{was} stopped while feeding{where}; {server} took the machine over"
             result = "interrupted"
+            # The line noted every half second is a lower bound: never fed from. A fenced
+            # server knows its exact position and writes it once it reaches the database;
+            # the machine's new server waits for that word (a new dict: see below).
+            job.params = {**job.params, AWAITING_POSITION: was}
         else:
             job.state = JobState.QUEUED
             job.not_before = None
@@ -401,6 +420,73 @@ def take_over(session: Session, machine: str, server: str, keep: Iterable[int] =
         )
         ended.append(job)
     return ended
+
+
+def resume(
+    session: Session,
+    job_id: int,
+    *,
+    actor: str,
+    offset: int,
+    written: bytes,
+    line: int,
+) -> Job:
+    """Queue the continuation of drip-feed ``job_id`` (ended: a fence stopped it) at the head
+    of its machine's queue: the rest of the line at file ``offset`` (``written``: its bytes
+    the control already has) and the lines after, no leader, no ``%``. ``line`` is the
+    program line it starts in. Audited ``job.resume``; the old job no longer awaits its
+    position (:data:`AWAITING_POSITION`)."""
+    old = get_job(session, job_id)
+    if old.kind is not JobKind.DRIPFEED or old.version is None:
+        raise Conflict(f"job {job_id} is no drip-feed: nothing to continue")
+    if old.state in (JobState.QUEUED, JobState.RUNNING):
+        raise Conflict(f"job {job_id} is {old.state.value}: nothing to continue yet")
+    params = {k: v for k, v in old.params.items() if k not in (AWAITING_POSITION, TAKEN_OVER_FROM)}
+    old.params = params  # a new dict: the JSON column sees a changed value
+    params = {
+        **params,
+        "from_line": line,
+        RESUME: {"offset": offset, "written": written.hex()},
+        RESUME_OF: job_id,
+    }
+    first = session.scalar(
+        select(func.min(Job.position)).where(
+            Job.machine == old.machine, Job.state == JobState.QUEUED
+        )
+    )
+    job = Job(
+        kind=JobKind.DRIPFEED,
+        machine=old.machine,
+        state=JobState.QUEUED,
+        position=(first if first is not None else 1.0) - 1.0,  # before every queued job
+        version=old.version,
+        params=params,
+        max_attempts=1,
+        created_by=actor,
+    )
+    session.add(job)
+    session.flush()
+    audit.record(
+        session,
+        actor,
+        "job.resume",
+        machine=old.machine,
+        job_id=job.id,
+        resume_of=job_id,
+        line=line,
+        offset=offset,
+        written=len(written),
+        **_program_fields(old),
+    )
+    notify(session, Topic.JOB, old.machine)
+    return job
+
+
+def position_said(session: Session, job_id: int) -> bool:
+    """True once drip-feed ``job_id`` no longer awaits its old server's exact position
+    (written, or said not to be known, or never awaited)."""
+    params = session.scalar(select(Job.params).where(Job.id == job_id))
+    return params is None or AWAITING_POSITION not in params
 
 
 def machines_running(session: Session, machines: Sequence[str]) -> set[str]:
@@ -543,6 +629,9 @@ def retry(session: Session, job_id: int, *, actor: str, from_line: int | None = 
         )
     params = dict(old.params)
     params.pop(TAKEN_OVER_FROM, None)  # a person asks for a load: it is sent, not first asked
+    # a person's restart starts at a line, never at a fenced feed's old position
+    for key in (RESUME, RESUME_OF, AWAITING_POSITION):
+        params.pop(key, None)
     if from_line is not None:
         if old.kind is not JobKind.DRIPFEED:
             raise InputError("only a drip-feed restarts from a line")

@@ -26,6 +26,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
+import socket
+import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol, TypeVar
@@ -60,7 +63,7 @@ from opendnc.server.machines.leases import holds
 from opendnc.server.machines.state import Machines, MachineState
 from opendnc.server.store import audit
 from opendnc.server.store.db import read_only
-from opendnc.server.store.models import Job, JobKind, JobState
+from opendnc.server.store.models import ClusterServer, Job, JobKind, JobState
 
 __all__ = ["Fence", "Fenced", "JobRunner", "LeaseLost", "database_down"]
 
@@ -71,6 +74,10 @@ CANCEL_POLL = 0.5  # seconds between two reads of a running job's cancel flag
 RETRY_FIRST = 0.2  # seconds before the first retry of a write the database refused
 RETRY_MAX = 5.0
 SETTLE_WAIT = 2.0  # seconds a machine's task waits for a job's end to be written
+RESUME_WAIT = 60.0
+"""Seconds a machine taken over in the middle of a drip-feed waits, silent, for the exact
+position of the server that fed it (``[server] resume_wait``)."""
+POSITION_POLL = 0.5  # seconds between two looks for that position
 
 
 class LeaseLost(DncError):
@@ -113,6 +120,7 @@ class JobRunner:
         sweep_interval: float = 5.0,
         retry_backoff: float = 2.0,
         cancel_poll: float = CANCEL_POLL,
+        resume_wait: float = RESUME_WAIT,
     ) -> None:
         self.machines = machines
         self.sessions = sessions
@@ -123,6 +131,9 @@ class JobRunner:
         self.sweep_interval = sweep_interval
         self.retry_backoff = retry_backoff
         self.cancel_poll = cancel_poll
+        # seconds a machine taken over mid-feed stays silent waiting for the old server's
+        # exact position (docs/server.md#a-fenced-drip-feed)
+        self.resume_wait = resume_wait
         self.database_error = ""  # the last database failure, until the next success
         self.outages: Counter[str] = Counter()  # failed database work, by what it was doing
         self.running: dict[int, JobRun] = {}  # the jobs this process runs now, by id
@@ -434,41 +445,79 @@ class JobRunner:
         # Paused at a block boundary: the line is exact here. It is written (fenced) once the
         # database answers, if this server still holds the lease then; a server that took
         # the machine meanwhile ends the job at the last line this one wrote.
-        line, nbytes = exc.line, exc.nbytes
-        reason = (
-            f"paused at line {line}: {self.worker} lost touch with the database and stopped "
-            f"driving {machine} (restart from there)"
-        )
+        line, nbytes, position = exc.line, exc.nbytes, exc.position
+        if position is not None:
+            reason = (
+                f"paused at line {line}: {self.worker} lost touch with the database and stopped "
+                f"driving {machine}; continued from there by the machine's next server"
+            )
+        else:
+            reason = (
+                f"paused at line {line}: {self.worker} lost touch with the database and stopped "
+                f"driving {machine} (restart from there)"
+            )
         log.warning(
-            "job %d: drip-feed paused at line %d (%s stopped driving %s)",
+            "job %d: drip-feed paused at line %d (%s stopped driving %s)%s",
             job_id,
             line,
             self.worker,
             machine,
+            "" if position is not None else "; its exact position is not known",
         )
+
+        def continue_it(session: Session) -> None:
+            # The fenced feed's word on where it stopped: the continuation at the head of the
+            # queue (whoever holds the machine runs it), or, without an exact position, the
+            # job left for an operator. Either way its next server stops waiting for it.
+            if position is not None:
+                jobs.resume(
+                    session,
+                    job_id,
+                    actor=self.worker,
+                    offset=position.offset,
+                    written=position.written,
+                    line=line,
+                )
+                return
+            job = jobs.get_job(session, job_id)
+            if jobs.AWAITING_POSITION in job.params:
+                job.params = {k: v for k, v in job.params.items() if k != jobs.AWAITING_POSITION}
 
         def correct(session: Session) -> JobState:
             # Another server took the machine meanwhile and ended the job at the last line
             # this one managed to write down (it writes every half second, and not at all
             # while the database is silent): the control has more, up to `line`. A restart
             # from the older line would run those blocks twice.
+            session.get(Job, job_id, with_for_update=True)  # one writer: a take-over locks it
             job = jobs.get_job(session, job_id)
-            if job.state is not JobState.INTERRUPTED or (job.line or 0) >= line:
+            if job.state is JobState.RUNNING and job.claimed_by == self.worker:
+                # the lease went before its new server took the job over: ended here, at
+                # the exact line (that server then finds nothing to take over)
+                ended = jobs.fail(
+                    session, job_id, reason, retryable=False, line=line, nbytes=nbytes
+                )
+                continue_it(session)
+                return ended.state
+            if job.state is not JobState.INTERRUPTED:
                 return job.state
-            recorded = job.line
-            job.line, job.bytes_done = line, nbytes
-            job.error = f"{reason}; it had been recorded at line {recorded}"
-            audit.record(
-                session,
-                self.worker,
-                "job.paused",
-                machine=machine,
-                job_id=job_id,
-                result=job.state.value,
-                nbytes=nbytes,
-                line=line,
-                recorded=recorded,
-            )
+            awaited = jobs.AWAITING_POSITION in job.params
+            if (job.line or 0) < line:
+                recorded = job.line
+                job.line, job.bytes_done = line, nbytes
+                job.error = f"{reason}; it had been recorded at line {recorded}"
+                audit.record(
+                    session,
+                    self.worker,
+                    "job.paused",
+                    machine=machine,
+                    job_id=job_id,
+                    result=job.state.value,
+                    nbytes=nbytes,
+                    line=line,
+                    recorded=recorded,
+                )
+            if awaited:
+                continue_it(session)
             return job.state
 
         def pause(session: Session) -> JobState:
@@ -477,6 +526,8 @@ class JobRunner:
                 return correct(session)  # ended by the machine's next server meanwhile
             self._check_lease(session, machine, self._epochs.get(job_id))
             ended = jobs.fail(session, job_id, reason, retryable=False, line=line, nbytes=nbytes)
+            if position is not None:
+                continue_it(session)  # this server runs it itself once it serves again
             return ended.state
 
         self._settle_later(run, None, pause, {"error": reason}, or_else=correct)
@@ -686,14 +737,20 @@ class JobRunner:
         # drip-feed's exact line, a finished load's "done"): never handed back
         keep = set(self.running) | self._unsettled
 
+        waits: dict[str, tuple[int, str]] = {}  # machine -> (drip-feed, its server)
+
         def adopt(session: Session) -> list[JobFinished]:
             out: list[JobFinished] = []
+            waits.clear()
             # one query for all: usually few of them have a job left running
             busy = jobs.machines_running(session, list(epochs))
             for machine, epoch in sorted(epochs.items()):
                 if machine not in busy or not holds(session, machine, self.worker, epoch):
                     continue
                 for job in jobs.take_over(session, machine, self.worker, keep):
+                    was = job.params.get(jobs.AWAITING_POSITION)
+                    if was is not None:
+                        waits[machine] = (job.id, str(was))
                     version = job.version
                     out.append(
                         JobFinished(
@@ -708,12 +765,73 @@ class JobRunner:
                     )
             return out
 
-        for event in await asyncio.to_thread(self._transaction, adopt):
+        events = await asyncio.to_thread(self._transaction, adopt)
+        until = time.monotonic() + self.resume_wait
+        for machine, (job_id, was) in waits.items():
+            state = self.machines.get(machine)
+            if state is not None and self.resume_wait > 0:
+                # its task starts after this: it waits, silent, for the exact position
+                state.awaiting_position = (job_id, was, until)
+        for event in events:
             log.warning("job %d of %s taken over: %s", event.job_id, event.machine, event.outcome)
             self.machines.bus.publish(event)
             if event.outcome is JobState.QUEUED:
                 fields = (event.job_id, event.machine, event.job_kind, event.program)
                 self.machines.bus.publish(JobQueued(*fields, event.version, by=self.worker))
+
+    async def await_position(self, state: MachineState) -> None:
+        """Wait, with the machine's port silent, until the drip-feed a take-over ended there
+        has its old server's word on where it stopped (a continuation queued, or no position
+        known), at most ``resume_wait`` seconds; sooner when the database shows that server
+        gone (started again, or its process dead on this host). A control left in DNC mode
+        would take a status poll or a listener's NAK as program input."""
+        waiting = state.awaiting_position
+        if waiting is None:
+            return
+        job_id, was, until = waiting
+        name = state.config.name
+        log.info(
+            "%s: waiting up to %.0f s for %s's position of job %d",
+            name,
+            max(0.0, until - time.monotonic()),
+            was,
+            job_id,
+        )
+        why = ""
+        while not why:
+            left = until - time.monotonic()
+            if left <= 0:
+                why = f"no word from {was} within {self.resume_wait:g} s"
+                break
+            try:
+                why = await asyncio.to_thread(self._position_news, job_id, was)
+            except Exception as exc:
+                if not database_down(exc):
+                    raise
+                self._trouble(f"waiting for the position of job {job_id}", exc)
+            if not why:
+                # a continuation queued by any server wakes the machine at once
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(min(POSITION_POLL, max(0.0, left))):
+                        await state.wake.wait()
+        state.awaiting_position = None
+        state.wake.set()  # the queue at once: a continuation is at its head
+        log.info("%s: done waiting for job %d's position: %s", name, job_id, why)
+
+    def _position_news(self, job_id: int, was: str) -> str:
+        """Why the wait for job ``job_id``'s position is over, or "" to go on waiting."""
+        with self._reads() as session:
+            if jobs.position_said(session, job_id):
+                return f"{was} said where it stopped"
+            finished = session.scalar(select(Job.finished).where(Job.id == job_id))
+            row = session.get(ClusterServer, was)
+            if row is None:
+                return f"{was} left the cluster"
+            if finished is not None and row.started > finished:
+                return f"{was} started again: it knows no position"
+            if row.host == socket.gethostname()[:255] and not _alive(row.pid):
+                return f"{was}'s process is gone"
+            return ""
 
     # -- events ---------------------------------------------------------------------------
 
@@ -734,6 +852,19 @@ class JobRunner:
     def _ended(self, run: JobRun, outcome: JobState, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)
         self.machines.bus.publish(JobFinished(*fields, outcome=outcome, error=error))
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host exists (a permission refusal: it does)."""
+    if pid <= 0:
+        return True  # not known: keep waiting
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
 
 
 def _retrieved(future: asyncio.Future[Any]) -> None:

@@ -50,6 +50,9 @@ class MachineState:
     state_since: datetime | None = None
     errands: Errands = field(default_factory=Errands)  # file browser reads on the connector
     served: bool = True  # False while another server of a cluster serves it (its status read)
+    # A drip-feed a take-over ended here: (job id, the server that fed it, until when on the
+    # monotonic clock its exact position is waited for, silently: no poll, no listening)
+    awaiting_position: tuple[int, str, float] | None = None
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""

@@ -21,6 +21,7 @@ must not stay locked). docs/server.md#database-deadlines.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -95,18 +96,42 @@ def make_engine(url: str) -> Engine:
         )
         event.listen(engine, "connect", _sqlite_pragmas)
         event.listen(engine, "begin", _sqlite_begin)
+        _close_returns_to_disposed_pools(engine)
         return engine
     if parsed.get_backend_name() == "postgresql":
-        return create_engine(
+        engine = create_engine(
             parsed,
             pool_pre_ping=True,
             pool_size=POOL_SIZE,
             max_overflow=MAX_OVERFLOW,
             connect_args=pg_connect_args(dict(parsed.query)),
         )
+        _close_returns_to_disposed_pools(engine)
+        return engine
     raise InputError(
         f"unsupported database {parsed.get_backend_name()!r}: use sqlite or postgresql"
     )
+
+
+_POOL_KEY = "opendnc_pool"  # the id of the pool a connection was checked out of
+
+
+def _close_returns_to_disposed_pools(engine: Engine) -> None:
+    """A connection checked out while its engine was disposed goes back, later, to the old
+    pool, which nothing uses any more: it would stay open there until the garbage collector
+    finds it (psycopg then warns "connection deleted while still open"). It is closed as it
+    comes back instead."""
+
+    def checkout(_dbapi: Any, record: Any, _proxy: Any) -> None:
+        record.info[_POOL_KEY] = id(engine.pool)
+
+    def checkin(dbapi: Any, record: Any) -> None:
+        if dbapi is not None and record.info.get(_POOL_KEY, id(engine.pool)) != id(engine.pool):
+            with contextlib.suppress(Exception):  # closing a broken connection may fail
+                dbapi.close()
+
+    event.listen(engine, "checkout", checkout)
+    event.listen(engine, "checkin", checkin)
 
 
 def pg_connect_args(given: Mapping[str, Any] | None = None) -> dict[str, Any]:

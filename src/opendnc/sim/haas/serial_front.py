@@ -46,6 +46,7 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import enum
+import hashlib
 import queue
 import threading
 import time
@@ -164,6 +165,9 @@ class SerialFrontEnd:
         self.messages: list[str] = []
         self.programs: list[int] = []  # O numbers received into memory, in order
         self.dnc_lines = 0  # blocks handed to the control by DNC runs
+        # a running SHA-256 of those blocks, each with LF after it: a test compares what the
+        # control got, across feeds and servers, with the program once in order
+        self.dnc_sha256 = hashlib.sha256()
         # The first DNC_HEAD blocks of every DNC run, so a test can see how a run began
         # (a restart's preamble); bounded, as a run may be megabytes long.
         self.dnc_heads: list[list[str]] = []
@@ -552,6 +556,8 @@ class _DncRun:
             head = front.dnc_heads[-1]
             head += body[: max(0, DNC_HEAD - len(head))]
             self.fed += len(body)
+            for line in body:
+                front.dnc_sha256.update(line.encode("latin-1") + b"\n")
             front.dnc_lines += len(body)
             if closing:
                 self.ended = True

@@ -35,7 +35,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from opendnc.errors import DncError, InputError, PeerClosed, TransportError, TransportTimeout
-from opendnc.haas.dnc import DncConfig, Flow, stream_program
+from opendnc.haas.dnc import DncConfig, FeedPosition, Flow, stream_program
 from opendnc.haas.listen import CapturedLine
 from opendnc.haas.mdc_client import MdcClient
 from opendnc.haas.textpunch import TextCapture
@@ -106,6 +106,9 @@ class HaasSerialConnector:
     between two listening windows wait in the port's buffer)."""
 
     listens = True
+    resumes_feeds = True
+    """A drip-feed stopped by a fence says where it stopped, and one can continue from there
+    (docs/server.md#a-fenced-drip-feed)."""
 
     def __init__(
         self,
@@ -321,17 +324,30 @@ class HaasSerialConnector:
         raise InputError(f"{self.config.name}: backup is for LSV2 controls")
 
     async def dripfeed(
-        self, name: str, data: bytes, from_line: int, progress: DripProgress
+        self,
+        name: str,
+        data: bytes,
+        from_line: int,
+        progress: DripProgress,
+        *,
+        resume: FeedPosition | None = None,
+        stopped: Callable[[FeedPosition | None], None] | None = None,
     ) -> dict[str, int]:
         """Stream the program with XON/XOFF (the control's DC3 stops us within a chunk);
-        from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`."""
+        from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`; or, with
+        ``resume``, the rest of a fenced feed from its exact position. ``stopped`` is told
+        where a feed that ends with an error stopped (None: not exactly known)."""
         if not self.config.dripfeed:
             raise InputError(
                 f"{self.config.name}: drip-feed is off for this machine "
                 "(it runs the program: set dripfeed = true in its configuration)"
             )
         lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
-        skipped = _line_offset(data, from_line)
+        if resume is not None:
+            from_line = data.count(b"\n", 0, resume.offset) + 1
+            skipped = resume.offset
+        else:
+            skipped = _line_offset(data, from_line)
 
         feed_total = len(data) - skipped
         reached = [from_line]
@@ -355,7 +371,9 @@ class HaasSerialConnector:
 
         try:
             # the machine's dripfeed = true is the opt-in to a run
-            counts = await asyncio.to_thread(self._stream_text, name, data, from_line, on_progress)
+            counts = await asyncio.to_thread(
+                self._stream_text, name, data, from_line, on_progress, resume, stopped
+            )
         except BaseException as exc:
             self._quiet_until = time.monotonic() + self.quiet_after_break
             self._left = _after_feed(name, reached[0], lines, exc)
@@ -368,7 +386,13 @@ class HaasSerialConnector:
         return counts
 
     def _stream_text(
-        self, name: str, data: bytes, from_line: int, progress: Progress
+        self,
+        name: str,
+        data: bytes,
+        from_line: int,
+        progress: Progress,
+        resume: FeedPosition | None = None,
+        stopped: Callable[[FeedPosition | None], None] | None = None,
     ) -> dict[str, int]:
         """Plain text out, as the profile says (a drip-feed or a text load)."""
         stream = self._require()
@@ -382,6 +406,8 @@ class HaasSerialConnector:
                 config=text_config(self.config.profile),
                 safe_mode=False,  # callers decide: a load runs nothing, a drip-feed is opted in
                 progress=progress,
+                resume=resume,
+                stopped=stopped,
             )
         return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
 
