@@ -94,6 +94,7 @@ from opendnc.haas.share import ShareTarget, parse_target
 from opendnc.server.config.alerts import AlertsConfig, parse_alerts
 from opendnc.server.config.clients import ClientLimits, parse_clients
 from opendnc.server.config.downtime import DowntimeConfig, parse_downtime
+from opendnc.server.config.goals import GoalsConfig, parse_goals
 from opendnc.server.core.configkeys import NAME as _NAME
 from opendnc.server.core.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.core.requests import RequestRule, RequestSettings
@@ -216,6 +217,8 @@ class ShopConfig:
     alerts: AlertsConfig | None = None  # [alerts] (server/config/alerts.py)
     # [downtime]: the reasons an operator picks for a stop (server/utilization/downtime.py)
     downtime: DowntimeConfig = field(default_factory=DowntimeConfig)
+    # [goals]: parts per shift or per day of each machine (server/config/goals.py)
+    goals: GoalsConfig = field(default_factory=GoalsConfig)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -253,7 +256,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients", "alerts", "downtime",
+            "mtconnect", "shifts", "clients", "alerts", "downtime", "goals",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -285,6 +288,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     names = {m.name for m in machines}
     alerts = parse_alerts(_table(raw, "alerts"), base, names) if "alerts" in raw else None
     downtime = parse_downtime(_table(raw, "downtime"))
+    goals = parse_goals(_table(raw, "goals"), names, calendar)
     return ShopConfig(
         server=server,
         library=library,
@@ -299,6 +303,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         clients=clients,
         alerts=alerts,
         downtime=downtime,
+        goals=goals,
     )
 
 
