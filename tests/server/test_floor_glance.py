@@ -62,12 +62,12 @@ def test_the_card_and_the_utilization_page_say_the_same(
     assert shift["vf2-long-name-1"] == (8, 40, 20)
     assert shift["lathe-3"][1:] == (None, None)  # no goal, no standard time
     assert re.search(r'data-shift-parts="vf2-long-name-1">.*<strong>8</strong> of 40 parts', cards)
-    assert "20 expected by now · <strong class=\"behind-text\">12 behind</strong>" in cards
+    assert '20 expected by now · <strong class="behind-text">12 behind</strong>' in cards
     # today so far: mill-1 ran 07-09 of 06-10's shift time (50 %), vf2 8 x 20 min (66.7 %);
     # each goal is the whole day's: mill-1 40 + 40 + the night's first 2 of 8 hours (10)
     assert _value(cards, "util", "mill-1") == "50.0 %"
     assert _value(cards, "util", "vf2-long-name-1") == "66.7 %"
-    assert _value(cards, "today-running", "vf2-long-name-1") == "2:40"
+    assert _value(cards, "ran-today", "vf2-long-name-1") == "2:40"
     assert _value(cards, "parts", "mill-1") == "1 / 90"
     assert _value(cards, "parts", "vf2-long-name-1") == "8 / 90"
 

@@ -38,6 +38,7 @@ SHOTS = Path("/tmp/shots-floor")
 WIDTHS = [(1280, 800), (768, 1024)]
 PASSWORDS = {"boss": "boss-secret-1", "op": "op-secret-1", "viewer": "viewer-secret-1"}
 ESTIMATE = 95.0  # seconds: the check's estimate of O1000 stored below
+LONG = "FIXTURE-PLATE-OP10-ROUGHING-AND-FINISHING-OF-BOTH-POCKETS-REV-C.nc"
 
 CONFIG = """
 [server]
@@ -92,27 +93,42 @@ class Served:
     stop_start: datetime  # mill-1's stop that asks for a reason
 
 
+def _sample(machine: str, at: datetime, state: str, count: int | None = None) -> StatusSample:
+    execution = {"running": "ACTIVE", "ready": "READY", "stopped": "FEED_HOLD"}.get(state, "")
+    return StatusSample(
+        machine=machine,
+        at=at,
+        state=state,
+        mode="AUTOMATIC",
+        execution=execution,
+        program="O1000.nc",
+        part_count=count,
+        alarm="1010 SPINDLE OVERLOAD" if state == "alarm" else "",
+    )
+
+
 def _timeline(now: datetime) -> tuple[list[StatusSample], datetime]:
     """The last two hours: mill-1 cycles of 10 min with 2 min between, then a stop of 40
-    minutes still going; vf2 cycles counted by its part counter with a 15 min alarm."""
+    minutes still going; vf2 cycles of 4 min every 5 counted by its part counter, with a
+    15 min alarm."""
     start = now - timedelta(hours=2)
     rows: list[StatusSample] = []
     at = start
     while at < now - timedelta(minutes=40):
-        rows.append(StatusSample(machine="mill-1", at=at, state="running", program="O1000"))
-        rows.append(StatusSample(machine="mill-1", at=at + timedelta(minutes=10), state="ready"))
+        rows.append(_sample("mill-1", at, "running"))
+        rows.append(_sample("mill-1", at + timedelta(minutes=10), "ready"))
         at += timedelta(minutes=12)
     stop = now - timedelta(minutes=40)
-    rows.append(StatusSample(machine="mill-1", at=stop, state="stopped", execution="FEED_HOLD"))
+    rows.append(_sample("mill-1", stop, "stopped"))
     count = 10
     at = start
     while at < now - timedelta(minutes=5):
         if start + timedelta(minutes=50) <= at < start + timedelta(minutes=65):
-            rows.append(StatusSample(machine="vf2", at=at, state="alarm", alarm="1010 SPINDLE OVERLOAD"))
+            rows.append(_sample("vf2", at, "alarm"))
         else:
-            rows.append(StatusSample(machine="vf2", at=at, state="running", program="O1000", part_count=count))
+            rows.append(_sample("vf2", at, "running", count))
             count += 1
-            rows.append(StatusSample(machine="vf2", at=at + timedelta(minutes=4), state="ready", part_count=count))
+            rows.append(_sample("vf2", at + timedelta(minutes=4), "ready", count))
         at += timedelta(minutes=5)
     return rows, stop
 
@@ -131,6 +147,8 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
         version, _ = versions.add_version(
             session, "O1000.nc", b"%\nO1000 (POCKET)\nG0 X0 Y0\nM30\n%\n", author="boss"
         )
+        # a long name: the table wraps it rather than widen the page at 768
+        versions.add_version(session, LONG, b"%\nO2000\nM30\n%\n", author="boss")
         session.flush()
         session.add(VersionCheck(version_id=version.id, limits="", control="fanuc",
                                  facts={"cycle_time_s": ESTIMATE}))  # fmt: skip
@@ -145,7 +163,9 @@ def browser() -> Iterator[Any]:
         yield b
 
 
-def _login(browser: Any, shop: Served, user: str, size: tuple[int, int], path: str) -> tuple[Any, list[str]]:
+def _login(
+    browser: Any, shop: Served, user: str, size: tuple[int, int], path: str
+) -> tuple[Any, list[str]]:
     problems: list[str] = []
     page = watched_page(watched_context(browser, shop.url, problems, size), problems)
     page.goto(shop.url + path)
@@ -171,20 +191,23 @@ def test_the_overview_and_the_wall_show_the_shifts_parts_against_the_goal(
     sync_api.expect(mill.locator("[data-expected]")).to_contain_text("expected by now")
     sync_api.expect(mill.locator(".glance-today")).to_contain_text("Utilization")
     sync_api.expect(page.locator("#glance-vf2 [data-shift-parts]")).to_contain_text("parts")
-    assert page.evaluate(OVERFLOW_JS) <= 0
     page.screenshot(path=str(SHOTS / f"overview-{size[0]}.png"), full_page=True)
+    assert page.evaluate(OVERFLOW_JS) <= 0
     # a live card's change keeps the glance (the stream swaps the card's live part only)
     page.evaluate("""() => document.dispatchEvent(new CustomEvent('htmx:sseBeforeMessage',
         {detail: {type: 'cards', data: document.querySelector('#card-mill-1').outerHTML
                    .replace(/<div class="glance"[\\s\\S]*$/, '</li>')}}))""")
     sync_api.expect(mill).to_have_count(1)
     page.goto(shop.url + "/wall")
-    sync_api.expect(page.locator("#glance-mill-1 [data-shift-parts]")).to_contain_text("of 40 parts")
+    sync_api.expect(page.locator("#glance-mill-1 [data-shift-parts]")).to_contain_text(
+        "of 40 parts"
+    )
     sync_api.expect(page.locator("#glance-mill-1 .glance-today")).to_be_hidden()
     page.screenshot(path=str(SHOTS / f"wall-{size[0]}.png"))
     # the glances are read again by themselves
     again = page.request.get(shop.url + "/floor/glances")
-    assert again.ok and 'id="glance-vf2" hx-swap-oob="outerHTML"' in again.text()
+    assert again.ok
+    assert 'id="glance-vf2" hx-swap-oob="outerHTML"' in again.text()
     assert problems == []
 
 
@@ -198,20 +221,26 @@ def test_an_operator_gives_a_stop_its_reason_on_the_tablet_page(
     sync_api.expect(stop.locator(".no-reason, [data-reason]")).to_have_count(1)
     button = stop.get_by_role("button", name="material")
     box = button.bounding_box()
-    assert box is not None and box["height"] >= 56
-    assert page.evaluate(OVERFLOW_JS) <= 0
+    assert box is not None
+    assert box["height"] >= 56
     page.screenshot(path=str(SHOTS / f"reasons-{size[0]}.png"), full_page=True)
+    assert page.evaluate(OVERFLOW_JS) <= 0
     button.click()
     sync_api.expect(page.get_by_role("status")).to_contain_text("“material” recorded")
     stop = page.locator(f'[data-stop="{shop.stop_start.isoformat()}"]')
     sync_api.expect(stop.locator("[data-reason]")).to_have_text("material")
-    sync_api.expect(stop.get_by_role("button", name="material")).to_have_attribute("aria-pressed", "true")
+    sync_api.expect(stop.get_by_role("button", name="material")).to_have_attribute(
+        "aria-pressed", "true"
+    )
     rows = [a for a in _audit(shop, "downtime.reason") if a.actor == "op"]
-    assert rows and rows[-1].detail["reason"] == "material"
+    assert rows
+    assert rows[-1].detail["reason"] == "material"
     assert problems == []
 
 
-def test_a_viewer_sees_the_reasons_without_buttons_and_cannot_post_one(browser: Any, shop: Served) -> None:
+def test_a_viewer_sees_the_reasons_without_buttons_and_cannot_post_one(
+    browser: Any, shop: Served
+) -> None:
     page, _problems = _login(browser, shop, "viewer", (768, 1024), "/floor/reasons/mill-1")
     sync_api.expect(page.locator(".reason-stop").first).to_be_visible()
     assert page.locator(".reason-button").count() == 0
@@ -234,14 +263,17 @@ def test_an_approver_sets_a_standard_time_seeded_by_the_estimate(
         sync_api.expect(row.locator("[data-standard]")).to_have_text("1:35.0")
         sync_api.expect(field).to_have_value(f"{ESTIMATE:.1f}")
         sync_api.expect(row).to_contain_text("the check's estimate")
-    assert page.evaluate(OVERFLOW_JS) <= 0
+    sync_api.expect(page.locator(f'tr[data-program="{LONG}"]')).to_contain_text("none")
     page.screenshot(path=str(SHOTS / f"standards-{size[0]}-before.png"), full_page=True)
+    assert page.evaluate(OVERFLOW_JS) <= 0
     seconds = "80" if size[0] == 1280 else "75.5"
     field.fill(seconds)
     row.get_by_role("button", name="Set").click()
     sync_api.expect(page.get_by_role("status")).to_contain_text("O1000.nc v1: standard")
     row = page.locator('tr[data-program="O1000.nc"]')
-    sync_api.expect(row.locator("[data-standard]")).to_have_text("1:20.0" if seconds == "80" else "1:15.5")
+    sync_api.expect(row.locator("[data-standard]")).to_have_text(
+        "1:20.0" if seconds == "80" else "1:15.5"
+    )
     sync_api.expect(row).to_contain_text(re.compile(r"set by boss .*estimate 1:35.0"))
     assert page.evaluate(OVERFLOW_JS) <= 0
     page.screenshot(path=str(SHOTS / f"standards-{size[0]}.png"), full_page=True)

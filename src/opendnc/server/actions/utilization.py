@@ -145,9 +145,7 @@ def floor_glance(
     during = None
     if shift is not None:
         config = svc.runner.config
-        during = full_report(
-            svc.sessions, config, names, shift.start, shift.end, Group.SHIFT, now
-        )
+        during = full_report(svc.sessions, config, names, shift.start, shift.end, Group.SHIFT, now)
     out: dict[str, Glance] = {}
     for m in day.machines:
         mf = day.floor.of(m.machine)

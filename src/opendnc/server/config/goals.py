@@ -96,7 +96,9 @@ def parse_goals(table: dict[str, Any], machines: set[str], calendar: Calendar) -
         if name not in machines:
             raise ConfigError(prefix, "no machine of that name is configured")
         if not isinstance(item, dict) or len(item) != 1 or next(iter(item)) not in ("shift", "day"):
-            raise ConfigError(prefix, "expected { shift = N }, { shift = { NAME = N } } or { day = N }")
+            raise ConfigError(
+                prefix, "expected { shift = N }, { shift = { NAME = N } } or { day = N }"
+            )
         if "day" in item:
             out[name] = Goal(per_day=_count(item["day"], f"{prefix}.day"))
             continue

@@ -103,11 +103,11 @@ class ShiftMailer(RunsTask):
         cancelled. Each is claimed first: a report another server sent is not sent here."""
         while True:
             now = datetime.now(UTC)
-            for period in due(self.config, now):
+            for ended in due(self.config, now):
                 try:
-                    await asyncio.to_thread(self.send, period)
+                    await asyncio.to_thread(self.send, ended)
                 except Exception as exc:  # the database away: the next shift's end tries again
-                    log.warning("shift report %s: %s", period.key, type(exc).__name__)
+                    log.warning("shift report %s: %s", ended.key, type(exc).__name__)
             period = next_end(self.config, now)
             if period is None:
                 return  # no shifts
@@ -136,8 +136,7 @@ class ShiftMailer(RunsTask):
             url = ""
             if self.public_url:
                 url = (
-                    f"{self.public_url}/reports/shift?day={sr.day.isoformat()}"
-                    f"&shift={period.shift}"
+                    f"{self.public_url}/reports/shift?day={sr.day.isoformat()}&shift={period.shift}"
                 )
             send_email(self.target, message_of(sr, self.target, self.config.server.name, url))
         except DncError as exc:  # a DeliveryError, or a shift the calendar does not hold
@@ -147,7 +146,9 @@ class ShiftMailer(RunsTask):
             row = session.get(ShiftReportSent, period.key)
             if row is not None:
                 row.state, row.finished, row.error = (
-                    "sent" if result == "ok" else "failed", utcnow(), error
+                    "sent" if result == "ok" else "failed",
+                    utcnow(),
+                    error,
                 )
             audit.record(
                 session, "server", "report.shift", result=result, shift=period.key,

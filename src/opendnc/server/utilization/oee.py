@@ -400,9 +400,7 @@ def floor_of(
                 m.machine,
                 oee_of(m.totals, total_runs, standards, total_good, total_scrap, **whole.of()),
                 [
-                    oee_of(
-                        f, by_period[i], standards, *good_scrap.get(i, (0, 0)), **whole.of(p)
-                    )
+                    oee_of(f, by_period[i], standards, *good_scrap.get(i, (0, 0)), **whole.of(p))
                     for i, (f, p) in enumerate(zip(m.periods, periods, strict=True))
                 ],
                 with_reason,

@@ -35,7 +35,7 @@ def _page(request: Request, page: Page, note: str = "") -> HTMLResponse:
     clock = page.parts.calendar.local
     return html(
         "standards.html", page, request, rows=rows, notice=note, time=seconds_text,
-        when=lambda at: clock(at).strftime("%Y-%m-%d %H:%M") if at is not None else "",
+        when=lambda at: clock(at).strftime("%Y-%m-%d %H:%M %Z") if at is not None else "",
         most=floor.MAX_STANDARD,
     )  # fmt: skip
 

@@ -114,14 +114,14 @@ def gantt_rows(
     machines: list[str],
     periods: list[Period],
     figures: dict[str, list[Figures]],
-    span: tuple[datetime, datetime] | None = None,
+    extent: tuple[datetime, datetime] | None = None,
 ) -> list[GanttRow]:
     """Each machine's slices merged into segments of its dominant state, placed on the
-    row's ``span`` (the slices' own by default). The slices of today end at now while the
+    row's ``extent`` (the slices' own by default). The slices of today end at now while the
     row is the whole day: drawn on their own span they would stretch over the future."""
     if not periods:
         return []
-    start, end = span if span is not None else (periods[0].start, periods[-1].end)
+    start, end = extent if extent is not None else (periods[0].start, periods[-1].end)
     span = (end - start).total_seconds()
     rows = []
     for machine in machines:
