@@ -105,6 +105,18 @@ days = ["mon-sun"]
 """
 
 
+def demo_goals(names: list[str]) -> str:
+    """The demo's ``[goals]``: parts per shift for the first machines, one per day for the
+    next, none for the rest (a card without a goal shows that too)."""
+    lines = ["", "[goals]"]
+    for i, name in enumerate(names):
+        if i % 3 == 0:
+            lines.append(f'"{name}" = {{ shift = {40 + 10 * i} }}')
+        elif i % 3 == 1:
+            lines.append(f'"{name}" = {{ day = {60 + 10 * i} }}')
+    return "\n".join(lines) + "\n"
+
+
 def demo(
     tour: bool = typer.Option(
         False, "--tour", help="The short command-line tour of one virtual TNC and Haas instead."
@@ -221,6 +233,7 @@ def _write_shop(folder: Path, nas: Path, fleet: Fleet, bind: str, zone: str) -> 
         netshare_interval=1.0,
     )
     text += DEMO_SHIFTS  # utilization per shift has something to show
+    text += demo_goals([m.name for m in fleet.machines])  # and every card a goal
     (folder / "shop.toml").write_text(text)
     return text
 

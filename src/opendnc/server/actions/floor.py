@@ -8,15 +8,23 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from opendnc.errors import InputError
 from opendnc.server.actions.base import Caller, Services, require
 from opendnc.server.library import versions as library
 from opendnc.server.store import audit
-from opendnc.server.store.models import DowntimeReason, PartReport, Role, StandardTime, utcnow
+from opendnc.server.store.models import (
+    DowntimeReason,
+    PartReport,
+    Program,
+    Role,
+    StandardTime,
+    utcnow,
+)
 from opendnc.server.utilization.lost import repick
+from opendnc.server.utilization.oee import standards_for
 from opendnc.server.utilization.sums import as_utc
 
 __all__ = [
@@ -26,9 +34,11 @@ __all__ = [
     "PartsOut",
     "ReasonOut",
     "StandardOut",
+    "StandardRow",
     "pick_reason",
     "report_parts",
     "set_standard",
+    "standards",
 ]
 
 MAX_PARTS = 100_000  # parts in one report: more is a typing slip
@@ -66,6 +76,50 @@ class ReasonOut:
     start: datetime
     reason: str
     by: str
+
+
+@dataclass(frozen=True)
+class StandardRow:
+    """One program's standard cycle time as OEE counts it: the version its name stands for
+    (the newest released, else the newest), the time in use and where it comes from."""
+
+    program: str
+    version: int | None
+    seconds: float | None
+    source: str  # "set" (by a supervisor), "estimate" (the check's), "" (none)
+    estimate: float | None  # the check's estimate: what a new standard starts from
+    set_by: str
+    set_at: datetime | None
+
+
+def standards(svc: Services, who: Caller) -> list[StandardRow]:
+    """Every program's standard time (approvers and up: they set them), by name."""
+    require(who, Role.APPROVER)
+
+    def work(session: Session) -> list[StandardRow]:
+        names = list(session.scalars(select(Program.name).order_by(func.lower(Program.name))))
+        found = standards_for(session, names)
+        ids = [s.version_id for s in found.values() if s.source == "set"]
+        who_set = {
+            r.version_id: r
+            for r in session.scalars(select(StandardTime).where(StandardTime.version_id.in_(ids)))
+        }
+        out = []
+        for name in names:
+            std = found.get(name.lower())
+            if std is None:
+                continue
+            row = who_set.get(std.version_id) if std.version_id is not None else None
+            out.append(
+                StandardRow(
+                    std.program, std.version, std.seconds, std.source, std.estimate,
+                    row.set_by if row is not None else "",
+                    as_utc(row.set_at) if row is not None else None,
+                )
+            )  # fmt: skip
+        return out
+
+    return svc.read(work)
 
 
 def _note(note: str) -> str:

@@ -23,8 +23,17 @@ from opendnc.server.utilization.collect import (
     equal_periods,
     sum_safely,
 )
+from opendnc.server.utilization.oee import Oee
 
-__all__ = ["ShopFigures", "days_report", "report_for", "shop_figures"]
+__all__ = [
+    "Glance",
+    "ShopFigures",
+    "current_shift",
+    "days_report",
+    "floor_glance",
+    "report_for",
+    "shop_figures",
+]
 
 
 @dataclass(frozen=True)
@@ -98,3 +107,50 @@ def shop_figures(
         slices = equal_periods(start, shown_end, step)
         figures = buckets(session, names, slices, now=now, sum_first=False)
     return ShopFigures(r, slices, figures)
+
+
+@dataclass(frozen=True)
+class Glance:
+    """One machine at a glance (its card): the shift now with its parts against the goal,
+    and today so far. Both are :func:`days_report`'s and :func:`.answer.full_report`'s
+    figures, the ones the utilization page and the shift report show."""
+
+    machine: str
+    shift: Period | None  # the shift under way (None between shifts or without shifts)
+    shift_oee: Oee | None
+    today: Figures
+    today_oee: Oee
+
+
+def current_shift(svc: Services, now: datetime) -> Period | None:
+    """The shift under way at ``now`` (the one that began last, should two overlap)."""
+    cal = svc.runner.config.calendar
+    under_way = [
+        p for p in cal.shift_periods(now - timedelta(days=1), now + timedelta(seconds=1))
+        if p.start <= now < p.end
+    ]  # fmt: skip
+    return under_way[-1] if under_way else None
+
+
+def floor_glance(
+    svc: Services, who: Caller, names: list[str], now: datetime | None = None
+) -> dict[str, Glance]:
+    """Each machine's glance (viewers): today as the utilization page reads it, and the
+    shift under way as the shift report reads it."""
+    require(who, Role.VIEWER)
+    now = now or datetime.now(UTC)
+    today = svc.runner.config.calendar.local(now).date()
+    day = days_report(svc, who, today, today, Group.DAY, names, now)
+    shift = current_shift(svc, now)
+    during = None
+    if shift is not None:
+        config = svc.runner.config
+        during = full_report(svc.sessions, config, names, shift.start, shift.end, Group.SHIFT, now)
+    out: dict[str, Glance] = {}
+    for m in day.machines:
+        mf = day.floor.of(m.machine)
+        sf = during.floor.of(m.machine) if during is not None else None
+        out[m.machine] = Glance(
+            m.machine, shift, sf.totals if sf is not None else None, m.totals, mf.totals
+        )
+    return out

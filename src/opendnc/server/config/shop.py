@@ -112,6 +112,7 @@ from opendnc.server.config.ftp_server import (
     parse_ftp_server,
     with_account_folders,
 )
+from opendnc.server.config.goals import GoalsConfig, parse_goals
 from opendnc.server.core.configkeys import NAME as _NAME
 from opendnc.server.core.configkeys import ConfigError, get_key, known_keys, port_range, table_at
 from opendnc.server.core.requests import RequestRule, RequestSettings
@@ -239,6 +240,8 @@ class ShopConfig:
     downtime: DowntimeConfig = field(default_factory=DowntimeConfig)
     # [ftp_server]: for boards that are FTP clients (server/config/ftp_server.py)
     ftp_server: FtpServerConfig | None = None
+    # [goals]: parts per shift or per day of each machine (server/config/goals.py)
+    goals: GoalsConfig = field(default_factory=GoalsConfig)
 
     def machine(self, name: str) -> MachineConfig:
         """The machine called ``name``; :class:`InputError` if there is none."""
@@ -276,7 +279,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         "",
         {
             "server", "library", "machines", "requests", "netshare", "mqtt", "sparkplug",
-            "mtconnect", "shifts", "clients", "alerts", "downtime", "ftp_server",
+            "mtconnect", "shifts", "clients", "alerts", "downtime", "ftp_server", "goals",
         },
     )  # fmt: skip
     server = _server(_table(raw, "server"), base)
@@ -312,6 +315,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
     names = {m.name for m in machines}
     alerts = parse_alerts(_table(raw, "alerts"), base, names) if "alerts" in raw else None
     downtime = parse_downtime(_table(raw, "downtime"))
+    goals = parse_goals(_table(raw, "goals"), names, calendar)
     return ShopConfig(
         server=server,
         library=library,
@@ -327,6 +331,7 @@ def parse_config(text: str, *, base: Path, source: Path | None = None) -> ShopCo
         alerts=alerts,
         downtime=downtime,
         ftp_server=ftp_server,
+        goals=goals,
     )
 
 

@@ -700,3 +700,22 @@ class DowntimeReason(Base):
     note: Mapped[str] = mapped_column(String(200), default="")
     by: Mapped[str] = mapped_column(String(64))
     at: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
+class ShiftReportSent(Base):
+    """A shift report's e-mail claimed by one server before it is sent (migration 0021).
+
+    The row is the claim: the server whose insert goes through sends the report, any other
+    (another server of the cluster, this one after a restart) finds it and does not. ``state``
+    is ``sending`` until the SMTP server answered, then ``sent`` or ``failed``; a server killed
+    in between leaves ``sending``, and that report is not sent again (a second copy is worse
+    than a missing one the audit trail shows: docs/dashboard.md#shift-report)."""
+
+    __tablename__ = "shift_reports"
+
+    shift: Mapped[str] = mapped_column(String(64), primary_key=True)  # "2026-01-05 early"
+    state: Mapped[str] = mapped_column(String(16), default="sending")
+    server: Mapped[str] = mapped_column(String(64), default="")
+    claimed: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+    finished: Mapped[datetime | None] = mapped_column(UtcDateTime(), nullable=True)
+    error: Mapped[str] = mapped_column(Text, default="")

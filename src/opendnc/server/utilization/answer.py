@@ -82,7 +82,9 @@ DEFINITIONS = {
     "performance": "standard cycle time x runs / the running time of those runs",
     "quality": "good parts / parts made (reported, else the control's counter, else runs)",
     "oee": "availability x performance x quality",
-    "goal": "the parts the planned time makes at the standard pace",
+    "goal": "the parts set in [goals] for the period, else those its planned time makes "
+    "at the standard pace",
+    "expected": "the goal's part of the period up to now",
     "lost": "stop time per downtime reason, by the period the stop began in",
 }
 
@@ -181,7 +183,7 @@ def full_report(
     with read_only(sessions)() as session:
         r = report(session, calendar, names, since, until, grouping, now=now, sum_first=False)
         retention = timedelta(days=config.server.timeline_days)
-        r.floor = floor_of(session, r, retention, config.downtime.reasons, now)
+        r.floor = floor_of(session, r, retention, config.downtime.reasons, now, config.goals)
     return r
 
 
@@ -229,6 +231,7 @@ def oee_json(o: Oee) -> dict[str, Any]:
         "parts_good": o.good,
         "parts_scrap": o.scrap,
         "parts_goal": o.goal,
+        "parts_expected": o.expected,
         "missing_standards": list(o.missing),
     }
 

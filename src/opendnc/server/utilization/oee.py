@@ -14,8 +14,10 @@ In our words (ISO 22400's terms):
   reported (:class:`~opendnc.server.store.models.PartReport`) when good ones are, else the
   control's part counter, else the runs; good = made - scrapped;
 * **OEE** = availability x performance x quality;
-* **goal**: the parts the planned time makes at the standard pace (planned time / the mean
-  standard time of what ran).
+* **goal**: the parts a supervisor set for the machine (``[goals]``, per shift or per day,
+  :mod:`opendnc.server.config.goals`), else the parts the planned time makes at the standard
+  pace (planned time / the mean standard time of what ran); always for the whole period,
+  and **expected** the goal of the period's planned time up to now (the same pace).
 
 The standard time of a program version is the one a supervisor set, else the check's
 estimate (``cycle_time_s`` of :mod:`opendnc.nccheck`). A program on the control is the
@@ -39,6 +41,7 @@ from sqlalchemy import Select, func, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
+from opendnc.server.config.goals import Goal, GoalsConfig
 from opendnc.server.core.shifts import Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
@@ -94,6 +97,7 @@ class Standard:
     version: int | None = None
     seconds: float | None = None
     source: str = ""  # set (by a supervisor), estimate (the check's), "" (none)
+    estimate: float | None = None  # the check's estimate, set or not
 
 
 @dataclass
@@ -120,8 +124,9 @@ class Oee:
     scrap: int
     quality: float | None
     oee: float | None
-    goal: int | None
+    goal: int | None  # the whole period's
     missing: tuple[str, ...] = ()  # programs that ran without a standard time
+    expected: int | None = None  # the goal's part of the period up to now
 
 
 def oee_of(
@@ -130,9 +135,14 @@ def oee_of(
     standards: dict[str, Standard],
     good: int = 0,
     scrap: int = 0,
+    *,
+    planned_full: float | None = None,
+    target: tuple[float, float] | None = None,
 ) -> Oee:
     """The OEE of one machine and period from its utilization figures, its runs per program,
-    the standards and the parts reported (docs/dashboard.md#oee)."""
+    the standards and the parts reported (docs/dashboard.md#oee). ``planned_full`` is the
+    whole period's planned time (the figures' up to now by default); ``target`` the
+    configured goal of the whole period and of it up to now (``[goals]``)."""
     planned = figures.scheduled_total
     running = figures.scheduled[State.RUNNING]
     utilization = figures.utilization  # the same figure as the utilization column
@@ -163,7 +173,7 @@ def oee_of(
         if availability is not None and performance is not None and quality is not None
         else None
     )
-    goal = math.floor(planned * counted / ideal) if ideal > 0 and planned > 0 else None
+    goal, expected = _goal(planned, planned_full, counted, ideal, target)
     return Oee(
         planned=planned,
         running=running,
@@ -178,7 +188,27 @@ def oee_of(
         oee=oee,
         goal=goal,
         missing=tuple(missing),
+        expected=expected,
     )
+
+
+def _goal(
+    planned: float,
+    planned_full: float | None,
+    counted: int,
+    ideal: float,
+    target: tuple[float, float] | None,
+) -> tuple[int | None, int | None]:
+    """The goal of the whole period and the part of it expected by now (whole parts: the
+    goal rounded, what is expected by now only once a part is due in full)."""
+    if target is not None:
+        full, so_far = target
+        return round(full), math.floor(so_far + 1e-9)
+    if ideal <= 0 or planned <= 0:
+        return None, None
+    pace = counted / ideal  # parts per planned second at the standard pace
+    whole = planned if planned_full is None else max(planned_full, planned)
+    return math.floor(whole * pace + 1e-9), math.floor(planned * pace + 1e-9)
 
 
 def program_key(name: str) -> str:
@@ -223,10 +253,11 @@ def standards_for(session: Session, names: Iterable[str]) -> dict[str, Standard]
         if check.version_id not in estimates or check.limits == "":
             estimates[check.version_id] = float(seconds)
     for key, (name, vid, number, _released) in chosen.items():
+        guess = estimates.get(vid)
         if vid in set_times:
-            out[key] = Standard(name, vid, number, set_times[vid], "set")
-        elif vid in estimates:
-            out[key] = Standard(name, vid, number, estimates[vid], "estimate")
+            out[key] = Standard(name, vid, number, set_times[vid], "set", guess)
+        elif guess is not None:
+            out[key] = Standard(name, vid, number, guess, "estimate", guess)
         else:
             out[key] = Standard(name, vid, number)
     return out
@@ -342,8 +373,10 @@ def floor_of(
     retention: timedelta,
     reasons: Sequence[str] = (),
     now: datetime | None = None,
+    goals: GoalsConfig | None = None,
 ) -> FloorReport:
-    """OEE, parts, stops and reasons for ``report``'s machines, periods and span."""
+    """OEE, parts, stops and reasons for ``report``'s machines, periods and span (the goals
+    of ``[goals]`` where a machine has one)."""
     now = now or datetime.now(UTC)
     start, until = report.start, report.until or report.end
     # runs are followed in the kept samples only; stops are summed with the hours
@@ -370,13 +403,15 @@ def floor_of(
         good_scrap = parts.get(m.machine, {})
         total_good = sum(g for g, _s in good_scrap.values())
         total_scrap = sum(s for _g, s in good_scrap.values())
+        goal = goals.of(m.machine) if goals is not None else None
+        whole = _Whole(report, goal, start, report.end, until)
         machines.append(
             MachineFloor(
                 m.machine,
-                oee_of(m.totals, total_runs, standards, total_good, total_scrap),
+                oee_of(m.totals, total_runs, standards, total_good, total_scrap, **whole.of()),
                 [
-                    oee_of(f, by_period[i], standards, *good_scrap.get(i, (0, 0)))
-                    for i, f in enumerate(m.periods)
+                    oee_of(f, by_period[i], standards, *good_scrap.get(i, (0, 0)), **whole.of(p))
+                    for i, (f, p) in enumerate(zip(m.periods, periods, strict=True))
                 ],
                 sorted(listed.get(m.machine, []), key=lambda s: s.stop.start),
                 total_runs,
@@ -481,6 +516,28 @@ def pareto_of(lost: Lost) -> list[ParetoRow]:
             row.seconds += seconds
             row.machines.add(machine)
     return order_pareto(rows.values())
+
+
+@dataclass(frozen=True)
+class _Whole:
+    """What a period's goal needs beyond its figures: its whole planned time, and the
+    machine's configured goal over the whole period and up to now."""
+
+    report: Report
+    goal: Goal | None
+    start: datetime
+    end: datetime
+    until: datetime
+
+    def of(self, period: Period | None = None) -> dict[str, Any]:
+        """``oee_of``'s goal arguments for ``period`` (the whole span without one)."""
+        a, b = (self.start, self.end) if period is None else (period.start, period.end)
+        cal = self.report.calendar
+        if self.goal is not None:
+            now = min(b, self.until)
+            return {"target": (self.goal.over(cal, a, b), self.goal.over(cal, a, now))}
+        planned = sum(((y - x) for x, y in cal.scheduled(a, b)), timedelta())
+        return {"planned_full": planned.total_seconds()}
 
 
 def _follow(

@@ -36,6 +36,7 @@ from opendnc.server.web.pages import (
     login,
     machines,
     preview,
+    standards,
     utilization,
 )
 
@@ -53,5 +54,6 @@ ROUTERS: tuple[APIRouter, ...] = (
     inbox.router,
     history.router,
     utilization.router,
+    standards.router,
 )
 """Every page's routes, in the order they are added to the app."""

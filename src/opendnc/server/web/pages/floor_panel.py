@@ -1,4 +1,5 @@
-"""The machine page's floor panel: today's OEE and parts against the goal, the stops of the
+"""The machine page's floor panel and the stop-reasons page for a tablet
+(``/floor/reasons/<machine>``). The panel: today's OEE and parts against the goal, the stops of the
 last two days that ask for a reason (longer than ``[downtime] threshold``) with a reason
 picker each, and a form to report parts good and scrapped. Every write is an action
 (:mod:`opendnc.server.actions.floor`); every figure is :func:`.answer.full_report`'s, the
@@ -18,7 +19,7 @@ from opendnc.server import actions
 from opendnc.server.actions import floor
 from opendnc.server.utilization.collect import Group, Report
 from opendnc.server.web import render
-from opendnc.server.web.pages.base import ROLES, Page, Viewing, Writing
+from opendnc.server.web.pages.base import ROLES, Page, Viewing, Writing, html
 
 __all__ = ["floor_context", "router"]
 
@@ -97,5 +98,40 @@ async def report_parts(
     def work() -> HTMLResponse:
         done = floor.report_parts(page.svc, page.who, name, good, scrap, note)
         return _panel(page, name, f"{done.good} good, {done.scrap} scrapped recorded.")
+
+    return await run_in_threadpool(work)
+
+
+def _tablet(request: Request, page: Page, name: str, note: str = "") -> HTMLResponse:
+    context = floor_context(page, name)
+    return html("floor_reasons.html", page, request, notice=note, **context)
+
+
+@router.get("/floor/reasons/{name}")
+async def reasons_tablet(request: Request, name: str, page: Viewing) -> HTMLResponse:
+    """A page for a tablet beside the machine: its stops that ask for a reason, newest
+    first, each with a large button per reason (operators and up may press them)."""
+    return await run_in_threadpool(_tablet, request, page, name)
+
+
+@router.post("/floor/reasons/{name}")
+async def reasons_tablet_pick(
+    request: Request,
+    name: str,
+    page: Writing,
+    start: Annotated[str, Form(max_length=40)],
+    reason: Annotated[str, Form(max_length=64)],
+) -> HTMLResponse:
+    """Record the reason pressed for one stop (the action checks the role and audits it),
+    then show the page again."""
+    try:
+        began = datetime.fromisoformat(start)
+    except ValueError:
+        raise InputError(f"start: not a time: {start!r}") from None
+
+    def work() -> HTMLResponse:
+        done = floor.pick_reason(page.svc, page.who, name, began, reason)
+        when = page.parts.calendar.local(done.start).strftime("%H:%M")
+        return _tablet(request, page, name, f"“{done.reason}” recorded for the stop from {when}.")
 
     return await run_in_threadpool(work)

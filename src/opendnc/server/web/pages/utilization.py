@@ -114,11 +114,14 @@ def gantt_rows(
     machines: list[str],
     periods: list[Period],
     figures: dict[str, list[Figures]],
+    extent: tuple[datetime, datetime] | None = None,
 ) -> list[GanttRow]:
-    """Each machine's slices merged into segments of its dominant state."""
+    """Each machine's slices merged into segments of its dominant state, placed on the
+    row's ``extent`` (the slices' own by default). The slices of today end at now while the
+    row is the whole day: drawn on their own span they would stretch over the future."""
     if not periods:
         return []
-    start, end = periods[0].start, periods[-1].end
+    start, end = extent if extent is not None else (periods[0].start, periods[-1].end)
     span = (end - start).total_seconds()
     rows = []
     for machine in machines:
@@ -271,7 +274,7 @@ async def utilization_page(request: Request, page: Viewing, ask: Asked) -> HTMLR
     r, slices, figures = found.report, found.slices, found.figures
     span_end = r.end
     shown = slices[-1].end if slices else r.start
-    rows = gantt_rows(cal, names, slices, figures)
+    rows = gantt_rows(cal, names, slices, figures, (r.start, span_end))
     context: dict[str, Any] = {
         "report": r,
         "zone": cal.zone_name,

@@ -9,7 +9,8 @@
 //
 // After each swap the page's own summaries follow the cards: the filters' counts, the list
 // of machines in alarm, and an alert (the card flashes; a short beep if the person turned
-// the sound on, remembered in this browser) when a machine goes into alarm. Times say how
+// the sound on, remembered in this browser) when a machine goes into alarm. A card's
+// glance (its shift's parts against the goal, today so far) is not the live part: it stays. Times say how
 // long ago they were; the wall display (/wall) shows its pages in turn.
 "use strict";
 
@@ -142,7 +143,11 @@ document.addEventListener("htmx:sseBeforeMessage", (event) => {
   parsed.innerHTML = message.data;
   for (const part of Array.from(parsed.content.children)) {
     const card = document.getElementById(part.id);
-    if (card) card.replaceChildren(...part.childNodes);
+    if (!card) continue;
+    // the card's live part only: its glance (.glance, read every minute) stays
+    const body = card.querySelector(":scope > .card-body");
+    if (body && card.querySelector(":scope > .glance")) body.replaceWith(...part.childNodes);
+    else card.replaceChildren(...part.childNodes);
   }
   refresh();
 });
