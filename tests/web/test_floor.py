@@ -28,6 +28,7 @@ from opendnc.server.library import versions as library  # noqa: E402
 from opendnc.server.store.models import Role  # noqa: E402
 from opendnc.sim.fleet import server_config  # noqa: E402
 from opendnc.sim.haas.machine import Alarm  # noqa: E402
+from tests.server.harness import wait_for  # noqa: E402
 from tests.server.serving import serving  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 from tests.web.browser import (  # noqa: E402
@@ -193,10 +194,20 @@ def test_the_wall_display_is_large_has_no_controls_and_turns_its_pages(clean: Sh
     pages = int(page.evaluate("document.body.dataset.wallPages"))
     assert pages >= 2
     visible = page.locator(".cards > .card:visible")
-    first = visible.first.get_attribute("id")
     sync_api.expect(page.locator("#wall-page")).to_have_text(f"page 1 of {pages}")
     sync_api.expect(page.locator("#wall-page")).to_have_text(f"page 2 of {pages}")
-    assert visible.first.get_attribute("id") != first
+    # the page's number and its first card read in one script: on a loaded machine a page
+    # can turn between two separate reads
+    shown = (
+        "() => [document.querySelector('#wall-page').textContent,"
+        " [...document.querySelectorAll('.cards > .card')]"
+        ".find(c => c.getClientRects().length > 0)?.id]"
+    )
+    label, first = page.evaluate(shown)
+    turned = wait_for(
+        "the next page", lambda: (now := page.evaluate(shown))[0] != label and now, timeout=30
+    )
+    assert turned[1] != first, (label, first, turned)
     # every card on a page is inside the screen
     for box in (c.bounding_box() for c in visible.all()):
         assert box is not None

@@ -23,7 +23,7 @@ from typing import Any
 from opendnc.errors import TransportError
 from opendnc.sim.cable.link import CableStats, LaneStats
 
-START_TIMEOUT = 15.0
+START_TIMEOUT = 60.0  # a Python start on a loaded machine: 15 s was passed at load 40
 
 
 class CableProcess:
