@@ -87,12 +87,15 @@ def program_page(
     text = render.program_text(shown.data)
     released = [x.number for x in program.versions if x.state is ProgramState.RELEASED]
     check = actions.checks.version_check(svc, who, name, number)
+    marks = listing.marks(p.model_dump() for p in check.problems)  # its rows show them
     context: dict[str, Any] = {
         "program": program.model_dump(mode="json"),
         "shown": version.model_dump(mode="json"),
         "released": released[-1] if released else None,
         "listing": listing.window(text, name=name, size=len(shown.data), line=line),
         "check": check.model_dump(mode="json"),
+        "marks": marks,
+        "marks_data": {n: [m.severity, m.message] for n, m in marks.items()},
         "diff": None,
     }
     if a is not None and b is not None:
@@ -243,9 +246,7 @@ async def save_edit(
         raise InputError("no text to save")
     edited = text
     saved = await run_in_threadpool(
-        lambda: actions.library.save_edit(
-            page.svc, page.who, name, number, edited, comment=comment
-        )
+        lambda: actions.library.save_edit(page.svc, page.who, name, number, edited, comment=comment)
     )
     return redirect(request, f"/library/{quote(name)}?v={saved.number}#check")
 
