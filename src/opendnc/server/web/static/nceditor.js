@@ -143,10 +143,11 @@
     let running = false;
     let again = false;
     let since = null; // the changes made while a check runs (its marks are mapped through them)
+    let lasted = 0; // ms the last check took: a program that takes seconds is checked less often
 
     function schedule() {
       clearTimeout(timer);
-      timer = setTimeout(check, CHECK_DELAY_MS);
+      timer = setTimeout(check, Math.max(CHECK_DELAY_MS, lasted));
     }
 
     async function check() {
@@ -159,6 +160,7 @@
       const doc = view.state.doc;
       since = CM.ChangeSet.empty(doc.length);
       checkNote.textContent = "Checking…";
+      const started = performance.now();
       try {
         const body = await blobOf(doc);
         const reply = await fetch(root.dataset.check, {
@@ -182,6 +184,7 @@
         checkNote.textContent = `Live check not done: ${error.message || error}`;
         checkNote.dataset.state = "failed";
       } finally {
+        lasted = performance.now() - started;
         running = false;
         since = null;
         if (again) schedule();
