@@ -5,9 +5,9 @@
 "use strict";
 (function () {
   const CHECK_DELAY_MS = 500; // typing pauses this long before the text is checked
-  const SLICE = 512 * 1024; // characters copied per task when the text is sent (no long task)
+  const SLICE = 256 * 1024; // characters copied per task when the text is sent (no long task)
   const LONG_LINE = 4000; // longer lines are not highlighted (a CAM dump of one line)
-  const READ_SLICE = 1024 * 1024; // bytes made into lines per task when a program opens
+  const READ_SLICE = 256 * 1024; // bytes made into lines per task when a program opens
 
   function pause() {
     return new Promise((resolve) => setTimeout(resolve, 0));
