@@ -102,6 +102,7 @@ def test_a_problem_opens_the_editor_at_its_line_with_its_message(app: App, brows
     expect(page.locator("#ed-line-msg")).to_contain_text("X")
     expect(page.locator(".cm-lint-marker-error")).to_have_count(2)
     assert sorted(_error_lines(page)) == ["5", "7"]
+    tab.shot("editor-at-line-1280")
     tab.close()
 
 

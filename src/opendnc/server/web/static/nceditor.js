@@ -215,6 +215,7 @@
       });
       view.focus();
       lineNote.textContent = messageAt(line.number);
+      lineNote.dataset.problem = String(problems.some((p) => p.line === line.number));
       lineNote.hidden = false;
     }
 
