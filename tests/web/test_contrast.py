@@ -56,7 +56,7 @@ def test_line_numbers_are_readable_in_the_listing_and_the_editor() -> None:
     assert contrast(number, gutter) >= 4.5, (number, gutter)
     block = _colour(_rule(listing, ".w-blk"), "color")
     assert contrast(block, "#ffffff") >= 4.5
-    editor = _rule(_css("workbench.css"), ".ed-gutter ")
+    editor = _rule(_css("workbench.css"), ".ed .cm-gutters ")
     assert contrast(_colour(editor, "color"), _colour(editor, "background")) >= 4.5
 
 

@@ -52,3 +52,19 @@ def test_an_empty_text_has_no_line() -> None:
 def test_klartext_is_named_for_the_script_and_large_texts_are_not_fetched() -> None:
     assert window("0 BEGIN PGM A MM\n1 END PGM A MM\n", name="A.H", size=30).dialect == "klartext"
     assert not window("G0 X1\n", name="P.nc", size=64 * 1024 * 1024).scripted
+
+
+def test_the_marks_of_a_line_keep_its_worst_problem_and_every_message() -> None:
+    from opendnc.server.web.listing import Mark, marks
+
+    found = marks(
+        [
+            {"line": 4, "severity": "warning", "message": "no coolant"},
+            {"line": 4, "severity": "error", "message": "G999 unknown"},
+            {"line": 9, "severity": "warning", "message": "feed 0"},
+        ]
+    )
+    assert found == {
+        4: Mark("error", "warning: no coolant\nerror: G999 unknown"),
+        9: Mark("warning", "warning: feed 0"),
+    }

@@ -15,13 +15,21 @@ from sqlalchemy.orm import Session
 
 from opendnc.nccheck import MachineLimits, limits_for
 from opendnc.server.actions.base import Caller, Services, require
-from opendnc.server.actions.models import CheckOut, ProblemOut
+from opendnc.server.actions.models import CheckOut, LiveCheckOut, ProblemOut
 from opendnc.server.library import checks as program_checks
 from opendnc.server.library import versions as library
 from opendnc.server.library.checks import Checked
 from opendnc.server.store.models import ProgramVersion, Role
 
-__all__ = ["Target", "check_out", "ensure", "limits_of", "machine_checks", "version_check"]
+__all__ = [
+    "Target",
+    "check_out",
+    "ensure",
+    "limits_of",
+    "live_check",
+    "machine_checks",
+    "version_check",
+]
 
 
 @dataclass(frozen=True)
@@ -122,3 +130,20 @@ def machine_checks(
     require(who, Role.VIEWER)
     target = _target(svc, name, number)
     return [check_out(target, ensure(svc, target, limits_of(svc, m)), m) for m in machines]
+
+
+def live_check(svc: Services, who: Caller, name: str, data: bytes) -> LiveCheckOut:
+    """The check of ``data``, the text of ``name`` as it is being edited (programmers: the
+    editor's marks). Nothing is stored; the run is bounded like every check (at most
+    :data:`~opendnc.server.library.checks.PARALLEL` at once, the checker's budget), so call it
+    from a worker thread."""
+    require(who, Role.PROGRAMMER)
+    library.check_program_name(name)
+    result = program_checks.run(name, data, None, _library(svc))
+    return LiveCheckOut(
+        ok=not result.errors,
+        errors=len(result.errors),
+        warnings=len(result.warnings),
+        summary=program_checks.summary_of(result),
+        problems=[ProblemOut(**p) for p in program_checks.problems_of(result)],
+    )

@@ -149,6 +149,17 @@ class CheckOut(BaseModel):
     checked: Timestamp
 
 
+class LiveCheckOut(BaseModel):
+    """The program check of text being edited (not a stored version): what the editor marks
+    as the programmer types. ``problems`` holds at most 500 (the counts are exact)."""
+
+    ok: bool
+    errors: int
+    warnings: int
+    summary: str
+    problems: list[ProblemOut]
+
+
 class UploadOut(VersionOut):
     """A stored upload; ``created_new`` is false when the newest version had these bytes;
     ``check`` is its program check (run on save)."""

@@ -35,8 +35,10 @@ __all__ = [
     "check_saved",
     "limits_key",
     "load",
+    "problems_of",
     "run",
     "store",
+    "summary_of",
 ]
 
 CHECK_BYTES = MAX_PROGRAM_BYTES
@@ -149,7 +151,8 @@ def run(
         )
 
 
-def _summary(result: CheckResult) -> str:
+def summary_of(result: CheckResult) -> str:
+    """The one line a page shows of ``result``: counts, control, tools, estimated time."""
     errors, warnings = len(result.errors), len(result.warnings)
     minutes, seconds = divmod(round(result.cycle_time_s), 60)
     tools = len(result.tools)
@@ -175,16 +178,8 @@ def store(session: Session, version_id: int, key: str, result: CheckResult) -> C
         control=result.control.value,
         errors=len(result.errors),
         warnings=len(result.warnings),
-        summary=_summary(result),
-        problems=[
-            {
-                "line": p.line,
-                "block": p.block,
-                "severity": p.severity.value,
-                "message": p.message,
-            }
-            for p in result.problems[:MAX_STORED_PROBLEMS]
-        ],
+        summary=summary_of(result),
+        problems=problems_of(result),
         facts=facts,
     )
     try:
@@ -195,6 +190,19 @@ def store(session: Session, version_id: int, key: str, result: CheckResult) -> C
         assert found is not None
         return found
     return Checked.of(row)
+
+
+def problems_of(result: CheckResult) -> list[dict[str, Any]]:
+    """The first :data:`MAX_STORED_PROBLEMS` problems of ``result`` as stored and shown."""
+    return [
+        {
+            "line": p.line,
+            "block": p.block,
+            "severity": p.severity.value,
+            "message": p.message,
+        }
+        for p in result.problems[:MAX_STORED_PROBLEMS]
+    ]
 
 
 def load(session: Session, version_id: int, key: str) -> Checked | None:

@@ -10,14 +10,16 @@ in a box of bounded height, and answers ``#L<n>`` anchors, go-to-line and find.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from markupsafe import Markup
 
 from opendnc.nccheck import Control, guess_control
 from opendnc.server.web.render import highlight_lines
 
-__all__ = ["SCRIPT_MAX_BYTES", "WINDOW", "Listing", "window"]
+__all__ = ["SCRIPT_MAX_BYTES", "WINDOW", "Listing", "Mark", "marks", "window"]
 
 WINDOW = 100
 """Lines the server renders in one window."""
@@ -81,3 +83,28 @@ def window(text: str, *, name: str, size: int, line: int | None = None) -> Listi
         dialect=dialect,
         scripted=size <= SCRIPT_MAX_BYTES,
     )
+
+
+@dataclass(frozen=True)
+class Mark:
+    """What the program check found on one line: its worst severity and every message."""
+
+    severity: str
+    """``error`` or ``warning``."""
+    message: str
+
+
+def marks(problems: Iterable[Mapping[str, Any]]) -> dict[int, Mark]:
+    """The program check's ``problems`` by line (an error outranks a warning on its line), for
+    the listing's rows: the page marks them and shows the messages on hover."""
+    found: dict[int, Mark] = {}
+    for problem in problems:
+        line, severity = int(problem["line"]), str(problem["severity"])
+        message = f"{severity}: {problem['message']}"
+        before = found.get(line)
+        if before is not None:
+            worst = "error" if "error" in (severity, before.severity) else severity
+            message = f"{before.message}\n{message}"
+            severity = worst
+        found[line] = Mark(severity, message)
+    return found

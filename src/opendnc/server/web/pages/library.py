@@ -3,6 +3,7 @@ editor, and what a person does to a program there (upload, save, release, lock, 
 
 from __future__ import annotations
 
+import gzip
 from typing import Annotated, Any
 from urllib.parse import quote
 
@@ -12,8 +13,16 @@ from fastapi.responses import HTMLResponse, Response
 
 from opendnc.errors import InputError
 from opendnc.server import actions
-from opendnc.server.actions.models import MAX_ID, JobKind, JobRequest, ProgramState
+from opendnc.server.actions.models import (
+    MAX_ID,
+    JobKind,
+    JobRequest,
+    LiveCheckOut,
+    ProgramState,
+)
+from opendnc.server.core.errors import TooLarge
 from opendnc.server.http.downloads import stored_response
+from opendnc.server.library.checks import CHECK_BYTES
 from opendnc.server.web import listing, render
 from opendnc.server.web.pages.base import (
     NumberField,
@@ -31,10 +40,15 @@ from opendnc.server.web.pages.base import (
 __all__ = ["MAX_EDIT_BYTES", "router"]
 
 router = APIRouter(include_in_schema=False)
-# The editor takes programs up to this size (a form field holds at most 1 MiB, and a browser
-# sends every line end as CR LF); a larger one is edited offline and uploaded.
-MAX_EDIT_BYTES = 512 * 1024
+MAX_EDIT_BYTES = CHECK_BYTES
+"""The editor opens programs up to the size the check reads (16 MiB), so every edited text
+can be checked as it is typed; a larger one is edited offline and uploaded."""
+# Without scripts the editor's form sends its text as a form field, which the form parser
+# caps at 1 MiB; the script sends the text as a file part (up to MAX_EDIT_BYTES).
 MAX_EDIT_CHARS = 1024 * 1024
+GZIP_FROM = 64 * 1024
+"""The editor's text is sent gzipped from this size when the browser takes gzip (NC text
+shrinks to about a fifth; level 1 costs ~10 ms a MB)."""
 Override = Annotated[str | None, Form(max_length=10)]
 Reason = Annotated[str, Form(max_length=1000)]
 
@@ -73,12 +87,15 @@ def program_page(
     text = render.program_text(shown.data)
     released = [x.number for x in program.versions if x.state is ProgramState.RELEASED]
     check = actions.checks.version_check(svc, who, name, number)
+    marks = listing.marks(p.model_dump() for p in check.problems)  # its rows show them
     context: dict[str, Any] = {
         "program": program.model_dump(mode="json"),
         "shown": version.model_dump(mode="json"),
         "released": released[-1] if released else None,
         "listing": listing.window(text, name=name, size=len(shown.data), line=line),
         "check": check.model_dump(mode="json"),
+        "marks": marks,
+        "marks_data": {n: [m.severity, m.message] for n, m in marks.items()},
         "diff": None,
     }
     if a is not None and b is not None:
@@ -134,41 +151,103 @@ def machine_checks(
 
 
 @router.get("/library/{name}/versions/{number}/edit")
-def edit_page(request: Request, name: str, number: VersionPath, page: Viewing) -> HTMLResponse:
+def edit_page(
+    request: Request,
+    name: str,
+    number: VersionPath,
+    page: Viewing,
+    line: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+) -> HTMLResponse:
     """The editor: version ``number`` as text to change and save as a new draft
-    (programmers)."""
+    (programmers), opened at ``line`` (with its check's message) when given."""
     actions.library.may_upload(page.who)
     program = actions.library.get_program(page.svc, page.who, name)
-    content = actions.library.program_content(page.svc, page.who, name, number)
-    if len(content.data) > MAX_EDIT_BYTES:
+    version = next((x for x in program.versions if x.number == number), None)
+    if version is not None and version.size > MAX_EDIT_BYTES:
         raise InputError(
-            f"{name} v{number} is {render.human_size(len(content.data))}: the browser's editor "
+            f"{name} v{number} is {render.human_size(version.size)}: the browser's editor "
             f"takes {render.human_size(MAX_EDIT_BYTES)}; download it, edit it and upload it"
         )
-    version = next(x for x in program.versions if x.number == number)
+    # the text itself is fetched by the page's script (``edit_text``): a program of
+    # megabytes parsed as HTML and copied into the editor cost seconds
+    head = actions.library.program_content(page.svc, page.who, name, number).data[:4096]
+    shown = version or program.versions[-1]
+    check = actions.checks.version_check(page.svc, page.who, name, number)
     return html(
         "editor.html",
         page,
         request,
         program=program.model_dump(mode="json"),
-        shown=version.model_dump(mode="json"),
-        text=render.program_text(content.data),
-        language=render.language_of(name, content.data),
+        shown=shown.model_dump(mode="json"),
+        language=render.language_of(name, head),
+        check=check.model_dump(mode="json"),
+        line=line,
     )
 
 
+@router.get("/library/{name}/versions/{number}/text")
+def edit_text(request: Request, name: str, number: VersionPath, page: Viewing) -> Response:
+    """The text the editor opens (programmers): the version's bytes, gzipped when the
+    browser takes it (a program of 10 MB is about 2 MB on the wire)."""
+    actions.library.may_upload(page.who)
+    data = actions.library.program_content(page.svc, page.who, name, number).data
+    headers = {"Cache-Control": "private, no-cache", "Vary": "Accept-Encoding"}
+    if len(data) >= GZIP_FROM and "gzip" in request.headers.get("accept-encoding", ""):
+        data = gzip.compress(data, compresslevel=1, mtime=0)
+        headers["Content-Encoding"] = "gzip"
+    return Response(data, media_type="text/plain; charset=iso-8859-1", headers=headers)
+
+
+@router.post("/library/{name}/check")
+async def live_check(request: Request, name: str, page: Writing) -> LiveCheckOut:
+    """The program check of the text in the request's body, as the editor holds it
+    (programmers; nothing stored): the editor's marks as the programmer types. The dry run
+    goes in the thread pool, off the event loop."""
+    actions.library.may_upload(page.who)  # before the body is read
+    data = await _body(request, MAX_EDIT_BYTES)
+    return await run_in_threadpool(actions.checks.live_check, page.svc, page.who, name, data)
+
+
+async def _body(request: Request, limit: int) -> bytes:
+    # read the body piece by piece, refusing it once it passes ``limit``
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and int(length) > limit:
+        raise TooLarge(f"the text is larger than the check reads ({render.human_size(limit)})")
+    parts: list[bytes] = []
+    size = 0
+    async for piece in request.stream():
+        size += len(piece)
+        if size > limit:
+            raise TooLarge(f"the text is larger than the check reads ({render.human_size(limit)})")
+        parts.append(piece)
+    return b"".join(parts)
+
+
 @router.post("/library/{name}/versions/{number}/edit")
-def save_edit(
+async def save_edit(
     request: Request,
     name: str,
     number: VersionPath,
     page: Writing,
-    text: Annotated[str, Form(max_length=MAX_EDIT_CHARS)],
+    text: Annotated[str | None, Form(max_length=MAX_EDIT_CHARS)] = None,
+    file: UploadFile | None = None,
     comment: Annotated[str, Form(max_length=1000)] = "",
 ) -> Response:
-    """Save the edited text as a new draft with its comment (programmers); the program page
-    of the new version shows its check."""
-    saved = actions.library.save_edit(page.svc, page.who, name, number, text, comment=comment)
+    """Save the edited text (the ``text`` field, or the script's ``file`` part: UTF-8) as a
+    new draft with its comment (programmers); the program page of the new version shows its
+    check."""
+    actions.library.may_upload(page.who)
+    if file is not None:
+        try:
+            text = (await read_upload(file)).decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError("the edited text is not UTF-8") from None
+    if text is None:
+        raise InputError("no text to save")
+    edited = text
+    saved = await run_in_threadpool(
+        lambda: actions.library.save_edit(page.svc, page.who, name, number, edited, comment=comment)
+    )
     return redirect(request, f"/library/{quote(name)}?v={saved.number}#check")
 
 

@@ -21,6 +21,8 @@
     this.root = root;
     this.box = root.querySelector(".listing-box");
     this.dialect = root.dataset.dialect || "gcode";
+    // the program check's problems by line: [severity, message] (the rows are marked)
+    this.marks = JSON.parse(root.dataset.marks || "{}");
     this.lines = null;
     this.hl = 0;
     this.matches = [];
@@ -167,8 +169,14 @@
     for (var i = first; i < last; i++) {
       var n = i + 1;
       var cls = n === this.hl ? "ln hl" : "ln";
+      var mark = this.marks[n];
+      var title = "";
+      if (mark) {
+        cls += " pb-" + mark[0];
+        title = ' title="' + window.NcHighlight.escape(mark[1]) + '"';
+      }
       html.push(
-        '<div class="' + cls + '" id="L' + n + '" role="listitem"><a class="no" href="#L' + n + '">' + n +
+        '<div class="' + cls + '" id="L' + n + '" role="listitem"' + title + '><a class="no" href="#L' + n + '">' + n +
         '</a><span class="tx">' + window.NcHighlight.html(lines[i], this.dialect, marks[i]) + "</span></div>"
       );
     }

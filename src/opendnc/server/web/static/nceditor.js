@@ -1,406 +1,327 @@
-// opendnc program editor (docs/dashboard.md#program-check-and-editor): a plain <textarea> that holds the text
-// and is submitted with the form, over a highlighted copy of the lines in view. Only the
-// visible lines are highlighted and numbered, so a program of 20,000 lines scrolls as
-// smoothly as one of 20. No library, no build step: this file is shipped as it is.
+// opendnc program editor (docs/dashboard.md#program-check-and-editor) on CodeMirror 6
+// (window.CM: codemirror-*.min.js, built once from tools/editor-bundle). Ours here: the
+// G-code / Klartext highlighting of the lines in view (nchighlight.js), the live check as
+// lint marks in the gutter, opening at ?line=N with its message, and the save.
 "use strict";
+(function () {
+  const CHECK_DELAY_MS = 500; // typing pauses this long before the text is checked
+  const SLICE = 256 * 1024; // characters copied per task when the text is sent (no long task)
+  const LONG_LINE = 4000; // longer lines are not highlighted (a CAM dump of one line)
+  const READ_SLICE = 256 * 1024; // bytes made into lines per task when a program opens
 
-// -- highlighting ------------------------------------------------------------------------
-// A token is [class, text]; the classes are styled in workbench.css (.hl-*).
+  function pause() {
+    return new Promise((resolve) => setTimeout(resolve, 0));
+  }
 
-const GCODE_WORDS = new Set([
-  "IF", "GOTO", "THEN", "WHILE", "DO", "END", "EQ", "NE", "GT", "LT", "GE", "LE", "AND",
-  "OR", "XOR", "MOD", "SIN", "COS", "TAN", "ASIN", "ACOS", "ATAN", "SQRT", "ABS", "BIN",
-  "BCD", "ROUND", "FIX", "FUP", "LN", "EXP", "POPEN", "PCLOS", "DPRNT",
-]);
-const ADDRESS_CLASS = {
-  G: "g", M: "m", T: "t", S: "sf", F: "sf", H: "hd", D: "hd", N: "n", O: "o", P: "p",
-  L: "p", Q: "p", E: "p",
-};
-const AXES = "XYZABCUVWIJKR";
-
-function gcodeTokens(line) {
-  const out = [];
-  let i = 0;
-  const n = line.length;
-  while (i < n) {
-    const ch = line[i];
-    if (ch === "(") { // a comment to its closing parenthesis (or the line's end)
-      const end = line.indexOf(")", i);
-      const stop = end < 0 ? n : end + 1;
-      out.push(["c", line.slice(i, stop)]);
-      i = stop;
-    } else if (ch === ";") {
-      out.push(["c", line.slice(i)]);
-      i = n;
-    } else if (ch === "#") { // a macro variable: #100, #[#1+2]
-      let j = i + 1;
-      if (line[j] === "[") {
-        let depth = 0;
-        for (; j < n; j++) {
-          if (line[j] === "[") depth++;
-          else if (line[j] === "]" && --depth === 0) { j++; break; }
-        }
-      } else {
-        while (j < n && /[0-9]/.test(line[j])) j++;
-      }
-      out.push(["v", line.slice(i, j)]);
-      i = j;
-    } else if (/[A-Za-z]/.test(ch)) {
-      let j = i;
-      while (j < n && /[A-Za-z]/.test(line[j])) j++;
-      const word = line.slice(i, j).toUpperCase();
-      if (j - i > 1 && GCODE_WORDS.has(word)) {
-        out.push(["k", line.slice(i, j)]);
-        i = j;
+  // The program's bytes as a CodeMirror document, a slice per task: 10 MB split into lines
+  // and built in one go is a long task of its own. Each slice ends at a line break; the
+  // lines of the slices after the first are joined on with one ("" as their first line).
+  async function documentOf(CM, buffer) {
+    const bytes = new Uint8Array(buffer);
+    // NC programs are 7-bit text; latin1 shows a stray byte rather than failing
+    const decoder = new TextDecoder("latin1");
+    const breaks = /\r\n|\r|\n/;
+    let doc = null;
+    let carry = "";
+    for (let at = 0; at < bytes.length; at += READ_SLICE) {
+      const piece = carry + decoder.decode(bytes.subarray(at, at + READ_SLICE), { stream: true });
+      const cut = piece.lastIndexOf("\n");
+      if (cut < 0) {
+        carry = piece;
         continue;
       }
-      // an address: one letter and its number (G01, X-1.5, F.2)
-      j = i + 1;
-      while (j < n && /[ \t]/.test(line[j]) && /[-+0-9.]/.test(line[j + 1] || "")) j++;
-      if (line[j] === "-" || line[j] === "+") j++;
-      while (j < n && /[0-9.]/.test(line[j])) j++;
-      const letter = ch.toUpperCase();
-      const cls = ADDRESS_CLASS[letter] || (AXES.includes(letter) ? "ax" : "w");
-      out.push([cls, line.slice(i, j)]);
-      i = j;
-    } else if (ch === "%" || ch === "/") {
-      out.push(["o", ch]);
-      i++;
-    } else {
-      let j = i + 1;
-      while (j < n && !/[A-Za-z#(;%]/.test(line[j])) j++;
-      out.push(["", line.slice(i, j)]);
-      i = j;
+      const lines = piece.slice(0, cut).split(breaks);
+      carry = piece.slice(cut + 1);
+      doc = doc ? doc.append(CM.Text.of(["", ...lines])) : CM.Text.of(lines);
+      await pause();
     }
+    const rest = (carry + decoder.decode()).split(breaks);
+    return doc ? doc.append(CM.Text.of(["", ...rest])) : CM.Text.of(rest);
   }
-  return out;
-}
 
-const KLARTEXT_WORDS = new Set([
-  "BEGIN", "END", "PGM", "MM", "INCH", "BLK", "FORM", "TOOL", "CALL", "DEF", "L", "C",
-  "CC", "CR", "CT", "RND", "CHF", "LP", "CP", "LBL", "REP", "FN", "CYCL", "PAT", "STOP",
-  "FMAX", "FAUTO", "FZ", "FU", "R0", "RL", "RR", "DR+", "DR-", "SQ", "IF", "GOTO", "EQU",
-  "NE", "GT", "LT", "PLANE", "SPATIAL", "RESET", "APPR", "DEP", "LN", "LT", "LCT", "CT",
-  "SEL", "TABLE", "DATUM", "PRESET", "TCH", "PROBE", "M", "Q",
-]);
-
-function klartextTokens(line) {
-  const out = [];
-  const lead = /^(\s*)(\d+)/.exec(line); // the block number
-  let i = 0;
-  if (lead) {
-    if (lead[1]) out.push(["", lead[1]]);
-    out.push(["n", lead[2]]);
-    i = lead[0].length;
+  function el(id) {
+    return document.getElementById(id);
   }
-  const n = line.length;
-  while (i < n) {
-    const rest = line.slice(i);
-    let m;
-    if (rest[0] === ";") {
-      out.push(["c", rest]);
-      break;
-    } else if ((m = /^Q[RLS]?\d+/i.exec(rest))) {
-      out.push(["v", m[0]]);
-    } else if ((m = /^I?(?:P[AR]|[XYZABCUVW])[-+]?(?:[0-9.]+|Q[RLS]?\d+)?(?![A-Z])/i.exec(rest))) {
-      out.push(["ax", m[0]]);
-    } else if ((m = /^R[0LR](?![0-9A-Z])/i.exec(rest))) { // radius compensation
-      out.push(["k", m[0]]);
-    } else if ((m = /^(?:D[LR]|R)[-+]?[0-9.]+/i.exec(rest))) {
-      out.push(["hd", m[0]]);
-    } else if ((m = /^(?:F|S)[-+]?[0-9.]+/i.exec(rest))) {
-      out.push(["sf", m[0]]);
-    } else if ((m = /^M\d+/i.exec(rest))) {
-      out.push(["m", m[0]]);
-    } else if ((m = /^[A-Z][A-Z0-9_]*[+-]?/i.exec(rest))) {
-      const word = m[0].toUpperCase();
-      out.push([KLARTEXT_WORDS.has(word) || KLARTEXT_WORDS.has(word.replace(/[+-]$/, "")) ? "k" : "", m[0]]);
-    } else if ((m = /^[^A-Za-z;]+/.exec(rest))) {
-      out.push(["", m[0]]);
-    } else {
-      m = [rest[0]];
-      out.push(["", m[0]]);
+
+  // The text of a CodeMirror document (immutable, so it can be read across tasks) as a
+  // Blob, a slice per task: a 10 MB program copied at once is a long task while typing.
+  function blobOf(doc) {
+    return new Promise((resolve) => {
+      const parts = [];
+      let pos = 0;
+      function step() {
+        const end = Math.min(doc.length, pos + SLICE);
+        parts.push(new Blob([doc.sliceString(pos, end)]));
+        pos = end;
+        if (pos < doc.length) setTimeout(step, 0);
+        else resolve(new Blob(parts, { type: "text/plain;charset=utf-8" }));
+      }
+      step();
+    });
+  }
+
+  // -- highlighting: our tokens (nchighlight.js) as mark decorations on the lines in view
+  function highlighter(CM, dialect) {
+    const cache = new Map();
+    function mark(cls) {
+      let found = cache.get(cls);
+      if (!found) cache.set(cls, (found = CM.Decoration.mark({ class: cls })));
+      return found;
     }
-    i += m[0].length;
-  }
-  return out;
-}
-
-function escapeHtml(text) {
-  return text.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
-}
-
-function highlightLine(line, language) {
-  const tokens = language === "klartext" ? klartextTokens(line) : gcodeTokens(line);
-  let html = "";
-  for (const [cls, text] of tokens) {
-    html += cls ? `<span class="hl-${cls}">${escapeHtml(text)}</span>` : escapeHtml(text);
-  }
-  return html;
-}
-
-// -- the editor ----------------------------------------------------------------------------
-
-function setUpEditor(root) {
-  const form = root.closest("form");
-  const area = root.querySelector("textarea");
-  const view = root.querySelector(".ed-view");
-  const code = view.querySelector("code");
-  const marks = root.querySelector(".ed-marks");
-  const gutter = root.querySelector(".ed-gutter-lines");
-  const status = document.getElementById("ed-status");
-  const found = document.getElementById("ed-found");
-  const find = document.getElementById("ed-find");
-  const replace = document.getElementById("ed-replace");
-  const matchCase = document.getElementById("ed-case");
-  const gotoInput = document.getElementById("ed-goto");
-  const language = root.dataset.language || "gcode";
-  const original = area.value;
-
-  let lines = area.value.split("\n");
-  let hit = null; // [start, end] of the match found last
-  let current = 0; // line of the caret (0-based)
-  let queued = false;
-  const metrics = { line: 20, char: 8, top: 0, left: 0 };
-
-  function measure() {
-    const style = getComputedStyle(area);
-    metrics.line = parseFloat(style.lineHeight) || 20;
-    metrics.top = parseFloat(style.paddingTop) || 0;
-    metrics.left = parseFloat(style.paddingLeft) || 0;
-    const probe = document.createElement("span");
-    probe.textContent = "0".repeat(100);
-    probe.style.font = style.font;
-    probe.style.visibility = "hidden";
-    probe.style.position = "absolute";
-    probe.style.whiteSpace = "pre";
-    document.body.appendChild(probe);
-    metrics.char = probe.getBoundingClientRect().width / 100 || 8;
-    probe.remove();
-  }
-
-  function needle() {
-    return find.value;
-  }
-
-  function sameText(a, b) {
-    return matchCase.checked ? a === b : a.toLowerCase() === b.toLowerCase();
-  }
-
-  function schedule() {
-    if (queued) return;
-    queued = true;
-    requestAnimationFrame(() => { queued = false; draw(); });
-  }
-
-  // Draw the lines in view (and one more), their numbers, and the search marks on them.
-  function draw() {
-    const first = Math.max(0, Math.floor((area.scrollTop - metrics.top) / metrics.line));
-    const count = Math.ceil(area.clientHeight / metrics.line) + 2;
-    const last = Math.min(lines.length, first + count);
-    let html = "";
-    let numbers = "";
-    for (let k = first; k < last; k++) {
-      html += highlightLine(lines[k], language) + "\n";
-      numbers += `<div${k === current ? ' class="cur"' : ""}>${k + 1}</div>`;
-    }
-    code.innerHTML = html;
-    gutter.innerHTML = numbers;
-    const y = metrics.top + first * metrics.line - area.scrollTop;
-    code.style.transform = `translate(${metrics.left - area.scrollLeft}px, ${y}px)`;
-    gutter.style.transform = `translateY(${y}px)`;
-    drawMarks(first, last, y);
-  }
-
-  function drawMarks(first, last, y) {
-    const text = needle();
-    let boxes = "";
-    if (text) {
-      const wanted = matchCase.checked ? text : text.toLowerCase();
-      let offset = 0;
-      for (let k = 0; k < first; k++) offset += lines[k].length + 1;
-      for (let k = first; k < last; k++) {
-        const line = matchCase.checked ? lines[k] : lines[k].toLowerCase();
-        let at = line.indexOf(wanted);
-        while (at >= 0) {
-          const isHit = hit && hit[0] === offset + at;
-          const left = metrics.left + at * metrics.char - area.scrollLeft;
-          const top = (k - first) * metrics.line + y;
-          boxes += `<div class="ed-mark${isHit ? " hit" : ""}" style="left:${left}px;top:${top}px;width:${wanted.length * metrics.char}px;height:${metrics.line}px"></div>`;
-          at = line.indexOf(wanted, at + Math.max(1, wanted.length));
+    function build(view) {
+      const builder = new CM.RangeSetBuilder();
+      const doc = view.state.doc;
+      let done = -1; // end of the last line drawn (visible ranges may share a line)
+      for (const { from, to } of view.visibleRanges) {
+        let pos = from;
+        while (pos <= to) {
+          const line = doc.lineAt(pos);
+          if (line.from > done && line.length <= LONG_LINE) {
+            let at = line.from;
+            for (const [cls, text] of window.NcHighlight.tokens(line.text, dialect)) {
+              if (cls && text) builder.add(at, at + text.length, mark(cls));
+              at += text.length;
+            }
+          }
+          done = line.to;
+          pos = line.to + 1;
         }
-        offset += lines[k].length + 1;
+      }
+      return builder.finish();
+    }
+    return CM.ViewPlugin.fromClass(
+      class {
+        constructor(view) {
+          this.decorations = build(view);
+        }
+        update(update) {
+          if (update.docChanged || update.viewportChanged) this.decorations = build(update.view);
+        }
+      },
+      { decorations: (plugin) => plugin.decorations }
+    );
+  }
+
+  // -- the check's problems as CodeMirror diagnostics on ``doc``
+  function diagnostics(doc, problems) {
+    const out = [];
+    for (const p of problems) {
+      const n = Math.min(Math.max(1, p.line || 1), doc.lines);
+      const line = doc.line(n);
+      out.push({
+        from: line.from,
+        to: line.to,
+        severity: p.severity === "error" ? "error" : "warning",
+        message: p.message,
+      });
+    }
+    return out;
+  }
+
+  function grouped(n) {
+    // 100000 -> "100,000" (toLocaleString costs a millisecond a call: this runs a keystroke)
+    return String(n).replace(/\B(?=(\d{3})+(?!\d))/g, ",");
+  }
+
+  function counted(n, word) {
+    return `${grouped(n)} ${word}${n === 1 ? "" : "s"}`;
+  }
+
+  function setUp(CM, root) {
+    const form = el("editor-form");
+    const status = el("ed-status");
+    const checkNote = el("ed-check");
+    const lineNote = el("ed-line-msg");
+    const csrf = form.elements.csrf.value;
+    const dialect = root.dataset.language || "gcode";
+    let problems = JSON.parse(el("ed-problems").textContent || "[]");
+    let original = null; // the document as opened
+    let view = null;
+
+    // the live check: one request at a time, CHECK_DELAY_MS after the last change
+    let timer = 0;
+    let running = false;
+    let again = false;
+    let since = null; // the changes made while a check runs (its marks are mapped through them)
+    let lasted = 0; // ms the last check took: a program that takes seconds is checked less often
+
+    function schedule() {
+      clearTimeout(timer);
+      timer = setTimeout(check, Math.max(CHECK_DELAY_MS, lasted));
+    }
+
+    async function check() {
+      if (running) {
+        again = true;
+        return;
+      }
+      running = true;
+      again = false;
+      const doc = view.state.doc;
+      since = CM.ChangeSet.empty(doc.length);
+      checkNote.textContent = "Checking…";
+      const started = performance.now();
+      try {
+        const body = await blobOf(doc);
+        const reply = await fetch(root.dataset.check, {
+          method: "POST",
+          body,
+          credentials: "same-origin",
+          headers: { "X-CSRF-Token": csrf, "Content-Type": "text/plain; charset=utf-8" },
+        });
+        if (!reply.ok) throw new Error(`the check answered ${reply.status}`);
+        const found = await reply.json();
+        problems = found.problems;
+        const marks = diagnostics(doc, problems)
+          .map((d) => ({ ...d, from: since.mapPos(d.from, 1), to: since.mapPos(d.to, 1) }))
+          .filter((d) => d.from <= d.to);
+        view.dispatch(CM.setDiagnostics(view.state, marks));
+        checkNote.textContent = found.errors || found.warnings
+          ? `Live check: ${counted(found.errors, "error")}, ${counted(found.warnings, "warning")}`
+          : "Live check: no problems";
+        checkNote.dataset.state = found.errors ? "errors" : found.warnings ? "warnings" : "ok";
+      } catch (error) {
+        checkNote.textContent = `Live check not done: ${error.message || error}`;
+        checkNote.dataset.state = "failed";
+      } finally {
+        lasted = performance.now() - started;
+        running = false;
+        since = null;
+        if (again) schedule();
       }
     }
-    marks.innerHTML = boxes;
-  }
 
-  function lineOf(offset) {
-    let line = 0;
-    let at = area.value.indexOf("\n");
-    while (at >= 0 && at < offset) {
-      line++;
-      at = area.value.indexOf("\n", at + 1);
+    function showStatus(state) {
+      const head = state.selection.main.head;
+      const line = state.doc.lineAt(head);
+      const changed = original !== null && state.doc !== original && !state.doc.eq(original);
+      status.textContent =
+        `Line ${line.number}, column ${head - line.from + 1} · ` +
+        `${counted(state.doc.lines, "line")}${changed ? " · changed" : ""}`;
     }
-    return line;
-  }
 
-  function offsetOf(line) {
-    let offset = 0;
-    for (let k = 0; k < line && k < lines.length; k++) offset += lines[k].length + 1;
-    return offset;
-  }
-
-  function reveal(line, column) {
-    const top = metrics.top + line * metrics.line;
-    if (top < area.scrollTop || top + metrics.line > area.scrollTop + area.clientHeight) {
-      area.scrollTop = Math.max(0, top - area.clientHeight / 3);
+    function messageAt(n) {
+      const here = problems.filter((p) => p.line === n);
+      if (!here.length) return `Line ${n}`;
+      return `Line ${n}: ` + here.map((p) => `${p.severity}: ${p.message}`).join(" · ");
     }
-    const left = metrics.left + (column || 0) * metrics.char;
-    if (left < area.scrollLeft || left > area.scrollLeft + area.clientWidth - 4 * metrics.char) {
-      area.scrollLeft = Math.max(0, left - area.clientWidth / 2);
+
+    function goTo(n) {
+      const doc = view.state.doc;
+      const line = doc.line(Math.min(Math.max(1, n), doc.lines));
+      view.dispatch({
+        selection: { anchor: line.from },
+        effects: CM.EditorView.scrollIntoView(line.from, { y: "center" }),
+      });
+      view.focus();
+      lineNote.textContent = messageAt(line.number);
+      lineNote.dataset.problem = String(problems.some((p) => p.line === line.number));
+      lineNote.hidden = false;
     }
-  }
 
-  function updateStatus() {
-    const caret = area.selectionStart;
-    current = lineOf(caret);
-    const column = caret - offsetOf(current) + 1;
-    const changed = area.value !== original ? " · changed" : "";
-    status.textContent = `Line ${current + 1}, column ${column} · ${lines.length.toLocaleString("en")} lines${changed}`;
-  }
-
-  function select(start, end, focusText) {
-    hit = [start, end];
-    area.setSelectionRange(start, end);
-    const line = lineOf(start);
-    reveal(line, start - offsetOf(line));
-    if (focusText) area.focus();
-    updateStatus();
-    schedule();
-  }
-
-  function findFrom(from) {
-    const text = needle();
-    if (!text) {
-      found.textContent = "Nothing to find";
-      return null;
+    function open(doc) {
+      const state = CM.EditorState.create({
+        doc,
+        extensions: [
+          CM.lineNumbers(),
+          CM.lintGutter(),
+          CM.highlightActiveLineGutter(),
+          CM.highlightSpecialChars(),
+          CM.history(),
+          CM.drawSelection(),
+          CM.highlightActiveLine(),
+          CM.highlightSelectionMatches(),
+          CM.search({ top: true }),
+          highlighter(CM, dialect),
+          CM.keymap.of([
+            ...CM.defaultKeymap,
+            ...CM.searchKeymap,
+            ...CM.historyKeymap,
+            ...CM.lintKeymap,
+            { key: "Mod-l", run: CM.gotoLine, preventDefault: true },
+          ]),
+          CM.EditorView.contentAttributes.of({
+            "aria-label": root.getAttribute("aria-label"),
+            spellcheck: "false",
+            autocapitalize: "off",
+            autocorrect: "off",
+          }),
+          CM.EditorView.updateListener.of((update) => {
+            if (update.docChanged) {
+              if (since) since = since.compose(update.changes);
+              lineNote.hidden = true;
+              schedule();
+            }
+            if (update.docChanged || update.selectionSet) showStatus(update.state);
+          }),
+        ],
+      });
+      original = state.doc;
+      root.textContent = "";
+      view = new CM.EditorView({ state, parent: root });
+      performance.mark("editor-view");
+      window.opendncEditor = view; // the browser tests read the text through it
+      view.dispatch(CM.setDiagnostics(view.state, diagnostics(view.state.doc, problems)));
+      showStatus(view.state);
+      el("ed-find").addEventListener("click", () => CM.openSearchPanel(view));
+      el("ed-goto").addEventListener("click", () => CM.gotoLine(view));
+      for (const id of ["ed-find", "ed-goto", "ed-submit"]) el(id).disabled = false;
+      const wanted = parseInt(root.dataset.line || "0", 10);
+      if (wanted > 0) goTo(wanted);
+      root.classList.add("ready");
+      performance.mark("editor-ready");
     }
-    const hay = matchCase.checked ? area.value : area.value.toLowerCase();
-    const wanted = matchCase.checked ? text : text.toLowerCase();
-    let at = hay.indexOf(wanted, from);
-    let wrapped = false;
-    if (at < 0) {
-      at = hay.indexOf(wanted);
-      wrapped = at >= 0;
+
+    async function save(event) {
+      event.preventDefault();
+      const button = el("ed-submit");
+      button.disabled = true;
+      const data = new FormData(form);
+      data.append("file", await blobOf(view.state.doc), root.dataset.name || "program");
+      try {
+        // htmx's conventions: 204 with HX-Location on success, an alert fragment on refusal
+        const reply = await fetch(form.action, {
+          method: "POST",
+          body: data,
+          credentials: "same-origin",
+          headers: { "HX-Request": "true", "X-CSRF-Token": csrf },
+        });
+        const target = reply.headers.get("HX-Location");
+        if (reply.ok && target) {
+          location.assign(target);
+          return;
+        }
+        el("alert").innerHTML = await reply.text();
+      } catch (error) {
+        el("alert").textContent = `Not saved: ${error.message || error}`;
+      }
+      button.disabled = false;
     }
-    if (at < 0) {
-      hit = null;
-      found.textContent = `“${text}” not found`;
-      schedule();
-      return null;
-    }
-    const line = lineOf(at) + 1;
-    found.textContent = `Found on line ${line}${wrapped ? " (from the top)" : ""}`;
-    return at;
+
+    form.addEventListener("submit", save);
+    fetch(root.dataset.src, { credentials: "same-origin" })
+      .then((reply) => {
+        if (!reply.ok) throw new Error(`the text could not be read (${reply.status})`);
+        return reply.arrayBuffer();
+      })
+      .then((buffer) => {
+        performance.mark("editor-fetched");
+        return documentOf(CM, buffer);
+      })
+      .then((doc) => {
+        performance.mark("editor-document");
+        open(doc);
+      })
+      .catch((error) => {
+        root.textContent = String(error.message || error);
+      });
   }
 
-  function findNext() {
-    const from = hit ? hit[0] + 1 : area.selectionEnd;
-    const at = findFrom(from);
-    if (at !== null) select(at, at + needle().length, false);
+  function start() {
+    const root = el("ed");
+    if (root && window.CM && window.NcHighlight) setUp(window.CM, root);
   }
 
-  function changed() {
-    lines = area.value.split("\n");
-    updateStatus();
-    schedule();
-  }
-
-  function replaceOne() {
-    const text = needle();
-    if (!text) return findNext();
-    const start = hit ? hit[0] : -1;
-    if (start < 0 || !sameText(area.value.slice(start, start + text.length), text)) {
-      return findNext(); // nothing chosen yet: find first, replace on the next press
-    }
-    area.setRangeText(replace.value, start, start + text.length, "end");
-    changed();
-    const at = findFrom(start + replace.value.length);
-    if (at !== null) select(at, at + text.length, false);
-    else hit = null;
-  }
-
-  function replaceAll() {
-    const text = needle();
-    if (!text) return;
-    const escaped = text.replace(/[.*+?^${}()|[\]\\]/g, "\\$&");
-    const pattern = new RegExp(escaped, matchCase.checked ? "g" : "gi");
-    let count = 0;
-    const value = area.value.replace(pattern, () => { count++; return replace.value; });
-    if (count) {
-      const keep = area.scrollTop;
-      area.value = value;
-      area.scrollTop = keep;
-      hit = null;
-      changed();
-    }
-    found.textContent = `${count} replaced`;
-  }
-
-  function goToLine() {
-    const wanted = parseInt(gotoInput.value, 10);
-    if (!Number.isFinite(wanted) || wanted < 1) return;
-    const line = Math.min(wanted, lines.length) - 1;
-    const offset = offsetOf(line);
-    hit = null;
-    area.focus();
-    area.setSelectionRange(offset, offset);
-    area.scrollTop = Math.max(0, metrics.top + line * metrics.line - area.clientHeight / 3);
-    area.scrollLeft = 0;
-    found.textContent = `Line ${line + 1}`;
-    updateStatus();
-    schedule();
-  }
-
-  area.addEventListener("input", changed);
-  area.addEventListener("scroll", schedule);
-  area.addEventListener("keyup", () => { updateStatus(); schedule(); });
-  area.addEventListener("click", () => { hit = null; updateStatus(); schedule(); });
-  find.addEventListener("input", () => { hit = null; found.textContent = ""; schedule(); });
-  matchCase.addEventListener("change", () => { hit = null; schedule(); });
-  find.addEventListener("keydown", (e) => {
-    if (e.key === "Enter") { e.preventDefault(); findNext(); }
-  });
-  replace.addEventListener("keydown", (e) => {
-    if (e.key === "Enter") { e.preventDefault(); replaceOne(); }
-  });
-  gotoInput.addEventListener("keydown", (e) => {
-    if (e.key === "Enter") { e.preventDefault(); goToLine(); }
-  });
-  document.getElementById("ed-next").addEventListener("click", findNext);
-  document.getElementById("ed-replace-one").addEventListener("click", replaceOne);
-  document.getElementById("ed-replace-all").addEventListener("click", replaceAll);
-  document.getElementById("ed-go").addEventListener("click", goToLine);
-  form.addEventListener("keydown", (e) => {
-    if (!(e.ctrlKey || e.metaKey)) return;
-    const key = e.key.toLowerCase();
-    if (key === "f" || key === "h") { e.preventDefault(); find.focus(); find.select(); }
-    else if (key === "g" || key === "l") { e.preventDefault(); gotoInput.focus(); gotoInput.select(); }
-  });
-  window.addEventListener("resize", () => { measure(); schedule(); });
-  // A browser may restore a scrolled textarea on reload: draw what it shows.
-  measure();
-  const wanted = /^#L(\d+)$/.exec(location.hash);
-  if (wanted) {
-    gotoInput.value = wanted[1];
-    goToLine();
-  }
-  updateStatus();
-  draw();
-  root.classList.add("ready");
-}
-
-document.addEventListener("DOMContentLoaded", () => {
-  for (const root of document.querySelectorAll(".ed")) setUpEditor(root);
-});
+  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", start);
+  else start();
+})();
