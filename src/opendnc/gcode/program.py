@@ -512,7 +512,7 @@ def _literal(text: str) -> float:
 
 
 PlainWords = tuple[tuple[str, float], ...]
-"""Letters and numbers; a number written without a decimal point is an ``int`` (see :class:`Num`)."""
+"""Letters and numbers; one written without a decimal point is an ``int`` (see :class:`Num`)."""
 
 
 def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:

@@ -49,7 +49,7 @@ class Dialect:
     "It is not necessary to start the spindle CW before this canned cycle")."""
     dwell_ms: bool = True
     """A dwell's P written without a decimal point (``G04 P500``, a drilling cycle's P) counts
-    milliseconds, with one (``P0.5``) seconds: Haas and Fanuc (docs/check.md#dwell)."""
+    milliseconds, with one (``P0.5``) seconds: Haas and Fanuc (docs/check.md#decimal-point)."""
     bare_letters: str = "XYZUVWIJKR"
     """Words whose number, written without a decimal point, counts in the least input
     increment, 0.001 mm or 0.0001 inch (``X100`` is 0.1 mm): the power-on default of Fanuc

@@ -11,9 +11,7 @@ import pytest
 
 from opendnc.nccheck import CheckResult, MachineLimits, check_text
 
-LATHE_0100 = (
-    Path(__file__).parents[2] / "data/corpus/real/fanuc-lathe/gcodeworkshop/0100.nc"
-)
+LATHE_0100 = Path(__file__).parents[2] / "data/corpus/real/fanuc-lathe/gcodeworkshop/0100.nc"
 
 
 def run(body: str, dialect: str | None = None) -> CheckResult:
