@@ -1576,9 +1576,9 @@ class _Run:
                         )
                     )
         unknown = [a for a, low in zip(_AXES, self.path.low, strict=True) if low == math.inf]
-        if self.path.unplaced and unknown and not (self.path.rapid or self.path.feed):
-            # a program that never gives an axis (a lathe program on a mill: no Y) measures
-            # and draws nothing: not a silent 0 moves
+        if unknown == ["Y"] and self.path.unplaced and not (self.path.rapid or self.path.feed):
+            # X and Z but never Y: a lathe program read as a mill program measures and draws
+            # nothing; say so rather than report 0 moves silently
             problems.append(
                 Problem(
                     self.path.unplaced_line,
