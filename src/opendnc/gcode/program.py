@@ -30,7 +30,10 @@ Lookup = Callable[[int], float | None]
 
 @dataclass(frozen=True, slots=True)
 class Num:
-    """A numeric literal."""
+    """A numeric literal: an ``int`` when written without a decimal point (``X100``), a
+    ``float`` when written with one (``X100.``). Fanuc and Haas read the two differently (a
+    dwell's P in milliseconds or seconds, an axis word in the least input increment or in
+    mm): the dry run needs the written form; :func:`evaluate` gives a float either way."""
 
     value: float
 
@@ -223,7 +226,7 @@ class _Parser:
                 # a longer one is a damaged file, and a float of it may overflow to infinity
                 shown = token if len(token) <= 12 else f"{token[:12]}... ({len(token)} digits)"
                 raise self.error(f"number {shown} is out of range")
-            return Num(value)
+            return Num(value if "." in token else int(token))
         if token == "#":
             return Var(self.primary())
         if token == "[":
@@ -259,7 +262,7 @@ def parse_expression(text: str) -> Expr:
 def evaluate(expr: Expr, lookup: Lookup) -> float | None:
     """Value of ``expr``; ``None`` is the null (undefined) value, 0 in arithmetic."""
     if isinstance(expr, Num):
-        return expr.value
+        return float(expr.value)  # macro values are reals, however the literal was written
     if isinstance(expr, Var):
         return lookup(variable_number(expr.index, lookup))
     if isinstance(expr, Unary):
@@ -499,11 +502,17 @@ def _number(text: str) -> Num:
     if found is None:
         if len(_NUMBERS) > 4096:
             _NUMBERS.clear()
-        found = _NUMBERS[text] = Num(float(text))
+        found = _NUMBERS[text] = Num(_literal(text))
     return found
 
 
+def _literal(text: str) -> float:
+    """A word's number as written: an int without a decimal point, else a float."""
+    return float(text) if "." in text else int(text)
+
+
 PlainWords = tuple[tuple[str, float], ...]
+"""Letters and numbers; one written without a decimal point is an ``int`` (see :class:`Num`)."""
 
 
 def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:
@@ -516,7 +525,12 @@ def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:
     if plain is None:
         return None
     number, body = plain.groups()
-    words = tuple([(letter, float(value)) for letter, value in _PLAIN_WORD.findall(body)])
+    words = tuple(
+        [
+            (letter, float(value) if "." in value else int(value))
+            for letter, value in _PLAIN_WORD.findall(body)
+        ]
+    )
     return (int(number) if number else None), words
 
 
@@ -555,7 +569,7 @@ def parse_block(line: str) -> Block:
 def _parse_statement(code: str, source: str, base: int = 0) -> Statement:
     if _PLAIN_BLOCK.fullmatch(code):
         return Words(
-            tuple((letter, Num(float(value))) for letter, value in _PLAIN_WORD.findall(code))
+            tuple((letter, Num(_literal(value))) for letter, value in _PLAIN_WORD.findall(code))
         )
     if code in ("POPEN", "PCLOS"):
         return PortControl(code == "POPEN")

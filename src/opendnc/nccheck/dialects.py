@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from opendnc.errors import InputError
 from opendnc.nccheck import codes
 
-__all__ = ["DIALECTS", "Dialect", "dialect_named", "guess_dialect"]
+__all__ = ["DIALECTS", "Dialect", "dialect_named", "guess_dialect", "lathe_word"]
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,14 @@ class Dialect:
     tap_starts_spindle: bool = False
     """G84 starts the spindle itself, so a tap with the spindle stopped is no fault (Haas:
     "It is not necessary to start the spindle CW before this canned cycle")."""
+    dwell_ms: bool = True
+    """A dwell's P written without a decimal point (``G04 P500``, a drilling cycle's P) counts
+    milliseconds, with one (``P0.5``) seconds: Haas and Fanuc (docs/check.md#decimal-point)."""
+    bare_letters: str = "XYZUVWIJKR"
+    """Words whose number, written without a decimal point, counts in the least input
+    increment, 0.001 mm or 0.0001 inch (``X100`` is 0.1 mm): the power-on default of Fanuc
+    (parameter 3401#0 DPI = 0) and Haas (setting 162 off); empty where whole numbers mean mm
+    or inches (DPI = 1, setting 162 on). docs/check.md#decimal-point."""
 
     @property
     def family(self) -> str:
@@ -54,16 +62,19 @@ class Dialect:
         return "haas" if self.haas else "fanuc"
 
 
+# Haas also reads F without a point in the increment (setting 77 off, its default: F12 is
+# 0.012 mm/min); Fanuc reads F300 as 300 mm/min
+_HAAS_BARE = "XYZUVWIJKRF"
 _HAAS_MILL = Dialect(
     "haas-mill", "Haas mill", False, codes.HAAS_MILL_G, codes.HAAS_M, fanuc=False,
-    rigid_tap_m=None, tap_starts_spindle=True,
+    rigid_tap_m=None, tap_starts_spindle=True, bare_letters=_HAAS_BARE,
 )  # fmt: skip
 _FANUC_MILL = Dialect(
     "fanuc-mill", "Fanuc mill", False, codes.FANUC_MILL_G, codes.HAAS_M, m_from=0, haas=False
 )
 _HAAS_LATHE = Dialect(
     "haas-lathe", "Haas lathe", True, codes.HAAS_LATHE_G, codes.HAAS_LATHE_M, fanuc=False,
-    rigid_tap_m=None, tap_starts_spindle=True,
+    rigid_tap_m=None, tap_starts_spindle=True, bare_letters=_HAAS_BARE,
 )  # fmt: skip
 _FANUC_LATHE = Dialect(
     "fanuc-lathe", "Fanuc lathe", True, codes.FANUC_LATHE_G, codes.HAAS_LATHE_M, m_from=0,
@@ -103,6 +114,18 @@ def guess_dialect(text: str) -> Dialect:
     """The dialect of a G-code program whose control is not named: a lathe when the text
     holds lathe-only words (G96/G97, G50 S, G71 P..), else a mill (Haas and Fanuc codes)."""
     return _LATHE if _LATHE_HINT.search(text, 0, 1 << 20) else _MILL
+
+
+def lathe_word(text: str) -> tuple[int, str] | None:
+    """The line (from 1) and text of the first lathe-only word in ``text`` (see
+    :func:`guess_dialect`), or None."""
+    match = _LATHE_HINT.search(text, 0, 1 << 20)
+    if match is None:
+        return None
+    start = text.rfind("\n", 0, match.start()) + 1
+    end = text.find("\n", match.end())
+    block = text[start : end if end >= 0 else len(text)].strip()
+    return text.count("\n", 0, match.start()) + 1, block[:40]
 
 
 def dialect_named(name: str) -> Dialect:

@@ -43,7 +43,7 @@ from opendnc.gcode.program import (
 from opendnc.haas import macros
 from opendnc.nccheck import codes
 from opendnc.nccheck.api import Budget, Library
-from opendnc.nccheck.dialects import Dialect, dialect_named, guess_dialect
+from opendnc.nccheck.dialects import Dialect, dialect_named, guess_dialect, lathe_word
 from opendnc.nccheck.limits import MachineLimits, offset_key
 from opendnc.nccheck.path import (
     RAPID_MM_PER_MIN,
@@ -169,6 +169,8 @@ class _Run:
             dialect_named(named) if named else guess_dialect(source.head(1 << 20))
         )
         self.lathe = self.dialect.lathe and not self.iso
+        # words whose number without a decimal point counts in the least input increment
+        self.bare = "" if self.iso else self.dialect.bare_letters
         self.g_codes = codes.ISO_G if self.iso else self.dialect.g_codes
         self.m_codes = codes.HEIDENHAIN_M if self.iso else self.dialect.m_codes
         travel = dict(machine.travel) if machine and machine.travel else None
@@ -239,6 +241,17 @@ class _Run:
         if self.units is not None:
             self._convert_machine_units(self.units)
         self._offsets()
+        if named and not self.dialect.lathe and not self.iso:
+            # a lathe program checked as a mill program: X is a radius there, U/W and T0101
+            # mean other things, and moves may never be measured (no Y): say so
+            found = lathe_word(source.head(1 << 20))
+            if found is not None:
+                self.report(
+                    found[0],
+                    Severity.WARNING,
+                    f"'{found[1]}' is a lathe block, but the program is checked as a "
+                    f"{self.dialect.title} program: name the lathe control if it is one",
+                )
 
     # ------------------------------------------------------------------ reporting
     def report(self, line: int, severity: Severity, message: str) -> None:
@@ -776,9 +789,12 @@ class _Run:
             # it, without its lists and checks of every other word
             fast: dict[str, float] = {}
             code = None
+            bare = False
             for letter, value in words:
                 if letter in _FAST_LETTERS:
                     fast[letter] = value
+                    if type(value) is int:  # written without a decimal point
+                        bare = True
                 elif letter == "G" and (value == 0.0 or value == 1.0) and code is None:
                     code = value
                 else:
@@ -787,6 +803,8 @@ class _Run:
                 if code is not None:
                     self.motion = motion = code
                 self.prev_end = self.w  # _move_to replaces self.w: this keeps the old one
+                if bare and self.bare:
+                    self._bare(fast, line)
                 self.block_words = fast
                 if "F" in fast:
                     self.feed = fast["F"]
@@ -833,9 +851,11 @@ class _Run:
         special = 0.0
         if g:
             special = self._g_codes(g, v, line)
-            if special == 65:
-                self._call(frame, "g65", v, line)
-                return
+        if self.bare and special != 4:  # a dwell reads its own words (_dwell_seconds)
+            self._bare(v, line)
+        if special == 65:
+            self._call(frame, "g65", v, line)
+            return
         if "F" in v:
             self.feed = v["F"]
             self.path.feed_rate(self.feed)
@@ -987,6 +1007,32 @@ class _Run:
             return None
         return 0.0
 
+    def _bare(self, v: dict[str, float], line: int) -> None:
+        """Words written without a decimal point count in the least input increment on
+        Haas and Fanuc (``X100`` is 0.1 mm, 0.01 inch): docs/check.md#decimal-point."""
+        for letter, value in v.items():
+            if type(value) is int and value and letter in self.bare:
+                step, unit = (0.0001, "inch") if self.units is Units.INCH else (0.001, "mm")
+                v[letter] = scaled = value * step
+                self.warn_once(
+                    line,
+                    "bare",
+                    f"{letter}{value} has no decimal point: the {self.dialect.title} control "
+                    f"reads it as {letter}{scaled:g} (whole numbers count in {step:g} {unit}); "
+                    f"write {letter}{value}. for {value} {unit}",
+                )
+
+    def _dwell_seconds(self, v: dict[str, float]) -> float:
+        """G04's time: P without a decimal point in milliseconds, with one in seconds (Haas,
+        Fanuc); X (a lathe's U) in seconds, without a point in milliseconds where whole
+        numbers count in the increment (Fanuc: the dwell's increment is 1 ms)."""
+        if "P" in v:
+            p = v["P"]
+            return p / 1000.0 if self.dialect.dwell_ms and type(p) is int else p
+        letter = "U" if self.lathe and "X" not in v and "U" in v else "X"
+        x = v.get(letter, 0.0)
+        return x / 1000.0 if type(x) is int and letter in self.bare else x
+
     def _units(self, units: Units, line: int) -> None:
         if self.units is not None and units is not self.units:
             self.warn_once(line, "units", "the program changes units (G20/G21) part way")
@@ -1053,7 +1099,7 @@ class _Run:
         has_axes = "X" in v or "Y" in v or "Z" in v
         if special:
             if special == 4:
-                self.path.dwell(v.get("P", v.get("X", 0.0)) if not self.iso else v.get("F", 0.0))
+                self.path.dwell(self._dwell_seconds(v) if not self.iso else v.get("F", 0.0))
             elif special == 28:
                 self._home(v, line)
             elif special == 53:
@@ -1301,7 +1347,9 @@ class _Run:
             base = cycle.r if cycle.r is not None else initial
             cycle.z = v["Z"] if self.absolute or base is None else base + v["Z"]
         if "P" in v:
-            cycle.dwell = v["P"]
+            dwell = v["P"]
+            bare = self.dialect.dwell_ms and type(dwell) is int
+            cycle.dwell = dwell / 1000.0 if bare else dwell
         if cycle.z is None:
             self.error(line, f"canned cycle G{cycle.code:g} without a depth (Z)")
             return
@@ -1527,6 +1575,18 @@ class _Run:
                             "control's own macros)",
                         )
                     )
+        unknown = [a for a, low in zip(_AXES, self.path.low, strict=True) if low == math.inf]
+        if unknown == ["Y"] and self.path.unplaced and not (self.path.rapid or self.path.feed):
+            # X and Z but never Y: a lathe program read as a mill program measures and draws
+            # nothing; say so rather than report 0 moves silently
+            problems.append(
+                Problem(
+                    self.path.unplaced_line,
+                    Severity.WARNING,
+                    f"{self.path.unplaced} feed moves are not measured or drawn: the program never "
+                    f"gives the {'/'.join(unknown)} position",
+                )
+            )
         result = self.path.result(
             self.control,
             self.name,

@@ -112,6 +112,8 @@ class Toolpath:
         self.check_travel = bool(travel)
         self._overruns: dict[tuple[int, bool], _Overrun] = {}
         self.moves_dropped = 0
+        self.unplaced = 0  # feed moves from or to a position with an axis not known
+        self.unplaced_line = 0  # the first of them
         self.last: Move | None = None  # the last move, kept or not (a corner trims it)
         # the end point of the last move: the next move's start shares it (one tuple, not
         # two, per point: a million moves keep half the points)
@@ -225,7 +227,12 @@ class Toolpath:
         x0, y0, z0 = start[0], start[1], start[2]
         x1, y1, z1 = end[0], end[1], end[2]
         if x0 is None or y0 is None or z0 is None or x1 is None or y1 is None or z1 is None:
-            return  # a move from or to an unknown position is neither drawn nor measured
+            # a move from or to an unknown position is neither drawn nor measured
+            if not rapid:  # feed moves: the cut itself goes unmeasured
+                if not self.unplaced:
+                    self.unplaced_line = line
+                self.unplaced += 1
+            return
         length = math.hypot(x1 - x0, y1 - y0, z1 - z0)
         if length == 0.0:
             return
