@@ -282,7 +282,8 @@ class _Run:
     def _scanner(self) -> Iterator[bool]:
         """Read the file in order: split it into programs (the first is the main one, the
         others callable by O number), check every block once (also those the run never
-        reaches) and remember where each piece of blocks starts. Yields after each block."""
+        reaches) and remember where each piece of blocks starts. Yields after each piece
+        of blocks (and after an ISO end block)."""
         self.iso_ended = False
         held: list[tuple[int, int, str]] = []  # comment lines before the first O line
         title: tuple[str, int | None] = (self.name or "program", None)
@@ -335,7 +336,8 @@ class _Run:
                     self._add(current, *item)
                 held = []
             self._add(current, index, offset, text)
-            yield True
+            if not current.count & (_CHUNK - 1):
+                yield True  # a piece at a time: a resumption a block costs as much as its check
         if current is None:
             current = self._new_program(title)
             for item in held:
@@ -454,7 +456,8 @@ class _Run:
     def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
         """Block ``index`` of ``program`` with its file line; None past its last block."""
         while index >= program.count:
-            if program.complete or not self._advance():
+            # the scan's last step may add the blocks asked for as it ends
+            if (program.complete or not self._advance()) and index >= program.count:
                 return None
         piece = index >> _SHIFT
         if piece == len(program.offsets) - 1:
@@ -485,15 +488,21 @@ class _Run:
     def _number(self, program: _Program, number: int) -> int | None:
         """The index of block N``number`` of ``program`` (the scan reads on to find it)."""
         found = program.numbers.get(number)
-        while found is None and not program.complete and self._advance():
+        while found is None and not program.complete:
+            more = self._advance()
             found = program.numbers.get(number)
+            if not more:
+                break
         return found
 
     def _loop_end(self, program: _Program, index: int) -> int | None:
         """The END paired with the WHILE at ``index`` (the scan reads on to find it)."""
         found = program.loop_end.get(index)
-        while found is None and not program.complete and self._advance():
+        while found is None and not program.complete:
+            more = self._advance()
             found = program.loop_end.get(index)
+            if not more:
+                break
         return found
 
     def _line_of(self, program: _Program, index: int) -> int:
@@ -1462,8 +1471,11 @@ class _Run:
 
     def _find(self, number: int, line: int) -> _Program | None:
         program = self.programs.get(number)
-        while program is None and self._advance():  # a sub-program further on in the file
+        while program is None and not self.scan_done:  # a sub-program further on in the file
+            more = self._advance()
             program = self.programs.get(number)
+            if not more:
+                break
         if program is not None:
             return program
         name = f"O{number:05d}"

@@ -163,6 +163,11 @@ class _Piece:
         self.texts.append(text)
         self.lines.append(line)
         self.blocks.append(block)
+        if raw or params or note:
+            self.extras(index, raw, params, note)
+
+    def extras(self, index: int, raw: str, params: list[str] | None, note: str | None) -> None:
+        """The rare parts of block ``index``."""
         if raw:
             self.raw[index] = raw
         if params:
@@ -229,7 +234,7 @@ def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
             body = "FN " + body[2:]  # "FN18: SYSREAD": the TNC writes FN 18 both ways
         if pending is not None:
             yield (*pending, params, note_held)
-        pending = (number, start, block, body, _case_kept(body, raw))
+        pending = (number, start, block, body, raw if body.startswith(_CASE_KEPT) else "")
         params, note_held = None, note
         defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
     if pending is not None:
@@ -411,7 +416,8 @@ class _Run:
         self.stock_axis = "Z"
         self.pos: list[float | None] = [None, None, None]
         self.center: tuple[float, float] | None = None
-        self.last_dir: tuple[float, float] | None = None
+        self._last_dir: tuple[float, float] | None = None
+        self._dir_step: tuple[float, float] | None = None  # a plain line's, made a unit late
         self.shift = [0.0, 0.0, 0.0]
         self.axis = 2  # tool axis: Z
         self.feed: float | None = None
@@ -435,6 +441,21 @@ class _Run:
         self.scanned = 0  # blocks read (each once: a loop's passes are not)
         self.jump_items: dict[int, _Line] = {}  # line -> its block, for the endless report
         self.main = self._program(source, name)
+
+    @property
+    def last_dir(self) -> tuple[float, float] | None:
+        """The unit direction at the end of the last contour element in the working plane."""
+        step = self._dir_step
+        if step is not None:
+            length = math.hypot(step[0], step[1])
+            self._last_dir = (step[0] / length, step[1] / length)
+            self._dir_step = None
+        return self._last_dir
+
+    @last_dir.setter
+    def last_dir(self, direction: tuple[float, float] | None) -> None:
+        self._last_dir = direction
+        self._dir_step = None
 
     # ------------------------------------------------------------------ reporting
     def report(self, where: _Line, severity: Severity, message: str) -> None:
@@ -475,16 +496,22 @@ class _Run:
         reaches), note its labels and its END PGM, and close a piece every 256 blocks
         (yields then)."""
         piece = _Piece()
+        texts, lines, blocks = piece.texts, piece.lines, piece.blocks
         index = 0
         for line, offset, block, text, raw, params, note in _read(program.source):
             at = index & (_CHUNK - 1)
             if not at:
                 program.offsets.append(offset)
                 program.starts.append(line)
-            piece.add(line, block, text, raw, params, note)
+            texts.append(text)
+            lines.append(line)
+            blocks.append(block)
+            if raw or params or note:
+                piece.extras(at, raw, params, note)
             if not index:
                 program.first = piece.item(0)
-            message = _static_problem(text)
+            # a straight move without M functions has a known head and nothing to check
+            message = None if text[:2] == "L " and "M" not in text else _static_problem(text)
             if message or note:
                 item = piece.item(at)
                 if note:
@@ -503,6 +530,7 @@ class _Run:
                 program.closed = index >> _SHIFT
                 program.last = piece.item(_CHUNK - 1)
                 piece = _Piece()
+                texts, lines, blocks = piece.texts, piece.lines, piece.blocks
                 yield True
         if piece.texts:
             self._cache_piece(program, index >> _SHIFT, piece)
@@ -978,7 +1006,8 @@ class _Run:
         """``L X.. Y.. Z.. [R0] [F..]`` with absolute literal coordinates, the bulk of a
         posted program: the same as :meth:`_linear` (no RND/CHF pending, no M89) with less
         work per block; the block's line record is made only when it reports."""
-        target = self.pos[:]
+        start = self.pos
+        target = start[:]
         shift = self.shift
         for word in plain.group(1).split():
             axis = _AXIS_INDEX[word[0]]
@@ -990,17 +1019,17 @@ class _Run:
             item = piece.item(index)
             self._go(item, target, rapid=False, feed=self._cutting(item))
             return
-        start = self.pos
-        self.path.line(
-            tuple(start), tuple(target), piece.lines[index], rapid=False, feed=self.feed,
-            machine_end=self._machine(target) if self.path.check_travel else None,
+        path = self.path
+        path.line(
+            start, target, piece.lines[index], rapid=False, feed=self.feed,
+            machine_end=self._machine(target) if path.check_travel else None,
         )  # fmt: skip
         a, b, _ = _PLANES[self.axis]  # the direction at the end, as _go keeps it
         sa, sb, ea, eb = start[a], start[b], target[a], target[b]
         if sa is not None and sb is not None and ea is not None and eb is not None:
-            length = math.hypot(ea - sa, eb - sb)
-            if length > 1e-9:
-                self.last_dir = ((ea - sa) / length, (eb - sb) / length)
+            da, db = ea - sa, eb - sb
+            if da * da + db * db > 1e-18:  # longer than 1e-9: made a unit when asked for
+                self._dir_step = (da, db)
         self.pos = target
 
     def _linear(self, item: _Line, text: str) -> None:
@@ -1610,9 +1639,8 @@ def _static_problem(text: str) -> str | None:
     return None
 
 
-def _case_kept(text: str, raw: str) -> str:
-    """``raw`` where a block needs the case of its text (tool and program names), else ""."""
-    return raw if text.startswith(("TOOL CALL", "CALL PGM")) else ""
+# blocks whose raw line is kept: the case of their text matters (tool and program names)
+_CASE_KEPT = ("TOOL CALL", "CALL PGM")
 
 
 def _decimal_comma(text: str) -> tuple[str, str | None]:
