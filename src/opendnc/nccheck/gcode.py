@@ -801,8 +801,29 @@ class _Run:
                     self.feed = fast["F"]
                     self.path.feed_rate(self.feed)
                 if "X" in fast or "Y" in fast or "Z" in fast:
+                    rapid = motion == 0.0
+                    if (
+                        self.absolute
+                        and self.feed_mode == 94
+                        and (rapid or (self.feed and self.spindle_on))
+                    ):
+                        # nothing to report and no time of its own: _target and _move_to
+                        # written out for absolute X/Y/Z
+                        work, machine, off = self.w[:], self.m[:], self.off
+                        for axis, letter in enumerate(_AXES):
+                            if letter in fast:
+                                given = fast[letter]
+                                work[axis] = given
+                                base = off[axis]
+                                machine[axis] = None if base is None else given + base
+                        self.path.line(
+                            self.w, work, line, rapid=rapid, feed=None if rapid else self.feed,
+                            machine_end=machine,
+                        )  # fmt: skip
+                        self.w, self.m = work, machine
+                        return
                     work, machine = self._target(fast)
-                    self._move_to(work, machine, line, motion == 0.0)
+                    self._move_to(work, machine, line, rapid)
                 return
         g: list[float] = []
         m: list[float] = []
