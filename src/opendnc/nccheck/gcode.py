@@ -295,7 +295,8 @@ class _Run:
     def _scanner(self) -> Iterator[bool]:
         """Read the file in order: split it into programs (the first is the main one, the
         others callable by O number), check every block once (also those the run never
-        reaches) and remember where each piece of blocks starts. Yields after each block."""
+        reaches) and remember where each piece of blocks starts. Yields after each piece
+        of blocks (and after an ISO end block)."""
         self.iso_ended = False
         held: list[tuple[int, int, str]] = []  # comment lines before the first O line
         title: tuple[str, int | None] = (self.name or "program", None)
@@ -348,7 +349,8 @@ class _Run:
                     self._add(current, *item)
                 held = []
             self._add(current, index, offset, text)
-            yield True
+            if not current.count & (_CHUNK - 1):
+                yield True  # a piece at a time: a resumption a block costs as much as its check
         if current is None:
             current = self._new_program(title)
             for item in held:
@@ -467,7 +469,8 @@ class _Run:
     def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
         """Block ``index`` of ``program`` with its file line; None past its last block."""
         while index >= program.count:
-            if program.complete or not self._advance():
+            # the scan's last step may add the blocks asked for as it ends
+            if (program.complete or not self._advance()) and index >= program.count:
                 return None
         piece = index >> _SHIFT
         if piece == len(program.offsets) - 1:
@@ -498,15 +501,21 @@ class _Run:
     def _number(self, program: _Program, number: int) -> int | None:
         """The index of block N``number`` of ``program`` (the scan reads on to find it)."""
         found = program.numbers.get(number)
-        while found is None and not program.complete and self._advance():
+        while found is None and not program.complete:
+            more = self._advance()
             found = program.numbers.get(number)
+            if not more:
+                break
         return found
 
     def _loop_end(self, program: _Program, index: int) -> int | None:
         """The END paired with the WHILE at ``index`` (the scan reads on to find it)."""
         found = program.loop_end.get(index)
-        while found is None and not program.complete and self._advance():
+        while found is None and not program.complete:
+            more = self._advance()
             found = program.loop_end.get(index)
+            if not more:
+                break
         return found
 
     def _line_of(self, program: _Program, index: int) -> int:
@@ -810,8 +819,29 @@ class _Run:
                     self.feed = fast["F"]
                     self.path.feed_rate(self.feed)
                 if "X" in fast or "Y" in fast or "Z" in fast:
+                    rapid = motion == 0.0
+                    if (
+                        self.absolute
+                        and self.feed_mode == 94
+                        and (rapid or (self.feed and self.spindle_on))
+                    ):
+                        # nothing to report and no time of its own: _target and _move_to
+                        # written out for absolute X/Y/Z
+                        work, machine, off = self.w[:], self.m[:], self.off
+                        for axis, letter in enumerate(_AXES):
+                            if letter in fast:
+                                given = fast[letter]
+                                work[axis] = given
+                                base = off[axis]
+                                machine[axis] = None if base is None else given + base
+                        self.path.line(
+                            self.w, work, line, rapid=rapid, feed=None if rapid else self.feed,
+                            machine_end=machine,
+                        )  # fmt: skip
+                        self.w, self.m = work, machine
+                        return
                     work, machine = self._target(fast)
-                    self._move_to(work, machine, line, motion == 0.0)
+                    self._move_to(work, machine, line, rapid)
                 return
         g: list[float] = []
         m: list[float] = []
@@ -1510,8 +1540,11 @@ class _Run:
 
     def _find(self, number: int, line: int) -> _Program | None:
         program = self.programs.get(number)
-        while program is None and self._advance():  # a sub-program further on in the file
+        while program is None and not self.scan_done:  # a sub-program further on in the file
+            more = self._advance()
             program = self.programs.get(number)
+            if not more:
+                break
         if program is not None:
             return program
         name = f"O{number:05d}"

@@ -86,9 +86,12 @@ _DECIMAL_COMMA = re.compile(r"(\d),(\d)")
 # the whole number that holds the comma, for the message; the lookbehind starts the search at
 # the start of a number only, so a long digit run is scanned once, not once a digit
 _COMMA_NUMBER = re.compile(r"(?<![\d.])[\d.]*\d,\d[\d.]*")
-# an FN function head in any spacing: "FN 18: ", "FN18:", "FN18: " (after a block number)
-_FN_HEAD = re.compile(r"^(\d+\s+)?FN\s*(\d+)\s*:\s*")
-_TEXT_HEADS = ("QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "*", "CALL PGM", "SEL ")
+# an FN function head in any spacing: "FN 18: ", "FN18:", "FN18:SYSREAD" (what posts write)
+_FN_HEAD = re.compile(r"^FN\s*(\d+)\s*:\s*")
+_TEXT_HEADS = (
+    "QS", "FN 15", "FN 16", "FN 27", "FN 28", "FN 30", "FN 31", "FN15", "FN16", "FN27", "FN28",
+    "FN30", "FN31", "*", "CALL PGM", "SEL ",
+)  # fmt: skip
 _SPINDLE_START = re.compile(r"\bM(3|4|13|14)\b")
 _PRESET_Q = range(100, 200)  # Q100-Q199: set by the TNC itself (tool radius, results)
 
@@ -108,7 +111,7 @@ class _Stop(Exception):
 
 @dataclass(slots=True)
 class _Line:
-    # one per program line, so kept small: a million-block program holds a million of them
+    # made only for a block that reports or is more than a plain straight move
     line: int
     block: int | None
     text: str  # upper case, comment removed
@@ -117,105 +120,154 @@ class _Line:
     note: str | None = None  # a problem found while reading the line
 
 
-_BIG = 2**62  # block numbers from here on are kept outside the array
+_CHUNK = 256  # blocks a piece (a power of two: index >> 8 is the piece)
+_SHIFT = 8
+_CACHED = 64  # pieces kept parsed (about 16,000 blocks) for loops and label calls
+_PENDING = 256  # calls to labels not yet read kept to report (the rest only counted)
 
 
-class _Lines:
-    """A program's blocks in parallel arrays, a :class:`_Line` made on each access.
+class _Piece:
+    """Up to 256 consecutive blocks of a program in parallel lists; a :class:`_Line` is
+    made on demand (the rare parts, a case-kept raw line, cycle parameters, a reading
+    problem, sit in dictionaries by index)."""
 
-    A million-block program would otherwise hold a million line objects (two int objects
-    each); here a block costs its text and two array slots, and the rare parts (the case-kept
-    raw line, cycle parameters, a reading problem) sit in dictionaries by index.
-    """
-
-    __slots__ = ("_big", "_blocks", "_notes", "_numbers", "_params", "_raw", "_texts")
+    __slots__ = ("blocks", "lines", "notes", "params", "raw", "texts")
 
     def __init__(self) -> None:
-        self._texts: list[str] = []
-        self._numbers = array("q")
-        self._blocks = array("q")  # -1: a block without a number
-        self._raw: dict[int, str] = {}
-        self._params: dict[int, list[str]] = {}
-        self._notes: dict[int, str] = {}
-        self._big: dict[int, int] = {}
+        self.texts: list[str] = []
+        self.lines: list[int] = []  # file lines
+        self.blocks: list[int | None] = []  # block numbers (None: a block without one)
+        self.raw: dict[int, str] = {}
+        self.params: dict[int, list[str]] = {}
+        self.notes: dict[int, str] = {}
 
-    def __len__(self) -> int:
-        return len(self._texts)
-
-    def __getitem__(self, index: int) -> _Line:
-        if index < 0:
-            index += len(self._texts)
-        block: int | None = self._blocks[index]
-        if block == _BIG:
-            block = self._big.get(index)
+    def item(self, index: int) -> _Line:
+        """Block ``index`` of the piece as a line record."""
         return _Line(
-            self._numbers[index],
-            None if block is None or block < 0 else block,
-            self._texts[index],
-            self._raw.get(index, ""),
-            self._params.get(index, ()),
-            self._notes.get(index),
+            self.lines[index],
+            self.blocks[index],
+            self.texts[index],
+            self.raw.get(index, ""),
+            self.params.get(index, ()),
+            self.notes.get(index),
         )
 
-    def __iter__(self) -> Iterator[_Line]:
-        return (self[index] for index in range(len(self._texts)))
+    def add(
+        self,
+        line: int,
+        block: int | None,
+        text: str,
+        raw: str,
+        params: list[str] | None,
+        note: str | None,
+    ) -> None:
+        index = len(self.texts)
+        self.texts.append(text)
+        self.lines.append(line)
+        self.blocks.append(block)
+        if raw or params or note:
+            self.extras(index, raw, params, note)
 
-    def add(self, line: int, block: int | None, text: str, raw: str, note: str | None) -> None:
-        index = len(self._texts)
-        self._texts.append(text)
-        self._numbers.append(line)
-        if block is not None and block >= _BIG:  # a 309-digit "block number" stays exact
-            self._big[index] = block
-            block = _BIG
-        self._blocks.append(-1 if block is None else block)
+    def extras(self, index: int, raw: str, params: list[str] | None, note: str | None) -> None:
+        """The rare parts of block ``index``."""
         if raw:
-            self._raw[index] = raw
+            self.raw[index] = raw
+        if params:
+            self.params[index] = params
         if note:
-            self._notes[index] = note
+            self.notes[index] = note
 
-    def last_text(self) -> str:
-        return self._texts[-1]
 
-    def first(self, prefix: str) -> _Line | None:
-        """The first block whose text starts with ``prefix`` (no record made for the rest)."""
-        for index, text in enumerate(self._texts):
-            if text.startswith(prefix):
-                return self[index]
-        return None
+# one block as read: file line, offset of that line, block number, text, case-kept text,
+# continuation lines and a problem found while reading it
+_Read = tuple[int, int, int | None, str, str, list[str] | None, str | None]
 
-    def line_number(self, index: int) -> int:
-        """The file line of block ``index``."""
-        return self._numbers[index]
 
-    def texts(self) -> list[str]:
-        """The blocks' texts (read only)."""
-        return self._texts
-
-    def has_note(self, index: int) -> bool:
-        return index in self._notes
-
-    def join(self, text: str, note: str | None) -> None:
-        """A continuation line of a block that defines no cycle (a formula, an FN, a move
-        split with "~"): it is the rest of that block's text."""
-        index = len(self._texts) - 1
-        self._texts[index] = f"{self._texts[index]} {text}"
-        if note and index not in self._notes:
-            self._notes[index] = note
-
-    def add_param(self, text: str, note: str | None) -> None:
-        """A continuation line (cycle parameter) of the last block."""
-        index = len(self._texts) - 1
-        self._params.setdefault(index, []).append(text)
-        if note and index not in self._notes:
-            self._notes[index] = note
+def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
+    """The blocks of ``source`` from ``offset`` (the start of a block's first line ``line``),
+    each with its continuation lines (``~`` at the end of a line, cycle parameters after a
+    ``CYCL DEF`` or ``PATTERN DEF`` without block numbers). Yields a block once the next
+    one starts, so its parameters are all there."""
+    pending: tuple[int, int, int | None, str, str] | None = None
+    params: list[str] | None = None
+    note_held: str | None = None
+    continuing = False  # the line before ended in "~"
+    defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
+    numbered = _NUMBERED.match
+    for number, start, raw in source.lines(offset, line):
+        code = raw.partition(";")[0].strip()
+        if not code:
+            continue
+        upper = code.upper()
+        if upper[0] == "/":  # a skippable block "/ 11 STOP": run as with skip off
+            upper = upper[1:].lstrip()
+        note = None
+        if "," in upper and not upper.lstrip("0123456789 ").startswith(_TEXT_HEADS):
+            upper, note = _decimal_comma(upper)
+        # "~" continues a block on the next line; it may stand after a ";" comment
+        tilde = "~" in raw and raw.rstrip().endswith("~")
+        if upper.endswith("~"):
+            upper = upper.rstrip("~").strip()
+        match = numbered(upper)
+        if pending is not None and (
+            continuing or (match is None and defines and _PARAM_LINE.match(upper))
+        ):
+            if defines:
+                if params is None:
+                    params = []
+                params.append(upper)
+            else:  # "Q2 = COS ( ... ) + ( 5 * ~" goes on: one formula over two lines
+                pending = (*pending[:3], f"{pending[3]} {upper}", pending[4])
+            if note and note_held is None:
+                note_held = note
+            continuing = tilde
+            continue
+        continuing = tilde
+        if match is None:  # a block without a number: run it all the same
+            block = None
+            body = upper
+        else:
+            body = match.group(2)
+            if body[-1:] == "~":
+                body = body.rstrip("~").strip()
+            if body[:1] == "/":
+                body = body[1:].lstrip()
+            if not body:  # "3 ; T1 D=12": a numbered comment block
+                continue
+            block = int(match.group(1))
+        if body[:2] == "FN":  # "FN18:SYSREAD", as posts write it, is "FN 18: SYSREAD"
+            body = _FN_HEAD.sub(r"FN \1: ", body, count=1)
+        if pending is not None:
+            yield (*pending, params, note_held)
+        pending = (number, start, block, body, raw if body.startswith(_CASE_KEPT) else "")
+        params, note_held = None, note
+        defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
+    if pending is not None:
+        yield (*pending, params, note_held)
 
 
 @dataclass
 class _Program:
+    """A program read as the run needs it: its blocks are read in pieces of 256 as the run
+    (or a look-ahead for a label) reaches them and forgotten again; what stays is where each
+    piece starts in the file (to read it again on a jump back) and the labels."""
+
     name: str
-    lines: _Lines
-    labels: dict[str, int] = field(default_factory=dict)
+    source: Source
     external: bool = False
+    count: int = 0  # blocks read so far
+    closed: int = 0  # pieces complete (the run may use them)
+    complete: bool = False  # the scan has passed the last block
+    offsets: array[int] = field(default_factory=lambda: array("q"))  # piece -> file offset
+    starts: array[int] = field(default_factory=lambda: array("q"))  # piece -> file line
+    labels: dict[str, int] = field(default_factory=dict)  # label -> block index
+    first: _Line | None = None  # the first block
+    last: _Line | None = None  # the last block (once complete)
+    end: _Line | None = None  # the first END PGM block
+    # calls and jumps to labels not read yet: errors when the end comes without them
+    pending: dict[str, list[_Line]] = field(default_factory=dict)
+    pending_more: dict[str, int] = field(default_factory=dict)  # past _PENDING: counted
+    scan: Iterator[bool] | None = None
 
 
 @dataclass
@@ -369,7 +421,8 @@ class _Run:
         self.stock_axis = "Z"
         self.pos: list[float | None] = [None, None, None]
         self.center: tuple[float, float] | None = None
-        self.last_dir: tuple[float, float] | None = None
+        self._last_dir: tuple[float, float] | None = None
+        self._dir_step: tuple[float, float] | None = None  # a plain line's, made a unit late
         self.shift = [0.0, 0.0, 0.0]
         self.axis = 2  # tool axis: Z
         self.feed: float | None = None
@@ -389,7 +442,25 @@ class _Run:
         self.end_line: _Line | None = None
         self.ended = False
         self.begin: tuple[str, str] | None = None
-        self.main = self._parse(source, name)
+        self.cache: dict[tuple[int, int], _Piece] = {}  # (program, piece) -> its blocks
+        self.scanned = 0  # blocks read (each once: a loop's passes are not)
+        self.jump_items: dict[int, _Line] = {}  # line -> its block, for the endless report
+        self.main = self._program(source, name)
+
+    @property
+    def last_dir(self) -> tuple[float, float] | None:
+        """The unit direction at the end of the last contour element in the working plane."""
+        step = self._dir_step
+        if step is not None:
+            length = math.hypot(step[0], step[1])
+            self._last_dir = (step[0] / length, step[1] / length)
+            self._dir_step = None
+        return self._last_dir
+
+    @last_dir.setter
+    def last_dir(self, direction: tuple[float, float] | None) -> None:
+        self._last_dir = direction
+        self._dir_step = None
 
     # ------------------------------------------------------------------ reporting
     def report(self, where: _Line, severity: Severity, message: str) -> None:
@@ -419,79 +490,140 @@ class _Run:
             self.warned.add(key)
             self.report(where, Severity.WARNING, message)
 
-    # ------------------------------------------------------------------ parsing
-    def _parse(self, source: Source, name: str, external: bool = False) -> _Program:
-        lines = _Lines()
-        continuing = False  # the line before ended in "~"
-        defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
-        # read line by line (CR LF, LF or CR ends): no second copy of a large program
-        for number, _, raw in source.lines():
-            code = raw.partition(";")[0].strip()
-            if not code:
-                continue
-            upper = code.upper()
-            if upper[0] == "/":  # a skippable block "/ 11 STOP": run as with skip off
-                upper = upper[1:].lstrip()
-            if "FN" in upper:  # "FN18:SYSREAD", as posts write it, is "FN 18: SYSREAD"
-                upper = _FN_HEAD.sub(r"\1FN \2: ", upper, count=1)
-            note = None
-            if "," in upper and not upper.lstrip("0123456789 ").startswith(_TEXT_HEADS):
-                upper, note = _decimal_comma(upper)
-            # "~" continues a block on the next line; it may stand after a ";" comment
-            tilde = "~" in raw and raw.rstrip().endswith("~")
-            if upper.endswith("~"):
-                upper = upper.rstrip("~").strip()
-            match = _NUMBERED.match(upper)
-            if len(lines) and (
-                continuing or (match is None and defines and _PARAM_LINE.match(upper))
-            ):
-                if defines:
-                    lines.add_param(upper, note)
-                else:  # "Q2 = COS ( ... ) + ( 5 * ~" goes on: one formula over two lines
-                    lines.join(upper, note)
-                continuing = tilde
-                continue
-            continuing = tilde
-            if match is None:  # a block without a number: run it all the same
-                lines.add(number, None, upper, _case_kept(upper, raw), note)
-                defines = upper.startswith(("CYCL DEF", "PATTERN DEF"))
-                continue
-            body = match.group(2)
-            if body.endswith("~"):
-                body = body.rstrip("~").strip()
-            if body[:1] == "/":
-                body = body[1:].lstrip()
-            if not body:  # "3 ; T1 D=12": a numbered comment block
-                continue
-            lines.add(number, int(match.group(1)), body, _case_kept(body, raw), note)
-            defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
-        program = _Program(name, lines, external=external)
-        texts = lines.texts()
-        for index, text_ in enumerate(texts):  # also the blocks the run may never reach
-            message = _static_problem(text_)
-            if message or lines.has_note(index):
-                item = lines[index]
-                if item.note:
-                    self._static(program, item, item.note)
+    # ------------------------------------------------------------------ reading
+    def _program(self, source: Source, name: str, external: bool = False) -> _Program:
+        program = _Program(name, source, external)
+        program.scan = self._scanner(program)
+        return program
+
+    def _scanner(self, program: _Program) -> Iterator[bool]:
+        """Read ``program`` in order: check every block once (also those the run never
+        reaches), note its labels and its END PGM, and close a piece every 256 blocks
+        (yields then)."""
+        piece = _Piece()
+        texts, lines, blocks = piece.texts, piece.lines, piece.blocks
+        index = 0
+        for line, offset, block, text, raw, params, note in _read(program.source):
+            at = index & (_CHUNK - 1)
+            if not at:
+                program.offsets.append(offset)
+                program.starts.append(line)
+            texts.append(text)
+            lines.append(line)
+            blocks.append(block)
+            if raw or params or note:
+                piece.extras(at, raw, params, note)
+            if not index:
+                program.first = piece.item(0)
+            # a straight move without M functions has a known head and nothing to check
+            message = None if text[:2] == "L " and "M" not in text else _static_problem(text)
+            if message or note:
+                item = piece.item(at)
+                if note:
+                    self._static(program, item, note)
                 if message:
                     self._static(program, item, message)
-        with_labels = [(i, lines[i]) for i, text_ in enumerate(texts) if "LBL" in text_]
-        for index, item in with_labels:
-            if item.text.startswith("LBL"):
-                label = _label(item.text[3:])
-                if label in program.labels and label != "0":
-                    self._static(program, item, f"label {label} is defined twice")
-                program.labels.setdefault(label, index)
-        for _, item in with_labels:
-            text_ = item.text
-            target = None
-            if text_.startswith("CALL LBL"):
-                target = _label(text_[8:].split(" REP")[0])
-            elif "GOTO LBL" in text_:
-                target = _label(text_.split("GOTO LBL", 1)[1])
-            if target is not None and target not in program.labels:
-                self._static(program, item, f"label {target} is not defined")
-        return program
+            if "LBL" in text:
+                self._scan_label(program, piece, index)
+            if program.end is None and text.startswith("END PGM"):
+                program.end = piece.item(at)
+            index += 1
+            program.count = index
+            self.scanned += 1
+            if not index & (_CHUNK - 1):
+                self._cache_piece(program, (index >> _SHIFT) - 1, piece)
+                program.closed = index >> _SHIFT
+                program.last = piece.item(_CHUNK - 1)
+                piece = _Piece()
+                texts, lines, blocks = piece.texts, piece.lines, piece.blocks
+                yield True
+        if piece.texts:
+            self._cache_piece(program, index >> _SHIFT, piece)
+            program.closed += 1
+            program.last = piece.item(len(piece.texts) - 1)
+        program.complete = True
+        self._close(program)
+
+    def _scan_label(self, program: _Program, piece: _Piece, index: int) -> None:
+        """A label read (defined twice is an error), or a call of or jump to one (kept until
+        its label is read: an error when the program ends without it)."""
+        at = index & (_CHUNK - 1)
+        text = piece.texts[at]
+        if text.startswith("LBL"):
+            label = _label(text[3:])
+            if label in program.labels and label != "0":
+                self._static(program, piece.item(at), f"label {label} is defined twice")
+            program.labels.setdefault(label, index)
+            program.pending.pop(label, None)
+            program.pending_more.pop(label, None)
+            return
+        target = None
+        if text.startswith("CALL LBL"):
+            target = _label(text[8:].split(" REP")[0])
+        elif "GOTO LBL" in text:
+            target = _label(text.split("GOTO LBL", 1)[1])
+        if target is None or target in program.labels:
+            return
+        if sum(map(len, program.pending.values())) < _PENDING:
+            program.pending.setdefault(target, []).append(piece.item(at))
+        else:
+            program.pending_more[target] = program.pending_more.get(target, 0) + 1
+
+    def _close(self, program: _Program) -> None:
+        """The scan has passed the last block: calls of labels it never read are errors."""
+        for label, items in program.pending.items():
+            for item in items:
+                self._static(program, item, f"label {label} is not defined")
+        if not program.external:
+            more = sum(program.pending_more.values())
+            self.more_problems += more
+            self.more_errors += more
+        program.pending = {}
+        program.pending_more = {}
+
+    def _cache_piece(self, program: _Program, index: int, piece: _Piece) -> None:
+        cache = self.cache
+        if len(cache) >= _CACHED:
+            del cache[next(iter(cache))]  # the oldest piece goes
+        cache[(id(program), index)] = piece
+
+    def _step(self, program: _Program) -> bool:
+        """Read one more piece of ``program``; False at its end."""
+        if program.complete or program.scan is None:
+            return False
+        if not next(program.scan, False):
+            program.complete = True
+            return False
+        return True
+
+    def _piece(self, program: _Program, index: int) -> _Piece | None:
+        """Piece ``index`` of ``program`` (read on to it, or again from the file); None past
+        the program's end."""
+        while index >= program.closed:
+            if not self._step(program) and index >= program.closed:
+                return None
+        piece = self.cache.get((id(program), index))
+        if piece is None:
+            piece = _Piece()
+            start, line = program.offsets[index], program.starts[index]
+            for number, _, block, text, raw, params, note in _read(program.source, start, line):
+                piece.add(number, block, text, raw, params, note)
+                if len(piece.texts) == _CHUNK:
+                    break
+            self._cache_piece(program, index, piece)
+        return piece
+
+    def _label_index(self, program: _Program, label: str) -> int | None:
+        """The block index of ``label`` in ``program`` (read on to find it)."""
+        found = program.labels.get(label)
+        while found is None and self._step(program):
+            found = program.labels.get(label)
+        return found
+
+    def _finish(self, program: _Program) -> None:
+        """Read the rest of ``program``: every block is checked, run or not."""
+        while self._step(program):
+            pass
 
     def _static(self, program: _Program, where: _Line, message: str) -> None:
         if program.external:
@@ -522,56 +654,70 @@ class _Run:
         # CPU time of this thread: a busy machine must not turn a long program into a "loop"
         seconds = self.budget.seconds
         deadline = math.inf if seconds is None else time.thread_time() + seconds
-        # the block budget is for loops: a program's own blocks always run to its end
-        limit = self.budget.blocks + len(self.main.lines)
-        self.frames.append(_Frame(self.main, 0, "main", 0))
-        if not self.main.lines or not self.main.lines[0].text.startswith("BEGIN PGM"):
-            first = self.main.lines[0] if self.main.lines else _Line(1, None, "", "")
-            self.error(first, "the program does not start with BEGIN PGM")
+        # the block budget is for loops: each block of the file runs once outside it
+        limit = self.budget.blocks
+        main = self.main
+        frames = self.frames
+        frames.append(_Frame(main, 0, "main", 0))
+        first = self._piece(main, 0)
+        if first is None or not first.texts[0].startswith("BEGIN PGM"):
+            first_line = main.first or _Line(1, None, "", "")
+            self.error(first_line, "the program does not start with BEGIN PGM")
+        plain_line = self._plain_line
         try:
             while True:
-                frame = self.frames[-1]
-                lines = frame.program.lines
+                frame = frames[-1]
                 pc = frame.pc
-                texts = lines.texts()
-                if pc >= len(texts):
+                piece = self._piece(frame.program, pc >> _SHIFT)
+                at = pc & (_CHUNK - 1)
+                if piece is None or at >= len(piece.texts):  # past the last block
                     self._fall_off(frame)
                     continue
-                frame.pc = pc + 1
-                self.blocks_run += 1
-                if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run >= limit or time.thread_time() > deadline
-                ):
-                    self._endless(lines[pc], out_of_time=self.blocks_run < limit)
-                text = texts[pc]
-                if text[:2] == "L " and self.corner is None and not self.m89:
-                    # the bulk of a posted program: no line record unless it reports
-                    plain = _PLAIN_L.fullmatch(text)
-                    if plain is not None:
-                        self._plain_line(lines, pc, plain)
-                        continue
-                item = lines[pc]
-                # an error ends its block only: the run goes on, so one problem never
-                # hides the ones after it (the block's effect is left out)
-                try:
-                    self._execute(item, frame)
-                except ZeroDivisionError:
-                    self.error(item, "division by zero")
-                except RecursionError:
-                    self.error(item, "a formula nested too deeply")
-                except (FormulaError, ValueError, OverflowError) as exc:
-                    self.error(item, str(exc) or "a value is out of range")
-                if self.pending_unset:
-                    self._unset_read(item)
+                texts = piece.texts
+                base = pc - at
+                # the blocks of this piece in order, until a jump, a call or a return
+                while at < len(texts):
+                    text = texts[at]
+                    frame.pc = pc = base + at + 1
+                    self.blocks_run += 1
+                    if self.blocks_run & 1023 == 0 and (
+                        self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
+                    ):
+                        self._endless(
+                            piece.item(at), out_of_time=self.blocks_run - self.scanned < limit
+                        )
+                    if text[:2] == "L " and self.corner is None and not self.m89:
+                        # the bulk of a posted program: no line record unless it reports
+                        plain = _PLAIN_L.fullmatch(text)
+                        if plain is not None:
+                            plain_line(piece, at, plain)
+                            at += 1
+                            continue
+                    item = piece.item(at)
+                    # an error ends its block only: the run goes on, so one problem never
+                    # hides the ones after it (the block's effect is left out)
+                    try:
+                        self._execute(item, frame)
+                    except ZeroDivisionError:
+                        self.error(item, "division by zero")
+                    except RecursionError:
+                        self.error(item, "a formula nested too deeply")
+                    except (FormulaError, ValueError, OverflowError) as exc:
+                        self.error(item, str(exc) or "a value is out of range")
+                    if self.pending_unset:
+                        self._unset_read(item)
+                    if frame.pc != pc or frames[-1] is not frame:
+                        break  # a jump, a call or a return: the next block is elsewhere
+                    at += 1
         except _Stop:
             pass
-        if self.end_line is None and self.main.lines and self.begin is not None:
+        self._finish(main)  # the blocks the run never reached are checked too
+        if self.end_line is None and main.count and self.begin is not None:
             # the run stopped (M30, an error): END PGM is still needed in the file
-            end = self.main.lines.first("END PGM")
-            if end is not None:
-                self._check_end(end)
+            if main.end is not None:
+                self._check_end(main.end)
             else:
-                self.error(self.main.lines[-1], "the program has no END PGM")
+                self.error(main.last or _Line(1, None, "", ""), "the program has no END PGM")
 
     def _unset_read(self, item: _Line) -> None:
         for name in self.pending_unset:
@@ -584,7 +730,7 @@ class _Run:
         self.pending_unset.clear()
 
     def _fall_off(self, frame: _Frame) -> None:
-        last = frame.program.lines[-1] if frame.program.lines else _Line(1, None, "", "")
+        last = frame.program.last or _Line(1, None, "", "")
         if frame.kind == "main":
             self.error(last, "the program has no END PGM")
             raise _Stop
@@ -604,7 +750,7 @@ class _Run:
             )
             raise _Stop
         where, count = max(self.jumps.items(), key=lambda kv: kv[1])
-        target = next((i for i in self.main.lines if i.line == where), item)
+        target = self.jump_items.get(where, item)
         self.error(
             target,
             f"endless loop: the jump back at line {where} ran {count:,} times; the dry run "
@@ -861,11 +1007,12 @@ class _Run:
                 self.last_dir = ((ea - sa) / length, (eb - sb) / length)
         self.pos = target
 
-    def _plain_line(self, lines: _Lines, index: int, plain: re.Match[str]) -> None:
+    def _plain_line(self, piece: _Piece, index: int, plain: re.Match[str]) -> None:
         """``L X.. Y.. Z.. [R0] [F..]`` with absolute literal coordinates, the bulk of a
         posted program: the same as :meth:`_linear` (no RND/CHF pending, no M89) with less
         work per block; the block's line record is made only when it reports."""
-        target = self.pos[:]
+        start = self.pos
+        target = start[:]
         shift = self.shift
         for word in plain.group(1).split():
             axis = _AXIS_INDEX[word[0]]
@@ -874,19 +1021,20 @@ class _Run:
         if feed is not None:
             self.feed = float(feed)
         if not self.feed or not self.spindle_on:
-            self._go(lines[index], target, rapid=False, feed=self._cutting(lines[index]))
+            item = piece.item(index)
+            self._go(item, target, rapid=False, feed=self._cutting(item))
             return
-        start = self.pos
-        self.path.line(
-            tuple(start), tuple(target), lines.line_number(index), rapid=False, feed=self.feed,
-            machine_end=self._machine(target) if self.path.check_travel else None,
+        path = self.path
+        path.line(
+            start, target, piece.lines[index], rapid=False, feed=self.feed,
+            machine_end=self._machine(target) if path.check_travel else None,
         )  # fmt: skip
         a, b, _ = _PLANES[self.axis]  # the direction at the end, as _go keeps it
         sa, sb, ea, eb = start[a], start[b], target[a], target[b]
         if sa is not None and sb is not None and ea is not None and eb is not None:
-            length = math.hypot(ea - sa, eb - sb)
-            if length > 1e-9:
-                self.last_dir = ((ea - sa) / length, (eb - sb) / length)
+            da, db = ea - sa, eb - sb
+            if da * da + db * db > 1e-18:  # longer than 1e-9: made a unit when asked for
+                self._dir_step = (da, db)
         self.pos = target
 
     def _linear(self, item: _Line, text: str) -> None:
@@ -1149,7 +1297,7 @@ class _Run:
         kind, size, where = corner
         a, b, plane = self._plane()
         c = 3 - a - b
-        last = self.path.moves[-1] if self.path.moves else None
+        last = self.path.last  # kept for the preview or not (the command line keeps none)
         here, there = self.pos, target
         if (
             last is None
@@ -1207,9 +1355,9 @@ class _Run:
                 self.spindle_on = code != 5 and self.spindle_on
             elif code in (2, 30):
                 if self.frames and self.frames[-1].kind == "main":
-                    end = self.main.lines.first("END PGM")
-                    if end is not None:
-                        self._check_end(end)
+                    self._finish(self.main)
+                    if self.main.end is not None:
+                        self._check_end(self.main.end)
                     self.ended = True
                     raise _Stop
             elif code == 99 and self.cycle is not None:
@@ -1223,7 +1371,7 @@ class _Run:
     def _call_label(self, item: _Line, frame: _Frame, rest: str) -> None:
         parts = rest.split(" REP")
         label = _label(parts[0])
-        index = frame.program.labels.get(label)
+        index = self._label_index(frame.program, label)
         if index is None:
             self.error(item, f"label {label} is not defined")
             return
@@ -1259,7 +1407,7 @@ class _Run:
                 except Exception:  # a library callback must not break the dry run
                     text = None
             self.called[name] = (
-                None if text is None else self._parse(TextSource(text), name, external=True)
+                None if text is None else self._program(TextSource(text), name, external=True)
             )
         program = self.called[name]
         if program is None:
@@ -1269,12 +1417,16 @@ class _Run:
             self.error(item, f"calls nest deeper than {_CALL_NEST} levels")
             return
         # the called program's own first line is its BEGIN PGM: skip it
-        start = 1 if program.lines and program.lines[0].text.startswith("BEGIN PGM") else 0
+        first = self._piece(program, 0)
+        start = 1 if first is not None and first.texts[0].startswith("BEGIN PGM") else 0
         call_line = self.frames[-1].call_line if self.frames[-1].kind != "main" else item.line
         self.frames.append(_Frame(program, start, "pgm", call_line))
 
     def _jump(self, item: _Line) -> None:
-        self.jumps[item.line] = self.jumps.get(item.line, 0) + 1
+        count = self.jumps.get(item.line)
+        if count is None:
+            self.jump_items[item.line] = item
+        self.jumps[item.line] = (count or 0) + 1
 
     def _fn(self, item: _Line, frame: _Frame) -> None:
         match = re.match(r"^FN\s*(\d+)\s*:?\s*(.*)$", item.text)
@@ -1306,7 +1458,7 @@ class _Run:
             }[compare.group(1)]
             if taken:
                 label = _label(target)
-                index = frame.program.labels.get(label)
+                index = self._label_index(frame.program, label)
                 if index is None:
                     self.error(item, f"label {label} is not defined")
                     return
@@ -1492,9 +1644,8 @@ def _static_problem(text: str) -> str | None:
     return None
 
 
-def _case_kept(text: str, raw: str) -> str:
-    """``raw`` where a block needs the case of its text (tool and program names), else ""."""
-    return raw if text.startswith(("TOOL CALL", "CALL PGM")) else ""
+# blocks whose raw line is kept: the case of their text matters (tool and program names)
+_CASE_KEPT = ("TOOL CALL", "CALL PGM")
 
 
 def _decimal_comma(text: str) -> tuple[str, str | None]:

@@ -114,7 +114,11 @@ class Toolpath:
         self.moves_dropped = 0
         self.unplaced = 0  # feed moves from or to a position with an axis not known
         self.unplaced_line = 0  # the first of them
-        self.last: Move | None = None  # the last move, kept or not (a corner trims it)
+        # the last move, kept or not (a corner trims it); a straight move not kept is held
+        # as its parts and made a Move only when asked for (most never are)
+        self._last: Move | None = None
+        self._last_parts: tuple[MoveKind, Point, Point, int, str | None, float | None] | None
+        self._last_parts = None
         # the end point of the last move: the next move's start shares it (one tuple, not
         # two, per point: a million moves keep half the points)
         self._last_end: Point | None = None
@@ -202,6 +206,19 @@ class Toolpath:
                 if value > high[axis]:
                     high[axis] = value
 
+    @property
+    def last(self) -> Move | None:
+        """The last move, kept for the preview or not."""
+        if self._last is None and self._last_parts is not None:
+            kind, begin, finish, line, tool, feed = self._last_parts
+            self._last = Move(kind, begin, finish, line, tool, feed=feed)
+        return self._last
+
+    @last.setter
+    def last(self, move: Move | None) -> None:
+        self._last = move
+        self._last_parts = None
+
     def _add(self, move: Move) -> None:
         self.last = move
         if len(self.moves) < self.max_moves:
@@ -211,8 +228,8 @@ class Toolpath:
 
     def line(
         self,
-        start: tuple[float | None, ...],
-        end: tuple[float | None, ...],
+        start: Sequence[float | None],
+        end: Sequence[float | None],
         line: int,
         *,
         rapid: bool,
@@ -221,11 +238,27 @@ class Toolpath:
         machine_end: Sequence[float | None] | None = None,
     ) -> None:
         """A straight move; ``seconds`` overrides the time from ``feed`` (units per minute)."""
-        self._see(end)
+        # the bulk of every program: _see, _count_feed and _add written out here
+        x1, y1, z1 = end[0], end[1], end[2]
+        low, high = self.low, self.high
+        if x1 is not None:
+            if x1 < low[0]:
+                low[0] = x1
+            if x1 > high[0]:
+                high[0] = x1
+        if y1 is not None:
+            if y1 < low[1]:
+                low[1] = y1
+            if y1 > high[1]:
+                high[1] = y1
+        if z1 is not None:
+            if z1 < low[2]:
+                low[2] = z1
+            if z1 > high[2]:
+                high[2] = z1
         if machine_end is not None and self.check_travel:
             self._check(machine_end, line)
         x0, y0, z0 = start[0], start[1], start[2]
-        x1, y1, z1 = end[0], end[1], end[2]
         if x0 is None or y0 is None or z0 is None or x1 is None or y1 is None or z1 is None:
             # a move from or to an unknown position is neither drawn nor measured
             if not rapid:  # feed moves: the cut itself goes unmeasured
@@ -237,17 +270,35 @@ class Toolpath:
         if length == 0.0:
             return
         begin: Point = (x0, y0, z0)
-        if begin == self._last_end and self._last_end is not None:
-            begin = self._last_end
+        last_end = self._last_end
+        if last_end is not None and begin == last_end:
+            begin = last_end
         finish: Point = (x1, y1, z1)
         self._last_end = finish
         if rapid:
+            kind = MoveKind.RAPID
+            feed = None
             self.rapid += length
             self.seconds += length / self.rapid_rate * 60.0
-            self._add(Move(MoveKind.RAPID, begin, finish, line, self.tool))
-            return
-        self._count_feed(length, feed, seconds)
-        self._add(Move(MoveKind.FEED, begin, finish, line, self.tool, feed=feed))
+        else:
+            kind = MoveKind.FEED
+            self.feed += length
+            current = self._current
+            if current is not None:
+                current.feed_distance += length
+            if seconds is not None:
+                self.seconds += seconds
+            elif feed:
+                self.seconds += length / feed * 60.0
+        if len(self.moves) < self.max_moves:
+            move = Move(kind, begin, finish, line, self.tool, feed=feed)
+            self.moves.append(move)
+            self._last = move
+            self._last_parts = None
+        else:
+            self.moves_dropped += 1
+            self._last = None
+            self._last_parts = (kind, begin, finish, line, self.tool, feed)
 
     def _count_feed(self, length: float, feed: float | None, seconds: float | None) -> None:
         """A cutting move of ``length``: the path's and the tool's feed distance, and its time

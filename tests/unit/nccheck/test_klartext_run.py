@@ -3,6 +3,7 @@ capped with a count of the rest, and a budget that stops a run is an error."""
 
 from __future__ import annotations
 
+import math
 import re
 
 import pytest
@@ -99,3 +100,25 @@ def test_an_fn_head_is_read_in_any_spacing(head: str) -> None:
     result = check_text(program(f"{head} Q10 = ID50 NR2 IDX1", "L X+Q10 R0 FMAX"))
     assert result.errors == ()
     assert [p.message for p in result.warnings] == ["FN 18 is not simulated by the dry run"]
+
+
+@pytest.mark.parametrize("moves", [0, 1_000_000])
+def test_a_corner_is_rounded_with_or_without_moves_kept(moves: int) -> None:
+    # the command line keeps no moves: the corner still needs the line before it
+    fits = check_text(
+        program("L X+0 Y+0 Z-1 F100", "L X+20", "RND R2", "L Y+20"), budget=Budget(moves=moves)
+    )
+    assert fits.problems == ()
+    # a 90-degree corner of R2 trims each line by 2 (R / tan 45): 18 + pi + 18
+    assert fits.feed_distance == pytest.approx(1 + 18 + math.pi + 18)
+    tight = check_text(
+        program("L X+0 Y+0 Z-1 F100", "L X+1", "RND R2", "L Y+20"), budget=Budget(moves=moves)
+    )
+    assert [p.message for p in tight.errors] == ["RND 2 does not fit its corner"]
+
+
+@pytest.mark.parametrize("block", ["FN18: SYSREAD Q5 = ID990 NR1", "FN 18:SYSREAD Q5 = ID990 NR1"])
+def test_fn_with_or_without_a_blank_before_its_number(block: str) -> None:
+    result = check_text(program(block, "Q6 = Q5 + 1"))
+    assert result.errors == ()
+    assert [p.message.split(" is ")[0] for p in result.warnings] == ["FN 18"]

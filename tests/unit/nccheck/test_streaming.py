@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from opendnc.nccheck import Budget, check_file, gcode, source
+from opendnc.nccheck import Budget, check_file, gcode, klartext, source
 
 
 def _gcode(path: Path, blocks: int, tail: str = "") -> int:
@@ -102,3 +102,53 @@ def test_the_last_block_error_of_a_large_klartext_program(tmp_path: Path) -> Non
     assert [(p.line, p.block, p.severity.value) for p in result.problems] == [
         (blocks + 4, blocks + 3, "error")
     ]
+
+
+def _klartext(path: Path, blocks: int) -> None:
+    """A numbered Klartext 3-D program of about ``blocks`` straight moves."""
+    with path.open("w", encoding="ascii") as out:
+        out.write("0 BEGIN PGM BIG MM\n1 TOOL CALL 1 Z S5000\n2 L Z+5 R0 FMAX M3\n")
+        for n in range(3, blocks + 3):
+            feed = " F800" if n % 97 == 3 else ""
+            x, y, z = n % 100 * 0.5, n % 77 * 0.25, 1 + n % 5 * 0.1
+            out.write(f"{n} L X{x:+.3f} Y{y:+.3f} Z-{z:.3f}{feed}\n")
+        n = blocks + 3
+        out.write(f"{n} L Z+100 R0 FMAX M30\n{n + 1} END PGM BIG MM\n")
+
+
+def test_memory_does_not_grow_with_a_klartext_program(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # as for G-code: pieces of 16 KiB read, 4 pieces of 256 blocks kept parsed
+    monkeypatch.setattr(source, "_PIECE", 1 << 14)
+    monkeypatch.setattr(klartext, "_CACHED", 4)
+    warm, small, large = tmp_path / "warm.h", tmp_path / "small.h", tmp_path / "large.h"
+    _klartext(warm, 500)
+    _klartext(small, 2_000)
+    _klartext(large, 8_000)
+    _peak(warm)
+    peak_small, peak_large = _peak(small), _peak(large)
+    # a run that kept the blocks' texts (about 60 bytes and a list slot each) would take
+    # 400 kB more for the 6,000 blocks more (measured: the old run 600 kB, this one 50 kB)
+    assert peak_large < peak_small + 150_000, (peak_small, peak_large)
+
+
+def test_a_klartext_label_after_the_call_and_a_repeat_read_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # two pieces kept: the repeat jumps back over more blocks than that, and the call
+    # reads on to its label past the end of the main program
+    monkeypatch.setattr(klartext, "_CACHED", 2)
+    program = tmp_path / "labels.h"
+    lines = ["BEGIN PGM LBLS MM", "TOOL CALL 1 Z S5000", "L Z+5 R0 FMAX M3", "LBL 1"]
+    lines += [f"L X{i % 10:+d} Y{i % 7:+d} Z-1 F800" for i in range(2_000)]
+    lines += ["CALL LBL 1 REP 2", "CALL LBL 20", "L Z+100 R0 FMAX M30"]
+    lines += ["LBL 20", "Q5 = 7", "L X+3 Y+3", "LBL 0", "END PGM LBLS MM"]
+    program.write_text("".join(f"{n} {line}\n" for n, line in enumerate(lines)), "ascii")
+    result = check_file(program, budget=Budget(seconds=None, moves=0))
+    assert result.problems == ()
+    assert result.end.ended
+    assert result.end.variables[5] == 7.0
+    # 3 blocks, LBL 1, 3 passes of the 2,000 moves (a repeat goes on after its label), the
+    # repeat's 3 runs, the call, the 3 blocks after LBL 20 (Q5, L, LBL 0) and the M30 block
+    assert result.blocks == 3 + 1 + 3 * 2_000 + 3 + 1 + 3 + 1
