@@ -150,6 +150,7 @@ def run_size(
     mtconnect: int = 0,
     opcua: int = 0,
     tnc_only: bool = False,
+    opcua_servers: int = 1,
 ) -> dict[str, Any]:
     """Measure one fleet size; returns the figures."""
     config = folder / f"fleet-{n}-{mtconnect}-{opcua}-{int(tnc_only)}.toml"
@@ -157,6 +158,7 @@ def run_size(
         "sim",
         "fleet",
         *_counts(n, mtconnect, opcua, tnc_only),
+        *(["--opcua-servers", str(opcua_servers)] if opcua and not tnc_only else []),
         "--config-out",
         str(config),
         "--poll",
@@ -549,6 +551,13 @@ def main() -> None:
         help="of each fleet, this many machine tools of one virtual OPC UA server",
     )
     parser.add_argument(
+        "--opcua-servers",
+        type=int,
+        default=1,
+        help="virtual OPC UA servers the --opcua machines are spread over (1: a gateway; "
+        "as many as --opcua: one per control, one session each)",
+    )
+    parser.add_argument(
         "--no-baseline",
         action="store_true",
         help="with --mtconnect or --opcua: skip the run of as many TNCs (LSV2) after it",
@@ -583,7 +592,10 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory(prefix="opendnc-fleet-bench-") as tmp:
         for n in (int(x) for x in args.sizes.split(",")):
-            r = run_size(n, args.seconds, args.poll, Path(tmp), args.mtconnect, args.opcua)
+            r = run_size(
+                n, args.seconds, args.poll, Path(tmp), args.mtconnect, args.opcua,
+                opcua_servers=args.opcua_servers,
+            )  # fmt: skip
             _line(r)
             if connected and not args.no_baseline:
                 base = run_size(n, args.seconds, args.poll, Path(tmp), tnc_only=True)
