@@ -182,7 +182,8 @@ class Session:
         """The child ``name`` of the folder at browse path ``root`` from the Root folder (the
         folder browsed once per session for all its machines)."""
         task = self._folders.get(root)
-        if task is None:
+        if task is None or (task.done() and (task.cancelled() or task.exception())):
+            # (a browse that failed is tried again by the next machine, not kept as the answer)
             parts = tuple(part for part in root.split("/") if part)
             root_id = ROOT
             task = asyncio.ensure_future(self._folder(root_id, parts))
