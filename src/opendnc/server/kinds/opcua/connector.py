@@ -201,7 +201,7 @@ class OpcuaConnector(StatusOnly):
         self.sessions += 1
         self.security_policy_uri = session.security_policy_uri
         try:
-            async with asyncio.timeout(config.request_timeout * 3):
+            async with session.setting_up, asyncio.timeout(config.request_timeout * 3):
                 machine = await self._machine(session)
                 await self._subscribe(session, machine)
         except TimeoutError:

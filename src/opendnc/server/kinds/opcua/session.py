@@ -42,6 +42,10 @@ log = logging.getLogger(__name__)
 # Nodes per Browse request: servers limit it (MaxNodesPerBrowse); a modest batch stays under
 # any limit we know of and still makes a machine's level one request.
 BROWSE_BATCH = 100
+# Machines that browse and subscribe on one session at once: hundreds at once would queue
+# behind each other at the server past their timeout, fail and retry in a storm; a few at a
+# time each finish well within it, and the rest wait without a timeout running.
+SETUP_AT_ONCE = 8
 ROOT = ua.NodeId(ua.Int32(ObjectIds.RootFolder))
 
 
@@ -109,6 +113,7 @@ class Session:
         self.router = _Router()
         self.subscription: Subscription | None = None
         self._subscribing = asyncio.Lock()
+        self.setting_up = asyncio.Semaphore(SETUP_AT_ONCE)
         self._children: dict[ua.NodeId, list[ua.ReferenceDescription]] = {}
         self._folders: dict[str, asyncio.Task[ua.NodeId | None]] = {}
         self.namespaces: dict[str, int] = {}
