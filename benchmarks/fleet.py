@@ -31,10 +31,15 @@ of the benchmark's database are on the same cores (a local database): their CPU 
     .venv/bin/python benchmarks/fleet.py --sizes 20 --seconds 5
     .venv/bin/python benchmarks/fleet.py --sizes 1000 --servers 2
     .venv/bin/python benchmarks/fleet.py --sizes 100 --mtconnect 100   # agents' devices
+    .venv/bin/python benchmarks/fleet.py --mtconnect 200 --opcua 200   # 400, and 400 TNCs
 
 With ``--mtconnect M`` M machines of each fleet are devices of one virtual MTConnect agent
-running scripted cycles (the server follows one sample stream per machine); the rest are
-TNCs and Haas NGCs as above.
+running scripted cycles (the server follows one sample stream per machine); with ``--opcua U``
+U machines are machine tools of one virtual OPC UA server (umati objects, scripted cycles; the
+server subscribes to each); the rest are TNCs and Haas NGCs as above. Without ``--sizes`` the
+size is then M + U, and the same number of TNCs (LSV2) is measured after it: the server's CPU
+per machine (millicores) is printed beside the LSV2 figure (``--no-baseline`` skips that run),
+with the status age of each kind.
 """
 
 from __future__ import annotations
@@ -118,28 +123,48 @@ def _percentile(values: list[float], p: float) -> float:
     return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
 
 
-def _counts(n: int, mtconnect: int) -> list[str]:
-    """The fleet's arguments for ``n`` machines, ``mtconnect`` of them behind a virtual agent
-    and the rest half virtual TNCs, half virtual Haas NGCs."""
-    rest = n - min(n, mtconnect)
-    return ["--tnc", str(rest // 2), "--haas", str(rest - rest // 2), "--mtconnect", str(n - rest)]
+def _counts(n: int, mtconnect: int, opcua: int = 0, tnc_only: bool = False) -> list[str]:
+    """The fleet's arguments for ``n`` machines, ``mtconnect`` of them behind a virtual agent,
+    ``opcua`` of them on a virtual OPC UA server and the rest half virtual TNCs, half virtual
+    Haas NGCs (all TNCs with ``tnc_only``)."""
+    agent = min(n, mtconnect)
+    served = min(n - agent, opcua)
+    rest = n - agent - served
+    tnc = rest if tnc_only else rest // 2
+    return [
+        "--tnc", str(tnc), "--haas", str(rest - tnc),
+        "--mtconnect", str(agent), "--opcua", str(served),
+    ]  # fmt: skip
+
+
+def _kind(name: str) -> str:
+    """The kind of a fleet machine by its name (``opc-3``: opcua; ``mtc-3``: mtconnect)."""
+    return {"opc": "opcua", "mtc": "mtconnect", "tnc": "lsv2"}.get(name.split("-")[0], "other")
 
 
 def run_size(
-    n: int, seconds: float, poll: float, folder: Path, mtconnect: int = 0
+    n: int,
+    seconds: float,
+    poll: float,
+    folder: Path,
+    mtconnect: int = 0,
+    opcua: int = 0,
+    tnc_only: bool = False,
+    opcua_servers: int = 1,
 ) -> dict[str, Any]:
     """Measure one fleet size; returns the figures."""
-    config = folder / f"fleet-{n}.toml"
+    config = folder / f"fleet-{n}-{mtconnect}-{opcua}-{int(tnc_only)}.toml"
     fleet = _cli(
         "sim",
         "fleet",
-        *_counts(n, mtconnect),
+        *_counts(n, mtconnect, opcua, tnc_only),
+        *(["--opcua-servers", str(opcua_servers)] if opcua and not tnc_only else []),
         "--config-out",
         str(config),
         "--poll",
         str(poll),
         "--root",
-        str(folder / f"machines-{n}"),
+        str(folder / f"machines-{config.stem}"),
     )
     server = None
     try:
@@ -148,7 +173,8 @@ def run_size(
             if fleet.poll() is not None or time.monotonic() > deadline:
                 raise SystemExit(f"fleet did not start: {fleet.stderr.read().decode()}")  # type: ignore[union-attr]
             time.sleep(0.1)
-        db = f"sqlite:///{folder / f'fleet-{n}.db'}"
+        db = f"sqlite:///{folder / f'{config.stem}.db'}"
+        deadline = time.monotonic() + 600  # the server's start and every machine online
         key = _viewer_key(config, db)
         # The server's port is picked once the fleet holds all of its ports (picked before,
         # a virtual TNC could take it, and the benchmark would read LSV2 as HTTP).
@@ -169,6 +195,7 @@ def run_size(
         online_after = time.monotonic() - started
         cpu0, t0, wall0 = _cpu_seconds(server.pid), time.monotonic(), time.time()
         ages: list[float] = []
+        by_kind: dict[str, list[float]] = {}
         missed = readings = 0
         errors: dict[str, int] = {}
         while time.monotonic() - t0 < seconds:
@@ -184,6 +211,7 @@ def run_size(
                     continue
                 age = (now - datetime.fromisoformat(m["status"]["at"])).total_seconds()
                 ages.append(age)
+                by_kind.setdefault(_kind(m["name"]), []).append(age)
                 missed += age > 2 * poll
             # A random phase: sampling in step with the polls would always see the same age.
             time.sleep(max(0.0, random.uniform(0.5, 1.5) - (time.monotonic() - tick)))
@@ -196,6 +224,7 @@ def run_size(
             "age_p50": _percentile(ages, 50),
             "age_p99": _percentile(ages, 99),
             "age_max": max(ages),
+            "p99_by_kind": {k: _percentile(a, 99) for k, a in sorted(by_kind.items())},
             "missed": missed,
             "readings": readings,
             "errors": errors,
@@ -486,7 +515,12 @@ def _cluster_report(r: dict[str, Any]) -> None:
 def main() -> None:
     """Run the sizes and print one line each."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="50,200,500", help="fleet sizes, comma-separated")
+    parser.add_argument(
+        "--sizes",
+        default="",
+        help="fleet sizes, comma-separated (default 50,200,500; with --mtconnect or --opcua "
+        "their sum)",
+    )
     parser.add_argument("--seconds", type=float, default=20.0, help="measuring window per size")
     parser.add_argument("--poll", type=float, default=1.0, help="status poll interval (s)")
     parser.add_argument("--servers", type=int, default=1, help="servers on one PostgreSQL")
@@ -510,7 +544,28 @@ def main() -> None:
         default=0,
         help="of each fleet, this many machines behind one virtual MTConnect agent",
     )
+    parser.add_argument(
+        "--opcua",
+        type=int,
+        default=0,
+        help="of each fleet, this many machine tools of one virtual OPC UA server",
+    )
+    parser.add_argument(
+        "--opcua-servers",
+        type=int,
+        default=1,
+        help="virtual OPC UA servers the --opcua machines are spread over (1: a gateway; "
+        "as many as --opcua: one per control, one session each)",
+    )
+    parser.add_argument(
+        "--no-baseline",
+        action="store_true",
+        help="with --mtconnect or --opcua: skip the run of as many TNCs (LSV2) after it",
+    )
     args = parser.parse_args()
+    connected = args.mtconnect + args.opcua
+    if not args.sizes:
+        args.sizes = str(connected) if connected else "50,200,500"
     if args.servers > 1:
         with tempfile.TemporaryDirectory(prefix="opendnc-cluster-bench-") as tmp:
             for n in (int(x) for x in args.sizes.split(",")):
@@ -537,15 +592,35 @@ def main() -> None:
     )
     with tempfile.TemporaryDirectory(prefix="opendnc-fleet-bench-") as tmp:
         for n in (int(x) for x in args.sizes.split(",")):
-            r = run_size(n, args.seconds, args.poll, Path(tmp), args.mtconnect)
-            print(
-                f"{r['n']:>5} {r['online_s']:>7.1f}s {r['cpu_cores']:>9.2f} c "
-                f"{r['age_p50']:>7.2f}s {r['age_p99']:>7.2f}s {r['age_max']:>7.2f}s "
-                f"{int(r['missed']):>5}/{int(r['readings']):<6} {_stall(r['stall'])}",
-                flush=True,
-            )
-            for error, count in sorted(r["errors"].items(), key=lambda kv: -kv[1])[:3]:
-                print(f"      {count} readings offline: {error}", flush=True)
+            r = run_size(
+                n, args.seconds, args.poll, Path(tmp), args.mtconnect, args.opcua,
+                opcua_servers=args.opcua_servers,
+            )  # fmt: skip
+            _line(r)
+            if connected and not args.no_baseline:
+                base = run_size(n, args.seconds, args.poll, Path(tmp), tnc_only=True)
+                _line(base, "(LSV2)")
+                per, lsv2 = 1000 * r["cpu_cores"] / n, 1000 * base["cpu_cores"] / n
+                print(
+                    f"      server CPU per machine: {per:.2f} millicores "
+                    f"(mtconnect {args.mtconnect}, opcua {args.opcua}) beside {lsv2:.2f} "
+                    f"for {n} LSV2 machines",
+                    flush=True,
+                )
+
+
+def _line(r: dict[str, Any], label: str = "") -> None:
+    """One size's line, the p99 status age of each kind and the commonest offline errors."""
+    print(
+        f"{r['n']:>5} {r['online_s']:>7.1f}s {r['cpu_cores']:>9.2f} c "
+        f"{r['age_p50']:>7.2f}s {r['age_p99']:>7.2f}s {r['age_max']:>7.2f}s "
+        f"{int(r['missed']):>5}/{int(r['readings']):<6} {_stall(r['stall'])} {label}".rstrip(),
+        flush=True,
+    )
+    kinds = ", ".join(f"{k} {p:.2f}s" for k, p in r["p99_by_kind"].items())
+    print(f"      age p99 by kind: {kinds}; {1000 * r['cpu_cores'] / r['n']:.2f} mc per machine")
+    for error, count in sorted(r["errors"].items(), key=lambda kv: -kv[1])[:3]:
+        print(f"      {count} readings offline: {error}", flush=True)
 
 
 if __name__ == "__main__":

@@ -32,6 +32,12 @@ def fleet(
     opcua: int = typer.Option(
         0, "--opcua", help="Machine tools of one virtual OPC UA server (scripted cycles)."
     ),
+    opcua_servers: int = typer.Option(
+        1,
+        "--opcua-servers",
+        help="Virtual OPC UA servers the --opcua machines are spread over (1: one gateway; "
+        "as many as --opcua: one per control).",
+    ),
     ftp: int = typer.Option(
         0,
         "--ftp",
@@ -81,6 +87,7 @@ def fleet(
             mtconnect=mtconnect,
             mtconnect_cycle=mtconnect_cycle,
             opcua=opcua,
+            opcua_servers=opcua_servers,
             ftp=ftp,
         )
         try:

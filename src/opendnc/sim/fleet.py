@@ -77,7 +77,9 @@ class Fleet:
     scripted: dict[str, ScriptedMachine] = field(default_factory=dict, repr=False)
     """The scripted machine behind each ``mtconnect`` machine, by machine name."""
     opcua: VirtualOpcuaServer | None = field(default=None, repr=False)
-    """The one virtual OPC UA server of the ``opcua`` machines (None without them)."""
+    """The (first) virtual OPC UA server of the ``opcua`` machines (None without them)."""
+    opcua_servers: list[VirtualOpcuaServer] = field(default_factory=list, repr=False)
+    """Every virtual OPC UA server (one, a gateway; or one per control)."""
     machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
     """The scripted machine tool behind each ``opcua`` machine, by machine name."""
     ftp: dict[str, VirtualFtpFolder] = field(default_factory=dict, repr=False)
@@ -104,9 +106,10 @@ class Fleet:
             await asyncio.gather(*self._cycles, return_exceptions=True)
         if self.agent is not None:
             await self.agent.close()
-        if self.opcua is not None:
-            await self.opcua.close()
-            self.opcua = None
+        for served in self.opcua_servers:
+            await served.close()
+        self.opcua_servers.clear()
+        self.opcua = None
         self._cycles.clear()
         self.agent = None
         self._tncs.clear()
@@ -134,6 +137,7 @@ async def start_fleet(
     mtconnect_cycle: float = 30.0,
     opcua: int = 0,
     ftp: int = 0,
+    opcua_servers: int = 1,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -149,7 +153,9 @@ async def start_fleet(
     port after the Haas ones), each running a scripted cycle of ``mtconnect_cycle`` seconds
     (a part each, a feed hold every fifth, an alarm every thirteenth). ``opcua`` machines are
     machine tools ``opc-1``, ... of one virtual OPC UA server (the port after the agent's),
-    running the same cycle.
+    running the same cycle; with ``opcua_servers`` K they are spread over K servers (K =
+    ``opcua``: one server per control, as in a shop where each control runs its own; the
+    ports after the agent's).
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -166,7 +172,10 @@ async def start_fleet(
     # the MTConnect machines (and the FTP ones' status) share one agent, the OPC UA machines
     # one server; each FTP machine has a folder of its own
     agent = 1 if mtconnect or ftp else 0
-    ports = tnc + haas + agent + (1 if opcua else 0) + ftp
+    if opcua and not 1 <= opcua_servers <= opcua:
+        raise InputError(f"--opcua-servers {opcua_servers}: expected 1 to --opcua ({opcua})")
+    served = min(opcua, opcua_servers)
+    ports = tnc + haas + agent + served + ftp
     if base_port and not 0 < base_port <= 65535 - ports:
         raise InputError(f"--base-port {base_port}: the fleet needs {ports} ports above it")
     fleet = Fleet()
@@ -212,8 +221,8 @@ async def start_fleet(
             await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle, ftp)
         if opcua:
             port = base_port + tnc + haas + agent if base_port else 0
-            await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
-        first_ftp = base_port + tnc + haas + agent + (1 if opcua else 0) if base_port else 0
+            await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle, served)
+        first_ftp = base_port + tnc + haas + agent + served if base_port else 0
         for n in range(ftp):
             await _start_ftp(fleet, root, n, host, first_ftp + n if first_ftp else 0)
     except BaseException:
@@ -302,17 +311,23 @@ async def _start_mtconnect(
 
 
 async def _start_opcua(
-    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
+    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float, servers: int = 1
 ) -> None:
     # Imported here: asyncua is the server extra's.
     from opendnc.sim.opcua.machine import ScriptedMachineTool, run_cycles
     from opendnc.sim.opcua.server import VirtualOpcuaServer
 
     names = [f"opc-{i + 1}" for i in range(count)]
-    server = VirtualOpcuaServer(names, host=host, port=port)
-    fleet.opcua = server
-    await server.start()
+    where: dict[str, VirtualOpcuaServer] = {}
+    for k in range(servers):
+        mine = names[k::servers]  # round robin: every server some machines
+        server = VirtualOpcuaServer(mine, host=host, port=port + k if port else 0)
+        await server.start()
+        fleet.opcua_servers.append(server)
+        where.update(dict.fromkeys(mine, server))
+    fleet.opcua = fleet.opcua_servers[0]
     for i, name in enumerate(names):
+        server = where[name]
         machine = ScriptedMachineTool(server.machines[name])
         fleet.machine_tools[name] = machine
         length = cycle * (1 + 0.07 * (i % 5))

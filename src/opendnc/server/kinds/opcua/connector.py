@@ -1,7 +1,9 @@
 """Machines read through an OPC UA server with the umati machine-tool model (OPC 40501-1).
 
-The connector opens a session (security and user as configured), finds the machine object by
-its browse names, and *subscribes*: one subscription with a monitored item per value it maps
+The connector joins the session open to its server (security and user as configured; one
+session per server, shared by every machine on it: :mod:`.session`), finds the machine object
+by its browse names, and *subscribes*: monitored items on the session's one subscription, one
+per value it maps
 (channel state and mode, operation mode, feed override, the active program's name, number and
 state, the part count, the stacklight's elements) and an event monitored item on
 ``Notification/Messages`` for alerts. The server sends what changed; a status poll takes the
@@ -10,8 +12,9 @@ here (:func:`machine_status`) and the one classifier (:func:`opendnc.server.core
 files the machine; the mapping is ours, not the specification's (docs/opcua-input.md#mapping).
 
 A lost session (the server restarted, the network went) makes :meth:`OpcuaConnector.status`
-raise: the machine's supervisor closes the link and connects again, which browses and
-subscribes anew (a restarted server may have given its nodes other ids).
+of every machine on it raise: each machine's supervisor closes the link and connects again,
+which joins the one new session, browses and subscribes anew (a restarted server may have
+given its nodes other ids).
 """
 
 from __future__ import annotations
@@ -20,30 +23,27 @@ import asyncio
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from asyncua import ua
-from asyncua.client.client import Client
-from asyncua.common.node import Node
-from asyncua.common.subscription import Subscription
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.object_ids import ObjectIds
 from asyncua.ua.uaerrors import UaError
 
-from opendnc.errors import InputError, TransportError
+from opendnc.errors import TransportError
 from opendnc.opcua.model import ChannelMode, ChannelState, MachineOperationMode, Paths, ProgramState
 from opendnc.server.core.status import MachineStatus
 from opendnc.server.kinds.connector import StatusOnly
+from opendnc.server.kinds.opcua import session as sessions
 from opendnc.server.kinds.opcua.schema import OpcuaMachine
+from opendnc.server.kinds.opcua.session import ROOT
 from opendnc.server.store.models import utcnow
 
 __all__ = ["Light", "OpcuaConnector", "Readings", "machine_status"]
 
 log = logging.getLogger(__name__)
 # asyncua logs a lost server's every failed publish with a traceback, once a second; the loss
-# is logged here once, with the reason, and the supervisor logs the reconnect
+# is logged once by the session, with the reason, and the supervisor logs the reconnect
 logging.getLogger("asyncua.client.ua_session").setLevel(logging.CRITICAL)
 
 
@@ -154,20 +154,14 @@ def _text(value: Any) -> str:
     return "" if value is None else str(value)
 
 
-class _Handler:
-    """asyncua's subscription handler: routes each notification to its setter."""
+class _Alerts:
+    """A machine's events (its ``Notification/Messages``): alerts raised and cleared, and
+    notifications."""
 
     def __init__(self, readings: Readings) -> None:
         self.readings = readings
-        self.setters: dict[ua.NodeId, Callable[[Any], None]] = {}
 
-    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
-        setter = self.setters.get(node.nodeid)
-        if setter is not None:
-            setter(val)
-            self.readings.notifications += 1
-
-    def event_notification(self, event: Any) -> None:
+    def __call__(self, event: Any) -> None:
         fields = vars(event)
         code = fields.get("ErrorCode")
         text = _text(fields.get("Message"))
@@ -182,9 +176,6 @@ class _Handler:
         else:
             self.readings.alarms[key] = f"{code} {text}".strip() if code else text
 
-    def status_change_notification(self, status: Any) -> None:
-        log.info("subscription status: %s", status)
-
 
 class OpcuaConnector(StatusOnly):
     """One machine object of an OPC UA server, subscribed while the link is up."""
@@ -195,207 +186,183 @@ class OpcuaConnector(StatusOnly):
 
     def __init__(self, config: OpcuaMachine) -> None:
         self.config = config
-        self._client: Client | None = None
-        self._subscription: Subscription | None = None
-        self._lost: Exception | None = None
+        self._session: sessions.Session | None = None
+        self._handles: list[int] = []  # this machine's monitored items on the subscription
         self.readings = Readings()
-        self.sessions = 0  # sessions opened (a reconnect opens one more)
-        self.security_policy_uri = ""  # the policy of the last session opened
+        self.sessions = 0  # sessions joined (a reconnect joins one more)
+        self.security_policy_uri = ""  # the policy of the last session joined
 
     async def connect(self) -> None:
-        """Open a session, find the machine, subscribe to its values and alerts."""
+        """Join the server's session, find the machine, subscribe to its values and alerts."""
         config = self.config
-        self._lost = None
         self.readings = Readings()
-        client = Client(
-            config.endpoint, timeout=config.request_timeout, watchdog_intervall=config.watchdog
-        )
-        client.application_uri = config.application_uri
-        client.connection_lost_callback = self._on_lost
-        if config.user:
-            client.set_user(config.user)
-            client.set_password(config.password)
-        self._client = client
+        session = await sessions.acquire(config)
+        self._session = session
+        self.sessions += 1
+        self.security_policy_uri = session.security_policy_uri
         try:
-            async with asyncio.timeout(config.request_timeout * 3):
-                if config.security_policy == "Basic256Sha256":
-                    await self._secure(client)
-                await client.connect()
-                self.sessions += 1
-                self.security_policy_uri = client.security_policy.URI
-                machine = await self._machine(client)
-                await self._subscribe(client, machine)
+            async with session.setting_up, asyncio.timeout(config.request_timeout * 3):
+                machine = await self._machine(session)
+                await self._subscribe(session, machine)
         except TimeoutError:
+            await self.close()
             raise TransportError(f"{config.name}: {config.endpoint} did not answer") from None
         except (OSError, UaError, ConnectionError) as exc:
+            await self.close()
             raise TransportError(f"{config.name}: {config.endpoint}: {exc}") from None
+        except TransportError:
+            await self.close()
+            raise
 
-    async def _secure(self, client: Client) -> None:
-        config = self.config
-        for key in ("certificate", "private_key"):
-            if not Path(getattr(config, key)).is_file():
-                raise InputError(f"{config.name}: {key} {getattr(config, key)!r} is not a file")
-        mode = getattr(ua.MessageSecurityMode, config.security_mode)
-        await client.set_security(
-            SecurityPolicyBasic256Sha256,
-            certificate=config.certificate,
-            private_key=config.private_key,
-            server_certificate=config.server_certificate or None,
-            mode=mode,
-        )
-
-    async def _on_lost(self, exc: Exception) -> None:
-        log.info("%s: session lost: %r", self.config.name, exc)
-        self._lost = exc
-
-    async def _machine(self, client: Client) -> Node:
+    async def _machine(self, session: sessions.Session) -> ua.NodeId:
         """The machine object: by node id, or by browse names from the Root folder."""
         config = self.config
         if config.machine_node:
-            return client.get_node(config.machine_node)
-        node = client.nodes.root
-        for name in (part for part in config.browse_root.split("/") if part):
-            found = await _child(node, name)
-            if found is None:
-                raise TransportError(f"{config.name}: the server has no {config.browse_root!r}")
-            node = found
+            node: ua.NodeId = session.client.get_node(config.machine_node).nodeid
+            return node
         if config.machine:
-            found = await _child(node, config.machine)
+            found = await session.folder_child(config.browse_root, config.machine)
             if found is None:
                 raise TransportError(
                     f"{config.name}: no machine {config.machine!r} in {config.browse_root!r}"
                 )
             return found
-        for description in await node.get_children_descriptions():
-            candidate = client.get_node(description.NodeId)
-            names = {d.BrowseName.Name for d in await candidate.get_children_descriptions()}
-            if {"Monitoring", "Production"} <= names:
+        parts = tuple(part for part in config.browse_root.split("/") if part)
+        root = ROOT
+        folder = (await session.resolve(root, [parts]))[parts]
+        if folder is None:
+            raise TransportError(f"{config.name}: the server has no {config.browse_root!r}")
+        candidates: list[ua.NodeId] = [d.NodeId for d in (await session.children([folder]))[folder]]
+        children = await session.children(candidates)
+        for candidate in candidates:
+            if {"Monitoring", "Production"} <= {d.BrowseName.Name for d in children[candidate]}:
                 return candidate
         raise TransportError(f"{config.name}: no machine tool object in {config.browse_root!r}")
 
-    async def _subscribe(self, client: Client, machine: Node) -> None:
+    async def _subscribe(self, session: sessions.Session, machine: ua.NodeId) -> None:
         readings = self.readings
-        handler = _Handler(readings)
-        items: list[tuple[Node, Callable[[Any], None]]] = []
-
-        async def watch(
-            path: tuple[str, ...], setter: Callable[[Any], None], base: Node = machine
-        ) -> None:
-            node = await _path(base, path)
-            if node is not None:
-                items.append((node, setter))
+        items: list[tuple[ua.NodeId, Callable[[Any], None]]] = []
 
         def put(name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
-            return lambda value: setattr(readings, name, convert(value))
+            def setter(value: Any) -> None:
+                setattr(readings, name, convert(value))
+                readings.notifications += 1
 
-        await watch(Paths.OPERATION_MODE, put("operation_mode", _int))
-        await watch(Paths.PROGRAM_NAME, put("program", _text))
-        await watch(Paths.PROGRAM_NUMBER, put("program_number", _int))
-        await watch(Paths.PROGRAM_STATE, put("program_state", _text))
-        await watch(Paths.PARTS, put("parts", _int))
-        channel = await self._channel(machine)
+            return setter
+
+        wanted: dict[tuple[str, ...], Callable[[Any], None]] = {
+            Paths.OPERATION_MODE: put("operation_mode", _int),
+            Paths.PROGRAM_NAME: put("program", _text),
+            Paths.PROGRAM_NUMBER: put("program_number", _int),
+            Paths.PROGRAM_STATE: put("program_state", _text),
+            Paths.PARTS: put("parts", _int),
+        }
+        found = await session.resolve(
+            machine, [*wanted, Paths.MONITORING, Paths.STACKLIGHT, Paths.MESSAGES]
+        )
+        items += [(node, wanted[path]) for path, node in found.items() if path in wanted and node]
+        channel = await self._channel(session, found[Paths.MONITORING])
         if channel is not None:
-            await watch((Paths.CHANNEL_STATE,), put("channel_state", _int), channel)
-            await watch((Paths.CHANNEL_MODE,), put("channel_mode", _int), channel)
-            await watch((Paths.FEED_OVERRIDE,), put("feed_override", _float), channel)
-        stacklight = await _path(machine, Paths.STACKLIGHT)
-        if stacklight is not None:
-            for element in await stacklight.get_children_descriptions():
-                name = element.BrowseName.Name
-                node = client.get_node(element.NodeId)
-                readings.lights[name] = light = Light()
-                on = await _child(node, Paths.SIGNAL_ON)
-                color = await _child(node, Paths.SIGNAL_COLOR)
-                if on is not None:
-                    items.append((on, _setter(light, "on", bool)))
-                if color is not None:
-                    items.append((color, _setter(light, "color", _int)))
-        seconds = self.config.publishing_interval
-        subscription = await client.create_subscription(seconds * 1000, handler)
-        self._subscription = subscription
-        for node, setter in items:
-            handler.setters[node.nodeid] = setter
-        if items:
-            await subscription.subscribe_data_change([node for node, _ in items])
-        messages = await _path(machine, Paths.MESSAGES)
-        if messages is not None:
-            namespace = await _namespace(client, self.config.namespace)
-            await subscription.subscribe_events(
-                messages, ObjectIds.BaseEventType, evfilter=_alert_filter(namespace)
+            named = await session.resolve(
+                channel, [(Paths.CHANNEL_STATE,), (Paths.CHANNEL_MODE,), (Paths.FEED_OVERRIDE,)]
             )
+            setters: dict[tuple[str, ...], Callable[[Any], None]] = {
+                (Paths.CHANNEL_STATE,): put("channel_state", _int),
+                (Paths.CHANNEL_MODE,): put("channel_mode", _int),
+                (Paths.FEED_OVERRIDE,): put("feed_override", _float),
+            }
+            items += [(node, setters[path]) for path, node in named.items() if node is not None]
+        stacklight = found[Paths.STACKLIGHT]
+        if stacklight is not None:
+            elements = (await session.children([stacklight]))[stacklight]
+            signals = await session.children(e.NodeId for e in elements)
+            for element in elements:
+                readings.lights[element.BrowseName.Name] = light = Light()
+                for child in signals[element.NodeId]:
+                    if child.BrowseName.Name == Paths.SIGNAL_ON:
+                        items.append((child.NodeId, _setter(readings, light, "on", bool)))
+                    elif child.BrowseName.Name == Paths.SIGNAL_COLOR:
+                        items.append((child.NodeId, _setter(readings, light, "color", _int)))
+        subscription = await session.ensure_subscription()
+        router = session.router
+        if items:
+            nodes = [session.client.get_node(node) for node, _ in items]
+            handles = await subscription.subscribe_data_change(nodes)
+            for handle, (_, setter) in zip(handles, items, strict=True):
+                if isinstance(handle, int):
+                    router.values[handle] = setter
+                    self._handles.append(handle)
+        messages = found[Paths.MESSAGES]
+        if messages is not None:
+            namespace = await session.namespace(self.config.namespace)
+            handle = await subscription.subscribe_events(
+                session.client.get_node(messages),
+                ObjectIds.BaseEventType,
+                evfilter=_alert_filter(namespace),
+            )
+            router.events[handle] = _Alerts(readings)
+            self._handles.append(handle)
 
-    async def _channel(self, machine: Node) -> Node | None:
+    async def _channel(
+        self, session: sessions.Session, monitoring: ua.NodeId | None
+    ) -> ua.NodeId | None:
         """The channel read for state and mode: the one configured, or the first child of
         ``Monitoring`` that has a ``ChannelState``."""
-        monitoring = await _path(machine, Paths.MONITORING)
         if monitoring is None:
             return None
+        children = (await session.children([monitoring]))[monitoring]
         if self.config.channel:
-            return await _child(monitoring, self.config.channel)
-        for description in await monitoring.get_children_descriptions():
-            node = Node(machine.session, description.NodeId)
-            if await _child(node, Paths.CHANNEL_STATE) is not None:
+            return next(
+                (d.NodeId for d in children if d.BrowseName.Name == self.config.channel), None
+            )
+        grandchildren = await session.children(d.NodeId for d in children)
+        for description in children:
+            names = {d.BrowseName.Name for d in grandchildren[description.NodeId]}
+            if Paths.CHANNEL_STATE in names:
+                node: ua.NodeId = description.NodeId
                 return node
         return None
 
     async def close(self) -> None:
-        """End the session (or just the socket, when the server has gone)."""
-        client, self._client = self._client, None
-        self._subscription = None
-        if client is None:
+        """Leave the session: this machine's items go, the session with its last machine."""
+        session, self._session = self._session, None
+        handles, self._handles = self._handles, []
+        if session is None:
             return
-        if self._lost is not None:
-            client.disconnect_socket()
-            return
-        try:
-            async with asyncio.timeout(self.config.request_timeout):
-                await client.disconnect()
-        except (TimeoutError, OSError, UaError, ConnectionError):
-            client.disconnect_socket()
+        for handle in handles:
+            session.router.values.pop(handle, None)
+            session.router.events.pop(handle, None)
+        if handles and session.users > 1 and session.lost is None and session.subscription:
+            # others stay on the session: this machine's items must not go on costing
+            try:
+                async with asyncio.timeout(self.config.request_timeout):
+                    await session.subscription.unsubscribe(handles)
+            except (TimeoutError, OSError, UaError, ConnectionError) as exc:
+                log.info("%s: items not removed: %r", self.config.name, exc)
+        await sessions.release(session)
 
     async def status(self) -> MachineStatus:
         """The latest values the subscription brought; raises when the session is lost."""
-        if self._client is None:
+        session = self._session
+        if session is None:
             raise TransportError(f"{self.config.name}: not connected")
-        if self._lost is not None:
-            raise TransportError(f"{self.config.name}: the OPC UA session was lost: {self._lost}")
+        if session.lost is not None:
+            raise TransportError(f"{self.config.name}: the OPC UA session was lost: {session.lost}")
         return machine_status(self.readings)
 
 
-def _setter(light: Light, name: str, convert: Callable[[Any], Any]) -> Callable[[Any], None]:
+def _setter(
+    readings: Readings, light: Light, name: str, convert: Callable[[Any], Any]
+) -> Callable[[Any], None]:
     def put(value: Any) -> None:
         setattr(light, name, convert(value))
+        readings.notifications += 1
 
     return put
 
 
 def _float(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
-
-
-async def _child(node: Node, name: str) -> Node | None:
-    """The child of ``node`` whose browse name is ``name`` (in whatever namespace)."""
-    for description in await node.get_children_descriptions():
-        if description.BrowseName.Name == name:
-            return Node(node.session, description.NodeId)
-    return None
-
-
-async def _path(node: Node, names: tuple[str, ...]) -> Node | None:
-    """The node at ``names`` below ``node``; None where one is missing (an optional part)."""
-    found: Node | None = node
-    for name in names:
-        if found is None:
-            return None
-        found = await _child(found, name)
-    return found
-
-
-async def _namespace(client: Client, uri: str) -> int:
-    try:
-        return int(await client.get_namespace_index(uri))
-    except ValueError:
-        return 0  # not on this server: the ErrorCode field is then looked for in namespace 0
 
 
 def _alert_filter(namespace: int) -> ua.EventFilter:

@@ -40,6 +40,10 @@ class OpcuaMachine(MachineBase):
     application_uri: str = "urn:opendnc:client"  # must match the certificate's URI
     user: str = ""
     password: str = field(default="", repr=False)
-    publishing_interval: float = 0.1  # seconds between the server's notifications
+    # seconds between the server's notifications: a step's changes come in one (measured:
+    # docs/opcua-input.md#cost-per-machine)
+    publishing_interval: float = 0.25
     request_timeout: float = 4.0  # seconds a request may take
-    watchdog: float = 1.0  # seconds between two checks that the session is alive
+    # seconds between two reads that the session is alive (a closed socket is seen at once;
+    # this finds a silent one): a read a second was half of a lone machine's requests
+    watchdog: float = 5.0
