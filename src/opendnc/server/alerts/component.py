@@ -265,6 +265,9 @@ class Alerts:
             self._unclaimed[first.job_id] = (first.machine, now)
             self.raise_all(alerts)
             return
+        if self._store_down:
+            log.warning("alerts: claims are stored again")
+            self._store_down = False
         if mine:
             self.raise_all(alerts)
         else:
