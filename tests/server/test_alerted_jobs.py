@@ -119,6 +119,11 @@ async def _servers(
             key = (job, name)
             await until(f"{name}'s marker by mail", lambda k=key: _mailed(smtp)[k])  # type: ignore[misc]
             await until(f"{name}'s marker by webhook", lambda k=key: _posted(hook)[k])  # type: ignore[misc]
+            # each delivery's audit row is written after it: the marker's rows come last
+            await until(
+                f"{name}'s marker audited",
+                lambda j=job: sum(r.job_id == j for r in audit_rows(sessions)) == 2,  # type: ignore[misc]
+            )
     finally:
         await asyncio.wait_for(asyncio.gather(*(a.stop() for a in running)), 5)
 
