@@ -2,9 +2,9 @@
 ``alert_episodes`` row is the claim (docs/server.md#alerts). On PostgreSQL, with the aiosmtpd
 sink of the alerts tests.
 
-Knowing that nothing *more* was sent needs a marker: a failed job's alert is not claimed in
-the database (each server sends its own), and each server's target sends in order, so once a
-server's marker is in, everything that server raised before it is in too.
+Knowing that nothing *more* was sent needs a marker: a failed job only that server hears of
+(two servers have a bus each here, as in a cluster), and each server's target sends in order,
+so once a server's marker is in, everything that server raised before it is in too.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.alerts.component import Alerts
-from opendnc.server.core.events import EventBus, JobFinished
+from opendnc.server.core.events import EventBus, JobFinished, MachineStatusChanged
 from opendnc.server.store.db import make_engine, make_sessions, migrate
 from opendnc.server.store.models import AlertEpisode
 from tests.server.alerts_support import SmtpPeer, smtp_server
@@ -141,22 +141,30 @@ def test_two_servers_that_both_see_an_episode_send_it_once_and_its_end_once(
     cfg = _config(smtp)
 
     async def both() -> None:
-        bus = EventBus()
-        bus.bind(asyncio.get_running_loop())
+        loop = asyncio.get_running_loop()
+        buses = {"dnc-1": EventBus(), "dnc-2": EventBus()}
+        for bus in buses.values():
+            bus.bind(loop)
         clock = Clock()
-        one = await _component(cfg, pg_sessions, bus, "dnc-1", clock)
-        two = await _component(cfg, pg_sessions, bus, "dnc-2", clock)
+        one = await _component(cfg, pg_sessions, buses["dnc-1"], "dnc-1", clock)
+        two = await _component(cfg, pg_sessions, buses["dnc-2"], "dnc-2", clock)
+
+        def both_see(event: MachineStatusChanged) -> None:
+            for bus in buses.values():
+                bus.publish(event)
+
+        async def markers(first: int) -> None:
+            for job, (server, bus) in enumerate(buses.items(), start=first):
+                bus.publish(JobFinished(job, "mill-1", "send", "O1.nc", 1, outcome="failed"))
+                await until(f"{server}'s marker", lambda j=job, s=server: _marker(smtp, j, s))  # type: ignore[misc]
+
         try:
             for _poll in range(3):
-                bus.publish(reading("mill-1", "FEED_HOLD"))
-            bus.publish(JobFinished(1, "mill-1", "send", "O1.nc", 1, outcome="failed"))
-            for server in ("dnc-1", "dnc-2"):
-                await until(f"{server}'s marker", lambda s=server: _marker(smtp, 1, s))  # type: ignore[misc]
+                both_see(reading("mill-1", "FEED_HOLD"))
+            await markers(1)
             clock.now = NOON + timedelta(minutes=7)
-            bus.publish(reading("mill-1", "ACTIVE"))
-            bus.publish(JobFinished(2, "mill-1", "send", "O1.nc", 1, outcome="failed"))
-            for server in ("dnc-1", "dnc-2"):
-                await until(f"{server}'s second marker", lambda s=server: _marker(smtp, 2, s))  # type: ignore[misc]
+            both_see(reading("mill-1", "ACTIVE"))
+            await markers(3)
         finally:
             await asyncio.wait_for(asyncio.gather(one.stop(), two.stop()), 5)
 

@@ -14,7 +14,13 @@ An episode's alert is sent once across restarts and across the servers of a clus
 ``alert_episodes`` row is the claim. The server whose insert goes through sends the alert; one
 that finds the row (it restarted, or took the machine over) does not. The server whose delete
 takes the row when the condition ends sends the "cleared" alert, with the episode's first
-``since``. Without its database (an outage) an alert is sent rather than lost.
+``since``. A failed job's alerts are claimed the same way, one ``alerted_jobs`` row per job
+(a job's end can be published by the server that ran it and again by one that took its
+machine over or restarted). Both claims go through
+:func:`~opendnc.server.store.claims.claim_once`: written before the alert is sent, so a
+server killed mid-send leaves the claim and the alert is not sent again (at most once).
+Without its database (an outage) an alert is sent rather than lost; a failed job's claim is
+written once the database answers again, so no other server sends that job's alert later.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import asyncio
 import contextlib
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -30,7 +37,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import delete, select
-from sqlalchemy.exc import IntegrityError, SQLAlchemyError
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.alerts.delivery import (
@@ -61,7 +68,8 @@ from opendnc.server.core.events import (
 )
 from opendnc.server.core.shifts import Calendar
 from opendnc.server.store import audit
-from opendnc.server.store.models import AlertEpisode
+from opendnc.server.store.claims import claim_once
+from opendnc.server.store.models import AlertedJob, AlertEpisode
 
 if TYPE_CHECKING:
     import httpx
@@ -73,6 +81,7 @@ log = logging.getLogger(__name__)
 ACTION = "alert"  # the audit rows' action
 ACTOR = "alerts"
 TICK = 1.0  # seconds between checks of the rules' minutes
+CLAIM_RETRY = 30.0  # seconds between tries to write the claims of jobs alerted in an outage
 
 
 @dataclass(frozen=True)
@@ -159,6 +168,9 @@ class Alerts:
         self._tasks: list[asyncio.Task[None]] = []
         self._unstored: set[tuple[str, str]] = set()  # fired during an outage: no row
         self._store_down = False
+        # failed jobs alerted while the database was away: job id -> (machine, when)
+        self._unclaimed: dict[int, tuple[str, datetime]] = {}
+        self._claim_retry = 0.0  # monotonic: when to try writing them again
 
     async def start(self) -> None:
         """Read the fired episodes from the database, subscribe to the bus, start the watch
@@ -219,14 +231,63 @@ class Alerts:
                 if isinstance(event, MachineStatusChanged):
                     await self._settle(self.engine.status(event, now), now)
                 elif isinstance(event, JobFinished):
-                    self.raise_all(self.engine.job(event, now))
+                    await self._raise_job(self.engine.job(event, now), now)
                 elif isinstance(event, LeaseChanged):
                     self.engine.lease(event)
                 await self._settle(self.engine.tick(now), now)
+                await self._write_unclaimed()
             except Exception:  # a bug in one rule must not end the watch for the others
                 log.exception("alerts: an event could not be judged")
             if subscription.take_overflow():
                 log.warning("alerts: events lost while the bus was busy; the next poll repeats")
+
+    async def _raise_job(self, alerts: list[Alert], now: datetime) -> None:
+        """Raise a failed job's ``alerts`` (one per rule) if this server claims the job: the
+        one server whose ``alerted_jobs`` insert goes through sends them."""
+        sessions = self.sessions
+        if not alerts or sessions is None:
+            self.raise_all(alerts)
+            return
+        first = alerts[0]
+        if first.job_id is None:  # pragma: no cover - a JobFinished always names its job
+            self.raise_all(alerts)
+            return
+        row = AlertedJob(
+            job_id=first.job_id, machine=first.machine, server=self.server, claimed=now
+        )
+        try:
+            mine = await asyncio.to_thread(claim_once, sessions, row)
+        except SQLAlchemyError as exc:  # the database is away: a duplicate beats a lost alert
+            if not self._store_down:
+                log.warning("alerts: job %d's claim not stored (sent all the same): %s",
+                            first.job_id, type(exc).__name__)  # fmt: skip
+            self._store_down = True
+            self._unclaimed[first.job_id] = (first.machine, now)
+            self.raise_all(alerts)
+            return
+        if self._store_down:
+            log.warning("alerts: claims are stored again")
+            self._store_down = False
+        if mine:
+            self.raise_all(alerts)
+        else:
+            log.info("alerts: job %d's failure was alerted already; not sent again", first.job_id)
+
+    async def _write_unclaimed(self) -> None:
+        """Write the claims of the failed jobs alerted during an outage (every
+        :data:`CLAIM_RETRY` seconds until the database takes them), so that no server alerts
+        for them again. A claim found there already means another server sent one too."""
+        sessions = self.sessions
+        if not self._unclaimed or sessions is None or time.monotonic() < self._claim_retry:
+            return
+        self._claim_retry = time.monotonic() + CLAIM_RETRY
+        for job_id, (machine, at) in list(self._unclaimed.items()):
+            row = AlertedJob(job_id=job_id, machine=machine, server=self.server, claimed=at)
+            try:
+                await asyncio.to_thread(claim_once, sessions, row)
+            except SQLAlchemyError:
+                return  # still away: the next try is CLAIM_RETRY seconds on
+            del self._unclaimed[job_id]
 
     async def _settle(self, alerts: list[Alert], now: datetime) -> None:
         """Raise ``alerts`` as the database's episodes allow (see the module docstring): an
@@ -237,7 +298,7 @@ class Alerts:
         if sessions is None:
             self.raise_all(alerts)
             return
-        fired = [a for a in alerts if a.phase is Phase.FIRED and a.kind is not AlertKind.JOB_FAILED]
+        fired = [a for a in alerts if a.phase is Phase.FIRED]
         if not fired and not ended:
             self.raise_all([a for a in alerts if a.phase is not Phase.CLEARED])
             return
@@ -292,7 +353,7 @@ class Alerts:
                 if key in self._unstored:  # it fired during an outage: no row to say so
                     self._unstored.discard(key)
                     out.append(alert)
-            elif alert.kind is AlertKind.JOB_FAILED or key in claimed:
+            elif key in claimed:
                 out.append(alert)
         for (name, machine), since in deleted.items():
             rule = rules.get(name)
@@ -405,21 +466,16 @@ def _claim_and_end(
     server made first refuses this one alone."""
     claimed: set[tuple[str, str]] = set()
     for alert in fired:
-        try:
-            with sessions.begin() as session:
-                session.add(
-                    AlertEpisode(
-                        rule=alert.rule.name,
-                        machine=alert.machine,
-                        since=alert.since,
-                        fired=alert.at,
-                        server=server,
-                        detail=alert.detail[:2000],
-                    )
-                )
-        except IntegrityError:
-            continue  # sent already: before a restart, or by another server
-        claimed.add((alert.rule.name, alert.machine))
+        row = AlertEpisode(
+            rule=alert.rule.name,
+            machine=alert.machine,
+            since=alert.since,
+            fired=alert.at,
+            server=server,
+            detail=alert.detail[:2000],
+        )
+        if claim_once(sessions, row):  # else sent already: before a restart, or elsewhere
+            claimed.add((alert.rule.name, alert.machine))
     deleted: dict[tuple[str, str], datetime] = {}
     if ended:
         with sessions.begin() as session:

@@ -17,7 +17,6 @@ from datetime import UTC, datetime, timedelta
 from email.message import EmailMessage
 from email.utils import formatdate, make_msgid
 
-from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.errors import DncError
@@ -29,6 +28,7 @@ from opendnc.server.core.shifts import Period
 from opendnc.server.reports.render import mail_html, subject_of
 from opendnc.server.reports.shift import ShiftReport, build
 from opendnc.server.store import audit
+from opendnc.server.store.claims import claim_once
 from opendnc.server.store.models import ShiftReportSent, utcnow
 
 __all__ = ["CATCH_UP", "SETTLE", "ShiftMailer", "due", "message_of", "next_end"]
@@ -116,12 +116,8 @@ class ShiftMailer(RunsTask):
 
     def claim(self, period: Period) -> bool:
         """Claim ``period``'s report for this server; False if it is claimed already."""
-        try:
-            with self.sessions.begin() as session:
-                session.add(ShiftReportSent(shift=period.key, server=self.config.server.name))
-        except IntegrityError:
-            return False
-        return True
+        row = ShiftReportSent(shift=period.key, server=self.config.server.name)
+        return claim_once(self.sessions, row)
 
     def send(self, period: Period, now: datetime | None = None) -> bool:
         """Claim, build and send ``period``'s report; whether it went from here (audited

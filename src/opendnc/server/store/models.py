@@ -656,6 +656,24 @@ class AlertEpisode(Base):
     detail: Mapped[str] = mapped_column(Text, default="")
 
 
+class AlertedJob(Base):
+    """A failed job whose alert one server claimed before sending it (migration 0022).
+
+    The row is the claim (:func:`opendnc.server.store.claims.claim_once`): the server whose
+    insert goes through sends the job's alerts to every target, any other (another server of
+    the cluster that also saw the job end, this one after a restart) finds the row and sends
+    nothing. A server killed mid-send leaves the row: the alert is not sent again, and the
+    audit trail's ``alert`` rows show what went (docs/server.md#alerts). ``job_id`` is no
+    foreign key: a refused insert must only ever mean "claimed already"."""
+
+    __tablename__ = "alerted_jobs"
+
+    job_id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    machine: Mapped[str] = mapped_column(String(64))
+    server: Mapped[str] = mapped_column(String(64), default="")
+    claimed: Mapped[datetime] = mapped_column(UtcDateTime(), default=utcnow)
+
+
 class StandardTime(Base):
     """A supervisor's standard cycle time for one program version (OEE's ideal cycle,
     server/utilization/oee.py, migration 0019); without a row the check's estimate counts."""
