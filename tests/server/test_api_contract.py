@@ -38,6 +38,10 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[App]:
 
 @pytest.fixture(scope="module")
 def api_schema(served: App) -> Any:
+    # the server builds its document once, on the first request (seconds of CPU for every
+    # route's models); asked here first, with room for a loaded machine, schemathesis's own
+    # short read timeout meets the kept copy
+    assert served.client.get("/openapi.json", timeout=120).status_code == 200
     schema = schemathesis.openapi.from_url(f"{served.client.base_url}/openapi.json")
     # never ends (a stream); revoking keys would revoke the test's own key (ids are small)
     return schema.exclude(path="/api/events").exclude(method="DELETE")
