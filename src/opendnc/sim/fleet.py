@@ -80,6 +80,9 @@ class Fleet:
     """The one virtual OPC UA server of the ``opcua`` machines (None without them)."""
     machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
     """The scripted machine tool behind each ``opcua`` machine, by machine name."""
+    opcua_started: asyncio.Task[None] | None = field(default=None, repr=False)
+    """With ``opcua_background``: the task that builds and starts the OPC UA server (done when
+    it listens, or failed with the reason); :attr:`opcua` is set once it listens."""
     ftp: dict[str, VirtualFtpFolder] = field(default_factory=dict, repr=False)
     """The FTP folder of each ``--ftp`` machine, by machine name."""
     _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
@@ -98,6 +101,11 @@ class Fleet:
         self.fanucs.clear()
         for cable in self._cables:
             cable.close()
+        if self.opcua_started is not None:
+            # a server still being built is abandoned: it never listened, nothing to stop
+            self.opcua_started.cancel()
+            await asyncio.gather(self.opcua_started, return_exceptions=True)
+            self.opcua_started = None
         for task in self._cycles:
             task.cancel()
         if self._cycles:
@@ -134,6 +142,7 @@ async def start_fleet(
     mtconnect_cycle: float = 30.0,
     opcua: int = 0,
     ftp: int = 0,
+    opcua_background: bool = False,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -149,7 +158,9 @@ async def start_fleet(
     port after the Haas ones), each running a scripted cycle of ``mtconnect_cycle`` seconds
     (a part each, a feed hold every fifth, an alarm every thirteenth). ``opcua`` machines are
     machine tools ``opc-1``, ... of one virtual OPC UA server (the port after the agent's),
-    running the same cycle.
+    running the same cycle. Building that server's address space costs seconds of CPU: with
+    ``opcua_background`` the fleet returns at once with the ``opcua`` machines listed (their
+    port is chosen) and :attr:`Fleet.opcua_started` builds and starts the server.
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -212,7 +223,9 @@ async def start_fleet(
             await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle, ftp)
         if opcua:
             port = base_port + tnc + haas + agent if base_port else 0
-            await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
+            # the demo's way: the fleet is usable while the OPC UA server is being built
+            start = _start_opcua_in_background if opcua_background else _start_opcua
+            await start(fleet, root, opcua, host, port, mtconnect_cycle)
         first_ftp = base_port + tnc + haas + agent + (1 if opcua else 0) if base_port else 0
         for n in range(ftp):
             await _start_ftp(fleet, root, n, host, first_ftp + n if first_ftp else 0)
@@ -320,6 +333,35 @@ async def _start_opcua(
         fleet.machines.append(
             FleetMachine(name, "opcua", host, server.port, root / name, device=name)
         )
+
+
+async def _start_opcua_in_background(
+    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
+) -> None:
+    """List the ``opcua`` machines now (the server's port is chosen when it is made) and
+    build and start their server in :attr:`Fleet.opcua_started`."""
+    # Imported here: asyncua is the server extra's.
+    from opendnc.sim.opcua.server import VirtualOpcuaServer
+
+    names = [f"opc-{i + 1}" for i in range(count)]
+    server = VirtualOpcuaServer(names, host=host, port=port)
+    fleet.machines += [
+        FleetMachine(name, "opcua", host, server.port, root / name, device=name) for name in names
+    ]
+    fleet.opcua_started = asyncio.create_task(_serve_opcua(fleet, server, cycle), name="opcua")
+
+
+async def _serve_opcua(fleet: Fleet, server: VirtualOpcuaServer, cycle: float) -> None:
+    """Build and start ``server`` (seconds of CPU), then run its machine tools' cycles."""
+    from opendnc.sim.opcua.machine import ScriptedMachineTool, run_cycles
+
+    await server.start()
+    fleet.opcua = server  # only now: Fleet.close stops a server that listens
+    for i, name in enumerate(server.names):
+        machine = ScriptedMachineTool(server.machines[name])
+        fleet.machine_tools[name] = machine
+        length = cycle * (1 + 0.07 * (i % 5))
+        fleet._cycles.append(asyncio.create_task(run_cycles(machine, length), name=name))
 
 
 async def _start_ftp(fleet: Fleet, root: Path, n: int, host: str, port: int) -> None:
