@@ -34,7 +34,6 @@ from opendnc.server.access import auth  # noqa: E402
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config.shop import ConfigError, parse_config  # noqa: E402
 from opendnc.server.core.status import MachineStatus  # noqa: E402
-from opendnc.server.kinds import filedrop_folder  # noqa: E402
 from opendnc.server.kinds.base import (  # noqa: E402
     Capabilities,
     ConnectorHooks,
@@ -421,7 +420,7 @@ def test_a_send_to_a_local_share_is_written_hidden_read_back_and_then_renamed(
         )
         replace(source, target)
 
-    monkeypatch.setattr(filedrop_folder.os, "replace", watched)
+    monkeypatch.setattr(os, "replace", watched)  # the one FolderDrop calls
     FolderDrop(str(folder), "m1").put("O01000.nc", PROGRAM)
     ((temp, copy, old),) = renames
     assert temp.startswith(".O01000.nc.")
@@ -443,7 +442,7 @@ def test_a_copy_the_share_did_not_keep_is_a_typed_error_and_leaves_the_old_file(
         # a mount that stores something else than was written (the read-back must see it)
         os.pwrite(fd, b"X", 3)
 
-    monkeypatch.setattr(filedrop_folder.os, "fsync", keeps_a_changed_byte)
+    monkeypatch.setattr(os, "fsync", keeps_a_changed_byte)
     with pytest.raises(TransferError, match="read back"):
         FolderDrop(str(folder), "m1").put("O01000.nc", PROGRAM)
     assert [p.name for p in folder.iterdir()] == ["O01000.nc"]  # no temporary copy left

@@ -183,7 +183,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
         ftp=1,
         # status only, and its server costs seconds of CPU: not what --check is for
         opcua=0 if check else 1,
-        opcua_background=True,  # the demo is announced and usable while it is built
+        opcua_later=True,  # built once the demo is announced and usable
     )
     try:
         nas = folder / "nas"
@@ -208,6 +208,7 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
             await asyncio.sleep(0.05)
         url = f"http://{host}:{port}/"
         _announce(url, (password, viewer_password, key), fleet, zone, nas)
+        fleet.start_opcua()
         printing = asyncio.create_task(_print_dprnt(server, fleet))
         opcua = asyncio.create_task(_opcua_ready(fleet))
         try:
@@ -297,7 +298,7 @@ def _announce(url: str, secrets_: tuple[str, str, str], fleet: Fleet, zone: str,
     names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
     console.print(f"machines: {names}", highlight=False, soft_wrap=True)
     console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
-    if fleet.opcua_started is not None:
+    if any(m.kind == "opcua" for m in fleet.machines):
         console.print(
             "the OPC UA machine comes online in a few seconds (its server is being built)",
             highlight=False,

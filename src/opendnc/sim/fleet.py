@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import importlib
 import json
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,11 +83,22 @@ class Fleet:
     machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
     """The scripted machine tool behind each ``opcua`` machine, by machine name."""
     opcua_started: asyncio.Task[None] | None = field(default=None, repr=False)
-    """With ``opcua_background``: the task that builds and starts the OPC UA server (done when
+    """After :meth:`start_opcua`: the task that builds and starts the OPC UA server (done when
     it listens, or failed with the reason); :attr:`opcua` is set once it listens."""
+    _opcua_later: tuple[list[str], str, int, float] | None = field(default=None, repr=False)
     ftp: dict[str, VirtualFtpFolder] = field(default_factory=dict, repr=False)
     """The FTP folder of each ``--ftp`` machine, by machine name."""
     _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
+
+    def start_opcua(self) -> asyncio.Task[None] | None:
+        """Build and start the OPC UA server of a fleet started with ``opcua_later`` in the
+        background (:attr:`opcua_started`; None without one). It costs seconds of CPU, most of
+        it in a thread: a caller that starts it once it is serving keeps its start-up quick."""
+        if self._opcua_later is not None and self.opcua_started is None:
+            self.opcua_started = asyncio.create_task(
+                _serve_opcua(self, *self._opcua_later), name="opcua"
+            )
+        return self.opcua_started
 
     async def close(self) -> None:
         """Stop every control."""
@@ -106,6 +119,7 @@ class Fleet:
             self.opcua_started.cancel()
             await asyncio.gather(self.opcua_started, return_exceptions=True)
             self.opcua_started = None
+        self._opcua_later = None  # closed: nothing to start any more
         for task in self._cycles:
             task.cancel()
         if self._cycles:
@@ -142,7 +156,7 @@ async def start_fleet(
     mtconnect_cycle: float = 30.0,
     opcua: int = 0,
     ftp: int = 0,
-    opcua_background: bool = False,
+    opcua_later: bool = False,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -159,8 +173,8 @@ async def start_fleet(
     (a part each, a feed hold every fifth, an alarm every thirteenth). ``opcua`` machines are
     machine tools ``opc-1``, ... of one virtual OPC UA server (the port after the agent's),
     running the same cycle. Building that server's address space costs seconds of CPU: with
-    ``opcua_background`` the fleet returns at once with the ``opcua`` machines listed (their
-    port is chosen) and :attr:`Fleet.opcua_started` builds and starts the server.
+    ``opcua_later`` the ``opcua`` machines are listed (their port is chosen) but their server
+    is built and started by :meth:`Fleet.start_opcua`, in the background.
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -223,9 +237,10 @@ async def start_fleet(
             await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle, ftp)
         if opcua:
             port = base_port + tnc + haas + agent if base_port else 0
-            # the demo's way: the fleet is usable while the OPC UA server is being built
-            start = _start_opcua_in_background if opcua_background else _start_opcua
-            await start(fleet, root, opcua, host, port, mtconnect_cycle)
+            if opcua_later:  # the demo's way: it is usable while the server is being built
+                _list_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
+            else:
+                await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
         first_ftp = base_port + tnc + haas + agent + (1 if opcua else 0) if base_port else 0
         for n in range(ftp):
             await _start_ftp(fleet, root, n, host, first_ftp + n if first_ftp else 0)
@@ -335,29 +350,31 @@ async def _start_opcua(
         )
 
 
-async def _start_opcua_in_background(
-    fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float
-) -> None:
-    """List the ``opcua`` machines now (the server's port is chosen when it is made) and
-    build and start their server in :attr:`Fleet.opcua_started`."""
-    # Imported here: asyncua is the server extra's.
-    from opendnc.sim.opcua.server import VirtualOpcuaServer
-
+def _list_opcua(fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float) -> None:
+    """List the ``opcua`` machines on the port their server will have; nothing of asyncua is
+    imported yet (that alone is half a second of CPU)."""
     names = [f"opc-{i + 1}" for i in range(count)]
-    server = VirtualOpcuaServer(names, host=host, port=port)
+    if not port:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+            probe.bind((host, 0))
+            port = int(probe.getsockname()[1])
     fleet.machines += [
-        FleetMachine(name, "opcua", host, server.port, root / name, device=name) for name in names
+        FleetMachine(name, "opcua", host, port, root / name, device=name) for name in names
     ]
-    fleet.opcua_started = asyncio.create_task(_serve_opcua(fleet, server, cycle), name="opcua")
+    fleet._opcua_later = (names, host, port, cycle)
 
 
-async def _serve_opcua(fleet: Fleet, server: VirtualOpcuaServer, cycle: float) -> None:
-    """Build and start ``server`` (seconds of CPU), then run its machine tools' cycles."""
+async def _serve_opcua(fleet: Fleet, names: list[str], host: str, port: int, cycle: float) -> None:
+    """Build and start the OPC UA server of ``names`` (seconds of CPU), then run its machine
+    tools' cycles."""
+    # imported in a thread: the caller's loop keeps serving meanwhile
+    module = await asyncio.to_thread(importlib.import_module, "opendnc.sim.opcua.server")
     from opendnc.sim.opcua.machine import ScriptedMachineTool, run_cycles
 
-    await server.start()
+    server: VirtualOpcuaServer = module.VirtualOpcuaServer(names, host=host, port=port)
+    await server.start()  # asyncua fills its standard address space in a thread
     fleet.opcua = server  # only now: Fleet.close stops a server that listens
-    for i, name in enumerate(server.names):
+    for i, name in enumerate(names):
         machine = ScriptedMachineTool(server.machines[name])
         fleet.machine_tools[name] = machine
         length = cycle * (1 + 0.07 * (i % 5))
