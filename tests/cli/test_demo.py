@@ -83,5 +83,13 @@ def test_demo_server_sends_a_program_to_every_virtual_machine() -> None:
     assert "DPRNT haas-1: BORE  1 DIA  1.0002" in out
     assert "DPRNT haas-1: BORE  3 DIA  1.0000" in out
     assert "times in America/Chicago" in out
+    # a machine behind the virtual MTConnect agent, and a control that takes its programs
+    # through its FTP folder (status through the agent too): online, and the FTP one is sent to
+    assert "mtc-1 (mtconnect)" in out
+    assert "ftp-1 (mtconnect)" in out
+    assert "O01000.nc -> ftp-1: sent" in out
+    # the OPC UA machine's server takes seconds of CPU to build: --check leaves it out
+    assert "opc-1" not in out
+    assert "leaves out the OPC UA machine" in out
     # the demo has a net share: its NAS folder's programs reach the NGC's share
     assert "net share -> haas-1: O01000.nc, O02000.nc, O04000.nc, O05000.nc" in out

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ftplib
 import hashlib
 import io
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -43,6 +44,7 @@ from opendnc.server.kinds.base import (  # noqa: E402
 from opendnc.server.kinds.connector import StatusOnly  # noqa: E402
 from opendnc.server.kinds.filedrop import FilesConnector  # noqa: E402
 from opendnc.server.kinds.filedrop_config import FilesConfig  # noqa: E402
+from opendnc.server.kinds.filedrop_folder import FolderDrop  # noqa: E402
 from opendnc.server.kinds.filedrop_ftp import FtpDrop  # noqa: E402
 from opendnc.server.kinds.registry import (  # noqa: E402
     KINDS,
@@ -398,3 +400,84 @@ def test_the_ftp_server_mode_with_ftplib_as_the_data_server_board(
             board.quit()
         wait_for("the board's program in the inbox", lambda: _received(server), timeout=30)
     assert [row.sha256 for row in _received(server)] == [hashlib.sha256(OTHER).hexdigest()]
+
+
+# -- a share: a local (mounted) folder -------------------------------------------------------------
+def test_a_send_to_a_local_share_is_written_hidden_read_back_and_then_renamed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "share"
+    folder.mkdir()
+    (folder / "O01000.nc").write_bytes(b"the old version")
+    renames: list[tuple[str, bytes, bytes]] = []
+    replace = os.replace
+
+    def watched(source: Any, target: Any) -> None:
+        # what the folder holds at the moment of the rename: the copy whole under its hidden
+        # name, the old program still under the real one (an operator never sees a half copy)
+        renames.append(
+            (Path(source).name, Path(source).read_bytes(), (folder / "O01000.nc").read_bytes())
+        )
+        replace(source, target)
+
+    monkeypatch.setattr(os, "replace", watched)  # the one FolderDrop calls
+    FolderDrop(str(folder), "m1").put("O01000.nc", PROGRAM)
+    ((temp, copy, old),) = renames
+    assert temp.startswith(".O01000.nc.")
+    assert temp.endswith(".part")
+    assert copy == PROGRAM
+    assert old == b"the old version"
+    assert [p.name for p in folder.iterdir()] == ["O01000.nc"]
+    assert (folder / "O01000.nc").read_bytes() == PROGRAM
+
+
+def test_a_copy_the_share_did_not_keep_is_a_typed_error_and_leaves_the_old_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "share"
+    folder.mkdir()
+    (folder / "O01000.nc").write_bytes(b"the old version")
+
+    def keeps_a_changed_byte(fd: int) -> None:
+        # a mount that stores something else than was written (the read-back must see it)
+        os.pwrite(fd, b"X", 3)
+
+    monkeypatch.setattr(os, "fsync", keeps_a_changed_byte)
+    with pytest.raises(TransferError, match="read back"):
+        FolderDrop(str(folder), "m1").put("O01000.nc", PROGRAM)
+    assert [p.name for p in folder.iterdir()] == ["O01000.nc"]  # no temporary copy left
+    assert (folder / "O01000.nc").read_bytes() == b"the old version"
+
+
+def test_a_send_through_a_local_share_and_receiving_by_watching_it_without_echo(
+    tmp_path: Path, quiet_kind: None
+) -> None:
+    folder = tmp_path / "share"
+    folder.mkdir()
+    text = (
+        '[[machines]]\nname = "q1"\nkind = "quiet"\npoll_interval = 0.05\n[machines.files]\n'
+        f'mode = "share"\npath = "{folder}"\nreceive = true\nreceive_every = 1\n'
+    )
+    config = parse_config(_shop(tmp_path, text), base=tmp_path)
+    (machine,) = config.machines
+    assert capabilities_of(machine).receive
+    server = build(config, database=f"sqlite:///{tmp_path / 'db.sqlite'}")
+    key = _keys(server, release=True)
+    with serving(server) as url, httpx.Client(base_url=url, timeout=30) as client:
+        reply = _send(client, key, "q1")
+        assert reply.status_code in (200, 201), reply.text
+        (job,) = wait_jobs(client, key, [j["id"] for j in reply.json()])
+        assert job["state"] == "done", job
+        assert [p.name for p in folder.iterdir()] == ["O01000.nc"]
+        assert (folder / "O01000.nc").read_bytes() == PROGRAM
+        # the control writes a program of its own: it comes to the inbox; the sent one, in
+        # every listing since the send, does not come back
+        (folder / "O02000.nc").write_bytes(OTHER)
+        wait_for("the control's program in the inbox", lambda: _received(server))
+    rows = _received(server)
+    assert [(row.program, row.sha256) for row in rows] == [
+        ("O02000.nc", hashlib.sha256(OTHER).hexdigest())
+    ]
+    assert [p.read_bytes() for p in (tmp_path / "inbox").rglob("*") if p.is_file()] == [OTHER]
+    # a received file is kept on the share (after_receive = "keep", the default)
+    assert sorted(p.name for p in folder.iterdir()) == ["O01000.nc", "O02000.nc"]

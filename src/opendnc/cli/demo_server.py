@@ -1,15 +1,21 @@
 """`opendnc demo`: the DNC server with a virtual shop floor, on embedded defaults.
 
 Starts two virtual TNCs, a virtual Haas NGC (MDC, net share and a DPRNT port), a virtual
-Haas and a virtual Fanuc (tape code, the ``serial`` kind) on virtual RS-232 cables in this
-process, fills a library with example programs (released ones
-and a draft with two versions), and runs the server on SQLite in a scratch folder, on this
-computer's time zone (or ``--timezone``), with a hybrid net share: a NAS folder holding programs
-as a CAM office leaves them (one the released version, one a draft, one edited after its
-release, one the library never saw), copied to the NGC's share. It prints the dashboard's
-address and a login first, then an API key, and serves until Ctrl-C.
-``--check`` sends a released program of its family to every machine, prints what happened and
-exits (what the test suite runs).
+Haas and a virtual Fanuc (tape code, the ``serial`` kind) on virtual RS-232 cables, a machine
+behind a virtual MTConnect agent, a machine tool of a virtual umati OPC UA server and a control
+that takes programs through its FTP folder (status through the agent) in this process, fills
+a library with example programs (released ones and a draft with two versions), and runs the
+server on SQLite in a scratch folder, on this computer's time zone (or ``--timezone``), with a
+hybrid net share: a NAS folder holding programs as a CAM office leaves them (one the released
+version, one a draft, one edited after its release, one the library never saw), copied to the
+NGC's share. It prints the dashboard's address and a login first, then an API key, and serves
+until Ctrl-C.
+``--check`` sends a released program of its family to every machine that takes programs, prints
+what happened and exits (what the test suite runs).
+
+The OPC UA server's address space takes seconds of CPU to build: the demo builds it in the
+background (its machine comes online when it listens), and ``--check`` leaves that machine
+out, so the check costs about what it did before it was added.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from opendnc.errors import DncError, InputError
 
 if TYPE_CHECKING:
     from opendnc.server.app import Server
-    from opendnc.sim.fleet import Fleet
+    from opendnc.sim.fleet import Fleet, FleetMachine
 
 T = TypeVar("T")
 
@@ -134,7 +140,8 @@ def demo(
         help="The shop's clock, an IANA name like Europe/Berlin (default: this computer's).",
     ),
 ) -> None:
-    """Run the DNC server with a virtual shop floor (TNCs, Haas, a Fanuc) and print a login."""
+    """Run the DNC server with a virtual shop floor (TNCs, Haas, a Fanuc, MTConnect, OPC UA and
+    FTP machines) and print a login."""
     if tour:
         from opendnc.cli.demo import demo as cli_tour
 
@@ -166,7 +173,17 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
     port = listener.getsockname()[1]  # the real one when --bind said :0
     # the NGC prints DPRNT to a port of its own: the demo shows a DPRNT source
     fleet = await start_fleet(
-        folder / "machines", tnc=2, haas=1, serial_haas=1, fanuc=1, dprnt=True
+        folder / "machines",
+        tnc=2,
+        haas=1,
+        serial_haas=1,
+        fanuc=1,
+        dprnt=True,
+        mtconnect=1,
+        ftp=1,
+        # status only, and its server costs seconds of CPU: not what --check is for
+        opcua=0 if check else 1,
+        opcua_later=True,  # built once the demo is announced and usable
     )
     try:
         nas = folder / "nas"
@@ -191,7 +208,9 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
             await asyncio.sleep(0.05)
         url = f"http://{host}:{port}/"
         _announce(url, (password, viewer_password, key), fleet, zone, nas)
+        fleet.start_opcua()
         printing = asyncio.create_task(_print_dprnt(server, fleet))
+        opcua = asyncio.create_task(_opcua_ready(fleet))
         try:
             if check:
                 await _check(server, fleet)
@@ -203,9 +222,10 @@ async def _run(folder: Path, host: str, listener: socket.socket, check: bool, zo
                 console.print("serving; Ctrl-C stops the demo", highlight=False)
                 await stop.wait()
         finally:
-            printing.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await printing
+            for task in (printing, opcua):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
             web.should_exit = True
             await serving
             server.engine.dispose()
@@ -278,6 +298,27 @@ def _announce(url: str, secrets_: tuple[str, str, str], fleet: Fleet, zone: str,
     names = ", ".join(f"{m.name} ({m.kind})" for m in fleet.machines)
     console.print(f"machines: {names}", highlight=False, soft_wrap=True)
     console.print(f"times in {zone}; net share folder: {nas}", highlight=False, soft_wrap=True)
+    if any(m.kind == "opcua" for m in fleet.machines):
+        console.print(
+            "the OPC UA machine comes online in a few seconds (its server is being built)",
+            highlight=False,
+        )
+    else:
+        console.print("(--check leaves out the OPC UA machine: status only)", highlight=False)
+
+
+async def _opcua_ready(fleet: Fleet) -> None:
+    """Say when the virtual OPC UA server built in the background listens, or why not."""
+    started = fleet.opcua_started
+    if started is None:
+        return
+    try:
+        await asyncio.shield(started)  # Fleet.close cancels it, not this watcher
+    except Exception as exc:  # whatever asyncua raised: the rest of the demo goes on
+        console.print(f"the virtual OPC UA server did not start: {exc!r}", highlight=False)
+        return
+    if fleet.opcua is not None:
+        console.print(f"virtual OPC UA server listening on {fleet.opcua.url}", highlight=False)
 
 
 async def _print_dprnt(server: object, fleet: object) -> None:
@@ -296,9 +337,9 @@ async def _print_dprnt(server: object, fleet: object) -> None:
 
 
 async def _check(server: object, fleet: object) -> None:
-    """Send a released program to every machine (O01000 to a Haas, POCKET.H to a TNC, O0100
-    to a tape-code control) and wait for the outcome; then for the NGC's DPRNT lines and the
-    net share's copies."""
+    """Send a released program to every machine that takes programs (O01000 to a Haas and to
+    the FTP folder's control, POCKET.H to a TNC, O0100 to a tape-code control) and wait for
+    the outcome; then for the NGC's DPRNT lines and the net share's copies."""
     from opendnc.server.app import Server
     from opendnc.sim.fleet import Fleet
 
@@ -348,10 +389,9 @@ async def _send_everywhere(server: Server, fleet: Fleet, deadline: float) -> Non
     svc = server.core.get(actions.Services)
     demo = Principal("demo", Role.ADMIN)
     created = []
-    families = (("O01000.nc", ("haas",)), ("POCKET.H", ("lsv2",)), ("O0100.nc", ("serial",)))
-    for program, kinds in families:
-        names = [m.name for m in fleet.machines if m.kind.startswith(kinds)]
-        if names:
+    for program in dict.fromkeys(_program_for(m) for m in fleet.machines):
+        names = [m.name for m in fleet.machines if _program_for(m) == program]
+        if program is not None:
             order = JobRequest(kind=JobKind.SEND, program=program, machines=names)
             created += await asyncio.to_thread(actions.queue.create_jobs, svc, demo, order)
     ids = [j.id for j in created]
@@ -369,6 +409,13 @@ async def _send_everywhere(server: Server, fleet: Fleet, deadline: float) -> Non
         console.print(f"{programs[job.id]} -> {job.machine}: {outcome}", highlight=False)
     if any(j.state is not JobState.DONE for j in found):
         raise DncError("not every machine received the program")
+
+
+def _program_for(machine: FleetMachine) -> str | None:
+    """The demo's released program of ``machine``'s family; None for a status-only one."""
+    if machine.ftp_port or machine.kind.startswith("haas"):
+        return "O01000.nc"  # ISO G-code: a Haas, and the FTP folder's control (an Okuma's)
+    return {"lsv2": "POCKET.H", "serial": "O0100.nc"}.get(machine.kind)
 
 
 async def _dprnt_printed(server: Server, deadline: float) -> None:

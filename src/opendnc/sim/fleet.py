@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import importlib
 import json
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,9 +84,23 @@ class Fleet:
     """Every virtual OPC UA server (one, a gateway; or one per control)."""
     machine_tools: dict[str, ScriptedMachineTool] = field(default_factory=dict, repr=False)
     """The scripted machine tool behind each ``opcua`` machine, by machine name."""
+    opcua_started: asyncio.Task[None] | None = field(default=None, repr=False)
+    """After :meth:`start_opcua`: the task that builds and starts the OPC UA server (done when
+    it listens, or failed with the reason); :attr:`opcua` is set once it listens."""
+    _opcua_later: tuple[list[str], str, int, float] | None = field(default=None, repr=False)
     ftp: dict[str, VirtualFtpFolder] = field(default_factory=dict, repr=False)
     """The FTP folder of each ``--ftp`` machine, by machine name."""
     _cycles: list[asyncio.Task[None]] = field(default_factory=list, repr=False)
+
+    def start_opcua(self) -> asyncio.Task[None] | None:
+        """Build and start the OPC UA server of a fleet started with ``opcua_later`` in the
+        background (:attr:`opcua_started`; None without one). It costs seconds of CPU, most of
+        it in a thread: a caller that starts it once it is serving keeps its start-up quick."""
+        if self._opcua_later is not None and self.opcua_started is None:
+            self.opcua_started = asyncio.create_task(
+                _serve_opcua(self, *self._opcua_later), name="opcua"
+            )
+        return self.opcua_started
 
     async def close(self) -> None:
         """Stop every control."""
@@ -100,6 +116,12 @@ class Fleet:
         self.fanucs.clear()
         for cable in self._cables:
             cable.close()
+        if self.opcua_started is not None:
+            # a server still being built is abandoned: it never listened, nothing to stop
+            self.opcua_started.cancel()
+            await asyncio.gather(self.opcua_started, return_exceptions=True)
+            self.opcua_started = None
+        self._opcua_later = None  # closed: nothing to start any more
         for task in self._cycles:
             task.cancel()
         if self._cycles:
@@ -138,6 +160,7 @@ async def start_fleet(
     opcua: int = 0,
     ftp: int = 0,
     opcua_servers: int = 1,
+    opcua_later: bool = False,
 ) -> Fleet:
     """Start ``tnc`` virtual TNCs, ``haas`` virtual Haas NGCs and ``serial_haas`` virtual Haas
     on virtual RS-232 cables (POSIX only: a cable is a pair of ptys) under ``root``.
@@ -155,7 +178,9 @@ async def start_fleet(
     machine tools ``opc-1``, ... of one virtual OPC UA server (the port after the agent's),
     running the same cycle; with ``opcua_servers`` K they are spread over K servers (K =
     ``opcua``: one server per control, as in a shop where each control runs its own; the
-    ports after the agent's).
+    ports after the agent's). Building a server's address space costs seconds of CPU: with
+    ``opcua_later`` the ``opcua`` machines are listed (their port is chosen) but their one
+    server is built and started by :meth:`Fleet.start_opcua`, in the background.
 
     ``receipts``: every program a virtual TNC receives completely is one JSON line in this
     file (machine, path, size, sha256), so a test counts what each control received;
@@ -221,7 +246,10 @@ async def start_fleet(
             await _start_mtconnect(fleet, root, mtconnect, host, port, mtconnect_cycle, ftp)
         if opcua:
             port = base_port + tnc + haas + agent if base_port else 0
-            await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle, served)
+            if opcua_later:  # the demo's way: it is usable while the server is being built
+                _list_opcua(fleet, root, opcua, host, port, mtconnect_cycle)
+            else:
+                await _start_opcua(fleet, root, opcua, host, port, mtconnect_cycle, served)
         first_ftp = base_port + tnc + haas + agent + served if base_port else 0
         for n in range(ftp):
             await _start_ftp(fleet, root, n, host, first_ftp + n if first_ftp else 0)
@@ -335,6 +363,38 @@ async def _start_opcua(
         fleet.machines.append(
             FleetMachine(name, "opcua", host, server.port, root / name, device=name)
         )
+
+
+def _list_opcua(fleet: Fleet, root: Path, count: int, host: str, port: int, cycle: float) -> None:
+    """List the ``opcua`` machines on the port their server will have; nothing of asyncua is
+    imported yet (that alone is half a second of CPU)."""
+    names = [f"opc-{i + 1}" for i in range(count)]
+    if not port:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+            probe.bind((host, 0))
+            port = int(probe.getsockname()[1])
+    fleet.machines += [
+        FleetMachine(name, "opcua", host, port, root / name, device=name) for name in names
+    ]
+    fleet._opcua_later = (names, host, port, cycle)
+
+
+async def _serve_opcua(fleet: Fleet, names: list[str], host: str, port: int, cycle: float) -> None:
+    """Build and start the OPC UA server of ``names`` (seconds of CPU), then run its machine
+    tools' cycles."""
+    # imported in a thread: the caller's loop keeps serving meanwhile
+    module = await asyncio.to_thread(importlib.import_module, "opendnc.sim.opcua.server")
+    from opendnc.sim.opcua.machine import ScriptedMachineTool, run_cycles
+
+    server: VirtualOpcuaServer = module.VirtualOpcuaServer(names, host=host, port=port)
+    await server.start()  # asyncua fills its standard address space in a thread
+    fleet.opcua = server  # only now: Fleet.close stops a server that listens
+    fleet.opcua_servers.append(server)
+    for i, name in enumerate(names):
+        machine = ScriptedMachineTool(server.machines[name])
+        fleet.machine_tools[name] = machine
+        length = cycle * (1 + 0.07 * (i % 5))
+        fleet._cycles.append(asyncio.create_task(run_cycles(machine, length), name=name))
 
 
 async def _start_ftp(fleet: Fleet, root: Path, n: int, host: str, port: int) -> None:
