@@ -273,6 +273,7 @@ def _clone(url: str, names: list[str], copies: list[str], since: datetime | None
         "utilization_hours": "hour, running, ready, stopped, alarm, offline, unknown, "
         "no_record, parts, runs, cycles, cycle_seconds",
         "utilization_stretches": 'kind, start, "end", seconds, state, text',
+        "utilization_program_hours": "hour, program, runs, seconds",
         "utilization_marks": "until, last_id, carry",
     }
     try:
