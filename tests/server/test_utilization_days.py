@@ -2,7 +2,8 @@
 random timelines (hypothesis) across both clock changes, with overnight shifts, a shift
 ending at 24:00, a shop without shifts, another zone, and a calendar the days cannot be
 summed for (a shift at 05:30: its questions read the hours); a late sample and a changed
-calendar sum the days again."""
+calendar sum the days again. OEE's runs per program (summed with the hours, migration 0021)
+are what following every sample counts, and migration 0021 sums the kept hours again."""
 
 from __future__ import annotations
 
@@ -18,6 +19,13 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.core.shifts import Calendar, parse_calendar
+from opendnc.server.store.db import (
+    current_revision,
+    head_revision,
+    make_engine,
+    make_sessions,
+    migrate,
+)
 from opendnc.server.store.models import (
     Blob,
     Program,
@@ -27,6 +35,7 @@ from opendnc.server.store.models import (
     StatusSample,
     UtilizationDay,
     UtilizationMark,
+    UtilizationProgramHour,
     VersionCheck,
 )
 from opendnc.server.utilization.collect import Group, MachineReport, Report, report, sum_safely
@@ -315,3 +324,34 @@ def test_a_machine_without_samples_has_no_record_on_summed_days(
     assert new.totals.scheduled_total == sum(
         (b - a).total_seconds() for a, b in cal.scheduled(start, end)
     )
+
+
+def test_migration_0021_sums_the_kept_hours_again_with_their_programs(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        migrate(engine)
+        sessions = make_sessions(engine)
+        cal = CALENDARS["berlin-3"]
+        start = cal.instant(date(2026, 3, 23), datetime.min.time())
+        end, now = start + timedelta(days=6), start + timedelta(days=7)
+        _timeline(sessions, "m", start)
+        _standards(sessions)
+        with sessions.begin() as session:
+            sum_safely(session, ["m"], now, cal)
+        # a server before 0021 summed these hours: none of their runs per program is kept
+        migrate(engine, "0020")
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        with sessions() as session:
+            assert session.scalar(select(func.count()).select_from(UtilizationProgramHour)) == 0
+            assert session.scalar(select(UtilizationMark.last_id)) == 0
+        with sessions.begin() as session:  # the next summing sums the kept hours again
+            r = report(session, cal, ["m"], start, end, Group.DAY, now=now)
+            floor = same_floor(session, r, now, timedelta(days=400))
+        programs = floor.machines[0].runs
+        assert "o1" in programs
+        assert sum(p.runs for p in programs.values()) == r.machines[0].totals.runs > 0
+        with sessions() as session:
+            assert session.scalar(select(func.count()).select_from(UtilizationProgramHour)) > 0
+    finally:
+        engine.dispose()
