@@ -461,7 +461,13 @@ def _runs_summed(
         held.runs += runs
         held.seconds += seconds
     tail_from = max(covered, min(summed_until, until))
-    for a, b in raw:
+    # (a cut hour just before the marks comes joined to the span after them: split it)
+    spans = [
+        piece
+        for a, b in raw
+        for piece in ([(a, tail_from), (tail_from, b)] if a < tail_from < b else [(a, b)])
+    ]
+    for a, b in spans:
         local = [
             Bin(max(x.start, a), min(x.end, b), x.period)
             for x in bins_within(bins, a, b)
