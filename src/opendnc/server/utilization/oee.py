@@ -35,13 +35,14 @@ from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any
 
-from sqlalchemy import Select, func, select
+from sqlalchemy import Select, and_, func, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
 from opendnc.server.core.shifts import Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
+    DowntimeReason,
     PartReport,
     Program,
     ProgramState,
@@ -391,29 +392,33 @@ def _longest(
     stops: dict[str, list[StopWithReason]],
 ) -> dict[str, list[StopWithReason]]:
     """Each machine's :data:`LISTED` longest stops of the span: the summed ones' from their
-    index, with ``stops`` (those outside the summed days)."""
+    index, each with its reason (one ``LIMIT`` query per machine, not every stop between the
+    longest ones), with ``stops`` (those outside the summed days)."""
     t = UtilizationStretch.__table__.c
+    r = DowntimeReason.__table__.c
 
     def longest(machine: Any) -> Select[Any]:
         return (
-            select(t.machine, t.start)
+            select(t.machine, t.start, t.end, t.state, t.text, r.reason, r.note, r.by)
+            .select_from(UtilizationStretch.__table__)
+            .outerjoin(DowntimeReason.__table__, and_(r.machine == t.machine, r.start == t.start))
             .where(t.machine == machine, t.kind == "stop", t.end > start, t.start < until)
             .order_by(t.seconds.desc(), t.start)
             .limit(LISTED + 1)  # (one of them may end after the span: clipped, shorter)
         )
 
-    starts: dict[str, set[datetime]] = defaultdict(set)
-    for machine, began in each_machine(session, longest, names):
-        starts[machine].add(as_utc(began))
+    found: dict[str, list[StopWithReason]] = defaultdict(list)
+    for machine, began, ended, state, text, reason, note, by in each_machine(
+        session, longest, names
+    ):
+        stop = Stretch("stop", as_utc(began), as_utc(ended), State(state), text)
+        found[machine].append(StopWithReason(machine, stop, reason or "", note or "", by or ""))
     out: dict[str, list[StopWithReason]] = {}
     for name in names:
         mine = {s.stop.start: s for s in stops.get(name, [])}
-        wanted = starts.get(name, set()) - set(mine)
-        if wanted:
-            lo, hi = min(wanted), max(wanted) + timedelta(microseconds=1)
-            for s in stops_with_reasons(session, [name], lo, hi).get(name, []):
-                if s.stop.start in wanted:
-                    mine[s.stop.start] = _clipped(s, until)
+        for s in found.get(name, []):
+            if s.stop.start not in mine:
+                mine[s.stop.start] = _clipped(s, until)
         out[name] = sorted(mine.values(), key=lambda s: (-s.seconds, s.stop.start))[:LISTED]
     return out
 
