@@ -52,6 +52,7 @@ from opendnc.server.store.models import (
     VersionCheck,
 )
 from opendnc.server.utilization.collect import (
+    LONG_SPAN,
     Report,
     each_machine,
     marks_of,
@@ -397,12 +398,17 @@ def _longest(
     t = UtilizationStretch.__table__.c
     r = DowntimeReason.__table__.c
 
+    # Over a long span most stops overlap it: walk the index by length (a function of the
+    # end keeps the database from the end's index, which would sort every stop of the span)
+    long_span = until - start >= LONG_SPAN
+    ends_after = func.coalesce(t.end, t.end) > start if long_span else t.end > start
+
     def longest(machine: Any) -> Select[Any]:
         return (
             select(t.machine, t.start, t.end, t.state, t.text, r.reason, r.note, r.by)
             .select_from(UtilizationStretch.__table__)
             .outerjoin(DowntimeReason.__table__, and_(r.machine == t.machine, r.start == t.start))
-            .where(t.machine == machine, t.kind == "stop", t.end > start, t.start < until)
+            .where(t.machine == machine, t.kind == "stop", ends_after, t.start < until)
             .order_by(t.seconds.desc(), t.start)
             .limit(LISTED + 1)  # (one of them may end after the span: clipped, shorter)
         )
