@@ -16,8 +16,9 @@ By default it first checks large generated 3-D surface programs (short X Y Z mov
 now and then) the way ``opendnc check`` does (streamed, no time limit, no moves kept), each
 in its own child process so the peak RSS is that case's: 1,000,000 G-code blocks, 1,000,000
 Klartext blocks and 10,000,000 G-code blocks (``--quick`` skips the last; ``--huge-klartext``
-adds 10,000,000 Klartext blocks), and prints CPU s, peak RSS MiB and blocks checked. Targets (issue 33): under 5 s CPU and 300 MiB for the 1M
-cases, the same memory bound for 10M. ``--large 0`` skips them; ``--runs 0`` skips the
+adds 10,000,000 Klartext blocks), and prints CPU s, peak RSS MiB and blocks checked.
+Targets (issue 33): under 5 s CPU and 300 MiB for the 1M cases, the same memory bound for
+10M. ``--large 0`` skips them; ``--runs 0`` skips the
 100,000-block comparison.
 """
 

@@ -42,6 +42,7 @@ import json
 import os
 import random
 import shutil
+import sqlite3
 import statistics
 import sys
 import tempfile
@@ -273,6 +274,7 @@ def _clone(url: str, names: list[str], copies: list[str], since: datetime | None
         "utilization_hours": "hour, running, ready, stopped, alarm, offline, unknown, "
         "no_record, parts, runs, cycles, cycle_seconds",
         "utilization_stretches": 'kind, start, "end", seconds, state, text',
+        "utilization_program_hours": "hour, program, runs, seconds",
         "utilization_marks": "until, last_id, carry",
     }
     try:
@@ -372,8 +374,13 @@ def run(
     if not prepared:
         out |= _prepare(url, engine, names, own, start, now, seed, copy_days)
     if keep is not None:  # a copy of the filled database, for another run with --db
-        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
-            conn.execute(text("VACUUM INTO :path"), {"path": str(keep)})
+        # (on a connection of its own: the engine's begins a transaction, and VACUUM cannot
+        # run inside one)
+        copier = sqlite3.connect(url.removeprefix("sqlite:///"), isolation_level=None)
+        try:
+            copier.execute("VACUUM INTO ?", (str(keep),))
+        finally:
+            copier.close()
     with engine.connect() as conn:
         out["samples"] = conn.execute(text("SELECT COUNT(*) FROM status_samples")).scalar()
         out["hour_rows"] = conn.execute(text("SELECT COUNT(*) FROM utilization_hours")).scalar()

@@ -2,11 +2,13 @@
 random timelines (hypothesis) across both clock changes, with overnight shifts, a shift
 ending at 24:00, a shop without shifts, another zone, and a calendar the days cannot be
 summed for (a shift at 05:30: its questions read the hours); a late sample and a changed
-calendar sum the days again."""
+calendar sum the days again. OEE's runs per program (summed with the hours, migration 0023)
+are what following every sample counts, and migration 0023 sums the kept hours again."""
 
 from __future__ import annotations
 
 import itertools
+from dataclasses import astuple
 from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
@@ -17,9 +19,28 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.core.shifts import Calendar, parse_calendar
-from opendnc.server.store.models import StatusSample, UtilizationDay, UtilizationMark
-from opendnc.server.utilization.collect import Group, MachineReport, report, sum_safely
+from opendnc.server.store.db import (
+    current_revision,
+    head_revision,
+    make_engine,
+    make_sessions,
+    migrate,
+)
+from opendnc.server.store.models import (
+    Blob,
+    Program,
+    ProgramState,
+    ProgramVersion,
+    StandardTime,
+    StatusSample,
+    UtilizationDay,
+    UtilizationMark,
+    UtilizationProgramHour,
+    VersionCheck,
+)
+from opendnc.server.utilization.collect import Group, MachineReport, Report, report, sum_safely
 from opendnc.server.utilization.days import day_span, pieces_of, rolls_up
+from opendnc.server.utilization.oee import FloorReport, Oee, floor_of
 from tests.server.test_utilization_db import _whole
 
 
@@ -62,6 +83,8 @@ STATES = [
     ("offline", "", ""),
     ("none", "", ""),
 ]
+# programs as controls name them: one with the TNC's folder (the library's "o2.h")
+PROGRAMS = ["O1", "TNC:\\nc_prog\\O2.H", "o2.h", ""]
 _names = itertools.count(1)
 
 # one change: seconds to the next one, the state, whether a part was made
@@ -84,7 +107,7 @@ def _store(
                 at=at,
                 state=state,
                 execution=execution,
-                program="O1",
+                program=PROGRAMS[gap % len(PROGRAMS)],
                 part_count=count if counts else None,
                 alarm=alarm,
             )
@@ -97,6 +120,56 @@ def _store(
 def _same(a: list[MachineReport], b: list[MachineReport]) -> None:
     for x, y in zip(a, b, strict=True):
         assert _whole(x) == _whole(y)
+
+
+def _standards(sessions: sessionmaker[Session]) -> None:
+    """A standard time for "o1" (set) and "o2.h" (the check's estimate); none for the
+    unnamed program."""
+    with sessions.begin() as session:
+        if session.scalar(select(func.count()).select_from(Program)):
+            return  # (hypothesis runs the test again on the same database)
+        session.add(Blob(sha256="0" * 64, size=1, data=b"%"))
+        for name, seconds in (("O1", 600.0), ("O2.H", 90.0)):
+            program = Program(name=name)
+            session.add(program)
+            session.flush()
+            version = ProgramVersion(
+                program_id=program.id,
+                number=1,
+                sha256="0" * 64,
+                size=1,
+                state=ProgramState.RELEASED,
+                author="t",
+            )
+            session.add(version)
+            session.flush()
+            if name == "O1":
+                session.add(StandardTime(version_id=version.id, seconds=seconds, set_by="t"))
+            else:
+                facts = {"cycle_time_s": seconds}
+                session.add(
+                    VersionCheck(version_id=version.id, limits="", control="tnc", facts=facts)
+                )
+
+
+def _oee(o: Oee) -> tuple[object, ...]:
+    return tuple(round(v, 6) if isinstance(v, float) else v for v in astuple(o))
+
+
+def same_floor(session: Session, r: Report, now: datetime, retention: timedelta) -> FloorReport:
+    """OEE read from the summed runs per program is what following every sample gives
+    (per machine, in total and per period, and the runs per program); the summed one."""
+    summed = floor_of(session, r, retention, (), now)
+    read = floor_of(session, r, retention, (), now, use_sums=False)
+    assert summed.covered_from == read.covered_from
+    for x, y in zip(summed.machines, read.machines, strict=True):
+        runs = {k: (v.runs, round(v.seconds, 3)) for k, v in x.runs.items() if v.runs or v.seconds}
+        assert runs == {
+            k: (v.runs, round(v.seconds, 3)) for k, v in y.runs.items() if v.runs or v.seconds
+        }
+        assert _oee(x.totals) == _oee(y.totals)
+        assert [_oee(o) for o in x.periods] == [_oee(o) for o in y.periods]
+    return summed
 
 
 @settings(
@@ -144,6 +217,14 @@ def test_summed_days_answer_what_every_sample_answers(
     assert [p.key for p in summed.periods] == [p.key for p in read.periods]
     _same(summed.machines, read.machines)
     _same(hours.machines, read.machines)
+    # OEE's runs per program from the summed hours: over the whole span, and from a
+    # retention that ends within it (the runs are counted from its first whole hour)
+    _standards(sessions)
+    with sessions.begin() as session:
+        whole = same_floor(session, summed, now, timedelta(days=400))
+        assert whole.covered_from == start
+        within = now - (start + (end - start) / 3 + timedelta(minutes=17))
+        same_floor(session, summed, now, within)
     with sessions() as session:  # and the days were what answered (where they can)
         marks = {m.machine: m for m in session.scalars(select(UtilizationMark))}
         mine = {k: v for k, v in marks.items() if k in machines}
@@ -243,3 +324,34 @@ def test_a_machine_without_samples_has_no_record_on_summed_days(
     assert new.totals.scheduled_total == sum(
         (b - a).total_seconds() for a, b in cal.scheduled(start, end)
     )
+
+
+def test_migration_0023_sums_the_kept_hours_again_with_their_programs(db_url: str) -> None:
+    engine = make_engine(db_url)
+    try:
+        migrate(engine)
+        sessions = make_sessions(engine)
+        cal = CALENDARS["berlin-3"]
+        start = cal.instant(date(2026, 3, 23), datetime.min.time())
+        end, now = start + timedelta(days=6), start + timedelta(days=7)
+        _timeline(sessions, "m", start)
+        _standards(sessions)
+        with sessions.begin() as session:
+            sum_safely(session, ["m"], now, cal)
+        # a server before 0023 summed these hours: none of their runs per program is kept
+        migrate(engine, "0022")
+        migrate(engine)
+        assert current_revision(engine) == head_revision()
+        with sessions() as session:
+            assert session.scalar(select(func.count()).select_from(UtilizationProgramHour)) == 0
+            assert session.scalar(select(UtilizationMark.last_id)) == 0
+        with sessions.begin() as session:  # the next summing sums the kept hours again
+            r = report(session, cal, ["m"], start, end, Group.DAY, now=now)
+            floor = same_floor(session, r, now, timedelta(days=400))
+        programs = floor.machines[0].runs
+        assert "o1" in programs
+        assert sum(p.runs for p in programs.values()) == r.machines[0].totals.runs > 0
+        with sessions() as session:
+            assert session.scalar(select(func.count()).select_from(UtilizationProgramHour)) > 0
+    finally:
+        engine.dispose()

@@ -21,7 +21,14 @@ from opendnc.server.utilization.collect import Group, read_points, report, sum_s
 from opendnc.server.utilization.lost import covered_days, repick
 from opendnc.server.utilization.oee import LISTED, floor_of
 from opendnc.server.utilization.sums import Bin, Carry, Stretch, as_utc, open_stretches, sweep
-from tests.server.test_utilization_days import CALENDARS, _names, _store, change
+from tests.server.test_utilization_days import (
+    CALENDARS,
+    _names,
+    _standards,
+    _store,
+    change,
+    same_floor,
+)
 
 REASONS = DEFAULT_REASONS[:3]
 
@@ -91,10 +98,13 @@ def test_lost_time_per_reason_is_the_sum_over_every_stop(
             )
             session.flush()
             repick(session, cal, later.machine, as_utc(later.start))
+    _standards(sessions)
     with sessions.begin() as session:
         r = report(session, cal, machines, start, end, group, now=now)
         until = r.until or r.end
         floor = floor_of(session, r, timedelta(days=400), (*REASONS, "other"), now)
+        # (with ``ongoing``, the runs after the summed hours come from the samples)
+        same_floor(session, r, now, timedelta(days=400))
         if not ongoing:  # the summed days are read (not every stop one by one)
             assert covered_days(session, cal, machines, start, until) is not None
         picked = {

@@ -65,6 +65,7 @@ __all__ = [
     "UtilizationDayMark",
     "UtilizationHour",
     "UtilizationMark",
+    "UtilizationProgramHour",
     "UtilizationStretch",
     "UtilizationWeek",
     "VersionCheck",
@@ -383,6 +384,21 @@ class UtilizationHour(Base):
     runs: Mapped[int] = mapped_column(Integer, default=0)
     cycles: Mapped[int] = mapped_column(Integer, default=0)  # runs whose running time is known
     cycle_seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+class UtilizationProgramHour(Base):
+    """One machine's runs of one program (by its library key, oee.program_key) that ended in
+    an hour (UTC), and the program's running seconds in it: what OEE's performance reads,
+    summed with the hours (server/utilization/collect.py, migration 0023) and kept with
+    them."""
+
+    __tablename__ = "utilization_program_hours"
+
+    machine: Mapped[str] = mapped_column(String(64), primary_key=True)
+    hour: Mapped[datetime] = mapped_column(UtcDateTime(), primary_key=True)
+    program: Mapped[str] = mapped_column(String(64), primary_key=True)
+    runs: Mapped[int] = mapped_column(Integer, default=0)
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)
 
 
 class UtilizationStretch(Base):

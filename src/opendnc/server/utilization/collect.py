@@ -53,6 +53,7 @@ from opendnc.server.store.models import (
     UtcDateTime,
     UtilizationHour,
     UtilizationMark,
+    UtilizationProgramHour,
     UtilizationStretch,
 )
 from opendnc.server.utilization.days import BUILD_DAYS, build_days, day_span, forget_days, sum_days
@@ -69,6 +70,7 @@ from opendnc.server.utilization.sums import (
     Group,
     MachineReport,
     Point,
+    ProgramRuns,
     Stretch,
     SummedAlarms,
     as_utc,
@@ -105,7 +107,9 @@ __all__ = [
     "equal_periods",
     "make_bins",
     "marks_of",
+    "plan_hours",
     "point_of",
+    "program_sums",
     "read_many",
     "report",
     "roll",
@@ -131,6 +135,9 @@ _HOURS: Table = UtilizationHour.__table__  # type: ignore[assignment]
 
 
 _STRETCHES: Table = UtilizationStretch.__table__  # type: ignore[assignment]
+
+
+_PROGRAM_HOURS: Table = UtilizationProgramHour.__table__  # type: ignore[assignment]
 
 
 # which slot (period, shift or not) each summed hour of a question goes to
@@ -325,6 +332,11 @@ def _rewind(
         )
     )
     session.execute(
+        delete(UtilizationProgramHour).where(
+            UtilizationProgramHour.machine == machine, UtilizationProgramHour.hour >= at
+        )
+    )
+    session.execute(
         delete(UtilizationStretch).where(
             UtilizationStretch.machine == machine, UtilizationStretch.end > at
         )
@@ -355,7 +367,8 @@ def _roll_machine(
     hours = int((target - start) / HOUR)
     bins = [Bin(start + k * HOUR, start + (k + 1) * HOUR) for k in range(hours)]
     stretches: list[Stretch] = []
-    figures = sweep(points, start, target, bins, carry, stretches)
+    programs: list[dict[str, ProgramRuns]] = [{} for _ in bins]
+    figures = sweep(points, start, target, bins, carry, stretches, programs)
     rows = [
         {
             "machine": machine,
@@ -372,6 +385,13 @@ def _roll_machine(
     ]
     for chunk in range(0, len(rows), 5000):
         session.connection().execute(insert(_HOURS), rows[chunk : chunk + 5000])
+    per_program = [
+        {"machine": machine, "hour": b.start, "program": name, "runs": r.runs, "seconds": r.seconds}
+        for b, by_name in zip(bins, programs, strict=True)
+        for name, r in by_name.items()
+    ]
+    for chunk in range(0, len(per_program), 5000):
+        session.connection().execute(insert(_PROGRAM_HOURS), per_program[chunk : chunk + 5000])
     if stretches:
         session.connection().execute(
             insert(_STRETCHES),
@@ -857,6 +877,9 @@ def _plan(
     return raw, hour_slots
 
 
+plan_hours = _plan
+
+
 def _sum_hours(
     session: Session,
     machines: Sequence[str],
@@ -905,6 +928,31 @@ def _hour_sums(
     ).all()
     session.execute(delete(_SLOTS))
     return list(rows)
+
+
+def program_sums(
+    session: Session, machines: Sequence[str], hour_slots: Sequence[tuple[datetime, int]]
+) -> list[tuple[str, int, str, int, float]]:
+    """Rows of (machine, slot, program, runs, running seconds): the summed runs per program
+    of ``hour_slots`` added up per machine, slot and program."""
+    if not hour_slots or not machines:
+        return []
+    connection = session.connection()
+    _SLOTS.create(connection, checkfirst=True)  # temporary: this connection's own
+    session.execute(delete(_SLOTS))
+    connection.execute(insert(_SLOTS), [{"hour": h, "slot": s} for h, s in hour_slots])
+    p = _PROGRAM_HOURS.c
+    out: list[tuple[str, int, str, int, float]] = []
+    for chunk in _chunks(machines):
+        rows = session.execute(
+            select(p.machine, _SLOTS.c.slot, p.program, func.sum(p.runs), func.sum(p.seconds))
+            .join(_SLOTS, _SLOTS.c.hour == p.hour)
+            .where(p.machine.in_(chunk), p.hour >= hour_slots[0][0], p.hour <= hour_slots[-1][0])
+            .group_by(p.machine, _SLOTS.c.slot, p.program)
+        )
+        out += [(m, int(slot), name, int(r or 0), float(t or 0.0)) for m, slot, name, r, t in rows]
+    session.execute(delete(_SLOTS))
+    return out
 
 
 def _figures_of(values: Sequence[Any], in_shift: bool) -> Figures:

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any
 
-from sqlalchemy import Select, func, select
+from sqlalchemy import Select, and_, func, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
@@ -45,6 +45,7 @@ from opendnc.server.config.goals import Goal, GoalsConfig
 from opendnc.server.core.shifts import Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
+    DowntimeReason,
     PartReport,
     Program,
     ProgramState,
@@ -53,7 +54,16 @@ from opendnc.server.store.models import (
     UtilizationStretch,
     VersionCheck,
 )
-from opendnc.server.utilization.collect import Report, each_machine, marks_of, read_many
+from opendnc.server.utilization.collect import (
+    LONG_SPAN,
+    Report,
+    each_machine,
+    marks_of,
+    plan_hours,
+    program_sums,
+    read_many,
+    read_points,
+)
 from opendnc.server.utilization.downtime import (
     ParetoRow,
     StopWithReason,
@@ -66,11 +76,16 @@ from opendnc.server.utilization.sums import (
     Bin,
     Carry,
     Figures,
-    Point,
+    ProgramRuns,
     Stretch,
-    _transition,
     as_utc,
+    bins_within,
+    ceil_hour,
+    in_force,
+    make_bins,
     open_stretches,
+    program_key,
+    sweep,
 )
 
 __all__ = [
@@ -78,6 +93,7 @@ __all__ = [
     "FloorReport",
     "MachineFloor",
     "Oee",
+    "ProgramRuns",
     "Standard",
     "floor_of",
     "oee_of",
@@ -98,14 +114,6 @@ class Standard:
     seconds: float | None = None
     source: str = ""  # set (by a supervisor), estimate (the check's), "" (none)
     estimate: float | None = None  # the check's estimate, set or not
-
-
-@dataclass
-class ProgramRuns:
-    """Runs of one program ended in a piece of time, and the running seconds they took."""
-
-    runs: int = 0
-    seconds: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -211,12 +219,6 @@ def _goal(
     return math.floor(whole * pace + 1e-9), math.floor(planned * pace + 1e-9)
 
 
-def program_key(name: str) -> str:
-    """A program name on a control as the library's key: without its folder, case-folded
-    (``TNC:\\nc_prog\\POCKET.H`` and ``pocket.h`` are one)."""
-    return name.replace("\\", "/").rsplit("/", 1)[-1].strip().lower()
-
-
 def standards_for(session: Session, names: Iterable[str]) -> dict[str, Standard]:
     """The standard of each program name (by :func:`program_key`): the set one of the
     version it stands for, else that version's check estimate."""
@@ -261,63 +263,6 @@ def standards_for(session: Session, names: Iterable[str]) -> dict[str, Standard]
         else:
             out[key] = Standard(name, vid, number)
     return out
-
-
-def follow_runs(
-    points: Sequence[Point], start: datetime, end: datetime, bins: Sequence[Bin]
-) -> tuple[list[dict[str, ProgramRuns]], list[Stretch], Carry]:
-    """One machine's runs per program and bin over ``[start, end)`` (points in time order,
-    read from before ``start``), its stops and alarms found, and what is open at ``end``.
-    The runs are counted as :func:`.sums.sweep` counts them (the same transition)."""
-    per_bin: list[dict[str, ProgramRuns]] = [defaultdict(ProgramRuns) for _ in bins]
-    ends = [b.end for b in bins]
-    first = points[0] if points else None
-    carry = Carry.fresh(first)
-    program = program_key(first.program) if first is not None else ""
-    found: list[Stretch] = []
-    state = first.state if first is not None else State.NO_RECORD
-    at = first.at if first is not None else start
-    for p in [*points[1:], None]:
-        until = min(p.at, end) if p is not None else end
-        if state is State.RUNNING and until > at:
-            # as sums.sweep keeps the run in progress (what ends it counts it)
-            carry.run += (until - at).total_seconds()
-            carry.ran = True
-            if until > start:
-                _add_running(per_bin, bins, ends, program, max(at, start), until)
-        if p is None or p.at >= end:
-            break
-        # the one transition of sums.sweep, handed only the bin that holds p (a run that
-        # ends there is counted in it; outside the bins, only followed)
-        j = bisect.bisect_right(ends, p.at)
-        inside = j < len(bins) and bins[j].start <= p.at
-        tally = Figures()
-        if inside:
-            _transition(p, carry, [tally], [bins[j]], [ends[j]], found)
-        else:
-            _transition(p, carry, [], [], [], found)
-        if tally.runs:
-            per_bin[j][program].runs += tally.runs
-        state, at = p.state, p.at
-        if p.state is State.RUNNING and p.program:
-            program = program_key(p.program)
-    return per_bin, found, carry
-
-
-def _add_running(
-    per_bin: list[dict[str, ProgramRuns]],
-    bins: Sequence[Bin],
-    ends: list[datetime],
-    program: str,
-    a: datetime,
-    b: datetime,
-) -> None:
-    j = bisect.bisect_right(ends, a)
-    while j < len(bins) and bins[j].start < b:
-        lo, hi = max(a, bins[j].start), min(b, bins[j].end)
-        if hi > lo:
-            per_bin[j][program].seconds += (hi - lo).total_seconds()
-        j += 1
 
 
 @dataclass
@@ -374,21 +319,25 @@ def floor_of(
     reasons: Sequence[str] = (),
     now: datetime | None = None,
     goals: GoalsConfig | None = None,
+    *,
+    use_sums: bool = True,
 ) -> FloorReport:
     """OEE, parts, stops and reasons for ``report``'s machines, periods and span (the goals
-    of ``[goals]`` where a machine has one)."""
+    of ``[goals]`` where a machine has one): the runs per program from the summed hours and
+    the samples after them (``use_sums=False``: from every sample of each machine, the
+    reference the sums are tested against)."""
     now = now or datetime.now(UTC)
     start, until = report.start, report.until or report.end
-    # runs are followed in the kept samples only; stops are summed with the hours
-    covered = max(start, now - retention)
+    # runs are counted from the first whole hour of the kept samples (the hours sum them per
+    # program from there: a cut hour would need what carried into it); stops are summed
+    # with the hours
+    covered = max(start, ceil_hour(now - retention))
     periods = report.periods
     names = [m.machine for m in report.machines]
-    bins = [Bin(max(p.start, covered), min(p.end, until), i) for i, p in enumerate(periods)]
-    bins = [b for b in bins if b.end > b.start]
-    read_from = covered - LOOK_BACK
-    points = read_many(session, names, read_from, until) if until > covered else {}
+    bins = make_bins(periods, [], covered, until) if until > covered else []
     parts = _parts(session, names, periods, start, until)
-    per_machine = {name: _follow(points.get(name, []), covered, until, bins) for name in names}
+    follow = _runs_summed if use_sums else _runs_of_every_sample
+    per_machine = follow(session, names, bins, len(periods), covered, until)
     programs = {k for runs, _found in per_machine.values() for r in runs for k in r}
     standards = standards_for(session, programs)
     stops, days = _stops(session, report, names, {m: f for m, (_r, f) in per_machine.items()})
@@ -398,8 +347,10 @@ def floor_of(
     listed = stops if days is None else _longest(session, names, start, until, stops)
     machines = []
     for m in report.machines:
-        runs, _found = per_machine[m.machine]
-        by_period, total_runs = _runs_per_period(bins, runs, len(periods))
+        by_period, _found = per_machine[m.machine]
+        total_runs: dict[str, ProgramRuns] = {}
+        for r in by_period:
+            _merge(total_runs, r)
         good_scrap = parts.get(m.machine, {})
         total_good = sum(g for g, _s in good_scrap.values())
         total_scrap = sum(s for _g, s in good_scrap.values())
@@ -477,29 +428,40 @@ def _longest(
     stops: dict[str, list[StopWithReason]],
 ) -> dict[str, list[StopWithReason]]:
     """Each machine's :data:`LISTED` longest stops of the span: the summed ones' from their
-    index, with ``stops`` (those outside the summed days)."""
+    index, each with its reason (one ``LIMIT`` query per machine, not every stop between the
+    longest ones), with ``stops`` (those outside the summed days)."""
     t = UtilizationStretch.__table__.c
+    r = DowntimeReason.__table__.c
+
+    # Over a long span most stops overlap it: walk the index by length (a function of the
+    # end keeps the database from the end's index, which would sort every stop of the span)
+    long_span = until - start >= LONG_SPAN
+    ends_after = func.coalesce(t.end, t.end) > start if long_span else t.end > start
+    # (and from the index by start, which SQLite would otherwise pick: 12 ms a machine)
+    starts_before = func.coalesce(t.start, t.start) < until if long_span else t.start < until
 
     def longest(machine: Any) -> Select[Any]:
         return (
-            select(t.machine, t.start)
-            .where(t.machine == machine, t.kind == "stop", t.end > start, t.start < until)
+            select(t.machine, t.start, t.end, t.state, t.text, r.reason, r.note, r.by)
+            .select_from(UtilizationStretch.__table__)
+            .outerjoin(DowntimeReason.__table__, and_(r.machine == t.machine, r.start == t.start))
+            .where(t.machine == machine, t.kind == "stop", ends_after, starts_before)
             .order_by(t.seconds.desc(), t.start)
             .limit(LISTED + 1)  # (one of them may end after the span: clipped, shorter)
         )
 
-    starts: dict[str, set[datetime]] = defaultdict(set)
-    for machine, began in each_machine(session, longest, names):
-        starts[machine].add(as_utc(began))
+    found: dict[str, list[StopWithReason]] = defaultdict(list)
+    for machine, began, ended, state, text, reason, note, by in each_machine(
+        session, longest, names
+    ):
+        stop = Stretch("stop", as_utc(began), as_utc(ended), State(state), text)
+        found[machine].append(StopWithReason(machine, stop, reason or "", note or "", by or ""))
     out: dict[str, list[StopWithReason]] = {}
     for name in names:
         mine = {s.stop.start: s for s in stops.get(name, [])}
-        wanted = starts.get(name, set()) - set(mine)
-        if wanted:
-            lo, hi = min(wanted), max(wanted) + timedelta(microseconds=1)
-            for s in stops_with_reasons(session, [name], lo, hi).get(name, []):
-                if s.stop.start in wanted:
-                    mine[s.stop.start] = _clipped(s, until)
+        for s in found.get(name, []):
+            if s.stop.start not in mine:
+                mine[s.stop.start] = _clipped(s, until)
         out[name] = sorted(mine.values(), key=lambda s: (-s.seconds, s.stop.start))[:LISTED]
     return out
 
@@ -540,28 +502,108 @@ class _Whole:
         return {"planned_full": planned.total_seconds()}
 
 
-def _follow(
-    points: list[Point], covered: datetime, until: datetime, bins: list[Bin]
-) -> tuple[list[dict[str, ProgramRuns]], list[Stretch]]:
-    """One machine's runs per bin and its stops in the kept samples, the stop still going
-    at ``until`` included (it counts up to the end of the span)."""
-    runs, found, carry = follow_runs(points, covered, until, bins)
-    found += [s for s in open_stretches(carry, until) if s.kind == "stop"]
-    return runs, found
+PerMachine = dict[str, tuple[list[dict[str, ProgramRuns]], list[Stretch]]]
 
 
-def _runs_per_period(
-    bins: list[Bin], runs: list[dict[str, ProgramRuns]], periods: int
-) -> tuple[list[dict[str, ProgramRuns]], dict[str, ProgramRuns]]:
-    """The runs of each bin gathered per period, and over all periods."""
-    by_period: list[dict[str, ProgramRuns]] = [{} for _ in range(periods)]
-    for b, r in zip(bins, runs, strict=True):
+def _runs_summed(
+    session: Session,
+    names: list[str],
+    bins: list[Bin],
+    periods: int,
+    covered: datetime,
+    until: datetime,
+) -> PerMachine:
+    """Each machine's runs per program and period over ``[covered, until)``, and the stops
+    found after its summed hours: the whole hours from ``utilization_program_hours``, the
+    hours not summed yet from the samples after the marks (with what the marks carry), and
+    the rare hour a period boundary cuts (or a span's start within an hour) from the samples
+    with :data:`LOOK_BACK` before it."""
+    out: PerMachine = {n: ([{} for _ in range(periods)], []) for n in names}
+    if not bins:
+        return out
+    marks = marks_of(session, names)
+    summed_until = min((m.until for m in marks.values()), default=covered)
+    slot_ids = {(b.period, b.in_shift): -1 if b.period is None else b.period for b in bins}
+    raw, hour_slots = plan_hours(bins, slot_ids, covered, until, summed_until)
+    hour_slots = [(h, slot) for h, slot in hour_slots if slot >= 0]
+    for machine, slot, program, runs, seconds in program_sums(session, names, hour_slots):
+        held = out[machine][0][slot].setdefault(program, ProgramRuns())
+        held.runs += runs
+        held.seconds += seconds
+    tail_from = max(covered, min(summed_until, until))
+    # (a cut hour just before the marks comes joined to the span after them: split it)
+    spans = [
+        piece
+        for a, b in raw
+        for piece in ([(a, tail_from), (tail_from, b)] if a < tail_from < b else [(a, b)])
+    ]
+    for a, b in spans:
+        local = [
+            Bin(max(x.start, a), min(x.end, b), x.period)
+            for x in bins_within(bins, a, b)
+            if x.period is not None
+        ]
+        if not local:
+            continue
+        is_tail = a >= tail_from
+        read = read_many(session, names, a if is_tail else a - LOOK_BACK, b)
+        for name in names:
+            points = read[name]
+            mark = marks.get(name)
+            if is_tail and mark is not None and mark.until == a:
+                sweep_from, carry = a, Carry.from_json(mark.carry)  # summed up to here
+            elif is_tail:
+                sweep_from, carry = a, Carry.fresh(in_force(points, a))
+            else:  # followed from before the cut hour, counted within it
+                first = points[0] if points else None
+                sweep_from = min(a, first.at) if first is not None else a
+                carry = Carry.fresh(first)
+            found: list[Stretch] = []
+            programs: list[dict[str, ProgramRuns]] = [{} for _ in local]
+            sweep(points, sweep_from, b, local, carry, found, programs)
+            _gather(out[name][0], local, programs)
+            if is_tail:
+                out[name][1].extend(found)
+                if b == until:
+                    out[name][1].extend(s for s in open_stretches(carry, until) if s.kind == "stop")
+    return out
+
+
+def _runs_of_every_sample(
+    session: Session,
+    names: list[str],
+    bins: list[Bin],
+    periods: int,
+    covered: datetime,
+    until: datetime,
+) -> PerMachine:
+    """The reference: each machine's runs per program and period from every one of its
+    samples (what carries into ``covered`` known exactly), and all its stops."""
+    out: PerMachine = {n: ([{} for _ in range(periods)], []) for n in names}
+    if not bins:
+        return out
+    for name in names:
+        points = read_points(session, name, datetime(1970, 1, 1, tzinfo=UTC), until)
+        sweep_from = min(covered, points[0].at) if points else covered
+        carry = Carry()
+        found: list[Stretch] = []
+        programs: list[dict[str, ProgramRuns]] = [{} for _ in bins]
+        sweep(points, sweep_from, until, bins, carry, found, programs)
+        _gather(out[name][0], bins, programs)
+        out[name][1].extend(found)
+        out[name][1].extend(s for s in open_stretches(carry, until) if s.kind == "stop")
+    return out
+
+
+def _gather(
+    by_period: list[dict[str, ProgramRuns]],
+    bins: Sequence[Bin],
+    programs: list[dict[str, ProgramRuns]],
+) -> None:
+    """Add the runs of each bin to its period's."""
+    for b, r in zip(bins, programs, strict=True):
         if b.period is not None:
             _merge(by_period[b.period], r)
-    total_runs: dict[str, ProgramRuns] = {}
-    for r in by_period:
-        _merge(total_runs, r)
-    return by_period, total_runs
 
 
 def _merge(into: dict[str, ProgramRuns], more: dict[str, ProgramRuns]) -> None:

@@ -53,6 +53,7 @@ __all__ = [
     "Group",
     "MachineReport",
     "Point",
+    "ProgramRuns",
     "Stretch",
     "SummedAlarms",
     "as_utc",
@@ -69,6 +70,7 @@ __all__ = [
     "periods_of",
     "point_of",
     "point_of_columns",
+    "program_key",
     "summarize",
     "sweep",
 ]
@@ -137,6 +139,22 @@ def point_of_columns(row: Any) -> Point:
     count, alarm), by position: named access costs more, over millions of rows."""
     _machine, _id, at, state, execution, program, part_count, alarm = row
     return Point(at, _state_of(state, execution), program or "", part_count, alarm or "")
+
+
+@functools.lru_cache(maxsize=4096)
+def program_key(name: str) -> str:
+    """A program name on a control as the library's key: without its folder, case-folded
+    (``TNC:\\nc_prog\\POCKET.H`` and ``pocket.h`` are one)."""
+    return name.replace("\\", "/").rsplit("/", 1)[-1].strip().lower()
+
+
+@dataclass
+class ProgramRuns:
+    """Runs of one program ended in a piece of time, and the running seconds of the program
+    in it (what OEE's performance reads)."""
+
+    runs: int = 0
+    seconds: float = 0.0
 
 
 @dataclass
@@ -231,6 +249,9 @@ class Carry:
     stop_text: str = ""
     alarm_start: datetime | None = None
     alarm_text: str = ""
+    # the program running (its name as the control gave it): runs and running time count
+    # for it (OEE's performance); a run ends counted for the program it ran
+    program: str = ""
 
     @classmethod
     def fresh(cls, point: Point | None) -> Carry:
@@ -239,6 +260,7 @@ class Carry:
         if point is None:
             return carry
         carry.counter = point.part_count
+        carry.program = point.program
         if point.state in (State.RUNNING, State.STOPPED):
             carry.run_known = False
             carry.ran = point.state is State.RUNNING
@@ -261,6 +283,7 @@ class Carry:
             "stop_text": self.stop_text,
             "alarm_start": self.alarm_start.isoformat() if self.alarm_start else None,
             "alarm_text": self.alarm_text,
+            "program": self.program,
         }
 
     @classmethod
@@ -280,6 +303,7 @@ class Carry:
             stop_text=str(data.get("stop_text") or ""),
             alarm_start=when(data.get("alarm_start")),
             alarm_text=str(data.get("alarm_text") or ""),
+            program=str(data.get("program") or ""),
         )
 
 
@@ -328,10 +352,13 @@ def sweep(
     bins: Sequence[Bin],
     carry: Carry,
     stretches: list[Stretch] | None = None,
+    programs: list[dict[str, ProgramRuns]] | None = None,
 ) -> list[Figures]:
     """Sum ``points`` (one machine's, in time order, from the one in force at ``start``)
     over ``[start, end)`` into one :class:`Figures` per bin. ``carry`` comes in as at
-    ``start`` and goes out as at ``end``; finished stops and alarms go to ``stretches``."""
+    ``start`` and goes out as at ``end``; finished stops and alarms go to ``stretches``;
+    with ``programs`` (a dict per bin), the runs and running seconds per program (by
+    :func:`program_key`) too."""
     figures = [Figures() for _ in bins]
     ends = [b.end for b in bins]
     i = 0
@@ -350,7 +377,13 @@ def sweep(
     t = start
     while t < end:
         if nxt < len(points) and points[nxt].at <= t:
-            current = _transition(points[nxt], carry, figures, bins, ends, stretches)
+            p = points[nxt]
+            if programs is None:
+                current = _transition(p, carry, figures, bins, ends, stretches)
+            else:
+                current = _transition_per_program(
+                    p, carry, figures, bins, ends, stretches, programs
+                )
             nxt += 1
             continue
         until = min(points[nxt].at, end) if nxt < len(points) else end
@@ -359,8 +392,49 @@ def sweep(
             if current is State.RUNNING:
                 carry.run += (until - t).total_seconds()
                 carry.ran = True
+                if programs is not None:
+                    _spend_program(t, until, program_key(carry.program), programs, bins, ends)
         t = until
     return figures
+
+
+def _transition_per_program(
+    p: Point,
+    carry: Carry,
+    figures: list[Figures],
+    bins: Sequence[Bin],
+    ends: list[datetime],
+    stretches: list[Stretch] | None,
+    programs: list[dict[str, ProgramRuns]],
+) -> State:
+    """:func:`_transition`, the run it ends (if any) counted for the program that ran."""
+    j = bin_at(p.at, ends)
+    inside = j < len(figures) and bins[j].start <= p.at
+    before = figures[j].runs if inside else 0
+    ran = carry.program
+    state = _transition(p, carry, figures, bins, ends, stretches)
+    if inside and figures[j].runs > before:
+        held = programs[j].setdefault(program_key(ran), ProgramRuns())
+        held.runs += figures[j].runs - before
+    return state
+
+
+def _spend_program(
+    a: datetime,
+    b: datetime,
+    program: str,
+    programs: list[dict[str, ProgramRuns]],
+    bins: Sequence[Bin],
+    ends: list[datetime],
+) -> None:
+    """Add the running seconds of ``[a, b)`` to ``program`` in the bins they fall in."""
+    j = bin_at(a, ends)
+    while j < len(bins) and bins[j].start < b:
+        lo, hi = max(a, bins[j].start), min(b, bins[j].end)
+        if hi > lo:
+            held = programs[j].setdefault(program, ProgramRuns())
+            held.seconds += (hi - lo).total_seconds()
+        j += 1
 
 
 def bin_at(at: datetime, ends: list[datetime]) -> int:
@@ -406,6 +480,8 @@ def _transition(
     _count_run(p, carry, fig, completed)
     _follow_alarm(p, carry, stretches)
     _follow_stop(p, carry, stretches)
+    if p.program and p.state is State.RUNNING:
+        carry.program = p.program  # (what runs from here on; a run that ended is counted)
     return p.state
 
 
