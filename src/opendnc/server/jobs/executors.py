@@ -88,6 +88,7 @@ class Claimed:
     data: bytes  # what to send (empty for jobs that take from the control)
     params: dict[str, Any]
     version: int | None = None  # the program version it sends
+    attempt: int = 0  # the job's attempts at this claim: which run of the job this is
 
     @property
     def program(self) -> str | None:

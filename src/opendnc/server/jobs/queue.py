@@ -252,7 +252,7 @@ def claim(session: Session, machine: str, worker: str) -> Job | None:
 
 
 def _running(session: Session, job_id: int) -> Job:
-    job = get_job(session, job_id)
+    job = get_job(session, job_id, lock=True)  # two enders never both see it running
     if job.state is not JobState.RUNNING:
         raise Conflict(f"job {job_id} is {job.state.value}, not running")
     return job
@@ -546,9 +546,17 @@ def _with_program() -> LoaderOption:
     return selectinload(Job.version).selectinload(ProgramVersion.program)
 
 
-def get_job(session: Session, job_id: int) -> Job:
-    """The job ``job_id``; :class:`NotFound` otherwise."""
-    job = session.get(Job, job_id, options=[_with_program()])
+def get_job(session: Session, job_id: int, *, lock: bool = False) -> Job:
+    """The job ``job_id``; :class:`NotFound` otherwise. ``lock``: its row locked for this
+    transaction and read afresh (a check of its state before a write: under PostgreSQL's read
+    committed, two writers that both read it running would both end it)."""
+    job = session.get(
+        Job,
+        job_id,
+        options=[_with_program()],
+        with_for_update=True if lock else None,
+        populate_existing=lock,
+    )
     if job is None:
         raise NotFound(f"no job {job_id}")
     return job

@@ -356,15 +356,21 @@ class JobRunner:
             params = dict(job.params)
             if job.kind is JobKind.REPORT:
                 report = str(params.get("report", "")).encode("latin-1")
-                return Claimed(job.id, job.kind, str(params.get("name")), report, params)
+                return Claimed(
+                    job.id, job.kind, str(params.get("name")), report, params, attempt=job.attempts
+                )
             if job.kind in jobs.PROGRAM_JOBS:  # send, drip-feed, put_file
                 if job.version is None:
                     jobs.fail(session, job.id, "the job names no program", retryable=False)
                     return None
                 data = library.content(session, job.version)
                 program, number = job.version.program.name, job.version.number
-                return Claimed(job.id, job.kind, program, data, params, number)
-            return Claimed(job.id, job.kind, str(params.get("path", "")), b"", params)
+                return Claimed(
+                    job.id, job.kind, program, data, params, number, attempt=job.attempts
+                )
+            return Claimed(
+                job.id, job.kind, str(params.get("path", "")), b"", params, attempt=job.attempts
+            )
 
     async def _execute(self, run: JobRun) -> dict[str, Any]:
         executor = self.executors.get(run.job.kind)
@@ -533,10 +539,25 @@ class JobRunner:
         self._settle_later(run, None, pause, {"error": reason}, or_else=correct)
 
     def _finish(self, session: Session, run: JobRun, outcome: dict[str, Any]) -> JobState:
+        def ours(job: Job) -> bool:
+            # not ended by an earlier try whose answer was lost, nor a later run of the job
+            return (
+                job.state is JobState.RUNNING
+                and job.claimed_by == self.worker
+                and (not run.job.attempt or job.attempts == run.job.attempt)
+            )
+
         job = jobs.get_job(session, run.job.job_id)
-        if job.state is not JobState.RUNNING or job.claimed_by != self.worker:
-            return job.state  # an earlier try went through; its answer was lost
+        if not ours(job):
+            return job.state
         self._check_lease(session, job.machine, self._epochs.get(job.id))
+        # Read again locked (after the lease: the order a take-over locks them in): a write
+        # of this run still on its way (a fence cut the wait for it) and a later run of the
+        # same job (this server took its machine back and claimed it again) must not both
+        # read it running and both end it (seen under load: two "done" rows for one load).
+        job = jobs.get_job(session, run.job.job_id, lock=True)
+        if not ours(job):
+            return job.state
         return jobs.finish(session, run.job.job_id, **outcome).state
 
     async def _settle(
