@@ -494,8 +494,7 @@ class JobRunner:
             # this one managed to write down (it writes every half second, and not at all
             # while the database is silent): the control has more, up to `line`. A restart
             # from the older line would run those blocks twice.
-            session.get(Job, job_id, with_for_update=True)  # one writer: a take-over locks it
-            job = jobs.get_job(session, job_id)
+            job = jobs.get_job(session, job_id, lock=True)  # one writer: a take-over locks it
             if job.state is JobState.RUNNING and job.claimed_by == self.worker:
                 # the lease went before its new server took the job over: ended here, at
                 # the exact line (that server then finds nothing to take over)
