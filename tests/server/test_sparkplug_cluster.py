@@ -104,7 +104,10 @@ def test_failover_reads_as_death_and_birth_to_a_sparkplug_host(
             host = host_of(listener, group)  # every seq checked as it took the messages
             again = host.of("NBIRTH", node="dnc-1")[-1]
             assert again.payload.by_name()["bdSeq"].value == (bd_seq + 1) % 256
-            # Handed back: DDEATH from dnc-2, then DBIRTH from dnc-1, for each such machine.
+            # Handed back: dnc-2's last word on each such machine is its DDEATH and dnc-1's its
+            # DBIRTH. (Usually in that order; on a loaded machine a lease can lapse and move
+            # before its server has said so, so the order across the two nodes is not the test:
+            # a host keeps each node's device apart.)
             for machine, node in born_by(host, machines).items():
                 if node == "dnc-1":
                     moves = [
@@ -112,7 +115,8 @@ def test_failover_reads_as_death_and_birth_to_a_sparkplug_host(
                         for s in host.seen
                         if s.device == machine and s.kind in ("DBIRTH", "DDEATH")
                     ]
-                    assert moves[-2:] == [("DDEATH", "dnc-2"), ("DBIRTH", "dnc-1")], moves
+                    last = {n: k for k, n in moves}
+                    assert last == {"dnc-1": "DBIRTH", "dnc-2": "DDEATH"}, moves
                     # MQTT's one topic per machine: dnc-2 leaves it offline with the reason,
                     # then dnc-1 publishes it from its first status.
                     wait_for(
