@@ -73,8 +73,12 @@ async def _read_all(reader: asyncio.StreamReader, limit: float) -> bytes:
     while (left := end - asyncio.get_running_loop().time()) > 0:
         try:
             chunk = await asyncio.wait_for(reader.read(4096), left)
-        except (TimeoutError, ConnectionError):
+        except TimeoutError:
             break
+        except ConnectionError:
+            # closed with a reset: a byte the client wrote after the server's answer and close
+            # makes the kernel reset the link and drop the answer unread (seen under load)
+            return b"".join(chunks) + b"<reset>"
         if not chunk:
             return b"".join(chunks)
         chunks.append(chunk)
@@ -156,12 +160,17 @@ def test_slow_headers_and_slow_bodies_are_closed_in_time_and_others_are_served(
     headers, bodies, waits = asyncio.run(main())
     for took, answer in headers:
         assert took < header_limit + 5, (took, answer)
-        assert answer.startswith(b"HTTP/1.1 408 "), answer
-        assert b"headers did not arrive within" in answer
+        if answer != b"<reset>":  # closed in time either way; the answer, where it was read
+            assert answer.startswith(b"HTTP/1.1 408 "), answer
+            assert b"headers did not arrive within" in answer
     for took, answer in bodies:
         assert took < body_limit + 5, (took, answer)
-        assert answer.startswith(b"HTTP/1.1 408 "), answer
-        assert b"request body did not arrive in time" in answer
+        if answer != b"<reset>":
+            assert answer.startswith(b"HTTP/1.1 408 "), answer
+            assert b"request body did not arrive in time" in answer
+    # most answers are read: a reset is the rare race, not the server's way of closing
+    for answers in (headers, bodies):
+        assert sum(a != b"<reset>" for _t, a in answers) > len(answers) // 2, answers
     assert max(waits) < 5, waits
 
 
