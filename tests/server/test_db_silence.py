@@ -126,6 +126,41 @@ def _dripfeed(client: httpx.Client, machine: str) -> int:
     return job_id
 
 
+def _two_servers(
+    procs: Procs, config: Path, pg_url: str, proxies: dict[str, DbProxy]
+) -> dict[str, httpx.Client]:
+    """Both servers started at once, each behind its own proxy to the database; a client of
+    each once the serial Haas is online."""
+    key = create_key(config, pg_url)
+    with ThreadPoolExecutor(2) as pool:
+        urls = dict(
+            zip(
+                proxies,
+                pool.map(
+                    lambda n: serve(procs, config, proxies[n].url_for(pg_url), "--name", n, name=n),
+                    proxies,
+                ),
+                strict=True,
+            )
+        )
+    clients = {n: httpx.Client(base_url=u, timeout=30, headers=auth(key)) for n, u in urls.items()}
+    wait_for(
+        "a server online with the serial Haas",
+        lambda: clients["dnc-1"].get("/api/machines/haas-serial-1").json()["online"],
+    )
+    return clients
+
+
+def _feed_under_way(client: httpx.Client) -> tuple[int, dict[str, Any]]:
+    """A drip-feed to the serial Haas, once past its 50th line: its id and its job."""
+    job_id = _dripfeed(client, "haas-serial-1")
+    feeding = wait_for(
+        "the feed under way",
+        lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
+    )
+    return job_id, feeding
+
+
 def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_over(
     tmp_path: Path, pg_url: str, procs: Procs
 ) -> None:
@@ -137,32 +172,9 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
     clients: dict[str, httpx.Client] = {}
     try:
         config = _config(fleet.fleet, tmp_path)
-        key = create_key(config, pg_url)
-        with ThreadPoolExecutor(2) as pool:
-            urls = dict(
-                zip(
-                    proxies,
-                    pool.map(
-                        lambda n: serve(
-                            procs, config, proxies[n].url_for(pg_url), "--name", n, name=n
-                        ),
-                        proxies,
-                    ),
-                    strict=True,
-                )
-            )
-        for name, url in urls.items():
-            clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        clients.update(_two_servers(procs, config, pg_url, proxies))
         client = clients["dnc-1"]
-        wait_for(
-            "a server online with the serial Haas",
-            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
-        )
-        job_id = _dripfeed(client, "haas-serial-1")
-        feeding = wait_for(
-            "the feed under way",
-            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
-        )
+        job_id, feeding = _feed_under_way(client)
         cut = feeding["server"]
         other = ({"dnc-1", "dnc-2"} - {cut}).pop()
         front = fleet.fleet.serial_ports["haas-serial-1"]
@@ -256,32 +268,9 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
     clients: dict[str, httpx.Client] = {}
     try:
         config = _config(fleet.fleet, tmp_path, "resume_wait = 40\n")
-        key = create_key(config, pg_url)
-        with ThreadPoolExecutor(2) as pool:
-            urls = dict(
-                zip(
-                    proxies,
-                    pool.map(
-                        lambda n: serve(
-                            procs, config, proxies[n].url_for(pg_url), "--name", n, name=n
-                        ),
-                        proxies,
-                    ),
-                    strict=True,
-                )
-            )
-        for name, url in urls.items():
-            clients[name] = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        clients.update(_two_servers(procs, config, pg_url, proxies))
         client = clients["dnc-1"]
-        wait_for(
-            "a server online with the serial Haas",
-            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
-        )
-        job_id = _dripfeed(client, "haas-serial-1")
-        feeding = wait_for(
-            "the feed under way",
-            lambda: (j := client.get(f"/api/jobs/{job_id}").json())["line"] > 50 and j,
-        )
+        job_id, feeding = _feed_under_way(client)
         cut = feeding["server"]
         other = ({"dnc-1", "dnc-2"} - {cut}).pop()
         front = fleet.fleet.serial_ports["haas-serial-1"]
