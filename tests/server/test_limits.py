@@ -102,12 +102,15 @@ def test_slow_headers_and_slow_bodies_are_closed_in_time_and_others_are_served(
         start = time.monotonic()
         reader, writer = await asyncio.open_connection("127.0.0.1", port)
         try:
-            for byte in request:  # one byte every 2 s: would take 8 minutes
+            # one byte every 2 s (the whole request would take 8 minutes) until 3 s before the
+            # server's deadline, which counts from the opening: a byte written after the
+            # server's close makes the kernel reset the link and drop the 408 unread
+            for byte in request:
                 writer.write(bytes([byte]))
                 await asyncio.sleep(2)
-                if writer.is_closing() or reader.at_eof() or time.monotonic() - start > 60:
+                if time.monotonic() - start > LIMITS.header_timeout - 3:
                     break
-                if reader._buffer:
+                if writer.is_closing() or reader.at_eof() or reader._buffer:
                     break
         except ConnectionError:
             pass
@@ -121,7 +124,9 @@ def test_slow_headers_and_slow_bodies_are_closed_in_time_and_others_are_served(
         writer.write(body_head)
         answer = b""
         try:
-            while time.monotonic() - start < 60:
+            # a byte every 2 s (far below the minimum rate) until 3 s before the deadline, which
+            # counts from the body's start, so no byte follows the server's close (see above)
+            while time.monotonic() - start < LIMITS.body_timeout - 3:
                 writer.write(b"G")
                 await writer.drain()
                 await asyncio.sleep(2)
@@ -158,19 +163,15 @@ def test_slow_headers_and_slow_bodies_are_closed_in_time_and_others_are_served(
         return out
 
     headers, bodies, waits = asyncio.run(main())
+    # every slow client reads its 408: none wrote after the close, so none was reset
     for took, answer in headers:
         assert took < header_limit + 5, (took, answer)
-        if answer != b"<reset>":  # closed in time either way; the answer, where it was read
-            assert answer.startswith(b"HTTP/1.1 408 "), answer
-            assert b"headers did not arrive within" in answer
+        assert answer.startswith(b"HTTP/1.1 408 "), answer
+        assert b"headers did not arrive within" in answer
     for took, answer in bodies:
         assert took < body_limit + 5, (took, answer)
-        if answer != b"<reset>":
-            assert answer.startswith(b"HTTP/1.1 408 "), answer
-            assert b"request body did not arrive in time" in answer
-    # most answers are read: a reset is the rare race, not the server's way of closing
-    for answers in (headers, bodies):
-        assert sum(a != b"<reset>" for _t, a in answers) > len(answers) // 2, answers
+        assert answer.startswith(b"HTTP/1.1 408 "), answer
+        assert b"request body did not arrive in time" in answer
     assert max(waits) < 5, waits
 
 
