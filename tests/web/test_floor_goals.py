@@ -14,7 +14,6 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -32,9 +31,9 @@ from opendnc.server.config.shop import parse_config  # noqa: E402
 from opendnc.server.library import versions  # noqa: E402
 from opendnc.server.store.models import AuditEntry, Role, StatusSample, VersionCheck  # noqa: E402
 from tests.server.serving import serving  # noqa: E402
-from tests.web.browser import chromium, watched_context, watched_page  # noqa: E402
+from tests.web.browser import ARTIFACTS, chromium, watched_context, watched_page  # noqa: E402
 
-SHOTS = Path("/tmp/shots-floor")
+SHOTS = ARTIFACTS  # beside the other pages' screenshots, named floor-goals-*
 WIDTHS = [(1280, 800), (768, 1024)]
 PASSWORDS = {"boss": "boss-secret-1", "op": "op-secret-1", "viewer": "viewer-secret-1"}
 ESTIMATE = 95.0  # seconds: the check's estimate of O1000 stored below
@@ -152,7 +151,7 @@ def shop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
         session.flush()
         session.add(VersionCheck(version_id=version.id, limits="", control="fanuc",
                                  facts={"cycle_time_s": ESTIMATE}))  # fmt: skip
-    SHOTS.mkdir(exist_ok=True)
+    SHOTS.mkdir(parents=True, exist_ok=True)
     with serving(server) as url:
         yield Served(url, server, stop)
 
@@ -191,7 +190,7 @@ def test_the_overview_and_the_wall_show_the_shifts_parts_against_the_goal(
     sync_api.expect(mill.locator("[data-expected]")).to_contain_text("expected by now")
     sync_api.expect(mill.locator(".glance-today")).to_contain_text("Utilization")
     sync_api.expect(page.locator("#glance-vf2 [data-shift-parts]")).to_contain_text("parts")
-    page.screenshot(path=str(SHOTS / f"overview-{size[0]}.png"), full_page=True)
+    page.screenshot(path=str(SHOTS / f"floor-goals-overview-{size[0]}.png"), full_page=True)
     assert page.evaluate(OVERFLOW_JS) <= 0
     # a live card's change keeps the glance (the stream swaps the card's live part only)
     page.evaluate("""() => document.dispatchEvent(new CustomEvent('htmx:sseBeforeMessage',
@@ -203,7 +202,7 @@ def test_the_overview_and_the_wall_show_the_shifts_parts_against_the_goal(
         "of 40 parts"
     )
     sync_api.expect(page.locator("#glance-mill-1 .glance-today")).to_be_hidden()
-    page.screenshot(path=str(SHOTS / f"wall-{size[0]}.png"))
+    page.screenshot(path=str(SHOTS / f"floor-goals-wall-{size[0]}.png"))
     # the glances are read again by themselves
     again = page.request.get(shop.url + "/floor/glances")
     assert again.ok
@@ -223,7 +222,7 @@ def test_an_operator_gives_a_stop_its_reason_on_the_tablet_page(
     box = button.bounding_box()
     assert box is not None
     assert box["height"] >= 56
-    page.screenshot(path=str(SHOTS / f"reasons-{size[0]}.png"), full_page=True)
+    page.screenshot(path=str(SHOTS / f"floor-goals-reasons-{size[0]}.png"), full_page=True)
     assert page.evaluate(OVERFLOW_JS) <= 0
     button.click()
     sync_api.expect(page.get_by_role("status")).to_contain_text("“material” recorded")
@@ -264,7 +263,7 @@ def test_an_approver_sets_a_standard_time_seeded_by_the_estimate(
         sync_api.expect(field).to_have_value(f"{ESTIMATE:.1f}")
         sync_api.expect(row).to_contain_text("the check's estimate")
     sync_api.expect(page.locator(f'tr[data-program="{LONG}"]')).to_contain_text("none")
-    page.screenshot(path=str(SHOTS / f"standards-{size[0]}-before.png"), full_page=True)
+    page.screenshot(path=str(SHOTS / f"floor-goals-standards-{size[0]}-before.png"), full_page=True)
     assert page.evaluate(OVERFLOW_JS) <= 0
     seconds = "80" if size[0] == 1280 else "75.5"
     field.fill(seconds)
@@ -276,7 +275,7 @@ def test_an_approver_sets_a_standard_time_seeded_by_the_estimate(
     )
     sync_api.expect(row).to_contain_text(re.compile(r"set by boss .*estimate 1:35.0"))
     assert page.evaluate(OVERFLOW_JS) <= 0
-    page.screenshot(path=str(SHOTS / f"standards-{size[0]}.png"), full_page=True)
+    page.screenshot(path=str(SHOTS / f"floor-goals-standards-{size[0]}.png"), full_page=True)
     audited = [a.detail["seconds"] for a in _audit(shop, "standard.set")]
     assert float(seconds) in audited
     assert problems == []
