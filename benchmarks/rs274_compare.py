@@ -1,5 +1,7 @@
 """LinuxCNC's ``rs274`` beside our checker, on the same G-code files of our corpora (issue 33).
 
+The method and the last figures: docs/check.md#beside-linuxcncs-rs274.
+
 ``rs274`` is LinuxCNC's standalone G-code interpreter (Debian package ``linuxcnc-uspace``;
 measured with 2.9.0~pre1+git20230208.f1270d6ed7-1+deb12u2, Debian 12). Run with ``-g`` it
 reads a whole program without a machine and prints the canonical commands it would send;
