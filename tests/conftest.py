@@ -23,6 +23,7 @@ LONGEST_FIRST = (
     "tests/cli/test_readme.py",
     "tests/bench/test_soak_smoke.py",
     "tests/server/test_end_to_end.py",
+    "tests/server/test_db_silence.py",
     "tests/interop/test_xmodem_pypi.py",
     "tests/server/test_cluster.py",
     "tests/server/test_from_the_control.py",

@@ -22,6 +22,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.core.components import RunsTask
+from opendnc.server.store.health import reason
 from opendnc.server.store.models import ApiKey, utcnow
 
 __all__ = ["FLUSH_EVERY", "KeyUse"]
@@ -92,7 +93,9 @@ class KeyUse(RunsTask):
             try:
                 await asyncio.to_thread(self.flush)
             except SQLAlchemyError as exc:
-                log.warning("could not write the keys' last use (kept for the next try): %s", exc)
+                log.warning(
+                    "could not write the keys' last use (kept for the next try): %s", reason(exc)
+                )
 
     async def stop(self) -> None:
         """Stop the task and write what is left."""

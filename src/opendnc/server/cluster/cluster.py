@@ -41,6 +41,7 @@ from opendnc.server.jobs.runner import JobRunner, database_down
 from opendnc.server.machines.leases import LIBRARY, ClusterView, Holding, Leases, cluster_view
 from opendnc.server.machines.state import Machines
 from opendnc.server.outputs.items import SERVER_STOPPED
+from opendnc.server.store.health import reason
 from opendnc.server.store.notify import Listener, Notice, Topic
 
 __all__ = ["FENCE_MARGIN_MIN", "Cluster"]
@@ -174,7 +175,7 @@ class Cluster:
                 if not database_down(exc):
                     log.exception("renewing the leases failed")
                 else:
-                    log.warning("leases not renewed: %s", (str(exc) or repr(exc)).splitlines()[0])
+                    log.warning("leases not renewed: %s", reason(exc))
                 if time.monotonic() >= self.leases.valid_until - self.margin:
                     await self._fence("leases may have expired")
             else:

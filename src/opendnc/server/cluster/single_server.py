@@ -38,6 +38,7 @@ from opendnc.errors import DncError
 from opendnc.server.core.components import RunsTask
 from opendnc.server.machines.leases import cluster_view
 from opendnc.server.store.db import pg_connect_args
+from opendnc.server.store.health import reason
 
 __all__ = [
     "SERVER_LOCK_KEY",
@@ -222,7 +223,7 @@ class ServerLock(RunsTask):
                 connection.invalidate()
                 log.warning(
                     "lost the database connection holding this server's lock (%s); %s",
-                    str(exc).splitlines()[0],
+                    reason(exc),
                     "still driving every machine (cluster = false: the only server), taking "
                     "it again once the database answers"
                     if self.alone

@@ -63,6 +63,7 @@ from opendnc.server.machines.leases import holds
 from opendnc.server.machines.state import Machines, MachineState
 from opendnc.server.store import audit
 from opendnc.server.store.db import read_only
+from opendnc.server.store.health import reason
 from opendnc.server.store.models import ClusterServer, Job, JobKind, JobState
 
 __all__ = ["Fence", "Fenced", "JobRunner", "LeaseLost", "database_down"]
@@ -197,7 +198,7 @@ class JobRunner:
 
     def _trouble(self, what: str, exc: BaseException) -> None:
         self.outages[what.split(" ", 1)[0]] += 1
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        first = reason(exc)
         if not self.database_error:
             log.warning("database unavailable while %s: %s (retrying)", what, first)
         self.database_error = f"{what}: {first}"

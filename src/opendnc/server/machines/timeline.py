@@ -33,6 +33,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from opendnc.server.core.events import EventBus, LeaseChanged, MachineStatusChanged, Subscription
 from opendnc.server.core.state import State, classify, from_stored
 from opendnc.server.core.status import MachineStatus
+from opendnc.server.store.health import reason
 from opendnc.server.store.models import StatusSample, utcnow
 
 __all__ = ["Sample", "Segment", "Timeline", "running"]
@@ -109,10 +110,6 @@ def _refused(exc: BaseException) -> bool:
 def _in_column(count: int | None) -> int | None:
     """A part count the column holds; one beyond it (a control's garbage) as unknown."""
     return count if count is None or _INT_MIN <= count <= _INT_MAX else None
-
-
-def _first_line(exc: BaseException) -> str:
-    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 # (state, mode, execution, program, part count, alarm text): a change of any is a sample
@@ -260,7 +257,7 @@ class Timeline:
                         "it: %s",
                         name,
                         sample.at.isoformat(),
-                        _first_line(one),
+                        reason(one),
                     )
                 else:
                     written += 1
@@ -289,9 +286,7 @@ class Timeline:
     def _away(self, batch: list[tuple[str, Sample]], exc: BaseException) -> None:
         """The database did not take ``batch``: pending again, for the next flush."""
         if not self._failing:
-            log.warning(
-                "status timeline: %d samples not written yet: %s", len(batch), _first_line(exc)
-            )
+            log.warning("status timeline: %d samples not written yet: %s", len(batch), reason(exc))
         self._failing = True
         with self._lock:
             # back in front of what came meanwhile; beyond the limit the oldest go
