@@ -63,14 +63,16 @@ def browser() -> Iterator[Any]:
         yield b
 
 
-def _open(browser: Any, shop: UtilShop, size: tuple[int, int], query: str) -> tuple[Any, list[str]]:
+def _open(
+    browser: Any, shop: UtilShop, size: tuple[int, int], query: str, path: str = "/utilization"
+) -> tuple[Any, list[str]]:
     problems: list[str] = []
     page = watched_page(watched_context(browser, shop.url, problems, size), problems)
-    page.goto(shop.url + "/utilization?" + query)
+    page.goto(f"{shop.url}{path}?{query}")
     page.get_by_label("User name").fill("viewer")
     page.get_by_label("Password").fill("viewer-secret-1")
     page.get_by_role("button", name="Log in").click()
-    page.wait_for_url(f"{shop.url}/utilization?{query}")
+    page.wait_for_url(f"{shop.url}{path}?{query}")
     return page, problems
 
 
@@ -165,5 +167,41 @@ def test_the_nav_links_to_the_page(browser: Any, shop: UtilShop) -> None:
     page.get_by_role("button", name="Show").click()
     page.wait_for_url("**group=week**")
     assert "W02 " in (page.locator(".util-bars svg").first.get_attribute("aria-label") or "")
+    assert problems == []
+    page.context.close()
+
+
+@pytest.mark.parametrize("size", WIDTHS, ids=lambda s: f"{s[0]}")
+def test_the_shift_report_shows_the_early_shift_worked_out_by_hand(
+    browser: Any, shop: UtilShop, size: tuple[int, int]
+) -> None:
+    page, problems = _open(browser, shop, size, "day=2026-01-05&shift=early", "/reports/shift")
+    assert page.locator("h1").inner_text() == "Shift report: early of Mon 05 Jan 2026"
+    # the early shift is 06:00-14:00 (8 h): mill-1 ran 4.5 h of it, vf2 4 h in 12 cycles
+    assert page.locator('[data-util="mill-1"]').inner_text() == "56.3 %"
+    assert page.locator('[data-util="vf2-long-name-1"]').inner_text() == "50.0 %"
+    assert page.locator('[data-util="lathe-3"]').inner_text() == "0.0 %"
+    assert page.locator('[data-parts="vf2-long-name-1"]').inner_text().startswith("12 / ")
+    mill = page.locator("#shift-machines tr").filter(has_text="mill-1").inner_text()
+    assert mill.split("\t")[-2:] == ["4:30", "8:00"], mill  # running, shift time
+    # the alarm at 09:30 lasted half an hour, once
+    alarms = page.locator("#shift-alarms tr").filter(has_text="1010 SPINDLE OVERLOAD")
+    assert alarms.inner_text().split("\t")[-2:] == ["1", "0:30"], alarms.inner_text()
+    # mill-1's stops of 5 minutes or more: an hour from 06:00, from 09:00 (ready, then the
+    # alarm: the worst state names it) and from 13:00 (the hour up to the shift's end of a stop
+    # that went on and went offline at 14:00: the stop's worst state), half an hour from 12:00
+    # (the feed hold); none has a reason
+    rows = page.locator("#shift-stops tbody tr").filter(has_text="mill-1").all_inner_texts()
+    assert sorted(tuple(r.split("\t")[1:4]) for r in rows) == [
+        ("2026-01-05 06:00 CET", "1:00", "ready"),
+        ("2026-01-05 09:00 CET", "1:00", "alarm · 1010 SPINDLE OVERLOAD"),
+        ("2026-01-05 12:00 CET", "0:30", "stopped"),
+        ("2026-01-05 13:00 CET", "1:00", "offline"),
+    ], rows
+    assert page.evaluate(OVERFLOW_JS) == []
+    names = "#shift-machines th[scope=row], #shift-stops td.machine, #shift-alarms td.machine"
+    assert page.evaluate(WRAPS_JS, f"{names}, #shift-stops td.nowrap, #shift-stops td.num") == []
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / f"shift-report-{size[0]}.png"), full_page=True)
     assert problems == []
     page.context.close()
