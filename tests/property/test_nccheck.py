@@ -194,3 +194,34 @@ def test_a_missing_bracket_names_the_column_of_its_opening(
         assert line[column - 1] == "["
     else:
         raise AssertionError(f"{line!r} parsed")
+
+
+_numbers = st.from_regex(r"[+-]?([0-9]{1,4}(\.[0-9]{0,4})?|\.[0-9]{1,4})", fullmatch=True)
+_words = st.builds(lambda letter, number: letter + number, st.sampled_from("NGMXYZFR"), _numbers)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.sampled_from(["", " ", "\t", "N12 ", "N7"]),
+    st.lists(st.tuples(_words, st.sampled_from(["", " ", "  "])), max_size=6),
+    st.sampled_from(["", ";", " ;", "\r"]),
+)
+def test_plain_words_read_as_the_block_parser_reads_them(
+    head: str, words: list[tuple[str, str]], tail: str
+) -> None:
+    """The dry run's quick reading of a plain line (parse_plain, with its own pattern for
+    X/Y/Z/F lines) gives the N number and the words, each an int or a float as written,
+    that the block parser gives the same line."""
+    from opendnc.gcode.program import Num, Words, parse_block, parse_plain
+
+    line = head + "".join(word + gap for word, gap in words) + tail
+    plain = parse_plain(line)
+    if plain is None:
+        return
+    number, found = plain
+    block = parse_block(line)
+    assert isinstance(block.statement, Words)
+    assert all(type(expr) is Num for _, expr in block.statement.words)
+    expected = [(letter, expr.value, type(expr.value)) for letter, expr in block.statement.words]
+    assert [(letter, value, type(value)) for letter, value in found] == expected
+    assert number == block.number

@@ -495,6 +495,16 @@ _PLAIN_LINE = re.compile(
     r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++)"
 )
 _NUMBERS: dict[str, Num] = {}
+# The bulk of a surface program from a CAM post: ``X12.345 Y-6.7 Z-1.05`` (an N number and an
+# F now and then), every number with a decimal point. One match gives the numbers by axis,
+# without the word-by-word scan; a line that is anything else (another letter, another order,
+# a number without a point, a repeated axis) takes the general pattern. A line this one
+# matches, _PLAIN_LINE matches with the same N number and the same words.
+_POINT = r"[+-]?(?:\d{1,32}\.\d{0,32}|\.\d{1,32})"
+_XYZF_LINE = re.compile(
+    rf"\s*+(?:N(\d+) *)?(?=[XYZF])(?:X({_POINT}) *)?(?:Y({_POINT}) *)?(?:Z({_POINT}) *)?"
+    rf"(?:F({_POINT}) *)?"
+)
 
 
 def _number(text: str) -> Num:
@@ -521,7 +531,21 @@ def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:
     The fast path of a dry run: ``N120 G01 X1.5 Y-2. F300.`` needs no expression
     evaluation; :func:`parse_block` gives the same words as :class:`Num` expressions.
     """
-    plain = _PLAIN_LINE.fullmatch(line.rstrip("\r\n;"))
+    line = line.rstrip("\r\n;")
+    xyzf = _XYZF_LINE.fullmatch(line)
+    if xyzf is not None:
+        number, x, y, z, f = xyzf.groups()
+        found: list[tuple[str, float]] = []
+        if x is not None:
+            found.append(("X", float(x)))
+        if y is not None:
+            found.append(("Y", float(y)))
+        if z is not None:
+            found.append(("Z", float(z)))
+        if f is not None:
+            found.append(("F", float(f)))
+        return (int(number) if number else None), tuple(found)
+    plain = _PLAIN_LINE.fullmatch(line)
     if plain is None:
         return None
     number, body = plain.groups()
