@@ -320,7 +320,7 @@ class _Run:
                     self._add(current, index, offset, "M30")  # END of an ISO program
                     yield True
                     continue
-            else:
+            elif stripped[0] in "O:" or stripped[0].isspace():  # all _O_LINE can match
                 match = _O_LINE.match(stripped)
                 if match is not None:
                     if current is None and held and _only_comments(held):
@@ -419,6 +419,8 @@ class _Run:
             if check:
                 if number is not None:
                     program.numbers.setdefault(number, index)
+                if "G" not in text and "M" not in text:
+                    return words  # no code to look up (most blocks: X/Y/Z moves)
                 g_codes, m_codes = self.g_codes, self.m_codes
                 for letter, value in words:
                     if (letter == "G" and value not in g_codes) or (
@@ -468,18 +470,24 @@ class _Run:
 
     def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
         """Block ``index`` of ``program`` with its file line; None past its last block."""
+        blocks = self._piece(program, index)
+        return None if blocks is None else blocks[index & (_CHUNK - 1)]
+
+    def _piece(self, program: _Program, index: int) -> list[tuple[int, Block | PlainWords]] | None:
+        """The piece of ``program`` that holds block ``index`` (read on to it, or again from
+        the file); None past its last block. The last piece may grow as the scan goes on."""
         while index >= program.count:
             # the scan's last step may add the blocks asked for as it ends
             if (program.complete or not self._advance()) and index >= program.count:
                 return None
         piece = index >> _SHIFT
         if piece == len(program.offsets) - 1:
-            return program.tail[index & (_CHUNK - 1)]
+            return program.tail
         blocks = self.cache.get((id(program), piece))
         if blocks is None:
             blocks = self._reread(program, piece)
             self._keep(program, piece, blocks)
-        return blocks[index & (_CHUNK - 1)]
+        return blocks
 
     def _reread(self, program: _Program, piece: int) -> list[tuple[int, Block | PlainWords]]:
         """Read a piece of ``program`` from the file again (a jump back to it)."""
@@ -656,39 +664,46 @@ class _Run:
         deadline = math.inf if seconds is None else time.thread_time() + seconds
         # the block budget is for loops: each block of the file runs once outside it
         limit = self.budget.blocks
-        self.frames.append(_Frame(self.main, 0, self.locals, "main", 0))
+        frames = self.frames
+        frames.append(_Frame(self.main, 0, self.locals, "main", 0))
+        plain = self._plain
         try:
             while True:
-                frame = self.frames[-1]
-                program = frame.program
+                frame = frames[-1]
                 index = frame.pc
-                entry = (
-                    self._block(program, index) if index <= frame.stop or frame.stop < 0 else None
-                )
-                if entry is None:
+                stop = frame.stop
+                blocks = self._piece(frame.program, index) if index <= stop or stop < 0 else None
+                if blocks is None:
                     self._fall_off(frame)
                     continue
-                frame.pc = index + 1
-                line, block = entry
-                self.blocks_run += 1
-                if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
-                ):
-                    self._endless(line)
-                try:
-                    if type(block) is tuple:
-                        self._plain(block, frame, line)
-                        continue
-                    assert isinstance(block, Block)
-                    if block.deleted:
-                        continue
-                    self._execute(block, frame, index, line)
-                except InputError as exc:
-                    # the control would alarm here; the dry run reports it and goes on with
-                    # the next block, so one fault does not hide the ones after it
-                    self.error(line, str(exc).split(" in block ")[0])
-                except RecursionError:
-                    self.error(line, "an expression nested too deeply")
+                at = index & (_CHUNK - 1)
+                end = len(blocks) if stop < 0 else min(len(blocks), at + stop - index + 1)
+                # the blocks of this piece in order, until a jump, a call or a return
+                while at < end:
+                    line, block = blocks[at]
+                    frame.pc = next_pc = index + 1
+                    self.blocks_run += 1
+                    if self.blocks_run & 1023 == 0 and (
+                        self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
+                    ):
+                        self._endless(line)
+                    try:
+                        if type(block) is tuple:
+                            plain(block, frame, line)
+                        else:
+                            assert isinstance(block, Block)
+                            if not block.deleted:
+                                self._execute(block, frame, index, line)
+                    except InputError as exc:
+                        # the control would alarm here; the dry run reports it and goes on
+                        # with the next block, so one fault does not hide the ones after it
+                        self.error(line, str(exc).split(" in block ")[0])
+                    except RecursionError:
+                        self.error(line, "an expression nested too deeply")
+                    if frame.pc != next_pc or frames[-1] is not frame:
+                        break  # a jump, a call or a return: the next block is elsewhere
+                    at += 1
+                    index = next_pc
         except _Stop:
             pass
 
