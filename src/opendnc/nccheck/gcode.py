@@ -82,6 +82,7 @@ _ARGUMENTS = {
 }  # fmt: skip
 _MAX_NESTING = 20
 _AXES = "XYZ"
+_AXIS_INDEX = (("X", 0), ("Y", 1), ("Z", 2))
 _FAST_LETTERS = frozenset("XYZF")
 # G31 skip (probe) moves, G36 work offset and G37 tool length measurement: feed moves
 # made with the spindle stopped on purpose (Haas mill, Fanuc M)
@@ -826,31 +827,33 @@ class _Run:
             else:
                 if code is not None:
                     self.motion = motion = code
-                self.prev_end = self.w  # _move_to replaces self.w: this keeps the old one
+                start = self.w
+                self.prev_end = start  # _move_to replaces self.w: this keeps the old one
                 if bare and self.bare:
                     self._bare(fast, line)
                 self.block_words = fast
+                feed = self.feed
                 if "F" in fast:
-                    self.feed = fast["F"]
-                    self.path.feed_rate(self.feed)
-                if "X" in fast or "Y" in fast or "Z" in fast:
+                    self.feed = feed = fast["F"]
+                    self.path.feed_rate(feed)
+                if len(fast) > ("F" in fast):  # an X, Y or Z word (the other letters)
                     rapid = motion == 0.0
                     if (
                         self.absolute
                         and self.feed_mode == 94
-                        and (rapid or (self.feed and self.spindle_on))
+                        and (rapid or (feed and self.spindle_on))
                     ):
                         # nothing to report and no time of its own: _target and _move_to
                         # written out for absolute X/Y/Z
-                        work, machine, off = self.w[:], self.m[:], self.off
-                        for axis, letter in enumerate(_AXES):
-                            if letter in fast:
-                                given = fast[letter]
+                        work, machine, off = start[:], self.m[:], self.off
+                        for letter, axis in _AXIS_INDEX:
+                            given = fast.get(letter)
+                            if given is not None:
                                 work[axis] = given
                                 base = off[axis]
                                 machine[axis] = None if base is None else given + base
                         self.path.line(
-                            self.w, work, line, rapid=rapid, feed=None if rapid else self.feed,
+                            start, work, line, rapid=rapid, feed=None if rapid else feed,
                             machine_end=machine,
                         )  # fmt: skip
                         self.w, self.m = work, machine
