@@ -200,23 +200,34 @@ _numbers = st.from_regex(r"[+-]?([0-9]{1,4}(\.[0-9]{0,4})?|\.[0-9]{1,4})", fullm
 _words = st.builds(lambda letter, number: letter + number, st.sampled_from("NGMXYZFR"), _numbers)
 
 
+_gaps = st.sampled_from(["", " ", "  "])
+# X, Y, Z and F once each, in that order, as a CAM post writes a surface (points or none)
+_moves = st.lists(
+    st.tuples(st.builds(lambda k, n: k + n, st.sampled_from("XYZF"), _numbers), _gaps),
+    max_size=4,
+    unique_by=lambda word: word[0][0],
+).map(lambda words: sorted(words, key=lambda word: "XYZF".index(word[0][0])))
+
+
 @settings(max_examples=400, deadline=None)
 @given(
     st.sampled_from(["", " ", "\t", "N12 ", "N7"]),
-    st.lists(st.tuples(_words, st.sampled_from(["", " ", "  "])), max_size=6),
+    st.one_of(st.lists(st.tuples(_words, _gaps), max_size=6), _moves),
     st.sampled_from(["", ";", " ;", "\r"]),
 )
 def test_plain_words_read_as_the_block_parser_reads_them(
     head: str, words: list[tuple[str, str]], tail: str
 ) -> None:
-    """The dry run's quick reading of a plain line (parse_plain, with its own pattern for
-    X/Y/Z/F lines) gives the N number and the words, each an int or a float as written,
+    """The dry run's quick readings of a plain line (parse_plain; parse_axes for a line of
+    X/Y/Z/F words) give the N number and the words, each an int or a float as written,
     that the block parser gives the same line."""
-    from opendnc.gcode.program import Num, Words, parse_block, parse_plain
+    from opendnc.gcode.program import Num, Words, parse_axes, parse_block, parse_plain
 
     line = head + "".join(word + gap for word, gap in words) + tail
     plain = parse_plain(line)
+    axes = parse_axes(line)
     if plain is None:
+        assert axes is None  # a line of X/Y/Z/F words is a plain line
         return
     number, found = plain
     block = parse_block(line)
@@ -225,3 +236,6 @@ def test_plain_words_read_as_the_block_parser_reads_them(
     expected = [(letter, expr.value, type(expr.value)) for letter, expr in block.statement.words]
     assert [(letter, value, type(value)) for letter, value in found] == expected
     assert number == block.number
+    if axes is not None:
+        assert axes[0] == block.number
+        assert [(letter, value, type(value)) for letter, value in axes[1].items()] == expected

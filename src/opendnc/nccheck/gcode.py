@@ -35,6 +35,7 @@ from opendnc.gcode.program import (
     While,
     Words,
     evaluate,
+    parse_axes,
     parse_block,
     parse_plain,
     unset_variables,
@@ -93,6 +94,11 @@ _LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): 
 _COMMENT_ONLY = re.compile(r"^(?:\([^)]*\)\s*)+$")
 
 
+_Parsed = Block | PlainWords | dict[str, float]
+"""A block as the run keeps it: a :class:`Block`, the words of a plain block, or the values
+of a block of X/Y/Z/F words only by letter (the bulk of a surface program)."""
+
+
 class _Stop(Exception):
     """The run ends here (program end, alarm, budget)."""
 
@@ -117,7 +123,7 @@ class _Program:
     last_line: int = 0
     offsets: array[int] = field(default_factory=lambda: array("q"))  # piece -> file offset
     starts: array[int] = field(default_factory=lambda: array("q"))  # piece -> file line
-    tail: list[tuple[int, Block | PlainWords]] = field(default_factory=list)  # last piece
+    tail: list[tuple[int, _Parsed]] = field(default_factory=list)  # last piece
     numbers: dict[int, int] = field(default_factory=dict)  # N -> block index
     loop_end: dict[int, int] = field(default_factory=dict)  # WHILE index -> END index
     loop_start: dict[int, int] = field(default_factory=dict)  # END index -> WHILE index
@@ -184,7 +190,7 @@ class _Run:
         self.warned: set[str] = set()
         self.header_units: Units | None = None
         self.source = source
-        self.cache: dict[tuple[int, int], list[tuple[int, Block | PlainWords]]] = {}
+        self.cache: dict[tuple[int, int], list[tuple[int, _Parsed]]] = {}
         self.scanned = 0  # blocks the scan has read (each once: a loop's passes are not)
         self._scan = self._scanner()
         self.scan_done = False
@@ -389,9 +395,7 @@ class _Run:
         program.last_line = line
         self.scanned += 1
 
-    def _keep(
-        self, program: _Program, piece: int, blocks: list[tuple[int, Block | PlainWords]]
-    ) -> None:
+    def _keep(self, program: _Program, piece: int, blocks: list[tuple[int, _Parsed]]) -> None:
         cache = self.cache
         if len(cache) >= _CACHED:
             del cache[next(iter(cache))]  # the oldest piece goes
@@ -411,9 +415,14 @@ class _Run:
 
     def _parse(
         self, program: _Program, line: int, text: str, index: int, *, check: bool
-    ) -> Block | PlainWords:
+    ) -> _Parsed:
         """One block; with ``check`` (its first reading) its static checks and its N number,
         WHILE/END pair and GOTO target are noted too."""
+        axes = parse_axes(text)
+        if axes is not None:  # X/Y/Z/F only: no code to look up
+            if check and axes[0] is not None:
+                program.numbers.setdefault(axes[0], index)
+            return axes[1]
         plain = parse_plain(text)
         if plain is not None:
             number, words = plain
@@ -469,12 +478,12 @@ class _Run:
             program.gotos.append((line, round(statement.target.value)))
         return block
 
-    def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
+    def _block(self, program: _Program, index: int) -> tuple[int, _Parsed] | None:
         """Block ``index`` of ``program`` with its file line; None past its last block."""
         blocks = self._piece(program, index)
         return None if blocks is None else blocks[index & (_CHUNK - 1)]
 
-    def _piece(self, program: _Program, index: int) -> list[tuple[int, Block | PlainWords]] | None:
+    def _piece(self, program: _Program, index: int) -> list[tuple[int, _Parsed]] | None:
         """The piece of ``program`` that holds block ``index`` (read on to it, or again from
         the file); None past its last block. The last piece may grow as the scan goes on."""
         while index >= program.count:
@@ -490,10 +499,10 @@ class _Run:
             self._keep(program, piece, blocks)
         return blocks
 
-    def _reread(self, program: _Program, piece: int) -> list[tuple[int, Block | PlainWords]]:
+    def _reread(self, program: _Program, piece: int) -> list[tuple[int, _Parsed]]:
         """Read a piece of ``program`` from the file again (a jump back to it)."""
         assert program.source is not None
-        out: list[tuple[int, Block | PlainWords]] = []
+        out: list[tuple[int, _Parsed]] = []
         index = piece << _SHIFT
         for line, _, text in program.source.lines(program.offsets[piece], program.starts[piece]):
             stripped = text.strip().strip("\x1a")
@@ -667,7 +676,7 @@ class _Run:
         limit = self.budget.blocks
         frames = self.frames
         frames.append(_Frame(self.main, 0, self.locals, "main", 0))
-        plain = self._plain
+        axes, plain = self._axes, self._plain
         try:
             while True:
                 frame = frames[-1]
@@ -689,7 +698,9 @@ class _Run:
                     ):
                         self._endless(line)
                     try:
-                        if type(block) is tuple:
+                        if type(block) is dict:
+                            axes(block, frame, line)
+                        elif type(block) is tuple:
                             plain(block, frame, line)
                         else:
                             assert isinstance(block, Block)
@@ -810,8 +821,7 @@ class _Run:
     def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
         motion = self.motion
         if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
-            # the bulk of CAM output: X/Y/Z (and F) in G00/G01; the same as _apply does for
-            # it, without its lists and checks of every other word
+            # X/Y/Z (and F) in G00/G01 (a G00/G01 of their own may come first): _fast_move
             fast: dict[str, float] = {}
             code = None
             bare = False
@@ -826,40 +836,10 @@ class _Run:
                     break
             else:
                 if code is not None:
-                    self.motion = motion = code
-                start = self.w
-                self.prev_end = start  # _move_to replaces self.w: this keeps the old one
+                    self.motion = code
                 if bare and self.bare:
                     self._bare(fast, line)
-                self.block_words = fast
-                feed = self.feed
-                if "F" in fast:
-                    self.feed = feed = fast["F"]
-                    self.path.feed_rate(feed)
-                if len(fast) > ("F" in fast):  # an X, Y or Z word (the other letters)
-                    rapid = motion == 0.0
-                    if (
-                        self.absolute
-                        and self.feed_mode == 94
-                        and (rapid or (feed and self.spindle_on))
-                    ):
-                        # nothing to report and no time of its own: _target and _move_to
-                        # written out for absolute X/Y/Z
-                        work, machine, off = start[:], self.m[:], self.off
-                        for letter, axis in _AXIS_INDEX:
-                            given = fast.get(letter)
-                            if given is not None:
-                                work[axis] = given
-                                base = off[axis]
-                                machine[axis] = None if base is None else given + base
-                        self.path.line(
-                            start, work, line, rapid=rapid, feed=None if rapid else feed,
-                            machine_end=machine,
-                        )  # fmt: skip
-                        self.w, self.m = work, machine
-                        return
-                    work, machine = self._target(fast)
-                    self._move_to(work, machine, line, rapid)
+                self._fast_move(fast, line)
                 return
         g: list[float] = []
         m: list[float] = []
@@ -872,6 +852,45 @@ class _Run:
             else:
                 v[letter] = value
         self._apply(g, m, v, frame, line)
+
+    def _axes(self, axes: dict[str, float], frame: _Frame, line: int) -> None:
+        """A block of X/Y/Z/F words only, each with a decimal point (parse_axes)."""
+        motion = self.motion
+        if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
+            self._fast_move(axes, line)
+        else:  # a copy: the block may run again (a loop), its values as read
+            self._apply([], [], dict(axes), frame, line)
+
+    def _fast_move(self, fast: dict[str, float], line: int) -> None:
+        """The bulk of CAM output: X/Y/Z (and F) in G00/G01 (``fast`` holds no other letter);
+        the same as _apply does for it, without its lists and checks of every other word."""
+        start = self.w
+        self.prev_end = start  # _move_to replaces self.w: this keeps the old one
+        self.block_words = fast
+        feed = self.feed
+        if "F" in fast:
+            self.feed = feed = fast["F"]
+            self.path.feed_rate(feed)
+        if len(fast) == ("F" in fast):
+            return  # no X, Y or Z word (the only other letters): no move
+        rapid = self.motion == 0.0
+        if self.absolute and self.feed_mode == 94 and (rapid or (feed and self.spindle_on)):
+            # nothing to report and no time of its own: _target and _move_to written out for
+            # absolute X/Y/Z
+            work, machine, off = start[:], self.m[:], self.off
+            for letter, axis in _AXIS_INDEX:
+                given = fast.get(letter)
+                if given is not None:
+                    work[axis] = given
+                    base = off[axis]
+                    machine[axis] = None if base is None else given + base
+            self.path.line(
+                start, work, line, rapid=rapid, feed=None if rapid else feed, machine_end=machine
+            )
+            self.w, self.m = work, machine
+            return
+        work, machine = self._target(fast)
+        self._move_to(work, machine, line, rapid)
 
     def _words(self, statement: Words, frame: _Frame, line: int) -> None:
         g: list[float] = []
