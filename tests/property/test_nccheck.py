@@ -194,3 +194,103 @@ def test_a_missing_bracket_names_the_column_of_its_opening(
         assert line[column - 1] == "["
     else:
         raise AssertionError(f"{line!r} parsed")
+
+
+_numbers = st.from_regex(r"[+-]?([0-9]{1,4}(\.[0-9]{0,4})?|\.[0-9]{1,4})", fullmatch=True)
+_words = st.builds(lambda letter, number: letter + number, st.sampled_from("NGMXYZFR"), _numbers)
+
+
+_gaps = st.sampled_from(["", " ", "  "])
+# X, Y, Z and F once each, in that order, as a CAM post writes a surface (points or none)
+_moves = st.lists(
+    st.tuples(st.builds(lambda k, n: k + n, st.sampled_from("XYZF"), _numbers), _gaps),
+    max_size=4,
+    unique_by=lambda word: word[0][0],
+).map(lambda words: sorted(words, key=lambda word: "XYZF".index(word[0][0])))
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    st.sampled_from(["", " ", "\t", "N12 ", "N7"]),
+    st.one_of(st.lists(st.tuples(_words, _gaps), max_size=6), _moves),
+    st.sampled_from(["", ";", " ;", "\r"]),
+)
+def test_plain_words_read_as_the_block_parser_reads_them(
+    head: str, words: list[tuple[str, str]], tail: str
+) -> None:
+    """The dry run's quick readings of a plain line (parse_plain; parse_axes for a line of
+    X/Y/Z/F words) give the N number and the words, each an int or a float as written,
+    that the block parser gives the same line."""
+    from opendnc.gcode.program import Num, Words, parse_axes, parse_block, parse_plain
+
+    line = head + "".join(word + gap for word, gap in words) + tail
+    plain = parse_plain(line)
+    axes = parse_axes(line)
+    if plain is None:
+        assert axes is None  # a line of X/Y/Z/F words is a plain line
+        return
+    number, found = plain
+    block = parse_block(line)
+    assert isinstance(block.statement, Words)
+    assert all(type(expr) is Num for _, expr in block.statement.words)
+    expected = [(letter, expr.value, type(expr.value)) for letter, expr in block.statement.words]
+    assert [(letter, value, type(value)) for letter, value in found] == expected
+    assert number == block.number
+    if axes is not None:
+        assert axes[0] == block.number
+        assert [(letter, value, type(value)) for letter, value in axes[1].items()] == expected
+
+
+# lines of plain moves, the dry runs' quick paths, and their near misses
+plain_gcode_lines = st.sampled_from(
+    [
+        "X1.5 Y2.5 Z-1.", "N20 X1. Y2.", "X.5 F300.", "Z-2.25", "Y3. Z1. F20.", "X1 Y2",
+        "x1. y2.", "X1. X2.", "N5 Z1.;", "  X1.0 Y-2.0  ", "F100.", "Y1. X2.", "G01 X1. Y1.",
+    ]
+)  # fmt: skip
+plain_klartext_lines = st.sampled_from(
+    [
+        "L X+1 Y+2 Z-1", "L X+1.5 Y-2.25 F500", "L Z-1 R0 F300", "L Y+3 X+1", "l x+1 y+2",
+        "L X+1 ; note", "L X+1 Y+2 ~", "L X+1,5 Y+2", "L X+1 Y+2 Z+3 R0 F100", "L  X+1",
+        "L X+1 X+2", "L X+2 Y+2 FMAX", "L X+5 Y+5 F200 M3", "L X+1 R0 F" + "9" * 16, "~",
+        "Y+4 ~",
+    ]
+)  # fmt: skip
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.one_of(gcode_lines, plain_gcode_lines), max_size=40), machines)
+def test_gcode_plain_moves_read_quickly_check_as_read_word_by_word(
+    lines: list[str], machine: MachineLimits | None
+) -> None:
+    """A block of X/Y/Z/F words read by letter (parse_axes) runs as the same block read
+    word by word does: the whole result is the same."""
+    from unittest import mock
+
+    from opendnc.nccheck import gcode
+
+    text = "%\nO1000\nS1000 M03\n" + "\n".join(lines) + "\nM30\n%\n"
+    quick = check_text(text, control=Control.HAAS, machine=machine, budget=BUDGET)
+    with mock.patch.object(gcode, "parse_axes", return_value=None):
+        slow = check_text(text, control=Control.HAAS, machine=machine, budget=BUDGET)
+    assert quick == slow
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(klartext_lines, plain_klartext_lines), max_size=40), machines)
+@example(["STOP", "L X+10 Y+10", "~", "L X+1.5 Y-2.25 F500"], None)  # a "~" line joins the next one
+def test_klartext_plain_moves_read_quickly_check_as_read_step_by_step(
+    lines: list[str], machine: MachineLimits | None
+) -> None:
+    """A plain ``L`` line taken apart as it is read runs as the same line read step by step
+    (comment, case, "~", number, then its text matched when it runs): the same result."""
+    import re
+    from unittest import mock
+
+    from opendnc.nccheck import klartext
+
+    text = "0 BEGIN PGM A MM\n" + numbered(lines) + f"\n{len(lines) + 1} END PGM A MM\n"
+    quick = check_text(text, control=Control.HEIDENHAIN, machine=machine, budget=BUDGET)
+    with mock.patch.object(klartext, "_PLAIN_LINE", re.compile(r"(?!)")):  # never matches
+        slow = check_text(text, control=Control.HEIDENHAIN, machine=machine, budget=BUDGET)
+    assert quick == slow

@@ -495,6 +495,16 @@ _PLAIN_LINE = re.compile(
     r"\s*+(?:N(\d+))? *((?:[A-Z][+-]?(?:\d{1,32}(?:\.\d{0,32})?|\.\d{1,32}) *)++)"
 )
 _NUMBERS: dict[str, Num] = {}
+# The bulk of a surface program from a CAM post: ``X12.345 Y-6.7 Z-1.05`` (an N number and an
+# F now and then), every number with a decimal point (parse_axes). One match gives the numbers
+# by axis, without the word-by-word scan; a line it matches, _PLAIN_LINE matches with the same
+# N number and the same words. Another letter, order or repeated axis, or a number without a
+# point, is left to the general pattern.
+_POINT = r"[+-]?(?:\d{1,32}\.\d{0,32}|\.\d{1,32})"
+_XYZF_LINE = re.compile(
+    rf"\s*+(?:N(\d+) *)?(?=[XYZF])(?:X({_POINT}) *)?(?:Y({_POINT}) *)?(?:Z({_POINT}) *)?"
+    rf"(?:F({_POINT}) *)?"
+)
 
 
 def _number(text: str) -> Num:
@@ -513,6 +523,29 @@ def _literal(text: str) -> float:
 
 PlainWords = tuple[tuple[str, float], ...]
 """Letters and numbers; one written without a decimal point is an ``int`` (see :class:`Num`)."""
+
+
+def parse_axes(line: str) -> tuple[int | None, dict[str, float]] | None:
+    """N number and values of a line of X, Y, Z and F words only, in that order, each number
+    with a decimal point (``N10 X12.345 Y-6.7 Z-1.05``), or None for any other line.
+
+    The bulk of a surface program, read by one match into what a dry run moves by; the
+    words are those :func:`parse_plain` and :func:`parse_block` give (floats, as written).
+    """
+    found = _XYZF_LINE.fullmatch(line.rstrip("\r\n;"))
+    if found is None:
+        return None
+    number, x, y, z, f = found.groups()
+    axes: dict[str, float] = {}
+    if x is not None:
+        axes["X"] = float(x)
+    if y is not None:
+        axes["Y"] = float(y)
+    if z is not None:
+        axes["Z"] = float(z)
+    if f is not None:
+        axes["F"] = float(f)
+    return (int(number) if number else None), axes
 
 
 def parse_plain(line: str) -> tuple[int | None, PlainWords] | None:

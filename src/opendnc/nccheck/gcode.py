@@ -35,6 +35,7 @@ from opendnc.gcode.program import (
     While,
     Words,
     evaluate,
+    parse_axes,
     parse_block,
     parse_plain,
     unset_variables,
@@ -82,6 +83,7 @@ _ARGUMENTS = {
 }  # fmt: skip
 _MAX_NESTING = 20
 _AXES = "XYZ"
+_AXIS_INDEX = (("X", 0), ("Y", 1), ("Z", 2))
 _FAST_LETTERS = frozenset("XYZF")
 # G31 skip (probe) moves, G36 work offset and G37 tool length measurement: feed moves
 # made with the spindle stopped on purpose (Haas mill, Fanuc M)
@@ -90,6 +92,11 @@ _PROBE_MOVES = frozenset((31.0, 36.0, 37.0))
 _SPECIAL = frozenset((10.0, 28.0, 53.0, 65.0, 92.0, 52.0)) | _PROBE_MOVES
 _LATHE_MAX_RPM = 4000.0  # a spindle clamp when the program gives none (G50 S): Ours
 _COMMENT_ONLY = re.compile(r"^(?:\([^)]*\)\s*)+$")
+
+
+_Parsed = Block | PlainWords | dict[str, float]
+"""A block as the run keeps it: a :class:`Block`, the words of a plain block, or the values
+of a block of X/Y/Z/F words only by letter (the bulk of a surface program)."""
 
 
 class _Stop(Exception):
@@ -116,7 +123,7 @@ class _Program:
     last_line: int = 0
     offsets: array[int] = field(default_factory=lambda: array("q"))  # piece -> file offset
     starts: array[int] = field(default_factory=lambda: array("q"))  # piece -> file line
-    tail: list[tuple[int, Block | PlainWords]] = field(default_factory=list)  # last piece
+    tail: list[tuple[int, _Parsed]] = field(default_factory=list)  # last piece
     numbers: dict[int, int] = field(default_factory=dict)  # N -> block index
     loop_end: dict[int, int] = field(default_factory=dict)  # WHILE index -> END index
     loop_start: dict[int, int] = field(default_factory=dict)  # END index -> WHILE index
@@ -183,7 +190,7 @@ class _Run:
         self.warned: set[str] = set()
         self.header_units: Units | None = None
         self.source = source
-        self.cache: dict[tuple[int, int], list[tuple[int, Block | PlainWords]]] = {}
+        self.cache: dict[tuple[int, int], list[tuple[int, _Parsed]]] = {}
         self.scanned = 0  # blocks the scan has read (each once: a loop's passes are not)
         self._scan = self._scanner()
         self.scan_done = False
@@ -320,7 +327,7 @@ class _Run:
                     self._add(current, index, offset, "M30")  # END of an ISO program
                     yield True
                     continue
-            else:
+            elif stripped[0] in "O:" or stripped[0].isspace():  # all _O_LINE can match
                 match = _O_LINE.match(stripped)
                 if match is not None:
                     if current is None and held and _only_comments(held):
@@ -388,9 +395,7 @@ class _Run:
         program.last_line = line
         self.scanned += 1
 
-    def _keep(
-        self, program: _Program, piece: int, blocks: list[tuple[int, Block | PlainWords]]
-    ) -> None:
+    def _keep(self, program: _Program, piece: int, blocks: list[tuple[int, _Parsed]]) -> None:
         cache = self.cache
         if len(cache) >= _CACHED:
             del cache[next(iter(cache))]  # the oldest piece goes
@@ -410,15 +415,22 @@ class _Run:
 
     def _parse(
         self, program: _Program, line: int, text: str, index: int, *, check: bool
-    ) -> Block | PlainWords:
+    ) -> _Parsed:
         """One block; with ``check`` (its first reading) its static checks and its N number,
         WHILE/END pair and GOTO target are noted too."""
+        axes = parse_axes(text)
+        if axes is not None:  # X/Y/Z/F only: no code to look up
+            if check and axes[0] is not None:
+                program.numbers.setdefault(axes[0], index)
+            return axes[1]
         plain = parse_plain(text)
         if plain is not None:
             number, words = plain
             if check:
                 if number is not None:
                     program.numbers.setdefault(number, index)
+                if "G" not in text and "M" not in text:
+                    return words  # no code to look up (most blocks: X/Y/Z moves)
                 g_codes, m_codes = self.g_codes, self.m_codes
                 for letter, value in words:
                     if (letter == "G" and value not in g_codes) or (
@@ -466,25 +478,31 @@ class _Run:
             program.gotos.append((line, round(statement.target.value)))
         return block
 
-    def _block(self, program: _Program, index: int) -> tuple[int, Block | PlainWords] | None:
+    def _block(self, program: _Program, index: int) -> tuple[int, _Parsed] | None:
         """Block ``index`` of ``program`` with its file line; None past its last block."""
+        blocks = self._piece(program, index)
+        return None if blocks is None else blocks[index & (_CHUNK - 1)]
+
+    def _piece(self, program: _Program, index: int) -> list[tuple[int, _Parsed]] | None:
+        """The piece of ``program`` that holds block ``index`` (read on to it, or again from
+        the file); None past its last block. The last piece may grow as the scan goes on."""
         while index >= program.count:
             # the scan's last step may add the blocks asked for as it ends
             if (program.complete or not self._advance()) and index >= program.count:
                 return None
         piece = index >> _SHIFT
         if piece == len(program.offsets) - 1:
-            return program.tail[index & (_CHUNK - 1)]
+            return program.tail
         blocks = self.cache.get((id(program), piece))
         if blocks is None:
             blocks = self._reread(program, piece)
             self._keep(program, piece, blocks)
-        return blocks[index & (_CHUNK - 1)]
+        return blocks
 
-    def _reread(self, program: _Program, piece: int) -> list[tuple[int, Block | PlainWords]]:
+    def _reread(self, program: _Program, piece: int) -> list[tuple[int, _Parsed]]:
         """Read a piece of ``program`` from the file again (a jump back to it)."""
         assert program.source is not None
-        out: list[tuple[int, Block | PlainWords]] = []
+        out: list[tuple[int, _Parsed]] = []
         index = piece << _SHIFT
         for line, _, text in program.source.lines(program.offsets[piece], program.starts[piece]):
             stripped = text.strip().strip("\x1a")
@@ -656,39 +674,48 @@ class _Run:
         deadline = math.inf if seconds is None else time.thread_time() + seconds
         # the block budget is for loops: each block of the file runs once outside it
         limit = self.budget.blocks
-        self.frames.append(_Frame(self.main, 0, self.locals, "main", 0))
+        frames = self.frames
+        frames.append(_Frame(self.main, 0, self.locals, "main", 0))
+        axes, plain = self._axes, self._plain
         try:
             while True:
-                frame = self.frames[-1]
-                program = frame.program
+                frame = frames[-1]
                 index = frame.pc
-                entry = (
-                    self._block(program, index) if index <= frame.stop or frame.stop < 0 else None
-                )
-                if entry is None:
+                stop = frame.stop
+                blocks = self._piece(frame.program, index) if index <= stop or stop < 0 else None
+                if blocks is None:
                     self._fall_off(frame)
                     continue
-                frame.pc = index + 1
-                line, block = entry
-                self.blocks_run += 1
-                if self.blocks_run & 1023 == 0 and (
-                    self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
-                ):
-                    self._endless(line)
-                try:
-                    if type(block) is tuple:
-                        self._plain(block, frame, line)
-                        continue
-                    assert isinstance(block, Block)
-                    if block.deleted:
-                        continue
-                    self._execute(block, frame, index, line)
-                except InputError as exc:
-                    # the control would alarm here; the dry run reports it and goes on with
-                    # the next block, so one fault does not hide the ones after it
-                    self.error(line, str(exc).split(" in block ")[0])
-                except RecursionError:
-                    self.error(line, "an expression nested too deeply")
+                at = index & (_CHUNK - 1)
+                end = len(blocks) if stop < 0 else min(len(blocks), at + stop - index + 1)
+                # the blocks of this piece in order, until a jump, a call or a return
+                while at < end:
+                    line, block = blocks[at]
+                    frame.pc = next_pc = index + 1
+                    self.blocks_run += 1
+                    if self.blocks_run & 1023 == 0 and (
+                        self.blocks_run - self.scanned >= limit or time.thread_time() > deadline
+                    ):
+                        self._endless(line)
+                    try:
+                        if type(block) is dict:
+                            axes(block, frame, line)
+                        elif type(block) is tuple:
+                            plain(block, frame, line)
+                        else:
+                            assert isinstance(block, Block)
+                            if not block.deleted:
+                                self._execute(block, frame, index, line)
+                    except InputError as exc:
+                        # the control would alarm here; the dry run reports it and goes on
+                        # with the next block, so one fault does not hide the ones after it
+                        self.error(line, str(exc).split(" in block ")[0])
+                    except RecursionError:
+                        self.error(line, "an expression nested too deeply")
+                    if frame.pc != next_pc or frames[-1] is not frame:
+                        break  # a jump, a call or a return: the next block is elsewhere
+                    at += 1
+                    index = next_pc
         except _Stop:
             pass
 
@@ -794,8 +821,7 @@ class _Run:
     def _plain(self, words: PlainWords, frame: _Frame, line: int) -> None:
         motion = self.motion
         if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
-            # the bulk of CAM output: X/Y/Z (and F) in G00/G01; the same as _apply does for
-            # it, without its lists and checks of every other word
+            # X/Y/Z (and F) in G00/G01 (a G00/G01 of their own may come first): _fast_move
             fast: dict[str, float] = {}
             code = None
             bare = False
@@ -810,38 +836,10 @@ class _Run:
                     break
             else:
                 if code is not None:
-                    self.motion = motion = code
-                self.prev_end = self.w  # _move_to replaces self.w: this keeps the old one
+                    self.motion = code
                 if bare and self.bare:
                     self._bare(fast, line)
-                self.block_words = fast
-                if "F" in fast:
-                    self.feed = fast["F"]
-                    self.path.feed_rate(self.feed)
-                if "X" in fast or "Y" in fast or "Z" in fast:
-                    rapid = motion == 0.0
-                    if (
-                        self.absolute
-                        and self.feed_mode == 94
-                        and (rapid or (self.feed and self.spindle_on))
-                    ):
-                        # nothing to report and no time of its own: _target and _move_to
-                        # written out for absolute X/Y/Z
-                        work, machine, off = self.w[:], self.m[:], self.off
-                        for axis, letter in enumerate(_AXES):
-                            if letter in fast:
-                                given = fast[letter]
-                                work[axis] = given
-                                base = off[axis]
-                                machine[axis] = None if base is None else given + base
-                        self.path.line(
-                            self.w, work, line, rapid=rapid, feed=None if rapid else self.feed,
-                            machine_end=machine,
-                        )  # fmt: skip
-                        self.w, self.m = work, machine
-                        return
-                    work, machine = self._target(fast)
-                    self._move_to(work, machine, line, rapid)
+                self._fast_move(fast, line)
                 return
         g: list[float] = []
         m: list[float] = []
@@ -854,6 +852,45 @@ class _Run:
             else:
                 v[letter] = value
         self._apply(g, m, v, frame, line)
+
+    def _axes(self, axes: dict[str, float], frame: _Frame, line: int) -> None:
+        """A block of X/Y/Z/F words only, each with a decimal point (parse_axes)."""
+        motion = self.motion
+        if (motion == 0.0 or motion == 1.0) and self.cycle is None and not self.lathe:
+            self._fast_move(axes, line)
+        else:  # a copy: the block may run again (a loop), its values as read
+            self._apply([], [], dict(axes), frame, line)
+
+    def _fast_move(self, fast: dict[str, float], line: int) -> None:
+        """The bulk of CAM output: X/Y/Z (and F) in G00/G01 (``fast`` holds no other letter);
+        the same as _apply does for it, without its lists and checks of every other word."""
+        start = self.w
+        self.prev_end = start  # _move_to replaces self.w: this keeps the old one
+        self.block_words = fast
+        feed = self.feed
+        if "F" in fast:
+            self.feed = feed = fast["F"]
+            self.path.feed_rate(feed)
+        if len(fast) == ("F" in fast):
+            return  # no X, Y or Z word (the only other letters): no move
+        rapid = self.motion == 0.0
+        if self.absolute and self.feed_mode == 94 and (rapid or (feed and self.spindle_on)):
+            # nothing to report and no time of its own: _target and _move_to written out for
+            # absolute X/Y/Z
+            work, machine, off = start[:], self.m[:], self.off
+            for letter, axis in _AXIS_INDEX:
+                given = fast.get(letter)
+                if given is not None:
+                    work[axis] = given
+                    base = off[axis]
+                    machine[axis] = None if base is None else given + base
+            self.path.line(
+                start, work, line, rapid=rapid, feed=None if rapid else feed, machine_end=machine
+            )
+            self.w, self.m = work, machine
+            return
+        work, machine = self._target(fast)
+        self._move_to(work, machine, line, rapid)
 
     def _words(self, statement: Words, frame: _Frame, line: int) -> None:
         g: list[float] = []

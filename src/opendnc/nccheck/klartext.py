@@ -64,7 +64,16 @@ _WORD = re.compile(r"\b(F|S|R|DL|DR2|DR|M|REP|L)\s*+" + _VALUE)
 _PLAIN_L = re.compile(
     r"L((?: +[XYZ][+-]?\d{1,15}(?:\.\d{0,15})?)+)(?: +R0)?(?: +F(\d{1,15}(?:\.\d{0,15})?))? *"
 )
-_AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
+# the same in the order posts write (X, Y, Z once each): one match gives the axes' numbers
+_NUMBER15 = r"\d{1,15}(?:\.\d{0,15})?"
+_L_XYZ = (
+    rf"L(?= +[XYZ])(?: +X([+-]?{_NUMBER15}))?(?: +Y([+-]?{_NUMBER15}))?"
+    rf"(?: +Z([+-]?{_NUMBER15}))?(?: +R0)?(?: +F({_NUMBER15}))?"
+)
+_PLAIN_XYZ = re.compile(_L_XYZ + " *")
+# a whole line "12 L X+1 Y-2 Z-0.5 F800" as posts write them (upper case, no comment, no "~",
+# no comma, nothing to skip): _read takes its number, text and numbers from one match
+_PLAIN_LINE = re.compile(rf"[ \t]*([0-9]+) +({_L_XYZ}) *")
 _WORD_START = re.compile(r"\b(?:F|S|R|DL|DR|M|REP|L)\s*[+\-.\dQ]")  # any word at all
 _Q_PARAM = re.compile(r"^(Q|QL|QR)(\d+)$")
 # a cycle parameter is a number, a Q parameter or one of the words the TNC offers in its
@@ -120,6 +129,7 @@ class _Line:
     note: str | None = None  # a problem found while reading the line
 
 
+_Axes = tuple[str | None, str | None, str | None, str | None]
 _CHUNK = 256  # blocks a piece (a power of two: index >> 8 is the piece)
 _SHIFT = 8
 _CACHED = 64  # pieces kept parsed (about 16,000 blocks) for loops and label calls
@@ -131,12 +141,13 @@ class _Piece:
     made on demand (the rare parts, a case-kept raw line, cycle parameters, a reading
     problem, sit in dictionaries by index)."""
 
-    __slots__ = ("blocks", "lines", "notes", "params", "raw", "texts")
+    __slots__ = ("axes", "blocks", "lines", "notes", "params", "raw", "texts")
 
     def __init__(self) -> None:
         self.texts: list[str] = []
         self.lines: list[int] = []  # file lines
         self.blocks: list[int | None] = []  # block numbers (None: a block without one)
+        self.axes: list[_Axes | None] = []  # a plain L line's numbers, as _read took them
         self.raw: dict[int, str] = {}
         self.params: dict[int, list[str]] = {}
         self.notes: dict[int, str] = {}
@@ -160,11 +171,13 @@ class _Piece:
         raw: str,
         params: list[str] | None,
         note: str | None,
+        axes: _Axes | None,
     ) -> None:
         index = len(self.texts)
         self.texts.append(text)
         self.lines.append(line)
         self.blocks.append(block)
+        self.axes.append(axes)
         if raw or params or note:
             self.extras(index, raw, params, note)
 
@@ -179,8 +192,9 @@ class _Piece:
 
 
 # one block as read: file line, offset of that line, block number, text, case-kept text,
-# continuation lines and a problem found while reading it
-_Read = tuple[int, int, int | None, str, str, list[str] | None, str | None]
+# continuation lines, a problem found while reading it, and for a line _PLAIN_LINE matched
+# its numbers of X, Y, Z and F as written (None: not in the block)
+_Read = tuple[int, int, int | None, str, str, list[str] | None, str | None, _Axes | None]
 
 
 def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
@@ -191,10 +205,21 @@ def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
     pending: tuple[int, int, int | None, str, str] | None = None
     params: list[str] | None = None
     note_held: str | None = None
+    axes_held: _Axes | None = None
     continuing = False  # the line before ended in "~"
     defines = False  # the last block is a CYCL DEF / PATTERN DEF (parameters may follow)
     numbered = _NUMBERED.match
+    plain = _PLAIN_LINE.fullmatch
     for number, start, raw in source.lines(offset, line):
+        if not continuing and (match := plain(raw)) is not None:
+            # what the steps below make of such a line, with its numbers already split off
+            digits, body, x, y, z, feed = match.groups()
+            if pending is not None:
+                yield (*pending, params, note_held, axes_held)
+            pending = (number, start, int(digits), body, "")
+            params, note_held, axes_held = None, None, (x, y, z, feed)
+            defines = False
+            continue
         code = raw.partition(";")[0].strip()
         if not code:
             continue
@@ -208,9 +233,14 @@ def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
         tilde = "~" in raw and raw.rstrip().endswith("~")
         if upper.endswith("~"):
             upper = upper.rstrip("~").strip()
-        match = numbered(upper)
+        head, _, rest = upper.partition(" ")
+        if head.isdecimal():  # "12 L X+1" (most lines): what _NUMBERED gives, without it
+            parts: tuple[str, str] | None = (head, rest.lstrip())
+        else:
+            match = numbered(upper)
+            parts = None if match is None else (match.group(1), match.group(2))
         if pending is not None and (
-            continuing or (match is None and defines and _PARAM_LINE.match(upper))
+            continuing or (parts is None and defines and _PARAM_LINE.match(upper))
         ):
             if defines:
                 if params is None:
@@ -218,32 +248,33 @@ def _read(source: Source, offset: int = 0, line: int = 1) -> Iterator[_Read]:
                 params.append(upper)
             else:  # "Q2 = COS ( ... ) + ( 5 * ~" goes on: one formula over two lines
                 pending = (*pending[:3], f"{pending[3]} {upper}", pending[4])
+                axes_held = None  # its text goes on: the numbers of its first line are not all
             if note and note_held is None:
                 note_held = note
             continuing = tilde
             continue
         continuing = tilde
-        if match is None:  # a block without a number: run it all the same
+        if parts is None:  # a block without a number: run it all the same
             block = None
             body = upper
         else:
-            body = match.group(2)
+            body = parts[1]
             if body[-1:] == "~":
                 body = body.rstrip("~").strip()
             if body[:1] == "/":
                 body = body[1:].lstrip()
             if not body:  # "3 ; T1 D=12": a numbered comment block
                 continue
-            block = int(match.group(1))
+            block = int(parts[0])
         if body[:2] == "FN":  # "FN18:SYSREAD", as posts write it, is "FN 18: SYSREAD"
             body = _FN_HEAD.sub(r"FN \1: ", body, count=1)
         if pending is not None:
-            yield (*pending, params, note_held)
+            yield (*pending, params, note_held, axes_held)
         pending = (number, start, block, body, raw if body.startswith(_CASE_KEPT) else "")
-        params, note_held = None, note
+        params, note_held, axes_held = None, note, None
         defines = body.startswith(("CYCL DEF", "PATTERN DEF"))
     if pending is not None:
-        yield (*pending, params, note_held)
+        yield (*pending, params, note_held, axes_held)
 
 
 @dataclass
@@ -501,9 +532,9 @@ class _Run:
         reaches), note its labels and its END PGM, and close a piece every 256 blocks
         (yields then)."""
         piece = _Piece()
-        texts, lines, blocks = piece.texts, piece.lines, piece.blocks
+        texts, lines, blocks, moves = piece.texts, piece.lines, piece.blocks, piece.axes
         index = 0
-        for line, offset, block, text, raw, params, note in _read(program.source):
+        for line, offset, block, text, raw, params, note, axes in _read(program.source):
             at = index & (_CHUNK - 1)
             if not at:
                 program.offsets.append(offset)
@@ -511,6 +542,7 @@ class _Run:
             texts.append(text)
             lines.append(line)
             blocks.append(block)
+            moves.append(axes)
             if raw or params or note:
                 piece.extras(at, raw, params, note)
             if not index:
@@ -535,7 +567,7 @@ class _Run:
                 program.closed = index >> _SHIFT
                 program.last = piece.item(_CHUNK - 1)
                 piece = _Piece()
-                texts, lines, blocks = piece.texts, piece.lines, piece.blocks
+                texts, lines, blocks, moves = piece.texts, piece.lines, piece.blocks, piece.axes
                 yield True
         if piece.texts:
             self._cache_piece(program, index >> _SHIFT, piece)
@@ -606,8 +638,10 @@ class _Run:
         if piece is None:
             piece = _Piece()
             start, line = program.offsets[index], program.starts[index]
-            for number, _, block, text, raw, params, note in _read(program.source, start, line):
-                piece.add(number, block, text, raw, params, note)
+            for number, _, block, text, raw, params, note, axes in _read(
+                program.source, start, line
+            ):
+                piece.add(number, block, text, raw, params, note, axes)
                 if len(piece.texts) == _CHUNK:
                     break
             self._cache_piece(program, index, piece)
@@ -673,7 +707,7 @@ class _Run:
                 if piece is None or at >= len(piece.texts):  # past the last block
                     self._fall_off(frame)
                     continue
-                texts = piece.texts
+                texts, moves = piece.texts, piece.axes
                 base = pc - at
                 # the blocks of this piece in order, until a jump, a call or a return
                 while at < len(texts):
@@ -688,9 +722,11 @@ class _Run:
                         )
                     if text[:2] == "L " and self.corner is None and not self.m89:
                         # the bulk of a posted program: no line record unless it reports
-                        plain = _PLAIN_L.fullmatch(text)
-                        if plain is not None:
-                            plain_line(piece, at, plain)
+                        axes = moves[at]
+                        if axes is None:  # not taken apart as it was read: the text then
+                            axes = _plain_axes(text)
+                        if axes is not None:
+                            plain_line(piece, at, axes)
                             at += 1
                             continue
                     item = piece.item(at)
@@ -1007,17 +1043,21 @@ class _Run:
                 self.last_dir = ((ea - sa) / length, (eb - sb) / length)
         self.pos = target
 
-    def _plain_line(self, piece: _Piece, index: int, plain: re.Match[str]) -> None:
+    def _plain_line(self, piece: _Piece, index: int, axes: _Axes) -> None:
         """``L X.. Y.. Z.. [R0] [F..]`` with absolute literal coordinates, the bulk of a
         posted program: the same as :meth:`_linear` (no RND/CHF pending, no M89) with less
-        work per block; the block's line record is made only when it reports."""
+        work per block; the block's line record is made only when it reports. ``axes``:
+        the numbers of X, Y, Z and F as written (None: not in the block)."""
+        x, y, z, feed = axes
         start = self.pos
         target = start[:]
         shift = self.shift
-        for word in plain.group(1).split():
-            axis = _AXIS_INDEX[word[0]]
-            target[axis] = float(word[1:]) + shift[axis]
-        feed = plain.group(2)
+        if x is not None:
+            target[0] = float(x) + shift[0]
+        if y is not None:
+            target[1] = float(y) + shift[1]
+        if z is not None:
+            target[2] = float(z) + shift[2]
         if feed is not None:
             self.feed = float(feed)
         if not self.feed or not self.spindle_on:
@@ -1624,6 +1664,20 @@ _KNOWN_HEADS = frozenset(
 )  # fmt: skip
 _M_WORD = re.compile(r"\bM(\d+)\b")
 _M_HEADS = frozenset({"L", "LN", "LP", "C", "CR", "CT", "CP", "APPR", "DEP", "RND", "CHF", "STOP"})
+
+
+def _plain_axes(text: str) -> _Axes | None:
+    """The numbers of X, Y, Z and F (as written; None: not there) of a straight move with
+    absolute literal coordinates only, at most R0 and F (_PLAIN_L), or None."""
+    xyz = _PLAIN_XYZ.fullmatch(text)
+    if xyz is not None:
+        x, y, z, feed = xyz.groups()
+        return x, y, z, feed
+    plain = _PLAIN_L.fullmatch(text)
+    if plain is None:
+        return None
+    words = {word[0]: word[1:] for word in plain.group(1).split()}  # the last of an axis counts
+    return words.get("X"), words.get("Y"), words.get("Z"), plain.group(2)
 
 
 def _static_problem(text: str) -> str | None:

@@ -239,7 +239,7 @@ class Toolpath:
     ) -> None:
         """A straight move; ``seconds`` overrides the time from ``feed`` (units per minute)."""
         # the bulk of every program: _see, _count_feed and _add written out here
-        x1, y1, z1 = end[0], end[1], end[2]
+        x1, y1, z1 = end
         low, high = self.low, self.high
         if x1 is not None:
             if x1 < low[0]:
@@ -258,7 +258,7 @@ class Toolpath:
                 high[2] = z1
         if machine_end is not None and self.check_travel:
             self._check(machine_end, line)
-        x0, y0, z0 = start[0], start[1], start[2]
+        x0, y0, z0 = start
         if x0 is None or y0 is None or z0 is None or x1 is None or y1 is None or z1 is None:
             # a move from or to an unknown position is neither drawn nor measured
             if not rapid:  # feed moves: the cut itself goes unmeasured
@@ -270,9 +270,10 @@ class Toolpath:
         if length == 0.0:
             return
         begin: Point = (x0, y0, z0)
+        keep = len(self.moves) < self.max_moves
         last_end = self._last_end
-        if last_end is not None and begin == last_end:
-            begin = last_end
+        if keep and last_end is not None and begin == last_end:
+            begin = last_end  # kept moves share their points
         finish: Point = (x1, y1, z1)
         self._last_end = finish
         if rapid:
@@ -290,7 +291,7 @@ class Toolpath:
                 self.seconds += seconds
             elif feed:
                 self.seconds += length / feed * 60.0
-        if len(self.moves) < self.max_moves:
+        if keep:
             move = Move(kind, begin, finish, line, self.tool, feed=feed)
             self.moves.append(move)
             self._last = move
