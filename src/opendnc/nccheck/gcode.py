@@ -99,6 +99,13 @@ _Parsed = Block | PlainWords | dict[str, float]
 of a block of X/Y/Z/F words only by letter (the bulk of a surface program)."""
 
 
+def _negative(letter: str, value: float) -> str:
+    # A feed or a spindle speed has no sign: the control refuses a minus after F or S (Fanuc
+    # P/S alarm 006, "illegal use of negative sign"; docs/check.md#g-code)
+    what = "feed rate" if letter == "F" else "spindle speed"
+    return f"{letter}{value:g}: a {what} cannot be negative"
+
+
 class _Stop(Exception):
     """The run ends here (program end, alarm, budget)."""
 
@@ -869,8 +876,11 @@ class _Run:
         self.block_words = fast
         feed = self.feed
         if "F" in fast:
-            self.feed = feed = fast["F"]
-            self.path.feed_rate(feed)
+            if fast["F"] < 0:  # reported; the block moves at the feed it had
+                self.error(line, _negative("F", fast["F"]))
+            else:
+                self.feed = feed = fast["F"]
+                self.path.feed_rate(feed)
         if len(fast) == ("F" in fast):
             return  # no X, Y or Z word (the only other letters): no move
         rapid = self.motion == 0.0
@@ -923,6 +933,9 @@ class _Run:
         if special == 65:
             self._call(frame, "g65", v, line)
             return
+        for letter in ("F", "S"):
+            if v.get(letter, 0) < 0:  # reported; the rest of the block goes on without it
+                self.error(line, _negative(letter, v.pop(letter)))
         if "F" in v:
             self.feed = v["F"]
             self.path.feed_rate(self.feed)

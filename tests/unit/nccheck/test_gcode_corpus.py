@@ -42,6 +42,9 @@ DEFECTS: dict[str, list[tuple[int, str]]] = {
     "comp_without_d.nc": [(9, "G41 without a cutter radius offset (D)")],
     "length_without_h.nc": [(7, "G43 without a tool length offset (H)")],
     "tap_spindle_stopped.nc": [(8, "a tap (G84) with the spindle stopped")],
+    # a feed or speed has no sign: Fanuc P/S alarm 006 (docs/check.md#g-code)
+    "negative_feed.nc": [(9, "F-250: a feed rate cannot be negative")],
+    "negative_speed.nc": [(6, "S-4500: a spindle speed cannot be negative")],
     "feed_after_tool_change.nc": [(13, "below Z0 with the spindle stopped (M06 at line 10")],
     "feed_below_z0_stopped.nc": [(10, "below Z0 with the spindle stopped (M05 at line 9")],
     "m97_without_m99.nc": [(12, "O02009 ends without M99")],
