@@ -55,10 +55,10 @@ from opendnc.server.store.models import (
     VersionCheck,
 )
 from opendnc.server.utilization.collect import (
-    LONG_SPAN,
     Report,
     each_machine,
     marks_of,
+    overlapping,
     plan_hours,
     program_sums,
     read_many,
@@ -303,9 +303,15 @@ class FloorReport:
             out[name] = out.get(name, 0.0) + seconds
         return out
 
+    # (the answer asks for a machine once per period: 10 000 times for a year by week)
+    _by_name: dict[str, MachineFloor] = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._by_name = {m.machine: m for m in self.machines}
+
     def of(self, machine: str) -> MachineFloor | None:
         """The machine's figures."""
-        return next((m for m in self.machines if m.machine == machine), None)
+        return self._by_name.get(machine)
 
 
 LIST_ALL = timedelta(days=2, hours=1)  # up to this span every stop is listed (to pick for)
@@ -346,6 +352,7 @@ def floor_of(
     )
     listed = stops if days is None else _longest(session, names, start, until, stops)
     machines = []
+    planned: dict[tuple[datetime, datetime], float] = {}
     for m in report.machines:
         by_period, _found = per_machine[m.machine]
         total_runs: dict[str, ProgramRuns] = {}
@@ -355,7 +362,7 @@ def floor_of(
         total_good = sum(g for g, _s in good_scrap.values())
         total_scrap = sum(s for _g, s in good_scrap.values())
         goal = goals.of(m.machine) if goals is not None else None
-        whole = _Whole(report, goal, start, report.end, until)
+        whole = _Whole(report, goal, start, report.end, until, planned)
         machines.append(
             MachineFloor(
                 m.machine,
@@ -433,12 +440,7 @@ def _longest(
     t = UtilizationStretch.__table__.c
     r = DowntimeReason.__table__.c
 
-    # Over a long span most stops overlap it: walk the index by length (a function of the
-    # end keeps the database from the end's index, which would sort every stop of the span)
-    long_span = until - start >= LONG_SPAN
-    ends_after = func.coalesce(t.end, t.end) > start if long_span else t.end > start
-    # (and from the index by start, which SQLite would otherwise pick: 12 ms a machine)
-    starts_before = func.coalesce(t.start, t.start) < until if long_span else t.start < until
+    ends_after, starts_before = overlapping(t, start, until)
 
     def longest(machine: Any) -> Select[Any]:
         return (
@@ -490,6 +492,9 @@ class _Whole:
     start: datetime
     end: datetime
     until: datetime
+    # the planned time of each period, the same for every machine: worked out once per
+    # report (the shifts of a year are a thousand instants on the shop's clock)
+    planned: dict[tuple[datetime, datetime], float] = field(default_factory=dict)
 
     def of(self, period: Period | None = None) -> dict[str, Any]:
         """``oee_of``'s goal arguments for ``period`` (the whole span without one)."""
@@ -498,8 +503,11 @@ class _Whole:
         if self.goal is not None:
             now = min(b, self.until)
             return {"target": (self.goal.over(cal, a, b), self.goal.over(cal, a, now))}
-        planned = sum(((y - x) for x, y in cal.scheduled(a, b)), timedelta())
-        return {"planned_full": planned.total_seconds()}
+        planned = self.planned.get((a, b))
+        if planned is None:
+            whole = sum(((y - x) for x, y in cal.scheduled(a, b)), timedelta())
+            planned = self.planned[(a, b)] = whole.total_seconds()
+        return {"planned_full": planned}
 
 
 PerMachine = dict[str, tuple[list[dict[str, ProgramRuns]], list[Stretch]]]
@@ -630,14 +638,15 @@ def _parts(
     """Good and scrapped parts reported per machine and period (``None``: in no period)."""
     out: dict[str, dict[int | None, tuple[int, int]]] = defaultdict(dict)
     starts = [p.start for p in periods]
-    for row in session.scalars(
-        select(PartReport).where(
+    # (the columns, not the rows as objects: a month of reports of 200 machines is 6 000)
+    for machine, at, good_more, scrap_more in session.execute(
+        select(PartReport.machine, PartReport.at, PartReport.good, PartReport.scrap).where(
             PartReport.machine.in_(machines), PartReport.at >= start, PartReport.at < end
         )
     ):
-        at = as_utc(row.at)
+        at = as_utc(at)
         i = bisect.bisect_right(starts, at) - 1
         key = i if 0 <= i < len(periods) and periods[i].start <= at < periods[i].end else None
-        good, scrap = out[row.machine].get(key, (0, 0))
-        out[row.machine][key] = (good + row.good, scrap + row.scrap)
+        good, scrap = out[machine].get(key, (0, 0))
+        out[machine][key] = (good + good_more, scrap + scrap_more)
     return out
