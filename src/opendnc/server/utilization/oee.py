@@ -42,6 +42,7 @@ from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
 from opendnc.server.config.goals import Goal, GoalsConfig
+from opendnc.server.core.gc_pause import paused
 from opendnc.server.core.shifts import Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
@@ -332,6 +333,21 @@ def floor_of(
     of ``[goals]`` where a machine has one): the runs per program from the summed hours and
     the samples after them (``use_sums=False``: from every sample of each machine, the
     reference the sums are tested against)."""
+    # (the stops, their reasons and an OEE per machine and period: tens of thousands of
+    # objects, which the collector would otherwise walk with the whole process)
+    with paused():
+        return _floor(session, report, retention, reasons, now, goals, use_sums)
+
+
+def _floor(
+    session: Session,
+    report: Report,
+    retention: timedelta,
+    reasons: Sequence[str],
+    now: datetime | None,
+    goals: GoalsConfig | None,
+    use_sums: bool,
+) -> FloorReport:
     now = now or datetime.now(UTC)
     start, until = report.start, report.until or report.end
     # runs are counted from the first whole hour of the kept samples (the hours sum them per
