@@ -26,11 +26,13 @@ from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.errors import NotFound
 from opendnc.server.core.gc_pause import paused
 from opendnc.server.core.shifts import DAYS, Calendar, Period
+from opendnc.server.core.state import State
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.collect import (
     STATES,
     Figures,
     Group,
+    MachineReport,
     Report,
     Stretch,
     report,
@@ -195,16 +197,21 @@ def _pct(value: float | None) -> float | None:
     return None if value is None else round(value, 2)
 
 
-# (a year per week is 10 000 figures: an enum member's ``.value`` is a slow property)
-_NAMED = tuple((s, s.value) for s in STATES)
+# (a year per week is 10 000 figures: an enum member's ``.value`` is a slow property, and
+# the states' seconds are rounded by ``map`` rather than one by one in a comprehension)
+_NAMES = tuple(s.value for s in STATES)
+_TENTHS = (1,) * len(STATES)
+
+
+def _rounded(seconds: dict[State, float]) -> dict[str, float]:
+    return dict(zip(_NAMES, map(round, map(seconds.__getitem__, STATES), _TENTHS), strict=True))
 
 
 def figures_json(f: Figures) -> dict[str, Any]:
     """One machine's figures over some time as JSON (seconds, rounded to 0.1)."""
-    seconds, scheduled = f.seconds, f.scheduled
     return {
-        "seconds": {name: round(seconds[s], 1) for s, name in _NAMED},
-        "shift_seconds": {name: round(scheduled[s], 1) for s, name in _NAMED},
+        "seconds": _rounded(f.seconds),
+        "shift_seconds": _rounded(f.scheduled),
         "utilization": _pct(f.utilization),
         "utilization_recorded": _pct(f.utilization_recorded),
         "parts": f.parts,
@@ -287,10 +294,18 @@ def _machine_floor_json(r: Report, machine: str) -> dict[str, Any]:
     }
 
 
-def _period_oee(r: Report, machine: str, i: int) -> dict[str, Any]:
+def _periods_json(r: Report, m: MachineReport) -> list[dict[str, Any]]:
+    """One machine's figures per period (with its OEE where the report has it)."""
     floor: FloorReport | None = r.floor
-    m = floor.of(machine) if floor is not None else None
-    return {} if m is None else {"oee": oee_json(m.periods[i])}
+    mf = floor.of(m.machine) if floor is not None else None
+    if mf is None:
+        return [
+            {"key": p.key, **figures_json(f)} for p, f in zip(r.periods, m.periods, strict=True)
+        ]
+    return [
+        {"key": p.key, **figures_json(f), "oee": oee_json(o)}
+        for p, f, o in zip(r.periods, m.periods, mf.periods, strict=True)
+    ]
 
 
 def _stretch_json(s: Stretch, calendar: Calendar) -> dict[str, Any]:
@@ -343,10 +358,7 @@ def report_json(r: Report) -> dict[str, Any]:
             {
                 "machine": m.machine,
                 "totals": figures_json(m.totals),
-                "periods": [
-                    {"key": p.key, **figures_json(f), **_period_oee(r, m.machine, i)}
-                    for i, (p, f) in enumerate(zip(r.periods, m.periods, strict=True))
-                ],
+                "periods": _periods_json(r, m),
                 **_machine_floor_json(r, m.machine),
                 "stops": [_stretch_json(s, cal) for s in m.stops],
                 "alarms": [
