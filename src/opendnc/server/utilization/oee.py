@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any
 
-from sqlalchemy import Select, and_, func, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
@@ -46,20 +46,18 @@ from opendnc.server.core.gc_pause import paused
 from opendnc.server.core.shifts import Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
-    DowntimeReason,
     PartReport,
     Program,
     ProgramState,
     ProgramVersion,
     StandardTime,
-    UtilizationStretch,
     VersionCheck,
 )
 from opendnc.server.utilization.collect import (
+    LONGEST_READ,
     Report,
-    each_machine,
+    longest_stops,
     marks_of,
-    overlapping,
     plan_hours,
     program_sums,
     read_many,
@@ -316,7 +314,7 @@ class FloorReport:
 
 
 LIST_ALL = timedelta(days=2, hours=1)  # up to this span every stop is listed (to pick for)
-LISTED = 20  # over a longer span, each machine's longest stops
+LISTED = LONGEST_READ - 1  # over a longer span, each machine's longest stops (20)
 
 
 def floor_of(
@@ -366,7 +364,7 @@ def _floor(
     lost = lost_of(
         session, report.calendar, names, periods, report.group, start, until, days, stops
     )
-    listed = stops if days is None else _longest(session, names, start, until, stops)
+    listed = stops if days is None else _longest(session, report, names, stops)
     machines = []
     planned: dict[tuple[datetime, datetime], float] = {}
     for m in report.machines:
@@ -445,41 +443,23 @@ def _clipped(s: StopWithReason, until: datetime) -> StopWithReason:
 
 def _longest(
     session: Session,
+    report: Report,
     names: list[str],
-    start: datetime,
-    until: datetime,
     stops: dict[str, list[StopWithReason]],
 ) -> dict[str, list[StopWithReason]]:
-    """Each machine's :data:`LISTED` longest stops of the span: the summed ones' from their
-    index, each with its reason (one ``LIMIT`` query per machine, not every stop between the
-    longest ones), with ``stops`` (those outside the summed days)."""
-    t = UtilizationStretch.__table__.c
-    r = DowntimeReason.__table__.c
-
-    ends_after, starts_before = overlapping(t, start, until)
-
-    def longest(machine: Any) -> Select[Any]:
-        return (
-            select(t.machine, t.start, t.end, t.state, t.text, r.reason, r.note, r.by)
-            .select_from(UtilizationStretch.__table__)
-            .outerjoin(DowntimeReason.__table__, and_(r.machine == t.machine, r.start == t.start))
-            .where(t.machine == machine, t.kind == "stop", ends_after, starts_before)
-            .order_by(t.seconds.desc(), t.start)
-            .limit(LISTED + 1)  # (one of them may end after the span: clipped, shorter)
-        )
-
-    found: dict[str, list[StopWithReason]] = defaultdict(list)
-    for machine, began, ended, state, text, reason, note, by in each_machine(
-        session, longest, names
-    ):
-        stop = Stretch("stop", as_utc(began), as_utc(ended), State(state), text)
-        found[machine].append(StopWithReason(machine, stop, reason or "", note or "", by or ""))
+    """Each machine's :data:`LISTED` longest stops of the span: the summed ones' as the
+    report read them (:func:`.collect.longest_stops`, each with its reason; read here for a
+    report that has none), with ``stops`` (those outside the summed days)."""
+    start, until = report.start, report.until or report.end
+    known = report.longest
+    if known is None:
+        known = longest_stops(session, names, start, until)
     out: dict[str, list[StopWithReason]] = {}
     for name in names:
         mine = {s.stop.start: s for s in stops.get(name, [])}
-        for s in found.get(name, []):
-            if s.stop.start not in mine:
-                mine[s.stop.start] = _clipped(s, until)
+        for stop, reason, note, by in known.get(name, []):
+            if stop.start not in mine:
+                mine[stop.start] = _clipped(StopWithReason(name, stop, reason, note, by), until)
         out[name] = sorted(mine.values(), key=lambda s: (-s.seconds, s.stop.start))[:LISTED]
     return out
 
