@@ -26,7 +26,6 @@ from opendnc.server.config.shop import ShopConfig
 from opendnc.server.core.errors import NotFound
 from opendnc.server.core.gc_pause import paused
 from opendnc.server.core.shifts import DAYS, Calendar, Period
-from opendnc.server.core.state import State
 from opendnc.server.store.db import read_only
 from opendnc.server.utilization.collect import (
     STATES,
@@ -197,21 +196,16 @@ def _pct(value: float | None) -> float | None:
     return None if value is None else round(value, 2)
 
 
-# (a year per week is 10 000 figures: an enum member's ``.value`` is a slow property, and
-# the states' seconds are rounded by ``map`` rather than one by one in a comprehension)
-_NAMES = tuple(s.value for s in STATES)
-_TENTHS = (1,) * len(STATES)
-
-
-def _rounded(seconds: dict[State, float]) -> dict[str, float]:
-    return dict(zip(_NAMES, map(round, map(seconds.__getitem__, STATES), _TENTHS), strict=True))
+# (a year per week is 10 000 figures: an enum member's ``.value`` is a slow property)
+_NAMED = tuple((s, s.value) for s in STATES)
 
 
 def figures_json(f: Figures) -> dict[str, Any]:
     """One machine's figures over some time as JSON (seconds, rounded to 0.1)."""
+    seconds, scheduled = f.seconds, f.scheduled
     return {
-        "seconds": _rounded(f.seconds),
-        "shift_seconds": _rounded(f.scheduled),
+        "seconds": {name: round(seconds[s], 1) for s, name in _NAMED},
+        "shift_seconds": {name: round(scheduled[s], 1) for s, name in _NAMED},
         "utilization": _pct(f.utilization),
         "utilization_recorded": _pct(f.utilization_recorded),
         "parts": f.parts,
