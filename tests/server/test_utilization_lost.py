@@ -211,3 +211,31 @@ def test_stops_longer_than_the_cut_days_count_whole(sessions: sessionmaker[Sessi
     listed = floor.of(machine)
     assert listed is not None
     assert {offline, alarm} <= {s.stop.start for s in listed.stops}
+
+
+@pytest.mark.parametrize("cycles", [15, 60])
+def test_the_longest_stops_of_equal_length_are_the_earliest(
+    sessions: sessionmaker[Session], cycles: int
+) -> None:
+    """Stops as long as one another are listed earliest first, in the report (its 10) and
+    in OEE's list (20), also where the limit of the query cuts through them."""
+    cal = CALENDARS["berlin-3"]
+    machine = f"m{next(_names)}"
+    start = cal.instant(date(2026, 3, 9), datetime.min.time()) + timedelta(hours=6)
+    first = start + timedelta(days=2)  # every stop 10 minutes, all within days 3 and 4
+    end = start + timedelta(days=6)
+    last = first + timedelta(minutes=50 * cycles)
+    _samples(sessions, machine, [*_cycles(first, last), (last, "running", "ACTIVE", "")])
+    with sessions.begin() as session:
+        sum_safely(session, [machine], end + timedelta(days=1), cal)
+    with sessions.begin() as session:
+        stops = _every_stop(session, machine, end)
+        r = report(session, cal, [machine], start, end, Group.DAY, now=end + timedelta(days=1))
+        floor = floor_of(session, r, timedelta(days=400), REASONS, end + timedelta(days=1))
+    assert len(stops) == cycles
+    assert {s.seconds for s in stops} == {600.0}
+    starts = sorted(s.start for s in stops)
+    assert [s.start for s in r.machines[0].stops] == starts[:10]
+    listed = floor.of(machine)
+    assert listed is not None
+    assert sorted(s.stop.start for s in listed.stops) == starts[:LISTED]
