@@ -1033,8 +1033,8 @@ def overlapping(t: Any, start: datetime, end: datetime) -> tuple[Any, Any]:
     that walks the index of stops by length. Over a long span most stops overlap it, so the
     end and the start are compared through a function: the database then keeps to the
     length's index (its first rows are the answer) rather than take the end's or the
-    start's and sort every stop of the span (SQLite did: 3 ms a machine, 0.02 ms now). Over
-    a short span the few that end in it come by the end's index."""
+    start's and sort every stop of the span (SQLite did: 3 ms a machine). Over a short span
+    the few that end in it come by the end's index."""
     if end - start < LONG_SPAN:
         return t.end > start, t.start < end
     return func.coalesce(t.end, t.end) > start, func.coalesce(t.start, t.start) < end
