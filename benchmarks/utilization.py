@@ -32,7 +32,12 @@ are analyzed (and vacuumed on PostgreSQL), as autovacuum does by then on a runni
 
 PostgreSQL is the one at 127.0.0.1:5432 (trust), in a database of its own that is dropped
 at the end; SQLite is a file in a temporary folder. With both (the default) a table of the
-two side by side ends the output.
+two side by side ends the output. ``--url`` names a database of your own instead (created
+and dropped by you): the first run fills it, later runs time the questions on it as it is
+(without the hour more of samples, which would change it)::
+
+    psql -h 127.0.0.1 -U postgres -c 'CREATE DATABASE util_bench_1'
+    .venv/bin/python benchmarks/utilization.py --url postgresql+psycopg://postgres@127.0.0.1:5432/util_bench_1
 """
 
 from __future__ import annotations
@@ -361,6 +366,7 @@ def run(
     *,
     prepared: bool = False,
     keep: Path | None = None,
+    one_more_hour: bool = True,
 ) -> dict[str, Any]:
     """Fill a fresh database at ``url`` (unless it is ``prepared``) and time the questions;
     the numbers."""
@@ -387,7 +393,7 @@ def run(
         out["stretch_rows"] = conn.execute(
             text("SELECT COUNT(*) FROM utilization_stretches")
         ).scalar()
-    return _questions(url, engine, names, start, now, repeat, seed, out)
+    return _questions(url, engine, names, start, now, repeat, seed, out, one_more_hour)
 
 
 def _prepare(
@@ -443,8 +449,10 @@ def _questions(
     repeat: int,
     seed: int,
     out: dict[str, Any],
+    one_more_hour: bool = True,
 ) -> dict[str, Any]:
-    """Time the questions on the filled database."""
+    """Time the questions on the filled database (and, with ``one_more_hour``, the year
+    after an hour more of samples: written to it)."""
     year = (start, now)
     local_now = CAL.local(now)
     midnight = CAL.instant(local_now.date(), datetime.min.time())
@@ -511,13 +519,14 @@ def _questions(
     if engine.dialect.name == "postgresql":
         for key, (work, _n) in questions.items():
             EXPLAINED[key] = _explained(engine, work)
-    # one more hour of samples for every machine, then the year again (it sums that hour)
-    later = now + timedelta(hours=1)
-    fill(url, names, now, later, seed + 1)
-    key = "year_after_1_hour_more"
-    timings[key] = _time(
-        engine, question((start, later), Group.WEEK, later + timedelta(minutes=3)), 1, key
-    )
+    if one_more_hour:
+        # one more hour of samples for every machine, then the year again (it sums that hour)
+        later = now + timedelta(hours=1)
+        fill(url, names, now, later, seed + 1)
+        key = "year_after_1_hour_more"
+        timings[key] = _time(
+            engine, question((start, later), Group.WEEK, later + timedelta(minutes=3)), 1, key
+        )
     out["seconds"] = {k: [round(v, 3) for v in vs] for k, vs in timings.items()}
     out["median_s"] = {k: round(statistics.median(vs), 3) for k, vs in timings.items()}
     out["median_cpu_s"] = {k: round(statistics.median(vs), 3) for k, vs in CPU.items()}
@@ -550,6 +559,26 @@ def _sqlite(
         result["backend"] = "sqlite"
         result["reused_db"] = prepared
         return result
+
+
+def _given(
+    url: str, machines: int, distinct: int, days: int, repeat: int, seed: int, copy_days: int
+) -> dict[str, Any]:
+    """The questions on the database at ``url``: filled first if it holds no samples."""
+    engine = make_engine(url)
+    try:
+        migrate(engine)
+        with engine.connect() as conn:
+            filled = bool(conn.execute(text("SELECT COUNT(*) FROM utilization_marks")).scalar())
+    finally:
+        engine.dispose()
+    # (no hour more of samples: the database stays as filled, for the next run)
+    result = run(
+        url, machines, distinct, days, repeat, seed, copy_days, prepared=filled, one_more_hour=False
+    )
+    result["backend"] = engine.dialect.name
+    result["reused_db"] = filled
+    return result
 
 
 def _postgresql(
@@ -596,27 +625,44 @@ def main(argv: list[str] | None = None) -> None:
         help="SQLite: a filled database kept here and reused by the next run with the same "
         "path (the same --machines, --days and --seed)",
     )
+    parser.add_argument(
+        "--url",
+        help="a database of your own (sqlite:///... or postgresql+psycopg://...) instead of "
+        "--backend: filled if it holds no samples, else reused as it is (the same --machines, "
+        "--days and --seed); never dropped, and left as filled (no hour more of samples)",
+    )
     args = parser.parse_args(argv)
     backends = ["sqlite", "postgresql"] if args.backend == "both" else [args.backend]
+    if args.url:
+        backends = ["url"]
     results = []
     for backend in backends:
         common = (args.machines, args.distinct, args.days, args.repeat, args.seed, args.copy_days)
-        result = _sqlite(*common, db=args.db) if backend == "sqlite" else _postgresql(*common)
+        if backend == "url":
+            result = _given(args.url, *common)
+        elif backend == "sqlite":
+            result = _sqlite(*common, db=args.db)
+        else:
+            result = _postgresql(*common)
         results.append(result)
         if args.json:
             print(json.dumps(result), flush=True)
             continue
-        summed = result["sum_hours"]
         print(
-            f"{backend}: {result['machines']} machines ({result['distinct_timelines']} distinct "
-            f"timelines), {result['days']} days, {result['samples']} samples, "
-            f"{result['hour_rows']} summed hours, {result['stretch_rows']} stops and alarms; "
-            f"summing {summed['samples']} samples took {summed['seconds']} s "
-            f"({summed['samples_per_second']} samples/s)"
+            f"{result['backend']}: {result['machines']} machines ({result['distinct_timelines']} "
+            f"distinct timelines), {result['days']} days, {result['samples']} samples, "
+            f"{result['hour_rows']} summed hours, {result['stretch_rows']} stops and alarms"
+            + ("" if "sum_hours" in result else " (a database filled before)")
         )
+        if "sum_hours" in result:
+            summed = result["sum_hours"]
+            print(
+                f"  summing {summed['samples']} samples took {summed['seconds']} s "
+                f"({summed['samples_per_second']} samples/s); "
+                f"summing the days took {result['sum_days_s']} s"
+            )
         print(
             f"  load average {result['load_average']}; "
-            f"summing the days took {result['sum_days_s']} s; "
             f"the year by week is {result['json_bytes_year_by_week']} bytes of JSON"
         )
         for key, seconds in result["seconds"].items():

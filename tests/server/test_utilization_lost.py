@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from opendnc.server.config.downtime import DEFAULT_REASONS, NO_REASON
-from opendnc.server.store.models import DowntimeReason, UtilizationStretch
+from opendnc.server.store.models import DowntimeReason, StatusSample, UtilizationStretch
 from opendnc.server.utilization.collect import Group, read_points, report, sum_safely
 from opendnc.server.utilization.lost import covered_days, repick
 from opendnc.server.utilization.oee import LISTED, floor_of
@@ -146,3 +146,96 @@ def test_lost_time_per_reason_is_the_sum_over_every_stop(
     for reason, (count, seconds) in pareto.items():
         assert got_pareto[reason][0] == count
         assert got_pareto[reason][1] == pytest.approx(seconds, abs=1e-3)
+
+
+def _samples(sessions: sessionmaker[Session], machine: str, changes: list[Any]) -> None:
+    """``machine``'s samples: (at, state, execution, alarm) each."""
+    with sessions.begin() as session:
+        session.add_all(
+            StatusSample(machine=machine, at=at, state=state, execution=execution, alarm=alarm)
+            for at, state, execution, alarm in changes
+        )
+
+
+def _cycles(first: datetime, last: datetime) -> list[Any]:
+    """Running 40 minutes and ready 10 (a stop each time) from ``first`` to ``last``."""
+    out, at = [], first
+    while at < last:
+        out.append((at, "running", "ACTIVE", ""))
+        out.append((at + timedelta(minutes=40), "ready", "READY", ""))
+        at += timedelta(minutes=50)
+    return out
+
+
+def test_stops_longer_than_the_cut_days_count_whole(sessions: sessionmaker[Session]) -> None:
+    """A long span reads the stops outside its summed days from two ranges of the start's
+    index, bounded by the longest stop: a machine offline for three days into the span's
+    first day counts from where it began, and an alarm of a summed day that outlasts the
+    span counts up to the span's end."""
+    cal = CALENDARS["berlin-3"]
+    machine = f"m{next(_names)}"
+    monday = cal.instant(date(2026, 3, 2), datetime.min.time())
+    start = monday + timedelta(days=7, hours=10, minutes=20)  # a Monday morning
+    offline = start - timedelta(days=3) + timedelta(hours=5)  # to 5 hours into the span
+    alarm = start + timedelta(days=12, minutes=7)  # 8 days long, 4 of them in the span
+    end = alarm + timedelta(days=4)
+    now = alarm + timedelta(days=10)
+    _samples(
+        sessions,
+        machine,
+        [
+            *_cycles(monday - timedelta(days=1), offline),
+            (offline, "offline", "", ""),
+            *_cycles(offline + timedelta(days=3), alarm),
+            (alarm, "alarm", "STOPPED", "1010 SPINDLE"),
+            *_cycles(alarm + timedelta(days=8), now),
+        ],
+    )
+    with sessions.begin() as session:
+        sum_safely(session, [machine], now, cal)
+    with sessions.begin() as session:
+        stops = _every_stop(session, machine, now)
+        r = report(session, cal, [machine], start, end, Group.DAY, now=now)
+        assert r.until == end
+        assert covered_days(session, cal, [machine], start, end) is not None
+        floor = floor_of(session, r, timedelta(days=400), REASONS, now)
+    mine = [s for s in stops if s.end > start and s.start < end]
+    assert {(s.start, s.seconds) for s in mine} >= {(offline, 3 * 86400), (alarm, 8 * 86400)}
+    got = floor.lost_by_reason(machine)
+    expected = sum((min(s.end, end) - s.start).total_seconds() for s in mine)
+    assert got == {**dict.fromkeys(REASONS, 0.0), NO_REASON: pytest.approx(expected, abs=1e-3)}
+    for p in r.periods:
+        began = [s for s in mine if p.start <= s.start < p.end]
+        lost = sum((min(s.end, end) - s.start).total_seconds() for s in began)
+        assert floor.lost_by_reason(machine, p)[NO_REASON] == pytest.approx(lost, abs=1e-3)
+    listed = floor.of(machine)
+    assert listed is not None
+    assert {offline, alarm} <= {s.stop.start for s in listed.stops}
+
+
+@pytest.mark.parametrize("cycles", [15, 60])
+def test_the_longest_stops_of_equal_length_are_the_earliest(
+    sessions: sessionmaker[Session], cycles: int
+) -> None:
+    """Stops as long as one another are listed earliest first, in the report (its 10) and
+    in OEE's list (20), also where the limit of the query cuts through them."""
+    cal = CALENDARS["berlin-3"]
+    machine = f"m{next(_names)}"
+    start = cal.instant(date(2026, 3, 9), datetime.min.time()) + timedelta(hours=6)
+    first = start + timedelta(days=2)  # every stop 10 minutes, all within days 3 and 4
+    end = start + timedelta(days=6)
+    last = first + timedelta(minutes=50 * cycles)
+    _samples(sessions, machine, [*_cycles(first, last), (last, "running", "ACTIVE", "")])
+    with sessions.begin() as session:
+        sum_safely(session, [machine], end + timedelta(days=1), cal)
+    with sessions.begin() as session:
+        stops = _every_stop(session, machine, end)
+        r = report(session, cal, [machine], start, end, Group.DAY, now=end + timedelta(days=1))
+        floor = floor_of(session, r, timedelta(days=400), REASONS, end + timedelta(days=1))
+    assert len(stops) == cycles
+    assert {s.seconds for s in stops} == {600.0}
+    starts = sorted(s.start for s in stops)
+    assert [s.start for s in r.machines[0].stops] == starts[:10]
+    listed = floor.of(machine)
+    assert listed is not None
+    assert sorted(s.stop.start for s in listed.stops) == starts[:LISTED]

@@ -31,6 +31,7 @@ from opendnc.server.utilization.collect import (
     STATES,
     Figures,
     Group,
+    MachineReport,
     Report,
     Stretch,
     report,
@@ -287,10 +288,18 @@ def _machine_floor_json(r: Report, machine: str) -> dict[str, Any]:
     }
 
 
-def _period_oee(r: Report, machine: str, i: int) -> dict[str, Any]:
+def _periods_json(r: Report, m: MachineReport) -> list[dict[str, Any]]:
+    """One machine's figures per period (with its OEE where the report has it)."""
     floor: FloorReport | None = r.floor
-    m = floor.of(machine) if floor is not None else None
-    return {} if m is None else {"oee": oee_json(m.periods[i])}
+    mf = floor.of(m.machine) if floor is not None else None
+    if mf is None:
+        return [
+            {"key": p.key, **figures_json(f)} for p, f in zip(r.periods, m.periods, strict=True)
+        ]
+    return [
+        {"key": p.key, **figures_json(f), "oee": oee_json(o)}
+        for p, f, o in zip(r.periods, m.periods, mf.periods, strict=True)
+    ]
 
 
 def _stretch_json(s: Stretch, calendar: Calendar) -> dict[str, Any]:
@@ -343,10 +352,7 @@ def report_json(r: Report) -> dict[str, Any]:
             {
                 "machine": m.machine,
                 "totals": figures_json(m.totals),
-                "periods": [
-                    {"key": p.key, **figures_json(f), **_period_oee(r, m.machine, i)}
-                    for i, (p, f) in enumerate(zip(r.periods, m.periods, strict=True))
-                ],
+                "periods": _periods_json(r, m),
                 **_machine_floor_json(r, m.machine),
                 "stops": [_stretch_json(s, cal) for s in m.stops],
                 "alarms": [

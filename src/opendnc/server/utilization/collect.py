@@ -33,6 +33,7 @@ from sqlalchemy import (
     String,
     Table,
     TypeDecorator,
+    and_,
     bindparam,
     delete,
     func,
@@ -49,6 +50,7 @@ from opendnc.server.core.gc_pause import paused
 from opendnc.server.core.shifts import Calendar, Period
 from opendnc.server.core.state import State
 from opendnc.server.store.models import (
+    DowntimeReason,
     StatusSample,
     UtcDateTime,
     UtilizationHour,
@@ -122,6 +124,13 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+LONGEST_READ = 21  # each machine's longest stops read with a report: OEE lists 20 (one more:
+# one of them may end after the span, clipped and shorter), the report its TOP_STOPS
+
+
+Longest = dict[str, list[tuple[Stretch, str, str, str]]]  # per machine: (stop, reason, note, by)
+
+
 ROLL_MARGIN = timedelta(minutes=2)  # the recorder writes within seconds; leave it room
 
 
@@ -138,6 +147,9 @@ _STRETCHES: Table = UtilizationStretch.__table__  # type: ignore[assignment]
 
 
 _PROGRAM_HOURS: Table = UtilizationProgramHour.__table__  # type: ignore[assignment]
+
+
+_REASONS: Table = DowntimeReason.__table__  # type: ignore[assignment]
 
 
 # which slot (period, shift or not) each summed hour of a question goes to
@@ -165,6 +177,13 @@ class _FastUtc(TypeDecorator[datetime]):
 
 
 _SAMPLES: Table = StatusSample.__table__  # type: ignore[assignment]
+
+
+# a stretch's start and end as :class:`_FastUtc` reads them
+_STRETCH_AT = (
+    type_coerce(_STRETCHES.c.start, _FastUtc()).label("start"),
+    type_coerce(_STRETCHES.c.end, _FastUtc()).label("end"),
+)
 
 
 _AT = type_coerce(_SAMPLES.c.at, _FastUtc()).label("at")
@@ -430,6 +449,9 @@ class Report:
     until: datetime | None = None  # where the figures end: the span's end, or now within it
     # OEE, parts and stops with reasons (utilization/oee.py), where the question asked for them
     floor: Any = None
+    # each machine's longest summed stops with their reasons, read with the report (None:
+    # not read, as from every sample): what OEE lists of them
+    longest: Longest | None = None
 
 
 MAX_SPAN = timedelta(days=400)
@@ -464,6 +486,7 @@ def report(
     periods = periods_of(calendar, group, start, end)
     scheduled = calendar.scheduled(start, end)
     summed = {m: SummedAlarms() for m in machines}
+    longest: Longest = {}
     with paused():  # (a figure per machine and period: tens of thousands over a year)
         per_period, totals, stretches = _collect(
             session,
@@ -479,13 +502,15 @@ def report(
             use_days=use_days,
             group=group,
             alarms_out=summed,
+            longest_out=longest,
         )
         reports = [
             machine_report(m, totals[m], per_period[m], stretches[m], start, end, summed[m])
             for m in machines
         ]
     until = min(end, max(start, now))  # nothing after now is counted
-    return Report(start, end, group, calendar, periods, reports, until)
+    known = longest if use_hours else None
+    return Report(start, end, group, calendar, periods, reports, until, longest=known)
 
 
 def buckets(
@@ -574,6 +599,7 @@ def _collect(
     use_days: bool = False,
     group: Group | None = None,
     alarms_out: dict[str, SummedAlarms] | None = None,
+    longest_out: Longest | None = None,
 ) -> tuple[dict[str, list[Figures]], dict[str, Figures], dict[str, list[Stretch]]]:
     """Each machine's figures per period and in total over ``[start, end)``, and its stops:
     from the summed days and hours where they hold the time, from the samples elsewhere
@@ -591,7 +617,9 @@ def _collect(
             sum_safely(session, machines, now, calendar)
         summed = _from_sums(session, tally, start, end, calendar, group if use_days else None)
         if stretches:
-            _stored_stretches(session, machines, start, end, tally.found_by, alarms_out)
+            _stored_stretches(
+                session, machines, start, end, tally.found_by, alarms_out, longest_out
+            )
     frontiers = _sweep_samples(session, tally, summed, end, use_hours)
     for machine, mark in summed.marks.items():
         if machine not in frontiers and mark.until >= end:
@@ -1000,6 +1028,51 @@ def _no_record_hours(
 LONG_SPAN = timedelta(days=14)  # from here on, most stops of a machine overlap a span
 
 
+def overlapping(t: Any, start: datetime, end: datetime) -> tuple[Any, Any]:
+    """The conditions of a stretch (columns ``t``) overlapping ``[start, end)``, for a query
+    that walks the index of stops by length. Over a long span most stops overlap it, so the
+    end and the start are compared through a function: the database then keeps to the
+    length's index (its first rows are the answer) rather than take the end's or the
+    start's and sort every stop of the span (SQLite did: 3 ms a machine). Over a short span
+    the few that end in it come by the end's index."""
+    if end - start < LONG_SPAN:
+        return t.end > start, t.start < end
+    return func.coalesce(t.end, t.end) > start, func.coalesce(t.start, t.start) < end
+
+
+def longest_stops(
+    session: Session, machines: Sequence[str], start: datetime, end: datetime
+) -> Longest:
+    """Each machine's :data:`LONGEST_READ` longest summed stops overlapping ``[start,
+    end)``, longest first, each with the reason picked for it: one ``LIMIT`` query per
+    machine down the index of stops by length."""
+    t = _STRETCHES.c
+    r = _REASONS.c
+    overlap = overlapping(t, start, end)
+
+    def stops(machine: Any) -> Select[Any]:
+        return (
+            select(t.machine, *_STRETCH_AT, t.state, t.text, t.seconds, r.reason, r.note, r.by)
+            .select_from(_STRETCHES)
+            .outerjoin(_REASONS, and_(r.machine == t.machine, r.start == t.start))
+            .where(t.machine == machine, t.kind == "stop", *overlap)
+            .order_by(t.seconds.desc(), t.start)
+            .limit(LONGEST_READ)
+        )
+
+    found: dict[str, list[tuple[float, Stretch, str, str, str]]] = {m: [] for m in machines}
+    for machine, a, b, state, text, seconds, reason, note, by in each_machine(
+        session, stops, machines
+    ):
+        stop = Stretch("stop", a, b, State(state), text)
+        found[machine].append((seconds, stop, reason or "", note or "", by or ""))
+    out: Longest = {}
+    for machine, rows in found.items():
+        rows.sort(key=lambda x: (-x[0], x[1].start))  # (the database's order)
+        out[machine] = [x[1:] for x in rows]
+    return out
+
+
 def _stored_stretches(
     session: Session,
     machines: Sequence[str],
@@ -1007,24 +1080,19 @@ def _stored_stretches(
     end: datetime,
     out: dict[str, list[Stretch]],
     alarms_out: dict[str, SummedAlarms],
+    longest_out: Longest | None = None,
 ) -> None:
     """The summed stops (each machine's longest) and alarms (per text, and the newest)
-    overlapping the span: a few statements for all machines."""
+    overlapping the span: a few statements for all machines. The longest stops are
+    :func:`longest_stops`' (with their reasons, for OEE's list: ``longest_out``), of which
+    the report keeps :data:`TOP_STOPS`."""
     t = _STRETCHES.c
-    columns = (t.machine, t.kind, t.start, t.end, t.state, t.text)
-    # Over a long span the longest stops come first by their length's index (most overlap);
-    # over a short one, the few that end in the span by the end's (the length's would walk
-    # past many). A function of the column keeps the database from the end's index.
-    ends_after = func.coalesce(t.end, t.end) > start if end - start >= LONG_SPAN else t.end > start
-    overlap = (ends_after, t.start < end)
-
-    def stops(machine: Any) -> Select[Any]:
-        return (
-            select(*columns)
-            .where(t.machine == machine, t.kind == "stop", *overlap)
-            .order_by(t.seconds.desc(), t.start)
-            .limit(TOP_STOPS)
-        )
+    columns = (t.machine, t.kind, *_STRETCH_AT, t.state, t.text)
+    longest = longest_stops(session, machines, start, end)
+    for machine, rows in longest.items():
+        out[machine] += [x[0] for x in rows[:TOP_STOPS]]
+    if longest_out is not None:
+        longest_out.update(longest)
 
     def recent(machine: Any) -> Select[Any]:
         # a machine's alarms follow one another: the newest to start are the newest to end
@@ -1035,19 +1103,13 @@ def _stored_stretches(
             .limit(RECENT_ALARMS)
         )
 
-    for r in each_machine(session, stops, machines):
-        out[r.machine].append(
-            Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
-        )
     for r in each_machine(session, recent, machines):
-        alarms_out[r.machine].recent.append(
-            Stretch(r.kind, as_utc(r.start), as_utc(r.end), State(r.state), r.text)
-        )
+        alarms_out[r.machine].recent.append(Stretch(r.kind, r.start, r.end, State(r.state), r.text))
     for chunk in _chunks(machines):
         per_text = (
             select(t.machine, t.text, func.count(), func.sum(t.seconds), func.max(t.seconds))
             .where(t.machine.in_(chunk), t.kind == "alarm", t.end > start, t.start < end)
             .group_by(t.machine, t.text)
         )
-        for machine, text, count, seconds, longest in session.execute(per_text):
-            alarms_out[machine].by_text[text] = (int(count), float(seconds), float(longest))
+        for machine, text, count, seconds, most in session.execute(per_text):
+            alarms_out[machine].by_text[text] = (int(count), float(seconds), float(most))

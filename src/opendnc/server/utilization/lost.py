@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from datetime import date, datetime, time, timedelta
 from typing import Any
 
-from sqlalchemy import Table, and_, delete, func, insert, or_, select
+from sqlalchemy import Table, and_, delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from opendnc.server.config.downtime import NO_REASON
@@ -55,6 +55,7 @@ __all__ = [
 _DAYS: Table = UtilizationLostDay.__table__  # type: ignore[assignment]
 _WEEKS: Table = UtilizationLostWeek.__table__  # type: ignore[assignment]
 _S = UtilizationStretch.__table__.c
+_MARKS: Table = UtilizationMark.__table__  # type: ignore[assignment]
 _R = DowntimeReason.__table__.c
 
 
@@ -259,6 +260,27 @@ def _period_at(periods: Sequence[Period], starts: list[datetime], at: datetime) 
     return i if i >= 0 and periods[i].start <= at < periods[i].end else None
 
 
+def longest_stop(session: Session, machines: Sequence[str]) -> timedelta:
+    """The length of the longest summed stop of ``machines`` (a second more, for the
+    rounding of its stored seconds): a stop that reaches past an instant began at most this
+    long before it, so a query can bound the stops' starts (their index) on both sides.
+    One index seek per machine (every machine with summed stops has a mark)."""
+    if not machines:
+        return timedelta(0)
+    inner = UtilizationStretch.__table__.alias("longest")
+    t = inner.c
+    per_machine = (
+        select(t.seconds)
+        .where(t.machine == _MARKS.c.machine, t.kind == "stop")
+        .order_by(t.seconds.desc())
+        .limit(1)
+        .scalar_subquery()
+    )
+    most = select(per_machine.label("seconds")).where(_MARKS.c.machine.in_(list(machines)))
+    seconds = session.execute(select(func.max(most.subquery().c.seconds))).scalar()
+    return timedelta(seconds=float(seconds or 0.0) + 1.0)
+
+
 def stops_with_reasons(
     session: Session,
     machines: Sequence[str],
@@ -274,21 +296,30 @@ def stops_with_reasons(
     out: dict[str, list[StopWithReason]] = {m: [] for m in machines}
     if not machines:
         return out
-    where: list[Any] = [_S.kind == "stop", _S.end > lo, _S.start < hi]
+    spans: list[list[Any]] = [[_S.end > lo, _S.start < hi]]
     if before is not None and after is not None:
-        where.append(or_(_S.start < before, _S.start >= after))
-    for chunk in range(0, len(machines), 200):
-        rows = session.execute(
-            select(_S.machine, _S.start, _S.end, _S.state, _S.text, _R.reason, _R.note, _R.by)
-            .select_from(UtilizationStretch.__table__)
-            .outerjoin(
-                DowntimeReason.__table__, and_(_R.machine == _S.machine, _R.start == _S.start)
+        # two ranges of the index by start, not every stop between them: those that began
+        # before ``before`` and reach into the span began at most the longest stop before it
+        reach = lo - longest_stop(session, machines)
+        spans = [
+            [_S.start >= reach, _S.start < min(before, hi), _S.end > lo],
+            [_S.start >= max(after, before), _S.start < hi, _S.end > lo],
+        ]
+    for where in spans:
+        for chunk in range(0, len(machines), 200):
+            rows = session.execute(
+                select(_S.machine, _S.start, _S.end, _S.state, _S.text, _R.reason, _R.note, _R.by)
+                .select_from(UtilizationStretch.__table__)
+                .outerjoin(
+                    DowntimeReason.__table__, and_(_R.machine == _S.machine, _R.start == _S.start)
+                )
+                .where(_S.machine.in_(machines[chunk : chunk + 200]), _S.kind == "stop", *where)
             )
-            .where(_S.machine.in_(machines[chunk : chunk + 200]), *where)
-        )
-        for machine, a, b, state, text, reason, note, by in rows:
-            stop = Stretch("stop", as_utc(a), as_utc(b), State(state), text)
-            out[machine].append(StopWithReason(machine, stop, reason or "", note or "", by or ""))
+            for machine, a, b, state, text, reason, note, by in rows:
+                stop = Stretch("stop", as_utc(a), as_utc(b), State(state), text)
+                out[machine].append(
+                    StopWithReason(machine, stop, reason or "", note or "", by or "")
+                )
     return out
 
 
@@ -354,7 +385,9 @@ def lost_of(
         return lost
     for machine, key, reason, count, seconds in _read(session, machines, group, days):
         lost.add(machine, key_period.get(key), reason, int(count), float(seconds))
-    # a stop of those days still going at ``until`` counts up to it
+    # a stop of those days still going at ``until`` counts up to it (it began at most the
+    # longest stop before ``until``: the start's index from there, not the whole span)
+    reach = until - longest_stop(session, machines)
     for machine, a, b, reason in session.execute(
         select(_S.machine, _S.start, _S.end, _R.reason)
         .select_from(UtilizationStretch.__table__)
@@ -363,7 +396,7 @@ def lost_of(
             _S.machine.in_(list(machines)),
             _S.kind == "stop",
             _S.end > until,
-            _S.start >= lo,
+            _S.start >= max(lo, reach),
             _S.start < hi,
         )
     ):
