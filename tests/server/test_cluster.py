@@ -87,14 +87,27 @@ def check_exactly_once(cluster: Cluster, programs: dict[str, bytes], ids: list[i
 def kill_mid_run(cluster: Cluster, victim: str, via: str) -> float:
     """SIGKILL ``victim`` while it runs a job; the seconds until ``via`` reports every machine
     held again by the live servers."""
-    owners = cluster.owners(via)
+
+    def running() -> list[dict[str, Any]]:
+        jobs: list[dict[str, Any]] = (
+            cluster.clients[via].get("/api/jobs", params={"state": "running"}).json()
+        )
+        return jobs
 
     def victim_runs() -> bool:
-        running = cluster.clients[via].get("/api/jobs", params={"state": "running"}).json()
-        # several at once: one alone may end in the moment before the kill
-        return sum(owners.get(j["machine"]) == victim for j in running) >= 3
+        # several at once (by the server each job says runs it, as leases may have moved):
+        # one alone may end in the moment before the kill
+        return sum(j["server"] == victim for j in running()) >= 3
 
-    wait_for(f"{victim} to run jobs", victim_runs, timeout=60)
+    wait_for(
+        f"{victim} to run jobs",
+        victim_runs,
+        timeout=60,
+        describe=lambda: (
+            f"running {[(j['machine'], j['server']) for j in running()]}, "
+            f"owners {cluster.owners(via)}"
+        ),
+    )
     cluster.kill(victim)
     killed = time.monotonic()
     live = set(cluster.clients)

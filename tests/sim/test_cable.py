@@ -95,14 +95,16 @@ def test_single_byte_latency_is_one_character_time() -> None:
     with VirtualCable(baud=9600) as cable:
         a, b = open_port(cable.path_a), open_port(cable.path_b)
         delays = []
-        for _ in range(5):
+        for _ in range(20):
             start = time.monotonic()
             a.write(b"\x06")
             assert read_exactly(b, 1) == b"\x06"
             delays.append(time.monotonic() - start)
-        # one character is 1.04 ms at 9600 8N1
+        # one character is 1.04 ms at 9600 8N1: never sooner, and a quarter of the bytes
+        # within 5 ms more (a loaded machine delays some threads' wake-ups; a cable that
+        # held bytes for a period of its own would delay them all)
         assert min(delays) >= 10 / 9600 * 0.99
-        assert sorted(delays)[2] < 10 / 9600 + 0.005, delays
+        assert sorted(delays)[4] < 10 / 9600 + 0.005, delays
         a.close()
         b.close()
 
