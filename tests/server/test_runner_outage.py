@@ -61,9 +61,14 @@ def test_a_database_outage_during_a_job_ends_it_exactly_once(shop: Shop, step: s
 
 
 def test_a_database_outage_at_the_claim_delays_the_job_and_runs_it_once(shop: Shop) -> None:
-    due = utcnow() + timedelta(seconds=0.5)
+    # due later than the queueing and the cut take even on a loaded machine (a job that fell
+    # due before the cut would be claimed at once and meet the outage at its end instead), and
+    # woken well before a cluster server would stop serving its machines in the outage (the
+    # default 10 s lease: at the earliest 4.2 s after the cut)
+    due = utcnow() + timedelta(seconds=1.5)
     job_id = shop.queue(not_before=due)
     shop.outage.cut()
+    assert utcnow() < due, "the cut came after the job fell due: the test proves nothing"
     try:
         wait_for("the job to fall due", lambda: utcnow() > due + timedelta(seconds=0.2))
         shop.server.machines.wake(shop.machine)  # as the API would: the claim meets the outage

@@ -165,6 +165,8 @@ def test_births_data_rebirth_deaths_and_bd_seq_across_restarts(tmp_path: Path, g
             assert bd_seq_of(host_of(listener, group), "dnc-a") == (first + 1) % 256
         finally:
             edge.stop()
+        # the stop's NDEATH reaches the listener through the broker a moment later
+        wait_for("the last NDEATH", lambda: len(host_of(listener, group).of("NDEATH")) == 2)
         host = host_of(listener, group)
         assert host.kinds() == [
             "NBIRTH", "DBIRTH:mill-1", "DDATA:mill-1", "DDATA:mill-1", "NCMD", "NBIRTH",
