@@ -24,6 +24,7 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session
 
 from opendnc.server.store.db import pg_connect_args
+from opendnc.server.store.health import reason
 
 __all__ = ["CHANNEL", "Listener", "Notice", "Topic", "notify"]
 
@@ -101,6 +102,7 @@ class Listener:
         import psycopg
 
         delay = 0.5
+        failed = 0  # tries that failed since the last connection: the first one is told
         while True:
             try:
                 # the engine's deadlines: a silent network breaks the listener too
@@ -110,12 +112,21 @@ class Listener:
                     await conn.execute(f"LISTEN {CHANNEL}")
                     self.connections += 1
                     self.connected.set()
-                    delay = 0.5
+                    if failed:
+                        _log.info("database notifications back (after %d tries)", failed)
+                    delay, failed = 0.5, 0
                     self.on_reconnect()
                     async for message in conn.notifies():
                         self.on_notice(Notice.decode(message.payload))
             except psycopg.Error as exc:
                 self.connected.clear()
-                _log.warning("database notifications lost (%s); again in %.1f s", exc, delay)
+                # one line, once an outage: the listener tries again every few seconds while
+                # the database is away, and health and the other writers say so already
+                _log.log(
+                    logging.WARNING if not failed else logging.DEBUG,
+                    "database notifications lost (%s); trying again every few seconds",
+                    reason(exc),
+                )
+                failed += 1
             await asyncio.sleep(delay)
             delay = min(delay * 2, 10.0)
