@@ -97,10 +97,13 @@ def test_quiet_line_is_flushed_for_live_reading(tmp_path: Path) -> None:
         a.write(b"hello")
         assert read_exactly(b, 5) == b"hello"
         deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and not log.read_text():
+        while (
+            time.monotonic() < deadline and b"".join(r.data for r in read_monitor(log)) != b"hello"
+        ):
             time.sleep(0.01)
-        # the cable is still running and the line is quiet: the record is on disk already
-        assert [r.data for r in read_monitor(log)] == [b"hello"]
+        # the cable is still running and the line is quiet: the records are on disk already
+        # (one, or more where a loaded machine let the cable read the bytes in pieces)
+        assert b"".join(r.data for r in read_monitor(log)) == b"hello"
 
 
 class FullDisk(io.StringIO):
