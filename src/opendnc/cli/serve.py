@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from opendnc.cli.common import cli_errors, console, print_json
+from opendnc.cli.common import cli_errors, console, print_json, start_up
 from opendnc.errors import InputError
 
 if TYPE_CHECKING:
@@ -72,8 +72,9 @@ def serve(
     """Run the DNC server: the machines of CONFIG, the API and server-sent events."""
     with cli_errors():
         require_server_extra()
-        from opendnc.server.app import build
-        from opendnc.server.config.shop import load_config
+        with start_up():
+            from opendnc.server.app import build
+            from opendnc.server.config.shop import load_config
 
         shop = load_config(config)
         if name is not None:
@@ -91,7 +92,8 @@ def serve(
         guard = SingleServerLock(db or shop.server.database)
         try:
             guard.acquire()  # a second server on one SQLite file: one line, before migrating
-            server = build(shop, database=db, stop_deadline=plan.components)
+            with start_up():
+                server = build(shop, database=db, stop_deadline=plan.components)
             try:
                 asyncio.run(_serve(server, listener, host, plan))
             except KeyboardInterrupt:
