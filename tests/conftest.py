@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gc
 import os
+from collections.abc import Generator
 from typing import Any
 
 import pytest
@@ -75,6 +77,23 @@ LONGEST_FIRST = (
     "tests/server/test_leases.py",
     "tests/sim/test_lsv2_serial_cable.py",
 )
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection(session: pytest.Session) -> Generator[None, object, object]:
+    """Collect with the cyclic garbage collector paused, then freeze what collection made.
+
+    Every worker imports every test module and what they import (the server, the protocol
+    stacks): objects that live as long as the worker. Paused, the collector does not walk them
+    while they are made; frozen, its later passes during the tests do not walk them either
+    (measured: a third of the collector's time in a worker's tests, and half a CPU second of
+    each worker's collection)."""
+    gc.disable()
+    try:
+        return (yield)
+    finally:
+        gc.freeze()
+        gc.enable()
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
