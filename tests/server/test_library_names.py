@@ -210,12 +210,19 @@ def test_two_uploads_of_case_twins_at_the_same_moment_leave_one_program_and_a_40
     racer.start()
     if engine.dialect.name == "postgresql":
         # Commit only once the second upload waits for the first's row in the index.
-        with engine.connect() as conn:
-            waiting = text(
-                "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() "
-                "AND wait_event_type = 'Lock'"
-            )
-            wait_for("the second upload to wait", lambda: conn.execute(waiting).scalar())
+        waiting = text(
+            "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() "
+            "AND wait_event_type = 'Lock'"
+        )
+
+        def lock_waits() -> int:
+            # each poll in a transaction of its own: a backend reads pg_stat_activity once a
+            # transaction, so a first poll made before the second upload waited saw no wait
+            # for as long as the test asked (seen under load in CI)
+            with engine.connect() as conn:
+                return int(conn.execute(waiting).scalar_one())
+
+        wait_for("the second upload to wait", lock_waits)
     first.commit()
     first.close()
     racer.join(60)

@@ -361,8 +361,10 @@ def test_a_machine_moves_between_servers(tmp_path: Path, group: str) -> None:
                 "m1 born again on dnc-b",
                 lambda: len(host_of(listener, group).of("DBIRTH", "dnc-b")) == 2,
             )
+            # Each server publishes on its own connection: the broker may pass dnc-b's birth
+            # before dnc-a's death (seen under load in CI). A host keeps each node's devices
+            # apart, so what counts is the state both leave it in.
+            wait_for("dnc-a lets go", lambda: host_of(listener, group).of("DDEATH", "dnc-a"))
             host = host_of(listener, group)
-            moved = [(s.kind, s.node) for s in host.seen if s.kind in ("DBIRTH", "DDEATH")]
-            assert moved[-2:] == [("DDEATH", "dnc-a"), ("DBIRTH", "dnc-b")]
             assert host.device("dnc-b", "m1").alive  # type: ignore[union-attr]
             assert not host.device("dnc-a", "m1").alive  # type: ignore[union-attr]
