@@ -108,6 +108,7 @@ def shop(db_url: str, tmp_path: Path) -> Iterator[Any]:
 
     fleet = FleetThread(tmp_path / "machines", tnc=1, haas=0)
     outage = Outage(db_url)
+    own = make_engine(db_url)  # the test's reads and writes, with the store's own deadlines
     gates = Gates()
     running = None
     try:
@@ -130,9 +131,10 @@ def shop(db_url: str, tmp_path: Path) -> Iterator[Any]:
         running = Running(server)
         machine = fleet.fleet.machines[0]
         wait_for("the TNC online", lambda: server.machines.machines[machine.name].online)
-        yield Shop(server, running, gates, outage, machine.root, machine.name)
+        yield Shop(server, running, gates, outage, machine.root, machine.name, make_sessions(own))
     finally:
         outage.close()
+        own.dispose()
         if running is not None:
             running.stop()
             running.server.engine.dispose()
