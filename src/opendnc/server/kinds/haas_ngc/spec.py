@@ -15,7 +15,6 @@ from opendnc.server.kinds.base import (
     schema_keys,
 )
 from opendnc.server.kinds.connector import Connector
-from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
 from opendnc.server.kinds.haas_ngc.schema import HaasNgcMachine
 
 __all__ = ["SPEC", "STATUS_FIELDS", "HaasNgcMachine", "tcp_dprnt"]
@@ -54,6 +53,10 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> HaasNgcMa
 
 def connector(config: HaasNgcMachine, hooks: ConnectorHooks) -> Connector:
     """MDC for status, the share for programs."""
+    # imported here, not at the top: a server imports every kind but needs only the
+    # connectors of the kinds it has machines of (docs/server.md#shape-components-and-kinds)
+    from opendnc.server.kinds.haas_ngc.connector import HaasNgcConnector
+
     return HaasNgcConnector(config)
 
 

@@ -17,7 +17,6 @@ from opendnc.server.kinds.base import (
 )
 from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.haas_ngc.spec import tcp_dprnt
-from opendnc.server.kinds.haas_serial.connector import HaasSerialConnector
 from opendnc.server.kinds.haas_serial.schema import HaasSerialMachine
 
 __all__ = ["MDC_STATUS_FIELDS", "SPEC", "HaasSerialMachine"]
@@ -61,6 +60,10 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> HaasSeria
 
 def connector(config: HaasSerialMachine, hooks: ConnectorHooks) -> Connector:
     """XModem (or text) on the port; printed lines to ``hooks.on_dprnt``."""
+    # imported here, not at the top: a server imports every kind but needs only the
+    # connectors of the kinds it has machines of (docs/server.md#shape-components-and-kinds)
+    from opendnc.server.kinds.haas_serial.connector import HaasSerialConnector
+
     return HaasSerialConnector(config, on_dprnt=hooks.on_dprnt)
 
 

@@ -17,7 +17,6 @@ from opendnc.server.kinds.base import (
 )
 from opendnc.server.kinds.connector import Connector
 from opendnc.server.kinds.files import check_path
-from opendnc.server.kinds.lsv2.connector import Lsv2Connector
 from opendnc.server.kinds.lsv2.schema import LSV2_SERIAL, Lsv2Machine
 
 __all__ = ["LSV2_SERIAL", "SPEC", "STATUS_FIELDS", "Lsv2Machine"]
@@ -76,6 +75,10 @@ def _receive(raw: dict[str, Any], prefix: str) -> tuple[str, str, int, str]:
 
 def connector(config: Lsv2Machine, hooks: ConnectorHooks) -> Connector:
     """One LSV2 session (TCP or RS-232)."""
+    # imported here, not at the top: a server imports every kind but needs only the
+    # connectors of the kinds it has machines of (docs/server.md#shape-components-and-kinds)
+    from opendnc.server.kinds.lsv2.connector import Lsv2Connector
+
     return Lsv2Connector(config)
 
 

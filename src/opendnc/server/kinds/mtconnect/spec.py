@@ -15,7 +15,6 @@ from opendnc.server.kinds.base import (
     schema_keys,
 )
 from opendnc.server.kinds.connector import Connector
-from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
 from opendnc.server.kinds.mtconnect.schema import MtconnectMachine
 
 __all__ = ["SPEC", "STATUS_FIELDS", "MtconnectMachine"]
@@ -46,6 +45,10 @@ def parse(raw: dict[str, Any], prefix: str, common: dict[str, Any]) -> Mtconnect
 
 def connector(config: MtconnectMachine, hooks: ConnectorHooks) -> Connector:
     """The agent reader."""
+    # imported here, not at the top: a server imports every kind but needs only the
+    # connectors of the kinds it has machines of (docs/server.md#shape-components-and-kinds)
+    from opendnc.server.kinds.mtconnect.connector import MtconnectConnector
+
     return MtconnectConnector(config)
 
 

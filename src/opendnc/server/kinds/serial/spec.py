@@ -21,7 +21,6 @@ from opendnc.server.kinds.base import (
     KindSpec,
 )
 from opendnc.server.kinds.connector import Connector
-from opendnc.server.kinds.serial.connector import TapeConnector
 from opendnc.server.kinds.serial.schema import SerialMachine
 from opendnc.tape.codes import Code, Eob
 from opendnc.tape.profiles import PROFILES, Profile, get_profile
@@ -117,6 +116,10 @@ def _with_control(envelope: Envelope | None, tape: Profile) -> Envelope | None:
 
 def connector(config: SerialMachine, hooks: ConnectorHooks) -> Connector:
     """The tape engine on the port; what it does goes to ``hooks.on_status``."""
+    # imported here, not at the top: a server imports every kind but needs only the
+    # connectors of the kinds it has machines of (docs/server.md#shape-components-and-kinds)
+    from opendnc.server.kinds.serial.connector import TapeConnector
+
     return TapeConnector(config, on_status=hooks.on_status)
 
 
