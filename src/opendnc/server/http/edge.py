@@ -37,13 +37,10 @@ from opendnc.server.http.clients import StreamsFull
 from opendnc.server.http.sessions import SessionRoute
 from opendnc.server.store.health import is_database_down
 
-try:
-    from psycopg.errors import NumericValueOutOfRange as NumericOutOfRange
-except ImportError:  # pragma: no cover - SQLite only: there it is an OverflowError
-
-    class NumericOutOfRange(Exception):  # type: ignore[no-redef]
-        """Stands in for psycopg's error where psycopg is not installed."""
-
+# PostgreSQL's SQLSTATE for "numeric value out of range" (psycopg's NumericValueOutOfRange).
+# Read from the error, not its class: importing psycopg would cost every server's start, a
+# SQLite one's too (on SQLite the same input is an OverflowError).
+NUMERIC_OUT_OF_RANGE = "22003"
 
 __all__ = [
     "ECHO_LIMIT",
@@ -109,7 +106,7 @@ async def _out_of_range(_request: Request, exc: Exception) -> JSONResponse:
 
 
 async def _data_error(request: Request, exc: DataError) -> JSONResponse:
-    if isinstance(exc.orig, NumericOutOfRange):
+    if getattr(exc.orig, "sqlstate", None) == NUMERIC_OUT_OF_RANGE:
         return await _out_of_range(request, exc)
     return await _unexpected(request, exc)
 
