@@ -53,3 +53,31 @@ def test_a_configuration_error_names_the_file(
     assert done.returncode == 1
     assert done.stderr.startswith(f"error: {config}: {problem}"), done.stderr
     assert done.stderr.count("\n") == 1, done.stderr
+
+
+@pytest.mark.parametrize("missing", ["fastapi", "sqlalchemy"])
+@pytest.mark.parametrize("command", [["serve"], ["keys", "create", "--role", "admin"]])
+def test_a_missing_server_extra_is_one_line_naming_it(
+    tmp_path: Path, missing: str, command: list[str]
+) -> None:
+    config = tmp_path / "shop.toml"
+    config.write_text('[server]\ndatabase = "sqlite:///x.db"\n')
+    # None in sys.modules is how Python marks a module that cannot be imported
+    hide = (
+        f"import sys; sys.modules[{missing!r}] = None; sys.argv = ['opendnc', *sys.argv[1:]]; "
+        "from opendnc.cli.main import app; app()"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", hide, *command, "--config", str(config)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+        check=False,
+    )
+    assert done.returncode == 1
+    assert done.stderr == (
+        f"error: the server needs the 'server' extra ({missing} is missing): "
+        "pip install 'opendnc[server]'\n"
+    ), done.stderr
+    assert not (tmp_path / "x.db").exists()

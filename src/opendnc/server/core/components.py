@@ -19,11 +19,16 @@ import logging
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
-from fastapi import FastAPI, Request
+# Starlette's Request is FastAPI's, and resolves provide()'s annotation at run time; FastAPI's
+# app module itself would load all of FastAPI for the commands that only use the store.
+from starlette.requests import Request
 
 from opendnc.errors import DncError
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 __all__ = [
     "Component",
