@@ -126,17 +126,23 @@ class Fleet:
             self.machines.publish(state)
 
     async def _supervise(self, state: MachineState) -> None:
-        connector = self.connector_factory(state.config)
+        # Made inside the loop: a kind's connector module is imported when the first machine
+        # of the kind is served, and one that cannot be (a library of an extra missing) must
+        # show on the machine as its error, not end its task without a word.
+        connector: Connector | None = None
         backoff = 0.5
         while True:
             try:
+                if connector is None:
+                    connector = self.connector_factory(state.config)
                 await connector.connect()
                 state.online = True
                 backoff = 0.5
                 state.wake.set()  # what was queued while it was away runs at once
                 await self._serve(state, connector)
             except asyncio.CancelledError:
-                await _close(connector)
+                if connector is not None:
+                    await _close(connector)
                 raise
             except Exception as exc:
                 if not isinstance(exc, DncError):
@@ -150,7 +156,8 @@ class Fleet:
                     MachineStatus(at=utcnow(), available=False, message=state.last_error)
                 )
                 self.machines.publish(state)
-                await _close(connector)
+                if connector is not None:
+                    await _close(connector)
                 # a job queued meanwhile cuts the wait short: the person who queued it
                 # expects a try now, not at the end of a long backoff
                 await _wait(state.wake, backoff)
