@@ -21,7 +21,7 @@ from opendnc.server.cluster.single_server import (
 )
 from opendnc.server.config.shop import parse_config
 from opendnc.server.machines.leases import Leases
-from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.store.db import DatabaseUnreachable, make_engine, make_sessions, migrate
 from tests.server.conftest import PG_ADMIN, _pg_database
 from tests.server.harness import wait_for
 from tests.server.inprocess_app import config_text
@@ -130,3 +130,27 @@ def test_a_lone_server_takes_its_lock_again_after_a_database_blip(
     # the release closes the lock's connection; its backend ends a moment later (on a loaded
     # machine, later than the next line would ask)
     wait_for("the lock's session to end", lambda: _backends_holding_the_lock(url) == [], 10)
+
+
+def test_a_database_that_refuses_the_locks_connection_is_one_line(pg: Engine) -> None:
+    # Seen at -n 12: PostgreSQL out of connections between the migration and the lock; the
+    # server ended with a traceback instead of the line every other refusal gets.
+    url = pg.url.render_as_string(hide_password=False)
+    name = make_url(url).database
+    admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
+    try:
+        with admin.connect() as conn:
+            conn.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS false'))
+        lock = ServerLock(url, alone=True)
+        with pytest.raises(DatabaseUnreachable) as refused:
+            lock.acquire()
+        lock.release()
+        message = str(refused.value)
+        where = pg.url.render_as_string(hide_password=True)
+        assert message.startswith(f"cannot reach the database {where}: "), message
+        assert "not currently accepting connections" in message
+        assert "\n" not in message
+    finally:
+        with admin.connect() as conn:
+            conn.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS true'))
+        admin.dispose()

@@ -59,7 +59,7 @@ from opendnc.server.outputs.sparkplug import SparkplugNode
 from opendnc.server.outputs.sparkplug_store import next_bd_seq
 from opendnc.server.reports import routes as shift_routes
 from opendnc.server.reports.mail import ShiftMailer
-from opendnc.server.store.db import make_engine, make_sessions, migrate
+from opendnc.server.store.db import DatabaseUnreachable, make_engine, make_sessions, migrate
 from opendnc.server.store.secrets import DEVICE_COOKIE_KEY, shared_secret
 from opendnc.server.utilization import component as utilization_component
 
@@ -277,7 +277,7 @@ def _server_lock(
         server_lock.acquire()
         if not clustered:
             refuse_beside_a_cluster(sessions, config.server.name)
-    except DatabaseInUse:
+    except (DatabaseInUse, DatabaseUnreachable):
         server_lock.release()
         engine.dispose()
         raise

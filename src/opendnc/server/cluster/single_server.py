@@ -30,14 +30,14 @@ from typing import IO
 
 from sqlalchemy import Connection, create_engine, text
 from sqlalchemy.engine import make_url
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.exc import DBAPIError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import NullPool
 
 from opendnc.errors import DncError
 from opendnc.server.core.components import RunsTask
 from opendnc.server.machines.leases import cluster_view
-from opendnc.server.store.db import pg_connect_args
+from opendnc.server.store.db import pg_connect_args, unreachable
 from opendnc.server.store.health import reason
 
 __all__ = [
@@ -175,8 +175,14 @@ class ServerLock(RunsTask):
         return self._connection is not None
 
     def acquire(self) -> None:
-        """Take the lock, or raise :class:`DatabaseInUse` (one line)."""
-        if self._take():
+        """Take the lock, or raise :class:`DatabaseInUse` (one line); a database that refuses
+        the lock's connection (one with no connection left, say) is
+        :class:`~opendnc.server.store.db.DatabaseUnreachable`, one line too."""
+        try:
+            taken = self._take()
+        except DBAPIError as exc:
+            raise unreachable(self._engine, exc) from None
+        if taken:
             return
         if self.alone:
             raise DatabaseInUse(

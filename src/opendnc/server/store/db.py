@@ -207,13 +207,18 @@ def reason_of(exc: DBAPIError) -> str:
     return text[:1].lower() + text[1:]
 
 
+def unreachable(engine: Engine, exc: DBAPIError) -> DatabaseUnreachable:
+    """The one-line error for ``engine``'s failed connection ``exc``."""
+    where = engine.url.render_as_string(hide_password=True)
+    return DatabaseUnreachable(f"cannot reach the database {where}: {reason_of(exc)}")
+
+
 def connect(engine: Engine) -> Connection:
     """A connection of ``engine``; :class:`DatabaseUnreachable` in one line if none opens."""
     try:
         return engine.connect()
     except DBAPIError as exc:
-        where = engine.url.render_as_string(hide_password=True)
-        raise DatabaseUnreachable(f"cannot reach the database {where}: {reason_of(exc)}") from None
+        raise unreachable(engine, exc) from None
 
 
 def migrate(engine: Engine, revision: str = "head") -> None:
