@@ -50,7 +50,9 @@ class _Databases:
 
     def admin(self) -> Engine:
         if self._admin is None:
-            self._admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT")
+            # not pooled: an idle connection a worker kept would be one fewer for the servers
+            # (at -n 12, twelve of them ran PostgreSQL out of connections)
+            self._admin = create_engine(PG_ADMIN, isolation_level="AUTOCOMMIT", poolclass=NullPool)
             atexit.register(self.drop_all)
         return self._admin
 
