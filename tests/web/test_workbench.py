@@ -9,6 +9,7 @@ look at."""
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -75,6 +76,28 @@ def test_the_program_page_lists_the_problems_with_links_to_their_lines(
         overflow = page.evaluate("document.documentElement.scrollWidth > window.innerWidth")
         assert not overflow
         tab.close()
+
+
+def test_a_problems_link_clicked_before_the_text_has_come_marks_its_line_when_it_comes(
+    app: App, browser: Any
+) -> None:
+    # Seen on a loaded machine: the click changed the hash while the listing's text was on
+    # its way, and the line was never marked. The text is held back here until after it.
+    tab = Tab(app, browser, Role.APPROVER, 1280, 800)
+    held: list[Any] = []
+    tab.page.route("**/library/O02001.nc/versions/1/download", lambda r: held.append(r))
+    page = tab.goto("/library/O02001.nc")
+    deadline = time.monotonic() + 30
+    while not held and time.monotonic() < deadline:
+        page.wait_for_timeout(20)  # lets Playwright hand over the held request
+    assert len(held) == 1  # the text is on its way, and held there
+    problems = page.get_by_role("list", name="Problems of O02001.nc v1")
+    problems.get_by_role("link", name="O02001.nc:5").click()
+    assert page.url.endswith("#L5")
+    held[0].continue_()
+    expect(page.locator("#L5")).to_contain_text("G999 X1.")
+    expect(page.locator("#L5")).to_have_class(re.compile(r"\bhl\b"))
+    tab.close()
 
 
 def test_the_send_form_shows_each_machines_check_and_the_override_is_audited(

@@ -289,7 +289,10 @@
       return;
     }
     listing.load(src).then(function () {
-      if (target) listing.go(target, true);
+      // the hash as it is now: a problem's link clicked while the text was on its way
+      // changed it, and go() could not scroll to a line that had not come yet
+      var now = Listing.hashLine() || target;
+      if (now) listing.go(now, true);
     }).catch(function (error) {
       var note = document.createElement("p");
       note.className = "muted";
