@@ -86,6 +86,28 @@ class Sampler:
         self._thread.join(5)
 
 
+class Blocks:
+    """Stands in for the serial front's running SHA-256 of DNC blocks and keeps the blocks
+    too, so a test that finds the wrong digest can name the first block that differs."""
+
+    def __init__(self) -> None:
+        self.lines: list[bytes] = []
+
+    def update(self, data: bytes) -> None:
+        self.lines.append(data)
+
+    def hexdigest(self) -> str:
+        return hashlib.sha256(b"".join(self.lines)).hexdigest()
+
+    def first_difference(self, program: bytes) -> str:
+        """Where these blocks leave the program's body (fed once, in order), for a message."""
+        body = [f"{b}\n".encode() for b in program.decode().splitlines()[2:-1]]
+        for i, (got, want) in enumerate(zip(self.lines, body, strict=False)):
+            if got != want:
+                return f"block {i + 1}: got {got!r}, the program has {want!r}"
+        return f"{len(self.lines)} blocks, the program has {len(body)}"
+
+
 @pytest.fixture
 def pg_url() -> Iterator[str]:
     yield from _pg_database()
@@ -271,6 +293,8 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
     try:
         config = _config(fleet.fleet, tmp_path, "resume_wait = 40\n")
         clients.update(_two_servers(procs, config, pg_url, proxies))
+        blocks = Blocks()  # before the feed: every block the control gets, kept
+        fleet.fleet.serial_ports["haas-serial-1"].dnc_sha256 = blocks  # type: ignore[assignment]
         client = clients["dnc-1"]
         job_id, feeding = _feed_under_way(client)
         cut = feeding["server"]
@@ -336,11 +360,16 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
         # what matters is every block once, in order (below)
         assert done["server"] in (other, cut), done
         count, digest = _blocks_of(PROGRAM)
-        wait_for("every block at the Haas", lambda: front.dnc_lines >= count, timeout=30)
+        wait_for(
+            "every block at the Haas",
+            lambda: front.dnc_lines >= count,
+            timeout=30,
+            describe=lambda: blocks.first_difference(PROGRAM),
+        )
         sampler.stop()
         # the whole program once, in order: nothing twice, nothing left out
         assert front.dnc_lines == count
-        assert front.dnc_sha256.hexdigest() == digest
+        assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
         # the cut server's last block came before the take-over, and nothing reached the
         # control between the take-over and the continuation's start
         started = datetime.fromisoformat(done["started"]).timestamp()
@@ -364,6 +393,89 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
             procs.stop(name, signal.SIGKILL)
         for proxy in proxies.values():
             proxy.close()
+        fleet.stop()
+
+
+def test_a_fenced_feed_continues_on_its_own_server_with_not_a_byte_between(
+    tmp_path: Path, pg_url: str, procs: Procs
+) -> None:
+    # One server of a cluster: its database goes silent past the fence, then answers again.
+    # Nobody else can take the machine, so the same server serves it again and runs the
+    # continuation itself. Its machine task restarts meanwhile: while the control waits in
+    # DNC mode for the rest, nothing may reach it but the rest (a listener's NAK there would
+    # be read as part of a block).
+    fleet = FleetLoop(
+        tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=BLOCKS, dnc_timeout=120
+    )
+    proxy = DbProxy(pg_url)
+    client: httpx.Client | None = None
+    try:
+        config = _config(fleet.fleet, tmp_path)
+        key = create_key(config, pg_url)
+        url = serve(procs, config, proxy.url_for(pg_url), "--name", "dnc-1", name="dnc-1")
+        client = httpx.Client(base_url=url, timeout=30, headers=auth(key))
+        wait_for(
+            "the serial Haas online",
+            lambda: client.get("/api/machines/haas-serial-1").json()["online"],
+        )
+        blocks = Blocks()
+        front = fleet.fleet.serial_ports["haas-serial-1"]
+        front.dnc_sha256 = blocks  # type: ignore[assignment]
+        job_id, _ = _feed_under_way(client)
+        proxy.freeze()
+        wait_for("the fence", lambda: "drip-feed paused at line" in procs.log("dnc-1"), timeout=20)
+        caught = "its exact position is not known" in procs.log("dnc-1")
+        paused = front.dnc_lines
+        time.sleep(LEASE)  # past the lease: the database answers a server that lost it
+        proxy.restore()
+
+        def continuation() -> dict[str, Any] | None:
+            listed = client.get("/api/jobs", params={"machine": "haas-serial-1"})
+            if listed.status_code != 200:
+                return None  # 503 until the server has the database back
+            for job in listed.json():
+                if job["params"].get("resume_of") == job_id:
+                    return job  # type: ignore[no-any-return]
+            return None
+
+        if caught:
+            # caught writing (a loaded machine): the job is left for an operator, as above
+            wait_for(
+                "the job's end written",
+                lambda: client.get(f"/api/jobs/{job_id}").json()["state"] == "interrupted",
+                timeout=30,
+            )
+            assert continuation() is None
+            print("the fence caught the feed mid-block: left interrupted, no continuation")
+            return
+        follow = wait_for("the continuation queued", continuation, timeout=30)
+        done = wait_for(
+            "the continuation to end",
+            lambda: (
+                (j := client.get(f"/api/jobs/{follow['id']}").json())["state"]
+                not in ("queued", "running")
+                and j
+            ),
+            timeout=60,
+        )
+        assert done["state"] == "done", (done, blocks.first_difference(PROGRAM))
+        count, digest = _blocks_of(PROGRAM)
+        wait_for(
+            "every block at the Haas",
+            lambda: front.dnc_lines >= count,
+            timeout=30,
+            describe=lambda: blocks.first_difference(PROGRAM),
+        )
+        assert front.dnc_lines == count
+        assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
+        assert not front.control.machine.alarms
+        print(f"paused after block {paused}, continued by the same server", flush=True)
+    finally:
+        if client is not None:
+            client.close()
+        for name in list(procs.procs):
+            procs.stop(name, signal.SIGKILL)
+        proxy.close()
         fleet.stop()
 
 
