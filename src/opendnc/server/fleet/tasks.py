@@ -175,6 +175,13 @@ class Fleet:
             if state.wake.is_set():
                 state.wake.clear()
                 await self.runner.run_due(state, connector)
+            if state.feed_owed and await self.runner.owes_feed(state):
+                # the rest of a fenced drip-feed is this control's next input, and nothing
+                # else may come before it (docs/server.md#a-fenced-drip-feed): the queue
+                # again in a moment, no errand, no poll, no listening meanwhile
+                await _wait(state.wake, state.config.poll_interval)
+                state.wake.set()
+                continue
             await state.errands.run(connector)  # the file browser's reads, between jobs
             asked = loop.time()
             state.set_status(await connector.status())

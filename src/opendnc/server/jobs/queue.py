@@ -50,6 +50,7 @@ __all__ = [
     "NotReleased",
     "cancel",
     "claim",
+    "continuations_queued",
     "enqueue",
     "fail",
     "finish",
@@ -487,6 +488,22 @@ def position_said(session: Session, job_id: int) -> bool:
     (written, or said not to be known, or never awaited)."""
     params = session.scalar(select(Job.params).where(Job.id == job_id))
     return params is None or AWAITING_POSITION not in params
+
+
+def continuations_queued(session: Session, machines: Sequence[str]) -> set[str]:
+    """Which of ``machines`` have a drip-feed's continuation (:data:`RESUME_OF`) queued."""
+    if not machines:
+        return set()
+    rows = session.execute(
+        select(Job.machine, Job.params).where(
+            Job.machine.in_(machines),
+            Job.state == JobState.QUEUED,
+            Job.kind == JobKind.DRIPFEED,
+        )
+    )
+    # the key is looked for here, not in SQL: JSON operators differ between the two
+    # databases, and a machine has few queued drip-feeds
+    return {machine for machine, params in rows if params and RESUME_OF in params}
 
 
 def machines_running(session: Session, machines: Sequence[str]) -> set[str]:

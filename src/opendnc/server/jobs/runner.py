@@ -146,6 +146,9 @@ class JobRunner:
         self._epochs: dict[int, int] = {}  # running job -> the lease epoch it was claimed at
         self._lines: dict[int, tuple[int | None, int]] = {}  # drip-feed -> (line, bytes) fed
         self._paused: set[int] = set()  # fenced drip-feeds whose pause is recorded
+        # fenced drip-feeds with an exact position not written yet -> their machine: the rest
+        # is owed to that control (a continuation will be queued), so it hears nothing else
+        self._owing: dict[int, str] = {}
 
     # -- lifecycle ----------------------------------------------------------------------
 
@@ -454,6 +457,8 @@ class JobRunner:
         # the machine meanwhile ends the job at the last line this one wrote.
         line, nbytes, position = exc.line, exc.nbytes, exc.position
         if position is not None:
+            self._owing[job_id] = machine
+            run.state.feed_owed = True
             reason = (
                 f"paused at line {line}: {self.worker} lost touch with the database and stopped "
                 f"driving {machine}; continued from there by the machine's next server"
@@ -650,6 +655,7 @@ class JobRunner:
                 self._unsettled.discard(job_id)
                 self._epochs.pop(job_id, None)
                 self._paused.discard(job_id)
+                self._owing.pop(job_id, None)
             outcome = label or ended
             if outcome is not None:
                 self._ended(run, outcome, **extra)
@@ -759,12 +765,15 @@ class JobRunner:
         keep = set(self.running) | self._unsettled
 
         waits: dict[str, tuple[int, str]] = {}  # machine -> (drip-feed, its server)
+        owed: set[str] = set()  # machines with a continuation queued already
 
         def adopt(session: Session) -> list[JobFinished]:
             out: list[JobFinished] = []
             waits.clear()
             # one query for all: usually few of them have a job left running
             busy = jobs.machines_running(session, list(epochs))
+            owed.clear()
+            owed.update(jobs.continuations_queued(session, list(epochs)))
             for machine, epoch in sorted(epochs.items()):
                 if machine not in busy or not holds(session, machine, self.worker, epoch):
                     continue
@@ -787,6 +796,10 @@ class JobRunner:
             return out
 
         events = await asyncio.to_thread(self._transaction, adopt)
+        for machine in owed:
+            state = self.machines.get(machine)
+            if state is not None:
+                state.feed_owed = True  # its task starts after this: the rest first
         until = time.monotonic() + self.resume_wait
         for machine, (job_id, was) in waits.items():
             state = self.machines.get(machine)
@@ -836,6 +849,7 @@ class JobRunner:
                     async with asyncio.timeout(min(POSITION_POLL, max(0.0, left))):
                         await state.wake.wait()
         state.awaiting_position = None
+        state.feed_owed = True  # until the database shows no continuation queued here
         state.wake.set()  # the queue at once: a continuation is at its head
         log.info("%s: done waiting for job %d's position: %s", name, job_id, why)
 
@@ -853,6 +867,32 @@ class JobRunner:
             if row.host == socket.gethostname()[:255] and not _alive(row.pid):
                 return f"{was}'s process is gone"
             return ""
+
+    async def owes_feed(self, state: MachineState) -> bool:
+        """True while ``state``'s control may wait in DNC mode for the rest of a fenced
+        drip-feed: this server is still writing that feed's position, or its continuation
+        is queued there. The machine's task then runs the queue and nothing else: a claim
+        can miss the continuation (a lease not confirmed at that moment), and a status poll
+        or a listener's NAK in between would reach the control as program input."""
+        if not state.feed_owed:
+            return False
+        name = state.config.name
+        if name in self._owing.values():
+            return True
+        try:
+            queued = await asyncio.to_thread(self._continuation_queued, name)
+        except Exception as exc:
+            if not database_down(exc):
+                raise
+            self._trouble(f"looking for the continuation of a feed on {name}", exc)
+            return True  # not known: silent until the database answers
+        if not queued:
+            state.feed_owed = False
+        return queued
+
+    def _continuation_queued(self, machine: str) -> bool:
+        with self._reads() as session:
+            return machine in jobs.continuations_queued(session, [machine])
 
     # -- events ---------------------------------------------------------------------------
 

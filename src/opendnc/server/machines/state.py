@@ -53,6 +53,11 @@ class MachineState:
     # A drip-feed a take-over ended here: (job id, the server that fed it, until when on the
     # monotonic clock its exact position is waited for, silently: no poll, no listening)
     awaiting_position: tuple[int, str, float] | None = None
+    # The rest of a drip-feed may be owed to this control (a fenced feed's continuation is
+    # queued here, or its position is still being written): it may wait in DNC mode, so its
+    # task runs the queue and says nothing else to it until the continuation has started.
+    # A hint kept in memory; the database says whether a continuation is still queued.
+    feed_owed: bool = False
 
     def set_status(self, status: MachineStatus) -> None:
         """Take a new status, carrying the last DPRNT line over (a poll does not read it)."""
