@@ -68,9 +68,13 @@ class Doubt:
         return self.claim(machine)
 
 
+@pytest.mark.parametrize("written", ["after the take-over", "before the take-over"])
 def test_a_control_owed_the_rest_of_a_feed_hears_nothing_before_it(
-    tmp_path: Path, pg_url: str
+    tmp_path: Path, pg_url: str, written: str
 ) -> None:
+    # after: the new server waits for the old one's position, then claims
+    # before: the old server wrote it while it still held the lease (its job ended, the
+    # continuation queued); the new server finds the continuation when it gains the machine
     fleet = FleetThread(
         tmp_path / "machines", tnc=0, haas=0, serial_haas=1, block_rate=200, dnc_timeout=120
     )
@@ -120,7 +124,19 @@ def test_a_control_owed_the_rest_of_a_feed_hears_nothing_before_it(
             port.close()
         wait_for("the first blocks at the control", lambda: front.dnc_lines == FED)
 
-        # the server takes the machine once the old lease has run out, and waits, silent
+        def position() -> int:
+            # the old server's word: the rest of line FED + 3 (PART written), the lines after
+            doubt.on.set()
+            with server.sessions.begin() as session:
+                return jobs.resume(
+                    session, job_id, actor="dnc-old", offset=offset, written=PART, line=FED + 3
+                ).id
+
+        if written == "before the take-over":
+            with server.sessions.begin() as session:
+                jobs.fail(session, job_id, "paused by its fence", retryable=False, line=FED + 3)
+            follow = position()
+        # the server takes the machine once the old lease has run out
         running = Running(server)
 
         def taken_over() -> bool:
@@ -128,13 +144,9 @@ def test_a_control_owed_the_rest_of_a_feed_hears_nothing_before_it(
                 job = jobs.get_job(session, job_id)
                 return job.state is JobState.INTERRUPTED
 
-        wait_for("the take-over", taken_over, timeout=LEASE * 4)
-        # the old server's word: the rest of line FED + 3 (PART written) and the lines after
-        doubt.on.set()
-        with server.sessions.begin() as session:
-            follow = jobs.resume(
-                session, job_id, actor="dnc-old", offset=offset, written=PART, line=FED + 3
-            ).id
+        if written == "after the take-over":
+            wait_for("the take-over", taken_over, timeout=20)  # a lease and a renewal, loaded
+            follow = position()
         # the machine's task goes round several times without getting the continuation
         wait_for("claims that miss", lambda: doubt.missed >= 3, timeout=20)
         assert front.dnc_lines == FED

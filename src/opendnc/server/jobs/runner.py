@@ -772,8 +772,6 @@ class JobRunner:
             waits.clear()
             # one query for all: usually few of them have a job left running
             busy = jobs.machines_running(session, list(epochs))
-            owed.clear()
-            owed.update(jobs.continuations_queued(session, list(epochs)))
             for machine, epoch in sorted(epochs.items()):
                 if machine not in busy or not holds(session, machine, self.worker, epoch):
                     continue
@@ -793,6 +791,11 @@ class JobRunner:
                             error=job.error,
                         )
                     )
+            # After the take-overs: a continuation an old server queued before they locked
+            # its job (ending the job itself: it found the lease gone) is seen here; one it
+            # queues after them finds its job awaiting the position, which is waited for.
+            owed.clear()
+            owed.update(jobs.continuations_queued(session, list(epochs)))
             return out
 
         events = await asyncio.to_thread(self._transaction, adopt)
