@@ -65,10 +65,12 @@ def test_a_read_back_that_differs_fails_the_attempt_and_the_retry_loads_it(shop:
 
 def test_a_read_back_that_always_differs_fails_the_job_after_its_attempts(shop: Shop) -> None:
     target = shop.root / "TNC" / "nc_prog" / "O01234.nc"
+    # held before the job is queued: the runner's sweep may start it at once (seen at -n 12:
+    # its first attempt had verified and ended before the gate was set)
+    shop.gates.hold("verify")
     job_id = shop.queue()
     with shop.server.sessions() as session:
         attempts = jobs.get_job(session, job_id).max_attempts
-    shop.gates.hold("verify")
     shop.server.machines.wake(shop.machine)
     for attempt in range(1, attempts + 1):
         assert shop.gates.reached["verify"].wait(30), f"attempt {attempt} never verified"
