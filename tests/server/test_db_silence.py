@@ -108,6 +108,12 @@ class Blocks:
         return f"{len(self.lines)} blocks, the program has {len(body)}"
 
 
+def _at_the_haas(blocks: Blocks, front: Any) -> str:
+    """What the virtual Haas got and said, for a failure's message."""
+    alarms = front.control.machine.alarms
+    return f"{blocks.first_difference(PROGRAM)}; its messages {front.messages}; alarms {alarms}"
+
+
 @pytest.fixture
 def pg_url() -> Iterator[str]:
     yield from _pg_database()
@@ -364,7 +370,7 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
             "every block at the Haas",
             lambda: front.dnc_lines >= count,
             timeout=30,
-            describe=lambda: blocks.first_difference(PROGRAM),
+            describe=lambda: _at_the_haas(blocks, front),
         )
         sampler.stop()
         # the whole program once, in order: nothing twice, nothing left out
@@ -464,7 +470,7 @@ def test_a_fenced_feed_continues_on_its_own_server_with_not_a_byte_between(
             "every block at the Haas",
             lambda: front.dnc_lines >= count,
             timeout=30,
-            describe=lambda: blocks.first_difference(PROGRAM),
+            describe=lambda: _at_the_haas(blocks, front),
         )
         assert front.dnc_lines == count
         assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
