@@ -39,8 +39,14 @@ class DncLimits:
     buffer_blocks: int = 32
     resume_blocks: int = 8
     # blocks past the XOFF level before the buffer overflows; generous, because bytes the PC
-    # wrote before it saw the XOFF sit in UART FIFOs, pty buffers and the virtual cable
-    overrun_blocks: int = 2048
+    # wrote before it saw the XOFF sit in UART FIFOs, pty buffers and the virtual cable: on
+    # the cable the PC's pty and the line hold up to 72 kB (docs/tape.md#virtual-fanuc), which
+    # is 3,600 blocks of 20 bytes. Twice that, rounded up: a sender that starts while the
+    # control is still full (a fenced feed's continuation; the DC3 went to the old server)
+    # has heard no DC3 and sends on until the control's next DC1/DC3 cycle, on top of what
+    # the old one left in the buffers (docs/server.md#a-fenced-drip-feed). Seen under load
+    # with 2,048: such a continuation overran a control that ran far slower than the line.
+    overrun_blocks: int = 8192
     max_block: int = 4096
 
     def __post_init__(self) -> None:
