@@ -87,8 +87,8 @@ class Tab:
         if message.type == "error" and "status of 4" not in message.text:
             self.problems.append(f"console: {message.text}")
 
-    def goto(self, path: str) -> Any:
-        self.page.goto(self.base + path)
+    def goto(self, path: str, timeout: float = 30_000) -> Any:
+        self.page.goto(self.base + path, timeout=timeout)
         return self.page
 
     def shot(self, name: str) -> None:
