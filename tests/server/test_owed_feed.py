@@ -26,6 +26,7 @@ require_module("fastapi")
 
 from opendnc.server.app import build  # noqa: E402
 from opendnc.server.config.shop import parse_config  # noqa: E402
+from opendnc.server.fleet.tasks import OWED  # noqa: E402
 from opendnc.server.jobs import queue as jobs  # noqa: E402
 from opendnc.server.jobs.executors import Claimed  # noqa: E402
 from opendnc.server.library import versions as library  # noqa: E402
@@ -150,6 +151,10 @@ def test_a_control_owed_the_rest_of_a_feed_hears_nothing_before_it(
         # the machine's task goes round several times without getting the continuation
         wait_for("claims that miss", lambda: doubt.missed >= 3, timeout=20)
         assert front.dnc_lines == FED
+        # the machine's card says why it has no fresh status
+        status = server.machines.machines[MACHINE].status
+        assert status is not None
+        assert status.message == OWED
         doubt.on.clear()
 
         def ended() -> JobState | None:

@@ -41,6 +41,8 @@ CLOSE_TIMEOUT = 2.0  # seconds a link may take to close when its task stops
 # The longest wait between two tries to reach a control that is away: a machine switched on
 # in the morning is seen within this, and a hundred absent ones cost ten tries a second.
 BACKOFF_MAX_S = 10.0
+# a machine owed the rest of a fenced drip-feed: why its status is not read meanwhile
+OWED = "not asked for its state: the rest of a drip-feed is its next input"
 
 
 class Fleet:
@@ -178,7 +180,11 @@ class Fleet:
             if state.feed_owed and await self.runner.owes_feed(state):
                 # the rest of a fenced drip-feed is this control's next input, and nothing
                 # else may come before it (docs/server.md#a-fenced-drip-feed): the queue
-                # again in a moment, no errand, no poll, no listening meanwhile
+                # again in a moment, no errand, no poll, no listening meanwhile; the card
+                # says why its status is not read (not the last poll's word, as if live)
+                if state.status is None or state.status.message != OWED:
+                    state.set_status(MachineStatus(at=utcnow(), available=True, message=OWED))
+                    self.machines.publish(state)
                 await _wait(state.wake, state.config.poll_interval)
                 state.wake.set()
                 continue
