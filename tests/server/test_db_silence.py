@@ -114,6 +114,44 @@ def _at_the_haas(blocks: Blocks, front: Any) -> str:
     return f"{blocks.first_difference(PROGRAM)}; its messages {front.messages}; alarms {alarms}"
 
 
+def _continuation(client: httpx.Client, job_id: int) -> dict[str, Any] | None:
+    """The continuation of drip-feed ``job_id`` once queued (None meanwhile, and while the
+    server answers 503 without its database)."""
+    listed = client.get("/api/jobs", params={"machine": "haas-serial-1"})
+    if listed.status_code != 200:
+        return None
+    for job in listed.json():
+        if job["params"].get("resume_of") == job_id:
+            return job  # type: ignore[no-any-return]
+    return None
+
+
+def _ended(client: httpx.Client, job_id: int) -> dict[str, Any]:
+    """Job ``job_id`` once it is neither queued nor running."""
+    return wait_for(  # type: ignore[no-any-return]
+        f"job {job_id} to end",
+        lambda: (
+            (j := client.get(f"/api/jobs/{job_id}").json())["state"] not in ("queued", "running")
+            and j
+        ),
+        timeout=60,
+    )
+
+
+def _every_block_once(front: Any, blocks: Blocks) -> None:
+    """The virtual Haas got the whole program once, in order: nothing twice, nothing left
+    out (its blocks, counted and hashed as it took them)."""
+    count, digest = _blocks_of(PROGRAM)
+    wait_for(
+        "every block at the Haas",
+        lambda: front.dnc_lines >= count,
+        timeout=30,
+        describe=lambda: _at_the_haas(blocks, front),
+    )
+    assert front.dnc_lines == count
+    assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
+
+
 @pytest.fixture
 def pg_url() -> Iterator[str]:
     yield from _pg_database()
@@ -327,10 +365,7 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
         proxies[cut].restore()
 
         def continuation() -> dict[str, Any] | None:
-            for job in survivor.get("/api/jobs", params={"machine": "haas-serial-1"}).json():
-                if job["params"].get("resume_of") == job_id:
-                    return job  # type: ignore[no-any-return]
-            return None
+            return _continuation(survivor, job_id)
 
         if "its exact position is not known" in procs.log(cut):
             # The feed was caught writing when the fence closed its link (seen on a loaded
@@ -351,31 +386,14 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
             print("the fence caught the feed mid-block: left interrupted, no continuation")
             return
         follow = wait_for("the continuation queued", continuation, timeout=30)
-        done = wait_for(
-            "the continuation to end",
-            lambda: (
-                (j := survivor.get(f"/api/jobs/{follow['id']}").json())["state"]
-                not in ("queued", "running")
-                and j
-            ),
-            timeout=60,
-        )
+        done = _ended(survivor, follow["id"])
         assert done["state"] == "done", done
         # usually the other server; on a loaded machine the machine's lease can come back to
         # the cut server before the continuation runs (a late renewal): either may run it,
         # what matters is every block once, in order (below)
         assert done["server"] in (other, cut), done
-        count, digest = _blocks_of(PROGRAM)
-        wait_for(
-            "every block at the Haas",
-            lambda: front.dnc_lines >= count,
-            timeout=30,
-            describe=lambda: _at_the_haas(blocks, front),
-        )
+        _every_block_once(front, blocks)
         sampler.stop()
-        # the whole program once, in order: nothing twice, nothing left out
-        assert front.dnc_lines == count
-        assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
         # the cut server's last block came before the take-over, and nothing reached the
         # control between the take-over and the continuation's start
         started = datetime.fromisoformat(done["started"]).timestamp()
@@ -387,7 +405,7 @@ def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(
         assert row["actor"] == cut
         print(
             f"continued at line {follow['params']['from_line']} by {other}: "
-            f"{count} blocks once, in order",
+            f"{front.dnc_lines} blocks once, in order",
             flush=True,
         )
     finally:
@@ -436,13 +454,7 @@ def test_a_fenced_feed_continues_on_its_own_server_with_not_a_byte_between(
         proxy.restore()
 
         def continuation() -> dict[str, Any] | None:
-            listed = client.get("/api/jobs", params={"machine": "haas-serial-1"})
-            if listed.status_code != 200:
-                return None  # 503 until the server has the database back
-            for job in listed.json():
-                if job["params"].get("resume_of") == job_id:
-                    return job  # type: ignore[no-any-return]
-            return None
+            return _continuation(client, job_id)
 
         if caught:
             # caught writing (a loaded machine): the job is left for an operator, as above
@@ -455,25 +467,9 @@ def test_a_fenced_feed_continues_on_its_own_server_with_not_a_byte_between(
             print("the fence caught the feed mid-block: left interrupted, no continuation")
             return
         follow = wait_for("the continuation queued", continuation, timeout=30)
-        done = wait_for(
-            "the continuation to end",
-            lambda: (
-                (j := client.get(f"/api/jobs/{follow['id']}").json())["state"]
-                not in ("queued", "running")
-                and j
-            ),
-            timeout=60,
-        )
+        done = _ended(client, follow["id"])
         assert done["state"] == "done", (done, blocks.first_difference(PROGRAM))
-        count, digest = _blocks_of(PROGRAM)
-        wait_for(
-            "every block at the Haas",
-            lambda: front.dnc_lines >= count,
-            timeout=30,
-            describe=lambda: _at_the_haas(blocks, front),
-        )
-        assert front.dnc_lines == count
-        assert blocks.hexdigest() == digest, blocks.first_difference(PROGRAM)
+        _every_block_once(front, blocks)
         assert not front.control.machine.alarms
         print(f"paused after block {paused}, continued by the same server", flush=True)
     finally:
