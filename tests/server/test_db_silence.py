@@ -101,7 +101,7 @@ class Blocks:
 
     def first_difference(self, program: bytes) -> str:
         """Where these blocks leave the program's body (fed once, in order), for a message."""
-        body = [f"{b}\n".encode() for b in program.decode().splitlines()[2:-1]]
+        body = program_blocks(program)
         for i, (got, want) in enumerate(zip(self.lines, body, strict=False)):
             if got != want:
                 return f"block {i + 1}: got {got!r}, the program has {want!r}"
@@ -314,14 +314,19 @@ def test_a_server_cut_off_by_a_frozen_link_stops_feeding_before_the_other_takes_
         fleet.stop()
 
 
-def _blocks_of(program: bytes) -> tuple[int, str]:
+def program_blocks(program: bytes) -> list[bytes]:
     """What a Haas runs of ``program`` fed once, in order: its lines but the two "%" and the
-    O-number line naming the run (count, SHA-256 of each with LF), from the text itself."""
+    O-number line naming the run, each with LF, from the text itself."""
     lines = program.decode().splitlines()
     assert (lines[0], lines[-1]) == ("%", "%")
     assert lines[1].startswith("O")
-    body = lines[2:-1]
-    return len(body), hashlib.sha256("".join(f"{b}\n" for b in body).encode()).hexdigest()
+    return [f"{b}\n".encode() for b in lines[2:-1]]
+
+
+def _blocks_of(program: bytes) -> tuple[int, str]:
+    """The count and the SHA-256 of :func:`program_blocks`."""
+    body = program_blocks(program)
+    return len(body), hashlib.sha256(b"".join(body)).hexdigest()
 
 
 def test_a_fenced_dripfeed_resumes_from_its_block_on_the_next_owner(

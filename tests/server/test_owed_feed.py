@@ -37,7 +37,7 @@ from opendnc.transport.urls import open_stream  # noqa: E402
 from tests.server.conftest import _pg_database  # noqa: E402
 from tests.server.harness import wait_for  # noqa: E402
 from tests.server.inproc_server import Running  # noqa: E402
-from tests.server.test_db_silence import Blocks  # noqa: E402
+from tests.server.test_db_silence import Blocks, program_blocks  # noqa: E402
 from tests.server.test_from_the_control import FleetThread  # noqa: E402
 
 LEASE = 3.0
@@ -163,7 +163,7 @@ def test_a_control_owed_the_rest_of_a_feed_hears_nothing_before_it(
                 return state if state.finished else None
 
         assert wait_for("the continuation to end", ended, timeout=60) is JobState.DONE
-        body = [f"{b}\n".encode() for b in PROGRAM.decode().splitlines()[2:-1]]
+        body = program_blocks(PROGRAM)
         wait_for(
             "every block at the control",
             lambda: len(blocks.lines) >= len(body),
