@@ -180,8 +180,8 @@ class Fleet:
             if state.feed_owed and await self.runner.owes_feed(state):
                 # the rest of a fenced drip-feed is this control's next input, and nothing
                 # else may come before it (docs/server.md#a-fenced-drip-feed): the queue
-                # again in a moment, no errand, no poll, no listening meanwhile; the card
-                # says why its status is not read (not the last poll's word, as if live)
+                # again in a moment, no errand, no poll, no listening meanwhile; its status
+                # (API, outputs) says why it is not read, not the last poll's word as if live
                 if state.status is None or state.status.message != OWED:
                     state.set_status(MachineStatus(at=utcnow(), available=True, message=OWED))
                     self.machines.publish(state)
