@@ -31,20 +31,22 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# Six workers on two cores: most server and link tests wait on real processes, not the CPU
-# (measured: six finish sooner than four; tests/conftest.py starts the longest tests first).
+# Eight workers on two cores: most server and link tests wait on real processes, not the CPU
+# (tests/conftest.py starts the longest tests first). Measured on one machine, one day: four
+# finish later than six; six took 429 s with the cores idle part of the time; eight took 399 s
+# and 395 s with them idle 2 % of it, so more workers can only add contention.
 # Bytecode is written even where the environment says not to (PYTHONDONTWRITEBYTECODE is set
 # on some machines, CI's included): otherwise every worker, server and command the suite starts
 # compiles opendnc's sources again and pytest rewrites every test file again (measured: a
 # collection 22 CPU s without its cache, 9 s with it; an import of the server 0.5-1 s dearer).
 #
 # The suite is collected once before the workers start. On a fresh clone pytest rewrites every
-# test file's asserts and Python compiles every source file; six workers collecting at once each
-# did that again (3.3 CPU s a worker, measured). They now find both cached. A collection error
+# test file's asserts and Python compiles every source file; eight workers collecting at once each
+# would do that again (3.3 CPU s a worker, measured). They now find both cached. A collection error
 # is reported by the run that follows.
 unit: $(STAMP)
 	env -u PYTHONDONTWRITEBYTECODE $(BIN)/pytest -q --collect-only | tail -n 1
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/pytest -q -n 6
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/pytest -q -n 8
 
 # mypy runs beside the suite's start (it takes one core for about 20 s on a fresh clone);
 # the target fails if either fails.
