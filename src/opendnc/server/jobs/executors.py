@@ -14,6 +14,7 @@ import logging
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,7 +28,7 @@ from opendnc.server.kinds.connector import Connector, JobCancelled
 from opendnc.server.kinds.files import browser_of, check_path
 from opendnc.server.library import inbox
 from opendnc.server.machines.state import MachineState
-from opendnc.server.store.models import JobKind
+from opendnc.server.store.models import JobKind, utcnow
 
 __all__ = [
     "ALREADY_AT_CONTROL",
@@ -56,15 +57,22 @@ PROGRESS_EVERY = 0.1  # seconds between two progress events of one transfer
 class DripFeedBroken(DncError):
     """A drip-feed stopped; ``line`` is the program line it had reached, ``nbytes`` the
     program bytes it had fed to get there, ``position`` where exactly it stopped when the
-    connector knows (what a continuation starts from: docs/server.md#a-fenced-drip-feed)."""
+    connector knows (what a continuation starts from: docs/server.md#a-fenced-drip-feed),
+    ``stopped_at`` when it had written its last byte at the latest (None: it may still run)."""
 
     def __init__(
-        self, reason: str, line: int, nbytes: int = 0, position: FeedPosition | None = None
+        self,
+        reason: str,
+        line: int,
+        nbytes: int = 0,
+        position: FeedPosition | None = None,
+        stopped_at: datetime | None = None,
     ) -> None:
         super().__init__(reason)
         self.line = line
         self.nbytes = nbytes
         self.position = position
+        self.stopped_at = stopped_at
 
 
 def position_of(params: dict[str, Any]) -> FeedPosition | None:
@@ -252,21 +260,24 @@ class DripFeedExecutor(_Base):
         from_line = int(job.params.get("from_line", 1))
         resume = position_of(job.params)
         # where the feed stopped, when the connector can say (a fenced feed is continued
-        # from there on the machine's next server)
-        stops: list[FeedPosition | None] = []
+        # from there on the machine's next server), and when: told from the feed's thread
+        # once it writes no more, so the time does not wait for this event loop
+        stops: list[tuple[FeedPosition | None, datetime]] = []
         extra: dict[str, Any] = {}
         if getattr(run.connector, "resumes_feeds", False):
-            extra["stopped"] = stops.append
+            extra["stopped"] = lambda where: stops.append((where, utcnow()))
             if resume is not None:
                 extra["resume"] = resume
         elif resume is not None:
             raise InputError(f"{state.config.name}: this control's feeds cannot be continued")
         reached = [from_line]
         fed = [0]
+        reported = [0.0]  # when a line was last reported written whole (time.time())
 
         def progress(line: int, lines: int, nbytes: int, total: int) -> None:
-            # Called from the feed's thread for every chunk: only a new line is news.
+            # Called from the feed's thread for every line written whole.
             fed[0] = nbytes
+            reported[0] = time.time()
             if line != reached[0]:
                 reached[0] = line
                 # Progress is in bytes like every job's (the card's share and sizes); the line
@@ -281,9 +292,16 @@ class DripFeedExecutor(_Base):
         try:
             counts = await run.connector.dripfeed(job.name, job.data, from_line, progress, **extra)
         except Exception as exc:
-            where = stops[-1] if stops else None
+            # Without the thread's word, now: the feed has returned, so it writes no more.
+            where, at = stops[-1] if stops else (None, utcnow())
+            if where is not None and not where.written and reported[0]:
+                # Stopped between two lines: a line written whole is reported before the
+                # next write, so the last report follows the last byte (a feed held by XOFF
+                # stops only when its link is closed, long after). Part of a line written
+                # went out after the last report: then the stop's own time.
+                at = datetime.fromtimestamp(reported[0], UTC)
             why = str(exc) or type(exc).__name__
-            raise DripFeedBroken(why, reached[0], fed[0], where) from exc
+            raise DripFeedBroken(why, reached[0], fed[0], where, stopped_at=at) from exc
         # Progress and the job's bytes are bytes of the stored program (from the start line),
         # as for every job; what went over the wire (EOB, leader, restart preamble) is kept
         # beside them in the audit row.

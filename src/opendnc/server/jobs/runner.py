@@ -455,7 +455,7 @@ class JobRunner:
         # Paused at a block boundary: the line is exact here. It is written (fenced) once the
         # database answers, if this server still holds the lease then; a server that took
         # the machine meanwhile ends the job at the last line this one wrote.
-        line, nbytes, position = exc.line, exc.nbytes, exc.position
+        line, nbytes, position, stopped_at = exc.line, exc.nbytes, exc.position, exc.stopped_at
         if position is not None:
             self._owing[job_id] = machine
             run.state.feed_owed = True
@@ -512,21 +512,25 @@ class JobRunner:
             if job.state is not JobState.INTERRUPTED:
                 return job.state
             awaited = jobs.AWAITING_POSITION in job.params
-            if (job.line or 0) < line:
-                recorded = job.line
+            recorded = job.line
+            if (recorded or 0) < line:
                 job.line, job.bytes_done = line, nbytes
                 job.error = f"{reason}; it had been recorded at line {recorded}"
-                audit.record(
-                    session,
-                    self.worker,
-                    "job.paused",
-                    machine=machine,
-                    job_id=job_id,
-                    result=job.state.value,
-                    nbytes=nbytes,
-                    line=line,
-                    recorded=recorded,
-                )
+            # Written even when the line was right: the row says when this server wrote its
+            # last byte to the machine at the latest (its clock), which is what shows that it
+            # stopped before the next server took the machine.
+            audit.record(
+                session,
+                self.worker,
+                "job.paused",
+                machine=machine,
+                job_id=job_id,
+                result=job.state.value,
+                nbytes=nbytes,
+                line=line,
+                recorded=recorded,
+                stopped_at=None if stopped_at is None else stopped_at.isoformat(),
+            )
             if awaited:
                 continue_it(session)
             return job.state
