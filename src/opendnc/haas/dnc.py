@@ -139,6 +139,7 @@ def stream_program(
     clock: Clock = time.monotonic,
     resume: FeedPosition | None = None,
     stopped: Callable[[FeedPosition | None], None] | None = None,
+    waiting: Callable[[], None] | None = None,
 ) -> DncReport:
     """Drip-feed ``path`` to a control in DNC mode over ``port``: a URL or device name
     (opened with :func:`open_dnc_port`, closed at the end) or an open stream (left open;
@@ -147,7 +148,8 @@ def stream_program(
     ``resume`` continues a run stopped at that position (the rest of its line and the lines
     after, no leader, no opening ``%``; ``from_line`` is then ignored); ``stopped`` is told
     where a run that ends with an error stopped, or None where that is not exactly known
-    (docs/server.md#a-fenced-drip-feed).
+    (docs/server.md#a-fenced-drip-feed); ``waiting`` is asked each time the run is about to
+    wait for the control (held by XOFF, a line's delay) and may raise to stop it there.
 
     Raises :class:`SafetyLockError` while ``safe_mode`` is on (a DNC run moves the machine),
     :class:`TransportTimeout` when XOFF lasts longer than ``config.xoff_timeout`` or a write
@@ -172,6 +174,7 @@ def stream_program(
         clock=clock,
         skip=resume.written if resume is not None else b"",
         stopped=stopped,
+        waiting=waiting,
     )
     return run.report()
 

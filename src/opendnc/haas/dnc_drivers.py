@@ -94,12 +94,14 @@ def run_on_port(
     clock: Clock = time.monotonic,
     skip: bytes = b"",
     stopped: Callable[[FeedPosition | None], None] | None = None,
+    waiting: Callable[[], None] | None = None,
 ) -> DncRun:
     """Run ``feed`` to its end on ``port``: a URL or device name (opened with ``open_port``,
     closed at the end) or an open stream (left open). ``feed`` is closed whatever happens;
     the finished run is returned for its report. ``skip``: the bytes a continuation leaves
     out (:class:`~opendnc.haas.dnc_engine.FeedPosition`); ``stopped`` is told where a run
-    that ends with an error stopped (None: not exactly known)."""
+    that ends with an error stopped (None: not exactly known); ``waiting`` is asked before
+    each wait for the control and may raise to stop the run there."""
     owned = isinstance(port, str)
     try:
         stream = open_port(port) if isinstance(port, str) else port
@@ -107,7 +109,15 @@ def run_on_port(
         feed.close()
         raise
     try:
-        run = DncRun(feed, config, clock=clock, progress=progress, on_event=on_event, skip=skip)
+        run = DncRun(
+            feed,
+            config,
+            clock=clock,
+            progress=progress,
+            on_event=on_event,
+            skip=skip,
+            waiting=waiting,
+        )
         try:
             drive(run, stream, split=split)
         except BaseException:

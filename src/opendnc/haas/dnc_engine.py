@@ -379,6 +379,7 @@ class DncRun:
         progress: Progress | None = None,
         on_event: EventHandler | None = None,
         skip: bytes = b"",
+        waiting: Callable[[], None] | None = None,
     ) -> None:
         self.feed = feed
         self.config = config
@@ -391,6 +392,10 @@ class DncRun:
         self.streamer = DncStreamer(config)
         self.clock = clock
         self.progress = progress
+        # asked before every wait for the control (held by XOFF, a line's delay): it may
+        # raise to stop the run there, between two writes, where its position is exact (a
+        # feed that must stop need not wait for a DC1 to notice, nor for its link to close)
+        self.waiting = waiting
         self.on_event = on_event
         self.started = clock()
         self._lines = self._wire()
@@ -537,6 +542,8 @@ class DncRun:
         gap = self._gap_until - self.clock()
         if gap > 0 and not self.streamer.paused:
             wait = max(0.001, min(wait, gap))
+        if self.waiting is not None:
+            self.waiting()
         return Wait(wait)
 
     def _ending(self) -> Step:

@@ -243,3 +243,45 @@ def test_a_feed_stopped_inside_a_write_says_it_does_not_know(program: Path) -> N
             stopped=stops.append,
         )
     assert stops == [None]
+
+
+class Fence(Exception):
+    """What a server's fence check raises (the runner's Fenced, here without the runner)."""
+
+
+class SilentPort(HeldPort):
+    """A held port that is never closed: only the feed's own ``waiting`` check can stop it."""
+
+    def __init__(self, hold_after: int) -> None:
+        super().__init__(hold_after)
+        self.reads = 0
+
+    def read(self, max_bytes: int) -> bytes:
+        self.reads += 1
+        if self.reads > 100:
+            raise AssertionError("the held feed waited on: nothing stopped it")
+        return b""
+
+
+def test_a_held_feed_stops_itself_at_the_fence_where_it_stands(program: Path) -> None:
+    # A fence need not close the link under a feed held by XOFF: asked before each wait, the
+    # check stops it there, with the same exact position a closed link gives.
+    port = SilentPort(hold_after=len(b"%\nO1000\nG0 X1.\nG1 "))
+    stops: list[FeedPosition | None] = []
+
+    def waiting() -> None:
+        if port.held:
+            raise Fence("the lease could expire")
+
+    with pytest.raises(Fence):
+        stream_program(
+            port,  # type: ignore[arg-type]
+            program,
+            config=DncConfig(chunk=1),
+            safe_mode=False,
+            stopped=stops.append,
+            waiting=waiting,
+        )
+    assert port.written == b"%\nO1000\nG0 X1.\nG1 "
+    assert stops == [FeedPosition(len(b"O1000\nG0 X1.\n"), b"G1 ")]
+    assert port.reads == 0  # stopped before waiting on the port at all

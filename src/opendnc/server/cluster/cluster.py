@@ -242,8 +242,8 @@ class Cluster:
             # spent waiting for that, since a link closed under a writing feed may leave the
             # control one block further than the feed could report
             await self.runner.wait_stopped(serving, timeout=min(1.0, self.margin / 2))
-            # a feed held by the control's XOFF writes nothing and asks nothing: its link is
-            # closed under it, and it comes back with the line it stopped at
+            # a feed held by the control's XOFF stops by itself as it waits (it asks before
+            # each wait); its link is closed under it all the same, should its thread lag
             await self.runner.stop_runs(serving, timeout=min(0.5, self.margin / 4))
             self.runner.fence_off(serving)  # one whose link would not close: its last line
             # all at once: a server with hundreds of machines closes their links side by side

@@ -124,6 +124,8 @@ class JobRun:
     callbacks read it between chunks."""
     link_unknown: bool = field(default=False)
     """Set when a transfer was stopped half-way: the link is reopened before the next job."""
+    still_driving: Callable[[], None] = field(default=lambda: None)
+    """Raises once this server may no longer drive the machine (a fence); from any thread."""
 
     async def safe_point(self, where: str) -> None:
         """Stop here with :class:`JobCancelled` if a cancel was requested."""
@@ -266,6 +268,9 @@ class DripFeedExecutor(_Base):
         extra: dict[str, Any] = {}
         if getattr(run.connector, "resumes_feeds", False):
             extra["stopped"] = lambda where: stops.append((where, utcnow()))
+            # a feed held by the control's XOFF stops at the fence by itself, not when its
+            # link is closed under it (docs/server.md#several-servers)
+            extra["waiting"] = run.still_driving
             if resume is not None:
                 extra["resume"] = resume
         elif resume is not None:

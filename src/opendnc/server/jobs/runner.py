@@ -308,6 +308,7 @@ class JobRunner:
             connector,
             progress=lambda progress: self._progress(claimed, name, progress),
             check_cancel=lambda: self._cancel_requested(claimed.job_id),
+            still_driving=lambda: self._still_driving(claimed, name),
         )
         watch = asyncio.create_task(self._watch_cancel(run), name=f"cancel-watch-{claimed.job_id}")
         self.running[claimed.job_id] = run
@@ -908,14 +909,19 @@ class JobRunner:
         # which records it in the job's row (what a taking-over server reports).
         if job.kind is JobKind.DRIPFEED:
             self._lines[job.job_id] = (progress.line, progress.bytes_done)
+        # Called after each block written whole and before the next: a server whose lease
+        # could expire soon writes not one block more, whatever its event loop and its
+        # database are doing (the check reads the process's clock only).
+        self._still_driving(job, machine)
+        self.machines.bus.publish(JobProgress.of(*_fields(job, machine), progress))
+
+    def _still_driving(self, job: Claimed, machine: str) -> None:
+        """Raise :class:`Fenced` once this server may no longer drive ``machine`` for ``job``
+        (from any thread: a transfer's between its writes, a held drip-feed's as it waits)."""
         if self.fence is not None and self.fence.epoch(machine) != self._epochs.get(job.job_id):
-            # Called after each block written whole and before the next: a server whose
-            # lease could expire soon writes not one block more, whatever its event loop
-            # and its database are doing (the check reads the process's clock only).
             raise Fenced(
                 f"{self.worker} stopped driving {machine}: its lease could not be renewed in time"
             )
-        self.machines.bus.publish(JobProgress.of(*_fields(job, machine), progress))
 
     def _ended(self, run: JobRun, outcome: JobState, error: str = "") -> None:
         fields = _fields(run.job, run.state.config.name)

@@ -332,11 +332,13 @@ class HaasSerialConnector:
         *,
         resume: FeedPosition | None = None,
         stopped: Callable[[FeedPosition | None], None] | None = None,
+        waiting: Callable[[], None] | None = None,
     ) -> dict[str, int]:
         """Stream the program with XON/XOFF (the control's DC3 stops us within a chunk);
         from a line, with the modal-state preamble of :mod:`opendnc.haas.modal`; or, with
         ``resume``, the rest of a fenced feed from its exact position. ``stopped`` is told
-        where a feed that ends with an error stopped (None: not exactly known)."""
+        where a feed that ends with an error stopped (None: not exactly known); ``waiting``
+        is asked whenever the feed waits for the control and may raise to stop it there."""
         if not self.config.dripfeed:
             raise InputError(
                 f"{self.config.name}: drip-feed is off for this machine "
@@ -372,7 +374,7 @@ class HaasSerialConnector:
         try:
             # the machine's dripfeed = true is the opt-in to a run
             counts = await asyncio.to_thread(
-                self._stream_text, name, data, from_line, on_progress, resume, stopped
+                self._stream_text, name, data, from_line, on_progress, resume, stopped, waiting
             )
         except BaseException as exc:
             self._quiet_until = time.monotonic() + self.quiet_after_break
@@ -393,6 +395,7 @@ class HaasSerialConnector:
         progress: Progress,
         resume: FeedPosition | None = None,
         stopped: Callable[[FeedPosition | None], None] | None = None,
+        waiting: Callable[[], None] | None = None,
     ) -> dict[str, int]:
         """Plain text out, as the profile says (a drip-feed or a text load)."""
         stream = self._require()
@@ -408,6 +411,7 @@ class HaasSerialConnector:
                 progress=progress,
                 resume=resume,
                 stopped=stopped,
+                waiting=waiting,
             )
         return {"nbytes": report.bytes_sent, "lines": report.lines, "xoffs": report.xoffs}
 
