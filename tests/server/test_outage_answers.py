@@ -50,7 +50,7 @@ def test_health_and_refusals_never_repeat_the_driver_s_words(
                     assert "5432" not in text
                     assert "postgres" not in text.lower()
             finally:
-                outage.restore()
+                outage.close()  # restored, and its admin engine's pooled connection closed
             wait_for("health again", lambda: app.client.get("/api/health").status_code == 200)
         # the log has the driver's words, once for the outage
         said = [r.getMessage() for r in caplog.records if "is unavailable:" in r.getMessage()]
