@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -206,19 +207,33 @@ class HeldPort:
         """Reads never wait here."""
 
 
-def test_a_feed_closed_under_its_xoff_says_where_it_stopped(program: Path) -> None:
-    port = HeldPort(hold_after=len(b"%\nO1000\nG0 X1.\nG1 "))
+HELD_AT = b"%\nO1000\nG0 X1.\nG1 "  # what the control has when its XOFF holds the feed
+
+
+def _stop_held(
+    program: Path, port: HeldPort, error: type[Exception], **options: Any
+) -> FeedPosition | None:
+    """Feed ``program`` on ``port`` (held by XOFF after :data:`HELD_AT`) until it stops with
+    ``error``; it must have written nothing more and say it stopped inside the third line.
+    Returns where it said it stopped."""
     stops: list[FeedPosition | None] = []
-    with pytest.raises(PeerClosed):
+    with pytest.raises(error):
         stream_program(
             port,  # type: ignore[arg-type]
             program,
             config=DncConfig(chunk=1),
             safe_mode=False,
             stopped=stops.append,
+            **options,
         )
-    assert port.written == b"%\nO1000\nG0 X1.\nG1 "
+    assert port.written == HELD_AT
     assert stops == [FeedPosition(len(b"O1000\nG0 X1.\n"), b"G1 ")]
+    return stops[0]
+
+
+def test_a_feed_closed_under_its_xoff_says_where_it_stopped(program: Path) -> None:
+    port = HeldPort(hold_after=len(HELD_AT))
+    stopped = _stop_held(program, port, PeerClosed)
     # the rest from there, through the same entry point, on a port that does not hold
     rest = HeldPort(hold_after=10**9)
     stream_program(
@@ -226,7 +241,7 @@ def test_a_feed_closed_under_its_xoff_says_where_it_stopped(program: Path) -> No
         program,
         config=DncConfig(chunk=1, linger=0),
         safe_mode=False,
-        resume=stops[0],
+        resume=stopped,
     )
     assert port.written + rest.written == WIRE
 
@@ -266,22 +281,11 @@ class SilentPort(HeldPort):
 def test_a_held_feed_stops_itself_at_the_fence_where_it_stands(program: Path) -> None:
     # A fence need not close the link under a feed held by XOFF: asked before each wait, the
     # check stops it there, with the same exact position a closed link gives.
-    port = SilentPort(hold_after=len(b"%\nO1000\nG0 X1.\nG1 "))
-    stops: list[FeedPosition | None] = []
+    port = SilentPort(hold_after=len(HELD_AT))
 
     def waiting() -> None:
         if port.held:
             raise Fence("the lease could expire")
 
-    with pytest.raises(Fence):
-        stream_program(
-            port,  # type: ignore[arg-type]
-            program,
-            config=DncConfig(chunk=1),
-            safe_mode=False,
-            stopped=stops.append,
-            waiting=waiting,
-        )
-    assert port.written == b"%\nO1000\nG0 X1.\nG1 "
-    assert stops == [FeedPosition(len(b"O1000\nG0 X1.\n"), b"G1 ")]
+    _stop_held(program, port, Fence, waiting=waiting)
     assert port.reads == 0  # stopped before waiting on the port at all
