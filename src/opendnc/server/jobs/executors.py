@@ -277,10 +277,11 @@ class DripFeedExecutor(_Base):
             raise InputError(f"{state.config.name}: this control's feeds cannot be continued")
         reached = [from_line]
         fed = [0]
-        reported = [0.0]  # when a line was last reported written whole (time.time())
+        reported = [0.0]  # when the feed last reported progress (time.time())
 
         def progress(line: int, lines: int, nbytes: int, total: int) -> None:
-            # Called from the feed's thread for every line written whole.
+            # Called from the feed's thread as it goes (a serial Haas's after every line
+            # written whole, before its next write): only a new line is news.
             fed[0] = nbytes
             reported[0] = time.time()
             if line != reached[0]:
