@@ -30,15 +30,13 @@ from dataclasses import dataclass
 from decimal import ROUND_DOWN, ROUND_HALF_UP, Decimal, InvalidOperation
 
 from opendnc.errors import InputError
+from opendnc.haas.mdc import LINE_NOISE
 
 MAX_PLACES = 8
 """Largest ``w + f`` the control accepts in a ``#var[wf]`` format."""
 
 MAX_LINE = 4096
 """Longest captured line kept, in bytes; a longer one is dropped whole and reported."""
-
-# Bytes a Haas emits around printer output: NUL leader, XON/XOFF, POPEN (DC2), PCLOS (DC4).
-_CONTROL_BYTES = bytes([0x00, 0x11, 0x12, 0x13, 0x14])
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,7 +208,9 @@ class DprntLineFramer:
 
     def feed(self, data: bytes) -> None:
         """Add received bytes; complete lines (and dropped ones) become events."""
-        data = data.translate(None, _CONTROL_BYTES)
+        # NUL leader, XON/XOFF, POPEN/PCLOS's DC2/DC4, and an XModem receiver's NAK, CAN and
+        # SUB on a port that also loads programs: none is ever printed text (docs/haas.md#dprnt)
+        data = data.translate(None, LINE_NOISE)
         if not data:
             return
         if self._after_cr and data[0] == 0x0A:

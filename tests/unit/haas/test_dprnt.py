@@ -88,6 +88,15 @@ def test_framer_line_ends_and_control_bytes() -> None:
     assert framer.end_of_stream() is None
 
 
+def test_framer_drops_the_handshake_of_an_xmodem_receiver_on_the_same_port() -> None:
+    # a virtual Haas waiting to receive a program NAKs between the lines it prints (seen in
+    # CI: "\x15P 4 X   1.7500 ..."); CAN and SUB end and pad XModem transfers
+    framer = DprntLineFramer()
+    framer.feed(b"P 3 X   1.2500\r\x15P 4 X   1.7500\r\x18\x18\x1aP 5\x15 X 2.\r")
+    printed = ("P 3 X   1.2500", "P 4 X   1.7500", "P 5 X 2.")
+    assert list(framer.events()) == [FramedLine(t) for t in printed]
+
+
 def test_framer_drops_overlong_line_whole_and_keeps_neighbours() -> None:
     framer = DprntLineFramer(max_line=8)
     framer.feed(b"ok 1\n12345")
